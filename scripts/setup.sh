@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# One-time set-up on a fresh machine: a virtual environment with ppd and its dependencies,
+# the system tools the tests use, and LPIPS weights converted into the user's cache.
+# Re-running is cheap: each step is skipped when already done.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+VENV=${PPD_VENV:-.venv}
+PYTHON=${PYTHON:-$(command -v python3.11 || command -v python3)}
+
+if [ ! -x "$VENV/bin/python" ]; then
+    "$PYTHON" -m venv "$VENV"
+fi
+
+stamp="$VENV/.ppd-installed"
+want=$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -d' ' -f1)
+if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+    "$VENV/bin/python" -m pip install -q --upgrade pip
+    # The CPU wheel first and pinned: an unpinned torch pulls gigabytes of CUDA packages.
+    "$VENV/bin/python" -m pip install -q torch==2.13.0
+    "$VENV/bin/python" -m pip install -q -e '.[dev]'
+    echo "$want" > "$stamp"
+fi
+
+# System tools: systemd-analyze verifies the unit in the tests. Installed only when missing
+# and only when we may (root, apt); otherwise the tests that need them say so and skip.
+need=()
+command -v systemd-analyze >/dev/null 2>&1 || need+=(systemd)
+if [ ${#need[@]} -gt 0 ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need[@]}") >/dev/null \
+        || echo "setup: could not install ${need[*]} (tests that need them will skip)" >&2
+fi
+
+# Optional post-install steps registered by the package (e.g. LPIPS weights); each is idempotent.
+for step in scripts/setup.d/*.sh; do
+    [ -e "$step" ] && VENV="$VENV" bash "$step"
+done
+exit 0
