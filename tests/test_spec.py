@@ -1,0 +1,87 @@
+"""PatchSpec: validation, sizes in pixels or fractions, placement, ratio, serialisation."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from poisoner.spec import MIN_BLOCK_PX, PATTERNS, POSITIONS, PatchSpec, SpecError
+
+
+def test_default_spec_resolves_to_the_measured_lego_setting() -> None:
+    # 6% of an 800 px frame is the P=48, b=4 setting we measured protecting lego.
+    p = PatchSpec().resolve(800, 800)
+    assert (p.x, p.y, p.size, p.block, p.alpha8, p.contrast) == (0, 0, 48, 4, 255, 255)
+
+
+def test_fraction_sizes_scale_with_width_and_block_has_a_floor() -> None:
+    spec = PatchSpec(patch_size=0.02, block_size=0.005)
+    big = spec.resolve(3072, 2048)
+    assert big.size == round(0.02 * 3072) and big.block == round(0.005 * 3072)
+    small = spec.resolve(400, 300)
+    assert small.block == MIN_BLOCK_PX  # 0.005 * 400 = 2 px would be harmless (paper b=1,2)
+
+
+@pytest.mark.parametrize(
+    ("position", "expected"),
+    [("top-left", (10, 5)), ("top-right", (1000 - 48 - 10, 5)), ("bottom-left", (10, 600 - 48 - 5)),
+     ("bottom-right", (1000 - 48 - 10, 600 - 48 - 5)),
+     ("center", ((1000 - 48) // 2 + 10, (600 - 48) // 2 + 5))],
+)
+def test_positions_and_offsets(position: str, expected: tuple[int, int]) -> None:
+    p = PatchSpec(patch_size=48, block_size=4, position=position, offset=(10, 5)).resolve(1000, 600)
+    assert (p.x, p.y) == expected
+
+
+def test_patch_that_does_not_fit_is_refused() -> None:
+    with pytest.raises(SpecError, match="does not fit"):
+        PatchSpec(patch_size=100, block_size=4).resolve(80, 80)
+    with pytest.raises(SpecError, match="outside"):
+        PatchSpec(patch_size=48, block_size=4, offset=(60, 0)).resolve(100, 100)
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [dict(pattern="stars"), dict(position="middle"), dict(alpha=1.5), dict(contrast=300), dict(ratio=-0.1),
+     dict(patch_size=0), dict(block_size=-3), dict(version=99)],
+)
+def test_invalid_specs_are_refused_with_a_clear_error(kwargs: dict) -> None:
+    with pytest.raises(SpecError):
+        PatchSpec(**kwargs)
+
+
+@given(
+    pattern=st.sampled_from(PATTERNS),
+    position=st.sampled_from(POSITIONS),
+    size=st.integers(4, 200),
+    block=st.integers(1, 16),
+    alpha=st.floats(0, 1),
+    contrast=st.integers(0, 255),
+    ratio=st.floats(0, 1),
+    seed=st.integers(0, 2**31),
+)
+def test_json_and_toml_round_trip(pattern, position, size, block, alpha, contrast, ratio, seed) -> None:
+    spec = PatchSpec(pattern=pattern, position=position, patch_size=size, block_size=block, alpha=alpha,
+                     contrast=contrast, ratio=ratio, seed=seed)
+    assert PatchSpec.from_json(spec.to_json()) == spec
+    assert PatchSpec.from_toml(spec.to_toml()) == spec
+    assert PatchSpec.from_json(spec.to_json()).spec_id == spec.spec_id
+
+
+def test_unknown_fields_are_refused() -> None:
+    with pytest.raises(SpecError, match="unknown spec field"):
+        PatchSpec.from_dict({"pattern": "checkerboard", "colour": "red"})
+
+
+def test_ratio_selection_is_deterministic_stable_and_close_to_the_ratio() -> None:
+    spec = PatchSpec(ratio=0.5, seed=7)
+    names = [f"img_{i:04d}.jpg" for i in range(2000)]
+    chosen = [n for n in names if spec.selects(n)]
+    assert 0.45 < len(chosen) / len(names) < 0.55
+    # Adding images later does not change the choice for the earlier ones.
+    more = names + [f"late_{i}.jpg" for i in range(500)]
+    assert [n for n in more[:2000] if spec.selects(n)] == chosen
+    assert chosen != [n for n in names if PatchSpec(ratio=0.5, seed=8).selects(n)]
+    assert all(PatchSpec(ratio=1.0).selects(n) for n in names[:50])
+    assert not any(PatchSpec(ratio=0.0).selects(n) for n in names[:50])
