@@ -26,7 +26,7 @@ def _register() -> None:
     # Each module exposes `register(app)`; a module that is not there yet is skipped.
     import importlib
 
-    for name in ("daemon.cli_poison", "daemon.cli_watch", "verifier.cli"):
+    for name in ("daemon.cli_poison", "daemon.cli_watch", "daemon.cli_demo", "verifier.cli"):
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
