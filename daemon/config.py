@@ -1,0 +1,217 @@
+"""ppd's configuration: typed dataclasses loaded from `config_dir/config.toml`.
+
+Every key is optional; what is missing comes from the embedded defaults below. Layout:
+
+    workers = 2                 # concurrent protect jobs in the daemon
+    debounce_seconds = 2.0      # quiet time before a changed file is processed
+    publish_dir = ""            # optional: protected files are moved here ("" = stay in the outbox)
+
+    [patch]                     # the default PatchSpec (poisoner.spec); sizes: 48, 0.06 or "6%"
+    patch_size = 0.06
+
+    [verification]
+    enabled = true
+    every_new_files = 20        # verify a dataset after this many newly protected files
+    period_hours = 24.0         # ... and at least this often while it keeps changing
+    profiles = ["default", "hardened", "published"]
+
+    [vault]
+    max_bytes = 0               # 0 = unlimited; when full, protection is refused (never silent deletion)
+
+    [datasets.NAME]             # per-dataset overrides, applied when the dataset gets its spec
+    publish_dir = "/srv/www/NAME"
+    [datasets.NAME.patch]
+    position = "bottom-right"
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from daemon.paths import AppPaths
+from poisoner.spec import PatchSpec, SpecError
+
+
+class ConfigError(ValueError):
+    """config.toml cannot be read or holds an invalid value (message = one line)."""
+
+
+def parse_length(value: Any) -> int | float:
+    """A patch/block length from pixels (48, "48"), a fraction of the width (0.06, "0.06") or a
+    percentage ("6%"). Pixels stay ints so PatchSpec treats them as pixels."""
+    if isinstance(value, bool):
+        raise SpecError(f"length must be a number, got {value!r}")
+    if isinstance(value, int | float):
+        return value
+    text = str(value).strip()
+    try:
+        if text.endswith("%"):
+            return float(text[:-1]) / 100.0
+        number = float(text)
+    except ValueError:
+        raise SpecError(  # noqa: B904 - the ValueError adds nothing to this message
+            f"cannot read length {value!r}: use pixels (48), a fraction (0.06) or a percentage (6%)"
+        )
+    return int(number) if number.is_integer() and number >= 1 else number
+
+
+def spec_from_table(table: dict[str, Any], base: PatchSpec | None = None) -> PatchSpec:
+    """A PatchSpec from a TOML table, on top of base (default: PatchSpec())."""
+    data = dict(table)
+    for key in ("patch_size", "block_size"):
+        if key in data:
+            data[key] = parse_length(data[key])
+    if "offset" in data:
+        data["offset"] = tuple(parse_length(v) if v != 0 else 0 for v in data["offset"])
+    known = {f.name for f in dataclasses.fields(PatchSpec)}
+    unknown = set(data) - known
+    if unknown:
+        raise SpecError(f"unknown patch field(s): {', '.join(sorted(unknown))}")
+    return (base or PatchSpec()).replace(**data)
+
+
+@dataclass(frozen=True)
+class VerificationSchedule:
+    enabled: bool = True
+    every_new_files: int = 20
+    period_hours: float = 24.0
+    profiles: tuple[str, ...] = ("default", "hardened", "published")
+
+
+@dataclass(frozen=True)
+class VaultConfig:
+    max_bytes: int = 0  # 0 = unlimited
+
+
+@dataclass(frozen=True)
+class DatasetOverride:
+    patch: dict[str, Any] = field(default_factory=dict)  # fields replaced on the default spec
+    publish_dir: Path | None = None
+
+
+@dataclass(frozen=True)
+class Config:
+    spec: PatchSpec = field(default_factory=PatchSpec)
+    workers: int = 2
+    debounce_seconds: float = 2.0
+    publish_dir: Path | None = None
+    verification: VerificationSchedule = field(default_factory=VerificationSchedule)
+    vault: VaultConfig = field(default_factory=VaultConfig)
+    datasets: dict[str, DatasetOverride] = field(default_factory=dict)
+    source: Path | None = None  # the file it was read from, if any
+
+    # ---- loading --------------------------------------------------------------------------
+    @classmethod
+    def load(cls, paths: AppPaths) -> Config:
+        """The config at paths.config_file, or the defaults when there is none."""
+        file = paths.config_file
+        if not file.exists():
+            return cls()
+        try:
+            text = file.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"cannot read {file}: {exc.strerror}") from exc
+        return cls.from_toml(text, source=file)
+
+    @classmethod
+    def from_toml(cls, text: str, source: Path | None = None) -> Config:
+        where = str(source) if source else "config"
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{where}: {exc}") from exc
+        try:
+            return cls._from_dict(data, source)
+        except (SpecError, TypeError, ValueError) as exc:
+            raise ConfigError(f"{where}: {str(exc).splitlines()[0]}") from exc
+
+    @classmethod
+    def _from_dict(cls, data: dict[str, Any], source: Path | None) -> Config:
+        known = {"workers", "debounce_seconds", "publish_dir", "patch", "verification", "vault", "datasets"}
+        unknown = set(data) - known
+        if unknown:
+            raise ConfigError(f"unknown key(s): {', '.join(sorted(unknown))}")
+        spec = spec_from_table(data.get("patch", {}))
+        ver = dict(data.get("verification", {}))
+        if "profiles" in ver:
+            ver["profiles"] = tuple(ver["profiles"])
+        datasets: dict[str, DatasetOverride] = {}
+        for name, table in data.get("datasets", {}).items():
+            patch = dict(table.get("patch", {}))
+            spec_from_table(patch, spec)  # validate now, not when the first file arrives
+            datasets[name] = DatasetOverride(
+                patch=patch, publish_dir=_optional_path(table.get("publish_dir"))
+            )
+        workers = int(data.get("workers", 2))
+        if workers < 1:
+            raise ConfigError(f"workers must be >= 1, got {workers}")
+        return cls(
+            spec=spec,
+            workers=workers,
+            debounce_seconds=float(data.get("debounce_seconds", 2.0)),
+            publish_dir=_optional_path(data.get("publish_dir")),
+            verification=VerificationSchedule(**ver),
+            vault=VaultConfig(**data.get("vault", {})),
+            datasets=datasets,
+            source=source,
+        )
+
+    # ---- per dataset ----------------------------------------------------------------------
+    def spec_for(self, dataset: str) -> PatchSpec:
+        """The spec a new dataset gets: the default with its [datasets.NAME.patch] overrides."""
+        override = self.datasets.get(dataset)
+        return spec_from_table(override.patch, self.spec) if override and override.patch else self.spec
+
+    def publish_dir_for(self, dataset: str) -> Path | None:
+        override = self.datasets.get(dataset)
+        if override and override.publish_dir is not None:
+            return override.publish_dir
+        return self.publish_dir / dataset if self.publish_dir is not None else None
+
+    # ---- writing --------------------------------------------------------------------------
+    def to_toml(self) -> str:
+        """The effective configuration as TOML (what `ppd config show` prints)."""
+        lines = [
+            f"workers = {self.workers}",
+            f"debounce_seconds = {self.debounce_seconds!r}",
+            f"publish_dir = {_toml_value(str(self.publish_dir) if self.publish_dir else '')}",
+            "",
+            "[patch]",
+        ]
+        lines += [f"{k} = {_toml_value(v)}" for k, v in self.spec.to_dict().items()]
+        lines += ["", "[verification]"]
+        lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(self.verification).items()]
+        lines += ["", "[vault]", f"max_bytes = {self.vault.max_bytes}"]
+        for name, override in sorted(self.datasets.items()):
+            lines += ["", f"[datasets.{_toml_key(name)}]"]
+            if override.publish_dir is not None:
+                lines.append(f"publish_dir = {_toml_value(str(override.publish_dir))}")
+            if override.patch:
+                lines += ["", f"[datasets.{_toml_key(name)}.patch]"]
+                lines += [f"{k} = {_toml_value(v)}" for k, v in override.patch.items()]
+        return "\n".join(lines) + "\n"
+
+
+def _optional_path(value: Any) -> Path | None:
+    return Path(str(value)).expanduser() if value else None
+
+
+def _toml_key(key: str) -> str:
+    bare = key.replace("-", "").replace("_", "").isalnum() and key.isascii()
+    return key if bare else _toml_value(key)
+
+
+def _toml_value(value: Any) -> str:
+    """A TOML literal for the scalar/list values this config holds."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    text = str(value).replace("\\", "\\\\").replace('"', '\\"')
+    return f'"{text}"'

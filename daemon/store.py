@@ -1,0 +1,417 @@
+"""The provenance store: one SQLite file (WAL) that says, for every file ppd has seen, what it
+did, with which patch, and what the original was.
+
+Concurrency: the daemon's worker threads and a `ppd status` in another process use it at the
+same time. sqlite3 connections are not shareable across threads, so each thread gets its own
+connection (thread-local), in autocommit mode; every write that spans statements runs in a
+`BEGIN IMMEDIATE` transaction, which takes the write lock up front so SQLite's busy_timeout
+applies (a deferred read-then-write transaction can fail with SQLITE_BUSY without waiting).
+WAL lets readers proceed while one writer writes.
+
+Schema changes are ordered migrations; `schema_version` holds how many have been applied.
+See docs/STORE.md.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import sqlite3
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import sqlite_utils
+
+from poisoner.spec import PatchSpec
+
+log = logging.getLogger(__name__)
+
+FILE_STATES = ("pending", "protected", "skipped", "failed", "restored", "removed")
+BUSY_TIMEOUT_MS = 30_000
+
+# Ordered migrations: index i brings the schema from version i to i + 1. Never edit one that
+# has shipped; append a new one.
+MIGRATIONS: tuple[str, ...] = (
+    """
+    CREATE TABLE specs (
+        id TEXT PRIMARY KEY,               -- PatchSpec.spec_id (content hash)
+        json TEXT NOT NULL,
+        version INTEGER NOT NULL,
+        created_at REAL NOT NULL
+    );
+    CREATE TABLE datasets (
+        name TEXT PRIMARY KEY,
+        root TEXT NOT NULL,
+        spec_id TEXT REFERENCES specs(id),
+        created_at REAL NOT NULL,
+        publish_dir TEXT
+    );
+    CREATE TABLE files (
+        id INTEGER PRIMARY KEY,
+        dataset TEXT NOT NULL REFERENCES datasets(name),
+        path TEXT NOT NULL UNIQUE,
+        state TEXT NOT NULL CHECK (state IN
+            ('pending', 'protected', 'skipped', 'failed', 'restored', 'removed')),
+        original_sha256 TEXT,
+        poisoned_sha256 TEXT,
+        spec_id TEXT,
+        tool_version TEXT,
+        size INTEGER,
+        mtime_ns INTEGER,
+        created_at REAL NOT NULL,
+        updated_at REAL NOT NULL,
+        error TEXT
+    );
+    CREATE INDEX files_dataset_state ON files(dataset, state);
+    CREATE INDEX files_poisoned_sha ON files(poisoned_sha256);
+    CREATE TABLE events (
+        id INTEGER PRIMARY KEY,
+        ts REAL NOT NULL,
+        dataset TEXT,
+        path TEXT,
+        kind TEXT NOT NULL,
+        detail TEXT                         -- JSON
+    );
+    CREATE INDEX events_dataset_ts ON events(dataset, ts);
+    CREATE TABLE verification_runs (
+        id INTEGER PRIMARY KEY,
+        dataset TEXT NOT NULL,
+        profile TEXT NOT NULL,
+        verdict TEXT NOT NULL,
+        metrics TEXT NOT NULL,              -- JSON
+        started_at REAL NOT NULL,
+        finished_at REAL NOT NULL,
+        model_dir TEXT,
+        error TEXT
+    );
+    CREATE INDEX verification_runs_dataset ON verification_runs(dataset, finished_at);
+    """,
+    # 2: where a protected file was moved to when the dataset has a publish_dir.
+    "ALTER TABLE files ADD COLUMN published_path TEXT;",
+)
+SCHEMA_VERSION = len(MIGRATIONS)
+
+
+class StoreError(RuntimeError):
+    """A store operation that cannot be done as asked (message = one line)."""
+
+
+class DatasetSpecLocked(StoreError):
+    """The dataset already has protected files under its spec; changing it needs --reprotect."""
+
+
+class Store:
+    """Provenance in one SQLite file. Safe to share between threads (one connection each)."""
+
+    def __init__(self, db_path: Path) -> None:
+        self.db_path = Path(db_path)
+        self.db_path.parent.mkdir(parents=True, exist_ok=True)
+        self._local = threading.local()
+        self._all_conns: list[sqlite3.Connection] = []
+        self._conns_lock = threading.Lock()
+        self._migrate()
+
+    # ---- connections ----------------------------------------------------------------------
+    @property
+    def db(self) -> sqlite_utils.Database:
+        """This thread's connection."""
+        db = getattr(self._local, "db", None)
+        if db is None:
+            conn = sqlite3.connect(self.db_path, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None)
+            conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
+            conn.execute("PRAGMA journal_mode = WAL")
+            conn.execute("PRAGMA synchronous = FULL")  # a committed row survives a power cut
+            conn.execute("PRAGMA foreign_keys = ON")
+            db = sqlite_utils.Database(conn)
+            self._local.db = db
+            with self._conns_lock:
+                self._all_conns.append(conn)
+        return db
+
+    def close(self) -> None:
+        """Close every thread's connection (call once the threads are done)."""
+        with self._conns_lock:
+            for conn in self._all_conns:
+                with contextlib.suppress(sqlite3.Error):
+                    conn.close()
+            self._all_conns.clear()
+        self._local = threading.local()
+
+    @contextlib.contextmanager
+    def _write(self) -> Iterator[sqlite3.Connection]:
+        """A write transaction that holds SQLite's write lock from its first statement."""
+        conn = self.db.conn
+        conn.execute("BEGIN IMMEDIATE")
+        try:
+            yield conn
+        except BaseException:
+            conn.execute("ROLLBACK")
+            raise
+        conn.execute("COMMIT")
+
+    def _rows(self, sql: str, params: tuple[Any, ...] | dict[str, Any] = ()) -> list[dict[str, Any]]:
+        return list(self.db.query(sql, params))
+
+    def _one(self, sql: str, params: tuple[Any, ...] | dict[str, Any] = ()) -> dict[str, Any] | None:
+        rows = self._rows(sql, params)
+        return rows[0] if rows else None
+
+    # ---- schema ---------------------------------------------------------------------------
+    def _migrate(self) -> None:
+        with self._write() as conn:
+            conn.execute("CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL)")
+            row = conn.execute("SELECT version FROM schema_version").fetchone()
+            current = row[0] if row else 0
+            if row is None:
+                conn.execute("INSERT INTO schema_version (version) VALUES (0)")
+            if current > SCHEMA_VERSION:
+                raise StoreError(
+                    f"{self.db_path} has schema version {current}; this ppd knows up to {SCHEMA_VERSION}"
+                )
+            for index in range(current, SCHEMA_VERSION):
+                # executescript would COMMIT our transaction; run statement by statement.
+                for statement in _split_sql(MIGRATIONS[index]):
+                    conn.execute(statement)
+                conn.execute("UPDATE schema_version SET version = ?", (index + 1,))
+                log.debug("store migrated", extra={"db": str(self.db_path), "version": index + 1})
+
+    def schema_version(self) -> int:
+        row = self._one("SELECT version FROM schema_version")
+        return int(row["version"]) if row else 0
+
+    # ---- specs ----------------------------------------------------------------------------
+    def ensure_spec(self, spec: PatchSpec) -> str:
+        with self._write() as conn:
+            return self._ensure_spec(conn, spec)
+
+    @staticmethod
+    def _ensure_spec(conn: sqlite3.Connection, spec: PatchSpec) -> str:
+        conn.execute(
+            "INSERT OR IGNORE INTO specs (id, json, version, created_at) VALUES (?, ?, ?, ?)",
+            (spec.spec_id, spec.to_json(), spec.version, time.time()),
+        )
+        return spec.spec_id
+
+    def get_spec(self, spec_id: str) -> PatchSpec:
+        row = self._one("SELECT json FROM specs WHERE id = ?", (spec_id,))
+        if row is None:
+            raise StoreError(f"no spec {spec_id} in the store")
+        return PatchSpec.from_json(row["json"])
+
+    # ---- datasets -------------------------------------------------------------------------
+    def ensure_dataset(
+        self, name: str, root: Path, spec: PatchSpec, publish_dir: Path | None = None
+    ) -> tuple[dict[str, Any], PatchSpec]:
+        """The dataset's row and its one spec, creating both if this is its first file.
+
+        Thread-safe: concurrent first files of a new dataset all get the same spec (the first
+        writer's), because the insert-or-read runs under SQLite's write lock.
+        """
+        with self._write() as conn:
+            row = conn.execute("SELECT spec_id FROM datasets WHERE name = ?", (name,)).fetchone()
+            if row is None:
+                self._ensure_spec(conn, spec)
+                conn.execute(
+                    "INSERT INTO datasets (name, root, spec_id, created_at, publish_dir) "
+                    "VALUES (?, ?, ?, ?, ?)",
+                    (name, str(root), spec.spec_id, time.time(), str(publish_dir) if publish_dir else None),
+                )
+                self._event(conn, name, None, "dataset_created", {"root": str(root), "spec_id": spec.spec_id})
+            elif row[0] is None:
+                self._ensure_spec(conn, spec)
+                conn.execute("UPDATE datasets SET spec_id = ? WHERE name = ?", (spec.spec_id, name))
+        dataset = self.dataset(name)
+        assert dataset is not None
+        return dataset, self.get_spec(dataset["spec_id"])
+
+    def dataset(self, name: str) -> dict[str, Any] | None:
+        return self._one("SELECT * FROM datasets WHERE name = ?", (name,))
+
+    def datasets(self) -> list[dict[str, Any]]:
+        return self._rows("SELECT * FROM datasets ORDER BY name")
+
+    def dataset_spec(self, name: str) -> PatchSpec | None:
+        row = self.dataset(name)
+        return self.get_spec(row["spec_id"]) if row and row["spec_id"] else None
+
+    def set_dataset_spec(
+        self, name: str, spec: PatchSpec, *, root: Path | None = None, allow_protected: bool = False
+    ) -> None:
+        """Give a dataset a spec. Before any file is protected this is free; afterwards its
+        protected files would carry a different patch than new ones, which breaks the method
+        (same patch, same place, every image), so it needs allow_protected (the re-protect path)."""
+        with self._write() as conn:
+            row = conn.execute("SELECT spec_id FROM datasets WHERE name = ?", (name,)).fetchone()
+            self._ensure_spec(conn, spec)
+            if row is None:
+                if root is None:
+                    raise StoreError(f"no dataset {name!r}; give its root folder")
+                conn.execute(
+                    "INSERT INTO datasets (name, root, spec_id, created_at) VALUES (?, ?, ?, ?)",
+                    (name, str(root), spec.spec_id, time.time()),
+                )
+            elif row[0] != spec.spec_id:
+                protected = conn.execute(
+                    "SELECT COUNT(*) FROM files WHERE dataset = ? AND state IN ('protected', 'pending')",
+                    (name,),
+                ).fetchone()[0]
+                if protected and not allow_protected:
+                    raise DatasetSpecLocked(
+                        f"dataset {name!r} has {protected} protected file(s) under spec {row[0]}; "
+                        f"changing it needs a re-protect from the vault "
+                        f"(ppd dataset set {name} ... --reprotect)"
+                    )
+                conn.execute("UPDATE datasets SET spec_id = ? WHERE name = ?", (spec.spec_id, name))
+            self._event(
+                conn, name, None, "spec_set", {"spec_id": spec.spec_id, "previous": row[0] if row else None}
+            )
+
+    def set_dataset_publish_dir(self, name: str, publish_dir: Path | None) -> None:
+        with self._write() as conn:
+            conn.execute(
+                "UPDATE datasets SET publish_dir = ? WHERE name = ?",
+                (str(publish_dir) if publish_dir else None, name),
+            )
+
+    # ---- files ----------------------------------------------------------------------------
+    def file(self, path: Path | str) -> dict[str, Any] | None:
+        return self._one("SELECT * FROM files WHERE path = ?", (str(path),))
+
+    def files(self, dataset: str, state: str | None = None) -> list[dict[str, Any]]:
+        if state is None:
+            return self._rows("SELECT * FROM files WHERE dataset = ? ORDER BY path", (dataset,))
+        return self._rows(
+            "SELECT * FROM files WHERE dataset = ? AND state = ? ORDER BY path", (dataset, state)
+        )
+
+    def find_poisoned(self, sha256: str) -> dict[str, Any] | None:
+        """A row whose protected output has this content (ppd's own output, anywhere)."""
+        return self._one("SELECT * FROM files WHERE poisoned_sha256 = ? LIMIT 1", (sha256,))
+
+    def record_file(
+        self,
+        path: Path | str,
+        dataset: str,
+        state: str,
+        *,
+        event: str | None = None,
+        detail: dict[str, Any] | None = None,
+        **fields: Any,
+    ) -> None:
+        """Insert or update the row for path (and optionally log an event), in one transaction."""
+        if state not in FILE_STATES:
+            raise StoreError(f"unknown file state {state!r}")
+        allowed = {
+            "original_sha256", "poisoned_sha256", "spec_id", "tool_version",
+            "size", "mtime_ns", "error", "published_path",
+        }  # fmt: skip
+        unknown = set(fields) - allowed
+        if unknown:
+            raise StoreError(f"unknown file field(s): {', '.join(sorted(unknown))}")
+        now = time.time()
+        values = {"dataset": dataset, "state": state, "updated_at": now, **fields}
+        columns = ", ".join(values)
+        marks = ", ".join("?" for _ in values)
+        updates = ", ".join(f"{c} = excluded.{c}" for c in values)
+        with self._write() as conn:
+            conn.execute(
+                f"INSERT INTO files (path, created_at, {columns}) VALUES (?, ?, {marks}) "
+                f"ON CONFLICT(path) DO UPDATE SET {updates}",
+                (str(path), now, *values.values()),
+            )
+            if event:
+                self._event(conn, dataset, str(path), event, detail or {})
+
+    def counts(self, dataset: str) -> dict[str, int]:
+        counts = {state: 0 for state in FILE_STATES}
+        for row in self._rows(
+            "SELECT state, COUNT(*) AS n FROM files WHERE dataset = ? GROUP BY state", (dataset,)
+        ):
+            counts[row["state"]] = row["n"]
+        counts["files"] = sum(counts[s] for s in FILE_STATES)
+        return counts
+
+    # ---- events ---------------------------------------------------------------------------
+    def add_event(
+        self, dataset: str | None, path: Path | str | None, kind: str, detail: dict[str, Any]
+    ) -> None:
+        with self._write() as conn:
+            self._event(conn, dataset, str(path) if path is not None else None, kind, detail)
+
+    @staticmethod
+    def _event(
+        conn: sqlite3.Connection, dataset: str | None, path: str | None, kind: str, detail: dict[str, Any]
+    ) -> None:
+        conn.execute(
+            "INSERT INTO events (ts, dataset, path, kind, detail) VALUES (?, ?, ?, ?, ?)",
+            (time.time(), dataset, path, kind, json.dumps(detail, default=str, sort_keys=True)),
+        )
+
+    def events(self, dataset: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
+        if dataset is None:
+            rows = self._rows("SELECT * FROM events ORDER BY id DESC LIMIT ?", (limit,))
+        else:
+            rows = self._rows(
+                "SELECT * FROM events WHERE dataset = ? ORDER BY id DESC LIMIT ?", (dataset, limit)
+            )
+        for row in rows:
+            row["detail"] = json.loads(row["detail"]) if row["detail"] else {}
+        return rows
+
+    # ---- verification runs ----------------------------------------------------------------
+    def add_verification_run(
+        self,
+        dataset: str,
+        profile: str,
+        verdict: str,
+        metrics: dict[str, Any],
+        started_at: float,
+        finished_at: float,
+        model_dir: str | None,
+        error: str | None,
+    ) -> int:
+        with self._write() as conn:
+            cursor = conn.execute(
+                "INSERT INTO verification_runs (dataset, profile, verdict, metrics, started_at, finished_at, "
+                "model_dir, error) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (dataset, profile, verdict, json.dumps(metrics, default=str, sort_keys=True),
+                 started_at, finished_at, model_dir, error),
+            )  # fmt: skip
+            run_id = int(cursor.lastrowid or 0)
+            self._event(
+                conn,
+                dataset,
+                None,
+                "verification",
+                {"run_id": run_id, "profile": profile, "verdict": verdict},
+            )
+        return run_id
+
+    def verification_runs(self, dataset: str, limit: int = 20) -> list[dict[str, Any]]:
+        """Newest first."""
+        rows = self._rows(
+            "SELECT * FROM verification_runs WHERE dataset = ? ORDER BY finished_at DESC, id DESC LIMIT ?",
+            (dataset, limit),
+        )
+        for row in rows:
+            row["metrics"] = json.loads(row["metrics"]) if row["metrics"] else {}
+        return rows
+
+    def latest_verification(self, dataset: str) -> dict[str, Any] | None:
+        runs = self.verification_runs(dataset, limit=1)
+        return runs[0] if runs else None
+
+
+def _split_sql(script: str) -> list[str]:
+    """Statements of a migration script (ours contain no ';' inside literals)."""
+    statements = []
+    for chunk in script.split(";"):
+        lines = [line.split("--", 1)[0] for line in chunk.splitlines()]
+        text = "\n".join(lines).strip()
+        if text:
+            statements.append(text)
+    return statements

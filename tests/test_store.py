@@ -1,0 +1,168 @@
+"""The provenance store on a real SQLite file: schema, migrations, concurrency, specs."""
+
+from __future__ import annotations
+
+import sqlite3
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from daemon.store import MIGRATIONS, SCHEMA_VERSION, DatasetSpecLocked, Store, StoreError, _split_sql
+from poisoner.spec import PatchSpec
+
+
+@pytest.fixture
+def store(tmp_path: Path) -> Store:
+    s = Store(tmp_path / "ppd.sqlite3")
+    yield s
+    s.close()
+
+
+def test_fresh_store_has_schema_and_wal(store: Store) -> None:
+    assert store.schema_version() == SCHEMA_VERSION
+    tables = set(store.db.table_names())
+    assert {"datasets", "specs", "files", "events", "verification_runs", "schema_version"} <= tables
+    assert store.db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    assert int(store.db.execute("PRAGMA busy_timeout").fetchone()[0]) >= 1000
+
+
+def test_reopen_is_idempotent(tmp_path: Path) -> None:
+    db = tmp_path / "ppd.sqlite3"
+    first = Store(db)
+    first.ensure_dataset("a", tmp_path, PatchSpec())
+    first.close()
+    second = Store(db)
+    assert second.schema_version() == SCHEMA_VERSION
+    assert [d["name"] for d in second.datasets()] == ["a"]
+    second.close()
+
+
+def test_old_database_is_migrated_in_order(tmp_path: Path) -> None:
+    db = tmp_path / "old.sqlite3"
+    conn = sqlite3.connect(db)
+    conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
+    conn.execute("INSERT INTO schema_version VALUES (1)")
+    for statement in _split_sql(MIGRATIONS[0]):
+        conn.execute(statement)
+    conn.commit()
+    conn.close()
+    store = Store(db)
+    assert store.schema_version() == SCHEMA_VERSION
+    assert "published_path" in store.db["files"].columns_dict
+    store.close()
+
+
+def test_newer_schema_is_refused(tmp_path: Path) -> None:
+    db = tmp_path / "new.sqlite3"
+    Store(db).close()
+    conn = sqlite3.connect(db)
+    conn.execute("UPDATE schema_version SET version = ?", (SCHEMA_VERSION + 5,))
+    conn.commit()
+    conn.close()
+    with pytest.raises(StoreError, match="schema version"):
+        Store(db)
+
+
+def test_first_spec_wins_under_concurrency(store: Store, tmp_path: Path) -> None:
+    specs = [PatchSpec(seed=i) for i in range(8)]
+    got: list[str] = []
+    barrier = threading.Barrier(len(specs))
+
+    def first_file(spec: PatchSpec) -> None:
+        barrier.wait()
+        _, chosen = store.ensure_dataset("shoot", tmp_path, spec)
+        got.append(chosen.spec_id)
+
+    threads = [threading.Thread(target=first_file, args=(s,)) for s in specs]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(got) == 8 and len(set(got)) == 1
+    assert store.dataset("shoot")["spec_id"] == got[0]
+
+
+def test_dataset_spec_is_locked_once_files_are_protected(store: Store, tmp_path: Path) -> None:
+    store.set_dataset_spec("shoot", PatchSpec(seed=1), root=tmp_path)  # before files: free
+    store.set_dataset_spec("shoot", PatchSpec(seed=2))
+    assert store.dataset_spec("shoot") == PatchSpec(seed=2)
+    store.record_file(tmp_path / "a.png", "shoot", "protected", original_sha256="0" * 64)
+    with pytest.raises(DatasetSpecLocked, match="--reprotect"):
+        store.set_dataset_spec("shoot", PatchSpec(seed=3))
+    assert store.dataset_spec("shoot") == PatchSpec(seed=2)
+    store.set_dataset_spec("shoot", PatchSpec(seed=3), allow_protected=True)
+    assert store.dataset_spec("shoot") == PatchSpec(seed=3)
+
+
+def test_record_file_upserts_and_validates(store: Store, tmp_path: Path) -> None:
+    store.ensure_dataset("d", tmp_path, PatchSpec())
+    path = tmp_path / "x.jpg"
+    store.record_file(path, "d", "pending", original_sha256="a" * 64, event="pending")
+    store.record_file(path, "d", "protected", poisoned_sha256="b" * 64)
+    row = store.file(path)
+    assert row["state"] == "protected"
+    assert row["original_sha256"] == "a" * 64  # kept from the first write
+    assert row["poisoned_sha256"] == "b" * 64
+    assert store.find_poisoned("b" * 64)["path"] == str(path)
+    assert store.counts("d")["protected"] == 1 and store.counts("d")["files"] == 1
+    assert [e["kind"] for e in store.events("d")][0] == "pending"
+    with pytest.raises(StoreError):
+        store.record_file(path, "d", "bogus")
+    with pytest.raises(StoreError):
+        store.record_file(path, "d", "failed", not_a_column=1)
+
+
+def test_concurrent_writers_lose_nothing(store: Store, tmp_path: Path) -> None:
+    store.ensure_dataset("d", tmp_path, PatchSpec())
+
+    def writer(k: int) -> None:
+        for i in range(40):
+            store.record_file(tmp_path / f"{k}-{i}.png", "d", "protected", event="protected", detail={"i": i})
+
+    threads = [threading.Thread(target=writer, args=(k,)) for k in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert store.counts("d")["protected"] == 160
+    assert len(store.events("d", limit=1000)) == 160 + 1  # + dataset_created
+
+
+def test_reader_is_not_blocked_by_a_writer(tmp_path: Path) -> None:
+    db = tmp_path / "ppd.sqlite3"
+    daemon_store, cli_store = Store(db), Store(db)
+    daemon_store.ensure_dataset("d", tmp_path, PatchSpec())
+    held, release = threading.Event(), threading.Event()
+
+    def long_write() -> None:
+        with daemon_store._write() as conn:
+            conn.execute("INSERT INTO events (ts, kind) VALUES (?, 'x')", (time.time(),))
+            held.set()
+            release.wait(10)
+
+    t = threading.Thread(target=long_write)
+    t.start()
+    assert held.wait(10)
+    started = time.monotonic()
+    assert [d["name"] for d in cli_store.datasets()] == ["d"]  # WAL: reads while a write is open
+    assert time.monotonic() - started < 2.0
+    release.set()
+    t.join()
+    daemon_store.close()
+    cli_store.close()
+
+
+def test_verification_runs_newest_first(store: Store) -> None:
+    assert store.latest_verification("d") is None
+    ids = [
+        store.add_verification_run("d", "default", v, {"f5": i / 10}, 100.0 + i, 110.0 + i, None, None)
+        for i, v in enumerate(["protected", "weak", "not_protected"])
+    ]
+    runs = store.verification_runs("d")
+    assert [r["id"] for r in runs] == ids[::-1]
+    latest = store.latest_verification("d")
+    assert latest["verdict"] == "not_protected" and latest["metrics"] == {"f5": 0.2}
+    assert len(store.verification_runs("d", limit=2)) == 2
+    assert store.verification_runs("other") == []
