@@ -21,5 +21,6 @@ test-all: setup
 lint: setup
 	$(VENV)/bin/ruff check .
 
-bench: setup
+bench:
+	PPD_SETUP_BENCH=1 bash scripts/setup.sh
 	$(PY) -m bench

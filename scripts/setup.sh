@@ -22,10 +22,17 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     echo "$want" > "$stamp"
 fi
 
-# System tools: systemd-analyze verifies the unit in the tests. Installed only when missing
-# and only when we may (root, apt); otherwise the tests that need them say so and skip.
+# System tools, installed only when missing and only when we may (root, apt):
+# - jpegtran (libjpeg-turbo-progs): the lossless JPEG splice that leaves every DCT block outside
+#   the patch untouched; without it ppd falls back to a same-tables re-encode and says so.
+# - systemd-analyze: the tests verify the user unit with it.
+# - ImageMagick's composite: only the benchmarks compare against it (PPD_SETUP_BENCH=1).
 need=()
+command -v jpegtran >/dev/null 2>&1 || need+=(libjpeg-turbo-progs)
 command -v systemd-analyze >/dev/null 2>&1 || need+=(systemd)
+if [ "${PPD_SETUP_BENCH:-0}" = 1 ]; then
+    [ -x /usr/bin/composite ] || need+=(imagemagick)
+fi
 if [ ${#need[@]} -gt 0 ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
     (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need[@]}") >/dev/null \
         || echo "setup: could not install ${need[*]} (tests that need them will skip)" >&2

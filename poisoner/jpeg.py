@@ -1,0 +1,269 @@
+"""JPEG, faithfully: put the patch in while changing as little of the file as possible.
+
+Two ways, best first:
+
+1. DCT-coefficient splice (`splice_patch`). Only the MCUs (minimum coded units, 8x8 to 16x16
+   pixels) that the patch touches are re-encoded; every other quantised DCT coefficient is
+   copied verbatim, so outside the patch's MCU-aligned box the file holds the very same
+   coefficients as the original. The patched MCU box is encoded on its own with the source's
+   quantisation tables and chroma subsampling, then dropped into the source by libjpeg-turbo's
+   `jpegtran -drop +X+Y` (lossless transform; `-copy all` keeps every marker: EXIF, ICC, XMP,
+   IPTC, comments).
+
+   Why jpegtran: it is libjpeg-turbo's own, long-maintained lossless-transform tool (Debian's
+   `libjpeg-turbo-progs`), it does exactly this operation, it handles baseline, progressive,
+   arithmetic and restart-marker files, and it runs in a child process, so a malformed file
+   cannot crash the daemon. The alternatives were weaker: a PyPI DCT library (`jpeglib`) would
+   be a second, bundled libjpeg with its own marker handling to audit; a ctypes binding of
+   libjpeg's structs is ABI-fragile (struct layouts differ between libjpeg 6b/8/9/turbo).
+
+2. Same-tables re-encode (`encode_like`), when jpegtran is missing or refuses the file: the
+   whole picture is re-encoded with the source's quantisation tables and subsampling (never a
+   blanket quality), progressive and restart settings, and its metadata segments. One such
+   re-encode is a second generation of JPEG loss over the whole picture (measured in
+   docs/FORMATS.md); the caller records a note.
+
+A decoder detail worth knowing: libjpeg's "fancy" chroma upsampling interpolates between
+neighbouring chroma samples, so a decoded pixel in the MCU row/column right next to the box
+can still move by a level or two even though its coefficients are identical.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import struct
+import subprocess
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, JpegImagePlugin
+
+log = logging.getLogger(__name__)
+
+JPEGTRAN_ENV = "PPD_JPEGTRAN"  # override the jpegtran binary (or "" to disable the splice)
+JPEGTRAN_TIMEOUT_S = 120
+
+_SOF_MARKERS = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+_PROGRESSIVE_SOF = {0xC2, 0xC6, 0xCA, 0xCE}
+_ARITHMETIC_SOF = {0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+_LOSSLESS_SOF = {0xC3, 0xC7, 0xCB, 0xCF}
+
+
+class SpliceUnavailable(Exception):
+    """The coefficient splice cannot be done for this file (the caller falls back)."""
+
+
+@dataclass(frozen=True)
+class Segment:
+    marker: int  # 0xE0..0xEF for APPn, 0xFE for COM
+    payload: bytes
+
+    def raw(self) -> bytes:
+        return bytes((0xFF, self.marker)) + struct.pack(">H", len(self.payload) + 2) + self.payload
+
+
+@dataclass(frozen=True)
+class JpegLayout:
+    """What the file header says about how the picture is coded."""
+
+    width: int
+    height: int
+    sof: int
+    components: int
+    sampling: tuple[tuple[int, int], ...]  # (h, v) per component
+    restart_interval: int  # in MCUs, 0 = none
+    segments: tuple[Segment, ...] = field(default=())
+
+    @property
+    def progressive(self) -> bool:
+        return self.sof in _PROGRESSIVE_SOF
+
+    @property
+    def arithmetic(self) -> bool:
+        return self.sof in _ARITHMETIC_SOF
+
+    @property
+    def lossless(self) -> bool:
+        return self.sof in _LOSSLESS_SOF
+
+    @property
+    def mcu_size(self) -> tuple[int, int]:
+        """(width, height) of one MCU in pixels: 8 x the largest sampling factors."""
+        if self.components == 1:
+            return (8, 8)  # a single-component scan is not interleaved: 8x8 blocks
+        return (8 * max(h for h, _ in self.sampling), 8 * max(v for _, v in self.sampling))
+
+
+def read_layout(data: bytes) -> JpegLayout:
+    """Scan the markers up to the first SOS. Raises ValueError on a malformed header."""
+    if data[:2] != b"\xff\xd8":
+        raise ValueError("not a JPEG (no SOI marker)")
+    pos = 2
+    segments: list[Segment] = []
+    sof: int | None = None
+    width = height = components = 0
+    sampling: tuple[tuple[int, int], ...] = ()
+    restart = 0
+    while pos + 4 <= len(data):
+        if data[pos] != 0xFF:
+            raise ValueError(f"JPEG marker expected at byte {pos}")
+        marker = data[pos + 1]
+        if marker == 0xFF:  # fill byte
+            pos += 1
+            continue
+        if marker == 0xDA or marker == 0xD9:  # SOS / EOI: header done
+            break
+        (length,) = struct.unpack(">H", data[pos + 2 : pos + 4])
+        payload = data[pos + 4 : pos + 2 + length]
+        if len(payload) != length - 2:
+            raise ValueError("JPEG header truncated")
+        if 0xE0 <= marker <= 0xEF or marker == 0xFE:
+            segments.append(Segment(marker, payload))
+        elif marker in _SOF_MARKERS:
+            sof = marker
+            height, width = struct.unpack(">HH", payload[1:5])
+            components = payload[5]
+            sampling = tuple(
+                (payload[6 + 3 * i + 1] >> 4, payload[6 + 3 * i + 1] & 0x0F) for i in range(components)
+            )
+        elif marker == 0xDD:
+            (restart,) = struct.unpack(">H", payload[:2])
+        pos += 2 + length
+    if sof is None:
+        raise ValueError("JPEG has no frame header (SOF)")
+    return JpegLayout(width, height, sof, components, sampling, restart, tuple(segments))
+
+
+def mcu_box(box: tuple[int, int, int, int], layout: JpegLayout) -> tuple[int, int, int, int]:
+    """The smallest MCU-aligned box holding `box`, clipped to the picture."""
+    mw, mh = layout.mcu_size
+    x0, y0, x1, y1 = box
+    return (
+        (x0 // mw) * mw,
+        (y0 // mh) * mh,
+        min(-(-x1 // mw) * mw, layout.width),
+        min(-(-y1 // mh) * mh, layout.height),
+    )
+
+
+# ---- same-tables encoding ------------------------------------------------------------------
+# Segments Pillow writes itself from explicit arguments (or regenerates): everything else is
+# passed through verbatim as `extra`.
+def _is_pillow_managed(seg: Segment) -> bool:
+    p = seg.payload
+    if seg.marker == 0xE0:  # JFIF / JFXX: Pillow writes its own JFIF with the dpi
+        return True
+    if seg.marker == 0xE1 and (
+        p.startswith(b"Exif\x00\x00") or p.startswith(b"http://ns.adobe.com/xap/1.0/\x00")
+    ):
+        return True
+    if seg.marker == 0xE2 and (p.startswith(b"ICC_PROFILE\x00") or p.startswith(b"MPF\x00")):
+        return True  # ICC: via icc_profile; MPF: its offsets point at images we do not write
+    return seg.marker in (0xEE, 0xFE)  # Adobe (libjpeg writes it when needed); COM: via comment
+
+
+def table_options(src: Image.Image) -> dict[str, object]:
+    """Encoder options that reproduce the source's quantisation and chroma subsampling."""
+    if not isinstance(src, JpegImagePlugin.JpegImageFile):
+        raise TypeError("table_options needs a JPEG image")
+    opts: dict[str, object] = {"qtables": src.quantization}
+    sampling = JpegImagePlugin.get_sampling(src)
+    if sampling != -1:
+        opts["subsampling"] = sampling
+    return opts
+
+
+def encode_like(pixels: np.ndarray, src: Image.Image, layout: JpegLayout, *, metadata: bool = True) -> bytes:
+    """Encode pixels (H x W x 3 or H x W, uint8) like the source JPEG: same tables, same
+    subsampling, progressive/restart settings and (with metadata=True) every metadata
+    segment of the source."""
+    import io
+
+    mode = "L" if pixels.ndim == 2 else "RGB"
+    out = Image.fromarray(pixels, mode)
+    opts: dict[str, object] = table_options(src)
+    if metadata:
+        info = src.info
+        opts.update(
+            progressive=layout.progressive,
+            optimize=True,  # Huffman tables only: lossless, smaller
+            exif=info.get("exif", b""),
+            icc_profile=info.get("icc_profile"),
+            comment=info.get("comment"),
+            extra=b"".join(s.raw() for s in layout.segments if not _is_pillow_managed(s)),
+        )
+        if info.get("xmp"):
+            opts["xmp"] = info["xmp"]
+        if "dpi" in info:
+            opts["dpi"] = info["dpi"]
+        if layout.restart_interval:
+            opts["restart_marker_blocks"] = layout.restart_interval
+    buf = io.BytesIO()
+    out.save(buf, "JPEG", **opts)
+    return buf.getvalue()
+
+
+# ---- coefficient splice --------------------------------------------------------------------
+def jpegtran_binary() -> str | None:
+    override = os.environ.get(JPEGTRAN_ENV)
+    if override is not None:
+        return override or None
+    return shutil.which("jpegtran")
+
+
+def splice_patch(
+    src_path: Path,
+    src: Image.Image,
+    layout: JpegLayout,
+    patched_box: np.ndarray,
+    box: tuple[int, int, int, int],
+) -> bytes:
+    """Return the source JPEG with only the MCUs in `box` (MCU-aligned, see mcu_box) replaced
+    by `patched_box` (its pixels, already patched). Raises SpliceUnavailable when it cannot be
+    done for this file."""
+    binary = jpegtran_binary()
+    if binary is None:
+        raise SpliceUnavailable("jpegtran not found (install libjpeg-turbo-progs)")
+    if layout.lossless:
+        raise SpliceUnavailable("lossless JPEG")
+    if src.mode not in ("RGB", "L") or layout.components not in (1, 3):
+        raise SpliceUnavailable(f"{src.mode} JPEG with {layout.components} components")
+    if layout.components == 3 and any(s != (1, 1) for s in layout.sampling[1:]):
+        # jpegtran drops need chroma at 1x1 with luma carrying the subsampling (the
+        # libjpeg default); other layouts Pillow's encoder cannot reproduce.
+        raise SpliceUnavailable(f"unusual sampling factors {layout.sampling}")
+    if box != mcu_box(box, layout):
+        raise ValueError(f"box {box} is not MCU-aligned")
+    x0, y0 = box[0], box[1]
+    crop = np.ascontiguousarray(patched_box)
+    drop_bytes = encode_like(crop, src, layout, metadata=False)
+    with tempfile.TemporaryDirectory(prefix=".ppd-jpeg-") as tmp:
+        drop_path = Path(tmp) / "drop.jpg"
+        out_path = Path(tmp) / "out.jpg"
+        drop_path.write_bytes(drop_bytes)
+        cmd = [binary, "-copy", "all", "-optimize"]
+        if layout.progressive:
+            cmd.append("-progressive")
+        if layout.restart_interval:
+            cmd += ["-restart", f"{layout.restart_interval}B"]
+        if layout.arithmetic:
+            cmd.append("-arithmetic")
+        cmd += ["-drop", f"+{x0}+{y0}", str(drop_path), "-outfile", str(out_path), str(src_path)]
+        try:
+            run = subprocess.run(cmd, capture_output=True, timeout=JPEGTRAN_TIMEOUT_S, check=False)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            raise SpliceUnavailable(f"jpegtran failed to run: {exc}") from exc
+        if run.returncode != 0 or not out_path.exists():
+            msg = run.stderr.decode(errors="replace").strip().splitlines()
+            raise SpliceUnavailable(f"jpegtran -drop refused: {msg[-1] if msg else run.returncode}")
+        if run.stderr:
+            log.info("jpegtran warning", extra={"path": str(src_path), "stderr": run.stderr[-200:]})
+        data = out_path.read_bytes()
+    check = read_layout(data)
+    if (check.width, check.height, check.components) != (layout.width, layout.height, layout.components):
+        raise SpliceUnavailable("jpegtran output has a different frame")
+    return data

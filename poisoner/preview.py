@@ -1,0 +1,102 @@
+"""A before/after picture for humans (pure: arrays in, array out).
+
+Layout (RGB uint8):
+
+    +-----------------+-----------------+
+    |    original     |    poisoned     |   the whole picture, patch box outlined in red
+    +-----------------+-----------------+
+    | original zoom   | poisoned zoom   |   the patch region (plus a margin), nearest-neighbour
+    +-----------------+-----------------+
+
+Large pictures are shown subsampled (every k-th pixel) so the preview stays under max_width;
+the zoom row is always taken from the full-resolution arrays, so the pattern's blocks stay sharp.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from poisoner.spec import PatchPlacement
+
+GAP = 4  # pixels of dark grey between panels
+OUTLINE = np.array([255, 0, 0], dtype=np.uint8)
+BACKGROUND = 32
+
+
+def to_rgb8(pixels: np.ndarray) -> np.ndarray:
+    """Any H x W (x 1..4) uint8/uint16 picture as RGB uint8; alpha composited over white."""
+    arr = np.asarray(pixels)
+    if arr.dtype == np.uint16:
+        arr = (arr.astype(np.uint32) * 255 + 32767) // 65535
+    elif arr.dtype != np.uint8:
+        raise TypeError(f"expected uint8 or uint16 pixels, got {arr.dtype}")
+    arr = arr.astype(np.float64)
+    if arr.ndim == 2:
+        arr = arr[..., None]
+    channels = arr.shape[2]
+    if channels in (2, 4):
+        alpha = arr[..., -1:] / 255.0
+        arr = arr[..., :-1] * alpha + 255.0 * (1.0 - alpha)
+    if arr.shape[2] == 1:
+        arr = np.repeat(arr, 3, axis=2)
+    return np.floor(arr + 0.5).astype(np.uint8)
+
+
+def _outline(img: np.ndarray, box: tuple[int, int, int, int], width: int = 2) -> None:
+    x0, y0, x1, y1 = box
+    h, w = img.shape[:2]
+    x0, y0 = max(0, x0), max(0, y0)
+    x1, y1 = min(w, max(x1, x0 + 1)), min(h, max(y1, y0 + 1))
+    img[y0 : min(h, y0 + width), x0:x1] = OUTLINE
+    img[max(0, y1 - width) : y1, x0:x1] = OUTLINE
+    img[y0:y1, x0 : min(w, x0 + width)] = OUTLINE
+    img[y0:y1, max(0, x1 - width) : x1] = OUTLINE
+
+
+def _hstack(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    h = max(left.shape[0], right.shape[0])
+    out = np.full((h, left.shape[1] + GAP + right.shape[1], 3), BACKGROUND, dtype=np.uint8)
+    out[: left.shape[0], : left.shape[1]] = left
+    out[: right.shape[0], left.shape[1] + GAP :] = right
+    return out
+
+
+def zoom_box(placement: PatchPlacement, width: int, height: int) -> tuple[int, int, int, int]:
+    """The patch box grown by a quarter of the patch on each side, clipped to the picture."""
+    margin = max(2, placement.size // 4)
+    x0, y0, x1, y1 = placement.box
+    return (max(0, x0 - margin), max(0, y0 - margin), min(width, x1 + margin), min(height, y1 + margin))
+
+
+def render_preview(
+    original: np.ndarray,
+    poisoned: np.ndarray,
+    placement: PatchPlacement,
+    *,
+    max_width: int = 1600,
+) -> np.ndarray:
+    """Original | poisoned side by side, with a nearest-neighbour zoom of the patch region below."""
+    a, b = to_rgb8(original), to_rgb8(poisoned)
+    if a.shape != b.shape:
+        raise ValueError(f"original {a.shape} and poisoned {b.shape} differ in size")
+    h, w = a.shape[:2]
+    step = max(1, -(-(2 * w + GAP) // max_width))  # subsample so both panels fit max_width
+    x0, y0, x1, y1 = placement.box
+    small_box = (x0 // step, y0 // step, -(-x1 // step), -(-y1 // step))
+    panels = []
+    for img in (a, b):
+        small = img[::step, ::step].copy()
+        _outline(small, small_box)
+        panels.append(small)
+    top = _hstack(panels[0], panels[1])
+
+    zx0, zy0, zx1, zy1 = zoom_box(placement, w, h)
+    panel_width = panels[0].shape[1]
+    scale = max(1, panel_width // max(1, zx1 - zx0))
+    zooms = [np.repeat(np.repeat(img[zy0:zy1, zx0:zx1], scale, axis=0), scale, axis=1) for img in (a, b)]
+    bottom = _hstack(zooms[0], zooms[1])
+    width = max(top.shape[1], bottom.shape[1])
+    out = np.full((top.shape[0] + GAP + bottom.shape[0], width, 3), BACKGROUND, dtype=np.uint8)
+    out[: top.shape[0], : top.shape[1]] = top
+    out[top.shape[0] + GAP :, : bottom.shape[1]] = bottom
+    return out

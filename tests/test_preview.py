@@ -1,0 +1,70 @@
+"""poisoner.preview.render_preview: side by side + nearest-neighbour zoom, pure."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from poisoner.blend import apply_patch
+from poisoner.preview import GAP, render_preview, to_rgb8, zoom_box
+from poisoner.spec import PatchSpec
+
+
+def scene(h: int = 200, w: int = 300, channels: int = 3) -> np.ndarray:
+    rng = np.random.default_rng(5)
+    return rng.integers(0, 256, size=(h, w, channels)).astype(np.uint8)
+
+
+def test_layout_panels_and_zoom() -> None:
+    original = scene()
+    placement = PatchSpec(patch_size=40, block_size=4, position="center").resolve(300, 200)
+    poisoned = apply_patch(original, placement)
+    before = (original.copy(), poisoned.copy())
+    out = render_preview(original, poisoned, placement)
+    assert out.dtype == np.uint8 and out.ndim == 3 and out.shape[2] == 3
+    np.testing.assert_array_equal(original, before[0])  # pure: inputs untouched
+    np.testing.assert_array_equal(poisoned, before[1])
+    # Top row: the full pictures (max_width not exceeded: no subsampling), outline aside.
+    left, right = out[:200, :300], out[:200, 300 + GAP : 600 + GAP]
+    np.testing.assert_array_equal(left[:50, :50], original[:50, :50])
+    np.testing.assert_array_equal(right[:50, :50], poisoned[:50, :50])
+    assert (left[placement.y, placement.x + 5] == [255, 0, 0]).all()  # red outline on the box
+    # Bottom row: nearest-neighbour zoom of the patch region of the poisoned picture.
+    zx0, zy0, zx1, zy1 = zoom_box(placement, 300, 200)
+    scale = 300 // (zx1 - zx0)
+    assert scale >= 2
+    bottom = out[200 + GAP :]
+    zoom_right = bottom[:, 300 + GAP :]
+    for dy, dx in [(0, 0), (17, 23), (40, 41)]:
+        expected = poisoned[zy0 + dy, zx0 + dx]
+        block = zoom_right[dy * scale : (dy + 1) * scale, dx * scale : (dx + 1) * scale]
+        assert (block == expected).all()
+    np.testing.assert_array_equal(bottom[:scale, :scale].reshape(-1, 3)[0], original[zy0, zx0])
+
+
+def test_large_pictures_are_subsampled_under_max_width() -> None:
+    original = scene(h=1000, w=2000)
+    placement = PatchSpec().resolve(2000, 1000)
+    out = render_preview(original, apply_patch(original, placement), placement, max_width=800)
+    assert out.shape[1] <= 800 + GAP
+
+
+@pytest.mark.parametrize(
+    "pixels",
+    [
+        np.full((60, 80), 7, dtype=np.uint8),
+        np.full((60, 80, 4), 0, dtype=np.uint8),  # fully transparent: shows white
+        np.full((60, 80, 3), 65535, dtype=np.uint16),
+    ],
+)
+def test_to_rgb8_handles_grey_alpha_and_16bit(pixels: np.ndarray) -> None:
+    rgb = to_rgb8(pixels)
+    assert rgb.shape == (60, 80, 3) and rgb.dtype == np.uint8
+    expected = 7 if pixels.ndim == 2 else 255
+    assert (rgb == expected).all()
+
+
+def test_mismatched_sizes_are_rejected() -> None:
+    placement = PatchSpec(patch_size=10).resolve(50, 50)
+    with pytest.raises(ValueError):
+        render_preview(scene(50, 50), scene(40, 50), placement)
