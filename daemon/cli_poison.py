@@ -394,6 +394,31 @@ def regression_of(runs: list[dict[str, Any]]) -> dict[str, Any] | None:
     return None
 
 
+def latest_by_profile(runs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """The newest verdict of each profile, with the number it rests on. One newest row would
+    hide a hardened failure behind a default pass (or the reverse)."""
+    latest: dict[str, dict[str, Any]] = {}
+    for run in runs:  # newest first
+        if run["profile"] in latest:
+            continue
+        vs_clean = (run.get("metrics") or {}).get("vs_clean") or {}
+        latest[run["profile"]] = {
+            "verdict": run["verdict"],
+            "frac_within_5deg": vs_clean.get("frac_within_5deg"),
+            "finished_at": run["finished_at"],
+            "error": run["error"],
+        }
+    return latest
+
+
+def verdict_text(profile: str, v: dict[str, Any]) -> str:
+    style = {"protected": "green", "weak": "yellow", "not_protected": "bold red", "sfm_crashed": "magenta"}
+    label = "NOT protected" if v["verdict"] == "not_protected" else v["verdict"]
+    frac = v.get("frac_within_5deg")
+    detail = f" {frac:.0%}<5°" if isinstance(frac, int | float) else ""
+    return f"{profile}: [{style.get(v['verdict'], 'bold')}]{label}[/]{detail} ({_age(v['finished_at'])})"
+
+
 def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     row = ctx.store.dataset(name)
     if row is None:
@@ -419,6 +444,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
             "age_s": round(time.time() - latest["finished_at"], 1),
             "error": latest["error"],
         },
+        "verdicts": latest_by_profile(runs),
         "regression": None
         if regression is None
         else {
@@ -459,7 +485,8 @@ def status(
             )
         for d in report:
             c, v = d["counts"], d["last_verification"]
-            verified = "never" if v is None else f"{v['verdict']} ({v['profile']}, {_age(v['finished_at'])})"
+            verdicts = d["verdicts"]
+            verified = "never" if v is None else "\n".join(verdict_text(p, x) for p, x in verdicts.items())
             counts = [str(c[k]) for k in ("files", "protected", "pending", "failed", "restored")]
             table.add_row(d["name"], *counts, d["spec_summary"] or "-", verified)
         console.print(table)
