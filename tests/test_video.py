@@ -1,0 +1,426 @@
+"""poisoner.video on videos generated here with PyAV: decoded and checked frame by frame."""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import av
+import numpy as np
+import pytest
+from PIL import Image
+
+from poisoner.atomic import TEMP_PREFIX, atomic_output
+from poisoner.spec import PatchPlacement, PatchSpec
+from poisoner.video import (
+    VIDEO_SUFFIXES,
+    VideoFormatError,
+    frame_to_rgb,
+    intended_contrast,
+    is_video,
+    patch_contrast,
+    poison_video,
+    sample_frames,
+)
+
+SPEC = PatchSpec()  # the product default: checkerboard, 6% of the width, 4 px blocks
+
+
+# ---- generating test videos ---------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Clip:
+    """A generated test video: a textured scene panning under a fixed camera grid, with audio."""
+
+    suffix: str = ".mp4"
+    encoder: str = "libx264"
+    pix_fmt: str = "yuv420p"
+    width: int = 320
+    height: int = 240
+    fps: int = 20
+    frames: int = 40
+    audio: str | None = "aac"
+    rotation: int | None = None
+    pts: Sequence[int] | None = None  # explicit timestamps (variable frame rate)
+    time_base: Fraction | None = None
+    options: tuple[tuple[str, str], ...] = ()
+    colour: tuple[int, int, int, int] | None = None  # range, space, primaries, trc
+
+
+def scene(width: int, height: int, index: int) -> np.ndarray:
+    """A moving textured scene: a random block texture panning diagonally, plus a gradient."""
+    rng = np.random.default_rng(7)
+    tex = (rng.random((height // 4 + 40, width // 4 + 60, 3)) * 200 + 28).astype(np.uint8)
+    tex = tex.repeat(4, 0).repeat(4, 1)
+    dy, dx = index % 20, 3 * index
+    return np.ascontiguousarray(tex[dy : dy + height, dx : dx + width])
+
+
+def make_clip(path: Path, clip: Clip) -> Path:
+    with av.open(str(path), "w") as out:
+        vs = out.add_stream(clip.encoder, rate=clip.fps, options=dict(clip.options))
+        vs.width, vs.height, vs.pix_fmt = clip.width, clip.height, clip.pix_fmt
+        if clip.time_base is not None:
+            vs.codec_context.time_base = clip.time_base
+            vs.time_base = clip.time_base
+        if clip.colour is not None:
+            cc = vs.codec_context
+            cc.color_range, cc.colorspace, cc.color_primaries, cc.color_trc = clip.colour
+        if clip.rotation is not None:
+            vs.set_display_rotation(clip.rotation)
+        aud = None
+        if clip.audio:
+            aud = out.add_stream(clip.audio, rate=48000)
+            aud.layout = "mono"
+        for i in range(clip.frames):
+            rgb = scene(clip.width, clip.height, i)
+            frame = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format=clip.pix_fmt)
+            if clip.colour is not None:
+                frame.color_range, frame.colorspace = clip.colour[0], clip.colour[1]
+            frame.pts = clip.pts[i] if clip.pts is not None else i
+            if clip.time_base is not None:
+                frame.time_base = clip.time_base
+            for pkt in vs.encode(frame):
+                out.mux(pkt)
+        for pkt in vs.encode(None):
+            out.mux(pkt)
+        if aud is not None:
+            rate, t = 48000, 0
+            total = int(clip.frames / clip.fps * rate)
+            step = aud.codec_context.frame_size or 960
+            while t < total:
+                wave = 0.3 * np.sin(2 * np.pi * 440 * np.arange(t, t + step) / rate)
+                af = av.AudioFrame.from_ndarray(wave.astype(np.float32)[None], format="flt", layout="mono")
+                af.sample_rate, af.pts = rate, t
+                for pkt in aud.encode(af):
+                    out.mux(pkt)
+                t += step
+            for pkt in aud.encode(None):
+                out.mux(pkt)
+    return path
+
+
+# ---- reading them back --------------------------------------------------------------------
+
+
+@dataclass
+class Decoded:
+    codec: str
+    pix_fmt: str
+    time_base: Fraction
+    average_rate: Fraction | None
+    duration: float | None
+    pts: list[int]
+    frames: list[np.ndarray]
+    rotation: list[int]
+    colour: tuple[int, int, int, int]
+    audio_packets: list[tuple[bytes, int | None]]
+
+
+def decode(path: Path) -> Decoded:
+    with av.open(str(path)) as c:
+        v = c.streams.video[0]
+        frames, pts, rot = [], [], []
+        colour = (0, 0, 0, 0)
+        for f in c.decode(v):
+            frames.append(frame_to_rgb(f))
+            pts.append(f.pts)
+            rot.append(f.rotation)
+            colour = (int(f.color_range), int(f.colorspace), int(f.color_primaries), int(f.color_trc))
+        duration = float(v.duration * v.time_base) if v.duration else None
+        info = (v.codec_context.name, v.codec_context.format.name, Fraction(v.time_base), v.average_rate)
+    audio: list[tuple[bytes, int | None]] = []
+    with av.open(str(path)) as c:
+        if c.streams.audio:
+            for pkt in c.demux(c.streams.audio[0]):
+                if pkt.size:
+                    audio.append((bytes(pkt), pkt.pts))
+    return Decoded(*info, duration, pts, frames, rot, colour, audio)
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def psnr_outside(a: np.ndarray, b: np.ndarray, placement: PatchPlacement, margin: int = 16) -> float:
+    """PSNR of a vs b over pixels farther than margin from the patch (codec spill stays near it)."""
+    mask = np.ones(a.shape[:2], bool)
+    x0, y0, x1, y1 = placement.box
+    mask[max(0, y0 - margin) : y1 + margin, max(0, x0 - margin) : x1 + margin] = False
+    scale = 65535.0 if a.dtype == np.uint16 else 255.0
+    err = np.mean((a[mask].astype(np.float64) - b[mask].astype(np.float64)) ** 2) / scale**2
+    return float(10 * np.log10(1.0 / max(err, 1e-12)))
+
+
+def assert_faithful(src: Path, dst: Path, spec: PatchSpec = SPEC, min_contrast: float = 0.8) -> Decoded:
+    """The checks every format must pass, frame by frame."""
+    a, b = decode(src), decode(dst)
+    placement = spec.resolve(a.frames[0].shape[1], a.frames[0].shape[0])
+    assert len(b.frames) == len(a.frames)
+    assert b.pts == a.pts  # frame timing, hence rate, VFR and duration
+    assert (b.codec, b.pix_fmt) == (a.codec, a.pix_fmt)
+    assert b.average_rate == a.average_rate
+    if a.duration is not None:
+        assert b.duration == pytest.approx(a.duration, abs=1.5 / float(a.average_rate or 25))
+    assert b.colour == a.colour
+    assert b.rotation == a.rotation
+    assert b.audio_packets == a.audio_packets  # bit-identical audio, same timestamps
+    target = intended_contrast(placement)
+    width = a.frames[0].shape[1]
+    step = placement.block if placement.x + placement.size + placement.block <= width else -placement.block
+    shifted = PatchPlacement(**{**placement.__dict__, "x": placement.x + step})
+    for i, (fa, fb) in enumerate(zip(a.frames, b.frames, strict=True)):
+        # The patch is there in every frame, at exactly this position: its phase flips one block over.
+        assert patch_contrast(fb, placement) / target >= min_contrast, f"frame {i}"
+        assert patch_contrast(fb, shifted) / target <= -0.5 * min_contrast, f"frame {i}"
+        assert abs(patch_contrast(fa, placement)) / target < 0.5  # the source had no patch
+        assert psnr_outside(fa, fb, placement) >= 30.0, f"frame {i}"
+    return b
+
+
+# ---- the formats --------------------------------------------------------------------------
+
+
+def test_h264_mp4_with_aac_is_poisoned_frame_by_frame(tmp_path: Path) -> None:
+    src = make_clip(tmp_path / "clip.mp4", Clip())
+    digest = sha256(src)
+    dst = tmp_path / "out.mp4"
+    report = poison_video(src, dst, SPEC)
+    assert sha256(src) == digest
+    assert_faithful(src, dst)
+    assert (report.codec, report.encoder, report.pix_fmt) == ("h264", "libx264", "yuv420p")
+    assert report.frames == report.frames_patched == 40
+    assert report.patch_contrast_min is not None and report.patch_contrast_min >= 0.8
+    assert report.placement == SPEC.resolve(320, 240)
+
+
+def test_vp9_webm_with_opus(tmp_path: Path) -> None:
+    src = make_clip(
+        tmp_path / "clip.webm",
+        Clip(
+            suffix=".webm",
+            encoder="libvpx-vp9",
+            audio="libopus",
+            options=(("crf", "30"), ("b", "0"), ("cpu-used", "8")),
+        ),
+    )
+    dst = tmp_path / "out.webm"
+    report = poison_video(src, dst, SPEC)
+    assert_faithful(src, dst)
+    assert report.encoder == "libvpx-vp9"
+
+
+def test_hevc_10bit_hdr_mkv_keeps_depth_tags_and_mastering_data(tmp_path: Path) -> None:
+    # BT.2020 / PQ tags and HDR10 static metadata, 10-bit 4:2:0.
+    master = "G(13250,34500)B(7500,3000)R(34000,16000)WP(15635,16450)L(10000000,50)"
+    clip = Clip(
+        suffix=".mkv",
+        encoder="libx265",
+        pix_fmt="yuv420p10le",
+        frames=24,
+        audio=None,
+        colour=(1, 9, 9, 16),
+        options=(
+            ("crf", "22"),
+            ("preset", "ultrafast"),
+            ("x265-params", f"log-level=error:hdr10=1:master-display={master}:max-cll=1000,400"),
+        ),
+    )
+    src = make_clip(tmp_path / "hdr.mkv", clip)
+    dst = tmp_path / "out.mkv"
+    report = poison_video(src, dst, SPEC)
+    b = assert_faithful(src, dst)
+    assert b.pix_fmt == "yuv420p10le" and b.frames[0].dtype == np.uint16
+    assert b.colour == (1, 9, 9, 16)
+    with av.open(str(src)) as c1, av.open(str(dst)) as c2:
+
+        def hdr(c: av.container.InputContainer) -> dict[str, bytes]:
+            f = next(c.decode(video=0))
+            return {
+                sd.type.name: bytes(sd)
+                for sd in f.side_data
+                if sd.type.name in ("MASTERING_DISPLAY_METADATA", "CONTENT_LIGHT_LEVEL")
+            }
+
+        src_hdr = hdr(c1)
+        assert set(src_hdr) == {"MASTERING_DISPLAY_METADATA", "CONTENT_LIGHT_LEVEL"}
+        assert hdr(c2) == src_hdr
+    assert any("HDR10" in p for p in report.preserved)
+
+
+def test_h264_10bit_blends_on_uint16(tmp_path: Path) -> None:
+    src = make_clip(tmp_path / "ten.mp4", Clip(pix_fmt="yuv420p10le", frames=20, audio=None))
+    dst = tmp_path / "out.mp4"
+    poison_video(src, dst, SPEC)
+    b = assert_faithful(src, dst)
+    placement = SPEC.resolve(320, 240)
+    # Block (0, 1) is bright and block (1, 1) dark (dark when i + j is even), on the 16-bit scale.
+    x0, y0, _, _ = placement.box
+    bright = b.frames[5][y0 + 1 : y0 + 3, x0 + 5 : x0 + 7].mean()
+    dark = b.frames[5][y0 + 5 : y0 + 7, x0 + 5 : x0 + 7].mean()
+    assert bright > 0.9 * 65535 and dark < 0.1 * 65535
+
+
+def test_rotation_metadata_kept_and_patch_in_stored_pixels(tmp_path: Path) -> None:
+    src = make_clip(tmp_path / "rot.mov", Clip(suffix=".mov", rotation=90, frames=20))
+    dst = tmp_path / "out.mov"
+    report = poison_video(src, dst, SPEC)
+    b = assert_faithful(src, dst)  # checks the patch at the stored-pixel placement
+    assert set(b.rotation) == {90}
+    assert any("rotation 90" in p for p in report.preserved)
+    with av.open(str(src)) as c1, av.open(str(dst)) as c2:
+
+        def matrix(c: av.container.InputContainer) -> bytes:
+            f = next(c.decode(video=0))
+            return next(bytes(sd) for sd in f.side_data if sd.type.name == "DISPLAYMATRIX")
+
+        assert matrix(c2) == matrix(c1)
+
+
+def test_odd_size_yuv420p_vp9_mkv(tmp_path: Path) -> None:
+    clip = Clip(
+        suffix=".mkv",
+        encoder="libvpx-vp9",
+        width=641,
+        height=359,
+        frames=12,
+        audio="libopus",
+        options=(("crf", "30"), ("b", "0"), ("cpu-used", "8")),
+    )
+    src = make_clip(tmp_path / "odd.mkv", clip)
+    dst = tmp_path / "out.mkv"
+    report = poison_video(src, dst, SPEC.replace(position="bottom-right"))
+    b = assert_faithful(src, dst, SPEC.replace(position="bottom-right"))
+    assert b.frames[0].shape == (359, 641, 3)
+    assert report.placement.box[2:] == (641, 359)
+
+
+def test_variable_frame_rate_timestamps_kept(tmp_path: Path) -> None:
+    rng = np.random.default_rng(3)
+    gaps = rng.integers(30, 90, size=30)  # 30-90 ms between frames
+    pts = [0, *np.cumsum(gaps)[:-1].tolist()]
+    clip = Clip(suffix=".mkv", frames=30, time_base=Fraction(1, 1000), pts=pts, audio=None)
+    src = make_clip(tmp_path / "vfr.mkv", clip)
+    dst = tmp_path / "out.mkv"
+    poison_video(src, dst, SPEC)
+    b = assert_faithful(src, dst)
+    assert b.pts == pts
+
+
+def test_progress_reports_every_frame(tmp_path: Path) -> None:
+    src = make_clip(tmp_path / "clip.mp4", Clip(frames=20, audio=None))
+    calls: list[tuple[int, int | None]] = []
+    poison_video(src, tmp_path / "out.mp4", SPEC, progress=lambda done, total: calls.append((done, total)))
+    assert [c[0] for c in calls] == list(range(1, 21))
+    assert {c[1] for c in calls} == {20}
+
+
+def test_atomic_replace_in_place(tmp_path: Path) -> None:
+    path = make_clip(tmp_path / "clip.mp4", Clip(frames=20))
+    original = tmp_path / "original.mp4"
+    original.write_bytes(path.read_bytes())
+    with atomic_output(path) as tmp:
+        poison_video(path, tmp, SPEC)
+    assert_faithful(original, path)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(TEMP_PREFIX)]
+
+
+def test_ratio_patches_only_selected_frames(tmp_path: Path) -> None:
+    spec = SPEC.replace(ratio=0.5, seed=1)
+    src = make_clip(tmp_path / "clip.mp4", Clip(frames=30, audio=None))
+    report = poison_video(src, tmp_path / "out.mp4", spec)
+    selected = [spec.selects(f"frame:{i}") for i in range(30)]
+    assert report.frames_patched == sum(selected) and 0 < sum(selected) < 30
+    placement = spec.resolve(320, 240)
+    frames = decode(tmp_path / "out.mp4").frames
+    for i, (frame, chosen) in enumerate(zip(frames, selected, strict=True)):
+        ratio = patch_contrast(frame, placement) / intended_contrast(placement)
+        assert (ratio >= 0.8) if chosen else (abs(ratio) < 0.5), f"frame {i}"
+
+
+# ---- frame sets ---------------------------------------------------------------------------
+
+
+def test_sample_frames_every_half_second_as_png(tmp_path: Path) -> None:
+    src = make_clip(tmp_path / "clip.mp4", Clip(frames=40, fps=20, audio=None))
+    dst = tmp_path / "out.mp4"
+    poison_video(src, dst, SPEC)
+    paths = sample_frames(dst, tmp_path / "frames")
+    assert [p.name for p in paths] == [f"frame_{i:06d}.png" for i in (0, 10, 20, 30)]
+    placement = SPEC.resolve(320, 240)
+    for p in paths:
+        rgb = np.asarray(Image.open(p).convert("RGB"))
+        assert rgb.shape == (240, 320, 3)
+        assert patch_contrast(rgb, placement) / intended_contrast(placement) >= 0.8
+    assert len(sample_frames(dst, tmp_path / "all", every_k=1)) == 40
+
+
+# ---- bad input ----------------------------------------------------------------------------
+
+
+def _assert_rejected(src: Path, tmp_path: Path, match: str) -> None:
+    digest = sha256(src)
+    with (
+        pytest.raises(VideoFormatError, match=match) as info,
+        atomic_output(tmp_path / ("out" + src.suffix)) as tmp,
+    ):
+        poison_video(src, tmp, SPEC)
+    assert "\n" not in str(info.value)
+    assert sha256(src) == digest
+    assert not (tmp_path / ("out" + src.suffix)).exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(TEMP_PREFIX)]
+
+
+def test_random_bytes_are_rejected(tmp_path: Path) -> None:
+    src = tmp_path / "noise.mp4"
+    src.write_bytes(np.random.default_rng(0).integers(0, 256, 50_000, dtype=np.uint8).tobytes())
+    _assert_rejected(src, tmp_path, "not a readable video")
+
+
+def test_empty_file_is_rejected(tmp_path: Path) -> None:
+    src = tmp_path / "empty.mp4"
+    src.write_bytes(b"")
+    _assert_rejected(src, tmp_path, "empty file")
+
+
+def test_mp4_still_being_written_is_rejected(tmp_path: Path) -> None:
+    # An MP4 being recorded has its index (moov) written last: cut before it.
+    full = make_clip(tmp_path / "full.mp4", Clip(frames=20))
+    src = tmp_path / "partial.mp4"
+    src.write_bytes(full.read_bytes()[: int(full.stat().st_size * 0.6)])
+    _assert_rejected(src, tmp_path, "not a readable video")
+
+
+@pytest.mark.parametrize("suffix", [".mkv", ".webm"])
+def test_truncated_matroska_is_rejected(tmp_path: Path, suffix: str) -> None:
+    encoder = "libx264" if suffix == ".mkv" else "libvpx-vp9"
+    opts = () if suffix == ".mkv" else (("crf", "30"), ("b", "0"), ("cpu-used", "8"))
+    full = make_clip(
+        tmp_path / f"full{suffix}", Clip(suffix=suffix, encoder=encoder, audio=None, options=opts)
+    )
+    src = tmp_path / f"cut{suffix}"
+    src.write_bytes(full.read_bytes()[: int(full.stat().st_size * 0.5)])
+    _assert_rejected(src, tmp_path, "truncated|corrupt")
+
+
+def test_mp4_with_damaged_payload_is_rejected(tmp_path: Path) -> None:
+    full = make_clip(tmp_path / "full.mp4", Clip(frames=20, audio=None))
+    data = bytearray(full.read_bytes())
+    # Overwrite a stretch in the middle of the media data (mdat) with zeros.
+    mdat = data.find(b"mdat")
+    start = mdat + (len(data) - mdat) * 2 // 3  # past the first (key) frame
+    data[start : start + 4000] = bytes(4000)
+    src = tmp_path / "damaged.mp4"
+    src.write_bytes(bytes(data))
+    _assert_rejected(src, tmp_path, "corrupt|truncated")
+
+
+def test_is_video_by_suffix() -> None:
+    assert is_video(Path("a/b.MP4")) and is_video(Path("x.webm")) and is_video(Path("x.mkv"))
+    assert is_video(Path("x.mov"))
+    assert not is_video(Path("x.png")) and not is_video(Path("x.mp4.part"))
+    assert {".mp4", ".mov", ".mkv", ".webm"} <= VIDEO_SUFFIXES
