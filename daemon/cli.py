@@ -22,18 +22,24 @@ def _main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Debug log
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s %(message)s")
 
 
-def _register() -> None:
-    # Each module exposes `register(app)`; a module that is not there yet is skipped.
-    import importlib
+COMMAND_MODULES = ("daemon.cli_poison", "daemon.cli_watch", "daemon.cli_demo", "verifier.cli")
 
-    for name in ("daemon.cli_poison", "daemon.cli_watch", "daemon.cli_demo", "verifier.cli"):
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name != name:
-                raise
-            continue
-        module.register(app)
+
+def _modules_for(argv: list[str]) -> tuple[str, ...]:
+    """`ppd watch` is the long-lived daemon: it loads only its own command module, which keeps
+    the others' imports (and their memory) out of the resident process."""
+    if len(argv) > 1 and argv[1] == "watch":
+        return ("daemon.cli_watch",)
+    return COMMAND_MODULES
+
+
+def _register() -> None:
+    # Each module exposes `register(app)`.
+    import importlib
+    import sys
+
+    for name in _modules_for(sys.argv):
+        importlib.import_module(name).register(app)
 
 
 _register()

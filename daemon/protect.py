@@ -281,6 +281,28 @@ def _dataset_spec(
     return _ensure_dataset(ctx, dataset, root, spec)
 
 
+def _carry_moved_row(
+    ctx: AppContext, earlier: dict[str, Any], path: Path, dataset: str, root: Path
+) -> bool:
+    """A protected file that was moved or renamed (a dataset folder renamed in the outbox, say)
+    keeps its provenance: its row follows it to the new path instead of dropping out of the
+    store, so status, restore and verification still see it. Copies (the old path still there)
+    are left as they are."""
+    old = Path(earlier["path"])
+    if old == path or old.exists() or earlier["state"] not in ("protected", "removed"):
+        return False
+    fields = {k: earlier[k] for k in ("original_sha256", "poisoned_sha256", "spec_id", "tool_version")}
+    # A dataset first seen through moved files (a renamed folder) inherits their patch spec.
+    _ensure_dataset(ctx, dataset, root, ctx.store.get_spec(earlier["spec_id"]))
+    st = path.stat()
+    ctx.store.record_file(
+        path, dataset, "protected", event="moved", detail={"from": str(old)},
+        size=st.st_size, mtime_ns=st.st_mtime_ns, **fields,
+    )  # fmt: skip
+    ctx.store.record_file(old, earlier["dataset"], "removed", event="moved_away", detail={"to": str(path)})
+    return True
+
+
 def _protect(
     path: Path,
     ctx: AppContext,
@@ -311,7 +333,10 @@ def _protect(
     # Never poison twice: ppd's own output (here or anywhere) is left alone.
     if out_path is None and row is not None and row["poisoned_sha256"] == sha:
         return outcome("unchanged", "already protected", kind=kind, poisoned_sha256=sha, output=path)
-    if ctx.store.find_poisoned(sha) is not None:
+    earlier = ctx.store.find_poisoned(sha)
+    if earlier is not None:
+        if out_path is None and not dry_run and _carry_moved_row(ctx, earlier, path, dataset, root):
+            return outcome("unchanged", f"moved from {earlier['path']}", kind=kind, poisoned_sha256=sha)
         return outcome("unchanged", "already ppd output", kind=kind, poisoned_sha256=sha)
     if row is not None and row["state"] == "restored" and row["original_sha256"] == sha and not force:
         return outcome("unchanged", "restored by the user (use --force to protect it again)", kind=kind)

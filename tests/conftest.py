@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-
 # PIL before pycolmap in any process that has both (pillow 13 + pycolmap 4.2.1 crash otherwise).
 import PIL.Image  # noqa: F401
+import pytest
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 

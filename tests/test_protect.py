@@ -385,3 +385,32 @@ def test_interrupted_run_is_recovered_not_poisoned_twice(ctx: AppContext, ppd_en
     ctx.vault.restore(outcome.original_sha256, src)
     assert protect_file(src, ctx).state == "protected"
     assert src.read_bytes() == poisoned
+
+
+def test_a_renamed_dataset_folder_keeps_its_provenance(ppd_env) -> None:
+    """Moving protected files (a dataset folder renamed in the outbox) must not drop them out of
+    the store: the rows follow the files, and the vault pairs still resolve."""
+    from daemon.protect import AppContext, dataset_pairs, protect_file
+
+    ctx = AppContext.open()
+    try:
+        old_dir = ppd_env["outbox"] / "shoot"
+        old_dir.mkdir()
+        rng = np.random.default_rng(3)
+        for i in range(3):
+            Image.fromarray(rng.integers(0, 256, (96, 96, 3), dtype=np.uint8)).save(old_dir / f"v{i}.png")
+            assert protect_file(old_dir / f"v{i}.png", ctx).state == "protected"
+        new_dir = ppd_env["outbox"] / "shoot-final"
+        old_dir.rename(new_dir)
+        outcomes = [protect_file(p, ctx) for p in sorted(new_dir.glob("*.png"))]
+        assert {o.state for o in outcomes} == {"unchanged"}
+        assert all("moved from" in (o.reason or "") for o in outcomes)
+        rows = ctx.store.files("shoot-final")
+        assert len(rows) == 3 and {r["state"] for r in rows} == {"protected"}
+        assert {r["state"] for r in ctx.store.files("shoot")} == {"removed"}
+        pairs = dataset_pairs(ctx, "shoot-final")
+        assert len(pairs) == 3 and all(orig.exists() and prot.exists() for orig, prot in pairs)
+        # A second pass is a plain no-op.
+        assert {protect_file(p, ctx).reason for p in new_dir.glob("*.png")} == {"already protected"}
+    finally:
+        ctx.close()

@@ -1,0 +1,142 @@
+"""`ppd watch [OUTBOX]` (the daemon, in the foreground: systemd runs exactly this) and
+`ppd service install|uninstall|status` (its systemd user unit)."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import signal
+import sys
+from pathlib import Path
+from types import FrameType
+
+import typer
+from rich.console import Console
+
+log = logging.getLogger(__name__)
+console = Console(stderr=True, soft_wrap=True)  # one error = one line, whatever the width
+
+service_app = typer.Typer(help="The systemd user service that runs `ppd watch`.", no_args_is_help=True)
+
+
+def _fail(message: str) -> typer.Exit:
+    console.print(f"[red]error:[/red] {message}", highlight=False)
+    return typer.Exit(1)
+
+
+def _open_context(outbox: Path | None):  # -> daemon.protect.AppContext
+    from daemon.config import ConfigError
+    from daemon.paths import AppPaths
+    from daemon.protect import AppContext
+    from daemon.store import StoreError
+
+    paths = AppPaths.from_env()
+    if outbox is not None:
+        paths = dataclasses.replace(paths, outbox=outbox.expanduser().absolute())
+    try:
+        return AppContext.open(paths)
+    except (ConfigError, StoreError) as exc:
+        raise _fail(str(exc).splitlines()[0]) from None
+    except OSError as exc:
+        raise _fail(f"cannot set up ppd's folders: {exc.strerror}: {exc.filename}") from None
+
+
+def watch(
+    outbox: Path | None = typer.Argument(None, help="Folder to watch (default: $PPD_OUTBOX)."),
+    workers: int | None = typer.Option(None, "--workers", "-j", min=1, help="Files protected at once."),
+    debounce: float | None = typer.Option(
+        None, "--debounce", min=0.0, help="Quiet seconds after a file is closed; config: debounce_seconds."
+    ),
+    verify: bool | None = typer.Option(
+        None, "--verify/--no-verify", help="Schedule SfM verification (config: verification.enabled)."
+    ),
+) -> None:
+    """Watch the outbox and protect every photo or video that lands in it (foreground)."""
+    from daemon.watcher import DaemonOptions, WatchDaemon
+
+    ctx = _open_context(outbox)
+    options = DaemonOptions.from_config(ctx.config, workers=workers, settle_s=debounce, verify=verify)
+    daemon = WatchDaemon(ctx, options)
+    interrupts = 0
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        nonlocal interrupts
+        interrupts += 1
+        if interrupts > 1:  # a second Ctrl-C: leave now; temporaries are cleaned at next start
+            os._exit(130)
+        log.info("signal %s: stopping", signal.Signals(signum).name)
+        daemon.request_stop()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    try:
+        code = daemon.run()
+    finally:
+        ctx.close()
+    raise typer.Exit(code)
+
+
+@service_app.command("install")
+def service_install(
+    start: bool = typer.Option(True, "--start/--no-start", help="Enable and start it now."),
+) -> None:
+    """Write ~/.config/systemd/user/ppd.service for this installation and reload systemd."""
+    from daemon import service
+
+    ctx = _open_context(None)
+    try:
+        layout = service.installed_layout(ctx.paths, ctx.config)
+    except FileNotFoundError as exc:
+        raise _fail(str(exc)) from None
+    finally:
+        ctx.close()
+    target = service.install_unit(service.render_unit(layout))
+    console.print(f"wrote {target}", highlight=False)
+    reload = service.systemctl_user("daemon-reload")
+    if not reload.ran:
+        console.print(
+            "no systemd user manager reachable here; once logged in with one, run:\n"
+            "  systemctl --user daemon-reload && systemctl --user enable --now ppd",
+            highlight=False,
+        )
+        return
+    if start:
+        enabled = service.systemctl_user("enable", "--now", service.UNIT_NAME)
+        console.print(enabled.output or f"enabled and started {service.UNIT_NAME}", highlight=False)
+        if enabled.returncode != 0:
+            raise typer.Exit(1)
+
+
+@service_app.command("uninstall")
+def service_uninstall() -> None:
+    """Stop and disable the service, remove its unit file, reload systemd."""
+    from daemon import service
+
+    stopped = service.systemctl_user("disable", "--now", service.UNIT_NAME)
+    removed = service.uninstall_unit()
+    console.print(f"removed {removed}" if removed else "ppd.service was not installed", highlight=False)
+    if stopped.ran:
+        service.systemctl_user("daemon-reload")
+
+
+@service_app.command("status")
+def service_status() -> None:
+    """Where the unit file is, and what systemd says about the service."""
+    from daemon import service
+
+    target = service.unit_dir() / service.UNIT_NAME
+    state = "installed" if target.is_file() else "not installed"
+    console.print(f"unit file: {target} ({state})", highlight=False)
+    result = service.systemctl_user("status", "--no-pager", "--lines=5", service.UNIT_NAME)
+    if not result.ran:
+        reason = (result.output.splitlines() or ["unknown reason"])[0]
+        console.print(f"systemd user manager: not reachable ({reason})", highlight=False)
+        raise typer.Exit(0 if target.is_file() else 3)
+    sys.stdout.write(result.output + "\n")
+    raise typer.Exit(result.returncode)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("watch")(watch)
+    app.add_typer(service_app, name="service")

@@ -1,0 +1,233 @@
+"""The systemd user service: render ppd.service with this installation's absolute paths,
+install it under $XDG_CONFIG_HOME/systemd/user (default ~/.config/systemd/user), remove it,
+report its state.
+
+The unit runs exactly `ppd watch` (Type=notify: ready once the catch-up scan has queued its
+work and the inotify watch is in place; WatchdogSec: systemd restarts a daemon that stops
+answering). The sandbox is what a user service can take; see docs/DAEMON.md for each line.
+MemoryDenyWriteExecute is left out on purpose: the verification children the daemon starts
+inherit the sandbox, and torch's oneDNN JIT fails under it ("could not create a primitive",
+measured with prctl(PR_SET_MDWE), the same W^X rule), while numpy, Pillow, PyAV and
+pycolmap's SIFT work.
+
+`systemd/ppd.service` in the repository is `render_unit(generic_layout())`: the same unit
+with systemd specifiers (%h) for a `pip install --user` layout; a test keeps them equal.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+UNIT_NAME = "ppd.service"
+
+UNIT_TEMPLATE = """\
+# ppd: PatchPoison daemon, a systemd *user* service. Installed by `ppd service install`.
+# It watches the outbox and protects every photo/video dropped there.
+[Unit]
+Description=PatchPoison daemon: protect photos dropped in the outbox
+Documentation={docs}
+
+[Service]
+Type=notify
+ExecStart={exec_start}
+{environment}Restart=on-failure
+RestartSec=5s
+# Ready is sent after the catch-up scan; a 10k-file outbox is still scanned in seconds.
+TimeoutStartSec=5min
+# SIGTERM: no new work, files in flight finish (a 4K video can take a while), exit 0.
+TimeoutStopSec=2min
+KillMode=mixed
+WatchdogSec=60s
+NotifyAccess=main
+
+# Sandbox (what a user service can take; needs unprivileged user namespaces for some lines).
+NoNewPrivileges=yes
+ProtectSystem=strict
+ReadWritePaths={read_write}
+PrivateTmp=yes
+PrivateDevices=yes
+ProtectKernelTunables=yes
+ProtectKernelModules=yes
+ProtectKernelLogs=yes
+ProtectControlGroups=yes
+ProtectClock=yes
+ProtectHostname=yes
+ProtectProc=invisible
+# Only AF_UNIX: sd_notify and journald. Nothing listens on, or dials, a network port.
+RestrictAddressFamilies=AF_UNIX
+RestrictNamespaces=yes
+RestrictRealtime=yes
+RestrictSUIDSGID=yes
+LockPersonality=yes
+SystemCallArchitectures=native
+SystemCallFilter=@system-service
+SystemCallErrorNumber=EPERM
+UMask=0077
+# No MemoryDenyWriteExecute: torch (LPIPS/splat in verification children) needs W+X for
+# its oneDNN JIT ("could not create a primitive" under it; measured).
+
+[Install]
+WantedBy=default.target
+"""
+
+
+@dataclass(frozen=True)
+class UnitLayout:
+    """What varies between installations. Strings are already in systemd syntax."""
+
+    exec_start: Sequence[str]  # argv of `ppd watch`
+    read_write: Sequence[str]  # outbox, data, cache (and publish folders, '-'-prefixed: optional)
+    environment: Mapping[str, str] = field(default_factory=dict)
+    docs: str = "https://github.com/patchpoison/ppd/blob/main/docs/DAEMON.md"
+
+
+def quote_word(word: str) -> str:
+    """A word for an ExecStart=/ReadWritePaths= line: quoted when it has spaces or quotes;
+    '%' doubled (systemd specifier escape) unless it is one of our own specifiers (%h)."""
+    if "%" in word and not word.startswith("%h"):
+        word = word.replace("%", "%%")
+    if any(c in word for c in " \t\"'\\"):
+        return '"' + word.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return word
+
+
+def render_unit(layout: UnitLayout) -> str:
+    env_lines = "".join(
+        f"Environment={quote_word(f'{key}={value}')}\n" for key, value in sorted(layout.environment.items())
+    )
+    return UNIT_TEMPLATE.format(
+        exec_start=" ".join(quote_word(w) for w in layout.exec_start),
+        environment=env_lines,
+        read_write=" ".join(quote_word(p) for p in layout.read_write),
+        docs=layout.docs,
+    )
+
+
+def generic_layout() -> UnitLayout:
+    """The repository's systemd/ppd.service: `pip install --user` paths, default folders."""
+    return UnitLayout(
+        exec_start=("%h/.local/bin/ppd", "watch"),
+        read_write=("%h/PPD Outbox", "%h/.local/share/ppd", "%h/.cache/ppd"),
+        docs="https://github.com/patchpoison/ppd/blob/main/docs/DAEMON.md",
+    )
+
+
+def ppd_executable() -> Path:
+    """The `ppd` console script of the running installation (the venv's bin first)."""
+    beside = Path(sys.executable).parent / "ppd"
+    if beside.is_file() and os.access(beside, os.X_OK):
+        return beside.absolute()
+    found = shutil.which("ppd")
+    if found is None:
+        raise FileNotFoundError(
+            "cannot find the `ppd` command (install ppd with pip, e.g. `pip install -e .`, first)"
+        )
+    return Path(found).absolute()
+
+
+def watch_command(executable: Path | None = None) -> tuple[list[str], dict[str, str]]:
+    """argv (and extra environment) that runs `ppd watch` for this installation: the `ppd`
+    console script when installed, else this Python with the checkout on PYTHONPATH."""
+    try:
+        exe = executable or ppd_executable()
+    except FileNotFoundError:
+        checkout = Path(__file__).resolve().parents[1]
+        python = str(Path(sys.executable).absolute())
+        return [python, "-m", "daemon.cli", "watch"], {"PYTHONPATH": str(checkout)}
+    return [str(exe), "watch"], {}
+
+
+def installed_layout(
+    paths: object, config: object | None = None, executable: Path | None = None
+) -> UnitLayout:
+    """The unit for this installation: absolute paths of its `ppd` and folders.
+
+    The PPD_* folders go into Environment= so the service uses the folders `install` saw,
+    even when they came from the environment of the shell that ran it.
+    """
+    argv, extra_env = watch_command(executable)
+    outbox, data, cache, conf = (
+        Path(getattr(paths, n)).absolute() for n in ("outbox", "data_dir", "cache_dir", "config_dir")
+    )
+    read_write = [str(outbox), str(data), str(cache)]
+    for publish in _publish_dirs(config):
+        read_write.append("-" + str(publish))  # '-': a missing folder does not stop the unit
+    docs = Path(__file__).resolve().parents[1] / "docs" / "DAEMON.md"
+    return UnitLayout(
+        exec_start=argv,
+        read_write=read_write,
+        environment={
+            "PPD_OUTBOX": str(outbox),
+            "PPD_DATA_DIR": str(data),
+            "PPD_CACHE_DIR": str(cache),
+            "PPD_CONFIG_DIR": str(conf),
+            "PYTHONUNBUFFERED": "1",
+            **extra_env,
+        },
+        docs=docs.as_uri(),
+    )
+
+
+def _publish_dirs(config: object | None) -> list[Path]:
+    if config is None:
+        return []
+    dirs = [getattr(config, "publish_dir", None)]
+    dirs += [getattr(o, "publish_dir", None) for o in getattr(config, "datasets", {}).values()]
+    return [Path(d).expanduser().absolute() for d in dirs if d]
+
+
+def unit_dir(env: Mapping[str, str] | None = None) -> Path:
+    env = os.environ if env is None else env
+    base = env.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base).expanduser() / "systemd" / "user"
+
+
+@dataclass(frozen=True)
+class SystemctlResult:
+    ran: bool  # False: no systemctl, or no user bus/manager to talk to
+    returncode: int
+    output: str
+
+
+def systemctl_user(*args: str, timeout: float = 20.0) -> SystemctlResult:
+    """`systemctl --user ARGS`, tolerating a machine without a user manager (containers, ssh
+    sessions without lingering): the unit file is still written; the caller says what to run."""
+    exe = shutil.which("systemctl")
+    if exe is None:
+        return SystemctlResult(False, 127, "systemctl not found")
+    try:
+        proc = subprocess.run([exe, "--user", *args], capture_output=True, text=True, timeout=timeout)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return SystemctlResult(False, 1, str(exc))
+    output = (proc.stdout + proc.stderr).strip()
+    no_manager = any(
+        s in output for s in ("Failed to connect to bus", "No medium found", "$DBUS_SESSION_BUS_ADDRESS")
+    )
+    return SystemctlResult(not no_manager, proc.returncode, output)
+
+
+def install_unit(text: str, env: Mapping[str, str] | None = None) -> Path:
+    """Write the unit atomically into the user unit folder; returns its path."""
+    from poisoner.atomic import atomic_write_bytes
+
+    folder = unit_dir(env)
+    folder.mkdir(parents=True, exist_ok=True)
+    target = folder / UNIT_NAME
+    atomic_write_bytes(target, text.encode())
+    return target
+
+
+def uninstall_unit(env: Mapping[str, str] | None = None) -> Path | None:
+    """Remove the unit file; returns its path, or None when it was not installed."""
+    target = unit_dir(env) / UNIT_NAME
+    try:
+        target.unlink()
+    except FileNotFoundError:
+        return None
+    return target

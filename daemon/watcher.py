@@ -1,0 +1,717 @@
+"""The outbox watcher: inotify events in, complete file paths out, never blocking.
+
+A file is handed on only when it is complete:
+- close-after-write (IN_CLOSE_WRITE, watchdog's FileClosedEvent) or a rename into place
+  (IN_MOVED_TO: browsers, rsync, editors and `mv` all finish that way), then
+- a short debounce: the file's (inode, size, mtime) must be unchanged for `settle_s` after the
+  last such event, for writers that close and reopen (chunked uploads, some sync tools).
+A file that only ever got IN_CREATE (a hard link, or a file written inside a new folder
+before its watch existed) is handed on after `unclosed_settle_s` of stable size and mtime.
+
+Never handed on: dot-files and anything under a dot-folder (ppd's own `.ppd-tmp-*` atomic
+temporaries included), partial downloads (`.crdownload`, `.part`, ...), editor backups and
+swap files (`~`, `.swp`, `.tmp`), files that are not images or videos. A partial download
+is picked up when it is renamed to its final name (a moved-in event).
+
+ppd's own atomic replace is a rename from `.ppd-tmp-*` onto the file: it is recognised by
+its source name and dropped before it is queued. A stat signature recorded after each
+processed file drops any other echo of ppd's own work (the vault's hard link changes ctime
+only; a late close event sees the signature of the file ppd wrote).
+
+The watcher runs on watchdog's observer thread and one debounce thread; both only do dict
+updates and stat calls and hand paths to `submit`, which never blocks (daemon.workers).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import stat
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from watchdog.events import (
+    DirDeletedEvent,
+    DirMovedEvent,
+    FileClosedEvent,
+    FileCreatedEvent,
+    FileDeletedEvent,
+    FileMovedEvent,
+    FileSystemEvent,
+    FileSystemEventHandler,
+)
+from watchdog.observers.inotify import InotifyObserver
+
+from daemon.notify import SystemdNotifier
+from daemon.workers import PoolOptions, PoolStats, WorkerPool
+from poisoner.atomic import TEMP_PREFIX
+
+log = logging.getLogger(__name__)
+
+# Names that mean "still being written": browsers, download managers, sync tools, editors.
+PARTIAL_SUFFIXES: frozenset[str] = frozenset({
+    ".crdownload", ".part", ".partial", ".download", ".opdownload", ".filepart", ".crswap",
+    ".tmp", ".temp", ".swp", ".swx", ".bak", ".aria2", ".!qb", ".!ut",
+})  # fmt: skip
+# poisoner.video.VIDEO_SUFFIXES, repeated here because importing poisoner.video loads PyAV
+# (~18 MB resident) into a daemon that may never see a video; a test keeps the two equal.
+VIDEO_SUFFIXES: frozenset[str] = frozenset({".mp4", ".m4v", ".mov", ".mkv", ".webm"})
+
+FileSignature = tuple[int, int, int]  # (inode, size, mtime_ns): changes whenever content can have
+
+
+def media_suffixes() -> frozenset[str]:
+    """Suffixes ppd protects: poisoner.formats' images plus poisoner.video's videos."""
+    from poisoner.formats import SUPPORTED_IMAGE_SUFFIXES
+
+    return SUPPORTED_IMAGE_SUFFIXES | VIDEO_SUFFIXES
+
+
+def ignore_reason(name: str) -> str | None:
+    """Why a file name is never processed as it is (None: it may be)."""
+    if name.startswith("."):
+        return "dot-file" if not name.startswith(TEMP_PREFIX) else "ppd temporary file"
+    if name.endswith("~"):
+        return "editor backup"
+    if name.startswith("~$") or name.startswith("#"):
+        return "editor lock file"
+    suffix = os.path.splitext(name)[1].lower()
+    if suffix in PARTIAL_SUFFIXES:
+        return f"partial/temporary file ({suffix})"
+    return None
+
+
+def relative_parts(outbox: Path, path: Path) -> tuple[str, ...] | None:
+    """path's components below outbox, or None when it is not inside."""
+    try:
+        return Path(path).relative_to(outbox).parts
+    except ValueError:
+        return None
+
+
+def is_candidate(outbox: Path, path: Path, suffixes: frozenset[str]) -> bool:
+    """Whether path (inside outbox) names a file ppd would protect, by its name alone."""
+    parts = relative_parts(outbox, path)
+    if not parts:
+        return False
+    if any(part.startswith(".") for part in parts[:-1]):
+        return False  # under a dot-folder (.Trash-1000, .thumbnails, .git, ...)
+    if ignore_reason(parts[-1]) is not None:
+        return False
+    return os.path.splitext(parts[-1])[1].lower() in suffixes
+
+
+def signature(path: Path) -> FileSignature | None:
+    try:
+        st = os.stat(path, follow_symlinks=False)
+    except OSError:
+        return None
+    return (st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+# ---- start-up scan --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ScanResult:
+    files: list[Path]  # candidate files, in walk order
+    stale_temps_removed: list[Path]  # `.ppd-tmp-*` leftovers of a crash, deleted
+    young_temps: list[Path]  # `.ppd-tmp-*` too recent to call leftovers (another ppd may write them)
+
+
+def walk_files(root: Path) -> Iterator[Path]:
+    """Every regular file under root, not following symlinks, skipping dot-folders."""
+    for folder, dirnames, filenames in os.walk(root, onerror=_log_walk_error):
+        dirnames[:] = [d for d in dirnames if not d.startswith(".")]
+        for name in filenames:
+            yield Path(folder) / name
+
+
+def _log_walk_error(exc: OSError) -> None:
+    log.warning("cannot list folder %s: %s", exc.filename, exc.strerror, extra={"path": exc.filename})
+
+
+def scan_outbox(
+    outbox: Path, suffixes: frozenset[str], tmp_grace_s: float | None, now: float | None = None
+) -> ScanResult:
+    """List the outbox's candidate files and delete ppd temporaries older than tmp_grace_s
+    (None: delete none).
+
+    A temporary is only removed once it is old: `ppd poison` in another process may be
+    writing one right now (a video's temporary grows for minutes; its mtime stays fresh)."""
+    now = time.time() if now is None else now
+    files: list[Path] = []
+    removed: list[Path] = []
+    young: list[Path] = []
+    for path in walk_files(outbox):
+        if path.name.startswith(TEMP_PREFIX):
+            try:
+                age = now - path.stat(follow_symlinks=False).st_mtime
+                if tmp_grace_s is not None and age >= tmp_grace_s:
+                    path.unlink()
+                    removed.append(path)
+                else:
+                    young.append(path)
+            except FileNotFoundError:
+                pass
+            except OSError as exc:
+                log.warning("cannot remove leftover temporary %s: %s", path, exc.strerror)
+        elif is_candidate(outbox, path, suffixes):
+            files.append(path)
+    return ScanResult(files, removed, young)
+
+
+# ---- live events ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class WatchOptions:
+    settle_s: float = 2.0  # quiet time after close-after-write (config: debounce_seconds)
+    moved_settle_s: float = 0.2  # a rename is atomic: only coalesce bursts
+    unclosed_settle_s: float = 10.0  # created, never closed/renamed (hard link, race in a new folder)
+
+
+@dataclass
+class _Armed:
+    deadline: float
+    delay: float
+    closed: bool  # a close/rename was seen (else only a creation)
+    last: FileSignature | None
+
+
+class _OverflowFlag(logging.Handler):
+    """watchdog rebuilds its watches after an inotify queue overflow but does not tell the
+    application; it logs a warning, which is the one signal it gives. Events were lost: the
+    owner must rescan."""
+
+    def __init__(self, on_overflow: Callable[[], None]) -> None:
+        super().__init__(logging.WARNING)
+        self._on_overflow = on_overflow
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if "overflow" in str(record.msg).lower():
+            self._on_overflow()
+
+
+class OutboxWatcher(FileSystemEventHandler):
+    """Turns inotify events under outbox into `submit(path)` calls for complete files, and
+    `submit(path)` for vanished files and folders (the consumer records them removed)."""
+
+    def __init__(
+        self,
+        outbox: Path,
+        submit: Callable[[Path], object],
+        options: WatchOptions | None = None,
+        suffixes: frozenset[str] | None = None,
+        on_overflow: Callable[[], None] | None = None,
+    ) -> None:
+        super().__init__()
+        self.outbox = Path(outbox).absolute()
+        self.options = options or WatchOptions()
+        self.suffixes = suffixes if suffixes is not None else media_suffixes()
+        self._submit = submit
+        self._on_overflow = on_overflow or (lambda: None)
+        self._cond = threading.Condition()
+        self._armed: dict[Path, _Armed] = {}
+        self._settled: dict[Path, FileSignature] = {}
+        self._settled_lock = threading.Lock()
+        self._observer: InotifyObserver | None = None
+        self._debouncer: threading.Thread | None = None
+        self._stopping = False
+        self._overflow_flag = _OverflowFlag(self._on_overflow)
+
+    # ---- lifecycle --------------------------------------------------------------------------
+    def start(self) -> None:
+        # Full events: a rename from outside the outbox arrives as a move (complete file),
+        # not as a creation (which would mean "a writer is starting").
+        observer = InotifyObserver(generate_full_events=True)
+        observer.schedule(
+            self, str(self.outbox), recursive=True,
+            event_filter=[FileClosedEvent, FileCreatedEvent, FileMovedEvent, DirMovedEvent,
+                          FileDeletedEvent, DirDeletedEvent],
+        )  # fmt: skip
+        logging.getLogger("watchdog.observers").addHandler(self._overflow_flag)
+        observer.start()
+        self._observer = observer
+        self._stopping = False
+        self._debouncer = threading.Thread(target=self._debounce_loop, name="ppd-debounce", daemon=True)
+        self._debouncer.start()
+        log.info("watching %s", self.outbox, extra={"outbox": str(self.outbox)})
+
+    def stop(self) -> None:
+        with self._cond:
+            self._stopping = True
+            self._armed.clear()
+            self._cond.notify_all()
+        if self._observer is not None:
+            self._observer.stop()
+            self._observer.join(timeout=10)
+        if self._debouncer is not None:
+            self._debouncer.join(timeout=10)
+        logging.getLogger("watchdog.observers").removeHandler(self._overflow_flag)
+
+    def is_alive(self) -> bool:
+        """False once the observer died (e.g. the outbox itself was deleted or moved away)."""
+        observer = self._observer
+        if observer is None or not observer.is_alive():
+            return False
+        return all(emitter.is_alive() for emitter in observer.emitters)
+
+    @property
+    def armed_count(self) -> int:
+        with self._cond:
+            return len(self._armed)
+
+    # ---- what the consumer tells us ---------------------------------------------------------
+    def mark_settled(self, path: Path) -> None:
+        """Remember path's current signature: events that find it unchanged are echoes."""
+        sig = signature(path)
+        with self._settled_lock:
+            if sig is None:
+                self._settled.pop(path, None)
+            else:
+                self._settled[path] = sig
+
+    def is_settled(self, path: Path, sig: FileSignature | None = None) -> bool:
+        sig = signature(path) if sig is None else sig
+        with self._settled_lock:
+            return sig is not None and self._settled.get(path) == sig
+
+    def forget(self, path: Path) -> None:
+        with self._settled_lock:
+            self._settled.pop(path, None)
+
+    # ---- events (watchdog's observer thread) --------------------------------------------------
+    def _candidate(self, raw: str | bytes) -> Path | None:
+        if not raw:
+            return None
+        path = Path(os.fsdecode(raw))
+        return path if is_candidate(self.outbox, path, self.suffixes) else None
+
+    def _inside(self, raw: str | bytes) -> Path | None:
+        if not raw:
+            return None
+        path = Path(os.fsdecode(raw))
+        parts = relative_parts(self.outbox, path)
+        if not parts or any(part.startswith(".") for part in parts):
+            return None
+        return path
+
+    def on_closed(self, event: FileSystemEvent) -> None:
+        if (path := self._candidate(event.src_path)) is not None:
+            self._arm(path, self.options.settle_s, closed=True)
+
+    def on_created(self, event: FileSystemEvent) -> None:
+        if event.is_directory:
+            return  # watchdog reports the new folder's content itself
+        if (path := self._candidate(event.src_path)) is not None:
+            self._arm(path, self.options.unclosed_settle_s, closed=False)
+
+    def on_moved(self, event: FileSystemEvent) -> None:
+        src = os.fsdecode(event.src_path) if event.src_path else ""
+        if src and os.path.basename(src).startswith(TEMP_PREFIX):
+            return  # ppd's own atomic replace: the destination is ppd's output
+        if event.is_directory:
+            if (gone := self._inside(src)) is not None:
+                self._submit(gone)  # rows under it are recorded removed (if it is really gone)
+            # A folder from outside: its files are complete; the consumer walks it. (A rename
+            # inside the outbox also gets one moved event per file from watchdog.)
+            if (new := self._inside(event.dest_path)) is not None and self._inside(src) is None:
+                self._submit(new)
+            return
+        if (gone := self._candidate(src)) is not None:
+            self._disarm(gone)
+            self._submit(gone)
+        if (dest := self._candidate(event.dest_path)) is not None:
+            self._arm(dest, self.options.moved_settle_s, closed=True)
+
+    def on_deleted(self, event: FileSystemEvent) -> None:
+        src = os.fsdecode(event.src_path)
+        if event.is_directory:
+            if Path(src) == self.outbox:
+                log.error("the outbox %s was deleted or moved away", src)
+                self._on_overflow()  # the owner notices the dead observer and restarts
+            elif (gone := self._inside(src)) is not None:
+                self._submit(gone)
+            return
+        if (path := self._candidate(src)) is not None:
+            self._disarm(path)
+            self._submit(path)
+
+    # ---- debounce ---------------------------------------------------------------------------
+    def _arm(self, path: Path, delay: float, closed: bool) -> None:
+        now = time.monotonic()
+        with self._cond:
+            if self._stopping:
+                return
+            armed = self._armed.get(path)
+            if armed is not None and armed.closed and not closed:
+                return  # a creation never weakens a close already seen
+            self._armed[path] = _Armed(deadline=now + delay, delay=delay, closed=closed, last=signature(path))
+            self._cond.notify()
+
+    def _disarm(self, path: Path) -> None:
+        with self._cond:
+            self._armed.pop(path, None)
+
+    def _due(self) -> list[tuple[Path, _Armed]]:
+        """Wait for the earliest deadline; return the entries that are due (removed)."""
+        with self._cond:
+            while not self._stopping:
+                if not self._armed:
+                    self._cond.wait()
+                    continue
+                now = time.monotonic()
+                earliest = min(a.deadline for a in self._armed.values())
+                if earliest > now:
+                    self._cond.wait(earliest - now)
+                    continue
+                due = [(p, a) for p, a in self._armed.items() if a.deadline <= now]
+                for p, _ in due:
+                    del self._armed[p]
+                return due
+            return []
+
+    def _debounce_loop(self) -> None:
+        while due := self._due():
+            for path, armed in due:
+                try:
+                    self._fire(path, armed)
+                except Exception:  # never let the debounce thread die
+                    log.exception("debounce failed", extra={"path": str(path)})
+
+    def _fire(self, path: Path, armed: _Armed) -> None:
+        now_sig = signature(path)
+        if now_sig is not None and now_sig != armed.last:
+            # Still changing (a writer that closed early and reopened): wait another round.
+            with self._cond:
+                if path not in self._armed and not self._stopping:
+                    self._armed[path] = _Armed(
+                        time.monotonic() + armed.delay, armed.delay, armed.closed, now_sig
+                    )
+                    self._cond.notify()
+            return
+        if now_sig is not None and self.is_settled(path, now_sig):
+            return  # ppd's own output, or content already processed
+        self._submit(path)
+
+
+# ---- the daemon: watcher + catch-up + workers + systemd ---------------------------------------
+@dataclass(frozen=True)
+class DaemonOptions:
+    watch: WatchOptions = WatchOptions()
+    workers: int = 2
+    queue_size: int = 256
+    max_pending: int = 100_000
+    tmp_grace_s: float = 60.0  # younger `.ppd-tmp-*` files may belong to a running `ppd poison`
+    verify: bool = True  # run engineer D's VerificationScheduler when it is installed
+
+    @classmethod
+    def from_config(cls, config: Any, **overrides: Any) -> DaemonOptions:
+        """Options from daemon.config.Config (workers, debounce_seconds, verification.enabled)."""
+        base = cls(
+            watch=WatchOptions(settle_s=float(config.debounce_seconds)),
+            workers=int(config.workers),
+            verify=bool(config.verification.enabled),
+        )
+        settle = overrides.pop("settle_s", None)
+        if settle is not None:
+            base = dataclasses.replace(base, watch=dataclasses.replace(base.watch, settle_s=settle))
+        return dataclasses.replace(base, **{k: v for k, v in overrides.items() if v is not None})
+
+
+@dataclass
+class DaemonCounts:
+    protected: int = 0
+    unchanged: int = 0
+    skipped: int = 0
+    failed: int = 0
+    removed: int = 0
+
+
+def status_line(counts: DaemonCounts, stats: PoolStats, armed: int) -> str:
+    """The one-line STATUS= systemd shows in `systemctl --user status ppd`."""
+    return (
+        f"protected {counts.protected}, failed {counts.failed}, unchanged {counts.unchanged}, "
+        f"removed {counts.removed}; queued {stats.queued + stats.pending}, in flight {stats.in_flight}, "
+        f"settling {armed}"
+    )
+
+
+class WatchDaemon:
+    """`ppd watch`: catch-up scan, live watching, the worker pool, verification scheduling
+    and the systemd protocol, until `request_stop()` (SIGTERM/SIGINT)."""
+
+    def __init__(self, ctx: Any, options: DaemonOptions, notifier: SystemdNotifier | None = None) -> None:
+        self.ctx = ctx  # daemon.protect.AppContext
+        self.outbox = Path(ctx.paths.outbox).absolute()
+        self.options = options
+        self.notifier = notifier or SystemdNotifier()
+        self.suffixes = media_suffixes()
+        self.counts = DaemonCounts()
+        self._counts_lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._rescan_needed = threading.Event()
+        self.ready = threading.Event()  # set once watching (tests, embedding)
+        self._trim_due = threading.Event()
+        self.pool = WorkerPool(
+            self.process,
+            PoolOptions(
+                workers=options.workers, queue_size=options.queue_size, max_pending=options.max_pending
+            ),
+            on_idle=self._on_pool_idle,
+        )
+        self.watcher = OutboxWatcher(
+            self.outbox, self.pool.submit, options.watch, self.suffixes, self._on_lost_events
+        )
+        self.scheduler: Any = None
+
+    # ---- lifecycle ----------------------------------------------------------------------------
+    def request_stop(self) -> None:
+        """Safe from a signal handler: only sets two events."""
+        self._stop.set()
+        self._wake.set()
+
+    def start(self) -> None:
+        self.outbox.mkdir(parents=True, exist_ok=True)
+        self.scheduler = self._start_scheduler() if self.options.verify else None
+        self.pool.start()
+        self.watcher.start()  # before the scan: nothing written during the scan is missed
+        self.catch_up(remove_leftovers=True)
+
+    def run(self) -> int:
+        """Start, serve until asked to stop, shut down; the exit status (0 on a clean stop)."""
+        self.start()
+        self.notifier.ready(self.status())
+        self.ready.set()
+        log.info("ppd watch ready", extra={"outbox": str(self.outbox), "workers": self.options.workers})
+        ping = self.notifier.watchdog_interval
+        last_status = ""
+        while not self._stop.is_set():
+            # Sleeps until an event needs the main thread; the only timer is systemd's watchdog.
+            self._wake.wait(timeout=ping if ping else (5.0 if self._rescan_needed.is_set() else None))
+            self._wake.clear()
+            if self._stop.is_set():
+                break
+            self._keep_watching()
+            if self.pool.take_overflow():
+                self._rescan_needed.set()
+            if self._rescan_needed.is_set() and self._idle_enough():
+                self._rescan_needed.clear()
+                self.catch_up()
+            if self._trim_due.is_set() and self._idle_enough():
+                self._trim_due.clear()
+                release_free_memory()
+            if ping and self.watcher.is_alive():
+                self.notifier.watchdog()  # only while events can still arrive
+            status = self.status()
+            if status != last_status:
+                self.notifier.status(status)
+                last_status = status
+        self.shutdown()
+        return 0
+
+    def shutdown(self) -> None:
+        self.notifier.stopping("stopping: finishing files in flight")
+        log.info("stopping: no new work; waiting for files in flight", extra=self._stats_extra())
+        self.watcher.stop()
+        dropped = self.pool.stop()
+        if dropped:
+            log.info("%d queued file(s) left for the next start's catch-up scan", len(dropped))
+        if self.scheduler is not None:
+            try:
+                self.scheduler.stop()
+            except Exception:
+                log.exception("verification scheduler did not stop cleanly")
+        log.info("stopped: %s", self.status())
+
+    # ---- helpers of the main loop -------------------------------------------------------------
+    def _start_scheduler(self) -> Any:
+        try:
+            from verifier.scheduler import VerificationScheduler
+        except ModuleNotFoundError as exc:
+            if exc.name not in ("verifier.scheduler", "verifier"):
+                raise
+            log.info("verification scheduler not installed; running without scheduled verification")
+            return None
+        scheduler = VerificationScheduler(self.ctx)
+        scheduler.start()
+        return scheduler
+
+    def _on_pool_idle(self) -> None:
+        self._trim_due.set()
+        self._wake.set()
+
+    def _on_lost_events(self) -> None:
+        self._rescan_needed.set()
+        self._wake.set()
+
+    def _idle_enough(self) -> bool:
+        stats = self.pool.stats()
+        return stats.queued + stats.pending == 0
+
+    def _keep_watching(self) -> None:
+        """Restart the observer when the outbox was deleted or moved away (and recreate it)."""
+        if self.watcher.is_alive() and self.outbox.is_dir():
+            return
+        log.error("outbox watch lost; recreating %s and rescanning", self.outbox)
+        self.watcher.stop()
+        try:
+            self.outbox.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            log.error("cannot recreate the outbox %s: %s", self.outbox, exc.strerror)
+            self._rescan_needed.set()  # retried on the next wake-up (every 5 s while needed)
+            return
+        self.watcher = OutboxWatcher(
+            self.outbox, self.pool.submit, self.options.watch, self.suffixes, self._on_lost_events
+        )
+        self.watcher.start()
+        self._rescan_needed.set()
+
+    def status(self) -> str:
+        with self._counts_lock:
+            counts = dataclasses.replace(self.counts)
+        return status_line(counts, self.pool.stats(), self.watcher.armed_count)
+
+    def _stats_extra(self) -> dict[str, Any]:
+        return {"status": self.status()}
+
+    def _count(self, state: str) -> None:
+        with self._counts_lock:
+            if hasattr(self.counts, state):
+                setattr(self.counts, state, getattr(self.counts, state) + 1)
+        self._wake.set()  # the main loop refreshes STATUS=
+
+    # ---- catch-up -----------------------------------------------------------------------------
+    def catch_up(self, remove_leftovers: bool = False) -> int:
+        """Reconcile the outbox with the store after a downtime (or lost events).
+
+        remove_leftovers: delete old `.ppd-tmp-*` files, crash leftovers. Only at start-up:
+        later, this daemon's own workers have temporaries in progress (a video's for minutes).
+
+        Queues every candidate file whose (size, mtime) differ from its 'protected' row (new or
+        changed while ppd was down; protect_file itself says 'unchanged' for its own output),
+        and every path the store knows but the disk no longer has (recorded 'removed').
+        Returns how many paths were queued.
+        """
+        started = time.monotonic()
+        grace = self.options.tmp_grace_s if remove_leftovers else None
+        result = scan_outbox(self.outbox, self.suffixes, grace)
+        for tmp in result.stale_temps_removed:
+            log.info("removed leftover temporary file %s", tmp, extra={"path": str(tmp)})
+        rows = self._known_rows()
+        queued = 0
+        on_disk = set()
+        for path in result.files:
+            on_disk.add(str(path))
+            row = rows.get(str(path))
+            if row is not None and _row_matches_disk(row, path):
+                self.watcher.mark_settled(path)
+                continue
+            queued += int(self.pool.submit(path))
+        for path_text, row in rows.items():
+            if path_text not in on_disk and row["state"] != "removed" and _is_under(self.outbox, path_text):
+                queued += int(self.pool.submit(Path(path_text)))
+        seconds = round(time.monotonic() - started, 3)
+        log.info(
+            "catch-up scan: %d file(s) on disk, %d queued", len(result.files), queued,
+            extra={"files": len(result.files), "queued": queued, "seconds": seconds},
+        )  # fmt: skip
+        return queued
+
+    def _known_rows(self) -> dict[str, dict[str, Any]]:
+        store = self.ctx.store
+        return {row["path"]: row for ds in store.datasets() for row in store.files(ds["name"])}
+
+    # ---- the worker's job ---------------------------------------------------------------------
+    def process(self, path: Path) -> None:
+        """Whatever the path now is: protect a file, walk a moved-in folder, record a removal."""
+        try:
+            st = os.stat(path, follow_symlinks=False)
+        except FileNotFoundError:
+            self.watcher.forget(path)
+            self._record_removed(path)
+            return
+        except OSError as exc:
+            log.warning("cannot stat %s: %s", path, exc.strerror, extra={"path": str(path)})
+            st = None
+        if st is not None and stat.S_ISDIR(st.st_mode):
+            for child in walk_files(path):
+                if is_candidate(self.outbox, child, self.suffixes) and not self.watcher.is_settled(child):
+                    self.pool.submit(child)
+            return
+        if st is not None and not stat.S_ISREG(st.st_mode):
+            log.info("not a regular file, left alone: %s", path, extra={"path": str(path)})
+            return
+        if self.watcher.is_settled(path):
+            return
+        from daemon.protect import protect_file  # lazy: keeps `import daemon.watcher` light
+
+        outcome = protect_file(path, self.ctx)
+        self.watcher.mark_settled(Path(outcome.output) if outcome.output else path)
+        self.watcher.mark_settled(path)
+        self._count(outcome.state)
+        if outcome.state == "failed":
+            log.warning(
+                "failed: %s: %s",
+                path,
+                outcome.reason,
+                extra={"path": str(path), "dataset": outcome.dataset, "reason": outcome.reason},
+            )
+        if outcome.state == "protected" and self.scheduler is not None and outcome.dataset:
+            try:
+                self.scheduler.on_protected(outcome.dataset)
+            except Exception:
+                log.exception("verification scheduler failed", extra={"dataset": outcome.dataset})
+
+    def _record_removed(self, path: Path) -> None:
+        """Rows for path, or for every file under path when it was a folder, become 'removed'."""
+        store = self.ctx.store
+        row = store.file(path)
+        rows = [row] if row is not None else []
+        if not rows and not is_candidate(self.outbox, path, self.suffixes):
+            # Perhaps a folder: its files' rows. (A media name is taken for a file, so deleting
+            # 10k unknown files does not scan the store 10k times.)
+            prefix = str(path) + os.sep
+            rows = [r for r in self._known_rows().values() if r["path"].startswith(prefix)]
+        for r in rows:
+            if r["state"] == "removed" or Path(r["path"]).exists():
+                continue
+            published = r.get("published_path")
+            if r["state"] == "protected" and published and Path(published).exists():
+                continue  # moved to its publish folder by ppd itself, not removed
+            store.record_file(
+                r["path"], r["dataset"], "removed", event="removed", detail={"previous_state": r["state"]}
+            )
+            self._count("removed")
+            log.info("removed: %s", r["path"], extra={"path": r["path"], "dataset": r["dataset"]})
+
+
+def release_free_memory() -> None:
+    """Give freed heap back to the OS once a batch is done (glibc's malloc_trim).
+
+    Decoding a 12 MP photo takes ~100 MB that glibc keeps in its per-thread arenas after the
+    batch; trimming brings an idle daemon back near its start-up size. No-op elsewhere."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
+def _row_matches_disk(row: dict[str, Any], path: Path) -> bool:
+    """A 'protected' row whose recorded size and mtime are the file's: nothing to do."""
+    if row["state"] != "protected" or row.get("published_path") or row.get("size") is None:
+        return False
+    try:
+        st = path.stat()
+    except OSError:
+        return False
+    return (st.st_size, st.st_mtime_ns) == (row["size"], row["mtime_ns"])
+
+
+def _is_under(outbox: Path, path_text: str) -> bool:
+    return path_text.startswith(str(outbox) + os.sep)

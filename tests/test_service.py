@@ -1,0 +1,142 @@
+"""The systemd user unit: rendered with this installation's real paths, checked by the real
+`systemd-analyze verify`, installed/removed by the real `ppd service` commands."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from daemon.config import Config
+from daemon.paths import AppPaths
+from daemon.service import (
+    UNIT_NAME,
+    generic_layout,
+    installed_layout,
+    quote_word,
+    render_unit,
+    unit_dir,
+    watch_command,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+SYSTEMD_ANALYZE = shutil.which("systemd-analyze")
+needs_analyze = pytest.mark.skipif(SYSTEMD_ANALYZE is None, reason="systemd-analyze is not installed")
+
+
+def unit_settings(text: str) -> dict[str, list[str]]:
+    settings: dict[str, list[str]] = {}
+    for line in text.splitlines():
+        if line and not line.startswith(("#", "[")) and "=" in line:
+            key, value = line.split("=", 1)
+            settings.setdefault(key, []).append(value)
+    return settings
+
+
+def analyze_verify(unit: Path, home: Path) -> str:
+    """`systemd-analyze --user verify`; returns what it printed (empty when the unit is clean)."""
+    runtime = home / "runtime"
+    runtime.mkdir(mode=0o700, exist_ok=True)
+    env = {**os.environ, "HOME": str(home), "XDG_RUNTIME_DIR": str(runtime)}
+    proc = subprocess.run(
+        [SYSTEMD_ANALYZE, "--user", "verify", str(unit)], capture_output=True, text=True, env=env, timeout=60
+    )
+    output = (proc.stdout + proc.stderr).strip()
+    assert proc.returncode == 0 or output, "systemd-analyze failed silently"
+    return output if proc.returncode == 0 else f"rc={proc.returncode}: {output}"
+
+
+def render_installed(ppd_env: dict[str, Path], tmp_path: Path) -> Path:
+    paths = AppPaths.from_env()
+    config = Config.from_toml('publish_dir = "/srv/ppd published"\n')
+    unit = tmp_path / "render" / UNIT_NAME
+    unit.parent.mkdir()
+    unit.write_text(render_unit(installed_layout(paths, config)))
+    return unit
+
+
+@needs_analyze
+def test_installed_unit_passes_systemd_analyze_verify(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    unit = render_installed(ppd_env, tmp_path)
+    assert analyze_verify(unit, tmp_path) == ""
+    settings = unit_settings(unit.read_text())
+    argv, _ = watch_command()
+    assert Path(argv[0]).is_absolute() and Path(argv[0]).exists()
+    assert settings["ExecStart"] == [" ".join(quote_word(w) for w in argv)]
+    assert settings["Type"] == ["notify"] and settings["Restart"] == ["on-failure"]
+    assert "WatchdogSec" in settings and settings["RestrictAddressFamilies"] == ["AF_UNIX"]
+    read_write = settings["ReadWritePaths"][0]
+    for folder in (ppd_env["outbox"], ppd_env["data"]):
+        assert str(folder) in read_write
+    assert '"-/srv/ppd published"' in read_write  # optional folder, quoted for its space
+    assert f"Environment=PPD_OUTBOX={ppd_env['outbox']}" in unit.read_text()
+    assert "MemoryDenyWriteExecute" not in settings  # torch's JIT dies under it (docs/DAEMON.md)
+
+
+@needs_analyze
+def test_systemd_analyze_catches_a_broken_unit(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """The check above can fail: an unknown key or a missing binary is reported."""
+    unit = render_installed(ppd_env, tmp_path)
+    text = unit.read_text().replace("LockPersonality=yes", "LockPersonality=yes\nNoSuchSetting=1")
+    unit.write_text(text)
+    assert "NoSuchSetting" in analyze_verify(unit, tmp_path)
+
+
+@needs_analyze
+def test_repository_unit_is_the_generic_render_and_verifies(tmp_path: Path) -> None:
+    shipped = (REPO / "systemd" / UNIT_NAME).read_text()
+    assert shipped == render_unit(generic_layout())
+    # %h/.local/bin/ppd must exist for verify: a home with the real ppd linked there.
+    bin_dir = tmp_path / ".local" / "bin"
+    bin_dir.mkdir(parents=True)
+    argv, _ = watch_command()
+    (bin_dir / "ppd").symlink_to(argv[0] if argv[1] == "watch" else sys.executable)
+    unit = tmp_path / "unit" / UNIT_NAME
+    unit.parent.mkdir()
+    unit.write_text(shipped)
+    assert analyze_verify(unit, tmp_path) == ""
+
+
+@pytest.mark.parametrize(
+    "word, expected",
+    [
+        ("/usr/bin/ppd", "/usr/bin/ppd"),
+        ("/home/a/PPD Outbox", '"/home/a/PPD Outbox"'),
+        ('/x/say "hi"', '"/x/say \\"hi\\""'),
+        ("/x/100%", "/x/100%%"),
+        ("%h/.local/bin/ppd", "%h/.local/bin/ppd"),
+    ],
+)
+def test_quote_word(word: str, expected: str) -> None:
+    assert quote_word(word) == expected
+
+
+def test_unit_dir_respects_xdg_config_home(tmp_path: Path) -> None:
+    assert unit_dir({"XDG_CONFIG_HOME": str(tmp_path)}) == tmp_path / "systemd" / "user"
+    assert unit_dir({}) == Path.home() / ".config" / "systemd" / "user"
+
+
+def _ppd(*args: str, env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    exe = Path(sys.executable).parent / "ppd"
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "daemon.cli"]
+    return subprocess.run([*cmd, *args], capture_output=True, text=True, env=env, cwd=REPO, timeout=60)
+
+
+def test_service_install_status_uninstall(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """The real commands, with whatever systemctl this machine has (no user bus is tolerated)."""
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "xdg")}
+    installed = _ppd("service", "install", "--no-start", env=env)
+    assert installed.returncode == 0, installed.stderr
+    unit = tmp_path / "xdg" / "systemd" / "user" / UNIT_NAME
+    assert unit.is_file()
+    assert f"PPD_OUTBOX={ppd_env['outbox']}" in unit.read_text()
+    status = _ppd("service", "status", env=env)
+    assert "installed" in status.stderr and "not installed" not in status.stderr
+    removed = _ppd("service", "uninstall", env=env)
+    assert removed.returncode == 0 and not unit.exists()
+    again = _ppd("service", "uninstall", env=env)
+    assert "was not installed" in again.stderr

@@ -1,0 +1,693 @@
+"""The watch daemon with the real inotify observer on real temporary folders.
+
+Most tests run WatchDaemon in a thread of the test process (same code `ppd watch` runs, minus
+signal handling); the SIGTERM and sys.modules tests run `ppd watch` as a real subprocess.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import PIL.Image
+import pytest
+
+from daemon.notify import SystemdNotifier, notify_socket_address, watchdog_interval
+from daemon.paths import AppPaths
+from daemon.protect import AppContext
+from daemon.store import Store
+from daemon.watcher import (
+    VIDEO_SUFFIXES,
+    DaemonOptions,
+    WatchDaemon,
+    WatchOptions,
+    ignore_reason,
+    is_candidate,
+    media_suffixes,
+    scan_outbox,
+)
+from daemon.workers import PoolOptions, WorkerPool
+from poisoner.atomic import TEMP_PREFIX
+
+REPO = Path(__file__).resolve().parents[1]
+
+# Fast settings for tests: the defaults (2 s debounce) are for real writers.
+FAST = DaemonOptions(
+    watch=WatchOptions(settle_s=0.3, moved_settle_s=0.05, unclosed_settle_s=3.0),
+    workers=2,
+    queue_size=16,  # small: the 200-file tests overflow into the pending set
+    tmp_grace_s=1.0,
+    verify=False,
+)
+
+
+# ---- helpers ----------------------------------------------------------------------------------
+def texture(seed: int, size: int = 256) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return (rng.random((size, size, 3)) * 255).astype(np.uint8)
+
+
+def write_image(path: Path, seed: int, size: int = 256) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fmt = "JPEG" if path.suffix.lower() in (".jpg", ".jpeg") else "PNG"
+    PIL.Image.fromarray(texture(seed, size)).save(path, format=fmt)
+    return path
+
+
+def sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def wait_for(predicate: Callable[[], bool], timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def wait_idle(daemon: WatchDaemon, quiet: float = 0.6, timeout: float = 60.0) -> None:
+    """Nothing settling, queued or running, for `quiet` seconds in a row."""
+    deadline = time.monotonic() + timeout
+    quiet_since = None
+    while time.monotonic() < deadline:
+        stats = daemon.pool.stats()
+        busy = daemon.watcher.armed_count or stats.queued or stats.pending or stats.in_flight
+        if busy:
+            quiet_since = None
+        elif quiet_since is None:
+            quiet_since = time.monotonic()
+        elif time.monotonic() - quiet_since >= quiet:
+            return
+        time.sleep(0.05)
+    raise AssertionError("daemon never went idle")
+
+
+def store_of(env: dict[str, Path]) -> Store:
+    return Store(env["data"] / "ppd.sqlite3")
+
+
+def rows_by_path(store: Store) -> dict[str, dict]:
+    return {r["path"]: r for ds in store.datasets() for r in store.files(ds["name"])}
+
+
+def protected_event_counts(store: Store) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for ev in store.events(limit=100_000):
+        if ev["kind"] == "protected":
+            counts[ev["path"]] = counts.get(ev["path"], 0) + 1
+    return counts
+
+
+def assert_protected_once(env: dict[str, Path], files: list[Path], originals: dict[Path, str]) -> None:
+    """Each file: one 'protected' row and event, disk = poisoned sha, vault = original."""
+    store = store_of(env)
+    rows = rows_by_path(store)
+    events = protected_event_counts(store)
+    vault = env["data"] / "vault"
+    for f in files:
+        row = rows.get(str(f))
+        assert row is not None, f"no row for {f.name}"
+        assert row["state"] == "protected", (f.name, row["state"], row["error"])
+        assert events.get(str(f)) == 1, (f.name, events.get(str(f)))
+        assert row["original_sha256"] == originals[f], f.name
+        assert sha(f) == row["poisoned_sha256"] != originals[f]
+        blob = vault / row["original_sha256"][:2] / row["original_sha256"]
+        assert sha(blob) == originals[f]
+    store.close()
+
+
+@contextmanager
+def running(env: dict[str, Path], options: DaemonOptions = FAST) -> Iterator[WatchDaemon]:
+    ctx = AppContext.open(AppPaths.from_env())
+    daemon = WatchDaemon(ctx, options)
+    thread = threading.Thread(target=daemon.run, name="test-daemon")
+    thread.start()
+    try:
+        assert daemon.ready.wait(30), "daemon did not become ready"
+        yield daemon
+    finally:
+        daemon.request_stop()
+        thread.join(60)
+        ctx.close()
+    assert not thread.is_alive()
+
+
+def staged(tmp_path: Path, n: int, prefix: str = "img") -> tuple[list[Path], dict[str, str]]:
+    """n images written outside the outbox, with their sha256 by name."""
+    stage = tmp_path / f"stage-{prefix}"
+    files = [write_image(stage / f"{prefix}{i:03d}.png", seed=i) for i in range(n)]
+    return files, {f.name: sha(f) for f in files}
+
+
+# ---- names ------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "name, ignored",
+    [
+        ("photo.png", False),
+        ("IMG_0001.JPG", False),
+        ("photo.png.crdownload", True),
+        ("photo.jpg.part", True),
+        ("photo.png~", True),
+        (".photo.png.swp", True),
+        ("photo.png.swp", True),
+        ("photo.tmp", True),
+        (".hidden.png", True),
+        (f"{TEMP_PREFIX}abc.png", True),
+    ],
+)
+def test_ignore_reason(name: str, ignored: bool) -> None:
+    assert (ignore_reason(name) is not None) is ignored
+
+
+def test_is_candidate_needs_media_suffix_and_no_dot_folder(tmp_path: Path) -> None:
+    suffixes = media_suffixes()
+    assert is_candidate(tmp_path, tmp_path / "ds" / "a.jpg", suffixes)
+    assert is_candidate(tmp_path, tmp_path / "ds" / "clip.mp4", suffixes)
+    assert not is_candidate(tmp_path, tmp_path / "ds" / "notes.txt", suffixes)
+    assert not is_candidate(tmp_path, tmp_path / ".Trash-1000" / "a.jpg", suffixes)
+    assert not is_candidate(tmp_path, tmp_path.parent / "elsewhere.jpg", suffixes)
+
+
+def test_video_suffixes_follow_poisoner_video() -> None:
+    from poisoner.video import VIDEO_SUFFIXES as from_video
+
+    assert from_video == VIDEO_SUFFIXES
+
+
+def test_scan_removes_only_old_ppd_temporaries(tmp_path: Path) -> None:
+    old = tmp_path / "ds" / f"{TEMP_PREFIX}old.png"
+    young = tmp_path / "ds" / f"{TEMP_PREFIX}young.png"
+    keep = write_image(tmp_path / "ds" / "a.png", 1)
+    for p in (old, young):
+        p.write_bytes(b"partial")
+    os.utime(old, (time.time() - 3600, time.time() - 3600))
+    result = scan_outbox(tmp_path, media_suffixes(), tmp_grace_s=60)
+    assert result.files == [keep]
+    assert result.stale_temps_removed == [old] and not old.exists()
+    assert result.young_temps == [young] and young.exists()
+
+
+# ---- worker pool ------------------------------------------------------------------------------
+def test_pool_never_blocks_dedups_and_runs_each_path_once() -> None:
+    gate = threading.Event()
+    seen: list[Path] = []
+    lock = threading.Lock()
+
+    def handle(path: Path) -> None:
+        gate.wait()
+        with lock:
+            seen.append(path)
+
+    pool = WorkerPool(handle, PoolOptions(workers=2, queue_size=8))
+    pool.start()
+    paths = [Path(f"/x/{i}.png") for i in range(10_000)]
+    accepted = [pool.submit(p) for p in paths]  # workers are stuck: this must still return
+    duplicates = [pool.submit(p) for p in paths[100:200]]
+    stats = pool.stats()
+    assert all(accepted) and not any(duplicates)
+    assert stats.queued <= 8 and stats.queued + stats.pending + stats.in_flight == 10_000
+    gate.set()
+    assert pool.wait_idle(60)
+    pool.stop()
+    assert sorted(seen) == sorted(paths)
+
+
+def test_pool_reruns_a_path_submitted_while_in_flight() -> None:
+    started, release = threading.Event(), threading.Event()
+    calls: list[Path] = []
+
+    def handle(path: Path) -> None:
+        calls.append(path)
+        started.set()
+        release.wait()
+
+    pool = WorkerPool(handle, PoolOptions(workers=1, queue_size=4))
+    pool.start()
+    pool.submit(Path("/a"))
+    assert started.wait(5)
+    pool.submit(Path("/a"))  # content may have changed under the worker
+    pool.submit(Path("/a"))  # ... but twice is still once more
+    release.set()
+    assert pool.wait_idle(5)
+    pool.stop()
+    assert calls == [Path("/a"), Path("/a")]
+
+
+def test_pool_overflow_asks_for_a_rescan_once_drained() -> None:
+    gate = threading.Event()
+    pool = WorkerPool(lambda p: gate.wait(), PoolOptions(workers=1, queue_size=2, max_pending=3))
+    pool.start()
+    results = [pool.submit(Path(f"/{i}")) for i in range(10)]
+    assert results.count(False) > 0 and pool.stats().overflowed
+    assert not pool.take_overflow()  # not drained yet
+    gate.set()
+    assert pool.wait_idle(5)
+    assert pool.take_overflow() and not pool.take_overflow()
+    pool.stop()
+
+
+def test_pool_stop_finishes_in_flight_and_returns_the_rest() -> None:
+    started = threading.Event()
+    finished: list[Path] = []
+
+    def handle(path: Path) -> None:
+        started.set()
+        time.sleep(0.3)
+        finished.append(path)
+
+    pool = WorkerPool(handle, PoolOptions(workers=1, queue_size=4))
+    pool.start()
+    for i in range(5):
+        pool.submit(Path(f"/{i}"))
+    assert started.wait(5)
+    dropped = pool.stop()
+    assert finished == [Path("/0")]  # the one in flight completed before stop returned
+    assert sorted(dropped) == [Path(f"/{i}") for i in range(1, 5)]
+    assert not pool.submit(Path("/late"))
+
+
+# ---- sd_notify --------------------------------------------------------------------------------
+@pytest.mark.parametrize("abstract", [False, True])
+def test_notify_sends_datagrams(tmp_path: Path, abstract: bool) -> None:
+    name = f"@ppd-test-{os.getpid()}-{time.monotonic_ns()}" if abstract else str(tmp_path / "notify.sock")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind("\0" + name[1:] if abstract else name)
+    sock.settimeout(5)
+    try:
+        notifier = SystemdNotifier({"NOTIFY_SOCKET": name})
+        assert notifier.ready("protected 0")
+        assert notifier.watchdog() and notifier.stopping()
+        got = [sock.recv(4096).decode() for _ in range(3)]
+    finally:
+        sock.close()
+    assert got == ["READY=1\nSTATUS=protected 0", "WATCHDOG=1", "STOPPING=1"]
+
+
+def test_notify_never_blocks_on_a_receiver_that_stopped_reading(tmp_path: Path) -> None:
+    path = tmp_path / "full.sock"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(path))
+    notifier = SystemdNotifier({"NOTIFY_SOCKET": str(path)})
+    results: list[bool] = []
+    sender = threading.Thread(target=lambda: results.extend(notifier.status(str(i)) for i in range(500)))
+    sender.start()
+    sender.join(30)  # a blocking send would hang here forever
+    sock.close()
+    assert not sender.is_alive() and len(results) == 500
+    assert results[0] and not all(results)  # the first got through; the overflow was dropped
+
+
+def test_notify_is_a_no_op_outside_systemd() -> None:
+    assert notify_socket_address({}) is None
+    assert not SystemdNotifier({}).ready()
+
+
+def test_watchdog_interval_is_half_and_only_for_the_named_pid() -> None:
+    assert watchdog_interval({"WATCHDOG_USEC": "30000000"}) == 15.0
+    assert watchdog_interval({"WATCHDOG_USEC": "30000000", "WATCHDOG_PID": str(os.getpid())}) == 15.0
+    assert watchdog_interval({"WATCHDOG_USEC": "30000000", "WATCHDOG_PID": "1"}) is None
+    assert watchdog_interval({}) is None
+
+
+# ---- the daemon, live -------------------------------------------------------------------------
+def test_200_files_dropped_by_copy_are_each_protected_once(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    sources, originals = staged(tmp_path, 200)
+    dest = ppd_env["outbox"] / "copied"
+    dest.mkdir()
+    with running(ppd_env) as daemon:
+        targets = [Path(shutil.copyfile(src, dest / src.name)) for src in sources]
+        wait_for(lambda: daemon.counts.protected >= 200, 90, "200 protected")
+        wait_idle(daemon)
+        assert daemon.counts.failed == 0 and daemon.counts.protected == 200
+    assert_protected_once(ppd_env, targets, {t: originals[t.name] for t in targets})
+
+
+def test_200_files_renamed_in_are_each_protected_once(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    sources, originals = staged(tmp_path, 200, prefix="mv")
+    dest = ppd_env["outbox"] / "moved"
+    dest.mkdir()
+    with running(ppd_env) as daemon:
+        targets = []
+        for src in sources:
+            os.rename(src, dest / src.name)  # same filesystem: a moved-in event
+            targets.append(dest / src.name)
+        wait_for(lambda: daemon.counts.protected >= 200, 90, "200 protected")
+        wait_idle(daemon)
+        assert daemon.counts.protected == 200
+    assert_protected_once(ppd_env, targets, {t: originals[t.name] for t in targets})
+
+
+def _slow_write(data: bytes, target: Path, seconds: float, chunks: int, reopen: bool) -> None:
+    """Write data in chunks over `seconds`; reopen=True closes after every chunk (a writer
+    that closes early and appends later)."""
+    pause = seconds / chunks
+    step = -(-len(data) // chunks)
+    pieces = [data[i * step : (i + 1) * step] for i in range(chunks)]
+    if reopen:
+        for i, piece in enumerate(pieces):
+            with open(target, "ab" if i else "wb") as fh:
+                fh.write(piece)
+            time.sleep(pause)
+        return
+    with open(target, "wb") as fh:
+        for piece in pieces:
+            fh.write(piece)
+            fh.flush()
+            time.sleep(pause)
+
+
+@pytest.mark.parametrize("reopen", [False, True])
+def test_slow_writer_is_protected_once_when_complete(
+    ppd_env: dict[str, Path], tmp_path: Path, reopen: bool
+) -> None:
+    src = write_image(tmp_path / "big.png", seed=7, size=512)
+    data = src.read_bytes()
+    target = ppd_env["outbox"] / "slow" / "big.png"
+    target.parent.mkdir()
+    # Pauses (0.25 s) shorter than the debounce (0.5 s) for the writer that closes early.
+    options = DaemonOptions(watch=WatchOptions(settle_s=0.5, moved_settle_s=0.05), verify=False)
+    with running(ppd_env, options) as daemon:
+        _slow_write(data, target, seconds=3.0, chunks=12, reopen=reopen)
+        wait_for(lambda: daemon.counts.protected >= 1, 30, "slow file protected")
+        wait_idle(daemon)
+        assert daemon.counts.failed == 0, "processed before it was complete"
+    assert_protected_once(ppd_env, [target], {target: hashlib.sha256(data).hexdigest()})
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("n", [20])
+def test_many_slow_writers_at_once(ppd_env: dict[str, Path], tmp_path: Path, n: int) -> None:
+    datas = [write_image(tmp_path / f"s{i}.png", seed=100 + i, size=384).read_bytes() for i in range(n)]
+    targets = [ppd_env["outbox"] / "slow" / f"s{i}.png" for i in range(n)]
+    targets[0].parent.mkdir()
+    options = DaemonOptions(watch=WatchOptions(settle_s=0.8, moved_settle_s=0.05), verify=False)
+    with running(ppd_env, options) as daemon:
+        writers = [
+            threading.Thread(target=_slow_write, args=(d, t, 3.0, 10, i % 2 == 0))
+            for i, (d, t) in enumerate(zip(datas, targets, strict=True))
+        ]
+        for w in writers:
+            w.start()
+        for w in writers:
+            w.join()
+        wait_for(lambda: daemon.counts.protected >= n, 60, f"{n} protected")
+        wait_idle(daemon)
+        assert daemon.counts.failed == 0
+    assert_protected_once(
+        ppd_env, targets, {t: hashlib.sha256(d).hexdigest() for t, d in zip(targets, datas, strict=True)}
+    )
+
+
+@pytest.mark.slow
+def test_flood_of_10k_files(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    stage = tmp_path / "flood"
+    seed_img = write_image(tmp_path / "one.png", 1, size=64).read_bytes()
+    stage.mkdir()
+    n = 10_000
+    for i in range(n):  # distinct content: each file's last bytes differ (PNG ignores trailing data)
+        (stage / f"f{i:05d}.png").write_bytes(seed_img + i.to_bytes(4, "big"))
+    options = DaemonOptions(
+        watch=WatchOptions(settle_s=0.3, moved_settle_s=0.05), queue_size=64, verify=False
+    )
+    with running(ppd_env, options) as daemon:
+        os.rename(stage, ppd_env["outbox"] / "flood")  # one folder moved in: 10k complete files
+        wait_for(lambda: daemon.counts.protected + daemon.counts.failed >= n, 600, "10k processed")
+        wait_idle(daemon)
+    rows = rows_by_path(store_of(ppd_env))
+    assert sum(r["state"] == "protected" for r in rows.values()) == n
+
+
+def test_ignored_names_until_renamed(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    ds = ppd_env["outbox"] / "dl"
+    ds.mkdir()
+    with running(ppd_env) as daemon:
+        ignored = [
+            write_image(ds / "photo.png.crdownload", 1),
+            write_image(ds / "b.jpg.part", 2),
+            write_image(ds / ".hidden.png", 3),
+            write_image(ds / "c.png~", 4),
+            write_image(ds / "d.png.swp", 5),
+            write_image(ds / "e.tmp", 6),
+            write_image(ds / f"{TEMP_PREFIX}x.png", 7),
+        ]
+        before = {p: sha(p) for p in ignored}
+        time.sleep(FAST.watch.settle_s + 0.3)
+        wait_idle(daemon)
+        assert daemon.counts.protected == 0 and rows_by_path(store_of(ppd_env)) == {}
+        final = ds / "photo.png"
+        original = before[ignored[0]]
+        os.rename(ignored[0], final)  # the browser finishes the download
+        wait_for(lambda: daemon.counts.protected >= 1, 20, "renamed download protected")
+        wait_idle(daemon)
+        assert daemon.counts.protected == 1
+    assert_protected_once(ppd_env, [final], {final: original})
+    for p in ignored[1:]:
+        assert sha(p) == before[p]
+
+
+def test_replaced_file_is_protected_again_and_own_writes_never_retrigger(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    target = ppd_env["outbox"] / "edit" / "a.png"
+    with running(ppd_env) as daemon:
+        write_image(target, 1)
+        wait_for(lambda: daemon.counts.protected >= 1, 20, "first version")
+        wait_idle(daemon, quiet=1.0)
+        assert daemon.counts.protected == 1 and daemon.counts.unchanged == 0  # no echo of its own rename
+        # New content replaced by rename (editors), then overwritten in place (cp over it).
+        write_image(tmp_path / "v2.png", 2)
+        os.replace(tmp_path / "v2.png", target)
+        wait_for(lambda: daemon.counts.protected >= 2, 20, "second version")
+        v3 = write_image(tmp_path / "v3.png", 3)
+        shutil.copyfile(v3, target)  # truncate + write + close on the same inode
+        wait_for(lambda: daemon.counts.protected >= 3, 20, "third version")
+        wait_idle(daemon, quiet=1.0)
+        assert daemon.counts.protected == 3
+    store = store_of(ppd_env)
+    row = store.file(target)
+    assert row["state"] == "protected" and row["original_sha256"] == sha(v3)
+    assert protected_event_counts(store)[str(target)] == 3
+    assert sha(target) == row["poisoned_sha256"]
+
+
+def test_restart_catch_up(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    ds = ppd_env["outbox"] / "shoot"
+    keep, change, delete = (
+        write_image(ds / f"{n}.png", i) for i, n in enumerate(("keep", "change", "delete"))
+    )
+    with running(ppd_env) as daemon:
+        wait_for(lambda: daemon.counts.protected >= 3, 30, "initial scan protects 3")
+        wait_idle(daemon)
+    keep_sha = sha(keep)
+    # While the daemon is down: one added, one changed, one removed, a crash leftover.
+    added = write_image(ds / "added.png", 10)
+    write_image(change, 11)
+    changed_original = sha(change)
+    delete.unlink()
+    leftover = ds / f"{TEMP_PREFIX}crash.png"
+    leftover.write_bytes(b"half a png")
+    os.utime(leftover, (time.time() - 60, time.time() - 60))
+    with running(ppd_env) as daemon:
+        wait_for(lambda: daemon.counts.protected >= 2 and daemon.counts.removed >= 1, 30, "catch-up")
+        wait_idle(daemon)
+        assert daemon.counts.protected == 2 and daemon.counts.removed == 1
+    store = store_of(ppd_env)
+    events = protected_event_counts(store)
+    assert events[str(keep)] == 1 and sha(keep) == keep_sha  # untouched: not processed again
+    assert events[str(added)] == 1 and store.file(added)["state"] == "protected"
+    assert events[str(change)] == 2 and store.file(change)["original_sha256"] == changed_original
+    assert store.file(delete)["state"] == "removed"
+    assert any(e["kind"] == "removed" and e["path"] == str(delete) for e in store.events(limit=1000))
+    assert not leftover.exists()
+
+
+def test_live_removal_and_folder_rename_are_recorded(ppd_env: dict[str, Path]) -> None:
+    ds = ppd_env["outbox"] / "trip"
+    files = [write_image(ds / f"{i}.png", i) for i in range(3)]
+    with running(ppd_env) as daemon:
+        wait_for(lambda: daemon.counts.protected >= 3, 30, "3 protected")
+        wait_idle(daemon)
+        files[0].unlink()
+        wait_for(lambda: daemon.counts.removed >= 1, 20, "deletion recorded")
+        poisoned = {f.name: sha(f) for f in files[1:]}
+        os.rename(ds, ppd_env["outbox"] / "trip-renamed")
+        wait_for(lambda: daemon.counts.removed >= 3, 20, "renamed folder's old paths recorded")
+        wait_idle(daemon)
+        assert daemon.counts.protected == 3  # ppd's own output is never poisoned twice
+    store = store_of(ppd_env)
+    assert all(store.file(f)["state"] == "removed" for f in files)
+    for name, digest in poisoned.items():
+        assert sha(ppd_env["outbox"] / "trip-renamed" / name) == digest
+
+
+def test_bad_files_fail_cleanly_and_the_daemon_keeps_going(ppd_env: dict[str, Path]) -> None:
+    ds = ppd_env["outbox"] / "bad"
+    ds.mkdir()
+    with running(ppd_env) as daemon:
+        fake = ds / "fake.png"
+        fake.write_text("this is not a PNG")
+        empty = ds / "empty.jpg"
+        empty.write_bytes(b"")
+        wait_for(lambda: daemon.counts.failed >= 2, 20, "two failures")
+        good = write_image(ds / "good.png", 1)
+        readonly = write_image(ds / "readonly.png", 2)
+        readonly.chmod(0o444)
+        wait_for(lambda: daemon.counts.protected >= 2, 20, "good files after bad ones")
+        wait_idle(daemon)
+        assert daemon.watcher.is_alive()
+    store = store_of(ppd_env)
+    for bad in (fake, empty):
+        row = store.file(bad)
+        assert row["state"] == "failed" and row["error"] and "\n" not in row["error"]
+    assert fake.read_text() == "this is not a PNG"
+    assert store.file(good)["state"] == "protected" and store.file(readonly)["state"] == "protected"
+    assert readonly.stat().st_mode & 0o777 == 0o444  # permission bits kept by the atomic replace
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root reads files whatever their permission bits")
+def test_unreadable_file_fails_with_a_reason(ppd_env: dict[str, Path]) -> None:
+    secret = write_image(ppd_env["outbox"] / "locked" / "secret.png", 1)
+    secret.chmod(0o000)
+    with running(ppd_env) as daemon:
+        wait_for(lambda: daemon.counts.failed >= 1, 20, "failure recorded")
+    row = store_of(ppd_env).file(secret)
+    assert row["state"] == "failed" and "ermission" in row["error"]
+
+
+def test_outbox_deleted_under_the_daemon_is_recreated_and_watched(ppd_env: dict[str, Path]) -> None:
+    with running(ppd_env) as daemon:
+        write_image(ppd_env["outbox"] / "a" / "one.png", 1)
+        wait_for(lambda: daemon.counts.protected >= 1, 20, "first file")
+        shutil.rmtree(ppd_env["outbox"])
+        wait_for(lambda: ppd_env["outbox"].is_dir() and daemon.watcher.is_alive(), 20, "outbox recreated")
+        wait_idle(daemon)
+        later = write_image(ppd_env["outbox"] / "b" / "two.png", 2)
+        wait_for(lambda: daemon.counts.protected >= 2, 20, "file in the recreated outbox")
+        assert daemon.counts.removed >= 1  # one.png went with the old outbox
+    assert store_of(ppd_env).file(later)["state"] == "protected"
+
+
+# ---- `ppd watch` as a real process ------------------------------------------------------------
+def _ppd_command() -> list[str]:
+    exe = Path(sys.executable).parent / "ppd"
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "daemon.cli"]
+
+
+def test_sigterm_mid_batch_leaves_every_file_original_or_protected(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    n = 40
+    stage = tmp_path / "stage"
+    sources = [write_image(stage / f"p{i:02d}.png", seed=i, size=640) for i in range(n)]
+    originals = {s.name: sha(s) for s in sources}
+    notify_path = tmp_path / "notify.sock"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(notify_path))
+    sock.settimeout(30)
+    env = {
+        **os.environ,
+        "NOTIFY_SOCKET": str(notify_path),
+        "WATCHDOG_USEC": "1000000",
+        "PYTHONUNBUFFERED": "1",
+    }
+    proc = subprocess.Popen(
+        [*_ppd_command(), "watch", "--no-verify", "--debounce", "0.1", "-j", "2"],
+        env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    messages: list[str] = []
+    try:
+        messages.append(sock.recv(4096).decode())
+        assert messages[0].startswith("READY=1"), messages
+        dest = ppd_env["outbox"] / "batch"
+        dest.mkdir()
+        for s in sources:
+            shutil.copyfile(s, dest / s.name)
+        store = store_of(ppd_env)
+
+        def protected() -> int:
+            return sum(r["state"] == "protected" for r in rows_by_path(store).values())
+
+        wait_for(lambda: protected() >= 2, 60, "first files protected")
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=60)
+        while True:
+            try:
+                messages.append(sock.recv(4096).decode())
+            except TimeoutError:
+                break
+            if messages[-1].startswith("STOPPING=1"):
+                break
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        sock.close()
+    assert proc.returncode == 0, out
+    assert any(m == "WATCHDOG=1" for m in messages) or "WATCHDOG=1" in "\n".join(messages)
+    assert messages[-1].startswith("STOPPING=1"), messages
+    rows = rows_by_path(store)
+    done = 0
+    for name, original in originals.items():
+        path = dest / name
+        row = rows.get(str(path))
+        digest = sha(path)
+        if digest == original:
+            assert row is None or row["state"] in ("pending", "failed"), (name, row)
+            continue
+        done += 1
+        assert row is not None and row["state"] == "protected" and row["poisoned_sha256"] == digest, name
+        blob = ppd_env["data"] / "vault" / original[:2] / original
+        assert sha(blob) == original
+    assert 0 < done < n, f"SIGTERM did not land mid-batch ({done}/{n} protected)"
+    assert not list(dest.glob(f"{TEMP_PREFIX}*")), "temporary files left behind"
+    assert "stopped:" in out
+
+
+def test_daemon_process_stays_light(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """The daemon never imports torch, pycolmap or scikit-image (idle RSS goal, crash safety)."""
+    write_image(ppd_env["outbox"] / "ds" / "a.png", 1)
+    script = """
+import json, sys, threading
+from daemon.cli import app  # what `ppd` imports
+from daemon.paths import AppPaths
+from daemon.protect import AppContext
+from daemon.watcher import DaemonOptions, WatchDaemon, WatchOptions
+ctx = AppContext.open(AppPaths.from_env())
+d = WatchDaemon(ctx, DaemonOptions(watch=WatchOptions(settle_s=0.1), verify=True))
+t = threading.Thread(target=d.run); t.start()
+d.ready.wait(30)
+d.pool.wait_idle(60)
+d.request_stop(); t.join(60)
+print(json.dumps({"protected": d.counts.protected, "modules": sorted(sys.modules)}))
+"""
+    proc = subprocess.run(
+        [sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert report["protected"] == 1
+    heavy = [m for m in report["modules"] if m.split(".")[0] in ("torch", "pycolmap", "skimage")]
+    assert heavy == [], heavy
+
+
+def test_bad_config_is_one_line_and_exit_status_1(ppd_env: dict[str, Path]) -> None:
+    (ppd_env["config"] / "config.toml").write_text("workers = 0\n")
+    proc = subprocess.run(
+        [*_ppd_command(), "watch"], cwd=REPO, capture_output=True, text=True, timeout=60, env=dict(os.environ)
+    )
+    assert proc.returncode == 1
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "workers" in lines[0] and "Traceback" not in proc.stderr
