@@ -1,0 +1,68 @@
+"""Child-process entry for one SfM job: `python -m verifier.child` with the job JSON on stdin.
+
+Lowers its own priority first (nice 10, idle I/O class), runs the job, and writes the result
+JSON to the job's result_path atomically. pycolmap's own logging goes to stderr (a log file the
+parent keeps). Exit codes: 0 result written (outcome ok or failed), 2 bad request; a negative
+return code seen by the parent means a signal (a pycolmap segfault).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import json
+import os
+import platform
+import sys
+import traceback
+from pathlib import Path
+
+# PIL before pycolmap in any process that has both (pillow 13 + pycolmap 4.2.1 crash otherwise).
+import PIL.Image  # noqa: F401
+
+_IOPRIO_SET = {"x86_64": 251, "aarch64": 30}
+_IOPRIO_CLASS_IDLE = 3
+_IOPRIO_WHO_PROCESS = 1
+
+
+def lower_priority() -> None:
+    """nice +10 and, when `ionice` did not already do it, the idle I/O class via ioprio_set."""
+    with contextlib.suppress(OSError):
+        os.nice(10)
+    number = _IOPRIO_SET.get(platform.machine())
+    if number is None:
+        return
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.syscall(number, _IOPRIO_WHO_PROCESS, 0, _IOPRIO_CLASS_IDLE << 13)
+    except (OSError, AttributeError):
+        pass
+
+
+def _write_atomic(path: Path, data: dict) -> None:
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_text(json.dumps(data))
+    os.replace(tmp, path)
+
+
+def main() -> int:
+    lower_priority()
+    from verifier.sfm import SfmJob, execute_job
+
+    try:
+        job = SfmJob.from_json(sys.stdin.read())
+    except (ValueError, TypeError, KeyError) as exc:
+        print(f"bad SfM job: {exc}", file=sys.stderr)
+        return 2
+    try:
+        result = execute_job(job)
+    except Exception as exc:  # any error becomes a result the parent can record
+        traceback.print_exc()
+        result = {"outcome": "failed", "error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
+    if job.result_path:
+        _write_atomic(Path(job.result_path), result)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,163 @@
+"""`ppd verify DATASET|PATH`: prove protection with real COLMAP, clean vs poisoned.
+
+Light at import (typer, rich only): the verifier modules are imported inside the command, and
+pycolmap only ever runs in SfM child processes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+PROFILE_CHOICES = ("default", "hardened", "published", "all")
+VERDICT_STYLE = {
+    "protected": "bold green",
+    "weak": "bold yellow",
+    "not_protected": "bold red",
+    "sfm_crashed": "bold magenta",
+    "inconclusive": "bold blue",
+}
+
+
+def _num(x: Any, pct: bool = False) -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, float):
+        if not math.isfinite(x):
+            return "inf"
+        return f"{100 * x:.0f}%" if pct else f"{x:.2f}"
+    return str(x)
+
+
+def _side_rows(clean: dict[str, Any], poisoned: dict[str, Any]) -> list[tuple[str, str, str]]:
+    def reg(s: dict[str, Any]) -> str:
+        if s.get("outcome") != "ok":
+            return f"{s.get('outcome')} {s.get('signal', '')}".strip()
+        return f"{s.get('registered', 0)}/{s.get('num_images', 0)}"
+
+    return [
+        ("outcome", str(clean.get("outcome")), str(poisoned.get("outcome"))),
+        ("images registered", reg(clean), reg(poisoned)),
+        ("models", _num(clean.get("num_models")), _num(poisoned.get("num_models"))),
+        ("mean reprojection error (px)", _num(clean.get("mean_reprojection_error")),
+         _num(poisoned.get("mean_reprojection_error"))),
+        ("3D points", _num(clean.get("num_points3D")), _num(poisoned.get("num_points3D"))),
+        ("SfM time (s)", _num(clean.get("elapsed_s")), _num(poisoned.get("elapsed_s"))),
+    ]  # fmt: skip
+
+
+def profile_table(p: dict[str, Any]) -> Table:
+    verdict = p["verdict"]
+    table = Table(
+        title=f"profile [bold]{p['profile']}[/]: [{VERDICT_STYLE.get(verdict, 'bold')}]{verdict}[/]",
+        title_justify="left",
+    )
+    table.add_column("metric")
+    table.add_column("clean", justify="right")
+    table.add_column("poisoned", justify="right")
+    for row in _side_rows(p["clean"], p["poisoned"]):
+        table.add_row(*row)
+    vc = p.get("vs_clean") or {}
+    gt_c, gt_p = p.get("clean_vs_gt") or {}, p.get("poisoned_vs_gt") or {}
+    for t in (5, 10, 20):
+        table.add_row(f"cameras within {t}° of clean", "100%", _num(vc.get(f"frac_within_{t}deg"), True))
+    table.add_row("median rotation error (°)", "0", _num(vc.get("median_rotation_error_deg")))
+    table.add_row(
+        "median relative rotation error (°)", "0", _num(vc.get("median_relative_rotation_error_deg"))
+    )
+    aucs = " / ".join(_num(vc.get(f"auc_{t}")) for t in (5, 10, 20))
+    table.add_row("pair pose AUC@5/10/20 vs clean", "1 / 1 / 1", aucs)
+    if gt_c or gt_p:
+        for t in (5, 10, 20):
+            table.add_row(f"within {t}° of ground truth", _num(gt_c.get(f"frac_within_{t}deg"), True),
+                          _num(gt_p.get(f"frac_within_{t}deg"), True))  # fmt: skip
+        table.add_row("pair pose AUC@5 vs ground truth", _num(gt_c.get("auc_5")), _num(gt_p.get("auc_5")))
+    return table
+
+
+def print_report(report: dict[str, Any], console: Console) -> None:
+    for p in report["profiles"].values():
+        console.print(profile_table(p))
+        for reason in p["reasons"]:
+            console.print(f"  • {reason}")
+        console.print()
+    v = report["verdict"]
+    console.print(f"overall (weakest profile): [{VERDICT_STYLE.get(v, 'bold')}]{v}[/]")
+
+
+def _json_safe(x: Any) -> Any:
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_json_safe(v) for v in x]
+    return x
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("verify")
+    def verify(
+        target: str = typer.Argument(
+            ..., help="A dataset name (first-level outbox folder) or a poisoned image folder."
+        ),
+        profile: str = typer.Option("all", "--profile", "-p", help="default | hardened | published | all"),
+        as_json: bool = typer.Option(False, "--json", help="Print the verdict and every metric as JSON."),
+        clean: Path | None = typer.Option(
+            None, "--clean", help="Clean originals (with PATH): same file names."
+        ),
+        ground_truth: Path | None = typer.Option(
+            None, "--gt", help="Ground-truth cameras: transforms_train.json or a gt_dense_cameras folder."
+        ),
+        out: Path | None = typer.Option(None, "--out", help="Where to keep the SfM models (with PATH)."),
+        timeout: float = typer.Option(1800.0, "--timeout", help="Seconds allowed per SfM run."),
+    ) -> None:
+        """Run COLMAP on the clean and the poisoned set and say whether protection holds."""
+        from verifier.verification import (
+            VerificationInputError,
+            VerifyOptions,
+            verify_dataset,
+            verify_folders,
+        )
+
+        console = Console(stderr=as_json)
+        if profile not in PROFILE_CHOICES:
+            raise typer.BadParameter(f"--profile must be one of {', '.join(PROFILE_CHOICES)}")
+        profiles = ("default", "hardened", "published") if profile == "all" else (profile,)
+        options = VerifyOptions(timeout_s=timeout, ground_truth=ground_truth)
+        try:
+            path = Path(target)
+            if clean is not None or path.is_dir():
+                if clean is None:
+                    raise VerificationInputError(
+                        f"{target} is a folder: give its clean originals with --clean DIR"
+                    )
+                out_dir = out or Path(tempfile.mkdtemp(prefix="ppd-verify-"))
+                with console.status("running COLMAP on clean and poisoned sets…"):
+                    report = verify_folders(clean, path, out_dir, profiles, options)
+            else:
+                from daemon.protect import AppContext
+
+                ctx = AppContext.open()
+                try:
+                    with console.status(f"verifying dataset {target}…"):
+                        report = verify_dataset(ctx, target, profiles, options)
+                finally:
+                    ctx.close()
+        except (VerificationInputError, ValueError, OSError) as exc:
+            Console(stderr=True).print(f"[red]error:[/] {exc}")
+            raise typer.Exit(2) from exc
+        data = report.to_dict()
+        if as_json:
+            print(json.dumps(_json_safe(data), indent=1))
+        else:
+            print_report(data, console)
+            console.print(f"models: {report.out_dir}")
+        raise typer.Exit(0 if report.verdict == "protected" else 1)

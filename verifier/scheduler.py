@@ -1,0 +1,164 @@
+"""Schedules verification runs inside the daemon: one at a time, in a background thread.
+
+The daemon calls `on_protected(dataset)` after each protected file. A dataset becomes due when
+`min_new_files` files were protected since its last run, or when its last run is older than
+`period_s` and something new arrived since. The run itself (verify_dataset) launches SfM child
+processes at low priority; `stop()` cancels a running child. Nothing here imports pycolmap.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from daemon.protect import AppContext
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SchedulePolicy:
+    min_new_files: int = 20  # a run after this many newly protected files
+    period_s: float = 24 * 3600.0  # or when the last run is older than this (and files are new)
+    enabled: bool = True
+
+    @classmethod
+    def from_config(cls, config: Any) -> SchedulePolicy:
+        """From the daemon Config's [verification] table (every_new_files, period_hours)."""
+        d = cls()
+        ver = getattr(config, "verification", None)
+        if ver is None:
+            return d
+        return cls(
+            min_new_files=int(getattr(ver, "every_new_files", d.min_new_files)),
+            period_s=float(getattr(ver, "period_hours", d.period_s / 3600)) * 3600,
+            enabled=bool(getattr(ver, "enabled", True)),
+        )
+
+
+def is_due(new_files: int, last_finished: float | None, now: float, policy: SchedulePolicy) -> bool:
+    """Whether a dataset with new_files protected since its last run (finished at last_finished) is due."""
+    if new_files <= 0:
+        return False
+    if new_files >= policy.min_new_files:
+        return True
+    return last_finished is not None and now - last_finished >= policy.period_s
+
+
+VerifyFn = Callable[..., Any]
+
+
+class VerificationScheduler:
+    def __init__(
+        self,
+        ctx: AppContext,
+        policy: SchedulePolicy | None = None,
+        profiles: tuple[str, ...] | None = None,
+        verify: VerifyFn | None = None,
+        poll_s: float = 30.0,
+    ) -> None:
+        self.ctx = ctx
+        self.policy = policy or SchedulePolicy.from_config(getattr(ctx, "config", None))
+        ver = getattr(getattr(ctx, "config", None), "verification", None)
+        self.profiles = profiles or tuple(getattr(ver, "profiles", ("default", "hardened", "published")))
+        self._verify = verify
+        self._poll_s = poll_s
+        self._lock = threading.Lock()
+        self._new: dict[str, int] = {}
+        self._last: dict[str, float | None] = {}
+        self._wake = threading.Event()
+        self._stopping = threading.Event()
+        self._cancel = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.running: str | None = None
+        self.completed: list[tuple[str, str]] = []  # (dataset, verdict or error) of this process's runs
+
+    # ---- daemon hooks ---------------------------------------------------------------------------
+    def on_protected(self, dataset: str) -> None:
+        if not self.policy.enabled:
+            return
+        with self._lock:
+            self._new[dataset] = self._new.get(dataset, 0) + 1
+        self._wake.set()
+
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stopping.clear()
+        self._cancel.clear()
+        self._thread = threading.Thread(target=self._loop, name="ppd-verify", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 30.0) -> None:
+        """Stop the thread; a running SfM child is killed (its run is recorded as cancelled)."""
+        self._stopping.set()
+        self._cancel.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None
+
+    # ---- scheduling -------------------------------------------------------------------------------
+    def _last_finished(self, dataset: str) -> float | None:
+        if dataset not in self._last:
+            latest = None
+            store = getattr(self.ctx, "store", None)
+            if store is not None and hasattr(store, "latest_verification"):
+                try:
+                    latest = store.latest_verification(dataset)
+                except Exception:  # a store problem must not stop the daemon
+                    log.exception("latest_verification failed", extra={"dataset": dataset})
+            self._last[dataset] = (
+                float(latest["finished_at"]) if latest and latest.get("finished_at") else None
+            )
+        return self._last[dataset]
+
+    def due_dataset(self, now: float | None = None) -> str | None:
+        now = time.time() if now is None else now
+        with self._lock:
+            candidates = sorted(self._new.items(), key=lambda kv: -kv[1])
+        for dataset, count in candidates:
+            if is_due(count, self._last_finished(dataset), now, self.policy):
+                return dataset
+        return None
+
+    def run_once(self, now: float | None = None) -> str | None:
+        """Run the most due dataset (synchronously); returns its name or None."""
+        dataset = self.due_dataset(now)
+        if dataset is None:
+            return None
+        with self._lock:
+            self._new[dataset] = 0  # files arriving during the run count towards the next one
+        self.running = dataset
+        try:
+            result = self._run(dataset)
+            self.completed.append((dataset, str(getattr(result, "verdict", result))))
+        except Exception as exc:  # a failed verification is logged and retried after the next files
+            log.exception("verification failed", extra={"dataset": dataset})
+            self.completed.append((dataset, f"error: {exc}"))
+        finally:
+            del self.completed[:-50]  # a long-lived daemon keeps only the recent outcomes
+            self.running = None
+            self._last[dataset] = time.time()
+        return dataset
+
+    def _run(self, dataset: str) -> Any:
+        if self._verify is not None:
+            return self._verify(self.ctx, dataset, self.profiles, self._cancel)
+        from verifier.verification import VerifyOptions, verify_dataset
+
+        return verify_dataset(self.ctx, dataset, self.profiles, VerifyOptions(cancel=self._cancel))
+
+    def _loop(self) -> None:
+        while not self._stopping.is_set():
+            self._wake.wait(self._poll_s)
+            self._wake.clear()
+            if self._stopping.is_set():
+                break
+            while not self._stopping.is_set() and self.run_once() is not None:
+                pass

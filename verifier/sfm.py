@@ -1,0 +1,319 @@
+"""Structure-from-Motion with pycolmap 4.2.1, run in a child process, and its parent-side launcher.
+
+The parent (daemon, CLI, tests) calls `run_sfm_job(job, ...)`: it starts `python -m verifier.child`
+at low priority, sends the job as JSON on stdin and reads the result JSON file back. pycolmap is
+imported only by `execute_job`, which runs in the child. A child killed by a signal (pycolmap 4.2.1
+segfaults on some poisoned sets) becomes an outcome, never a crash of the caller.
+
+Features and raw matches are computed once per image set into a cache database; each profile
+copies it and runs only its own geometric verification and mapping (default and hardened differ
+there and nowhere else), which halves the work of verifying two profiles.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import logging
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp"})
+
+# Serialises verification runs inside one process: SfM is CPU-heavy and the machine is shared.
+_RUN_LOCK = threading.Lock()
+
+
+@dataclass(frozen=True)
+class SfmSettings:
+    """What one SfM run does. Defaults are the official 3DGS convert.py settings."""
+
+    camera_model: str = "OPENCV"  # convert.py: --ImageReader.camera_model OPENCV
+    single_camera: bool = True  # convert.py: --ImageReader.single_camera 1
+    camera_params: str | None = None  # known intrinsics ("fx,fy,cx,cy,k1,k2,p1,p2"), fixed in BA
+    matching: str = "exhaustive"  # convert.py: exhaustive_matcher; "sequential" for video frames
+    sequential_overlap: int = 10
+    max_image_size: int = -1  # COLMAP picks its extractor default (3200 px for SIFT)
+    filter_stationary_matches: bool = False  # hardened: drop matches that do not move between views
+    ignore_watermarks: bool = False  # hardened: mapper ignores pairs flagged as watermark
+    random_seed: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> SfmSettings:
+        return cls(**data)
+
+    def feature_key(self) -> str:
+        """Settings that decide features + raw matches (the cache is valid across the rest)."""
+        return (
+            f"{self.camera_model}-{int(self.single_camera)}-{self.camera_params}-{self.matching}-"
+            f"{self.sequential_overlap}-{self.max_image_size}"
+        )
+
+
+@dataclass(frozen=True)
+class SfmJob:
+    image_dir: str
+    cache_db: str  # features + raw matches; created when missing
+    model_dir: str  # the largest model is written here (cameras.bin, images.bin, points3D.bin)
+    settings: SfmSettings = field(default_factory=SfmSettings)
+    result_path: str = ""
+
+    def to_json(self) -> str:
+        d = dataclasses.asdict(self)
+        return json.dumps(d)
+
+    @classmethod
+    def from_json(cls, text: str) -> SfmJob:
+        d = json.loads(text)
+        d["settings"] = SfmSettings.from_dict(d["settings"])
+        return cls(**d)
+
+
+class SfmCancelled(RuntimeError):
+    """The run was cancelled by its caller."""
+
+
+# ---- parent side ------------------------------------------------------------------------------
+def _ionice_prefix() -> list[str]:
+    """`ionice -c 3` (idle I/O class) when the tool exists; the child falls back to the syscall."""
+    tool = shutil.which("ionice")
+    return [tool, "-c", "3"] if tool else []
+
+
+def run_sfm_job(
+    job: SfmJob,
+    timeout_s: float | None = None,
+    cancel: threading.Event | None = None,
+    python: str | None = None,
+) -> dict[str, Any]:
+    """Run one SfM job in a child process; always returns a result dict with an `outcome`:
+
+    `ok` | `failed` (the child reported an error) | `sfm_crashed` (killed by a signal) |
+    `timeout` | `cancelled`.
+    """
+    with _RUN_LOCK:
+        return _run_locked(job, timeout_s, cancel, python)
+
+
+def _run_locked(
+    job: SfmJob, timeout_s: float | None, cancel: threading.Event | None, python: str | None
+) -> dict[str, Any]:
+    Path(job.model_dir).mkdir(parents=True, exist_ok=True)
+    fd, result_path = tempfile.mkstemp(prefix=".ppd-tmp-sfm-", suffix=".json", dir=job.model_dir)
+    os.close(fd)
+    os.unlink(result_path)
+    job = dataclasses.replace(job, result_path=result_path)
+    cmd = [*_ionice_prefix(), python or sys.executable, "-m", "verifier.child"]
+    env = dict(os.environ)
+    root = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    started = time.time()
+    stderr_path = Path(job.model_dir) / "sfm.log"
+    with open(stderr_path, "wb") as err:
+        proc = subprocess.Popen(
+            cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=err, env=env, start_new_session=True
+        )
+        assert proc.stdin is not None
+        proc.stdin.write(job.to_json().encode())
+        proc.stdin.close()
+        log.info("sfm child started", extra={"pid": proc.pid, "image_dir": job.image_dir})
+        outcome = _wait(proc, timeout_s, cancel, started)
+    elapsed = time.time() - started
+    base: dict[str, Any] = {"elapsed_s": elapsed, "returncode": proc.returncode, "log": str(stderr_path)}
+    if outcome is not None:
+        return {**base, "outcome": outcome, "error": f"{outcome} after {elapsed:.0f} s"}
+    if proc.returncode < 0:
+        sig = -proc.returncode
+        name = signal.Signals(sig).name if sig in signal.Signals._value2member_map_ else str(sig)
+        return {**base, "outcome": "sfm_crashed", "signal": name, "error": f"SfM child killed by {name}"}
+    try:
+        result = json.loads(Path(result_path).read_text())
+    except (OSError, json.JSONDecodeError):
+        tail = _tail(stderr_path)
+        return {
+            **base,
+            "outcome": "failed",
+            "error": f"child exited {proc.returncode} without a result: {tail}",
+        }
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(result_path)
+    return {**base, **result}
+
+
+def _wait(
+    proc: subprocess.Popen, timeout_s: float | None, cancel: threading.Event | None, started: float
+) -> str | None:
+    """Wait for the child; kill its process group on timeout or cancel and say which."""
+    while True:
+        try:
+            proc.wait(timeout=0.2)
+            return None
+        except subprocess.TimeoutExpired:
+            pass
+        reason = None
+        if cancel is not None and cancel.is_set():
+            reason = "cancelled"
+        elif timeout_s is not None and time.time() - started > timeout_s:
+            reason = "timeout"
+        if reason:
+            _kill_group(proc)
+            return reason
+
+
+def _kill_group(proc: subprocess.Popen) -> None:
+    for sig, grace in ((signal.SIGTERM, 3.0), (signal.SIGKILL, 5.0)):
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, sig)
+        try:
+            proc.wait(timeout=grace)
+            return
+        except subprocess.TimeoutExpired:
+            continue
+
+
+def _tail(path: Path, n: int = 300) -> str:
+    try:
+        text = path.read_text(errors="replace").strip()
+    except OSError:
+        return ""
+    return text[-n:].replace("\n", " | ")
+
+
+# ---- child side (imports pycolmap) ------------------------------------------------------------
+def list_images(image_dir: Path) -> list[str]:
+    return sorted(p.name for p in Path(image_dir).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+def build_cache_db(image_dir: Path, cache_db: Path, settings: SfmSettings) -> None:
+    """Extract SIFT features and raw (unverified) matches into cache_db, atomically."""
+    import pycolmap
+
+    tmp = cache_db.with_name(f".ppd-tmp-{cache_db.name}")
+    with contextlib.suppress(FileNotFoundError):
+        tmp.unlink()
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = settings.camera_model
+    if settings.camera_params:
+        reader.camera_params = settings.camera_params
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = settings.max_image_size
+    mode = pycolmap.CameraMode.SINGLE if settings.single_camera else pycolmap.CameraMode.AUTO
+    pycolmap.extract_features(
+        tmp,
+        image_dir,
+        image_names=list_images(image_dir),
+        camera_mode=mode,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.skip_geometric_verification = True  # each profile verifies with its own options
+    if settings.matching == "sequential":
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = settings.sequential_overlap
+        pycolmap.match_sequential(
+            tmp, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+        )
+    elif settings.matching == "exhaustive":
+        pycolmap.match_exhaustive(tmp, matching_options=matching, device=pycolmap.Device.cpu)
+    else:
+        raise ValueError(f"unknown matching {settings.matching!r}")
+    os.replace(tmp, cache_db)
+
+
+def execute_job(job: SfmJob) -> dict[str, Any]:
+    """Run the job in this process (the child). Returns the JSON result."""
+    import pycolmap
+
+    settings = job.settings
+    pycolmap.set_random_seed(settings.random_seed)
+    image_dir, cache_db, model_dir = Path(job.image_dir), Path(job.cache_db), Path(job.model_dir)
+    timings: dict[str, float] = {}
+    t0 = time.time()
+    if not cache_db.exists():
+        cache_db.parent.mkdir(parents=True, exist_ok=True)
+        build_cache_db(image_dir, cache_db, settings)
+        timings["features_and_matches_s"] = time.time() - t0
+    work_db = model_dir / "work.db"
+    shutil.copyfile(cache_db, work_db)
+    t1 = time.time()
+    two_view = pycolmap.TwoViewGeometryOptions()
+    two_view.filter_stationary_matches = settings.filter_stationary_matches
+    two_view.ransac.random_seed = settings.random_seed
+    pycolmap.geometric_verification(work_db, two_view_geometry_options=two_view)
+    timings["verification_s"] = time.time() - t1
+    with pycolmap.Database.open(work_db) as db:
+        num_images = db.num_images()
+        verified_pairs = db.num_verified_image_pairs()
+    mapper = pycolmap.IncrementalPipelineOptions()
+    mapper.ignore_watermarks = settings.ignore_watermarks
+    mapper.random_seed = settings.random_seed
+    if settings.camera_params:  # known intrinsics: keep them fixed, as a careful attacker would
+        mapper.ba_refine_focal_length = False
+        mapper.ba_refine_principal_point = False
+        mapper.ba_refine_extra_params = False
+    t2 = time.time()
+    with tempfile.TemporaryDirectory(prefix=".ppd-tmp-map-", dir=model_dir) as tmp:
+        models = pycolmap.incremental_mapping(work_db, image_dir, tmp, options=mapper)
+        timings["mapping_s"] = time.time() - t2
+        work_db.unlink()
+        result = summarise_models(models, num_images, verified_pairs)
+        if models:
+            largest = max(models.values(), key=lambda r: r.num_reg_images())
+            largest.write(model_dir)
+    result["timings"] = timings
+    result["outcome"] = "ok"
+    return result
+
+
+def summarise_models(models: dict[int, Any], num_images: int, verified_pairs: int) -> dict[str, Any]:
+    """Poses of the largest model and counts of all, as JSON."""
+    sizes = sorted((r.num_reg_images() for r in models.values()), reverse=True)
+    out: dict[str, Any] = {
+        "num_images": num_images,
+        "verified_pairs": verified_pairs,
+        "num_models": len(models),
+        "model_sizes": sizes,
+        "registered": sizes[0] if sizes else 0,
+        "poses": {},
+        "mean_reprojection_error": None,
+        "num_points3D": 0,
+        "camera": None,
+    }
+    if not models:
+        return out
+    largest = max(models.values(), key=lambda r: r.num_reg_images())
+    poses = {}
+    for image in largest.images.values():
+        if not image.has_pose:
+            continue
+        cam_from_world = image.cam_from_world()
+        poses[image.name] = {
+            "R": cam_from_world.rotation.matrix().tolist(),
+            "t": list(map(float, cam_from_world.translation)),
+        }
+    out["poses"] = poses
+    out["registered"] = len(poses)
+    out["mean_reprojection_error"] = float(largest.compute_mean_reprojection_error())
+    out["num_points3D"] = int(largest.num_points3D())
+    cams = list(largest.cameras.values())
+    if cams:
+        out["camera"] = {"model": str(cams[0].model.name), "params": list(map(float, cams[0].params))}
+    return out

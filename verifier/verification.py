@@ -1,0 +1,547 @@
+"""A verification run: SfM on the clean originals and on the poisoned set, per profile, compared.
+
+Profiles (what an attacker would run):
+- `default`: the official 3DGS convert.py settings (one shared OPENCV camera, SIFT, exhaustive
+  matching or sequential for video frames, default geometric verification, incremental mapping).
+- `hardened`: default plus COLMAP's two defences against fixed-position marks:
+  `filter_stationary_matches=True` in verification and `ignore_watermarks=True` in the mapper.
+- `published`: both sets after a platform round trip (long edge <= 2048 px, JPEG quality 85),
+  then the default pipeline.
+
+The parent never imports pycolmap: SfM runs in child processes (verifier.sfm), one at a time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import fcntl
+import hashlib
+import json
+import logging
+import os
+import shutil
+import threading
+import time
+import uuid
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from verifier import poses as posemod
+from verifier.sfm import SfmJob, SfmSettings, list_images, run_sfm_job
+from verifier.verdict import Verdict, VerdictRule, decide, overall
+
+if TYPE_CHECKING:
+    from daemon.protect import AppContext
+
+log = logging.getLogger(__name__)
+
+PROFILES = ("default", "hardened", "published")
+_VERIFY_LOCK = threading.Lock()  # one verification at a time in this process
+
+
+class VerificationInputError(ValueError):
+    """Folders that cannot be verified (message = one clear line)."""
+
+
+@dataclass
+class VerifyOptions:
+    timeout_s: float = 1800.0  # per SfM run
+    matching: str = "auto"  # auto: sequential when the images are frames sampled from videos
+    camera_params: str | None = None  # known intrinsics "fx,fy,cx,cy,k1,k2,p1,p2" (a variant)
+    ground_truth: Path | None = None  # lego transforms json, Strecha gt_dense_cameras dir, synthetic json
+    published_long_edge: int = 2048
+    published_jpeg_quality: int = 85
+    crash_retries: int = 1  # rerun a crashed SfM with another RANSAC seed, as an attacker would
+    clean_cache_dir: Path | None = None  # reuse clean features/results across verifications
+    keep_cache: bool = False  # keep feature databases and round-tripped images
+    rule: VerdictRule = field(default_factory=VerdictRule)
+    cancel: threading.Event | None = None
+
+
+@dataclass
+class ProfileReport:
+    profile: str
+    verdict: str
+    reasons: list[str]
+    clean: dict[str, Any]  # SfM summary (no poses)
+    poisoned: dict[str, Any]
+    vs_clean: dict[str, Any] | None
+    clean_vs_gt: dict[str, Any] | None = None
+    poisoned_vs_gt: dict[str, Any] | None = None
+    model_dir: str | None = None
+    started_at: float = 0.0
+    finished_at: float = 0.0
+
+    @property
+    def error(self) -> str | None:
+        for side in (self.clean, self.poisoned):
+            if side.get("outcome") != "ok":
+                return str(side.get("error") or side.get("outcome"))
+        return None
+
+    def metrics(self) -> dict[str, Any]:
+        """Everything but the verdict, JSON-ready (what the Store records)."""
+        return {
+            "reasons": self.reasons,
+            "clean": self.clean,
+            "poisoned": self.poisoned,
+            "vs_clean": self.vs_clean,
+            "clean_vs_gt": self.clean_vs_gt,
+            "poisoned_vs_gt": self.poisoned_vs_gt,
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["error"] = self.error
+        return d
+
+
+@dataclass
+class VerificationReport:
+    clean_dir: str
+    poisoned_dir: str
+    out_dir: str
+    num_images: int
+    profiles: dict[str, ProfileReport]
+
+    @property
+    def verdict(self) -> str:
+        return overall(p.verdict for p in self.profiles.values())
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "verdict": self.verdict,
+            "clean_dir": self.clean_dir,
+            "poisoned_dir": self.poisoned_dir,
+            "out_dir": self.out_dir,
+            "num_images": self.num_images,
+            "profiles": {k: v.to_dict() for k, v in self.profiles.items()},
+        }
+
+
+# ---- settings per profile ------------------------------------------------------------------------
+def profile_settings(profile: str, matching: str, camera_params: str | None) -> SfmSettings:
+    base = SfmSettings(matching=matching, camera_params=camera_params)
+    if profile in ("default", "published"):
+        return base
+    if profile == "hardened":
+        return dataclasses.replace(base, filter_stationary_matches=True, ignore_watermarks=True)
+    raise VerificationInputError(f"unknown profile {profile!r}; choose from {', '.join(PROFILES)}")
+
+
+def expand_profiles(profiles: Sequence[str] | str) -> list[str]:
+    names = [profiles] if isinstance(profiles, str) else list(profiles)
+    out: list[str] = []
+    for n in names:
+        for p in PROFILES if n == "all" else (n,):
+            if p not in PROFILES:
+                raise VerificationInputError(f"unknown profile {p!r}; choose from {', '.join(PROFILES)}, all")
+            if p not in out:
+                out.append(p)
+    return out
+
+
+def looks_like_video_frames(names: Sequence[str]) -> bool:
+    """Frames sampled from a video are named with a frame index (poisoner.video.sample_frames)."""
+    return bool(names) and all("frame" in Path(n).stem.lower() for n in names)
+
+
+# ---- published round trip -----------------------------------------------------------------------
+def round_trip(src_dir: Path, dst_dir: Path, names: Sequence[str], long_edge: int, quality: int) -> Path:
+    """What a platform does on upload: downscale the long edge to long_edge, re-encode JPEG q=quality.
+
+    Output names keep the source name (with .jpg appended when needed) so poses compare by stem."""
+    from PIL import Image
+
+    dst_dir.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        out = dst_dir / _published_name(name)
+        if out.exists():
+            continue
+        with Image.open(src_dir / name) as im:
+            im.load()
+            rgb = _to_rgb(im)
+        scale = long_edge / max(rgb.size)
+        if scale < 1:
+            rgb = rgb.resize((round(rgb.width * scale), round(rgb.height * scale)), Image.Resampling.LANCZOS)
+        tmp = out.with_name(".ppd-tmp-" + out.name)
+        rgb.save(tmp, "JPEG", quality=quality)
+        os.replace(tmp, out)
+    return dst_dir
+
+
+def _published_name(name: str) -> str:
+    return name if Path(name).suffix.lower() in (".jpg", ".jpeg") else name + ".jpg"
+
+
+def _to_rgb(im: Any) -> Any:
+    from PIL import Image
+
+    if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
+        rgba = im.convert("RGBA")
+        white = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+        return Image.alpha_composite(white, rgba).convert("RGB")
+    return im.convert("RGB")
+
+
+def _unpublish_names(poses: dict[str, Any], names: Sequence[str]) -> dict[str, Any]:
+    back = {_published_name(n): n for n in names}
+    return {back.get(k, k): v for k, v in poses.items()}
+
+
+# ---- one SfM side, with reuse ---------------------------------------------------------------------
+def _folder_key(image_dir: Path, names: Sequence[str]) -> str:
+    h = hashlib.sha256()
+    for n in names:
+        st = (image_dir / n).stat()
+        h.update(f"{n}:{st.st_size}:{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()[:16]
+
+
+def _run_side(
+    image_dir: Path,
+    cache_db: Path,
+    model_dir: Path,
+    settings: SfmSettings,
+    options: VerifyOptions,
+    reuse_key: str | None = None,
+) -> dict[str, Any]:
+    """One SfM run (child process). With reuse_key, a result stored next to the model is reused."""
+    result_file = model_dir / "result.json"
+    if reuse_key and result_file.exists():
+        stored = json.loads(result_file.read_text())
+        if stored.get("reuse_key") == reuse_key and stored.get("outcome") == "ok":
+            log.info("reusing clean SfM result", extra={"model_dir": str(model_dir)})
+            return stored
+    crashes: list[str] = []
+    elapsed = 0.0
+    for attempt in range(1 + max(0, options.crash_retries)):
+        run_settings = dataclasses.replace(settings, random_seed=settings.random_seed + attempt)
+        job = SfmJob(str(image_dir), str(cache_db), str(model_dir), run_settings)
+        result = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel)
+        elapsed += float(result.get("elapsed_s") or 0.0)
+        result["elapsed_s"] = elapsed  # all attempts: what the verification cost
+        if result.get("outcome") != "sfm_crashed":
+            break
+        crashes.append(str(result.get("signal")))
+        log.warning("SfM crashed", extra={"image_dir": str(image_dir), "signal": result.get("signal")})
+    result["crashes"] = crashes  # signals of crashed attempts (the last one too when all crashed)
+    result["settings"] = run_settings.to_dict()
+    if reuse_key:
+        result["reuse_key"] = reuse_key
+    result_file.write_text(json.dumps(result))
+    return result
+
+
+def _summary(result: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in result.items() if k not in ("poses", "settings", "reuse_key")}
+
+
+# ---- the run ------------------------------------------------------------------------------------------
+def verify_folders(
+    clean_dir: Path,
+    poisoned_dir: Path,
+    out_dir: Path,
+    profiles: Sequence[str] = PROFILES,
+    options: VerifyOptions | None = None,
+) -> VerificationReport:
+    """SfM on clean and poisoned sets (same file names) per profile; models under out_dir/<profile>/."""
+    options = options or VerifyOptions()
+    clean_dir, poisoned_dir, out_dir = Path(clean_dir), Path(poisoned_dir), Path(out_dir)
+    names = _check_inputs(clean_dir, poisoned_dir)
+    profile_list = expand_profiles(profiles)
+    matching = options.matching
+    if matching == "auto":
+        matching = "sequential" if looks_like_video_frames(names) else "exhaustive"
+    gt = posemod.load_ground_truth(options.ground_truth) if options.ground_truth else None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cache = out_dir / ".cache"
+    clean_cache = Path(options.clean_cache_dir) if options.clean_cache_dir else cache
+    clean_key = _folder_key(clean_dir, names)
+    reports: dict[str, ProfileReport] = {}
+    with _VERIFY_LOCK:
+        try:
+            for profile in profile_list:
+                reports[profile] = _verify_profile(
+                    profile,
+                    clean_dir,
+                    poisoned_dir,
+                    names,
+                    out_dir,
+                    cache,
+                    clean_cache,
+                    clean_key,
+                    matching,
+                    gt,
+                    options,
+                )
+        finally:
+            if not options.keep_cache:
+                shutil.rmtree(cache, ignore_errors=True)
+    return VerificationReport(str(clean_dir), str(poisoned_dir), str(out_dir), len(names), reports)
+
+
+def _check_inputs(clean_dir: Path, poisoned_dir: Path) -> list[str]:
+    for d in (clean_dir, poisoned_dir):
+        if not d.is_dir():
+            raise VerificationInputError(f"not a folder: {d}")
+    clean, poisoned = list_images(clean_dir), list_images(poisoned_dir)
+    if not clean:
+        raise VerificationInputError(f"no images in {clean_dir}")
+    if set(clean) != set(poisoned):
+        only_c = sorted(set(clean) - set(poisoned))[:3]
+        only_p = sorted(set(poisoned) - set(clean))[:3]
+        raise VerificationInputError(
+            "clean and poisoned folders must hold the same file names "
+            f"(only clean: {only_c}, only poisoned: {only_p})"
+        )
+    if len(clean) < 3:
+        raise VerificationInputError(f"need at least 3 images for SfM, got {len(clean)}")
+    return clean
+
+
+def _verify_profile(
+    profile: str,
+    clean_dir: Path,
+    poisoned_dir: Path,
+    names: list[str],
+    out_dir: Path,
+    cache: Path,
+    clean_cache: Path,
+    clean_key: str,
+    matching: str,
+    gt: dict[str, posemod.Pose] | None,
+    options: VerifyOptions,
+) -> ProfileReport:
+    started = time.time()
+    settings = profile_settings(profile, matching, options.camera_params)
+    source = "published" if profile == "published" else "original"
+    skey = hashlib.sha256(settings.feature_key().encode()).hexdigest()[:10]
+    clean_images, poisoned_images = clean_dir, poisoned_dir
+    if source == "published":
+        tag = f"{options.published_long_edge}-{options.published_jpeg_quality}"
+        clean_images = round_trip(
+            clean_dir,
+            clean_cache / f"published-{tag}-{clean_key}",
+            names,
+            options.published_long_edge,
+            options.published_jpeg_quality,
+        )
+        poisoned_images = round_trip(
+            poisoned_dir,
+            cache / f"published-{tag}-poisoned",
+            names,
+            options.published_long_edge,
+            options.published_jpeg_quality,
+        )
+    profile_dir = out_dir / profile
+    reuse_key = f"{clean_key}-{profile}-{json.dumps(settings.to_dict(), sort_keys=True)}-{source}"
+    clean_model = (
+        clean_cache / "clean-models" / hashlib.sha256(reuse_key.encode()).hexdigest()[:16]
+        if options.clean_cache_dir
+        else profile_dir / "clean"
+    )
+    clean = _run_side(
+        clean_images,
+        clean_cache / f"clean-{source}-{clean_key}-{skey}.db",
+        clean_model,
+        settings,
+        options,
+        reuse_key=reuse_key,
+    )
+    if options.clean_cache_dir:  # the report's model folder holds a copy of the clean model
+        _copy_model(clean_model, profile_dir / "clean")
+    poisoned = {"outcome": "cancelled", "error": "cancelled"}
+    if not (options.cancel and options.cancel.is_set()):
+        poisoned = _run_side(
+            poisoned_images,
+            cache / f"poisoned-{source}-{skey}.db",
+            profile_dir / "poisoned",
+            settings,
+            options,
+        )
+    if source == "published":
+        for side in (clean, poisoned):
+            side["poses"] = _unpublish_names(side.get("poses", {}), names)
+    vs_clean = clean_vs_gt = poisoned_vs_gt = None
+    clean_poses = posemod.poses_from_json(clean.get("poses", {}))
+    pois_poses = posemod.poses_from_json(poisoned.get("poses", {}))
+    if clean.get("outcome") == "ok" and poisoned.get("outcome") == "ok":
+        vs_clean = posemod.compare_poses(pois_poses, clean_poses)
+    if gt is not None:
+        gt_here = {n: p for n, p in gt.items() if n in names}
+        if clean.get("outcome") == "ok":
+            clean_vs_gt = posemod.compare_poses(clean_poses, gt_here)
+        if poisoned.get("outcome") == "ok":
+            poisoned_vs_gt = posemod.compare_poses(pois_poses, gt_here)
+    verdict: Verdict = decide(clean, poisoned, vs_clean, options.rule)
+    report = ProfileReport(
+        profile=profile,
+        verdict=verdict.verdict,
+        reasons=verdict.reasons,
+        clean=_summary(clean),
+        poisoned=_summary(poisoned),
+        vs_clean=vs_clean,
+        clean_vs_gt=clean_vs_gt,
+        poisoned_vs_gt=poisoned_vs_gt,
+        model_dir=str(profile_dir),
+        started_at=started,
+        finished_at=time.time(),
+    )
+    (profile_dir).mkdir(parents=True, exist_ok=True)
+    (profile_dir / "report.json").write_text(json.dumps(report.to_dict(), indent=1))
+    log.info("profile verified", extra={"profile": profile, "verdict": report.verdict})
+    return report
+
+
+def _copy_model(src: Path, dst: Path) -> None:
+    dst.mkdir(parents=True, exist_ok=True)
+    for f in src.iterdir():
+        if f.is_file() and (f.suffix in (".bin", ".txt") or f.name == "result.json"):
+            shutil.copyfile(f, dst / f.name)
+
+
+# ---- datasets of the daemon -----------------------------------------------------------------------
+DEFAULT_KEEP_RUNS = 5
+
+
+def new_run_id() -> str:
+    return time.strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:6]
+
+
+def prune_runs(dataset_runs: Path, keep_last: int) -> list[Path]:
+    """Delete all but the newest keep_last run folders of a dataset (run ids sort by time)."""
+    if not dataset_runs.is_dir():
+        return []
+    runs = sorted(p for p in dataset_runs.iterdir() if p.is_dir() and not p.name.startswith("."))
+    doomed = runs[: max(0, len(runs) - keep_last)]
+    for p in doomed:
+        shutil.rmtree(p, ignore_errors=True)
+    return doomed
+
+
+@contextlib.contextmanager
+def _process_lock(lock_path: Path) -> Iterator[None]:
+    """One verification at a time across processes (the daemon's scheduler and `ppd verify`)."""
+    lock_path.parent.mkdir(parents=True, exist_ok=True)
+    with open(lock_path, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _flat_name(path: Path, index: int, used: set[str]) -> str:
+    name = path.name
+    if name in used:
+        name = f"{index:05d}_{name}"
+    used.add(name)
+    return name
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copyfile(src, dst)
+
+
+def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_dir: Path) -> str:
+    """Lay out (original, protected) pairs as two folders with the same names.
+
+    Images are hard-linked (or copied). Videos are sampled into frames with poisoner.video.
+    Returns the matching mode to use ("sequential" when frames came from videos)."""
+    clean_dir.mkdir(parents=True, exist_ok=True)
+    poisoned_dir.mkdir(parents=True, exist_ok=True)
+    used: set[str] = set()
+    any_video = False
+    for i, (original, protected) in enumerate(pairs):
+        protected, original = Path(protected), Path(original)
+        if _is_video(protected):
+            from poisoner.video import sample_frames
+
+            any_video = True
+            tmp_c, tmp_p = clean_dir / f".v{i}", poisoned_dir / f".v{i}"
+            frames_c = sample_frames(original, tmp_c)
+            frames_p = sample_frames(protected, tmp_p)
+            for k, (fc, fp) in enumerate(zip(frames_c, frames_p, strict=False)):
+                name = f"{protected.stem}_frame{k:05d}{fc.suffix}"
+                os.replace(fc, clean_dir / name)
+                os.replace(fp, poisoned_dir / name)
+            shutil.rmtree(tmp_c, ignore_errors=True)
+            shutil.rmtree(tmp_p, ignore_errors=True)
+            continue
+        if protected.suffix.lower() not in (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp"):
+            continue  # formats COLMAP cannot read (e.g. HEIC) are left out of the SfM check
+        name = _flat_name(protected, i, used)
+        _link_or_copy(original, clean_dir / name)
+        _link_or_copy(protected, poisoned_dir / name)
+    return "sequential" if any_video else "auto"
+
+
+def _is_video(path: Path) -> bool:
+    try:
+        from poisoner.video import is_video
+    except ImportError:
+        return False
+    return bool(is_video(path))
+
+
+def verify_dataset(
+    ctx: AppContext,
+    dataset: str,
+    profiles: Sequence[str] = PROFILES,
+    options: VerifyOptions | None = None,
+    keep_last: int | None = None,
+) -> VerificationReport:
+    """Verify a daemon dataset: its vault originals vs its protected files; rows in the Store."""
+    from daemon.protect import dataset_pairs
+
+    options = options or VerifyOptions()
+    keep = (
+        keep_last
+        if keep_last is not None
+        else int(getattr(ctx.config, "verify_keep_runs", DEFAULT_KEEP_RUNS))
+    )
+    pairs = dataset_pairs(ctx, dataset)
+    if len(pairs) < 3:
+        raise VerificationInputError(
+            f"dataset {dataset!r} has {len(pairs)} protected file(s); SfM needs at least 3"
+        )
+    runs_root = Path(ctx.paths.runs_dir)
+    run_dir = runs_root / dataset / new_run_id()
+    with _process_lock(runs_root / ".verify.lock"):
+        images = run_dir / ".images"
+        try:
+            matching = stage_pairs(pairs, images / "clean", images / "poisoned")
+            opts = dataclasses.replace(options, matching=matching if matching != "auto" else options.matching)
+            report = verify_folders(images / "clean", images / "poisoned", run_dir, profiles, opts)
+        finally:
+            shutil.rmtree(images, ignore_errors=True)
+        (run_dir / "report.json").write_text(json.dumps(report.to_dict(), indent=1))
+        record_report(ctx, dataset, report)
+        prune_runs(runs_root / dataset, keep)
+    return report
+
+
+def record_report(ctx: AppContext, dataset: str, report: VerificationReport) -> list[int]:
+    """One Store row per profile."""
+    ids = []
+    for p in report.profiles.values():
+        ids.append(
+            ctx.store.add_verification_run(
+                dataset=dataset,
+                profile=p.profile,
+                verdict=p.verdict,
+                metrics=p.metrics(),
+                started_at=p.started_at,
+                finished_at=p.finished_at,
+                model_dir=p.model_dir,
+                error=p.error if p.verdict != "protected" else None,
+            )
+        )
+    return ids
