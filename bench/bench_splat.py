@@ -12,17 +12,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-import numpy as np
-import PIL.Image  # noqa: F401  (before pycolmap)
-import torch
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads libgomp: verifier/splat/__init__.py
 
-from verifier.metrics import psnr, ssim
+import numpy as np  # noqa: E402
+import PIL.Image  # noqa: E402, F401  (before pycolmap)
+import torch  # noqa: E402
+
+from verifier.metrics import psnr, ssim  # noqa: E402
 from verifier.splat.camera import scene_extent
 from verifier.splat.gaussians import from_points
 from verifier.splat.scenes import load_blender_scene
@@ -106,9 +109,10 @@ def _child(args: list[str]) -> dict:
 
 
 def find_d_models() -> tuple[Path, Path] | None:
-    """The first profile (default, then hardened) where both sides have a model."""
-    for profile in ("default", "hardened"):
-        for run in sorted(D_RUNS.glob("run-*-unknown")):
+    """The first profile (default, published, then hardened) where both sides have a model, over
+    D's unknown-focal runs (including labelled reruns: run-<hash>-unknown-<label>)."""
+    for profile in ("default", "published", "hardened"):
+        for run in sorted(D_RUNS.glob("run-*-unknown*")):
             clean, pois = run / profile / "clean", run / profile / "poisoned"
             if (clean / "cameras.bin").is_file() and (pois / "cameras.bin").is_file():
                 return clean, pois
@@ -200,8 +204,10 @@ def write_report(fit: dict, speeds: list[dict], cmp: dict, argv: str) -> None:
         lines += [
             f"Models: {', '.join(cmp['models'])}. LPIPS: {cmp['lpips_net'] or 'n/a: ' + str(cmp['lpips_unavailable'])}.",  # noqa: E501
             f"Training: clean {cmp['clean']['iterations']} it / {cmp['clean']['train_seconds']} s on "
-            f"{cmp['clean']['views']} registered views; poisoned {cmp['poisoned']['iterations']} it / "
-            f"{cmp['poisoned']['train_seconds']} s on {cmp['poisoned']['views']} views.",
+            f"{cmp['clean']['views']} registered views ({cmp['clean']['gaussians']} Gaussians); poisoned "
+            f"{cmp['poisoned']['iterations']} it / {cmp['poisoned']['train_seconds']} s on "
+            f"{cmp['poisoned']['views']} views ({cmp['poisoned']['gaussians']} Gaussians). Whole stage "
+            f"(both trainings, renders, SSIM/PSNR/LPIPS, cost2 at 800 px, preview): {cmp['seconds']} s.",
             "",
             "| | render SSIM | render PSNR | render LPIPS | clean-vs-poisoned SSIM | PSNR | LPIPS |",
             "|---|---|---|---|---|---|---|",
@@ -224,6 +230,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--init-points", type=int, default=5000)
     ap.add_argument("--speed-iters", type=int, default=5)
     ap.add_argument("--compare-budget", type=float, default=600.0, help="per side, s")
+    ap.add_argument("--compare-iterations", type=int, default=1500, help="per side (SplatOptions default)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--part", choices=["fit", "speed"], default=None, help=argparse.SUPPRESS)
     ap.add_argument("--n", type=int, default=10_000, help=argparse.SUPPRESS)
@@ -266,7 +273,7 @@ def main(argv: list[str] | None = None) -> None:
         ]
     )
     print("fit", fit, flush=True)
-    cmp = compare(args.compare_budget, args.iterations, args.threads)
+    cmp = compare(args.compare_budget, args.compare_iterations, args.threads)
     print("compare", {k: v for k, v in cmp.items() if k != "options"}, flush=True)
     write_report(fit, speeds, cmp, "nice python -m bench.bench_splat " + " ".join(sys.argv[1:]))
     print(f"wrote {RESULTS} in {time.time() - t0:.0f} s")

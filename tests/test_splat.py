@@ -7,11 +7,14 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
+from verifier.metrics import ssim_torch
 from verifier.splat.camera import Camera, camera_from_blender
 from verifier.splat.gaussians import Gaussians, from_points
-from verifier.splat.render import ALPHA_MIN, DILATION, RenderSettings, render
+from verifier.splat.loss import ssim_fast
+from verifier.splat.render import ALPHA_MIN, DILATION, RenderSettings, project, rasterise, render
 from verifier.splat.train import SplatOptions, densify_and_prune, train_splat
 
 F64 = torch.float64
@@ -62,12 +65,17 @@ def _analytic(
     return alpha[..., None] * colour + (1 - alpha[..., None]) * bg
 
 
-def test_single_isotropic_gaussian_matches_analytic() -> None:
+BACKENDS = ("kernel", "torch")
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_single_isotropic_gaussian_matches_analytic(backend: str) -> None:
     cam = _camera()
     z, s = 4.0, 0.3
     g = _gaussians([[0.0, 0.0, z]], [[s, s, s]], [[1.0, 0, 0, 0]], [0.8], [[0.9, 0.2, 0.1]])
     bg = np.array([0.0, 0.0, 1.0])
-    img = render(g, cam, torch.tensor(bg), sh_degree=0).image.permute(1, 2, 0).numpy()
+    settings = RenderSettings(backend=backend)
+    img = render(g, cam, torch.tensor(bg), sh_degree=0, settings=settings).image.permute(1, 2, 0).numpy()
     sigma_px = cam.fx * s / z
     expected = _analytic(
         np.eye(2) * sigma_px**2, (cam.cx, cam.cy), 0.8, np.array([0.9, 0.2, 0.1]), bg, cam.width, cam.height
@@ -76,13 +84,15 @@ def test_single_isotropic_gaussian_matches_analytic() -> None:
     assert img[20, 24, 0] > 0.5  # the centre is mostly the Gaussian's red
 
 
-def test_rotated_anisotropic_gaussian_matches_analytic() -> None:
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_rotated_anisotropic_gaussian_matches_analytic(backend: str) -> None:
     cam = _camera()
     z, theta = 5.0, 0.6
     q = [math.cos(theta / 2), 0.0, 0.0, math.sin(theta / 2)]  # rotation about the optical axis
     g = _gaussians([[0.0, 0.0, z]], [[0.6, 0.15, 0.2]], [q], [0.95], [[0.1, 0.8, 0.3]])
     bg = np.zeros(3)
-    img = render(g, cam, torch.tensor(bg), sh_degree=0).image.permute(1, 2, 0).numpy()
+    settings = RenderSettings(backend=backend)
+    img = render(g, cam, torch.tensor(bg), sh_degree=0, settings=settings).image.permute(1, 2, 0).numpy()
     rot = np.array([[math.cos(theta), -math.sin(theta)], [math.sin(theta), math.cos(theta)]])
     cov = (cam.fx / z) ** 2 * rot @ np.diag([0.6**2, 0.15**2]) @ rot.T
     expected = _analytic(cov, (cam.cx, cam.cy), 0.95, np.array([0.1, 0.8, 0.3]), bg, cam.width, cam.height)
@@ -100,20 +110,23 @@ def _random_scene(n: int, seed: int, dtype: torch.dtype = F64) -> Gaussians:
     return g
 
 
-def test_tile_culling_equals_brute_force() -> None:
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_tile_culling_equals_brute_force(backend: str) -> None:
     cam = Camera(np.eye(3), np.array([0.0, 0.0, 4.0]), 60.0, 60.0, 27.0, 21.0, 53, 41)
     g = _random_scene(400, seed=1)
     bg = torch.tensor([1.0, 1.0, 1.0], dtype=F64)
-    tiled = render(g, cam, bg, 1, RenderSettings(tile_size=16))
-    small_groups = render(g, cam, bg, 1, RenderSettings(tile_size=8, max_group_elements=5000))
-    brute = render(g, cam, bg, 1, RenderSettings(tile_size=16, brute_force=True))
+    tiled = render(g, cam, bg, 1, RenderSettings(tile_size=16, backend=backend))
+    small = RenderSettings(tile_size=8, max_group_elements=5000, backend=backend)
+    small_groups = render(g, cam, bg, 1, small)
+    brute = render(g, cam, bg, 1, RenderSettings(tile_size=16, brute_force=True, backend=backend))
     assert tiled.pairs < brute.pairs  # culling did cull
     assert torch.abs(tiled.image - brute.image).max() < 1e-12
     assert torch.abs(small_groups.image - brute.image).max() < 1e-12
     assert tiled.image.std() > 0.05  # not a blank image
 
 
-def test_gradients_match_finite_differences() -> None:
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_gradients_match_finite_differences(backend: str) -> None:
     cam = Camera(np.eye(3), np.array([0.0, 0.0, 3.0]), 14.0, 14.0, 6.0, 5.0, 12, 10)
     base = _random_scene(4, seed=2)
     with torch.no_grad():
@@ -127,9 +140,62 @@ def test_gradients_match_finite_differences() -> None:
 
     def loss(*params: torch.Tensor) -> torch.Tensor:
         g = Gaussians(**dict(zip(names, params, strict=True)))
-        return (render(g, cam, bg, 1).image * camera_centre_dir).sum()
+        return (render(g, cam, bg, 1, RenderSettings(backend=backend)).image * camera_centre_dir).sum()
 
     assert torch.autograd.gradcheck(loss, leaves, eps=1e-6, atol=1e-6, rtol=1e-4)
+
+
+def _composite_both(
+    g: Gaussians, cam: Camera, bg: torch.Tensor, tile: int
+) -> dict[str, dict[str, torch.Tensor]]:
+    """Image and gradients w.r.t. the compositor's inputs (means2D, conics, opacities, colours,
+    background) for a fixed random linear loss, with each backend, from the same projection."""
+    with torch.no_grad():
+        proj = project(g, cam, 1)
+    weights = torch.randn(3, cam.height, cam.width, generator=torch.Generator().manual_seed(0), dtype=F64)
+    out = {}
+    for backend in BACKENDS:
+        leaves = {n: getattr(proj, n).detach().clone().requires_grad_(True)
+                  for n in ("means2d", "conics", "opacity", "colours")}
+        leaves["bg"] = bg.clone().requires_grad_(True)
+        p = type(proj)(leaves["means2d"], leaves["conics"], proj.depths, proj.radii, leaves["opacity"],
+                       leaves["colours"])
+        image, _ = rasterise(p, cam, leaves["bg"], RenderSettings(tile_size=tile, backend=backend))
+        (image * weights).sum().backward()
+        out[backend] = {"image": image.detach(), **{n: t.grad for n, t in leaves.items()}}
+    return out
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_kernel_equals_reference_image_and_gradients(seed: int) -> None:
+    # Opaque and transparent Gaussians: exercises the 0.99 clamp, the 1/255 skip and early
+    # termination (T < 1e-4), which the kernel and the autograd reference implement separately.
+    cam = Camera(np.eye(3), np.array([0.0, 0.0, 4.0]), 60.0, 60.0, 27.0, 21.0, 53, 41)
+    g = _random_scene(300, seed=seed)
+    with torch.no_grad():
+        g.opacity_logits[::3] = 8.0  # sigmoid > 0.99: clamped alpha
+    bg = torch.tensor([0.3, 0.6, 0.9], dtype=F64)
+    out = _composite_both(g, cam, bg, tile=16 if seed % 2 else 8)
+    ref, fast = out["torch"], out["kernel"]
+    assert torch.abs(fast["image"] - ref["image"]).max() < 1e-6
+    for name in ("means2d", "conics", "opacity", "colours", "bg"):
+        scale = ref[name].abs().max()
+        assert scale > 0, name  # the gradient is not trivially zero
+        assert torch.abs(fast[name] - ref[name]).max() <= 1e-5 * max(1.0, float(scale)), name
+    clamped = torch.sigmoid(g.opacity_logits.detach()) > 0.99
+    assert (ref["opacity"][clamped] == 0).any()  # some alpha was clamped at 0.99 somewhere
+
+
+def test_ssim_fast_equals_ssim_torch() -> None:
+    gen = torch.Generator().manual_seed(1)
+    a = torch.rand(3, 37, 52, generator=gen, dtype=F64, requires_grad=True)
+    b = torch.rand(3, 37, 52, generator=gen, dtype=F64)
+    fast, ref = ssim_fast(a, b), ssim_torch(a, b)
+    (g_fast,) = torch.autograd.grad(fast, a)
+    (g_ref,) = torch.autograd.grad(ref, a)
+    assert abs(float(fast.detach() - ref.detach())) < 1e-12
+    assert torch.abs(g_fast - g_ref).max() < 1e-12
+    assert abs(float(ssim_fast(b, b)) - 1.0) < 1e-12
 
 
 def test_densify_clones_splits_and_prunes() -> None:

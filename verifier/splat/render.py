@@ -14,8 +14,10 @@ Steps, after Kerbl et al. 2023 and its CUDA rasteriser:
    o exp(-d^T Sigma2D^-1 d / 2)), skipped below 1/255; C = sum c_i alpha_i T_i + T_final bg with
    T_i = prod_{j<i}(1 - alpha_j); early termination: a Gaussian whose T_i (1 - alpha_i) would
    drop below 1e-4 and all behind it are left out.
-Tiles are processed in groups, padded to the group's largest Gaussian count (tiles sorted by
-count, so padding is small) and vectorised; autograd provides the backward pass.
+Step 4 has two backends (RenderSettings.backend): "kernel" (default), numba-compiled per-pixel
+loops with 3DGS's hand-written backward (verifier/splat/kernel.py); "torch", the reference: tiles
+processed in groups, padded to the group's largest Gaussian count (tiles sorted by count, so
+padding is small) and vectorised, autograd providing the backward pass.
 """
 
 from __future__ import annotations
@@ -43,6 +45,9 @@ class RenderSettings:
     brute_force: bool = False  # every visible Gaussian in every tile (for tests)
     max_group_elements: int = 1 << 22  # pixels x Gaussians evaluated at once (memory bound)
     checkpoint_groups: bool = False  # recompute tile groups in backward: less memory, ~1.5x time
+    # "kernel": compiled compositing with a hand-written backward (verifier/splat/kernel.py);
+    # "torch": the dense per-tile autograd reference below (slow; kept to test the kernel against)
+    backend: str = "kernel"
 
 
 @dataclass
@@ -158,6 +163,14 @@ def rasterise(
     tile_ids, gauss_ids = _bin(proj, cam, tiles_x, tiles_y, tile, settings.brute_force)
     counts = torch.bincount(tile_ids, minlength=n_tiles)
     starts = torch.cumsum(counts, 0) - counts
+    if settings.backend == "kernel":
+        from verifier.splat.kernel import composite
+
+        image = composite(proj.means2d, proj.conics, proj.opacity, proj.colours, bg.to(dtype), proj.radii,
+                          starts, counts, gauss_ids, cam.width, cam.height, tile, tiles_x)
+        return image, int(tile_ids.numel())
+    if settings.backend != "torch":
+        raise ValueError(f"unknown render backend {settings.backend!r} (expected 'kernel' or 'torch')")
     local = (torch.arange(tile) + 0.5).to(dtype)
     py, px = torch.meshgrid(local, local, indexing="ij")
     offsets = torch.stack([px.reshape(-1), py.reshape(-1)], dim=1)  # P x 2 (x, y)

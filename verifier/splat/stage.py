@@ -76,6 +76,7 @@ def run_splat_stage(
                 stderr=log_file,
                 timeout=timeout_s,
                 check=False,
+                env={**os.environ, "OMP_WAIT_POLICY": "PASSIVE"},  # see verifier/splat/__init__.py
             )
             code: int | None = proc.returncode
         except subprocess.TimeoutExpired:

@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from verifier.metrics import ssim_torch
 from verifier.splat.camera import Camera
 from verifier.splat.gaussians import PARAM_NAMES, Gaussians, quaternion_to_matrix
+from verifier.splat.loss import ssim_fast
 from verifier.splat.render import RenderSettings, render
 
 log = logging.getLogger(__name__)
@@ -57,12 +57,14 @@ class SplatOptions:
     tile_size: int = 16
     max_group_elements: int = 1 << 22
     checkpoint_groups: bool = False
+    render_backend: str = "kernel"  # "kernel" (compiled, default) or "torch" (reference autograd)
     preview_views: int = 3
     cost2_long_edge: int = 800  # cost2 (clean vs poisoned) is measured at min(native, this)
     lpips_net: str = "vgg"
 
     def render_settings(self) -> RenderSettings:
-        return RenderSettings(self.tile_size, False, self.max_group_elements, self.checkpoint_groups)
+        return RenderSettings(self.tile_size, False, self.max_group_elements, self.checkpoint_groups,
+                              self.render_backend)
 
 
 @dataclass
@@ -181,7 +183,7 @@ def train_splat(
         sh = min(o.sh_degree, 1) if it >= o.sh_degree_up_at else 0
         out = render(g, cam, bg, sh, settings)
         l1 = (out.image - gt).abs().mean()
-        loss = (1.0 - o.lambda_dssim) * l1 + o.lambda_dssim * (1.0 - ssim_torch(out.image, gt))
+        loss = (1.0 - o.lambda_dssim) * l1 + o.lambda_dssim * (1.0 - ssim_fast(out.image, gt))
         opt.zero_grad(set_to_none=True)
         loss.backward()
         losses.append(float(loss.detach()))
