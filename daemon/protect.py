@@ -64,7 +64,7 @@ class ProtectOutcome:
     output: Path | None = None  # where the protected file is now
     seconds: float = 0.0
     dry_run: bool = False
-    report: Any = None  # poisoner.formats.PoisonReport / poisoner.video.VideoReport
+    report: Any = None  # poisoner.formats.PoisonReport (poisoner.video.VideoReport is one)
 
 
 @dataclass

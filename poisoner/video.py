@@ -30,7 +30,7 @@ import logging
 import math
 import os
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 
@@ -40,6 +40,7 @@ import numpy as np
 from av.video.reformatter import ColorRange, Colorspace
 
 from poisoner.blend import apply_patch, patch_values
+from poisoner.formats import PoisonReport
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 
 log = logging.getLogger(__name__)
@@ -139,15 +140,10 @@ class SourceInfo:
 
 
 @dataclass
-class VideoReport:
-    """What poison_video did; the first six fields match poisoner.formats.PoisonReport."""
+class VideoReport(PoisonReport):
+    """What poison_video did: an image report (format, size, placement, preserved, notes) plus
+    what is particular to video."""
 
-    format: str
-    width: int
-    height: int
-    placement: PatchPlacement
-    preserved: list[str] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)
     codec: str = ""
     encoder: str = ""
     pix_fmt: str = ""
