@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+
+# Idle OpenMP threads sleep instead of spinning (see verifier/splat/__init__.py): libgomp reads this
+# once when torch loads, so it must be set before any test module imports torch.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 # PIL before pycolmap in any process that has both (pillow 13 + pycolmap 4.2.1 crash otherwise).
 import PIL.Image  # noqa: F401

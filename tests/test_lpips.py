@@ -55,6 +55,46 @@ def test_distance_properties() -> None:
     assert 0 < model.distance(img, small) < model.distance(img, large)
 
 
+@pytest.mark.parametrize("net", ["vgg", "alex"])
+@pytest.mark.parametrize(
+    ("height", "width", "y", "x", "size"),
+    [(520, 520, 0, 0, 40), (333, 517, 290, 470, 37), (600, 640, 250, 300, 24)],
+)
+def test_local_distance_equals_the_full_pass(
+    net: str, height: int, width: int, y: int, x: int, size: int
+) -> None:
+    """The crop around a change gives the full-image LPIPS (corner, far edge, odd sizes)."""
+    ok, reason = lpips_available(net)
+    if not ok:
+        pytest.skip(reason)
+    rng = np.random.default_rng(height + x)
+    ramp = np.linspace(0, 0.7, width, dtype=np.float32)[None, :, None]
+    a = (rng.random((height, width, 3), dtype=np.float32) * 0.3 + ramp).astype(np.float32)
+    b = a.copy()
+    b[y : y + size, x : x + size] = rng.random(b[y : y + size, x : x + size].shape)
+    model = Lpips(net)
+    full = model.distance(a, b, local=False)
+    assert full > 0
+    assert model.distance(a, b) == pytest.approx(full, rel=1e-5)
+    assert model.distance(a, a) == 0.0
+
+
+def test_change_box_keeps_context_on_the_pooling_grid() -> None:
+    import torch
+
+    from verifier.lpips import change_box
+
+    a = torch.zeros(3, 900, 1000)
+    b = a.clone()
+    b[:, 500:510, 600:620] = 1
+    y0, x0, y1, x1 = change_box(a, b, 900, 1000)
+    assert y0 % 16 == 0 and x0 % 16 == 0
+    assert y0 <= 500 - 212 and x0 <= 600 - 212
+    assert y1 >= 510 + 212 and 620 + 212 <= x1 <= 1000
+    assert change_box(a, b, 900, 1000) != (0, 0, 900, 1000)  # a crop, not the whole image
+    assert change_box(a, a.clone(), 900, 1000) is None
+
+
 def test_missing_weights_report_a_reason(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("PPD_CACHE_DIR", str(tmp_path))
     ok, reason = lpips_available("vgg")

@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -230,7 +232,9 @@ def test_verify_dataset_records_runs_and_keeps_models(
         shutil.copytree(synthetic_sets["clean"], trip)
         for p in sorted(trip.glob("*.png")):
             assert protect.protect_file(p, ctx).state == "protected"
-        report = verify_dataset(ctx, "trip", ["default"], VerifyOptions(timeout_s=300), keep_last=1)
+        options = VerifyOptions(timeout_s=300, splat=True)
+        options.splat_options.update(long_edge=64, iterations=30, time_budget_s=20)
+        report = verify_dataset(ctx, "trip", ["default"], options, keep_last=1)
         rows = ctx.store.verification_runs("trip")
         assert [r["profile"] for r in rows] == ["default"]
         assert rows[0]["verdict"] == report.profiles["default"].verdict
@@ -240,8 +244,35 @@ def test_verify_dataset_records_runs_and_keeps_models(
         assert (model_dir / "poisoned" / "images.bin").is_file()
         run_dirs = list((ctx.paths.runs_dir / "trip").iterdir())
         assert len(run_dirs) == 1 and not (run_dirs[0] / ".images").exists()  # staged images removed
+        # Verifier II ran on the staged images before they were removed, and its costs are stored
+        splat = rows[0]["metrics"]["splat"]
+        assert splat["outcome"] == "ok", splat
+        assert splat["clean"]["iterations"] > 0 and splat["poisoned"]["iterations"] > 0
+        assert 0 < splat["cost2"]["ssim"] < 1 and splat["cost2"]["images"] == 12
+        assert any(r.startswith("splat: poisoned model renders") for r in rows[0]["metrics"]["reasons"])
+        assert Path(splat["preview"]).is_file()
     finally:
         ctx.close()
+
+
+@pytest.mark.integration
+def test_cli_verify_splat_json(synthetic_sets: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd verify PATH --clean DIR --splat --json` carries the splat stage's costs."""
+    out = tmp_path / "out"
+    proc = subprocess.run(
+        [sys.executable, "-m", "daemon.cli", "verify", str(synthetic_sets["poisoned"]), "--clean",
+         str(synthetic_sets["clean"]), "--profile", "default", "--out", str(out), "--splat",
+         "--splat-budget", "5", "--json"],
+        capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    assert proc.returncode in (0, 1), proc.stderr[-2000:]
+    data = json.loads(proc.stdout)
+    splat = data["profiles"]["default"]["splat"]
+    assert splat["outcome"] == "ok", splat
+    assert splat["options"]["time_budget_s"] == 5
+    assert splat["clean"]["train_seconds"] < 30  # the budget bounds training (checked per iteration)
+    assert splat["cost2"]["psnr"] > 20 and splat["cost2"]["ssim"] < 1
+    assert (out / "default" / "splat" / "splat.json").is_file()
 
 
 def test_cli_verify_bad_folders_is_one_clear_line(tmp_path: Path) -> None:

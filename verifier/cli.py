@@ -82,9 +82,41 @@ def profile_table(p: dict[str, Any]) -> Table:
     return table
 
 
+def splat_table(splat: dict[str, Any]) -> Table:
+    """The paper's two costs: cost1 (renders vs inputs, clean and poisoned), cost2 (poisoned vs clean)."""
+    table = Table(title="splat stage (Verifier II)", title_justify="left")
+    for col in ("", "SSIM", "PSNR (dB)", "LPIPS", "views", "iterations", "train s"):
+        table.add_column(col, justify="right" if col else "left")
+    for side in ("clean", "poisoned"):
+        s = splat.get(side) or {}
+        c1 = s.get("cost1") or {}
+        table.add_row(
+            f"cost1 {side} renders vs inputs", _num(c1.get("ssim")), _num(c1.get("psnr")),
+            _lpips(c1.get("lpips"), splat), _num(s.get("views")), _num(s.get("iterations")),
+            _num(s.get("train_seconds")),
+        )  # fmt: skip
+    c2 = splat.get("cost2") or {}
+    table.add_row("cost2 poisoned vs clean", _num(c2.get("ssim")), _num(c2.get("psnr")),
+                  _lpips(c2.get("lpips"), splat), _num(c2.get("images")), "", "")  # fmt: skip
+    return table
+
+
+def _lpips(x: Any, splat: dict[str, Any]) -> str:
+    if x is None and splat.get("lpips_unavailable"):
+        return "n/a"  # the reason is printed under the table
+    return "-" if x is None else f"{x:.3f}"
+
+
 def print_report(report: dict[str, Any], console: Console) -> None:
     for p in report["profiles"].values():
         console.print(profile_table(p))
+        splat = p.get("splat")
+        if splat and splat.get("outcome") == "ok":
+            console.print(splat_table(splat))
+            if splat.get("lpips_unavailable"):
+                console.print(f"  LPIPS n/a: {splat['lpips_unavailable']}")
+            if splat.get("preview"):
+                console.print(f"  picture (clean render | poisoned render | input): {splat['preview']}")
         for reason in p["reasons"]:
             console.print(f"  • {reason}")
         console.print()
@@ -118,6 +150,15 @@ def register(app: typer.Typer) -> None:
         ),
         out: Path | None = typer.Option(None, "--out", help="Where to keep the SfM models (with PATH)."),
         timeout: float = typer.Option(1800.0, "--timeout", help="Seconds allowed per SfM run."),
+        splat: bool = typer.Option(
+            False, "--splat", help="Also train clean and poisoned Gaussian splats (the paper's cost1/cost2)."
+        ),
+        splat_budget: float = typer.Option(
+            150.0, "--splat-budget", help="Seconds of splat training per side (with --splat)."
+        ),
+        white_background: bool = typer.Option(
+            False, "--white-background", help="Composite transparent images on white (NeRF-Synthetic)."
+        ),
     ) -> None:
         """Run COLMAP on the clean and the poisoned set and say whether protection holds."""
         from verifier.verification import (
@@ -131,7 +172,8 @@ def register(app: typer.Typer) -> None:
         if profile not in PROFILE_CHOICES:
             raise typer.BadParameter(f"--profile must be one of {', '.join(PROFILE_CHOICES)}")
         profiles = ("default", "hardened", "published") if profile == "all" else (profile,)
-        options = VerifyOptions(timeout_s=timeout, ground_truth=ground_truth)
+        options = VerifyOptions(timeout_s=timeout, ground_truth=ground_truth, splat=splat)
+        options.splat_options.update(time_budget_s=splat_budget, white_background=white_background)
         try:
             path = Path(target)
             if clean is not None or path.is_dir():

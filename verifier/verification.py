@@ -39,6 +39,9 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 PROFILES = ("default", "hardened", "published")
+# The splat stage's settings inside a verification: 200 px, at most 1500 iterations and 150 s of
+# training per side, so SfM + splat on 40 views stays near 10 minutes on 2 cores (bench_splat).
+SPLAT_DEFAULTS: dict[str, Any] = {"long_edge": 200, "iterations": 1500, "time_budget_s": 150.0}
 _VERIFY_LOCK = threading.Lock()  # one verification at a time in this process
 
 
@@ -59,6 +62,11 @@ class VerifyOptions:
     keep_cache: bool = False  # keep feature databases and round-tripped images
     rule: VerdictRule = field(default_factory=VerdictRule)
     cancel: threading.Event | None = None
+    # Verifier II: train clean and poisoned splats on one profile's SfM poses (the paper's costs).
+    splat: bool = False
+    splat_profile: str = "default"  # the first profile run is used when this one is not
+    splat_options: dict[str, Any] = field(default_factory=lambda: dict(SPLAT_DEFAULTS))
+    splat_timeout_s: float = 1800.0
 
 
 @dataclass
@@ -74,6 +82,7 @@ class ProfileReport:
     model_dir: str | None = None
     started_at: float = 0.0
     finished_at: float = 0.0
+    splat: dict[str, Any] | None = None  # run_splat_stage's result when the splat stage ran here
 
     @property
     def error(self) -> str | None:
@@ -91,6 +100,7 @@ class ProfileReport:
             "vs_clean": self.vs_clean,
             "clean_vs_gt": self.clean_vs_gt,
             "poisoned_vs_gt": self.poisoned_vs_gt,
+            "splat": self.splat,
         }
 
     def to_dict(self) -> dict[str, Any]:
@@ -278,10 +288,55 @@ def verify_folders(
                     gt,
                     options,
                 )
+            if options.splat and not (options.cancel and options.cancel.is_set()):
+                _splat_stage(reports, clean_dir, poisoned_dir, options)
         finally:
             if not options.keep_cache:
                 shutil.rmtree(cache, ignore_errors=True)
     return VerificationReport(str(clean_dir), str(poisoned_dir), str(out_dir), len(names), reports)
+
+
+def _splat_stage(
+    reports: dict[str, ProfileReport], clean_dir: Path, poisoned_dir: Path, options: VerifyOptions
+) -> None:
+    """Verifier II on one profile's models; its result and a one-line finding join that profile."""
+    from verifier.splat.stage import run_splat_stage
+
+    name = options.splat_profile if options.splat_profile in reports else next(iter(reports))
+    if name == "published":  # its models index round-tripped copies, which are gone by now
+        name = next((p for p in reports if p != "published"), name)
+    report = reports[name]
+    profile_dir = Path(report.model_dir or "")
+    if report.clean.get("outcome") != "ok" or report.poisoned.get("outcome") != "ok":
+        report.splat = {"outcome": "skipped", "error": f"SfM of the {name} profile did not give two models"}
+    else:
+        result = run_splat_stage(
+            profile_dir / "clean",
+            clean_dir,
+            profile_dir / "poisoned",
+            poisoned_dir,
+            profile_dir / "splat",
+            dict(options.splat_options),
+            timeout_s=options.splat_timeout_s,
+        )
+        report.splat = result
+    report.reasons.append(splat_finding(report.splat))
+    (profile_dir / "report.json").write_text(json.dumps(report.to_dict(), indent=1))
+
+
+def splat_finding(splat: dict[str, Any] | None) -> str:
+    """One plain sentence on what the attacker's splat achieved (the paper's cost1, clean vs poisoned)."""
+    if not splat or splat.get("outcome") != "ok":
+        why = (splat or {}).get("error") or (splat or {}).get("outcome", "not run")
+        return f"splat stage: no result ({why})"
+    clean, pois = splat["clean"]["cost1"], splat["poisoned"]["cost1"]
+    if clean.get("psnr") is None or pois.get("psnr") is None:
+        return "splat stage: renders have no finite PSNR"
+    drop = clean["psnr"] - pois["psnr"]
+    return (
+        f"splat: poisoned model renders its inputs at {pois['psnr']:.1f} dB PSNR / SSIM {pois['ssim']:.3f}"
+        f" vs clean {clean['psnr']:.1f} dB / {clean['ssim']:.3f} ({drop:+.1f} dB lost by the attacker)"
+    )
 
 
 def _check_inputs(clean_dir: Path, poisoned_dir: Path) -> list[str]:

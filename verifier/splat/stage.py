@@ -62,7 +62,10 @@ def run_splat_stage(
         "poisoned_model_dir": str(poisoned_model_dir),
         "poisoned_images": str(poisoned_images),
         "out_dir": str(out_dir),
-        "options": dataclasses.asdict(options) if options is not None else {},
+        # a SplatOptions, or its fields as a dict (callers that must not import torch pass a dict)
+        "options": (dict(options) if isinstance(options, dict) else dataclasses.asdict(options))
+        if options is not None
+        else {},
     }
     result_path = out_dir / RESULT_NAME
     result_path.unlink(missing_ok=True)
