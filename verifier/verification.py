@@ -335,7 +335,7 @@ def splat_finding(splat: dict[str, Any] | None) -> str:
     drop = clean["psnr"] - pois["psnr"]
     return (
         f"splat: poisoned model renders its inputs at {pois['psnr']:.1f} dB PSNR / SSIM {pois['ssim']:.3f}"
-        f" vs clean {clean['psnr']:.1f} dB / {clean['ssim']:.3f} ({drop:+.1f} dB lost by the attacker)"
+        f" vs clean {clean['psnr']:.1f} dB / {clean['ssim']:.3f} ({drop:.1f} dB worse)"
     )
 
 

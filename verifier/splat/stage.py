@@ -135,8 +135,11 @@ def _train_side(model_dir: Path, images_dir: Path, options: Any, lpips_model: An
         (r.clamp(0, 1).permute(1, 2, 0).numpy(), i.permute(1, 2, 0).numpy())
         for r, i in zip(renders, scene.images, strict=True)
     ]
+    t_cost1 = time.time()
+    cost1 = _image_metrics(pairs, lpips_model)
     side = {
-        "cost1": _image_metrics(pairs, lpips_model),
+        "cost1": cost1,
+        "cost1_seconds": round(time.time() - t_cost1, 2),
         "views": len(scene.cameras),
         "init_points": int(len(scene.points)),
         "gaussians": result.gaussians.count,
@@ -218,7 +221,9 @@ def execute(job: dict[str, Any]) -> dict[str, Any]:
     )
     names = sorted(set(clean_scene.names) | set(pois_scene.names))
     all_names = sorted(p.name for p in Path(job["poisoned_images"]).iterdir() if p.is_file()) or names
+    t_cost2 = time.time()
     cost2 = _cost2(Path(job["clean_images"]), Path(job["poisoned_images"]), all_names, options, lpips_model)
+    cost2["seconds"] = round(time.time() - t_cost2, 2)
     preview = out_dir / PREVIEW_NAME
     views = _save_previews(
         preview, (clean_scene, clean_renders), (pois_scene, pois_renders), options.preview_views
