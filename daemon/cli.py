@@ -22,7 +22,10 @@ def _main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Debug log
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s %(message)s")
 
 
-COMMAND_MODULES = ("daemon.cli_poison", "daemon.cli_watch", "daemon.cli_demo", "verifier.cli")
+COMMAND_MODULES = (
+    "daemon.cli_poison", "daemon.cli_watch", "daemon.cli_demo", "verifier.cli",
+    "daemon.cli_auto",  # automatic mode (issue 9)
+)  # fmt: skip
 
 
 def _modules_for(argv: list[str]) -> tuple[str, ...]:

@@ -14,12 +14,24 @@ Every key is optional; what is missing comes from the embedded defaults below. L
     every_new_files = 20        # verify a dataset after this many newly protected files
     period_hours = 24.0         # ... and at least this often while it keeps changing
     profiles = ["default", "hardened", "published"]
+    splat = false               # also train clean/poisoned Gaussian splats (~6 more minutes per 40 views)
+    splat_budget_s = 150.0      # splat training seconds per side
 
     [vault]
     max_bytes = 0               # 0 = unlimited; when full, protection is refused (never silent deletion)
 
+    [visibility]                # automatic mode's budget, clean vs poisoned, whole image
+    min_ssim = 0.99
+    max_lpips = 0.02
+
+    [preflight]                 # automatic mode's check on a sample of the dataset (docs/AUTO.md)
+    sample_size = 12
+    time_budget_s = 900.0
+    profiles = ["default", "hardened"]
+
     [datasets.NAME]             # per-dataset overrides, applied when the dataset gets its spec
     publish_dir = "/srv/www/NAME"
+    spec = "auto"               # automatic mode: the verifier picks the patch (docs/AUTO.md)
     [datasets.NAME.patch]
     position = "bottom-right"
 """
@@ -80,6 +92,8 @@ class VerificationSchedule:
     every_new_files: int = 20
     period_hours: float = 24.0
     profiles: tuple[str, ...] = ("default", "hardened", "published")
+    splat: bool = False  # scheduled runs include Verifier II's splat stage
+    splat_budget_s: float = 150.0
 
 
 @dataclass(frozen=True)
@@ -88,9 +102,42 @@ class VaultConfig:
 
 
 @dataclass(frozen=True)
+class VisibilityConfig:
+    """Automatic mode's visibility budget (verifier.auto.VisibilityBudget's values)."""
+
+    min_ssim: float = 0.99
+    max_lpips: float = 0.02
+
+    def __post_init__(self) -> None:
+        if not 0.0 < float(self.min_ssim) <= 1.0:
+            raise ConfigError(f"visibility.min_ssim must be in (0, 1], got {self.min_ssim}")
+        if float(self.max_lpips) < 0.0:
+            raise ConfigError(f"visibility.max_lpips must be >= 0, got {self.max_lpips}")
+
+
+@dataclass(frozen=True)
+class PreflightConfig:
+    """Automatic mode's preflight (verifier.auto.PreflightOptions' values)."""
+
+    sample_size: int = 12
+    time_budget_s: float = 900.0
+    profiles: tuple[str, ...] = ("default", "hardened")
+
+    def __post_init__(self) -> None:
+        if int(self.sample_size) < 3:
+            raise ConfigError(f"preflight.sample_size must be at least 3, got {self.sample_size}")
+        if float(self.time_budget_s) <= 0:
+            raise ConfigError(f"preflight.time_budget_s must be positive, got {self.time_budget_s}")
+
+
+AUTO_SPEC = "auto"  # `spec = "auto"` in [datasets.NAME]
+
+
+@dataclass(frozen=True)
 class DatasetOverride:
     patch: dict[str, Any] = field(default_factory=dict)  # fields replaced on the default spec
     publish_dir: Path | None = None
+    auto: bool = False  # spec = "auto": automatic mode picks the patch (docs/AUTO.md)
 
 
 @dataclass(frozen=True)
@@ -102,6 +149,8 @@ class Config:
     verification: VerificationSchedule = field(default_factory=VerificationSchedule)
     vault: VaultConfig = field(default_factory=VaultConfig)
     datasets: dict[str, DatasetOverride] = field(default_factory=dict)
+    visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
+    preflight: PreflightConfig = field(default_factory=PreflightConfig)
     source: Path | None = None  # the file it was read from, if any
 
     # ---- loading --------------------------------------------------------------------------
@@ -131,7 +180,10 @@ class Config:
 
     @classmethod
     def _from_dict(cls, data: dict[str, Any], source: Path | None) -> Config:
-        known = {"workers", "debounce_seconds", "publish_dir", "patch", "verification", "vault", "datasets"}
+        known = {
+            "workers", "debounce_seconds", "publish_dir", "patch", "verification", "vault", "datasets",
+            "visibility", "preflight",
+        }  # fmt: skip
         unknown = set(data) - known
         if unknown:
             raise ConfigError(f"unknown key(s): {', '.join(sorted(unknown))}")
@@ -144,8 +196,13 @@ class Config:
             patch = dict(table.get("patch", {}))
             spec_from_table(patch, spec)  # validate now, not when the first file arrives
             datasets[name] = DatasetOverride(
-                patch=patch, publish_dir=_optional_path(table.get("publish_dir"))
+                patch=patch,
+                publish_dir=_optional_path(table.get("publish_dir")),
+                auto=_auto_flag(name, table),
             )
+        preflight = dict(data.get("preflight", {}))
+        if "profiles" in preflight:
+            preflight["profiles"] = tuple(preflight["profiles"])
         workers = int(data.get("workers", 2))
         if workers < 1:
             raise ConfigError(f"workers must be >= 1, got {workers}")
@@ -157,13 +214,28 @@ class Config:
             verification=VerificationSchedule(**ver),
             vault=VaultConfig(**data.get("vault", {})),
             datasets=datasets,
+            visibility=VisibilityConfig(**data.get("visibility", {})),
+            preflight=PreflightConfig(**preflight),
             source=source,
         )
 
     # ---- per dataset ----------------------------------------------------------------------
-    def spec_for(self, dataset: str) -> PatchSpec:
-        """The spec a new dataset gets: the default with its [datasets.NAME.patch] overrides."""
+    def is_auto(self, dataset: str) -> bool:
+        """Whether the dataset is in automatic mode (`spec = "auto"`)."""
         override = self.datasets.get(dataset)
+        return bool(override and override.auto)
+
+    def spec_for(self, dataset: str) -> PatchSpec:
+        """The spec a new dataset gets: the default with its [datasets.NAME.patch] overrides.
+
+        An automatic dataset starts on the interim spec (daemon.auto.interim_spec: the ladder's
+        strongest candidate, replaced within the budget once files are measured); "auto" itself
+        never reaches the poisoner."""
+        override = self.datasets.get(dataset)
+        if override and override.auto:
+            from daemon.auto import interim_spec  # lazy: daemon.auto imports this module
+
+            return interim_spec()
         return spec_from_table(override.patch, self.spec) if override and override.patch else self.spec
 
     def publish_dir_for(self, dataset: str) -> Path | None:
@@ -186,14 +258,33 @@ class Config:
         lines += ["", "[verification]"]
         lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(self.verification).items()]
         lines += ["", "[vault]", f"max_bytes = {self.vault.max_bytes}"]
+        lines += ["", "[visibility]"]
+        lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(self.visibility).items()]
+        lines += ["", "[preflight]"]
+        lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(self.preflight).items()]
         for name, override in sorted(self.datasets.items()):
             lines += ["", f"[datasets.{_toml_key(name)}]"]
+            if override.auto:
+                lines.append(f"spec = {_toml_value(AUTO_SPEC)}")
             if override.publish_dir is not None:
                 lines.append(f"publish_dir = {_toml_value(str(override.publish_dir))}")
             if override.patch:
                 lines += ["", f"[datasets.{_toml_key(name)}.patch]"]
                 lines += [f"{k} = {_toml_value(v)}" for k, v in override.patch.items()]
         return "\n".join(lines) + "\n"
+
+
+def _auto_flag(name: str, table: dict[str, Any]) -> bool:
+    """`spec = "auto"` (the only value `spec` takes; a concrete patch goes in [datasets.NAME.patch])."""
+    if "spec" not in table:
+        return False
+    if table["spec"] != AUTO_SPEC:
+        raise ConfigError(
+            f'datasets.{name}.spec must be "{AUTO_SPEC}" (set patch fields in [datasets.{name}.patch])'
+        )
+    if table.get("patch"):
+        raise ConfigError(f'datasets.{name}: spec = "{AUTO_SPEC}" and a [patch] table exclude each other')
+    return True
 
 
 def _optional_path(value: Any) -> Path | None:

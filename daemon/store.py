@@ -92,7 +92,23 @@ MIGRATIONS: tuple[str, ...] = (
     """,
     # 2: where a protected file was moved to when the dataset has a publish_dir.
     "ALTER TABLE files ADD COLUMN published_path TEXT;",
+    # 3: automatic mode's decisions (docs/AUTO.md): which candidate a dataset runs and why.
+    """
+    CREATE TABLE auto_decisions (
+        id INTEGER PRIMARY KEY,
+        dataset TEXT NOT NULL,
+        decided_at REAL NOT NULL,
+        candidate TEXT,                     -- ladder candidate name, NULL when none qualifies
+        spec_id TEXT REFERENCES specs(id),
+        reason TEXT NOT NULL,
+        evidence TEXT NOT NULL,             -- JSON
+        trigger TEXT NOT NULL CHECK (trigger IN ('interim', 'preflight', 'escalation', 'manual'))
+    );
+    CREATE INDEX auto_decisions_dataset ON auto_decisions(dataset, decided_at);
+    """,
 )
+AUTO_TRIGGERS = ("interim", "preflight", "escalation", "manual")
+DB_FILE_MODE = 0o600  # provenance names every original: owner only
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
@@ -114,6 +130,7 @@ class Store:
         self._all_conns: list[sqlite3.Connection] = []
         self._conns_lock = threading.Lock()
         self._migrate()
+        self._restrict_permissions()
 
     # ---- connections ----------------------------------------------------------------------
     @property
@@ -131,6 +148,21 @@ class Store:
             with self._conns_lock:
                 self._all_conns.append(conn)
         return db
+
+    def _restrict_permissions(self) -> None:
+        """The database and its WAL/shared-memory files readable by their owner only.
+
+        Why: SQLite creates them with the umask's mode (often 0644), and the store lists every
+        original's path and hash. The -wal/-shm files exist once a connection is open (the
+        migration opened one), so all three are checked here; files owned by someone else are
+        left alone (chmod would fail) and logged."""
+        for suffix in ("", "-wal", "-shm"):
+            path = Path(f"{self.db_path}{suffix}")
+            try:
+                if path.exists() and (path.stat().st_mode & 0o777) != DB_FILE_MODE:
+                    path.chmod(DB_FILE_MODE)
+            except OSError as exc:
+                log.warning("cannot restrict store file mode", extra={"path": str(path), "error": str(exc)})
 
     def close(self) -> None:
         """Close every thread's connection (call once the threads are done)."""
@@ -404,6 +436,48 @@ class Store:
     def latest_verification(self, dataset: str) -> dict[str, Any] | None:
         runs = self.verification_runs(dataset, limit=1)
         return runs[0] if runs else None
+
+    # ---- automatic mode -------------------------------------------------------------------
+    def add_auto_decision(
+        self,
+        dataset: str,
+        candidate: str | None,
+        spec: PatchSpec | None,
+        reason: str,
+        evidence: dict[str, Any],
+        trigger: str,
+    ) -> int:
+        """Record what automatic mode decided for a dataset (and an 'auto_decision' event)."""
+        if trigger not in AUTO_TRIGGERS:
+            raise StoreError(f"unknown auto trigger {trigger!r}; one of {', '.join(AUTO_TRIGGERS)}")
+        with self._write() as conn:
+            spec_id = self._ensure_spec(conn, spec) if spec is not None else None
+            cursor = conn.execute(
+                "INSERT INTO auto_decisions (dataset, decided_at, candidate, spec_id, reason, evidence, "
+                "trigger) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                (dataset, time.time(), candidate, spec_id, reason,
+                 json.dumps(evidence, default=str, sort_keys=True), trigger),
+            )  # fmt: skip
+            decision_id = int(cursor.lastrowid or 0)
+            self._event(
+                conn, dataset, None, "auto_decision",
+                {"id": decision_id, "candidate": candidate, "spec_id": spec_id, "trigger": trigger},
+            )  # fmt: skip
+        return decision_id
+
+    def auto_decisions(self, dataset: str, limit: int = 20) -> list[dict[str, Any]]:
+        """Newest first; evidence parsed."""
+        rows = self._rows(
+            "SELECT * FROM auto_decisions WHERE dataset = ? ORDER BY decided_at DESC, id DESC LIMIT ?",
+            (dataset, limit),
+        )
+        for row in rows:
+            row["evidence"] = json.loads(row["evidence"]) if row["evidence"] else {}
+        return rows
+
+    def latest_auto_decision(self, dataset: str) -> dict[str, Any] | None:
+        rows = self.auto_decisions(dataset, limit=1)
+        return rows[0] if rows else None
 
 
 def _split_sql(script: str) -> list[str]:

@@ -171,6 +171,23 @@ def test_scheduler_runs_a_dataset_after_n_files_and_stop_cancels() -> None:
     assert sched.completed == [("trip", "cancelled")]
 
 
+def test_scheduled_runs_include_the_splat_stage_when_configured() -> None:
+    from daemon.config import Config
+
+    off = Config.from_toml("[verification]\nevery_new_files = 5\n")
+    on = Config.from_toml("[verification]\nsplat = true\nsplat_budget_s = 60\n")
+    assert on.verification.splat and not off.verification.splat
+    assert "splat = true" in on.to_toml()  # written back as configured
+    for config, wanted in ((off, False), (on, True)):
+        ctx = SimpleNamespace(config=config, store=None)
+        options = VerificationScheduler(ctx).verify_options()
+        assert options.splat is wanted
+        assert options.cancel is not None  # a stopping daemon still cancels the run
+    assert VerificationScheduler(SimpleNamespace(config=on, store=None)).verify_options().splat_options[
+        "time_budget_s"
+    ] == 60
+
+
 # ---- end to end with real COLMAP -----------------------------------------------------------------
 @pytest.fixture(scope="module")
 def synthetic_sets(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:

@@ -4,6 +4,10 @@ The daemon calls `on_protected(dataset)` after each protected file. A dataset be
 `min_new_files` files were protected since its last run, or when its last run is older than
 `period_s` and something new arrived since. The run itself (verify_dataset) launches SfM child
 processes at low priority; `stop()` cancels a running child. Nothing here imports pycolmap.
+
+Automatic mode (daemon.auto, docs/AUTO.md) runs in the same thread, before verifications: an
+automatic dataset's interim choice after its first file, its preflight once enough files are
+protected, and escalation right after a verification of it found the patch weak.
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ class SchedulePolicy:
     min_new_files: int = 20  # a run after this many newly protected files
     period_s: float = 24 * 3600.0  # or when the last run is older than this (and files are new)
     enabled: bool = True
+    splat: bool = False  # include Verifier II's splat stage
+    splat_budget_s: float = 150.0
 
     @classmethod
     def from_config(cls, config: Any) -> SchedulePolicy:
@@ -38,6 +44,8 @@ class SchedulePolicy:
             min_new_files=int(getattr(ver, "every_new_files", d.min_new_files)),
             period_s=float(getattr(ver, "period_hours", d.period_s / 3600)) * 3600,
             enabled=bool(getattr(ver, "enabled", True)),
+            splat=bool(getattr(ver, "splat", False)),
+            splat_budget_s=float(getattr(ver, "splat_budget_s", d.splat_budget_s)),
         )
 
 
@@ -61,12 +69,15 @@ class VerificationScheduler:
         profiles: tuple[str, ...] | None = None,
         verify: VerifyFn | None = None,
         poll_s: float = 30.0,
+        preflight_runner: Callable[..., dict[str, Any]] | None = None,
     ) -> None:
         self.ctx = ctx
         self.policy = policy or SchedulePolicy.from_config(getattr(ctx, "config", None))
         ver = getattr(getattr(ctx, "config", None), "verification", None)
         self.profiles = profiles or tuple(getattr(ver, "profiles", ("default", "hardened", "published")))
         self._verify = verify
+        self._preflight_runner = preflight_runner  # daemon.auto.run_preflight_child by default
+        self._auto_pending: set[str] = set()  # automatic datasets that may need an auto step
         self._poll_s = poll_s
         self._lock = threading.Lock()
         self._new: dict[str, int] = {}
@@ -80,10 +91,14 @@ class VerificationScheduler:
 
     # ---- daemon hooks ---------------------------------------------------------------------------
     def on_protected(self, dataset: str) -> None:
-        if not self.policy.enabled:
+        auto = self._is_auto(dataset)
+        if not self.policy.enabled and not auto:
             return
         with self._lock:
-            self._new[dataset] = self._new.get(dataset, 0) + 1
+            if auto:
+                self._auto_pending.add(dataset)
+            if self.policy.enabled:
+                self._new[dataset] = self._new.get(dataset, 0) + 1
         self._wake.set()
 
     def start(self) -> None:
@@ -127,6 +142,68 @@ class VerificationScheduler:
                 return dataset
         return None
 
+    # ---- automatic mode -----------------------------------------------------------------------------
+    def _is_auto(self, dataset: str) -> bool:
+        config = getattr(self.ctx, "config", None)
+        is_auto = getattr(config, "is_auto", None)
+        return bool(is_auto is not None and is_auto(dataset))
+
+    def _runner_kwargs(self) -> dict[str, Any]:
+        return {"runner": self._preflight_runner} if self._preflight_runner is not None else {}
+
+    def run_auto_once(self) -> str | None:
+        """One automatic-mode step (interim or preflight) for a dataset that needs it; its name or None."""
+        from daemon import auto
+
+        with self._lock:
+            pending = sorted(self._auto_pending)
+        for dataset in pending:
+            try:
+                step = auto.next_step(self.ctx, dataset)
+                if step is None:
+                    if auto.has_measured_decision(self.ctx, dataset):
+                        with self._lock:
+                            self._auto_pending.discard(dataset)  # decided: only escalation from now
+                    continue
+                self.running = f"auto {step}: {dataset}"
+                if step == "interim":
+                    result = auto.run_interim(self.ctx, dataset)
+                    self.completed.append((dataset, f"auto interim: {result['candidate']}"))
+                else:
+                    decision = auto.run_preflight(
+                        self.ctx, dataset, cancel=self._cancel, **self._runner_kwargs()
+                    )
+                    self.completed.append((dataset, f"auto preflight: {decision.get('chosen')}"))
+                    with self._lock:
+                        self._auto_pending.discard(dataset)
+                return dataset
+            except Exception as exc:  # automatic mode failing must not stop protection or verification
+                log.exception("auto step failed", extra={"dataset": dataset})
+                self.completed.append((dataset, f"auto error: {exc}"))
+                with self._lock:
+                    self._auto_pending.discard(dataset)  # retried when its next file arrives
+            finally:
+                self.running = None
+                del self.completed[:-50]
+        return None
+
+    def _after_verification(self, dataset: str, result: Any) -> None:
+        """Escalation hook: an automatic dataset whose verification found the patch weak moves on."""
+        if not self._is_auto(dataset):
+            return
+        from daemon import auto
+
+        try:
+            outcome = auto.escalate(
+                self.ctx, dataset, auto.verdicts_of(result), cancel=self._cancel, **self._runner_kwargs()
+            )
+        except Exception as exc:  # a failed escalation is logged; the dataset keeps its patch
+            log.exception("auto escalation failed", extra={"dataset": dataset})
+            self.completed.append((dataset, f"auto escalation error: {exc}"))
+            return
+        if outcome is not None:
+            self.completed.append((dataset, f"auto escalation: {outcome.get('candidate')}"))
+
     def run_once(self, now: float | None = None) -> str | None:
         """Run the most due dataset (synchronously); returns its name or None."""
         dataset = self.due_dataset(now)
@@ -138,6 +215,7 @@ class VerificationScheduler:
         try:
             result = self._run(dataset)
             self.completed.append((dataset, str(getattr(result, "verdict", result))))
+            self._after_verification(dataset, result)
         except Exception as exc:  # a failed verification is logged and retried after the next files
             log.exception("verification failed", extra={"dataset": dataset})
             self.completed.append((dataset, f"error: {exc}"))
@@ -150,9 +228,17 @@ class VerificationScheduler:
     def _run(self, dataset: str) -> Any:
         if self._verify is not None:
             return self._verify(self.ctx, dataset, self.profiles, self._cancel)
-        from verifier.verification import VerifyOptions, verify_dataset
+        from verifier.verification import verify_dataset
 
-        return verify_dataset(self.ctx, dataset, self.profiles, VerifyOptions(cancel=self._cancel))
+        return verify_dataset(self.ctx, dataset, self.profiles, self.verify_options())
+
+    def verify_options(self) -> Any:
+        """What a scheduled run does: the policy's splat stage when configured, cancellable."""
+        from verifier.verification import VerifyOptions
+
+        options = VerifyOptions(cancel=self._cancel, splat=self.policy.splat)
+        options.splat_options["time_budget_s"] = self.policy.splat_budget_s
+        return options
 
     def _loop(self) -> None:
         while not self._stopping.is_set():
@@ -160,5 +246,7 @@ class VerificationScheduler:
             self._wake.clear()
             if self._stopping.is_set():
                 break
-            while not self._stopping.is_set() and self.run_once() is not None:
+            while not self._stopping.is_set() and (
+                self.run_auto_once() is not None or self.run_once() is not None
+            ):
                 pass

@@ -1,0 +1,186 @@
+"""`ppd auto TARGET`: run automatic mode's preflight now and print the decision with its evidence;
+`ppd auto DATASET --show`: the decisions recorded for a dataset (docs/AUTO.md).
+
+TARGET is a daemon dataset (its vault originals are the sample; the decision is recorded with
+trigger 'manual' and applied when the dataset is automatic or --apply is given) or a folder of
+images (measured only, nothing recorded). Exit status: 0 = a candidate was chosen; 1 = none
+(over the budget, not protected, time budget, inconclusive); 2 = bad input (one line).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+console = Console(soft_wrap=True)
+err = Console(stderr=True, soft_wrap=True)
+
+
+def _fail(message: str, code: int = 2) -> typer.Exit:
+    err.print(f"[red]error:[/red] {message}", highlight=False)
+    return typer.Exit(code)
+
+
+def evidence_table(evidence: list[dict[str, Any]], profiles: list[str]) -> Table:
+    """One row per candidate: measured visibility, budget use, status and per-profile verdicts."""
+    table = Table(title="candidates (least visible first by measured budget use)", show_lines=False)
+    for col in ("candidate", "status", "SSIM min", "LPIPS max", "budget use"):
+        table.add_column(col, justify="right" if col not in ("candidate", "status") else "left")
+    for p in profiles:
+        table.add_column(f"{p}: verdict, within 5°")
+    table.add_column("s", justify="right")
+
+    def order(e: dict[str, Any]) -> float:
+        return float("inf") if e.get("budget_use") is None else float(e["budget_use"])
+
+    for e in sorted(evidence, key=order):
+        vis = e.get("visibility") or {}
+        cells = [
+            e["name"],
+            e["status"] + (f" ({e['error']})" if e.get("error") else ""),
+            _num(vis.get("ssim_min"), 4),
+            _num(vis.get("lpips_max"), 4),
+            _num(e.get("budget_use"), 2),
+        ]
+        for p in profiles:
+            pr = (e.get("profiles") or {}).get(p)
+            cells.append("—" if pr is None else f"{pr['verdict']}, {_pct(pr.get('frac_within_5deg'))}")
+        cells.append(f"{e.get('seconds', 0):.0f}")
+        table.add_row(*cells)
+    return table
+
+
+def _num(x: Any, digits: int) -> str:
+    return "n/a" if x is None else f"{float(x):.{digits}f}"
+
+
+def _pct(x: Any) -> str:
+    return "n/a" if x is None else f"{100 * float(x):.0f}%"
+
+
+def print_decision(decision: dict[str, Any]) -> None:
+    chosen = decision.get("chosen")
+    head = f"[green]chosen: {chosen}[/green]" if chosen else f"[red]{decision['outcome']}[/red]"
+    console.print(head, highlight=False)
+    console.print(decision["reason"], highlight=False)
+    if not decision.get("lpips_checked"):
+        console.print(f"[yellow]LPIPS not checked:[/yellow] {decision.get('lpips_note')}", highlight=False)
+    console.print(evidence_table(decision["evidence"], list(decision["options"]["profiles"])))
+    console.print(f"sample: {len(decision['sample'])} images; {decision['elapsed_s']:.0f} s", highlight=False)
+
+
+def _show(dataset: str, as_json: bool) -> None:
+    from daemon.protect import AppContext
+
+    ctx = AppContext.open()
+    try:
+        if ctx.store.dataset(dataset) is None:
+            raise _fail(f"no dataset {dataset!r} in the store")
+        rows = ctx.store.auto_decisions(dataset, limit=50)
+    finally:
+        ctx.close()
+    if as_json:
+        console.print_json(json.dumps(rows, default=str))
+        return
+    if not rows:
+        console.print(f"{dataset}: no automatic decision recorded", highlight=False)
+        return
+    table = Table(title=f"automatic decisions for {dataset} (newest first)")
+    for col in ("when", "trigger", "candidate", "spec", "reason"):
+        table.add_column(col)
+    for r in rows:
+        when = time.strftime("%Y-%m-%d %H:%M", time.localtime(r["decided_at"]))
+        table.add_row(when, r["trigger"], r["candidate"] or "none", r["spec_id"] or "—", r["reason"])
+    console.print(table)
+    latest = rows[0]["evidence"]
+    if isinstance(latest.get("evidence"), list):
+        console.print(evidence_table(latest["evidence"], list(latest["options"]["profiles"])))
+
+
+def auto(
+    target: str = typer.Argument(..., help="A daemon dataset name, or a folder of images to measure."),
+    budget_ssim: float | None = typer.Option(None, "--budget-ssim", help="Minimum clean-vs-poisoned SSIM."),
+    budget_lpips: float | None = typer.Option(None, "--budget-lpips", help="Max clean-vs-poisoned LPIPS."),
+    sample: int | None = typer.Option(None, "--sample", min=3, help="Images in the preflight sample."),
+    time_budget: float | None = typer.Option(None, "--time-budget", min=1.0, help="Preflight seconds."),
+    profile: list[str] = typer.Option([], "--profile", help="Profiles to confirm (repeat; default: config)."),
+    show: bool = typer.Option(False, "--show", help="Print the recorded decisions instead of running."),
+    apply: bool | None = typer.Option(
+        None, "--apply/--no-apply", help="Re-protect the dataset with the choice (default: when it is auto)."
+    ),
+    out: Path | None = typer.Option(None, "--out", help="Working folder (default: a new one under runs)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the decision as JSON."),
+) -> None:
+    """Automatic mode's preflight now: the least visible candidate that COLMAP cannot use."""
+    if show:
+        _show(target, as_json)
+        return
+    from daemon import auto as daemon_auto
+    from daemon.config import ConfigError
+    from daemon.protect import AppContext
+    from verifier.auto import PreflightInputError, PreflightOptions, VisibilityBudget, preflight
+
+    try:
+        ctx = AppContext.open()
+    except ConfigError as exc:
+        raise _fail(str(exc).splitlines()[0]) from None
+    try:
+        settings = daemon_auto.AutoSettings.from_config(ctx.config)
+        folder = Path(target).expanduser()
+        is_dataset = ctx.store.dataset(target) is not None
+        if is_dataset:
+            images: list[Any] = daemon_auto.dataset_images(ctx, target)
+        elif folder.is_dir():
+            images = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+        else:
+            raise _fail(f"{target!r} is neither a dataset in the store nor a folder")
+        try:
+            budget = VisibilityBudget(
+                budget_ssim if budget_ssim is not None else settings.min_ssim,
+                budget_lpips if budget_lpips is not None else settings.max_lpips,
+            )
+            options = PreflightOptions(
+                sample_size=sample or settings.sample_size,
+                time_budget_s=time_budget or settings.time_budget_s,
+                profiles=tuple(profile) or settings.profiles,
+            )
+            ladder = daemon_auto.load_ladder()
+            work = out or Path(ctx.paths.runs_dir) / (target if is_dataset else "_folders") / (
+                f"auto-{time.strftime('%Y%m%dT%H%M%S')}"
+            )
+            decision = preflight(images, ladder, budget, options, work).to_dict()
+        except (PreflightInputError, ImportError) as exc:
+            raise _fail(str(exc).splitlines()[0]) from None
+        if is_dataset:
+            do_apply = apply if apply is not None else ctx.config.is_auto(target)
+            spec = decision["spec"]
+            from poisoner.spec import PatchSpec
+
+            ctx.store.add_auto_decision(
+                target, decision["chosen"], PatchSpec.from_dict(spec) if spec else None,
+                decision["reason"], decision, "manual",
+            )  # fmt: skip
+            if spec and do_apply:
+                n = daemon_auto.apply_spec(ctx, target, PatchSpec.from_dict(spec))
+                decision["reprotected"] = n
+            elif not spec:
+                daemon_auto.surface_no_candidate(ctx, target, decision["reason"])
+    finally:
+        ctx.close()
+    if as_json:
+        console.print_json(json.dumps(decision, default=str))
+    else:
+        print_decision(decision)
+        if "reprotected" in decision:
+            console.print(f"re-protected {decision['reprotected']} file(s) from the vault", highlight=False)
+    raise typer.Exit(0 if decision["chosen"] else 1)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("auto")(auto)

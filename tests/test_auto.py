@@ -1,0 +1,180 @@
+"""verifier.auto: visibility measured as 3DGS does, the budget, the sample, and the preflight's
+ladder walk (over-budget candidates never reach SfM; one end-to-end preflight with real COLMAP)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from poisoner.blend import poison_array
+from poisoner.spec import PatchSpec
+from verifier import auto
+from verifier.auto import (
+    NO_CANDIDATE,
+    LadderEntry,
+    PreflightInputError,
+    PreflightOptions,
+    VisibilityBudget,
+    budget_notes,
+    budget_use,
+    choose_sample,
+    preflight,
+    visibility,
+    whole_image_ssim,
+)
+from verifier.metrics import ssim
+from verifier.synthetic import SyntheticOptions, render_scene
+
+BIG = LadderEntry("big-static", PatchSpec(patch_size=0.4), "a large patch: far over any sensible budget")
+SMALL = PreflightOptions(sample_size=4)  # enough images to measure; SfM never runs with these
+PAPER = LadderEntry("paper-static", PatchSpec(), "the paper's checkerboard, 6% of the width, top-left")
+
+
+def _textured(h: int, w: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    base = rng.random((h // 8 + 1, w // 8 + 1, 3))
+    return np.kron(base, np.ones((8, 8, 1)))[:h, :w]
+
+
+# ---- visibility -----------------------------------------------------------------------------------
+@pytest.mark.parametrize("position", ["top-left", "bottom-right", "center"])
+def test_local_ssim_equals_the_full_computation(position: str) -> None:
+    clean = (_textured(120, 160) * 255).astype(np.uint8)
+    pois, _ = poison_array(clean, PatchSpec(patch_size=24, block_size=4, position=position))
+    a, b = clean / 255.0, pois / 255.0
+    assert whole_image_ssim(a, b) == pytest.approx(ssim(a, b), abs=1e-12)
+    assert whole_image_ssim(a, b) < 0.999  # the patch is there and costs something
+    assert whole_image_ssim(a, a) == 1.0
+
+
+def test_visibility_without_lpips_says_not_measured() -> None:
+    a = _textured(64, 64)
+    b = a.copy()
+    b[10:20, 10:20] = 1.0
+    v = visibility(a, b, None)
+    assert v["lpips"] is None
+    assert v["ssim"] == pytest.approx(ssim(a, b), abs=1e-12)
+
+
+def test_visibility_with_lpips_when_installed() -> None:
+    lpips_mod = pytest.importorskip("verifier.lpips")
+    ok, why = lpips_mod.lpips_available("vgg")
+    if not ok:
+        pytest.skip(why)
+    a = _textured(96, 96)
+    b = a.copy()
+    b[0:16, 0:16] = 0.0
+    model = lpips_mod.Lpips("vgg")
+    v = visibility(a, b, model)
+    assert v["lpips"] is not None and v["lpips"] > 0.0
+    assert visibility(a, a, model)["lpips"] == 0.0
+
+
+def test_budget_use_and_notes() -> None:
+    budget = VisibilityBudget(min_ssim=0.99, max_lpips=0.02)
+    fits = {"ssim_min": 0.995, "lpips_max": 0.01}
+    assert budget_use(fits, budget) == pytest.approx(0.5)
+    assert budget_notes(fits, budget) == []
+    over = {"ssim_min": 0.995, "lpips_max": 0.03}
+    assert budget_use(over, budget) == pytest.approx(1.5)
+    assert budget_notes(over, budget) == ["LPIPS 0.0300 > 0.02 on the worst sample image"]
+    ssim_only = {"ssim_min": 0.98, "lpips_max": None}  # LPIPS not measured: SSIM alone decides
+    assert budget_use(ssim_only, budget) == pytest.approx(2.0)
+    with pytest.raises(PreflightInputError):
+        VisibilityBudget(min_ssim=1.5)
+    with pytest.raises(PreflightInputError):
+        PreflightOptions(sample_size=2)
+
+
+def test_sample_is_evenly_spaced_and_sfm_readable(tmp_path: Path) -> None:
+    items = [(tmp_path / f"r_{i:02d}.png", f"r_{i:02d}.png") for i in range(40)]
+    items.append((tmp_path / "x.heic", "x.heic"))  # COLMAP cannot read it: left out
+    sample = choose_sample(items, 12)
+    names = [n for _, n in sample]
+    assert len(names) == 12 and names[0] == "r_00.png" and names[-1] == "r_39.png"
+    assert "x.heic" not in names
+    assert choose_sample(items[:5], 12) == sorted(items[:5], key=lambda t: t[1])
+    with pytest.raises(PreflightInputError, match="at least 3 images"):
+        choose_sample(items[:2], 12)
+
+
+# ---- the ladder walk --------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("scene") / "views"
+    render_scene(out, SyntheticOptions(num_views=12))
+    return out
+
+
+def test_over_budget_candidates_never_reach_sfm_and_it_is_said_plainly(scene: Path, tmp_path: Path) -> None:
+    decision = preflight(sorted(scene.glob("*.png")), [BIG], VisibilityBudget(), SMALL, tmp_path)
+    assert decision.chosen is None and decision.spec is None
+    assert decision.outcome == "none_within_budget"
+    assert NO_CANDIDATE in decision.reason and "big-static" in decision.reason
+    (e,) = decision.evidence
+    assert e.status == auto.OVER_BUDGET and e.profiles == {}  # no SfM ran
+    assert e.visibility["ssim_min"] < 0.99 and e.budget_use > 1.0
+    assert any("SSIM" in n for n in e.budget_notes)
+    assert not (tmp_path / "clean-cache").exists()
+    assert (tmp_path / "decision.json").is_file()
+
+
+def test_time_budget_stops_the_walk_and_says_so(scene: Path, tmp_path: Path) -> None:
+    decision = preflight(
+        sorted(scene.glob("*.png")), [PAPER], VisibilityBudget(max_lpips=1.0),
+        PreflightOptions(sample_size=4, time_budget_s=0.001), tmp_path,
+    )  # fmt: skip
+    assert decision.chosen is None and decision.outcome == "time_budget"
+    assert "stopped at the time budget" in decision.reason and "paper-static" in decision.reason
+    assert decision.evidence[0].status == auto.NOT_REACHED
+
+
+def test_decision_round_trips_through_json(scene: Path, tmp_path: Path) -> None:
+    decision = preflight(sorted(scene.glob("*.png")), [BIG], VisibilityBudget(), SMALL, tmp_path)
+    again = auto.AutoDecision.from_dict(decision.to_dict())
+    assert again.to_dict() == decision.to_dict()
+
+
+@pytest.mark.integration
+def test_preflight_end_to_end_with_real_colmap(scene: Path, tmp_path: Path) -> None:
+    """Budget skip + real verification: the big patch is skipped without SfM, the paper's patch is
+    measured, verified with real COLMAP and confirmed under the default profile."""
+    images = sorted(scene.glob("*.png"))
+    budget = VisibilityBudget(min_ssim=0.99, max_lpips=1.0)  # LPIPS measured, not the point here
+    decision = preflight(images, [BIG, PAPER], budget, PreflightOptions(profiles=("default",)), tmp_path)
+    assert decision.chosen == "paper-static", decision.reason
+    assert decision.spec == PAPER.spec
+    big, paper = decision.evidence
+    assert big.status == auto.OVER_BUDGET and big.profiles == {}
+    assert paper.status == auto.PROTECTED
+    assert paper.profiles["default"]["verdict"] == "protected"
+    assert paper.profiles["default"]["frac_within_5deg"] <= 0.25
+    assert paper.profiles["default"]["clean_registered"] == 12
+    assert "paper-static" in decision.reason and "within 5 deg" in decision.reason
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+def test_two_profile_walk_stops_at_hardened_and_says_none_protects(scene: Path, tmp_path: Path) -> None:
+    """The paper's static patch: protected under default, not under hardened COLMAP; with both
+    profiles required nothing in this ladder qualifies, and the decision says so."""
+    budget = VisibilityBudget(min_ssim=0.99, max_lpips=1.0)
+    both = preflight(sorted(scene.glob("*.png")), [PAPER], budget, PreflightOptions(), tmp_path)
+    (paper,) = both.evidence
+    assert paper.status == auto.NOT_PROTECTED
+    assert paper.profiles["default"]["verdict"] == "protected"
+    assert paper.profiles["hardened"]["verdict"] == "not_protected"
+    assert both.chosen is None and NO_CANDIDATE in both.reason
+
+
+def test_candidate_that_does_not_fit_is_recorded_not_fatal(tmp_path: Path) -> None:
+    for i in range(3):
+        Image.fromarray((_textured(40, 40, i) * 255).astype(np.uint8)).save(tmp_path / f"v{i}.png")
+    too_big = LadderEntry("too-big", PatchSpec(patch_size=64), "does not fit 40 px images")
+    decision = preflight(sorted(tmp_path.glob("*.png")), [too_big], VisibilityBudget(), PreflightOptions(),
+                         tmp_path / "out")  # fmt: skip
+    assert decision.evidence[0].status == auto.FAILED and "does not fit" in (decision.evidence[0].error or "")
+    assert decision.chosen is None

@@ -1,0 +1,315 @@
+"""Automatic mode in the daemon: config, the auto_decisions table, escalation through the real
+scheduler and Store (re-protecting real files from the vault), and the preflight child."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import stat
+import threading
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from daemon import auto as daemon_auto
+from daemon.config import Config, ConfigError
+from daemon.protect import AppContext, protect_file
+from daemon.store import Store, StoreError
+from poisoner.spec import PatchSpec
+from verifier.auto import LadderEntry, ladder_to_json
+from verifier.scheduler import SchedulePolicy, VerificationScheduler
+from verifier.synthetic import SyntheticOptions, render_scene
+from verifier.verification import ProfileReport, VerificationReport, record_report
+
+A = LadderEntry("a-small", PatchSpec(patch_size=0.05), "least visible")
+B = LadderEntry("b-moved", PatchSpec(patch_size=0.06, position="bottom-right"), "next")
+C = LadderEntry("c-huge", PatchSpec(patch_size=0.4), "over budget")
+
+
+# ---- config -------------------------------------------------------------------------------------------
+def test_config_reads_auto_datasets_budget_and_preflight() -> None:
+    cfg = Config.from_toml(
+        """
+        workers = 3
+        [patch]
+        patch_size = 48
+        [visibility]
+        min_ssim = 0.995
+        max_lpips = 0.01
+        [preflight]
+        sample_size = 8
+        time_budget_s = 300
+        profiles = ["default"]
+        [datasets.trip]
+        spec = "auto"
+        publish_dir = "/tmp/pub"
+        [datasets.fixed.patch]
+        position = "bottom-right"
+        """
+    )
+    assert cfg.is_auto("trip") and not cfg.is_auto("fixed") and not cfg.is_auto("other")
+    assert cfg.visibility.min_ssim == 0.995 and cfg.visibility.max_lpips == 0.01
+    assert cfg.preflight.sample_size == 8 and cfg.preflight.profiles == ("default",)
+    assert cfg.workers == 3 and cfg.spec.patch_size == 48  # existing keys still work
+    assert cfg.spec_for("fixed").position == "bottom-right"
+    assert cfg.publish_dir_for("trip") == Path("/tmp/pub")
+    again = Config.from_toml(cfg.to_toml())  # `ppd config show` output reads back the same
+    assert again.is_auto("trip") and again.visibility == cfg.visibility and again.preflight == cfg.preflight
+    settings = daemon_auto.AutoSettings.from_config(cfg)
+    assert settings.min_ssim == 0.995 and settings.sample_size == 8
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ('[datasets.t]\nspec = "magic"', 'must be "auto"'),
+        ('[datasets.t]\nspec = "auto"\n[datasets.t.patch]\npatch_size = 48', "exclude each other"),
+        ("[visibility]\nmin_ssim = 1.5", "min_ssim"),
+        ("[preflight]\nsample_size = 2", "sample_size"),
+    ],
+)
+def test_bad_auto_config_is_one_clear_line(text: str, needle: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        Config.from_toml(text)
+    assert needle in str(info.value) and "\n" not in str(info.value)
+
+
+def test_default_config_has_the_issue_budget() -> None:
+    cfg = Config()
+    assert (cfg.visibility.min_ssim, cfg.visibility.max_lpips) == (0.99, 0.02)
+    assert not cfg.is_auto("anything")
+
+
+# ---- store ----------------------------------------------------------------------------------------------
+def test_auto_decisions_table_and_methods(tmp_path: Path) -> None:
+    store = Store(tmp_path / "ppd.sqlite3")
+    try:
+        assert store.schema_version() == 3
+        assert store.latest_auto_decision("trip") is None
+        first = store.add_auto_decision("trip", "a-small", A.spec, "because", {"x": 1}, "preflight")
+        none_left = {"failed": ["a-small"]}
+        store.add_auto_decision("trip", None, None, daemon_auto.NO_CANDIDATE, none_left, "escalation")
+        rows = store.auto_decisions("trip")
+        assert [r["trigger"] for r in rows] == ["escalation", "preflight"]
+        assert rows[1]["id"] == first and rows[1]["spec_id"] == A.spec.spec_id
+        assert rows[1]["evidence"] == {"x": 1}
+        assert store.get_spec(A.spec.spec_id) == A.spec  # the spec is stored with the decision
+        assert rows[0]["candidate"] is None and rows[0]["evidence"]["failed"] == ["a-small"]
+        assert [e["kind"] for e in store.events("trip")][:2] == ["auto_decision", "auto_decision"]
+        with pytest.raises(StoreError, match="unknown auto trigger"):
+            store.add_auto_decision("trip", "a", A.spec, "r", {}, "whim")
+    finally:
+        store.close()
+
+
+def test_store_files_are_owner_only(tmp_path: Path) -> None:
+    db = tmp_path / "ppd.sqlite3"
+    old = os.umask(0o022)  # a umask that would leave the files world-readable
+    try:
+        store = Store(db)
+        store.add_event(None, None, "probe", {})
+    finally:
+        os.umask(old)
+    try:
+        for suffix in ("", "-wal", "-shm"):
+            path = Path(f"{db}{suffix}")
+            assert path.exists(), path
+            assert stat.S_IMODE(path.stat().st_mode) == 0o600, (path, oct(path.stat().st_mode))
+    finally:
+        store.close()
+
+
+# ---- escalation (pure parts) -------------------------------------------------------------------------------
+def _measured(
+    name: str, use: float, status: str = "not_reached", spec: PatchSpec | None = None
+) -> dict[str, Any]:
+    return {"name": name, "budget_use": use, "status": status, "spec": (spec or PatchSpec()).to_dict(),
+            "visibility": {"ssim_min": 1 - 0.01 * use}}  # fmt: skip
+
+
+def test_next_candidate_is_least_visible_within_budget_not_failed() -> None:
+    measured = [_measured("b", 0.6), _measured("a", 0.3, "not_protected"), _measured("c", 1.4, "over_budget"),
+                _measured("d", 0.9)]  # fmt: skip
+    failed = daemon_auto.failed_candidates([{"evidence": {"evidence": measured}}])
+    assert failed == {"a"}
+    assert daemon_auto.next_candidate(measured, failed)["name"] == "b"
+    assert daemon_auto.next_candidate(measured, failed | {"b"})["name"] == "d"
+    assert daemon_auto.next_candidate(measured, failed | {"b", "d"}) is None  # c is over the budget
+
+
+def test_which_verdicts_escalate() -> None:
+    assert daemon_auto.needs_escalation({"default": "protected", "hardened": "not_protected"})
+    assert daemon_auto.needs_escalation({"default": "weak"})
+    assert not daemon_auto.needs_escalation({"default": "protected", "hardened": "protected"})
+    assert not daemon_auto.needs_escalation({"default": "sfm_crashed", "hardened": "inconclusive"})
+
+
+# ---- escalation through the scheduler, with the real Store, vault and files --------------------------------
+@pytest.fixture
+def auto_ctx(ppd_env: dict[str, Path]) -> Any:
+    (ppd_env["config"] / "config.toml").write_text('[datasets.trip]\nspec = "auto"\n')
+    ctx = AppContext.open()
+    yield ctx
+    ctx.close()
+
+
+def _protect_scene(ctx: AppContext, outbox: Path, spec: PatchSpec, views: int = 4) -> list[Path]:
+    trip = outbox / "trip"
+    render_scene(trip, SyntheticOptions(num_views=views, width=160, height=160))
+    files = sorted(trip.glob("*.png"))
+    for p in files:
+        assert protect_file(p, ctx, spec=spec).state == "protected"
+    return files
+
+
+def _report(verdicts: dict[str, str]) -> VerificationReport:
+    """What verify_dataset returns (the real classes); the SfM itself is tested in test_verification."""
+    profiles = {
+        p: ProfileReport(profile=p, verdict=v, reasons=[f"{v} (test)"], clean={"outcome": "ok"},
+                         poisoned={"outcome": "ok"}, vs_clean={"frac_within_5deg": 0.9}, started_at=1.0,
+                         finished_at=2.0)  # fmt: skip
+        for p, v in verdicts.items()
+    }
+    return VerificationReport("c", "p", "o", 4, profiles)
+
+
+def test_escalation_moves_to_next_candidate_then_says_none_is_left(
+    auto_ctx: AppContext, ppd_env: dict[str, Path]
+) -> None:
+    ctx = auto_ctx
+    files = _protect_scene(ctx, ppd_env["outbox"], A.spec)
+    preflight_evidence = {
+        "chosen": "a-small", "outcome": "chosen", "reason": "test preflight",
+        "options": {"profiles": ["default", "hardened"]},
+        "evidence": [_measured("a-small", 0.3, "protected", A.spec), _measured("b-moved", 0.5, spec=B.spec),
+                     _measured("c-huge", 9.0, "over_budget", C.spec)],
+    }  # fmt: skip
+    ctx.store.add_auto_decision("trip", "a-small", A.spec, "test preflight", preflight_evidence, "preflight")
+    before = {str(p): ctx.store.file(p)["poisoned_sha256"] for p in files}
+
+    def verify(ctx_: Any, dataset: str, profiles: tuple[str, ...], cancel: threading.Event) -> Any:
+        report = _report({"default": "protected", "hardened": "not_protected"})
+        record_report(ctx_, dataset, report)
+        return report
+
+    policy = SchedulePolicy(min_new_files=1)
+    sched = VerificationScheduler(ctx, policy, ("default", "hardened"), verify=verify)
+    sched.on_protected("trip")
+    assert sched.run_once() == "trip"
+    latest = ctx.store.latest_auto_decision("trip")
+    assert latest["trigger"] == "escalation" and latest["candidate"] == "b-moved"
+    assert "hardened not_protected" in latest["reason"]
+    assert ctx.store.dataset_spec("trip") == B.spec  # the dataset now runs B ...
+    for p in files:  # ... and every file was re-protected from its vault original with it
+        row = ctx.store.file(p)
+        assert row["spec_id"] == B.spec.spec_id and row["poisoned_sha256"] != before[str(p)]
+        assert row["state"] == "protected"
+    assert daemon_auto.decided_spec(ctx, "trip") == B.spec
+    assert daemon_auto.status_text(ctx, "trip") == "auto: b-moved (escalation)"
+
+    sched.on_protected("trip")
+    assert sched.run_once() == "trip"  # B fails too: nothing within the budget is left (C is over it)
+    latest = ctx.store.latest_auto_decision("trip")
+    assert latest["candidate"] is None and latest["spec_id"] is None
+    assert latest["reason"].startswith(daemon_auto.NO_CANDIDATE)
+    assert daemon_auto.status_text(ctx, "trip") == f"auto: {daemon_auto.NO_CANDIDATE} (escalation)"
+    assert any(e["kind"] == "auto_no_candidate" for e in ctx.store.events("trip"))
+    assert ctx.store.dataset_spec("trip") == B.spec  # keeps the best it has; never unprotected
+
+
+def test_protected_verdicts_do_not_escalate(auto_ctx: AppContext, ppd_env: dict[str, Path]) -> None:
+    ctx = auto_ctx
+    _protect_scene(ctx, ppd_env["outbox"], A.spec, views=3)
+    ctx.store.add_auto_decision("trip", "a-small", A.spec, "r", {"evidence": []}, "preflight")
+    assert daemon_auto.escalate(ctx, "trip", {"default": "protected"}) is None
+    assert daemon_auto.escalate(ctx, "trip", {"default": "sfm_crashed"}) is None
+    assert ctx.store.latest_auto_decision("trip")["trigger"] == "preflight"
+
+
+def test_next_step_interim_then_preflight(auto_ctx: AppContext, ppd_env: dict[str, Path]) -> None:
+    ctx = auto_ctx
+    assert daemon_auto.next_step(ctx, "trip") is None  # nothing protected yet
+    _protect_scene(ctx, ppd_env["outbox"], C.spec, views=3)
+    assert daemon_auto.next_step(ctx, "trip") == "interim"
+    # the interim measures SSIM of each candidate on the files and picks the strongest within it
+    result = daemon_auto.run_interim(ctx, "trip", ladder=[A, B, C])
+    assert result["candidate"] == "b-moved", result  # C (last, strongest) is over SSIM 0.99
+    assert ctx.store.dataset_spec("trip") == B.spec and result["reprotected"] == 3
+    assert daemon_auto.next_step(ctx, "trip") is None  # 3 < sample_size 12
+    assert daemon_auto.next_step(ctx, "other") is None  # not automatic
+
+
+def test_preflight_child_records_a_plain_no_candidate_decision(
+    auto_ctx: AppContext, ppd_env: dict[str, Path]
+) -> None:
+    """The real child process (python -m verifier.auto) on the vault originals; only an over-budget
+    candidate, so it decides without SfM."""
+    ctx = auto_ctx
+    _protect_scene(ctx, ppd_env["outbox"], A.spec, views=3)
+    decision = daemon_auto.run_preflight(ctx, "trip", ladder=[C])
+    assert "error" not in decision, decision
+    assert decision["chosen"] is None and decision["outcome"] == "none_within_budget"
+    row = ctx.store.latest_auto_decision("trip")
+    assert row["trigger"] == "preflight" and row["candidate"] is None
+    assert daemon_auto.NO_CANDIDATE in row["reason"]
+    assert row["evidence"]["evidence"][0]["status"] == "over_budget"
+    assert ctx.store.dataset_spec("trip") == A.spec  # unchanged: nothing better within the budget
+
+
+def test_preflight_child_cancel_kills_it(tmp_path: Path) -> None:
+    job = {"images": [], "ladder": ladder_to_json([A]), "out_dir": str(tmp_path / "o"),
+           "result": str(tmp_path / "o" / "r.json")}  # fmt: skip
+    cancel = threading.Event()
+    cancel.set()
+    assert daemon_auto.run_preflight_child(job, 60, cancel) == {"error": "preflight cancelled"}
+
+
+def test_preflight_child_bad_input_is_one_line(tmp_path: Path) -> None:
+    job = {"images": [[str(tmp_path / "x.png"), "x.png"]], "ladder": ladder_to_json([A]),
+           "out_dir": str(tmp_path / "o"), "result": str(tmp_path / "o" / "r.json")}  # fmt: skip
+    result = daemon_auto.run_preflight_child(job, 120, None)
+    assert "at least 3 images" in result["error"] and "\n" not in result["error"]
+
+
+def test_cli_show_prints_decisions(auto_ctx: AppContext, ppd_env: dict[str, Path]) -> None:
+    from typer.testing import CliRunner
+
+    from daemon.cli import app
+
+    ctx = auto_ctx
+    _protect_scene(ctx, ppd_env["outbox"], A.spec, views=3)
+    ctx.store.add_auto_decision("trip", None, None, daemon_auto.NO_CANDIDATE, {}, "escalation")
+    result = CliRunner().invoke(app, ["auto", "trip", "--show"])
+    assert result.exit_code == 0, result.output
+    assert "escalation" in result.output and "no candidate within" in result.output
+    missing = CliRunner().invoke(app, ["auto", "nosuch", "--show"])
+    assert missing.exit_code == 2 and "no dataset" in missing.output
+    shutil.rmtree(ppd_env["outbox"] / "trip")
+
+
+def test_daemon_side_never_imports_torch_or_pycolmap(tmp_path: Path) -> None:
+    """The interim step runs in the daemon's scheduler thread: SSIM only, no torch, no pycolmap."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np\n"
+        "from pathlib import Path\n"
+        "from PIL import Image\n"
+        "import daemon.auto as da, daemon.config, verifier.scheduler\n"
+        "from verifier.auto import LadderEntry\n"
+        "from poisoner.spec import PatchSpec\n"
+        f"d = Path({str(tmp_path)!r})\n"
+        "imgs = []\n"
+        "for i in range(2):\n"
+        "    Image.fromarray((np.random.default_rng(i).random((64, 64, 3)) * 255).astype('uint8'))"
+        ".save(d / f'a{i}.png')\n"
+        "    imgs.append((d / f'a{i}.png', f'a{i}.png'))\n"
+        "ladder = [LadderEntry('x', PatchSpec(patch_size=6)), LadderEntry('y', PatchSpec(patch_size=40))]\n"
+        "cand, _, ok = da.choose_interim(ladder, 0.99, imgs)\n"
+        "print(cand.name, ok, 'torch' in sys.modules, 'pycolmap' in sys.modules)\n"
+    )
+    cmd = [sys.executable, "-c", code]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.split() == ["x", "True", "False", "False"], out.stdout + out.stderr
