@@ -72,8 +72,10 @@ def apply_patch(pixels: np.ndarray, placement: PatchPlacement) -> np.ndarray:
     return out
 
 
-def poison_array(pixels: np.ndarray, spec: PatchSpec) -> tuple[np.ndarray, PatchPlacement]:
-    """Resolve spec on this image's size and blend its patch in."""
+def poison_array(
+    pixels: np.ndarray, spec: PatchSpec, image_key: str | None = None
+) -> tuple[np.ndarray, PatchPlacement]:
+    """Resolve spec on this image's size (and name, for a moving spec) and blend its patch in."""
     height, width = pixels.shape[:2]
-    placement = spec.resolve(width, height)
+    placement = spec.resolve(width, height, image_key=image_key)
     return apply_patch(pixels, placement), placement

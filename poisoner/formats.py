@@ -572,7 +572,7 @@ def poison_file(src: Path, dst: Path, spec: PatchSpec) -> PoisonReport:
     fmt = im.format or "unknown"
     width, height = im.size
     try:
-        placement = spec.resolve(width, height)
+        placement = spec.resolve(width, height, image_key=src.name)  # the real name: moving specs (issue #9)
     except SpecError as exc:
         raise ImageFormatError(f"{src.name}: {exc}") from exc
     notes: list[str] = []

@@ -65,6 +65,21 @@ def random_blocks(size: int, block: int, seed: int = 0) -> Mask:
     return np.kron(cells, np.ones((block, block), dtype=bool))[:size, :size]
 
 
+def multiscale_blocks(size: int, block: int, seed: int = 0) -> Mask:
+    """Random blocks at three scales (b, 2b, 4b) combined by exclusive-or (seeded).
+
+    Why (issue #9): COLMAP keeps at most 8192 SIFT features per image and drops the finest
+    scales first, and a platform's downscale removes them too; a texture with corners at
+    several scales keeps distinctive keypoints at the coarser octaves that survive both.
+    """
+    mask = np.zeros((size, size), dtype=bool)
+    for level, scale in enumerate((1, 2, 4)):
+        mask ^= random_blocks(size, block * scale, seed + 7919 * level)
+    if not mask[0, 0]:
+        mask = ~mask  # dark origin block, as for every pattern
+    return mask
+
+
 _BASE: dict[str, Callable[[int, int, int], Mask]] = {
     "checkerboard": checkerboard,
     "parallel_lines": parallel_lines,
@@ -72,6 +87,7 @@ _BASE: dict[str, Callable[[int, int, int], Mask]] = {
     "intersecting_lines": intersecting_lines,
     "circles": circles,
     "random_blocks": random_blocks,
+    "multiscale_blocks": multiscale_blocks,
 }
 
 _COMBINATIONS: dict[str, tuple[str, ...]] = {

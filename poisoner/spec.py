@@ -4,6 +4,11 @@ A spec is resolved against an image size into a `PatchPlacement` (pixel geometry
 images of the same size resolve to the same placement, so every image of a dataset gets a
 bit-identical patch at identical pixel coordinates (the paper's mechanism).
 
+A moving spec (issue #9: `motion` other than "static") also takes the image's file name:
+`resolve(width, height, image_key)` moves the patch along a deterministic path indexed by the
+name (poisoner/motion.py), so COLMAP's stationary-match filter no longer removes its matches.
+Without a key a moving spec resolves at index 0.
+
 Sizes are pixels when given as an int (or a float >= 1) and a fraction of the image width
 when given as a float in (0, 1): the paper uses 12 px on 800x800 NeRF-Synthetic frames and
 2%-25% of width on Mip-NeRF 360.
@@ -20,6 +25,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from poisoner.motion import MOTIONS, image_index, path_offset
+
 SPEC_VERSION = 1
 
 PATTERNS = (
@@ -33,6 +40,7 @@ PATTERNS = (
     "diagonal_lines+circles",
     "all",
     "random_blocks",
+    "multiscale_blocks",
 )
 
 POSITIONS = ("top-left", "top-right", "bottom-left", "bottom-right", "center")
@@ -42,6 +50,10 @@ POSITIONS = ("top-left", "top-right", "bottom-left", "bottom-right", "center")
 # SIFT's finest octave needs corners a few pixels apart. A fractional block on a small image
 # must not fall below this.
 MIN_BLOCK_PX = 4
+
+# Fields added by issue #9. They stay out of the canonical dict (and so out of spec_id) while at
+# these defaults: every spec stored before them keeps its id.
+NEW_FIELD_DEFAULTS: dict[str, Any] = {"motion": "static", "motion_step": 0, "motion_span": 0.25}
 
 
 class SpecError(ValueError):
@@ -107,6 +119,10 @@ class PatchSpec:
     ratio: float = 1.0
     seed: int = 0
     version: int = field(default=SPEC_VERSION)
+    # issue #9: a patch that moves from image to image (see poisoner/motion.py)
+    motion: str = "static"  # static | drift | orbit
+    motion_step: Length = 0  # path length per image index, px or fraction of width
+    motion_span: Length = 0.25  # extent of the path on each axis, px or fraction of width
 
     def __post_init__(self) -> None:
         if self.pattern not in PATTERNS:
@@ -125,11 +141,20 @@ class PatchSpec:
             _resolve_length(v, 1000)  # validates type and sign
         if len(self.offset) != 2:
             raise SpecError("offset must be (dx, dy)")
+        if self.motion not in MOTIONS:
+            raise SpecError(f"unknown motion {self.motion!r}; choose one of {', '.join(MOTIONS)}")
+        if self.motion_step != 0:
+            _resolve_length(self.motion_step, 1000)
+        _resolve_length(self.motion_span, 1000)
         object.__setattr__(self, "offset", (self.offset[0], self.offset[1]))
 
     # ---- geometry -------------------------------------------------------------------------
-    def resolve(self, width: int, height: int) -> PatchPlacement:
-        """Pixel placement of this spec's patch on a width x height image."""
+    def resolve(self, width: int, height: int, image_key: str | None = None) -> PatchPlacement:
+        """Pixel placement of this spec's patch on a width x height image.
+
+        image_key (the image's file name) only matters for a moving spec: it picks the image's
+        point on the path; a static spec places every image's patch identically.
+        """
         size = _resolve_length(self.patch_size, width)
         block = _resolve_length(self.block_size, width)
         if isinstance(self.block_size, float) and self.block_size < 1:
@@ -139,11 +164,13 @@ class PatchSpec:
         dy = 0 if self.offset[1] == 0 else _resolve_length(abs(self.offset[1]), width)
         if size > width or size > height:
             raise SpecError(f"patch of {size} px does not fit a {width}x{height} image")
+        mx, my = self._motion_offset(width, image_key)
         if self.position == "center":
-            x, y = (width - size) // 2 + dx, (height - size) // 2 + dy
+            x, y = (width - size) // 2 + dx + mx, (height - size) // 2 + dy + my
         else:
-            x = dx if self.position.endswith("left") else width - size - dx
-            y = dy if self.position.startswith("top") else height - size - dy
+            # the path runs inward from the chosen corner, like the offset
+            x = dx + mx if self.position.endswith("left") else width - size - dx - mx
+            y = dy + my if self.position.startswith("top") else height - size - dy - my
         if x < 0 or y < 0 or x + size > width or y + size > height:
             raise SpecError(f"patch at ({x},{y}) size {size} falls outside a {width}x{height} image")
         return PatchPlacement(
@@ -156,6 +183,23 @@ class PatchSpec:
             pattern=self.pattern,
             seed=self.seed,
         )
+
+    def _motion_offset(self, width: int, image_key: str | None) -> tuple[int, int]:
+        """Inward (dx, dy) of this image's point on the motion path (centred for "center")."""
+        if self.motion == "static" or self.motion_step == 0:
+            return (0, 0)
+        step = _resolve_length(self.motion_step, width)
+        span = _resolve_length(self.motion_span, width)
+        index = image_index(image_key) if image_key is not None else 0
+        mx, my = path_offset(self.motion, index, step, span)
+        if self.position == "center":
+            return (mx - span // 2, my - span // 2)
+        return (mx, my)
+
+    @property
+    def moves(self) -> bool:
+        """Whether the placement depends on the image (its file name)."""
+        return self.motion != "static" and self.motion_step != 0
 
     # ---- poisoning ratio ------------------------------------------------------------------
     def selects(self, image_key: str) -> bool:
@@ -175,6 +219,9 @@ class PatchSpec:
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d["offset"] = list(self.offset)
+        for name, default in NEW_FIELD_DEFAULTS.items():
+            if d[name] == default and type(d[name]) is type(default):
+                del d[name]  # keeps the spec_id of every spec stored before these fields
         return d
 
     @classmethod

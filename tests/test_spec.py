@@ -85,3 +85,58 @@ def test_ratio_selection_is_deterministic_stable_and_close_to_the_ratio() -> Non
     assert chosen != [n for n in names if PatchSpec(ratio=0.5, seed=8).selects(n)]
     assert all(PatchSpec(ratio=1.0).selects(n) for n in names[:50])
     assert not any(PatchSpec(ratio=0.0).selects(n) for n in names[:50])
+
+
+# ---- issue #9: moving patches, image keys, spec ids kept ----------------------------------------
+def test_spec_ids_of_specs_without_the_new_fields_are_unchanged() -> None:
+    # ids recorded before issue #9 (bench/results/verify.md folders, stores): they must not move
+    assert PatchSpec().spec_id == "63928d73de472b0a"
+    assert PatchSpec(patch_size=48, block_size=4, alpha=1.0).spec_id == "b018b4b4e024913d"
+    assert "motion" not in PatchSpec().to_dict()
+    moving = PatchSpec(motion="drift", motion_step=6)
+    assert moving.to_dict()["motion"] == "drift" and moving.spec_id != PatchSpec().spec_id
+
+
+def test_moving_spec_round_trips_through_json_and_toml() -> None:
+    spec = PatchSpec(pattern="multiscale_blocks", motion="orbit", motion_step=0.01, motion_span=200)
+    assert PatchSpec.from_json(spec.to_json()) == spec
+    assert PatchSpec.from_toml(spec.to_toml()) == spec
+
+
+def test_static_spec_ignores_the_image_key() -> None:
+    spec = PatchSpec(patch_size=48, block_size=4, offset=(100, 100))
+    assert spec.resolve(800, 800, image_key="r_3.png") == spec.resolve(800, 800) == spec.resolve(
+        800, 800, image_key="r_77.png"
+    )
+    assert not spec.moves
+
+
+def test_drift_moves_inward_by_step_per_image_index() -> None:
+    spec = PatchSpec(
+        patch_size=48, block_size=4, offset=(100, 100), motion="drift", motion_step=6, motion_span=200
+    )
+    assert spec.moves
+    p0, p5 = spec.resolve(800, 800, "r_0.png"), spec.resolve(800, 800, "r_5.png")
+    assert (p0.x, p0.y) == (100, 100) and (p5.x, p5.y) == (130, 130)
+    assert spec.resolve(800, 800) == p0  # no key: index 0
+    br = spec.replace(position="bottom-right")
+    q5 = br.resolve(800, 800, "r_5.png")
+    assert (q5.x, q5.y) == (800 - 48 - 130, 800 - 48 - 130)  # inward from the bottom-right corner
+
+
+def test_moving_patch_keeps_every_image_inside_or_is_refused() -> None:
+    spec = PatchSpec(
+        patch_size=0.06, offset=(0.125, 0.125), motion="orbit", motion_step=0.02, motion_span=0.4
+    )
+    for i in range(200):
+        x0, y0, x1, y1 = spec.resolve(3072, 2048, f"{i:04d}.jpg").box
+        assert x0 >= 0 and y0 >= 0 and x1 <= 3072 and y1 <= 2048
+    too_far = PatchSpec(patch_size=0.2, offset=(0.5, 0.5), motion="drift", motion_step=0.05, motion_span=0.5)
+    with pytest.raises(SpecError, match="outside"):
+        too_far.resolve(1000, 600, "r_4.png")
+
+
+@pytest.mark.parametrize("kwargs", [dict(motion="zigzag"), dict(motion_step=-1), dict(motion_span=0)])
+def test_invalid_motion_fields_are_refused(kwargs: dict) -> None:
+    with pytest.raises(SpecError):
+        PatchSpec(**kwargs)

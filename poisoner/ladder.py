@@ -1,0 +1,107 @@
+"""The candidate ladder: concrete patch designs for auto mode, least visible first by intent.
+
+Contract with auto mode (verifier/auto.py, issue #9): `candidate_ladder()` returns concrete
+`Candidate`s (every spec a valid PatchSpec, never "auto"), ordered from least to most visible by
+design intent. Auto mode measures each candidate's actual visibility on the dataset and never
+relies on this order for the visibility budget.
+
+Why these designs (measured: bench/results/designs.md, docs/DESIGNS.md):
+- The paper's static checkerboard is left out: COLMAP's `filter_stationary_matches` removes it
+  (lego 0/40 within 5 deg under default, 33/40 under hardened, issue #9), so a preflight that
+  checks the hardened profile would spend two SfM runs to reject it every time.
+- Every candidate MOVES (motion="drift"): its matches are not stationary, so the stationary
+  filter keeps them, and the consistent per-image shift reads as a phantom camera rotation.
+  Non-repetitive random blocks, not a checkerboard: a repetitive pattern's descriptors are
+  ambiguous, SIFT's ratio test drops most of its matches (lego, 48 px moving 6 px/image:
+  random blocks 0/40 under hardened, checkerboard 23/40, issue #9).
+- Offsets of 15% of the width put the first image's patch outside COLMAP's watermark border
+  band (10% of the image diagonal: 14.1% of the width on square images, 12% on 3:2) on
+  landscape and square images, and the drift moves it further inward.
+- Steps of 0.75% / 1.3% of the width stay above COLMAP's 4 px stationary threshold at the sizes
+  COLMAP processes (<= 3200 px) and after a platform's 2048 px downscale.
+- Larger rungs trade visibility for keypoints: multiscale_blocks has corners at b, 2b and 4b, so
+  its keypoints survive the 8192-feature cap (which drops the finest scales first) and a
+  downscale. Whole-image SSIM >= 0.99 caps an opaque patch at about 1% of the image area
+  (8% of the width on 3:2 photos: fountain-P11 SSIM 0.9905 at 246 px).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from poisoner.spec import PatchSpec
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One concrete design: a name for records, its spec, and why it is on the ladder."""
+
+    name: str
+    spec: PatchSpec
+    why: str
+
+
+# Shared placement: outside the watermark band, drifting inward (see the module docstring).
+_OFFSET = (0.15, 0.15)
+_SPAN = 0.25  # fits 0.15 + 0.10 + 0.25 <= 0.5625: every rung fits a 16:9 landscape frame
+
+
+def candidate_ladder() -> list[Candidate]:
+    """Concrete candidates ordered from least to most visible by design intent."""
+    return [
+        Candidate(
+            name="texture-6pct-drift",
+            spec=PatchSpec(
+                pattern="random_blocks",
+                patch_size=0.06,
+                block_size=0.005,
+                offset=_OFFSET,
+                motion="drift",
+                motion_step=0.0075,
+                motion_span=_SPAN,
+            ),
+            why="non-repetitive texture, the paper's size (P=6% of width, b=0.5%), moving 0.75% of "
+            "the width per image: beats COLMAP's stationary filter on object sets (issue #9 probe)",
+        ),
+        Candidate(
+            name="multiscale-6pct-drift",
+            spec=PatchSpec(
+                pattern="multiscale_blocks",
+                patch_size=0.06,
+                block_size=0.005,
+                offset=_OFFSET,
+                motion="drift",
+                motion_step=0.0075,
+                motion_span=_SPAN,
+            ),
+            why="same size and motion, corners at three scales: keypoints that survive COLMAP's "
+            "8192-feature cap and a platform downscale",
+        ),
+        Candidate(
+            name="multiscale-8pct-drift",
+            spec=PatchSpec(
+                pattern="multiscale_blocks",
+                patch_size=0.08,
+                block_size=0.005,
+                offset=_OFFSET,
+                motion="drift",
+                motion_step=0.013,
+                motion_span=_SPAN,
+            ),
+            why="the largest opaque patch within SSIM 0.99 on 3:2 photos (fountain-P11: 0.9905): "
+            "more patch keypoints against a textured scene's votes",
+        ),
+        Candidate(
+            name="multiscale-10pct-drift",
+            spec=PatchSpec(
+                pattern="multiscale_blocks",
+                patch_size=0.10,
+                block_size=0.005,
+                offset=_OFFSET,
+                motion="drift",
+                motion_step=0.013,
+                motion_span=_SPAN,
+            ),
+            why="above the default budget on photos; for users who accept more visibility",
+        ),
+    ]
