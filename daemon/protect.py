@@ -115,6 +115,33 @@ def one_line(exc: BaseException) -> str:
     return text[0] if text else type(exc).__name__
 
 
+def shown_name(path: Path) -> str:
+    """path's name as it can be shown on one line: escaped (repr-style) when it holds a newline,
+    another control character or bytes that are not UTF-8."""
+    name = path.name
+    return name if name.isprintable() and storable(path) else repr(name)[1:-1]
+
+
+def storable(path: Path) -> bool:
+    """Whether the store can record this path: SQLite text is UTF-8, and a name with bytes
+    that are not UTF-8 (surrogate-escaped by Python) cannot be written to it."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def failure_message(exc: BaseException, path: Path) -> str:
+    """The one-line reason for a failure; a name with a newline is escaped first, so the line
+    is not cut in the middle of the file's name."""
+    text = str(exc)
+    if path.name and shown_name(path) != path.name:
+        text = text.replace(path.name, shown_name(path))
+    lines = text.strip().splitlines()
+    return lines[0] if lines else type(exc).__name__
+
+
 def media_kind(path: Path) -> str | None:
     """'image', 'video' or None, by suffix (lazy imports: the poisoners load only when used)."""
     from poisoner.formats import is_supported_image
@@ -251,18 +278,23 @@ def _record_failure(
     dry_run: bool,
     spec: PatchSpec | None,
 ) -> ProtectOutcome:
-    message = one_line(exc)
+    message = failure_message(exc, path)
     if not isinstance(exc, ProtectRefused | SourceChanged):
         log.debug("protect failed", exc_info=exc)
-    if not dry_run:
+    if not storable(out_path or path):  # no row can name it; the log line says why
+        log.warning("not recorded: %s: %s", shown_name(path), message, extra={"path": repr(str(path))})
+    elif not dry_run:
         try:
             _ensure_dataset(ctx, dataset, root, spec)
             ctx.store.record_file(
                 out_path or path, dataset, "failed", error=message, event="failed",
                 detail={"error": message, "exception": type(exc).__name__},
             )  # fmt: skip
-        except Exception:  # the store itself failing must not hide the first error
-            log.exception("could not record failure", extra={"path": str(path)})
+        except Exception as store_exc:  # the store itself failing (disk full) must not hide the first error
+            log.error(
+                "could not record failure of %s: %s", shown_name(path), one_line(store_exc),
+                extra={"path": str(path), "error": message},
+            )  # fmt: skip
     return ProtectOutcome(path=path, dataset=dataset, state="failed", reason=message)
 
 
@@ -319,6 +351,11 @@ def _protect(
 
     if is_ignored_name(path):
         return outcome("skipped", "hidden or temporary file")
+    if not storable(path):
+        raise ProtectRefused(
+            f"{shown_name(path)}: the file name is not valid UTF-8; rename it to protect it "
+            "(ppd records names as UTF-8)"
+        )
     resolved = _check_containment(path, root)
     kind = media_kind(path)
     record_path = Path(out_path).absolute() if out_path is not None else path
@@ -333,6 +370,12 @@ def _protect(
     # Never poison twice: ppd's own output (here or anywhere) is left alone.
     if out_path is None and row is not None and row["poisoned_sha256"] == sha:
         return outcome("unchanged", "already protected", kind=kind, poisoned_sha256=sha, output=path)
+    # An interrupted run of this very path first: its output may equal another file's (the same
+    # photo in two datasets), which the look-up below would take as "someone else's output" and
+    # leave this row pending for ever.
+    interrupted = out_path is None and row is not None and row["state"] == "pending" and not dry_run
+    if interrupted and _recover_pending(ctx, row, path, sha, kind):
+        return outcome("unchanged", "recovered after an interrupted run", kind=kind, poisoned_sha256=sha)
     earlier = ctx.store.find_poisoned(sha)
     if earlier is not None:
         if out_path is None and not dry_run and _carry_moved_row(ctx, earlier, path, dataset, root):
@@ -342,10 +385,6 @@ def _protect(
         return outcome("unchanged", "restored by the user (use --force to protect it again)", kind=kind)
 
     spec = _dataset_spec(ctx, dataset, root, dry_run, wanted_spec)
-    if out_path is None and row is not None and row["state"] == "pending" and not dry_run:
-        recovered = _recover_pending(ctx, row, path, sha, kind)
-        if recovered:
-            return outcome("unchanged", "recovered after an interrupted run", kind=kind, poisoned_sha256=sha)
     if (
         out_path is not None
         and row is not None

@@ -25,6 +25,7 @@ updates and stat calls and hand paths to `submit`, which never blocks (daemon.wo
 from __future__ import annotations
 
 import dataclasses
+import errno
 import logging
 import os
 import stat
@@ -405,6 +406,8 @@ class DaemonOptions:
     queue_size: int = 256
     max_pending: int = 100_000
     tmp_grace_s: float = 60.0  # younger `.ppd-tmp-*` files may belong to a running `ppd poison`
+    no_space_poll_s: float = 5.0  # while files wait for disk space: how often free space is checked
+    no_space_retry_s: float = 300.0  # ... and retried anyway (space freed elsewhere, quota raised)
     verify: bool = True  # run engineer D's VerificationScheduler when it is installed
 
     @classmethod
@@ -456,6 +459,10 @@ class WatchDaemon:
         self._rescan_needed = threading.Event()
         self.ready = threading.Event()  # set once watching (tests, embedding)
         self._trim_due = threading.Event()
+        # Files that failed for lack of disk space; retried once space returns (no event tells).
+        self._no_space: dict[Path, None] = {}
+        self._no_space_lock = threading.Lock()
+        self._no_space_since = (0.0, 0)  # (monotonic time, free bytes) of the first such failure
         self.pool = WorkerPool(
             self.process,
             PoolOptions(
@@ -491,11 +498,12 @@ class WatchDaemon:
         last_status = ""
         while not self._stop.is_set():
             # Sleeps until an event needs the main thread; the only timer is systemd's watchdog.
-            self._wake.wait(timeout=ping if ping else (5.0 if self._rescan_needed.is_set() else None))
+            self._wake.wait(timeout=self._wake_timeout(ping))
             self._wake.clear()
             if self._stop.is_set():
                 break
             self._keep_watching()
+            self._retry_if_space_returned()
             if self.pool.take_overflow():
                 self._rescan_needed.set()
             if self._rescan_needed.is_set() and self._idle_enough():
@@ -547,6 +555,54 @@ class WatchDaemon:
     def _on_lost_events(self) -> None:
         self._rescan_needed.set()
         self._wake.set()
+
+    def _wake_timeout(self, ping: float | None) -> float | None:
+        """How long the main loop may sleep: systemd's watchdog, a pending rescan, files
+        waiting for disk space."""
+        waits = [ping] if ping else []
+        if self._rescan_needed.is_set():
+            waits.append(5.0)
+        if self._no_space:
+            waits.append(self.options.no_space_poll_s)
+        return min(waits) if waits else None
+
+    def _note_no_space(self, path: Path, reason: str | None) -> None:
+        """Remember a file that failed for lack of space (or forget one that did not)."""
+        with self._no_space_lock:
+            if not is_no_space(reason):
+                self._no_space.pop(path, None)
+                return
+            if not self._no_space:
+                self._no_space_since = (time.monotonic(), self._free_bytes())
+            self._no_space[path] = None
+        self._wake.set()
+
+    def _free_bytes(self) -> int:
+        """Free bytes on the fuller of the outbox's and the data folder's filesystems."""
+        free = []
+        for folder in (self.outbox, Path(self.ctx.paths.data_dir)):
+            try:
+                st = os.statvfs(folder)
+            except OSError:
+                continue
+            free.append(st.f_bavail * st.f_frsize)
+        return min(free) if free else 0
+
+    def _retry_if_space_returned(self) -> None:
+        """Queue the files that failed for lack of space again once free space has grown by
+        1 MiB since (or after no_space_retry_s in any case)."""
+        with self._no_space_lock:
+            if not self._no_space:
+                return
+            since, free_then = self._no_space_since
+            grown = self._free_bytes() > free_then + (1 << 20)
+            if not grown and time.monotonic() - since < self.options.no_space_retry_s:
+                return
+            paths, self._no_space = list(self._no_space), {}
+        log.info("disk space returned: retrying %d file(s)", len(paths), extra={"files": len(paths)})
+        for path in paths:
+            self.watcher.forget(path)  # its signature was recorded as processed
+            self.pool.submit(path)
 
     def _idle_enough(self) -> bool:
         stats = self.pool.stats()
@@ -653,6 +709,7 @@ class WatchDaemon:
         self.watcher.mark_settled(Path(outcome.output) if outcome.output else path)
         self.watcher.mark_settled(path)
         self._count(outcome.state)
+        self._note_no_space(path, outcome.reason if outcome.state == "failed" else None)
         if outcome.state == "failed":
             log.warning(
                 "failed: %s: %s",
@@ -700,6 +757,14 @@ def release_free_memory() -> None:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):
         pass
+
+
+NO_SPACE_MESSAGES = (os.strerror(errno.ENOSPC), os.strerror(errno.EDQUOT), "database or disk is full")
+
+
+def is_no_space(reason: str | None) -> bool:
+    """Whether a failure's one-line reason says the disk (or quota) was full."""
+    return reason is not None and any(m.lower() in reason.lower() for m in NO_SPACE_MESSAGES)
 
 
 def _row_matches_disk(row: dict[str, Any], path: Path) -> bool:

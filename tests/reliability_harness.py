@@ -1,0 +1,602 @@
+"""Shared helpers of the reliability tests and `bench/bench_faults.py`, `bench/bench_load.py`:
+build an outbox, run `ppd watch` as a real process and SIGKILL it, and check the invariants
+that must hold at any instant (docs/RELIABILITY.md):
+
+* every file in the outbox is the untouched original or ppd's complete protected output;
+* every original is in place or verified in the vault;
+* the store agrees with the disk (a 'protected' row names the bytes on disk, a 'pending' row
+  names an original in the vault and the disk holds that original or its exact poisoned form);
+* the SQLite file passes `PRAGMA integrity_check`.
+
+Used from pytest (tests/ on sys.path) and from `python -m bench` (repo root on sys.path); the
+real-process daemon helpers are bench.bench_daemon's, the image/clip writers are the watcher's
+and the video tests' own.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import hashlib
+import math
+import os
+import random
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import PIL.Image  # before anything that could load pycolmap (pillow 13 import-order crash)
+import PIL.PngImagePlugin
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:  # pytest puts tests/ first; bench and tests.* need the root
+    sys.path.insert(0, str(REPO))
+
+from bench.bench_daemon import Daemon, start_daemon, status_kb  # noqa: E402
+from daemon.paths import AppPaths  # noqa: E402
+from daemon.protect import media_kind, poison_to  # noqa: E402
+from daemon.store import Store  # noqa: E402
+from poisoner.atomic import TEMP_PREFIX  # noqa: E402
+from tests.test_watcher import texture, wait_for, write_image  # noqa: E402
+
+DAEMON_ARGS = ("--no-verify", "--debounce", "0.05", "-j", "2")  # no SfM children in fault runs
+
+__all__ = [
+    "DAEMON_ARGS", "RESULTS", "CrashTrialOptions", "CrashTrialReport", "DiskFullReport", "HostileInput",
+    "MountUnavailable", "app_paths", "fill", "run_disk_full", "small_filesystem",
+    "build_hostile_corpus", "check_invariants", "drop_files", "kill_daemon", "leftover_temporaries",
+    "make_media", "percentile", "protected_counts", "run_crash_trials", "sha256", "start_daemon",
+    "status_kb", "wait_all_protected", "wait_for", "write_image", "write_results_section",
+]  # fmt: skip
+
+
+def sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while chunk := fh.read(1 << 20):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def app_paths(root: Path) -> AppPaths:
+    """The AppPaths of bench_daemon.start_daemon's layout: root/{data,config,outbox,cache}."""
+    return AppPaths.from_env({
+        "PPD_DATA_DIR": str(root / "data"), "PPD_CONFIG_DIR": str(root / "config"),
+        "PPD_OUTBOX": str(root / "outbox"), "PPD_CACHE_DIR": str(root / "cache"),
+    })  # fmt: skip
+
+
+# ---- media ----------------------------------------------------------------------------------------
+def make_video(path: Path, seed: int, frames: int = 12) -> Path:
+    """A small H.264 MP4 (160x120, no audio), distinct per seed."""
+    from tests.test_video import Clip, make_clip  # lazy: loads PyAV
+
+    make_clip(path, Clip(width=160, height=120, frames=frames, audio=None))
+    # make_clip's scene is the same for every clip: mark each one by appending a free atom,
+    # so the content (and its sha256) differs per seed; MP4 readers skip 'free' boxes.
+    with open(path, "ab") as fh:
+        fh.write((16).to_bytes(4, "big") + b"free" + seed.to_bytes(8, "big"))
+    return path
+
+
+def make_media(path: Path, seed: int, size: int = 192) -> Path:
+    """An image (PNG/JPEG/WebP by suffix) or, for a video suffix, a small MP4."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    suffix = path.suffix.lower()
+    if suffix in (".mp4", ".mov", ".m4v"):
+        return make_video(path, seed)
+    if suffix in (".png", ".jpg", ".jpeg"):
+        return write_image(path, seed, size)
+    PIL.Image.fromarray(texture(seed, size)).save(path)  # WebP, TIFF: Pillow picks by suffix
+    return path
+
+
+def drop_files(
+    stage: Path, dest: Path, names_and_seeds: list[tuple[str, int]], size: int = 192
+) -> dict[Path, str]:
+    """Write files in stage, then rename each into dest (complete on arrival: a moved-in
+    event). Returns {outbox path: sha256 of the original}."""
+    dest.mkdir(parents=True, exist_ok=True)
+    stage.mkdir(parents=True, exist_ok=True)
+    written = {}
+    for name, seed in names_and_seeds:
+        src = make_media(stage / name, seed, size)
+        written[dest / name] = sha256(src)
+    for name, _ in names_and_seeds:
+        os.rename(stage / name, dest / name)
+    return written
+
+
+# ---- invariants -------------------------------------------------------------------------------
+def _all_rows(store: Store) -> dict[str, dict]:
+    return {r["path"]: r for ds in store.datasets() for r in store.files(ds["name"])}
+
+
+def _vault_ok(paths: AppPaths, digest: str | None) -> bool:
+    if not digest:
+        return False
+    blob = paths.vault_dir / digest[:2] / digest
+    return blob.is_file() and sha256(blob) == digest
+
+
+def expected_output(paths: AppPaths, store: Store, row: dict) -> str | None:
+    """sha256 of what ppd writes for this row's original under its spec (poisoning is
+    deterministic): the only non-original content a 'pending' path may hold."""
+    kind = media_kind(Path(row["path"]))
+    if kind is None or not row["spec_id"] or not _vault_ok(paths, row["original_sha256"]):
+        return None
+    spec = store.get_spec(row["spec_id"])
+    with tempfile.TemporaryDirectory(prefix="ppd-expect-") as scratch:
+        original = Path(scratch) / Path(row["path"]).name
+        shutil.copyfile(paths.vault_dir / row["original_sha256"][:2] / row["original_sha256"], original)
+        out = Path(scratch) / f"out{original.suffix}"
+        poison_to(kind, original, out, spec)
+        return sha256(out)
+
+
+def check_invariants(paths: AppPaths, originals: Mapping[Path, str] | None = None) -> list[str]:
+    """Every violation of the no-loss invariants, one line each ('lost: ...', 'corrupted: ...',
+    'store: ...', 'vault: ...'); [] when all hold. originals: {outbox path: original sha256}
+    of the files the caller put there (without it only the store's rows are checked)."""
+    originals = dict(originals or {})
+    problems: list[str] = []
+    store = Store(paths.db_path)
+    try:
+        integrity = store.db.conn.execute("PRAGMA integrity_check").fetchone()[0]
+        if integrity != "ok":
+            problems.append(f"store: integrity_check says {integrity}")
+        rows = _all_rows(store)
+        for path_text, row in rows.items():
+            problems += _row_problems(paths, store, row, originals.get(Path(path_text)))
+        for path, original in originals.items():
+            problems += _file_problems(paths, path, original, rows.get(str(path)))
+    finally:
+        store.close()
+    return problems
+
+
+def _row_problems(paths: AppPaths, store: Store, row: dict, original: str | None) -> list[str]:
+    path = Path(row["published_path"] or row["path"])
+    state = row["state"]
+    on_disk = sha256(path) if path.is_file() else None
+    if state == "protected":
+        if on_disk is None:
+            return [f"store: protected row but no file at {path}"]
+        if on_disk != row["poisoned_sha256"]:
+            return [f"store: protected row's poisoned_sha256 is not the file at {path}"]
+        if not _vault_ok(paths, row["original_sha256"]):
+            return [f"vault: original of protected {path.name} missing or corrupt"]
+    elif state == "pending":
+        if not _vault_ok(paths, row["original_sha256"]):
+            return [f"vault: pending row's original of {path.name} missing or corrupt"]
+        if on_disk not in (None, row["original_sha256"]) and on_disk != expected_output(paths, store, row):
+            return [f"corrupted: pending {path.name} holds neither its original nor its protected form"]
+    elif state in ("failed", "skipped") and original is not None and on_disk not in (None, original):
+        return [f"corrupted: {state} {path.name} was changed on disk"]
+    return []
+
+
+def _file_problems(paths: AppPaths, path: Path, original: str, row: dict | None) -> list[str]:
+    if not path.is_file():
+        return [] if _vault_ok(paths, original) else [f"lost: {path} gone and its original not in the vault"]
+    on_disk = sha256(path)
+    if on_disk == original:
+        return []
+    if not _vault_ok(paths, original):
+        return [f"lost: {path.name} was replaced and its original is not in the vault"]
+    if row is None:
+        return [f"corrupted: {path.name} changed and the store has no row for it"]
+    if row["state"] == "protected" and row["poisoned_sha256"] == on_disk:
+        if row["original_sha256"] != original:  # ppd's output taken for an original: poisoned twice
+            return [f"corrupted: {path.name} was protected from something other than its original"]
+        return []
+    if row["state"] == "pending":
+        return []  # checked against the deterministic output in _row_problems
+    return [f"corrupted: {path.name} is neither the original nor the recorded protected file"]
+
+
+def leftover_temporaries(paths: AppPaths) -> list[Path]:
+    """`.ppd-tmp-*` files in the outbox (harmless; a start deletes those older than 60 s)."""
+    return sorted(p for p in paths.outbox.rglob(f"{TEMP_PREFIX}*") if p.is_file())
+
+
+def protected_counts(paths: AppPaths) -> Counter[str]:
+    """Per path: 'protected' + 'recovered' events (a file done once counts exactly 1)."""
+    store = Store(paths.db_path)
+    try:
+        events = store.events(limit=10_000_000)
+    finally:
+        store.close()
+    return Counter(e["path"] for e in events if e["kind"] in ("protected", "recovered"))
+
+
+def wait_all_protected(paths: AppPaths, files: list[Path], timeout: float) -> None:
+    """Wait until every file has a 'protected' row; on timeout the error says what the others are."""
+    rows: dict[str, dict] = {}
+
+    def done() -> bool:
+        nonlocal rows
+        store = Store(paths.db_path)
+        try:
+            rows = _all_rows(store)
+        finally:
+            store.close()
+        return all(rows.get(str(f), {}).get("state") == "protected" for f in files)
+
+    try:
+        wait_for(done, timeout, f"{len(files)} files protected")
+    except AssertionError as exc:
+        stuck = {f.name: (rows.get(str(f), {}).get("state"), rows.get(str(f), {}).get("error"))
+                 for f in files if rows.get(str(f), {}).get("state") != "protected"}  # fmt: skip
+        raise AssertionError(f"{exc}; not protected: {dict(list(stuck.items())[:10])}") from None
+
+
+# ---- the daemon as a process -----------------------------------------------------------------------
+def kill_daemon(daemon: Daemon, sig: int = signal.SIGKILL) -> int:
+    """Send sig (default SIGKILL: no handler, no cleanup) and reap; the exit status."""
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(daemon.pid, sig)
+    code = daemon.proc.wait(60)
+    with contextlib.suppress(OSError):
+        daemon.sock.shutdown(socket.SHUT_RDWR)  # wakes bench_daemon's drain thread
+    daemon.sock.close()
+    return code
+
+
+@dataclass(frozen=True)
+class CrashTrialOptions:
+    trials: int = 10
+    images_per_trial: int = 4
+    image_size: int = 192  # px (square)
+    video_every: int = 4  # trial i drops one small MP4 when i % video_every == 0 (0: never)
+    kill_after_s: tuple[float, float] = (0.0, 1.2)  # uniform delay after the drop
+    seed: int = 0
+    final_timeout_s: float = 180.0
+
+
+@dataclass
+class CrashTrialReport:
+    trials: int = 0
+    files: int = 0  # originals dropped
+    videos: int = 0
+    killed_with_work_pending: int = 0  # kills that left a 'pending' row or a temporary file
+    # Where the kills that interrupted this trial's own work landed (see kill_phases()).
+    kill_phases: Counter[str] = field(default_factory=Counter)
+    violations_after_kill: list[str] = field(default_factory=list)
+    violations_final: list[str] = field(default_factory=list)
+    not_exactly_once: list[str] = field(default_factory=list)
+    leftover_temporaries: int = 0  # after the final run (young leftovers wait for 60 s)
+    exit_codes: Counter[int] = field(default_factory=Counter)
+    seconds: float = 0.0
+
+    @property
+    def lost(self) -> int:
+        return sum(v.startswith("lost:") for v in self.violations_after_kill + self.violations_final)
+
+    @property
+    def corrupted(self) -> int:
+        return sum(not v.startswith("lost:") for v in self.violations_after_kill + self.violations_final)
+
+
+def kill_phases(paths: AppPaths, since: float) -> Counter[str]:
+    """What work a kill interrupted, from the state it left (only files touched after `since`):
+    'writing' (a `.ppd-tmp-*` being written), 'kept-not-written' (a pending row, the original
+    still at the path: between the vault and the rename), 'renamed-not-recorded' (a pending
+    row, the protected file already in place: between the rename and the final row)."""
+    phases: Counter[str] = Counter()
+    phases["writing"] = sum(p.stat().st_mtime >= since for p in leftover_temporaries(paths))
+    store = Store(paths.db_path)
+    try:
+        for row in _all_rows(store).values():
+            if row["state"] != "pending" or row["updated_at"] < since:
+                continue
+            path = Path(row["path"])
+            renamed = path.is_file() and sha256(path) != row["original_sha256"]
+            phases["renamed-not-recorded" if renamed else "kept-not-written"] += 1
+    finally:
+        store.close()
+    return +phases
+
+
+def _work_pending(paths: AppPaths) -> bool:
+    if leftover_temporaries(paths):
+        return True
+    store = Store(paths.db_path)
+    try:
+        return any(r["state"] == "pending" for r in _all_rows(store).values())
+    finally:
+        store.close()
+
+
+def run_crash_trials(
+    root: Path, options: CrashTrialOptions, on_trial: Callable[[int, CrashTrialReport], None] | None = None
+) -> CrashTrialReport:
+    """Start `ppd watch`, drop files, SIGKILL it at a random instant, check the invariants,
+    repeat (each start also recovers the previous kill); finally let a start finish the work
+    and check that every file is protected exactly once."""
+    rng = random.Random(options.seed)
+    root.mkdir(parents=True, exist_ok=True)
+    paths = app_paths(root)
+    report = CrashTrialReport()
+    originals: dict[Path, str] = {}
+    started = time.monotonic()
+    for trial in range(options.trials):
+        trial_started = time.time()
+        daemon = start_daemon(root, *DAEMON_ARGS)
+        names = [(f"t{trial:03d}-{i}{rng.choice(('.png', '.jpg'))}", trial * 100 + i)
+                 for i in range(options.images_per_trial)]  # fmt: skip
+        if options.video_every and trial % options.video_every == 0:
+            names.append((f"t{trial:03d}-clip.mp4", trial * 100 + 99))
+            report.videos += 1
+        dest = paths.outbox / f"set{trial % 3}"
+        originals.update(drop_files(root / "stage", dest, names, options.image_size))
+        time.sleep(rng.uniform(*options.kill_after_s))
+        report.exit_codes[kill_daemon(daemon)] += 1
+        report.trials += 1
+        report.killed_with_work_pending += int(_work_pending(paths))
+        phases = kill_phases(paths, trial_started)
+        report.kill_phases.update(phases)
+        report.kill_phases["kills that interrupted this trial's work"] += int(bool(phases))
+        report.violations_after_kill += [f"trial {trial}: {v}" for v in check_invariants(paths, originals)]
+        if on_trial is not None:
+            on_trial(trial, report)
+    report.files = len(originals)
+    daemon = start_daemon(root, *DAEMON_ARGS)
+    try:
+        wait_all_protected(paths, list(originals), options.final_timeout_s)
+    finally:
+        kill_daemon(daemon, signal.SIGTERM)
+    report.violations_final = check_invariants(paths, originals)
+    counts = protected_counts(paths)
+    report.not_exactly_once = [f"{p.name}: {counts[str(p)]}" for p in originals if counts[str(p)] != 1]
+    report.leftover_temporaries = len(leftover_temporaries(paths))
+    report.seconds = time.monotonic() - started
+    return report
+
+
+# ---- results file shared by bench_faults and bench_load ------------------------------------------------
+RESULTS = REPO / "bench" / "results" / "reliability.md"
+RESULTS_HEADER = (
+    "# Reliability under faults, load and hostile input\n\n"
+    "Written by `python -m bench faults` and `python -m bench load` (each rewrites its own section).\n"
+    "See docs/RELIABILITY.md for what each figure means.\n"
+)
+
+
+def write_results_section(name: str, markdown: str, results: Path = RESULTS) -> None:
+    """Replace the section `name` of the results file (between its markers), keeping the rest."""
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    text = results.read_text() if results.exists() else RESULTS_HEADER
+    block = f"{start}\n{markdown.rstrip()}\n{end}"
+    if start in text and end in text:
+        before, rest = text.split(start, 1)
+        text = before + block + rest.split(end, 1)[1]
+    else:
+        text = text.rstrip() + "\n\n" + block + "\n"
+    results.parent.mkdir(parents=True, exist_ok=True)
+    results.write_text(text)
+
+
+def percentile(values: list[float], q: float) -> float:
+    """Nearest-rank percentile (q in 0..100) of a non-empty list."""
+    ordered = sorted(values)
+    rank = max(1, math.ceil(q / 100 * len(ordered)))
+    return ordered[rank - 1]
+
+
+# ---- hostile input corpus ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class HostileInput:
+    path: Path  # where it sits (in the outbox)
+    what: str  # what is hostile about it
+    expect: str  # 'protected', 'refused' (failed row, one-line error, file untouched),
+    # 'either' (protected or refused), 'left' (no row, nothing touched: links, FIFOs)
+
+
+def _png_chunk(ctype: bytes, body: bytes) -> bytes:
+    import zlib
+
+    return len(body).to_bytes(4, "big") + ctype + body + zlib.crc32(ctype + body).to_bytes(4, "big")
+
+
+def _header_bomb_png(width: int, height: int) -> bytes:
+    """A valid-looking PNG whose header claims width x height 8-bit grey (a few bytes of IDAT)."""
+    import zlib
+
+    ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 0, 0, 0, 0])
+    return (b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", ihdr)
+            + _png_chunk(b"IDAT", zlib.compress(b"\x00" * 1024)) + _png_chunk(b"IEND", b""))  # fmt: skip
+
+
+def _image_bytes(im: PIL.Image.Image, fmt: str, **kw: object) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    im.save(buf, format=fmt, **kw)
+    return buf.getvalue()
+
+
+def _flip_middle(data: bytes, count: int = 64) -> bytes:
+    mid = len(data) // 2
+    return data[:mid] + bytes(b ^ 0x5A for b in data[mid : mid + count]) + data[mid + count :]
+
+
+def build_hostile_corpus(dest: Path, outside: Path) -> list[HostileInput]:
+    """Write the hostile inputs into dest (an outbox dataset folder); `outside` receives the
+    targets of the link tricks (it must be outside the outbox). Generated, never downloaded."""
+    import numpy as np
+
+    dest.mkdir(parents=True, exist_ok=True)
+    outside.mkdir(parents=True, exist_ok=True)
+    rgb = PIL.Image.fromarray(texture(5, 96))
+    good = {fmt: _image_bytes(rgb, fmt) for fmt in ("JPEG", "PNG", "WEBP", "TIFF")}
+    suffix = {"JPEG": ".jpg", "PNG": ".png", "WEBP": ".webp", "TIFF": ".tif"}
+    items: list[HostileInput] = []
+
+    def put(name: str | bytes, data: bytes, what: str, expect: str) -> None:
+        path = Path(os.fsdecode(os.path.join(os.fsencode(dest), os.fsencode(name))))
+        path.write_bytes(data)
+        items.append(HostileInput(path, what, expect))
+
+    clip = make_video(outside / "clip-src.mp4", seed=1).read_bytes()
+    for fmt, data in [*good.items(), ("MP4", clip)]:
+        ext = suffix.get(fmt, ".mp4")
+        put(f"truncated-half{ext}", data[: len(data) // 2], f"truncated {fmt} (half)", "refused")
+        put(f"truncated-header{ext}", data[:40], f"truncated {fmt} (40 bytes)", "refused")
+        put(f"corrupt-middle{ext}", _flip_middle(data), f"corrupt {fmt} (64 bytes flipped)", "either")
+        put(f"zero-byte{ext}", b"", f"zero-byte {fmt} name", "refused")
+    put("bomb-header.png", _header_bomb_png(100_000, 100_000), "PNG header claiming 10^10 pixels", "refused")
+    grey = PIL.Image.fromarray(np.zeros((10_000, 9_500), dtype=np.uint8))
+    put("bomb-zlib.png", _image_bytes(grey, "PNG", compress_level=9), "95 Mpx of zeros in ~100 KB", "refused")
+    del grey
+    grey16 = PIL.Image.fromarray(np.arange(96 * 96, dtype=np.uint16).reshape(96, 96) * 7)
+    put("grey16.png", _image_bytes(grey16, "PNG"), "16-bit grey PNG", "protected")
+    put("grey16.tif", _image_bytes(grey16, "TIFF"), "16-bit grey TIFF", "protected")
+    put("cmyk.jpg", _image_bytes(rgb.convert("CMYK"), "JPEG"), "CMYK JPEG", "either")
+    put("cmyk.tif", _image_bytes(rgb.convert("CMYK"), "TIFF"), "CMYK TIFF", "either")
+    put("palette.png", _image_bytes(rgb.convert("P"), "PNG"), "palette PNG", "protected")
+    put("palette-transparent.png", _image_bytes(rgb.convert("P"), "PNG", transparency=0),
+        "palette PNG with tRNS", "protected")  # fmt: skip
+    put("la.png", _image_bytes(rgb.convert("LA"), "PNG"), "grey+alpha PNG", "protected")
+    frames = [rgb, rgb.transpose(PIL.Image.Transpose.FLIP_LEFT_RIGHT)]
+    put("animated.png", _image_bytes(frames[0], "PNG", save_all=True, append_images=frames[1:]),
+        "animated PNG (2 frames)", "refused")  # fmt: skip
+    put("animated.webp", _image_bytes(frames[0], "WEBP", save_all=True, append_images=frames[1:]),
+        "animated WebP (2 frames)", "refused")  # fmt: skip
+    put("multipage.tif", _image_bytes(frames[0], "TIFF", save_all=True, append_images=frames[1:]),
+        "multi-page TIFF", "refused")  # fmt: skip
+    exif = rgb.getexif()
+    exif[0x9286] = b"ASCII\x00\x00\x00" + b"x" * 60_000  # UserComment: APP1 near its 64 KB limit
+    put("huge-exif.jpg", _image_bytes(rgb, "JPEG", exif=exif.tobytes()), "60 KB EXIF", "protected")
+    info = PIL.PngImagePlugin.PngInfo()
+    info.add_text("Comment", "z" * 5_000_000, zip=False)
+    put("huge-text.png", _image_bytes(rgb, "PNG", pnginfo=info), "5 MB tEXt chunk", "protected")
+    put("text.jpg", b"just some notes, not a photo\n" * 10, "text file named .jpg", "refused")
+    put("html.png", b"<!doctype html><html><body>hi</body></html>", "HTML named .png", "refused")
+    put("elf.tif", Path(sys.executable).read_bytes()[:65536], "ELF binary named .tif", "refused")
+    put("pdf.webp", b"%PDF-1.4\n%\xe2\xe3\xcf\xd3\n1 0 obj\n<<>>\nendobj\n", "PDF named .webp", "refused")
+    put("text.mp4", b"not a video at all\n" * 50, "text named .mp4", "refused")
+    put("jpeg-named.png", good["JPEG"], "JPEG content under a .png name", "protected")
+    put("line\nbreak.png", good["PNG"], "newline in the name", "protected")
+    put("bad\nname.jpg", b"not a photo", "non-image with a newline in its name", "refused")
+    put(b"caf\xe9-latin1.png", good["PNG"], "non-UTF-8 name (refused: the store holds UTF-8)", "left")
+    put("東京 🗼 space.jpg", good["JPEG"], "non-ASCII and spaces in the name", "protected")
+    put("-rf.png", good["PNG"], "leading dash in the name", "protected")
+    put("x" * 240 + ".jpg", good["JPEG"], "244-byte name", "protected")
+
+    # Links: never followed out of the outbox; the targets must stay byte-identical.
+    secret = outside / "secret.png"
+    secret.write_bytes(good["PNG"])
+    (dest / "link-out.png").symlink_to(secret)
+    items.append(HostileInput(dest / "link-out.png", "symlink to a file outside the outbox", "left"))
+    (dest / "dangling.png").symlink_to(outside / "does-not-exist.png")
+    items.append(HostileInput(dest / "dangling.png", "dangling symlink", "left"))
+    (dest / "loop.png").symlink_to(dest / "loop.png")
+    items.append(HostileInput(dest / "loop.png", "symlink to itself", "left"))
+    outside_dir = outside / "album"
+    outside_dir.mkdir(exist_ok=True)
+    (outside_dir / "inside-linked-dir.png").write_bytes(good["PNG"])
+    (dest / "linked-dir").symlink_to(outside_dir, target_is_directory=True)
+    items.append(HostileInput(dest / "linked-dir" / "inside-linked-dir.png",
+                              "file reached through a symlinked folder", "left"))  # fmt: skip
+    hard_target = outside / "hardlinked.jpg"
+    hard_target.write_bytes(good["JPEG"])
+    os.link(hard_target, dest / "hardlink-out.jpg")
+    items.append(HostileInput(dest / "hardlink-out.jpg", "hard link to a file outside", "protected"))
+    os.mkfifo(dest / "fifo.jpg")
+    items.append(HostileInput(dest / "fifo.jpg", "FIFO named .jpg (opening it would block)", "left"))
+    (dest / "folder.png").mkdir()
+    items.append(HostileInput(dest / "folder.png", "folder named .png", "left"))
+    return items
+
+
+# ---- a small real filesystem that fills up -------------------------------------------------------------
+class MountUnavailable(RuntimeError):
+    """A tmpfs cannot be mounted here (not root, no CAP_SYS_ADMIN, a locked-down container)."""
+
+
+@contextlib.contextmanager
+def small_filesystem(where: Path, size: str = "3m") -> Iterator[Path]:
+    """A size-limited tmpfs mounted at where for the block (lazily unmounted afterwards)."""
+    where.mkdir(parents=True, exist_ok=True)
+    mounted = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size},mode=0755", "tmpfs", str(where)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    if mounted.returncode != 0:
+        raise MountUnavailable(mounted.stderr.strip() or f"mount exited {mounted.returncode}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", "-l", str(where)], check=False)
+
+
+def fill(folder: Path, leave: int = 0) -> Path:
+    """Write one filler file until the filesystem refuses another byte (ENOSPC), then give
+    `leave` bytes back (room for the store's pages, not for a poisoned image)."""
+    filler = folder / "filler.bin"
+    with open(filler, "wb", buffering=0) as fh:
+        try:
+            while True:
+                fh.write(b"\0" * 4096)
+        except OSError as exc:
+            if exc.errno != errno.ENOSPC:
+                raise
+    with open(filler, "ab", buffering=0) as fh, contextlib.suppress(OSError):  # the last partial block
+        while True:
+            fh.write(b"\0")
+    if leave:
+        os.truncate(filler, max(0, filler.stat().st_size - leave))
+    return filler
+
+
+@dataclass
+class DiskFullReport:
+    leave_bytes: int
+    files: int = 0
+    failed_while_full: int = 0
+    protected_while_full: int = 0
+    unclear_reasons: list[str] = field(default_factory=list)  # failures whose reason is not one line
+    violations_while_full: list[str] = field(default_factory=list)
+    violations_after: list[str] = field(default_factory=list)
+    protected_after_space_returned: int = 0
+    leftover_temporaries: int = 0
+
+
+def run_disk_full(fs: Path, leave: int, files: int = 4) -> DiskFullReport:
+    """protect_file in this process with outbox, store and vault on the small filesystem fs:
+    one file protected, the disk filled (leaving `leave` bytes), the rest tried, space given
+    back, the rest tried again."""
+    from daemon.protect import AppContext, protect_file
+
+    paths = app_paths(fs)
+    report = DiskFullReport(leave_bytes=leave, files=files)
+    ctx = AppContext.open(paths)
+    try:
+        images = [write_image(paths.outbox / "shoot" / f"{i}.png", seed=i, size=256) for i in range(files)]
+        originals = {f: sha256(f) for f in images}
+        assert protect_file(images[0], ctx).state == "protected"  # the store and vault exist
+        filler = fill(fs, leave)
+        for outcome in (protect_file(f, ctx) for f in images[1:]):
+            report.failed_while_full += outcome.state == "failed"
+            report.protected_while_full += outcome.state == "protected"
+            if outcome.state == "failed" and (not outcome.reason or "\n" in outcome.reason):
+                report.unclear_reasons.append(repr(outcome.reason))
+        report.leftover_temporaries = len(leftover_temporaries(paths))
+        report.violations_while_full = check_invariants(paths, originals)
+        filler.unlink()
+        report.protected_after_space_returned = sum(
+            protect_file(f, ctx).state in ("protected", "unchanged") for f in images
+        )
+    finally:
+        ctx.close()
+    report.violations_after = check_invariants(paths, originals)
+    return report

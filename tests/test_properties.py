@@ -1,0 +1,160 @@
+"""Property-based tests (hypothesis) on the poisoner's pure functions, and a fuzz run of the
+file readers: whatever bytes arrive, a reader answers with its one-line error type (or a
+complete output), never another exception. The long fuzz run is `python -m bench faults`."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import PIL.Image
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from poisoner.blend import apply_patch, poison_array
+from poisoner.formats import ImageFormatError, poison_file
+from poisoner.patterns import pattern_levels, pattern_mask
+from poisoner.spec import PATTERNS, POSITIONS, PatchSpec, SpecError
+
+lengths = st.one_of(st.integers(1, 64), st.floats(0.001, 0.5))
+specs = st.builds(
+    PatchSpec,
+    pattern=st.sampled_from(sorted(PATTERNS)),
+    patch_size=lengths,
+    block_size=lengths,
+    alpha=st.floats(0.0, 1.0),
+    contrast=st.integers(0, 255),
+    position=st.sampled_from(sorted(POSITIONS)),
+    offset=st.tuples(st.integers(0, 8), st.integers(0, 8)),
+    seed=st.integers(0, 2**31),
+)
+sizes = st.tuples(st.integers(1, 300), st.integers(1, 300))
+
+
+@given(spec=specs, size=sizes)
+def test_resolve_places_the_patch_inside_the_image_or_refuses(spec: PatchSpec, size: tuple[int, int]) -> None:
+    width, height = size
+    try:
+        placement = spec.resolve(width, height)
+    except SpecError as exc:
+        assert str(exc) and "\n" not in str(exc)
+        return
+    x0, y0, x1, y1 = placement.box
+    assert 0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height
+    assert 1 <= placement.block <= placement.size == x1 - x0 == y1 - y0
+    assert spec.resolve(width, height) == placement  # deterministic
+
+
+@given(pattern=st.sampled_from(sorted(PATTERNS)), size=st.integers(1, 80), block=st.integers(1, 80),
+       seed=st.integers(0, 1000), contrast=st.integers(0, 255))  # fmt: skip
+def test_pattern_mask_shape_levels_and_determinism(
+    pattern: str, size: int, block: int, seed: int, contrast: int
+) -> None:
+    mask = pattern_mask(pattern, size, block, seed)
+    assert mask.shape == (size, size) and mask.dtype == bool
+    assert np.array_equal(mask, pattern_mask(pattern, size, block, seed))
+    levels = pattern_levels(mask, contrast)
+    assert levels.min() >= 255 - contrast - 1e-9 and levels.max() <= 255
+    assert np.all(levels[~mask] == 255)
+
+
+pixel_arrays = st.one_of(
+    arrays(np.uint8, st.tuples(st.integers(8, 64), st.integers(8, 64), st.sampled_from([3, 4]))),
+    arrays(np.uint16, st.tuples(st.integers(8, 64), st.integers(8, 64))),
+    arrays(np.uint8, st.tuples(st.integers(8, 64), st.integers(8, 64))),
+)
+
+
+@settings(suppress_health_check=[HealthCheck.too_slow], deadline=None)
+@given(pixels=pixel_arrays, spec=specs)
+def test_poison_changes_only_the_patch_box_and_is_deterministic(pixels: np.ndarray, spec: PatchSpec) -> None:
+    try:
+        out, placement = poison_array(pixels, spec)
+    except SpecError:
+        return
+    assert out.shape == pixels.shape and out.dtype == pixels.dtype
+    x0, y0, x1, y1 = placement.box
+    outside = np.ones(pixels.shape[:2], dtype=bool)
+    outside[y0:y1, x0:x1] = False
+    assert np.array_equal(out[outside], pixels[outside])  # nothing outside the box moves
+    assert np.array_equal(out, apply_patch(pixels, placement))
+    if placement.alpha8 == 255 and pixels.ndim == 3 and pixels.shape[2] == 4:
+        assert np.all(out[y0:y1, x0:x1, 3] == 255)  # the patch is opaque on RGBA
+    if placement.alpha8 == 0 and not (pixels.ndim == 3 and pixels.shape[2] == 4):
+        assert np.array_equal(out, pixels)  # alpha 0 is the identity (colour images w/o alpha)
+
+
+@given(spec=specs)
+def test_spec_round_trips_through_json_and_toml(spec: PatchSpec) -> None:
+    assert PatchSpec.from_json(spec.to_json()) == spec
+    assert PatchSpec.from_json(spec.to_json()).spec_id == spec.spec_id
+
+
+@given(ratio=st.floats(0.0, 1.0), seed=st.integers(0, 100), names=st.lists(st.text(min_size=1), max_size=20))
+def test_ratio_selection_is_a_pure_function_of_the_name(ratio: float, seed: int, names: list[str]) -> None:
+    spec = PatchSpec(ratio=ratio, seed=seed)
+    picked = [spec.selects(n) for n in names]
+    assert picked == [spec.selects(n) for n in reversed(names)][::-1]
+    if ratio == 1.0:
+        assert all(picked)
+    if ratio == 0.0:
+        assert not any(picked)
+
+
+# ---- fuzzing the readers ------------------------------------------------------------------------
+def _seed_files() -> dict[str, bytes]:
+    rng = np.random.default_rng(3)
+    pixels = rng.integers(0, 256, (40, 56, 3), dtype=np.uint8)
+    seeds = {}
+    for fmt, suffix in (("PNG", ".png"), ("JPEG", ".jpg"), ("WEBP", ".webp"), ("TIFF", ".tif")):
+        buf = io.BytesIO()
+        PIL.Image.fromarray(pixels).save(buf, format=fmt)
+        seeds[suffix] = buf.getvalue()
+    return seeds
+
+
+SEEDS = _seed_files()
+
+
+def mutate(data: bytes, edits: list[tuple[int, int]], cut: int | None) -> bytes:
+    """Overwrite bytes at (position mod length) with values, then optionally truncate."""
+    out = bytearray(data)
+    for pos, value in edits:
+        out[pos % len(out)] = value
+    return bytes(out[:cut] if cut is not None else out)
+
+
+def fuzz_image_reader(folder: Path, suffix: str, data: bytes) -> str:
+    """Feed bytes to poison_file; 'ok' or 'refused'. Any other exception propagates (a bug)."""
+    src, dst = folder / f"fuzz{suffix}", folder / f"out{suffix}"
+    src.write_bytes(data)
+    try:
+        poison_file(src, dst, PatchSpec(patch_size=8, block_size=2))
+    except ImageFormatError as exc:
+        assert str(exc) and "\n" not in str(exc)
+        assert not dst.exists() or dst.stat().st_size == 0 or dst.read_bytes()
+        return "refused"
+    assert dst.stat().st_size > 0
+    PIL.Image.open(dst).load()  # what it wrote is a complete image
+    return "ok"
+
+
+@pytest.mark.parametrize("suffix", sorted(SEEDS))
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    edits=st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 255)), max_size=8),
+    cut=st.one_of(st.none(), st.integers(0, 4000)),
+)
+def test_fuzz_image_readers_only_raise_their_one_line_error(
+    tmp_path: Path, suffix: str, edits: list[tuple[int, int]], cut: int | None
+) -> None:
+    fuzz_image_reader(tmp_path, suffix, mutate(SEEDS[suffix], edits, cut))
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.binary(max_size=2000), suffix=st.sampled_from([".png", ".jpg", ".webp", ".tif", ".heic"]))
+def test_fuzz_random_bytes_with_image_names(tmp_path: Path, data: bytes, suffix: str) -> None:
+    fuzz_image_reader(tmp_path, suffix, data)

@@ -1,0 +1,212 @@
+"""Hostile input: a corpus generated here (truncated/corrupt files of every format, zero bytes,
+decompression bombs, 16-bit, CMYK, palette, animated, huge metadata, non-images with image
+names, odd names, link tricks, FIFOs) goes through protect_file and through a real `ppd watch`.
+Each file ends protected or refused with a one-line error and untouched; nothing outside the
+outbox changes; the daemon survives."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from reliability_harness import (
+    DAEMON_ARGS,
+    HostileInput,
+    app_paths,
+    build_hostile_corpus,
+    check_invariants,
+    kill_daemon,
+    sha256,
+    start_daemon,
+    wait_for,
+)
+
+import daemon.protect
+from daemon.protect import AppContext, ProtectOutcome, protect_file
+from daemon.store import Store
+
+
+@pytest.fixture
+def ctx(ppd_env: dict[str, Path]) -> Iterator[AppContext]:
+    context = AppContext.open()
+    yield context
+    context.close()
+
+
+def _fingerprint(path: Path) -> str | None:
+    """sha256 of a regular file, else a description of what is there (links are not followed)."""
+    if path.is_symlink():
+        return f"symlink -> {os.readlink(path)}"
+    if path.is_file():
+        return sha256(path)
+    return "folder" if path.is_dir() else ("other" if os.path.lexists(path) else None)
+
+
+def _outside_fingerprints(outside: Path) -> dict[Path, str | None]:
+    return {p: _fingerprint(p) for p in sorted(outside.rglob("*"))}
+
+
+def _judge(item: HostileInput, before: str | None, state: str | None, reason: str | None) -> str | None:
+    """What is wrong with how this input was handled (None: as expected)."""
+    after = _fingerprint(item.path)
+    if state == "failed" and (not reason or "\n" in reason):
+        return f"{item.what}: failure without a one-line reason: {reason!r}"
+    if item.expect == "protected" and state != "protected":
+        return f"{item.what}: expected protected, got {state} ({reason})"
+    if item.expect == "refused" and state != "failed":
+        return f"{item.what}: expected a refusal, got {state}"
+    if item.expect == "either" and state not in ("protected", "failed"):
+        return f"{item.what}: expected protected or refused, got {state}"
+    if state != "protected" and after != before:
+        return f"{item.what}: not protected, yet changed on disk"
+    if state == "protected" and after == before:
+        return f"{item.what}: protected, yet unchanged on disk"
+    return None
+
+
+def test_hostile_corpus_through_protect_file(ctx: AppContext, tmp_path: Path) -> None:
+    outside = tmp_path / "outside"
+    items = build_hostile_corpus(ctx.paths.outbox / "hostile", outside)
+    before = {item.path: _fingerprint(item.path) for item in items}
+    outside_before = _outside_fingerprints(outside)
+    problems = []
+    for item in items:
+        outcome: ProtectOutcome = protect_file(item.path, ctx)  # never raises, whatever the input
+        state = outcome.state if item.expect != "left" or outcome.state != "skipped" else None
+        if item.expect == "left":
+            if outcome.state == "protected" or _fingerprint(item.path) != before[item.path]:
+                problems.append(f"{item.what}: was touched ({outcome.state})")
+            continue
+        if (problem := _judge(item, before[item.path], state, outcome.reason)) is not None:
+            problems.append(problem)
+    assert problems == []
+    assert _outside_fingerprints(outside) == outside_before  # links never lead ppd out
+    assert len(items) >= 50
+
+
+def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
+    paths = app_paths(tmp_path)
+    daemon = start_daemon(tmp_path, *DAEMON_ARGS)
+    outside = tmp_path / "outside"
+    try:
+        staged = build_hostile_corpus(tmp_path / "stage" / "hostile", outside)
+        before_staged = {item.path: _fingerprint(item.path) for item in staged}
+        outside_before = _outside_fingerprints(outside)
+        os.rename(tmp_path / "stage" / "hostile", paths.outbox / "hostile")  # moved in as one folder
+        moved = [paths.outbox / i.path.relative_to(tmp_path / "stage") for i in staged]
+        items = [dataclasses.replace(i, path=p) for i, p in zip(staged, moved, strict=True)]
+        before = {item.path: before_staged[old.path] for item, old in zip(items, staged, strict=True)}
+        expected_rows = [i for i in items if i.expect != "left"]
+        store = Store(paths.db_path)
+
+        def all_decided() -> bool:
+            rows = {r["path"]: r["state"] for r in store.files("hostile")}
+            return all(rows.get(str(i.path)) in ("protected", "failed") for i in expected_rows)
+
+        wait_for(all_decided, 120, "every hostile input protected or refused")
+        assert daemon.proc.poll() is None, "the daemon died"
+        rows = {r["path"]: r for r in store.files("hostile")}
+        store.close()
+    finally:
+        code = kill_daemon(daemon, signal.SIGTERM)
+    assert code == 0
+    problems = []
+    for item in items:
+        row = rows.get(str(item.path))
+        if item.expect == "left":
+            touched = row is not None and row["state"] == "protected"
+            if touched or _fingerprint(item.path) != before[item.path]:
+                problems.append(f"{item.what}: was touched")
+            continue
+        if (problem := _judge(item, before[item.path], row["state"], row["error"])) is not None:
+            problems.append(problem)
+    assert problems == []
+    assert _outside_fingerprints(outside) == outside_before
+    log = daemon.log.read_text(errors="replace")
+    assert "Traceback" not in log and "worker job failed" not in log, log[-3000:]
+    originals = {i.path: before[i.path] for i in items if i.expect != "left" and i.path.is_file()}
+    assert check_invariants(paths, originals) == []
+
+
+def _replace_after_poisoning(monkeypatch: pytest.MonkeyPatch, replace: Callable[[Path], None]) -> None:
+    """Make a concurrent writer act at the worst instant: right after the poisoned temporary
+    file is complete, before protect_file re-checks the source and renames."""
+    real = daemon.protect.poison_to
+
+    def poison_then_replace(kind: str, src: Path, dst: Path, *args: object, **kw: object) -> object:
+        result = real(kind, src, dst, *args, **kw)
+        replace(src)
+        return result
+
+    monkeypatch.setattr(daemon.protect, "poison_to", poison_then_replace)
+
+
+@pytest.mark.parametrize("how", ["rename-over", "rewrite-in-place", "symlink-swap"])
+def test_file_replaced_mid_processing_is_left_as_the_user_made_it(
+    ctx: AppContext, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, how: str
+) -> None:
+    from reliability_harness import write_image
+
+    target = write_image(ctx.paths.outbox / "race" / "a.png", seed=1)
+    newer = write_image(tmp_path / "newer.png", seed=2)
+    secret = write_image(tmp_path / "secret.png", seed=3)
+    secret_sha = sha256(secret)
+
+    def replace(src: Path) -> None:
+        if how == "rename-over":
+            os.replace(newer, src)
+        elif how == "rewrite-in-place":
+            src.write_bytes(newer.read_bytes())
+        else:
+            src.unlink()
+            src.symlink_to(secret)
+
+    expected_now = _fingerprint(newer) if how != "symlink-swap" else f"symlink -> {secret}"
+    _replace_after_poisoning(monkeypatch, replace)
+    outcome = protect_file(target, ctx)
+    assert outcome.state == "failed" and "changed while being protected" in outcome.reason
+    assert _fingerprint(target) == expected_now  # the user's version, not clobbered
+    assert sha256(secret) == secret_sha
+    assert not list(target.parent.glob(".ppd-tmp-*"))
+    monkeypatch.undo()
+    again = protect_file(target, ctx)
+    if how == "symlink-swap":
+        assert again.state == "failed" and "symlink" in again.reason and sha256(secret) == secret_sha
+    else:
+        assert again.state == "protected" and again.original_sha256 == expected_now
+
+
+def test_name_that_is_not_utf8_is_refused_with_a_clear_reason(
+    ctx: AppContext, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Before the fix: a raw UnicodeEncodeError from SQLite as the reason, no row, and a
+    traceback logged for the failure to record it."""
+    from reliability_harness import write_image
+
+    folder = ctx.paths.outbox / "names"
+    good = write_image(folder / "plain.png", seed=1)
+    odd = Path(os.fsdecode(os.fsencode(folder) + b"/caf\xe9.png"))
+    odd.write_bytes(good.read_bytes())
+    before = sha256(odd)
+    with caplog.at_level("WARNING"):
+        outcome = protect_file(odd, ctx)
+    assert outcome.state == "failed"
+    assert outcome.reason.startswith("caf\\udce9.png: the file name is not valid UTF-8")
+    assert sha256(odd) == before
+    assert "Traceback" not in caplog.text and "could not record" not in caplog.text
+    assert protect_file(good, ctx).state == "protected"  # the store still works
+
+
+def test_newline_in_a_name_does_not_cut_the_reason(ctx: AppContext) -> None:
+    """Before the fix the reason was the part of the name before the newline."""
+    bad = ctx.paths.outbox / "names" / "two\nlines.jpg"
+    bad.parent.mkdir(parents=True)
+    bad.write_bytes(b"not a photo")
+    outcome = protect_file(bad, ctx)
+    assert outcome.state == "failed" and "\n" not in outcome.reason
+    assert outcome.reason.startswith("two\\nlines.jpg") and "not a recognised image" in outcome.reason
+    assert ctx.store.file(bad)["error"] == outcome.reason
