@@ -25,6 +25,7 @@ def _main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Debug log
 COMMAND_MODULES = (
     "daemon.cli_poison", "daemon.cli_watch", "daemon.cli_demo", "verifier.cli",
     "daemon.cli_auto",  # automatic mode (issue 9)
+    "daemon.cli_experiment",  # `ppd experiment`, `ppd report` (issue 7)
 )  # fmt: skip
 
 

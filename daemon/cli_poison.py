@@ -361,7 +361,7 @@ def preview(
             if row is not None and row["state"] == "protected" and not options.given():
                 spec = ctx.store.get_spec(row["spec_id"])
                 original, poisoned = load(ctx.vault.path_for(row["original_sha256"])), load(file)
-                placement = spec.resolve(original.shape[1], original.shape[0])
+                placement = spec.resolve(original.shape[1], original.shape[0], image_key=file.name)
             else:
                 base = ctx.config.spec
                 if file.is_relative_to(ctx.paths.outbox.absolute()):
@@ -369,7 +369,7 @@ def preview(
                     base = ctx.store.dataset_spec(name) or ctx.config.spec_for(name)
                 spec = options.build(base)
                 original = load(file)
-                poisoned, placement = poison_array(original, spec)
+                poisoned, placement = poison_array(original, spec, image_key=file.name)
             image = render_preview(original, poisoned, placement)
         except (SpecError, ValueError) as exc:
             raise _die(str(exc).splitlines()[0]) from None
@@ -420,6 +420,8 @@ def verdict_text(profile: str, v: dict[str, Any]) -> str:
 
 
 def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
+    from daemon.auto import status_text as auto_status_text  # light: no torch, no pycolmap
+
     row = ctx.store.dataset(name)
     if row is None:
         raise _die(f"no dataset {name!r}")
@@ -434,6 +436,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "spec_id": row["spec_id"],
         "spec": spec.to_dict() if spec else None,
         "spec_summary": spec_summary(spec) if spec else None,
+        "auto": auto_status_text(ctx, name),  # automatic mode's decision in force (None: not decided)
         "counts": ctx.store.counts(name),
         "last_verification": None
         if latest is None
@@ -488,8 +491,10 @@ def status(
             verdicts = d["verdicts"]
             verified = "never" if v is None else "\n".join(verdict_text(p, x) for p, x in verdicts.items())
             counts = [str(c[k]) for k in ("files", "protected", "pending", "failed", "restored")]
-            table.add_row(d["name"], *counts, d["spec_summary"] or "-", verified)
+            spec_text = "\n".join(x for x in (d["spec_summary"] or "-", d["auto"]) if x)
+            table.add_row(d["name"], *counts, spec_text, verified)
         console.print(table)
+        _print_report_links(ctx, names)
         for d in report:
             if d["regression"]:
                 err_console.print(
@@ -499,6 +504,16 @@ def status(
                 )
     finally:
         ctx.close()
+
+
+def _print_report_links(ctx: AppContext, names: list[str]) -> None:
+    """One line per dataset that has a report (`ppd report DATASET` writes it)."""
+    from verifier.report import report_path  # light: no torch, no pycolmap
+
+    for name in names:
+        path = report_path(ctx.paths, name)
+        if path.is_file():
+            console.print(f"report {name}: file://{path}")
 
 
 # ---- ppd dataset ---------------------------------------------------------------------------

@@ -214,6 +214,9 @@ def test_escalation_moves_to_next_candidate_then_says_none_is_left(
     assert latest["candidate"] is None and latest["spec_id"] is None
     assert latest["reason"].startswith(daemon_auto.NO_CANDIDATE)
     assert daemon_auto.status_text(ctx, "trip") == f"auto: {daemon_auto.NO_CANDIDATE} (escalation)"
+    from daemon.cli_poison import dataset_status  # what `ppd status` shows per dataset
+
+    assert dataset_status(ctx, "trip")["auto"] == f"auto: {daemon_auto.NO_CANDIDATE} (escalation)"
     assert any(e["kind"] == "auto_no_candidate" for e in ctx.store.events("trip"))
     assert ctx.store.dataset_spec("trip") == B.spec  # keeps the best it has; never unprotected
 

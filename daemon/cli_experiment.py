@@ -1,0 +1,173 @@
+"""`ppd experiment` (the paper's ablations and baselines) and `ppd report` (self-contained HTML).
+
+Light at import (typer, rich only): verifier.experiment/plots/report load inside the commands;
+SfM and splat training run in child processes, LPIPS (torch) loads only when cost2 is measured.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import typer
+from rich.console import Console
+
+console = Console()
+err_console = Console(stderr=True)
+
+SHARED_DATASETS = ("lego", "nerf_synthetic_lego")
+
+
+def _die(message: str, code: int = 2) -> typer.Exit:
+    err_console.print(f"[bold red]error:[/] {message}")
+    return typer.Exit(code)
+
+
+def _safe_name(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "experiment"
+
+
+def resolve_dataset(dataset: str, views: int) -> tuple[Path, Path | None, str]:
+    """(clean image folder, ground truth or None, a short name). A folder, or the shared lego set
+    (first `views` views composited on white by bench.bench_verify.prepare_lego, GT included)."""
+    path = Path(dataset).expanduser()
+    if path.is_dir():
+        return path, None, _safe_name(path.resolve().name)
+    if dataset in SHARED_DATASETS:
+        try:
+            from bench.bench_verify import SHARED, prepare_lego
+        except ImportError as exc:
+            raise _die(
+                f"{dataset}: the shared-dataset helper (bench/) is not importable here: {exc}"
+            ) from None
+        if not SHARED.is_dir():
+            raise _die(f"{dataset}: shared datasets not found at {SHARED}")
+        clean, gt, _ = prepare_lego(views)
+        return clean, gt, f"lego{views}"
+    raise _die(f"{dataset}: not a folder of images, and not a shared dataset ({', '.join(SHARED_DATASETS)})")
+
+
+def experiment(
+    dataset: str = typer.Argument(..., help="A folder of clean images, or 'lego' (the shared NeRF set)."),
+    sweep: list[str] = typer.Option(
+        [], "--sweep", help="NAME=V1,V2,... one parameter at a time from P=100 b=4 α=1 (repeatable)."
+    ),
+    baselines: bool = typer.Option(
+        False, "--baselines", help="Add blur 11, noise 10, JPEG 25, rotation 15°."
+    ),
+    baseline: list[str] = typer.Option(
+        [], "--baseline", help="KIND=V1,V2 (e.g. blur=3,7,11,21), repeatable."
+    ),
+    runs: int = typer.Option(1, "--runs", min=1, help="Seeds 0..runs-1 per setting."),
+    profile: list[str] = typer.Option(["default"], "--profile", help="Verifier I profile(s)."),
+    splat: bool = typer.Option(False, "--splat/--no-splat", help="Verifier II cost1 (trains two splats)."),
+    splat_budget: float = typer.Option(150.0, "--splat-budget", help="Training seconds per splat side."),
+    gt: Path | None = typer.Option(None, "--gt", help="Ground truth (transforms.json or gt_dense_cameras/)."),
+    camera_params: str | None = typer.Option(
+        None, "--camera-params", help="Known intrinsics fx,fy,cx,cy,..."
+    ),
+    lpips_images: int = typer.Option(8, "--lpips-images", help="cost2 LPIPS on this many images (0 = all)."),
+    views: int = typer.Option(40, "--views", help="Views of a shared dataset."),
+    out: Path | None = typer.Option(
+        None, "--out", help="Experiment folder (default: data dir/experiments/NAME)."
+    ),
+) -> None:
+    """Run the paper's ablations/baselines through Verifier I (and II); resumable; CSV + Markdown + plots."""
+    from daemon.paths import AppPaths
+    from verifier.experiment import (
+        DEFAULT_BASELINES,
+        ExperimentError,
+        ExperimentOptions,
+        aggregate,
+        build_settings,
+        parse_baseline,
+        parse_sweep,
+        run_experiment,
+    )
+
+    try:
+        sweeps = [parse_sweep(s) for s in sweep]
+        extra = [b for text in baseline for b in parse_baseline(text)]
+    except ExperimentError as exc:
+        raise _die(str(exc)) from None
+    base_list = (list(DEFAULT_BASELINES) if baselines else []) + extra
+    if not sweeps and not base_list:
+        raise _die("nothing to run: give --sweep NAME=V1,V2 and/or --baselines / --baseline KIND=V")
+    clean, shared_gt, name = resolve_dataset(dataset, views)
+    exp_dir = out or AppPaths.from_env().data_dir / "experiments" / name
+    options = ExperimentOptions(
+        runs=runs,
+        profiles=tuple(profile),
+        splat=splat,
+        # the splat's own cost2 at 200 px: the harness measures cost2 at full size itself
+        splat_options={
+            "long_edge": 200,
+            "iterations": 1500,
+            "time_budget_s": splat_budget,
+            "cost2_long_edge": 200,
+        },
+        camera_params=camera_params,
+        ground_truth=gt or shared_gt,
+        cost2_lpips_images=lpips_images,
+    )
+    try:
+        settings = build_settings(sweeps, base_list)
+        result = run_experiment(clean, exp_dir, settings, options, progress=lambda m: console.print(m))
+    except ExperimentError as exc:
+        raise _die(str(exc)) from None
+    write_plots(exp_dir, aggregate(result.rows))
+    report = _write_folder_report(exp_dir)
+    console.print(
+        f"{result.ran} setting-runs computed, {result.skipped} already done, in {result.seconds:.0f} s\n"
+        f"CSV {result.csv_path}\nMarkdown {result.table_path}\nreport {report}"
+    )
+
+
+def write_plots(exp_dir: Path, entries: list[dict]) -> list[Path]:
+    from verifier.plots import parameter_pngs, tradeoff_png
+
+    written = [exp_dir / "tradeoff.png"]
+    written[0].write_bytes(tradeoff_png(entries))
+    for param, png in parameter_pngs(entries).items():
+        path = exp_dir / f"param_{param}.png"
+        path.write_bytes(png)
+        written.append(path)
+    return written
+
+
+def _write_folder_report(folder: Path, out: Path | None = None) -> Path:
+    from verifier.report import build_report, write_report
+
+    return write_report(build_report(str(folder)), out or folder / "report.html")
+
+
+def report(
+    source: str = typer.Argument(
+        ..., help="A daemon dataset, a verification folder, or an experiment folder."
+    ),
+    out: Path | None = typer.Option(None, "--out", help="HTML file (default: the dataset's latest.html)."),
+) -> None:
+    """Write a self-contained HTML report: verdict, reasons, history, metrics, trajectories, previews."""
+    from verifier.report import ReportError, build_report, report_path, write_report
+
+    path = Path(source).expanduser()
+    try:
+        if path.is_dir():
+            written = write_report(build_report(str(path)), out or path / "report.html")
+        else:
+            from daemon.cli_poison import _open_ctx
+
+            ctx = _open_ctx()
+            try:
+                data = build_report(source, ctx)
+                written = write_report(data, out or report_path(ctx.paths, source))
+            finally:
+                ctx.close()
+    except (ReportError, OSError, ValueError) as exc:
+        raise _die(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+    console.print(f"report written: {written}  (file://{written.resolve()})")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("experiment")(experiment)
+    app.command("report")(report)

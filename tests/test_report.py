@@ -1,0 +1,227 @@
+"""HTML reports (issue 7): self-contained pages with the verdict, history, tables, trajectories and the
+patch preview; the real Store/Vault/protect_file for a daemon dataset; headless Chromium loads the page
+with no console error and its screenshot shows the verdict banner."""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from poisoner.spec import PatchSpec
+from verifier import report as rp
+from verifier.poses import poses_to_json
+
+
+# ---- fixtures -----------------------------------------------------------------------------------
+def _ring_poses(n: int, twist_deg: float = 0.0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    out = {}
+    for i in range(n):
+        a = np.radians(360 * i / n + (twist_deg * i if twist_deg else 0))
+        r = np.array([[np.cos(a), 0, -np.sin(a)], [0, 1, 0], [np.sin(a), 0, np.cos(a)]])
+        centre = np.array([4 * np.sin(a), 0.3 * i, -4 * np.cos(a)])
+        out[f"v{i}.png"] = (r, -r @ centre)
+    return out
+
+
+def _profile_dir(folder: Path, profile: str, verdict: str) -> Path:
+    """What verify_folders leaves: <profile>/{clean,poisoned}/result.json and <profile>/report.json."""
+    d = folder / profile
+    for side, poses in (("clean", _ring_poses(8)), ("poisoned", _ring_poses(8, twist_deg=7))):
+        (d / side).mkdir(parents=True)
+        (d / side / "result.json").write_text(json.dumps({"outcome": "ok", "poses": poses_to_json(poses)}))
+    report = {
+        "profile": profile,
+        "verdict": verdict,
+        "reasons": [f"{profile}: 0% of cameras within 5 deg"],
+        "clean": {"outcome": "ok", "registered": 8, "num_images": 8},
+        "poisoned": {"outcome": "ok", "registered": 8, "num_images": 8},
+        "vs_clean": {"frac_within_5deg": 0.0, "median_rotation_error_deg": 31.5},
+        "model_dir": str(d),
+    }
+    (d / "report.json").write_text(json.dumps(report))
+    return d
+
+
+def _srcs(page: str) -> list[str]:
+    return re.findall(r'(?:src|href)="([^"]*)"', page)
+
+
+# ---- the page -----------------------------------------------------------------------------------
+def test_page_is_self_contained_and_shows_the_verdict(tmp_path: Path) -> None:
+    _profile_dir(tmp_path / "run", "default", "protected")
+    data = rp.build_report(str(tmp_path / "run"))
+    assert data.verdict == "protected"
+    page = rp.render_html(data)
+    assert rp.VERDICT_COLOURS["protected"] in page and 'data-verdict="protected"' in page
+    assert "default: 0% of cameras within 5 deg" in page  # the reasons
+    assert "<script" not in page.lower() and "http://" not in page and "https://" not in page
+    srcs = _srcs(page)
+    assert srcs and all(s.startswith("data:image/png;base64,") for s in srcs)
+    assert any("Camera trajectories" in f.caption for f in data.figures)
+
+
+def test_weakest_profile_decides_and_no_verdict_without_one(tmp_path: Path) -> None:
+    _profile_dir(tmp_path / "run", "default", "protected")
+    _profile_dir(tmp_path / "run", "hardened", "not_protected")
+    page = rp.render_html(rp.build_report(str(tmp_path / "run")))
+    assert 'data-verdict="not_protected"' in page and rp.VERDICT_COLOURS["protected"] not in page
+    empty = rp.render_html(rp.ReportData(title="t", verdict=None))
+    assert "data-verdict" not in empty and not any(c in empty for c in rp.VERDICT_COLOURS.values())
+
+
+def test_nothing_to_report_is_a_clear_error(tmp_path: Path) -> None:
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(rp.ReportError, match="no report.json"):
+        rp.build_report(str(tmp_path / "empty"))
+    with pytest.raises(rp.ReportError, match="no daemon store"):
+        rp.build_report(str(tmp_path / "nowhere"))
+
+
+def test_experiment_folder_report(tmp_path: Path) -> None:
+    from verifier import experiment as ex
+
+    exp = tmp_path / "exp"
+    exp.mkdir()
+    model = _profile_dir(tmp_path / "models", "default", "protected")
+    for i, (kind, label, ssim) in enumerate([("clean", "clean", 1.0), ("patch", "P=12 b=4", 0.9996),
+                                             ("patch", "P=48 b=4", 0.995)]):  # fmt: skip
+        ex.append_row(exp / ex.RESULTS_NAME, {
+            "setting_id": f"s{i}", "run": 0, "kind": kind, "label": label,
+            "groups": ["clean"] if kind == "clean" else ["patch_size"],
+            "params": {} if kind == "clean" else {"patch_size": int(label[2:4])},
+            "cost2": {"ssim": ssim, "psnr": 40.0 - i}, "within5_of_clean": 1.0 - 0.5 * i,
+            "verdict": "protected",
+            "profiles": {"default": {"model_dir": str(model)}},
+        })  # fmt: skip
+    data = rp.build_report(str(exp))
+    assert data.verdict is None
+    captions = " ".join(f.caption for f in data.figures)
+    assert "Trade-off" in captions and "patch_size" in captions and "Camera trajectories" in captions
+    assert [r[0] for r in data.tables[0].rows] == ["clean", "P=12 b=4", "P=48 b=4"]
+
+
+# ---- a daemon dataset, real Store / Vault / protect_file ------------------------------------------
+def _protected_dataset(ppd_env: dict[str, Path], tmp_path: Path) -> Any:
+    from daemon.protect import AppContext, protect_file
+
+    ctx = AppContext.open()
+    trip = ppd_env["outbox"] / "trip"
+    trip.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        Image.fromarray(rng.integers(0, 256, (200, 240, 3), dtype=np.uint8)).save(trip / f"v{i}.png")
+        assert protect_file(trip / f"v{i}.png", ctx).state == "protected"
+    run_dir = ctx.paths.runs_dir / "trip" / "20260101T000000-abcdef"
+    for profile, verdict, t in (("default", "protected", 100.0), ("hardened", "not_protected", 101.0)):
+        d = _profile_dir(run_dir, profile, verdict)
+        ctx.store.add_verification_run(
+            "trip", profile, verdict,
+            {"reasons": [f"{profile} reason"], "vs_clean": {"frac_within_5deg": 0.5}},
+            t - 50, t, str(d), None,
+        )  # fmt: skip
+    return ctx
+
+
+def test_dataset_report_with_the_real_store(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    ctx = _protected_dataset(ppd_env, tmp_path)
+    try:
+        data = rp.build_dataset_report(ctx, "trip")
+        assert data.verdict == "not_protected"  # the weakest profile of the latest run
+        assert data.reasons == {"hardened": ["hardened reason"], "default": ["default reason"]}
+        history = next(t for t in data.tables if t.title.startswith("Verification history"))
+        assert [r[1] for r in history.rows] == ["hardened", "default"]  # newest first
+        captions = [f.caption for f in data.figures]
+        assert sum("Camera trajectories" in c for c in captions) == 2
+        preview = next(f for f in data.figures if f.caption.startswith("Patch preview"))
+        assert Image.open(io.BytesIO(preview.png)).size[0] > 200
+        with pytest.raises(rp.ReportError, match="no dataset"):
+            rp.build_dataset_report(ctx, "elsewhere")
+    finally:
+        ctx.close()
+
+
+def test_cli_report_and_status_link(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from daemon.cli import app
+
+    _protected_dataset(ppd_env, tmp_path).close()
+    runner = CliRunner()
+    result = runner.invoke(app, ["report", "trip"])
+    assert result.exit_code == 0, result.output
+    latest = ppd_env["data"] / "reports" / "trip" / "latest.html"
+    assert latest.is_file() and 'data-verdict="not_protected"' in latest.read_text()
+    status = runner.invoke(app, ["status"])
+    assert status.exit_code == 0, status.output
+    assert f"file://{latest}" in status.output.replace("\n", "")
+    bad = runner.invoke(app, ["report", "no-such-dataset"])
+    assert bad.exit_code == 2 and "no dataset" in bad.output
+
+
+# ---- headless Chromium --------------------------------------------------------------------------
+def _chromium() -> str:
+    exe = shutil.which("chromium") or shutil.which("chromium-browser")
+    if exe is None:
+        pytest.skip("no chromium binary (scripts/setup.d/chromium.sh installs Debian's chromium)")
+    return exe
+
+
+def load_in_chromium(page: Path, shot: Path, profile: Path) -> list[str]:
+    """Load a page headless; return its console lines (errors, failed loads, any console output)."""
+    proc = subprocess.run(
+        [_chromium(), "--headless=new", "--no-sandbox", "--disable-gpu", "--enable-logging=stderr", "--v=0",
+         "--virtual-time-budget=3000", f"--screenshot={shot}", "--window-size=1280,1000",
+         f"--user-data-dir={profile}", "--no-first-run", page.resolve().as_uri()],
+        capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+    assert shot.is_file(), proc.stderr[-2000:]
+    return [line for line in proc.stderr.splitlines() if ":CONSOLE" in line]
+
+
+def _colour_pixels(png: Path, hex_colour: str) -> int:
+    img = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    rgb = np.array([int(hex_colour[i : i + 2], 16) for i in (1, 3, 5)])
+    return int((np.abs(img - rgb).max(axis=-1) <= 2).sum())
+
+
+def test_chromium_loads_the_report_cleanly_and_shows_the_verdict(tmp_path: Path) -> None:
+    _chromium()
+    _profile_dir(tmp_path / "run", "default", "protected")
+    page = rp.write_report(rp.build_report(str(tmp_path / "run")), tmp_path / "report.html")
+    console = load_in_chromium(page, tmp_path / "shot.png", tmp_path / "chrome1")
+    assert console == []
+    green = rp.VERDICT_COLOURS["protected"]
+    assert _colour_pixels(tmp_path / "shot.png", green) > 20_000  # the banner, clearly visible
+
+    # the detector catches a broken page, and a page without a verdict has no banner colour
+    broken = tmp_path / "broken.html"
+    broken.write_text(page.read_text().replace("</body>", "<script>notDefinedAnywhere();</script></body>"))
+    assert any(
+        "notDefinedAnywhere" in line for line in load_in_chromium(broken, tmp_path / "b.png", tmp_path / "c2")
+    )
+    plain = rp.write_report(rp.ReportData(title="no verdict", verdict=None), tmp_path / "plain.html")
+    assert load_in_chromium(plain, tmp_path / "p.png", tmp_path / "c3") == []
+    assert _colour_pixels(tmp_path / "p.png", green) == 0
+
+
+def test_report_of_a_patch_spec_has_a_preview_size_that_fits(tmp_path: Path) -> None:
+    a = np.full((120, 160, 3), 200, np.uint8)
+    from poisoner.blend import poison_array
+
+    b, _ = poison_array(a, PatchSpec(patch_size=24, block_size=4))
+    Image.fromarray(a).save(tmp_path / "a.png")
+    Image.fromarray(b).save(tmp_path / "b.png")
+    fig = rp.patch_preview_figure(
+        tmp_path / "a.png", tmp_path / "b.png", PatchSpec(patch_size=24, block_size=4)
+    )
+    assert fig is not None and Image.open(io.BytesIO(fig.png)).size[0] >= 2 * 160
+    assert rp.patch_preview_figure(tmp_path / "a.png", tmp_path / "missing.png", PatchSpec()) is None
