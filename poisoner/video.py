@@ -704,6 +704,11 @@ def poison_video(
         pix_fmt=info.pix_fmt,
         source_bit_rate=info.bit_rate,
     )
+    if spec.moves:  # docs/DESIGNS.md: per-frame motion is not implemented for video yet
+        report.notes.append(
+            "moving spec: the patch stays at its first position in every frame of a video "
+            "(COLMAP's stationary-match filter can remove it from extracted frames)"
+        )
     target = intended_contrast(placement)
     attempts = 0
     shift = 0

@@ -342,6 +342,15 @@ def test_ratio_patches_only_selected_frames(tmp_path: Path) -> None:
         assert (ratio >= 0.8) if chosen else (abs(ratio) < 0.5), f"frame {i}"
 
 
+def test_moving_spec_says_the_video_patch_stays_put(tmp_path: Path) -> None:
+    """Per-frame motion is not implemented for video: the report must say so, not hide it."""
+    spec = SPEC.replace(motion="drift", motion_step=4, motion_span=40)
+    src = make_clip(tmp_path / "clip.mp4", Clip(frames=6, audio=None))
+    report = poison_video(src, tmp_path / "out.mp4", spec)
+    assert any("moving spec" in n for n in report.notes)
+    assert not any("moving spec" in n for n in poison_video(src, tmp_path / "o2.mp4", SPEC).notes)
+
+
 # ---- frame sets ---------------------------------------------------------------------------
 
 
