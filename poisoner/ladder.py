@@ -46,62 +46,43 @@ _OFFSET = (0.15, 0.15)
 _SPAN = 0.25  # fits 0.15 + 0.10 + 0.25 <= 0.5625: every rung fits a 16:9 landscape frame
 
 
+def _drifting(pattern: str, size: float, step: float) -> PatchSpec:
+    """A ladder rung: `pattern` at `size` (fraction of the width), 0.5% blocks, drifting inward."""
+    return PatchSpec(
+        pattern=pattern,
+        patch_size=size,
+        block_size=0.005,
+        offset=_OFFSET,
+        motion="drift",
+        motion_step=step,
+        motion_span=_SPAN,
+    )
+
+
 def candidate_ladder() -> list[Candidate]:
     """Concrete candidates ordered from least to most visible by design intent."""
     return [
         Candidate(
             name="texture-6pct-drift",
-            spec=PatchSpec(
-                pattern="random_blocks",
-                patch_size=0.06,
-                block_size=0.005,
-                offset=_OFFSET,
-                motion="drift",
-                motion_step=0.0075,
-                motion_span=_SPAN,
-            ),
+            spec=_drifting("random_blocks", 0.06, 0.0075),
             why="non-repetitive texture, the paper's size (P=6% of width, b=0.5%), moving 0.75% of "
             "the width per image: beats COLMAP's stationary filter on object sets (issue #9 probe)",
         ),
         Candidate(
             name="multiscale-6pct-drift",
-            spec=PatchSpec(
-                pattern="multiscale_blocks",
-                patch_size=0.06,
-                block_size=0.005,
-                offset=_OFFSET,
-                motion="drift",
-                motion_step=0.0075,
-                motion_span=_SPAN,
-            ),
+            spec=_drifting("multiscale_blocks", 0.06, 0.0075),
             why="same size and motion, corners at three scales: keypoints that survive COLMAP's "
             "8192-feature cap and a platform downscale",
         ),
         Candidate(
             name="multiscale-8pct-drift",
-            spec=PatchSpec(
-                pattern="multiscale_blocks",
-                patch_size=0.08,
-                block_size=0.005,
-                offset=_OFFSET,
-                motion="drift",
-                motion_step=0.013,
-                motion_span=_SPAN,
-            ),
+            spec=_drifting("multiscale_blocks", 0.08, 0.013),
             why="the largest opaque patch within SSIM 0.99 on 3:2 photos (fountain-P11: 0.9905): "
             "more patch keypoints against a textured scene's votes",
         ),
         Candidate(
             name="multiscale-10pct-drift",
-            spec=PatchSpec(
-                pattern="multiscale_blocks",
-                patch_size=0.10,
-                block_size=0.005,
-                offset=_OFFSET,
-                motion="drift",
-                motion_step=0.013,
-                motion_span=_SPAN,
-            ),
+            spec=_drifting("multiscale_blocks", 0.10, 0.013),
             why="above the default budget on photos; for users who accept more visibility",
         ),
     ]
