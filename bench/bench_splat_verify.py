@@ -76,7 +76,7 @@ def _f(x: object, nd: int = 3) -> str:
     return "-" if x is None else (f"{x:.{nd}f}" if isinstance(x, float) else str(x))
 
 
-def write(report: dict, seconds: float, timing: dict, argv: str) -> None:
+def write(report: dict, seconds: float, timing: dict, argv: str, load_at_start: float) -> None:
     p = report["profiles"]["default"]
     sp = p.get("splat") or {}
     rows = []
@@ -93,8 +93,8 @@ def write(report: dict, seconds: float, timing: dict, argv: str) -> None:
     lines = [
         "# Full splat verification of 40 lego views",
         "",
-        f"Command: `{argv}` (2-core machine; other engineers' niced jobs were running: wall-clock figures"
-        " are upper bounds).",
+        f"Command: `{argv}` (2-core machine; load average when it started: {load_at_start:.2f}; "
+        "wall-clock figures include whatever else ran).",
         "",
         "| stage | seconds |",
         "|---|---|",
@@ -149,12 +149,14 @@ def main(argv: list[str] | None = None) -> None:
     shutil.rmtree(OUT, ignore_errors=True)
     options = VerifyOptions(ground_truth=gt, splat=True)
     options.splat_options.update(time_budget_s=args.budget, white_background=True)
+    load_at_start = os.getloadavg()[0]
     started = time.time()
     report = verify_folders(clean, poisoned, OUT, ["default"], options).to_dict()
     seconds = time.time() - started
     (OUT / "report_full.json").write_text(json.dumps(report, indent=1, default=str))
     timing = lpips_timing(clean, poisoned, args.lpips_pairs)
-    write(report, seconds, timing, "python -m bench.bench_splat_verify " + " ".join(sys.argv[1:]))
+    command = "python -m bench.bench_splat_verify " + " ".join(sys.argv[1:])
+    write(report, seconds, timing, command, load_at_start)
     print(f"wrote {RESULTS}: whole verification {seconds:.0f} s")
 
 
