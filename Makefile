@@ -11,7 +11,7 @@ demo: setup
 	$(VENV)/bin/ppd demo
 
 test: setup
-	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff check --no-cache .
 	$(PY) -m pytest
 
 # Everything, the slow integration tests on the shared datasets included.
@@ -19,7 +19,7 @@ test-all: setup
 	$(PY) -m pytest -m ''
 
 lint: setup
-	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff check --no-cache .
 
 bench:
 	PPD_SETUP_BENCH=1 bash scripts/setup.sh

@@ -39,10 +39,9 @@ from typing import TYPE_CHECKING, Any
 from poisoner.spec import PatchSpec
 
 if TYPE_CHECKING:
-    from poisoner.ladder import Candidate
-
     from daemon.config import Config
     from daemon.protect import AppContext
+    from poisoner.ladder import Candidate
 
 log = logging.getLogger(__name__)
 
