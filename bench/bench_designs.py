@@ -305,6 +305,19 @@ def _cell(p: dict[str, Any] | None) -> str:
     return f"{_pct(p.get('within5_clean'))} / {_pct(p.get('within5_gt'))} ({p.get('registered')})"
 
 
+def merge_records(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per (dataset, design, spec): a visibility-only record and SfM runs of some profiles
+    each add what they measured; a later record's profile result replaces an earlier one."""
+    merged: dict[tuple[str, str, str], dict[str, Any]] = {}
+    for r in rows:
+        key = (r["dataset"], r["design"], json.dumps(r["spec"], sort_keys=True))
+        m = merged.setdefault(key, {**r, "profiles": {}, "lpips_max": float("nan")})
+        m["profiles"].update(r["profiles"])
+        if r["lpips_max"] == r["lpips_max"]:  # not NaN (runs with --no-lpips leave it NaN)
+            m["lpips_max"] = r["lpips_max"]
+    return sorted(merged.values(), key=lambda r: (r["dataset"], r["design"]))
+
+
 def write_markdown() -> None:
     rows = [json.loads(line) for line in RESULTS_JSONL.read_text().splitlines() if line.strip()]
     lines = [
@@ -322,17 +335,8 @@ def write_markdown() -> None:
         "| dataset | design | placement | SSIM | LPIPS | default | hardened | published |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    measured_lpips = {
-        (r["dataset"], r["spec"].get("seed"), json.dumps(r["spec"], sort_keys=True)): r["lpips_max"]
-        for r in rows
-        if r["lpips_max"] == r["lpips_max"]
-    }  # not NaN
-    for r in sorted(rows, key=lambda r: (r["dataset"], r["design"], bool(r["profiles"]))):
+    for r in merge_records(rows):
         p = r["profiles"]
-        if r["lpips_max"] != r["lpips_max"]:  # run with --no-lpips: the visibility-only row's figure
-            r["lpips_max"] = measured_lpips.get(
-                (r["dataset"], r["spec"].get("seed"), json.dumps(r["spec"], sort_keys=True)), float("nan")
-            )
         lines.append(
             f"| {r['dataset']} | {r['design']} | {r['placement']} "
             f"| {r['ssim_min']:.4f} | {r['lpips_max']:.4f} "
