@@ -3,7 +3,8 @@
 Why a textured scene resists: every RANSAC and bundle adjustment is a vote, and the patch's
 keypoints are few next to the scene's. This measures that share directly, per design and
 dataset, with COLMAP's own SIFT (pycolmap 4.2.1, default extraction options: at most 8192
-features, images above 3200 px downscaled) on consecutive pairs of poisoned images:
+keypoint locations with up to 2 orientations each, so more than 8192 descriptors on large images;
+images above 3200 px downscaled) on consecutive pairs of poisoned images:
 
 - keypoints: the fraction of an image's kept keypoints inside its patch box, and the patch's share
   of the image area;
@@ -107,7 +108,8 @@ def main(argv: list[str] | None = None) -> None:
         "# How many of COLMAP's votes the patch gets (issue 9)",
         "",
         f"`python -m bench.bench_patch_votes {' '.join(argv if argv is not None else sys.argv[1:])}`: "
-        f"COLMAP's SIFT (pycolmap, default extraction) on the first {args.pairs + 1} poisoned images; "
+        f"COLMAP's SIFT (pycolmap, default extraction: 8192 keypoint locations, up to 2 orientations "
+        f"each, long edge <= 3200 px) on the first {args.pairs + 1} poisoned images; "
         "tentative matches = mutual nearest neighbours passing the 0.8 ratio test on consecutive pairs. "
         "scene : patch = how many scene matches stand against each patch match.",
         "",
