@@ -154,7 +154,10 @@ def main(argv: list[str] | None = None) -> None:
     rows = [r for r in load_rows(args.exp_dir / RESULTS_NAME) if r.get("config_id") == options.config_id()]
     setting_seconds = sum(float(r.get("seconds") or 0) for r in rows)
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    base = RESULTS.read_text().rstrip("\n") + "\n\n" if args.append and RESULTS.is_file() else ""
+    old = RESULTS.read_text() if RESULTS.is_file() else ""
+    base = old.rstrip("\n") + "\n\n" if args.append and old else ""
+    marker = "<!-- analysis below is kept across rewrites -->"
+    analysis = "" if base or marker not in old else "\n" + old[old.index(marker) :].rstrip("\n") + "\n"
     RESULTS.write_text(
         base
         + "\n".join(
@@ -181,6 +184,7 @@ def main(argv: list[str] | None = None) -> None:
             ]
         )
         + "\n"
+        + analysis
     )
     print(f"wrote {RESULTS} and {result.csv_path}")
 
