@@ -50,99 +50,59 @@ class Design:
     note: str
 
 
+def _moving(pattern: str, size: float, step: float, span: float = 0.5, motion: str = "drift",
+            offset: float = 0.125, **fields: Any) -> PatchSpec:  # fmt: skip
+    """A screening variant: `pattern` of `size` (fraction of the width) moving `step` per image."""
+    return PatchSpec(
+        pattern=pattern, patch_size=size, offset=(offset, offset), motion=motion, motion_step=step,
+        motion_span=span, **fields,
+    )  # fmt: skip
+
+
 def _designs() -> dict[str, Design]:
     """Every candidate the bench knows: the ladder's plus screening variants."""
     out = {c.name: Design(c.name, c.spec, c.why) for c in candidate_ladder()}
-    rb = PatchSpec(pattern="random_blocks")
+    ms = "multiscale_blocks"
     extra = [
         Design("paper-checkerboard-6pct", PatchSpec(), "the paper's design (reference)"),
         Design(
             "rb-6pct-static-in",
-            rb.replace(patch_size=0.06, offset=(0.125, 0.125)),
+            PatchSpec(pattern="random_blocks", patch_size=0.06, offset=(0.125, 0.125)),
             "random blocks, static, outside the 10% band",
         ),
         Design(
             "rb-6pct-drift-0.75pct",
-            rb.replace(
-                patch_size=0.06, offset=(0.125, 0.125), motion="drift", motion_step=0.0075, motion_span=0.5
-            ),
+            _moving("random_blocks", 0.06, 0.0075),
             "issue probe: random blocks moving 6 px/img on 800 px",
         ),
         Design(
             "ms-6pct-drift-0.75pct",
-            PatchSpec(
-                pattern="multiscale_blocks",
-                patch_size=0.06,
-                offset=(0.125, 0.125),
-                motion="drift",
-                motion_step=0.0075,
-                motion_span=0.5,
-            ),
+            _moving(ms, 0.06, 0.0075),
             "multi-scale random blocks moving 6 px/img on 800 px",
         ),
         Design(
             "rb-8pct-b1pct-drift-1.3pct",
-            rb.replace(
-                patch_size=0.08,
-                block_size=0.01,
-                offset=(0.125, 0.125),
-                motion="drift",
-                motion_step=0.013,
-                motion_span=0.5,
-            ),
+            _moving("random_blocks", 0.08, 0.013, block_size=0.01),
             "larger texture, coarser blocks (survive the 8192-feature cap), 40 px/img on 3072 px",
         ),
         Design(
             "ms-8pct-b0.5pct-drift-1.3pct",
-            PatchSpec(
-                pattern="multiscale_blocks",
-                patch_size=0.08,
-                block_size=0.005,
-                offset=(0.125, 0.125),
-                motion="drift",
-                motion_step=0.013,
-                motion_span=0.5,
-            ),
+            _moving(ms, 0.08, 0.013),
             "multi-scale blocks b, 2b, 4b: keypoints at several octaves",
         ),
         Design(
             "ms-8pct-orbit",
-            PatchSpec(
-                pattern="multiscale_blocks",
-                patch_size=0.08,
-                block_size=0.005,
-                offset=(0.15, 0.15),
-                motion="orbit",
-                motion_step=0.02,
-                motion_span=0.4,
-            ),
+            _moving(ms, 0.08, 0.02, span=0.4, motion="orbit", offset=0.15),
             "multi-scale blocks on a circular path (no back-and-forth stationary pairs)",
         ),
         Design(
             "ms-12pct-b0.5pct-drift",
-            PatchSpec(
-                pattern="multiscale_blocks",
-                patch_size=0.12,
-                block_size=0.005,
-                offset=(0.125, 0.125),
-                motion="drift",
-                motion_step=0.013,
-                motion_span=0.5,
-            ),
+            _moving(ms, 0.12, 0.013),
             "the largest multi-scale patch (SSIM limit on 3:2 photos)",
         ),
         Design(
             "ms-20pct-a0.35-drift",
-            PatchSpec(
-                pattern="multiscale_blocks",
-                patch_size=0.20,
-                block_size=0.005,
-                alpha=0.35,
-                offset=(0.125, 0.125),
-                motion="drift",
-                motion_step=0.013,
-                motion_span=0.4,
-            ),
+            _moving(ms, 0.20, 0.013, span=0.4, alpha=0.35),
             "larger but translucent: more keypoints per SSIM point?",
         ),
     ]
