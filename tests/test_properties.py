@@ -154,6 +154,18 @@ def test_fuzz_image_readers_only_raise_their_one_line_error(
     fuzz_image_reader(tmp_path, suffix, mutate(SEEDS[suffix], edits, cut))
 
 
+@pytest.mark.parametrize(
+    "edits",
+    [[(130, 1)], [(8, 255)], [(72, 7)]],
+    ids=["missing-dimensions", "bad-byte-order", "bytes-strip-offset"],
+)
+def test_corrupt_tiff_tags_that_make_pillow_raise_typeerror_are_refused(
+    tmp_path: Path, edits: list[tuple[int, int]]
+) -> None:
+    """Regressions the fuzz run found: Pillow raises TypeError on these one-byte TIFF corruptions."""
+    assert fuzz_image_reader(tmp_path, ".tif", mutate(SEEDS[".tif"], edits, None)) == "refused"
+
+
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.binary(max_size=2000), suffix=st.sampled_from([".png", ".jpg", ".webp", ".tif", ".heic"]))
 def test_fuzz_random_bytes_with_image_names(tmp_path: Path, data: bytes, suffix: str) -> None:
