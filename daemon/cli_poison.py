@@ -118,6 +118,10 @@ def spec_summary(spec: PatchSpec) -> str:
 
     text = f"{spec.pattern} {length(spec.patch_size)} block {length(spec.block_size)} α{spec.alpha:g}"
     text += f" Δc{spec.contrast} {spec.position}"
+    if any(spec.offset):
+        text += f" +({length(spec.offset[0])}, {length(spec.offset[1])})"
+    if spec.moves:
+        text += f" {spec.motion} {length(spec.motion_step)}/image"
     if spec.ratio < 1:
         text += f" ratio {spec.ratio:g}"
     return text

@@ -6,8 +6,11 @@ Every key is optional; what is missing comes from the embedded defaults below. L
     debounce_seconds = 2.0      # quiet time before a changed file is processed
     publish_dir = ""            # optional: protected files are moved here ("" = stay in the outbox)
 
-    [patch]                     # the default PatchSpec (poisoner.spec); sizes: 48, 0.06 or "6%"
-    patch_size = 0.06
+    [patch]                     # fields replaced on the default spec; sizes: 48, 0.06 or "6%"
+    patch_size = 0.06           # default: poisoner.ladder.default_spec(), a non-repetitive texture
+                                # of 6% of the width moving 0.75% per image (docs/DESIGNS.md);
+                                # the paper's static checkerboard: pattern = "checkerboard",
+                                # offset = [0, 0], motion = "static"
 
     [verification]
     enabled = true
@@ -45,6 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.paths import AppPaths
+from poisoner.ladder import default_spec
 from poisoner.spec import PatchSpec, SpecError
 
 
@@ -72,7 +76,7 @@ def parse_length(value: Any) -> int | float:
 
 
 def spec_from_table(table: dict[str, Any], base: PatchSpec | None = None) -> PatchSpec:
-    """A PatchSpec from a TOML table, on top of base (default: PatchSpec())."""
+    """A PatchSpec from a TOML table, on top of base (default: the product's default_spec())."""
     data = dict(table)
     for key in ("patch_size", "block_size"):
         if key in data:
@@ -83,7 +87,7 @@ def spec_from_table(table: dict[str, Any], base: PatchSpec | None = None) -> Pat
     unknown = set(data) - known
     if unknown:
         raise SpecError(f"unknown patch field(s): {', '.join(sorted(unknown))}")
-    return (base or PatchSpec()).replace(**data)
+    return (base or default_spec()).replace(**data)
 
 
 @dataclass(frozen=True)
@@ -142,7 +146,7 @@ class DatasetOverride:
 
 @dataclass(frozen=True)
 class Config:
-    spec: PatchSpec = field(default_factory=PatchSpec)
+    spec: PatchSpec = field(default_factory=default_spec)
     workers: int = 2
     debounce_seconds: float = 2.0
     publish_dir: Path | None = None

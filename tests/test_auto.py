@@ -10,6 +10,7 @@ import pytest
 from PIL import Image
 
 from poisoner.blend import poison_array
+from poisoner.ladder import default_spec
 from poisoner.spec import PatchSpec
 from verifier import auto
 from verifier.auto import (
@@ -31,6 +32,12 @@ from verifier.synthetic import SyntheticOptions, render_scene
 BIG = LadderEntry("big-static", PatchSpec(patch_size=0.4), "a large patch: far over any sensible budget")
 SMALL = PreflightOptions(sample_size=4)  # enough images to measure; SfM never runs with these
 PAPER = LadderEntry("paper-static", PatchSpec(), "the paper's checkerboard, 6% of the width, top-left")
+MOVING = LadderEntry("texture-drift", default_spec(), "ppd's default: random texture, moving")
+# An object on a plain backdrop (the lego case) with its true intrinsics: the verdicts below are
+# then the same on every run. With a textured backdrop the scene outvotes the patch, and with the
+# focal length left to COLMAP the paper's patch "protected" this render on some runs and not on
+# others (CI saw both).
+OBJECT = SyntheticOptions(num_views=12, backdrop="plain", arc_deg=90.0)
 
 
 def _textured(h: int, w: int, seed: int = 0) -> np.ndarray:
@@ -105,7 +112,7 @@ def test_sample_is_evenly_spaced_and_sfm_readable(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("scene") / "views"
-    render_scene(out, SyntheticOptions(num_views=12))
+    render_scene(out, OBJECT)
     return out
 
 
@@ -144,7 +151,8 @@ def test_preflight_end_to_end_with_real_colmap(scene: Path, tmp_path: Path) -> N
     measured, verified with real COLMAP and confirmed under the default profile."""
     images = sorted(scene.glob("*.png"))
     budget = VisibilityBudget(min_ssim=0.99, max_lpips=1.0)  # LPIPS measured, not the point here
-    decision = preflight(images, [BIG, PAPER], budget, PreflightOptions(profiles=("default",)), tmp_path)
+    options = PreflightOptions(profiles=("default",), camera_params=OBJECT.camera_params())
+    decision = preflight(images, [BIG, PAPER], budget, options, tmp_path)
     assert decision.chosen == "paper-static", decision.reason
     assert decision.spec == PAPER.spec
     big, paper = decision.evidence
@@ -157,17 +165,27 @@ def test_preflight_end_to_end_with_real_colmap(scene: Path, tmp_path: Path) -> N
 
 
 @pytest.mark.integration
-@pytest.mark.slow
-def test_two_profile_walk_stops_at_hardened_and_says_none_protects(scene: Path, tmp_path: Path) -> None:
-    """The paper's static patch: protected under default, not under hardened COLMAP; with both
-    profiles required nothing in this ladder qualifies, and the decision says so."""
+def test_two_profile_walk_passes_the_static_patch_and_chooses_the_moving_one(
+    scene: Path, tmp_path: Path
+) -> None:
+    """The paper's static patch: protected under default, not under hardened COLMAP (the stationary
+    filter removes it), so the walk goes on to the moving texture, which holds under both."""
     budget = VisibilityBudget(min_ssim=0.99, max_lpips=1.0)
-    both = preflight(sorted(scene.glob("*.png")), [PAPER], budget, PreflightOptions(), tmp_path)
-    (paper,) = both.evidence
+    options = PreflightOptions(camera_params=OBJECT.camera_params())
+    decision = preflight(sorted(scene.glob("*.png")), [PAPER, MOVING], budget, options, tmp_path)
+    paper, moving = decision.evidence
     assert paper.status == auto.NOT_PROTECTED
     assert paper.profiles["default"]["verdict"] == "protected"
     assert paper.profiles["hardened"]["verdict"] == "not_protected"
-    assert both.chosen is None and NO_CANDIDATE in both.reason
+    assert moving.status == auto.PROTECTED, moving.profiles
+    assert {p: v["verdict"] for p, v in moving.profiles.items()} == {
+        "default": "protected", "hardened": "protected"
+    }  # fmt: skip
+    assert decision.chosen == "texture-drift" and decision.spec == default_spec()
+    # the same ladder without the moving rung: nothing qualifies, and the decision says so
+    # (same work folder: the clean reconstructions are reused from its cache)
+    without = preflight(sorted(scene.glob("*.png")), [PAPER], budget, options, tmp_path)
+    assert without.chosen is None and NO_CANDIDATE in without.reason and "paper-static" in without.reason
 
 
 def test_candidate_that_does_not_fit_is_recorded_not_fatal(tmp_path: Path) -> None:

@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from daemon.cli import app
 from daemon.protect import AppContext
+from poisoner.ladder import default_spec
 from poisoner.spec import PatchSpec
 
 runner = CliRunner()
@@ -119,7 +120,7 @@ def test_status_json_and_regression_warning(shoot: Path, tmp_path: Path) -> None
     assert (
         castle["name"] == "castle" and castle["counts"]["protected"] == 5 and castle["counts"]["failed"] == 1
     )
-    assert castle["spec_id"] == PatchSpec().spec_id and castle["last_verification"] is None
+    assert castle["spec_id"] == default_spec().spec_id and castle["last_verification"] is None
     assert castle["regression"] is None
     ctx = AppContext.open()
     now = time.time()
@@ -208,3 +209,11 @@ def test_file_hash_of_vault_matches(shoot: Path) -> None:
     assert row["original_sha256"] == hashlib.sha256(original).hexdigest()
     assert ctx.vault.path_for(row["original_sha256"]).read_bytes() == original
     ctx.close()
+
+
+def test_spec_summary_names_offset_and_motion() -> None:
+    from daemon.cli_poison import spec_summary
+
+    assert spec_summary(PatchSpec()) == "checkerboard 6% block 0.5% α1 Δc255 top-left"
+    moving = spec_summary(default_spec())
+    assert moving.startswith("random_blocks 6%") and "+(15%, 15%)" in moving and "drift 0.75%/image" in moving

@@ -17,6 +17,7 @@ from daemon.paths import AppPaths
 from daemon.protect import AppContext, dataset_pairs, protect_file, reprotect_dataset, restore_file
 from daemon.store import DatasetSpecLocked
 from daemon.syncdirs import find_sync_folder
+from poisoner.ladder import default_spec
 from poisoner.spec import PatchSpec
 
 
@@ -60,7 +61,8 @@ def test_paths_follow_env_overrides(ppd_env: dict[str, Path]) -> None:
 
 def test_config_defaults_overrides_and_errors(ppd_env: dict[str, Path]) -> None:
     paths = AppPaths.from_env()
-    assert Config.load(paths).spec == PatchSpec()
+    assert Config.load(paths).spec == default_spec()  # the moving texture, not the paper's patch
+    assert default_spec() != PatchSpec() and default_spec().motion == "drift"
     paths.config_file.write_text(
         'workers = 3\n[patch]\npatch_size = "6%"\nblock_size = 4\n'
         "[verification]\nevery_new_files = 5\n"
@@ -120,7 +122,7 @@ def test_protect_records_vaults_and_replaces(ctx: AppContext, ppd_env: dict[str,
     assert outcome.poisoned_sha256 == _sha(src)
     assert ctx.vault.path_for(outcome.original_sha256).read_bytes() == original
     row = ctx.store.file(src)
-    assert row["state"] == "protected" and row["spec_id"] == PatchSpec().spec_id
+    assert row["state"] == "protected" and row["spec_id"] == default_spec().spec_id
     assert row["poisoned_sha256"] == _sha(src) and row["error"] is None
     assert [e["kind"] for e in ctx.store.events("shoot")][:2] == ["protected", "pending"]
     assert dataset_pairs(ctx, "shoot") == [(ctx.vault.path_for(outcome.original_sha256), src)]
@@ -143,11 +145,15 @@ def test_second_run_is_unchanged(ctx: AppContext, ppd_env: dict[str, Path]) -> N
 def test_every_file_of_a_dataset_gets_the_identical_patch(ctx: AppContext, ppd_env: dict[str, Path]) -> None:
     files = [make_image(ppd_env["outbox"] / "shoot" / f"{i}.png", 10 + i) for i in range(3)]
     outcomes = [protect_file(f, ctx) for f in files]
-    assert {o.spec_id for o in outcomes} == {PatchSpec().spec_id}
-    x0, y0, x1, y1 = PatchSpec().resolve(160, 120).box
-    patches = [np.asarray(Image.open(f))[y0:y1, x0:x1] for f in files]
-    assert all(np.array_equal(patches[0], p) for p in patches[1:])  # alpha 1: the pattern itself
-    rest = [np.asarray(Image.open(f))[y1:, :] for f in files]
+    spec = default_spec()
+    assert {o.spec_id for o in outcomes} == {spec.spec_id}
+    boxes = [spec.resolve(160, 120, image_key=f.name).box for f in files]
+    assert len(set(boxes)) == 3  # the default patch moves from image to image ...
+    patches = [
+        np.asarray(Image.open(f))[y0:y1, x0:x1] for f, (x0, y0, x1, y1) in zip(files, boxes, strict=True)
+    ]
+    assert all(np.array_equal(patches[0], p) for p in patches[1:])  # ... but is one pattern (alpha 1)
+    rest = [np.asarray(Image.open(f))[max(b[3] for b in boxes) :, :] for f in files]
     assert not np.array_equal(rest[0], rest[1])  # the pictures themselves differ
 
 

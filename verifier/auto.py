@@ -78,6 +78,9 @@ class PreflightOptions:
     lpips_net: str = "vgg"
     crash_retries: int = 1  # as Verifier I: a crashed SfM is rerun once with another seed
     keep_images: bool = False  # keep each candidate's poisoned sample (inspection)
+    # known intrinsics "fx,fy,cx,cy,k1,k2,p1,p2" as Verifier I takes them; None = COLMAP estimates
+    # the focal length, where pycolmap 4.2.1 can segfault on poisoned sets (recorded as a crash)
+    camera_params: str | None = None
 
     def __post_init__(self) -> None:
         if self.sample_size < 3:
@@ -450,6 +453,7 @@ def _verify_candidate(
                 break
             vopts = VerifyOptions(
                 timeout_s=remaining, crash_retries=options.crash_retries, cancel=cancel,
+                camera_params=options.camera_params,
                 clean_cache_dir=out_dir / "clean-cache", keep_cache=True,  # poisoned features reused
             )  # fmt: skip
             report = verify_folders(clean_dir, images, verify_dir, [profile], vopts).profiles[profile]

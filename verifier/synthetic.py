@@ -26,6 +26,18 @@ class SyntheticOptions:
     elevation_jitter_deg: float = 10.0
     arc_deg: float = 120.0  # cameras spread over this arc of azimuth, looking at the origin
     seed: int = 0
+    # "textured": floor and wall carry texture (a real room: the scene outvotes a small patch);
+    # "plain": uniform floor and wall, only the box is textured (an object on a plain backdrop,
+    # the case where the paper's patch works, like NeRF-Synthetic lego)
+    backdrop: str = "textured"
+
+    def camera_params(self) -> str:
+        """The renders' true intrinsics as Verifier I takes them ("fx,fy,cx,cy,k1,k2,p1,p2").
+
+        Tests that assert a verdict pass them: with the focal length left to COLMAP, the outcome
+        on a small render varies from run to run (and pycolmap 4.2.1 can segfault estimating it)."""
+        w, h, f = self.width, self.height, self.focal
+        return f"{f:g},{f:g},{w / 2:g},{h / 2:g},0,0,0,0"
 
 
 @dataclass(frozen=True)
@@ -50,14 +62,19 @@ def _noise_texture(rng: np.random.Generator, size: int = 512) -> np.ndarray:
     return tex
 
 
-def scene_rects(seed: int = 0) -> list[Rect]:
+def scene_rects(seed: int = 0, backdrop: str = "textured") -> list[Rect]:
+    if backdrop not in ("textured", "plain"):
+        raise ValueError(f"backdrop must be 'textured' or 'plain', got {backdrop!r}")
     rng = np.random.default_rng(seed)
     a = np.array
+    floor, wall = _noise_texture(rng), _noise_texture(rng)  # drawn either way: same box textures
+    if backdrop == "plain":
+        floor, wall = np.full((2, 2, 3), 0.9), np.full((2, 2, 3), 0.95)
     rects = [
         # ground plane z = 0
-        Rect(a([-6.0, -6.0, 0.0]), a([12.0, 0, 0]), a([0, 12.0, 0]), _noise_texture(rng), 0.8),
+        Rect(a([-6.0, -6.0, 0.0]), a([12.0, 0, 0]), a([0, 12.0, 0]), floor, 0.8),
         # back wall y = 5 (behind the box as seen from the cameras at negative y)
-        Rect(a([-6.0, 5.0, 0.0]), a([12.0, 0, 0]), a([0, 0, 6.0]), _noise_texture(rng), 0.7),
+        Rect(a([-6.0, 5.0, 0.0]), a([12.0, 0, 0]), a([0, 0, 6.0]), wall, 0.7),
     ]
     # a 2 x 2 x 2 box on the ground, centred on the origin: faces visible from -y, +-x, top
     lo, hi = -1.0, 1.0
@@ -140,7 +157,7 @@ def render_scene(
 
     options = options or SyntheticOptions()
     out_dir.mkdir(parents=True, exist_ok=True)
-    rects = scene_rects(options.seed)
+    rects = scene_rects(options.seed, options.backdrop)
     poses: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for i, (rot, trans) in enumerate(camera_poses(options)):
         name = f"view_{i:02d}.png"
