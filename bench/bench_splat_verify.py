@@ -24,12 +24,23 @@ import numpy as np  # noqa: E402
 from PIL import Image  # noqa: E402  (before pycolmap)
 
 from bench.bench_verify import WORK, poison_folder, prepare_lego  # noqa: E402
+from poisoner.ladder import default_spec  # noqa: E402
 from poisoner.spec import PatchSpec  # noqa: E402
 from verifier.verification import VerifyOptions, verify_folders  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "splat_verify.md"
 OUT = Path("/tmp/ppd-bench-splat-verify")
+# --design: the paper's patch (PatchSpec(), the original run) or ppd's default (a moving texture);
+# each writes its own results file and work folder
+DESIGNS = {
+    "paper": ("P=48 (PatchSpec())", RESULTS, OUT),
+    "ppd-default": (
+        "ppd default (texture-6pct-drift)",
+        ROOT / "bench" / "results" / "splat_verify_ppd_default.md",
+        Path("/tmp/ppd-bench-splat-verify-ppd-default"),
+    ),
+}
 PAPER = {  # ../shared/PAPER.md, P=48 row and the clean reference (8 scenes, 30k iterations)
     "clean": (0.969, 32.96, 0.050),
     "P=48": (0.775, 16.91, 0.354),
@@ -76,11 +87,14 @@ def _f(x: object, nd: int = 3) -> str:
     return "-" if x is None else (f"{x:.{nd}f}" if isinstance(x, float) else str(x))
 
 
-def write(report: dict, seconds: float, timing: dict, argv: str, load_at_start: float) -> None:
+def write(
+    report: dict, seconds: float, timing: dict, argv: str, load_at_start: float, design: str = "paper"
+) -> None:
+    design_label, results, _ = DESIGNS[design]
     p = report["profiles"]["default"]
     sp = p.get("splat") or {}
     rows = []
-    for label, side in (("ours, clean", sp.get("clean")), ("ours, P=48 (PatchSpec())", sp.get("poisoned"))):
+    for label, side in (("ours, clean", sp.get("clean")), (f"ours, {design_label}", sp.get("poisoned"))):
         c1 = (side or {}).get("cost1") or {}
         rows.append(f"| {label} | {_f(c1.get('ssim'))} | {_f(c1.get('psnr'), 2)} | {_f(c1.get('lpips'))} |"
                     f" {_f((side or {}).get('iterations'))} | {_f((side or {}).get('train_seconds'), 1)} |")
@@ -91,7 +105,7 @@ def write(report: dict, seconds: float, timing: dict, argv: str, load_at_start: 
     sfm_c, sfm_p = p["clean"].get("elapsed_s"), p["poisoned"].get("elapsed_s")
     vc = p.get("vs_clean") or {}
     lines = [
-        "# Full splat verification of 40 lego views",
+        f"# Full splat verification of 40 lego views: {design_label}",
         "",
         f"Command: `{argv}` (2-core machine; load average when it started: {load_at_start:.2f}; "
         "wall-clock figures include whatever else ran).",
@@ -123,7 +137,8 @@ def write(report: dict, seconds: float, timing: dict, argv: str, load_at_start: 
         "",
         "| | SSIM | PSNR | LPIPS |",
         "|---|---|---|---|",
-        f"| ours, P=48 | {_f(c2.get('ssim'), 4)} | {_f(c2.get('psnr'), 2)} | {_f(c2.get('lpips'), 4)} |",
+        f"| ours, {design_label} | {_f(c2.get('ssim'), 4)} | {_f(c2.get('psnr'), 2)} "
+        f"| {_f(c2.get('lpips'), 4)} |",
         f"| paper, P=48 | {PAPER['cost2 P=48'][0]} | {PAPER['cost2 P=48'][1]} | {PAPER['cost2 P=48'][2]} |",
         "",
         f"LPIPS-VGG per 800 px pair (median of {timing['pairs']}): over the changed region "
@@ -134,7 +149,7 @@ def write(report: dict, seconds: float, timing: dict, argv: str, load_at_start: 
         f"Reasons recorded: {'; '.join(p['reasons'])}",
         "",
     ]
-    RESULTS.write_text("\n".join(lines))
+    results.write_text("\n".join(lines))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -142,22 +157,27 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--views", type=int, default=40)
     ap.add_argument("--budget", type=float, default=150.0, help="splat training seconds per side")
     ap.add_argument("--lpips-pairs", type=int, default=5)
+    ap.add_argument("--design", choices=sorted(DESIGNS), default="paper")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
+    _, results, out = DESIGNS[args.design]
     clean, gt, _ = prepare_lego(args.views)
-    poisoned = WORK / "lego" / "poisoned-default-spec"
-    poison_folder(clean, poisoned, PatchSpec())
-    shutil.rmtree(OUT, ignore_errors=True)
+    if args.design == "paper":
+        poisoned, spec = WORK / "lego" / "poisoned-default-spec", PatchSpec()
+    else:
+        poisoned, spec = WORK / "lego" / "poisoned-ppd-default", default_spec()
+    poison_folder(clean, poisoned, spec)
+    shutil.rmtree(out, ignore_errors=True)
     options = VerifyOptions(ground_truth=gt, splat=True)
     options.splat_options.update(time_budget_s=args.budget, white_background=True)
     load_at_start = os.getloadavg()[0]
     started = time.time()
-    report = verify_folders(clean, poisoned, OUT, ["default"], options).to_dict()
+    report = verify_folders(clean, poisoned, out, ["default"], options).to_dict()
     seconds = time.time() - started
-    (OUT / "report_full.json").write_text(json.dumps(report, indent=1, default=str))
+    (out / "report_full.json").write_text(json.dumps(report, indent=1, default=str))
     timing = lpips_timing(clean, poisoned, args.lpips_pairs)
     command = "python -m bench.bench_splat_verify " + " ".join(sys.argv[1:])
-    write(report, seconds, timing, command, load_at_start)
-    print(f"wrote {RESULTS}: whole verification {seconds:.0f} s")
+    write(report, seconds, timing, command, load_at_start, args.design)
+    print(f"wrote {results}: whole verification {seconds:.0f} s")
 
 
 if __name__ == "__main__":

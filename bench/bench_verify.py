@@ -66,7 +66,8 @@ def poison_folder(clean: Path, dst: Path, spec: PatchSpec) -> str:
     for p in sorted(clean.iterdir()):
         if p.suffix.lower() not in (".png", ".jpg", ".jpeg"):
             continue
-        arr, placement = poison_array(np.asarray(Image.open(p).convert("RGB")), spec)
+        # the file name keys a moving spec's position (as poison_file does)
+        arr, placement = poison_array(np.asarray(Image.open(p).convert("RGB")), spec, image_key=p.name)
         out = dst / p.name
         if p.suffix.lower() == ".png":
             Image.fromarray(arr).save(out)
