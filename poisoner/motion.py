@@ -44,8 +44,10 @@ def _fold(t: float, span: int) -> int:
     return int(round(r if r <= span else period - r))
 
 
-def path_offset(motion: str, index: int, step: int, span: int) -> tuple[int, int]:
+def path_offset(motion: str, index: float, step: int, span: int) -> tuple[int, int]:
     """(dx, dy) >= 0 of image `index` along the path, each within [0, span] pixels.
+
+    `index` may be fractional (a video frame between two photo-steps): the path is continuous.
 
     - static: (0, 0) for every image.
     - drift: along the diagonal, `step` px per index on each axis, out and back within span.

@@ -149,11 +149,14 @@ class PatchSpec:
         object.__setattr__(self, "offset", (self.offset[0], self.offset[1]))
 
     # ---- geometry -------------------------------------------------------------------------
-    def resolve(self, width: int, height: int, image_key: str | None = None) -> PatchPlacement:
+    def resolve(
+        self, width: int, height: int, image_key: str | None = None, *, index: float | None = None
+    ) -> PatchPlacement:
         """Pixel placement of this spec's patch on a width x height image.
 
         image_key (the image's file name) only matters for a moving spec: it picks the image's
-        point on the path; a static spec places every image's patch identically.
+        point on the path; a static spec places every image's patch identically. `index` gives
+        the point on the path directly instead (videos: a fractional index per frame).
         """
         size = _resolve_length(self.patch_size, width)
         block = _resolve_length(self.block_size, width)
@@ -164,7 +167,7 @@ class PatchSpec:
         dy = 0 if self.offset[1] == 0 else _resolve_length(abs(self.offset[1]), width)
         if size > width or size > height:
             raise SpecError(f"patch of {size} px does not fit a {width}x{height} image")
-        mx, my = self._motion_offset(width, image_key)
+        mx, my = self._motion_offset(width, image_key, index)
         if self.position == "center":
             x, y = (width - size) // 2 + dx + mx, (height - size) // 2 + dy + my
         else:
@@ -184,13 +187,14 @@ class PatchSpec:
             seed=self.seed,
         )
 
-    def _motion_offset(self, width: int, image_key: str | None) -> tuple[int, int]:
+    def _motion_offset(self, width: int, image_key: str | None, index: float | None) -> tuple[int, int]:
         """Inward (dx, dy) of this image's point on the motion path (centred for "center")."""
         if self.motion == "static" or self.motion_step == 0:
             return (0, 0)
         step = _resolve_length(self.motion_step, width)
         span = _resolve_length(self.motion_span, width)
-        index = image_index(image_key) if image_key is not None else 0
+        if index is None:
+            index = image_index(image_key) if image_key is not None else 0
         mx, my = path_offset(self.motion, index, step, span)
         if self.position == "center":
             return (mx - span // 2, my - span // 2)

@@ -1,11 +1,11 @@
-"""Videos: the dataset's one patch blended into every frame, at the same stored pixel position.
+"""Videos: the dataset's one patch blended into every frame, in stored pixel coordinates.
 
 The video stays a video: decoded with PyAV, every frame gets `apply_patch` at the placement
-`PatchSpec.resolve(width, height)` gives (identical for every frame, since every frame has the
-same size), and the frames are re-encoded with the source's codec (where this PyAV build has an
-encoder for it), pixel format, frame timestamps (so frame rate, variable frame rate, time base,
-duration and frame count are kept), rotation and colour tags. Audio, subtitle and data streams
-are copied packet by packet (bit-identical).
+`frame_placements` gives (`PatchSpec.resolve(width, height)`, identical for every frame, for a
+static spec; a point on the path per frame for a moving one), and the frames are re-encoded
+with the source's codec (where this PyAV build has an encoder for it), pixel format, frame
+timestamps (so frame rate, variable frame rate, time base, duration and frame count are kept),
+rotation and colour tags. Audio, subtitle and data streams are copied packet by packet (bit-identical).
 
 Decisions (see docs/VIDEO.md for the figures behind them):
 - The patch sits in stored (coded) pixel coordinates; the display matrix is copied unchanged.
@@ -21,6 +21,11 @@ Decisions (see docs/VIDEO.md for the figures behind them):
   contrast is measured on the decoded output and, if it fell below `min_patch_contrast`, the
   video is encoded again at a lower CRF.
 - PatchSpec.ratio < 1 selects frames by `spec.selects(f"frame:{index}")` (deterministic).
+- A moving spec (issue #9) glides along its path: frame i sits at path index
+  i / frame_rate * `motion_steps_per_second`, so frames sampled 1 / motion_steps_per_second
+  seconds apart (ppd samples about 2 per second) are one photo-step apart, exactly like
+  consecutive photos, and no two sampled frames share a patch position the stationary-match
+  filter could remove. Between them the patch moves a pixel or so per frame instead of jumping.
 """
 
 from __future__ import annotations
@@ -96,6 +101,8 @@ class VideoOptions:
       a lower CRF (up to max_retries times).
     preset: x264/x265 preset (speed vs size at equal quality; quality is set by the CRF).
     threads: encoder threads, 0 = FFmpeg's choice.
+    motion_steps_per_second: how fast a moving spec travels its path, in photo-steps per second
+      of video (0: the patch stays at its first position in every frame).
     """
 
     min_patch_contrast: float = 0.8
@@ -104,6 +111,7 @@ class VideoOptions:
     preset: str = "medium"
     threads: int = 0
     crf_override: int | None = None
+    motion_steps_per_second: float = 6.0  # bench/results/video_motion.md: 2 failed twice, 6 never
 
 
 @dataclass(frozen=True)
@@ -557,6 +565,19 @@ def _decode(packet: av.Packet, name: str) -> list[av.VideoFrame]:
         raise VideoFormatError(f"{name}: corrupt video data ({_one_line(exc)})") from exc
 
 
+PlacementAt = Callable[[int], PatchPlacement]  # frame number -> where the patch goes
+
+
+def frame_placements(spec: PatchSpec, info: SourceInfo, options: VideoOptions) -> PlacementAt:
+    """Where frame i's patch goes: one placement for a static spec, a point on the path per frame
+    for a moving one (module docstring). Raises SpecError when a placement does not fit."""
+    first = spec.resolve(info.width, info.height, index=0.0)
+    if not spec.moves or options.motion_steps_per_second <= 0:
+        return lambda _i: first
+    per_frame = options.motion_steps_per_second / _frame_rate(info)
+    return lambda i: spec.resolve(info.width, info.height, index=i * per_frame)
+
+
 @dataclass
 class _EncodeResult:
     frames: int
@@ -568,7 +589,7 @@ def _encode_once(
     src: Path,
     dst: Path,
     spec: PatchSpec,
-    placement: PatchPlacement,
+    placement_at: PlacementAt,
     info: SourceInfo,
     choice: EncoderChoice,
     options: VideoOptions,
@@ -624,6 +645,10 @@ def _encode_once(
                         )
                     if spec.selects(f"frame:{frames}"):
                         frame.make_writable()
+                        try:
+                            placement = placement_at(frames)
+                        except SpecError as exc:
+                            raise VideoFormatError(f"{src.name}: frame {frames}: {exc}") from exc
                         frame = blend_frame(frame, placement)
                         patched += 1
                     if frame.pts is not None and frame.time_base is not None:
@@ -643,14 +668,16 @@ def _encode_once(
     return _EncodeResult(frames=frames, frames_patched=patched, end_s=last_end)
 
 
-def measure_video_patch(video: Path, placement: PatchPlacement) -> list[float]:
-    """Patch contrast (0..255 scale) of every decoded frame of a video."""
+def measure_video_patch(video: Path, placement: PatchPlacement | PlacementAt) -> list[float]:
+    """Patch contrast (0..255 scale) of every decoded frame of a video, at one placement or at
+    each frame's own (a moving spec)."""
+    at = placement if callable(placement) else (lambda _i: placement)
     values: list[float] = []
     with _open_input(Path(video)) as container:
         stream = _main_video_stream(container, Path(video).name)
         stream.thread_type = "AUTO"
-        for frame in container.decode(stream):
-            values.append(patch_contrast(frame_to_rgb(frame), placement))
+        for i, frame in enumerate(container.decode(stream)):
+            values.append(patch_contrast(frame_to_rgb(frame), at(i)))
     return values
 
 
@@ -692,7 +719,8 @@ def poison_video(
     state_before = _file_state(src)
     info = probe(src)
     try:
-        placement = spec.resolve(info.width, info.height)
+        placement_at = frame_placements(spec, info, options)
+        placement = placement_at(0)
     except SpecError as exc:
         raise VideoFormatError(f"{src.name}: {exc}") from exc
     report = VideoReport(
@@ -704,10 +732,15 @@ def poison_video(
         pix_fmt=info.pix_fmt,
         source_bit_rate=info.bit_rate,
     )
-    if spec.moves:  # docs/DESIGNS.md: per-frame motion is not implemented for video yet
+    if spec.moves and options.motion_steps_per_second > 0:
         report.notes.append(
-            "moving spec: the patch stays at its first position in every frame of a video "
-            "(COLMAP's stationary-match filter can remove it from extracted frames)"
+            f"moving spec: the patch travels its path at {options.motion_steps_per_second:g} "
+            "photo-steps per second; `placement` is frame 0's"
+        )
+    elif spec.moves:
+        report.notes.append(
+            "moving spec with motion_steps_per_second = 0: the patch stays at its first position in "
+            "every frame (COLMAP's stationary-match filter can remove it from extracted frames)"
         )
     target = intended_contrast(placement)
     attempts = 0
@@ -720,7 +753,7 @@ def poison_video(
             extra={"src": str(src), "encoder": choice.encoder, "crf": choice.crf, "attempt": attempts},
         )
         try:
-            result = _encode_once(src, dst, spec, placement, info, choice, options, progress, report)
+            result = _encode_once(src, dst, spec, placement_at, info, choice, options, progress, report)
         except av.error.FFmpegError as exc:
             raise VideoFormatError(
                 f"{src.name}: cannot encode with {choice.encoder} ({_one_line(exc)})"
@@ -728,7 +761,7 @@ def poison_video(
         _check_complete(src, info, result)
         if not options.verify_patch or result.frames_patched == 0 or target <= 0:
             break
-        measured = [v / target for v in measure_video_patch(dst, placement)]
+        measured = [v / target for v in measure_video_patch(dst, placement_at)]
         selected = [m for i, m in enumerate(measured) if spec.selects(f"frame:{i}")]
         report.patch_contrast_min = min(selected) if selected else None
         report.patch_contrast_mean = float(np.mean(selected)) if selected else None

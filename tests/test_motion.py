@@ -106,3 +106,18 @@ def test_poison_array_moves_the_patch_by_image_name() -> None:
     _, fifth = poison_array(image, spec, image_key="r_5.png")
     assert (fifth.x - first.x, fifth.y - first.y) == (30, 30)
     assert poison_array(image, spec)[1] == first  # no name: index 0
+
+
+def test_fractional_index_glides_between_photo_steps() -> None:
+    """Videos place frame i at a fractional path index: between two photos' positions, in order."""
+    from poisoner.spec import PatchSpec
+
+    spec = PatchSpec(
+        patch_size=20, block_size=2, offset=(30, 30), motion="drift", motion_step=8, motion_span=64
+    )
+    xs = [spec.resolve(400, 300, index=i / 4).x for i in range(9)]  # indices 0, 0.25, ..., 2
+    assert xs[0] == spec.resolve(400, 300, image_key="a_0.png").x == 30
+    assert xs[4] == spec.resolve(400, 300, image_key="a_1.png").x == 38
+    assert xs[8] == spec.resolve(400, 300, image_key="a_2.png").x == 46
+    assert xs == sorted(xs) and len(set(xs)) == 9  # 2 px per quarter step: monotone, no jumps
+    assert spec.resolve(400, 300, index=0.0) == spec.resolve(400, 300)

@@ -255,6 +255,7 @@ def test_patch_breaks_default_colmap_and_hardened_colmap_resists(
     # COLMAP's stationary-match filter + watermark handling undoes this patch: said plainly
     assert hardened.verdict == vd.NOT_PROTECTED, hardened.reasons
     assert report.verdict == vd.NOT_PROTECTED
+    assert default.poisoned["random_seed"] == default.clean["random_seed"] == 0
     for side in ("clean", "poisoned"):  # models kept for reports and the splat stage
         assert (out / "default" / side / "cameras.bin").is_file()
     stored = json.loads((out / "default" / "report.json").read_text())
@@ -402,3 +403,15 @@ def test_lego_clean_sfm_matches_ground_truth(shared_dir: Path, tmp_path: Path) -
     gt = pm.load_ground_truth(lego / "transforms_train.json")
     m = pm.compare_poses(pm.poses_from_json(result["poses"]), {n: gt[n] for n in os.listdir(clean)})
     assert m["frac_within_5deg"] >= 0.7, m
+
+
+@pytest.mark.integration
+def test_random_seed_reaches_colmap_and_is_recorded(object_sets: dict[str, Path], tmp_path: Path) -> None:
+    """An attacker reruns COLMAP with other seeds; the verifier can too, and says which it used."""
+    options = VerifyOptions(timeout_s=300, camera_params=OBJECT.camera_params(), random_seed=7)
+    report = verify_folders(
+        object_sets["clean"], object_sets["poisoned"], tmp_path / "o", ["default"], options
+    )
+    p = report.profiles["default"]
+    assert p.clean["random_seed"] == 7 and p.poisoned["random_seed"] in (7, 8)  # 8: after a crash retry
+    assert p.clean["registered"] == 12

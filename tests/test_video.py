@@ -14,10 +14,12 @@ import pytest
 from PIL import Image
 
 from poisoner.atomic import TEMP_PREFIX, atomic_output
+from poisoner.ladder import default_spec
 from poisoner.spec import PatchPlacement, PatchSpec
 from poisoner.video import (
     VIDEO_SUFFIXES,
     VideoFormatError,
+    VideoOptions,
     frame_to_rgb,
     intended_contrast,
     is_video,
@@ -26,7 +28,7 @@ from poisoner.video import (
     sample_frames,
 )
 
-SPEC = PatchSpec()  # the product default: checkerboard, 6% of the width, 4 px blocks
+SPEC = PatchSpec()  # the paper's patch: checkerboard, 6% of the width, static
 
 
 # ---- generating test videos ---------------------------------------------------------------
@@ -342,12 +344,37 @@ def test_ratio_patches_only_selected_frames(tmp_path: Path) -> None:
         assert (ratio >= 0.8) if chosen else (abs(ratio) < 0.5), f"frame {i}"
 
 
-def test_moving_spec_says_the_video_patch_stays_put(tmp_path: Path) -> None:
-    """Per-frame motion is not implemented for video: the report must say so, not hide it."""
-    spec = SPEC.replace(motion="drift", motion_step=4, motion_span=40)
+def test_moving_spec_glides_along_its_path_frame_by_frame(tmp_path: Path) -> None:
+    """A moving spec (ppd's default kind) moves in video too: frame i at path index
+    i / fps * motion_steps_per_second, so frames 1 / rate seconds apart are one photo-step apart."""
+    spec = default_spec().replace(motion_step=8, motion_span=40)
+    src = make_clip(tmp_path / "clip.mp4", Clip(frames=40, fps=20, audio=None))
+    dst = tmp_path / "out.mp4"
+    report = poison_video(src, dst, spec, options=VideoOptions(motion_steps_per_second=4))
+    assert any("travels its path at 4 photo-steps per second" in n for n in report.notes)
+    at = [spec.resolve(320, 240, index=i * 4 / 20) for i in range(40)]
+    assert report.placement == at[0]
+    assert (at[5].x - at[0].x, at[5].y - at[0].y) == (8, 8)  # one photo-step per quarter second
+    assert at[5] == spec.resolve(320, 240, image_key="view_1.png")  # = the second photo's place
+    target = intended_contrast(at[0])
+    frames = decode(dst).frames
+    for i, frame in enumerate(frames):
+        assert patch_contrast(frame, at[i]) / target >= 0.8, f"frame {i}: patch not where it should be"
+    # and not where it was: the random texture does not line up with itself 3 steps away
+    assert abs(patch_contrast(frames[15], at[0])) / target < 0.5
+    assert len({p.box for p in at}) > 20  # it glides (sub-step positions), it does not jump
+    default = poison_video(src, tmp_path / "o2.mp4", spec)  # the default rate (video_motion.md)
+    assert any("travels its path at 6 photo-steps per second" in n for n in default.notes)
+
+
+def test_moving_spec_can_be_held_still_in_video_and_says_so(tmp_path: Path) -> None:
+    spec = default_spec().replace(motion_step=8, motion_span=40)
     src = make_clip(tmp_path / "clip.mp4", Clip(frames=6, audio=None))
-    report = poison_video(src, tmp_path / "out.mp4", spec)
-    assert any("moving spec" in n for n in report.notes)
+    report = poison_video(src, tmp_path / "out.mp4", spec, options=VideoOptions(motion_steps_per_second=0))
+    assert any("stays at its first position" in n for n in report.notes)
+    placement = spec.resolve(320, 240)
+    target = intended_contrast(placement)
+    assert all(patch_contrast(f, placement) / target >= 0.8 for f in decode(tmp_path / "out.mp4").frames)
     assert not any("moving spec" in n for n in poison_video(src, tmp_path / "o2.mp4", SPEC).notes)
 
 

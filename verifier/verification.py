@@ -58,6 +58,7 @@ class VerifyOptions:
     published_long_edge: int = 2048
     published_jpeg_quality: int = 85
     crash_retries: int = 1  # rerun a crashed SfM with another RANSAC seed, as an attacker would
+    random_seed: int = 0  # COLMAP's RANSAC/mapper seed: with the same inputs and seed, runs repeat
     clean_cache_dir: Path | None = None  # reuse clean features/results across verifications
     keep_cache: bool = False  # keep feature databases and round-tripped images
     rule: VerdictRule = field(default_factory=VerdictRule)
@@ -240,6 +241,7 @@ def _run_side(
         log.warning("SfM crashed", extra={"image_dir": str(image_dir), "signal": result.get("signal")})
     result["crashes"] = crashes  # signals of crashed attempts (the last one too when all crashed)
     result["settings"] = run_settings.to_dict()
+    result["random_seed"] = run_settings.random_seed  # the seed behind these figures (retries add 1)
     if reuse_key:
         result["reuse_key"] = reuse_key
     result_file.write_text(json.dumps(result))
@@ -373,6 +375,8 @@ def _verify_profile(
 ) -> ProfileReport:
     started = time.time()
     settings = profile_settings(profile, matching, options.camera_params)
+    if options.random_seed:
+        settings = dataclasses.replace(settings, random_seed=options.random_seed)
     source = "published" if profile == "published" else "original"
     skey = hashlib.sha256(settings.feature_key().encode()).hexdigest()[:10]
     clean_images, poisoned_images = clean_dir, poisoned_dir
