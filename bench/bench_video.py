@@ -11,8 +11,10 @@ import argparse
 import platform
 import tempfile
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import av
 import numpy as np
@@ -30,6 +32,17 @@ def textured_frame(width: int, height: int, index: int, tex: np.ndarray) -> np.n
     return np.ascontiguousarray(tex[dy : dy + height, dx : dx + width])
 
 
+def mux_rgb_frames(out: Any, stream: Any, frames: Iterable[np.ndarray]) -> None:
+    """Encode RGB frames (pts 0, 1, ...) into stream as yuv420p, then flush the encoder."""
+    for i, rgb in enumerate(frames):
+        frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
+        frame.pts = i
+        for pkt in stream.encode(frame.reformat(format="yuv420p")):
+            out.mux(pkt)
+    for pkt in stream.encode(None):
+        out.mux(pkt)
+
+
 def make_source(path: Path, width: int, height: int, fps: int, seconds: float, crf: int = 20) -> Path:
     rng = np.random.default_rng(11)
     coarse = rng.random((height // 16 + 8, (width + 6 * int(fps * seconds)) // 16 + 8, 3))
@@ -41,13 +54,7 @@ def make_source(path: Path, width: int, height: int, fps: int, seconds: float, c
         aud = out.add_stream("aac", rate=48000)
         aud.layout = "stereo"
         n = int(round(fps * seconds))
-        for i in range(n):
-            frame = av.VideoFrame.from_ndarray(textured_frame(width, height, i, tex), format="rgb24")
-            frame.pts = i
-            for pkt in vs.encode(frame.reformat(format="yuv420p")):
-                out.mux(pkt)
-        for pkt in vs.encode(None):
-            out.mux(pkt)
+        mux_rgb_frames(out, vs, (textured_frame(width, height, i, tex) for i in range(n)))
         t, total, step = 0, int(seconds * 48000), aud.codec_context.frame_size or 1024
         while t < total:
             wave = (0.2 * np.sin(2 * np.pi * 330 * np.arange(t, t + step) / 48000)).astype(np.float32)
@@ -193,37 +200,33 @@ def survival_sweep(work: Path) -> list[tuple[str, int, int, float, float, float]
     return rows
 
 
+def render_scene_video(path: Path, opts: Any, fps: int, crf: int) -> list[Any]:
+    """verifier.synthetic's scene from opts' cameras, one frame per camera, as H.264; the poses."""
+    from verifier.synthetic import camera_poses, render_view, scene_rects
+
+    rects = scene_rects(opts.seed, opts.backdrop)
+    poses = camera_poses(opts)
+    with av.open(str(path), "w") as out:
+        vs = out.add_stream("libx264", rate=fps, options={"crf": str(crf), "preset": "veryfast"})
+        vs.width, vs.height, vs.pix_fmt = opts.width, opts.height, "yuv420p"
+        mux_rgb_frames(out, vs, (render_view(rot, trans, opts, rects) for rot, trans in poses))
+    return poses
+
+
 def pose_check(work: Path, views: int = 48, every_k: int = 2) -> list[str]:
     """verifier.verify_folders on frames sampled from a clean and a poisoned video of
     verifier.synthetic's textured scene seen from a camera moving along an arc."""
     import PIL.Image  # noqa: F401  (PIL before pycolmap, which the verifier's children import)
 
     from poisoner.video import sample_frames
-    from verifier.synthetic import (
-        SyntheticOptions,
-        camera_poses,
-        render_view,
-        scene_rects,
-        write_ground_truth,
-    )
+    from verifier.synthetic import SyntheticOptions, write_ground_truth
     from verifier.verification import VerifyOptions, verify_folders
 
     opts = SyntheticOptions(
         num_views=views, width=480, height=320, focal=576.0, arc_deg=90.0, elevation_jitter_deg=0.0
     )
-    rects = scene_rects(opts.seed)
-    poses = camera_poses(opts)
     clean_video = work / "scene.mp4"
-    with av.open(str(clean_video), "w") as out:
-        vs = out.add_stream("libx264", rate=24, options={"crf": "18", "preset": "veryfast"})
-        vs.width, vs.height, vs.pix_fmt = opts.width, opts.height, "yuv420p"
-        for i, (rot, trans) in enumerate(poses):
-            f = av.VideoFrame.from_ndarray(render_view(rot, trans, opts, rects), format="rgb24")
-            f.pts = i
-            for pkt in vs.encode(f.reformat(format="yuv420p")):
-                out.mux(pkt)
-        for pkt in vs.encode(None):
-            out.mux(pkt)
+    poses = render_scene_video(clean_video, opts, fps=24, crf=18)
     poisoned_video = work / "scene_poisoned.mp4"
     rep = poison_video(clean_video, poisoned_video, PatchSpec())
     clean_frames = sample_frames(clean_video, work / "pose_clean", every_k=every_k)

@@ -17,13 +17,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import av
 from PIL import Image  # noqa: F401  (PIL before pycolmap, which the verifier's children import)
 
+from bench.bench_video import render_scene_video
 from poisoner.ladder import default_spec
 from poisoner.spec import PatchSpec
 from poisoner.video import VideoOptions, poison_video, sample_frames
-from verifier.synthetic import SyntheticOptions, camera_poses, render_view, scene_rects, write_ground_truth
+from verifier.synthetic import SyntheticOptions, write_ground_truth
 from verifier.verification import VerifyOptions, verify_folders
 
 RESULTS = Path(__file__).resolve().parent / "results" / "video_motion.md"
@@ -38,19 +38,7 @@ CASES = {
 
 
 def render_video(path: Path) -> list[tuple]:
-    rects = scene_rects(SCENE.seed, SCENE.backdrop)
-    poses = camera_poses(SCENE)
-    with av.open(str(path), "w") as out:
-        vs = out.add_stream("libx264", rate=FPS, options={"crf": "16", "preset": "veryfast"})
-        vs.width, vs.height, vs.pix_fmt = SCENE.width, SCENE.height, "yuv420p"
-        for i, (rot, trans) in enumerate(poses):
-            frame = av.VideoFrame.from_ndarray(render_view(rot, trans, SCENE, rects), format="rgb24")
-            frame.pts = i
-            for pkt in vs.encode(frame.reformat(format="yuv420p")):
-                out.mux(pkt)
-        for pkt in vs.encode(None):
-            out.mux(pkt)
-    return poses
+    return render_scene_video(path, SCENE, fps=FPS, crf=16)
 
 
 def _cell(profiles: list[object]) -> str:
