@@ -22,10 +22,10 @@ Decisions (see docs/VIDEO.md for the figures behind them):
   video is encoded again at a lower CRF.
 - PatchSpec.ratio < 1 selects frames by `spec.selects(f"frame:{index}")` (deterministic).
 - A moving spec (issue #9) glides along its path: frame i sits at path index
-  i / frame_rate * `motion_steps_per_second`, so frames sampled 1 / motion_steps_per_second
-  seconds apart (ppd samples about 2 per second) are one photo-step apart, exactly like
-  consecutive photos, and no two sampled frames share a patch position the stationary-match
-  filter could remove. Between them the patch moves a pixel or so per frame instead of jumping.
+  i / frame_rate * `motion_steps_per_second`, so frames 1 / motion_steps_per_second seconds
+  apart are one photo-step apart, like consecutive photos, and frames sampled at any rate sit at
+  different points of the path (turning points aside), which the stationary-match filter keeps.
+  In between the patch moves a pixel or so per frame instead of jumping.
 """
 
 from __future__ import annotations

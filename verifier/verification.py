@@ -58,7 +58,7 @@ class VerifyOptions:
     published_long_edge: int = 2048
     published_jpeg_quality: int = 85
     crash_retries: int = 1  # rerun a crashed SfM with another RANSAC seed, as an attacker would
-    random_seed: int = 0  # COLMAP's RANSAC/mapper seed: with the same inputs and seed, runs repeat
+    random_seed: int = 0  # COLMAP's RANSAC/mapper seed (an attacker reruns with others)
     clean_cache_dir: Path | None = None  # reuse clean features/results across verifications
     keep_cache: bool = False  # keep feature databases and round-tripped images
     rule: VerdictRule = field(default_factory=VerdictRule)
@@ -375,8 +375,7 @@ def _verify_profile(
 ) -> ProfileReport:
     started = time.time()
     settings = profile_settings(profile, matching, options.camera_params)
-    if options.random_seed:
-        settings = dataclasses.replace(settings, random_seed=options.random_seed)
+    settings = dataclasses.replace(settings, random_seed=options.random_seed)
     source = "published" if profile == "published" else "original"
     skey = hashlib.sha256(settings.feature_key().encode()).hexdigest()[:10]
     clean_images, poisoned_images = clean_dir, poisoned_dir
