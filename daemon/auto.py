@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from daemon.states import FileState
 from poisoner.spec import PatchSpec
 
 if TYPE_CHECKING:
@@ -104,17 +105,18 @@ def decided_spec(ctx: AppContext, dataset: str) -> PatchSpec | None:
 def apply_spec(ctx: AppContext, dataset: str, spec: PatchSpec) -> int:
     """Re-protect the dataset from its vault originals with spec (nothing when it already has it).
     Returns the number of files re-protected."""
+    from daemon.pipeline import Outcome
     from daemon.protect import reprotect_dataset
 
     current = ctx.store.dataset_spec(dataset)
     if current is not None and current.spec_id == spec.spec_id:
         return 0
     outcomes = reprotect_dataset(ctx, dataset, spec)
-    failed = [o for o in outcomes if o.state == "failed"]
+    failed = [o for o in outcomes if o.state == Outcome.FAILED]
     if failed:
         log.warning("re-protect left files", extra={"dataset": dataset, "failed": len(failed),
                                                      "first": failed[0].reason})  # fmt: skip
-    return sum(1 for o in outcomes if o.state == "protected")
+    return sum(1 for o in outcomes if o.state == Outcome.PATCHED)
 
 
 # ---- step 2: the interim choice (SSIM only, in the daemon) ---------------------------------------
@@ -307,7 +309,7 @@ def next_step(ctx: AppContext, dataset: str) -> str | None:
     decisions = ctx.store.auto_decisions(dataset, limit=200)
     if any(r["trigger"] in ("preflight", "manual", "escalation") for r in decisions):
         return None
-    protected = ctx.store.counts(dataset)["protected"]
+    protected = ctx.store.counts(dataset)[FileState.PATCHED]
     if protected >= AutoSettings.from_config(ctx.config).sample_size:
         return "preflight"
     if not decisions and protected > 0:

@@ -1,70 +1,62 @@
-"""One file protected end to end: dataset → its one spec → vault → poison → atomic replace →
-provenance row. Shared by `ppd poison` and the daemon's workers.
+"""The application's entry points for one file: protect_file, restore_file, reprotect_dataset.
 
-Order of operations (the crash-safety argument, docs/STORE.md):
-1. the original is kept in the vault (hard link or fsynced copy) before anything else;
-2. a 'pending' row naming the original's sha256 is committed;
-3. the poisoned file is written complete to a temporary file next to the target and fsynced;
-4. the source is re-checked (inode, size, mtime, sha256): a file replaced or edited meanwhile
-   is not clobbered, the temporary file is dropped;
-5. rename over the target (atomic), then the 'protected' row with the poisoned sha256.
-A crash between any two steps leaves the original or the complete poisoned file at the
-path, and the original in the vault whenever the path may hold the poisoned one.
+protect_file runs daemon.pipeline's named stages (the crash-safe order is listed there, once)
+under a per-file lock shared by every ppd process (daemon.locks), and turns any exception into a
+'failed' outcome with a one-line reason. Shared by `ppd poison` and the daemon's workers.
 """
 
 from __future__ import annotations
 
 import contextlib
-import errno
 import logging
 import os
 import shutil
-import stat
 import tempfile
-import threading
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from daemon.config import Config
 from daemon.dataset import OutsideOutboxError, dataset_of, dataset_root
+from daemon.locks import DEFAULT_FILE_WAIT_S, LockHeld, file_lock
 from daemon.paths import AppPaths
+from daemon.pipeline import (
+    STAGES,
+    Job,
+    Outcome,
+    Progress,
+    ProtectOutcome,
+    ProtectRefused,
+    SourceChanged,
+    ensure_dataset,
+    is_ignored_name,
+    media_kind,
+    one_line,
+    poison_to,
+    report_detail,
+    run_stages,
+    shown_name,
+    storable,
+    tool_version,
+)
+from daemon.states import FileState
 from daemon.store import Store
 from daemon.vault import Vault, sha256_file
-from poisoner.atomic import TEMP_PREFIX, atomic_output, fsync_dir
+from poisoner.atomic import atomic_output
 from poisoner.spec import PatchSpec
 
 log = logging.getLogger(__name__)
 
-Progress = Callable[[int, int | None], None]
-OUTCOME_STATES = ("protected", "skipped", "failed", "unchanged")  # protect_file
-RESTORE_STATES = ("restored", "unchanged", "failed")  # restore_file
-
-
-class ProtectRefused(Exception):
-    """The file must not be touched (symlink, outside its dataset, not a regular file)."""
-
-
-class SourceChanged(Exception):
-    """The source changed while it was being protected."""
-
-
-@dataclass
-class ProtectOutcome:
-    path: Path
-    dataset: str | None
-    state: str  # one of OUTCOME_STATES (RESTORE_STATES for restore_file)
-    reason: str | None = None  # why skipped/unchanged, or the one-line error when failed
-    kind: str | None = None  # 'image' | 'video'
-    original_sha256: str | None = None
-    poisoned_sha256: str | None = None
-    spec_id: str | None = None
-    output: Path | None = None  # where the protected file is now
-    seconds: float = 0.0
-    dry_run: bool = False
-    report: Any = None  # poisoner.formats.PoisonReport (poisoner.video.VideoReport is one)
+__all__ = [
+    "STAGES", "AppContext", "Outcome", "ProtectOutcome", "ProtectRefused", "SourceChanged", "dataset_pairs",
+    "is_ignored_name", "media_kind", "poison_to", "protect_file", "reprotect_dataset", "restore_file",
+    "shown_name", "storable", "tool_version",
+]  # fmt: skip
+OUTCOME_STATES = (Outcome.PATCHED, Outcome.SKIPPED, Outcome.FAILED, Outcome.UNCHANGED)  # protect_file
+RESTORE_STATES = (Outcome.RESTORED, Outcome.UNCHANGED, Outcome.FAILED)  # restore_file
+SOURCE_CHANGE_TRIES = 3  # a file replaced while being patched is started over this many times
 
 
 @dataclass
@@ -73,8 +65,7 @@ class AppContext:
     config: Config
     store: Store
     vault: Vault
-    _path_locks: dict[str, threading.Lock] = field(default_factory=dict, repr=False)
-    _path_locks_guard: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    lock_wait_s: float = DEFAULT_FILE_WAIT_S  # how long protect/restore wait for another ppd's file lock
 
     @classmethod
     def open(cls, paths: AppPaths | None = None) -> AppContext:
@@ -93,43 +84,9 @@ class AppContext:
 
     @contextlib.contextmanager
     def path_lock(self, path: Path) -> Iterator[None]:
-        """Serialise work on one path (two events for the same file must not race)."""
-        key = str(path)
-        with self._path_locks_guard:
-            lock = self._path_locks.setdefault(key, threading.Lock())
-        with lock:
+        """One worker at a time on a path, across threads and ppd processes (daemon.locks)."""
+        with file_lock(self.paths.data_dir, path, self.lock_wait_s):
             yield
-
-
-def tool_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return f"ppd {version('patchpoison')}"
-    except PackageNotFoundError:
-        return "ppd 0.1.0"
-
-
-def one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
-
-
-def shown_name(path: Path) -> str:
-    """path's name as it can be shown on one line: escaped (repr-style) when it holds a newline,
-    another control character or bytes that are not UTF-8."""
-    name = path.name
-    return name if name.isprintable() and storable(path) else repr(name)[1:-1]
-
-
-def storable(path: Path) -> bool:
-    """Whether the store can record this path: SQLite text is UTF-8, and a name with bytes
-    that are not UTF-8 (surrogate-escaped by Python) cannot be written to it."""
-    try:
-        str(path).encode("utf-8")
-    except UnicodeEncodeError:
-        return False
-    return True
 
 
 def failure_message(exc: BaseException, path: Path) -> str:
@@ -142,72 +99,11 @@ def failure_message(exc: BaseException, path: Path) -> str:
     return lines[0] if lines else type(exc).__name__
 
 
-def media_kind(path: Path) -> str | None:
-    """'image', 'video' or None, by suffix (lazy imports: the poisoners load only when used)."""
-    from poisoner.formats import is_supported_image
-
-    if is_supported_image(path):
-        return "image"
-    try:
-        from poisoner.video import is_video
-    except ImportError:
-        return None
-    return "video" if is_video(path) else None
-
-
-def poison_to(kind: str, src: Path, dst: Path, spec: PatchSpec, progress: Progress | None = None) -> Any:
-    """Write the complete poisoned version of src to dst; never touches src."""
-    if kind == "video":
-        from poisoner.video import poison_video
-
-        return poison_video(src, dst, spec, progress=progress)
-    from poisoner.formats import poison_file
-
-    return poison_file(src, dst, spec)
-
-
-def is_ignored_name(path: Path) -> bool:
-    """Dot-files and our own temporaries are never protected."""
-    return path.name.startswith(".") or path.name.startswith(TEMP_PREFIX)
-
-
-def _recheck_source(path: Path, before: os.stat_result, sha: str) -> None:
-    now = os.lstat(path)
-    same = (now.st_ino, now.st_dev, now.st_size, now.st_mtime_ns) == (
-        before.st_ino, before.st_dev, before.st_size, before.st_mtime_ns,
-    )  # fmt: skip
-    if not same or sha256_file(path) != sha:
-        raise SourceChanged(f"{path.name} changed while being protected; left as it is now")
-
-
-def _check_containment(path: Path, root: Path) -> Path:
-    """The resolved path, refusing symlinks and anything that resolves outside root."""
-    st = os.lstat(path)
-    if stat.S_ISLNK(st.st_mode):
-        raise ProtectRefused(f"refusing symlink {path.name} (ppd only protects regular files)")
-    if not stat.S_ISREG(st.st_mode):
-        raise ProtectRefused(f"{path.name} is not a regular file")
-    resolved = path.resolve(strict=True)
-    if not resolved.is_relative_to(root.resolve()):
-        raise ProtectRefused(f"{path} resolves outside its dataset folder {root}")
-    return resolved
-
-
-def publish(src: Path, dst: Path) -> Path:
-    """Move src to dst atomically (rename on one filesystem; else complete copy, then unlink)."""
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        os.replace(src, dst)
-        fsync_dir(dst.parent)
-        fsync_dir(src.parent)
-    except OSError as exc:
-        if exc.errno != errno.EXDEV:
-            raise
-        with atomic_output(dst, mode_like=src) as tmp:
-            shutil.copyfile(src, tmp)
-        src.unlink()
-        fsync_dir(src.parent)
-    return dst
+def anchor_for(ctx: AppContext, path: Path, root: Path) -> Path:
+    """The trusted folder containment is judged from: the outbox for its files (a dataset folder
+    inside it may itself be swapped for a symlink), else the dataset's root."""
+    outbox = Path(ctx.paths.outbox).absolute()
+    return outbox if path.is_relative_to(outbox) and root.absolute().is_relative_to(outbox) else root
 
 
 def _resolve_dataset(ctx: AppContext, path: Path, dataset: str | None, root: Path | None) -> tuple[str, Path]:
@@ -236,29 +132,50 @@ def protect_file(
     force: bool = False,
     progress: Progress | None = None,
     spec: PatchSpec | None = None,
+    keep_location: bool | None = None,
 ) -> ProtectOutcome:
-    """Protect one file (see the module docstring for the order of operations).
+    """Patch one file: daemon.pipeline.STAGES, under the file's lock (daemon.locks).
 
     dataset/root: default from the outbox layout (daemon.dataset); `ppd poison FOLDER` passes
-    the folder's name and the folder. out_path: write the protected copy there and leave path
-    as it is. force: re-protect a file the user restored. spec: the spec a dataset without one
-    gets (default: the config's), and the one a dry run assumes. Never raises for a bad file: the
-    outcome says 'failed' with a one-line reason, and nothing is lost.
+    the folder's name and the folder. out_path: write the patched copy there and leave path
+    as it is. force: re-patch a file the user restored. spec: the spec a dataset without one
+    gets (default: the config's), and the one a dry run assumes. A version that replaces the file
+    while it is being patched is left in place and patched next (up to SOURCE_CHANGE_TRIES runs;
+    then the outcome asks for a requeue). Never raises for a bad file: the outcome says 'failed'
+    with a one-line reason, and nothing is lost.
     """
     started = time.monotonic()
     path = Path(path).absolute()
     try:
         dataset, root = _resolve_dataset(ctx, path, dataset, root)
     except OutsideOutboxError as exc:
-        return ProtectOutcome(path=path, dataset=None, state="failed", reason=one_line(exc))
-    with ctx.path_lock(path):
-        try:
-            outcome = _protect(path, ctx, dataset, root, out_path, dry_run, force, progress, spec)
-        except Exception as exc:  # one bad file must not stop the others; record and go on
-            outcome = _record_failure(ctx, path, dataset, root, out_path, exc, dry_run, spec)
+        return ProtectOutcome(path=path, dataset=None, state=Outcome.FAILED, reason=one_line(exc))
+    root = Path(root).absolute()
+    keep = bool(getattr(ctx.config, "keep_location", False)) if keep_location is None else keep_location
+    try:
+        with ctx.path_lock(out_path or path):
+            for _ in range(SOURCE_CHANGE_TRIES):
+                job = Job(
+                    path=path, ctx=ctx, dataset=dataset, root=root, anchor=anchor_for(ctx, path, root),
+                    out_path=out_path, dry_run=dry_run, force=force, progress=progress, wanted_spec=spec,
+                    keep_location=keep,
+                )  # fmt: skip
+                try:
+                    outcome = run_stages(job)
+                    break
+                except SourceChanged as exc:
+                    outcome = job.outcome(Outcome.SKIPPED, one_line(exc), requeue=True, signature=None)
+                    log.info("%s: %s", shown_name(path), outcome.reason, extra={"path": str(path)})
+                except Exception as exc:  # one bad file must not stop the others; record and go on
+                    outcome = _record_failure(ctx, path, dataset, root, out_path, exc, dry_run, spec)
+                    break
+    except LockHeld as exc:  # another process is on it; its own row says what happened
+        outcome = ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
+    except OSError as exc:  # the lock file itself (a full disk): nothing was done
+        outcome = _record_failure(ctx, path, dataset, root, out_path, exc, dry_run, spec)
     outcome.seconds = time.monotonic() - started
     log.log(
-        logging.INFO if outcome.state in ("protected", "failed") else logging.DEBUG,
+        logging.INFO if outcome.state in (Outcome.PATCHED, Outcome.FAILED) else logging.DEBUG,
         "protect %s: %s",
         outcome.state,
         path.name,
@@ -285,9 +202,9 @@ def _record_failure(
         log.warning("not recorded: %s: %s", shown_name(path), message, extra={"path": repr(str(path))})
     elif not dry_run:
         try:
-            _ensure_dataset(ctx, dataset, root, spec)
+            ensure_dataset(ctx, dataset, root, spec)
             ctx.store.record_file(
-                out_path or path, dataset, "failed", error=message, event="failed",
+                out_path or path, dataset, FileState.FAILED, error=message, event="failed",
                 detail={"error": message, "exception": type(exc).__name__},
             )  # fmt: skip
         except Exception as store_exc:  # the store itself failing (disk full) must not hide the first error
@@ -295,165 +212,38 @@ def _record_failure(
                 "could not record failure of %s: %s", shown_name(path), one_line(store_exc),
                 extra={"path": str(path), "error": message},
             )  # fmt: skip
-    return ProtectOutcome(path=path, dataset=dataset, state="failed", reason=message)
+    return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=message)
 
 
-def _ensure_dataset(ctx: AppContext, dataset: str, root: Path, spec: PatchSpec | None) -> PatchSpec:
-    """The dataset's one spec; a new dataset gets spec (else the config's) with its first file."""
-    initial = spec or ctx.config.spec_for(dataset)
-    _, stored = ctx.store.ensure_dataset(dataset, root, initial, ctx.config.publish_dir_for(dataset))
-    return stored
-
-
-def _dataset_spec(
-    ctx: AppContext, dataset: str, root: Path, dry_run: bool, spec: PatchSpec | None
-) -> PatchSpec:
-    if dry_run:
-        return spec or ctx.store.dataset_spec(dataset) or ctx.config.spec_for(dataset)
-    return _ensure_dataset(ctx, dataset, root, spec)
-
-
-def _carry_moved_row(
-    ctx: AppContext, earlier: dict[str, Any], path: Path, dataset: str, root: Path
-) -> bool:
-    """A protected file that was moved or renamed (a dataset folder renamed in the outbox, say)
+def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, dataset: str, root: Path) -> bool:
+    """A patched file that was moved or renamed (a dataset folder renamed in the outbox, say)
     keeps its provenance: its row follows it to the new path instead of dropping out of the
     store, so status, restore and verification still see it. Copies (the old path still there)
     are left as they are."""
     old = Path(earlier["path"])
-    if old == path or old.exists() or earlier["state"] not in ("protected", "removed"):
+    if old == path or old.exists() or earlier["state"] not in (FileState.PATCHED, FileState.REMOVED):
         return False
     fields = {k: earlier[k] for k in ("original_sha256", "poisoned_sha256", "spec_id", "tool_version")}
     # A dataset first seen through moved files (a renamed folder) inherits their patch spec.
-    _ensure_dataset(ctx, dataset, root, ctx.store.get_spec(earlier["spec_id"]))
+    ensure_dataset(ctx, dataset, root, ctx.store.get_spec(earlier["spec_id"]))
     st = path.stat()
     ctx.store.record_file(
-        path, dataset, "protected", event="moved", detail={"from": str(old)},
+        path, dataset, FileState.PATCHED, event="moved", detail={"from": str(old)},
         size=st.st_size, mtime_ns=st.st_mtime_ns, **fields,
     )  # fmt: skip
-    ctx.store.record_file(old, earlier["dataset"], "removed", event="moved_away", detail={"to": str(path)})
+    ctx.store.record_file(
+        old, earlier["dataset"], FileState.REMOVED, event="moved_away", detail={"to": str(path)}
+    )
     return True
 
 
-def _protect(
-    path: Path,
-    ctx: AppContext,
-    dataset: str,
-    root: Path,
-    out_path: Path | None,
-    dry_run: bool,
-    force: bool,
-    progress: Progress | None,
-    wanted_spec: PatchSpec | None,
-) -> ProtectOutcome:
-    def outcome(state: str, reason: str | None = None, **kw: Any) -> ProtectOutcome:
-        return ProtectOutcome(path=path, dataset=dataset, state=state, reason=reason, dry_run=dry_run, **kw)
-
-    if is_ignored_name(path):
-        return outcome("skipped", "hidden or temporary file")
-    if not storable(path):
-        raise ProtectRefused(
-            f"{shown_name(path)}: the file name is not valid UTF-8; rename it to protect it "
-            "(ppd records names as UTF-8)"
-        )
-    resolved = _check_containment(path, root)
-    kind = media_kind(path)
-    record_path = Path(out_path).absolute() if out_path is not None else path
-    if kind is None:  # not ours to judge (sidecars, notes): left alone, no row
-        return outcome("skipped", "not a supported image or video")
-    before = os.lstat(path)
-    if before.st_size == 0:
-        raise ValueError(f"{path.name} is empty (0 bytes); it may still be being written")
-    sha = sha256_file(path)
-    row = ctx.store.file(record_path)
-
-    # Never poison twice: ppd's own output (here or anywhere) is left alone.
-    if out_path is None and row is not None and row["poisoned_sha256"] == sha:
-        return outcome("unchanged", "already protected", kind=kind, poisoned_sha256=sha, output=path)
-    # An interrupted run of this very path first: its output may equal another file's (the same
-    # photo in two datasets), which the look-up below would take as "someone else's output" and
-    # leave this row pending for ever.
-    interrupted = out_path is None and row is not None and row["state"] == "pending" and not dry_run
-    if interrupted and _recover_pending(ctx, row, path, sha, kind):
-        return outcome("unchanged", "recovered after an interrupted run", kind=kind, poisoned_sha256=sha)
-    earlier = ctx.store.find_poisoned(sha)
-    if earlier is not None:
-        if out_path is None and not dry_run and _carry_moved_row(ctx, earlier, path, dataset, root):
-            return outcome("unchanged", f"moved from {earlier['path']}", kind=kind, poisoned_sha256=sha)
-        return outcome("unchanged", "already ppd output", kind=kind, poisoned_sha256=sha)
-    if row is not None and row["state"] == "restored" and row["original_sha256"] == sha and not force:
-        return outcome("unchanged", "restored by the user (use --force to protect it again)", kind=kind)
-
-    spec = _dataset_spec(ctx, dataset, root, dry_run, wanted_spec)
-    if (
-        out_path is not None
-        and row is not None
-        and row["state"] == "protected"
-        and row["original_sha256"] == sha
-        and row["spec_id"] == spec.spec_id
-        and record_path.is_file()
-        and sha256_file(record_path) == row["poisoned_sha256"]
-    ):
-        return outcome("unchanged", "protected copy is up to date", kind=kind, output=record_path)
-
-    rel = resolved.relative_to(root.resolve()).as_posix()
-    if not spec.selects(rel):
-        same = row is not None and row["state"] == "skipped" and row["original_sha256"] == sha
-        if same and row is not None and row["spec_id"] == spec.spec_id:
-            return outcome("unchanged", "not selected by the spec's ratio", kind=kind)
-        if not dry_run:
-            if out_path is not None:  # the copy is published as it is
-                with atomic_output(record_path, mode_like=path) as tmp:
-                    shutil.copyfile(path, tmp)
-            ctx.store.record_file(
-                record_path, dataset, "skipped", original_sha256=sha, spec_id=spec.spec_id,
-                poisoned_sha256=None, error=None, event="skipped", detail={"reason": "ratio"},
-            )  # fmt: skip
-        return outcome("skipped", "not selected by the spec's ratio", kind=kind, spec_id=spec.spec_id)
-
-    if dry_run:
-        return outcome("protected", "would protect", kind=kind, original_sha256=sha, spec_id=spec.spec_id)
-
-    # 1. the original goes to the vault first (a copy when the original stays in place).
-    kept = ctx.vault.keep(path, link=out_path is None)
-    if kept != sha:
-        raise SourceChanged(f"{path.name} changed while being protected; left as it is now")
-    # 2. a pending row: after a crash we know this path's original is in the vault.
-    ctx.store.record_file(
-        record_path, dataset, "pending", original_sha256=sha, spec_id=spec.spec_id, poisoned_sha256=None,
-        error=None, tool_version=tool_version(), event="pending", detail={"kind": kind},
-    )  # fmt: skip
-    # 3-5. complete poisoned file next to the target, re-check the source, rename.
-    if out_path is not None:
-        record_path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(record_path, mode_like=path) as tmp:
-        report = poison_to(kind, path, tmp, spec, progress)
-        poisoned_sha = sha256_file(tmp)
-        _recheck_source(path, before, sha)
-    final = record_path
-    publish_dir = _publish_dir(ctx, dataset) if out_path is None else None
-    if publish_dir is not None:
-        final = publish(record_path, publish_dir / rel)
-    st = final.stat()
-    ctx.store.record_file(
-        record_path, dataset, "protected", original_sha256=sha, poisoned_sha256=poisoned_sha,
-        spec_id=spec.spec_id, tool_version=tool_version(), size=st.st_size, mtime_ns=st.st_mtime_ns,
-        error=None, published_path=str(final) if final != record_path else None,
-        event="protected", detail=_report_detail(report),
-    )  # fmt: skip
-    return outcome(
-        "protected", None, kind=kind, original_sha256=sha, poisoned_sha256=poisoned_sha,
-        spec_id=spec.spec_id, output=final, report=report,
-    )  # fmt: skip
-
-
-def _recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str) -> bool:
+def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str | None) -> bool:
     """A 'pending' row means a run stopped between keeping the original and recording the
     result. If the file now differs from the original, it may be our complete output (the
     rename happened, the final row did not): poisoning is deterministic, so poison the vault
     original again and compare. True (and the row completed) when it is ours."""
     original_sha = row["original_sha256"]
-    if not original_sha or sha == original_sha or not ctx.vault.verify(original_sha):
+    if not kind or not original_sha or sha == original_sha or not ctx.vault.verify(original_sha):
         return False
     spec = ctx.store.get_spec(row["spec_id"])
     with _named_vault_copy(ctx, original_sha, path.name) as original:
@@ -466,31 +256,10 @@ def _recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str,
             return False
     st = path.stat()
     ctx.store.record_file(
-        path, row["dataset"], "protected", poisoned_sha256=sha, size=st.st_size, mtime_ns=st.st_mtime_ns,
-        error=None, event="recovered", detail={"from": "pending"},
+        path, row["dataset"], FileState.PATCHED, poisoned_sha256=sha, size=st.st_size,
+        mtime_ns=st.st_mtime_ns, error=None, event="recovered", detail={"from": "pending"},
     )  # fmt: skip
     return True
-
-
-def _publish_dir(ctx: AppContext, dataset: str) -> Path | None:
-    row = ctx.store.dataset(dataset)
-    return Path(row["publish_dir"]) if row and row["publish_dir"] else None
-
-
-def _report_detail(report: Any) -> dict[str, Any]:
-    detail: dict[str, Any] = {}
-    for name in ("format", "width", "height", "preserved", "notes", "frames", "codec"):
-        if hasattr(report, name):
-            detail[name] = getattr(report, name)
-    placement = getattr(report, "placement", None)
-    if placement is not None:
-        detail["placement"] = {
-            "x": placement.x,
-            "y": placement.y,
-            "size": placement.size,
-            "block": placement.block,
-        }
-    return detail
 
 
 # ---- datasets as a whole ---------------------------------------------------------------------
@@ -498,7 +267,7 @@ def dataset_pairs(ctx: AppContext, dataset: str) -> list[tuple[Path, Path]]:
     """(original in the vault, protected file) for every protected file of a dataset whose two
     files both still exist (missing ones are logged, not returned)."""
     pairs = []
-    for row in ctx.store.files(dataset, state="protected"):
+    for row in ctx.store.files(dataset, state=FileState.PATCHED):
         original = ctx.vault.path_for(row["original_sha256"])
         protected = Path(row["published_path"] or row["path"])
         if original.is_file() and protected.is_file():
@@ -514,11 +283,13 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
     path = Path(path).absolute()
     row = ctx.store.file(path)
     if row is None:
-        return ProtectOutcome(path=path, dataset=None, state="failed", reason=f"{path} is not in the store")
-    dataset = row["dataset"]
-    if row["state"] != "protected" or not row["original_sha256"]:
         return ProtectOutcome(
-            path=path, dataset=dataset, state="unchanged", reason=f"state is {row['state']}"
+            path=path, dataset=None, state=Outcome.FAILED, reason=f"{path} is not in the store"
+        )
+    dataset = row["dataset"]
+    if row["state"] != FileState.PATCHED or not row["original_sha256"]:
+        return ProtectOutcome(
+            path=path, dataset=dataset, state=Outcome.UNCHANGED, reason=f"state is {row['state']}"
         )
     target = Path(row["published_path"] or row["path"])
     with ctx.path_lock(path):
@@ -529,16 +300,16 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                 )
             ctx.vault.restore(row["original_sha256"], target)
         except Exception as exc:
-            return ProtectOutcome(path=path, dataset=dataset, state="failed", reason=one_line(exc))
+            return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
         ctx.store.record_file(
             path,
             dataset,
-            "restored",
+            FileState.RESTORED,
             event="restored",
             detail={"to": str(target), "sha256": row["original_sha256"]},
         )
     return ProtectOutcome(
-        path=path, dataset=dataset, state="restored", reason=None,
+        path=path, dataset=dataset, state=Outcome.RESTORED, reason=None,
         original_sha256=row["original_sha256"], output=target,
     )  # fmt: skip
 
@@ -557,9 +328,9 @@ def reprotect_dataset(ctx: AppContext, dataset: str, spec: PatchSpec) -> list[Pr
     outcomes = []
     for file_row in ctx.store.files(dataset):
         path = Path(file_row["path"])
-        if file_row["state"] == "protected":
+        if file_row["state"] == FileState.PATCHED:
             outcomes.append(_reprotect_one(ctx, file_row, root, spec))
-        elif file_row["state"] in ("skipped", "failed", "pending") and path.is_file():
+        elif file_row["state"] in (FileState.SKIPPED, FileState.FAILED, FileState.PENDING) and path.is_file():
             outcomes.append(protect_file(path, ctx, dataset, root=root))
     return outcomes
 
@@ -582,22 +353,22 @@ def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: Patch
             ):
                 if spec.selects(rel):
                     report = poison_to(kind, original, tmp, spec)
-                    state = "protected"
+                    row_state, state = FileState.PATCHED, Outcome.PATCHED
                 else:
                     shutil.copyfile(original, tmp)
-                    report, state = None, "skipped"
+                    report, row_state, state = None, FileState.SKIPPED, Outcome.SKIPPED
                 new_sha = sha256_file(tmp)
             st = target.stat()
             ctx.store.record_file(
-                path, dataset, state, poisoned_sha256=new_sha if state == "protected" else None,
+                path, dataset, row_state, poisoned_sha256=new_sha if state == Outcome.PATCHED else None,
                 spec_id=spec.spec_id, tool_version=tool_version(), size=st.st_size, mtime_ns=st.st_mtime_ns,
-                error=None, event="reprotected", detail={"spec_id": spec.spec_id, **_report_detail(report)},
+                error=None, event="reprotected", detail={"spec_id": spec.spec_id, **report_detail(report)},
             )  # fmt: skip
         except Exception as exc:
-            return ProtectOutcome(path=path, dataset=dataset, state="failed", reason=one_line(exc))
+            return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
     return ProtectOutcome(
         path=path, dataset=dataset, state=state, original_sha256=row["original_sha256"],
-        poisoned_sha256=new_sha if state == "protected" else None, spec_id=spec.spec_id, output=target,
+        poisoned_sha256=new_sha if state == Outcome.PATCHED else None, spec_id=spec.spec_id, output=target,
     )  # fmt: skip
 
 

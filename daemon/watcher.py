@@ -49,6 +49,8 @@ from watchdog.events import (
 from watchdog.observers.inotify import InotifyObserver
 
 from daemon.notify import SystemdNotifier
+from daemon.pipeline import Outcome
+from daemon.states import FileState
 from daemon.workers import PoolOptions, PoolStats, WorkerPool
 from poisoner.atomic import TEMP_PREFIX
 
@@ -267,7 +269,10 @@ class OutboxWatcher(FileSystemEventHandler):
     # ---- what the consumer tells us ---------------------------------------------------------
     def mark_settled(self, path: Path) -> None:
         """Remember path's current signature: events that find it unchanged are echoes."""
-        sig = signature(path)
+        self.settle_as(path, signature(path))
+
+    def settle_as(self, path: Path, sig: FileSignature | None) -> None:
+        """Remember sig (what ppd judged or wrote at path) as settled; None forgets path."""
         with self._settled_lock:
             if sig is None:
                 self._settled.pop(path, None)
@@ -426,7 +431,7 @@ class DaemonOptions:
 
 @dataclass
 class DaemonCounts:
-    protected: int = 0
+    patched: int = 0
     unchanged: int = 0
     skipped: int = 0
     failed: int = 0
@@ -436,7 +441,7 @@ class DaemonCounts:
 def status_line(counts: DaemonCounts, stats: PoolStats, armed: int) -> str:
     """The one-line STATUS= systemd shows in `systemctl --user status ppd`."""
     return (
-        f"protected {counts.protected}, failed {counts.failed}, unchanged {counts.unchanged}, "
+        f"patched {counts.patched}, failed {counts.failed}, unchanged {counts.unchanged}, "
         f"removed {counts.removed}; queued {stats.queued + stats.pending}, in flight {stats.in_flight}, "
         f"settling {armed}"
     )
@@ -647,7 +652,7 @@ class WatchDaemon:
         remove_leftovers: delete old `.ppd-tmp-*` files, crash leftovers. Only at start-up:
         later, this daemon's own workers have temporaries in progress (a video's for minutes).
 
-        Queues every candidate file whose (size, mtime) differ from its 'protected' row (new or
+        Queues every candidate file whose (size, mtime) differ from its patched row (new or
         changed while ppd was down; protect_file itself says 'unchanged' for its own output),
         and every path the store knows but the disk no longer has (recorded 'removed').
         Returns how many paths were queued.
@@ -668,7 +673,8 @@ class WatchDaemon:
                 continue
             queued += int(self.pool.submit(path))
         for path_text, row in rows.items():
-            if path_text not in on_disk and row["state"] != "removed" and _is_under(self.outbox, path_text):
+            gone = path_text not in on_disk and row["state"] != FileState.REMOVED
+            if gone and _is_under(self.outbox, path_text):
                 queued += int(self.pool.submit(Path(path_text)))
         seconds = round(time.monotonic() - started, 3)
         log.info(
@@ -706,18 +712,24 @@ class WatchDaemon:
         from daemon.protect import protect_file  # lazy: keeps `import daemon.watcher` light
 
         outcome = protect_file(path, self.ctx)
-        self.watcher.mark_settled(Path(outcome.output) if outcome.output else path)
-        self.watcher.mark_settled(path)
+        # The signature of what ppd judged or wrote, not of what is there now: a version that
+        # arrived meanwhile must not be taken for an echo of ppd's own work.
+        if outcome.signature is None and outcome.state == Outcome.FAILED:
+            self.watcher.mark_settled(path)  # the same bytes fail the same way: no event loop
+        else:
+            self.watcher.settle_as(path, outcome.signature)
+        if outcome.requeue:
+            self.pool.submit(path)  # runs once more after this job (daemon.workers)
         self._count(outcome.state)
-        self._note_no_space(path, outcome.reason if outcome.state == "failed" else None)
-        if outcome.state == "failed":
+        self._note_no_space(path, outcome.reason if outcome.state == Outcome.FAILED else None)
+        if outcome.state == Outcome.FAILED:
             log.warning(
                 "failed: %s: %s",
                 path,
                 outcome.reason,
                 extra={"path": str(path), "dataset": outcome.dataset, "reason": outcome.reason},
             )
-        if outcome.state == "protected" and self.scheduler is not None and outcome.dataset:
+        if outcome.state == Outcome.PATCHED and self.scheduler is not None and outcome.dataset:
             try:
                 self.scheduler.on_protected(outcome.dataset)
             except Exception:
@@ -734,15 +746,16 @@ class WatchDaemon:
             prefix = str(path) + os.sep
             rows = [r for r in self._known_rows().values() if r["path"].startswith(prefix)]
         for r in rows:
-            if r["state"] == "removed" or Path(r["path"]).exists():
+            if r["state"] == FileState.REMOVED or Path(r["path"]).exists():
                 continue
             published = r.get("published_path")
-            if r["state"] == "protected" and published and Path(published).exists():
+            if r["state"] == FileState.PATCHED and published and Path(published).exists():
                 continue  # moved to its publish folder by ppd itself, not removed
             store.record_file(
-                r["path"], r["dataset"], "removed", event="removed", detail={"previous_state": r["state"]}
+                r["path"], r["dataset"], FileState.REMOVED, event="removed",
+                detail={"previous_state": r["state"]},
             )
-            self._count("removed")
+            self._count("removed")  # DaemonCounts.removed
             log.info("removed: %s", r["path"], extra={"path": r["path"], "dataset": r["dataset"]})
 
 
@@ -768,8 +781,8 @@ def is_no_space(reason: str | None) -> bool:
 
 
 def _row_matches_disk(row: dict[str, Any], path: Path) -> bool:
-    """A 'protected' row whose recorded size and mtime are the file's: nothing to do."""
-    if row["state"] != "protected" or row.get("published_path") or row.get("size") is None:
+    """A patched row whose recorded size and mtime are the file's: nothing to do."""
+    if row["state"] != FileState.PATCHED or row.get("published_path") or row.get("size") is None:
         return False
     try:
         st = path.stat()

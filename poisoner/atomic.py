@@ -1,28 +1,92 @@
-"""Atomic file replacement: a crash at any instant leaves the old file or the complete new one.
+"""Atomic file replacement, the one helper every writer of a user-visible file goes through.
 
-The new content is written to a temporary file in the destination's own folder (so the final
-rename never crosses a filesystem), flushed and fsynced, given the destination's permission
-bits, then renamed over the destination; the folder is fsynced so the rename itself survives
-a power cut. Temporary names start with TEMP_PREFIX: the watcher ignores them, and a
-start-up scan may delete leftovers of a crash.
+A crash at any instant leaves the old file or the complete new one. The new content is written
+to a temporary file in the destination's own folder (so the final rename never crosses a
+filesystem), fsynced, given its permission bits, then renamed over the destination; the folder
+is fsynced so the rename itself survives a power cut.
+
+Everything is relative to a directory file descriptor (`atomic_replace_at`): the temporary is
+created with O_EXCL|O_NOFOLLOW in that folder and renamed with `src_dir_fd`/`dst_dir_fd`, so a
+folder swapped for a symlink between the decision and the write cannot redirect it.
+`atomic_output(path)` is the path-based form for folders ppd trusts (its own, or one the user
+named on the command line).
+
+Temporary names start with TEMP_PREFIX, and a temporary is flock()ed by its writer for as long
+as it lives: `clear_stale_temps` deletes only unlocked ones of a minimum age, so it never
+removes another live process's temporary and never anything that is not ppd's.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
 import os
+import secrets
 import stat
-import tempfile
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 TEMP_PREFIX = ".ppd-tmp-"
+STALE_TEMP_AGE_S = 10.0  # an unlocked temporary this old has no living writer (see clear_stale_temps)
+_DIR_FLAGS = os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC
 
 
 def fsync_dir(folder: Path) -> None:
-    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    fd = os.open(folder, _DIR_FLAGS)
     try:
         os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def default_mode() -> int:
+    """0o644 minus the process's umask (what a new file would get)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o644 & ~umask
+
+
+def create_temp_at(dir_fd: int, suffix: str = "") -> tuple[str, int]:
+    """A new, exclusively created and flock()ed temporary in the folder dir_fd: (name, write fd)."""
+    for _ in range(100):
+        name = f"{TEMP_PREFIX}{secrets.token_hex(6)}{suffix}"
+        try:
+            fd = os.open(name, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600,
+                         dir_fd=dir_fd)  # fmt: skip
+        except FileExistsError:
+            continue
+        fcntl.flock(fd, fcntl.LOCK_EX)  # "alive": clear_stale_temps leaves it alone
+        return name, fd
+    raise FileExistsError(errno.EEXIST, "no free temporary name")
+
+
+@contextlib.contextmanager
+def atomic_replace_at(
+    dir_fd: int, name: str, *, mode: int | None = None, check: Callable[[], None] | None = None
+) -> Iterator[tuple[int, str]]:
+    """Yield (fd, temporary name) of a temporary in the folder dir_fd; on normal exit it becomes
+    `name` in that folder atomically. The caller writes the complete content to fd (or to the
+    temporary's name through dir_fd).
+
+    check runs last, just before the rename, in the same critical section: it raises to abandon
+    the replace (compare-and-swap on what is at `name` now). mode: the new file's permission
+    bits (default 0o644 minus the umask). On any exception the temporary is removed and `name`
+    is untouched."""
+    tmp_name, fd = create_temp_at(dir_fd, os.path.splitext(name)[1])
+    try:
+        yield fd, tmp_name
+        os.fchmod(fd, default_mode() if mode is None else mode)
+        os.fsync(fd)
+        if check is not None:
+            check()
+        os.rename(tmp_name, name, src_dir_fd=dir_fd, dst_dir_fd=dir_fd)
+        os.fsync(dir_fd)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp_name, dir_fd=dir_fd)
+        raise
     finally:
         os.close(fd)
 
@@ -31,35 +95,57 @@ def fsync_dir(folder: Path) -> None:
 def atomic_output(dst: Path, *, mode_like: Path | None = None) -> Iterator[Path]:
     """Yield a temporary path next to dst; on normal exit it atomically becomes dst.
 
-    The caller writes the complete file to the yielded path (by any means: PIL, PyAV, ...).
-    On an exception the temporary file is removed and dst is untouched. Permission bits are
-    copied from mode_like (default: dst itself if it exists, else 0o644 minus the umask).
-    """
+    For folders ppd trusts (the path is resolved once, when the folder is opened). The caller
+    writes the complete file to the yielded path (by any means: PIL, PyAV, ...). Permission bits
+    are copied from mode_like (default: dst itself if it exists, else 0o644 minus the umask)."""
     dst = Path(dst)
-    folder = dst.parent
-    fd, tmp_name = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix=dst.suffix, dir=folder)
-    os.close(fd)
-    tmp = Path(tmp_name)
+    dir_fd = os.open(dst.parent, _DIR_FLAGS)
     try:
-        yield tmp
-        with open(tmp, "rb+") as fh:
-            fh.flush()
-            os.fsync(fh.fileno())
-        source = mode_like if mode_like is not None else (dst if dst.exists() else None)
-        if source is not None and source.exists():
-            os.chmod(tmp, stat.S_IMODE(source.stat().st_mode))
-        else:
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o644 & ~umask)
-        os.replace(tmp, dst)
-        fsync_dir(folder)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-        raise
+        source = mode_like if mode_like is not None else dst
+        try:
+            mode: int | None = stat.S_IMODE(os.stat(source).st_mode)
+        except OSError:
+            mode = None
+        with atomic_replace_at(dir_fd, dst.name, mode=mode) as (_fd, tmp_name):
+            yield dst.parent / tmp_name
+    finally:
+        os.close(dir_fd)
 
 
 def atomic_write_bytes(dst: Path, data: bytes, *, mode_like: Path | None = None) -> None:
     with atomic_output(dst, mode_like=mode_like) as tmp:
         tmp.write_bytes(data)
+
+
+def clear_stale_temps(
+    dir_fd: int, *, min_age_s: float = STALE_TEMP_AGE_S, now: float | None = None
+) -> list[str]:
+    """Delete ppd's own leftover temporaries in the folder dir_fd: names starting with TEMP_PREFIX,
+    regular files, not locked by a living writer, and at least min_age_s old (the age covers the
+    instant between a temporary's creation and its lock, and temporaries of older ppd versions).
+    Returns the names removed."""
+    now = time.time() if now is None else now
+    removed = []
+    for name in os.listdir(dir_fd):
+        if not name.startswith(TEMP_PREFIX):
+            continue
+        try:
+            fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, dir_fd=dir_fd)
+        except OSError:
+            continue  # gone, a symlink, or unreadable: not ours to judge
+        try:
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode) or now - st.st_mtime < min_age_s:
+                continue
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                continue  # a living ppd process is writing it
+            with contextlib.suppress(FileNotFoundError):
+                same = os.stat(name, dir_fd=dir_fd, follow_symlinks=False)
+                if (same.st_ino, same.st_dev) == (st.st_ino, st.st_dev):
+                    os.unlink(name, dir_fd=dir_fd)
+                    removed.append(name)
+        finally:
+            os.close(fd)
+    return removed

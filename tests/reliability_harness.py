@@ -43,6 +43,7 @@ if str(REPO) not in sys.path:  # pytest puts tests/ first; bench and tests.* nee
 from bench.bench_daemon import Daemon, start_daemon, status_kb  # noqa: E402
 from daemon.paths import AppPaths  # noqa: E402
 from daemon.protect import media_kind, poison_to  # noqa: E402
+from daemon.states import FileState  # noqa: E402
 from daemon.store import Store  # noqa: E402
 from poisoner.atomic import TEMP_PREFIX  # noqa: E402
 from tests.test_watcher import texture, wait_for, write_image  # noqa: E402
@@ -167,7 +168,7 @@ def _row_problems(paths: AppPaths, store: Store, row: dict, original: str | None
     path = Path(row["published_path"] or row["path"])
     state = row["state"]
     on_disk = sha256(path) if path.is_file() else None
-    if state == "protected":
+    if state == FileState.PATCHED:
         if on_disk is None:
             return [f"store: protected row but no file at {path}"]
         if on_disk != row["poisoned_sha256"]:
@@ -194,7 +195,7 @@ def _file_problems(paths: AppPaths, path: Path, original: str, row: dict | None)
         return [f"lost: {path.name} was replaced and its original is not in the vault"]
     if row is None:
         return [f"corrupted: {path.name} changed and the store has no row for it"]
-    if row["state"] == "protected" and row["poisoned_sha256"] == on_disk:
+    if row["state"] == FileState.PATCHED and row["poisoned_sha256"] == on_disk:
         if row["original_sha256"] != original:  # ppd's output taken for an original: poisoned twice
             return [f"corrupted: {path.name} was protected from something other than its original"]
         return []
@@ -229,13 +230,13 @@ def wait_all_protected(paths: AppPaths, files: list[Path], timeout: float) -> No
             rows = _all_rows(store)
         finally:
             store.close()
-        return all(rows.get(str(f), {}).get("state") == "protected" for f in files)
+        return all(rows.get(str(f), {}).get("state") == FileState.PATCHED for f in files)
 
     try:
         wait_for(done, timeout, f"{len(files)} files protected")
     except AssertionError as exc:
         stuck = {f.name: (rows.get(str(f), {}).get("state"), rows.get(str(f), {}).get("error"))
-                 for f in files if rows.get(str(f), {}).get("state") != "protected"}  # fmt: skip
+                 for f in files if rows.get(str(f), {}).get("state") != FileState.PATCHED}  # fmt: skip
         raise AssertionError(f"{exc}; not protected: {dict(list(stuck.items())[:10])}") from None
 
 
@@ -524,8 +525,10 @@ class MountUnavailable(RuntimeError):
 
 
 @contextlib.contextmanager
-def small_filesystem(where: Path, size: str = "3m") -> Iterator[Path]:
-    """A size-limited tmpfs mounted at where for the block (lazily unmounted afterwards)."""
+def small_filesystem(where: Path, size: str = "6m") -> Iterator[Path]:
+    """A size-limited tmpfs mounted at where for the block (lazily unmounted afterwards). 6 MiB:
+    the vault keeps an independent copy of every original (no hard link), so a run needs room
+    for both."""
     where.mkdir(parents=True, exist_ok=True)
     mounted = subprocess.run(
         ["mount", "-t", "tmpfs", "-o", f"size={size},mode=0755", "tmpfs", str(where)],
@@ -583,18 +586,18 @@ def run_disk_full(fs: Path, leave: int, files: int = 4) -> DiskFullReport:
     try:
         images = [write_image(paths.outbox / "shoot" / f"{i}.png", seed=i, size=256) for i in range(files)]
         originals = {f: sha256(f) for f in images}
-        assert protect_file(images[0], ctx).state == "protected"  # the store and vault exist
+        assert protect_file(images[0], ctx).state == "patched"  # the store and vault exist
         filler = fill(fs, leave)
         for outcome in (protect_file(f, ctx) for f in images[1:]):
             report.failed_while_full += outcome.state == "failed"
-            report.protected_while_full += outcome.state == "protected"
+            report.protected_while_full += outcome.state == "patched"
             if outcome.state == "failed" and (not outcome.reason or "\n" in outcome.reason):
                 report.unclear_reasons.append(repr(outcome.reason))
         report.leftover_temporaries = len(leftover_temporaries(paths))
         report.violations_while_full = check_invariants(paths, originals)
         filler.unlink()
         report.protected_after_space_returned = sum(
-            protect_file(f, ctx).state in ("protected", "unchanged") for f in images
+            protect_file(f, ctx).state in ("patched", "unchanged") for f in images
         )
     finally:
         ctx.close()

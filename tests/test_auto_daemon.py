@@ -159,7 +159,7 @@ def _protect_scene(ctx: AppContext, outbox: Path, spec: PatchSpec, views: int = 
     render_scene(trip, SyntheticOptions(num_views=views, width=160, height=160))
     files = sorted(trip.glob("*.png"))
     for p in files:
-        assert protect_file(p, ctx, spec=spec).state == "protected"
+        assert protect_file(p, ctx, spec=spec).state == "patched"
     return files
 
 

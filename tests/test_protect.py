@@ -15,6 +15,7 @@ from daemon.config import Config, ConfigError, parse_length
 from daemon.dataset import DEFAULT_DATASET, OutsideOutboxError, dataset_of
 from daemon.paths import AppPaths
 from daemon.protect import AppContext, dataset_pairs, protect_file, reprotect_dataset, restore_file
+from daemon.states import FileState
 from daemon.store import DatasetSpecLocked
 from daemon.syncdirs import find_sync_folder
 from poisoner.ladder import default_spec
@@ -115,14 +116,14 @@ def test_protect_records_vaults_and_replaces(ctx: AppContext, ppd_env: dict[str,
     src = make_image(ppd_env["outbox"] / "shoot" / "a.png", 1)
     original = src.read_bytes()
     outcome = protect_file(src, ctx)
-    assert outcome.state == "protected", outcome.reason
+    assert outcome.state == "patched", outcome.reason
     assert outcome.dataset == "shoot" and outcome.kind == "image"
     assert src.read_bytes() != original
     assert outcome.original_sha256 == hashlib.sha256(original).hexdigest()
     assert outcome.poisoned_sha256 == _sha(src)
     assert ctx.vault.path_for(outcome.original_sha256).read_bytes() == original
     row = ctx.store.file(src)
-    assert row["state"] == "protected" and row["spec_id"] == default_spec().spec_id
+    assert row["state"] == FileState.PATCHED and row["spec_id"] == default_spec().spec_id
     assert row["poisoned_sha256"] == _sha(src) and row["error"] is None
     assert [e["kind"] for e in ctx.store.events("shoot")][:2] == ["protected", "pending"]
     assert dataset_pairs(ctx, "shoot") == [(ctx.vault.path_for(outcome.original_sha256), src)]
@@ -131,7 +132,7 @@ def test_protect_records_vaults_and_replaces(ctx: AppContext, ppd_env: dict[str,
 
 def test_second_run_is_unchanged(ctx: AppContext, ppd_env: dict[str, Path]) -> None:
     src = make_image(ppd_env["outbox"] / "a.png", 2)
-    assert protect_file(src, ctx).state == "protected"
+    assert protect_file(src, ctx).state == "patched"
     poisoned = src.read_bytes()
     again = protect_file(src, ctx)
     assert again.state == "unchanged"
@@ -164,10 +165,10 @@ def test_ratio_skips_unselected_files(ctx: AppContext, ppd_env: dict[str, Path])
     before = {f: f.read_bytes() for f in files}
     outcomes = {f: protect_file(f, ctx) for f in files}
     for f, o in outcomes.items():
-        expected = "protected" if spec.selects(f.name) else "skipped"
+        expected = "patched" if spec.selects(f.name) else "skipped"
         assert o.state == expected
         assert (f.read_bytes() == before[f]) == (expected == "skipped")
-    assert {o.state for o in outcomes.values()} == {"protected", "skipped"}
+    assert {o.state for o in outcomes.values()} == {"patched", "skipped"}
     skipped = next(f for f, o in outcomes.items() if o.state == "skipped")
     assert not ctx.vault.has(hashlib.sha256(before[skipped]).hexdigest())
     assert protect_file(skipped, ctx).state == "unchanged"
@@ -211,7 +212,7 @@ def test_symlinks_are_refused(ctx: AppContext, ppd_env: dict[str, Path], tmp_pat
     # a real folder reached through a symlinked folder resolves outside the dataset too
     (ppd_env["outbox"] / "shoot" / "sub").symlink_to(secret.parent, target_is_directory=True)
     through = protect_file(ppd_env["outbox"] / "shoot" / "sub" / "secret.png", ctx)
-    assert through.state == "failed" and "outside" in through.reason
+    assert through.state == "failed" and "symlink" in through.reason
     assert secret.read_bytes() == before
 
 
@@ -232,19 +233,21 @@ def test_file_replaced_mid_processing_is_not_clobbered(
     newer_bytes = newer.read_bytes()
     real_poison_file = poisoner.formats.poison_file
 
-    def poison_then_user_saves_a_new_version(s: Path, d: Path, spec: PatchSpec):  # type: ignore[no-untyped-def]
-        report = real_poison_file(s, d, spec)
-        os.replace(newer, src)  # the user's editor saves a new version meanwhile
+    def poison_then_user_saves_a_new_version(s: Path, d: Path, spec: PatchSpec, **kw):  # type: ignore[no-untyped-def]
+        report = real_poison_file(s, d, spec, **kw)
+        if newer.exists():
+            os.replace(newer, src)  # the user's editor saves a new version meanwhile (once)
         return report
 
     monkeypatch.setattr(poisoner.formats, "poison_file", poison_then_user_saves_a_new_version)
     outcome = protect_file(src, ctx)
-    assert outcome.state == "failed" and "changed" in outcome.reason
-    assert src.read_bytes() == newer_bytes  # the user's new version survives
+    # The new version is never overwritten: the run starts over and patches it.
+    new_sha = hashlib.sha256(newer_bytes).hexdigest()
+    assert outcome.state == "patched" and outcome.original_sha256 == new_sha
+    assert ctx.vault.path_for(new_sha).read_bytes() == newer_bytes
+    assert src.read_bytes() != newer_bytes
+    assert hashlib.sha256(src.read_bytes()).hexdigest() == outcome.poisoned_sha256
     assert _no_temporaries(ppd_env["outbox"])
-    monkeypatch.setattr(poisoner.formats, "poison_file", real_poison_file)
-    assert protect_file(src, ctx).state == "protected"  # the next event protects the new version
-    assert ctx.vault.path_for(hashlib.sha256(newer_bytes).hexdigest()).read_bytes() == newer_bytes
 
 
 def test_concurrent_protection_of_different_files(ctx: AppContext, ppd_env: dict[str, Path]) -> None:
@@ -265,8 +268,9 @@ def test_concurrent_protection_of_different_files(ctx: AppContext, ppd_env: dict
         t.start()
     for t in threads:
         t.join()
-    assert set(results.values()) == {"protected"}
-    assert ctx.store.counts("shoot")["protected"] == 8 and ctx.store.counts("other")["protected"] == 4
+    assert set(results.values()) == {"patched"}
+    assert ctx.store.counts("shoot")[FileState.PATCHED] == 8
+    assert ctx.store.counts("other")[FileState.PATCHED] == 4
     for f, data in originals.items():
         assert ctx.vault.path_for(hashlib.sha256(data).hexdigest()).read_bytes() == data
         assert f.read_bytes() != data
@@ -286,7 +290,7 @@ def test_same_file_twice_at_once_poisons_once(ctx: AppContext, ppd_env: dict[str
         t.start()
     for t in threads:
         t.join()
-    assert sorted(states) == ["protected", "unchanged", "unchanged"]
+    assert sorted(states) == ["patched", "unchanged", "unchanged"]
 
 
 def test_publish_dir_receives_the_protected_file(ppd_env: dict[str, Path], tmp_path: Path) -> None:
@@ -296,7 +300,7 @@ def test_publish_dir_receives_the_protected_file(ppd_env: dict[str, Path], tmp_p
     src = make_image(ppd_env["outbox"] / "shoot" / "a.png", 3)
     original = src.read_bytes()
     outcome = protect_file(src, ctx)
-    assert outcome.state == "protected"
+    assert outcome.state == "patched"
     published = publish / "shoot" / "a.png"
     assert outcome.output == published and published.is_file() and not src.exists()
     assert ctx.store.file(src)["published_path"] == str(published)
@@ -314,7 +318,7 @@ def test_restore_then_daemon_leaves_it_force_reprotects(ctx: AppContext, ppd_env
     assert src.read_bytes() == original and ctx.store.file(src)["state"] == "restored"
     assert protect_file(src, ctx).state == "unchanged"  # the user's restore is respected
     assert src.read_bytes() == original
-    assert protect_file(src, ctx, force=True).state == "protected"
+    assert protect_file(src, ctx, force=True).state == "patched"
     assert src.read_bytes() != original
 
 
@@ -338,7 +342,7 @@ def test_reprotect_with_a_new_spec(ctx: AppContext, ppd_env: dict[str, Path]) ->
     with pytest.raises(DatasetSpecLocked):
         ctx.store.set_dataset_spec("shoot", new_spec)
     outcomes = reprotect_dataset(ctx, "shoot", new_spec)
-    assert [o.state for o in outcomes] == ["protected"] * 3
+    assert [o.state for o in outcomes] == ["patched"] * 3
     for f, orig, old in zip(files, originals, first, strict=True):
         row = ctx.store.file(f)
         assert row["spec_id"] == new_spec.spec_id and row["poisoned_sha256"] == _sha(f)
@@ -369,7 +373,7 @@ def test_video_is_protected(ctx: AppContext, ppd_env: dict[str, Path]) -> None:
             out.mux(packet)
     original = clip.read_bytes()
     outcome = protect_file(clip, ctx)
-    assert outcome.state == "protected", outcome.reason
+    assert outcome.state == "patched", outcome.reason
     assert outcome.kind == "video" and clip.read_bytes() != original
     assert ctx.vault.path_for(outcome.original_sha256).read_bytes() == original
     assert protect_file(clip, ctx).state == "unchanged"
@@ -385,11 +389,11 @@ def test_interrupted_run_is_recovered_not_poisoned_twice(ctx: AppContext, ppd_en
     assert again.state == "unchanged" and "interrupted" in again.reason
     assert src.read_bytes() == poisoned
     row = ctx.store.file(src)
-    assert row["state"] == "protected" and row["poisoned_sha256"] == outcome.poisoned_sha256
+    assert row["state"] == FileState.PATCHED and row["poisoned_sha256"] == outcome.poisoned_sha256
     # a crash before the rename: the file is still the original, so it is simply protected
     ctx.store.record_file(src, "shoot", "pending", poisoned_sha256=None)
     ctx.vault.restore(outcome.original_sha256, src)
-    assert protect_file(src, ctx).state == "protected"
+    assert protect_file(src, ctx).state == "patched"
     assert src.read_bytes() == poisoned
 
 
@@ -405,18 +409,18 @@ def test_a_renamed_dataset_folder_keeps_its_provenance(ppd_env) -> None:
         rng = np.random.default_rng(3)
         for i in range(3):
             Image.fromarray(rng.integers(0, 256, (96, 96, 3), dtype=np.uint8)).save(old_dir / f"v{i}.png")
-            assert protect_file(old_dir / f"v{i}.png", ctx).state == "protected"
+            assert protect_file(old_dir / f"v{i}.png", ctx).state == "patched"
         new_dir = ppd_env["outbox"] / "shoot-final"
         old_dir.rename(new_dir)
         outcomes = [protect_file(p, ctx) for p in sorted(new_dir.glob("*.png"))]
         assert {o.state for o in outcomes} == {"unchanged"}
         assert all("moved from" in (o.reason or "") for o in outcomes)
         rows = ctx.store.files("shoot-final")
-        assert len(rows) == 3 and {r["state"] for r in rows} == {"protected"}
+        assert len(rows) == 3 and {r["state"] for r in rows} == {FileState.PATCHED}
         assert {r["state"] for r in ctx.store.files("shoot")} == {"removed"}
         pairs = dataset_pairs(ctx, "shoot-final")
         assert len(pairs) == 3 and all(orig.exists() and prot.exists() for orig, prot in pairs)
         # A second pass is a plain no-op.
-        assert {protect_file(p, ctx).reason for p in new_dir.glob("*.png")} == {"already protected"}
+        assert {protect_file(p, ctx).reason for p in new_dir.glob("*.png")} == {"already patched"}
     finally:
         ctx.close()

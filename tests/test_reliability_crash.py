@@ -21,6 +21,7 @@ from reliability_harness import (
 )
 
 from daemon.paths import AppPaths
+from daemon.states import FileState
 from daemon.store import Store
 
 
@@ -91,11 +92,11 @@ def test_duplicate_killed_between_rename_and_record_is_recovered(
     first = write_image(ppd_env["outbox"] / "one" / "p.png", seed=1)
     (ppd_env["outbox"] / "two").mkdir()
     second = Path(shutil.copyfile(first, ppd_env["outbox"] / "two" / "p.png"))
-    assert protect_file(first, ctx).state == "protected"
+    assert protect_file(first, ctx).state == "patched"
     real_record = ctx.store.record_file
 
     def die_before_recording_protected(path: Path | str, dataset: str, state: str, **kw: object) -> None:
-        if state == "protected" and Path(path) == second:
+        if state == FileState.PATCHED and Path(path) == second:
             raise Killed
         real_record(path, dataset, state, **kw)
 
@@ -109,5 +110,5 @@ def test_duplicate_killed_between_rename_and_record_is_recovered(
     row = ctx.store.file(second)
     ctx.close()
     assert outcome.state == "unchanged" and "recovered" in outcome.reason, outcome
-    assert row["state"] == "protected" and row["poisoned_sha256"] == sha256(second)
+    assert row["state"] == FileState.PATCHED and row["poisoned_sha256"] == sha256(second)
     assert check_invariants(AppPaths.from_env(), {}) == []

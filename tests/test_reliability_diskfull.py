@@ -34,10 +34,12 @@ from reliability_harness import (
     write_image,
 )
 
+import daemon.pipeline
 import daemon.vault
 import poisoner.atomic
 import poisoner.formats
 from daemon.protect import AppContext, protect_file
+from daemon.states import FileState
 from daemon.store import Store
 from daemon.watcher import is_no_space
 
@@ -99,7 +101,11 @@ def test_full_tmpfs_under_the_daemon_retries_when_space_returns(tmp_path: Path) 
             assert daemon.proc.poll() is None, "the daemon died on a full disk"
             assert check_invariants(paths, originals) == []
             filler.unlink()  # space returns; no new event, no restart
-            wait_all_protected(paths, targets, 60)
+            try:
+                wait_all_protected(paths, targets, 60)
+            except AssertionError:
+                print(daemon.log.read_text(errors="replace")[-6000:])
+                raise
             store.close()
         finally:
             code = kill_daemon(daemon, signal.SIGTERM)
@@ -111,7 +117,7 @@ def test_full_tmpfs_under_the_daemon_retries_when_space_returns(tmp_path: Path) 
 
 def _protected(store: Store, path: Path) -> bool:
     row = store.file(path)
-    return row is not None and row["state"] == "protected"
+    return row is not None and row["state"] == FileState.PATCHED
 
 
 # ---- ENOSPC injected at chosen points ----------------------------------------------------------------
@@ -123,7 +129,7 @@ def _fail_write_bytes(monkeypatch: pytest.MonkeyPatch) -> None:
     real = Path.write_bytes
 
     def write_bytes(self: Path, data: bytes) -> int:
-        if self.name.startswith(poisoner.atomic.TEMP_PREFIX):
+        if self.name.startswith(daemon.pipeline.PATCHED_PREFIX):  # the poison stage's output
             with open(self, "wb") as fh:  # half of it lands, then the disk is full
                 fh.write(data[: len(data) // 2])
             _raise_enospc()
@@ -137,14 +143,14 @@ def _fail_fsync(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def _fail_replace(monkeypatch: pytest.MonkeyPatch) -> None:
-    real = os.replace
+    real = os.rename
 
-    def replace(src: object, dst: object) -> None:
+    def rename(src: object, dst: object, **kw: object) -> None:
         if Path(os.fsdecode(src)).name.startswith(poisoner.atomic.TEMP_PREFIX):
             _raise_enospc()
-        real(src, dst)
+        real(src, dst, **kw)
 
-    monkeypatch.setattr(poisoner.atomic.os, "replace", replace)
+    monkeypatch.setattr(poisoner.atomic.os, "rename", rename)
 
 
 def _fail_vault_copy(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -194,7 +200,7 @@ def test_enospc_at_each_point_loses_nothing_and_a_retry_protects(
     assert not [p for p in ctx.paths.vault_dir.iterdir() if p.name.startswith(daemon.vault.VAULT_TMP_PREFIX)]
     assert check_invariants(ctx.paths, originals) == []
     again = [protect_file(p, ctx) for p in originals]  # space is back
-    assert [o.state for o in again] == ["protected", "protected"], [o.reason for o in again]
+    assert [o.state for o in again] == ["patched", "patched"], [o.reason for o in again]
     assert check_invariants(ctx.paths, originals) == []
 
 

@@ -7,6 +7,7 @@ outbox changes; the daemon survives."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 import signal
 from collections.abc import Callable, Iterator
@@ -25,8 +26,9 @@ from reliability_harness import (
     wait_for,
 )
 
-import daemon.protect
+import daemon.pipeline
 from daemon.protect import AppContext, ProtectOutcome, protect_file
+from daemon.states import FileState
 from daemon.store import Store
 
 
@@ -55,15 +57,15 @@ def _judge(item: HostileInput, before: str | None, state: str | None, reason: st
     after = _fingerprint(item.path)
     if state == "failed" and (not reason or "\n" in reason):
         return f"{item.what}: failure without a one-line reason: {reason!r}"
-    if item.expect == "protected" and state != "protected":
+    if item.expect == "protected" and state != FileState.PATCHED:
         return f"{item.what}: expected protected, got {state} ({reason})"
     if item.expect == "refused" and state != "failed":
         return f"{item.what}: expected a refusal, got {state}"
-    if item.expect == "either" and state not in ("protected", "failed"):
+    if item.expect == "either" and state not in (FileState.PATCHED, FileState.FAILED):
         return f"{item.what}: expected protected or refused, got {state}"
-    if state != "protected" and after != before:
+    if state != FileState.PATCHED and after != before:
         return f"{item.what}: not protected, yet changed on disk"
-    if state == "protected" and after == before:
+    if state == FileState.PATCHED and after == before:
         return f"{item.what}: protected, yet unchanged on disk"
     return None
 
@@ -77,8 +79,9 @@ def test_hostile_corpus_through_protect_file(ctx: AppContext, tmp_path: Path) ->
     for item in items:
         outcome: ProtectOutcome = protect_file(item.path, ctx)  # never raises, whatever the input
         state = outcome.state if item.expect != "left" or outcome.state != "skipped" else None
+        state = FileState.PATCHED if state == "patched" else state  # judged like a store row
         if item.expect == "left":
-            if outcome.state == "protected" or _fingerprint(item.path) != before[item.path]:
+            if outcome.state == "patched" or _fingerprint(item.path) != before[item.path]:
                 problems.append(f"{item.what}: was touched ({outcome.state})")
             continue
         if (problem := _judge(item, before[item.path], state, outcome.reason)) is not None:
@@ -105,7 +108,7 @@ def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
 
         def all_decided() -> bool:
             rows = {r["path"]: r["state"] for r in store.files("hostile")}
-            return all(rows.get(str(i.path)) in ("protected", "failed") for i in expected_rows)
+            return all(rows.get(str(i.path)) in (FileState.PATCHED, FileState.FAILED) for i in expected_rows)
 
         wait_for(all_decided, 120, "every hostile input protected or refused")
         assert daemon.proc.poll() is None, "the daemon died"
@@ -118,7 +121,7 @@ def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
     for item in items:
         row = rows.get(str(item.path))
         if item.expect == "left":
-            touched = row is not None and row["state"] == "protected"
+            touched = row is not None and row["state"] == FileState.PATCHED
             if touched or _fingerprint(item.path) != before[item.path]:
                 problems.append(f"{item.what}: was touched")
             continue
@@ -132,52 +135,59 @@ def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
     assert check_invariants(paths, originals) == []
 
 
-def _replace_after_poisoning(monkeypatch: pytest.MonkeyPatch, replace: Callable[[Path], None]) -> None:
-    """Make a concurrent writer act at the worst instant: right after the poisoned temporary
-    file is complete, before protect_file re-checks the source and renames."""
-    real = daemon.protect.poison_to
+def _replace_after_poisoning(monkeypatch: pytest.MonkeyPatch, replace: Callable[[], None]) -> None:
+    """Make a concurrent writer act at the worst instant, once: right after the patched file is
+    complete, before protect_file compares and swaps it into place."""
+    real = daemon.pipeline.poison_to
+    done: list[bool] = []
 
     def poison_then_replace(kind: str, src: Path, dst: Path, *args: object, **kw: object) -> object:
         result = real(kind, src, dst, *args, **kw)
-        replace(src)
+        if not done:
+            done.append(True)
+            replace()
         return result
 
-    monkeypatch.setattr(daemon.protect, "poison_to", poison_then_replace)
+    monkeypatch.setattr(daemon.pipeline, "poison_to", poison_then_replace)
 
 
 @pytest.mark.parametrize("how", ["rename-over", "rewrite-in-place", "symlink-swap"])
 def test_file_replaced_mid_processing_is_left_as_the_user_made_it(
     ctx: AppContext, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, how: str
 ) -> None:
+    """Before: the new version was left in place but the run ended 'failed', so nothing patched it
+    until another event. Now: never overwritten, and patched next in the same call (its bytes are
+    the vault's original); a symlink put in its place is refused and never written through."""
     from reliability_harness import write_image
 
     target = write_image(ctx.paths.outbox / "race" / "a.png", seed=1)
     newer = write_image(tmp_path / "newer.png", seed=2)
+    newer_bytes = newer.read_bytes()
     secret = write_image(tmp_path / "secret.png", seed=3)
     secret_sha = sha256(secret)
 
-    def replace(src: Path) -> None:
+    def replace() -> None:
         if how == "rename-over":
-            os.replace(newer, src)
+            os.replace(newer, target)
         elif how == "rewrite-in-place":
-            src.write_bytes(newer.read_bytes())
+            target.write_bytes(newer_bytes)
         else:
-            src.unlink()
-            src.symlink_to(secret)
+            target.unlink()
+            target.symlink_to(secret)
 
-    expected_now = _fingerprint(newer) if how != "symlink-swap" else f"symlink -> {secret}"
     _replace_after_poisoning(monkeypatch, replace)
     outcome = protect_file(target, ctx)
-    assert outcome.state == "failed" and "changed while being protected" in outcome.reason
-    assert _fingerprint(target) == expected_now  # the user's version, not clobbered
     assert sha256(secret) == secret_sha
     assert not list(target.parent.glob(".ppd-tmp-*"))
-    monkeypatch.undo()
-    again = protect_file(target, ctx)
     if how == "symlink-swap":
-        assert again.state == "failed" and "symlink" in again.reason and sha256(secret) == secret_sha
+        assert outcome.state == "failed" and "symlink" in outcome.reason
+        assert target.is_symlink() and os.readlink(target) == str(secret)
     else:
-        assert again.state == "protected" and again.original_sha256 == expected_now
+        new_sha = hashlib.sha256(newer_bytes).hexdigest()
+        assert outcome.state == "patched" and outcome.original_sha256 == new_sha, outcome
+        assert ctx.vault.path_for(new_sha).read_bytes() == newer_bytes
+        assert ctx.store.file(target)["original_sha256"] == new_sha
+        assert sha256(target) == outcome.poisoned_sha256
 
 
 def test_name_that_is_not_utf8_is_refused_with_a_clear_reason(
@@ -198,7 +208,7 @@ def test_name_that_is_not_utf8_is_refused_with_a_clear_reason(
     assert outcome.reason.startswith("caf\\udce9.png: the file name is not valid UTF-8")
     assert sha256(odd) == before
     assert "Traceback" not in caplog.text and "could not record" not in caplog.text
-    assert protect_file(good, ctx).state == "protected"  # the store still works
+    assert protect_file(good, ctx).state == "patched"  # the store still works
 
 
 def test_newline_in_a_name_does_not_cut_the_reason(ctx: AppContext) -> None:

@@ -24,6 +24,7 @@ from reliability_harness import (
 )
 
 from daemon.protect import AppContext, protect_file
+from daemon.states import FileState
 from daemon.store import Store
 
 NOBODY = 65534
@@ -88,7 +89,7 @@ def test_vault_and_store_are_unreadable_by_other_users(
         ctx.close()
     finally:
         os.umask(old_umask)
-    assert outcome.state == "protected"
+    assert outcome.state == "patched"
     paths = ctx.paths
     blob = paths.vault_dir / outcome.original_sha256[:2] / outcome.original_sha256
     store_files = [p for p in paths.data_dir.iterdir() if p.name.startswith(paths.db_path.name)]
@@ -151,7 +152,7 @@ def test_daemon_never_follows_a_symlink_out_of_the_outbox(tmp_path: Path) -> Non
     store = Store(paths.db_path)
     rows = {r["path"]: r for ds in store.datasets() for r in store.files(ds["name"])}
     store.close()
-    assert all(r["state"] != "protected" for p, r in rows.items() if "link" in p or "swap" in p)
+    assert all(r["state"] != FileState.PATCHED for p, r in rows.items() if "link" in p or "swap" in p)
     assert not any("linked-album" in p for p in rows), "a file behind a folder link was processed"
 
 

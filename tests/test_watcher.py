@@ -27,6 +27,7 @@ import pytest
 from daemon.notify import SystemdNotifier, notify_socket_address, watchdog_interval
 from daemon.paths import AppPaths
 from daemon.protect import AppContext
+from daemon.states import FileState
 from daemon.store import Store
 from daemon.watcher import (
     VIDEO_SUFFIXES,
@@ -121,7 +122,7 @@ def assert_protected_once(env: dict[str, Path], files: list[Path], originals: di
     for f in files:
         row = rows.get(str(f))
         assert row is not None, f"no row for {f.name}"
-        assert row["state"] == "protected", (f.name, row["state"], row["error"])
+        assert row["state"] == FileState.PATCHED, (f.name, row["state"], row["error"])
         assert events.get(str(f)) == 1, (f.name, events.get(str(f)))
         assert row["original_sha256"] == originals[f], f.name
         assert sha(f) == row["poisoned_sha256"] != originals[f]
@@ -330,9 +331,9 @@ def test_200_files_dropped_by_copy_are_each_protected_once(ppd_env: dict[str, Pa
     dest.mkdir()
     with running(ppd_env) as daemon:
         targets = [Path(shutil.copyfile(src, dest / src.name)) for src in sources]
-        wait_for(lambda: daemon.counts.protected >= 200, 90, "200 protected")
+        wait_for(lambda: daemon.counts.patched >= 200, 90, "200 protected")
         wait_idle(daemon)
-        assert daemon.counts.failed == 0 and daemon.counts.protected == 200
+        assert daemon.counts.failed == 0 and daemon.counts.patched == 200
     assert_protected_once(ppd_env, targets, {t: originals[t.name] for t in targets})
 
 
@@ -345,9 +346,9 @@ def test_200_files_renamed_in_are_each_protected_once(ppd_env: dict[str, Path], 
         for src in sources:
             os.rename(src, dest / src.name)  # same filesystem: a moved-in event
             targets.append(dest / src.name)
-        wait_for(lambda: daemon.counts.protected >= 200, 90, "200 protected")
+        wait_for(lambda: daemon.counts.patched >= 200, 90, "200 protected")
         wait_idle(daemon)
-        assert daemon.counts.protected == 200
+        assert daemon.counts.patched == 200
     assert_protected_once(ppd_env, targets, {t: originals[t.name] for t in targets})
 
 
@@ -382,7 +383,7 @@ def test_slow_writer_is_protected_once_when_complete(
     options = DaemonOptions(watch=WatchOptions(settle_s=0.5, moved_settle_s=0.05), verify=False)
     with running(ppd_env, options) as daemon:
         _slow_write(data, target, seconds=3.0, chunks=12, reopen=reopen)
-        wait_for(lambda: daemon.counts.protected >= 1, 30, "slow file protected")
+        wait_for(lambda: daemon.counts.patched >= 1, 30, "slow file protected")
         wait_idle(daemon)
         assert daemon.counts.failed == 0, "processed before it was complete"
     assert_protected_once(ppd_env, [target], {target: hashlib.sha256(data).hexdigest()})
@@ -404,7 +405,7 @@ def test_many_slow_writers_at_once(ppd_env: dict[str, Path], tmp_path: Path, n: 
             w.start()
         for w in writers:
             w.join()
-        wait_for(lambda: daemon.counts.protected >= n, 60, f"{n} protected")
+        wait_for(lambda: daemon.counts.patched >= n, 60, f"{n} protected")
         wait_idle(daemon)
         assert daemon.counts.failed == 0
     assert_protected_once(
@@ -425,10 +426,10 @@ def test_flood_of_10k_files(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     )
     with running(ppd_env, options) as daemon:
         os.rename(stage, ppd_env["outbox"] / "flood")  # one folder moved in: 10k complete files
-        wait_for(lambda: daemon.counts.protected + daemon.counts.failed >= n, 600, "10k processed")
+        wait_for(lambda: daemon.counts.patched + daemon.counts.failed >= n, 600, "10k processed")
         wait_idle(daemon)
     rows = rows_by_path(store_of(ppd_env))
-    assert sum(r["state"] == "protected" for r in rows.values()) == n
+    assert sum(r["state"] == FileState.PATCHED for r in rows.values()) == n
 
 
 def test_ignored_names_until_renamed(ppd_env: dict[str, Path], tmp_path: Path) -> None:
@@ -447,13 +448,13 @@ def test_ignored_names_until_renamed(ppd_env: dict[str, Path], tmp_path: Path) -
         before = {p: sha(p) for p in ignored}
         time.sleep(FAST.watch.settle_s + 0.3)
         wait_idle(daemon)
-        assert daemon.counts.protected == 0 and rows_by_path(store_of(ppd_env)) == {}
+        assert daemon.counts.patched == 0 and rows_by_path(store_of(ppd_env)) == {}
         final = ds / "photo.png"
         original = before[ignored[0]]
         os.rename(ignored[0], final)  # the browser finishes the download
-        wait_for(lambda: daemon.counts.protected >= 1, 20, "renamed download protected")
+        wait_for(lambda: daemon.counts.patched >= 1, 20, "renamed download protected")
         wait_idle(daemon)
-        assert daemon.counts.protected == 1
+        assert daemon.counts.patched == 1
     assert_protected_once(ppd_env, [final], {final: original})
     for p in ignored[1:]:
         assert sha(p) == before[p]
@@ -465,21 +466,21 @@ def test_replaced_file_is_protected_again_and_own_writes_never_retrigger(
     target = ppd_env["outbox"] / "edit" / "a.png"
     with running(ppd_env) as daemon:
         write_image(target, 1)
-        wait_for(lambda: daemon.counts.protected >= 1, 20, "first version")
+        wait_for(lambda: daemon.counts.patched >= 1, 20, "first version")
         wait_idle(daemon, quiet=1.0)
-        assert daemon.counts.protected == 1 and daemon.counts.unchanged == 0  # no echo of its own rename
+        assert daemon.counts.patched == 1 and daemon.counts.unchanged == 0  # no echo of its own rename
         # New content replaced by rename (editors), then overwritten in place (cp over it).
         write_image(tmp_path / "v2.png", 2)
         os.replace(tmp_path / "v2.png", target)
-        wait_for(lambda: daemon.counts.protected >= 2, 20, "second version")
+        wait_for(lambda: daemon.counts.patched >= 2, 20, "second version")
         v3 = write_image(tmp_path / "v3.png", 3)
         shutil.copyfile(v3, target)  # truncate + write + close on the same inode
-        wait_for(lambda: daemon.counts.protected >= 3, 20, "third version")
+        wait_for(lambda: daemon.counts.patched >= 3, 20, "third version")
         wait_idle(daemon, quiet=1.0)
-        assert daemon.counts.protected == 3
+        assert daemon.counts.patched == 3
     store = store_of(ppd_env)
     row = store.file(target)
-    assert row["state"] == "protected" and row["original_sha256"] == sha(v3)
+    assert row["state"] == FileState.PATCHED and row["original_sha256"] == sha(v3)
     assert protected_event_counts(store)[str(target)] == 3
     assert sha(target) == row["poisoned_sha256"]
 
@@ -490,7 +491,7 @@ def test_restart_catch_up(ppd_env: dict[str, Path], tmp_path: Path) -> None:
         write_image(ds / f"{n}.png", i) for i, n in enumerate(("keep", "change", "delete"))
     )
     with running(ppd_env) as daemon:
-        wait_for(lambda: daemon.counts.protected >= 3, 30, "initial scan protects 3")
+        wait_for(lambda: daemon.counts.patched >= 3, 30, "initial scan protects 3")
         wait_idle(daemon)
     keep_sha = sha(keep)
     # While the daemon is down: one added, one changed, one removed, a crash leftover.
@@ -502,9 +503,9 @@ def test_restart_catch_up(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     leftover.write_bytes(b"half a png")
     os.utime(leftover, (time.time() - 60, time.time() - 60))
     with running(ppd_env) as daemon:
-        wait_for(lambda: daemon.counts.protected >= 2 and daemon.counts.removed >= 1, 30, "catch-up")
+        wait_for(lambda: daemon.counts.patched >= 2 and daemon.counts.removed >= 1, 30, "catch-up")
         wait_idle(daemon)
-        assert daemon.counts.protected == 2 and daemon.counts.removed == 1
+        assert daemon.counts.patched == 2 and daemon.counts.removed == 1
     store = store_of(ppd_env)
     events = protected_event_counts(store)
     assert events[str(keep)] == 1 and sha(keep) == keep_sha  # untouched: not processed again
@@ -519,7 +520,7 @@ def test_live_removal_and_folder_rename_are_recorded(ppd_env: dict[str, Path]) -
     ds = ppd_env["outbox"] / "trip"
     files = [write_image(ds / f"{i}.png", i) for i in range(3)]
     with running(ppd_env) as daemon:
-        wait_for(lambda: daemon.counts.protected >= 3, 30, "3 protected")
+        wait_for(lambda: daemon.counts.patched >= 3, 30, "3 protected")
         wait_idle(daemon)
         files[0].unlink()
         wait_for(lambda: daemon.counts.removed >= 1, 20, "deletion recorded")
@@ -527,7 +528,7 @@ def test_live_removal_and_folder_rename_are_recorded(ppd_env: dict[str, Path]) -
         os.rename(ds, ppd_env["outbox"] / "trip-renamed")
         wait_for(lambda: daemon.counts.removed >= 3, 20, "renamed folder's old paths recorded")
         wait_idle(daemon)
-        assert daemon.counts.protected == 3  # ppd's own output is never poisoned twice
+        assert daemon.counts.patched == 3  # ppd's own output is never poisoned twice
     store = store_of(ppd_env)
     assert all(store.file(f)["state"] == "removed" for f in files)
     for name, digest in poisoned.items():
@@ -546,7 +547,7 @@ def test_bad_files_fail_cleanly_and_the_daemon_keeps_going(ppd_env: dict[str, Pa
         good = write_image(ds / "good.png", 1)
         readonly = write_image(ds / "readonly.png", 2)
         readonly.chmod(0o444)
-        wait_for(lambda: daemon.counts.protected >= 2, 20, "good files after bad ones")
+        wait_for(lambda: daemon.counts.patched >= 2, 20, "good files after bad ones")
         wait_idle(daemon)
         assert daemon.watcher.is_alive()
     store = store_of(ppd_env)
@@ -571,12 +572,12 @@ def test_unreadable_file_fails_with_a_reason(ppd_env: dict[str, Path]) -> None:
 def test_outbox_deleted_under_the_daemon_is_recreated_and_watched(ppd_env: dict[str, Path]) -> None:
     with running(ppd_env) as daemon:
         write_image(ppd_env["outbox"] / "a" / "one.png", 1)
-        wait_for(lambda: daemon.counts.protected >= 1, 20, "first file")
+        wait_for(lambda: daemon.counts.patched >= 1, 20, "first file")
         shutil.rmtree(ppd_env["outbox"])
         wait_for(lambda: ppd_env["outbox"].is_dir() and daemon.watcher.is_alive(), 20, "outbox recreated")
         wait_idle(daemon)
         later = write_image(ppd_env["outbox"] / "b" / "two.png", 2)
-        wait_for(lambda: daemon.counts.protected >= 2, 20, "file in the recreated outbox")
+        wait_for(lambda: daemon.counts.patched >= 2, 20, "file in the recreated outbox")
         assert daemon.counts.removed >= 1  # one.png went with the old outbox
     assert store_of(ppd_env).file(later)["state"] == "protected"
 
@@ -619,7 +620,7 @@ def test_sigterm_mid_batch_leaves_every_file_original_or_protected(
         store = store_of(ppd_env)
 
         def protected() -> int:
-            return sum(r["state"] == "protected" for r in rows_by_path(store).values())
+            return sum(r["state"] == FileState.PATCHED for r in rows_by_path(store).values())
 
         wait_for(lambda: protected() >= 2, 60, "first files protected")
         proc.send_signal(signal.SIGTERM)
@@ -648,7 +649,8 @@ def test_sigterm_mid_batch_leaves_every_file_original_or_protected(
             assert row is None or row["state"] in ("pending", "failed"), (name, row)
             continue
         done += 1
-        assert row is not None and row["state"] == "protected" and row["poisoned_sha256"] == digest, name
+        assert row is not None and row["state"] == FileState.PATCHED, name
+        assert row["poisoned_sha256"] == digest, name
         blob = ppd_env["data"] / "vault" / original[:2] / original
         assert sha(blob) == original
     assert 0 < done < n, f"SIGTERM did not land mid-batch ({done}/{n} protected)"
@@ -671,7 +673,7 @@ t = threading.Thread(target=d.run); t.start()
 d.ready.wait(30)
 d.pool.wait_idle(60)
 d.request_stop(); t.join(60)
-print(json.dumps({"protected": d.counts.protected, "modules": sorted(sys.modules)}))
+print(json.dumps({"protected": d.counts.patched, "modules": sorted(sys.modules)}))
 """
     proc = subprocess.run(
         [sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=120

@@ -1,0 +1,214 @@
+"""Descriptor-relative file operations: containment that a swapped folder or file cannot escape.
+
+A file inside a dataset is opened once, component by component from a trusted anchor folder
+(the outbox, or the folder named on the command line): every folder below the anchor with
+O_NOFOLLOW|O_DIRECTORY relative to its parent's descriptor, the file with O_NOFOLLOW relative to
+its folder's. Every later read goes through the file's descriptor and every write and rename
+through the folder's descriptor (poisoner.atomic.atomic_replace_at), never through the path
+again: a folder or file swapped for a symlink after the open is not followed, and what is
+written lands in the folder that was opened, which is inside the anchor.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import hashlib
+import os
+import stat
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+from poisoner.atomic import clear_stale_temps
+
+CHUNK = 1 << 20
+_DIR_FLAGS = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC
+_FILE_FLAGS = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC  # NONBLOCK: a FIFO must not hang
+
+
+class NotContained(Exception):
+    """The path is not a regular file reachable inside its anchor without following a symlink."""
+
+
+Identity = tuple[int, int, int, int]  # (device, inode, size, mtime_ns)
+
+
+def identity(st: os.stat_result) -> Identity:
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+@dataclass
+class ContainedFile:
+    """An open regular file and its folder, both reached without following a symlink."""
+
+    path: Path  # as asked (for messages and the store); never used for I/O
+    dir_fd: int
+    name: str
+    fd: int
+    st: os.stat_result  # at open
+    anchor: Path
+    dir_parts: tuple[str, ...]  # the folders from anchor to the file
+
+    def close(self) -> None:
+        for fd in (self.fd, self.dir_fd):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+    def sha256(self) -> str:
+        return sha256_fd(self.fd)
+
+    def changed(self) -> bool:
+        """Whether the open file's size or mtime moved since it was opened (written to)."""
+        return identity(os.fstat(self.fd)) != identity(self.st)
+
+    def folder_in_place(self) -> bool:
+        """Whether the opened folder is still the one reached from the anchor by its path without
+        a symlink (a folder moved out of the anchor, or swapped for a link, is not)."""
+        try:
+            anchor_fd = open_dir(self.anchor)
+        except OSError:
+            return False
+        try:
+            fd = open_dir_below(anchor_fd, self.dir_parts, self.path)
+        except (NotContained, OSError):
+            return False
+        finally:
+            os.close(anchor_fd)
+        try:
+            now, opened = os.fstat(fd), os.fstat(self.dir_fd)
+        finally:
+            os.close(fd)
+        return (now.st_dev, now.st_ino) == (opened.st_dev, opened.st_ino)
+
+    def current_identity(self) -> Identity | None:
+        """What is at the name in the opened folder now (None: nothing, or not a regular file)."""
+        try:
+            st = os.stat(self.name, dir_fd=self.dir_fd, follow_symlinks=False)
+        except FileNotFoundError:
+            return None
+        return identity(st) if stat.S_ISREG(st.st_mode) else None
+
+
+def open_dir(path: Path) -> int:
+    """A trusted folder (anchor) as a descriptor; the path itself may pass through symlinks."""
+    return os.open(path, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+
+
+def open_dir_below(anchor_fd: int, parts: tuple[str, ...], shown: Path) -> int:
+    """Walk parts below anchor_fd, never following a symlink; a new descriptor of the last folder."""
+    fd = os.dup(anchor_fd)
+    try:
+        for part in parts:
+            if part in ("", ".", "..") or "/" in part:
+                raise NotContained(f"{shown}: refusing the path component {part!r}")
+            try:
+                nxt = os.open(part, _DIR_FLAGS, dir_fd=fd)
+            except OSError as exc:
+                if exc.errno in (errno.ELOOP, errno.ENOTDIR):
+                    raise NotContained(
+                        f"{shown}: the folder {part!r} is a symlink or not a folder; refusing it "
+                        "(ppd never follows a symlink inside a dataset)"
+                    ) from None
+                raise
+            os.close(fd)
+            fd = nxt
+        return fd
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def open_contained(anchor: Path, path: Path) -> ContainedFile:
+    """Open path (inside anchor, compared without resolving) as described in the module docstring."""
+    anchor, path = Path(anchor).absolute(), Path(path).absolute()
+    try:
+        rel = path.relative_to(anchor)
+    except ValueError:
+        raise NotContained(f"{path} is not inside {anchor}") from None
+    if not rel.parts:
+        raise NotContained(f"{path} is a folder, not a file")
+    anchor_fd = open_dir(anchor)
+    try:
+        dir_fd = open_dir_below(anchor_fd, rel.parts[:-1], path)
+    finally:
+        os.close(anchor_fd)
+    name = rel.parts[-1]
+    try:
+        try:
+            fd = os.open(name, _FILE_FLAGS, dir_fd=dir_fd)
+        except OSError as exc:
+            if exc.errno == errno.ELOOP:
+                raise NotContained(
+                    f"refusing symlink {path.name} (ppd only protects regular files)"
+                ) from None
+            raise
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            os.close(fd)
+            raise NotContained(f"{path.name} is not a regular file")
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(dir_fd)
+        raise
+    return ContainedFile(
+        path=path, dir_fd=dir_fd, name=name, fd=fd, st=st, anchor=anchor, dir_parts=rel.parts[:-1]
+    )
+
+
+def sha256_fd(fd: int) -> str:
+    digest = hashlib.sha256()
+    offset = 0
+    while chunk := os.pread(fd, CHUNK, offset):
+        digest.update(chunk)
+        offset += len(chunk)
+    return digest.hexdigest()
+
+
+def write_all(fd: int, data: bytes) -> None:
+    """os.write until every byte is written (a nearly full disk takes a short write first)."""
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
+
+
+def copy_fd_to_path(fd: int, dst: Path) -> str:
+    """Copy the open file's bytes to a new private file dst (fsynced); the sha256 of what was copied."""
+    digest = hashlib.sha256()
+    offset = 0
+    out = os.open(dst, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+    try:
+        while chunk := os.pread(fd, CHUNK, offset):
+            digest.update(chunk)
+            write_all(out, chunk)
+            offset += len(chunk)
+        os.fsync(out)
+    finally:
+        os.close(out)
+    return digest.hexdigest()
+
+
+def copy_path_to_fd(src: Path, fd: int) -> None:
+    """Write src's bytes into fd from offset 0 (the temporary of an atomic replace)."""
+    with open(src, "rb") as fin:
+        while chunk := fin.read(CHUNK):
+            write_all(fd, chunk)
+
+
+# Folders whose stale `.ppd-tmp-*` files this process has already cleared (by (dev, inode)).
+_cleared: set[tuple[int, int]] = set()
+_cleared_lock = threading.Lock()
+
+
+def clear_stale_temps_once(dir_fd: int) -> list[str]:
+    """The first time this process writes in a folder, remove ppd's stale temporaries there."""
+    st = os.fstat(dir_fd)
+    key = (st.st_dev, st.st_ino)
+    with _cleared_lock:
+        if key in _cleared:
+            return []
+        _cleared.add(key)
+    try:
+        return clear_stale_temps(dir_fd)
+    except OSError:
+        return []

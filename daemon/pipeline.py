@@ -1,0 +1,529 @@
+"""One file patched end to end, as a list of named stages over one small state object (`Job`).
+
+    STAGES = check_name → open_contained_file → hash_original → decide →
+             keep_in_vault → mark_pending → poison → replace_atomically → record_provenance → publish
+
+Each stage is a small function `stage(job) -> ProtectOutcome | None`: None hands the job to the
+next stage, an outcome ends the run there (unchanged, skipped, dry run). Exceptions end it as
+'failed' (daemon.protect.protect_file records them).
+
+The crash-safety argument is the order of the last six (docs/STORE.md):
+1. keep_in_vault: an independent copy of the original's bytes (read through the file's
+   descriptor) is in the vault, fsynced and hash-checked, before anything else;
+2. mark_pending: a 'pending' row naming the original's sha256 is committed;
+3. poison: the complete patched file is written in ppd's private work folder;
+4. replace_atomically: it is copied to a flock()ed temporary in the file's own folder (through
+   that folder's descriptor), fsynced, and renamed over the file only if the file at that name is
+   still the one that was hashed (compare-and-swap on device, inode, size, mtime and sha256, just
+   before the rename); otherwise the new version is left in place and the run starts over;
+5. record_provenance: the patched row with the patched sha256;
+6. publish: the patched file moved to the dataset's publish folder, if it has one.
+A crash between any two steps leaves the original or the complete patched file at the path, and
+the original in the vault whenever the path may hold the patched one.
+
+Containment (daemon.fsops): the file is opened once, relative to a descriptor of its folder
+reached from the anchor (the outbox or the folder given to `ppd poison`) without following a
+symlink; every later read and write goes through those descriptors, never through the path.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import stat
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from daemon.fsops import (
+    ContainedFile,
+    clear_stale_temps_once,
+    copy_fd_to_path,
+    copy_path_to_fd,
+    identity,
+    open_contained,
+    open_dir,
+    write_all,
+)
+from daemon.states import FileState
+from daemon.vault import sha256_file
+from poisoner.atomic import TEMP_PREFIX, atomic_replace_at, fsync_dir
+from poisoner.spec import PatchSpec
+
+if TYPE_CHECKING:
+    from daemon.protect import AppContext
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[int, int | None], None]
+PATCHED_PREFIX = "patched-"  # the poison stage's output in the private work folder
+FileSignature = tuple[int, int, int]  # (inode, size, mtime_ns), as daemon.watcher compares them
+
+
+class Outcome(StrEnum):
+    """What protect_file / restore_file did with one file (ProtectOutcome.state)."""
+
+    PATCHED = "patched"  # the mark is in the file now
+    UNCHANGED = "unchanged"  # nothing to do (already ppd's output, restored by the user, ...)
+    SKIPPED = "skipped"  # left as it is (not a supported file, not selected, still being written)
+    FAILED = "failed"  # could not be patched; reason says why, nothing lost
+    QUARANTINED = "quarantined"  # the daemon moved it out of the outbox (reason says why)
+    RESTORED = "restored"  # restore_file put the original back
+
+
+class ProtectRefused(Exception):
+    """The file must not be touched (symlink, outside its dataset, not a regular file)."""
+
+
+class SourceChanged(Exception):
+    """The source changed while it was being patched."""
+
+
+@dataclass
+class ProtectOutcome:
+    path: Path
+    dataset: str | None
+    state: str  # an Outcome
+    reason: str | None = None  # why skipped/unchanged, or the one-line error when failed
+    kind: str | None = None  # 'image' | 'video'
+    original_sha256: str | None = None
+    poisoned_sha256: str | None = None
+    spec_id: str | None = None
+    output: Path | None = None  # where the patched file is now
+    seconds: float = 0.0
+    dry_run: bool = False
+    report: Any = None  # poisoner.formats.PoisonReport (poisoner.video.VideoReport is one)
+    # What ppd judged or wrote at path (the watcher's echo filter): a later version differs.
+    signature: FileSignature | None = None
+    requeue: bool = False  # a newer version arrived meanwhile: process the path again
+
+
+@dataclass
+class Job:
+    """The state one file carries through the stages."""
+
+    path: Path  # absolute, as asked; for messages and the store only
+    ctx: AppContext
+    dataset: str
+    root: Path  # the dataset's folder (the spec's ratio is judged by the path below it)
+    anchor: Path  # the trusted folder containment is judged from (outbox, or the dataset's root)
+    out_path: Path | None = None  # `ppd poison --out`: write there, leave path as it is
+    dry_run: bool = False
+    force: bool = False
+    progress: Progress | None = None
+    wanted_spec: PatchSpec | None = None
+    keep_location: bool = False
+    # filled by the stages
+    file: ContainedFile | None = None
+    kind: str | None = None
+    sha: str | None = None
+    row: dict[str, Any] | None = None
+    spec: PatchSpec | None = None
+    work: Path | None = None  # private folder inside the vault
+    original: Path | None = None  # private copy of the original, named like the file
+    poisoned: Path | None = None
+    poisoned_sha: str | None = None
+    written: FileSignature | None = None
+    report: Any = None
+    final: Path | None = None
+
+    @property
+    def record_path(self) -> Path:
+        return Path(self.out_path).absolute() if self.out_path is not None else self.path
+
+    def outcome(self, state: str, reason: str | None = None, **kw: Any) -> ProtectOutcome:
+        kw.setdefault("kind", self.kind)
+        if "signature" not in kw and self.file is not None:
+            kw["signature"] = (self.file.st.st_ino, self.file.st.st_size, self.file.st.st_mtime_ns)
+        return ProtectOutcome(
+            path=self.path, dataset=self.dataset, state=state, reason=reason, dry_run=self.dry_run, **kw
+        )
+
+    def close(self) -> None:
+        if self.file is not None:
+            self.file.close()
+        if self.work is not None:
+            shutil.rmtree(self.work, ignore_errors=True)
+
+
+# ---- small helpers ---------------------------------------------------------------------------
+def tool_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return f"ppd {version('patchpoison')}"
+    except PackageNotFoundError:
+        return "ppd 0.1.0"
+
+
+def one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def storable(path: Path) -> bool:
+    """Whether the store can record this path: SQLite text is UTF-8, and a name with bytes
+    that are not UTF-8 (surrogate-escaped by Python) cannot be written to it."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def shown_name(path: Path) -> str:
+    """path's name as it can be shown on one line: escaped (repr-style) when it holds a newline,
+    another control character or bytes that are not UTF-8."""
+    name = path.name
+    return name if name.isprintable() and storable(path) else repr(name)[1:-1]
+
+
+def media_kind(path: Path) -> str | None:
+    """'image', 'video' or None, by suffix (lazy imports: the poisoners load only when used)."""
+    from poisoner.formats import is_supported_image
+
+    if is_supported_image(path):
+        return "image"
+    try:
+        from poisoner.video import is_video
+    except ImportError:
+        return None
+    return "video" if is_video(path) else None
+
+
+def poison_to(
+    kind: str, src: Path, dst: Path, spec: PatchSpec, progress: Progress | None = None, **options: Any
+) -> Any:
+    """Write the complete poisoned version of src to dst; never touches src."""
+    if kind == "video":
+        from poisoner.video import poison_video
+
+        return poison_video(src, dst, spec, progress=progress, **options)
+    from poisoner.formats import poison_file
+
+    return poison_file(src, dst, spec, **options)
+
+
+def is_ignored_name(path: Path) -> bool:
+    """Dot-files and our own temporaries are never protected."""
+    return path.name.startswith(".") or path.name.startswith(TEMP_PREFIX)
+
+
+def work_folder(ctx: AppContext) -> Path:
+    """A private scratch folder inside the vault (same filesystem: the vault links from it)."""
+    return Path(tempfile.mkdtemp(prefix=".work-", dir=ctx.vault.vault_dir))
+
+
+def report_detail(report: Any) -> dict[str, Any]:
+    detail: dict[str, Any] = {}
+    for name in ("format", "width", "height", "preserved", "notes", "frames", "codec"):
+        if hasattr(report, name):
+            detail[name] = getattr(report, name)
+    placement = getattr(report, "placement", None)
+    if placement is not None:
+        detail["placement"] = {
+            "x": placement.x,
+            "y": placement.y,
+            "size": placement.size,
+            "block": placement.block,
+        }
+    return detail
+
+
+def ensure_dataset(ctx: AppContext, dataset: str, root: Path, spec: PatchSpec | None) -> PatchSpec:
+    """The dataset's one spec; a new dataset gets spec (else the config's) with its first file."""
+    initial = spec or ctx.config.spec_for(dataset)
+    _, stored = ctx.store.ensure_dataset(dataset, root, initial, ctx.config.publish_dir_for(dataset))
+    return stored
+
+
+def publish_dir(ctx: AppContext, dataset: str) -> Path | None:
+    row = ctx.store.dataset(dataset)
+    return Path(row["publish_dir"]) if row and row["publish_dir"] else None
+
+
+# ---- the stages ------------------------------------------------------------------------------
+def check_name(job: Job) -> ProtectOutcome | None:
+    """Hidden files and ppd's temporaries are never touched; a name the store cannot hold is refused."""
+    if is_ignored_name(job.path):
+        return job.outcome(Outcome.SKIPPED, "hidden or temporary file")
+    if not storable(job.path):
+        raise ProtectRefused(
+            f"{shown_name(job.path)}: the file name is not valid UTF-8; rename it to protect it "
+            "(ppd records names as UTF-8)"
+        )
+    return None
+
+
+def open_contained_file(job: Job) -> ProtectOutcome | None:
+    """Open the file once, without following a symlink anywhere below the anchor (daemon.fsops)."""
+    from daemon.fsops import NotContained
+
+    try:
+        job.file = open_contained(job.anchor, job.path)
+    except NotContained as exc:
+        raise ProtectRefused(str(exc)) from None
+    job.kind = media_kind(job.path)
+    if job.kind is None:  # not ours to judge (sidecars, notes): left alone, no row
+        return job.outcome(Outcome.SKIPPED, "not a supported image or video")
+    if job.file.st.st_size == 0:
+        raise ValueError(f"{job.path.name} is empty (0 bytes); it may still be being written")
+    return None
+
+
+def hash_original(job: Job) -> ProtectOutcome | None:
+    assert job.file is not None
+    job.sha = job.file.sha256()
+    job.row = job.ctx.store.file(job.record_path)
+    return None
+
+
+def decide(job: Job) -> ProtectOutcome | None:
+    """Everything that ends the run before the vault: ppd's own output, a restored file, an
+    up-to-date copy, a file the spec's ratio does not select, a dry run."""
+    from daemon import protect  # recover_pending / carry_moved_row live with the store logic
+
+    ctx, row, sha, out_path = job.ctx, job.row, job.sha, job.out_path
+    # Never poison twice: ppd's own output (here or anywhere) is left alone.
+    if out_path is None and row is not None and row["poisoned_sha256"] == sha:
+        return job.outcome(Outcome.UNCHANGED, "already patched", poisoned_sha256=sha, output=job.path)
+    # An interrupted run of this very path first: its output may equal another file's (the same
+    # photo in two datasets), which the look-up below would take as "someone else's output".
+    interrupted = (
+        out_path is None and row is not None and row["state"] == FileState.PENDING and not job.dry_run
+    )
+    if interrupted and protect.recover_pending(ctx, row, job.path, sha, job.kind):
+        return job.outcome(Outcome.UNCHANGED, "recovered after an interrupted run", poisoned_sha256=sha)
+    earlier = ctx.store.find_poisoned(sha)
+    if earlier is not None:
+        moved = out_path is None and not job.dry_run
+        if moved and protect.carry_moved_row(ctx, earlier, job.path, job.dataset, job.root):
+            return job.outcome(Outcome.UNCHANGED, f"moved from {earlier['path']}", poisoned_sha256=sha)
+        return job.outcome(Outcome.UNCHANGED, "already ppd output", poisoned_sha256=sha)
+    if (
+        row is not None
+        and row["state"] == FileState.RESTORED
+        and row["original_sha256"] == sha
+        and not job.force
+    ):
+        return job.outcome(Outcome.UNCHANGED, "restored by the user (use --force to protect it again)")
+
+    spec = job.spec = (
+        job.wanted_spec or ctx.store.dataset_spec(job.dataset) or ctx.config.spec_for(job.dataset)
+        if job.dry_run
+        else ensure_dataset(ctx, job.dataset, job.root, job.wanted_spec)
+    )
+    record_path = job.record_path
+    if (
+        out_path is not None
+        and row is not None
+        and row["state"] == FileState.PATCHED
+        and row["original_sha256"] == sha
+        and row["spec_id"] == spec.spec_id
+        and record_path.is_file()
+        and sha256_file(record_path) == row["poisoned_sha256"]
+    ):
+        return job.outcome(Outcome.UNCHANGED, "patched copy is up to date", output=record_path)
+
+    rel = job.path.relative_to(job.root).as_posix() if job.path.is_relative_to(job.root) else job.path.name
+    if not spec.selects(rel):
+        same = row is not None and row["state"] == FileState.SKIPPED and row["original_sha256"] == sha
+        if same and row is not None and row["spec_id"] == spec.spec_id:
+            return job.outcome(Outcome.UNCHANGED, "not selected by the spec's ratio")
+        if not job.dry_run:
+            if out_path is not None:  # the copy is published as it is
+                job.work = work_folder(ctx)
+                copy = job.work / job.path.name
+                if copy_fd_to_path(job.file.fd, copy) != sha:  # type: ignore[union-attr]
+                    raise SourceChanged(f"{job.path.name} changed while being patched; left as it is now")
+                _write_out(job, copy)
+            ctx.store.record_file(
+                record_path, job.dataset, FileState.SKIPPED, original_sha256=sha, spec_id=spec.spec_id,
+                poisoned_sha256=None, error=None, event="skipped", detail={"reason": "ratio"},
+            )  # fmt: skip
+        return job.outcome(Outcome.SKIPPED, "not selected by the spec's ratio", spec_id=spec.spec_id)
+    if job.dry_run:
+        return job.outcome(Outcome.PATCHED, "would patch", original_sha256=sha, spec_id=spec.spec_id)
+    return None
+
+
+def keep_in_vault(job: Job) -> ProtectOutcome | None:
+    """1. An independent copy of the original (read through its descriptor) goes to the vault."""
+    assert job.file is not None and job.sha is not None
+    job.work = job.work or work_folder(job.ctx)
+    job.original = job.work / job.path.name  # poisoners pick the format by suffix
+    if copy_fd_to_path(job.file.fd, job.original) != job.sha or job.file.changed():
+        raise SourceChanged(f"{job.path.name} changed while being patched; left as it is now")
+    if job.ctx.vault.keep(job.original) != job.sha:  # a link to ppd's private copy, not to the user's file
+        raise SourceChanged(f"{job.path.name} changed while being patched; left as it is now")
+    return None
+
+
+def mark_pending(job: Job) -> ProtectOutcome | None:
+    """2. A pending row: after a crash we know this path's original is in the vault."""
+    assert job.spec is not None
+    job.ctx.store.record_file(
+        job.record_path, job.dataset, FileState.PENDING, original_sha256=job.sha, spec_id=job.spec.spec_id,
+        poisoned_sha256=None, error=None, tool_version=tool_version(), event="pending",
+        detail={"kind": job.kind},
+    )  # fmt: skip
+    return None
+
+
+def poison(job: Job) -> ProtectOutcome | None:
+    """3. The complete patched file, written in the private work folder."""
+    assert job.work is not None and job.original is not None and job.spec is not None and job.kind
+    job.poisoned = job.work / f"{PATCHED_PREFIX}{job.path.name}"
+    job.report = poison_to(job.kind, job.original, job.poisoned, job.spec, job.progress)
+    job.poisoned_sha = sha256_file(job.poisoned)
+    return None
+
+
+def replace_atomically(job: Job) -> ProtectOutcome | None:
+    """4. The patched file replaces the original at its name, through the folder's descriptor, only
+    if the name still holds the version that was hashed (else SourceChanged: the newer version
+    stays). With --out, the copy is written into the output folder instead."""
+    assert job.file is not None and job.poisoned is not None
+    if job.out_path is not None:
+        _write_out(job, job.poisoned)
+        return None
+    f = job.file
+    clear_stale_temps_once(f.dir_fd)
+
+    def still_the_hashed_version() -> None:
+        # The slow hash first, the identity of the name last: nothing but the rename follows it.
+        if f.changed() or f.sha256() != job.sha:
+            raise SourceChanged(f"{job.path.name} was written to while being patched; left as it is now")
+        if not f.folder_in_place():
+            raise SourceChanged(f"{job.path.name}: its folder was moved or replaced; nothing written")
+        if f.current_identity() != identity(f.st):
+            raise SourceChanged(f"{job.path.name} was replaced while being patched; the new version stays")
+
+    with atomic_replace_at(
+        f.dir_fd, f.name, mode=stat.S_IMODE(f.st.st_mode), check=still_the_hashed_version
+    ) as (
+        fd,
+        _tmp,
+    ):
+        copy_path_to_fd(job.poisoned, fd)
+        st = os.fstat(fd)
+    job.written = (st.st_ino, st.st_size, st.st_mtime_ns)
+    job.final = job.path
+    return None
+
+
+def record_provenance(job: Job) -> ProtectOutcome | None:
+    """5. The patched row: what the original was, which spec, what ppd wrote."""
+    assert job.spec is not None
+    record_path = job.record_path
+    st = os.stat(record_path, follow_symlinks=False) if job.out_path is not None else None
+    size, mtime = (st.st_size, st.st_mtime_ns) if st else (job.written[1], job.written[2])  # type: ignore[index]
+    job.ctx.store.record_file(
+        record_path, job.dataset, FileState.PATCHED, original_sha256=job.sha,
+        poisoned_sha256=job.poisoned_sha, spec_id=job.spec.spec_id, tool_version=tool_version(),
+        size=size, mtime_ns=mtime, error=None, published_path=None, event="protected",
+        detail=report_detail(job.report),
+    )  # fmt: skip
+    job.final = record_path
+    return None
+
+
+def publish(job: Job) -> ProtectOutcome | None:
+    """6. A dataset with a publish folder gets its patched file moved there."""
+    target_dir = publish_dir(job.ctx, job.dataset) if job.out_path is None else None
+    if target_dir is None:
+        return None
+    assert job.file is not None
+    rel = job.path.relative_to(job.root) if job.path.is_relative_to(job.root) else Path(job.path.name)
+    job.final = move_out(job.file.dir_fd, job.file.name, target_dir / rel)
+    job.ctx.store.record_file(
+        job.record_path, job.dataset, FileState.PATCHED, published_path=str(job.final), event="published",
+        detail={"to": str(job.final)},
+    )  # fmt: skip
+    return None
+
+
+STAGES: tuple[Callable[[Job], ProtectOutcome | None], ...] = (
+    check_name,
+    open_contained_file,
+    hash_original,
+    decide,
+    keep_in_vault,  # crash-safe order from here: vault → pending → poison → replace → row → publish
+    mark_pending,
+    poison,
+    replace_atomically,
+    record_provenance,
+    publish,
+)
+
+
+def run_stages(
+    job: Job, stages: tuple[Callable[[Job], ProtectOutcome | None], ...] = STAGES
+) -> ProtectOutcome:
+    """Run the stages in order until one returns an outcome; the job's descriptors and work
+    folder are released whatever happens."""
+    try:
+        for stage in stages:
+            outcome = stage(job)
+            if outcome is not None:
+                return outcome
+        return job.outcome(
+            Outcome.PATCHED, None, original_sha256=job.sha, poisoned_sha256=job.poisoned_sha,
+            spec_id=job.spec.spec_id if job.spec else None, output=job.final, report=job.report,
+            signature=job.written,
+        )  # fmt: skip
+    finally:
+        job.close()
+
+
+# ---- writing outside the file's folder ---------------------------------------------------------
+def _write_out(job: Job, content: Path) -> None:
+    """`--out`: the copy goes into the output folder the user named (trusted, created if needed)."""
+    out = job.record_path
+    out.parent.mkdir(parents=True, exist_ok=True)
+    dir_fd = open_dir(out.parent)
+    try:
+        clear_stale_temps_once(dir_fd)
+        mode = stat.S_IMODE(job.file.st.st_mode) if job.file is not None else None
+        with atomic_replace_at(dir_fd, out.name, mode=mode) as (fd, _tmp):
+            copy_path_to_fd(content, fd)
+    finally:
+        os.close(dir_fd)
+
+
+def move_out(src_dir_fd: int, name: str, dst: Path) -> Path:
+    """Move the file `name` of the folder src_dir_fd to dst (a trusted folder) atomically: a rename
+    on one filesystem, else a complete copy, then unlink."""
+    import errno
+
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.rename(name, dst, src_dir_fd=src_dir_fd)
+        fsync_dir(dst.parent)
+        os.fsync(src_dir_fd)
+    except OSError as exc:
+        if exc.errno != errno.EXDEV:
+            raise
+        src_fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC, dir_fd=src_dir_fd)
+        try:
+            dst_fd = open_dir(dst.parent)
+            try:
+                with atomic_replace_at(dst_fd, dst.name, mode=stat.S_IMODE(os.fstat(src_fd).st_mode)) as (
+                    fd,
+                    _t,
+                ):
+                    offset = 0
+                    while chunk := os.pread(src_fd, 1 << 20, offset):
+                        write_all(fd, chunk)
+                        offset += len(chunk)
+            finally:
+                os.close(dst_fd)
+        finally:
+            os.close(src_fd)
+        os.unlink(name, dir_fd=src_dir_fd)
+        os.fsync(src_dir_fd)
+    return dst
