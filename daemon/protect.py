@@ -11,6 +11,7 @@ import contextlib
 import logging
 import os
 import shutil
+import stat
 import tempfile
 import time
 from collections.abc import Iterator
@@ -20,6 +21,7 @@ from typing import Any
 
 from daemon.config import Config
 from daemon.dataset import OutsideOutboxError, dataset_of, dataset_root
+from daemon.fsops import sha256_fd
 from daemon.locks import DEFAULT_FILE_WAIT_S, LockHeld, file_lock
 from daemon.paths import AppPaths
 from daemon.pipeline import (
@@ -198,6 +200,11 @@ def _record_failure(
     message = failure_message(exc, path)
     if not isinstance(exc, ProtectRefused | SourceChanged):
         log.debug("protect failed", exc_info=exc)
+    if out_path is None and not dry_run and _holds_ppd_output(ctx, path):
+        # Another run (or process) patched it meanwhile: a patched row is never made 'failed'.
+        return ProtectOutcome(
+            path=path, dataset=dataset, state=Outcome.UNCHANGED, reason=f"already patched ({message})"
+        )
     if not storable(out_path or path):  # no row can name it; the log line says why
         log.warning("not recorded: %s: %s", shown_name(path), message, extra={"path": repr(str(path))})
     elif not dry_run:
@@ -213,6 +220,27 @@ def _record_failure(
                 extra={"path": str(path), "error": message},
             )  # fmt: skip
     return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=message)
+
+
+def _holds_ppd_output(ctx: AppContext, path: Path) -> bool:
+    """Whether the regular file at path (not followed if a symlink) is ppd's recorded output."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return False
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return False
+        sha = sha256_fd(fd)
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+    try:
+        row = ctx.store.file(path)
+        return (row is not None and row["poisoned_sha256"] == sha) or ctx.store.find_poisoned(sha) is not None
+    except Exception:  # the store failing too: say failed, as asked
+        return False
 
 
 def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, dataset: str, root: Path) -> bool:

@@ -24,6 +24,7 @@ updates and stat calls and hand paths to `submit`, which never blocks (daemon.wo
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import errno
 import logging
@@ -48,6 +49,7 @@ from watchdog.events import (
 )
 from watchdog.observers.inotify import InotifyObserver
 
+from daemon.locks import outbox_lock
 from daemon.notify import SystemdNotifier
 from daemon.pipeline import Outcome
 from daemon.states import FileState
@@ -479,6 +481,7 @@ class WatchDaemon:
             self.outbox, self.pool.submit, options.watch, self.suffixes, self._on_lost_events
         )
         self.scheduler: Any = None
+        self._owner = contextlib.ExitStack()
 
     # ---- lifecycle ----------------------------------------------------------------------------
     def request_stop(self) -> None:
@@ -487,7 +490,10 @@ class WatchDaemon:
         self._wake.set()
 
     def start(self) -> None:
+        """Raises daemon.locks.LockHeld (one line naming the holder's pid) when another
+        `ppd watch` already watches this outbox."""
         self.outbox.mkdir(parents=True, exist_ok=True)
+        self._owner.enter_context(outbox_lock(self.ctx.paths.data_dir, self.outbox))
         self.scheduler = self._start_scheduler() if self.options.verify else None
         self.pool.start()
         self.watcher.start()  # before the scan: nothing written during the scan is missed
@@ -539,6 +545,7 @@ class WatchDaemon:
             except Exception:
                 log.exception("verification scheduler did not stop cleanly")
         log.info("stopped: %s", self.status())
+        self._owner.close()  # the outbox lock
 
     # ---- helpers of the main loop -------------------------------------------------------------
     def _start_scheduler(self) -> Any:
