@@ -35,7 +35,7 @@ import numpy as np
 from PIL import Image, ImageFile
 
 from poisoner import jpeg as jpeg_codec
-from poisoner import location
+from poisoner import location, provenance
 from poisoner.atomic import atomic_output
 from poisoner.blend import apply_patch
 from poisoner.provenance import Marker
@@ -416,19 +416,22 @@ def webp_quality_from_quantizer(q: float) -> int:
 
 
 def _clean_exif_xmp(
-    info: dict[str, object], keep_location: bool, label: str
+    info: dict[str, object], keep_location: bool, label: str, marker: Marker | None
 ) -> tuple[bytes | None, bytes | None, list[str]]:
-    """The source's EXIF and XMP for a re-encoded file, location removed unless kept."""
+    """The source's EXIF and XMP for a re-encoded file: location removed unless kept, the
+    provenance marker added to the XMP when given."""
     exif = info.get("exif") or None
     xmp = info.get("xmp") or None
     removed: list[str] = []
+    if isinstance(xmp, str):
+        xmp = xmp.encode()
+    if marker is not None:
+        xmp = provenance.xmp_with_marker(xmp, marker)  # type: ignore[arg-type]
     if keep_location:
         return exif, xmp, removed  # type: ignore[return-value]
     if isinstance(exif, bytes):
         exif, gone = location.clean_exif(exif)
         removed += [f"{label} {g}" for g in gone]
-    if isinstance(xmp, str):
-        xmp = xmp.encode()
     if isinstance(xmp, bytes):
         xmp, gone = location.strip_xmp_location(xmp)
         removed += [f"{label} {g}" for g in gone]
@@ -436,7 +439,7 @@ def _clean_exif_xmp(
 
 
 def _poison_webp(
-    im: Image.Image, data: bytes, placement: PatchPlacement, keep_location: bool
+    im: Image.Image, data: bytes, placement: PatchPlacement, keep_location: bool, marker: Marker | None
 ) -> tuple[bytes, list[str], list[str], bool, list[str]]:
     chunks = _riff_chunks(data)
     lossless = b"VP8L" in chunks
@@ -458,7 +461,7 @@ def _poison_webp(
         if b"ALPH" in chunks:
             opts["alpha_quality"] = 100
     preserved: list[str] = []
-    exif, xmp, removed = _clean_exif_xmp(im.info, keep_location, "WebP")
+    exif, xmp, removed = _clean_exif_xmp(im.info, keep_location, "WebP", marker)
     for key, label, value in (
         ("exif", "EXIF", exif),
         ("icc_profile", "ICC", im.info.get("icc_profile")),
@@ -498,7 +501,7 @@ _TIFF_LOSSLESS = {"raw", "tiff_lzw", "tiff_deflate", "tiff_adobe_deflate", "pack
 
 
 def _poison_tiff(
-    im: Image.Image, placement: PatchPlacement, keep_location: bool
+    im: Image.Image, placement: PatchPlacement, keep_location: bool, marker: Marker | None
 ) -> tuple[bytes, list[str], list[str], bool, list[str]]:
     if im.mode not in ("L", "LA", "RGB", "RGBA", "I;16", "I;16B", "P", "1"):
         raise ImageFormatError(f"TIFF mode {im.mode} is not supported")
@@ -521,7 +524,7 @@ def _poison_tiff(
     opts: dict[str, object] = {"compression": compression, "tiffinfo": info}
     preserved = [f"TIFF {_TIFF_KEEP_TAGS[t]}" for t in info]
     removed: list[str] = []
-    _, xmp, removed = _clean_exif_xmp({"xmp": im.info.get("xmp")}, keep_location, "TIFF")
+    _, xmp, removed = _clean_exif_xmp({"xmp": im.info.get("xmp")}, keep_location, "TIFF", marker)
     if im.info.get("icc_profile"):
         opts["icc_profile"] = im.info["icc_profile"]
         preserved.append("TIFF ICC")
@@ -562,13 +565,13 @@ HEIF_QUALITY = 90  # the source's encoder quality is not recorded in the file
 
 
 def _poison_heif(
-    im: Image.Image, fmt: str, placement: PatchPlacement, keep_location: bool
+    im: Image.Image, fmt: str, placement: PatchPlacement, keep_location: bool, marker: Marker | None
 ) -> tuple[bytes, list[str], list[str], list[str]]:
     mode = "RGBA" if "A" in im.mode else "RGB"
     patched = apply_patch(np.asarray(im.convert(mode)), placement)
     opts: dict[str, object] = {"quality": HEIF_QUALITY}
     preserved = []
-    exif, xmp, removed = _clean_exif_xmp(im.info, keep_location, fmt)
+    exif, xmp, removed = _clean_exif_xmp(im.info, keep_location, fmt, marker)
     for key, label, value in (
         ("exif", "EXIF", exif),
         ("icc_profile", "ICC", im.info.get("icc_profile")),
@@ -664,19 +667,23 @@ def poison_file(
         out, preserved, notes, method = _poison_jpeg(src, im, data, placement)
         if not keep_location:
             out, removed = _strip_jpeg(src, out)
+        if marker is not None:
+            out = _jpeg_marker(src, out, marker)
     elif fmt == "PNG":
         out, preserved, notes = _poison_png(im, data, placement)
         method, lossless = "png-lossless", True
         if not keep_location:
             out, removed = strip_png_location(out)
+        if marker is not None:
+            out = provenance.embed_png(out, marker)
     elif fmt == "WEBP":
-        out, preserved, notes, lossless, removed = _poison_webp(im, data, placement, keep_location)
+        out, preserved, notes, lossless, removed = _poison_webp(im, data, placement, keep_location, marker)
         method = "webp-lossless" if lossless else "webp-lossy"
     elif fmt == "TIFF":
-        out, preserved, notes, lossless, removed = _poison_tiff(im, placement, keep_location)
+        out, preserved, notes, lossless, removed = _poison_tiff(im, placement, keep_location, marker)
         method = "tiff"
     elif fmt in ("HEIF", "AVIF"):
-        out, preserved, notes, removed = _poison_heif(im, fmt, placement, keep_location)
+        out, preserved, notes, removed = _poison_heif(im, fmt, placement, keep_location, marker)
         method = fmt.lower()
     else:
         raise ImageFormatError(f"{src.name}: {fmt} files are not supported")
@@ -703,6 +710,13 @@ def _strip_jpeg(src: Path, out: bytes) -> tuple[bytes, list[str]]:
         return location.strip_jpeg_location(out)
     except location.MetadataParseError as exc:
         raise ImageFormatError(f"{src.name}: cannot remove location from the JPEG header ({exc})") from exc
+
+
+def _jpeg_marker(src: Path, out: bytes, marker: Marker) -> bytes:
+    try:
+        return provenance.embed_jpeg(out, marker)
+    except location.MetadataParseError as exc:
+        raise ImageFormatError(f"{src.name}: cannot add the provenance marker ({exc})") from exc
 
 
 def _suffix_matches(suffix: str, fmt: str) -> bool:
