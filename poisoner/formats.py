@@ -97,6 +97,26 @@ def image_from_array(pixels: np.ndarray, mode: str) -> Image.Image:
     return Image.fromarray(pixels, mode)
 
 
+def paste_patch(im: Image.Image, placement: PatchPlacement) -> Image.Image:
+    """im with the patch blended in, in place: only the patch box goes through numpy, so memory
+    stays at one decoded picture (a whole-picture array costs one or two more, measured)."""
+    x0, y0, _, _ = placement.box
+    local = dataclasses.replace(placement, x=0, y=0)
+    region = apply_patch(np.asarray(im.crop(placement.box)), local)
+    im.paste(image_from_array(region, im.mode), (x0, y0))
+    return im
+
+
+def save_explicit(im: Image.Image, fp: io.BytesIO, fmt: str, **opts: object) -> None:
+    """Save with only the metadata in opts. Pillow's writers fall back to im.info (the source's
+    EXIF, XMP...) for what opts leave out, and its TIFF writer copies XMP/IPTC from a TIFF
+    source's own tags: either would bring removed location back. A plain Image sharing the
+    pixel memory (no copy) carries neither."""
+    plain = im._new(im.im)  # noqa: SLF001 - Pillow's own shallow constructor
+    plain.info = {}
+    plain.save(fp, fmt, **opts)
+
+
 def _one_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     return text[0] if text else type(exc).__name__
@@ -307,16 +327,13 @@ def _poison_png(
             notes.append("1-bit PNG written as 8-bit greyscale")
         if mode not in ("L", "LA", "RGB", "RGBA", "I;16"):
             raise ImageFormatError(f"PNG mode {mode} is not supported")
-        patched = apply_patch(np.asarray(im), placement)
-        out = image_from_array(patched, mode)
+        out = paste_patch(im, placement)
         save_opts = {}
         if "transparency" in im.info and mode in ("L", "RGB", "I;16"):
             save_opts["transparency"] = im.info["transparency"]  # tRNS colour key
             key = im.info["transparency"]
-            region = patched[
-                placement.y : placement.y + placement.size, placement.x : placement.x + placement.size
-            ]
-            key_arr = np.asarray(key, dtype=patched.dtype)
+            region = np.asarray(out.crop(placement.box))
+            key_arr = np.asarray(key, dtype=region.dtype)
             hit = (region == key_arr).all(axis=-1) if region.ndim == 3 else region == key_arr
             if hit.any():
                 notes.append("some patch pixels equal the tRNS colour key and show as transparent")
@@ -471,9 +488,9 @@ def _poison_webp(
             opts[key] = value
             preserved.append(f"WebP {label}")
     mode = im.mode if im.mode in ("RGB", "RGBA") else "RGBA" if "A" in im.mode else "RGB"
-    patched = apply_patch(np.asarray(im.convert(mode)), placement)
+    out = paste_patch(im if im.mode == mode else im.convert(mode), placement)
     buf = io.BytesIO()
-    Image.fromarray(patched, mode).save(buf, "WEBP", **opts)
+    save_explicit(out, buf, "WEBP", **opts)
     return buf.getvalue(), preserved, notes, lossless, removed
 
 
@@ -515,11 +532,10 @@ def _poison_tiff(
         mode = "RGBA" if "transparency" in im.info else "RGB" if mode == "P" else "L"
         notes.append(f"{im.mode} TIFF written as {mode}")
     src = im.convert(mode) if mode != im.mode else im
-    arr = np.asarray(src)
     if mode == "I;16B":
-        arr = arr.astype(np.uint16)
-        mode = "I;16"
-    patched = apply_patch(arr, placement)
+        out = image_from_array(apply_patch(np.asarray(src).astype(np.uint16), placement), "I;16")
+    else:
+        out = paste_patch(src, placement)
     info = {tag: im.tag_v2[tag] for tag in _TIFF_KEEP_TAGS if tag in im.tag_v2}
     opts: dict[str, object] = {"compression": compression, "tiffinfo": info}
     preserved = [f"TIFF {_TIFF_KEEP_TAGS[t]}" for t in info]
@@ -556,7 +572,7 @@ def _poison_tiff(
     if 34665 in im.tag_v2:
         notes.append("TIFF EXIF sub-IFD not copied")
     buf = io.BytesIO()
-    image_from_array(patched, mode).save(buf, "TIFF", **opts)
+    save_explicit(out, buf, "TIFF", **opts)
     return buf.getvalue(), preserved, notes, compression in _TIFF_LOSSLESS, removed
 
 
@@ -568,7 +584,7 @@ def _poison_heif(
     im: Image.Image, fmt: str, placement: PatchPlacement, keep_location: bool, marker: Marker | None
 ) -> tuple[bytes, list[str], list[str], list[str]]:
     mode = "RGBA" if "A" in im.mode else "RGB"
-    patched = apply_patch(np.asarray(im.convert(mode)), placement)
+    out = paste_patch(im if im.mode == mode else im.convert(mode), placement)
     opts: dict[str, object] = {"quality": HEIF_QUALITY}
     preserved = []
     exif, xmp, removed = _clean_exif_xmp(im.info, keep_location, fmt, marker)
@@ -581,7 +597,7 @@ def _poison_heif(
             opts[key] = value
             preserved.append(f"{fmt} {label}")
     buf = io.BytesIO()
-    Image.fromarray(patched, mode).save(buf, fmt, **opts)
+    save_explicit(out, buf, fmt, **opts)
     return buf.getvalue(), preserved, [f"{fmt} re-encoded at quality {HEIF_QUALITY} (lossy)"], removed
 
 
@@ -640,15 +656,25 @@ def _poison_jpeg(
 
 # ---- entry points --------------------------------------------------------------------------------
 def poison_file(
-    src: Path, dst: Path, spec: PatchSpec, *, marker: Marker | None = None, keep_location: bool = False
+    src: Path,
+    dst: Path,
+    spec: PatchSpec,
+    *,
+    marker: Marker | None = None,
+    keep_location: bool = False,
+    max_pixels: int | None = None,
 ) -> PoisonReport:
     """Read src, write the complete poisoned file to dst (src is only read).
 
     Location metadata (GPS, place names) is removed from dst unless keep_location; with a marker,
-    dst carries it (poisoner.provenance)."""
+    dst carries it (poisoner.provenance). A file whose header declares more than max_pixels
+    (None: poisoner.limits.DEFAULT_MAX_PIXELS) is refused before anything is decoded."""
+    from poisoner.limits import DEFAULT_MAX_PIXELS, check_decode_budget  # limits imports this module
+
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():
         raise ImageFormatError(f"{src.name}: dst must differ from src (use poison_in_place)")
+    check_decode_budget(src, DEFAULT_MAX_PIXELS if max_pixels is None else max_pixels)
     try:
         data = src.read_bytes()
     except OSError as exc:
@@ -732,10 +758,15 @@ def _suffix_matches(suffix: str, fmt: str) -> bool:
 
 
 def poison_in_place(
-    path: Path, spec: PatchSpec, *, marker: Marker | None = None, keep_location: bool = False
+    path: Path,
+    spec: PatchSpec,
+    *,
+    marker: Marker | None = None,
+    keep_location: bool = False,
+    max_pixels: int | None = None,
 ) -> PoisonReport:
     """Poison path atomically: a crash leaves the original or the complete poisoned file.
     Permission bits are kept (poisoner.atomic)."""
     path = Path(path)
     with atomic_output(path) as tmp:
-        return poison_file(path, tmp, spec, marker=marker, keep_location=keep_location)
+        return poison_file(path, tmp, spec, marker=marker, keep_location=keep_location, max_pixels=max_pixels)

@@ -47,6 +47,7 @@ from av.video.reformatter import ColorRange, Colorspace
 from poisoner import location, provenance
 from poisoner.blend import apply_patch, patch_values
 from poisoner.formats import PoisonReport
+from poisoner.limits import check_video_frame_budget
 from poisoner.provenance import Marker
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 
@@ -207,19 +208,27 @@ def _muxer_for(path: Path) -> str:
     return muxer
 
 
-def probe(path: Path) -> SourceInfo:
-    """Read the source's video stream properties and its first frame (rotation, colour, HDR)."""
+def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
+    """Read the source's video stream properties and its first frame (rotation, colour, HDR).
+    A frame size over max_pixels (None: limits.DEFAULT_MAX_VIDEO_PIXELS) is refused from the
+    stream header, before any frame is decoded."""
     path = Path(path)
     muxer = _muxer_for(path)
     with _open_input(path) as container:
         stream = _main_video_stream(container, path.name)
         cc = stream.codec_context
+        refusal = check_video_frame_budget(path.name, cc.width or 0, cc.height or 0, max_pixels)
+        if refusal:
+            raise VideoFormatError(refusal)
         try:
             first = next(container.decode(stream))
         except StopIteration:
             raise VideoFormatError(f"{path.name}: the video stream has no decodable frame") from None
         except av.error.FFmpegError as exc:
             raise VideoFormatError(f"{path.name}: cannot decode the first frame ({_one_line(exc)})") from exc
+        refusal = check_video_frame_budget(path.name, first.width, first.height, max_pixels)
+        if refusal:  # the header did not say (width 0): one frame decoded, no more
+            raise VideoFormatError(refusal)
         matrix: tuple[int, ...] | None = None
         hdr: dict[str, bytes] = {}
         for sd in first.side_data:
@@ -759,7 +768,7 @@ def poison_video(
     if src.stat().st_size == 0:
         raise VideoFormatError(f"{src.name}: empty file (still being written?)")
     state_before = _file_state(src)
-    info = probe(src)
+    info = probe(src, max_pixels=max_pixels)
     try:
         placement_at = frame_placements(spec, info, options)
         placement = placement_at(0)
