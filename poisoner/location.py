@@ -206,6 +206,8 @@ def strip_iim_location(iim: bytes) -> tuple[bytes, list[str]]:
         head = 5
         if length & 0x8000:  # extended dataset: the length's length
             n = length & 0x7FFF
+            if n > 8 or pos + 5 + n > len(iim):
+                raise MetadataParseError("IPTC-IIM extended length malformed")
             length = int.from_bytes(iim[pos + 5 : pos + 5 + n], "big")
             head += n
         end = pos + head + length
@@ -232,8 +234,10 @@ def strip_photoshop_location(block: bytes) -> tuple[bytes, list[str]]:
                 out += block[pos:]
                 break
             raise MetadataParseError("Photoshop resource signature expected")
+        if pos + 7 > len(block):
+            raise MetadataParseError("Photoshop resource truncated")
         (rid,) = struct.unpack(">H", block[pos + 4 : pos + 6])
-        name_len = block[pos + 6] if pos + 6 < len(block) else 0
+        name_len = block[pos + 6]
         name_end = pos + 6 + ((1 + name_len + 1) & ~1)
         if name_end + 4 > len(block):
             raise MetadataParseError("Photoshop resource truncated")
