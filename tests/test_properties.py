@@ -4,7 +4,9 @@ complete output), never another exception. The long fuzz run is `python -m bench
 
 from __future__ import annotations
 
+import contextlib
 import io
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -170,3 +172,82 @@ def test_corrupt_tiff_tags_that_make_pillow_raise_typeerror_are_refused(
 @given(data=st.binary(max_size=2000), suffix=st.sampled_from([".png", ".jpg", ".webp", ".tif", ".heic"]))
 def test_fuzz_random_bytes_with_image_names(tmp_path: Path, data: bytes, suffix: str) -> None:
     fuzz_image_reader(tmp_path, suffix, data)
+
+
+# ---- fuzzing the metadata readers (location, provenance, limits, completeness) --------------------
+def _metadata_seeds() -> dict[str, bytes]:
+    """Small files carrying GPS EXIF, XMP and a provenance marker: the parsers' real inputs."""
+    rng = np.random.default_rng(4)
+    pixels = rng.integers(0, 256, (40, 56, 3), dtype=np.uint8)
+    exif = PIL.Image.Exif()
+    exif[0x010F] = "cam"
+    exif.get_ifd(0x8825)[2] = (48.0, 51.0, 29.0)
+    xmp = b'<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+    xmp += b'<rdf:Description xmlns:exif="http://ns.adobe.com/exif/1.0/" exif:GPSLatitude="1"/>'
+    xmp += b"</rdf:RDF></x:xmpmeta>"
+    with tempfile.TemporaryDirectory(prefix="ppd-fuzz-seeds-") as tmp:
+        return _write_metadata_seeds(Path(tmp), pixels, exif, xmp)
+
+
+def _write_metadata_seeds(
+    folder: Path, pixels: np.ndarray, exif: PIL.Image.Exif, xmp: bytes
+) -> dict[str, bytes]:
+    from poisoner.provenance import Marker
+
+    seeds = {}
+    for fmt, suffix in (("PNG", ".png"), ("JPEG", ".jpg"), ("WEBP", ".webp")):
+        src = folder / f"s{suffix}"
+        extra = {"xmp": xmp} if fmt != "PNG" else {}
+        PIL.Image.fromarray(pixels).save(src, format=fmt, exif=exif, **extra)
+        poison_file(
+            src,
+            folder / f"m{suffix}",
+            PatchSpec(patch_size=8, block_size=2),
+            marker=Marker("s", "0" * 64, "t"),
+        )
+        seeds[suffix] = (folder / f"m{suffix}").read_bytes()
+    return seeds
+
+
+METADATA_SEEDS = _metadata_seeds()
+
+
+@pytest.mark.parametrize("suffix", sorted(METADATA_SEEDS))
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    edits=st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 255)), max_size=8),
+    cut=st.one_of(st.none(), st.integers(0, 4000)),
+)
+def test_fuzz_metadata_readers_never_raise(
+    tmp_path: Path, suffix: str, edits: list[tuple[int, int]], cut: int | None
+) -> None:
+    from poisoner.completeness import incomplete_reason
+    from poisoner.limits import HeaderError, decoded_size
+    from poisoner.provenance import Marker, read_marker
+
+    path = tmp_path / f"f{suffix}"
+    path.write_bytes(mutate(METADATA_SEEDS[suffix], edits, cut))
+    assert read_marker(path) is None or isinstance(read_marker(path), Marker)
+    reason = incomplete_reason(path)
+    assert reason is None or (reason and "\n" not in reason)
+    with contextlib.suppress(HeaderError):
+        decoded_size(path)
+    fuzz_image_reader(tmp_path, suffix, path.read_bytes())  # location stripping runs on the output
+
+
+@settings(max_examples=200, deadline=None)
+@given(data=st.binary(max_size=600))
+def test_fuzz_metadata_block_parsers_raise_only_their_error(data: bytes) -> None:
+    from poisoner import location
+
+    for parse in (
+        location.strip_exif_gps,
+        location.strip_iim_location,
+        location.strip_photoshop_location,
+        location.strip_jpeg_location,
+    ):
+        with contextlib.suppress(location.MetadataParseError):
+            parse(data)
+    for ctype in (b"eXIf", b"iTXt", b"zTXt", b"tEXt"):
+        location.clean_png_chunk(ctype, data)
+    location.strip_xmp_location(data)

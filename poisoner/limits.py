@@ -1,0 +1,304 @@
+"""Bounded memory: how big a file is once decoded, read from its header before anything decodes.
+
+A few kilobytes can declare gigapixels (a solid-colour lossless WebP, a PNG of zeros, a TIFF that
+only claims its size). `check_decode_budget` refuses such a file with one line before Pillow or
+FFmpeg allocates anything; `poison_file` calls it first. The header readers are pure byte parsing
+(no decoder): JPEG SOF, PNG IHDR/acTL, WebP VP8/VP8L/VP8X/ANMF, GIF screen and frame count,
+TIFF IFDs, HEIF/AVIF `ispe`. Anything else falls back to Pillow's lazy open (header only).
+
+DEFAULT_MAX_PIXELS: peak RSS of poison_file stays under ~1 GB for every format just below it
+(docs/FORMATS.md, "Memory", measured with bench_limits).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+DEFAULT_MAX_PIXELS = 100_000_000  # 100 MP (docs/FORMATS.md "Memory": peak RSS figures)
+DEFAULT_MAX_VIDEO_PIXELS = 5312 * 2988  # 15.9 MP per frame: GoPro 5.3K; 8K video refused
+_HEADER_READ = 1 << 20  # the most read to find a header (JPEG APPn before SOF can be large)
+
+
+@dataclass(frozen=True)
+class DecodedSize:
+    format: str
+    width: int
+    height: int
+    channels: int
+    bytes_per_sample: int
+    frames: int = 1
+
+    @property
+    def pixels(self) -> int:
+        return self.width * self.height * self.frames
+
+    @property
+    def bytes(self) -> int:
+        return self.pixels * self.channels * self.bytes_per_sample
+
+
+class HeaderError(ValueError):
+    """The header could not be read (the decoder will give its own error)."""
+
+
+def decoded_size(path: Path) -> DecodedSize:
+    """What decoding path would allocate, from its header. Raises HeaderError."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(_HEADER_READ)
+    except OSError as exc:
+        raise HeaderError(str(exc)) from exc
+    try:
+        if head.startswith(b"\xff\xd8"):
+            return _jpeg(head)
+        if head.startswith(b"\x89PNG\r\n\x1a\n"):
+            return _png(path)
+        if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
+            return _webp(path, head)
+        if head[:6] in (b"GIF87a", b"GIF89a"):
+            return _gif(path, head)
+        if head[:4] in (b"II*\x00", b"MM\x00*"):
+            return _tiff(path, head)
+        if head[4:8] == b"ftyp":
+            return _heif(path)
+    except (struct.error, IndexError, ValueError, OSError) as exc:
+        raise HeaderError(f"unreadable header ({exc})") from exc
+    return _pillow(path)
+
+
+def decoded_bytes_estimate(path: Path) -> int:
+    """Width x height x channels x bytes per sample x frames, from the header (0 if unreadable)."""
+    try:
+        return decoded_size(Path(path)).bytes
+    except HeaderError:
+        return 0
+
+
+def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
+    """Raise ImageFormatError (one line) when path declares more than max_pixels (all frames
+    together), before anything is decoded. An unreadable header passes: the decoder refuses it."""
+    from poisoner.formats import ImageFormatError
+
+    path = Path(path)
+    try:
+        size = decoded_size(path)
+    except HeaderError:
+        return
+    if size.pixels > max_pixels:
+        frames = f" x {size.frames} frames" if size.frames > 1 else ""
+        raise ImageFormatError(
+            f"{path.name}: {size.width}x{size.height}{frames} ({_mp(size.pixels)} MP) is over the "
+            f"{_mp(max_pixels)} MP limit; raise [limits] max_megapixels to protect it"
+        )
+
+
+def check_video_frame_budget(name: str, width: int, height: int, max_pixels: int | None) -> str | None:
+    """The one-line refusal for a video frame size over the limit, or None."""
+    limit = DEFAULT_MAX_VIDEO_PIXELS if max_pixels is None else max_pixels
+    if width * height > limit:
+        return (
+            f"{name}: {width}x{height} frames ({_mp(width * height)} MP) are over the {_mp(limit)} MP "
+            "video limit; raise [limits] max_video_megapixels to protect it"
+        )
+    return None
+
+
+def _mp(pixels: int) -> str:
+    mp = pixels / 1e6
+    return f"{mp:.0f}" if mp >= 10 else f"{mp:.1f}"
+
+
+# ---- per-format header readers -----------------------------------------------------------------
+_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+
+
+def _jpeg(head: bytes) -> DecodedSize:
+    pos = 2
+    while pos + 4 <= len(head):
+        if head[pos] != 0xFF:
+            raise ValueError("JPEG marker expected")
+        marker = head[pos + 1]
+        if marker == 0xFF:
+            pos += 1
+            continue
+        (length,) = struct.unpack(">H", head[pos + 2 : pos + 4])
+        if marker in _SOF:
+            precision, height, width, comps = struct.unpack(">BHHB", head[pos + 4 : pos + 10])
+            # a DNL-marker JPEG declares height 0: the decoder then allocates per the real height;
+            # treat as unknown width x 65535 (the most a JPEG can have)
+            return DecodedSize("JPEG", width, height or 65535, comps, 2 if precision > 8 else 1)
+        if marker in (0xDA, 0xD9):
+            break
+        pos += 2 + length
+    raise ValueError("no JPEG frame header in the first MB")
+
+
+def _png(path: Path) -> DecodedSize:
+    with open(path, "rb") as f:
+        f.seek(8)
+        length, ctype = struct.unpack(">I4s", f.read(8))
+        if ctype != b"IHDR" or length != 13:
+            raise ValueError("PNG without IHDR")
+        width, height, depth, colour = struct.unpack(">IIBB", f.read(10))
+        frames = 1
+        f.seek(8 + 8 + 13 + 4)
+        for _ in range(10000):  # ancillary chunks before the first IDAT
+            hdr = f.read(8)
+            if len(hdr) < 8:
+                break
+            length, ctype = struct.unpack(">I4s", hdr)
+            if ctype == b"acTL":
+                (frames,) = struct.unpack(">I", f.read(4))
+                break
+            if ctype in (b"IDAT", b"IEND"):
+                break
+            f.seek(length + 4, 1)
+    channels = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}.get(colour, 4)  # palette decodes to RGB(A) here
+    return DecodedSize("PNG", width, height, channels, 2 if depth == 16 else 1, max(1, frames))
+
+
+def _webp(path: Path, head: bytes) -> DecodedSize:
+    kind = head[12:16]
+    if kind == b"VP8 ":
+        w, h = struct.unpack("<HH", head[26:30])
+        return DecodedSize("WEBP", w & 0x3FFF, h & 0x3FFF, 3, 1)
+    if kind == b"VP8L":
+        (bits,) = struct.unpack("<I", head[21:25])
+        return DecodedSize("WEBP", (bits & 0x3FFF) + 1, ((bits >> 14) & 0x3FFF) + 1, 4, 1)
+    if kind != b"VP8X":
+        raise ValueError(f"unknown WebP chunk {kind!r}")
+    flags = head[20]
+    width = int.from_bytes(head[24:27], "little") + 1
+    height = int.from_bytes(head[27:30], "little") + 1
+    frames = 1
+    if flags & 0x02:  # animation: count the frames (chunk headers only)
+        frames = 0
+        with open(path, "rb") as f:
+            f.seek(12)
+            for _ in range(1_000_000):
+                hdr = f.read(8)
+                if len(hdr) < 8:
+                    break
+                ctype, size = hdr[:4], struct.unpack("<I", hdr[4:])[0]
+                frames += ctype == b"ANMF"
+                f.seek(size + (size & 1), 1)
+    return DecodedSize("WEBP", width, height, 4, 1, max(1, frames))
+
+
+def _gif(path: Path, head: bytes) -> DecodedSize:
+    width, height, flags = struct.unpack("<HHB", head[6:11])
+    frames = 0
+    with open(path, "rb") as f:
+        data = f.read(64 * 1024 * 1024)  # GIFs are small; a huge one is counted up to here
+    pos = 13 + (3 << ((flags & 7) + 1) if flags & 0x80 else 0)
+    while pos < len(data):
+        block = data[pos]
+        if block == 0x3B:
+            break
+        if block == 0x2C:  # image descriptor
+            frames += 1
+            lflags = data[pos + 9]
+            pos += 10 + (3 << ((lflags & 7) + 1) if lflags & 0x80 else 0) + 1  # + LZW min code size
+        elif block == 0x21:  # extension
+            pos += 2
+        else:
+            break
+        while pos < len(data) and data[pos]:  # sub-blocks
+            pos += data[pos] + 1
+        pos += 1
+    return DecodedSize("GIF", width, height, 4, 1, max(1, frames))
+
+
+def _tiff(path: Path, head: bytes) -> DecodedSize:
+    bo = "<" if head[:2] == b"II" else ">"
+    (ifd,) = struct.unpack(bo + "I", head[4:8])
+    seen: set[int] = set()
+    first: dict[int, int] = {}
+    frames = 0
+    with open(path, "rb") as f:
+        while ifd and ifd not in seen and frames < 100_000:
+            seen.add(ifd)
+            f.seek(ifd)
+            (count,) = struct.unpack(bo + "H", f.read(2))
+            entries = f.read(12 * count)
+            if frames == 0:
+                for i in range(count):
+                    tag, typ, n = struct.unpack(bo + "HHI", entries[12 * i : 12 * i + 8])
+                    raw = entries[12 * i + 8 : 12 * i + 12]
+                    if tag in (256, 257, 258, 277) and n >= 1:
+                        first[tag] = (
+                            struct.unpack(bo + "H", raw[:2])[0]
+                            if typ == 3
+                            else struct.unpack(bo + "I", raw)[0]
+                        )
+            frames += 1
+            nxt = f.read(4)
+            ifd = struct.unpack(bo + "I", nxt)[0] if len(nxt) == 4 else 0
+    if 256 not in first or 257 not in first:
+        raise ValueError("TIFF without dimensions")
+    bits = first.get(258, 8)
+    bits = bits if bits in (1, 2, 4, 8, 16, 32) else 8  # an offset (several values): 8-bit samples
+    return DecodedSize("TIFF", first[256], first[257], first.get(277, 1), 2 if bits > 8 else 1, frames)
+
+
+def _boxes(data: bytes, start: int, end: int) -> list[tuple[bytes, int, int]]:
+    """(type, body start, body end) of the ISO-BMFF boxes in data[start:end]."""
+    out = []
+    pos = start
+    while pos + 8 <= end:
+        size, typ = struct.unpack(">I4s", data[pos : pos + 8])
+        head = 8
+        if size == 1:
+            (size,) = struct.unpack(">Q", data[pos + 8 : pos + 16])
+            head = 16
+        elif size == 0:
+            size = end - pos
+        if size < head:
+            break
+        out.append((typ, pos + head, min(pos + size, end)))
+        pos += size
+    return out
+
+
+def _heif(path: Path) -> DecodedSize:
+    with open(path, "rb") as f:
+        data = f.read(4 * 1024 * 1024)  # meta precedes mdat in HEIC/AVIF as written by cameras
+    best = (0, 0)
+    for typ, s, e in _boxes(data, 0, len(data)):
+        if typ != b"meta":
+            continue
+        for t2, s2, e2 in _boxes(data, s + 4, e):  # meta is a full box
+            if t2 != b"iprp":
+                continue
+            for t3, s3, e3 in _boxes(data, s2, e2):
+                if t3 != b"ipco":
+                    continue
+                for t4, s4, _ in _boxes(data, s3, e3):
+                    if t4 == b"ispe":
+                        w, h = struct.unpack(">II", data[s4 + 4 : s4 + 12])
+                        if w * h > best[0] * best[1]:
+                            best = (w, h)
+    if best == (0, 0):
+        return _pillow(path)
+    return DecodedSize("HEIF", best[0], best[1], 4, 1)
+
+
+def _pillow(path: Path) -> DecodedSize:
+    import warnings
+
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with Image.open(path) as im:  # lazy: the header only
+                w, h = im.size
+                frames = getattr(im, "n_frames", 1)
+                channels = len(im.getbands())
+    except Image.DecompressionBombError as exc:
+        raise HeaderError(str(exc)) from exc
+    except Exception as exc:  # noqa: BLE001 - any reader failure means "header unknown"
+        raise HeaderError(f"{type(exc).__name__}: {exc}") from exc
+    return DecodedSize("other", w, h, channels, 1, frames)

@@ -1,0 +1,182 @@
+"""Bounded memory (issue 20, row 6): sizes read from headers, hostile files refused before any
+decode, measured in child processes."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import av
+import hostile_images
+import numpy as np
+import pytest
+from PIL import Image
+
+from poisoner.formats import ImageFormatError, poison_file
+from poisoner.limits import (
+    DEFAULT_MAX_PIXELS,
+    check_decode_budget,
+    decoded_bytes_estimate,
+    decoded_size,
+)
+from poisoner.spec import PatchSpec
+from poisoner.video import VideoFormatError, VideoOptions, poison_video
+
+SPEC = PatchSpec(patch_size=16, block_size=4, position="top-left", offset=(4, 4))
+LOW_MEMORY_MB = 300
+
+
+def _save(path: Path, mode: str, size: tuple[int, int], fmt: str, **opts: object) -> Path:
+    rng = np.random.default_rng(0)
+    channels = len(mode)
+    arr = rng.integers(0, 256, size=(size[1], size[0], channels)).astype(np.uint8)
+    Image.fromarray(arr if channels > 1 else arr[..., 0], mode).save(path, fmt, **opts)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("name", "mode", "fmt", "opts", "channels", "bps"),
+    [
+        ("a.jpg", "RGB", "JPEG", {}, 3, 1),
+        ("g.jpg", "L", "JPEG", {"progressive": True}, 1, 1),
+        ("a.png", "RGBA", "PNG", {}, 4, 1),
+        ("l.png", "L", "PNG", {}, 1, 1),
+        ("lossy.webp", "RGB", "WEBP", {"quality": 80}, 3, 1),
+        ("lossless.webp", "RGBA", "WEBP", {"lossless": True}, 4, 1),
+        (
+            "x.webp",
+            "RGB",
+            "WEBP",
+            {"lossless": True, "exif": b"Exif\x00\x00II*\x00\x08\x00\x00\x00\x00\x00"},
+            4,
+            1,
+        ),
+        ("a.tif", "RGB", "TIFF", {"compression": "tiff_lzw"}, 3, 1),
+        ("a.gif", "P", "GIF", {}, 4, 1),
+    ],
+)
+def test_header_sizes_match_the_decoded_image(
+    tmp_path: Path, name: str, mode: str, fmt: str, opts: dict[str, object], channels: int, bps: int
+) -> None:
+    path = _save(tmp_path / name, mode, (173, 91), fmt, **opts)
+    size = decoded_size(path)
+    assert (size.width, size.height, size.frames) == Image.open(path).size + (1,)
+    assert (size.channels, size.bytes_per_sample) == (channels, bps)
+    assert decoded_bytes_estimate(path) == 173 * 91 * channels * bps
+
+
+def test_header_sizes_16bit_png_animated_webp_and_heic(tmp_path: Path) -> None:
+    import pillow_heif
+
+    pillow_heif.register_heif_opener()
+    Image.fromarray(np.zeros((40, 30), np.uint16)).save(tmp_path / "a16.png")
+    assert decoded_bytes_estimate(tmp_path / "a16.png") == 30 * 40 * 2
+    frames = [Image.new("RGB", (50, 20), (i * 40, 0, 0)) for i in range(5)]
+    frames[0].save(tmp_path / "anim.webp", save_all=True, append_images=frames[1:], lossless=True)
+    assert decoded_size(tmp_path / "anim.webp").frames == Image.open(tmp_path / "anim.webp").n_frames == 5
+    frames[0].save(tmp_path / "anim.gif", save_all=True, append_images=frames[1:])
+    assert decoded_size(tmp_path / "anim.gif").frames == Image.open(tmp_path / "anim.gif").n_frames
+    Image.new("RGB", (130, 70)).save(tmp_path / "a.heic", quality=50)
+    size = decoded_size(tmp_path / "a.heic")
+    assert (size.width, size.height) == (130, 70)
+
+
+def test_refusal_message_is_one_line_naming_the_file(tmp_path: Path) -> None:
+    hostile_images.tiff_huge(tmp_path / "big.tif")
+    with pytest.raises(ImageFormatError) as err:
+        check_decode_budget(tmp_path / "big.tif")
+    assert str(err.value) == (
+        f"big.tif: 100000x100000 (10000 MP) is over the {DEFAULT_MAX_PIXELS // 1_000_000} MP limit; "
+        "raise [limits] max_megapixels to protect it"
+    )
+    hostile_images.apng_many_frames(tmp_path / "anim.png")
+    with pytest.raises(ImageFormatError, match=r"2000x2000 x 1000 frames \(4000 MP\)"):
+        check_decode_budget(tmp_path / "anim.png")
+
+
+def test_poison_file_max_pixels(tmp_path: Path) -> None:
+    src = _save(tmp_path / "a.png", "RGB", (200, 100), "PNG")
+    with pytest.raises(ImageFormatError, match=r"200x100 \(0.0 MP\) is over the 0.0 MP limit"):
+        poison_file(src, tmp_path / "out.png", SPEC, max_pixels=200 * 100 - 1)
+    assert not (tmp_path / "out.png").exists()
+    poison_file(src, tmp_path / "out.png", SPEC, max_pixels=200 * 100)  # at the limit: protected
+    poison_file(src, tmp_path / "out2.png", SPEC)  # default
+    assert DEFAULT_MAX_PIXELS >= 24_000_000  # a 24 MP camera photo is never refused by default
+
+
+def test_unreadable_header_is_left_to_the_decoder(tmp_path: Path) -> None:
+    (tmp_path / "x.png").write_bytes(b"\x89PNG\r\n\x1a\n\x00")
+    check_decode_budget(tmp_path / "x.png")  # no refusal here...
+    with pytest.raises(ImageFormatError):
+        poison_file(tmp_path / "x.png", tmp_path / "o.png", SPEC)  # ...the decoder's one line instead
+
+
+CHILD = textwrap.dedent(
+    """
+    import resource, sys
+    from pathlib import Path
+    from poisoner.formats import ImageFormatError, poison_file
+    from poisoner.spec import PatchSpec
+    for name in sys.argv[2:]:
+        try:
+            poison_file(Path(sys.argv[1]) / name, Path(sys.argv[1]) / ("out-" + name), PatchSpec())
+            outcome = "PROTECTED"
+        except ImageFormatError as exc:
+            outcome = str(exc)
+        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024
+        print(f"{rss}\\t{name}\\t{outcome}", flush=True)
+    """
+)
+
+
+def test_hostile_corpus_refused_before_decoding_in_low_memory(tmp_path: Path) -> None:
+    corpus = tmp_path / "corpus"
+    hostile_images.write_corpus(corpus)
+    names = sorted(hostile_images.CORPUS)
+    run = subprocess.run(
+        [sys.executable, "-c", CHILD, str(corpus), *names],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    rows = [line.split("\t") for line in run.stdout.splitlines()]
+    assert [r[1] for r in rows] == names
+    for rss, name, outcome in rows:
+        assert int(rss) < LOW_MEMORY_MB, (name, rss)
+        assert "\n" not in outcome and outcome.startswith(name)
+        if name == "text-bomb.png":
+            assert "PROTECTED" not in outcome  # Pillow's text limit refuses it; memory stays low
+        else:
+            assert f"is over the {DEFAULT_MAX_PIXELS // 1_000_000} MP limit" in outcome, outcome
+    assert not list(corpus.glob("out-*"))
+
+
+def test_solid_webp_trick_really_decodes_to_the_declared_size(tmp_path: Path) -> None:
+    """The corpus's 38-byte WebP is genuine: patched to 1024 it decodes to 1024 x 1024 of one colour."""
+    hostile_images.webp_solid_lossless(tmp_path / "w.webp", 1024)
+    arr = np.asarray(Image.open(tmp_path / "w.webp"))
+    assert arr.shape[:2] == (1024, 1024)
+    assert len(np.unique(arr.reshape(-1, arr.shape[-1]), axis=0)) == 1
+
+
+def test_video_over_the_frame_limit_is_refused(tmp_path: Path) -> None:
+    src = tmp_path / "a.mp4"
+    with av.open(str(src), "w") as out:
+        vs = out.add_stream("libx264", rate=10)
+        vs.width, vs.height, vs.pix_fmt = 128, 96, "yuv420p"
+        for i in range(3):
+            f = av.VideoFrame.from_ndarray(np.full((96, 128, 3), 60 * i, np.uint8), format="rgb24")
+            f = f.reformat(format="yuv420p")
+            f.pts = i
+            for pkt in vs.encode(f):
+                out.mux(pkt)
+        for pkt in vs.encode(None):
+            out.mux(pkt)
+    opts = VideoOptions(verify_patch=False, preset="ultrafast")
+    with pytest.raises(VideoFormatError, match=r"a.mp4: 128x96 frames .* over the .* video limit"):
+        poison_video(src, tmp_path / "o.mp4", SPEC, options=opts, max_pixels=128 * 96 - 1)
+    poison_video(src, tmp_path / "o.mp4", SPEC, options=opts)  # default limit: protected
