@@ -26,11 +26,12 @@ from typing import Any
 
 import sqlite_utils
 
+from daemon.states import FileState
 from poisoner.spec import PatchSpec
 
 log = logging.getLogger(__name__)
 
-FILE_STATES = ("pending", "protected", "skipped", "failed", "restored", "removed")
+FILE_STATES: tuple[FileState, ...] = tuple(FileState)
 BUSY_TIMEOUT_MS = 30_000
 
 # Ordered migrations: index i brings the schema from version i to i + 1. Never edit one that
@@ -106,6 +107,42 @@ MIGRATIONS: tuple[str, ...] = (
     );
     CREATE INDEX auto_decisions_dataset ON auto_decisions(dataset, decided_at);
     """,
+    # 4: one vocabulary of states (daemon/states.py): a file ppd wrote its mark into is 'patched'
+    # (was 'protected'), and a file moved out of the outbox because it could not be patched is
+    # 'quarantined'. SQLite cannot alter a CHECK constraint, so the table is rebuilt (same
+    # columns, same ids); the migration runs inside _migrate's one transaction. The literal
+    # states here are history: never generate them from FileState.
+    """
+    CREATE TABLE files_v4 (
+        id INTEGER PRIMARY KEY,
+        dataset TEXT NOT NULL REFERENCES datasets(name),
+        path TEXT NOT NULL UNIQUE,
+        state TEXT NOT NULL CHECK (state IN
+            ('pending', 'patched', 'skipped', 'failed', 'restored', 'removed', 'quarantined')),
+        original_sha256 TEXT,
+        poisoned_sha256 TEXT,
+        spec_id TEXT,
+        tool_version TEXT,
+        size INTEGER,
+        mtime_ns INTEGER,
+        created_at REAL NOT NULL,
+        updated_at REAL NOT NULL,
+        error TEXT,
+        published_path TEXT
+    );
+    INSERT INTO files_v4 (id, dataset, path, state, original_sha256, poisoned_sha256, spec_id,
+        tool_version, size, mtime_ns, created_at, updated_at, error, published_path)
+    SELECT id, dataset, path, CASE state WHEN 'protected' THEN 'patched' ELSE state END,
+        original_sha256, poisoned_sha256, spec_id, tool_version, size, mtime_ns, created_at,
+        updated_at, error, published_path
+    FROM files;
+    DROP TABLE files;
+    ALTER TABLE files_v4 RENAME TO files;
+    CREATE INDEX files_dataset_state ON files(dataset, state);
+    CREATE INDEX files_poisoned_sha ON files(poisoned_sha256);
+    CREATE INDEX files_original_sha ON files(original_sha256);
+    UPDATE events SET kind = 'patched' WHERE kind = 'protected';
+    """,
 )
 AUTO_TRIGGERS = ("interim", "preflight", "escalation", "manual")
 DB_FILE_MODE = 0o600  # provenance names every original: owner only
@@ -117,7 +154,7 @@ class StoreError(RuntimeError):
 
 
 class DatasetSpecLocked(StoreError):
-    """The dataset already has protected files under its spec; changing it needs --reprotect."""
+    """The dataset already has patched files under its spec; changing it needs --reprotect."""
 
 
 class Store:
@@ -273,8 +310,8 @@ class Store:
     def set_dataset_spec(
         self, name: str, spec: PatchSpec, *, root: Path | None = None, allow_protected: bool = False
     ) -> None:
-        """Give a dataset a spec. Before any file is protected this is free; afterwards its
-        protected files would carry a different patch than new ones, which breaks the method
+        """Give a dataset a spec. Before any file is patched this is free; afterwards its
+        patched files would carry a different patch than new ones, which breaks the method
         (same patch, same place, every image), so it needs allow_protected (the re-protect path)."""
         with self._write() as conn:
             row = conn.execute("SELECT spec_id FROM datasets WHERE name = ?", (name,)).fetchone()
@@ -287,13 +324,13 @@ class Store:
                     (name, str(root), spec.spec_id, time.time()),
                 )
             elif row[0] != spec.spec_id:
-                protected = conn.execute(
-                    "SELECT COUNT(*) FROM files WHERE dataset = ? AND state IN ('protected', 'pending')",
-                    (name,),
+                patched = conn.execute(
+                    "SELECT COUNT(*) FROM files WHERE dataset = ? AND state IN (?, ?)",
+                    (name, FileState.PATCHED, FileState.PENDING),
                 ).fetchone()[0]
-                if protected and not allow_protected:
+                if patched and not allow_protected:
                     raise DatasetSpecLocked(
-                        f"dataset {name!r} has {protected} protected file(s) under spec {row[0]}; "
+                        f"dataset {name!r} has {patched} patched file(s) under spec {row[0]}; "
                         f"changing it needs a re-protect from the vault "
                         f"(ppd dataset set {name} ... --reprotect)"
                     )
@@ -321,22 +358,30 @@ class Store:
         )
 
     def find_poisoned(self, sha256: str) -> dict[str, Any] | None:
-        """A row whose protected output has this content (ppd's own output, anywhere)."""
+        """A row whose patched output has this content (ppd's own output, anywhere)."""
         return self._one("SELECT * FROM files WHERE poisoned_sha256 = ? LIMIT 1", (sha256,))
+
+    def find_original(self, sha256: str) -> list[dict[str, Any]]:
+        """Every row whose original has this content (newest first)."""
+        return self._rows(
+            "SELECT * FROM files WHERE original_sha256 = ? ORDER BY updated_at DESC, id DESC", (sha256,)
+        )
 
     def record_file(
         self,
         path: Path | str,
         dataset: str,
-        state: str,
+        state: FileState | str,
         *,
         event: str | None = None,
         detail: dict[str, Any] | None = None,
         **fields: Any,
     ) -> None:
         """Insert or update the row for path (and optionally log an event), in one transaction."""
-        if state not in FILE_STATES:
-            raise StoreError(f"unknown file state {state!r}")
+        try:
+            state = FileState(state)
+        except ValueError:
+            raise StoreError(f"unknown file state {state!r}; one of {', '.join(FILE_STATES)}") from None
         allowed = {
             "original_sha256", "poisoned_sha256", "spec_id", "tool_version",
             "size", "mtime_ns", "error", "published_path",
@@ -345,7 +390,7 @@ class Store:
         if unknown:
             raise StoreError(f"unknown file field(s): {', '.join(sorted(unknown))}")
         now = time.time()
-        values = {"dataset": dataset, "state": state, "updated_at": now, **fields}
+        values = {"dataset": dataset, "state": state.value, "updated_at": now, **fields}
         columns = ", ".join(values)
         marks = ", ".join("?" for _ in values)
         updates = ", ".join(f"{c} = excluded.{c}" for c in values)
@@ -359,7 +404,8 @@ class Store:
                 self._event(conn, dataset, str(path), event, detail or {})
 
     def counts(self, dataset: str) -> dict[str, int]:
-        counts = {state: 0 for state in FILE_STATES}
+        """Rows per state (keys: every FileState value) and their total under "files"."""
+        counts: dict[str, int] = {state.value: 0 for state in FILE_STATES}
         for row in self._rows(
             "SELECT state, COUNT(*) AS n FROM files WHERE dataset = ? GROUP BY state", (dataset,)
         ):
