@@ -143,14 +143,53 @@ MIGRATIONS: tuple[str, ...] = (
     CREATE INDEX files_original_sha ON files(original_sha256);
     UPDATE events SET kind = 'patched' WHERE kind = 'protected';
     """,
+    # 5: notes the store keeps about itself; 'lost' says it was created empty next to a vault that
+    # already held originals (the earlier store was lost), until `ppd store rebuild` replaces it.
+    """
+    CREATE TABLE store_notes (
+        key TEXT PRIMARY KEY,
+        value TEXT NOT NULL,
+        created_at REAL NOT NULL
+    );
+    """,
 )
 AUTO_TRIGGERS = ("interim", "preflight", "escalation", "manual")
 DB_FILE_MODE = 0o600  # provenance names every original: owner only
 SCHEMA_VERSION = len(MIGRATIONS)
+# PRAGMA quick_check reads every page (~0.75 s for a 100 MB store of 200k files); above this size
+# the open skips it and damage is reported by the first query that meets it (same one line).
+QUICK_CHECK_MAX_BYTES = 64 << 20
+SQLITE_CORRUPT, SQLITE_NOTADB = 11, 26
+LOST_NOTE = "lost"
 
 
 class StoreError(RuntimeError):
     """A store operation that cannot be done as asked (message = one line)."""
+
+
+class StoreDamaged(StoreError):
+    """The store file is not a usable SQLite database; `ppd store rebuild` rebuilds it."""
+
+
+def damaged_message(db_path: Path, reason: str) -> str:
+    return (
+        f"the store {db_path} is damaged ({reason}); run `ppd store rebuild` to rebuild it from the vault "
+        "and the patched files' markers (it keeps the damaged file aside)"
+    )
+
+
+def is_corruption(exc: sqlite3.Error) -> bool:
+    """SQLITE_CORRUPT / SQLITE_NOTADB (and their extended codes): the file itself is bad."""
+    code = getattr(exc, "sqlite_errorcode", None)
+    if code is not None:
+        return code & 0xFF in (SQLITE_CORRUPT, SQLITE_NOTADB)
+    text = str(exc)
+    return "malformed" in text or "not a database" in text
+
+
+def vault_holds_originals(vault_dir: Path) -> bool:
+    """Whether the vault folder holds at least one kept original (without creating anything)."""
+    return any(len(p.name) == 64 for p in Path(vault_dir).glob("??/*"))
 
 
 class DatasetSpecLocked(StoreError):
@@ -161,13 +200,78 @@ class Store:
     """Provenance in one SQLite file. Safe to share between threads (one connection each)."""
 
     def __init__(self, db_path: Path) -> None:
+        """Open (creating or migrating) the store at db_path.
+
+        A file that is not a usable database (garbage, truncated, zero pages where pages should
+        be) raises StoreDamaged with one line naming the file and `ppd store rebuild`; a store
+        that cannot be opened or migrated for another reason raises StoreError (one line)."""
         self.db_path = Path(db_path)
-        self.db_path.parent.mkdir(parents=True, exist_ok=True)
         self._local = threading.local()
         self._all_conns: list[sqlite3.Connection] = []
         self._conns_lock = threading.Lock()
-        self._migrate()
+        self.fresh = False  # True when this open created the schema (no store, or an empty file)
+        self.lost_warning: str | None = None  # set by open_or_warn / lost_note()
+        try:
+            self.db_path.parent.mkdir(parents=True, exist_ok=True)
+            if self.db_path.exists() and not self.db_path.is_file():
+                raise StoreError(f"the store {self.db_path} is not a regular file")
+            existed = self.db_path.is_file() and self.db_path.stat().st_size > 0
+            self._migrate()
+            if existed:
+                self._check_pages()
+        except sqlite3.Error as exc:
+            self.close()
+            raise self._error(exc, "cannot open") from None
+        except OSError as exc:
+            self.close()
+            raise StoreError(f"cannot open the store {self.db_path}: {exc.strerror or exc}") from None
+        except StoreError:
+            self.close()
+            raise
         self._restrict_permissions()
+
+    @classmethod
+    def open_or_warn(cls, db_path: Path, vault_dir: Path) -> Store:
+        """Open the store; when it is new (missing or empty) while the vault already holds
+        originals, the earlier store was lost: record that in the store, log one warning, and
+        set `lost_warning`. The note stays (every later open sets `lost_warning` again) until
+        `ppd store rebuild` replaces the store, so a restarted daemon keeps saying it."""
+        store = cls(db_path)
+        if store.fresh and vault_holds_originals(vault_dir):
+            message = (
+                f"the store {store.db_path} is new but the vault {vault_dir} already holds originals: "
+                "the earlier store was lost; run `ppd store rebuild` to recover their rows from the vault "
+                "and the patched files' markers"
+            )
+            with store._write() as conn:
+                conn.execute(
+                    "INSERT OR IGNORE INTO store_notes (key, value, created_at) VALUES (?, ?, ?)",
+                    (LOST_NOTE, message, time.time()),
+                )
+        store.lost_warning = store.lost_note()
+        if store.lost_warning:
+            log.warning(store.lost_warning)
+        return store
+
+    def lost_note(self) -> str | None:
+        """The 'store was lost' note, if this store was created next to a non-empty vault."""
+        row = self._one("SELECT value FROM store_notes WHERE key = ?", (LOST_NOTE,))
+        return row["value"] if row else None
+
+    def _check_pages(self) -> None:
+        """Every page readable (PRAGMA quick_check) for stores up to QUICK_CHECK_MAX_BYTES."""
+        if self.db_path.stat().st_size > QUICK_CHECK_MAX_BYTES:
+            return
+        rows = self.db.conn.execute("PRAGMA quick_check(1)").fetchall()
+        if rows != [("ok",)]:
+            raise StoreDamaged(damaged_message(self.db_path, str(rows[0][0]).splitlines()[0]))
+
+    def _error(self, exc: sqlite3.Error, doing: str) -> StoreError:
+        """One line for an SQLite error: damage names `ppd store rebuild`, the rest says what."""
+        text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if is_corruption(exc):
+            return StoreDamaged(damaged_message(self.db_path, text))
+        return StoreError(f"{doing} the store {self.db_path}: {text}")
 
     # ---- connections ----------------------------------------------------------------------
     @property
@@ -176,14 +280,14 @@ class Store:
         db = getattr(self._local, "db", None)
         if db is None:
             conn = sqlite3.connect(self.db_path, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None)
+            with self._conns_lock:  # registered first, so close() reaches it even if a pragma fails
+                self._all_conns.append(conn)
             conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
             conn.execute("PRAGMA journal_mode = WAL")
             conn.execute("PRAGMA synchronous = FULL")  # a committed row survives a power cut
             conn.execute("PRAGMA foreign_keys = ON")
             db = sqlite_utils.Database(conn)
             self._local.db = db
-            with self._conns_lock:
-                self._all_conns.append(conn)
         return db
 
     def _restrict_permissions(self) -> None:
@@ -212,18 +316,32 @@ class Store:
 
     @contextlib.contextmanager
     def _write(self) -> Iterator[sqlite3.Connection]:
-        """A write transaction that holds SQLite's write lock from its first statement."""
-        conn = self.db.conn
-        conn.execute("BEGIN IMMEDIATE")
+        """A write transaction that holds SQLite's write lock from its first statement.
+
+        Damage met inside it becomes StoreDamaged (one line), whatever the statement."""
+        with self._damage_as_store_error():
+            conn = self.db.conn
+            conn.execute("BEGIN IMMEDIATE")
+            try:
+                yield conn
+            except BaseException:
+                with contextlib.suppress(sqlite3.Error):  # a damaged file may refuse even this
+                    conn.execute("ROLLBACK")
+                raise
+            conn.execute("COMMIT")
+
+    @contextlib.contextmanager
+    def _damage_as_store_error(self) -> Iterator[None]:
         try:
-            yield conn
-        except BaseException:
-            conn.execute("ROLLBACK")
+            yield
+        except sqlite3.DatabaseError as exc:
+            if is_corruption(exc):
+                raise StoreDamaged(damaged_message(self.db_path, str(exc).splitlines()[0])) from None
             raise
-        conn.execute("COMMIT")
 
     def _rows(self, sql: str, params: tuple[Any, ...] | dict[str, Any] = ()) -> list[dict[str, Any]]:
-        return list(self.db.query(sql, params))
+        with self._damage_as_store_error():
+            return list(self.db.query(sql, params))
 
     def _one(self, sql: str, params: tuple[Any, ...] | dict[str, Any] = ()) -> dict[str, Any] | None:
         rows = self._rows(sql, params)
@@ -241,10 +359,19 @@ class Store:
                 raise StoreError(
                     f"{self.db_path} has schema version {current}; this ppd knows up to {SCHEMA_VERSION}"
                 )
+            self.fresh = current == 0
             for index in range(current, SCHEMA_VERSION):
                 # executescript would COMMIT our transaction; run statement by statement.
                 for statement in _split_sql(MIGRATIONS[index]):
-                    conn.execute(statement)
+                    try:
+                        conn.execute(statement)
+                    except sqlite3.Error as exc:
+                        if is_corruption(exc):
+                            raise
+                        raise StoreError(
+                            f"cannot migrate the store {self.db_path} to schema version {index + 1} "
+                            f"({str(exc).splitlines()[0]}); it is left as it was"
+                        ) from None
                 conn.execute("UPDATE schema_version SET version = ?", (index + 1,))
                 log.debug("store migrated", extra={"db": str(self.db_path), "version": index + 1})
 

@@ -257,7 +257,7 @@ def test_a_failed_migration_leaves_the_old_store_whole(tmp_path: Path) -> None:
     conn.execute("UPDATE files SET state = 'weird' WHERE id = 10")
     conn.commit()
     conn.close()
-    with pytest.raises(sqlite3.IntegrityError):
+    with pytest.raises(StoreError, match=r"cannot migrate the store .* to schema version 4 .*left as it was"):
         Store(db)
     conn = sqlite3.connect(db)
     assert conn.execute("SELECT version FROM schema_version").fetchone()[0] == 3
