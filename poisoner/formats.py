@@ -35,8 +35,10 @@ import numpy as np
 from PIL import Image, ImageFile
 
 from poisoner import jpeg as jpeg_codec
+from poisoner import location, provenance
 from poisoner.atomic import atomic_output
 from poisoner.blend import apply_patch
+from poisoner.provenance import Marker
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 
 log = logging.getLogger(__name__)
@@ -65,6 +67,7 @@ class PoisonReport:
     lossless: bool = False  # True when every pixel outside the patch is bit-identical
     src_bytes: int = 0
     dst_bytes: int = 0
+    location_removed: list[str] = field(default_factory=list)  # e.g. "EXIF GPS IFD", "XMP exif:GPSLatitude"
 
 
 def is_supported_image(path: Path) -> bool:
@@ -186,6 +189,22 @@ def splice_png(source: bytes, pixels_png: bytes) -> tuple[bytes, list[str]]:
     parts.append(_chunk(b"IEND", b""))
     kept = [t.decode("latin-1") for t, _ in before + after_plte + after]
     return b"".join(parts), kept
+
+
+def strip_png_location(data: bytes) -> tuple[bytes, list[str]]:
+    """The PNG with location removed from its ancillary chunks (eXIf, XMP iTXt, raw profiles);
+    pixel chunks and every other chunk are copied byte for byte."""
+    parts = [PNG_SIGNATURE]
+    removed: list[str] = []
+    for ctype, body in png_chunks(data):
+        if ctype not in _PIXEL_CHUNKS:
+            cleaned, gone = location.clean_png_chunk(ctype, body)
+            removed += [f"PNG {ctype.decode('latin-1')}: {g}" for g in gone]
+            if cleaned is None:
+                continue
+            body = cleaned
+        parts.append(_chunk(ctype, body))
+    return (b"".join(parts), removed) if removed else (data, [])
 
 
 def _png_ihdr(data: bytes) -> tuple[int, int, bool]:
@@ -396,9 +415,32 @@ def webp_quality_from_quantizer(q: float) -> int:
     return int(round(max(0.0, min(1.0, quality)) * 100))
 
 
+def _clean_exif_xmp(
+    info: dict[str, object], keep_location: bool, label: str, marker: Marker | None
+) -> tuple[bytes | None, bytes | None, list[str]]:
+    """The source's EXIF and XMP for a re-encoded file: location removed unless kept, the
+    provenance marker added to the XMP when given."""
+    exif = info.get("exif") or None
+    xmp = info.get("xmp") or None
+    removed: list[str] = []
+    if isinstance(xmp, str):
+        xmp = xmp.encode()
+    if marker is not None:
+        xmp = provenance.xmp_with_marker(xmp, marker)  # type: ignore[arg-type]
+    if keep_location:
+        return exif, xmp, removed  # type: ignore[return-value]
+    if isinstance(exif, bytes):
+        exif, gone = location.clean_exif(exif)
+        removed += [f"{label} {g}" for g in gone]
+    if isinstance(xmp, bytes):
+        xmp, gone = location.strip_xmp_location(xmp)
+        removed += [f"{label} {g}" for g in gone]
+    return exif, xmp, removed  # type: ignore[return-value]
+
+
 def _poison_webp(
-    im: Image.Image, data: bytes, placement: PatchPlacement
-) -> tuple[bytes, list[str], list[str], bool]:
+    im: Image.Image, data: bytes, placement: PatchPlacement, keep_location: bool, marker: Marker | None
+) -> tuple[bytes, list[str], list[str], bool, list[str]]:
     chunks = _riff_chunks(data)
     lossless = b"VP8L" in chunks
     notes: list[str] = []
@@ -419,15 +461,20 @@ def _poison_webp(
         if b"ALPH" in chunks:
             opts["alpha_quality"] = 100
     preserved: list[str] = []
-    for key, label in (("exif", "EXIF"), ("icc_profile", "ICC"), ("xmp", "XMP")):
-        if im.info.get(key):
-            opts[key] = im.info[key]
+    exif, xmp, removed = _clean_exif_xmp(im.info, keep_location, "WebP", marker)
+    for key, label, value in (
+        ("exif", "EXIF", exif),
+        ("icc_profile", "ICC", im.info.get("icc_profile")),
+        ("xmp", "XMP", xmp),
+    ):
+        if value:
+            opts[key] = value
             preserved.append(f"WebP {label}")
     mode = im.mode if im.mode in ("RGB", "RGBA") else "RGBA" if "A" in im.mode else "RGB"
     patched = apply_patch(np.asarray(im.convert(mode)), placement)
     buf = io.BytesIO()
     Image.fromarray(patched, mode).save(buf, "WEBP", **opts)
-    return buf.getvalue(), preserved, notes, lossless
+    return buf.getvalue(), preserved, notes, lossless, removed
 
 
 # ---- TIFF ----------------------------------------------------------------------------------------
@@ -453,7 +500,9 @@ _TIFF_KEEP_TAGS = {
 _TIFF_LOSSLESS = {"raw", "tiff_lzw", "tiff_deflate", "tiff_adobe_deflate", "packbits", None}
 
 
-def _poison_tiff(im: Image.Image, placement: PatchPlacement) -> tuple[bytes, list[str], list[str], bool]:
+def _poison_tiff(
+    im: Image.Image, placement: PatchPlacement, keep_location: bool, marker: Marker | None
+) -> tuple[bytes, list[str], list[str], bool, list[str]]:
     if im.mode not in ("L", "LA", "RGB", "RGBA", "I;16", "I;16B", "P", "1"):
         raise ImageFormatError(f"TIFF mode {im.mode} is not supported")
     bits = im.tag_v2.get(258)
@@ -474,13 +523,33 @@ def _poison_tiff(im: Image.Image, placement: PatchPlacement) -> tuple[bytes, lis
     info = {tag: im.tag_v2[tag] for tag in _TIFF_KEEP_TAGS if tag in im.tag_v2}
     opts: dict[str, object] = {"compression": compression, "tiffinfo": info}
     preserved = [f"TIFF {_TIFF_KEEP_TAGS[t]}" for t in info]
-    for key, label in (("icc_profile", "ICC"), ("xmp", "XMP")):
-        if im.info.get(key):
-            opts[key] = im.info[key]
-            preserved.append(f"TIFF {label}")
+    removed: list[str] = []
+    _, xmp, removed = _clean_exif_xmp({"xmp": im.info.get("xmp")}, keep_location, "TIFF", marker)
+    if im.info.get("icc_profile"):
+        opts["icc_profile"] = im.info["icc_profile"]
+        preserved.append("TIFF ICC")
+    if xmp:
+        info[700] = xmp  # Pillow's TIFF writer takes XMP as tag 700, not as xmp=
+        preserved.append("TIFF XMP")
     if 33723 in im.tag_v2:  # IPTC
-        info[33723] = im.tag_v2[33723]
-        preserved.append("TIFF IPTC")
+        iptc = im.tag_v2[33723]
+        if not keep_location:
+            raw = iptc if isinstance(iptc, bytes) else bytes(iptc) if isinstance(iptc, tuple) else None
+            try:
+                cleaned, gone = location.strip_iim_location(raw) if raw is not None else (iptc, [])
+            except location.MetadataParseError as exc:
+                cleaned, gone = None, [f"IPTC dropped: unreadable, could hold a place ({exc})"]
+            removed += [f"TIFF {g}" for g in gone]
+            iptc = cleaned
+        if iptc is not None:
+            info[33723] = iptc
+            preserved.append("TIFF IPTC")
+    if 34853 in im.tag_v2:  # GPS IFD
+        if keep_location:
+            info[34853] = im.getexif().get_ifd(0x8825)
+            preserved.append("TIFF GPS IFD")
+        else:
+            removed.append("TIFF GPS IFD")
     if compression == "jpeg":
         opts["quality"] = 95
         notes.append("JPEG-compressed TIFF re-encoded at quality 95")
@@ -488,25 +557,32 @@ def _poison_tiff(im: Image.Image, placement: PatchPlacement) -> tuple[bytes, lis
         notes.append("TIFF EXIF sub-IFD not copied")
     buf = io.BytesIO()
     image_from_array(patched, mode).save(buf, "TIFF", **opts)
-    return buf.getvalue(), preserved, notes, compression in _TIFF_LOSSLESS
+    return buf.getvalue(), preserved, notes, compression in _TIFF_LOSSLESS, removed
 
 
 # ---- HEIC / AVIF ---------------------------------------------------------------------------------
 HEIF_QUALITY = 90  # the source's encoder quality is not recorded in the file
 
 
-def _poison_heif(im: Image.Image, fmt: str, placement: PatchPlacement) -> tuple[bytes, list[str], list[str]]:
+def _poison_heif(
+    im: Image.Image, fmt: str, placement: PatchPlacement, keep_location: bool, marker: Marker | None
+) -> tuple[bytes, list[str], list[str], list[str]]:
     mode = "RGBA" if "A" in im.mode else "RGB"
     patched = apply_patch(np.asarray(im.convert(mode)), placement)
     opts: dict[str, object] = {"quality": HEIF_QUALITY}
     preserved = []
-    for key, label in (("exif", "EXIF"), ("icc_profile", "ICC"), ("xmp", "XMP")):
-        if im.info.get(key):
-            opts[key] = im.info[key]
+    exif, xmp, removed = _clean_exif_xmp(im.info, keep_location, fmt, marker)
+    for key, label, value in (
+        ("exif", "EXIF", exif),
+        ("icc_profile", "ICC", im.info.get("icc_profile")),
+        ("xmp", "XMP", xmp),
+    ):
+        if value:
+            opts[key] = value
             preserved.append(f"{fmt} {label}")
     buf = io.BytesIO()
     Image.fromarray(patched, mode).save(buf, fmt, **opts)
-    return buf.getvalue(), preserved, [f"{fmt} re-encoded at quality {HEIF_QUALITY} (lossy)"]
+    return buf.getvalue(), preserved, [f"{fmt} re-encoded at quality {HEIF_QUALITY} (lossy)"], removed
 
 
 # ---- JPEG ----------------------------------------------------------------------------------------
@@ -563,8 +639,13 @@ def _poison_jpeg(
 
 
 # ---- entry points --------------------------------------------------------------------------------
-def poison_file(src: Path, dst: Path, spec: PatchSpec) -> PoisonReport:
-    """Read src, write the complete poisoned file to dst (src is only read)."""
+def poison_file(
+    src: Path, dst: Path, spec: PatchSpec, *, marker: Marker | None = None, keep_location: bool = False
+) -> PoisonReport:
+    """Read src, write the complete poisoned file to dst (src is only read).
+
+    Location metadata (GPS, place names) is removed from dst unless keep_location; with a marker,
+    dst carries it (poisoner.provenance)."""
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():
         raise ImageFormatError(f"{src.name}: dst must differ from src (use poison_in_place)")
@@ -580,23 +661,34 @@ def poison_file(src: Path, dst: Path, spec: PatchSpec) -> PoisonReport:
     except SpecError as exc:
         raise ImageFormatError(f"{src.name}: {exc}") from exc
     notes: list[str] = []
+    removed: list[str] = []
     lossless = False
     if fmt == "JPEG":
         out, preserved, notes, method = _poison_jpeg(src, im, data, placement)
+        if not keep_location:
+            out, removed = _strip_jpeg(src, out)
+        if marker is not None:
+            out = _jpeg_marker(src, out, marker)
     elif fmt == "PNG":
         out, preserved, notes = _poison_png(im, data, placement)
         method, lossless = "png-lossless", True
+        if not keep_location:
+            out, removed = strip_png_location(out)
+        if marker is not None:
+            out = provenance.embed_png(out, marker)
     elif fmt == "WEBP":
-        out, preserved, notes, lossless = _poison_webp(im, data, placement)
+        out, preserved, notes, lossless, removed = _poison_webp(im, data, placement, keep_location, marker)
         method = "webp-lossless" if lossless else "webp-lossy"
     elif fmt == "TIFF":
-        out, preserved, notes, lossless = _poison_tiff(im, placement)
+        out, preserved, notes, lossless, removed = _poison_tiff(im, placement, keep_location, marker)
         method = "tiff"
     elif fmt in ("HEIF", "AVIF"):
-        out, preserved, notes = _poison_heif(im, fmt, placement)
+        out, preserved, notes, removed = _poison_heif(im, fmt, placement, keep_location, marker)
         method = fmt.lower()
     else:
         raise ImageFormatError(f"{src.name}: {fmt} files are not supported")
+    if removed:
+        notes.append(f"location removed ({len(removed)}): " + ", ".join(removed))
     orientation = im.getexif().get(0x0112)
     if orientation and orientation != 1:
         notes.append(f"EXIF orientation {orientation} kept; {ORIENTATION_POLICY}")
@@ -604,13 +696,27 @@ def poison_file(src: Path, dst: Path, spec: PatchSpec) -> PoisonReport:
         notes.append(f"content is {fmt} despite the {src.suffix} suffix: written as {fmt}")
     dst.write_bytes(out)
     report = PoisonReport(
-        fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out)
+        fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out), removed
     )
     log.info(
         "poisoned image",
         extra={"src": str(src), "format": fmt, "method": method, "size": f"{width}x{height}", "notes": notes},
     )
     return report
+
+
+def _strip_jpeg(src: Path, out: bytes) -> tuple[bytes, list[str]]:
+    try:
+        return location.strip_jpeg_location(out)
+    except location.MetadataParseError as exc:
+        raise ImageFormatError(f"{src.name}: cannot remove location from the JPEG header ({exc})") from exc
+
+
+def _jpeg_marker(src: Path, out: bytes, marker: Marker) -> bytes:
+    try:
+        return provenance.embed_jpeg(out, marker)
+    except location.MetadataParseError as exc:
+        raise ImageFormatError(f"{src.name}: cannot add the provenance marker ({exc})") from exc
 
 
 def _suffix_matches(suffix: str, fmt: str) -> bool:
@@ -625,9 +731,11 @@ def _suffix_matches(suffix: str, fmt: str) -> bool:
     return suffix in expected.get(fmt, set())
 
 
-def poison_in_place(path: Path, spec: PatchSpec) -> PoisonReport:
+def poison_in_place(
+    path: Path, spec: PatchSpec, *, marker: Marker | None = None, keep_location: bool = False
+) -> PoisonReport:
     """Poison path atomically: a crash leaves the original or the complete poisoned file.
     Permission bits are kept (poisoner.atomic)."""
     path = Path(path)
     with atomic_output(path) as tmp:
-        return poison_file(path, tmp, spec)
+        return poison_file(path, tmp, spec, marker=marker, keep_location=keep_location)

@@ -44,8 +44,10 @@ import av.error
 import numpy as np
 from av.video.reformatter import ColorRange, Colorspace
 
+from poisoner import location, provenance
 from poisoner.blend import apply_patch, patch_values
 from poisoner.formats import PoisonReport
+from poisoner.provenance import Marker
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 
 log = logging.getLogger(__name__)
@@ -64,6 +66,10 @@ _ENCODER_BY_CODEC = {
     "av1": "libsvtav1",
     "mpeg4": "mpeg4",
 }
+
+# Matroska writes a random SegmentUID unless bit-exact: the same inputs must give the same bytes
+# (the daemon re-poisons to check crash recovery).
+_MUXER_OPTIONS = {"matroska": {"fflags": "+bitexact"}, "webm": {"fflags": "+bitexact"}}
 
 # When no encoder writes the source codec: a codec the container accepts.
 _FALLBACK_ENCODER_BY_MUXER = {"mp4": "libx264", "mov": "libx264", "matroska": "libx264", "webm": "libvpx-vp9"}
@@ -477,7 +483,10 @@ def _file_state(path: Path) -> tuple[int, int]:
     return st.st_size, st.st_mtime_ns
 
 
-def _copy_metadata(src: dict[str, str], dst_obj: object) -> None:
+def _copy_metadata(
+    src: dict[str, str], dst_obj: object, keep_location: bool = True, removed: list[str] | None = None
+) -> None:
+    """Copy tags, except FFmpeg's own and (unless keep_location) those naming a place."""
     skip = {
         "encoder",
         "duration",
@@ -494,6 +503,12 @@ def _copy_metadata(src: dict[str, str], dst_obj: object) -> None:
             or key.upper() in {"DURATION", "ENCODER"}
         ):
             continue
+        if not keep_location and location.is_location_tag(key):
+            if removed is not None:
+                removed.append(f"tag {key}")
+            continue
+        if key.upper() == provenance.MKV_TAG:
+            continue  # an older marker: the new one (if any) is written by _encode_once
         try:
             dst_obj.metadata[key] = value  # type: ignore[attr-defined]
         except (ValueError, TypeError):
@@ -595,14 +610,20 @@ def _encode_once(
     options: VideoOptions,
     progress: ProgressCallback | None,
     report: VideoReport,
+    marker: Marker | None = None,
+    keep_location: bool = True,
 ) -> _EncodeResult:
     total = info.frames_declared or (
         int(round(info.duration_s * _frame_rate(info))) if info.duration_s else None
     )
     frames = patched = 0
     last_end: float | None = None
-    with _open_input(src) as inp, av.open(str(dst), "w", format=info.muxer) as out:
-        _copy_metadata(dict(inp.metadata), out)
+    opts = _MUXER_OPTIONS.get(info.muxer)
+    with _open_input(src) as inp, av.open(str(dst), "w", format=info.muxer, container_options=opts) as out:
+        removed: list[str] = []
+        _copy_metadata(dict(inp.metadata), out, keep_location, removed)
+        if marker is not None and info.muxer in ("matroska", "webm"):
+            out.metadata[provenance.MKV_TAG] = marker.to_json().decode()
         vin = inp.streams[info.stream_index]
         vin.thread_type = "AUTO"
         if choice.encoder == "libx265" and info.hdr_side_data:
@@ -610,10 +631,14 @@ def _encode_once(
             if hdr:
                 choice.options["x265-params"] = choice.options["x265-params"] + ":" + hdr
         vout = _configure_video_stream(out, info, choice, options)
-        _copy_metadata(dict(vin.metadata), vout)
+        _copy_metadata(dict(vin.metadata), vout, keep_location, removed)
         copied: dict[int, av.stream.Stream] = {}
         for s in inp.streams:
             if s.index == info.stream_index:
+                continue
+            tag = _codec_tag(s)
+            if not keep_location and s.type == "data" and tag in location.LOCATION_DATA_CODEC_TAGS:
+                removed.append(f"{tag} telemetry stream #{s.index}")
                 continue
             try:
                 o = out.add_stream_from_template(s)
@@ -622,7 +647,7 @@ def _encode_once(
                     f"{src.name}: stream #{s.index} ({s.type}) cannot be copied into {info.muxer} "
                     f"({_one_line(exc)})"
                 ) from exc
-            _copy_metadata(dict(s.metadata), o)
+            _copy_metadata(dict(s.metadata), o, keep_location, removed)
             o.disposition = s.disposition
             copied[s.index] = o
 
@@ -665,7 +690,15 @@ def _encode_once(
                 packet.stream = copied[idx]
                 out.mux(packet)
         encode(None)
+    report.location_removed = removed
     return _EncodeResult(frames=frames, frames_patched=patched, end_s=last_end)
+
+
+def _codec_tag(stream: av.stream.Stream) -> str:
+    try:
+        return str(stream.codec_tag or "").strip("\x00 ").lower()
+    except (AttributeError, ValueError):
+        return ""
 
 
 def measure_video_patch(video: Path, placement: PatchPlacement | PlacementAt) -> list[float]:
@@ -703,8 +736,17 @@ def poison_video(
     progress: ProgressCallback | None = None,
     *,
     options: VideoOptions | None = None,
+    marker: Marker | None = None,
+    keep_location: bool = False,
+    max_pixels: int | None = None,
 ) -> VideoReport:
     """Write src's video to dst with spec's patch in every selected frame; src is only read.
+
+    Location tags (MP4 ©xyz/'location', Apple ISO6709, Matroska *LOCATION*) and GPS telemetry
+    streams (GoPro gpmd, CAMM, Apple mebx) are left out unless keep_location. With a marker, dst
+    carries it (poisoner.provenance: a uuid box in MP4/MOV, a PPD_PROVENANCE tag in Matroska).
+    A frame size over max_pixels (default poisoner.limits.DEFAULT_MAX_VIDEO_PIXELS) is refused
+    before any frame is decoded.
 
     dst receives the complete file (normally the temporary path of poisoner.atomic.atomic_output);
     on any error dst may hold a partial file that the caller discards. Raises VideoFormatError
@@ -753,7 +795,9 @@ def poison_video(
             extra={"src": str(src), "encoder": choice.encoder, "crf": choice.crf, "attempt": attempts},
         )
         try:
-            result = _encode_once(src, dst, spec, placement_at, info, choice, options, progress, report)
+            result = _encode_once(
+                src, dst, spec, placement_at, info, choice, options, progress, report, marker, keep_location
+            )
         except av.error.FFmpegError as exc:
             raise VideoFormatError(
                 f"{src.name}: cannot encode with {choice.encoder} ({_one_line(exc)})"
@@ -784,6 +828,14 @@ def poison_video(
     report.duration_s = info.duration_s
     report.output_bit_rate = _stream_bit_rate(dst)
     report.preserved = _preserved_list(info, choice)
+    if report.location_removed:
+        report.notes.append(
+            f"location removed ({len(report.location_removed)}): " + ", ".join(report.location_removed)
+        )
+    if marker is not None and info.muxer in ("mp4", "mov"):
+        # Appended after the last box: nothing in the file points past it, so no offset moves.
+        with open(dst, "ab") as f:
+            f.write(provenance.mp4_box(marker))
     if not choice.same_codec:
         report.notes.append(f"no {info.codec} encoder in this build; re-encoded as {choice.encoder}")
     if info.hdr_side_data and choice.encoder != "libx265":
