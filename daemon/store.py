@@ -20,7 +20,7 @@ import logging
 import sqlite3
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -190,6 +190,10 @@ def is_corruption(exc: sqlite3.Error) -> bool:
 def vault_holds_originals(vault_dir: Path) -> bool:
     """Whether the vault folder holds at least one kept original (without creating anything)."""
     return any(len(p.name) == 64 for p in Path(vault_dir).glob("??/*"))
+
+
+class PatchedNotFailed(StoreError):
+    """A FAILED was about to overwrite a PATCHED row whose file is, in fact, the patched output."""
 
 
 class DatasetSpecLocked(StoreError):
@@ -502,33 +506,62 @@ class Store:
         *,
         event: str | None = None,
         detail: dict[str, Any] | None = None,
+        current_sha256: str | None = None,
         **fields: Any,
     ) -> None:
-        """Insert or update the row for path (and optionally log an event), in one transaction."""
-        try:
-            state = FileState(state)
-        except ValueError:
-            raise StoreError(f"unknown file state {state!r}; one of {', '.join(FILE_STATES)}") from None
-        allowed = {
-            "original_sha256", "poisoned_sha256", "spec_id", "tool_version",
-            "size", "mtime_ns", "error", "published_path",
-        }  # fmt: skip
-        unknown = set(fields) - allowed
-        if unknown:
-            raise StoreError(f"unknown file field(s): {', '.join(sorted(unknown))}")
+        """Insert or update the row for path (and optionally log an event), in one transaction.
+
+        current_sha256, when the caller knows the file's content now: a FAILED for a row that
+        is PATCHED with exactly that content as its poisoned_sha256 is refused (StoreError), in
+        the same transaction as the write. The file *is* ppd's patched output; recording it as
+        failed would make `ppd restore` skip it and a later run patch it twice."""
+        state = _file_state(state)
+        _check_fields(fields)
+        with self._write() as conn:
+            self._upsert_file(conn, path, dataset, state, fields, current_sha256)
+            if event:
+                self._event(conn, dataset, str(path), event, detail or {})
+
+    def record_files(self, rows: Iterable[tuple[Path | str, str, FileState | str, dict[str, Any]]]) -> int:
+        """Insert or update many (path, dataset, state, fields) rows in one transaction (one
+        fsync, not one per row: a rebuild writes thousands); returns how many."""
+        checked = []
+        for path, dataset, state, fields in rows:
+            _check_fields(fields)
+            checked.append((path, dataset, _file_state(state), fields))
+        with self._write() as conn:
+            for path, dataset, state, fields in checked:
+                self._upsert_file(conn, path, dataset, state, fields, None)
+        return len(checked)
+
+    def _upsert_file(
+        self,
+        conn: sqlite3.Connection,
+        path: Path | str,
+        dataset: str,
+        state: FileState,
+        fields: dict[str, Any],
+        current_sha256: str | None,
+    ) -> None:
+        if state is FileState.FAILED and current_sha256 is not None:
+            row = conn.execute(
+                "SELECT state, poisoned_sha256 FROM files WHERE path = ?", (str(path),)
+            ).fetchone()
+            if row is not None and row[0] == FileState.PATCHED and row[1] == current_sha256:
+                raise PatchedNotFailed(
+                    f"{path} is ppd's patched output (sha256 {current_sha256[:12]}); "
+                    "not recording it as failed, its row stays patched"
+                )
         now = time.time()
         values = {"dataset": dataset, "state": state.value, "updated_at": now, **fields}
         columns = ", ".join(values)
         marks = ", ".join("?" for _ in values)
         updates = ", ".join(f"{c} = excluded.{c}" for c in values)
-        with self._write() as conn:
-            conn.execute(
-                f"INSERT INTO files (path, created_at, {columns}) VALUES (?, ?, {marks}) "
-                f"ON CONFLICT(path) DO UPDATE SET {updates}",
-                (str(path), now, *values.values()),
-            )
-            if event:
-                self._event(conn, dataset, str(path), event, detail or {})
+        conn.execute(
+            f"INSERT INTO files (path, created_at, {columns}) VALUES (?, ?, {marks}) "
+            f"ON CONFLICT(path) DO UPDATE SET {updates}",
+            (str(path), now, *values.values()),
+        )
 
     def counts(self, dataset: str) -> dict[str, int]:
         """Rows per state (keys: every FileState value) and their total under "files"."""
@@ -651,6 +684,33 @@ class Store:
     def latest_auto_decision(self, dataset: str) -> dict[str, Any] | None:
         rows = self.auto_decisions(dataset, limit=1)
         return rows[0] if rows else None
+
+
+FILE_FIELDS = frozenset(
+    {
+        "original_sha256",
+        "poisoned_sha256",
+        "spec_id",
+        "tool_version",
+        "size",
+        "mtime_ns",
+        "error",
+        "published_path",
+    }
+)
+
+
+def _file_state(state: FileState | str) -> FileState:
+    try:
+        return FileState(state)
+    except ValueError:
+        raise StoreError(f"unknown file state {state!r}; one of {', '.join(FILE_STATES)}") from None
+
+
+def _check_fields(fields: dict[str, Any]) -> None:
+    unknown = set(fields) - FILE_FIELDS
+    if unknown:
+        raise StoreError(f"unknown file field(s): {', '.join(sorted(unknown))}")
 
 
 def _split_sql(script: str) -> list[str]:

@@ -10,7 +10,15 @@ from pathlib import Path
 import pytest
 
 from daemon.states import FileState
-from daemon.store import MIGRATIONS, SCHEMA_VERSION, DatasetSpecLocked, Store, StoreError, _split_sql
+from daemon.store import (
+    MIGRATIONS,
+    SCHEMA_VERSION,
+    DatasetSpecLocked,
+    PatchedNotFailed,
+    Store,
+    StoreError,
+    _split_sql,
+)
 from poisoner.spec import PatchSpec
 
 
@@ -264,3 +272,51 @@ def test_a_failed_migration_leaves_the_old_store_whole(tmp_path: Path) -> None:
     assert conn.execute("SELECT COUNT(*) FROM files WHERE state = 'protected'").fetchone()[0] == 1
     assert conn.execute("SELECT COUNT(*) FROM events WHERE kind = 'protected'").fetchone()[0] == 1
     conn.close()
+
+
+# ---- a patched file is never recorded as failed ---------------------------------------------------
+def test_failed_does_not_overwrite_a_patched_row_whose_file_is_the_patched_output(
+    store: Store, tmp_path: Path
+) -> None:
+    store.ensure_dataset("d", tmp_path, PatchSpec())
+    path = tmp_path / "a.jpg"
+    store.record_file(path, "d", FileState.PATCHED, original_sha256="a" * 64, poisoned_sha256="b" * 64)
+    with pytest.raises(PatchedNotFailed, match="patched output") as caught:
+        store.record_file(
+            path, "d", FileState.FAILED, error="lock lost", current_sha256="b" * 64, event="failed"
+        )
+    assert isinstance(caught.value, StoreError) and "\n" not in str(caught.value)
+    row = store.file(path)
+    assert row["state"] == FileState.PATCHED and row["error"] is None
+    assert [e["kind"] for e in store.events("d")] == ["dataset_created"]  # the event rolled back too
+    # the file is not (or no longer) the patched output: failed is recorded
+    store.record_file(path, "d", FileState.FAILED, error="changed", current_sha256="c" * 64)
+    assert store.file(path)["state"] == FileState.FAILED
+
+
+def test_failed_without_current_sha_or_over_other_states_is_recorded(store: Store, tmp_path: Path) -> None:
+    store.ensure_dataset("d", tmp_path, PatchSpec())
+    patched, pending = tmp_path / "a.jpg", tmp_path / "b.jpg"
+    store.record_file(patched, "d", FileState.PATCHED, poisoned_sha256="b" * 64)
+    store.record_file(patched, "d", FileState.FAILED, error="the caller does not know the content")
+    assert store.file(patched)["state"] == FileState.FAILED
+    store.record_file(pending, "d", FileState.PENDING, poisoned_sha256="b" * 64)
+    store.record_file(pending, "d", FileState.FAILED, error="x", current_sha256="b" * 64)
+    assert store.file(pending)["state"] == FileState.FAILED
+
+
+def test_record_files_writes_many_rows_in_one_transaction(store: Store, tmp_path: Path) -> None:
+    store.ensure_dataset("d", tmp_path, PatchSpec())
+    rows = [
+        (tmp_path / f"{i}.jpg", "d", FileState.PATCHED, {"poisoned_sha256": f"{i:064x}"}) for i in range(50)
+    ]
+    assert store.record_files(rows) == 50
+    assert store.counts("d")[FileState.PATCHED] == 50
+    bad = [*rows[:3], (tmp_path / "x.jpg", "d", FileState.PATCHED, {"not_a_column": 1})]
+    with pytest.raises(StoreError, match="not_a_column"):
+        store.record_files(bad)
+    with pytest.raises(sqlite3.IntegrityError):  # one bad row: none of the batch is written
+        store.record_files(
+            [(tmp_path / "new.jpg", "d", FileState.PATCHED, {}), (tmp_path / "y.jpg", "nope", "patched", {})]
+        )
+    assert store.file(tmp_path / "new.jpg") is None
