@@ -219,10 +219,9 @@ class Store:
             self.db_path.parent.mkdir(parents=True, exist_ok=True)
             if self.db_path.exists() and not self.db_path.is_file():
                 raise StoreError(f"the store {self.db_path} is not a regular file")
-            existed = self.db_path.is_file() and self.db_path.stat().st_size > 0
+            if self.db_path.is_file() and self.db_path.stat().st_size > 0:
+                self._check_pages()  # before any migration writes into a damaged file
             self._migrate()
-            if existed:
-                self._check_pages()
         except sqlite3.Error as exc:
             self.close()
             raise self._error(exc, "cannot open") from None
@@ -427,6 +426,29 @@ class Store:
         dataset = self.dataset(name)
         assert dataset is not None
         return dataset, self.get_spec(dataset["spec_id"])
+
+    def add_dataset(
+        self,
+        name: str,
+        root: Path,
+        spec: PatchSpec | None,
+        publish_dir: Path | None = None,
+        *,
+        event: str = "dataset_created",
+        detail: dict[str, Any] | None = None,
+    ) -> bool:
+        """Insert a dataset row as it is known (a rebuild may not know its spec: spec None leaves
+        spec_id empty). An existing dataset is left as it is; returns whether one was added."""
+        with self._write() as conn:
+            if conn.execute("SELECT 1 FROM datasets WHERE name = ?", (name,)).fetchone():
+                return False
+            spec_id = self._ensure_spec(conn, spec) if spec is not None else None
+            conn.execute(
+                "INSERT INTO datasets (name, root, spec_id, created_at, publish_dir) VALUES (?, ?, ?, ?, ?)",
+                (name, str(root), spec_id, time.time(), str(publish_dir) if publish_dir else None),
+            )
+            self._event(conn, name, None, event, {"root": str(root), "spec_id": spec_id, **(detail or {})})
+        return True
 
     def dataset(self, name: str) -> dict[str, Any] | None:
         return self._one("SELECT * FROM datasets WHERE name = ?", (name,))

@@ -257,12 +257,11 @@ def test_the_files_check_constraint_admits_exactly_the_file_states(store: Store,
 
 
 def test_a_failed_migration_leaves_the_old_store_whole(tmp_path: Path) -> None:
-    """The migration is one transaction: a row the new constraint cannot take rolls it all back."""
+    """The migration is one transaction: a statement that fails halfway rolls it all back."""
     db = tmp_path / "v3.sqlite3"
     _version_3_store(db)
     conn = sqlite3.connect(db)
-    conn.execute("PRAGMA ignore_check_constraints = ON")
-    conn.execute("UPDATE files SET state = 'weird' WHERE id = 10")
+    conn.execute("CREATE TABLE files_v4 (x)")  # in the way of the rebuilt table
     conn.commit()
     conn.close()
     with pytest.raises(StoreError, match=r"cannot migrate the store .* to schema version 4 .*left as it was"):
@@ -271,7 +270,20 @@ def test_a_failed_migration_leaves_the_old_store_whole(tmp_path: Path) -> None:
     assert conn.execute("SELECT version FROM schema_version").fetchone()[0] == 3
     assert conn.execute("SELECT COUNT(*) FROM files WHERE state = 'protected'").fetchone()[0] == 1
     assert conn.execute("SELECT COUNT(*) FROM events WHERE kind = 'protected'").fetchone()[0] == 1
+    assert conn.execute("SELECT COUNT(*) FROM files").fetchone()[0] == 6
     conn.close()
+
+
+def test_a_row_that_breaks_its_own_constraint_is_damage(tmp_path: Path) -> None:
+    db = tmp_path / "v3.sqlite3"
+    _version_3_store(db)
+    conn = sqlite3.connect(db)
+    conn.execute("PRAGMA ignore_check_constraints = ON")
+    conn.execute("UPDATE files SET state = 'weird' WHERE id = 10")
+    conn.commit()
+    conn.close()
+    with pytest.raises(StoreError, match="is damaged .*CHECK constraint.*`ppd store rebuild`"):
+        Store(db)
 
 
 # ---- a patched file is never recorded as failed ---------------------------------------------------
