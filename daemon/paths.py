@@ -6,7 +6,7 @@ Defaults follow the platform's conventions through platformdirs (XDG on Linux):
 - cache:  user_cache_dir("ppd")  e.g. ~/.cache/ppd
 - outbox: ~/PPD Outbox — a visible folder in the home directory, because it is where the
   creator drops photos by hand; it is usually on the same filesystem as the data folder, so
-  the vault can keep originals by hard link (no copy, no extra disk).
+  the vault can keep originals by reflink where the filesystem supports it (no extra disk).
 
 Environment overrides (tests use them): PPD_DATA_DIR, PPD_CONFIG_DIR, PPD_OUTBOX, PPD_CACHE_DIR.
 """
@@ -14,6 +14,7 @@ Environment overrides (tests use them): PPD_DATA_DIR, PPD_CONFIG_DIR, PPD_OUTBOX
 from __future__ import annotations
 
 import os
+import stat
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -72,3 +73,74 @@ def make_private_dir(folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True, mode=PRIVATE_MODE)
     if folder.stat().st_mode & 0o077:
         os.chmod(folder, PRIVATE_MODE)
+
+
+@dataclass(frozen=True)
+class Filesystem:
+    """The filesystem a path lives on, as an error message needs it."""
+
+    mount_point: Path
+    fs_type: str  # "ext4", "tmpfs", ... ("" when /proc/self/mountinfo cannot be read)
+    source: str  # the device or "tmpfs"
+    free_bytes: int  # available to this (unprivileged) user
+
+    def describe(self) -> str:
+        kind = f"{self.fs_type} " if self.fs_type else ""
+        source = f" ({self.source})" if self.source and self.source != self.fs_type else ""
+        return f"{kind}filesystem mounted at {self.mount_point}{source}, {self.free_bytes} bytes free"
+
+
+def filesystem_of(path: Path) -> Filesystem:
+    """Which filesystem holds path (its nearest existing ancestor) and how much room is left.
+
+    Mount point and type come from /proc/self/mountinfo (matched by device number, longest
+    mount point first, so bind mounts and nested mounts resolve to the right entry); where that
+    is not available, the mount point is found by walking up until the device changes."""
+    path = Path(path).absolute()
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    st = os.stat(path)
+    vfs = os.statvfs(path)
+    free = vfs.f_bavail * vfs.f_frsize
+    real = Path(os.path.realpath(path))
+    for mount_point, fs_type, source in _mounts_of_device(st.st_dev):
+        if real == mount_point or mount_point in real.parents:
+            return Filesystem(mount_point, fs_type, source, free)
+    return Filesystem(_walk_to_mount_point(real, st.st_dev), "", "", free)
+
+
+def _mounts_of_device(dev: int) -> list[tuple[Path, str, str]]:
+    """(mount point, type, source) of every mount of device dev, longest mount point first."""
+    wanted = f"{os.major(dev)}:{os.minor(dev)}"
+    found = []
+    try:
+        lines = Path("/proc/self/mountinfo").read_text().splitlines()
+    except OSError:
+        return []
+    for line in lines:
+        fields = line.split()
+        if len(fields) < 10 or fields[2] != wanted or "-" not in fields[6:]:
+            continue
+        after = fields.index("-", 6)
+        mount_point, source = Path(_unescape_mount(fields[4])), _unescape_mount(fields[after + 2])
+        found.append((mount_point, fields[after + 1], source))
+    return sorted(found, key=lambda m: len(str(m[0])), reverse=True)
+
+
+def _unescape_mount(text: str) -> str:
+    """mountinfo writes space, tab, newline and backslash as octal escapes (\\040 ...)."""
+    for code in ("040", "011", "012", "134"):
+        text = text.replace(f"\\{code}", chr(int(code, 8)))
+    return text
+
+
+def _walk_to_mount_point(path: Path, dev: int) -> Path:
+    while path != path.parent:
+        parent = path.parent
+        try:
+            if os.stat(parent).st_dev != dev or not stat.S_ISDIR(os.stat(parent).st_mode):
+                return path
+        except OSError:
+            return path
+        path = parent
+    return path

@@ -13,11 +13,12 @@ class FileState(StrEnum):
     """One file's row in the store."""
 
     PENDING = "pending"  # original kept in the vault; the patched file may or may not be in place yet
-    PATCHED = "protected"  # the mark is in the file (stored value renamed to "patched" by a store migration)
+    PATCHED = "patched"  # the mark is in the file (stores before schema 4 said "protected"; migrated)
     SKIPPED = "skipped"  # left as it is (the spec's ratio did not select it)
     FAILED = "failed"  # could not be patched; the row's error says why
     RESTORED = "restored"  # the user asked for the original back
     REMOVED = "removed"  # gone from disk (deleted or moved away)
+    QUARANTINED = "quarantined"  # could not be patched and was moved out of the outbox; error says why
 
 
 class Protection(StrEnum):

@@ -9,7 +9,16 @@ from pathlib import Path
 
 import pytest
 
-from daemon.store import MIGRATIONS, SCHEMA_VERSION, DatasetSpecLocked, Store, StoreError, _split_sql
+from daemon.states import FileState
+from daemon.store import (
+    MIGRATIONS,
+    SCHEMA_VERSION,
+    DatasetSpecLocked,
+    PatchedNotFailed,
+    Store,
+    StoreError,
+    _split_sql,
+)
 from poisoner.spec import PatchSpec
 
 
@@ -88,7 +97,7 @@ def test_dataset_spec_is_locked_once_files_are_protected(store: Store, tmp_path:
     store.set_dataset_spec("shoot", PatchSpec(seed=1), root=tmp_path)  # before files: free
     store.set_dataset_spec("shoot", PatchSpec(seed=2))
     assert store.dataset_spec("shoot") == PatchSpec(seed=2)
-    store.record_file(tmp_path / "a.png", "shoot", "protected", original_sha256="0" * 64)
+    store.record_file(tmp_path / "a.png", "shoot", FileState.PATCHED, original_sha256="0" * 64)
     with pytest.raises(DatasetSpecLocked, match="--reprotect"):
         store.set_dataset_spec("shoot", PatchSpec(seed=3))
     assert store.dataset_spec("shoot") == PatchSpec(seed=2)
@@ -99,19 +108,21 @@ def test_dataset_spec_is_locked_once_files_are_protected(store: Store, tmp_path:
 def test_record_file_upserts_and_validates(store: Store, tmp_path: Path) -> None:
     store.ensure_dataset("d", tmp_path, PatchSpec())
     path = tmp_path / "x.jpg"
-    store.record_file(path, "d", "pending", original_sha256="a" * 64, event="pending")
-    store.record_file(path, "d", "protected", poisoned_sha256="b" * 64)
+    store.record_file(path, "d", FileState.PENDING, original_sha256="a" * 64, event="pending")
+    store.record_file(path, "d", FileState.PATCHED, poisoned_sha256="b" * 64)
     row = store.file(path)
-    assert row["state"] == "protected"
+    assert row["state"] == FileState.PATCHED == "patched"
     assert row["original_sha256"] == "a" * 64  # kept from the first write
     assert row["poisoned_sha256"] == "b" * 64
     assert store.find_poisoned("b" * 64)["path"] == str(path)
-    assert store.counts("d")["protected"] == 1 and store.counts("d")["files"] == 1
+    assert store.counts("d")[FileState.PATCHED] == 1 and store.counts("d")["files"] == 1
     assert [e["kind"] for e in store.events("d")][0] == "pending"
     with pytest.raises(StoreError):
         store.record_file(path, "d", "bogus")
     with pytest.raises(StoreError):
-        store.record_file(path, "d", "failed", not_a_column=1)
+        store.record_file(path, "d", FileState.FAILED, not_a_column=1)
+    with pytest.raises(StoreError, match="unknown file state"):
+        store.record_file(path, "d", "protected")  # the old word is not a state any more
 
 
 def test_concurrent_writers_lose_nothing(store: Store, tmp_path: Path) -> None:
@@ -119,14 +130,16 @@ def test_concurrent_writers_lose_nothing(store: Store, tmp_path: Path) -> None:
 
     def writer(k: int) -> None:
         for i in range(40):
-            store.record_file(tmp_path / f"{k}-{i}.png", "d", "protected", event="protected", detail={"i": i})
+            store.record_file(
+                tmp_path / f"{k}-{i}.png", "d", FileState.PATCHED, event="patched", detail={"i": i}
+            )
 
     threads = [threading.Thread(target=writer, args=(k,)) for k in range(4)]
     for t in threads:
         t.start()
     for t in threads:
         t.join()
-    assert store.counts("d")["protected"] == 160
+    assert store.counts("d")[FileState.PATCHED] == 160
     assert len(store.events("d", limit=1000)) == 160 + 1  # + dataset_created
 
 
@@ -166,3 +179,156 @@ def test_verification_runs_newest_first(store: Store) -> None:
     assert latest["verdict"] == "not_protected" and latest["metrics"] == {"f5": 0.2}
     assert len(store.verification_runs("d", limit=2)) == 2
     assert store.verification_runs("other") == []
+
+
+# ---- migration 4: one vocabulary of states -------------------------------------------------------
+def _version_3_store(db: Path) -> None:
+    """A store exactly as schema version 3 wrote it (the shipped migrations 1-3, never edited),
+    holding rows in every old state, a published file and old 'protected' events."""
+    conn = sqlite3.connect(db)
+    conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
+    conn.execute("INSERT INTO schema_version VALUES (3)")
+    for migration in MIGRATIONS[:3]:
+        for statement in _split_sql(migration):
+            conn.execute(statement)
+    conn.execute("INSERT INTO specs VALUES ('s1', '{}', 1, 1.0)")
+    conn.execute("INSERT INTO datasets VALUES ('d', '/root', 's1', 1.0, NULL)")
+    old_states = ("pending", "protected", "skipped", "failed", "restored", "removed")
+    for i, state in enumerate(old_states):
+        conn.execute(
+            "INSERT INTO files (id, dataset, path, state, original_sha256, poisoned_sha256, spec_id, "
+            "tool_version, size, mtime_ns, created_at, updated_at, error, published_path) "
+            "VALUES (?, 'd', ?, ?, ?, ?, 's1', 'ppd 0.1.0', ?, ?, 1.0, 2.0, ?, ?)",
+            (10 + i, f"/root/{state}.jpg", state, f"{i:064x}", f"{i + 100:064x}", 1000 + i, 5 + i,
+             "why" if state == "failed" else None, "/pub/x.jpg" if state == "protected" else None),
+        )  # fmt: skip
+    conn.execute(
+        "INSERT INTO events (ts, dataset, path, kind, detail) VALUES (1.0, 'd', 'p', 'protected', '{}')"
+    )
+    conn.execute(
+        "INSERT INTO events (ts, dataset, path, kind, detail) VALUES (2.0, 'd', 'p', 'reprotected', '{}')"
+    )
+    with pytest.raises(sqlite3.IntegrityError):  # the old constraint, really
+        conn.execute("INSERT INTO files (dataset, path, state, created_at, updated_at) "
+                     "VALUES ('d', '/q', 'quarantined', 1, 1)")  # fmt: skip
+    conn.commit()
+    conn.close()
+
+
+def test_version_3_store_is_migrated_to_the_one_vocabulary(tmp_path: Path) -> None:
+    db = tmp_path / "v3.sqlite3"
+    _version_3_store(db)
+    before = sqlite3.connect(db)
+    old_rows = [list(r) for r in before.execute("SELECT * FROM files ORDER BY id")]
+    before.close()
+    store = Store(db)
+    assert store.schema_version() == SCHEMA_VERSION >= 4
+    rows = store.files("d")
+    assert {r["path"]: r["state"] for r in rows} == {
+        "/root/pending.jpg": FileState.PENDING, "/root/protected.jpg": FileState.PATCHED,
+        "/root/skipped.jpg": FileState.SKIPPED, "/root/failed.jpg": FileState.FAILED,
+        "/root/restored.jpg": FileState.RESTORED, "/root/removed.jpg": FileState.REMOVED,
+    }  # fmt: skip
+    # every other column, ids included, came through unchanged
+    new_rows = [list(r) for r in store.db.execute("SELECT * FROM files ORDER BY id").fetchall()]
+    state_column = 3
+    for old, new in zip(old_rows, new_rows, strict=True):
+        assert old[:state_column] + old[state_column + 1 :] == new[:state_column] + new[state_column + 1 :]
+    assert store.file("/root/protected.jpg")["published_path"] == "/pub/x.jpg"
+    assert sorted(e["kind"] for e in store.events("d")) == ["patched", "reprotected"]
+    indexes = {r[0] for r in store.db.execute("SELECT name FROM sqlite_master WHERE type = 'index'")}
+    assert {"files_dataset_state", "files_poisoned_sha", "files_original_sha"} <= indexes
+    store.record_file("/root/q.jpg", "d", FileState.QUARANTINED, error="could not be decoded")
+    assert store.counts("d")[FileState.QUARANTINED] == 1 and store.counts("d")["files"] == 7
+    with pytest.raises(sqlite3.IntegrityError):  # the new constraint refuses the old word
+        store.db.execute("UPDATE files SET state = 'protected' WHERE path = '/root/q.jpg'")
+    assert store.find_poisoned(f"{101:064x}")["state"] == FileState.PATCHED
+    assert [r["path"] for r in store.find_original(f"{1:064x}")] == ["/root/protected.jpg"]
+    store.close()
+
+
+def test_the_files_check_constraint_admits_exactly_the_file_states(store: Store, tmp_path: Path) -> None:
+    store.ensure_dataset("d", tmp_path, PatchSpec())
+    for state in FileState:
+        store.record_file(tmp_path / f"{state}.jpg", "d", state)
+    assert store.counts("d") == {**{s.value: 1 for s in FileState}, "files": len(FileState)}
+    with pytest.raises(sqlite3.IntegrityError):
+        store.db.execute("UPDATE files SET state = 'bogus'")
+
+
+def test_a_failed_migration_leaves_the_old_store_whole(tmp_path: Path) -> None:
+    """The migration is one transaction: a statement that fails halfway rolls it all back."""
+    db = tmp_path / "v3.sqlite3"
+    _version_3_store(db)
+    conn = sqlite3.connect(db)
+    conn.execute("CREATE TABLE files_v4 (x)")  # in the way of the rebuilt table
+    conn.commit()
+    conn.close()
+    with pytest.raises(StoreError, match=r"cannot migrate the store .* to schema version 4 .*left as it was"):
+        Store(db)
+    conn = sqlite3.connect(db)
+    assert conn.execute("SELECT version FROM schema_version").fetchone()[0] == 3
+    assert conn.execute("SELECT COUNT(*) FROM files WHERE state = 'protected'").fetchone()[0] == 1
+    assert conn.execute("SELECT COUNT(*) FROM events WHERE kind = 'protected'").fetchone()[0] == 1
+    assert conn.execute("SELECT COUNT(*) FROM files").fetchone()[0] == 6
+    conn.close()
+
+
+def test_a_row_that_breaks_its_own_constraint_is_damage(tmp_path: Path) -> None:
+    db = tmp_path / "v3.sqlite3"
+    _version_3_store(db)
+    conn = sqlite3.connect(db)
+    conn.execute("PRAGMA ignore_check_constraints = ON")
+    conn.execute("UPDATE files SET state = 'weird' WHERE id = 10")
+    conn.commit()
+    conn.close()
+    with pytest.raises(StoreError, match="is damaged .*CHECK constraint.*`ppd store rebuild`"):
+        Store(db)
+
+
+# ---- a patched file is never recorded as failed ---------------------------------------------------
+def test_failed_does_not_overwrite_a_patched_row_whose_file_is_the_patched_output(
+    store: Store, tmp_path: Path
+) -> None:
+    store.ensure_dataset("d", tmp_path, PatchSpec())
+    path = tmp_path / "a.jpg"
+    store.record_file(path, "d", FileState.PATCHED, original_sha256="a" * 64, poisoned_sha256="b" * 64)
+    with pytest.raises(PatchedNotFailed, match="patched output") as caught:
+        store.record_file(
+            path, "d", FileState.FAILED, error="lock lost", current_sha256="b" * 64, event="failed"
+        )
+    assert isinstance(caught.value, StoreError) and "\n" not in str(caught.value)
+    row = store.file(path)
+    assert row["state"] == FileState.PATCHED and row["error"] is None
+    assert [e["kind"] for e in store.events("d")] == ["dataset_created"]  # the event rolled back too
+    # the file is not (or no longer) the patched output: failed is recorded
+    store.record_file(path, "d", FileState.FAILED, error="changed", current_sha256="c" * 64)
+    assert store.file(path)["state"] == FileState.FAILED
+
+
+def test_failed_without_current_sha_or_over_other_states_is_recorded(store: Store, tmp_path: Path) -> None:
+    store.ensure_dataset("d", tmp_path, PatchSpec())
+    patched, pending = tmp_path / "a.jpg", tmp_path / "b.jpg"
+    store.record_file(patched, "d", FileState.PATCHED, poisoned_sha256="b" * 64)
+    store.record_file(patched, "d", FileState.FAILED, error="the caller does not know the content")
+    assert store.file(patched)["state"] == FileState.FAILED
+    store.record_file(pending, "d", FileState.PENDING, poisoned_sha256="b" * 64)
+    store.record_file(pending, "d", FileState.FAILED, error="x", current_sha256="b" * 64)
+    assert store.file(pending)["state"] == FileState.FAILED
+
+
+def test_record_files_writes_many_rows_in_one_transaction(store: Store, tmp_path: Path) -> None:
+    store.ensure_dataset("d", tmp_path, PatchSpec())
+    rows = [
+        (tmp_path / f"{i}.jpg", "d", FileState.PATCHED, {"poisoned_sha256": f"{i:064x}"}) for i in range(50)
+    ]
+    assert store.record_files(rows) == 50
+    assert store.counts("d")[FileState.PATCHED] == 50
+    bad = [*rows[:3], (tmp_path / "x.jpg", "d", FileState.PATCHED, {"not_a_column": 1})]
+    with pytest.raises(StoreError, match="not_a_column"):
+        store.record_files(bad)
+    with pytest.raises(sqlite3.IntegrityError):  # one bad row: none of the batch is written
+        store.record_files(
+            [(tmp_path / "new.jpg", "d", FileState.PATCHED, {}), (tmp_path / "y.jpg", "nope", "patched", {})]
+        )
+    assert store.file(tmp_path / "new.jpg") is None

@@ -1,19 +1,34 @@
-"""The originals vault on real files: content addressing, hard links, byte-exact restore."""
+"""The originals vault on real files: content addressing, independent copies, byte-exact restore."""
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
 import stat
 from pathlib import Path
 
 import pytest
+from reliability_harness import MountUnavailable, fill, small_filesystem
 
-from daemon.vault import Vault, VaultError, VaultFullError
+import daemon.vault
+from daemon.vault import (
+    Vault,
+    VaultContentChanged,
+    VaultError,
+    VaultFullError,
+    VaultNoSpaceError,
+    open_regular_nofollow,
+)
+from poisoner.spec import PatchSpec
 
 
 def _sha(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
+
+
+def _temporaries(vault: Vault) -> list[Path]:
+    return [p for p in vault.vault_dir.iterdir() if p.name.startswith(daemon.vault.VAULT_TMP_PREFIX)]
 
 
 @pytest.fixture
@@ -39,7 +54,7 @@ def test_replace_after_keep_leaves_the_original_in_the_vault(vault: Vault, tmp_p
     src.write_bytes(data)
     sha = vault.keep(src)
     blob = vault.path_for(sha)
-    assert blob.stat().st_ino == src.stat().st_ino  # same filesystem: kept by hard link
+    assert blob.stat().st_ino != src.stat().st_ino and blob.stat().st_nlink == 1  # its own copy
     new = tmp_path / ".tmp"
     new.write_bytes(b"poisoned version")
     os.replace(new, src)  # what atomic_output does
@@ -57,14 +72,154 @@ def test_vault_dirs_are_private(vault: Vault, tmp_path: Path) -> None:
     assert stat.S_IMODE(vault.path_for(sha).parent.stat().st_mode) == 0o700
 
 
-def test_copy_when_not_linking(vault: Vault, tmp_path: Path) -> None:
+@pytest.mark.parametrize("link", [None, True, False])
+def test_in_place_edits_of_the_source_never_reach_the_vault(vault: Vault, tmp_path: Path, link: bool) -> None:
+    """A writer that still holds the file (same inode) appends and overwrites after the keep:
+    the blob keeps the bytes that were kept, whatever the old `link` argument says."""
+    data = os.urandom(300_000)
     src = tmp_path / "a.png"
-    src.write_bytes(b"original")
-    sha = vault.keep(src, link=False)
-    assert vault.path_for(sha).stat().st_ino != src.stat().st_ino
-    with open(src, "r+b") as fh:  # an in-place edit of the original does not reach the vault
+    src.write_bytes(data)
+    inode = src.stat().st_ino
+    sha = vault.keep(src) if link is None else vault.keep(src, link=link)
+    with open(src, "r+b") as fh:
+        fh.seek(0, os.SEEK_END)
+        fh.write(b"the rest of a stalled writer's bytes" * 100)
+        fh.seek(0)
         fh.write(b"EDITED!!")
-    assert vault.path_for(sha).read_bytes() == b"original"
+    assert src.stat().st_ino == inode
+    blob = vault.path_for(sha)
+    assert blob.read_bytes() == data and vault.verify(sha)
+    assert blob.stat().st_nlink == 1
+    vault.restore(sha, tmp_path / "back.png")
+    assert (tmp_path / "back.png").read_bytes() == data
+
+
+def test_symlink_is_refused_and_nothing_kept(vault: Vault, tmp_path: Path) -> None:
+    private = tmp_path / "private.jpg"
+    private.write_bytes(b"someone's private photo")
+    link = tmp_path / "a.jpg"
+    link.symlink_to(private)
+    with pytest.raises(VaultError, match="symbolic link"):
+        vault.keep(link)
+    assert vault.is_empty() and vault.blobs() == []
+    assert _temporaries(vault) == []
+
+
+def test_fifo_is_refused_without_blocking(vault: Vault, tmp_path: Path) -> None:
+    fifo = tmp_path / "a.jpg"
+    os.mkfifo(fifo)
+    with pytest.raises(VaultError, match="not a regular file"):
+        vault.keep(fifo)
+
+
+def test_keep_fd_verifies_the_expected_hash(vault: Vault, tmp_path: Path) -> None:
+    src = tmp_path / "a.png"
+    src.write_bytes(b"what the caller hashed")
+    expected = _sha(b"what the caller hashed")
+    with open(src, "r+b") as fh:
+        fh.write(b"WHAT")  # changed after hashing
+        fh.flush()
+        with pytest.raises(VaultContentChanged, match="changed while being kept"):
+            vault.keep_fd(fh.fileno(), expected)
+    assert vault.blobs() == []
+    assert _temporaries(vault) == []
+    assert vault.keep(src, expected_sha256=_sha(src.read_bytes())) == _sha(src.read_bytes())
+
+
+def test_keep_fd_leaves_the_callers_offset_alone(vault: Vault, tmp_path: Path) -> None:
+    src = tmp_path / "a.png"
+    src.write_bytes(b"0123456789" * 1000)
+    fd = open_regular_nofollow(src)
+    try:
+        os.lseek(fd, 1234, os.SEEK_SET)
+        sha = vault.keep_fd(fd)
+        assert os.lseek(fd, 0, os.SEEK_CUR) == 1234
+    finally:
+        os.close(fd)
+    assert vault.path_for(sha).read_bytes() == src.read_bytes()
+
+
+@pytest.mark.parametrize("method", ["copy_file_range", "sendfile", "read"])
+def test_every_copy_method_gives_an_identical_independent_file(tmp_path: Path, method: str) -> None:
+    """The fallbacks of _copy_fd, each run for real (reflink needs btrfs/XFS, absent here)."""
+    data = os.urandom(3 * daemon.vault.CHUNK + 12345)
+    src, dst = tmp_path / "src", tmp_path / "dst"
+    src.write_bytes(data)
+    src_fd = os.open(src, os.O_RDONLY)
+    dst_fd = os.open(dst, os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        if method == "read":
+            digest = hashlib.sha256()
+            daemon.vault._read_loop(src_fd, dst_fd, 0, digest)
+            assert digest.hexdigest() == _sha(data)
+        else:
+            step = getattr(daemon.vault, f"_{method}_step")
+            assert daemon.vault._kernel_copy(src_fd, dst_fd, step) == len(data)
+    finally:
+        os.close(src_fd)
+        os.close(dst_fd)
+    assert dst.read_bytes() == data and dst.stat().st_ino != src.stat().st_ino
+
+
+def test_an_old_hard_linked_blob_is_replaced_by_an_own_copy(vault: Vault, tmp_path: Path) -> None:
+    """A blob an older ppd kept by hard link is still the user's inode: keeping that content
+    again makes the vault's copy independent."""
+    src = tmp_path / "a.png"
+    src.write_bytes(b"kept by an older ppd")
+    sha = _sha(src.read_bytes())
+    vault.path_for(sha).parent.mkdir(parents=True)
+    os.link(src, vault.path_for(sha))
+    assert vault.keep(src) == sha
+    assert vault.path_for(sha).stat().st_nlink == 1
+    src.write_bytes(b"edited later")  # write_bytes truncates in place: same inode
+    assert vault.verify(sha)
+
+
+def test_full_vault_filesystem_names_the_filesystem(tmp_path: Path) -> None:
+    """A real 1 MiB tmpfs filled to the last block: the error says which filesystem is full and
+    how many bytes are free, keeps the no-space text the daemon retries on, leaves nothing."""
+    src = tmp_path / "a.png"
+    src.write_bytes(os.urandom(200_000))
+    before = src.read_bytes()
+    try:
+        with small_filesystem(tmp_path / "small", size="1m") as fs:
+            vault = Vault(fs / "vault")
+            fill(fs)
+            with pytest.raises(VaultNoSpaceError) as caught:
+                vault.keep(src)
+            message = str(caught.value)
+            leftovers = _temporaries(vault)
+            assert vault.blobs() == []
+    except MountUnavailable as exc:
+        pytest.skip(f"cannot mount a tmpfs here: {exc}")
+    assert caught.value.errno == errno.ENOSPC and isinstance(caught.value, VaultFullError)
+    assert "\n" not in message and os.strerror(errno.ENOSPC) in message
+    assert f"tmpfs filesystem mounted at {fs}" in message and " bytes free" in message
+    assert f"needs {len(before)} bytes" in message
+    assert leftovers == [] and src.read_bytes() == before
+
+
+def test_specs_are_kept_and_loaded_by_id(vault: Vault) -> None:
+    spec = PatchSpec(seed=7)
+    path = vault.keep_spec(spec)
+    assert path == vault.vault_dir / "specs" / f"{spec.spec_id}.json"
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    assert vault.load_spec(spec.spec_id) == spec
+    assert vault.load_spec(PatchSpec(seed=8).spec_id) is None
+    path.write_text(PatchSpec(seed=9).to_json())  # a file that does not match its name
+    assert vault.load_spec(spec.spec_id) is None
+    assert vault.blobs() == [] and vault.usage_bytes() == 0  # specs are not originals
+
+
+def test_a_symlinked_blob_is_not_restored(vault: Vault, tmp_path: Path) -> None:
+    outside = tmp_path / "outside"
+    outside.write_bytes(b"x")
+    sha = _sha(b"x")
+    vault.path_for(sha).parent.mkdir(parents=True)
+    vault.path_for(sha).symlink_to(outside)
+    with pytest.raises(VaultError, match="symbolic link"):
+        vault.restore(sha, tmp_path / "dst")
+    assert not (tmp_path / "dst").exists()
 
 
 def test_same_content_is_kept_once(vault: Vault, tmp_path: Path) -> None:
@@ -78,7 +233,7 @@ def test_same_content_is_kept_once(vault: Vault, tmp_path: Path) -> None:
 def test_restore_keeps_destination_mode(vault: Vault, tmp_path: Path) -> None:
     src = tmp_path / "a.png"
     src.write_bytes(b"original")
-    sha = vault.keep(src, link=False)
+    sha = vault.keep(src)
     dst = tmp_path / "dst.png"
     dst.write_bytes(b"poisoned")
     os.chmod(dst, 0o640)
@@ -90,7 +245,7 @@ def test_restore_keeps_destination_mode(vault: Vault, tmp_path: Path) -> None:
 def test_corrupt_blob_is_not_restored(vault: Vault, tmp_path: Path) -> None:
     src = tmp_path / "a.png"
     src.write_bytes(b"original")
-    sha = vault.keep(src, link=False)
+    sha = vault.keep(src)
     vault.path_for(sha).write_bytes(b"tampered")
     dst = tmp_path / "dst.png"
     dst.write_bytes(b"poisoned")

@@ -1,0 +1,122 @@
+"""`ppd store check` / `ppd store rebuild` through the real command line (typer), on real stores."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import typer
+from reliability_harness import write_image
+from typer.testing import CliRunner
+
+from daemon.cli_store import register
+from daemon.paths import AppPaths
+from daemon.states import FileState
+from daemon.store import Store
+from daemon.vault import Vault
+from poisoner.atomic import atomic_output
+from poisoner.formats import poison_file
+from poisoner.provenance import Marker
+from poisoner.spec import PatchSpec
+
+ROOT = Path(__file__).resolve().parents[1]
+CLI = "import typer; from daemon.cli_store import register; app = typer.Typer(); register(app); app()"
+
+
+@pytest.fixture
+def app() -> typer.Typer:
+    app = typer.Typer()
+    register(app)
+
+    @app.callback()
+    def _root() -> None:  # a group, as in daemon/cli.py, so `store` is a sub-command
+        pass
+
+    return app
+
+
+def _patched_outbox(paths: AppPaths, count: int = 3) -> dict[Path, bytes]:
+    """Files patched as the core pipeline does (vault, spec, marker, row)."""
+    paths.ensure()
+    vault, store, spec = Vault(paths.vault_dir), Store(paths.db_path), PatchSpec()
+    originals = {}
+    for i in range(count):
+        path = write_image(paths.outbox / "shoot" / f"{i}.png", seed=i, size=96)
+        data = path.read_bytes()
+        sha = vault.keep(path)
+        vault.keep_spec(spec)
+        store.ensure_dataset("shoot", paths.outbox / "shoot", spec)
+        with atomic_output(path) as tmp:
+            poison_file(path, tmp, spec, marker=Marker(spec.spec_id, sha, "ppd test"))
+        store.record_file(
+            path, "shoot", FileState.PATCHED, original_sha256=sha, spec_id=spec.spec_id,
+            poisoned_sha256=hashlib.sha256(path.read_bytes()).hexdigest(),
+        )  # fmt: skip
+        originals[path] = data
+    store.close()
+    return originals
+
+
+def _one_line(text: str) -> str:
+    lines = [line for line in text.splitlines() if line.strip()]
+    assert len(lines) == 1, text
+    assert "Traceback" not in text
+    return lines[0]
+
+
+def test_check_then_rebuild_a_deleted_store(app: typer.Typer, ppd_env: dict[str, Path]) -> None:
+    paths = AppPaths.from_env()
+    originals = _patched_outbox(paths)
+    runner = CliRunner()
+    sound = runner.invoke(app, ["store", "check"])
+    assert sound.exit_code == 0 and "sound" in _one_line(sound.stdout) and "3 file row(s)" in sound.stdout
+    for suffix in ("", "-wal", "-shm"):
+        Path(f"{paths.db_path}{suffix}").unlink(missing_ok=True)
+
+    missing = runner.invoke(app, ["store", "check"])
+    assert missing.exit_code == 1 and "`ppd store rebuild`" in _one_line(missing.stderr)
+    assert not paths.db_path.exists()  # checking creates nothing
+
+    rebuilt = runner.invoke(app, ["store", "rebuild"])
+    assert rebuilt.exit_code == 0, rebuilt.stderr
+    assert "3 patched file(s) in 1 dataset(s)" in _one_line(rebuilt.stdout)
+    store = Store(paths.db_path)
+    vault = Vault(paths.vault_dir)
+    for path, data in originals.items():
+        row = store.file(path)
+        assert row["state"] == FileState.PATCHED
+        assert vault.path_for(row["original_sha256"]).read_bytes() == data
+    store.close()
+    again = runner.invoke(app, ["store", "rebuild"])  # now sound: refused, one line
+    assert again.exit_code == 1 and "--force" in _one_line(again.stderr)
+    verbose = runner.invoke(app, ["store", "rebuild", "--force", "-v"])
+    assert verbose.exit_code == 0 and "rebuilt datasets" in verbose.stdout and "vault" in verbose.stdout
+
+
+def test_a_garbage_store_is_one_line_in_a_real_process(ppd_env: dict[str, Path]) -> None:
+    paths = AppPaths.from_env()
+    _patched_outbox(paths, count=1)
+    for suffix in ("-wal", "-shm"):
+        Path(f"{paths.db_path}{suffix}").unlink(missing_ok=True)
+    paths.db_path.write_bytes(os.urandom(10_000))
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "80"}
+
+    def ppd(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-c", CLI, *args], env=env, cwd=ROOT, capture_output=True, text=True, timeout=120
+        )
+
+    check = ppd("store", "check")
+    assert check.returncode == 1
+    line = _one_line(check.stderr)
+    assert str(paths.db_path) in line and "is damaged" in line and "`ppd store rebuild`" in line
+    rebuild = ppd("store", "rebuild")
+    assert rebuild.returncode == 0, rebuild.stderr
+    assert (
+        "1 patched file(s)" in _one_line(rebuild.stdout) and "the damaged store is kept at" in rebuild.stdout
+    )
+    assert ppd("store", "check").returncode == 0
