@@ -278,10 +278,11 @@ def main(argv: list[str] | None = None) -> None:
             variant(base, i).save(flood / f"f{i:05d}.png")
         started = time.monotonic()
         os.rename(flood, outbox / "flood")
+        from daemon.states import FileState
         from daemon.store import Store
 
         store = Store(root / "data" / "ppd.sqlite3")
-        while len(store.files("flood", state="protected")) < n_flood:
+        while len(store.files("flood", state=FileState.PATCHED)) < n_flood:
             if time.monotonic() - started > 900:
                 raise TimeoutError("flood not done in 15 min")
             time.sleep(0.2)

@@ -20,6 +20,7 @@ from collections import Counter
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
+from daemon.states import FileState
 from tests.reliability_harness import (
     DAEMON_ARGS,
     CrashTrialOptions,
@@ -131,11 +132,12 @@ def corpus_run(root: Path) -> CorpusResult:
     for item in items:
         row = rows.get(item.path.name)
         state = row["state"] if row else None
-        result.protected += state == "protected"
+        result.protected += state == FileState.PATCHED
         result.refused += state == "failed"
         result.left_alone += state is None
-        ok = {"protected": ("protected",), "refused": ("failed",), "either": ("protected", "failed"),
-              "left": (None, "failed")}[item.expect]  # fmt: skip
+        patched, failed = FileState.PATCHED, FileState.FAILED
+        ok = {"protected": (patched,), "refused": (failed,), "either": (patched, failed),
+              "left": (None, failed)}[item.expect]  # fmt: skip
         if state not in ok or (state == "failed" and "\n" in (row["error"] or "\n")):
             result.unexpected.append(f"{item.what}: {state} ({row and row['error']})")
     return result

@@ -5,10 +5,10 @@ must stay bounded.
     python -m bench.bench_load [--files 10000] [--soak-minutes 30] [--interval 2.0]
 
 Flood: N small PNGs written outside the outbox, then moved in as one folder (one rename).
-Latency of a file = its 'protected' event time minus the instant of that rename (so it
+Latency of a file = its 'patched' event time minus the instant of that rename (so it
 includes the queueing behind the files before it). Soak: one file copied in (close-after-
 write, the daemon's default 2 s debounce) every `interval` seconds, a 256x256 PNG or JPEG, and
-a small MP4 every 50th file; latency = 'protected' event time minus the end of the copy.
+a small MP4 every 50th file; latency = 'patched' event time minus the end of the copy.
 RSS of the daemon process sampled every second (flood) or 5 s (soak) from /proc.
 Writes the `load` section of bench/results/reliability.md.
 """
@@ -26,6 +26,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from daemon.states import FileState
 from tests.reliability_harness import (
     DAEMON_ARGS,
     app_paths,
@@ -121,7 +122,7 @@ def _state_counts(db_path: Path) -> dict[str, int]:
 def _protected_times(db_path: Path) -> dict[str, float]:
     """Per path: the time of its 'protected' (or 'recovered') event."""
     with sqlite3.connect(f"file:{db_path}?mode=ro", uri=True, timeout=30) as conn:
-        rows = conn.execute("SELECT path, ts FROM events WHERE kind IN ('protected', 'recovered')").fetchall()
+        rows = conn.execute("SELECT path, ts FROM events WHERE kind IN ('patched', 'recovered')").fetchall()
     return dict(rows)
 
 
@@ -129,7 +130,7 @@ def _wait_done(db_path: Path, total: int, timeout: float) -> dict[str, int]:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         counts = _state_counts(db_path) if db_path.exists() else {}
-        if counts.get("protected", 0) + counts.get("failed", 0) >= total:
+        if counts.get(FileState.PATCHED, 0) + counts.get("failed", 0) >= total:
             return counts
         time.sleep(0.5)
     raise TimeoutError(f"not all {total} files done within {timeout} s: {counts}")
@@ -166,7 +167,7 @@ def run_flood(root: Path, options: FloodOptions) -> FloodResult:
             result.seconds = time.time() - dropped
     finally:
         result.daemon_exit_code = kill_daemon(daemon, signal.SIGTERM)
-    result.protected, result.failed = counts.get("protected", 0), counts.get("failed", 0)
+    result.protected, result.failed = counts.get(FileState.PATCHED, 0), counts.get("failed", 0)
     times = _protected_times(paths.db_path)
     result.latency_s = _latency_summary([times[str(p)] - dropped for p in originals if str(p) in times])
     result.rss_mb = _rss_summary(rss.samples)
@@ -209,7 +210,7 @@ def run_soak(root: Path, options: SoakOptions, progress: bool = True) -> SoakRes
     finally:
         result.daemon_exit_code = kill_daemon(daemon, signal.SIGTERM)
     result.files = len(originals)
-    result.protected, result.failed = counts.get("protected", 0), counts.get("failed", 0)
+    result.protected, result.failed = counts.get(FileState.PATCHED, 0), counts.get("failed", 0)
     times = _protected_times(paths.db_path)
     result.latency_s = _latency_summary([times[p] - t for p, t in dropped_at.items() if p in times])
     result.rss_series = [(round(t, 1), round(mb, 1)) for t, mb in rss.samples]

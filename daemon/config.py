@@ -23,6 +23,12 @@ Every key is optional; what is missing comes from the embedded defaults below. L
     [vault]
     max_bytes = 0               # 0 = unlimited; when full, protection is refused (never silent deletion)
 
+    [privacy]
+    keep_location = false       # true: patched files keep GPS/place metadata (default: removed)
+
+    [daemon]
+    quarantine_dir = ""         # files `ppd watch` cannot patch go here ("": <outbox>/../ppd-quarantine)
+
     [visibility]                # automatic mode's budget, clean vs poisoned, whole image
     min_ssim = 0.99
     max_lpips = 0.02
@@ -155,6 +161,8 @@ class Config:
     datasets: dict[str, DatasetOverride] = field(default_factory=dict)
     visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
     preflight: PreflightConfig = field(default_factory=PreflightConfig)
+    keep_location: bool = False  # [privacy] keep_location
+    quarantine_dir: Path | None = None  # [daemon] quarantine_dir (None: quarantine_dir_for's default)
     source: Path | None = None  # the file it was read from, if any
 
     # ---- loading --------------------------------------------------------------------------
@@ -186,7 +194,7 @@ class Config:
     def _from_dict(cls, data: dict[str, Any], source: Path | None) -> Config:
         known = {
             "workers", "debounce_seconds", "publish_dir", "patch", "verification", "vault", "datasets",
-            "visibility", "preflight",
+            "visibility", "preflight", "privacy", "daemon",
         }  # fmt: skip
         unknown = set(data) - known
         if unknown:
@@ -207,6 +215,15 @@ class Config:
         preflight = dict(data.get("preflight", {}))
         if "profiles" in preflight:
             preflight["profiles"] = tuple(preflight["profiles"])
+        privacy, daemon_table = dict(data.get("privacy", {})), dict(data.get("daemon", {}))
+        for table, allowed, name in (
+            (privacy, {"keep_location"}, "privacy"),
+            (daemon_table, {"quarantine_dir"}, "daemon"),
+        ):
+            if extra := set(table) - allowed:
+                raise ConfigError(f"unknown key(s) in [{name}]: {', '.join(sorted(extra))}")
+        if not isinstance(privacy.get("keep_location", False), bool):
+            raise ConfigError("privacy.keep_location must be true or false")
         workers = int(data.get("workers", 2))
         if workers < 1:
             raise ConfigError(f"workers must be >= 1, got {workers}")
@@ -220,6 +237,8 @@ class Config:
             datasets=datasets,
             visibility=VisibilityConfig(**data.get("visibility", {})),
             preflight=PreflightConfig(**preflight),
+            keep_location=privacy.get("keep_location", False),
+            quarantine_dir=_optional_path(daemon_table.get("quarantine_dir")),
             source=source,
         )
 
@@ -242,6 +261,13 @@ class Config:
             return interim_spec()
         return spec_from_table(override.patch, self.spec) if override and override.patch else self.spec
 
+    def quarantine_dir_for(self, outbox: Path) -> Path:
+        """Where the daemon moves files it cannot patch: [daemon] quarantine_dir, else a visible
+        folder next to the outbox (outside it, so nothing there is published or watched)."""
+        if self.quarantine_dir is not None:
+            return self.quarantine_dir
+        return Path(outbox).absolute().parent / "ppd-quarantine"
+
     def publish_dir_for(self, dataset: str) -> Path | None:
         override = self.datasets.get(dataset)
         if override and override.publish_dir is not None:
@@ -262,6 +288,8 @@ class Config:
         lines += ["", "[verification]"]
         lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(self.verification).items()]
         lines += ["", "[vault]", f"max_bytes = {self.vault.max_bytes}"]
+        lines += ["", "[privacy]", f"keep_location = {_toml_value(self.keep_location)}"]
+        lines += ["", "[daemon]", f"quarantine_dir = {_toml_value(str(self.quarantine_dir or ''))}"]
         lines += ["", "[visibility]"]
         lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(self.visibility).items()]
         lines += ["", "[preflight]"]

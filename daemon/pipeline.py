@@ -28,13 +28,14 @@ symlink; every later read and write goes through those descriptors, never throug
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import shutil
 import stat
 import tempfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -48,9 +49,10 @@ from daemon.fsops import (
     open_contained,
     open_dir,
     write_all,
+    writers_of,
 )
 from daemon.states import FileState
-from daemon.vault import sha256_file
+from daemon.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import TEMP_PREFIX, atomic_replace_at, fsync_dir
 from poisoner.spec import PatchSpec
 
@@ -130,6 +132,7 @@ class Job:
     written: FileSignature | None = None
     report: Any = None
     final: Path | None = None
+    held: contextlib.ExitStack = field(default_factory=contextlib.ExitStack)  # released by close()
 
     @property
     def record_path(self) -> Path:
@@ -144,6 +147,7 @@ class Job:
         )
 
     def close(self) -> None:
+        self.held.close()
         if self.file is not None:
             self.file.close()
         if self.work is not None:
@@ -213,6 +217,21 @@ def is_ignored_name(path: Path) -> bool:
     return path.name.startswith(".") or path.name.startswith(TEMP_PREFIX)
 
 
+def provenance_marker(spec_id: str, original_sha256: str | None) -> Any:
+    """What every patched file carries (poisoner.provenance): ppd knows its own output without a row."""
+    from poisoner.provenance import Marker
+
+    return Marker(spec_id=spec_id, original_sha256=original_sha256 or "", tool=tool_version())
+
+
+def link_or_copy(src: Path, dst: Path) -> None:
+    """A hard link between two of ppd's private files (the vault and its work folders), else a copy."""
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copyfile(src, dst)
+
+
 def work_folder(ctx: AppContext) -> Path:
     """A private scratch folder inside the vault (same filesystem: the vault links from it)."""
     return Path(tempfile.mkdtemp(prefix=".work-", dir=ctx.vault.vault_dir))
@@ -275,6 +294,34 @@ def open_contained_file(job: Job) -> ProtectOutcome | None:
     return None
 
 
+class IncompleteFile(Exception):
+    """The file's structure is incomplete (a truncated upload, a writer that gave up)."""
+
+
+def check_complete(job: Job) -> ProtectOutcome | None:
+    """Only complete files go on: one still open for writing by another process is skipped (its
+    close re-arms the watcher); one whose structure is incomplete, or whose header declares more
+    pixels than the decode budget, is refused here, before anything reaches the vault."""
+    from poisoner.completeness import incomplete_reason
+
+    assert job.file is not None
+    through_fd = Path(f"/proc/self/fd/{job.file.fd}")  # the opened inode, never the path again
+    pids = writers_of(job.file.st)
+    reason = None if pids else incomplete_reason(through_fd)
+    if reason is not None:
+        pids = writers_of(job.file.st, fresh=True)  # the shared scan may predate this writer
+    if pids:
+        why = f"still open for writing by pid {pids[0]}; patched once it is closed"
+        return job.outcome(Outcome.SKIPPED, why, signature=None)
+    if reason is not None:
+        raise IncompleteFile(f"{job.path.name} is incomplete ({reason}); not patched")
+    if job.kind == "image":
+        from poisoner.limits import check_decode_budget
+
+        check_decode_budget(through_fd)
+    return None
+
+
 def hash_original(job: Job) -> ProtectOutcome | None:
     assert job.file is not None
     job.sha = job.file.sha256()
@@ -304,6 +351,8 @@ def decide(job: Job) -> ProtectOutcome | None:
         if moved and protect.carry_moved_row(ctx, earlier, job.path, job.dataset, job.root):
             return job.outcome(Outcome.UNCHANGED, f"moved from {earlier['path']}", poisoned_sha256=sha)
         return job.outcome(Outcome.UNCHANGED, "already ppd output", poisoned_sha256=sha)
+    if (recognised := _recognise_by_marker(job)) is not None:
+        return recognised
     if (
         row is not None
         and row["state"] == FileState.RESTORED
@@ -351,21 +400,53 @@ def decide(job: Job) -> ProtectOutcome | None:
     return None
 
 
+def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
+    """ppd's own output without a row (a lost store): its provenance marker says so. It is never
+    patched again; when the vault holds the original the marker names, the row is written back
+    (so status and restore see it)."""
+    from poisoner.provenance import read_marker
+
+    assert job.file is not None and job.sha is not None
+    marker = read_marker(Path(f"/proc/self/fd/{job.file.fd}"))
+    if marker is None:
+        return None
+    ctx = job.ctx
+    if job.out_path is None and not job.dry_run and ctx.vault.has(marker.original_sha256):
+        ensure_dataset(ctx, job.dataset, job.root, job.wanted_spec)
+        ctx.store.record_file(
+            job.path, job.dataset, FileState.PATCHED, original_sha256=marker.original_sha256,
+            poisoned_sha256=job.sha, spec_id=marker.spec_id, tool_version=marker.tool,
+            size=job.file.st.st_size, mtime_ns=job.file.st.st_mtime_ns, error=None,
+            event="recognised", detail={"from": "provenance marker"},
+        )  # fmt: skip
+    return job.outcome(
+        Outcome.UNCHANGED, "already ppd output (its provenance marker says so)", poisoned_sha256=job.sha
+    )
+
+
 def keep_in_vault(job: Job) -> ProtectOutcome | None:
     """1. An independent copy of the original (read through its descriptor) goes to the vault."""
     assert job.file is not None and job.sha is not None
+    try:
+        job.ctx.vault.keep_fd(job.file.fd, expected_sha256=job.sha)
+    except VaultContentChanged:
+        raise SourceChanged(f"{job.path.name} was written to while being kept; left as it is now") from None
+    if job.file.changed():
+        raise SourceChanged(f"{job.path.name} was written to while being kept; left as it is now")
     job.work = job.work or work_folder(job.ctx)
     job.original = job.work / job.path.name  # poisoners pick the format by suffix
-    if copy_fd_to_path(job.file.fd, job.original) != job.sha or job.file.changed():
-        raise SourceChanged(f"{job.path.name} changed while being patched; left as it is now")
-    if job.ctx.vault.keep(job.original) != job.sha:  # a link to ppd's private copy, not to the user's file
-        raise SourceChanged(f"{job.path.name} changed while being patched; left as it is now")
+    link_or_copy(job.ctx.vault.path_for(job.sha), job.original)  # ppd's own bytes, read only
     return None
 
 
 def mark_pending(job: Job) -> ProtectOutcome | None:
-    """2. A pending row: after a crash we know this path's original is in the vault."""
+    """2. A pending row: after a crash we know this path's original is in the vault. An attempt
+    marker is held from here until the run ends: if the heavy work kills the process, the daemon
+    quarantines the file at its next start instead of retrying it (daemon.quarantine)."""
+    from daemon.quarantine import attempt
+
     assert job.spec is not None
+    job.held.enter_context(attempt(job.ctx.paths.data_dir, job.path, job.dataset))
     job.ctx.store.record_file(
         job.record_path, job.dataset, FileState.PENDING, original_sha256=job.sha, spec_id=job.spec.spec_id,
         poisoned_sha256=None, error=None, tool_version=tool_version(), event="pending",
@@ -378,7 +459,10 @@ def poison(job: Job) -> ProtectOutcome | None:
     """3. The complete patched file, written in the private work folder."""
     assert job.work is not None and job.original is not None and job.spec is not None and job.kind
     job.poisoned = job.work / f"{PATCHED_PREFIX}{job.path.name}"
-    job.report = poison_to(job.kind, job.original, job.poisoned, job.spec, job.progress)
+    job.report = poison_to(
+        job.kind, job.original, job.poisoned, job.spec, job.progress,
+        marker=provenance_marker(job.spec.spec_id, job.sha), keep_location=job.keep_location,
+    )  # fmt: skip
     job.poisoned_sha = sha256_file(job.poisoned)
     return None
 
@@ -425,7 +509,7 @@ def record_provenance(job: Job) -> ProtectOutcome | None:
     job.ctx.store.record_file(
         record_path, job.dataset, FileState.PATCHED, original_sha256=job.sha,
         poisoned_sha256=job.poisoned_sha, spec_id=job.spec.spec_id, tool_version=tool_version(),
-        size=size, mtime_ns=mtime, error=None, published_path=None, event="protected",
+        size=size, mtime_ns=mtime, error=None, published_path=None, event="patched",
         detail=report_detail(job.report),
     )  # fmt: skip
     job.final = record_path
@@ -450,6 +534,7 @@ def publish(job: Job) -> ProtectOutcome | None:
 STAGES: tuple[Callable[[Job], ProtectOutcome | None], ...] = (
     check_name,
     open_contained_file,
+    check_complete,
     hash_original,
     decide,
     keep_in_vault,  # crash-safe order from here: vault → pending → poison → replace → row → publish

@@ -37,6 +37,7 @@ from daemon.pipeline import (
     media_kind,
     one_line,
     poison_to,
+    provenance_marker,
     report_detail,
     run_stages,
     shown_name,
@@ -153,7 +154,7 @@ def protect_file(
     except OutsideOutboxError as exc:
         return ProtectOutcome(path=path, dataset=None, state=Outcome.FAILED, reason=one_line(exc))
     root = Path(root).absolute()
-    keep = bool(getattr(ctx.config, "keep_location", False)) if keep_location is None else keep_location
+    keep = ctx.config.keep_location if keep_location is None else keep_location
     try:
         with ctx.path_lock(out_path or path):
             for _ in range(SOURCE_CHANGE_TRIES):
@@ -277,7 +278,10 @@ def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, 
     with _named_vault_copy(ctx, original_sha, path.name) as original:
         scratch = original.with_name(f"redo{path.suffix}")
         try:
-            poison_to(kind, original, scratch, spec)
+            poison_to(
+                kind, original, scratch, spec, marker=provenance_marker(spec.spec_id, original_sha),
+                keep_location=ctx.config.keep_location,
+            )  # fmt: skip
         except Exception:  # cannot redo it: treat the file as new content
             return False
         if sha256_file(scratch) != sha:
@@ -306,40 +310,104 @@ def dataset_pairs(ctx: AppContext, dataset: str) -> list[tuple[Path, Path]]:
 
 
 def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> ProtectOutcome:
-    """Put a protected file's original back where the protected file is (atomic). Refuses
-    when the file there is no longer ppd's output (the user changed it) unless force."""
+    """Put a patched file's original back where the file was changed in place (atomic); never
+    into an output (`--out`) or publish folder: a patched copy there is removed instead, and the
+    reason says so. Refuses when the file is no longer ppd's output (the user changed it) unless
+    force. With no row (a lost store), the file's provenance marker names its original."""
     path = Path(path).absolute()
-    row = ctx.store.file(path)
+    row = ctx.store.file(path) or _row_from_marker(ctx, path)
     if row is None:
         return ProtectOutcome(
-            path=path, dataset=None, state=Outcome.FAILED, reason=f"{path} is not in the store"
-        )
+            path=path, dataset=None, state=Outcome.FAILED,
+            reason=f"{path} is not in the store and carries no ppd provenance marker",
+        )  # fmt: skip
     dataset = row["dataset"]
     if row["state"] != FileState.PATCHED or not row["original_sha256"]:
         return ProtectOutcome(
             path=path, dataset=dataset, state=Outcome.UNCHANGED, reason=f"state is {row['state']}"
         )
-    target = Path(row["published_path"] or row["path"])
+    copy = _copy_outside_the_source(ctx, row)
     with ctx.path_lock(path):
         try:
-            if target.exists() and not force and sha256_file(target) != row["poisoned_sha256"]:
-                raise ProtectRefused(
-                    f"{target.name} changed since ppd protected it; not overwriting (use --force)"
-                )
-            ctx.vault.restore(row["original_sha256"], target)
+            if copy is not None:
+                reason = _remove_patched_copy(row, copy, force)
+                target = Path(row["path"]) if row["published_path"] else None
+                if target is not None:  # published: the original goes back to where it was patched
+                    if (target.exists() or target.is_symlink()) and not force:
+                        raise ProtectRefused(
+                            f"{target} exists; not overwriting it with the original (use --force)"
+                        )
+                    ctx.vault.restore(row["original_sha256"], target)
+                    reason = f"original back at {target}; {reason}"
+            else:
+                target = path
+                if target.exists() and not force and sha256_file(target) != row["poisoned_sha256"]:
+                    raise ProtectRefused(
+                        f"{target.name} changed since ppd patched it; not overwriting (use --force)"
+                    )
+                ctx.vault.restore(row["original_sha256"], target)
+                reason = None
         except Exception as exc:
             return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
+        if row.get("from_marker"):  # the store had lost it: the dataset row comes back with it
+            ensure_dataset(ctx, dataset, dataset_root(ctx.paths.outbox, dataset), None)
         ctx.store.record_file(
-            path,
-            dataset,
-            FileState.RESTORED,
+            path, dataset, FileState.RESTORED, original_sha256=row["original_sha256"], published_path=None,
             event="restored",
-            detail={"to": str(target), "sha256": row["original_sha256"]},
-        )
+            detail={"to": str(target) if target else None, "sha256": row["original_sha256"], "note": reason},
+        )  # fmt: skip
     return ProtectOutcome(
-        path=path, dataset=dataset, state=Outcome.RESTORED, reason=None,
+        path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
         original_sha256=row["original_sha256"], output=target,
     )  # fmt: skip
+
+
+def _copy_outside_the_source(ctx: AppContext, row: dict[str, Any]) -> Path | None:
+    """Where a patched *copy* sits that must never receive an original: the publish folder
+    (published_path), or an output folder (`ppd poison --out`: the row's path lies outside its
+    dataset's source folder). None: the file was patched in place."""
+    if row["published_path"]:
+        return Path(row["published_path"])
+    dataset = ctx.store.dataset(row["dataset"])
+    if dataset is not None and not Path(row["path"]).is_relative_to(Path(dataset["root"])):
+        return Path(row["path"])
+    return None
+
+
+def _remove_patched_copy(row: dict[str, Any], copy: Path, force: bool) -> str:
+    """Delete ppd's patched copy from an output/publish folder; the reason line for the outcome."""
+    where = "publish folder" if row["published_path"] else "output folder"
+    if not copy.exists():
+        return f"no patched copy left in the {where} {copy.parent}; originals are never written there"
+    if sha256_file(copy) != row["poisoned_sha256"] and not force:
+        raise ProtectRefused(f"{copy} changed since ppd patched it; not removing it (use --force)")
+    copy.unlink()
+    return f"removed the patched copy {copy} from the {where}: restore never writes originals there"
+
+
+def _row_from_marker(ctx: AppContext, path: Path) -> dict[str, Any] | None:
+    """A row for ppd's output found without the store: its provenance marker and the vault."""
+    from poisoner.provenance import read_marker
+
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        marker = read_marker(Path(f"/proc/self/fd/{fd}"))
+        sha = sha256_fd(fd) if marker is not None else None
+    finally:
+        os.close(fd)
+    if marker is None or not ctx.vault.has(marker.original_sha256):
+        return None
+    try:
+        dataset = dataset_of(ctx.paths.outbox, path)
+    except OutsideOutboxError:
+        dataset = path.parent.name
+    return {
+        "dataset": dataset, "path": str(path), "state": FileState.PATCHED, "published_path": None,
+        "original_sha256": marker.original_sha256, "poisoned_sha256": sha, "from_marker": True,
+    }  # fmt: skip
 
 
 def reprotect_dataset(ctx: AppContext, dataset: str, spec: PatchSpec) -> list[ProtectOutcome]:
@@ -380,7 +448,10 @@ def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: Patch
                 atomic_output(target) as tmp,
             ):
                 if spec.selects(rel):
-                    report = poison_to(kind, original, tmp, spec)
+                    marker = provenance_marker(spec.spec_id, row["original_sha256"])
+                    report = poison_to(
+                        kind, original, tmp, spec, marker=marker, keep_location=ctx.config.keep_location
+                    )
                     row_state, state = FileState.PATCHED, Outcome.PATCHED
                 else:
                     shutil.copyfile(original, tmp)

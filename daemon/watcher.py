@@ -438,14 +438,15 @@ class DaemonCounts:
     skipped: int = 0
     failed: int = 0
     removed: int = 0
+    quarantined: int = 0
 
 
 def status_line(counts: DaemonCounts, stats: PoolStats, armed: int) -> str:
     """The one-line STATUS= systemd shows in `systemctl --user status ppd`."""
     return (
-        f"patched {counts.patched}, failed {counts.failed}, unchanged {counts.unchanged}, "
-        f"removed {counts.removed}; queued {stats.queued + stats.pending}, in flight {stats.in_flight}, "
-        f"settling {armed}"
+        f"patched {counts.patched}, failed {counts.failed}, quarantined {counts.quarantined}, "
+        f"unchanged {counts.unchanged}, removed {counts.removed}; queued {stats.queued + stats.pending}, "
+        f"in flight {stats.in_flight}, settling {armed}"
     )
 
 
@@ -665,6 +666,8 @@ class WatchDaemon:
         Returns how many paths were queued.
         """
         started = time.monotonic()
+        if remove_leftovers:
+            self._quarantine_crashed_attempts()
         grace = self.options.tmp_grace_s if remove_leftovers else None
         result = scan_outbox(self.outbox, self.suffixes, grace)
         for tmp in result.stale_temps_removed:
@@ -689,6 +692,42 @@ class WatchDaemon:
             extra={"files": len(result.files), "queued": queued, "seconds": seconds},
         )  # fmt: skip
         return queued
+
+    def _quarantine_crashed_attempts(self) -> None:
+        """A file whose last attempt killed ppd (an attempt marker left unlocked) is moved to the
+        quarantine folder with that reason, never retried in a loop (daemon.quarantine)."""
+        from daemon.quarantine import CRASH_LOOP_TRIES, crashed_attempts, quarantine
+
+        for crashed in crashed_attempts(self.ctx.paths.data_dir):
+            if crashed.tries < CRASH_LOOP_TRIES:
+                continue  # retried; the marker keeps counting
+            try:
+                if crashed.path.is_file() or crashed.path.is_symlink():
+                    quarantine(self.ctx, crashed.path, crashed.dataset, crashed.reason)
+                    self._count("quarantined")
+            except OSError as exc:
+                log.error(
+                    "cannot quarantine %s: %s", crashed.path, exc.strerror, extra={"path": str(crashed.path)}
+                )
+            crashed.marker.unlink(missing_ok=True)
+
+    def _quarantine_if_hopeless(self, path: Path, outcome: Any) -> bool:
+        """A file that failed for a reason a retry will not change leaves the outbox."""
+        reason = outcome.reason or ""
+        transient = is_no_space(reason) or "another ppd process" in reason or "database is locked" in reason
+        if outcome.state != Outcome.FAILED or transient:
+            return False
+        from daemon.quarantine import quarantine
+
+        try:
+            moved = quarantine(self.ctx, path, outcome.dataset, reason)
+        except OSError as exc:
+            log.error("cannot quarantine %s: %s", path, exc.strerror, extra={"path": str(path)})
+            return False
+        if moved is not None:
+            self.watcher.forget(path)
+            self._count("quarantined")
+        return moved is not None
 
     def _known_rows(self) -> dict[str, dict[str, Any]]:
         store = self.ctx.store
@@ -736,6 +775,7 @@ class WatchDaemon:
                 outcome.reason,
                 extra={"path": str(path), "dataset": outcome.dataset, "reason": outcome.reason},
             )
+            self._quarantine_if_hopeless(path, outcome)
         if outcome.state == Outcome.PATCHED and self.scheduler is not None and outcome.dataset:
             try:
                 self.scheduler.on_protected(outcome.dataset)
@@ -753,13 +793,16 @@ class WatchDaemon:
             prefix = str(path) + os.sep
             rows = [r for r in self._known_rows().values() if r["path"].startswith(prefix)]
         for r in rows:
-            if r["state"] == FileState.REMOVED or Path(r["path"]).exists():
+            if r["state"] in (FileState.REMOVED, FileState.QUARANTINED) or Path(r["path"]).exists():
                 continue
             published = r.get("published_path")
             if r["state"] == FileState.PATCHED and published and Path(published).exists():
                 continue  # moved to its publish folder by ppd itself, not removed
             store.record_file(
-                r["path"], r["dataset"], FileState.REMOVED, event="removed",
+                r["path"],
+                r["dataset"],
+                FileState.REMOVED,
+                event="removed",
                 detail={"previous_state": r["state"]},
             )
             self._count("removed")  # DaemonCounts.removed

@@ -4,7 +4,7 @@ that must hold at any instant (docs/RELIABILITY.md):
 
 * every file in the outbox is the untouched original or ppd's complete protected output;
 * every original is in place or verified in the vault;
-* the store agrees with the disk (a 'protected' row names the bytes on disk, a 'pending' row
+* the store agrees with the disk (a patched row names the bytes on disk, a 'pending' row
   names an original in the vault and the disk holds that original or its exact poisoned form);
 * the SQLite file passes `PRAGMA integrity_check`.
 
@@ -210,17 +210,17 @@ def leftover_temporaries(paths: AppPaths) -> list[Path]:
 
 
 def protected_counts(paths: AppPaths) -> Counter[str]:
-    """Per path: 'protected' + 'recovered' events (a file done once counts exactly 1)."""
+    """Per path: 'patched' + 'recovered' events (a file done once counts exactly 1)."""
     store = Store(paths.db_path)
     try:
         events = store.events(limit=10_000_000)
     finally:
         store.close()
-    return Counter(e["path"] for e in events if e["kind"] in ("protected", "recovered"))
+    return Counter(e["path"] for e in events if e["kind"] in ("patched", "recovered"))
 
 
 def wait_all_protected(paths: AppPaths, files: list[Path], timeout: float) -> None:
-    """Wait until every file has a 'protected' row; on timeout the error says what the others are."""
+    """Wait until every file has a patched row; on timeout the error says what the others are."""
     rows: dict[str, dict] = {}
 
     def done() -> bool:

@@ -104,7 +104,7 @@ def test_two_daemons_and_a_cli_on_one_outbox(tmp_path: Path) -> None:
         wait_for(settled, 120, "every file patched")
         time.sleep(1.0)  # any late second run would show now
         rows = {r["path"]: r for r in store.files("ds")}
-        patches = Counter(e["path"] for e in store.events("ds") if e["kind"] == "protected")
+        patches = Counter(e["path"] for e in store.events("ds") if e["kind"] == "patched")
         store.close()
     finally:
         code = kill_daemon(first, signal.SIGTERM)

@@ -125,7 +125,7 @@ def test_protect_records_vaults_and_replaces(ctx: AppContext, ppd_env: dict[str,
     row = ctx.store.file(src)
     assert row["state"] == FileState.PATCHED and row["spec_id"] == default_spec().spec_id
     assert row["poisoned_sha256"] == _sha(src) and row["error"] is None
-    assert [e["kind"] for e in ctx.store.events("shoot")][:2] == ["protected", "pending"]
+    assert [e["kind"] for e in ctx.store.events("shoot")][:2] == ["patched", "pending"]
     assert dataset_pairs(ctx, "shoot") == [(ctx.vault.path_for(outcome.original_sha256), src)]
     assert _no_temporaries(ppd_env["outbox"])
 
@@ -305,8 +305,10 @@ def test_publish_dir_receives_the_protected_file(ppd_env: dict[str, Path], tmp_p
     assert outcome.output == published and published.is_file() and not src.exists()
     assert ctx.store.file(src)["published_path"] == str(published)
     assert dataset_pairs(ctx, "shoot")[0][1] == published
-    assert restore_file(ctx, src).state == "restored"
-    assert published.read_bytes() == original
+    restored = restore_file(ctx, src)
+    # Never an original in the publish folder (before: the published copy became the original).
+    assert restored.state == "restored" and "publish folder" in restored.reason
+    assert not published.exists() and src.read_bytes() == original
     ctx.close()
 
 

@@ -108,13 +108,13 @@ def rows_by_path(store: Store) -> dict[str, dict]:
 def protected_event_counts(store: Store) -> dict[str, int]:
     counts: dict[str, int] = {}
     for ev in store.events(limit=100_000):
-        if ev["kind"] == "protected":
+        if ev["kind"] == "patched":
             counts[ev["path"]] = counts.get(ev["path"], 0) + 1
     return counts
 
 
 def assert_protected_once(env: dict[str, Path], files: list[Path], originals: dict[Path, str]) -> None:
-    """Each file: one 'protected' row and event, disk = poisoned sha, vault = original."""
+    """Each file: one patched row and event, disk = poisoned sha, vault = original."""
     store = store_of(env)
     rows = rows_by_path(store)
     events = protected_event_counts(store)
@@ -509,7 +509,7 @@ def test_restart_catch_up(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     store = store_of(ppd_env)
     events = protected_event_counts(store)
     assert events[str(keep)] == 1 and sha(keep) == keep_sha  # untouched: not processed again
-    assert events[str(added)] == 1 and store.file(added)["state"] == "protected"
+    assert events[str(added)] == 1 and store.file(added)["state"] == FileState.PATCHED
     assert events[str(change)] == 2 and store.file(change)["original_sha256"] == changed_original
     assert store.file(delete)["state"] == "removed"
     assert any(e["kind"] == "removed" and e["path"] == str(delete) for e in store.events(limit=1000))
@@ -555,7 +555,8 @@ def test_bad_files_fail_cleanly_and_the_daemon_keeps_going(ppd_env: dict[str, Pa
         row = store.file(bad)
         assert row["state"] == "failed" and row["error"] and "\n" not in row["error"]
     assert fake.read_text() == "this is not a PNG"
-    assert store.file(good)["state"] == "protected" and store.file(readonly)["state"] == "protected"
+    assert store.file(good)["state"] == FileState.PATCHED
+    assert store.file(readonly)["state"] == FileState.PATCHED
     assert readonly.stat().st_mode & 0o777 == 0o444  # permission bits kept by the atomic replace
 
 
@@ -579,7 +580,7 @@ def test_outbox_deleted_under_the_daemon_is_recreated_and_watched(ppd_env: dict[
         later = write_image(ppd_env["outbox"] / "b" / "two.png", 2)
         wait_for(lambda: daemon.counts.patched >= 2, 20, "file in the recreated outbox")
         assert daemon.counts.removed >= 1  # one.png went with the old outbox
-    assert store_of(ppd_env).file(later)["state"] == "protected"
+    assert store_of(ppd_env).file(later)["state"] == FileState.PATCHED
 
 
 # ---- `ppd watch` as a real process ------------------------------------------------------------

@@ -1,0 +1,133 @@
+"""Files the daemon cannot patch leave the outbox; a file that keeps killing ppd is quarantined, not
+retried in a loop; a writer that keeps a file open stalls nothing and gets nothing partial patched
+(real daemon processes, real files)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from reliability_harness import (
+    DAEMON_ARGS,
+    REPO,
+    app_paths,
+    kill_daemon,
+    sha256,
+    start_daemon,
+    wait_for,
+    write_image,
+)
+
+from daemon.protect import AppContext, protect_file, restore_file
+from daemon.states import FileState
+from daemon.store import Store
+
+pytestmark = pytest.mark.integration
+
+
+def _row(paths: object, path: Path) -> dict | None:
+    store = Store(paths.db_path)  # type: ignore[attr-defined]
+    try:
+        return store.file(path)
+    finally:
+        store.close()
+
+
+def test_a_file_ppd_cannot_patch_leaves_the_outbox(tmp_path: Path) -> None:
+    paths = app_paths(tmp_path)
+    (paths.outbox / "ds").mkdir(parents=True)
+    daemon = start_daemon(tmp_path, *DAEMON_ARGS)
+    try:
+        bad = paths.outbox / "ds" / "sub" / "bad.jpg"
+        stage = tmp_path / "bad.jpg"
+        stage.write_bytes(b"this is not a photo at all")
+        bad.parent.mkdir()
+        os.rename(stage, bad)
+        moved = tmp_path / "ppd-quarantine" / "ds" / "sub" / "bad.jpg"
+        wait_for(lambda: moved.is_file() and not bad.exists(), 30, "the bad file quarantined")
+        assert moved.read_bytes() == b"this is not a photo at all"
+        wait_for(lambda: (_row(paths, bad) or {}).get("state") == FileState.QUARANTINED, 10, "row")
+        assert "\n" not in _row(paths, bad)["error"]
+    finally:
+        assert kill_daemon(daemon, signal.SIGTERM) == 0
+
+
+def test_a_file_that_killed_ppd_three_times_is_quarantined_not_retried(tmp_path: Path) -> None:
+    paths = app_paths(tmp_path)
+    photo = write_image(paths.outbox / "ds" / "boom.png", seed=3)
+    die = (
+        "import os; from pathlib import Path; from daemon.quarantine import attempt\n"
+        f"with attempt(Path({str(paths.data_dir)!r}), Path({str(photo)!r}), 'ds'):\n"
+        "    os.kill(os.getpid(), 9)"
+    )
+    for _ in range(3):  # three processes killed mid-work on this file (as the OOM killer would)
+        paths.data_dir.mkdir(parents=True, exist_ok=True)
+        code = subprocess.run(
+            [sys.executable, "-c", die], cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}
+        )
+        assert code.returncode == -9
+    daemon = start_daemon(tmp_path, *DAEMON_ARGS)
+    try:
+        moved = tmp_path / "ppd-quarantine" / "ds" / "boom.png"
+        wait_for(moved.is_file, 30, "the crash-loop file quarantined")
+        row = _row(paths, photo)
+        assert row["state"] == FileState.QUARANTINED and "died 3 times in a row" in row["error"]
+        assert not photo.exists() and not list((paths.data_dir / "attempts").glob("*.json"))
+    finally:
+        assert kill_daemon(daemon, signal.SIGTERM) == 0
+
+
+@pytest.mark.parametrize("suffix", [".png", ".jpg"])
+def test_stalled_writer_nothing_partial_is_patched(ppd_env: dict[str, Path], suffix: str) -> None:
+    """Before: the partial file was patched and the vault kept a hard link that the writer's later
+    bytes corrupted. Now: skipped while open for writing, patched once complete, restorable."""
+    src = write_image(ppd_env["outbox"].parent / f"whole{suffix}", seed=4, size=256)
+    data = src.read_bytes()
+    target = ppd_env["outbox"] / "ds" / f"slow{suffix}"
+    target.parent.mkdir(parents=True)
+    writer = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys, time\n"
+         f"f = open({str(target)!r}, 'wb'); whole = open({str(src)!r}, 'rb').read()\n"
+         f"f.write(whole[: {len(data) // 2}]); f.flush()\n"
+         "print('stalled', flush=True); sys.stdin.readline()\n"
+         f"f.write(whole[{len(data) // 2}:]); f.close()"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    ctx = AppContext.open()
+    try:
+        assert writer.stdout is not None and writer.stdout.readline().strip() == "stalled"
+        partial = sha256(target)
+        outcome = protect_file(target, ctx)
+        assert outcome.state == "skipped" and f"open for writing by pid {writer.pid}" in outcome.reason
+        assert not ctx.vault.has(partial) and ctx.store.file(target) is None
+        writer.communicate("go\n", timeout=30)
+        time.sleep(0.6)  # the /proc scan is reused for 0.5 s
+        assert sha256(target) == sha256(src)
+        done = protect_file(target, ctx)
+        assert done.state == "patched" and done.original_sha256 == sha256(src)
+        assert not ctx.vault.has(partial)
+        assert restore_file(ctx, target).state == "restored" and target.read_bytes() == data
+    finally:
+        if writer.poll() is None:
+            writer.kill()
+        ctx.close()
+
+
+def test_truncated_file_without_a_writer_is_refused_before_the_vault(ppd_env: dict[str, Path]) -> None:
+    src = write_image(ppd_env["outbox"].parent / "whole.png", seed=5, size=256)
+    cut = ppd_env["outbox"] / "ds" / "cut.png"
+    cut.parent.mkdir(parents=True)
+    cut.write_bytes(src.read_bytes()[:-200])
+    ctx = AppContext.open()
+    try:
+        outcome = protect_file(cut, ctx)
+        assert outcome.state == "failed" and "incomplete" in outcome.reason
+        assert not ctx.vault.has(sha256(cut))
+    finally:
+        ctx.close()
