@@ -15,16 +15,13 @@ from pathlib import Path
 from typing import Any
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
-console = Console(soft_wrap=True)
-err = Console(stderr=True, soft_wrap=True)
+from daemon.cli_common import console, die
 
 
 def _fail(message: str, code: int = 2) -> typer.Exit:
-    err.print(f"[red]error:[/red] {message}", highlight=False)
-    return typer.Exit(code)
+    return die(message, code)
 
 
 def evidence_table(evidence: list[dict[str, Any]], profiles: list[str]) -> Table:

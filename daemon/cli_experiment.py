@@ -10,17 +10,14 @@ import re
 from pathlib import Path
 
 import typer
-from rich.console import Console
 
-console = Console()
-err_console = Console(stderr=True)
+from daemon.cli_common import console, die
 
 SHARED_DATASETS = ("lego", "nerf_synthetic_lego")
 
 
 def _die(message: str, code: int = 2) -> typer.Exit:
-    err_console.print(f"[bold red]error:[/] {message}")
-    return typer.Exit(code)
+    return die(message, code)
 
 
 def _safe_name(text: str) -> str:

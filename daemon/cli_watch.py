@@ -12,17 +12,17 @@ from pathlib import Path
 from types import FrameType
 
 import typer
-from rich.console import Console
+
+from daemon.cli_common import die
+from daemon.cli_common import err_console as console
 
 log = logging.getLogger(__name__)
-console = Console(stderr=True, soft_wrap=True)  # one error = one line, whatever the width
 
 service_app = typer.Typer(help="The systemd user service that runs `ppd watch`.", no_args_is_help=True)
 
 
-def _fail(message: str) -> typer.Exit:
-    console.print(f"[red]error:[/red] {message}", highlight=False)
-    return typer.Exit(1)
+def _fail(message: str, code: int = 1) -> typer.Exit:  # 1: systemd and tests read it so
+    return die(message, code)
 
 
 def _open_context(outbox: Path | None):  # -> daemon.protect.AppContext

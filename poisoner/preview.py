@@ -2,6 +2,7 @@
 
 Layout (RGB uint8):
 
+    | label           | label           |   captions (when labels are given)
     +-----------------+-----------------+
     |    original     |    poisoned     |   the whole picture, patch box outlined in red
     +-----------------+-----------------+
@@ -74,8 +75,10 @@ def render_preview(
     placement: PatchPlacement,
     *,
     max_width: int = 1600,
+    labels: tuple[str, str] | None = None,
 ) -> np.ndarray:
-    """Original | poisoned side by side, with a nearest-neighbour zoom of the patch region below."""
+    """Original | poisoned side by side, with a nearest-neighbour zoom of the patch region below;
+    with labels, each panel gets its caption in a strip above it."""
     a, b = to_rgb8(original), to_rgb8(poisoned)
     if a.shape != b.shape:
         raise ValueError(f"original {a.shape} and poisoned {b.shape} differ in size")
@@ -99,4 +102,35 @@ def render_preview(
     out = np.full((top.shape[0] + GAP + bottom.shape[0], width, 3), BACKGROUND, dtype=np.uint8)
     out[: top.shape[0], : top.shape[1]] = top
     out[top.shape[0] + GAP :, : bottom.shape[1]] = bottom
+    if labels is None:
+        return out
+    left, right = labels
+    panel = panels[0].shape[1] + GAP
+    out = _caption(out, [(0, left), (panel, right)])
+    zoom_row = LABEL_HEIGHT + top.shape[0] + GAP
+    _write(out, zoom_row, [(0, "zoom on the patch"), (zooms[0].shape[1] + GAP, "zoom on the patch")])
+    return out
+
+
+LABEL_HEIGHT = 18
+
+
+def _write(img: np.ndarray, y: int, texts: list[tuple[int, str]]) -> None:
+    """White text with a dark box at (x, y) for each (x, text), drawn into img in place."""
+    from PIL import Image, ImageDraw
+
+    pil = Image.fromarray(img)
+    draw = ImageDraw.Draw(pil)
+    for x, text in texts:
+        box = draw.textbbox((x + 4, y + 3), text)
+        draw.rectangle((box[0] - 3, box[1] - 2, box[2] + 3, box[3] + 2), fill=(BACKGROUND,) * 3)
+        draw.text((x + 4, y + 3), text, fill=(255, 255, 255))
+    img[:] = np.asarray(pil)
+
+
+def _caption(img: np.ndarray, texts: list[tuple[int, str]]) -> np.ndarray:
+    """img with a LABEL_HEIGHT strip on top holding the texts."""
+    out = np.full((img.shape[0] + LABEL_HEIGHT, img.shape[1], 3), BACKGROUND, dtype=np.uint8)
+    out[LABEL_HEIGHT:] = img
+    _write(out, 0, texts)
     return out
