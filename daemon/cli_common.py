@@ -30,11 +30,15 @@ EXIT_USAGE = 2  # bad input: unknown option, missing file, bad spec value, unkno
 EXIT_ENVIRONMENT = 3  # ppd cannot work here: folder not writable, disk full, damaged store, lock held
 EXIT_INTERRUPTED = 130
 
-EXIT_CODES_HELP = (
-    "Exit status: 0 done; 1 some files failed or the verdict is not protected; "
-    "2 bad input (option, path, dataset, spec value); 3 cannot work here (folder not writable, "
-    "disk full, damaged store, another ppd holds the lock); 130 interrupted."
-)
+EXIT_CODES_HELP = """\b
+Exit status:
+  0    done
+  1    some files failed, or the verdict is not "protected"
+  2    bad input: option, path, dataset name, spec value
+  3    cannot work here: folder not writable, disk full, damaged store,
+       another ppd holds the lock
+  130  interrupted
+"""
 
 # soft_wrap: a long line is never broken (an error or a path stays greppable);
 # highlight off: rich would colour numbers and paths in the middle of our own words.
@@ -91,13 +95,42 @@ def reason_text(reason: str | None) -> str:
 
 
 # ---- the top-level group: one error style for click's own errors too ------------------------
+_TYPE_WORDS = {"int": "N", "int range": "N", "float": "NUM", "float range": "NUM", "path": "PATH",
+               "list[Path]": "PATH", "list[str]": "TEXT"}  # fmt: skip
+
+
+def _readable_type(param: Any, original: Any) -> Any:
+    """`--workers N` and `--dataset DATASET`, not `<int range>` and `<str>`."""
+
+    def display(ctx: Any) -> str | None:
+        label = original(ctx)
+        if label is None or not label.startswith("<"):
+            return label
+        word = label.strip("<>")
+        return _TYPE_WORDS.get(word) or (param.name or "value").upper()
+
+    return display
+
+
 def _tidy_help(command: Any) -> None:
-    """No `<bool>` on flags and readable argument names in every command's help."""
+    """Readable help in every command: no `<bool>` on flags, `PATHS...` not `{paths}`, words
+    for types. Set on the parameter objects, once per process."""
     for param in command.params:
-        if param.param_type_name == "option" and (getattr(param, "is_flag", False) or param.count):
-            param.metavar = ""
-        elif isinstance(param, TyperArgument) and param.metavar is None:
-            param.metavar = (param.name or "arg").upper() + ("..." if param.nargs != 1 else "")
+        if getattr(param, "_ppd_tidy", False):
+            continue
+        param._ppd_tidy = True
+        if param.param_type_name == "option":
+            if getattr(param, "is_flag", False) or param.count:
+                param.metavar = ""
+            elif param.metavar is None:
+                param.display_type_rich = _readable_type(param, param.display_type_rich)
+        elif isinstance(param, TyperArgument):
+            name = (param.name or "arg").upper()
+            usage = name if param.required else f"[{name}]"
+            usage += "..." if param.nargs != 1 else ""
+            param.display_type_rich = lambda ctx: None
+            param._usage_display_name = lambda usage=usage: usage
+            param._rich_display_name = lambda name=name: name
     for sub in getattr(command, "commands", {}).values():
         _tidy_help(sub)
 

@@ -278,9 +278,9 @@ no-op. Whether the patch protects is a verification's answer: `ppd verify DATASE
 
 \b
 Examples:
-  ppd poison ~/shoots/castle               patch in place
-  ppd poison ~/shoots/castle --out ~/pub   patched copies in ~/pub/castle/
-  ppd poison shoot --design paper --dry-run   the paper's patch; change nothing
+  ppd poison ~/shoots/castle              patch in place
+  ppd poison ~/shoots/castle --out ~/pub  patched copies in ~/pub/castle/
+  ppd poison castle --design paper --dry-run
 """
 
 
@@ -611,8 +611,7 @@ def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Tabl
         columns.remove("failed")
     if width < 44:
         columns.remove("patched")
-    title = f"ppd status, outbox {outbox}" if width >= 72 else None
-    table = Table(title=title, expand=False, pad_edge=False, collapse_padding=True)
+    table = Table(expand=False, pad_edge=False, collapse_padding=True)
     for column in columns:
         numeric = column in ("files", "patched", "failed")
         table.add_column(
@@ -696,15 +695,19 @@ def status(
             return
         console.print(status_table(report, console.width, ctx.paths.outbox))
         if long or dataset:
+            console.print(f"outbox {ctx.paths.outbox}", markup=False)
             for d in report:
                 _print_details(d)
         for d in report:
+            # word-wrapped to the terminal (soft_wrap off): these lines say what to run next
             if d["protection"]["next"]:
-                console.print(f"{d['name']}: {d['protection']['next']}", markup=False)
+                console.print(f"{d['name']}: {d['protection']['next']}", markup=False, soft_wrap=False)
             n_failed = d["counts"].get(FileState.FAILED.value, 0)
             if n_failed:
                 console.print(
-                    f"{d['name']}: {n_failed} failed: ppd status {d['name']} --failed", markup=False
+                    f"{d['name']}: {n_failed} failed: ppd status {d['name']} --failed",
+                    markup=False,
+                    soft_wrap=False,
                 )
         _print_report_links(ctx, names)
         for d in report:

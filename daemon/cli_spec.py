@@ -148,8 +148,12 @@ def spec_parameters(*, with_ratio: bool = True) -> list[inspect.Parameter]:
         if f.name == "ratio" and not with_ratio:
             continue
         kind = _option_type(f)
-        metavar = "|".join(_CHOICES[f.name]) if f.name in _CHOICES else ("DX,DY" if _is_pair(f) else None)
-        metavar = metavar or ("SIZE" if _is_length(f) else kind.__name__.upper())
+        choices = _CHOICES.get(f.name, ())
+        short = choices and sum(len(c) + 1 for c in choices) <= 40  # long lists go in the help text
+        metavar = "|".join(choices) if short else ("NAME" if choices else ("DX,DY" if _is_pair(f) else None))
+        metavar = metavar or (
+            "SIZE" if _is_length(f) else {"int": "N", "float": "NUM"}.get(kind.__name__, "VALUE")
+        )
         params.append(
             inspect.Parameter(
                 f"spec_{f.name}", inspect.Parameter.KEYWORD_ONLY, annotation=kind | None,
