@@ -139,30 +139,56 @@ def _write_folder_report(folder: Path, out: Path | None = None) -> Path:
 
 
 def report(
-    source: str = typer.Argument(
-        ..., help="A daemon dataset, a verification folder, or an experiment folder."
+    source: str | None = typer.Argument(
+        None, help="A dataset, the folder `ppd poison` patched, or a verification/experiment folder."
     ),
+    dataset: str | None = typer.Option(None, "--dataset", help="Report this dataset (explicit form)."),
+    folder: Path | None = typer.Option(None, "--folder", help="Report this folder (explicit form)."),
     out: Path | None = typer.Option(None, "--out", help="HTML file (default: the dataset's latest.html)."),
 ) -> None:
-    """Write a self-contained HTML report: verdict, reasons, history, metrics, trajectories, previews."""
+    """Write a self-contained HTML report: verdict, reasons, history, metrics, camera paths,
+    a preview of the patch.
+
+    \b
+    Examples:
+      ppd report castle                a dataset
+      ppd report ~/shoots/castle       the folder `ppd poison` patched
+      ppd report runs/exp1 --out r.html
+    """
+    from daemon.cli_common import warning
+    from daemon.cli_targets import TargetError, resolve_target
     from verifier.report import ReportError, build_report, report_path, write_report
 
-    path = Path(source).expanduser()
     try:
-        if path.is_dir():
-            written = write_report(build_report(str(path)), out or path / "report.html")
-        else:
-            from daemon.cli_poison import _open_ctx
+        ctx = None
+        try:
+            from daemon.protect import AppContext
 
-            ctx = _open_ctx()
-            try:
-                data = build_report(source, ctx)
-                written = write_report(data, out or report_path(ctx.paths, source))
-            finally:
+            ctx = AppContext.open()
+        except Exception as exc:  # no store: folders still have reports
+            if dataset is not None or (source is not None and not Path(source).expanduser().is_dir()):
+                raise _die(f"ppd's store cannot be opened: {str(exc).splitlines()[0]}") from None
+        try:
+            if ctx is not None:
+                chosen = resolve_target(ctx.store, source, dataset=dataset, folder=folder)
+                if chosen.note and chosen.folder is None:
+                    warning(chosen.note)  # a name that is also a folder here: say which was taken
+                elif chosen.note:
+                    console.print(chosen.note, markup=False)
+                name, path = chosen.dataset, chosen.folder
+            else:
+                name, path = None, (folder or Path(source or ".")).expanduser()
+            if name is not None:
+                written = write_report(build_report(name, ctx), out or report_path(ctx.paths, name))
+            else:
+                assert path is not None
+                written = write_report(build_report(str(path)), out or path / "report.html")
+        finally:
+            if ctx is not None:
                 ctx.close()
-    except (ReportError, OSError, ValueError) as exc:
+    except (ReportError, TargetError, OSError, ValueError) as exc:
         raise _die(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
-    console.print(f"report written: {written}  (file://{written.resolve()})")
+    console.print(f"report written: {written}  (file://{written.resolve()})", markup=False)
 
 
 def register(app: typer.Typer) -> None:

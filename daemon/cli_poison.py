@@ -408,7 +408,7 @@ def preview(
     """
     from PIL import Image
 
-    from poisoner.preview import render_preview
+    from poisoner.preview import orient, oriented_placement, render_preview
 
     if not file.exists():
         raise _die(f"{file} does not exist")
@@ -428,7 +428,8 @@ def preview(
         try:
             if row is not None and row["state"] in PATCHED_VALUES and not spec_options.given():
                 spec = ctx.store.get_spec(row["spec_id"])
-                original, poisoned = load(ctx.vault.path_for(row["original_sha256"])), load(file)
+                original, _ = load(ctx.vault.path_for(row["original_sha256"]))
+                poisoned, orientation = load(file)
                 placement = _placement(spec, original, file)
                 labels = ("original (vault)", f"patched ({file.name})")
             else:
@@ -439,13 +440,16 @@ def preview(
                     name = dataset_of(ctx.paths.outbox, file)
                     base = ctx.store.dataset_spec(name) or ctx.config.spec_for(name)
                 spec = spec_options.build(base)
-                original = load(file)
+                original, orientation = load(file)
                 if _is_video(file):  # the first frame, as poison_video patches it
                     placement = _placement(spec, original, file)
                     poisoned = apply_patch(original, placement)
                 else:
                     poisoned, placement = poison_array(original, spec, image_key=file.name)
                 labels = (f"original ({file.name})", "patched (preview, not written)")
+            h, w = original.shape[:2]
+            placement = oriented_placement(placement, orientation, w, h)
+            original, poisoned = orient(original, orientation), orient(poisoned, orientation)
             image = render_preview(original, poisoned, placement, labels=labels)
         except (SpecError, ValueError) as exc:
             raise _die(str(exc).splitlines()[0]) from None
@@ -472,10 +476,11 @@ def _placement(spec: PatchSpec, original: Any, file: Path) -> Any:
     return spec.resolve(w, h, image_key=file.name)
 
 
-def load_picture(path: Path) -> Any:
-    """RGB pixels as a viewer shows them: EXIF orientation applied; a video's first frame."""
+def load_picture(path: Path) -> tuple[Any, int | None]:
+    """(stored RGB pixels, EXIF orientation or None); a video's first frame. ppd patches the
+    stored pixels, so the preview works in them and orients only what it shows."""
     import numpy as np
-    from PIL import Image, ImageOps
+    from PIL import Image
 
     if _is_video(path):
         import av
@@ -484,10 +489,11 @@ def load_picture(path: Path) -> Any:
 
         with av.open(str(path)) as container:
             for frame in container.decode(video=0):
-                return frame_to_rgb(frame)
+                return frame_to_rgb(frame), None
         raise ValueError("no video frame")
     with Image.open(path) as im:
-        return np.asarray(ImageOps.exif_transpose(im).convert("RGB"))
+        orientation = im.getexif().get(0x0112)
+        return np.asarray(im.convert("RGB")), orientation if isinstance(orientation, int) else None
 
 
 # ---- ppd status ----------------------------------------------------------------------------

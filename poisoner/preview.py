@@ -134,3 +134,40 @@ def _caption(img: np.ndarray, texts: list[tuple[int, str]]) -> np.ndarray:
     out[LABEL_HEIGHT:] = img
     _write(out, 0, texts)
     return out
+
+
+# ---- EXIF orientation: the preview shows what a viewer shows ---------------------------------
+# PIL's transpose for each EXIF orientation value (as ImageOps.exif_transpose applies it).
+_TRANSPOSE = {2: "FLIP_LEFT_RIGHT", 3: "ROTATE_180", 4: "FLIP_TOP_BOTTOM", 5: "TRANSPOSE",
+              6: "ROTATE_270", 7: "TRANSVERSE", 8: "ROTATE_90"}  # fmt: skip
+
+
+def orient(pixels: np.ndarray, orientation: int | None) -> np.ndarray:
+    """Stored pixels as displayed under an EXIF orientation (1..8; anything else: unchanged)."""
+    method = _TRANSPOSE.get(orientation or 1)
+    if method is None:
+        return pixels
+    from PIL import Image
+
+    return np.asarray(Image.fromarray(to_rgb8(pixels)).transpose(getattr(Image.Transpose, method)))
+
+
+def oriented_placement(
+    placement: PatchPlacement, orientation: int | None, width: int, height: int
+) -> PatchPlacement:
+    """The patch box of a stored width x height picture, where it shows once oriented.
+    ppd places the patch in the stored pixels (poisoner.formats), so a phone photo's patch sits
+    in another corner of what the viewer shows."""
+    import dataclasses
+
+    x, y, s = placement.x, placement.y, placement.size
+    new = {
+        2: (width - x - s, y),
+        3: (width - x - s, height - y - s),
+        4: (x, height - y - s),
+        5: (y, x),
+        6: (height - y - s, x),
+        7: (height - y - s, width - x - s),
+        8: (y, width - x - s),
+    }.get(orientation or 1, (x, y))
+    return dataclasses.replace(placement, x=new[0], y=new[1])

@@ -273,3 +273,48 @@ def test_daemon_log_lines_are_key_value() -> None:
     line = KeyValueFormatter().format(record)
     assert line == 'level=info logger=daemon.watcher msg="watching /o x" outbox="/o x" workers=2'
     assert "\x1b[" not in line
+
+
+# ---- preview: what a viewer sees ---------------------------------------------------------------
+def test_preview_of_a_phone_photo_is_upright_and_labelled(shoot: Path, tmp_path: Path) -> None:
+    from poisoner.preview import GAP, LABEL_HEIGHT
+
+    photo = tmp_path / "phone" / "IMG_0001.jpg"
+    photo.parent.mkdir()
+    rng = np.random.default_rng(1)
+    im = Image.fromarray(rng.integers(0, 256, (120, 160, 3), dtype=np.uint8))  # stored landscape
+    exif = im.getexif()
+    exif[0x0112] = 6  # shown rotated: portrait 120 x 160
+    im.save(photo, exif=exif, quality=95)
+    out = tmp_path / "p.png"
+    result = runner.invoke(app, ["preview", str(photo), "--out", str(out), "--design", "paper"])
+    assert result.exit_code == 0, result.output
+    assert f"preview written to {out}" in result.output
+    with Image.open(out) as shown:
+        pixels = np.asarray(shown.convert("RGB"))
+    assert pixels.shape[1] == 2 * 120 + GAP  # two portrait panels side by side
+    assert (pixels[LABEL_HEIGHT + 160 - 1, :120] != 32).any()  # the panel is 160 tall (portrait)
+    assert (pixels[:LABEL_HEIGHT] > 200).any()  # captions
+
+
+def test_preview_of_a_video_shows_a_frame(shoot: Path, tmp_path: Path) -> None:
+    import av
+
+    clip = tmp_path / "clip.mp4"
+    rng = np.random.default_rng(2)
+    with av.open(str(clip), "w") as container:
+        stream = container.add_stream("mpeg4", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 160, 96, "yuv420p"
+        for i in range(5):
+            rgb = rng.integers(0, 256, (96, 160, 3), dtype=np.uint8)
+            frame = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format="yuv420p")
+            frame.pts = i
+            for packet in stream.encode(frame):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    out = tmp_path / "clip.png"
+    result = runner.invoke(app, ["preview", str(clip), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    with Image.open(out) as shown:
+        assert shown.width >= 2 * 160

@@ -221,19 +221,24 @@ def history_table(runs: Sequence[Mapping[str, Any]]) -> Table:
 
 
 def patch_preview_figure(original: Path, protected: Path, spec: Any) -> Figure | None:
-    """poisoner.preview of one original and its protected file (image files only)."""
-    from poisoner.preview import render_preview
+    """poisoner.preview of one original and its patched file (image files only). The zoom is
+    where this file's patch is: a moving spec places it by the file's name (its image index)."""
+    from poisoner.preview import orient, oriented_placement, render_preview
 
     try:
         with Image.open(original) as a_im, Image.open(protected) as b_im:
             a, b = np.asarray(a_im.convert("RGB")), np.asarray(b_im.convert("RGB"))
-        placement = spec.resolve(a.shape[1], a.shape[0])
-        pixels = render_preview(a, b, placement)
+            orientation = b_im.getexif().get(0x0112)
+        # the patch sits in the stored pixels (poisoner.formats); show both as a viewer would
+        placement = spec.resolve(a.shape[1], a.shape[0], image_key=protected.name)
+        placement = oriented_placement(placement, orientation, a.shape[1], a.shape[0])
+        a, b = orient(a, orientation), orient(b, orientation)
+        pixels = render_preview(a, b, placement, labels=("original", f"patched ({protected.name})"))
     except Exception as exc:  # a preview is a nicety: never fail the report for it
         log.warning("no patch preview", extra={"file": str(protected), "error": str(exc)})
         return None
     return Figure(
-        f"Patch preview: original | protected ({protected.name}), zoom on the patch below", png_bytes(pixels)
+        f"Patch preview: original | patched ({protected.name}), zoom on the patch below", png_bytes(pixels)
     )
 
 
