@@ -89,7 +89,7 @@ def next_step(protection: Protection, dataset: str) -> str | None:
     if protection is Protection.PATCHED_NOT_VERIFIED:
         return f"run `ppd verify {shlex.quote(dataset)}`"
     if protection in (Protection.NOT_PROTECTED, Protection.WEAK):
-        return f"see `ppd report {shlex.quote(dataset)}`"
+        return f"find a design that holds: `ppd auto {shlex.quote(dataset)}`"
     if protection is Protection.UNVERIFIABLE:
         return f"see `ppd report {shlex.quote(dataset)}`"
     return None

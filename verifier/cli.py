@@ -26,6 +26,20 @@ VERDICT_STYLE = {
 }
 
 
+VERDICT_WORDS = {
+    "protected": "protected",
+    "weak": "weak",
+    "not_protected": "NOT protected",
+    "sfm_crashed": "could not be verified (SfM crashed)",
+    "inconclusive": "could not be verified (inconclusive)",
+}
+
+
+def verdict_words(verdict: str) -> str:
+    """A verdict in the words `ppd status` and the report use."""
+    return VERDICT_WORDS.get(verdict, verdict)
+
+
 def _num(x: Any, pct: bool = False) -> str:
     if x is None:
         return "-"
@@ -56,7 +70,8 @@ def _side_rows(clean: dict[str, Any], poisoned: dict[str, Any]) -> list[tuple[st
 def profile_table(p: dict[str, Any]) -> Table:
     verdict = p["verdict"]
     table = Table(
-        title=f"profile [bold]{p['profile']}[/]: [{VERDICT_STYLE.get(verdict, 'bold')}]{verdict}[/]",
+        title=f"profile [bold]{p['profile']}[/]: "
+        f"[{VERDICT_STYLE.get(verdict, 'bold')}]{verdict_words(verdict)}[/]",
         title_justify="left",
     )
     table.add_column("metric")
@@ -121,7 +136,7 @@ def print_report(report: dict[str, Any], console: Console) -> None:
             console.print(f"  • {reason}")
         console.print()
     v = report["verdict"]
-    console.print(f"overall (weakest profile): [{VERDICT_STYLE.get(v, 'bold')}]{v}[/]")
+    console.print(f"overall (weakest profile): [{VERDICT_STYLE.get(v, 'bold')}]{verdict_words(v)}[/]")
 
 
 def _json_safe(x: Any) -> Any:

@@ -85,6 +85,7 @@ class ReportData:
     figures: list[Figure] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     generated_at: float = field(default_factory=time.time)
+    protection: str | None = None  # a dataset's state in ppd's words, e.g. "patched, not verified"
 
 
 # ---- paths ------------------------------------------------------------------------------------
@@ -283,6 +284,11 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
         title=f"ppd report — dataset {dataset}",
         verdict=overall(r["verdict"] for r in latest) if latest else None,
     )
+    from daemon.states import dataset_protection, next_step, protection_text
+
+    state, under = dataset_protection(ctx.store.counts(dataset), {r["profile"]: r for r in latest})
+    step = next_step(state, dataset)
+    data.protection = protection_text(state, under) + (f": {step}" if step else "")
     if not latest:
         data.notes.append(f"Dataset {dataset!r} has never been verified: run `ppd verify {dataset}`.")
     _add_profile_content(data, profiles)
@@ -421,8 +427,12 @@ def render_html(data: ReportData) -> str:
             f'<div class="banner" id="verdict" data-verdict="{html.escape(data.verdict)}" '
             f'style="background:{colour}">Verdict: {html.escape(text)}</div>'
         )
+    elif data.protection is not None:
+        parts.append(f'<div class="nobanner" id="protection">{html.escape(data.protection)}</div>')
     else:
         parts.append('<div class="nobanner">No verdict: this page summarises an experiment.</div>')
+    if data.protection is not None and data.verdict is not None:
+        parts.append(f'<p id="protection">Dataset: {html.escape(data.protection)}</p>')
     if data.reasons:
         parts.append("<h2>Why</h2>")
         for profile, reasons in data.reasons.items():
