@@ -50,6 +50,8 @@ from daemon.states import (
     next_step,
     patched_count,
     protection_text,
+    state_word,
+    verdict_words,
 )
 from daemon.store import DatasetSpecLocked, StoreError
 from daemon.syncdirs import find_sync_folder
@@ -215,6 +217,13 @@ def _check_writable(jobs: list[Job], dry_run: bool) -> None:
             raise _die(f"folder not writable: {out_folder}", EXIT_ENVIRONMENT)
 
 
+def file_reason(path: Path | str, reason: str | None) -> str:
+    """reason_text without the file name the core's reasons often start with (the line has it)."""
+    text = reason_text(reason)
+    name = Path(path).name
+    return text[len(name) + 2 :] if text.startswith(f"{name}: ") else text
+
+
 def outcome_word(outcome: ProtectOutcome) -> str:
     """The word for one file's outcome: patched / would patch / unchanged / skipped / failed."""
     if outcome.state in OUTCOME_PATCHED:
@@ -250,7 +259,7 @@ def _summary(ctx: AppContext, jobs: list[Job], outcomes: list[ProtectOutcome], d
         console.print(f"left unprotected (restored by you): {len(left)}; use --force to protect them again")
     failed = [o for o in outcomes if o.state == "failed"]
     for o in failed:
-        err_console.print(f"ppd: failed: {o.path}: {reason_text(o.reason)}", markup=False)
+        err_console.print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
     if dry_run:
         return
     for place in _output_places(jobs):
@@ -529,7 +538,7 @@ def latest_by_profile(runs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
 
 def verdict_text(profile: str, v: dict[str, Any], markup: bool = True) -> str:
     style = {"protected": "green", "weak": "yellow", "not_protected": "bold red", "sfm_crashed": "magenta"}
-    label = "NOT protected" if v["verdict"] == VERDICT_NOT_PROTECTED else v["verdict"]
+    label = verdict_words(v["verdict"])
     frac = v.get("frac_within_5deg")
     detail = f", {frac:.0%} of cameras within 5°" if isinstance(frac, int | float) else ""
     shown = f"[{style.get(v['verdict'], 'bold')}]{label}[/]" if markup else label
@@ -597,7 +606,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
 def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
     """Each failed file of a dataset with its one-line reason (the store row's error)."""
     return [
-        {"path": r["path"], "reason": reason_text(r.get("error"))}
+        {"path": r["path"], "reason": file_reason(r["path"], r.get("error"))}
         for r in ctx.store.files(name, state=FileState.FAILED.value)
     ]
 
@@ -617,7 +626,7 @@ def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Tabl
         columns.remove("failed")
     if width < 44:
         columns.remove("patched")
-    table = Table(expand=False, pad_edge=False, collapse_padding=True)
+    table = Table(expand=False)
     for column in columns:
         numeric = column in ("files", "patched", "failed")
         table.add_column(
@@ -641,20 +650,21 @@ def _print_details(d: dict[str, Any]) -> None:
     """--long (or one dataset): where it is, the spec, each profile's verdict."""
     c = d["counts"]
     console.print(f"[bold]{d['name']}[/]  {d['root']}")
-    console.print(
-        "  files "
-        + ", ".join(f"{k} {c[k]}" for k in ("files", *sorted(k for k in c if k != "files")) if c[k]),
-        markup=False,
-    )
-    console.print(f"  spec {d['spec_id'] or '-'}: {d['spec_summary'] or '-'}", markup=False)
+    states: Counter[str] = Counter()
+    for key, n in c.items():
+        if key != "files" and n:
+            states[state_word(key)] += n
+    listed = ", ".join(f"{k} {n}" for k, n in sorted(states.items()))
+    console.print(f"  files {c['files']}: {listed}", markup=False, soft_wrap=False)
+    console.print(f"  spec {d['spec_id'] or '-'}: {d['spec_summary'] or '-'}", markup=False, soft_wrap=False)
     if d["auto"]:
-        console.print(f"  {d['auto']}", markup=False)
+        console.print(f"  {d['auto']}", markup=False, soft_wrap=False)
     if d["publish_dir"]:
-        console.print(f"  publish to {d['publish_dir']}", markup=False)
+        console.print(f"  publish to {d['publish_dir']}", markup=False, soft_wrap=False)
     for profile, v in d["verdicts"].items():
-        console.print("  " + verdict_text(profile, v))
+        console.print("  " + verdict_text(profile, v), soft_wrap=False)
     if not d["verdicts"]:
-        console.print("  verified: never", markup=False)
+        console.print("  verified: never", markup=False, soft_wrap=False)
 
 
 def status(
@@ -803,7 +813,7 @@ def dataset_set(
             )
             for o in outcomes:
                 if o.state == "failed":
-                    err_console.print(f"ppd: failed: {o.path}: {reason_text(o.reason)}", markup=False)
+                    err_console.print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
         else:
             try:
                 ctx.store.set_dataset_spec(name, spec, root=folder)

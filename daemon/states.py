@@ -44,6 +44,25 @@ _VERDICT_WEAK = "weak"
 _VERDICT_NOT_PROTECTED = "not_protected"
 
 
+VERDICT_WORDS = {
+    "protected": "protected",
+    "weak": "weak",
+    "not_protected": "NOT protected",
+    "sfm_crashed": "could not be verified (SfM crashed)",
+    "inconclusive": "could not be verified (inconclusive)",
+}
+
+
+def verdict_words(verdict: str) -> str:
+    """One profile's verdict (verifier.verdict's name) in the words the user reads."""
+    return VERDICT_WORDS.get(verdict, verdict)
+
+
+def state_word(state: str) -> str:
+    """A store row's state as the user reads it: the patched state is "patched" in either spelling."""
+    return "patched" if state in PATCHED_VALUES else state
+
+
 def patched_count(store_counts: Mapping[str, int]) -> int:
     """Files whose mark is in place, from Store.counts() (either spelling of the patched state)."""
     return sum(int(store_counts.get(value, 0)) for value in PATCHED_VALUES)

@@ -16,6 +16,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from daemon.states import verdict_words
+
 PROFILE_CHOICES = ("default", "hardened", "published", "all")
 VERDICT_STYLE = {
     "protected": "bold green",
@@ -24,20 +26,6 @@ VERDICT_STYLE = {
     "sfm_crashed": "bold magenta",
     "inconclusive": "bold blue",
 }
-
-
-VERDICT_WORDS = {
-    "protected": "protected",
-    "weak": "weak",
-    "not_protected": "NOT protected",
-    "sfm_crashed": "could not be verified (SfM crashed)",
-    "inconclusive": "could not be verified (inconclusive)",
-}
-
-
-def verdict_words(verdict: str) -> str:
-    """A verdict in the words `ppd status` and the report use."""
-    return VERDICT_WORDS.get(verdict, verdict)
 
 
 def _num(x: Any, pct: bool = False) -> str:
