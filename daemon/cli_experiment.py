@@ -47,17 +47,24 @@ def resolve_dataset(dataset: str, views: int) -> tuple[Path, Path | None, str]:
 def experiment(
     dataset: str = typer.Argument(..., help="A folder of clean images, or 'lego' (the shared NeRF set)."),
     sweep: list[str] = typer.Option(
-        [], "--sweep", help="NAME=V1,V2,... one parameter at a time from P=100 b=4 α=1 (repeatable)."
+        [],
+        "--sweep",
+        help="NAME=V1,V2,...: vary one patch parameter from the paper's patch (100 px, 4 px blocks, opaque); "
+        "repeatable.",
     ),
     baselines: bool = typer.Option(
-        False, "--baselines", help="Add blur 11, noise 10, JPEG 25, rotation 15°."
+        False, "--baselines", help="Add the paper's baselines: blur 11, noise 10, JPEG 25, rotation 15°."
     ),
     baseline: list[str] = typer.Option(
         [], "--baseline", help="KIND=V1,V2 (e.g. blur=3,7,11,21), repeatable."
     ),
     runs: int = typer.Option(1, "--runs", min=1, help="Seeds 0..runs-1 per setting."),
-    profile: list[str] = typer.Option(["default"], "--profile", help="Verifier I profile(s)."),
-    splat: bool = typer.Option(False, "--splat/--no-splat", help="Verifier II cost1 (trains two splats)."),
+    profile: list[str] = typer.Option(
+        ["default"], "--profile", help="Attacker profile(s) of the COLMAP verification."
+    ),
+    splat: bool = typer.Option(
+        False, "--splat/--no-splat", help="Also train two splats: render quality (the paper's cost1)."
+    ),
     splat_budget: float = typer.Option(150.0, "--splat-budget", help="Training seconds per splat side."),
     gt: Path | None = typer.Option(None, "--gt", help="Ground truth (transforms.json or gt_dense_cameras/)."),
     camera_params: str | None = typer.Option(
@@ -69,7 +76,14 @@ def experiment(
         None, "--out", help="Experiment folder (default: data dir/experiments/NAME)."
     ),
 ) -> None:
-    """Run the paper's ablations/baselines through Verifier I (and II); resumable; CSV + Markdown + plots."""
+    """Measure the paper's ablations and baselines: COLMAP verification of each setting (and, with
+    --splat, render quality); resumable; writes CSV, Markdown and plots.
+
+    \b
+    Examples:
+      ppd experiment lego --sweep patch_size=12,48,100 --runs 3
+      ppd experiment ~/shoots/castle --baselines
+    """
     from daemon.paths import AppPaths
     from verifier.experiment import (
         DEFAULT_BASELINES,

@@ -62,9 +62,9 @@ def profile_table(p: dict[str, Any]) -> Table:
         f"[{VERDICT_STYLE.get(verdict, 'bold')}]{verdict_words(verdict)}[/]",
         title_justify="left",
     )
-    table.add_column("metric")
-    table.add_column("clean", justify="right")
-    table.add_column("poisoned", justify="right")
+    table.add_column("metric", overflow="fold")  # folded, never cut with an ellipsis
+    table.add_column("clean", justify="right", overflow="fold")
+    table.add_column("poisoned", justify="right", overflow="fold")
     for row in _side_rows(p["clean"], p["poisoned"]):
         table.add_row(*row)
     vc = p.get("vs_clean") or {}
@@ -87,9 +87,9 @@ def profile_table(p: dict[str, Any]) -> Table:
 
 def splat_table(splat: dict[str, Any]) -> Table:
     """The paper's two costs: cost1 (renders vs inputs, clean and poisoned), cost2 (poisoned vs clean)."""
-    table = Table(title="splat stage (Verifier II)", title_justify="left")
+    table = Table(title="splat stage (render quality)", title_justify="left")
     for col in ("", "SSIM", "PSNR (dB)", "LPIPS", "views", "iterations", "train s"):
-        table.add_column(col, justify="right" if col else "left")
+        table.add_column(col, justify="right" if col else "left", overflow="fold")
     for side in ("clean", "poisoned"):
         s = splat.get(side) or {}
         c1 = s.get("cost1") or {}
