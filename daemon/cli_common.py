@@ -166,17 +166,36 @@ class PpdGroup(TyperGroup):
             code = EXIT_INTERRUPTED
         except KeyboardInterrupt:
             code = EXIT_INTERRUPTED
-        except OSError as exc:
-            if exc.errno == errno.EPIPE:  # `ppd status | head`: the reader left
-                code = EXIT_FAILED
-            else:
-                error(os_error_text(exc))
-                code = EXIT_ENVIRONMENT
+        except Exception as exc:
+            code = _known_error(exc)
+            if code is None:
+                raise
         else:
             code = rv if isinstance(rv, int) else EXIT_OK
         if not standalone_mode:
             return code
         sys.exit(code)
+
+
+def _known_error(exc: Exception) -> int | None:
+    """ppd's own one-line errors that reach the top (named, not imported: this module stays
+    light): print them in the one style and give their exit code; None = a bug, let it show."""
+    if isinstance(exc, OSError):
+        if exc.errno == errno.EPIPE:  # `ppd status | head`: the reader left
+            return EXIT_FAILED
+        error(os_error_text(exc))
+        return EXIT_ENVIRONMENT
+    names = {cls.__name__ for cls in type(exc).__mro__}
+    if names & {"LockHeld", "StoreError"}:
+        error(exc)
+        return EXIT_ENVIRONMENT
+    if "DatabaseError" in names:  # sqlite3's, from a damaged store file
+        error(f"ppd's store is damaged ({one_line(exc)}); see `ppd config path` for where it is")
+        return EXIT_ENVIRONMENT
+    if names & {"ConfigError", "SpecError"}:
+        error(exc)
+        return EXIT_USAGE
+    return None
 
 
 # ---- logging --------------------------------------------------------------------------------

@@ -318,3 +318,10 @@ def test_preview_of_a_video_shows_a_frame(shoot: Path, tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     with Image.open(out) as shown:
         assert shown.width >= 2 * 160
+
+
+def test_a_damaged_store_is_one_line(narrow_env: dict[str, str], ppd_env: dict[str, Path]) -> None:
+    (ppd_env["data"] / "ppd.sqlite3").write_bytes(bytes(range(256)) * 20)
+    proc = ppd(narrow_env, "status")
+    line = one_error_line(proc)
+    assert proc.returncode in (2, 3) and "store" in line.lower()
