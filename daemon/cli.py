@@ -3,23 +3,56 @@ this file only assembles them, so importing it stays light (no pycolmap, no torc
 
 from __future__ import annotations
 
-import logging
-import os
-
 import typer
+
+from daemon.cli_common import EXIT_CODES_HELP, PpdGroup, setup_logging
 
 app = typer.Typer(
     name="ppd",
+    cls=PpdGroup,
+    rich_markup_mode=None,
     help="PatchPoison daemon: publish multi-view photos without handing out a free 3D scan.",
+    epilog=EXIT_CODES_HELP,
     no_args_is_help=True,
     add_completion=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
 )
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("ppd")
+    except PackageNotFoundError:  # run from a checkout: the version pyproject.toml declares
+        import tomllib
+        from pathlib import Path
+
+        pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+        try:
+            return tomllib.loads(pyproject.read_text())["project"]["version"]
+        except (OSError, KeyError, tomllib.TOMLDecodeError):
+            return "unknown"
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"ppd {_version()}")
+        raise typer.Exit()
+
+
 @app.callback()
-def _main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Debug logging.")) -> None:
-    level = logging.DEBUG if verbose else getattr(logging, os.environ.get("PPD_LOG_LEVEL", "INFO"))
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s %(message)s")
+def _main(
+    ctx: typer.Context,
+    verbose: int = typer.Option(
+        0, "--verbose", "-v", count=True, help="Say more: -v names each file, -vv debug logging."
+    ),
+    version: bool = typer.Option(
+        False, "--version", callback=_print_version, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
+    setup_logging(verbose, daemon=ctx.invoked_subcommand == "watch")
+    ctx.obj = {"verbose": verbose}
 
 
 COMMAND_MODULES = (

@@ -15,26 +15,24 @@ from pathlib import Path
 from typing import Any
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
-console = Console(soft_wrap=True)
-err = Console(stderr=True, soft_wrap=True)
+from daemon.cli_common import console, die
 
 
 def _fail(message: str, code: int = 2) -> typer.Exit:
-    err.print(f"[red]error:[/red] {message}", highlight=False)
-    return typer.Exit(code)
+    return die(message, code)
 
 
 def evidence_table(evidence: list[dict[str, Any]], profiles: list[str]) -> Table:
     """One row per candidate: measured visibility, budget use, status and per-profile verdicts."""
     table = Table(title="candidates (least visible first by measured budget use)", show_lines=False)
     for col in ("candidate", "status", "SSIM min", "LPIPS max", "budget use"):
-        table.add_column(col, justify="right" if col not in ("candidate", "status") else "left")
+        justify = "right" if col not in ("candidate", "status") else "left"
+        table.add_column(col, justify=justify, overflow="fold")
     for p in profiles:
-        table.add_column(f"{p}: verdict, within 5°")
-    table.add_column("s", justify="right")
+        table.add_column(f"{p}: verdict, within 5°", overflow="fold")
+    table.add_column("s", justify="right", overflow="fold")
 
     def order(e: dict[str, Any]) -> float:
         return float("inf") if e.get("budget_use") is None else float(e["budget_use"])
@@ -91,13 +89,21 @@ def _show(dataset: str, as_json: bool) -> None:
     if not rows:
         console.print(f"{dataset}: no automatic decision recorded", highlight=False)
         return
-    table = Table(title=f"automatic decisions for {dataset} (newest first)")
-    for col in ("when", "trigger", "candidate", "spec", "reason"):
-        table.add_column(col)
-    for r in rows:
-        when = time.strftime("%Y-%m-%d %H:%M", time.localtime(r["decided_at"]))
-        table.add_row(when, r["trigger"], r["candidate"] or "none", r["spec_id"] or "—", r["reason"])
-    console.print(table)
+    if console.width < 100:  # a narrow terminal: one block per decision, words never cut
+        console.print(f"automatic decisions for {dataset} (newest first)", markup=False)
+        for r in rows:
+            when = time.strftime("%Y-%m-%d %H:%M", time.localtime(r["decided_at"]))
+            console.print(f"{when} {r['trigger']}: {r['candidate'] or 'none'} ({r['spec_id'] or '—'})",
+                          markup=False)  # fmt: skip
+            console.print(f"  {r['reason']}", markup=False, soft_wrap=False)
+    else:
+        table = Table(title=f"automatic decisions for {dataset} (newest first)")
+        for col in ("when", "trigger", "candidate", "spec", "reason"):
+            table.add_column(col, overflow="fold")
+        for r in rows:
+            when = time.strftime("%Y-%m-%d %H:%M", time.localtime(r["decided_at"]))
+            table.add_row(when, r["trigger"], r["candidate"] or "none", r["spec_id"] or "—", r["reason"])
+        console.print(table)
     latest = rows[0]["evidence"]
     if isinstance(latest.get("evidence"), list):
         console.print(evidence_table(latest["evidence"], list(latest["options"]["profiles"])))

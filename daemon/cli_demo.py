@@ -15,11 +15,12 @@ import time
 from pathlib import Path
 
 import typer
-from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from daemon.cli_common import EXIT_FAILED, console, die
+from daemon.states import patched_count
+
 DEMO_DATASET = "demo-scene"
-console = Console()
 
 
 def _use_private_folders(workdir: Path) -> None:
@@ -72,27 +73,27 @@ def demo(
     # 3. Wait for the daemon to protect every view.
     deadline = time.monotonic() + timeout
     with Progress(
-        TextColumn("protecting"),
+        TextColumn("patching"),
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
         console=console,
         transient=True,
+        disable=not console.is_terminal,
     ) as bar:
         task = bar.add_task("protect", total=views)
         while True:
             counts = ctx.store.counts(DEMO_DATASET)
-            bar.update(task, completed=counts["protected"])
-            if counts["protected"] + counts["failed"] >= views or time.monotonic() > deadline:
+            bar.update(task, completed=patched_count(counts))
+            if patched_count(counts) + counts["failed"] >= views or time.monotonic() > deadline:
                 break
             time.sleep(0.2)
     daemon.request_stop()
     runner.join(timeout=60)
-    counts = ctx.store.counts(DEMO_DATASET)
-    status(None, False)
-    if counts["protected"] < views:
-        console.print(f"[red]only {counts['protected']} of {views} views protected in {timeout:.0f} s[/]")
-        raise typer.Exit(1)
+    patched = patched_count(ctx.store.counts(DEMO_DATASET))
+    status(None, as_json=False, long=False, failed=False)
+    if patched < views:
+        raise die(f"only {patched} of {views} views patched in {timeout:.0f} s", EXIT_FAILED)
 
     # 4. What changed, as a picture.
     preview = workdir / "preview.png"
@@ -114,7 +115,7 @@ def demo(
         options = VerifyOptions(camera_params=scene.camera_params())
         report = verify_dataset(ctx, DEMO_DATASET, profiles=wanted, options=options)
         print_report(report.to_dict(), console)
-        status(None, False)
+        status(None, as_json=False, long=False, failed=False)
     ctx.close()
 
 
@@ -131,7 +132,8 @@ def _write_preview(ctx, protected: Path, out: Path) -> None:  # ctx: daemon.prot
     with Image.open(protected) as im:
         poisoned = np.asarray(im.convert("RGB"))
     placement = spec.resolve(original.shape[1], original.shape[0], image_key=protected.name)  # moving specs
-    Image.fromarray(render_preview(original, poisoned, placement)).save(out)
+    labels = ("original (vault)", f"patched ({protected.name})")
+    Image.fromarray(render_preview(original, poisoned, placement, labels=labels)).save(out)
 
 
 def register(app: typer.Typer) -> None:

@@ -10,17 +10,14 @@ import re
 from pathlib import Path
 
 import typer
-from rich.console import Console
 
-console = Console()
-err_console = Console(stderr=True)
+from daemon.cli_common import console, die
 
 SHARED_DATASETS = ("lego", "nerf_synthetic_lego")
 
 
 def _die(message: str, code: int = 2) -> typer.Exit:
-    err_console.print(f"[bold red]error:[/] {message}")
-    return typer.Exit(code)
+    return die(message, code)
 
 
 def _safe_name(text: str) -> str:
@@ -50,17 +47,24 @@ def resolve_dataset(dataset: str, views: int) -> tuple[Path, Path | None, str]:
 def experiment(
     dataset: str = typer.Argument(..., help="A folder of clean images, or 'lego' (the shared NeRF set)."),
     sweep: list[str] = typer.Option(
-        [], "--sweep", help="NAME=V1,V2,... one parameter at a time from P=100 b=4 α=1 (repeatable)."
+        [],
+        "--sweep",
+        help="NAME=V1,V2,...: vary one patch parameter from the paper's patch (100 px, 4 px blocks, opaque); "
+        "repeatable.",
     ),
     baselines: bool = typer.Option(
-        False, "--baselines", help="Add blur 11, noise 10, JPEG 25, rotation 15°."
+        False, "--baselines", help="Add the paper's baselines: blur 11, noise 10, JPEG 25, rotation 15°."
     ),
     baseline: list[str] = typer.Option(
         [], "--baseline", help="KIND=V1,V2 (e.g. blur=3,7,11,21), repeatable."
     ),
     runs: int = typer.Option(1, "--runs", min=1, help="Seeds 0..runs-1 per setting."),
-    profile: list[str] = typer.Option(["default"], "--profile", help="Verifier I profile(s)."),
-    splat: bool = typer.Option(False, "--splat/--no-splat", help="Verifier II cost1 (trains two splats)."),
+    profile: list[str] = typer.Option(
+        ["default"], "--profile", help="Attacker profile(s) of the COLMAP verification."
+    ),
+    splat: bool = typer.Option(
+        False, "--splat/--no-splat", help="Also train two splats: render quality (the paper's cost1)."
+    ),
     splat_budget: float = typer.Option(150.0, "--splat-budget", help="Training seconds per splat side."),
     gt: Path | None = typer.Option(None, "--gt", help="Ground truth (transforms.json or gt_dense_cameras/)."),
     camera_params: str | None = typer.Option(
@@ -72,7 +76,14 @@ def experiment(
         None, "--out", help="Experiment folder (default: data dir/experiments/NAME)."
     ),
 ) -> None:
-    """Run the paper's ablations/baselines through Verifier I (and II); resumable; CSV + Markdown + plots."""
+    """Measure the paper's ablations and baselines: COLMAP verification of each setting (and, with
+    --splat, render quality); resumable; writes CSV, Markdown and plots.
+
+    \b
+    Examples:
+      ppd experiment lego --sweep patch_size=12,48,100 --runs 3
+      ppd experiment ~/shoots/castle --baselines
+    """
     from daemon.paths import AppPaths
     from verifier.experiment import (
         DEFAULT_BASELINES,
@@ -142,30 +153,56 @@ def _write_folder_report(folder: Path, out: Path | None = None) -> Path:
 
 
 def report(
-    source: str = typer.Argument(
-        ..., help="A daemon dataset, a verification folder, or an experiment folder."
+    source: str | None = typer.Argument(
+        None, help="A dataset, the folder `ppd poison` patched, or a verification/experiment folder."
     ),
+    dataset: str | None = typer.Option(None, "--dataset", help="Report this dataset (explicit form)."),
+    folder: Path | None = typer.Option(None, "--folder", help="Report this folder (explicit form)."),
     out: Path | None = typer.Option(None, "--out", help="HTML file (default: the dataset's latest.html)."),
 ) -> None:
-    """Write a self-contained HTML report: verdict, reasons, history, metrics, trajectories, previews."""
+    """Write a self-contained HTML report: verdict, reasons, history, metrics, camera paths,
+    a preview of the patch.
+
+    \b
+    Examples:
+      ppd report castle                a dataset
+      ppd report ~/shoots/castle       the folder `ppd poison` patched
+      ppd report runs/exp1 --out r.html
+    """
+    from daemon.cli_common import warning
+    from daemon.cli_targets import TargetError, resolve_target
     from verifier.report import ReportError, build_report, report_path, write_report
 
-    path = Path(source).expanduser()
     try:
-        if path.is_dir():
-            written = write_report(build_report(str(path)), out or path / "report.html")
-        else:
-            from daemon.cli_poison import _open_ctx
+        ctx = None
+        try:
+            from daemon.protect import AppContext
 
-            ctx = _open_ctx()
-            try:
-                data = build_report(source, ctx)
-                written = write_report(data, out or report_path(ctx.paths, source))
-            finally:
+            ctx = AppContext.open()
+        except Exception as exc:  # no store: folders still have reports
+            if dataset is not None or (source is not None and not Path(source).expanduser().is_dir()):
+                raise _die(f"ppd's store cannot be opened: {str(exc).splitlines()[0]}") from None
+        try:
+            if ctx is not None:
+                chosen = resolve_target(ctx.store, source, dataset=dataset, folder=folder)
+                if chosen.note and chosen.folder is None:
+                    warning(chosen.note)  # a name that is also a folder here: say which was taken
+                elif chosen.note:
+                    console.print(chosen.note, markup=False)
+                name, path = chosen.dataset, chosen.folder
+            else:
+                name, path = None, (folder or Path(source or ".")).expanduser()
+            if name is not None:
+                written = write_report(build_report(name, ctx), out or report_path(ctx.paths, name))
+            else:
+                assert path is not None
+                written = write_report(build_report(str(path)), out or path / "report.html")
+        finally:
+            if ctx is not None:
                 ctx.close()
-    except (ReportError, OSError, ValueError) as exc:
+    except (ReportError, TargetError, OSError, ValueError) as exc:
         raise _die(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
-    console.print(f"report written: {written}  (file://{written.resolve()})")
+    console.print(f"report written: {written}  (file://{written.resolve()})", markup=False)
 
 
 def register(app: typer.Typer) -> None:

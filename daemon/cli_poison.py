@@ -6,6 +6,7 @@ Light imports only: no pycolmap, no torch (the poisoners load lazily inside prot
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 from collections import Counter
@@ -15,11 +16,23 @@ from pathlib import Path
 from typing import Any
 
 import typer
-from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from daemon.config import ConfigError, parse_length, spec_from_table
+from daemon.cli_common import (
+    EXIT_ENVIRONMENT,
+    EXIT_FAILED,
+    EXIT_USAGE,
+    console,
+    die,
+    err_console,
+    os_error_text,
+    reason_text,
+    verbosity,
+    warning,
+)
+from daemon.cli_spec import SpecOptions, spec_options
+from daemon.config import ConfigError
 from daemon.dataset import dataset_of, dataset_root
 from daemon.protect import (
     AppContext,
@@ -29,87 +42,43 @@ from daemon.protect import (
     reprotect_dataset,
     restore_file,
 )
+from daemon.states import (
+    PATCHED_VALUES,
+    FileState,
+    Protection,
+    dataset_protection,
+    next_step,
+    patched_count,
+    protection_text,
+    state_word,
+    verdict_words,
+)
 from daemon.store import DatasetSpecLocked, StoreError
 from daemon.syncdirs import find_sync_folder
-from poisoner.spec import POSITIONS, PatchSpec, SpecError
-
-console = Console()
-err_console = Console(stderr=True)
+from poisoner.spec import PatchSpec, SpecError
 
 # verifier.verdict's names (kept as strings so status does not import the verifier).
 VERDICT_PROTECTED = "protected"
 VERDICT_NOT_PROTECTED = "not_protected"
 
-
-# ---- shared option plumbing ----------------------------------------------------------------
-@dataclass(frozen=True)
-class SpecOptions:
-    """The spec flags of a command; all None means "not given"."""
-
-    spec_file: Path | None = None
-    patch_size: str | None = None
-    block: str | None = None
-    alpha: float | None = None
-    contrast: int | None = None
-    pattern: str | None = None
-    position: str | None = None
-    ratio: float | None = None
-    seed: int | None = None
-
-    def given(self) -> bool:
-        return any(v is not None for v in vars(self).values())
-
-    def build(self, base: PatchSpec) -> PatchSpec:
-        """base (or the --spec file) with the given flags applied."""
-        if self.spec_file is not None:
-            base = PatchSpec.load(self.spec_file)
-        changes: dict[str, Any] = {}
-        if self.patch_size is not None:
-            changes["patch_size"] = parse_length(self.patch_size)
-        if self.block is not None:
-            changes["block_size"] = parse_length(self.block)
-        for name in ("alpha", "contrast", "pattern", "position", "ratio", "seed"):
-            value = getattr(self, name)
-            if value is not None:
-                changes[name] = value
-        return spec_from_table(changes, base)
+# Outcome states of protect_file (daemon.protect); "protected" is the name before the core's rename.
+OUTCOME_PATCHED = frozenset({"patched", "protected"})
+RESTORED_BY_USER = "restored by the user"
 
 
-def _spec_options(
-    spec_file: Path | None,
-    patch_size: str | None,
-    block: str | None,
-    alpha: float | None,
-    contrast: int | None,
-    pattern: str | None,
-    position: str | None,
-    ratio: float | None,
-    seed: int | None,
-) -> SpecOptions:
-    return SpecOptions(spec_file, patch_size, block, alpha, contrast, pattern, position, ratio, seed)
-
-
-SPEC_FILE = typer.Option(None, "--spec", help="PatchSpec file (TOML [patch] table or JSON).", exists=True)
-PATCH_SIZE = typer.Option(None, "--patch-size", help="Pixels (48), fraction of width (0.06) or percent (6%).")
-BLOCK = typer.Option(None, "--block", help="Checker block: pixels (4), fraction of width or percent.")
-ALPHA = typer.Option(None, "--alpha", help="Blend strength 0..1.")
-CONTRAST = typer.Option(None, "--contrast", help="Bright-minus-dark difference 0..255.")
-PATTERN = typer.Option(None, "--pattern", help="checkerboard, circles, ... (poisoner.spec.PATTERNS).")
-POSITION = typer.Option(None, "--position", help=f"One of {', '.join(POSITIONS)}.")
-RATIO = typer.Option(None, "--ratio", help="Fraction of the dataset's images that get the patch.")
-SEED = typer.Option(None, "--seed", help="Seed for random patterns and the ratio selection.")
-
-
-def _die(message: str, code: int = 2) -> typer.Exit:
-    err_console.print(f"[bold red]error:[/] {message}")
-    return typer.Exit(code)
+def _die(message: str, code: int = EXIT_USAGE) -> typer.Exit:
+    return die(message, code)
 
 
 def _open_ctx() -> AppContext:
     try:
         return AppContext.open()
     except (ConfigError, StoreError) as exc:
-        raise _die(str(exc)) from None
+        raise _die(str(exc).splitlines()[0]) from None
+    except OSError as exc:
+        raise _die(
+            f"cannot set up ppd's folders: {os_error_text(exc, hint_out=False)}", EXIT_ENVIRONMENT
+        ) from None
 
 
 def spec_summary(spec: PatchSpec) -> str:
@@ -230,59 +199,144 @@ def _apply_spec(
     return wanted
 
 
-def _summary(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
-    counts = Counter(o.state for o in outcomes)
-    table = Table(title="ppd poison (dry run)" if dry_run else "ppd poison")
-    for column in ("would protect" if dry_run else "protected", "unchanged", "skipped", "failed"):
-        table.add_column(column, justify="right")
-    table.add_row(*(str(counts.get(s, 0)) for s in ("protected", "unchanged", "skipped", "failed")))
-    console.print(table)
+def _check_writable(jobs: list[Job], dry_run: bool) -> None:
+    """Refuse before touching anything when a folder ppd must write into is not writable
+    (instead of one `[Errno 13] ... .ppd-tmp-x.jpg` per file)."""
+    if dry_run:
+        return
+    folders = {job.path.parent for job in jobs if job.out_path is None}
+    for folder in sorted(folders):
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise _die(f"folder not writable: {folder}; use --out DIR", EXIT_ENVIRONMENT)
+    for out_folder in sorted({job.out_path.parent for job in jobs if job.out_path is not None}):
+        try:
+            out_folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise _die(os_error_text(exc, hint_out=False), EXIT_ENVIRONMENT) from None
+        if not os.access(out_folder, os.W_OK | os.X_OK):
+            raise _die(f"folder not writable: {out_folder}", EXIT_ENVIRONMENT)
+
+
+def file_reason(path: Path | str, reason: str | None) -> str:
+    """reason_text without the file name the core's reasons often start with (the line has it)."""
+    text = reason_text(reason)
+    name = Path(path).name
+    return text[len(name) + 2 :] if text.startswith(f"{name}: ") else text
+
+
+def outcome_word(outcome: ProtectOutcome) -> str:
+    """The word for one file's outcome: patched / would patch / unchanged / skipped / failed."""
+    if outcome.state in OUTCOME_PATCHED:
+        return "would patch" if outcome.dry_run else "patched"
+    return outcome.state
+
+
+def _restored_left(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
+    return [o for o in outcomes if o.state == "unchanged" and (o.reason or "").startswith(RESTORED_BY_USER)]
+
+
+def _output_places(jobs: list[Job]) -> list[str]:
+    """Where --out put the copies: one folder per dataset (a single file: its own path)."""
+    by_dataset: dict[str, list[Path]] = {}
+    for job in jobs:
+        if job.out_path is not None:
+            by_dataset.setdefault(job.dataset, []).append(job.out_path)
+    places = []
+    for paths in by_dataset.values():
+        places.append(str(paths[0]) if len(paths) == 1 else str(Path(os.path.commonpath(paths))) + os.sep)
+    return places
+
+
+def _summary(ctx: AppContext, jobs: list[Job], outcomes: list[ProtectOutcome], dry_run: bool) -> None:
+    """exiftool-style counts, then what each dataset is now and the command that says more."""
+    counts = Counter(outcome_word(o) for o in outcomes)
+    first = "would patch" if dry_run else "patched"
+    words = [first, "unchanged", "skipped", "failed"]
+    line = ", ".join(f"{w} {counts.get(w, 0)}" for w in words)
+    console.print(("dry run, nothing changed: " if dry_run else "") + line)
+    left = _restored_left(outcomes)
+    if left:
+        console.print(f"left unprotected (restored by you): {len(left)}; use --force to protect them again")
     failed = [o for o in outcomes if o.state == "failed"]
-    for o in failed[:20]:
-        err_console.print(f"[red]failed[/] {o.path}: {o.reason}")
-    if len(failed) > 20:
-        err_console.print(f"... and {len(failed) - 20} more failed (see `ppd status`)")
+    for o in failed:
+        err_console.print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
+    if dry_run:
+        return
+    for place in _output_places(jobs):
+        console.print(f"written to {place}", markup=False)
+    for name in sorted({job.dataset for job in jobs}):
+        if ctx.store.dataset(name) is None:
+            continue
+        protection, profiles = dataset_protection(
+            ctx.store.counts(name), latest_by_profile(ctx.store.verification_runs(name, limit=50))
+        )
+        step = next_step(protection, name)
+        text = protection_text(protection, profiles)
+        console.print(f"{name}: {text}" + (f": {step}" if step else ""), markup=False)
+    if failed:
+        names = sorted({o.dataset for o in failed if o.dataset})
+        if names:
+            console.print(f"failed files and reasons: ppd status {names[0]} --failed", markup=False)
 
 
+POISON_HELP = """Patch photos and videos so 3D reconstruction from them fails.
+
+A folder is one dataset. In place by default (each original is kept in the vault,
+`ppd restore` puts it back); with --out the inputs stay as they are. Re-running is a
+no-op. Whether the patch protects is a verification's answer: `ppd verify DATASET`.
+
+\b
+Examples:
+  ppd poison ~/shoots/castle              patch in place
+  ppd poison ~/shoots/castle --out ~/pub  patched copies in ~/pub/castle/
+  ppd poison castle --design paper --dry-run
+"""
+
+
+@spec_options()
 def poison(
     paths: list[Path] = typer.Argument(..., help="Files or folders; a folder is one dataset."),
-    spec_file: Path | None = SPEC_FILE,
-    patch_size: str | None = PATCH_SIZE,
-    block: str | None = BLOCK,
-    alpha: float | None = ALPHA,
-    contrast: int | None = CONTRAST,
-    pattern: str | None = PATTERN,
-    position: str | None = POSITION,
-    ratio: float | None = RATIO,
-    seed: int | None = SEED,
-    dry_run: bool = typer.Option(False, "--dry-run", help="Say what would happen; change nothing."),
-    out: Path | None = typer.Option(None, "--out", help="Write protected copies here; leave the inputs."),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Say what would be patched; change nothing."),
+    out: Path | None = typer.Option(
+        None, "--out", metavar="DIR", help="Write patched copies to DIR/DATASET/; leave the inputs."
+    ),
     dataset: str | None = typer.Option(None, "--dataset", help="Dataset name (default: the folder's)."),
-    force: bool = typer.Option(False, "--force", help="Protect again files you restored."),
+    force: bool = typer.Option(False, "--force", help="Patch again files you restored."),
+    spec_options: SpecOptions = SpecOptions(),
 ) -> None:
-    """Protect photos/videos in place (originals go to the vault) or into --out. Re-running is a no-op."""
     ctx = _open_ctx()
+    verbose = verbosity() > 0
     try:
-        options = _spec_options(spec_file, patch_size, block, alpha, contrast, pattern, position, ratio, seed)
         jobs = plan_jobs(ctx, paths, dataset, out)
+        if not jobs:
+            raise _die("no files to patch in " + ", ".join(str(p) for p in paths))
         _check_dataset_roots(ctx, jobs)
-        wanted = _apply_spec(ctx, jobs, options, dry_run)
-        outcomes = _run_jobs(ctx, jobs, wanted, dry_run, force)
-        _summary(outcomes, dry_run)
+        _check_writable(jobs, dry_run)
+        wanted = _apply_spec(ctx, jobs, spec_options, dry_run)
+        outcomes = _run_jobs(ctx, jobs, wanted, dry_run, force, verbose)
+        _summary(ctx, jobs, outcomes, dry_run)
         if any(o.state == "failed" for o in outcomes):
-            raise typer.Exit(1)
+            raise typer.Exit(EXIT_FAILED)
     finally:
         ctx.close()
 
 
 def _run_jobs(
-    ctx: AppContext, jobs: list[Job], wanted: dict[str, PatchSpec], dry_run: bool, force: bool
+    ctx: AppContext,
+    jobs: list[Job],
+    wanted: dict[str, PatchSpec],
+    dry_run: bool,
+    force: bool,
+    verbose: bool = False,
 ) -> list[ProtectOutcome]:
+    """Every job through protect_file on the config's workers. A progress bar only on a terminal
+    (nothing per file unless -v, which names each file with its outcome)."""
     outcomes: list[ProtectOutcome] = []
     lock = threading.Lock()
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=err_console, transient=True) as progress:
-        task = progress.add_task("protecting", total=len(jobs))
+    show_bar = err_console.is_terminal and not err_console.is_dumb_terminal
+    with Progress(*columns, console=err_console, transient=True, disable=not show_bar) as progress:
+        task = progress.add_task("patching", total=len(jobs))
 
         def run(job: Job) -> None:
             outcome = protect_file(
@@ -291,6 +345,10 @@ def _run_jobs(
             )  # fmt: skip
             with lock:
                 outcomes.append(outcome)
+                if verbose:
+                    where = f" -> {outcome.output}" if outcome.output and outcome.output != job.path else ""
+                    why = f" ({outcome.reason})" if outcome.reason and outcome.state != "failed" else ""
+                    progress.console.print(f"{outcome_word(outcome)} {job.path}{where}{why}", markup=False)
             progress.advance(task)
 
         workers = max(1, min(ctx.config.workers, len(jobs)))
@@ -301,87 +359,150 @@ def _run_jobs(
 
 # ---- ppd restore ---------------------------------------------------------------------------
 def restore(
-    target: str = typer.Argument(..., help="A dataset name or a protected file."),
+    target: str = typer.Argument(..., help="A dataset name or a patched file."),
     force: bool = typer.Option(False, "--force", help="Overwrite even if the file changed since."),
 ) -> None:
-    """Put originals back from the vault (atomic). The daemon will not re-poison restored files."""
+    """Put originals back from the vault (atomic). Files in an --out or publish folder are
+    removed there, never replaced by originals. The daemon does not patch restored files again.
+
+    \b
+    Examples:
+      ppd restore castle                 every patched file of the dataset
+      ppd restore ~/shoots/castle/a.jpg  one file
+    """
     ctx = _open_ctx()
     try:
         as_path = Path(target).absolute()
         if ctx.store.file(as_path) is not None:
             paths = [as_path]
         elif ctx.store.dataset(target) is not None:
-            paths = [Path(r["path"]) for r in ctx.store.files(target, state="protected")]
+            paths = [
+                Path(r["path"]) for value in PATCHED_VALUES for r in ctx.store.files(target, state=value)
+            ]
         else:
             raise _die(f"{target!r} is neither a dataset nor a file in the store")
-        outcomes = [restore_file(ctx, p, force=force) for p in paths]
+        outcomes = [restore_file(ctx, p, force=force) for p in sorted(set(paths))]
         counts = Counter(o.state for o in outcomes)
-        console.print(f"restored {counts.get('restored', 0)}, unchanged {counts.get('unchanged', 0)}, "
-                      f"failed {counts.get('failed', 0)}")  # fmt: skip
+        console.print(
+            ", ".join(f"{k} {counts.get(k, 0)}" for k in ("restored", "removed", "unchanged", "failed"))
+        )
         for o in outcomes:
             if o.state == "failed":
-                err_console.print(f"[red]failed[/] {o.path}: {o.reason}")
+                err_console.print(f"ppd: not restored: {o.path}: {reason_text(o.reason)}", markup=False)
+            elif o.state not in ("restored", "unchanged") and o.reason:
+                console.print(f"{o.state} {o.path}: {o.reason}", markup=False)
         if counts.get("failed"):
-            raise typer.Exit(1)
+            raise typer.Exit(EXIT_FAILED)
     finally:
         ctx.close()
 
 
 # ---- ppd preview ---------------------------------------------------------------------------
+@spec_options(with_ratio=False)
 def preview(
-    file: Path = typer.Argument(..., exists=True, dir_okay=False, help="An image (original or protected)."),
-    out: Path | None = typer.Option(None, "--out", help="PNG to write (default: ./NAME.ppd-preview.png)."),
-    spec_file: Path | None = SPEC_FILE,
-    patch_size: str | None = PATCH_SIZE,
-    block: str | None = BLOCK,
-    alpha: float | None = ALPHA,
-    contrast: int | None = CONTRAST,
-    pattern: str | None = PATTERN,
-    position: str | None = POSITION,
-    seed: int | None = SEED,
+    file: Path = typer.Argument(..., help="A photo or a video (original or patched)."),
+    out: Path | None = typer.Option(
+        None, "--out", metavar="PNG", help="PNG to write (default: ./NAME.ppd-preview.png)."
+    ),
+    spec_options: SpecOptions = SpecOptions(),
 ) -> None:
-    """Original | poisoned side by side with a zoom on the patch. A protected file is shown
-    against its vault original; any other image with its dataset's (or the given) spec."""
-    import numpy as np
+    """Original and patched side by side, with a zoom on the patch. A patched file is shown
+    against its vault original; any other photo with its dataset's spec (or the flags').
+
+    \b
+    Examples:
+      ppd preview IMG_0042.jpg                   the spec this file would get
+      ppd preview IMG_0042.jpg --design paper    the paper's static patch
+      ppd preview clip.mp4 --out clip.png        a frame of a video
+    """
     from PIL import Image
 
-    from poisoner.blend import poison_array
-    from poisoner.preview import render_preview
+    from poisoner.preview import orient, oriented_placement, render_preview
 
+    if not file.exists():
+        raise _die(f"{file} does not exist")
+    if file.is_dir():
+        raise _die(f"{file} is a folder; give one photo or video")
     ctx = _open_ctx()
     try:
-        options = _spec_options(spec_file, patch_size, block, alpha, contrast, pattern, position, None, seed)
         file = file.absolute()
         row = ctx.store.file(file)
 
-        def load(path: Path) -> np.ndarray:
+        def load(path: Path):  # -> np.ndarray
             try:
-                with Image.open(path) as im:
-                    return np.asarray(im.convert("RGB"))
+                return load_picture(path)
             except (OSError, ValueError) as exc:
-                raise _die(f"cannot read {path.name} as an image: {str(exc).splitlines()[0]}") from None
+                raise _die(f"cannot read {path.name}: {str(exc).splitlines()[0]}") from None
 
         try:
-            if row is not None and row["state"] == "protected" and not options.given():
+            if row is not None and row["state"] in PATCHED_VALUES and not spec_options.given():
                 spec = ctx.store.get_spec(row["spec_id"])
-                original, poisoned = load(ctx.vault.path_for(row["original_sha256"])), load(file)
-                placement = spec.resolve(original.shape[1], original.shape[0], image_key=file.name)
+                original, _ = load(ctx.vault.path_for(row["original_sha256"]))
+                poisoned, orientation = load(file)
+                placement = _placement(spec, original, file)
+                labels = ("original (vault)", f"patched ({file.name})")
             else:
+                from poisoner.blend import apply_patch, poison_array
+
                 base = ctx.config.spec
                 if file.is_relative_to(ctx.paths.outbox.absolute()):
                     name = dataset_of(ctx.paths.outbox, file)
                     base = ctx.store.dataset_spec(name) or ctx.config.spec_for(name)
-                spec = options.build(base)
-                original = load(file)
-                poisoned, placement = poison_array(original, spec, image_key=file.name)
-            image = render_preview(original, poisoned, placement)
+                spec = spec_options.build(base)
+                original, orientation = load(file)
+                if _is_video(file):  # the first frame, as poison_video patches it
+                    placement = _placement(spec, original, file)
+                    poisoned = apply_patch(original, placement)
+                else:
+                    poisoned, placement = poison_array(original, spec, image_key=file.name)
+                labels = (f"original ({file.name})", "patched (preview, not written)")
+            h, w = original.shape[:2]
+            placement = oriented_placement(placement, orientation, w, h)
+            original, poisoned = orient(original, orientation), orient(poisoned, orientation)
+            image = render_preview(original, poisoned, placement, labels=labels)
         except (SpecError, ValueError) as exc:
             raise _die(str(exc).splitlines()[0]) from None
-        target = out or Path.cwd() / f"{file.stem}.ppd-preview.png"
-        Image.fromarray(image).save(target)
-        console.print(f"preview written to {target}")
+        target = (out or Path.cwd() / f"{file.stem}.ppd-preview.png").absolute()
+        try:
+            Image.fromarray(image).save(target, format="PNG")
+        except OSError as exc:
+            raise _die(os_error_text(exc, hint_out=False), EXIT_ENVIRONMENT) from None
+        console.print(f"preview written to {target}", markup=False)
     finally:
         ctx.close()
+
+
+def _is_video(path: Path) -> bool:
+    from poisoner.video import is_video
+
+    return is_video(path)
+
+
+def _placement(spec: PatchSpec, original: Any, file: Path) -> Any:
+    h, w = original.shape[:2]
+    if _is_video(file):
+        return spec.resolve(w, h, index=0.0)
+    return spec.resolve(w, h, image_key=file.name)
+
+
+def load_picture(path: Path) -> tuple[Any, int | None]:
+    """(stored RGB pixels, EXIF orientation or None); a video's first frame. ppd patches the
+    stored pixels, so the preview works in them and orients only what it shows."""
+    import numpy as np
+    from PIL import Image
+
+    if _is_video(path):
+        import av
+
+        from poisoner.video import frame_to_rgb
+
+        with av.open(str(path)) as container:
+            for frame in container.decode(video=0):
+                return frame_to_rgb(frame), None
+        raise ValueError("no video frame")
+    with Image.open(path) as im:
+        orientation = im.getexif().get(0x0112)
+        return np.asarray(im.convert("RGB")), orientation if isinstance(orientation, int) else None
 
 
 # ---- ppd status ----------------------------------------------------------------------------
@@ -415,12 +536,22 @@ def latest_by_profile(runs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     return latest
 
 
-def verdict_text(profile: str, v: dict[str, Any]) -> str:
+def verdict_text(profile: str, v: dict[str, Any], markup: bool = True) -> str:
     style = {"protected": "green", "weak": "yellow", "not_protected": "bold red", "sfm_crashed": "magenta"}
-    label = "NOT protected" if v["verdict"] == "not_protected" else v["verdict"]
+    label = verdict_words(v["verdict"])
     frac = v.get("frac_within_5deg")
-    detail = f" {frac:.0%}<5°" if isinstance(frac, int | float) else ""
-    return f"{profile}: [{style.get(v['verdict'], 'bold')}]{label}[/]{detail} ({_age(v['finished_at'])})"
+    detail = f", {frac:.0%} of cameras within 5°" if isinstance(frac, int | float) else ""
+    shown = f"[{style.get(v['verdict'], 'bold')}]{label}[/]" if markup else label
+    return f"{profile}: {shown}{detail} ({_age(v['finished_at'])})"
+
+
+PROTECTION_STYLE = {
+    Protection.PROTECTED: "bold green",
+    Protection.WEAK: "bold yellow",
+    Protection.NOT_PROTECTED: "bold red",
+    Protection.UNVERIFIABLE: "magenta",
+    Protection.PATCHED_NOT_VERIFIED: "yellow",
+}
 
 
 def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
@@ -433,6 +564,9 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     runs = ctx.store.verification_runs(name, limit=50)
     latest = runs[0] if runs else None
     regression = regression_of(runs)
+    counts = ctx.store.counts(name)
+    verdicts = latest_by_profile(runs)
+    protection, profiles = dataset_protection(counts, verdicts)
     return {
         "name": name,
         "root": row["root"],
@@ -441,7 +575,14 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "spec": spec.to_dict() if spec else None,
         "spec_summary": spec_summary(spec) if spec else None,
         "auto": auto_status_text(ctx, name),  # automatic mode's decision in force (None: not decided)
-        "counts": ctx.store.counts(name),
+        "counts": counts,
+        "patched": patched_count(counts),
+        "protection": {
+            "state": protection.value,
+            "profiles": profiles,
+            "text": protection_text(protection, profiles),
+            "next": next_step(protection, name),
+        },
         "last_verification": None
         if latest is None
         else {
@@ -451,7 +592,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
             "age_s": round(time.time() - latest["finished_at"], 1),
             "error": latest["error"],
         },
-        "verdicts": latest_by_profile(runs),
+        "verdicts": verdicts,
         "regression": None
         if regression is None
         else {
@@ -462,15 +603,92 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     }
 
 
+def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
+    """Each failed file of a dataset with its one-line reason (the store row's error)."""
+    return [
+        {"path": r["path"], "reason": file_reason(r["path"], r.get("error"))}
+        for r in ctx.store.files(name, state=FileState.FAILED.value)
+    ]
+
+
+def _protection_cell(d: dict[str, Any]) -> str:
+    state = Protection(d["protection"]["state"])
+    return f"[{PROTECTION_STYLE.get(state, 'bold')}]{d['protection']['text']}[/]"
+
+
+def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Table:
+    """One row per dataset. Columns drop as the terminal narrows (files, then failed, then
+    patched); the dataset name and the protection words are folded, never cut."""
+    columns = ["dataset", "files", "patched", "failed", "protection"]
+    if width < 72:
+        columns.remove("files")
+    if width < 56:
+        columns.remove("failed")
+    if width < 44:
+        columns.remove("patched")
+    table = Table(expand=False)
+    for column in columns:
+        numeric = column in ("files", "patched", "failed")
+        table.add_column(
+            column, justify="right" if numeric else "left", overflow="fold", no_wrap=numeric,
+            min_width=len(column) if numeric else None, ratio=None if numeric else 1,
+        )  # fmt: skip
+    for d in report:
+        c = d["counts"]
+        cells = {
+            "dataset": d["name"],
+            "files": str(c["files"]),
+            "patched": str(d["patched"]),
+            "failed": str(c.get(FileState.FAILED.value, 0)),
+            "protection": _protection_cell(d),
+        }
+        table.add_row(*(cells[k] for k in columns))
+    return table
+
+
+def _print_details(d: dict[str, Any]) -> None:
+    """--long (or one dataset): where it is, the spec, each profile's verdict."""
+    c = d["counts"]
+    console.print(f"[bold]{d['name']}[/]  {d['root']}")
+    states: Counter[str] = Counter()
+    for key, n in c.items():
+        if key != "files" and n:
+            states[state_word(key)] += n
+    listed = ", ".join(f"{k} {n}" for k, n in sorted(states.items()))
+    console.print(f"  files {c['files']}: {listed}", markup=False, soft_wrap=False)
+    console.print(f"  spec {d['spec_id'] or '-'}: {d['spec_summary'] or '-'}", markup=False, soft_wrap=False)
+    if d["auto"]:
+        console.print(f"  {d['auto']}", markup=False, soft_wrap=False)
+    if d["publish_dir"]:
+        console.print(f"  publish to {d['publish_dir']}", markup=False, soft_wrap=False)
+    for profile, v in d["verdicts"].items():
+        console.print("  " + verdict_text(profile, v), soft_wrap=False)
+    if not d["verdicts"]:
+        console.print("  verified: never", markup=False, soft_wrap=False)
+
+
 def status(
     dataset: str | None = typer.Argument(None, help="One dataset (default: all)."),
     as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
+    long: bool = typer.Option(False, "--long", "-l", help="Also the spec and each profile's verdict."),
+    failed: bool = typer.Option(False, "--failed", help="List each failed file with its reason."),
 ) -> None:
-    """Per dataset: files by state, the spec, the last verification; warns on regressions and sync folders."""
+    """Each dataset: files patched and failed, and whether it is protected (a verification's
+    verdict) or only patched; warns on regressions and on sync folders.
+
+    \b
+    Examples:
+      ppd status                  every dataset, one line each
+      ppd status castle           one dataset in detail
+      ppd status castle --failed  the files that failed, and why
+    """
     ctx = _open_ctx()
     try:
         names = [dataset] if dataset else [d["name"] for d in ctx.store.datasets()]
         report = [dataset_status(ctx, n) for n in names]
+        if failed:
+            for d in report:
+                d["failed_files"] = failed_files(ctx, d["name"])
         sync = find_sync_folder(ctx.paths.outbox)
         if as_json:
             payload = {
@@ -481,33 +699,51 @@ def status(
             typer.echo(json.dumps(payload, indent=2, default=str))
             return
         if sync is not None:
-            err_console.print(
-                f"[bold yellow]warning:[/] the outbox {ctx.paths.outbox} is inside a {sync.client} folder "
-                f"({sync.root}): originals may be uploaded before ppd protects them."
+            warning(
+                f"the outbox {ctx.paths.outbox} is inside a {sync.client} folder ({sync.root}): "
+                "originals may be uploaded before ppd patches them"
             )
-        table = Table(title=f"ppd status — outbox {ctx.paths.outbox}")
-        for column in ("dataset", "files", "protected", "pending", "failed", "restored", "spec", "verified"):
-            table.add_column(
-                column, justify="right" if column not in ("dataset", "spec", "verified") else "left"
-            )
+        if failed:
+            _print_failed(report)
+            return
+        if not report:
+            console.print(f"no datasets yet; outbox {ctx.paths.outbox}", markup=False)
+            return
+        console.print(status_table(report, console.width, ctx.paths.outbox))
+        if long or dataset:
+            console.print(f"outbox {ctx.paths.outbox}", markup=False)
+            for d in report:
+                _print_details(d)
         for d in report:
-            c, v = d["counts"], d["last_verification"]
-            verdicts = d["verdicts"]
-            verified = "never" if v is None else "\n".join(verdict_text(p, x) for p, x in verdicts.items())
-            counts = [str(c[k]) for k in ("files", "protected", "pending", "failed", "restored")]
-            spec_text = "\n".join(x for x in (d["spec_summary"] or "-", d["auto"]) if x)
-            table.add_row(d["name"], *counts, spec_text, verified)
-        console.print(table)
+            # word-wrapped to the terminal (soft_wrap off): these lines say what to run next
+            if d["protection"]["next"]:
+                console.print(f"{d['name']}: {d['protection']['next']}", markup=False, soft_wrap=False)
+            n_failed = d["counts"].get(FileState.FAILED.value, 0)
+            if n_failed:
+                console.print(
+                    f"{d['name']}: {n_failed} failed: ppd status {d['name']} --failed",
+                    markup=False,
+                    soft_wrap=False,
+                )
         _print_report_links(ctx, names)
         for d in report:
             if d["regression"]:
                 err_console.print(
-                    f"[bold red]REGRESSION:[/] dataset {d['name']!r} went from protected to NOT PROTECTED "
+                    f"[bold red]REGRESSION:[/] dataset {d['name']!r} went from protected to NOT protected "
                     f"in its last {d['regression']['profile']!r} verification; its published images "
-                    f"may reconstruct — check `ppd verify` and the spec."
+                    "may reconstruct: check `ppd verify` and the spec."
                 )
     finally:
         ctx.close()
+
+
+def _print_failed(report: list[dict[str, Any]]) -> None:
+    """One line per failed file: `PATH: reason` (mat2's habit), grouped by dataset."""
+    for d in report:
+        rows = d.get("failed_files") or []
+        console.print(f"{d['name']}: {len(rows)} failed", markup=False)
+        for r in rows:
+            console.print(f"  {r['path']}: {r['reason']}", markup=False)
 
 
 def _print_report_links(ctx: AppContext, names: list[str]) -> None:
@@ -517,7 +753,7 @@ def _print_report_links(ctx: AppContext, names: list[str]) -> None:
     for name in names:
         path = report_path(ctx.paths, name)
         if path.is_file():
-            console.print(f"report {name}: file://{path}")
+            console.print(f"report {name}: file://{path}", markup=False)
 
 
 # ---- ppd dataset ---------------------------------------------------------------------------
@@ -542,26 +778,25 @@ def dataset_show(name: str, as_json: bool = typer.Option(False, "--json")) -> No
 
 
 @dataset_app.command("set")
+@spec_options()
 def dataset_set(
-    name: str,
-    spec_file: Path | None = SPEC_FILE,
-    patch_size: str | None = PATCH_SIZE,
-    block: str | None = BLOCK,
-    alpha: float | None = ALPHA,
-    contrast: int | None = CONTRAST,
-    pattern: str | None = PATTERN,
-    position: str | None = POSITION,
-    ratio: float | None = RATIO,
-    seed: int | None = SEED,
+    name: str = typer.Argument(..., help="The dataset."),
     root: Path | None = typer.Option(None, "--root", help="Dataset folder (default: OUTBOX/NAME)."),
-    publish_dir: Path | None = typer.Option(None, "--publish-dir", help="Move protected files here."),
-    reprotect: bool = typer.Option(False, "--reprotect", help="Re-poison protected files from the vault."),
+    publish_dir: Path | None = typer.Option(None, "--publish-dir", help="Move patched files here."),
+    reprotect: bool = typer.Option(False, "--reprotect", help="Patch again from the vault originals."),
+    spec_options: SpecOptions = SpecOptions(),
 ) -> None:
-    """Set a dataset's spec. Once files are protected, a new spec needs --reprotect (every
-    image must carry the same patch)."""
+    """Set a dataset's spec. Once files are patched, a new spec needs --reprotect (every
+    image must carry the same patch).
+
+    \b
+    Examples:
+      ppd dataset set castle --design paper
+      ppd dataset set castle --patch-size 8% --reprotect
+    """
+    options = spec_options
     ctx = _open_ctx()
     try:
-        options = _spec_options(spec_file, patch_size, block, alpha, contrast, pattern, position, ratio, seed)
         existing = ctx.store.dataset(name)
         base = ctx.store.dataset_spec(name) or ctx.config.spec_for(name)
         try:
@@ -573,10 +808,12 @@ def dataset_set(
         if reprotect and existing is not None:
             outcomes = reprotect_dataset(ctx, name, spec)
             counts = Counter(o.state for o in outcomes)
-            console.print(f"re-protected {name}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+            console.print(
+                f"patched again {name}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+            )
             for o in outcomes:
                 if o.state == "failed":
-                    err_console.print(f"[red]failed[/] {o.path}: {o.reason}")
+                    err_console.print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
         else:
             try:
                 ctx.store.set_dataset_spec(name, spec, root=folder)
@@ -584,7 +821,7 @@ def dataset_set(
                 raise _die(str(exc)) from None
         if publish_dir is not None:
             ctx.store.set_dataset_publish_dir(name, publish_dir.absolute())
-        console.print(f"{name}: spec {spec.spec_id} ({spec_summary(spec)})")
+        console.print(f"{name}: spec {spec.spec_id} ({spec_summary(spec)})", markup=False)
     finally:
         ctx.close()
 
@@ -623,7 +860,7 @@ def config_path() -> None:
 
 
 def register(app: typer.Typer) -> None:
-    app.command("poison")(poison)
+    app.command("poison", help=POISON_HELP)(poison)
     app.command("restore")(restore)
     app.command("preview")(preview)
     app.command("status")(status)

@@ -12,17 +12,17 @@ from pathlib import Path
 from types import FrameType
 
 import typer
-from rich.console import Console
+
+from daemon.cli_common import die
+from daemon.cli_common import err_console as console
 
 log = logging.getLogger(__name__)
-console = Console(stderr=True, soft_wrap=True)  # one error = one line, whatever the width
 
 service_app = typer.Typer(help="The systemd user service that runs `ppd watch`.", no_args_is_help=True)
 
 
-def _fail(message: str) -> typer.Exit:
-    console.print(f"[red]error:[/red] {message}", highlight=False)
-    return typer.Exit(1)
+def _fail(message: str, code: int = 1) -> typer.Exit:  # 1: systemd and tests read it so
+    return die(message, code)
 
 
 def _open_context(outbox: Path | None):  # -> daemon.protect.AppContext
@@ -77,11 +77,18 @@ def watch(
     raise typer.Exit(code)
 
 
-@service_app.command("install")
+def _unit_place() -> str:
+    """Where the unit goes, as the user's environment says it ($XDG_CONFIG_HOME when set)."""
+    xdg = os.environ.get("XDG_CONFIG_HOME")
+    return f"$XDG_CONFIG_HOME/systemd/user ({xdg}/systemd/user)" if xdg else "~/.config/systemd/user"
+
+
 def service_install(
     start: bool = typer.Option(True, "--start/--no-start", help="Enable and start it now."),
+    print_only: bool = typer.Option(
+        False, "--print", help="Print the unit on stdout; write nothing, start nothing."
+    ),
 ) -> None:
-    """Write ~/.config/systemd/user/ppd.service for this installation and reload systemd."""
     from daemon import service
 
     ctx = _open_context(None)
@@ -91,6 +98,9 @@ def service_install(
         raise _fail(str(exc)) from None
     finally:
         ctx.close()
+    if print_only:
+        sys.stdout.write(service.render_unit(layout))
+        return
     target = service.install_unit(service.render_unit(layout))
     console.print(f"wrote {target}", highlight=False)
     reload = service.systemctl_user("daemon-reload")
@@ -138,5 +148,10 @@ def service_status() -> None:
 
 
 def register(app: typer.Typer) -> None:
+    service_app.command(
+        "install",
+        help=f"Write ppd.service for this installation into {_unit_place()} and reload systemd.\n\n"
+        "\b\nExamples:\n  ppd service install\n  ppd service install --print   show the unit only",
+    )(service_install)
     app.command("watch")(watch)
     app.add_typer(service_app, name="service")

@@ -6,7 +6,10 @@ question that only a verification verdict answers. "Protected" is never said of 
 
 from __future__ import annotations
 
+import shlex
+from collections.abc import Mapping
 from enum import StrEnum
+from typing import Any
 
 
 class FileState(StrEnum):
@@ -30,3 +33,83 @@ class Protection(StrEnum):
     NOT_PROTECTED = "NOT protected"
     UNVERIFIABLE = "could not be verified"
     NOTHING_PATCHED = "nothing patched"
+
+
+# The values a store row may hold for a patched file: FileState.PATCHED's value, whichever side of
+# the store migration renaming "protected" to "patched" this code runs against.
+PATCHED_VALUES = frozenset({FileState.PATCHED.value, "patched", "protected"})
+
+# Per-profile verdicts as verifier.verdict records them (strings, so this module stays import-light).
+_VERDICT_PROTECTED = "protected"
+_VERDICT_WEAK = "weak"
+_VERDICT_NOT_PROTECTED = "not_protected"
+
+
+VERDICT_WORDS = {
+    "protected": "protected",
+    "weak": "weak",
+    "not_protected": "NOT protected",
+    "sfm_crashed": "could not be verified (SfM crashed)",
+    "inconclusive": "could not be verified (inconclusive)",
+}
+
+
+def verdict_words(verdict: str) -> str:
+    """One profile's verdict (verifier.verdict's name) in the words the user reads."""
+    return VERDICT_WORDS.get(verdict, verdict)
+
+
+def state_word(state: str) -> str:
+    """A store row's state as the user reads it: the patched state is "patched" in either spelling."""
+    return "patched" if state in PATCHED_VALUES else state
+
+
+def patched_count(store_counts: Mapping[str, int]) -> int:
+    """Files whose mark is in place, from Store.counts() (either spelling of the patched state)."""
+    return sum(int(store_counts.get(value, 0)) for value in PATCHED_VALUES)
+
+
+def dataset_protection(
+    store_counts: Mapping[str, int], latest_runs_by_profile: Mapping[str, Mapping[str, Any]]
+) -> tuple[Protection, list[str]]:
+    """What a user may be told about a dataset, and under which verification profiles it holds.
+
+    store_counts is Store.counts(dataset); latest_runs_by_profile maps each profile to its newest
+    verification run (a mapping with a "verdict"). The weakest profile decides: one NOT protected
+    profile makes the dataset NOT protected, whatever the others say. The profiles returned are
+    the ones the state is about (those that failed, or those it holds under).
+    """
+    if patched_count(store_counts) == 0:
+        return Protection.NOTHING_PATCHED, []
+    verdicts = {p: str(run.get("verdict") or "") for p, run in latest_runs_by_profile.items()}
+    if not verdicts:
+        return Protection.PATCHED_NOT_VERIFIED, []
+    for verdict, protection in (
+        (_VERDICT_NOT_PROTECTED, Protection.NOT_PROTECTED),
+        (_VERDICT_WEAK, Protection.WEAK),
+        (_VERDICT_PROTECTED, Protection.PROTECTED),
+    ):
+        profiles = sorted(p for p, v in verdicts.items() if v == verdict)
+        if profiles:
+            return protection, profiles
+    return Protection.UNVERIFIABLE, sorted(verdicts)
+
+
+def protection_text(protection: Protection, profiles: list[str]) -> str:
+    """One phrase: "protected under default, hardened", "NOT protected (hardened)", ..."""
+    if protection is Protection.PROTECTED:
+        return f"protected under {', '.join(profiles)}"
+    if profiles and protection in (Protection.NOT_PROTECTED, Protection.WEAK, Protection.UNVERIFIABLE):
+        return f"{protection.value} ({', '.join(profiles)})"
+    return protection.value
+
+
+def next_step(protection: Protection, dataset: str) -> str | None:
+    """The command that moves a dataset's state on, said after `ppd poison` and in `ppd status`."""
+    if protection is Protection.PATCHED_NOT_VERIFIED:
+        return f"run `ppd verify {shlex.quote(dataset)}`"
+    if protection in (Protection.NOT_PROTECTED, Protection.WEAK):
+        return f"find a design that holds: `ppd auto {shlex.quote(dataset)}`"
+    if protection is Protection.UNVERIFIABLE:
+        return f"see `ppd report {shlex.quote(dataset)}`"
+    return None

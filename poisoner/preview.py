@@ -2,6 +2,7 @@
 
 Layout (RGB uint8):
 
+    | label           | label           |   captions (when labels are given)
     +-----------------+-----------------+
     |    original     |    poisoned     |   the whole picture, patch box outlined in red
     +-----------------+-----------------+
@@ -74,8 +75,10 @@ def render_preview(
     placement: PatchPlacement,
     *,
     max_width: int = 1600,
+    labels: tuple[str, str] | None = None,
 ) -> np.ndarray:
-    """Original | poisoned side by side, with a nearest-neighbour zoom of the patch region below."""
+    """Original | poisoned side by side, with a nearest-neighbour zoom of the patch region below;
+    with labels, each panel gets its caption in a strip above it."""
     a, b = to_rgb8(original), to_rgb8(poisoned)
     if a.shape != b.shape:
         raise ValueError(f"original {a.shape} and poisoned {b.shape} differ in size")
@@ -99,4 +102,72 @@ def render_preview(
     out = np.full((top.shape[0] + GAP + bottom.shape[0], width, 3), BACKGROUND, dtype=np.uint8)
     out[: top.shape[0], : top.shape[1]] = top
     out[top.shape[0] + GAP :, : bottom.shape[1]] = bottom
+    if labels is None:
+        return out
+    left, right = labels
+    panel = panels[0].shape[1] + GAP
+    out = _caption(out, [(0, left), (panel, right)])
+    zoom_row = LABEL_HEIGHT + top.shape[0] + GAP
+    _write(out, zoom_row, [(0, "zoom on the patch"), (zooms[0].shape[1] + GAP, "zoom on the patch")])
     return out
+
+
+LABEL_HEIGHT = 18
+
+
+def _write(img: np.ndarray, y: int, texts: list[tuple[int, str]]) -> None:
+    """White text with a dark box at (x, y) for each (x, text), drawn into img in place."""
+    from PIL import Image, ImageDraw
+
+    pil = Image.fromarray(img)
+    draw = ImageDraw.Draw(pil)
+    for x, text in texts:
+        box = draw.textbbox((x + 4, y + 3), text)
+        draw.rectangle((box[0] - 3, box[1] - 2, box[2] + 3, box[3] + 2), fill=(BACKGROUND,) * 3)
+        draw.text((x + 4, y + 3), text, fill=(255, 255, 255))
+    img[:] = np.asarray(pil)
+
+
+def _caption(img: np.ndarray, texts: list[tuple[int, str]]) -> np.ndarray:
+    """img with a LABEL_HEIGHT strip on top holding the texts."""
+    out = np.full((img.shape[0] + LABEL_HEIGHT, img.shape[1], 3), BACKGROUND, dtype=np.uint8)
+    out[LABEL_HEIGHT:] = img
+    _write(out, 0, texts)
+    return out
+
+
+# ---- EXIF orientation: the preview shows what a viewer shows ---------------------------------
+# PIL's transpose for each EXIF orientation value (as ImageOps.exif_transpose applies it).
+_TRANSPOSE = {2: "FLIP_LEFT_RIGHT", 3: "ROTATE_180", 4: "FLIP_TOP_BOTTOM", 5: "TRANSPOSE",
+              6: "ROTATE_270", 7: "TRANSVERSE", 8: "ROTATE_90"}  # fmt: skip
+
+
+def orient(pixels: np.ndarray, orientation: int | None) -> np.ndarray:
+    """Stored pixels as displayed under an EXIF orientation (1..8; anything else: unchanged)."""
+    method = _TRANSPOSE.get(orientation or 1)
+    if method is None:
+        return pixels
+    from PIL import Image
+
+    return np.asarray(Image.fromarray(to_rgb8(pixels)).transpose(getattr(Image.Transpose, method)))
+
+
+def oriented_placement(
+    placement: PatchPlacement, orientation: int | None, width: int, height: int
+) -> PatchPlacement:
+    """The patch box of a stored width x height picture, where it shows once oriented.
+    ppd places the patch in the stored pixels (poisoner.formats), so a phone photo's patch sits
+    in another corner of what the viewer shows."""
+    import dataclasses
+
+    x, y, s = placement.x, placement.y, placement.size
+    new = {
+        2: (width - x - s, y),
+        3: (width - x - s, height - y - s),
+        4: (x, height - y - s),
+        5: (y, x),
+        6: (height - y - s, x),
+        7: (height - y - s, width - x - s),
+        8: (y, width - x - s),
+    }.get(orientation or 1, (x, y))
+    return dataclasses.replace(placement, x=new[0], y=new[1])

@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from daemon.cli import app
 from daemon.protect import AppContext
+from daemon.states import FileState
 from poisoner.ladder import default_spec
 from poisoner.spec import PatchSpec
 
@@ -49,7 +50,7 @@ def test_poison_folder_then_rerun_is_a_noop(shoot: Path) -> None:
     assert all(after[k] != before[k] for k in before)
     ctx = AppContext.open()
     rows = ctx.store.files("castle")
-    assert len(rows) == 5 and {r["state"] for r in rows} == {"protected"}
+    assert len(rows) == 5 and {r["state"] for r in rows} == {FileState.PATCHED.value}
     assert ctx.store.dataset("castle")["root"] == str(shoot)
     ctx.close()
     again = runner.invoke(app, ["poison", str(shoot)])
@@ -78,7 +79,7 @@ def test_dry_run_changes_nothing(shoot: Path, ppd_env: dict[str, Path]) -> None:
     before = snapshot(shoot)
     result = runner.invoke(app, ["poison", str(shoot), "--dry-run", "--alpha", "0.5"])
     assert result.exit_code == 0, result.output
-    assert "would protect" in result.output
+    assert "would patch" in result.output
     assert snapshot(shoot) == before
     ctx = AppContext.open()
     assert ctx.store.files("castle") == [] and ctx.store.dataset("castle") is None
@@ -118,7 +119,7 @@ def test_status_json_and_regression_warning(shoot: Path, tmp_path: Path) -> None
     data = json.loads(result.stdout)
     (castle,) = data["datasets"]
     assert (
-        castle["name"] == "castle" and castle["counts"]["protected"] == 5 and castle["counts"]["failed"] == 1
+        castle["name"] == "castle" and castle["patched"] == 5 and castle["counts"]["failed"] == 1
     )
     assert castle["spec_id"] == default_spec().spec_id and castle["last_verification"] is None
     assert castle["regression"] is None

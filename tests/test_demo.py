@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from daemon.states import FileState
 from poisoner.ladder import default_spec
 
 
@@ -20,7 +21,7 @@ def _run_demo(workdir: Path, *args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "daemon.cli", "demo", "--workdir", str(workdir), *args],
         capture_output=True, text=True, timeout=900, check=False,
-        env={**os.environ, "COLUMNS": "200"},  # rich would shorten the status table's names to 80
+        env={**os.environ, "COLUMNS": "80"},  # status fits 80 columns without cutting a name
     )  # fmt: skip
 
 
@@ -32,7 +33,7 @@ def test_demo_protects_every_view_with_the_default_spec(tmp_path: Path) -> None:
     assert len(views) == 4
     with sqlite3.connect(tmp_path / "data" / "ppd.sqlite3") as db:
         rows = db.execute("SELECT state, spec_id FROM files WHERE dataset = 'demo-scene'").fetchall()
-    assert rows and {r[0] for r in rows} == {"protected"} and len(rows) == 4
+    assert rows and {r[0] for r in rows} == {FileState.PATCHED.value} and len(rows) == 4
     assert {r[1] for r in rows} == {default_spec().spec_id}
     # the patch moves: the protected views differ from their vault originals in different places
     spec = default_spec()
@@ -41,7 +42,7 @@ def test_demo_protects_every_view_with_the_default_spec(tmp_path: Path) -> None:
     preview = tmp_path / "preview.png"
     with Image.open(preview) as im:
         assert im.size[0] > 400 and np.asarray(im).std() > 0
-    assert "demo-scene" in proc.stdout
+    assert "demo-scene" in proc.stdout and "patched, not verified" in proc.stdout
 
 
 @pytest.mark.integration

@@ -68,3 +68,38 @@ def test_mismatched_sizes_are_rejected() -> None:
     placement = PatchSpec(patch_size=10).resolve(50, 50)
     with pytest.raises(ValueError):
         render_preview(scene(50, 50), scene(40, 50), placement)
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_oriented_placement_is_where_a_viewer_sees_the_patch(tmp_path, orientation: int) -> None:
+    from PIL import Image, ImageOps
+
+    from poisoner.preview import orient, oriented_placement
+
+    w, h = 120, 80
+    placement = PatchSpec(patch_size=20, offset=(10, 5)).resolve(w, h)
+    stored = np.zeros((h, w, 3), np.uint8)
+    stored[placement.y : placement.y + 20, placement.x : placement.x + 20] = 255
+    im = Image.fromarray(stored)
+    exif = im.getexif()
+    exif[0x0112] = orientation
+    im.save(tmp_path / "o.png", exif=exif)
+    with Image.open(tmp_path / "o.png") as saved:
+        shown = np.asarray(ImageOps.exif_transpose(saved).convert("RGB"))
+    np.testing.assert_array_equal(orient(stored, orientation), shown)
+    moved = oriented_placement(placement, orientation, w, h)
+    assert (shown[moved.y : moved.y + 20, moved.x : moved.x + 20] == 255).all()
+    assert shown.sum() == stored.sum()  # the whole patch, nothing else
+
+
+def test_labels_add_a_caption_strip() -> None:
+    from poisoner.preview import LABEL_HEIGHT
+
+    original = scene()
+    placement = PatchSpec(patch_size=40, block_size=4, position="center").resolve(300, 200)
+    poisoned = apply_patch(original, placement)
+    plain = render_preview(original, poisoned, placement)
+    labelled = render_preview(original, poisoned, placement, labels=("original", "patched"))
+    assert labelled.shape[0] == plain.shape[0] + LABEL_HEIGHT
+    assert (labelled[:LABEL_HEIGHT] > 200).any()  # white text in the strip
+    np.testing.assert_array_equal(labelled[LABEL_HEIGHT : LABEL_HEIGHT + 200], plain[:200])  # panels intact

@@ -136,6 +136,8 @@ def test_dataset_report_with_the_real_store(ppd_env: dict[str, Path], tmp_path: 
     try:
         data = rp.build_dataset_report(ctx, "trip")
         assert data.verdict == "not_protected"  # the weakest profile of the latest run
+        assert data.protection == "NOT protected (hardened): find a design that holds: `ppd auto trip`"
+        assert 'id="protection"' in rp.render_html(data)
         assert data.reasons == {"hardened": ["hardened reason"], "default": ["default reason"]}
         history = next(t for t in data.tables if t.title.startswith("Verification history"))
         assert [r[1] for r in history.rows] == ["hardened", "default"]  # newest first

@@ -140,3 +140,16 @@ def test_service_install_status_uninstall(ppd_env: dict[str, Path], tmp_path: Pa
     assert removed.returncode == 0 and not unit.exists()
     again = _ppd("service", "uninstall", env=env)
     assert "was not installed" in again.stderr
+
+
+def test_service_install_print_writes_nothing(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    xdg = tmp_path / "xdg"
+    env = {**os.environ, "XDG_CONFIG_HOME": str(xdg)}
+    printed = _ppd("service", "install", "--print", env=env)
+    assert printed.returncode == 0, printed.stderr
+    assert "[Service]" in printed.stdout and f"PPD_OUTBOX={ppd_env['outbox']}" in printed.stdout
+    assert not xdg.exists()  # nothing written
+    shown = _ppd("service", "install", "--help", env=env)
+    assert "$XDG_CONFIG_HOME" in shown.stdout and str(xdg) in "".join(shown.stdout.split())
+    plain = _ppd("service", "install", "--help", env={k: v for k, v in env.items() if k != "XDG_CONFIG_HOME"})
+    assert "~/.config/systemd/user" in plain.stdout

@@ -16,6 +16,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from daemon.states import verdict_words
+
 PROFILE_CHOICES = ("default", "hardened", "published", "all")
 VERDICT_STYLE = {
     "protected": "bold green",
@@ -56,12 +58,13 @@ def _side_rows(clean: dict[str, Any], poisoned: dict[str, Any]) -> list[tuple[st
 def profile_table(p: dict[str, Any]) -> Table:
     verdict = p["verdict"]
     table = Table(
-        title=f"profile [bold]{p['profile']}[/]: [{VERDICT_STYLE.get(verdict, 'bold')}]{verdict}[/]",
+        title=f"profile [bold]{p['profile']}[/]: "
+        f"[{VERDICT_STYLE.get(verdict, 'bold')}]{verdict_words(verdict)}[/]",
         title_justify="left",
     )
-    table.add_column("metric")
-    table.add_column("clean", justify="right")
-    table.add_column("poisoned", justify="right")
+    table.add_column("metric", overflow="fold")  # folded, never cut with an ellipsis
+    table.add_column("clean", justify="right", overflow="fold")
+    table.add_column("poisoned", justify="right", overflow="fold")
     for row in _side_rows(p["clean"], p["poisoned"]):
         table.add_row(*row)
     vc = p.get("vs_clean") or {}
@@ -84,9 +87,9 @@ def profile_table(p: dict[str, Any]) -> Table:
 
 def splat_table(splat: dict[str, Any]) -> Table:
     """The paper's two costs: cost1 (renders vs inputs, clean and poisoned), cost2 (poisoned vs clean)."""
-    table = Table(title="splat stage (Verifier II)", title_justify="left")
+    table = Table(title="splat stage (render quality)", title_justify="left")
     for col in ("", "SSIM", "PSNR (dB)", "LPIPS", "views", "iterations", "train s"):
-        table.add_column(col, justify="right" if col else "left")
+        table.add_column(col, justify="right" if col else "left", overflow="fold")
     for side in ("clean", "poisoned"):
         s = splat.get(side) or {}
         c1 = s.get("cost1") or {}
@@ -121,7 +124,7 @@ def print_report(report: dict[str, Any], console: Console) -> None:
             console.print(f"  • {reason}")
         console.print()
     v = report["verdict"]
-    console.print(f"overall (weakest profile): [{VERDICT_STYLE.get(v, 'bold')}]{v}[/]")
+    console.print(f"overall (weakest profile): [{VERDICT_STYLE.get(v, 'bold')}]{verdict_words(v)}[/]")
 
 
 def _json_safe(x: Any) -> Any:
@@ -134,24 +137,36 @@ def _json_safe(x: Any) -> Any:
     return x
 
 
+VERIFY_EXAMPLES = """\b
+Examples:
+  ppd verify castle                       a dataset
+  ppd verify ~/shoots/castle              the folder `ppd poison` patched
+  ppd verify pub/ --clean originals/      any patched folder and its originals
+"""
+
+
 def register(app: typer.Typer) -> None:
-    @app.command("verify")
+    @app.command("verify", epilog=VERIFY_EXAMPLES)
     def verify(
-        target: str = typer.Argument(
-            ..., help="A dataset name (first-level outbox folder) or a poisoned image folder."
+        target: str | None = typer.Argument(
+            None, help="A dataset, or a folder ppd patched (or any patched folder, with --clean)."
         ),
-        profile: str = typer.Option("all", "--profile", "-p", help="default | hardened | published | all"),
+        dataset: str | None = typer.Option(None, "--dataset", help="Verify this dataset (explicit form)."),
+        folder: Path | None = typer.Option(None, "--folder", help="Verify this folder (explicit form)."),
+        profile: str = typer.Option(
+            "all", "--profile", "-p", help="Attacker profile: default, hardened, published or all."
+        ),
         as_json: bool = typer.Option(False, "--json", help="Print the verdict and every metric as JSON."),
         clean: Path | None = typer.Option(
-            None, "--clean", help="Clean originals (with PATH): same file names."
+            None, "--clean", metavar="DIR", help="Clean originals of a folder ppd did not patch (same names)."
         ),
         ground_truth: Path | None = typer.Option(
             None, "--gt", help="Ground-truth cameras: transforms_train.json or a gt_dense_cameras folder."
         ),
-        out: Path | None = typer.Option(None, "--out", help="Where to keep the SfM models (with PATH)."),
+        out: Path | None = typer.Option(None, "--out", help="Where to keep the SfM models (with --clean)."),
         timeout: float = typer.Option(1800.0, "--timeout", help="Seconds allowed per SfM run."),
         splat: bool = typer.Option(
-            False, "--splat", help="Also train clean and poisoned Gaussian splats (the paper's cost1/cost2)."
+            False, "--splat", help="Also train clean and poisoned Gaussian splats (renders' quality)."
         ),
         splat_budget: float = typer.Option(
             150.0, "--splat-budget", help="Seconds of splat training per side (with --splat)."
@@ -160,7 +175,10 @@ def register(app: typer.Typer) -> None:
             False, "--white-background", help="Composite transparent images on white (NeRF-Synthetic)."
         ),
     ) -> None:
-        """Run COLMAP on the clean and the poisoned set and say whether protection holds."""
+        """Run COLMAP (structure from motion) on the originals and on the patched set and say
+        whether the patch protects: protected, weak, NOT protected, or could not be verified."""
+        from daemon.cli_common import EXIT_USAGE, die, warning
+        from daemon.cli_targets import TargetError, resolve_target
         from verifier.verification import (
             VerificationInputError,
             VerifyOptions,
@@ -168,34 +186,49 @@ def register(app: typer.Typer) -> None:
             verify_folders,
         )
 
-        console = Console(stderr=as_json)
+        console = Console(stderr=as_json, soft_wrap=True, highlight=False)
         if profile not in PROFILE_CHOICES:
-            raise typer.BadParameter(f"--profile must be one of {', '.join(PROFILE_CHOICES)}")
+            raise die(f"--profile must be one of {', '.join(PROFILE_CHOICES)}", EXIT_USAGE)
         profiles = ("default", "hardened", "published") if profile == "all" else (profile,)
         options = VerifyOptions(timeout_s=timeout, ground_truth=ground_truth, splat=splat)
         options.splat_options.update(time_budget_s=splat_budget, white_background=white_background)
         try:
-            path = Path(target)
-            if clean is not None or path.is_dir():
-                if clean is None:
+            from daemon.protect import AppContext
+
+            if clean is not None:
+                path = folder or Path(target or "")
+                if not path.is_dir():
                     raise VerificationInputError(
-                        f"{target} is a folder: give its clean originals with --clean DIR"
+                        f"{path} is not a folder (with --clean, give the patched folder)"
                     )
                 out_dir = out or Path(tempfile.mkdtemp(prefix="ppd-verify-"))
-                with console.status("running COLMAP on clean and poisoned sets…"):
+                with console.status("running COLMAP on clean and patched sets…"):
                     report = verify_folders(clean, path, out_dir, profiles, options)
             else:
-                from daemon.protect import AppContext
-
-                ctx = AppContext.open()
                 try:
-                    with console.status(f"verifying dataset {target}…"):
-                        report = verify_dataset(ctx, target, profiles, options)
+                    ctx = AppContext.open()
+                except Exception as exc:  # no usable store: only --clean can verify a folder
+                    raise VerificationInputError(
+                        f"ppd's store cannot be opened ({str(exc).splitlines()[0]}); for a folder, "
+                        "give its clean originals with --clean DIR"
+                    ) from None
+                try:
+                    chosen = resolve_target(ctx.store, target, dataset=dataset, folder=folder)
+                    if chosen.note and chosen.folder is None:
+                        warning(chosen.note)  # a name that is also a folder here: say which was taken
+                    elif chosen.note:
+                        console.print(chosen.note, markup=False)
+                    if chosen.dataset is None:
+                        raise VerificationInputError(
+                            f"{chosen.folder} is not a folder ppd patched: give its clean originals "
+                            "with --clean DIR"
+                        )
+                    with console.status(f"verifying dataset {chosen.dataset}…"):
+                        report = verify_dataset(ctx, chosen.dataset, profiles, options)
                 finally:
                     ctx.close()
-        except (VerificationInputError, ValueError, OSError) as exc:
-            Console(stderr=True).print(f"[red]error:[/] {exc}")
-            raise typer.Exit(2) from exc
+        except (VerificationInputError, TargetError, ValueError, OSError) as exc:
+            raise die(str(exc), EXIT_USAGE) from None
         data = report.to_dict()
         if as_json:
             print(json.dumps(_json_safe(data), indent=1))

@@ -85,6 +85,7 @@ class ReportData:
     figures: list[Figure] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     generated_at: float = field(default_factory=time.time)
+    protection: str | None = None  # a dataset's state in ppd's words, e.g. "patched, not verified"
 
 
 # ---- paths ------------------------------------------------------------------------------------
@@ -221,19 +222,24 @@ def history_table(runs: Sequence[Mapping[str, Any]]) -> Table:
 
 
 def patch_preview_figure(original: Path, protected: Path, spec: Any) -> Figure | None:
-    """poisoner.preview of one original and its protected file (image files only)."""
-    from poisoner.preview import render_preview
+    """poisoner.preview of one original and its patched file (image files only). The zoom is
+    where this file's patch is: a moving spec places it by the file's name (its image index)."""
+    from poisoner.preview import orient, oriented_placement, render_preview
 
     try:
         with Image.open(original) as a_im, Image.open(protected) as b_im:
             a, b = np.asarray(a_im.convert("RGB")), np.asarray(b_im.convert("RGB"))
-        placement = spec.resolve(a.shape[1], a.shape[0])
-        pixels = render_preview(a, b, placement)
+            orientation = b_im.getexif().get(0x0112)
+        # the patch sits in the stored pixels (poisoner.formats); show both as a viewer would
+        placement = spec.resolve(a.shape[1], a.shape[0], image_key=protected.name)
+        placement = oriented_placement(placement, orientation, a.shape[1], a.shape[0])
+        a, b = orient(a, orientation), orient(b, orientation)
+        pixels = render_preview(a, b, placement, labels=("original", f"patched ({protected.name})"))
     except Exception as exc:  # a preview is a nicety: never fail the report for it
         log.warning("no patch preview", extra={"file": str(protected), "error": str(exc)})
         return None
     return Figure(
-        f"Patch preview: original | protected ({protected.name}), zoom on the patch below", png_bytes(pixels)
+        f"Patch preview: original | patched ({protected.name}), zoom on the patch below", png_bytes(pixels)
     )
 
 
@@ -278,6 +284,11 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
         title=f"ppd report — dataset {dataset}",
         verdict=overall(r["verdict"] for r in latest) if latest else None,
     )
+    from daemon.states import dataset_protection, next_step, protection_text
+
+    state, under = dataset_protection(ctx.store.counts(dataset), {r["profile"]: r for r in latest})
+    step = next_step(state, dataset)
+    data.protection = protection_text(state, under) + (f": {step}" if step else "")
     if not latest:
         data.notes.append(f"Dataset {dataset!r} has never been verified: run `ppd verify {dataset}`.")
     _add_profile_content(data, profiles)
@@ -416,8 +427,12 @@ def render_html(data: ReportData) -> str:
             f'<div class="banner" id="verdict" data-verdict="{html.escape(data.verdict)}" '
             f'style="background:{colour}">Verdict: {html.escape(text)}</div>'
         )
+    elif data.protection is not None:
+        parts.append(f'<div class="nobanner" id="protection">{html.escape(data.protection)}</div>')
     else:
         parts.append('<div class="nobanner">No verdict: this page summarises an experiment.</div>')
+    if data.protection is not None and data.verdict is not None:
+        parts.append(f'<p id="protection">Dataset: {html.escape(data.protection)}</p>')
     if data.reasons:
         parts.append("<h2>Why</h2>")
         for profile, reasons in data.reasons.items():

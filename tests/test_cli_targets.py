@@ -1,0 +1,89 @@
+"""`ppd verify X` / `ppd report X`: X as a dataset or as the folder `ppd poison` patched, and
+which one was taken when a name and a folder both match. Real store, real files, no COLMAP."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from daemon.cli_targets import TargetError, dataset_for_folder, resolve_target
+from daemon.protect import AppContext
+
+runner = CliRunner()
+
+
+def make_image(path: Path, seed: int) -> Path:
+    rng = np.random.default_rng(seed)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)).save(path)
+    return path
+
+
+@pytest.fixture
+def shoot(ppd_env: dict[str, Path], tmp_path: Path) -> Path:
+    folder = tmp_path / "photos" / "castle"
+    for i in range(2):
+        make_image(folder / f"view{i}.png", i)
+    return folder
+
+
+def test_a_patched_folder_is_its_dataset(shoot: Path, tmp_path: Path) -> None:
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    other = tmp_path / "photos" / "tower"
+    make_image(other / "a.png", 3)
+    assert runner.invoke(app, ["poison", str(other), "--out", str(tmp_path / "pub")]).exit_code == 0
+    ctx = AppContext.open()
+    try:
+        assert dataset_for_folder(ctx.store, shoot) == "castle"
+        assert dataset_for_folder(ctx.store, tmp_path / "pub" / "tower") == "tower"
+        plain = tmp_path / "plain"
+        plain.mkdir()
+        assert dataset_for_folder(ctx.store, plain) is None
+        assert resolve_target(ctx.store, str(shoot)).dataset == "castle"
+        assert resolve_target(ctx.store, None, folder=plain).dataset is None
+        assert resolve_target(ctx.store, None, dataset="tower").dataset == "tower"
+        with pytest.raises(TargetError, match="no dataset 'nope'"):
+            resolve_target(ctx.store, "nope")
+        with pytest.raises(TargetError, match="give one of"):
+            resolve_target(ctx.store, "castle", dataset="castle")
+    finally:
+        ctx.close()
+
+
+def test_a_name_that_is_also_a_folder_here_says_which(
+    shoot: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    here = tmp_path / "elsewhere"
+    (here / "castle").mkdir(parents=True)  # a folder named like the dataset, not the dataset's
+    monkeypatch.chdir(here)
+    ctx = AppContext.open()
+    try:
+        chosen = resolve_target(ctx.store, "castle")
+    finally:
+        ctx.close()
+    assert chosen.dataset == "castle" and chosen.folder is None
+    assert "took the dataset" in (chosen.note or "") and "--folder castle" in (chosen.note or "")
+    shown = runner.invoke(app, ["verify", "castle", "--profile", "default"])
+    assert "took the dataset" in shown.output
+    assert "needs at least 3" in shown.output  # it went on with the dataset (2 files), not the folder
+
+
+def test_verify_and_report_accept_the_patched_folder(shoot: Path, tmp_path: Path) -> None:
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    verify = runner.invoke(app, ["verify", str(shoot), "--profile", "default"])
+    assert verify.exit_code == 2 and "dataset 'castle' has 2" in verify.output  # the dataset was taken
+    plain = tmp_path / "plain"
+    make_image(plain / "a.png", 1)
+    refused = runner.invoke(app, ["verify", str(plain)])
+    assert refused.exit_code == 2 and "--clean" in refused.output
+    report = runner.invoke(app, ["report", str(shoot), "--out", str(tmp_path / "r.html")])
+    assert report.exit_code == 0, report.output
+    assert "dataset 'castle'" in report.output and (tmp_path / "r.html").is_file()
+    explicit = runner.invoke(app, ["report", "--dataset", "castle", "--out", str(tmp_path / "e.html")])
+    assert explicit.exit_code == 0, explicit.output

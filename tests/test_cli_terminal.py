@@ -1,0 +1,327 @@
+"""What a person sees on the terminal: one-line errors at any width, exit codes, the vocabulary of
+states, status at 80 and 40 columns, the shared spec options. Real `ppd` processes in a subprocess
+(COLUMNS=40, a 150-character TMPDIR) where the terminal matters; CliRunner elsewhere."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from daemon.cli_common import KeyValueFormatter, os_error_text, reason_text
+from daemon.cli_spec import SpecOptions, designs, spec_fields
+from daemon.protect import AppContext
+from daemon.states import FileState, Protection, dataset_protection, protection_text
+from poisoner.ladder import default_spec
+from poisoner.spec import PatchSpec
+
+REPO = Path(__file__).resolve().parents[1]
+runner = CliRunner()
+
+
+def make_image(path: Path, seed: int, size: tuple[int, int] = (160, 120)) -> Path:
+    rng = np.random.default_rng(seed)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(rng.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8)).save(path)
+    return path
+
+
+@pytest.fixture
+def narrow_env(tmp_path: Path, ppd_env: dict[str, Path]) -> dict[str, str]:
+    """The environment of a 40-column terminal with a 150-character TMPDIR (and ppd's folders)."""
+    long_tmp = tmp_path / ("t" * 60) / ("m" * 60)
+    long_tmp = Path(str(long_tmp) + "/" + "x" * max(1, 150 - len(str(long_tmp)) - 1))
+    long_tmp.mkdir(parents=True)
+    assert len(str(long_tmp)) >= 150
+    env = dict(os.environ, COLUMNS="40", LINES="20", TMPDIR=str(long_tmp), PYTHONPATH=str(REPO))
+    env.pop("PPD_LOG_LEVEL", None)
+    return env
+
+
+def ppd(env: dict[str, str], *args: str, columns: int | None = None) -> subprocess.CompletedProcess[str]:
+    if columns is not None:
+        env = dict(env, COLUMNS=str(columns))
+    return subprocess.run(
+        [sys.executable, "-m", "daemon.cli", *args], cwd=REPO, env=env, capture_output=True, text=True,
+        timeout=120,
+    )  # fmt: skip
+
+
+def one_error_line(proc: subprocess.CompletedProcess[str]) -> str:
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("ppd: error: "), lines[0]
+    assert "Traceback" not in proc.stderr and "╭" not in proc.stderr
+    return lines[0]
+
+
+# ---- errors: one unwrapped line, one style, exit code ---------------------------------------
+def test_errors_are_one_line_at_40_columns_with_a_long_tmpdir(narrow_env: dict[str, str]) -> None:
+    missing = Path(narrow_env["TMPDIR"]) / "no such folder of images"
+    proc = ppd(narrow_env, "experiment", str(missing), "--sweep", "P=10,20")
+    line = one_error_line(proc)
+    assert proc.returncode == 2 and "not a folder of images" in line and str(missing) in line
+
+    usage = ppd(narrow_env, "poison", "--no-such-flag")
+    assert usage.returncode == 2 and "--no-such-flag" in one_error_line(usage)
+
+    preview = ppd(narrow_env, "preview", str(missing / "a.jpg"))
+    assert preview.returncode == 2 and "does not exist" in one_error_line(preview)
+
+    unknown = ppd(narrow_env, "restore", "no-such-dataset")
+    assert unknown.returncode == 2 and "no-such-dataset" in one_error_line(unknown)
+
+
+def test_version_and_help_read_well(narrow_env: dict[str, str]) -> None:
+    version = ppd(narrow_env, "--version")
+    assert version.returncode == 0 and version.stdout.startswith("ppd ")
+    assert version.stdout.split()[1][0].isdigit()
+    top = ppd(narrow_env, "--help", columns=80)
+    assert "Exit status:" in top.stdout and "130  interrupted" in top.stdout
+    for command in (["poison"], ["preview"], ["dataset", "set"], ["status"], ["restore"], ["watch"]):
+        shown = ppd(narrow_env, *command, "--help", columns=80)
+        assert shown.returncode == 0, shown.stderr
+        text = shown.stdout
+        assert "<bool>" not in text and "poisoner." not in text and "{paths}" not in text, text
+        assert max(len(line) for line in text.splitlines()) <= 80
+        if command[0] in ("poison", "preview", "dataset", "status", "restore"):
+            assert "Examples:" in text and f"ppd {' '.join(command)}" in text
+
+
+def test_os_errors_say_what_to_do() -> None:
+    import errno
+
+    denied = OSError(errno.EACCES, "Permission denied", "/photos/castle/.ppd-tmp-x1.jpg")
+    assert os_error_text(denied) == "folder not writable: /photos/castle; use --out DIR"
+    assert os_error_text(OSError(errno.ENOSPC, "No space left", "/out/a.jpg")).startswith("disk full")
+    raw = "[Errno 13] Permission denied: '/photos/castle/.ppd-tmp-_isopwap.jpg'"
+    assert reason_text(raw) == "folder not writable: /photos/castle; use --out DIR"
+    assert reason_text("truncated JPEG") == "truncated JPEG"
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_read_only_folder_is_one_line(tmp_path: Path, narrow_env: dict[str, str]) -> None:
+    folder = tmp_path / "ro"
+    make_image(folder / "a.png", 1)
+    folder.chmod(0o555)
+    try:
+        proc = ppd(narrow_env, "poison", str(folder))
+    finally:
+        folder.chmod(0o755)
+    assert proc.returncode == 3 and "folder not writable" in one_error_line(proc)
+
+
+# ---- the vocabulary ---------------------------------------------------------------------------
+def _run(verdict: str) -> dict[str, object]:
+    return {"verdict": verdict, "finished_at": time.time()}
+
+
+def test_dataset_protection_is_never_more_than_the_verdicts() -> None:
+    patched = {FileState.PATCHED.value: 3, "files": 3}
+    assert dataset_protection({"files": 2, "failed": 2}, {}) == (Protection.NOTHING_PATCHED, [])
+    assert dataset_protection(patched, {}) == (Protection.PATCHED_NOT_VERIFIED, [])
+    assert dataset_protection({"patched": 3}, {}) == (Protection.PATCHED_NOT_VERIFIED, [])  # after migration
+    both = {"default": _run("protected"), "hardened": _run("protected")}
+    assert dataset_protection(patched, both) == (Protection.PROTECTED, ["default", "hardened"])
+    one_fails = {"default": _run("protected"), "hardened": _run("not_protected")}
+    assert dataset_protection(patched, one_fails) == (Protection.NOT_PROTECTED, ["hardened"])
+    assert dataset_protection(patched, {"default": _run("weak")}) == (Protection.WEAK, ["default"])
+    crashed = {"default": _run("sfm_crashed")}
+    assert dataset_protection(patched, crashed) == (Protection.UNVERIFIABLE, ["default"])
+    assert protection_text(Protection.PROTECTED, ["default"]) == "protected under default"
+    assert protection_text(Protection.NOT_PROTECTED, ["hardened"]) == "NOT protected (hardened)"
+
+
+@pytest.fixture
+def shoot(ppd_env: dict[str, Path], tmp_path: Path) -> Path:
+    folder = tmp_path / "photos" / "castle"
+    for i in range(3):
+        make_image(folder / f"view{i}.png", i)
+    return folder
+
+
+def test_poison_summary_says_patched_and_what_to_run(shoot: Path) -> None:
+    result = runner.invoke(app, ["poison", str(shoot)])
+    assert result.exit_code == 0, result.output
+    assert "patched 3, unchanged 0, skipped 0, failed 0" in result.output
+    assert "castle: patched, not verified: run `ppd verify castle`" in result.output
+    assert "protected 3" not in result.output
+    dry = runner.invoke(app, ["poison", str(shoot), "--dry-run", "--force"])
+    assert "dry run, nothing changed" in dry.output and "protect protected" not in dry.output
+
+
+def test_rerun_after_restore_says_left_unprotected(shoot: Path) -> None:
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert runner.invoke(app, ["restore", "castle"]).exit_code == 0
+    again = runner.invoke(app, ["poison", str(shoot)])
+    assert "left unprotected (restored by you): 3; use --force to protect them again" in again.output
+
+
+def test_out_prints_the_real_output_place(shoot: Path, tmp_path: Path) -> None:
+    out = tmp_path / "pub"
+    result = runner.invoke(app, ["poison", str(shoot), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert f"written to {out / 'castle'}{os.sep}" in result.output
+    single = runner.invoke(app, ["poison", str(shoot / "view1.png"), "--out", str(tmp_path / "one")])
+    assert f"written to {tmp_path / 'one' / 'view1.png'}" in single.output
+
+
+def test_status_failed_lists_each_file_with_its_reason(shoot: Path) -> None:
+    (shoot / "broken.png").write_bytes(b"\x89PNG but truncated")
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 1
+    listed = runner.invoke(app, ["status", "castle", "--failed"])
+    assert listed.exit_code == 0, listed.output
+    lines = [line for line in listed.output.splitlines() if "broken.png" in line]
+    assert len(lines) == 1 and lines[0].strip().startswith(str(shoot / "broken.png") + ": ")
+    assert len(lines[0].split(": ", 1)[1].strip()) > 3
+    data = json.loads(runner.invoke(app, ["status", "castle", "--failed", "--json"]).stdout)
+    assert [Path(f["path"]).name for f in data["datasets"][0]["failed_files"]] == ["broken.png"]
+
+
+@pytest.mark.parametrize("columns", [80, 40])
+def test_status_fits_and_keeps_the_verdict_whole(
+    shoot: Path, ppd_env: dict[str, Path], narrow_env: dict[str, str], columns: int
+) -> None:
+    poisoned = runner.invoke(app, ["poison", str(shoot), "--dataset", "a-rather-long-dataset-name"])
+    assert poisoned.exit_code == 0, poisoned.output
+    ctx = AppContext.open()
+    now = time.time()
+    ctx.store.add_verification_run(
+        "a-rather-long-dataset-name", "default", "protected", {}, now - 30, now - 20, None, None
+    )
+    ctx.store.add_verification_run(
+        "a-rather-long-dataset-name", "hardened", "not_protected", {}, now - 10, now - 5, None, None
+    )
+    ctx.close()
+    proc = ppd(narrow_env, "status", columns=columns)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert max(len(line) for line in lines) <= columns, proc.stdout
+    assert any("NOT protected" in line for line in lines), proc.stdout  # the words, whole, on one line
+    assert "…" not in proc.stdout
+    flat = "".join(line.strip(" │|┃") for line in lines)
+    assert "a-rather-long-dataset-name" in flat.replace(" ", "").replace("│", "")
+    long = ppd(narrow_env, "status", "--long", columns=columns)
+    assert "hardened: NOT protected" in long.stdout and "default: protected" in long.stdout
+
+
+def test_status_json_carries_the_protection(shoot: Path) -> None:
+    runner.invoke(app, ["poison", str(shoot)])
+    data = json.loads(runner.invoke(app, ["status", "--json"]).stdout)
+    (castle,) = data["datasets"]
+    assert castle["protection"]["state"] == Protection.PATCHED_NOT_VERIFIED.value
+    assert castle["protection"]["next"] == "run `ppd verify castle`"
+
+
+# ---- spec options -----------------------------------------------------------------------------
+def test_every_patchspec_field_has_a_flag(narrow_env: dict[str, str]) -> None:
+    shown = ppd(narrow_env, "poison", "--help", columns=200).stdout
+    for f in spec_fields():
+        flag = "--block-size" if f.name == "block_size" else "--" + f.name.replace("_", "-")
+        assert flag in shown, flag
+    assert "--version" not in {f.name for f in dataclasses.fields(PatchSpec)}
+    flat = "".join(shown.split())  # click wraps long help lines, hyphens included
+    for name in designs():
+        assert name in flat, name
+
+
+def test_designs_and_flags_express_the_paper_and_the_default() -> None:
+    assert SpecOptions(design="paper").build(default_spec()) == PatchSpec()
+    assert SpecOptions(design="default").build(PatchSpec()) == default_spec()
+    values = (
+        ("pattern", "random_blocks"), ("patch_size", "6%"), ("block_size", "0.5%"), ("offset", "15%,15%"),
+        ("motion", "drift"), ("motion_step", "0.75%"), ("motion_span", "25%"),
+    )  # fmt: skip
+    assert SpecOptions(values=values).build(PatchSpec()) == default_spec()
+    moved = SpecOptions(design="paper", values=(("motion", "orbit"), ("motion_step", "8"))).build(
+        default_spec()
+    )
+    assert moved.motion == "orbit" and moved.motion_step == 8 and moved.pattern == "checkerboard"
+
+
+def test_flags_on_the_command_line_reach_the_spec(shoot: Path) -> None:
+    result = runner.invoke(
+        app, ["poison", str(shoot), "--design", "paper", "--motion", "drift", "--motion-step", "6",
+              "--offset", "10,12"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    ctx = AppContext.open()
+    spec = ctx.store.dataset_spec("castle")
+    ctx.close()
+    assert spec == PatchSpec(motion="drift", motion_step=6, offset=(10, 12))
+    bad = runner.invoke(app, ["preview", str(shoot / "view0.png"), "--design", "nope"])
+    assert bad.exit_code == 2 and "unknown design" in bad.output
+
+
+# ---- the daemon's log lines --------------------------------------------------------------------
+def test_daemon_log_lines_are_key_value() -> None:
+    import logging
+
+    record = logging.LogRecord("daemon.watcher", logging.INFO, __file__, 1, "watching %s", ("/o x",), None)
+    record.outbox = "/o x"
+    record.workers = 2
+    line = KeyValueFormatter().format(record)
+    assert line == 'level=info logger=daemon.watcher msg="watching /o x" outbox="/o x" workers=2'
+    assert "\x1b[" not in line
+
+
+# ---- preview: what a viewer sees ---------------------------------------------------------------
+def test_preview_of_a_phone_photo_is_upright_and_labelled(shoot: Path, tmp_path: Path) -> None:
+    from poisoner.preview import GAP, LABEL_HEIGHT
+
+    photo = tmp_path / "phone" / "IMG_0001.jpg"
+    photo.parent.mkdir()
+    rng = np.random.default_rng(1)
+    im = Image.fromarray(rng.integers(0, 256, (120, 160, 3), dtype=np.uint8))  # stored landscape
+    exif = im.getexif()
+    exif[0x0112] = 6  # shown rotated: portrait 120 x 160
+    im.save(photo, exif=exif, quality=95)
+    out = tmp_path / "p.png"
+    result = runner.invoke(app, ["preview", str(photo), "--out", str(out), "--design", "paper"])
+    assert result.exit_code == 0, result.output
+    assert f"preview written to {out}" in result.output
+    with Image.open(out) as shown:
+        pixels = np.asarray(shown.convert("RGB"))
+    assert pixels.shape[1] == 2 * 120 + GAP  # two portrait panels side by side
+    assert (pixels[LABEL_HEIGHT + 160 - 1, :120] != 32).any()  # the panel is 160 tall (portrait)
+    assert (pixels[:LABEL_HEIGHT] > 200).any()  # captions
+
+
+def test_preview_of_a_video_shows_a_frame(shoot: Path, tmp_path: Path) -> None:
+    import av
+
+    clip = tmp_path / "clip.mp4"
+    rng = np.random.default_rng(2)
+    with av.open(str(clip), "w") as container:
+        stream = container.add_stream("mpeg4", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 160, 96, "yuv420p"
+        for i in range(5):
+            rgb = rng.integers(0, 256, (96, 160, 3), dtype=np.uint8)
+            frame = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format="yuv420p")
+            frame.pts = i
+            for packet in stream.encode(frame):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    out = tmp_path / "clip.png"
+    result = runner.invoke(app, ["preview", str(clip), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    with Image.open(out) as shown:
+        assert shown.width >= 2 * 160
+
+
+def test_a_damaged_store_is_one_line(narrow_env: dict[str, str], ppd_env: dict[str, Path]) -> None:
+    (ppd_env["data"] / "ppd.sqlite3").write_bytes(bytes(range(256)) * 20)
+    proc = ppd(narrow_env, "status")
+    line = one_error_line(proc)
+    assert proc.returncode in (2, 3) and "store" in line.lower()
