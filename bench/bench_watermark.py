@@ -336,12 +336,22 @@ def write_markdown() -> None:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m bench.bench_watermark")
-    ap.add_argument("--dataset", required=True, choices=["lego", "dtu", "object", "fountain"])
-    ap.add_argument("--designs", required=True, help=f"comma-separated: {', '.join(named_specs())}")
+    ap.add_argument("--dataset", choices=["lego", "dtu", "object", "fountain"])
+    ap.add_argument("--pictures", action="store_true", help="each design on dtu_scan37 000000.png only")
+    ap.add_argument("--designs", default="", help=f"comma-separated: {', '.join(named_specs())}")
     ap.add_argument("--profiles", default=",".join(PROFILES), help="comma-separated; '' = visibility only")
     ap.add_argument("--seeds", default="0", help="COLMAP random seeds of the poisoned runs")
     ap.add_argument("--spec-seed", type=int, default=0, help="the spec's seed (texture, per-image turns)")
     args = ap.parse_args(argv if argv is not None else [])
+    if args.pictures:
+        dtu = _shared("dtu_scan37")
+        out = RESULTS_MD.parent / "designs"
+        masks = sorted((dtu / "mask").glob("*.png"))
+        rows = pictures(dtu / "images" / "000000.png", dtu / "mask" / "000.png", masks, out)
+        (out / "pictures.json").write_text(json.dumps(rows, indent=1) + "\n")
+        return
+    if not args.dataset or not args.designs:
+        raise SystemExit("--dataset and --designs are required (or --pictures)")
     specs = named_specs()
     ds = setup(args.dataset)
     profiles = tuple(p for p in args.profiles.split(",") if p)
@@ -350,6 +360,44 @@ def main(argv: list[str] | None = None) -> None:
         if design not in specs:
             raise SystemExit(f"unknown design {design!r}; choose from {', '.join(specs)}")
         run_case(ds, design, specs[design].replace(seed=args.spec_seed), profiles, seeds)
+
+
+
+# ---- pictures ----------------------------------------------------------------------------------------------
+def pictures(
+    photo: Path, mask: Path, set_masks: list[Path], out_dir: Path, display_width: int = 1920
+) -> list[dict[str, Any]]:
+    """Each named design on one real photo (full resolution), saved at display size, with FLIP figures.
+
+    The watermark designs keep off this photo's subject mask and sit in the corner the subject
+    covers least over the whole set (set_masks), as bench runs place them."""
+    with Image.open(photo) as im:
+        pixels = np.asarray(im.convert("RGB"))
+
+    def load(p: Path) -> np.ndarray:
+        with Image.open(p) as m:
+            return np.asarray(m.convert("L")) > 127
+
+    subject = load(mask)
+    corner = least_covered_corner([load(p) for p in set_masks], 0.2)
+    rows = []
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for design, spec in named_specs().items():
+        keep_out = None
+        if spec.motion == "tumble":
+            spec = spec.replace(position=corner)
+            keep_out = subject
+        h, w = pixels.shape[:2]
+        out = apply_patch(pixels, spec.resolve(w, h, image_key=photo.name), keep_out)
+        vis = visibility_report(pixels, out, display_width=display_width, subject_mask=subject)
+        shown = Image.fromarray(out).resize(
+            (display_width, round(h * display_width / w)), Image.Resampling.LANCZOS
+        )
+        path = out_dir / f"design-{design}.png"
+        shown.save(path, optimize=True)
+        rows.append({"design": design, "file": path.name, **vis.to_dict()})
+        print(f"{design}: {json.dumps(rows[-1])}", flush=True)
+    return rows
 
 
 if __name__ == "__main__":
