@@ -30,14 +30,56 @@ def _max_value(dtype: np.dtype) -> int:
     raise TypeError(f"unsupported pixel type {dtype}: expected uint8 or uint16")
 
 
+def _turned(placement: PatchPlacement) -> tuple[np.ndarray, np.ndarray]:
+    """(pattern mask, coverage) on the placement's size x size box for a turned, scaled texture.
+
+    Nearest-neighbour inverse mapping: the two levels stay two levels (crisp corners for SIFT,
+    no grey fringe that would widen the changed area).
+    """
+    t = placement.texture_size
+    base = pattern_mask(placement.pattern, t, placement.block, placement.seed)
+    n = placement.size
+    c = n / 2.0
+    yy, xx = np.mgrid[0:n, 0:n].astype(np.float64) + 0.5
+    rad = np.radians(placement.angle)
+    cos, sin = np.cos(rad), np.sin(rad)
+    px, py = xx - c, yy - c
+    u = (cos * px + sin * py) / placement.scale + t / 2.0
+    v = (-sin * px + cos * py) / placement.scale + t / 2.0
+    inside = (u >= 0) & (u < t) & (v >= 0) & (v < t)
+    ui = np.clip(np.floor(u).astype(int), 0, t - 1)
+    vi = np.clip(np.floor(v).astype(int), 0, t - 1)
+    return base[vi, ui] & inside, inside
+
+
+def patch_coverage(placement: PatchPlacement) -> np.ndarray:
+    """Which pixels of the placement's box the patch changes (all of them unless it is turned)."""
+    if placement.texture_size == 0:
+        return np.ones((placement.size, placement.size), dtype=bool)
+    return _turned(placement)[1]
+
+
 def patch_values(placement: PatchPlacement, max_value: int = 255) -> np.ndarray:
-    """The pattern's float intensities (P x P) for a placement, on a 0..max_value scale."""
-    mask = pattern_mask(placement.pattern, placement.size, placement.block, placement.seed)
+    """The pattern's float intensities (P x P) for a placement, on a 0..max_value scale.
+
+    For a turned mark, pixels outside it (patch_coverage False) read as bright; apply_patch leaves
+    them untouched.
+    """
+    if placement.texture_size == 0:
+        mask = pattern_mask(placement.pattern, placement.size, placement.block, placement.seed)
+    else:
+        mask = _turned(placement)[0]
     return pattern_levels(mask, placement.contrast, max_value)
 
 
-def apply_patch(pixels: np.ndarray, placement: PatchPlacement) -> np.ndarray:
-    """Return a copy of pixels (H x W, H x W x C; uint8 or uint16) with the patch blended in."""
+def apply_patch(
+    pixels: np.ndarray, placement: PatchPlacement, keep_out: np.ndarray | None = None
+) -> np.ndarray:
+    """Return a copy of pixels (H x W, H x W x C; uint8 or uint16) with the patch blended in.
+
+    keep_out (H x W, nonzero = leave alone), e.g. a subject mask: those pixels are never changed,
+    so a mark beside the subject never covers it.
+    """
     if pixels.ndim not in (2, 3):
         raise ValueError(f"expected an H x W or H x W x C array, got shape {pixels.shape}")
     max_value = _max_value(pixels.dtype)
@@ -69,13 +111,20 @@ def apply_patch(pixels: np.ndarray, placement: PatchPlacement) -> np.ndarray:
         out[y0:y1, x0:x1, channels - 1] = max_value
     else:
         out[y0:y1, x0:x1] = blended.astype(pixels.dtype)
+    write = patch_coverage(placement)
+    if keep_out is not None:
+        if keep_out.shape[:2] != pixels.shape[:2]:
+            raise ValueError(f"keep_out mask {keep_out.shape[:2]} does not match image {pixels.shape[:2]}")
+        write = write & ~(keep_out[y0:y1, x0:x1] > 0)
+    if not write.all():
+        out[y0:y1, x0:x1][~write] = pixels[y0:y1, x0:x1][~write]
     return out
 
 
 def poison_array(
-    pixels: np.ndarray, spec: PatchSpec, image_key: str | None = None
+    pixels: np.ndarray, spec: PatchSpec, image_key: str | None = None, keep_out: np.ndarray | None = None
 ) -> tuple[np.ndarray, PatchPlacement]:
     """Resolve spec on this image's size (and name, for a moving spec) and blend its patch in."""
     height, width = pixels.shape[:2]
     placement = spec.resolve(width, height, image_key=image_key)
-    return apply_patch(pixels, placement), placement
+    return apply_patch(pixels, placement, keep_out), placement

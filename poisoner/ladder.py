@@ -90,6 +90,40 @@ def candidate_ladder() -> list[Candidate]:
 
 DEFAULT_DESIGN = "texture-6pct-drift"
 
+# Issue 14: the kinds of protection a creator chooses between, by name.
+# - "paper": the paper's static corner checkerboard (reference; COLMAP's stationary filter removes it).
+# - "roaming": a visible square of moving texture anywhere in the frame (today's default design).
+# - "watermark": a mark inside one corner region (20% of the width x 20% of the height), turned,
+#   scaled and shifted differently in every image ("tumble"): neither stationary nor a pure
+#   translation, so COLMAP's two defences do not remove it by construction; 7.5% of the width so
+#   that it fits the corner region of a 16:9 frame turned 45 degrees and changes < 1% of a 4:3 image.
+WATERMARK_SPEC = PatchSpec(
+    pattern="random_blocks",
+    patch_size=0.075,
+    block_size=0.005,
+    motion="tumble",
+    corner_region=0.2,
+    tumble_scale=0.75,
+)
+
+
+def named_specs() -> dict[str, PatchSpec]:
+    """The named kinds of protection (see above); every spec is concrete."""
+    return {
+        "paper": PatchSpec(),
+        "roaming": next(c.spec for c in candidate_ladder() if c.name == DEFAULT_DESIGN),
+        "watermark": WATERMARK_SPEC,
+        "watermark-multiscale": WATERMARK_SPEC.replace(pattern="multiscale_blocks"),
+    }
+
+
+def named_spec(name: str) -> PatchSpec:
+    """One named kind of protection; a clear error for an unknown name."""
+    specs = named_specs()
+    if name not in specs:
+        raise ValueError(f"unknown protection {name!r}; choose one of {', '.join(specs)}")
+    return specs[name]
+
 
 def default_spec() -> PatchSpec:
     """The spec a dataset gets when its config names none: the ladder's first rung.

@@ -18,7 +18,7 @@ import hashlib
 import math
 import re
 
-MOTIONS = ("static", "drift", "orbit")
+MOTIONS = ("static", "drift", "orbit", "tumble")
 FALLBACK_PERIOD = 1000  # index range for names without a trailing number
 
 _TRAILING_NUMBER = re.compile(r"(\d+)$")
@@ -55,8 +55,8 @@ def path_offset(motion: str, index: float, step: int, span: int) -> tuple[int, i
       of a camera turning steadily (the phantom motion).
     - orbit: around a circle of diameter span, `step` px of arc per index.
     """
-    if motion == "static" or step == 0:
-        return (0, 0)
+    if motion in ("static", "tumble") or step == 0:
+        return (0, 0)  # a tumbling mark is placed by tumble_pose, not along a path
     if motion == "drift":
         d = _fold(index * step, span)
         return (d, d)
@@ -69,3 +69,44 @@ def path_offset(motion: str, index: float, step: int, span: int) -> tuple[int, i
         dy = int(round(radius + radius * math.sin(angle)))
         return (min(dx, span), min(dy, span))
     raise ValueError(f"unknown motion {motion!r}; choose one of {', '.join(MOTIONS)}")
+
+
+# ---- tumble (issue 14): a corner mark that turns, scales and shifts per image ----------------------
+def _unit(seed: int, index: int, what: str) -> float:
+    """A stable pseudo-random number in [0, 1) for (seed, image index, quantity)."""
+    digest = hashlib.sha256(f"tumble:{seed}:{index}:{what}".encode()).digest()
+    return int.from_bytes(digest[:8], "big") / 2**64
+
+
+def _pose_at(index: int, seed: int, min_scale: float) -> tuple[float, float, float, float]:
+    angle = 360.0 * _unit(seed, index, "angle")
+    scale = min_scale + (1.0 - min_scale) * _unit(seed, index, "scale")
+    return angle, scale, _unit(seed, index, "x"), _unit(seed, index, "y")
+
+
+def tumble_pose(index: float, seed: int, min_scale: float) -> tuple[float, float, float, float]:
+    """(angle in degrees, scale, fx, fy) of image `index`: fx, fy in [0, 1] place the mark in its region.
+
+    Why random per image, not a path: COLMAP's watermark test fits a pure translation to border
+    matches and its stationary filter drops matches that stay put; a mark turned and scaled
+    differently in every image matches between images by a similarity that is neither. Integer
+    indices are independent draws (keyed by seed); a fractional index (a video frame between two
+    steps) interpolates between its neighbours, the angle along the shorter arc, so a video's
+    mark turns smoothly instead of jumping every frame.
+    """
+    lo = math.floor(index)
+    t = index - lo
+    a0 = _pose_at(lo, seed, min_scale)
+    if t == 0:
+        return a0
+    a1 = _pose_at(lo + 1, seed, min_scale)
+    turn = (a1[0] - a0[0] + 180.0) % 360.0 - 180.0
+    angle = (a0[0] + t * turn) % 360.0
+    return (angle, *(a0[i] + t * (a1[i] - a0[i]) for i in (1, 2, 3)))  # type: ignore[return-value]
+
+
+def tumble_extent(texture: int, scale: float, angle: float) -> int:
+    """Side (px) of the bounding box of a texture-px square scaled by `scale` and turned by `angle`."""
+    rad = math.radians(angle)
+    side = texture * scale * (abs(math.cos(rad)) + abs(math.sin(rad)))
+    return max(1, int(math.ceil(side - 1e-9)))

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from poisoner.motion import MOTIONS, image_index, path_offset
+from poisoner.motion import MOTIONS, image_index, path_offset, tumble_extent, tumble_pose
 
 SPEC_VERSION = 1
 
@@ -53,7 +53,14 @@ MIN_BLOCK_PX = 4
 
 # Fields added by issue #9. They stay out of the canonical dict (and so out of spec_id) while at
 # these defaults: every spec stored before them keeps its id.
-NEW_FIELD_DEFAULTS: dict[str, Any] = {"motion": "static", "motion_step": 0, "motion_span": 0.25}
+# Issue 14's fields (corner_region, tumble_scale) likewise.
+NEW_FIELD_DEFAULTS: dict[str, Any] = {
+    "motion": "static",
+    "motion_step": 0,
+    "motion_span": 0.25,
+    "corner_region": 0.2,
+    "tumble_scale": 0.75,
+}
 
 
 class SpecError(ValueError):
@@ -86,6 +93,11 @@ class PatchPlacement:
     contrast: int  # 0..255: bright level is 255, dark level is 255 - contrast (8-bit scale)
     pattern: str
     seed: int
+    # issue 14 ("tumble"): the texture is texture_size px square, turned by angle degrees and
+    # scaled by scale; size is then the side of its bounding box. texture_size 0: not turned.
+    texture_size: int = 0
+    angle: float = 0.0
+    scale: float = 1.0
 
     @property
     def box(self) -> tuple[int, int, int, int]:
@@ -123,6 +135,10 @@ class PatchSpec:
     motion: str = "static"  # static | drift | orbit
     motion_step: Length = 0  # path length per image index, px or fraction of width
     motion_span: Length = 0.25  # extent of the path on each axis, px or fraction of width
+    # issue 14: motion "tumble" keeps the mark inside one corner region (this fraction of the width
+    # and of the height) and turns, scales and shifts it per image (poisoner/motion.py)
+    corner_region: float = 0.2
+    tumble_scale: float = 0.75  # smallest per-image scale of a tumbling mark (largest: 1)
 
     def __post_init__(self) -> None:
         if self.pattern not in PATTERNS:
@@ -146,6 +162,12 @@ class PatchSpec:
         if self.motion_step != 0:
             _resolve_length(self.motion_step, 1000)
         _resolve_length(self.motion_span, 1000)
+        if not 0.0 < self.corner_region <= 0.5:
+            raise SpecError(f"corner_region must be in (0, 0.5], got {self.corner_region}")
+        if not 0.0 < self.tumble_scale <= 1.0:
+            raise SpecError(f"tumble_scale must be in (0, 1], got {self.tumble_scale}")
+        if self.motion == "tumble" and self.position == "center":
+            raise SpecError("a tumbling mark lives in a corner: position must not be 'center'")
         object.__setattr__(self, "offset", (self.offset[0], self.offset[1]))
 
     # ---- geometry -------------------------------------------------------------------------
@@ -167,6 +189,8 @@ class PatchSpec:
         dy = 0 if self.offset[1] == 0 else _resolve_length(abs(self.offset[1]), width)
         if size > width or size > height:
             raise SpecError(f"patch of {size} px does not fit a {width}x{height} image")
+        if self.motion == "tumble":
+            return self._resolve_tumble(width, height, size, block, image_key, index)
         mx, my = self._motion_offset(width, image_key, index)
         if self.position == "center":
             x, y = (width - size) // 2 + dx + mx, (height - size) // 2 + dy + my
@@ -187,6 +211,42 @@ class PatchSpec:
             seed=self.seed,
         )
 
+    def _resolve_tumble(
+        self, width: int, height: int, texture: int, block: int, image_key: str | None, index: float | None
+    ) -> PatchPlacement:
+        """A corner mark: turned, scaled and shifted per image inside the corner region.
+
+        The region is corner_region x width by corner_region x height at the chosen corner; the
+        offset is not used (the shift inside the region replaces it). The mark must fit the region
+        at its largest (scale 1, turned 45 degrees) or the spec is refused for this image size.
+        """
+        rw, rh = int(self.corner_region * width), int(self.corner_region * height)
+        if tumble_extent(texture, 1.0, 45.0) > min(rw, rh):
+            raise SpecError(
+                f"a {texture} px mark turned 45 deg does not fit the {rw}x{rh} px corner region of a "
+                f"{width}x{height} image; use a smaller patch_size or a larger corner_region"
+            )
+        if index is None:
+            index = image_index(image_key) if image_key is not None else 0
+        angle, scale, fx, fy = tumble_pose(index, self.seed, self.tumble_scale)
+        size = tumble_extent(texture, scale, angle)
+        dx, dy = int(round(fx * (rw - size))), int(round(fy * (rh - size)))
+        x = dx if self.position.endswith("left") else width - size - dx
+        y = dy if self.position.startswith("top") else height - size - dy
+        return PatchPlacement(
+            x=x,
+            y=y,
+            size=size,
+            block=block,
+            alpha8=int(math.floor(255 * self.alpha + 0.5)),
+            contrast=int(self.contrast),
+            pattern=self.pattern,
+            seed=self.seed,
+            texture_size=texture,
+            angle=angle,
+            scale=scale,
+        )
+
     def _motion_offset(self, width: int, image_key: str | None, index: float | None) -> tuple[int, int]:
         """Inward (dx, dy) of this image's point on the motion path (centred for "center")."""
         if self.motion == "static" or self.motion_step == 0:
@@ -203,7 +263,7 @@ class PatchSpec:
     @property
     def moves(self) -> bool:
         """Whether the placement depends on the image (its file name)."""
-        return self.motion != "static" and self.motion_step != 0
+        return self.motion == "tumble" or (self.motion != "static" and self.motion_step != 0)
 
     # ---- poisoning ratio ------------------------------------------------------------------
     def selects(self, image_key: str) -> bool:

@@ -151,3 +151,29 @@ def test_apply_patch_refuses_unsupported_arrays() -> None:
     with pytest.raises(ValueError):
         apply_patch(np.zeros((16,), np.uint8), p)
     assert json.loads(PatchSpec().to_json())["pattern"] == "checkerboard"
+
+
+def test_turned_mark_changes_only_its_covered_pixels_and_keeps_off_the_subject() -> None:
+    from poisoner.blend import patch_coverage
+    from poisoner.spec import PatchSpec
+
+    spec = PatchSpec(pattern="random_blocks", patch_size=0.075, motion="tumble")
+    img = np.full((600, 800, 3), 128, np.uint8)
+    p = spec.resolve(800, 600, image_key="r_7.png")
+    assert p.angle % 90 > 5  # this image's mark is really turned (a fixed draw)
+    out = apply_patch(img, p)
+    changed = np.any(out != img, axis=2)
+    x0, y0, x1, y1 = p.box
+    cover = patch_coverage(p)
+    assert not changed[:, :x0].any() and not changed[:y0].any() and not changed[y1:].any()
+    assert np.array_equal(changed[y0:y1, x0:x1], cover)  # every covered pixel, and nothing else
+    # the covered area is the scaled square's, not its bounding box's
+    assert cover.sum() == pytest.approx((p.texture_size * p.scale) ** 2, rel=0.03)
+    assert cover.mean() < 0.9
+    subject = np.zeros((600, 800), bool)
+    subject[: (y0 + y1) // 2, :] = True  # the top half of the mark lies on the subject
+    kept = apply_patch(img, p, keep_out=subject)
+    assert not np.any((kept != img).any(axis=2) & subject)
+    assert np.any((kept != img).any(axis=2))
+    with pytest.raises(ValueError, match="keep_out"):
+        apply_patch(img, p, keep_out=np.zeros((10, 10), bool))

@@ -45,3 +45,17 @@ def test_every_candidate_places_on_common_image_sizes_for_many_images(width: int
 
 def test_ladder_is_deterministic() -> None:
     assert candidate_ladder() == candidate_ladder()
+
+
+def test_named_kinds_of_protection() -> None:
+    from poisoner.ladder import named_spec, named_specs
+
+    specs = named_specs()
+    assert specs["paper"] == PatchSpec()
+    assert specs["roaming"].spec_id == "62922c22a5cae028"  # today's default design, id unchanged
+    assert specs["watermark"].motion == "tumble" and specs["watermark"].corner_region <= 0.2
+    for width, height in SIZES:  # the mark fits every common frame, <= 1% of the area at its largest
+        p = specs["watermark"].resolve(width, height, image_key="r_1.png")
+        assert p.texture_size**2 <= 0.01 * width * height
+    with pytest.raises(ValueError, match="unknown protection"):
+        named_spec("glitter")

@@ -121,3 +121,25 @@ def test_fractional_index_glides_between_photo_steps() -> None:
     assert xs[8] == spec.resolve(400, 300, image_key="a_2.png").x == 46
     assert xs == sorted(xs) and len(set(xs)) == 9  # 2 px per quarter step: monotone, no jumps
     assert spec.resolve(400, 300, index=0.0) == spec.resolve(400, 300)
+
+
+def test_tumble_pose_is_stable_bounded_and_independent_per_image() -> None:
+    from poisoner.motion import tumble_extent, tumble_pose
+
+    poses = [tumble_pose(i, 0, 0.75) for i in range(50)]
+    assert poses == [tumble_pose(i, 0, 0.75) for i in range(50)]
+    for angle, scale, fx, fy in poses:
+        assert 0 <= angle < 360 and 0.75 <= scale <= 1 and 0 <= fx < 1 and 0 <= fy < 1
+    assert len({round(p[0]) for p in poses}) > 40  # turns differ from image to image
+    assert tumble_pose(3, 1, 0.75) != tumble_pose(3, 0, 0.75)  # the seed matters
+    assert tumble_extent(60, 1.0, 0.0) == 60 and tumble_extent(60, 1.0, 45.0) == 85
+    assert tumble_extent(60, 0.5, 90.0) == 30
+
+
+def test_tumble_fractional_index_turns_smoothly_between_images() -> None:
+    from poisoner.motion import tumble_pose
+
+    a0, a1 = tumble_pose(4, 0, 0.75)[0], tumble_pose(5, 0, 0.75)[0]
+    mid = tumble_pose(4.5, 0, 0.75)[0]
+    turn = (a1 - a0 + 180) % 360 - 180  # the shorter arc
+    assert abs(((mid - a0 + 180) % 360 - 180) - turn / 2) < 1e-6

@@ -106,3 +106,74 @@ def test_known_intrinsics_are_kept_fixed(tmp_path: Path) -> None:
     result = run_sfm_job(job, timeout_s=300)
     assert result["outcome"] == "ok", result.get("error")
     assert result["camera"]["params"][:4] == [384.0, 384.0, 160.0, 160.0]
+
+
+# ---- issue 14: the masked profile ---------------------------------------------------------------------
+def test_corner_mask_blanks_exactly_the_four_corner_regions() -> None:
+    from verifier.sfm import corner_mask
+
+    m = corner_mask(100, 50, 0.2)
+    assert m.shape == (50, 100) and m.dtype.name == "uint8"
+    assert (m[:10, :20] == 0).all() and (m[-10:, -20:] == 0).all() and (m[:10, -20:] == 0).all()
+    assert (m[-10:, :20] == 0).all()
+    assert (m == 0).sum() == 4 * 10 * 20  # nothing else
+    assert (m[10:40] == 255).all() and (m[:, 20:80] == 255).all()
+
+
+def test_profile_settings_and_feature_keys() -> None:
+    from verifier.sfm import profile_sfm_settings
+
+    base = SfmSettings()
+    assert profile_sfm_settings("default", base) == base == profile_sfm_settings("published", base)
+    hard = profile_sfm_settings("hardened", base)
+    assert hard.filter_stationary_matches and hard.ignore_watermarks and hard.mask_corners == 0
+    masked = profile_sfm_settings("masked", base)
+    assert masked.mask_corners == 0.2 and not masked.filter_stationary_matches
+    # masks change the features (own cache); unmasked keys are what they were before masks existed
+    assert base.feature_key() == "OPENCV-1-None-exhaustive-10--1" == hard.feature_key()
+    assert masked.feature_key() != base.feature_key()
+    with pytest.raises(ValueError, match="unknown profile"):
+        profile_sfm_settings("paranoid", base)
+
+
+def _keypoints(db: Path) -> list[tuple[float, float, int, int]]:
+    """(x, y, width, height) of every keypoint in a COLMAP database (read with sqlite3)."""
+    import sqlite3
+
+    import numpy as np
+
+    con = sqlite3.connect(db)
+    try:
+        sizes = dict(con.execute("SELECT image_id, width * 1000000 + height FROM images "
+                                 "JOIN cameras USING (camera_id)").fetchall())  # fmt: skip
+        out = []
+        for image_id, rows, cols, data in con.execute("SELECT image_id, rows, cols, data FROM keypoints"):
+            pts = np.frombuffer(data, dtype=np.float32).reshape(rows, cols)
+            w, h = divmod(sizes[image_id], 1000000)
+            out += [(float(x), float(y), w, h) for x, y in pts[:, :2]]
+    finally:
+        con.close()
+    return out
+
+
+@pytest.mark.integration
+def test_masked_profile_finds_no_features_in_the_corners(tmp_path: Path) -> None:
+    from verifier.sfm import profile_sfm_settings
+
+    render_scene(tmp_path / "img", SyntheticOptions(num_views=4))
+
+    def in_corner(x: float, y: float, w: int, h: int) -> bool:
+        return (x < 0.2 * w or x > 0.8 * w) and (y < 0.2 * h or y > 0.8 * h)
+
+    counts = {}
+    for profile in ("default", "masked"):
+        settings = profile_sfm_settings(profile, SfmSettings())
+        db = tmp_path / f"{profile}.db"
+        job = SfmJob(str(tmp_path / "img"), str(db), str(tmp_path / profile), settings)
+        result = run_sfm_job(job, timeout_s=300)
+        assert result["outcome"] == "ok", result.get("error")
+        kps = _keypoints(tmp_path / f"{profile}.db")
+        counts[profile] = (len(kps), sum(in_corner(*k) for k in kps))
+    assert counts["default"][1] > 20  # the render has texture in its corners
+    assert counts["masked"][0] > 100 and counts["masked"][1] == 0
+    assert not list(tmp_path.glob(".ppd-tmp-masks-*"))  # the masks written for COLMAP are gone

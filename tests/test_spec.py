@@ -140,3 +140,48 @@ def test_moving_patch_keeps_every_image_inside_or_is_refused() -> None:
 def test_invalid_motion_fields_are_refused(kwargs: dict) -> None:
     with pytest.raises(SpecError):
         PatchSpec(**kwargs)
+
+
+# ---- issue 14: the tumbling corner mark ("watermark") ---------------------------------------------
+TUMBLE = PatchSpec(pattern="random_blocks", patch_size=0.075, motion="tumble", corner_region=0.2)
+
+
+def test_new_fields_keep_every_stored_spec_id() -> None:
+    assert PatchSpec().spec_id == "63928d73de472b0a"
+    assert "corner_region" not in PatchSpec().to_dict() and "tumble_scale" not in PatchSpec().to_dict()
+    assert PatchSpec(corner_region=0.15).to_dict()["corner_region"] == 0.15
+    assert PatchSpec.from_json(TUMBLE.to_json()) == TUMBLE
+
+
+@pytest.mark.parametrize("position", ["top-left", "top-right", "bottom-left", "bottom-right"])
+@pytest.mark.parametrize(("width", "height"), [(800, 600), (400, 400), (1920, 1080), (600, 800)])
+def test_tumbling_mark_stays_inside_its_corner_region(position: str, width: int, height: int) -> None:
+    spec = TUMBLE.replace(position=position)
+    rw, rh = int(0.2 * width), int(0.2 * height)
+    for i in range(60):
+        p = spec.resolve(width, height, image_key=f"IMG_{i:04d}.JPG")
+        x0, y0, x1, y1 = p.box
+        assert (x1 <= rw) if position.endswith("left") else (x0 >= width - rw)
+        assert (y1 <= rh) if position.startswith("top") else (y0 >= height - rh)
+
+
+def test_tumbling_mark_turns_scales_and_moves_per_image_not_only_translates() -> None:
+    ps = [TUMBLE.resolve(800, 600, image_key=f"r_{i}.png") for i in range(20)]
+    angles = {round(p.angle) for p in ps}
+    scales = {round(p.scale, 2) for p in ps}
+    assert len(angles) >= 15 and len(scales) >= 10
+    assert all(0.75 <= p.scale <= 1.0 and p.texture_size == 60 for p in ps)
+    assert TUMBLE.moves
+    assert TUMBLE.resolve(800, 600, image_key="r_3.png") == ps[3]  # deterministic
+    assert TUMBLE.replace(seed=1).resolve(800, 600, image_key="r_3.png").angle != ps[3].angle
+
+
+def test_tumbling_mark_that_cannot_fit_or_has_no_corner_is_refused() -> None:
+    with pytest.raises(SpecError, match="corner region"):
+        TUMBLE.replace(patch_size=0.15).resolve(800, 600)
+    with pytest.raises(SpecError, match="corner"):
+        TUMBLE.replace(position="center")
+    with pytest.raises(SpecError, match="corner_region"):
+        PatchSpec(corner_region=0.0)
+    with pytest.raises(SpecError, match="tumble_scale"):
+        PatchSpec(tumble_scale=1.5)

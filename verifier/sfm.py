@@ -49,6 +49,9 @@ class SfmSettings:
     filter_stationary_matches: bool = False  # hardened: drop matches that do not move between views
     ignore_watermarks: bool = False  # hardened: mapper ignores pairs flagged as watermark
     random_seed: int = 0
+    # masked (issue 14): the attacker masks the four corner regions, each this fraction of the
+    # width by this fraction of the height, so SIFT finds no features there. 0: no mask.
+    mask_corners: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -59,10 +62,56 @@ class SfmSettings:
 
     def feature_key(self) -> str:
         """Settings that decide features + raw matches (the cache is valid across the rest)."""
-        return (
+        key = (
             f"{self.camera_model}-{int(self.single_camera)}-{self.camera_params}-{self.matching}-"
             f"{self.sequential_overlap}-{self.max_image_size}"
         )
+        # masks change the features; unmasked keys stay as they were (existing caches stay valid)
+        return key + (f"-mask{self.mask_corners:g}" if self.mask_corners > 0 else "")
+
+
+# Issue 14: what an attacker who has read the paper does about a corner mark.
+MASKED_CORNER_FRACTION = 0.2
+
+
+def profile_sfm_settings(profile: str, base: SfmSettings) -> SfmSettings:
+    """The SfM settings of a verification profile, from the default pipeline's settings.
+
+    default / published: base (published differs in its images, not its settings); hardened:
+    COLMAP's defences against fixed marks; masked: the four corner regions (20% x 20%) masked
+    out of feature extraction, as an attacker who expects a corner watermark would.
+    """
+    if profile in ("default", "published"):
+        return base
+    if profile == "hardened":
+        return dataclasses.replace(base, filter_stationary_matches=True, ignore_watermarks=True)
+    if profile == "masked":
+        return dataclasses.replace(base, mask_corners=MASKED_CORNER_FRACTION)
+    raise ValueError(f"unknown profile {profile!r}")
+
+
+def corner_mask(width: int, height: int, fraction: float) -> Any:
+    """uint8 H x W mask for COLMAP: 0 in the four corner regions (no features there), 255 elsewhere."""
+    import numpy as np
+
+    mask = np.full((height, width), 255, dtype=np.uint8)
+    rw, rh = int(round(fraction * width)), int(round(fraction * height))
+    if rw > 0 and rh > 0:
+        for ys in (slice(0, rh), slice(height - rh, height)):
+            for xs in (slice(0, rw), slice(width - rw, width)):
+                mask[ys, xs] = 0
+    return mask
+
+
+def write_corner_masks(image_dir: Path, names: list[str], mask_dir: Path, fraction: float) -> None:
+    """One mask per image, named as COLMAP expects (`<image name>.png`), at the image's size."""
+    from PIL import Image
+
+    mask_dir.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        with Image.open(image_dir / name) as im:
+            width, height = im.size
+        Image.fromarray(corner_mask(width, height, fraction)).save(mask_dir / f"{name}.png")
 
 
 @dataclass(frozen=True)
@@ -211,6 +260,10 @@ def build_cache_db(image_dir: Path, cache_db: Path, settings: SfmSettings) -> No
     reader.camera_model = settings.camera_model
     if settings.camera_params:
         reader.camera_params = settings.camera_params
+    mask_dir = cache_db.with_name(f".ppd-tmp-masks-{cache_db.stem}")
+    if settings.mask_corners > 0:
+        write_corner_masks(image_dir, list_images(image_dir), mask_dir, settings.mask_corners)
+        reader.mask_path = str(mask_dir)
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = settings.max_image_size
     mode = pycolmap.CameraMode.SINGLE if settings.single_camera else pycolmap.CameraMode.AUTO
@@ -235,6 +288,7 @@ def build_cache_db(image_dir: Path, cache_db: Path, settings: SfmSettings) -> No
         pycolmap.match_exhaustive(tmp, matching_options=matching, device=pycolmap.Device.cpu)
     else:
         raise ValueError(f"unknown matching {settings.matching!r}")
+    shutil.rmtree(mask_dir, ignore_errors=True)
     os.replace(tmp, cache_db)
 
 

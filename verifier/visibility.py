@@ -1,0 +1,204 @@
+"""What a viewer sees of a mark: a local perceptual difference (NVIDIA FLIP) at a stated display size.
+
+Why FLIP, and why local figures: whole-image SSIM or a mean error averages a glaring local defect
+over millions of untouched pixels (issue 14: ppd's old default patch has a lower FLIP *mean* than a
+JPEG q85 re-encode, yet it is the only change a person notices). FLIP (Andersson et al., HPG 2020)
+models what an observer at a given viewing distance perceives, per pixel; its high percentiles and
+the area above 0.5 say whether *something* in the picture is noticeable. The `flip-evaluator`
+wheel runs on the CPU with no downloads.
+
+Viewing condition: both images are resized to `display_width` pixels (default 1920, a full-HD
+screen showing the photo full width) and FLIP is evaluated at `ppd` pixels per degree of visual
+angle (default 67.02, FLIP's own default: a 0.7 m wide 3840 px monitor seen from 0.7 m; at 1920 px
+the photo then spans about 29 degrees of view). The budget is calibrated per image against a JPEG
+q85 re-encode of the same original (`jpeg_p999`), which creators accept as invisible.
+
+Pure: arrays in, a JSON-able `Visibility` out (the JPEG reference is encoded in memory).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+DISPLAY_WIDTH = 1920
+FLIP_DEFAULT_PPD = 67.02064514160156  # flip-evaluator's default viewing condition
+JPEG_REFERENCE_QUALITY = 85
+VISIBLE_THRESHOLD = 0.5  # FLIP above this: a clearly visible difference at that pixel
+
+
+class VisibilityError(ValueError):
+    """Images that cannot be compared (message = one clear line)."""
+
+
+@dataclass(frozen=True)
+class Visibility:
+    """FLIP figures of one clean/changed pair at a stated viewing condition, and where pixels changed."""
+
+    display_width: int
+    ppd: float
+    flip_mean: float
+    flip_p99: float
+    flip_p999: float
+    flip_max: float
+    area_above_half: float  # fraction of the displayed image with FLIP > 0.5
+    changed_area: float  # fraction of the original's pixels that differ at all (full resolution)
+    changed_box: tuple[int, int, int, int] | None  # (left, top, right, bottom) of changed pixels
+    in_one_corner: bool | None  # every changed pixel inside one corner region (corner_region wide/high)
+    corner_region: float
+    touches_subject: bool | None  # None: no subject mask given
+    jpeg_p999: float | None  # FLIP p99.9 of a JPEG q85 re-encode of the original (the budget)
+    p999_vs_jpeg: float | None  # flip_p999 / jpeg_p999: <= 1 is within the JPEG budget
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["changed_box"] = list(self.changed_box) if self.changed_box is not None else None
+        return d
+
+
+def _rgb8(pixels: np.ndarray, what: str) -> np.ndarray:
+    """uint8 H x W x 3 (grey and RGBA accepted; RGBA composited over white as loaders do)."""
+    a = np.asarray(pixels)
+    if a.dtype == np.uint16:
+        a = (a.astype(np.float64) / 257.0 + 0.5).astype(np.uint8)
+    if a.dtype != np.uint8:
+        raise VisibilityError(f"{what}: expected uint8 or uint16 pixels, got {a.dtype}")
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 3, axis=2)
+    if a.ndim != 3 or a.shape[2] not in (1, 2, 3, 4):
+        raise VisibilityError(f"{what}: expected an H x W (x C) image, got shape {a.shape}")
+    if a.shape[2] in (2, 4):
+        colour = a[..., :-1].astype(np.float64)
+        alpha = a[..., -1:].astype(np.float64) / 255.0
+        a = np.floor(colour * alpha + 255.0 * (1.0 - alpha) + 0.5).astype(np.uint8)
+    if a.shape[2] == 1:
+        a = np.repeat(a, 3, axis=2)
+    return a
+
+
+def to_display(rgb: np.ndarray, display_width: int) -> np.ndarray:
+    """RGB uint8 resized (Lanczos) to display_width wide, as float32 in [0, 1] for FLIP."""
+    from PIL import Image
+
+    h, w = rgb.shape[:2]
+    if w != display_width:
+        height = max(1, round(h * display_width / w))
+        rgb = np.asarray(Image.fromarray(rgb).resize((display_width, height), Image.Resampling.LANCZOS))
+    return rgb.astype(np.float32) / 255.0
+
+
+def flip_map(reference: np.ndarray, test: np.ndarray, ppd: float = FLIP_DEFAULT_PPD) -> np.ndarray:
+    """FLIP error map (H x W, values in [0, 1]) of two float RGB images in [0, 1] (LDR, sRGB)."""
+    import flip_evaluator
+
+    error, _, _ = flip_evaluator.evaluate(
+        np.ascontiguousarray(reference, dtype=np.float32),
+        np.ascontiguousarray(test, dtype=np.float32),
+        "LDR",
+        applyMagma=False,
+        computeMeanError=False,
+        parameters={"ppd": float(ppd)},
+    )
+    return np.asarray(error, dtype=np.float64).reshape(reference.shape[:2])
+
+
+def jpeg_reencode(rgb: np.ndarray, quality: int = JPEG_REFERENCE_QUALITY) -> np.ndarray:
+    """The image after a JPEG re-encode at `quality` (in memory): the accepted-as-invisible yardstick."""
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(rgb).save(buf, "JPEG", quality=quality)
+    buf.seek(0)
+    with Image.open(buf) as im:
+        return np.asarray(im.convert("RGB"))
+
+
+def _changed_box(changed: np.ndarray) -> tuple[int, int, int, int] | None:
+    ys, xs = np.nonzero(changed)
+    if len(xs) == 0:
+        return None
+    return (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+
+
+def box_in_one_corner(box: tuple[int, int, int, int], width: int, height: int, region: float) -> bool:
+    """Whether a box lies inside one corner region of region*width x region*height."""
+    rw, rh = region * width, region * height
+    left, top, right, bottom = box
+    horizontal = right <= rw or left >= width - rw
+    vertical = bottom <= rh or top >= height - rh
+    return horizontal and vertical
+
+
+def _flip_stats(error: np.ndarray) -> tuple[float, float, float, float, float]:
+    p99, p999 = np.percentile(error, [99.0, 99.9])
+    return (
+        float(error.mean()),
+        float(p99),
+        float(p999),
+        float(error.max()),
+        float((error > VISIBLE_THRESHOLD).mean()),
+    )
+
+
+def visibility_report(
+    original: np.ndarray,
+    changed: np.ndarray,
+    *,
+    display_width: int = DISPLAY_WIDTH,
+    ppd: float = FLIP_DEFAULT_PPD,
+    subject_mask: np.ndarray | None = None,
+    corner_region: float = 0.2,
+    jpeg_reference: bool = True,
+) -> Visibility:
+    """How visible `changed` is next to `original` on a display_width-wide screen at `ppd`.
+
+    subject_mask (H x W, nonzero = subject) answers whether any changed pixel lies on the subject.
+    jpeg_reference adds the budget: FLIP p99.9 of a JPEG q85 re-encode of the original (one more
+    FLIP evaluation, about as long as the first).
+    """
+    a, b = _rgb8(original, "original"), _rgb8(changed, "changed")
+    if a.shape != b.shape:
+        raise VisibilityError(f"images differ in size: {a.shape[:2]} vs {b.shape[:2]}")
+    if display_width < 8:
+        raise VisibilityError(f"display width must be at least 8 px, got {display_width}")
+    h, w = a.shape[:2]
+    diff = np.any(a != b, axis=2)
+    box = _changed_box(diff)
+    touches = None
+    if subject_mask is not None:
+        m = np.asarray(subject_mask)
+        if m.ndim == 3:
+            m = m.max(axis=2)
+        if m.shape != (h, w):
+            raise VisibilityError(f"subject mask is {m.shape}, image is {(h, w)}")
+        touches = bool(np.any(diff & (m > 0)))
+    ref = to_display(a, display_width)
+    if box is None:
+        stats = (0.0, 0.0, 0.0, 0.0, 0.0)  # identical images: FLIP is 0 everywhere by definition
+    else:
+        stats = _flip_stats(flip_map(ref, to_display(b, display_width), ppd))
+    jpeg_p999 = ratio = None
+    if jpeg_reference:
+        jpeg = to_display(jpeg_reencode(a), display_width)
+        jpeg_p999 = _flip_stats(flip_map(ref, jpeg, ppd))[2]
+        ratio = stats[2] / jpeg_p999 if jpeg_p999 > 0 else None
+    return Visibility(
+        display_width=display_width,
+        ppd=float(ppd),
+        flip_mean=stats[0],
+        flip_p99=stats[1],
+        flip_p999=stats[2],
+        flip_max=stats[3],
+        area_above_half=stats[4],
+        changed_area=float(diff.mean()),
+        changed_box=box,
+        in_one_corner=None if box is None else box_in_one_corner(box, w, h, corner_region),
+        corner_region=corner_region,
+        touches_subject=touches,
+        jpeg_p999=jpeg_p999,
+        p999_vs_jpeg=ratio,
+    )
