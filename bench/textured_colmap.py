@@ -42,11 +42,32 @@ def _run_child(job: dict[str, Any], timeout_s: float = 1800) -> dict[str, Any]:
         return json.loads(out.read_text())
 
 
-def pair_stats(image_dir: Path, names: list[str], max_num_features: int = 8192) -> dict[str, Any]:
-    """Features kept per image and verified inliers per consecutive pair (COLMAP defaults)."""
+def pair_stats(
+    image_dir: Path,
+    names: list[str],
+    max_num_features: int = 8192,
+    boxes: dict[str, tuple[int, int, int, int]] | None = None,
+) -> dict[str, Any]:
+    """Features kept per image and verified inliers per consecutive pair (COLMAP defaults).
+
+    boxes: per image name, a window (x0, y0, x1, y1); each pair then also reports `inliers_in_box`,
+    its verified inliers with an end inside the window of either image."""
     return _run_child(
-        {"kind": "pairs", "image_dir": str(image_dir), "names": names, "max_num_features": max_num_features}
+        {
+            "kind": "pairs",
+            "image_dir": str(image_dir),
+            "names": names,
+            "max_num_features": max_num_features,
+            "boxes": boxes or {},
+        }
     )
+
+
+def _in_box(xy: np.ndarray, box: list[int] | None) -> np.ndarray:
+    if box is None:
+        return np.zeros(len(xy), bool)
+    x0, y0, x1, y1 = box
+    return (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
 
 
 def keypoints(image_path: Path, max_num_features: int = 8192) -> np.ndarray:
@@ -85,7 +106,9 @@ def _child_pairs(job: dict[str, Any]) -> dict[str, Any]:
     pairing = pycolmap.SequentialPairingOptions()
     pairing.overlap = 1
     pairing.quadratic_overlap = False
-    pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+    pycolmap.match_sequential(
+        db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+    )
     two_view = pycolmap.TwoViewGeometryOptions()
     two_view.ransac.random_seed = 0
     pycolmap.geometric_verification(db_path, two_view_geometry_options=two_view)
@@ -95,17 +118,28 @@ def _child_pairs(job: dict[str, Any]) -> dict[str, Any]:
         by_name = {im.name: im for im in db.read_all_images()}
         for name in job["names"]:
             kp = db.read_keypoints(by_name[name].image_id)
-            scales = np.sqrt(np.abs(kp[:, 2] * kp[:, 5] - kp[:, 3] * kp[:, 4])) if kp.shape[1] >= 6 else kp[:, 2]
+            scales = (
+                np.sqrt(np.abs(kp[:, 2] * kp[:, 5] - kp[:, 3] * kp[:, 4])) if kp.shape[1] >= 6 else kp[:, 2]
+            )
             images[name] = {"keypoints": int(len(kp)), "min_scale": float(scales.min()) if len(kp) else None}
         for a, b in zip(job["names"], job["names"][1:], strict=False):
             ia, ib = by_name[a].image_id, by_name[b].image_id
             tentative = len(db.read_matches(ia, ib)) if db.exists_matches(ia, ib) else 0
-            inliers, config = 0, "none"
+            inliers, config, in_box = 0, "none", 0
             if db.exists_two_view_geometry(ia, ib):
                 tvg = db.read_two_view_geometry(ia, ib)
                 inliers = len(tvg.inlier_matches)
                 config = str(tvg.config).split(".")[-1]
-            pairs.append({"pair": f"{a}-{b}", "tentative": tentative, "inliers": inliers, "config": config})
+                if job.get("boxes") and inliers:
+                    m = np.asarray(tvg.inlier_matches)
+                    xa = db.read_keypoints(ia)[m[:, 0], :2]
+                    xb = db.read_keypoints(ib)[m[:, 1], :2]
+                    hit = _in_box(xa, job["boxes"].get(a)) | _in_box(xb, job["boxes"].get(b))
+                    in_box = int(hit.sum())
+            row = {"pair": f"{a}-{b}", "tentative": tentative, "inliers": inliers, "config": config}
+            if job.get("boxes"):
+                row["inliers_in_box"] = in_box
+            pairs.append(row)
     return {"images": images, "pairs": pairs}
 
 

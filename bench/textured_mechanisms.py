@@ -51,8 +51,9 @@ def smooth_warp(rgb: np.ndarray, seed: int, amplitude: float, wavelength: float)
     coords = np.stack([yy + d[0], xx + d[1]])
     out = np.empty_like(rgb)
     for c in range(rgb.shape[2]):
-        out[..., c] = np.clip(ndimage.map_coordinates(rgb[..., c].astype(np.float32), coords, order=3,
-                                                      mode="reflect"), 0, 255).round()
+        out[..., c] = np.clip(
+            ndimage.map_coordinates(rgb[..., c].astype(np.float32), coords, order=3, mode="reflect"), 0, 255
+        ).round()
     return out
 
 
@@ -72,6 +73,7 @@ def descriptor_attack(
     patch_magnif: float = 6.0,
     seed: int = 0,
     log: bool = True,
+    box: tuple[int, int, int, int] | None = None,
 ) -> np.ndarray:
     """PGD on the grey image: push kornia SIFT descriptors at COLMAP's keypoints away from clean.
 
@@ -81,10 +83,21 @@ def descriptor_attack(
     import time
 
     import torch
+
+    if box is not None:  # attack only this window (a sample of the image, to keep the CPU cost down)
+        x0, y0, x1, y1 = box
+        inside = (kps[:, 0] >= x0) & (kps[:, 0] < x1) & (kps[:, 1] >= y0) & (kps[:, 1] < y1)
+        sub = kps[inside].copy()
+        sub[:, 0] -= x0
+        sub[:, 1] -= y0
+        out = rgb.copy()
+        out[y0:y1, x0:x1] = descriptor_attack(rgb[y0:y1, x0:x1], sub, epsilon, steps, patch_magnif, seed, log)
+        return out
+
     from kornia.feature import SIFTDescriptor, extract_patches_from_pyramid, laf_from_center_scale_ori
 
     torch.manual_seed(seed)
-    gray = (rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32))
+    gray = rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
     budget = torch.from_numpy(epsilon * texture_mask(gray))[None, None] / 255.0
     img = torch.from_numpy(gray)[None, None] / 255.0
     centres = torch.from_numpy(kps[:, :2].copy())[None]
@@ -108,7 +121,9 @@ def descriptor_attack(
             delta.copy_(torch.maximum(torch.minimum(delta, budget), -budget))
             delta.grad = None
         if log and (i % 5 == 0 or i == steps - 1):
-            print(f"  step {i}: mean descriptor distance {(-loss.item()) ** 0.5:.3f} ({time.time() - t0:.0f} s)",
-                  flush=True)
+            print(
+                f"  step {i}: descriptor distance {(-loss.item()) ** 0.5:.3f} ({time.time() - t0:.0f} s)",
+                flush=True,
+            )
     out = rgb.astype(np.float32) + 255.0 * delta.detach()[0, 0].numpy()[..., None]
     return np.clip(out, 0, 255).round().astype(np.uint8)
