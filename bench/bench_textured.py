@@ -156,9 +156,10 @@ def _colmap_keypoints(name: str) -> np.ndarray:
 TARGET_BOX = (1024, 640, 2048, 1408)  # a 1024x768 window of 0004: the fountain's centre, textured
 
 
-def _targeted(epsilon: float, steps: int) -> Callable[[np.ndarray, str], np.ndarray]:
+def _targeted(epsilon: float, steps: int, ori_sign: float = 1.0) -> Callable[[np.ndarray, str], np.ndarray]:
     def run(rgb: np.ndarray, name: str) -> np.ndarray:
-        return mech.descriptor_attack(rgb, _colmap_keypoints(name), epsilon, steps, box=TARGET_BOX)
+        kps = _colmap_keypoints(name)
+        return mech.descriptor_attack(rgb, kps, epsilon, steps, box=TARGET_BOX, ori_sign=ori_sign)
 
     return run
 
@@ -294,25 +295,63 @@ def render(rows: list[dict[str, Any]], command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def picture(name: str) -> Path:
+    """Clean | perturbed, a 800x560 window of 0004 at display size (the image shown 1920 px wide)."""
+    factor = DISPLAY_WIDTH / 3072
+    x0, y0 = 560, 360  # display pixels: the fountain's centre, where the window attack also worked
+    panels = []
+    for path in (FOUNTAIN / "images" / FLIP_IMAGE, WORK / name / FLIP_IMAGE):
+        im = Image.open(path).convert("RGB")
+        im = im.resize((round(im.width * factor), round(im.height * factor)), Image.LANCZOS)
+        panels.append(im.crop((x0, y0, x0 + 800, y0 + 560)))
+    both = Image.new("RGB", (1610, 560), (255, 255, 255))
+    both.paste(panels[0], (0, 0))
+    both.paste(panels[1], (810, 0))
+    out = RESULTS.with_name(f"textured_{name}.png")
+    both.save(out)
+    return out
+
+
+def save(rows: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Merge rows into textured.json (re-read first: another run may have added rows meanwhile)."""
+    merged = json.loads(RAW.read_text()) if RAW.exists() else {}
+    merged.update(rows)
+    RAW.write_text(json.dumps(merged, indent=1))
+    for name, row in rows.items():  # a copy per row, so concurrent runs cannot lose each other's rows
+        (WORK / "rows").mkdir(parents=True, exist_ok=True)
+        (WORK / "rows" / f"{name}.json").write_text(json.dumps(row))
+    return merged
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = list(argv if argv is not None else sys.argv[1:])
     ap = argparse.ArgumentParser(prog="python -m bench.bench_textured")
     ap.add_argument("--only", default="decoys,warp,targeted", help="comma-separated mechanisms")
     ap.add_argument("--sfm", action="store_true", help="full reconstructions for the final candidates")
     ap.add_argument("--variants", default="", help="comma-separated variant names (default: all)")
+    ap.add_argument("--render", action="store_true", help="only merge saved rows and rewrite the table")
+    ap.add_argument("--picture", default="", help="write textured_NAME.png for these variants and stop")
     args = ap.parse_args(argv)
     WORK.mkdir(parents=True, exist_ok=True)
+    if args.picture:
+        for name in args.picture.split(","):
+            print(f"wrote {picture(name)}")
+        return
+    if args.render:
+        rows = {p.stem: json.loads(p.read_text()) for p in sorted((WORK / "rows").glob("*.json"))}
+        merged = save(rows)
+        RESULTS.write_text(render(list(merged.values()), "python -m bench.bench_textured"))
+        print(f"wrote {RESULTS}")
+        return
     previous = json.loads(RAW.read_text()) if RAW.exists() else {}
-    rows = {"clean": baseline(args.sfm) if "clean" not in previous or args.sfm else previous["clean"]}
-    RAW.write_text(json.dumps({**previous, **rows}, indent=1))
+    if "clean" not in previous or args.sfm:
+        save({"clean": baseline(args.sfm)})
     for mechanism in args.only.split(","):
         for v in variants()[mechanism]:
             if args.variants and v.name not in args.variants.split(","):
                 continue
-            rows[v.name] = measure(v, args.sfm)
-            merged = {**previous, **rows}
-            RAW.write_text(json.dumps(merged, indent=1))
-    merged = {**previous, **rows}
+            merged = save({v.name: measure(v, args.sfm)})
+    merged = save({})
     RESULTS.write_text(render(list(merged.values()), "python -m bench.bench_textured " + " ".join(argv)))
     print(f"wrote {RESULTS}")
 

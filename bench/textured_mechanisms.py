@@ -74,6 +74,7 @@ def descriptor_attack(
     seed: int = 0,
     log: bool = True,
     box: tuple[int, int, int, int] | None = None,
+    ori_sign: float = 1.0,
 ) -> np.ndarray:
     """PGD on the grey image: push kornia SIFT descriptors at COLMAP's keypoints away from clean.
 
@@ -91,7 +92,9 @@ def descriptor_attack(
         sub[:, 0] -= x0
         sub[:, 1] -= y0
         out = rgb.copy()
-        out[y0:y1, x0:x1] = descriptor_attack(rgb[y0:y1, x0:x1], sub, epsilon, steps, patch_magnif, seed, log)
+        out[y0:y1, x0:x1] = descriptor_attack(
+            rgb[y0:y1, x0:x1], sub, epsilon, steps, patch_magnif, seed, log, ori_sign=ori_sign
+        )
         return out
 
     from kornia.feature import SIFTDescriptor, extract_patches_from_pyramid, laf_from_center_scale_ori
@@ -103,7 +106,7 @@ def descriptor_attack(
     centres = torch.from_numpy(kps[:, :2].copy())[None]
     # the SIFT window is 4 bins of 3 sigma each (VLFeat magnif 3), i.e. half-width 6 sigma
     scales = torch.from_numpy(kps[:, 2:3].copy() * patch_magnif)[None, :, :, None]
-    oris = torch.from_numpy(np.degrees(kps[:, 3:4]).copy())[None]
+    oris = torch.from_numpy(ori_sign * np.degrees(kps[:, 3:4]).copy())[None]
     laf = laf_from_center_scale_ori(centres, scales, oris)
     desc = SIFTDescriptor(32, rootsift=False)
     with torch.no_grad():
