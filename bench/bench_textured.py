@@ -194,6 +194,13 @@ def variants() -> dict[str, list[Variant]]:
         "warp": [warp(8, 600), warp(30, 600, sfm=True)],
         # one image of one pair only (0004): the cheapest way to cut that pair's inliers
         "targeted": [
+            Variant(
+                "masked-noise-e24",
+                "targeted",
+                lambda rgb, n: mech.masked_noise(rgb, seed_of(n), 24.0, TARGET_BOX),
+                images=("0004.jpg",),
+                box=TARGET_BOX,
+            ),
             Variant("targeted-e8-s20", "targeted", _targeted(8.0, 20), images=("0004.jpg",), box=TARGET_BOX),
             Variant(
                 "targeted-e24-s20", "targeted", _targeted(24.0, 20), images=("0004.jpg",), box=TARGET_BOX

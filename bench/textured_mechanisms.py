@@ -65,6 +65,16 @@ def texture_mask(gray: np.ndarray, radius: float = 4.0) -> np.ndarray:
     return np.clip(np.sqrt(var) / 16.0, 0.0, 1.0)
 
 
+def masked_noise(rgb: np.ndarray, seed: int, epsilon: float, box: tuple[int, int, int, int]) -> np.ndarray:
+    """The control for descriptor_attack: uniform noise of the same texture-masked budget in the window."""
+    x0, y0, x1, y1 = box
+    gray = rgb[y0:y1, x0:x1].astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+    noise = np.random.default_rng(seed).choice([-1.0, 1.0], size=gray.shape) * epsilon * texture_mask(gray)
+    out = rgb.astype(np.float32)
+    out[y0:y1, x0:x1] += noise[..., None]
+    return np.clip(out, 0, 255).round().astype(np.uint8)
+
+
 def descriptor_attack(
     rgb: np.ndarray,
     kps: np.ndarray,
