@@ -1,7 +1,9 @@
 """Issue 18: can an invisible perturbation break COLMAP on a textured real scene (fountain-P11)?
 
-`nice -n 10 python -m bench.bench_textured [--only decoys,warp,targeted] [--sfm]` writes
-bench/results/textured.md (and textured.json next to it, the raw figures).
+`nice -n 10 python -m bench.bench_textured [--only decoys,warp,targeted] [--sfm] [--sfm-clean]` writes
+bench/results/textured.md (and textured.json next to it, the raw figures); `--picture NAME[,NAME]`
+writes the side-by-side pictures of measured variants, `--render` only rewrites the table. Also
+`python -m bench textured` (the yardstick without full reconstructions).
 
 Yardstick (full size, 3072x2048, COLMAP defaults, pycolmap 4.2.1 in a child process):
 - visibility: FLIP (flip-evaluator, LDR, 67 px/degree) of perturbed vs original on image 0004 at a
@@ -272,7 +274,10 @@ def _sfm_cell(row: dict[str, Any], profile: str) -> str:
         return "-"
     if "registered" not in s:
         return s.get("outcome", "?")
-    return f"{s['registered']}/{s['num_images']}, {100 * s['within_5deg']:.0f}%"
+    return (
+        f"{s['registered']}/{s['num_images']}, {100 * s['within_5deg']:.0f}% "
+        f"(median {s['median_rot_err_deg']:.2f}°, reproj {s['reproj_px']:.2f} px)"
+    )
 
 
 def render(rows: list[dict[str, Any]], command: str) -> str:
@@ -336,7 +341,7 @@ def save(rows: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    argv = list(argv if argv is not None else sys.argv[1:])
+    argv = list(argv or [])  # `python -m bench textured` calls main() with no arguments
     ap = argparse.ArgumentParser(prog="python -m bench.bench_textured")
     ap.add_argument("--only", default="decoys,warp,targeted", help="comma-separated mechanisms")
     ap.add_argument("--sfm", action="store_true", help="full reconstructions for the final candidates")
@@ -375,4 +380,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])
