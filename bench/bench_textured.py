@@ -191,6 +191,7 @@ def variants() -> dict[str, list[Variant]]:
             decoy(6, 6, 24),
             decoy(2, 6, 8),
             decoy(3, 12, 12, sfm=True),
+            decoy(3, 16, 12, sfm=True),
             decoy(3, 24, 12, sfm=True),
         ],
         "warp": [warp(8, 600), warp(30, 600, sfm=True)],
