@@ -16,8 +16,12 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
-DEFAULT_MAX_PIXELS = 100_000_000  # 100 MP (docs/FORMATS.md "Memory": peak RSS figures)
-DEFAULT_MAX_VIDEO_PIXELS = 5312 * 2988  # 15.9 MP per frame: GoPro 5.3K; 8K video refused
+DEFAULT_MAX_PIXELS = 80_000_000  # peak RSS at 85 MP: JPEG 455 MB, PNG 438 MB (docs/FORMATS.md "Memory")
+# libwebp needs ~35 bytes per pixel to decode and re-encode (1411 MB at 40 MP, measured), about
+# five times JPEG/PNG: WebP gets a fifth of the pixel budget (16 MP by default, ~0.6 GB).
+WEBP_BUDGET_DIVISOR = 5
+# 4096x2160 (DCI 4K) per frame: 3840x2160 peaks at 0.75 GB (x264, lookahead 10; docs/VIDEO.md)
+DEFAULT_MAX_VIDEO_PIXELS = 4096 * 2160
 _HEADER_READ = 1 << 20  # the most read to find a header (JPEG APPn before SOF can be large)
 
 
@@ -78,7 +82,8 @@ def decoded_bytes_estimate(path: Path) -> int:
 
 def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
     """Raise ImageFormatError (one line) when path declares more than max_pixels (all frames
-    together), before anything is decoded. An unreadable header passes: the decoder refuses it."""
+    together; WebP: a fifth of it), before anything is decoded. An unreadable header passes: the
+    decoder refuses it."""
     from poisoner.formats import ImageFormatError
 
     path = Path(path)
@@ -86,11 +91,15 @@ def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> Non
         size = decoded_size(path)
     except HeaderError:
         return
-    if size.pixels > max_pixels:
+    limit, why = max_pixels, ""
+    if size.format == "WEBP":
+        limit = max_pixels // WEBP_BUDGET_DIVISOR
+        why = f" for WebP (a fifth of {_mp(max_pixels)} MP: libwebp needs ~35 bytes per pixel)"
+    if size.pixels > limit:
         frames = f" x {size.frames} frames" if size.frames > 1 else ""
         raise ImageFormatError(
             f"{path.name}: {size.width}x{size.height}{frames} ({_mp(size.pixels)} MP) is over the "
-            f"{_mp(max_pixels)} MP limit; raise [limits] max_megapixels to protect it"
+            f"{_mp(limit)} MP limit{why}; raise [limits] max_megapixels to protect it"
         )
 
 

@@ -103,7 +103,14 @@ def test_poison_file_max_pixels(tmp_path: Path) -> None:
     assert not (tmp_path / "out.png").exists()
     poison_file(src, tmp_path / "out.png", SPEC, max_pixels=200 * 100)  # at the limit: protected
     poison_file(src, tmp_path / "out2.png", SPEC)  # default
-    assert DEFAULT_MAX_PIXELS >= 24_000_000  # a 24 MP camera photo is never refused by default
+    assert DEFAULT_MAX_PIXELS >= 61_000_000  # the largest full-frame camera photos pass by default
+
+
+def test_webp_gets_a_fifth_of_the_budget(tmp_path: Path) -> None:
+    src = _save(tmp_path / "a.webp", "RGB", (200, 100), "WEBP", lossless=True)
+    with pytest.raises(ImageFormatError, match=r"over the 0.0 MP limit for WebP \(a fifth of"):
+        check_decode_budget(src, max_pixels=200 * 100 * 5 - 1)
+    check_decode_budget(src, max_pixels=200 * 100 * 5)
 
 
 def test_unreadable_header_is_left_to_the_decoder(tmp_path: Path) -> None:
@@ -151,7 +158,9 @@ def test_hostile_corpus_refused_before_decoding_in_low_memory(tmp_path: Path) ->
         if name == "text-bomb.png":
             assert "PROTECTED" not in outcome  # Pillow's text limit refuses it; memory stays low
         else:
-            assert f"is over the {DEFAULT_MAX_PIXELS // 1_000_000} MP limit" in outcome, outcome
+            assert f"is over the {DEFAULT_MAX_PIXELS // 1_000_000} MP limit" in outcome or (
+                name.endswith(".webp") and "MP limit for WebP" in outcome
+            ), outcome
     assert not list(corpus.glob("out-*"))
 
 
