@@ -16,6 +16,11 @@ Orientation: the patch is placed in the stored pixels, ignoring EXIF orientation
 is what COLMAP's feature extraction and 3DGS's PIL loaders read (docs/FORMATS.md, evidence).
 The orientation tag itself is kept unchanged.
 
+Location (GPS IFD, XMP/IPTC place names) is removed from the output unless keep_location
+(poisoner.location: byte-level edits of the metadata, pixels untouched); a provenance marker is
+embedded when given (poisoner.provenance). Before anything is decoded the header's declared size is
+checked against max_pixels (poisoner.limits).
+
 Every input is fully decoded before anything is written, so a truncated file fails before dst
 exists; errors are ImageFormatError with a one-line message, and src is never opened for writing.
 """
