@@ -17,9 +17,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 DEFAULT_MAX_PIXELS = 80_000_000  # peak RSS at 85 MP: JPEG 455 MB, PNG 438 MB (docs/FORMATS.md "Memory")
-# libwebp needs ~35 bytes per pixel to decode and re-encode (1411 MB at 40 MP, measured), about
-# five times JPEG/PNG: WebP gets a fifth of the pixel budget (16 MP by default, ~0.6 GB).
-WEBP_BUDGET_DIVISOR = 5
+# Formats whose codecs need several times JPEG/PNG's memory get a fraction of the pixel budget
+# (measured peak RSS, docs/FORMATS.md "Memory"): libwebp ~35 bytes/pixel (1411 MB at 40 MP) -> a
+# fifth (16 MP by default, ~0.6 GB); HEIC/AVIF (x265 re-encode) ~26 bytes/pixel (1079 MB at 40 MP)
+# -> a third (26.7 MP, ~0.74 GB).
+BUDGET_DIVISOR = {
+    "WEBP": (5, "a fifth", "libwebp needs ~35 bytes per pixel"),
+    "HEIF": (3, "a third", "the HEIF encoder needs ~26 bytes per pixel"),
+}
 # 4096x2160 (DCI 4K) per frame: 3840x2160 peaks at 0.75 GB (x264, lookahead 10; docs/VIDEO.md)
 DEFAULT_MAX_VIDEO_PIXELS = 4096 * 2160
 _HEADER_READ = 1 << 20  # the most read to find a header (JPEG APPn before SOF can be large)
@@ -82,8 +87,8 @@ def decoded_bytes_estimate(path: Path) -> int:
 
 def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
     """Raise ImageFormatError (one line) when path declares more than max_pixels (all frames
-    together; WebP: a fifth of it), before anything is decoded. An unreadable header passes: the
-    decoder refuses it."""
+    together; WebP a fifth of it, HEIF/AVIF a third), before anything is decoded. An unreadable
+    header passes: the decoder refuses it."""
     from poisoner.formats import ImageFormatError
 
     path = Path(path)
@@ -92,9 +97,11 @@ def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> Non
     except HeaderError:
         return
     limit, why = max_pixels, ""
-    if size.format == "WEBP":
-        limit = max_pixels // WEBP_BUDGET_DIVISOR
-        why = f" for WebP (a fifth of {_mp(max_pixels)} MP: libwebp needs ~35 bytes per pixel)"
+    if size.format in BUDGET_DIVISOR:
+        divisor, share, reason = BUDGET_DIVISOR[size.format]
+        limit = max_pixels // divisor
+        label = "WebP" if size.format == "WEBP" else "HEIF/AVIF"
+        why = f" for {label} ({share} of {_mp(max_pixels)} MP: {reason})"
     if size.pixels > limit:
         frames = f" x {size.frames} frames" if size.frames > 1 else ""
         raise ImageFormatError(
