@@ -5,6 +5,7 @@ its own peak RSS (resource.getrusage ru_maxrss): the figure is what protecting t
 a process that has imported ppd's poisoner, nothing else.
 
     python -m bench.bench_limits [--mp 50 100] [--formats png jpeg ...] [--out bench/results/limits.md]
+    python -m bench.bench_limits --video 3840x2160 [--lookahead 40]   (poison_video, 48 H.264 frames)
 """
 
 from __future__ import annotations
@@ -58,6 +59,63 @@ MEASURE = textwrap.dedent(
     """
 )
 
+MAKE_VIDEO = textwrap.dedent(
+    """
+    import sys, av, numpy as np
+    w, h, path = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
+    with av.open(path, "w") as out:
+        vs = out.add_stream("libx264", rate=30, options={"preset": "ultrafast", "crf": "23"})
+        vs.width, vs.height, vs.pix_fmt = w, h, "yuv420p"
+        rng = np.random.default_rng(0)
+        tex = rng.integers(0, 255, size=(h // 8 + 64, w // 8 + 64, 3), dtype=np.uint8)
+        tex = tex.repeat(8, 0).repeat(8, 1)
+        for i in range(48):
+            rgb = np.ascontiguousarray(tex[i : i + h, 2 * i : 2 * i + w])
+            f = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format="yuv420p")
+            f.pts = i
+            for p in vs.encode(f):
+                out.mux(p)
+        for p in vs.encode(None):
+            out.mux(p)
+    """
+)
+
+MEASURE_VIDEO = textwrap.dedent(
+    """
+    import resource, sys, time
+    from pathlib import Path
+    import poisoner.video as v
+    from poisoner.spec import PatchSpec
+    if sys.argv[3] != "default":  # force a lookahead to compare with the default
+        choose = v.choose_encoder
+        def forced(info, options, crf_shift=0):
+            c = choose(info, options, crf_shift)
+            c.options["rc-lookahead"] = sys.argv[3]
+            return c
+        v.choose_encoder = forced
+    t = time.perf_counter()
+    r = v.poison_video(Path(sys.argv[1]), Path(sys.argv[2]), PatchSpec(), max_pixels=10**10)
+    print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024, f"{time.perf_counter() - t:.1f}", r.crf)
+    """
+)
+
+
+def measure_video(size: str, lookahead: str, work: Path) -> str:
+    w, h = size.split("x")
+    src = work / f"v{size}.mp4"
+    subprocess.run([sys.executable, "-c", MAKE_VIDEO, w, h, str(src)], check=True)
+    run = subprocess.run(
+        [sys.executable, "-c", MEASURE_VIDEO, str(src), str(work / "vout.mp4"), lookahead],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if run.returncode != 0:
+        return f"| {size} | {lookahead} | failed: {run.stderr.strip().splitlines()[-1]} | | |"
+    peak, secs, crf = run.stdout.split()
+    return f"| {size} | {lookahead} | {peak} | {secs} | {crf} |"
+
+
 SUFFIX = {"jpeg": ".jpg", "png": ".png", "webp": ".webp", "tiff": ".tif", "heif": ".heic"}
 
 
@@ -86,7 +144,15 @@ def main() -> None:
         "--formats", nargs="+", default=["jpeg", "png-rgb", "png-rgba", "webp-rgba", "tiff-rgb", "heif-rgb"]
     )
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--video", nargs="*", default=[], help="frame sizes WxH: measure poison_video instead")
+    ap.add_argument("--lookahead", default="default", help="force x264 rc-lookahead (video only)")
     args = ap.parse_args()
+    if args.video:
+        print("| frame size | rc-lookahead | peak RSS (MB) | seconds | CRF |\n|---|---|---|---|---|")
+        with tempfile.TemporaryDirectory(prefix="ppd-limits-") as tmp:
+            for size in args.video:
+                print(measure_video(size, args.lookahead, Path(tmp)), flush=True)
+        return
     lines = [
         "| format | MP | size | RSS after imports (MB) | peak RSS (MB) | seconds |",
         "|---|---|---|---|---|---|",

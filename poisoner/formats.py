@@ -16,18 +16,25 @@ Orientation: the patch is placed in the stored pixels, ignoring EXIF orientation
 is what COLMAP's feature extraction and 3DGS's PIL loaders read (docs/FORMATS.md, evidence).
 The orientation tag itself is kept unchanged.
 
+Location (GPS IFD, XMP/IPTC place names) is removed from the output unless keep_location
+(poisoner.location: byte-level edits of the metadata, pixels untouched); a provenance marker is
+embedded when given (poisoner.provenance). Before anything is decoded the header's declared size is
+checked against max_pixels (poisoner.limits).
+
 Every input is fully decoded before anything is written, so a truncated file fails before dst
 exists; errors are ImageFormatError with a one-line message, and src is never opened for writing.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import io
 import logging
 import struct
 import warnings
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,6 +53,10 @@ log = logging.getLogger(__name__)
 SUPPORTED_IMAGE_SUFFIXES: frozenset[str] = frozenset(
     {".jpg", ".jpeg", ".jpe", ".png", ".webp", ".tif", ".tiff", ".heic", ".heif", ".avif"}
 )
+
+# JPEG: decode only a lossless crop around the patch's MCUs (poisoner.jpeg.decode_box) instead of
+# the whole picture. Same output bytes either way (tests/test_jpeg_region.py); False: whole decode.
+JPEG_REGION_DECODE = True
 
 ORIENTATION_POLICY = "patch placed in stored pixels (EXIF orientation ignored, tag kept)"
 PALETTE_POLICY = "patch colours appended to the palette when there is room, else written as RGB(A)"
@@ -122,29 +133,14 @@ def _one_line(exc: BaseException) -> str:
     return text[0] if text else type(exc).__name__
 
 
-def _open_decoded(src: Path, data: bytes) -> Image.Image:
-    """Open and fully decode; every failure becomes one ImageFormatError line."""
-    if not data:
-        raise ImageFormatError(f"{src.name}: empty file (0 bytes)")
-    _register_heif()
+@contextlib.contextmanager
+def _decode_errors(src: Path) -> Iterator[None]:
+    """Every failure of opening or decoding becomes one ImageFormatError line."""
     try:
         with warnings.catch_warnings():
             # Pillow only warns between MAX_IMAGE_PIXELS and twice that: refuse instead.
             warnings.simplefilter("error", Image.DecompressionBombWarning)
-            im = Image.open(io.BytesIO(data))
-            limit = Image.MAX_IMAGE_PIXELS
-            if limit is not None and im.size[0] * im.size[1] > limit:
-                raise ImageFormatError(
-                    f"{src.name}: {im.size[0]}x{im.size[1]} exceeds the {limit}-pixel "
-                    "decompression-bomb limit"
-                )
-            if getattr(im, "n_frames", 1) > 1:
-                raise ImageFormatError(
-                    f"{src.name}: {im.format} with {im.n_frames} frames/pages is not supported"
-                )
-            if ImageFile.LOAD_TRUNCATED_IMAGES:
-                raise ImageFormatError("refusing to run with PIL LOAD_TRUNCATED_IMAGES enabled")
-            im.load()
+            yield
     except ImageFormatError:
         raise
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
@@ -155,8 +151,38 @@ def _open_decoded(src: Path, data: bytes) -> Image.Image:
         raise ImageFormatError(f"{src.name}: cannot decode ({_one_line(exc)})") from exc
     except (TypeError, KeyError, IndexError) as exc:
         # Pillow's TIFF reader raises these on corrupt tags ("Missing dimensions", a bytes
-        # strip offset); found by the fuzz run. Confined to open/load above, so not our bugs.
+        # strip offset); found by the fuzz run. Confined to open/load, so not our bugs.
         raise ImageFormatError(f"{src.name}: cannot decode ({type(exc).__name__}: {_one_line(exc)})") from exc
+
+
+def _open_decoded(src: Path, data: bytes, *, load: bool = True) -> Image.Image:
+    """Open and (with load) fully decode; every failure becomes one ImageFormatError line.
+    Without load only the header is read: the caller must decode (_load_decoded) or have the
+    whole file checked another way before writing anything."""
+    if not data:
+        raise ImageFormatError(f"{src.name}: empty file (0 bytes)")
+    _register_heif()
+    with _decode_errors(src):
+        im = Image.open(io.BytesIO(data))
+        limit = Image.MAX_IMAGE_PIXELS
+        if limit is not None and im.size[0] * im.size[1] > limit:
+            raise ImageFormatError(
+                f"{src.name}: {im.size[0]}x{im.size[1]} exceeds the {limit}-pixel decompression-bomb limit"
+            )
+        if getattr(im, "n_frames", 1) > 1:
+            raise ImageFormatError(
+                f"{src.name}: {im.format} with {im.n_frames} frames/pages is not supported"
+            )
+        if ImageFile.LOAD_TRUNCATED_IMAGES:
+            raise ImageFormatError("refusing to run with PIL LOAD_TRUNCATED_IMAGES enabled")
+        if load:
+            im.load()
+    return im
+
+
+def _load_decoded(src: Path, im: Image.Image) -> Image.Image:
+    with _decode_errors(src):
+        im.load()
     return im
 
 
@@ -624,8 +650,11 @@ def _jpeg_preserved(layout: jpeg_codec.JpegLayout, info: dict[str, object]) -> l
 
 
 def _poison_jpeg(
-    src: Path, im: Image.Image, data: bytes, placement: PatchPlacement
+    src: Path, im: Image.Image, data: bytes, placement: PatchPlacement, *, loaded: bool
 ) -> tuple[bytes, list[str], list[str], str]:
+    """The patched JPEG. With loaded=False im is only opened (header): every byte of the file is
+    still entropy-decoded before anything is written (by jpegtran's crop and drop, whose warnings
+    on corrupt or truncated data send it to the full decode), so a broken file fails as before."""
     try:
         layout = jpeg_codec.read_layout(data)
     except ValueError as exc:
@@ -634,18 +663,29 @@ def _poison_jpeg(
         raise ImageFormatError(f"{src.name}: {im.mode} JPEG is not supported")
     preserved = _jpeg_preserved(layout, im.info)
     notes: list[str] = []
-    # The splice only needs the MCU box's pixels: converting the whole 12 MP picture to an
-    # array would cost about as much as decoding it (measured), so only the box is converted.
+    # The splice only needs the MCU box's pixels: with JPEG_REGION_DECODE they come from a
+    # lossless crop around the box (jpeg_codec.decode_box), so the rest of the picture is never
+    # decoded to pixels; otherwise (or when the crop is refused) from the whole decoded picture,
+    # of which only the box is converted to an array.
     box = jpeg_codec.mcu_box(placement.box, layout)
     local = dataclasses.replace(placement, x=placement.x - box[0], y=placement.y - box[1])
     try:
-        patched_box = apply_patch(np.asarray(im.crop(box)), local)
-        out = jpeg_codec.splice_patch(src, im, layout, patched_box, box)
+        if loaded:
+            box_pixels = np.asarray(im.crop(box))
+        else:
+            try:
+                box_pixels = jpeg_codec.decode_box(src, im, layout, box)
+            except jpeg_codec.SpliceUnavailable as exc:
+                log.info("jpeg region decode unavailable", extra={"path": str(src), "reason": str(exc)})
+                _load_decoded(src, im)
+                box_pixels = np.asarray(im.crop(box))
+        out = jpeg_codec.splice_patch(src, im, layout, apply_patch(box_pixels, local), box)
         notes.append(f"DCT splice: only MCU box {box} re-encoded, all other coefficients copied")
         return out, preserved, notes, "jpeg-dct-splice"
     except jpeg_codec.SpliceUnavailable as exc:
         notes.append(f"DCT splice impossible ({exc}): whole image re-encoded with the source tables")
         log.info("jpeg splice unavailable", extra={"path": str(src), "reason": str(exc)})
+    _load_decoded(src, im)
     patched = apply_patch(np.asarray(im), placement)
     if layout.components == 3 and "subsampling" not in jpeg_codec.table_options(im):
         notes.append(f"sampling {layout.sampling} not reproducible by Pillow: written 4:2:0")
@@ -679,8 +719,12 @@ def poison_file(
         data = src.read_bytes()
     except OSError as exc:
         raise ImageFormatError(f"{src.name}: cannot read ({_one_line(exc)})") from exc
-    im = _open_decoded(src, data)
+    # A JPEG need not be decoded to pixels whole (only the patch's MCUs, _poison_jpeg).
+    region = JPEG_REGION_DECODE and data[:2] == b"\xff\xd8" and jpeg_codec.jpegtran_binary() is not None
+    im = _open_decoded(src, data, load=not region)
     fmt = im.format or "unknown"
+    if region and fmt != "JPEG":
+        _load_decoded(src, im)
     width, height = im.size
     try:
         placement = spec.resolve(width, height, image_key=src.name)  # the real name: moving specs (issue #9)
@@ -690,7 +734,7 @@ def poison_file(
     removed: list[str] = []
     lossless = False
     if fmt == "JPEG":
-        out, preserved, notes, method = _poison_jpeg(src, im, data, placement)
+        out, preserved, notes, method = _poison_jpeg(src, im, data, placement, loaded=not region)
         if not keep_location:
             out, removed = _strip_jpeg(src, out)
         if marker is not None:

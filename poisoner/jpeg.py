@@ -30,12 +30,12 @@ can still move by a level or two even though its coefficients are identical.
 
 from __future__ import annotations
 
+import io
 import logging
 import os
 import shutil
 import struct
 import subprocess
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -181,8 +181,6 @@ def encode_like(pixels: np.ndarray, src: Image.Image, layout: JpegLayout, *, met
     """Encode pixels (H x W x 3 or H x W, uint8) like the source JPEG: same tables, same
     subsampling, progressive/restart settings and (with metadata=True) every metadata
     segment of the source."""
-    import io
-
     mode = "L" if pixels.ndim == 2 else "RGB"
     out = Image.fromarray(pixels, mode)
     opts: dict[str, object] = table_options(src)
@@ -215,16 +213,18 @@ def jpegtran_binary() -> str | None:
     return shutil.which("jpegtran")
 
 
-def splice_patch(
-    src_path: Path,
-    src: Image.Image,
-    layout: JpegLayout,
-    patched_box: np.ndarray,
-    box: tuple[int, int, int, int],
-) -> bytes:
-    """Return the source JPEG with only the MCUs in `box` (MCU-aligned, see mcu_box) replaced
-    by `patched_box` (its pixels, already patched). Raises SpliceUnavailable when it cannot be
-    done for this file."""
+def crop_box(box: tuple[int, int, int, int], layout: JpegLayout) -> tuple[int, int, int, int]:
+    """The MCU box grown by one MCU on every side (clipped): the lossless crop whose decode gives
+    the MCU box's pixels exactly as a whole-picture decode does. Fancy chroma upsampling reads one
+    chroma sample beyond a pixel's own, and a crop's border samples are replicated instead of
+    read from the neighbour, so the ring absorbs that; the IDCT is per block and colour
+    conversion per pixel."""
+    mw, mh = layout.mcu_size
+    x0, y0, x1, y1 = box
+    return (max(0, x0 - mw), max(0, y0 - mh), min(layout.width, x1 + mw), min(layout.height, y1 + mh))
+
+
+def _check_splice_layout(src: Image.Image, layout: JpegLayout) -> str:
     binary = jpegtran_binary()
     if binary is None:
         raise SpliceUnavailable("jpegtran not found (install libjpeg-turbo-progs)")
@@ -236,33 +236,71 @@ def splice_patch(
         # jpegtran drops need chroma at 1x1 with luma carrying the subsampling (the
         # libjpeg default); other layouts Pillow's encoder cannot reproduce.
         raise SpliceUnavailable(f"unusual sampling factors {layout.sampling}")
+    return binary
+
+
+def _jpegtran(cmd: list[str], src_path: Path, op: str, stdin: bytes | None = None) -> bytes:
+    """Run jpegtran writing to stdout; any warning (exit 2: corrupt or truncated data) or error
+    raises SpliceUnavailable, so the caller's full decode gives the verdict."""
+    try:
+        run = subprocess.run(cmd, input=stdin, capture_output=True, timeout=JPEGTRAN_TIMEOUT_S, check=False)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise SpliceUnavailable(f"jpegtran failed to run: {exc}") from exc
+    if run.returncode != 0 or not run.stdout:
+        msg = run.stderr.decode(errors="replace").strip().splitlines()
+        raise SpliceUnavailable(f"jpegtran {op} refused: {msg[-1] if msg else run.returncode}")
+    if run.stderr:
+        log.info("jpegtran warning", extra={"path": str(src_path), "stderr": run.stderr[-200:]})
+    return run.stdout
+
+
+def decode_box(
+    src_path: Path, src: Image.Image, layout: JpegLayout, box: tuple[int, int, int, int]
+) -> np.ndarray:
+    """The decoded pixels of the MCU-aligned `box`, without decoding the rest of the picture:
+    `jpegtran -crop` losslessly cuts crop_box(box) out (its coefficients copied, entropy
+    decoding only), Pillow decodes that small file. Equal to np.asarray(full decode)[box]
+    (tests/test_jpeg_region.py). Raises SpliceUnavailable (the caller decodes everything)."""
+    binary = _check_splice_layout(src, layout)
+    if box != mcu_box(box, layout):
+        raise ValueError(f"box {box} is not MCU-aligned")
+    cx0, cy0, cx1, cy1 = crop_box(box, layout)
+    cmd = [binary, "-copy", "none", "-crop", f"{cx1 - cx0}x{cy1 - cy0}+{cx0}+{cy0}", str(src_path)]
+    cropped = Image.open(io.BytesIO(_jpegtran(cmd, src_path, "-crop")))
+    if cropped.size != (cx1 - cx0, cy1 - cy0) or cropped.mode != src.mode:
+        raise SpliceUnavailable(f"jpegtran crop gave {cropped.mode} {cropped.size}")
+    x0, y0, x1, y1 = box
+    try:
+        return np.asarray(cropped.crop((x0 - cx0, y0 - cy0, x1 - cx0, y1 - cy0)))
+    except OSError as exc:  # a crop jpegtran wrote but Pillow cannot read: decode everything
+        raise SpliceUnavailable(f"cropped box unreadable: {exc}") from exc
+
+
+def splice_patch(
+    src_path: Path,
+    src: Image.Image,
+    layout: JpegLayout,
+    patched_box: np.ndarray,
+    box: tuple[int, int, int, int],
+) -> bytes:
+    """Return the source JPEG with only the MCUs in `box` (MCU-aligned, see mcu_box) replaced
+    by `patched_box` (its pixels, already patched). Raises SpliceUnavailable when it cannot be
+    done for this file."""
+    binary = _check_splice_layout(src, layout)
     if box != mcu_box(box, layout):
         raise ValueError(f"box {box} is not MCU-aligned")
     x0, y0 = box[0], box[1]
-    crop = np.ascontiguousarray(patched_box)
-    drop_bytes = encode_like(crop, src, layout, metadata=False)
-    with tempfile.TemporaryDirectory(prefix=".ppd-jpeg-") as tmp:
-        drop_path = Path(tmp) / "drop.jpg"
-        out_path = Path(tmp) / "out.jpg"
-        drop_path.write_bytes(drop_bytes)
-        cmd = [binary, "-copy", "all", "-optimize"]
-        if layout.progressive:
-            cmd.append("-progressive")
-        if layout.restart_interval:
-            cmd += ["-restart", f"{layout.restart_interval}B"]
-        if layout.arithmetic:
-            cmd.append("-arithmetic")
-        cmd += ["-drop", f"+{x0}+{y0}", str(drop_path), "-outfile", str(out_path), str(src_path)]
-        try:
-            run = subprocess.run(cmd, capture_output=True, timeout=JPEGTRAN_TIMEOUT_S, check=False)
-        except (OSError, subprocess.TimeoutExpired) as exc:
-            raise SpliceUnavailable(f"jpegtran failed to run: {exc}") from exc
-        if run.returncode != 0 or not out_path.exists():
-            msg = run.stderr.decode(errors="replace").strip().splitlines()
-            raise SpliceUnavailable(f"jpegtran -drop refused: {msg[-1] if msg else run.returncode}")
-        if run.stderr:
-            log.info("jpegtran warning", extra={"path": str(src_path), "stderr": run.stderr[-200:]})
-        data = out_path.read_bytes()
+    drop_bytes = encode_like(np.ascontiguousarray(patched_box), src, layout, metadata=False)
+    cmd = [binary, "-copy", "all", "-optimize"]
+    if layout.progressive:
+        cmd.append("-progressive")
+    if layout.restart_interval:
+        cmd += ["-restart", f"{layout.restart_interval}B"]
+    if layout.arithmetic:
+        cmd.append("-arithmetic")
+    # The drop file comes through a pipe and the result through stdout: no temporary files.
+    cmd += ["-drop", f"+{x0}+{y0}", "/dev/stdin", str(src_path)]
+    data = _jpegtran(cmd, src_path, "-drop", stdin=drop_bytes)
     check = read_layout(data)
     if (check.width, check.height, check.components) != (layout.width, layout.height, layout.components):
         raise SpliceUnavailable("jpegtran output has a different frame")

@@ -16,8 +16,17 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
-DEFAULT_MAX_PIXELS = 100_000_000  # 100 MP (docs/FORMATS.md "Memory": peak RSS figures)
-DEFAULT_MAX_VIDEO_PIXELS = 5312 * 2988  # 15.9 MP per frame: GoPro 5.3K; 8K video refused
+DEFAULT_MAX_PIXELS = 80_000_000  # peak RSS at 85 MP: JPEG 455 MB, PNG 438 MB (docs/FORMATS.md "Memory")
+# Formats whose codecs need several times JPEG/PNG's memory get a fraction of the pixel budget
+# (measured peak RSS, docs/FORMATS.md "Memory"): libwebp ~35 bytes/pixel (1411 MB at 40 MP) -> a
+# fifth (16 MP by default, ~0.6 GB); HEIC/AVIF (x265 re-encode) ~26 bytes/pixel (1079 MB at 40 MP)
+# -> a third (26.7 MP, ~0.74 GB).
+BUDGET_DIVISOR = {
+    "WEBP": (5, "a fifth", "libwebp needs ~35 bytes per pixel"),
+    "HEIF": (3, "a third", "the HEIF encoder needs ~26 bytes per pixel"),
+}
+# 4096x2160 (DCI 4K) per frame: 3840x2160 peaks at 0.75 GB (x264, lookahead 10; docs/VIDEO.md)
+DEFAULT_MAX_VIDEO_PIXELS = 4096 * 2160
 _HEADER_READ = 1 << 20  # the most read to find a header (JPEG APPn before SOF can be large)
 
 
@@ -78,7 +87,8 @@ def decoded_bytes_estimate(path: Path) -> int:
 
 def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
     """Raise ImageFormatError (one line) when path declares more than max_pixels (all frames
-    together), before anything is decoded. An unreadable header passes: the decoder refuses it."""
+    together; WebP a fifth of it, HEIF/AVIF a third), before anything is decoded. An unreadable
+    header passes: the decoder refuses it."""
     from poisoner.formats import ImageFormatError
 
     path = Path(path)
@@ -86,11 +96,17 @@ def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> Non
         size = decoded_size(path)
     except HeaderError:
         return
-    if size.pixels > max_pixels:
+    limit, why = max_pixels, ""
+    if size.format in BUDGET_DIVISOR:
+        divisor, share, reason = BUDGET_DIVISOR[size.format]
+        limit = max_pixels // divisor
+        label = "WebP" if size.format == "WEBP" else "HEIF/AVIF"
+        why = f" for {label} ({share} of {_mp(max_pixels)} MP: {reason})"
+    if size.pixels > limit:
         frames = f" x {size.frames} frames" if size.frames > 1 else ""
         raise ImageFormatError(
             f"{path.name}: {size.width}x{size.height}{frames} ({_mp(size.pixels)} MP) is over the "
-            f"{_mp(max_pixels)} MP limit; raise [limits] max_megapixels to protect it"
+            f"{_mp(limit)} MP limit{why}; raise [limits] max_megapixels to protect it"
         )
 
 

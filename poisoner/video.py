@@ -88,6 +88,9 @@ _CRF_MODEL: dict[str, tuple[float, int, int]] = {
 _BPP_REFERENCE = 0.1
 _CRF_STEP_ON_RETRY = 6
 
+_FULL_LOOKAHEAD_MAX_PIXELS = 1920 * 1088
+_SHORT_LOOKAHEAD = 10
+
 # Side data types that carry HDR mastering information (kept by re-tagging where possible).
 _HDR_SIDE_DATA = ("MASTERING_DISPLAY_METADATA", "CONTENT_LIGHT_LEVEL")
 
@@ -316,10 +319,17 @@ def choose_encoder(info: SourceInfo, options: VideoOptions, crf_shift: int = 0) 
         crf = max(0, crf - crf_shift)
     opts: dict[str, str] = {}
     bit_rate: int | None = None
+    # x264/x265 keep rc-lookahead frames in flight (40 at preset medium): 1.48 GB peak RSS on
+    # 3840x2160, 0.75 GB with 10 (measured, docs/VIDEO.md "Memory"). Above 1080p the lookahead
+    # is cut to 10; at or below 1080p (every quality figure in docs/VIDEO.md) nothing changes.
+    short_lookahead = info.width * info.height > _FULL_LOOKAHEAD_MAX_PIXELS
     if encoder == "libx264":
         opts = {"crf": str(crf), "preset": options.preset}
+        if short_lookahead:
+            opts["rc-lookahead"] = str(_SHORT_LOOKAHEAD)
     elif encoder == "libx265":
-        opts = {"crf": str(crf), "preset": options.preset, "x265-params": "log-level=error"}
+        params = "log-level=error" + (f":rc-lookahead={_SHORT_LOOKAHEAD}" if short_lookahead else "")
+        opts = {"crf": str(crf), "preset": options.preset, "x265-params": params}
     elif encoder == "libvpx-vp9":
         # b=0 with crf: constant quality; row-mt for threads at this resolution.
         opts = {"crf": str(crf), "b": "0", "deadline": "good", "cpu-used": "4", "row-mt": "1"}

@@ -143,6 +143,9 @@ def jpeg_huge(path: Path) -> None:
 
 
 CORPUS: dict[str, Callable[[Path], None]] = {
+    # just under Pillow's own bomb limit (89.5 MP): Pillow would decode these
+    "zeros-9400.png": lambda p: png_zeros(p, 9400, 9400),
+    "solid-9000.webp": lambda p: webp_solid_lossless(p, 9000),
     "zeros-12000.png": png_zeros,
     "huge-ihdr.png": png_huge_ihdr,
     "text-bomb.png": png_text_bomb,

@@ -103,7 +103,14 @@ def test_poison_file_max_pixels(tmp_path: Path) -> None:
     assert not (tmp_path / "out.png").exists()
     poison_file(src, tmp_path / "out.png", SPEC, max_pixels=200 * 100)  # at the limit: protected
     poison_file(src, tmp_path / "out2.png", SPEC)  # default
-    assert DEFAULT_MAX_PIXELS >= 24_000_000  # a 24 MP camera photo is never refused by default
+    assert DEFAULT_MAX_PIXELS >= 61_000_000  # the largest full-frame camera photos pass by default
+
+
+def test_webp_gets_a_fifth_of_the_budget(tmp_path: Path) -> None:
+    src = _save(tmp_path / "a.webp", "RGB", (200, 100), "WEBP", lossless=True)
+    with pytest.raises(ImageFormatError, match=r"over the 0.0 MP limit for WebP \(a fifth of"):
+        check_decode_budget(src, max_pixels=200 * 100 * 5 - 1)
+    check_decode_budget(src, max_pixels=200 * 100 * 5)
 
 
 def test_unreadable_header_is_left_to_the_decoder(tmp_path: Path) -> None:
@@ -115,18 +122,26 @@ def test_unreadable_header_is_left_to_the_decoder(tmp_path: Path) -> None:
 
 CHILD = textwrap.dedent(
     """
-    import resource, sys
+    import sys
     from pathlib import Path
     from poisoner.formats import ImageFormatError, poison_file
     from poisoner.spec import PatchSpec
+
+    def peak_mb():
+        # VmHWM, not ru_maxrss: Linux keeps ru_maxrss across exec, so a child forked from a
+        # large pytest process would report the parent's size
+        for line in open("/proc/self/status"):
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) // 1024
+        raise RuntimeError("no VmHWM")
+
     for name in sys.argv[2:]:
         try:
             poison_file(Path(sys.argv[1]) / name, Path(sys.argv[1]) / ("out-" + name), PatchSpec())
             outcome = "PROTECTED"
         except ImageFormatError as exc:
             outcome = str(exc)
-        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024
-        print(f"{rss}\\t{name}\\t{outcome}", flush=True)
+        print(f"{peak_mb()}\\t{name}\\t{outcome}", flush=True)
     """
 )
 
@@ -151,7 +166,9 @@ def test_hostile_corpus_refused_before_decoding_in_low_memory(tmp_path: Path) ->
         if name == "text-bomb.png":
             assert "PROTECTED" not in outcome  # Pillow's text limit refuses it; memory stays low
         else:
-            assert f"is over the {DEFAULT_MAX_PIXELS // 1_000_000} MP limit" in outcome, outcome
+            assert f"is over the {DEFAULT_MAX_PIXELS // 1_000_000} MP limit" in outcome or (
+                name.endswith(".webp") and "MP limit for WebP" in outcome
+            ), outcome
     assert not list(corpus.glob("out-*"))
 
 
@@ -180,3 +197,13 @@ def test_video_over_the_frame_limit_is_refused(tmp_path: Path) -> None:
     with pytest.raises(VideoFormatError, match=r"a.mp4: 128x96 frames .* over the .* video limit"):
         poison_video(src, tmp_path / "o.mp4", SPEC, options=opts, max_pixels=128 * 96 - 1)
     poison_video(src, tmp_path / "o.mp4", SPEC, options=opts)  # default limit: protected
+
+
+def test_heif_gets_a_third_of_the_budget(tmp_path: Path) -> None:
+    import pillow_heif
+
+    pillow_heif.register_heif_opener()
+    Image.new("RGB", (200, 100)).save(tmp_path / "a.heic", quality=50)
+    with pytest.raises(ImageFormatError, match=r"limit for HEIF/AVIF \(a third of"):
+        check_decode_budget(tmp_path / "a.heic", max_pixels=200 * 100 * 3 - 1)
+    check_decode_budget(tmp_path / "a.heic", max_pixels=200 * 100 * 3)

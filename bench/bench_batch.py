@@ -1,0 +1,286 @@
+"""Benchmark: protecting a folder, whole process, against a codec floor (python -m bench.bench_batch).
+
+Each measurement is one fresh Python process run under `/usr/bin/time` on a fresh copy of the
+folder (the copy is made before the clock starts), so start-up, imports, child processes
+(jpegtran) and the durable write (fsync + rename, poisoner.atomic) are all counted:
+
+- ppd:   `poison_in_place` over every file of the folder (the product's default spec,
+         poisoner.ladder.default_spec(): a moving texture inside the picture), serially, or with
+         `--workers N` through poisoner.batch.poison_many;
+- floor: Pillow decode + re-encode of every file, through the same atomic_output: JPEG with the
+         source's quantisation tables and subsampling (`qtables=`, `subsampling=`, Pillow's
+         default Huffman tables, i.e. what "re-saving with the same settings" costs), PNG with
+         Pillow's default settings.
+
+Runs alternate in pairs (ppd, floor, then floor, ppd, ...); the table gives the median of each
+side and the ratio of the medians, CPU (user + system, children included) and wall. The load
+average is recorded before and after, because the machine is shared.
+
+Inputs (generated, never committed; cached under --cache):
+- JPEG: N x 4240x2832 q92 4:2:0 with an EXIF block, from one smooth synthetic texture with edges and
+  noise (bench.bench_poison.camera_like), each file shifted and with its own noise;
+- PNG: N x 800x800, NeRF-Synthetic lego train views when /work/shared/datasets is there, else
+  synthetic RGB.
+
+`python -m bench.bench_batch profile` prints where the time of one process goes (cProfile).
+Writes bench/results/batch.md (the measure command).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "results" / "batch.md"
+LEGO = Path(__file__).resolve().parents[2] / "shared/datasets/nerf_synthetic_lego/train"
+JPEG_SIZE = (4240, 2832)
+DEFAULT_CACHE = Path(tempfile.gettempdir()) / "ppd-bench-batch"
+TIME_FORMAT = "%e %U %S %M"  # wall s, user s, system s, max RSS KiB
+
+
+# ---- inputs --------------------------------------------------------------------------------------
+def make_jpegs(folder: Path, count: int) -> list[Path]:
+    import numpy as np
+    from PIL import Image
+
+    from bench.bench_poison import camera_like
+
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = [folder / f"IMG_{i:04d}.jpg" for i in range(count)]
+    if all(p.exists() for p in paths):
+        return paths
+    w, h = JPEG_SIZE
+    base = camera_like(h, w)
+    rng = np.random.default_rng(1)
+    tile = rng.integers(-4, 5, size=(256, 256, 3), dtype=np.int16)
+    exif = Image.Exif()
+    exif[0x010F] = "BenchCam"
+    for i, path in enumerate(paths):
+        shifted = np.roll(base, (i * 37, i * 53), axis=(0, 1)).astype(np.int16)
+        noise = np.tile(np.roll(tile, i * 11, axis=0), (h // 256 + 1, w // 256 + 1, 1))[:h, :w]
+        pixels = np.clip(shifted + noise, 0, 255).astype(np.uint8)
+        Image.fromarray(pixels).save(path, quality=92, subsampling=2, exif=exif)
+    return paths
+
+
+def make_pngs(folder: Path, count: int) -> tuple[list[Path], str]:
+    from PIL import Image
+
+    from bench.bench_poison import camera_like
+
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = [folder / f"view_{i:04d}.png" for i in range(count)]
+    lego = [LEGO / f"r_{i}.png" for i in range(count)]
+    source = "lego train views (800x800 RGBA)" if all(p.exists() for p in lego) else "synthetic 800x800 RGB"
+    for i, path in enumerate(paths):
+        if path.exists():
+            continue
+        if lego[i].exists():
+            shutil.copyfile(lego[i], path)
+        else:
+            Image.fromarray(camera_like(800, 800, seed=i)).save(path)
+    return paths, source
+
+
+# ---- the measured processes ----------------------------------------------------------------------
+def run_ppd(folder: Path, workers: int) -> None:
+    from poisoner.ladder import default_spec
+
+    spec = default_spec()
+    files = sorted(p for p in folder.iterdir() if p.is_file())
+    if workers > 1:
+        from poisoner.batch import poison_many
+
+        results = poison_many([(p, p) for p in files], spec, workers=workers)
+        failed = [r for r in results if r.error]
+        if failed:
+            raise SystemExit(f"{len(failed)} failed: {failed[0].error}")
+        return
+    from poisoner.formats import poison_in_place
+
+    for path in files:
+        poison_in_place(path, spec)
+
+
+def run_floor(folder: Path) -> None:
+    from PIL import Image, JpegImagePlugin
+
+    from poisoner.atomic import atomic_output
+
+    for path in sorted(p for p in folder.iterdir() if p.is_file()):
+        im = Image.open(path)
+        im.load()
+        with atomic_output(path) as tmp:
+            if im.format == "JPEG":
+                opts: dict[str, object] = {"qtables": im.quantization, "exif": im.info.get("exif", b"")}
+                sampling = JpegImagePlugin.get_sampling(im)
+                if sampling != -1:
+                    opts["subsampling"] = sampling
+                im.save(tmp, "JPEG", **opts)
+            else:
+                im.save(tmp, "PNG")
+
+
+# ---- timing --------------------------------------------------------------------------------------
+def timed(argv: list[str]) -> dict[str, float]:
+    """One whole process under /usr/bin/time: wall, cpu (user+sys, children included), rss MB."""
+    with tempfile.NamedTemporaryFile("r", suffix=".time") as out:
+        subprocess.run(
+            ["/usr/bin/time", "-f", TIME_FORMAT, "-o", out.name, *argv],
+            check=True,
+            env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+        )
+        wall, user, system, rss = out.read().split()[-4:]
+    return {"wall": float(wall), "cpu": float(user) + float(system), "rss": int(rss) / 1024}
+
+
+def fresh_copy(src: Path, work: Path) -> Path:
+    if work.exists():
+        shutil.rmtree(work)
+    shutil.copytree(src, work)
+    return work
+
+
+def paired(src: Path, work: Path, pairs: int, workers: int) -> dict[str, list[dict[str, float]]]:
+    ppd_cmd = [sys.executable, "-m", "bench.bench_batch", "_ppd", str(work), "--workers", str(workers)]
+    floor_cmd = [sys.executable, "-m", "bench.bench_batch", "_floor", str(work)]
+    runs: dict[str, list[dict[str, float]]] = {"ppd": [], "floor": []}
+    for i in range(pairs):
+        order = [("ppd", ppd_cmd), ("floor", floor_cmd)]
+        for name, cmd in order if i % 2 == 0 else order[::-1]:
+            fresh_copy(src, work)
+            runs[name].append(timed(cmd))
+    return runs
+
+
+def summarise(runs: dict[str, list[dict[str, float]]]) -> dict[str, float]:
+    med = {
+        f"{side}_{k}": statistics.median(r[k] for r in runs[side])
+        for side in runs
+        for k in ("wall", "cpu", "rss")
+    }
+    med["cpu_ratio"] = med["ppd_cpu"] / med["floor_cpu"]
+    med["wall_ratio"] = med["ppd_wall"] / med["floor_wall"]
+    return med
+
+
+def measure(args: argparse.Namespace) -> None:
+    cache = Path(args.cache)
+    jpeg_dir = cache / "jpeg"
+    png_dir = cache / "png"
+    make_jpegs(jpeg_dir, args.count)
+    _, png_source = make_pngs(png_dir, args.count)
+    work = cache / "work"
+    rows = []
+    load_before = os.getloadavg()
+    for label, src in (
+        (f"{args.count} x JPEG 4240x2832 q92 4:2:0", jpeg_dir),
+        (f"{args.count} x PNG {png_source}", png_dir),
+    ):
+        for workers in args.workers:
+            t0 = time.perf_counter()
+            med = summarise(paired(src, work, args.pairs, workers))
+            print(f"{label} workers={workers}: {med} ({time.perf_counter() - t0:.0f} s)", flush=True)
+            rows.append((label, workers, med, os.getloadavg()))
+    shutil.rmtree(work, ignore_errors=True)
+    write_results(args, rows, load_before, os.getloadavg())
+
+
+def write_results(args: argparse.Namespace, rows: list, load_before: tuple, load_after: tuple) -> None:
+    import PIL
+
+    jt = subprocess.run(["jpegtran", "-version"], capture_output=True, text=True)
+    lines = [
+        "# Protecting a folder: whole process vs the codec floor",
+        "",
+        f"`python -m bench.bench_batch measure --count {args.count} --pairs {args.pairs} --workers "
+        f"{' '.join(map(str, args.workers))}` on {platform.machine()} ({os.cpu_count()} cores, shared with "
+        f"other jobs), Python {platform.python_version()}, Pillow {PIL.__version__}, "
+        f"jpegtran {jt.stderr.strip() or 'absent'}.",
+        f"Load average (1/5/15 min) before: {'/'.join(f'{x:.2f}' for x in load_before)}, after: "
+        f"{'/'.join(f'{x:.2f}' for x in load_after)}; with more runnable jobs than cores, wall "
+        "times stretch: read the CPU ratios first.",
+        "",
+        "Each cell: median of the runs; every run is one whole process on a fresh copy of the folder "
+        "(ppd and floor alternate in pairs). CPU = user + system, children (jpegtran) included.",
+        "",
+        "| files | ppd workers | ppd CPU s | floor CPU s | **CPU ratio** | ppd wall s | floor wall s "
+        "| wall ratio | ppd peak RSS MB | floor peak RSS MB | load after |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for label, workers, m, load in rows:
+        lines.append(
+            f"| {label} | {workers} | {m['ppd_cpu']:.2f} | {m['floor_cpu']:.2f} | **{m['cpu_ratio']:.2f}x** "
+            f"| {m['ppd_wall']:.2f} | {m['floor_wall']:.2f} | {m['wall_ratio']:.2f}x | {m['ppd_rss']:.0f} "
+            f"| {m['floor_rss']:.0f} | {load[0]:.2f} |"
+        )
+    lines.append("")
+    text = "\n".join(lines)
+    if RESULTS.exists() and args.keep_notes:
+        old = RESULTS.read_text()
+        marker = "\n## Notes"
+        if marker in old:
+            text += old[old.index(marker) :]
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(text if text.endswith("\n") else text + "\n")
+    print(f"wrote {RESULTS}")
+
+
+def profile(args: argparse.Namespace) -> None:
+    """cProfile one process poisoning the first --count JPEGs (in-process time only)."""
+    import cProfile
+    import pstats
+
+    cache = Path(args.cache)
+    src = cache / "jpeg"
+    make_jpegs(src, max(args.count, 1))
+    work = fresh_copy(src, cache / "work-profile")
+    for p in sorted(work.iterdir())[args.count :]:
+        p.unlink()
+    prof = cProfile.Profile()
+    prof.enable()
+    run_ppd(work, 1)
+    prof.disable()
+    pstats.Stats(prof).sort_stats("cumulative").print_stats(args.top)
+    shutil.rmtree(work, ignore_errors=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="cmd")
+    m = sub.add_parser("measure", help="paired whole-process runs; writes bench/results/batch.md")
+    m.add_argument("--count", type=int, default=24)
+    m.add_argument("--pairs", type=int, default=5)
+    m.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    m.add_argument("--cache", default=str(DEFAULT_CACHE))
+    m.add_argument("--keep-notes", action="store_true", default=True)
+    p = sub.add_parser("profile", help="cProfile of one ppd process over --count JPEGs")
+    p.add_argument("--count", type=int, default=8)
+    p.add_argument("--top", type=int, default=30)
+    p.add_argument("--cache", default=str(DEFAULT_CACHE))
+    r = sub.add_parser("_ppd")
+    r.add_argument("folder", type=Path)
+    r.add_argument("--workers", type=int, default=1)
+    f = sub.add_parser("_floor")
+    f.add_argument("folder", type=Path)
+    args = parser.parse_args()
+    if args.cmd == "_ppd":
+        run_ppd(args.folder, args.workers)
+    elif args.cmd == "_floor":
+        run_floor(args.folder)
+    elif args.cmd == "profile":
+        profile(args)
+    else:
+        measure(parser.parse_args(["measure", *sys.argv[1:]]) if args.cmd is None else args)
+
+
+if __name__ == "__main__":
+    main()

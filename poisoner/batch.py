@@ -1,0 +1,140 @@
+"""Protect many image files at once on several cores, writing exactly what one-by-one would.
+
+`poison_many(pairs, spec, workers=...)` runs `poison_in_place` (src == dst) or `poison_file`
+(src -> dst) for each pair in a bounded pool of worker processes: at most `workers` processes and
+at most 2 x workers files in flight, so memory stays at workers x one file's peak. Each file is
+independent and `poison_file` is deterministic, so the bytes written do not depend on the number
+of workers or the order of completion (tests/test_batch.py checks byte identity with serial runs).
+
+Workers come from a "forkserver" (Linux): a fresh, single-threaded process that has imported the
+poisoner once and forks a worker per pool slot, so a caller with threads (the daemon) never forks
+itself and workers skip the import cost. Elsewhere "spawn". workers=1 runs in the calling process.
+
+Per file the result is a BatchResult with the PoisonReport or a one-line error; a worker that
+dies (a codec crash) fails only the files it had, which are reported, never raised.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import sys
+from collections.abc import Callable, Iterable, Mapping
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # types only: importing this module stays light
+    from poisoner.formats import PoisonReport
+    from poisoner.provenance import Marker
+    from poisoner.spec import PatchSpec
+
+MAX_DEFAULT_WORKERS = 8  # each worker holds one decoded file at a time
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    src: Path
+    dst: Path
+    report: PoisonReport | None
+    error: str | None = None  # one line when the file failed
+
+
+def default_workers(count: int) -> int:
+    """The CPUs this process may run on, capped, and never more than the files."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, MAX_DEFAULT_WORKERS, count))
+
+
+def _poison_one(
+    src: Path, dst: Path, spec: PatchSpec, marker: Marker | None, keep_location: bool, max_pixels: int | None
+) -> BatchResult:
+    from poisoner.formats import ImageFormatError, poison_file, poison_in_place
+
+    try:
+        if Path(src) == Path(dst):
+            report = poison_in_place(
+                src, spec, marker=marker, keep_location=keep_location, max_pixels=max_pixels
+            )
+        else:
+            report = poison_file(
+                src, dst, spec, marker=marker, keep_location=keep_location, max_pixels=max_pixels
+            )
+    except ImageFormatError as exc:
+        return BatchResult(src, dst, None, str(exc))
+    except OSError as exc:  # e.g. the destination folder is not writable
+        return BatchResult(src, dst, None, f"{Path(src).name}: {type(exc).__name__}: {exc}".splitlines()[0])
+    return BatchResult(src, dst, report)
+
+
+def _context() -> multiprocessing.context.BaseContext:
+    if sys.platform.startswith("linux"):
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(["poisoner.formats"])
+        return ctx
+    return multiprocessing.get_context("spawn")
+
+
+def poison_many(
+    pairs: Iterable[tuple[Path, Path]],
+    spec: PatchSpec,
+    *,
+    workers: int | None = None,
+    markers: Mapping[Path, Marker] | None = None,
+    keep_location: bool = False,
+    max_pixels: int | None = None,
+    on_done: Callable[[BatchResult], None] | None = None,
+) -> list[BatchResult]:
+    """Poison every (src, dst) pair (src == dst: in place, atomically). Returns one BatchResult
+    per pair, in the order given; on_done is called in this process as each file finishes (for
+    progress). markers maps a src path to its provenance marker."""
+    jobs = [(Path(s), Path(d)) for s, d in pairs]
+    markers = markers or {}
+    n = default_workers(len(jobs)) if workers is None else max(1, min(workers, len(jobs) or 1))
+    results: list[BatchResult | None] = [None] * len(jobs)
+
+    def finish(i: int, result: BatchResult) -> None:
+        results[i] = result
+        if on_done is not None:
+            on_done(result)
+
+    if n == 1:
+        for i, (src, dst) in enumerate(jobs):
+            finish(i, _poison_one(src, dst, spec, markers.get(src), keep_location, max_pixels))
+        return [r for r in results if r is not None]
+
+    pending: dict[Future[BatchResult], int] = {}
+    todo = iter(enumerate(jobs))
+    with ProcessPoolExecutor(max_workers=n, mp_context=_context()) as pool:
+
+        def submit_next() -> bool:
+            item = next(todo, None)
+            if item is None:
+                return False
+            i, (src, dst) = item
+            fut = pool.submit(_poison_one, src, dst, spec, markers.get(src), keep_location, max_pixels)
+            pending[fut] = i
+            return True
+
+        while len(pending) < 2 * n and submit_next():
+            pass
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in done:
+                i = pending.pop(fut)
+                src, dst = jobs[i]
+                try:
+                    finish(i, fut.result())
+                except BrokenProcessPool:
+                    finish(i, BatchResult(src, dst, None, f"{src.name}: worker process died"))
+                try:
+                    submit_next()
+                except BrokenProcessPool:
+                    for j, (s, d) in todo:  # the pool is gone: report the rest, do not raise
+                        finish(j, BatchResult(s, d, None, f"{s.name}: worker process died"))
+    return [r for r in results if r is not None]

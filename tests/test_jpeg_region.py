@@ -1,0 +1,162 @@
+"""JPEG region decode: only a lossless crop around the patch's MCUs is decoded, and the output is
+byte-for-byte what the whole-picture decode gave; nothing outside the patch's MCU box changes."""
+
+from __future__ import annotations
+
+import io
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from poisoner import formats
+from poisoner import jpeg as jpeg_codec
+from poisoner.formats import ImageFormatError, poison_file
+from poisoner.ladder import default_spec
+from poisoner.provenance import Marker
+from poisoner.spec import PatchSpec
+
+pytestmark = pytest.mark.skipif(shutil.which("jpegtran") is None, reason="jpegtran not installed")
+
+
+def textured(h: int, w: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    base = np.stack([128 + 90 * np.sin(xx / 17.0), 100 + 80 * np.cos(yy / 13.0), 60 + 0.4 * xx], axis=-1)
+    base += 40.0 * ((xx // 11 + yy // 7) % 2)[..., None]  # sharp chroma edges: upsampling matters
+    return np.clip(base + rng.normal(0, 6, base.shape), 0, 255).astype(np.uint8)
+
+
+def gps_exif() -> Image.Exif:
+    exif = Image.Exif()
+    exif[0x010F] = "ppd-cam"
+    gps = exif.get_ifd(0x8825)
+    gps[1], gps[2] = "N", (48.0, 51.0, 24.0)
+    return exif
+
+
+# (name, size, save options): every sampling, greyscale, progressive, restart markers, odd sizes.
+CASES = {
+    "444": ((331, 250), {"subsampling": 0}),
+    "422": ((320, 241), {"subsampling": 1}),
+    "420": ((333, 247), {"subsampling": 2}),
+    "420-progressive-restart": (
+        (320, 240),
+        {"subsampling": 2, "progressive": True, "restart_marker_blocks": 3},
+    ),
+    "grey": ((250, 190), {"grey": True}),
+}
+SPECS = {
+    "center": PatchSpec(patch_size=37, block_size=4, position="center"),
+    "top-left": PatchSpec(patch_size=30, block_size=4),
+    "bottom-right": PatchSpec(patch_size=29, block_size=5, position="bottom-right"),
+    "product-default": default_spec(),
+}
+
+
+def write_case(path: Path, case: str, seed: int = 0) -> None:
+    (w, h), opts = CASES[case]
+    opts = dict(opts)
+    pixels = textured(h, w, seed)
+    im = Image.fromarray(pixels).convert("L") if opts.pop("grey", False) else Image.fromarray(pixels)
+    im.save(path, "JPEG", quality=90, exif=gps_exif(), comment=b"region test", **opts)
+
+
+def both_paths(monkeypatch: pytest.MonkeyPatch, src: Path, tmp: Path, spec: PatchSpec, **kw: object):
+    outs = {}
+    for region in (False, True):
+        monkeypatch.setattr(formats, "JPEG_REGION_DECODE", region)
+        dst = tmp / f"out-{region}.jpg"
+        report = poison_file(src, dst, spec, **kw)
+        outs[region] = (dst.read_bytes(), report)
+    return outs
+
+
+@pytest.mark.parametrize("spec_name", sorted(SPECS))
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_region_decode_gives_the_same_bytes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str, spec_name: str
+) -> None:
+    src = tmp_path / "IMG_0007.jpg"
+    write_case(src, case)
+    marker = Marker(spec_id="s" * 16, original_sha256="0" * 64, tool="ppd test")
+    outs = both_paths(monkeypatch, src, tmp_path, SPECS[spec_name], marker=marker)
+    (old, old_report), (new, new_report) = outs[False], outs[True]
+    assert new_report.method == old_report.method == "jpeg-dct-splice"
+    assert new == old
+    assert new_report.location_removed == old_report.location_removed != []
+    assert new_report.notes == old_report.notes
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_decode_box_equals_the_whole_decode(tmp_path: Path, case: str) -> None:
+    src = tmp_path / "a.jpg"
+    write_case(src, case, seed=3)
+    data = src.read_bytes()
+    im = Image.open(io.BytesIO(data))
+    layout = jpeg_codec.read_layout(data)
+    whole = np.asarray(Image.open(src))
+    w, h = im.size
+    for box in ((5, 7, 40, 33), (w // 2 - 20, h // 2 - 9, w // 2 + 21, h // 2 + 30), (w - 19, h - 23, w, h)):
+        mbox = jpeg_codec.mcu_box(box, layout)
+        got = jpeg_codec.decode_box(src, im, layout, mbox)
+        x0, y0, x1, y1 = mbox
+        assert np.array_equal(got, whole[y0:y1, x0:x1]), (case, mbox)
+
+
+def _crop(path: Path, region: tuple[int, int, int, int]) -> bytes:
+    x0, y0, x1, y1 = region
+    cmd = ["jpegtran", "-copy", "none", "-crop", f"{x1 - x0}x{y1 - y0}+{x0}+{y0}", str(path)]
+    return subprocess.run(cmd, capture_output=True, check=True).stdout
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_nothing_outside_the_mcu_box_changes(tmp_path: Path, case: str) -> None:
+    """Every MCU outside the patch's MCU box keeps its coefficients: a lossless crop of each of the
+    four strips around the box is the same file, and decodes to the same pixels, in the source and
+    the output. Greyscale (no chroma upsampling): the whole decoded picture outside the box too."""
+    src, dst = tmp_path / "a.jpg", tmp_path / "out.jpg"
+    write_case(src, case, seed=5)
+    spec = SPECS["center"]
+    poison_file(src, dst, spec)
+    layout = jpeg_codec.read_layout(src.read_bytes())
+    w, h = layout.width, layout.height
+    x0, y0, x1, y1 = jpeg_codec.mcu_box(spec.resolve(w, h).box, layout)
+    strips = [(0, 0, w, y0), (0, y1, w, h), (0, y0, x0, y1), (x1, y0, w, y1)]
+    for strip in strips:
+        if strip[2] > strip[0] and strip[3] > strip[1]:
+            a, b = _crop(src, strip), _crop(dst, strip)
+            assert a == b, strip
+            pixels_a, pixels_b = (np.asarray(Image.open(io.BytesIO(x))) for x in (a, b))
+            assert np.array_equal(pixels_a, pixels_b)
+    inside_a = _crop(src, (x0, y0, x1, y1))
+    assert inside_a != _crop(dst, (x0, y0, x1, y1))  # the patch is really in the box
+    if case == "grey":
+        a, b = np.asarray(Image.open(src)), np.asarray(Image.open(dst))
+        mask = np.ones(a.shape, dtype=bool)
+        mask[y0:y1, x0:x1] = False
+        assert np.array_equal(a[mask], b[mask])
+
+
+def test_truncated_jpeg_still_fails_before_writing(tmp_path: Path) -> None:
+    src, dst = tmp_path / "half.jpg", tmp_path / "out.jpg"
+    write_case(src, "420")
+    data = src.read_bytes()
+    src.write_bytes(data[: len(data) * 3 // 4])  # the patch's rows are intact, the end is missing
+    with pytest.raises(ImageFormatError) as err:
+        poison_file(src, dst, SPECS["top-left"])
+    assert "half.jpg" in str(err.value) and "\n" not in str(err.value)
+    assert not dst.exists()
+
+
+def test_region_decode_falls_back_when_crop_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A jpegtran that fails: whole decode and same-tables re-encode, as before."""
+    monkeypatch.setenv(jpeg_codec.JPEGTRAN_ENV, "/bin/false")
+    src, dst = tmp_path / "a.jpg", tmp_path / "out.jpg"
+    write_case(src, "420")
+    report = poison_file(src, dst, SPECS["center"])
+    assert report.method == "jpeg-reencode-same-tables"
+    assert Image.open(dst).quantization == Image.open(src).quantization
