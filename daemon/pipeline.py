@@ -29,11 +29,13 @@ symlink; every later read and write goes through those descriptors, never throug
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import logging
 import os
 import shutil
 import stat
 import tempfile
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -232,9 +234,46 @@ def link_or_copy(src: Path, dst: Path) -> None:
         shutil.copyfile(src, dst)
 
 
-def work_folder(ctx: AppContext) -> Path:
-    """A private scratch folder inside the vault (same filesystem: the vault links from it)."""
-    return Path(tempfile.mkdtemp(prefix=".work-", dir=ctx.vault.vault_dir))
+WORK_PREFIX = ".work-"
+_work_cleared: set[Path] = set()
+
+
+def work_folder(ctx: AppContext, held: contextlib.ExitStack | None = None) -> Path:
+    """A private scratch folder inside the vault (same filesystem: the vault links from it),
+    flock()ed while in use (held owns the lock). The first call in a process removes stale
+    ones: left by a killed process, so unlocked."""
+    vault_dir = Path(ctx.vault.vault_dir)
+    if vault_dir not in _work_cleared:
+        _work_cleared.add(vault_dir)
+        clear_stale_work_folders(vault_dir)
+    folder = Path(tempfile.mkdtemp(prefix=WORK_PREFIX, dir=vault_dir))
+    if held is not None:
+        fd = os.open(folder / ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        held.callback(os.close, fd)
+    return folder
+
+
+def clear_stale_work_folders(vault_dir: Path, min_age_s: float = 10.0) -> list[Path]:
+    """Remove `.work-*` folders no living process holds (their lock is free) and at least
+    min_age_s old (the instant between a folder's creation and its lock)."""
+    removed = []
+    for folder in Path(vault_dir).glob(f"{WORK_PREFIX}*"):
+        try:
+            if time.time() - folder.lstat().st_mtime < min_age_s or folder.is_symlink():
+                continue
+            fd = os.open(folder / ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            continue
+        finally:
+            os.close(fd)
+        shutil.rmtree(folder, ignore_errors=True)
+        removed.append(folder)
+    return removed
 
 
 def report_detail(report: Any) -> dict[str, Any]:
@@ -385,7 +424,7 @@ def decide(job: Job) -> ProtectOutcome | None:
             return job.outcome(Outcome.UNCHANGED, "not selected by the spec's ratio")
         if not job.dry_run:
             if out_path is not None:  # the copy is published as it is
-                job.work = work_folder(ctx)
+                job.work = work_folder(ctx, job.held)
                 copy = job.work / job.path.name
                 if copy_fd_to_path(job.file.fd, copy) != sha:  # type: ignore[union-attr]
                     raise SourceChanged(f"{job.path.name} changed while being patched; left as it is now")
@@ -433,7 +472,7 @@ def keep_in_vault(job: Job) -> ProtectOutcome | None:
         raise SourceChanged(f"{job.path.name} was written to while being kept; left as it is now") from None
     if job.file.changed():
         raise SourceChanged(f"{job.path.name} was written to while being kept; left as it is now")
-    job.work = job.work or work_folder(job.ctx)
+    job.work = job.work or work_folder(job.ctx, job.held)
     job.original = job.work / job.path.name  # poisoners pick the format by suffix
     link_or_copy(job.ctx.vault.path_for(job.sha), job.original)  # ppd's own bytes, read only
     return None
