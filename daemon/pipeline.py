@@ -135,6 +135,7 @@ class Job:
     report: Any = None
     final: Path | None = None
     held: contextlib.ExitStack = field(default_factory=contextlib.ExitStack)  # released by close()
+    died_before: int = 0  # earlier attempts on this file that died with their process
 
     @property
     def record_path(self) -> Path:
@@ -212,6 +213,52 @@ def poison_to(
     from poisoner.formats import poison_file
 
     return poison_file(src, dst, spec, **options)
+
+
+class PoisonerDied(Exception):
+    """The isolated poisoner process died (a signal: out of memory, a decoder crash)."""
+
+
+_CHILD = """
+import json, sys
+from pathlib import Path
+from daemon.pipeline import poison_to
+from poisoner.provenance import Marker
+from poisoner.spec import PatchSpec
+a = json.loads(sys.argv[1])
+poison_to(a["kind"], Path(a["src"]), Path(a["dst"]), PatchSpec.from_dict(a["spec"]),
+          marker=Marker(**a["marker"]), keep_location=a["keep_location"])
+"""
+
+
+def poison_isolated(
+    kind: str, src: Path, dst: Path, spec: PatchSpec, marker: Any, keep_location: bool
+) -> None:
+    """poison_to in a child process: a file that kills its process kills only the child. A child
+    killed by a signal raises PoisonerDied; one that fails raises its last error line."""
+    import json
+    import subprocess
+    import sys
+
+    args = {
+        "kind": kind, "src": os.fsdecode(src), "dst": os.fsdecode(dst), "spec": spec.to_dict(),
+        "marker": {"spec_id": marker.spec_id, "original_sha256": marker.original_sha256, "tool": marker.tool},
+        "keep_location": keep_location,
+    }  # fmt: skip
+    repo = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))}
+    done = subprocess.run(
+        [sys.executable, "-c", _CHILD, json.dumps(args)], capture_output=True, text=True, env=env, check=False
+    )
+    if done.returncode < 0:
+        raise PoisonerDied(
+            f"{src.name}: patching it killed its process twice (signal {-done.returncode}: out of memory or "
+            "a decoder crash); not retried"
+        )
+    if done.returncode != 0:
+        lines = [line for line in done.stderr.strip().splitlines() if line.strip()]
+        raise RuntimeError(lines[-1] if lines else f"the isolated poisoner failed ({done.returncode})")
+    return None
 
 
 def is_ignored_name(path: Path) -> bool:
@@ -485,7 +532,7 @@ def mark_pending(job: Job) -> ProtectOutcome | None:
     from daemon.quarantine import attempt
 
     assert job.spec is not None
-    job.held.enter_context(attempt(job.ctx.paths.data_dir, job.path, job.dataset))
+    job.died_before = job.held.enter_context(attempt(job.ctx.paths.data_dir, job.path, job.dataset))
     job.ctx.store.record_file(
         job.record_path, job.dataset, FileState.PENDING, original_sha256=job.sha, spec_id=job.spec.spec_id,
         poisoned_sha256=None, error=None, tool_version=tool_version(), event="pending",
@@ -498,10 +545,16 @@ def poison(job: Job) -> ProtectOutcome | None:
     """3. The complete patched file, written in the private work folder."""
     assert job.work is not None and job.original is not None and job.spec is not None and job.kind
     job.poisoned = job.work / f"{PATCHED_PREFIX}{job.path.name}"
-    job.report = poison_to(
-        job.kind, job.original, job.poisoned, job.spec, job.progress,
-        marker=provenance_marker(job.spec.spec_id, job.sha), keep_location=job.keep_location,
-    )  # fmt: skip
+    marker = provenance_marker(job.spec.spec_id, job.sha)
+    if job.died_before:  # the last attempt took its process down: this one cannot
+        job.report = poison_isolated(
+            job.kind, job.original, job.poisoned, job.spec, marker, job.keep_location
+        )
+    else:
+        job.report = poison_to(
+            job.kind, job.original, job.poisoned, job.spec, job.progress, marker=marker,
+            keep_location=job.keep_location,
+        )  # fmt: skip
     job.poisoned_sha = sha256_file(job.poisoned)
     return None
 
