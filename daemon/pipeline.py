@@ -1,6 +1,6 @@
 """One file patched end to end, as a list of named stages over one small state object (`Job`).
 
-    STAGES = check_name → open_contained_file → hash_original → decide →
+    STAGES = check_name → open_contained_file → check_complete → hash_original → decide →
              keep_in_vault → mark_pending → poison → replace_atomically → record_provenance → publish
 
 Each stage is a small function `stage(job) -> ProtectOutcome | None`: None hands the job to the
@@ -8,10 +8,11 @@ next stage, an outcome ends the run there (unchanged, skipped, dry run). Excepti
 'failed' (daemon.protect.protect_file records them).
 
 The crash-safety argument is the order of the last six (docs/STORE.md):
-1. keep_in_vault: an independent copy of the original's bytes (read through the file's
-   descriptor) is in the vault, fsynced and hash-checked, before anything else;
+1. keep_in_vault: an independent copy of the original's bytes (Vault.keep_fd, read through the
+   file's descriptor, never a link) is in the vault, fsynced and hash-checked, before anything else;
 2. mark_pending: a 'pending' row naming the original's sha256 is committed;
-3. poison: the complete patched file is written in ppd's private work folder;
+3. poison: the complete patched file (with its provenance marker) is written in ppd's private
+   work folder (in a child process when the last attempt on this file died with its process);
 4. replace_atomically: it is copied to a flock()ed temporary in the file's own folder (through
    that folder's descriptor), fsynced, and renamed over the file only if the file at that name is
    still the one that was hashed (compare-and-swap on device, inode, size, mtime and sha256, just

@@ -778,6 +778,10 @@ class WatchDaemon:
 
     def _record_removed(self, path: Path) -> None:
         """Rows for path, or for every file under path when it was a folder, become 'removed'."""
+        from daemon.pipeline import storable
+
+        if not storable(path):
+            return  # a name the store cannot hold has no row (quarantined ones included)
         store = self.ctx.store
         row = store.file(path)
         rows = [row] if row is not None else []
