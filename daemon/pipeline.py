@@ -105,6 +105,7 @@ class ProtectOutcome:
     # What ppd judged or wrote at path (the watcher's echo filter): a later version differs.
     signature: FileSignature | None = None
     requeue: bool = False  # a newer version arrived meanwhile: process the path again
+    hopeless: bool = False  # failed because of the file itself (format, structure, name): a retry fails too
 
 
 @dataclass
@@ -262,6 +263,21 @@ def poison_isolated(
     return None
 
 
+def file_is_the_cause(exc: BaseException) -> bool:
+    """Whether a failure is the file's own (its format, structure, size or name), so retrying it
+    changes nothing (the daemon quarantines such files); disk, store, lock and vault-limit
+    failures are not."""
+    from poisoner.formats import ImageFormatError
+
+    try:
+        from poisoner.video import VideoFormatError
+    except ImportError:  # PyAV missing
+        VideoFormatError = ImageFormatError  # noqa: N806
+    return isinstance(
+        exc, ProtectRefused | IncompleteFile | PoisonerDied | ImageFormatError | VideoFormatError
+    ) or (isinstance(exc, ValueError) and not isinstance(exc, OSError))
+
+
 def is_ignored_name(path: Path) -> bool:
     """Dot-files and our own temporaries are never protected."""
     return path.name.startswith(".") or path.name.startswith(TEMP_PREFIX)
@@ -376,9 +392,7 @@ def open_contained_file(job: Job) -> ProtectOutcome | None:
     job.kind = media_kind(job.path)
     if job.kind is None:  # not ours to judge (sidecars, notes): left alone, no row
         return job.outcome(Outcome.SKIPPED, "not a supported image or video")
-    if job.file.st.st_size == 0:
-        raise ValueError(f"{job.path.name} is empty (0 bytes); it may still be being written")
-    return None
+    return None  # an empty file is judged by check_complete (a writer may be about to fill it)
 
 
 class IncompleteFile(Exception):

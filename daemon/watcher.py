@@ -707,10 +707,9 @@ class WatchDaemon:
 
     def _quarantine_if_hopeless(self, path: Path, outcome: Any) -> bool:
         """A file that failed for a reason a retry will not change leaves the outbox."""
+        if outcome.state != Outcome.FAILED or not outcome.hopeless:
+            return False  # a full disk or vault, a busy store, another ppd's lock: retried, not moved
         reason = outcome.reason or ""
-        transient = is_no_space(reason) or "another ppd process" in reason or "database is locked" in reason
-        if outcome.state != Outcome.FAILED or transient:
-            return False
         from daemon.quarantine import quarantine
 
         try:
