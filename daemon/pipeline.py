@@ -1,6 +1,6 @@
 """One file patched end to end, as a list of named stages over one small state object (`Job`).
 
-    STAGES = check_name → open_contained_file → hash_original → decide →
+    STAGES = check_name → open_contained_file → check_complete → hash_original → decide →
              keep_in_vault → mark_pending → poison → replace_atomically → record_provenance → publish
 
 Each stage is a small function `stage(job) -> ProtectOutcome | None`: None hands the job to the
@@ -8,10 +8,11 @@ next stage, an outcome ends the run there (unchanged, skipped, dry run). Excepti
 'failed' (daemon.protect.protect_file records them).
 
 The crash-safety argument is the order of the last six (docs/STORE.md):
-1. keep_in_vault: an independent copy of the original's bytes (read through the file's
-   descriptor) is in the vault, fsynced and hash-checked, before anything else;
+1. keep_in_vault: an independent copy of the original's bytes (Vault.keep_fd, read through the
+   file's descriptor, never a link) is in the vault, fsynced and hash-checked, before anything else;
 2. mark_pending: a 'pending' row naming the original's sha256 is committed;
-3. poison: the complete patched file is written in ppd's private work folder;
+3. poison: the complete patched file (with its provenance marker) is written in ppd's private
+   work folder (in a child process when the last attempt on this file died with its process);
 4. replace_atomically: it is copied to a flock()ed temporary in the file's own folder (through
    that folder's descriptor), fsynced, and renamed over the file only if the file at that name is
    still the one that was hashed (compare-and-swap on device, inode, size, mtime and sha256, just
@@ -29,11 +30,13 @@ symlink; every later read and write goes through those descriptors, never throug
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import logging
 import os
 import shutil
 import stat
 import tempfile
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -102,6 +105,7 @@ class ProtectOutcome:
     # What ppd judged or wrote at path (the watcher's echo filter): a later version differs.
     signature: FileSignature | None = None
     requeue: bool = False  # a newer version arrived meanwhile: process the path again
+    hopeless: bool = False  # failed because of the file itself (format, structure, name): a retry fails too
 
 
 @dataclass
@@ -133,6 +137,7 @@ class Job:
     report: Any = None
     final: Path | None = None
     held: contextlib.ExitStack = field(default_factory=contextlib.ExitStack)  # released by close()
+    died_before: int = 0  # earlier attempts on this file that died with their process
 
     @property
     def record_path(self) -> Path:
@@ -212,6 +217,67 @@ def poison_to(
     return poison_file(src, dst, spec, **options)
 
 
+class PoisonerDied(Exception):
+    """The isolated poisoner process died (a signal: out of memory, a decoder crash)."""
+
+
+_CHILD = """
+import json, sys
+from pathlib import Path
+from daemon.pipeline import poison_to
+from poisoner.provenance import Marker
+from poisoner.spec import PatchSpec
+a = json.loads(sys.argv[1])
+poison_to(a["kind"], Path(a["src"]), Path(a["dst"]), PatchSpec.from_dict(a["spec"]),
+          marker=Marker(**a["marker"]), keep_location=a["keep_location"])
+"""
+
+
+def poison_isolated(
+    kind: str, src: Path, dst: Path, spec: PatchSpec, marker: Any, keep_location: bool
+) -> None:
+    """poison_to in a child process: a file that kills its process kills only the child. A child
+    killed by a signal raises PoisonerDied; one that fails raises its last error line."""
+    import json
+    import subprocess
+    import sys
+
+    args = {
+        "kind": kind, "src": os.fsdecode(src), "dst": os.fsdecode(dst), "spec": spec.to_dict(),
+        "marker": {"spec_id": marker.spec_id, "original_sha256": marker.original_sha256, "tool": marker.tool},
+        "keep_location": keep_location,
+    }  # fmt: skip
+    repo = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))}
+    done = subprocess.run(
+        [sys.executable, "-c", _CHILD, json.dumps(args)], capture_output=True, text=True, env=env, check=False
+    )
+    if done.returncode < 0:
+        raise PoisonerDied(
+            f"{src.name}: patching it killed its process twice (signal {-done.returncode}: out of memory or "
+            "a decoder crash); not retried"
+        )
+    if done.returncode != 0:
+        lines = [line for line in done.stderr.strip().splitlines() if line.strip()]
+        raise RuntimeError(lines[-1] if lines else f"the isolated poisoner failed ({done.returncode})")
+    return None
+
+
+def file_is_the_cause(exc: BaseException) -> bool:
+    """Whether a failure is the file's own (its format, structure, size or name), so retrying it
+    changes nothing (the daemon quarantines such files); disk, store, lock and vault-limit
+    failures are not."""
+    from poisoner.formats import ImageFormatError
+
+    try:
+        from poisoner.video import VideoFormatError
+    except ImportError:  # PyAV missing
+        VideoFormatError = ImageFormatError  # noqa: N806
+    return isinstance(
+        exc, ProtectRefused | IncompleteFile | PoisonerDied | ImageFormatError | VideoFormatError
+    ) or (isinstance(exc, ValueError) and not isinstance(exc, OSError))
+
+
 def is_ignored_name(path: Path) -> bool:
     """Dot-files and our own temporaries are never protected."""
     return path.name.startswith(".") or path.name.startswith(TEMP_PREFIX)
@@ -232,9 +298,46 @@ def link_or_copy(src: Path, dst: Path) -> None:
         shutil.copyfile(src, dst)
 
 
-def work_folder(ctx: AppContext) -> Path:
-    """A private scratch folder inside the vault (same filesystem: the vault links from it)."""
-    return Path(tempfile.mkdtemp(prefix=".work-", dir=ctx.vault.vault_dir))
+WORK_PREFIX = ".work-"
+_work_cleared: set[Path] = set()
+
+
+def work_folder(ctx: AppContext, held: contextlib.ExitStack | None = None) -> Path:
+    """A private scratch folder inside the vault (same filesystem: the vault links from it),
+    flock()ed while in use (held owns the lock). The first call in a process removes stale
+    ones: left by a killed process, so unlocked."""
+    vault_dir = Path(ctx.vault.vault_dir)
+    if vault_dir not in _work_cleared:
+        _work_cleared.add(vault_dir)
+        clear_stale_work_folders(vault_dir)
+    folder = Path(tempfile.mkdtemp(prefix=WORK_PREFIX, dir=vault_dir))
+    if held is not None:
+        fd = os.open(folder / ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        held.callback(os.close, fd)
+    return folder
+
+
+def clear_stale_work_folders(vault_dir: Path, min_age_s: float = 10.0) -> list[Path]:
+    """Remove `.work-*` folders no living process holds (their lock is free) and at least
+    min_age_s old (the instant between a folder's creation and its lock)."""
+    removed = []
+    for folder in Path(vault_dir).glob(f"{WORK_PREFIX}*"):
+        try:
+            if time.time() - folder.lstat().st_mtime < min_age_s or folder.is_symlink():
+                continue
+            fd = os.open(folder / ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            continue
+        finally:
+            os.close(fd)
+        shutil.rmtree(folder, ignore_errors=True)
+        removed.append(folder)
+    return removed
 
 
 def report_detail(report: Any) -> dict[str, Any]:
@@ -289,9 +392,7 @@ def open_contained_file(job: Job) -> ProtectOutcome | None:
     job.kind = media_kind(job.path)
     if job.kind is None:  # not ours to judge (sidecars, notes): left alone, no row
         return job.outcome(Outcome.SKIPPED, "not a supported image or video")
-    if job.file.st.st_size == 0:
-        raise ValueError(f"{job.path.name} is empty (0 bytes); it may still be being written")
-    return None
+    return None  # an empty file is judged by check_complete (a writer may be about to fill it)
 
 
 class IncompleteFile(Exception):
@@ -385,7 +486,7 @@ def decide(job: Job) -> ProtectOutcome | None:
             return job.outcome(Outcome.UNCHANGED, "not selected by the spec's ratio")
         if not job.dry_run:
             if out_path is not None:  # the copy is published as it is
-                job.work = work_folder(ctx)
+                job.work = work_folder(ctx, job.held)
                 copy = job.work / job.path.name
                 if copy_fd_to_path(job.file.fd, copy) != sha:  # type: ignore[union-attr]
                     raise SourceChanged(f"{job.path.name} changed while being patched; left as it is now")
@@ -433,7 +534,7 @@ def keep_in_vault(job: Job) -> ProtectOutcome | None:
         raise SourceChanged(f"{job.path.name} was written to while being kept; left as it is now") from None
     if job.file.changed():
         raise SourceChanged(f"{job.path.name} was written to while being kept; left as it is now")
-    job.work = job.work or work_folder(job.ctx)
+    job.work = job.work or work_folder(job.ctx, job.held)
     job.original = job.work / job.path.name  # poisoners pick the format by suffix
     link_or_copy(job.ctx.vault.path_for(job.sha), job.original)  # ppd's own bytes, read only
     return None
@@ -446,7 +547,7 @@ def mark_pending(job: Job) -> ProtectOutcome | None:
     from daemon.quarantine import attempt
 
     assert job.spec is not None
-    job.held.enter_context(attempt(job.ctx.paths.data_dir, job.path, job.dataset))
+    job.died_before = job.held.enter_context(attempt(job.ctx.paths.data_dir, job.path, job.dataset))
     job.ctx.store.record_file(
         job.record_path, job.dataset, FileState.PENDING, original_sha256=job.sha, spec_id=job.spec.spec_id,
         poisoned_sha256=None, error=None, tool_version=tool_version(), event="pending",
@@ -459,10 +560,16 @@ def poison(job: Job) -> ProtectOutcome | None:
     """3. The complete patched file, written in the private work folder."""
     assert job.work is not None and job.original is not None and job.spec is not None and job.kind
     job.poisoned = job.work / f"{PATCHED_PREFIX}{job.path.name}"
-    job.report = poison_to(
-        job.kind, job.original, job.poisoned, job.spec, job.progress,
-        marker=provenance_marker(job.spec.spec_id, job.sha), keep_location=job.keep_location,
-    )  # fmt: skip
+    marker = provenance_marker(job.spec.spec_id, job.sha)
+    if job.died_before:  # the last attempt took its process down: this one cannot
+        job.report = poison_isolated(
+            job.kind, job.original, job.poisoned, job.spec, marker, job.keep_location
+        )
+    else:
+        job.report = poison_to(
+            job.kind, job.original, job.poisoned, job.spec, job.progress, marker=marker,
+            keep_location=job.keep_location,
+        )  # fmt: skip
     job.poisoned_sha = sha256_file(job.poisoned)
     return None
 

@@ -33,6 +33,7 @@ from daemon.pipeline import (
     ProtectRefused,
     SourceChanged,
     ensure_dataset,
+    file_is_the_cause,
     is_ignored_name,
     media_kind,
     one_line,
@@ -220,7 +221,9 @@ def _record_failure(
                 "could not record failure of %s: %s", shown_name(path), one_line(store_exc),
                 extra={"path": str(path), "error": message},
             )  # fmt: skip
-    return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=message)
+    return ProtectOutcome(
+        path=path, dataset=dataset, state=Outcome.FAILED, reason=message, hopeless=file_is_the_cause(exc)
+    )
 
 
 def _holds_ppd_output(ctx: AppContext, path: Path) -> bool:

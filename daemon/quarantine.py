@@ -5,11 +5,12 @@
   a visible folder next to the outbox and outside it), under `<dataset>/<its path below the
   dataset>`, never over an existing file; the store row becomes 'quarantined' with the reason.
 - Attempt markers: before the heavy work on a file, the pipeline holds a flock()ed marker naming
-  it in the private data folder (`attempts/`); a marker that is still there and unlocked at the
-  daemon's start means the process died working on that file (OOM killer, a segfault in a
-  decoder). Each new attempt on the file counts the dead ones before it; `crashed_attempts` lists
-  the markers, and the daemon quarantines a file once CRASH_LOOP_TRIES attempts in a row died
-  (one kill -9 or power cut is not a loop: that file is simply retried).
+  it in the private data folder (`attempts/`); a marker still there at the next attempt means the
+  process died working on that file (OOM killer, a decoder segfault, or a plain kill -9: ppd
+  cannot tell which). So the next attempt runs the poisoner in a child process
+  (daemon.pipeline.poison_isolated): if the child dies too, the file is the cause, and the daemon
+  quarantines it with that reason; the daemon itself does not die again, so there is no crash
+  loop. If the child succeeds, the earlier death was not the file's fault.
 """
 
 from __future__ import annotations
@@ -113,8 +114,9 @@ def _attempts_dir(data_dir: Path) -> Path:
 
 
 @contextlib.contextmanager
-def attempt(data_dir: Path, path: Path, dataset: str | None) -> Iterator[None]:
-    """Hold a marker naming path while the heavy work runs (see the module docstring)."""
+def attempt(data_dir: Path, path: Path, dataset: str | None) -> Iterator[int]:
+    """Hold a marker naming path while the heavy work runs (see the module docstring); yields how
+    many attempts on it died before this one."""
     marker = _attempts_dir(data_dir) / f"{hashlib.sha256(os.fsencode(str(path))).hexdigest()[:32]}.json"
     fd = os.open(marker, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
     try:
@@ -128,7 +130,7 @@ def attempt(data_dir: Path, path: Path, dataset: str | None) -> Iterator[None]:
         with contextlib.suppress(OSError):
             os.ftruncate(fd, 0)
             os.pwrite(fd, json.dumps(doc).encode(), 0)
-        yield
+        yield tries - 1
         with contextlib.suppress(FileNotFoundError):
             os.unlink(marker)
     finally:

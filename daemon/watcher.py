@@ -667,7 +667,7 @@ class WatchDaemon:
         """
         started = time.monotonic()
         if remove_leftovers:
-            self._quarantine_crashed_attempts()
+            self._report_crashed_attempts()
         grace = self.options.tmp_grace_s if remove_leftovers else None
         result = scan_outbox(self.outbox, self.suffixes, grace)
         for tmp in result.stale_temps_removed:
@@ -693,30 +693,23 @@ class WatchDaemon:
         )  # fmt: skip
         return queued
 
-    def _quarantine_crashed_attempts(self) -> None:
-        """A file whose last attempt killed ppd (an attempt marker left unlocked) is moved to the
-        quarantine folder with that reason, never retried in a loop (daemon.quarantine)."""
-        from daemon.quarantine import CRASH_LOOP_TRIES, crashed_attempts, quarantine
+    def _report_crashed_attempts(self) -> None:
+        """Files whose last attempt died with ppd: their next attempt runs the poisoner in a child
+        process (daemon.pipeline.poison_isolated), and a child that dies gets the file quarantined."""
+        from daemon.quarantine import crashed_attempts
 
         for crashed in crashed_attempts(self.ctx.paths.data_dir):
-            if crashed.tries < CRASH_LOOP_TRIES:
-                continue  # retried; the marker keeps counting
-            try:
-                if crashed.path.is_file() or crashed.path.is_symlink():
-                    quarantine(self.ctx, crashed.path, crashed.dataset, crashed.reason)
-                    self._count("quarantined")
-            except OSError as exc:
-                log.error(
-                    "cannot quarantine %s: %s", crashed.path, exc.strerror, extra={"path": str(crashed.path)}
-                )
-            crashed.marker.unlink(missing_ok=True)
+            log.warning(
+                "ppd died while patching %s (pid %d); its next attempt runs isolated",
+                crashed.path, crashed.pid,
+                extra={"path": str(crashed.path)},
+            )  # fmt: skip
 
     def _quarantine_if_hopeless(self, path: Path, outcome: Any) -> bool:
         """A file that failed for a reason a retry will not change leaves the outbox."""
+        if outcome.state != Outcome.FAILED or not outcome.hopeless:
+            return False  # a full disk or vault, a busy store, another ppd's lock: retried, not moved
         reason = outcome.reason or ""
-        transient = is_no_space(reason) or "another ppd process" in reason or "database is locked" in reason
-        if outcome.state != Outcome.FAILED or transient:
-            return False
         from daemon.quarantine import quarantine
 
         try:
@@ -784,6 +777,10 @@ class WatchDaemon:
 
     def _record_removed(self, path: Path) -> None:
         """Rows for path, or for every file under path when it was a folder, become 'removed'."""
+        from daemon.pipeline import storable
+
+        if not storable(path):
+            return  # a name the store cannot hold has no row (quarantined ones included)
         store = self.ctx.store
         row = store.file(path)
         rows = [row] if row is not None else []

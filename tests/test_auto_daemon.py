@@ -15,7 +15,7 @@ import pytest
 from daemon import auto as daemon_auto
 from daemon.config import Config, ConfigError
 from daemon.protect import AppContext, protect_file
-from daemon.store import Store, StoreError
+from daemon.store import SCHEMA_VERSION, Store, StoreError
 from poisoner.spec import PatchSpec
 from verifier.auto import LadderEntry, ladder_to_json
 from verifier.scheduler import SchedulePolicy, VerificationScheduler
@@ -85,7 +85,7 @@ def test_default_config_has_the_issue_budget() -> None:
 def test_auto_decisions_table_and_methods(tmp_path: Path) -> None:
     store = Store(tmp_path / "ppd.sqlite3")
     try:
-        assert store.schema_version() == 3
+        assert store.schema_version() == SCHEMA_VERSION
         assert store.latest_auto_decision("trip") is None
         first = store.add_auto_decision("trip", "a-small", A.spec, "because", {"x": 1}, "preflight")
         none_left = {"failed": ["a-small"]}

@@ -57,29 +57,69 @@ def test_a_file_ppd_cannot_patch_leaves_the_outbox(tmp_path: Path) -> None:
         assert kill_daemon(daemon, signal.SIGTERM) == 0
 
 
-def test_a_file_that_killed_ppd_three_times_is_quarantined_not_retried(tmp_path: Path) -> None:
-    paths = app_paths(tmp_path)
-    photo = write_image(paths.outbox / "ds" / "boom.png", seed=3)
+def test_after_a_death_the_file_is_retried_in_a_child_process(
+    tmp_path: Path, ppd_env: dict[str, Path]
+) -> None:
+    """A process killed while patching a file (as the OOM killer would) leaves its attempt marker;
+    the next attempt runs the poisoner isolated, so a file that kills its process cannot take the
+    daemon down again (no crash loop), and a file that was not the cause is simply patched."""
+    photo = write_image(ppd_env["outbox"] / "ds" / "boom.png", seed=3)
     die = (
         "import os; from pathlib import Path; from daemon.quarantine import attempt\n"
-        f"with attempt(Path({str(paths.data_dir)!r}), Path({str(photo)!r}), 'ds'):\n"
+        f"with attempt(Path({str(ppd_env['data'])!r}), Path({str(photo)!r}), 'ds'):\n"
         "    os.kill(os.getpid(), 9)"
     )
-    for _ in range(3):  # three processes killed mid-work on this file (as the OOM killer would)
-        paths.data_dir.mkdir(parents=True, exist_ok=True)
-        code = subprocess.run(
-            [sys.executable, "-c", die], cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}
-        )
-        assert code.returncode == -9
-    daemon = start_daemon(tmp_path, *DAEMON_ARGS)
+    ppd_env["data"].mkdir(parents=True, exist_ok=True)
+    done = subprocess.run([sys.executable, "-c", die], cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert done.returncode == -9
+    from daemon.quarantine import crashed_attempts
+
+    assert [c.path for c in crashed_attempts(ppd_env["data"])] == [photo]
+    ctx = AppContext.open()
     try:
-        moved = tmp_path / "ppd-quarantine" / "ds" / "boom.png"
-        wait_for(moved.is_file, 30, "the crash-loop file quarantined")
-        row = _row(paths, photo)
-        assert row["state"] == FileState.QUARANTINED and "died 3 times in a row" in row["error"]
-        assert not photo.exists() and not list((paths.data_dir / "attempts").glob("*.json"))
+        outcome = protect_file(photo, ctx)
+        assert outcome.state == "patched", outcome
+        assert crashed_attempts(ppd_env["data"]) == []
     finally:
-        assert kill_daemon(daemon, signal.SIGTERM) == 0
+        ctx.close()
+
+
+def test_an_isolated_poisoner_that_dies_is_a_one_line_failure(tmp_path: Path) -> None:
+    import threading
+
+    from daemon.pipeline import PoisonerDied, poison_isolated, provenance_marker
+    from poisoner.ladder import default_spec
+
+    src = write_image(tmp_path / "big.png", seed=1, size=2048)
+    before = set(os.listdir("/proc"))
+    errors: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            poison_isolated(
+                "image", src, tmp_path / "out.png", default_spec(), provenance_marker("x", "0" * 64), False
+            )
+        except BaseException as exc:  # noqa: BLE001 - the test inspects it
+            errors.append(exc)
+
+    worker = threading.Thread(target=run)
+    worker.start()
+    child = None
+    deadline = time.monotonic() + 30
+    while child is None and time.monotonic() < deadline:
+        for pid in set(os.listdir("/proc")) - before:
+            try:
+                cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+            except OSError:
+                continue
+            if b"poison_to" in cmd and pid.isdigit():
+                child = int(pid)
+        time.sleep(0.01)
+    assert child is not None
+    os.kill(child, signal.SIGKILL)  # what the OOM killer does
+    worker.join(60)
+    assert len(errors) == 1 and isinstance(errors[0], PoisonerDied)
+    assert "signal 9" in str(errors[0]) and "\n" not in str(errors[0])
 
 
 @pytest.mark.parametrize("suffix", [".png", ".jpg"])

@@ -154,16 +154,8 @@ def _fail_replace(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def _fail_vault_copy(monkeypatch: pytest.MonkeyPatch) -> None:
-    """No hard link possible (another filesystem), and the copy runs out of space."""
-    real_link = os.link
-
-    def link(src: object, dst: object, *args: object, **kw: object) -> None:
-        if daemon.vault.VAULT_TMP_PREFIX in os.fsdecode(dst):
-            raise OSError(errno.EXDEV, os.strerror(errno.EXDEV))
-        real_link(src, dst, *args, **kw)
-
-    monkeypatch.setattr(daemon.vault.os, "link", link)
-    monkeypatch.setattr(daemon.vault.shutil, "copyfileobj", _raise_enospc)
+    """The vault's copy (no reflink here) runs out of space in the kernel copy."""
+    monkeypatch.setattr(daemon.vault, "_copy_file_range_step", _raise_enospc)
 
 
 INJECTIONS: dict[str, Callable[[pytest.MonkeyPatch], None]] = {
@@ -208,4 +200,9 @@ def test_enospc_module_points_exist() -> None:
     """The injection points name real code paths (a rename would silently disarm a test)."""
     assert callable(poisoner.formats.poison_file) and hasattr(daemon.vault, "VAULT_TMP_PREFIX")
     assert "dst.write_bytes(out)" in Path(poisoner.formats.__file__).read_text()
-    assert "shutil.copyfileobj" in Path(daemon.vault.__file__).read_text()
+    assert (
+        callable(daemon.vault._copy_file_range_step)
+        and "_copy_file_range_step" in Path(daemon.vault.__file__).read_text()
+    )
+    assert "PATCHED_PREFIX" in Path(daemon.pipeline.__file__).read_text()
+    assert "os.rename(tmp_name, name" in Path(poisoner.atomic.__file__).read_text()

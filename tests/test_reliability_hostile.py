@@ -108,7 +108,8 @@ def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
 
         def all_decided() -> bool:
             rows = {r["path"]: r["state"] for r in store.files("hostile")}
-            return all(rows.get(str(i.path)) in (FileState.PATCHED, FileState.FAILED) for i in expected_rows)
+            decided = (FileState.PATCHED, FileState.FAILED, FileState.QUARANTINED)
+            return all(rows.get(str(i.path)) in decided for i in expected_rows)
 
         wait_for(all_decided, 120, "every hostile input protected or refused")
         assert daemon.proc.poll() is None, "the daemon died"
@@ -118,20 +119,41 @@ def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
         code = kill_daemon(daemon, signal.SIGTERM)
     assert code == 0
     problems = []
+    quarantine = tmp_path / "ppd-quarantine"  # the default: next to the outbox
+
+    def quarantined(path: Path) -> Path:
+        return quarantine / path.relative_to(paths.outbox)
+
+    def moved_from(item: HostileInput) -> Path:
+        if item.path.is_relative_to(quarantine):
+            return paths.outbox / item.path.relative_to(quarantine)
+        return item.path
+
     for item in items:
         row = rows.get(str(item.path))
         if item.expect == "left":
             touched = row is not None and row["state"] == FileState.PATCHED
-            if touched or _fingerprint(item.path) != before[item.path]:
+            # untouched in place, or moved out whole (a name the store cannot hold is quarantined)
+            kept = before[item.path] in (_fingerprint(item.path), _fingerprint(quarantined(item.path)))
+            if touched or not kept:
                 problems.append(f"{item.what}: was touched")
             continue
-        if (problem := _judge(item, before[item.path], row["state"], row["error"])) is not None:
+        state = row["state"]
+        if state == FileState.QUARANTINED:  # refused, and moved out of the outbox untouched
+            if item.path.exists() or item.path.is_symlink():
+                problems.append(f"{item.what}: quarantined but still in the outbox")
+            item, state = dataclasses.replace(item, path=quarantined(item.path)), FileState.FAILED
+        if (problem := _judge(item, before[moved_from(item)], state, row["error"])) is not None:
             problems.append(problem)
     assert problems == []
     assert _outside_fingerprints(outside) == outside_before
     log = daemon.log.read_text(errors="replace")
     assert "Traceback" not in log and "worker job failed" not in log, log[-3000:]
-    originals = {i.path: before[i.path] for i in items if i.expect != "left" and i.path.is_file()}
+    originals = {
+        i.path: before[i.path]
+        for i in items
+        if i.expect != "left" and i.path.is_file() and rows[str(i.path)]["state"] != FileState.QUARANTINED
+    }
     assert check_invariants(paths, originals) == []
 
 

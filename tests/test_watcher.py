@@ -551,10 +551,13 @@ def test_bad_files_fail_cleanly_and_the_daemon_keeps_going(ppd_env: dict[str, Pa
         wait_idle(daemon)
         assert daemon.watcher.is_alive()
     store = store_of(ppd_env)
-    for bad in (fake, empty):
+    quarantine = ppd_env["outbox"].parent / "ppd-quarantine" / "bad"
+    for bad in (fake, empty):  # failed, then moved out of the outbox whole
         row = store.file(bad)
-        assert row["state"] == "failed" and row["error"] and "\n" not in row["error"]
-    assert fake.read_text() == "this is not a PNG"
+        assert row["state"] == FileState.QUARANTINED and row["error"] and "\n" not in row["error"]
+        assert not bad.exists()
+    assert (quarantine / "fake.png").read_text() == "this is not a PNG"
+    assert (quarantine / "empty.jpg").read_bytes() == b""
     assert store.file(good)["state"] == FileState.PATCHED
     assert store.file(readonly)["state"] == FileState.PATCHED
     assert readonly.stat().st_mode & 0o777 == 0o444  # permission bits kept by the atomic replace

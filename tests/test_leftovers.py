@@ -1,0 +1,69 @@
+"""ppd's own leftovers are cleared the first time a process works in a folder: stale `.ppd-tmp-*`
+files (by name, age and a free lock; never another live process's, never anyone else's) and
+stale private work folders in the vault (issue 15 row 4, issue 20 row 7)."""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import time
+from pathlib import Path
+
+from reliability_harness import write_image
+
+import daemon.fsops
+from daemon.protect import AppContext, protect_file
+from poisoner.atomic import TEMP_PREFIX
+
+
+def _age(path: Path, seconds: float) -> None:
+    then = time.time() - seconds
+    os.utime(path, (then, then))
+
+
+def test_stale_temporaries_go_live_ones_and_others_stay(ppd_env: dict[str, Path]) -> None:
+    folder = ppd_env["outbox"] / "ds"
+    photo = write_image(folder / "a.jpg", seed=1)
+    stale = folder / f"{TEMP_PREFIX}dead01.jpg"
+    stale.write_bytes(b"")  # a zero-byte leftover of a killed `ppd poison`
+    _age(stale, 3600)
+    live = folder / f"{TEMP_PREFIX}live01.jpg"
+    live.write_bytes(b"half")
+    _age(live, 3600)
+    holder = os.open(live, os.O_RDWR)
+    fcntl.flock(holder, fcntl.LOCK_EX)  # another ppd process still writing it
+    young = folder / f"{TEMP_PREFIX}young1.jpg"
+    young.write_bytes(b"")
+    other = folder / ".someone-else.tmp"
+    other.write_bytes(b"not ours")
+    _age(other, 3600)
+    daemon.fsops._cleared.clear()  # a fresh process
+    ctx = AppContext.open()
+    try:
+        assert protect_file(photo, ctx).state == "patched"
+        assert not stale.exists()  # before: stayed for good
+        assert live.exists() and young.exists() and other.read_bytes() == b"not ours"
+        assert sorted(p.name for p in folder.iterdir() if p.name.startswith(TEMP_PREFIX)) == sorted(
+            [live.name, young.name]
+        )
+    finally:
+        os.close(holder)
+        ctx.close()
+
+
+def test_stale_work_folders_in_the_vault_go(ppd_env: dict[str, Path]) -> None:
+    import daemon.pipeline
+
+    ctx = AppContext.open()
+    try:
+        dead = ctx.paths.vault_dir / ".work-deadbeef"
+        dead.mkdir()
+        (dead / "patched-a.png").write_bytes(b"x" * 1000)
+        _age(dead, 3600)
+        daemon.pipeline._work_cleared.clear()
+        photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=2)
+        assert protect_file(photo, ctx).state == "patched"
+        assert not dead.exists()
+        assert not list(ctx.paths.vault_dir.glob(".work-*"))  # its own are gone after each run
+    finally:
+        ctx.close()
