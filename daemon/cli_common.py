@@ -223,9 +223,13 @@ class KeyValueFormatter(logging.Formatter):
             parts.append(f"ts={self.formatTime(record, '%Y-%m-%dT%H:%M:%S')}")
         parts += [f"level={record.levelname.lower()}", f"logger={record.name}",
                   f"msg={_field(record.getMessage())}"]  # fmt: skip
+        message = record.getMessage()
         for key, value in vars(record).items():
-            if key not in _RECORD_FIELDS and not key.startswith("_") and value is not None:
-                parts.append(f"{key}={_field(value)}")
+            if key in _RECORD_FIELDS or key.startswith("_") or value is None:
+                continue
+            if isinstance(value, str) and len(value) > 8 and value in message:
+                continue  # said in msg already: one copy per line (a full disk has little room)
+            parts.append(f"{key}={_field(value)}")
         if record.exc_info:
             parts.append(f"exc={_field(self.formatException(record.exc_info))}")
         return " ".join(parts)

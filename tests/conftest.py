@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 # Idle OpenMP threads sleep instead of spinning (see verifier/splat/__init__.py): libgomp reads this
@@ -14,6 +16,24 @@ import PIL.Image  # noqa: F401
 import pytest
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
+
+# AF_UNIX socket paths are limited to 107 bytes by the kernel, and tests bind sockets (sd_notify
+# receivers, systemd-analyze's runtime dir) under tmp_path. Under a long TMPDIR the tests' own
+# folders go to a short private one; what ppd itself does with TMPDIR still sees the long path
+# (tests/test_cli_terminal.py runs `ppd` under a 150-character TMPDIR on purpose).
+LONG_TMPDIR = 40
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if config.option.basetemp is None and len(tempfile.gettempdir()) > LONG_TMPDIR and os.path.isdir("/tmp"):
+        config.option.basetemp = tempfile.mkdtemp(prefix="ppd-pytest-", dir="/tmp")
+        config._ppd_short_basetemp = config.option.basetemp  # type: ignore[attr-defined]
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    short = getattr(config, "_ppd_short_basetemp", None)
+    if short:
+        shutil.rmtree(short, ignore_errors=True)
 
 
 @pytest.fixture(scope="session")

@@ -267,11 +267,14 @@ def test_flags_on_the_command_line_reach_the_spec(shoot: Path) -> None:
 def test_daemon_log_lines_are_key_value() -> None:
     import logging
 
-    record = logging.LogRecord("daemon.watcher", logging.INFO, __file__, 1, "watching %s", ("/o x",), None)
-    record.outbox = "/o x"
+    args = ("/home/me/PPD Outbox",)
+    record = logging.LogRecord("daemon.watcher", logging.INFO, __file__, 1, "watching %s", args, None)
+    record.outbox = "/home/me/PPD Outbox"  # said in msg already: not repeated
     record.workers = 2
+    record.dataset = "trip x"
     line = KeyValueFormatter().format(record)
-    assert line == 'level=info logger=daemon.watcher msg="watching /o x" outbox="/o x" workers=2'
+    expected = 'level=info logger=daemon.watcher msg="watching /home/me/PPD Outbox" workers=2 dataset="trip x"'  # noqa: E501
+    assert line == expected
     assert "\x1b[" not in line
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -184,6 +185,9 @@ def load_in_chromium(page: Path, shot: Path, profile: Path) -> list[str]:
          "--virtual-time-budget=3000", f"--screenshot={shot}", "--window-size=1280,1000",
          f"--user-data-dir={profile}", "--no-first-run", page.resolve().as_uri()],
         capture_output=True, text=True, timeout=120, check=False,
+        # chromium binds its singleton socket under TMPDIR: keep that path under the kernel's
+        # 107-byte AF_UNIX limit whatever TMPDIR the suite runs with
+        env={**os.environ, "TMPDIR": str(profile.parent)},
     )  # fmt: skip
     assert shot.is_file(), proc.stderr[-2000:]
     return [line for line in proc.stderr.splitlines() if ":CONSOLE" in line]
