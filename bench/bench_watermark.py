@@ -85,16 +85,17 @@ def setup(name: str) -> Dataset:
                 white = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
                 Image.alpha_composite(white, rgba).convert("RGB").save(clean / f"r_{i}.png")
         return Dataset(name, clean, None, None)
-    if name == "dtu":
+    if name in ("dtu", "dtu-full"):
         src = _shared("dtu_scan37")
+        width = 800 if name == "dtu" else 1600  # dtu-full: the set's own 1600x1200
         if not clean.exists():
             clean.mkdir(parents=True)
             masks.mkdir(parents=True, exist_ok=True)
             for p in sorted((src / "images").glob("*.png")):
                 with Image.open(p) as im:
-                    _resized(im.convert("RGB"), 800).save(clean / p.name)
+                    _resized(im.convert("RGB"), width).save(clean / p.name)
                 with Image.open(src / "mask" / f"{int(p.stem):03d}.png") as m:
-                    _resized(m.convert("L"), 800, Image.Resampling.NEAREST).save(masks / p.name)
+                    _resized(m.convert("L"), width, Image.Resampling.NEAREST).save(masks / p.name)
         return Dataset(name, clean, masks, None)
     if name == "object":
         from verifier.synthetic import SyntheticOptions, render_scene
@@ -112,7 +113,7 @@ def setup(name: str) -> Dataset:
                 with Image.open(p) as im:
                     _resized(im.convert("RGB"), 1024).save(clean / p.name, quality=95)
         return Dataset(name, clean, None, None)
-    raise SystemExit(f"unknown dataset {name!r}: lego, dtu, object or fountain")
+    raise SystemExit(f"unknown dataset {name!r}: lego, dtu, dtu-full, object or fountain")
 
 
 def names_of(folder: Path) -> list[str]:
@@ -336,7 +337,7 @@ def write_markdown() -> None:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m bench.bench_watermark")
-    ap.add_argument("--dataset", choices=["lego", "dtu", "object", "fountain"])
+    ap.add_argument("--dataset", choices=["lego", "dtu", "dtu-full", "object", "fountain"])
     ap.add_argument("--pictures", action="store_true", help="each design on dtu_scan37 000000.png only")
     ap.add_argument("--designs", default="", help=f"comma-separated: {', '.join(named_specs())}")
     ap.add_argument("--profiles", default=",".join(PROFILES), help="comma-separated; '' = visibility only")
