@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image  # PIL before anything that may load pycolmap
+from PIL import Image, ImageFilter  # PIL before anything that may load pycolmap
 
 from bench import textured_mechanisms as mech
 from bench.textured_colmap import keypoints, pair_stats
@@ -313,6 +313,26 @@ def render(rows: list[dict[str, Any]], command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+COUNTERS: dict[str, Callable[[Image.Image], Image.Image]] = {
+    "half size": lambda im: im.resize((im.width // 2, im.height // 2), Image.LANCZOS),
+    "blur 2 px": lambda im: im.filter(ImageFilter.GaussianBlur(2)),
+}
+
+
+def counters(name: str) -> dict[str, Any]:
+    """An attacker's cheap clean-ups of a measured variant's images, then COLMAP's view again."""
+    out = {}
+    for tag, clean_up in COUNTERS.items():
+        folder = WORK / f"{name}-counter-{tag.replace(' ', '-')}"
+        shutil.rmtree(folder, ignore_errors=True)
+        folder.mkdir(parents=True)
+        for n in SUBSET:
+            clean_up(Image.open(WORK / name / n)).save(folder / n, quality=95)
+        out[tag] = pair_stats(folder, SUBSET)
+        print(f"  {name} after {tag}: {_pairs(out[tag])}", flush=True)
+    return out
+
+
 def picture(name: str) -> Path:
     """Clean | perturbed, a 800x560 window of 0004 at display size (the image shown 1920 px wide)."""
     factor = DISPLAY_WIDTH / 3072
@@ -352,12 +372,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--variants", default="", help="comma-separated variant names (default: all)")
     ap.add_argument("--render", action="store_true", help="only merge saved rows and rewrite the table")
     ap.add_argument("--picture", default="", help="write textured_NAME.png for these variants and stop")
+    ap.add_argument("--counters", default="", help="measure an attacker's clean-ups of these variants")
     args = ap.parse_args(argv)
     WORK.mkdir(parents=True, exist_ok=True)
     if args.picture:
         for name in args.picture.split(","):
             print(f"wrote {picture(name)}")
         return
+    if args.counters:
+        rows = json.loads(RAW.read_text())
+        save({n: {**rows[n], "counters": counters(n)} for n in args.counters.split(",")})
+        args.render = True
     if args.render:
         rows = {p.stem: json.loads(p.read_text()) for p in sorted((WORK / "rows").glob("*.json"))}
         merged = save(rows)
