@@ -310,6 +310,9 @@ def render(rows: list[dict[str, Any]], command: str) -> str:
             f"| {raised} | "
             f"{_sfm_cell(r, 'default')} | {_sfm_cell(r, 'hardened')} | {r['cpu_s_per_image']:.1f} |"
         )
+    for r in rows:
+        for tag, c in r.get("counters", {}).items():
+            lines += ["", f"{r['name']}, after the attacker's clean-up '{tag}': inliers {_pairs(c)}."]
     return "\n".join(lines) + "\n"
 
 
