@@ -275,10 +275,10 @@ def _sfm_cell(row: dict[str, Any], profile: str) -> str:
         return "-"
     if "registered" not in s:
         return s.get("outcome", "?")
-    return (
-        f"{s['registered']}/{s['num_images']}, {100 * s['within_5deg']:.0f}% "
-        f"(median {s['median_rot_err_deg']:.2f}°, reproj {s['reproj_px']:.2f} px)"
-    )
+    cell = f"{s['registered']}/{s['num_images']}, {100 * s['within_5deg']:.0f}%"
+    if s.get("median_rot_err_deg") is None:  # nothing registered
+        return f"**{cell}**"
+    return f"{cell} (median {s['median_rot_err_deg']:.2f}°, reproj {s['reproj_px']:.2f} px)"
 
 
 def render(rows: list[dict[str, Any]], command: str) -> str:
