@@ -35,12 +35,13 @@ import numpy as np
 from PIL import Image, ImageFilter  # PIL before anything that may load pycolmap
 
 from bench import textured_mechanisms as mech
-from bench.textured_colmap import keypoints, pair_stats
+from bench.textured_colmap import descriptors, keypoints, pair_stats
 
 ROOT = Path(__file__).resolve().parents[1]
 FOUNTAIN = ROOT.parent / "shared" / "datasets" / "fountain_P11"
 RESULTS = ROOT / "bench" / "results" / "textured.md"
 RAW = ROOT / "bench" / "results" / "textured.json"
+STANDIN = ROOT / "bench" / "results" / "textured_standin.json"
 WORK = Path("/tmp/ppd-bench-textured")
 SUBSET = ["0003.jpg", "0004.jpg", "0005.jpg", "0006.jpg"]
 FLIP_IMAGE = "0004.jpg"
@@ -340,6 +341,30 @@ def counters(name: str) -> dict[str, Any]:
     return out
 
 
+def standin_check() -> dict[str, Any]:
+    """Does the kornia stand-in compute COLMAP's descriptor? Same keypoints, compare the vectors."""
+    kps, ref = descriptors(FOUNTAIN / "images" / FLIP_IMAGE, TARGET_BOX)
+    x0, y0, x1, y1 = TARGET_BOX
+    gray = np.asarray(Image.open(FOUNTAIN / "images" / FLIP_IMAGE).convert("L"))[y0:y1, x0:x1]
+    out = []
+    for magnif in (4.0, 6.0, 8.5):
+        for sign in (1.0, -1.0):
+            for offset in (0.0, 90.0):
+                d = mech.standin_descriptors(gray, kps, magnif, sign, offset)
+                nearest = (d @ ref.T).argmax(1) == np.arange(len(d))
+                out.append(
+                    {
+                        "magnif": magnif,
+                        "ori_sign": sign,
+                        "ori_offset": offset,
+                        "median_cosine": float(np.median((d * ref).sum(1))),
+                        "nearest_is_same": float(nearest.mean()),
+                    }
+                )
+                print(f"  stand-in {out[-1]}", flush=True)
+    return {"keypoints": len(kps), "settings": out}
+
+
 def picture(name: str) -> Path:
     """Clean | perturbed, a 800x560 window of 0004 at display size (the image shown 1920 px wide)."""
     factor = DISPLAY_WIDTH / 3072
@@ -380,11 +405,16 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--render", action="store_true", help="only merge saved rows and rewrite the table")
     ap.add_argument("--picture", default="", help="write textured_NAME.png for these variants and stop")
     ap.add_argument("--counters", default="", help="measure an attacker's clean-ups of these variants")
+    ap.add_argument("--standin-check", action="store_true", help="kornia SIFT vs COLMAP SIFT, same keypoints")
     args = ap.parse_args(argv)
     WORK.mkdir(parents=True, exist_ok=True)
     if args.picture:
         for name in args.picture.split(","):
             print(f"wrote {picture(name)}")
+        return
+    if args.standin_check:
+        STANDIN.write_text(json.dumps(standin_check(), indent=1))
+        print(f"wrote {STANDIN}")
         return
     if args.counters:
         rows = json.loads(RAW.read_text())
