@@ -2,7 +2,9 @@
 
 `nice -n 10 python -m bench.bench_textured [--only decoys,warp,targeted] [--sfm] [--sfm-clean]` writes
 bench/results/textured.md (and textured.json next to it, the raw figures); `--picture NAME[,NAME]`
-writes the side-by-side pictures of measured variants, `--render` only rewrites the table. Also
+writes the side-by-side pictures of measured variants, `--counters NAME` measures an attacker's
+clean-ups (half size, 2 px blur) of a measured variant, `--standin-check` compares kornia's SIFT with
+COLMAP's at the same keypoints (textured_standin.json), `--render` only rewrites the table. Also
 `python -m bench textured` (the yardstick without full reconstructions).
 
 Yardstick (full size, 3072x2048, COLMAP defaults, pycolmap 4.2.1 in a child process):
