@@ -76,6 +76,14 @@ def keypoints(image_path: Path, max_num_features: int = 8192) -> np.ndarray:
     return np.asarray(res["keypoints"], np.float32).reshape(-1, 4)
 
 
+def descriptors(image_path: Path, box: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """COLMAP's keypoints (window coordinates) and unit-norm descriptors of a window of one image."""
+    res = _run_child(
+        {"kind": "descriptors", "image": str(image_path), "box": list(box), "max_num_features": 8192}
+    )
+    return np.asarray(res["keypoints"], np.float32).reshape(-1, 4), np.asarray(res["descriptors"], np.float32)
+
+
 # ---- child side ---------------------------------------------------------------------------------
 def _extraction(max_num_features: int) -> Any:
     import pycolmap
@@ -159,9 +167,22 @@ def _child_keypoints(job: dict[str, Any]) -> dict[str, Any]:
     return {"keypoints": kp.tolist()}
 
 
+def _child_descriptors(job: dict[str, Any]) -> dict[str, Any]:
+    import pycolmap
+
+    x0, y0, x1, y1 = job["box"]
+    gray = np.asarray(Image.open(job["image"]).convert("L"), np.uint8)[y0:y1, x0:x1]
+    sift = pycolmap.Sift(_extraction(job["max_num_features"]), device=pycolmap.Device.cpu)
+    kp, desc = sift.extract(np.ascontiguousarray(gray))
+    desc = np.asarray(desc, np.float32)
+    desc /= np.linalg.norm(desc, axis=1, keepdims=True) + 1e-12
+    return {"keypoints": np.asarray(kp).tolist(), "descriptors": desc.tolist()}
+
+
 def _child_main() -> None:
     job = json.loads(sys.stdin.read())
-    result = _child_pairs(job) if job["kind"] == "pairs" else _child_keypoints(job)
+    kinds = {"pairs": _child_pairs, "keypoints": _child_keypoints, "descriptors": _child_descriptors}
+    result = kinds[job["kind"]](job)
     Path(job["out"]).write_text(json.dumps(result))
 
 

@@ -140,3 +140,21 @@ def descriptor_attack(
             )
     out = rgb.astype(np.float32) + 255.0 * delta.detach()[0, 0].numpy()[..., None]
     return np.clip(out, 0, 255).round().astype(np.uint8)
+
+
+def standin_descriptors(
+    gray: np.ndarray, kps: np.ndarray, patch_magnif: float, ori_sign: float, ori_offset_deg: float
+) -> np.ndarray:
+    """kornia RootSIFT descriptors (unit norm) at COLMAP keypoints, as descriptor_attack samples them."""
+    import torch
+    from kornia.feature import SIFTDescriptor, extract_patches_from_pyramid, laf_from_center_scale_ori
+
+    img = torch.from_numpy(gray.astype(np.float32))[None, None] / 255.0
+    laf = laf_from_center_scale_ori(
+        torch.from_numpy(kps[:, :2].copy())[None],
+        torch.from_numpy(kps[:, 2:3] * patch_magnif)[None, :, :, None],
+        torch.from_numpy(ori_sign * np.degrees(kps[:, 3:4]) + ori_offset_deg)[None].float(),
+    )
+    with torch.no_grad():
+        d = SIFTDescriptor(32, rootsift=True)(extract_patches_from_pyramid(img, laf.float(), 32)[0]).numpy()
+    return d / (np.linalg.norm(d, axis=1, keepdims=True) + 1e-9)
