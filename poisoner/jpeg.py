@@ -10,6 +10,14 @@ Two ways, best first:
    `jpegtran -drop +X+Y` (lossless transform; `-copy all` keeps every marker: EXIF, ICC, XMP,
    IPTC, comments).
 
+   Only the patch's MCUs are decoded to pixels (`decode_box`): `jpegtran -crop` cuts the MCU box
+   grown by one MCU out of the file losslessly and Pillow decodes that small crop; the ring makes
+   the box's pixels equal to a whole-picture decode's, so the output is byte-identical to the
+   whole-decode path. Per 12 MP file that is two entropy passes in jpegtran (crop: read every
+   coefficient; drop: read and write them) instead of a full pixel decode plus the drop. A source
+   coded with libjpeg's standard Huffman tables keeps them (no `-optimize` pass); other sources
+   are re-optimised. bench/results/batch.md has the measurements.
+
    Why jpegtran: it is libjpeg-turbo's own, long-maintained lossless-transform tool (Debian's
    `libjpeg-turbo-progs`), it does exactly this operation, it handles baseline, progressive,
    arithmetic and restart-marker files, and it runs in a child process, so a malformed file
