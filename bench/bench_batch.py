@@ -100,6 +100,11 @@ def run_ppd(folder: Path, workers: int) -> None:
         from poisoner.batch import poison_many
 
         results = poison_many([(p, p) for p in files], spec, workers=workers)
+        # Workers are children of the forkserver: stop and reap it so that /usr/bin/time counts
+        # their CPU (private API, bench only).
+        from multiprocessing import forkserver
+
+        forkserver._forkserver._stop()  # noqa: SLF001
         failed = [r for r in results if r.error]
         if failed:
             raise SystemExit(f"{len(failed)} failed: {failed[0].error}")
@@ -130,12 +135,13 @@ def run_floor(folder: Path) -> None:
 
 
 # ---- timing --------------------------------------------------------------------------------------
-def timed(argv: list[str]) -> dict[str, float]:
+def timed(argv: list[str], quiet: bool = False) -> dict[str, float]:
     """One whole process under /usr/bin/time: wall, cpu (user+sys, children included), rss MB."""
     with tempfile.NamedTemporaryFile("r", suffix=".time") as out:
         subprocess.run(
             ["/usr/bin/time", "-f", TIME_FORMAT, "-o", out.name, *argv],
             check=True,
+            stdout=subprocess.DEVNULL if quiet else None,
             env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
         )
         wall, user, system, rss = out.read().split()[-4:]
@@ -253,6 +259,50 @@ def profile(args: argparse.Namespace) -> None:
     shutil.rmtree(work, ignore_errors=True)
 
 
+STARTUP_COMMANDS = {
+    "import daemon.cli": ["-c", "import daemon.cli"],
+    "ppd poison --help": ["-m", "daemon.cli", "poison", "--help"],
+    "ppd status": ["-m", "daemon.cli", "status"],
+    "import poisoner.formats": ["-c", "import poisoner.formats"],
+}
+
+
+def startup(args: argparse.Namespace) -> None:
+    """Whole-process CPU and peak RSS of CLI start-up (median of --runs), in a throwaway
+    PPD_DATA_DIR/PPD_CONFIG_DIR/PPD_OUTBOX, and the biggest imports of `import daemon.cli`."""
+    with tempfile.TemporaryDirectory(prefix="ppd-startup-") as tmp:
+        env = {
+            k: str(Path(tmp) / k) for k in ("PPD_DATA_DIR", "PPD_CONFIG_DIR", "PPD_OUTBOX", "PPD_CACHE_DIR")
+        }
+        os.environ.update(env)
+        for label, argv in STARTUP_COMMANDS.items():
+            runs = [timed([sys.executable, *argv], quiet=True) for _ in range(args.runs)]
+            cpu = statistics.median(r["cpu"] for r in runs)
+            rss = statistics.median(r["rss"] for r in runs)
+            print(f"{label}: CPU {cpu * 1000:.0f} ms, peak RSS {rss:.0f} MB (median of {args.runs})")
+        out = subprocess.run(
+            [sys.executable, "-X", "importtime", "-c", "import daemon.cli"],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+        )
+    rows = []
+    for line in out.stderr.splitlines()[1:]:
+        parts = line.split("|")
+        name = parts[2].rstrip()
+        depth = (len(name) - len(name.lstrip()) - 1) // 2
+        rows.append((depth, name.strip(), int(parts[1])))
+    print("largest imports under `import daemon.cli` (cumulative us, chain to daemon.cli):")
+    for depth, name, cumulative in sorted(rows, key=lambda r: -r[2])[: args.top]:
+        i = rows.index((depth, name, cumulative))
+        chain, d = [name], depth
+        for later in rows[i + 1 :]:
+            if later[0] < d:
+                chain.append(later[1])
+                d = later[0]
+        print(f"  {cumulative:>8} {' <- '.join(chain)}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="cmd")
@@ -266,6 +316,9 @@ def main() -> None:
     p.add_argument("--count", type=int, default=8)
     p.add_argument("--top", type=int, default=30)
     p.add_argument("--cache", default=str(DEFAULT_CACHE))
+    s = sub.add_parser("startup", help="CPU of CLI start-up and the biggest imports")
+    s.add_argument("--runs", type=int, default=5)
+    s.add_argument("--top", type=int, default=25)
     r = sub.add_parser("_ppd")
     r.add_argument("folder", type=Path)
     r.add_argument("--workers", type=int, default=1)
@@ -278,6 +331,8 @@ def main() -> None:
         run_floor(args.folder)
     elif args.cmd == "profile":
         profile(args)
+    elif args.cmd == "startup":
+        startup(args)
     else:
         measure(parser.parse_args(["measure", *sys.argv[1:]]) if args.cmd is None else args)
 

@@ -10,6 +10,14 @@ Two ways, best first:
    `jpegtran -drop +X+Y` (lossless transform; `-copy all` keeps every marker: EXIF, ICC, XMP,
    IPTC, comments).
 
+   Only the patch's MCUs are decoded to pixels (`decode_box`): `jpegtran -crop` cuts the MCU box
+   grown by one MCU out of the file losslessly and Pillow decodes that small crop; the ring makes
+   the box's pixels equal to a whole-picture decode's, so the output is byte-identical to the
+   whole-decode path. Per 12 MP file that is two entropy passes in jpegtran (crop: read every
+   coefficient; drop: read and write them) instead of a full pixel decode plus the drop. A source
+   coded with libjpeg's standard Huffman tables keeps them (no `-optimize` pass); other sources
+   are re-optimised. bench/results/batch.md has the measurements.
+
    Why jpegtran: it is libjpeg-turbo's own, long-maintained lossless-transform tool (Debian's
    `libjpeg-turbo-progs`), it does exactly this operation, it handles baseline, progressive,
    arithmetic and restart-marker files, and it runs in a child process, so a malformed file
@@ -46,6 +54,8 @@ log = logging.getLogger(__name__)
 
 JPEGTRAN_ENV = "PPD_JPEGTRAN"  # override the jpegtran binary (or "" to disable the splice)
 JPEGTRAN_TIMEOUT_S = 120
+# A source coded with the standard Huffman tables keeps them (no -optimize pass; keeps_standard_huffman).
+STANDARD_HUFFMAN_AS_SOURCE = True
 
 _SOF_MARKERS = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
 _PROGRESSIVE_SOF = {0xC2, 0xC6, 0xCA, 0xCE}
@@ -77,6 +87,7 @@ class JpegLayout:
     sampling: tuple[tuple[int, int], ...]  # (h, v) per component
     restart_interval: int  # in MCUs, 0 = none
     segments: tuple[Segment, ...] = field(default=())
+    huffman: tuple[bytes, ...] = field(default=())  # each DHT table: class/id byte, 16 counts, values
 
     @property
     def progressive(self) -> bool:
@@ -108,6 +119,7 @@ def read_layout(data: bytes) -> JpegLayout:
     width = height = components = 0
     sampling: tuple[tuple[int, int], ...] = ()
     restart = 0
+    huffman: list[bytes] = []
     while pos + 4 <= len(data):
         if data[pos] != 0xFF:
             raise ValueError(f"JPEG marker expected at byte {pos}")
@@ -132,10 +144,50 @@ def read_layout(data: bytes) -> JpegLayout:
             )
         elif marker == 0xDD:
             (restart,) = struct.unpack(">H", payload[:2])
+        elif marker == 0xC4:
+            huffman += _dht_tables(payload)
         pos += 2 + length
     if sof is None:
         raise ValueError("JPEG has no frame header (SOF)")
-    return JpegLayout(width, height, sof, components, sampling, restart, tuple(segments))
+    return JpegLayout(width, height, sof, components, sampling, restart, tuple(segments), tuple(huffman))
+
+
+def _dht_tables(payload: bytes) -> list[bytes]:
+    """The Huffman tables of one DHT segment (it may define several)."""
+    tables = []
+    i = 0
+    while i + 17 <= len(payload):
+        end = i + 17 + sum(payload[i + 1 : i + 17])
+        if end > len(payload):
+            raise ValueError("DHT segment truncated")
+        tables.append(payload[i:end])
+        i = end
+    return tables
+
+
+_standard_tables: frozenset[bytes] | None = None
+
+
+def standard_huffman_tables() -> frozenset[bytes]:
+    """libjpeg's standard Huffman tables (JPEG Annex K.3), as its encoder writes them when not
+    optimising: taken from a tiny Pillow-encoded file, so they are the very bytes libjpeg uses."""
+    global _standard_tables
+    if _standard_tables is None:
+        buf = io.BytesIO()
+        Image.new("RGB", (8, 8)).save(buf, "JPEG")
+        _standard_tables = frozenset(read_layout(buf.getvalue()).huffman)
+    return _standard_tables
+
+
+def keeps_standard_huffman(layout: JpegLayout) -> bool:
+    """True when the file is coded with libjpeg's standard Huffman tables only (most cameras and
+    every unoptimised libjpeg/Pillow save): jpegtran then writes the output with those same
+    tables, one pass over the coefficients, and `-optimize` (a second, statistics pass: 37 ms of
+    104 on a 12 MP file, measured) is left out, so the output is coded like its source. Optimised
+    or custom tables, progressive and arithmetic files are re-optimised as before."""
+    if layout.progressive or layout.arithmetic or not layout.huffman:
+        return False
+    return set(layout.huffman) <= standard_huffman_tables()
 
 
 def mcu_box(box: tuple[int, int, int, int], layout: JpegLayout) -> tuple[int, int, int, int]:
@@ -291,7 +343,9 @@ def splice_patch(
         raise ValueError(f"box {box} is not MCU-aligned")
     x0, y0 = box[0], box[1]
     drop_bytes = encode_like(np.ascontiguousarray(patched_box), src, layout, metadata=False)
-    cmd = [binary, "-copy", "all", "-optimize"]
+    cmd = [binary, "-copy", "all"]
+    if not (STANDARD_HUFFMAN_AS_SOURCE and keeps_standard_huffman(layout)):
+        cmd.append("-optimize")
     if layout.progressive:
         cmd.append("-progressive")
     if layout.restart_interval:

@@ -160,3 +160,38 @@ def test_region_decode_falls_back_when_crop_refused(tmp_path: Path, monkeypatch:
     report = poison_file(src, dst, SPECS["center"])
     assert report.method == "jpeg-reencode-same-tables"
     assert Image.open(dst).quantization == Image.open(src).quantization
+
+
+@pytest.mark.parametrize("case", ["444", "420", "grey"])
+def test_standard_huffman_source_keeps_its_tables_same_coefficients(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str
+) -> None:
+    """A source coded with the standard Huffman tables is written with them (no -optimize pass):
+    the bytes differ from the re-optimised output only in the entropy coding, so both decode to
+    the same pixels everywhere and carry the same metadata segments."""
+    src = tmp_path / "a.jpg"
+    write_case(src, case)
+    assert jpeg_codec.keeps_standard_huffman(jpeg_codec.read_layout(src.read_bytes()))
+    outs = {}
+    for keep in (False, True):
+        monkeypatch.setattr(jpeg_codec, "STANDARD_HUFFMAN_AS_SOURCE", keep)
+        dst = tmp_path / f"out-{keep}.jpg"
+        poison_file(src, dst, SPECS["center"])
+        outs[keep] = dst.read_bytes()
+    optimised, standard = (jpeg_codec.read_layout(outs[k]) for k in (False, True))
+    assert outs[True] != outs[False]
+    assert set(standard.huffman) <= jpeg_codec.standard_huffman_tables()
+    assert not set(optimised.huffman) <= jpeg_codec.standard_huffman_tables()
+    assert standard.segments == optimised.segments
+    a, b = (Image.open(io.BytesIO(outs[k])) for k in (False, True))
+    assert a.quantization == b.quantization
+    assert np.array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_optimised_source_is_reoptimised(tmp_path: Path) -> None:
+    src, dst = tmp_path / "a.jpg", tmp_path / "out.jpg"
+    Image.fromarray(textured(240, 320)).save(src, "JPEG", quality=90, optimize=True)
+    layout = jpeg_codec.read_layout(src.read_bytes())
+    assert not jpeg_codec.keeps_standard_huffman(layout)
+    poison_file(src, dst, SPECS["center"])
+    assert not set(jpeg_codec.read_layout(dst.read_bytes()).huffman) <= jpeg_codec.standard_huffman_tables()
