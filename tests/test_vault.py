@@ -70,6 +70,7 @@ def test_vault_dirs_are_private(vault: Vault, tmp_path: Path) -> None:
     sha = vault.keep(src)
     assert stat.S_IMODE(vault.vault_dir.stat().st_mode) == 0o700
     assert stat.S_IMODE(vault.path_for(sha).parent.stat().st_mode) == 0o700
+    assert stat.S_IMODE(vault.path_for(sha).stat().st_mode) == 0o600
 
 
 @pytest.mark.parametrize("link", [None, True, False])
