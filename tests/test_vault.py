@@ -5,7 +5,10 @@ from __future__ import annotations
 import errno
 import hashlib
 import os
+import shutil
 import stat
+import subprocess
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -290,3 +293,47 @@ def test_cross_filesystem_keep_copies(tmp_path: Path) -> None:
         blob = vault.path_for(sha)
         assert blob.read_bytes() == b"cross fs original"
         assert blob.stat().st_dev != src.stat().st_dev
+
+
+@pytest.fixture
+def btrfs(tmp_path: Path) -> Iterator[Path]:
+    """A real btrfs (copy-on-write, reflinks) on a loop device; skipped where one cannot be made."""
+    if shutil.which("mkfs.btrfs") is None:
+        pytest.skip("mkfs.btrfs is not installed (btrfs-progs)")
+    image, mount_point = tmp_path / "btrfs.img", tmp_path / "btrfs"
+    with open(image, "wb") as fh:
+        fh.truncate(128 << 20)  # sparse
+    mount_point.mkdir()
+    made = subprocess.run(["mkfs.btrfs", "-q", str(image)], capture_output=True, text=True)
+    mounted = made.returncode == 0 and subprocess.run(
+        ["mount", "-o", "loop", str(image), str(mount_point)], capture_output=True, text=True
+    ).returncode == 0  # fmt: skip
+    if not mounted:
+        pytest.skip(f"cannot make and mount a btrfs here: {made.stderr.strip() or 'mount refused'}")
+    try:
+        yield mount_point
+    finally:
+        subprocess.run(["umount", "-l", str(mount_point)], check=False)
+
+
+def test_reflink_where_the_filesystem_shares_extents(btrfs: Path) -> None:
+    """On btrfs the copy is a reflink (no bytes copied), and still independent: copy-on-write."""
+    data = os.urandom(2_000_000)
+    src = btrfs / "a.png"
+    src.write_bytes(data)
+    src_fd = os.open(src, os.O_RDONLY)
+    dst_fd = os.open(btrfs / "clone", os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        assert daemon.vault._copy_fd(src_fd, dst_fd) == ("reflink", _sha(data))
+    finally:
+        os.close(src_fd)
+        os.close(dst_fd)
+    vault = Vault(btrfs / "vault")
+    sha = vault.keep(src, expected_sha256=_sha(data))
+    with open(src, "r+b") as fh:  # the writer goes on, in place
+        fh.seek(0, os.SEEK_END)
+        fh.write(b"more")
+        fh.seek(1000)
+        fh.write(b"EDIT")
+    assert vault.path_for(sha).read_bytes() == data and vault.verify(sha)
+    assert vault.path_for(sha).stat().st_ino != src.stat().st_ino
