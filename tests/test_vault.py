@@ -116,6 +116,18 @@ def test_fifo_is_refused_without_blocking(vault: Vault, tmp_path: Path) -> None:
         vault.keep(fifo)
 
 
+def test_keep_fd_refuses_what_is_not_a_regular_file(vault: Vault) -> None:
+    read_end, write_end = os.pipe()
+    try:
+        os.write(write_end, b"bytes from a pipe")
+        with pytest.raises(VaultError, match="regular files"):
+            vault.keep_fd(read_end)
+    finally:
+        os.close(read_end)
+        os.close(write_end)
+    assert vault.blobs() == [] and _temporaries(vault) == []
+
+
 def test_keep_fd_verifies_the_expected_hash(vault: Vault, tmp_path: Path) -> None:
     src = tmp_path / "a.png"
     src.write_bytes(b"what the caller hashed")
