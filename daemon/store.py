@@ -503,11 +503,14 @@ class Store:
     def file(self, path: Path | str) -> dict[str, Any] | None:
         return self._one("SELECT * FROM files WHERE path = ?", (str(path),))
 
-    def files(self, dataset: str, state: str | None = None) -> list[dict[str, Any]]:
+    def files(self, dataset: str, state: FileState | str | None = None) -> list[dict[str, Any]]:
+        """A dataset's rows by path; an unknown state raises StoreError (an old word such as
+        'protected' would otherwise match nothing, silently)."""
         if state is None:
             return self._rows("SELECT * FROM files WHERE dataset = ? ORDER BY path", (dataset,))
         return self._rows(
-            "SELECT * FROM files WHERE dataset = ? AND state = ? ORDER BY path", (dataset, state)
+            "SELECT * FROM files WHERE dataset = ? AND state = ? ORDER BY path",
+            (dataset, _file_state(state).value),
         )
 
     def find_poisoned(self, sha256: str) -> dict[str, Any] | None:

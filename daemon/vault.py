@@ -140,7 +140,10 @@ class Vault:
         and renamed to its content-addressed place. With expected_sha256, a copy whose hash
         differs (the file changed since the caller hashed it) is dropped and
         VaultContentChanged is raised. The fd's offset is not moved."""
-        size = os.fstat(fd).st_size
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise VaultError("ppd keeps only regular files (this descriptor is not one)")
+        size = st.st_size
         self._check_room(size)
         tmp_fd, tmp_name = tempfile.mkstemp(prefix=VAULT_TMP_PREFIX, dir=self.vault_dir)
         tmp = Path(tmp_name)

@@ -123,6 +123,10 @@ def test_record_file_upserts_and_validates(store: Store, tmp_path: Path) -> None
         store.record_file(path, "d", FileState.FAILED, not_a_column=1)
     with pytest.raises(StoreError, match="unknown file state"):
         store.record_file(path, "d", "protected")  # the old word is not a state any more
+    with pytest.raises(StoreError, match="unknown file state"):
+        store.files("d", state="protected")  # not an empty list: loud
+    assert [r["path"] for r in store.files("d", state=FileState.PATCHED)] == [str(path)]
+    assert store.files("d", state="failed") == []
 
 
 def test_concurrent_writers_lose_nothing(store: Store, tmp_path: Path) -> None:

@@ -5,7 +5,10 @@ from __future__ import annotations
 import errno
 import hashlib
 import os
+import shutil
 import stat
+import subprocess
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -70,6 +73,7 @@ def test_vault_dirs_are_private(vault: Vault, tmp_path: Path) -> None:
     sha = vault.keep(src)
     assert stat.S_IMODE(vault.vault_dir.stat().st_mode) == 0o700
     assert stat.S_IMODE(vault.path_for(sha).parent.stat().st_mode) == 0o700
+    assert stat.S_IMODE(vault.path_for(sha).stat().st_mode) == 0o600
 
 
 @pytest.mark.parametrize("link", [None, True, False])
@@ -110,6 +114,18 @@ def test_fifo_is_refused_without_blocking(vault: Vault, tmp_path: Path) -> None:
     os.mkfifo(fifo)
     with pytest.raises(VaultError, match="not a regular file"):
         vault.keep(fifo)
+
+
+def test_keep_fd_refuses_what_is_not_a_regular_file(vault: Vault) -> None:
+    read_end, write_end = os.pipe()
+    try:
+        os.write(write_end, b"bytes from a pipe")
+        with pytest.raises(VaultError, match="regular files"):
+            vault.keep_fd(read_end)
+    finally:
+        os.close(read_end)
+        os.close(write_end)
+    assert vault.blobs() == [] and _temporaries(vault) == []
 
 
 def test_keep_fd_verifies_the_expected_hash(vault: Vault, tmp_path: Path) -> None:
@@ -289,3 +305,47 @@ def test_cross_filesystem_keep_copies(tmp_path: Path) -> None:
         blob = vault.path_for(sha)
         assert blob.read_bytes() == b"cross fs original"
         assert blob.stat().st_dev != src.stat().st_dev
+
+
+@pytest.fixture
+def btrfs(tmp_path: Path) -> Iterator[Path]:
+    """A real btrfs (copy-on-write, reflinks) on a loop device; skipped where one cannot be made."""
+    if shutil.which("mkfs.btrfs") is None:
+        pytest.skip("mkfs.btrfs is not installed (btrfs-progs)")
+    image, mount_point = tmp_path / "btrfs.img", tmp_path / "btrfs"
+    with open(image, "wb") as fh:
+        fh.truncate(128 << 20)  # sparse
+    mount_point.mkdir()
+    made = subprocess.run(["mkfs.btrfs", "-q", str(image)], capture_output=True, text=True)
+    mounted = made.returncode == 0 and subprocess.run(
+        ["mount", "-o", "loop", str(image), str(mount_point)], capture_output=True, text=True
+    ).returncode == 0  # fmt: skip
+    if not mounted:
+        pytest.skip(f"cannot make and mount a btrfs here: {made.stderr.strip() or 'mount refused'}")
+    try:
+        yield mount_point
+    finally:
+        subprocess.run(["umount", "-l", str(mount_point)], check=False)
+
+
+def test_reflink_where_the_filesystem_shares_extents(btrfs: Path) -> None:
+    """On btrfs the copy is a reflink (no bytes copied), and still independent: copy-on-write."""
+    data = os.urandom(2_000_000)
+    src = btrfs / "a.png"
+    src.write_bytes(data)
+    src_fd = os.open(src, os.O_RDONLY)
+    dst_fd = os.open(btrfs / "clone", os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        assert daemon.vault._copy_fd(src_fd, dst_fd) == ("reflink", _sha(data))
+    finally:
+        os.close(src_fd)
+        os.close(dst_fd)
+    vault = Vault(btrfs / "vault")
+    sha = vault.keep(src, expected_sha256=_sha(data))
+    with open(src, "r+b") as fh:  # the writer goes on, in place
+        fh.seek(0, os.SEEK_END)
+        fh.write(b"more")
+        fh.seek(1000)
+        fh.write(b"EDIT")
+    assert vault.path_for(sha).read_bytes() == data and vault.verify(sha)
+    assert vault.path_for(sha).stat().st_ino != src.stat().st_ino
