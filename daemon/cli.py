@@ -59,6 +59,7 @@ COMMAND_MODULES = (
     "daemon.cli_poison", "daemon.cli_watch", "daemon.cli_demo", "verifier.cli",
     "daemon.cli_auto",  # automatic mode (issue 9)
     "daemon.cli_experiment",  # `ppd experiment`, `ppd report` (issue 7)
+    "daemon.cli_store",  # `ppd store check`, `ppd store rebuild`
 )  # fmt: skip
 
 

@@ -22,12 +22,13 @@ import threading
 import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any
-
-import sqlite_utils
+from typing import TYPE_CHECKING, Any
 
 from daemon.states import FileState
 from poisoner.spec import PatchSpec
+
+if TYPE_CHECKING:
+    import sqlite_utils
 
 log = logging.getLogger(__name__)
 
@@ -289,6 +290,8 @@ class Store:
             conn.execute("PRAGMA journal_mode = WAL")
             conn.execute("PRAGMA synchronous = FULL")  # a committed row survives a power cut
             conn.execute("PRAGMA foreign_keys = ON")
+            import sqlite_utils  # ~200 ms and 20 MB (it loads numpy): only once the store is opened
+
             db = sqlite_utils.Database(conn)
             self._local.db = db
         return db
