@@ -15,6 +15,7 @@ import pytest
 from daemon import auto as daemon_auto
 from daemon.config import Config, ConfigError
 from daemon.protect import AppContext, protect_file
+from daemon.states import FileState
 from daemon.store import SCHEMA_VERSION, Store, StoreError
 from poisoner.spec import PatchSpec
 from verifier.auto import LadderEntry, ladder_to_json
