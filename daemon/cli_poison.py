@@ -61,8 +61,8 @@ from poisoner.spec import PatchSpec, SpecError
 VERDICT_PROTECTED = "protected"
 VERDICT_NOT_PROTECTED = "not_protected"
 
-# Outcome states of protect_file (daemon.protect); "protected" is the name before the core's rename.
-OUTCOME_PATCHED = frozenset({"patched", "protected"})
+# The outcome state of protect_file for a file it wrote its mark into (daemon.pipeline.Outcome).
+OUTCOME_PATCHED = frozenset({"patched"})
 RESTORED_BY_USER = "restored by the user"
 
 
@@ -376,9 +376,7 @@ def restore(
         if ctx.store.file(as_path) is not None:
             paths = [as_path]
         elif ctx.store.dataset(target) is not None:
-            paths = [
-                Path(r["path"]) for value in PATCHED_VALUES for r in ctx.store.files(target, state=value)
-            ]
+            paths = [Path(r["path"]) for r in ctx.store.files(target, state=FileState.PATCHED)]
         else:
             raise _die(f"{target!r} is neither a dataset nor a file in the store")
         outcomes = [restore_file(ctx, p, force=force) for p in sorted(set(paths))]

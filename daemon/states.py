@@ -35,9 +35,9 @@ class Protection(StrEnum):
     NOTHING_PATCHED = "nothing patched"
 
 
-# The values a store row may hold for a patched file: FileState.PATCHED's value, whichever side of
-# the store migration renaming "protected" to "patched" this code runs against.
-PATCHED_VALUES = frozenset({FileState.PATCHED.value, "patched", "protected"})
+# The value a store row holds for a patched file (older stores said "protected"; the store's
+# migration renamed them, so no other spelling reaches this code).
+PATCHED_VALUES = frozenset({FileState.PATCHED.value})
 
 # Per-profile verdicts as verifier.verdict records them (strings, so this module stays import-light).
 _VERDICT_PROTECTED = "protected"
@@ -60,12 +60,12 @@ def verdict_words(verdict: str) -> str:
 
 
 def state_word(state: str) -> str:
-    """A store row's state as the user reads it: the patched state is "patched" in either spelling."""
+    """A store row's state as the user reads it."""
     return "patched" if state in PATCHED_VALUES else state
 
 
 def patched_count(store_counts: Mapping[str, int]) -> int:
-    """Files whose mark is in place, from Store.counts() (either spelling of the patched state)."""
+    """Files whose mark is in place, from Store.counts()."""
     return sum(int(store_counts.get(value, 0)) for value in PATCHED_VALUES)
 
 

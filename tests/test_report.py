@@ -120,7 +120,7 @@ def _protected_dataset(ppd_env: dict[str, Path], tmp_path: Path) -> Any:
     rng = np.random.default_rng(0)
     for i in range(3):
         Image.fromarray(rng.integers(0, 256, (200, 240, 3), dtype=np.uint8)).save(trip / f"v{i}.png")
-        assert protect_file(trip / f"v{i}.png", ctx).state == "protected"
+        assert protect_file(trip / f"v{i}.png", ctx).state == "patched"
     run_dir = ctx.paths.runs_dir / "trip" / "20260101T000000-abcdef"
     for profile, verdict, t in (("default", "protected", 100.0), ("hardened", "not_protected", 101.0)):
         d = _profile_dir(run_dir, profile, verdict)

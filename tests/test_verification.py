@@ -275,7 +275,7 @@ def test_verify_dataset_records_runs_and_keeps_models(
         trip = ppd_env["outbox"] / "trip"
         shutil.copytree(synthetic_sets["clean"], trip)
         for p in sorted(trip.glob("*.png")):
-            assert protect.protect_file(p, ctx).state == "protected"
+            assert protect.protect_file(p, ctx).state == "patched"
         options = VerifyOptions(timeout_s=300, splat=True)
         options.splat_options.update(long_edge=64, iterations=30, time_budget_s=20)
         report = verify_dataset(ctx, "trip", ["default"], options, keep_last=1)
