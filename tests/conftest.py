@@ -28,12 +28,18 @@ def pytest_configure(config: pytest.Config) -> None:
     if config.option.basetemp is None and len(tempfile.gettempdir()) > LONG_TMPDIR and os.path.isdir("/tmp"):
         config.option.basetemp = tempfile.mkdtemp(prefix="ppd-pytest-", dir="/tmp")
         config._ppd_short_basetemp = config.option.basetemp  # type: ignore[attr-defined]
+    # No test reads or writes the real user's ppd folders: a test that forgets ppd_env (or undoes
+    # it) lands here, not in ~/.local/share/ppd, whose state would then decide the result.
+    home = tempfile.mkdtemp(prefix="ppd-test-home-")
+    config._ppd_test_home = home  # type: ignore[attr-defined]
+    for var, name in (("PPD_DATA_DIR", "data"), ("PPD_CONFIG_DIR", "config"), ("PPD_OUTBOX", "outbox")):
+        os.environ.setdefault(var, os.path.join(home, name))
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
-    short = getattr(config, "_ppd_short_basetemp", None)
-    if short:
-        shutil.rmtree(short, ignore_errors=True)
+    for folder in (getattr(config, "_ppd_short_basetemp", None), getattr(config, "_ppd_test_home", None)):
+        if folder:
+            shutil.rmtree(folder, ignore_errors=True)
 
 
 @pytest.fixture(scope="session")

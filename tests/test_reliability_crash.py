@@ -102,10 +102,11 @@ def test_duplicate_killed_between_rename_and_record_is_recovered(
             raise Killed
         real_record(path, dataset, state, **kw)
 
-    monkeypatch.setattr(ctx.store, "record_file", die_before_recording_protected)
-    with pytest.raises(Killed):
+    # A context of its own: monkeypatch.undo() would also undo ppd_env's PPD_* variables, and
+    # the invariant check below would then read the real user's data folder.
+    with monkeypatch.context() as patch, pytest.raises(Killed):
+        patch.setattr(ctx.store, "record_file", die_before_recording_protected)
         protect_file(second, ctx)
-    monkeypatch.undo()
     assert ctx.store.file(second)["state"] == "pending"  # the crash left this
     assert sha256(second) == sha256(first)  # ... with the protected file already in place
     outcome = protect_file(second, ctx)  # the restart
