@@ -13,12 +13,14 @@ if [ ! -x "$VENV/bin/python" ]; then
 fi
 
 stamp="$VENV/.ppd-installed"
-want=$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -d' ' -f1)
+want=$( (cat pyproject.toml scripts/setup.sh; echo "bench=${PPD_SETUP_BENCH:-0}") | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     "$VENV/bin/python" -m pip install -q --upgrade pip
     # The CPU wheel first and pinned: an unpinned torch pulls gigabytes of CUDA packages.
     "$VENV/bin/python" -m pip install -q torch==2.13.0
-    "$VENV/bin/python" -m pip install -q -e '.[dev]'
+    extras=dev
+    [ "${PPD_SETUP_BENCH:-0}" = 1 ] && extras=dev,bench
+    "$VENV/bin/python" -m pip install -q -e ".[$extras]"
     echo "$want" > "$stamp"
 fi
 
