@@ -403,9 +403,16 @@ def preview(
         None, "--out", metavar="PNG", help="PNG to write (default: ./NAME.ppd-preview.png)."
     ),
     spec_options: SpecOptions = SpecOptions(),
+    display_width: int = typer.Option(
+        1920, "--display-width", metavar="PX", help="Screen width the visibility is judged at."
+    ),
+    visibility: bool = typer.Option(
+        True, "--visibility/--no-visibility", help="Measure how visible the mark is (FLIP; a few seconds)."
+    ),
 ) -> None:
-    """Original and patched side by side, with a zoom on the patch. A patched file is shown
-    against its vault original; any other photo with its dataset's spec (or the flags').
+    """Original and patched side by side, with a zoom on the patch, and how visible the mark is
+    at display size (FLIP, next to a JPEG q85 re-encode of the same picture). A patched file is
+    shown against its vault original; any other photo with its dataset's spec (or the flags').
 
     \b
     Examples:
@@ -466,8 +473,23 @@ def preview(
         except OSError as exc:
             raise _die(os_error_text(exc, hint_out=False), EXIT_ENVIRONMENT) from None
         console.print(f"preview written to {target}", markup=False)
+        if visibility:
+            console.print(_visibility_line(original, poisoned, display_width), markup=False, soft_wrap=True)
     finally:
         ctx.close()
+
+
+def _visibility_line(original, poisoned, display_width: int) -> str:  # arrays: (H, W, C)
+    from verifier.visibility import VisibilityError, visibility_report
+
+    try:
+        with console.status("measuring visibility"):
+            # A picture narrower than the screen is shown at its own size, not magnified (magnifying
+            # would make a JPEG re-encode's artefacts, the budget, look larger than any viewer sees them).
+            width = min(display_width, original.shape[1])
+            return visibility_report(original, poisoned, display_width=width).summary()
+    except VisibilityError as exc:
+        raise _die(str(exc).splitlines()[0]) from None
 
 
 def _is_video(path: Path) -> bool:

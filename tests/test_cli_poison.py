@@ -181,6 +181,11 @@ def test_preview_writes_a_png(shoot: Path, tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     with Image.open(out) as im:
         assert im.format == "PNG" and im.width >= 2 * 160
+    # The opaque patch (20% of the width) is plainly visible, and the preview says so and where.
+    line = " ".join(result.output.split())
+    p999 = float(line.split("FLIP p99.9 ")[1].split()[0])
+    visible = float(line.split("; ")[1].split("%")[0])
+    assert "visibility at 160 px wide" in line and p999 > 0.5 and visible > 1.0, line
     runner.invoke(app, ["poison", str(shoot)])
     protected_preview = tmp_path / "p2.png"
     assert (

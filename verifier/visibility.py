@@ -54,6 +54,20 @@ class Visibility:
     jpeg_p999: float | None  # FLIP p99.9 of a JPEG q85 re-encode of the original (the budget)
     p999_vs_jpeg: float | None  # flip_p999 / jpeg_p999: <= 1 is within the JPEG budget
 
+    def summary(self) -> str:
+        """One line a creator reads: how the mark compares with a JPEG re-encode at this display size."""
+        budget = ""
+        if self.jpeg_p999 is not None and self.p999_vs_jpeg is not None:
+            budget = f" (a JPEG q85 re-encode: {self.jpeg_p999:.2f}, so {self.p999_vs_jpeg:.1f}x that)"
+        where = {True: "inside one corner", False: "not confined to a corner", None: "nothing changed"}[
+            self.in_one_corner
+        ]
+        return (
+            f"visibility at {self.display_width} px wide: FLIP p99.9 {self.flip_p999:.2f}{budget}; "
+            f"{self.area_above_half:.2%} of the picture clearly visible (FLIP > 0.5); "
+            f"{self.changed_area:.2%} of pixels changed, {where}"
+        )
+
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d["changed_box"] = list(self.changed_box) if self.changed_box is not None else None
