@@ -30,10 +30,11 @@ from typing import Any
 
 from daemon.config import Config
 from daemon.dataset import DEFAULT_DATASET, dataset_of, dataset_root
+from daemon.fsops import sha256_fd
 from daemon.paths import AppPaths
 from daemon.states import FileState
 from daemon.store import Store, StoreError
-from daemon.vault import Vault, VaultError, sha256_fd
+from daemon.vault import Vault, VaultError
 from poisoner.atomic import fsync_dir
 from poisoner.spec import PatchSpec
 

@@ -29,6 +29,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from daemon.fsops import sha256_fd
 from daemon.paths import filesystem_of, make_private_dir
 from poisoner.atomic import atomic_output, fsync_dir
 from poisoner.spec import PatchSpec
@@ -72,16 +73,6 @@ def sha256_file(path: Path) -> str:
     with open(path, "rb") as fh:
         while chunk := fh.read(CHUNK):
             digest.update(chunk)
-    return digest.hexdigest()
-
-
-def sha256_fd(fd: int) -> str:
-    """sha256 of an open file's whole content, read with pread (the fd's offset is not moved)."""
-    digest = hashlib.sha256()
-    offset = 0
-    while chunk := os.pread(fd, CHUNK, offset):
-        digest.update(chunk)
-        offset += len(chunk)
     return digest.hexdigest()
 
 
