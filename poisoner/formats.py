@@ -481,6 +481,21 @@ def _clean_exif_xmp(
     return exif, xmp, removed  # type: ignore[return-value]
 
 
+
+def _metadata_options(
+    info: dict, keep_location: bool, fmt: str, marker: Marker | None, opts: dict[str, object]
+) -> tuple[list[str], list[str]]:
+    """Put the cleaned EXIF, the ICC profile and the cleaned (marked) XMP into Pillow's save
+    options; returns (what was kept, what location was removed)."""
+    exif, xmp, removed = _clean_exif_xmp(info, keep_location, fmt, marker)
+    preserved = []
+    for key, label, value in (("exif", "EXIF", exif), ("icc_profile", "ICC", info.get("icc_profile")),
+                              ("xmp", "XMP", xmp)):  # fmt: skip
+        if value:
+            opts[key] = value
+            preserved.append(f"{fmt} {label}")
+    return preserved, removed
+
 def _poison_webp(
     im: Image.Image, data: bytes, placement: PatchPlacement, keep_location: bool, marker: Marker | None
 ) -> tuple[bytes, list[str], list[str], bool, list[str]]:
@@ -503,16 +518,7 @@ def _poison_webp(
         opts["quality"] = quality
         if b"ALPH" in chunks:
             opts["alpha_quality"] = 100
-    preserved: list[str] = []
-    exif, xmp, removed = _clean_exif_xmp(im.info, keep_location, "WebP", marker)
-    for key, label, value in (
-        ("exif", "EXIF", exif),
-        ("icc_profile", "ICC", im.info.get("icc_profile")),
-        ("xmp", "XMP", xmp),
-    ):
-        if value:
-            opts[key] = value
-            preserved.append(f"WebP {label}")
+    preserved, removed = _metadata_options(im.info, keep_location, "WebP", marker, opts)
     mode = im.mode if im.mode in ("RGB", "RGBA") else "RGBA" if "A" in im.mode else "RGB"
     out = paste_patch(im if im.mode == mode else im.convert(mode), placement)
     buf = io.BytesIO()
@@ -612,16 +618,7 @@ def _poison_heif(
     mode = "RGBA" if "A" in im.mode else "RGB"
     out = paste_patch(im if im.mode == mode else im.convert(mode), placement)
     opts: dict[str, object] = {"quality": HEIF_QUALITY}
-    preserved = []
-    exif, xmp, removed = _clean_exif_xmp(im.info, keep_location, fmt, marker)
-    for key, label, value in (
-        ("exif", "EXIF", exif),
-        ("icc_profile", "ICC", im.info.get("icc_profile")),
-        ("xmp", "XMP", xmp),
-    ):
-        if value:
-            opts[key] = value
-            preserved.append(f"{fmt} {label}")
+    preserved, removed = _metadata_options(im.info, keep_location, fmt, marker, opts)
     buf = io.BytesIO()
     save_explicit(out, buf, fmt, **opts)
     return buf.getvalue(), preserved, [f"{fmt} re-encoded at quality {HEIF_QUALITY} (lossy)"], removed

@@ -200,6 +200,9 @@ class PatchSpec:
             y = dy + my if self.position.startswith("top") else height - size - dy - my
         if x < 0 or y < 0 or x + size > width or y + size > height:
             raise SpecError(f"patch at ({x},{y}) size {size} falls outside a {width}x{height} image")
+        return self._placement(x, y, size, block)
+
+    def _placement(self, x: int, y: int, size: int, block: int, **tumble: Any) -> PatchPlacement:
         return PatchPlacement(
             x=x,
             y=y,
@@ -209,6 +212,7 @@ class PatchSpec:
             contrast=int(self.contrast),
             pattern=self.pattern,
             seed=self.seed,
+            **tumble,
         )
 
     def _resolve_tumble(
@@ -233,19 +237,7 @@ class PatchSpec:
         dx, dy = int(round(fx * (rw - size))), int(round(fy * (rh - size)))
         x = dx if self.position.endswith("left") else width - size - dx
         y = dy if self.position.startswith("top") else height - size - dy
-        return PatchPlacement(
-            x=x,
-            y=y,
-            size=size,
-            block=block,
-            alpha8=int(math.floor(255 * self.alpha + 0.5)),
-            contrast=int(self.contrast),
-            pattern=self.pattern,
-            seed=self.seed,
-            texture_size=texture,
-            angle=angle,
-            scale=scale,
-        )
+        return self._placement(x, y, size, block, texture_size=texture, angle=angle, scale=scale)
 
     def _motion_offset(self, width: int, image_key: str | None, index: float | None) -> tuple[int, int]:
         """Inward (dx, dy) of this image's point on the motion path (centred for "center")."""
