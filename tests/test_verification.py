@@ -18,16 +18,16 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from daemon.scheduler import SchedulePolicy, VerificationScheduler, is_due
+from daemon.verify import prune_runs
 from poisoner.blend import poison_array
 from poisoner.spec import PatchSpec
 from verifier import verdict as vd
-from verifier.scheduler import SchedulePolicy, VerificationScheduler, is_due
 from verifier.synthetic import SyntheticOptions, render_scene
 from verifier.verification import (
     VerificationInputError,
     VerifyOptions,
     expand_profiles,
-    prune_runs,
     round_trip,
     verify_folders,
 )
@@ -268,7 +268,7 @@ def test_verify_dataset_records_runs_and_keeps_models(
     synthetic_sets: dict[str, Path], ppd_env: dict[str, Path]
 ) -> None:
     protect = pytest.importorskip("daemon.protect")
-    from verifier.verification import verify_dataset
+    from daemon.verify import verify_dataset
 
     ctx = protect.AppContext.open()
     try:
