@@ -16,6 +16,7 @@ from daemon import auto as daemon_auto
 from daemon.config import Config, ConfigError
 from daemon.protect import AppContext, protect_file
 from daemon.scheduler import SchedulePolicy, VerificationScheduler
+from daemon.states import FileState
 from daemon.store import SCHEMA_VERSION, Store, StoreError
 from daemon.verify import record_report
 from poisoner.spec import PatchSpec
@@ -205,7 +206,7 @@ def test_escalation_moves_to_next_candidate_then_says_none_is_left(
     for p in files:  # ... and every file was re-protected from its vault original with it
         row = ctx.store.file(p)
         assert row["spec_id"] == B.spec.spec_id and row["poisoned_sha256"] != before[str(p)]
-        assert row["state"] == "protected"
+        assert row["state"] == FileState.PATCHED
     assert daemon_auto.decided_spec(ctx, "trip") == B.spec
     assert daemon_auto.status_text(ctx, "trip") == "auto: b-moved (escalation)"
 
