@@ -16,7 +16,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from daemon.states import verdict_words
+from verifier.verdict import verdict_words
 
 PROFILE_CHOICES = ("default", "hardened", "published", "all")
 VERDICT_STYLE = {
