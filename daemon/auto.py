@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.states import FileState
+from poisoner.ladder import strongest_spec
 from poisoner.spec import PatchSpec
 from verifier.supervise import run_child
 
@@ -90,7 +91,7 @@ def load_ladder() -> list[Candidate]:
 def interim_spec() -> PatchSpec:
     """The spec an automatic dataset's first file gets: the ladder's strongest candidate by design
     (its last). Safest while nothing is measured; replaced within the budget by the interim step."""
-    return load_ladder()[-1].spec
+    return strongest_spec()
 
 
 def decided_spec(ctx: AppContext, dataset: str) -> PatchSpec | None:

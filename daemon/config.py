@@ -54,7 +54,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.paths import AppPaths
-from poisoner.ladder import default_spec
+from poisoner.ladder import default_spec, strongest_spec
 from poisoner.spec import PatchSpec, SpecError
 
 
@@ -251,14 +251,12 @@ class Config:
     def spec_for(self, dataset: str) -> PatchSpec:
         """The spec a new dataset gets: the default with its [datasets.NAME.patch] overrides.
 
-        An automatic dataset starts on the interim spec (daemon.auto.interim_spec: the ladder's
+        An automatic dataset starts on the interim spec (poisoner.ladder.strongest_spec: the ladder's
         strongest candidate, replaced within the budget once files are measured); "auto" itself
         never reaches the poisoner."""
         override = self.datasets.get(dataset)
         if override and override.auto:
-            from daemon.auto import interim_spec  # lazy: daemon.auto imports this module
-
-            return interim_spec()
+            return strongest_spec()
         return spec_from_table(override.patch, self.spec) if override and override.patch else self.spec
 
     def quarantine_dir_for(self, outbox: Path) -> Path:
