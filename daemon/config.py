@@ -19,6 +19,7 @@ Every key is optional; what is missing comes from the embedded defaults below. L
     profiles = ["default", "hardened", "published"]
     splat = false               # also train clean/poisoned Gaussian splats (~6 more minutes per 40 views)
     splat_budget_s = 150.0      # splat training seconds per side
+    keep_runs = 5               # run folders (SfM models) kept per dataset; older ones are deleted
 
     [vault]
     max_bytes = 0               # 0 = unlimited; when full, protection is refused (never silent deletion)
@@ -104,6 +105,11 @@ class VerificationSchedule:
     profiles: tuple[str, ...] = ("default", "hardened", "published")
     splat: bool = False  # scheduled runs include Verifier II's splat stage
     splat_budget_s: float = 150.0
+    keep_runs: int = 5  # run folders kept per dataset (daemon.verify prunes the older ones)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.keep_runs, bool) or not isinstance(self.keep_runs, int) or self.keep_runs < 1:
+            raise ConfigError(f"verification.keep_runs must be a whole number >= 1, got {self.keep_runs!r}")
 
 
 @dataclass(frozen=True)

@@ -31,9 +31,6 @@ from verifier.verification import (
 if TYPE_CHECKING:
     from daemon.protect import AppContext
 
-DEFAULT_KEEP_RUNS = 5
-
-
 def new_run_id() -> str:
     return time.strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:6]
 
@@ -72,11 +69,7 @@ def verify_dataset(
     from daemon.protect import dataset_pairs
 
     options = options or VerifyOptions()
-    keep = (
-        keep_last
-        if keep_last is not None
-        else int(getattr(ctx.config, "verify_keep_runs", DEFAULT_KEEP_RUNS))
-    )
+    keep = keep_last if keep_last is not None else ctx.config.verification.keep_runs
     pairs = dataset_pairs(ctx, dataset)
     if len(pairs) < 3:
         raise VerificationInputError(

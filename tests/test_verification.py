@@ -191,6 +191,18 @@ def test_scheduled_runs_include_the_splat_stage_when_configured() -> None:
     )
 
 
+def test_keep_runs_is_a_config_field() -> None:
+    from daemon.config import Config, ConfigError
+
+    assert Config.from_toml("").verification.keep_runs == 5
+    kept = Config.from_toml("[verification]\nkeep_runs = 2\n")
+    assert kept.verification.keep_runs == 2 and "keep_runs = 2" in kept.to_toml()
+    assert Config.from_toml(kept.to_toml()).verification.keep_runs == 2
+    for bad in ("0", '"3"', "true"):
+        with pytest.raises(ConfigError, match="keep_runs"):
+            Config.from_toml(f"[verification]\nkeep_runs = {bad}\n")
+
+
 # ---- end to end with real COLMAP -----------------------------------------------------------------
 @pytest.fixture(scope="module")
 def synthetic_sets(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
