@@ -12,6 +12,7 @@ demo: setup
 
 test: setup
 	$(VENV)/bin/ruff check --no-cache .
+	$(VENV)/bin/lint-imports --no-cache
 	$(PY) -m pytest
 
 # Everything, the slow integration tests on the shared datasets included.
@@ -20,6 +21,7 @@ test-all: setup
 
 lint: setup
 	$(VENV)/bin/ruff check --no-cache .
+	$(VENV)/bin/lint-imports --no-cache
 
 bench:
 	PPD_SETUP_BENCH=1 bash scripts/setup.sh

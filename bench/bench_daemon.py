@@ -343,7 +343,7 @@ def write_report(r: dict, args: argparse.Namespace) -> None:
         "",
         "Goal: under 60 MB RSS idle, no polling. ppd's threads (main loop, debounce, workers) and",
         "watchdog's (inotify reader, emitter, dispatcher) block until an event arrives; the one timer is",
-        "the verification scheduler's (verifier.scheduler, poll_s = 30 s) when verification is on, and",
+        "the verification scheduler's (daemon.scheduler, poll_s = 30 s) when verification is on, and",
         "the WATCHDOG=1 ping under systemd (every WatchdogSec/2 = 30 s). After a batch the daemon calls",
         "malloc_trim so decoded images' memory goes back to the OS.",
         "",

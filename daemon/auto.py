@@ -25,8 +25,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -37,7 +35,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.states import FileState
+from poisoner.ladder import strongest_spec
 from poisoner.spec import PatchSpec
+from verifier.supervise import run_child
 
 if TYPE_CHECKING:
     from daemon.config import Config
@@ -91,7 +91,7 @@ def load_ladder() -> list[Candidate]:
 def interim_spec() -> PatchSpec:
     """The spec an automatic dataset's first file gets: the ladder's strongest candidate by design
     (its last). Safest while nothing is measured; replaced within the budget by the interim step."""
-    return load_ladder()[-1].spec
+    return strongest_spec()
 
 
 def decided_spec(ctx: AppContext, dataset: str) -> PatchSpec | None:
@@ -202,39 +202,19 @@ def run_preflight_child(
     job_file.write_text(json.dumps(job))
     result = Path(job["result"])
     log_file = out_dir / "preflight.log"
-    with open(log_file, "ab") as log_fh:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "verifier.auto", str(job_file)],
-            stdout=log_fh, stderr=subprocess.STDOUT, start_new_session=True,
-            preexec_fn=lambda: os.nice(10),  # noqa: PLW1509 - only nice(); no locks taken
-        )  # fmt: skip
-        deadline = time.monotonic() + timeout_s
-        while proc.poll() is None:
-            if (cancel is not None and cancel.is_set()) or time.monotonic() > deadline:
-                _kill_group(proc)
-                cancelled = cancel is not None and cancel.is_set()
-                why = "cancelled" if cancelled else f"timed out after {timeout_s:.0f} s"
-                return {"error": f"preflight {why}"}
-            time.sleep(0.5)
-    if proc.returncode < 0:
-        name = signal.Signals(-proc.returncode).name
-        return {"error": f"preflight child killed by {name} (see {log_file})"}
+    ended = run_child(
+        [sys.executable, "-m", "verifier.auto", str(job_file)],
+        log_path=log_file, append_log=True, timeout_s=timeout_s, cancel=cancel, nice=10, grace_s=10.0,
+    )  # fmt: skip
+    if ended.kind == "cancelled":
+        return {"error": "preflight cancelled"}
+    if ended.kind == "timeout":
+        return {"error": f"preflight timed out after {timeout_s:.0f} s"}
+    if ended.kind == "crashed":
+        return {"error": f"preflight child killed by {ended.signal_name} (see {log_file})"}
     if not result.is_file():
-        return {"error": f"preflight child exited {proc.returncode} without a result (see {log_file})"}
+        return {"error": f"preflight child exited {ended.returncode} without a result (see {log_file})"}
     return dict(json.loads(result.read_text()))
-
-
-def _kill_group(proc: subprocess.Popen[bytes]) -> None:
-    for sig, wait in ((signal.SIGTERM, 10.0), (signal.SIGKILL, 10.0)):
-        try:
-            os.killpg(proc.pid, sig)
-        except ProcessLookupError:
-            return
-        try:
-            proc.wait(wait)
-            return
-        except subprocess.TimeoutExpired:
-            continue
 
 
 def preflight_job(

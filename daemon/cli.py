@@ -56,7 +56,7 @@ def _main(
 
 
 COMMAND_MODULES = (
-    "daemon.cli_poison", "daemon.cli_watch", "daemon.cli_demo", "verifier.cli",
+    "daemon.cli_poison", "daemon.cli_watch", "daemon.cli_demo", "daemon.cli_verify",
     "daemon.cli_auto",  # automatic mode (issue 9)
     "daemon.cli_experiment",  # `ppd experiment`, `ppd report` (issue 7)
     "daemon.cli_store",  # `ppd store check`, `ppd store rebuild`

@@ -102,8 +102,9 @@ def demo(
 
     # 5. Proof, not assumption: real COLMAP on the originals (vault) and on the protected views.
     if verify:
-        from verifier.cli import print_report
-        from verifier.verification import VerifyOptions, verify_dataset
+        from daemon.cli_verify import print_report
+        from daemon.verify import verify_dataset
+        from verifier.verification import VerifyOptions
 
         wanted = tuple(p.strip() for p in profiles.split(",") if p.strip())
         console.print(

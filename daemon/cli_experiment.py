@@ -171,7 +171,8 @@ def report(
     """
     from daemon.cli_common import warning
     from daemon.cli_targets import TargetError, resolve_target
-    from verifier.report import ReportError, build_report, report_path, write_report
+    from daemon.report import build_report, report_path
+    from verifier.report import ReportError, write_report
 
     try:
         ctx = None

@@ -768,7 +768,7 @@ def _print_failed(report: list[dict[str, Any]]) -> None:
 
 def _print_report_links(ctx: AppContext, names: list[str]) -> None:
     """One line per dataset that has a report (`ppd report DATASET` writes it)."""
-    from verifier.report import report_path  # light: no torch, no pycolmap
+    from daemon.report import report_path  # light: no torch, no pycolmap
 
     for name in names:
         path = report_path(ctx.paths, name)

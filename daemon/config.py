@@ -19,6 +19,7 @@ Every key is optional; what is missing comes from the embedded defaults below. L
     profiles = ["default", "hardened", "published"]
     splat = false               # also train clean/poisoned Gaussian splats (~6 more minutes per 40 views)
     splat_budget_s = 150.0      # splat training seconds per side
+    keep_runs = 5               # run folders (SfM models) kept per dataset; older ones are deleted
 
     [vault]
     max_bytes = 0               # 0 = unlimited; when full, protection is refused (never silent deletion)
@@ -54,7 +55,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.paths import AppPaths
-from poisoner.ladder import default_spec
+from poisoner.ladder import default_spec, strongest_spec
 from poisoner.spec import PatchSpec, SpecError
 
 
@@ -104,6 +105,11 @@ class VerificationSchedule:
     profiles: tuple[str, ...] = ("default", "hardened", "published")
     splat: bool = False  # scheduled runs include Verifier II's splat stage
     splat_budget_s: float = 150.0
+    keep_runs: int = 5  # run folders kept per dataset (daemon.verify prunes the older ones)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.keep_runs, bool) or not isinstance(self.keep_runs, int) or self.keep_runs < 1:
+            raise ConfigError(f"verification.keep_runs must be a whole number >= 1, got {self.keep_runs!r}")
 
 
 @dataclass(frozen=True)
@@ -251,14 +257,12 @@ class Config:
     def spec_for(self, dataset: str) -> PatchSpec:
         """The spec a new dataset gets: the default with its [datasets.NAME.patch] overrides.
 
-        An automatic dataset starts on the interim spec (daemon.auto.interim_spec: the ladder's
+        An automatic dataset starts on the interim spec (poisoner.ladder.strongest_spec: the ladder's
         strongest candidate, replaced within the budget once files are measured); "auto" itself
         never reaches the poisoner."""
         override = self.datasets.get(dataset)
         if override and override.auto:
-            from daemon.auto import interim_spec  # lazy: daemon.auto imports this module
-
-            return interim_spec()
+            return strongest_spec()
         return spec_from_table(override.patch, self.spec) if override and override.patch else self.spec
 
     def quarantine_dir_for(self, outbox: Path) -> Path:

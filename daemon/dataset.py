@@ -9,6 +9,11 @@ daemon.protect.)
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from daemon.protect import AppContext
+    from poisoner.spec import PatchSpec
 
 DEFAULT_DATASET = "default"
 
@@ -33,3 +38,10 @@ def dataset_of(outbox: Path, path: Path) -> str:
 def dataset_root(outbox: Path, dataset: str) -> Path:
     """The folder that holds a dataset of the outbox."""
     return Path(outbox) if dataset == DEFAULT_DATASET else Path(outbox) / dataset
+
+
+def ensure_dataset(ctx: AppContext, dataset: str, root: Path, spec: PatchSpec | None) -> PatchSpec:
+    """The dataset's one spec; a new dataset gets spec (else the config's) with its first file."""
+    initial = spec or ctx.config.spec_for(dataset)
+    _, stored = ctx.store.ensure_dataset(dataset, root, initial, ctx.config.publish_dir_for(dataset))
+    return stored

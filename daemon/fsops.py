@@ -21,7 +21,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from poisoner.atomic import clear_stale_temps
+from poisoner.atomic import atomic_replace_at, clear_stale_temps, fsync_dir
 
 CHUNK = 1 << 20
 _DIR_FLAGS = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC
@@ -273,3 +273,35 @@ def _opened_for_writing(fdinfo: Path) -> bool:
         if line.startswith("flags:"):
             return int(line.split()[1], 8) & os.O_ACCMODE in (os.O_WRONLY, os.O_RDWR)
     return False
+
+
+def move_out(src_dir_fd: int, name: str, dst: Path) -> Path:
+    """Move the file `name` of the folder src_dir_fd to dst (a trusted folder) atomically: a rename
+    on one filesystem, else a complete copy, then unlink."""
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.rename(name, dst, src_dir_fd=src_dir_fd)
+        fsync_dir(dst.parent)
+        os.fsync(src_dir_fd)
+    except OSError as exc:
+        if exc.errno != errno.EXDEV:
+            raise
+        src_fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC, dir_fd=src_dir_fd)
+        try:
+            dst_fd = open_dir(dst.parent)
+            try:
+                with atomic_replace_at(dst_fd, dst.name, mode=stat.S_IMODE(os.fstat(src_fd).st_mode)) as (
+                    fd,
+                    _t,
+                ):
+                    offset = 0
+                    while chunk := os.pread(src_fd, 1 << 20, offset):
+                        write_all(fd, chunk)
+                        offset += len(chunk)
+            finally:
+                os.close(dst_fd)
+        finally:
+            os.close(src_fd)
+        os.unlink(name, dir_fd=src_dir_fd)
+        os.fsync(src_dir_fd)
+    return dst

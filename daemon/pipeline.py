@@ -37,26 +37,27 @@ import shutil
 import stat
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from daemon.dataset import ensure_dataset
 from daemon.fsops import (
     ContainedFile,
     clear_stale_temps_once,
     copy_fd_to_path,
     copy_path_to_fd,
     identity,
+    move_out,
     open_contained,
     open_dir,
-    write_all,
     writers_of,
 )
 from daemon.states import FileState
 from daemon.vault import VaultContentChanged, sha256_file
-from poisoner.atomic import TEMP_PREFIX, atomic_replace_at, fsync_dir
+from poisoner.atomic import TEMP_PREFIX, atomic_replace_at
 from poisoner.spec import PatchSpec
 
 if TYPE_CHECKING:
@@ -356,16 +357,76 @@ def report_detail(report: Any) -> dict[str, Any]:
     return detail
 
 
-def ensure_dataset(ctx: AppContext, dataset: str, root: Path, spec: PatchSpec | None) -> PatchSpec:
-    """The dataset's one spec; a new dataset gets spec (else the config's) with its first file."""
-    initial = spec or ctx.config.spec_for(dataset)
-    _, stored = ctx.store.ensure_dataset(dataset, root, initial, ctx.config.publish_dir_for(dataset))
-    return stored
-
-
 def publish_dir(ctx: AppContext, dataset: str) -> Path | None:
     row = ctx.store.dataset(dataset)
     return Path(row["publish_dir"]) if row and row["publish_dir"] else None
+
+
+# ---- runs that stopped half-way, files that moved ------------------------------------------
+def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, dataset: str, root: Path) -> bool:
+    """A patched file that was moved or renamed (a dataset folder renamed in the outbox, say)
+    keeps its provenance: its row follows it to the new path instead of dropping out of the
+    store, so status, restore and verification still see it. Copies (the old path still there)
+    are left as they are."""
+    old = Path(earlier["path"])
+    if old == path or old.exists() or earlier["state"] not in (FileState.PATCHED, FileState.REMOVED):
+        return False
+    fields = {k: earlier[k] for k in ("original_sha256", "poisoned_sha256", "spec_id", "tool_version")}
+    # A dataset first seen through moved files (a renamed folder) inherits their patch spec.
+    ensure_dataset(ctx, dataset, root, ctx.store.get_spec(earlier["spec_id"]))
+    st = path.stat()
+    ctx.store.record_file(
+        path, dataset, FileState.PATCHED, event="moved", detail={"from": str(old)},
+        size=st.st_size, mtime_ns=st.st_mtime_ns, **fields,
+    )  # fmt: skip
+    ctx.store.record_file(
+        old, earlier["dataset"], FileState.REMOVED, event="moved_away", detail={"to": str(path)}
+    )
+    return True
+
+
+def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str | None) -> bool:
+    """A 'pending' row means a run stopped between keeping the original and recording the
+    result. If the file now differs from the original, it may be our complete output (the
+    rename happened, the final row did not): poisoning is deterministic, so poison the vault
+    original again and compare. True (and the row completed) when it is ours."""
+    original_sha = row["original_sha256"]
+    if not kind or not original_sha or sha == original_sha or not ctx.vault.verify(original_sha):
+        return False
+    spec = ctx.store.get_spec(row["spec_id"])
+    with named_vault_copy(ctx, original_sha, path.name) as original:
+        scratch = original.with_name(f"redo{path.suffix}")
+        try:
+            poison_to(
+                kind, original, scratch, spec, marker=provenance_marker(spec.spec_id, original_sha),
+                keep_location=ctx.config.keep_location,
+            )  # fmt: skip
+        except Exception:  # cannot redo it: treat the file as new content
+            return False
+        if sha256_file(scratch) != sha:
+            return False
+    st = path.stat()
+    ctx.store.record_file(
+        path, row["dataset"], FileState.PATCHED, poisoned_sha256=sha, size=st.st_size,
+        mtime_ns=st.st_mtime_ns, error=None, event="recovered", detail={"from": "pending"},
+    )  # fmt: skip
+    return True
+
+
+@contextlib.contextmanager
+def named_vault_copy(ctx: AppContext, sha256: str, name: str) -> Iterator[Path]:
+    """The vault blob under its original file name (poisoners pick the format by suffix), as a
+    hard link in a private temporary folder inside the vault."""
+    folder = Path(tempfile.mkdtemp(prefix=".named-", dir=ctx.vault.vault_dir))
+    link = folder / name
+    try:
+        try:
+            os.link(ctx.vault.path_for(sha256), link)
+        except OSError:
+            shutil.copyfile(ctx.vault.path_for(sha256), link)
+        yield link
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 # ---- the stages ------------------------------------------------------------------------------
@@ -433,8 +494,6 @@ def hash_original(job: Job) -> ProtectOutcome | None:
 def decide(job: Job) -> ProtectOutcome | None:
     """Everything that ends the run before the vault: ppd's own output, a restored file, an
     up-to-date copy, a file the spec's ratio does not select, a dry run."""
-    from daemon import protect  # recover_pending / carry_moved_row live with the store logic
-
     ctx, row, sha, out_path = job.ctx, job.row, job.sha, job.out_path
     # Never poison twice: ppd's own output (here or anywhere) is left alone.
     if out_path is None and row is not None and row["poisoned_sha256"] == sha:
@@ -444,12 +503,12 @@ def decide(job: Job) -> ProtectOutcome | None:
     interrupted = (
         out_path is None and row is not None and row["state"] == FileState.PENDING and not job.dry_run
     )
-    if interrupted and protect.recover_pending(ctx, row, job.path, sha, job.kind):
+    if interrupted and recover_pending(ctx, row, job.path, sha, job.kind):
         return job.outcome(Outcome.UNCHANGED, "recovered after an interrupted run", poisoned_sha256=sha)
     earlier = ctx.store.find_poisoned(sha)
     if earlier is not None:
         moved = out_path is None and not job.dry_run
-        if moved and protect.carry_moved_row(ctx, earlier, job.path, job.dataset, job.root):
+        if moved and carry_moved_row(ctx, earlier, job.path, job.dataset, job.root):
             return job.outcome(Outcome.UNCHANGED, f"moved from {earlier['path']}", poisoned_sha256=sha)
         return job.outcome(Outcome.UNCHANGED, "already ppd output", poisoned_sha256=sha)
     if (recognised := _recognise_by_marker(job)) is not None:
@@ -685,37 +744,3 @@ def _write_out(job: Job, content: Path) -> None:
             copy_path_to_fd(content, fd)
     finally:
         os.close(dir_fd)
-
-
-def move_out(src_dir_fd: int, name: str, dst: Path) -> Path:
-    """Move the file `name` of the folder src_dir_fd to dst (a trusted folder) atomically: a rename
-    on one filesystem, else a complete copy, then unlink."""
-    import errno
-
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        os.rename(name, dst, src_dir_fd=src_dir_fd)
-        fsync_dir(dst.parent)
-        os.fsync(src_dir_fd)
-    except OSError as exc:
-        if exc.errno != errno.EXDEV:
-            raise
-        src_fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC, dir_fd=src_dir_fd)
-        try:
-            dst_fd = open_dir(dst.parent)
-            try:
-                with atomic_replace_at(dst_fd, dst.name, mode=stat.S_IMODE(os.fstat(src_fd).st_mode)) as (
-                    fd,
-                    _t,
-                ):
-                    offset = 0
-                    while chunk := os.pread(src_fd, 1 << 20, offset):
-                        write_all(fd, chunk)
-                        offset += len(chunk)
-            finally:
-                os.close(dst_fd)
-        finally:
-            os.close(src_fd)
-        os.unlink(name, dir_fd=src_dir_fd)
-        os.fsync(src_dir_fd)
-    return dst

@@ -12,7 +12,6 @@ import logging
 import os
 import shutil
 import stat
-import tempfile
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -20,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.config import Config
-from daemon.dataset import OutsideOutboxError, dataset_of, dataset_root
+from daemon.dataset import OutsideOutboxError, dataset_of, dataset_root, ensure_dataset
 from daemon.fsops import sha256_fd
 from daemon.locks import DEFAULT_FILE_WAIT_S, LockHeld, file_lock
 from daemon.paths import AppPaths
@@ -32,10 +31,10 @@ from daemon.pipeline import (
     ProtectOutcome,
     ProtectRefused,
     SourceChanged,
-    ensure_dataset,
     file_is_the_cause,
     is_ignored_name,
     media_kind,
+    named_vault_copy,
     one_line,
     poison_to,
     provenance_marker,
@@ -247,56 +246,6 @@ def _holds_ppd_output(ctx: AppContext, path: Path) -> bool:
         return False
 
 
-def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, dataset: str, root: Path) -> bool:
-    """A patched file that was moved or renamed (a dataset folder renamed in the outbox, say)
-    keeps its provenance: its row follows it to the new path instead of dropping out of the
-    store, so status, restore and verification still see it. Copies (the old path still there)
-    are left as they are."""
-    old = Path(earlier["path"])
-    if old == path or old.exists() or earlier["state"] not in (FileState.PATCHED, FileState.REMOVED):
-        return False
-    fields = {k: earlier[k] for k in ("original_sha256", "poisoned_sha256", "spec_id", "tool_version")}
-    # A dataset first seen through moved files (a renamed folder) inherits their patch spec.
-    ensure_dataset(ctx, dataset, root, ctx.store.get_spec(earlier["spec_id"]))
-    st = path.stat()
-    ctx.store.record_file(
-        path, dataset, FileState.PATCHED, event="moved", detail={"from": str(old)},
-        size=st.st_size, mtime_ns=st.st_mtime_ns, **fields,
-    )  # fmt: skip
-    ctx.store.record_file(
-        old, earlier["dataset"], FileState.REMOVED, event="moved_away", detail={"to": str(path)}
-    )
-    return True
-
-
-def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str | None) -> bool:
-    """A 'pending' row means a run stopped between keeping the original and recording the
-    result. If the file now differs from the original, it may be our complete output (the
-    rename happened, the final row did not): poisoning is deterministic, so poison the vault
-    original again and compare. True (and the row completed) when it is ours."""
-    original_sha = row["original_sha256"]
-    if not kind or not original_sha or sha == original_sha or not ctx.vault.verify(original_sha):
-        return False
-    spec = ctx.store.get_spec(row["spec_id"])
-    with _named_vault_copy(ctx, original_sha, path.name) as original:
-        scratch = original.with_name(f"redo{path.suffix}")
-        try:
-            poison_to(
-                kind, original, scratch, spec, marker=provenance_marker(spec.spec_id, original_sha),
-                keep_location=ctx.config.keep_location,
-            )  # fmt: skip
-        except Exception:  # cannot redo it: treat the file as new content
-            return False
-        if sha256_file(scratch) != sha:
-            return False
-    st = path.stat()
-    ctx.store.record_file(
-        path, row["dataset"], FileState.PATCHED, poisoned_sha256=sha, size=st.st_size,
-        mtime_ns=st.st_mtime_ns, error=None, event="recovered", detail={"from": "pending"},
-    )  # fmt: skip
-    return True
-
-
 # ---- datasets as a whole ---------------------------------------------------------------------
 def dataset_pairs(ctx: AppContext, dataset: str) -> list[tuple[Path, Path]]:
     """(original in the vault, protected file) for every protected file of a dataset whose two
@@ -447,7 +396,7 @@ def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: Patch
             kind = media_kind(path) or "image"
             rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else path.name
             with (
-                _named_vault_copy(ctx, row["original_sha256"], path.name) as original,
+                named_vault_copy(ctx, row["original_sha256"], path.name) as original,
                 atomic_output(target) as tmp,
             ):
                 if spec.selects(rel):
@@ -472,19 +421,3 @@ def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: Patch
         path=path, dataset=dataset, state=state, original_sha256=row["original_sha256"],
         poisoned_sha256=new_sha if state == Outcome.PATCHED else None, spec_id=spec.spec_id, output=target,
     )  # fmt: skip
-
-
-@contextlib.contextmanager
-def _named_vault_copy(ctx: AppContext, sha256: str, name: str) -> Iterator[Path]:
-    """The vault blob under its original file name (poisoners pick the format by suffix), as a
-    hard link in a private temporary folder inside the vault."""
-    folder = Path(tempfile.mkdtemp(prefix=".named-", dir=ctx.vault.vault_dir))
-    link = folder / name
-    try:
-        try:
-            os.link(ctx.vault.path_for(sha256), link)
-        except OSError:
-            shutil.copyfile(ctx.vault.path_for(sha256), link)
-        yield link
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)

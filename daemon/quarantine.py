@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from daemon.dataset import DEFAULT_DATASET
-from daemon.fsops import NotContained, open_dir, open_dir_below
+from daemon.fsops import NotContained, move_out, open_dir, open_dir_below
 from daemon.paths import make_private_dir
 from daemon.states import FileState
 
@@ -73,14 +73,11 @@ def quarantine(ctx: AppContext, path: Path, dataset: str | None, reason: str) ->
                 if exc.errno == errno.ENOENT:
                     return None
                 raise
-            from daemon.pipeline import move_out
-
             move_out(src_dir, rel.name, target)
     finally:
         os.close(src_dir)
     try:  # the move is what protects; a failing store must not undo it
-        from daemon.dataset import dataset_root
-        from daemon.pipeline import ensure_dataset
+        from daemon.dataset import dataset_root, ensure_dataset
 
         name = dataset or DEFAULT_DATASET
         ensure_dataset(ctx, name, dataset_root(outbox, name), None)

@@ -11,6 +11,12 @@ from collections.abc import Mapping
 from enum import StrEnum
 from typing import Any
 
+from verifier.verdict import NOT_PROTECTED as _VERDICT_NOT_PROTECTED
+from verifier.verdict import PROTECTED as _VERDICT_PROTECTED
+from verifier.verdict import VERDICT_WORDS as VERDICT_WORDS  # re-exported: the verifier's words
+from verifier.verdict import WEAK as _VERDICT_WEAK
+from verifier.verdict import verdict_words as verdict_words
+
 
 class FileState(StrEnum):
     """One file's row in the store."""
@@ -38,26 +44,6 @@ class Protection(StrEnum):
 # The value a store row holds for a patched file (older stores said "protected"; the store's
 # migration renamed them, so no other spelling reaches this code).
 PATCHED_VALUES = frozenset({FileState.PATCHED.value})
-
-# Per-profile verdicts as verifier.verdict records them (strings, so this module stays import-light).
-_VERDICT_PROTECTED = "protected"
-_VERDICT_WEAK = "weak"
-_VERDICT_NOT_PROTECTED = "not_protected"
-
-
-VERDICT_WORDS = {
-    "protected": "protected",
-    "weak": "weak",
-    "not_protected": "NOT protected",
-    "sfm_crashed": "could not be verified (SfM crashed)",
-    "inconclusive": "could not be verified (inconclusive)",
-}
-
-
-def verdict_words(verdict: str) -> str:
-    """One profile's verdict (verifier.verdict's name) in the words the user reads."""
-    return VERDICT_WORDS.get(verdict, verdict)
-
 
 def state_word(state: str) -> str:
     """A store row's state as the user reads it."""

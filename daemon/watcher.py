@@ -415,7 +415,7 @@ class DaemonOptions:
     tmp_grace_s: float = 60.0  # younger `.ppd-tmp-*` files may belong to a running `ppd poison`
     no_space_poll_s: float = 5.0  # while files wait for disk space: how often free space is checked
     no_space_retry_s: float = 300.0  # ... and retried anyway (space freed elsewhere, quota raised)
-    verify: bool = True  # run engineer D's VerificationScheduler when it is installed
+    verify: bool = True  # run the VerificationScheduler (daemon.scheduler)
 
     @classmethod
     def from_config(cls, config: Any, **overrides: Any) -> DaemonOptions:
@@ -550,13 +550,8 @@ class WatchDaemon:
 
     # ---- helpers of the main loop -------------------------------------------------------------
     def _start_scheduler(self) -> Any:
-        try:
-            from verifier.scheduler import VerificationScheduler
-        except ModuleNotFoundError as exc:
-            if exc.name not in ("verifier.scheduler", "verifier"):
-                raise
-            log.info("verification scheduler not installed; running without scheduled verification")
-            return None
+        from daemon.scheduler import VerificationScheduler  # light: the verifier loads when a run starts
+
         scheduler = VerificationScheduler(self.ctx)
         scheduler.start()
         return scheduler

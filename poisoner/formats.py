@@ -45,6 +45,7 @@ from poisoner import jpeg as jpeg_codec
 from poisoner import location, provenance
 from poisoner.atomic import atomic_output
 from poisoner.blend import apply_patch
+from poisoner.errors import ImageFormatError
 from poisoner.provenance import Marker
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 
@@ -60,10 +61,6 @@ JPEG_REGION_DECODE = True
 
 ORIENTATION_POLICY = "patch placed in stored pixels (EXIF orientation ignored, tag kept)"
 PALETTE_POLICY = "patch colours appended to the palette when there is room, else written as RGB(A)"
-
-
-class ImageFormatError(Exception):
-    """A file that cannot be poisoned faithfully (message: one line)."""
 
 
 @dataclass

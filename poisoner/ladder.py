@@ -135,3 +135,9 @@ def default_spec() -> PatchSpec:
     (whole-image SSIM 0.9955 vs 0.9960, LPIPS 0.0102 vs 0.0050; the budget is 0.99 / 0.02).
     """
     return next(c.spec for c in candidate_ladder() if c.name == DEFAULT_DESIGN)
+
+
+def strongest_spec() -> PatchSpec:
+    """The ladder's strongest candidate by design (its last): what an automatic dataset's files get
+    while nothing is measured yet (daemon.auto's interim spec)."""
+    return candidate_ladder()[-1].spec

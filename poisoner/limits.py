@@ -16,6 +16,8 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
+from poisoner.errors import ImageFormatError
+
 DEFAULT_MAX_PIXELS = 80_000_000  # peak RSS at 85 MP: JPEG 455 MB, PNG 438 MB (docs/FORMATS.md "Memory")
 # Formats whose codecs need several times JPEG/PNG's memory get a fraction of the pixel budget
 # (measured peak RSS, docs/FORMATS.md "Memory"): libwebp ~35 bytes/pixel (1411 MB at 40 MP) -> a
@@ -89,8 +91,6 @@ def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> Non
     """Raise ImageFormatError (one line) when path declares more than max_pixels (all frames
     together; WebP a fifth of it, HEIF/AVIF a third), before anything is decoded. An unreadable
     header passes: the decoder refuses it."""
-    from poisoner.formats import ImageFormatError
-
     path = Path(path)
     try:
         size = decoded_size(path)

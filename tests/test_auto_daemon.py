@@ -15,13 +15,14 @@ import pytest
 from daemon import auto as daemon_auto
 from daemon.config import Config, ConfigError
 from daemon.protect import AppContext, protect_file
+from daemon.scheduler import SchedulePolicy, VerificationScheduler
 from daemon.states import FileState
 from daemon.store import SCHEMA_VERSION, Store, StoreError
+from daemon.verify import record_report
 from poisoner.spec import PatchSpec
 from verifier.auto import LadderEntry, ladder_to_json
-from verifier.scheduler import SchedulePolicy, VerificationScheduler
 from verifier.synthetic import SyntheticOptions, render_scene
-from verifier.verification import ProfileReport, VerificationReport, record_report
+from verifier.verification import ProfileReport, VerificationReport
 
 A = LadderEntry("a-small", PatchSpec(patch_size=0.05), "least visible")
 B = LadderEntry("b-moved", PatchSpec(patch_size=0.06, position="bottom-right"), "next")
@@ -301,7 +302,7 @@ def test_daemon_side_never_imports_torch_or_pycolmap(tmp_path: Path) -> None:
         "import sys, numpy as np\n"
         "from pathlib import Path\n"
         "from PIL import Image\n"
-        "import daemon.auto as da, daemon.config, verifier.scheduler\n"
+        "import daemon.auto as da, daemon.config, daemon.scheduler\n"
         "from verifier.auto import LadderEntry\n"
         "from poisoner.spec import PatchSpec\n"
         f"d = Path({str(tmp_path)!r})\n"

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from daemon import report as dataset_reports
 from poisoner.spec import PatchSpec
 from verifier import report as rp
 from verifier.poses import poses_to_json
@@ -135,7 +136,7 @@ def _protected_dataset(ppd_env: dict[str, Path], tmp_path: Path) -> Any:
 def test_dataset_report_with_the_real_store(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     ctx = _protected_dataset(ppd_env, tmp_path)
     try:
-        data = rp.build_dataset_report(ctx, "trip")
+        data = dataset_reports.build_dataset_report(ctx, "trip")
         assert data.verdict == "not_protected"  # the weakest profile of the latest run
         assert data.protection == "NOT protected (hardened): find a design that holds: `ppd auto trip`"
         assert 'id="protection"' in rp.render_html(data)
@@ -147,7 +148,7 @@ def test_dataset_report_with_the_real_store(ppd_env: dict[str, Path], tmp_path: 
         preview = next(f for f in data.figures if f.caption.startswith("Patch preview"))
         assert Image.open(io.BytesIO(preview.png)).size[0] > 200
         with pytest.raises(rp.ReportError, match="no dataset"):
-            rp.build_dataset_report(ctx, "elsewhere")
+            dataset_reports.build_dataset_report(ctx, "elsewhere")
     finally:
         ctx.close()
 

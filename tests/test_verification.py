@@ -18,16 +18,16 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from daemon.scheduler import SchedulePolicy, VerificationScheduler, is_due
+from daemon.verify import prune_runs
 from poisoner.blend import poison_array
 from poisoner.spec import PatchSpec
 from verifier import verdict as vd
-from verifier.scheduler import SchedulePolicy, VerificationScheduler, is_due
 from verifier.synthetic import SyntheticOptions, render_scene
 from verifier.verification import (
     VerificationInputError,
     VerifyOptions,
     expand_profiles,
-    prune_runs,
     round_trip,
     verify_folders,
 )
@@ -191,6 +191,18 @@ def test_scheduled_runs_include_the_splat_stage_when_configured() -> None:
     )
 
 
+def test_keep_runs_is_a_config_field() -> None:
+    from daemon.config import Config, ConfigError
+
+    assert Config.from_toml("").verification.keep_runs == 5
+    kept = Config.from_toml("[verification]\nkeep_runs = 2\n")
+    assert kept.verification.keep_runs == 2 and "keep_runs = 2" in kept.to_toml()
+    assert Config.from_toml(kept.to_toml()).verification.keep_runs == 2
+    for bad in ("0", '"3"', "true"):
+        with pytest.raises(ConfigError, match="keep_runs"):
+            Config.from_toml(f"[verification]\nkeep_runs = {bad}\n")
+
+
 # ---- end to end with real COLMAP -----------------------------------------------------------------
 @pytest.fixture(scope="module")
 def synthetic_sets(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
@@ -268,7 +280,7 @@ def test_verify_dataset_records_runs_and_keeps_models(
     synthetic_sets: dict[str, Path], ppd_env: dict[str, Path]
 ) -> None:
     protect = pytest.importorskip("daemon.protect")
-    from verifier.verification import verify_dataset
+    from daemon.verify import verify_dataset
 
     ctx = protect.AppContext.open()
     try:

@@ -181,11 +181,11 @@ class AutoDecision:
 # ---- visibility -----------------------------------------------------------------------------------
 def load_rgb(path: Path) -> np.ndarray:
     """H x W x 3 float in [0, 1]; transparency composited on white (as Verifier I's round trip)."""
-    from verifier.verification import _to_rgb
+    from verifier.verification import to_rgb
 
     with PIL.Image.open(path) as im:
         im.load()
-        rgb = _to_rgb(im)
+        rgb = to_rgb(im)
     return np.asarray(rgb, dtype=np.float64) / 255.0
 
 

@@ -6,15 +6,14 @@ history (Store's verification_runs), metrics tables, camera trajectories clean v
 matplotlib PNG), the splat stage's render comparisons when present, and the patch preview.
 
 Sources:
-- a daemon dataset (`build_dataset_report(ctx, name)`): Store rows + their model folders + a vault
-  original and its protected file for the preview;
+- a dataset's verification history (`dataset_history_report(...)`, given its Store rows, model
+  folders and an (original, patched) pair for the preview; daemon.report gathers them);
 - a verification folder (`build_verification_report(dir)`): `report.json` (verify_dataset's run
   dir) or `<profile>/report.json` files (verify_folders' out dir);
 - an experiment folder (`build_experiment_report(dir)`): results.jsonl -> the paper's tables,
   the trade-off figure and metric-vs-parameter figures.
 
-Where a dataset's latest report lives: `report_path(paths, dataset)` =
-`<data_dir>/reports/<dataset>/latest.html` (`ppd status` links to it).
+Where a daemon dataset's latest report lives is the application's convention (daemon.report).
 """
 
 from __future__ import annotations
@@ -25,19 +24,15 @@ import json
 import logging
 import os
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from PIL import Image
 
 from verifier.verdict import overall
-
-if TYPE_CHECKING:
-    from daemon.paths import AppPaths
-    from daemon.protect import AppContext
 
 log = logging.getLogger(__name__)
 
@@ -86,12 +81,6 @@ class ReportData:
     notes: list[str] = field(default_factory=list)
     generated_at: float = field(default_factory=time.time)
     protection: str | None = None  # a dataset's state in ppd's words, e.g. "patched, not verified"
-
-
-# ---- paths ------------------------------------------------------------------------------------
-def report_path(paths: AppPaths, dataset: str) -> Path:
-    """The convention for a dataset's latest report (what `ppd status` links to)."""
-    return Path(paths.data_dir) / "reports" / dataset / "latest.html"
 
 
 # ---- small helpers ----------------------------------------------------------------------------
@@ -244,7 +233,7 @@ def patch_preview_figure(original: Path, protected: Path, spec: Any) -> Figure |
 
 
 # ---- builders ---------------------------------------------------------------------------------
-def _latest_run_group(runs: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+def latest_run_group(runs: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
     """The rows of the newest verification (same run folder), one per profile."""
     if not runs:
         return []
@@ -270,32 +259,27 @@ def _add_profile_content(data: ReportData, profiles: Mapping[str, Mapping[str, A
             data.figures.append(fig)
 
 
-def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> ReportData:
-    """A daemon dataset: latest verification per profile, its history, models, and a patch preview."""
-    from daemon.protect import dataset_pairs
-
-    if ctx.store.dataset(dataset) is None:
-        raise ReportError(f"no dataset {dataset!r} (see `ppd status`)")
-    runs = ctx.store.verification_runs(dataset, limit=history)
-    latest = _latest_run_group(runs)
+def dataset_history_report(
+    title: str,
+    runs: Sequence[Mapping[str, Any]],
+    protection: str | None,
+    pairs: Sequence[tuple[Path, Path]],
+    spec: Any | None,
+    unverified_note: str,
+) -> ReportData:
+    """A dataset's verification history (Store rows, newest first, with their model folders) and a
+    patch preview from its first (original, patched) image pair. protection is the dataset's state
+    in the user's words; unverified_note is said when there is no run at all."""
+    latest = latest_run_group(runs)
     profiles = {r["profile"]: {**(r.get("metrics") or {}), "verdict": r["verdict"],
                                "model_dir": r.get("model_dir")} for r in latest}  # fmt: skip
-    data = ReportData(
-        title=f"ppd report — dataset {dataset}",
-        verdict=overall(r["verdict"] for r in latest) if latest else None,
-    )
-    from daemon.states import dataset_protection, next_step, protection_text
-
-    state, under = dataset_protection(ctx.store.counts(dataset), {r["profile"]: r for r in latest})
-    step = next_step(state, dataset)
-    data.protection = protection_text(state, under) + (f": {step}" if step else "")
+    data = ReportData(title=title, verdict=overall(r["verdict"] for r in latest) if latest else None)
+    data.protection = protection
     if not latest:
-        data.notes.append(f"Dataset {dataset!r} has never been verified: run `ppd verify {dataset}`.")
+        data.notes.append(unverified_note)
     _add_profile_content(data, profiles)
     if runs:
         data.tables.append(history_table(runs))
-    spec = ctx.store.dataset_spec(dataset)
-    pairs = dataset_pairs(ctx, dataset)
     image_pair = next(((o, p) for o, p in pairs if not _is_video(p)), None)
     if spec is not None and image_pair is not None:
         fig = patch_preview_figure(image_pair[0], image_pair[1], spec)
@@ -375,8 +359,9 @@ def _md_cells(row: str) -> list[str]:
     return [c.strip() for c in row.strip().strip("|").split("|")]
 
 
-def build_report(source: str, ctx: AppContext | None = None) -> ReportData:
-    """source: an experiment folder, a verification folder, or a daemon dataset name."""
+def build_report(source: str, dataset_report: Callable[[str], ReportData] | None = None) -> ReportData:
+    """source: an experiment folder, a verification folder, or (with dataset_report, the
+    application's lookup) a dataset name."""
     from verifier.experiment import RESULTS_NAME
 
     path = Path(source)
@@ -384,9 +369,9 @@ def build_report(source: str, ctx: AppContext | None = None) -> ReportData:
         if (path / RESULTS_NAME).is_file():
             return build_experiment_report(path)
         return build_verification_report(path)
-    if ctx is None:
+    if dataset_report is None:
         raise ReportError(f"{source}: not a folder, and no daemon store to look a dataset up in")
-    return build_dataset_report(ctx, source)
+    return dataset_report(source)
 
 
 # ---- HTML -------------------------------------------------------------------------------------

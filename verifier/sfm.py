@@ -18,8 +18,6 @@ import json
 import logging
 import os
 import shutil
-import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -27,6 +25,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from verifier.supervise import run_child
 
 log = logging.getLogger(__name__)
 
@@ -173,22 +173,22 @@ def _run_locked(
     env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     started = time.time()
     stderr_path = Path(job.model_dir) / "sfm.log"
-    with open(stderr_path, "wb") as err:
-        proc = subprocess.Popen(
-            cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=err, env=env, start_new_session=True
-        )
-        assert proc.stdin is not None
-        proc.stdin.write(job.to_json().encode())
-        proc.stdin.close()
-        log.info("sfm child started", extra={"pid": proc.pid, "image_dir": job.image_dir})
-        outcome = _wait(proc, timeout_s, cancel, started)
+    ended = run_child(
+        cmd,
+        log_path=stderr_path,
+        stdin_data=job.to_json().encode(),
+        timeout_s=timeout_s,
+        cancel=cancel,
+        env=env,
+        discard_stdout=True,
+        on_start=lambda pid: log.info("sfm child started", extra={"pid": pid, "image_dir": job.image_dir}),
+    )
     elapsed = time.time() - started
-    base: dict[str, Any] = {"elapsed_s": elapsed, "returncode": proc.returncode, "log": str(stderr_path)}
-    if outcome is not None:
-        return {**base, "outcome": outcome, "error": f"{outcome} after {elapsed:.0f} s"}
-    if proc.returncode < 0:
-        sig = -proc.returncode
-        name = signal.Signals(sig).name if sig in signal.Signals._value2member_map_ else str(sig)
+    base: dict[str, Any] = {"elapsed_s": elapsed, "returncode": ended.returncode, "log": str(stderr_path)}
+    if ended.kind in ("timeout", "cancelled"):
+        return {**base, "outcome": ended.kind, "error": f"{ended.kind} after {elapsed:.0f} s"}
+    if ended.kind == "crashed":
+        name = ended.signal_name
         return {**base, "outcome": "sfm_crashed", "signal": name, "error": f"SfM child killed by {name}"}
     try:
         result = json.loads(Path(result_path).read_text())
@@ -197,43 +197,12 @@ def _run_locked(
         return {
             **base,
             "outcome": "failed",
-            "error": f"child exited {proc.returncode} without a result: {tail}",
+            "error": f"child exited {ended.returncode} without a result: {tail}",
         }
     finally:
         with contextlib.suppress(OSError):
             os.unlink(result_path)
     return {**base, **result}
-
-
-def _wait(
-    proc: subprocess.Popen, timeout_s: float | None, cancel: threading.Event | None, started: float
-) -> str | None:
-    """Wait for the child; kill its process group on timeout or cancel and say which."""
-    while True:
-        try:
-            proc.wait(timeout=0.2)
-            return None
-        except subprocess.TimeoutExpired:
-            pass
-        reason = None
-        if cancel is not None and cancel.is_set():
-            reason = "cancelled"
-        elif timeout_s is not None and time.time() - started > timeout_s:
-            reason = "timeout"
-        if reason:
-            _kill_group(proc)
-            return reason
-
-
-def _kill_group(proc: subprocess.Popen) -> None:
-    for sig, grace in ((signal.SIGTERM, 3.0), (signal.SIGKILL, 5.0)):
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, sig)
-        try:
-            proc.wait(timeout=grace)
-            return
-        except subprocess.TimeoutExpired:
-            continue
 
 
 def _tail(path: Path, n: int = 300) -> str:

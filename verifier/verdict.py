@@ -27,6 +27,20 @@ SFM_CRASHED = "sfm_crashed"
 INCONCLUSIVE = "inconclusive"
 VERDICTS = (PROTECTED, WEAK, NOT_PROTECTED, SFM_CRASHED, INCONCLUSIVE)
 
+# Each verdict in the words the user reads (CLI, status, report); daemon.states uses these too.
+VERDICT_WORDS = {
+    PROTECTED: "protected",
+    WEAK: "weak",
+    NOT_PROTECTED: "NOT protected",
+    SFM_CRASHED: "could not be verified (SfM crashed)",
+    INCONCLUSIVE: "could not be verified (inconclusive)",
+}
+
+
+def verdict_words(verdict: str) -> str:
+    """One profile's verdict in the words the user reads."""
+    return VERDICT_WORDS.get(verdict, verdict)
+
 
 @dataclass(frozen=True)
 class VerdictRule:

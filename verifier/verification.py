@@ -13,9 +13,7 @@ The parent never imports pycolmap: SfM runs in child processes (verifier.sfm), o
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import fcntl
 import hashlib
 import json
 import logging
@@ -23,18 +21,14 @@ import os
 import shutil
 import threading
 import time
-import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from verifier import poses as posemod
 from verifier.sfm import SfmJob, SfmSettings, list_images, run_sfm_job
 from verifier.verdict import Verdict, VerdictRule, decide, overall
-
-if TYPE_CHECKING:
-    from daemon.protect import AppContext
 
 log = logging.getLogger(__name__)
 
@@ -174,7 +168,7 @@ def round_trip(src_dir: Path, dst_dir: Path, names: Sequence[str], long_edge: in
             continue
         with Image.open(src_dir / name) as im:
             im.load()
-            rgb = _to_rgb(im)
+            rgb = to_rgb(im)
         scale = long_edge / max(rgb.size)
         if scale < 1:
             rgb = rgb.resize((round(rgb.width * scale), round(rgb.height * scale)), Image.Resampling.LANCZOS)
@@ -188,7 +182,7 @@ def _published_name(name: str) -> str:
     return name if Path(name).suffix.lower() in (".jpg", ".jpeg") else name + ".jpg"
 
 
-def _to_rgb(im: Any) -> Any:
+def to_rgb(im: Any) -> Any:
     from PIL import Image
 
     if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
@@ -320,6 +314,7 @@ def _splat_stage(
             profile_dir / "splat",
             dict(options.splat_options),
             timeout_s=options.splat_timeout_s,
+            cancel=options.cancel,
         )
         report.splat = result
     report.reasons.append(splat_finding(report.splat))
@@ -462,37 +457,7 @@ def _copy_model(src: Path, dst: Path) -> None:
             shutil.copyfile(f, dst / f.name)
 
 
-# ---- datasets of the daemon -----------------------------------------------------------------------
-DEFAULT_KEEP_RUNS = 5
-
-
-def new_run_id() -> str:
-    return time.strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:6]
-
-
-def prune_runs(dataset_runs: Path, keep_last: int) -> list[Path]:
-    """Delete all but the newest keep_last run folders of a dataset (run ids sort by time)."""
-    if not dataset_runs.is_dir():
-        return []
-    runs = sorted(p for p in dataset_runs.iterdir() if p.is_dir() and not p.name.startswith("."))
-    doomed = runs[: max(0, len(runs) - keep_last)]
-    for p in doomed:
-        shutil.rmtree(p, ignore_errors=True)
-    return doomed
-
-
-@contextlib.contextmanager
-def _process_lock(lock_path: Path) -> Iterator[None]:
-    """One verification at a time across processes (the daemon's scheduler and `ppd verify`)."""
-    lock_path.parent.mkdir(parents=True, exist_ok=True)
-    with open(lock_path, "a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
-
-
+# ---- (original, protected) pairs as two folders -----------------------------------------------
 def _flat_name(path: Path, index: int, used: set[str]) -> str:
     name = path.name
     if name in used:
@@ -547,59 +512,3 @@ def _is_video(path: Path) -> bool:
     except ImportError:
         return False
     return bool(is_video(path))
-
-
-def verify_dataset(
-    ctx: AppContext,
-    dataset: str,
-    profiles: Sequence[str] = PROFILES,
-    options: VerifyOptions | None = None,
-    keep_last: int | None = None,
-) -> VerificationReport:
-    """Verify a daemon dataset: its vault originals vs its protected files; rows in the Store."""
-    from daemon.protect import dataset_pairs
-
-    options = options or VerifyOptions()
-    keep = (
-        keep_last
-        if keep_last is not None
-        else int(getattr(ctx.config, "verify_keep_runs", DEFAULT_KEEP_RUNS))
-    )
-    pairs = dataset_pairs(ctx, dataset)
-    if len(pairs) < 3:
-        raise VerificationInputError(
-            f"dataset {dataset!r} has {len(pairs)} protected file(s); SfM needs at least 3"
-        )
-    runs_root = Path(ctx.paths.runs_dir)
-    run_dir = runs_root / dataset / new_run_id()
-    with _process_lock(runs_root / ".verify.lock"):
-        images = run_dir / ".images"
-        try:
-            matching = stage_pairs(pairs, images / "clean", images / "poisoned")
-            opts = dataclasses.replace(options, matching=matching if matching != "auto" else options.matching)
-            report = verify_folders(images / "clean", images / "poisoned", run_dir, profiles, opts)
-        finally:
-            shutil.rmtree(images, ignore_errors=True)
-        (run_dir / "report.json").write_text(json.dumps(report.to_dict(), indent=1))
-        record_report(ctx, dataset, report)
-        prune_runs(runs_root / dataset, keep)
-    return report
-
-
-def record_report(ctx: AppContext, dataset: str, report: VerificationReport) -> list[int]:
-    """One Store row per profile."""
-    ids = []
-    for p in report.profiles.values():
-        ids.append(
-            ctx.store.add_verification_run(
-                dataset=dataset,
-                profile=p.profile,
-                verdict=p.verdict,
-                metrics=p.metrics(),
-                started_at=p.started_at,
-                finished_at=p.finished_at,
-                model_dir=p.model_dir,
-                error=p.error if p.verdict != "protected" else None,
-            )
-        )
-    return ids

@@ -7,7 +7,8 @@
 
 `run_splat_stage` runs the work in a child process (`python -m verifier.splat.stage`, job JSON
 on stdin, result JSON in out_dir), so a caller never imports torch or pycolmap and a crash is a
-result ("crashed"), not a dead caller. This module's top level imports neither.
+result ("crashed"), not a dead caller. The child runs in its own process group (run_child): a
+timeout or the cancel event kills all of it. This module's top level imports neither.
 """
 
 from __future__ import annotations
@@ -17,11 +18,13 @@ import json
 import logging
 import math
 import os
-import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
+
+from verifier.supervise import run_child
 
 log = logging.getLogger(__name__)
 
@@ -49,10 +52,12 @@ def run_splat_stage(
     out_dir: Path,
     options: Any | None = None,
     timeout_s: float | None = None,
+    cancel: threading.Event | None = None,
 ) -> dict:
     """Train clean and poisoned splats in a child process and return their metrics (see module doc).
 
-    The dict always has "outcome": "ok" | "failed" (with "error") | "crashed" (child died).
+    The dict always has "outcome": "ok" | "failed" (with "error") | "crashed" (child died,
+    or ran past timeout_s) | "cancelled" (cancel was set).
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -70,25 +75,23 @@ def run_splat_stage(
     result_path = out_dir / RESULT_NAME
     result_path.unlink(missing_ok=True)
     started = time.time()
-    with open(out_dir / "splat.log", "wb") as log_file:
-        try:
-            proc = subprocess.run(
-                [sys.executable, "-m", "verifier.splat.stage"],
-                input=json.dumps(job).encode(),
-                stdout=log_file,
-                stderr=log_file,
-                timeout=timeout_s,
-                check=False,
-                env={**os.environ, "OMP_WAIT_POLICY": "PASSIVE"},  # see verifier/splat/__init__.py
-            )
-            code: int | None = proc.returncode
-        except subprocess.TimeoutExpired:
-            code = None
+    ended = run_child(
+        [sys.executable, "-m", "verifier.splat.stage"],
+        log_path=out_dir / "splat.log",
+        stdin_data=json.dumps(job).encode(),
+        timeout_s=timeout_s,
+        cancel=cancel,
+        env={**os.environ, "OMP_WAIT_POLICY": "PASSIVE"},  # see verifier/splat/__init__.py
+    )
     if result_path.is_file():
         return json.loads(result_path.read_text())
-    why = "timed out" if code is None else f"exited with code {code}"
+    why = {
+        "timeout": "timed out",
+        "cancelled": "was cancelled",
+        "crashed": f"was killed by {ended.signal_name}",
+    }.get(ended.kind, f"exited with code {ended.returncode}")
     return {
-        "outcome": "crashed",
+        "outcome": "cancelled" if ended.kind == "cancelled" else "crashed",
         "error": f"splat child {why} without a result (see {out_dir / 'splat.log'})",
         "seconds": time.time() - started,
     }

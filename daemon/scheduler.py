@@ -2,7 +2,7 @@
 
 The daemon calls `on_protected(dataset)` after each protected file. A dataset becomes due when
 `min_new_files` files were protected since its last run, or when its last run is older than
-`period_s` and something new arrived since. The run itself (verify_dataset) launches SfM child
+`period_s` and something new arrived since. The run itself (daemon.verify.verify_dataset) launches SfM child
 processes at low priority; `stop()` cancels a running child. Nothing here imports pycolmap.
 
 Automatic mode (daemon.auto, docs/AUTO.md) runs in the same thread, before verifications: an
@@ -228,7 +228,7 @@ class VerificationScheduler:
     def _run(self, dataset: str) -> Any:
         if self._verify is not None:
             return self._verify(self.ctx, dataset, self.profiles, self._cancel)
-        from verifier.verification import verify_dataset
+        from daemon.verify import verify_dataset
 
         return verify_dataset(self.ctx, dataset, self.profiles, self.verify_options())
 

@@ -16,7 +16,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from daemon.states import verdict_words
+from verifier.verdict import verdict_words
 
 PROFILE_CHOICES = ("default", "hardened", "published", "all")
 VERDICT_STYLE = {
@@ -179,12 +179,8 @@ def register(app: typer.Typer) -> None:
         whether the patch protects: protected, weak, NOT protected, or could not be verified."""
         from daemon.cli_common import EXIT_USAGE, die, warning
         from daemon.cli_targets import TargetError, resolve_target
-        from verifier.verification import (
-            VerificationInputError,
-            VerifyOptions,
-            verify_dataset,
-            verify_folders,
-        )
+        from daemon.verify import verify_dataset
+        from verifier.verification import VerificationInputError, VerifyOptions, verify_folders
 
         console = Console(stderr=as_json, soft_wrap=True, highlight=False)
         if profile not in PROFILE_CHOICES:

@@ -1,0 +1,51 @@
+"""Reports on the daemon's datasets: what `ppd report DATASET` and `ppd status` show.
+
+The page itself is the verifier's (verifier.report); this module gathers a dataset's Store rows,
+its protection state and an (original, patched) pair for the patch preview, and owns where a
+dataset's latest report lives: `<data_dir>/reports/<dataset>/latest.html`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from verifier.report import ReportData, ReportError, dataset_history_report, latest_run_group
+
+if TYPE_CHECKING:
+    from daemon.paths import AppPaths
+    from daemon.protect import AppContext
+
+
+def report_path(paths: AppPaths, dataset: str) -> Path:
+    """The convention for a dataset's latest report (what `ppd status` links to)."""
+    return Path(paths.data_dir) / "reports" / dataset / "latest.html"
+
+
+def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> ReportData:
+    """A daemon dataset: latest verification per profile, its history, models, and a patch preview."""
+    from daemon.protect import dataset_pairs
+    from daemon.states import dataset_protection, next_step, protection_text
+
+    if ctx.store.dataset(dataset) is None:
+        raise ReportError(f"no dataset {dataset!r} (see `ppd status`)")
+    runs = ctx.store.verification_runs(dataset, limit=history)
+    latest = latest_run_group(runs)
+    state, under = dataset_protection(ctx.store.counts(dataset), {r["profile"]: r for r in latest})
+    step = next_step(state, dataset)
+    return dataset_history_report(
+        f"ppd report — dataset {dataset}",
+        runs,
+        protection_text(state, under) + (f": {step}" if step else ""),
+        dataset_pairs(ctx, dataset),
+        ctx.store.dataset_spec(dataset),
+        f"Dataset {dataset!r} has never been verified: run `ppd verify {dataset}`.",
+    )
+
+
+def build_report(source: str, ctx: AppContext | None = None) -> ReportData:
+    """source: an experiment folder, a verification folder, or a dataset name (needs ctx)."""
+    from verifier.report import build_report as build_folder_or_dataset
+
+    lookup = (lambda name: build_dataset_report(ctx, name)) if ctx is not None else None
+    return build_folder_or_dataset(source, lookup)

@@ -1,0 +1,79 @@
+"""run_child(): real child processes end as exited, crashed (signal), timeout or cancelled, and a
+kill reaches the child's whole process group (a grandchild it started dies with it)."""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+
+from verifier.supervise import run_child
+
+# A child that starts a grandchild (sleeping long), writes the grandchild's pid, then sleeps itself.
+_FAMILY = (
+    "import subprocess, sys, time\n"
+    "g = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'])\n"
+    "open(sys.argv[1], 'w').write(str(g.pid))\n"
+    "time.sleep(60)\n"
+)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # a zombie still answers kill(0): it has ended, its parent just has not reaped it
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+def _wait_for_file(path: Path, limit_s: float = 20.0) -> None:
+    deadline = time.monotonic() + limit_s
+    while not (path.is_file() and path.read_text()) and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
+def _gone(pid: int, limit_s: float = 5.0) -> bool:
+    deadline = time.monotonic() + limit_s
+    while _alive(pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return not _alive(pid)
+
+
+def test_exit_code_stdin_and_log(tmp_path: Path) -> None:
+    code = "import sys; data = sys.stdin.read(); print('got', data); sys.exit(3)"
+    ended = run_child([sys.executable, "-c", code], log_path=tmp_path / "c.log", stdin_data=b"job")
+    assert (ended.kind, ended.returncode) == ("exited", 3)
+    assert "got job" in (tmp_path / "c.log").read_text()
+
+
+def test_a_signal_is_a_crash_with_its_name(tmp_path: Path) -> None:
+    code = "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)"
+    ended = run_child([sys.executable, "-c", code], log_path=tmp_path / "c.log")
+    assert ended.kind == "crashed" and ended.signal_name == "SIGSEGV" and ended.returncode == -11
+
+
+def test_timeout_kills_the_whole_group(tmp_path: Path) -> None:
+    pid_file = tmp_path / "grandchild.pid"
+    started = time.monotonic()
+    family = [sys.executable, "-c", _FAMILY, str(pid_file)]
+    ended = run_child(family, log_path=tmp_path / "c.log", timeout_s=3.0)
+    assert ended.kind == "timeout" and time.monotonic() - started < 30
+    assert pid_file.is_file() and _gone(int(pid_file.read_text()))
+
+
+def test_cancel_kills_the_whole_group(tmp_path: Path) -> None:
+    pid_file = tmp_path / "grandchild.pid"
+    cancel = threading.Event()
+    setter = threading.Thread(target=lambda: (_wait_for_file(pid_file), cancel.set()))
+    setter.start()
+    family = [sys.executable, "-c", _FAMILY, str(pid_file)]
+    ended = run_child(family, log_path=tmp_path / "c.log", cancel=cancel)
+    setter.join()
+    assert ended.kind == "cancelled"
+    assert _gone(int(pid_file.read_text()))

@@ -1,0 +1,131 @@
+"""`run_child()`: the one way ppd runs a child process (SfM, preflight, splat training).
+
+Every child gets its own process group (so a kill reaches whatever it started), an optional time
+limit, an optional cancel event, and ends in exactly one `ChildOutcome`: it exited (with its return
+code), it was killed by a signal (a crash, e.g. a pycolmap segfault), it ran past its limit, or it
+was cancelled. Timeout and cancel kill the whole group: SIGTERM, then SIGKILL after a grace period.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+POLL_S = 0.2  # how often a running child is checked for its deadline and the cancel event
+
+
+@dataclass(frozen=True)
+class ChildOutcome:
+    """How a child ended. `kind` is one of "exited", "crashed", "timeout", "cancelled"."""
+
+    kind: str
+    returncode: int | None
+    elapsed_s: float
+    signal_name: str | None = None  # for "crashed": SIGSEGV, SIGKILL, ...
+
+    @property
+    def exited(self) -> bool:
+        return self.kind == "exited"
+
+
+def signal_name(number: int) -> str:
+    """SIGSEGV for 11; the number itself for a signal Python does not name."""
+    try:
+        return signal.Signals(number).name
+    except ValueError:
+        return str(number)
+
+
+def run_child(
+    cmd: Sequence[str],
+    *,
+    log_path: Path,
+    stdin_data: bytes | None = None,
+    timeout_s: float | None = None,
+    cancel: threading.Event | None = None,
+    env: Mapping[str, str] | None = None,
+    nice: int = 0,
+    append_log: bool = False,
+    grace_s: float = 3.0,
+    discard_stdout: bool = False,
+    on_start: Callable[[int], None] | None = None,
+) -> ChildOutcome:
+    """Run cmd in a new session (its own process group); stderr (and stdout unless discard_stdout)
+    goes to log_path.
+
+    Returns when the child has ended; a child still running at timeout_s, or when cancel is set,
+    is killed with its whole group. nice > 0 lowers the child's priority before it starts.
+    """
+    started = time.monotonic()
+    preexec = (lambda: os.nice(nice)) if nice > 0 else None  # only nice(): no locks taken
+    Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+    with open(log_path, "ab" if append_log else "wb") as log_fh:
+        proc = subprocess.Popen(  # noqa: PLW1509 - preexec_fn only calls nice()
+            list(cmd),
+            stdin=subprocess.PIPE if stdin_data is not None else subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL if discard_stdout else log_fh,
+            stderr=log_fh,
+            env=dict(env) if env is not None else None,
+            start_new_session=True,
+            preexec_fn=preexec,
+        )
+        if on_start is not None:
+            on_start(proc.pid)
+        if stdin_data is not None:
+            assert proc.stdin is not None
+            with contextlib.suppress(BrokenPipeError):  # a child that died at once: its code says why
+                proc.stdin.write(stdin_data)
+            with contextlib.suppress(BrokenPipeError):
+                proc.stdin.close()
+        stopped = _wait(proc, started, timeout_s, cancel, grace_s)
+    elapsed = time.monotonic() - started
+    if stopped is not None:
+        return ChildOutcome(stopped, proc.returncode, elapsed)
+    if proc.returncode < 0:
+        return ChildOutcome("crashed", proc.returncode, elapsed, signal_name(-proc.returncode))
+    return ChildOutcome("exited", proc.returncode, elapsed)
+
+
+def _wait(
+    proc: subprocess.Popen[bytes],
+    started: float,
+    timeout_s: float | None,
+    cancel: threading.Event | None,
+    grace_s: float,
+) -> str | None:
+    """None once the child ended by itself; "timeout" or "cancelled" after killing its group."""
+    while True:
+        try:
+            proc.wait(timeout=POLL_S)
+            return None
+        except subprocess.TimeoutExpired:
+            pass
+        reason = None
+        if cancel is not None and cancel.is_set():
+            reason = "cancelled"
+        elif timeout_s is not None and time.monotonic() - started > timeout_s:
+            reason = "timeout"
+        if reason:
+            kill_group(proc, grace_s)
+            return reason
+
+
+def kill_group(proc: subprocess.Popen[bytes], grace_s: float = 3.0) -> None:
+    """SIGTERM the child's process group, then SIGKILL it if it has not ended after grace_s."""
+    for sig, wait in ((signal.SIGTERM, grace_s), (signal.SIGKILL, 10.0)):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            return
+        try:
+            proc.wait(wait)
+            return
+        except subprocess.TimeoutExpired:
+            continue
