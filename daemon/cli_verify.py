@@ -18,7 +18,7 @@ from rich.table import Table
 
 from verifier.verdict import verdict_words
 
-PROFILE_CHOICES = ("default", "hardened", "published", "all")
+PROFILE_CHOICES = ("default", "hardened", "published", "masked", "all")
 VERDICT_STYLE = {
     "protected": "bold green",
     "weak": "bold yellow",
@@ -154,7 +154,8 @@ def register(app: typer.Typer) -> None:
         dataset: str | None = typer.Option(None, "--dataset", help="Verify this dataset (explicit form)."),
         folder: Path | None = typer.Option(None, "--folder", help="Verify this folder (explicit form)."),
         profile: str = typer.Option(
-            "all", "--profile", "-p", help="Attacker profile: default, hardened, published or all."
+            "all", "--profile", "-p",
+            help="Attacker profile: default, hardened, published, masked (corners masked out) or all.",
         ),
         as_json: bool = typer.Option(False, "--json", help="Print the verdict and every metric as JSON."),
         clean: Path | None = typer.Option(
@@ -185,7 +186,9 @@ def register(app: typer.Typer) -> None:
         console = Console(stderr=as_json, soft_wrap=True, highlight=False)
         if profile not in PROFILE_CHOICES:
             raise die(f"--profile must be one of {', '.join(PROFILE_CHOICES)}", EXIT_USAGE)
-        profiles = ("default", "hardened", "published") if profile == "all" else (profile,)
+        from verifier.verification import PROFILES
+
+        profiles = PROFILES if profile == "all" else (profile,)
         options = VerifyOptions(timeout_s=timeout, ground_truth=ground_truth, splat=splat)
         options.splat_options.update(time_budget_s=splat_budget, white_background=white_background)
         try:

@@ -85,7 +85,7 @@ def test_overall_is_the_weakest_profile() -> None:
 
 # ---- inputs and helpers -------------------------------------------------------------------------
 def test_profiles_expand_and_reject_unknown() -> None:
-    assert expand_profiles("all") == ["default", "hardened", "published"]
+    assert expand_profiles("all") == ["default", "hardened", "published", "masked"]
     assert expand_profiles(["hardened", "default", "hardened"]) == ["hardened", "default"]
     with pytest.raises(VerificationInputError, match="unknown profile"):
         expand_profiles(["fast"])
