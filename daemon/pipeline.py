@@ -419,7 +419,7 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     if job.kind == "image":
         from poisoner.limits import check_decode_budget
 
-        check_decode_budget(through_fd)
+        check_decode_budget(through_fd, name=job.path.name)
     return None
 
 
