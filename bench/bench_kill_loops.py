@@ -28,6 +28,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
 import PIL.Image  # before anything that could load pycolmap
 
 from daemon.states import FileState
@@ -220,6 +221,8 @@ def watch_loop(root: Path, kills: int, chains: int) -> dict[str, object]:
 
 # ---- the daemon under a 1 GiB memory limit --------------------------------------------------------
 CGROUP_V1 = Path("/sys/fs/cgroup/memory")
+REFUSED = ("failed", "quarantined")
+DECIDED = (FileState.PATCHED, "skipped", *REFUSED)
 
 
 def memory_cgroup(limit: int) -> Path | None:
@@ -238,7 +241,7 @@ def memory_cgroup(limit: int) -> Path | None:
         return None
 
 
-def write_memory_corpus(folder: Path) -> list[Path]:
+def write_memory_corpus(folder: Path, big_png_mp: int = 0) -> list[Path]:
     from tests import hostile_images
 
     hostile = hostile_images.write_corpus(folder)
@@ -250,10 +253,15 @@ def write_memory_corpus(folder: Path) -> list[Path]:
         large.append(big)
     for i in range(4):
         large.append(write_photo(folder / f"legit-small-{i}.png", 900 + i))
+    if big_png_mp:  # legitimate and under the pixel limit, but a decode of several hundred MB
+        side = int((big_png_mp * 1e6) ** 0.5)
+        ramp = np.linspace(0, 255, side, dtype=np.uint8)
+        PIL.Image.fromarray(np.dstack([np.tile(ramp, (side, 1))] * 3)).save(folder / "legit-big.png")
+        large.append(folder / "legit-big.png")
     return hostile + large
 
 
-def memory_run(root: Path, seconds: float, limit: int) -> dict[str, object]:
+def memory_run(root: Path, seconds: float, limit: int, big_png_mp: int = 0) -> dict[str, object]:
     """The hostile corpus plus legitimate large files moved into `ppd watch` running in a cgroup
     with memory.limit_in_bytes = limit; a supervisor restarts it after any non-zero exit, as
     systemd's Restart=on-failure would, until every file is decided or `seconds` pass."""
@@ -261,7 +269,7 @@ def memory_run(root: Path, seconds: float, limit: int) -> dict[str, object]:
     group = memory_cgroup(limit)
     stage = root / "stage" / "hostile"
     stage.mkdir(parents=True)
-    files = write_memory_corpus(stage)
+    files = write_memory_corpus(stage, big_png_mp)
     from daemon.protect import media_kind
 
     ignored = sorted(p.name for p in files if media_kind(p) is None)  # e.g. GIF: not a ppd format
@@ -293,7 +301,7 @@ def memory_run(root: Path, seconds: float, limit: int) -> dict[str, object]:
                 rows = {Path(r["path"]).name: r for r in store.files("hostile")}
             finally:
                 store.close()
-            if all(rows.get(n, {}).get("state") in (FileState.PATCHED, "failed", "skipped") for n in names):
+            if all(rows.get(n, {}).get("state") in DECIDED for n in names):
                 break
             time.sleep(0.2)
         peaks.append(peak)
@@ -306,7 +314,7 @@ def memory_run(root: Path, seconds: float, limit: int) -> dict[str, object]:
     store = Store(paths.db_path)
     try:
         for event in store.events(limit=1_000_000):
-            if event["kind"] in ("patched", "failed", "quarantined"):
+            if event["kind"] in ("patched", "failed"):  # one per finished attempt
                 attempts[Path(event["path"]).name] += 1
     finally:
         store.close()
@@ -320,7 +328,7 @@ def memory_run(root: Path, seconds: float, limit: int) -> dict[str, object]:
             figures["cgroup max_usage MB"] = int((group / "memory.max_usage_in_bytes").read_text()) >> 20
     logs = "\n".join(p.read_text(errors="replace") for p in root.glob("daemon-*.log"))
     state = {n: (rows.get(n) or {}).get("state") for n in names}
-    refused = {n: (rows.get(n) or {}).get("error") for n in names if state[n] == "failed"}
+    refused = {n: (rows.get(n) or {}).get("error") for n in names if state[n] in REFUSED}
     unnamed = [n for n, err in refused.items() if not err or "\n" in err or n not in (err + logs)]
     if group is not None:
         with contextlib.suppress(OSError):
@@ -333,9 +341,9 @@ def memory_run(root: Path, seconds: float, limit: int) -> dict[str, object]:
         "oom_kills": oom_kills, "peak_rss_mb": round(max(peaks) / 1024, 1) if peaks else None,
         "cgroup_max_usage_mb": figures["cgroup max_usage MB"],
         "states": dict(Counter(state.values())),
-        "decided_per_file_events_max": max(attempts.values(), default=0),
+        "most finished attempts of one file": max(attempts.values(), default=0),
         "refused": {n: (e or "")[:160] for n, e in refused.items()}, "refused_without_named_reason": unnamed,
-        "undecided": [n for n in names if state[n] not in (FileState.PATCHED, "failed")],
+        "undecided": [n for n in names if state[n] not in DECIDED],
     }  # fmt: skip
 
 
@@ -391,7 +399,7 @@ def store_deleted_round(root: Path, files: int, seed: int) -> dict[str, int]:
     out["second run exit non-zero"] += _ppd(root, "poison", str(folder)).wait(300) != 0
     out["poisoned twice (bytes changed by the second run)"] = sum(sha256(p) != patched[p] for p in originals)
     out["originals not in the vault"] = sum(not vault_has(root, o) for o in originals.values())
-    out["restore exit non-zero"] += _ppd(root, "restore", str(folder)).wait(300) != 0
+    out["restore exit non-zero"] += _ppd(root, "restore", folder.name).wait(300) != 0
     out["not restored to the original bytes"] = sum(
         not p.is_file() or sha256(p) != o for p, o in originals.items())
     out["leftovers"] = len(leftovers(folder))
@@ -419,6 +427,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--video-every", type=int, default=4)
     parser.add_argument("--seconds", type=float, default=180)
     parser.add_argument("--limit-mb", type=int, default=1024)
+    parser.add_argument("--big-png-mp", type=int, default=0)
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--files", type=int, default=12)
     parser.add_argument("--seed", type=int, default=0)
@@ -431,7 +440,7 @@ def main(argv: list[str] | None = None) -> None:
         elif args.scenario == "watch":
             result = watch_loop(root, args.kills, args.chains)
         elif args.scenario == "memory":
-            result = memory_run(root, args.seconds, args.limit_mb << 20)
+            result = memory_run(root, args.seconds, args.limit_mb << 20, args.big_png_mp)
         elif args.scenario == "concurrency":
             result = rounds(concurrency_round, root, args.rounds, args.files, "concurrency")
         else:
