@@ -3,11 +3,17 @@ random instants and run again, and a deleted store followed by a second run and 
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
-from bench.bench_kill_loops import poison_loop, store_deleted_round
+from bench.bench_kill_loops import REPO, poison_loop, store_deleted_round
+from daemon.watcher import scan_outbox
+from poisoner.atomic import clear_stale_temps
 
 pytestmark = pytest.mark.integration
 
@@ -27,3 +33,48 @@ def test_store_deleted_no_double_poisoning_and_every_original_restored(tmp_path:
     assert result["restore exit non-zero"] == 0
     assert result["not restored to the original bytes"] == 0
     assert result["leftovers"] == 0
+
+
+WRITER = (
+    "import os, sys, time; from poisoner.atomic import create_temp_at\n"
+    "d = os.open(sys.argv[1], os.O_RDONLY | os.O_DIRECTORY)\n"
+    "name, fd = create_temp_at(d, '.png'); os.write(fd, b'half a png')\n"
+    "print(name, flush=True); time.sleep(60)"
+)
+
+
+def _writer(folder: Path) -> tuple[subprocess.Popen[str], str]:
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(folder)], cwd=REPO, text=True,
+                            env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE)  # fmt: skip
+    assert proc.stdout is not None
+    return proc, proc.stdout.readline().strip()
+
+
+def test_a_killed_writers_young_temporary_goes_at_the_next_run_a_live_ones_stays(tmp_path: Path) -> None:
+    """Before: a temporary under 10 s old (60 s for the daemon's start-up scan) stayed after the
+    next run, because an unlocked young one might be a live writer's between create and lock."""
+    folder = tmp_path / "ds"
+    folder.mkdir()
+    dead, dead_name = _writer(folder)
+    live, live_name = _writer(folder)
+    try:
+        dead.send_signal(signal.SIGKILL)
+        dead.wait()
+        assert (folder / dead_name).exists() and (folder / live_name).exists()
+        result = scan_outbox(tmp_path, frozenset({".png"}), tmp_grace_s=60.0)
+        assert result.stale_temps_removed == [folder / dead_name]
+        assert not (folder / dead_name).exists()
+        assert (folder / live_name).read_bytes() == b"half a png"  # a living writer's: kept
+        dir_fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+        try:
+            assert clear_stale_temps(dir_fd) == []
+        finally:
+            os.close(dir_fd)
+    finally:
+        live.kill()
+        live.wait()
+    dir_fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        assert clear_stale_temps(dir_fd) == [live_name]  # its writer died: gone at once
+    finally:
+        os.close(dir_fd)
