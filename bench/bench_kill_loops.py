@@ -113,10 +113,11 @@ def audit(root: Path, originals: dict[Path, str], folder: Path) -> dict[str, lis
 
 
 # ---- SIGKILL loop on `ppd poison` -----------------------------------------------------------------
-def poison_loop(root: Path, kills: int, seed: int, per_kill: int, video_every: int) -> dict[str, object]:
+def poison_loop(root: Path, kills: int, seed: int, per_kill: int, video_every: int,
+                window: tuple[float, float] = (0.0, 1.2)) -> dict[str, object]:  # fmt: skip
     """Each trial adds `per_kill` photos (and a 1 s video every `video_every`-th trial) to one
     folder, starts `ppd poison FOLDER`, SIGKILLs its process group at a uniform random instant in
-    [0, 1.2 x the median run of a whole trial (every 10th trial runs uncut to measure it)] until
+    `window` x the median run of a whole trial (every 10th trial runs uncut to measure it) until
     `kills` runs were killed, checks no original was lost, then runs `ppd poison` again
     to completion and audits the folder."""
     rng = random.Random(seed)
@@ -150,7 +151,7 @@ def poison_loop(root: Path, kills: int, seed: int, per_kill: int, video_every: i
             proc.wait(300)
             full_runs.append(time.monotonic() - t0)
             continue
-        delay = rng.uniform(0, 1.2 * statistics.median(full_runs))
+        delay = rng.uniform(*(w * statistics.median(full_runs) for w in window))
         try:
             proc.wait(delay)
             figures["finished before the kill"] += 1
@@ -427,6 +428,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--video-every", type=int, default=4)
     parser.add_argument("--seconds", type=float, default=180)
     parser.add_argument("--limit-mb", type=int, default=1024)
+    parser.add_argument("--window", default="0,1.2", help="kill between these multiples of a whole run")
     parser.add_argument("--big-png-mp", type=int, default=0)
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--files", type=int, default=12)
@@ -436,7 +438,8 @@ def main(argv: list[str] | None = None) -> None:
     root = Path(tempfile.mkdtemp(prefix=f"ppd-bench-{args.scenario}-"))
     try:
         if args.scenario == "poison":
-            result = poison_loop(root, args.kills, args.seed, args.per_kill, args.video_every)
+            window = tuple(float(x) for x in args.window.split(","))
+            result = poison_loop(root, args.kills, args.seed, args.per_kill, args.video_every, window)
         elif args.scenario == "watch":
             result = watch_loop(root, args.kills, args.chains)
         elif args.scenario == "memory":
