@@ -6,6 +6,7 @@ systemd-style restarts, two daemons plus a CLI on one outbox, and a deleted stor
     python -m bench.bench_kill_loops memory --seconds 120
     python -m bench.bench_kill_loops concurrency --rounds 5
     python -m bench.bench_kill_loops store-deleted --rounds 5
+    python -m bench.bench_kill_loops render --inputs A.json B.json ...   (writes the results section)
 
 Each prints one JSON line of figures (and writes it to --json when given); the tables are in
 bench/results/reliability.md, section `kill-loops`, and docs/RELIABILITY.md.
@@ -419,9 +420,21 @@ def rounds(fn, root: Path, count: int, files: int, name: str) -> dict[str, objec
     return {"scenario": name, "rounds": count, **total, "seconds": round(time.monotonic() - started)}
 
 
+def render(results: list[dict[str, object]]) -> str:
+    """The `kill-loops` section of bench/results/reliability.md: one block per scenario run."""
+    lines = ["## SIGKILL loops, memory limit, two daemons, a deleted store (`bench_kill_loops`)", "",
+             "2-core machine shared with other engineers' work. Each block: the command, then its figures."]
+    for result in results:
+        lines += ["", f"### {result['scenario']}: `{result['command']}`", ""]
+        lines += ["| figure | value |", "|---|---|"]
+        lines += [f"| {k} | {v} |" for k, v in result.items() if k not in ("scenario", "command")]
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("scenario", choices=["poison", "watch", "memory", "concurrency", "store-deleted"])
+    scenarios = ["poison", "watch", "memory", "concurrency", "store-deleted", "render"]
+    parser.add_argument("scenario", choices=scenarios)
     parser.add_argument("--kills", type=int, default=100)
     parser.add_argument("--chains", type=int, default=4)
     parser.add_argument("--per-kill", type=int, default=6)
@@ -434,7 +447,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--files", type=int, default=12)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--inputs", type=Path, nargs="*", default=[], help="render: JSON files to tabulate")
     args = parser.parse_args(argv)
+    if args.scenario == "render":
+        from tests.reliability_harness import write_results_section
+
+        write_results_section("kill-loops", render([json.loads(p.read_text()) for p in args.inputs]))
+        return
     root = Path(tempfile.mkdtemp(prefix=f"ppd-bench-{args.scenario}-"))
     try:
         if args.scenario == "poison":
