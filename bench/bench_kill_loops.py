@@ -236,6 +236,8 @@ def memory_cgroup(limit: int) -> Path | None:
         group = CGROUP_V1 / own.lstrip("/") / f"ppd-bench-{os.getpid()}"
         group.mkdir(exist_ok=True)
         (group / "memory.limit_in_bytes").write_text(str(limit))
+        with contextlib.suppress(OSError):  # charge the daemon's start-up pages here too, not to the parent
+            (group / "memory.move_charge_at_immigrate").write_text("3")
         with contextlib.suppress(OSError):
             (group / "memory.memsw.limit_in_bytes").write_text(str(limit))
         return group
