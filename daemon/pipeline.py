@@ -408,6 +408,8 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     assert job.file is not None
     through_fd = Path(f"/proc/self/fd/{job.file.fd}")  # the opened inode, never the path again
     pids = writers_of(job.file.st)
+    if pids:  # the shared scan may predate the writer's close (e.g. ppd's own temporary, renamed here)
+        pids = writers_of(job.file.st, fresh=True)
     reason = None if pids else incomplete_reason(through_fd)
     if reason is not None:
         pids = writers_of(job.file.st, fresh=True)  # the shared scan may predate this writer

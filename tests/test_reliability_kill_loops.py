@@ -78,3 +78,23 @@ def test_a_killed_writers_young_temporary_goes_at_the_next_run_a_live_ones_stays
         assert clear_stale_temps(dir_fd) == [live_name]  # its writer died: gone at once
     finally:
         os.close(dir_fd)
+
+
+def test_a_writer_that_closed_within_the_scan_cache_does_not_skip_the_file(ppd_env: dict[str, Path]) -> None:
+    """Before: a /proc scan taken while the file was open for writing (here by this process, as
+    when ppd's own temporary is renamed in place) was reused for 0.5 s, and the file was skipped
+    as 'still open for writing by pid <ppd itself>' after the writer had closed it."""
+    import daemon.fsops
+    from daemon.protect import AppContext, protect_file
+    from tests.test_watcher import write_image
+
+    photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=3)
+    fd = os.open(photo, os.O_WRONLY)
+    assert daemon.fsops.writers_of(os.stat(photo), fresh=True) == [os.getpid()]  # now cached
+    os.close(fd)
+    ctx = AppContext.open()
+    try:
+        outcome = protect_file(photo, ctx)
+    finally:
+        ctx.close()
+    assert outcome.state == "patched", outcome.reason
