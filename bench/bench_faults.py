@@ -37,6 +37,10 @@ from tests.reliability_harness import (
     write_results_section,
 )
 
+# A refused file is recorded failed, or quarantined (moved out of the outbox) by the daemon.
+REFUSED = (FileState.FAILED, FileState.QUARANTINED)
+DECIDED = (FileState.PATCHED, *REFUSED)
+
 
 @dataclass
 class CorpusResult:
@@ -120,7 +124,7 @@ def corpus_run(root: Path) -> CorpusResult:
 
         def decided() -> bool:
             rows = {r["path"]: r["state"] for r in store.files("hostile")}
-            return sum(s in ("protected", "failed") for s in rows.values()) >= len(expected_rows)
+            return sum(s in DECIDED for s in rows.values()) >= len(expected_rows)
 
         wait_for(decided, 180, "the corpus to be decided")
         time.sleep(1.0)
@@ -133,12 +137,12 @@ def corpus_run(root: Path) -> CorpusResult:
         row = rows.get(item.path.name)
         state = row["state"] if row else None
         result.protected += state == FileState.PATCHED
-        result.refused += state == "failed"
+        result.refused += state in REFUSED
         result.left_alone += state is None
-        patched, failed = FileState.PATCHED, FileState.FAILED
-        ok = {"protected": (patched,), "refused": (failed,), "either": (patched, failed),
-              "left": (None, failed)}[item.expect]  # fmt: skip
-        if state not in ok or (state == "failed" and "\n" in (row["error"] or "\n")):
+        patched = FileState.PATCHED
+        ok = {"protected": (patched,), "refused": REFUSED, "either": (patched, *REFUSED),
+              "left": (None, *REFUSED)}[item.expect]  # fmt: skip
+        if state not in ok or (state in REFUSED and "\n" in (row["error"] or "\n")):
             result.unexpected.append(f"{item.what}: {state} ({row and row['error']})")
     return result
 

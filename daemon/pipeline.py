@@ -469,6 +469,8 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     assert job.file is not None
     through_fd = Path(f"/proc/self/fd/{job.file.fd}")  # the opened inode, never the path again
     pids = writers_of(job.file.st)
+    if pids:  # the shared scan may predate the writer's close (e.g. ppd's own temporary, renamed here)
+        pids = writers_of(job.file.st, fresh=True)
     reason = None if pids else incomplete_reason(through_fd)
     if reason is not None:
         pids = writers_of(job.file.st, fresh=True)  # the shared scan may predate this writer
@@ -480,7 +482,7 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     if job.kind == "image":
         from poisoner.limits import check_decode_budget
 
-        check_decode_budget(through_fd)
+        check_decode_budget(through_fd, name=job.path.name)
     return None
 
 

@@ -54,7 +54,7 @@ from daemon.notify import SystemdNotifier
 from daemon.pipeline import Outcome
 from daemon.states import FileState
 from daemon.workers import PoolOptions, PoolStats, WorkerPool
-from poisoner.atomic import TEMP_PREFIX
+from poisoner.atomic import TEMP_PREFIX, remove_if_stale
 
 log = logging.getLogger(__name__)
 
@@ -139,14 +139,25 @@ def _log_walk_error(exc: OSError) -> None:
     log.warning("cannot list folder %s: %s", exc.filename, exc.strerror, extra={"path": exc.filename})
 
 
+def _remove_temp_if_stale(path: Path, grace_s: float, now: float) -> bool:
+    """A temporary no living writer holds locked goes; one locked before it had a name
+    (poisoner.atomic.BORN_LOCKED) at any age, any other only once grace_s old."""
+    dir_fd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        return remove_if_stale(dir_fd, path.name, min_age_s=grace_s, now=now)
+    finally:
+        os.close(dir_fd)
+
+
 def scan_outbox(
     outbox: Path, suffixes: frozenset[str], tmp_grace_s: float | None, now: float | None = None
 ) -> ScanResult:
     """List the outbox's candidate files and delete ppd temporaries older than tmp_grace_s
     (None: delete none).
 
-    A temporary is only removed once it is old: `ppd poison` in another process may be
-    writing one right now (a video's temporary grows for minutes; its mtime stays fresh)."""
+    A temporary goes only when no living writer holds its lock (`ppd poison` in another
+    process may be writing one right now); one made by name, not locked before it had one,
+    also only once tmp_grace_s old."""
     now = time.time() if now is None else now
     files: list[Path] = []
     removed: list[Path] = []
@@ -154,9 +165,7 @@ def scan_outbox(
     for path in walk_files(outbox):
         if path.name.startswith(TEMP_PREFIX):
             try:
-                age = now - path.stat(follow_symlinks=False).st_mtime
-                if tmp_grace_s is not None and age >= tmp_grace_s:
-                    path.unlink()
+                if tmp_grace_s is not None and _remove_temp_if_stale(path, tmp_grace_s, now):
                     removed.append(path)
                 else:
                     young.append(path)

@@ -30,6 +30,7 @@ from pathlib import Path
 
 TEMP_PREFIX = ".ppd-tmp-"
 STALE_TEMP_AGE_S = 10.0  # an unlocked temporary this old has no living writer (see clear_stale_temps)
+BORN_LOCKED = "L"  # after TEMP_PREFIX: locked before it had a name (hex names never hold an "L")
 _DIR_FLAGS = os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC
 
 
@@ -49,7 +50,28 @@ def default_mode() -> int:
 
 
 def create_temp_at(dir_fd: int, suffix: str = "") -> tuple[str, int]:
-    """A new, exclusively created and flock()ed temporary in the folder dir_fd: (name, write fd)."""
+    """A new, exclusively created and flock()ed temporary in the folder dir_fd: (name, write fd).
+
+    Where the filesystem has O_TMPFILE, the file is locked before it gets a name (linked in
+    through /proc/self/fd), so no other process ever sees it unlocked: its name carries
+    BORN_LOCKED and `clear_stale_temps` may remove it as soon as it is unlocked, at any age."""
+    try:
+        fd = os.open(".", os.O_TMPFILE | os.O_RDWR | os.O_CLOEXEC, 0o600, dir_fd=dir_fd)
+    except (AttributeError, OSError):
+        fd = -1  # no O_TMPFILE here (or on this filesystem): create by name, lock right after
+    if fd >= 0:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            for _ in range(100):
+                name = f"{TEMP_PREFIX}{BORN_LOCKED}{secrets.token_hex(6)}{suffix}"
+                try:
+                    os.link(f"/proc/self/fd/{fd}", name, dst_dir_fd=dir_fd, follow_symlinks=True)
+                    return name, fd
+                except FileExistsError:
+                    continue
+        except OSError:
+            pass  # no /proc, or linkat refused: fall back to a named temporary
+        os.close(fd)
     for _ in range(100):
         name = f"{TEMP_PREFIX}{secrets.token_hex(6)}{suffix}"
         try:
@@ -121,31 +143,38 @@ def clear_stale_temps(
     dir_fd: int, *, min_age_s: float = STALE_TEMP_AGE_S, now: float | None = None
 ) -> list[str]:
     """Delete ppd's own leftover temporaries in the folder dir_fd: names starting with TEMP_PREFIX,
-    regular files, not locked by a living writer, and at least min_age_s old (the age covers the
-    instant between a temporary's creation and its lock, and temporaries of older ppd versions).
-    Returns the names removed."""
+    regular files, not locked by a living writer, and (unless born locked) at least min_age_s
+    old (the age covers the instant between a named temporary's creation and its lock, and
+    temporaries of older ppd versions). Returns the names removed."""
     now = time.time() if now is None else now
-    removed = []
-    for name in os.listdir(dir_fd):
-        if not name.startswith(TEMP_PREFIX):
-            continue
+    return [n for n in os.listdir(dir_fd) if remove_if_stale(dir_fd, n, min_age_s=min_age_s, now=now)]
+
+
+def remove_if_stale(
+    dir_fd: int, name: str, *, min_age_s: float = STALE_TEMP_AGE_S, now: float | None = None
+) -> bool:
+    """Remove the temporary `name` in dir_fd if it is a stale one of ppd's (see clear_stale_temps)."""
+    if not name.startswith(TEMP_PREFIX):
+        return False
+    now = time.time() if now is None else now
+    try:
+        fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, dir_fd=dir_fd)
+    except OSError:
+        return False  # gone, a symlink, or unreadable: not ours to judge
+    try:
+        st = os.fstat(fd)
+        born_locked = name.startswith(TEMP_PREFIX + BORN_LOCKED)
+        if not stat.S_ISREG(st.st_mode) or (not born_locked and now - st.st_mtime < min_age_s):
+            return False
         try:
-            fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, dir_fd=dir_fd)
-        except OSError:
-            continue  # gone, a symlink, or unreadable: not ours to judge
-        try:
-            st = os.fstat(fd)
-            if not stat.S_ISREG(st.st_mode) or now - st.st_mtime < min_age_s:
-                continue
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                continue  # a living ppd process is writing it
-            with contextlib.suppress(FileNotFoundError):
-                same = os.stat(name, dir_fd=dir_fd, follow_symlinks=False)
-                if (same.st_ino, same.st_dev) == (st.st_ino, st.st_dev):
-                    os.unlink(name, dir_fd=dir_fd)
-                    removed.append(name)
-        finally:
-            os.close(fd)
-    return removed
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return False  # a living ppd process is writing it
+        with contextlib.suppress(FileNotFoundError):
+            same = os.stat(name, dir_fd=dir_fd, follow_symlinks=False)
+            if (same.st_ino, same.st_dev) == (st.st_ino, st.st_dev):
+                os.unlink(name, dir_fd=dir_fd)
+                return True
+        return False
+    finally:
+        os.close(fd)

@@ -87,10 +87,11 @@ def decoded_bytes_estimate(path: Path) -> int:
         return 0
 
 
-def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
+def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS, *, name: str | None = None) -> None:
     """Raise ImageFormatError (one line) when path declares more than max_pixels (all frames
     together; WebP a fifth of it, HEIF/AVIF a third), before anything is decoded. An unreadable
-    header passes: the decoder refuses it."""
+    header passes: the decoder refuses it. name: the file's name for the message (path may be
+    a /proc/self/fd link, whose name is only a descriptor number)."""
     path = Path(path)
     try:
         size = decoded_size(path)
@@ -105,7 +106,7 @@ def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> Non
     if size.pixels > limit:
         frames = f" x {size.frames} frames" if size.frames > 1 else ""
         raise ImageFormatError(
-            f"{path.name}: {size.width}x{size.height}{frames} ({_mp(size.pixels)} MP) is over the "
+            f"{name or path.name}: {size.width}x{size.height}{frames} ({_mp(size.pixels)} MP) is over the "
             f"{_mp(limit)} MP limit{why}; raise [limits] max_megapixels to protect it"
         )
 

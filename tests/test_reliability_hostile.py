@@ -243,3 +243,17 @@ def test_newline_in_a_name_does_not_cut_the_reason(ctx: AppContext) -> None:
     assert outcome.reason.startswith("two\\nlines.jpg")
     assert "not a recognised image" in outcome.reason or "is incomplete" in outcome.reason
     assert ctx.store.file(bad)["error"] == outcome.reason
+
+
+def test_decode_budget_refusal_names_the_file_not_its_descriptor(ctx: AppContext) -> None:
+    """The budget check reads through /proc/self/fd/N; before the fix the stored reason began
+    with the descriptor number ("11: 100000x100000 ...") instead of the file's name."""
+    from hostile_images import tiff_huge
+
+    bomb = ctx.paths.outbox / "bombs" / "huge.tif"
+    bomb.parent.mkdir(parents=True)
+    tiff_huge(bomb)
+    outcome = protect_file(bomb, ctx)
+    assert outcome.state == "failed"
+    assert outcome.reason.startswith("huge.tif: 100000x100000 (10000 MP) is over the"), outcome.reason
+    assert ctx.store.file(bomb)["error"] == outcome.reason
