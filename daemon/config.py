@@ -30,6 +30,9 @@ Every key is optional; what is missing comes from the embedded defaults below. L
     [daemon]
     quarantine_dir = ""         # files `ppd watch` cannot patch go here ("": <outbox>/../ppd-quarantine)
 
+    [limits]
+    max_megapixels = 80.0       # larger images are refused before decoding (WebP: a fifth, HEIF: a third)
+
     [visibility]                # automatic mode's budget, clean vs poisoned, whole image
     min_ssim = 0.99
     max_lpips = 0.02
@@ -169,6 +172,7 @@ class Config:
     preflight: PreflightConfig = field(default_factory=PreflightConfig)
     keep_location: bool = False  # [privacy] keep_location
     quarantine_dir: Path | None = None  # [daemon] quarantine_dir (None: quarantine_dir_for's default)
+    max_megapixels: float = 80.0  # [limits] max_megapixels: poisoner.limits.DEFAULT_MAX_PIXELS, measured
     source: Path | None = None  # the file it was read from, if any
 
     # ---- loading --------------------------------------------------------------------------
@@ -200,7 +204,7 @@ class Config:
     def _from_dict(cls, data: dict[str, Any], source: Path | None) -> Config:
         known = {
             "workers", "debounce_seconds", "publish_dir", "patch", "verification", "vault", "datasets",
-            "visibility", "preflight", "privacy", "daemon",
+            "visibility", "preflight", "privacy", "daemon", "limits",
         }  # fmt: skip
         unknown = set(data) - known
         if unknown:
@@ -222,14 +226,19 @@ class Config:
         if "profiles" in preflight:
             preflight["profiles"] = tuple(preflight["profiles"])
         privacy, daemon_table = dict(data.get("privacy", {})), dict(data.get("daemon", {}))
+        limits = dict(data.get("limits", {}))
         for table, allowed, name in (
             (privacy, {"keep_location"}, "privacy"),
             (daemon_table, {"quarantine_dir"}, "daemon"),
+            (limits, {"max_megapixels"}, "limits"),
         ):
             if extra := set(table) - allowed:
                 raise ConfigError(f"unknown key(s) in [{name}]: {', '.join(sorted(extra))}")
         if not isinstance(privacy.get("keep_location", False), bool):
             raise ConfigError("privacy.keep_location must be true or false")
+        max_mp = limits.get("max_megapixels", 80.0)
+        if isinstance(max_mp, bool) or not isinstance(max_mp, int | float) or max_mp <= 0:
+            raise ConfigError(f"limits.max_megapixels must be a positive number, got {max_mp!r}")
         workers = int(data.get("workers", 2))
         if workers < 1:
             raise ConfigError(f"workers must be >= 1, got {workers}")
@@ -245,6 +254,7 @@ class Config:
             preflight=PreflightConfig(**preflight),
             keep_location=privacy.get("keep_location", False),
             quarantine_dir=_optional_path(daemon_table.get("quarantine_dir")),
+            max_megapixels=float(max_mp),
             source=source,
         )
 
@@ -264,6 +274,11 @@ class Config:
         if override and override.auto:
             return strongest_spec()
         return spec_from_table(override.patch, self.spec) if override and override.patch else self.spec
+
+    @property
+    def max_pixels(self) -> int:
+        """[limits] max_megapixels in pixels, as poisoner.limits takes it."""
+        return int(self.max_megapixels * 1_000_000)
 
     def quarantine_dir_for(self, outbox: Path) -> Path:
         """Where the daemon moves files it cannot patch: [daemon] quarantine_dir, else a visible
@@ -294,6 +309,7 @@ class Config:
         lines += ["", "[vault]", f"max_bytes = {self.vault.max_bytes}"]
         lines += ["", "[privacy]", f"keep_location = {_toml_value(self.keep_location)}"]
         lines += ["", "[daemon]", f"quarantine_dir = {_toml_value(str(self.quarantine_dir or ''))}"]
+        lines += ["", "[limits]", f"max_megapixels = {self.max_megapixels!r}"]
         lines += ["", "[visibility]"]
         lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(self.visibility).items()]
         lines += ["", "[preflight]"]

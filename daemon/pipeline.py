@@ -213,8 +213,14 @@ def poison_to(
         from poisoner.video import poison_video
 
         return poison_video(src, dst, spec, progress=progress, **options)
+    from PIL import Image
+
     from poisoner.formats import poison_file
 
+    max_pixels = options.get("max_pixels")
+    if max_pixels is not None and (Image.MAX_IMAGE_PIXELS or 0) < max_pixels:
+        # Pillow's own bomb check would refuse what the user's raised [limits] allows.
+        Image.MAX_IMAGE_PIXELS = max_pixels
     return poison_file(src, dst, spec, **options)
 
 
@@ -230,12 +236,12 @@ from poisoner.provenance import Marker
 from poisoner.spec import PatchSpec
 a = json.loads(sys.argv[1])
 poison_to(a["kind"], Path(a["src"]), Path(a["dst"]), PatchSpec.from_dict(a["spec"]),
-          marker=Marker(**a["marker"]), keep_location=a["keep_location"])
+          marker=Marker(**a["marker"]), keep_location=a["keep_location"], **a["limits"])
 """
 
 
 def poison_isolated(
-    kind: str, src: Path, dst: Path, spec: PatchSpec, marker: Any, keep_location: bool
+    kind: str, src: Path, dst: Path, spec: PatchSpec, marker: Any, keep_location: bool, **limits: int
 ) -> None:
     """poison_to in a child process: a file that kills its process kills only the child. A child
     killed by a signal raises PoisonerDied; one that fails raises its last error line."""
@@ -246,7 +252,7 @@ def poison_isolated(
     args = {
         "kind": kind, "src": os.fsdecode(src), "dst": os.fsdecode(dst), "spec": spec.to_dict(),
         "marker": {"spec_id": marker.spec_id, "original_sha256": marker.original_sha256, "tool": marker.tool},
-        "keep_location": keep_location,
+        "keep_location": keep_location, "limits": limits,
     }  # fmt: skip
     repo = str(Path(__file__).resolve().parents[1])
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))}
@@ -482,7 +488,7 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     if job.kind == "image":
         from poisoner.limits import check_decode_budget
 
-        check_decode_budget(through_fd, name=job.path.name)
+        check_decode_budget(through_fd, job.ctx.config.max_pixels, name=job.path.name)
     return None
 
 
@@ -622,14 +628,15 @@ def poison(job: Job) -> ProtectOutcome | None:
     assert job.work is not None and job.original is not None and job.spec is not None and job.kind
     job.poisoned = job.work / f"{PATCHED_PREFIX}{job.path.name}"
     marker = provenance_marker(job.spec.spec_id, job.sha)
+    limits = {"max_pixels": job.ctx.config.max_pixels} if job.kind == "image" else {}
     if job.died_before:  # the last attempt took its process down: this one cannot
         job.report = poison_isolated(
-            job.kind, job.original, job.poisoned, job.spec, marker, job.keep_location
+            job.kind, job.original, job.poisoned, job.spec, marker, job.keep_location, **limits
         )
     else:
         job.report = poison_to(
             job.kind, job.original, job.poisoned, job.spec, job.progress, marker=marker,
-            keep_location=job.keep_location,
+            keep_location=job.keep_location, **limits,
         )  # fmt: skip
     job.poisoned_sha = sha256_file(job.poisoned)
     return None

@@ -401,9 +401,11 @@ def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: Patch
             ):
                 if spec.selects(rel):
                     marker = provenance_marker(spec.spec_id, row["original_sha256"])
+                    limits = {"max_pixels": ctx.config.max_pixels} if kind == "image" else {}
                     report = poison_to(
-                        kind, original, tmp, spec, marker=marker, keep_location=ctx.config.keep_location
-                    )
+                        kind, original, tmp, spec, marker=marker, keep_location=ctx.config.keep_location,
+                        **limits,
+                    )  # fmt: skip
                     row_state, state = FileState.PATCHED, Outcome.PATCHED
                 else:
                     shutil.copyfile(original, tmp)

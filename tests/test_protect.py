@@ -426,3 +426,27 @@ def test_a_renamed_dataset_folder_keeps_its_provenance(ppd_env) -> None:
         assert {protect_file(p, ctx).reason for p in new_dir.glob("*.png")} == {"already patched"}
     finally:
         ctx.close()
+
+
+def test_limits_max_megapixels_is_read_and_applied(ppd_env: dict[str, Path]) -> None:
+    """The refusal tells the user to raise [limits] max_megapixels: that key must do something."""
+    paths = AppPaths.from_env()
+    with pytest.raises(ConfigError, match="max_megapixels"):
+        Config.from_toml("[limits]\nmax_megapixels = 0\n")
+    paths.config_file.write_text("[limits]\nmax_megapixels = 0.01\n")  # 10,000 pixels
+    assert Config.from_toml(Config.load(paths).to_toml()).max_pixels == 10_000
+    small = AppContext.open()
+    big = make_image(ppd_env["outbox"] / "shoot" / "big.png", seed=1, size=(160, 120))  # 19,200 px
+    before = _sha(big)
+    try:
+        outcome = protect_file(big, small)
+    finally:
+        small.close()
+    assert outcome.state in ("failed", "quarantined") and "max_megapixels" in (outcome.reason or "")
+    assert _sha(big) == before
+    paths.config_file.write_text("[limits]\nmax_megapixels = 0.05\n")  # 50,000 pixels
+    roomy = AppContext.open()
+    try:
+        assert protect_file(big, roomy).state == "patched"
+    finally:
+        roomy.close()
