@@ -94,9 +94,11 @@ def render_preview(
     top = _hstack(panels[0], panels[1])
 
     zx0, zy0, zx1, zy1 = zoom_box(placement, w, h)
+    # Each zoom is exactly as wide as the panel above it (nearest neighbour, so the blocks stay
+    # sharp): the zooms fill the bottom row instead of leaving part of the canvas empty.
     panel_width = panels[0].shape[1]
-    scale = max(1, panel_width // max(1, zx1 - zx0))
-    zooms = [np.repeat(np.repeat(img[zy0:zy1, zx0:zx1], scale, axis=0), scale, axis=1) for img in (a, b)]
+    zoom_size = (panel_width, max(1, round(panel_width * (zy1 - zy0) / max(1, zx1 - zx0))))
+    zooms = [_nearest(img[zy0:zy1, zx0:zx1], zoom_size) for img in (a, b)]
     bottom = _hstack(zooms[0], zooms[1])
     width = max(top.shape[1], bottom.shape[1])
     out = np.full((top.shape[0] + GAP + bottom.shape[0], width, 3), BACKGROUND, dtype=np.uint8)
@@ -113,6 +115,13 @@ def render_preview(
 
 
 LABEL_HEIGHT = 18
+
+
+def _nearest(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """img resized to size (width, height) by nearest neighbour."""
+    from PIL import Image
+
+    return np.asarray(Image.fromarray(img).resize(size, Image.Resampling.NEAREST))
 
 
 def _write(img: np.ndarray, y: int, texts: list[tuple[int, str]]) -> None:

@@ -42,6 +42,19 @@ def test_layout_panels_and_zoom() -> None:
     np.testing.assert_array_equal(bottom[:scale, :scale].reshape(-1, 3)[0], original[zy0, zx0])
 
 
+def test_zooms_fill_the_bottom_row() -> None:
+    """A zoom box that does not divide the panel width still fills its panel: no empty canvas."""
+    original = scene()
+    placement = PatchSpec(patch_size=36, block_size=4, position="center").resolve(300, 200)
+    zx0, _, zx1, _ = zoom_box(placement, 300, 200)
+    assert 300 % (zx1 - zx0) != 0  # the case an integer zoom factor leaves a strip empty
+    out = render_preview(original, apply_patch(original, placement), placement)
+    bottom = out[200 + GAP :]
+    background = (bottom == bottom[0, 300]).all(axis=2).all(axis=0)  # columns of pure gap colour
+    assert background.sum() == GAP and background[300 : 300 + GAP].all()
+    assert bottom.shape[1] == 600 + GAP
+
+
 def test_large_pictures_are_subsampled_under_max_width() -> None:
     original = scene(h=1000, w=2000)
     placement = PatchSpec().resolve(2000, 1000)
