@@ -19,7 +19,7 @@ from typing import Any
 import typer
 
 from daemon.config import parse_length, spec_from_table
-from poisoner.ladder import candidate_ladder, default_spec
+from poisoner.ladder import candidate_ladder, default_spec, named_specs
 from poisoner.motion import MOTIONS
 from poisoner.spec import PATTERNS, POSITIONS, PatchSpec, SpecError
 
@@ -44,8 +44,9 @@ _HELP = {
 
 
 def designs() -> dict[str, PatchSpec]:
-    """Named presets: the paper's static patch, ppd's default, and automatic mode's ladder."""
-    named = {"default": default_spec(), "paper": PatchSpec()}
+    """Named presets: ppd's default, the named kinds of protection (paper, roaming, watermark, ...)
+    and automatic mode's ladder."""
+    named = {"default": default_spec(), **named_specs()}
     for candidate in candidate_ladder():
         named.setdefault(candidate.name, candidate.spec)
     return named

@@ -22,7 +22,7 @@ from daemon.cli_common import KeyValueFormatter, os_error_text, reason_text
 from daemon.cli_spec import SpecOptions, designs, spec_fields
 from daemon.protect import AppContext
 from daemon.states import FileState, Protection, dataset_protection, protection_text
-from poisoner.ladder import default_spec
+from poisoner.ladder import default_spec, named_specs
 from poisoner.spec import PatchSpec
 
 REPO = Path(__file__).resolve().parents[1]
@@ -247,6 +247,9 @@ def test_designs_and_flags_express_the_paper_and_the_default() -> None:
         default_spec()
     )
     assert moved.motion == "orbit" and moved.motion_step == 8 and moved.pattern == "checkerboard"
+    # The named kinds of protection are designs too (the corner watermark, the roaming texture).
+    assert SpecOptions(design="watermark").build(default_spec()) == named_specs()["watermark"]
+    assert SpecOptions(design="roaming").build(PatchSpec()).motion == "drift"
 
 
 def test_flags_on_the_command_line_reach_the_spec(shoot: Path) -> None:
