@@ -41,7 +41,7 @@ from verifier.supervise import run_child
 
 if TYPE_CHECKING:
     from daemon.config import Config
-    from daemon.protect import AppContext
+    from daemon.context import AppContext
     from poisoner.ladder import Candidate
 
 log = logging.getLogger(__name__)

@@ -74,7 +74,7 @@ def print_decision(decision: dict[str, Any]) -> None:
 
 
 def _show(dataset: str, as_json: bool) -> None:
-    from daemon.protect import AppContext
+    from daemon.context import AppContext
 
     ctx = AppContext.open()
     try:
@@ -129,7 +129,7 @@ def auto(
         return
     from daemon import auto as daemon_auto
     from daemon.config import ConfigError
-    from daemon.protect import AppContext
+    from daemon.context import AppContext
     from verifier.auto import PreflightInputError, PreflightOptions, VisibilityBudget, preflight
 
     try:

@@ -38,8 +38,8 @@ def demo(
 ) -> None:
     """Run the daemon on an embedded default scene, show what it protected, and verify it."""
     from daemon.cli_poison import status
+    from daemon.context import AppContext
     from daemon.paths import AppPaths
-    from daemon.protect import AppContext
     from daemon.watcher import DaemonOptions, WatchDaemon
     from verifier.synthetic import SyntheticOptions, render_scene
 

@@ -177,7 +177,7 @@ def report(
     try:
         ctx = None
         try:
-            from daemon.protect import AppContext
+            from daemon.context import AppContext
 
             ctx = AppContext.open()
         except Exception as exc:  # no store: folders still have reports

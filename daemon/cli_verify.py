@@ -192,7 +192,7 @@ def register(app: typer.Typer) -> None:
         options = VerifyOptions(timeout_s=timeout, ground_truth=ground_truth, splat=splat)
         options.splat_options.update(time_budget_s=splat_budget, white_background=white_background)
         try:
-            from daemon.protect import AppContext
+            from daemon.context import AppContext
 
             if clean is not None:
                 path = folder or Path(target or "")

@@ -27,8 +27,8 @@ def _fail(message: str, code: int = 1) -> typer.Exit:  # 1: systemd and tests re
 
 def _open_context(outbox: Path | None):  # -> daemon.protect.AppContext
     from daemon.config import ConfigError
+    from daemon.context import AppContext
     from daemon.paths import AppPaths
-    from daemon.protect import AppContext
     from daemon.store import StoreError
 
     paths = AppPaths.from_env()

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from daemon.protect import AppContext
+    from daemon.context import AppContext
     from poisoner.spec import PatchSpec
 
 DEFAULT_DATASET = "default"

@@ -61,7 +61,7 @@ from poisoner.atomic import TEMP_PREFIX, atomic_replace_at
 from poisoner.spec import PatchSpec
 
 if TYPE_CHECKING:
-    from daemon.protect import AppContext
+    from daemon.context import AppContext
 
 log = logging.getLogger(__name__)
 

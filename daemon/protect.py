@@ -7,22 +7,18 @@ under a per-file lock shared by every ppd process (daemon.locks), and turns any 
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
 import shutil
 import stat
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from daemon.config import Config
+from daemon.context import AppContext
 from daemon.dataset import OutsideOutboxError, dataset_of, dataset_root, ensure_dataset
 from daemon.fsops import sha256_fd
-from daemon.locks import DEFAULT_FILE_WAIT_S, LockHeld, file_lock
-from daemon.paths import AppPaths
+from daemon.locks import LockHeld
 from daemon.pipeline import (
     STAGES,
     Job,
@@ -45,8 +41,7 @@ from daemon.pipeline import (
     tool_version,
 )
 from daemon.states import FileState
-from daemon.store import Store
-from daemon.vault import Vault, sha256_file
+from daemon.vault import sha256_file
 from poisoner.atomic import atomic_output
 from poisoner.spec import PatchSpec
 
@@ -60,36 +55,6 @@ __all__ = [
 OUTCOME_STATES = (Outcome.PATCHED, Outcome.SKIPPED, Outcome.FAILED, Outcome.UNCHANGED)  # protect_file
 RESTORE_STATES = (Outcome.RESTORED, Outcome.UNCHANGED, Outcome.FAILED)  # restore_file
 SOURCE_CHANGE_TRIES = 3  # a file replaced while being patched is started over this many times
-
-
-@dataclass
-class AppContext:
-    paths: AppPaths
-    config: Config
-    store: Store
-    vault: Vault
-    lock_wait_s: float = DEFAULT_FILE_WAIT_S  # how long protect/restore wait for another ppd's file lock
-
-    @classmethod
-    def open(cls, paths: AppPaths | None = None) -> AppContext:
-        paths = paths or AppPaths.from_env()
-        paths.ensure()
-        config = Config.load(paths)
-        return cls(
-            paths=paths,
-            config=config,
-            store=Store(paths.db_path),
-            vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),
-        )
-
-    def close(self) -> None:
-        self.store.close()
-
-    @contextlib.contextmanager
-    def path_lock(self, path: Path) -> Iterator[None]:
-        """One worker at a time on a path, across threads and ppd processes (daemon.locks)."""
-        with file_lock(self.paths.data_dir, path, self.lock_wait_s):
-            yield
 
 
 def failure_message(exc: BaseException, path: Path) -> str:

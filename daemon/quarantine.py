@@ -34,7 +34,7 @@ from daemon.paths import make_private_dir
 from daemon.states import FileState
 
 if TYPE_CHECKING:
-    from daemon.protect import AppContext
+    from daemon.context import AppContext
 
 log = logging.getLogger(__name__)
 

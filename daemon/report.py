@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING
 from verifier.report import ReportData, ReportError, dataset_history_report, latest_run_group
 
 if TYPE_CHECKING:
+    from daemon.context import AppContext
     from daemon.paths import AppPaths
-    from daemon.protect import AppContext
 
 
 def report_path(paths: AppPaths, dataset: str) -> Path:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from daemon.protect import AppContext
+    from daemon.context import AppContext
 
 log = logging.getLogger(__name__)
 

@@ -29,7 +29,7 @@ from verifier.verification import (
 )
 
 if TYPE_CHECKING:
-    from daemon.protect import AppContext
+    from daemon.context import AppContext
 
 def new_run_id() -> str:
     return time.strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:6]

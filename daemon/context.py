@@ -1,0 +1,45 @@
+"""The application's context: where ppd keeps its data, its configuration, the provenance store
+and the vault, opened once per process and handed to every stage."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from daemon.config import Config
+from daemon.locks import DEFAULT_FILE_WAIT_S, file_lock
+from daemon.paths import AppPaths
+from daemon.store import Store
+from daemon.vault import Vault
+
+
+@dataclass
+class AppContext:
+    paths: AppPaths
+    config: Config
+    store: Store
+    vault: Vault
+    lock_wait_s: float = DEFAULT_FILE_WAIT_S  # how long protect/restore wait for another ppd's file lock
+
+    @classmethod
+    def open(cls, paths: AppPaths | None = None) -> AppContext:
+        paths = paths or AppPaths.from_env()
+        paths.ensure()
+        config = Config.load(paths)
+        return cls(
+            paths=paths,
+            config=config,
+            store=Store(paths.db_path),
+            vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),
+        )
+
+    def close(self) -> None:
+        self.store.close()
+
+    @contextlib.contextmanager
+    def path_lock(self, path: Path) -> Iterator[None]:
+        """One worker at a time on a path, across threads and ppd processes (daemon.locks)."""
+        with file_lock(self.paths.data_dir, path, self.lock_wait_s):
+            yield
