@@ -8,7 +8,8 @@ of workers or the order of completion (tests/test_batch.py checks byte identity 
 
 Workers come from a "forkserver" (Linux): a fresh, single-threaded process that has imported the
 poisoner once and forks a worker per pool slot, so a caller with threads (the daemon) never forks
-itself and workers skip the import cost. Elsewhere "spawn". workers=1 runs in the calling process.
+itself and workers skip the import cost. Elsewhere, and under a temporary folder too long for its
+socket, "spawn". workers=1 runs in the calling process.
 
 Per file the result is a BatchResult with the PoisonReport or a one-line error; a worker that
 dies (a codec crash) fails only the files it had, which are reported, never raised.
@@ -19,6 +20,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import sys
+import tempfile
 from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -72,8 +74,14 @@ def _poison_one(
     return BatchResult(src, dst, report)
 
 
+# The forkserver listens on an AF_UNIX socket under the temporary folder
+# (<tmp>/pymp-XXXXXXXX/listener-XXXXXXXX), and the kernel limits such paths to 107 bytes.
+_SOCKET_PATH_MAX, _SOCKET_SUFFIX = 107, len("/pymp-xxxxxxxx/listener-xxxxxxxx")
+
+
 def _context() -> multiprocessing.context.BaseContext:
-    if sys.platform.startswith("linux"):
+    short_tmp = len(os.fsencode(tempfile.gettempdir())) + _SOCKET_SUFFIX < _SOCKET_PATH_MAX
+    if sys.platform.startswith("linux") and short_tmp:
         ctx = multiprocessing.get_context("forkserver")
         ctx.set_forkserver_preload(["poisoner.formats"])
         return ctx
