@@ -46,6 +46,7 @@ from tests.reliability_harness import (
     run_crash_trials,
     sha256,
     start_daemon,
+    subprocess_env,
     wait_for,
 )
 from tests.test_watcher import texture
@@ -53,19 +54,9 @@ from tests.test_watcher import texture
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _env(root: Path) -> dict[str, str]:
-    env = dict(os.environ)
-    env.update(
-        PPD_DATA_DIR=str(root / "data"), PPD_CONFIG_DIR=str(root / "config"),
-        PPD_OUTBOX=str(root / "outbox"), PPD_CACHE_DIR=str(root / "cache"), PYTHONPATH=str(REPO),
-    )  # fmt: skip
-    env.pop("NOTIFY_SOCKET", None)
-    return env
-
-
 def _ppd(root: Path, *args: str, **kw: object) -> subprocess.Popen[bytes]:
     log = open(root / "cli.log", "ab")  # noqa: SIM115 - closed by the child's exit
-    return subprocess.Popen([sys.executable, "-m", "daemon.cli", *args], env=_env(root), cwd=REPO,
+    return subprocess.Popen([sys.executable, "-m", "daemon.cli", *args], env=subprocess_env(root), cwd=REPO,
                             stdout=log, stderr=subprocess.STDOUT, start_new_session=True, **kw)  # fmt: skip
 
 

@@ -74,8 +74,8 @@ def _poison_one(
     return BatchResult(src, dst, report)
 
 
-# The forkserver listens on an AF_UNIX socket under the temporary folder
-# (<tmp>/pymp-XXXXXXXX/listener-XXXXXXXX), and the kernel limits such paths to 107 bytes.
+# The forkserver listens on an AF_UNIX socket in a folder multiprocessing makes under the temporary
+# folder (about 32 characters more), and the kernel limits such socket paths to 107 bytes.
 _SOCKET_PATH_MAX, _SOCKET_SUFFIX = 107, len("/pymp-xxxxxxxx/listener-xxxxxxxx")
 
 

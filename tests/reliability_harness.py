@@ -77,6 +77,17 @@ def app_paths(root: Path) -> AppPaths:
 
 
 # ---- media ----------------------------------------------------------------------------------------
+def subprocess_env(root: Path) -> dict[str, str]:
+    """The environment for a `ppd` child process whose data, config, outbox and cache live under root."""
+    env = dict(os.environ)
+    env.update(
+        PPD_DATA_DIR=str(root / "data"), PPD_CONFIG_DIR=str(root / "config"),
+        PPD_OUTBOX=str(root / "outbox"), PPD_CACHE_DIR=str(root / "cache"), PYTHONPATH=str(REPO),
+    )  # fmt: skip
+    env.pop("NOTIFY_SOCKET", None)
+    return env
+
+
 def make_video(path: Path, seed: int, frames: int = 12) -> Path:
     """A small H.264 MP4 (160x120, no audio), distinct per seed."""
     from tests.test_video import Clip, make_clip  # lazy: loads PyAV

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from bench.bench_video import mux_rgb_frames
 from poisoner.completeness import incomplete_reason
 
 
@@ -45,14 +46,7 @@ def video(muxer: str, encoder: str = "libx264", options: dict[str, str] | None =
             if encoder == "libx264":
                 vs.codec_context.gop_size = 4
             rng = np.random.default_rng(1)
-            for i in range(12):
-                rgb = rng.integers(0, 256, size=(64, 96, 3)).astype(np.uint8)
-                f = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format="yuv420p")
-                f.pts = i
-                for pkt in vs.encode(f):
-                    out.mux(pkt)
-            for pkt in vs.encode(None):
-                out.mux(pkt)
+            mux_rgb_frames(out, vs, (rng.integers(0, 256, (64, 96, 3), dtype=np.uint8) for _ in range(12)))
 
     return write
 

@@ -20,6 +20,7 @@ from reliability_harness import (
     kill_daemon,
     sha256,
     start_daemon,
+    subprocess_env,
     wait_for,
     write_image,
 )
@@ -31,19 +32,9 @@ from daemon.store import Store
 pytestmark = pytest.mark.integration
 
 
-def _env(root: Path) -> dict[str, str]:
-    env = dict(os.environ)
-    env.update(
-        PPD_DATA_DIR=str(root / "data"), PPD_CONFIG_DIR=str(root / "config"),
-        PPD_OUTBOX=str(root / "outbox"), PPD_CACHE_DIR=str(root / "cache"), PYTHONPATH=str(REPO),
-    )  # fmt: skip
-    env.pop("NOTIFY_SOCKET", None)
-    return env
-
-
 def _ppd(root: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "daemon.cli", *args], env=_env(root), cwd=REPO,
+        [sys.executable, "-m", "daemon.cli", *args], env=subprocess_env(root), cwd=REPO,
         capture_output=True, text=True, timeout=timeout,
     )  # fmt: skip
 

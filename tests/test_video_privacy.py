@@ -9,6 +9,7 @@ import av
 import numpy as np
 import pytest
 
+from bench.bench_video import mux_rgb_frames
 from poisoner.provenance import Marker, read_marker
 from poisoner.spec import PatchSpec
 from poisoner.video import VideoOptions, poison_video
@@ -27,14 +28,7 @@ def clip(path: Path, tags: dict[str, str], frames: int = 6) -> Path:
         vs = out.add_stream(encoder, rate=10)
         vs.width, vs.height, vs.pix_fmt = 96, 64, "yuv420p"
         rng = np.random.default_rng(3)
-        for i in range(frames):
-            rgb = rng.integers(0, 256, size=(64, 96, 3)).astype(np.uint8)
-            f = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format="yuv420p")
-            f.pts = i
-            for pkt in vs.encode(f):
-                out.mux(pkt)
-        for pkt in vs.encode(None):
-            out.mux(pkt)
+        mux_rgb_frames(out, vs, (rng.integers(0, 256, (64, 96, 3), dtype=np.uint8) for _ in range(frames)))
     return path
 
 
