@@ -493,7 +493,7 @@ def _visibility_line(original, poisoned, display_width: int) -> str:  # arrays: 
 
 
 def _is_video(path: Path) -> bool:
-    from poisoner.video import is_video
+    from poisoner.media import is_video
 
     return is_video(path)
 

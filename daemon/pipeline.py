@@ -58,6 +58,7 @@ from daemon.fsops import (
 from daemon.states import FileState
 from daemon.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import TEMP_PREFIX, atomic_replace_at
+from poisoner.media import is_image, is_video
 from poisoner.spec import PatchSpec
 
 if TYPE_CHECKING:
@@ -193,15 +194,9 @@ def shown_name(path: Path) -> str:
 
 
 def media_kind(path: Path) -> str | None:
-    """'image', 'video' or None, by suffix (lazy imports: the poisoners load only when used)."""
-    from poisoner.formats import is_supported_image
-
-    if is_supported_image(path):
+    """'image', 'video' or None, by suffix."""
+    if is_image(path):
         return "image"
-    try:
-        from poisoner.video import is_video
-    except ImportError:
-        return None
     return "video" if is_video(path) else None
 
 

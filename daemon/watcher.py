@@ -55,26 +55,12 @@ from daemon.pipeline import Outcome
 from daemon.states import FileState
 from daemon.workers import PoolOptions, PoolStats, WorkerPool
 from poisoner.atomic import TEMP_PREFIX, remove_if_stale
+from poisoner.media import MEDIA_SUFFIXES, PARTIAL_SUFFIXES
 
 log = logging.getLogger(__name__)
 
-# Names that mean "still being written": browsers, download managers, sync tools, editors.
-PARTIAL_SUFFIXES: frozenset[str] = frozenset({
-    ".crdownload", ".part", ".partial", ".download", ".opdownload", ".filepart", ".crswap",
-    ".tmp", ".temp", ".swp", ".swx", ".bak", ".aria2", ".!qb", ".!ut",
-})  # fmt: skip
-# poisoner.video.VIDEO_SUFFIXES, repeated here because importing poisoner.video loads PyAV
-# (~18 MB resident) into a daemon that may never see a video; a test keeps the two equal.
-VIDEO_SUFFIXES: frozenset[str] = frozenset({".mp4", ".m4v", ".mov", ".mkv", ".webm"})
 
 FileSignature = tuple[int, int, int]  # (inode, size, mtime_ns): changes whenever content can have
-
-
-def media_suffixes() -> frozenset[str]:
-    """Suffixes ppd protects: poisoner.formats' images plus poisoner.video's videos."""
-    from poisoner.formats import SUPPORTED_IMAGE_SUFFIXES
-
-    return SUPPORTED_IMAGE_SUFFIXES | VIDEO_SUFFIXES
 
 
 def ignore_reason(name: str) -> str | None:
@@ -223,7 +209,7 @@ class OutboxWatcher(FileSystemEventHandler):
         super().__init__()
         self.outbox = Path(outbox).absolute()
         self.options = options or WatchOptions()
-        self.suffixes = suffixes if suffixes is not None else media_suffixes()
+        self.suffixes = suffixes if suffixes is not None else MEDIA_SUFFIXES
         self._submit = submit
         self._on_overflow = on_overflow or (lambda: None)
         self._cond = threading.Condition()
@@ -468,7 +454,7 @@ class WatchDaemon:
         self.outbox = Path(ctx.paths.outbox).absolute()
         self.options = options
         self.notifier = notifier or SystemdNotifier()
-        self.suffixes = media_suffixes()
+        self.suffixes = MEDIA_SUFFIXES
         self.counts = DaemonCounts()
         self._counts_lock = threading.Lock()
         self._wake = threading.Event()

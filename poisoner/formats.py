@@ -46,14 +46,11 @@ from poisoner import location, provenance
 from poisoner.atomic import atomic_output
 from poisoner.blend import apply_patch
 from poisoner.errors import ImageFormatError
+from poisoner.media import is_image
 from poisoner.provenance import Marker
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 
 log = logging.getLogger(__name__)
-
-SUPPORTED_IMAGE_SUFFIXES: frozenset[str] = frozenset(
-    {".jpg", ".jpeg", ".jpe", ".png", ".webp", ".tif", ".tiff", ".heic", ".heif", ".avif"}
-)
 
 # JPEG: decode only a lossless crop around the patch's MCUs (poisoner.jpeg.decode_box) instead of
 # the whole picture. Same output bytes either way (tests/test_jpeg_region.py); False: whole decode.
@@ -76,10 +73,6 @@ class PoisonReport:
     src_bytes: int = 0
     dst_bytes: int = 0
     location_removed: list[str] = field(default_factory=list)  # e.g. "EXIF GPS IFD", "XMP exif:GPSLatitude"
-
-
-def is_supported_image(path: Path) -> bool:
-    return Path(path).suffix.lower() in SUPPORTED_IMAGE_SUFFIXES
 
 
 # ---- reading -----------------------------------------------------------------------------------
@@ -756,7 +749,7 @@ def poison_file(
     orientation = im.getexif().get(0x0112)
     if orientation and orientation != 1:
         notes.append(f"EXIF orientation {orientation} kept; {ORIENTATION_POLICY}")
-    if is_supported_image(src) and not _suffix_matches(src.suffix.lower(), fmt):
+    if is_image(src) and not _suffix_matches(src.suffix.lower(), fmt):
         notes.append(f"content is {fmt} despite the {src.suffix} suffix: written as {fmt}")
     dst.write_bytes(out)
     report = PoisonReport(

@@ -53,8 +53,6 @@ from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 
 log = logging.getLogger(__name__)
 
-VIDEO_SUFFIXES: frozenset[str] = frozenset({".mp4", ".m4v", ".mov", ".mkv", ".webm"})
-
 # Output container by suffix: the same container family as the source.
 _MUXER_BY_SUFFIX = {".mp4": "mp4", ".m4v": "mp4", ".mov": "mov", ".mkv": "matroska", ".webm": "webm"}
 
@@ -175,10 +173,6 @@ class VideoReport(PoisonReport):
     patch_contrast_mean: float | None = None
     attempts: int = 1
 
-
-def is_video(path: Path) -> bool:
-    """Whether poison_video handles this file (by suffix)."""
-    return Path(path).suffix.lower() in VIDEO_SUFFIXES
 
 
 # ---- probing ------------------------------------------------------------------------------

@@ -19,15 +19,14 @@ from PIL import Image, PngImagePlugin
 
 from poisoner.blend import apply_patch
 from poisoner.formats import (
-    SUPPORTED_IMAGE_SUFFIXES,
     ImageFormatError,
     _encode_png16_colour,
     image_from_array,
-    is_supported_image,
     png_chunks,
     poison_file,
     poison_in_place,
 )
+from poisoner.media import IMAGE_SUFFIXES, is_image
 from poisoner.spec import PatchSpec
 
 SPEC = PatchSpec(patch_size=40, block_size=4, position="top-left", offset=(8, 8))
@@ -317,9 +316,9 @@ def test_patch_larger_than_image_is_a_format_error(tmp_path: Path) -> None:
 
 
 def test_supported_suffixes() -> None:
-    assert is_supported_image(Path("a/B.JPG")) and is_supported_image(Path("x.heic"))
-    assert not is_supported_image(Path("clip.mp4")) and not is_supported_image(Path("notes.txt"))
-    assert {".png", ".webp", ".tiff", ".avif"} <= SUPPORTED_IMAGE_SUFFIXES
+    assert is_image(Path("a/B.JPG")) and is_image(Path("x.heic"))
+    assert not is_image(Path("clip.mp4")) and not is_image(Path("notes.txt"))
+    assert {".png", ".webp", ".tiff", ".avif"} <= IMAGE_SUFFIXES
 
 
 # ---- in place --------------------------------------------------------------------------------------

@@ -15,14 +15,13 @@ from PIL import Image
 
 from poisoner.atomic import TEMP_PREFIX, atomic_output
 from poisoner.ladder import default_spec
+from poisoner.media import VIDEO_SUFFIXES, is_video
 from poisoner.spec import PatchPlacement, PatchSpec
 from poisoner.video import (
-    VIDEO_SUFFIXES,
     VideoFormatError,
     VideoOptions,
     frame_to_rgb,
     intended_contrast,
-    is_video,
     patch_contrast,
     poison_video,
     sample_frames,

@@ -30,17 +30,16 @@ from daemon.protect import AppContext
 from daemon.states import FileState
 from daemon.store import Store
 from daemon.watcher import (
-    VIDEO_SUFFIXES,
     DaemonOptions,
     WatchDaemon,
     WatchOptions,
     ignore_reason,
     is_candidate,
-    media_suffixes,
     scan_outbox,
 )
 from daemon.workers import PoolOptions, WorkerPool
 from poisoner.atomic import TEMP_PREFIX
+from poisoner.media import MEDIA_SUFFIXES
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -175,7 +174,7 @@ def test_ignore_reason(name: str, ignored: bool) -> None:
 
 
 def test_is_candidate_needs_media_suffix_and_no_dot_folder(tmp_path: Path) -> None:
-    suffixes = media_suffixes()
+    suffixes = MEDIA_SUFFIXES
     assert is_candidate(tmp_path, tmp_path / "ds" / "a.jpg", suffixes)
     assert is_candidate(tmp_path, tmp_path / "ds" / "clip.mp4", suffixes)
     assert not is_candidate(tmp_path, tmp_path / "ds" / "notes.txt", suffixes)
@@ -183,10 +182,11 @@ def test_is_candidate_needs_media_suffix_and_no_dot_folder(tmp_path: Path) -> No
     assert not is_candidate(tmp_path, tmp_path.parent / "elsewhere.jpg", suffixes)
 
 
-def test_video_suffixes_follow_poisoner_video() -> None:
-    from poisoner.video import VIDEO_SUFFIXES as from_video
-
-    assert from_video == VIDEO_SUFFIXES
+def test_media_table_loads_no_codec() -> None:
+    # The event layer reads the suffix table on every event; it must not pull PyAV, numpy or PIL in.
+    code = "import sys, poisoner.media; print(sorted({'av', 'numpy', 'PIL'} & set(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
+    assert out.stdout.strip() == "[]"
 
 
 def test_scan_removes_only_old_ppd_temporaries(tmp_path: Path) -> None:
@@ -196,7 +196,7 @@ def test_scan_removes_only_old_ppd_temporaries(tmp_path: Path) -> None:
     for p in (old, young):
         p.write_bytes(b"partial")
     os.utime(old, (time.time() - 3600, time.time() - 3600))
-    result = scan_outbox(tmp_path, media_suffixes(), tmp_grace_s=60)
+    result = scan_outbox(tmp_path, MEDIA_SUFFIXES, tmp_grace_s=60)
     assert result.files == [keep]
     assert result.stale_temps_removed == [old] and not old.exists()
     assert result.young_temps == [young] and young.exists()

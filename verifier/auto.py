@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import PIL.Image  # before anything that could bring pycolmap here (pillow 13 + pycolmap 4.2.1)
 
+from poisoner.media import SFM_SUFFIXES, is_sfm_readable
 from poisoner.spec import PatchSpec
 from verifier.metrics import ssim_map
 
@@ -47,7 +48,6 @@ log = logging.getLogger(__name__)
 
 NO_CANDIDATE = "no candidate within the visibility budget protects this dataset"
 # Formats COLMAP reads (the sample must be SfM-able); others are left out of the preflight.
-SFM_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 SSIM_RADIUS = 5  # 3DGS SSIM: 11 x 11 window
 
 
@@ -298,12 +298,12 @@ def normalise_inputs(pairs_or_images: Sequence[ImageInput]) -> list[tuple[Path, 
 def choose_sample(items: Sequence[tuple[Path, str]], size: int) -> list[tuple[Path, str]]:
     """An evenly spaced sample by name (deterministic; spans the capture, as a walk around does)."""
     usable = sorted(
-        {name: (src, name) for src, name in items if Path(name).suffix.lower() in SFM_SUFFIXES}.values(),
+        {name: (src, name) for src, name in items if is_sfm_readable(name)}.values(),
         key=lambda t: t[1],
     )
     if len(usable) < 3:
         raise PreflightInputError(
-            f"need at least 3 images COLMAP can read ({', '.join(SFM_SUFFIXES)}), got {len(usable)}"
+            f"need at least 3 images COLMAP can read ({', '.join(sorted(SFM_SUFFIXES))}), got {len(usable)}"
         )
     if len(usable) <= size:
         return usable

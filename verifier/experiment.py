@@ -37,7 +37,8 @@ import numpy as np
 from PIL import Image  # PIL before anything that may load pycolmap
 
 from poisoner.baselines import BASELINE_KINDS, BaselineSpec, apply_baseline
-from poisoner.formats import is_supported_image, poison_file
+from poisoner.formats import poison_file
+from poisoner.media import is_image
 from poisoner.spec import PatchSpec, SpecError
 
 log = logging.getLogger(__name__)
@@ -227,7 +228,7 @@ class ExperimentOptions:
 
 # ---- poisoning a copy -------------------------------------------------------------------------
 def image_names(folder: Path) -> list[str]:
-    return sorted(p.name for p in Path(folder).iterdir() if p.is_file() and is_supported_image(p))
+    return sorted(p.name for p in Path(folder).iterdir() if p.is_file() and is_image(p))
 
 
 def _save_like(src: Path, pixels: np.ndarray, dst: Path) -> None:

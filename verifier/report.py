@@ -289,9 +289,9 @@ def dataset_history_report(
 
 
 def _is_video(path: Path) -> bool:
-    from poisoner.video import is_video
+    from poisoner.media import is_video
 
-    return bool(is_video(path))
+    return is_video(path)
 
 
 def build_verification_report(folder: Path) -> ReportData:

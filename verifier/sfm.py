@@ -26,11 +26,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from poisoner.media import is_sfm_readable
 from verifier.supervise import run_child
 
 log = logging.getLogger(__name__)
-
-IMAGE_SUFFIXES = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp"})
 
 # Serialises verification runs inside one process: SfM is CPU-heavy and the machine is shared.
 _RUN_LOCK = threading.Lock()
@@ -215,7 +214,7 @@ def _tail(path: Path, n: int = 300) -> str:
 
 # ---- child side (imports pycolmap) ------------------------------------------------------------
 def list_images(image_dir: Path) -> list[str]:
-    return sorted(p.name for p in Path(image_dir).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    return sorted(p.name for p in Path(image_dir).iterdir() if is_sfm_readable(p))
 
 
 def build_cache_db(image_dir: Path, cache_db: Path, settings: SfmSettings) -> None:

@@ -507,8 +507,6 @@ def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_di
 
 
 def _is_video(path: Path) -> bool:
-    try:
-        from poisoner.video import is_video
-    except ImportError:
-        return False
-    return bool(is_video(path))
+    from poisoner.media import is_video
+
+    return is_video(path)

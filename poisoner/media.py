@@ -1,0 +1,49 @@
+"""Which files are media, by suffix: the one table every package reads.
+
+Importing this module is cheap (no numpy, PIL or PyAV), so the daemon's event layer can use it.
+"""
+
+from __future__ import annotations
+
+import os
+
+IMAGE_SUFFIXES: frozenset[str] = frozenset(
+    {".jpg", ".jpeg", ".jpe", ".png", ".webp", ".tif", ".tiff", ".heic", ".heif", ".avif"}
+)
+VIDEO_SUFFIXES: frozenset[str] = frozenset({".mp4", ".m4v", ".mov", ".mkv", ".webm"})
+MEDIA_SUFFIXES: frozenset[str] = IMAGE_SUFFIXES | VIDEO_SUFFIXES
+
+# What COLMAP reads: the verifier's SfM sample is drawn from these.
+SFM_SUFFIXES: frozenset[str] = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp"})
+
+# Names that mean "still being written": browsers, download managers, sync tools, editors.
+PARTIAL_SUFFIXES: frozenset[str] = frozenset({
+    ".crdownload", ".part", ".partial", ".download", ".opdownload", ".filepart", ".crswap",
+    ".tmp", ".temp", ".swp", ".swx", ".bak", ".aria2", ".!qb", ".!ut",
+})  # fmt: skip
+
+
+def suffix_of(path: str | os.PathLike[str]) -> str:
+    return os.path.splitext(os.fspath(path))[1].lower()
+
+
+def is_image(path: str | os.PathLike[str]) -> bool:
+    return suffix_of(path) in IMAGE_SUFFIXES
+
+
+def is_video(path: str | os.PathLike[str]) -> bool:
+    return suffix_of(path) in VIDEO_SUFFIXES
+
+
+def is_media(path: str | os.PathLike[str]) -> bool:
+    return suffix_of(path) in MEDIA_SUFFIXES
+
+
+def is_sfm_readable(path: str | os.PathLike[str]) -> bool:
+    return suffix_of(path) in SFM_SUFFIXES
+
+
+__all__ = [
+    "IMAGE_SUFFIXES", "MEDIA_SUFFIXES", "PARTIAL_SUFFIXES", "SFM_SUFFIXES", "VIDEO_SUFFIXES",
+    "is_image", "is_media", "is_sfm_readable", "is_video", "suffix_of",
+]  # fmt: skip
