@@ -20,12 +20,12 @@ from PIL import Image, PngImagePlugin
 from poisoner.blend import apply_patch
 from poisoner.formats import (
     ImageFormatError,
-    _encode_png16_colour,
     image_from_array,
     png_chunks,
     poison_file,
     poison_in_place,
 )
+from poisoner.image.png import _encode_png16_colour
 from poisoner.media import IMAGE_SUFFIXES, is_image
 from poisoner.spec import PatchSpec
 

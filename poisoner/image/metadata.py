@@ -1,0 +1,46 @@
+"""Metadata for re-encoded images (WebP, TIFF, HEIC, AVIF): the source's EXIF and XMP with
+location removed unless kept, the provenance marker added to the XMP, the ICC profile kept."""
+
+from __future__ import annotations
+
+from poisoner import location, provenance
+from poisoner.provenance import Marker
+
+
+def clean_exif_xmp(
+    info: dict[str, object], keep_location: bool, label: str, marker: Marker | None
+) -> tuple[bytes | None, bytes | None, list[str]]:
+    """The source's EXIF and XMP for a re-encoded file: location removed unless kept, the
+    provenance marker added to the XMP when given."""
+    exif = info.get("exif") or None
+    xmp = info.get("xmp") or None
+    removed: list[str] = []
+    if isinstance(xmp, str):
+        xmp = xmp.encode()
+    if marker is not None:
+        xmp = provenance.xmp_with_marker(xmp, marker)  # type: ignore[arg-type]
+    if keep_location:
+        return exif, xmp, removed  # type: ignore[return-value]
+    if isinstance(exif, bytes):
+        exif, gone = location.clean_exif(exif)
+        removed += [f"{label} {g}" for g in gone]
+    if isinstance(xmp, bytes):
+        xmp, gone = location.strip_xmp_location(xmp)
+        removed += [f"{label} {g}" for g in gone]
+    return exif, xmp, removed  # type: ignore[return-value]
+
+
+
+def metadata_options(
+    info: dict, keep_location: bool, fmt: str, marker: Marker | None, opts: dict[str, object]
+) -> tuple[list[str], list[str]]:
+    """Put the cleaned EXIF, the ICC profile and the cleaned (marked) XMP into Pillow's save
+    options; returns (what was kept, what location was removed)."""
+    exif, xmp, removed = clean_exif_xmp(info, keep_location, fmt, marker)
+    preserved = []
+    for key, label, value in (("exif", "EXIF", exif), ("icc_profile", "ICC", info.get("icc_profile")),
+                              ("xmp", "XMP", xmp)):  # fmt: skip
+        if value:
+            opts[key] = value
+            preserved.append(f"{fmt} {label}")
+    return preserved, removed

@@ -1,0 +1,40 @@
+"""Writing pixels with Pillow: the patch pasted into a decoded picture, and saving with only the
+metadata the caller passes (never the source's, which could bring removed location back)."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+
+import numpy as np
+from PIL import Image
+
+from poisoner.blend import apply_patch
+from poisoner.spec import PatchPlacement
+
+
+def image_from_array(pixels: np.ndarray, mode: str) -> Image.Image:
+    """Image.fromarray that also takes 16-bit grey (Pillow 13 infers I;16 from uint16 itself)."""
+    if mode == "I;16":
+        return Image.fromarray(np.ascontiguousarray(pixels, dtype=np.uint16))
+    return Image.fromarray(pixels, mode)
+
+
+def paste_patch(im: Image.Image, placement: PatchPlacement) -> Image.Image:
+    """im with the patch blended in, in place: only the patch box goes through numpy, so memory
+    stays at one decoded picture (a whole-picture array costs one or two more, measured)."""
+    x0, y0, _, _ = placement.box
+    local = dataclasses.replace(placement, x=0, y=0)
+    region = apply_patch(np.asarray(im.crop(placement.box)), local)
+    im.paste(image_from_array(region, im.mode), (x0, y0))
+    return im
+
+
+def save_explicit(im: Image.Image, fp: io.BytesIO, fmt: str, **opts: object) -> None:
+    """Save with only the metadata in opts. Pillow's writers fall back to im.info (the source's
+    EXIF, XMP...) for what opts leave out, and its TIFF writer copies XMP/IPTC from a TIFF
+    source's own tags: either would bring removed location back. A plain Image sharing the
+    pixel memory (no copy) carries neither."""
+    plain = im._new(im.im)  # noqa: SLF001 - Pillow's own shallow constructor
+    plain.info = {}
+    plain.save(fp, fmt, **opts)

@@ -1,0 +1,59 @@
+"""Reading a video container: open it, find its one video stream, walk its packets and frames;
+every FFmpeg failure becomes one VideoFormatError line."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import av
+import av.error
+
+from poisoner.video.errors import VideoFormatError, one_line
+
+
+def open_input(path: Path) -> av.container.InputContainer:
+    try:
+        return av.open(str(path), "r")
+    except (av.error.FFmpegError, OSError, ValueError) as exc:
+        raise VideoFormatError(f"{path.name}: not a readable video ({one_line(exc)})") from exc
+
+
+def main_video_stream(container: av.container.InputContainer, name: str) -> av.video.stream.VideoStream:
+    """The one video stream (cover art aside); several are refused."""
+    streams = [s for s in container.streams.video if not s.disposition & av.stream.Disposition.attached_pic]
+    if not streams:
+        raise VideoFormatError(f"{name}: no video stream")
+    if len(streams) > 1:
+        raise VideoFormatError(f"{name}: {len(streams)} video streams; only single-video files are supported")
+    return streams[0]
+
+
+def iter_packets(container: av.container.InputContainer, name: str) -> Iterator[av.Packet]:
+    try:
+        yield from container.demux()
+    except av.error.FFmpegError as exc:
+        raise VideoFormatError(f"{name}: corrupt or truncated container ({one_line(exc)})") from exc
+
+
+def decode_packet(packet: av.Packet, name: str) -> list[av.VideoFrame]:
+    try:
+        return list(packet.decode())
+    except av.error.FFmpegError as exc:
+        raise VideoFormatError(f"{name}: corrupt video data ({one_line(exc)})") from exc
+
+
+def stream_bit_rate(video: Path) -> int | None:
+    """The video stream's mean bit rate from its packet sizes (None: no duration to divide by)."""
+    with open_input(video) as container:
+        s = main_video_stream(container, video.name)
+        total = 0
+        for pkt in container.demux(s):
+            total += pkt.size
+        if s.duration and s.time_base:
+            dur = float(s.duration * s.time_base)
+        elif container.duration:
+            dur = container.duration / av.time_base
+        else:
+            return None
+        return int(total * 8 / dur) if dur > 0 else None

@@ -1,0 +1,231 @@
+"""poison_video: the video stages in order. Check the source, probe it, place the patch per
+frame, encode (again at a lower CRF while the patch's contrast did not survive), check the
+output is complete, and report."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+
+import av.error
+import numpy as np
+
+from poisoner.provenance import Marker
+from poisoner.spec import PatchPlacement, PatchSpec, SpecError
+from poisoner.video.contrast import intended_contrast, measure_video_patch
+from poisoner.video.demux import stream_bit_rate
+from poisoner.video.encoder import CRF_STEP_ON_RETRY, choose_encoder
+from poisoner.video.errors import VideoFormatError, one_line
+from poisoner.video.metadata import append_marker_box, preserved_list
+from poisoner.video.model import (
+    EncoderChoice,
+    PlacementAt,
+    ProgressCallback,
+    SourceInfo,
+    VideoOptions,
+    VideoReport,
+    frame_rate,
+)
+from poisoner.video.source import probe
+from poisoner.video.transcode import EncodeResult, encode_once
+
+log = logging.getLogger("poisoner.video")
+
+
+def poison_video(
+    src: Path,
+    dst: Path,
+    spec: PatchSpec,
+    progress: ProgressCallback | None = None,
+    *,
+    options: VideoOptions | None = None,
+    marker: Marker | None = None,
+    keep_location: bool = False,
+    max_pixels: int | None = None,
+) -> VideoReport:
+    """Write src's video to dst with spec's patch in every selected frame; src is only read.
+
+    Location tags (MP4 ©xyz/'location', Apple ISO6709, Matroska *LOCATION*) and GPS telemetry
+    streams (GoPro gpmd, CAMM, Apple mebx) are left out unless keep_location. With a marker, dst
+    carries it (poisoner.provenance: a uuid box in MP4/MOV, a PPD_PROVENANCE tag in Matroska).
+    A frame size over max_pixels (default poisoner.limits.DEFAULT_MAX_VIDEO_PIXELS) is refused
+    before any frame is decoded.
+
+    dst receives the complete file (normally the temporary path of poisoner.atomic.atomic_output);
+    on any error dst may hold a partial file that the caller discards. Raises VideoFormatError
+    (one line) for input that cannot be poisoned faithfully.
+    """
+    src, dst = Path(src), Path(dst)
+    options = options or VideoOptions()
+    state_before = _check_source(src)
+    info = probe(src, max_pixels=max_pixels)
+    try:
+        placement_at = frame_placements(spec, info, options)
+        placement = placement_at(0)
+    except SpecError as exc:
+        raise VideoFormatError(f"{src.name}: {exc}") from exc
+    report = _new_report(info, spec, placement, options)
+
+    def encode(choice: EncoderChoice) -> EncodeResult:
+        return encode_once(
+            src, dst, spec, placement_at, info, choice, options, progress, report, marker, keep_location
+        )
+
+    def contrast_ok(result: EncodeResult) -> bool:
+        return _contrast_ok(report, dst, spec, placement_at, intended_contrast(placement), options, result)
+
+    choice, result = _encode_until_visible(src, info, options, report, encode, contrast_ok)
+    if _file_state(src) != state_before:
+        raise VideoFormatError(f"{src.name}: changed while being read (still being written?)")
+    _finish_report(report, info, choice, result, stream_bit_rate(dst))
+    append_marker_box(dst, info.muxer, marker)
+    return report
+
+
+def frame_placements(spec: PatchSpec, info: SourceInfo, options: VideoOptions) -> PlacementAt:
+    """Where frame i's patch goes: one placement for a static spec, a point on the path per frame
+    for a moving one (poisoner.video's docstring). Raises SpecError when a placement does not fit."""
+    first = spec.resolve(info.width, info.height, index=0.0)
+    if not spec.moves or options.motion_steps_per_second <= 0:
+        return lambda _i: first
+    per_frame = options.motion_steps_per_second / frame_rate(info)
+    return lambda i: spec.resolve(info.width, info.height, index=i * per_frame)
+
+
+def _check_source(src: Path) -> tuple[int, int]:
+    """Refuse what is not a non-empty file; its (size, mtime) to notice a change while reading."""
+    if not src.is_file():
+        raise VideoFormatError(f"{src.name}: not a file")
+    if src.stat().st_size == 0:
+        raise VideoFormatError(f"{src.name}: empty file (still being written?)")
+    return _file_state(src)
+
+
+def _file_state(path: Path) -> tuple[int, int]:
+    st = path.stat()
+    return st.st_size, st.st_mtime_ns
+
+
+def _new_report(
+    info: SourceInfo, spec: PatchSpec, placement: PatchPlacement, options: VideoOptions
+) -> VideoReport:
+    report = VideoReport(
+        format=info.muxer,
+        width=info.width,
+        height=info.height,
+        placement=placement,
+        codec=info.codec,
+        pix_fmt=info.pix_fmt,
+        source_bit_rate=info.bit_rate,
+    )
+    if spec.moves and options.motion_steps_per_second > 0:
+        report.notes.append(
+            f"moving spec: the patch travels its path at {options.motion_steps_per_second:g} "
+            "photo-steps per second; `placement` is frame 0's"
+        )
+    elif spec.moves:
+        report.notes.append(
+            "moving spec with motion_steps_per_second = 0: the patch stays at its first position in "
+            "every frame (COLMAP's stationary-match filter can remove it from extracted frames)"
+        )
+    return report
+
+
+def _encode_until_visible(
+    src: Path,
+    info: SourceInfo,
+    options: VideoOptions,
+    report: VideoReport,
+    encode: Callable[[EncoderChoice], EncodeResult],
+    contrast_ok: Callable[[EncodeResult], bool],
+) -> tuple[EncoderChoice, EncodeResult]:
+    """Encode, check the output is complete, and encode again CRF_STEP_ON_RETRY lower while the
+    patch contrast stays below options.min_patch_contrast (at most options.max_retries more)."""
+    attempts = 0
+    shift = 0
+    while True:
+        attempts += 1
+        choice = choose_encoder(info, options, crf_shift=shift)
+        log.info(
+            "video encode",
+            extra={"src": str(src), "encoder": choice.encoder, "crf": choice.crf, "attempt": attempts},
+        )
+        try:
+            result = encode(choice)
+        except av.error.FFmpegError as exc:
+            raise VideoFormatError(
+                f"{src.name}: cannot encode with {choice.encoder} ({one_line(exc)})"
+            ) from exc
+        _check_complete(src, info, result)
+        if contrast_ok(result):
+            break
+        if attempts > options.max_retries or (choice.crf is not None and choice.crf == 0):
+            report.notes.append(
+                f"patch contrast after encoding is {report.patch_contrast_min:.2f} of intended "
+                f"(below {options.min_patch_contrast}) after {attempts} attempts"
+            )
+            break
+        shift += CRF_STEP_ON_RETRY
+    report.attempts = attempts
+    return choice, result
+
+
+def _contrast_ok(
+    report: VideoReport,
+    dst: Path,
+    spec: PatchSpec,
+    placement_at: PlacementAt,
+    target: float,
+    options: VideoOptions,
+    result: EncodeResult,
+) -> bool:
+    """Whether dst's patch kept enough contrast (or is not to be checked); records the measured
+    min and mean (relative to target) of the selected frames in report."""
+    if not options.verify_patch or result.frames_patched == 0 or target <= 0:
+        return True
+    measured = [v / target for v in measure_video_patch(dst, placement_at)]
+    selected = [m for i, m in enumerate(measured) if spec.selects(f"frame:{i}")]
+    report.patch_contrast_min = min(selected) if selected else None
+    report.patch_contrast_mean = float(np.mean(selected)) if selected else None
+    return report.patch_contrast_min is None or report.patch_contrast_min >= options.min_patch_contrast
+
+
+def _check_complete(src: Path, info: SourceInfo, result: EncodeResult) -> None:
+    if result.frames == 0:
+        raise VideoFormatError(f"{src.name}: no frames decoded")
+    if info.frames_declared and result.frames < info.frames_declared:
+        raise VideoFormatError(
+            f"{src.name}: truncated: {result.frames} of {info.frames_declared} declared frames decode"
+        )
+    if info.duration_s and result.end_s is not None and result.end_s < 0.9 * info.duration_s - 0.1:
+        raise VideoFormatError(
+            f"{src.name}: truncated: frames end at {result.end_s:.2f} s of a declared {info.duration_s:.2f} s"
+        )
+
+
+def _finish_report(
+    report: VideoReport,
+    info: SourceInfo,
+    choice: EncoderChoice,
+    result: EncodeResult,
+    output_bit_rate: int | None,
+) -> None:
+    report.encoder = choice.encoder
+    report.crf = choice.crf
+    report.frames = result.frames
+    report.frames_patched = result.frames_patched
+    report.duration_s = info.duration_s
+    report.output_bit_rate = output_bit_rate
+    report.preserved = preserved_list(info, choice)
+    if report.location_removed:
+        report.notes.append(
+            f"location removed ({len(report.location_removed)}): " + ", ".join(report.location_removed)
+        )
+    if not choice.same_codec:
+        report.notes.append(f"no {info.codec} encoder in this build; re-encoded as {choice.encoder}")
+    if info.hdr_side_data and choice.encoder != "libx265":
+        report.notes.append(
+            "HDR mastering/light-level metadata not carried ("
+            f"{choice.encoder} takes it only through x265-params here)"
+        )

@@ -1,0 +1,13 @@
+"""The video poisoner's one-line error; its own module so that catching it (daemon.pipeline)
+imports neither PyAV nor numpy."""
+
+from __future__ import annotations
+
+
+class VideoFormatError(Exception):
+    """A video that cannot be poisoned; the message is one clear line."""
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception's message folded onto one line (FFmpeg's messages span several)."""
+    return " ".join(str(exc).split()) or type(exc).__name__

@@ -1,0 +1,99 @@
+"""What the video stages pass each other: the options, what the source is, the encoder chosen and
+the report. Plain data, no PyAV."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from fractions import Fraction
+
+from poisoner.formats import PoisonReport
+from poisoner.spec import PatchPlacement
+
+ProgressCallback = Callable[[int, int | None], None]  # (frames done, frames expected or None)
+PlacementAt = Callable[[int], PatchPlacement]  # frame number -> where the patch goes
+
+_DEFAULT_FRAME_RATE = 25.0  # neither the container nor the frame count says
+
+
+@dataclass(frozen=True)
+class VideoOptions:
+    """How a video is encoded and checked.
+
+    min_patch_contrast: the patch's bright-minus-dark difference measured on decoded output,
+      relative to the poisoned frames before encoding; below it the video is encoded again at
+      a lower CRF (up to max_retries times).
+    preset: x264/x265 preset (speed vs size at equal quality; quality is set by the CRF).
+    threads: encoder threads, 0 = FFmpeg's choice.
+    motion_steps_per_second: how fast a moving spec travels its path, in photo-steps per second
+      of video (0: the patch stays at its first position in every frame).
+    """
+
+    min_patch_contrast: float = 0.8
+    verify_patch: bool = True
+    max_retries: int = 2
+    preset: str = "medium"
+    threads: int = 0
+    crf_override: int | None = None
+    motion_steps_per_second: float = 6.0  # bench/results/video_motion.md: 2 failed twice, 6 never
+
+
+@dataclass(frozen=True)
+class EncoderChoice:
+    encoder: str
+    crf: int | None
+    bit_rate: int | None
+    options: dict[str, str]
+    same_codec: bool
+
+
+@dataclass(frozen=True)
+class SourceInfo:
+    """What poison_video learns from the source before writing anything."""
+
+    muxer: str
+    codec: str
+    width: int
+    height: int
+    pix_fmt: str
+    time_base: Fraction
+    average_rate: Fraction | None
+    frames_declared: int
+    duration_s: float | None
+    bit_rate: int | None
+    display_matrix: tuple[int, ...] | None
+    rotation: int
+    color_range: int
+    colorspace: int
+    color_primaries: int
+    color_trc: int
+    hdr_side_data: dict[str, bytes]
+    stream_index: int
+
+
+@dataclass
+class VideoReport(PoisonReport):
+    """What poison_video did: an image report (format, size, placement, preserved, notes) plus
+    what is particular to video."""
+
+    codec: str = ""
+    encoder: str = ""
+    pix_fmt: str = ""
+    frames: int = 0
+    frames_patched: int = 0
+    duration_s: float | None = None
+    source_bit_rate: int | None = None
+    output_bit_rate: int | None = None
+    crf: int | None = None
+    patch_contrast_min: float | None = None
+    patch_contrast_mean: float | None = None
+    attempts: int = 1
+
+
+def frame_rate(info: SourceInfo) -> float:
+    """Frames per second: the stream's average rate, else frames over duration, else 25."""
+    if info.average_rate and info.average_rate > 0:
+        return float(info.average_rate)
+    if info.duration_s and info.frames_declared:
+        return info.frames_declared / info.duration_s
+    return _DEFAULT_FRAME_RATE

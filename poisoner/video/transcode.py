@@ -1,0 +1,189 @@
+"""One encode pass: decode the source, blend the patch into every selected frame, encode with the
+chosen encoder, and copy every other stream packet by packet (bit-identical)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import av
+import av.error
+
+from poisoner.provenance import Marker
+from poisoner.spec import PatchSpec, SpecError
+from poisoner.video.blend import blend_frame
+from poisoner.video.demux import decode_packet, iter_packets, open_input
+from poisoner.video.encoder import configure_video_stream
+from poisoner.video.errors import VideoFormatError, one_line
+from poisoner.video.metadata import (
+    add_marker_tag,
+    codec_tag,
+    copy_metadata,
+    is_location_stream,
+    x265_hdr_params,
+)
+from poisoner.video.model import (
+    EncoderChoice,
+    PlacementAt,
+    ProgressCallback,
+    SourceInfo,
+    VideoOptions,
+    VideoReport,
+    frame_rate,
+)
+
+# Matroska writes a random SegmentUID unless bit-exact: the same inputs must give the same bytes
+# (the daemon re-poisons to check crash recovery).
+_MUXER_OPTIONS = {"matroska": {"fflags": "+bitexact"}, "webm": {"fflags": "+bitexact"}}
+
+
+@dataclass
+class EncodeResult:
+    frames: int
+    frames_patched: int
+    end_s: float | None  # where the last frame ends, in seconds (None: no timestamps)
+
+
+@dataclass
+class _Pass:
+    """One pass's open streams and counters."""
+
+    src_name: str
+    info: SourceInfo
+    spec: PatchSpec
+    placement_at: PlacementAt
+    out: av.container.OutputContainer
+    vout: av.video.stream.VideoStream
+    copied: dict[int, av.stream.Stream]
+    progress: ProgressCallback | None
+    total: int | None
+    frames: int = 0
+    patched: int = 0
+    last_end: float | None = None
+
+
+def encode_once(
+    src: Path,
+    dst: Path,
+    spec: PatchSpec,
+    placement_at: PlacementAt,
+    info: SourceInfo,
+    choice: EncoderChoice,
+    options: VideoOptions,
+    progress: ProgressCallback | None,
+    report: VideoReport,
+    marker: Marker | None = None,
+    keep_location: bool = True,
+) -> EncodeResult:
+    """Write dst from src in one pass at choice's settings; report.location_removed says what
+    location was left out."""
+    total = info.frames_declared or (
+        int(round(info.duration_s * frame_rate(info))) if info.duration_s else None
+    )
+    opts = _MUXER_OPTIONS.get(info.muxer)
+    removed: list[str] = []
+    with open_input(src) as inp, av.open(str(dst), "w", format=info.muxer, container_options=opts) as out:
+        copy_metadata(dict(inp.metadata), out, keep_location, removed)
+        add_marker_tag(out, info.muxer, marker)
+        vout = _video_stream(inp, out, info, choice, options, keep_location, removed)
+        copied = _copied_streams(inp, out, src.name, info, keep_location, removed)
+        run = _Pass(src.name, info, spec, placement_at, out, vout, copied, progress, total)
+        for packet in iter_packets(inp, src.name):
+            _mux_packet(run, packet)
+        _encode(run, None)
+    report.location_removed = removed
+    return EncodeResult(frames=run.frames, frames_patched=run.patched, end_s=run.last_end)
+
+
+def _video_stream(
+    inp: av.container.InputContainer,
+    out: av.container.OutputContainer,
+    info: SourceInfo,
+    choice: EncoderChoice,
+    options: VideoOptions,
+    keep_location: bool,
+    removed: list[str],
+) -> av.video.stream.VideoStream:
+    vin = inp.streams[info.stream_index]
+    vin.thread_type = "AUTO"
+    if choice.encoder == "libx265" and info.hdr_side_data:
+        hdr = x265_hdr_params(info.hdr_side_data)
+        if hdr:
+            choice.options["x265-params"] = choice.options["x265-params"] + ":" + hdr
+    vout = configure_video_stream(out, info, choice, options)
+    copy_metadata(dict(vin.metadata), vout, keep_location, removed)
+    return vout
+
+
+def _copied_streams(
+    inp: av.container.InputContainer,
+    out: av.container.OutputContainer,
+    src_name: str,
+    info: SourceInfo,
+    keep_location: bool,
+    removed: list[str],
+) -> dict[int, av.stream.Stream]:
+    """Output streams for every source stream but the video one, by source index; GPS telemetry
+    streams are left out unless keep_location."""
+    copied: dict[int, av.stream.Stream] = {}
+    for s in inp.streams:
+        if s.index == info.stream_index:
+            continue
+        if not keep_location and is_location_stream(s):
+            removed.append(f"{codec_tag(s)} telemetry stream #{s.index}")
+            continue
+        try:
+            o = out.add_stream_from_template(s)
+        except (av.error.FFmpegError, ValueError, TypeError) as exc:
+            raise VideoFormatError(
+                f"{src_name}: stream #{s.index} ({s.type}) cannot be copied into {info.muxer} "
+                f"({one_line(exc)})"
+            ) from exc
+        copy_metadata(dict(s.metadata), o, keep_location, removed)
+        o.disposition = s.disposition
+        copied[s.index] = o
+    return copied
+
+
+def _mux_packet(run: _Pass, packet: av.Packet) -> None:
+    idx = packet.stream.index
+    if idx == run.info.stream_index:
+        for frame in decode_packet(packet, run.src_name):
+            _encode(run, _patched(run, frame))
+            run.frames += 1
+            if run.progress is not None:
+                run.progress(run.frames, run.total)
+    elif idx in run.copied:
+        if packet.dts is None and packet.size == 0:
+            return  # demuxer flush packet
+        packet.stream = run.copied[idx]
+        run.out.mux(packet)
+
+
+def _patched(run: _Pass, frame: av.VideoFrame) -> av.VideoFrame:
+    """The frame to encode: checked, patched when the spec selects it, its end time noted."""
+    name, info, index = run.src_name, run.info, run.frames
+    if frame.is_corrupt:
+        raise VideoFormatError(f"{name}: corrupt frame {index} (damaged or truncated data)")
+    if (frame.width, frame.height) != (info.width, info.height):
+        raise VideoFormatError(
+            f"{name}: frame size changes mid-stream ({info.width}x{info.height} -> "
+            f"{frame.width}x{frame.height}); not supported"
+        )
+    if run.spec.selects(f"frame:{index}"):
+        frame.make_writable()
+        try:
+            placement = run.placement_at(index)
+        except SpecError as exc:
+            raise VideoFormatError(f"{name}: frame {index}: {exc}") from exc
+        frame = blend_frame(frame, placement)
+        run.patched += 1
+    if frame.pts is not None and frame.time_base is not None:
+        run.last_end = float((frame.pts + (frame.duration or 0)) * frame.time_base)
+    frame.pict_type = av.video.frame.PictureType.NONE
+    return frame
+
+
+def _encode(run: _Pass, frame: av.VideoFrame | None) -> None:
+    for pkt in run.vout.encode(frame):
+        run.out.mux(pkt)
