@@ -118,9 +118,9 @@ def imagemagick_fn(patch: Path, x: int, y: int) -> Callable[[Path], None] | None
         return None
 
     def run(path: Path) -> None:
-        out = path.with_name("im-" + path.name)
-        subprocess.run([*binary, "-geometry", f"+{x}+{y}", str(patch), str(path), str(out)], check=True)
-        os.replace(out, path)
+        # In place the way ppd writes (poisoner.atomic: temporary, fsync, rename), so both pay the same.
+        with atomic_output(path) as out:
+            subprocess.run([*binary, "-geometry", f"+{x}+{y}", str(patch), str(path), str(out)], check=True)
 
     return run
 

@@ -21,12 +21,14 @@ from __future__ import annotations
 import contextlib
 import errno
 import fcntl
+import json
 import os
 import secrets
 import stat
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 TEMP_PREFIX = ".ppd-tmp-"
 STALE_TEMP_AGE_S = 10.0  # an unlocked temporary this old has no living writer (see clear_stale_temps)
@@ -137,6 +139,25 @@ def atomic_output(dst: Path, *, mode_like: Path | None = None) -> Iterator[Path]
 def atomic_write_bytes(dst: Path, data: bytes, *, mode_like: Path | None = None) -> None:
     with atomic_output(dst, mode_like=mode_like) as tmp:
         tmp.write_bytes(data)
+
+
+def atomic_write_text(
+    dst: Path, text: str, *, encoding: str = "utf-8", mode_like: Path | None = None
+) -> None:
+    atomic_write_bytes(dst, text.encode(encoding), mode_like=mode_like)
+
+
+def atomic_write_json(
+    dst: Path,
+    data: object,
+    *,
+    indent: int | None = None,
+    default: Callable[[Any], Any] | None = None,
+    mode_like: Path | None = None,
+) -> None:
+    """data as JSON (json.dumps with indent and default). Encoded before dst's folder is touched,
+    so data that cannot be encoded raises with dst unchanged and no temporary left."""
+    atomic_write_text(dst, json.dumps(data, indent=indent, default=default), mode_like=mode_like)
 
 
 def clear_stale_temps(

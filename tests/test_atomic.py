@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -11,7 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from poisoner.atomic import TEMP_PREFIX, atomic_output, atomic_write_bytes
+from poisoner.atomic import (
+    TEMP_PREFIX,
+    atomic_output,
+    atomic_write_bytes,
+    atomic_write_json,
+    atomic_write_text,
+)
 
 
 def test_replaces_and_keeps_permissions(tmp_path: Path) -> None:
@@ -63,3 +70,33 @@ def test_sigkill_at_random_instants_never_leaves_a_partial_file(tmp_path: Path) 
         assert data in (original, complete), f"partial file after kill at {delay}s ({len(data)} bytes)"
         outcomes.add(data == complete)
     assert False in outcomes  # at least one kill landed mid-write, so the test exercised the crash
+
+
+def test_write_text_replaces_with_the_encoded_text_and_keeps_permissions(tmp_path: Path) -> None:
+    dst = tmp_path / "page.html"
+    dst.write_text("old page")
+    os.chmod(dst, 0o600)
+    atomic_write_text(dst, "<p>caf\u00e9</p>")
+    assert dst.read_bytes() == "<p>caf\u00e9</p>".encode()
+    assert (dst.stat().st_mode & 0o777) == 0o600
+    atomic_write_text(dst, "caf\u00e9", encoding="latin-1")
+    assert dst.read_bytes() == b"caf\xe9"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["page.html"]
+
+
+def test_write_json_round_trips_with_indent_and_default(tmp_path: Path) -> None:
+    dst = tmp_path / "result.json"
+    atomic_write_json(dst, {"b": [1, 2], "a": None}, indent=1)
+    assert json.loads(dst.read_text()) == {"b": [1, 2], "a": None}
+    assert dst.read_text() == json.dumps({"b": [1, 2], "a": None}, indent=1)
+    atomic_write_json(dst, {"path": tmp_path}, default=str)
+    assert json.loads(dst.read_text()) == {"path": str(tmp_path)}
+
+
+def test_write_json_that_cannot_encode_leaves_the_old_file_and_no_temp(tmp_path: Path) -> None:
+    dst = tmp_path / "result.json"
+    dst.write_text('{"old": true}')
+    with pytest.raises(TypeError):
+        atomic_write_json(dst, {"x": object()})
+    assert dst.read_text() == '{"old": true}'
+    assert list(tmp_path.iterdir()) == [dst]
