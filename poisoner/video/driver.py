@@ -13,20 +13,12 @@ import numpy as np
 
 from poisoner.provenance import Marker
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
+from poisoner.video import model
 from poisoner.video.contrast import intended_contrast, measure_video_patch
 from poisoner.video.demux import stream_bit_rate
 from poisoner.video.encoder import CRF_STEP_ON_RETRY, choose_encoder
 from poisoner.video.errors import VideoFormatError, one_line
 from poisoner.video.metadata import append_marker_box, preserved_list
-from poisoner.video.model import (
-    EncoderChoice,
-    PlacementAt,
-    ProgressCallback,
-    SourceInfo,
-    VideoOptions,
-    VideoReport,
-    frame_rate,
-)
 from poisoner.video.source import probe
 from poisoner.video.transcode import EncodeResult, encode_once
 
@@ -37,13 +29,13 @@ def poison_video(
     src: Path,
     dst: Path,
     spec: PatchSpec,
-    progress: ProgressCallback | None = None,
+    progress: model.ProgressCallback | None = None,
     *,
-    options: VideoOptions | None = None,
+    options: model.VideoOptions | None = None,
     marker: Marker | None = None,
     keep_location: bool = False,
     max_pixels: int | None = None,
-) -> VideoReport:
+) -> model.VideoReport:
     """Write src's video to dst with spec's patch in every selected frame; src is only read.
 
     Location tags (MP4 ©xyz/'location', Apple ISO6709, Matroska *LOCATION*) and GPS telemetry
@@ -57,7 +49,7 @@ def poison_video(
     (one line) for input that cannot be poisoned faithfully.
     """
     src, dst = Path(src), Path(dst)
-    options = options or VideoOptions()
+    options = options or model.VideoOptions()
     state_before = _check_source(src)
     info = probe(src, max_pixels=max_pixels)
     try:
@@ -67,7 +59,7 @@ def poison_video(
         raise VideoFormatError(f"{src.name}: {exc}") from exc
     report = _new_report(info, spec, placement, options)
 
-    def encode(choice: EncoderChoice) -> EncodeResult:
+    def encode(choice: model.EncoderChoice) -> EncodeResult:
         return encode_once(
             src, dst, spec, placement_at, info, choice, options, progress, report, marker, keep_location
         )
@@ -83,13 +75,15 @@ def poison_video(
     return report
 
 
-def frame_placements(spec: PatchSpec, info: SourceInfo, options: VideoOptions) -> PlacementAt:
+def frame_placements(
+    spec: PatchSpec, info: model.SourceInfo, options: model.VideoOptions
+) -> model.PlacementAt:
     """Where frame i's patch goes: one placement for a static spec, a point on the path per frame
     for a moving one (poisoner.video's docstring). Raises SpecError when a placement does not fit."""
     first = spec.resolve(info.width, info.height, index=0.0)
     if not spec.moves or options.motion_steps_per_second <= 0:
         return lambda _i: first
-    per_frame = options.motion_steps_per_second / frame_rate(info)
+    per_frame = options.motion_steps_per_second / model.frame_rate(info)
     return lambda i: spec.resolve(info.width, info.height, index=i * per_frame)
 
 
@@ -108,9 +102,9 @@ def _file_state(path: Path) -> tuple[int, int]:
 
 
 def _new_report(
-    info: SourceInfo, spec: PatchSpec, placement: PatchPlacement, options: VideoOptions
-) -> VideoReport:
-    report = VideoReport(
+    info: model.SourceInfo, spec: PatchSpec, placement: PatchPlacement, options: model.VideoOptions
+) -> model.VideoReport:
+    report = model.VideoReport(
         format=info.muxer,
         width=info.width,
         height=info.height,
@@ -134,12 +128,12 @@ def _new_report(
 
 def _encode_until_visible(
     src: Path,
-    info: SourceInfo,
-    options: VideoOptions,
-    report: VideoReport,
-    encode: Callable[[EncoderChoice], EncodeResult],
+    info: model.SourceInfo,
+    options: model.VideoOptions,
+    report: model.VideoReport,
+    encode: Callable[[model.EncoderChoice], EncodeResult],
     contrast_ok: Callable[[EncodeResult], bool],
-) -> tuple[EncoderChoice, EncodeResult]:
+) -> tuple[model.EncoderChoice, EncodeResult]:
     """Encode, check the output is complete, and encode again CRF_STEP_ON_RETRY lower while the
     patch contrast stays below options.min_patch_contrast (at most options.max_retries more)."""
     attempts = 0
@@ -172,12 +166,12 @@ def _encode_until_visible(
 
 
 def _contrast_ok(
-    report: VideoReport,
+    report: model.VideoReport,
     dst: Path,
     spec: PatchSpec,
-    placement_at: PlacementAt,
+    placement_at: model.PlacementAt,
     target: float,
-    options: VideoOptions,
+    options: model.VideoOptions,
     result: EncodeResult,
 ) -> bool:
     """Whether dst's patch kept enough contrast (or is not to be checked); records the measured
@@ -191,7 +185,7 @@ def _contrast_ok(
     return report.patch_contrast_min is None or report.patch_contrast_min >= options.min_patch_contrast
 
 
-def _check_complete(src: Path, info: SourceInfo, result: EncodeResult) -> None:
+def _check_complete(src: Path, info: model.SourceInfo, result: EncodeResult) -> None:
     if result.frames == 0:
         raise VideoFormatError(f"{src.name}: no frames decoded")
     if info.frames_declared and result.frames < info.frames_declared:
@@ -205,9 +199,9 @@ def _check_complete(src: Path, info: SourceInfo, result: EncodeResult) -> None:
 
 
 def _finish_report(
-    report: VideoReport,
-    info: SourceInfo,
-    choice: EncoderChoice,
+    report: model.VideoReport,
+    info: model.SourceInfo,
+    choice: model.EncoderChoice,
     result: EncodeResult,
     output_bit_rate: int | None,
 ) -> None:

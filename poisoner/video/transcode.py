@@ -11,6 +11,7 @@ import av.error
 
 from poisoner.provenance import Marker
 from poisoner.spec import PatchSpec, SpecError
+from poisoner.video import model
 from poisoner.video.blend import blend_frame
 from poisoner.video.demux import decode_packet, iter_packets, open_input
 from poisoner.video.encoder import configure_video_stream
@@ -21,15 +22,6 @@ from poisoner.video.metadata import (
     copy_metadata,
     is_location_stream,
     x265_hdr_params,
-)
-from poisoner.video.model import (
-    EncoderChoice,
-    PlacementAt,
-    ProgressCallback,
-    SourceInfo,
-    VideoOptions,
-    VideoReport,
-    frame_rate,
 )
 
 # Matroska writes a random SegmentUID unless bit-exact: the same inputs must give the same bytes
@@ -49,13 +41,13 @@ class _Pass:
     """One pass's open streams and counters."""
 
     src_name: str
-    info: SourceInfo
+    info: model.SourceInfo
     spec: PatchSpec
-    placement_at: PlacementAt
+    placement_at: model.PlacementAt
     out: av.container.OutputContainer
     vout: av.video.stream.VideoStream
     copied: dict[int, av.stream.Stream]
-    progress: ProgressCallback | None
+    progress: model.ProgressCallback | None
     total: int | None
     frames: int = 0
     patched: int = 0
@@ -66,19 +58,19 @@ def encode_once(
     src: Path,
     dst: Path,
     spec: PatchSpec,
-    placement_at: PlacementAt,
-    info: SourceInfo,
-    choice: EncoderChoice,
-    options: VideoOptions,
-    progress: ProgressCallback | None,
-    report: VideoReport,
+    placement_at: model.PlacementAt,
+    info: model.SourceInfo,
+    choice: model.EncoderChoice,
+    options: model.VideoOptions,
+    progress: model.ProgressCallback | None,
+    report: model.VideoReport,
     marker: Marker | None = None,
     keep_location: bool = True,
 ) -> EncodeResult:
     """Write dst from src in one pass at choice's settings; report.location_removed says what
     location was left out."""
     total = info.frames_declared or (
-        int(round(info.duration_s * frame_rate(info))) if info.duration_s else None
+        int(round(info.duration_s * model.frame_rate(info))) if info.duration_s else None
     )
     opts = _MUXER_OPTIONS.get(info.muxer)
     removed: list[str] = []
@@ -98,9 +90,9 @@ def encode_once(
 def _video_stream(
     inp: av.container.InputContainer,
     out: av.container.OutputContainer,
-    info: SourceInfo,
-    choice: EncoderChoice,
-    options: VideoOptions,
+    info: model.SourceInfo,
+    choice: model.EncoderChoice,
+    options: model.VideoOptions,
     keep_location: bool,
     removed: list[str],
 ) -> av.video.stream.VideoStream:
@@ -119,7 +111,7 @@ def _copied_streams(
     inp: av.container.InputContainer,
     out: av.container.OutputContainer,
     src_name: str,
-    info: SourceInfo,
+    info: model.SourceInfo,
     keep_location: bool,
     removed: list[str],
 ) -> dict[int, av.stream.Stream]:
