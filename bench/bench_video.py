@@ -43,6 +43,33 @@ def mux_rgb_frames(out: Any, stream: Any, frames: Iterable[np.ndarray]) -> None:
         out.mux(pkt)
 
 
+def mux_sine(
+    out: Any,
+    aud: Any,
+    samples: int,
+    *,
+    hz: float,
+    amplitude: float,
+    fmt: str,
+    layout: str,
+    fallback_step: int = 1024,
+) -> None:
+    """A 48 kHz sine tone of `samples` samples per channel into the audio stream aud (the same
+    wave in every channel of layout, "mono" or "stereo"), then flush the encoder."""
+    rate, t = 48000, 0
+    step = aud.codec_context.frame_size or fallback_step
+    channels = 2 if layout == "stereo" else 1
+    while t < samples:
+        wave = (amplitude * np.sin(2 * np.pi * hz * np.arange(t, t + step) / rate)).astype(np.float32)
+        af = av.AudioFrame.from_ndarray(np.stack([wave] * channels), format=fmt, layout=layout)
+        af.sample_rate, af.pts = rate, t
+        for pkt in aud.encode(af):
+            out.mux(pkt)
+        t += step
+    for pkt in aud.encode(None):
+        out.mux(pkt)
+
+
 def make_source(path: Path, width: int, height: int, fps: int, seconds: float, crf: int = 20) -> Path:
     rng = np.random.default_rng(11)
     coarse = rng.random((height // 16 + 8, (width + 6 * int(fps * seconds)) // 16 + 8, 3))
@@ -55,16 +82,7 @@ def make_source(path: Path, width: int, height: int, fps: int, seconds: float, c
         aud.layout = "stereo"
         n = int(round(fps * seconds))
         mux_rgb_frames(out, vs, (textured_frame(width, height, i, tex) for i in range(n)))
-        t, total, step = 0, int(seconds * 48000), aud.codec_context.frame_size or 1024
-        while t < total:
-            wave = (0.2 * np.sin(2 * np.pi * 330 * np.arange(t, t + step) / 48000)).astype(np.float32)
-            af = av.AudioFrame.from_ndarray(np.stack([wave, wave]), format="fltp", layout="stereo")
-            af.sample_rate, af.pts = 48000, t
-            for pkt in aud.encode(af):
-                out.mux(pkt)
-            t += step
-        for pkt in aud.encode(None):
-            out.mux(pkt)
+        mux_sine(out, aud, int(seconds * 48000), hz=330, amplitude=0.2, fmt="fltp", layout="stereo")
     return path
 
 

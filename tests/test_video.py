@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from bench.bench_video import mux_sine
 from poisoner.atomic import TEMP_PREFIX, atomic_output
 from poisoner.ladder import default_spec
 from poisoner.media import VIDEO_SUFFIXES, is_video
@@ -90,18 +91,8 @@ def make_clip(path: Path, clip: Clip) -> Path:
         for pkt in vs.encode(None):
             out.mux(pkt)
         if aud is not None:
-            rate, t = 48000, 0
-            total = int(clip.frames / clip.fps * rate)
-            step = aud.codec_context.frame_size or 960
-            while t < total:
-                wave = 0.3 * np.sin(2 * np.pi * 440 * np.arange(t, t + step) / rate)
-                af = av.AudioFrame.from_ndarray(wave.astype(np.float32)[None], format="flt", layout="mono")
-                af.sample_rate, af.pts = rate, t
-                for pkt in aud.encode(af):
-                    out.mux(pkt)
-                t += step
-            for pkt in aud.encode(None):
-                out.mux(pkt)
+            samples = int(clip.frames / clip.fps * 48000)
+            mux_sine(out, aud, samples, hz=440, amplitude=0.3, fmt="flt", layout="mono", fallback_step=960)
     return path
 
 
