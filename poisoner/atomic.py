@@ -116,35 +116,42 @@ def atomic_replace_at(
 
 
 @contextlib.contextmanager
-def atomic_output(dst: Path, *, mode_like: Path | None = None) -> Iterator[Path]:
+def atomic_output(dst: Path, *, mode_like: Path | None = None, mode: int | None = None) -> Iterator[Path]:
     """Yield a temporary path next to dst; on normal exit it atomically becomes dst.
 
     For folders ppd trusts (the path is resolved once, when the folder is opened). The caller
-    writes the complete file to the yielded path (by any means: PIL, PyAV, ...). Permission bits
-    are copied from mode_like (default: dst itself if it exists, else 0o644 minus the umask)."""
+    writes the complete file to the yielded path (by any means: PIL, PyAV, ...). Permission bits:
+    mode when given, else copied from mode_like (default: dst itself if it exists, else 0o644
+    minus the umask)."""
     dst = Path(dst)
     dir_fd = os.open(dst.parent, _DIR_FLAGS)
     try:
-        source = mode_like if mode_like is not None else dst
-        try:
-            mode: int | None = stat.S_IMODE(os.stat(source).st_mode)
-        except OSError:
-            mode = None
+        if mode is None:
+            mode = _mode_of(mode_like if mode_like is not None else dst)
         with atomic_replace_at(dir_fd, dst.name, mode=mode) as (_fd, tmp_name):
             yield dst.parent / tmp_name
     finally:
         os.close(dir_fd)
 
 
-def atomic_write_bytes(dst: Path, data: bytes, *, mode_like: Path | None = None) -> None:
-    with atomic_output(dst, mode_like=mode_like) as tmp:
+def _mode_of(path: Path) -> int | None:
+    try:
+        return stat.S_IMODE(os.stat(path).st_mode)
+    except OSError:
+        return None
+
+
+def atomic_write_bytes(
+    dst: Path, data: bytes, *, mode_like: Path | None = None, mode: int | None = None
+) -> None:
+    with atomic_output(dst, mode_like=mode_like, mode=mode) as tmp:
         tmp.write_bytes(data)
 
 
 def atomic_write_text(
-    dst: Path, text: str, *, encoding: str = "utf-8", mode_like: Path | None = None
+    dst: Path, text: str, *, encoding: str = "utf-8", mode_like: Path | None = None, mode: int | None = None
 ) -> None:
-    atomic_write_bytes(dst, text.encode(encoding), mode_like=mode_like)
+    atomic_write_bytes(dst, text.encode(encoding), mode_like=mode_like, mode=mode)
 
 
 def atomic_write_json(
@@ -154,10 +161,12 @@ def atomic_write_json(
     indent: int | None = None,
     default: Callable[[Any], Any] | None = None,
     mode_like: Path | None = None,
+    mode: int | None = None,
 ) -> None:
     """data as JSON (json.dumps with indent and default). Encoded before dst's folder is touched,
     so data that cannot be encoded raises with dst unchanged and no temporary left."""
-    atomic_write_text(dst, json.dumps(data, indent=indent, default=default), mode_like=mode_like)
+    text = json.dumps(data, indent=indent, default=default)
+    atomic_write_text(dst, text, mode_like=mode_like, mode=mode)
 
 
 def clear_stale_temps(

@@ -100,3 +100,17 @@ def test_write_json_that_cannot_encode_leaves_the_old_file_and_no_temp(tmp_path:
         atomic_write_json(dst, {"x": object()})
     assert dst.read_text() == '{"old": true}'
     assert list(tmp_path.iterdir()) == [dst]
+
+
+def test_an_explicit_mode_wins_over_the_existing_file_and_the_umask(tmp_path: Path) -> None:
+    dst = tmp_path / "spec.json"
+    dst.write_text("{}")
+    os.chmod(dst, 0o644)
+    atomic_write_json(dst, {"spec": 1}, mode=0o600)
+    assert (dst.stat().st_mode & 0o777) == 0o600
+    fresh = tmp_path / "new.txt"
+    atomic_write_text(fresh, "x", mode=0o640)
+    assert (fresh.stat().st_mode & 0o777) == 0o640
+    with atomic_output(tmp_path / "copy.bin", mode_like=fresh, mode=0o604) as tmp:
+        tmp.write_bytes(b"y")
+    assert ((tmp_path / "copy.bin").stat().st_mode & 0o777) == 0o604
