@@ -17,8 +17,8 @@ from daemon.store import (
     PatchedNotFailed,
     Store,
     StoreError,
-    _split_sql,
 )
+from daemon.store.schema import split_sql
 from poisoner.spec import PatchSpec
 
 
@@ -53,7 +53,7 @@ def test_old_database_is_migrated_in_order(tmp_path: Path) -> None:
     conn = sqlite3.connect(db)
     conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
     conn.execute("INSERT INTO schema_version VALUES (1)")
-    for statement in _split_sql(MIGRATIONS[0]):
+    for statement in split_sql(MIGRATIONS[0]):
         conn.execute(statement)
     conn.commit()
     conn.close()
@@ -193,7 +193,7 @@ def _version_3_store(db: Path) -> None:
     conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
     conn.execute("INSERT INTO schema_version VALUES (3)")
     for migration in MIGRATIONS[:3]:
-        for statement in _split_sql(migration):
+        for statement in split_sql(migration):
             conn.execute(statement)
     conn.execute("INSERT INTO specs VALUES ('s1', '{}', 1, 1.0)")
     conn.execute("INSERT INTO datasets VALUES ('d', '/root', 's1', 1.0, NULL)")
