@@ -1,4 +1,5 @@
-# The two commands of the README: `make demo` and `make test`. Both set everything up first.
+# The two commands of the README: `make demo` and `make test` (unit tests and the representative
+# integration tests; `make test-all` runs them all). Both set everything up first.
 VENV ?= .venv
 PY := $(VENV)/bin/python
 
@@ -15,7 +16,8 @@ test: setup
 	$(VENV)/bin/lint-imports --no-cache
 	$(PY) -m pytest
 
-# Everything, the slow integration tests on the shared datasets included.
+# Everything: every integration test (the default runs the representative few, tests/conftest.py)
+# and the slow ones on the shared datasets.
 test-all: setup
 	$(PY) -m pytest -m ''
 

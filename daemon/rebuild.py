@@ -33,7 +33,7 @@ from daemon.dataset import DEFAULT_DATASET, dataset_of, dataset_root
 from daemon.fsops import sha256_fd
 from daemon.paths import AppPaths
 from daemon.states import FileState
-from daemon.store import Store, StoreError
+from daemon.store import SQLITE_SUFFIXES, Store, StoreError
 from daemon.vault import Vault, VaultError
 from poisoner.atomic import fsync_dir
 from poisoner.spec import PatchSpec
@@ -41,7 +41,6 @@ from poisoner.spec import PatchSpec
 log = logging.getLogger(__name__)
 
 ASIDE_INFIX = ".before-rebuild-"
-SQLITE_SUFFIXES = ("", "-wal", "-shm")
 HEX = frozenset("0123456789abcdef")
 
 MarkerReader = Callable[[Path], Any]  # poisoner.provenance.read_marker: path -> Marker | None
@@ -119,7 +118,11 @@ def rebuild_store(
     """Rebuild the store at store_path (default paths.db_path) from the vault and the markers.
 
     folders: more folders holding patched files (`ppd poison FOLDER` in place), each one dataset
-    named after the folder. A sound store with rows is refused (RebuildRefused) unless force."""
+    named after the folder. A sound store with rows is refused (RebuildRefused) unless force.
+
+    The steps, in order: judge the old store (refuse a sound one), read what it still gives back,
+    collect a row for each marked file whose original the vault holds, recover the specs, write
+    the new store beside the old one and swap them."""
     if read_marker is None:
         from poisoner.provenance import read_marker
     store_path = Path(store_path or paths.db_path)
@@ -129,57 +132,86 @@ def rebuild_store(
     old = _read_old_store(store_path) if report.before != "missing" else _OldStore()
     report.old_datasets = len(old.datasets)
     vault = Vault(paths.vault_dir)
+    found = _collect_rows(paths, _sources(paths, config, old, folders), old, vault, read_marker, report)
+    by_dataset: dict[str, list[str]] = collections.defaultdict(list)
+    for dataset, fields in found.rows.values():
+        by_dataset[dataset].append(fields["spec_id"])
+    specs = _recover_specs(vault, old, config, {s for ids in by_dataset.values() for s in ids}, report)
+    _write_new_store(store_path, found, by_dataset, specs, old, report)
+    report.recorded = len(found.rows)
+    report.datasets = {name: len(ids) for name, ids in sorted(by_dataset.items())}
+    referenced = {fields["original_sha256"] for _, fields in found.rows.values()}
+    report.unreferenced_originals = len(set(vault.blobs()) - referenced)
+    log.info(report.summary())
+    return report
 
-    sources = _sources(paths, config, old, folders)
-    rows: dict[str, tuple[str, dict[str, Any]]] = {}  # row path -> (dataset, fields)
-    roots: dict[str, Path] = {}
-    publish_dirs: dict[str, Path] = {}
-    intact: dict[str, bool] = {}
-    seen_inodes: set[tuple[int, int]] = set()
+
+@dataclass
+class _Found:
+    """The rows a rebuild will write, and where each dataset lives."""
+
+    rows: dict[str, tuple[str, dict[str, Any]]] = field(default_factory=dict)  # row path -> (dataset, fields)
+    roots: dict[str, Path] = field(default_factory=dict)
+    publish_dirs: dict[str, Path] = field(default_factory=dict)
+
+
+def _collect_rows(
+    paths: AppPaths,
+    sources: list[_Source],
+    old: _OldStore,
+    vault: Vault,
+    read_marker: MarkerReader,
+    report: RebuildReport,
+) -> _Found:
+    """Walk the sources in order (an earlier source's row wins a conflict) and keep a patched row
+    for every marked file whose original is intact in the vault."""
+    collector = _RowCollector(paths, old, vault, report)
     skip_dirs = {os.path.realpath(p) for p in (paths.vault_dir, paths.data_dir)}
+    seen_inodes: set[tuple[int, int]] = set()
     for source in sources:
         if not source.folder.is_dir():
             continue
         report.folders.append(source.folder)
         for path in _walk(source.folder, skip_dirs, report):
-            found = _marked_file(path, read_marker, seen_inodes)
-            if found is None:
+            looked = _marked_file(path, read_marker, seen_inodes)
+            if looked is None:
                 continue
-            report.files_seen += found[0]
-            if found[1] is None:
-                continue
-            marker, sha, st = found[1]
-            report.marked += 1
-            original = str(marker.original_sha256)
-            if original not in intact:
-                intact[original] = _original_intact(vault, original)
-            if not intact[original]:
-                report.without_original.append(path)
-                continue
-            dataset, identity = _identity(source, paths.outbox.absolute(), path)
-            if str(identity) in rows:
-                report.conflicts.append(path)
-                continue
-            rows[str(identity)] = (dataset, {
-                "original_sha256": original, "poisoned_sha256": sha, "spec_id": str(marker.spec_id),
-                "tool_version": str(marker.tool), "size": st.st_size, "mtime_ns": st.st_mtime_ns,
-                "error": None, "published_path": str(path) if source.published else None,
-            })  # fmt: skip
-            roots.setdefault(dataset, _root_of(source, dataset, paths.outbox, old))
-            if source.published:
-                publish_dirs.setdefault(dataset, source.folder)
+            report.files_seen += looked[0]
+            if looked[1] is not None:
+                report.marked += 1
+                collector.keep(source, path, *looked[1])
+    return collector.found
 
-    by_dataset: dict[str, list[str]] = collections.defaultdict(list)
-    for dataset, fields in rows.values():
-        by_dataset[dataset].append(fields["spec_id"])
-    specs = _recover_specs(vault, old, config, {s for ids in by_dataset.values() for s in ids}, report)
-    _write_new_store(store_path, rows, by_dataset, roots, publish_dirs, specs, old, config, report)
-    report.recorded = len(rows)
-    report.datasets = {name: len(ids) for name, ids in sorted(by_dataset.items())}
-    referenced = {fields["original_sha256"] for _, fields in rows.values()}
-    report.unreferenced_originals = len(set(vault.blobs()) - referenced)
-    log.info(report.summary())
-    return report
+
+@dataclass
+class _RowCollector:
+    paths: AppPaths
+    old: _OldStore
+    vault: Vault
+    report: RebuildReport
+    found: _Found = field(default_factory=_Found)
+    intact: dict[str, bool] = field(default_factory=dict)  # original sha256 -> intact in the vault
+
+    def keep(self, source: _Source, path: Path, marker: Any, sha: str, st: os.stat_result) -> None:
+        """One marked file's row, unless its original is not intact or its path is taken."""
+        original = str(marker.original_sha256)
+        if original not in self.intact:
+            self.intact[original] = _original_intact(self.vault, original)
+        if not self.intact[original]:
+            self.report.without_original.append(path)
+            return
+        dataset, identity = _identity(source, self.paths.outbox.absolute(), path)
+        if str(identity) in self.found.rows:
+            self.report.conflicts.append(path)
+            return
+        self.found.rows[str(identity)] = (dataset, {
+            "original_sha256": original, "poisoned_sha256": sha, "spec_id": str(marker.spec_id),
+            "tool_version": str(marker.tool), "size": st.st_size, "mtime_ns": st.st_mtime_ns,
+            "error": None, "published_path": str(path) if source.published else None,
+        })  # fmt: skip
+        self.found.roots.setdefault(dataset, _root_of(source, dataset, self.paths.outbox, self.old))
+        if source.published:
+            self.found.publish_dirs.setdefault(dataset, source.folder)
 
 
 # ---- the old store -----------------------------------------------------------------------------------
@@ -193,8 +225,7 @@ def _store_condition(store_path: Path, vault_dir: Path, force: bool) -> str:
     try:
         if store.lost_note():
             return "lost"
-        files = store._one("SELECT COUNT(*) AS n FROM files")
-        count = int(files["n"]) if files else 0
+        count = store.file_count()
     except StoreError:
         return "damaged"
     finally:
@@ -368,13 +399,10 @@ def _recover_specs(
 
 def _write_new_store(
     store_path: Path,
-    rows: dict[str, tuple[str, dict[str, Any]]],
+    found: _Found,
     by_dataset: dict[str, list[str]],
-    roots: dict[str, Path],
-    publish_dirs: dict[str, Path],
     specs: dict[str, PatchSpec],
     old: _OldStore,
-    config: Config,
     report: RebuildReport,
 ) -> None:
     """Build the new store under a temporary name, keep the old one aside, rename the new one in."""
@@ -383,27 +411,46 @@ def _write_new_store(
         Path(f"{tmp}{suffix}").unlink(missing_ok=True)
     store = Store(tmp)
     try:
-        for name in sorted(set(by_dataset) | set(old.datasets)):
-            ids = by_dataset.get(name, [])
-            spec_id = (
-                collections.Counter(ids).most_common(1)[0][0] if ids else old.datasets[name].get("spec_id")
-            )
-            info = old.datasets.get(name, {})
-            publish = info.get("publish_dir") or publish_dirs.get(name)
-            root = Path(info.get("root") or roots.get(name) or store_path.parent)
-            store.add_dataset(
-                name, root, specs.get(spec_id or ""), Path(publish) if publish else None, event="rebuilt",
-                detail={"files": len(ids), "spec_id_from_markers": spec_id},
-            )  # fmt: skip
-        for spec in specs.values():
-            store.ensure_spec(spec)  # a file's own spec (a dataset mid re-protect) resolves too
-        store.record_files(
-            (path, dataset, FileState.PATCHED, fields) for path, (dataset, fields) in rows.items()
-        )
-        store.db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-        store.db.execute("PRAGMA journal_mode = DELETE")  # one self-contained file to rename
+        _fill_new_store(store, store_path, found, by_dataset, specs, old)
+        store.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        store.conn.execute("PRAGMA journal_mode = DELETE")  # one self-contained file to rename
     finally:
         store.close()
+    _keep_aside(store_path, report)
+    os.replace(tmp, store_path)
+    fsync_dir(store_path.parent)
+    check = Store(store_path)  # reopen: WAL mode, permissions, and a proof it opens
+    check.close()
+
+
+def _fill_new_store(
+    store: Store,
+    store_path: Path,
+    found: _Found,
+    by_dataset: dict[str, list[str]],
+    specs: dict[str, PatchSpec],
+    old: _OldStore,
+) -> None:
+    """Datasets (each with its markers' most common spec), every recovered spec, the file rows."""
+    for name in sorted(set(by_dataset) | set(old.datasets)):
+        ids = by_dataset.get(name, [])
+        spec_id = collections.Counter(ids).most_common(1)[0][0] if ids else old.datasets[name].get("spec_id")
+        info = old.datasets.get(name, {})
+        publish = info.get("publish_dir") or found.publish_dirs.get(name)
+        root = Path(info.get("root") or found.roots.get(name) or store_path.parent)
+        store.add_dataset(
+            name, root, specs.get(spec_id or ""), Path(publish) if publish else None, event="rebuilt",
+            detail={"files": len(ids), "spec_id_from_markers": spec_id},
+        )  # fmt: skip
+    for spec in specs.values():
+        store.ensure_spec(spec)  # a file's own spec (a dataset mid re-protect) resolves too
+    store.record_files(
+        (path, dataset, FileState.PATCHED, fields) for path, (dataset, fields) in found.rows.items()
+    )
+
+
+def _keep_aside(store_path: Path, report: RebuildReport) -> None:
+    """Rename the old store's files (with -wal/-shm) to `<name>.before-rebuild-<UTC time>`."""
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
     aside = store_path.with_name(f"{store_path.name}{ASIDE_INFIX}{stamp}")
     n = 1
@@ -415,7 +462,3 @@ def _write_new_store(
         if current.exists():
             os.replace(current, Path(f"{aside}{suffix}"))
             report.kept_aside.append(Path(f"{aside}{suffix}"))
-    os.replace(tmp, store_path)
-    fsync_dir(store_path.parent)
-    check = Store(store_path)  # reopen: WAL mode, permissions, and a proof it opens
-    check.close()

@@ -17,6 +17,21 @@ import pytest
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 
+# The integration tests CI runs (`make test`, the default selection), one for each real part: pycolmap
+# SfM on a synthetic scene; the paper's verdict (the patch breaks default COLMAP, hardened COLMAP
+# resists); `ppd demo`, the real watchdog daemon end to end up to a printed verdict; a file the daemon
+# cannot patch leaving the outbox (real daemon processes); a deleted store, no double poisoning, every
+# original restored. The video path has no integration test: tests/test_video*.py run by default.
+# The other integration tests run with `make test-all` or `pytest -m integration`. A node id without
+# [parameters] takes every parameter; tests/test_selection.py checks that each names an integration test.
+REPRESENTATIVE = (
+    "tests/test_sfm.py::test_clean_sfm_recovers_synthetic_cameras",
+    "tests/test_verification.py::test_patch_breaks_default_colmap_and_hardened_colmap_resists",
+    "tests/test_demo.py::test_demo_verifies_and_prints_the_verdict",
+    "tests/test_quarantine.py::test_a_file_ppd_cannot_patch_leaves_the_outbox",
+    "tests/test_reliability_kill_loops.py::test_store_deleted_no_double_poisoning_and_every_original_restored",
+)
+
 # AF_UNIX socket paths are limited to 107 bytes by the kernel, and tests bind sockets (sd_notify
 # receivers, systemd-analyze's runtime dir) under tmp_path. Under a long TMPDIR the tests' own
 # folders go to a short private one; what ppd itself does with TMPDIR still sees the long path
@@ -59,3 +74,11 @@ def ppd_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Path]:
     monkeypatch.setenv("PPD_CONFIG_DIR", str(dirs["config"]))
     monkeypatch.setenv("PPD_OUTBOX", str(dirs["outbox"]))
     return dirs
+
+
+@pytest.hookimpl(tryfirst=True)  # before `-m` deselects: the marker must be there to select by
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    wanted = set(REPRESENTATIVE)
+    for item in items:
+        if item.nodeid.split("[", 1)[0] in wanted:
+            item.add_marker(pytest.mark.representative)

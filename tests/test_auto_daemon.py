@@ -3,9 +3,7 @@ scheduler and Store (re-protecting real files from the vault), and the preflight
 
 from __future__ import annotations
 
-import os
 import shutil
-import stat
 import threading
 from pathlib import Path
 from typing import Any
@@ -17,7 +15,6 @@ from daemon.config import Config, ConfigError
 from daemon.protect import AppContext, protect_file
 from daemon.scheduler import SchedulePolicy, VerificationScheduler
 from daemon.states import FileState
-from daemon.store import SCHEMA_VERSION, Store, StoreError
 from daemon.verify import record_report
 from poisoner.spec import PatchSpec
 from verifier.auto import LadderEntry, ladder_to_json
@@ -81,45 +78,6 @@ def test_default_config_has_the_issue_budget() -> None:
     cfg = Config()
     assert (cfg.visibility.min_ssim, cfg.visibility.max_lpips) == (0.99, 0.02)
     assert not cfg.is_auto("anything")
-
-
-# ---- store ----------------------------------------------------------------------------------------------
-def test_auto_decisions_table_and_methods(tmp_path: Path) -> None:
-    store = Store(tmp_path / "ppd.sqlite3")
-    try:
-        assert store.schema_version() == SCHEMA_VERSION
-        assert store.latest_auto_decision("trip") is None
-        first = store.add_auto_decision("trip", "a-small", A.spec, "because", {"x": 1}, "preflight")
-        none_left = {"failed": ["a-small"]}
-        store.add_auto_decision("trip", None, None, daemon_auto.NO_CANDIDATE, none_left, "escalation")
-        rows = store.auto_decisions("trip")
-        assert [r["trigger"] for r in rows] == ["escalation", "preflight"]
-        assert rows[1]["id"] == first and rows[1]["spec_id"] == A.spec.spec_id
-        assert rows[1]["evidence"] == {"x": 1}
-        assert store.get_spec(A.spec.spec_id) == A.spec  # the spec is stored with the decision
-        assert rows[0]["candidate"] is None and rows[0]["evidence"]["failed"] == ["a-small"]
-        assert [e["kind"] for e in store.events("trip")][:2] == ["auto_decision", "auto_decision"]
-        with pytest.raises(StoreError, match="unknown auto trigger"):
-            store.add_auto_decision("trip", "a", A.spec, "r", {}, "whim")
-    finally:
-        store.close()
-
-
-def test_store_files_are_owner_only(tmp_path: Path) -> None:
-    db = tmp_path / "ppd.sqlite3"
-    old = os.umask(0o022)  # a umask that would leave the files world-readable
-    try:
-        store = Store(db)
-        store.add_event(None, None, "probe", {})
-    finally:
-        os.umask(old)
-    try:
-        for suffix in ("", "-wal", "-shm"):
-            path = Path(f"{db}{suffix}")
-            assert path.exists(), path
-            assert stat.S_IMODE(path.stat().st_mode) == 0o600, (path, oct(path.stat().st_mode))
-    finally:
-        store.close()
 
 
 # ---- escalation (pure parts) -------------------------------------------------------------------------------

@@ -130,14 +130,20 @@ def mutate(data: bytes, edits: list[tuple[int, int]], cut: int | None) -> bytes:
 
 
 def fuzz_image_reader(folder: Path, suffix: str, data: bytes) -> str:
-    """Feed bytes to poison_file; 'ok' or 'refused'. Any other exception propagates (a bug)."""
+    """Feed bytes to poison_file; 'ok' or 'refused'. Any other exception propagates (a bug).
+
+    A refusal writes nothing: no output file (not even an empty or partial one) and nothing else
+    left in the folder."""
     src, dst = folder / f"fuzz{suffix}", folder / f"out{suffix}"
     src.write_bytes(data)
+    dst.unlink(missing_ok=True)  # an earlier example's output (hypothesis reuses the folder)
+    before = sorted(folder.iterdir())
     try:
         poison_file(src, dst, PatchSpec(patch_size=8, block_size=2))
     except ImageFormatError as exc:
         assert str(exc) and "\n" not in str(exc)
-        assert not dst.exists() or dst.stat().st_size == 0 or dst.read_bytes()
+        assert not dst.exists(), f"refused, yet {dst.name} was written ({dst.stat().st_size} bytes)"
+        assert sorted(folder.iterdir()) == before, "a refusal left files behind"
         return "refused"
     assert dst.stat().st_size > 0
     PIL.Image.open(dst).load()  # what it wrote is a complete image

@@ -105,17 +105,23 @@ def test_vault_and_store_are_unreadable_by_other_users(
 
 
 def test_store_file_modes_are_owner_only(ppd_env: dict[str, Path]) -> None:
-    """The mode bits themselves (meaningful as any user): no group/other bits on the store."""
+    """The mode bits themselves (meaningful as any user): no group/other bits on the store, nor on
+    the -wal/-shm files SQLite keeps beside it while it is open (they hold its newest rows), and
+    the store keeps its mode once closed (the last close removes the -wal/-shm files)."""
+    db = ppd_env["data"] / "ppd.sqlite3"
     old_umask = os.umask(0o022)
     try:
-        store = Store(ppd_env["data"] / "ppd.sqlite3")
-        store.db.execute("SELECT 1")
-        store.close()
+        store = Store(db)
+        store.conn.execute("SELECT 1")
     finally:
         os.umask(old_umask)
-    for path in (ppd_env["data"] / "ppd.sqlite3", ppd_env["data"] / "ppd.sqlite3-wal"):
-        if path.exists():
+    try:
+        for path in (db, Path(f"{db}-wal"), Path(f"{db}-shm")):
+            assert path.exists(), f"{path} should exist while the store is open in WAL mode"
             assert stat.S_IMODE(path.stat().st_mode) & 0o077 == 0, (path, oct(path.stat().st_mode))
+    finally:
+        store.close()
+    assert stat.S_IMODE(db.stat().st_mode) & 0o077 == 0, oct(db.stat().st_mode)
 
 
 def test_daemon_never_follows_a_symlink_out_of_the_outbox(tmp_path: Path) -> None:

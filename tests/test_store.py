@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import os
 import sqlite3
+import stat
 import threading
 import time
 from pathlib import Path
 
 import pytest
 
+from daemon import auto as daemon_auto
 from daemon.states import FileState
 from daemon.store import (
     MIGRATIONS,
@@ -17,9 +20,12 @@ from daemon.store import (
     PatchedNotFailed,
     Store,
     StoreError,
-    _split_sql,
 )
+from daemon.store.schema import split_sql
 from poisoner.spec import PatchSpec
+from verifier.auto import LadderEntry
+
+A = LadderEntry("a-small", PatchSpec(patch_size=0.05), "least visible")  # as in test_auto_daemon.py
 
 
 @pytest.fixture
@@ -53,7 +59,7 @@ def test_old_database_is_migrated_in_order(tmp_path: Path) -> None:
     conn = sqlite3.connect(db)
     conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
     conn.execute("INSERT INTO schema_version VALUES (1)")
-    for statement in _split_sql(MIGRATIONS[0]):
+    for statement in split_sql(MIGRATIONS[0]):
         conn.execute(statement)
     conn.commit()
     conn.close()
@@ -193,7 +199,7 @@ def _version_3_store(db: Path) -> None:
     conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
     conn.execute("INSERT INTO schema_version VALUES (3)")
     for migration in MIGRATIONS[:3]:
-        for statement in _split_sql(migration):
+        for statement in split_sql(migration):
             conn.execute(statement)
     conn.execute("INSERT INTO specs VALUES ('s1', '{}', 1, 1.0)")
     conn.execute("INSERT INTO datasets VALUES ('d', '/root', 's1', 1.0, NULL)")
@@ -336,3 +342,42 @@ def test_record_files_writes_many_rows_in_one_transaction(store: Store, tmp_path
             [(tmp_path / "new.jpg", "d", FileState.PATCHED, {}), (tmp_path / "y.jpg", "nope", "patched", {})]
         )
     assert store.file(tmp_path / "new.jpg") is None
+
+
+# ---- automatic mode's decisions, and the files' modes (moved from test_auto_daemon.py) -------------
+def test_auto_decisions_table_and_methods(tmp_path: Path) -> None:
+    store = Store(tmp_path / "ppd.sqlite3")
+    try:
+        assert store.schema_version() == SCHEMA_VERSION
+        assert store.latest_auto_decision("trip") is None
+        first = store.add_auto_decision("trip", "a-small", A.spec, "because", {"x": 1}, "preflight")
+        none_left = {"failed": ["a-small"]}
+        store.add_auto_decision("trip", None, None, daemon_auto.NO_CANDIDATE, none_left, "escalation")
+        rows = store.auto_decisions("trip")
+        assert [r["trigger"] for r in rows] == ["escalation", "preflight"]
+        assert rows[1]["id"] == first and rows[1]["spec_id"] == A.spec.spec_id
+        assert rows[1]["evidence"] == {"x": 1}
+        assert store.get_spec(A.spec.spec_id) == A.spec  # the spec is stored with the decision
+        assert rows[0]["candidate"] is None and rows[0]["evidence"]["failed"] == ["a-small"]
+        assert [e["kind"] for e in store.events("trip")][:2] == ["auto_decision", "auto_decision"]
+        with pytest.raises(StoreError, match="unknown auto trigger"):
+            store.add_auto_decision("trip", "a", A.spec, "r", {}, "whim")
+    finally:
+        store.close()
+
+
+def test_store_files_are_owner_only(tmp_path: Path) -> None:
+    db = tmp_path / "ppd.sqlite3"
+    old = os.umask(0o022)  # a umask that would leave the files world-readable
+    try:
+        store = Store(db)
+        store.add_event(None, None, "probe", {})
+    finally:
+        os.umask(old)
+    try:
+        for suffix in ("", "-wal", "-shm"):
+            path = Path(f"{db}{suffix}")
+            assert path.exists(), path
+            assert stat.S_IMODE(path.stat().st_mode) == 0o600, (path, oct(path.stat().st_mode))
+    finally:
+        store.close()

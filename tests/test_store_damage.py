@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-import daemon.store
+import daemon.store.damage
 from daemon.states import FileState
 from daemon.store import SCHEMA_VERSION, Store, StoreDamaged, StoreError
 from poisoner.spec import PatchSpec
@@ -118,7 +118,7 @@ def test_damage_met_after_the_open_is_one_line_too(tmp_path: Path, monkeypatch: 
     with open(db, "r+b") as fh:
         fh.seek(db.stat().st_size // 2 // 4096 * 4096)
         fh.write(os.urandom(4096))
-    monkeypatch.setattr(daemon.store, "QUICK_CHECK_MAX_BYTES", 0)
+    monkeypatch.setattr(daemon.store.damage, "QUICK_CHECK_MAX_BYTES", 0)
     store = Store(db)
     with pytest.raises(StoreDamaged) as caught:
         for i in range(ROWS):

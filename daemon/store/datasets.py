@@ -1,0 +1,145 @@
+"""Specs and datasets: every dataset has one PatchSpec (same patch, same place, every image),
+stored once by its content hash."""
+
+from __future__ import annotations
+
+import sqlite3
+import time
+from pathlib import Path
+from typing import Any
+
+from daemon.states import FileState
+from daemon.store.connection import StoreBase
+from daemon.store.errors import DatasetSpecLocked, StoreError
+from daemon.store.events import insert_event
+from poisoner.spec import PatchSpec
+
+
+def insert_spec(conn: sqlite3.Connection, spec: PatchSpec) -> str:
+    """Store the spec inside the caller's transaction (once: the id is its content hash)."""
+    conn.execute(
+        "INSERT OR IGNORE INTO specs (id, json, version, created_at) VALUES (?, ?, ?, ?)",
+        (spec.spec_id, spec.to_json(), spec.version, time.time()),
+    )
+    return spec.spec_id
+
+
+def _insert_dataset(
+    conn: sqlite3.Connection, name: str, root: Path, spec_id: str | None, publish_dir: Path | None
+) -> None:
+    conn.execute(
+        "INSERT INTO datasets (name, root, spec_id, created_at, publish_dir) VALUES (?, ?, ?, ?, ?)",
+        (name, str(root), spec_id, time.time(), str(publish_dir) if publish_dir else None),
+    )
+
+
+class DatasetRows(StoreBase):
+    # ---- specs ----------------------------------------------------------------------------
+    def ensure_spec(self, spec: PatchSpec) -> str:
+        with self._write() as conn:
+            return insert_spec(conn, spec)
+
+    def get_spec(self, spec_id: str) -> PatchSpec:
+        row = self._one("SELECT json FROM specs WHERE id = ?", (spec_id,))
+        if row is None:
+            raise StoreError(f"no spec {spec_id} in the store")
+        return PatchSpec.from_json(row["json"])
+
+    # ---- datasets -------------------------------------------------------------------------
+    def ensure_dataset(
+        self, name: str, root: Path, spec: PatchSpec, publish_dir: Path | None = None
+    ) -> tuple[dict[str, Any], PatchSpec]:
+        """The dataset's row and its one spec, creating both if this is its first file.
+
+        Thread-safe: concurrent first files of a new dataset all get the same spec (the first
+        writer's), because the insert-or-read runs under SQLite's write lock.
+        """
+        with self._write() as conn:
+            row = conn.execute("SELECT spec_id FROM datasets WHERE name = ?", (name,)).fetchone()
+            if row is None:
+                insert_spec(conn, spec)
+                _insert_dataset(conn, name, root, spec.spec_id, publish_dir)
+                insert_event(
+                    conn, name, None, "dataset_created", {"root": str(root), "spec_id": spec.spec_id}
+                )
+            elif row[0] is None:
+                insert_spec(conn, spec)
+                conn.execute("UPDATE datasets SET spec_id = ? WHERE name = ?", (spec.spec_id, name))
+        dataset = self.dataset(name)
+        assert dataset is not None
+        return dataset, self.get_spec(dataset["spec_id"])
+
+    def add_dataset(
+        self,
+        name: str,
+        root: Path,
+        spec: PatchSpec | None,
+        publish_dir: Path | None = None,
+        *,
+        event: str = "dataset_created",
+        detail: dict[str, Any] | None = None,
+    ) -> bool:
+        """Insert a dataset row as it is known (a rebuild may not know its spec: spec None leaves
+        spec_id empty). An existing dataset is left as it is; returns whether one was added."""
+        with self._write() as conn:
+            if conn.execute("SELECT 1 FROM datasets WHERE name = ?", (name,)).fetchone():
+                return False
+            spec_id = insert_spec(conn, spec) if spec is not None else None
+            _insert_dataset(conn, name, root, spec_id, publish_dir)
+            insert_event(conn, name, None, event, {"root": str(root), "spec_id": spec_id, **(detail or {})})
+        return True
+
+    def dataset(self, name: str) -> dict[str, Any] | None:
+        return self._one("SELECT * FROM datasets WHERE name = ?", (name,))
+
+    def datasets(self) -> list[dict[str, Any]]:
+        return self._rows("SELECT * FROM datasets ORDER BY name")
+
+    def dataset_spec(self, name: str) -> PatchSpec | None:
+        row = self.dataset(name)
+        return self.get_spec(row["spec_id"]) if row and row["spec_id"] else None
+
+    def set_dataset_spec(
+        self, name: str, spec: PatchSpec, *, root: Path | None = None, allow_protected: bool = False
+    ) -> None:
+        """Give a dataset a spec. Before any file is patched this is free; afterwards its
+        patched files would carry a different patch than new ones, which breaks the method
+        (same patch, same place, every image), so it needs allow_protected (the re-protect path)."""
+        with self._write() as conn:
+            row = conn.execute("SELECT spec_id FROM datasets WHERE name = ?", (name,)).fetchone()
+            insert_spec(conn, spec)
+            if row is None:
+                if root is None:
+                    raise StoreError(f"no dataset {name!r}; give its root folder")
+                conn.execute(
+                    "INSERT INTO datasets (name, root, spec_id, created_at) VALUES (?, ?, ?, ?)",
+                    (name, str(root), spec.spec_id, time.time()),
+                )
+            elif row[0] != spec.spec_id:
+                if not allow_protected:
+                    _refuse_if_patched(conn, name, row[0])
+                conn.execute("UPDATE datasets SET spec_id = ? WHERE name = ?", (spec.spec_id, name))
+            insert_event(
+                conn, name, None, "spec_set", {"spec_id": spec.spec_id, "previous": row[0] if row else None}
+            )
+
+    def set_dataset_publish_dir(self, name: str, publish_dir: Path | None) -> None:
+        with self._write() as conn:
+            conn.execute(
+                "UPDATE datasets SET publish_dir = ? WHERE name = ?",
+                (str(publish_dir) if publish_dir else None, name),
+            )
+
+
+def _refuse_if_patched(conn: sqlite3.Connection, name: str, spec_id: str | None) -> None:
+    """DatasetSpecLocked when the dataset has patched (or pending) files under its current spec."""
+    patched = conn.execute(
+        "SELECT COUNT(*) FROM files WHERE dataset = ? AND state IN (?, ?)",
+        (name, FileState.PATCHED, FileState.PENDING),
+    ).fetchone()[0]
+    if patched:
+        raise DatasetSpecLocked(
+            f"dataset {name!r} has {patched} patched file(s) under spec {spec_id}; "
+            f"changing it needs a re-protect from the vault "
+            f"(ppd dataset set {name} ... --reprotect)"
+        )

@@ -1,0 +1,19 @@
+"""The store's exceptions: each carries one line that says what to do."""
+
+from __future__ import annotations
+
+
+class StoreError(RuntimeError):
+    """A store operation that cannot be done as asked (message = one line)."""
+
+
+class StoreDamaged(StoreError):
+    """The store file is not a usable SQLite database; `ppd store rebuild` rebuilds it."""
+
+
+class PatchedNotFailed(StoreError):
+    """A FAILED was about to overwrite a PATCHED row whose file is, in fact, the patched output."""
+
+
+class DatasetSpecLocked(StoreError):
+    """The dataset already has patched files under its spec; changing it needs --reprotect."""

@@ -1,0 +1,42 @@
+"""The event log: one row for each thing ppd did, written in the same transaction as the rows
+it changed."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from pathlib import Path
+from typing import Any
+
+from daemon.store.connection import StoreBase
+
+
+def insert_event(
+    conn: sqlite3.Connection, dataset: str | None, path: str | None, kind: str, detail: dict[str, Any]
+) -> None:
+    """Add an event inside the caller's transaction."""
+    conn.execute(
+        "INSERT INTO events (ts, dataset, path, kind, detail) VALUES (?, ?, ?, ?, ?)",
+        (time.time(), dataset, path, kind, json.dumps(detail, default=str, sort_keys=True)),
+    )
+
+
+class EventRows(StoreBase):
+    def add_event(
+        self, dataset: str | None, path: Path | str | None, kind: str, detail: dict[str, Any]
+    ) -> None:
+        with self._write() as conn:
+            insert_event(conn, dataset, str(path) if path is not None else None, kind, detail)
+
+    def events(self, dataset: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
+        """Newest first; detail parsed."""
+        if dataset is None:
+            rows = self._rows("SELECT * FROM events ORDER BY id DESC LIMIT ?", (limit,))
+        else:
+            rows = self._rows(
+                "SELECT * FROM events WHERE dataset = ? ORDER BY id DESC LIMIT ?", (dataset, limit)
+            )
+        for row in rows:
+            row["detail"] = json.loads(row["detail"]) if row["detail"] else {}
+        return rows

@@ -1,0 +1,142 @@
+"""File rows: one per path ppd has seen, with its state, the original's and the patched output's
+hashes, and the spec it was patched with."""
+
+from __future__ import annotations
+
+import sqlite3
+import time
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from daemon.states import FileState
+from daemon.store.connection import StoreBase
+from daemon.store.errors import PatchedNotFailed, StoreError
+from daemon.store.events import insert_event
+
+FILE_STATES: tuple[FileState, ...] = tuple(FileState)
+FILE_FIELDS = frozenset(
+    {
+        "original_sha256",
+        "poisoned_sha256",
+        "spec_id",
+        "tool_version",
+        "size",
+        "mtime_ns",
+        "error",
+        "published_path",
+    }
+)
+
+
+class FileRows(StoreBase):
+    def file(self, path: Path | str) -> dict[str, Any] | None:
+        return self._one("SELECT * FROM files WHERE path = ?", (str(path),))
+
+    def files(self, dataset: str, state: FileState | str | None = None) -> list[dict[str, Any]]:
+        """A dataset's rows by path; an unknown state raises StoreError (an old word such as
+        'protected' would otherwise match nothing, silently)."""
+        if state is None:
+            return self._rows("SELECT * FROM files WHERE dataset = ? ORDER BY path", (dataset,))
+        return self._rows(
+            "SELECT * FROM files WHERE dataset = ? AND state = ? ORDER BY path",
+            (dataset, file_state(state).value),
+        )
+
+    def find_poisoned(self, sha256: str) -> dict[str, Any] | None:
+        """A row whose patched output has this content (ppd's own output, anywhere)."""
+        return self._one("SELECT * FROM files WHERE poisoned_sha256 = ? LIMIT 1", (sha256,))
+
+    def find_original(self, sha256: str) -> list[dict[str, Any]]:
+        """Every row whose original has this content (newest first)."""
+        return self._rows(
+            "SELECT * FROM files WHERE original_sha256 = ? ORDER BY updated_at DESC, id DESC", (sha256,)
+        )
+
+    def record_file(
+        self,
+        path: Path | str,
+        dataset: str,
+        state: FileState | str,
+        *,
+        event: str | None = None,
+        detail: dict[str, Any] | None = None,
+        current_sha256: str | None = None,
+        **fields: Any,
+    ) -> None:
+        """Insert or update the row for path (and optionally log an event), in one transaction.
+
+        current_sha256, when the caller knows the file's content now: a FAILED for a row that
+        is PATCHED with exactly that content as its poisoned_sha256 is refused (StoreError), in
+        the same transaction as the write. The file *is* ppd's patched output; recording it as
+        failed would make `ppd restore` skip it and a later run patch it twice."""
+        state = file_state(state)
+        check_fields(fields)
+        with self._write() as conn:
+            upsert_file(conn, path, dataset, state, fields, current_sha256)
+            if event:
+                insert_event(conn, dataset, str(path), event, detail or {})
+
+    def record_files(self, rows: Iterable[tuple[Path | str, str, FileState | str, dict[str, Any]]]) -> int:
+        """Insert or update many (path, dataset, state, fields) rows in one transaction (one
+        fsync, not one per row: a rebuild writes thousands); returns how many."""
+        checked = []
+        for path, dataset, state, fields in rows:
+            check_fields(fields)
+            checked.append((path, dataset, file_state(state), fields))
+        with self._write() as conn:
+            for path, dataset, state, fields in checked:
+                upsert_file(conn, path, dataset, state, fields, None)
+        return len(checked)
+
+    def counts(self, dataset: str) -> dict[str, int]:
+        """Rows per state (keys: every FileState value) and their total under "files"."""
+        counts: dict[str, int] = {state.value: 0 for state in FILE_STATES}
+        for row in self._rows(
+            "SELECT state, COUNT(*) AS n FROM files WHERE dataset = ? GROUP BY state", (dataset,)
+        ):
+            counts[row["state"]] = row["n"]
+        counts["files"] = sum(counts[s] for s in FILE_STATES)
+        return counts
+
+
+def upsert_file(
+    conn: sqlite3.Connection,
+    path: Path | str,
+    dataset: str,
+    state: FileState,
+    fields: dict[str, Any],
+    current_sha256: str | None,
+) -> None:
+    """Insert or update path's row inside the caller's transaction (see FileRows.record_file)."""
+    if state is FileState.FAILED and current_sha256 is not None:
+        row = conn.execute("SELECT state, poisoned_sha256 FROM files WHERE path = ?", (str(path),)).fetchone()
+        if row is not None and row[0] == FileState.PATCHED and row[1] == current_sha256:
+            raise PatchedNotFailed(
+                f"{path} is ppd's patched output (sha256 {current_sha256[:12]}); "
+                "not recording it as failed, its row stays patched"
+            )
+    now = time.time()
+    values = {"dataset": dataset, "state": state.value, "updated_at": now, **fields}
+    columns = ", ".join(values)
+    marks = ", ".join("?" for _ in values)
+    updates = ", ".join(f"{c} = excluded.{c}" for c in values)
+    conn.execute(
+        f"INSERT INTO files (path, created_at, {columns}) VALUES (?, ?, {marks}) "
+        f"ON CONFLICT(path) DO UPDATE SET {updates}",
+        (str(path), now, *values.values()),
+    )
+
+
+def file_state(state: FileState | str) -> FileState:
+    try:
+        return FileState(state)
+    except ValueError:
+        raise StoreError(f"unknown file state {state!r}; one of {', '.join(FILE_STATES)}") from None
+
+
+def check_fields(fields: dict[str, Any]) -> None:
+    """Only the files table's own columns (the column names go into the SQL text)."""
+    unknown = set(fields) - FILE_FIELDS
+    if unknown:
+        raise StoreError(f"unknown file field(s): {', '.join(sorted(unknown))}")
