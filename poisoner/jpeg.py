@@ -44,6 +44,7 @@ import os
 import shutil
 import struct
 import subprocess
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -359,3 +360,97 @@ def splice_patch(
     if (check.width, check.height, check.components) != (layout.width, layout.height, layout.components):
         raise SpliceUnavailable("jpegtran output has a different frame")
     return data
+
+
+# ---- one in-process coefficient pass (libturbojpeg) ----------------------------------------
+def turbo_refusal(src: Image.Image, layout: JpegLayout) -> str | None:
+    """Why the in-process pass cannot write this file like the jpegtran path would, or None.
+    tjTransform (TurboJPEG 2.x) writes standard Huffman tables for a baseline file (progressive
+    output is always optimised) and offers no restart interval and no arithmetic coding."""
+    if layout.lossless or layout.arithmetic:
+        return "lossless or arithmetic-coded JPEG"
+    if src.mode not in ("RGB", "L") or layout.components not in (1, 3):
+        return f"{src.mode} JPEG with {layout.components} components"
+    if layout.components == 3 and any(s != (1, 1) for s in layout.sampling[1:]):
+        return f"unusual sampling factors {layout.sampling}"
+    if layout.restart_interval:
+        return "restart markers (tjTransform cannot write them)"
+    if not layout.progressive and not (STANDARD_HUFFMAN_AS_SOURCE and keeps_standard_huffman(layout)):
+        return "optimised Huffman tables (tjTransform cannot re-optimise a baseline file)"
+    return None
+
+
+def _component_offsets(layout: JpegLayout, box: tuple[int, int, int, int]) -> list[tuple[int, int]]:
+    """(block column, block row) of the box's top-left block in each component."""
+    if layout.components == 1:
+        return [(box[0] // 8, box[1] // 8)]
+    mw, mh = layout.mcu_size
+    return [(box[0] // mw * h, box[1] // mh * v) for h, v in layout.sampling]
+
+
+def _patched_blocks(
+    crop_jpeg: bytes,
+    src: Image.Image,
+    layout: JpegLayout,
+    box: tuple[int, int, int, int],
+    patch: Callable[[np.ndarray], np.ndarray],
+) -> list[np.ndarray]:
+    """The DCT blocks of the patched MCU box, coded as the jpegtran path codes its drop file:
+    the crop (box + one MCU ring) decoded by Pillow, the box cut out and patched, encoded with
+    the source's tables and sampling, its coefficients read back."""
+    from poisoner import jpeg_turbo
+
+    cropped = Image.open(io.BytesIO(crop_jpeg))
+    cx0, cy0, cx1, cy1 = crop_box(box, layout)
+    if cropped.size != (cx1 - cx0, cy1 - cy0) or cropped.mode != src.mode:
+        raise SpliceUnavailable(f"in-process crop gave {cropped.mode} {cropped.size}")
+    x0, y0, x1, y1 = box
+    pixels = np.asarray(cropped.crop((x0 - cx0, y0 - cy0, x1 - cx0, y1 - cy0)))
+    drop = encode_like(np.ascontiguousarray(patch(pixels)), src, layout, metadata=False)
+    return jpeg_turbo.read_blocks(drop)
+
+
+def patch_in_one_pass(
+    data: bytes,
+    src: Image.Image,
+    layout: JpegLayout,
+    box: tuple[int, int, int, int],
+    patch: Callable[[np.ndarray], np.ndarray],
+) -> bytes:
+    """The source JPEG (its bytes: data) with only the MCUs of the MCU-aligned `box` replaced by
+    patch(box pixels), in one libturbojpeg call: the coefficients are entropy-decoded once, a
+    lossless crop of the box + one MCU ring is written (small) and decoded by Pillow, and the
+    whole picture is written once with the box's blocks swapped in; every other block, every
+    marker segment and the quantisation tables are copied. Same bytes as the jpegtran path
+    (tests/test_jpeg_turbo.py). Raises SpliceUnavailable when it cannot be done here."""
+    from poisoner import jpeg_turbo
+
+    reason = turbo_refusal(src, layout)
+    if reason is not None:
+        raise SpliceUnavailable(reason)
+    if box != mcu_box(box, layout):
+        raise ValueError(f"box {box} is not MCU-aligned")
+    outputs = jpeg_turbo.Outputs(2)
+    offsets = _component_offsets(layout, box)
+    new_blocks: list[np.ndarray] = []
+
+    def swap_in(row: int, blocks: np.ndarray, component: int, _index: int) -> None:
+        if not new_blocks:  # first row of the whole-picture transform: the crop is written by now
+            new_blocks.extend(_patched_blocks(outputs.finished(0), src, layout, box, patch))
+        col0, row0 = offsets[component]
+        replacement = new_blocks[component]
+        if row0 <= row < row0 + replacement.shape[0]:
+            blocks[col0 : col0 + replacement.shape[1]] = replacement[row - row0]
+
+    specs = [
+        (jpeg_turbo.crop_spec(crop_box(box, layout)), None),
+        jpeg_turbo.filter_spec(swap_in, progressive=layout.progressive),
+    ]
+    try:
+        out = jpeg_turbo.transform(data, specs, outputs)[1]
+    except jpeg_turbo.TurboUnavailable as exc:
+        raise SpliceUnavailable(str(exc)) from exc
+    check = read_layout(out)
+    if (check.width, check.height, check.components) != (layout.width, layout.height, layout.components):
+        raise SpliceUnavailable("libturbojpeg output has a different frame")
+    return out
