@@ -454,3 +454,20 @@ def patch_in_one_pass(
     if (check.width, check.height, check.components) != (layout.width, layout.height, layout.components):
         raise SpliceUnavailable("libturbojpeg output has a different frame")
     return out
+
+
+def turbo_available() -> str | None:
+    """None when the in-process pass can run here, else why not (logged by the caller)."""
+    from poisoner import jpeg_turbo
+
+    try:
+        jpeg_turbo.library()
+    except jpeg_turbo.TurboUnavailable as exc:
+        return str(exc)
+    return None
+
+
+def splice_available() -> bool:
+    """Whether a JPEG can be patched without decoding the whole picture: the in-process pass or
+    jpegtran is there."""
+    return turbo_available() is None or jpegtran_binary() is not None

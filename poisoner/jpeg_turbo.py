@@ -21,6 +21,10 @@ import ctypes
 import ctypes.util
 import os
 from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
 
 TURBOJPEG_ENV = "PPD_TURBOJPEG"
 
@@ -61,7 +65,7 @@ TjTransform._fields_ = [
 
 # (block row of the component, the row's blocks as an int16 array of shape (blocks, 64), natural
 # order, component index, transform index) -> None. Raising aborts the transform.
-BlockRowFilter = Callable[[int, "object", int, int], None]
+BlockRowFilter = Callable[[int, "np.ndarray", int, int], None]
 
 _lib: ctypes.CDLL | None = None
 _lib_error: str | None = None
@@ -72,7 +76,9 @@ def library() -> ctypes.CDLL:
     global _lib, _lib_error
     override = os.environ.get(TURBOJPEG_ENV)
     if override is not None:  # an explicit choice is honoured on every call (tests switch it)
-        return _load(override) if override else _refuse(f"{TURBOJPEG_ENV} is empty: in-process path off")
+        if not override:
+            raise TurboUnavailable(f"{TURBOJPEG_ENV} is empty: in-process path off")
+        return _load(override)
     if _lib is None and _lib_error is None:
         name = ctypes.util.find_library("turbojpeg") or "libturbojpeg.so.0"
         try:
@@ -82,10 +88,6 @@ def library() -> ctypes.CDLL:
     if _lib is None:
         raise TurboUnavailable(_lib_error)
     return _lib
-
-
-def _refuse(reason: str) -> ctypes.CDLL:
-    raise TurboUnavailable(reason)
 
 
 def _load(name: str) -> ctypes.CDLL:
@@ -157,7 +159,9 @@ class Outputs:
         return ctypes.string_at(self.bufs[index], self.sizes[index])
 
 
-def transform(data: bytes, specs: list[tuple[TjTransform, object]], outputs: Outputs | None = None) -> list[bytes]:
+def transform(
+    data: bytes, specs: list[tuple[TjTransform, object]], outputs: Outputs | None = None
+) -> list[bytes]:
     """Run the transforms on data (one entropy decode); the output file of each. Any library error
     or warning (corrupt or truncated data) raises TurboUnavailable; an exception raised by a
     filter is re-raised as it was."""
@@ -184,14 +188,14 @@ def transform(data: bytes, specs: list[tuple[TjTransform, object]], outputs: Out
         lib.tjDestroy(handle)
 
 
-def read_blocks(data: bytes) -> list["object"]:
-    """Every component's DCT blocks of a (small) JPEG: int16 arrays (rows, cols, 64), natural order.
-    One entropy decode; the write tjTransform insists on is discarded (it is small)."""
+def read_blocks(data: bytes) -> list[np.ndarray]:
+    """Every component's DCT blocks of a JPEG: int16 arrays (rows, cols, 64), natural order.
+    One entropy decode, nothing written."""
     import numpy as np
 
-    rows: dict[int, list[object]] = {}
+    rows: dict[int, list[np.ndarray]] = {}
 
-    def keep(_row: int, blocks: object, component: int, _index: int) -> None:
+    def keep(_row: int, blocks: np.ndarray, component: int, _index: int) -> None:
         rows.setdefault(component, []).append(np.array(blocks))
 
     transform(data, [filter_spec(keep, copy_markers=False, output=False)])
