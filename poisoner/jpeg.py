@@ -53,7 +53,7 @@ from PIL import Image, JpegImagePlugin
 
 log = logging.getLogger(__name__)
 
-JPEGTRAN_ENV = "PPD_JPEGTRAN"  # override the jpegtran binary (or "" to disable the splice)
+JPEGTRAN_ENV = "PPD_JPEGTRAN"  # override the jpegtran binary (or "" to disable the splice, in-process too)
 JPEGTRAN_TIMEOUT_S = 120
 # A source coded with the standard Huffman tables keeps them (no -optimize pass; keeps_standard_huffman).
 STANDARD_HUFFMAN_AS_SOURCE = True
@@ -425,7 +425,7 @@ def patch_in_one_pass(
     (tests/test_jpeg_turbo.py). Raises SpliceUnavailable when it cannot be done here."""
     from poisoner import jpeg_turbo
 
-    reason = turbo_refusal(src, layout)
+    reason = turbo_available() or turbo_refusal(src, layout)
     if reason is not None:
         raise SpliceUnavailable(reason)
     if box != mcu_box(box, layout):
@@ -457,8 +457,13 @@ def patch_in_one_pass(
 
 
 def turbo_available() -> str | None:
-    """None when the in-process pass can run here, else why not (logged by the caller)."""
+    """None when the in-process pass can run here, else why not (logged by the caller).
+    PPD_JPEGTRAN="" turns the coefficient splice off whichever way it is done; PPD_TURBOJPEG=""
+    only the in-process pass (jpegtran then does it)."""
     from poisoner import jpeg_turbo
+
+    if os.environ.get(JPEGTRAN_ENV) == "":
+        return f"{JPEGTRAN_ENV} is empty: coefficient splice off"
 
     try:
         jpeg_turbo.library()

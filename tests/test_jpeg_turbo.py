@@ -168,3 +168,24 @@ def test_an_error_in_the_patch_is_raised_as_it_was(tmp_path: Path) -> None:
 
     with pytest.raises(ZeroDivisionError, match="patch failed"):
         jpeg_codec.patch_in_one_pass(data, im, layout, box, broken)
+
+
+@needs_jpegtran
+def test_poison_file_same_bytes_with_the_library_switched_off(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """PPD_TURBOJPEG="" takes the jpegtran path through poison_file: the same file is written."""
+    from poisoner.formats import poison_file
+
+    src = tmp_path / "IMG_0002.jpg"
+    write_case(src, "420")
+    outs = {}
+    for setting in ("on", ""):
+        if setting:
+            monkeypatch.delenv(jpeg_turbo.TURBOJPEG_ENV, raising=False)
+        else:
+            monkeypatch.setenv(jpeg_turbo.TURBOJPEG_ENV, "")
+        report = poison_file(src, tmp_path / f"out-{setting}.jpg", SPECS["product-default"])
+        assert report.method == "jpeg-dct-splice"
+        outs[setting] = (tmp_path / f"out-{setting}.jpg").read_bytes()
+    assert outs["on"] == outs[""] != src.read_bytes()
