@@ -388,6 +388,15 @@ def _component_offsets(layout: JpegLayout, box: tuple[int, int, int, int]) -> li
     return [(box[0] // mw * h, box[1] // mh * v) for h, v in layout.sampling]
 
 
+def _component_rows(layout: JpegLayout, box: tuple[int, int, int, int]) -> list[int]:
+    """How many block rows the box spans in each component (a partial block at the bottom edge
+    counts)."""
+    if layout.components == 1:
+        return [-(-(box[3] - box[1]) // 8)]
+    mh = layout.mcu_size[1]
+    return [-(-(box[3] - box[1]) * v // mh) for _, v in layout.sampling]
+
+
 def _patched_blocks(
     crop_jpeg: bytes,
     src: Image.Image,
@@ -434,17 +443,23 @@ def patch_in_one_pass(
     offsets = _component_offsets(layout, box)
     new_blocks: list[np.ndarray] = []
 
+    wanted = [range(r0, r0 + n) for (_, r0), n in zip(offsets, _component_rows(layout, box), strict=True)]
+
     def swap_in(row: int, blocks: np.ndarray, component: int, _index: int) -> None:
-        if not new_blocks:  # first row of the whole-picture transform: the crop is written by now
+        if not new_blocks:  # first box row of the whole-picture transform: the crop is written by now
             new_blocks.extend(_patched_blocks(outputs.finished(0), src, layout, box, patch))
         col0, row0 = offsets[component]
         replacement = new_blocks[component]
-        if row0 <= row < row0 + replacement.shape[0]:
-            blocks[col0 : col0 + replacement.shape[1]] = replacement[row - row0]
+        # The drop file's last MCU row may hold padding block rows (read_blocks keeps them): unused.
+        if replacement.shape[0] < len(wanted[component]):
+            raise SpliceUnavailable(
+                f"patched box has {replacement.shape[0]} block rows in component {component}"
+            )
+        blocks[col0 : col0 + replacement.shape[1]] = replacement[row - row0]
 
     specs = [
         (jpeg_turbo.crop_spec(crop_box(box, layout)), None),
-        jpeg_turbo.filter_spec(swap_in, progressive=layout.progressive),
+        jpeg_turbo.filter_spec(swap_in, wanted=wanted.__getitem__, progressive=layout.progressive),
     ]
     try:
         out = jpeg_turbo.transform(data, specs, outputs)[1]
