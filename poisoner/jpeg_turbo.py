@@ -83,11 +83,16 @@ def library() -> ctypes.CDLL:
             raise TurboUnavailable(f"{TURBOJPEG_ENV} is empty: in-process path off")
         return _load(override)
     if _lib is None and _lib_error is None:
-        name = ctypes.util.find_library("turbojpeg") or "libturbojpeg.so.0"
-        try:
-            _lib = _load(name)
+        try:  # the usual soname first: find_library runs `ldconfig -p` (a child process)
+            _lib = _load("libturbojpeg.so.0")
         except TurboUnavailable as exc:
             _lib_error = str(exc)
+            name = ctypes.util.find_library("turbojpeg")
+            if name:
+                try:
+                    _lib, _lib_error = _load(name), None
+                except TurboUnavailable as again:
+                    _lib_error = str(again)
     if _lib is None:
         raise TurboUnavailable(_lib_error)
     return _lib
