@@ -1,6 +1,16 @@
 """JPEG, faithfully: put the patch in while changing as little of the file as possible.
 
-Two ways, best first:
+Three ways, best first:
+
+0. The same splice in one in-process pass (`patch_in_one_pass`, poisoner/jpeg_turbo.py): one
+   libturbojpeg `tjTransform` call reads every coefficient once, writes the lossless crop of the
+   box + ring that Pillow decodes, and writes the whole picture once with the box's blocks (the
+   patched box encoded as in 1.) swapped in by a coefficient callback. Same bytes as 1., about a
+   third of its CPU (no child processes, one entropy decode instead of two). libjpeg-turbo's
+   TurboJPEG API catches libjpeg errors itself (setjmp), and any warning on corrupt or truncated
+   data refuses the file, as jpegtran's do. Sources it cannot write as their source is written
+   (restart markers, optimised baseline Huffman tables, arithmetic coding: `turbo_refusal`) and
+   machines without libturbojpeg take 1.
 
 1. DCT-coefficient splice (`splice_patch`). Only the MCUs (minimum coded units, 8x8 to 16x16
    pixels) that the patch touches are re-encoded; every other quantised DCT coefficient is
@@ -25,7 +35,7 @@ Two ways, best first:
    be a second, bundled libjpeg with its own marker handling to audit; a ctypes binding of
    libjpeg's structs is ABI-fragile (struct layouts differ between libjpeg 6b/8/9/turbo).
 
-2. Same-tables re-encode (`encode_like`), when jpegtran is missing or refuses the file: the
+2. Same-tables re-encode (`encode_like`), when neither splice can be done: the
    whole picture is re-encoded with the source's quantisation tables and subsampling (never a
    blanket quality), progressive and restart settings, and its metadata segments. One such
    re-encode is a second generation of JPEG loss over the whole picture (measured in
