@@ -152,10 +152,13 @@ def timed(argv: list[str], quiet: bool = False, env: dict[str, str] | None = Non
     return {"wall": float(wall), "cpu": float(user) + float(system), "rss": int(rss) / 1024}
 
 
-def fresh_copy(src: Path, work: Path) -> Path:
+def fresh_copy(src: Path, work: Path, count: int | None = None) -> Path:
+    """work = the first `count` files of src (all when None): the cache may hold more."""
     if work.exists():
         shutil.rmtree(work)
-    shutil.copytree(src, work)
+    work.mkdir(parents=True)
+    for path in sorted(p for p in src.iterdir() if p.is_file())[:count]:
+        shutil.copyfile(path, work / path.name)
     return work
 
 
@@ -188,14 +191,16 @@ def fresh_state(root: Path) -> dict[str, str]:
     return {k: str(root / k) for k in ("PPD_DATA_DIR", "PPD_CONFIG_DIR", "PPD_OUTBOX", "PPD_CACHE_DIR")}
 
 
-def paired(src: Path, work: Path, pairs: int, workers: int, via: str = "library") -> tuple[dict, str]:
+def paired(
+    src: Path, work: Path, pairs: int, workers: int, via: str = "library", count: int | None = None
+) -> tuple[dict, str]:
     ppd_cmd, how = ppd_command(work, workers, via)
     floor_cmd = [sys.executable, "-m", "bench.bench_batch", "_floor", str(work)]
     runs: dict[str, list[dict[str, float]]] = {"ppd": [], "floor": []}
     for i in range(pairs):
         order = [("ppd", ppd_cmd), ("floor", floor_cmd)]
         for name, cmd in order if i % 2 == 0 else order[::-1]:
-            fresh_copy(src, work)
+            fresh_copy(src, work, count)
             env = fresh_state(work.parent / "state") if name == "ppd" and how == "ppd poison" else None
             runs[name].append(timed(cmd, quiet=how == "ppd poison", env=env))
     return runs, how
@@ -231,7 +236,7 @@ def measure(args: argparse.Namespace) -> None:
         for workers in args.workers:
             t0 = time.perf_counter()
             load = os.getloadavg()[0]
-            runs, how = paired(src, work, args.pairs, workers, args.via)
+            runs, how = paired(src, work, args.pairs, workers, args.via, args.count)
             med = summarise(runs)
             print(f"{label} workers={workers} ({how}): {med} ({time.perf_counter() - t0:.0f} s)", flush=True)
             rows.append((label, f"{workers} ({how})", med, (load, os.getloadavg()[0])))
