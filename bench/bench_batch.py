@@ -280,14 +280,15 @@ def write_results(args: argparse.Namespace, rows: list, load_before: tuple, load
         )
     lines.append("")
     text = "\n".join(lines)
-    if RESULTS.exists() and args.keep_notes:
-        old = RESULTS.read_text()
+    results = args.results
+    if results.exists() and args.keep_notes:
+        old = results.read_text()
         marker = "\n## Notes"
         if marker in old:
             text += old[old.index(marker) :]
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(text if text.endswith("\n") else text + "\n")
-    print(f"wrote {RESULTS}")
+    results.parent.mkdir(parents=True, exist_ok=True)
+    results.write_text(text if text.endswith("\n") else text + "\n")
+    print(f"wrote {results}")
 
 
 def profile(args: argparse.Namespace) -> None:
@@ -364,6 +365,7 @@ def main() -> None:
     m.add_argument("--keep-notes", action="store_true", default=True)
     m.add_argument("--via", choices=("library", "cli"), default="library", help="what the ppd side runs")
     m.add_argument("--only", choices=("jpeg", "png"), help="one of the two folders")
+    m.add_argument("--results", type=Path, default=RESULTS, help="where the table goes")
     p = sub.add_parser("profile", help="cProfile of one ppd process over --count JPEGs")
     p.add_argument("--count", type=int, default=8)
     p.add_argument("--top", type=int, default=30)
