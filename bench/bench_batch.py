@@ -2,11 +2,15 @@
 
 Each measurement is one fresh Python process run under `/usr/bin/time` on a fresh copy of the
 folder (the copy is made before the clock starts), so start-up, imports, child processes
-(jpegtran) and the durable write (fsync + rename, poisoner.atomic) are all counted:
+(jpegtran, when the in-process libturbojpeg pass is not taken) and the durable write (fsync +
+rename, poisoner.atomic) are all counted:
 
-- ppd:   `poison_in_place` over every file of the folder (the product's default spec,
-         poisoner.ladder.default_spec(): a moving texture inside the picture), serially, or with
-         `--workers N` through poisoner.batch.poison_many;
+- ppd:   `--via library` (default): `poison_in_place` over every file of the folder (the
+         product's default spec, poisoner.ladder.default_spec(): a moving texture inside the
+         picture), serially, or with `--workers N` through poisoner.batch.poison_many;
+         `--via cli`: the command a photographer runs, `ppd poison --workers N <folder>` (vault,
+         store, provenance included), each run with a fresh, empty PPD_DATA_DIR/PPD_CONFIG_DIR;
+         while the CLI has no `--workers`, N > 1 falls back to the library pool (the table says);
 - floor: Pillow decode + re-encode of every file, through the same atomic_output: JPEG with the
          source's quantisation tables and subsampling (`qtables=`, `subsampling=`, Pillow's
          default Huffman tables, i.e. what "re-saving with the same settings" costs), PNG with
@@ -135,36 +139,71 @@ def run_floor(folder: Path) -> None:
 
 
 # ---- timing --------------------------------------------------------------------------------------
-def timed(argv: list[str], quiet: bool = False) -> dict[str, float]:
+def timed(argv: list[str], quiet: bool = False, env: dict[str, str] | None = None) -> dict[str, float]:
     """One whole process under /usr/bin/time: wall, cpu (user+sys, children included), rss MB."""
     with tempfile.NamedTemporaryFile("r", suffix=".time") as out:
         subprocess.run(
             ["/usr/bin/time", "-f", TIME_FORMAT, "-o", out.name, *argv],
             check=True,
             stdout=subprocess.DEVNULL if quiet else None,
-            env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+            env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), **(env or {})},
         )
         wall, user, system, rss = out.read().split()[-4:]
     return {"wall": float(wall), "cpu": float(user) + float(system), "rss": int(rss) / 1024}
 
 
-def fresh_copy(src: Path, work: Path) -> Path:
+def fresh_copy(src: Path, work: Path, count: int | None = None) -> Path:
+    """work = the first `count` files of src (all when None): the cache may hold more."""
     if work.exists():
         shutil.rmtree(work)
-    shutil.copytree(src, work)
+    work.mkdir(parents=True)
+    for path in sorted(p for p in src.iterdir() if p.is_file())[:count]:
+        shutil.copyfile(path, work / path.name)
     return work
 
 
-def paired(src: Path, work: Path, pairs: int, workers: int) -> dict[str, list[dict[str, float]]]:
-    ppd_cmd = [sys.executable, "-m", "bench.bench_batch", "_ppd", str(work), "--workers", str(workers)]
+def cli_has_workers() -> bool:
+    """Whether `ppd poison` takes --workers (the pool behind the CLI)."""
+    out = subprocess.run(
+        [sys.executable, "-m", "daemon.cli", "poison", "--help"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), "COLUMNS": "200"},
+    )
+    return "--workers" in out.stdout
+
+
+def ppd_command(work: Path, workers: int, via: str) -> tuple[list[str], str]:
+    """The measured ppd process and how it was run (for the table)."""
+    if via == "cli" and (workers == 1 or cli_has_workers()):
+        cmd = [sys.executable, "-m", "daemon.cli", "poison", str(work)]
+        return (cmd + ["--workers", str(workers)] if workers > 1 else cmd), "ppd poison"
+    how = "poison_in_place" if workers == 1 else "poison_many pool"
+    if via == "cli":
+        how += " (CLI has no --workers yet)"
+    return [sys.executable, "-m", "bench.bench_batch", "_ppd", str(work), "--workers", str(workers)], how
+
+
+def fresh_state(root: Path) -> dict[str, str]:
+    """An empty ppd data/config/outbox/cache: every CLI run starts from nothing (no vault, no store)."""
+    if root.exists():
+        shutil.rmtree(root)
+    return {k: str(root / k) for k in ("PPD_DATA_DIR", "PPD_CONFIG_DIR", "PPD_OUTBOX", "PPD_CACHE_DIR")}
+
+
+def paired(
+    src: Path, work: Path, pairs: int, workers: int, via: str = "library", count: int | None = None
+) -> tuple[dict, str]:
+    ppd_cmd, how = ppd_command(work, workers, via)
     floor_cmd = [sys.executable, "-m", "bench.bench_batch", "_floor", str(work)]
     runs: dict[str, list[dict[str, float]]] = {"ppd": [], "floor": []}
     for i in range(pairs):
         order = [("ppd", ppd_cmd), ("floor", floor_cmd)]
         for name, cmd in order if i % 2 == 0 else order[::-1]:
-            fresh_copy(src, work)
-            runs[name].append(timed(cmd))
-    return runs
+            fresh_copy(src, work, count)
+            env = fresh_state(work.parent / "state") if name == "ppd" and how == "ppd poison" else None
+            runs[name].append(timed(cmd, quiet=how == "ppd poison", env=env))
+    return runs, how
 
 
 def summarise(runs: dict[str, list[dict[str, float]]]) -> dict[str, float]:
@@ -187,57 +226,69 @@ def measure(args: argparse.Namespace) -> None:
     work = cache / "work"
     rows = []
     load_before = os.getloadavg()
-    for label, src in (
-        (f"{args.count} x JPEG 4240x2832 q92 4:2:0", jpeg_dir),
-        (f"{args.count} x PNG {png_source}", png_dir),
-    ):
+    folders = {
+        "jpeg": (f"{args.count} x JPEG 4240x2832 q92 4:2:0", jpeg_dir),
+        "png": (f"{args.count} x PNG {png_source}", png_dir),
+    }
+    for kind, (label, src) in folders.items():
+        if args.only and kind != args.only:
+            continue
         for workers in args.workers:
             t0 = time.perf_counter()
-            med = summarise(paired(src, work, args.pairs, workers))
-            print(f"{label} workers={workers}: {med} ({time.perf_counter() - t0:.0f} s)", flush=True)
-            rows.append((label, workers, med, os.getloadavg()))
+            load = os.getloadavg()[0]
+            runs, how = paired(src, work, args.pairs, workers, args.via, args.count)
+            med = summarise(runs)
+            print(f"{label} workers={workers} ({how}): {med} ({time.perf_counter() - t0:.0f} s)", flush=True)
+            rows.append((label, f"{workers} ({how})", med, (load, os.getloadavg()[0])))
     shutil.rmtree(work, ignore_errors=True)
+    shutil.rmtree(cache / "state", ignore_errors=True)
     write_results(args, rows, load_before, os.getloadavg())
 
 
 def write_results(args: argparse.Namespace, rows: list, load_before: tuple, load_after: tuple) -> None:
     import PIL
 
+    from poisoner.jpeg import turbo_available
+
     jt = subprocess.run(["jpegtran", "-version"], capture_output=True, text=True)
+    turbo = turbo_available() or "used where the file allows"
     lines = [
         "# Protecting a folder: whole process vs the codec floor",
         "",
         f"`python -m bench.bench_batch measure --count {args.count} --pairs {args.pairs} --workers "
-        f"{' '.join(map(str, args.workers))}` on {platform.machine()} ({os.cpu_count()} cores, shared with "
-        f"other jobs), Python {platform.python_version()}, Pillow {PIL.__version__}, "
-        f"jpegtran {jt.stderr.strip() or 'absent'}.",
+        f"{' '.join(map(str, args.workers))} --via {args.via}` on {platform.machine()} "
+        f"({os.cpu_count()} cores, shared with other jobs), Python {platform.python_version()}, "
+        f"Pillow {PIL.__version__}, "
+        f"jpegtran {jt.stderr.strip() or 'absent'}, in-process libturbojpeg: {turbo}.",
         f"Load average (1/5/15 min) before: {'/'.join(f'{x:.2f}' for x in load_before)}, after: "
         f"{'/'.join(f'{x:.2f}' for x in load_after)}; with more runnable jobs than cores, wall "
         "times stretch: read the CPU ratios first.",
         "",
         "Each cell: median of the runs; every run is one whole process on a fresh copy of the folder "
-        "(ppd and floor alternate in pairs). CPU = user + system, children (jpegtran) included.",
+        "(ppd and floor alternate in pairs). CPU = user + system, children (jpegtran, pool workers) "
+        "included.",
         "",
-        "| files | ppd workers | ppd CPU s | floor CPU s | **CPU ratio** | ppd wall s | floor wall s "
-        "| wall ratio | ppd peak RSS MB | floor peak RSS MB | load after |",
+        "| files | ppd workers (how) | ppd CPU s | floor CPU s | **CPU ratio** | ppd wall s | floor wall s "
+        "| wall ratio | ppd peak RSS MB | floor peak RSS MB | load (1 min) before / after |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for label, workers, m, load in rows:
         lines.append(
             f"| {label} | {workers} | {m['ppd_cpu']:.2f} | {m['floor_cpu']:.2f} | **{m['cpu_ratio']:.2f}x** "
             f"| {m['ppd_wall']:.2f} | {m['floor_wall']:.2f} | {m['wall_ratio']:.2f}x | {m['ppd_rss']:.0f} "
-            f"| {m['floor_rss']:.0f} | {load[0]:.2f} |"
+            f"| {m['floor_rss']:.0f} | {load[0]:.2f} / {load[1]:.2f} |"
         )
     lines.append("")
     text = "\n".join(lines)
-    if RESULTS.exists() and args.keep_notes:
-        old = RESULTS.read_text()
+    results = args.results
+    if results.exists() and args.keep_notes:
+        old = results.read_text()
         marker = "\n## Notes"
         if marker in old:
             text += old[old.index(marker) :]
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(text if text.endswith("\n") else text + "\n")
-    print(f"wrote {RESULTS}")
+    results.parent.mkdir(parents=True, exist_ok=True)
+    results.write_text(text if text.endswith("\n") else text + "\n")
+    print(f"wrote {results}")
 
 
 def profile(args: argparse.Namespace) -> None:
@@ -312,6 +363,9 @@ def main() -> None:
     m.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     m.add_argument("--cache", default=str(DEFAULT_CACHE))
     m.add_argument("--keep-notes", action="store_true", default=True)
+    m.add_argument("--via", choices=("library", "cli"), default="library", help="what the ppd side runs")
+    m.add_argument("--only", choices=("jpeg", "png"), help="one of the two folders")
+    m.add_argument("--results", type=Path, default=RESULTS, help="where the table goes")
     p = sub.add_parser("profile", help="cProfile of one ppd process over --count JPEGs")
     p.add_argument("--count", type=int, default=8)
     p.add_argument("--top", type=int, default=30)

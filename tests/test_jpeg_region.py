@@ -153,8 +153,9 @@ def test_truncated_jpeg_still_fails_before_writing(tmp_path: Path) -> None:
 
 
 def test_region_decode_falls_back_when_crop_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A jpegtran that fails: whole decode and same-tables re-encode, as before."""
+    """A jpegtran that fails and no in-process pass: whole decode and same-tables re-encode."""
     monkeypatch.setenv(jpeg_codec.JPEGTRAN_ENV, "/bin/false")
+    monkeypatch.setenv("PPD_TURBOJPEG", "")
     src, dst = tmp_path / "a.jpg", tmp_path / "out.jpg"
     write_case(src, "420")
     report = poison_file(src, dst, SPECS["center"])

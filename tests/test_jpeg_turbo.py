@@ -1,0 +1,191 @@
+"""JPEG in one in-process coefficient pass (libturbojpeg): the same bytes as the jpegtran path,
+every DCT block outside the patch's MCU box unchanged, and a clear refusal (the caller falls back)
+where the library is missing or cannot write the file like its source."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from poisoner import jpeg as jpeg_codec
+from poisoner import jpeg_turbo
+from poisoner.blend import apply_patch
+from poisoner.ladder import default_spec
+from poisoner.spec import PatchSpec
+from tests.test_jpeg_region import gps_exif, textured
+
+pytestmark = pytest.mark.skipif(
+    jpeg_codec.turbo_available() is not None, reason=f"libturbojpeg: {jpeg_codec.turbo_available()}"
+)
+needs_jpegtran = pytest.mark.skipif(shutil.which("jpegtran") is None, reason="jpegtran not installed")
+
+# (size, save options): every sampling, greyscale, progressive, odd sizes.
+CASES = {
+    "444": ((331, 250), {"subsampling": 0}),
+    "422": ((320, 241), {"subsampling": 1}),
+    "420": ((333, 247), {"subsampling": 2}),
+    "420-progressive": ((320, 240), {"subsampling": 2, "progressive": True}),
+    "grey": ((250, 190), {"grey": True}),
+    "grey-progressive": ((251, 191), {"grey": True, "progressive": True}),
+}
+SPECS = {
+    "center": PatchSpec(patch_size=37, block_size=4, position="center"),
+    "top-left": PatchSpec(patch_size=30, block_size=4),
+    "bottom-right": PatchSpec(patch_size=29, block_size=5, position="bottom-right"),
+    "product-default": default_spec(),
+}
+
+
+def write_case(path: Path, case: str, seed: int = 0, **extra: object) -> bytes:
+    (w, h), opts = CASES[case]
+    opts = {**opts, **extra}
+    pixels = textured(h, w, seed)
+    im = Image.fromarray(pixels).convert("L") if opts.pop("grey", False) else Image.fromarray(pixels)
+    im.save(path, "JPEG", quality=90, exif=gps_exif(), comment=b"turbo test", **opts)
+    return path.read_bytes()
+
+
+def write_cmyk(path: Path) -> bytes:
+    Image.fromarray(textured(64, 64)).convert("CMYK").save(path, "JPEG")
+    return path.read_bytes()
+
+
+def box_and_patch(data: bytes, spec: PatchSpec, name: str = "a.jpg"):
+    im = Image.open(io.BytesIO(data))
+    layout = jpeg_codec.read_layout(data)
+    placement = spec.resolve(*im.size, image_key=name)
+    box = jpeg_codec.mcu_box(placement.box, layout)
+    local = dataclasses.replace(placement, x=placement.x - box[0], y=placement.y - box[1])
+    return im, layout, box, (lambda px: apply_patch(px, local))
+
+
+def blocks_outside_equal(a: bytes, b: bytes, layout: jpeg_codec.JpegLayout, box) -> None:
+    """Every DCT block of every component outside the box is the same in a and b; inside differs."""
+    offsets = jpeg_codec._component_offsets(layout, box)  # noqa: SLF001
+    mw, mh = layout.mcu_size
+    inside_changed = False
+    for ci, (ba, bb) in enumerate(zip(jpeg_turbo.read_blocks(a), jpeg_turbo.read_blocks(b), strict=True)):
+        assert ba.shape == bb.shape
+        h, v = (1, 1) if layout.components == 1 else layout.sampling[ci]
+        bw = -(-(box[2] - box[0]) * h // mw) if layout.components > 1 else -(-(box[2] - box[0]) // 8)
+        bh = -(-(box[3] - box[1]) * v // mh) if layout.components > 1 else -(-(box[3] - box[1]) // 8)
+        col0, row0 = offsets[ci]
+        mask = np.ones(ba.shape[:2], dtype=bool)
+        mask[row0 : row0 + bh, col0 : col0 + bw] = False
+        assert np.array_equal(ba[mask], bb[mask]), ci
+        inside_changed |= not np.array_equal(ba[~mask], bb[~mask])
+    assert inside_changed
+
+
+@needs_jpegtran
+@pytest.mark.parametrize("spec_name", sorted(SPECS))
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_one_pass_gives_the_jpegtran_bytes(tmp_path: Path, case: str, spec_name: str) -> None:
+    src = tmp_path / "IMG_0001.jpg"
+    data = write_case(src, case)
+    im, layout, box, patch = box_and_patch(data, SPECS[spec_name], src.name)
+    new = jpeg_codec.patch_in_one_pass(data, im, layout, box, patch)
+    old = jpeg_codec.splice_patch(src, im, layout, patch(jpeg_codec.decode_box(src, im, layout, box)), box)
+    assert new == old
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_nothing_outside_the_mcu_box_changes(tmp_path: Path, case: str) -> None:
+    data = write_case(tmp_path / "a.jpg", case, seed=5)
+    im, layout, box, patch = box_and_patch(data, SPECS["center"])
+    out = jpeg_codec.patch_in_one_pass(data, im, layout, box, patch)
+    blocks_outside_equal(data, out, layout, box)
+    assert jpeg_codec.read_layout(out).segments == layout.segments  # EXIF, comment: all kept
+    assert Image.open(io.BytesIO(out)).quantization == im.quantization
+    assert jpeg_codec.read_layout(out).progressive == layout.progressive
+    if case.startswith("grey"):  # no chroma upsampling: the decoded pixels outside the box too
+        a, b = np.asarray(Image.open(io.BytesIO(data))), np.asarray(Image.open(io.BytesIO(out)))
+        mask = np.ones(a.shape, dtype=bool)
+        mask[box[1] : box[3], box[0] : box[2]] = False
+        assert np.array_equal(a[mask], b[mask])
+
+
+def test_box_pixels_are_the_whole_decode_patched(tmp_path: Path) -> None:
+    """The patch is applied to the box's pixels as a whole-picture decode gives them (the ring)."""
+    data = write_case(tmp_path / "a.jpg", "420", seed=2)
+    im, layout, box, patch = box_and_patch(data, SPECS["center"])
+    seen: list[np.ndarray] = []
+    jpeg_codec.patch_in_one_pass(data, im, layout, box, lambda px: seen.append(px.copy()) or patch(px))
+    whole = np.asarray(Image.open(io.BytesIO(data)))
+    assert np.array_equal(seen[0], whole[box[1] : box[3], box[0] : box[2]])
+
+
+@pytest.mark.parametrize(
+    ("make", "reason"),
+    [
+        (lambda p: write_case(p, "420", restart_marker_blocks=3), "restart"),
+        (lambda p: write_case(p, "420", optimize=True), "optimised Huffman"),
+        (lambda p: write_cmyk(p), "CMYK"),
+    ],
+)
+def test_files_it_cannot_write_like_the_source_are_refused(tmp_path: Path, make, reason: str) -> None:
+    data = make(tmp_path / "a.jpg")
+    im, layout = Image.open(io.BytesIO(data)), jpeg_codec.read_layout(data)
+    box = jpeg_codec.mcu_box((8, 8, 24, 24), layout)
+    with pytest.raises(jpeg_codec.SpliceUnavailable, match=reason):
+        jpeg_codec.patch_in_one_pass(data, im, layout, box, lambda px: px)
+
+
+@pytest.mark.parametrize("setting", ["", "/nonexistent/libturbojpeg.so.0"])
+def test_library_switched_off_or_missing_is_refused_with_a_reason(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, setting: str
+) -> None:
+    monkeypatch.setenv(jpeg_turbo.TURBOJPEG_ENV, setting)
+    assert jpeg_codec.turbo_available() is not None
+    data = write_case(tmp_path / "a.jpg", "420")
+    im, layout, box, patch = box_and_patch(data, SPECS["center"])
+    with pytest.raises(jpeg_codec.SpliceUnavailable, match="PPD_TURBOJPEG|libturbojpeg"):
+        jpeg_codec.patch_in_one_pass(data, im, layout, box, patch)
+    monkeypatch.setenv(jpeg_codec.JPEGTRAN_ENV, "")
+    assert jpeg_codec.splice_available() is False
+
+
+def test_truncated_file_is_refused(tmp_path: Path) -> None:
+    data = write_case(tmp_path / "a.jpg", "420")
+    cut = data[: len(data) * 3 // 4]
+    im, layout, box, patch = box_and_patch(data, SPECS["top-left"])
+    with pytest.raises(jpeg_codec.SpliceUnavailable, match="libturbojpeg"):
+        jpeg_codec.patch_in_one_pass(cut, im, layout, box, patch)
+
+
+def test_an_error_in_the_patch_is_raised_as_it_was(tmp_path: Path) -> None:
+    data = write_case(tmp_path / "a.jpg", "444")
+    im, layout, box, _ = box_and_patch(data, SPECS["center"])
+
+    def broken(px: np.ndarray) -> np.ndarray:
+        raise ZeroDivisionError("patch failed")
+
+    with pytest.raises(ZeroDivisionError, match="patch failed"):
+        jpeg_codec.patch_in_one_pass(data, im, layout, box, broken)
+
+
+@needs_jpegtran
+def test_poison_file_same_bytes_with_the_library_switched_off(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """PPD_TURBOJPEG="" takes the jpegtran path through poison_file: the same file is written."""
+    from poisoner.formats import poison_file
+
+    src = tmp_path / "IMG_0002.jpg"
+    write_case(src, "420")
+    outs = {}
+    for setting in ("on", ""):
+        if setting:
+            monkeypatch.delenv(jpeg_turbo.TURBOJPEG_ENV, raising=False)
+        else:
+            monkeypatch.setenv(jpeg_turbo.TURBOJPEG_ENV, "")
+        report = poison_file(src, tmp_path / f"out-{setting}.jpg", SPECS["product-default"])
+        assert report.method == "jpeg-dct-splice"
+        outs[setting] = (tmp_path / f"out-{setting}.jpg").read_bytes()
+    assert outs["on"] == outs[""] != src.read_bytes()
