@@ -146,16 +146,7 @@ def _poison_jpeg(
     box = jpeg_codec.mcu_box(placement.box, layout)
     local = dataclasses.replace(placement, x=placement.x - box[0], y=placement.y - box[1])
     try:
-        if loaded:
-            box_pixels = np.asarray(im.crop(box))
-        else:
-            try:
-                box_pixels = jpeg_codec.decode_box(src, im, layout, box)
-            except jpeg_codec.SpliceUnavailable as exc:
-                log.info("jpeg region decode unavailable", extra={"path": str(src), "reason": str(exc)})
-                _load_decoded(src, im)
-                box_pixels = np.asarray(im.crop(box))
-        out = jpeg_codec.splice_patch(src, im, layout, apply_patch(box_pixels, local), box)
+        out = _splice_jpeg(src, data, im, layout, box, local, loaded)
         notes.append(f"DCT splice: only MCU box {box} re-encoded, all other coefficients copied")
         return out, preserved, notes, "jpeg-dct-splice"
     except jpeg_codec.SpliceUnavailable as exc:
@@ -168,6 +159,29 @@ def _poison_jpeg(
     if any(s.payload.startswith(b"MPF\x00") for s in layout.segments):
         notes.append("MPF segment and its secondary images dropped")
     return jpeg_codec.encode_like(patched, im, layout), preserved, notes, "jpeg-reencode-same-tables"
+
+
+def _splice_jpeg(
+    src: Path, data: bytes, im: Image.Image, layout: jpeg_codec.JpegLayout, box: tuple[int, int, int, int],
+    local: PatchPlacement, loaded: bool,
+) -> bytes:
+    """The patched JPEG with only the box's blocks re-encoded; raises SpliceUnavailable.
+
+    Cheapest first: one in-process coefficient pass (libturbojpeg), else jpegtran's lossless crop of the
+    box, else the box cut from the whole decoded picture; the three write the same bytes."""
+    if loaded:
+        return jpeg_codec.splice_patch(src, im, layout, apply_patch(np.asarray(im.crop(box)), local), box)
+    try:
+        return jpeg_codec.patch_in_one_pass(data, im, layout, box, lambda px: apply_patch(px, local))
+    except jpeg_codec.SpliceUnavailable as exc:
+        log.info("jpeg in-process splice unavailable", extra={"path": str(src), "reason": str(exc)})
+    try:
+        box_pixels = jpeg_codec.decode_box(src, im, layout, box)
+    except jpeg_codec.SpliceUnavailable as exc:
+        log.info("jpeg region decode unavailable", extra={"path": str(src), "reason": str(exc)})
+        _load_decoded(src, im)
+        box_pixels = np.asarray(im.crop(box))
+    return jpeg_codec.splice_patch(src, im, layout, apply_patch(box_pixels, local), box)
 
 
 # ---- entry points --------------------------------------------------------------------------------
@@ -196,7 +210,7 @@ def poison_file(
     src, dst = Path(src), Path(dst)
     data = _read_source(src, dst, max_pixels)
     # A JPEG need not be decoded to pixels whole (only the patch's MCUs, _poison_jpeg).
-    region = JPEG_REGION_DECODE and data[:2] == b"\xff\xd8" and jpeg_codec.jpegtran_binary() is not None
+    region = JPEG_REGION_DECODE and data[:2] == b"\xff\xd8" and jpeg_codec.splice_available()
     im = open_decoded(src, data, load=not region)
     fmt = im.format or "unknown"
     if region and fmt != "JPEG":

@@ -31,6 +31,8 @@ fi
 # - ImageMagick's composite: only the benchmarks compare against it (PPD_SETUP_BENCH=1).
 need=()
 command -v jpegtran >/dev/null 2>&1 || need+=(libjpeg-turbo-progs)
+# libturbojpeg: the in-process coefficient pass (poisoner/jpeg_turbo.py); without it, jpegtran's path.
+ldconfig -p 2>/dev/null | grep -q 'libturbojpeg\.so\.0' || need+=(libturbojpeg0)
 command -v systemd-analyze >/dev/null 2>&1 || need+=(systemd)
 if [ "${PPD_SETUP_BENCH:-0}" = 1 ]; then
     [ -x /usr/bin/composite ] || need+=(imagemagick)

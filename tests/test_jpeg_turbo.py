@@ -189,3 +189,17 @@ def test_poison_file_same_bytes_with_the_library_switched_off(
         assert report.method == "jpeg-dct-splice"
         outs[setting] = (tmp_path / f"out-{setting}.jpg").read_bytes()
     assert outs["on"] == outs[""] != src.read_bytes()
+
+
+def test_poison_file_takes_the_in_process_pass(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With jpegtran unusable only the in-process pass can splice; without both, the whole re-encode."""
+    from poisoner.formats import poison_file
+
+    src = tmp_path / "IMG_0003.jpg"
+    write_case(src, "420")
+    monkeypatch.setenv(jpeg_codec.JPEGTRAN_ENV, "/bin/false")
+    monkeypatch.delenv(jpeg_turbo.TURBOJPEG_ENV, raising=False)
+    assert poison_file(src, tmp_path / "one-pass.jpg", SPECS["product-default"]).method == "jpeg-dct-splice"
+    monkeypatch.setenv(jpeg_turbo.TURBOJPEG_ENV, "")
+    report = poison_file(src, tmp_path / "neither.jpg", SPECS["product-default"])
+    assert report.method == "jpeg-reencode-same-tables"
