@@ -179,3 +179,11 @@ def overall(verdicts: Iterable[str]) -> Verdict:
 def not_holding(verdicts: Mapping[str, str]) -> list[str]:
     """The profiles (attackers) under which the protection does not hold: any verdict but protected."""
     return [name for name, v in verdicts.items() if v != Verdict.PROTECTED]
+
+
+def holding_line(failing: Iterable[str], profiles: Iterable[str]) -> str:
+    """One plain sentence: the attackers (profiles) the protection does not hold under."""
+    failing, profiles = list(failing), list(profiles)
+    if not failing:
+        return f"the protection holds under every profile run ({', '.join(profiles)})"
+    return f"the protection does NOT hold under: {', '.join(failing)}"

@@ -31,7 +31,7 @@ import msgspec
 from poisoner.atomic import atomic_output, atomic_write_bytes
 from verifier import poses as posemod
 from verifier.sfm import SfmJob, SfmSettings, list_images, profile_sfm_settings, run_sfm_job
-from verifier.verdict import Verdict, VerdictRule, decide, not_holding, overall
+from verifier.verdict import Verdict, VerdictRule, decide, holding_line, not_holding, overall
 from verifier.visibility import VISIBILITY_SAMPLE, DatasetVisibility, measure_pairs
 
 log = logging.getLogger(__name__)
@@ -135,13 +135,6 @@ class VerificationReport(msgspec.Struct):
         d = msgspec.to_builtins(self)
         d["profiles"] = {k: v.to_dict() for k, v in self.profiles.items()}
         return {"verdict": str(self.verdict), **d, "summary": self.summary_lines()}
-
-
-def holding_line(failing: Sequence[str], profiles: Sequence[str]) -> str:
-    """One plain sentence: the attackers (profiles) the protection does not hold under."""
-    if not failing:
-        return f"the protection holds under every profile run ({', '.join(profiles)})"
-    return f"the protection does NOT hold under: {', '.join(failing)}"
 
 
 # ---- settings per profile ------------------------------------------------------------------------
@@ -323,9 +316,11 @@ def verify_folders(
         finally:
             if not run.options.keep_cache:
                 shutil.rmtree(run.cache, ignore_errors=True)
-    return VerificationReport(
+    report = VerificationReport(
         str(run.clean_dir), str(run.poisoned_dir), str(run.out_dir), len(run.names), reports, visibility
     )
+    write_json(run.out_dir / "report.json", report.to_dict())  # what `ppd report FOLDER` reads
+    return report
 
 
 def _prepare_run(clean_dir: Path, poisoned_dir: Path, out_dir: Path, options: VerifyOptions) -> _Run:
