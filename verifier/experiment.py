@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 from PIL import Image  # PIL before anything that may load pycolmap
 
+from poisoner.atomic import atomic_write_bytes
 from poisoner.baselines import BASELINE_KINDS, BaselineSpec, apply_baseline
 from poisoner.formats import poison_file
 from poisoner.media import is_image
@@ -369,14 +370,33 @@ def run_setting(
     options: ExperimentOptions,
 ) -> dict[str, Any]:
     """Poison a copy, verify it, measure it; the result row (never raises for a failed SfM)."""
-    from verifier.verification import VerifyOptions, verify_folders
-
     started = time.time()
-    seeded = setting.with_seed(run)
     work = exp_dir / "work" / f"{setting.setting_id}-run{run}"
     poisoned_dir = work / "poisoned"
-    changed = make_poisoned_copy(clean_dir, poisoned_dir, seeded)
-    row: dict[str, Any] = {
+    changed = make_poisoned_copy(clean_dir, poisoned_dir, setting.with_seed(run))
+    row = _row_header(setting, run, options, changed)
+    t = time.time()
+    row["cost2"] = cost2(
+        clean_dir,
+        poisoned_dir,
+        options.lpips_net if options.cost2_lpips else None,
+        options.cost2_lpips_images,
+    )
+    row["cost2_s"] = round(time.time() - t, 1)
+    try:
+        row.update(_verification_fields(clean_dir, poisoned_dir, work / "verify", exp_dir, run, options))
+    except Exception as exc:  # a bad setting is a row with its error, the sweep goes on
+        log.exception("setting failed", extra={"setting": setting.label, "run": run})
+        row["verdict"] = "error"
+        row["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0]
+    shutil.rmtree(poisoned_dir, ignore_errors=True)  # models stay under work/verify
+    row["seconds"] = round(time.time() - started, 1)
+    row["finished_at"] = time.time()
+    return row
+
+
+def _row_header(setting: Setting, run: int, options: ExperimentOptions, changed: int) -> dict[str, Any]:
+    return {
         "setting_id": setting.setting_id,
         "config_id": options.config_id(),
         "run": run,
@@ -387,14 +407,16 @@ def run_setting(
         "params": setting.params(),
         "images_changed": changed,
     }
-    t = time.time()
-    row["cost2"] = cost2(
-        clean_dir,
-        poisoned_dir,
-        options.lpips_net if options.cost2_lpips else None,
-        options.cost2_lpips_images,
-    )
-    row["cost2_s"] = round(time.time() - t, 1)
+
+
+def _verification_fields(
+    clean_dir: Path, poisoned_dir: Path, verify_dir: Path, exp_dir: Path, run: int, options: ExperimentOptions
+) -> dict[str, Any]:
+    """verify_folders on one poisoned copy: verdict, per-profile figures, splat costs, visibility."""
+    import msgspec
+
+    from verifier.verification import VerifyOptions, verify_folders
+
     splat_options = {**options.splat_options, "seed": run, "lpips_net": options.lpips_net}
     verify_options = VerifyOptions(
         timeout_s=options.sfm_timeout_s,
@@ -405,23 +427,19 @@ def run_setting(
         splat_profile=options.profiles[0],
         splat_options=splat_options,
     )
-    try:
-        report = verify_folders(clean_dir, poisoned_dir, work / "verify", options.profiles, verify_options)
-        row["verdict"] = report.verdict
-        row["profiles"] = {name: _profile_fields(p) for name, p in report.profiles.items()}
-        first = report.profiles.get(options.profiles[0])
-        splat = next((p.splat for p in report.profiles.values() if p.splat is not None), None)
-        row.update(_splat_fields(splat) if options.splat else {})
-        if first is not None:
-            row.update({k: v for k, v in _profile_fields(first).items() if k not in ("reasons", "model_dir")})
-    except Exception as exc:  # a bad setting is a row with its error, the sweep goes on
-        log.exception("setting failed", extra={"setting": setting.label, "run": run})
-        row["verdict"] = "error"
-        row["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0]
-    shutil.rmtree(poisoned_dir, ignore_errors=True)  # models stay under work/verify
-    row["seconds"] = round(time.time() - started, 1)
-    row["finished_at"] = time.time()
-    return row
+    report = verify_folders(clean_dir, poisoned_dir, verify_dir, options.profiles, verify_options)
+    fields: dict[str, Any] = {
+        "verdict": str(report.verdict),
+        "profiles": {name: _profile_fields(p) for name, p in report.profiles.items()},
+        # what a viewer sees of this setting (worst over a few images)
+        "visibility": msgspec.to_builtins(report.visibility.worst) if report.visibility else None,
+    }
+    splat = next((p.splat for p in report.profiles.values() if p.splat is not None), None)
+    fields.update(_splat_fields(splat) if options.splat else {})
+    first = report.profiles.get(options.profiles[0])
+    if first is not None:
+        fields.update({k: v for k, v in _profile_fields(first).items() if k not in ("reasons", "model_dir")})
+    return fields
 
 
 # ---- the results file (resumable) -------------------------------------------------------------
@@ -506,7 +524,8 @@ def run_experiment(
         "options": dataclasses.asdict(options),
         "settings": [{"id": s.setting_id, "label": s.label, "groups": s.groups} for s in settings],
     }
-    (exp_dir / MANIFEST_NAME).write_text(json.dumps(manifest, indent=1, default=_json_default))
+    manifest_json = json.dumps(manifest, indent=1, default=_json_default)
+    atomic_write_bytes(exp_dir / MANIFEST_NAME, manifest_json.encode())
     started = time.time()
     for i, (setting, run) in enumerate(todo, 1):
         if progress:
@@ -677,6 +696,6 @@ def markdown_tables(rows: Sequence[dict[str, Any]]) -> str:
 
 def write_outputs(exp_dir: Path, rows: Sequence[dict[str, Any]]) -> tuple[Path, Path]:
     csv_path, table_path = exp_dir / CSV_NAME, exp_dir / TABLE_NAME
-    csv_path.write_text(csv_text(rows))
-    table_path.write_text(markdown_tables(rows) + "\n")
+    atomic_write_bytes(csv_path, csv_text(rows).encode())
+    atomic_write_bytes(table_path, (markdown_tables(rows) + "\n").encode())
     return csv_path, table_path

@@ -248,9 +248,9 @@ def execute(job: dict[str, Any]) -> dict[str, Any]:
 
 
 def _write_atomic(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_name(".ppd-tmp-" + path.name)
-    tmp.write_text(json.dumps(data, indent=1))
-    os.replace(tmp, path)
+    from poisoner.atomic import atomic_write_bytes
+
+    atomic_write_bytes(path, json.dumps(data, indent=1).encode())
 
 
 def main() -> int:
