@@ -28,7 +28,6 @@ from verifier.verification import (
     VerifyOptions,
     stage_pairs,
     verify_folders,
-    write_json,
 )
 
 if TYPE_CHECKING:
@@ -89,7 +88,7 @@ def verify_dataset(
             report = verify_folders(images / "clean", images / "poisoned", run_dir, profiles, opts)
         finally:
             shutil.rmtree(images, ignore_errors=True)
-        write_json(run_dir / "report.json", report.to_dict())
+        # verify_folders wrote run_dir/report.json (what `ppd report RUN_DIR` reads)
         record_report(ctx, dataset, report)
         prune_runs(runs_root / dataset, keep)
     return report
