@@ -20,13 +20,13 @@ from typing import TYPE_CHECKING
 
 import msgspec
 
+from verifier.pairs import stage_pairs
 from verifier.verdict import Verdict
 from verifier.verification import (
     PROFILES,
     VerificationInputError,
     VerificationReport,
     VerifyOptions,
-    stage_pairs,
     verify_folders,
 )
 

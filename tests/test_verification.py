@@ -19,12 +19,12 @@ from daemon.verify import prune_runs
 from poisoner.blend import poison_array
 from poisoner.spec import PatchSpec
 from verifier import verdict as vd
+from verifier.published import round_trip
 from verifier.synthetic import SyntheticOptions, render_scene
 from verifier.verification import (
     VerificationInputError,
     VerifyOptions,
     expand_profiles,
-    round_trip,
     verify_folders,
 )
 

@@ -17,7 +17,6 @@ import dataclasses
 import hashlib
 import json
 import logging
-import os
 import shutil
 import threading
 import time
@@ -28,8 +27,11 @@ from typing import Any
 
 import msgspec
 
-from poisoner.atomic import atomic_output, atomic_write_bytes
+from poisoner.atomic import atomic_write_bytes
 from verifier import poses as posemod
+from verifier.pairs import stage_pairs as stage_pairs  # re-exported: callers stage pairs, then verify
+from verifier.published import round_trip, unpublish_names
+from verifier.published import to_rgb as to_rgb  # re-exported for verifier.auto
 from verifier.sfm import SfmJob, SfmSettings, list_images, profile_sfm_settings, run_sfm_job
 from verifier.verdict import Verdict, VerdictRule, decide, holding_line, not_holding, overall
 from verifier.visibility import VISIBILITY_SAMPLE, DatasetVisibility, measure_pairs
@@ -161,48 +163,6 @@ def expand_profiles(profiles: Sequence[str] | str) -> list[str]:
 def looks_like_video_frames(names: Sequence[str]) -> bool:
     """Frames sampled from a video are named with a frame index (poisoner.video.sample_frames)."""
     return bool(names) and all("frame" in Path(n).stem.lower() for n in names)
-
-
-# ---- published round trip -----------------------------------------------------------------------
-def round_trip(src_dir: Path, dst_dir: Path, names: Sequence[str], long_edge: int, quality: int) -> Path:
-    """What a platform does on upload: downscale the long edge to long_edge, re-encode JPEG q=quality.
-
-    Output names keep the source name (with .jpg appended when needed) so poses compare by stem."""
-    from PIL import Image
-
-    dst_dir.mkdir(parents=True, exist_ok=True)
-    for name in names:
-        out = dst_dir / _published_name(name)
-        if out.exists():
-            continue
-        with Image.open(src_dir / name) as im:
-            im.load()
-            rgb = to_rgb(im)
-        scale = long_edge / max(rgb.size)
-        if scale < 1:
-            rgb = rgb.resize((round(rgb.width * scale), round(rgb.height * scale)), Image.Resampling.LANCZOS)
-        with atomic_output(out) as tmp:
-            rgb.save(tmp, "JPEG", quality=quality)
-    return dst_dir
-
-
-def _published_name(name: str) -> str:
-    return name if Path(name).suffix.lower() in (".jpg", ".jpeg") else name + ".jpg"
-
-
-def to_rgb(im: Any) -> Any:
-    from PIL import Image
-
-    if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
-        rgba = im.convert("RGBA")
-        white = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
-        return Image.alpha_composite(white, rgba).convert("RGB")
-    return im.convert("RGB")
-
-
-def _unpublish_names(poses: dict[str, Any], names: Sequence[str]) -> dict[str, Any]:
-    back = {_published_name(n): n for n in names}
-    return {back.get(k, k): v for k, v in poses.items()}
 
 
 # ---- one SfM side, with reuse ---------------------------------------------------------------------
@@ -457,7 +417,7 @@ def _run_both_sides(profile: str, run: _Run, settings: SfmSettings) -> tuple[dic
         poisoned = _run_side(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, run.options)
     if source == "published":
         for side in (clean, poisoned):
-            side["poses"] = _unpublish_names(side.get("poses", {}), run.names)
+            side["poses"] = unpublish_names(side.get("poses", {}), run.names)
     return clean, poisoned
 
 
@@ -511,58 +471,3 @@ def _copy_model(src: Path, dst: Path) -> None:
     for f in src.iterdir():
         if f.is_file() and (f.suffix in (".bin", ".txt") or f.name == "result.json"):
             shutil.copyfile(f, dst / f.name)
-
-
-# ---- (original, protected) pairs as two folders -----------------------------------------------
-def _flat_name(path: Path, index: int, used: set[str]) -> str:
-    name = path.name
-    if name in used:
-        name = f"{index:05d}_{name}"
-    used.add(name)
-    return name
-
-
-def _link_or_copy(src: Path, dst: Path) -> None:
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copyfile(src, dst)
-
-
-def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_dir: Path) -> str:
-    """Lay out (original, protected) pairs as two folders with the same names.
-
-    Images are hard-linked (or copied). Videos are sampled into frames with poisoner.video.
-    Returns the matching mode to use ("sequential" when frames came from videos)."""
-    clean_dir.mkdir(parents=True, exist_ok=True)
-    poisoned_dir.mkdir(parents=True, exist_ok=True)
-    used: set[str] = set()
-    any_video = False
-    for i, (original, protected) in enumerate(pairs):
-        protected, original = Path(protected), Path(original)
-        if _is_video(protected):
-            from poisoner.video import sample_frames
-
-            any_video = True
-            tmp_c, tmp_p = clean_dir / f".v{i}", poisoned_dir / f".v{i}"
-            frames_c = sample_frames(original, tmp_c)
-            frames_p = sample_frames(protected, tmp_p)
-            for k, (fc, fp) in enumerate(zip(frames_c, frames_p, strict=False)):
-                name = f"{protected.stem}_frame{k:05d}{fc.suffix}"
-                os.replace(fc, clean_dir / name)
-                os.replace(fp, poisoned_dir / name)
-            shutil.rmtree(tmp_c, ignore_errors=True)
-            shutil.rmtree(tmp_p, ignore_errors=True)
-            continue
-        if protected.suffix.lower() not in (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp"):
-            continue  # formats COLMAP cannot read (e.g. HEIC) are left out of the SfM check
-        name = _flat_name(protected, i, used)
-        _link_or_copy(original, clean_dir / name)
-        _link_or_copy(protected, poisoned_dir / name)
-    return "sequential" if any_video else "auto"
-
-
-def _is_video(path: Path) -> bool:
-    from poisoner.media import is_video
-
-    return is_video(path)
