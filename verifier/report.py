@@ -363,7 +363,8 @@ def build_experiment_report(folder: Path) -> ReportData:
     )
     header = [
         "setting", "n", "render SSIM", "render PSNR", "render LPIPS", "clean-vs-poisoned SSIM", "PSNR",
-        "LPIPS", "cameras within 5° of clean", "within 5° of GT", "verdict(s)",
+        "LPIPS", "cameras within 5° of clean", "within 5° of GT", "FLIP p99.9", "area FLIP > 0.5",
+        "verdict(s)",
     ]  # fmt: skip
     data.tables.append(
         Table("All settings (mean ± std over runs)", header, [_md_cells(table_row(e)) for e in entries])
