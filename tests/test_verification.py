@@ -27,6 +27,7 @@ from verifier.verification import (
     expand_profiles,
     verify_folders,
 )
+from verifier.visibility import dataset_visibility_from_json
 
 OK_CLEAN = {"outcome": "ok", "num_images": 20, "registered": 20, "num_models": 1}
 
@@ -275,6 +276,10 @@ def test_verify_dataset_records_runs_and_keeps_models(
         assert [r["profile"] for r in rows] == ["default"]
         assert rows[0]["verdict"] == report.profiles["default"].verdict
         assert rows[0]["metrics"]["clean"]["registered"] == 12
+        # the run's visibility figures are stored with every profile's row (what `ppd report` shows)
+        vis = rows[0]["metrics"]["visibility"]
+        assert vis["measured"] == 3 and vis["total"] == 12 and vis["worst"]["area_above_half"] > 0
+        assert dataset_visibility_from_json(vis) == report.visibility  # read back whole
         model_dir = Path(rows[0]["model_dir"])
         assert (model_dir / "clean" / "images.bin").is_file()
         assert (model_dir / "poisoned" / "images.bin").is_file()
