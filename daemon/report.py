@@ -3,6 +3,9 @@
 The page itself is the verifier's (verifier.report); this module gathers a dataset's Store rows,
 its protection state and an (original, patched) pair for the patch preview, and owns where a
 dataset's latest report lives: `<data_dir>/reports/<dataset>/latest.html`.
+
+`ppd status` imports this module for `report_path`: the verifier's report (numpy, PIL) loads only
+when a report is built.
 """
 
 from __future__ import annotations
@@ -10,11 +13,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from verifier.report import ReportData, ReportError, dataset_history_report, latest_run_group
-
 if TYPE_CHECKING:
     from daemon.context import AppContext
     from daemon.paths import AppPaths
+    from verifier.report import ReportData
 
 
 def report_path(paths: AppPaths, dataset: str) -> Path:
@@ -26,6 +28,7 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
     """A daemon dataset: latest verification per profile, its history, models, and a patch preview."""
     from daemon.protect import dataset_pairs
     from daemon.states import dataset_protection, next_step, protection_text
+    from verifier.report import ReportError, dataset_history_report, latest_run_group
 
     if ctx.store.dataset(dataset) is None:
         raise ReportError(f"no dataset {dataset!r} (see `ppd status`)")

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from daemon.config import Config
     from daemon.context import AppContext
 
 log = logging.getLogger(__name__)
@@ -34,18 +35,15 @@ class SchedulePolicy:
     splat_budget_s: float = 150.0
 
     @classmethod
-    def from_config(cls, config: Any) -> SchedulePolicy:
-        """From the daemon Config's [verification] table (every_new_files, period_hours)."""
-        d = cls()
-        ver = getattr(config, "verification", None)
-        if ver is None:
-            return d
+    def from_config(cls, config: Config) -> SchedulePolicy:
+        """From the daemon Config's [verification] table (every_new_files, period_hours, ...)."""
+        ver = config.verification
         return cls(
-            min_new_files=int(getattr(ver, "every_new_files", d.min_new_files)),
-            period_s=float(getattr(ver, "period_hours", d.period_s / 3600)) * 3600,
-            enabled=bool(getattr(ver, "enabled", True)),
-            splat=bool(getattr(ver, "splat", False)),
-            splat_budget_s=float(getattr(ver, "splat_budget_s", d.splat_budget_s)),
+            min_new_files=int(ver.every_new_files),
+            period_s=float(ver.period_hours) * 3600,
+            enabled=bool(ver.enabled),
+            splat=bool(ver.splat),
+            splat_budget_s=float(ver.splat_budget_s),
         )
 
 
@@ -72,9 +70,8 @@ class VerificationScheduler:
         preflight_runner: Callable[..., dict[str, Any]] | None = None,
     ) -> None:
         self.ctx = ctx
-        self.policy = policy or SchedulePolicy.from_config(getattr(ctx, "config", None))
-        ver = getattr(getattr(ctx, "config", None), "verification", None)
-        self.profiles = profiles or tuple(getattr(ver, "profiles", ("default", "hardened", "published")))
+        self.policy = policy or SchedulePolicy.from_config(ctx.config)
+        self.profiles = profiles or tuple(ctx.config.verification.profiles)
         self._verify = verify
         self._preflight_runner = preflight_runner  # daemon.auto.run_preflight_child by default
         self._auto_pending: set[str] = set()  # automatic datasets that may need an auto step
@@ -122,12 +119,10 @@ class VerificationScheduler:
     def _last_finished(self, dataset: str) -> float | None:
         if dataset not in self._last:
             latest = None
-            store = getattr(self.ctx, "store", None)
-            if store is not None and hasattr(store, "latest_verification"):
-                try:
-                    latest = store.latest_verification(dataset)
-                except Exception:  # a store problem must not stop the daemon
-                    log.exception("latest_verification failed", extra={"dataset": dataset})
+            try:
+                latest = self.ctx.store.latest_verification(dataset)
+            except Exception:  # a store problem must not stop the daemon
+                log.exception("latest_verification failed", extra={"dataset": dataset})
             self._last[dataset] = (
                 float(latest["finished_at"]) if latest and latest.get("finished_at") else None
             )
@@ -144,9 +139,7 @@ class VerificationScheduler:
 
     # ---- automatic mode -----------------------------------------------------------------------------
     def _is_auto(self, dataset: str) -> bool:
-        config = getattr(self.ctx, "config", None)
-        is_auto = getattr(config, "is_auto", None)
-        return bool(is_auto is not None and is_auto(dataset))
+        return self.ctx.config.is_auto(dataset)
 
     def _runner_kwargs(self) -> dict[str, Any]:
         return {"runner": self._preflight_runner} if self._preflight_runner is not None else {}

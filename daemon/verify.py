@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import fcntl
-import json
 import shutil
 import time
 import uuid
@@ -19,17 +18,21 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import msgspec
+
+from verifier.pairs import stage_pairs
+from verifier.verdict import Verdict
 from verifier.verification import (
     PROFILES,
     VerificationInputError,
     VerificationReport,
     VerifyOptions,
-    stage_pairs,
     verify_folders,
 )
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
+
 
 def new_run_id() -> str:
     return time.strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:6]
@@ -85,14 +88,16 @@ def verify_dataset(
             report = verify_folders(images / "clean", images / "poisoned", run_dir, profiles, opts)
         finally:
             shutil.rmtree(images, ignore_errors=True)
-        (run_dir / "report.json").write_text(json.dumps(report.to_dict(), indent=1))
+        # verify_folders wrote run_dir/report.json (what `ppd report RUN_DIR` reads)
         record_report(ctx, dataset, report)
         prune_runs(runs_root / dataset, keep)
     return report
 
 
 def record_report(ctx: AppContext, dataset: str, report: VerificationReport) -> list[int]:
-    """One Store row per profile."""
+    """One Store row per profile; each row's metrics carry the run's visibility figures (measured once
+    per verification, on the dataset's files), so a report built from the Store shows them."""
+    visibility = msgspec.to_builtins(report.visibility) if report.visibility is not None else None
     ids = []
     for p in report.profiles.values():
         ids.append(
@@ -100,11 +105,11 @@ def record_report(ctx: AppContext, dataset: str, report: VerificationReport) -> 
                 dataset=dataset,
                 profile=p.profile,
                 verdict=p.verdict,
-                metrics=p.metrics(),
+                metrics={**p.metrics(), "visibility": visibility},
                 started_at=p.started_at,
                 finished_at=p.finished_at,
                 model_dir=p.model_dir,
-                error=p.error if p.verdict != "protected" else None,
+                error=p.error if p.verdict != Verdict.PROTECTED else None,
             )
         )
     return ids

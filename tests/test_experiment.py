@@ -331,3 +331,23 @@ def test_real_setting_with_splat_has_cost1(synthetic_clean: dict[str, Path], tmp
         assert 0 < row[side]["ssim"] <= 1 and row[side]["psnr"] > 0
     md = ex.markdown_tables([row])
     assert f"{row['cost1']['ssim']:.3f}" in md
+
+
+def test_tables_carry_what_a_viewer_sees() -> None:
+    """Each run's visibility (worst FLIP p99.9, area above 0.5) reaches the markdown and CSV tables."""
+    base = {"kind": "patch", "groups": ["patch_size"], "params": {}, "verdict": "protected"}
+    rows = [
+        {**base, "setting_id": "a", "label": "P=12", "run": r,
+         "visibility": {"flip_p999": 0.9 + 0.02 * r, "area_above_half": 0.004, "changed_area": 0.01}}
+        for r in range(2)
+    ] + [{**base, "setting_id": "b", "label": "P=48", "run": 0}]  # an older row: not measured  # fmt: skip
+    md = ex.markdown_tables(rows)
+    assert "| FLIP p99.9 | area FLIP > 0.5 |" in md
+    line = next(x for x in md.splitlines() if x.startswith("| P=12 |"))
+    flip = f"{statistics.fmean([0.9, 0.92]):.3f} ± {statistics.stdev([0.9, 0.92]):.3f}"
+    assert f"| {flip} | 0.40% ± 0.00 |" in line
+    old = next(x for x in md.splitlines() if x.startswith("| P=48 |"))
+    assert old.count("| — |") >= 2
+    table = list(csv.DictReader(io.StringIO(ex.csv_text(rows))))
+    assert [r["area_above_half"] for r in table] == ["0.004", "0.004", ""]
+    assert float(table[1]["flip_p999"]) == pytest.approx(0.92)

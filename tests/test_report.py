@@ -13,6 +13,7 @@ import subprocess
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 from PIL import Image
@@ -232,3 +233,115 @@ def test_report_of_a_patch_spec_has_a_preview_size_that_fits(tmp_path: Path) -> 
     )
     assert fig is not None and Image.open(io.BytesIO(fig.png)).size[0] >= 2 * 160
     assert rp.patch_preview_figure(tmp_path / "a.png", tmp_path / "missing.png", PatchSpec()) is None
+
+
+# ---- visibility and the profiles the protection does not hold under --------------------------------
+def _marked_folders(root: Path, n: int = 4) -> tuple[Path, Path]:
+    """Noise-free smooth originals and copies with a 16 px checkerboard in the top-left corner."""
+    clean, pois = root / "clean", root / "poisoned"
+    clean.mkdir(parents=True)
+    pois.mkdir()
+    yy, xx = np.mgrid[0:150, 0:200]
+    for i in range(n):
+        base = np.clip(120 + 50 * np.sin((xx + 9 * i) / 17.0) * np.cos(yy / 23.0), 0, 255)
+        img = np.repeat(base[..., None], 3, axis=2).astype(np.uint8)
+        Image.fromarray(img).save(clean / f"v{i}.png")
+        checker = (np.indices((16, 16)).sum(axis=0) // 2) % 2 == 0
+        img[4:20, 4:20] = np.where(checker, 0, 255)[..., None]
+        Image.fromarray(img).save(pois / f"v{i}.png")
+    return clean, pois
+
+
+def _verification_folder(root: Path, verdicts: dict[str, str]) -> Path:
+    """A verify_folders out dir: per-profile folders and the top report.json with measured visibility."""
+    from verifier.verification import ProfileReport, VerificationReport, write_json
+    from verifier.visibility import measure_pairs
+
+    clean, pois = _marked_folders(root / "images")
+    out = root / "run"
+    profiles = {}
+    for name, verdict in verdicts.items():
+        d = _profile_dir(out, name, verdict)
+        stored = json.loads((d / "report.json").read_text())
+        fields = {k: v for k, v in stored.items() if k != "model_dir"}
+        profiles[name] = ProfileReport(**fields, model_dir=str(d))
+    pairs = [(clean / f"v{i}.png", pois / f"v{i}.png") for i in range(4)]
+    report = VerificationReport(str(clean), str(pois), str(out), 4, profiles, measure_pairs(pairs, sample=2))
+    write_json(out / "report.json", report.to_dict())
+    return out
+
+
+def test_verification_report_shows_visibility_masked_row_and_what_fails(tmp_path: Path) -> None:
+    out = _verification_folder(tmp_path, {"default": "protected", "hardened": "not_protected"})
+    data = rp.build_report(str(out))
+    vis = next(t for t in data.tables if t.title.startswith("Visibility"))
+    assert [r[0] for r in vis.rows] == ["v0.png", "v3.png", "worst of 2"]
+    stored = json.loads((out / "report.json").read_text())["visibility"]["worst"]
+    worst = vis.rows[-1]
+    assert stored["area_above_half"] > 0 and worst[6] == f"{100 * stored['area_above_half']:.3f}%"
+    assert worst[1] == "200" and worst[4] == f"{stored['flip_p999']:.3f}" and worst[8] == "yes"
+    assert any("measured on 2 of 4 images" in n for n in data.notes)
+    table = next(t for t in data.tables if t.title.startswith("Metrics per profile"))
+    rows = {r[0]: r for r in table.rows}
+    assert list(rows) == ["default", "hardened", "published", "masked"]
+    assert rows["masked"][1] == "not run" and rows["hardened"][1] == "not_protected"
+    assert data.holding == "The protection does NOT hold under: hardened (not run here: published, masked)"
+    page = rp.render_html(data)
+    assert 'id="holding"' in page and "does NOT hold under: hardened" in page
+    assert "area FLIP &gt; 0.5" in page
+    picture = next(f for f in data.figures if "at display size" in f.caption)
+    shown = Image.open(io.BytesIO(picture.png))
+    assert shown.size[0] == 200 and shown.size[1] > 150  # the image at its own width, the zoom below
+    assert "x 4–20, y 4–20" in picture.caption
+
+
+def test_untouched_copy_has_no_visible_area_in_the_report(tmp_path: Path) -> None:
+    from verifier.visibility import measure_pairs
+
+    clean, _ = _marked_folders(tmp_path)
+    vis = measure_pairs([(clean / "v0.png", clean / "v0.png")], sample=1)
+    assert vis is not None
+    row = rp.visibility_table(json.loads(json.dumps(msgspec.to_builtins(vis)))).rows[-1]
+    assert row[6] == "0.000%" and row[7] == "0.000%" and row[8] == "nothing changed"
+
+
+def test_old_run_folder_without_visibility_still_reads(tmp_path: Path) -> None:
+    _profile_dir(tmp_path / "run", "default", "protected")
+    (tmp_path / "run" / "report.json").write_text(
+        json.dumps({"verdict": "protected", "profiles": {"default": json.loads(
+            (tmp_path / "run" / "default" / "report.json").read_text())}})
+    )  # fmt: skip
+    data = rp.build_report(str(tmp_path / "run"))
+    assert data.verdict == "protected"
+    assert any("not measured" in n for n in data.notes)
+    assert not any(t.title.startswith("Visibility") for t in data.tables)
+    assert data.holding is not None
+    assert data.holding.startswith("The protection holds under every profile run (default)")
+
+
+def test_dataset_report_shows_the_recorded_visibility(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    from daemon.verify import record_report
+    from verifier.verification import ProfileReport, VerificationReport
+    from verifier.visibility import measure_pairs
+
+    ctx = _protected_dataset(ppd_env, tmp_path)
+    try:
+        from daemon.protect import dataset_pairs
+
+        pairs = dataset_pairs(ctx, "trip")
+        vis = measure_pairs(pairs, sample=3)
+        assert vis is not None and vis.worst.area_above_half > 0  # ppd's default patch is seen
+        run_dir = ctx.paths.runs_dir / "trip" / "20260102T000000-abcdef"
+        masked = ProfileReport(
+            profile="masked", verdict="not_protected", reasons=["masked reason"], clean={"outcome": "ok"},
+            poisoned={"outcome": "ok"}, vs_clean=None, model_dir=str(run_dir / "masked"), started_at=200.0,
+            finished_at=201.0,
+        )  # fmt: skip
+        record_report(ctx, "trip", VerificationReport("c", "p", str(run_dir), 3, {"masked": masked}, vis))
+        data = dataset_reports.build_dataset_report(ctx, "trip")
+        vis_table = next(t for t in data.tables if t.title.startswith("Visibility"))
+        assert vis_table.rows[-1][6] == f"{100 * vis.worst.area_above_half:.3f}%"
+        assert data.holding is not None and "does NOT hold under: masked" in data.holding
+        assert any("at display size" in f.caption for f in data.figures)
+    finally:
+        ctx.close()

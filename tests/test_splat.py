@@ -340,3 +340,20 @@ def test_stage_reports_a_bad_model_as_failed(tmp_path: Path) -> None:
 def _rot_y(angle: float) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def test_splat_job_and_result_are_checked_at_the_process_boundary() -> None:
+    import msgspec
+
+    from verifier.splat.stage import SplatJob, SplatResult
+
+    job = SplatJob("m_clean", "clean", "m_poisoned", "poisoned", "out", {"iterations": 3})
+    assert msgspec.json.decode(msgspec.json.encode(job), type=SplatJob) == job
+    with pytest.raises(msgspec.ValidationError, match=r"\$\.out_dir"):
+        msgspec.json.decode(b'{"clean_model_dir": "a", "clean_images": "b", "poisoned_model_dir": "c",'
+                            b' "poisoned_images": "d", "out_dir": 4}', type=SplatJob)  # fmt: skip
+    with pytest.raises(msgspec.ValidationError, match=r"\$\.outcome"):
+        msgspec.json.decode(b'{"outcome": 3}', type=SplatResult)
+    decoded = msgspec.json.decode(b'{"outcome": "failed", "error": "x"}', type=SplatResult)
+    failed = msgspec.to_builtins(decoded)
+    assert failed["outcome"] == "failed" and failed["error"] == "x" and failed["clean"] is None

@@ -1,4 +1,4 @@
-"""Verdict rule, inputs, round trip, run pruning, scheduling, and end-to-end verification on the
+"""Verdict rule, inputs, round trip, run pruning, visibility in the report, and end-to-end verification on the
 synthetic scene with real COLMAP."""
 
 from __future__ import annotations
@@ -8,29 +8,26 @@ import os
 import shutil
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from daemon.scheduler import SchedulePolicy, VerificationScheduler, is_due
 from daemon.verify import prune_runs
 from poisoner.blend import poison_array
 from poisoner.spec import PatchSpec
 from verifier import verdict as vd
+from verifier.published import round_trip
 from verifier.synthetic import SyntheticOptions, render_scene
 from verifier.verification import (
     VerificationInputError,
     VerifyOptions,
     expand_profiles,
-    round_trip,
     verify_folders,
 )
+from verifier.visibility import dataset_visibility_from_json
 
 OK_CLEAN = {"outcome": "ok", "num_images": 20, "registered": 20, "num_models": 1}
 
@@ -74,6 +71,16 @@ def test_poisoned_crash_is_its_own_outcome() -> None:
     v = vd.decide(OK_CLEAN, rerun, {"frac_within_5deg": 0.0})
     assert v.verdict == vd.PROTECTED
     assert any("first crashed (SIGSEGV)" in r for r in v.reasons)
+
+
+def test_verdicts_are_a_str_enum_stored_as_their_value() -> None:
+    v = vd.decide(OK_CLEAN, poisoned_result(), {"frac_within_5deg": 0.0})
+    assert isinstance(v.verdict, vd.Verdict) and v.verdict is vd.Verdict.PROTECTED
+    assert json.dumps({"v": v.verdict}) == '{"v": "protected"}' and vd.Verdict("weak") is vd.WEAK
+    assert vd.overall(["weak", "protected"]) is vd.Verdict.WEAK  # plain strings from the Store compare
+    assert vd.not_holding({"default": "protected", "masked": "not_protected", "published": "weak"}) == [
+        "masked", "published"]  # fmt: skip
+    assert vd.verdict_words(vd.Verdict.NOT_PROTECTED) == "NOT protected"
 
 
 def test_overall_is_the_weakest_profile() -> None:
@@ -130,77 +137,45 @@ def test_prune_keeps_the_newest_runs(tmp_path: Path) -> None:
     assert sorted(os.listdir(tmp_path)) == ["20260103T000000-c", "20260104T000000-d"]
 
 
-# ---- scheduling ----------------------------------------------------------------------------------
-def test_is_due_policy() -> None:
-    policy = SchedulePolicy(min_new_files=20, period_s=3600)
-    assert not is_due(0, None, 1e9, policy)
-    assert not is_due(19, None, 1e9, policy)  # never ran, not enough files yet
-    assert is_due(20, None, 1e9, policy)
-    assert not is_due(5, 1e9 - 10, 1e9, policy)
-    assert is_due(5, 1e9 - 3600, 1e9, policy)  # old run + something new
+# ---- visibility in the verification's results ------------------------------------------------------
+def _copy_and_mark(tmp_path: Path, n: int = 4) -> tuple[Path, Path, list[str]]:
+    clean, pois = tmp_path / "clean", tmp_path / "poisoned"
+    clean.mkdir()
+    for i in range(n):
+        Image.new("RGB", (80, 60), (10 + 20 * i, 120, 30)).save(clean / f"v{i}.png")
+    shutil.copytree(clean, pois)
+    for i in range(n):
+        with Image.open(pois / f"v{i}.png") as im:
+            arr = np.asarray(im.convert("RGB")).copy()
+        arr[:6, :6] = 255 * (np.indices((6, 6)).sum(axis=0) % 2)[..., None]  # a corner checkerboard
+        Image.fromarray(arr.astype(np.uint8)).save(pois / f"v{i}.png")
+    return clean, pois, [f"v{i}.png" for i in range(n)]
 
 
-def test_scheduler_runs_a_dataset_after_n_files_and_stop_cancels() -> None:
-    calls: list[str] = []
-    cancelled = threading.Event()
-    started = threading.Event()
+def test_verification_results_carry_visibility_and_what_ppd_verify_prints(tmp_path: Path) -> None:
+    from verifier.verification import ProfileReport, VerificationReport, measure_visibility
 
-    def slow_verify(ctx: Any, dataset: str, profiles: tuple[str, ...], cancel: threading.Event) -> str:
-        calls.append(dataset)
-        started.set()
-        if cancel.wait(10):  # what verify_dataset does with the event: kills its child
-            cancelled.set()
-            return "cancelled"
-        return "protected"
-
-    schedule = SimpleNamespace(enabled=True, every_new_files=3, period_hours=1e6, profiles=("default",))
-    ctx = SimpleNamespace(config=SimpleNamespace(verification=schedule), store=None)
-    sched = VerificationScheduler(ctx, verify=slow_verify, poll_s=0.05)
-    sched.start()
-    try:
-        sched.on_protected("trip")
-        sched.on_protected("trip")
-        time.sleep(0.3)
-        assert calls == []  # 2 < 3
-        sched.on_protected("trip")
-        assert started.wait(5)
-        assert calls == ["trip"] and sched.running == "trip"
-    finally:
-        sched.stop(timeout=10)
-    assert cancelled.is_set()
-    assert sched.completed == [("trip", "cancelled")]
-
-
-def test_scheduled_runs_include_the_splat_stage_when_configured() -> None:
-    from daemon.config import Config
-
-    off = Config.from_toml("[verification]\nevery_new_files = 5\n")
-    on = Config.from_toml("[verification]\nsplat = true\nsplat_budget_s = 60\n")
-    assert on.verification.splat and not off.verification.splat
-    assert "splat = true" in on.to_toml()  # written back as configured
-    for config, wanted in ((off, False), (on, True)):
-        ctx = SimpleNamespace(config=config, store=None)
-        options = VerificationScheduler(ctx).verify_options()
-        assert options.splat is wanted
-        assert options.cancel is not None  # a stopping daemon still cancels the run
-    assert (
-        VerificationScheduler(SimpleNamespace(config=on, store=None))
-        .verify_options()
-        .splat_options["time_budget_s"]
-        == 60
-    )
-
-
-def test_keep_runs_is_a_config_field() -> None:
-    from daemon.config import Config, ConfigError
-
-    assert Config.from_toml("").verification.keep_runs == 5
-    kept = Config.from_toml("[verification]\nkeep_runs = 2\n")
-    assert kept.verification.keep_runs == 2 and "keep_runs = 2" in kept.to_toml()
-    assert Config.from_toml(kept.to_toml()).verification.keep_runs == 2
-    for bad in ("0", '"3"', "true"):
-        with pytest.raises(ConfigError, match="keep_runs"):
-            Config.from_toml(f"[verification]\nkeep_runs = {bad}\n")
+    clean, pois, names = _copy_and_mark(tmp_path)
+    vis = measure_visibility(clean, pois, names, VerifyOptions(visibility_images=2))
+    assert vis is not None and vis.measured == 2 and vis.total == 4
+    assert vis.worst.area_above_half > 0 and vis.worst.in_one_corner is True
+    assert measure_visibility(clean, pois, names, VerifyOptions(visibility_images=0)) is None
+    untouched = measure_visibility(clean, clean, names, VerifyOptions(visibility_images=2))
+    assert untouched is not None
+    assert untouched.worst.area_above_half == 0 and untouched.worst.changed_area == 0
+    profiles = {
+        name: ProfileReport(profile=name, verdict=verdict, reasons=[], clean={"outcome": "ok"},
+                            poisoned={"outcome": "ok"}, vs_clean=None)
+        for name, verdict in (("default", vd.PROTECTED), ("masked", vd.NOT_PROTECTED))
+    }  # fmt: skip
+    report = VerificationReport(str(clean), str(pois), str(tmp_path), 4, profiles, vis)
+    data = json.loads(json.dumps(report.to_dict()))
+    assert data["verdict"] == "not_protected" and data["profiles"]["masked"]["verdict"] == "not_protected"
+    assert data["visibility"]["worst"]["area_above_half"] == vis.worst.area_above_half
+    summary = "\n".join(data["summary"])
+    assert f"{vis.worst.area_above_half:.2%} of the picture clearly visible (FLIP > 0.5)" in summary
+    assert "the protection does NOT hold under: masked" in summary
+    assert report.not_holding() == ["masked"]
 
 
 # ---- end to end with real COLMAP -----------------------------------------------------------------
@@ -272,6 +247,12 @@ def test_patch_breaks_default_colmap_and_hardened_colmap_resists(
         assert (out / "default" / side / "cameras.bin").is_file()
     stored = json.loads((out / "default" / "report.json").read_text())
     assert stored["verdict"] == default.verdict
+    # what a viewer sees was measured on a few of the files, and written with the run
+    assert report.visibility is not None and report.visibility.measured == 3
+    assert report.visibility.worst.area_above_half > 0
+    top = json.loads((out / "report.json").read_text())
+    assert top["visibility"]["worst"]["area_above_half"] == report.visibility.worst.area_above_half
+    assert any(line.startswith("the protection does NOT hold under: hardened") for line in top["summary"])
     assert not (out / ".cache").exists()  # feature databases are not left behind
 
 
@@ -295,6 +276,10 @@ def test_verify_dataset_records_runs_and_keeps_models(
         assert [r["profile"] for r in rows] == ["default"]
         assert rows[0]["verdict"] == report.profiles["default"].verdict
         assert rows[0]["metrics"]["clean"]["registered"] == 12
+        # the run's visibility figures are stored with every profile's row (what `ppd report` shows)
+        vis = rows[0]["metrics"]["visibility"]
+        assert vis["measured"] == 3 and vis["total"] == 12 and vis["worst"]["area_above_half"] > 0
+        assert dataset_visibility_from_json(vis) == report.visibility  # read back whole
         model_dir = Path(rows[0]["model_dir"])
         assert (model_dir / "clean" / "images.bin").is_file()
         assert (model_dir / "poisoned" / "images.bin").is_file()

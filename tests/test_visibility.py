@@ -3,14 +3,20 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 
 from verifier.visibility import (
     VisibilityError,
     box_in_one_corner,
+    dataset_visibility_from_json,
+    find_subject_mask,
     jpeg_reencode,
+    measure_pairs,
+    sample_evenly,
     visibility_report,
 )
 
@@ -29,7 +35,7 @@ def photo_like(seed: int = 0) -> np.ndarray:
 
 def with_square(img: np.ndarray, x: int, y: int, size: int) -> np.ndarray:
     out = img.copy()
-    checker = ((np.indices((size, size)).sum(axis=0) // 4) % 2 == 0)
+    checker = (np.indices((size, size)).sum(axis=0) // 4) % 2 == 0
     out[y : y + size, x : x + size] = np.where(checker, 0, 255)[..., None]
     return out
 
@@ -112,3 +118,84 @@ def test_box_in_one_corner() -> None:
     assert box_in_one_corner((85, 81, 100, 100), 100, 100, 0.2)  # bottom-right
     assert not box_in_one_corner((0, 0, 21, 20), 100, 100, 0.2)
     assert not box_in_one_corner((0, 0, 100, 10), 100, 100, 0.2)  # a band along the top is not one corner
+
+
+# ---- the verification's stage: a few files of a dataset ----------------------------------------
+def _pair_folders(
+    root: Path, n: int = 5, marked: bool = True, x: int = 5, y: int = 6
+) -> list[tuple[Path, Path]]:
+    """n photo-like originals and their copies, the copies marked with a square (or untouched)."""
+    from PIL import Image
+
+    clean, pois = root / "clean", root / "poisoned"
+    clean.mkdir()
+    pois.mkdir()
+    pairs = []
+    for i in range(n):
+        img = photo_like(i)
+        Image.fromarray(img).save(clean / f"{i:06d}.png")
+        Image.fromarray(with_square(img, x, y, 20) if marked else img).save(pois / f"{i:06d}.png")
+        pairs.append((clean / f"{i:06d}.png", pois / f"{i:06d}.png"))
+    return pairs
+
+
+def test_measure_pairs_sees_a_mark_and_nothing_on_an_untouched_copy(tmp_path: Path) -> None:
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    marked = measure_pairs(_pair_folders(tmp_path / "a"), sample=2)
+    untouched = measure_pairs(_pair_folders(tmp_path / "b", marked=False), sample=2)
+    assert marked is not None and untouched is not None
+    assert (marked.measured, marked.total) == (2, 5)
+    assert [m.name for m in marked.images] == ["000000.png", "000004.png"]  # spread: first and last
+    assert marked.worst.area_above_half > 0 and marked.worst.changed_area > 0
+    assert marked.worst.in_one_corner is True and marked.worst.p999_vs_jpeg > 1
+    assert untouched.worst.area_above_half == 0 and untouched.worst.changed_area == 0
+    assert untouched.worst.flip_max == 0 and untouched.worst.in_one_corner is None
+    # judged at min(1920, width): these files are W px wide, so at W
+    assert marked.worst.display_width == W and all(m.figures.display_width == W for m in marked.images)
+
+
+def test_dataset_visibility_lines_and_json_round_trip(tmp_path: Path) -> None:
+    vis = measure_pairs(_pair_folders(tmp_path), sample=1)
+    assert vis is not None
+    text = "\n".join(vis.lines())
+    assert f"{vis.worst.area_above_half:.2%} of the picture clearly visible (FLIP > 0.5)" in text
+    assert f"p99.9 {vis.worst.flip_p999:.2f}" in text and "worst of 1 of 5 images" in text
+    assert "inside one corner region" in text
+    again = dataset_visibility_from_json(json.loads(json.dumps(msgspec.to_builtins(vis))))
+    assert again == vis
+    assert dataset_visibility_from_json(None) is None
+
+
+def test_subject_masks_are_found_by_name_or_frame_number(tmp_path: Path) -> None:
+    from PIL import Image
+
+    pairs = _pair_folders(tmp_path, n=3, x=100, y=80)  # a square in the middle
+    masks = tmp_path / "mask"
+    masks.mkdir()
+    for i in range(3):  # DTU names 000002.png's mask 002.png
+        m = np.zeros((H, W), np.uint8)
+        m[60:150, 80:200] = 255
+        Image.fromarray(m).save(masks / f"{i:03d}.png")
+    assert find_subject_mask(masks, "000002.png") == masks / "002.png"
+    assert find_subject_mask(masks, "other.png") is None
+    vis = measure_pairs(pairs, sample=3, subject_mask_dir=masks)
+    assert vis is not None and vis.subject_masks
+    assert vis.worst.touches_subject is True and vis.worst.in_one_corner is False
+    assert "changed pixels touch the subject mask" in "\n".join(vis.lines())
+    (tmp_path / "c").mkdir()
+    corner = measure_pairs(_pair_folders(tmp_path / "c", n=3), sample=3, subject_mask_dir=masks)
+    assert corner is not None and corner.worst.touches_subject is False
+
+
+def test_unreadable_files_are_listed_not_fatal(tmp_path: Path) -> None:
+    pairs = _pair_folders(tmp_path, n=2)
+    pairs[0][1].write_bytes(b"not an image")
+    vis = measure_pairs(pairs, sample=2)
+    assert vis is not None and vis.measured == 1 and vis.skipped[0].startswith("000000.png")
+    assert measure_pairs([pairs[0]], sample=1) is None
+
+
+def test_sample_evenly() -> None:
+    assert sample_evenly(10, 3) == [0, 4, 9]  # round(4.5) is 4 (banker's rounding)
+    assert sample_evenly(2, 3) == [0, 1] and sample_evenly(5, 1) == [0] and sample_evenly(0, 3) == []

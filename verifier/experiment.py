@@ -17,16 +17,13 @@ run in child processes), so `ppd experiment` stays light until it needs them.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import hashlib
-import io
 import json
 import logging
 import math
 import os
 import shutil
-import statistics
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -36,10 +33,20 @@ from typing import Any
 import numpy as np
 from PIL import Image  # PIL before anything that may load pycolmap
 
+from poisoner.atomic import atomic_write_bytes
 from poisoner.baselines import BASELINE_KINDS, BaselineSpec, apply_baseline
 from poisoner.formats import poison_file
 from poisoner.media import is_image
 from poisoner.spec import PatchSpec, SpecError
+
+# Tables over finished rows (verifier.experiment_tables), re-exported: callers import them from here.
+from verifier.experiment_tables import CSV_COLUMNS as CSV_COLUMNS
+from verifier.experiment_tables import METRICS as METRICS
+from verifier.experiment_tables import Stat as Stat
+from verifier.experiment_tables import aggregate as aggregate
+from verifier.experiment_tables import csv_text, markdown_tables
+from verifier.experiment_tables import stat as stat
+from verifier.experiment_tables import table_row as table_row
 
 log = logging.getLogger(__name__)
 
@@ -369,14 +376,33 @@ def run_setting(
     options: ExperimentOptions,
 ) -> dict[str, Any]:
     """Poison a copy, verify it, measure it; the result row (never raises for a failed SfM)."""
-    from verifier.verification import VerifyOptions, verify_folders
-
     started = time.time()
-    seeded = setting.with_seed(run)
     work = exp_dir / "work" / f"{setting.setting_id}-run{run}"
     poisoned_dir = work / "poisoned"
-    changed = make_poisoned_copy(clean_dir, poisoned_dir, seeded)
-    row: dict[str, Any] = {
+    changed = make_poisoned_copy(clean_dir, poisoned_dir, setting.with_seed(run))
+    row = _row_header(setting, run, options, changed)
+    t = time.time()
+    row["cost2"] = cost2(
+        clean_dir,
+        poisoned_dir,
+        options.lpips_net if options.cost2_lpips else None,
+        options.cost2_lpips_images,
+    )
+    row["cost2_s"] = round(time.time() - t, 1)
+    try:
+        row.update(_verification_fields(clean_dir, poisoned_dir, work / "verify", exp_dir, run, options))
+    except Exception as exc:  # a bad setting is a row with its error, the sweep goes on
+        log.exception("setting failed", extra={"setting": setting.label, "run": run})
+        row["verdict"] = "error"
+        row["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0]
+    shutil.rmtree(poisoned_dir, ignore_errors=True)  # models stay under work/verify
+    row["seconds"] = round(time.time() - started, 1)
+    row["finished_at"] = time.time()
+    return row
+
+
+def _row_header(setting: Setting, run: int, options: ExperimentOptions, changed: int) -> dict[str, Any]:
+    return {
         "setting_id": setting.setting_id,
         "config_id": options.config_id(),
         "run": run,
@@ -387,14 +413,16 @@ def run_setting(
         "params": setting.params(),
         "images_changed": changed,
     }
-    t = time.time()
-    row["cost2"] = cost2(
-        clean_dir,
-        poisoned_dir,
-        options.lpips_net if options.cost2_lpips else None,
-        options.cost2_lpips_images,
-    )
-    row["cost2_s"] = round(time.time() - t, 1)
+
+
+def _verification_fields(
+    clean_dir: Path, poisoned_dir: Path, verify_dir: Path, exp_dir: Path, run: int, options: ExperimentOptions
+) -> dict[str, Any]:
+    """verify_folders on one poisoned copy: verdict, per-profile figures, splat costs, visibility."""
+    import msgspec
+
+    from verifier.verification import VerifyOptions, verify_folders
+
     splat_options = {**options.splat_options, "seed": run, "lpips_net": options.lpips_net}
     verify_options = VerifyOptions(
         timeout_s=options.sfm_timeout_s,
@@ -405,23 +433,19 @@ def run_setting(
         splat_profile=options.profiles[0],
         splat_options=splat_options,
     )
-    try:
-        report = verify_folders(clean_dir, poisoned_dir, work / "verify", options.profiles, verify_options)
-        row["verdict"] = report.verdict
-        row["profiles"] = {name: _profile_fields(p) for name, p in report.profiles.items()}
-        first = report.profiles.get(options.profiles[0])
-        splat = next((p.splat for p in report.profiles.values() if p.splat is not None), None)
-        row.update(_splat_fields(splat) if options.splat else {})
-        if first is not None:
-            row.update({k: v for k, v in _profile_fields(first).items() if k not in ("reasons", "model_dir")})
-    except Exception as exc:  # a bad setting is a row with its error, the sweep goes on
-        log.exception("setting failed", extra={"setting": setting.label, "run": run})
-        row["verdict"] = "error"
-        row["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0]
-    shutil.rmtree(poisoned_dir, ignore_errors=True)  # models stay under work/verify
-    row["seconds"] = round(time.time() - started, 1)
-    row["finished_at"] = time.time()
-    return row
+    report = verify_folders(clean_dir, poisoned_dir, verify_dir, options.profiles, verify_options)
+    fields: dict[str, Any] = {
+        "verdict": str(report.verdict),
+        "profiles": {name: _profile_fields(p) for name, p in report.profiles.items()},
+        # what a viewer sees of this setting (worst over a few images)
+        "visibility": msgspec.to_builtins(report.visibility.worst) if report.visibility else None,
+    }
+    splat = next((p.splat for p in report.profiles.values() if p.splat is not None), None)
+    fields.update(_splat_fields(splat) if options.splat else {})
+    first = report.profiles.get(options.profiles[0])
+    if first is not None:
+        fields.update({k: v for k, v in _profile_fields(first).items() if k not in ("reasons", "model_dir")})
+    return fields
 
 
 # ---- the results file (resumable) -------------------------------------------------------------
@@ -506,7 +530,8 @@ def run_experiment(
         "options": dataclasses.asdict(options),
         "settings": [{"id": s.setting_id, "label": s.label, "groups": s.groups} for s in settings],
     }
-    (exp_dir / MANIFEST_NAME).write_text(json.dumps(manifest, indent=1, default=_json_default))
+    manifest_json = json.dumps(manifest, indent=1, default=_json_default)
+    atomic_write_bytes(exp_dir / MANIFEST_NAME, manifest_json.encode())
     started = time.time()
     for i, (setting, run) in enumerate(todo, 1):
         if progress:
@@ -522,161 +547,8 @@ def run_experiment(
     )
 
 
-# ---- aggregation and tables -------------------------------------------------------------------
-def _get(row: dict[str, Any], path: str) -> Any:
-    cur: Any = row
-    for part in path.split("."):
-        if not isinstance(cur, dict):
-            return None
-        cur = cur.get(part)
-    return cur
-
-
-METRICS: dict[str, str] = {
-    # column -> dotted path in a row
-    "render_ssim": "cost1.ssim",
-    "render_psnr": "cost1.psnr",
-    "render_lpips": "cost1.lpips",
-    "cvp_ssim": "cost2.ssim",
-    "cvp_psnr": "cost2.psnr",
-    "cvp_lpips": "cost2.lpips",
-    "within5_of_clean": "within5_of_clean",
-    "poisoned_within5_of_gt": "poisoned_within5_of_gt",
-    "median_rot_err_deg": "median_rot_err_deg",
-    "poisoned_sfm_s": "poisoned_sfm_s",
-    "seconds": "seconds",
-}
-
-
-@dataclass(frozen=True)
-class Stat:
-    mean: float | None
-    std: float | None  # sample std over runs (and scenes); None with one value
-    n: int
-
-    def text(self, digits: int) -> str:
-        if self.mean is None:
-            return "—"
-        if math.isinf(self.mean):
-            return "inf"
-        if self.std is None:
-            return f"{self.mean:.{digits}f}"
-        return f"{self.mean:.{digits}f} ± {self.std:.{digits}f}"
-
-
-def stat(values: Iterable[Any]) -> Stat:
-    xs = [float(v) for v in values if isinstance(v, (int, float)) and not isinstance(v, bool)]
-    xs = [x for x in xs if not math.isnan(x)]
-    if not xs:
-        return Stat(None, None, 0)
-    if any(math.isinf(x) for x in xs):
-        return Stat(math.inf, None, len(xs))
-    return Stat(statistics.fmean(xs), statistics.stdev(xs) if len(xs) > 1 else None, len(xs))
-
-
-def aggregate(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One entry per setting (over runs and scenes), in first-seen order: label, groups, Stats, verdicts."""
-    by_setting: dict[str, list[dict[str, Any]]] = {}
-    for r in rows:
-        by_setting.setdefault(r["setting_id"], []).append(r)
-    out = []
-    for sid, rs in by_setting.items():
-        entry: dict[str, Any] = {
-            "setting_id": sid,
-            "label": rs[0]["label"],
-            "kind": rs[0]["kind"],
-            "groups": rs[0].get("groups", []),
-            "params": rs[0].get("params", {}),
-            "n": len(rs),
-            "verdicts": [r.get("verdict") for r in rs],
-        }
-        for col, path in METRICS.items():
-            entry[col] = stat(_get(r, path) for r in rs)
-        if rs[0]["kind"] == "clean":  # the reference: cost1 is the clean splat's, cost2 is exact
-            entry["render_ssim"] = stat(_get(r, "cost1_clean.ssim") for r in rs)
-            entry["render_psnr"] = stat(_get(r, "cost1_clean.psnr") for r in rs)
-            entry["render_lpips"] = stat(_get(r, "cost1_clean.lpips") for r in rs)
-        out.append(entry)
-    return out
-
-
-CSV_COLUMNS = (
-    "setting_id", "label", "kind", "groups", "run", "seed", "verdict", "images_changed",
-    "cost1_ssim", "cost1_psnr", "cost1_lpips", "clean_cost1_ssim", "clean_cost1_psnr", "clean_cost1_lpips",
-    "cost2_ssim", "cost2_psnr", "cost2_lpips", "within5_of_clean", "median_rot_err_deg",
-    "clean_within5_of_gt", "poisoned_within5_of_gt", "poisoned_outcome", "poisoned_sfm_s", "seconds", "error",
-)  # fmt: skip
-
-
-def csv_text(rows: Sequence[dict[str, Any]]) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf)
-    w.writerow(CSV_COLUMNS)
-    for r in rows:
-        flat = {
-            **{k: r.get(k) for k in CSV_COLUMNS},
-            "groups": ";".join(r.get("groups", [])),
-            **{f"cost1_{m}": _get(r, f"cost1.{m}") for m in ("ssim", "psnr", "lpips")},
-            **{f"clean_cost1_{m}": _get(r, f"cost1_clean.{m}") for m in ("ssim", "psnr", "lpips")},
-            **{f"cost2_{m}": _get(r, f"cost2.{m}") for m in ("ssim", "psnr", "lpips")},
-        }
-        w.writerow(["" if flat[k] is None else flat[k] for k in CSV_COLUMNS])
-    return buf.getvalue()
-
-
-GROUP_TITLES = {
-    "clean": "Clean reference",
-    "patch_size": "Patch size P",
-    "block_size": "Block size b",
-    "alpha": "Blend α",
-    "contrast": "Contrast Δc",
-    "pattern": "Pattern",
-    "ratio": "Poisoning ratio",
-    "baselines": "Baselines",
-}
-TABLE_HEADER = (
-    "| setting | n | render SSIM | render PSNR | render LPIPS | clean-vs-poisoned SSIM | PSNR | LPIPS "
-    "| cameras within 5° of clean | within 5° of GT | verdict(s) |"
-)
-
-
-def _pct(s: Stat) -> str:
-    if s.mean is None:
-        return "—"
-    return f"{100 * s.mean:.0f}%" + (f" ± {100 * s.std:.0f}" if s.std is not None else "")
-
-
-def table_row(e: dict[str, Any]) -> str:
-    verdicts = ", ".join(sorted({str(v) for v in e["verdicts"]}))
-    return (
-        f"| {e['label']} | {e['n']} | {e['render_ssim'].text(3)} | {e['render_psnr'].text(2)} "
-        f"| {e['render_lpips'].text(3)} | {e['cvp_ssim'].text(4)} | {e['cvp_psnr'].text(2)} "
-        f"| {e['cvp_lpips'].text(4)} | {_pct(e['within5_of_clean'])} | {_pct(e['poisoned_within5_of_gt'])} "
-        f"| {verdicts} |"
-    )
-
-
-def markdown_tables(rows: Sequence[dict[str, Any]]) -> str:
-    """The paper's layout, one table per ablation; cost1 = render metrics, cost2 = clean vs poisoned."""
-    entries = aggregate(rows)
-    clean = [e for e in entries if e["kind"] == "clean"]
-    out = [
-        "Mean ± sample std over runs (and scenes); n = rows averaged. render = cost1 (splat trained on "
-        "the set with its own SfM poses, vs its inputs; — when the splat stage did not run); "
-        "clean-vs-poisoned = cost2. Cameras within 5° = Verifier I, after robust alignment.",
-        "",
-    ]
-    groups = [g for g in GROUP_TITLES if g != "clean" and any(g in e["groups"] for e in entries)]
-    for g in groups:
-        out += [f"### {GROUP_TITLES[g]}", "", TABLE_HEADER, "|" + "---|" * 11]
-        out += [table_row(e) for e in clean]
-        out += [table_row(e) for e in entries if g in e["groups"]]
-        out.append("")
-    return "\n".join(out)
-
-
 def write_outputs(exp_dir: Path, rows: Sequence[dict[str, Any]]) -> tuple[Path, Path]:
     csv_path, table_path = exp_dir / CSV_NAME, exp_dir / TABLE_NAME
-    csv_path.write_text(csv_text(rows))
-    table_path.write_text(markdown_tables(rows) + "\n")
+    atomic_write_bytes(csv_path, csv_text(rows).encode())
+    atomic_write_bytes(table_path, (markdown_tables(rows) + "\n").encode())
     return csv_path, table_path

@@ -22,7 +22,6 @@ import base64
 import html
 import json
 import logging
-import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -32,25 +31,29 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from verifier.verdict import overall
+from poisoner.atomic import atomic_write_bytes
+from verifier.verdict import Verdict, not_holding, overall
 
 log = logging.getLogger(__name__)
 
+# Every profile a verification can run: the report's table lists each, "not run" where absent.
+REPORT_PROFILES = ("default", "hardened", "published", "masked")
+
 # Banner colours: distinctive, saturated, one per verdict (the screenshot test looks for them).
 VERDICT_COLOURS: dict[str, str] = {
-    "protected": "#0a7d3b",
-    "weak": "#c26a00",
-    "not_protected": "#c4161c",
-    "sfm_crashed": "#6b2fb3",
-    "inconclusive": "#4a5568",
+    Verdict.PROTECTED: "#0a7d3b",
+    Verdict.WEAK: "#c26a00",
+    Verdict.NOT_PROTECTED: "#c4161c",
+    Verdict.SFM_CRASHED: "#6b2fb3",
+    Verdict.INCONCLUSIVE: "#4a5568",
     "error": "#4a5568",
 }
 VERDICT_TEXT = {
-    "protected": "PROTECTED — the attacker's SfM does not recover the cameras",
-    "weak": "WEAK — a partial reconstruction is likely",
-    "not_protected": "NOT PROTECTED — the attacker gets a usable reconstruction",
-    "sfm_crashed": "SfM CRASHED — no result, which is not proof of protection",
-    "inconclusive": "INCONCLUSIVE — COLMAP also fails on the originals",
+    Verdict.PROTECTED: "PROTECTED — the attacker's SfM does not recover the cameras",
+    Verdict.WEAK: "WEAK — a partial reconstruction is likely",
+    Verdict.NOT_PROTECTED: "NOT PROTECTED — the attacker gets a usable reconstruction",
+    Verdict.SFM_CRASHED: "SfM CRASHED — no result, which is not proof of protection",
+    Verdict.INCONCLUSIVE: "INCONCLUSIVE — COLMAP also fails on the originals",
 }
 
 
@@ -81,6 +84,7 @@ class ReportData:
     notes: list[str] = field(default_factory=list)
     generated_at: float = field(default_factory=time.time)
     protection: str | None = None  # a dataset's state in ppd's words, e.g. "patched, not verified"
+    holding: str | None = None  # which profiles (attackers) the protection does NOT hold under
 
 
 # ---- small helpers ----------------------------------------------------------------------------
@@ -155,7 +159,11 @@ def splat_figure(splat: Mapping[str, Any] | None, profile: str) -> Figure | None
 def profile_table(profiles: Mapping[str, Mapping[str, Any]]) -> Table:
     """Per profile: registrations, cameras within 5° (of clean and of GT), errors, splat costs."""
     rows = []
-    for name, m in profiles.items():
+    for name in [*REPORT_PROFILES, *(p for p in profiles if p not in REPORT_PROFILES)]:
+        if name not in profiles:
+            rows.append([name, "not run", *(["—"] * 8)])
+            continue
+        m = profiles[name]
         c, p = m.get("clean") or {}, m.get("poisoned") or {}
         vc, cg, pg = m.get("vs_clean") or {}, m.get("clean_vs_gt") or {}, m.get("poisoned_vs_gt") or {}
         splat = m.get("splat") or {}
@@ -249,6 +257,7 @@ def latest_run_group(runs: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any
 
 def _add_profile_content(data: ReportData, profiles: Mapping[str, Mapping[str, Any]]) -> None:
     data.reasons = {name: list(m.get("reasons") or []) for name, m in profiles.items()}
+    data.holding = _holding_text(profiles)
     data.tables.append(profile_table(profiles))
     for name, m in profiles.items():
         fig = trajectory_figure(m.get("model_dir"), name)
@@ -278,9 +287,14 @@ def dataset_history_report(
     if not latest:
         data.notes.append(unverified_note)
     _add_profile_content(data, profiles)
+    image_pair = next(((o, p) for o, p in pairs if not _is_video(p)), None)
+    if latest:
+        visibility = next(
+            (r["metrics"]["visibility"] for r in latest if (r.get("metrics") or {}).get("visibility")), None
+        )
+        _add_visibility_content(data, visibility, image_pair)
     if runs:
         data.tables.append(history_table(runs))
-    image_pair = next(((o, p) for o, p in pairs if not _is_video(p)), None)
     if spec is not None and image_pair is not None:
         fig = patch_preview_figure(image_pair[0], image_pair[1], spec)
         if fig:
@@ -298,6 +312,7 @@ def build_verification_report(folder: Path) -> ReportData:
     """A verification folder: verify_dataset's run dir (report.json) or verify_folders' out dir."""
     folder = Path(folder)
     top = folder / "report.json"
+    report: dict[str, Any] = {}
     if top.is_file():
         report = json.loads(top.read_text())
         profiles = report.get("profiles") or {}
@@ -312,7 +327,19 @@ def build_verification_report(folder: Path) -> ReportData:
         title=f"ppd report — {folder.name}", verdict=overall(p.get("verdict", "") for p in profiles.values())
     )
     _add_profile_content(data, profiles)
+    _add_visibility_content(data, report.get("visibility"), _measured_pair(report))
     return data
+
+
+def _measured_pair(report: Mapping[str, Any]) -> tuple[Path, Path] | None:
+    """The first image whose visibility was measured, when both folders are still there (a
+    dataset's staged copies are removed after its verification)."""
+    images = (report.get("visibility") or {}).get("images") or []
+    if not images or not report.get("clean_dir") or not report.get("poisoned_dir"):
+        return None
+    name = str(images[0].get("name"))
+    pair = (Path(report["clean_dir"]) / name, Path(report["poisoned_dir"]) / name)
+    return pair if pair[0].is_file() and pair[1].is_file() else None
 
 
 def build_experiment_report(folder: Path) -> ReportData:
@@ -336,7 +363,8 @@ def build_experiment_report(folder: Path) -> ReportData:
     )
     header = [
         "setting", "n", "render SSIM", "render PSNR", "render LPIPS", "clean-vs-poisoned SSIM", "PSNR",
-        "LPIPS", "cameras within 5° of clean", "within 5° of GT", "verdict(s)",
+        "LPIPS", "cameras within 5° of clean", "within 5° of GT", "FLIP p99.9", "area FLIP > 0.5",
+        "verdict(s)",
     ]  # fmt: skip
     data.tables.append(
         Table("All settings (mean ± std over runs)", header, [_md_cells(table_row(e)) for e in entries])
@@ -406,7 +434,7 @@ def render_html(data: ReportData) -> str:
         f'<p class="note">Generated {_when(data.generated_at)} by ppd.</p>',
     ]
     if data.verdict is not None:
-        colour = VERDICT_COLOURS.get(data.verdict, VERDICT_COLOURS["inconclusive"])
+        colour = VERDICT_COLOURS.get(data.verdict, VERDICT_COLOURS[Verdict.INCONCLUSIVE])
         text = VERDICT_TEXT.get(data.verdict, data.verdict)
         parts.append(
             f'<div class="banner" id="verdict" data-verdict="{html.escape(data.verdict)}" '
@@ -418,6 +446,8 @@ def render_html(data: ReportData) -> str:
         parts.append('<div class="nobanner">No verdict: this page summarises an experiment.</div>')
     if data.protection is not None and data.verdict is not None:
         parts.append(f'<p id="protection">Dataset: {html.escape(data.protection)}</p>')
+    if data.holding is not None:
+        parts.append(f'<p id="holding"><strong>{html.escape(data.holding)}</strong></p>')
     if data.reasons:
         parts.append("<h2>Why</h2>")
         for profile, reasons in data.reasons.items():
@@ -435,10 +465,144 @@ def render_html(data: ReportData) -> str:
 
 
 def write_report(data: ReportData, out: Path) -> Path:
-    """Write the page atomically (temp file + rename), creating folders as needed."""
+    """Write the page atomically (poisoner.atomic), creating folders as needed."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(".ppd-tmp-" + out.name)
-    tmp.write_text(render_html(data), encoding="utf-8")
-    os.replace(tmp, out)
+    atomic_write_bytes(out, render_html(data).encode("utf-8"))
     return out
+
+
+# ---- what a viewer sees (verifier.visibility) -------------------------------------------------
+def visibility_table(visibility: Mapping[str, Any]) -> Table:
+    """Per measured file and the worst over them: FLIP figures, changed area, corner, subject."""
+    rows = []
+    for item in visibility.get("images") or []:
+        rows.append(_visibility_row(str(item.get("name")), item.get("figures") or {}))
+    rows.append(_visibility_row(f"worst of {visibility.get('measured')}", visibility.get("worst") or {}))
+    header = [
+        "image", "judged at (px wide)", "FLIP mean", "FLIP p99", "FLIP p99.9", "FLIP max",
+        "area FLIP > 0.5", "changed area", "in one corner", "on subject mask",
+        "p99.9 vs JPEG q85 (its p99.9)",
+    ]  # fmt: skip
+    return Table("Visibility: what a viewer sees (FLIP)", header, rows)
+
+
+def _visibility_row(name: str, v: Mapping[str, Any]) -> list[str]:
+    subject = {True: "YES", False: "no", None: "no mask"}[v.get("touches_subject")]
+    corner = {True: "yes", False: "NO", None: "nothing changed"}[v.get("in_one_corner")]
+    return [
+        name,
+        fmt(v.get("display_width")),
+        fmt(v.get("flip_mean"), 4),
+        fmt(v.get("flip_p99"), 3),
+        fmt(v.get("flip_p999"), 3),
+        fmt(v.get("flip_max"), 3),
+        f"{100 * float(v.get('area_above_half') or 0):.3f}%",
+        f"{100 * float(v.get('changed_area') or 0):.3f}%",
+        corner,
+        subject,
+        f"{fmt(v.get('p999_vs_jpeg'), 1)}x ({fmt(v.get('jpeg_p999'), 3)})",
+    ]
+
+
+def visibility_note(visibility: Mapping[str, Any] | None) -> str:
+    """How visibility was measured, or that it was not."""
+    if not visibility:
+        return (
+            "Visibility was not measured in this verification (older run, or visibility_images = 0): "
+            "run `ppd verify` again to see it."
+        )
+    worst = visibility.get("worst") or {}
+    return (
+        f"Visibility is measured on {visibility.get('measured')} of {visibility.get('total')} images "
+        "(spread over the set, to bound its cost), each shown min(1920, its width) px wide at "
+        f"{fmt(worst.get('ppd'), 0)} pixels per degree (NVIDIA FLIP); a JPEG q85 re-encode of the same "
+        "image is the accepted-as-invisible yardstick. FLIP > 0.5 marks a clearly visible difference."
+    )
+
+
+def mark_at_display_figure(original: Path, protected: Path) -> Figure | None:
+    """One protected image at display size (min(1920, width) px wide) with an enlarged view of where
+    it differs from its original below (original | protected)."""
+    from verifier.visibility import DISPLAY_WIDTH
+
+    try:
+        with Image.open(original) as a_im, Image.open(protected) as b_im:
+            a, b = np.asarray(a_im.convert("RGB")), np.asarray(b_im.convert("RGB"))
+        if a.shape != b.shape:
+            return None
+        pixels, box = _display_with_zoom(a, b, min(DISPLAY_WIDTH, a.shape[1]))
+    except (OSError, ValueError) as exc:  # a picture is a nicety: never fail the report for it
+        log.warning("no display picture", extra={"file": str(protected), "error": str(exc)})
+        return None
+    where = "no pixel differs"
+    if box is not None:
+        where = f"changed pixels in x {box[0]}–{box[2]}, y {box[1]}–{box[3]}"
+    return Figure(
+        f"{protected.name} at display size ({pixels.shape[1]} px wide); below, enlarged: "
+        f"original | protected around the mark ({where})",
+        png_bytes(pixels),
+    )
+
+
+def _display_with_zoom(
+    a: np.ndarray, b: np.ndarray, width: int
+) -> tuple[np.ndarray, tuple[int, int, int, int] | None]:
+    """The protected image resized to width, and below it the changed region of both, enlarged."""
+    h, w = b.shape[:2]
+    display = (
+        b
+        if w == width
+        else np.asarray(
+            Image.fromarray(b).resize((width, max(1, round(h * width / w))), Image.Resampling.LANCZOS)
+        )
+    )
+    ys, xs = np.nonzero(np.any(a != b, axis=2))
+    if len(xs) == 0:
+        return display, None
+    box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+    pad = max(8, (box[2] - box[0]) // 4, (box[3] - box[1]) // 4)
+    left, top = max(0, box[0] - pad), max(0, box[1] - pad)
+    right, bottom = min(w, box[2] + pad), min(h, box[3] + pad)
+    half = max(16, width // 2 - 8)
+    crops = [_fit(x[top:bottom, left:right], half) for x in (a, b)]
+    gap = np.full((crops[0].shape[0], 8, 3), 255, np.uint8)
+    zoom = np.concatenate([crops[0], gap, crops[1]], axis=1)[:, :width]
+    canvas = np.full((display.shape[0] + 8 + zoom.shape[0], width, 3), 255, np.uint8)
+    canvas[: display.shape[0]] = display
+    canvas[display.shape[0] + 8 :, : zoom.shape[1]] = zoom
+    return canvas, box
+
+
+def _fit(crop: np.ndarray, width: int) -> np.ndarray:
+    """A crop enlarged by a whole factor (nearest: the pixels as they are) or shrunk to width."""
+    w = crop.shape[1]
+    if w > width:
+        height = max(1, round(crop.shape[0] * width / w))
+        return np.asarray(Image.fromarray(crop).resize((width, height), Image.Resampling.LANCZOS))
+    scale = max(1, min(8, width // max(1, w)))
+    return np.repeat(np.repeat(crop, scale, axis=0), scale, axis=1)
+
+
+def _add_visibility_content(
+    data: ReportData, visibility: Mapping[str, Any] | None, pair: tuple[Path, Path] | None
+) -> None:
+    data.notes.append(visibility_note(visibility))
+    if visibility:
+        data.tables.append(visibility_table(visibility))
+    if pair is not None:
+        fig = mark_at_display_figure(*pair)
+        if fig:
+            data.figures.append(fig)
+
+
+def _holding_text(profiles: Mapping[str, Mapping[str, Any]]) -> str | None:
+    from verifier.verdict import holding_line
+
+    if not profiles:
+        return None
+    verdicts = {name: str(m.get("verdict", "")) for name, m in profiles.items()}
+    missing = [p for p in REPORT_PROFILES if p not in profiles]
+    line = holding_line(not_holding(verdicts), verdicts)
+    line = line[0].upper() + line[1:]
+    return line + (f" (not run here: {', '.join(missing)})" if missing else "")

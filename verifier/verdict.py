@@ -18,22 +18,35 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any
 
-PROTECTED = "protected"
-WEAK = "weak"
-NOT_PROTECTED = "not_protected"
-SFM_CRASHED = "sfm_crashed"
-INCONCLUSIVE = "inconclusive"
-VERDICTS = (PROTECTED, WEAK, NOT_PROTECTED, SFM_CRASHED, INCONCLUSIVE)
+
+class Verdict(StrEnum):
+    """One profile's (or a dataset's) verdict; its value is what the Store and JSON files hold."""
+
+    PROTECTED = "protected"
+    WEAK = "weak"
+    NOT_PROTECTED = "not_protected"
+    SFM_CRASHED = "sfm_crashed"
+    INCONCLUSIVE = "inconclusive"
+
+
+# Module-level names kept for callers that import them (daemon.states).
+PROTECTED = Verdict.PROTECTED
+WEAK = Verdict.WEAK
+NOT_PROTECTED = Verdict.NOT_PROTECTED
+SFM_CRASHED = Verdict.SFM_CRASHED
+INCONCLUSIVE = Verdict.INCONCLUSIVE
+VERDICTS = tuple(Verdict)
 
 # Each verdict in the words the user reads (CLI, status, report); daemon.states uses these too.
-VERDICT_WORDS = {
-    PROTECTED: "protected",
-    WEAK: "weak",
-    NOT_PROTECTED: "NOT protected",
-    SFM_CRASHED: "could not be verified (SfM crashed)",
-    INCONCLUSIVE: "could not be verified (inconclusive)",
+VERDICT_WORDS: dict[str, str] = {
+    Verdict.PROTECTED: "protected",
+    Verdict.WEAK: "weak",
+    Verdict.NOT_PROTECTED: "NOT protected",
+    Verdict.SFM_CRASHED: "could not be verified (SfM crashed)",
+    Verdict.INCONCLUSIVE: "could not be verified (inconclusive)",
 }
 
 
@@ -51,8 +64,10 @@ class VerdictRule:
 
 
 @dataclass(frozen=True)
-class Verdict:
-    verdict: str
+class Decision:
+    """A verdict and the sentences that justify it."""
+
+    verdict: Verdict
     reasons: list[str] = field(default_factory=list)
 
 
@@ -60,32 +75,28 @@ def _pct(x: float) -> str:
     return f"{100 * x:.0f}%"
 
 
-def decide(
-    clean: Mapping[str, Any],
-    poisoned: Mapping[str, Any],
-    vs_clean: Mapping[str, Any] | None,
-    rule: VerdictRule | None = None,
-) -> Verdict:
-    """Verdict from the clean and poisoned SfM results and the poisoned-vs-clean pose metrics."""
-    rule = rule or VerdictRule()
+def _unusable_reference(clean: Mapping[str, Any], rule: VerdictRule) -> Decision | None:
+    """Inconclusive when the clean run cannot serve as the reference, else None."""
     if clean.get("outcome") != "ok":
-        return Verdict(
-            INCONCLUSIVE, [f"clean SfM did not finish ({clean.get('outcome')}: {clean.get('error', '')})"]
-        )
+        why = f"clean SfM did not finish ({clean.get('outcome')}: {clean.get('error', '')})"
+        return Decision(Verdict.INCONCLUSIVE, [why])
     n_images = int(clean.get("num_images") or 0)
     n_clean = int(clean.get("registered") or 0)
     if n_images == 0 or n_clean < rule.clean_min_registered_frac * n_images:
-        return Verdict(
-            INCONCLUSIVE,
-            [
-                f"clean SfM registered only {n_clean}/{n_images} images: "
-                "no reliable reference, so no claim either way"
-            ],
+        why = (
+            f"clean SfM registered only {n_clean}/{n_images} images: "
+            "no reliable reference, so no claim either way"
         )
+        return Decision(Verdict.INCONCLUSIVE, [why])
+    return None
+
+
+def _unfinished_attack(poisoned: Mapping[str, Any], vs_clean: Mapping[str, Any] | None) -> Decision | None:
+    """sfm_crashed or inconclusive when the poisoned run gave no poses to compare, else None."""
     outcome = poisoned.get("outcome")
     if outcome == "sfm_crashed":
-        return Verdict(
-            SFM_CRASHED,
+        return Decision(
+            Verdict.SFM_CRASHED,
             [
                 f"poisoned SfM crashed ({poisoned.get('signal', 'signal')}) in "
                 f"{max(1, len(poisoned.get('crashes') or []))} attempt(s); the clean set did not",
@@ -94,15 +105,20 @@ def decide(
             ],
         )
     if outcome != "ok" or vs_clean is None:
-        return Verdict(
-            INCONCLUSIVE, [f"poisoned SfM did not finish ({outcome}: {poisoned.get('error', '')})"]
+        return Decision(
+            Verdict.INCONCLUSIVE, [f"poisoned SfM did not finish ({outcome}: {poisoned.get('error', '')})"]
         )
-    key = f"frac_within_{rule.threshold_deg}deg"
-    frac = float(vs_clean.get(key) or 0.0)
+    return None
+
+
+def _pose_reasons(
+    clean: Mapping[str, Any], poisoned: Mapping[str, Any], vs_clean: Mapping[str, Any], frac: float, deg: int
+) -> list[str]:
+    n_images, n_clean = int(clean.get("num_images") or 0), int(clean.get("registered") or 0)
     n_pois = int(poisoned.get("registered") or 0)
     reasons = [
-        f"{_pct(frac)} of the {n_clean} clean cameras are recovered within {rule.threshold_deg} deg "
-        f"by SfM on the poisoned set",
+        f"{_pct(frac)} of the {n_clean} clean cameras are recovered within {deg} deg "
+        "by SfM on the poisoned set",
         f"poisoned SfM registered {n_pois}/{n_images} images in {poisoned.get('num_models', 0)} model(s) "
         f"(clean: {n_clean}/{n_images})",
     ]
@@ -114,30 +130,60 @@ def decide(
     med = vs_clean.get("median_rotation_error_deg")
     if med is not None:
         reasons.append(f"median rotation error of registered poisoned cameras: {med:.1f} deg")
+    return reasons
+
+
+def decide(
+    clean: Mapping[str, Any],
+    poisoned: Mapping[str, Any],
+    vs_clean: Mapping[str, Any] | None,
+    rule: VerdictRule | None = None,
+) -> Decision:
+    """Verdict from the clean and poisoned SfM results and the poisoned-vs-clean pose metrics."""
+    rule = rule or VerdictRule()
+    early = _unusable_reference(clean, rule) or _unfinished_attack(poisoned, vs_clean)
+    if early is not None:
+        return early
+    assert vs_clean is not None  # _unfinished_attack returned a decision otherwise
+    frac = float(vs_clean.get(f"frac_within_{rule.threshold_deg}deg") or 0.0)
+    reasons = _pose_reasons(clean, poisoned, vs_clean, frac, rule.threshold_deg)
     if frac <= rule.protected_max_frac:
-        return Verdict(PROTECTED, reasons)
+        return Decision(Verdict.PROTECTED, reasons)
     if frac <= rule.weak_max_frac:
         reasons.append(f"more than {_pct(rule.protected_max_frac)} of cameras survive: protection is partial")
-        return Verdict(WEAK, reasons)
+        return Decision(Verdict.WEAK, reasons)
     reasons.append(
         f"NOT protected: more than {_pct(rule.weak_max_frac)} of cameras are recovered correctly, "
         "so this attacker gets a usable reconstruction"
     )
-    return Verdict(NOT_PROTECTED, reasons)
+    return Decision(Verdict.NOT_PROTECTED, reasons)
 
 
-_STRENGTH = {NOT_PROTECTED: 0, WEAK: 1, PROTECTED: 2}
+_STRENGTH = {Verdict.NOT_PROTECTED: 0, Verdict.WEAK: 1, Verdict.PROTECTED: 2}
 
 
-def overall(verdicts: Iterable[str]) -> str:
+def overall(verdicts: Iterable[str]) -> Verdict:
     """The dataset's verdict is its weakest profile's (the attacker picks the pipeline that works).
 
     Crashed/inconclusive profiles count only when no profile gave a real answer.
     """
     vs = list(verdicts)
-    decided = [v for v in vs if v in _STRENGTH]
+    decided = [Verdict(v) for v in vs if v in _STRENGTH]
     if decided:
         return min(decided, key=_STRENGTH.__getitem__)
-    if SFM_CRASHED in vs:
-        return SFM_CRASHED
-    return INCONCLUSIVE
+    if Verdict.SFM_CRASHED in vs:
+        return Verdict.SFM_CRASHED
+    return Verdict.INCONCLUSIVE
+
+
+def not_holding(verdicts: Mapping[str, str]) -> list[str]:
+    """The profiles (attackers) under which the protection does not hold: any verdict but protected."""
+    return [name for name, v in verdicts.items() if v != Verdict.PROTECTED]
+
+
+def holding_line(failing: Iterable[str], profiles: Iterable[str]) -> str:
+    """One plain sentence: the attackers (profiles) the protection does not hold under."""
+    failing, profiles = list(failing), list(profiles)
+    if not failing:
+        return f"the protection holds under every profile run ({', '.join(profiles)})"
+    return f"the protection does NOT hold under: {', '.join(failing)}"

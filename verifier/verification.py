@@ -17,7 +17,6 @@ import dataclasses
 import hashlib
 import json
 import logging
-import os
 import shutil
 import threading
 import time
@@ -26,9 +25,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
+from poisoner.atomic import atomic_write_bytes
 from verifier import poses as posemod
+from verifier.pairs import stage_pairs as stage_pairs  # re-exported: callers stage pairs, then verify
+from verifier.published import round_trip, unpublish_names
+from verifier.published import to_rgb as to_rgb  # re-exported for verifier.auto
 from verifier.sfm import SfmJob, SfmSettings, list_images, profile_sfm_settings, run_sfm_job
-from verifier.verdict import Verdict, VerdictRule, decide, overall
+from verifier.verdict import Verdict, VerdictRule, decide, holding_line, not_holding, overall
+from verifier.visibility import VISIBILITY_SAMPLE, DatasetVisibility, measure_pairs
 
 log = logging.getLogger(__name__)
 
@@ -63,12 +69,16 @@ class VerifyOptions:
     splat_profile: str = "default"  # the first profile run is used when this one is not
     splat_options: dict[str, Any] = field(default_factory=lambda: dict(SPLAT_DEFAULTS))
     splat_timeout_s: float = 1800.0
+    # What a viewer sees (verifier.visibility): FLIP on this many files, spread over the set.
+    visibility_images: int = VISIBILITY_SAMPLE
+    subject_masks: Path | None = None  # a folder of subject masks (<name>.png, <stem>.png, same number)
 
 
-@dataclass
-class ProfileReport:
+class ProfileReport(msgspec.Struct):
+    """One profile's outcome: what its report.json holds and the Store records."""
+
     profile: str
-    verdict: str
+    verdict: Verdict
     reasons: list[str]
     clean: dict[str, Any]  # SfM summary (no poses)
     poisoned: dict[str, Any]
@@ -89,43 +99,44 @@ class ProfileReport:
 
     def metrics(self) -> dict[str, Any]:
         """Everything but the verdict, JSON-ready (what the Store records)."""
-        return {
-            "reasons": self.reasons,
-            "clean": self.clean,
-            "poisoned": self.poisoned,
-            "vs_clean": self.vs_clean,
-            "clean_vs_gt": self.clean_vs_gt,
-            "poisoned_vs_gt": self.poisoned_vs_gt,
-            "splat": self.splat,
-        }
+        keep = ("reasons", "clean", "poisoned", "vs_clean", "clean_vs_gt", "poisoned_vs_gt", "splat")
+        return {k: v for k, v in msgspec.to_builtins(self).items() if k in keep}
 
     def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["error"] = self.error
-        return d
+        """JSON-ready, with the derived `error` (what report.json files hold)."""
+        return {**msgspec.to_builtins(self), "error": self.error}
 
 
-@dataclass
-class VerificationReport:
+class VerificationReport(msgspec.Struct):
+    """A verification of one (clean, poisoned) pair of folders: every profile, and what a viewer sees."""
+
     clean_dir: str
     poisoned_dir: str
     out_dir: str
     num_images: int
     profiles: dict[str, ProfileReport]
+    visibility: DatasetVisibility | None = None  # None: not measured (visibility_images = 0)
 
     @property
-    def verdict(self) -> str:
+    def verdict(self) -> Verdict:
         return overall(p.verdict for p in self.profiles.values())
 
+    def not_holding(self) -> list[str]:
+        """The profiles (attackers) the protection does NOT hold under."""
+        return not_holding({name: p.verdict for name, p in self.profiles.items()})
+
+    def summary_lines(self) -> list[str]:
+        """The dataset-level lines `ppd verify` prints under the profiles: visibility, and where the
+        protection does not hold."""
+        lines = self.visibility.lines() if self.visibility is not None else []
+        lines.append(holding_line(self.not_holding(), list(self.profiles)))
+        return lines
+
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "verdict": self.verdict,
-            "clean_dir": self.clean_dir,
-            "poisoned_dir": self.poisoned_dir,
-            "out_dir": self.out_dir,
-            "num_images": self.num_images,
-            "profiles": {k: v.to_dict() for k, v in self.profiles.items()},
-        }
+        """JSON-ready, with the derived verdict, profile errors and summary lines."""
+        d = msgspec.to_builtins(self)
+        d["profiles"] = {k: v.to_dict() for k, v in self.profiles.items()}
+        return {"verdict": str(self.verdict), **d, "summary": self.summary_lines()}
 
 
 # ---- settings per profile ------------------------------------------------------------------------
@@ -154,49 +165,6 @@ def looks_like_video_frames(names: Sequence[str]) -> bool:
     return bool(names) and all("frame" in Path(n).stem.lower() for n in names)
 
 
-# ---- published round trip -----------------------------------------------------------------------
-def round_trip(src_dir: Path, dst_dir: Path, names: Sequence[str], long_edge: int, quality: int) -> Path:
-    """What a platform does on upload: downscale the long edge to long_edge, re-encode JPEG q=quality.
-
-    Output names keep the source name (with .jpg appended when needed) so poses compare by stem."""
-    from PIL import Image
-
-    dst_dir.mkdir(parents=True, exist_ok=True)
-    for name in names:
-        out = dst_dir / _published_name(name)
-        if out.exists():
-            continue
-        with Image.open(src_dir / name) as im:
-            im.load()
-            rgb = to_rgb(im)
-        scale = long_edge / max(rgb.size)
-        if scale < 1:
-            rgb = rgb.resize((round(rgb.width * scale), round(rgb.height * scale)), Image.Resampling.LANCZOS)
-        tmp = out.with_name(".ppd-tmp-" + out.name)
-        rgb.save(tmp, "JPEG", quality=quality)
-        os.replace(tmp, out)
-    return dst_dir
-
-
-def _published_name(name: str) -> str:
-    return name if Path(name).suffix.lower() in (".jpg", ".jpeg") else name + ".jpg"
-
-
-def to_rgb(im: Any) -> Any:
-    from PIL import Image
-
-    if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
-        rgba = im.convert("RGBA")
-        white = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
-        return Image.alpha_composite(white, rgba).convert("RGB")
-    return im.convert("RGB")
-
-
-def _unpublish_names(poses: dict[str, Any], names: Sequence[str]) -> dict[str, Any]:
-    back = {_published_name(n): n for n in names}
-    return {back.get(k, k): v for k, v in poses.items()}
-
-
 # ---- one SfM side, with reuse ---------------------------------------------------------------------
 def _folder_key(image_dir: Path, names: Sequence[str]) -> str:
     h = hashlib.sha256()
@@ -204,6 +172,29 @@ def _folder_key(image_dir: Path, names: Sequence[str]) -> str:
         st = (image_dir / n).stat()
         h.update(f"{n}:{st.st_size}:{st.st_mtime_ns}\n".encode())
     return h.hexdigest()[:16]
+
+
+def _replace(settings: SfmSettings, **changes: Any) -> SfmSettings:
+    """A copy with changes, whether SfmSettings is a dataclass or a msgspec Struct."""
+    if isinstance(settings, msgspec.Struct):
+        return msgspec.structs.replace(settings, **changes)
+    return dataclasses.replace(settings, **changes)
+
+
+def write_json(path: Path, data: Any) -> None:
+    """A report or result as indented JSON, replaced atomically (a reader never sees half a file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, msgspec.json.format(msgspec.json.encode(data), indent=1))
+
+
+def _stored_result(result_file: Path, reuse_key: str) -> dict[str, Any] | None:
+    """A clean SfM result stored next to its model by an earlier run with the same inputs, if any."""
+    if not result_file.exists():
+        return None
+    stored = json.loads(result_file.read_text())
+    if stored.get("reuse_key") == reuse_key and stored.get("outcome") == "ok":
+        return stored
+    return None
 
 
 def _run_side(
@@ -216,15 +207,14 @@ def _run_side(
 ) -> dict[str, Any]:
     """One SfM run (child process). With reuse_key, a result stored next to the model is reused."""
     result_file = model_dir / "result.json"
-    if reuse_key and result_file.exists():
-        stored = json.loads(result_file.read_text())
-        if stored.get("reuse_key") == reuse_key and stored.get("outcome") == "ok":
-            log.info("reusing clean SfM result", extra={"model_dir": str(model_dir)})
-            return stored
+    stored = _stored_result(result_file, reuse_key) if reuse_key else None
+    if stored is not None:
+        log.info("reusing clean SfM result", extra={"model_dir": str(model_dir)})
+        return stored
     crashes: list[str] = []
     elapsed = 0.0
     for attempt in range(1 + max(0, options.crash_retries)):
-        run_settings = dataclasses.replace(settings, random_seed=settings.random_seed + attempt)
+        run_settings = _replace(settings, random_seed=settings.random_seed + attempt)
         job = SfmJob(str(image_dir), str(cache_db), str(model_dir), run_settings)
         result = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel)
         elapsed += float(result.get("elapsed_s") or 0.0)
@@ -234,11 +224,11 @@ def _run_side(
         crashes.append(str(result.get("signal")))
         log.warning("SfM crashed", extra={"image_dir": str(image_dir), "signal": result.get("signal")})
     result["crashes"] = crashes  # signals of crashed attempts (the last one too when all crashed)
-    result["settings"] = run_settings.to_dict()
+    result["settings"] = msgspec.to_builtins(run_settings)
     result["random_seed"] = run_settings.random_seed  # the seed behind these figures (retries add 1)
     if reuse_key:
         result["reuse_key"] = reuse_key
-    result_file.write_text(json.dumps(result))
+    write_json(result_file, result)
     return result
 
 
@@ -247,6 +237,22 @@ def _summary(result: dict[str, Any]) -> dict[str, Any]:
 
 
 # ---- the run ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Run:
+    """What every profile of one verification shares: inputs, folders, caches, ground truth."""
+
+    clean_dir: Path
+    poisoned_dir: Path
+    names: list[str]
+    out_dir: Path
+    cache: Path  # this run's feature databases and round-tripped images (removed unless keep_cache)
+    clean_cache: Path  # reused across verifications when options.clean_cache_dir is set
+    clean_key: str  # the clean folder's content key (names, sizes, mtimes)
+    matching: str
+    gt: dict[str, posemod.Pose] | None
+    options: VerifyOptions
+
+
 def verify_folders(
     clean_dir: Path,
     poisoned_dir: Path,
@@ -254,11 +260,31 @@ def verify_folders(
     profiles: Sequence[str] = PROFILES,
     options: VerifyOptions | None = None,
 ) -> VerificationReport:
-    """SfM on clean and poisoned sets (same file names) per profile; models under out_dir/<profile>/."""
-    options = options or VerifyOptions()
-    clean_dir, poisoned_dir, out_dir = Path(clean_dir), Path(poisoned_dir), Path(out_dir)
-    names = _check_inputs(clean_dir, poisoned_dir)
+    """SfM on clean and poisoned sets (same file names) per profile; models under out_dir/<profile>/.
+
+    Stages: inputs -> visibility (a few images) -> SfM per profile -> splat (optional) -> report."""
+    run = _prepare_run(Path(clean_dir), Path(poisoned_dir), Path(out_dir), options or VerifyOptions())
     profile_list = expand_profiles(profiles)
+    reports: dict[str, ProfileReport] = {}
+    with _VERIFY_LOCK:
+        try:
+            visibility = measure_visibility(run.clean_dir, run.poisoned_dir, run.names, run.options)
+            for profile in profile_list:
+                reports[profile] = _verify_profile(profile, run)
+            if run.options.splat and not _cancelled(run.options):
+                _splat_stage(reports, run.clean_dir, run.poisoned_dir, run.options)
+        finally:
+            if not run.options.keep_cache:
+                shutil.rmtree(run.cache, ignore_errors=True)
+    report = VerificationReport(
+        str(run.clean_dir), str(run.poisoned_dir), str(run.out_dir), len(run.names), reports, visibility
+    )
+    write_json(run.out_dir / "report.json", report.to_dict())  # what `ppd report FOLDER` reads
+    return report
+
+
+def _prepare_run(clean_dir: Path, poisoned_dir: Path, out_dir: Path, options: VerifyOptions) -> _Run:
+    names = _check_inputs(clean_dir, poisoned_dir)
     matching = options.matching
     if matching == "auto":
         matching = "sequential" if looks_like_video_frames(names) else "exhaustive"
@@ -266,30 +292,24 @@ def verify_folders(
     out_dir.mkdir(parents=True, exist_ok=True)
     cache = out_dir / ".cache"
     clean_cache = Path(options.clean_cache_dir) if options.clean_cache_dir else cache
-    clean_key = _folder_key(clean_dir, names)
-    reports: dict[str, ProfileReport] = {}
-    with _VERIFY_LOCK:
-        try:
-            for profile in profile_list:
-                reports[profile] = _verify_profile(
-                    profile,
-                    clean_dir,
-                    poisoned_dir,
-                    names,
-                    out_dir,
-                    cache,
-                    clean_cache,
-                    clean_key,
-                    matching,
-                    gt,
-                    options,
-                )
-            if options.splat and not (options.cancel and options.cancel.is_set()):
-                _splat_stage(reports, clean_dir, poisoned_dir, options)
-        finally:
-            if not options.keep_cache:
-                shutil.rmtree(cache, ignore_errors=True)
-    return VerificationReport(str(clean_dir), str(poisoned_dir), str(out_dir), len(names), reports)
+    return _Run(
+        clean_dir, poisoned_dir, names, out_dir, cache, clean_cache, _folder_key(clean_dir, names),
+        matching, gt, options,
+    )  # fmt: skip
+
+
+def _cancelled(options: VerifyOptions) -> bool:
+    return bool(options.cancel and options.cancel.is_set())
+
+
+def measure_visibility(
+    clean_dir: Path, poisoned_dir: Path, names: Sequence[str], options: VerifyOptions
+) -> DatasetVisibility | None:
+    """What a viewer sees of the protection, on options.visibility_images files (0: not measured)."""
+    if options.visibility_images <= 0:
+        return None
+    pairs = [(clean_dir / n, poisoned_dir / n) for n in names]
+    return measure_pairs(pairs, sample=options.visibility_images, subject_mask_dir=options.subject_masks)
 
 
 def _splat_stage(
@@ -318,7 +338,7 @@ def _splat_stage(
         )
         report.splat = result
     report.reasons.append(splat_finding(report.splat))
-    (profile_dir / "report.json").write_text(json.dumps(report.to_dict(), indent=1))
+    write_json(profile_dir / "report.json", report.to_dict())
 
 
 def splat_finding(splat: dict[str, Any] | None) -> str:
@@ -355,86 +375,83 @@ def _check_inputs(clean_dir: Path, poisoned_dir: Path) -> list[str]:
     return clean
 
 
-def _verify_profile(
-    profile: str,
-    clean_dir: Path,
-    poisoned_dir: Path,
-    names: list[str],
-    out_dir: Path,
-    cache: Path,
-    clean_cache: Path,
-    clean_key: str,
-    matching: str,
-    gt: dict[str, posemod.Pose] | None,
-    options: VerifyOptions,
-) -> ProfileReport:
-    started = time.time()
-    settings = profile_settings(profile, matching, options.camera_params)
-    settings = dataclasses.replace(settings, random_seed=options.random_seed)
+def _profile_images(profile: str, run: _Run) -> tuple[Path, Path]:
+    """The (clean, poisoned) image folders this profile's attacker sees: the published profile's are
+    round-tripped through a platform's downscale and JPEG re-encode."""
+    if profile != "published":
+        return run.clean_dir, run.poisoned_dir
+    o = run.options
+    tag = f"{o.published_long_edge}-{o.published_jpeg_quality}"
+    clean = round_trip(
+        run.clean_dir, run.clean_cache / f"published-{tag}-{run.clean_key}", run.names,
+        o.published_long_edge, o.published_jpeg_quality,
+    )  # fmt: skip
+    poisoned = round_trip(
+        run.poisoned_dir, run.cache / f"published-{tag}-poisoned", run.names,
+        o.published_long_edge, o.published_jpeg_quality,
+    )  # fmt: skip
+    return clean, poisoned
+
+
+def _run_both_sides(profile: str, run: _Run, settings: SfmSettings) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Clean SfM (reused when cached with the same inputs and settings), then poisoned SfM."""
     source = "published" if profile == "published" else "original"
+    clean_images, poisoned_images = _profile_images(profile, run)
     skey = hashlib.sha256(settings.feature_key().encode()).hexdigest()[:10]
-    clean_images, poisoned_images = clean_dir, poisoned_dir
-    if source == "published":
-        tag = f"{options.published_long_edge}-{options.published_jpeg_quality}"
-        clean_images = round_trip(
-            clean_dir,
-            clean_cache / f"published-{tag}-{clean_key}",
-            names,
-            options.published_long_edge,
-            options.published_jpeg_quality,
-        )
-        poisoned_images = round_trip(
-            poisoned_dir,
-            cache / f"published-{tag}-poisoned",
-            names,
-            options.published_long_edge,
-            options.published_jpeg_quality,
-        )
-    profile_dir = out_dir / profile
-    reuse_key = f"{clean_key}-{profile}-{json.dumps(settings.to_dict(), sort_keys=True)}-{source}"
+    profile_dir = run.out_dir / profile
+    settings_json = json.dumps(msgspec.to_builtins(settings), sort_keys=True)
+    reuse_key = f"{run.clean_key}-{profile}-{settings_json}-{source}"
+    cached = bool(run.options.clean_cache_dir)
     clean_model = (
-        clean_cache / "clean-models" / hashlib.sha256(reuse_key.encode()).hexdigest()[:16]
-        if options.clean_cache_dir
+        run.clean_cache / "clean-models" / hashlib.sha256(reuse_key.encode()).hexdigest()[:16]
+        if cached
         else profile_dir / "clean"
     )
-    clean = _run_side(
-        clean_images,
-        clean_cache / f"clean-{source}-{clean_key}-{skey}.db",
-        clean_model,
-        settings,
-        options,
-        reuse_key=reuse_key,
-    )
-    if options.clean_cache_dir:  # the report's model folder holds a copy of the clean model
+    clean_db = run.clean_cache / f"clean-{source}-{run.clean_key}-{skey}.db"
+    clean = _run_side(clean_images, clean_db, clean_model, settings, run.options, reuse_key=reuse_key)
+    if cached:  # the report's model folder holds a copy of the clean model
         _copy_model(clean_model, profile_dir / "clean")
-    poisoned = {"outcome": "cancelled", "error": "cancelled"}
-    if not (options.cancel and options.cancel.is_set()):
-        poisoned = _run_side(
-            poisoned_images,
-            cache / f"poisoned-{source}-{skey}.db",
-            profile_dir / "poisoned",
-            settings,
-            options,
-        )
+    poisoned: dict[str, Any] = {"outcome": "cancelled", "error": "cancelled"}
+    if not _cancelled(run.options):
+        poisoned_db = run.cache / f"poisoned-{source}-{skey}.db"
+        poisoned = _run_side(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, run.options)
     if source == "published":
         for side in (clean, poisoned):
-            side["poses"] = _unpublish_names(side.get("poses", {}), names)
+            side["poses"] = unpublish_names(side.get("poses", {}), run.names)
+    return clean, poisoned
+
+
+def _compare_poses(
+    clean: dict[str, Any], poisoned: dict[str, Any], run: _Run
+) -> tuple[dict[str, Any] | None, dict[str, Any] | None, dict[str, Any] | None]:
+    """(poisoned vs clean, clean vs ground truth, poisoned vs ground truth); None where a side failed."""
     vs_clean = clean_vs_gt = poisoned_vs_gt = None
     clean_poses = posemod.poses_from_json(clean.get("poses", {}))
     pois_poses = posemod.poses_from_json(poisoned.get("poses", {}))
     if clean.get("outcome") == "ok" and poisoned.get("outcome") == "ok":
         vs_clean = posemod.compare_poses(pois_poses, clean_poses)
-    if gt is not None:
-        gt_here = {n: p for n, p in gt.items() if n in names}
+    if run.gt is not None:
+        gt_here = {n: p for n, p in run.gt.items() if n in run.names}
         if clean.get("outcome") == "ok":
             clean_vs_gt = posemod.compare_poses(clean_poses, gt_here)
         if poisoned.get("outcome") == "ok":
             poisoned_vs_gt = posemod.compare_poses(pois_poses, gt_here)
-    verdict: Verdict = decide(clean, poisoned, vs_clean, options.rule)
+    return vs_clean, clean_vs_gt, poisoned_vs_gt
+
+
+def _verify_profile(profile: str, run: _Run) -> ProfileReport:
+    """One attacker: SfM on both sides, poses compared, the verdict; written to <profile>/report.json."""
+    started = time.time()
+    settings = profile_settings(profile, run.matching, run.options.camera_params)
+    settings = _replace(settings, random_seed=run.options.random_seed)
+    clean, poisoned = _run_both_sides(profile, run, settings)
+    vs_clean, clean_vs_gt, poisoned_vs_gt = _compare_poses(clean, poisoned, run)
+    decision = decide(clean, poisoned, vs_clean, run.options.rule)
+    profile_dir = run.out_dir / profile
     report = ProfileReport(
         profile=profile,
-        verdict=verdict.verdict,
-        reasons=verdict.reasons,
+        verdict=decision.verdict,
+        reasons=decision.reasons,
         clean=_summary(clean),
         poisoned=_summary(poisoned),
         vs_clean=vs_clean,
@@ -444,8 +461,7 @@ def _verify_profile(
         started_at=started,
         finished_at=time.time(),
     )
-    (profile_dir).mkdir(parents=True, exist_ok=True)
-    (profile_dir / "report.json").write_text(json.dumps(report.to_dict(), indent=1))
+    write_json(profile_dir / "report.json", report.to_dict())
     log.info("profile verified", extra={"profile": profile, "verdict": report.verdict})
     return report
 
@@ -455,58 +471,3 @@ def _copy_model(src: Path, dst: Path) -> None:
     for f in src.iterdir():
         if f.is_file() and (f.suffix in (".bin", ".txt") or f.name == "result.json"):
             shutil.copyfile(f, dst / f.name)
-
-
-# ---- (original, protected) pairs as two folders -----------------------------------------------
-def _flat_name(path: Path, index: int, used: set[str]) -> str:
-    name = path.name
-    if name in used:
-        name = f"{index:05d}_{name}"
-    used.add(name)
-    return name
-
-
-def _link_or_copy(src: Path, dst: Path) -> None:
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copyfile(src, dst)
-
-
-def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_dir: Path) -> str:
-    """Lay out (original, protected) pairs as two folders with the same names.
-
-    Images are hard-linked (or copied). Videos are sampled into frames with poisoner.video.
-    Returns the matching mode to use ("sequential" when frames came from videos)."""
-    clean_dir.mkdir(parents=True, exist_ok=True)
-    poisoned_dir.mkdir(parents=True, exist_ok=True)
-    used: set[str] = set()
-    any_video = False
-    for i, (original, protected) in enumerate(pairs):
-        protected, original = Path(protected), Path(original)
-        if _is_video(protected):
-            from poisoner.video import sample_frames
-
-            any_video = True
-            tmp_c, tmp_p = clean_dir / f".v{i}", poisoned_dir / f".v{i}"
-            frames_c = sample_frames(original, tmp_c)
-            frames_p = sample_frames(protected, tmp_p)
-            for k, (fc, fp) in enumerate(zip(frames_c, frames_p, strict=False)):
-                name = f"{protected.stem}_frame{k:05d}{fc.suffix}"
-                os.replace(fc, clean_dir / name)
-                os.replace(fp, poisoned_dir / name)
-            shutil.rmtree(tmp_c, ignore_errors=True)
-            shutil.rmtree(tmp_p, ignore_errors=True)
-            continue
-        if protected.suffix.lower() not in (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp"):
-            continue  # formats COLMAP cannot read (e.g. HEIC) are left out of the SfM check
-        name = _flat_name(protected, i, used)
-        _link_or_copy(original, clean_dir / name)
-        _link_or_copy(protected, poisoned_dir / name)
-    return "sequential" if any_video else "auto"
-
-
-def _is_video(path: Path) -> bool:
-    from poisoner.media import is_video
-
-    return is_video(path)

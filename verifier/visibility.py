@@ -13,16 +13,21 @@ angle (default 67.02, FLIP's own default: a 0.7 m wide 3840 px monitor seen from
 the photo then spans about 29 degrees of view). The budget is calibrated per image against a JPEG
 q85 re-encode of the same original (`jpeg_p999`), which creators accept as invisible.
 
-Pure: arrays in, a JSON-able `Visibility` out (the JPEG reference is encoded in memory).
+`visibility_report` is pure: arrays in, a `Visibility` out (the JPEG reference is encoded in
+memory). `measure_pairs` is the verification's stage: a few (original, protected) files of a
+dataset read from disk, each judged at min(1920, its width) px, and the worst figures over them
+(a bounded cost: FLIP takes about a second per full-HD image on one core, twice with the JPEG
+reference).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import io
-from dataclasses import dataclass
+from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 
 DISPLAY_WIDTH = 1920
@@ -35,8 +40,7 @@ class VisibilityError(ValueError):
     """Images that cannot be compared (message = one clear line)."""
 
 
-@dataclass(frozen=True)
-class Visibility:
+class Visibility(msgspec.Struct, frozen=True):
     """FLIP figures of one clean/changed pair at a stated viewing condition, and where pixels changed."""
 
     display_width: int
@@ -69,9 +73,8 @@ class Visibility:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["changed_box"] = list(self.changed_box) if self.changed_box is not None else None
-        return d
+        """JSON-ready builtins (msgspec's encoding: the box becomes a list)."""
+        return msgspec.to_builtins(self)
 
 
 def _rgb8(pixels: np.ndarray, what: str) -> np.ndarray:
@@ -216,3 +219,168 @@ def visibility_report(
         jpeg_p999=jpeg_p999,
         p999_vs_jpeg=ratio,
     )
+
+
+# ---- the verification's stage: a few files of a dataset --------------------------------------
+VISIBILITY_SAMPLE = 3  # images judged per verification (bounded cost; evenly spread over the set)
+
+
+class ImageVisibility(msgspec.Struct, frozen=True):
+    """One measured (original, protected) file."""
+
+    name: str
+    width: int
+    height: int
+    figures: Visibility
+
+
+class DatasetVisibility(msgspec.Struct, frozen=True):
+    """What a viewer sees of a dataset's protection: a few files measured, and the worst over them."""
+
+    measured: int  # files judged
+    total: int  # image files in the dataset (the others were not measured)
+    subject_masks: bool  # whether subject masks were given for the measured files
+    worst: Visibility  # per figure, the worst over the measured files
+    images: list[ImageVisibility] = msgspec.field(default_factory=list)
+    skipped: list[str] = msgspec.field(default_factory=list)  # "name: why" for files that could not be read
+
+    def lines(self) -> list[str]:
+        """What `ppd verify` prints and the report says, in plain words."""
+        w = self.worst
+        budget = (
+            f", {w.p999_vs_jpeg:.1f}x a JPEG q85 re-encode's {w.jpeg_p999:.2f}"
+            if w.p999_vs_jpeg is not None and w.jpeg_p999 is not None
+            else ""
+        )
+        where = {
+            True: "inside one corner region",
+            False: "NOT confined to one corner",
+            None: "no pixel changed",
+        }
+        subject = {
+            True: "changed pixels touch the subject mask",
+            False: "no changed pixel on the subject mask",
+        }
+        lines = [
+            f"visibility (FLIP at min(1920, width) px, {w.ppd:.0f} px/deg; worst of {self.measured} of "
+            f"{self.total} images): p99.9 {w.flip_p999:.2f}{budget}; max {w.flip_max:.2f}; "
+            f"mean {w.flip_mean:.4f}",
+            f"visibility: {w.area_above_half:.2%} of the picture clearly visible (FLIP > 0.5); "
+            f"{w.changed_area:.2%} of pixels changed, {where[w.in_one_corner]}"
+            + (f"; {subject[w.touches_subject]}" if w.touches_subject is not None else ""),
+        ]
+        lines += [f"visibility: not measured on {s}" for s in self.skipped]
+        return lines
+
+
+def sample_evenly(count: int, k: int) -> list[int]:
+    """k indices spread over range(count) (first and last included when k >= 2)."""
+    if count <= 0 or k <= 0:
+        return []
+    if k >= count:
+        return list(range(count))
+    if k == 1:
+        return [0]
+    return sorted({round(i * (count - 1) / (k - 1)) for i in range(k)})
+
+
+def find_subject_mask(mask_dir: Path, image_name: str) -> Path | None:
+    """A subject mask for an image: COLMAP's `<name>.png`, `<stem>.png`, or the same frame number
+    (DTU names `000002.png`'s mask `002.png`)."""
+    stem = Path(image_name).stem
+    for candidate in (mask_dir / f"{image_name}.png", mask_dir / f"{stem}.png"):
+        if candidate.is_file():
+            return candidate
+    if stem.isdigit():
+        for m in sorted(mask_dir.glob("*.png")):
+            if m.stem.isdigit() and int(m.stem) == int(stem):
+                return m
+    return None
+
+
+def _load_rgb(path: Path) -> np.ndarray:
+    from PIL import Image, ImageOps
+
+    with Image.open(path) as im:
+        im = ImageOps.exif_transpose(im)  # as a viewer sees it
+        if im.mode in ("RGBA", "LA", "PA", "P"):
+            return _rgb8(np.asarray(im.convert("RGBA")), str(path))
+        return np.asarray(im.convert("RGB"))
+
+
+def _worst(figures: Sequence[Visibility]) -> Visibility:
+    """Per figure, the worst over several images (the mark is as visible as its most visible copy)."""
+    first = figures[0]
+    ratios = [f.p999_vs_jpeg for f in figures if f.p999_vs_jpeg is not None]
+    corners = [f.in_one_corner for f in figures if f.in_one_corner is not None]
+    touches = [f.touches_subject for f in figures if f.touches_subject is not None]
+    worst_ratio = max(figures, key=lambda f: -1.0 if f.p999_vs_jpeg is None else f.p999_vs_jpeg)
+    return Visibility(
+        display_width=min(f.display_width for f in figures),
+        ppd=first.ppd,
+        flip_mean=max(f.flip_mean for f in figures),
+        flip_p99=max(f.flip_p99 for f in figures),
+        flip_p999=max(f.flip_p999 for f in figures),
+        flip_max=max(f.flip_max for f in figures),
+        area_above_half=max(f.area_above_half for f in figures),
+        changed_area=max(f.changed_area for f in figures),
+        changed_box=None,  # boxes of different images do not combine
+        in_one_corner=all(corners) if corners else None,
+        corner_region=first.corner_region,
+        touches_subject=any(touches) if touches else None,
+        jpeg_p999=worst_ratio.jpeg_p999 if ratios else None,
+        p999_vs_jpeg=max(ratios) if ratios else None,
+    )
+
+
+def measure_pairs(
+    pairs: Sequence[tuple[Path, Path]],
+    *,
+    sample: int = VISIBILITY_SAMPLE,
+    subject_mask_dir: Path | None = None,
+    corner_region: float = 0.2,
+) -> DatasetVisibility | None:
+    """FLIP figures of `sample` (original, protected) image pairs, each at min(1920, width) px.
+
+    Files that cannot be read or compared are listed in `skipped`; None when no pair was measured."""
+    chosen = [pairs[i] for i in sample_evenly(len(pairs), sample)]
+    measured: list[ImageVisibility] = []
+    skipped: list[str] = []
+    for original, protected in chosen:
+        try:
+            a, b = _load_rgb(Path(original)), _load_rgb(Path(protected))
+            name = Path(protected).name
+            mask_path = find_subject_mask(subject_mask_dir, name) if subject_mask_dir else None
+            mask = _load_mask(mask_path) if mask_path is not None else None
+            h, w = a.shape[:2]
+            figures = visibility_report(
+                a, b, display_width=min(DISPLAY_WIDTH, w), subject_mask=mask, corner_region=corner_region
+            )
+        except (OSError, ValueError) as exc:
+            skipped.append(f"{Path(protected).name}: {exc}")
+            continue
+        measured.append(ImageVisibility(Path(protected).name, w, h, figures))
+    if not measured:
+        return None
+    return DatasetVisibility(
+        measured=len(measured),
+        total=len(pairs),
+        subject_masks=any(m.figures.touches_subject is not None for m in measured),
+        worst=_worst([m.figures for m in measured]),
+        images=measured,
+        skipped=skipped,
+    )
+
+
+def _load_mask(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as im:
+        return np.asarray(im.convert("L"))
+
+
+def dataset_visibility_from_json(data: Any) -> DatasetVisibility | None:
+    """A stored DatasetVisibility (a run folder's report.json or a Store row), None when absent."""
+    if not data:
+        return None
+    return msgspec.convert(data, DatasetVisibility)

@@ -24,12 +24,45 @@ import time
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 from verifier.supervise import run_child
 
 log = logging.getLogger(__name__)
 
 RESULT_NAME = "splat.json"
 PREVIEW_NAME = "splat_views.png"
+
+
+class SplatJob(msgspec.Struct, frozen=True):
+    """What the parent sends the splat child (JSON on stdin)."""
+
+    clean_model_dir: str
+    clean_images: str
+    poisoned_model_dir: str
+    poisoned_images: str
+    out_dir: str
+    options: dict[str, Any] = {}  # SplatOptions' fields (the parent must not import torch)
+
+
+class SplatResult(msgspec.Struct):
+    """What the child writes to out_dir/splat.json; the parent checks it on the way in.
+
+    outcome: "ok" | "failed" (error says why) | "crashed" | "cancelled" (no result file: the parent's)."""
+
+    outcome: str
+    error: str | None = None
+    clean: dict[str, Any] | None = None  # per side: cost1 (renders vs inputs), views, iterations, seconds
+    poisoned: dict[str, Any] | None = None
+    cost1: dict[str, Any] | None = None  # the poisoned side's cost1 (the paper's reconstruction cost)
+    cost2: dict[str, Any] | None = None  # poisoned vs clean images (the paper's imperceptibility cost)
+    lpips_net: str | None = None
+    lpips_unavailable: str | None = None
+    preview: str | None = None
+    preview_views: Any = None
+    preview_layout: str | None = None
+    seconds: float | None = None
+    options: dict[str, Any] | None = None
 
 
 def _options_cls() -> Any:
@@ -61,30 +94,27 @@ def run_splat_stage(
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    job = {
-        "clean_model_dir": str(clean_model_dir),
-        "clean_images": str(clean_images),
-        "poisoned_model_dir": str(poisoned_model_dir),
-        "poisoned_images": str(poisoned_images),
-        "out_dir": str(out_dir),
+    job = SplatJob(
+        str(clean_model_dir), str(clean_images), str(poisoned_model_dir), str(poisoned_images), str(out_dir),
         # a SplatOptions, or its fields as a dict (callers that must not import torch pass a dict)
-        "options": (dict(options) if isinstance(options, dict) else dataclasses.asdict(options))
-        if options is not None
-        else {},
-    }
+        dict(options) if isinstance(options, dict) else msgspec.to_builtins(options) if options else {},
+    )  # fmt: skip
     result_path = out_dir / RESULT_NAME
     result_path.unlink(missing_ok=True)
     started = time.time()
     ended = run_child(
         [sys.executable, "-m", "verifier.splat.stage"],
         log_path=out_dir / "splat.log",
-        stdin_data=json.dumps(job).encode(),
+        stdin_data=msgspec.json.encode(job),
         timeout_s=timeout_s,
         cancel=cancel,
         env={**os.environ, "OMP_WAIT_POLICY": "PASSIVE"},  # see verifier/splat/__init__.py
     )
     if result_path.is_file():
-        return json.loads(result_path.read_text())
+        try:
+            return msgspec.to_builtins(msgspec.json.decode(result_path.read_bytes(), type=SplatResult))
+        except msgspec.ValidationError as exc:  # the child's own file: a broken one is a failed stage
+            return {"outcome": "failed", "error": f"unreadable splat result: {exc}"}
     why = {
         "timeout": "timed out",
         "cancelled": "was cancelled",
@@ -202,30 +232,30 @@ def _save_previews(path: Path, clean: tuple[Any, Any], poisoned: tuple[Any, Any]
     return list(dict.fromkeys(picks))
 
 
-def execute(job: dict[str, Any]) -> dict[str, Any]:
+def execute(job: SplatJob) -> dict[str, Any]:
     import PIL.Image  # noqa: F401  (before pycolmap)
     import torch
 
     from verifier.lpips import Lpips, lpips_available
     from verifier.splat.train import SplatOptions
 
-    options = SplatOptions(**job.get("options", {}))
+    options = SplatOptions(**job.options)
     if options.threads:
         torch.set_num_threads(options.threads)
-    out_dir = Path(job["out_dir"])
+    out_dir = Path(job.out_dir)
     started = time.time()
     ok, reason = lpips_available(options.lpips_net)
     lpips_model = Lpips(options.lpips_net) if ok else None
     clean, clean_scene, clean_renders = _train_side(
-        Path(job["clean_model_dir"]), Path(job["clean_images"]), options, lpips_model
+        Path(job.clean_model_dir), Path(job.clean_images), options, lpips_model
     )
     poisoned, pois_scene, pois_renders = _train_side(
-        Path(job["poisoned_model_dir"]), Path(job["poisoned_images"]), options, lpips_model
+        Path(job.poisoned_model_dir), Path(job.poisoned_images), options, lpips_model
     )
     names = sorted(set(clean_scene.names) | set(pois_scene.names))
-    all_names = sorted(p.name for p in Path(job["poisoned_images"]).iterdir() if p.is_file()) or names
+    all_names = sorted(p.name for p in Path(job.poisoned_images).iterdir() if p.is_file()) or names
     t_cost2 = time.time()
-    cost2 = _cost2(Path(job["clean_images"]), Path(job["poisoned_images"]), all_names, options, lpips_model)
+    cost2 = _cost2(Path(job.clean_images), Path(job.poisoned_images), all_names, options, lpips_model)
     cost2["seconds"] = round(time.time() - t_cost2, 2)
     preview = out_dir / PREVIEW_NAME
     views = _save_previews(
@@ -248,16 +278,16 @@ def execute(job: dict[str, Any]) -> dict[str, Any]:
 
 
 def _write_atomic(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_name(".ppd-tmp-" + path.name)
-    tmp.write_text(json.dumps(data, indent=1))
-    os.replace(tmp, path)
+    from poisoner.atomic import atomic_write_bytes
+
+    atomic_write_bytes(path, json.dumps(data, indent=1).encode())
 
 
 def main() -> int:
     with __import__("contextlib").suppress(OSError):
         os.nice(10)  # a verification child yields to the machine's other work
-    job = json.loads(sys.stdin.read())
-    out_dir = Path(job["out_dir"])
+    job = msgspec.json.decode(sys.stdin.buffer.read(), type=SplatJob)
+    out_dir = Path(job.out_dir)
     try:
         result = execute(job)
     except Exception as exc:  # any error is a result the parent records

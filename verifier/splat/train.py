@@ -24,7 +24,7 @@ import torch
 from verifier.splat.camera import Camera
 from verifier.splat.gaussians import PARAM_NAMES, Gaussians, quaternion_to_matrix
 from verifier.splat.loss import ssim_fast
-from verifier.splat.render import RenderSettings, render
+from verifier.splat.render import RenderOutput, RenderSettings, render
 
 log = logging.getLogger(__name__)
 
@@ -147,6 +147,41 @@ def densify_and_prune(g: Gaussians, opt: torch.optim.Adam, grad_mean: torch.Tens
         return _rebuild(g, opt, keep, extra)
 
 
+class _GradStats:
+    """Per-Gaussian screen-space gradient norms accumulated between densifications (3DGS's rule)."""
+
+    def __init__(self, count: int) -> None:
+        self.accum = torch.zeros(count)
+        self.count = torch.zeros(count)
+
+    @torch.no_grad()
+    def add(self, out: RenderOutput, cam: Camera) -> None:
+        if out.projected.means2d.grad is None:
+            return
+        vis = out.projected.radii > 0
+        # 3DGS accumulates the gradient w.r.t. NDC coordinates: pixels x (W/2, H/2)
+        ndc_scale = torch.tensor([cam.width * 0.5, cam.height * 0.5])
+        norms = (out.projected.means2d.grad * ndc_scale).norm(dim=1)
+        self.accum[vis] += norms[vis]
+        self.count[vis] += 1
+
+    def mean(self) -> torch.Tensor:
+        return torch.nan_to_num(self.accum / self.count, nan=0.0)
+
+
+def _training_step(
+    g: Gaussians, opt: torch.optim.Optimizer, cam: Camera, gt: torch.Tensor, bg: torch.Tensor, sh: int,
+    settings: RenderSettings, o: SplatOptions,
+) -> tuple[float, RenderOutput]:
+    """Render one view, L1 + D-SSIM loss against its image, backward; (loss, render output)."""
+    out = render(g, cam, bg, sh, settings)
+    l1 = (out.image - gt).abs().mean()
+    loss = (1.0 - o.lambda_dssim) * l1 + o.lambda_dssim * (1.0 - ssim_fast(out.image, gt))
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    return float(loss.detach()), out
+
+
 def train_splat(
     g: Gaussians,
     cameras: list[Camera],
@@ -167,40 +202,26 @@ def train_splat(
     settings = o.render_settings()
     opt = _make_optimizer(g, o, extent)
     densify_until = int(o.densify_until_fraction * o.iterations)
-    grad_accum = torch.zeros(g.count)
-    grad_count = torch.zeros(g.count)
+    grads = _GradStats(g.count)
     order: list[int] = []
     losses: list[float] = []
     start = time.perf_counter()
     it = 0
     for it in range(1, o.iterations + 1):
-        lr = expon_lr(it, o.position_lr_init * extent, o.position_lr_final * extent, o.iterations)
-        opt.param_groups[0]["lr"] = lr  # group 0 is "means"
-        if not order:
-            order = list(rng.permutation(len(cameras)))
+        opt.param_groups[0]["lr"] = expon_lr(  # group 0 is "means"
+            it, o.position_lr_init * extent, o.position_lr_final * extent, o.iterations
+        )
+        order = order or list(rng.permutation(len(cameras)))
         view = order.pop()
-        cam, gt = cameras[view], images[view]
         sh = min(o.sh_degree, 1) if it >= o.sh_degree_up_at else 0
-        out = render(g, cam, bg, sh, settings)
-        l1 = (out.image - gt).abs().mean()
-        loss = (1.0 - o.lambda_dssim) * l1 + o.lambda_dssim * (1.0 - ssim_fast(out.image, gt))
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        losses.append(float(loss.detach()))
-        with torch.no_grad():
-            if it < densify_until and out.projected.means2d.grad is not None:
-                vis = out.projected.radii > 0
-                # 3DGS accumulates the gradient w.r.t. NDC coordinates: pixels x (W/2, H/2)
-                ndc_scale = torch.tensor([cam.width * 0.5, cam.height * 0.5])
-                norms = (out.projected.means2d.grad * ndc_scale).norm(dim=1)
-                grad_accum[vis] += norms[vis]
-                grad_count[vis] += 1
+        loss, out = _training_step(g, opt, cameras[view], images[view], bg, sh, settings, o)
+        losses.append(loss)
+        if it < densify_until:
+            grads.add(out, cameras[view])
         opt.step()
         if o.densify_from <= it < densify_until and it % o.densify_interval == 0:
-            grad_mean = torch.nan_to_num(grad_accum / grad_count, nan=0.0)
-            g = densify_and_prune(g, opt, grad_mean, o, extent, gen)
-            grad_accum = torch.zeros(g.count)
-            grad_count = torch.zeros(g.count)
+            g = densify_and_prune(g, opt, grads.mean(), o, extent, gen)
+            grads = _GradStats(g.count)
             log.debug("densified", extra={"iteration": it, "gaussians": g.count})
         else:
             g = Gaussians(**{grp["name"]: grp["params"][0] for grp in opt.param_groups})

@@ -1,0 +1,66 @@
+"""(original, protected) pairs laid out as two folders with the same names, for verify_folders.
+
+Images are hard-linked (or copied); videos are sampled into frames (poisoner.video); files COLMAP
+cannot read are left out.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Sequence
+from pathlib import Path
+
+
+def _flat_name(path: Path, index: int, used: set[str]) -> str:
+    name = path.name
+    if name in used:
+        name = f"{index:05d}_{name}"
+    used.add(name)
+    return name
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copyfile(src, dst)
+
+
+def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_dir: Path) -> str:
+    """Lay out (original, protected) pairs as two folders with the same names.
+
+    Images are hard-linked (or copied). Videos are sampled into frames with poisoner.video.
+    Returns the matching mode to use ("sequential" when frames came from videos)."""
+    clean_dir.mkdir(parents=True, exist_ok=True)
+    poisoned_dir.mkdir(parents=True, exist_ok=True)
+    used: set[str] = set()
+    any_video = False
+    for i, (original, protected) in enumerate(pairs):
+        protected, original = Path(protected), Path(original)
+        if _is_video(protected):
+            from poisoner.video import sample_frames
+
+            any_video = True
+            tmp_c, tmp_p = clean_dir / f".v{i}", poisoned_dir / f".v{i}"
+            frames_c = sample_frames(original, tmp_c)
+            frames_p = sample_frames(protected, tmp_p)
+            for k, (fc, fp) in enumerate(zip(frames_c, frames_p, strict=False)):
+                name = f"{protected.stem}_frame{k:05d}{fc.suffix}"
+                os.replace(fc, clean_dir / name)
+                os.replace(fp, poisoned_dir / name)
+            shutil.rmtree(tmp_c, ignore_errors=True)
+            shutil.rmtree(tmp_p, ignore_errors=True)
+            continue
+        if protected.suffix.lower() not in (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp"):
+            continue  # formats COLMAP cannot read (e.g. HEIC) are left out of the SfM check
+        name = _flat_name(protected, i, used)
+        _link_or_copy(original, clean_dir / name)
+        _link_or_copy(protected, poisoned_dir / name)
+    return "sequential" if any_video else "auto"
+
+
+def _is_video(path: Path) -> bool:
+    from poisoner.media import is_video
+
+    return is_video(path)
