@@ -218,7 +218,7 @@ def test_file_hash_of_vault_matches(shoot: Path) -> None:
 
 
 def test_spec_summary_names_offset_and_motion() -> None:
-    from daemon.cli_poison import spec_summary
+    from daemon.cli.status_queries import spec_summary
 
     assert spec_summary(PatchSpec()) == "checkerboard 6% block 0.5% α1 Δc255 top-left"
     moving = spec_summary(default_spec())

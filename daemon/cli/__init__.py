@@ -1,11 +1,39 @@
-"""The `ppd` command line. Each command group lives in the module named after its stage;
-this file only assembles them, so importing it stays light (no pycolmap, no torch)."""
+"""The `ppd` command line: one module per command (or command group), registered here.
+
+Each command module is light at import (typer and the shared option sets); what a command runs
+is imported inside it, so `ppd poison --help` and `ppd status` never load numpy, PIL, PyAV,
+torch or pycolmap (tests/test_cli_startup.py checks it).
+
+| module | commands |
+|---|---|
+| daemon.cli.poison | `poison` (planning: daemon.cli.planning) |
+| daemon.cli.restore | `restore` |
+| daemon.cli.preview | `preview` |
+| daemon.cli.status | `status` (queries: daemon.cli.status_queries) |
+| daemon.cli.dataset | `dataset show`, `dataset set` |
+| daemon.cli.config | `config show`, `config path` |
+| daemon.cli.watch | `watch`, `service install/uninstall/status` |
+| daemon.cli.demo | `demo` |
+| daemon.cli.verify | `verify` (tables: daemon.cli.verify_tables; targets: daemon.cli.targets) |
+| daemon.cli.auto | `auto` |
+| daemon.cli.experiment | `experiment` |
+| daemon.cli.report | `report` |
+| daemon.cli.store | `store check`, `store rebuild` |
+
+Shared: daemon.cli.errors (one-line errors, exit codes), daemon.cli.output (consoles, logging),
+daemon.cli.options (shared option sets), daemon.cli.group (the top-level group).
+"""
 
 from __future__ import annotations
 
+import importlib
+import sys
+
 import typer
 
-from daemon.cli_common import EXIT_CODES_HELP, PpdGroup, setup_logging
+from daemon.cli.errors import EXIT_CODES_HELP
+from daemon.cli.group import PpdGroup
+from daemon.cli.output import setup_logging
 
 app = typer.Typer(
     name="ppd",
@@ -28,7 +56,7 @@ def _version() -> str:
         import tomllib
         from pathlib import Path
 
-        pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+        pyproject = Path(__file__).resolve().parents[2] / "pyproject.toml"
         try:
             return tomllib.loads(pyproject.read_text())["project"]["version"]
         except (OSError, KeyError, tomllib.TOMLDecodeError):
@@ -56,10 +84,10 @@ def _main(
 
 
 COMMAND_MODULES = (
-    "daemon.cli_poison", "daemon.cli_watch", "daemon.cli_demo", "daemon.cli_verify",
-    "daemon.cli_auto",  # automatic mode (issue 9)
-    "daemon.cli_experiment",  # `ppd experiment`, `ppd report` (issue 7)
-    "daemon.cli_store",  # `ppd store check`, `ppd store rebuild`
+    "daemon.cli.poison", "daemon.cli.restore", "daemon.cli.preview", "daemon.cli.status",
+    "daemon.cli.dataset", "daemon.cli.config", "daemon.cli.watch", "daemon.cli.demo",
+    "daemon.cli.verify", "daemon.cli.auto", "daemon.cli.experiment", "daemon.cli.report",
+    "daemon.cli.store",
 )  # fmt: skip
 
 
@@ -67,20 +95,13 @@ def _modules_for(argv: list[str]) -> tuple[str, ...]:
     """`ppd watch` is the long-lived daemon: it loads only its own command module, which keeps
     the others' imports (and their memory) out of the resident process."""
     if len(argv) > 1 and argv[1] == "watch":
-        return ("daemon.cli_watch",)
+        return ("daemon.cli.watch",)
     return COMMAND_MODULES
 
 
 def _register() -> None:
-    # Each module exposes `register(app)`.
-    import importlib
-    import sys
-
     for name in _modules_for(sys.argv):
         importlib.import_module(name).register(app)
 
 
 _register()
-
-if __name__ == "__main__":
-    app()

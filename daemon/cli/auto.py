@@ -12,12 +12,17 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
-from rich.table import Table
 
-from daemon.cli_common import console, die
+from daemon.cli.errors import die, one_line
+from daemon.cli.output import console
+
+if TYPE_CHECKING:
+    from rich.table import Table
+
+    from daemon.context import AppContext
 
 
 def _fail(message: str, code: int = 2) -> typer.Exit:
@@ -26,6 +31,8 @@ def _fail(message: str, code: int = 2) -> typer.Exit:
 
 def evidence_table(evidence: list[dict[str, Any]], profiles: list[str]) -> Table:
     """One row per candidate: measured visibility, budget use, status and per-profile verdicts."""
+    from rich.table import Table
+
     table = Table(title="candidates (least visible first by measured budget use)", show_lines=False)
     for col in ("candidate", "status", "SSIM min", "LPIPS max", "budget use"):
         justify = "right" if col not in ("candidate", "status") else "left"
@@ -65,12 +72,13 @@ def _pct(x: Any) -> str:
 def print_decision(decision: dict[str, Any]) -> None:
     chosen = decision.get("chosen")
     head = f"[green]chosen: {chosen}[/green]" if chosen else f"[red]{decision['outcome']}[/red]"
-    console.print(head, highlight=False)
-    console.print(decision["reason"], highlight=False)
+    console().print(head, highlight=False)
+    console().print(decision["reason"], highlight=False)
     if not decision.get("lpips_checked"):
-        console.print(f"[yellow]LPIPS not checked:[/yellow] {decision.get('lpips_note')}", highlight=False)
-    console.print(evidence_table(decision["evidence"], list(decision["options"]["profiles"])))
-    console.print(f"sample: {len(decision['sample'])} images; {decision['elapsed_s']:.0f} s", highlight=False)
+        console().print(f"[yellow]LPIPS not checked:[/yellow] {decision.get('lpips_note')}", highlight=False)
+    console().print(evidence_table(decision["evidence"], list(decision["options"]["profiles"])))
+    sample = f"sample: {len(decision['sample'])} images; {decision['elapsed_s']:.0f} s"
+    console().print(sample, highlight=False)
 
 
 def _show(dataset: str, as_json: bool) -> None:
@@ -84,29 +92,89 @@ def _show(dataset: str, as_json: bool) -> None:
     finally:
         ctx.close()
     if as_json:
-        console.print_json(json.dumps(rows, default=str))
+        console().print_json(json.dumps(rows, default=str))
         return
     if not rows:
-        console.print(f"{dataset}: no automatic decision recorded", highlight=False)
+        console().print(f"{dataset}: no automatic decision recorded", highlight=False)
         return
-    if console.width < 100:  # a narrow terminal: one block per decision, words never cut
-        console.print(f"automatic decisions for {dataset} (newest first)", markup=False)
+    _print_decisions(dataset, rows)
+    latest = rows[0]["evidence"]
+    if isinstance(latest.get("evidence"), list):
+        console().print(evidence_table(latest["evidence"], list(latest["options"]["profiles"])))
+
+
+def _print_decisions(dataset: str, rows: list[dict[str, Any]]) -> None:
+    if console().width < 100:  # a narrow terminal: one block per decision, words never cut
+        console().print(f"automatic decisions for {dataset} (newest first)", markup=False)
         for r in rows:
             when = time.strftime("%Y-%m-%d %H:%M", time.localtime(r["decided_at"]))
-            console.print(f"{when} {r['trigger']}: {r['candidate'] or 'none'} ({r['spec_id'] or '—'})",
+            console().print(f"{when} {r['trigger']}: {r['candidate'] or 'none'} ({r['spec_id'] or '—'})",
                           markup=False)  # fmt: skip
-            console.print(f"  {r['reason']}", markup=False, soft_wrap=False)
+            console().print(f"  {r['reason']}", markup=False, soft_wrap=False)
     else:
+        from rich.table import Table
+
         table = Table(title=f"automatic decisions for {dataset} (newest first)")
         for col in ("when", "trigger", "candidate", "spec", "reason"):
             table.add_column(col, overflow="fold")
         for r in rows:
             when = time.strftime("%Y-%m-%d %H:%M", time.localtime(r["decided_at"]))
             table.add_row(when, r["trigger"], r["candidate"] or "none", r["spec_id"] or "—", r["reason"])
-        console.print(table)
-    latest = rows[0]["evidence"]
-    if isinstance(latest.get("evidence"), list):
-        console.print(evidence_table(latest["evidence"], list(latest["options"]["profiles"])))
+        console().print(table)
+
+
+def _images(ctx: AppContext, target: str) -> tuple[list[Any], bool]:
+    """(the preflight sample's source images, whether target is a dataset of the store)."""
+    from daemon import auto as daemon_auto
+
+    if ctx.store.dataset(target) is not None:
+        return daemon_auto.dataset_images(ctx, target), True
+    folder = Path(target).expanduser()
+    if folder.is_dir():
+        return sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")), False
+    raise _fail(f"{target!r} is neither a dataset in the store nor a folder")
+
+
+def _preflight(ctx: AppContext, target: str, images: list[Any], is_dataset: bool, given: dict[str, Any]
+               ) -> dict[str, Any]:  # fmt: skip
+    """Run the preflight with the command line's settings over the config's."""
+    from daemon import auto as daemon_auto
+    from verifier.auto import PreflightInputError, PreflightOptions, VisibilityBudget, preflight
+
+    settings = daemon_auto.AutoSettings.from_config(ctx.config)
+    try:
+        budget = VisibilityBudget(
+            given["budget_ssim"] if given["budget_ssim"] is not None else settings.min_ssim,
+            given["budget_lpips"] if given["budget_lpips"] is not None else settings.max_lpips,
+        )
+        options = PreflightOptions(
+            sample_size=given["sample"] or settings.sample_size,
+            time_budget_s=given["time_budget"] or settings.time_budget_s,
+            profiles=tuple(given["profile"]) or settings.profiles,
+        )
+        work = given["out"] or Path(ctx.paths.runs_dir) / (target if is_dataset else "_folders") / (
+            f"auto-{time.strftime('%Y%m%dT%H%M%S')}"
+        )
+        return preflight(images, daemon_auto.load_ladder(), budget, options, work).to_dict()
+    except (PreflightInputError, ImportError) as exc:
+        raise _fail(one_line(exc)) from None
+
+
+def _record(ctx: AppContext, target: str, decision: dict[str, Any], apply: bool | None) -> None:
+    """A dataset's decision goes in the store (trigger 'manual'); applied when asked or automatic."""
+    from daemon import auto as daemon_auto
+    from poisoner.spec import PatchSpec
+
+    do_apply = apply if apply is not None else ctx.config.is_auto(target)
+    spec = decision["spec"]
+    ctx.store.add_auto_decision(
+        target, decision["chosen"], PatchSpec.from_dict(spec) if spec else None,
+        decision["reason"], decision, "manual",
+    )  # fmt: skip
+    if spec and do_apply:
+        decision["reprotected"] = daemon_auto.apply_spec(ctx, target, PatchSpec.from_dict(spec))
+    elif not spec:
+        daemon_auto.surface_no_candidate(ctx, target, decision["reason"])
 
 
 def auto(
@@ -127,64 +195,33 @@ def auto(
     if show:
         _show(target, as_json)
         return
-    from daemon import auto as daemon_auto
+    from daemon.cli.status_queries import protection_line
     from daemon.config import ConfigError
     from daemon.context import AppContext
-    from verifier.auto import PreflightInputError, PreflightOptions, VisibilityBudget, preflight
 
+    given = {"budget_ssim": budget_ssim, "budget_lpips": budget_lpips, "sample": sample,
+             "time_budget": time_budget, "profile": profile, "out": out}  # fmt: skip
     try:
         ctx = AppContext.open()
     except ConfigError as exc:
-        raise _fail(str(exc).splitlines()[0]) from None
+        raise _fail(one_line(exc)) from None
+    dataset_line = None
     try:
-        settings = daemon_auto.AutoSettings.from_config(ctx.config)
-        folder = Path(target).expanduser()
-        is_dataset = ctx.store.dataset(target) is not None
+        images, is_dataset = _images(ctx, target)
+        decision = _preflight(ctx, target, images, is_dataset, given)
         if is_dataset:
-            images: list[Any] = daemon_auto.dataset_images(ctx, target)
-        elif folder.is_dir():
-            images = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
-        else:
-            raise _fail(f"{target!r} is neither a dataset in the store nor a folder")
-        try:
-            budget = VisibilityBudget(
-                budget_ssim if budget_ssim is not None else settings.min_ssim,
-                budget_lpips if budget_lpips is not None else settings.max_lpips,
-            )
-            options = PreflightOptions(
-                sample_size=sample or settings.sample_size,
-                time_budget_s=time_budget or settings.time_budget_s,
-                profiles=tuple(profile) or settings.profiles,
-            )
-            ladder = daemon_auto.load_ladder()
-            work = out or Path(ctx.paths.runs_dir) / (target if is_dataset else "_folders") / (
-                f"auto-{time.strftime('%Y%m%dT%H%M%S')}"
-            )
-            decision = preflight(images, ladder, budget, options, work).to_dict()
-        except (PreflightInputError, ImportError) as exc:
-            raise _fail(str(exc).splitlines()[0]) from None
-        if is_dataset:
-            do_apply = apply if apply is not None else ctx.config.is_auto(target)
-            spec = decision["spec"]
-            from poisoner.spec import PatchSpec
-
-            ctx.store.add_auto_decision(
-                target, decision["chosen"], PatchSpec.from_dict(spec) if spec else None,
-                decision["reason"], decision, "manual",
-            )  # fmt: skip
-            if spec and do_apply:
-                n = daemon_auto.apply_spec(ctx, target, PatchSpec.from_dict(spec))
-                decision["reprotected"] = n
-            elif not spec:
-                daemon_auto.surface_no_candidate(ctx, target, decision["reason"])
+            _record(ctx, target, decision, apply)
+            dataset_line = protection_line(ctx, target)  # what its verifications say, not the sample's
     finally:
         ctx.close()
     if as_json:
-        console.print_json(json.dumps(decision, default=str))
+        console().print_json(json.dumps(decision, default=str))
     else:
         print_decision(decision)
         if "reprotected" in decision:
-            console.print(f"re-protected {decision['reprotected']} file(s) from the vault", highlight=False)
+            console().print(f"re-protected {decision['reprotected']} file(s) from the vault", highlight=False)
+        if dataset_line:
+            console().print(dataset_line, markup=False)
     raise typer.Exit(0 if decision["chosen"] else 1)
 
 
