@@ -84,6 +84,14 @@ def run_call(call: ProtectCall, ctx: AppContext | None = None) -> ProtectOutcome
     )  # fmt: skip
 
 
+def run_call_for_daemon(call: ProtectCall) -> ProtectOutcome:
+    """run_call without the poisoner's report: unpickling it would load poisoner.formats (PIL,
+    numpy) into the daemon, which reads only the outcome's state, reason and signature."""
+    outcome = run_call(call)
+    outcome.report = None
+    return outcome
+
+
 def died_outcome(call: ProtectCall, detail: str = "") -> ProtectOutcome:
     reason = f"{call.path.name}: {DIED}{detail}"
     return ProtectOutcome(
@@ -172,7 +180,7 @@ class _Slot:
                     initargs=_worker_args(self._ctx),
                 )  # fmt: skip
             try:
-                return self._pool.submit(run_call, call).result()
+                return self._pool.submit(run_call_for_daemon, call).result()
             except BrokenProcessPool:
                 self.close()
                 log.warning(
