@@ -16,7 +16,14 @@ from pathlib import Path
 from typing import Any
 
 from daemon.context import AppContext
-from daemon.dataset import OutsideOutboxError, dataset_of, dataset_root, ensure_dataset
+from daemon.dataset import (
+    DatasetConflict,
+    OutsideOutboxError,
+    attribute,
+    dataset_of,
+    dataset_root,
+    ensure_dataset,
+)
 from daemon.fsops import sha256_fd
 from daemon.locks import LockHeld
 from daemon.pipeline import (
@@ -75,18 +82,15 @@ def anchor_for(ctx: AppContext, path: Path, root: Path) -> Path:
 
 
 def _resolve_dataset(ctx: AppContext, path: Path, dataset: str | None, root: Path | None) -> tuple[str, Path]:
-    outbox = ctx.paths.outbox
-    if dataset is None:
-        dataset = dataset_of(outbox, path)
-        return dataset, root or dataset_root(outbox, dataset)
-    if root is not None:
+    """The caller's (dataset, root) when both are given (`ppd poison` planned them), else
+    daemon.dataset.attribute's, the one rule; a root given alone is kept. Named by neither, the
+    file must be in the outbox (OutsideOutboxError): a file from elsewhere comes with its dataset."""
+    if dataset is not None and root is not None:
         return dataset, root
-    row = ctx.store.dataset(dataset)
-    if row is not None:
-        return dataset, Path(row["root"])
-    if path.is_relative_to(outbox.absolute()):
-        return dataset, dataset_root(outbox, dataset)
-    return dataset, path.parent
+    if dataset is None and root is None:
+        dataset_of(ctx.paths.outbox, path)  # raises outside the outbox
+    name, found = attribute(ctx, path, dataset, folder=False)
+    return name, root or found
 
 
 def protect_file(
@@ -116,7 +120,7 @@ def protect_file(
     path = Path(path).absolute()
     try:
         dataset, root = _resolve_dataset(ctx, path, dataset, root)
-    except OutsideOutboxError as exc:
+    except (OutsideOutboxError, DatasetConflict) as exc:
         return ProtectOutcome(path=path, dataset=None, state=Outcome.FAILED, reason=one_line(exc))
     root = Path(root).absolute()
     keep = ctx.config.keep_location if keep_location is None else keep_location

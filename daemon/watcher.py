@@ -411,6 +411,10 @@ class DaemonOptions:
     no_space_poll_s: float = 5.0  # while files wait for disk space: how often free space is checked
     no_space_retry_s: float = 300.0  # ... and retried anyway (space freed elsewhere, quota raised)
     verify: bool = True  # run the VerificationScheduler (daemon.scheduler)
+    # Each file is protected in a worker process (daemon.protect_pool), so this process never
+    # loads numpy, PIL or PyAV; the workers exit after worker_idle_s without a file.
+    worker_processes: bool = True
+    worker_idle_s: float = 30.0
 
     @classmethod
     def from_config(cls, config: Any, **overrides: Any) -> DaemonOptions:
@@ -478,6 +482,7 @@ class WatchDaemon:
         )
         self.scheduler: Any = None
         self._owner = contextlib.ExitStack()
+        self.protectors: Any = None  # daemon.protect_pool.ProtectWorkers, made on start
 
     # ---- lifecycle ----------------------------------------------------------------------------
     def request_stop(self) -> None:
@@ -491,6 +496,10 @@ class WatchDaemon:
         self.outbox.mkdir(parents=True, exist_ok=True)
         self._owner.enter_context(outbox_lock(self.ctx.paths.data_dir, self.outbox))
         self.scheduler = self._start_scheduler() if self.options.verify else None
+        if self.options.worker_processes:
+            from daemon.protect_pool import ProtectWorkers
+
+            self.protectors = ProtectWorkers(self.ctx, self.options.workers, self.options.worker_idle_s)
         self.pool.start()
         self.watcher.start()  # before the scan: nothing written during the scan is missed
         self.catch_up(remove_leftovers=True)
@@ -519,6 +528,8 @@ class WatchDaemon:
             if self._trim_due.is_set() and self._idle_enough():
                 self._trim_due.clear()
                 release_free_memory()
+            if self.protectors is not None:
+                self.protectors.end_idle()
             if ping and self.watcher.is_alive():
                 self.notifier.watchdog()  # only while events can still arrive
             status = self.status()
@@ -533,6 +544,8 @@ class WatchDaemon:
         log.info("stopping: no new work; waiting for files in flight", extra=self._stats_extra())
         self.watcher.stop()
         dropped = self.pool.stop()
+        if self.protectors is not None:
+            self.protectors.close()
         if dropped:
             log.info("%d queued file(s) left for the next start's catch-up scan", len(dropped))
         if self.scheduler is not None:
@@ -567,6 +580,8 @@ class WatchDaemon:
             waits.append(5.0)
         if self._no_space:
             waits.append(self.options.no_space_poll_s)
+        if self.protectors is not None and (idle_in := self.protectors.end_idle()) is not None:
+            waits.append(idle_in + 0.05)  # then the idle workers exit
         return min(waits) if waits else None
 
     def _note_no_space(self, path: Path, reason: str | None) -> None:
@@ -738,9 +753,7 @@ class WatchDaemon:
             return
         if self.watcher.is_settled(path):
             return
-        from daemon.protect import protect_file  # lazy: keeps `import daemon.watcher` light
-
-        outcome = protect_file(path, self.ctx)
+        outcome = self._protect(path)
         # The signature of what ppd judged or wrote, not of what is there now: a version that
         # arrived meanwhile must not be taken for an echo of ppd's own work.
         if outcome.signature is None and outcome.state == Outcome.FAILED:
@@ -764,6 +777,14 @@ class WatchDaemon:
                 self.scheduler.on_protected(outcome.dataset)
             except Exception:
                 log.exception("verification scheduler failed", extra={"dataset": outcome.dataset})
+
+    def _protect(self, path: Path) -> Any:
+        """protect_file, in a worker process unless the options say in this one."""
+        if self.protectors is not None:
+            return self.protectors.protect(path)
+        from daemon.protect import protect_file  # lazy: keeps `import daemon.watcher` light
+
+        return protect_file(path, self.ctx)
 
     def _record_removed(self, path: Path) -> None:
         """Rows for path, or for every file under path when it was a folder, become 'removed'."""

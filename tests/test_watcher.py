@@ -6,6 +6,7 @@ signal handling); the SIGTERM and sys.modules tests run `ppd watch` as a real su
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -614,8 +615,18 @@ def test_sigterm_mid_batch_leaves_every_file_original_or_protected(
         env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     messages: list[str] = []
+    stopping = threading.Event()
+
+    def listen() -> None:  # reads all along, as systemd does (the socket queues only ~10 datagrams)
+        with contextlib.suppress(OSError):
+            while not stopping.is_set():
+                messages.append(sock.recv(4096).decode())
+                stopping.set() if messages[-1].startswith("STOPPING=1") else None
+
+    listener = threading.Thread(target=listen, daemon=True)
     try:
-        messages.append(sock.recv(4096).decode())
+        listener.start()
+        wait_for(lambda: bool(messages), 30, "READY=1")
         assert messages[0].startswith("READY=1"), messages
         dest = ppd_env["outbox"] / "batch"
         dest.mkdir()
@@ -629,17 +640,13 @@ def test_sigterm_mid_batch_leaves_every_file_original_or_protected(
         wait_for(lambda: protected() >= 2, 60, "first files protected")
         proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=60)
-        while True:
-            try:
-                messages.append(sock.recv(4096).decode())
-            except TimeoutError:
-                break
-            if messages[-1].startswith("STOPPING=1"):
-                break
+        stopping.wait(30)
     finally:
         if proc.poll() is None:
             proc.kill()
+        stopping.set()
         sock.close()
+        listener.join(30)
     assert proc.returncode == 0, out
     assert any(m == "WATCHDOG=1" for m in messages) or "WATCHDOG=1" in "\n".join(messages)
     assert messages[-1].startswith("STOPPING=1"), messages
@@ -687,6 +694,9 @@ print(json.dumps({"protected": d.counts.patched, "modules": sorted(sys.modules)}
     assert report["protected"] == 1
     heavy = [m for m in report["modules"] if m.split(".")[0] in ("torch", "pycolmap", "skimage")]
     assert heavy == [], heavy
+    # files are protected in worker processes (daemon.protect_pool): no decoder in the daemon's memory
+    decoders = [m for m in report["modules"] if m.split(".")[0] in ("numpy", "PIL", "av")]
+    assert decoders == [], decoders
 
 
 def test_bad_config_is_one_line_and_exit_status_1(ppd_env: dict[str, Path]) -> None:
