@@ -39,31 +39,21 @@ def media_files(folder: Path) -> list[Path]:
     return files
 
 
-def attribute_target(ctx: AppContext, target: Path, dataset: str | None) -> tuple[str, Path]:
-    """(dataset name, dataset root) of a folder or file given on the command line. A folder is
-    one dataset (named after it, or its outbox dataset); a file belongs to its outbox dataset,
-    else to a dataset named after its parent folder; --dataset names it."""
-    from daemon.dataset import dataset_of, dataset_root
-
-    outbox = ctx.paths.outbox.absolute()
-    in_outbox = target.is_relative_to(outbox) and target != outbox
-    folder = target if target.is_dir() else target.parent
-    if dataset:
-        return dataset, folder
-    if in_outbox:
-        name = dataset_of(outbox, target / "x" if target.is_dir() else target)
-        return name, dataset_root(outbox, name)
-    return folder.name or "default", folder
-
-
 def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Path | None) -> list[Job]:
-    """One job per file of the targets, each with its dataset (attribute_target)."""
+    """One job per file of the targets, each with its dataset by the one rule of attribution
+    (daemon.dataset.attribute: a folder is one dataset, a file belongs to its outbox dataset or
+    to one named after its parent; --dataset names it, and a known name keeps its root)."""
+    from daemon.dataset import DatasetConflict, attribute
+
     jobs: list[Job] = []
     for target in targets:
         target = target.absolute()
         if not target.exists() and not target.is_symlink():
             raise die(f"{target} does not exist")
-        name, root = attribute_target(ctx, target, dataset)
+        try:
+            name, root = attribute(ctx, target, dataset)
+        except DatasetConflict as exc:
+            raise die(one_line(exc)) from None
         files = media_files(target) if target.is_dir() else [target]
         for f in files:
             out_path = None

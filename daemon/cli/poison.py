@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections import Counter
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -68,11 +68,11 @@ def summary(ctx: AppContext, jobs: list[Job], outcomes: list[ProtectOutcome], dr
         console().print(f"failed files and reasons: ppd status {names[0]} --failed", markup=False)
 
 
-def _say_outcome(progress_console: object, job: Job, outcome: ProtectOutcome) -> None:
+def _say_outcome(progress_console: Any, outcome: ProtectOutcome) -> None:
     """-v: one line per file with its outcome (above the progress bar)."""
-    where = f" -> {outcome.output}" if outcome.output and outcome.output != job.path else ""
+    where = f" -> {outcome.output}" if outcome.output and outcome.output != outcome.path else ""
     why = f" ({outcome.reason})" if outcome.reason and outcome.state != "failed" else ""
-    progress_console.print(f"{outcome_word(outcome)} {job.path}{where}{why}", markup=False)  # type: ignore[attr-defined]
+    progress_console.print(f"{outcome_word(outcome)} {outcome.path}{where}{why}", markup=False)
 
 
 def run_jobs(
@@ -84,35 +84,26 @@ def run_jobs(
     force: bool,
     workers: int | None = None,
 ) -> list[ProtectOutcome]:
-    """Every job through protect_file on `workers` threads (default: the config's). A progress
-    bar only on a terminal (nothing per file unless -v, which names each file with its outcome)."""
-    import threading
-    from concurrent.futures import ThreadPoolExecutor
-
+    """Every job through protect_many on `workers` processes (default: the config's). A progress
+    bar only on a terminal (nothing per file unless -v, which names each file with its outcome);
+    the outcomes sorted by path for the summary."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from daemon.protect import protect_file
+    from daemon.protect_pool import protect_many
 
-    outcomes: list[ProtectOutcome] = []
-    lock = threading.Lock()
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=err_console(), transient=True, disable=not interactive()) as progress:
         task = progress.add_task("patching", total=len(jobs))
 
-        def run(job: Job) -> None:
-            outcome = protect_file(
-                job.path, ctx, job.dataset, root=job.root, out_path=job.out_path,
-                dry_run=dry_run, force=force, spec=wanted.get(job.dataset),
-            )  # fmt: skip
-            with lock:
-                outcomes.append(outcome)
-                if verbosity() > 0:
-                    _say_outcome(progress.console, job, outcome)
+        def finished(outcome: ProtectOutcome) -> None:
+            if verbosity() > 0:
+                _say_outcome(progress.console, outcome)
             progress.advance(task)
 
-        count = max(1, min(workers or ctx.config.workers, len(jobs)))
-        with ThreadPoolExecutor(max_workers=count, thread_name_prefix="ppd-poison") as pool:
-            list(pool.map(run, jobs))
+        outcomes = protect_many(
+            ctx, [(job.path, job.dataset, job.root, job.out_path) for job in jobs], workers=workers,
+            force=force, dry_run=dry_run, spec=wanted, on_outcome=finished,
+        )  # fmt: skip
     return sorted(outcomes, key=lambda o: str(o.path))
 
 
