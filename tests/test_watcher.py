@@ -25,19 +25,13 @@ import numpy as np
 import PIL.Image
 import pytest
 
+from daemon.events import WatchOptions, ignore_reason, is_candidate, scan_outbox
 from daemon.notify import SystemdNotifier, notify_socket_address, watchdog_interval
 from daemon.paths import AppPaths
 from daemon.protect import AppContext
 from daemon.states import FileState
 from daemon.store import Store
-from daemon.watcher import (
-    DaemonOptions,
-    WatchDaemon,
-    WatchOptions,
-    ignore_reason,
-    is_candidate,
-    scan_outbox,
-)
+from daemon.watcher import DaemonOptions, WatchDaemon
 from daemon.workers import PoolOptions, WorkerPool
 from poisoner.atomic import TEMP_PREFIX
 from poisoner.media import MEDIA_SUFFIXES
