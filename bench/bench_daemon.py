@@ -241,10 +241,14 @@ MEMORY_RESULTS = REPO / "bench" / "results" / "daemon_memory.md"
 
 def children_rss_mb(pid: int) -> float:
     """RSS of pid's child processes (the protect workers), MB."""
+    children: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():  # a worker thread's children are listed under it
+        with contextlib.suppress(FileNotFoundError):
+            children |= {int(c) for c in (task / "children").read_text().split()}
     total = 0
-    for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split():
+    for child in children:
         with contextlib.suppress(FileNotFoundError, KeyError):
-            total += status_kb(int(child), "VmRSS")
+            total += status_kb(child, "VmRSS")
     return total / 1024
 
 
