@@ -241,10 +241,14 @@ MEMORY_RESULTS = REPO / "bench" / "results" / "daemon_memory.md"
 
 def children_rss_mb(pid: int) -> float:
     """RSS of pid's child processes (the protect workers), MB."""
+    children: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():  # a worker thread's children are listed under it
+        with contextlib.suppress(FileNotFoundError):
+            children |= {int(c) for c in (task / "children").read_text().split()}
     total = 0
-    for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split():
+    for child in children:
         with contextlib.suppress(FileNotFoundError, KeyError):
-            total += status_kb(int(child), "VmRSS")
+            total += status_kb(child, "VmRSS")
     return total / 1024
 
 
@@ -313,6 +317,33 @@ def write_memory_report(r: dict[str, object], command: str) -> None:
     MEMORY_RESULTS.write_text("\n".join(lines))
 
 
+def burst(root: Path, stage: Path, rng: np.random.Generator, n_flood: int) -> dict[str, float]:
+    """n_flood small PNGs moved in as one folder, counted from the store until all are protected."""
+    daemon = start_daemon(root, "--no-verify")
+    outbox = root / "outbox"
+    flood = stage / "flood"
+    flood.mkdir()
+    base = smooth_texture(rng, 256, 256)
+    for i in range(n_flood):
+        variant(base, i).save(flood / f"f{i:05d}.png")
+    started = time.monotonic()
+    os.rename(flood, outbox / "flood")
+    from daemon.states import FileState
+    from daemon.store import Store
+
+    store = Store(root / "data" / "ppd.sqlite3")
+    while len(store.files("flood", state=FileState.PATCHED)) < n_flood:
+        if time.monotonic() - started > 900:
+            raise TimeoutError("flood not done in 15 min")
+        time.sleep(0.2)
+    flood_s = time.monotonic() - started
+    result = {"files": n_flood, "seconds": flood_s, "files_per_s": n_flood / flood_s,
+              "hwm_mb": status_kb(daemon.pid, "VmHWM") / 1024}  # fmt: skip
+    store.close()
+    stop_daemon(daemon)
+    return result
+
+
 # ---- main ------------------------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -355,57 +386,15 @@ def main(argv: list[str] | None = None) -> None:
         results["idle_after"] = idle_sample(daemon.pid, idle_s)
         results["stop_seconds"] = stop_daemon(daemon)
 
-        # 3. A burst: n_flood small PNGs moved in as one folder, then counted from the store.
-        daemon = start_daemon(root, "--no-verify")
-        flood = stage / "flood"
-        flood.mkdir()
-        base = smooth_texture(rng, 256, 256)
-        for i in range(n_flood):
-            variant(base, i).save(flood / f"f{i:05d}.png")
-        started = time.monotonic()
-        os.rename(flood, outbox / "flood")
-        from daemon.states import FileState
-        from daemon.store import Store
-
-        store = Store(root / "data" / "ppd.sqlite3")
-        while len(store.files("flood", state=FileState.PATCHED)) < n_flood:
-            if time.monotonic() - started > 900:
-                raise TimeoutError("flood not done in 15 min")
-            time.sleep(0.2)
-        flood_s = time.monotonic() - started
-        results["flood"] = {"files": n_flood, "seconds": flood_s, "files_per_s": n_flood / flood_s,
-                            "hwm_mb": status_kb(daemon.pid, "VmHWM") / 1024}  # fmt: skip
-        store.close()
-        stop_daemon(daemon)
+        results["flood"] = burst(root, stage, rng, n_flood)
 
     results["mdwe"] = {what: mdwe_probe(what) for what in ("daemon", "torch", "pycolmap")}
     write_report(results, args)
     print(json.dumps(results, indent=1, default=str))
 
 
-def write_report(r: dict, args: argparse.Namespace) -> None:
-    cpu = next(
-        (line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-         if line.startswith("model name")), platform.processor(),
-    )  # fmt: skip
-    lines = [
-        "# ppd watch: measured figures",
-        "",
-        f"Produced by `python -m bench.bench_daemon{' --quick' if args.quick else ''}` on "
-        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {os.cpu_count()} CPU(s) ({cpu}), "
-        f"Python {platform.python_version()}, Linux {platform.release()}. The machine was shared with "
-        "other work while this ran: treat single figures as indicative.",
-        "",
-        "## Drop-to-protected latency (one file at a time, default debounce_seconds = 2.0)",
-        "",
-        "| input, how it arrived | n | p50 s | p95 s | max s |",
-        "|---|---|---|---|---|",
-    ]
-    for name, values in r["latency"].items():
-        lines.append(
-            f"| {name} | {len(values)} | {percentile(values, 50):.2f} | {percentile(values, 95):.2f} "
-            f"| {max(values):.2f} |"
-        )
+def idle_lines(r: dict) -> list[str]:
+    lines: list[str] = []
     lines += [
         "",
         "A copy ends with close-after-write: the file waits debounce_seconds (2 s) unchanged before it",
@@ -424,8 +413,12 @@ def write_report(r: dict, args: argparse.Namespace) -> None:
             f"| {label} | {s['seconds']:.0f} | {s['cpu_percent']:.3f} | {s['cpu_seconds']:.2f} | "
             f"{s['wakeups_per_s']:.1f} | {s['rss_mb']:.1f} | {s['hwm_mb']:.1f} | {s['threads']} |"
         )
+    return lines
+
+
+def burst_and_mdwe_lines(r: dict) -> list[str]:
     f = r["flood"]
-    lines += [
+    lines = [
         "",
         "Goal: under 60 MB RSS idle, no polling. ppd's threads (main loop, debounce, workers) and",
         "watchdog's (inotify reader, emitter, dispatcher) block until an event arrives; the one timer is",
@@ -458,6 +451,33 @@ def write_report(r: dict, args: argparse.Namespace) -> None:
         "MemoryDenyWriteExecute while torch fails under it.",
         "",
     ]
+    return lines
+
+
+def write_report(r: dict, args: argparse.Namespace) -> None:
+    cpu = next(
+        (line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+         if line.startswith("model name")), platform.processor(),
+    )  # fmt: skip
+    lines = [
+        "# ppd watch: measured figures",
+        "",
+        f"Produced by `python -m bench.bench_daemon{' --quick' if args.quick else ''}` on "
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {os.cpu_count()} CPU(s) ({cpu}), "
+        f"Python {platform.python_version()}, Linux {platform.release()}. The machine was shared with "
+        "other work while this ran: treat single figures as indicative.",
+        "",
+        "## Drop-to-protected latency (one file at a time, default debounce_seconds = 2.0)",
+        "",
+        "| input, how it arrived | n | p50 s | p95 s | max s |",
+        "|---|---|---|---|---|",
+    ]
+    for name, values in r["latency"].items():
+        lines.append(
+            f"| {name} | {len(values)} | {percentile(values, 50):.2f} | {percentile(values, 95):.2f} "
+            f"| {max(values):.2f} |"
+        )
+    lines += idle_lines(r) + burst_and_mdwe_lines(r)
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text("\n".join(lines))
 
