@@ -19,8 +19,8 @@ from typer.testing import CliRunner
 
 from daemon.cli import app
 from daemon.cli.errors import os_error_text, reason_text
-from daemon.cli.output import KeyValueFormatter
 from daemon.cli.options import SpecOptions, designs, spec_fields
+from daemon.cli.output import KeyValueFormatter
 from daemon.protect import AppContext
 from daemon.states import FileState, Protection, dataset_protection, protection_text
 from poisoner.ladder import default_spec, named_specs
