@@ -1,4 +1,4 @@
-"""What automatic mode's preflight takes: the visibility budget and the preflight options.
+"""What automatic mode's preflight takes: the visibility budget, the preflight options, the job.
 
 The one source of these defaults: the daemon's config sections [visibility] and [preflight] are
 these structs (daemon.config), `ppd auto` starts from them, and the preflight child receives them
@@ -14,6 +14,8 @@ from __future__ import annotations
 from typing import Literal
 
 import msgspec
+
+from poisoner.spec import PatchSpec
 
 Profile = Literal["default", "hardened", "published", "masked"]  # verifier.sfm.profile_sfm_settings
 DISPLAY_WIDTH = 1920  # verifier.visibility.DISPLAY_WIDTH: a full-HD screen showing the photo full width
@@ -39,7 +41,7 @@ class VisibilityBudget(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.max_noticeable_area <= 1.0:
-            raise PreflightInputError(f"max_noticeable_area must be in [0, 1], got {self.max_noticeable_area}")
+            raise PreflightInputError(f"max_noticeable_area must be 0..1, got {self.max_noticeable_area!r}")
         if self.max_p999_vs_jpeg < 0.0:
             raise PreflightInputError(f"max_p999_vs_jpeg must be >= 0 (0: off), got {self.max_p999_vs_jpeg}")
         if not 0.0 < self.corner_region <= 0.5:
@@ -63,7 +65,7 @@ class PreflightOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     sample_size: int = 12
     time_budget_s: float = 900.0
     profiles: tuple[Profile, ...] = ("default", "hardened")
-    lpips_net: Literal["vgg", "alex"] = "vgg"  # LPIPS is reported, not gated
+    lpips_net: Literal["vgg", "alex", "none"] = "vgg"  # LPIPS is reported, not gated; "none": skipped
     crash_retries: int = 1  # as Verifier I: a crashed SfM is rerun once with another seed
     keep_images: bool = False  # keep each candidate's poisoned sample (inspection)
     # known intrinsics "fx,fy,cx,cy,k1,k2,p1,p2" as Verifier I takes them; None ("" in TOML) = COLMAP
@@ -81,3 +83,23 @@ class PreflightOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         msgspec.structs.force_setattr(self, "profiles", tuple(self.profiles))
         if self.camera_params == "":
             msgspec.structs.force_setattr(self, "camera_params", None)
+
+
+class LadderEntry(msgspec.Struct, frozen=True):
+    """A ladder candidate as a job carries it (same fields as poisoner.ladder.Candidate)."""
+
+    name: str
+    spec: PatchSpec
+    why: str = ""
+
+
+class PreflightJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """What the daemon's preflight child runs (`python -m verifier.auto JOB.json`)."""
+
+    images: list[tuple[str, str]]  # (source file, name in the dataset)
+    out_dir: str
+    result: str  # where the child writes the AutoDecision (or {"error": ...}) as JSON
+    ladder: list[LadderEntry] | None = None  # None: poisoner.ladder's
+    budget: VisibilityBudget = msgspec.field(default_factory=VisibilityBudget)
+    options: PreflightOptions = msgspec.field(default_factory=PreflightOptions)
+    exclude: list[str] = []  # candidate names left out (already found wanting)
