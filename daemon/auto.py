@@ -38,8 +38,15 @@ import msgspec
 from daemon.states import FileState
 from poisoner.ladder import strongest_spec
 from poisoner.spec import PatchSpec
-from verifier.auto_options import LadderEntry, PreflightJob, PreflightOptions, VisibilityBudget
+from verifier.auto_options import (
+    CandidateStatus,
+    LadderEntry,
+    PreflightJob,
+    PreflightOptions,
+    VisibilityBudget,
+)
 from verifier.supervise import run_child
+from verifier.verdict import NOT_PROTECTED, WEAK
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -48,7 +55,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 NO_CANDIDATE = "no candidate within the visibility budget protects this dataset"
-ESCALATE_ON = ("weak", "not_protected")  # verdicts that say the current patch is not enough
+ESCALATE_ON = (WEAK, NOT_PROTECTED)  # verdicts that say the current patch is not enough
 INTERIM_FILES = 3  # files measured for the interim choice
 CHILD_GRACE_S = 300.0  # beyond the preflight's own time budget before its child is killed
 
@@ -315,7 +322,7 @@ def failed_candidates(decisions: Sequence[Mapping[str, Any]]) -> set[str]:
         ev = row.get("evidence") or {}
         failed.update(ev.get("failed", []))
         for cand in ev.get("evidence", []) if isinstance(ev.get("evidence"), list) else []:
-            if cand.get("status") == "not_protected":
+            if cand.get("status") == CandidateStatus.NOT_PROTECTED:
                 failed.add(cand["name"])
     return failed
 
@@ -323,7 +330,8 @@ def failed_candidates(decisions: Sequence[Mapping[str, Any]]) -> set[str]:
 def next_candidate(measured: Sequence[Mapping[str, Any]], failed: set[str]) -> Mapping[str, Any] | None:
     """The least visible candidate within the budget (by measured budget use) not yet found wanting."""
     fits = [e for e in measured if e.get("budget_use") is not None and e["budget_use"] <= 1.0
-            and e.get("status") not in ("failed", "over_budget") and e["name"] not in failed]  # fmt: skip
+            and e.get("status") not in (CandidateStatus.FAILED, CandidateStatus.OVER_BUDGET)
+            and e["name"] not in failed]  # fmt: skip
     return min(fits, key=lambda e: e["budget_use"]) if fits else None
 
 

@@ -171,7 +171,7 @@ class DatasetOverride(Section, frozen=True, omit_defaults=True):
 
     def __post_init__(self) -> None:
         if self.spec not in ("", AUTO_SPEC):
-            raise ConfigError(f'spec must be "{AUTO_SPEC}" (set patch fields in the dataset\'s [patch] table)')
+            raise ConfigError(f'spec must be "{AUTO_SPEC}" (patch fields go in the dataset\'s [patch] table)')
         if self.auto and self.patch:
             raise ConfigError(f'spec = "{AUTO_SPEC}" and a [patch] table exclude each other')
 

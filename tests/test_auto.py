@@ -181,7 +181,8 @@ def test_time_budget_stops_the_walk_and_says_so(scene: Path, tmp_path: Path) -> 
 
 
 def test_decision_round_trips_through_json(scene: Path, tmp_path: Path) -> None:
-    decision = preflight(sorted(scene.glob("*.png")), [BIG, PAPER], BUDGET, SMALL, tmp_path)
+    measure_only = PreflightOptions(sample_size=4, time_budget_s=0.001, lpips_net="none")
+    decision = preflight(sorted(scene.glob("*.png")), [BIG, PAPER], BUDGET, measure_only, tmp_path)
     assert msgspec.json.decode(msgspec.json.encode(decision), type=AutoDecision) == decision
     on_disk = msgspec.json.decode((tmp_path / "decision.json").read_bytes(), type=AutoDecision)
     assert on_disk == decision and on_disk.evidence[1].visibility.in_one_corner is True

@@ -95,11 +95,9 @@ def test_which_verdicts_escalate() -> None:
 # ---- escalation through the scheduler, with the real Store, vault and files --------------------------------
 @pytest.fixture
 def auto_ctx(ppd_env: dict[str, Path]) -> Any:
-    # the 160 px renders seen at their own size (FLIP at 1920 px would cost seconds per file);
-    # LPIPS, reported only, is tested in test_auto
-    (ppd_env["config"] / "config.toml").write_text(
-        '[visibility]\ndisplay_width = 160\n[preflight]\nlpips_net = "none"\n[datasets.trip]\nspec = "auto"\n'
-    )
+    # LPIPS (reported only, slow on a shared CPU) is tested in test_auto
+    config = '[preflight]\nlpips_net = "none"\n[datasets.trip]\nspec = "auto"\n'
+    (ppd_env["config"] / "config.toml").write_text(config)
     ctx = AppContext.open()
     yield ctx
     ctx.close()
@@ -213,7 +211,8 @@ def test_preflight_child_records_a_plain_no_candidate_decision(
     assert daemon_auto.NO_CANDIDATE in row["reason"]
     assert row["evidence"]["evidence"][0]["status"] == "over_budget"
     assert row["evidence"]["evidence"][0]["visibility"]["noticeable_area_max"] > 0.01  # FLIP recorded
-    assert row["evidence"]["budget"]["display_width"] == 160  # the config's budget reached the child
+    assert row["evidence"]["options"]["lpips_net"] == "none"  # the config's options reached the child
+    assert row["evidence"]["evidence"][0]["visibility"]["display_width"] == 1920  # the budget's viewing
     assert ctx.store.dataset_spec("trip") == A.spec  # unchanged: nothing better within the budget
 
 

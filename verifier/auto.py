@@ -30,7 +30,6 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
-from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -42,19 +41,26 @@ from poisoner.atomic import atomic_write_bytes
 from poisoner.media import SFM_SUFFIXES, is_sfm_readable
 from poisoner.spec import PatchSpec
 from verifier.auto_options import (
+    CandidateStatus,
     LadderEntry,
+    Outcome,
     PreflightInputError,
     PreflightJob,
     PreflightOptions,
     VisibilityBudget,
 )
 from verifier.metrics import ssim_map
+from verifier.verdict import INCONCLUSIVE as INCONCLUSIVE_VERDICT
+from verifier.verdict import PROTECTED as PROTECTED_VERDICT
 
 if TYPE_CHECKING:
     from poisoner.ladder import Candidate
 
 # re-exported: where callers find what a preflight takes
-__all__ = ["LadderEntry", "PreflightInputError", "PreflightJob", "PreflightOptions", "VisibilityBudget"]
+__all__ = [
+    "CandidateStatus", "LadderEntry", "Outcome", "PreflightInputError", "PreflightJob", "PreflightOptions",
+    "VisibilityBudget",
+]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -63,32 +69,10 @@ SSIM_RADIUS = 5  # 3DGS SSIM: 11 x 11 window
 
 
 # ---- evidence and decision ------------------------------------------------------------------------
-class CandidateStatus(StrEnum):
-    """Where one candidate ended in a preflight."""
-
-    OVER_BUDGET = "over_budget"
-    PROTECTED = "protected"
-    NOT_PROTECTED = "not_protected"  # some profile was weak / not_protected / crashed
-    INCONCLUSIVE = "inconclusive"  # the clean reference failed: no claim either way
-    NOT_REACHED = "not_reached"  # the time budget ran out before its turn
-    TIMED_OUT = "timed_out"  # the time budget ran out during its verification
-    NOT_NEEDED = "not_needed"  # a less visible candidate was already confirmed
-    FAILED = "failed"  # it could not be applied to this dataset (e.g. does not fit the images)
-
-
 OVER_BUDGET, PROTECTED = CandidateStatus.OVER_BUDGET, CandidateStatus.PROTECTED
 NOT_PROTECTED, INCONCLUSIVE = CandidateStatus.NOT_PROTECTED, CandidateStatus.INCONCLUSIVE
 NOT_REACHED, TIMED_OUT = CandidateStatus.NOT_REACHED, CandidateStatus.TIMED_OUT
 NOT_NEEDED, FAILED = CandidateStatus.NOT_NEEDED, CandidateStatus.FAILED
-
-
-class Outcome(StrEnum):
-    """How a preflight ended."""
-
-    CHOSEN = "chosen"
-    NONE_WITHIN_BUDGET = "none_within_budget"
-    TIME_BUDGET = "time_budget"
-    INCONCLUSIVE = "inconclusive"
 
 
 class ImageVisibility(msgspec.Struct, frozen=True):
@@ -217,13 +201,19 @@ def whole_image_ssim(clean: np.ndarray, poisoned: np.ndarray) -> float:
     return float(1.0 - np.sum(1.0 - inner) / (h * w * c))
 
 
+def shown_width(image: np.ndarray, budget: VisibilityBudget) -> int:
+    """The width the image is judged at: the budget's display width, or its own when smaller (a
+    small image is shown at its size, not blown up; as verifier.visibility.measure_pairs does)."""
+    return min(budget.display_width, int(image.shape[1]))
+
+
 def jpeg_reference_p999(clean: np.ndarray, budget: VisibilityBudget) -> float:
     """FLIP p99.9 of a JPEG q85 re-encode of the clean image at the budget's viewing condition:
     what creators accept as invisible (computed once per image, not per candidate)."""
     from verifier.visibility import jpeg_reencode, visibility_report
 
     return visibility_report(
-        clean, jpeg_reencode(clean), display_width=budget.display_width, jpeg_reference=False
+        clean, jpeg_reencode(clean), display_width=shown_width(clean, budget), jpeg_reference=False
     ).flip_p999
 
 
@@ -240,7 +230,7 @@ def measure_image(
     from verifier.visibility import visibility_report
 
     v = visibility_report(
-        clean, poisoned, display_width=budget.display_width, corner_region=budget.corner_region,
+        clean, poisoned, display_width=shown_width(clean, budget), corner_region=budget.corner_region,
         jpeg_reference=False,
     )  # fmt: skip
     a, b = clean.astype(np.float64) / 255.0, poisoned.astype(np.float64) / 255.0
@@ -518,9 +508,9 @@ def _verify_candidate(
             if cancel.is_set():
                 status = TIMED_OUT
                 break
-            if report.verdict == "protected":
+            if report.verdict == PROTECTED_VERDICT:
                 continue
-            status = INCONCLUSIVE if report.verdict == "inconclusive" else NOT_PROTECTED
+            status = INCONCLUSIVE if report.verdict == INCONCLUSIVE_VERDICT else NOT_PROTECTED
             break
     finally:
         shutil.rmtree(verify_dir / ".cache", ignore_errors=True)

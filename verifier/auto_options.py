@@ -11,6 +11,7 @@ sample. SSIM, PSNR and LPIPS are still measured and reported (the paper's cost2)
 
 from __future__ import annotations
 
+from enum import StrEnum
 from typing import Literal
 
 import msgspec
@@ -19,6 +20,28 @@ from poisoner.spec import PatchSpec
 
 Profile = Literal["default", "hardened", "published", "masked"]  # verifier.sfm.profile_sfm_settings
 DISPLAY_WIDTH = 1920  # verifier.visibility.DISPLAY_WIDTH: a full-HD screen showing the photo full width
+
+
+class CandidateStatus(StrEnum):
+    """Where one candidate ended in a preflight."""
+
+    OVER_BUDGET = "over_budget"
+    PROTECTED = "protected"
+    NOT_PROTECTED = "not_protected"  # some profile was weak / not_protected / crashed
+    INCONCLUSIVE = "inconclusive"  # the clean reference failed: no claim either way
+    NOT_REACHED = "not_reached"  # the time budget ran out before its turn
+    TIMED_OUT = "timed_out"  # the time budget ran out during its verification
+    NOT_NEEDED = "not_needed"  # a less visible candidate was already confirmed
+    FAILED = "failed"  # it could not be applied to this dataset (e.g. does not fit the images)
+
+
+class Outcome(StrEnum):
+    """How a preflight ended."""
+
+    CHOSEN = "chosen"
+    NONE_WITHIN_BUDGET = "none_within_budget"
+    TIME_BUDGET = "time_budget"
+    INCONCLUSIVE = "inconclusive"
 
 
 class PreflightInputError(ValueError):
@@ -37,7 +60,7 @@ class VisibilityBudget(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     max_p999_vs_jpeg: float = 0.0  # FLIP p99.9 / a JPEG q85 re-encode's; 0 = not gated
     corner_only: bool = False  # true: a watermark-like mark, confined to one corner region
     corner_region: float = 0.2  # a corner region: this fraction of the width by of the height
-    display_width: int = DISPLAY_WIDTH  # the viewing condition: pixels across the screen
+    display_width: int = DISPLAY_WIDTH  # the viewing condition: pixels across (smaller images: their own)
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.max_noticeable_area <= 1.0:
