@@ -38,7 +38,7 @@ Every key is optional; what is missing comes from the embedded defaults below. L
     max_p999_vs_jpeg = 0.0      # FLIP p99.9 / a JPEG q85 re-encode's (0 = not gated)
     corner_only = false         # true: every changed pixel inside one corner region (watermark-like)
     corner_region = 0.2         # that region: 20% of the width x 20% of the height
-    display_width = 1920        # the viewing condition: the photo shown this many px wide
+    display_width = 1920        # the viewing condition: the photo shown this many px wide (or its own width)
 
     [preflight]                 # automatic mode's check on a sample of the dataset (docs/AUTO.md)
     sample_size = 12
