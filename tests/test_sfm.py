@@ -102,6 +102,22 @@ def test_job_and_results_cross_the_boundary_as_typed_json(tmp_path: Path) -> Non
     as_data = msgspec.to_builtins(ok)  # what verifier.verification and its result.json keep
     assert as_data["outcome"] == "ok" and as_data["poses"]["a.png"]["t"] == [0, 0, 0]
     assert msgspec.to_builtins(SfmFailed(error="boom")) == {"outcome": "failed", "error": "boom"}
+    assert msgspec.json.decode(b'{"outcome": "ok"}', type=SfmResult) == SfmOk()  # nothing reconstructed
+
+
+def child_writing(tmp_path: Path, result: str) -> str:
+    """A stand-in child that writes `result` where the job (json.dumps' spacing, on stdin) says."""
+    find = """out=$(printf %s "$job" | sed -E 's/.*"result_path": "([^"]*)".*/\\1/')"""
+    return fake_python(tmp_path, f"job=$(cat)\n{find}\nprintf '%s' '{result}' > \"$out\"")
+
+
+def test_result_from_the_child_is_checked(tmp_path: Path) -> None:
+    ok = run_sfm_job(job_in(tmp_path), python=child_writing(tmp_path, '{"outcome": "ok"}'))
+    assert ok["outcome"] == "ok" and ok["registered"] == 0 and ok["poses"] == {}
+    wrong = '{"outcome": "ok", "registered": "x"}'
+    bad = run_sfm_job(job_in(tmp_path), python=child_writing(tmp_path, wrong))
+    assert bad["outcome"] == "failed"
+    assert bad["error"] == "child wrote an invalid result: Expected `int`, got `str` - at `$.registered`"
 
 
 @pytest.mark.integration

@@ -126,17 +126,18 @@ class CameraModel(msgspec.Struct, frozen=True):
 
 
 class SfmOk(msgspec.Struct, tag_field="outcome", tag="ok"):
-    """The child's result when COLMAP ran: the largest model's poses and counts of all."""
+    """The child's result when COLMAP ran: the largest model's poses and counts of all (the
+    defaults: nothing reconstructed)."""
 
-    num_images: int
-    verified_pairs: int
-    num_models: int
-    model_sizes: list[int]
-    registered: int
-    poses: dict[str, CameraPose]
-    mean_reprojection_error: float | None
-    num_points3D: int  # noqa: N815 - the JSON key verification reports use
-    camera: CameraModel | None
+    num_images: int = 0
+    verified_pairs: int = 0
+    num_models: int = 0
+    model_sizes: list[int] = []
+    registered: int = 0
+    poses: dict[str, CameraPose] = {}
+    mean_reprojection_error: float | None = None
+    num_points3D: int = 0  # noqa: N815 - the JSON key verification reports use
+    camera: CameraModel | None = None
     timings: dict[str, float] = {}
 
 
@@ -192,7 +193,7 @@ def _run_locked(
     ended = run_child(
         cmd,
         log_path=stderr_path,
-        stdin_data=msgspec.json.encode(job),
+        stdin_data=msgspec.json.format(msgspec.json.encode(job), indent=0),  # json.dumps' spacing: greppable
         timeout_s=timeout_s,
         cancel=cancel,
         env=env,
@@ -208,13 +209,11 @@ def _run_locked(
         return {**base, "outcome": "sfm_crashed", "signal": name, "error": f"SfM child killed by {name}"}
     try:
         result = msgspec.to_builtins(msgspec.json.decode(Path(result_path).read_bytes(), type=SfmResult))
-    except (OSError, msgspec.DecodeError):
-        tail = _tail(stderr_path)
-        return {
-            **base,
-            "outcome": "failed",
-            "error": f"child exited {ended.returncode} without a result: {tail}",
-        }
+    except OSError:
+        why = f"child exited {ended.returncode} without a result: {_tail(stderr_path)}"
+        return {**base, "outcome": "failed", "error": why}
+    except msgspec.DecodeError as exc:  # a child of another version, or a broken write
+        return {**base, "outcome": "failed", "error": f"child wrote an invalid result: {exc}"}
     finally:
         with contextlib.suppress(OSError):
             os.unlink(result_path)
@@ -341,10 +340,7 @@ def summarise_models(models: dict[int, Any], num_images: int, verified_pairs: in
     """Poses of the largest model and counts of all."""
     sizes = sorted((r.num_reg_images() for r in models.values()), reverse=True)
     if not models:
-        return SfmOk(
-            num_images=num_images, verified_pairs=verified_pairs, num_models=0, model_sizes=[], registered=0,
-            poses={}, mean_reprojection_error=None, num_points3D=0, camera=None,
-        )  # fmt: skip
+        return SfmOk(num_images=num_images, verified_pairs=verified_pairs)
     largest = max(models.values(), key=lambda r: r.num_reg_images())
     poses = {}
     for image in largest.images.values():
