@@ -79,7 +79,7 @@ class VisibilityBudget(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             parts.append(f"FLIP p99.9 <= {self.max_p999_vs_jpeg:g}x a JPEG q85 re-encode's")
         if self.corner_only:
             parts.append(f"inside one corner region ({self.corner_region:.0%} x {self.corner_region:.0%})")
-        return ", ".join(parts) + f", seen {self.display_width} px wide"
+        return ", ".join(parts) + f", seen at most {self.display_width} px wide"
 
 
 class PreflightOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
