@@ -234,17 +234,27 @@ def list_images(image_dir: Path) -> list[str]:
 
 
 def build_cache_db(image_dir: Path, cache_db: Path, settings: SfmSettings) -> None:
-    """Extract SIFT features and raw (unverified) matches into cache_db, atomically."""
+    """Extract SIFT features and raw (unverified) matches into cache_db, atomically (a killed run
+    leaves no half-built cache under the real name)."""
+    from poisoner.atomic import atomic_output
+
+    mask_dir = cache_db.with_name(f".ppd-tmp-masks-{cache_db.stem}")
+    try:
+        with atomic_output(cache_db) as tmp:
+            extract_features(image_dir, tmp, settings, mask_dir)
+            match_raw(tmp, settings)
+    finally:
+        shutil.rmtree(mask_dir, ignore_errors=True)
+
+
+def extract_features(image_dir: Path, database: Path, settings: SfmSettings, mask_dir: Path) -> None:
+    """SIFT features of every image into database (corner masks written to mask_dir when asked)."""
     import pycolmap
 
-    tmp = cache_db.with_name(f".ppd-tmp-{cache_db.name}")
-    with contextlib.suppress(FileNotFoundError):
-        tmp.unlink()
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = settings.camera_model
     if settings.camera_params:
         reader.camera_params = settings.camera_params
-    mask_dir = cache_db.with_name(f".ppd-tmp-masks-{cache_db.stem}")
     if settings.mask_corners > 0:
         write_corner_masks(image_dir, list_images(image_dir), mask_dir, settings.mask_corners)
         reader.mask_path = str(mask_dir)
@@ -252,7 +262,7 @@ def build_cache_db(image_dir: Path, cache_db: Path, settings: SfmSettings) -> No
     extraction.max_image_size = settings.max_image_size
     mode = pycolmap.CameraMode.SINGLE if settings.single_camera else pycolmap.CameraMode.AUTO
     pycolmap.extract_features(
-        tmp,
+        database,
         image_dir,
         image_names=list_images(image_dir),
         camera_mode=mode,
@@ -260,20 +270,24 @@ def build_cache_db(image_dir: Path, cache_db: Path, settings: SfmSettings) -> No
         extraction_options=extraction,
         device=pycolmap.Device.cpu,
     )
+
+
+def match_raw(database: Path, settings: SfmSettings) -> None:
+    """Raw matches (no geometric verification: each profile verifies with its own options)."""
+    import pycolmap
+
     matching = pycolmap.FeatureMatchingOptions()
-    matching.skip_geometric_verification = True  # each profile verifies with its own options
+    matching.skip_geometric_verification = True
     if settings.matching == "sequential":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = settings.sequential_overlap
         pycolmap.match_sequential(
-            tmp, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+            database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
         )
     elif settings.matching == "exhaustive":
-        pycolmap.match_exhaustive(tmp, matching_options=matching, device=pycolmap.Device.cpu)
+        pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
     else:
         raise ValueError(f"unknown matching {settings.matching!r}")
-    shutil.rmtree(mask_dir, ignore_errors=True)
-    os.replace(tmp, cache_db)
 
 
 def execute_job(job: SfmJob) -> SfmResult:
