@@ -4,10 +4,10 @@ decision names (docs/AUTO.md).
 Life of an automatic dataset:
 1. first file: `Config.spec_for` gives the interim spec (`interim_spec`: the ladder's strongest
    candidate by design), so nothing is ever published unprotected;
-2. the scheduler thread then measures what a viewer sees of every candidate on the first files
-   (FLIP against the [visibility] budget; no torch here: LPIPS, reported only, waits for the
-   preflight) and re-protects with the strongest candidate within the budget: a decision with
-   trigger 'interim';
+2. the scheduler thread then has a child process (`python -m verifier.auto`, mode "interim")
+   measure what a viewer sees of every candidate on the first files (FLIP against the
+   [visibility] budget, no SfM, no LPIPS) and re-protects with the strongest candidate within the
+   budget: a decision with trigger 'interim';
 3. once `preflight.sample_size` files are protected, the preflight runs in a child process
    (`python -m verifier.auto`, SfM in grandchildren) on the vault originals; its decision
    (trigger 'preflight') is recorded with its evidence and the dataset is re-protected from the
@@ -18,7 +18,7 @@ Life of an automatic dataset:
    decision says "no candidate within the visibility budget protects this dataset" and the
    dataset keeps its current patch (the best it has), surfaced in `ppd status` and as an event.
 
-Nothing here imports pycolmap or torch.
+Nothing here imports numpy, PIL, pycolmap or torch: poisoning and measuring happen in the child.
 """
 
 from __future__ import annotations
@@ -26,7 +26,6 @@ from __future__ import annotations
 import json
 import logging
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -58,6 +57,9 @@ NO_CANDIDATE = "no candidate within the visibility budget protects this dataset"
 ESCALATE_ON = (WEAK, NOT_PROTECTED)  # verdicts that say the current patch is not enough
 INTERIM_FILES = 3  # files measured for the interim choice
 CHILD_GRACE_S = 300.0  # beyond the preflight's own time budget before its child is killed
+
+
+PreflightRunner = Callable[[PreflightJob, float, "threading.Event | None"], dict[str, Any]]
 
 
 # ---- settings ----------------------------------------------------------------------------------------
@@ -120,93 +122,62 @@ def dataset_images(ctx: AppContext, dataset: str) -> list[tuple[Path, str]]:
     return [(original, Path(protected).name) for original, protected in dataset_pairs(ctx, dataset)]
 
 
-def _interim_visibility(
-    spec: PatchSpec, clean_dir: Path, out_dir: Path, names: Sequence[str], budget: VisibilityBudget,
-    jpeg_p999: Mapping[str, float],
-) -> Any:  # fmt: skip
-    """One candidate poisoned onto the clean files in out_dir and measured (no LPIPS here)."""
-    from poisoner.formats import poison_file
-    from verifier.auto import load_rgb8, measure_image, summarise_visibility
-
-    out_dir.mkdir()
-    per_image = []
-    for name in names:
-        poison_file(clean_dir / name, out_dir / name, spec)
-        clean, poisoned = load_rgb8(clean_dir / name), load_rgb8(out_dir / name)
-        per_image.append(measure_image(clean, poisoned, budget, None, jpeg_p999.get(name)))
-    return summarise_visibility(per_image, budget.display_width)
-
-
-def choose_interim(
-    ladder: Sequence[Candidate | LadderEntry], budget: VisibilityBudget, images: Sequence[tuple[Path, str]]
-) -> tuple[Candidate | LadderEntry, list[dict[str, Any]], bool]:
-    """The strongest candidate (latest in the ladder) within the visibility budget on images.
-
-    Returns (candidate, evidence, within_budget). With none within the budget, the least visible
-    one measured (within_budget False: the caller says so)."""
-    from verifier.auto import budget_use, jpeg_reference_p999, link_or_copy, load_rgb8, within_budget
-
-    evidence: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory(prefix=".ppd-auto-") as tmp:
-        clean_dir = Path(tmp) / "clean"
-        clean_dir.mkdir()
-        for src, name in images:
-            link_or_copy(src, clean_dir / name)
-        names = [name for _, name in images]
-        gate_jpeg = budget.max_p999_vs_jpeg > 0  # one more FLIP per file: only when it decides
-        jpeg = {n: jpeg_reference_p999(load_rgb8(clean_dir / n), budget) for n in names} if gate_jpeg else {}
-        for index in range(len(ladder) - 1, -1, -1):
-            cand = ladder[index]
-            try:
-                vis = _interim_visibility(cand.spec, clean_dir, Path(tmp) / str(index), names, budget, jpeg)
-            except Exception as exc:  # does not fit these images: recorded, next one
-                evidence.append({"name": cand.name, "error": str(exc).splitlines()[0]})
-                continue
-            fits = within_budget(vis, budget)
-            evidence.append({"name": cand.name, "spec_id": cand.spec.spec_id, "within_budget": fits,
-                             "budget_use": round(budget_use(vis, budget), 4),
-                             "visibility": msgspec.to_builtins(vis)})  # fmt: skip
-            if fits:
-                return cand, evidence, True
-    measured = [e for e in evidence if "budget_use" in e]
-    if not measured:
-        raise ValueError("no candidate of the ladder applies to these images")
-    best = min(measured, key=lambda e: e["budget_use"])
-    return next(c for c in ladder if c.name == best["name"]), evidence, False
-
-
-def run_interim(
+def interim_job(
     ctx: AppContext, dataset: str, ladder: Sequence[Candidate | LadderEntry] | None = None
-) -> dict[str, Any]:
-    """Measure the ladder on the first protected files; record and apply the interim decision."""
-    budget, _ = settings_of(ctx)
+) -> PreflightJob:
+    """The child's interim job: the first protected files' vault originals, the ladder, the budget."""
+    budget, options = settings_of(ctx)
     images = dataset_images(ctx, dataset)[:INTERIM_FILES]
     if not images:
         raise ValueError(f"dataset {dataset!r} has no protected file to measure yet")
-    cand, evidence, within = choose_interim(ladder or load_ladder(), budget, images)
+    out_dir = Path(ctx.paths.runs_dir) / dataset / f"auto-interim-{time.strftime('%Y%m%dT%H%M%S')}"
+    return PreflightJob(
+        images=[(str(src), name) for src, name in images],
+        out_dir=str(out_dir),
+        result=str(out_dir / "interim.result.json"),
+        ladder=[LadderEntry(c.name, c.spec, c.why) for c in (ladder or load_ladder())],
+        budget=budget,
+        options=options,
+        mode="interim",
+    )
+
+
+def run_interim(
+    ctx: AppContext,
+    dataset: str,
+    ladder: Sequence[Candidate | LadderEntry] | None = None,
+    cancel: threading.Event | None = None,
+    runner: PreflightRunner | None = None,
+) -> dict[str, Any]:
+    """Measure the ladder on the first protected files (in the child: the daemon neither poisons
+    nor measures here); record and apply the interim decision. A failed child raises."""
+    job = interim_job(ctx, dataset, ladder)
+    choice = (runner or run_preflight_child)(job, job.options.time_budget_s + CHILD_GRACE_S, cancel)
+    if "error" in choice:
+        raise RuntimeError(f"auto interim: {choice['error']}")
+    cand = next(c for c in job.ladder or () if c.name == choice["chosen"])
+    budget, within, files = job.budget, bool(choice["within_budget"]), len(job.images)
     reason = (
         f"interim: {cand.name}, the strongest candidate within the budget ({budget.describe()}) on "
-        f"{len(images)} file(s); protection is checked by the preflight"
+        f"{files} file(s); protection is checked by the preflight"
         if within
-        else f"interim: no candidate within the budget ({budget.describe()}) on {len(images)} file(s); "
+        else f"interim: no candidate within the budget ({budget.describe()}) on {files} file(s); "
         f"using the least visible measured, {cand.name}, until the preflight decides"
     )
-    ctx.store.add_auto_decision(dataset, cand.name, cand.spec, reason,
-                                {"measured": evidence, "within_budget": within}, "interim")  # fmt: skip
+    evidence = {"measured": choice["measured"], "within_budget": within}
+    ctx.store.add_auto_decision(dataset, cand.name, cand.spec, reason, evidence, "interim")
     reprotected = apply_spec(ctx, dataset, cand.spec)
     log.info("auto interim", extra={"dataset": dataset, "candidate": cand.name, "reprotected": reprotected})
     return {"candidate": cand.name, "reason": reason, "reprotected": reprotected}
 
 
 # ---- step 3: the preflight, in a child process -----------------------------------------------------
-PreflightRunner = Callable[[PreflightJob, float, "threading.Event | None"], dict[str, Any]]
-
-
 def run_preflight_child(
     job: PreflightJob, timeout_s: float, cancel: threading.Event | None
 ) -> dict[str, Any]:
     """`python -m verifier.auto JOB.json` at low priority in its own process group; killed (group)
-    on cancel or after timeout_s. Returns the decision (AutoDecision's JSON), or {"error": ...}."""
+    on cancel or after timeout_s. Returns the child's result as JSON data (an AutoDecision, or an
+    InterimChoice for an interim job), or {"error": ...}."""
     from poisoner.atomic import atomic_write_bytes
 
     out_dir = Path(job.out_dir)

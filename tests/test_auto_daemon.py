@@ -247,29 +247,45 @@ def test_cli_show_prints_decisions(auto_ctx: AppContext, ppd_env: dict[str, Path
     shutil.rmtree(ppd_env["outbox"] / "trip")
 
 
-def test_daemon_side_never_imports_torch_or_pycolmap(tmp_path: Path) -> None:
-    """The interim step runs in the daemon's scheduler thread: FLIP, no torch, no pycolmap."""
+def test_interim_runs_in_the_child_and_the_daemon_side_stays_light(
+    auto_ctx: AppContext, ppd_env: dict[str, Path]
+) -> None:
+    """The daemon hands the interim to the child (mode "interim"); importing its side loads nothing
+    heavy, and the child's choice needs no torch and no pycolmap."""
     import subprocess
     import sys
 
+    ctx = auto_ctx
+    _protect_scene(ctx, ppd_env["outbox"], C.spec, views=3)
+    jobs: list[PreflightJob] = []
+
+    def runner(job: PreflightJob, timeout_s: float, cancel: threading.Event | None) -> dict[str, Any]:
+        jobs.append(job)
+        return daemon_auto.run_preflight_child(job, timeout_s, cancel)
+
+    assert daemon_auto.run_interim(ctx, "trip", ladder=[A, B, C], runner=runner)["candidate"] == "b-moved"
+    (job,) = jobs
+    assert job.mode == "interim" and len(job.images) == 3
+    assert [c.name for c in job.ladder or []] == ["a-small", "b-moved", "c-huge"]
+    with pytest.raises(RuntimeError, match="auto interim: .*cancelled"):
+        daemon_auto.run_interim(ctx, "trip", ladder=[A, B, C], cancel=_set(threading.Event()))
     code = (
-        "import sys, numpy as np\n"
+        "import sys\n"
+        "import daemon.auto, daemon.config, daemon.scheduler\n"
+        "light = [m for m in ('numpy', 'PIL', 'flip_evaluator', 'torch', 'pycolmap') if m in sys.modules]\n"
         "from pathlib import Path\n"
-        "from PIL import Image\n"
-        "import daemon.auto as da, daemon.config, daemon.scheduler\n"
-        "from verifier.auto import LadderEntry, VisibilityBudget\n"
+        "from verifier.auto import LadderEntry, VisibilityBudget, choose_interim\n"
         "from poisoner.spec import PatchSpec\n"
-        f"d = Path({str(tmp_path)!r})\n"
-        "imgs = []\n"
-        "for i in range(2):\n"
-        "    Image.fromarray((np.random.default_rng(i).random((64, 64, 3)) * 255).astype('uint8'))"
-        ".save(d / f'a{i}.png')\n"
-        "    imgs.append((d / f'a{i}.png', f'a{i}.png'))\n"
-        "ladder = [LadderEntry('x', PatchSpec(patch_size=6)), LadderEntry('y', PatchSpec(patch_size=40))]\n"
-        "budget = VisibilityBudget(max_noticeable_area=0.05, display_width=64)\n"
-        "cand, _, ok = da.choose_interim(ladder, budget, imgs)\n"
-        "print(cand.name, ok, 'torch' in sys.modules, 'pycolmap' in sys.modules)\n"
+        f"imgs = [(p, p.name) for p in sorted(Path({str(ppd_env['outbox'] / 'trip')!r}).glob('*.png'))]\n"
+        "ladder = [LadderEntry('x', PatchSpec(patch_size=6)), LadderEntry('y', PatchSpec(patch_size=60))]\n"
+        "choice = choose_interim(ladder, VisibilityBudget(), imgs)\n"
+        "heavy = [m in sys.modules for m in ('torch', 'pycolmap')]\n"
+        "print(light, choice.chosen, choice.within_budget, *heavy)\n"
     )
-    cmd = [sys.executable, "-c", code]
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=True)
-    assert out.stdout.split() == ["x", "True", "False", "False"], out.stdout + out.stderr
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.split() == ["[]", "x", "True", "False", "False"], out.stdout + out.stderr
+
+
+def _set(event: threading.Event) -> threading.Event:
+    event.set()
+    return event

@@ -27,6 +27,7 @@ import logging
 import os
 import shutil
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Sequence
@@ -132,6 +133,25 @@ class CandidateEvidence(msgspec.Struct):
     profiles: dict[str, ProfileEvidence] = {}
     seconds: float = 0.0
     error: str | None = None
+
+
+class InterimMeasure(msgspec.Struct):
+    """One candidate measured for the interim choice (no SfM)."""
+
+    name: str
+    spec_id: str | None = None
+    error: str | None = None  # it could not be applied to these files
+    within_budget: bool = False
+    budget_use: float | None = None
+    visibility: SampleVisibility | None = None
+
+
+class InterimChoice(msgspec.Struct):
+    """The interim choice: the strongest candidate within the budget, else the least visible one."""
+
+    chosen: str
+    within_budget: bool
+    measured: list[InterimMeasure]
 
 
 class AutoDecision(msgspec.Struct):
@@ -610,6 +630,56 @@ def decide(
     )  # fmt: skip
 
 
+# ---- the interim choice (no SfM) ----------------------------------------------------------------------
+def _measure_on(
+    spec: PatchSpec, clean_dir: Path, out_dir: Path, names: Sequence[str], budget: VisibilityBudget,
+    jpeg_p999: dict[str, float],
+) -> SampleVisibility:  # fmt: skip
+    """One spec poisoned onto the clean files into out_dir and measured (no LPIPS)."""
+    from poisoner.formats import poison_file
+
+    out_dir.mkdir()
+    per_image = []
+    for name in names:
+        poison_file(clean_dir / name, out_dir / name, spec)
+        clean, poisoned = load_rgb8(clean_dir / name), load_rgb8(out_dir / name)
+        per_image.append(measure_image(clean, poisoned, budget, None, jpeg_p999.get(name)))
+    return summarise_visibility(per_image, budget.display_width)
+
+
+def choose_interim(
+    ladder: Sequence[Candidate | LadderEntry], budget: VisibilityBudget, images: Sequence[tuple[Path, str]]
+) -> InterimChoice:
+    """The strongest candidate (latest in the ladder) within the visibility budget on images; with
+    none within it, the least visible one measured (within_budget False: the caller says so)."""
+    measured: list[InterimMeasure] = []
+    with tempfile.TemporaryDirectory(prefix=".ppd-auto-") as tmp:
+        clean_dir = Path(tmp) / "clean"
+        clean_dir.mkdir()
+        for src, name in images:
+            link_or_copy(src, clean_dir / name)
+        names = [name for _, name in images]
+        gate_jpeg = budget.max_p999_vs_jpeg > 0  # one more FLIP per file: only when it decides
+        jpeg = {n: jpeg_reference_p999(load_rgb8(clean_dir / n), budget) for n in names} if gate_jpeg else {}
+        for index in range(len(ladder) - 1, -1, -1):
+            cand = ladder[index]
+            try:
+                vis = _measure_on(cand.spec, clean_dir, Path(tmp) / str(index), names, budget, jpeg)
+            except Exception as exc:  # does not fit these images: recorded, next one
+                why = (str(exc) or type(exc).__name__).splitlines()[0]
+                measured.append(InterimMeasure(cand.name, error=why))
+                continue
+            fits = within_budget(vis, budget)
+            measured.append(InterimMeasure(cand.name, cand.spec.spec_id, None, fits,
+                                           round(budget_use(vis, budget), 4), vis))  # fmt: skip
+            if fits:
+                return InterimChoice(cand.name, True, measured)
+    usable = [m for m in measured if m.budget_use is not None]
+    if not usable:
+        raise PreflightInputError("no candidate of the ladder applies to these images")
+    return InterimChoice(min(usable, key=lambda m: m.budget_use or 0.0).name, False, measured)
+
+
 # ---- the preflight ----------------------------------------------------------------------------------
 def preflight(
     pairs_or_images: Sequence[ImageInput],
@@ -642,9 +712,9 @@ def preflight(
 
 
 # ---- child process entry ------------------------------------------------------------------------------
-def run_job(job: PreflightJob) -> AutoDecision:
-    """A preflight described by a job (what the daemon's child runs); without a ladder,
-    poisoner.ladder's."""
+def run_job(job: PreflightJob) -> AutoDecision | InterimChoice:
+    """A preflight (or, mode "interim", the interim choice) described by a job: what the daemon's
+    child runs. Without a ladder, poisoner.ladder's."""
     if job.ladder is not None:
         ladder: list[Any] = list(job.ladder)
     else:
@@ -654,11 +724,14 @@ def run_job(job: PreflightJob) -> AutoDecision:
     exclude = set(job.exclude)
     ladder = [c for c in ladder if c.name not in exclude]
     images = [(Path(src), name) for src, name in job.images]
+    if job.mode == "interim":
+        return choose_interim(ladder, job.budget, images)
     return preflight(images, ladder, job.budget, job.options, Path(job.out_dir))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """`python -m verifier.auto JOB.json`: writes the decision JSON to job.result (atomically)."""
+    """`python -m verifier.auto JOB.json`: writes the decision (or interim choice) JSON to job.result
+    (atomically); {"error": ...} when the job cannot run."""
     args = list(sys.argv[1:] if argv is None else argv)
     if len(args) != 1:
         print("usage: python -m verifier.auto JOB.json", file=sys.stderr)

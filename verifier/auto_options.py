@@ -117,7 +117,9 @@ class LadderEntry(msgspec.Struct, frozen=True):
 
 
 class PreflightJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """What the daemon's preflight child runs (`python -m verifier.auto JOB.json`)."""
+    """What the daemon's automatic-mode child runs (`python -m verifier.auto JOB.json`): the
+    preflight, or the interim choice (mode "interim": the strongest candidate within the budget on
+    the first files, measured without SfM), so the daemon itself never poisons or measures."""
 
     images: list[tuple[str, str]]  # (source file, name in the dataset)
     out_dir: str
@@ -126,3 +128,4 @@ class PreflightJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     budget: VisibilityBudget = msgspec.field(default_factory=VisibilityBudget)
     options: PreflightOptions = msgspec.field(default_factory=PreflightOptions)
     exclude: list[str] = []  # candidate names left out (already found wanting)
+    mode: Literal["preflight", "interim"] = "preflight"
