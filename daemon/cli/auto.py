@@ -34,7 +34,7 @@ def evidence_table(evidence: list[dict[str, Any]], profiles: list[str]) -> Table
     from rich.table import Table
 
     table = Table(title="candidates (least visible first by measured budget use)", show_lines=False)
-    for col in ("candidate", "status", "SSIM min", "LPIPS max", "budget use"):
+    for col in ("candidate", "status", "noticeable", "p99.9 vs JPEG", "SSIM min", "LPIPS max", "budget use"):
         justify = "right" if col not in ("candidate", "status") else "left"
         table.add_column(col, justify=justify, overflow="fold")
     for p in profiles:
@@ -49,7 +49,9 @@ def evidence_table(evidence: list[dict[str, Any]], profiles: list[str]) -> Table
         cells = [
             e["name"],
             e["status"] + (f" ({e['error']})" if e.get("error") else ""),
-            _num(vis.get("ssim_min"), 4),
+            _pct(vis.get("noticeable_area_max"), 2),  # FLIP > 0.5, the budget (issue 14)
+            _num(vis.get("p999_vs_jpeg_max"), 2),
+            _num(vis.get("ssim_min"), 4),  # the paper's figures, reported
             _num(vis.get("lpips_max"), 4),
             _num(e.get("budget_use"), 2),
         ]
@@ -65,8 +67,8 @@ def _num(x: Any, digits: int) -> str:
     return "n/a" if x is None else f"{float(x):.{digits}f}"
 
 
-def _pct(x: Any) -> str:
-    return "n/a" if x is None else f"{100 * float(x):.0f}%"
+def _pct(x: Any, digits: int = 0) -> str:
+    return "n/a" if x is None else f"{100 * float(x):.{digits}f}%"
 
 
 def print_decision(decision: dict[str, Any]) -> None:
@@ -135,27 +137,37 @@ def _images(ctx: AppContext, target: str) -> tuple[list[Any], bool]:
     raise _fail(f"{target!r} is neither a dataset in the store nor a folder")
 
 
+def _settings(ctx: AppContext, given: dict[str, Any]) -> tuple[Any, Any]:
+    """The config's [visibility] budget and [preflight] options with the command line's on top."""
+    import msgspec
+
+    from daemon import auto as daemon_auto
+
+    budget, options = daemon_auto.settings_of(ctx)
+    budget_keys = ("max_noticeable_area", "max_p999_vs_jpeg", "corner_only")
+    budget = msgspec.structs.replace(budget, **{k: given[k] for k in budget_keys if given[k] is not None})
+    wanted = {"sample_size": given["sample"], "time_budget_s": given["time_budget"],
+              "profiles": tuple(given["profile"]) or None}  # fmt: skip
+    options = msgspec.structs.replace(options, **{k: v for k, v in wanted.items() if v})
+    # replace() does not check: a struct built anew runs its checks (a one-line PreflightInputError)
+    return type(budget)(**msgspec.structs.asdict(budget)), type(options)(**msgspec.structs.asdict(options))
+
+
 def _preflight(ctx: AppContext, target: str, images: list[Any], is_dataset: bool, given: dict[str, Any]
                ) -> dict[str, Any]:  # fmt: skip
     """Run the preflight with the command line's settings over the config's."""
-    from daemon import auto as daemon_auto
-    from verifier.auto import PreflightInputError, PreflightOptions, VisibilityBudget, preflight
+    import msgspec
 
-    settings = daemon_auto.AutoSettings.from_config(ctx.config)
+    from daemon import auto as daemon_auto
+    from verifier.auto import preflight
+    from verifier.auto_options import PreflightInputError
+
     try:
-        budget = VisibilityBudget(
-            given["budget_ssim"] if given["budget_ssim"] is not None else settings.min_ssim,
-            given["budget_lpips"] if given["budget_lpips"] is not None else settings.max_lpips,
-        )
-        options = PreflightOptions(
-            sample_size=given["sample"] or settings.sample_size,
-            time_budget_s=given["time_budget"] or settings.time_budget_s,
-            profiles=tuple(given["profile"]) or settings.profiles,
-        )
+        budget, options = _settings(ctx, given)
         work = given["out"] or Path(ctx.paths.runs_dir) / (target if is_dataset else "_folders") / (
             f"auto-{time.strftime('%Y%m%dT%H%M%S')}"
         )
-        return preflight(images, daemon_auto.load_ladder(), budget, options, work).to_dict()
+        return msgspec.to_builtins(preflight(images, daemon_auto.load_ladder(), budget, options, work))
     except (PreflightInputError, ImportError) as exc:
         raise _fail(one_line(exc)) from None
 
@@ -179,8 +191,17 @@ def _record(ctx: AppContext, target: str, decision: dict[str, Any], apply: bool 
 
 def auto(
     target: str = typer.Argument(..., help="A daemon dataset name, or a folder of images to measure."),
-    budget_ssim: float | None = typer.Option(None, "--budget-ssim", help="Minimum clean-vs-poisoned SSIM."),
-    budget_lpips: float | None = typer.Option(None, "--budget-lpips", help="Max clean-vs-poisoned LPIPS."),
+    max_noticeable_area: float | None = typer.Option(
+        None, "--max-noticeable-area", metavar="FRACTION",
+        help="Budget: most of the picture a viewer notices (FLIP > 0.5), e.g. 0.01 (config: [visibility]).",
+    ),
+    max_p999_vs_jpeg: float | None = typer.Option(
+        None, "--max-p999-vs-jpeg", metavar="RATIO",
+        help="Budget: FLIP p99.9 at most RATIO x a JPEG q85 re-encode's (0: not gated).",
+    ),
+    corner_only: bool | None = typer.Option(
+        None, "--corner-only/--anywhere", help="Budget: every changed pixel in one corner region, or not."
+    ),
     sample: int | None = typer.Option(None, "--sample", min=3, help="Images in the preflight sample."),
     time_budget: float | None = typer.Option(None, "--time-budget", min=1.0, help="Preflight seconds."),
     profile: list[str] = typer.Option([], "--profile", help="Profiles to confirm (repeat; default: config)."),
@@ -199,8 +220,9 @@ def auto(
     from daemon.config import ConfigError
     from daemon.context import AppContext
 
-    given = {"budget_ssim": budget_ssim, "budget_lpips": budget_lpips, "sample": sample,
-             "time_budget": time_budget, "profile": profile, "out": out}  # fmt: skip
+    given = {"max_noticeable_area": max_noticeable_area, "max_p999_vs_jpeg": max_p999_vs_jpeg,
+             "corner_only": corner_only, "sample": sample, "time_budget": time_budget, "profile": profile,
+             "out": out}  # fmt: skip
     try:
         ctx = AppContext.open()
     except ConfigError as exc:
