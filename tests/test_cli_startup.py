@@ -27,7 +27,7 @@ def imported_modules(env: dict[str, str], *args: str) -> set[str]:
         if line.startswith("import time:") and "|" in line:
             name = line.rsplit("|", 1)[1].strip()
             names.update({name, name.split(".")[0]})
-    assert "daemon.cli.poison" in names, "importtime output not understood"
+    assert "daemon.cli.errors" in names, "importtime output not understood"
     return names
 
 
@@ -51,6 +51,16 @@ def test_status_loads_no_pixels_and_no_verifier(env: dict[str, str]) -> None:
         pixel_and_sfm.discard("numpy")
     assert not loaded & pixel_and_sfm, sorted(loaded & pixel_and_sfm)
     assert "daemon.protect" not in loaded and "verifier.verification" not in loaded
+    assert "daemon.cli.poison" not in loaded  # `ppd COMMAND` registers that command only
+
+
+def test_top_level_help_lists_every_command(env: dict[str, str]) -> None:
+    proc = subprocess.run([sys.executable, "-m", "daemon.cli", "--help"], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    from daemon.cli import COMMAND_MODULES
+
+    listed = {line.split()[0] for line in proc.stdout.splitlines() if line.startswith("  ") and line.split()}
+    assert set(COMMAND_MODULES) <= listed, set(COMMAND_MODULES) - listed
 
 
 def test_plain_values_convert_as_typer_does() -> None:

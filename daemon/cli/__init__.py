@@ -82,20 +82,23 @@ def _main(
     ctx.obj = {"verbose": verbose}
 
 
-COMMAND_MODULES = (
-    "daemon.cli.poison", "daemon.cli.restore", "daemon.cli.preview", "daemon.cli.status",
-    "daemon.cli.dataset", "daemon.cli.config", "daemon.cli.watch", "daemon.cli.demo",
-    "daemon.cli.verify", "daemon.cli.auto", "daemon.cli.experiment", "daemon.cli.report",
-    "daemon.cli.store",
-)  # fmt: skip
+COMMAND_MODULES = {
+    "poison": "daemon.cli.poison", "restore": "daemon.cli.restore", "preview": "daemon.cli.preview",
+    "status": "daemon.cli.status", "dataset": "daemon.cli.dataset", "config": "daemon.cli.config",
+    "watch": "daemon.cli.watch", "service": "daemon.cli.watch", "demo": "daemon.cli.demo",
+    "verify": "daemon.cli.verify", "auto": "daemon.cli.auto", "experiment": "daemon.cli.experiment",
+    "report": "daemon.cli.report", "store": "daemon.cli.store",
+}  # fmt: skip
 
 
 def _modules_for(argv: list[str]) -> tuple[str, ...]:
-    """`ppd watch` is the long-lived daemon: it loads only its own command module, which keeps
-    the others' imports (and their memory) out of the resident process."""
-    if len(argv) > 1 and argv[1] == "watch":
-        return ("daemon.cli.watch",)
-    return COMMAND_MODULES
+    """`ppd COMMAND ...` loads only that command's module: start-up pays for one command, and
+    `ppd watch`, the long-lived daemon, keeps the others' imports (and memory) out of the resident
+    process. Anything else (`ppd --help`, `ppd -v status`, an unknown word, tests importing the
+    app) loads every command, in the order `ppd --help` lists them."""
+    if len(argv) > 1 and argv[1] in COMMAND_MODULES:
+        return (COMMAND_MODULES[argv[1]],)
+    return tuple(dict.fromkeys(COMMAND_MODULES.values()))
 
 
 def _register() -> None:
