@@ -2,6 +2,7 @@
 a burst of small files, and which libraries survive MemoryDenyWriteExecute.
 
     python -m bench.bench_daemon [--quick]
+    python -m bench.bench_daemon --memory [--files 200] [--idle-seconds 40]
 
 Writes bench/results/daemon.md. Latency = from the moment a file is complete in the outbox
 (the copy closed it, or the rename put it there) to the moment the protected file has
@@ -234,12 +235,128 @@ def mdwe_probe(what: str) -> str:
     return f"fails: {tail[:120]}"
 
 
+# ---- memory: the daemon's RSS at start, after a batch, after its workers' idle period -------------
+MEMORY_RESULTS = REPO / "bench" / "results" / "daemon_memory.md"
+
+
+def children_rss_mb(pid: int) -> float:
+    """RSS of pid's child processes (the protect workers), MB."""
+    children: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():  # a worker thread's children are listed under it
+        with contextlib.suppress(FileNotFoundError):
+            children |= {int(c) for c in (task / "children").read_text().split()}
+    total = 0
+    for child in children:
+        with contextlib.suppress(FileNotFoundError, KeyError):
+            total += status_kb(child, "VmRSS")
+    return total / 1024
+
+
+def memory_run(n_files: int, idle_s: float) -> dict[str, object]:
+    """`ppd watch --no-verify`: RSS at start (3 s after READY), once n_files (90% 800x800 PNG, 10%
+    12 MP JPEG) moved in as one folder are protected, and idle_s later (the workers' idle exit)."""
+    rng = np.random.default_rng(0)
+    with tempfile.TemporaryDirectory(prefix="ppd-bench-") as tmp:
+        root = Path(tmp)
+        batch = root / "stage" / "batch"
+        batch.mkdir(parents=True)
+        png, jpg = png_800(rng), jpeg_12mp(rng)
+        for i in range(n_files):
+            img, fmt = (jpg, "JPEG") if i % 10 == 9 else (png, "PNG")
+            variant(img, i).save(
+                batch / f"f{i:04d}.{fmt.lower()}", format=fmt, **({"quality": 92} if fmt == "JPEG" else {})
+            )
+        daemon = start_daemon(root, "--no-verify")
+        time.sleep(3)
+        out: dict[str, object] = {"files": n_files, "start_rss_mb": status_kb(daemon.pid, "VmRSS") / 1024}
+        started = time.monotonic()
+        os.rename(batch, root / "outbox" / "batch")
+        from daemon.states import FileState
+        from daemon.store import Store
+
+        store = Store(root / "data" / "ppd.sqlite3")
+        while len(store.files("batch", state=FileState.PATCHED)) < n_files:
+            if time.monotonic() - started > 1800:
+                raise TimeoutError("batch not done in 30 min")
+            time.sleep(0.5)
+        store.close()
+        out["batch_seconds"] = time.monotonic() - started
+        time.sleep(1)
+        out["after_rss_mb"] = status_kb(daemon.pid, "VmRSS") / 1024
+        out["after_workers_rss_mb"] = children_rss_mb(daemon.pid)
+        out["peak_rss_mb"] = status_kb(daemon.pid, "VmHWM") / 1024
+        time.sleep(idle_s)
+        out["idle_rss_mb"] = status_kb(daemon.pid, "VmRSS") / 1024
+        out["idle_workers_rss_mb"] = children_rss_mb(daemon.pid)
+        out["idle_seconds"] = idle_s
+        stop_daemon(daemon)
+    return out
+
+
+def write_memory_report(r: dict[str, object], command: str) -> None:
+    lines = [
+        "# ppd watch: resident memory of the daemon process",
+        "",
+        f"`{command}` on {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {os.cpu_count()} CPU(s), "
+        f"load average {os.getloadavg()[0]:.1f} (a shared machine).",
+        "",
+        f"{r['files']} files (90% 800x800 PNG, 10% 12 MP JPEG) moved into the outbox as one folder; "
+        f"all protected in {r['batch_seconds']:.0f} s.",
+        "",
+        "| when | daemon RSS MB | its worker processes' RSS MB |",
+        "|---|---|---|",
+        f"| 3 s after READY | {r['start_rss_mb']:.1f} | 0 |",
+        f"| 1 s after the last file | {r['after_rss_mb']:.1f} | {r['after_workers_rss_mb']:.1f} |",
+        f"| {r['idle_seconds']:.0f} s later (idle) | {r['idle_rss_mb']:.1f} "
+        f"| {r['idle_workers_rss_mb']:.1f} |",
+        "",
+        f"Daemon peak RSS (VmHWM): {r['peak_rss_mb']:.1f} MB. Goal: under 60 MB idle after work.",
+        "",
+    ]
+    MEMORY_RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    MEMORY_RESULTS.write_text("\n".join(lines))
+
+
+def burst(root: Path, stage: Path, rng: np.random.Generator, n_flood: int) -> dict[str, float]:
+    """n_flood small PNGs moved in as one folder, counted from the store until all are protected."""
+    daemon = start_daemon(root, "--no-verify")
+    outbox = root / "outbox"
+    flood = stage / "flood"
+    flood.mkdir()
+    base = smooth_texture(rng, 256, 256)
+    for i in range(n_flood):
+        variant(base, i).save(flood / f"f{i:05d}.png")
+    started = time.monotonic()
+    os.rename(flood, outbox / "flood")
+    from daemon.states import FileState
+    from daemon.store import Store
+
+    store = Store(root / "data" / "ppd.sqlite3")
+    while len(store.files("flood", state=FileState.PATCHED)) < n_flood:
+        if time.monotonic() - started > 900:
+            raise TimeoutError("flood not done in 15 min")
+        time.sleep(0.2)
+    flood_s = time.monotonic() - started
+    result = {"files": n_flood, "seconds": flood_s, "files_per_s": n_flood / flood_s,
+              "hwm_mb": status_kb(daemon.pid, "VmHWM") / 1024}  # fmt: skip
+    store.close()
+    stop_daemon(daemon)
+    return result
+
+
 # ---- main ------------------------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer drops, shorter idle windows")
     parser.add_argument("--idle-seconds", type=float, default=30.0)
+    parser.add_argument("--memory", action="store_true", help="only the RSS at start / after a batch / idle")
+    parser.add_argument("--files", type=int, default=200, help="files in the --memory batch")
     args = parser.parse_args(argv or [])  # `python -m bench` calls main() with its own argv
+    if args.memory:
+        figures = memory_run(args.files, max(args.idle_seconds, 35.0))
+        write_memory_report(figures, "python -m bench.bench_daemon " + " ".join(argv or []))
+        print(json.dumps(figures, indent=1))
+        return
     idle_s = 10.0 if args.quick else args.idle_seconds
     n_png, n_jpg, n_flood = (4, 2, 200) if args.quick else (10, 5, 1000)
     rng = np.random.default_rng(0)
@@ -269,57 +386,15 @@ def main(argv: list[str] | None = None) -> None:
         results["idle_after"] = idle_sample(daemon.pid, idle_s)
         results["stop_seconds"] = stop_daemon(daemon)
 
-        # 3. A burst: n_flood small PNGs moved in as one folder, then counted from the store.
-        daemon = start_daemon(root, "--no-verify")
-        flood = stage / "flood"
-        flood.mkdir()
-        base = smooth_texture(rng, 256, 256)
-        for i in range(n_flood):
-            variant(base, i).save(flood / f"f{i:05d}.png")
-        started = time.monotonic()
-        os.rename(flood, outbox / "flood")
-        from daemon.states import FileState
-        from daemon.store import Store
-
-        store = Store(root / "data" / "ppd.sqlite3")
-        while len(store.files("flood", state=FileState.PATCHED)) < n_flood:
-            if time.monotonic() - started > 900:
-                raise TimeoutError("flood not done in 15 min")
-            time.sleep(0.2)
-        flood_s = time.monotonic() - started
-        results["flood"] = {"files": n_flood, "seconds": flood_s, "files_per_s": n_flood / flood_s,
-                            "hwm_mb": status_kb(daemon.pid, "VmHWM") / 1024}  # fmt: skip
-        store.close()
-        stop_daemon(daemon)
+        results["flood"] = burst(root, stage, rng, n_flood)
 
     results["mdwe"] = {what: mdwe_probe(what) for what in ("daemon", "torch", "pycolmap")}
     write_report(results, args)
     print(json.dumps(results, indent=1, default=str))
 
 
-def write_report(r: dict, args: argparse.Namespace) -> None:
-    cpu = next(
-        (line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-         if line.startswith("model name")), platform.processor(),
-    )  # fmt: skip
-    lines = [
-        "# ppd watch: measured figures",
-        "",
-        f"Produced by `python -m bench.bench_daemon{' --quick' if args.quick else ''}` on "
-        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {os.cpu_count()} CPU(s) ({cpu}), "
-        f"Python {platform.python_version()}, Linux {platform.release()}. The machine was shared with "
-        "other work while this ran: treat single figures as indicative.",
-        "",
-        "## Drop-to-protected latency (one file at a time, default debounce_seconds = 2.0)",
-        "",
-        "| input, how it arrived | n | p50 s | p95 s | max s |",
-        "|---|---|---|---|---|",
-    ]
-    for name, values in r["latency"].items():
-        lines.append(
-            f"| {name} | {len(values)} | {percentile(values, 50):.2f} | {percentile(values, 95):.2f} "
-            f"| {max(values):.2f} |"
-        )
+def idle_lines(r: dict) -> list[str]:
+    lines: list[str] = []
     lines += [
         "",
         "A copy ends with close-after-write: the file waits debounce_seconds (2 s) unchanged before it",
@@ -338,8 +413,12 @@ def write_report(r: dict, args: argparse.Namespace) -> None:
             f"| {label} | {s['seconds']:.0f} | {s['cpu_percent']:.3f} | {s['cpu_seconds']:.2f} | "
             f"{s['wakeups_per_s']:.1f} | {s['rss_mb']:.1f} | {s['hwm_mb']:.1f} | {s['threads']} |"
         )
+    return lines
+
+
+def burst_and_mdwe_lines(r: dict) -> list[str]:
     f = r["flood"]
-    lines += [
+    lines = [
         "",
         "Goal: under 60 MB RSS idle, no polling. ppd's threads (main loop, debounce, workers) and",
         "watchdog's (inotify reader, emitter, dispatcher) block until an event arrives; the one timer is",
@@ -372,6 +451,33 @@ def write_report(r: dict, args: argparse.Namespace) -> None:
         "MemoryDenyWriteExecute while torch fails under it.",
         "",
     ]
+    return lines
+
+
+def write_report(r: dict, args: argparse.Namespace) -> None:
+    cpu = next(
+        (line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+         if line.startswith("model name")), platform.processor(),
+    )  # fmt: skip
+    lines = [
+        "# ppd watch: measured figures",
+        "",
+        f"Produced by `python -m bench.bench_daemon{' --quick' if args.quick else ''}` on "
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {os.cpu_count()} CPU(s) ({cpu}), "
+        f"Python {platform.python_version()}, Linux {platform.release()}. The machine was shared with "
+        "other work while this ran: treat single figures as indicative.",
+        "",
+        "## Drop-to-protected latency (one file at a time, default debounce_seconds = 2.0)",
+        "",
+        "| input, how it arrived | n | p50 s | p95 s | max s |",
+        "|---|---|---|---|---|",
+    ]
+    for name, values in r["latency"].items():
+        lines.append(
+            f"| {name} | {len(values)} | {percentile(values, 50):.2f} | {percentile(values, 95):.2f} "
+            f"| {max(values):.2f} |"
+        )
+    lines += idle_lines(r) + burst_and_mdwe_lines(r)
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text("\n".join(lines))
 

@@ -23,12 +23,11 @@ from PIL import Image  # PIL before anything that may load pycolmap
 from poisoner.blend import poison_array
 from poisoner.spec import PatchSpec
 from verifier.poses import nerf_intrinsics
+from verifier.shared_data import SHARED, WORK, prepare_fountain, prepare_lego
 from verifier.verification import VerificationReport, VerifyOptions, verify_folders
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared" / "datasets"
 RESULTS = ROOT / "bench" / "results" / "verify.md"
-WORK = Path("/tmp/ppd-bench-verify")
 
 
 @dataclass(frozen=True)
@@ -38,25 +37,6 @@ class Case:
     spec: PatchSpec
     profiles: tuple[str, ...]
     intrinsics: str  # "unknown (attacker default)" or "known"
-
-
-def prepare_lego(n_views: int) -> tuple[Path, Path, int]:
-    """First n views, RGBA composited on white (as 3DGS does for NeRF-Synthetic), as RGB PNG."""
-    src = SHARED / "nerf_synthetic_lego"
-    dst = WORK / "lego" / "clean"
-    dst.mkdir(parents=True, exist_ok=True)
-    for i in range(n_views):
-        out = dst / f"r_{i}.png"
-        if out.exists():
-            continue
-        rgba = np.asarray(Image.open(src / "train" / f"r_{i}.png").convert("RGBA")).astype(np.float64)
-        rgb = rgba[..., :3] * rgba[..., 3:] / 255 + 255 * (1 - rgba[..., 3:] / 255)
-        Image.fromarray(np.floor(rgb + 0.5).astype(np.uint8)).save(out)
-    return dst, src / "transforms_train.json", 800
-
-
-def prepare_fountain() -> tuple[Path, Path]:
-    return SHARED / "fountain_P11" / "images", SHARED / "fountain_P11" / "gt_dense_cameras"
 
 
 def poison_folder(clean: Path, dst: Path, spec: PatchSpec) -> str:

@@ -4,8 +4,9 @@ decision names (docs/AUTO.md).
 Life of an automatic dataset:
 1. first file: `Config.spec_for` gives the interim spec (`interim_spec`: the ladder's strongest
    candidate by design), so nothing is ever published unprotected;
-2. the scheduler thread then measures SSIM of every candidate on the first files (no torch here:
-   LPIPS waits for the preflight) and re-protects with the strongest candidate within the SSIM
+2. the scheduler thread then has a child process (`python -m verifier.auto`, mode "interim")
+   measure what a viewer sees of every candidate on the first files (FLIP against the
+   [visibility] budget, no SfM, no LPIPS) and re-protects with the strongest candidate within the
    budget: a decision with trigger 'interim';
 3. once `preflight.sample_size` files are protected, the preflight runs in a child process
    (`python -m verifier.auto`, SfM in grandchildren) on the vault originals; its decision
@@ -17,63 +18,57 @@ Life of an automatic dataset:
    decision says "no candidate within the visibility budget protects this dataset" and the
    dataset keeps its current patch (the best it has), surfaced in `ppd status` and as an event.
 
-Nothing here imports pycolmap or torch.
+Nothing here imports numpy, PIL, pycolmap or torch: poisoning and measuring happen in the child.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import os
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+import msgspec
 
 from daemon.states import FileState
 from poisoner.ladder import strongest_spec
 from poisoner.spec import PatchSpec
+from verifier.auto_options import (
+    CandidateStatus,
+    LadderEntry,
+    PreflightJob,
+    PreflightOptions,
+    VisibilityBudget,
+)
 from verifier.supervise import run_child
+from verifier.verdict import NOT_PROTECTED, WEAK
 
 if TYPE_CHECKING:
-    from daemon.config import Config
     from daemon.context import AppContext
     from poisoner.ladder import Candidate
 
 log = logging.getLogger(__name__)
 
 NO_CANDIDATE = "no candidate within the visibility budget protects this dataset"
-ESCALATE_ON = ("weak", "not_protected")  # verdicts that say the current patch is not enough
+ESCALATE_ON = (WEAK, NOT_PROTECTED)  # verdicts that say the current patch is not enough
 INTERIM_FILES = 3  # files measured for the interim choice
 CHILD_GRACE_S = 300.0  # beyond the preflight's own time budget before its child is killed
 
 
-# ---- settings -----------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class AutoSettings:
-    min_ssim: float = 0.99
-    max_lpips: float = 0.02
-    sample_size: int = 12
-    time_budget_s: float = 900.0
-    profiles: tuple[str, ...] = ("default", "hardened")
+PreflightRunner = Callable[[PreflightJob, float, "threading.Event | None"], dict[str, Any]]
 
-    @classmethod
-    def from_config(cls, config: Config | None) -> AutoSettings:
-        if config is None:
-            return cls()
-        vis, pre = config.visibility, config.preflight
-        return cls(vis.min_ssim, vis.max_lpips, pre.sample_size, pre.time_budget_s, tuple(pre.profiles))
 
-    def budget_dict(self) -> dict[str, float]:
-        return {"min_ssim": self.min_ssim, "max_lpips": self.max_lpips}
-
-    def options_dict(self) -> dict[str, Any]:
-        return {"sample_size": self.sample_size, "time_budget_s": self.time_budget_s,
-                "profiles": list(self.profiles)}  # fmt: skip
+# ---- settings ----------------------------------------------------------------------------------------
+def settings_of(ctx: AppContext) -> tuple[VisibilityBudget, PreflightOptions]:
+    """The [visibility] budget and [preflight] options in force (the defaults without a config)."""
+    config = getattr(ctx, "config", None)
+    if config is None:
+        return VisibilityBudget(), PreflightOptions()
+    return config.visibility, config.preflight
 
 
 def is_auto(ctx: AppContext, dataset: str) -> bool:
@@ -119,7 +114,7 @@ def apply_spec(ctx: AppContext, dataset: str, spec: PatchSpec) -> int:
     return sum(1 for o in outcomes if o.state == Outcome.PATCHED)
 
 
-# ---- step 2: the interim choice (SSIM only, in the daemon) ---------------------------------------
+# ---- step 2: the interim choice (FLIP, in the daemon) ---------------------------------------------
 def dataset_images(ctx: AppContext, dataset: str) -> list[tuple[Path, str]]:
     """(vault original, file name) of every protected file: the originals under their names."""
     from daemon.protect import dataset_pairs
@@ -127,80 +122,69 @@ def dataset_images(ctx: AppContext, dataset: str) -> list[tuple[Path, str]]:
     return [(original, Path(protected).name) for original, protected in dataset_pairs(ctx, dataset)]
 
 
-def choose_interim(
-    ladder: Sequence[Candidate], min_ssim: float, images: Sequence[tuple[Path, str]]
-) -> tuple[Candidate, list[dict[str, Any]], bool]:
-    """The strongest candidate (latest in the ladder) whose worst SSIM on images meets min_ssim.
-
-    Returns (candidate, evidence, within_budget). With none within the SSIM budget, the least
-    visible one measured (within_budget False: the caller says so)."""
-    from poisoner.formats import poison_file
-    from verifier.auto import load_rgb, whole_image_ssim
-
-    evidence: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory(prefix=".ppd-auto-") as tmp:
-        for index in range(len(ladder) - 1, -1, -1):
-            cand = ladder[index]
-            folder = Path(tmp) / str(index)
-            folder.mkdir()
-            try:
-                ssims = []
-                for src, name in images:
-                    named = folder / f"clean-{name}"
-                    os.link(src, named) if _same_fs(src, folder) else named.write_bytes(src.read_bytes())
-                    out = folder / name
-                    poison_file(named, out, cand.spec)
-                    ssims.append(whole_image_ssim(load_rgb(named), load_rgb(out)))
-            except Exception as exc:  # does not fit these images: recorded, next one
-                evidence.append({"name": cand.name, "error": str(exc).splitlines()[0]})
-                continue
-            evidence.append({"name": cand.name, "spec_id": cand.spec.spec_id, "ssim_min": min(ssims)})
-            if min(ssims) >= min_ssim:
-                return cand, evidence, True
-    measured = [e for e in evidence if "ssim_min" in e]
-    if not measured:
-        raise ValueError("no candidate of the ladder applies to these images")
-    best = max(measured, key=lambda e: e["ssim_min"])
-    return next(c for c in ladder if c.name == best["name"]), evidence, False
-
-
-def run_interim(
-    ctx: AppContext, dataset: str, ladder: Sequence[Candidate] | None = None
-) -> dict[str, Any]:
-    """Measure the ladder on the first protected files; record and apply the interim decision."""
-    settings = AutoSettings.from_config(ctx.config)
+def interim_job(
+    ctx: AppContext, dataset: str, ladder: Sequence[Candidate | LadderEntry] | None = None
+) -> PreflightJob:
+    """The child's interim job: the first protected files' vault originals, the ladder, the budget."""
+    budget, options = settings_of(ctx)
     images = dataset_images(ctx, dataset)[:INTERIM_FILES]
     if not images:
         raise ValueError(f"dataset {dataset!r} has no protected file to measure yet")
-    cand, evidence, within = choose_interim(ladder or load_ladder(), settings.min_ssim, images)
+    out_dir = Path(ctx.paths.runs_dir) / dataset / f"auto-interim-{time.strftime('%Y%m%dT%H%M%S')}"
+    return PreflightJob(
+        images=[(str(src), name) for src, name in images],
+        out_dir=str(out_dir),
+        result=str(out_dir / "interim.result.json"),
+        ladder=[LadderEntry(c.name, c.spec, c.why) for c in (ladder or load_ladder())],
+        budget=budget,
+        options=options,
+        mode="interim",
+    )
+
+
+def run_interim(
+    ctx: AppContext,
+    dataset: str,
+    ladder: Sequence[Candidate | LadderEntry] | None = None,
+    cancel: threading.Event | None = None,
+    runner: PreflightRunner | None = None,
+) -> dict[str, Any]:
+    """Measure the ladder on the first protected files (in the child: the daemon neither poisons
+    nor measures here); record and apply the interim decision. A failed child raises."""
+    job = interim_job(ctx, dataset, ladder)
+    choice = (runner or run_preflight_child)(job, job.options.time_budget_s + CHILD_GRACE_S, cancel)
+    if "error" in choice:
+        raise RuntimeError(f"auto interim: {choice['error']}")
+    cand = next(c for c in job.ladder or () if c.name == choice["chosen"])
+    budget, within, files = job.budget, bool(choice["within_budget"]), len(job.images)
     reason = (
-        f"interim: {cand.name}, the strongest candidate with SSIM >= {settings.min_ssim} on "
-        f"{len(images)} file(s); LPIPS and protection are checked by the preflight"
+        f"interim: {cand.name}, the strongest candidate within the budget ({budget.describe()}) on "
+        f"{files} file(s); protection is checked by the preflight"
         if within
-        else f"interim: no candidate within SSIM >= {settings.min_ssim} on {len(images)} file(s); "
+        else f"interim: no candidate within the budget ({budget.describe()}) on {files} file(s); "
         f"using the least visible measured, {cand.name}, until the preflight decides"
     )
-    ctx.store.add_auto_decision(dataset, cand.name, cand.spec, reason,
-                                {"measured": evidence, "within_budget": within}, "interim")  # fmt: skip
+    evidence = {"measured": choice["measured"], "within_budget": within}
+    ctx.store.add_auto_decision(dataset, cand.name, cand.spec, reason, evidence, "interim")
     reprotected = apply_spec(ctx, dataset, cand.spec)
     log.info("auto interim", extra={"dataset": dataset, "candidate": cand.name, "reprotected": reprotected})
     return {"candidate": cand.name, "reason": reason, "reprotected": reprotected}
 
 
 # ---- step 3: the preflight, in a child process -----------------------------------------------------
-PreflightRunner = Callable[[dict[str, Any], float, "threading.Event | None"], dict[str, Any]]
-
-
 def run_preflight_child(
-    job: dict[str, Any], timeout_s: float, cancel: threading.Event | None
+    job: PreflightJob, timeout_s: float, cancel: threading.Event | None
 ) -> dict[str, Any]:
     """`python -m verifier.auto JOB.json` at low priority in its own process group; killed (group)
-    on cancel or after timeout_s. Returns the decision dict, or {"error": ...}."""
-    out_dir = Path(job["out_dir"])
+    on cancel or after timeout_s. Returns the child's result as JSON data (an AutoDecision, or an
+    InterimChoice for an interim job), or {"error": ...}."""
+    from poisoner.atomic import atomic_write_bytes
+
+    out_dir = Path(job.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     job_file = out_dir / "job.json"
-    job_file.write_text(json.dumps(job))
-    result = Path(job["result"])
+    atomic_write_bytes(job_file, msgspec.json.encode(job))
+    result = Path(job.result)
     log_file = out_dir / "preflight.log"
     ended = run_child(
         [sys.executable, "-m", "verifier.auto", str(job_file)],
@@ -220,26 +204,25 @@ def run_preflight_child(
 def preflight_job(
     ctx: AppContext,
     dataset: str,
-    settings: AutoSettings,
     exclude: Sequence[str] = (),
-    ladder: Sequence[Candidate] | None = None,
-) -> dict[str, Any]:
-    from verifier.auto import ladder_to_json
-
+    ladder: Sequence[Candidate | LadderEntry] | None = None,
+) -> PreflightJob:
+    """The child's job: the dataset's vault originals, the ladder, the config's budget and options."""
+    budget, options = settings_of(ctx)
     out_dir = Path(ctx.paths.runs_dir) / dataset / f"auto-{time.strftime('%Y%m%dT%H%M%S')}"
-    return {
-        "ladder": ladder_to_json(ladder or load_ladder()),
-        "images": [[str(src), name] for src, name in dataset_images(ctx, dataset)],
-        "budget": settings.budget_dict(),
-        "options": settings.options_dict(),
-        "out_dir": str(out_dir),
-        "result": str(out_dir / "decision.result.json"),
-        "exclude": sorted(exclude),
-    }
+    return PreflightJob(
+        images=[(str(src), name) for src, name in dataset_images(ctx, dataset)],
+        out_dir=str(out_dir),
+        result=str(out_dir / "decision.result.json"),
+        ladder=[LadderEntry(c.name, c.spec, c.why) for c in (ladder or load_ladder())],
+        budget=budget,
+        options=options,
+        exclude=sorted(exclude),
+    )
 
 
 def record_decision(ctx: AppContext, dataset: str, decision: Mapping[str, Any], trigger: str) -> int:
-    """Store a preflight decision (verifier.auto.AutoDecision.to_dict()) and apply its spec."""
+    """Store a preflight decision (verifier.auto.AutoDecision as JSON data) and apply its spec."""
     spec = PatchSpec.from_dict(decision["spec"]) if decision.get("spec") else None
     decision_id = ctx.store.add_auto_decision(
         dataset, decision.get("chosen"), spec, str(decision["reason"]), dict(decision), trigger
@@ -264,12 +247,11 @@ def run_preflight(
     exclude: Sequence[str] = (),
     cancel: threading.Event | None = None,
     runner: PreflightRunner = run_preflight_child,
-    ladder: Sequence[Candidate] | None = None,
+    ladder: Sequence[Candidate | LadderEntry] | None = None,
 ) -> dict[str, Any]:
     """Run a preflight on the dataset's vault originals and record its decision."""
-    settings = AutoSettings.from_config(ctx.config)
-    job = preflight_job(ctx, dataset, settings, exclude, ladder)
-    decision = runner(job, settings.time_budget_s + CHILD_GRACE_S, cancel)
+    job = preflight_job(ctx, dataset, exclude, ladder)
+    decision = runner(job, job.options.time_budget_s + CHILD_GRACE_S, cancel)
     if "error" in decision:
         ctx.store.add_event(dataset, None, "auto_preflight_failed", {"error": decision["error"]})
         log.warning("auto preflight failed", extra={"dataset": dataset, "error": decision["error"]})
@@ -290,7 +272,7 @@ def next_step(ctx: AppContext, dataset: str) -> str | None:
     if any(r["trigger"] in ("preflight", "manual", "escalation") for r in decisions):
         return None
     protected = ctx.store.counts(dataset)[FileState.PATCHED]
-    if protected >= AutoSettings.from_config(ctx.config).sample_size:
+    if protected >= settings_of(ctx)[1].sample_size:
         return "preflight"
     if not decisions and protected > 0:
         return "interim"
@@ -311,7 +293,7 @@ def failed_candidates(decisions: Sequence[Mapping[str, Any]]) -> set[str]:
         ev = row.get("evidence") or {}
         failed.update(ev.get("failed", []))
         for cand in ev.get("evidence", []) if isinstance(ev.get("evidence"), list) else []:
-            if cand.get("status") == "not_protected":
+            if cand.get("status") == CandidateStatus.NOT_PROTECTED:
                 failed.add(cand["name"])
     return failed
 
@@ -319,7 +301,8 @@ def failed_candidates(decisions: Sequence[Mapping[str, Any]]) -> set[str]:
 def next_candidate(measured: Sequence[Mapping[str, Any]], failed: set[str]) -> Mapping[str, Any] | None:
     """The least visible candidate within the budget (by measured budget use) not yet found wanting."""
     fits = [e for e in measured if e.get("budget_use") is not None and e["budget_use"] <= 1.0
-            and e.get("status") not in ("failed", "over_budget") and e["name"] not in failed]  # fmt: skip
+            and e.get("status") not in (CandidateStatus.FAILED, CandidateStatus.OVER_BUDGET)
+            and e["name"] not in failed]  # fmt: skip
     return min(fits, key=lambda e: e["budget_use"]) if fits else None
 
 
@@ -388,9 +371,3 @@ def status_text(ctx_or_store: Any, dataset: str) -> str | None:
         return f"auto: {NO_CANDIDATE} ({row['trigger']})"
     return f"auto: {row['candidate']} ({row['trigger']})"
 
-
-def _same_fs(src: Path, folder: Path) -> bool:
-    try:
-        return os.stat(src).st_dev == os.stat(folder).st_dev
-    except OSError:
-        return False

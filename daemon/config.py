@@ -1,4 +1,4 @@
-"""ppd's configuration: typed dataclasses loaded from `config_dir/config.toml`.
+"""ppd's configuration: one typed schema (msgspec structs) loaded from `config_dir/config.toml`.
 
 Every key is optional; what is missing comes from the embedded defaults below. Layout:
 
@@ -33,33 +33,49 @@ Every key is optional; what is missing comes from the embedded defaults below. L
     [limits]
     max_megapixels = 80.0       # larger images are refused before decoding (WebP: a fifth, HEIF: a third)
 
-    [visibility]                # automatic mode's budget, clean vs poisoned, whole image
-    min_ssim = 0.99
-    max_lpips = 0.02
+    [visibility]                # automatic mode's budget: what a viewer sees (FLIP, verifier.visibility),
+    max_noticeable_area = 0.01  # worst sample image; fraction of the picture with FLIP > 0.5
+    max_p999_vs_jpeg = 0.0      # FLIP p99.9 / a JPEG q85 re-encode's (0 = not gated)
+    corner_only = false         # true: every changed pixel inside one corner region (watermark-like)
+    corner_region = 0.2         # that region: 20% of the width x 20% of the height
+    display_width = 1920        # the viewing condition: the photo shown this many px wide (or its own width)
 
     [preflight]                 # automatic mode's check on a sample of the dataset (docs/AUTO.md)
     sample_size = 12
     time_budget_s = 900.0
     profiles = ["default", "hardened"]
+    camera_params = ""          # known intrinsics "fx,fy,cx,cy,k1,k2,p1,p2" ("" = COLMAP estimates)
 
     [datasets.NAME]             # per-dataset overrides, applied when the dataset gets its spec
     publish_dir = "/srv/www/NAME"
     spec = "auto"               # automatic mode: the verifier picks the patch (docs/AUTO.md)
     [datasets.NAME.patch]
     position = "bottom-right"
+
+Defaults live in the structs below (and, for [visibility] / [preflight], in the verifier's own
+structs, verifier.auto_options). A bad value is one line naming the file and the key. An empty
+string for a folder or an optional setting means "not set" (TOML has no null).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
+import re
 import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
+
+import msgspec
 
 from daemon.paths import AppPaths
 from poisoner.ladder import default_spec, strongest_spec
 from poisoner.spec import PatchSpec, SpecError
+from verifier.auto_options import PreflightOptions, Profile, VisibilityBudget
+
+AUTO_SPEC = "auto"  # `spec = "auto"` in [datasets.NAME]
+_EMPTY_MEANS_UNSET = ("publish_dir", "quarantine_dir")  # folders: "" = not set (TOML has no null)
+_OLD_BUDGET_KEYS = ("min_ssim", "max_lpips")
 
 
 class ConfigError(ValueError):
@@ -100,80 +116,102 @@ def spec_from_table(table: dict[str, Any], base: PatchSpec | None = None) -> Pat
     return (base or default_spec()).replace(**data)
 
 
-@dataclass(frozen=True)
-class VerificationSchedule:
+# ---- sections -------------------------------------------------------------------------------------
+class Section(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A config table: typed, immutable, unknown keys refused."""
+
+
+class VerificationSchedule(Section, frozen=True):
     enabled: bool = True
     every_new_files: int = 20
     period_hours: float = 24.0
-    profiles: tuple[str, ...] = ("default", "hardened", "published")
+    profiles: tuple[Profile, ...] = ("default", "hardened", "published")
     splat: bool = False  # scheduled runs include Verifier II's splat stage
     splat_budget_s: float = 150.0
     keep_runs: int = 5  # run folders kept per dataset (daemon.verify prunes the older ones)
 
     def __post_init__(self) -> None:
         if isinstance(self.keep_runs, bool) or not isinstance(self.keep_runs, int) or self.keep_runs < 1:
-            raise ConfigError(f"verification.keep_runs must be a whole number >= 1, got {self.keep_runs!r}")
+            raise ConfigError(f"keep_runs must be a whole number >= 1, got {self.keep_runs!r}")
+        if self.every_new_files < 1:
+            raise ConfigError(f"every_new_files must be >= 1, got {self.every_new_files}")
+        msgspec.structs.force_setattr(self, "profiles", tuple(self.profiles))
 
 
-@dataclass(frozen=True)
-class VaultConfig:
+class VaultConfig(Section, frozen=True):
     max_bytes: int = 0  # 0 = unlimited
 
+    def __post_init__(self) -> None:
+        if self.max_bytes < 0:
+            raise ConfigError(f"max_bytes must be >= 0 (0: unlimited), got {self.max_bytes}")
 
-@dataclass(frozen=True)
-class VisibilityConfig:
-    """Automatic mode's visibility budget (verifier.auto.VisibilityBudget's values)."""
 
-    min_ssim: float = 0.99
-    max_lpips: float = 0.02
+class PrivacyConfig(Section, frozen=True):
+    keep_location: bool = False  # true: patched files keep GPS/place metadata
+
+
+class DaemonConfig(Section, frozen=True):
+    quarantine_dir: Path | None = None  # None: Config.quarantine_dir_for's default
+
+
+class LimitsConfig(Section, frozen=True):
+    max_megapixels: float = 80.0  # poisoner.limits.DEFAULT_MAX_PIXELS, measured
 
     def __post_init__(self) -> None:
-        if not 0.0 < float(self.min_ssim) <= 1.0:
-            raise ConfigError(f"visibility.min_ssim must be in (0, 1], got {self.min_ssim}")
-        if float(self.max_lpips) < 0.0:
-            raise ConfigError(f"visibility.max_lpips must be >= 0, got {self.max_lpips}")
+        if not self.max_megapixels > 0:
+            raise ConfigError(f"max_megapixels must be a positive number, got {self.max_megapixels!r}")
 
 
-@dataclass(frozen=True)
-class PreflightConfig:
-    """Automatic mode's preflight (verifier.auto.PreflightOptions' values)."""
+class DatasetOverride(Section, frozen=True, omit_defaults=True):
+    """[datasets.NAME]: overrides applied when the dataset gets its spec."""
 
-    sample_size: int = 12
-    time_budget_s: float = 900.0
-    profiles: tuple[str, ...] = ("default", "hardened")
-
-    def __post_init__(self) -> None:
-        if int(self.sample_size) < 3:
-            raise ConfigError(f"preflight.sample_size must be at least 3, got {self.sample_size}")
-        if float(self.time_budget_s) <= 0:
-            raise ConfigError(f"preflight.time_budget_s must be positive, got {self.time_budget_s}")
-
-
-AUTO_SPEC = "auto"  # `spec = "auto"` in [datasets.NAME]
-
-
-@dataclass(frozen=True)
-class DatasetOverride:
-    patch: dict[str, Any] = field(default_factory=dict)  # fields replaced on the default spec
+    spec: str = ""  # "auto": automatic mode picks the patch (docs/AUTO.md); "" = not automatic
     publish_dir: Path | None = None
-    auto: bool = False  # spec = "auto": automatic mode picks the patch (docs/AUTO.md)
+    patch: dict[str, Any] = {}  # fields replaced on the default spec
+
+    def __post_init__(self) -> None:
+        if self.spec not in ("", AUTO_SPEC):
+            raise ConfigError(f'spec must be "{AUTO_SPEC}" (patch fields go in the dataset\'s [patch] table)')
+        if self.auto and self.patch:
+            raise ConfigError(f'spec = "{AUTO_SPEC}" and a [patch] table exclude each other')
+
+    @property
+    def auto(self) -> bool:
+        return self.spec == AUTO_SPEC
 
 
-@dataclass(frozen=True)
-class Config:
-    spec: PatchSpec = field(default_factory=default_spec)
+# ---- the whole file -------------------------------------------------------------------------------
+class Config(msgspec.Struct, frozen=True, dict=True, forbid_unknown_fields=True):
+    """config.toml, table by table. Field names are the TOML keys."""
+
     workers: int = 2
     debounce_seconds: float = 2.0
     publish_dir: Path | None = None
-    verification: VerificationSchedule = field(default_factory=VerificationSchedule)
-    vault: VaultConfig = field(default_factory=VaultConfig)
-    datasets: dict[str, DatasetOverride] = field(default_factory=dict)
-    visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
-    preflight: PreflightConfig = field(default_factory=PreflightConfig)
-    keep_location: bool = False  # [privacy] keep_location
-    quarantine_dir: Path | None = None  # [daemon] quarantine_dir (None: quarantine_dir_for's default)
-    max_megapixels: float = 80.0  # [limits] max_megapixels: poisoner.limits.DEFAULT_MAX_PIXELS, measured
-    source: Path | None = None  # the file it was read from, if any
+    patch: dict[str, Any] = {}  # fields replaced on default_spec(); `spec` is the result
+    verification: VerificationSchedule = msgspec.field(default_factory=VerificationSchedule)
+    vault: VaultConfig = msgspec.field(default_factory=VaultConfig)
+    privacy: PrivacyConfig = msgspec.field(default_factory=PrivacyConfig)
+    daemon: DaemonConfig = msgspec.field(default_factory=DaemonConfig)
+    limits: LimitsConfig = msgspec.field(default_factory=LimitsConfig)
+    visibility: VisibilityBudget = msgspec.field(default_factory=VisibilityBudget)
+    preflight: PreflightOptions = msgspec.field(default_factory=PreflightOptions)
+    datasets: dict[str, DatasetOverride] = {}
+    source: ClassVar[Path | None] = None  # the file it was read from (set by from_toml; not a key)
+
+    def __post_init__(self) -> None:
+        if self.workers < 1:
+            raise ConfigError(f"workers must be >= 1, got {self.workers}")
+        if self.debounce_seconds < 0:
+            raise ConfigError(f"debounce_seconds must be >= 0, got {self.debounce_seconds}")
+        try:
+            base = self.spec
+        except SpecError as exc:
+            raise ConfigError(f"[patch] {exc}") from None
+        for name, override in self.datasets.items():
+            try:  # validate now, not when the first file arrives
+                spec_from_table(override.patch, base)
+            except SpecError as exc:
+                raise ConfigError(f"[datasets.{name}.patch] {exc}") from None
 
     # ---- loading --------------------------------------------------------------------------
     @classmethod
@@ -190,73 +228,47 @@ class Config:
 
     @classmethod
     def from_toml(cls, text: str, source: Path | None = None) -> Config:
+        """A Config from TOML text; a bad value raises ConfigError naming the file and the key."""
         where = str(source) if source else "config"
         try:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{where}: {exc}") from exc
-        try:
-            return cls._from_dict(data, source)
-        except (SpecError, TypeError, ValueError) as exc:
-            raise ConfigError(f"{where}: {str(exc).splitlines()[0]}") from exc
-
-    @classmethod
-    def _from_dict(cls, data: dict[str, Any], source: Path | None) -> Config:
-        known = {
-            "workers", "debounce_seconds", "publish_dir", "patch", "verification", "vault", "datasets",
-            "visibility", "preflight", "privacy", "daemon", "limits",
-        }  # fmt: skip
-        unknown = set(data) - known
-        if unknown:
-            raise ConfigError(f"unknown key(s): {', '.join(sorted(unknown))}")
-        spec = spec_from_table(data.get("patch", {}))
-        ver = dict(data.get("verification", {}))
-        if "profiles" in ver:
-            ver["profiles"] = tuple(ver["profiles"])
-        datasets: dict[str, DatasetOverride] = {}
-        for name, table in data.get("datasets", {}).items():
-            patch = dict(table.get("patch", {}))
-            spec_from_table(patch, spec)  # validate now, not when the first file arrives
-            datasets[name] = DatasetOverride(
-                patch=patch,
-                publish_dir=_optional_path(table.get("publish_dir")),
-                auto=_auto_flag(name, table),
+        if old := [k for k in _OLD_BUDGET_KEYS if k in data.get("visibility", {})]:
+            raise ConfigError(
+                f"{where}: visibility.{old[0]}: the visibility budget is now what a viewer sees (FLIP): "
+                "set max_noticeable_area, max_p999_vs_jpeg, corner_only (SSIM/LPIPS are reported only)"
             )
-        preflight = dict(data.get("preflight", {}))
-        if "profiles" in preflight:
-            preflight["profiles"] = tuple(preflight["profiles"])
-        privacy, daemon_table = dict(data.get("privacy", {})), dict(data.get("daemon", {}))
-        limits = dict(data.get("limits", {}))
-        for table, allowed, name in (
-            (privacy, {"keep_location"}, "privacy"),
-            (daemon_table, {"quarantine_dir"}, "daemon"),
-            (limits, {"max_megapixels"}, "limits"),
-        ):
-            if extra := set(table) - allowed:
-                raise ConfigError(f"unknown key(s) in [{name}]: {', '.join(sorted(extra))}")
-        if not isinstance(privacy.get("keep_location", False), bool):
-            raise ConfigError("privacy.keep_location must be true or false")
-        max_mp = limits.get("max_megapixels", 80.0)
-        if isinstance(max_mp, bool) or not isinstance(max_mp, int | float) or max_mp <= 0:
-            raise ConfigError(f"limits.max_megapixels must be a positive number, got {max_mp!r}")
-        workers = int(data.get("workers", 2))
-        if workers < 1:
-            raise ConfigError(f"workers must be >= 1, got {workers}")
-        return cls(
-            spec=spec,
-            workers=workers,
-            debounce_seconds=float(data.get("debounce_seconds", 2.0)),
-            publish_dir=_optional_path(data.get("publish_dir")),
-            verification=VerificationSchedule(**ver),
-            vault=VaultConfig(**data.get("vault", {})),
-            datasets=datasets,
-            visibility=VisibilityConfig(**data.get("visibility", {})),
-            preflight=PreflightConfig(**preflight),
-            keep_location=privacy.get("keep_location", False),
-            quarantine_dir=_optional_path(daemon_table.get("quarantine_dir")),
-            max_megapixels=float(max_mp),
-            source=source,
-        )
+        data = _unset_empty(data)
+        datasets = data.get("datasets", {})
+        for name, table in datasets.items() if isinstance(datasets, dict) else ():
+            _convert(table, DatasetOverride, where, f"datasets.{name}")  # msgspec's path omits the name
+        config = _convert(data, cls, where, "")
+        config.__dict__["source"] = source
+        return config
+
+    # ---- flat views callers use -------------------------------------------------------------
+    @functools.cached_property
+    def spec(self) -> PatchSpec:
+        """The default spec with [patch]'s fields replaced."""
+        return spec_from_table(self.patch)
+
+    @property
+    def keep_location(self) -> bool:
+        return self.privacy.keep_location
+
+    @property
+    def quarantine_dir(self) -> Path | None:
+        return self.daemon.quarantine_dir
+
+    @property
+    def max_megapixels(self) -> float:
+        return self.limits.max_megapixels
+
+    @property
+    def max_pixels(self) -> int:
+        """[limits] max_megapixels in pixels, as poisoner.limits takes it."""
+        return int(self.limits.max_megapixels * 1_000_000)
 
     # ---- per dataset ----------------------------------------------------------------------
     def is_auto(self, dataset: str) -> bool:
@@ -275,16 +287,11 @@ class Config:
             return strongest_spec()
         return spec_from_table(override.patch, self.spec) if override and override.patch else self.spec
 
-    @property
-    def max_pixels(self) -> int:
-        """[limits] max_megapixels in pixels, as poisoner.limits takes it."""
-        return int(self.max_megapixels * 1_000_000)
-
     def quarantine_dir_for(self, outbox: Path) -> Path:
         """Where the daemon moves files it cannot patch: [daemon] quarantine_dir, else a visible
         folder next to the outbox (outside it, so nothing there is published or watched)."""
-        if self.quarantine_dir is not None:
-            return self.quarantine_dir
+        if self.daemon.quarantine_dir is not None:
+            return self.daemon.quarantine_dir
         return Path(outbox).absolute().parent / "ppd-quarantine"
 
     def publish_dir_for(self, dataset: str) -> Path | None:
@@ -295,66 +302,59 @@ class Config:
 
     # ---- writing --------------------------------------------------------------------------
     def to_toml(self) -> str:
-        """The effective configuration as TOML (what `ppd config show` prints)."""
-        lines = [
-            f"workers = {self.workers}",
-            f"debounce_seconds = {self.debounce_seconds!r}",
-            f"publish_dir = {_toml_value(str(self.publish_dir) if self.publish_dir else '')}",
-            "",
-            "[patch]",
-        ]
-        lines += [f"{k} = {_toml_value(v)}" for k, v in self.spec.to_dict().items()]
-        lines += ["", "[verification]"]
-        lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(self.verification).items()]
-        lines += ["", "[vault]", f"max_bytes = {self.vault.max_bytes}"]
-        lines += ["", "[privacy]", f"keep_location = {_toml_value(self.keep_location)}"]
-        lines += ["", "[daemon]", f"quarantine_dir = {_toml_value(str(self.quarantine_dir or ''))}"]
-        lines += ["", "[limits]", f"max_megapixels = {self.max_megapixels!r}"]
-        lines += ["", "[visibility]"]
-        lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(self.visibility).items()]
-        lines += ["", "[preflight]"]
-        lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(self.preflight).items()]
-        for name, override in sorted(self.datasets.items()):
-            lines += ["", f"[datasets.{_toml_key(name)}]"]
-            if override.auto:
-                lines.append(f"spec = {_toml_value(AUTO_SPEC)}")
-            if override.publish_dir is not None:
-                lines.append(f"publish_dir = {_toml_value(str(override.publish_dir))}")
-            if override.patch:
-                lines += ["", f"[datasets.{_toml_key(name)}.patch]"]
-                lines += [f"{k} = {_toml_value(v)}" for k, v in override.patch.items()]
-        return "\n".join(lines) + "\n"
+        """The effective configuration as TOML (what `ppd config show` prints); reads back equal."""
+        data = msgspec.to_builtins(self, enc_hook=_encode_path)
+        data["patch"] = self.spec.to_dict()  # the effective spec, not only the replaced fields
+        if not data["datasets"]:
+            del data["datasets"]
+        return msgspec.toml.encode(_none_as_empty(data)).decode()
 
 
-def _auto_flag(name: str, table: dict[str, Any]) -> bool:
-    """`spec = "auto"` (the only value `spec` takes; a concrete patch goes in [datasets.NAME.patch])."""
-    if "spec" not in table:
-        return False
-    if table["spec"] != AUTO_SPEC:
-        raise ConfigError(
-            f'datasets.{name}.spec must be "{AUTO_SPEC}" (set patch fields in [datasets.{name}.patch])'
-        )
-    if table.get("patch"):
-        raise ConfigError(f'datasets.{name}: spec = "{AUTO_SPEC}" and a [patch] table exclude each other')
-    return True
+def _convert(data: Any, kind: type[msgspec.Struct], where: str, path: str) -> Any:
+    """msgspec.convert with a ConfigError naming the file and the key path on a bad value."""
+    try:
+        return msgspec.convert(data, kind, dec_hook=_decode_path)
+    except msgspec.ValidationError as exc:
+        raise ConfigError(f"{where}: {_validation_message(exc, path)}") from None
 
 
-def _optional_path(value: Any) -> Path | None:
-    return Path(str(value)).expanduser() if value else None
+def _decode_path(kind: type, value: Any) -> Any:
+    if kind is Path and isinstance(value, str):
+        return Path(value).expanduser()
+    raise TypeError(f"expected a folder path (a string), got {type(value).__name__}")
 
 
-def _toml_key(key: str) -> str:
-    bare = key.replace("-", "").replace("_", "").isalnum() and key.isascii()
-    return key if bare else _toml_value(key)
+def _encode_path(value: Any) -> Any:
+    if isinstance(value, Path):
+        return str(value)
+    raise NotImplementedError
 
 
-def _toml_value(value: Any) -> str:
-    """A TOML literal for the scalar/list values this config holds."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    text = str(value).replace("\\", "\\\\").replace('"', '\\"')
-    return f'"{text}"'
+def _unset_empty(table: dict[str, Any]) -> dict[str, Any]:
+    """The TOML data with `folder = ""` left out (its default: not set), at every depth."""
+    return {
+        k: _unset_empty(v) if isinstance(v, dict) else v
+        for k, v in table.items()
+        if not (k in _EMPTY_MEANS_UNSET and v == "")
+    }
+
+
+def _none_as_empty(value: Any) -> Any:
+    """TOML has no null: an unset optional is written as "" (which reads back as unset)."""
+    if isinstance(value, dict):
+        return {k: _none_as_empty(v) for k, v in value.items()}
+    return "" if value is None else value
+
+
+def _validation_message(exc: msgspec.ValidationError, prefix: str) -> str:
+    """msgspec's "Expected `int` >= 1 - at `$.verification.keep_runs`" as "verification.keep_runs:
+    expected `int` >= 1" (one line, the key path first)."""
+    text = str(exc).splitlines()[0].replace("Object contains unknown field", "unknown key")
+    match = re.fullmatch(r"(.*) - at `\$\.?(.*)`", text)
+    if not match:
+        text = text[:1].lower() + text[1:]
+        return f"{prefix}: {text}" if prefix else text
+    what, path = match.groups()
+    what = what[:1].lower() + what[1:]
+    path = ".".join(p for p in (prefix, path) if p)
+    return f"{path}: {what}" if path else what

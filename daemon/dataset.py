@@ -1,9 +1,10 @@
-"""Which dataset a file belongs to.
+"""Which dataset a file or folder belongs to: one rule, `attribute`.
 
-A dataset is a first-level subfolder of the outbox: `outbox/shoot-01/a.jpg` and
-`outbox/shoot-01/raw/b.jpg` both belong to "shoot-01". Files directly in the outbox form the
-dataset "default". (`ppd poison FOLDER` makes FOLDER one dataset named after it; see
-daemon.protect.)
+In the outbox a dataset is a first-level subfolder: `outbox/shoot-01/a.jpg` and
+`outbox/shoot-01/raw/b.jpg` both belong to "shoot-01"; files directly in the outbox form the
+dataset "default". Outside the outbox (`ppd poison FOLDER`) a folder is one dataset named after
+it, and a file belongs to a dataset named after its parent folder. An explicit name keeps a known
+dataset's stored root.
 """
 
 from __future__ import annotations
@@ -22,6 +23,10 @@ class OutsideOutboxError(ValueError):
     """The path is not inside the outbox."""
 
 
+class DatasetConflict(ValueError):
+    """An explicit dataset name whose stored root does not hold the target."""
+
+
 def dataset_of(outbox: Path, path: Path) -> str:
     """The dataset name of path, a file inside outbox (compared without resolving symlinks,
     so a link inside the outbox is attributed by where it sits, and refused later)."""
@@ -38,6 +43,43 @@ def dataset_of(outbox: Path, path: Path) -> str:
 def dataset_root(outbox: Path, dataset: str) -> Path:
     """The folder that holds a dataset of the outbox."""
     return Path(outbox) if dataset == DEFAULT_DATASET else Path(outbox) / dataset
+
+
+def attribute(
+    ctx: AppContext, target: Path, dataset: str | None = None, *, folder: bool | None = None
+) -> tuple[str, Path]:
+    """The dataset name and root folder of target, a file or a folder (given on the command line
+    or seen by the daemon).
+
+    - no name, inside the outbox: its outbox dataset (first-level subfolder, or "default");
+    - no name, outside: a folder is a dataset named after it; a file, one named after its parent;
+    - an explicit name: a known dataset keeps its stored root (DatasetConflict when target lies
+      outside it); a new one gets the folder itself, or the file's parent folder.
+
+    folder: whether target is a folder; None asks the file system (following a symlink, as a
+    folder named on the command line may be one). The daemon says False: a name it sees is a file.
+
+    >>> attribute(ctx, outbox / "shoot" / "raw" / "a.jpg")   # doctest: +SKIP
+    ('shoot', PosixPath('.../outbox/shoot'))
+    """
+    target = Path(target).absolute()
+    is_folder = target.is_dir() if folder is None else folder
+    home = target if is_folder else target.parent
+    if dataset:
+        row = ctx.store.dataset(dataset)
+        if row is None:
+            return dataset, home
+        stored = Path(row["root"])
+        if not target.is_relative_to(stored.absolute()):
+            raise DatasetConflict(
+                f"dataset {dataset!r} already belongs to {stored}; name this one with --dataset NAME"
+            )
+        return dataset, stored
+    outbox = Path(ctx.paths.outbox).absolute()
+    if target.is_relative_to(outbox) and target != outbox:
+        name = dataset_of(outbox, target / "x" if is_folder else target)
+        return name, dataset_root(outbox, name)
+    return (home.name or DEFAULT_DATASET), home
 
 
 def ensure_dataset(ctx: AppContext, dataset: str, root: Path, spec: PatchSpec | None) -> PatchSpec:

@@ -1,7 +1,8 @@
 """One file patched end to end, as a list of named stages over one small state object (`Job`).
 
-    STAGES = check_name → open_contained_file → check_complete → hash_original → decide →
-             keep_in_vault → mark_pending → poison → replace_atomically → record_provenance → publish
+    STAGES = check_name → open_contained_file → check_complete → hash_original → recognise →
+             decide → keep_in_vault → mark_pending → poison → replace_atomically →
+             record_provenance → publish
 
 Each stage is a small function `stage(job) -> ProtectOutcome | None`: None hands the job to the
 next stage, an outcome ends the run there (unchanged, skipped, dry run). Exceptions end it as
@@ -494,9 +495,10 @@ def hash_original(job: Job) -> ProtectOutcome | None:
     return None
 
 
-def decide(job: Job) -> ProtectOutcome | None:
-    """Everything that ends the run before the vault: ppd's own output, a restored file, an
-    up-to-date copy, a file the spec's ratio does not select, a dry run."""
+def recognise(job: Job) -> ProtectOutcome | None:
+    """What is never patched again: ppd's own output (by its row, its sha256 anywhere in the
+    store, or its provenance marker), a run of this path that was interrupted (finished here), a
+    file the user restored (unless force)."""
     ctx, row, sha, out_path = job.ctx, job.row, job.sha, job.out_path
     # Never poison twice: ppd's own output (here or anywhere) is left alone.
     if out_path is None and row is not None and row["poisoned_sha256"] == sha:
@@ -523,7 +525,13 @@ def decide(job: Job) -> ProtectOutcome | None:
         and not job.force
     ):
         return job.outcome(Outcome.UNCHANGED, "restored by the user (use --force to protect it again)")
+    return None
 
+
+def decide(job: Job) -> ProtectOutcome | None:
+    """The dataset's spec, then what ends the run before the vault: an up-to-date `--out` copy, a
+    file the spec's ratio does not select (recorded 'skipped'), a dry run."""
+    ctx, row, sha, out_path = job.ctx, job.row, job.sha, job.out_path
     spec = job.spec = (
         job.wanted_spec or ctx.store.dataset_spec(job.dataset) or ctx.config.spec_for(job.dataset)
         if job.dry_run
@@ -706,6 +714,7 @@ STAGES: tuple[Callable[[Job], ProtectOutcome | None], ...] = (
     open_contained_file,
     check_complete,
     hash_original,
+    recognise,
     decide,
     keep_in_vault,  # crash-safe order from here: vault → pending → poison → replace → row → publish
     mark_pending,

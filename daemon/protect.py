@@ -7,16 +7,25 @@ under a per-file lock shared by every ppd process (daemon.locks), and turns any 
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import shutil
 import stat
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from daemon.context import AppContext
-from daemon.dataset import OutsideOutboxError, dataset_of, dataset_root, ensure_dataset
+from daemon.dataset import (
+    DatasetConflict,
+    OutsideOutboxError,
+    attribute,
+    dataset_of,
+    dataset_root,
+    ensure_dataset,
+)
 from daemon.fsops import sha256_fd
 from daemon.locks import LockHeld
 from daemon.pipeline import (
@@ -75,18 +84,15 @@ def anchor_for(ctx: AppContext, path: Path, root: Path) -> Path:
 
 
 def _resolve_dataset(ctx: AppContext, path: Path, dataset: str | None, root: Path | None) -> tuple[str, Path]:
-    outbox = ctx.paths.outbox
-    if dataset is None:
-        dataset = dataset_of(outbox, path)
-        return dataset, root or dataset_root(outbox, dataset)
-    if root is not None:
+    """The caller's (dataset, root) when both are given (`ppd poison` planned them), else
+    daemon.dataset.attribute's, the one rule; a root given alone is kept. Named by neither, the
+    file must be in the outbox (OutsideOutboxError): a file from elsewhere comes with its dataset."""
+    if dataset is not None and root is not None:
         return dataset, root
-    row = ctx.store.dataset(dataset)
-    if row is not None:
-        return dataset, Path(row["root"])
-    if path.is_relative_to(outbox.absolute()):
-        return dataset, dataset_root(outbox, dataset)
-    return dataset, path.parent
+    if dataset is None and root is None:
+        dataset_of(ctx.paths.outbox, path)  # raises outside the outbox
+    name, found = attribute(ctx, path, dataset, folder=False)
+    return name, root or found
 
 
 def protect_file(
@@ -116,27 +122,18 @@ def protect_file(
     path = Path(path).absolute()
     try:
         dataset, root = _resolve_dataset(ctx, path, dataset, root)
-    except OutsideOutboxError as exc:
+    except (OutsideOutboxError, DatasetConflict) as exc:
         return ProtectOutcome(path=path, dataset=None, state=Outcome.FAILED, reason=one_line(exc))
     root = Path(root).absolute()
     keep = ctx.config.keep_location if keep_location is None else keep_location
+    new_job = functools.partial(
+        Job, path=path, ctx=ctx, dataset=dataset, root=root, anchor=anchor_for(ctx, path, root),
+        out_path=out_path, dry_run=dry_run, force=force, progress=progress, wanted_spec=spec,
+        keep_location=keep,
+    )  # fmt: skip
     try:
         with ctx.path_lock(out_path or path):
-            for _ in range(SOURCE_CHANGE_TRIES):
-                job = Job(
-                    path=path, ctx=ctx, dataset=dataset, root=root, anchor=anchor_for(ctx, path, root),
-                    out_path=out_path, dry_run=dry_run, force=force, progress=progress, wanted_spec=spec,
-                    keep_location=keep,
-                )  # fmt: skip
-                try:
-                    outcome = run_stages(job)
-                    break
-                except SourceChanged as exc:
-                    outcome = job.outcome(Outcome.SKIPPED, one_line(exc), requeue=True, signature=None)
-                    log.info("%s: %s", shown_name(path), outcome.reason, extra={"path": str(path)})
-                except Exception as exc:  # one bad file must not stop the others; record and go on
-                    outcome = _record_failure(ctx, path, dataset, root, out_path, exc, dry_run, spec)
-                    break
+            outcome = _run_until_settled(new_job)
     except LockHeld as exc:  # another process is on it; its own row says what happened
         outcome = ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
     except OSError as exc:  # the lock file itself (a full disk): nothing was done
@@ -150,6 +147,23 @@ def protect_file(
         extra={"path": str(path), "dataset": dataset, "state": outcome.state, "reason": outcome.reason,
                "seconds": round(outcome.seconds, 3)},
     )  # fmt: skip
+    return outcome
+
+
+def _run_until_settled(new_job: Callable[[], Job]) -> ProtectOutcome:
+    """The stages on a fresh Job, again while the source changes under them (SOURCE_CHANGE_TRIES
+    runs, then an outcome asking for a requeue); any other exception is recorded as 'failed'."""
+    for _ in range(SOURCE_CHANGE_TRIES):
+        job = new_job()
+        try:
+            return run_stages(job)
+        except SourceChanged as exc:
+            outcome = job.outcome(Outcome.SKIPPED, one_line(exc), requeue=True, signature=None)
+            log.info("%s: %s", shown_name(job.path), outcome.reason, extra={"path": str(job.path)})
+        except Exception as exc:  # one bad file must not stop the others; record and go on
+            return _record_failure(
+                job.ctx, job.path, job.dataset, job.root, job.out_path, exc, job.dry_run, job.wanted_spec
+            )
     return outcome
 
 

@@ -1,25 +1,11 @@
-"""The outbox watcher: inotify events in, complete file paths out, never blocking.
+"""`ppd watch`: the daemon around the event layer (daemon.events).
 
-A file is handed on only when it is complete:
-- close-after-write (IN_CLOSE_WRITE, watchdog's FileClosedEvent) or a rename into place
-  (IN_MOVED_TO: browsers, rsync, editors and `mv` all finish that way), then
-- a short debounce: the file's (inode, size, mtime) must be unchanged for `settle_s` after the
-  last such event, for writers that close and reopen (chunked uploads, some sync tools).
-A file that only ever got IN_CREATE (a hard link, or a file written inside a new folder
-before its watch existed) is handed on after `unclosed_settle_s` of stable size and mtime.
-
-Never handed on: dot-files and anything under a dot-folder (ppd's own `.ppd-tmp-*` atomic
-temporaries included), partial downloads (`.crdownload`, `.part`, ...), editor backups and
-swap files (`~`, `.swp`, `.tmp`), files that are not images or videos. A partial download
-is picked up when it is renamed to its final name (a moved-in event).
-
-ppd's own atomic replace is a rename from `.ppd-tmp-*` onto the file: it is recognised by
-its source name and dropped before it is queued. A stat signature recorded after each
-processed file drops any other echo of ppd's own work (the vault's hard link changes ctime
-only; a late close event sees the signature of the file ppd wrote).
-
-The watcher runs on watchdog's observer thread and one debounce thread; both only do dict
-updates and stat calls and hand paths to `submit`, which never blocks (daemon.workers).
+WatchDaemon owns the outbox lock, a catch-up scan at start (and after lost events), the worker
+pool (daemon.workers: threads, back-pressure), the per-file worker processes
+(daemon.protect_pool: each file's stages run there, so this process stays free of numpy, PIL
+and PyAV), quarantine of hopeless files, retries once disk space returns, verification
+scheduling, and the systemd protocol (daemon.notify). Its main thread sleeps until an event
+needs it; the one timer is systemd's watchdog (and a worker process's idle exit).
 """
 
 from __future__ import annotations
@@ -32,372 +18,21 @@ import os
 import stat
 import threading
 import time
-from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from watchdog.events import (
-    DirDeletedEvent,
-    DirMovedEvent,
-    FileClosedEvent,
-    FileCreatedEvent,
-    FileDeletedEvent,
-    FileMovedEvent,
-    FileSystemEvent,
-    FileSystemEventHandler,
-)
-from watchdog.observers.inotify import InotifyObserver
-
+from daemon.events import OutboxWatcher, WatchOptions, is_candidate, scan_outbox, walk_files
 from daemon.locks import outbox_lock
 from daemon.notify import SystemdNotifier
 from daemon.pipeline import Outcome
 from daemon.states import FileState
 from daemon.workers import PoolOptions, PoolStats, WorkerPool
-from poisoner.atomic import TEMP_PREFIX, remove_if_stale
-from poisoner.media import MEDIA_SUFFIXES, PARTIAL_SUFFIXES
+from poisoner.media import MEDIA_SUFFIXES
+
+__all__ = ["DaemonOptions", "WatchDaemon", "WatchOptions", "is_no_space", "scan_outbox"]
 
 log = logging.getLogger(__name__)
-
-
-FileSignature = tuple[int, int, int]  # (inode, size, mtime_ns): changes whenever content can have
-
-
-def ignore_reason(name: str) -> str | None:
-    """Why a file name is never processed as it is (None: it may be)."""
-    if name.startswith("."):
-        return "dot-file" if not name.startswith(TEMP_PREFIX) else "ppd temporary file"
-    if name.endswith("~"):
-        return "editor backup"
-    if name.startswith("~$") or name.startswith("#"):
-        return "editor lock file"
-    suffix = os.path.splitext(name)[1].lower()
-    if suffix in PARTIAL_SUFFIXES:
-        return f"partial/temporary file ({suffix})"
-    return None
-
-
-def relative_parts(outbox: Path, path: Path) -> tuple[str, ...] | None:
-    """path's components below outbox, or None when it is not inside."""
-    try:
-        return Path(path).relative_to(outbox).parts
-    except ValueError:
-        return None
-
-
-def is_candidate(outbox: Path, path: Path, suffixes: frozenset[str]) -> bool:
-    """Whether path (inside outbox) names a file ppd would protect, by its name alone."""
-    parts = relative_parts(outbox, path)
-    if not parts:
-        return False
-    if any(part.startswith(".") for part in parts[:-1]):
-        return False  # under a dot-folder (.Trash-1000, .thumbnails, .git, ...)
-    if ignore_reason(parts[-1]) is not None:
-        return False
-    return os.path.splitext(parts[-1])[1].lower() in suffixes
-
-
-def signature(path: Path) -> FileSignature | None:
-    try:
-        st = os.stat(path, follow_symlinks=False)
-    except OSError:
-        return None
-    return (st.st_ino, st.st_size, st.st_mtime_ns)
-
-
-# ---- start-up scan --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ScanResult:
-    files: list[Path]  # candidate files, in walk order
-    stale_temps_removed: list[Path]  # `.ppd-tmp-*` leftovers of a crash, deleted
-    young_temps: list[Path]  # `.ppd-tmp-*` too recent to call leftovers (another ppd may write them)
-
-
-def walk_files(root: Path) -> Iterator[Path]:
-    """Every regular file under root, not following symlinks, skipping dot-folders."""
-    for folder, dirnames, filenames in os.walk(root, onerror=_log_walk_error):
-        dirnames[:] = [d for d in dirnames if not d.startswith(".")]
-        for name in filenames:
-            yield Path(folder) / name
-
-
-def _log_walk_error(exc: OSError) -> None:
-    log.warning("cannot list folder %s: %s", exc.filename, exc.strerror, extra={"path": exc.filename})
-
-
-def _remove_temp_if_stale(path: Path, grace_s: float, now: float) -> bool:
-    """A temporary no living writer holds locked goes; one locked before it had a name
-    (poisoner.atomic.BORN_LOCKED) at any age, any other only once grace_s old."""
-    dir_fd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
-    try:
-        return remove_if_stale(dir_fd, path.name, min_age_s=grace_s, now=now)
-    finally:
-        os.close(dir_fd)
-
-
-def scan_outbox(
-    outbox: Path, suffixes: frozenset[str], tmp_grace_s: float | None, now: float | None = None
-) -> ScanResult:
-    """List the outbox's candidate files and delete ppd temporaries older than tmp_grace_s
-    (None: delete none).
-
-    A temporary goes only when no living writer holds its lock (`ppd poison` in another
-    process may be writing one right now); one made by name, not locked before it had one,
-    also only once tmp_grace_s old."""
-    now = time.time() if now is None else now
-    files: list[Path] = []
-    removed: list[Path] = []
-    young: list[Path] = []
-    for path in walk_files(outbox):
-        if path.name.startswith(TEMP_PREFIX):
-            try:
-                if tmp_grace_s is not None and _remove_temp_if_stale(path, tmp_grace_s, now):
-                    removed.append(path)
-                else:
-                    young.append(path)
-            except FileNotFoundError:
-                pass
-            except OSError as exc:
-                log.warning("cannot remove leftover temporary %s: %s", path, exc.strerror)
-        elif is_candidate(outbox, path, suffixes):
-            files.append(path)
-    return ScanResult(files, removed, young)
-
-
-# ---- live events ----------------------------------------------------------------------------
-@dataclass(frozen=True)
-class WatchOptions:
-    settle_s: float = 2.0  # quiet time after close-after-write (config: debounce_seconds)
-    moved_settle_s: float = 0.2  # a rename is atomic: only coalesce bursts
-    unclosed_settle_s: float = 10.0  # created, never closed/renamed (hard link, race in a new folder)
-
-
-@dataclass
-class _Armed:
-    deadline: float
-    delay: float
-    closed: bool  # a close/rename was seen (else only a creation)
-    last: FileSignature | None
-
-
-class _OverflowFlag(logging.Handler):
-    """watchdog rebuilds its watches after an inotify queue overflow but does not tell the
-    application; it logs a warning, which is the one signal it gives. Events were lost: the
-    owner must rescan."""
-
-    def __init__(self, on_overflow: Callable[[], None]) -> None:
-        super().__init__(logging.WARNING)
-        self._on_overflow = on_overflow
-
-    def emit(self, record: logging.LogRecord) -> None:
-        if "overflow" in str(record.msg).lower():
-            self._on_overflow()
-
-
-class OutboxWatcher(FileSystemEventHandler):
-    """Turns inotify events under outbox into `submit(path)` calls for complete files, and
-    `submit(path)` for vanished files and folders (the consumer records them removed)."""
-
-    def __init__(
-        self,
-        outbox: Path,
-        submit: Callable[[Path], object],
-        options: WatchOptions | None = None,
-        suffixes: frozenset[str] | None = None,
-        on_overflow: Callable[[], None] | None = None,
-    ) -> None:
-        super().__init__()
-        self.outbox = Path(outbox).absolute()
-        self.options = options or WatchOptions()
-        self.suffixes = suffixes if suffixes is not None else MEDIA_SUFFIXES
-        self._submit = submit
-        self._on_overflow = on_overflow or (lambda: None)
-        self._cond = threading.Condition()
-        self._armed: dict[Path, _Armed] = {}
-        self._settled: dict[Path, FileSignature] = {}
-        self._settled_lock = threading.Lock()
-        self._observer: InotifyObserver | None = None
-        self._debouncer: threading.Thread | None = None
-        self._stopping = False
-        self._overflow_flag = _OverflowFlag(self._on_overflow)
-
-    # ---- lifecycle --------------------------------------------------------------------------
-    def start(self) -> None:
-        # Full events: a rename from outside the outbox arrives as a move (complete file),
-        # not as a creation (which would mean "a writer is starting").
-        observer = InotifyObserver(generate_full_events=True)
-        observer.schedule(
-            self, str(self.outbox), recursive=True,
-            event_filter=[FileClosedEvent, FileCreatedEvent, FileMovedEvent, DirMovedEvent,
-                          FileDeletedEvent, DirDeletedEvent],
-        )  # fmt: skip
-        logging.getLogger("watchdog.observers").addHandler(self._overflow_flag)
-        observer.start()
-        self._observer = observer
-        self._stopping = False
-        self._debouncer = threading.Thread(target=self._debounce_loop, name="ppd-debounce", daemon=True)
-        self._debouncer.start()
-        log.info("watching %s", self.outbox, extra={"outbox": str(self.outbox)})
-
-    def stop(self) -> None:
-        with self._cond:
-            self._stopping = True
-            self._armed.clear()
-            self._cond.notify_all()
-        if self._observer is not None:
-            self._observer.stop()
-            self._observer.join(timeout=10)
-        if self._debouncer is not None:
-            self._debouncer.join(timeout=10)
-        logging.getLogger("watchdog.observers").removeHandler(self._overflow_flag)
-
-    def is_alive(self) -> bool:
-        """False once the observer died (e.g. the outbox itself was deleted or moved away)."""
-        observer = self._observer
-        if observer is None or not observer.is_alive():
-            return False
-        return all(emitter.is_alive() for emitter in observer.emitters)
-
-    @property
-    def armed_count(self) -> int:
-        with self._cond:
-            return len(self._armed)
-
-    # ---- what the consumer tells us ---------------------------------------------------------
-    def mark_settled(self, path: Path) -> None:
-        """Remember path's current signature: events that find it unchanged are echoes."""
-        self.settle_as(path, signature(path))
-
-    def settle_as(self, path: Path, sig: FileSignature | None) -> None:
-        """Remember sig (what ppd judged or wrote at path) as settled; None forgets path."""
-        with self._settled_lock:
-            if sig is None:
-                self._settled.pop(path, None)
-            else:
-                self._settled[path] = sig
-
-    def is_settled(self, path: Path, sig: FileSignature | None = None) -> bool:
-        sig = signature(path) if sig is None else sig
-        with self._settled_lock:
-            return sig is not None and self._settled.get(path) == sig
-
-    def forget(self, path: Path) -> None:
-        with self._settled_lock:
-            self._settled.pop(path, None)
-
-    # ---- events (watchdog's observer thread) --------------------------------------------------
-    def _candidate(self, raw: str | bytes) -> Path | None:
-        if not raw:
-            return None
-        path = Path(os.fsdecode(raw))
-        return path if is_candidate(self.outbox, path, self.suffixes) else None
-
-    def _inside(self, raw: str | bytes) -> Path | None:
-        if not raw:
-            return None
-        path = Path(os.fsdecode(raw))
-        parts = relative_parts(self.outbox, path)
-        if not parts or any(part.startswith(".") for part in parts):
-            return None
-        return path
-
-    def on_closed(self, event: FileSystemEvent) -> None:
-        if (path := self._candidate(event.src_path)) is not None:
-            self._arm(path, self.options.settle_s, closed=True)
-
-    def on_created(self, event: FileSystemEvent) -> None:
-        if event.is_directory:
-            return  # watchdog reports the new folder's content itself
-        if (path := self._candidate(event.src_path)) is not None:
-            self._arm(path, self.options.unclosed_settle_s, closed=False)
-
-    def on_moved(self, event: FileSystemEvent) -> None:
-        src = os.fsdecode(event.src_path) if event.src_path else ""
-        if src and os.path.basename(src).startswith(TEMP_PREFIX):
-            return  # ppd's own atomic replace: the destination is ppd's output
-        if event.is_directory:
-            if (gone := self._inside(src)) is not None:
-                self._submit(gone)  # rows under it are recorded removed (if it is really gone)
-            # A folder from outside: its files are complete; the consumer walks it. (A rename
-            # inside the outbox also gets one moved event per file from watchdog.)
-            if (new := self._inside(event.dest_path)) is not None and self._inside(src) is None:
-                self._submit(new)
-            return
-        if (gone := self._candidate(src)) is not None:
-            self._disarm(gone)
-            self._submit(gone)
-        if (dest := self._candidate(event.dest_path)) is not None:
-            self._arm(dest, self.options.moved_settle_s, closed=True)
-
-    def on_deleted(self, event: FileSystemEvent) -> None:
-        src = os.fsdecode(event.src_path)
-        if event.is_directory:
-            if Path(src) == self.outbox:
-                log.error("the outbox %s was deleted or moved away", src)
-                self._on_overflow()  # the owner notices the dead observer and restarts
-            elif (gone := self._inside(src)) is not None:
-                self._submit(gone)
-            return
-        if (path := self._candidate(src)) is not None:
-            self._disarm(path)
-            self._submit(path)
-
-    # ---- debounce ---------------------------------------------------------------------------
-    def _arm(self, path: Path, delay: float, closed: bool) -> None:
-        now = time.monotonic()
-        with self._cond:
-            if self._stopping:
-                return
-            armed = self._armed.get(path)
-            if armed is not None and armed.closed and not closed:
-                return  # a creation never weakens a close already seen
-            self._armed[path] = _Armed(deadline=now + delay, delay=delay, closed=closed, last=signature(path))
-            self._cond.notify()
-
-    def _disarm(self, path: Path) -> None:
-        with self._cond:
-            self._armed.pop(path, None)
-
-    def _due(self) -> list[tuple[Path, _Armed]]:
-        """Wait for the earliest deadline; return the entries that are due (removed)."""
-        with self._cond:
-            while not self._stopping:
-                if not self._armed:
-                    self._cond.wait()
-                    continue
-                now = time.monotonic()
-                earliest = min(a.deadline for a in self._armed.values())
-                if earliest > now:
-                    self._cond.wait(earliest - now)
-                    continue
-                due = [(p, a) for p, a in self._armed.items() if a.deadline <= now]
-                for p, _ in due:
-                    del self._armed[p]
-                return due
-            return []
-
-    def _debounce_loop(self) -> None:
-        while due := self._due():
-            for path, armed in due:
-                try:
-                    self._fire(path, armed)
-                except Exception:  # never let the debounce thread die
-                    log.exception("debounce failed", extra={"path": str(path)})
-
-    def _fire(self, path: Path, armed: _Armed) -> None:
-        now_sig = signature(path)
-        if now_sig is not None and now_sig != armed.last:
-            # Still changing (a writer that closed early and reopened): wait another round.
-            with self._cond:
-                if path not in self._armed and not self._stopping:
-                    self._armed[path] = _Armed(
-                        time.monotonic() + armed.delay, armed.delay, armed.closed, now_sig
-                    )
-                    self._cond.notify()
-            return
-        if now_sig is not None and self.is_settled(path, now_sig):
-            return  # ppd's own output, or content already processed
-        self._submit(path)
 
 
 # ---- the daemon: watcher + catch-up + workers + systemd ---------------------------------------
@@ -411,6 +46,10 @@ class DaemonOptions:
     no_space_poll_s: float = 5.0  # while files wait for disk space: how often free space is checked
     no_space_retry_s: float = 300.0  # ... and retried anyway (space freed elsewhere, quota raised)
     verify: bool = True  # run the VerificationScheduler (daemon.scheduler)
+    # Each file is protected in a worker process (daemon.protect_pool), so this process never
+    # loads numpy, PIL or PyAV; the workers exit after worker_idle_s without a file.
+    worker_processes: bool = True
+    worker_idle_s: float = 30.0
 
     @classmethod
     def from_config(cls, config: Any, **overrides: Any) -> DaemonOptions:
@@ -478,6 +117,7 @@ class WatchDaemon:
         )
         self.scheduler: Any = None
         self._owner = contextlib.ExitStack()
+        self.protectors: Any = None  # daemon.protect_pool.ProtectWorkers, made on start
 
     # ---- lifecycle ----------------------------------------------------------------------------
     def request_stop(self) -> None:
@@ -491,6 +131,10 @@ class WatchDaemon:
         self.outbox.mkdir(parents=True, exist_ok=True)
         self._owner.enter_context(outbox_lock(self.ctx.paths.data_dir, self.outbox))
         self.scheduler = self._start_scheduler() if self.options.verify else None
+        if self.options.worker_processes:
+            from daemon.protect_pool import ProtectWorkers
+
+            self.protectors = ProtectWorkers(self.ctx, self.options.workers, self.options.worker_idle_s)
         self.pool.start()
         self.watcher.start()  # before the scan: nothing written during the scan is missed
         self.catch_up(remove_leftovers=True)
@@ -519,6 +163,8 @@ class WatchDaemon:
             if self._trim_due.is_set() and self._idle_enough():
                 self._trim_due.clear()
                 release_free_memory()
+            if self.protectors is not None:
+                self.protectors.end_idle()
             if ping and self.watcher.is_alive():
                 self.notifier.watchdog()  # only while events can still arrive
             status = self.status()
@@ -533,6 +179,8 @@ class WatchDaemon:
         log.info("stopping: no new work; waiting for files in flight", extra=self._stats_extra())
         self.watcher.stop()
         dropped = self.pool.stop()
+        if self.protectors is not None:
+            self.protectors.close()
         if dropped:
             log.info("%d queued file(s) left for the next start's catch-up scan", len(dropped))
         if self.scheduler is not None:
@@ -567,6 +215,8 @@ class WatchDaemon:
             waits.append(5.0)
         if self._no_space:
             waits.append(self.options.no_space_poll_s)
+        if self.protectors is not None and (idle_in := self.protectors.end_idle()) is not None:
+            waits.append(idle_in + 0.05)  # then the idle workers exit
         return min(waits) if waits else None
 
     def _note_no_space(self, path: Path, reason: str | None) -> None:
@@ -738,9 +388,7 @@ class WatchDaemon:
             return
         if self.watcher.is_settled(path):
             return
-        from daemon.protect import protect_file  # lazy: keeps `import daemon.watcher` light
-
-        outcome = protect_file(path, self.ctx)
+        outcome = self._protect(path)
         # The signature of what ppd judged or wrote, not of what is there now: a version that
         # arrived meanwhile must not be taken for an echo of ppd's own work.
         if outcome.signature is None and outcome.state == Outcome.FAILED:
@@ -764,6 +412,14 @@ class WatchDaemon:
                 self.scheduler.on_protected(outcome.dataset)
             except Exception:
                 log.exception("verification scheduler failed", extra={"dataset": outcome.dataset})
+
+    def _protect(self, path: Path) -> Any:
+        """protect_file, in a worker process unless the options say in this one."""
+        if self.protectors is not None:
+            return self.protectors.protect(path)
+        from daemon.protect import protect_file  # lazy: keeps `import daemon.watcher` light
+
+        return protect_file(path, self.ctx)
 
     def _record_removed(self, path: Path) -> None:
         """Rows for path, or for every file under path when it was a folder, become 'removed'."""

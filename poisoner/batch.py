@@ -21,12 +21,12 @@ import multiprocessing
 import os
 import sys
 import tempfile
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, TypeVar
 
 if TYPE_CHECKING:  # types only: importing this module stays light
     from poisoner.formats import PoisonReport
@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # types only: importing this module stays light
     from poisoner.spec import PatchSpec
 
 MAX_DEFAULT_WORKERS = 8  # each worker holds one decoded file at a time
+R = TypeVar("R")
 
 
 @dataclass(frozen=True)
@@ -79,13 +80,67 @@ def _poison_one(
 _SOCKET_PATH_MAX, _SOCKET_SUFFIX = 107, len("/pymp-xxxxxxxx/listener-xxxxxxxx")
 
 
-def _context() -> multiprocessing.context.BaseContext:
+def pool_context(preload: Sequence[str] = ("poisoner.formats",)) -> multiprocessing.context.BaseContext:
+    """The start method for worker processes: a forkserver that imported preload once (Linux, a
+    temporary folder short enough for its socket), else spawn."""
     short_tmp = len(os.fsencode(tempfile.gettempdir())) + _SOCKET_SUFFIX < _SOCKET_PATH_MAX
     if sys.platform.startswith("linux") and short_tmp:
         ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(["poisoner.formats"])
+        ctx.set_forkserver_preload(list(preload))
         return ctx
     return multiprocessing.get_context("spawn")
+
+
+def bounded_map(
+    fn: Callable[..., R],
+    calls: Sequence[tuple[Any, ...]],
+    workers: int,
+    died: Callable[[int], R],
+    *,
+    on_done: Callable[[int, R], None] | None = None,
+    mp_context: multiprocessing.context.BaseContext | None = None,
+    initializer: Callable[..., None] | None = None,
+    initargs: tuple[Any, ...] = (),
+) -> list[R]:
+    """fn(*call) for every call in a pool of `workers` processes with at most 2 x workers calls in
+    flight; the results in the order of calls. died(i) stands for the result of call i when its
+    worker process died (a dead worker breaks the pool: every call not finished by then gets
+    died(i)). on_done(i, result) runs in this process as each call finishes (progress)."""
+    results: list[R | None] = [None] * len(calls)
+
+    def finish(i: int, result: R) -> None:
+        results[i] = result
+        if on_done is not None:
+            on_done(i, result)
+
+    pending: dict[Future[R], int] = {}
+    todo = iter(range(len(calls)))
+    context = mp_context or pool_context()
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=initializer, initargs=initargs) as pool:
+
+        def submit_next() -> bool:
+            i = next(todo, None)
+            if i is None:
+                return False
+            pending[pool.submit(fn, *calls[i])] = i
+            return True
+
+        while len(pending) < 2 * workers and submit_next():
+            pass
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in done:
+                i = pending.pop(fut)
+                try:
+                    finish(i, fut.result())
+                except BrokenProcessPool:
+                    finish(i, died(i))
+                try:
+                    submit_next()
+                except BrokenProcessPool:
+                    for j in todo:  # the pool is gone: the rest are reported, not raised
+                        finish(j, died(j))
+    return [r for r in results if r is not None]
 
 
 def poison_many(
@@ -104,45 +159,19 @@ def poison_many(
     jobs = [(Path(s), Path(d)) for s, d in pairs]
     markers = markers or {}
     n = default_workers(len(jobs)) if workers is None else max(1, min(workers, len(jobs) or 1))
-    results: list[BatchResult | None] = [None] * len(jobs)
-
-    def finish(i: int, result: BatchResult) -> None:
-        results[i] = result
-        if on_done is not None:
-            on_done(result)
-
+    calls = [(src, dst, spec, markers.get(src), keep_location, max_pixels) for src, dst in jobs]
     if n == 1:
-        for i, (src, dst) in enumerate(jobs):
-            finish(i, _poison_one(src, dst, spec, markers.get(src), keep_location, max_pixels))
-        return [r for r in results if r is not None]
+        results = []
+        for call in calls:
+            results.append(_poison_one(*call))
+            if on_done is not None:
+                on_done(results[-1])
+        return results
 
-    pending: dict[Future[BatchResult], int] = {}
-    todo = iter(enumerate(jobs))
-    with ProcessPoolExecutor(max_workers=n, mp_context=_context()) as pool:
+    def died(i: int) -> BatchResult:
+        src, dst = jobs[i]
+        return BatchResult(src, dst, None, f"{src.name}: worker process died")
 
-        def submit_next() -> bool:
-            item = next(todo, None)
-            if item is None:
-                return False
-            i, (src, dst) = item
-            fut = pool.submit(_poison_one, src, dst, spec, markers.get(src), keep_location, max_pixels)
-            pending[fut] = i
-            return True
-
-        while len(pending) < 2 * n and submit_next():
-            pass
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
-                i = pending.pop(fut)
-                src, dst = jobs[i]
-                try:
-                    finish(i, fut.result())
-                except BrokenProcessPool:
-                    finish(i, BatchResult(src, dst, None, f"{src.name}: worker process died"))
-                try:
-                    submit_next()
-                except BrokenProcessPool:
-                    for j, (s, d) in todo:  # the pool is gone: report the rest, do not raise
-                        finish(j, BatchResult(s, d, None, f"{s.name}: worker process died"))
-    return [r for r in results if r is not None]
+    return bounded_map(
+        _poison_one, calls, n, died, on_done=(lambda _i, r: on_done(r)) if on_done is not None else None
+    )

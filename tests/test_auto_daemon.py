@@ -11,13 +11,12 @@ from typing import Any
 import pytest
 
 from daemon import auto as daemon_auto
-from daemon.config import Config, ConfigError
 from daemon.protect import AppContext, protect_file
 from daemon.scheduler import SchedulePolicy, VerificationScheduler
 from daemon.states import FileState
 from daemon.verify import record_report
 from poisoner.spec import PatchSpec
-from verifier.auto import LadderEntry, ladder_to_json
+from verifier.auto import LadderEntry, PreflightJob
 from verifier.synthetic import SyntheticOptions, render_scene
 from verifier.verification import ProfileReport, VerificationReport
 
@@ -26,58 +25,6 @@ B = LadderEntry("b-moved", PatchSpec(patch_size=0.06, position="bottom-right"), 
 C = LadderEntry("c-huge", PatchSpec(patch_size=0.4), "over budget")
 
 
-# ---- config -------------------------------------------------------------------------------------------
-def test_config_reads_auto_datasets_budget_and_preflight() -> None:
-    cfg = Config.from_toml(
-        """
-        workers = 3
-        [patch]
-        patch_size = 48
-        [visibility]
-        min_ssim = 0.995
-        max_lpips = 0.01
-        [preflight]
-        sample_size = 8
-        time_budget_s = 300
-        profiles = ["default"]
-        [datasets.trip]
-        spec = "auto"
-        publish_dir = "/tmp/pub"
-        [datasets.fixed.patch]
-        position = "bottom-right"
-        """
-    )
-    assert cfg.is_auto("trip") and not cfg.is_auto("fixed") and not cfg.is_auto("other")
-    assert cfg.visibility.min_ssim == 0.995 and cfg.visibility.max_lpips == 0.01
-    assert cfg.preflight.sample_size == 8 and cfg.preflight.profiles == ("default",)
-    assert cfg.workers == 3 and cfg.spec.patch_size == 48  # existing keys still work
-    assert cfg.spec_for("fixed").position == "bottom-right"
-    assert cfg.publish_dir_for("trip") == Path("/tmp/pub")
-    again = Config.from_toml(cfg.to_toml())  # `ppd config show` output reads back the same
-    assert again.is_auto("trip") and again.visibility == cfg.visibility and again.preflight == cfg.preflight
-    settings = daemon_auto.AutoSettings.from_config(cfg)
-    assert settings.min_ssim == 0.995 and settings.sample_size == 8
-
-
-@pytest.mark.parametrize(
-    ("text", "needle"),
-    [
-        ('[datasets.t]\nspec = "magic"', 'must be "auto"'),
-        ('[datasets.t]\nspec = "auto"\n[datasets.t.patch]\npatch_size = 48', "exclude each other"),
-        ("[visibility]\nmin_ssim = 1.5", "min_ssim"),
-        ("[preflight]\nsample_size = 2", "sample_size"),
-    ],
-)
-def test_bad_auto_config_is_one_clear_line(text: str, needle: str) -> None:
-    with pytest.raises(ConfigError) as info:
-        Config.from_toml(text)
-    assert needle in str(info.value) and "\n" not in str(info.value)
-
-
-def test_default_config_has_the_issue_budget() -> None:
-    cfg = Config()
-    assert (cfg.visibility.min_ssim, cfg.visibility.max_lpips) == (0.99, 0.02)
-    assert not cfg.is_auto("anything")
 
 
 # ---- escalation (pure parts) -------------------------------------------------------------------------------
@@ -85,7 +32,7 @@ def _measured(
     name: str, use: float, status: str = "not_reached", spec: PatchSpec | None = None
 ) -> dict[str, Any]:
     return {"name": name, "budget_use": use, "status": status, "spec": (spec or PatchSpec()).to_dict(),
-            "visibility": {"ssim_min": 1 - 0.01 * use}}  # fmt: skip
+            "visibility": {"noticeable_area_max": 0.01 * use}}  # fmt: skip
 
 
 def test_next_candidate_is_least_visible_within_budget_not_failed() -> None:
@@ -108,7 +55,9 @@ def test_which_verdicts_escalate() -> None:
 # ---- escalation through the scheduler, with the real Store, vault and files --------------------------------
 @pytest.fixture
 def auto_ctx(ppd_env: dict[str, Path]) -> Any:
-    (ppd_env["config"] / "config.toml").write_text('[datasets.trip]\nspec = "auto"\n')
+    # LPIPS (reported only, slow on a shared CPU) is tested in test_auto
+    config = '[preflight]\nlpips_net = "none"\n[datasets.trip]\nspec = "auto"\n'
+    (ppd_env["config"] / "config.toml").write_text(config)
     ctx = AppContext.open()
     yield ctx
     ctx.close()
@@ -174,7 +123,7 @@ def test_escalation_moves_to_next_candidate_then_says_none_is_left(
     assert latest["candidate"] is None and latest["spec_id"] is None
     assert latest["reason"].startswith(daemon_auto.NO_CANDIDATE)
     assert daemon_auto.status_text(ctx, "trip") == f"auto: {daemon_auto.NO_CANDIDATE} (escalation)"
-    from daemon.cli_poison import dataset_status  # what `ppd status` shows per dataset
+    from daemon.cli.status_queries import dataset_status  # what `ppd status` shows per dataset
 
     assert dataset_status(ctx, "trip")["auto"] == f"auto: {daemon_auto.NO_CANDIDATE} (escalation)"
     assert any(e["kind"] == "auto_no_candidate" for e in ctx.store.events("trip"))
@@ -195,9 +144,13 @@ def test_next_step_interim_then_preflight(auto_ctx: AppContext, ppd_env: dict[st
     assert daemon_auto.next_step(ctx, "trip") is None  # nothing protected yet
     _protect_scene(ctx, ppd_env["outbox"], C.spec, views=3)
     assert daemon_auto.next_step(ctx, "trip") == "interim"
-    # the interim measures SSIM of each candidate on the files and picks the strongest within it
+    # the interim measures what a viewer sees of each candidate on the files, strongest first
     result = daemon_auto.run_interim(ctx, "trip", ladder=[A, B, C])
-    assert result["candidate"] == "b-moved", result  # C (last, strongest) is over SSIM 0.99
+    assert result["candidate"] == "b-moved", result  # C (last, strongest) is over the FLIP budget
+    measured = ctx.store.latest_auto_decision("trip")["evidence"]["measured"]
+    assert [m["name"] for m in measured] == ["c-huge", "b-moved"]  # stopped at the first that fits
+    assert not measured[0]["within_budget"] and measured[0]["visibility"]["noticeable_area_max"] > 0.01
+    assert measured[1]["within_budget"] and measured[1]["budget_use"] <= 1.0
     assert ctx.store.dataset_spec("trip") == B.spec and result["reprotected"] == 3
     assert daemon_auto.next_step(ctx, "trip") is None  # 3 < sample_size 12
     assert daemon_auto.next_step(ctx, "other") is None  # not automatic
@@ -217,20 +170,23 @@ def test_preflight_child_records_a_plain_no_candidate_decision(
     assert row["trigger"] == "preflight" and row["candidate"] is None
     assert daemon_auto.NO_CANDIDATE in row["reason"]
     assert row["evidence"]["evidence"][0]["status"] == "over_budget"
+    assert row["evidence"]["evidence"][0]["visibility"]["noticeable_area_max"] > 0.01  # FLIP recorded
+    assert row["evidence"]["options"]["lpips_net"] == "none"  # the config's options reached the child
+    assert row["evidence"]["evidence"][0]["visibility"]["display_width"] == 1920  # the budget's viewing
     assert ctx.store.dataset_spec("trip") == A.spec  # unchanged: nothing better within the budget
 
 
 def test_preflight_child_cancel_kills_it(tmp_path: Path) -> None:
-    job = {"images": [], "ladder": ladder_to_json([A]), "out_dir": str(tmp_path / "o"),
-           "result": str(tmp_path / "o" / "r.json")}  # fmt: skip
+    out = tmp_path / "o"
+    job = PreflightJob(images=[], out_dir=str(out), result=str(out / "r.json"), ladder=[A])
     cancel = threading.Event()
     cancel.set()
     assert daemon_auto.run_preflight_child(job, 60, cancel) == {"error": "preflight cancelled"}
 
 
 def test_preflight_child_bad_input_is_one_line(tmp_path: Path) -> None:
-    job = {"images": [[str(tmp_path / "x.png"), "x.png"]], "ladder": ladder_to_json([A]),
-           "out_dir": str(tmp_path / "o"), "result": str(tmp_path / "o" / "r.json")}  # fmt: skip
+    job = PreflightJob(images=[(str(tmp_path / "x.png"), "x.png")], out_dir=str(tmp_path / "o"),
+                       result=str(tmp_path / "o" / "r.json"), ladder=[A])  # fmt: skip
     result = daemon_auto.run_preflight_child(job, 120, None)
     assert "at least 3 images" in result["error"] and "\n" not in result["error"]
 
@@ -251,28 +207,45 @@ def test_cli_show_prints_decisions(auto_ctx: AppContext, ppd_env: dict[str, Path
     shutil.rmtree(ppd_env["outbox"] / "trip")
 
 
-def test_daemon_side_never_imports_torch_or_pycolmap(tmp_path: Path) -> None:
-    """The interim step runs in the daemon's scheduler thread: SSIM only, no torch, no pycolmap."""
+def test_interim_runs_in_the_child_and_the_daemon_side_stays_light(
+    auto_ctx: AppContext, ppd_env: dict[str, Path]
+) -> None:
+    """The daemon hands the interim to the child (mode "interim"); importing its side loads nothing
+    heavy, and the child's choice needs no torch and no pycolmap."""
     import subprocess
     import sys
 
+    ctx = auto_ctx
+    _protect_scene(ctx, ppd_env["outbox"], C.spec, views=3)
+    jobs: list[PreflightJob] = []
+
+    def runner(job: PreflightJob, timeout_s: float, cancel: threading.Event | None) -> dict[str, Any]:
+        jobs.append(job)
+        return daemon_auto.run_preflight_child(job, timeout_s, cancel)
+
+    assert daemon_auto.run_interim(ctx, "trip", ladder=[A, B, C], runner=runner)["candidate"] == "b-moved"
+    (job,) = jobs
+    assert job.mode == "interim" and len(job.images) == 3
+    assert [c.name for c in job.ladder or []] == ["a-small", "b-moved", "c-huge"]
+    with pytest.raises(RuntimeError, match="auto interim: .*cancelled"):
+        daemon_auto.run_interim(ctx, "trip", ladder=[A, B, C], cancel=_set(threading.Event()))
     code = (
-        "import sys, numpy as np\n"
+        "import sys\n"
+        "import daemon.auto, daemon.config, daemon.scheduler\n"
+        "light = [m for m in ('numpy', 'PIL', 'flip_evaluator', 'torch', 'pycolmap') if m in sys.modules]\n"
         "from pathlib import Path\n"
-        "from PIL import Image\n"
-        "import daemon.auto as da, daemon.config, daemon.scheduler\n"
-        "from verifier.auto import LadderEntry\n"
+        "from verifier.auto import LadderEntry, VisibilityBudget, choose_interim\n"
         "from poisoner.spec import PatchSpec\n"
-        f"d = Path({str(tmp_path)!r})\n"
-        "imgs = []\n"
-        "for i in range(2):\n"
-        "    Image.fromarray((np.random.default_rng(i).random((64, 64, 3)) * 255).astype('uint8'))"
-        ".save(d / f'a{i}.png')\n"
-        "    imgs.append((d / f'a{i}.png', f'a{i}.png'))\n"
-        "ladder = [LadderEntry('x', PatchSpec(patch_size=6)), LadderEntry('y', PatchSpec(patch_size=40))]\n"
-        "cand, _, ok = da.choose_interim(ladder, 0.99, imgs)\n"
-        "print(cand.name, ok, 'torch' in sys.modules, 'pycolmap' in sys.modules)\n"
+        f"imgs = [(p, p.name) for p in sorted(Path({str(ppd_env['outbox'] / 'trip')!r}).glob('*.png'))]\n"
+        "ladder = [LadderEntry('x', PatchSpec(patch_size=6)), LadderEntry('y', PatchSpec(patch_size=60))]\n"
+        "choice = choose_interim(ladder, VisibilityBudget(), imgs)\n"
+        "heavy = [m in sys.modules for m in ('torch', 'pycolmap')]\n"
+        "print(light, choice.chosen, choice.within_budget, *heavy)\n"
     )
-    cmd = [sys.executable, "-c", code]
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=True)
-    assert out.stdout.split() == ["x", "True", "False", "False"], out.stdout + out.stderr
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.split() == ["[]", "x", "True", "False", "False"], out.stdout + out.stderr
+
+
+def _set(event: threading.Event) -> threading.Event:
+    event.set()
+    return event

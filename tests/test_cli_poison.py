@@ -218,8 +218,50 @@ def test_file_hash_of_vault_matches(shoot: Path) -> None:
 
 
 def test_spec_summary_names_offset_and_motion() -> None:
-    from daemon.cli_poison import spec_summary
+    from daemon.cli.status_queries import spec_summary
 
     assert spec_summary(PatchSpec()) == "checkerboard 6% block 0.5% α1 Δc255 top-left"
     moving = spec_summary(default_spec())
     assert moving.startswith("random_blocks 6%") and "+(15%, 15%)" in moving and "drift 0.75%/image" in moving
+
+
+def test_workers_write_the_bytes_of_a_serial_run(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`--workers 2` (a pool of processes) and `--workers 1` (in this process) write the same files
+    and rows; the summary counts every file once and says the dataset is not verified yet."""
+    serial, pooled = tmp_path / "a" / "shoot", tmp_path / "b" / "shoot"
+    for i in range(5):
+        make_image(serial / f"v{i}.png", i)
+        make_image(pooled / f"v{i}.png", i)
+    one = runner.invoke(app, ["poison", str(serial), "--dataset", "serial", "--workers", "1"])
+    two = runner.invoke(app, ["poison", str(pooled), "--dataset", "pooled", "-j", "2"])
+    assert one.exit_code == 0 and two.exit_code == 0, one.output + two.output
+    assert snapshot(serial) == snapshot(pooled) != {}
+    assert "patched 5, unchanged 0, skipped 0, failed 0" in two.output
+    assert "pooled: patched, not verified" in two.output and "ppd verify pooled" in two.output
+    ctx = AppContext.open()
+    try:
+        assert [r["poisoned_sha256"] for r in ctx.store.files("serial")] == [
+            r["poisoned_sha256"] for r in ctx.store.files("pooled")
+        ]
+    finally:
+        ctx.close()
+
+
+def test_a_known_dataset_name_keeps_its_folder(shoot: Path, tmp_path: Path) -> None:
+    """--dataset NAME of a known dataset: files inside its folder join it; a folder elsewhere is
+    refused in one line before anything is written (daemon.dataset.attribute)."""
+    assert runner.invoke(app, ["poison", str(shoot / "view0.png"), "--dataset", "castle"]).exit_code == 0
+    inner = runner.invoke(app, ["poison", str(shoot / "inner"), "--dataset", "castle"])
+    assert inner.exit_code == 0, inner.output
+    ctx = AppContext.open()
+    try:
+        assert ctx.store.dataset("castle")["root"] == str(shoot)
+        assert len(ctx.store.files("castle")) == 2
+    finally:
+        ctx.close()
+    other = tmp_path / "elsewhere"
+    make_image(other / "x.png", 3)
+    before = snapshot(other)
+    refused = runner.invoke(app, ["poison", str(other), "--dataset", "castle"])
+    assert refused.exit_code == 2 and "already belongs to" in refused.output
+    assert snapshot(other) == before

@@ -13,7 +13,7 @@ import typer
 from reliability_harness import write_image
 from typer.testing import CliRunner
 
-from daemon.cli_store import register
+from daemon.cli.store import register
 from daemon.paths import AppPaths
 from daemon.states import FileState
 from daemon.store import Store
@@ -24,7 +24,7 @@ from poisoner.provenance import Marker
 from poisoner.spec import PatchSpec
 
 ROOT = Path(__file__).resolve().parents[1]
-CLI = "import typer; from daemon.cli_store import register; app = typer.Typer(); register(app); app()"
+CLI = "import typer; from daemon.cli.store import register; app = typer.Typer(); register(app); app()"
 
 
 @pytest.fixture

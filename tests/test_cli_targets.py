@@ -11,7 +11,7 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from daemon.cli import app
-from daemon.cli_targets import TargetError, dataset_for_folder, resolve_target
+from daemon.cli.targets import TargetError, dataset_for_folder, resolve_target
 from daemon.protect import AppContext
 
 runner = CliRunner()

@@ -18,8 +18,9 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from daemon.cli import app
-from daemon.cli_common import KeyValueFormatter, os_error_text, reason_text
-from daemon.cli_spec import SpecOptions, designs, spec_fields
+from daemon.cli.errors import os_error_text, reason_text
+from daemon.cli.options import SpecOptions, designs, spec_fields
+from daemon.cli.output import KeyValueFormatter
 from daemon.protect import AppContext
 from daemon.states import FileState, Protection, dataset_protection, protection_text
 from poisoner.ladder import default_spec, named_specs

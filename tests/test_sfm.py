@@ -74,11 +74,50 @@ def test_child_runs_at_low_priority() -> None:
 
 
 def test_missing_images_fail_cleanly_in_the_child(tmp_path: Path) -> None:
+    """An empty folder is bad input: a failure that says why, not an empty reconstruction."""
     (tmp_path / "img").mkdir()
+    (tmp_path / "img" / "notes.txt").write_text("not an image")
     result = run_sfm_job(job_in(tmp_path), timeout_s=120)
-    assert result["outcome"] in ("failed", "ok")
-    if result["outcome"] == "ok":  # pycolmap may simply find nothing to reconstruct
-        assert result["registered"] == 0
+    assert result["outcome"] == "failed", result
+    assert result["error"] == f"no images COLMAP can read in {tmp_path / 'img'}"
+    assert "registered" not in result and not (tmp_path / "cache.db").exists()  # nothing pretended
+
+
+def test_job_and_results_cross_the_boundary_as_typed_json(tmp_path: Path) -> None:
+    import msgspec
+
+    from verifier.sfm import CameraPose, SfmFailed, SfmOk, SfmResult
+
+    job = SfmJob("i", "c.db", "m", SfmSettings(camera_params="1,1,0,0,0,0,0,0", mask_corners=0.2), "r.json")
+    assert msgspec.json.decode(msgspec.json.encode(job), type=SfmJob) == job
+    with pytest.raises(msgspec.ValidationError, match="unknown field `maks_corners`"):
+        msgspec.json.decode(b'{"image_dir":"i","cache_db":"c","model_dir":"m","settings":{"maks_corners":1}}',
+                            type=SfmJob)  # fmt: skip
+    ok = SfmOk(num_images=2, verified_pairs=1, num_models=1, model_sizes=[2], registered=2,
+               poses={"a.png": CameraPose(R=[[1.0, 0, 0], [0, 1, 0], [0, 0, 1]], t=[0.0, 0, 0])},
+               mean_reprojection_error=0.5, num_points3D=10, camera=None)  # fmt: skip
+    for result in (ok, SfmFailed(error="boom")):
+        data = msgspec.json.encode(result)
+        assert msgspec.json.decode(data, type=SfmResult) == result
+    as_data = msgspec.to_builtins(ok)  # what verifier.verification and its result.json keep
+    assert as_data["outcome"] == "ok" and as_data["poses"]["a.png"]["t"] == [0, 0, 0]
+    assert msgspec.to_builtins(SfmFailed(error="boom")) == {"outcome": "failed", "error": "boom"}
+    assert msgspec.json.decode(b'{"outcome": "ok"}', type=SfmResult) == SfmOk()  # nothing reconstructed
+
+
+def child_writing(tmp_path: Path, result: str) -> str:
+    """A stand-in child that writes `result` where the job (json.dumps' spacing, on stdin) says."""
+    find = """out=$(printf %s "$job" | sed -E 's/.*"result_path": "([^"]*)".*/\\1/')"""
+    return fake_python(tmp_path, f"job=$(cat)\n{find}\nprintf '%s' '{result}' > \"$out\"")
+
+
+def test_result_from_the_child_is_checked(tmp_path: Path) -> None:
+    ok = run_sfm_job(job_in(tmp_path), python=child_writing(tmp_path, '{"outcome": "ok"}'))
+    assert ok["outcome"] == "ok" and ok["registered"] == 0 and ok["poses"] == {}
+    wrong = '{"outcome": "ok", "registered": "x"}'
+    bad = run_sfm_job(job_in(tmp_path), python=child_writing(tmp_path, wrong))
+    assert bad["outcome"] == "failed"
+    assert bad["error"] == "child wrote an invalid result: Expected `int`, got `str` - at `$.registered`"
 
 
 @pytest.mark.integration

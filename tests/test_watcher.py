@@ -6,6 +6,8 @@ signal handling); the SIGTERM and sys.modules tests run `ppd watch` as a real su
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import hashlib
 import json
 import os
@@ -24,19 +26,13 @@ import numpy as np
 import PIL.Image
 import pytest
 
+from daemon.events import WatchOptions, ignore_reason, is_candidate, scan_outbox
 from daemon.notify import SystemdNotifier, notify_socket_address, watchdog_interval
 from daemon.paths import AppPaths
 from daemon.protect import AppContext
 from daemon.states import FileState
 from daemon.store import Store
-from daemon.watcher import (
-    DaemonOptions,
-    WatchDaemon,
-    WatchOptions,
-    ignore_reason,
-    is_candidate,
-    scan_outbox,
-)
+from daemon.watcher import DaemonOptions, WatchDaemon
 from daemon.workers import PoolOptions, WorkerPool
 from poisoner.atomic import TEMP_PREFIX
 from poisoner.media import MEDIA_SUFFIXES
@@ -614,8 +610,18 @@ def test_sigterm_mid_batch_leaves_every_file_original_or_protected(
         env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     messages: list[str] = []
+    stopping = threading.Event()
+
+    def listen() -> None:  # reads all along, as systemd does (the socket queues only ~10 datagrams)
+        with contextlib.suppress(OSError):
+            while not stopping.is_set():
+                messages.append(sock.recv(4096).decode())
+                stopping.set() if messages[-1].startswith("STOPPING=1") else None
+
+    listener = threading.Thread(target=listen, daemon=True)
     try:
-        messages.append(sock.recv(4096).decode())
+        listener.start()
+        wait_for(lambda: bool(messages), 30, "READY=1")
         assert messages[0].startswith("READY=1"), messages
         dest = ppd_env["outbox"] / "batch"
         dest.mkdir()
@@ -629,17 +635,13 @@ def test_sigterm_mid_batch_leaves_every_file_original_or_protected(
         wait_for(lambda: protected() >= 2, 60, "first files protected")
         proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=60)
-        while True:
-            try:
-                messages.append(sock.recv(4096).decode())
-            except TimeoutError:
-                break
-            if messages[-1].startswith("STOPPING=1"):
-                break
+        stopping.wait(30)
     finally:
         if proc.poll() is None:
             proc.kill()
+        stopping.set()
         sock.close()
+        listener.join(30)
     assert proc.returncode == 0, out
     assert any(m == "WATCHDOG=1" for m in messages) or "WATCHDOG=1" in "\n".join(messages)
     assert messages[-1].startswith("STOPPING=1"), messages
@@ -687,6 +689,12 @@ print(json.dumps({"protected": d.counts.patched, "modules": sorted(sys.modules)}
     assert report["protected"] == 1
     heavy = [m for m in report["modules"] if m.split(".")[0] in ("torch", "pycolmap", "skimage")]
     assert heavy == [], heavy
+    # files are protected in worker processes (daemon.protect_pool): no decoder in the daemon's memory
+    decoders = [m for m in report["modules"] if m.split(".")[0] in ("PIL", "av")]
+    assert decoders == [], decoders
+    # numpy only as sqlite_utils's own import (daemon.store), never for the poisoner
+    assert "numpy" not in report["modules"] or "sqlite_utils" in report["modules"]
+    assert "poisoner.formats" not in report["modules"] and "poisoner.blend" not in report["modules"]
 
 
 def test_bad_config_is_one_line_and_exit_status_1(ppd_env: dict[str, Path]) -> None:
@@ -697,3 +705,57 @@ def test_bad_config_is_one_line_and_exit_status_1(ppd_env: dict[str, Path]) -> N
     assert proc.returncode == 1
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "workers" in lines[0] and "Traceback" not in proc.stderr
+
+
+# ---- per-file worker processes (daemon.protect_pool) -------------------------------------------------
+def _worker_pids() -> set[int]:
+    """This process's child processes (the daemon's protect workers run under the test's process)."""
+    pids: set[int] = set()
+    for task in Path("/proc/self/task").iterdir():
+        with contextlib.suppress(FileNotFoundError):
+            pids |= {int(p) for p in (task / "children").read_text().split()}
+    return pids
+
+
+def test_worker_processes_exit_after_their_idle_period(ppd_env: dict[str, Path]) -> None:
+    before = _worker_pids()
+    options = dataclasses.replace(FAST, worker_idle_s=1.0)
+    with running(ppd_env, options) as daemon:
+        photo = write_image(ppd_env["outbox"] / "ds" / "a.png", 1)
+        original = sha(photo)
+        wait_for(lambda: daemon.counts.patched == 1, 60, "the photo protected")
+        assert daemon.protectors.running() >= 1  # the worker that did it is still there
+        assert _worker_pids() - before
+        wait_for(lambda: daemon.protectors.running() == 0, 30, "idle workers to exit")
+        # a later file starts a worker again
+        second = write_image(ppd_env["outbox"] / "ds" / "b.png", 2)
+        wait_for(lambda: daemon.counts.patched == 2, 60, "the second photo protected")
+    assert_protected_once(ppd_env, [photo], {photo: original})
+    assert sha(second) != sha(photo)
+
+
+def test_a_worker_killed_mid_file_is_retried_once_isolated(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    big = write_image(tmp_path / "big.png", 7, size=2400)  # seconds of work: time to kill its worker
+    original = sha(big)
+    attempts = ppd_env["data"] / "attempts"
+    killed: list[int] = []
+    with running(ppd_env) as daemon:
+        dest = ppd_env["outbox"] / "ds" / "big.png"
+        dest.parent.mkdir()
+        os.rename(big, dest)
+
+        def kill_the_worker() -> bool:  # the attempt marker names the process doing the heavy work
+            for marker in attempts.glob("*.json") if attempts.is_dir() else ():
+                with contextlib.suppress(OSError, ValueError):
+                    pid = json.loads(marker.read_text())["pid"]
+                    if pid != os.getpid() and not killed:
+                        os.kill(pid, signal.SIGKILL)
+                        killed.append(pid)
+            return bool(killed)
+
+        wait_for(kill_the_worker, 60, "the worker to start on the file")
+        wait_for(lambda: daemon.counts.patched + daemon.counts.failed >= 1, 120, "the retry")
+        assert daemon.counts.patched == 1 and daemon.counts.quarantined == 0
+    assert killed and killed[0] not in _worker_pids()
+    assert_protected_once(ppd_env, [dest], {dest: original})
+    assert not list(dest.parent.glob(f"{TEMP_PREFIX}*")), "temporary files left behind"

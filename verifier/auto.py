@@ -1,45 +1,69 @@
 """Automatic mode: pick, per dataset, the least visible candidate patch that Verifier I confirms.
 
-`preflight(images, ladder, budget, options, out_dir)`:
-1. take an evenly spaced sample of the dataset (`PreflightOptions.sample_size` images, by name);
-2. poison the sample with every candidate of the ladder and MEASURE its visibility on this
-   dataset (whole-image SSIM as 3DGS and LPIPS-VGG, clean vs poisoned, worst image of the sample);
-   the ladder's own order is design intent only and is never trusted for the budget;
-3. candidates over the visibility budget are skipped (and recorded as such);
-4. the others, least visible first, go through Verifier I (real COLMAP in child processes) under
-   every profile of the options; the clean SfM runs once (clean_cache_dir) and a candidate stops at
-   its first profile that is not `protected`;
-5. the first candidate `protected` under every profile is chosen; the preflight stops at its time
-   budget and says so; every candidate tried leaves its evidence in the decision.
+`preflight(images, ladder, budget, options, out_dir)`, one named step each:
+1. `prepare_sample`: an evenly spaced sample of the dataset (`options.sample_size` images, by name);
+2. `measure_ladder`: poison the sample with every candidate of the ladder and MEASURE what a viewer
+   sees on this dataset: FLIP (verifier.visibility) at the budget's display width, the noticeable
+   area (FLIP > 0.5), the 99.9th percentile against a JPEG q85 re-encode of the same image, whether
+   the change stays in one corner; the worst image of the sample counts. Whole-image SSIM (as 3DGS)
+   and LPIPS-VGG are measured too and reported (the paper's cost2); they do not gate. The ladder's
+   own order is design intent only and is never trusted for the budget;
+3. candidates over the visibility budget (verifier.auto_options.VisibilityBudget) are skipped and
+   recorded as such;
+4. `walk_candidates`: the others, least visible first, go through Verifier I (real COLMAP in child
+   processes) under every profile of the options; the clean SfM runs once (clean_cache_dir) and a
+   candidate stops at its first profile that is not `protected`;
+5. `decide`: the first candidate `protected` under every profile is chosen; the preflight stops at
+   its time budget and says so; every candidate tried leaves its evidence in the decision.
 
-When the LPIPS weights are not installed, the LPIPS half of the budget cannot be checked: the
-decision says so (`lpips_checked=False` and a sentence in the reason), it never pretends.
+The visibility measures live in verifier.auto_visibility; what a preflight takes (budget, options,
+job) in verifier.auto_options.
 
-Runs as a child process for the daemon: `python -m verifier.auto JOB.json` (see `main`). torch
-(LPIPS) is imported only when LPIPS is measured; pycolmap only in the SfM grandchildren.
+Runs as a child process for the daemon: `python -m verifier.auto JOB.json` (see `main`; the job is a
+`PreflightJob`, the result an `AutoDecision` or `{"error": ...}`, JSON both ways through msgspec).
+torch (LPIPS) is imported only when LPIPS is measured; pycolmap only in the SfM grandchildren.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import logging
 import os
 import shutil
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-import PIL.Image  # before anything that could bring pycolmap here (pillow 13 + pycolmap 4.2.1)
+import msgspec
 
+from poisoner.atomic import atomic_write_bytes
 from poisoner.media import SFM_SUFFIXES, is_sfm_readable
 from poisoner.spec import PatchSpec
-from verifier.metrics import ssim_map
+from verifier.auto_options import (
+    CandidateStatus,
+    LadderEntry,
+    Outcome,
+    PreflightInputError,
+    PreflightJob,
+    PreflightOptions,
+    VisibilityBudget,
+)
+from verifier.auto_visibility import (
+    SampleVisibility,
+    budget_notes,
+    budget_use,
+    jpeg_reference_p999,
+    load_rgb8,
+    measure_image,
+    open_lpips,
+    summarise_visibility,
+    within_budget,
+)
+from verifier.verdict import INCONCLUSIVE as INCONCLUSIVE_VERDICT
+from verifier.verdict import PROTECTED as PROTECTED_VERDICT
 
 if TYPE_CHECKING:
     from poisoner.ladder import Candidate
@@ -47,236 +71,76 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 NO_CANDIDATE = "no candidate within the visibility budget protects this dataset"
-# Formats COLMAP reads (the sample must be SfM-able); others are left out of the preflight.
-SSIM_RADIUS = 5  # 3DGS SSIM: 11 x 11 window
-
-
-class PreflightInputError(ValueError):
-    """A sample that cannot be preflighted (message = one clear line)."""
-
-
-# ---- options ------------------------------------------------------------------------------------
-@dataclass
-class VisibilityBudget:
-    """How visible a patch may be, clean vs poisoned, on the whole image (the issue's default)."""
-
-    min_ssim: float = 0.99
-    max_lpips: float = 0.02
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.min_ssim <= 1.0:
-            raise PreflightInputError(f"min SSIM must be in (0, 1], got {self.min_ssim}")
-        if not self.max_lpips >= 0.0:
-            raise PreflightInputError(f"max LPIPS must be >= 0, got {self.max_lpips}")
-
-
-@dataclass
-class PreflightOptions:
-    sample_size: int = 12
-    time_budget_s: float = 900.0
-    profiles: tuple[str, ...] = ("default", "hardened")
-    lpips_net: str = "vgg"
-    crash_retries: int = 1  # as Verifier I: a crashed SfM is rerun once with another seed
-    keep_images: bool = False  # keep each candidate's poisoned sample (inspection)
-    # known intrinsics "fx,fy,cx,cy,k1,k2,p1,p2" as Verifier I takes them; None = COLMAP estimates
-    # the focal length, where pycolmap 4.2.1 can segfault on poisoned sets (recorded as a crash)
-    camera_params: str | None = None
-
-    def __post_init__(self) -> None:
-        if self.sample_size < 3:
-            raise PreflightInputError(f"sample size must be at least 3 (SfM), got {self.sample_size}")
-        if self.time_budget_s <= 0:
-            raise PreflightInputError(f"time budget must be positive, got {self.time_budget_s}")
-        self.profiles = tuple(self.profiles)
 
 
 # ---- evidence and decision ------------------------------------------------------------------------
-# status of one candidate in a preflight
-OVER_BUDGET = "over_budget"
-PROTECTED = "protected"
-NOT_PROTECTED = "not_protected"  # some profile was weak / not_protected / crashed
-INCONCLUSIVE = "inconclusive"  # the clean reference failed: no claim either way
-NOT_REACHED = "not_reached"  # the time budget ran out before its turn
-TIMED_OUT = "timed_out"  # the time budget ran out during its verification
-NOT_NEEDED = "not_needed"  # a less visible candidate was already confirmed
-FAILED = "failed"  # it could not be applied to this dataset (e.g. does not fit the images)
+OVER_BUDGET, PROTECTED = CandidateStatus.OVER_BUDGET, CandidateStatus.PROTECTED
+NOT_PROTECTED, INCONCLUSIVE = CandidateStatus.NOT_PROTECTED, CandidateStatus.INCONCLUSIVE
+NOT_REACHED, TIMED_OUT = CandidateStatus.NOT_REACHED, CandidateStatus.TIMED_OUT
+NOT_NEEDED, FAILED = CandidateStatus.NOT_NEEDED, CandidateStatus.FAILED
 
 
-@dataclass
-class CandidateEvidence:
+class ProfileEvidence(msgspec.Struct):
+    """One profile's Verifier I result for a candidate, as the decision keeps it."""
+
+    verdict: str
+    frac_within_5deg: float | None = None
+    median_rotation_error_deg: float | None = None
+    clean_registered: int | None = None
+    poisoned_registered: int | None = None
+    num_images: int | None = None
+    crashes: list[Any] = []
+    reasons: list[str] = []
+    seconds: float = 0.0
+
+
+class CandidateEvidence(msgspec.Struct):
     name: str
     why: str
-    spec: dict[str, Any]
+    spec: PatchSpec
     spec_id: str
-    status: str = NOT_REACHED
-    visibility: dict[str, Any] = field(default_factory=dict)  # ssim_min/mean, lpips_max/mean
-    budget_use: float | None = None  # max((1-ssim)/(1-min_ssim), lpips/max_lpips): <= 1 fits
-    budget_notes: list[str] = field(default_factory=list)
-    profiles: dict[str, dict[str, Any]] = field(default_factory=dict)  # verdict, frac_within_5deg
+    status: CandidateStatus = CandidateStatus.NOT_REACHED
+    visibility: SampleVisibility | None = None
+    budget_use: float | None = None  # the largest fraction of a budget limit used: <= 1 fits
+    within_budget: bool = False  # budget_use <= 1 and, with corner_only, inside one corner
+    budget_notes: list[str] = []
+    profiles: dict[str, ProfileEvidence] = {}
     seconds: float = 0.0
     error: str | None = None
 
-    @property
-    def within_budget(self) -> bool:
-        return self.budget_use is not None and self.budget_use <= 1.0
 
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+class InterimMeasure(msgspec.Struct):
+    """One candidate measured for the interim choice (no SfM)."""
 
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> CandidateEvidence:
-        known = {f.name for f in dataclasses.fields(cls)}
-        return cls(**{k: v for k, v in data.items() if k in known})
+    name: str
+    spec_id: str | None = None
+    error: str | None = None  # it could not be applied to these files
+    within_budget: bool = False
+    budget_use: float | None = None
+    visibility: SampleVisibility | None = None
 
 
-@dataclass
-class AutoDecision:
+class InterimChoice(msgspec.Struct):
+    """The interim choice: the strongest candidate within the budget, else the least visible one."""
+
+    chosen: str
+    within_budget: bool
+    measured: list[InterimMeasure]
+
+
+class AutoDecision(msgspec.Struct):
     chosen: str | None
     spec: PatchSpec | None
+    spec_id: str | None
     reason: str
-    evidence: list[CandidateEvidence]
-    outcome: str  # "chosen" | "none_within_budget" | "time_budget" | "inconclusive"
-    lpips_checked: bool
+    outcome: Outcome
+    lpips_checked: bool  # LPIPS is reported only; False says it could not be measured here
     lpips_note: str | None
     budget: VisibilityBudget
     options: PreflightOptions
     sample: list[str]
     elapsed_s: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "chosen": self.chosen,
-            "spec": self.spec.to_dict() if self.spec else None,
-            "spec_id": self.spec.spec_id if self.spec else None,
-            "reason": self.reason,
-            "outcome": self.outcome,
-            "lpips_checked": self.lpips_checked,
-            "lpips_note": self.lpips_note,
-            "budget": dataclasses.asdict(self.budget),
-            "options": dataclasses.asdict(self.options),
-            "sample": self.sample,
-            "elapsed_s": self.elapsed_s,
-            "evidence": [e.to_dict() for e in self.evidence],
-        }
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> AutoDecision:
-        options = dict(data["options"])
-        options["profiles"] = tuple(options.get("profiles", ()))
-        return cls(
-            chosen=data["chosen"],
-            spec=PatchSpec.from_dict(data["spec"]) if data.get("spec") else None,
-            reason=data["reason"],
-            evidence=[CandidateEvidence.from_dict(e) for e in data["evidence"]],
-            outcome=data["outcome"],
-            lpips_checked=bool(data["lpips_checked"]),
-            lpips_note=data.get("lpips_note"),
-            budget=VisibilityBudget(**data["budget"]),
-            options=PreflightOptions(**options),
-            sample=list(data["sample"]),
-            elapsed_s=float(data["elapsed_s"]),
-        )
-
-
-# ---- visibility -----------------------------------------------------------------------------------
-def load_rgb(path: Path) -> np.ndarray:
-    """H x W x 3 float in [0, 1]; transparency composited on white (as Verifier I's round trip)."""
-    from verifier.verification import to_rgb
-
-    with PIL.Image.open(path) as im:
-        im.load()
-        rgb = to_rgb(im)
-    return np.asarray(rgb, dtype=np.float64) / 255.0
-
-
-def changed_box(a: np.ndarray, b: np.ndarray) -> tuple[int, int, int, int] | None:
-    """(y0, x0, y1, x1), exclusive ends, of the pixels where a and b differ; None when identical."""
-    diff = np.any(a != b, axis=2) if a.ndim == 3 else a != b
-    rows, cols = np.flatnonzero(diff.any(axis=1)), np.flatnonzero(diff.any(axis=0))
-    if rows.size == 0:
-        return None
-    return int(rows[0]), int(cols[0]), int(rows[-1]) + 1, int(cols[-1]) + 1
-
-
-def whole_image_ssim(clean: np.ndarray, poisoned: np.ndarray) -> float:
-    """`verifier.metrics.ssim` over the whole image, computed only around the change.
-
-    Why: a patch changes a few thousand pixels of a 6-megapixel photo. Where both windows see
-    identical pixels the SSIM map is exactly 1, so the whole-image mean is 1 minus the deficit
-    summed over the changed box grown by the window radius; the crop keeps one more radius of
-    real context so every window in that box sees what it sees in the full image (crop edges
-    inside the image never reach the summed pixels; edges on the image border pad with zeros
-    exactly as the full computation does). Equal to the full computation (tested)."""
-    a, b = np.asarray(clean, dtype=np.float64), np.asarray(poisoned, dtype=np.float64)
-    if a.shape != b.shape:
-        raise ValueError(f"images differ in shape: {a.shape} vs {b.shape}")
-    if a.ndim == 2:
-        a, b = a[..., None], b[..., None]
-    box = changed_box(a, b)
-    if box is None:
-        return 1.0
-    h, w, c = a.shape
-    y0, x0, y1, x1 = box
-    r = SSIM_RADIUS
-    sy0, sx0, sy1, sx1 = max(0, y0 - r), max(0, x0 - r), min(h, y1 + r), min(w, x1 + r)
-    cy0, cx0, cy1, cx1 = max(0, sy0 - r), max(0, sx0 - r), min(h, sy1 + r), min(w, sx1 + r)
-    smap = ssim_map(a[cy0:cy1, cx0:cx1], b[cy0:cy1, cx0:cx1])
-    inner = smap[sy0 - cy0 : sy1 - cy0, sx0 - cx0 : sx1 - cx0]
-    return float(1.0 - np.sum(1.0 - inner) / (h * w * c))
-
-
-def visibility(clean: np.ndarray, poisoned: np.ndarray, lpips_model: Any) -> dict[str, float | None]:
-    """Whole-image clean-vs-poisoned SSIM (3DGS formula) and LPIPS ([0, 1] H x W x 3 floats).
-
-    lpips_model: a `verifier.lpips.Lpips` or None (then "lpips" is None: not measured)."""
-    result: dict[str, float | None] = {"ssim": whole_image_ssim(clean, poisoned), "lpips": None}
-    if lpips_model is not None:
-        result["lpips"] = float(lpips_model.distance(clean, poisoned))
-    return result
-
-
-def open_lpips(net: str = "vgg") -> tuple[Any, str | None]:
-    """(model, None) or (None, why LPIPS cannot be measured here)."""
-    try:
-        from verifier.lpips import Lpips, lpips_available
-    except ImportError as exc:  # torch missing
-        return None, f"LPIPS unavailable ({exc})"
-    ok, reason = lpips_available(net)
-    if not ok:
-        return None, reason
-    return Lpips(net), None
-
-
-def summarise_visibility(per_image: Sequence[dict[str, float | None]]) -> dict[str, Any]:
-    ssims = [float(v["ssim"]) for v in per_image if v["ssim"] is not None]
-    lp = [float(v["lpips"]) for v in per_image if v.get("lpips") is not None]
-    return {
-        "images": len(per_image),
-        "ssim_min": min(ssims) if ssims else None,
-        "ssim_mean": float(np.mean(ssims)) if ssims else None,
-        "lpips_max": max(lp) if lp else None,
-        "lpips_mean": float(np.mean(lp)) if lp else None,
-    }
-
-
-def budget_use(vis: dict[str, Any], budget: VisibilityBudget) -> float:
-    """How much of the budget the worst image of the sample uses: <= 1 fits, > 1 exceeds.
-
-    One number so candidates can be ordered by measured visibility; LPIPS counts when measured."""
-    parts = [(1.0 - vis["ssim_min"]) / max(1e-12, 1.0 - budget.min_ssim)]
-    if vis.get("lpips_max") is not None:
-        parts.append(vis["lpips_max"] / max(1e-12, budget.max_lpips))
-    return float(max(parts))
-
-
-def budget_notes(vis: dict[str, Any], budget: VisibilityBudget) -> list[str]:
-    """Plain sentences on what exceeds the budget (empty when it fits)."""
-    notes = []
-    if vis["ssim_min"] < budget.min_ssim:
-        notes.append(f"SSIM {vis['ssim_min']:.4f} < {budget.min_ssim} on the worst sample image")
-    if vis.get("lpips_max") is not None and vis["lpips_max"] > budget.max_lpips:
-        notes.append(f"LPIPS {vis['lpips_max']:.4f} > {budget.max_lpips} on the worst sample image")
-    return notes
+    evidence: list[CandidateEvidence]
 
 
 # ---- sample ---------------------------------------------------------------------------------------
@@ -311,123 +175,130 @@ def choose_sample(items: Sequence[tuple[Path, str]], size: int) -> list[tuple[Pa
     return [usable[i] for i in idx]
 
 
-def _link_or_copy(src: Path, dst: Path) -> None:
+def link_or_copy(src: Path, dst: Path) -> None:
     try:
         os.link(src, dst)
     except OSError:
         shutil.copyfile(src, dst)
 
 
-# ---- the preflight ----------------------------------------------------------------------------------
-def preflight(
-    pairs_or_images: Sequence[ImageInput],
-    ladder: Sequence[Candidate],
-    budget: VisibilityBudget,
-    options: PreflightOptions,
-    out_dir: Path,
-) -> AutoDecision:
-    """Measure every candidate's visibility on a sample, then verify the ones within the budget,
-    least visible first, until one is `protected` under every profile (see the module docstring)."""
-    started = time.monotonic()
-    deadline = started + options.time_budget_s
-    out_dir = Path(out_dir)
-    sample = choose_sample(normalise_inputs(pairs_or_images), options.sample_size)
-    if not ladder:
-        raise PreflightInputError("the candidate ladder is empty")
+def prepare_sample(pairs_or_images: Sequence[ImageInput], size: int, out_dir: Path) -> tuple[Path, list[str]]:
+    """The sample linked (or copied) under its names into out_dir/sample: (that folder, the names)."""
+    sample = choose_sample(normalise_inputs(pairs_or_images), size)
     clean_dir = out_dir / "sample"
     shutil.rmtree(clean_dir, ignore_errors=True)
     clean_dir.mkdir(parents=True)
     for src, name in sample:
-        _link_or_copy(src, clean_dir / name)
-    names = [name for _, name in sample]
-    lpips_model, lpips_note = open_lpips(options.lpips_net)
-    evidence = [_measure(c, i, clean_dir, names, lpips_model, budget, out_dir) for i, c in enumerate(ladder)]
-    order = sorted(
-        (e for e in evidence if e.status != FAILED and e.within_budget), key=lambda e: e.budget_use or 0.0
-    )
-    for e in evidence:
-        if e.status != FAILED and not e.within_budget:
-            e.status = OVER_BUDGET
-    chosen: CandidateEvidence | None = None
-    stopped_by_time = clean_failed = False
-    cancel = threading.Event()
-    timer = threading.Timer(max(0.0, deadline - time.monotonic()), cancel.set)
-    timer.daemon = True
-    timer.start()
-    try:
-        for e in order:
-            if chosen is not None:
-                e.status = NOT_NEEDED
-                continue
-            if stopped_by_time or clean_failed or time.monotonic() >= deadline:
-                stopped_by_time = stopped_by_time or not clean_failed
-                continue  # stays NOT_REACHED
-            cand_dir = _candidate_dir(out_dir, evidence.index(e), e.name)
-            _verify_candidate(e, clean_dir, cand_dir, out_dir, options, deadline, cancel)
-            if e.status == PROTECTED:
-                chosen = e
-            elif e.status == TIMED_OUT:
-                stopped_by_time = True
-            elif e.status == INCONCLUSIVE:
-                clean_failed = True  # the clean sample itself does not reconstruct: same for all
-    finally:
-        timer.cancel()
-        shutil.rmtree(clean_dir, ignore_errors=True)
-    lpips_checked = lpips_model is not None
-    outcome, reason = _reason(chosen, evidence, budget, options, stopped_by_time, clean_failed)
-    if not lpips_checked:
-        reason += f" LPIPS NOT checked (the budget's LPIPS <= {budget.max_lpips} part): {lpips_note}."
-    spec = PatchSpec.from_dict(chosen.spec) if chosen else None
-    decision = AutoDecision(
-        chosen=chosen.name if chosen else None, spec=spec, reason=reason, evidence=evidence,
-        outcome=outcome, lpips_checked=lpips_checked, lpips_note=lpips_note, budget=budget,
-        options=options, sample=names, elapsed_s=round(time.monotonic() - started, 1),
-    )  # fmt: skip
-    (out_dir / "decision.json").write_text(json.dumps(decision.to_dict(), indent=1))
-    log.info("preflight decided", extra={"chosen": decision.chosen, "outcome": outcome,
-                                         "elapsed_s": decision.elapsed_s})  # fmt: skip
-    return decision
+        link_or_copy(src, clean_dir / name)
+    return clean_dir, [name for _, name in sample]
 
 
+# ---- step 2: measure every candidate ---------------------------------------------------------------
 def _candidate_dir(out_dir: Path, index: int, name: str) -> Path:
     safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)
     return out_dir / "candidates" / f"{index:02d}-{safe}"
 
 
+def measure_ladder(
+    ladder: Sequence[Candidate | LadderEntry],
+    clean_dir: Path,
+    names: list[str],
+    budget: VisibilityBudget,
+    lpips_model: Any,
+    out_dir: Path,
+) -> list[CandidateEvidence]:
+    """Every candidate's visibility on the sample; those over the budget are marked OVER_BUDGET."""
+    jpeg = {name: jpeg_reference_p999(load_rgb8(clean_dir / name), budget) for name in names}
+    folders = [_candidate_dir(out_dir, i, c.name) / "images" for i, c in enumerate(ladder)]
+    evidence = [
+        _measure(c, folder, clean_dir, names, lpips_model, budget, jpeg)
+        for c, folder in zip(ladder, folders, strict=True)
+    ]
+    for e in evidence:
+        if e.status != FAILED and not e.within_budget:
+            e.status = OVER_BUDGET
+    return evidence
+
+
 def _measure(
-    candidate: Candidate,
-    index: int,
+    candidate: Candidate | LadderEntry,
+    images: Path,
     clean_dir: Path,
     names: list[str],
     lpips_model: Any,
     budget: VisibilityBudget,
-    out_dir: Path,
+    jpeg_p999: dict[str, float],
 ) -> CandidateEvidence:
-    """Poison the sample with one candidate and measure its visibility (worst image counts)."""
+    """Poison the sample with one candidate into `images` and measure its visibility."""
     from poisoner.formats import poison_file
 
     spec = candidate.spec
-    e = CandidateEvidence(candidate.name, candidate.why, spec.to_dict(), spec.spec_id)
+    e = CandidateEvidence(candidate.name, candidate.why, spec, spec.spec_id)
     t0 = time.monotonic()
-    images = _candidate_dir(out_dir, index, candidate.name) / "images"
     shutil.rmtree(images, ignore_errors=True)
     images.mkdir(parents=True)
     per_image = []
     try:
         for name in names:
             poison_file(clean_dir / name, images / name, spec)
-            per_image.append(visibility(load_rgb(clean_dir / name), load_rgb(images / name), lpips_model))
+            clean, poisoned = load_rgb8(clean_dir / name), load_rgb8(images / name)
+            per_image.append(measure_image(clean, poisoned, budget, lpips_model, jpeg_p999.get(name)))
     except Exception as exc:  # a candidate that cannot be applied here is recorded, not fatal
         e.status, e.error = FAILED, str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         shutil.rmtree(images, ignore_errors=True)
         return e
-    e.visibility = summarise_visibility(per_image)
+    e.visibility = summarise_visibility(per_image, budget.display_width)
     e.budget_use = round(budget_use(e.visibility, budget), 4)
+    e.within_budget = within_budget(e.visibility, budget)
     e.budget_notes = budget_notes(e.visibility, budget)
     e.seconds = round(time.monotonic() - t0, 2)
     if not e.within_budget:
         shutil.rmtree(images, ignore_errors=True)
     return e
+
+
+# ---- step 4: verify the candidates within the budget -------------------------------------------------
+class WalkResult(msgspec.Struct):
+    chosen: CandidateEvidence | None = None
+    stopped_by_time: bool = False
+    clean_failed: bool = False
+
+
+def walk_candidates(
+    evidence: list[CandidateEvidence],
+    clean_dir: Path,
+    out_dir: Path,
+    options: PreflightOptions,
+    deadline: float,
+) -> WalkResult:
+    """Verifier I on the candidates within the budget, least visible first, until one is protected
+    under every profile, the time budget runs out, or the clean sample proves unreconstructable."""
+    order = sorted((e for e in evidence if e.within_budget and e.status != FAILED),
+                   key=lambda e: e.budget_use or 0.0)  # fmt: skip
+    walk = WalkResult()
+    cancel = threading.Event()
+    timer = threading.Timer(max(0.0, deadline - time.monotonic()), cancel.set)
+    timer.daemon = True
+    timer.start()
+    try:
+        for e in order:
+            if walk.chosen is not None:
+                e.status = NOT_NEEDED
+                continue
+            if walk.stopped_by_time or walk.clean_failed or time.monotonic() >= deadline:
+                walk.stopped_by_time = walk.stopped_by_time or not walk.clean_failed
+                continue  # stays NOT_REACHED
+            cand_dir = _candidate_dir(out_dir, evidence.index(e), e.name)
+            _verify_candidate(e, clean_dir, cand_dir, out_dir, options, deadline, cancel)
+            if e.status == PROTECTED:
+                walk.chosen = e
+            elif e.status == TIMED_OUT:
+                walk.stopped_by_time = True
+            elif e.status == INCONCLUSIVE:
+                walk.clean_failed = True  # the clean sample itself does not reconstruct: same for all
+    finally:
+        timer.cancel()
+    return walk
 
 
 def _verify_candidate(
@@ -461,9 +332,9 @@ def _verify_candidate(
             if cancel.is_set():
                 status = TIMED_OUT
                 break
-            if report.verdict == "protected":
+            if report.verdict == PROTECTED_VERDICT:
                 continue
-            status = INCONCLUSIVE if report.verdict == "inconclusive" else NOT_PROTECTED
+            status = INCONCLUSIVE if report.verdict == INCONCLUSIVE_VERDICT else NOT_PROTECTED
             break
     finally:
         shutil.rmtree(verify_dir / ".cache", ignore_errors=True)
@@ -473,122 +344,214 @@ def _verify_candidate(
     e.seconds = round(e.seconds + time.monotonic() - t0, 2)
 
 
-def _profile_evidence(report: Any) -> dict[str, Any]:
+def _profile_evidence(report: Any) -> ProfileEvidence:
     vs = report.vs_clean or {}
-    return {
-        "verdict": report.verdict,
-        "frac_within_5deg": vs.get("frac_within_5deg"),
-        "median_rotation_error_deg": vs.get("median_rotation_error_deg"),
-        "clean_registered": report.clean.get("registered"),
-        "poisoned_registered": report.poisoned.get("registered"),
-        "num_images": report.clean.get("num_images"),
-        "crashes": report.poisoned.get("crashes") or [],
-        "reasons": list(report.reasons)[:3],
-        "seconds": round(report.finished_at - report.started_at, 1),
-    }
+    return ProfileEvidence(
+        verdict=str(report.verdict),
+        frac_within_5deg=vs.get("frac_within_5deg"),
+        median_rotation_error_deg=vs.get("median_rotation_error_deg"),
+        clean_registered=report.clean.get("registered"),
+        poisoned_registered=report.poisoned.get("registered"),
+        num_images=report.clean.get("num_images"),
+        crashes=report.poisoned.get("crashes") or [],
+        reasons=list(report.reasons)[:3],
+        seconds=round(report.finished_at - report.started_at, 1),
+    )
 
 
+# ---- step 5: the decision ---------------------------------------------------------------------------
 def _pct(x: Any) -> str:
     return "n/a" if x is None else f"{100 * float(x):.0f}%"
 
 
+def _chosen_reason(chosen: CandidateEvidence, budget: VisibilityBudget, failed: list[str]) -> str:
+    per = ", ".join(
+        f"{p} {_pct(v.frac_within_5deg)} of cameras within 5 deg" for p, v in chosen.profiles.items()
+    )
+    return (
+        f"{chosen.name}: the least visible candidate within the budget ({budget.describe()}) that Verifier I "
+        f"confirms protected under every profile ({per}){_visibility_text(chosen.visibility)}."
+        + (f" Less visible but not protected: {', '.join(failed)}." if failed else "")
+    )
+
+
+def _visibility_text(vis: SampleVisibility | None) -> str:
+    """What a viewer sees of the worst sample image, then the paper's figures (reported only)."""
+    if vis is None:
+        return ""
+    text = f"; worst sample image: {vis.noticeable_area_max:.2%} noticeably changed"
+    text += f", FLIP p99.9 {vis.flip_p999_max:.2f}"
+    if vis.p999_vs_jpeg_max is not None:
+        text += f" ({vis.p999_vs_jpeg_max:.1f}x a JPEG q85 re-encode's)"
+    if vis.ssim_min is not None:
+        text += f", SSIM {vis.ssim_min:.4f}"
+    if vis.lpips_max is not None:
+        text += f", LPIPS {vis.lpips_max:.4f}"
+    return text
+
+
 def _reason(
-    chosen: CandidateEvidence | None,
-    evidence: list[CandidateEvidence],
-    budget: VisibilityBudget,
-    options: PreflightOptions,
-    stopped_by_time: bool,
-    clean_failed: bool,
-) -> tuple[str, str]:
+    walk: WalkResult, evidence: list[CandidateEvidence], budget: VisibilityBudget, options: PreflightOptions
+) -> tuple[Outcome, str]:
     over = [e.name for e in evidence if e.status == OVER_BUDGET]
     failed = [e.name for e in evidence if e.status == NOT_PROTECTED]
-    budget_text = f"SSIM >= {budget.min_ssim}, LPIPS <= {budget.max_lpips}"
-    if chosen is not None:
-        per = ", ".join(f"{p} {_pct(v.get('frac_within_5deg'))} of cameras within 5 deg"
-                        for p, v in chosen.profiles.items())  # fmt: skip
-        vis = chosen.visibility
-        lp = "" if vis.get("lpips_max") is None else f", LPIPS {vis['lpips_max']:.4f}"
-        return "chosen", (
-            f"{chosen.name}: the least visible candidate within the budget ({budget_text}) that Verifier I "
-            f"confirms protected under every profile ({per}); "
-            f"worst sample image SSIM {vis['ssim_min']:.4f}{lp}."
-            + (f" Less visible but not protected: {', '.join(failed)}." if failed else "")
-        )
+    if walk.chosen is not None:
+        return Outcome.CHOSEN, _chosen_reason(walk.chosen, budget, failed)
     tail = (f" Over the budget: {', '.join(over)}." if over else "") + (
         f" Not protected: {', '.join(failed)}." if failed else ""
     )
-    if clean_failed:
-        return "inconclusive", (
+    if walk.clean_failed:
+        return Outcome.INCONCLUSIVE, (
             "inconclusive: COLMAP does not reconstruct the clean sample itself, so no candidate can be "
             "confirmed (never called protected on that basis)." + tail
         )
-    if stopped_by_time:
+    if walk.stopped_by_time:
         left = [e.name for e in evidence if e.status in (NOT_REACHED, TIMED_OUT)]
-        return "time_budget", (
+        return Outcome.TIME_BUDGET, (
             f"stopped at the time budget ({options.time_budget_s:.0f} s) before any candidate was confirmed; "
             f"not verified: {', '.join(left)}." + tail
         )
-    return "none_within_budget", f"{NO_CANDIDATE} ({budget_text})." + tail
+    return Outcome.NONE_WITHIN_BUDGET, f"{NO_CANDIDATE} ({budget.describe()})." + tail
+
+
+def decide(
+    walk: WalkResult,
+    evidence: list[CandidateEvidence],
+    budget: VisibilityBudget,
+    options: PreflightOptions,
+    names: list[str],
+    lpips_note: str | None,
+    elapsed_s: float,
+) -> AutoDecision:
+    outcome, reason = _reason(walk, evidence, budget, options)
+    if lpips_note is not None:
+        reason += f" LPIPS not measured (reported only, not part of the budget): {lpips_note}."
+    spec = walk.chosen.spec if walk.chosen else None
+    return AutoDecision(
+        chosen=walk.chosen.name if walk.chosen else None, spec=spec, spec_id=spec.spec_id if spec else None,
+        reason=reason, outcome=outcome, lpips_checked=lpips_note is None, lpips_note=lpips_note,
+        budget=budget, options=options, sample=names, elapsed_s=round(elapsed_s, 1), evidence=evidence,
+    )  # fmt: skip
+
+
+# ---- the interim choice (no SfM) ----------------------------------------------------------------------
+def _measure_on(
+    spec: PatchSpec, clean_dir: Path, out_dir: Path, names: Sequence[str], budget: VisibilityBudget,
+    jpeg_p999: dict[str, float],
+) -> SampleVisibility:  # fmt: skip
+    """One spec poisoned onto the clean files into out_dir and measured (no LPIPS)."""
+    from poisoner.formats import poison_file
+
+    out_dir.mkdir()
+    per_image = []
+    for name in names:
+        poison_file(clean_dir / name, out_dir / name, spec)
+        clean, poisoned = load_rgb8(clean_dir / name), load_rgb8(out_dir / name)
+        per_image.append(measure_image(clean, poisoned, budget, None, jpeg_p999.get(name)))
+    return summarise_visibility(per_image, budget.display_width)
+
+
+def choose_interim(
+    ladder: Sequence[Candidate | LadderEntry], budget: VisibilityBudget, images: Sequence[tuple[Path, str]]
+) -> InterimChoice:
+    """The strongest candidate (latest in the ladder) within the visibility budget on images; with
+    none within it, the least visible one measured (within_budget False: the caller says so)."""
+    measured: list[InterimMeasure] = []
+    with tempfile.TemporaryDirectory(prefix=".ppd-auto-") as tmp:
+        clean_dir = Path(tmp) / "clean"
+        clean_dir.mkdir()
+        for src, name in images:
+            link_or_copy(src, clean_dir / name)
+        names = [name for _, name in images]
+        gate_jpeg = budget.max_p999_vs_jpeg > 0  # one more FLIP per file: only when it decides
+        jpeg = {n: jpeg_reference_p999(load_rgb8(clean_dir / n), budget) for n in names} if gate_jpeg else {}
+        for index in range(len(ladder) - 1, -1, -1):
+            cand = ladder[index]
+            try:
+                vis = _measure_on(cand.spec, clean_dir, Path(tmp) / str(index), names, budget, jpeg)
+            except Exception as exc:  # does not fit these images: recorded, next one
+                why = (str(exc) or type(exc).__name__).splitlines()[0]
+                measured.append(InterimMeasure(cand.name, error=why))
+                continue
+            fits = within_budget(vis, budget)
+            measured.append(InterimMeasure(cand.name, cand.spec.spec_id, None, fits,
+                                           round(budget_use(vis, budget), 4), vis))  # fmt: skip
+            if fits:
+                return InterimChoice(cand.name, True, measured)
+    usable = [m for m in measured if m.budget_use is not None]
+    if not usable:
+        raise PreflightInputError("no candidate of the ladder applies to these images")
+    return InterimChoice(min(usable, key=lambda m: m.budget_use or 0.0).name, False, measured)
+
+
+# ---- the preflight ----------------------------------------------------------------------------------
+def preflight(
+    pairs_or_images: Sequence[ImageInput],
+    ladder: Sequence[Candidate | LadderEntry],
+    budget: VisibilityBudget,
+    options: PreflightOptions,
+    out_dir: Path,
+) -> AutoDecision:
+    """Measure every candidate's visibility on a sample, then verify the ones within the budget,
+    least visible first, until one is `protected` under every profile (see the module docstring).
+    Writes out_dir/decision.json."""
+    started = time.monotonic()
+    deadline = started + options.time_budget_s
+    out_dir = Path(out_dir)
+    if not ladder:
+        raise PreflightInputError("the candidate ladder is empty")
+    clean_dir, names = prepare_sample(pairs_or_images, options.sample_size, out_dir)
+    try:
+        lpips_model, lpips_note = open_lpips(options.lpips_net)
+        evidence = measure_ladder(ladder, clean_dir, names, budget, lpips_model, out_dir)
+        walk = walk_candidates(evidence, clean_dir, out_dir, options, deadline)
+    finally:
+        shutil.rmtree(clean_dir, ignore_errors=True)
+    decision = decide(walk, evidence, budget, options, names, lpips_note, time.monotonic() - started)
+    written = msgspec.json.format(msgspec.json.encode(decision), indent=1)
+    atomic_write_bytes(out_dir / "decision.json", written)
+    log.info("preflight decided", extra={"chosen": decision.chosen, "outcome": str(decision.outcome),
+                                         "elapsed_s": decision.elapsed_s})  # fmt: skip
+    return decision
 
 
 # ---- child process entry ------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class LadderEntry:
-    """A ladder candidate as a job carries it (same fields as poisoner.ladder.Candidate)."""
-
-    name: str
-    spec: PatchSpec
-    why: str = ""
-
-
-def ladder_to_json(ladder: Sequence[Candidate | LadderEntry]) -> list[dict[str, Any]]:
-    return [{"name": c.name, "why": c.why, "spec": c.spec.to_dict()} for c in ladder]
-
-
-def ladder_from_json(data: Sequence[dict[str, Any]]) -> list[LadderEntry]:
-    return [LadderEntry(d["name"], PatchSpec.from_dict(d["spec"]), d.get("why", "")) for d in data]
-
-
-def run_job(job: dict[str, Any]) -> AutoDecision:
-    """A preflight described by a JSON job (what the daemon's child runs). The job names its
-    ladder; without one, poisoner.ladder's."""
-    if "ladder" in job:
-        ladder: list[Any] = ladder_from_json(job["ladder"])
+def run_job(job: PreflightJob) -> AutoDecision | InterimChoice:
+    """A preflight (or, mode "interim", the interim choice) described by a job: what the daemon's
+    child runs. Without a ladder, poisoner.ladder's."""
+    if job.ladder is not None:
+        ladder: list[Any] = list(job.ladder)
     else:
         from poisoner.ladder import candidate_ladder
 
         ladder = list(candidate_ladder())
-    exclude = set(job.get("exclude", []))
+    exclude = set(job.exclude)
     ladder = [c for c in ladder if c.name not in exclude]
-    options = dict(job.get("options", {}))
-    if "profiles" in options:
-        options["profiles"] = tuple(options["profiles"])
-    return preflight(
-        [(Path(src), name) for src, name in job["images"]],
-        ladder,
-        VisibilityBudget(**job.get("budget", {})),
-        PreflightOptions(**options),
-        Path(job["out_dir"]),
-    )
+    images = [(Path(src), name) for src, name in job.images]
+    if job.mode == "interim":
+        return choose_interim(ladder, job.budget, images)
+    return preflight(images, ladder, job.budget, job.options, Path(job.out_dir))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """`python -m verifier.auto JOB.json`: writes the decision JSON to job["result"] (atomically)."""
+    """`python -m verifier.auto JOB.json`: writes the decision (or interim choice) JSON to job.result
+    (atomically); {"error": ...} when the job cannot run."""
     args = list(sys.argv[1:] if argv is None else argv)
     if len(args) != 1:
         print("usage: python -m verifier.auto JOB.json", file=sys.stderr)
         return 2
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s %(message)s")
-    job = json.loads(Path(args[0]).read_text())
-    result = Path(job["result"])
     try:
-        data = run_job(job).to_dict()
+        job = msgspec.json.decode(Path(args[0]).read_bytes(), type=PreflightJob)
+    except (OSError, msgspec.DecodeError) as exc:
+        print(f"bad preflight job: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
+    try:
+        result: Any = run_job(job)
     except (PreflightInputError, ValueError, OSError) as exc:
-        data = {"error": str(exc).splitlines()[0] if str(exc) else type(exc).__name__}
-    tmp = result.with_name(".ppd-tmp-" + result.name)
-    tmp.write_text(json.dumps(data))
-    os.replace(tmp, result)
-    return 0 if "error" not in data else 1
+        result = {"error": str(exc).splitlines()[0] if str(exc) else type(exc).__name__}
+    atomic_write_bytes(Path(job.result), msgspec.json.encode(result))
+    return 1 if isinstance(result, dict) else 0
 
 
 if __name__ == "__main__":

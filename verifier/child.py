@@ -1,16 +1,16 @@
 """Child-process entry for one SfM job: `python -m verifier.child` with the job JSON on stdin.
 
-Lowers its own priority first (nice 10, idle I/O class), runs the job, and writes the result
-JSON to the job's result_path atomically. pycolmap's own logging goes to stderr (a log file the
-parent keeps). Exit codes: 0 result written (outcome ok or failed), 2 bad request; a negative
-return code seen by the parent means a signal (a pycolmap segfault).
+Lowers its own priority first (nice 10, idle I/O class), runs the job (verifier.sfm.SfmJob), and
+writes the result (SfmOk or SfmFailed) as JSON to the job's result_path atomically. pycolmap's own
+logging goes to stderr (a log file the parent keeps). Exit codes: 0 result written (outcome ok or
+failed), 2 bad request; a negative return code seen by the parent means a signal (a pycolmap
+segfault).
 """
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
-import json
 import os
 import platform
 import sys
@@ -39,28 +39,26 @@ def lower_priority() -> None:
         pass
 
 
-def _write_atomic(path: Path, data: dict) -> None:
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_text(json.dumps(data))
-    os.replace(tmp, path)
-
-
 def main() -> int:
     lower_priority()
-    from verifier.sfm import SfmJob, execute_job
+    import msgspec
+
+    from poisoner.atomic import atomic_write_bytes
+    from verifier.sfm import SfmFailed, SfmJob, SfmResult, execute_job
 
     try:
-        job = SfmJob.from_json(sys.stdin.read())
-    except (ValueError, TypeError, KeyError) as exc:
+        job = msgspec.json.decode(sys.stdin.buffer.read(), type=SfmJob)
+    except msgspec.DecodeError as exc:
         print(f"bad SfM job: {exc}", file=sys.stderr)
         return 2
+    result: SfmResult
     try:
         result = execute_job(job)
     except Exception as exc:  # any error becomes a result the parent can record
         traceback.print_exc()
-        result = {"outcome": "failed", "error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
+        result = SfmFailed(error=f"{type(exc).__name__}: {exc}".splitlines()[0])
     if job.result_path:
-        _write_atomic(Path(job.result_path), result)
+        atomic_write_bytes(Path(job.result_path), msgspec.json.encode(result))
     return 0
 
 

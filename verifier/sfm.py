@@ -1,7 +1,8 @@
 """Structure-from-Motion with pycolmap 4.2.1, run in a child process, and its parent-side launcher.
 
 The parent (daemon, CLI, tests) calls `run_sfm_job(job, ...)`: it starts `python -m verifier.child`
-at low priority, sends the job as JSON on stdin and reads the result JSON file back. pycolmap is
+at low priority, sends the job (`SfmJob`) as JSON on stdin and reads the result (`SfmOk` or
+`SfmFailed`, tagged by `outcome`) back from a JSON file; msgspec types both directions. pycolmap is
 imported only by `execute_job`, which runs in the child. A child killed by a signal (pycolmap 4.2.1
 segfaults on some poisoned sets) becomes an outcome, never a crash of the caller.
 
@@ -13,8 +14,6 @@ there and nowhere else), which halves the work of verifying two profiles.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
-import json
 import logging
 import os
 import shutil
@@ -22,9 +21,10 @@ import sys
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import msgspec
 
 from poisoner.media import is_sfm_readable
 from verifier.supervise import run_child
@@ -35,8 +35,7 @@ log = logging.getLogger(__name__)
 _RUN_LOCK = threading.Lock()
 
 
-@dataclass(frozen=True)
-class SfmSettings:
+class SfmSettings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """What one SfM run does. Defaults are the official 3DGS convert.py settings."""
 
     camera_model: str = "OPENCV"  # convert.py: --ImageReader.camera_model OPENCV
@@ -51,13 +50,6 @@ class SfmSettings:
     # masked (issue 14): the attacker masks the four corner regions, each this fraction of the
     # width by this fraction of the height, so SIFT finds no features there. 0: no mask.
     mask_corners: float = 0.0
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> SfmSettings:
-        return cls(**data)
 
     def feature_key(self) -> str:
         """Settings that decide features + raw matches (the cache is valid across the rest)."""
@@ -83,9 +75,9 @@ def profile_sfm_settings(profile: str, base: SfmSettings) -> SfmSettings:
     if profile in ("default", "published"):
         return base
     if profile == "hardened":
-        return dataclasses.replace(base, filter_stationary_matches=True, ignore_watermarks=True)
+        return msgspec.structs.replace(base, filter_stationary_matches=True, ignore_watermarks=True)
     if profile == "masked":
-        return dataclasses.replace(base, mask_corners=MASKED_CORNER_FRACTION)
+        return msgspec.structs.replace(base, mask_corners=MASKED_CORNER_FRACTION)
     raise ValueError(f"unknown profile {profile!r}")
 
 
@@ -113,23 +105,49 @@ def write_corner_masks(image_dir: Path, names: list[str], mask_dir: Path, fracti
         Image.fromarray(corner_mask(width, height, fraction)).save(mask_dir / f"{name}.png")
 
 
-@dataclass(frozen=True)
-class SfmJob:
+class SfmJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """What the SfM child runs (sent as JSON on its stdin)."""
+
     image_dir: str
     cache_db: str  # features + raw matches; created when missing
     model_dir: str  # the largest model is written here (cameras.bin, images.bin, points3D.bin)
-    settings: SfmSettings = field(default_factory=SfmSettings)
+    settings: SfmSettings = msgspec.field(default_factory=SfmSettings)
     result_path: str = ""
 
-    def to_json(self) -> str:
-        d = dataclasses.asdict(self)
-        return json.dumps(d)
 
-    @classmethod
-    def from_json(cls, text: str) -> SfmJob:
-        d = json.loads(text)
-        d["settings"] = SfmSettings.from_dict(d["settings"])
-        return cls(**d)
+class CameraPose(msgspec.Struct, frozen=True):
+    R: list[list[float]]  # cam_from_world rotation, 3 x 3
+    t: list[float]  # cam_from_world translation
+
+
+class CameraModel(msgspec.Struct, frozen=True):
+    model: str
+    params: list[float]
+
+
+class SfmOk(msgspec.Struct, tag_field="outcome", tag="ok"):
+    """The child's result when COLMAP ran: the largest model's poses and counts of all (the
+    defaults: nothing reconstructed)."""
+
+    num_images: int = 0
+    verified_pairs: int = 0
+    num_models: int = 0
+    model_sizes: list[int] = []
+    registered: int = 0
+    poses: dict[str, CameraPose] = {}
+    mean_reprojection_error: float | None = None
+    num_points3D: int = 0  # noqa: N815 - the JSON key verification reports use
+    camera: CameraModel | None = None
+    timings: dict[str, float] = {}
+
+
+class SfmFailed(msgspec.Struct, tag_field="outcome", tag="failed"):
+    """The child's result when the job could not run (bad input, a pycolmap error)."""
+
+    error: str
+
+
+SfmResult = SfmOk | SfmFailed
 
 
 class SfmCancelled(RuntimeError):
@@ -165,7 +183,7 @@ def _run_locked(
     fd, result_path = tempfile.mkstemp(prefix=".ppd-tmp-sfm-", suffix=".json", dir=job.model_dir)
     os.close(fd)
     os.unlink(result_path)
-    job = dataclasses.replace(job, result_path=result_path)
+    job = msgspec.structs.replace(job, result_path=result_path)
     cmd = [*_ionice_prefix(), python or sys.executable, "-m", "verifier.child"]
     env = dict(os.environ)
     root = str(Path(__file__).resolve().parents[1])
@@ -175,7 +193,7 @@ def _run_locked(
     ended = run_child(
         cmd,
         log_path=stderr_path,
-        stdin_data=job.to_json().encode(),
+        stdin_data=msgspec.json.format(msgspec.json.encode(job), indent=0),  # json.dumps' spacing: greppable
         timeout_s=timeout_s,
         cancel=cancel,
         env=env,
@@ -190,14 +208,12 @@ def _run_locked(
         name = ended.signal_name
         return {**base, "outcome": "sfm_crashed", "signal": name, "error": f"SfM child killed by {name}"}
     try:
-        result = json.loads(Path(result_path).read_text())
-    except (OSError, json.JSONDecodeError):
-        tail = _tail(stderr_path)
-        return {
-            **base,
-            "outcome": "failed",
-            "error": f"child exited {ended.returncode} without a result: {tail}",
-        }
+        result = msgspec.to_builtins(msgspec.json.decode(Path(result_path).read_bytes(), type=SfmResult))
+    except OSError:
+        why = f"child exited {ended.returncode} without a result: {_tail(stderr_path)}"
+        return {**base, "outcome": "failed", "error": why}
+    except msgspec.DecodeError as exc:  # a child of another version, or a broken write
+        return {**base, "outcome": "failed", "error": f"child wrote an invalid result: {exc}"}
     finally:
         with contextlib.suppress(OSError):
             os.unlink(result_path)
@@ -218,17 +234,27 @@ def list_images(image_dir: Path) -> list[str]:
 
 
 def build_cache_db(image_dir: Path, cache_db: Path, settings: SfmSettings) -> None:
-    """Extract SIFT features and raw (unverified) matches into cache_db, atomically."""
+    """Extract SIFT features and raw (unverified) matches into cache_db, atomically (a killed run
+    leaves no half-built cache under the real name)."""
+    from poisoner.atomic import atomic_output
+
+    mask_dir = cache_db.with_name(f".ppd-tmp-masks-{cache_db.stem}")
+    try:
+        with atomic_output(cache_db) as tmp:
+            extract_features(image_dir, tmp, settings, mask_dir)
+            match_raw(tmp, settings)
+    finally:
+        shutil.rmtree(mask_dir, ignore_errors=True)
+
+
+def extract_features(image_dir: Path, database: Path, settings: SfmSettings, mask_dir: Path) -> None:
+    """SIFT features of every image into database (corner masks written to mask_dir when asked)."""
     import pycolmap
 
-    tmp = cache_db.with_name(f".ppd-tmp-{cache_db.name}")
-    with contextlib.suppress(FileNotFoundError):
-        tmp.unlink()
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = settings.camera_model
     if settings.camera_params:
         reader.camera_params = settings.camera_params
-    mask_dir = cache_db.with_name(f".ppd-tmp-masks-{cache_db.stem}")
     if settings.mask_corners > 0:
         write_corner_masks(image_dir, list_images(image_dir), mask_dir, settings.mask_corners)
         reader.mask_path = str(mask_dir)
@@ -236,7 +262,7 @@ def build_cache_db(image_dir: Path, cache_db: Path, settings: SfmSettings) -> No
     extraction.max_image_size = settings.max_image_size
     mode = pycolmap.CameraMode.SINGLE if settings.single_camera else pycolmap.CameraMode.AUTO
     pycolmap.extract_features(
-        tmp,
+        database,
         image_dir,
         image_names=list_images(image_dir),
         camera_mode=mode,
@@ -244,29 +270,36 @@ def build_cache_db(image_dir: Path, cache_db: Path, settings: SfmSettings) -> No
         extraction_options=extraction,
         device=pycolmap.Device.cpu,
     )
+
+
+def match_raw(database: Path, settings: SfmSettings) -> None:
+    """Raw matches (no geometric verification: each profile verifies with its own options)."""
+    import pycolmap
+
     matching = pycolmap.FeatureMatchingOptions()
-    matching.skip_geometric_verification = True  # each profile verifies with its own options
+    matching.skip_geometric_verification = True
     if settings.matching == "sequential":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = settings.sequential_overlap
         pycolmap.match_sequential(
-            tmp, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+            database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
         )
     elif settings.matching == "exhaustive":
-        pycolmap.match_exhaustive(tmp, matching_options=matching, device=pycolmap.Device.cpu)
+        pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
     else:
         raise ValueError(f"unknown matching {settings.matching!r}")
-    shutil.rmtree(mask_dir, ignore_errors=True)
-    os.replace(tmp, cache_db)
 
 
-def execute_job(job: SfmJob) -> dict[str, Any]:
-    """Run the job in this process (the child). Returns the JSON result."""
+def execute_job(job: SfmJob) -> SfmResult:
+    """Run the job in this process (the child): features and raw matches (cached), then this
+    profile's geometric verification and mapping."""
     import pycolmap
 
     settings = job.settings
     pycolmap.set_random_seed(settings.random_seed)
     image_dir, cache_db, model_dir = Path(job.image_dir), Path(job.cache_db), Path(job.model_dir)
+    if not list_images(image_dir):  # COLMAP would only say "no models"; say why
+        return SfmFailed(error=f"no images COLMAP can read in {image_dir}")
     timings: dict[str, float] = {}
     t0 = time.time()
     if not cache_db.exists():
@@ -276,14 +309,37 @@ def execute_job(job: SfmJob) -> dict[str, Any]:
     work_db = model_dir / "work.db"
     shutil.copyfile(cache_db, work_db)
     t1 = time.time()
+    num_images, verified_pairs = verify_pairs(work_db, settings)
+    timings["verification_s"] = time.time() - t1
+    t2 = time.time()
+    with tempfile.TemporaryDirectory(prefix=".ppd-tmp-map-", dir=model_dir) as tmp:
+        models = pycolmap.incremental_mapping(work_db, image_dir, tmp, options=mapper_options(settings))
+        timings["mapping_s"] = time.time() - t2
+        work_db.unlink()
+        result = summarise_models(models, num_images, verified_pairs)
+        if models:
+            largest = max(models.values(), key=lambda r: r.num_reg_images())
+            largest.write(model_dir)
+    result.timings = timings
+    return result
+
+
+def verify_pairs(work_db: Path, settings: SfmSettings) -> tuple[int, int]:
+    """This profile's geometric verification of the raw matches; (images, verified pairs)."""
+    import pycolmap
+
     two_view = pycolmap.TwoViewGeometryOptions()
     two_view.filter_stationary_matches = settings.filter_stationary_matches
     two_view.ransac.random_seed = settings.random_seed
     pycolmap.geometric_verification(work_db, two_view_geometry_options=two_view)
-    timings["verification_s"] = time.time() - t1
     with pycolmap.Database.open(work_db) as db:
-        num_images = db.num_images()
-        verified_pairs = db.num_verified_image_pairs()
+        return db.num_images(), db.num_verified_image_pairs()
+
+
+def mapper_options(settings: SfmSettings) -> Any:
+    """COLMAP's incremental mapper options for these settings."""
+    import pycolmap
+
     mapper = pycolmap.IncrementalPipelineOptions()
     mapper.ignore_watermarks = settings.ignore_watermarks
     mapper.random_seed = settings.random_seed
@@ -291,51 +347,33 @@ def execute_job(job: SfmJob) -> dict[str, Any]:
         mapper.ba_refine_focal_length = False
         mapper.ba_refine_principal_point = False
         mapper.ba_refine_extra_params = False
-    t2 = time.time()
-    with tempfile.TemporaryDirectory(prefix=".ppd-tmp-map-", dir=model_dir) as tmp:
-        models = pycolmap.incremental_mapping(work_db, image_dir, tmp, options=mapper)
-        timings["mapping_s"] = time.time() - t2
-        work_db.unlink()
-        result = summarise_models(models, num_images, verified_pairs)
-        if models:
-            largest = max(models.values(), key=lambda r: r.num_reg_images())
-            largest.write(model_dir)
-    result["timings"] = timings
-    result["outcome"] = "ok"
-    return result
+    return mapper
 
 
-def summarise_models(models: dict[int, Any], num_images: int, verified_pairs: int) -> dict[str, Any]:
-    """Poses of the largest model and counts of all, as JSON."""
+def summarise_models(models: dict[int, Any], num_images: int, verified_pairs: int) -> SfmOk:
+    """Poses of the largest model and counts of all."""
     sizes = sorted((r.num_reg_images() for r in models.values()), reverse=True)
-    out: dict[str, Any] = {
-        "num_images": num_images,
-        "verified_pairs": verified_pairs,
-        "num_models": len(models),
-        "model_sizes": sizes,
-        "registered": sizes[0] if sizes else 0,
-        "poses": {},
-        "mean_reprojection_error": None,
-        "num_points3D": 0,
-        "camera": None,
-    }
     if not models:
-        return out
+        return SfmOk(num_images=num_images, verified_pairs=verified_pairs)
     largest = max(models.values(), key=lambda r: r.num_reg_images())
     poses = {}
     for image in largest.images.values():
         if not image.has_pose:
             continue
         cam_from_world = image.cam_from_world()
-        poses[image.name] = {
-            "R": cam_from_world.rotation.matrix().tolist(),
-            "t": list(map(float, cam_from_world.translation)),
-        }
-    out["poses"] = poses
-    out["registered"] = len(poses)
-    out["mean_reprojection_error"] = float(largest.compute_mean_reprojection_error())
-    out["num_points3D"] = int(largest.num_points3D())
+        poses[image.name] = CameraPose(
+            R=cam_from_world.rotation.matrix().tolist(), t=list(map(float, cam_from_world.translation))
+        )
     cams = list(largest.cameras.values())
-    if cams:
-        out["camera"] = {"model": str(cams[0].model.name), "params": list(map(float, cams[0].params))}
-    return out
+    camera = CameraModel(str(cams[0].model.name), list(map(float, cams[0].params))) if cams else None
+    return SfmOk(
+        num_images=num_images,
+        verified_pairs=verified_pairs,
+        num_models=len(models),
+        model_sizes=sizes,
+        registered=len(poses),
+        poses=poses,
+        mean_reprojection_error=float(largest.compute_mean_reprojection_error()),
+        num_points3D=int(largest.num_points3D()),
+        camera=camera,
+    )

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from poisoner.atomic import atomic_write_bytes
+
 
 @dataclass(frozen=True)
 class SyntheticOptions:
@@ -178,4 +180,4 @@ def write_ground_truth(
         "focal": options.focal,
         "cameras": {n: {"R": r.tolist(), "t": t.tolist()} for n, (r, t) in poses.items()},
     }
-    path.write_text(json.dumps(data, indent=1))
+    atomic_write_bytes(path, json.dumps(data, indent=1).encode())

@@ -13,8 +13,8 @@ from types import FrameType
 
 import typer
 
-from daemon.cli_common import die
-from daemon.cli_common import err_console as console
+from daemon.cli.errors import die
+from daemon.cli.output import err_console
 
 log = logging.getLogger(__name__)
 
@@ -25,7 +25,7 @@ def _fail(message: str, code: int = 1) -> typer.Exit:  # 1: systemd and tests re
     return die(message, code)
 
 
-def _open_context(outbox: Path | None):  # -> daemon.protect.AppContext
+def _open_context(outbox: Path | None):  # -> daemon.context.AppContext
     from daemon.config import ConfigError
     from daemon.context import AppContext
     from daemon.paths import AppPaths
@@ -102,10 +102,10 @@ def service_install(
         sys.stdout.write(service.render_unit(layout))
         return
     target = service.install_unit(service.render_unit(layout))
-    console.print(f"wrote {target}", highlight=False)
+    err_console().print(f"wrote {target}", highlight=False)
     reload = service.systemctl_user("daemon-reload")
     if not reload.ran:
-        console.print(
+        err_console().print(
             "no systemd user manager reachable here; once logged in with one, run:\n"
             "  systemctl --user daemon-reload && systemctl --user enable --now ppd",
             highlight=False,
@@ -113,7 +113,7 @@ def service_install(
         return
     if start:
         enabled = service.systemctl_user("enable", "--now", service.UNIT_NAME)
-        console.print(enabled.output or f"enabled and started {service.UNIT_NAME}", highlight=False)
+        err_console().print(enabled.output or f"enabled and started {service.UNIT_NAME}", highlight=False)
         if enabled.returncode != 0:
             raise typer.Exit(1)
 
@@ -125,7 +125,7 @@ def service_uninstall() -> None:
 
     stopped = service.systemctl_user("disable", "--now", service.UNIT_NAME)
     removed = service.uninstall_unit()
-    console.print(f"removed {removed}" if removed else "ppd.service was not installed", highlight=False)
+    err_console().print(f"removed {removed}" if removed else "ppd.service was not installed", highlight=False)
     if stopped.ran:
         service.systemctl_user("daemon-reload")
 
@@ -137,11 +137,11 @@ def service_status() -> None:
 
     target = service.unit_dir() / service.UNIT_NAME
     state = "installed" if target.is_file() else "not installed"
-    console.print(f"unit file: {target} ({state})", highlight=False)
+    err_console().print(f"unit file: {target} ({state})", highlight=False)
     result = service.systemctl_user("status", "--no-pager", "--lines=5", service.UNIT_NAME)
     if not result.ran:
         reason = (result.output.splitlines() or ["unknown reason"])[0]
-        console.print(f"systemd user manager: not reachable ({reason})", highlight=False)
+        err_console().print(f"systemd user manager: not reachable ({reason})", highlight=False)
         raise typer.Exit(0 if target.is_file() else 3)
     sys.stdout.write(result.output + "\n")
     raise typer.Exit(result.returncode)

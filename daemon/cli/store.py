@@ -7,23 +7,31 @@ done (one line on stderr, never a traceback).
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
-from rich.console import Console
-from rich.markup import escape
-from rich.table import Table
 
-console = Console(soft_wrap=True)
-err = Console(stderr=True, soft_wrap=True)
+if TYPE_CHECKING:
+    from rich.console import Console
 
 store_app = typer.Typer(
     help="The provenance store: check it, rebuild it from the vault.", no_args_is_help=True
 )
 
 
+@functools.cache
+def _console(stderr: bool = False) -> Console:
+    from rich.console import Console
+
+    return Console(stderr=stderr, soft_wrap=True)
+
+
 def _fail(message: str, code: int = 1) -> typer.Exit:
-    err.print(f"[red]error:[/red] {escape(message)}", highlight=False)
+    from rich.markup import escape
+
+    _console(stderr=True).print(f"[red]error:[/red] {escape(message)}", highlight=False)
     return typer.Exit(code)
 
 
@@ -40,7 +48,7 @@ def check() -> None:
                 f"there is no store at {paths.db_path} but the vault {paths.vault_dir} holds originals; "
                 "run `ppd store rebuild`"
             )
-        console.print(
+        _console().print(
             f"no store at {paths.db_path} yet (ppd creates it with the first file)",
             highlight=False,
             markup=False,
@@ -60,7 +68,7 @@ def check() -> None:
         raise _fail(str(exc).splitlines()[0]) from None
     finally:
         store.close()
-    console.print(
+    _console().print(
         f"store {paths.db_path}: sound (schema {version}), {files} file row(s) in {len(datasets)} dataset(s)",
         highlight=False,
         markup=False,
@@ -99,14 +107,20 @@ def rebuild(
         raise _fail(
             f"cannot rebuild the store: {exc.strerror or exc}: {exc.filename or paths.db_path}"
         ) from None
-    console.print(report.summary(), highlight=False, markup=False)
-    if not verbose:
-        return
+    _console().print(report.summary(), highlight=False, markup=False)
+    if verbose:
+        _print_details(paths, report)
+
+
+def _print_details(paths: Any, report: Any) -> None:
+    """--verbose: a table per dataset, every file left out, the folders walked."""
+    from rich.table import Table
+
+    from daemon.store import Store
+
     table = Table(title="rebuilt datasets")
     for column in ("dataset", "patched files", "spec", "spec from"):
         table.add_column(column)
-    from daemon.store import Store
-
     store = Store(paths.db_path)
     try:
         for name in sorted({d["name"] for d in store.datasets()}):
@@ -115,16 +129,16 @@ def rebuild(
             table.add_row(name, str(report.datasets.get(name, 0)), spec_id or "—", source)
     finally:
         store.close()
-    console.print(table)
+    _console().print(table)
     for label, items in (
         ("marked, original not in the vault", report.without_original),
         ("duplicate, skipped", report.conflicts),
     ):
         for path in items:
-            console.print(f"{label}: {path}", highlight=False, markup=False)
+            _console().print(f"{label}: {path}", highlight=False, markup=False)
     for spec_id in report.specs_missing:
-        console.print(f"spec not recovered: {spec_id}", highlight=False, markup=False)
-    console.print(
+        _console().print(f"spec not recovered: {spec_id}", highlight=False, markup=False)
+    _console().print(
         f"folders walked: {', '.join(str(f) for f in report.folders)}", highlight=False, markup=False
     )
 

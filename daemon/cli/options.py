@@ -1,9 +1,12 @@
-"""One set of patch-spec options for every command that takes a spec (`poison`, `preview`,
-`dataset set`): a named design (`--design`), a spec file (`--spec`) and one flag per PatchSpec
-field, built from `dataclasses.fields(PatchSpec)` so a field added to the spec gets its flag here.
+"""The option sets several commands share.
 
-`@spec_options` adds the flags to a typer command and hands it one `SpecOptions` (keyword
-`spec_options`). Light at import: poisoner.spec and poisoner.ladder are pure and small.
+The patch-spec set, for every command that takes a spec (`poison`, `preview`, `dataset set`): a
+named design (`--design`), a spec file (`--spec`) and one flag per PatchSpec field, built from
+`dataclasses.fields(PatchSpec)` so a field added to the spec gets its flag here. `@spec_options`
+adds the flags to a typer command and hands it one `SpecOptions` (keyword `spec_options`).
+
+Light at import: poisoner.spec and poisoner.ladder are pure and small; daemon.config loads when a
+spec is built.
 """
 
 from __future__ import annotations
@@ -18,7 +21,6 @@ from typing import Any
 
 import typer
 
-from daemon.config import parse_length, spec_from_table
 from poisoner.ladder import candidate_ladder, default_spec, named_specs
 from poisoner.motion import MOTIONS
 from poisoner.spec import PATTERNS, POSITIONS, PatchSpec, SpecError
@@ -80,6 +82,8 @@ def _option_type(f: dataclasses.Field) -> type:
 
 
 def _parse_field(f: dataclasses.Field, raw: Any) -> Any:
+    from daemon.config import parse_length
+
     if _is_pair(f):
         parts = [p.strip() for p in str(raw).split(",")]
         if len(parts) != 2:
@@ -117,6 +121,8 @@ class SpecOptions:
             base = named[self.design]
         if self.spec_file is not None:
             base = PatchSpec.load(self.spec_file)
+        from daemon.config import spec_from_table
+
         by_name = {f.name: f for f in spec_fields()}
         changes = {name: _parse_field(by_name[name], raw) for name, raw in self.values}
         return spec_from_table(changes, base)
@@ -190,3 +196,25 @@ def spec_options(*, with_ratio: bool = True) -> Callable[[Callable[..., Any]], C
         return command
 
     return wrap
+
+
+# ---- small shared options ---------------------------------------------------------------------
+def workers_option() -> Any:
+    """`--workers N` / `-j N`: files protected at once (default: the config's workers)."""
+    return typer.Option(
+        None, "--workers", "-j", min=1, help="Files protected at once (default: the config's workers)."
+    )
+
+
+def json_option(help: str = "Machine-readable output.") -> Any:
+    return typer.Option(False, "--json", help=help)
+
+
+def dataset_option(help: str) -> Any:
+    """`--dataset NAME`, the explicit form of a DATASET-or-FOLDER argument."""
+    return typer.Option(None, "--dataset", help=help)
+
+
+def folder_option(help: str) -> Any:
+    """`--folder PATH`, the explicit form of a DATASET-or-FOLDER argument."""
+    return typer.Option(None, "--folder", help=help)

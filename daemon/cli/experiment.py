@@ -1,17 +1,19 @@
-"""`ppd experiment` (the paper's ablations and baselines) and `ppd report` (self-contained HTML).
+"""`ppd experiment` (the paper's ablations and baselines).
 
-Light at import (typer, rich only): verifier.experiment/plots/report load inside the commands;
-SfM and splat training run in child processes, LPIPS (torch) loads only when cost2 is measured.
+Light at import: verifier.experiment/plots/report load inside the command; SfM and splat
+training run in child processes, LPIPS (torch) loads only when cost2 is measured.
 """
 
 from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any
 
 import typer
 
-from daemon.cli_common import console, die
+from daemon.cli.errors import die
+from daemon.cli.output import console
 
 SHARED_DATASETS = ("lego", "nerf_synthetic_lego")
 
@@ -26,17 +28,13 @@ def _safe_name(text: str) -> str:
 
 def resolve_dataset(dataset: str, views: int) -> tuple[Path, Path | None, str]:
     """(clean image folder, ground truth or None, a short name). A folder, or the shared lego set
-    (first `views` views composited on white by bench.bench_verify.prepare_lego, GT included)."""
+    (first `views` views composited on white by verifier.shared_data.prepare_lego, GT included)."""
     path = Path(dataset).expanduser()
     if path.is_dir():
         return path, None, _safe_name(path.resolve().name)
     if dataset in SHARED_DATASETS:
-        try:
-            from bench.bench_verify import SHARED, prepare_lego
-        except ImportError as exc:
-            raise _die(
-                f"{dataset}: the shared-dataset helper (bench/) is not importable here: {exc}"
-            ) from None
+        from verifier.shared_data import SHARED, prepare_lego
+
         if not SHARED.is_dir():
             raise _die(f"{dataset}: shared datasets not found at {SHARED}")
         clean, gt, _ = prepare_lego(views)
@@ -85,16 +83,28 @@ def experiment(
       ppd experiment ~/shoots/castle --baselines
     """
     from daemon.paths import AppPaths
-    from verifier.experiment import (
-        DEFAULT_BASELINES,
-        ExperimentError,
-        ExperimentOptions,
-        aggregate,
-        build_settings,
-        parse_baseline,
-        parse_sweep,
-        run_experiment,
+    from verifier.experiment import ExperimentError, aggregate, build_settings, run_experiment
+
+    sweeps, base_list = _parsed(sweep, baseline, baselines)
+    clean, shared_gt, name = resolve_dataset(dataset, views)
+    exp_dir = out or AppPaths.from_env().data_dir / "experiments" / name
+    options = _options(runs, profile, splat, splat_budget, camera_params, gt or shared_gt, lpips_images)
+    try:
+        settings = build_settings(sweeps, base_list)
+        result = run_experiment(clean, exp_dir, settings, options, progress=lambda m: console().print(m))
+    except ExperimentError as exc:
+        raise _die(str(exc)) from None
+    write_plots(exp_dir, aggregate(result.rows))
+    report_file = _write_folder_report(exp_dir)
+    console().print(
+        f"{result.ran} setting-runs computed, {result.skipped} already done, in {result.seconds:.0f} s\n"
+        f"CSV {result.csv_path}\nMarkdown {result.table_path}\nreport {report_file}"
     )
+
+
+def _parsed(sweep: list[str], baseline: list[str], baselines: bool) -> tuple[list[Any], list[Any]]:
+    """(each --sweep parsed, the baselines to add), or one line saying what is wrong."""
+    from verifier.experiment import DEFAULT_BASELINES, ExperimentError, parse_baseline, parse_sweep
 
     try:
         sweeps = [parse_sweep(s) for s in sweep]
@@ -104,9 +114,14 @@ def experiment(
     base_list = (list(DEFAULT_BASELINES) if baselines else []) + extra
     if not sweeps and not base_list:
         raise _die("nothing to run: give --sweep NAME=V1,V2 and/or --baselines / --baseline KIND=V")
-    clean, shared_gt, name = resolve_dataset(dataset, views)
-    exp_dir = out or AppPaths.from_env().data_dir / "experiments" / name
-    options = ExperimentOptions(
+    return sweeps, base_list
+
+
+def _options(runs: int, profile: list[str], splat: bool, splat_budget: float, camera_params: str | None,
+             ground_truth: Path | None, lpips_images: int) -> Any:  # fmt: skip
+    from verifier.experiment import ExperimentOptions
+
+    return ExperimentOptions(
         runs=runs,
         profiles=tuple(profile),
         splat=splat,
@@ -118,19 +133,8 @@ def experiment(
             "cost2_long_edge": 200,
         },
         camera_params=camera_params,
-        ground_truth=gt or shared_gt,
+        ground_truth=ground_truth,
         cost2_lpips_images=lpips_images,
-    )
-    try:
-        settings = build_settings(sweeps, base_list)
-        result = run_experiment(clean, exp_dir, settings, options, progress=lambda m: console.print(m))
-    except ExperimentError as exc:
-        raise _die(str(exc)) from None
-    write_plots(exp_dir, aggregate(result.rows))
-    report = _write_folder_report(exp_dir)
-    console.print(
-        f"{result.ran} setting-runs computed, {result.skipped} already done, in {result.seconds:.0f} s\n"
-        f"CSV {result.csv_path}\nMarkdown {result.table_path}\nreport {report}"
     )
 
 
@@ -152,60 +156,5 @@ def _write_folder_report(folder: Path, out: Path | None = None) -> Path:
     return write_report(build_report(str(folder)), out or folder / "report.html")
 
 
-def report(
-    source: str | None = typer.Argument(
-        None, help="A dataset, the folder `ppd poison` patched, or a verification/experiment folder."
-    ),
-    dataset: str | None = typer.Option(None, "--dataset", help="Report this dataset (explicit form)."),
-    folder: Path | None = typer.Option(None, "--folder", help="Report this folder (explicit form)."),
-    out: Path | None = typer.Option(None, "--out", help="HTML file (default: the dataset's latest.html)."),
-) -> None:
-    """Write a self-contained HTML report: verdict, reasons, history, metrics, camera paths,
-    a preview of the patch.
-
-    \b
-    Examples:
-      ppd report castle                a dataset
-      ppd report ~/shoots/castle       the folder `ppd poison` patched
-      ppd report runs/exp1 --out r.html
-    """
-    from daemon.cli_common import warning
-    from daemon.cli_targets import TargetError, resolve_target
-    from daemon.report import build_report, report_path
-    from verifier.report import ReportError, write_report
-
-    try:
-        ctx = None
-        try:
-            from daemon.context import AppContext
-
-            ctx = AppContext.open()
-        except Exception as exc:  # no store: folders still have reports
-            if dataset is not None or (source is not None and not Path(source).expanduser().is_dir()):
-                raise _die(f"ppd's store cannot be opened: {str(exc).splitlines()[0]}") from None
-        try:
-            if ctx is not None:
-                chosen = resolve_target(ctx.store, source, dataset=dataset, folder=folder)
-                if chosen.note and chosen.folder is None:
-                    warning(chosen.note)  # a name that is also a folder here: say which was taken
-                elif chosen.note:
-                    console.print(chosen.note, markup=False)
-                name, path = chosen.dataset, chosen.folder
-            else:
-                name, path = None, (folder or Path(source or ".")).expanduser()
-            if name is not None:
-                written = write_report(build_report(name, ctx), out or report_path(ctx.paths, name))
-            else:
-                assert path is not None
-                written = write_report(build_report(str(path)), out or path / "report.html")
-        finally:
-            if ctx is not None:
-                ctx.close()
-    except (ReportError, TargetError, OSError, ValueError) as exc:
-        raise _die(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
-    console.print(f"report written: {written}  (file://{written.resolve()})", markup=False)
-
-
 def register(app: typer.Typer) -> None:
     app.command("experiment")(experiment)
-    app.command("report")(report)

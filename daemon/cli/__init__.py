@@ -1,0 +1,111 @@
+"""The `ppd` command line: one module per command (or command group), registered here.
+
+Each command module is light at import (typer and the shared option sets); what a command runs
+is imported inside it, so `ppd poison --help` and `ppd status` never load numpy, PIL, PyAV,
+torch or pycolmap (tests/test_cli_startup.py checks it).
+
+| module | commands |
+|---|---|
+| daemon.cli.poison | `poison` (planning: daemon.cli.planning) |
+| daemon.cli.restore | `restore` |
+| daemon.cli.preview | `preview` |
+| daemon.cli.status | `status` (queries: daemon.cli.status_queries) |
+| daemon.cli.dataset | `dataset show`, `dataset set` |
+| daemon.cli.config | `config show`, `config path` |
+| daemon.cli.watch | `watch`, `service install/uninstall/status` |
+| daemon.cli.demo | `demo` |
+| daemon.cli.verify | `verify` (tables: daemon.cli.verify_tables; targets: daemon.cli.targets) |
+| daemon.cli.auto | `auto` |
+| daemon.cli.experiment | `experiment` |
+| daemon.cli.report | `report` |
+| daemon.cli.store | `store check`, `store rebuild` |
+
+Shared: daemon.cli.errors (one-line errors, exit codes), daemon.cli.output (consoles, logging),
+daemon.cli.options (shared option sets), daemon.cli.group (the top-level group).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from daemon.cli.errors import EXIT_CODES_HELP
+from daemon.cli.group import PpdGroup
+from daemon.cli.output import setup_logging
+
+app = typer.Typer(
+    name="ppd",
+    cls=PpdGroup,
+    rich_markup_mode=None,
+    help="PatchPoison daemon: publish multi-view photos without handing out a free 3D scan.",
+    epilog=EXIT_CODES_HELP,
+    no_args_is_help=True,
+    add_completion=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("ppd")
+    except PackageNotFoundError:  # run from a checkout: the version pyproject.toml declares
+        import tomllib
+        from pathlib import Path
+
+        pyproject = Path(__file__).resolve().parents[2] / "pyproject.toml"
+        try:
+            return tomllib.loads(pyproject.read_text())["project"]["version"]
+        except (OSError, KeyError, tomllib.TOMLDecodeError):
+            return "unknown"
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"ppd {_version()}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    ctx: typer.Context,
+    verbose: int = typer.Option(
+        0, "--verbose", "-v", count=True, help="Say more: -v names each file, -vv debug logging."
+    ),
+    version: bool = typer.Option(
+        False, "--version", callback=_print_version, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
+    setup_logging(verbose, daemon=ctx.invoked_subcommand == "watch")
+    ctx.obj = {"verbose": verbose}
+
+
+COMMAND_MODULES = {
+    "poison": "daemon.cli.poison", "restore": "daemon.cli.restore", "preview": "daemon.cli.preview",
+    "status": "daemon.cli.status", "dataset": "daemon.cli.dataset", "config": "daemon.cli.config",
+    "watch": "daemon.cli.watch", "service": "daemon.cli.watch", "demo": "daemon.cli.demo",
+    "verify": "daemon.cli.verify", "auto": "daemon.cli.auto", "experiment": "daemon.cli.experiment",
+    "report": "daemon.cli.report", "store": "daemon.cli.store",
+}  # fmt: skip
+
+
+def _modules_for(argv: list[str]) -> tuple[str, ...]:
+    """`ppd COMMAND ...` loads only that command's module: start-up pays for one command, and
+    `ppd watch`, the long-lived daemon, keeps the others' imports (and memory) out of the resident
+    process. Anything else (`ppd --help`, `ppd -v status`, an unknown word, tests importing the
+    app) loads every command, in the order `ppd --help` lists them."""
+    if len(argv) > 1 and argv[1] in COMMAND_MODULES:
+        return (COMMAND_MODULES[argv[1]],)
+    return tuple(dict.fromkeys(COMMAND_MODULES.values()))
+
+
+def _register() -> None:
+    for name in _modules_for(sys.argv):
+        # __import__, not importlib.import_module: `python -X importtime` sees only the former,
+        # and tests/test_cli_startup.py reads what each command imports from it.
+        __import__(name, fromlist=["register"]).register(app)
+
+
+_register()

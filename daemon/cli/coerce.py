@@ -1,0 +1,81 @@
+"""Plain option values (ints, floats, text, flags) converted without loading pydantic.
+
+typer (0.29) converts every option value through a pydantic TypeAdapter, and importing pydantic
+costs about 55 ms, a third of the start-up budget of `ppd status` and `ppd poison --help`
+(issue 19). For the plain forms (`3`, `-1`, `0.5`, text, a list of text, True/False) the answer
+is the one pydantic gives, so it is computed here; anything else (paths, choices, `1e3`, an
+out-of-range or malformed value) goes to typer's own converter, which gives its own result or
+error message. With a typer that has no such converter this module does nothing.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any, get_args, get_origin
+
+_INT = re.compile(r"-?[0-9]+")
+_FLOAT = re.compile(r"-?([0-9]+(\.[0-9]*)?|\.[0-9]+)")
+_NOT_PLAIN = object()
+
+
+def plain_value(annotation: Any, value: Any, low: float | None = None, high: float | None = None) -> Any:
+    """The converted value, or _NOT_PLAIN when typer's converter must decide."""
+    if get_origin(annotation) is list:
+        (item_type,) = get_args(annotation) or (None,)
+        if item_type is not str or not isinstance(value, list | tuple):
+            return _NOT_PLAIN
+        return [v for v in value] if all(type(v) is str for v in value) else _NOT_PLAIN
+    if annotation is str:
+        return value if type(value) is str else _NOT_PLAIN
+    if annotation is bool:
+        return value if type(value) is bool else _NOT_PLAIN
+    if annotation is int:
+        if type(value) is str and _INT.fullmatch(value):
+            value = int(value)
+        number = value if type(value) is int else _NOT_PLAIN
+    elif annotation is float:
+        if type(value) is str and _FLOAT.fullmatch(value):
+            value = float(value)
+        number = float(value) if type(value) in (int, float) else _NOT_PLAIN
+    else:
+        return _NOT_PLAIN
+    if number is _NOT_PLAIN or (low is not None and number < low) or (high is not None and number > high):
+        return _NOT_PLAIN
+    return number
+
+
+def install() -> None:
+    """From now on, every typer parameter of this process converts plain values here first."""
+    try:
+        from typer._coercion import RuntimeParam, build_runtime_param
+        from typer.core import _TyperParameter
+    except ImportError:  # another typer: nothing to do
+        return
+    if getattr(_TyperParameter, "_ppd_plain", False):
+        return
+
+    class PlainRuntimeParam(RuntimeParam):  # a frozen dataclass through its base
+        def _coerce_value(self, value: Any, param: Any, ctx: Any) -> Any:
+            info = self.parameter_info
+            if info.parser is None and not info.clamp:
+                converted = plain_value(self.annotation, value, info.min, info.max)
+                if converted is not _NOT_PLAIN:
+                    return converted
+            real = build_runtime_param(param.type_descriptor)
+            param._runtime_param = real  # the next value goes straight to typer's converter
+            return real._coerce_value(value, param=param, ctx=ctx)
+
+    typers_own = _TyperParameter.get_runtime_param
+
+    def get_runtime_param(self: Any) -> Any:
+        # An absent value (None) never reaches _coerce_value, yet typer builds its converter
+        # first: a light one here means `--help` alone loads no pydantic.
+        descriptor = self.type_descriptor
+        if self._runtime_param is None and descriptor.file_annotation is None:
+            self._runtime_param = PlainRuntimeParam(
+                parameter_info=descriptor.parameter_info, annotation=descriptor.annotation
+            )
+        return typers_own(self)
+
+    _TyperParameter.get_runtime_param = get_runtime_param  # type: ignore[method-assign]
+    _TyperParameter._ppd_plain = True  # type: ignore[attr-defined]

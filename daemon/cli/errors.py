@@ -1,0 +1,123 @@
+"""ppd's one error style and its exit codes: one unwrapped line on stderr, `ppd: error: ...`,
+whatever the terminal width or where the output goes. Standard library and typer only."""
+
+from __future__ import annotations
+
+import errno
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import typer
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
+
+# ---- exit codes (the epilog of `ppd --help` lists them) -------------------------------------
+EXIT_OK = 0
+EXIT_FAILED = 1  # some files failed, or the verification verdict is not "protected"
+EXIT_USAGE = 2  # bad input: unknown option, missing file, bad spec value, unknown dataset
+EXIT_ENVIRONMENT = 3  # ppd cannot work here: folder not writable, disk full, damaged store, lock held
+EXIT_INTERRUPTED = 130
+
+EXIT_CODES_HELP = """\b
+Exit status:
+  0    done
+  1    some files failed, or the verdict is not "protected"
+  2    bad input: option, path, dataset name, spec value
+  3    cannot work here: folder not writable, disk full, damaged store,
+       another ppd holds the lock
+  130  interrupted
+"""
+
+
+def one_line(text: object) -> str:
+    """The first non-empty line of text (exception messages may carry tracebacks or hints)."""
+    for line in str(text).splitlines():
+        if line.strip():
+            return line.strip()
+    return type(text).__name__ if isinstance(text, BaseException) else ""
+
+
+def error(message: object) -> None:
+    """Print one error line on stderr in the one style. Written raw: no wrapping, no markup."""
+    sys.stderr.write(f"ppd: error: {one_line(message)}\n")
+    sys.stderr.flush()
+
+
+def warning(message: object) -> None:
+    sys.stderr.write(f"ppd: warning: {one_line(message)}\n")
+    sys.stderr.flush()
+
+
+def die(message: object, code: int = EXIT_USAGE) -> typer.Exit:
+    """Print the error; return the Exit to raise (`raise die(...) from None`)."""
+    error(message)
+    return typer.Exit(code)
+
+
+def os_error_text(exc: OSError, hint_out: bool = True) -> str:
+    """An OSError as a sentence that says what to do, not `[Errno 13] ... '.ppd-tmp-x.jpg'`."""
+    where = Path(exc.filename) if exc.filename else None
+    folder = where.parent if where is not None and not where.is_dir() else where
+    if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        hint = "; use --out DIR" if hint_out else ""
+        return f"folder not writable: {folder or 'unknown'}{hint}"
+    if exc.errno == errno.ENOSPC:
+        return f"disk full while writing in {folder or 'unknown'}"
+    return f"{exc.strerror or exc}: {where}" if where else one_line(exc)
+
+
+def reason_text(reason: str | None) -> str:
+    """A failure reason recorded by the core (one line) with raw errno text made readable."""
+    if not reason:
+        return "unknown reason"
+    for code, name in ((errno.EACCES, "Permission denied"), (errno.EROFS, "Read-only file system")):
+        if f"[Errno {code}]" in reason or name in reason:
+            path = reason.rsplit(":", 1)[-1].strip().strip("'\"")
+            return f"folder not writable: {Path(path).parent if path else '?'}; use --out DIR"
+    return one_line(reason)
+
+
+def file_reason(path: Path | str, reason: str | None) -> str:
+    """reason_text without the file name the core's reasons often start with (the line has it)."""
+    text = reason_text(reason)
+    name = Path(path).name
+    return text[len(name) + 2 :] if text.startswith(f"{name}: ") else text
+
+
+def known_error(exc: Exception) -> int | None:
+    """ppd's own one-line errors that reach the top (named, not imported: this module stays
+    light): print them in the one style and give their exit code; None = a bug, let it show."""
+    if isinstance(exc, OSError):
+        if exc.errno == errno.EPIPE:  # `ppd status | head`: the reader left
+            return EXIT_FAILED
+        error(os_error_text(exc))
+        return EXIT_ENVIRONMENT
+    names = {cls.__name__ for cls in type(exc).__mro__}
+    if names & {"LockHeld", "StoreError"}:
+        error(exc)
+        return EXIT_ENVIRONMENT
+    if "DatabaseError" in names:  # sqlite3's, from a damaged store file
+        error(f"ppd's store is damaged ({one_line(exc)}); see `ppd config path` for where it is")
+        return EXIT_ENVIRONMENT
+    if names & {"ConfigError", "SpecError"}:
+        error(exc)
+        return EXIT_USAGE
+    return None
+
+
+def open_ctx() -> AppContext:
+    """ppd's folders, config and store, or one line that says why they cannot be opened."""
+    from daemon.config import ConfigError
+    from daemon.context import AppContext
+    from daemon.store import StoreError
+
+    try:
+        return AppContext.open()
+    except (ConfigError, StoreError) as exc:
+        raise die(one_line(exc)) from None
+    except OSError as exc:
+        raise die(
+            f"cannot set up ppd's folders: {os_error_text(exc, hint_out=False)}", EXIT_ENVIRONMENT
+        ) from None

@@ -1,0 +1,108 @@
+"""The top-level `ppd` group: click's own errors (usage, missing files) in ppd's one-line style,
+readable help (no `<bool>`, `PATHS...`, words for types), light value conversion."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import typer
+from typer.core import TyperArgument, TyperGroup
+
+from daemon.cli import coerce
+from daemon.cli.errors import EXIT_INTERRUPTED, EXIT_OK, error, known_error
+
+try:  # typer >= 0.22 vendors click: its exceptions are the ones raised
+    from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError
+except ImportError:  # pragma: no cover - older typer on the real click
+    from click.exceptions import ClickException, NoArgsIsHelpError, UsageError  # type: ignore[no-redef]
+
+_TYPE_WORDS = {"int": "N", "int range": "N", "float": "NUM", "float range": "NUM", "path": "PATH",
+               "list[Path]": "PATH", "list[str]": "TEXT"}  # fmt: skip
+
+
+def _readable_type(param: Any, original: Any) -> Any:
+    """`--workers N` and `--dataset DATASET`, not `<int range>` and `<str>`."""
+
+    def display(ctx: Any) -> str | None:
+        label = original(ctx)
+        if label is None or not label.startswith("<"):
+            return label
+        word = label.strip("<>")
+        return _TYPE_WORDS.get(word) or (param.name or "value").upper()
+
+    return display
+
+
+def _tidy_param(param: Any) -> None:
+    if param.param_type_name == "option":
+        if getattr(param, "is_flag", False) or param.count:
+            param.metavar = ""
+        elif param.metavar is None:
+            param.display_type_rich = _readable_type(param, param.display_type_rich)
+    elif isinstance(param, TyperArgument):
+        name = (param.name or "arg").upper()
+        usage = name if param.required else f"[{name}]"
+        usage += "..." if param.nargs != 1 else ""
+        param.display_type_rich = lambda ctx: None
+        param._usage_display_name = lambda usage=usage: usage
+        param._rich_display_name = lambda name=name: name
+
+
+def tidy_help(command: Any) -> None:
+    """Readable help in every command, set on the parameter objects once per process."""
+    for param in command.params:
+        if not getattr(param, "_ppd_tidy", False):
+            param._ppd_tidy = True
+            _tidy_param(param)
+    for sub in getattr(command, "commands", {}).values():
+        tidy_help(sub)
+
+
+class PpdGroup(TyperGroup):
+    """typer's group with click's errors (usage, missing files) in ppd's one-line style."""
+
+    def main(  # type: ignore[override]
+        self,
+        args: Sequence[str] | None = None,
+        prog_name: str | None = None,
+        complete_var: str | None = None,
+        standalone_mode: bool = True,
+        **extra: Any,
+    ) -> Any:
+        tidy_help(self)
+        coerce.install()
+        try:
+            rv = super().main(
+                args=args, prog_name=prog_name or "ppd", complete_var=complete_var,
+                standalone_mode=False, **extra,
+            )  # fmt: skip
+            code = rv if isinstance(rv, int) else EXIT_OK
+        except Exception as exc:
+            code = _exit_code(exc)
+        except KeyboardInterrupt:
+            code = EXIT_INTERRUPTED
+        if not standalone_mode:
+            return code
+        sys.exit(code)
+
+
+def _exit_code(exc: Exception) -> int:
+    """The exit code of an exception that reached the top, its one line printed; a bug re-raised."""
+    if isinstance(exc, NoArgsIsHelpError):  # `ppd` alone: the help, on stdout, is the answer
+        sys.stdout.write(exc.format_message() + "\n")
+        return EXIT_OK
+    if isinstance(exc, UsageError):
+        hint = f" (see `{exc.ctx.command_path} --help`)" if exc.ctx is not None else ""
+        error(f"{exc.format_message()}{hint}")
+        return exc.exit_code
+    if isinstance(exc, ClickException):
+        error(exc.format_message())
+        return exc.exit_code
+    if isinstance(exc, typer.Abort):
+        return EXIT_INTERRUPTED
+    code = known_error(exc)
+    if code is None:
+        raise exc
+    return code

@@ -1,0 +1,155 @@
+"""`ppd poison PATHS...`: patch files and folders (a folder is one dataset), in place with each
+original in the vault, or as copies with --out; one summary, then what each dataset is now."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import typer
+
+from daemon.cli.errors import EXIT_FAILED, die, file_reason, open_ctx
+from daemon.cli.options import SpecOptions, spec_options, workers_option
+from daemon.cli.output import console, err_console, interactive, verbosity
+
+if TYPE_CHECKING:
+    from daemon.cli.planning import Job
+    from daemon.context import AppContext
+    from daemon.protect import ProtectOutcome
+    from poisoner.spec import PatchSpec
+
+# The outcome state of protect_file for a file it wrote its mark into (daemon.pipeline.Outcome).
+OUTCOME_PATCHED = frozenset({"patched"})
+RESTORED_BY_USER = "restored by the user"
+
+
+def outcome_word(outcome: ProtectOutcome) -> str:
+    """The word for one file's outcome: patched / would patch / unchanged / skipped / failed."""
+    if outcome.state in OUTCOME_PATCHED:
+        return "would patch" if outcome.dry_run else "patched"
+    return outcome.state
+
+
+def _restored_left(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
+    return [o for o in outcomes if o.state == "unchanged" and (o.reason or "").startswith(RESTORED_BY_USER)]
+
+
+def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
+    """exiftool-style counts, the files left restored, each failed file with its reason."""
+    counts = Counter(outcome_word(o) for o in outcomes)
+    words = ["would patch" if dry_run else "patched", "unchanged", "skipped", "failed"]
+    line = ", ".join(f"{w} {counts.get(w, 0)}" for w in words)
+    console().print(("dry run, nothing changed: " if dry_run else "") + line)
+    left = _restored_left(outcomes)
+    if left:
+        console().print(f"left unprotected (restored by you): {len(left)}; use --force to protect them again")
+    for o in outcomes:
+        if o.state == "failed":
+            err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
+
+
+def summary(ctx: AppContext, jobs: list[Job], outcomes: list[ProtectOutcome], dry_run: bool) -> None:
+    """The counts, then where copies went, what each dataset is now and the command that says
+    more (a verification's verdict, or that there is none yet: never "protected" by default)."""
+    from daemon.cli.planning import output_places
+    from daemon.cli.status_queries import protection_line
+
+    _print_counts(outcomes, dry_run)
+    if dry_run:
+        return
+    for place in output_places(jobs):
+        console().print(f"written to {place}", markup=False)
+    for name in sorted({job.dataset for job in jobs}):
+        if ctx.store.dataset(name) is not None:
+            console().print(protection_line(ctx, name), markup=False)
+    names = sorted({o.dataset for o in outcomes if o.state == "failed" and o.dataset})
+    if names:
+        console().print(f"failed files and reasons: ppd status {names[0]} --failed", markup=False)
+
+
+def _say_outcome(progress_console: Any, outcome: ProtectOutcome) -> None:
+    """-v: one line per file with its outcome (above the progress bar)."""
+    where = f" -> {outcome.output}" if outcome.output and outcome.output != outcome.path else ""
+    why = f" ({outcome.reason})" if outcome.reason and outcome.state != "failed" else ""
+    progress_console.print(f"{outcome_word(outcome)} {outcome.path}{where}{why}", markup=False)
+
+
+def run_jobs(
+    ctx: AppContext,
+    jobs: list[Job],
+    wanted: dict[str, PatchSpec],
+    *,
+    dry_run: bool,
+    force: bool,
+    workers: int | None = None,
+) -> list[ProtectOutcome]:
+    """Every job through protect_many on `workers` processes (default: the config's). A progress
+    bar only on a terminal (nothing per file unless -v, which names each file with its outcome);
+    the outcomes sorted by path for the summary."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from daemon.protect_pool import protect_many
+
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=err_console(), transient=True, disable=not interactive()) as progress:
+        task = progress.add_task("patching", total=len(jobs))
+
+        def finished(outcome: ProtectOutcome) -> None:
+            if verbosity() > 0:
+                _say_outcome(progress.console, outcome)
+            progress.advance(task)
+
+        outcomes = protect_many(
+            ctx, [(job.path, job.dataset, job.root, job.out_path) for job in jobs], workers=workers,
+            force=force, dry_run=dry_run, spec=wanted, on_outcome=finished,
+        )  # fmt: skip
+    return sorted(outcomes, key=lambda o: str(o.path))
+
+
+POISON_HELP = """Patch photos and videos so 3D reconstruction from them fails.
+
+A folder is one dataset. In place by default (each original is kept in the vault,
+`ppd restore` puts it back); with --out the inputs stay as they are. Re-running is a
+no-op. Whether the patch protects is a verification's answer: `ppd verify DATASET`.
+
+\b
+Examples:
+  ppd poison ~/shoots/castle              patch in place
+  ppd poison ~/shoots/castle --out ~/pub  patched copies in ~/pub/castle/
+  ppd poison castle --design paper --dry-run
+"""
+
+
+@spec_options()
+def poison(
+    paths: list[Path] = typer.Argument(..., help="Files or folders; a folder is one dataset."),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Say what would be patched; change nothing."),
+    out: Path | None = typer.Option(
+        None, "--out", metavar="DIR", help="Write patched copies to DIR/DATASET/; leave the inputs."
+    ),
+    dataset: str | None = typer.Option(None, "--dataset", help="Dataset name (default: the folder's)."),
+    force: bool = typer.Option(False, "--force", help="Patch again files you restored."),
+    workers: int | None = workers_option(),
+    spec_options: SpecOptions = SpecOptions(),
+) -> None:
+    from daemon.cli import planning
+
+    ctx = open_ctx()
+    try:
+        jobs = planning.plan_jobs(ctx, paths, dataset, out)
+        if not jobs:
+            raise die("no files to patch in " + ", ".join(str(p) for p in paths))
+        planning.check_dataset_roots(ctx, jobs)
+        planning.check_writable(jobs, dry_run)
+        wanted = planning.apply_spec(ctx, jobs, spec_options, dry_run)
+        outcomes = run_jobs(ctx, jobs, wanted, dry_run=dry_run, force=force, workers=workers)
+        summary(ctx, jobs, outcomes, dry_run)
+        if any(o.state == "failed" for o in outcomes):
+            raise typer.Exit(EXIT_FAILED)
+    finally:
+        ctx.close()
+
+
+def register(app: typer.Typer) -> None:
+    app.command("poison", help=POISON_HELP)(poison)

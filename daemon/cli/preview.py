@@ -1,0 +1,172 @@
+"""`ppd preview FILE`: original and patched side by side, a zoom on the patch, and how visible
+the mark is at display size (FLIP next to a JPEG q85 re-encode)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import typer
+
+from daemon.cli.errors import EXIT_ENVIRONMENT, die, one_line, open_ctx, os_error_text
+from daemon.cli.options import SpecOptions, spec_options
+from daemon.cli.output import console
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
+    from poisoner.spec import PatchSpec
+
+
+def _is_video(path: Path) -> bool:
+    from poisoner.media import is_video
+
+    return is_video(path)
+
+
+def placement_for(spec: PatchSpec, original: Any, file: Path) -> Any:
+    """Where spec puts the patch on this picture (a video: its first frame's place)."""
+    h, w = original.shape[:2]
+    if _is_video(file):
+        return spec.resolve(w, h, index=0.0)
+    return spec.resolve(w, h, image_key=file.name)
+
+
+def load_picture(path: Path) -> tuple[Any, int | None]:
+    """(stored RGB pixels, EXIF orientation or None); a video's first frame. ppd patches the
+    stored pixels, so the preview works in them and orients only what it shows."""
+    import numpy as np
+    from PIL import Image
+
+    if _is_video(path):
+        import av
+
+        from poisoner.video import frame_to_rgb
+
+        with av.open(str(path)) as container:
+            for frame in container.decode(video=0):
+                return frame_to_rgb(frame), None
+        raise ValueError("no video frame")
+    with Image.open(path) as im:
+        orientation = im.getexif().get(0x0112)
+        return np.asarray(im.convert("RGB")), orientation if isinstance(orientation, int) else None
+
+
+def _load(path: Path) -> tuple[Any, int | None]:
+    try:
+        return load_picture(path)
+    except (OSError, ValueError) as exc:
+        raise die(f"cannot read {path.name}: {one_line(exc)}") from None
+
+
+def _stored_pair(ctx: AppContext, file: Path, row: Any) -> tuple[Any, Any, Any, int | None, tuple[str, str]]:
+    """A patched file against its vault original, with the spec it was patched with."""
+    spec = ctx.store.get_spec(row["spec_id"])
+    original, _ = _load(ctx.vault.path_for(row["original_sha256"]))
+    poisoned, orientation = _load(file)
+    labels = ("original (vault)", f"patched ({file.name})")
+    return original, poisoned, placement_for(spec, original, file), orientation, labels
+
+
+def _planned_pair(
+    ctx: AppContext, file: Path, options: SpecOptions
+) -> tuple[Any, Any, Any, int | None, tuple[str, str]]:
+    """Any photo with its dataset's spec (or the flags'), patched in memory only."""
+    from daemon.dataset import dataset_of
+    from poisoner.blend import apply_patch, poison_array
+
+    base = ctx.config.spec
+    if file.is_relative_to(ctx.paths.outbox.absolute()):
+        name = dataset_of(ctx.paths.outbox, file)
+        base = ctx.store.dataset_spec(name) or ctx.config.spec_for(name)
+    spec = options.build(base)
+    original, orientation = _load(file)
+    if _is_video(file):  # the first frame, as poison_video patches it
+        placement = placement_for(spec, original, file)
+        poisoned = apply_patch(original, placement)
+    else:
+        poisoned, placement = poison_array(original, spec, image_key=file.name)
+    labels = (f"original ({file.name})", "patched (preview, not written)")
+    return original, poisoned, placement, orientation, labels
+
+
+def _render(ctx: AppContext, file: Path, options: SpecOptions) -> tuple[Any, Any, Any]:
+    """(preview picture, original, patched), both oriented as a viewer sees them."""
+    from daemon.states import PATCHED_VALUES
+    from poisoner.preview import orient, oriented_placement, render_preview
+    from poisoner.spec import SpecError
+
+    row = ctx.store.file(file)
+    try:
+        if row is not None and row["state"] in PATCHED_VALUES and not options.given():
+            original, poisoned, placement, orientation, labels = _stored_pair(ctx, file, row)
+        else:
+            original, poisoned, placement, orientation, labels = _planned_pair(ctx, file, options)
+        h, w = original.shape[:2]
+        placement = oriented_placement(placement, orientation, w, h)
+        original, poisoned = orient(original, orientation), orient(poisoned, orientation)
+        return render_preview(original, poisoned, placement, labels=labels), original, poisoned
+    except (SpecError, ValueError) as exc:
+        raise die(one_line(exc)) from None
+
+
+def _visibility_line(original: Any, poisoned: Any, display_width: int) -> str:  # arrays: (H, W, C)
+    from verifier.visibility import VisibilityError, visibility_report
+
+    try:
+        with console().status("measuring visibility"):
+            # A picture narrower than the screen is shown at its own size, not magnified (magnifying
+            # would make a JPEG re-encode's artefacts, the budget, look larger than any viewer sees them).
+            width = min(display_width, original.shape[1])
+            return visibility_report(original, poisoned, display_width=width).summary()
+    except VisibilityError as exc:
+        raise die(one_line(exc)) from None
+
+
+@spec_options(with_ratio=False)
+def preview(
+    file: Path = typer.Argument(..., help="A photo or a video (original or patched)."),
+    out: Path | None = typer.Option(
+        None, "--out", metavar="PNG", help="PNG to write (default: ./NAME.ppd-preview.png)."
+    ),
+    spec_options: SpecOptions = SpecOptions(),
+    display_width: int = typer.Option(
+        1920, "--display-width", metavar="PX", help="Screen width the visibility is judged at."
+    ),
+    visibility: bool = typer.Option(
+        True, "--visibility/--no-visibility", help="Measure how visible the mark is (FLIP; a few seconds)."
+    ),
+) -> None:
+    """Original and patched side by side, with a zoom on the patch, and how visible the mark is
+    at display size (FLIP, next to a JPEG q85 re-encode of the same picture). A patched file is
+    shown against its vault original; any other photo with its dataset's spec (or the flags').
+
+    \b
+    Examples:
+      ppd preview IMG_0042.jpg                   the spec this file would get
+      ppd preview IMG_0042.jpg --design paper    the paper's static patch
+      ppd preview clip.mp4 --out clip.png        a frame of a video
+    """
+    if not file.exists():
+        raise die(f"{file} does not exist")
+    if file.is_dir():
+        raise die(f"{file} is a folder; give one photo or video")
+    from PIL import Image
+
+    ctx = open_ctx()
+    try:
+        file = file.absolute()
+        image, original, poisoned = _render(ctx, file, spec_options)
+        target = (out or Path.cwd() / f"{file.stem}.ppd-preview.png").absolute()
+        try:
+            Image.fromarray(image).save(target, format="PNG")
+        except OSError as exc:
+            raise die(os_error_text(exc, hint_out=False), EXIT_ENVIRONMENT) from None
+        console().print(f"preview written to {target}", markup=False)
+        if visibility:
+            console().print(_visibility_line(original, poisoned, display_width), markup=False, soft_wrap=True)
+    finally:
+        ctx.close()
+
+
+def register(app: typer.Typer) -> None:
+    app.command("preview")(preview)

@@ -1,0 +1,218 @@
+"""`ppd status [DATASET]`: each dataset's files, whether it is protected (a verification's
+verdict) or only patched, what to run next; warnings on regressions and sync folders."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import typer
+
+from daemon.cli.errors import open_ctx, warning
+from daemon.cli.output import console, err_console
+from verifier.verdict import Verdict
+
+if TYPE_CHECKING:
+    from rich.table import Table
+
+    from daemon.context import AppContext
+
+VERDICT_STYLE = {
+    Verdict.PROTECTED: "green", Verdict.WEAK: "yellow", Verdict.NOT_PROTECTED: "bold red",
+    Verdict.SFM_CRASHED: "magenta",
+}  # fmt: skip
+
+
+def verdict_text(profile: str, v: dict[str, Any], markup: bool = True) -> str:
+    from daemon.cli.status_queries import age
+    from daemon.states import verdict_words
+
+    label = verdict_words(v["verdict"])
+    frac = v.get("frac_within_5deg")
+    detail = f", {frac:.0%} of cameras within 5°" if isinstance(frac, int | float) else ""
+    shown = f"[{VERDICT_STYLE.get(v['verdict'], 'bold')}]{label}[/]" if markup else label
+    return f"{profile}: {shown}{detail} ({age(v['finished_at'])})"
+
+
+def _protection_cell(d: dict[str, Any]) -> str:
+    from daemon.states import Protection
+
+    style = {
+        Protection.PROTECTED: "bold green",
+        Protection.WEAK: "bold yellow",
+        Protection.NOT_PROTECTED: "bold red",
+        Protection.UNVERIFIABLE: "magenta",
+        Protection.PATCHED_NOT_VERIFIED: "yellow",
+    }.get(Protection(d["protection"]["state"]), "bold")
+    return f"[{style}]{d['protection']['text']}[/]"
+
+
+def _columns(width: int) -> list[str]:
+    """Columns drop as the terminal narrows (files, then failed, then patched)."""
+    columns = ["dataset", "files", "patched", "failed", "protection"]
+    for column, below in (("files", 72), ("failed", 56), ("patched", 44)):
+        if width < below:
+            columns.remove(column)
+    return columns
+
+
+def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Table:
+    """One row per dataset; the dataset name and the protection words are folded, never cut."""
+    from rich.table import Table
+
+    columns = _columns(width)
+    table = Table(expand=False)
+    for column in columns:
+        numeric = column in ("files", "patched", "failed")
+        table.add_column(
+            column, justify="right" if numeric else "left", overflow="fold", no_wrap=numeric,
+            min_width=len(column) if numeric else None, ratio=None if numeric else 1,
+        )  # fmt: skip
+    for d in report:
+        c = d["counts"]
+        cells = {
+            "dataset": d["name"],
+            "files": str(c["files"]),
+            "patched": str(d["patched"]),
+            "failed": str(c.get("failed", 0)),
+            "protection": _protection_cell(d),
+        }
+        table.add_row(*(cells[k] for k in columns))
+    return table
+
+
+def _print_details(d: dict[str, Any]) -> None:
+    """--long (or one dataset): where it is, the spec, each profile's verdict."""
+    from collections import Counter
+
+    from daemon.states import state_word
+
+    out = console()
+    c = d["counts"]
+    out.print(f"[bold]{d['name']}[/]  {d['root']}")
+    states: Counter[str] = Counter()
+    for key, n in c.items():
+        if key != "files" and n:
+            states[state_word(key)] += n
+    listed = ", ".join(f"{k} {n}" for k, n in sorted(states.items()))
+    lines = [f"  files {c['files']}: {listed}", f"  spec {d['spec_id'] or '-'}: {d['spec_summary'] or '-'}"]
+    if d["auto"]:
+        lines.append(f"  {d['auto']}")
+    if d["publish_dir"]:
+        lines.append(f"  publish to {d['publish_dir']}")
+    for line in lines:
+        out.print(line, markup=False, soft_wrap=False)
+    for profile, v in d["verdicts"].items():
+        out.print("  " + verdict_text(profile, v), soft_wrap=False)
+    if not d["verdicts"]:
+        out.print("  verified: never", markup=False, soft_wrap=False)
+
+
+def _print_failed(report: list[dict[str, Any]]) -> None:
+    """One line per failed file: `PATH: reason` (mat2's habit), grouped by dataset."""
+    for d in report:
+        rows = d.get("failed_files") or []
+        console().print(f"{d['name']}: {len(rows)} failed", markup=False)
+        for r in rows:
+            console().print(f"  {r['path']}: {r['reason']}", markup=False)
+
+
+def _print_report_links(ctx: AppContext, names: list[str]) -> None:
+    """One line per dataset that has a report (`ppd report DATASET` writes it)."""
+    from daemon.report import report_path  # light: no torch, no pycolmap
+
+    for name in names:
+        path = report_path(ctx.paths, name)
+        if path.is_file():
+            console().print(f"report {name}: file://{path}", markup=False)
+
+
+def _print_next_steps(report: list[dict[str, Any]]) -> None:
+    """Word-wrapped to the terminal (soft_wrap off): these lines say what to run next."""
+    for d in report:
+        if d["protection"]["next"]:
+            console().print(f"{d['name']}: {d['protection']['next']}", markup=False, soft_wrap=False)
+        n_failed = d["counts"].get("failed", 0)
+        if n_failed:
+            console().print(f"{d['name']}: {n_failed} failed: ppd status {d['name']} --failed",
+                            markup=False, soft_wrap=False)  # fmt: skip
+
+
+def _print_regressions(report: list[dict[str, Any]]) -> None:
+    for d in report:
+        if d["regression"]:
+            err_console().print(
+                f"[bold red]REGRESSION:[/] dataset {d['name']!r} went from protected to NOT protected "
+                f"in its last {d['regression']['profile']!r} verification; its published images "
+                "may reconstruct: check `ppd verify` and the spec."
+            )
+
+
+def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any) -> None:
+    payload = {
+        "outbox": str(ctx.paths.outbox),
+        "sync_folder": None if sync is None else {"client": sync.client, "root": str(sync.root)},
+        "datasets": report,
+    }
+    typer.echo(json.dumps(payload, indent=2, default=str))
+
+
+def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -> None:
+    if not report:
+        console().print(f"no datasets yet; outbox {ctx.paths.outbox}", markup=False)
+        return
+    console().print(status_table(report, console().width, ctx.paths.outbox))
+    if detailed:
+        console().print(f"outbox {ctx.paths.outbox}", markup=False)
+        for d in report:
+            _print_details(d)
+    _print_next_steps(report)
+    _print_report_links(ctx, [d["name"] for d in report])
+    _print_regressions(report)
+
+
+def status(
+    dataset: str | None = typer.Argument(None, help="One dataset (default: all)."),
+    as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
+    long: bool = typer.Option(False, "--long", "-l", help="Also the spec and each profile's verdict."),
+    failed: bool = typer.Option(False, "--failed", help="List each failed file with its reason."),
+) -> None:
+    """Each dataset: files patched and failed, and whether it is protected (a verification's
+    verdict) or only patched; warns on regressions and on sync folders.
+
+    \b
+    Examples:
+      ppd status                  every dataset, one line each
+      ppd status castle           one dataset in detail
+      ppd status castle --failed  the files that failed, and why
+    """
+    from daemon.cli.status_queries import dataset_status, failed_files
+    from daemon.syncdirs import find_sync_folder
+
+    ctx = open_ctx()
+    try:
+        names = [dataset] if dataset else [d["name"] for d in ctx.store.datasets()]
+        report = [dataset_status(ctx, n) for n in names]
+        if failed:
+            for d in report:
+                d["failed_files"] = failed_files(ctx, d["name"])
+        sync = find_sync_folder(ctx.paths.outbox)
+        if as_json:
+            _print_json(ctx, report, sync)
+            return
+        if sync is not None:
+            warning(
+                f"the outbox {ctx.paths.outbox} is inside a {sync.client} folder ({sync.root}): "
+                "originals may be uploaded before ppd patches them"
+            )
+        if failed:
+            _print_failed(report)
+        else:
+            _print_text(ctx, report, detailed=long or bool(dataset))
+    finally:
+        ctx.close()
+
+
+def register(app: typer.Typer) -> None:
+    app.command("status")(status)

@@ -1,0 +1,149 @@
+"""What `ppd status`, `ppd dataset show` and `ppd poison`'s summary say about a dataset, read
+from the store: counts, the newest verdict per attacker profile, a regression, the spec."""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING, Any
+
+from daemon.cli.errors import die, file_reason
+from verifier.verdict import Verdict
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
+    from poisoner.spec import PatchSpec
+
+
+
+def spec_summary(spec: PatchSpec) -> str:
+    def length(v: int | float) -> str:
+        return f"{v * 100:g}%" if isinstance(v, float) and v < 1 else f"{v:g}px"
+
+    text = f"{spec.pattern} {length(spec.patch_size)} block {length(spec.block_size)} α{spec.alpha:g}"
+    text += f" Δc{spec.contrast} {spec.position}"
+    if any(spec.offset):
+        text += f" +({length(spec.offset[0])}, {length(spec.offset[1])})"
+    if spec.moves:
+        text += f" {spec.motion} {length(spec.motion_step)}/image"
+    if spec.ratio < 1:
+        text += f" ratio {spec.ratio:g}"
+    return text
+
+
+def age(ts: float) -> str:
+    seconds = max(0.0, time.time() - ts)
+    for unit, size in (("d", 86400), ("h", 3600), ("m", 60)):
+        if seconds >= size:
+            return f"{seconds / size:.0f}{unit} ago"
+    return f"{seconds:.0f}s ago"
+
+
+def regression_of(runs: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The newest run per profile that went protected → not_protected since its previous run."""
+    by_profile: dict[str, list[dict[str, Any]]] = {}
+    for run in runs:  # newest first
+        by_profile.setdefault(run["profile"], []).append(run)
+    for profile_runs in by_profile.values():
+        if len(profile_runs) >= 2:
+            latest, previous = profile_runs[0], profile_runs[1]
+            if previous["verdict"] == Verdict.PROTECTED and latest["verdict"] == Verdict.NOT_PROTECTED:
+                return latest
+    return None
+
+
+def latest_by_profile(runs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """The newest verdict of each profile, with the number it rests on. One newest row would
+    hide a hardened failure behind a default pass (or the reverse)."""
+    latest: dict[str, dict[str, Any]] = {}
+    for run in runs:  # newest first
+        if run["profile"] in latest:
+            continue
+        vs_clean = (run.get("metrics") or {}).get("vs_clean") or {}
+        latest[run["profile"]] = {
+            "verdict": run["verdict"],
+            "frac_within_5deg": vs_clean.get("frac_within_5deg"),
+            "finished_at": run["finished_at"],
+            "error": run["error"],
+        }
+    return latest
+
+
+def protection_line(ctx: AppContext, name: str) -> str:
+    """`NAME: what it is now: what to run next`, from the counts and each profile's verdict."""
+    from daemon.states import dataset_protection, next_step, protection_text
+
+    protection, profiles = dataset_protection(
+        ctx.store.counts(name), latest_by_profile(ctx.store.verification_runs(name, limit=50))
+    )
+    step = next_step(protection, name)
+    return f"{name}: {protection_text(protection, profiles)}" + (f": {step}" if step else "")
+
+
+def _protection(counts: dict[str, int], verdicts: dict[str, dict[str, Any]], name: str) -> dict[str, Any]:
+    from daemon.states import dataset_protection, next_step, protection_text
+
+    protection, profiles = dataset_protection(counts, verdicts)
+    return {
+        "state": protection.value,
+        "profiles": profiles,
+        "text": protection_text(protection, profiles),
+        "next": next_step(protection, name),
+    }
+
+
+def _last_verification(latest: dict[str, Any] | None) -> dict[str, Any] | None:
+    if latest is None:
+        return None
+    return {
+        "profile": latest["profile"],
+        "verdict": latest["verdict"],
+        "finished_at": latest["finished_at"],
+        "age_s": round(time.time() - latest["finished_at"], 1),
+        "error": latest["error"],
+    }
+
+
+def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
+    """Everything `ppd status NAME --json` says about one dataset."""
+    from daemon.auto import status_text as auto_status_text  # light: no torch, no pycolmap
+    from daemon.states import patched_count
+
+    row = ctx.store.dataset(name)
+    if row is None:
+        raise die(f"no dataset {name!r}")
+    spec = ctx.store.get_spec(row["spec_id"]) if row["spec_id"] else None
+    runs = ctx.store.verification_runs(name, limit=50)
+    regression = regression_of(runs)
+    counts = ctx.store.counts(name)
+    verdicts = latest_by_profile(runs)
+    return {
+        "name": name,
+        "root": row["root"],
+        "publish_dir": row["publish_dir"],
+        "spec_id": row["spec_id"],
+        "spec": spec.to_dict() if spec else None,
+        "spec_summary": spec_summary(spec) if spec else None,
+        "auto": auto_status_text(ctx, name),  # automatic mode's decision in force (None: not decided)
+        "counts": counts,
+        "patched": patched_count(counts),
+        "protection": _protection(counts, verdicts, name),
+        "last_verification": _last_verification(runs[0] if runs else None),
+        "verdicts": verdicts,
+        "regression": None
+        if regression is None
+        else {
+            "profile": regression["profile"],
+            "run_id": regression["id"],
+            "finished_at": regression["finished_at"],
+        },
+    }
+
+
+def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
+    """Each failed file of a dataset with its one-line reason (the store row's error)."""
+    from daemon.states import FileState
+
+    return [
+        {"path": r["path"], "reason": file_reason(r["path"], r.get("error"))}
+        for r in ctx.store.files(name, state=FileState.FAILED.value)
+    ]

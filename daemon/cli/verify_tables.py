@@ -1,0 +1,132 @@
+"""How `ppd verify` and `ppd demo` show a verification report: one table per attacker profile
+(clean vs poisoned SfM, cameras vs clean and ground truth), the splat stage's two costs, the
+reasons and the overall verdict. Imported only when a report is printed (rich tables)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from verifier.verdict import Verdict, verdict_words
+
+VERDICT_STYLE = {
+    Verdict.PROTECTED: "bold green",
+    Verdict.WEAK: "bold yellow",
+    Verdict.NOT_PROTECTED: "bold red",
+    Verdict.SFM_CRASHED: "bold magenta",
+    Verdict.INCONCLUSIVE: "bold blue",
+}
+
+
+def _num(x: Any, pct: bool = False) -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, float):
+        if not math.isfinite(x):
+            return "inf"
+        return f"{100 * x:.0f}%" if pct else f"{x:.2f}"
+    return str(x)
+
+
+def _side_rows(clean: dict[str, Any], poisoned: dict[str, Any]) -> list[tuple[str, str, str]]:
+    def reg(s: dict[str, Any]) -> str:
+        if s.get("outcome") != "ok":
+            return f"{s.get('outcome')} {s.get('signal', '')}".strip()
+        return f"{s.get('registered', 0)}/{s.get('num_images', 0)}"
+
+    return [
+        ("outcome", str(clean.get("outcome")), str(poisoned.get("outcome"))),
+        ("images registered", reg(clean), reg(poisoned)),
+        ("models", _num(clean.get("num_models")), _num(poisoned.get("num_models"))),
+        ("mean reprojection error (px)", _num(clean.get("mean_reprojection_error")),
+         _num(poisoned.get("mean_reprojection_error"))),
+        ("3D points", _num(clean.get("num_points3D")), _num(poisoned.get("num_points3D"))),
+        ("SfM time (s)", _num(clean.get("elapsed_s")), _num(poisoned.get("elapsed_s"))),
+    ]  # fmt: skip
+
+
+def profile_table(p: dict[str, Any]) -> Table:
+    verdict = p["verdict"]
+    table = Table(
+        title=f"profile [bold]{p['profile']}[/]: "
+        f"[{VERDICT_STYLE.get(verdict, 'bold')}]{verdict_words(verdict)}[/]",
+        title_justify="left",
+    )
+    table.add_column("metric", overflow="fold")  # folded, never cut with an ellipsis
+    table.add_column("clean", justify="right", overflow="fold")
+    table.add_column("poisoned", justify="right", overflow="fold")
+    for row in _side_rows(p["clean"], p["poisoned"]):
+        table.add_row(*row)
+    vc = p.get("vs_clean") or {}
+    gt_c, gt_p = p.get("clean_vs_gt") or {}, p.get("poisoned_vs_gt") or {}
+    for t in (5, 10, 20):
+        table.add_row(f"cameras within {t}° of clean", "100%", _num(vc.get(f"frac_within_{t}deg"), True))
+    table.add_row("median rotation error (°)", "0", _num(vc.get("median_rotation_error_deg")))
+    table.add_row(
+        "median relative rotation error (°)", "0", _num(vc.get("median_relative_rotation_error_deg"))
+    )
+    aucs = " / ".join(_num(vc.get(f"auc_{t}")) for t in (5, 10, 20))
+    table.add_row("pair pose AUC@5/10/20 vs clean", "1 / 1 / 1", aucs)
+    if gt_c or gt_p:
+        for t in (5, 10, 20):
+            table.add_row(f"within {t}° of ground truth", _num(gt_c.get(f"frac_within_{t}deg"), True),
+                          _num(gt_p.get(f"frac_within_{t}deg"), True))  # fmt: skip
+        table.add_row("pair pose AUC@5 vs ground truth", _num(gt_c.get("auc_5")), _num(gt_p.get("auc_5")))
+    return table
+
+
+def splat_table(splat: dict[str, Any]) -> Table:
+    """The paper's two costs: cost1 (renders vs inputs, clean and poisoned), cost2 (poisoned vs clean)."""
+    table = Table(title="splat stage (render quality)", title_justify="left")
+    for col in ("", "SSIM", "PSNR (dB)", "LPIPS", "views", "iterations", "train s"):
+        table.add_column(col, justify="right" if col else "left", overflow="fold")
+    for side in ("clean", "poisoned"):
+        s = splat.get(side) or {}
+        c1 = s.get("cost1") or {}
+        table.add_row(
+            f"cost1 {side} renders vs inputs", _num(c1.get("ssim")), _num(c1.get("psnr")),
+            _lpips(c1.get("lpips"), splat), _num(s.get("views")), _num(s.get("iterations")),
+            _num(s.get("train_seconds")),
+        )  # fmt: skip
+    c2 = splat.get("cost2") or {}
+    table.add_row("cost2 poisoned vs clean", _num(c2.get("ssim")), _num(c2.get("psnr")),
+                  _lpips(c2.get("lpips"), splat), _num(c2.get("images")), "", "")  # fmt: skip
+    return table
+
+
+def _lpips(x: Any, splat: dict[str, Any]) -> str:
+    if x is None and splat.get("lpips_unavailable"):
+        return "n/a"  # the reason is printed under the table
+    return "-" if x is None else f"{x:.3f}"
+
+
+def print_report(report: dict[str, Any], console: Console) -> None:
+    for p in report["profiles"].values():
+        console.print(profile_table(p))
+        splat = p.get("splat")
+        if splat and splat.get("outcome") == "ok":
+            console.print(splat_table(splat))
+            if splat.get("lpips_unavailable"):
+                console.print(f"  LPIPS n/a: {splat['lpips_unavailable']}")
+            if splat.get("preview"):
+                console.print(f"  picture (clean render | poisoned render | input): {splat['preview']}")
+        for reason in p["reasons"]:
+            console.print(f"  • {reason}")
+        console.print()
+    for line in report.get("summary") or []:  # visibility and the profiles it does not hold under
+        console.print(f"  {line}", markup=False)
+    v = report["verdict"]
+    console.print(f"overall (weakest profile): [{VERDICT_STYLE.get(v, 'bold')}]{verdict_words(v)}[/]")
+
+
+def json_safe(x: Any) -> Any:
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: json_safe(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [json_safe(v) for v in x]
+    return x

@@ -1,0 +1,252 @@
+"""protect_file in worker processes: `protect_many` for a batch (`ppd poison --workers`) and
+`ProtectWorkers` for the daemon (`ppd watch`).
+
+Each worker process opens its own AppContext from the caller's paths and config: its own SQLite
+connection (WAL: one connection per process), the same vault and the same per-file locks
+(flock()s, shared by every ppd process). It runs daemon.protect.protect_file unchanged, so the
+stages, their crash-safe order (daemon.pipeline) and the bytes written are those of a serial run.
+
+A worker killed in the middle of a file (out of memory, a decoder crash) is an outcome, as when
+ppd itself dies there: the file's attempt marker (daemon.quarantine.attempt) stays behind, and
+the one retry that follows runs its poisoner isolated in a child (daemon.pipeline.poison); a
+child that dies too makes the outcome 'failed' and hopeless, so the daemon quarantines the file.
+
+The daemon process itself then never imports numpy, PIL or PyAV: its workers start on the first
+file (spawn: nothing of them stays behind) and exit after `idle_s` without work.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import msgspec
+
+from daemon.pipeline import Outcome, ProtectOutcome
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
+    from daemon.paths import AppPaths
+    from poisoner.spec import PatchSpec
+
+log = logging.getLogger(__name__)
+
+DIED = "worker process died"
+DEFAULT_IDLE_S = 30.0  # a daemon's workers exit after this long without a file
+
+
+class ProtectCall(msgspec.Struct, frozen=True):
+    """One protect_file call, as it crosses into a worker process."""
+
+    path: Path
+    dataset: str | None = None
+    root: Path | None = None
+    out_path: Path | None = None
+    dry_run: bool = False
+    force: bool = False
+    spec: PatchSpec | None = None
+    keep_location: bool | None = None
+
+
+# ---- the worker process's side -------------------------------------------------------------------
+_worker_ctx: AppContext | None = None
+
+
+def open_worker(paths: AppPaths, config: object, lock_wait_s: float) -> None:
+    """A worker's AppContext: the caller's paths and config, the worker's own store connection."""
+    global _worker_ctx
+    from daemon.context import AppContext
+    from daemon.store import Store
+    from daemon.vault import Vault
+
+    _worker_ctx = AppContext(
+        paths=paths, config=config, store=Store(paths.db_path),  # type: ignore[arg-type]
+        vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),  # type: ignore[attr-defined]
+        lock_wait_s=lock_wait_s,
+    )  # fmt: skip
+
+
+def run_call(call: ProtectCall, ctx: AppContext | None = None) -> ProtectOutcome:
+    """protect_file for one call, in this process (ctx: the worker's own when None)."""
+    from daemon.protect import protect_file
+
+    context = ctx or _worker_ctx
+    assert context is not None, "open_worker was not run in this process"
+    return protect_file(
+        call.path, context, call.dataset, root=call.root, out_path=call.out_path, dry_run=call.dry_run,
+        force=call.force, spec=call.spec, keep_location=call.keep_location,
+    )  # fmt: skip
+
+
+def run_call_for_daemon(call: ProtectCall) -> ProtectOutcome:
+    """run_call without the poisoner's report: unpickling it would load poisoner.formats (PIL,
+    numpy) into the daemon, which reads only the outcome's state, reason and signature."""
+    outcome = run_call(call)
+    outcome.report = None
+    return outcome
+
+
+def died_outcome(call: ProtectCall, detail: str = "") -> ProtectOutcome:
+    reason = f"{call.path.name}: {DIED}{detail}"
+    return ProtectOutcome(
+        path=Path(call.path).absolute(), dataset=call.dataset, state=Outcome.FAILED, reason=reason
+    )
+
+
+def _worker_args(ctx: AppContext) -> tuple[object, ...]:
+    return (ctx.paths, ctx.config, ctx.lock_wait_s)
+
+
+# ---- a batch: ppd poison ----------------------------------------------------------------------------
+Job = tuple[Path, str, Path, "Path | None"]  # (file, dataset, root, out_path), as `ppd poison` plans them
+
+
+def protect_many(
+    ctx: AppContext,
+    jobs: Sequence[tuple[Path, str, Path, Path | None]],
+    *,
+    workers: int | None = None,
+    force: bool = False,
+    dry_run: bool = False,
+    spec: PatchSpec | Mapping[str, PatchSpec] | None = None,
+    keep_location: bool | None = None,
+    on_outcome: Callable[[ProtectOutcome], None] | None = None,
+) -> list[ProtectOutcome]:
+    """protect_file for every (file, dataset, root, out_path) job on a bounded pool of worker
+    processes; the outcomes in the order of jobs, the same bytes written as serial runs.
+
+    workers: None: the config's (`workers`); never more than the files; 1: in this process.
+    spec: the spec new datasets get (or a dry run assumes), one for all or one per dataset name.
+    on_outcome: called in this process as each file finishes (a progress bar). Files whose worker
+    died are run once more, one at a time, in this process: their attempt marker makes the
+    poisoner run isolated in a child (a file that kills its process fails alone)."""
+    from poisoner.batch import bounded_map, pool_context
+
+    def spec_for(dataset: str) -> PatchSpec | None:
+        return spec.get(dataset) if isinstance(spec, Mapping) else spec
+
+    calls = [
+        ProtectCall(
+            Path(f), d, Path(r), None if o is None else Path(o), dry_run, force, spec_for(d), keep_location
+        )
+        for f, d, r, o in jobs
+    ]  # fmt: skip
+    n = max(1, min(ctx.config.workers if workers is None else workers, len(calls) or 1))
+    if n == 1:
+        outcomes = []
+        for call in calls:
+            outcomes.append(run_call(call, ctx))
+            if on_outcome is not None:
+                on_outcome(outcomes[-1])
+        return outcomes
+    retry = object()  # stands for a call whose worker died: re-run below
+    results = bounded_map(
+        run_call, [(c,) for c in calls], n, lambda i: retry,  # type: ignore[arg-type,return-value]
+        on_done=(lambda _i, r: on_outcome(r) if on_outcome is not None and r is not retry else None),
+        mp_context=pool_context(("daemon.protect", "poisoner.formats")), initializer=open_worker,
+        initargs=_worker_args(ctx),
+    )  # fmt: skip
+    for i, result in enumerate(results):
+        if result is retry:
+            log.warning("%s: %s; trying it once more", calls[i].path.name, DIED)
+            results[i] = run_call(calls[i], ctx)
+            if on_outcome is not None:
+                on_outcome(results[i])
+    return results  # type: ignore[return-value]
+
+
+# ---- the daemon's workers ---------------------------------------------------------------------------
+class _Slot:
+    """One worker process (started on demand) serving one of the daemon's worker threads."""
+
+    def __init__(self, ctx: AppContext) -> None:
+        self._ctx = ctx
+        self._pool: ProcessPoolExecutor | None = None
+        self.last_used = time.monotonic()
+
+    def call(self, call: ProtectCall) -> ProtectOutcome:
+        for attempt in (1, 2):
+            if self._pool is None:
+                import multiprocessing
+
+                self._pool = ProcessPoolExecutor(
+                    1, mp_context=multiprocessing.get_context("spawn"), initializer=open_worker,
+                    initargs=_worker_args(self._ctx),
+                )  # fmt: skip
+            try:
+                return self._pool.submit(run_call_for_daemon, call).result()
+            except BrokenProcessPool:
+                self.close()
+                log.warning(
+                    "%s: %s (attempt %d)", call.path.name, DIED, attempt, extra={"path": str(call.path)}
+                )
+            finally:
+                self.last_used = time.monotonic()
+        outcome = died_outcome(call, " twice; not retried")
+        outcome.hopeless = True  # it took two processes down: the file is the cause
+        return outcome
+
+    @property
+    def running(self) -> bool:
+        return self._pool is not None
+
+    def close(self) -> None:
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+class ProtectWorkers:
+    """protect_file for the daemon's worker threads, each in a worker process of its own, started on
+    the first file and ended after idle_s without one (so an idle daemon holds no decoder memory)."""
+
+    def __init__(self, ctx: AppContext, slots: int, idle_s: float = DEFAULT_IDLE_S) -> None:
+        self.idle_s = idle_s
+        self._lock = threading.Lock()
+        self._free = [_Slot(ctx) for _ in range(max(1, slots))]
+        self._all = list(self._free)
+        self._busy = threading.Semaphore(len(self._free))
+
+    def protect(self, path: Path) -> ProtectOutcome:
+        self._busy.acquire()
+        with self._lock:
+            slot = self._free.pop()
+        try:
+            return slot.call(ProtectCall(Path(path)))
+        finally:
+            with self._lock:
+                self._free.append(slot)
+            self._busy.release()
+
+    def running(self) -> int:
+        with self._lock:
+            return sum(slot.running for slot in self._all)
+
+    def end_idle(self, now: float | None = None) -> float | None:
+        """End the worker processes idle for idle_s; seconds until the next idle one is due (None:
+        none is waiting; one that finishes a file later wakes the daemon's loop through its pool)."""
+        now = time.monotonic() if now is None else now
+        with self._lock:
+            idle = [s for s in self._free if s.running and now - s.last_used >= self.idle_s]
+            for slot in idle:
+                self._free.remove(slot)
+        for slot in idle:
+            slot.close()
+        with self._lock:
+            self._free.extend(idle)
+            waits = [self.idle_s - (now - s.last_used) for s in self._free if s.running]
+        if idle:
+            log.info("ended %d idle worker process(es)", len(idle))
+        return max(0.0, min(waits)) if waits else None
+
+    def close(self) -> None:
+        with self._lock:
+            slots = list(self._all)
+        for slot in slots:
+            slot.close()

@@ -1,0 +1,90 @@
+"""Start-up (issue 19): `ppd poison --help`, `ppd status` and the daemon's command registration
+import only what they use. Real `python -X importtime` runs in a subprocess; the check is on the
+modules loaded, not on a time (speed is measured in bench/bench_startup.py)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+HEAVY = ("numpy", "PIL", "av", "torch", "pycolmap", "sqlite_utils", "flip_evaluator", "pydantic")
+
+
+def imported_modules(env: dict[str, str], *args: str) -> set[str]:
+    """Every module `python -X importtime -m daemon.cli ARGS` imported (top-level names too)."""
+    proc = subprocess.run(
+        [sys.executable, "-X", "importtime", "-m", "daemon.cli", *args],
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    names = set()
+    for line in proc.stderr.splitlines():
+        if line.startswith("import time:") and "|" in line:
+            name = line.rsplit("|", 1)[1].strip()
+            names.update({name, name.split(".")[0]})
+    assert "daemon.cli.errors" in names, "importtime output not understood"
+    return names
+
+
+@pytest.fixture
+def env(ppd_env: dict[str, Path]) -> dict[str, str]:
+    return dict(os.environ, PYTHONPATH=str(REPO), COLUMNS="80")
+
+
+@pytest.mark.parametrize("command", [["poison", "--help"], ["--help"], ["status", "--help"]])
+def test_help_loads_nothing_heavy(env: dict[str, str], command: list[str]) -> None:
+    loaded = imported_modules(env, *command)
+    assert not loaded & set(HEAVY), sorted(loaded & set(HEAVY))
+    assert "daemon.protect" not in loaded and "poisoner.blend" not in loaded
+    assert "rich" not in loaded  # nothing is drawn: the consoles are made on first use
+
+
+def test_status_loads_no_pixels_and_no_verifier(env: dict[str, str]) -> None:
+    loaded = imported_modules(env, "status")
+    pixel_and_sfm = {"numpy", "PIL", "av", "torch", "pycolmap", "flip_evaluator", "pydantic"}
+    if "sqlite_utils" in loaded:  # the store's connection wrapper imports numpy when present
+        pixel_and_sfm.discard("numpy")
+    assert not loaded & pixel_and_sfm, sorted(loaded & pixel_and_sfm)
+    assert "daemon.protect" not in loaded and "verifier.verification" not in loaded
+    assert "daemon.cli.poison" not in loaded  # `ppd COMMAND` registers that command only
+
+
+def test_top_level_help_lists_every_command(env: dict[str, str]) -> None:
+    proc = subprocess.run([sys.executable, "-m", "daemon.cli", "--help"], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    from daemon.cli import COMMAND_MODULES
+
+    listed = {line.split()[0] for line in proc.stdout.splitlines() if line.startswith("  ") and line.split()}
+    assert set(COMMAND_MODULES) <= listed, set(COMMAND_MODULES) - listed
+
+
+def test_plain_values_convert_as_typer_does() -> None:
+    """The light converter gives typer's answer for what it takes and declines the rest."""
+    from daemon.cli.coerce import _NOT_PLAIN, plain_value
+
+    assert plain_value(int, "12") == 12 and plain_value(int, "-3") == -3
+    assert plain_value(float, "0.5") == 0.5 and plain_value(float, "2") == 2.0
+    assert plain_value(float, 3) == 3.0 and type(plain_value(float, 3)) is float
+    assert plain_value(str, "castle") == "castle" and plain_value(bool, True) is True
+    assert plain_value(list[str], ("a", "b")) == ["a", "b"]
+    for annotation, value in ((int, "1e3"), (int, "x"), (int, 2.5), (int, True), (float, "1e3"),
+                              (Path, "a.jpg"), (bool, "yes"), (list[int], ["1"])):  # fmt: skip
+        assert plain_value(annotation, value) is _NOT_PLAIN, (annotation, value)
+    assert plain_value(int, "0", 1, None) is _NOT_PLAIN  # out of range: typer's error message
+    assert plain_value(int, "3", 1, 5) == 3
+
+
+def test_bad_values_keep_typers_messages(env: dict[str, str]) -> None:
+    """A value the light converter declines reaches typer's own converter and its error."""
+    for args, word in ((["poison", "x", "--workers", "0"], "--workers"),
+                       (["poison", "x", "--workers", "two"], "--workers"),
+                       (["auto", "x", "--sample", "2"], "--sample")):  # fmt: skip
+        proc = subprocess.run([sys.executable, "-m", "daemon.cli", *args], cwd=REPO, env=env,
+                              capture_output=True, text=True, timeout=120)  # fmt: skip
+        assert proc.returncode == 2, (args, proc.stderr)
+        assert proc.stderr.startswith("ppd: error: ") and word in proc.stderr, proc.stderr
