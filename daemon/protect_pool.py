@@ -272,14 +272,20 @@ class ProtectWorkers:
         """End the worker processes idle for idle_s; seconds until the next idle one is due (None:
         none is waiting; one that finishes a file later wakes the daemon's loop through its pool)."""
         now = time.monotonic() if now is None else now
-        with self._lock:
-            idle = [s for s in self._free if s.running and now - s.last_used >= self.idle_s]
-            for slot in idle:
+        idle: list[_Slot] = []
+        with self._lock:  # each slot taken counts as busy, so protect() never finds the list empty
+            for slot in [s for s in self._free if s.running and now - s.last_used >= self.idle_s]:
+                if not self._busy.acquire(blocking=False):
+                    break
                 self._free.remove(slot)
+                idle.append(slot)
         for slot in idle:
             slot.close()
         with self._lock:
             self._free.extend(idle)
+        for _ in idle:
+            self._busy.release()
+        with self._lock:
             waits = [self.idle_s - (now - s.last_used) for s in self._free if s.running]
         if idle:
             log.info("ended %d idle worker process(es)", len(idle))
