@@ -128,9 +128,6 @@ def _worker_args(ctx: AppContext, parent: int | None = None) -> tuple[object, ..
 
 
 # ---- a batch: ppd poison ----------------------------------------------------------------------------
-Job = tuple[Path, str, Path, "Path | None"]  # (file, dataset, root, out_path), as `ppd poison` plans them
-
-
 def protect_many(
     ctx: AppContext,
     jobs: Sequence[tuple[Path, str, Path, Path | None]],
