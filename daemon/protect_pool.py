@@ -18,10 +18,11 @@ file (spawn: nothing of them stays behind) and exit after `idle_s` without work.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -58,9 +59,26 @@ class ProtectCall(msgspec.Struct, frozen=True):
 _worker_ctx: AppContext | None = None
 
 
-def open_worker(paths: AppPaths, config: object, lock_wait_s: float) -> None:
+def die_with_parent(parent: int | None) -> None:
+    """Linux: this worker is SIGKILLed when the process (thread) that started it dies, as systemd
+    stopping the unit kills them all: a daemon killed in the middle of a file leaves the state a
+    kill always left (a pending row, the attempt marker), never an orphan finishing on its own.
+    parent: the pid that must still be the parent (None: not checked, e.g. under a forkserver)."""
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # not Linux
+        return
+    if parent is not None and os.getppid() != parent:  # it died before prctl took effect
+        os._exit(1)
+
+
+def open_worker(paths: AppPaths, config: object, lock_wait_s: float, parent: int | None = None) -> None:
     """A worker's AppContext: the caller's paths and config, the worker's own store connection."""
     global _worker_ctx
+    die_with_parent(parent)
     from daemon.context import AppContext
     from daemon.store import Store
     from daemon.vault import Vault
@@ -84,6 +102,12 @@ def run_call(call: ProtectCall, ctx: AppContext | None = None) -> ProtectOutcome
     )  # fmt: skip
 
 
+def warm_up() -> None:
+    """Load the stages and the poisoner, so a worker's first file does not wait for the imports."""
+    import daemon.protect  # noqa: F401
+    import poisoner.formats  # noqa: F401
+
+
 def run_call_for_daemon(call: ProtectCall) -> ProtectOutcome:
     """run_call without the poisoner's report: unpickling it would load poisoner.formats (PIL,
     numpy) into the daemon, which reads only the outcome's state, reason and signature."""
@@ -99,14 +123,11 @@ def died_outcome(call: ProtectCall, detail: str = "") -> ProtectOutcome:
     )
 
 
-def _worker_args(ctx: AppContext) -> tuple[object, ...]:
-    return (ctx.paths, ctx.config, ctx.lock_wait_s)
+def _worker_args(ctx: AppContext, parent: int | None = None) -> tuple[object, ...]:
+    return (ctx.paths, ctx.config, ctx.lock_wait_s, parent)
 
 
 # ---- a batch: ppd poison ----------------------------------------------------------------------------
-Job = tuple[Path, str, Path, "Path | None"]  # (file, dataset, root, out_path), as `ppd poison` plans them
-
-
 def protect_many(
     ctx: AppContext,
     jobs: Sequence[tuple[Path, str, Path, Path | None]],
@@ -170,17 +191,25 @@ class _Slot:
         self._pool: ProcessPoolExecutor | None = None
         self.last_used = time.monotonic()
 
+    def _started(self) -> ProcessPoolExecutor:
+        if self._pool is None:
+            import multiprocessing
+
+            self._pool = ProcessPoolExecutor(
+                1, mp_context=multiprocessing.get_context("spawn"), initializer=open_worker,
+                initargs=_worker_args(self._ctx, os.getpid()),
+            )  # fmt: skip
+        return self._pool
+
+    def warm(self) -> Future[None]:
+        """Start the worker and its imports now."""
+        self.last_used = time.monotonic()
+        return self._started().submit(warm_up)
+
     def call(self, call: ProtectCall) -> ProtectOutcome:
         for attempt in (1, 2):
-            if self._pool is None:
-                import multiprocessing
-
-                self._pool = ProcessPoolExecutor(
-                    1, mp_context=multiprocessing.get_context("spawn"), initializer=open_worker,
-                    initargs=_worker_args(self._ctx),
-                )  # fmt: skip
             try:
-                return self._pool.submit(run_call_for_daemon, call).result()
+                return self._started().submit(run_call_for_daemon, call).result()
             except BrokenProcessPool:
                 self.close()
                 log.warning(
@@ -224,6 +253,14 @@ class ProtectWorkers:
                 self._free.append(slot)
             self._busy.release()
 
+    def warm(self, timeout: float = 60.0) -> None:
+        """Start every worker now and wait (up to timeout) until they have loaded the stages and
+        the poisoner: the daemon says it is ready once its first files need not wait for that.
+        Unused, they exit after idle_s like any other."""
+        with self._lock:
+            started = [slot.warm() for slot in self._free]
+        wait(started, timeout)
+
     def running(self) -> int:
         with self._lock:
             return sum(slot.running for slot in self._all)
@@ -232,14 +269,20 @@ class ProtectWorkers:
         """End the worker processes idle for idle_s; seconds until the next idle one is due (None:
         none is waiting; one that finishes a file later wakes the daemon's loop through its pool)."""
         now = time.monotonic() if now is None else now
-        with self._lock:
-            idle = [s for s in self._free if s.running and now - s.last_used >= self.idle_s]
-            for slot in idle:
+        idle: list[_Slot] = []
+        with self._lock:  # each slot taken counts as busy, so protect() never finds the list empty
+            for slot in [s for s in self._free if s.running and now - s.last_used >= self.idle_s]:
+                if not self._busy.acquire(blocking=False):
+                    break
                 self._free.remove(slot)
+                idle.append(slot)
         for slot in idle:
             slot.close()
         with self._lock:
             self._free.extend(idle)
+        for _ in idle:
+            self._busy.release()
+        with self._lock:
             waits = [self.idle_s - (now - s.last_used) for s in self._free if s.running]
         if idle:
             log.info("ended %d idle worker process(es)", len(idle))

@@ -135,6 +135,7 @@ class WatchDaemon:
             from daemon.protect_pool import ProtectWorkers
 
             self.protectors = ProtectWorkers(self.ctx, self.options.workers, self.options.worker_idle_s)
+            self.protectors.warm()  # ready means the first files need not wait for a worker's imports
         self.pool.start()
         self.watcher.start()  # before the scan: nothing written during the scan is missed
         self.catch_up(remove_leftovers=True)

@@ -588,6 +588,45 @@ def _ppd_command() -> list[str]:
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "daemon.cli"]
 
 
+def _listen(sock: socket.socket) -> tuple[list[str], threading.Event, threading.Thread]:
+    """Read sd_notify messages all along, as systemd does (the socket queues only ~10 datagrams),
+    until STOPPING=1 or the socket closes: (messages, stopping, the started reader)."""
+    messages: list[str] = []
+    stopping = threading.Event()
+
+    def listen() -> None:
+        with contextlib.suppress(OSError):
+            while not stopping.is_set():
+                messages.append(sock.recv(4096).decode())
+                stopping.set() if messages[-1].startswith("STOPPING=1") else None
+
+    listener = threading.Thread(target=listen, daemon=True)
+    listener.start()
+    return messages, stopping, listener
+
+
+def _count_protected_else_original(
+    env: dict[str, Path], store: Store, dest: Path, originals: dict[str, str]
+) -> int:
+    """Each file is its original (no row, or pending/failed) or protected (row, vault copy); how
+    many are protected."""
+    rows = rows_by_path(store)
+    done = 0
+    for name, original in originals.items():
+        path = dest / name
+        row = rows.get(str(path))
+        digest = sha(path)
+        if digest == original:
+            assert row is None or row["state"] in ("pending", "failed"), (name, row)
+            continue
+        done += 1
+        assert row is not None and row["state"] == FileState.PATCHED, name
+        assert row["poisoned_sha256"] == digest, name
+        blob = env["data"] / "vault" / original[:2] / original
+        assert sha(blob) == original
+    return done
+
+
 def test_sigterm_mid_batch_leaves_every_file_original_or_protected(
     ppd_env: dict[str, Path], tmp_path: Path
 ) -> None:
@@ -609,18 +648,8 @@ def test_sigterm_mid_batch_leaves_every_file_original_or_protected(
         [*_ppd_command(), "watch", "--no-verify", "--debounce", "0.1", "-j", "2"],
         env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
-    messages: list[str] = []
-    stopping = threading.Event()
-
-    def listen() -> None:  # reads all along, as systemd does (the socket queues only ~10 datagrams)
-        with contextlib.suppress(OSError):
-            while not stopping.is_set():
-                messages.append(sock.recv(4096).decode())
-                stopping.set() if messages[-1].startswith("STOPPING=1") else None
-
-    listener = threading.Thread(target=listen, daemon=True)
+    messages, stopping, listener = _listen(sock)
     try:
-        listener.start()
         wait_for(lambda: bool(messages), 30, "READY=1")
         assert messages[0].startswith("READY=1"), messages
         dest = ppd_env["outbox"] / "batch"
@@ -645,20 +674,7 @@ def test_sigterm_mid_batch_leaves_every_file_original_or_protected(
     assert proc.returncode == 0, out
     assert any(m == "WATCHDOG=1" for m in messages) or "WATCHDOG=1" in "\n".join(messages)
     assert messages[-1].startswith("STOPPING=1"), messages
-    rows = rows_by_path(store)
-    done = 0
-    for name, original in originals.items():
-        path = dest / name
-        row = rows.get(str(path))
-        digest = sha(path)
-        if digest == original:
-            assert row is None or row["state"] in ("pending", "failed"), (name, row)
-            continue
-        done += 1
-        assert row is not None and row["state"] == FileState.PATCHED, name
-        assert row["poisoned_sha256"] == digest, name
-        blob = ppd_env["data"] / "vault" / original[:2] / original
-        assert sha(blob) == original
+    done = _count_protected_else_original(ppd_env, store, dest, originals)
     assert 0 < done < n, f"SIGTERM did not land mid-batch ({done}/{n} protected)"
     assert not list(dest.glob(f"{TEMP_PREFIX}*")), "temporary files left behind"
     assert "stopped:" in out
