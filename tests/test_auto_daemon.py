@@ -172,7 +172,7 @@ def test_preflight_child_records_a_plain_no_candidate_decision(
     assert row["evidence"]["evidence"][0]["status"] == "over_budget"
     assert row["evidence"]["evidence"][0]["visibility"]["noticeable_area_max"] > 0.01  # FLIP recorded
     assert row["evidence"]["options"]["lpips_net"] == "none"  # the config's options reached the child
-    assert row["evidence"]["evidence"][0]["visibility"]["display_width"] == 1920  # the budget's viewing
+    assert row["evidence"]["evidence"][0]["visibility"]["display_width"] == 160  # own width: not blown up
     assert ctx.store.dataset_spec("trip") == A.spec  # unchanged: nothing better within the budget
 
 

@@ -40,8 +40,10 @@ def test_visibility_is_what_a_viewer_sees_and_lpips_is_said_not_measured() -> No
     a = (_textured(64, 64) * 255).astype(np.uint8)
     b = a.copy()
     b[2:10, 2:10] = 255  # an 8 x 8 white square in the top-left corner region
-    budget = VisibilityBudget(display_width=64)
+    budget = VisibilityBudget()  # 1920 px wide: a 64 px image is judged at its own size
     v = measure_image(a, b, budget, None)
+    assert v.display_width == 64
+    assert measure_image(a, b, VisibilityBudget(display_width=32), None).display_width == 32
     assert v.lpips is None  # not measured, never pretended
     assert v.ssim == pytest.approx(ssim(a / 255.0, b / 255.0), abs=1e-12)
     assert v.changed_area == pytest.approx(64 / 64**2, rel=0.2)  # pixels that happened to be white stay

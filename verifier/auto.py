@@ -247,7 +247,7 @@ def _measure(
         e.status, e.error = FAILED, str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         shutil.rmtree(images, ignore_errors=True)
         return e
-    e.visibility = summarise_visibility(per_image, budget.display_width)
+    e.visibility = summarise_visibility(per_image)
     e.budget_use = round(budget_use(e.visibility, budget), 4)
     e.within_budget = within_budget(e.visibility, budget)
     e.budget_notes = budget_notes(e.visibility, budget)
@@ -448,7 +448,7 @@ def _measure_on(
         poison_file(clean_dir / name, out_dir / name, spec)
         clean, poisoned = load_rgb8(clean_dir / name), load_rgb8(out_dir / name)
         per_image.append(measure_image(clean, poisoned, budget, None, jpeg_p999.get(name)))
-    return summarise_visibility(per_image, budget.display_width)
+    return summarise_visibility(per_image)
 
 
 def choose_interim(

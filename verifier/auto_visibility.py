@@ -25,6 +25,7 @@ SSIM_RADIUS = 5  # 3DGS SSIM: 11 x 11 window
 class ImageVisibility(msgspec.Struct, frozen=True):
     """One sample image, clean vs poisoned: what a viewer sees (FLIP) and the paper's figures."""
 
+    display_width: int  # the width it was judged at (the budget's, or the image's own when smaller)
     noticeable_area: float  # fraction of the displayed picture with FLIP > 0.5
     flip_p999: float
     flip_mean: float
@@ -39,7 +40,7 @@ class SampleVisibility(msgspec.Struct, frozen=True):
     """A candidate's visibility on the sample: the worst image for each figure."""
 
     images: int
-    display_width: int
+    display_width: int  # the widest the sample images were judged at
     noticeable_area_max: float
     flip_p999_max: float
     flip_mean_max: float
@@ -137,6 +138,7 @@ def measure_image(
     )  # fmt: skip
     a, b = clean.astype(np.float64) / 255.0, poisoned.astype(np.float64) / 255.0
     return ImageVisibility(
+        display_width=v.display_width,
         noticeable_area=v.area_above_half,
         flip_p999=v.flip_p999,
         flip_mean=v.flip_mean,
@@ -167,14 +169,14 @@ def _worst(values: Sequence[float | None], pick: Any) -> float | None:
     return pick(present) if present else None
 
 
-def summarise_visibility(per_image: Sequence[ImageVisibility], display_width: int) -> SampleVisibility:
+def summarise_visibility(per_image: Sequence[ImageVisibility]) -> SampleVisibility:
     """The worst image for each figure (a viewer notices the worst picture, not the average)."""
     corners = [v.in_one_corner for v in per_image if v.in_one_corner is not None]
     ssims = [v.ssim for v in per_image]
     lp = [v.lpips for v in per_image if v.lpips is not None]
     return SampleVisibility(
         images=len(per_image),
-        display_width=display_width,
+        display_width=max(v.display_width for v in per_image),
         noticeable_area_max=max(v.noticeable_area for v in per_image),
         flip_p999_max=max(v.flip_p999 for v in per_image),
         flip_mean_max=max(v.flip_mean for v in per_image),
