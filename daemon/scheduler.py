@@ -160,7 +160,7 @@ class VerificationScheduler:
                     continue
                 self.running = f"auto {step}: {dataset}"
                 if step == "interim":
-                    result = auto.run_interim(self.ctx, dataset)
+                    result = auto.run_interim(self.ctx, dataset, cancel=self._cancel)
                     self.completed.append((dataset, f"auto interim: {result['candidate']}"))
                 else:
                     decision = auto.run_preflight(

@@ -13,7 +13,6 @@ The parent never imports pycolmap: SfM runs in child processes (verifier.sfm), o
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import logging
@@ -174,13 +173,6 @@ def _folder_key(image_dir: Path, names: Sequence[str]) -> str:
     return h.hexdigest()[:16]
 
 
-def _replace(settings: SfmSettings, **changes: Any) -> SfmSettings:
-    """A copy with changes, whether SfmSettings is a dataclass or a msgspec Struct."""
-    if isinstance(settings, msgspec.Struct):
-        return msgspec.structs.replace(settings, **changes)
-    return dataclasses.replace(settings, **changes)
-
-
 def write_json(path: Path, data: Any) -> None:
     """A report or result as indented JSON, replaced atomically (a reader never sees half a file)."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -214,7 +206,7 @@ def _run_side(
     crashes: list[str] = []
     elapsed = 0.0
     for attempt in range(1 + max(0, options.crash_retries)):
-        run_settings = _replace(settings, random_seed=settings.random_seed + attempt)
+        run_settings = msgspec.structs.replace(settings, random_seed=settings.random_seed + attempt)
         job = SfmJob(str(image_dir), str(cache_db), str(model_dir), run_settings)
         result = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel)
         elapsed += float(result.get("elapsed_s") or 0.0)
@@ -443,7 +435,7 @@ def _verify_profile(profile: str, run: _Run) -> ProfileReport:
     """One attacker: SfM on both sides, poses compared, the verdict; written to <profile>/report.json."""
     started = time.time()
     settings = profile_settings(profile, run.matching, run.options.camera_params)
-    settings = _replace(settings, random_seed=run.options.random_seed)
+    settings = msgspec.structs.replace(settings, random_seed=run.options.random_seed)
     clean, poisoned = _run_both_sides(profile, run, settings)
     vs_clean, clean_vs_gt, poisoned_vs_gt = _compare_poses(clean, poisoned, run)
     decision = decide(clean, poisoned, vs_clean, run.options.rule)
