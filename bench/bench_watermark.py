@@ -39,8 +39,9 @@ import numpy as np
 from PIL import Image  # PIL before anything that may load pycolmap
 
 from poisoner.blend import apply_patch
-from poisoner.ladder import named_specs
-from poisoner.spec import POSITIONS, PatchSpec
+from poisoner.ladder import WATERMARK_SPEC, named_specs
+from poisoner.placement import choose_corner
+from poisoner.spec import PatchSpec
 from verifier import poses as posemod
 from verifier.sfm import SfmJob, SfmSettings, profile_sfm_settings, run_sfm_job
 from verifier.verification import round_trip
@@ -127,28 +128,35 @@ def subject_mask(ds: Dataset, name: str) -> np.ndarray | None:
         return np.asarray(m.convert("L")) > 127
 
 
-def least_covered_corner(masks: list[np.ndarray], region: float) -> str:
-    """The corner whose region the subject covers least over all images (the mark's home)."""
-    h, w = masks[0].shape
-    rw, rh = int(region * w), int(region * h)
-    union = np.any(np.stack(masks), axis=0)
-    cover = {
-        "top-left": union[:rh, :rw].mean(),
-        "top-right": union[:rh, w - rw :].mean(),
-        "bottom-left": union[h - rh :, :rw].mean(),
-        "bottom-right": union[h - rh :, w - rw :].mean(),
-    }
-    return min((c for c in POSITIONS if c in cover), key=lambda c: cover[c])
+# Issue 14's hypotheses for a corner mark that holds on a textured scene, measured here only (the
+# product's named kinds are poisoner.ladder.named_specs). A design is one spec or several specs
+# whose marks share the corner (each tumbling on its own).
+BENCH_DESIGNS: dict[str, tuple[PatchSpec, ...]] = {
+    # the creator's text filled with the texture (poisoner/logo.py); larger square, glyphs fill ~35%
+    "watermark-text": (WATERMARK_SPEC.replace(mark_text="\u00a9 Ana 2026", patch_size=0.1),),
+    # as many corners as the 1% area budget allows, at three scales (survives the 8192-feature cap)
+    "watermark-ms-large": (WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.085),),
+    # two marks with independent textures and poses: two false motions in one corner
+    "watermark-twin": (
+        WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.055),
+        WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.055, seed=101),
+    ),
+}
+
+
+def designs() -> dict[str, tuple[PatchSpec, ...]]:
+    return {**{k: (v,) for k, v in named_specs().items()}, **BENCH_DESIGNS}
 
 
 # ---- poisoning and visibility --------------------------------------------------------------------
-def poison(ds: Dataset, design: str, spec: PatchSpec, dst: Path) -> dict[str, Any]:
+def poison(ds: Dataset, design: str, specs: tuple[PatchSpec, ...], dst: Path) -> dict[str, Any]:
     """Poison every image; the visibility figures of the set."""
     names = names_of(ds.clean)
-    is_mark = spec.motion == "tumble"
+    is_mark = specs[0].motion == "tumble"
     masks = {n: subject_mask(ds, n) for n in names}
     if is_mark and ds.masks is not None:
-        spec = spec.replace(position=least_covered_corner([m for m in masks.values() if m is not None], 0.2))
+        corner = choose_corner(list(masks.values()), region=specs[0].corner_region)
+        specs = tuple(s.replace(position=corner) for s in specs)
     dst.mkdir(parents=True, exist_ok=True)
     picks = {names[0], names[len(names) // 2]}
     vis: list[dict[str, Any]] = []
@@ -157,9 +165,10 @@ def poison(ds: Dataset, design: str, spec: PatchSpec, dst: Path) -> dict[str, An
         with Image.open(ds.clean / name) as im:
             pixels = np.asarray(im.convert("RGB"))
         h, w = pixels.shape[:2]
-        placement = spec.resolve(w, h, image_key=name)
         keep_out = masks[name] if is_mark else None
-        out = apply_patch(pixels, placement, keep_out)
+        out = pixels
+        for spec in specs:
+            out = apply_patch(out, spec.resolve(w, h, image_key=name), keep_out)
         diff = np.any(out != pixels, axis=2)
         areas.append(float(diff.mean()))
         ys, xs = np.nonzero(diff)
@@ -174,7 +183,7 @@ def poison(ds: Dataset, design: str, spec: PatchSpec, dst: Path) -> dict[str, An
         Image.fromarray(out).save(dst / name, **kwargs)
     worst = max(vis, key=lambda v: v["flip_p999"])
     return {
-        "position": spec.position,
+        "position": specs[0].position,
         "flip_mean": worst["flip_mean"],
         "flip_p99": worst["flip_p99"],
         "flip_p999": worst["flip_p999"],
@@ -249,13 +258,14 @@ def run_profiles(
 
 # ---- one case and the report ----------------------------------------------------------------------------
 def run_case(
-    ds: Dataset, design: str, spec: PatchSpec, profiles: tuple[str, ...], seeds: tuple[int, ...]
+    ds: Dataset, design: str, specs: tuple[PatchSpec, ...], profiles: tuple[str, ...], seeds: tuple[int, ...]
 ) -> None:
+    spec = specs[0]
     pois_work = WORK / ds.name / f"runs-{design}-{spec.spec_id}"
     pois = pois_work / "images"
     if not pois.exists():
         shutil.rmtree(pois_work, ignore_errors=True)
-        vis = poison(ds, design, spec, pois)
+        vis = poison(ds, design, specs, pois)
         pois_work.mkdir(parents=True, exist_ok=True)
         (pois_work / "vis.json").write_text(json.dumps(vis))
     vis = json.loads((pois_work / "vis.json").read_text())
@@ -265,6 +275,7 @@ def run_case(
         "design": design,
         "spec": spec.to_dict(),
         "spec_id": spec.spec_id,
+        "more_specs": [s.to_dict() for s in specs[1:]],
         "visibility": vis,
         "profiles": run_profiles(ds, pois, profiles, seeds, pois_work) if profiles else {},
         "when": time.strftime("%Y-%m-%d %H:%M"),
@@ -339,7 +350,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m bench.bench_watermark")
     ap.add_argument("--dataset", choices=["lego", "dtu", "dtu-full", "object", "fountain"])
     ap.add_argument("--pictures", action="store_true", help="each design on dtu_scan37 000000.png only")
-    ap.add_argument("--designs", default="", help=f"comma-separated: {', '.join(named_specs())}")
+    ap.add_argument("--designs", default="", help=f"comma-separated: {', '.join(designs())}")
     ap.add_argument("--profiles", default=",".join(PROFILES), help="comma-separated; '' = visibility only")
     ap.add_argument("--seeds", default="0", help="COLMAP random seeds of the poisoned runs")
     ap.add_argument("--spec-seed", type=int, default=0, help="the spec's seed (texture, per-image turns)")
@@ -353,14 +364,16 @@ def main(argv: list[str] | None = None) -> None:
         return
     if not args.dataset or not args.designs:
         raise SystemExit("--dataset and --designs are required (or --pictures)")
-    specs = named_specs()
+    specs = designs()
     ds = setup(args.dataset)
     profiles = tuple(p for p in args.profiles.split(",") if p)
     seeds = tuple(int(s) for s in args.seeds.split(","))
     for design in args.designs.split(","):
         if design not in specs:
             raise SystemExit(f"unknown design {design!r}; choose from {', '.join(specs)}")
-        run_case(ds, design, specs[design].replace(seed=args.spec_seed), profiles, seeds)
+        # spec seed k shifts every mark's seed by k (texture and per-image poses)
+        seeded = tuple(s.replace(seed=s.seed + args.spec_seed) for s in specs[design])
+        run_case(ds, design, seeded, profiles, seeds)
 
 
 
@@ -380,7 +393,7 @@ def pictures(
             return np.asarray(m.convert("L")) > 127
 
     subject = load(mask)
-    corner = least_covered_corner([load(p) for p in set_masks], 0.2)
+    corner = choose_corner([load(p) for p in set_masks], region=0.2)
     rows = []
     out_dir.mkdir(parents=True, exist_ok=True)
     for design, spec in named_specs().items():

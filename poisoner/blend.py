@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poisoner.logo import mark_shape
 from poisoner.patterns import pattern_levels, pattern_mask
 from poisoner.spec import PatchPlacement, PatchSpec
 
@@ -49,13 +50,18 @@ def _turned(placement: PatchPlacement) -> tuple[np.ndarray, np.ndarray]:
     inside = (u >= 0) & (u < t) & (v >= 0) & (v < t)
     ui = np.clip(np.floor(u).astype(int), 0, t - 1)
     vi = np.clip(np.floor(v).astype(int), 0, t - 1)
+    shape = mark_shape(placement.mark_text, placement.mark_image, t)
+    if shape is not None:
+        inside = inside & shape[vi, ui]
     return base[vi, ui] & inside, inside
 
 
 def patch_coverage(placement: PatchPlacement) -> np.ndarray:
-    """Which pixels of the placement's box the patch changes (all of them unless it is turned)."""
+    """Which pixels of the placement's box the patch changes (all of them unless it is turned or
+    shaped as text / a logo)."""
     if placement.texture_size == 0:
-        return np.ones((placement.size, placement.size), dtype=bool)
+        shape = mark_shape(placement.mark_text, placement.mark_image, placement.size)
+        return np.ones((placement.size, placement.size), dtype=bool) if shape is None else shape.copy()
     return _turned(placement)[1]
 
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from poisoner.logo import LogoError, mark_shape
 from poisoner.motion import MOTIONS, image_index, path_offset, tumble_extent, tumble_pose
 
 SPEC_VERSION = 1
@@ -60,6 +61,8 @@ NEW_FIELD_DEFAULTS: dict[str, Any] = {
     "motion_span": 0.25,
     "corner_region": 0.2,
     "tumble_scale": 0.75,
+    "mark_text": "",
+    "mark_image": "",
 }
 
 
@@ -98,6 +101,9 @@ class PatchPlacement:
     texture_size: int = 0
     angle: float = 0.0
     scale: float = 1.0
+    # issue 14: the mark's shape is the creator's text or logo (poisoner/logo.py), filled with the texture
+    mark_text: str = ""
+    mark_image: str = ""
 
     @property
     def box(self) -> tuple[int, int, int, int]:
@@ -139,6 +145,10 @@ class PatchSpec:
     # and of the height) and turns, scales and shifts it per image (poisoner/motion.py)
     corner_region: float = 0.2
     tumble_scale: float = 0.75  # smallest per-image scale of a tumbling mark (largest: 1)
+    # issue 14: the mark is the creator's text (e.g. "© Ana 2026") or logo (a PNG whose alpha is the
+    # shape) filled with the texture; pixels of the square outside the glyphs are left alone
+    mark_text: str = ""
+    mark_image: str = ""
 
     def __post_init__(self) -> None:
         if self.pattern not in PATTERNS:
@@ -168,6 +178,12 @@ class PatchSpec:
             raise SpecError(f"tumble_scale must be in (0, 1], got {self.tumble_scale}")
         if self.motion == "tumble" and self.position == "center":
             raise SpecError("a tumbling mark lives in a corner: position must not be 'center'")
+        if not isinstance(self.mark_text, str) or not isinstance(self.mark_image, str):
+            raise SpecError("mark_text and mark_image must be strings")
+        if self.mark_text and self.mark_image:
+            raise SpecError("give mark_text or mark_image, not both")
+        if self.mark_text and not self.mark_text.strip():
+            raise SpecError("mark_text is blank")
         object.__setattr__(self, "offset", (self.offset[0], self.offset[1]))
 
     # ---- geometry -------------------------------------------------------------------------
@@ -203,6 +219,11 @@ class PatchSpec:
         return self._placement(x, y, size, block)
 
     def _placement(self, x: int, y: int, size: int, block: int, **tumble: Any) -> PatchPlacement:
+        if self.mark_text or self.mark_image:
+            try:  # a bad logo file or unrenderable text is the spec's error, said before any pixel is written
+                mark_shape(self.mark_text, self.mark_image, tumble.get("texture_size") or size)
+            except LogoError as exc:
+                raise SpecError(str(exc)) from exc
         return PatchPlacement(
             x=x,
             y=y,
@@ -212,6 +233,8 @@ class PatchSpec:
             contrast=int(self.contrast),
             pattern=self.pattern,
             seed=self.seed,
+            mark_text=self.mark_text,
+            mark_image=self.mark_image,
             **tumble,
         )
 
