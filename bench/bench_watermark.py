@@ -40,6 +40,7 @@ from PIL import Image  # PIL before anything that may load pycolmap
 
 from poisoner.blend import apply_patch
 from poisoner.ladder import WATERMARK_SPEC, named_specs
+from poisoner.motion import CORNER_MOTIONS
 from poisoner.placement import choose_corner
 from poisoner.spec import PatchSpec
 from verifier import poses as posemod
@@ -136,6 +137,11 @@ BENCH_DESIGNS: dict[str, tuple[PatchSpec, ...]] = {
     "watermark-text": (WATERMARK_SPEC.replace(mark_text="\u00a9 Ana 2026", patch_size=0.1),),
     # as many corners as the 1% area budget allows, at three scales (survives the 8192-feature cap)
     "watermark-ms-large": (WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.085),),
+    # a smooth turn and circle instead of a random pose per image (neighbouring views match the mark)
+    "watermark-spin": (WATERMARK_SPEC.replace(motion="spin"),),
+    "watermark-spin-ms": (
+        WATERMARK_SPEC.replace(motion="spin", pattern="multiscale_blocks", patch_size=0.085),
+    ),
     # two marks with independent textures and poses: two false motions in one corner
     "watermark-twin": (
         WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.055),
@@ -152,7 +158,7 @@ def designs() -> dict[str, tuple[PatchSpec, ...]]:
 def poison(ds: Dataset, design: str, specs: tuple[PatchSpec, ...], dst: Path) -> dict[str, Any]:
     """Poison every image; the visibility figures of the set."""
     names = names_of(ds.clean)
-    is_mark = specs[0].motion == "tumble"
+    is_mark = specs[0].motion in CORNER_MOTIONS
     masks = {n: subject_mask(ds, n) for n in names}
     if is_mark and ds.masks is not None:
         corner = choose_corner(list(masks.values()), region=specs[0].corner_region)
@@ -381,7 +387,7 @@ def main(argv: list[str] | None = None) -> None:
 def pictures(
     photo: Path, mask: Path, set_masks: list[Path], out_dir: Path, display_width: int = 1920
 ) -> list[dict[str, Any]]:
-    """Each named design on one real photo (full resolution), saved at display size, with FLIP figures.
+    """Each design on one real photo (full resolution), saved at display size (WebP q80), with FLIP figures.
 
     The watermark designs keep off this photo's subject mask and sit in the corner the subject
     covers least over the whole set (set_masks), as bench runs place them."""
@@ -396,19 +402,20 @@ def pictures(
     corner = choose_corner([load(p) for p in set_masks], region=0.2)
     rows = []
     out_dir.mkdir(parents=True, exist_ok=True)
-    for design, spec in named_specs().items():
-        keep_out = None
-        if spec.motion == "tumble":
-            spec = spec.replace(position=corner)
-            keep_out = subject
-        h, w = pixels.shape[:2]
-        out = apply_patch(pixels, spec.resolve(w, h, image_key=photo.name), keep_out)
+    h, w = pixels.shape[:2]
+    for design, specs in designs().items():
+        keep_out = subject if specs[0].motion in CORNER_MOTIONS else None
+        out = pixels
+        for spec in specs:
+            if spec.motion in CORNER_MOTIONS:
+                spec = spec.replace(position=corner)
+            out = apply_patch(out, spec.resolve(w, h, image_key=photo.name), keep_out)
         vis = visibility_report(pixels, out, display_width=display_width, subject_mask=subject)
         shown = Image.fromarray(out).resize(
             (display_width, round(h * display_width / w)), Image.Resampling.LANCZOS
         )
-        path = out_dir / f"design-{design}.png"
-        shown.save(path, optimize=True)
+        path = out_dir / f"design-{design}.webp"  # WebP q80 at display size: ~0.3 MB a picture
+        shown.save(path, quality=80, method=6)
         rows.append({"design": design, "file": path.name, **vis.to_dict()})
         print(f"{design}: {json.dumps(rows[-1])}", flush=True)
     return rows

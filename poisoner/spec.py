@@ -26,7 +26,15 @@ from pathlib import Path
 from typing import Any
 
 from poisoner.logo import LogoError, mark_shape
-from poisoner.motion import MOTIONS, image_index, path_offset, tumble_extent, tumble_pose
+from poisoner.motion import (
+    CORNER_MOTIONS,
+    MOTIONS,
+    image_index,
+    path_offset,
+    spin_pose,
+    tumble_extent,
+    tumble_pose,
+)
 
 SPEC_VERSION = 1
 
@@ -138,11 +146,12 @@ class PatchSpec:
     seed: int = 0
     version: int = field(default=SPEC_VERSION)
     # issue #9: a patch that moves from image to image (see poisoner/motion.py)
-    motion: str = "static"  # static | drift | orbit
+    motion: str = "static"  # static | drift | orbit | tumble | spin
     motion_step: Length = 0  # path length per image index, px or fraction of width
     motion_span: Length = 0.25  # extent of the path on each axis, px or fraction of width
-    # issue 14: motion "tumble" keeps the mark inside one corner region (this fraction of the width
-    # and of the height) and turns, scales and shifts it per image (poisoner/motion.py)
+    # issue 14: motions "tumble" (a random pose per image) and "spin" (a smooth turn and circle) keep
+    # the mark inside one corner region (this fraction of the width and of the height) and turn,
+    # scale and shift it per image (poisoner/motion.py)
     corner_region: float = 0.2
     tumble_scale: float = 0.75  # smallest per-image scale of a tumbling mark (largest: 1)
     # issue 14: the mark is the creator's text (e.g. "© Ana 2026") or logo (a PNG whose alpha is the
@@ -176,7 +185,7 @@ class PatchSpec:
             raise SpecError(f"corner_region must be in (0, 0.5], got {self.corner_region}")
         if not 0.0 < self.tumble_scale <= 1.0:
             raise SpecError(f"tumble_scale must be in (0, 1], got {self.tumble_scale}")
-        if self.motion == "tumble" and self.position == "center":
+        if self.motion in CORNER_MOTIONS and self.position == "center":
             raise SpecError("a tumbling mark lives in a corner: position must not be 'center'")
         if not isinstance(self.mark_text, str) or not isinstance(self.mark_image, str):
             raise SpecError("mark_text and mark_image must be strings")
@@ -205,7 +214,7 @@ class PatchSpec:
         dy = 0 if self.offset[1] == 0 else _resolve_length(abs(self.offset[1]), width)
         if size > width or size > height:
             raise SpecError(f"patch of {size} px does not fit a {width}x{height} image")
-        if self.motion == "tumble":
+        if self.motion in CORNER_MOTIONS:
             return self._resolve_tumble(width, height, size, block, image_key, index)
         mx, my = self._motion_offset(width, image_key, index)
         if self.position == "center":
@@ -255,7 +264,8 @@ class PatchSpec:
             )
         if index is None:
             index = image_index(image_key) if image_key is not None else 0
-        angle, scale, fx, fy = tumble_pose(index, self.seed, self.tumble_scale)
+        pose = spin_pose if self.motion == "spin" else tumble_pose
+        angle, scale, fx, fy = pose(index, self.seed, self.tumble_scale)
         size = tumble_extent(texture, scale, angle)
         dx, dy = int(round(fx * (rw - size))), int(round(fy * (rh - size)))
         x = dx if self.position.endswith("left") else width - size - dx
@@ -278,7 +288,7 @@ class PatchSpec:
     @property
     def moves(self) -> bool:
         """Whether the placement depends on the image (its file name)."""
-        return self.motion == "tumble" or (self.motion != "static" and self.motion_step != 0)
+        return self.motion in CORNER_MOTIONS or (self.motion != "static" and self.motion_step != 0)
 
     # ---- poisoning ratio ------------------------------------------------------------------
     def selects(self, image_key: str) -> bool:
