@@ -344,8 +344,11 @@ def write_markdown() -> None:
             f"| {_cell(p.get('masked'))} |"
         )
     lines += ["", "Specs:", ""]
-    for r in sorted({(r["design"], json.dumps(r["spec"], sort_keys=True)) for r in rows}):
-        lines.append(f"- `{r[0]}`: {r[1]}")
+    described = {
+        (r["design"], json.dumps([r["spec"], *r.get("more_specs", [])], sort_keys=True)) for r in rows
+    }
+    for design, text in sorted(described):
+        lines.append(f"- `{design}`: {text}")
     old = RESULTS_MD.read_text() if RESULTS_MD.exists() else ""
     marker = "<!-- analysis below is kept across rewrites -->"
     tail = old[old.index(marker) :] if marker in old else marker + "\n"
