@@ -142,6 +142,28 @@ BENCH_DESIGNS: dict[str, tuple[PatchSpec, ...]] = {
     "watermark-spin-ms": (
         WATERMARK_SPEC.replace(motion="spin", pattern="multiscale_blocks", patch_size=0.085),
     ),
+    # two marks in two lanes of the corner sliding along x at different speeds, pixel-identical copies
+    # (no turn): parallel motions of different size read as parallax, not as one translation
+    "watermark-lanes": (
+        PatchSpec(
+            pattern="random_blocks",
+            patch_size=0.06,
+            block_size=0.005,
+            motion="slide",
+            motion_step=0.0075,
+            motion_span=0.14,
+        ),
+        PatchSpec(
+            pattern="random_blocks",
+            patch_size=0.06,
+            block_size=0.005,
+            motion="slide",
+            motion_step=0.015,
+            motion_span=0.14,
+            offset=(0, 0.07),
+            seed=101,
+        ),
+    ),
     # two marks with independent textures and poses: two false motions in one corner
     "watermark-twin": (
         WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.055),
@@ -158,7 +180,7 @@ def designs() -> dict[str, tuple[PatchSpec, ...]]:
 def poison(ds: Dataset, design: str, specs: tuple[PatchSpec, ...], dst: Path) -> dict[str, Any]:
     """Poison every image; the visibility figures of the set."""
     names = names_of(ds.clean)
-    is_mark = specs[0].motion in CORNER_MOTIONS
+    is_mark = specs[0].motion in (*CORNER_MOTIONS, "slide")
     masks = {n: subject_mask(ds, n) for n in names}
     if is_mark and ds.masks is not None:
         corner = choose_corner(list(masks.values()), region=specs[0].corner_region)
@@ -385,7 +407,6 @@ def main(argv: list[str] | None = None) -> None:
         run_case(ds, design, seeded, profiles, seeds)
 
 
-
 # ---- pictures ----------------------------------------------------------------------------------------------
 def pictures(
     photo: Path, mask: Path, set_masks: list[Path], out_dir: Path, display_width: int = 1920
@@ -407,10 +428,10 @@ def pictures(
     out_dir.mkdir(parents=True, exist_ok=True)
     h, w = pixels.shape[:2]
     for design, specs in designs().items():
-        keep_out = subject if specs[0].motion in CORNER_MOTIONS else None
+        keep_out = subject if specs[0].motion in (*CORNER_MOTIONS, "slide") else None
         out = pixels
         for spec in specs:
-            if spec.motion in CORNER_MOTIONS:
+            if spec.motion in (*CORNER_MOTIONS, "slide"):
                 spec = spec.replace(position=corner)
             out = apply_patch(out, spec.resolve(w, h, image_key=photo.name), keep_out)
         vis = visibility_report(pixels, out, display_width=display_width, subject_mask=subject)

@@ -18,7 +18,7 @@ import hashlib
 import math
 import re
 
-MOTIONS = ("static", "drift", "orbit", "tumble", "spin")
+MOTIONS = ("static", "drift", "orbit", "tumble", "spin", "slide")
 CORNER_MOTIONS = ("tumble", "spin")  # marks that live inside one corner region (issue 14)
 
 # spin: degrees turned and radians travelled around the region per image index. 13 deg is not a
@@ -61,12 +61,18 @@ def path_offset(motion: str, index: float, step: int, span: int) -> tuple[int, i
       Consecutive images are step*sqrt(2) px apart: a constant image translation, the signature
       of a camera turning steadily (the phantom motion).
     - orbit: around a circle of diameter span, `step` px of arc per index.
+    - slide: along the image's x axis only, `step` px per index, out and back within span. Two
+      slide marks with different steps in one corner move in parallel by different amounts: one
+      epipolar geometry (a camera translating past two planes at different depths) that no single
+      translation explains, so COLMAP's watermark test does not flag the pair (issue 14).
     """
     if motion in ("static", *CORNER_MOTIONS) or step == 0:
         return (0, 0)  # a corner mark is placed by tumble_pose / spin_pose, not along a path
     if motion == "drift":
         d = _fold(index * step, span)
         return (d, d)
+    if motion == "slide":
+        return (_fold(index * step, span), 0)
     if motion == "orbit":
         radius = span / 2.0
         if radius <= 0:
