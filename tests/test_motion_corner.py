@@ -1,4 +1,4 @@
-"""The smooth corner mark ("spin", poisoner/motion.py spin_pose) and where it lands."""
+"""Corner marks that move (poisoner/motion.py: "spin", "slide") and where they land."""
 
 from __future__ import annotations
 
@@ -47,3 +47,29 @@ def test_spinning_mark_changes_only_its_corner_on_a_real_size_image() -> None:
         assert not outside.any(), i
         assert changed.mean() <= 0.01
     assert len(boxes) > 20  # it moves: the stationary filter has nothing to remove
+
+
+def test_slide_moves_along_x_only_and_folds_back_within_its_span() -> None:
+    from poisoner.motion import path_offset
+
+    xs = [path_offset("slide", i, 6, 112)[0] for i in range(60)]
+    assert all(path_offset("slide", i, 6, 112)[1] == 0 for i in range(60))
+    assert min(xs) == 0 and max(xs) == 112
+    assert xs[1] - xs[0] == 6 and xs[20] < xs[18]  # out, then back
+
+
+def test_two_lanes_stay_apart_inside_the_corner_region() -> None:
+    """The bench's two-lane design: both marks inside the 20% x 20% corner, never overlapping."""
+    from poisoner.spec import PatchSpec
+
+    lane = PatchSpec(
+        pattern="random_blocks", patch_size=0.06, motion="slide", motion_step=0.0075, motion_span=0.14
+    )
+    other = lane.replace(motion_step=0.015, offset=(0, 0.07), seed=101)
+    for w, h in ((800, 600), (800, 800), (1024, 683)):
+        for i in range(0, 80, 3):
+            a = lane.resolve(w, h, image_key=f"{i:04d}.png").box
+            b = other.resolve(w, h, image_key=f"{i:04d}.png").box
+            for box in (a, b):
+                assert box[2] <= int(0.2 * w) and box[3] <= int(0.2 * h), (w, h, i, box)
+            assert a[3] <= b[1]  # lane a above lane b
