@@ -380,7 +380,7 @@ def write_markdown() -> None:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m bench.bench_watermark")
     ap.add_argument("--dataset", choices=["lego", "dtu", "dtu-full", "object", "fountain"])
-    ap.add_argument("--pictures", action="store_true", help="each design on dtu_scan37 000000.png only")
+    ap.add_argument("--pictures", action="store_true", help="--designs (all if none) on dtu_scan37 000000.png")
     ap.add_argument("--designs", default="", help=f"comma-separated: {', '.join(designs())}")
     ap.add_argument("--profiles", default=",".join(PROFILES), help="comma-separated; '' = visibility only")
     ap.add_argument("--seeds", default="0", help="COLMAP random seeds of the poisoned runs")
@@ -390,7 +390,8 @@ def main(argv: list[str] | None = None) -> None:
         dtu = _shared("dtu_scan37")
         out = RESULTS_MD.parent / "designs"
         masks = sorted((dtu / "mask").glob("*.png"))
-        rows = pictures(dtu / "images" / "000000.png", dtu / "mask" / "000.png", masks, out)
+        chosen = [d for d in args.designs.split(",") if d] or list(designs())
+        rows = pictures(dtu / "images" / "000000.png", dtu / "mask" / "000.png", masks, out, chosen)
         (out / "pictures.json").write_text(json.dumps(rows, indent=1) + "\n")
         return
     if not args.dataset or not args.designs:
@@ -409,7 +410,12 @@ def main(argv: list[str] | None = None) -> None:
 
 # ---- pictures ----------------------------------------------------------------------------------------------
 def pictures(
-    photo: Path, mask: Path, set_masks: list[Path], out_dir: Path, display_width: int = 1920
+    photo: Path,
+    mask: Path,
+    set_masks: list[Path],
+    out_dir: Path,
+    chosen: list[str],
+    display_width: int = 1920,
 ) -> list[dict[str, Any]]:
     """Each design on one real photo (full resolution), saved at display size (WebP q80), with FLIP figures.
 
@@ -427,7 +433,8 @@ def pictures(
     rows = []
     out_dir.mkdir(parents=True, exist_ok=True)
     h, w = pixels.shape[:2]
-    for design, specs in designs().items():
+    for design in chosen:
+        specs = designs()[design]
         keep_out = subject if specs[0].motion in (*CORNER_MOTIONS, "slide") else None
         out = pixels
         for spec in specs:
