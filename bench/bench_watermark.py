@@ -380,7 +380,7 @@ def write_markdown() -> None:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m bench.bench_watermark")
     ap.add_argument("--dataset", choices=["lego", "dtu", "dtu-full", "object", "fountain"])
-    ap.add_argument("--pictures", action="store_true", help="--designs (all if none) on dtu_scan37 000000.png")
+    ap.add_argument("--pictures", action="store_true", help="--designs (all if none) on dtu 000000.png")
     ap.add_argument("--designs", default="", help=f"comma-separated: {', '.join(designs())}")
     ap.add_argument("--profiles", default=",".join(PROFILES), help="comma-separated; '' = visibility only")
     ap.add_argument("--seeds", default="0", help="COLMAP random seeds of the poisoned runs")
