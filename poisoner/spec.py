@@ -71,7 +71,13 @@ NEW_FIELD_DEFAULTS: dict[str, Any] = {
     "tumble_scale": 0.75,
     "mark_text": "",
     "mark_image": "",
+    "lanes": 1,
 }
+
+# Lanes of a multi-lane mark: lane k sits k pitches inward (pitch = 7/6 of the mark, a gap of a
+# sixth), moves k+1 times as fast and has its own texture (seed + LANE_SEED_STEP * k).
+LANE_SEED_STEP = 101
+MAX_LANES = 3
 
 
 class SpecError(ValueError):
@@ -112,6 +118,10 @@ class PatchPlacement:
     # issue 14: the mark's shape is the creator's text or logo (poisoner/logo.py), filled with the texture
     mark_text: str = ""
     mark_image: str = ""
+    # issue 14 ("lanes"): several marks in one box; each part is (dx, dy, seed) of a lane_size px
+    # square relative to (x, y). Empty: one mark filling the box.
+    parts: tuple[tuple[int, int, int], ...] = ()
+    lane_size: int = 0
 
     @property
     def box(self) -> tuple[int, int, int, int]:
@@ -158,6 +168,9 @@ class PatchSpec:
     # shape) filled with the texture; pixels of the square outside the glyphs are left alone
     mark_text: str = ""
     mark_image: str = ""
+    # issue 14: several marks (lanes) in one corner, sliding along x at 1x, 2x, ... the step; their
+    # parallel motions of different sizes read as parallax, not as the one translation of a watermark
+    lanes: int = 1
 
     def __post_init__(self) -> None:
         if self.pattern not in PATTERNS:
@@ -189,6 +202,11 @@ class PatchSpec:
             raise SpecError("a tumbling mark lives in a corner: position must not be 'center'")
         if not isinstance(self.mark_text, str) or not isinstance(self.mark_image, str):
             raise SpecError("mark_text and mark_image must be strings")
+        lanes_ok = isinstance(self.lanes, int) and not isinstance(self.lanes, bool)
+        if not lanes_ok or not 1 <= self.lanes <= MAX_LANES:
+            raise SpecError(f"lanes must be an integer from 1 to {MAX_LANES}, got {self.lanes!r}")
+        if self.lanes > 1 and (self.motion != "slide" or self.position == "center"):
+            raise SpecError("lanes > 1 needs motion 'slide' and a corner position")
         if self.mark_text and self.mark_image:
             raise SpecError("give mark_text or mark_image, not both")
         if self.mark_text and not self.mark_text.strip():
@@ -216,6 +234,8 @@ class PatchSpec:
             raise SpecError(f"patch of {size} px does not fit a {width}x{height} image")
         if self.motion in CORNER_MOTIONS:
             return self._resolve_tumble(width, height, size, block, image_key, index)
+        if self.lanes > 1:
+            return self._resolve_lanes(width, height, size, block, (dx, dy), image_key, index)
         mx, my = self._motion_offset(width, image_key, index)
         if self.position == "center":
             x, y = (width - size) // 2 + dx + mx, (height - size) // 2 + dy + my
@@ -271,6 +291,42 @@ class PatchSpec:
         x = dx if self.position.endswith("left") else width - size - dx
         y = dy if self.position.startswith("top") else height - size - dy
         return self._placement(x, y, size, block, texture_size=texture, angle=angle, scale=scale)
+
+    def _resolve_lanes(
+        self,
+        width: int,
+        height: int,
+        size: int,
+        block: int,
+        offset: tuple[int, int],
+        image_key: str | None,
+        index: float | None,
+    ) -> PatchPlacement:
+        """Several slide marks in one square box anchored at the corner (the box's other pixels
+        are left alone: patch_coverage)."""
+        step = _resolve_length(self.motion_step, width) if self.motion_step != 0 else 0
+        span = _resolve_length(self.motion_span, width)
+        if index is None:
+            index = image_index(image_key) if image_key is not None else 0
+        pitch = round(size * 7 / 6)
+        left, top = self.position.endswith("left"), self.position.startswith("top")
+        lanes = []
+        for k in range(self.lanes):
+            mx = path_offset("slide", index, step * (k + 1), span)[0]
+            inward_y = offset[1] + k * pitch
+            x = offset[0] + mx if left else width - size - offset[0] - mx
+            y = inward_y if top else height - size - inward_y
+            lanes.append((x, y))
+        x0, y0 = min(x for x, _ in lanes), min(y for _, y in lanes)
+        x1, y1 = max(x for x, _ in lanes) + size, max(y for _, y in lanes) + size
+        side = max(x1 - x0, y1 - y0)
+        bx, by = (x0 if left else x1 - side), (y0 if top else y1 - side)
+        if bx < 0 or by < 0 or bx + side > width or by + side > height:
+            raise SpecError(f"{self.lanes} lanes of {size} px do not fit a {width}x{height} image")
+        parts = tuple(
+            (x - bx, y - by, self.seed + LANE_SEED_STEP * k) for k, (x, y) in enumerate(lanes)
+        )
+        return self._placement(bx, by, side, block, parts=parts, lane_size=size)
 
     def _motion_offset(self, width: int, image_key: str | None, index: float | None) -> tuple[int, int]:
         """Inward (dx, dy) of this image's point on the motion path (centred for "center")."""

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from poisoner.blend import apply_patch
 from poisoner.ladder import WATERMARK_SPEC
 from poisoner.motion import SPIN_DEG_PER_INDEX, spin_pose, tumble_pose
-from poisoner.placement import corner_box
+from poisoner.placement import CORNERS, corner_box
+from poisoner.spec import SpecError
 
 
 def _turn(a: float, b: float) -> float:
@@ -73,3 +75,54 @@ def test_two_lanes_stay_apart_inside_the_corner_region() -> None:
             for box in (a, b):
                 assert box[2] <= int(0.2 * w) and box[3] <= int(0.2 * h), (w, h, i, box)
             assert a[3] <= b[1]  # lane a above lane b
+
+
+def test_lanes_spec_is_the_two_mark_design_and_copies_are_pixel_identical() -> None:
+    """One spec with lanes=2 writes the same pixels as two slide specs (the bench's form), and each
+    lane's copy in one image is the same pixels as in another image, shifted along x only."""
+    from poisoner.ladder import WATERMARK_LANES_SPEC
+    from poisoner.spec import PatchSpec
+
+    first = WATERMARK_LANES_SPEC.replace(lanes=1)
+    second = first.replace(motion_step=0.015, offset=(0, 0.07), seed=101)
+    rng = np.random.default_rng(3)
+    photo = rng.integers(0, 256, (600, 800, 3), dtype=np.uint8)
+    lanes = []
+    for i in (0, 2, 10):
+        name = f"{i:06d}.png"
+        two = apply_patch(apply_patch(photo, first.resolve(800, 600, name)), second.resolve(800, 600, name))
+        one = apply_patch(photo, WATERMARK_LANES_SPEC.resolve(800, 600, name))
+        assert np.array_equal(one, two), i
+        placement = WATERMARK_LANES_SPEC.resolve(800, 600, name)
+        assert len(placement.parts) == 2 and placement.lane_size == 48
+        crops = []
+        for dx, dy, _ in placement.parts:
+            x, y = placement.x + dx, placement.y + dy
+            crops.append((x, y, one[y : y + 48, x : x + 48]))
+        lanes.append(crops)
+    for k in (0, 1):
+        (xa, ya, a), (xb, yb, b) = lanes[0][k], lanes[2][k]
+        assert np.array_equal(a, b) and ya == yb and xa != xb  # same copy, moved along x
+    shift0 = lanes[2][0][0] - lanes[0][0][0]
+    shift1 = lanes[2][1][0] - lanes[0][1][0]
+    assert shift0 != shift1  # two different translations: no single one explains the mark
+    with pytest.raises(SpecError, match="lanes"):
+        PatchSpec(lanes=2)  # static: lanes need motion 'slide'
+    with pytest.raises(SpecError, match="lanes"):
+        WATERMARK_LANES_SPEC.replace(lanes=4)
+
+
+def test_lanes_fit_every_corner_and_change_only_their_squares() -> None:
+    from poisoner.blend import patch_coverage
+    from poisoner.ladder import WATERMARK_LANES_SPEC
+
+    for corner in CORNERS:
+        spec = WATERMARK_LANES_SPEC.replace(position=corner)
+        x0, y0, x1, y1 = corner_box(corner, 800, 600, 0.2)
+        for i in range(0, 60, 5):
+            placement = spec.resolve(800, 600, image_key=f"{i:04d}.png")
+            cover = patch_coverage(placement)
+            assert cover.sum() == 2 * 48 * 48
+            ys, xs = np.nonzero(cover)
+            assert placement.x + xs.min() >= x0 and placement.x + xs.max() < x1, (corner, i)
+            assert placement.y + ys.min() >= y0 and placement.y + ys.max() < y1, (corner, i)
