@@ -237,6 +237,8 @@ def sfm(images: Path, work: Path, settings: SfmSettings, tag: str, source: str) 
     db = work / f"features-{source}-{settings.feature_key().replace(',', '_')}.db"
     model = work / f"model-{tag}"
     res = run_sfm_job(SfmJob(str(images), str(db), str(model), settings), timeout_s=1200)
+    if res.get("outcome") != "ok" and (model / "sfm.log").exists():  # keep the log of a crash
+        shutil.copy(model / "sfm.log", work / f"{tag}.log")
     shutil.rmtree(model, ignore_errors=True)
     result_file.parent.mkdir(parents=True, exist_ok=True)
     result_file.write_text(json.dumps(res))
