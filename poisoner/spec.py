@@ -78,6 +78,9 @@ NEW_FIELD_DEFAULTS: dict[str, Any] = {
 # sixth), moves k+1 times as fast and has its own texture (seed + LANE_SEED_STEP * k).
 LANE_SEED_STEP = 101
 MAX_LANES = 3
+# All lanes together change at most this fraction of the image (issue 14's budget is 1%), and they
+# stack inside corner_region of the height: on wide frames the lanes shrink instead of spilling over.
+LANES_MAX_AREA = 0.0096
 
 
 class SpecError(ValueError):
@@ -308,6 +311,7 @@ class PatchSpec:
         span = _resolve_length(self.motion_span, width)
         if index is None:
             index = image_index(image_key) if image_key is not None else 0
+        size = min(size, self._lane_cap(width, height))
         pitch = round(size * 7 / 6)
         left, top = self.position.endswith("left"), self.position.startswith("top")
         lanes = []
@@ -327,6 +331,12 @@ class PatchSpec:
             (x - bx, y - by, self.seed + LANE_SEED_STEP * k) for k, (x, y) in enumerate(lanes)
         )
         return self._placement(bx, by, side, block, parts=parts, lane_size=size)
+
+    def _lane_cap(self, width: int, height: int) -> int:
+        """Largest lane side within LANES_MAX_AREA and stacked inside corner_region of the height."""
+        by_area = math.isqrt(int(LANES_MAX_AREA / self.lanes * width * height))
+        by_height = int(int(self.corner_region * height) / (1 + 7 / 6 * (self.lanes - 1)))
+        return max(MIN_BLOCK_PX, min(by_area, by_height))
 
     def _motion_offset(self, width: int, image_key: str | None, index: float | None) -> tuple[int, int]:
         """Inward (dx, dy) of this image's point on the motion path (centred for "center")."""

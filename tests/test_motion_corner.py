@@ -126,3 +126,18 @@ def test_lanes_fit_every_corner_and_change_only_their_squares() -> None:
             ys, xs = np.nonzero(cover)
             assert placement.x + xs.min() >= x0 and placement.x + xs.max() < x1, (corner, i)
             assert placement.y + ys.min() >= y0 and placement.y + ys.max() < y1, (corner, i)
+
+
+def test_lanes_stay_within_one_percent_and_the_corner_on_every_aspect_ratio() -> None:
+    from poisoner.blend import patch_coverage
+    from poisoner.ladder import WATERMARK_LANES_SPEC
+
+    for w, h in ((800, 600), (1024, 683), (1920, 1080), (3072, 2048), (600, 800)):
+        for i in range(0, 80, 7):
+            placement = WATERMARK_LANES_SPEC.resolve(w, h, image_key=f"{i:04d}.png")
+            cover = patch_coverage(placement)
+            assert cover.sum() <= 0.01 * w * h, (w, h)
+            ys, xs = np.nonzero(cover)
+            assert placement.x + xs.max() < int(0.2 * w) and placement.y + ys.max() < int(0.2 * h), (w, h, i)
+    # the 4:3 bench frames keep the full 6% lanes (the measured design)
+    assert WATERMARK_LANES_SPEC.resolve(800, 600).lane_size == 48
