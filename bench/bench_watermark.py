@@ -99,6 +99,9 @@ def setup(name: str) -> Dataset:
                 with Image.open(src / "mask" / f"{int(p.stem):03d}.png") as m:
                     _resized(m.convert("L"), width, Image.Resampling.NEAREST).save(masks / p.name)
         return Dataset(name, clean, masks, None)
+    if name == "dtu-k":  # dtu at 800x600 with its true intrinsics given to COLMAP (calibrated path)
+        base_dtu = setup("dtu")
+        return Dataset(name, base_dtu.clean, base_dtu.masks, dtu_camera_params(800 / 1600))
     if name == "object":
         from verifier.synthetic import SyntheticOptions, render_scene
 
@@ -116,6 +119,20 @@ def setup(name: str) -> Dataset:
                     _resized(im.convert("RGB"), 1024).save(clean / p.name, quality=95)
         return Dataset(name, clean, None, None)
     raise SystemExit(f"unknown dataset {name!r}: lego, dtu, dtu-full, object or fountain")
+
+
+def dtu_camera_params(scale: float) -> str:
+    """dtu_scan37's intrinsics (mean over its views, from P = K [R | t]) scaled to the bench size,
+    as Verifier I takes them ("fx,fy,cx,cy,k1,k2,p1,p2")."""
+    import scipy.linalg
+
+    data = np.load(_shared("dtu_scan37") / "cameras_sphere.npz")
+    ks = []
+    for key in (k for k in data.files if k.startswith("world_mat_") and "inv" not in k):
+        k, _ = scipy.linalg.rq(data[key][:3, :3])
+        ks.append(np.abs(k / k[2, 2]))
+    k = np.mean(ks, axis=0) * scale
+    return f"{k[0, 0]:.2f},{k[1, 1]:.2f},{k[0, 2]:.2f},{k[1, 2]:.2f},0,0,0,0"
 
 
 def names_of(folder: Path) -> list[str]:
@@ -381,7 +398,7 @@ def write_markdown() -> None:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m bench.bench_watermark")
-    ap.add_argument("--dataset", choices=["lego", "dtu", "dtu-full", "object", "fountain"])
+    ap.add_argument("--dataset", choices=["lego", "dtu", "dtu-k", "dtu-full", "object", "fountain"])
     ap.add_argument("--pictures", action="store_true", help="--designs (all if none) on dtu 000000.png")
     ap.add_argument("--designs", default="", help=f"comma-separated: {', '.join(designs())}")
     ap.add_argument("--profiles", default=",".join(PROFILES), help="comma-separated; '' = visibility only")
