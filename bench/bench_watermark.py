@@ -99,6 +99,10 @@ def setup(name: str) -> Dataset:
                 with Image.open(src / "mask" / f"{int(p.stem):03d}.png") as m:
                     _resized(m.convert("L"), width, Image.Resampling.NEAREST).save(masks / p.name)
         return Dataset(name, clean, masks, None)
+    if name == "lego-k":  # lego with its true intrinsics (camera_angle_x of transforms_train.json)
+        meta = json.loads((_shared("nerf_synthetic_lego") / "transforms_train.json").read_text())
+        focal = 400 / np.tan(meta["camera_angle_x"] / 2)
+        return Dataset(name, setup("lego").clean, None, f"{focal:.2f},{focal:.2f},400,400,0,0,0,0")
     if name == "dtu-k":  # dtu at 800x600 with its true intrinsics given to COLMAP (calibrated path)
         base_dtu = setup("dtu")
         return Dataset(name, base_dtu.clean, base_dtu.masks, dtu_camera_params(800 / 1600))
@@ -398,7 +402,7 @@ def write_markdown() -> None:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m bench.bench_watermark")
-    ap.add_argument("--dataset", choices=["lego", "dtu", "dtu-k", "dtu-full", "object", "fountain"])
+    ap.add_argument("--dataset", choices=["lego", "lego-k", "dtu", "dtu-k", "dtu-full", "object", "fountain"])
     ap.add_argument("--pictures", action="store_true", help="--designs (all if none) on dtu 000000.png")
     ap.add_argument("--designs", default="", help=f"comma-separated: {', '.join(designs())}")
     ap.add_argument("--profiles", default=",".join(PROFILES), help="comma-separated; '' = visibility only")
