@@ -39,7 +39,7 @@ import numpy as np
 from PIL import Image  # PIL before anything that may load pycolmap
 
 from poisoner.blend import apply_patch
-from poisoner.ladder import WATERMARK_SPEC, named_specs
+from poisoner.ladder import WATERMARK_LANES_SPEC, WATERMARK_SPEC, named_specs
 from poisoner.motion import CORNER_MOTIONS
 from poisoner.placement import choose_corner
 from poisoner.spec import PatchSpec
@@ -185,6 +185,9 @@ BENCH_DESIGNS: dict[str, tuple[PatchSpec, ...]] = {
             seed=101,
         ),
     ),
+    # the lanes with blocks at b, 2b, 4b: keypoints at coarser octaves for full-size photos, where
+    # COLMAP's 8192-feature cap drops the finest scales first
+    "watermark-lanes-ms": (WATERMARK_LANES_SPEC.replace(pattern="multiscale_blocks"),),
     # two marks with independent textures and poses: two false motions in one corner
     "watermark-twin": (
         WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.055),
