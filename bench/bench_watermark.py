@@ -39,8 +39,10 @@ import numpy as np
 from PIL import Image  # PIL before anything that may load pycolmap
 
 from poisoner.blend import apply_patch
-from poisoner.ladder import named_specs
-from poisoner.spec import POSITIONS, PatchSpec
+from poisoner.ladder import WATERMARK_LANES_SPEC, WATERMARK_SPEC, named_specs
+from poisoner.motion import CORNER_MOTIONS
+from poisoner.placement import choose_corner
+from poisoner.spec import PatchSpec
 from verifier import poses as posemod
 from verifier.sfm import SfmJob, SfmSettings, profile_sfm_settings, run_sfm_job
 from verifier.verification import round_trip
@@ -97,6 +99,13 @@ def setup(name: str) -> Dataset:
                 with Image.open(src / "mask" / f"{int(p.stem):03d}.png") as m:
                     _resized(m.convert("L"), width, Image.Resampling.NEAREST).save(masks / p.name)
         return Dataset(name, clean, masks, None)
+    if name == "lego-k":  # lego with its true intrinsics (camera_angle_x of transforms_train.json)
+        meta = json.loads((_shared("nerf_synthetic_lego") / "transforms_train.json").read_text())
+        focal = 400 / np.tan(meta["camera_angle_x"] / 2)
+        return Dataset(name, setup("lego").clean, None, f"{focal:.2f},{focal:.2f},400,400,0,0,0,0")
+    if name == "dtu-k":  # dtu at 800x600 with its true intrinsics given to COLMAP (calibrated path)
+        base_dtu = setup("dtu")
+        return Dataset(name, base_dtu.clean, base_dtu.masks, dtu_camera_params(800 / 1600))
     if name == "object":
         from verifier.synthetic import SyntheticOptions, render_scene
 
@@ -116,6 +125,20 @@ def setup(name: str) -> Dataset:
     raise SystemExit(f"unknown dataset {name!r}: lego, dtu, dtu-full, object or fountain")
 
 
+def dtu_camera_params(scale: float) -> str:
+    """dtu_scan37's intrinsics (mean over its views, from P = K [R | t]) scaled to the bench size,
+    as Verifier I takes them ("fx,fy,cx,cy,k1,k2,p1,p2")."""
+    import scipy.linalg
+
+    data = np.load(_shared("dtu_scan37") / "cameras_sphere.npz")
+    ks = []
+    for key in (k for k in data.files if k.startswith("world_mat_") and "inv" not in k):
+        k, _ = scipy.linalg.rq(data[key][:3, :3])
+        ks.append(np.abs(k / k[2, 2]))
+    k = np.mean(ks, axis=0) * scale
+    return f"{k[0, 0]:.2f},{k[1, 1]:.2f},{k[0, 2]:.2f},{k[1, 2]:.2f},0,0,0,0"
+
+
 def names_of(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
 
@@ -127,28 +150,65 @@ def subject_mask(ds: Dataset, name: str) -> np.ndarray | None:
         return np.asarray(m.convert("L")) > 127
 
 
-def least_covered_corner(masks: list[np.ndarray], region: float) -> str:
-    """The corner whose region the subject covers least over all images (the mark's home)."""
-    h, w = masks[0].shape
-    rw, rh = int(region * w), int(region * h)
-    union = np.any(np.stack(masks), axis=0)
-    cover = {
-        "top-left": union[:rh, :rw].mean(),
-        "top-right": union[:rh, w - rw :].mean(),
-        "bottom-left": union[h - rh :, :rw].mean(),
-        "bottom-right": union[h - rh :, w - rw :].mean(),
-    }
-    return min((c for c in POSITIONS if c in cover), key=lambda c: cover[c])
+# Issue 14's hypotheses for a corner mark that holds on a textured scene, measured here only (the
+# product's named kinds are poisoner.ladder.named_specs). A design is one spec or several specs
+# whose marks share the corner (each tumbling on its own).
+BENCH_DESIGNS: dict[str, tuple[PatchSpec, ...]] = {
+    # the creator's text filled with the texture (poisoner/logo.py); larger square, glyphs fill ~35%
+    "watermark-text": (WATERMARK_SPEC.replace(mark_text="\u00a9 Ana 2026", patch_size=0.1),),
+    # as many corners as the 1% area budget allows, at three scales (survives the 8192-feature cap)
+    "watermark-ms-large": (WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.085),),
+    # a smooth turn and circle instead of a random pose per image (neighbouring views match the mark)
+    "watermark-spin": (WATERMARK_SPEC.replace(motion="spin"),),
+    "watermark-spin-ms": (
+        WATERMARK_SPEC.replace(motion="spin", pattern="multiscale_blocks", patch_size=0.085),
+    ),
+    # two marks in two lanes of the corner sliding along x at different speeds, pixel-identical copies
+    # (no turn): parallel motions of different size read as parallax, not as one translation
+    "watermark-lanes": (
+        PatchSpec(
+            pattern="random_blocks",
+            patch_size=0.06,
+            block_size=0.005,
+            motion="slide",
+            motion_step=0.0075,
+            motion_span=0.14,
+        ),
+        PatchSpec(
+            pattern="random_blocks",
+            patch_size=0.06,
+            block_size=0.005,
+            motion="slide",
+            motion_step=0.015,
+            motion_span=0.14,
+            offset=(0, 0.07),
+            seed=101,
+        ),
+    ),
+    # the lanes with blocks at b, 2b, 4b: keypoints at coarser octaves for full-size photos, where
+    # COLMAP's 8192-feature cap drops the finest scales first
+    "watermark-lanes-ms": (WATERMARK_LANES_SPEC.replace(pattern="multiscale_blocks"),),
+    # two marks with independent textures and poses: two false motions in one corner
+    "watermark-twin": (
+        WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.055),
+        WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.055, seed=101),
+    ),
+}
+
+
+def designs() -> dict[str, tuple[PatchSpec, ...]]:
+    return {**{k: (v,) for k, v in named_specs().items()}, **BENCH_DESIGNS}
 
 
 # ---- poisoning and visibility --------------------------------------------------------------------
-def poison(ds: Dataset, design: str, spec: PatchSpec, dst: Path) -> dict[str, Any]:
+def poison(ds: Dataset, design: str, specs: tuple[PatchSpec, ...], dst: Path) -> dict[str, Any]:
     """Poison every image; the visibility figures of the set."""
     names = names_of(ds.clean)
-    is_mark = spec.motion == "tumble"
+    is_mark = specs[0].motion in (*CORNER_MOTIONS, "slide")
     masks = {n: subject_mask(ds, n) for n in names}
     if is_mark and ds.masks is not None:
-        spec = spec.replace(position=least_covered_corner([m for m in masks.values() if m is not None], 0.2))
+        corner = choose_corner(list(masks.values()), region=specs[0].corner_region)
+        specs = tuple(s.replace(position=corner) for s in specs)
     dst.mkdir(parents=True, exist_ok=True)
     picks = {names[0], names[len(names) // 2]}
     vis: list[dict[str, Any]] = []
@@ -157,9 +217,10 @@ def poison(ds: Dataset, design: str, spec: PatchSpec, dst: Path) -> dict[str, An
         with Image.open(ds.clean / name) as im:
             pixels = np.asarray(im.convert("RGB"))
         h, w = pixels.shape[:2]
-        placement = spec.resolve(w, h, image_key=name)
         keep_out = masks[name] if is_mark else None
-        out = apply_patch(pixels, placement, keep_out)
+        out = pixels
+        for spec in specs:
+            out = apply_patch(out, spec.resolve(w, h, image_key=name), keep_out)
         diff = np.any(out != pixels, axis=2)
         areas.append(float(diff.mean()))
         ys, xs = np.nonzero(diff)
@@ -174,7 +235,7 @@ def poison(ds: Dataset, design: str, spec: PatchSpec, dst: Path) -> dict[str, An
         Image.fromarray(out).save(dst / name, **kwargs)
     worst = max(vis, key=lambda v: v["flip_p999"])
     return {
-        "position": spec.position,
+        "position": specs[0].position,
         "flip_mean": worst["flip_mean"],
         "flip_p99": worst["flip_p99"],
         "flip_p999": worst["flip_p999"],
@@ -200,6 +261,8 @@ def sfm(images: Path, work: Path, settings: SfmSettings, tag: str, source: str) 
     db = work / f"features-{source}-{settings.feature_key().replace(',', '_')}.db"
     model = work / f"model-{tag}"
     res = run_sfm_job(SfmJob(str(images), str(db), str(model), settings), timeout_s=1200)
+    if res.get("outcome") != "ok" and (model / "sfm.log").exists():  # keep the log of a crash
+        shutil.copy(model / "sfm.log", work / f"{tag}.log")
     shutil.rmtree(model, ignore_errors=True)
     result_file.parent.mkdir(parents=True, exist_ok=True)
     result_file.write_text(json.dumps(res))
@@ -249,13 +312,14 @@ def run_profiles(
 
 # ---- one case and the report ----------------------------------------------------------------------------
 def run_case(
-    ds: Dataset, design: str, spec: PatchSpec, profiles: tuple[str, ...], seeds: tuple[int, ...]
+    ds: Dataset, design: str, specs: tuple[PatchSpec, ...], profiles: tuple[str, ...], seeds: tuple[int, ...]
 ) -> None:
+    spec = specs[0]
     pois_work = WORK / ds.name / f"runs-{design}-{spec.spec_id}"
     pois = pois_work / "images"
     if not pois.exists():
         shutil.rmtree(pois_work, ignore_errors=True)
-        vis = poison(ds, design, spec, pois)
+        vis = poison(ds, design, specs, pois)
         pois_work.mkdir(parents=True, exist_ok=True)
         (pois_work / "vis.json").write_text(json.dumps(vis))
     vis = json.loads((pois_work / "vis.json").read_text())
@@ -265,6 +329,7 @@ def run_case(
         "design": design,
         "spec": spec.to_dict(),
         "spec_id": spec.spec_id,
+        "more_specs": [s.to_dict() for s in specs[1:]],
         "visibility": vis,
         "profiles": run_profiles(ds, pois, profiles, seeds, pois_work) if profiles else {},
         "when": time.strftime("%Y-%m-%d %H:%M"),
@@ -327,8 +392,11 @@ def write_markdown() -> None:
             f"| {_cell(p.get('masked'))} |"
         )
     lines += ["", "Specs:", ""]
-    for r in sorted({(r["design"], json.dumps(r["spec"], sort_keys=True)) for r in rows}):
-        lines.append(f"- `{r[0]}`: {r[1]}")
+    described = {
+        (r["design"], json.dumps([r["spec"], *r.get("more_specs", [])], sort_keys=True)) for r in rows
+    }
+    for design, text in sorted(described):
+        lines.append(f"- `{design}`: {text}")
     old = RESULTS_MD.read_text() if RESULTS_MD.exists() else ""
     marker = "<!-- analysis below is kept across rewrites -->"
     tail = old[old.index(marker) :] if marker in old else marker + "\n"
@@ -337,9 +405,9 @@ def write_markdown() -> None:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m bench.bench_watermark")
-    ap.add_argument("--dataset", choices=["lego", "dtu", "dtu-full", "object", "fountain"])
-    ap.add_argument("--pictures", action="store_true", help="each design on dtu_scan37 000000.png only")
-    ap.add_argument("--designs", default="", help=f"comma-separated: {', '.join(named_specs())}")
+    ap.add_argument("--dataset", choices=["lego", "lego-k", "dtu", "dtu-k", "dtu-full", "object", "fountain"])
+    ap.add_argument("--pictures", action="store_true", help="--designs (all if none) on dtu 000000.png")
+    ap.add_argument("--designs", default="", help=f"comma-separated: {', '.join(designs())}")
     ap.add_argument("--profiles", default=",".join(PROFILES), help="comma-separated; '' = visibility only")
     ap.add_argument("--seeds", default="0", help="COLMAP random seeds of the poisoned runs")
     ap.add_argument("--spec-seed", type=int, default=0, help="the spec's seed (texture, per-image turns)")
@@ -348,27 +416,34 @@ def main(argv: list[str] | None = None) -> None:
         dtu = _shared("dtu_scan37")
         out = RESULTS_MD.parent / "designs"
         masks = sorted((dtu / "mask").glob("*.png"))
-        rows = pictures(dtu / "images" / "000000.png", dtu / "mask" / "000.png", masks, out)
+        chosen = [d for d in args.designs.split(",") if d] or list(designs())
+        rows = pictures(dtu / "images" / "000000.png", dtu / "mask" / "000.png", masks, out, chosen)
         (out / "pictures.json").write_text(json.dumps(rows, indent=1) + "\n")
         return
     if not args.dataset or not args.designs:
         raise SystemExit("--dataset and --designs are required (or --pictures)")
-    specs = named_specs()
+    specs = designs()
     ds = setup(args.dataset)
     profiles = tuple(p for p in args.profiles.split(",") if p)
     seeds = tuple(int(s) for s in args.seeds.split(","))
     for design in args.designs.split(","):
         if design not in specs:
             raise SystemExit(f"unknown design {design!r}; choose from {', '.join(specs)}")
-        run_case(ds, design, specs[design].replace(seed=args.spec_seed), profiles, seeds)
-
+        # spec seed k shifts every mark's seed by k (texture and per-image poses)
+        seeded = tuple(s.replace(seed=s.seed + args.spec_seed) for s in specs[design])
+        run_case(ds, design, seeded, profiles, seeds)
 
 
 # ---- pictures ----------------------------------------------------------------------------------------------
 def pictures(
-    photo: Path, mask: Path, set_masks: list[Path], out_dir: Path, display_width: int = 1920
+    photo: Path,
+    mask: Path,
+    set_masks: list[Path],
+    out_dir: Path,
+    chosen: list[str],
+    display_width: int = 1920,
 ) -> list[dict[str, Any]]:
-    """Each named design on one real photo (full resolution), saved at display size, with FLIP figures.
+    """Each design on one real photo (full resolution), saved at display size (WebP q80), with FLIP figures.
 
     The watermark designs keep off this photo's subject mask and sit in the corner the subject
     covers least over the whole set (set_masks), as bench runs place them."""
@@ -380,22 +455,24 @@ def pictures(
             return np.asarray(m.convert("L")) > 127
 
     subject = load(mask)
-    corner = least_covered_corner([load(p) for p in set_masks], 0.2)
+    corner = choose_corner([load(p) for p in set_masks], region=0.2)
     rows = []
     out_dir.mkdir(parents=True, exist_ok=True)
-    for design, spec in named_specs().items():
-        keep_out = None
-        if spec.motion == "tumble":
-            spec = spec.replace(position=corner)
-            keep_out = subject
-        h, w = pixels.shape[:2]
-        out = apply_patch(pixels, spec.resolve(w, h, image_key=photo.name), keep_out)
+    h, w = pixels.shape[:2]
+    for design in chosen:
+        specs = designs()[design]
+        keep_out = subject if specs[0].motion in (*CORNER_MOTIONS, "slide") else None
+        out = pixels
+        for spec in specs:
+            if spec.motion in (*CORNER_MOTIONS, "slide"):
+                spec = spec.replace(position=corner)
+            out = apply_patch(out, spec.resolve(w, h, image_key=photo.name), keep_out)
         vis = visibility_report(pixels, out, display_width=display_width, subject_mask=subject)
         shown = Image.fromarray(out).resize(
             (display_width, round(h * display_width / w)), Image.Resampling.LANCZOS
         )
-        path = out_dir / f"design-{design}.png"
-        shown.save(path, optimize=True)
+        path = out_dir / f"design-{design}.webp"  # WebP q80 at display size: ~0.3 MB a picture
+        shown.save(path, quality=80, method=6)
         rows.append({"design": design, "file": path.name, **vis.to_dict()})
         print(f"{design}: {json.dumps(rows[-1])}", flush=True)
     return rows

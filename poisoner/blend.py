@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poisoner.logo import mark_shape
 from poisoner.patterns import pattern_levels, pattern_mask
 from poisoner.spec import PatchPlacement, PatchSpec
 
@@ -49,13 +50,32 @@ def _turned(placement: PatchPlacement) -> tuple[np.ndarray, np.ndarray]:
     inside = (u >= 0) & (u < t) & (v >= 0) & (v < t)
     ui = np.clip(np.floor(u).astype(int), 0, t - 1)
     vi = np.clip(np.floor(v).astype(int), 0, t - 1)
+    shape = mark_shape(placement.mark_text, placement.mark_image, t)
+    if shape is not None:
+        inside = inside & shape[vi, ui]
     return base[vi, ui] & inside, inside
 
 
+def _lanes(placement: PatchPlacement) -> tuple[np.ndarray, np.ndarray]:
+    """(pattern mask, coverage) on the box for a multi-lane mark: each lane its own texture square."""
+    n, t = placement.size, placement.lane_size
+    dark = np.zeros((n, n), dtype=bool)
+    cover = np.zeros((n, n), dtype=bool)
+    shape = mark_shape(placement.mark_text, placement.mark_image, t)
+    for dx, dy, seed in placement.parts:
+        dark[dy : dy + t, dx : dx + t] = pattern_mask(placement.pattern, t, placement.block, seed)
+        cover[dy : dy + t, dx : dx + t] = True if shape is None else shape
+    return dark & cover, cover
+
+
 def patch_coverage(placement: PatchPlacement) -> np.ndarray:
-    """Which pixels of the placement's box the patch changes (all of them unless it is turned)."""
+    """Which pixels of the placement's box the patch changes (all of them unless it is turned or
+    shaped as text / a logo)."""
+    if placement.parts:
+        return _lanes(placement)[1]
     if placement.texture_size == 0:
-        return np.ones((placement.size, placement.size), dtype=bool)
+        shape = mark_shape(placement.mark_text, placement.mark_image, placement.size)
+        return np.ones((placement.size, placement.size), dtype=bool) if shape is None else shape.copy()
     return _turned(placement)[1]
 
 
@@ -65,7 +85,9 @@ def patch_values(placement: PatchPlacement, max_value: int = 255) -> np.ndarray:
     For a turned mark, pixels outside it (patch_coverage False) read as bright; apply_patch leaves
     them untouched.
     """
-    if placement.texture_size == 0:
+    if placement.parts:
+        mask = _lanes(placement)[0]
+    elif placement.texture_size == 0:
         mask = pattern_mask(placement.pattern, placement.size, placement.block, placement.seed)
     else:
         mask = _turned(placement)[0]

@@ -107,6 +107,24 @@ WATERMARK_SPEC = PatchSpec(
 )
 
 
+# - "watermark-lanes": two marks of random blocks (6% of the width each) in two lanes of one corner,
+#   sliding along x at 0.75% and 1.5% of the width per image, never turned: every copy is
+#   pixel-identical to the others (SIFT matches them as well as a real object), the two motions are
+#   parallel (one epipolar geometry, like two planes at different depths) but of different sizes, so
+#   no single translation explains them (COLMAP's watermark test) and neither is stationary.
+#   The lanes reach 13% of the width inward: inside a 20% x 20% corner on 4:3, 3:2 and square
+#   frames, about 23% of the height on 16:9. bench/results/watermark.md has its measurements.
+WATERMARK_LANES_SPEC = PatchSpec(
+    pattern="random_blocks",
+    patch_size=0.06,
+    block_size=0.005,
+    motion="slide",
+    motion_step=0.0075,
+    motion_span=0.14,
+    lanes=2,
+)
+
+
 def named_specs() -> dict[str, PatchSpec]:
     """The named kinds of protection (see above); every spec is concrete."""
     return {
@@ -114,6 +132,7 @@ def named_specs() -> dict[str, PatchSpec]:
         "roaming": next(c.spec for c in candidate_ladder() if c.name == DEFAULT_DESIGN),
         "watermark": WATERMARK_SPEC,
         "watermark-multiscale": WATERMARK_SPEC.replace(pattern="multiscale_blocks"),
+        "watermark-lanes": WATERMARK_LANES_SPEC,
     }
 
 

@@ -18,7 +18,14 @@ import hashlib
 import math
 import re
 
-MOTIONS = ("static", "drift", "orbit", "tumble")
+MOTIONS = ("static", "drift", "orbit", "tumble", "spin", "slide")
+CORNER_MOTIONS = ("tumble", "spin")  # marks that live inside one corner region (issue 14)
+
+# spin: degrees turned and radians travelled around the region per image index. 13 deg is not a
+# divisor of 360 (the turn repeats only after 360 indices) and large enough that the copies in two
+# neighbouring views are no pure translation of each other (COLMAP's watermark test).
+SPIN_DEG_PER_INDEX = 13.0
+SPIN_PATH_PER_INDEX = 0.2
 FALLBACK_PERIOD = 1000  # index range for names without a trailing number
 
 _TRAILING_NUMBER = re.compile(r"(\d+)$")
@@ -54,12 +61,18 @@ def path_offset(motion: str, index: float, step: int, span: int) -> tuple[int, i
       Consecutive images are step*sqrt(2) px apart: a constant image translation, the signature
       of a camera turning steadily (the phantom motion).
     - orbit: around a circle of diameter span, `step` px of arc per index.
+    - slide: along the image's x axis only, `step` px per index, out and back within span. Two
+      slide marks with different steps in one corner move in parallel by different amounts: one
+      epipolar geometry (a camera translating past two planes at different depths) that no single
+      translation explains, so COLMAP's watermark test does not flag the pair (issue 14).
     """
-    if motion in ("static", "tumble") or step == 0:
-        return (0, 0)  # a tumbling mark is placed by tumble_pose, not along a path
+    if motion in ("static", *CORNER_MOTIONS) or step == 0:
+        return (0, 0)  # a corner mark is placed by tumble_pose / spin_pose, not along a path
     if motion == "drift":
         d = _fold(index * step, span)
         return (d, d)
+    if motion == "slide":
+        return (_fold(index * step, span), 0)
     if motion == "orbit":
         radius = span / 2.0
         if radius <= 0:
@@ -103,6 +116,21 @@ def tumble_pose(index: float, seed: int, min_scale: float) -> tuple[float, float
     turn = (a1[0] - a0[0] + 180.0) % 360.0 - 180.0
     angle = (a0[0] + t * turn) % 360.0
     return (angle, *(a0[i] + t * (a1[i] - a0[i]) for i in (1, 2, 3)))  # type: ignore[return-value]
+
+
+def spin_pose(index: float, seed: int, min_scale: float) -> tuple[float, float, float, float]:
+    """(angle, scale, fx, fy) of image `index` for a mark that turns and circles SMOOTHLY.
+
+    Why smooth (a hypothesis measured in bench/results/watermark.md): neighbouring views, the pairs
+    COLMAP leans on, then carry nearly the same copy of the mark, so its descriptors match as well
+    as a real object's, and the mark's phantom camera path is as smooth as a real one. Every
+    quantity is continuous in `index`, so a video's fractional index needs no interpolation.
+    """
+    phase = 2 * math.pi * _unit(seed, 0, "spin")
+    angle = (360.0 * _unit(seed, 0, "angle") + SPIN_DEG_PER_INDEX * index) % 360.0
+    t = SPIN_PATH_PER_INDEX * index + phase
+    scale = min_scale + (1.0 - min_scale) * (0.5 + 0.5 * math.sin(0.61 * t))
+    return angle, scale, 0.5 + 0.5 * math.cos(t), 0.5 + 0.5 * math.sin(t)
 
 
 def tumble_extent(texture: int, scale: float, angle: float) -> int:

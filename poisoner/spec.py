@@ -25,7 +25,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from poisoner.motion import MOTIONS, image_index, path_offset, tumble_extent, tumble_pose
+from poisoner.logo import LogoError, mark_shape
+from poisoner.motion import (
+    CORNER_MOTIONS,
+    MOTIONS,
+    image_index,
+    path_offset,
+    spin_pose,
+    tumble_extent,
+    tumble_pose,
+)
 
 SPEC_VERSION = 1
 
@@ -60,7 +69,18 @@ NEW_FIELD_DEFAULTS: dict[str, Any] = {
     "motion_span": 0.25,
     "corner_region": 0.2,
     "tumble_scale": 0.75,
+    "mark_text": "",
+    "mark_image": "",
+    "lanes": 1,
 }
+
+# Lanes of a multi-lane mark: lane k sits k pitches inward (pitch = 7/6 of the mark, a gap of a
+# sixth), moves k+1 times as fast and has its own texture (seed + LANE_SEED_STEP * k).
+LANE_SEED_STEP = 101
+MAX_LANES = 3
+# All lanes together change at most this fraction of the image (issue 14's budget is 1%), and they
+# stack inside corner_region of the height: on wide frames the lanes shrink instead of spilling over.
+LANES_MAX_AREA = 0.0096
 
 
 class SpecError(ValueError):
@@ -98,6 +118,13 @@ class PatchPlacement:
     texture_size: int = 0
     angle: float = 0.0
     scale: float = 1.0
+    # issue 14: the mark's shape is the creator's text or logo (poisoner/logo.py), filled with the texture
+    mark_text: str = ""
+    mark_image: str = ""
+    # issue 14 ("lanes"): several marks in one box; each part is (dx, dy, seed) of a lane_size px
+    # square relative to (x, y). Empty: one mark filling the box.
+    parts: tuple[tuple[int, int, int], ...] = ()
+    lane_size: int = 0
 
     @property
     def box(self) -> tuple[int, int, int, int]:
@@ -132,13 +159,21 @@ class PatchSpec:
     seed: int = 0
     version: int = field(default=SPEC_VERSION)
     # issue #9: a patch that moves from image to image (see poisoner/motion.py)
-    motion: str = "static"  # static | drift | orbit
+    motion: str = "static"  # static | drift | orbit | tumble | spin
     motion_step: Length = 0  # path length per image index, px or fraction of width
     motion_span: Length = 0.25  # extent of the path on each axis, px or fraction of width
-    # issue 14: motion "tumble" keeps the mark inside one corner region (this fraction of the width
-    # and of the height) and turns, scales and shifts it per image (poisoner/motion.py)
+    # issue 14: motions "tumble" (a random pose per image) and "spin" (a smooth turn and circle) keep
+    # the mark inside one corner region (this fraction of the width and of the height) and turn,
+    # scale and shift it per image (poisoner/motion.py)
     corner_region: float = 0.2
     tumble_scale: float = 0.75  # smallest per-image scale of a tumbling mark (largest: 1)
+    # issue 14: the mark is the creator's text (e.g. "© Ana 2026") or logo (a PNG whose alpha is the
+    # shape) filled with the texture; pixels of the square outside the glyphs are left alone
+    mark_text: str = ""
+    mark_image: str = ""
+    # issue 14: several marks (lanes) in one corner, sliding along x at 1x, 2x, ... the step; their
+    # parallel motions of different sizes read as parallax, not as the one translation of a watermark
+    lanes: int = 1
 
     def __post_init__(self) -> None:
         if self.pattern not in PATTERNS:
@@ -166,8 +201,19 @@ class PatchSpec:
             raise SpecError(f"corner_region must be in (0, 0.5], got {self.corner_region}")
         if not 0.0 < self.tumble_scale <= 1.0:
             raise SpecError(f"tumble_scale must be in (0, 1], got {self.tumble_scale}")
-        if self.motion == "tumble" and self.position == "center":
+        if self.motion in CORNER_MOTIONS and self.position == "center":
             raise SpecError("a tumbling mark lives in a corner: position must not be 'center'")
+        if not isinstance(self.mark_text, str) or not isinstance(self.mark_image, str):
+            raise SpecError("mark_text and mark_image must be strings")
+        lanes_ok = isinstance(self.lanes, int) and not isinstance(self.lanes, bool)
+        if not lanes_ok or not 1 <= self.lanes <= MAX_LANES:
+            raise SpecError(f"lanes must be an integer from 1 to {MAX_LANES}, got {self.lanes!r}")
+        if self.lanes > 1 and (self.motion != "slide" or self.position == "center"):
+            raise SpecError("lanes > 1 needs motion 'slide' and a corner position")
+        if self.mark_text and self.mark_image:
+            raise SpecError("give mark_text or mark_image, not both")
+        if self.mark_text and not self.mark_text.strip():
+            raise SpecError("mark_text is blank")
         object.__setattr__(self, "offset", (self.offset[0], self.offset[1]))
 
     # ---- geometry -------------------------------------------------------------------------
@@ -189,8 +235,10 @@ class PatchSpec:
         dy = 0 if self.offset[1] == 0 else _resolve_length(abs(self.offset[1]), width)
         if size > width or size > height:
             raise SpecError(f"patch of {size} px does not fit a {width}x{height} image")
-        if self.motion == "tumble":
+        if self.motion in CORNER_MOTIONS:
             return self._resolve_tumble(width, height, size, block, image_key, index)
+        if self.lanes > 1:
+            return self._resolve_lanes(width, height, size, block, (dx, dy), image_key, index)
         mx, my = self._motion_offset(width, image_key, index)
         if self.position == "center":
             x, y = (width - size) // 2 + dx + mx, (height - size) // 2 + dy + my
@@ -203,6 +251,11 @@ class PatchSpec:
         return self._placement(x, y, size, block)
 
     def _placement(self, x: int, y: int, size: int, block: int, **tumble: Any) -> PatchPlacement:
+        if self.mark_text or self.mark_image:
+            try:  # a bad logo file or unrenderable text is the spec's error, said before any pixel is written
+                mark_shape(self.mark_text, self.mark_image, tumble.get("texture_size") or size)
+            except LogoError as exc:
+                raise SpecError(str(exc)) from exc
         return PatchPlacement(
             x=x,
             y=y,
@@ -212,6 +265,8 @@ class PatchSpec:
             contrast=int(self.contrast),
             pattern=self.pattern,
             seed=self.seed,
+            mark_text=self.mark_text,
+            mark_image=self.mark_image,
             **tumble,
         )
 
@@ -232,12 +287,56 @@ class PatchSpec:
             )
         if index is None:
             index = image_index(image_key) if image_key is not None else 0
-        angle, scale, fx, fy = tumble_pose(index, self.seed, self.tumble_scale)
+        pose = spin_pose if self.motion == "spin" else tumble_pose
+        angle, scale, fx, fy = pose(index, self.seed, self.tumble_scale)
         size = tumble_extent(texture, scale, angle)
         dx, dy = int(round(fx * (rw - size))), int(round(fy * (rh - size)))
         x = dx if self.position.endswith("left") else width - size - dx
         y = dy if self.position.startswith("top") else height - size - dy
         return self._placement(x, y, size, block, texture_size=texture, angle=angle, scale=scale)
+
+    def _resolve_lanes(
+        self,
+        width: int,
+        height: int,
+        size: int,
+        block: int,
+        offset: tuple[int, int],
+        image_key: str | None,
+        index: float | None,
+    ) -> PatchPlacement:
+        """Several slide marks in one square box anchored at the corner (the box's other pixels
+        are left alone: patch_coverage)."""
+        step = _resolve_length(self.motion_step, width) if self.motion_step != 0 else 0
+        span = _resolve_length(self.motion_span, width)
+        if index is None:
+            index = image_index(image_key) if image_key is not None else 0
+        size = min(size, self._lane_cap(width, height))
+        pitch = round(size * 7 / 6)
+        left, top = self.position.endswith("left"), self.position.startswith("top")
+        lanes = []
+        for k in range(self.lanes):
+            mx = path_offset("slide", index, step * (k + 1), span)[0]
+            inward_y = offset[1] + k * pitch
+            x = offset[0] + mx if left else width - size - offset[0] - mx
+            y = inward_y if top else height - size - inward_y
+            lanes.append((x, y))
+        x0, y0 = min(x for x, _ in lanes), min(y for _, y in lanes)
+        x1, y1 = max(x for x, _ in lanes) + size, max(y for _, y in lanes) + size
+        side = max(x1 - x0, y1 - y0)
+        bx, by = (x0 if left else x1 - side), (y0 if top else y1 - side)
+        if bx < 0 or by < 0 or bx + side > width or by + side > height:
+            raise SpecError(f"{self.lanes} lanes of {size} px do not fit a {width}x{height} image")
+        parts = tuple(
+            (x - bx, y - by, self.seed + LANE_SEED_STEP * k) for k, (x, y) in enumerate(lanes)
+        )
+        return self._placement(bx, by, side, block, parts=parts, lane_size=size)
+
+    def _lane_cap(self, width: int, height: int) -> int:
+        """Largest lane side within LANES_MAX_AREA and stacked inside corner_region of the height."""
+        by_area = math.isqrt(int(LANES_MAX_AREA / self.lanes * width * height))
+        by_height = int(int(self.corner_region * height) / (1 + 7 / 6 * (self.lanes - 1)))
+        return max(MIN_BLOCK_PX, min(by_area, by_height))
 
     def _motion_offset(self, width: int, image_key: str | None, index: float | None) -> tuple[int, int]:
         """Inward (dx, dy) of this image's point on the motion path (centred for "center")."""
@@ -255,7 +354,7 @@ class PatchSpec:
     @property
     def moves(self) -> bool:
         """Whether the placement depends on the image (its file name)."""
-        return self.motion == "tumble" or (self.motion != "static" and self.motion_step != 0)
+        return self.motion in CORNER_MOTIONS or (self.motion != "static" and self.motion_step != 0)
 
     # ---- poisoning ratio ------------------------------------------------------------------
     def selects(self, image_key: str) -> bool:
