@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 from PIL import Image, ImageFilter  # PIL before anything that may load pycolmap
 
@@ -115,7 +116,6 @@ def write_variant(v: Variant, names: list[str]) -> tuple[Path, float]:
 
 def sfm_profiles(image_dir: Path, tag: str) -> dict[str, Any]:
     """Full reconstruction under default and hardened (features cached once), scored against GT."""
-    import dataclasses
 
     from verifier.poses import compare_poses, load_ground_truth, poses_from_json
     from verifier.sfm import SfmJob, SfmSettings, run_sfm_job
@@ -127,7 +127,7 @@ def sfm_profiles(image_dir: Path, tag: str) -> dict[str, Any]:
     for profile in ("default", "hardened"):
         settings = SfmSettings()
         if profile == "hardened":
-            settings = dataclasses.replace(settings, filter_stationary_matches=True, ignore_watermarks=True)
+            settings = SfmSettings(filter_stationary_matches=True, ignore_watermarks=True)
         model = WORK / f"model-{tag}-{profile}"
         shutil.rmtree(model, ignore_errors=True)
         res = run_sfm_job(SfmJob(str(image_dir), str(cache), str(model), settings), timeout_s=3000)

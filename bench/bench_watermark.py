@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 from PIL import Image  # PIL before anything that may load pycolmap
 
@@ -294,7 +295,7 @@ def run_profiles(
         pimg = profile_images(pois, profile, pois_work / "published")
         cells = []
         for seed in seeds:
-            s = settings.__class__(**{**settings.to_dict(), "random_seed": seed})
+            s = msgspec.structs.replace(settings, random_seed=seed)
             t = time.time()
             res = sfm(pimg, pois_work, s, f"{profile}@{seed}", source)
             cell: dict[str, Any] = {"seed": seed, "outcome": res.get("outcome"), "s": round(time.time() - t)}
