@@ -33,7 +33,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import msgspec
 import numpy as np
 from PIL import Image, ImageFilter  # PIL before anything that may load pycolmap
 
