@@ -42,6 +42,11 @@ _HELP = {
     "motion": "How the patch moves from image to image (static = the paper's fixed patch).",
     "motion_step": "Path length per image: pixels, fraction of the width or percent.",
     "motion_span": "Extent of the path on each axis: pixels, fraction of the width or percent.",
+    "corner_region": "Corner marks stay inside this fraction of the width and of the height.",
+    "tumble_scale": "Smallest per-image scale of a turning corner mark (largest: 1).",
+    "mark_text": "Your text as the mark's shape (e.g. '© Ana 2026'), filled with the texture.",
+    "mark_image": "A logo PNG whose alpha is the mark's shape, filled with the texture.",
+    "lanes": "Marks sliding side by side in one corner (watermark-lanes uses 2).",
 }
 
 
