@@ -444,23 +444,23 @@ def _flip_middle(data: bytes, count: int = 64) -> bytes:
     return data[:mid] + bytes(b ^ 0x5A for b in data[mid : mid + count]) + data[mid + count :]
 
 
-def build_hostile_corpus(dest: Path, outside: Path) -> list[HostileInput]:
-    """Write the hostile inputs into dest (an outbox dataset folder); `outside` receives the
-    targets of the link tricks (it must be outside the outbox). Generated, never downloaded."""
-    import numpy as np
+_Put = Callable[[str | bytes, bytes, str, str], None]
 
-    dest.mkdir(parents=True, exist_ok=True)
-    outside.mkdir(parents=True, exist_ok=True)
-    rgb = PIL.Image.fromarray(texture(5, 96))
-    good = {fmt: _image_bytes(rgb, fmt) for fmt in ("JPEG", "PNG", "WEBP", "TIFF")}
-    suffix = {"JPEG": ".jpg", "PNG": ".png", "WEBP": ".webp", "TIFF": ".tif"}
-    items: list[HostileInput] = []
+
+def _putter(dest: Path, items: list[HostileInput]) -> _Put:
+    """A writer of one hostile file into dest that records what it is and what ppd must do with it."""
 
     def put(name: str | bytes, data: bytes, what: str, expect: str) -> None:
         path = Path(os.fsdecode(os.path.join(os.fsencode(dest), os.fsencode(name))))
         path.write_bytes(data)
         items.append(HostileInput(path, what, expect))
 
+    return put
+
+
+def _put_broken_media(put: _Put, good: dict[str, bytes], outside: Path) -> None:
+    """Truncated, corrupted and empty copies of every image format and of a video."""
+    suffix = {"JPEG": ".jpg", "PNG": ".png", "WEBP": ".webp", "TIFF": ".tif"}
     clip = make_video(outside / "clip-src.mp4", seed=1).read_bytes()
     for fmt, data in [*good.items(), ("MP4", clip)]:
         ext = suffix.get(fmt, ".mp4")
@@ -468,6 +468,12 @@ def build_hostile_corpus(dest: Path, outside: Path) -> list[HostileInput]:
         put(f"truncated-header{ext}", data[:40], f"truncated {fmt} (40 bytes)", "refused")
         put(f"corrupt-middle{ext}", _flip_middle(data), f"corrupt {fmt} (64 bytes flipped)", "either")
         put(f"zero-byte{ext}", b"", f"zero-byte {fmt} name", "refused")
+
+
+def _put_odd_images(put: _Put, rgb: PIL.Image.Image) -> None:
+    """Decompression bombs and valid images in modes and layouts ppd must handle or refuse."""
+    import numpy as np
+
     put("bomb-header.png", _header_bomb_png(100_000, 100_000), "PNG header claiming 10^10 pixels", "refused")
     grey = PIL.Image.fromarray(np.zeros((10_000, 9_500), dtype=np.uint8))
     put("bomb-zlib.png", _image_bytes(grey, "PNG", compress_level=9), "95 Mpx of zeros in ~100 KB", "refused")
@@ -488,6 +494,10 @@ def build_hostile_corpus(dest: Path, outside: Path) -> list[HostileInput]:
         "animated WebP (2 frames)", "refused")  # fmt: skip
     put("multipage.tif", _image_bytes(frames[0], "TIFF", save_all=True, append_images=frames[1:]),
         "multi-page TIFF", "refused")  # fmt: skip
+
+
+def _put_metadata_impostors_and_names(put: _Put, rgb: PIL.Image.Image, good: dict[str, bytes]) -> None:
+    """Huge metadata, non-media content under media names, and hostile file names."""
     exif = rgb.getexif()
     exif[0x9286] = b"ASCII\x00\x00\x00" + b"x" * 60_000  # UserComment: APP1 near its 64 KB limit
     put("huge-exif.jpg", _image_bytes(rgb, "JPEG", exif=exif.tobytes()), "60 KB EXIF", "protected")
@@ -507,7 +517,11 @@ def build_hostile_corpus(dest: Path, outside: Path) -> list[HostileInput]:
     put("-rf.png", good["PNG"], "leading dash in the name", "protected")
     put("x" * 240 + ".jpg", good["JPEG"], "244-byte name", "protected")
 
-    # Links: never followed out of the outbox; the targets must stay byte-identical.
+
+def _put_links_and_specials(
+    dest: Path, outside: Path, good: dict[str, bytes], items: list[HostileInput]
+) -> None:
+    """Links never followed out of the outbox (their targets must stay byte-identical), a FIFO, a folder."""
     secret = outside / "secret.png"
     secret.write_bytes(good["PNG"])
     (dest / "link-out.png").symlink_to(secret)
@@ -530,6 +544,21 @@ def build_hostile_corpus(dest: Path, outside: Path) -> list[HostileInput]:
     items.append(HostileInput(dest / "fifo.jpg", "FIFO named .jpg (opening it would block)", "left"))
     (dest / "folder.png").mkdir()
     items.append(HostileInput(dest / "folder.png", "folder named .png", "left"))
+
+
+def build_hostile_corpus(dest: Path, outside: Path) -> list[HostileInput]:
+    """Write the hostile inputs into dest (an outbox dataset folder); `outside` receives the
+    targets of the link tricks (it must be outside the outbox). Generated, never downloaded."""
+    dest.mkdir(parents=True, exist_ok=True)
+    outside.mkdir(parents=True, exist_ok=True)
+    rgb = PIL.Image.fromarray(texture(5, 96))
+    good = {fmt: _image_bytes(rgb, fmt) for fmt in ("JPEG", "PNG", "WEBP", "TIFF")}
+    items: list[HostileInput] = []
+    put = _putter(dest, items)
+    _put_broken_media(put, good, outside)
+    _put_odd_images(put, rgb)
+    _put_metadata_impostors_and_names(put, rgb, good)
+    _put_links_and_specials(dest, outside, good, items)
     return items
 
 
