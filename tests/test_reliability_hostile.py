@@ -27,6 +27,7 @@ from reliability_harness import (
 )
 
 import daemon.pipeline
+from daemon.paths import AppPaths
 from daemon.protect import AppContext, ProtectOutcome, protect_file
 from daemon.states import FileState
 from daemon.store import Store
@@ -91,35 +92,41 @@ def test_hostile_corpus_through_protect_file(ctx: AppContext, tmp_path: Path) ->
     assert len(items) >= 50
 
 
-def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
-    paths = app_paths(tmp_path)
-    daemon = start_daemon(tmp_path, *DAEMON_ARGS)
-    outside = tmp_path / "outside"
-    try:
-        staged = build_hostile_corpus(tmp_path / "stage" / "hostile", outside)
-        before_staged = {item.path: _fingerprint(item.path) for item in staged}
-        outside_before = _outside_fingerprints(outside)
-        os.rename(tmp_path / "stage" / "hostile", paths.outbox / "hostile")  # moved in as one folder
-        moved = [paths.outbox / i.path.relative_to(tmp_path / "stage") for i in staged]
-        items = [dataclasses.replace(i, path=p) for i, p in zip(staged, moved, strict=True)]
-        before = {item.path: before_staged[old.path] for item, old in zip(items, staged, strict=True)}
-        expected_rows = [i for i in items if i.expect != "left"]
-        store = Store(paths.db_path)
+def _move_corpus_into_outbox(
+    tmp_path: Path, paths: AppPaths, outside: Path
+) -> tuple[list[HostileInput], dict[Path, str | None], dict[Path, str | None]]:
+    """Build the corpus in a staging folder and move it into the outbox as one folder; returns the
+    items at their outbox paths, their fingerprints and those of the files outside."""
+    staged = build_hostile_corpus(tmp_path / "stage" / "hostile", outside)
+    before_staged = {item.path: _fingerprint(item.path) for item in staged}
+    outside_before = _outside_fingerprints(outside)
+    os.rename(tmp_path / "stage" / "hostile", paths.outbox / "hostile")  # moved in as one folder
+    moved = [paths.outbox / i.path.relative_to(tmp_path / "stage") for i in staged]
+    items = [dataclasses.replace(i, path=p) for i, p in zip(staged, moved, strict=True)]
+    before = {item.path: before_staged[old.path] for item, old in zip(items, staged, strict=True)}
+    return items, before, outside_before
 
-        def all_decided() -> bool:
-            rows = {r["path"]: r["state"] for r in store.files("hostile")}
-            decided = (FileState.PATCHED, FileState.FAILED, FileState.QUARANTINED)
-            return all(rows.get(str(i.path)) in decided for i in expected_rows)
 
-        wait_for(all_decided, 120, "every hostile input protected or refused")
-        assert daemon.proc.poll() is None, "the daemon died"
-        rows = {r["path"]: r for r in store.files("hostile")}
-        store.close()
-    finally:
-        code = kill_daemon(daemon, signal.SIGTERM)
-    assert code == 0
+def _wait_until_all_decided(store: Store, items: list[HostileInput]) -> None:
+    expected_rows = [i for i in items if i.expect != "left"]
+
+    def all_decided() -> bool:
+        rows = {r["path"]: r["state"] for r in store.files("hostile")}
+        decided = (FileState.PATCHED, FileState.FAILED, FileState.QUARANTINED)
+        return all(rows.get(str(i.path)) in decided for i in expected_rows)
+
+    wait_for(all_decided, 120, "every hostile input protected or refused")
+
+
+def _daemon_problems(
+    paths: AppPaths,
+    quarantine: Path,
+    items: list[HostileInput],
+    rows: dict[str, dict],
+    before: dict[Path, str | None],
+) -> list[str]:
+    """What the daemon did wrong with each hostile input (empty when every outcome is acceptable)."""
     problems = []
-    quarantine = tmp_path / "ppd-quarantine"  # the default: next to the outbox
 
     def quarantined(path: Path) -> Path:
         return quarantine / path.relative_to(paths.outbox)
@@ -145,6 +152,25 @@ def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
             item, state = dataclasses.replace(item, path=quarantined(item.path)), FileState.FAILED
         if (problem := _judge(item, before[moved_from(item)], state, row["error"])) is not None:
             problems.append(problem)
+    return problems
+
+
+def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
+    paths = app_paths(tmp_path)
+    daemon = start_daemon(tmp_path, *DAEMON_ARGS)
+    outside = tmp_path / "outside"
+    try:
+        items, before, outside_before = _move_corpus_into_outbox(tmp_path, paths, outside)
+        store = Store(paths.db_path)
+        _wait_until_all_decided(store, items)
+        assert daemon.proc.poll() is None, "the daemon died"
+        rows = {r["path"]: r for r in store.files("hostile")}
+        store.close()
+    finally:
+        code = kill_daemon(daemon, signal.SIGTERM)
+    assert code == 0
+    quarantine = tmp_path / "ppd-quarantine"  # the default: next to the outbox
+    problems = _daemon_problems(paths, quarantine, items, rows, before)
     assert problems == []
     assert _outside_fingerprints(outside) == outside_before
     log = daemon.log.read_text(errors="replace")
