@@ -105,6 +105,73 @@ def audit(root: Path, originals: dict[Path, str], folder: Path) -> dict[str, lis
 
 
 # ---- SIGKILL loop on `ppd poison` -----------------------------------------------------------------
+def _add_trial_files(root: Path, rng: random.Random, trial: int, per_kill: int, video_every: int,
+                     originals: dict[Path, str], figures: Counter[str]) -> list[str]:  # fmt: skip
+    """Stage this trial's photos (and video) and move each into the folder; returns their names."""
+    folder = root / "photos" / "trip"
+    stage = root / "stage"
+    names = [f"k{trial:03d}-{i}{rng.choice(('.png', '.jpg'))}" for i in range(per_kill)]
+    if video_every and trial % video_every == 0:
+        names.append(f"k{trial:03d}-clip.mp4")
+    for i, name in enumerate(names):
+        src = stage / name
+        if name.endswith(".mp4"):
+            stage.mkdir(parents=True, exist_ok=True)
+            make_video(src, seed=trial * 100 + i, frames=20)  # 1 s at 20 fps
+            figures["videos"] += 1
+        else:
+            write_photo(src, trial * 100 + i)
+        originals[folder / name] = sha256(src)
+        folder.mkdir(parents=True, exist_ok=True)
+        os.rename(src, folder / name)
+    return names
+
+
+def _kill_at_random(proc: subprocess.Popen, rng: random.Random, window: tuple[float, float],
+                    full_runs: list[float], figures: Counter[str]) -> None:  # fmt: skip
+    delay = rng.uniform(*(w * statistics.median(full_runs) for w in window))
+    try:
+        proc.wait(delay)
+        figures["finished before the kill"] += 1
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+        figures["kills"] += 1
+
+
+def _count_kill_state(root: Path, folder: Path, names: list[str], originals: dict[Path, str],
+                      figures: Counter[str]) -> None:  # fmt: skip
+    """Count what the kill interrupted: temporaries, a half-patched trial, pending rows."""
+    paths = app_paths(root)
+    figures["kills that left a .ppd-tmp-*"] += bool(leftovers(folder))
+    done_now = sum(sha256(folder / n) != originals[folder / n] for n in names)
+    partial = 0 < done_now < len(names)
+    figures["kills after some of the trial's files were patched, before others"] += partial
+    store = Store(paths.db_path)
+    try:
+        pending = any(r["state"] == "pending" for ds in store.datasets() for r in store.files(ds["name"]))
+    finally:
+        store.close()
+    figures["kills that left a pending row"] += pending
+    figures["kills in the middle of work (pending row, temporary, or part done)"] += (
+        pending or partial or bool(leftovers(folder)))
+
+
+def _recover_and_audit(root: Path, folder: Path, trial: int, originals: dict[Path, str],
+                       figures: Counter[str], findings: list[str]) -> None:  # fmt: skip
+    """Check no original was lost by the kill, run `ppd poison` again to completion, audit the folder."""
+    after_kill = [v for v in check_invariants(app_paths(root), originals) if v.startswith("lost")]
+    findings += [f"trial {trial} after kill: {v}" for v in after_kill]
+    rerun = _ppd(root, "poison", str(folder))
+    code = rerun.wait(300)
+    if code != 0:
+        findings.append(f"trial {trial}: next run exit {code}")
+    result = audit(root, originals, folder)
+    for key, items in result.items():
+        figures[key] += len(items)
+        findings += [f"trial {trial} {key}: {v}" for v in items[:3]]
+
+
 def poison_loop(root: Path, kills: int, seed: int, per_kill: int, video_every: int,
                 window: tuple[float, float] = (0.0, 1.2)) -> dict[str, object]:  # fmt: skip
     """Each trial adds `per_kill` photos (and a 1 s video every `video_every`-th trial) to one
@@ -114,7 +181,6 @@ def poison_loop(root: Path, kills: int, seed: int, per_kill: int, video_every: i
     to completion and audits the folder."""
     rng = random.Random(seed)
     folder = root / "photos" / "trip"
-    stage = root / "stage"
     originals: dict[Path, str] = {}
     full_runs: list[float] = []  # runs of a whole trial's files, never killed (every 10th trial)
     figures: Counter[str] = Counter()
@@ -123,57 +189,16 @@ def poison_loop(root: Path, kills: int, seed: int, per_kill: int, video_every: i
     trial = -1
     while figures["kills"] < kills and trial < 3 * kills:
         trial += 1
-        names = [f"k{trial:03d}-{i}{rng.choice(('.png', '.jpg'))}" for i in range(per_kill)]
-        if video_every and trial % video_every == 0:
-            names.append(f"k{trial:03d}-clip.mp4")
-        for i, name in enumerate(names):
-            src = stage / name
-            if name.endswith(".mp4"):
-                stage.mkdir(parents=True, exist_ok=True)
-                make_video(src, seed=trial * 100 + i, frames=20)  # 1 s at 20 fps
-                figures["videos"] += 1
-            else:
-                write_photo(src, trial * 100 + i)
-            originals[folder / name] = sha256(src)
-            folder.mkdir(parents=True, exist_ok=True)
-            os.rename(src, folder / name)
+        names = _add_trial_files(root, rng, trial, per_kill, video_every, originals, figures)
         t0 = time.monotonic()
         proc = _ppd(root, "poison", str(folder))
         if trial % 10 == 0:  # calibrate: the time a whole trial's run takes now, on this machine
             proc.wait(300)
             full_runs.append(time.monotonic() - t0)
             continue
-        delay = rng.uniform(*(w * statistics.median(full_runs) for w in window))
-        try:
-            proc.wait(delay)
-            figures["finished before the kill"] += 1
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-            figures["kills"] += 1
-        paths = app_paths(root)
-        figures["kills that left a .ppd-tmp-*"] += bool(leftovers(folder))
-        done_now = sum(sha256(folder / n) != originals[folder / n] for n in names)
-        partial = 0 < done_now < len(names)
-        figures["kills after some of the trial's files were patched, before others"] += partial
-        store = Store(paths.db_path)
-        try:
-            pending = any(r["state"] == "pending" for ds in store.datasets() for r in store.files(ds["name"]))
-        finally:
-            store.close()
-        figures["kills that left a pending row"] += pending
-        figures["kills in the middle of work (pending row, temporary, or part done)"] += (
-            pending or partial or bool(leftovers(folder)))
-        after_kill = [v for v in check_invariants(paths, originals) if v.startswith("lost")]
-        findings += [f"trial {trial} after kill: {v}" for v in after_kill]
-        rerun = _ppd(root, "poison", str(folder))
-        code = rerun.wait(300)
-        if code != 0:
-            findings.append(f"trial {trial}: next run exit {code}")
-        result = audit(root, originals, folder)
-        for key, items in result.items():
-            figures[key] += len(items)
-            findings += [f"trial {trial} {key}: {v}" for v in items[:3]]
+        _kill_at_random(proc, rng, window, full_runs, figures)
+        _count_kill_state(root, folder, names, originals, figures)
+        _recover_and_audit(root, folder, trial, originals, figures, findings)
         if trial % 10 == 9:
             print(f"poison loop: {trial + 1} trials, {dict(figures)}, {time.monotonic() - started:.0f} s",
                   flush=True)  # fmt: skip
