@@ -32,6 +32,8 @@ from pathlib import Path
 import numpy as np
 import PIL.Image  # before anything that could load pycolmap
 
+from bench.bench_daemon import Daemon
+from daemon.paths import AppPaths
 from daemon.states import FileState
 from daemon.store import Store
 from poisoner.atomic import TEMP_PREFIX
@@ -281,6 +283,82 @@ def write_memory_corpus(folder: Path, big_png_mp: int = 0) -> list[Path]:
     return hostile + large
 
 
+def _watch_until_decided(daemon: Daemon, paths: AppPaths, names: set[str], deadline: float,
+                         rows: dict[str, dict]) -> tuple[int, dict[str, dict]]:  # fmt: skip
+    """Poll the daemon's peak RSS (VmHWM, kB) and the store's rows until every file is decided,
+    the daemon exits or the deadline passes; returns the peak and the latest rows."""
+    peak = 0
+    while daemon.proc.poll() is None and time.monotonic() < deadline:
+        with contextlib.suppress(OSError, ValueError, StopIteration):
+            status = Path(f"/proc/{daemon.pid}/status").read_text()
+            hwm = next(x for x in status.splitlines() if x.startswith("VmHWM"))
+            peak = max(peak, int(hwm.split()[1]))
+        store = Store(paths.db_path)
+        try:
+            rows = {Path(r["path"]).name: r for r in store.files("hostile")}
+        finally:
+            store.close()
+        if all(rows.get(n, {}).get("state") in DECIDED for n in names):
+            break
+        time.sleep(0.2)
+    return peak, rows
+
+
+def _supervise_in_cgroup(
+    root: Path, group: Path | None, stage: Path, names: set[str], seconds: float,
+    figures: Counter[str], peaks: list[int], exits: list[int],
+) -> dict[str, dict]:  # fmt: skip
+    """Start `ppd watch` in the cgroup, move the corpus in once, restart after any non-zero exit
+    (systemd's Restart=on-failure) until every file is decided or `seconds` pass; returns the rows."""
+    paths = app_paths(root)
+    deadline = time.monotonic() + seconds
+    moved = False
+    rows: dict[str, dict] = {}
+    while time.monotonic() < deadline:
+        daemon = start_daemon(root, *DAEMON_ARGS)
+        if group is not None:
+            (group / "cgroup.procs").write_text(str(daemon.pid))
+        figures["starts"] += 1
+        if not moved:
+            stage.rename(paths.outbox / "hostile")
+            moved = True
+        peak, rows = _watch_until_decided(daemon, paths, names, deadline, rows)
+        peaks.append(peak)
+        if daemon.proc.poll() is None:
+            exits.append(kill_daemon(daemon, signal.SIGTERM))
+            break
+        exits.append(daemon.proc.returncode)
+        kill_daemon(daemon, signal.SIGTERM)
+        time.sleep(0.1)  # systemd's RestartSec, shortened
+    return rows
+
+
+def _finished_attempts(paths: AppPaths) -> Counter[str]:
+    """Finished attempts per file name: one "patched" or "failed" event each."""
+    attempts: Counter[str] = Counter()
+    store = Store(paths.db_path)
+    try:
+        for event in store.events(limit=1_000_000):
+            if event["kind"] in ("patched", "failed"):  # one per finished attempt
+                attempts[Path(event["path"]).name] += 1
+    finally:
+        store.close()
+    return attempts
+
+
+def _cgroup_oom_kills(group: Path | None, figures: Counter[str]) -> int | None:
+    """The cgroup's OOM kill count (None without one); records its peak usage in figures."""
+    oom_kills = None
+    if group is not None:
+        with contextlib.suppress(OSError):
+            control = (group / "memory.oom_control").read_text()
+            counts = [int(x.split()[1]) for x in control.splitlines() if x.startswith("oom_kill ")]
+            oom_kills = counts[0] if counts else None
+        with contextlib.suppress(OSError):
+            figures["cgroup max_usage MB"] = int((group / "memory.max_usage_in_bytes").read_text()) >> 20
+    return oom_kills
+
+
 def memory_run(root: Path, seconds: float, limit: int, big_png_mp: int = 0) -> dict[str, object]:
     """The hostile corpus plus legitimate large files moved into `ppd watch` running in a cgroup
     with memory.limit_in_bytes = limit; a supervisor restarts it after any non-zero exit, as
@@ -298,54 +376,9 @@ def memory_run(root: Path, seconds: float, limit: int, big_png_mp: int = 0) -> d
     figures: Counter[str] = Counter()
     peaks: list[int] = []
     exits: list[int] = []
-    attempts: Counter[str] = Counter()
-    deadline = time.monotonic() + seconds
-    moved = False
-    rows: dict[str, dict] = {}
-    while time.monotonic() < deadline:
-        daemon = start_daemon(root, *DAEMON_ARGS)
-        if group is not None:
-            (group / "cgroup.procs").write_text(str(daemon.pid))
-        figures["starts"] += 1
-        if not moved:
-            stage.rename(paths.outbox / "hostile")
-            moved = True
-        peak = 0
-        while daemon.proc.poll() is None and time.monotonic() < deadline:
-            with contextlib.suppress(OSError, ValueError, StopIteration):
-                status = Path(f"/proc/{daemon.pid}/status").read_text()
-                hwm = next(x for x in status.splitlines() if x.startswith("VmHWM"))
-                peak = max(peak, int(hwm.split()[1]))
-            store = Store(paths.db_path)
-            try:
-                rows = {Path(r["path"]).name: r for r in store.files("hostile")}
-            finally:
-                store.close()
-            if all(rows.get(n, {}).get("state") in DECIDED for n in names):
-                break
-            time.sleep(0.2)
-        peaks.append(peak)
-        if daemon.proc.poll() is None:
-            exits.append(kill_daemon(daemon, signal.SIGTERM))
-            break
-        exits.append(daemon.proc.returncode)
-        kill_daemon(daemon, signal.SIGTERM)
-        time.sleep(0.1)  # systemd's RestartSec, shortened
-    store = Store(paths.db_path)
-    try:
-        for event in store.events(limit=1_000_000):
-            if event["kind"] in ("patched", "failed"):  # one per finished attempt
-                attempts[Path(event["path"]).name] += 1
-    finally:
-        store.close()
-    oom_kills = None
-    if group is not None:
-        with contextlib.suppress(OSError):
-            control = (group / "memory.oom_control").read_text()
-            counts = [int(x.split()[1]) for x in control.splitlines() if x.startswith("oom_kill ")]
-            oom_kills = counts[0] if counts else None
-        with contextlib.suppress(OSError):
-            figures["cgroup max_usage MB"] = int((group / "memory.max_usage_in_bytes").read_text()) >> 20
+    rows = _supervise_in_cgroup(root, group, stage, names, seconds, figures, peaks, exits)
+    attempts = _finished_attempts(paths)
+    oom_kills = _cgroup_oom_kills(group, figures)
     logs = "\n".join(p.read_text(errors="replace") for p in root.glob("daemon-*.log"))
     state = {n: (rows.get(n) or {}).get("state") for n in names}
     refused = {n: (rows.get(n) or {}).get("error") for n in names if state[n] in REFUSED}
