@@ -24,6 +24,7 @@ from verifier.experiment import (
     RESULTS_NAME,
     ExperimentOptions,
     ExperimentResult,
+    Setting,
     aggregate,
     build_settings,
     load_rows,
@@ -111,7 +112,7 @@ def _pct(x: float | None) -> str:
     return "—" if x is None else f"{100 * x:.0f}%"
 
 
-def main(argv: list[str] | None = None) -> None:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m bench.bench_experiment")
     ap.add_argument("--views", type=int, default=40)
     ap.add_argument("--runs", type=int, default=1)
@@ -123,35 +124,30 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--lpips-check", action="store_true", help="only print the LPIPS-variant table")
     ap.add_argument("--report-only", action="store_true", help="write experiment.md from finished rows")
     ap.add_argument("--exp-dir", type=Path, default=EXP_DIR)
-    args = ap.parse_args(argv if argv is not None else [])
-    clean, gt, _ = prepare_lego(args.views)
-    if args.lpips_check:
-        print("\n".join(lpips_variants(clean)))
-        return
-    settings = build_settings(
-        [parse_sweep(s) for s in SWEEPS], DEFAULT_BASELINES, include_clean=not args.no_clean
-    )
-    if args.only:
-        settings = [s for s in settings if s.label in args.only]
-    # splat at 200 px (SPLAT_DEFAULTS), its internal cost2 at 200 px too: the harness measures cost2 at
-    # full size itself, and LPIPS-VGG at 800 px costs ~8 s per pair in the splat child
-    splat_options = {"long_edge": 200, "iterations": 1500, "time_budget_s": args.splat_budget,
-                     "cost2_long_edge": 200}  # fmt: skip
-    options = ExperimentOptions(
-        runs=args.runs, splat=args.splat, ground_truth=gt, splat_options=splat_options
-    )
-    started = time.time()
+    return ap
+
+
+def _run_or_reload(
+    args: argparse.Namespace, clean: Path, settings: list[Setting], options: ExperimentOptions
+) -> ExperimentResult:
+    """Run the settings not done yet, or with --report-only rebuild the tables from the finished rows."""
     if args.report_only:  # tables from the rows finished so far (a sweep still running or killed)
         rows = [
             r for r in load_rows(args.exp_dir / RESULTS_NAME) if r.get("config_id") == options.config_id()
         ]
         csv_path, table_path = write_outputs(args.exp_dir, rows)
-        result = ExperimentResult(args.exp_dir, rows, 0, len(rows), 0.0, csv_path, table_path)
-    else:
-        result = run_experiment(
-            clean, args.exp_dir, settings, options, progress=lambda m: print(m, flush=True)
-        )
-    rows = [r for r in load_rows(args.exp_dir / RESULTS_NAME) if r.get("config_id") == options.config_id()]
+        return ExperimentResult(args.exp_dir, rows, 0, len(rows), 0.0, csv_path, table_path)
+    return run_experiment(clean, args.exp_dir, settings, options, progress=lambda m: print(m, flush=True))
+
+
+def _write_results_md(
+    args: argparse.Namespace,
+    argv: list[str] | None,
+    result: ExperimentResult,
+    rows: list[dict],
+    started: float,
+) -> None:
+    """Write (or with --append extend) the results page, keeping its hand-written analysis section."""
     setting_seconds = sum(float(r.get("seconds") or 0) for r in rows)
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     old = RESULTS.read_text() if RESULTS.is_file() else ""
@@ -186,6 +182,30 @@ def main(argv: list[str] | None = None) -> None:
         + "\n"
         + analysis
     )
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = _parser().parse_args(argv if argv is not None else [])
+    clean, gt, _ = prepare_lego(args.views)
+    if args.lpips_check:
+        print("\n".join(lpips_variants(clean)))
+        return
+    settings = build_settings(
+        [parse_sweep(s) for s in SWEEPS], DEFAULT_BASELINES, include_clean=not args.no_clean
+    )
+    if args.only:
+        settings = [s for s in settings if s.label in args.only]
+    # splat at 200 px (SPLAT_DEFAULTS), its internal cost2 at 200 px too: the harness measures cost2 at
+    # full size itself, and LPIPS-VGG at 800 px costs ~8 s per pair in the splat child
+    splat_options = {"long_edge": 200, "iterations": 1500, "time_budget_s": args.splat_budget,
+                     "cost2_long_edge": 200}  # fmt: skip
+    options = ExperimentOptions(
+        runs=args.runs, splat=args.splat, ground_truth=gt, splat_options=splat_options
+    )
+    started = time.time()
+    result = _run_or_reload(args, clean, settings, options)
+    rows = [r for r in load_rows(args.exp_dir / RESULTS_NAME) if r.get("config_id") == options.config_id()]
+    _write_results_md(args, argv, result, rows, started)
     print(f"wrote {RESULTS} and {result.csv_path}")
 
 
