@@ -10,8 +10,13 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from scipy import ndimage
+
+if TYPE_CHECKING:
+    import torch
 
 
 def coarse_decoys(rgb: np.ndarray, seed: int, sigma: float, amplitude: float, spacing: float) -> np.ndarray:
@@ -75,6 +80,42 @@ def masked_noise(rgb: np.ndarray, seed: int, epsilon: float, box: tuple[int, int
     return np.clip(out, 0, 255).round().astype(np.uint8)
 
 
+def _attack_in_box(
+    rgb: np.ndarray,
+    kps: np.ndarray,
+    epsilon: float,
+    steps: int,
+    patch_magnif: float,
+    seed: int,
+    log: bool,
+    box: tuple[int, int, int, int],
+    ori_sign: float,
+) -> np.ndarray:
+    """descriptor_attack on the window only, with the keypoints inside it; the rest of rgb unchanged."""
+    x0, y0, x1, y1 = box
+    inside = (kps[:, 0] >= x0) & (kps[:, 0] < x1) & (kps[:, 1] >= y0) & (kps[:, 1] < y1)
+    sub = kps[inside].copy()
+    sub[:, 0] -= x0
+    sub[:, 1] -= y0
+    out = rgb.copy()
+    out[y0:y1, x0:x1] = descriptor_attack(
+        rgb[y0:y1, x0:x1], sub, epsilon, steps, patch_magnif, seed, log, ori_sign=ori_sign
+    )
+    return out
+
+
+def _keypoint_lafs(kps: np.ndarray, patch_magnif: float, ori_sign: float) -> torch.Tensor:
+    """kornia local affine frames at the keypoints: centre, SIFT window scale, orientation in degrees."""
+    import torch
+    from kornia.feature import laf_from_center_scale_ori
+
+    centres = torch.from_numpy(kps[:, :2].copy())[None]
+    # the SIFT window is 4 bins of 3 sigma each (VLFeat magnif 3), i.e. half-width 6 sigma
+    scales = torch.from_numpy(kps[:, 2:3].copy() * patch_magnif)[None, :, :, None]
+    oris = torch.from_numpy(ori_sign * np.degrees(kps[:, 3:4]).copy())[None]
+    return laf_from_center_scale_ori(centres, scales, oris)
+
+
 def descriptor_attack(
     rgb: np.ndarray,
     kps: np.ndarray,
@@ -96,28 +137,15 @@ def descriptor_attack(
     import torch
 
     if box is not None:  # attack only this window (a sample of the image, to keep the CPU cost down)
-        x0, y0, x1, y1 = box
-        inside = (kps[:, 0] >= x0) & (kps[:, 0] < x1) & (kps[:, 1] >= y0) & (kps[:, 1] < y1)
-        sub = kps[inside].copy()
-        sub[:, 0] -= x0
-        sub[:, 1] -= y0
-        out = rgb.copy()
-        out[y0:y1, x0:x1] = descriptor_attack(
-            rgb[y0:y1, x0:x1], sub, epsilon, steps, patch_magnif, seed, log, ori_sign=ori_sign
-        )
-        return out
+        return _attack_in_box(rgb, kps, epsilon, steps, patch_magnif, seed, log, box, ori_sign)
 
-    from kornia.feature import SIFTDescriptor, extract_patches_from_pyramid, laf_from_center_scale_ori
+    from kornia.feature import SIFTDescriptor, extract_patches_from_pyramid
 
     torch.manual_seed(seed)
     gray = rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
     budget = torch.from_numpy(epsilon * texture_mask(gray))[None, None] / 255.0
     img = torch.from_numpy(gray)[None, None] / 255.0
-    centres = torch.from_numpy(kps[:, :2].copy())[None]
-    # the SIFT window is 4 bins of 3 sigma each (VLFeat magnif 3), i.e. half-width 6 sigma
-    scales = torch.from_numpy(kps[:, 2:3].copy() * patch_magnif)[None, :, :, None]
-    oris = torch.from_numpy(ori_sign * np.degrees(kps[:, 3:4]).copy())[None]
-    laf = laf_from_center_scale_ori(centres, scales, oris)
+    laf = _keypoint_lafs(kps, patch_magnif, ori_sign)
     desc = SIFTDescriptor(32, rootsift=False)
     with torch.no_grad():
         clean = desc(extract_patches_from_pyramid(img, laf, 32)[0])
