@@ -87,12 +87,8 @@ def _f(x: object, nd: int = 3) -> str:
     return "-" if x is None else (f"{x:.{nd}f}" if isinstance(x, float) else str(x))
 
 
-def write(
-    report: dict, seconds: float, timing: dict, argv: str, load_at_start: float, design: str = "paper"
-) -> None:
-    design_label, results, _ = DESIGNS[design]
-    p = report["profiles"]["default"]
-    sp = p.get("splat") or {}
+def _cost1_rows(sp: dict, design_label: str) -> list[str]:
+    """cost1 table rows: ours (clean and poisoned splats), then the paper's."""
     rows = []
     for label, side in (("ours, clean", sp.get("clean")), (f"ours, {design_label}", sp.get("poisoned"))):
         c1 = (side or {}).get("cost1") or {}
@@ -101,10 +97,15 @@ def write(
     for label in ("clean", "P=48"):
         s, ps, lp = PAPER[label]
         rows.append(f"| paper, {label} (8 scenes, 30k it) | {s} | {ps} | {lp} | 30000 | - |")
-    c2 = sp.get("cost2") or {}
+    return rows
+
+
+def _stage_lines(p: dict, seconds: float, argv: str, load_at_start: float, design_label: str) -> list[str]:
+    """Title, command, the per-stage seconds table, peak memory and the SfM verdict."""
+    sp = p.get("splat") or {}
     sfm_c, sfm_p = p["clean"].get("elapsed_s"), p["poisoned"].get("elapsed_s")
     vc = p.get("vs_clean") or {}
-    lines = [
+    return [
         f"# Full splat verification of 40 lego views: {design_label}",
         "",
         f"Command: `{argv}` (2-core machine; load average when it started: {load_at_start:.2f}; "
@@ -127,6 +128,19 @@ def write(
         f"SfM verdict (default profile): **{p['verdict']}**, poisoned cameras within 5° of clean:"
         f" {_f(vc.get('frac_within_5deg'), 2)}.",
         "",
+    ]
+
+
+def write(
+    report: dict, seconds: float, timing: dict, argv: str, load_at_start: float, design: str = "paper"
+) -> None:
+    design_label, results, _ = DESIGNS[design]
+    p = report["profiles"]["default"]
+    sp = p.get("splat") or {}
+    rows = _cost1_rows(sp, design_label)
+    c2 = sp.get("cost2") or {}
+    lines = [
+        *_stage_lines(p, seconds, argv, load_at_start, design_label),
         "## cost1: renders against their inputs at each side's own SfM poses (200 px)",
         "",
         "| | SSIM | PSNR | LPIPS | iterations | train s |",
