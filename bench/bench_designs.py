@@ -31,6 +31,7 @@ from PIL import Image  # PIL before anything that may load pycolmap
 
 from bench.bench_verify import WORK as VERIFY_WORK
 from bench.bench_verify import prepare_fountain, prepare_lego
+from bench.results_page import rewrite_keeping_analysis
 from poisoner.blend import apply_patch
 from poisoner.ladder import candidate_ladder
 from poisoner.spec import PatchSpec
@@ -331,10 +332,7 @@ def write_markdown() -> None:
         diff = {k: v for k, v in spec.items() if k != "version" and PatchSpec().to_dict().get(k, None) != v}
         note = next(r["note"] for r in rows if r["design"] == name)
         lines.append(f"- `{name}`: {json.dumps(diff)} ({note})")
-    old = RESULTS_MD.read_text() if RESULTS_MD.exists() else ""
-    marker = "<!-- analysis below is kept across rewrites -->"
-    tail = old[old.index(marker) :] if marker in old else marker + "\n"
-    RESULTS_MD.write_text("\n".join(lines) + "\n\n" + tail)
+    rewrite_keeping_analysis(RESULTS_MD, lines)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -19,6 +19,7 @@ from pathlib import Path
 from PIL import Image  # noqa: F401  (PIL before anything that may load pycolmap)
 
 from bench.bench_verify import prepare_lego
+from bench.results_page import ANALYSIS_MARKER
 from verifier.experiment import (
     DEFAULT_BASELINES,
     RESULTS_NAME,
@@ -152,7 +153,7 @@ def _write_results_md(
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     old = RESULTS.read_text() if RESULTS.is_file() else ""
     base = old.rstrip("\n") + "\n\n" if args.append and old else ""
-    marker = "<!-- analysis below is kept across rewrites -->"
+    marker = ANALYSIS_MARKER
     analysis = "" if base or marker not in old else "\n" + old[old.index(marker) :].rstrip("\n") + "\n"
     RESULTS.write_text(
         base

@@ -39,6 +39,7 @@ import msgspec
 import numpy as np
 from PIL import Image  # PIL before anything that may load pycolmap
 
+from bench.results_page import rewrite_keeping_analysis
 from poisoner.blend import apply_patch
 from poisoner.ladder import WATERMARK_LANES_SPEC, WATERMARK_SPEC, named_specs
 from poisoner.motion import CORNER_MOTIONS
@@ -398,10 +399,7 @@ def write_markdown() -> None:
     }
     for design, text in sorted(described):
         lines.append(f"- `{design}`: {text}")
-    old = RESULTS_MD.read_text() if RESULTS_MD.exists() else ""
-    marker = "<!-- analysis below is kept across rewrites -->"
-    tail = old[old.index(marker) :] if marker in old else marker + "\n"
-    RESULTS_MD.write_text("\n".join(lines) + "\n\n" + tail)
+    rewrite_keeping_analysis(RESULTS_MD, lines)
 
 
 def main(argv: list[str] | None = None) -> None:

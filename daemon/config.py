@@ -327,7 +327,7 @@ def _decode_path(kind: type, value: Any) -> Any:
 def _encode_path(value: Any) -> Any:
     if isinstance(value, Path):
         return str(value)
-    raise NotImplementedError
+    raise NotImplementedError  # msgspec's enc_hook protocol: "this type is not supported"
 
 
 def _unset_empty(table: dict[str, Any]) -> dict[str, Any]:

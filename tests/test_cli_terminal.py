@@ -25,16 +25,10 @@ from daemon.protect import AppContext
 from daemon.states import FileState, Protection, dataset_protection, protection_text
 from poisoner.ladder import default_spec, named_specs
 from poisoner.spec import PatchSpec
+from tests.test_cli_poison import make_image
 
 REPO = Path(__file__).resolve().parents[1]
 runner = CliRunner()
-
-
-def make_image(path: Path, seed: int, size: tuple[int, int] = (160, 120)) -> Path:
-    rng = np.random.default_rng(seed)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(rng.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8)).save(path)
-    return path
 
 
 @pytest.fixture
