@@ -16,7 +16,10 @@ Every key is optional; what is missing comes from the embedded defaults below. L
     enabled = true
     every_new_files = 20        # verify a dataset after this many newly protected files
     period_hours = 24.0         # ... and at least this often while it keeps changing
-    profiles = ["default", "hardened", "published"]
+    profiles = ["default", "hardened", "published", "masked"]
+                                # the headline verdict counts default, hardened and published;
+                                # masked (the attacker masks the corner regions) is reported next
+                                # to them (verifier.verdict.HEADLINE_PROFILES)
     splat = false               # also train clean/poisoned Gaussian splats (~6 more minutes per 40 views)
     splat_budget_s = 150.0      # splat training seconds per side
     keep_runs = 5               # run folders (SfM models) kept per dataset; older ones are deleted
@@ -48,6 +51,9 @@ Every key is optional; what is missing comes from the embedded defaults below. L
 
     [datasets.NAME]             # per-dataset overrides, applied when the dataset gets its spec
     publish_dir = "/srv/www/NAME"
+    subject_masks = "/data/NAME/masks"  # one mask per image (same stem; nonzero = subject): the mark
+                                # never covers a masked pixel, a corner mark takes the corner the
+                                # subject leaves free; never inside the outbox (it would be published)
     spec = "auto"               # automatic mode: the verifier picks the patch (docs/AUTO.md)
     [datasets.NAME.patch]
     position = "bottom-right"
@@ -61,6 +67,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 import re
 import tomllib
 from pathlib import Path
@@ -74,7 +81,8 @@ from poisoner.spec import PatchSpec, SpecError
 from verifier.auto_options import PreflightOptions, Profile, VisibilityBudget
 
 AUTO_SPEC = "auto"  # `spec = "auto"` in [datasets.NAME]
-_EMPTY_MEANS_UNSET = ("publish_dir", "quarantine_dir")  # folders: "" = not set (TOML has no null)
+# folders: "" = not set (TOML has no null)
+_EMPTY_MEANS_UNSET = ("publish_dir", "quarantine_dir", "subject_masks")
 _OLD_BUDGET_KEYS = ("min_ssim", "max_lpips")
 
 
@@ -125,7 +133,9 @@ class VerificationSchedule(Section, frozen=True):
     enabled: bool = True
     every_new_files: int = 20
     period_hours: float = 24.0
-    profiles: tuple[Profile, ...] = ("default", "hardened", "published")
+    # masked is run and reported; the headline verdict leaves it out (verifier.verdict.HEADLINE_PROFILES).
+    # A config that lists its profiles keeps its list.
+    profiles: tuple[Profile, ...] = ("default", "hardened", "published", "masked")
     splat: bool = False  # scheduled runs include Verifier II's splat stage
     splat_budget_s: float = 150.0
     keep_runs: int = 5  # run folders kept per dataset (daemon.verify prunes the older ones)
@@ -167,9 +177,12 @@ class DatasetOverride(Section, frozen=True, omit_defaults=True):
 
     spec: str = ""  # "auto": automatic mode picks the patch (docs/AUTO.md); "" = not automatic
     publish_dir: Path | None = None
+    subject_masks: Path | None = None  # a folder of subject masks (daemon.subject)
     patch: dict[str, Any] = {}  # fields replaced on the default spec
 
     def __post_init__(self) -> None:
+        if self.subject_masks is not None and not _readable_folder(self.subject_masks):
+            raise ConfigError(f"subject_masks: {self.subject_masks} is not a readable folder")
         if self.spec not in ("", AUTO_SPEC):
             raise ConfigError(f'spec must be "{AUTO_SPEC}" (patch fields go in the dataset\'s [patch] table)')
         if self.auto and self.patch:
@@ -287,6 +300,17 @@ class Config(msgspec.Struct, frozen=True, dict=True, forbid_unknown_fields=True)
             return strongest_spec()
         return spec_from_table(override.patch, self.spec) if override and override.patch else self.spec
 
+    def position_set(self, dataset: str) -> bool:
+        """Whether the user chose where the mark goes ([patch] or [datasets.NAME.patch] position):
+        a corner mark's corner is then theirs, not chosen per dataset (daemon.subject)."""
+        override = self.datasets.get(dataset)
+        return "position" in self.patch or bool(override and "position" in override.patch)
+
+    def subject_masks_for(self, dataset: str) -> Path | None:
+        """[datasets.NAME] subject_masks: the dataset's folder of subject masks, or None."""
+        override = self.datasets.get(dataset)
+        return override.subject_masks if override is not None else None
+
     def quarantine_dir_for(self, outbox: Path) -> Path:
         """Where the daemon moves files it cannot patch: [daemon] quarantine_dir, else a visible
         folder next to the outbox (outside it, so nothing there is published or watched)."""
@@ -308,6 +332,10 @@ class Config(msgspec.Struct, frozen=True, dict=True, forbid_unknown_fields=True)
         if not data["datasets"]:
             del data["datasets"]
         return msgspec.toml.encode(_none_as_empty(data)).decode()
+
+
+def _readable_folder(folder: Path) -> bool:
+    return folder.is_dir() and os.access(folder, os.R_OK | os.X_OK)
 
 
 def _convert(data: Any, kind: type[msgspec.Struct], where: str, path: str) -> Any:

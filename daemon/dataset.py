@@ -9,6 +9,7 @@ dataset's stored root.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -82,8 +83,34 @@ def attribute(
     return (home.name or DEFAULT_DATASET), home
 
 
-def ensure_dataset(ctx: AppContext, dataset: str, root: Path, spec: PatchSpec | None) -> PatchSpec:
-    """The dataset's one spec; a new dataset gets spec (else the config's) with its first file."""
+def ensure_dataset(
+    ctx: AppContext,
+    dataset: str,
+    root: Path,
+    spec: PatchSpec | None,
+    *,
+    sample: Callable[[], Sequence[Path]] | None = None,
+    mask_dir: Path | None = None,
+) -> PatchSpec:
+    """The dataset's one spec; a new dataset gets spec (else the config's) with its first file.
+
+    A new dataset on the config's spec whose mark is corner-bound and whose position the config
+    does not set gets its corner now (daemon.subject.place_corner over `sample()`, the files seen
+    first, and mask_dir's masks); the caller's own spec is taken as it is (`ppd poison` chose its
+    corner over all the files it was given)."""
+    from daemon.subject import place_corner, record_choice, wants_corner
+
     initial = spec or ctx.config.spec_for(dataset)
+    placed = None
+    if (
+        spec is None
+        and sample is not None
+        and wants_corner(initial, ctx.config.position_set(dataset))
+        and ctx.store.dataset_spec(dataset) is None
+    ):
+        placed = place_corner(initial, sample(), mask_dir)
+        initial = placed.spec
     _, stored = ctx.store.ensure_dataset(dataset, root, initial, ctx.config.publish_dir_for(dataset))
+    if placed is not None and stored.spec_id == initial.spec_id:  # ours won (not a concurrent first file's)
+        record_choice(ctx, dataset, placed.choice, mask_dir)
     return stored

@@ -126,7 +126,9 @@ class Job:
     progress: Progress | None = None
     wanted_spec: PatchSpec | None = None
     keep_location: bool = False
+    subject_masks: Path | None = None  # the caller's mask folder (`--subject-masks`); else the config's
     # filled by the stages
+    mask_dir: Path | None = None  # the dataset's subject masks, checked (daemon.subject)
     file: ContainedFile | None = None
     kind: str | None = None
     sha: str | None = None
@@ -202,9 +204,17 @@ def media_kind(path: Path) -> str | None:
 
 
 def poison_to(
-    kind: str, src: Path, dst: Path, spec: PatchSpec, progress: Progress | None = None, **options: Any
+    kind: str,
+    src: Path,
+    dst: Path,
+    spec: PatchSpec,
+    progress: Progress | None = None,
+    subject_masks: Path | None = None,
+    **options: Any,
 ) -> Any:
-    """Write the complete poisoned version of src to dst; never touches src."""
+    """Write the complete poisoned version of src to dst; never touches src. subject_masks: a folder
+    whose mask for src's name (daemon.subject.load_keep_out) marks pixels the mark never changes;
+    a folder without one for this image patches it without keep-out (logged)."""
     if kind == "video":
         from poisoner.video import poison_video
 
@@ -217,6 +227,12 @@ def poison_to(
     if max_pixels is not None and (Image.MAX_IMAGE_PIXELS or 0) < max_pixels:
         # Pillow's own bomb check would refuse what the user's raised [limits] allows.
         Image.MAX_IMAGE_PIXELS = max_pixels
+    if subject_masks is not None:
+        from daemon.subject import load_keep_out
+
+        keep_out = load_keep_out(Path(subject_masks), src)
+        if keep_out is not None:
+            options["keep_out"] = keep_out
     return poison_file(src, dst, spec, **options)
 
 
@@ -231,16 +247,25 @@ from daemon.pipeline import poison_to
 from poisoner.provenance import Marker
 from poisoner.spec import PatchSpec
 a = json.loads(sys.argv[1])
-poison_to(a["kind"], Path(a["src"]), Path(a["dst"]), PatchSpec.from_dict(a["spec"]),
+masks = Path(a["subject_masks"]) if a["subject_masks"] is not None else None
+poison_to(a["kind"], Path(a["src"]), Path(a["dst"]), PatchSpec.from_dict(a["spec"]), subject_masks=masks,
           marker=Marker(**a["marker"]), keep_location=a["keep_location"], **a["limits"])
 """
 
 
 def poison_isolated(
-    kind: str, src: Path, dst: Path, spec: PatchSpec, marker: Any, keep_location: bool, **limits: int
+    kind: str,
+    src: Path,
+    dst: Path,
+    spec: PatchSpec,
+    marker: Any,
+    keep_location: bool,
+    subject_masks: Path | None = None,
+    **limits: int,
 ) -> None:
     """poison_to in a child process: a file that kills its process kills only the child. A child
-    killed by a signal raises PoisonerDied; one that fails raises its last error line."""
+    killed by a signal raises PoisonerDied; one that fails raises its last error line. The mask
+    folder crosses as a path; the child loads the mask."""
     import json
     import subprocess
     import sys
@@ -249,6 +274,7 @@ def poison_isolated(
         "kind": kind, "src": os.fsdecode(src), "dst": os.fsdecode(dst), "spec": spec.to_dict(),
         "marker": {"spec_id": marker.spec_id, "original_sha256": marker.original_sha256, "tool": marker.tool},
         "keep_location": keep_location, "limits": limits,
+        "subject_masks": os.fsdecode(subject_masks) if subject_masks is not None else None,
     }  # fmt: skip
     repo = str(Path(__file__).resolve().parents[1])
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))}
@@ -400,8 +426,8 @@ def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, 
         scratch = original.with_name(f"redo{path.suffix}")
         try:
             poison_to(
-                kind, original, scratch, spec, marker=provenance_marker(spec.spec_id, original_sha),
-                keep_location=ctx.config.keep_location,
+                kind, original, scratch, spec, subject_masks=_masks_or_none(ctx, row["dataset"]),
+                marker=provenance_marker(spec.spec_id, original_sha), keep_location=ctx.config.keep_location,
             )  # fmt: skip
         except Exception:  # cannot redo it: treat the file as new content
             return False
@@ -413,6 +439,16 @@ def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, 
         mtime_ns=st.st_mtime_ns, error=None, event="recovered", detail={"from": "pending"},
     )  # fmt: skip
     return True
+
+
+def _masks_or_none(ctx: AppContext, dataset: str) -> Path | None:
+    """The config's subject masks of a dataset, or None when it has none or they cannot be used."""
+    from daemon.subject import SubjectMaskError, subject_masks_for
+
+    try:
+        return subject_masks_for(ctx, dataset)
+    except SubjectMaskError:
+        return None
 
 
 @contextlib.contextmanager
@@ -532,11 +568,7 @@ def decide(job: Job) -> ProtectOutcome | None:
     """The dataset's spec, then what ends the run before the vault: an up-to-date `--out` copy, a
     file the spec's ratio does not select (recorded 'skipped'), a dry run."""
     ctx, row, sha, out_path = job.ctx, job.row, job.sha, job.out_path
-    spec = job.spec = (
-        job.wanted_spec or ctx.store.dataset_spec(job.dataset) or ctx.config.spec_for(job.dataset)
-        if job.dry_run
-        else ensure_dataset(ctx, job.dataset, job.root, job.wanted_spec)
-    )
+    spec = job.spec = _dataset_spec(job)
     record_path = job.record_path
     if (
         out_path is not None
@@ -569,6 +601,34 @@ def decide(job: Job) -> ProtectOutcome | None:
     if job.dry_run:
         return job.outcome(Outcome.PATCHED, "would patch", original_sha256=sha, spec_id=spec.spec_id)
     return None
+
+
+def _dataset_spec(job: Job) -> PatchSpec:
+    """The dataset's subject masks (checked), then its spec: a new dataset's is set now, its corner
+    judged on this file and its neighbours (daemon.dataset.ensure_dataset)."""
+    from daemon.subject import subject_masks_for
+
+    ctx = job.ctx
+    job.mask_dir = subject_masks_for(ctx, job.dataset, job.subject_masks)
+    if job.dry_run:
+        return job.wanted_spec or ctx.store.dataset_spec(job.dataset) or ctx.config.spec_for(job.dataset)
+    return ensure_dataset(
+        ctx, job.dataset, job.root, job.wanted_spec, sample=lambda: _corner_sample(job), mask_dir=job.mask_dir
+    )
+
+
+def _corner_sample(job: Job) -> list[Path]:
+    """The files a new dataset's corner is judged on: this one, copied through its descriptor under its
+    own name (masks are found by name), and the image files next to it (daemon.subject.sibling_images)."""
+    from daemon.subject import sibling_images
+
+    assert job.file is not None
+    job.work = job.work or work_folder(job.ctx, job.held)
+    folder = job.work / "corner"
+    folder.mkdir(exist_ok=True)
+    copy = folder / job.path.name
+    copy_fd_to_path(job.file.fd, copy)
+    return [copy, *sibling_images(job.path)]
 
 
 def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
@@ -634,11 +694,11 @@ def poison(job: Job) -> ProtectOutcome | None:
     limits = {"max_pixels": job.ctx.config.max_pixels} if job.kind == "image" else {}
     if job.died_before:  # the last attempt took its process down: this one cannot
         job.report = poison_isolated(
-            job.kind, job.original, job.poisoned, job.spec, marker, job.keep_location, **limits
+            job.kind, job.original, job.poisoned, job.spec, marker, job.keep_location, job.mask_dir, **limits
         )
     else:
         job.report = poison_to(
-            job.kind, job.original, job.poisoned, job.spec, job.progress, marker=marker,
+            job.kind, job.original, job.poisoned, job.spec, job.progress, job.mask_dir, marker=marker,
             keep_location=job.keep_location, **limits,
         )  # fmt: skip
     job.poisoned_sha = sha256_file(job.poisoned)

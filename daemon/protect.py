@@ -50,6 +50,7 @@ from daemon.pipeline import (
     tool_version,
 )
 from daemon.states import FileState
+from daemon.subject import subject_masks_for
 from daemon.vault import sha256_file
 from poisoner.atomic import atomic_output
 from poisoner.spec import PatchSpec
@@ -107,16 +108,18 @@ def protect_file(
     progress: Progress | None = None,
     spec: PatchSpec | None = None,
     keep_location: bool | None = None,
+    subject_masks: Path | None = None,
 ) -> ProtectOutcome:
     """Patch one file: daemon.pipeline.STAGES, under the file's lock (daemon.locks).
 
     dataset/root: default from the outbox layout (daemon.dataset); `ppd poison FOLDER` passes
     the folder's name and the folder. out_path: write the patched copy there and leave path
     as it is. force: re-patch a file the user restored. spec: the spec a dataset without one
-    gets (default: the config's), and the one a dry run assumes. A version that replaces the file
-    while it is being patched is left in place and patched next (up to SOURCE_CHANGE_TRIES runs;
-    then the outcome asks for a requeue). Never raises for a bad file: the outcome says 'failed'
-    with a one-line reason, and nothing is lost.
+    gets (default: the config's), and the one a dry run assumes. subject_masks: the folder of
+    subject masks (`--subject-masks`; default: the dataset's [datasets.NAME] subject_masks). A
+    version that replaces the file while it is being patched is left in place and patched next (up
+    to SOURCE_CHANGE_TRIES runs; then the outcome asks for a requeue). Never raises for a bad file:
+    the outcome says 'failed' with a one-line reason, and nothing is lost.
     """
     started = time.monotonic()
     path = Path(path).absolute()
@@ -129,7 +132,7 @@ def protect_file(
     new_job = functools.partial(
         Job, path=path, ctx=ctx, dataset=dataset, root=root, anchor=anchor_for(ctx, path, root),
         out_path=out_path, dry_run=dry_run, force=force, progress=progress, wanted_spec=spec,
-        keep_location=keep,
+        keep_location=keep, subject_masks=subject_masks,
     )  # fmt: skip
     try:
         with ctx.path_lock(out_path or path):
@@ -382,8 +385,8 @@ def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: Patch
                     marker = provenance_marker(spec.spec_id, row["original_sha256"])
                     limits = {"max_pixels": ctx.config.max_pixels} if kind == "image" else {}
                     report = poison_to(
-                        kind, original, tmp, spec, marker=marker, keep_location=ctx.config.keep_location,
-                        **limits,
+                        kind, original, tmp, spec, subject_masks=subject_masks_for(ctx, dataset),
+                        marker=marker, keep_location=ctx.config.keep_location, **limits,
                     )  # fmt: skip
                     row_state, state = FileState.PATCHED, Outcome.PATCHED
                 else:

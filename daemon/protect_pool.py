@@ -53,6 +53,7 @@ class ProtectCall(msgspec.Struct, frozen=True):
     force: bool = False
     spec: PatchSpec | None = None
     keep_location: bool | None = None
+    subject_masks: Path | None = None  # a folder: the worker loads each file's mask itself
 
 
 # ---- the worker process's side -------------------------------------------------------------------
@@ -98,7 +99,7 @@ def run_call(call: ProtectCall, ctx: AppContext | None = None) -> ProtectOutcome
     assert context is not None, "open_worker was not run in this process"
     return protect_file(
         call.path, context, call.dataset, root=call.root, out_path=call.out_path, dry_run=call.dry_run,
-        force=call.force, spec=call.spec, keep_location=call.keep_location,
+        force=call.force, spec=call.spec, keep_location=call.keep_location, subject_masks=call.subject_masks,
     )  # fmt: skip
 
 
@@ -138,12 +139,14 @@ def protect_many(
     spec: PatchSpec | Mapping[str, PatchSpec] | None = None,
     keep_location: bool | None = None,
     on_outcome: Callable[[ProtectOutcome], None] | None = None,
+    subject_masks: Path | None = None,
 ) -> list[ProtectOutcome]:
     """protect_file for every (file, dataset, root, out_path) job on a bounded pool of worker
     processes; the outcomes in the order of jobs, the same bytes written as serial runs.
 
     workers: None: the config's (`workers`); never more than the files; 1: in this process.
     spec: the spec new datasets get (or a dry run assumes), one for all or one per dataset name.
+    subject_masks: a folder of subject masks for every job (default: each dataset's config).
     on_outcome: called in this process as each file finishes (a progress bar). Files whose worker
     died are run once more, one at a time, in this process: their attempt marker makes the
     poisoner run isolated in a child (a file that kills its process fails alone)."""
@@ -154,7 +157,8 @@ def protect_many(
 
     calls = [
         ProtectCall(
-            Path(f), d, Path(r), None if o is None else Path(o), dry_run, force, spec_for(d), keep_location
+            Path(f), d, Path(r), None if o is None else Path(o), dry_run, force, spec_for(d), keep_location,
+            subject_masks,
         )
         for f, d, r, o in jobs
     ]  # fmt: skip

@@ -211,6 +211,16 @@ def workers_option() -> Any:
     )
 
 
+def subject_masks_option() -> Any:
+    """`--subject-masks DIR`: one mask per image (same stem, nonzero = subject); the mark never
+    covers the subject, and a corner mark takes the corner the subject leaves free."""
+    return typer.Option(
+        None, "--subject-masks", metavar="DIR",
+        help="Subject masks, one per image (same name; white = subject): the mark stays off the subject. "
+        "[default: the dataset's subject_masks in the config]",
+    )  # fmt: skip
+
+
 def json_option(help: str = "Machine-readable output.") -> Any:
     return typer.Option(False, "--json", help=help)
 

@@ -95,29 +95,70 @@ def check_writable(jobs: list[Job], dry_run: bool) -> None:
             raise die(f"folder not writable: {out_folder}", EXIT_ENVIRONMENT)
 
 
-def apply_spec(ctx: AppContext, jobs: list[Job], options: SpecOptions, dry_run: bool) -> dict[str, PatchSpec]:
-    """The spec each dataset will use when flags were given (set on new datasets now)."""
-    from daemon.store import DatasetSpecLocked
+def dataset_masks(ctx: AppContext, jobs: list[Job], given: Path | None) -> dict[str, Path | None]:
+    """Each dataset's subject-mask folder (given, else its config's), checked before anything is
+    written: a folder that is missing, unreadable or inside the outbox is a one-line error."""
+    from daemon.subject import SubjectMaskError, subject_masks_for
+
+    masks: dict[str, Path | None] = {}
+    for job in jobs:
+        if job.dataset not in masks:
+            try:
+                masks[job.dataset] = subject_masks_for(ctx, job.dataset, given)
+            except SubjectMaskError as exc:
+                raise die(str(exc)) from None
+    return masks
+
+
+def _flag_spec(ctx: AppContext, dataset: str, options: SpecOptions) -> PatchSpec | None:
+    """The spec the flags give a dataset (on its stored or configured one); None without flags."""
     from poisoner.spec import SpecError
 
-    wanted: dict[str, PatchSpec] = {}
     if not options.given():
-        return wanted
-    for job in jobs:
-        if job.dataset in wanted:
+        return None
+    base = ctx.store.dataset_spec(dataset) or ctx.config.spec_for(dataset)
+    try:
+        return options.build(base)
+    except (SpecError, OSError, ValueError) as exc:
+        raise die(one_line(exc)) from None
+
+
+def _position_set(ctx: AppContext, dataset: str, options: SpecOptions) -> bool:
+    """Whether the user placed the mark: --position, a spec file, or the config's position."""
+    flagged = options.spec_file is not None or any(name == "position" for name, _ in options.values)
+    return flagged or ctx.config.position_set(dataset)
+
+
+def apply_spec(
+    ctx: AppContext, jobs: list[Job], options: SpecOptions, dry_run: bool, masks: dict[str, Path | None]
+) -> tuple[dict[str, PatchSpec], list[str]]:
+    """The spec each dataset will use when flags were given or its corner is chosen now (set on
+    new datasets now), and one line per dataset whose corner was chosen. A new dataset whose mark
+    is corner-bound gets the corner daemon.subject.place_corner picks over all its files given here."""
+    from daemon.store import DatasetSpecLocked
+    from daemon.subject import corner_line, place_corner, record_choice, wants_corner
+
+    wanted: dict[str, PatchSpec] = {}
+    lines: list[str] = []
+    for name in dict.fromkeys(job.dataset for job in jobs):
+        spec, choice = _flag_spec(ctx, name, options), None
+        new = ctx.store.dataset_spec(name) is None
+        base = spec or ctx.config.spec_for(name)
+        if new and wants_corner(base, _position_set(ctx, name, options)):
+            placed = place_corner(base, [job.path for job in jobs if job.dataset == name], masks.get(name))
+            spec, choice = placed.spec, placed.choice
+            lines.append(corner_line(name, choice))
+        if spec is None:
             continue
-        base = ctx.store.dataset_spec(job.dataset) or ctx.config.spec_for(job.dataset)
-        try:
-            spec = options.build(base)
-        except (SpecError, OSError, ValueError) as exc:
-            raise die(one_line(exc)) from None
-        wanted[job.dataset] = spec
+        wanted[name] = spec
         if not dry_run:
             try:
-                ctx.store.set_dataset_spec(job.dataset, spec, root=job.root)
+                ctx.store.set_dataset_spec(name, spec, root=next(j.root for j in jobs if j.dataset == name))
             except DatasetSpecLocked as exc:
                 raise die(str(exc)) from None
-    return wanted
+            if choice is not None:
+                record_choice(ctx, name, choice, masks.get(name))
+    return wanted, lines
 
 
 def output_places(jobs: list[Job]) -> list[str]:

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from daemon.cli.errors import EXIT_FAILED, die, file_reason, open_ctx
-from daemon.cli.options import SpecOptions, spec_options, workers_option
+from daemon.cli.options import SpecOptions, spec_options, subject_masks_option, workers_option
 from daemon.cli.output import console, err_console, interactive, verbosity
 
 if TYPE_CHECKING:
@@ -83,6 +83,7 @@ def run_jobs(
     dry_run: bool,
     force: bool,
     workers: int | None = None,
+    subject_masks: Path | None = None,
 ) -> list[ProtectOutcome]:
     """Every job through protect_many on `workers` processes (default: the config's). A progress
     bar only on a terminal (nothing per file unless -v, which names each file with its outcome);
@@ -102,7 +103,7 @@ def run_jobs(
 
         outcomes = protect_many(
             ctx, [(job.path, job.dataset, job.root, job.out_path) for job in jobs], workers=workers,
-            force=force, dry_run=dry_run, spec=wanted, on_outcome=finished,
+            force=force, dry_run=dry_run, spec=wanted, on_outcome=finished, subject_masks=subject_masks,
         )  # fmt: skip
     return sorted(outcomes, key=lambda o: str(o.path))
 
@@ -118,6 +119,7 @@ Examples:
   ppd poison ~/shoots/castle              patch in place
   ppd poison ~/shoots/castle --out ~/pub  patched copies in ~/pub/castle/
   ppd poison castle --design paper --dry-run
+  ppd poison dtu/image --design watermark --subject-masks dtu/mask
 """
 
 
@@ -131,6 +133,7 @@ def poison(
     dataset: str | None = typer.Option(None, "--dataset", help="Dataset name (default: the folder's)."),
     force: bool = typer.Option(False, "--force", help="Patch again files you restored."),
     workers: int | None = workers_option(),
+    subject_masks: Path | None = subject_masks_option(),
     spec_options: SpecOptions = SpecOptions(),
 ) -> None:
     from daemon.cli import planning
@@ -142,8 +145,13 @@ def poison(
             raise die("no files to patch in " + ", ".join(str(p) for p in paths))
         planning.check_dataset_roots(ctx, jobs)
         planning.check_writable(jobs, dry_run)
-        wanted = planning.apply_spec(ctx, jobs, spec_options, dry_run)
-        outcomes = run_jobs(ctx, jobs, wanted, dry_run=dry_run, force=force, workers=workers)
+        masks = planning.dataset_masks(ctx, jobs, subject_masks)
+        wanted, corner_lines = planning.apply_spec(ctx, jobs, spec_options, dry_run, masks)
+        for line in corner_lines:
+            console().print(line, markup=False)
+        outcomes = run_jobs(
+            ctx, jobs, wanted, dry_run=dry_run, force=force, workers=workers, subject_masks=subject_masks
+        )
         summary(ctx, jobs, outcomes, dry_run)
         if any(o.state == "failed" for o in outcomes):
             raise typer.Exit(EXIT_FAILED)

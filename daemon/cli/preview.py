@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from daemon.cli.errors import EXIT_ENVIRONMENT, die, one_line, open_ctx, os_error_text
-from daemon.cli.options import SpecOptions, spec_options
+from daemon.cli.options import SpecOptions, spec_options, subject_masks_option
 from daemon.cli.output import console
 
 if TYPE_CHECKING:
@@ -67,31 +67,52 @@ def _stored_pair(ctx: AppContext, file: Path, row: Any) -> tuple[Any, Any, Any, 
     return original, poisoned, placement_for(spec, original, file), orientation, labels
 
 
+def _planned_spec(
+    ctx: AppContext, file: Path, options: SpecOptions, masks: Path | None
+) -> tuple[Any, str | None]:
+    """The spec `ppd poison` would give this file, and the corner line when its corner is chosen now
+    (a new dataset's corner mark: judged on the file and its neighbours, as `ppd poison FOLDER` does)."""
+    from daemon.dataset import attribute
+    from daemon.subject import corner_line, place_corner, sibling_images, wants_corner
+
+    name, _root = attribute(ctx, file, folder=False)
+    stored = ctx.store.dataset_spec(name)
+    spec = options.build(stored or ctx.config.spec_for(name))
+    explicit = options.spec_file is not None or any(n == "position" for n, _ in options.values)
+    if stored is None and wants_corner(spec, explicit or ctx.config.position_set(name)):
+        placed = place_corner(spec, [file, *sibling_images(file)], masks)
+        return placed.spec, corner_line(name, placed.choice)
+    return spec, None
+
+
 def _planned_pair(
-    ctx: AppContext, file: Path, options: SpecOptions
+    ctx: AppContext, file: Path, options: SpecOptions, masks: Path | None
 ) -> tuple[Any, Any, Any, int | None, tuple[str, str]]:
-    """Any photo with its dataset's spec (or the flags'), patched in memory only."""
-    from daemon.dataset import dataset_of
+    """Any photo with its dataset's spec (or the flags'), patched in memory only; off the subject
+    where a mask for it exists."""
+    from daemon.subject import load_keep_out
     from poisoner.blend import apply_patch, poison_array
 
-    base = ctx.config.spec
-    if file.is_relative_to(ctx.paths.outbox.absolute()):
-        name = dataset_of(ctx.paths.outbox, file)
-        base = ctx.store.dataset_spec(name) or ctx.config.spec_for(name)
-    spec = options.build(base)
+    spec, line = _planned_spec(ctx, file, options, masks)
+    if line is not None:
+        console().print(line, markup=False)
     original, orientation = _load(file)
     if _is_video(file):  # the first frame, as poison_video patches it
         placement = placement_for(spec, original, file)
         poisoned = apply_patch(original, placement)
     else:
-        poisoned, placement = poison_array(original, spec, image_key=file.name)
+        keep_out = load_keep_out(masks, file) if masks is not None else None
+        poisoned, placement = poison_array(original, spec, image_key=file.name, keep_out=keep_out)
     labels = (f"original ({file.name})", "patched (preview, not written)")
     return original, poisoned, placement, orientation, labels
 
 
-def _render(ctx: AppContext, file: Path, options: SpecOptions) -> tuple[Any, Any, Any]:
-    """(preview picture, original, patched), both oriented as a viewer sees them."""
+def _render(
+    ctx: AppContext, file: Path, options: SpecOptions, masks: Path | None
+) -> tuple[Any, Any, Any, int | None]:
+    """(preview picture, original, patched, EXIF orientation), both oriented as a viewer sees them."""
     from daemon.states import PATCHED_VALUES
+    from poisoner.errors import ImageFormatError
     from poisoner.preview import orient, oriented_placement, render_preview
     from poisoner.spec import SpecError
 
@@ -100,16 +121,28 @@ def _render(ctx: AppContext, file: Path, options: SpecOptions) -> tuple[Any, Any
         if row is not None and row["state"] in PATCHED_VALUES and not options.given():
             original, poisoned, placement, orientation, labels = _stored_pair(ctx, file, row)
         else:
-            original, poisoned, placement, orientation, labels = _planned_pair(ctx, file, options)
+            original, poisoned, placement, orientation, labels = _planned_pair(ctx, file, options, masks)
         h, w = original.shape[:2]
         placement = oriented_placement(placement, orientation, w, h)
         original, poisoned = orient(original, orientation), orient(poisoned, orientation)
-        return render_preview(original, poisoned, placement, labels=labels), original, poisoned
-    except (SpecError, ValueError) as exc:
+        return render_preview(original, poisoned, placement, labels=labels), original, poisoned, orientation
+    except (SpecError, ValueError, ImageFormatError) as exc:
         raise die(one_line(exc)) from None
 
 
-def _visibility_line(original: Any, poisoned: Any, display_width: int) -> str:  # arrays: (H, W, C)
+def _preview_masks(ctx: AppContext, file: Path, given: Path | None) -> Path | None:
+    """The subject masks for this file's dataset (--subject-masks, else the config's), checked."""
+    from daemon.dataset import attribute
+    from daemon.subject import SubjectMaskError, subject_masks_for
+
+    try:
+        return subject_masks_for(ctx, attribute(ctx, file, folder=False)[0], given)
+    except SubjectMaskError as exc:
+        raise die(str(exc)) from None
+
+
+def _visibility_line(original: Any, poisoned: Any, display_width: int, subject: Any = None) -> str:
+    """The visibility summary (arrays (H, W, C)); with the subject's mask, whether the mark touches it."""
     from verifier.visibility import VisibilityError, visibility_report
 
     try:
@@ -117,7 +150,9 @@ def _visibility_line(original: Any, poisoned: Any, display_width: int) -> str:  
             # A picture narrower than the screen is shown at its own size, not magnified (magnifying
             # would make a JPEG re-encode's artefacts, the budget, look larger than any viewer sees them).
             width = min(display_width, original.shape[1])
-            return visibility_report(original, poisoned, display_width=width).summary()
+            figures = visibility_report(original, poisoned, display_width=width, subject_mask=subject)
+            touches = {True: "; changed pixels TOUCH the subject", False: "; no changed pixel on the subject"}
+            return figures.summary() + touches.get(figures.touches_subject, "")
     except VisibilityError as exc:
         raise die(one_line(exc)) from None
 
@@ -135,6 +170,7 @@ def preview(
     visibility: bool = typer.Option(
         True, "--visibility/--no-visibility", help="Measure how visible the mark is (FLIP; a few seconds)."
     ),
+    subject_masks: Path | None = subject_masks_option(),
 ) -> None:
     """Original and patched side by side, with a zoom on the patch, and how visible the mark is
     at display size (FLIP, next to a JPEG q85 re-encode of the same picture). A patched file is
@@ -145,6 +181,7 @@ def preview(
       ppd preview IMG_0042.jpg                   the spec this file would get
       ppd preview IMG_0042.jpg --design paper    the paper's static patch
       ppd preview clip.mp4 --out clip.png        a frame of a video
+      ppd preview image/000000.png --design watermark --subject-masks mask/
     """
     if not file.exists():
         raise die(f"{file} does not exist")
@@ -155,7 +192,8 @@ def preview(
     ctx = open_ctx()
     try:
         file = file.absolute()
-        image, original, poisoned = _render(ctx, file, spec_options)
+        masks = _preview_masks(ctx, file, subject_masks)
+        image, original, poisoned, orientation = _render(ctx, file, spec_options, masks)
         target = (out or Path.cwd() / f"{file.stem}.ppd-preview.png").absolute()
         try:
             Image.fromarray(image).save(target, format="PNG")
@@ -163,9 +201,27 @@ def preview(
             raise die(os_error_text(exc, hint_out=False), EXIT_ENVIRONMENT) from None
         console().print(f"preview written to {target}", markup=False)
         if visibility:
-            console().print(_visibility_line(original, poisoned, display_width), markup=False, soft_wrap=True)
+            subject = _oriented_mask(masks, file, orientation, original)
+            line = _visibility_line(original, poisoned, display_width, subject)
+            console().print(line, markup=False, soft_wrap=True)
     finally:
         ctx.close()
+
+
+def _oriented_mask(masks: Path | None, file: Path, orientation: int | None, shown: Any) -> Any:
+    """The file's subject mask as the preview shows the picture (oriented), or None."""
+    if masks is None or _is_video(file):
+        return None
+    import numpy as np
+
+    from daemon.subject import load_keep_out
+    from poisoner.preview import orient
+
+    mask = load_keep_out(masks, file)
+    if mask is None:
+        return None
+    mask = orient(np.asarray(mask, dtype=np.uint8) * 255, orientation)
+    return mask if mask.shape[:2] == shown.shape[:2] else None
 
 
 def register(app: typer.Typer) -> None:

@@ -1,0 +1,173 @@
+"""Subject-aware placement, the application's side: where a dataset's subject masks come from, the
+corner its corner mark takes (chosen once, when the dataset gets its spec), and the words for it.
+
+The pixels are the poisoner's (poisoner.subject: `load_subject_mask`, `dataset_corner`); this module
+decides which folder, which files and when:
+- masks: `ppd poison/preview/verify --subject-masks DIR`, else `[datasets.NAME] subject_masks`.
+  A mask folder inside the outbox is refused: its masks would be protected and published as photos.
+- corner: a corner-bound spec (`PatchSpec.corner_bound`) whose position the user did not set gets
+  the dataset's corner from `dataset_corner` over its first files and its masks; the choice is
+  stored as the spec's position (the spec is locked per dataset, so every later file gets the
+  same corner) and recorded as a `corner_chosen` event (what `ppd report` shows).
+
+Light at import (`ppd poison --help`): numpy and PIL load inside the functions that need them.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
+    from poisoner.spec import PatchSpec
+
+log = logging.getLogger(__name__)
+
+CORNER_EVENT = "corner_chosen"
+CORNER_SAMPLE = 8  # images the corner is judged on (dataset_corner's sample)
+SOURCE_WORDS = {
+    "masks": "from the subject masks: the corner the subject leaves freest",
+    "estimated": "estimated: least detail",
+    "default": "default: no masks, no estimate",
+}
+
+
+class SubjectMaskError(Exception):
+    """A subject-mask folder that cannot be used (message = one line). Not a ValueError on purpose:
+    a file that fails for it is not the file's fault (daemon.pipeline.file_is_the_cause)."""
+
+
+@dataclass(frozen=True)
+class Placed:
+    """The spec a dataset gets, and the corner choice behind it (None: no choice was made)."""
+
+    spec: PatchSpec
+    choice: Any = None  # poisoner.subject.CornerChoice
+
+
+def check_mask_folder(folder: Path, outbox: Path, what: str = "--subject-masks") -> Path:
+    """folder, absolute, when it is a readable folder outside the outbox; else SubjectMaskError."""
+    folder = Path(folder).expanduser().absolute()
+    if not folder.is_dir() or not os.access(folder, os.R_OK | os.X_OK):
+        raise SubjectMaskError(f"{what}: {folder} is not a readable folder")
+    box = Path(outbox).absolute()
+    if folder == box or folder.is_relative_to(box) or folder.resolve().is_relative_to(box.resolve()):
+        raise SubjectMaskError(
+            f"{what}: {folder} is inside the outbox {box}: its masks would be protected and published "
+            "as photos; keep subject masks outside the outbox"
+        )
+    return folder
+
+
+def subject_masks_for(ctx: AppContext, dataset: str, given: Path | None = None) -> Path | None:
+    """The dataset's mask folder: given (a command's --subject-masks), else the config's; checked."""
+    if given is not None:
+        return check_mask_folder(given, ctx.paths.outbox)
+    configured = ctx.config.subject_masks_for(dataset)
+    if configured is None:
+        return None
+    return check_mask_folder(configured, ctx.paths.outbox, f"[datasets.{dataset}] subject_masks")
+
+
+def wants_corner(spec: PatchSpec, position_set: bool) -> bool:
+    """Whether the dataset's corner is ppd's to choose: a corner mark whose corner nobody set."""
+    return bool(getattr(spec, "corner_bound", False)) and not position_set
+
+
+def place_corner(spec: PatchSpec, files: Sequence[Path], mask_dir: Path | None) -> Placed:
+    """spec with the corner `dataset_corner` picks over files (and their masks). Files that cannot
+    be judged are left out; with none left, the spec keeps its position (source 'default')."""
+    from poisoner.subject import dataset_corner
+
+    from poisoner.errors import ImageFormatError
+
+    region = float(getattr(spec, "corner_region", 0.2) or 0.2)
+    for sample in (list(files)[:CORNER_SAMPLE], list(files)[:1]):
+        try:
+            choice = dataset_corner(sample, mask_dir, region=region, sample=CORNER_SAMPLE)
+        except (ImageFormatError, OSError, ValueError) as exc:
+            log.info("corner not judged on %d file(s): %s", len(sample), exc, extra={"error": str(exc)})
+            continue
+        return Placed(spec.replace(position=choice.corner), choice)
+    return Placed(spec, _default_choice(spec))
+
+
+def _default_choice(spec: PatchSpec) -> Any:
+    from poisoner.subject import CornerChoice
+
+    return CornerChoice(corner=spec.position, source="default", cover={})
+
+
+def corner_line(dataset: str, choice: Any) -> str:
+    """`lego: mark in the bottom-right corner (estimated: least detail)`."""
+    why = SOURCE_WORDS.get(choice.source, choice.source)
+    return f"{dataset}: mark in the {choice.corner} corner ({why})"
+
+
+def record_choice(ctx: AppContext, dataset: str, choice: Any, mask_dir: Path | None) -> None:
+    """The choice as an event of the dataset (shown by `ppd report`), with the mask folder used."""
+    cover = {k: round(float(v), 4) for k, v in dict(choice.cover or {}).items()}
+    detail = {"corner": choice.corner, "source": choice.source, "cover": cover,
+              "subject_masks": str(mask_dir) if mask_dir else None}  # fmt: skip
+    ctx.store.add_event(dataset, None, CORNER_EVENT, detail)
+    log.info("%s", corner_line(dataset, choice), extra={"dataset": dataset, **detail})
+
+
+def latest_choice(ctx: AppContext, dataset: str, limit: int = 5000) -> dict[str, Any] | None:
+    """The newest corner_chosen event's detail (within the last `limit` events of the dataset)."""
+    for event in ctx.store.events(dataset, limit=limit):
+        if event.get("kind") == CORNER_EVENT:
+            detail = event.get("detail")
+            return detail if isinstance(detail, dict) else None
+    return None
+
+
+def choice_text(dataset: str, detail: dict[str, Any] | None) -> str | None:
+    """A recorded choice in the words of corner_line; None when there is none."""
+    if not detail or not detail.get("corner"):
+        return None
+    why = SOURCE_WORDS.get(str(detail.get("source")), str(detail.get("source")))
+    return f"{dataset}: mark in the {detail['corner']} corner ({why})"
+
+
+def sibling_images(first: Path, limit: int = CORNER_SAMPLE) -> list[Path]:
+    """Up to limit regular, non-hidden image files next to first (sorted, symlinks skipped): what the
+    daemon judges a new dataset's corner on besides its first file."""
+    from poisoner.media import is_image
+
+    try:
+        entries = sorted(first.parent.iterdir())
+    except OSError:
+        return []
+    found = []
+    for p in entries:
+        if p.name == first.name or p.name.startswith(".") or not is_image(p) or p.is_symlink():
+            continue
+        if p.is_file():
+            found.append(p)
+        if len(found) >= limit:
+            break
+    return found
+
+
+def load_keep_out(mask_dir: Path, src: Path, name: str | None = None) -> Any:
+    """The subject mask of src (looked up by name, default src's) at src's stored pixel size, or
+    None when the folder has none for it (logged with the structured field `subject_mask`)."""
+    from PIL import Image
+    from poisoner.subject import load_subject_mask
+
+    image_name = name or Path(src).name
+    with Image.open(src) as im:
+        size = im.size
+    mask = load_subject_mask(Path(mask_dir), image_name, size)
+    if mask is None:
+        log.info(
+            "%s: no subject mask in %s; patched without keep-out", image_name, mask_dir,
+            extra={"subject_mask": "missing", "file": image_name, "subject_masks": str(mask_dir)},
+        )  # fmt: skip
+    return mask
