@@ -161,6 +161,17 @@ def decide(
 
 _STRENGTH = {Verdict.NOT_PROTECTED: 0, Verdict.WEAK: 1, Verdict.PROTECTED: 2}
 
+# The attackers a dataset's headline verdict counts. `masked` (the attacker masks the four corner
+# regions out of SfM) is run and reported next to them but not counted: it defeats every corner
+# (watermark-like) mark by construction, so counting it would make that whole kind of protection
+# "NOT protected" by definition; it is said on its own line instead (masked_line).
+HEADLINE_PROFILES = ("default", "hardened", "published")
+MASKED_PROFILE = "masked"
+MASKED_MEANING = (
+    "masked = an attacker who masks the four corner regions (20% x 20%) out of SfM: it defeats any "
+    "corner (watermark-like) mark by construction; a roaming mark is meant to survive it"
+)
+
 
 def overall(verdicts: Iterable[str]) -> Verdict:
     """The dataset's verdict is its weakest profile's (the attacker picks the pipeline that works).
@@ -187,3 +198,34 @@ def holding_line(failing: Iterable[str], profiles: Iterable[str]) -> str:
     if not failing:
         return f"the protection holds under every profile run ({', '.join(profiles)})"
     return f"the protection does NOT hold under: {', '.join(failing)}"
+
+
+def headline(verdicts: Mapping[str, str]) -> dict[str, str]:
+    """The profiles a headline verdict counts: HEADLINE_PROFILES among those run (all of them when
+    none of those was run, e.g. `ppd verify --profile masked`)."""
+    counted = {name: v for name, v in verdicts.items() if name in HEADLINE_PROFILES}
+    return counted or dict(verdicts)
+
+
+def headline_verdict(verdicts: Mapping[str, str]) -> Verdict:
+    """The dataset's verdict: the weakest of its headline profiles (see HEADLINE_PROFILES)."""
+    return overall(headline(verdicts).values())
+
+
+def masked_line(verdicts: Mapping[str, str], corner_mark: bool | None) -> str | None:
+    """The masked attacker in plain words, when it was run next to headline profiles (None otherwise).
+
+    corner_mark: whether the dataset's mark lives in one corner (None: unknown)."""
+    verdict = verdicts.get(MASKED_PROFILE)
+    if verdict is None or not any(name in HEADLINE_PROFILES for name in verdicts):
+        return None
+    if verdict in (Verdict.NOT_PROTECTED, Verdict.WEAK):
+        if corner_mark:
+            return "NOT protected against an attacker who masks the corners (a corner mark cannot be)"
+        return (
+            f"{verdict_words(verdict)} against an attacker who masks the corners (not counted in the "
+            f"verdict above; {MASKED_MEANING})"
+        )
+    if verdict == Verdict.PROTECTED:
+        return f"protected against an attacker who masks the corners too ({MASKED_MEANING})"
+    return f"masked attacker: {verdict_words(verdict)} ({MASKED_MEANING})"

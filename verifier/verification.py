@@ -7,6 +7,10 @@ Profiles (what an attacker would run):
   `filter_stationary_matches=True` in verification and `ignore_watermarks=True` in the mapper.
 - `published`: both sets after a platform round trip (long edge <= 2048 px, JPEG quality 85),
   then the default pipeline.
+- `masked`: the attacker who has read about corner marks masks the four corner regions (20% x 20%)
+  out of SfM. Reported next to the others, not counted in the headline verdict
+  (verifier.verdict.HEADLINE_PROFILES): it defeats every corner mark by construction, which the
+  report says on its own line (verifier.verdict.masked_line).
 
 The parent never imports pycolmap: SfM runs in child processes (verifier.sfm), one at a time.
 """
@@ -32,7 +36,16 @@ from verifier.pairs import stage_pairs as stage_pairs  # re-exported: callers st
 from verifier.published import round_trip, unpublish_names
 from verifier.published import to_rgb as to_rgb  # re-exported for verifier.auto
 from verifier.sfm import SfmJob, SfmSettings, list_images, profile_sfm_settings, run_sfm_job
-from verifier.verdict import Verdict, VerdictRule, decide, holding_line, not_holding, overall
+from verifier.verdict import (
+    Verdict,
+    VerdictRule,
+    decide,
+    headline,
+    headline_verdict,
+    holding_line,
+    masked_line,
+    not_holding,
+)
 from verifier.visibility import VISIBILITY_SAMPLE, DatasetVisibility, measure_pairs
 
 log = logging.getLogger(__name__)
@@ -71,6 +84,7 @@ class VerifyOptions:
     # What a viewer sees (verifier.visibility): FLIP on this many files, spread over the set.
     visibility_images: int = VISIBILITY_SAMPLE
     subject_masks: Path | None = None  # a folder of subject masks (<name>.png, <stem>.png, same number)
+    corner_mark: bool | None = None  # the mark lives in one corner (None: judged by the visibility stage)
 
 
 class ProfileReport(msgspec.Struct):
@@ -115,27 +129,36 @@ class VerificationReport(msgspec.Struct):
     num_images: int
     profiles: dict[str, ProfileReport]
     visibility: DatasetVisibility | None = None  # None: not measured (visibility_images = 0)
+    corner_mark: bool | None = None  # the mark lives in one corner (what the masked line says)
+
+    def verdicts(self) -> dict[str, str]:
+        return {name: str(p.verdict) for name, p in self.profiles.items()}
 
     @property
     def verdict(self) -> Verdict:
-        return overall(p.verdict for p in self.profiles.values())
+        """The headline: the weakest of default, hardened and published (masked is reported apart)."""
+        return headline_verdict(self.verdicts())
 
     def not_holding(self) -> list[str]:
-        """The profiles (attackers) the protection does NOT hold under."""
-        return not_holding({name: p.verdict for name, p in self.profiles.items()})
+        """The headline profiles (attackers) the protection does NOT hold under."""
+        return not_holding(headline(self.verdicts()))
 
     def summary_lines(self) -> list[str]:
-        """The dataset-level lines `ppd verify` prints under the profiles: visibility, and where the
-        protection does not hold."""
+        """The dataset-level lines `ppd verify` prints under the profiles: visibility, where the
+        protection does not hold, and the masked attacker."""
         lines = self.visibility.lines() if self.visibility is not None else []
-        lines.append(holding_line(self.not_holding(), list(self.profiles)))
+        lines.append(holding_line(self.not_holding(), list(headline(self.verdicts()))))
+        masked = masked_line(self.verdicts(), self.corner_mark)
+        if masked is not None:
+            lines.append(masked)
         return lines
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready, with the derived verdict, profile errors and summary lines."""
         d = msgspec.to_builtins(self)
         d["profiles"] = {k: v.to_dict() for k, v in self.profiles.items()}
-        return {"verdict": str(self.verdict), **d, "summary": self.summary_lines()}
+        counted = list(headline(self.verdicts()))
+        return {"verdict": str(self.verdict), "verdict_counts": counted, **d, "summary": self.summary_lines()}
 
 
 # ---- settings per profile ------------------------------------------------------------------------
@@ -268,9 +291,13 @@ def verify_folders(
         finally:
             if not run.options.keep_cache:
                 shutil.rmtree(run.cache, ignore_errors=True)
+    corner = run.options.corner_mark
+    if corner is None and visibility is not None:
+        corner = visibility.worst.in_one_corner
     report = VerificationReport(
-        str(run.clean_dir), str(run.poisoned_dir), str(run.out_dir), len(run.names), reports, visibility
-    )
+        str(run.clean_dir), str(run.poisoned_dir), str(run.out_dir), len(run.names), reports, visibility,
+        corner,
+    )  # fmt: skip
     write_json(run.out_dir / "report.json", report.to_dict())  # what `ppd report FOLDER` reads
     return report
 

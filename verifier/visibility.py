@@ -351,8 +351,8 @@ def measure_pairs(
             a, b = _load_rgb(Path(original)), _load_rgb(Path(protected))
             name = Path(protected).name
             mask_path = find_subject_mask(subject_mask_dir, name) if subject_mask_dir else None
-            mask = _load_mask(mask_path) if mask_path is not None else None
             h, w = a.shape[:2]
+            mask = _load_mask(mask_path, (w, h)) if mask_path is not None else None
             figures = visibility_report(
                 a, b, display_width=min(DISPLAY_WIDTH, w), subject_mask=mask, corner_region=corner_region
             )
@@ -372,11 +372,18 @@ def measure_pairs(
     )
 
 
-def _load_mask(path: Path) -> np.ndarray:
+def _load_mask(path: Path, size: tuple[int, int]) -> np.ndarray:
+    """A subject mask as H x W uint8 (nonzero = subject; an alpha channel counts), resized nearest to
+    size (w, h) when it was saved at another resolution (masks are often kept smaller)."""
     from PIL import Image
 
     with Image.open(path) as im:
-        return np.asarray(im.convert("L"))
+        mask = im.convert("L")
+        if "A" in im.getbands() and im.getchannel("A").getextrema()[0] < 255:  # a cut-out: its alpha
+            mask = im.getchannel("A")
+        if mask.size != size:
+            mask = mask.resize(size, Image.Resampling.NEAREST)
+        return np.asarray(mask)
 
 
 def dataset_visibility_from_json(data: Any) -> DatasetVisibility | None:
