@@ -104,42 +104,69 @@ def apply_patch(
     """
     if pixels.ndim not in (2, 3):
         raise ValueError(f"expected an H x W or H x W x C array, got shape {pixels.shape}")
-    max_value = _max_value(pixels.dtype)
-    out = pixels.copy()
     x0, y0, x1, y1 = placement.box
-    if x1 > pixels.shape[1] or y1 > pixels.shape[0]:
+    if x0 < 0 or y0 < 0 or x1 > pixels.shape[1] or y1 > pixels.shape[0]:
         raise ValueError(f"patch box {placement.box} outside image of shape {pixels.shape}")
-    region = out[y0:y1, x0:x1].astype(np.float64)
-    pattern = patch_values(placement, max_value)
-    a = placement.alpha8 / 255.0
+    return apply_patch_at(pixels, placement, (0, 0), keep_out)
 
-    channels = 1 if pixels.ndim == 2 else pixels.shape[2]
+
+def apply_patch_at(
+    window: np.ndarray,
+    placement: PatchPlacement,
+    origin: tuple[int, int],
+    keep_out: np.ndarray | None = None,
+) -> np.ndarray:
+    """A copy of `window`, a crop of the picture whose top-left pixel sits at `origin` (x, y) of
+    the picture, with the part of the patch that falls inside it blended in (placement in the
+    picture's coordinates). keep_out is window-sized. What a box-local writer (a JPEG MCU box, a
+    cropped region) uses: the mark may reach beyond the window, only its overlap is written."""
+    if window.ndim not in (2, 3):
+        raise ValueError(f"expected an H x W or H x W x C array, got shape {window.shape}")
+    if keep_out is not None and keep_out.shape[:2] != window.shape[:2]:
+        raise ValueError(f"keep_out mask {keep_out.shape[:2]} does not match image {window.shape[:2]}")
+    max_value = _max_value(window.dtype)
+    out = window.copy()
+    ox, oy = origin
+    bx0, by0, bx1, by1 = placement.box
+    # the overlap of the mark's box and the window, in window coordinates
+    x0, y0 = max(bx0 - ox, 0), max(by0 - oy, 0)
+    x1, y1 = min(bx1 - ox, window.shape[1]), min(by1 - oy, window.shape[0])
+    if x0 >= x1 or y0 >= y1:
+        return out
+    mark = (slice(y0 + oy - by0, y1 + oy - by0), slice(x0 + ox - bx0, x1 + ox - bx0))
+    write = patch_coverage(placement)[mark]
+    if keep_out is not None:
+        write = write & ~(keep_out[y0:y1, x0:x1] > 0)
+    if not write.any():
+        return out
+    pattern = patch_values(placement, max_value)[mark]
+    out[y0:y1, x0:x1] = _blended(window[y0:y1, x0:x1], pattern, placement.alpha8, max_value)
+    if not write.all():
+        out[y0:y1, x0:x1][~write] = window[y0:y1, x0:x1][~write]
+    return out
+
+
+def _blended(region: np.ndarray, pattern: np.ndarray, alpha8: int, max_value: int) -> np.ndarray:
+    """region (h x w (x C)) with the pattern blended in; an alpha channel becomes opaque, the colour
+    under it composited over white first."""
+    values = region.astype(np.float64)
+    a = alpha8 / 255.0
+    channels = 1 if region.ndim == 2 else region.shape[2]
     has_alpha = channels in (2, 4)
-    if pixels.ndim == 2:
-        colour = region
+    if region.ndim == 2:
+        colour = values
     else:
-        colour = region[..., : channels - 1] if has_alpha else region
+        colour = values[..., : channels - 1] if has_alpha else values
         if has_alpha:
-            opacity = region[..., channels - 1 : channels] / max_value
+            opacity = values[..., channels - 1 : channels] / max_value
             colour = colour * opacity + max_value * (1.0 - opacity)
         pattern = pattern[..., None]
-
-    blended = colour + a * (pattern - colour)
-    blended = np.floor(blended + 0.5)
-    if pixels.ndim == 2:
-        out[y0:y1, x0:x1] = blended.astype(pixels.dtype)
-    elif has_alpha:
-        out[y0:y1, x0:x1, : channels - 1] = blended.astype(pixels.dtype)
-        out[y0:y1, x0:x1, channels - 1] = max_value
-    else:
-        out[y0:y1, x0:x1] = blended.astype(pixels.dtype)
-    write = patch_coverage(placement)
-    if keep_out is not None:
-        if keep_out.shape[:2] != pixels.shape[:2]:
-            raise ValueError(f"keep_out mask {keep_out.shape[:2]} does not match image {pixels.shape[:2]}")
-        write = write & ~(keep_out[y0:y1, x0:x1] > 0)
-    if not write.all():
-        out[y0:y1, x0:x1][~write] = pixels[y0:y1, x0:x1][~write]
+    blended = np.floor(colour + a * (pattern - colour) + 0.5).astype(region.dtype)
+    if not has_alpha:
+        return blended
+    out = region.copy()
+    out[..., : channels - 1] = blended
+    out[..., channels - 1] = max_value
     return out
 
 

@@ -32,8 +32,8 @@ heif) -> file-level notes -> dst.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypedDict, Unpack
@@ -44,9 +44,10 @@ from PIL import Image
 from poisoner import jpeg as jpeg_codec
 from poisoner import location, provenance
 from poisoner.atomic import atomic_output
-from poisoner.blend import apply_patch
+from poisoner.blend import apply_patch_at
 from poisoner.errors import ImageFormatError
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
+from poisoner.image.keep_out import checked_keep_out, mcu_keep_out, written_box
 from poisoner.image.png import PNG_SIGNATURE, png_chunks, poison_png, splice_png, strip_png_location
 from poisoner.image.read import load_decoded, one_line, open_decoded
 from poisoner.image.tiff import poison_tiff
@@ -126,7 +127,8 @@ def _jpeg_preserved(layout: jpeg_codec.JpegLayout, info: dict[str, object]) -> l
 
 
 def _poison_jpeg(
-    src: Path, im: Image.Image, data: bytes, placement: PatchPlacement, *, loaded: bool
+    src: Path, im: Image.Image, data: bytes, placement: PatchPlacement, keep_out: np.ndarray | None, *,
+    loaded: bool,
 ) -> tuple[bytes, list[str], list[str], str]:
     """The patched JPEG. With loaded=False im is only opened (header): every byte of the file is
     still entropy-decoded before anything is written (by jpegtran's crop and drop, whose warnings
@@ -139,21 +141,35 @@ def _poison_jpeg(
         raise ImageFormatError(f"{src.name}: {im.mode} JPEG is not supported")
     preserved = _jpeg_preserved(layout, im.info)
     notes: list[str] = []
+    mark_box = jpeg_codec.mcu_box(placement.box, layout)
+    keep = None
+    if keep_out is not None:
+        keep = mcu_keep_out(keep_out, mark_box, layout.mcu_size, _chroma_reach(layout))
+    box = mark_box if keep is None else _splice_box(placement, mark_box, keep, layout)
+    if box is None:
+        notes.append("the keep-out mask covers the whole mark: pixels left unchanged")
+        return data, preserved, notes, "jpeg-unchanged"
+
+    def patch(pixels: np.ndarray, at: tuple[int, int, int, int] = box) -> np.ndarray:
+        window = None if keep is None else keep[at[1] - mark_box[1] : at[3] - mark_box[1],
+                                                 at[0] - mark_box[0] : at[2] - mark_box[0]]  # fmt: skip
+        return apply_patch_at(pixels, placement, (at[0], at[1]), window)
+
     # The splice only needs the MCU box's pixels: with JPEG_REGION_DECODE they come from a
     # lossless crop around the box (jpeg_codec.decode_box), so the rest of the picture is never
     # decoded to pixels; otherwise (or when the crop is refused) from the whole decoded picture,
     # of which only the box is converted to an array.
-    box = jpeg_codec.mcu_box(placement.box, layout)
-    local = dataclasses.replace(placement, x=placement.x - box[0], y=placement.y - box[1])
     try:
-        out = _splice_jpeg(src, data, im, layout, box, local, loaded)
+        out = _splice_jpeg(src, data, im, layout, box, patch, loaded)
         notes.append(f"DCT splice: only MCU box {box} re-encoded, all other coefficients copied")
         return out, preserved, notes, "jpeg-dct-splice"
     except jpeg_codec.SpliceUnavailable as exc:
         notes.append(f"DCT splice impossible ({exc}): whole image re-encoded with the source tables")
         log.info("jpeg splice unavailable", extra={"path": str(src), "reason": str(exc)})
     _load_decoded(src, im)
-    patched = apply_patch(np.asarray(im), placement)
+    patched = np.array(im)
+    x0, y0, x1, y1 = mark_box
+    patched[y0:y1, x0:x1] = patch(patched[y0:y1, x0:x1], mark_box)
     if layout.components == 3 and "subsampling" not in jpeg_codec.table_options(im):
         notes.append(f"sampling {layout.sampling} not reproducible by Pillow: written 4:2:0")
     if any(s.payload.startswith(b"MPF\x00") for s in layout.segments):
@@ -161,18 +177,39 @@ def _poison_jpeg(
     return jpeg_codec.encode_like(patched, im, layout), preserved, notes, "jpeg-reencode-same-tables"
 
 
+def _chroma_reach(layout: jpeg_codec.JpegLayout) -> tuple[int, int]:
+    """How far (x, y) beyond a re-encoded MCU a decoded pixel can move: one pixel in each direction
+    the chroma is subsampled (libjpeg's fancy upsampling blends the neighbouring chroma sample)."""
+    if layout.components == 1:
+        return (0, 0)
+    return (int(layout.mcu_size[0] > 8), int(layout.mcu_size[1] > 8))
+
+
+def _splice_box(
+    placement: PatchPlacement,
+    mark_box: tuple[int, int, int, int],
+    keep: np.ndarray,
+    layout: jpeg_codec.JpegLayout,
+) -> tuple[int, int, int, int] | None:
+    """The MCU box around the pixels the mark still writes with `keep` left alone (None: none):
+    MCUs of the mark's box that carry no written pixel keep their coefficients."""
+    written = written_box(placement, mark_box, keep)
+    return None if written is None else jpeg_codec.mcu_box(written, layout)
+
+
 def _splice_jpeg(
     src: Path, data: bytes, im: Image.Image, layout: jpeg_codec.JpegLayout, box: tuple[int, int, int, int],
-    local: PatchPlacement, loaded: bool,
+    patch: Callable[[np.ndarray], np.ndarray], loaded: bool,
 ) -> bytes:
-    """The patched JPEG with only the box's blocks re-encoded; raises SpliceUnavailable.
+    """The patched JPEG with only the box's blocks re-encoded (patch: the box's pixels, patched);
+    raises SpliceUnavailable.
 
     Cheapest first: one in-process coefficient pass (libturbojpeg), else jpegtran's lossless crop of the
     box, else the box cut from the whole decoded picture; the three write the same bytes."""
     if loaded:
-        return jpeg_codec.splice_patch(src, im, layout, apply_patch(np.asarray(im.crop(box)), local), box)
+        return jpeg_codec.splice_patch(src, im, layout, patch(np.asarray(im.crop(box))), box)
     try:
-        return jpeg_codec.patch_in_one_pass(data, im, layout, box, lambda px: apply_patch(px, local))
+        return jpeg_codec.patch_in_one_pass(data, im, layout, box, patch)
     except jpeg_codec.SpliceUnavailable as exc:
         log.info("jpeg in-process splice unavailable", extra={"path": str(src), "reason": str(exc)})
     try:
@@ -181,7 +218,7 @@ def _splice_jpeg(
         log.info("jpeg region decode unavailable", extra={"path": str(src), "reason": str(exc)})
         _load_decoded(src, im)
         box_pixels = np.asarray(im.crop(box))
-    return jpeg_codec.splice_patch(src, im, layout, apply_patch(box_pixels, local), box)
+    return jpeg_codec.splice_patch(src, im, layout, patch(box_pixels), box)
 
 
 # ---- entry points --------------------------------------------------------------------------------
@@ -191,6 +228,7 @@ class PoisonOptions(TypedDict, total=False):
     marker: Marker | None
     keep_location: bool
     max_pixels: int | None
+    keep_out: np.ndarray | None
 
 
 def poison_file(
@@ -201,12 +239,16 @@ def poison_file(
     marker: Marker | None = None,
     keep_location: bool = False,
     max_pixels: int | None = None,
+    keep_out: np.ndarray | None = None,
 ) -> PoisonReport:
     """Read src, write the complete poisoned file to dst (src is only read).
 
     Location metadata (GPS, place names) is removed from dst unless keep_location; with a marker,
     dst carries it (poisoner.provenance). A file whose header declares more than max_pixels
-    (None: poisoner.limits.DEFAULT_MAX_PIXELS) is refused before anything is decoded."""
+    (None: poisoner.limits.DEFAULT_MAX_PIXELS) is refused before anything is decoded.
+    keep_out (H x W of the stored picture, nonzero = never change this pixel; e.g. a subject mask
+    from poisoner.subject): the mark is not written there (a JPEG keeps the whole MCUs that reach
+    such a pixel); a mask of another size is an ImageFormatError."""
     src, dst = Path(src), Path(dst)
     data = _read_source(src, dst, max_pixels)
     # A JPEG need not be decoded to pixels whole (only the patch's MCUs, _poison_jpeg).
@@ -217,8 +259,9 @@ def poison_file(
         load_decoded(src, im)
     width, height = im.size
     placement = _placement(src, im, spec)
+    keep = checked_keep_out(src.name, keep_out, (width, height))
     out, preserved, notes, method, lossless, removed = _write_format(
-        src, im, data, fmt, placement, keep_location=keep_location, marker=marker, loaded=not region
+        src, im, data, fmt, placement, keep, keep_location=keep_location, marker=marker, loaded=not region
     )
     notes += _file_notes(src, im, fmt, removed)
     dst.write_bytes(out)
@@ -257,6 +300,7 @@ def _write_format(
     data: bytes,
     fmt: str,
     placement: PatchPlacement,
+    keep_out: np.ndarray | None,
     *,
     keep_location: bool,
     marker: Marker | None,
@@ -266,26 +310,28 @@ def _write_format(
     removed: list[str] = []
     lossless = False
     if fmt == "JPEG":
-        out, preserved, notes, method = _poison_jpeg(src, im, data, placement, loaded=loaded)
+        out, preserved, notes, method = _poison_jpeg(src, im, data, placement, keep_out, loaded=loaded)
         if not keep_location:
             out, removed = _strip_jpeg(src, out)
         if marker is not None:
             out = _jpeg_marker(src, out, marker)
     elif fmt == "PNG":
-        out, preserved, notes = poison_png(im, data, placement)
+        out, preserved, notes = poison_png(im, data, placement, keep_out)
         method, lossless = "png-lossless", True
         if not keep_location:
             out, removed = strip_png_location(out)
         if marker is not None:
             out = provenance.embed_png(out, marker)
     elif fmt == "WEBP":
-        out, preserved, notes, lossless, removed = poison_webp(im, data, placement, keep_location, marker)
+        out, preserved, notes, lossless, removed = poison_webp(
+            im, data, placement, keep_location, marker, keep_out
+        )
         method = "webp-lossless" if lossless else "webp-lossy"
     elif fmt == "TIFF":
-        out, preserved, notes, lossless, removed = poison_tiff(im, placement, keep_location, marker)
+        out, preserved, notes, lossless, removed = poison_tiff(im, placement, keep_location, marker, keep_out)
         method = "tiff"
     elif fmt in ("HEIF", "AVIF"):
-        out, preserved, notes, removed = poison_heif(im, fmt, placement, keep_location, marker)
+        out, preserved, notes, removed = poison_heif(im, fmt, placement, keep_location, marker, keep_out)
         method = fmt.lower()
     else:
         raise ImageFormatError(f"{src.name}: {fmt} files are not supported")

@@ -352,6 +352,12 @@ class PatchSpec:
         return (mx, my)
 
     @property
+    def corner_bound(self) -> bool:
+        """Whether the mark lives in one corner region (the corner is `position`): a dataset's
+        corner can then be chosen off its subject (poisoner.subject.dataset_corner)."""
+        return self.position != "center" and (self.motion in CORNER_MOTIONS or self.motion == "slide")
+
+    @property
     def moves(self) -> bool:
         """Whether the placement depends on the image (its file name)."""
         return self.motion in CORNER_MOTIONS or (self.motion != "static" and self.motion_step != 0)

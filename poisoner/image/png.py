@@ -113,13 +113,15 @@ def _encode_png16_colour(pixels: np.ndarray) -> bytes:
     return b"".join(bytes(p) for p in packets)
 
 
-def _palette_patch(im: Image.Image, placement: PatchPlacement) -> tuple[Image.Image, list[str]]:
+def _palette_patch(
+    im: Image.Image, placement: PatchPlacement, keep_out: np.ndarray | None = None
+) -> tuple[Image.Image, list[str]]:
     """Patch a palette image; keep it a palette image when the new colours fit."""
     notes: list[str] = []
     has_alpha = "transparency" in im.info
     rgb_mode = "RGBA" if has_alpha else "RGB"
     full = np.asarray(im.convert(rgb_mode))
-    patched = apply_patch(full, placement)
+    patched = apply_patch(full, placement, keep_out)
     x0, y0, x1, y1 = placement.box
     region = patched[y0:y1, x0:x1].reshape(-1, full.shape[2])
     palette = np.asarray(im.getpalette(rawmode="RGB"), dtype=np.uint8).reshape(-1, 3)
@@ -152,7 +154,7 @@ def _palette_patch(im: Image.Image, placement: PatchPlacement) -> tuple[Image.Im
 
 
 def poison_png(
-    im: Image.Image, data: bytes, placement: PatchPlacement
+    im: Image.Image, data: bytes, placement: PatchPlacement, keep_out: np.ndarray | None = None
 ) -> tuple[bytes, list[str], list[str]]:
     depth, colour_type, interlaced = _png_ihdr(data)
     if any(t in _ANIMATION for t, _ in png_chunks(data)):
@@ -163,12 +165,12 @@ def poison_png(
     buf = io.BytesIO()
     if depth == 16 and colour_type in (2, 6):
         pixels = _decode_png16_colour(data, colour_type)
-        encoded = _encode_png16_colour(apply_patch(pixels, placement))
+        encoded = _encode_png16_colour(apply_patch(pixels, placement, keep_out))
         notes.append("16-bit colour PNG coded with FFmpeg's PNG codec (Pillow reads it as 8-bit)")
     elif depth == 16 and colour_type == 4:
         raise ImageFormatError("16-bit grey+alpha PNG is not supported (Pillow reads it as 8-bit)")
     elif im.mode == "P":
-        out, pnotes = _palette_patch(im, placement)
+        out, pnotes = _palette_patch(im, placement, keep_out)
         notes += pnotes
         save_opts: dict[str, object] = {}
         if "transparency" in out.info:
@@ -183,7 +185,7 @@ def poison_png(
             notes.append("1-bit PNG written as 8-bit greyscale")
         if mode not in ("L", "LA", "RGB", "RGBA", "I;16"):
             raise ImageFormatError(f"PNG mode {mode} is not supported")
-        out = paste_patch(im, placement)
+        out = paste_patch(im, placement, keep_out)
         save_opts = {}
         if "transparency" in im.info and mode in ("L", "RGB", "I;16"):
             save_opts["transparency"] = im.info["transparency"]  # tRNS colour key

@@ -39,7 +39,11 @@ _TIFF_LOSSLESS = {"raw", "tiff_lzw", "tiff_deflate", "tiff_adobe_deflate", "pack
 
 
 def poison_tiff(
-    im: Image.Image, placement: PatchPlacement, keep_location: bool, marker: Marker | None
+    im: Image.Image,
+    placement: PatchPlacement,
+    keep_location: bool,
+    marker: Marker | None,
+    keep_out: np.ndarray | None = None,
 ) -> tuple[bytes, list[str], list[str], bool, list[str]]:
     if im.mode not in ("L", "LA", "RGB", "RGBA", "I;16", "I;16B", "P", "1"):
         raise ImageFormatError(f"TIFF mode {im.mode} is not supported")
@@ -54,9 +58,9 @@ def poison_tiff(
         notes.append(f"{im.mode} TIFF written as {mode}")
     src = im.convert(mode) if mode != im.mode else im
     if mode == "I;16B":
-        out = image_from_array(apply_patch(np.asarray(src).astype(np.uint16), placement), "I;16")
+        out = image_from_array(apply_patch(np.asarray(src).astype(np.uint16), placement, keep_out), "I;16")
     else:
-        out = paste_patch(src, placement)
+        out = paste_patch(src, placement, keep_out)
     info = {tag: im.tag_v2[tag] for tag in _TIFF_KEEP_TAGS if tag in im.tag_v2}
     opts: dict[str, object] = {"compression": compression, "tiffinfo": info}
     preserved = [f"TIFF {_TIFF_KEEP_TAGS[t]}" for t in info]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import struct
 
+import numpy as np
 from PIL import Image
 
 from poisoner.image.metadata import metadata_options
@@ -104,7 +105,12 @@ def webp_quality_from_quantizer(q: float) -> int:
 
 
 def poison_webp(
-    im: Image.Image, data: bytes, placement: PatchPlacement, keep_location: bool, marker: Marker | None
+    im: Image.Image,
+    data: bytes,
+    placement: PatchPlacement,
+    keep_location: bool,
+    marker: Marker | None,
+    keep_out: np.ndarray | None = None,
 ) -> tuple[bytes, list[str], list[str], bool, list[str]]:
     chunks = _riff_chunks(data)
     lossless = b"VP8L" in chunks
@@ -127,7 +133,7 @@ def poison_webp(
             opts["alpha_quality"] = 100
     preserved, removed = metadata_options(im.info, keep_location, "WebP", marker, opts)
     mode = im.mode if im.mode in ("RGB", "RGBA") else "RGBA" if "A" in im.mode else "RGB"
-    out = paste_patch(im if im.mode == mode else im.convert(mode), placement)
+    out = paste_patch(im if im.mode == mode else im.convert(mode), placement, keep_out)
     buf = io.BytesIO()
     save_explicit(out, buf, "WEBP", **opts)
     return buf.getvalue(), preserved, notes, lossless, removed

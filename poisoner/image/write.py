@@ -3,13 +3,12 @@ metadata the caller passes (never the source's, which could bring removed locati
 
 from __future__ import annotations
 
-import dataclasses
 import io
 
 import numpy as np
 from PIL import Image
 
-from poisoner.blend import apply_patch
+from poisoner.blend import apply_patch_at
 from poisoner.spec import PatchPlacement
 
 
@@ -20,12 +19,15 @@ def image_from_array(pixels: np.ndarray, mode: str) -> Image.Image:
     return Image.fromarray(pixels, mode)
 
 
-def paste_patch(im: Image.Image, placement: PatchPlacement) -> Image.Image:
+def paste_patch(
+    im: Image.Image, placement: PatchPlacement, keep_out: np.ndarray | None = None
+) -> Image.Image:
     """im with the patch blended in, in place: only the patch box goes through numpy, so memory
-    stays at one decoded picture (a whole-picture array costs one or two more, measured)."""
-    x0, y0, _, _ = placement.box
-    local = dataclasses.replace(placement, x=0, y=0)
-    region = apply_patch(np.asarray(im.crop(placement.box)), local)
+    stays at one decoded picture (a whole-picture array costs one or two more, measured).
+    keep_out (H x W of im, nonzero = leave alone): those pixels keep their values."""
+    x0, y0, x1, y1 = placement.box
+    window = None if keep_out is None else keep_out[y0:y1, x0:x1]
+    region = apply_patch_at(np.asarray(im.crop(placement.box)), placement, (x0, y0), window)
     im.paste(image_from_array(region, im.mode), (x0, y0))
     return im
 

@@ -1,0 +1,181 @@
+"""Where a dataset's subject is, so a corner mark stays off it (issue 14).
+
+Two sources, best first:
+- subject masks: one file per image in a mask folder (white / nonzero / opaque = subject), the DTU,
+  NeuS and IDR convention. `load_subject_mask` finds an image's mask by name and reads it at the
+  image's size; `dataset_corner` picks the corner the union of a sample of the set's masks covers
+  least (poisoner.placement.choose_corner).
+- no masks: a cheap estimate. A subject carries the picture's detail; a plain backdrop, sky, floor
+  or table does not. On a ~256 px thumbnail of up to `sample` images, each corner region's share of
+  pixels with visible detail (gradient above DETAIL_LEVEL levels per thumbnail pixel) is averaged
+  over the images; the corner with the least detail wins (ties: the lower mean gradient).
+
+numpy and PIL are imported inside the functions: the CLI imports this module at start-up.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import msgspec
+
+if TYPE_CHECKING:
+    import numpy as np
+    from PIL import Image
+
+THUMBNAIL_PX = 256  # longest side of the picture the estimate looks at
+DETAIL_LEVEL = 6.0  # gradient magnitude (8-bit levels per thumbnail pixel) that counts as detail
+MASK_GRID = (256, 256)  # (w, h): masks of differently sized images compared on one grid
+_MASK_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".gif")
+
+
+class CornerChoice(msgspec.Struct, frozen=True):
+    """The corner of a dataset's mark and why: `source` is "masks" (the set's subject masks),
+    "estimated" (least image detail) or "default" (nothing to go on). `cover`: each corner's share
+    covered by the subject (masks) or holding detail (estimated), 0..1."""
+
+    corner: str
+    source: str
+    cover: dict[str, float] = msgspec.field(default_factory=dict)
+
+
+def mask_path(mask_dir: Path, image_name: str) -> Path | None:
+    """The mask file for an image: the same stem with any image suffix (`a.jpg` -> `a.png`), COLMAP's
+    `<name>.png` (`a.jpg.png`), `<stem>_mask.*`, or, for a numbered name, the same number however
+    zero-padded (DTU: `mask/000.png` for `image/000000.png`). None when there is none."""
+    stem = Path(image_name).stem
+    candidates = [mask_dir / f"{image_name}.png"]
+    for base in (stem, f"{stem}_mask"):
+        candidates += [mask_dir / f"{base}{suffix}" for suffix in _MASK_SUFFIXES]
+    for path in candidates:
+        if path.is_file():
+            return path
+    if stem.isdigit() and mask_dir.is_dir():
+        number = int(stem)
+        for path in sorted(mask_dir.iterdir()):
+            if path.suffix.lower() in _MASK_SUFFIXES and path.stem.isdigit() and int(path.stem) == number:
+                return path
+    return None
+
+
+def load_subject_mask(mask_dir: Path, image_name: str, size: tuple[int, int]) -> np.ndarray | None:
+    """The subject mask of `image_name` as a bool H x W array at `size` (w, h): True = subject.
+
+    Read from the alpha channel where the file has transparency, else from its grey levels; a pixel
+    is subject above half the file's largest value (0/1, 0/255 and a JPEG's noisy 0/255 alike).
+    Resized nearest-neighbour when its size differs. None when no mask file exists; a file that
+    cannot be read: poisoner.errors.ImageFormatError (one line)."""
+    path = mask_path(Path(mask_dir), image_name)
+    if path is None:
+        return None
+    import numpy as np
+    from PIL import Image
+
+    from poisoner.image.read import decode_errors
+
+    with decode_errors(path), Image.open(path) as im:
+        im.load()
+        if im.size != tuple(size):
+            im = im.resize(tuple(size), Image.Resampling.NEAREST)
+        values = _mask_values(im)
+    top = values.max() if values.size else 0
+    return values > top / 2 if top > 0 else np.zeros(values.shape, dtype=bool)
+
+
+def _mask_values(im: Image.Image) -> np.ndarray:
+    import numpy as np
+
+    if im.mode == "P":
+        im = im.convert("RGBA" if "transparency" in im.info else "RGB")
+    if im.mode in ("RGBA", "LA", "PA"):
+        alpha = np.asarray(im.getchannel("A"))
+        if alpha.min() < alpha.max():  # transparency says where the subject is
+            return alpha
+    if im.mode in ("I", "I;16", "I;16B", "I;16L", "F"):
+        return np.asarray(im).astype(np.float64)
+    return np.asarray(im.convert("L"))
+
+
+def _sampled(paths: Sequence[Path], sample: int) -> list[Path]:
+    """Up to `sample` paths spread evenly over the set (the views of a capture differ most end to end)."""
+    if sample <= 0 or not paths:
+        return []
+    if len(paths) <= sample:
+        return list(paths)
+    step = (len(paths) - 1) / max(1, sample - 1)
+    return [paths[round(i * step)] for i in range(sample)]
+
+
+def dataset_corner(
+    image_paths: Sequence[Path], mask_dir: Path | None, region: float = 0.2, sample: int = 8
+) -> CornerChoice:
+    """The corner for a dataset's mark: with a mask folder, the corner a sample of the set's subject
+    masks covers least (placement.choose_corner on their union); without one (or with no mask for any
+    sampled image), the corner with the least image detail over a sample of the images; with
+    neither, the default corner."""
+    from poisoner.placement import CORNERS
+
+    paths = sorted(Path(p) for p in image_paths)
+    picked = _sampled(paths, sample)
+    if mask_dir is not None:
+        choice = _corner_from_masks(picked, Path(mask_dir), region)
+        if choice is not None:
+            return choice
+    if picked:
+        return _corner_from_detail(picked, region)
+    return CornerChoice(CORNERS[0], "default", {})
+
+
+def _corner_from_masks(paths: Sequence[Path], mask_dir: Path, region: float) -> CornerChoice | None:
+    from poisoner.placement import choose_corner, corner_cover
+
+    masks = [load_subject_mask(mask_dir, p.name, MASK_GRID) for p in paths]
+    present = [m for m in masks if m is not None]
+    if not present:
+        return None
+    import numpy as np
+
+    union = np.any(np.stack(present), axis=0)
+    cover = corner_cover(union, region)
+    return CornerChoice(choose_corner(present, region=region), "masks", cover)
+
+
+def _corner_from_detail(paths: Sequence[Path], region: float) -> CornerChoice:
+    from poisoner.placement import CORNERS, corner_box
+
+    shares: dict[str, list[float]] = {c: [] for c in CORNERS}
+    means: dict[str, list[float]] = {c: [] for c in CORNERS}
+    for path in paths:
+        grad = detail_map(path)
+        h, w = grad.shape
+        for corner in CORNERS:
+            x0, y0, x1, y1 = corner_box(corner, w, h, region)
+            cell = grad[y0:y1, x0:x1]
+            shares[corner].append(float((cell > DETAIL_LEVEL).mean()))
+            means[corner].append(float(cell.mean()))
+    cover = {c: sum(v) / len(v) for c, v in shares.items()}
+    mean = {c: sum(v) / len(v) for c, v in means.items()}
+    corner = min(CORNERS, key=lambda c: (round(cover[c], 2), mean[c], CORNERS.index(c)))
+    return CornerChoice(corner, "estimated", cover)
+
+
+def detail_map(path: Path) -> np.ndarray:
+    """Gradient magnitude (8-bit levels per pixel) of a grey thumbnail of the image, at most
+    THUMBNAIL_PX on its longest side; transparent pixels read as white (what loaders show)."""
+    import numpy as np
+    from PIL import Image
+
+    from poisoner.image.read import decode_errors
+
+    with decode_errors(path), Image.open(path) as im:
+        im.draft("RGB", (THUMBNAIL_PX, THUMBNAIL_PX))  # JPEG: a scaled DCT decode, much cheaper
+        im.thumbnail((THUMBNAIL_PX, THUMBNAIL_PX), Image.Resampling.BOX)
+        if "A" in im.getbands() or "transparency" in im.info:
+            rgba = im.convert("RGBA")
+            white = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+            im = Image.alpha_composite(white, rgba)
+        grey = np.asarray(im.convert("L"), dtype=np.float64)
+    gy, gx = np.gradient(grey)
+    return np.hypot(gx, gy)
