@@ -82,9 +82,8 @@ def wants_corner(spec: PatchSpec, position_set: bool) -> bool:
 def place_corner(spec: PatchSpec, files: Sequence[Path], mask_dir: Path | None) -> Placed:
     """spec with the corner `dataset_corner` picks over files (and their masks). Files that cannot
     be judged are left out; with none left, the spec keeps its position (source 'default')."""
-    from poisoner.subject import dataset_corner
-
     from poisoner.errors import ImageFormatError
+    from poisoner.subject import dataset_corner
 
     region = float(getattr(spec, "corner_region", 0.2) or 0.2)
     for sample in (list(files)[:CORNER_SAMPLE], list(files)[:1]):
@@ -159,6 +158,7 @@ def load_keep_out(mask_dir: Path, src: Path, name: str | None = None) -> Any:
     """The subject mask of src (looked up by name, default src's) at src's stored pixel size, or
     None when the folder has none for it (logged with the structured field `subject_mask`)."""
     from PIL import Image
+
     from poisoner.subject import load_subject_mask
 
     image_name = name or Path(src).name

@@ -71,7 +71,7 @@ def verify_dataset(
     """Verify a daemon dataset: its vault originals vs its protected files; rows in the Store."""
     from daemon.protect import dataset_pairs
 
-    options = options or VerifyOptions()
+    options = dataset_options(ctx, dataset, options or VerifyOptions())
     keep = keep_last if keep_last is not None else ctx.config.verification.keep_runs
     pairs = dataset_pairs(ctx, dataset)
     if len(pairs) < 3:
@@ -94,9 +94,27 @@ def verify_dataset(
     return report
 
 
+def dataset_options(ctx: AppContext, dataset: str, options: VerifyOptions) -> VerifyOptions:
+    """options with what the dataset knows: its subject masks (visibility's "touches subject") and
+    whether its mark lives in one corner (what the masked attacker's line says)."""
+    from daemon.subject import SubjectMaskError, subject_masks_for
+
+    changes: dict[str, object] = {}
+    if options.subject_masks is None:
+        try:
+            changes["subject_masks"] = subject_masks_for(ctx, dataset)
+        except SubjectMaskError as exc:
+            raise VerificationInputError(str(exc)) from None
+    spec = ctx.store.dataset_spec(dataset)
+    if options.corner_mark is None and spec is not None:
+        changes["corner_mark"] = spec.corner_bound
+    return dataclasses.replace(options, **changes) if changes else options  # type: ignore[arg-type]
+
+
 def record_report(ctx: AppContext, dataset: str, report: VerificationReport) -> list[int]:
     """One Store row per profile; each row's metrics carry the run's visibility figures (measured once
-    per verification, on the dataset's files), so a report built from the Store shows them."""
+    per verification, on the dataset's files), and whether the mark lives in one corner, so a report
+    built from the Store shows them."""
     visibility = msgspec.to_builtins(report.visibility) if report.visibility is not None else None
     ids = []
     for p in report.profiles.values():
@@ -105,7 +123,7 @@ def record_report(ctx: AppContext, dataset: str, report: VerificationReport) -> 
                 dataset=dataset,
                 profile=p.profile,
                 verdict=p.verdict,
-                metrics={**p.metrics(), "visibility": visibility},
+                metrics={**p.metrics(), "visibility": visibility, "corner_mark": report.corner_mark},
                 started_at=p.started_at,
                 finished_at=p.finished_at,
                 model_dir=p.model_dir,

@@ -168,14 +168,23 @@ def test_verification_results_carry_visibility_and_what_ppd_verify_prints(tmp_pa
                             poisoned={"outcome": "ok"}, vs_clean=None)
         for name, verdict in (("default", vd.PROTECTED), ("masked", vd.NOT_PROTECTED))
     }  # fmt: skip
-    report = VerificationReport(str(clean), str(pois), str(tmp_path), 4, profiles, vis)
+    # a corner mark (the visibility stage saw every change inside one corner)
+    report = VerificationReport(str(clean), str(pois), str(tmp_path), 4, profiles, vis, corner_mark=True)
     data = json.loads(json.dumps(report.to_dict()))
-    assert data["verdict"] == "not_protected" and data["profiles"]["masked"]["verdict"] == "not_protected"
+    # masked is reported, not counted: the headline is default's
+    assert data["verdict"] == "protected" and data["profiles"]["masked"]["verdict"] == "not_protected"
+    assert data["verdict_counts"] == ["default"]
     assert data["visibility"]["worst"]["area_above_half"] == vis.worst.area_above_half
     summary = "\n".join(data["summary"])
     assert f"{vis.worst.area_above_half:.2%} of the picture clearly visible (FLIP > 0.5)" in summary
-    assert "the protection does NOT hold under: masked" in summary
-    assert report.not_holding() == ["masked"]
+    assert "the protection holds under every profile run (default)" in summary
+    assert "NOT protected against an attacker who masks the corners (a corner mark cannot be)" in summary
+    assert report.not_holding() == []
+    roaming = VerificationReport(str(clean), str(pois), str(tmp_path), 4, profiles, vis, corner_mark=False)
+    assert "a corner mark cannot be" not in "\n".join(roaming.summary_lines())
+    assert "NOT protected against an attacker who masks the corners" in "\n".join(roaming.summary_lines())
+    only_masked = VerificationReport(str(clean), str(pois), str(tmp_path), 4, {"masked": profiles["masked"]})
+    assert only_masked.verdict == vd.NOT_PROTECTED and only_masked.not_holding() == ["masked"]
 
 
 # ---- end to end with real COLMAP -----------------------------------------------------------------

@@ -13,7 +13,6 @@ from verifier.visibility import (
     VisibilityError,
     box_in_one_corner,
     dataset_visibility_from_json,
-    find_subject_mask,
     jpeg_reencode,
     measure_pairs,
     sample_evenly,
@@ -170,6 +169,8 @@ def test_dataset_visibility_lines_and_json_round_trip(tmp_path: Path) -> None:
 def test_subject_masks_are_found_by_name_or_frame_number(tmp_path: Path) -> None:
     from PIL import Image
 
+    from poisoner.subject import mask_path
+
     pairs = _pair_folders(tmp_path, n=3, x=100, y=80)  # a square in the middle
     masks = tmp_path / "mask"
     masks.mkdir()
@@ -177,8 +178,8 @@ def test_subject_masks_are_found_by_name_or_frame_number(tmp_path: Path) -> None
         m = np.zeros((H, W), np.uint8)
         m[60:150, 80:200] = 255
         Image.fromarray(m).save(masks / f"{i:03d}.png")
-    assert find_subject_mask(masks, "000002.png") == masks / "002.png"
-    assert find_subject_mask(masks, "other.png") is None
+    assert mask_path(masks, "000002.png") == masks / "002.png"
+    assert mask_path(masks, "other.png") is None
     vis = measure_pairs(pairs, sample=3, subject_mask_dir=masks)
     assert vis is not None and vis.subject_masks
     assert vis.worst.touches_subject is True and vis.worst.in_one_corner is False
@@ -199,3 +200,19 @@ def test_unreadable_files_are_listed_not_fatal(tmp_path: Path) -> None:
 def test_sample_evenly() -> None:
     assert sample_evenly(10, 3) == [0, 4, 9]  # round(4.5) is 4 (banker's rounding)
     assert sample_evenly(2, 3) == [0, 1] and sample_evenly(5, 1) == [0] and sample_evenly(0, 3) == []
+
+
+def test_a_smaller_subject_mask_is_read_at_the_image_size(tmp_path: Path) -> None:
+    """Masks are often kept smaller: they are resized (nearest) instead of skipping the image."""
+    from PIL import Image
+
+    pairs = _pair_folders(tmp_path, n=2, x=100, y=80)  # a square in the middle
+    masks = tmp_path / "mask"
+    masks.mkdir()
+    for original, _ in pairs:
+        m = np.zeros((H // 2, W // 2), np.uint8)
+        m[30:75, 40:100] = 255  # the middle, at half the size
+        Image.fromarray(m).save(masks / original.name)
+    vis = measure_pairs(pairs, sample=2, subject_mask_dir=masks)
+    assert vis is not None and vis.measured == 2 and not vis.skipped
+    assert vis.worst.touches_subject is True

@@ -32,7 +32,7 @@ import numpy as np
 from PIL import Image
 
 from poisoner.atomic import atomic_write_bytes
-from verifier.verdict import Verdict, not_holding, overall
+from verifier.verdict import MASKED_MEANING, Verdict, headline, headline_verdict, masked_line, not_holding
 
 log = logging.getLogger(__name__)
 
@@ -255,9 +255,17 @@ def latest_run_group(runs: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any
     return list(group.values())
 
 
-def _add_profile_content(data: ReportData, profiles: Mapping[str, Mapping[str, Any]]) -> None:
+def _verdicts(profiles: Mapping[str, Mapping[str, Any]]) -> dict[str, str]:
+    return {name: str(m.get("verdict", "")) for name, m in profiles.items()}
+
+
+def _add_profile_content(
+    data: ReportData, profiles: Mapping[str, Mapping[str, Any]], corner_mark: bool | None = None
+) -> None:
     data.reasons = {name: list(m.get("reasons") or []) for name, m in profiles.items()}
-    data.holding = _holding_text(profiles)
+    data.holding = _holding_text(profiles, corner_mark)
+    if "masked" in profiles:
+        data.notes.append(f"The verdict counts default, hardened and published; {MASKED_MEANING}.")
     data.tables.append(profile_table(profiles))
     for name, m in profiles.items():
         fig = trajectory_figure(m.get("model_dir"), name)
@@ -282,11 +290,12 @@ def dataset_history_report(
     latest = latest_run_group(runs)
     profiles = {r["profile"]: {**(r.get("metrics") or {}), "verdict": r["verdict"],
                                "model_dir": r.get("model_dir")} for r in latest}  # fmt: skip
-    data = ReportData(title=title, verdict=overall(r["verdict"] for r in latest) if latest else None)
+    data = ReportData(title=title, verdict=headline_verdict(_verdicts(profiles)) if latest else None)
     data.protection = protection
     if not latest:
         data.notes.append(unverified_note)
-    _add_profile_content(data, profiles)
+    corner = next((m["corner_mark"] for m in profiles.values() if m.get("corner_mark") is not None), None)
+    _add_profile_content(data, profiles, corner)
     image_pair = next(((o, p) for o, p in pairs if not _is_video(p)), None)
     if latest:
         visibility = next(
@@ -323,10 +332,11 @@ def build_verification_report(folder: Path) -> ReportData:
             profiles[d.get("profile", sub.parent.name)] = d
     if not profiles:
         raise ReportError(f"{folder}: no report.json here (a verification folder or an experiment folder?)")
-    data = ReportData(
-        title=f"ppd report — {folder.name}", verdict=overall(p.get("verdict", "") for p in profiles.values())
-    )
-    _add_profile_content(data, profiles)
+    data = ReportData(title=f"ppd report — {folder.name}", verdict=headline_verdict(_verdicts(profiles)))
+    corner = report.get("corner_mark")
+    if corner is None:
+        corner = ((report.get("visibility") or {}).get("worst") or {}).get("in_one_corner")
+    _add_profile_content(data, profiles, corner)
     _add_visibility_content(data, report.get("visibility"), _measured_pair(report))
     return data
 
@@ -596,13 +606,16 @@ def _add_visibility_content(
             data.figures.append(fig)
 
 
-def _holding_text(profiles: Mapping[str, Mapping[str, Any]]) -> str | None:
+def _holding_text(profiles: Mapping[str, Mapping[str, Any]], corner_mark: bool | None = None) -> str | None:
+    """Where the protection does not hold (the headline profiles), and the masked attacker's line."""
     from verifier.verdict import holding_line
 
     if not profiles:
         return None
-    verdicts = {name: str(m.get("verdict", "")) for name, m in profiles.items()}
+    verdicts = _verdicts(profiles)
+    counted = headline(verdicts)
     missing = [p for p in REPORT_PROFILES if p not in profiles]
-    line = holding_line(not_holding(verdicts), verdicts)
-    line = line[0].upper() + line[1:]
-    return line + (f" (not run here: {', '.join(missing)})" if missing else "")
+    line = holding_line(not_holding(counted), counted)
+    line = line[0].upper() + line[1:] + (f" (not run here: {', '.join(missing)})" if missing else "")
+    masked = masked_line(verdicts, corner_mark)
+    return f"{line}. {masked[0].upper()}{masked[1:]}." if masked else line

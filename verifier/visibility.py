@@ -284,20 +284,6 @@ def sample_evenly(count: int, k: int) -> list[int]:
     return sorted({round(i * (count - 1) / (k - 1)) for i in range(k)})
 
 
-def find_subject_mask(mask_dir: Path, image_name: str) -> Path | None:
-    """A subject mask for an image: COLMAP's `<name>.png`, `<stem>.png`, or the same frame number
-    (DTU names `000002.png`'s mask `002.png`)."""
-    stem = Path(image_name).stem
-    for candidate in (mask_dir / f"{image_name}.png", mask_dir / f"{stem}.png"):
-        if candidate.is_file():
-            return candidate
-    if stem.isdigit():
-        for m in sorted(mask_dir.glob("*.png")):
-            if m.stem.isdigit() and int(m.stem) == int(stem):
-                return m
-    return None
-
-
 def _load_rgb(path: Path) -> np.ndarray:
     from PIL import Image, ImageOps
 
@@ -342,7 +328,12 @@ def measure_pairs(
 ) -> DatasetVisibility | None:
     """FLIP figures of `sample` (original, protected) image pairs, each at min(1920, width) px.
 
+    subject_mask_dir: a folder of subject masks (poisoner.subject.load_subject_mask finds each image's
+    by name or frame number and reads it at the image's size): `touches_subject` is then measured.
     Files that cannot be read or compared are listed in `skipped`; None when no pair was measured."""
+    from poisoner.errors import ImageFormatError
+    from poisoner.subject import load_subject_mask
+
     chosen = [pairs[i] for i in sample_evenly(len(pairs), sample)]
     measured: list[ImageVisibility] = []
     skipped: list[str] = []
@@ -350,13 +341,13 @@ def measure_pairs(
         try:
             a, b = _load_rgb(Path(original)), _load_rgb(Path(protected))
             name = Path(protected).name
-            mask_path = find_subject_mask(subject_mask_dir, name) if subject_mask_dir else None
             h, w = a.shape[:2]
-            mask = _load_mask(mask_path, (w, h)) if mask_path is not None else None
+            # at the size shown (mask sets such as DTU's carry no EXIF rotation)
+            mask = load_subject_mask(subject_mask_dir, name, (w, h)) if subject_mask_dir else None
             figures = visibility_report(
                 a, b, display_width=min(DISPLAY_WIDTH, w), subject_mask=mask, corner_region=corner_region
             )
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, ImageFormatError) as exc:
             skipped.append(f"{Path(protected).name}: {exc}")
             continue
         measured.append(ImageVisibility(Path(protected).name, w, h, figures))
@@ -370,20 +361,6 @@ def measure_pairs(
         images=measured,
         skipped=skipped,
     )
-
-
-def _load_mask(path: Path, size: tuple[int, int]) -> np.ndarray:
-    """A subject mask as H x W uint8 (nonzero = subject; an alpha channel counts), resized nearest to
-    size (w, h) when it was saved at another resolution (masks are often kept smaller)."""
-    from PIL import Image
-
-    with Image.open(path) as im:
-        mask = im.convert("L")
-        if "A" in im.getbands() and im.getchannel("A").getextrema()[0] < 255:  # a cut-out: its alpha
-            mask = im.getchannel("A")
-        if mask.size != size:
-            mask = mask.resize(size, Image.Resampling.NEAREST)
-        return np.asarray(mask)
 
 
 def dataset_visibility_from_json(data: Any) -> DatasetVisibility | None:

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from daemon.cli.errors import EXIT_USAGE, die, one_line, warning
-from daemon.cli.options import dataset_option, folder_option
+from daemon.cli.options import dataset_option, folder_option, subject_masks_option
 from verifier.verdict import Verdict
 
 if TYPE_CHECKING:
@@ -102,9 +102,14 @@ def verify(
     white_background: bool = typer.Option(
         False, "--white-background", help="Composite transparent images on white (NeRF-Synthetic)."
     ),
+    subject_masks: Path | None = subject_masks_option(),
 ) -> None:
     """Run COLMAP (structure from motion) on the originals and on the patched set and say
-    whether the patch protects: protected, weak, NOT protected, or could not be verified."""
+    whether the patch protects: protected, weak, NOT protected, or could not be verified.
+
+    The verdict is the weakest of default, hardened and published. masked (an attacker who masks
+    the four corner regions) is run and reported on its own line: it defeats every corner
+    (watermark-like) mark by construction; a roaming mark is meant to survive it."""
     from rich.console import Console
 
     from daemon.cli.targets import TargetError
@@ -115,7 +120,12 @@ def verify(
     if profile not in PROFILE_CHOICES:
         raise die(f"--profile must be one of {', '.join(PROFILE_CHOICES)}", EXIT_USAGE)
     profiles = PROFILES if profile == "all" else (profile,)
-    options = VerifyOptions(timeout_s=timeout, ground_truth=ground_truth, splat=splat)
+    if subject_masks is not None and not subject_masks.is_dir():
+        raise die(f"--subject-masks: {subject_masks} is not a folder", EXIT_USAGE)
+    options = VerifyOptions(
+        timeout_s=timeout, ground_truth=ground_truth, splat=splat,
+        subject_masks=subject_masks.absolute() if subject_masks is not None else None,
+    )  # fmt: skip
     options.splat_options.update(time_budget_s=splat_budget, white_background=white_background)
     try:
         if clean is not None:

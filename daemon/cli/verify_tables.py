@@ -119,7 +119,8 @@ def print_report(report: dict[str, Any], console: Console) -> None:
     for line in report.get("summary") or []:  # visibility and the profiles it does not hold under
         console.print(f"  {line}", markup=False)
     v = report["verdict"]
-    console.print(f"overall (weakest profile): [{VERDICT_STYLE.get(v, 'bold')}]{verdict_words(v)}[/]")
+    counted = ", ".join(report.get("verdict_counts") or report["profiles"])
+    console.print(f"overall (weakest of {counted}): [{VERDICT_STYLE.get(v, 'bold')}]{verdict_words(v)}[/]")
 
 
 def json_safe(x: Any) -> Any:
