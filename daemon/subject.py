@@ -156,7 +156,7 @@ def sibling_images(first: Path, limit: int = CORNER_SAMPLE) -> list[Path]:
 
 def load_keep_out(mask_dir: Path, src: Path, name: str | None = None) -> Any:
     """The subject mask of src (looked up by name, default src's) at src's stored pixel size, or
-    None when the folder has none for it (logged with the structured field `subject_mask`)."""
+    None when the folder has none for it (a warning with the structured field `subject_mask`)."""
     from PIL import Image
 
     from poisoner.subject import load_subject_mask
@@ -165,8 +165,8 @@ def load_keep_out(mask_dir: Path, src: Path, name: str | None = None) -> Any:
     with Image.open(src) as im:
         size = im.size
     mask = load_subject_mask(Path(mask_dir), image_name, size)
-    if mask is None:
-        log.info(
+    if mask is None:  # a warning: the user expects the subject kept clear, and this file has no mask
+        log.warning(
             "%s: no subject mask in %s; patched without keep-out", image_name, mask_dir,
             extra={"subject_mask": "missing", "file": image_name, "subject_masks": str(mask_dir)},
         )  # fmt: skip

@@ -265,3 +265,151 @@ def test_a_known_dataset_name_keeps_its_folder(shoot: Path, tmp_path: Path) -> N
     refused = runner.invoke(app, ["poison", str(other), "--dataset", "castle"])
     assert refused.exit_code == 2 and "already belongs to" in refused.output
     assert snapshot(other) == before
+
+
+# ---- issue 14: subject masks and the dataset's corner ---------------------------------------------
+MASKED_SIZE = (320, 240)
+
+
+def masked_shoot(images: Path, masks: Path, n: int = 5, size: tuple[int, int] = MASKED_SIZE) -> list[Path]:
+    """n textured photos and their subject masks (DTU naming: `000.png` for `000000.png`): the subject
+    fills the left and the top and reaches a little into the bottom-right corner region, so that corner
+    is the freest and the mark must step around the subject inside it."""
+    w, h = size
+    masks.mkdir(parents=True, exist_ok=True)
+    files = []
+    for i in range(n):
+        files.append(make_image(images / f"{i:06d}.png", 20 + i, size))
+        m = np.zeros((h, w), np.uint8)
+        m[:, : int(0.62 * w)] = 255
+        m[: h // 4, :] = 255
+        m[int(0.85 * h) :, : int(0.85 * w)] = 255  # a tongue into the bottom-right corner region
+        Image.fromarray(m).save(masks / f"{i:03d}.png")
+    return files
+
+
+def changed_pixels(original: bytes | Path, patched: Path) -> np.ndarray:
+    import io
+
+    source = io.BytesIO(original) if isinstance(original, bytes) else original
+    a = np.asarray(Image.open(source).convert("RGB"))
+    return np.any(a != np.asarray(Image.open(patched).convert("RGB")), axis=2)
+
+
+def assert_in_corner_off_subject(changed: np.ndarray, mask_file: Path | None, corner: str) -> None:
+    """Something changed, every change inside that corner's 20% x 20% region, none on the subject."""
+    h, w = changed.shape
+    ys, xs = np.nonzero(changed)
+    assert len(xs) > 50
+    in_x = xs.min() >= 0.8 * w if corner.endswith("right") else xs.max() < 0.2 * w
+    in_y = ys.min() >= 0.8 * h if corner.startswith("bottom") else ys.max() < 0.2 * h
+    assert in_x and in_y, (corner, xs.min(), xs.max(), ys.min(), ys.max())
+    if mask_file is not None:
+        subject = np.asarray(Image.open(mask_file)) > 0
+        assert not np.any(changed & subject)
+
+
+def test_subject_masks_keep_the_mark_off_the_subject_in_one_corner(
+    ppd_env: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    images, masks = tmp_path / "dtu" / "image", tmp_path / "dtu" / "mask"
+    files = masked_shoot(images, masks)
+    unmasked = make_image(images / "000009.png", 9, MASKED_SIZE)  # no mask file for this one
+    before = {f.name: f.read_bytes() for f in [*files, unmasked]}
+    mask_bytes = snapshot(masks)
+    caplog.set_level("INFO")
+    result = runner.invoke(
+        app, ["poison", str(images), "--design", "watermark", "--subject-masks", str(masks), "-j", "1"]
+    )
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    assert "image: mark in the bottom-right corner (from the subject masks" in lines[0]
+    assert "patched 6, unchanged 0, skipped 0, failed 0" in result.output
+    for f in files:
+        changed = changed_pixels(before[f.name], f)
+        assert_in_corner_off_subject(changed, masks / f"{f.stem[-3:]}.png", "bottom-right")
+        tongue = np.asarray(Image.open(masks / f"{f.stem[-3:]}.png"))[int(0.8 * 240) :, int(0.8 * 320) :] > 0
+        assert tongue.any()  # the subject is inside the corner region: the keep-out was needed
+    # the file without a mask: the same corner, patched without keep-out, said in a structured log field
+    assert_in_corner_off_subject(changed_pixels(before[unmasked.name], unmasked), None, "bottom-right")
+    logged = [r for r in caplog.records if getattr(r, "subject_mask", None) == "missing"]
+    assert [r.file for r in logged] == [unmasked.name]
+    assert snapshot(masks) == mask_bytes  # masks are read, never written
+    ctx = AppContext.open()
+    try:
+        assert ctx.store.dataset_spec("image").position == "bottom-right"
+        chosen = [e for e in ctx.store.events("image") if e["kind"] == "corner_chosen"]
+        assert len(chosen) == 1 and chosen[0]["detail"]["source"] == "masks"
+    finally:
+        ctx.close()
+
+
+def test_the_corner_is_estimated_without_masks_and_a_set_position_is_kept(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """No masks: the corner with the least detail (here a plain bottom-left); --position wins over it."""
+    w, h = MASKED_SIZE
+    for name in ("a", "b"):
+        for i in range(3):
+            path = make_image(tmp_path / name / f"v{i}.png", i, MASKED_SIZE)
+            pixels = np.asarray(Image.open(path)).copy()
+            pixels[int(0.7 * h) :, : int(0.3 * w)] = 128  # a plain table top, bottom-left
+            Image.fromarray(pixels).save(path)
+    estimated = runner.invoke(app, ["poison", str(tmp_path / "a"), "--design", "watermark"])
+    assert estimated.exit_code == 0, estimated.output
+    assert estimated.output.splitlines()[0] == "a: mark in the bottom-left corner (estimated: least detail)"
+    placed = runner.invoke(
+        app, ["poison", str(tmp_path / "b"), "--design", "watermark", "--position", "top-right"]
+    )
+    assert placed.exit_code == 0, placed.output
+    assert "corner (" not in placed.output  # the user's corner: nothing chosen, nothing said
+    ctx = AppContext.open()
+    try:
+        assert ctx.store.dataset_spec("a").position == "bottom-left"
+        assert ctx.store.dataset_spec("b").position == "top-right"
+    finally:
+        ctx.close()
+
+
+def test_a_mask_folder_inside_the_outbox_is_refused(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    images = tmp_path / "set"
+    masked_shoot(images, ppd_env["outbox"] / "masks", n=3)
+    before = snapshot(images)
+    result = runner.invoke(app, ["poison", str(images), "--subject-masks", str(ppd_env["outbox"] / "masks")])
+    assert result.exit_code != 0
+    error = result.output.strip()
+    assert len(error.splitlines()) == 1 and "inside the outbox" in error and "published" in error, error
+    assert snapshot(images) == before
+    # the same folder named by the config for an outbox dataset: every command that uses it says so
+    (ppd_env["config"] / "config.toml").write_text(
+        f'[datasets.shoot]\nsubject_masks = "{ppd_env["outbox"] / "masks"}"\n'
+    )
+    shoot = ppd_env["outbox"] / "shoot"
+    make_image(shoot / "000000.png", 1, MASKED_SIZE)
+    refused = runner.invoke(app, ["poison", str(shoot)])
+    assert refused.exit_code != 0 and "[datasets.shoot] subject_masks" in refused.output
+    assert "inside the outbox" in refused.output
+
+
+def test_config_subject_masks_that_are_gone_is_one_line(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    (ppd_env["config"] / "config.toml").write_text(f'[datasets.set]\nsubject_masks = "{tmp_path / "gone"}"\n')
+    make_image(tmp_path / "set" / "a.png", 1)
+    result = runner.invoke(app, ["poison", str(tmp_path / "set")])
+    assert result.exit_code != 0
+    error = result.output.strip()
+    assert len(error.splitlines()) == 1 and "datasets.set: subject_masks" in error and "gone" in error, error
+
+
+def test_preview_keeps_the_mark_off_the_subject(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    images, masks = tmp_path / "image", tmp_path / "mask"
+    masked_shoot(images, masks, n=3)
+    out = tmp_path / "p.png"
+    result = runner.invoke(
+        app, ["preview", str(images / "000001.png"), "--design", "watermark", "--subject-masks", str(masks),
+              "--out", str(out)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert "image: mark in the bottom-right corner (from the subject masks" in text
+    assert "inside one corner" in text and "no changed pixel on the subject" in text
+    assert out.is_file()

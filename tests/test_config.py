@@ -142,3 +142,30 @@ def test_importing_the_config_stays_light() -> None:
     root = Path(__file__).resolve().parents[1]
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=root)
     assert out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+def test_subject_masks_per_dataset_and_a_missing_folder_is_one_line(tmp_path: Path) -> None:
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    text = f'[datasets.lego]\nsubject_masks = "{masks}"\n[datasets.other]\nsubject_masks = ""\n'
+    cfg = Config.from_toml(text)
+    assert cfg.subject_masks_for("lego") == masks
+    assert cfg.subject_masks_for("other") is None and cfg.subject_masks_for("unknown") is None  # "" = unset
+    with pytest.raises(ConfigError) as err:
+        Config.from_toml(f'[datasets.lego]\nsubject_masks = "{tmp_path / "gone"}"\n', source=Path("c.toml"))
+    message = str(err.value)
+    assert "\n" not in message and "datasets.lego" in message and "subject_masks" in message
+    assert str(tmp_path / "gone") in message and "not a readable folder" in message
+
+
+def test_position_set_says_whether_the_user_chose_the_corner() -> None:
+    assert not Config().position_set("lego")
+    assert Config.from_toml('[patch]\nposition = "top-right"\n').position_set("lego")
+    per_dataset = Config.from_toml('[datasets.lego.patch]\nposition = "bottom-left"\n')
+    assert per_dataset.position_set("lego") and not per_dataset.position_set("other")
+
+
+def test_masked_is_verified_by_default_and_an_explicit_list_is_kept() -> None:
+    assert Config().verification.profiles == ("default", "hardened", "published", "masked")
+    old = Config.from_toml('[verification]\nprofiles = ["default", "hardened", "published"]\n')
+    assert old.verification.profiles == ("default", "hardened", "published")

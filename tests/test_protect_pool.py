@@ -96,3 +96,33 @@ def test_dry_run_in_workers_changes_nothing(ctx: AppContext, tmp_path: Path) -> 
     assert all(o.dry_run and o.reason == "would patch" for o in outcomes[:-1])
     assert {f: f.read_bytes() for f in files} == before
     assert ctx.store.files("dry") == []
+
+
+def test_the_daemons_workers_use_the_configs_subject_masks(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd watch`'s worker processes (ProtectWorkers): a new outbox dataset with a corner mark in the
+    config gets its corner from the config's masks once, and every file keeps its mark off the subject."""
+    from daemon.protect_pool import ProtectWorkers
+    from tests.test_cli_poison import assert_in_corner_off_subject, changed_pixels, masked_shoot
+
+    masks = tmp_path / "masks"
+    files = masked_shoot(ppd_env["outbox"] / "shoot", masks, n=4)
+    originals = {f.name: f.read_bytes() for f in files}
+    (ppd_env["config"] / "config.toml").write_text(
+        '[patch]\nmotion = "tumble"\npatch_size = 0.075\ncorner_region = 0.2\ntumble_scale = 0.75\n'
+        f'[datasets.shoot]\nsubject_masks = "{masks}"\n'
+    )
+    ctx = AppContext.open()
+    workers = ProtectWorkers(ctx, slots=2, idle_s=60)
+    try:
+        outcomes = [workers.protect(f) for f in files]
+        assert [o.state for o in outcomes] == ["patched"] * len(files), [o.reason for o in outcomes]
+        assert ctx.store.dataset_spec("shoot").position == "bottom-right"
+        chosen = [e["detail"] for e in ctx.store.events("shoot") if e["kind"] == "corner_chosen"]
+        assert len(chosen) == 1 and chosen[0]["source"] == "masks"
+        assert chosen[0]["subject_masks"] == str(masks)
+    finally:
+        workers.close()
+        ctx.close()
+    for f in files:
+        mask = masks / f"{f.stem[-3:]}.png"
+        assert_in_corner_off_subject(changed_pixels(originals[f.name], f), mask, "bottom-right")
