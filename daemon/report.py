@@ -28,6 +28,7 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
     """A daemon dataset: latest verification per profile, its history, models, and a patch preview."""
     from daemon.protect import dataset_pairs
     from daemon.states import dataset_protection, next_step, protection_text
+    from daemon.subject import choice_text, latest_choice
     from verifier.report import ReportError, dataset_history_report, latest_run_group
 
     if ctx.store.dataset(dataset) is None:
@@ -36,7 +37,7 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
     latest = latest_run_group(runs)
     state, under = dataset_protection(ctx.store.counts(dataset), {r["profile"]: r for r in latest})
     step = next_step(state, dataset)
-    return dataset_history_report(
+    data = dataset_history_report(
         f"ppd report — dataset {dataset}",
         runs,
         protection_text(state, under) + (f": {step}" if step else ""),
@@ -44,6 +45,10 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
         ctx.store.dataset_spec(dataset),
         f"Dataset {dataset!r} has never been verified: run `ppd verify {dataset}`.",
     )
+    corner = choice_text(dataset, latest_choice(ctx, dataset))
+    if corner is not None:  # where the mark went, and why (daemon.subject)
+        data.notes.insert(0, f"Placement: {corner}.")
+    return data
 
 
 def build_report(source: str, ctx: AppContext | None = None) -> ReportData:

@@ -345,3 +345,41 @@ def test_dataset_report_shows_the_recorded_visibility(ppd_env: dict[str, Path], 
         assert any("at display size" in f.caption for f in data.figures)
     finally:
         ctx.close()
+
+
+def test_dataset_report_counts_the_headline_and_says_the_masked_line_and_the_corner(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A corner-mark dataset: its report's verdict is default/hardened/published's, the masked attacker
+    has its own plain line, and the placement (corner and why) is said."""
+    from daemon.protect import AppContext, protect_file
+
+    (ppd_env["config"] / "config.toml").write_text(
+        '[patch]\nmotion = "tumble"\npatch_size = 0.075\ncorner_region = 0.2\ntumble_scale = 0.75\n'
+    )
+    ctx = AppContext.open()
+    try:
+        shoot = ppd_env["outbox"] / "shoot"
+        shoot.mkdir()
+        rng = np.random.default_rng(1)
+        for i in range(3):
+            pixels = rng.integers(0, 256, (200, 240, 3), dtype=np.uint8)
+            pixels[150:, 180:] = 90  # a plain bottom-right corner: the least detail
+            Image.fromarray(pixels).save(shoot / f"v{i}.png")
+            assert protect_file(shoot / f"v{i}.png", ctx).state == "patched"
+        run_dir = ctx.paths.runs_dir / "shoot" / "20260101T000000-abcdef"
+        verdicts = (("default", "protected"), ("hardened", "protected"), ("masked", "not_protected"))
+        for profile, verdict in verdicts:
+            ctx.store.add_verification_run(
+                "shoot", profile, verdict, {"reasons": [], "corner_mark": True}, 50.0, 100.0,
+                str(_profile_dir(run_dir, profile, verdict)), None,
+            )  # fmt: skip
+        data = dataset_reports.build_dataset_report(ctx, "shoot")
+    finally:
+        ctx.close()
+    assert data.verdict == "protected"  # masked is reported, not counted
+    assert data.holding is not None
+    assert data.holding.startswith("The protection holds under every profile run (default, hardened)")
+    assert "NOT protected against an attacker who masks the corners (a corner mark cannot be)" in data.holding
+    assert "Placement: shoot: mark in the bottom-right corner (estimated: least detail)." in data.notes
+    assert any("masks the four corner regions" in n for n in data.notes)

@@ -187,6 +187,41 @@ def test_verification_results_carry_visibility_and_what_ppd_verify_prints(tmp_pa
     assert only_masked.verdict == vd.NOT_PROTECTED and only_masked.not_holding() == ["masked"]
 
 
+def test_a_datasets_verification_gets_its_subject_masks_and_corner_kind(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """verify_dataset's options: the config's subject masks (visibility's "touches subject") and
+    whether the dataset's mark is corner-bound (the masked attacker's line); a bad mask folder is one line."""
+    from daemon.context import AppContext
+    from daemon.verify import dataset_options
+    from poisoner.ladder import named_spec
+
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    (ppd_env["config"] / "config.toml").write_text(f'[datasets.obj]\nsubject_masks = "{masks}"\n')
+    ctx = AppContext.open()
+    try:
+        ctx.store.ensure_dataset("obj", tmp_path / "obj", named_spec("watermark"))
+        ctx.store.ensure_dataset("roam", tmp_path / "roam", named_spec("roaming"))
+        options = dataset_options(ctx, "obj", VerifyOptions())
+        assert options.subject_masks == masks and options.corner_mark is True
+        roam = dataset_options(ctx, "roam", VerifyOptions())
+        assert roam.subject_masks is None and roam.corner_mark is False
+        given = dataset_options(ctx, "obj", VerifyOptions(subject_masks=tmp_path, corner_mark=False))
+        assert given.subject_masks == tmp_path and given.corner_mark is False  # the caller's win
+    finally:
+        ctx.close()
+    inside = ppd_env["outbox"] / "masks"
+    inside.mkdir()
+    (ppd_env["config"] / "config.toml").write_text(f'[datasets.obj]\nsubject_masks = "{inside}"\n')
+    ctx = AppContext.open()
+    try:
+        with pytest.raises(VerificationInputError, match="inside the outbox"):
+            dataset_options(ctx, "obj", VerifyOptions())
+    finally:
+        ctx.close()
+
+
 # ---- end to end with real COLMAP -----------------------------------------------------------------
 @pytest.fixture(scope="module")
 def synthetic_sets(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
@@ -421,3 +456,40 @@ def test_random_seed_reaches_colmap_and_is_recorded(object_sets: dict[str, Path]
     p = report.profiles["default"]
     assert p.clean["random_seed"] == 7 and p.poisoned["random_seed"] in (7, 8)  # 8: after a crash retry
     assert p.clean["registered"] == 12
+
+
+@pytest.mark.integration
+def test_verify_dataset_reports_masked_apart_and_measures_the_subject(
+    object_sets: dict[str, Path], ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A corner-mark dataset with subject masks in the config, verified by the daemon's path under
+    default and masked: masked is recorded and said on its own line, the headline is default's,
+    and the visibility stage measured the subject."""
+    from daemon.context import AppContext
+    from daemon.protect import protect_file
+    from daemon.verify import verify_dataset
+
+    obj, masks = ppd_env["outbox"] / "obj", tmp_path / "masks"
+    shutil.copytree(object_sets["clean"], obj)
+    masks.mkdir()
+    for p in sorted(obj.glob("*.png")):
+        pixels = np.asarray(Image.open(p).convert("RGB")).astype(int)
+        backdrop = pixels[0, 0]
+        subject = np.abs(pixels - backdrop).sum(axis=2) > 30  # the object on its plain backdrop
+        Image.fromarray((subject * 255).astype(np.uint8)).save(masks / p.name)
+    (ppd_env["config"] / "config.toml").write_text(
+        '[patch]\nmotion = "tumble"\npatch_size = 0.075\ncorner_region = 0.2\ntumble_scale = 0.75\n'
+        f'[datasets.obj]\nsubject_masks = "{masks}"\n'
+    )
+    ctx = AppContext.open()
+    try:
+        assert all(protect_file(p, ctx).state == "patched" for p in sorted(obj.glob("*.png")))
+        report = verify_dataset(ctx, "obj", ["default", "masked"], VerifyOptions(timeout_s=300))
+        rows = {r["profile"]: r for r in ctx.store.verification_runs("obj")}
+        assert set(rows) == {"default", "masked"} and rows["masked"]["metrics"]["corner_mark"] is True
+        assert report.verdict == report.profiles["default"].verdict  # masked is not counted
+        assert report.visibility is not None and report.visibility.worst.touches_subject is False
+        said = vd.masked_line(report.verdicts(), corner_mark=True)  # whatever this run's masked verdict
+        assert said is not None and said in report.summary_lines() and "masks the" in said
+    finally:
+        ctx.close()

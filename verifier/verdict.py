@@ -203,7 +203,7 @@ def holding_line(failing: Iterable[str], profiles: Iterable[str]) -> str:
 def headline(verdicts: Mapping[str, str]) -> dict[str, str]:
     """The profiles a headline verdict counts: HEADLINE_PROFILES among those run (all of them when
     none of those was run, e.g. `ppd verify --profile masked`)."""
-    counted = {name: v for name, v in verdicts.items() if name in HEADLINE_PROFILES}
+    counted = {name: verdicts[name] for name in HEADLINE_PROFILES if name in verdicts}  # in that order
     return counted or dict(verdicts)
 
 

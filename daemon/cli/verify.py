@@ -74,6 +74,21 @@ def _verify_stored(target: str | None, dataset: str | None, folder: Path | None,
         ctx.close()
 
 
+def _options(timeout: float, ground_truth: Path | None, splat: bool, splat_budget: float,
+             white_background: bool, subject_masks: Path | None) -> Any:  # fmt: skip
+    """The run's VerifyOptions from the command line (a --subject-masks that is no folder: one line)."""
+    from verifier.verification import VerifyOptions
+
+    if subject_masks is not None and not subject_masks.is_dir():
+        raise die(f"--subject-masks: {subject_masks} is not a folder", EXIT_USAGE)
+    options = VerifyOptions(
+        timeout_s=timeout, ground_truth=ground_truth, splat=splat,
+        subject_masks=subject_masks.absolute() if subject_masks is not None else None,
+    )  # fmt: skip
+    options.splat_options.update(time_budget_s=splat_budget, white_background=white_background)
+    return options
+
+
 def verify(
     target: str | None = typer.Argument(
         None, help="A dataset, or a folder ppd patched (or any patched folder, with --clean)."
@@ -114,19 +129,13 @@ def verify(
 
     from daemon.cli.targets import TargetError
     from daemon.cli.verify_tables import json_safe, print_report
-    from verifier.verification import PROFILES, VerificationInputError, VerifyOptions
+    from verifier.verification import PROFILES, VerificationInputError
 
     console = Console(stderr=as_json, soft_wrap=True, highlight=False)
     if profile not in PROFILE_CHOICES:
         raise die(f"--profile must be one of {', '.join(PROFILE_CHOICES)}", EXIT_USAGE)
     profiles = PROFILES if profile == "all" else (profile,)
-    if subject_masks is not None and not subject_masks.is_dir():
-        raise die(f"--subject-masks: {subject_masks} is not a folder", EXIT_USAGE)
-    options = VerifyOptions(
-        timeout_s=timeout, ground_truth=ground_truth, splat=splat,
-        subject_masks=subject_masks.absolute() if subject_masks is not None else None,
-    )  # fmt: skip
-    options.splat_options.update(time_budget_s=splat_budget, white_background=white_background)
+    options = _options(timeout, ground_truth, splat, splat_budget, white_background, subject_masks)
     try:
         if clean is not None:
             report = _verify_folder(folder or Path(target or ""), clean, out, profiles, options, console)
