@@ -57,6 +57,7 @@ from daemon.fsops import (
     writers_of,
 )
 from daemon.states import FileState
+from daemon.subject import SubjectMaskError, mask_folder_holding
 from daemon.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import TEMP_PREFIX, atomic_replace_at
 from poisoner.media import is_image, is_video
@@ -469,9 +470,15 @@ def named_vault_copy(ctx: AppContext, sha256: str, name: str) -> Iterator[Path]:
 
 # ---- the stages ------------------------------------------------------------------------------
 def check_name(job: Job) -> ProtectOutcome | None:
-    """Hidden files and ppd's temporaries are never touched; a name the store cannot hold is refused."""
+    """Hidden files and ppd's temporaries are never touched; a subject mask is refused (not the
+    file's fault: never quarantined); a name the store cannot hold is refused."""
     if is_ignored_name(job.path):
         return job.outcome(Outcome.SKIPPED, "hidden or temporary file")
+    if (key := mask_folder_holding(job.ctx.config, job.path)) is not None:
+        raise SubjectMaskError(
+            f"{shown_name(job.path)} is a subject mask ({key}): masks are never patched; "
+            "move the mask folder out of the outbox"
+        )
     if not storable(job.path):
         raise ProtectRefused(
             f"{shown_name(job.path)}: the file name is not valid UTF-8; rename it to protect it "

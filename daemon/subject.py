@@ -74,6 +74,23 @@ def subject_masks_for(ctx: AppContext, dataset: str, given: Path | None = None) 
     return check_mask_folder(configured, ctx.paths.outbox, f"[datasets.{dataset}] subject_masks")
 
 
+def check_config_masks(config: Any, outbox: Path) -> None:
+    """Every [datasets.NAME] subject_masks usable (SubjectMaskError, one line, for the first that is
+    not): what `ppd watch` checks before it starts."""
+    for name, override in config.datasets.items():
+        if override.subject_masks is not None:
+            check_mask_folder(override.subject_masks, outbox, f"[datasets.{name}] subject_masks")
+
+
+def mask_folder_holding(config: Any, path: Path) -> str | None:
+    """The config key of a subject-mask folder that holds path (its masks are never patched), or None."""
+    for name, override in config.datasets.items():
+        folder = override.subject_masks
+        if folder is not None and Path(path).absolute().is_relative_to(Path(folder).absolute()):
+            return f"[datasets.{name}] subject_masks"
+    return None
+
+
 def wants_corner(spec: PatchSpec, position_set: bool) -> bool:
     """Whether the dataset's corner is ppd's to choose: a corner mark whose corner nobody set."""
     return bool(getattr(spec, "corner_bound", False)) and not position_set

@@ -413,3 +413,20 @@ def test_preview_keeps_the_mark_off_the_subject(ppd_env: dict[str, Path], tmp_pa
     assert "image: mark in the bottom-right corner (from the subject masks" in text
     assert "inside one corner" in text and "no changed pixel on the subject" in text
     assert out.is_file()
+
+
+def test_a_folder_holding_its_mask_folder_leaves_the_masks_as_they_are(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """`ppd poison scan --subject-masks scan/mask` (DTU's layout): the images are patched, the masks not."""
+    scan = tmp_path / "scan"
+    files = masked_shoot(scan / "image", scan / "mask", n=3)
+    masks_before = snapshot(scan / "mask")
+    args = ["poison", str(scan), "--design", "watermark", "--subject-masks", str(scan / "mask")]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert f"left 3 subject mask(s) in {scan / 'mask'} as they are" in " ".join(result.output.split())
+    assert "patched 3, unchanged 0, skipped 0, failed 0" in result.output
+    assert snapshot(scan / "mask") == masks_before
+    assert all(changed_pixels(make_image(tmp_path / "x" / f.name, 20 + i, MASKED_SIZE), f).any()
+               for i, f in enumerate(files))  # fmt: skip

@@ -114,3 +114,28 @@ def test_a_few_random_instant_races_write_nothing_outside(tmp_path: Path, ppd_en
 
     result = run_symlink_races(tmp_path / "races", trials=6, seed=5)
     assert result.trials == 6 and result.violations == [], result.violations
+
+
+def test_a_subject_mask_in_the_outbox_is_never_patched_nor_quarantined(ppd_env: dict[str, Path]) -> None:
+    """A config that points a dataset's masks into the outbox: the daemon's path refuses each mask file
+    (failed, one line, not the file's fault), and a file of the dataset fails on the folder itself."""
+    masks = ppd_env["outbox"] / "masks"
+    mask = write_image(masks / "000.png", seed=2)
+    photo = write_image(ppd_env["outbox"] / "shoot" / "000000.png", seed=3)
+    (ppd_env["config"] / "config.toml").write_text(f'[datasets.shoot]\nsubject_masks = "{masks}"\n')
+    from daemon.subject import SubjectMaskError, check_config_masks
+
+    ctx = AppContext.open()
+    try:
+        with pytest.raises(SubjectMaskError, match="inside the outbox"):
+            check_config_masks(ctx.config, ctx.paths.outbox)  # what `ppd watch` checks at start
+        before = {p: _sha(p) for p in (mask, photo)}
+        refused = protect_file(mask, ctx)
+        assert refused.state == Outcome.FAILED and not refused.hopeless  # never quarantined for it
+        assert "is a subject mask ([datasets.shoot] subject_masks)" in refused.reason
+        failed = protect_file(photo, ctx)
+        assert failed.state == Outcome.FAILED and not failed.hopeless
+        assert "inside the outbox" in failed.reason and "\n" not in failed.reason
+        assert {p: _sha(p) for p in (mask, photo)} == before
+    finally:
+        ctx.close()

@@ -110,6 +110,19 @@ def dataset_masks(ctx: AppContext, jobs: list[Job], given: Path | None) -> dict[
     return masks
 
 
+def without_masks(jobs: list[Job], masks: dict[str, Path | None]) -> tuple[list[Job], list[str]]:
+    """The jobs without the subject masks themselves (a folder given whole may hold its mask folder:
+    DTU's `scan/image` and `scan/mask`), and one line per mask folder left as it is."""
+    folders = {m.absolute() for m in masks.values() if m is not None}
+    kept = [job for job in jobs if not any(job.path.absolute().is_relative_to(f) for f in folders)]
+    notes = []
+    for folder in sorted(folders):
+        left = sum(job.path.absolute().is_relative_to(folder) for job in jobs)
+        if left:
+            notes.append(f"left {left} subject mask(s) in {folder} as they are (masks are never patched)")
+    return kept, notes
+
+
 def _flag_spec(ctx: AppContext, dataset: str, options: SpecOptions) -> PatchSpec | None:
     """The spec the flags give a dataset (on its stored or configured one); None without flags."""
     from poisoner.spec import SpecError

@@ -146,8 +146,11 @@ def poison(
         planning.check_dataset_roots(ctx, jobs)
         planning.check_writable(jobs, dry_run)
         masks = planning.dataset_masks(ctx, jobs, subject_masks)
+        jobs, notes = planning.without_masks(jobs, masks)
+        if not jobs:
+            raise die("no files to patch besides the subject masks in " + ", ".join(str(p) for p in paths))
         wanted, corner_lines = planning.apply_spec(ctx, jobs, spec_options, dry_run, masks)
-        for line in corner_lines:
+        for line in [*notes, *corner_lines]:
             console().print(line, markup=False)
         outcomes = run_jobs(
             ctx, jobs, wanted, dry_run=dry_run, force=force, workers=workers, subject_masks=subject_masks
