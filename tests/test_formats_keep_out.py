@@ -13,6 +13,7 @@ from PIL import Image
 
 from poisoner import jpeg as jpeg_codec
 from poisoner import jpeg_turbo
+from poisoner.blend import patch_coverage
 from poisoner.formats import ImageFormatError, poison_file, poison_in_place
 from poisoner.image.keep_out import grow
 from poisoner.spec import PatchSpec
@@ -328,3 +329,45 @@ def test_poison_in_place_passes_keep_out_on(tmp_path: Path) -> None:
     with pytest.raises(ImageFormatError):
         poison_in_place(kept, SPEC, keep_out=np.zeros((3, 3), dtype=bool))
     assert np.array_equal(pixels(kept), original)  # the failed call left the file as it was
+
+
+# ---- real data: dtu_scan37 with its subject masks, through the file path ----------------------------
+@needs_jpegtran
+@pytest.mark.parametrize("suffix", [".png", ".jpg"])
+@pytest.mark.parametrize(("corner", "view"), [("chosen", 6), ("top-right", 2)])
+def test_dtu_photo_mark_stays_off_its_subject(
+    shared_dir: Path, tmp_path: Path, suffix: str, corner: str, view: int
+) -> None:
+    """A real photo and its real mask, the lanes watermark: in the corner chosen from the set's masks,
+    and in the top-right, where view 2's subject covers about half of the mark. No changed pixel on
+    the subject; every change inside the one corner region."""
+    from poisoner.ladder import WATERMARK_LANES_SPEC
+    from poisoner.placement import corner_box
+    from poisoner.subject import dataset_corner, load_subject_mask
+
+    root = shared_dir / "datasets" / "dtu_scan37"
+    if not root.is_dir():
+        pytest.skip("dtu_scan37 not in the shared datasets")
+    images = sorted((root / "images").glob("*.png"))
+    if corner == "chosen":
+        corner = dataset_corner(images, root / "mask").corner
+    spec = WATERMARK_LANES_SPEC.replace(position=corner)
+    src = tmp_path / f"{images[view].stem}{suffix}"
+    with Image.open(images[view]) as im:
+        im.convert("RGB").save(src, **({"quality": 92} if suffix == ".jpg" else {}))
+        w, h = im.size
+    mask = load_subject_mask(root / "mask", images[view].name, (w, h))
+    assert mask is not None and mask.any()
+    if view == 2:  # without the mask the mark would cover the subject here
+        placement = spec.resolve(w, h, image_key=src.name)
+        bx0, by0, bx1, by1 = placement.box
+        assert (patch_coverage(placement) & mask[by0:by1, bx0:bx1]).mean() > 0.1
+    dst = tmp_path / f"out{suffix}"
+    poison_file(src, dst, spec, keep_out=mask)
+    changed = (pixels(dst) != pixels(src)).any(axis=-1)
+    assert changed.sum() > 0.001 * changed.size  # the mark is there
+    assert not (changed & mask).any()
+    x0, y0, x1, y1 = corner_box(corner, w, h, 0.2)
+    ring = 1 if suffix == ".jpg" else 0  # chroma upsampling's one-pixel reach
+    changed[max(0, y0 - ring) : y1 + ring, max(0, x0 - ring) : x1 + ring] = False
+    assert not changed.any()
