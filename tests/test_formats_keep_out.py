@@ -225,6 +225,28 @@ def test_jpeg_diagonal_mask_exact_in_process(tmp_path: Path, case: str) -> None:
     assert diff[outside & ~_ring(MARK)].max() == 0
 
 
+@needs_jpegtran
+@needs_turbo
+@pytest.mark.parametrize("size", [(165, 133), (171, 140)])
+@pytest.mark.parametrize("subsampling", [0, 1, 2])
+def test_jpeg_diagonal_mask_at_a_partial_mcu_edge(
+    tmp_path: Path, size: tuple[int, int], subsampling: int
+) -> None:
+    """A bottom-right mark on a picture whose size is no multiple of the MCU, a mask cutting across
+    it: the partial MCUs at the edge keep their coefficients like any other masked MCU."""
+    w, h = size
+    src, dst = tmp_path / "a.jpg", tmp_path / "out.jpg"
+    Image.fromarray(photo(h, w)).save(src, quality=90, subsampling=subsampling)
+    yy, xx = np.mgrid[0:h, 0:w]
+    mask = (xx + yy > w + h - 70) & (xx - yy > w - h - 20)
+    spec = PatchSpec(patch_size=60, block_size=6, position="bottom-right")
+    report = poison_file(src, dst, spec, keep_out=mask)
+    diff = np.abs(pixels(dst) - pixels(src)).max(axis=-1)
+    assert diff[mask].max() == 0
+    assert (diff > 0).sum() > 1000
+    assert any("coefficients copied" in n for n in report.notes)
+
+
 def _ring(box: tuple[int, int, int, int], by: int = 1) -> np.ndarray:
     """The one-pixel ring around a box that fancy upsampling may touch."""
     x0, y0, x1, y1 = box
