@@ -21,6 +21,10 @@ Location (GPS IFD, XMP/IPTC place names) is removed from the output unless keep_
 embedded when given (poisoner.provenance). Before anything is decoded the header's declared size is
 checked against max_pixels (poisoner.limits).
 
+A keep-out mask (poison_file's keep_out: a subject mask, poisoner.subject) is honoured by every
+writer: the mark is not written on it. JPEG keeps whole MCUs near it (their coefficients copied
+where the in-process pass runs, poisoner.image.keep_out), so no decoded pixel on it changes.
+
 Every input is fully decoded before anything is written, so a truncated file fails before dst
 exists; errors are ImageFormatError with a one-line message, and src is never opened for writing.
 
