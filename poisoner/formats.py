@@ -21,6 +21,10 @@ Location (GPS IFD, XMP/IPTC place names) is removed from the output unless keep_
 embedded when given (poisoner.provenance). Before anything is decoded the header's declared size is
 checked against max_pixels (poisoner.limits).
 
+A keep-out mask (poison_file's keep_out: a subject mask, poisoner.subject) is honoured by every
+writer: the mark is not written on it. JPEG keeps whole MCUs near it (their coefficients copied
+where the in-process pass runs, poisoner.image.keep_out), so no decoded pixel on it changes.
+
 Every input is fully decoded before anything is written, so a truncated file fails before dst
 exists; errors are ImageFormatError with a one-line message, and src is never opened for writing.
 
@@ -159,9 +163,13 @@ def _poison_jpeg(
     # lossless crop around the box (jpeg_codec.decode_box), so the rest of the picture is never
     # decoded to pixels; otherwise (or when the crop is refused) from the whole decoded picture,
     # of which only the box is converted to an array.
+    holes = None if keep is None else _kept_mcus(keep, mark_box, box, layout)
     try:
-        out = _splice_jpeg(src, data, im, layout, box, patch, loaded)
+        out, kept_exactly = _splice_jpeg(src, data, im, layout, box, patch, loaded, holes)
         notes.append(f"DCT splice: only MCU box {box} re-encoded, all other coefficients copied")
+        if holes is not None:
+            how = "coefficients copied" if kept_exactly else "re-encoded from their own pixels, unpatched"
+            notes.append(f"{int(holes.sum())} MCU(s) of the box reach the keep-out mask: {how}")
         return out, preserved, notes, "jpeg-dct-splice"
     except jpeg_codec.SpliceUnavailable as exc:
         notes.append(f"DCT splice impossible ({exc}): whole image re-encoded with the source tables")
@@ -197,19 +205,32 @@ def _splice_box(
     return None if written is None else jpeg_codec.mcu_box(written, layout)
 
 
+def _kept_mcus(
+    keep: np.ndarray, mark_box: tuple[int, int, int, int], box: tuple[int, int, int, int],
+    layout: jpeg_codec.JpegLayout,
+) -> np.ndarray | None:
+    """The splice box's MCUs (rows x columns, True) the keep-out mask forbids; None when none. keep is
+    MCU-granular over mark_box, so each MCU's top-left pixel speaks for it."""
+    mw, mh = layout.mcu_size
+    inner = keep[box[1] - mark_box[1] : box[3] - mark_box[1], box[0] - mark_box[0] : box[2] - mark_box[0]]
+    holes = inner[::mh, ::mw]
+    return holes if holes.any() else None
+
+
 def _splice_jpeg(
     src: Path, data: bytes, im: Image.Image, layout: jpeg_codec.JpegLayout, box: tuple[int, int, int, int],
-    patch: Callable[[np.ndarray], np.ndarray], loaded: bool,
-) -> bytes:
-    """The patched JPEG with only the box's blocks re-encoded (patch: the box's pixels, patched);
-    raises SpliceUnavailable.
+    patch: Callable[[np.ndarray], np.ndarray], loaded: bool, holes: np.ndarray | None = None,
+) -> tuple[bytes, bool]:
+    """The patched JPEG with only the box's blocks re-encoded (patch: the box's pixels, patched), and
+    whether the MCUs in `holes` kept their coefficients (the in-process pass; jpegtran re-encodes
+    them from their own pixels). Raises SpliceUnavailable.
 
     Cheapest first: one in-process coefficient pass (libturbojpeg), else jpegtran's lossless crop of the
-    box, else the box cut from the whole decoded picture; the three write the same bytes."""
+    box, else the box cut from the whole decoded picture; the three write the same bytes (without holes)."""
     if loaded:
-        return jpeg_codec.splice_patch(src, im, layout, patch(np.asarray(im.crop(box))), box)
+        return jpeg_codec.splice_patch(src, im, layout, patch(np.asarray(im.crop(box))), box), False
     try:
-        return jpeg_codec.patch_in_one_pass(data, im, layout, box, patch)
+        return jpeg_codec.patch_in_one_pass(data, im, layout, box, patch, holes), True
     except jpeg_codec.SpliceUnavailable as exc:
         log.info("jpeg in-process splice unavailable", extra={"path": str(src), "reason": str(exc)})
     try:
@@ -218,7 +239,7 @@ def _splice_jpeg(
         log.info("jpeg region decode unavailable", extra={"path": str(src), "reason": str(exc)})
         _load_decoded(src, im)
         box_pixels = np.asarray(im.crop(box))
-    return jpeg_codec.splice_patch(src, im, layout, patch(box_pixels), box)
+    return jpeg_codec.splice_patch(src, im, layout, patch(box_pixels), box), False
 
 
 # ---- entry points --------------------------------------------------------------------------------

@@ -435,13 +435,17 @@ def patch_in_one_pass(
     layout: JpegLayout,
     box: tuple[int, int, int, int],
     patch: Callable[[np.ndarray], np.ndarray],
+    keep_mcus: np.ndarray | None = None,
 ) -> bytes:
     """The source JPEG (its bytes: data) with only the MCUs of the MCU-aligned `box` replaced by
     patch(box pixels), in one libturbojpeg call: the coefficients are entropy-decoded once, a
     lossless crop of the box + one MCU ring is written (small) and decoded by Pillow, and the
     whole picture is written once with the box's blocks swapped in; every other block, every
     marker segment and the quantisation tables are copied. Same bytes as the jpegtran path
-    (tests/test_jpeg_turbo.py). Raises SpliceUnavailable when it cannot be done here."""
+    (tests/test_jpeg_turbo.py). keep_mcus (the box's MCU rows x MCU columns, True = keep): those
+    MCUs keep the source's blocks too (pixels the patch must not touch, e.g. a subject mask; the
+    jpegtran path re-encodes them from their own pixels instead). Raises SpliceUnavailable when it
+    cannot be done here."""
     from poisoner import jpeg_turbo
 
     reason = turbo_available() or turbo_refusal(src, layout)
@@ -454,10 +458,12 @@ def patch_in_one_pass(
     new_blocks: list[np.ndarray] = []
 
     wanted = [range(r0, r0 + n) for (_, r0), n in zip(offsets, _component_rows(layout, box), strict=True)]
+    take: list[np.ndarray] = []
 
     def swap_in(row: int, blocks: np.ndarray, component: int, _index: int) -> None:
         if not new_blocks:  # first box row of the whole-picture transform: the crop is written by now
             new_blocks.extend(_patched_blocks(outputs.finished(0), src, layout, box, patch))
+            take.extend(_blocks_to_take(layout, keep_mcus, [b.shape[:2] for b in new_blocks]))
         col0, row0 = offsets[component]
         replacement = new_blocks[component]
         # The drop file's last MCU row may hold padding block rows (read_blocks keeps them): unused.
@@ -465,7 +471,8 @@ def patch_in_one_pass(
             raise SpliceUnavailable(
                 f"patched box has {replacement.shape[0]} block rows in component {component}"
             )
-        blocks[col0 : col0 + replacement.shape[1]] = replacement[row - row0]
+        row_take = take[component][row - row0]
+        blocks[col0 : col0 + replacement.shape[1]][row_take] = replacement[row - row0][row_take]
 
     specs = [
         (jpeg_turbo.crop_spec(crop_box(box, layout)), None),
@@ -478,6 +485,24 @@ def patch_in_one_pass(
     check = read_layout(out)
     if (check.width, check.height, check.components) != (layout.width, layout.height, layout.components):
         raise SpliceUnavailable("libturbojpeg output has a different frame")
+    return out
+
+
+def _blocks_to_take(
+    layout: JpegLayout, keep_mcus: np.ndarray | None, shapes: list[tuple[int, ...]]
+) -> list[np.ndarray]:
+    """Per component, which of the patched box's blocks (rows x columns, `shapes`) replace the
+    source's: all, except the blocks of MCUs in keep_mcus."""
+    if keep_mcus is None:
+        return [np.ones(shape[:2], dtype=bool) for shape in shapes]
+    factors = [(1, 1)] if layout.components == 1 else list(layout.sampling)
+    out = []
+    for (h, v), shape in zip(factors, shapes, strict=True):
+        per_block = np.repeat(np.repeat(~keep_mcus, v, axis=0), h, axis=1)
+        take = np.ones(shape[:2], dtype=bool)  # padding blocks beyond the box: as before
+        rows, cols = min(shape[0], per_block.shape[0]), min(shape[1], per_block.shape[1])
+        take[:rows, :cols] = per_block[:rows, :cols]
+        out.append(take)
     return out
 
 

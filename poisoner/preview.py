@@ -6,8 +6,8 @@ Layout (RGB uint8):
     +-----------------+-----------------+
     |    original     |    poisoned     |   the whole picture, patch box outlined in red
     +-----------------+-----------------+
-    | original zoom   | poisoned zoom   |   the patch region (plus a margin), nearest-neighbour
-    +-----------------+-----------------+
+    | original zoom   | poisoned zoom   |   the patch region (plus a margin), nearest-neighbour;
+    +-----------------+-----------------+   with a subject mask, its edge drawn in cyan
 
 Large pictures are shown subsampled (every k-th pixel) so the preview stays under max_width;
 the zoom row is always taken from the full-resolution arrays, so the pattern's blocks stay sharp.
@@ -21,6 +21,7 @@ from poisoner.spec import PatchPlacement
 
 GAP = 4  # pixels of dark grey between panels
 OUTLINE = np.array([255, 0, 0], dtype=np.uint8)
+SUBJECT_EDGE = np.array([0, 255, 255], dtype=np.uint8)
 BACKGROUND = 32
 
 
@@ -76,12 +77,17 @@ def render_preview(
     *,
     max_width: int = 1600,
     labels: tuple[str, str] | None = None,
+    subject: np.ndarray | None = None,
 ) -> np.ndarray:
     """Original | poisoned side by side, with a nearest-neighbour zoom of the patch region below;
-    with labels, each panel gets its caption in a strip above it."""
+    with labels, each panel gets its caption in a strip above it. subject (H x W, nonzero = the
+    subject, the keep_out the poisoned picture was made with): its edge is drawn on the zooms, so
+    a viewer sees the mark stop at it."""
     a, b = to_rgb8(original), to_rgb8(poisoned)
     if a.shape != b.shape:
         raise ValueError(f"original {a.shape} and poisoned {b.shape} differ in size")
+    if subject is not None and subject.shape[:2] != a.shape[:2]:
+        raise ValueError(f"subject mask {subject.shape[:2]} does not match the picture {a.shape[:2]}")
     h, w = a.shape[:2]
     step = max(1, -(-(2 * w + GAP) // max_width))  # subsample so both panels fit max_width
     x0, y0, x1, y1 = placement.box
@@ -98,7 +104,12 @@ def render_preview(
     # sharp): the zooms fill the bottom row instead of leaving part of the canvas empty.
     panel_width = panels[0].shape[1]
     zoom_size = (panel_width, max(1, round(panel_width * (zy1 - zy0) / max(1, zx1 - zx0))))
-    zooms = [_nearest(img[zy0:zy1, zx0:zx1], zoom_size) for img in (a, b)]
+    crops = [img[zy0:zy1, zx0:zx1].copy() for img in (a, b)]
+    if subject is not None:
+        edge = _mask_edge(subject[zy0:zy1, zx0:zx1] > 0)
+        for crop in crops:
+            crop[edge] = SUBJECT_EDGE
+    zooms = [_nearest(crop, zoom_size) for crop in crops]
     bottom = _hstack(zooms[0], zooms[1])
     width = max(top.shape[1], bottom.shape[1])
     out = np.full((top.shape[0] + GAP + bottom.shape[0], width, 3), BACKGROUND, dtype=np.uint8)
@@ -115,6 +126,16 @@ def render_preview(
 
 
 LABEL_HEIGHT = 18
+
+
+def _mask_edge(mask: np.ndarray) -> np.ndarray:
+    """The mask's pixels with a 4-neighbour outside it (its one-pixel edge)."""
+    inner = mask.copy()
+    inner[1:] &= mask[:-1]
+    inner[:-1] &= mask[1:]
+    inner[:, 1:] &= mask[:, :-1]
+    inner[:, :-1] &= mask[:, 1:]
+    return mask & ~inner
 
 
 def _nearest(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:

@@ -177,3 +177,23 @@ def test_turned_mark_changes_only_its_covered_pixels_and_keeps_off_the_subject()
     assert np.any((kept != img).any(axis=2))
     with pytest.raises(ValueError, match="keep_out"):
         apply_patch(img, p, keep_out=np.zeros((10, 10), bool))
+
+
+@pytest.mark.parametrize("origin", [(0, 0), (8, 16), (40, 24), (-1, -1)])
+def test_apply_patch_at_a_window_is_the_crop_of_the_whole_picture(origin: tuple[int, int]) -> None:
+    """A box-local writer (a JPEG MCU box, a cropped region) gets exactly the whole picture's pixels,
+    with the mark cut at the window's edges and keep_out honoured."""
+    from poisoner.blend import apply_patch_at
+
+    rng = np.random.default_rng(3)
+    pixels = rng.integers(0, 256, size=(96, 128, 3), dtype=np.uint8)
+    keep = np.zeros((96, 128), dtype=bool)
+    keep[:, :30] = True
+    spec = PatchSpec(patch_size=24, block_size=4, motion="tumble", corner_region=0.5, pattern="random_blocks")
+    placement = spec.resolve(128, 96, image_key="IMG_0005.jpg")
+    whole = apply_patch(pixels, placement, keep)
+    x, y = (placement.x + 5, placement.y + 7) if origin == (-1, -1) else origin
+    window = (slice(y, y + 32), slice(x, x + 40))
+    got = apply_patch_at(pixels[window], placement, (x, y), keep[window])
+    np.testing.assert_array_equal(got, whole[window])
+    assert (whole != pixels).any() and not (whole != pixels)[keep].any()

@@ -101,3 +101,17 @@ def test_keep_out_margin_grows_the_mask() -> None:
     assert grown is not None
     assert grown.sum() == 25 and grown[8:13, 8:13].all()
     assert keep_out_mask(None) is None
+
+
+def test_corner_bound_says_which_specs_live_in_one_corner() -> None:
+    """A dataset's corner may be chosen off its subject only for marks confined to one corner region."""
+    from poisoner.ladder import named_specs
+    from poisoner.spec import PatchSpec
+
+    specs = named_specs()
+    assert specs["watermark"].corner_bound and specs["watermark-lanes"].corner_bound
+    assert specs["watermark"].replace(motion="spin").corner_bound
+    assert not specs["roaming"].corner_bound  # roams over the frame
+    assert not specs["paper"].corner_bound  # the static reference keeps its corner
+    assert not PatchSpec(motion="drift", motion_step=0.01).corner_bound
+    assert not PatchSpec(motion="slide", motion_step=0.01, position="center").corner_bound

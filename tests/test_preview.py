@@ -116,3 +116,27 @@ def test_labels_add_a_caption_strip() -> None:
     assert labelled.shape[0] == plain.shape[0] + LABEL_HEIGHT
     assert (labelled[:LABEL_HEIGHT] > 200).any()  # white text in the strip
     np.testing.assert_array_equal(labelled[LABEL_HEIGHT : LABEL_HEIGHT + 200], plain[:200])  # panels intact
+
+
+def test_subject_edge_is_drawn_on_the_zooms() -> None:
+    """With the subject mask the picture was poisoned around, its edge shows in cyan on both zooms,
+    and the zoomed subject pixels of the poisoned picture are the original's."""
+    from poisoner.preview import SUBJECT_EDGE
+
+    original = scene()
+    placement = PatchSpec(patch_size=40, block_size=4, position="center").resolve(300, 200)
+    subject = np.zeros((200, 300), dtype=bool)
+    subject[:, :150] = True  # the subject covers the mark's left half
+    poisoned = apply_patch(original, placement, subject)
+    out = render_preview(original, poisoned, placement, subject=subject)
+    zx0, zy0, zx1, zy1 = zoom_box(placement, 300, 200)
+    scale = 300 // (zx1 - zx0)
+    bottom = out[200 + GAP :]
+    for panel in (bottom[:, :300], bottom[:, 300 + GAP :]):
+        edge_col = (149 - zx0) * scale  # the subject's last column, x = 149
+        assert (panel[5 * scale, edge_col] == SUBJECT_EDGE).all()
+    zoom_right = bottom[:, 300 + GAP :]
+    dx = 140 - zx0  # inside the subject, inside the mark: untouched
+    assert (zoom_right[20 * scale, dx * scale] == original[zy0 + 20, 140]).all()
+    with pytest.raises(ValueError, match="subject mask"):
+        render_preview(original, poisoned, placement, subject=subject[:10])

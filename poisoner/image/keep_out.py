@@ -52,9 +52,7 @@ def grow(mask: np.ndarray, by_x: int, by_y: int) -> np.ndarray:
     return out
 
 
-def mcu_keep_out(
-    keep_out: np.ndarray, box: Box, mcu: tuple[int, int], reach: tuple[int, int]
-) -> np.ndarray:
+def mcu_keep_out(keep_out: np.ndarray, box: Box, mcu: tuple[int, int], reach: tuple[int, int]) -> np.ndarray:
     """Over the MCU-aligned `box`, the MCUs the mark must not write (as a box-sized bool array):
     those within `reach` (x, y) px of a kept-out pixel of the whole-picture `keep_out`."""
     x0, y0, x1, y1 = box
