@@ -86,11 +86,10 @@ def _planned_spec(
 
 
 def _planned_pair(
-    ctx: AppContext, file: Path, options: SpecOptions, masks: Path | None
+    ctx: AppContext, file: Path, options: SpecOptions, masks: Path | None, keep_out: Any
 ) -> tuple[Any, Any, Any, int | None, tuple[str, str]]:
     """Any photo with its dataset's spec (or the flags'), patched in memory only; off the subject
-    where a mask for it exists."""
-    from daemon.subject import load_keep_out
+    (keep_out, the file's subject mask) where it has one."""
     from poisoner.blend import apply_patch, poison_array
 
     spec, line = _planned_spec(ctx, file, options, masks)
@@ -101,16 +100,35 @@ def _planned_pair(
         placement = placement_for(spec, original, file)
         poisoned = apply_patch(original, placement)
     else:
-        keep_out = load_keep_out(masks, file) if masks is not None else None
         poisoned, placement = poison_array(original, spec, image_key=file.name, keep_out=keep_out)
     labels = (f"original ({file.name})", "patched (preview, not written)")
     return original, poisoned, placement, orientation, labels
 
 
+def _oriented(mask: Any, orientation: int | None) -> Any:
+    """A bool mask of the stored pixels as the picture is shown (uint8 0/255, H x W)."""
+    import numpy as np
+
+    from poisoner.preview import orient
+
+    shown = orient(np.asarray(mask, np.uint8) * 255, orientation)
+    return shown if shown.ndim == 2 else shown[..., 0]
+
+
+def _subject_of(masks: Path | None, file: Path) -> Any:
+    """The file's subject mask (stored pixels, bool), or None (no masks, none for it, a video)."""
+    if masks is None or _is_video(file):
+        return None
+    from daemon.subject import load_keep_out
+
+    return load_keep_out(masks, file)
+
+
 def _render(
     ctx: AppContext, file: Path, options: SpecOptions, masks: Path | None
-) -> tuple[Any, Any, Any, int | None]:
-    """(preview picture, original, patched, EXIF orientation), both oriented as a viewer sees them."""
+) -> tuple[Any, Any, Any, Any]:
+    """(preview picture, original, patched, subject mask or None), oriented as a viewer sees them;
+    the subject's edge is drawn on the zooms."""
     from daemon.states import PATCHED_VALUES
     from poisoner.errors import ImageFormatError
     from poisoner.preview import orient, oriented_placement, render_preview
@@ -118,14 +136,18 @@ def _render(
 
     row = ctx.store.file(file)
     try:
+        keep_out = _subject_of(masks, file)
         if row is not None and row["state"] in PATCHED_VALUES and not options.given():
             original, poisoned, placement, orientation, labels = _stored_pair(ctx, file, row)
         else:
-            original, poisoned, placement, orientation, labels = _planned_pair(ctx, file, options, masks)
+            planned = _planned_pair(ctx, file, options, masks, keep_out)
+            original, poisoned, placement, orientation, labels = planned
         h, w = original.shape[:2]
         placement = oriented_placement(placement, orientation, w, h)
         original, poisoned = orient(original, orientation), orient(poisoned, orientation)
-        return render_preview(original, poisoned, placement, labels=labels), original, poisoned, orientation
+        subject = None if keep_out is None else _oriented(keep_out, orientation)
+        picture = render_preview(original, poisoned, placement, labels=labels, subject=subject)
+        return picture, original, poisoned, subject
     except (SpecError, ValueError, ImageFormatError) as exc:
         raise die(one_line(exc)) from None
 
@@ -193,7 +215,7 @@ def preview(
     try:
         file = file.absolute()
         masks = _preview_masks(ctx, file, subject_masks)
-        image, original, poisoned, orientation = _render(ctx, file, spec_options, masks)
+        image, original, poisoned, subject = _render(ctx, file, spec_options, masks)
         target = (out or Path.cwd() / f"{file.stem}.ppd-preview.png").absolute()
         try:
             Image.fromarray(image).save(target, format="PNG")
@@ -201,27 +223,10 @@ def preview(
             raise die(os_error_text(exc, hint_out=False), EXIT_ENVIRONMENT) from None
         console().print(f"preview written to {target}", markup=False)
         if visibility:
-            subject = _oriented_mask(masks, file, orientation, original)
             line = _visibility_line(original, poisoned, display_width, subject)
             console().print(line, markup=False, soft_wrap=True)
     finally:
         ctx.close()
-
-
-def _oriented_mask(masks: Path | None, file: Path, orientation: int | None, shown: Any) -> Any:
-    """The file's subject mask as the preview shows the picture (oriented), or None."""
-    if masks is None or _is_video(file):
-        return None
-    import numpy as np
-
-    from daemon.subject import load_keep_out
-    from poisoner.preview import orient
-
-    mask = load_keep_out(masks, file)
-    if mask is None:
-        return None
-    mask = orient(np.asarray(mask, dtype=np.uint8) * 255, orientation)
-    return mask if mask.shape[:2] == shown.shape[:2] else None
 
 
 def register(app: typer.Typer) -> None:
