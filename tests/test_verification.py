@@ -90,6 +90,23 @@ def test_overall_is_the_weakest_profile() -> None:
     assert vd.overall([vd.INCONCLUSIVE]) == vd.INCONCLUSIVE
 
 
+def test_the_headline_counts_default_hardened_published_and_masked_has_its_own_line() -> None:
+    run = {"masked": "not_protected", "published": "protected", "default": "protected", "hardened": "weak"}
+    assert list(vd.headline(run)) == ["default", "hardened", "published"]  # masked left out, in order
+    assert vd.headline_verdict(run) == vd.WEAK
+    assert vd.headline_verdict({"default": "protected", "masked": "not_protected"}) == vd.PROTECTED
+    assert vd.headline({"masked": "weak"}) == {"masked": "weak"}  # only masked run: it is the headline
+    corner = vd.masked_line(run, corner_mark=True)
+    assert corner == "NOT protected against an attacker who masks the corners (a corner mark cannot be)"
+    roaming = vd.masked_line(run, corner_mark=False)
+    assert roaming is not None and roaming.startswith("NOT protected against an attacker who masks")
+    assert "a corner mark cannot be" not in roaming and "defeats any corner" in roaming
+    held = vd.masked_line({"default": "protected", "masked": "protected"}, corner_mark=False)
+    assert held is not None and held.startswith("protected against an attacker who masks the corners too")
+    assert vd.masked_line({"default": "protected"}, corner_mark=True) is None  # not run: nothing said
+    assert vd.masked_line({"masked": "not_protected"}, corner_mark=True) is None  # it is the headline then
+
+
 # ---- inputs and helpers -------------------------------------------------------------------------
 def test_profiles_expand_and_reject_unknown() -> None:
     assert expand_profiles("all") == ["default", "hardened", "published", "masked"]

@@ -224,8 +224,8 @@ def masked_line(verdicts: Mapping[str, str], corner_mark: bool | None) -> str | 
             return "NOT protected against an attacker who masks the corners (a corner mark cannot be)"
         return (
             f"{verdict_words(verdict)} against an attacker who masks the corners (not counted in the "
-            f"verdict above; {MASKED_MEANING})"
+            f"verdict above); {MASKED_MEANING}"
         )
     if verdict == Verdict.PROTECTED:
-        return f"protected against an attacker who masks the corners too ({MASKED_MEANING})"
-    return f"masked attacker: {verdict_words(verdict)} ({MASKED_MEANING})"
+        return f"protected against an attacker who masks the corners too; {MASKED_MEANING}"
+    return f"masked attacker: {verdict_words(verdict)}; {MASKED_MEANING}"
