@@ -57,7 +57,7 @@ from daemon.fsops import (
     writers_of,
 )
 from daemon.states import FileState
-from daemon.subject import SubjectMaskError, mask_folder_holding
+from daemon.subject import SubjectMaskError, mask_folder_holding, masks_or_none
 from daemon.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import TEMP_PREFIX, atomic_replace_at
 from poisoner.media import is_image, is_video
@@ -427,7 +427,7 @@ def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, 
         scratch = original.with_name(f"redo{path.suffix}")
         try:
             poison_to(
-                kind, original, scratch, spec, subject_masks=_masks_or_none(ctx, row["dataset"]),
+                kind, original, scratch, spec, subject_masks=masks_or_none(ctx, row["dataset"]),
                 marker=provenance_marker(spec.spec_id, original_sha), keep_location=ctx.config.keep_location,
             )  # fmt: skip
         except Exception:  # cannot redo it: treat the file as new content
@@ -440,16 +440,6 @@ def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, 
         mtime_ns=st.st_mtime_ns, error=None, event="recovered", detail={"from": "pending"},
     )  # fmt: skip
     return True
-
-
-def _masks_or_none(ctx: AppContext, dataset: str) -> Path | None:
-    """The config's subject masks of a dataset, or None when it has none or they cannot be used."""
-    from daemon.subject import SubjectMaskError, subject_masks_for
-
-    try:
-        return subject_masks_for(ctx, dataset)
-    except SubjectMaskError:
-        return None
 
 
 @contextlib.contextmanager

@@ -50,7 +50,7 @@ from daemon.pipeline import (
     tool_version,
 )
 from daemon.states import FileState
-from daemon.subject import subject_masks_for
+from daemon.subject import masks_or_none, sibling_images, subject_masks_for
 from daemon.vault import sha256_file
 from poisoner.atomic import atomic_output
 from poisoner.spec import PatchSpec
@@ -191,8 +191,11 @@ def _record_failure(
     if not storable(out_path or path):  # no row can name it; the log line says why
         log.warning("not recorded: %s: %s", shown_name(path), message, extra={"path": repr(str(path))})
     elif not dry_run:
-        try:
-            ensure_dataset(ctx, dataset, root, spec)
+        try:  # a new dataset's corner is judged on the files next to this one (it could not be read)
+            ensure_dataset(
+                ctx, dataset, root, spec, sample=lambda: sibling_images(path),
+                mask_dir=masks_or_none(ctx, dataset),
+            )  # fmt: skip
             ctx.store.record_file(
                 out_path or path, dataset, FileState.FAILED, error=message, event="failed",
                 detail={"error": message, "exception": type(exc).__name__},

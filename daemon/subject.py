@@ -15,6 +15,7 @@ Light at import (`ppd poison --help`): numpy and PIL load inside the functions t
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 from collections.abc import Sequence
@@ -74,6 +75,15 @@ def subject_masks_for(ctx: AppContext, dataset: str, given: Path | None = None) 
     return check_mask_folder(configured, ctx.paths.outbox, f"[datasets.{dataset}] subject_masks")
 
 
+def masks_or_none(ctx: AppContext, dataset: str) -> Path | None:
+    """The config's subject masks of a dataset, or None when it has none or they cannot be used
+    (where a mask folder is a nicety: redoing a run, judging a corner after a failure)."""
+    try:
+        return subject_masks_for(ctx, dataset)
+    except SubjectMaskError:
+        return None
+
+
 def check_config_masks(config: Any, outbox: Path) -> None:
     """Every [datasets.NAME] subject_masks usable (SubjectMaskError, one line, for the first that is
     not): what `ppd watch` checks before it starts."""
@@ -97,20 +107,34 @@ def wants_corner(spec: PatchSpec, position_set: bool) -> bool:
 
 
 def place_corner(spec: PatchSpec, files: Sequence[Path], mask_dir: Path | None) -> Placed:
-    """spec with the corner `dataset_corner` picks over files (and their masks). Files that cannot
-    be judged are left out; with none left, the spec keeps its position (source 'default')."""
+    """spec with the corner `dataset_corner` picks over the first CORNER_SAMPLE files (and their
+    masks). Files that cannot be read are left out; with none left, the spec keeps its position
+    (source 'default')."""
     from poisoner.errors import ImageFormatError
     from poisoner.subject import dataset_corner
 
     region = float(getattr(spec, "corner_region", 0.2) or 0.2)
-    for sample in (list(files)[:CORNER_SAMPLE], list(files)[:1]):
-        try:
-            choice = dataset_corner(sample, mask_dir, region=region, sample=CORNER_SAMPLE)
-        except (ImageFormatError, OSError, ValueError) as exc:
-            log.info("corner not judged on %d file(s): %s", len(sample), exc, extra={"error": str(exc)})
-            continue
-        return Placed(spec.replace(position=choice.corner), choice)
-    return Placed(spec, _default_choice(spec))
+    sample = list(files)[:CORNER_SAMPLE]
+    judge = functools.partial(dataset_corner, mask_dir=mask_dir, region=region, sample=CORNER_SAMPLE)
+    try:
+        choice = judge(sample)
+    except (ImageFormatError, OSError, ValueError) as exc:  # one unreadable file: judge the others
+        log.info("corner: %s; judging the readable files only", exc, extra={"error": str(exc)})
+        readable = [f for f in sample if _judgeable(judge, f)]
+        if not readable:
+            return Placed(spec, _default_choice(spec))
+        choice = judge(readable)
+    return Placed(spec.replace(position=choice.corner), choice)
+
+
+def _judgeable(judge: Any, file: Path) -> bool:
+    from poisoner.errors import ImageFormatError
+
+    try:
+        judge([file])
+    except (ImageFormatError, OSError, ValueError):
+        return False
+    return True
 
 
 def _default_choice(spec: PatchSpec) -> Any:
