@@ -222,13 +222,14 @@ def _splice_jpeg(
     patch: Callable[[np.ndarray], np.ndarray], loaded: bool, holes: np.ndarray | None = None,
 ) -> tuple[bytes, bool]:
     """The patched JPEG with only the box's blocks re-encoded (patch: the box's pixels, patched), and
-    whether the MCUs in `holes` kept their coefficients (the in-process pass; jpegtran re-encodes
-    them from their own pixels). Raises SpliceUnavailable.
+    whether the MCUs in `holes` kept their coefficients (wherever libturbojpeg is there; without it
+    jpegtran's drop re-encodes them from their own pixels). Raises SpliceUnavailable.
 
     Cheapest first: one in-process coefficient pass (libturbojpeg), else jpegtran's lossless crop of the
     box, else the box cut from the whole decoded picture; the three write the same bytes (without holes)."""
+    exact = jpeg_codec.turbo_available() is None
     if loaded:
-        return jpeg_codec.splice_patch(src, im, layout, patch(np.asarray(im.crop(box))), box), False
+        return jpeg_codec.splice_patch(src, im, layout, patch(np.asarray(im.crop(box))), box, holes), exact
     try:
         return jpeg_codec.patch_in_one_pass(data, im, layout, box, patch, holes), True
     except jpeg_codec.SpliceUnavailable as exc:
@@ -239,7 +240,7 @@ def _splice_jpeg(
         log.info("jpeg region decode unavailable", extra={"path": str(src), "reason": str(exc)})
         _load_decoded(src, im)
         box_pixels = np.asarray(im.crop(box))
-    return jpeg_codec.splice_patch(src, im, layout, patch(box_pixels), box), False
+    return jpeg_codec.splice_patch(src, im, layout, patch(box_pixels), box, holes), exact
 
 
 # ---- entry points --------------------------------------------------------------------------------
