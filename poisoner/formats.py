@@ -51,7 +51,7 @@ from poisoner.atomic import atomic_output
 from poisoner.blend import apply_patch_at
 from poisoner.errors import ImageFormatError
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
-from poisoner.image.keep_out import checked_keep_out, mcu_keep_out, written_box
+from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box
 from poisoner.image.png import PNG_SIGNATURE, png_chunks, poison_png, splice_png, strip_png_location
 from poisoner.image.read import load_decoded, one_line, open_decoded
 from poisoner.image.tiff import poison_tiff
@@ -151,7 +151,7 @@ def _poison_jpeg(
         keep = mcu_keep_out(keep_out, mark_box, layout.mcu_size, _chroma_reach(layout))
     box = mark_box if keep is None else _splice_box(placement, mark_box, keep, layout)
     if box is None:
-        notes.append("the keep-out mask covers the whole mark: pixels left unchanged")
+        notes.append("the keep-out mask reaches every MCU of the mark: pixels left unchanged")
         return data, preserved, notes, "jpeg-unchanged"
 
     def patch(pixels: np.ndarray, at: tuple[int, int, int, int] = box) -> np.ndarray:
@@ -285,7 +285,7 @@ def poison_file(
     out, preserved, notes, method, lossless, removed = _write_format(
         src, im, data, fmt, placement, keep, keep_location=keep_location, marker=marker, loaded=not region
     )
-    notes += _file_notes(src, im, fmt, removed)
+    notes += [n for n in [kept_out_note(placement, keep)] if n] + _file_notes(src, im, fmt, removed)
     dst.write_bytes(out)
     report = PoisonReport(
         fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out), removed

@@ -15,6 +15,7 @@ numpy and PIL are imported inside the functions: the CLI imports this module at 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -53,11 +54,19 @@ def mask_path(mask_dir: Path, image_name: str) -> Path | None:
         if path.is_file():
             return path
     if stem.isdigit() and mask_dir.is_dir():
-        number = int(stem)
-        for path in sorted(mask_dir.iterdir()):
-            if path.suffix.lower() in _MASK_SUFFIXES and path.stem.isdigit() and int(path.stem) == number:
-                return path
+        return _numbered_masks(str(mask_dir), mask_dir.stat().st_mtime_ns).get(int(stem))
     return None
+
+
+@functools.lru_cache(maxsize=8)
+def _numbered_masks(mask_dir: str, _mtime_ns: int) -> dict[int, Path]:
+    """Number -> mask file of a folder's numbered masks (first by name wins), listed once per
+    folder state (the folder's mtime is part of the key), not once per image."""
+    found: dict[int, Path] = {}
+    for path in sorted(Path(mask_dir).iterdir()):
+        if path.suffix.lower() in _MASK_SUFFIXES and path.stem.isdigit():
+            found.setdefault(int(path.stem), path)
+    return found
 
 
 def load_subject_mask(mask_dir: Path, image_name: str, size: tuple[int, int]) -> np.ndarray | None:

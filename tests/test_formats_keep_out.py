@@ -86,7 +86,8 @@ def test_png_keep_out_half(tmp_path: Path, mode: str) -> None:
     elif mode != "RGB":
         im = im.convert(mode)
     im.save(src)
-    poison_file(src, dst, SPEC, keep_out=left_half_mask())
+    report = poison_file(src, dst, SPEC, keep_out=left_half_mask())
+    assert "keep-out mask: 50% of the mark's pixels left unwritten" in report.notes
     as_mode = "RGB" if mode == "P" else None
     assert_exact_halves(pixels(src, as_mode), pixels(dst, as_mode))
 
@@ -342,6 +343,7 @@ def test_mask_over_the_whole_mark_leaves_the_pixels(tmp_path: Path) -> None:
     full = np.ones((H, W), dtype=bool)
     report = poison_file(src, tmp_path / "out.jpg", SPEC, keep_out=full, keep_location=True)
     assert report.method == "jpeg-unchanged"
+    assert "keep-out mask covers the whole mark: nothing written in this image" in report.notes
     assert (tmp_path / "out.jpg").read_bytes() == src.read_bytes()
     png = tmp_path / "a.png"
     Image.fromarray(photo()).save(png)
