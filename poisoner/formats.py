@@ -22,8 +22,9 @@ embedded when given (poisoner.provenance). Before anything is decoded the header
 checked against max_pixels (poisoner.limits).
 
 A keep-out mask (poison_file's keep_out: a subject mask, poisoner.subject) is honoured by every
-writer: the mark is not written on it. JPEG keeps whole MCUs near it (their coefficients copied
-where the in-process pass runs, poisoner.image.keep_out), so no decoded pixel on it changes.
+writer: the mark is not written on it. JPEG leaves whole MCUs near it unwritten and splices only
+the MCUs the mark writes; masked MCUs inside that box keep the source's coefficients wherever
+libturbojpeg is there (poisoner.image.keep_out), so no decoded pixel on the mask changes.
 
 Every input is fully decoded before anything is written, so a truncated file fails before dst
 exists; errors are ImageFormatError with a one-line message, and src is never opened for writing.
@@ -226,7 +227,7 @@ def _splice_jpeg(
     jpegtran's drop re-encodes them from their own pixels). Raises SpliceUnavailable.
 
     Cheapest first: one in-process coefficient pass (libturbojpeg), else jpegtran's lossless crop of the
-    box, else the box cut from the whole decoded picture; the three write the same bytes (without holes)."""
+    box, else the box cut from the whole decoded picture; the three write the same bytes."""
     exact = jpeg_codec.turbo_available() is None
     if loaded:
         return jpeg_codec.splice_patch(src, im, layout, patch(np.asarray(im.crop(box))), box, holes), exact
