@@ -41,6 +41,10 @@ Three ways, best first:
    re-encode is a second generation of JPEG loss over the whole picture (measured in
    docs/FORMATS.md); the caller records a note.
 
+Pixels the patch must not touch (a subject mask, `keep_mcus`): their MCUs inside the box keep the
+source's coefficients on ways 0 and 1 (1. puts them back into the drop file in-process, with
+libturbojpeg; without it they are re-encoded from their own, unpatched pixels).
+
 A decoder detail worth knowing: libjpeg's "fancy" chroma upsampling interpolates between
 neighbouring chroma samples, so a decoded pixel in the MCU row/column right next to the box
 can still move by a level or two even though its coefficients are identical.
@@ -449,8 +453,8 @@ def patch_in_one_pass(
     marker segment and the quantisation tables are copied. Same bytes as the jpegtran path
     (tests/test_jpeg_turbo.py). keep_mcus (the box's MCU rows x MCU columns, True = keep): those
     MCUs keep the source's blocks too (pixels the patch must not touch, e.g. a subject mask; the
-    jpegtran path re-encodes them from their own pixels instead). Raises SpliceUnavailable when it
-    cannot be done here."""
+    jpegtran path gets them back with keep_source_mcus). Raises SpliceUnavailable when it cannot be
+    done here."""
     from poisoner import jpeg_turbo
 
     reason = turbo_available() or turbo_refusal(src, layout)
