@@ -22,8 +22,9 @@ embedded when given (poisoner.provenance). Before anything is decoded the header
 checked against max_pixels (poisoner.limits).
 
 A keep-out mask (poison_file's keep_out: a subject mask, poisoner.subject) is honoured by every
-writer: the mark is not written on it. JPEG keeps whole MCUs near it (their coefficients copied
-where the in-process pass runs, poisoner.image.keep_out), so no decoded pixel on it changes.
+writer: the mark is not written on it. JPEG leaves whole MCUs near it unwritten and splices only
+the MCUs the mark writes; masked MCUs inside that box keep the source's coefficients wherever
+libturbojpeg is there (poisoner.image.keep_out), so no decoded pixel on the mask changes.
 
 Every input is fully decoded before anything is written, so a truncated file fails before dst
 exists; errors are ImageFormatError with a one-line message, and src is never opened for writing.
@@ -51,7 +52,7 @@ from poisoner.atomic import atomic_output
 from poisoner.blend import apply_patch_at
 from poisoner.errors import ImageFormatError
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
-from poisoner.image.keep_out import checked_keep_out, mcu_keep_out, written_box
+from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box
 from poisoner.image.png import PNG_SIGNATURE, png_chunks, poison_png, splice_png, strip_png_location
 from poisoner.image.read import load_decoded, one_line, open_decoded
 from poisoner.image.tiff import poison_tiff
@@ -151,7 +152,7 @@ def _poison_jpeg(
         keep = mcu_keep_out(keep_out, mark_box, layout.mcu_size, _chroma_reach(layout))
     box = mark_box if keep is None else _splice_box(placement, mark_box, keep, layout)
     if box is None:
-        notes.append("the keep-out mask covers the whole mark: pixels left unchanged")
+        notes.append("the keep-out mask reaches every MCU of the mark: pixels left unchanged")
         return data, preserved, notes, "jpeg-unchanged"
 
     def patch(pixels: np.ndarray, at: tuple[int, int, int, int] = box) -> np.ndarray:
@@ -222,13 +223,14 @@ def _splice_jpeg(
     patch: Callable[[np.ndarray], np.ndarray], loaded: bool, holes: np.ndarray | None = None,
 ) -> tuple[bytes, bool]:
     """The patched JPEG with only the box's blocks re-encoded (patch: the box's pixels, patched), and
-    whether the MCUs in `holes` kept their coefficients (the in-process pass; jpegtran re-encodes
-    them from their own pixels). Raises SpliceUnavailable.
+    whether the MCUs in `holes` kept their coefficients (wherever libturbojpeg is there; without it
+    jpegtran's drop re-encodes them from their own pixels). Raises SpliceUnavailable.
 
     Cheapest first: one in-process coefficient pass (libturbojpeg), else jpegtran's lossless crop of the
-    box, else the box cut from the whole decoded picture; the three write the same bytes (without holes)."""
+    box, else the box cut from the whole decoded picture; the three write the same bytes."""
+    exact = jpeg_codec.turbo_available() is None
     if loaded:
-        return jpeg_codec.splice_patch(src, im, layout, patch(np.asarray(im.crop(box))), box), False
+        return jpeg_codec.splice_patch(src, im, layout, patch(np.asarray(im.crop(box))), box, holes), exact
     try:
         return jpeg_codec.patch_in_one_pass(data, im, layout, box, patch, holes), True
     except jpeg_codec.SpliceUnavailable as exc:
@@ -239,7 +241,7 @@ def _splice_jpeg(
         log.info("jpeg region decode unavailable", extra={"path": str(src), "reason": str(exc)})
         _load_decoded(src, im)
         box_pixels = np.asarray(im.crop(box))
-    return jpeg_codec.splice_patch(src, im, layout, patch(box_pixels), box), False
+    return jpeg_codec.splice_patch(src, im, layout, patch(box_pixels), box, holes), exact
 
 
 # ---- entry points --------------------------------------------------------------------------------
@@ -284,7 +286,7 @@ def poison_file(
     out, preserved, notes, method, lossless, removed = _write_format(
         src, im, data, fmt, placement, keep, keep_location=keep_location, marker=marker, loaded=not region
     )
-    notes += _file_notes(src, im, fmt, removed)
+    notes += [n for n in [kept_out_note(placement, keep)] if n] + _file_notes(src, im, fmt, removed)
     dst.write_bytes(out)
     report = PoisonReport(
         fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out), removed

@@ -41,6 +41,10 @@ Three ways, best first:
    re-encode is a second generation of JPEG loss over the whole picture (measured in
    docs/FORMATS.md); the caller records a note.
 
+Pixels the patch must not touch (a subject mask, `keep_mcus`): their MCUs inside the box keep the
+source's coefficients on ways 0 and 1 (1. puts them back into the drop file in-process, with
+libturbojpeg; without it they are re-encoded from their own, unpatched pixels).
+
 A decoder detail worth knowing: libjpeg's "fancy" chroma upsampling interpolates between
 neighbouring chroma samples, so a decoded pixel in the MCU row/column right next to the box
 can still move by a level or two even though its coefficients are identical.
@@ -345,15 +349,20 @@ def splice_patch(
     layout: JpegLayout,
     patched_box: np.ndarray,
     box: tuple[int, int, int, int],
+    keep_mcus: np.ndarray | None = None,
 ) -> bytes:
     """Return the source JPEG with only the MCUs in `box` (MCU-aligned, see mcu_box) replaced
-    by `patched_box` (its pixels, already patched). Raises SpliceUnavailable when it cannot be
-    done for this file."""
+    by `patched_box` (its pixels, already patched). keep_mcus (the box's MCU rows x columns, True =
+    keep): those MCUs keep the source's coefficients where libturbojpeg is there
+    (`keep_source_mcus`), else they are re-encoded from their own pixels. Raises SpliceUnavailable
+    when it cannot be done for this file."""
     binary = _check_splice_layout(src, layout)
     if box != mcu_box(box, layout):
         raise ValueError(f"box {box} is not MCU-aligned")
     x0, y0 = box[0], box[1]
     drop_bytes = encode_like(np.ascontiguousarray(patched_box), src, layout, metadata=False)
+    if keep_mcus is not None and turbo_available() is None:
+        drop_bytes = keep_source_mcus(drop_bytes, src_path.read_bytes(), layout, box, keep_mcus)
     cmd = [binary, "-copy", "all"]
     if not (STANDARD_HUFFMAN_AS_SOURCE and keeps_standard_huffman(layout)):
         cmd.append("-optimize")
@@ -444,8 +453,8 @@ def patch_in_one_pass(
     marker segment and the quantisation tables are copied. Same bytes as the jpegtran path
     (tests/test_jpeg_turbo.py). keep_mcus (the box's MCU rows x MCU columns, True = keep): those
     MCUs keep the source's blocks too (pixels the patch must not touch, e.g. a subject mask; the
-    jpegtran path re-encodes them from their own pixels instead). Raises SpliceUnavailable when it
-    cannot be done here."""
+    jpegtran path gets them back with keep_source_mcus). Raises SpliceUnavailable when it cannot be
+    done here."""
     from poisoner import jpeg_turbo
 
     reason = turbo_available() or turbo_refusal(src, layout)
@@ -504,6 +513,30 @@ def _blocks_to_take(
         take[:rows, :cols] = per_block[:rows, :cols]
         out.append(take)
     return out
+
+
+def keep_source_mcus(
+    drop: bytes, data: bytes, layout: JpegLayout, box: tuple[int, int, int, int], keep_mcus: np.ndarray
+) -> bytes:
+    """The drop file (the patched box, encoded with the source's tables) with the MCUs in keep_mcus
+    holding the source's own coefficients (a lossless crop of the box, read in-process), so
+    jpegtran's drop leaves them exactly as they were. Raises SpliceUnavailable."""
+    from poisoner import jpeg_turbo
+
+    try:
+        source = jpeg_turbo.read_blocks(jpeg_turbo.transform(data, [(jpeg_turbo.crop_spec(box), None)])[0])
+        patched = [b.shape[:2] for b in jpeg_turbo.read_blocks(drop)]
+        if patched != [b.shape[:2] for b in source]:
+            raise SpliceUnavailable(f"source crop has blocks {[b.shape[:2] for b in source]}, drop {patched}")
+        take = _blocks_to_take(layout, keep_mcus, patched)
+
+        def restore(row: int, blocks: np.ndarray, component: int, _index: int) -> None:
+            keep = ~take[component][row]
+            blocks[keep] = source[component][row][keep]
+
+        return jpeg_turbo.transform(drop, [jpeg_turbo.filter_spec(restore, copy_markers=False)])[0]
+    except jpeg_turbo.TurboUnavailable as exc:
+        raise SpliceUnavailable(f"cannot keep the source's blocks: {exc}") from exc
 
 
 def turbo_available() -> str | None:

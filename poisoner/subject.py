@@ -15,20 +15,28 @@ numpy and PIL are imported inside the functions: the CLI imports this module at 
 
 from __future__ import annotations
 
+import functools
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import msgspec
 
+from poisoner.errors import ImageFormatError
+from poisoner.media import IMAGE_SUFFIXES, SFM_SUFFIXES
+
 if TYPE_CHECKING:
     import numpy as np
     from PIL import Image
 
+log = logging.getLogger(__name__)
+
 THUMBNAIL_PX = 256  # longest side of the picture the estimate looks at
 DETAIL_LEVEL = 6.0  # gradient magnitude (8-bit levels per thumbnail pixel) that counts as detail
 MASK_GRID = (256, 256)  # (w, h): masks of differently sized images compared on one grid
-_MASK_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".gif")
+# what a mask file may be: any image ppd or COLMAP reads (COLMAP's own masks are PNG: tried first)
+_MASK_SUFFIXES = (".png", *sorted((IMAGE_SUFFIXES | SFM_SUFFIXES) - {".png"}))
 
 
 class CornerChoice(msgspec.Struct, frozen=True):
@@ -53,11 +61,19 @@ def mask_path(mask_dir: Path, image_name: str) -> Path | None:
         if path.is_file():
             return path
     if stem.isdigit() and mask_dir.is_dir():
-        number = int(stem)
-        for path in sorted(mask_dir.iterdir()):
-            if path.suffix.lower() in _MASK_SUFFIXES and path.stem.isdigit() and int(path.stem) == number:
-                return path
+        return _numbered_masks(str(mask_dir), mask_dir.stat().st_mtime_ns).get(int(stem))
     return None
+
+
+@functools.lru_cache(maxsize=8)
+def _numbered_masks(mask_dir: str, _mtime_ns: int) -> dict[int, Path]:
+    """Number -> mask file of a folder's numbered masks (first by name wins), listed once per
+    folder state (the folder's mtime is part of the key), not once per image."""
+    found: dict[int, Path] = {}
+    for path in sorted(Path(mask_dir).iterdir()):
+        if path.suffix.lower() in _MASK_SUFFIXES and path.stem.isdigit():
+            found.setdefault(int(path.stem), path)
+    return found
 
 
 def load_subject_mask(mask_dir: Path, image_name: str, size: tuple[int, int]) -> np.ndarray | None:
@@ -115,9 +131,10 @@ def dataset_corner(
     masks covers least (placement.choose_corner on their union); without one (or with no mask for any
     sampled image), the corner with the least image detail over a sample of the images; with
     neither, the default corner."""
+    from poisoner.media import is_image
     from poisoner.placement import CORNERS
 
-    paths = sorted(Path(p) for p in image_paths)
+    paths = sorted(Path(p) for p in image_paths if is_image(p))
     picked = _sampled(paths, sample)
     if mask_dir is not None:
         choice = _corner_from_masks(picked, Path(mask_dir), region)
@@ -131,8 +148,15 @@ def dataset_corner(
 def _corner_from_masks(paths: Sequence[Path], mask_dir: Path, region: float) -> CornerChoice | None:
     from poisoner.placement import choose_corner, corner_cover
 
-    masks = [load_subject_mask(mask_dir, p.name, MASK_GRID) for p in paths]
-    present = [m for m in masks if m is not None]
+    present = []
+    for path in paths:
+        try:
+            mask = load_subject_mask(mask_dir, path.name, MASK_GRID)
+        except ImageFormatError as exc:  # one bad mask does not decide the set's corner
+            log.warning("subject mask unreadable", extra={"path": str(path), "reason": str(exc)})
+            continue
+        if mask is not None:
+            present.append(mask)
     if not present:
         return None
     import numpy as np
@@ -148,13 +172,19 @@ def _corner_from_detail(paths: Sequence[Path], region: float) -> CornerChoice:
     shares: dict[str, list[float]] = {c: [] for c in CORNERS}
     means: dict[str, list[float]] = {c: [] for c in CORNERS}
     for path in paths:
-        grad = detail_map(path)
+        try:
+            grad = detail_map(path)
+        except ImageFormatError as exc:  # the pipeline reports the file; the others still count
+            log.warning("image unreadable for the corner", extra={"path": str(path), "reason": str(exc)})
+            continue
         h, w = grad.shape
         for corner in CORNERS:
             x0, y0, x1, y1 = corner_box(corner, w, h, region)
             cell = grad[y0:y1, x0:x1]
             shares[corner].append(float((cell > DETAIL_LEVEL).mean()))
             means[corner].append(float(cell.mean()))
+    if not shares[CORNERS[0]]:
+        return CornerChoice(CORNERS[0], "default", {})
     cover = {c: sum(v) / len(v) for c, v in shares.items()}
     mean = {c: sum(v) / len(v) for c, v in means.items()}
     corner = min(CORNERS, key=lambda c: (round(cover[c], 2), mean[c], CORNERS.index(c)))

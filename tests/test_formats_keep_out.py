@@ -86,7 +86,8 @@ def test_png_keep_out_half(tmp_path: Path, mode: str) -> None:
     elif mode != "RGB":
         im = im.convert(mode)
     im.save(src)
-    poison_file(src, dst, SPEC, keep_out=left_half_mask())
+    report = poison_file(src, dst, SPEC, keep_out=left_half_mask())
+    assert "keep-out mask: 50% of the mark's pixels left unwritten" in report.notes
     as_mode = "RGB" if mode == "P" else None
     assert_exact_halves(pixels(src, as_mode), pixels(dst, as_mode))
 
@@ -257,6 +258,55 @@ def _ring(box: tuple[int, int, int, int], by: int = 1) -> np.ndarray:
 
 
 @needs_jpegtran
+@needs_turbo
+@pytest.mark.parametrize("route", ["restart", "optimised", "whole-decode"])
+def test_jpeg_diagonal_mask_exact_through_jpegtran(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, route: str
+) -> None:
+    """Sources the in-process pass refuses (restart markers, optimised Huffman tables) and the
+    whole-decode route go through jpegtran's drop: the masked MCUs inside the box still keep the
+    source's coefficients (the drop file gets them back before the drop)."""
+    import poisoner.formats as formats
+
+    src, dst = tmp_path / "a.jpg", tmp_path / "out.jpg"
+    im = Image.fromarray(photo())
+    if route == "restart":
+        im.save(src, "JPEG", quality=90, restart_marker_blocks=4)
+    else:
+        im.save(src, "JPEG", quality=90, optimize=route == "optimised")
+    if route == "whole-decode":
+        monkeypatch.setattr(formats, "JPEG_REGION_DECODE", False)
+    before = pixels(src)
+    mask = diagonal_mask()
+    report = poison_file(src, dst, SPEC, keep_out=mask)
+    assert report.method == "jpeg-dct-splice"
+    assert any("coefficients copied" in n for n in report.notes)
+    diff = np.abs(pixels(dst) - before).max(axis=-1)
+    assert diff[mask > 0].max() == 0
+    assert diff[MARK[1] : MARK[3], MARK[0] : MARK[2]].max() > 100
+
+
+@needs_jpegtran
+@needs_turbo
+@pytest.mark.parametrize("case", ["420", "progressive"])
+def test_jpeg_masked_splice_same_bytes_either_way(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str
+) -> None:
+    """With masked MCUs inside the box, the in-process pass and jpegtran's drop still write one file."""
+    src = tmp_path / "a.jpg"
+    write_jpeg(src, case)
+    poison_file(src, tmp_path / "one-pass.jpg", SPEC, keep_out=diagonal_mask())
+
+    def refuse(*_args: object, **_kw: object) -> bytes:
+        raise jpeg_codec.SpliceUnavailable("test: in-process pass off")
+
+    monkeypatch.setattr(jpeg_codec, "patch_in_one_pass", refuse)
+    poison_file(src, tmp_path / "jpegtran.jpg", SPEC, keep_out=diagonal_mask())
+    one_pass, dropped = (tmp_path / "one-pass.jpg").read_bytes(), (tmp_path / "jpegtran.jpg").read_bytes()
+    assert one_pass == dropped != src.read_bytes()
+
+
+@needs_jpegtran
 def test_jpeg_diagonal_mask_jpegtran_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Without the in-process pass, unwritten MCUs inside the box are re-encoded from their own
     pixels: the masked pixels move by the codec's rounding only, never by the mark."""
@@ -293,6 +343,7 @@ def test_mask_over_the_whole_mark_leaves_the_pixels(tmp_path: Path) -> None:
     full = np.ones((H, W), dtype=bool)
     report = poison_file(src, tmp_path / "out.jpg", SPEC, keep_out=full, keep_location=True)
     assert report.method == "jpeg-unchanged"
+    assert "keep-out mask covers the whole mark: nothing written in this image" in report.notes
     assert (tmp_path / "out.jpg").read_bytes() == src.read_bytes()
     png = tmp_path / "a.png"
     Image.fromarray(photo()).save(png)

@@ -198,3 +198,26 @@ def test_lego_estimate_picks_an_empty_corner(shared_dir: Path) -> None:
         x0, y0, x1, y1 = corner_box(choice.corner, alpha.shape[1], alpha.shape[0], 0.2)
         covered.append(alpha[y0:y1, x0:x1].mean())
     assert max(covered) < 0.02
+
+
+def test_unreadable_files_do_not_decide_the_corner(tmp_path: Path) -> None:
+    """A broken picture, a video and a broken mask are left out; the readable rest decides."""
+    images, masks = tmp_path / "images", tmp_path / "masks"
+    images.mkdir()
+    masks.mkdir()
+    for i in range(3):
+        Image.fromarray(_picture(("top-left",), seed=i)).save(images / f"{i:03d}.png")
+    (images / "003.png").write_bytes(b"\x89PNG\r\n\x1a\ntruncated")
+    (images / "clip.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42")
+    paths = sorted(images.iterdir())
+    choice = dataset_corner(paths, None)
+    assert choice.source == "estimated" and choice.corner != "top-left"
+    subject = np.zeros((300, 400), dtype=bool)
+    subject[150:, 200:] = True
+    _write_mask(masks / "000.png", subject)
+    (masks / "001.png").write_bytes(b"not a png")
+    choice = dataset_corner(paths, masks)
+    assert choice.source == "masks" and choice.corner == "top-left"
+    assert choice.cover["bottom-right"] == 1.0
+    only_broken = dataset_corner([images / "003.png"], None)
+    assert only_broken.source == "default"

@@ -38,6 +38,21 @@ def _shape(mask: np.ndarray) -> str:
     return "x".join(str(n) for n in mask.shape) + " (not H x W)"
 
 
+def kept_out_note(placement: PatchPlacement, keep: np.ndarray | None) -> str | None:
+    """A report note when the keep-out mask reaches the mark: how much of it is left unwritten."""
+    if keep is None:
+        return None
+    x0, y0, x1, y1 = placement.box
+    cover = patch_coverage(placement)
+    blocked = int((cover & keep[y0:y1, x0:x1]).sum())
+    if blocked == 0:
+        return None
+    share = blocked / max(1, int(cover.sum()))
+    if share >= 1.0:
+        return "keep-out mask covers the whole mark: nothing written in this image"
+    return f"keep-out mask: {share:.0%} of the mark's pixels left unwritten"
+
+
 def grow(mask: np.ndarray, by_x: int, by_y: int) -> np.ndarray:
     """mask dilated by a (2 by_x + 1) x (2 by_y + 1) rectangle (small reaches: shifts, no SciPy)."""
     out = mask.copy()

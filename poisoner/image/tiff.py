@@ -39,12 +39,9 @@ _TIFF_LOSSLESS = {"raw", "tiff_lzw", "tiff_deflate", "tiff_adobe_deflate", "pack
 
 
 def poison_tiff(
-    im: Image.Image,
-    placement: PatchPlacement,
-    keep_location: bool,
-    marker: Marker | None,
+    im: Image.Image, placement: PatchPlacement, keep_location: bool, marker: Marker | None,
     keep_out: np.ndarray | None = None,
-) -> tuple[bytes, list[str], list[str], bool, list[str]]:
+) -> tuple[bytes, list[str], list[str], bool, list[str]]:  # fmt: skip
     if im.mode not in ("L", "LA", "RGB", "RGBA", "I;16", "I;16B", "P", "1"):
         raise ImageFormatError(f"TIFF mode {im.mode} is not supported")
     bits = im.tag_v2.get(258)
