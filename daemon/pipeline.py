@@ -620,6 +620,8 @@ def _corner_sample(job: Job) -> list[Path]:
     from daemon.subject import sibling_images
 
     assert job.file is not None
+    if job.kind != "image":  # a video is never judged (nor copied for it): its neighbours are
+        return sibling_images(job.path)
     job.work = job.work or work_folder(job.ctx, job.held)
     folder = job.work / "corner"
     folder.mkdir(exist_ok=True)
