@@ -103,24 +103,24 @@ def mask_folder_holding(config: Any, path: Path) -> str | None:
 
 def wants_corner(spec: PatchSpec, position_set: bool) -> bool:
     """Whether the dataset's corner is ppd's to choose: a corner mark whose corner nobody set."""
-    return bool(getattr(spec, "corner_bound", False)) and not position_set
+    return spec.corner_bound and not position_set
 
 
 def place_corner(spec: PatchSpec, files: Sequence[Path], mask_dir: Path | None) -> Placed:
-    """spec with the corner `dataset_corner` picks over the first CORNER_SAMPLE files (and their
-    masks). Files that cannot be read are left out; with none left, the spec keeps its position
-    (source 'default')."""
+    """spec with the corner `dataset_corner` picks over files (CORNER_SAMPLE of them, spread over the
+    set, and their masks). Files that cannot be read are left out; with none left, the spec keeps
+    its position (source 'default')."""
     from poisoner.errors import ImageFormatError
     from poisoner.subject import dataset_corner
 
-    region = float(getattr(spec, "corner_region", 0.2) or 0.2)
-    sample = list(files)[:CORNER_SAMPLE]
+    region = spec.corner_region
     judge = functools.partial(dataset_corner, mask_dir=mask_dir, region=region, sample=CORNER_SAMPLE)
+    sample = list(files)
     try:
         choice = judge(sample)
     except (ImageFormatError, OSError, ValueError) as exc:  # one unreadable file: judge the others
         log.info("corner: %s; judging the readable files only", exc, extra={"error": str(exc)})
-        readable = [f for f in sample if _judgeable(judge, f)]
+        readable = [f for f in sample[: 4 * CORNER_SAMPLE] if _judgeable(judge, f)]
         if not readable:
             return Placed(spec, _default_choice(spec))
         choice = judge(readable)
