@@ -15,6 +15,7 @@ from verifier.verdict import NOT_PROTECTED as _VERDICT_NOT_PROTECTED
 from verifier.verdict import PROTECTED as _VERDICT_PROTECTED
 from verifier.verdict import VERDICT_WORDS as VERDICT_WORDS  # re-exported: the verifier's words
 from verifier.verdict import WEAK as _VERDICT_WEAK
+from verifier.verdict import headline
 from verifier.verdict import verdict_words as verdict_words
 
 
@@ -63,11 +64,12 @@ def dataset_protection(
     store_counts is Store.counts(dataset); latest_runs_by_profile maps each profile to its newest
     verification run (a mapping with a "verdict"). The weakest profile decides: one NOT protected
     profile makes the dataset NOT protected, whatever the others say. The profiles returned are
-    the ones the state is about (those that failed, or those it holds under).
+    the ones the state is about (those that failed, or those it holds under). Only the headline
+    profiles count (verifier.verdict.headline): `masked` is reported on its own line.
     """
     if patched_count(store_counts) == 0:
         return Protection.NOTHING_PATCHED, []
-    verdicts = {p: str(run.get("verdict") or "") for p, run in latest_runs_by_profile.items()}
+    verdicts = headline({p: str(run.get("verdict") or "") for p, run in latest_runs_by_profile.items()})
     if not verdicts:
         return Protection.PATCHED_NOT_VERIFIED, []
     for verdict, protection in (

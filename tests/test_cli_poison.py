@@ -389,6 +389,10 @@ def test_a_mask_folder_inside_the_outbox_is_refused(ppd_env: dict[str, Path], tm
     refused = runner.invoke(app, ["poison", str(shoot)])
     assert refused.exit_code != 0 and "[datasets.shoot] subject_masks" in refused.output
     assert "inside the outbox" in refused.output
+    # and `ppd watch` will not start on it (the daemon would publish the masks)
+    watch = runner.invoke(app, ["watch", str(ppd_env["outbox"]), "--no-verify"])
+    assert watch.exit_code == 1
+    assert len(watch.output.strip().splitlines()) == 1 and "inside the outbox" in watch.output, watch.output
 
 
 def test_config_subject_masks_that_are_gone_is_one_line(ppd_env: dict[str, Path], tmp_path: Path) -> None:

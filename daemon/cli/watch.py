@@ -55,7 +55,14 @@ def watch(
     """Watch the outbox and protect every photo or video that lands in it (foreground)."""
     from daemon.watcher import DaemonOptions, WatchDaemon
 
+    from daemon.subject import SubjectMaskError, check_config_masks
+
     ctx = _open_context(outbox)
+    try:
+        check_config_masks(ctx.config, ctx.paths.outbox)  # a mask folder in the outbox would be published
+    except SubjectMaskError as exc:
+        ctx.close()
+        raise _fail(str(exc)) from None
     options = DaemonOptions.from_config(ctx.config, workers=workers, settle_s=debounce, verify=verify)
     daemon = WatchDaemon(ctx, options)
     interrupts = 0
