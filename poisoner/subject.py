@@ -76,12 +76,15 @@ def _numbered_masks(mask_dir: str, _mtime_ns: int) -> dict[int, Path]:
     return found
 
 
-def load_subject_mask(mask_dir: Path, image_name: str, size: tuple[int, int]) -> np.ndarray | None:
+def load_subject_mask(
+    mask_dir: Path, image_name: str, size: tuple[int, int], *, same_shape: bool = True
+) -> np.ndarray | None:
     """The subject mask of `image_name` as a bool H x W array at `size` (w, h): True = subject.
 
     Read from the alpha channel where the file has transparency, else from its grey levels; a pixel
     is subject above half the file's largest value (0/1, 0/255 and a JPEG's noisy 0/255 alike).
-    Resized nearest-neighbour when its size differs. None when no mask file exists; a file that
+    Resized nearest-neighbour when its size differs (a different shape is refused unless not
+    same_shape, e.g. for a common comparison grid). None when no mask file exists; a file that
     cannot be read: poisoner.errors.ImageFormatError (one line)."""
     path = mask_path(Path(mask_dir), image_name)
     if path is None:
@@ -94,10 +97,23 @@ def load_subject_mask(mask_dir: Path, image_name: str, size: tuple[int, int]) ->
     with decode_errors(path), Image.open(path) as im:
         im.load()
         if im.size != tuple(size):
+            if same_shape:
+                _check_same_shape(path, im.size, size)
             im = im.resize(tuple(size), Image.Resampling.NEAREST)
         values = _mask_values(im)
     top = values.max() if values.size else 0
     return values > top / 2 if top > 0 else np.zeros(values.shape, dtype=bool)
+
+
+def _check_same_shape(path: Path, mask: tuple[int, int], image: tuple[int, int]) -> None:
+    """A mask may be another size (DTU's full-size masks for a resized set), never another shape: a
+    mask drawn on a phone photo's turned view (EXIF orientation) is its transpose, and stretching it
+    would put the subject elsewhere."""
+    if abs(mask[0] * image[1] - mask[1] * image[0]) > 0.02 * mask[0] * image[1]:
+        raise ImageFormatError(
+            f"{path.name}: the mask is {mask[0]}x{mask[1]}, the image {image[0]}x{image[1]}: not the same "
+            "shape (drawn on a turned view?); masks are in the file's stored pixels"
+        )
 
 
 def _mask_values(im: Image.Image) -> np.ndarray:
@@ -151,7 +167,7 @@ def _corner_from_masks(paths: Sequence[Path], mask_dir: Path, region: float) -> 
     present = []
     for path in paths:
         try:
-            mask = load_subject_mask(mask_dir, path.name, MASK_GRID)
+            mask = load_subject_mask(mask_dir, path.name, MASK_GRID, same_shape=False)
         except ImageFormatError as exc:  # one bad mask does not decide the set's corner
             log.warning("subject mask unreadable", extra={"path": str(path), "reason": str(exc)})
             continue

@@ -51,6 +51,9 @@ def test_mask_is_read_as_bool_and_resized_nearest(tmp_path: Path) -> None:
     assert big is not None and big.shape == (60, 80)
     assert np.array_equal(big[::2, ::2], mask)  # nearest: no grey edge becomes a half-subject
     assert load_subject_mask(tmp_path, "b.jpg", (40, 30)) is None
+    # another shape (a mask drawn on the turned view of a phone photo) is refused, not stretched
+    with pytest.raises(ImageFormatError, match="not the same shape"):
+        load_subject_mask(tmp_path, "a.jpg", (30, 40))
 
 
 def test_alpha_and_value_conventions(tmp_path: Path) -> None:
