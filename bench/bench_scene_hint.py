@@ -61,19 +61,32 @@ def _noise(sigma: float) -> Transform:
     return add
 
 
+def _marked(name: str) -> Transform:
+    """The picture as `ppd poison` leaves it: what the hint reads when it runs after poisoning."""
+    from poisoner.blend import poison_array
+    from poisoner.ladder import default_spec, named_spec
+
+    spec = default_spec() if name == "default" else named_spec(name)
+    return lambda im: Image.fromarray(poison_array(np.asarray(im), spec, image_key="view.png")[0])
+
+
 VARIANTS: dict[str, list[tuple[str, Transform | None, str]]] = {
     "lego": [
         ("as published (800 px)", None, "png"), ("reduced to 400 px", _width(400), "png"),
         ("enlarged to 1600 px", _width(1600), "png"),
         ("centre crop 70%", _crop(0.15, 0.15, 0.85, 0.85), "png"),
         ("off-centre crop 60%", _crop(0.0, 0.0, 0.6, 0.6), "png"),
-        ("sensor noise sigma 3 levels", _noise(3.0), "png"), ("JPEG q85", None, "jpg"),
+        ("sensor noise sigma 3 levels", _noise(3.0), "png"),
+        ("sensor noise sigma 8 levels", _noise(8.0), "png"),
+        ("JPEG q85", None, "jpg"), ("after ppd's default mark", _marked("default"), "png"),
+        ("after the watermark mark", _marked("watermark"), "png"),
     ],
     "dtu_scan37": [
         ("reduced to 800 px", _width(800), "png"), ("as published (1600 px)", None, "png"),
         ("centre crop 70%", _crop(0.15, 0.15, 0.85, 0.85), "png"),
         ("lower half (the support)", _crop(0.0, 0.5, 1.0, 1.0), "png"),
         ("upper half", _crop(0.0, 0.0, 1.0, 0.5), "png"), ("JPEG q85", None, "jpg"),
+        ("after the watermark mark", _marked("watermark"), "png"),
     ],
     "fountain-P11": [
         ("as published (3072 px)", None, "jpg"), ("reduced to 1600 px", _width(1600), "jpg"),

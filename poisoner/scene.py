@@ -43,6 +43,9 @@ MIN_CELL_PX = 8
 # COLMAP's SIFT peak threshold (0.02 / 3 levels per octave), on grey levels in [0, 1].
 PEAK_THRESHOLD = 0.02 / 3
 DOG_SIGMAS = (1.0, 2.0)  # the band that a 4 px block pattern and fine scene texture both fill
+# Sensor noise also reaches SIFT's threshold in this band, and its keypoints never match across views:
+# a cell counts only above this many standard deviations of the image's own noise after the DoG.
+NOISE_FLOOR_SIGMAS = 4.0
 EDGE_BAND = 0.1  # the outer tenth of each side
 PLAIN_EDGE_BELOW = 0.2  # at most a fifth of the edge band textured: a plain surround
 RICH_FROM = 0.8  # texture covers four fifths of the frame or more
@@ -111,25 +114,46 @@ def _dog(gray: np.ndarray) -> np.ndarray:
     return ndimage.gaussian_filter(gray, DOG_SIGMAS[0]) - ndimage.gaussian_filter(gray, DOG_SIGMAS[1])
 
 
-def image_figures(gray: np.ndarray) -> ImageFigures:
-    """Textured fraction and response count of one grey frame (float in [0, 1], analysis size).
+def noise_sigma(gray: np.ndarray) -> float:
+    """The image's noise level (grey in [0, 1]): the median absolute finest diagonal Haar coefficient
+    over 0.6745 (Donoho's estimator; texture moves it little, flat areas set it)."""
+    import numpy as np
 
-    A cell is textured when its strongest DoG magnitude reaches COLMAP's peak threshold; a response
-    is a local extremum of the DoG magnitude (3x3) at or above it, what SIFT's detector would start from.
+    g = gray[: gray.shape[0] // 2 * 2, : gray.shape[1] // 2 * 2]
+    diagonal = (g[0::2, 0::2] - g[0::2, 1::2] - g[1::2, 0::2] + g[1::2, 1::2]) / 2
+    return float(np.median(np.abs(diagonal)) / 0.6745)
+
+
+def dog_noise_gain() -> float:
+    """How much of a pixel noise's standard deviation the DoG passes (its kernel's L2 norm)."""
+    import numpy as np
+
+    delta = np.zeros((33, 33), dtype=np.float32)
+    delta[16, 16] = 1.0
+    return float(np.sqrt((_dog(delta) ** 2).sum()))
+
+
+def image_figures(gray: np.ndarray) -> ImageFigures:
+    """Textured fractions and response count of one grey frame (float in [0, 1], analysis size).
+
+    A cell is textured when its strongest DoG magnitude reaches COLMAP's peak threshold (or the
+    image's noise floor, when that is higher); a response is a local extremum of the DoG magnitude
+    (3x3) at or above it, what SIFT's detector would start from.
     """
     import numpy as np
     from scipy import ndimage
 
     height, width = gray.shape
     dog = np.abs(_dog(gray.astype(np.float32)))
+    threshold = max(PEAK_THRESHOLD, NOISE_FLOOR_SIGMAS * dog_noise_gain() * noise_sigma(gray))
     cell = max(MIN_CELL_PX, round(CELL_FRACTION * width))
     rows, cols = max(1, height // cell), max(1, width // cell)
     crop = dog[: rows * cell, : cols * cell]
-    cells = crop.reshape(rows, min(cell, height), cols, min(cell, width)).max(axis=(1, 3)) >= PEAK_THRESHOLD
+    cells = crop.reshape(rows, min(cell, height), cols, min(cell, width)).max(axis=(1, 3)) >= threshold
     band_rows, band_cols = max(1, round(EDGE_BAND * rows)), max(1, round(EDGE_BAND * cols))
     edge = np.ones_like(cells)
     edge[band_rows : rows - band_rows, band_cols : cols - band_cols] = False
-    strong = (dog >= PEAK_THRESHOLD) & (dog == ndimage.maximum_filter(dog, size=3))
+    strong = (dog >= threshold) & (dog == ndimage.maximum_filter(dog, size=3))
     return ImageFigures(round(float(cells.mean()), 4), round(float(cells[edge].mean()), 4), int(strong.sum()),
                         width, height)  # fmt: skip
 
@@ -190,7 +214,7 @@ def scene_hint(
     for path in evenly_spaced(images, sample):
         try:
             figures.append(image_figures(load_gray(path)))
-        except (OSError, ValueError, SyntaxError):  # unreadable or not an image: the hint uses the rest
+        except Exception:  # noqa: BLE001 - unreadable, not an image, too large: a hint never stops a command
             continue
     if not figures:
         return None
