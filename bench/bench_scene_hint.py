@@ -150,19 +150,28 @@ def shared_rows(tmp: Path) -> list[str]:
     return rows
 
 
+RENDERS = [  # (seed, width, camera distance, elevation): the subject smaller or larger in the frame
+    (0, 320, 7.0, 25.0),
+    (0, 640, 7.0, 25.0),
+    (1, 640, 7.0, 25.0),
+    (2, 640, 5.0, 15.0),
+    (3, 640, 10.0, 40.0),
+]
+
+
 def render_rows(tmp: Path) -> list[str]:
     rows = []
     for backdrop in ("plain", "textured"):
-        for seed in (0, 1, 2):
-            for width in (320, 640):
-                opts = SyntheticOptions(num_views=SAMPLE, width=width, height=width * 3 // 4, seed=seed,
-                                        focal=1.2 * width, backdrop=backdrop)  # fmt: skip
-                out = tmp / f"render-{backdrop}-{seed}-{width}"
-                render_scene(out, opts)
-                hint, cpu = _measure("render", sorted(out.glob("*.png")))
-                size = f"{width}x{opts.height}"
-                rows.append(_row(f"render, {backdrop} backdrop", f"seed {seed}", size, hint, cpu))
-                print(rows[-1], flush=True)
+        for seed, width, radius, elevation in RENDERS:
+            opts = SyntheticOptions(num_views=SAMPLE, width=width, height=width * 3 // 4, seed=seed,
+                                    focal=1.2 * width, radius=radius, elevation_deg=elevation,
+                                    backdrop=backdrop)  # fmt: skip
+            out = tmp / f"render-{backdrop}-{seed}-{width}-{radius}"
+            render_scene(out, opts)
+            hint, cpu = _measure("render", sorted(out.glob("*.png")))
+            variant = f"seed {seed}, distance {radius:g}, elevation {elevation:g}°"
+            rows.append(_row(f"render, {backdrop} backdrop", variant, f"{width}x{opts.height}", hint, cpu))
+            print(rows[-1], flush=True)
     return rows
 
 

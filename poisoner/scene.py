@@ -101,9 +101,9 @@ def sentence(dataset: str, kind: SceneKind, textured_fraction: float, edge_textu
                 "textured) — the kind of set ppd's mark protected in our tests; `ppd verify` tells you for "
                 "sure.")  # fmt: skip
     if kind == SceneKind.TEXTURED_SUPPORT:
-        return (f"{dataset}: texture reaches the frame's edges ({edge_textured_fraction:.0%} of them), like "
-                "an object on a textured support — borderline in our tests (protected at 800 px, not at "
-                "full size); `ppd verify` tells you for sure.")  # fmt: skip
+        return (f"{dataset}: texture reaches the frame's edges ({edge_textured_fraction:.0%} of them: a "
+                "textured support, or a subject filling the frame) — borderline in our tests (protected at "
+                "800 px, not at full size); `ppd verify` tells you for sure.")  # fmt: skip
     return (f"{dataset}: richly textured everywhere ({textured_fraction:.0%} of the frame) — in our tests no "
             "mark within the visibility budget protected sets like this; `ppd verify` will say.")  # fmt: skip
 
