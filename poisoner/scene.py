@@ -16,6 +16,8 @@ COLMAP's peak threshold. Two figures follow, and the kind rests on them:
   at 1600 px).
 The cut points say what they mean (a fifth, four fifths); they are not fitted to a set
 (bench/results/scene_hint.md shows the margins on the shared sets, crops, resizes and renders).
+"Plain" is necessary, not sufficient: a richly textured subject on a plain floor can still outvote
+the mark (bench/results/designs.md, the `object` render), which single images cannot tell.
 
 The figures are measured at the mark's scale: the mark is a fraction of the width (patch 6%, blocks
 0.5%), so the contest looks the same at any size; the frame is reduced to ANALYSIS_WIDTH (where the
@@ -98,8 +100,8 @@ def sentence(dataset: str, kind: SceneKind, textured_fraction: float, edge_textu
     """One line for the user; it says what our tests found for sets like this, never 'protected'."""
     if kind == SceneKind.PLAIN:
         return (f"{dataset}: plain background around the subject (frame edges {edge_textured_fraction:.0%} "
-                "textured) — the kind of set ppd's mark protected in our tests; `ppd verify` tells you for "
-                "sure.")  # fmt: skip
+                "textured) — the kind of set ppd's mark protected in our tests, unless the subject itself is "
+                "richly textured; `ppd verify` tells you for sure.")  # fmt: skip
     if kind == SceneKind.TEXTURED_SUPPORT:
         return (f"{dataset}: texture reaches the frame's edges ({edge_textured_fraction:.0%} of them: a "
                 "textured support, or a subject filling the frame) — borderline in our tests (protected at "
