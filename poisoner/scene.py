@@ -162,19 +162,23 @@ def image_figures(gray: np.ndarray) -> ImageFigures:
 
 def load_gray(path: Path, width: int = ANALYSIS_WIDTH) -> np.ndarray:
     """The image as grey floats in [0, 1], reduced to `width` (never enlarged); transparency on white,
-    as NeRF-style sets are reconstructed. JPEGs are decoded at a reduced scale (cheap)."""
+    as NeRF-style sets are reconstructed. JPEGs are decoded at a reduced scale (cheap). Opened as
+    poisoning opens it (HEIC, the decompression-bomb limit): a file it cannot read raises
+    ImageFormatError."""
     import numpy as np
     from PIL import Image
 
-    with Image.open(path) as im:
-        if im.format == "JPEG":
-            im.draft("RGB", (width, max(1, im.height * width // im.width)))
-        im.load()
-        if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
-            rgba = im.convert("RGBA")
-            im = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
-            im.alpha_composite(rgba)
-        gray = im.convert("L")
+    from poisoner.image.read import load_decoded, open_decoded
+
+    im = open_decoded(path, Path(path).read_bytes(), load=False)
+    if im.format == "JPEG":
+        im.draft("RGB", (width, max(1, im.height * width // im.width)))
+    load_decoded(path, im)
+    if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
+        rgba = im.convert("RGBA")
+        im = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+        im.alpha_composite(rgba)
+    gray = im.convert("L")
     if gray.width > width:
         size = (width, max(1, round(gray.height * width / gray.width)))
         gray = gray.resize(size, Image.Resampling.BILINEAR)

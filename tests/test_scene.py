@@ -197,3 +197,22 @@ def test_fountain_is_richly_textured(shared_dir: Path) -> None:
 def test_dtu_scan37_is_textured_support(shared_dir: Path) -> None:
     hint = scene_hint("dtu", _shared(shared_dir, "dtu_scan37/images", "*.png"))
     assert hint is not None and hint.kind == SceneKind.TEXTURED_SUPPORT, hint
+
+
+def test_heic_images_are_read_as_poisoning_reads_them(tmp_path: Path) -> None:
+    """In a fresh process that has not registered pillow-heif itself: the hint opens files the way
+    poisoning does (poisoner.image.read), so a phone's HEIC set gets a hint too."""
+    pillow_heif = pytest.importorskip("pillow_heif")
+    pillow_heif.register_heif_opener()
+    rng = np.random.default_rng(5)
+    for i in range(3):
+        grey = _noise_texture(rng, H, W).astype(np.uint8)
+        Image.fromarray(grey).convert("RGB").save(tmp_path / f"t_{i}.heic", "HEIF", quality=90)
+    code = (
+        "import sys\nfrom pathlib import Path\nfrom poisoner.scene import scene_hint\n"
+        "h = scene_hint('phone', sorted(Path(sys.argv[1]).glob('*.heic')))\n"
+        "print(h.images, h.kind)"
+    )
+    run = [sys.executable, "-c", code, str(tmp_path)]
+    out = subprocess.run(run, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["3", "richly-textured"], out.stdout + out.stderr
