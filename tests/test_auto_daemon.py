@@ -249,3 +249,19 @@ def test_interim_runs_in_the_child_and_the_daemon_side_stays_light(
 def _set(event: threading.Event) -> threading.Event:
     event.set()
     return event
+
+
+def test_cli_auto_on_a_dataset_says_the_scene_hint_from_the_vault_originals(
+    auto_ctx: AppContext, ppd_env: dict[str, Path]
+) -> None:
+    """The hint reads the dataset's originals (vault files named by hash, no suffix) under its name."""
+    from typer.testing import CliRunner
+
+    from daemon.cli import app
+    from daemon.cli.scene_note import PREFIX
+
+    _protect_scene(auto_ctx, ppd_env["outbox"], A.spec, views=3)  # the textured render
+    result = CliRunner().invoke(app, ["auto", "trip", "--sample", "3", "--time-budget", "1", "--no-apply"])
+    assert result.exit_code in (0, 1), result.output
+    assert f"{PREFIX}trip: richly textured everywhere" in result.output, result.output
+    shutil.rmtree(ppd_env["outbox"] / "trip")

@@ -137,6 +137,16 @@ def _images(ctx: AppContext, target: str) -> tuple[list[Any], bool]:
     raise _fail(f"{target!r} is neither a dataset in the store nor a folder")
 
 
+def _scene_line(target: str, images: list[Any]) -> str | None:
+    """The scene hint for the sample's source images (a dataset's vault originals are named by their
+    pairs' file names, which say whether they are images)."""
+    from daemon.cli.scene_note import scene_line
+    from poisoner.media import is_image
+
+    pairs = [item if isinstance(item, tuple) else (item, item.name) for item in images]
+    return scene_line(Path(target).name or target, [Path(src) for src, name in pairs if is_image(name)])
+
+
 def _settings(ctx: AppContext, given: dict[str, Any]) -> tuple[Any, Any]:
     """The config's [visibility] budget and [preflight] options with the command line's on top."""
     import msgspec
@@ -189,6 +199,19 @@ def _record(ctx: AppContext, target: str, decision: dict[str, Any], apply: bool 
         daemon_auto.surface_no_candidate(ctx, target, decision["reason"])
 
 
+def _print_result(
+    decision: dict[str, Any], as_json: bool, hint: str | None, dataset_line: str | None
+) -> None:
+    if as_json:
+        console().print_json(json.dumps(decision | {"scene_hint": hint}, default=str))
+        return
+    print_decision(decision)
+    if "reprotected" in decision:
+        console().print(f"re-protected {decision['reprotected']} file(s) from the vault", highlight=False)
+    if dataset_line:
+        console().print(dataset_line, markup=False)
+
+
 def auto(
     target: str = typer.Argument(..., help="A daemon dataset name, or a folder of images to measure."),
     max_noticeable_area: float | None = typer.Option(
@@ -230,20 +253,16 @@ def auto(
     dataset_line = None
     try:
         images, is_dataset = _images(ctx, target)
+        hint = _scene_line(target, images)  # up front: the preflight takes minutes
+        if hint and not as_json:
+            console().print(hint, markup=False)
         decision = _preflight(ctx, target, images, is_dataset, given)
         if is_dataset:
             _record(ctx, target, decision, apply)
             dataset_line = protection_line(ctx, target)  # what its verifications say, not the sample's
     finally:
         ctx.close()
-    if as_json:
-        console().print_json(json.dumps(decision, default=str))
-    else:
-        print_decision(decision)
-        if "reprotected" in decision:
-            console().print(f"re-protected {decision['reprotected']} file(s) from the vault", highlight=False)
-        if dataset_line:
-            console().print(dataset_line, markup=False)
+    _print_result(decision, as_json, hint, dataset_line)
     raise typer.Exit(0 if decision["chosen"] else 1)
 
 

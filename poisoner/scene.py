@@ -1,0 +1,244 @@
+"""A cheap per-dataset hint: how much of the frame carries matchable texture, against what ppd's mark adds.
+
+Why this predicts anything (docs/TEXTURED.md, bench/results/patch_votes.md): COLMAP's geometric
+verification keeps the camera model with the most consistent matches. The mark wins that vote only
+where the scene offers few matches of its own: around an object on a plain background the flat
+pixels give SIFT nothing, and the mark (about 1% of the image) can outvote the subject; where
+texture fills the frame, the scene's true matches outnumber the mark's 20-100 to 1 and no mark
+within the visibility budget wins. A cell (2% of the width) is *textured* when it holds fine detail
+that SIFT's detector fires on: a difference of Gaussians at the mark's own block scale reaching
+COLMAP's peak threshold. Two figures follow, and the kind rests on them:
+- the **edge band** (the outer 10% of each side, where the corner mark lives): a subject surrounded
+  by plain background leaves it featureless; a textured support or floor runs out of the frame
+  through it. Under one fifth textured: "plain";
+- the **whole frame**: four fifths textured or more: "richly textured" (a façade, a room, a tree);
+- otherwise "textured support" (an object on textured ground: dtu_scan37, protected at 800 px, not
+  at 1600 px).
+The cut points say what they mean (a fifth, four fifths); they are not fitted to a set
+(bench/results/scene_hint.md shows the margins on the shared sets, crops, resizes and renders).
+"Plain" is necessary, not sufficient: a richly textured subject on a plain floor can still outvote
+the mark (bench/results/designs.md, the `object` render), which single images cannot tell.
+
+The figures are measured at the mark's scale: the mark is a fraction of the width (patch 6%, blocks
+0.5%), so the contest looks the same at any size; the frame is reduced to ANALYSIS_WIDTH (where the
+mark's blocks are 4 px), never enlarged. The hint never claims protection: only `ppd verify` can.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from enum import StrEnum
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import msgspec
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from poisoner.spec import PatchSpec
+
+# The mark's blocks are 0.5% of the width: 4 px here, SIFT's finest scale (spec.MIN_BLOCK_PX).
+ANALYSIS_WIDTH = 800
+CELL_FRACTION = 0.02  # a cell is 2% of the width (16 px at ANALYSIS_WIDTH), a third of the mark's side
+MIN_CELL_PX = 8
+# COLMAP's SIFT peak threshold (0.02 / 3 levels per octave), on grey levels in [0, 1].
+PEAK_THRESHOLD = 0.02 / 3
+DOG_SIGMAS = (1.0, 2.0)  # the band that a 4 px block pattern and fine scene texture both fill
+# Sensor noise also reaches SIFT's threshold in this band, and its keypoints never match across views:
+# a cell counts only above this many standard deviations of the image's own noise after the DoG.
+NOISE_FLOOR_SIGMAS = 4.0
+EDGE_BAND = 0.1  # the outer tenth of each side
+PLAIN_EDGE_BELOW = 0.2  # at most a fifth of the edge band textured: a plain surround
+RICH_FROM = 0.8  # texture covers four fifths of the frame or more
+SAMPLE = 6  # images per dataset; a hint, not a measurement of every file
+
+
+class SceneKind(StrEnum):
+    PLAIN = "plain"
+    TEXTURED_SUPPORT = "textured-support"
+    RICHLY_TEXTURED = "richly-textured"
+
+
+class ImageFigures(msgspec.Struct, frozen=True):
+    """One image at the analysis size: its textured fraction and the detector's responses."""
+
+    textured_fraction: float
+    edge_textured_fraction: float
+    responses: int
+    width: int
+    height: int
+
+
+class SceneHint(msgspec.Struct, frozen=True):
+    """The hint for one dataset and the figures it rests on (medians over the sampled images)."""
+
+    dataset: str
+    kind: SceneKind
+    textured_fraction: float  # median over the sample
+    textured_fraction_min: float
+    textured_fraction_max: float
+    edge_textured_fraction: float  # median over the sample: the outer tenth of each side
+    scene_responses: int  # median detector responses per frame at the analysis size
+    mark_responses: int  # what the mark carries on the same frame
+    mark_area_fraction: float  # share of the frame the mark changes
+    texture_per_mark: float  # textured area / mark area: mark-sized areas of texture against it
+    images: int
+    analysis_width: int
+    sentence: str
+
+
+def classify(textured_fraction: float, edge_textured_fraction: float) -> SceneKind:
+    if textured_fraction >= RICH_FROM:
+        return SceneKind.RICHLY_TEXTURED
+    if edge_textured_fraction < PLAIN_EDGE_BELOW:
+        return SceneKind.PLAIN
+    return SceneKind.TEXTURED_SUPPORT
+
+
+def sentence(dataset: str, kind: SceneKind, textured_fraction: float, edge_textured_fraction: float) -> str:
+    """One line for the user; it says what our tests found for sets like this, never 'protected'."""
+    if kind == SceneKind.PLAIN:
+        return (f"{dataset}: plain background around the subject (frame edges {edge_textured_fraction:.0%} "
+                "textured) — the kind of set ppd's mark protected in our tests, unless the subject itself is "
+                "richly textured; `ppd verify` tells you for sure.")  # fmt: skip
+    if kind == SceneKind.TEXTURED_SUPPORT:
+        return (f"{dataset}: texture reaches the frame's edges ({edge_textured_fraction:.0%} of them: a "
+                "textured support, or a subject filling the frame) — borderline in our tests (protected at "
+                "800 px, not at full size); `ppd verify` tells you for sure.")  # fmt: skip
+    return (f"{dataset}: richly textured everywhere ({textured_fraction:.0%} of the frame) — in our tests no "
+            "mark within the visibility budget protected sets like this; `ppd verify` will say.")  # fmt: skip
+
+
+def _dog(gray: np.ndarray) -> np.ndarray:
+    from scipy import ndimage
+
+    return ndimage.gaussian_filter(gray, DOG_SIGMAS[0]) - ndimage.gaussian_filter(gray, DOG_SIGMAS[1])
+
+
+def noise_sigma(gray: np.ndarray) -> float:
+    """The image's noise level (grey in [0, 1]): the median absolute finest diagonal Haar coefficient
+    over 0.6745 (Donoho's estimator; texture moves it little, flat areas set it)."""
+    import numpy as np
+
+    g = gray[: gray.shape[0] // 2 * 2, : gray.shape[1] // 2 * 2]
+    diagonal = (g[0::2, 0::2] - g[0::2, 1::2] - g[1::2, 0::2] + g[1::2, 1::2]) / 2
+    return float(np.median(np.abs(diagonal)) / 0.6745)
+
+
+def dog_noise_gain() -> float:
+    """How much of a pixel noise's standard deviation the DoG passes (its kernel's L2 norm)."""
+    import numpy as np
+
+    delta = np.zeros((33, 33), dtype=np.float32)
+    delta[16, 16] = 1.0
+    return float(np.sqrt((_dog(delta) ** 2).sum()))
+
+
+def image_figures(gray: np.ndarray) -> ImageFigures:
+    """Textured fractions and response count of one grey frame (float in [0, 1], analysis size).
+
+    A cell is textured when its strongest DoG magnitude reaches COLMAP's peak threshold (or the
+    image's noise floor, when that is higher); a response is a local extremum of the DoG magnitude
+    (3x3) at or above it, what SIFT's detector would start from.
+    """
+    import numpy as np
+    from scipy import ndimage
+
+    height, width = gray.shape
+    dog = np.abs(_dog(gray.astype(np.float32)))
+    threshold = max(PEAK_THRESHOLD, NOISE_FLOOR_SIGMAS * dog_noise_gain() * noise_sigma(gray))
+    cell = max(MIN_CELL_PX, round(CELL_FRACTION * width))
+    rows, cols = max(1, height // cell), max(1, width // cell)
+    crop = dog[: rows * cell, : cols * cell]
+    cells = crop.reshape(rows, min(cell, height), cols, min(cell, width)).max(axis=(1, 3)) >= threshold
+    band_rows, band_cols = max(1, round(EDGE_BAND * rows)), max(1, round(EDGE_BAND * cols))
+    edge = np.ones_like(cells)
+    edge[band_rows : rows - band_rows, band_cols : cols - band_cols] = False
+    strong = (dog >= threshold) & (dog == ndimage.maximum_filter(dog, size=3))
+    return ImageFigures(round(float(cells.mean()), 4), round(float(cells[edge].mean()), 4), int(strong.sum()),
+                        width, height)  # fmt: skip
+
+
+def load_gray(path: Path, width: int = ANALYSIS_WIDTH) -> np.ndarray:
+    """The image as grey floats in [0, 1], reduced to `width` (never enlarged); transparency on white,
+    as NeRF-style sets are reconstructed. JPEGs are decoded at a reduced scale (cheap). Opened as
+    poisoning opens it (HEIC, the decompression-bomb limit): a file it cannot read raises
+    ImageFormatError."""
+    import numpy as np
+    from PIL import Image
+
+    from poisoner.image.read import load_decoded, open_decoded
+
+    im = open_decoded(path, Path(path).read_bytes(), load=False)
+    if im.format == "JPEG":
+        im.draft("RGB", (width, max(1, im.height * width // im.width)))
+    load_decoded(path, im)
+    if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
+        rgba = im.convert("RGBA")
+        im = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+        im.alpha_composite(rgba)
+    gray = im.convert("L")
+    if gray.width > width:
+        size = (width, max(1, round(gray.height * width / gray.width)))
+        gray = gray.resize(size, Image.Resampling.BILINEAR)
+    return np.asarray(gray, dtype=np.float32) / 255.0
+
+
+def mark_figures(width: int, height: int, spec: PatchSpec) -> tuple[float, int]:
+    """(area fraction, responses) of the spec's mark alone: drawn on a flat grey frame of this size."""
+    import numpy as np
+
+    from poisoner.blend import poison_array
+
+    flat = np.full((height, width, 3), 128, dtype=np.uint8)
+    marked, _ = poison_array(flat, spec, image_key="scene-hint.png")
+    changed = (marked != flat).any(axis=2)
+    gray = marked.astype(np.float32).mean(axis=2) / 255.0
+    return float(changed.mean()), image_figures(gray).responses
+
+
+def evenly_spaced(paths: Sequence[Path], count: int) -> list[Path]:
+    ordered = sorted(paths)
+    if len(ordered) <= count:
+        return ordered
+    step = len(ordered) / count
+    return [ordered[int(i * step)] for i in range(count)]
+
+
+def scene_hint(
+    dataset: str, images: Sequence[Path], spec: PatchSpec | None = None, sample: int = SAMPLE
+) -> SceneHint | None:
+    """The hint for a dataset from up to `sample` of its images (evenly spaced by name); None when no
+    image of the sample can be read (nothing to tell). `spec`: the mark to compare with (default:
+    the ladder's default spec)."""
+    import numpy as np
+
+    from poisoner.ladder import default_spec
+
+    figures = []
+    for path in evenly_spaced(images, sample):
+        try:
+            figures.append(image_figures(load_gray(path)))
+        except Exception:  # noqa: BLE001 - unreadable, not an image, too large: a hint never stops a command
+            continue
+    if not figures:
+        return None
+    fractions = [f.textured_fraction for f in figures]
+    median = float(np.median(fractions))
+    edge = float(np.median([f.edge_textured_fraction for f in figures]))
+    first = figures[0]
+    try:
+        mark_area, mark_responses = mark_figures(first.width, first.height, spec or default_spec())
+    except ValueError:  # the spec does not fit a frame this small: no comparison, the kind still holds
+        mark_area, mark_responses = 0.0, 0
+    kind = classify(median, edge)
+    return SceneHint(
+        dataset=dataset, kind=kind, textured_fraction=round(median, 3),
+        textured_fraction_min=round(min(fractions), 3), textured_fraction_max=round(max(fractions), 3),
+        edge_textured_fraction=round(edge, 3),
+        scene_responses=int(np.median([f.responses for f in figures])), mark_responses=mark_responses,
+        mark_area_fraction=round(mark_area, 5),
+        texture_per_mark=round(median / mark_area, 1) if mark_area else 0.0,
+        images=len(figures), analysis_width=first.width, sentence=sentence(dataset, kind, median, edge),
+    )  # fmt: skip

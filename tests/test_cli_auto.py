@@ -1,0 +1,56 @@
+"""`ppd auto FOLDER`: the scene hint (poisoner/scene.py) is said up front, before the preflight's
+decision, and travels in --json. The preflight itself is tested in test_auto / test_auto_daemon; here
+a one-second time budget stops it before any SfM (the ladder's visibility is still measured)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from daemon.cli.scene_note import PREFIX
+from verifier.synthetic import SyntheticOptions, render_scene
+
+FAST = ["--sample", "3", "--time-budget", "1"]
+
+
+@pytest.fixture
+def fast_config(ppd_env: dict[str, Path]) -> dict[str, Path]:
+    # LPIPS (reported only, slow on a shared CPU) is tested in test_auto
+    (ppd_env["config"] / "config.toml").write_text('[preflight]\nlpips_net = "none"\n')
+    return ppd_env
+
+
+def _render(folder: Path, backdrop: str) -> Path:
+    render_scene(folder, SyntheticOptions(num_views=3, width=200, height=150, focal=240.0, backdrop=backdrop))
+    return folder
+
+
+def test_auto_says_the_scene_hint_before_the_decision(fast_config: dict[str, Path], tmp_path: Path) -> None:
+    from daemon.cli import app
+
+    folder = _render(tmp_path / "studio", "plain")
+    result = CliRunner().invoke(app, ["auto", str(folder), *FAST])
+    assert result.exit_code in (0, 1), result.output
+    lines = result.output.splitlines()
+    hint = [i for i, line in enumerate(lines) if line.startswith(PREFIX)]
+    assert len(hint) == 1, result.output
+    assert lines[hint[0]].startswith(f"{PREFIX}studio: plain background around the subject")
+    assert "`ppd verify`" in lines[hint[0]]
+    decision = next(i for i, line in enumerate(lines) if "candidates" in line or "stopped at" in line)
+    assert hint[0] < decision  # up front: before the preflight's outcome
+
+
+def test_auto_json_carries_the_hint_and_prints_nothing_else(
+    fast_config: dict[str, Path], tmp_path: Path
+) -> None:
+    from daemon.cli import app
+
+    folder = _render(tmp_path / "room", "textured")
+    result = CliRunner().invoke(app, ["auto", str(folder), *FAST, "--json"])
+    assert result.exit_code in (0, 1), result.output
+    decision = json.loads(result.output)  # the JSON alone: the hint is not printed as a line
+    assert decision["scene_hint"].startswith(f"{PREFIX}room: richly textured everywhere")
+    assert decision["sample"] and "chosen" in decision

@@ -1,0 +1,218 @@
+"""poisoner.scene: the per-dataset scene hint (textured share of the frame and of its edge band) on
+generated images, on the shared sets where they exist, and the one line `ppd poison` prints."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from daemon.cli.scene_note import PREFIX, print_scene_notes
+from poisoner.scene import (
+    PLAIN_EDGE_BELOW,
+    RICH_FROM,
+    SceneKind,
+    classify,
+    image_figures,
+    load_gray,
+    noise_sigma,
+    scene_hint,
+    sentence,
+)
+
+W, H = 640, 480
+
+
+def _noise_texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """Random blocks at three scales, 0-255: texture SIFT fires on everywhere."""
+    out = np.zeros((h, w))
+    for block, weight in ((4, 0.5), (12, 0.3), (40, 0.2)):
+        grid = rng.random((h // block + 1, w // block + 1))
+        out += weight * np.kron(grid, np.ones((block, block)))[:h, :w]
+    return out * 255
+
+
+def _save(path: Path, grey: np.ndarray) -> Path:
+    Image.fromarray(np.clip(grey, 0, 255).astype(np.uint8)).convert("RGB").save(path)
+    return path
+
+
+def _object_on_plain(tmp: Path, count: int = 5, noise: float = 1.0) -> list[Path]:
+    """A small textured object near the middle of a flat, slightly noisy, shaded background."""
+    rng = np.random.default_rng(1)
+    files = []
+    for i in range(count):
+        shade = np.linspace(170, 200, W)[None, :] * np.ones((H, 1))  # a soft light falloff
+        frame = shade + rng.normal(0, noise, (H, W))
+        x, y = 240 + 20 * i, 160 + 10 * i
+        frame[y : y + 140, x : x + 140] = _noise_texture(rng, 140, 140)
+        files.append(_save(tmp / f"obj_{i}.png", frame))
+    return files
+
+
+def _full_texture(tmp: Path, count: int = 5) -> list[Path]:
+    rng = np.random.default_rng(2)
+    return [_save(tmp / f"tex_{i}.png", _noise_texture(rng, H, W)) for i in range(count)]
+
+
+def _object_on_textured_ground(tmp: Path, count: int = 5) -> list[Path]:
+    """A plain wall above, a textured floor across the lower 40% of the frame, edge to edge."""
+    rng = np.random.default_rng(3)
+    files = []
+    for i in range(count):
+        frame = np.full((H, W), 200.0)
+        frame[int(0.6 * H) :, :] = _noise_texture(rng, H - int(0.6 * H), W)
+        frame[150:290, 260:400] = _noise_texture(rng, 140, 140)
+        files.append(_save(tmp / f"ground_{i}.png", frame))
+    return files
+
+
+def test_object_on_plain_background_is_plain(tmp_path: Path) -> None:
+    hint = scene_hint("obj", _object_on_plain(tmp_path))
+    assert hint is not None and hint.kind == SceneKind.PLAIN, hint
+    assert hint.edge_textured_fraction < PLAIN_EDGE_BELOW and hint.textured_fraction < 0.3
+    assert hint.images == 5 and hint.mark_responses > 0 and 0 < hint.mark_area_fraction < 0.02
+
+
+def test_sensor_noise_on_the_background_does_not_count_as_texture(tmp_path: Path) -> None:
+    """Noise of 6 grey levels per pixel (a dim phone shot of a flat wall) reaches SIFT's peak threshold
+    at this scale, but its keypoints never match: the image's own noise floor keeps it out."""
+    noisy = scene_hint("obj", _object_on_plain(tmp_path, noise=6.0))
+    assert noisy is not None and noisy.kind == SceneKind.PLAIN, noisy
+    assert noisy.edge_textured_fraction < PLAIN_EDGE_BELOW
+    assert noise_sigma(load_gray(tmp_path / "obj_0.png")) * 255 == pytest.approx(6.0, rel=0.25)
+
+
+def test_full_frame_texture_is_richly_textured(tmp_path: Path) -> None:
+    hint = scene_hint("tex", _full_texture(tmp_path))
+    assert hint is not None and hint.kind == SceneKind.RICHLY_TEXTURED, hint
+    assert hint.textured_fraction >= RICH_FROM and hint.edge_textured_fraction > 0.9
+    assert hint.scene_responses > 20 * hint.mark_responses  # the scene's responses dwarf the mark's
+
+
+def test_textured_ground_reaching_the_edges_is_textured_support(tmp_path: Path) -> None:
+    hint = scene_hint("ground", _object_on_textured_ground(tmp_path))
+    assert hint is not None and hint.kind == SceneKind.TEXTURED_SUPPORT, hint
+    assert hint.edge_textured_fraction >= PLAIN_EDGE_BELOW and hint.textured_fraction < RICH_FROM
+
+
+def test_the_hint_does_not_depend_on_the_size(tmp_path: Path) -> None:
+    """The mark scales with the width, so the figures are taken at the mark's scale: a 1600 px copy of
+    the same scene gives the same kind and nearly the same shares."""
+    files = _object_on_textured_ground(tmp_path)
+    big = tmp_path / "big"
+    big.mkdir()
+    for f in files:
+        with Image.open(f) as im:
+            im.resize((1600, 1200), Image.Resampling.BICUBIC).save(big / f.name)
+    small, large = scene_hint("a", files), scene_hint("a", sorted(big.iterdir()))
+    assert small is not None and large is not None and small.kind == large.kind
+    assert large.analysis_width == 800 and abs(small.textured_fraction - large.textured_fraction) < 0.05
+    assert abs(small.edge_textured_fraction - large.edge_textured_fraction) < 0.05
+
+
+def test_transparent_pixels_are_read_on_white(tmp_path: Path) -> None:
+    """NeRF-style RGBA: whatever colour hides under alpha 0 is not texture."""
+    rng = np.random.default_rng(4)
+    rgba = np.zeros((H, W, 4), dtype=np.uint8)
+    rgba[..., :3] = rng.integers(0, 256, (H, W, 3))  # garbage under full transparency
+    rgba[180:300, 260:380, 3] = 255
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "a.png")
+    figures = image_figures(load_gray(tmp_path / "a.png"))
+    assert figures.edge_textured_fraction == 0.0 and figures.textured_fraction < 0.2
+
+
+def test_unreadable_files_are_skipped_and_none_when_nothing_reads(tmp_path: Path) -> None:
+    files = _object_on_plain(tmp_path, count=3)
+    bad = tmp_path / "broken.png"
+    bad.write_bytes(b"not an image")
+    hint = scene_hint("obj", [*files, bad])
+    assert hint is not None and hint.images == 3
+    assert scene_hint("none", [bad]) is None and scene_hint("empty", []) is None
+
+
+def test_classify_follows_the_stated_cut_points() -> None:
+    assert classify(RICH_FROM, 1.0) == SceneKind.RICHLY_TEXTURED
+    assert classify(RICH_FROM - 0.01, PLAIN_EDGE_BELOW - 0.01) == SceneKind.PLAIN
+    assert classify(RICH_FROM - 0.01, PLAIN_EDGE_BELOW) == SceneKind.TEXTURED_SUPPORT
+
+
+@pytest.mark.parametrize("kind", list(SceneKind))
+def test_the_sentence_never_claims_protection(kind: SceneKind) -> None:
+    text = sentence("castle", kind, 0.9, 0.5)
+    assert text.startswith("castle: ") and "`ppd verify`" in text and "\n" not in text
+    for claim in ("is protected", "will protect", "are protected", "protects"):
+        assert claim not in text
+
+
+def test_print_scene_notes_one_line_per_dataset_with_images(tmp_path: Path) -> None:
+    from rich.console import Console
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    plain = _object_on_plain(tmp_path / "a", count=3)
+    rich = _full_texture(tmp_path / "b", count=3)
+    video = tmp_path / "clip.mp4"
+    video.write_bytes(b"\0")
+    console = Console(record=True, width=400)
+    print_scene_notes(console, {"zeta": rich, "alpha": plain, "clips": [video]})
+    lines = console.export_text().splitlines()
+    assert len(lines) == 2, lines  # nothing for the dataset without images
+    assert lines[0].startswith(PREFIX + "alpha: plain background")
+    assert lines[1].startswith(PREFIX + "zeta: richly textured everywhere")
+
+
+def test_importing_the_note_loads_neither_numpy_nor_pil() -> None:
+    """`ppd poison --help` imports the CLI: the hint's modules stay light until called."""
+    code = (
+        "import sys\nimport daemon.cli.scene_note, poisoner.scene\n"
+        "print([m for m in ('numpy', 'PIL', 'scipy', 'rich') if m in sys.modules])"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+# ---- the shared real sets (skipped where ../shared is absent) ----------------------------------------
+def _shared(shared_dir: Path, folder: str, pattern: str) -> list[Path]:
+    files = sorted((shared_dir / "datasets" / folder).glob(pattern))
+    if not files:
+        pytest.skip(f"{folder} not in the shared datasets")
+    return files
+
+
+def test_lego_is_plain(shared_dir: Path) -> None:
+    hint = scene_hint("lego", _shared(shared_dir, "nerf_synthetic_lego/train", "*.png")[:40])
+    assert hint is not None and hint.kind == SceneKind.PLAIN, hint
+
+
+def test_fountain_is_richly_textured(shared_dir: Path) -> None:
+    hint = scene_hint("fountain", _shared(shared_dir, "fountain_P11/images", "*.jpg"))
+    assert hint is not None and hint.kind == SceneKind.RICHLY_TEXTURED, hint
+
+
+def test_dtu_scan37_is_textured_support(shared_dir: Path) -> None:
+    hint = scene_hint("dtu", _shared(shared_dir, "dtu_scan37/images", "*.png"))
+    assert hint is not None and hint.kind == SceneKind.TEXTURED_SUPPORT, hint
+
+
+def test_heic_images_are_read_as_poisoning_reads_them(tmp_path: Path) -> None:
+    """In a fresh process that has not registered pillow-heif itself: the hint opens files the way
+    poisoning does (poisoner.image.read), so a phone's HEIC set gets a hint too."""
+    pillow_heif = pytest.importorskip("pillow_heif")
+    pillow_heif.register_heif_opener()
+    rng = np.random.default_rng(5)
+    for i in range(3):
+        grey = _noise_texture(rng, H, W).astype(np.uint8)
+        Image.fromarray(grey).convert("RGB").save(tmp_path / f"t_{i}.heic", "HEIF", quality=90)
+    code = (
+        "import sys\nfrom pathlib import Path\nfrom poisoner.scene import scene_hint\n"
+        "h = scene_hint('phone', sorted(Path(sys.argv[1]).glob('*.heic')))\n"
+        "print(h.images, h.kind)"
+    )
+    run = [sys.executable, "-c", code, str(tmp_path)]
+    out = subprocess.run(run, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["3", "richly-textured"], out.stdout + out.stderr
