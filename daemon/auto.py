@@ -281,9 +281,12 @@ def next_step(ctx: AppContext, dataset: str) -> str | None:
 
 # ---- step 4: escalation ---------------------------------------------------------------------------
 def needs_escalation(verdicts: Mapping[str, str]) -> bool:
-    """A profile that is weak or not_protected means this patch is not enough for this dataset.
-    Crashed/inconclusive runs prove nothing either way and do not move the dataset."""
-    return any(v in ESCALATE_ON for v in verdicts.values())
+    """A headline profile that is weak or not_protected means this patch is not enough for this
+    dataset (`masked` is reported, not counted: verifier.verdict.headline). Crashed/inconclusive runs
+    prove nothing either way and do not move the dataset."""
+    from verifier.verdict import headline
+
+    return any(v in ESCALATE_ON for v in headline(verdicts).values())
 
 
 def failed_candidates(decisions: Sequence[Mapping[str, Any]]) -> set[str]:

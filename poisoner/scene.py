@@ -48,6 +48,9 @@ DOG_SIGMAS = (1.0, 2.0)  # the band that a 4 px block pattern and fine scene tex
 # Sensor noise also reaches SIFT's threshold in this band, and its keypoints never match across views:
 # a cell counts only above this many standard deviations of the image's own noise after the DoG.
 NOISE_FLOOR_SIGMAS = 4.0
+# Above this the finest detail is texture, not sensor noise (a photo reduced to 800 px is far below it;
+# gravel, foliage or a noise-like pattern is not): without a cap such a frame would read as plain.
+MAX_NOISE_SIGMA = 8 / 255
 EDGE_BAND = 0.1  # the outer tenth of each side
 PLAIN_EDGE_BELOW = 0.2  # at most a fifth of the edge band textured: a plain surround
 RICH_FROM = 0.8  # texture covers four fifths of the frame or more
@@ -118,12 +121,13 @@ def _dog(gray: np.ndarray) -> np.ndarray:
 
 def noise_sigma(gray: np.ndarray) -> float:
     """The image's noise level (grey in [0, 1]): the median absolute finest diagonal Haar coefficient
-    over 0.6745 (Donoho's estimator; texture moves it little, flat areas set it)."""
+    over 0.6745 (Donoho's estimator; texture moves it little, flat areas set it), at most
+    MAX_NOISE_SIGMA."""
     import numpy as np
 
     g = gray[: gray.shape[0] // 2 * 2, : gray.shape[1] // 2 * 2]
     diagonal = (g[0::2, 0::2] - g[0::2, 1::2] - g[1::2, 0::2] + g[1::2, 1::2]) / 2
-    return float(np.median(np.abs(diagonal)) / 0.6745)
+    return min(MAX_NOISE_SIGMA, float(np.median(np.abs(diagonal)) / 0.6745))
 
 
 def dog_noise_gain() -> float:

@@ -48,6 +48,9 @@ def test_poison_folder_then_rerun_is_a_noop(shoot: Path) -> None:
     after = snapshot(shoot)
     assert after.keys() == before.keys()
     assert all(after[k] != before[k] for k in before)
+    # what works, up front: noise everywhere reads as a richly textured scene, one line for the set
+    hints = [line for line in result.output.splitlines() if line.startswith("hint: ")]
+    assert len(hints) == 1 and hints[0].startswith("hint: castle: richly textured"), result.output
     ctx = AppContext.open()
     rows = ctx.store.files("castle")
     assert len(rows) == 5 and {r["state"] for r in rows} == {FileState.PATCHED.value}

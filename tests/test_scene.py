@@ -13,6 +13,7 @@ from PIL import Image
 
 from daemon.cli.scene_note import PREFIX, print_scene_notes
 from poisoner.scene import (
+    MAX_NOISE_SIGMA,
     PLAIN_EDGE_BELOW,
     RICH_FROM,
     SceneKind,
@@ -92,6 +93,16 @@ def test_full_frame_texture_is_richly_textured(tmp_path: Path) -> None:
     assert hint is not None and hint.kind == SceneKind.RICHLY_TEXTURED, hint
     assert hint.textured_fraction >= RICH_FROM and hint.edge_textured_fraction > 0.9
     assert hint.scene_responses > 20 * hint.mark_responses  # the scene's responses dwarf the mark's
+
+
+def test_per_pixel_texture_is_not_taken_for_noise(tmp_path: Path) -> None:
+    """Texture at the finest scale (gravel, foliage, a noise-like pattern) must not raise the noise
+    floor over itself and read as plain: the noise estimate is capped at sensor-noise levels."""
+    rng = np.random.default_rng(5)
+    files = [_save(tmp_path / f"grain_{i}.png", rng.uniform(0, 255, (H, W))) for i in range(3)]
+    hint = scene_hint("grain", files)
+    assert hint is not None and hint.kind == SceneKind.RICHLY_TEXTURED, hint
+    assert noise_sigma(load_gray(files[0])) <= MAX_NOISE_SIGMA
 
 
 def test_textured_ground_reaching_the_edges_is_textured_support(tmp_path: Path) -> None:

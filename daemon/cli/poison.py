@@ -56,6 +56,7 @@ def summary(ctx: AppContext, jobs: list[Job], outcomes: list[ProtectOutcome], dr
     from daemon.cli.status_queries import protection_line
 
     _print_counts(outcomes, dry_run)
+    _print_scene_notes(jobs)
     if dry_run:
         return
     for place in output_places(jobs):
@@ -66,6 +67,17 @@ def summary(ctx: AppContext, jobs: list[Job], outcomes: list[ProtectOutcome], dr
     names = sorted({o.dataset for o in outcomes if o.state == "failed" and o.dataset})
     if names:
         console().print(f"failed files and reasons: ppd status {names[0]} --failed", markup=False)
+
+
+def _print_scene_notes(jobs: list[Job]) -> None:
+    """One line per dataset saying what kind of scene it looks like (poisoner.scene): what ppd can
+    and cannot protect, up front; it never claims protection."""
+    from daemon.cli.scene_note import print_scene_notes  # numpy/PIL only when it runs
+
+    by_dataset: dict[str, list[Path]] = {}
+    for job in jobs:
+        by_dataset.setdefault(job.dataset, []).append(job.path)
+    print_scene_notes(console(), by_dataset)
 
 
 def _say_outcome(progress_console: Any, outcome: ProtectOutcome) -> None:

@@ -53,9 +53,8 @@ def watch(
     ),
 ) -> None:
     """Watch the outbox and protect every photo or video that lands in it (foreground)."""
-    from daemon.watcher import DaemonOptions, WatchDaemon
-
     from daemon.subject import SubjectMaskError, check_config_masks
+    from daemon.watcher import DaemonOptions, WatchDaemon
 
     ctx = _open_context(outbox)
     try:
