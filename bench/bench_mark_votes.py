@@ -100,6 +100,43 @@ def child(db_path: str, design: str, position: str, start: int, out: str) -> Non
             fh.flush()
 
 
+# ---- how many keypoints a mark keeps under the 8192 cap, by block size ------------------------------
+BLOCK_VARIANTS = {
+    "b=0.5% (8 px at 1600)": {},
+    "b=4 px": {"block_size": 4},
+    "b=6 px": {"block_size": 6},
+    "multiscale b=0.5%": {"pattern": "multiscale_blocks"},
+}
+
+
+def keypoint_child(image_dir: str, position: str, count: int, out: str) -> None:
+    """SIFT (COLMAP's extractor, default options) on the first `count` images of image_dir poisoned
+    with each block variant of the tilted lanes: keypoints in all / on the mark."""
+    from PIL import Image  # noqa: I001 - PIL before pycolmap
+    import pycolmap
+
+    from poisoner.blend import apply_patch
+    from poisoner.ladder import WATERMARK_LANES_2_SPEC
+
+    base = WATERMARK_LANES_2_SPEC.replace(position=position)
+    sift = pycolmap.Sift(pycolmap.FeatureExtractionOptions(), device=pycolmap.Device.cpu)
+    names = sorted(p.name for p in Path(image_dir).glob("*.png"))[:count]
+    with open(out, "w") as fh:
+        for label, change in BLOCK_VARIANTS.items():
+            spec = base.replace(**change)
+            for name in names:
+                rgb = np.asarray(Image.open(Path(image_dir) / name).convert("RGB"))
+                p = spec.resolve(rgb.shape[1], rgb.shape[0], image_key=name)
+                gray = np.asarray(Image.fromarray(apply_patch(rgb, p)).convert("L"))
+                keypoints, _ = sift.extract(np.ascontiguousarray(gray))
+                side = p.lane_size
+                boxes = [(p.x + dx, p.y + dy, p.x + dx + side, p.y + dy + side) for dx, dy, _ in p.parts]
+                row = {"variant": label, "image": name, "keypoints": len(keypoints)}
+                row["on_mark"] = int(on_mark(np.asarray(keypoints)[:, :2], boxes).sum())
+                fh.write(json.dumps(row) + "\n")
+                fh.flush()
+
+
 # ---- parent ---------------------------------------------------------------------------------------------
 def measure(set_name: str, design: str) -> dict[str, Any]:
     from bench.bench_watermark import designs
@@ -189,7 +226,11 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--position", default="top-left")
     ap.add_argument("--start", type=int, default=0)
     ap.add_argument("--out", default="")
+    ap.add_argument("--keypoints-child", default="", help="image folder: block-size variants' keypoints")
     args = ap.parse_args(argv)
+    if args.keypoints_child:
+        keypoint_child(args.keypoints_child, args.position, args.start, args.out)
+        return
     if args.child:
         child(args.child, args.design, args.position, args.start, args.out)
         return

@@ -12,12 +12,17 @@ import numpy as np
 import pytest
 
 from poisoner.blend import apply_patch, patch_coverage
-from poisoner.ladder import WATERMARK_LANES_SPEC
+from poisoner.ladder import WATERMARK_LANES_2_SPEC, WATERMARK_LANES_SPEC, named_spec
 from poisoner.motion import tilted_slide_offset
 from poisoner.placement import CORNERS, corner_box
 from poisoner.spec import LANES_MAX_AREA, PatchSpec, SpecError
 
 TILTED = WATERMARK_LANES_SPEC.replace(slide_run=8)
+
+
+def test_the_named_spec_is_the_tilted_lanes() -> None:
+    assert named_spec("watermark-lanes-2") == WATERMARK_LANES_2_SPEC == TILTED
+    assert TILTED.lanes == 2 and TILTED.motion == "slide"
 FRAMES = [(800, 600), (1024, 683), (1920, 1080), (800, 800), (600, 800), (3072, 2048)]
 
 
