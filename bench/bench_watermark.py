@@ -41,7 +41,7 @@ from PIL import Image  # PIL before anything that may load pycolmap
 
 from bench.results_page import rewrite_keeping_analysis
 from poisoner.blend import apply_patch
-from poisoner.ladder import WATERMARK_LANES_SPEC, WATERMARK_SPEC, named_specs
+from poisoner.ladder import WATERMARK_LANES_2_SPEC, WATERMARK_LANES_SPEC, WATERMARK_SPEC, named_specs
 from poisoner.motion import CORNER_MOTIONS
 from poisoner.placement import choose_corner
 from poisoner.spec import PatchSpec
@@ -190,6 +190,9 @@ BENCH_DESIGNS: dict[str, tuple[PatchSpec, ...]] = {
     # the lanes with blocks at b, 2b, 4b: keypoints at coarser octaves for full-size photos, where
     # COLMAP's 8192-feature cap drops the finest scales first
     "watermark-lanes-ms": (WATERMARK_LANES_SPEC.replace(pattern="multiscale_blocks"),),
+    # the tilted lanes with 4 px blocks at every size (pixel-identical to watermark-lanes-2 at 800 px wide):
+    # at full size four times the blocks, so ~3x the keypoints on the mark under the 8192 cap
+    "watermark-lanes-2-b4": (WATERMARK_LANES_2_SPEC.replace(block_size=4),),
     # two marks with independent textures and poses: two false motions in one corner
     "watermark-twin": (
         WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.055),
