@@ -102,7 +102,7 @@ def child(db_path: str, design: str, position: str, start: int, out: str) -> Non
 
 # ---- how many keypoints a mark keeps under the 8192 cap, by block size ------------------------------
 BLOCK_VARIANTS = {
-    "b=0.5% (8 px at 1600)": {},
+    "b=0.5% (8 px at 1600)": {"block_size": 0.005},
     "b=4 px": {"block_size": 4},
     "b=6 px": {"block_size": 6},
     "multiscale b=0.5%": {"pattern": "multiscale_blocks"},

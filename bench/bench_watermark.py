@@ -193,6 +193,9 @@ BENCH_DESIGNS: dict[str, tuple[PatchSpec, ...]] = {
     # the tilted lanes with 4 px blocks at every size (pixel-identical to watermark-lanes-2 at 800 px wide):
     # at full size four times the blocks, so ~3x the keypoints on the mark under the 8192 cap
     "watermark-lanes-2-b4": (WATERMARK_LANES_2_SPEC.replace(block_size=4),),
+    # the tilted lanes with blocks of 0.5% of the width (8 px at 1600): watermark-lanes-2 before its
+    # blocks were made finer on large frames (pixel-identical to it up to 800 px wide)
+    "watermark-lanes-2-b05": (WATERMARK_LANES_2_SPEC.replace(block_size=0.005),),
     # two marks with independent textures and poses: two false motions in one corner
     "watermark-twin": (
         WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.055),
