@@ -423,7 +423,10 @@ def main(argv: list[str] | None = None) -> None:
         masks = sorted((dtu / "mask").glob("*.png"))
         chosen = [d for d in args.designs.split(",") if d] or list(designs())
         rows = pictures(dtu / "images" / "000000.png", dtu / "mask" / "000.png", masks, out, chosen)
-        (out / "pictures.json").write_text(json.dumps(rows, indent=1) + "\n")
+        index = out / "pictures.json"
+        old = json.loads(index.read_text()) if index.exists() else []
+        kept = [r for r in old if r["design"] not in chosen]  # other designs' figures stay
+        index.write_text(json.dumps(kept + rows, indent=1) + "\n")
         return
     if not args.dataset or not args.designs:
         raise SystemExit("--dataset and --designs are required (or --pictures)")
