@@ -66,10 +66,11 @@ def test_tilted_lanes_move_in_exact_parallel_with_pixel_identical_copies() -> No
     assert ax * by == ay * bx and moves[0] != moves[1]  # exactly parallel, different sizes
 
 
+@pytest.mark.parametrize("named", [False, True])
 @pytest.mark.parametrize(("width", "height"), FRAMES)
-def test_tilted_lanes_stay_in_one_corner_within_the_area_budget(width: int, height: int) -> None:
+def test_tilted_lanes_stay_in_one_corner_within_the_area_budget(width: int, height: int, named: bool) -> None:
     for corner in CORNERS:
-        spec = TILTED.replace(position=corner)
+        spec = (WATERMARK_LANES_2_SPEC if named else TILTED).replace(position=corner)
         x0, y0, x1, y1 = corner_box(corner, width, height, 0.2)
         for i in range(0, 80, 3):
             p = spec.resolve(width, height, image_key=f"IMG_{i:04d}.JPG")
