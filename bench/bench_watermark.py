@@ -41,7 +41,7 @@ from PIL import Image  # PIL before anything that may load pycolmap
 
 from bench.results_page import rewrite_keeping_analysis
 from poisoner.blend import apply_patch
-from poisoner.ladder import WATERMARK_LANES_SPEC, WATERMARK_SPEC, named_specs
+from poisoner.ladder import WATERMARK_LANES_2_SPEC, WATERMARK_LANES_SPEC, WATERMARK_SPEC, named_specs
 from poisoner.motion import CORNER_MOTIONS
 from poisoner.placement import choose_corner
 from poisoner.spec import PatchSpec
@@ -190,6 +190,12 @@ BENCH_DESIGNS: dict[str, tuple[PatchSpec, ...]] = {
     # the lanes with blocks at b, 2b, 4b: keypoints at coarser octaves for full-size photos, where
     # COLMAP's 8192-feature cap drops the finest scales first
     "watermark-lanes-ms": (WATERMARK_LANES_SPEC.replace(pattern="multiscale_blocks"),),
+    # the tilted lanes with 4 px blocks at every size (pixel-identical to watermark-lanes-2 at 800 px wide):
+    # at full size four times the blocks, so ~3x the keypoints on the mark under the 8192 cap
+    "watermark-lanes-2-b4": (WATERMARK_LANES_2_SPEC.replace(block_size=4),),
+    # the tilted lanes with blocks of 0.5% of the width (8 px at 1600): watermark-lanes-2 before its
+    # blocks were made finer on large frames (pixel-identical to it up to 800 px wide)
+    "watermark-lanes-2-b05": (WATERMARK_LANES_2_SPEC.replace(block_size=0.005),),
     # two marks with independent textures and poses: two false motions in one corner
     "watermark-twin": (
         WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.055),
@@ -417,7 +423,10 @@ def main(argv: list[str] | None = None) -> None:
         masks = sorted((dtu / "mask").glob("*.png"))
         chosen = [d for d in args.designs.split(",") if d] or list(designs())
         rows = pictures(dtu / "images" / "000000.png", dtu / "mask" / "000.png", masks, out, chosen)
-        (out / "pictures.json").write_text(json.dumps(rows, indent=1) + "\n")
+        index = out / "pictures.json"
+        old = json.loads(index.read_text()) if index.exists() else []
+        kept = [r for r in old if r["design"] not in chosen]  # other designs' figures stay
+        index.write_text(json.dumps(kept + rows, indent=1) + "\n")
         return
     if not args.dataset or not args.designs:
         raise SystemExit("--dataset and --designs are required (or --pictures)")
