@@ -7,10 +7,13 @@ Every key is optional; what is missing comes from the embedded defaults below. L
     publish_dir = ""            # optional: protected files are moved here ("" = stay in the outbox)
 
     [patch]                     # fields replaced on the default spec; sizes: 48, 0.06 or "6%"
-    patch_size = 0.06           # default: poisoner.ladder.default_spec(), a non-repetitive texture
-                                # of 6% of the width moving 0.75% per image (docs/DESIGNS.md);
-                                # the paper's static checkerboard: pattern = "checkerboard",
-                                # offset = [0, 0], motion = "static"
+    design = "default"          # the spec the fields below replace fields of (`ppd poison --design`):
+                                # "default" = poisoner.ladder.default_spec(), "watermark-lanes-2":
+                                # two identical texture marks sliding in one corner, off the subject
+                                # (docs/DESIGNS.md), its corner chosen per dataset unless `position`
+                                # is set; "roaming" = the moving square anywhere in the frame;
+                                # "paper" = the paper's static corner checkerboard
+    patch_size = 0.06
 
     [verification]
     enabled = true
@@ -76,7 +79,7 @@ from typing import Any, ClassVar
 import msgspec
 
 from daemon.paths import AppPaths
-from poisoner.ladder import default_spec, strongest_spec
+from poisoner.ladder import default_spec, design_specs, strongest_spec
 from poisoner.spec import PatchSpec, SpecError
 from verifier.auto_options import PreflightOptions, Profile, VisibilityBudget
 
@@ -110,8 +113,11 @@ def parse_length(value: Any) -> int | float:
 
 
 def spec_from_table(table: dict[str, Any], base: PatchSpec | None = None) -> PatchSpec:
-    """A PatchSpec from a TOML table, on top of base (default: the product's default_spec())."""
+    """A PatchSpec from a TOML table, on top of base (default: the product's default_spec()), or on
+    top of the named design the table's `design` key names (`ppd poison --design`'s names)."""
     data = dict(table)
+    if "design" in data:
+        base = _named_design(data.pop("design"))
     for key in ("patch_size", "block_size"):
         if key in data:
             data[key] = parse_length(data[key])
@@ -121,7 +127,21 @@ def spec_from_table(table: dict[str, Any], base: PatchSpec | None = None) -> Pat
     unknown = set(data) - known
     if unknown:
         raise SpecError(f"unknown patch field(s): {', '.join(sorted(unknown))}")
-    return (base or default_spec()).replace(**data)
+    try:
+        return (base or default_spec()).replace(**data)
+    except SpecError as exc:
+        if base is None and "lanes" not in data and {"motion", "pattern", "offset"} & set(data):
+            # fields written for the old default (the roaming square) on today's default (two lanes)
+            raise SpecError(f'{exc}; to change another design\'s fields, name it: design = "roaming" '
+                            '(the moving square) or "paper"') from None
+        raise
+
+
+def _named_design(name: Any) -> PatchSpec:
+    specs = design_specs()
+    if name not in specs:
+        raise SpecError(f"design: unknown {name!r}; choose one of {', '.join(specs)}")
+    return specs[name]
 
 
 # ---- sections -------------------------------------------------------------------------------------

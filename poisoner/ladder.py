@@ -156,6 +156,15 @@ def named_specs() -> dict[str, PatchSpec]:
     }
 
 
+def design_specs() -> dict[str, PatchSpec]:
+    """Every design a user can name (`--design`, `[patch] design`): "default", the named kinds of
+    protection and automatic mode's ladder rungs."""
+    specs = {"default": default_spec(), **named_specs()}
+    for candidate in candidate_ladder():
+        specs.setdefault(candidate.name, candidate.spec)
+    return specs
+
+
 def named_spec(name: str) -> PatchSpec:
     """One named kind of protection; a clear error for an unknown name."""
     specs = named_specs()

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from poisoner.ladder import default_spec
+from poisoner.ladder import named_spec
 from poisoner.spec import PatchSpec
 from verifier import auto
 from verifier.auto import (
@@ -30,7 +30,7 @@ BIG = LadderEntry("big-static", PatchSpec(patch_size=0.4), "a large patch: far o
 # enough images to measure; SfM never runs with these; LPIPS (reported only) is tested on its own
 SMALL = PreflightOptions(sample_size=4, lpips_net="none")
 PAPER = LadderEntry("paper-static", PatchSpec(), "the paper's checkerboard, 6% of the width, top-left")
-MOVING = LadderEntry("texture-drift", default_spec(), "ppd's default: random texture, moving")
+MOVING = LadderEntry("texture-drift", named_spec("roaming"), "the roaming kind: random texture, moving")
 # An object on a plain backdrop (the lego case) with its true intrinsics: the verdicts below are
 # then the same on every run. With a textured backdrop the scene outvotes the patch, and with the
 # focal length left to COLMAP the paper's patch "protected" this render on some runs and not on
@@ -147,7 +147,7 @@ def test_two_profile_walk_passes_the_static_patch_and_chooses_the_moving_one(
     assert {p: v.verdict for p, v in moving.profiles.items()} == {
         "default": "protected", "hardened": "protected"
     }  # fmt: skip
-    assert decision.chosen == "texture-drift" and decision.spec == default_spec()
+    assert decision.chosen == "texture-drift" and decision.spec == named_spec("roaming")
     # the same ladder without the moving rung: nothing qualifies, and the decision says so
     # (same work folder: the clean reconstructions are reused from its cache)
     without = preflight(sorted(scene.glob("*.png")), [PAPER], budget, options, tmp_path)

@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 from daemon.cli import app
 from daemon.protect import AppContext
 from daemon.states import FileState
-from poisoner.ladder import default_spec
+from poisoner.ladder import default_spec, named_spec
 from poisoner.spec import PatchSpec
 
 runner = CliRunner()
@@ -65,7 +65,8 @@ def test_poison_folder_then_rerun_is_a_noop(shoot: Path) -> None:
 def test_poison_out_leaves_inputs(shoot: Path, tmp_path: Path) -> None:
     before = snapshot(shoot)
     out = tmp_path / "published"
-    result = runner.invoke(app, ["poison", str(shoot), "--out", str(out), "--patch-size", "48"])
+    args = ["poison", str(shoot), "--out", str(out), "--patch-size", "48", "--position", "top-left"]
+    result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     assert snapshot(shoot) == before
     produced = snapshot(out / "castle")
@@ -74,7 +75,7 @@ def test_poison_out_leaves_inputs(shoot: Path, tmp_path: Path) -> None:
     patch = np.asarray(Image.open(out / "castle" / "view0.png"))[:48, :48]
     clean = np.asarray(Image.open(shoot / "view0.png"))[:48, :48]
     assert not np.array_equal(patch, clean)
-    rerun = runner.invoke(app, ["poison", str(shoot), "--out", str(out), "--patch-size", "48"])
+    rerun = runner.invoke(app, args)
     assert rerun.exit_code == 0 and snapshot(out / "castle") == produced
 
 
@@ -124,7 +125,11 @@ def test_status_json_and_regression_warning(shoot: Path, tmp_path: Path) -> None
     assert (
         castle["name"] == "castle" and castle["patched"] == 5 and castle["counts"]["failed"] == 1
     )
-    assert castle["spec_id"] == default_spec().spec_id and castle["last_verification"] is None
+    ctx = AppContext.open()
+    stored = ctx.store.dataset_spec("castle")
+    ctx.close()
+    assert stored.replace(position=default_spec().position) == default_spec()  # its corner chosen
+    assert castle["spec_id"] == stored.spec_id and castle["last_verification"] is None
     assert castle["regression"] is None
     ctx = AppContext.open()
     now = time.time()
@@ -178,9 +183,8 @@ def test_same_dataset_name_for_another_folder_is_refused(shoot: Path, tmp_path: 
 
 def test_preview_writes_a_png(shoot: Path, tmp_path: Path) -> None:
     out = tmp_path / "preview.png"
-    result = runner.invoke(
-        app, ["preview", str(shoot / "view0.png"), "--out", str(out), "--patch-size", "0.2"]
-    )
+    big_roaming = ["--design", "roaming", "--patch-size", "20%"]
+    result = runner.invoke(app, ["preview", str(shoot / "view0.png"), "--out", str(out), *big_roaming])
     assert result.exit_code == 0, result.output
     with Image.open(out) as im:
         assert im.format == "PNG" and im.width >= 2 * 160
@@ -224,8 +228,10 @@ def test_spec_summary_names_offset_and_motion() -> None:
     from daemon.cli.status_queries import spec_summary
 
     assert spec_summary(PatchSpec()) == "checkerboard 6% block 0.5% α1 Δc255 top-left"
-    moving = spec_summary(default_spec())
+    moving = spec_summary(named_spec("roaming"))
     assert moving.startswith("random_blocks 6%") and "+(15%, 15%)" in moving and "drift 0.75%/image" in moving
+    lanes = spec_summary(default_spec())
+    assert lanes.startswith("random_blocks 6% block 0.25%") and "slide 0.75%/image in 2 lanes" in lanes
 
 
 def test_workers_write_the_bytes_of_a_serial_run(ppd_env: dict[str, Path], tmp_path: Path) -> None:

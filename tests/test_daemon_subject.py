@@ -21,7 +21,7 @@ from poisoner.ladder import named_spec
 from poisoner.subject import CornerChoice
 from tests.test_cli_poison import MASKED_SIZE, masked_shoot
 
-CORNER_CONFIG = '[patch]\nmotion = "tumble"\npatch_size = 0.075\ncorner_region = 0.2\ntumble_scale = 0.75\n'
+CORNER_CONFIG = '[patch]\ndesign = "watermark"\n'
 
 
 def test_a_mask_folder_must_be_a_readable_folder_outside_the_outbox(tmp_path: Path) -> None:

@@ -3,6 +3,7 @@ default spec, and the verification prints a verdict. Run as a subprocess, as a u
 
 from __future__ import annotations
 
+import json
 import os
 import sqlite3
 import subprocess
@@ -15,6 +16,7 @@ from PIL import Image
 
 from daemon.states import FileState
 from poisoner.ladder import default_spec
+from poisoner.spec import PatchSpec
 
 
 def _run_demo(workdir: Path, *args: str) -> subprocess.CompletedProcess[str]:
@@ -34,9 +36,13 @@ def test_demo_protects_every_view_with_the_default_spec(tmp_path: Path) -> None:
     with sqlite3.connect(tmp_path / "data" / "ppd.sqlite3") as db:
         rows = db.execute("SELECT state, spec_id FROM files WHERE dataset = 'demo-scene'").fetchall()
     assert rows and {r[0] for r in rows} == {FileState.PATCHED.value} and len(rows) == 4
-    assert {r[1] for r in rows} == {default_spec().spec_id}
+    with sqlite3.connect(tmp_path / "data" / "ppd.sqlite3") as db:
+        (stored,) = db.execute("SELECT json FROM specs WHERE id = ?", (rows[0][1],)).fetchone()
+    spec = PatchSpec.from_dict(json.loads(stored))
+    # the default kind, its corner chosen for the dataset (daemon.subject)
+    assert spec.replace(position=default_spec().position) == default_spec()
+    assert {r[1] for r in rows} == {spec.spec_id}
     # the patch moves: the protected views differ from their vault originals in different places
-    spec = default_spec()
     boxes = {spec.resolve(400, 400, image_key=v.name).box for v in views}
     assert len(boxes) == 4
     preview = tmp_path / "preview.png"

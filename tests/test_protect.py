@@ -18,7 +18,9 @@ from daemon.protect import AppContext, dataset_pairs, protect_file, reprotect_da
 from daemon.states import FileState
 from daemon.store import DatasetSpecLocked
 from daemon.syncdirs import find_sync_folder
-from poisoner.ladder import default_spec
+from poisoner.blend import patch_coverage
+from poisoner.ladder import default_spec, named_spec
+from poisoner.placement import CORNERS
 from poisoner.spec import PatchSpec
 
 
@@ -62,8 +64,8 @@ def test_paths_follow_env_overrides(ppd_env: dict[str, Path]) -> None:
 
 def test_config_defaults_overrides_and_errors(ppd_env: dict[str, Path]) -> None:
     paths = AppPaths.from_env()
-    assert Config.load(paths).spec == default_spec()  # the moving texture, not the paper's patch
-    assert default_spec() != PatchSpec() and default_spec().motion == "drift"
+    assert Config.load(paths).spec == default_spec()  # the corner lanes, not the paper's patch
+    assert default_spec() != PatchSpec() and default_spec().corner_bound and default_spec().lanes == 2
     paths.config_file.write_text(
         'workers = 3\n[patch]\npatch_size = "6%"\nblock_size = 4\n'
         "[verification]\nevery_new_files = 5\n"
@@ -79,6 +81,15 @@ def test_config_defaults_overrides_and_errors(ppd_env: dict[str, Path]) -> None:
     assert Config.from_toml(config.to_toml()).spec_for("shoot") == config.spec_for("shoot")
     paths.config_file.write_text("[patch]\npattern = 'nope'\n")
     with pytest.raises(ConfigError, match="unknown pattern"):
+        Config.load(paths)
+    # a config written for another design names it; fields of the old default alone say how
+    paths.config_file.write_text('[patch]\ndesign = "roaming"\nmotion = "static"\n')
+    assert Config.load(paths).spec == named_spec("roaming").replace(motion="static")
+    paths.config_file.write_text('[patch]\npattern = "checkerboard"\nmotion = "static"\noffset = [0, 0]\n')
+    with pytest.raises(ConfigError, match='design = "roaming"'):
+        Config.load(paths)
+    paths.config_file.write_text('[patch]\ndesign = "nope"\n')
+    with pytest.raises(ConfigError, match="design: unknown 'nope'"):
         Config.load(paths)
     paths.config_file.write_text("wrokers = 2\n")
     with pytest.raises(ConfigError, match="wrokers"):
@@ -123,7 +134,8 @@ def test_protect_records_vaults_and_replaces(ctx: AppContext, ppd_env: dict[str,
     assert outcome.poisoned_sha256 == _sha(src)
     assert ctx.vault.path_for(outcome.original_sha256).read_bytes() == original
     row = ctx.store.file(src)
-    assert row["state"] == FileState.PATCHED and row["spec_id"] == default_spec().spec_id
+    assert row["state"] == FileState.PATCHED and row["spec_id"] == ctx.store.dataset_spec("shoot").spec_id
+    assert _default_with_its_corner(ctx.store.dataset_spec("shoot"))
     assert row["poisoned_sha256"] == _sha(src) and row["error"] is None
     assert [e["kind"] for e in ctx.store.events("shoot")][:2] == ["patched", "pending"]
     assert dataset_pairs(ctx, "shoot") == [(ctx.vault.path_for(outcome.original_sha256), src)]
@@ -143,18 +155,30 @@ def test_second_run_is_unchanged(ctx: AppContext, ppd_env: dict[str, Path]) -> N
     assert copy.read_bytes() == poisoned
 
 
+def _default_with_its_corner(spec: PatchSpec) -> bool:
+    """The product's default spec, its corner chosen for the dataset (daemon.subject)."""
+    return spec.position in CORNERS and spec.replace(position=default_spec().position) == default_spec()
+
+
 def test_every_file_of_a_dataset_gets_the_identical_patch(ctx: AppContext, ppd_env: dict[str, Path]) -> None:
     files = [make_image(ppd_env["outbox"] / "shoot" / f"{i}.png", 10 + i) for i in range(3)]
     outcomes = [protect_file(f, ctx) for f in files]
-    spec = default_spec()
+    spec = ctx.store.dataset_spec("shoot")
+    assert _default_with_its_corner(spec)
     assert {o.spec_id for o in outcomes} == {spec.spec_id}
-    boxes = [spec.resolve(160, 120, image_key=f.name).box for f in files]
-    assert len(set(boxes)) == 3  # the default patch moves from image to image ...
-    patches = [
-        np.asarray(Image.open(f))[y0:y1, x0:x1] for f, (x0, y0, x1, y1) in zip(files, boxes, strict=True)
-    ]
-    assert all(np.array_equal(patches[0], p) for p in patches[1:])  # ... but is one pattern (alpha 1)
-    rest = [np.asarray(Image.open(f))[max(b[3] for b in boxes) :, :] for f in files]
+    placements = [spec.resolve(160, 120, image_key=f.name) for f in files]
+    assert len({p.box for p in placements}) == 3  # the default mark moves from image to image ...
+    lanes = []
+    for f, p in zip(files, placements, strict=True):
+        x0, y0, x1, y1 = p.box
+        written = patch_coverage(p)
+        assert written.any() and not written.all()  # two lanes, the pixels between them untouched
+        lanes.append(np.asarray(Image.open(f))[y0:y1, x0:x1][written])
+    assert all(np.array_equal(lanes[0], other) for other in lanes[1:])  # ... but is one pattern (alpha 1)
+    rest = [np.asarray(Image.open(f)).copy() for f in files]
+    for picture in rest:
+        for x0, y0, x1, y1 in (p.box for p in placements):
+            picture[y0:y1, x0:x1] = 0
     assert not np.array_equal(rest[0], rest[1])  # the pictures themselves differ
 
 

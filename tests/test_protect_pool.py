@@ -108,7 +108,7 @@ def test_the_daemons_workers_use_the_configs_subject_masks(ppd_env: dict[str, Pa
     files = masked_shoot(ppd_env["outbox"] / "shoot", masks, n=4)
     originals = {f.name: f.read_bytes() for f in files}
     (ppd_env["config"] / "config.toml").write_text(
-        '[patch]\nmotion = "tumble"\npatch_size = 0.075\ncorner_region = 0.2\ntumble_scale = 0.75\n'
+        '[patch]\ndesign = "watermark"\n'
         f'[datasets.shoot]\nsubject_masks = "{masks}"\n'
     )
     ctx = AppContext.open()

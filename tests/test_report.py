@@ -355,7 +355,7 @@ def test_dataset_report_counts_the_headline_and_says_the_masked_line_and_the_cor
     from daemon.protect import AppContext, protect_file
 
     (ppd_env["config"] / "config.toml").write_text(
-        '[patch]\nmotion = "tumble"\npatch_size = 0.075\ncorner_region = 0.2\ntumble_scale = 0.75\n'
+        '[patch]\ndesign = "watermark"\n'
     )
     ctx = AppContext.open()
     try:

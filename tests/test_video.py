@@ -15,7 +15,8 @@ from PIL import Image
 
 from bench.bench_video import mux_sine
 from poisoner.atomic import TEMP_PREFIX, atomic_output
-from poisoner.ladder import default_spec
+from poisoner.blend import patch_coverage
+from poisoner.ladder import default_spec, named_spec
 from poisoner.media import VIDEO_SUFFIXES, is_video
 from poisoner.spec import PatchPlacement, PatchSpec
 from poisoner.video import (
@@ -23,6 +24,7 @@ from poisoner.video import (
     VideoOptions,
     frame_to_rgb,
     intended_contrast,
+    measure_video_patch,
     patch_contrast,
     poison_video,
     sample_frames,
@@ -335,9 +337,9 @@ def test_ratio_patches_only_selected_frames(tmp_path: Path) -> None:
 
 
 def test_moving_spec_glides_along_its_path_frame_by_frame(tmp_path: Path) -> None:
-    """A moving spec (ppd's default kind) moves in video too: frame i at path index
+    """A moving spec (the roaming kind) moves in video too: frame i at path index
     i / fps * motion_steps_per_second, so frames 1 / rate seconds apart are one photo-step apart."""
-    spec = default_spec().replace(motion_step=8, motion_span=40)
+    spec = named_spec("roaming").replace(motion_step=8, motion_span=40)
     src = make_clip(tmp_path / "clip.mp4", Clip(frames=40, fps=20, audio=None))
     dst = tmp_path / "out.mp4"
     report = poison_video(src, dst, spec, options=VideoOptions(motion_steps_per_second=4))
@@ -357,8 +359,23 @@ def test_moving_spec_glides_along_its_path_frame_by_frame(tmp_path: Path) -> Non
     assert any("travels its path at 6 photo-steps per second" in n for n in default.notes)
 
 
+def test_default_corner_lanes_slide_in_video_at_full_contrast(tmp_path: Path) -> None:
+    """ppd's default (two lanes sliding in one corner) in a video: every frame carries both lanes at
+    their own place (the contrast is measured on the lanes' pixels only), inside one corner region."""
+    spec = default_spec()
+    src = make_clip(tmp_path / "clip.mp4", Clip(frames=24, fps=12, audio=None))
+    poison_video(src, tmp_path / "out.mp4", spec)
+    at = [spec.resolve(320, 240, index=i * 6 / 12) for i in range(24)]
+    contrast = measure_video_patch(tmp_path / "out.mp4", lambda i: at[i])
+    assert min(contrast) / intended_contrast(at[0]) >= 0.8, contrast
+    assert len({p.box for p in at}) >= 5  # it slides (out along its span and back)
+    for p in at:  # every written pixel inside the top-left 20% x 20% region
+        ys, xs = np.nonzero(patch_coverage(p))
+        assert p.box[0] + xs.max() < 0.2 * 320 and p.box[1] + ys.max() < 0.2 * 240
+
+
 def test_moving_spec_can_be_held_still_in_video_and_says_so(tmp_path: Path) -> None:
-    spec = default_spec().replace(motion_step=8, motion_span=40)
+    spec = named_spec("roaming").replace(motion_step=8, motion_span=40)
     src = make_clip(tmp_path / "clip.mp4", Clip(frames=6, audio=None))
     report = poison_video(src, tmp_path / "out.mp4", spec, options=VideoOptions(motion_steps_per_second=0))
     assert any("stays at its first position" in n for n in report.notes)

@@ -21,7 +21,7 @@ from typing import Any
 
 import typer
 
-from poisoner.ladder import candidate_ladder, default_spec, named_specs
+from poisoner.ladder import default_spec, design_specs
 from poisoner.motion import MOTIONS
 from poisoner.spec import PATTERNS, POSITIONS, PatchSpec, SpecError
 
@@ -53,10 +53,7 @@ _HELP = {
 def designs() -> dict[str, PatchSpec]:
     """Named presets: ppd's default, the named kinds of protection (paper, roaming, watermark, ...)
     and automatic mode's ladder."""
-    named = {"default": default_spec(), **named_specs()}
-    for candidate in candidate_ladder():
-        named.setdefault(candidate.name, candidate.spec)
-    return named
+    return design_specs()
 
 
 def spec_fields() -> list[dataclasses.Field]:

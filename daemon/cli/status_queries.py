@@ -25,6 +25,8 @@ def spec_summary(spec: PatchSpec) -> str:
         text += f" +({length(spec.offset[0])}, {length(spec.offset[1])})"
     if spec.moves:
         text += f" {spec.motion} {length(spec.motion_step)}/image"
+    if spec.lanes > 1:
+        text += f" in {spec.lanes} lanes"
     if spec.ratio < 1:
         text += f" ratio {spec.ratio:g}"
     return text

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from poisoner.blend import patch_values
+from poisoner.blend import patch_coverage, patch_values
 from poisoner.spec import PatchPlacement
 from poisoner.video.blend import frame_to_rgb
 from poisoner.video.demux import main_video_stream, open_input
@@ -24,10 +24,12 @@ def patch_contrast(rgb: np.ndarray, placement: PatchPlacement) -> float:
     if rgb.dtype == np.uint16:
         region = region / 257.0
     levels = patch_values(placement, 255)
-    dark = levels < levels.max()
-    if not dark.any() or dark.all():
+    written = patch_coverage(placement)  # lanes, turned or shaped marks leave part of their box alone
+    dark = (levels < levels.max()) & written
+    bright = ~(levels < levels.max()) & written
+    if not dark.any() or not bright.any():
         return 0.0
-    return float(region[~dark].mean() - region[dark].mean())
+    return float(region[bright].mean() - region[dark].mean())
 
 
 def intended_contrast(placement: PatchPlacement) -> float:
