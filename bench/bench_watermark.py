@@ -360,6 +360,15 @@ def _cell(p: dict[str, Any] | None) -> str:
     return " ; ".join(parts)
 
 
+def _spec_ids_per_name(rows: list[dict[str, Any]]) -> dict[tuple[str, str, int], set[str]]:
+    """Spec ids per (dataset, design, spec seed): a design whose spec changed between runs has one
+    row per spec, told apart by its spec id."""
+    ids: dict[tuple[str, str, int], set[str]] = {}
+    for r in rows:
+        ids.setdefault((r["dataset"], r["design"], r["spec"].get("seed", 0)), set()).add(r["spec_id"])
+    return ids
+
+
 def write_markdown() -> None:
     rows = [json.loads(line) for line in RESULTS_JSONL.read_text().splitlines() if line.strip()]
     merged: dict[tuple[str, str], dict[str, Any]] = {}
@@ -387,11 +396,14 @@ def write_markdown() -> None:
         "| corner | subject | default | hardened | published | masked |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+    ids_per_name = _spec_ids_per_name(list(merged.values()))
     for (_, _), r in sorted(merged.items()):
         v, p = r["visibility"], r["profiles"]
         subj = "-" if v["touches_subject"] is None else ("yes" if v["touches_subject"] else "no")
         seed = r["spec"].get("seed", 0)
         name = r["design"] + (f" (spec seed {seed})" if seed else "")
+        if len(ids_per_name[(r["dataset"], r["design"], seed)]) > 1:
+            name += f" [{r['spec_id'][:6]}]"
         lines.append(
             f"| {r['dataset']} | {name} | {v['flip_mean']:.4f} | {v['flip_p99']:.3f} | {v['flip_p999']:.3f} "
             f"| {v['flip_max']:.2f} | {100 * v['area_above_half']:.2f}% | {v['p999_vs_jpeg']:.2f} "
@@ -401,10 +413,11 @@ def write_markdown() -> None:
         )
     lines += ["", "Specs:", ""]
     described = {
-        (r["design"], json.dumps([r["spec"], *r.get("more_specs", [])], sort_keys=True)) for r in rows
+        (r["design"], r["spec_id"][:6], json.dumps([r["spec"], *r.get("more_specs", [])], sort_keys=True))
+        for r in rows
     }
-    for design, text in sorted(described):
-        lines.append(f"- `{design}`: {text}")
+    for design, short_id, text in sorted(described):
+        lines.append(f"- `{design}` [{short_id}]: {text}")
     rewrite_keeping_analysis(RESULTS_MD, lines)
 
 

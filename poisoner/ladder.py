@@ -137,12 +137,13 @@ WATERMARK_LANES_SPEC = PatchSpec(
 #   different amounts, but no mark match keeps its row. Lanes that move exactly along x make pycolmap
 #   4.2.1 segfault in PoseLib's shared-focal 6-point solver (the default path for one camera without a
 #   focal prior), which is a crash, not protection; tilted by one pixel in eight they do not.
-#   bench/results/watermark.md ("Crash-free lanes") has the measurements.
+#   bench/results/watermark.md ("Round 3") has the measurements.
 #   Blocks of 0.25% of the width, at least 4 px (MIN_BLOCK_PX): 4 px up to 1600 px wide (pixel-identical
 #   to 0.5% blocks at 800 px), so a full-size photo's mark has four times the blocks of a 0.5% mark and
 #   about three times the keypoints under COLMAP's 8192-feature cap (dtu_scan37 at 1600x1200: the mark's
 #   share of the two-view inliers is what decides; bench/results/patch_votes.md).
 WATERMARK_LANES_2_SPEC = WATERMARK_LANES_SPEC.replace(slide_run=8, block_size=0.0025)
+
 
 def named_specs() -> dict[str, PatchSpec]:
     """The named kinds of protection (see above); every spec is concrete."""

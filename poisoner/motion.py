@@ -93,7 +93,7 @@ def tilted_slide_offset(index: float, step: int, span: int, run: int) -> tuple[i
     in parallel, and any move of a lane changes its y by >= 1 px. Two lanes moving exactly along
     the image's x axis make pycolmap 4.2.1 segfault in PoseLib's shared-focal 6-point solver
     (every mark match has y' == y exactly); the same lanes tilted by one pixel in `run` do not
-    (bench/results/watermark.md, "Crash-free lanes").
+    (bench/results/watermark.md, "Round 3").
     """
     if run < 1:
         raise ValueError(f"run must be >= 1, got {run}")
