@@ -20,7 +20,7 @@ from pathlib import Path
 from PIL import Image  # noqa: F401  (PIL before pycolmap, which the verifier's children import)
 
 from bench.bench_video import render_scene_video
-from poisoner.ladder import default_spec
+from poisoner.ladder import default_spec, named_spec
 from poisoner.spec import PatchSpec
 from poisoner.video import VideoOptions, poison_video, sample_frames
 from verifier.synthetic import SyntheticOptions, write_ground_truth
@@ -29,11 +29,14 @@ from verifier.verification import VerifyOptions, verify_folders
 RESULTS = Path(__file__).resolve().parent / "results" / "video_motion.md"
 FPS = 24
 SCENE = SyntheticOptions(num_views=96, width=320, height=320, backdrop="plain", arc_deg=90.0)
+ROAMING = named_spec("roaming")  # ppd's default before issue 14; video_motion.md calls it "ppd default"
 CASES = {
     "paper checkerboard, static": (PatchSpec(), VideoOptions()),
-    "ppd default, gliding 2 steps/s": (default_spec(), VideoOptions(motion_steps_per_second=2)),
-    "ppd default, gliding 6 steps/s": (default_spec(), VideoOptions(motion_steps_per_second=6)),
-    "ppd default, held still": (default_spec(), VideoOptions(motion_steps_per_second=0)),
+    "roaming, gliding 2 steps/s": (ROAMING, VideoOptions(motion_steps_per_second=2)),
+    "roaming, gliding 6 steps/s": (ROAMING, VideoOptions(motion_steps_per_second=6)),
+    "roaming, held still": (ROAMING, VideoOptions(motion_steps_per_second=0)),
+    "ppd default (watermark-lanes-2), 2 steps/s": (default_spec(), VideoOptions(motion_steps_per_second=2)),
+    "ppd default (watermark-lanes-2), 6 steps/s": (default_spec(), VideoOptions(motion_steps_per_second=6)),
 }
 
 
@@ -51,7 +54,11 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m bench.bench_video_motion")
     ap.add_argument("--every", type=int, nargs="+", default=[2, 4, 12], help="sample every k-th frame")
     ap.add_argument("--repeats", type=int, default=3, help="COLMAP seeds (0, 1, ...) per cell")
+    ap.add_argument("--cases", default="", help="comma-separated substrings of case labels ('' = all)")
+    ap.add_argument("--out", type=Path, default=RESULTS, help="results file (rewritten)")
     args = ap.parse_args(argv)
+    wanted = [w.strip() for w in args.cases.split(",") if w.strip()]
+    cases = {k: v for k, v in CASES.items() if not wanted or any(w in k for w in wanted)}
     started = time.time()
     rows: list[str] = []
     with tempfile.TemporaryDirectory(prefix="ppd-bench-video-motion-") as tmp:
@@ -59,7 +66,7 @@ def main(argv: list[str] | None = None) -> None:
         clean_video = work / "clean.mp4"
         poses = render_scene_video(clean_video, SCENE, fps=FPS, crf=16)
         poisoned = {}
-        for label, (spec, options) in CASES.items():
+        for label, (spec, options) in cases.items():
             dst = work / f"{len(poisoned)}.mp4"
             report = poison_video(clean_video, dst, spec, options=options)
             poisoned[label] = (dst, report)
@@ -89,7 +96,7 @@ def main(argv: list[str] | None = None) -> None:
         "# Moving patch in video vs COLMAP's stationary-match filter (bench/bench_video_motion.py)",
         "",
         f"`python -m bench.bench_video_motion --every {' '.join(map(str, args.every))} "
-        f"--repeats {args.repeats}`, "
+        f"--repeats {args.repeats}" + (f" --cases '{args.cases}'" if args.cases else "") + "`, "
         f"{time.strftime('%Y-%m-%d %H:%M')}, {time.time() - started:.0f} s. Video: verifier.synthetic's "
         f"object scene (plain backdrop), {SCENE.num_views} frames {SCENE.width}x{SCENE.height} at {FPS} fps "
         "(H.264 CRF 16), camera on a 90° arc. Verifier I on every k-th frame, clean vs poisoned, true "
@@ -104,8 +111,8 @@ def main(argv: list[str] | None = None) -> None:
         *rows,
         "",
     ]
-    RESULTS.write_text("\n".join(lines))
-    print(f"wrote {RESULTS}")
+    args.out.write_text("\n".join(lines))
+    print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":
