@@ -382,15 +382,22 @@ def write_results() -> None:
             prs = [r for r in rs if r["profile"] == p]
             if prs:
                 lines.append(f"- {variant} / {design} / {p}: {run_list(prs)}")
-    lines += ["", "Variants:", ""]
-    seen = {r["variant"] for r in runs}
-    lines += [f"- `{v.name}`: {v.note}" for v in VARIANTS.values() if v.name in seen]
-    rewrite_keeping_analysis(RESULTS_MD, lines)
+    lines += ["", "Variants (intrinsics given to COLMAP; clean cameras registered per profile):", ""]
+    lines += [variant_line(v, [r for r in runs if r["variant"] == v.name]) for v in VARIANTS.values()]
+    rewrite_keeping_analysis(RESULTS_MD, [line for line in lines if line is not None])
+
+
+def variant_line(variant: Variant, runs: list[dict[str, Any]]) -> str | None:
+    if not runs:
+        return None
+    clean = {r["profile"]: f"{r['clean_registered']}/{r['n']}" for r in runs}
+    shown = ", ".join(f"{p} {clean[p]}" for p in PROFILES if p in clean)
+    return f"- `{variant.name}`: {variant.note}; `{runs[0]['camera_params']}`; clean {shown}"
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m bench.bench_watermark_spread")
-    ap.add_argument("--variants", required=True, help=f"comma-separated: {', '.join(VARIANTS)}")
+    ap.add_argument("--variants", default="", help=f"comma-separated: {', '.join(VARIANTS)}")
     ap.add_argument("--designs", default=",".join(DESIGNS))
     ap.add_argument("--profiles", default="default,hardened")
     ap.add_argument("--seeds", default="0", help="COLMAP random seeds")
@@ -400,6 +407,8 @@ def main(argv: list[str] | None = None) -> None:
     if args.rewrite:
         write_results()
         return
+    if not args.variants:
+        raise SystemExit("--variants is required (or --rewrite)")
     seeds = tuple(int(s) for s in args.seeds.split(","))
     for name in args.variants.split(","):
         if name not in VARIANTS:
