@@ -190,6 +190,9 @@ BENCH_DESIGNS: dict[str, tuple[PatchSpec, ...]] = {
     # the lanes with blocks at b, 2b, 4b: keypoints at coarser octaves for full-size photos, where
     # COLMAP's 8192-feature cap drops the finest scales first
     "watermark-lanes-ms": (WATERMARK_LANES_SPEC.replace(pattern="multiscale_blocks"),),
+    # the lanes tilted to the lattice direction (8, 1): still exactly parallel whole-pixel copies, but no
+    # longer exactly along x (exact x-only motion crashes pycolmap 4.2.1's shared-focal solver)
+    "watermark-lanes-2": (WATERMARK_LANES_SPEC.replace(slide_run=8),),
     # two marks with independent textures and poses: two false motions in one corner
     "watermark-twin": (
         WATERMARK_SPEC.replace(pattern="multiscale_blocks", patch_size=0.055),

@@ -84,6 +84,24 @@ def path_offset(motion: str, index: float, step: int, span: int) -> tuple[int, i
     raise ValueError(f"unknown motion {motion!r}; choose one of {', '.join(MOTIONS)}")
 
 
+def tilted_slide_offset(index: float, step: int, span: int, run: int) -> tuple[int, int]:
+    """(dx, dy) >= 0 of image `index` on a slide tilted to the lattice direction (run, 1).
+
+    The position is u * (run, 1) for a whole number u that goes out and back over span // run
+    units, `step` px of x per index (at least one unit). Why a lattice direction: every copy sits
+    at whole pixels (no resampling, identical descriptors), the copies of two lanes move exactly
+    in parallel, and any move of a lane changes its y by >= 1 px. Two lanes moving exactly along
+    the image's x axis make pycolmap 4.2.1 segfault in PoseLib's shared-focal 6-point solver
+    (every mark match has y' == y exactly); the same lanes tilted by one pixel in `run` do not
+    (bench/results/watermark.md, "Crash-free lanes").
+    """
+    if run < 1:
+        raise ValueError(f"run must be >= 1, got {run}")
+    units = max(1, round(step / run)) if step else 0
+    u = _fold(index * units, span // run)
+    return (u * run, u)
+
+
 # ---- tumble (issue 14): a corner mark that turns, scales and shifts per image ----------------------
 def _unit(seed: int, index: int, what: str) -> float:
     """A stable pseudo-random number in [0, 1) for (seed, image index, quantity)."""

@@ -32,6 +32,7 @@ from poisoner.motion import (
     image_index,
     path_offset,
     spin_pose,
+    tilted_slide_offset,
     tumble_extent,
     tumble_pose,
 )
@@ -72,6 +73,7 @@ NEW_FIELD_DEFAULTS: dict[str, Any] = {
     "mark_text": "",
     "mark_image": "",
     "lanes": 1,
+    "slide_run": 0,
 }
 
 # Lanes of a multi-lane mark: lane k sits k pitches inward (pitch = 7/6 of the mark, a gap of a
@@ -81,6 +83,10 @@ MAX_LANES = 3
 # All lanes together change at most this fraction of the image (issue 14's budget is 1%), and they
 # stack inside corner_region of the height: on wide frames the lanes shrink instead of spilling over.
 LANES_MAX_AREA = 0.0096
+# A tilted slide (slide_run > 0) moves along the lattice direction (run, 1); below this run two
+# stacked lanes could overlap (their gap is a sixth of the lane side, their x distance run px per px
+# of y).
+MIN_SLIDE_RUN = 6
 
 
 class SpecError(ValueError):
@@ -174,6 +180,10 @@ class PatchSpec:
     # issue 14: several marks (lanes) in one corner, sliding along x at 1x, 2x, ... the step; their
     # parallel motions of different sizes read as parallax, not as the one translation of a watermark
     lanes: int = 1
+    # issue 14: 0 = slide along x; N >= MIN_SLIDE_RUN = slide along (N, 1), N px along x per px
+    # inward in y (whole pixels, lanes exactly parallel): exact x-only motion crashes COLMAP's
+    # shared-focal solver (poisoner/motion.py tilted_slide_offset)
+    slide_run: int = 0
 
     def __post_init__(self) -> None:
         if self.pattern not in PATTERNS:
@@ -210,6 +220,11 @@ class PatchSpec:
             raise SpecError(f"lanes must be an integer from 1 to {MAX_LANES}, got {self.lanes!r}")
         if self.lanes > 1 and (self.motion != "slide" or self.position == "center"):
             raise SpecError("lanes > 1 needs motion 'slide' and a corner position")
+        run_ok = isinstance(self.slide_run, int) and not isinstance(self.slide_run, bool)
+        if not run_ok or not (self.slide_run == 0 or self.slide_run >= MIN_SLIDE_RUN):
+            raise SpecError(f"slide_run must be 0 or an integer >= {MIN_SLIDE_RUN}, got {self.slide_run!r}")
+        if self.slide_run and self.motion != "slide":
+            raise SpecError("slide_run needs motion 'slide'")
         if self.mark_text and self.mark_image:
             raise SpecError("give mark_text or mark_image, not both")
         if self.mark_text and not self.mark_text.strip():
@@ -316,8 +331,8 @@ class PatchSpec:
         left, top = self.position.endswith("left"), self.position.startswith("top")
         lanes = []
         for k in range(self.lanes):
-            mx = path_offset("slide", index, step * (k + 1), span)[0]
-            inward_y = offset[1] + k * pitch
+            mx, my = self._slide_offset(index, step * (k + 1), span)
+            inward_y = offset[1] + k * pitch + my
             x = offset[0] + mx if left else width - size - offset[0] - mx
             y = inward_y if top else height - size - inward_y
             lanes.append((x, y))
@@ -332,10 +347,18 @@ class PatchSpec:
         )
         return self._placement(bx, by, side, block, parts=parts, lane_size=size)
 
+    def _slide_offset(self, index: float, step: int, span: int) -> tuple[int, int]:
+        """Inward (dx, dy) on the slide path: along x, or along (slide_run, 1) when tilted."""
+        if self.slide_run:
+            return tilted_slide_offset(index, step, span, self.slide_run)
+        return path_offset("slide", index, step, span)
+
     def _lane_cap(self, width: int, height: int) -> int:
-        """Largest lane side within LANES_MAX_AREA and stacked inside corner_region of the height."""
+        """Largest lane side within LANES_MAX_AREA and stacked inside corner_region of the height
+        (less the y a tilted slide travels)."""
         by_area = math.isqrt(int(LANES_MAX_AREA / self.lanes * width * height))
-        by_height = int(int(self.corner_region * height) / (1 + 7 / 6 * (self.lanes - 1)))
+        rise = _resolve_length(self.motion_span, width) // self.slide_run if self.slide_run else 0
+        by_height = int((int(self.corner_region * height) - rise) / (1 + 7 / 6 * (self.lanes - 1)))
         return max(MIN_BLOCK_PX, min(by_area, by_height))
 
     def _motion_offset(self, width: int, image_key: str | None, index: float | None) -> tuple[int, int]:
@@ -346,7 +369,10 @@ class PatchSpec:
         span = _resolve_length(self.motion_span, width)
         if index is None:
             index = image_index(image_key) if image_key is not None else 0
-        mx, my = path_offset(self.motion, index, step, span)
+        if self.motion == "slide":
+            mx, my = self._slide_offset(index, step, span)
+        else:
+            mx, my = path_offset(self.motion, index, step, span)
         if self.position == "center":
             return (mx - span // 2, my - span // 2)
         return (mx, my)
