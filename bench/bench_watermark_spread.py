@@ -30,9 +30,18 @@ import msgspec
 import numpy as np
 from PIL import Image  # PIL before anything that may load pycolmap
 
-from bench.bench_watermark import Dataset, _shared, dtu_camera_params, names_of, poison, profile_images, sfm
+from bench.bench_watermark import (
+    Dataset,
+    _shared,
+    designs,
+    dtu_camera_params,
+    names_of,
+    poison,
+    profile_images,
+    sfm,
+)
 from bench.results_page import rewrite_keeping_analysis
-from poisoner.ladder import named_spec
+from poisoner.ladder import named_spec, named_specs
 from poisoner.spec import PatchSpec
 from verifier import poses as posemod
 from verifier.sfm import SfmSettings, profile_sfm_settings
@@ -142,6 +151,7 @@ class Variant:
     crop: tuple[float, float, float, float] | None  # fractions of the source frame (left, top, right, bottom)
     width: int | None  # after the crop; None = keep
     note: str
+    known_k: bool = True  # give COLMAP the true intrinsics (False: COLMAP estimates a shared focal)
 
 
 VARIANTS = {
@@ -154,6 +164,16 @@ VARIANTS = {
         Variant("dtu-k", "dtu", None, 800, "dtu_scan37 1600x1200 downscaled to 800x600"),
         Variant("dtu-k-crop-left10", "dtu", (0.1, 0.0, 1.0, 1.0), 720, "dtu, left 10% cut, then 720x600"),
         Variant("dtu-k-1200", "dtu", None, 1200, "dtu_scan37 downscaled to 1200x900"),
+        # without intrinsics: the lanes crash pycolmap 4.2.1 here; for a crash-free variant's check
+        Variant("lego-600", "lego", None, 600, "lego 600x600, intrinsics NOT given", known_k=False),
+        Variant(
+            "dtu-crop-left10",
+            "dtu",
+            (0.1, 0.0, 1.0, 1.0),
+            720,
+            "dtu crop, intrinsics NOT given",
+            known_k=False,
+        ),
         Variant("render-k", "render", None, None, "held-out render: box on a plain floor, seed 23, 800x600"),
     )
 }
@@ -209,13 +229,17 @@ def setup(variant: Variant) -> Dataset:
                 m.save(masks / name)
         k, _ = transform_intrinsics(k, frames[0][1].size, variant.crop, variant.width)
         params_file.write_text(k.camera_params())
-    return Dataset(variant.name, clean, masks if masks.exists() else None, params_file.read_text().strip())
+    params = params_file.read_text().strip() if variant.known_k else None
+    return Dataset(variant.name, clean, masks if masks.exists() else None, params)
 
 
 def design_specs(design: str, spec_seed: int) -> tuple[PatchSpec, ...]:
-    """The product's named spec, its seed shifted by spec_seed (texture and per-image motion)."""
-    spec = named_spec(design)
-    return (spec.replace(seed=spec.seed + spec_seed),)
+    """The product's named spec (else bench_watermark's design of that name), every mark's seed
+    shifted by spec_seed (texture and per-image motion)."""
+    specs = (named_spec(design),) if design in named_specs() else designs().get(design)
+    if specs is None:
+        raise SystemExit(f"unknown design {design!r}; choose from {', '.join(designs())}")
+    return tuple(s.replace(seed=s.seed + spec_seed) for s in specs)
 
 
 # ---- runs --------------------------------------------------------------------------------------
@@ -392,7 +416,8 @@ def variant_line(variant: Variant, runs: list[dict[str, Any]]) -> str | None:
         return None
     clean = {r["profile"]: f"{r['clean_registered']}/{r['n']}" for r in runs}
     shown = ", ".join(f"{p} {clean[p]}" for p in PROFILES if p in clean)
-    return f"- `{variant.name}`: {variant.note}; `{runs[0]['camera_params']}`; clean {shown}"
+    k = f"`{runs[0]['camera_params']}`" if runs[0]["camera_params"] else "no intrinsics"
+    return f"- `{variant.name}`: {variant.note}; {k}; clean {shown}"
 
 
 def main(argv: list[str] | None = None) -> None:
