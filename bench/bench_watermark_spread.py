@@ -396,7 +396,7 @@ def write_results() -> None:
         lines.append(
             f"| {variant} | {design} | {v['flip_p999']:.3f} | {100 * v['area_above_half']:.2f}% "
             f"| {v['p999_vs_jpeg']:.2f} | {100 * v['changed_area_max']:.2f}% "
-            f"| {'yes' if v['all_in_one_corner'] else 'no'} ({v['position']}) | {subj} | "
+            f"| {'yes (' + v['position'] + ')' if v['all_in_one_corner'] else 'no'} | {subj} | "
             + " | ".join(cells)
             + " |"
         )
