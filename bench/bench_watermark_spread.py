@@ -53,6 +53,7 @@ WORK = Path("/tmp/ppd-bench-spread")
 RUNS_JSONL = WORK / "runs.jsonl"
 PROFILES = ("default", "hardened", "published", "masked")
 DESIGNS = ("roaming", "watermark-lanes")
+GOAL_WITHIN5 = 0.10  # issue 14's goal: at most 10% of the cameras within 5 deg
 
 
 # ---- pure parts: crop and resize of images and intrinsics --------------------------------------
@@ -339,7 +340,7 @@ def load_runs() -> list[dict[str, Any]]:
 
 # ---- the results page ----------------------------------------------------------------------------
 def profile_cell(runs: list[dict[str, Any]]) -> str:
-    """`median [min-max] (k runs, c crashed)` of the fraction within 5 deg, or `·` without runs."""
+    """`median [min-max] (k runs, o over 10%, c crashed)` of the fraction within 5 deg, `·` without runs."""
     if not runs:
         return "·"
     done = [r["within5"] for r in runs if r["within5"] is not None]
@@ -351,7 +352,9 @@ def profile_cell(runs: list[dict[str, Any]]) -> str:
         if s is None
         else (f"{100 * s['median']:.0f}% [{100 * s['min']:.0f}-{100 * s['max']:.0f}]")
     )
-    extra = f", {crashed} crashed" if crashed else ""
+    over = sum(x > GOAL_WITHIN5 for x in done)
+    extra = f", {over} over {100 * GOAL_WITHIN5:.0f}%" if over else ""
+    extra += f", {crashed} crashed" if crashed else ""
     extra += f", {other} failed" if other else ""
     return f"{text} ({len(done)} runs{extra})"
 
@@ -381,6 +384,8 @@ def write_results() -> None:
         "real pycolmap 4.2.1, true intrinsics given to COLMAP in every run (moved with each crop/resize).",
         "Profile cells: poisoned cameras within 5° of the same variant's clean solution (clean: COLMAP",
         "seed 0, same profile), `median [min-max]` over completed runs (texture/spec seeds x COLMAP seeds),",
+        "`over 10%`: runs that miss issue 14's goal (<= 10% within 5°); an unregistered camera is not",
+        "within.",
         "crashes counted apart (a crash is no protection claim). Visibility: spec seed 0, worst of the first",
         "and middle image at 1920 px, 67 ppd (bench_watermark.poison); area: largest changed fraction of",
         "any image; corner: every changed pixel inside one 20% x 20% corner; subject: touches dtu's mask.",

@@ -119,7 +119,8 @@ def test_summarise_and_profile_cell():
         {"within5": 0.8, "outcome": "ok"},
         {"within5": None, "outcome": "sfm_crashed"},
     ]
-    assert profile_cell(runs) == "40% [0-80] (2 runs, 1 crashed)"
+    assert profile_cell(runs) == "40% [0-80] (2 runs, 1 over 10%, 1 crashed)"
+    assert profile_cell(runs[:1]) == "0% [0-0] (1 runs)"
     assert profile_cell([]) == "·"
     assert (
         profile_cell([{"within5": None, "outcome": "sfm_crashed"}]) == "no completed run (0 runs, 1 crashed)"
