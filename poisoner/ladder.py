@@ -5,11 +5,14 @@ Contract with auto mode (verifier/auto.py, issue #9): `candidate_ladder()` retur
 design intent. Auto mode measures each candidate's actual visibility on the dataset and never
 relies on this order for the visibility budget.
 
+The first rung is ppd's default, the watermark-like kind `watermark-lanes-2` (two identical marks
+sliding in one corner; docs/DESIGNS.md "Default"). The roaming rungs after it:
+
 Why these designs (measured: bench/results/designs.md, docs/DESIGNS.md):
 - The paper's static checkerboard is left out: COLMAP's `filter_stationary_matches` removes it
   (lego 0/40 within 5 deg under default, 33/40 under hardened, issue #9), so a preflight that
   checks the hardened profile would spend two SfM runs to reject it every time.
-- Every candidate MOVES (motion="drift"): its matches are not stationary, so the stationary
+- Every roaming candidate MOVES (motion="drift"): its matches are not stationary, so the stationary
   filter keeps them, and the consistent per-image shift reads as a phantom camera rotation.
   Non-repetitive random blocks, not a checkerboard: a repetitive pattern's descriptors are
   ambiguous, SIFT's ratio test drops most of its matches (lego, 48 px moving 6 px/image:
