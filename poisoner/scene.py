@@ -107,8 +107,8 @@ def sentence(dataset: str, kind: SceneKind, textured_fraction: float, edge_textu
                 "richly textured; `ppd verify` tells you for sure.")  # fmt: skip
     if kind == SceneKind.TEXTURED_SUPPORT:
         return (f"{dataset}: texture reaches the frame's edges ({edge_textured_fraction:.0%} of them: a "
-                "textured support, or a subject filling the frame) — borderline in our tests (protected at "
-                "800 px, not at full size); `ppd verify` tells you for sure.")  # fmt: skip
+                "textured support, or a subject filling the frame) — borderline in our tests (held in "
+                "most runs, not all); `ppd verify` tells you for sure.")  # fmt: skip
     return (f"{dataset}: richly textured everywhere ({textured_fraction:.0%} of the frame) — in our tests no "
             "mark within the visibility budget protected sets like this; `ppd verify` will say.")  # fmt: skip
 
