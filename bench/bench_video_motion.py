@@ -50,6 +50,29 @@ def _cell(profiles: list[object]) -> str:
     return f"protected {n_protected}/{len(profiles)} ({', '.join(fracs)})"
 
 
+def _page(args: argparse.Namespace, started: float, rows: list[str]) -> list[str]:
+    """The results page's lines: how it was made, then the table."""
+    return [
+        "# Moving patch in video vs COLMAP's stationary-match filter (bench/bench_video_motion.py)",
+        "",
+        f"`python -m bench.bench_video_motion --every {' '.join(map(str, args.every))} "
+        f"--repeats {args.repeats}" + (f" --cases '{args.cases}'" if args.cases else "") + "`, "
+        f"{time.strftime('%Y-%m-%d %H:%M')}, {time.time() - started:.0f} s. Video: verifier.synthetic's "
+        f"object scene (plain backdrop), {SCENE.num_views} frames {SCENE.width}x{SCENE.height} at {FPS} fps "
+        "(H.264 CRF 16), camera on a 90° arc. Verifier I on every k-th frame, clean vs poisoned, true "
+        "intrinsics, each cell verified `--repeats` times with COLMAP random seeds 0, 1, ... (clean and "
+        "poisoned SfM both re-run; within one invocation a seed repeated itself, between invocations "
+        "it did not always). "
+        "Cells: runs that said protected, then each run's share of cameras within 5° of the clean "
+        "solution.",
+        "",
+        "| sampled every k frames | patch | patch contrast after encoding (min) | default | hardened |",
+        "|---|---|---|---|---|",
+        *rows,
+        "",
+    ]
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m bench.bench_video_motion")
     ap.add_argument("--every", type=int, nargs="+", default=[2, 4, 12], help="sample every k-th frame")
@@ -92,25 +115,7 @@ def main(argv: list[str] | None = None) -> None:
                 )
                 print(line, flush=True)
                 rows.append(line)
-    lines = [
-        "# Moving patch in video vs COLMAP's stationary-match filter (bench/bench_video_motion.py)",
-        "",
-        f"`python -m bench.bench_video_motion --every {' '.join(map(str, args.every))} "
-        f"--repeats {args.repeats}" + (f" --cases '{args.cases}'" if args.cases else "") + "`, "
-        f"{time.strftime('%Y-%m-%d %H:%M')}, {time.time() - started:.0f} s. Video: verifier.synthetic's "
-        f"object scene (plain backdrop), {SCENE.num_views} frames {SCENE.width}x{SCENE.height} at {FPS} fps "
-        "(H.264 CRF 16), camera on a 90° arc. Verifier I on every k-th frame, clean vs poisoned, true "
-        "intrinsics, each cell verified `--repeats` times with COLMAP random seeds 0, 1, ... (clean and "
-        "poisoned SfM both re-run; within one invocation a seed repeated itself, between invocations "
-        "it did not always). "
-        "Cells: runs that said protected, then each run's share of cameras within 5° of the clean "
-        "solution.",
-        "",
-        "| sampled every k frames | patch | patch contrast after encoding (min) | default | hardened |",
-        "|---|---|---|---|---|",
-        *rows,
-        "",
-    ]
+    lines = _page(args, started, rows)
     args.out.write_text("\n".join(lines))
     print(f"wrote {args.out}")
 
