@@ -168,24 +168,8 @@ BENCH_DESIGNS: dict[str, tuple[PatchSpec, ...]] = {
     # two marks in two lanes of the corner sliding along x at different speeds, pixel-identical copies
     # (no turn): parallel motions of different size read as parallax, not as one translation
     "watermark-lanes": (
-        PatchSpec(
-            pattern="random_blocks",
-            patch_size=0.06,
-            block_size=0.005,
-            motion="slide",
-            motion_step=0.0075,
-            motion_span=0.14,
-        ),
-        PatchSpec(
-            pattern="random_blocks",
-            patch_size=0.06,
-            block_size=0.005,
-            motion="slide",
-            motion_step=0.015,
-            motion_span=0.14,
-            offset=(0, 0.07),
-            seed=101,
-        ),
+        WATERMARK_LANES_SPEC.replace(lanes=1),
+        WATERMARK_LANES_SPEC.replace(lanes=1, motion_step=0.015, offset=(0, 0.07), seed=101),
     ),
     # the lanes with blocks at b, 2b, 4b: keypoints at coarser octaves for full-size photos, where
     # COLMAP's 8192-feature cap drops the finest scales first

@@ -15,7 +15,6 @@ Light at import (`ppd poison --help`): numpy and PIL load inside the functions t
 
 from __future__ import annotations
 
-import functools
 import logging
 import os
 from collections.abc import Sequence
@@ -108,45 +107,23 @@ def wants_corner(spec: PatchSpec, position_set: bool) -> bool:
 
 def place_corner(spec: PatchSpec, files: Sequence[Path], mask_dir: Path | None) -> Placed:
     """spec with the corner `dataset_corner` picks over files (CORNER_SAMPLE of them, spread over the
-    set, and their masks). Files that cannot be read are left out; with none left, the spec keeps
-    its position (source 'default')."""
-    from poisoner.errors import ImageFormatError
-    from poisoner.subject import dataset_corner
+    set, and their masks; unreadable files and masks are left out there). With nothing to judge on,
+    the spec keeps its own position (source 'default')."""
+    from poisoner.subject import CornerChoice, dataset_corner
 
-    region = spec.corner_region
-    judge = functools.partial(dataset_corner, mask_dir=mask_dir, region=region, sample=CORNER_SAMPLE)
-    sample = list(files)
-    try:
-        choice = judge(sample)
-    except (ImageFormatError, OSError, ValueError) as exc:  # one unreadable file: judge the others
-        log.info("corner: %s; judging the readable files only", exc, extra={"error": str(exc)})
-        readable = [f for f in sample[: 4 * CORNER_SAMPLE] if _judgeable(judge, f)]
-        if not readable:
-            return Placed(spec, _default_choice(spec))
-        choice = judge(readable)
+    choice = dataset_corner(files, mask_dir, region=spec.corner_region, sample=CORNER_SAMPLE)
+    if choice.source == "default":
+        return Placed(spec, CornerChoice(corner=spec.position, source="default", cover={}))
     return Placed(spec.replace(position=choice.corner), choice)
-
-
-def _judgeable(judge: Any, file: Path) -> bool:
-    from poisoner.errors import ImageFormatError
-
-    try:
-        judge([file])
-    except (ImageFormatError, OSError, ValueError):
-        return False
-    return True
-
-
-def _default_choice(spec: PatchSpec) -> Any:
-    from poisoner.subject import CornerChoice
-
-    return CornerChoice(corner=spec.position, source="default", cover={})
 
 
 def corner_line(dataset: str, choice: Any) -> str:
     """`lego: mark in the bottom-right corner (estimated: least detail)`."""
-    why = SOURCE_WORDS.get(choice.source, choice.source)
-    return f"{dataset}: mark in the {choice.corner} corner ({why})"
+    return _corner_words(dataset, choice.corner, choice.source)
+
+
+def _corner_words(dataset: str, corner: str, source: str) -> str:
+    return f"{dataset}: mark in the {corner} corner ({SOURCE_WORDS.get(source, source)})"
 
 
 def record_choice(ctx: AppContext, dataset: str, choice: Any, mask_dir: Path | None) -> None:
@@ -171,8 +148,7 @@ def choice_text(dataset: str, detail: dict[str, Any] | None) -> str | None:
     """A recorded choice in the words of corner_line; None when there is none."""
     if not detail or not detail.get("corner"):
         return None
-    why = SOURCE_WORDS.get(str(detail.get("source")), str(detail.get("source")))
-    return f"{dataset}: mark in the {detail['corner']} corner ({why})"
+    return _corner_words(dataset, str(detail["corner"]), str(detail.get("source")))
 
 
 def sibling_images(first: Path, limit: int = CORNER_SAMPLE) -> list[Path]:

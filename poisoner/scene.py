@@ -26,6 +26,7 @@ mark's blocks are 4 px), never enlarged. The hint never claims protection: only 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from enum import StrEnum
 from pathlib import Path
@@ -130,6 +131,7 @@ def noise_sigma(gray: np.ndarray) -> float:
     return min(MAX_NOISE_SIGMA, float(np.median(np.abs(diagonal)) / 0.6745))
 
 
+@functools.cache  # a constant of the filter: computed once, not per image
 def dog_noise_gain() -> float:
     """How much of a pixel noise's standard deviation the DoG passes (its kernel's L2 norm)."""
     import numpy as np

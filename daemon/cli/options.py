@@ -115,6 +115,11 @@ class SpecOptions:
     def given(self) -> bool:
         return self.design is not None or self.spec_file is not None or bool(self.values)
 
+    def sets_position(self) -> bool:
+        """Whether these flags place the mark (--position or a spec file): its corner is then the
+        user's, not chosen per dataset (daemon.subject)."""
+        return self.spec_file is not None or any(name == "position" for name, _ in self.values)
+
     def build(self, base: PatchSpec) -> PatchSpec:
         """base, replaced by --design or --spec when given, with the given field flags on top."""
         if self.design is not None:

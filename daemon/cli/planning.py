@@ -136,12 +136,6 @@ def _flag_spec(ctx: AppContext, dataset: str, options: SpecOptions) -> PatchSpec
         raise die(one_line(exc)) from None
 
 
-def _position_set(ctx: AppContext, dataset: str, options: SpecOptions) -> bool:
-    """Whether the user placed the mark: --position, a spec file, or the config's position."""
-    flagged = options.spec_file is not None or any(name == "position" for name, _ in options.values)
-    return flagged or ctx.config.position_set(dataset)
-
-
 def apply_spec(
     ctx: AppContext, jobs: list[Job], options: SpecOptions, dry_run: bool, masks: dict[str, Path | None]
 ) -> tuple[dict[str, PatchSpec], list[str]]:
@@ -157,7 +151,7 @@ def apply_spec(
         spec, choice = _flag_spec(ctx, name, options), None
         new = ctx.store.dataset_spec(name) is None
         base = spec or ctx.config.spec_for(name)
-        if new and wants_corner(base, _position_set(ctx, name, options)):
+        if new and wants_corner(base, options.sets_position() or ctx.config.position_set(name)):
             placed = place_corner(base, [job.path for job in jobs if job.dataset == name], masks.get(name))
             spec, choice = placed.spec, placed.choice
             lines.append(corner_line(name, choice))

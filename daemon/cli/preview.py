@@ -78,8 +78,7 @@ def _planned_spec(
     name, _root = attribute(ctx, file, folder=False)
     stored = ctx.store.dataset_spec(name)
     spec = options.build(stored or ctx.config.spec_for(name))
-    explicit = options.spec_file is not None or any(n == "position" for n, _ in options.values)
-    if stored is None and wants_corner(spec, explicit or ctx.config.position_set(name)):
+    if stored is None and wants_corner(spec, options.sets_position() or ctx.config.position_set(name)):
         placed = place_corner(spec, [file, *sibling_images(file)], masks)
         return placed.spec, corner_line(name, placed.choice)
     return spec, None
