@@ -23,7 +23,7 @@ from PIL import Image  # PIL before anything that may load pycolmap
 from poisoner.blend import poison_array
 from poisoner.spec import PatchSpec
 from verifier.poses import nerf_intrinsics
-from verifier.shared_data import SHARED, WORK, prepare_fountain, prepare_lego
+from verifier.shared_data import WORK, SharedDataMissing, prepare_fountain, prepare_lego, shared_root
 from verifier.verification import VerificationReport, VerifyOptions, verify_folders
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -189,8 +189,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--fresh-clean", action="store_true", help="recompute the clean side (timing runs)")
     ap.add_argument("--append", default=None, metavar="LABEL", help="append a section to verify.md")
     args = ap.parse_args(argv if argv is not None else [])
-    if not SHARED.is_dir():
-        raise SystemExit(f"shared datasets not found at {SHARED}")
+    try:
+        shared_root()  # $PPD_SHARED_DATA, set by bench/__init__.py to the checkout's ../shared/datasets
+    except SharedDataMissing as exc:
+        raise SystemExit(str(exc)) from None
     started = time.time()
     rows: list[str] = []
     notes: list[str] = []

@@ -186,8 +186,10 @@ def run_preflight_child(
     atomic_write_bytes(job_file, msgspec.json.encode(job))
     result = Path(job.result)
     log_file = out_dir / "preflight.log"
+    from verifier.childenv import child_env
+
     ended = run_child(
-        [sys.executable, "-m", "verifier.auto", str(job_file)],
+        [sys.executable, "-m", "verifier.auto", str(job_file)], env=child_env(),
         log_path=log_file, append_log=True, timeout_s=timeout_s, cancel=cancel, nice=10, grace_s=10.0,
     )  # fmt: skip
     if ended.kind == "cancelled":

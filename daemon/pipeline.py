@@ -167,12 +167,9 @@ class Job:
 
 # ---- small helpers ---------------------------------------------------------------------------
 def tool_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
+    from daemon.version import ppd_version
 
-    try:
-        return f"ppd {version('patchpoison')}"
-    except PackageNotFoundError:
-        return "ppd 0.1.0"
+    return f"ppd {ppd_version()}"
 
 
 def one_line(exc: BaseException) -> str:
@@ -241,19 +238,6 @@ class PoisonerDied(Exception):
     """The isolated poisoner process died (a signal: out of memory, a decoder crash)."""
 
 
-_CHILD = """
-import json, sys
-from pathlib import Path
-from daemon.pipeline import poison_to
-from poisoner.provenance import Marker
-from poisoner.spec import PatchSpec
-a = json.loads(sys.argv[1])
-masks = Path(a["subject_masks"]) if a["subject_masks"] is not None else None
-poison_to(a["kind"], Path(a["src"]), Path(a["dst"]), PatchSpec.from_dict(a["spec"]), subject_masks=masks,
-          marker=Marker(**a["marker"]), keep_location=a["keep_location"], **a["limits"])
-"""
-
-
 def poison_isolated(
     kind: str,
     src: Path,
@@ -277,11 +261,12 @@ def poison_isolated(
         "keep_location": keep_location, "limits": limits,
         "subject_masks": os.fsdecode(subject_masks) if subject_masks is not None else None,
     }  # fmt: skip
-    repo = str(Path(__file__).resolve().parents[1])
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))}
+    from verifier.childenv import child_env
+
     done = subprocess.run(
-        [sys.executable, "-c", _CHILD, json.dumps(args)], capture_output=True, text=True, env=env, check=False
-    )
+        [sys.executable, "-m", "daemon.poison_child", json.dumps(args)],
+        capture_output=True, text=True, env=child_env(), check=False,
+    )  # fmt: skip
     if done.returncode < 0:
         raise PoisonerDied(
             f"{src.name}: patching it killed its process twice (signal {-done.returncode}: out of memory or "

@@ -25,56 +25,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 UNIT_NAME = "ppd.service"
+DOCS_URL = "https://github.com/patchpoison/ppd/blob/main/docs/DAEMON.md"
 
-UNIT_TEMPLATE = """\
-# ppd: PatchPoison daemon, a systemd *user* service. Installed by `ppd service install`.
-# It watches the outbox and protects every photo/video dropped there.
-[Unit]
-Description=PatchPoison daemon: protect photos dropped in the outbox
-Documentation={docs}
 
-[Service]
-Type=notify
-ExecStart={exec_start}
-{environment}Restart=on-failure
-RestartSec=5s
-# Ready is sent after the catch-up scan; a 10k-file outbox is still scanned in seconds.
-TimeoutStartSec=5min
-# SIGTERM: no new work, files in flight finish (a 4K video can take a while), exit 0.
-TimeoutStopSec=2min
-KillMode=mixed
-WatchdogSec=60s
-NotifyAccess=main
 
-# Sandbox (what a user service can take; needs unprivileged user namespaces for some lines).
-NoNewPrivileges=yes
-ProtectSystem=strict
-ReadWritePaths={read_write}
-PrivateTmp=yes
-PrivateDevices=yes
-ProtectKernelTunables=yes
-ProtectKernelModules=yes
-ProtectKernelLogs=yes
-ProtectControlGroups=yes
-ProtectClock=yes
-ProtectHostname=yes
-ProtectProc=invisible
-# Only AF_UNIX: sd_notify and journald. Nothing listens on, or dials, a network port.
-RestrictAddressFamilies=AF_UNIX
-RestrictNamespaces=yes
-RestrictRealtime=yes
-RestrictSUIDSGID=yes
-LockPersonality=yes
-SystemCallArchitectures=native
-SystemCallFilter=@system-service
-SystemCallErrorNumber=EPERM
-UMask=0077
-# No MemoryDenyWriteExecute: torch (LPIPS/splat in verification children) needs W+X for
-# its oneDNN JIT ("could not create a primitive" under it; measured).
+def unit_template() -> str:
+    """The unit with {placeholders}, shipped as package data (daemon/ppd.service.in): the same
+    text from a checkout and from an installed wheel."""
+    from importlib.resources import files
 
-[Install]
-WantedBy=default.target
-"""
+    return files("daemon").joinpath("ppd.service.in").read_text(encoding="utf-8")
 
 
 @dataclass(frozen=True)
@@ -84,7 +44,7 @@ class UnitLayout:
     exec_start: Sequence[str]  # argv of `ppd watch`
     read_write: Sequence[str]  # outbox, data, cache (and publish folders, '-'-prefixed: optional)
     environment: Mapping[str, str] = field(default_factory=dict)
-    docs: str = "https://github.com/patchpoison/ppd/blob/main/docs/DAEMON.md"
+    docs: str = DOCS_URL
 
 
 def quote_word(word: str) -> str:
@@ -101,7 +61,7 @@ def render_unit(layout: UnitLayout) -> str:
     env_lines = "".join(
         f"Environment={quote_word(f'{key}={value}')}\n" for key, value in sorted(layout.environment.items())
     )
-    return UNIT_TEMPLATE.format(
+    return unit_template().format(
         exec_start=" ".join(quote_word(w) for w in layout.exec_start),
         environment=env_lines,
         read_write=" ".join(quote_word(p) for p in layout.read_write),
@@ -114,7 +74,7 @@ def generic_layout() -> UnitLayout:
     return UnitLayout(
         exec_start=("%h/.local/bin/ppd", "watch"),
         read_write=("%h/PPD Outbox", "%h/.local/share/ppd", "%h/.cache/ppd"),
-        docs="https://github.com/patchpoison/ppd/blob/main/docs/DAEMON.md",
+        docs=DOCS_URL,
     )
 
 
@@ -133,13 +93,15 @@ def ppd_executable() -> Path:
 
 def watch_command(executable: Path | None = None) -> tuple[list[str], dict[str, str]]:
     """argv (and extra environment) that runs `ppd watch` for this installation: the `ppd`
-    console script when installed, else this Python with the checkout on PYTHONPATH."""
+    console script when installed, else this Python with this copy of ppd importable."""
     try:
         exe = executable or ppd_executable()
     except FileNotFoundError:
-        checkout = Path(__file__).resolve().parents[1]
+        from verifier.childenv import child_env
+
         python = str(Path(sys.executable).absolute())
-        return [python, "-m", "daemon.cli", "watch"], {"PYTHONPATH": str(checkout)}
+        extra = {k: v for k, v in child_env({}).items() if k == "PYTHONPATH"}
+        return [python, "-m", "daemon.cli", "watch"], extra
     return [str(exe), "watch"], {}
 
 
@@ -158,7 +120,6 @@ def installed_layout(
     read_write = [str(outbox), str(data), str(cache)]
     for publish in _publish_dirs(config):
         read_write.append("-" + str(publish))  # '-': a missing folder does not stop the unit
-    docs = Path(__file__).resolve().parents[1] / "docs" / "DAEMON.md"
     return UnitLayout(
         exec_start=argv,
         read_write=read_write,
@@ -170,7 +131,7 @@ def installed_layout(
             "PYTHONUNBUFFERED": "1",
             **extra_env,
         },
-        docs=docs.as_uri(),
+        docs=DOCS_URL,  # the docs are not installed with the wheel: the published page
     )
 
 

@@ -16,6 +16,8 @@ import PIL.Image  # noqa: F401
 import pytest
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
+# ppd finds the shared datasets only where it is told (verifier/shared_data.py): the checkout's.
+os.environ.setdefault("PPD_SHARED_DATA", str(SHARED / "datasets"))
 
 # The integration tests CI runs (`make test`, the default selection), one for each real part: pycolmap
 # SfM on a synthetic scene; the paper's verdict (the patch breaks default COLMAP, hardened COLMAP

@@ -27,6 +27,7 @@ from typing import Any
 import msgspec
 
 from poisoner.media import is_sfm_readable
+from verifier.childenv import child_env
 from verifier.supervise import run_child
 
 log = logging.getLogger(__name__)
@@ -185,9 +186,7 @@ def _run_locked(
     os.unlink(result_path)
     job = msgspec.structs.replace(job, result_path=result_path)
     cmd = [*_ionice_prefix(), python or sys.executable, "-m", "verifier.child"]
-    env = dict(os.environ)
-    root = str(Path(__file__).resolve().parents[1])
-    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env = child_env()  # the child imports this same copy of ppd (installed or a source tree)
     started = time.time()
     stderr_path = Path(job.model_dir) / "sfm.log"
     ended = run_child(

@@ -46,25 +46,11 @@ app = typer.Typer(
 )
 
 
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("ppd")
-    except PackageNotFoundError:  # run from a checkout: the version pyproject.toml declares
-        import tomllib
-        from pathlib import Path
-
-        pyproject = Path(__file__).resolve().parents[2] / "pyproject.toml"
-        try:
-            return tomllib.loads(pyproject.read_text())["project"]["version"]
-        except (OSError, KeyError, tomllib.TOMLDecodeError):
-            return "unknown"
-
-
 def _print_version(value: bool) -> None:
     if value:
-        typer.echo(f"ppd {_version()}")
+        from daemon.version import ppd_version
+
+        typer.echo(f"ppd {ppd_version()}")
         raise typer.Exit()
 
 

@@ -26,18 +26,19 @@ def _safe_name(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "experiment"
 
 
-def resolve_dataset(dataset: str, views: int) -> tuple[Path, Path | None, str]:
+def resolve_dataset(dataset: str, views: int, shared: Path | None = None) -> tuple[Path, Path | None, str]:
     """(clean image folder, ground truth or None, a short name). A folder, or the shared lego set
     (first `views` views composited on white by verifier.shared_data.prepare_lego, GT included)."""
     path = Path(dataset).expanduser()
     if path.is_dir():
         return path, None, _safe_name(path.resolve().name)
     if dataset in SHARED_DATASETS:
-        from verifier.shared_data import SHARED, prepare_lego
+        from verifier.shared_data import SharedDataMissing, prepare_lego, shared_root
 
-        if not SHARED.is_dir():
-            raise _die(f"{dataset}: shared datasets not found at {SHARED}")
-        clean, gt, _ = prepare_lego(views)
+        try:  # only where the user says: an installed ppd has no checkout beside it
+            clean, gt, _ = prepare_lego(views, root=shared_root(shared))
+        except SharedDataMissing as exc:
+            raise _die(f"{dataset}: {exc}") from None
         return clean, gt, f"lego{views}"
     raise _die(f"{dataset}: not a folder of images, and not a shared dataset ({', '.join(SHARED_DATASETS)})")
 
@@ -70,6 +71,9 @@ def experiment(
     ),
     lpips_images: int = typer.Option(8, "--lpips-images", help="cost2 LPIPS on this many images (0 = all)."),
     views: int = typer.Option(40, "--views", help="Views of a shared dataset."),
+    shared_data: Path | None = typer.Option(
+        None, "--shared-data", help="The shared datasets' folder, for 'lego' (default: $PPD_SHARED_DATA)."
+    ),
     out: Path | None = typer.Option(
         None, "--out", help="Experiment folder (default: data dir/experiments/NAME)."
     ),
@@ -86,7 +90,7 @@ def experiment(
     from verifier.experiment import ExperimentError, aggregate, build_settings, run_experiment
 
     sweeps, base_list = _parsed(sweep, baseline, baselines)
-    clean, shared_gt, name = resolve_dataset(dataset, views)
+    clean, shared_gt, name = resolve_dataset(dataset, views, shared_data)
     exp_dir = out or AppPaths.from_env().data_dir / "experiments" / name
     options = _options(runs, profile, splat, splat_budget, camera_params, gt or shared_gt, lpips_images)
     try:

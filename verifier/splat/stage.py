@@ -26,6 +26,7 @@ from typing import Any
 
 import msgspec
 
+from verifier.childenv import child_env
 from verifier.supervise import run_child
 
 log = logging.getLogger(__name__)
@@ -108,7 +109,7 @@ def run_splat_stage(
         stdin_data=msgspec.json.encode(job),
         timeout_s=timeout_s,
         cancel=cancel,
-        env={**os.environ, "OMP_WAIT_POLICY": "PASSIVE"},  # see verifier/splat/__init__.py
+        env={**child_env(), "OMP_WAIT_POLICY": "PASSIVE"},  # see verifier/splat/__init__.py
     )
     if result_path.is_file():
         try:
