@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from daemon.cli.errors import die, one_line
-from daemon.cli.output import console
+from daemon.cli.output import console, err_console
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -83,13 +83,16 @@ def print_decision(decision: dict[str, Any]) -> None:
     console().print(sample, highlight=False)
 
 
-def _show(dataset: str, as_json: bool) -> None:
+def _show(target: str, as_json: bool) -> None:
+    from daemon.cli.targets import TargetError, dataset_or_die
     from daemon.context import AppContext
 
     ctx = AppContext.open()
     try:
-        if ctx.store.dataset(dataset) is None:
-            raise _fail(f"no dataset {dataset!r} in the store")
+        try:
+            dataset = dataset_or_die(ctx.store, target, err_console(), "--show needs a dataset")
+        except TargetError as exc:
+            raise _fail(one_line(exc)) from None
         rows = ctx.store.auto_decisions(dataset, limit=50)
     finally:
         ctx.close()
@@ -125,16 +128,22 @@ def _print_decisions(dataset: str, rows: list[dict[str, Any]]) -> None:
         console().print(table)
 
 
-def _images(ctx: AppContext, target: str) -> tuple[list[Any], bool]:
-    """(the preflight sample's source images, whether target is a dataset of the store)."""
+def _images(ctx: AppContext, target: str) -> tuple[list[Any], str | None]:
+    """(the preflight sample's source images, the dataset of the store target names, or None for a
+    plain folder). target: a dataset's name, its folder or a verification folder, or any folder."""
     from daemon import auto as daemon_auto
+    from daemon.cli.targets import TargetError, resolve_target, say_note
 
-    if ctx.store.dataset(target) is not None:
-        return daemon_auto.dataset_images(ctx, target), True
-    folder = Path(target).expanduser()
-    if folder.is_dir():
-        return sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")), False
-    raise _fail(f"{target!r} is neither a dataset in the store nor a folder")
+    try:
+        chosen = resolve_target(ctx.store, target)
+    except TargetError as exc:
+        raise _fail(one_line(exc)) from None
+    say_note(chosen, err_console())  # stderr: stdout may be --json
+    if chosen.dataset is not None:
+        return daemon_auto.dataset_images(ctx, chosen.dataset), chosen.dataset
+    assert chosen.folder is not None
+    folder = chosen.folder
+    return sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")), None
 
 
 def _scene_line(target: str, images: list[Any]) -> str | None:
@@ -213,7 +222,9 @@ def _print_result(
 
 
 def auto(
-    target: str = typer.Argument(..., help="A daemon dataset name, or a folder of images to measure."),
+    target: str = typer.Argument(
+        ..., help="A dataset (its name, its folder, a verification folder of it), or a folder of images."
+    ),
     max_noticeable_area: float | None = typer.Option(
         None, "--max-noticeable-area", metavar="FRACTION",
         help="Budget: most of the picture a viewer notices (FLIP > 0.5), e.g. 0.01 (config: [visibility]).",
@@ -252,7 +263,9 @@ def auto(
         raise _fail(one_line(exc)) from None
     dataset_line = None
     try:
-        images, is_dataset = _images(ctx, target)
+        images, name = _images(ctx, target)
+        is_dataset = name is not None
+        target = name or target
         hint = _scene_line(target, images)  # up front: the preflight takes minutes
         if hint and not as_json:
             console().print(hint, markup=False)

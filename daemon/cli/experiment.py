@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from daemon.cli.errors import die
 from daemon.cli.output import console
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
 
 SHARED_DATASETS = ("lego", "nerf_synthetic_lego")
 
@@ -27,11 +30,30 @@ def _safe_name(text: str) -> str:
 
 
 def resolve_dataset(dataset: str, views: int, shared: Path | None = None) -> tuple[Path, Path | None, str]:
-    """(clean image folder, ground truth or None, a short name). A folder, or the shared lego set
-    (first `views` views composited on white by verifier.shared_data.prepare_lego, GT included)."""
+    """(clean image folder, ground truth or None, a short name). A dataset of the store (its name,
+    its folder or a verification folder of it: its originals, staged from the vault), a folder of
+    clean images, or the shared lego set (first `views` views composited on white by
+    verifier.shared_data.prepare_lego, GT included)."""
+    from daemon.cli.targets import TargetError, resolve_target, say_note
+    from daemon.context import AppContext
+
     path = Path(dataset).expanduser()
+    try:
+        ctx = AppContext.open()
+    except Exception:  # no usable store: folders and the shared set still work
+        ctx = None
+    if ctx is not None:
+        try:
+            chosen = resolve_target(ctx.store, dataset)
+            say_note(chosen, console())
+            if chosen.dataset is not None:  # its originals, never the patched files in its folder
+                return _staged_originals(ctx, chosen.dataset), None, _safe_name(chosen.dataset)
+        except TargetError:
+            pass  # not a dataset nor a folder: maybe the shared set
+        finally:
+            ctx.close()
     if path.is_dir():
-        return path, None, _safe_name(path.resolve().name)
+        return path.absolute(), None, _safe_name(path.resolve().name)
     if dataset in SHARED_DATASETS:
         from verifier.shared_data import SharedDataMissing, prepare_lego, shared_root
 
@@ -40,11 +62,27 @@ def resolve_dataset(dataset: str, views: int, shared: Path | None = None) -> tup
         except SharedDataMissing as exc:
             raise _die(f"{dataset}: {exc}") from None
         return clean, gt, f"lego{views}"
-    raise _die(f"{dataset}: not a folder of images, and not a shared dataset ({', '.join(SHARED_DATASETS)})")
+    shared_names = ", ".join(SHARED_DATASETS)
+    raise _die(f"{dataset}: not a dataset, not a folder of images, not a shared dataset ({shared_names})")
+
+
+def _staged_originals(ctx: AppContext, dataset: str) -> Path:
+    """The dataset's originals (vault) linked into one folder under its experiments folder."""
+    import shutil
+
+    from daemon.protect import dataset_pairs
+    from verifier.pairs import stage_pairs
+
+    base = Path(ctx.paths.data_dir) / "experiments" / _safe_name(dataset) / "originals"
+    shutil.rmtree(base, ignore_errors=True)  # the dataset's current files, not an older staging
+    stage_pairs(dataset_pairs(ctx, dataset), base / "clean", base / "patched")
+    return base / "clean"
 
 
 def experiment(
-    dataset: str = typer.Argument(..., help="A folder of clean images, or 'lego' (the shared NeRF set)."),
+    dataset: str = typer.Argument(
+        ..., help="A dataset (its originals), a folder of clean images, or 'lego' (the shared NeRF set)."
+    ),
     sweep: list[str] = typer.Option(
         [],
         "--sweep",

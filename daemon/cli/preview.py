@@ -10,7 +10,7 @@ import typer
 
 from daemon.cli.errors import EXIT_ENVIRONMENT, die, one_line, open_ctx, os_error_text
 from daemon.cli.options import SpecOptions, spec_options, subject_masks_option
-from daemon.cli.output import console
+from daemon.cli.output import console, err_console
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -178,9 +178,35 @@ def _visibility_line(original: Any, poisoned: Any, display_width: int, subject: 
         raise die(one_line(exc)) from None
 
 
+def _first_file(ctx: AppContext, given: Path) -> Path:
+    """A dataset (its name, its folder, a verification folder of it) or a folder: its first
+    patched file, else the folder's first photo or video; or one line saying what to give."""
+    from daemon.cli.targets import TargetError, resolve_target, say_note
+    from daemon.states import FileState
+    from poisoner.media import is_image, is_video
+
+    try:
+        chosen = resolve_target(ctx.store, str(given))
+    except TargetError:
+        raise die(f"{given} does not exist, and is not a dataset (see `ppd status`)") from None
+    say_note(chosen, err_console())
+    if chosen.dataset is not None:
+        rows = ctx.store.files(chosen.dataset, state=FileState.PATCHED)
+        present = sorted(p for p in (Path(r.get("published_path") or r["path"]) for r in rows) if p.is_file())
+        if present:
+            return present[0]
+    folder = chosen.folder
+    media = sorted(p for p in folder.iterdir() if is_image(p.name) or is_video(p.name)) if folder else []
+    if not media:
+        raise die(f"{given}: no photo or video to preview there")
+    return media[0]
+
+
 @spec_options(with_ratio=False)
 def preview(
-    file: Path = typer.Argument(..., help="A photo or a video (original or patched)."),
+    file: Path = typer.Argument(
+        ..., help="A photo or a video (original or patched), or a dataset (name or folder): its first file."
+    ),
     out: Path | None = typer.Option(
         None, "--out", metavar="PNG", help="PNG to write (default: ./NAME.ppd-preview.png)."
     ),
@@ -200,19 +226,16 @@ def preview(
     \b
     Examples:
       ppd preview IMG_0042.jpg                   the spec this file would get
+      ppd preview castle                         a dataset's first patched file
       ppd preview IMG_0042.jpg --design paper    the paper's static patch
       ppd preview clip.mp4 --out clip.png        a frame of a video
       ppd preview image/000000.png --design watermark --subject-masks mask/
     """
-    if not file.exists():
-        raise die(f"{file} does not exist")
-    if file.is_dir():
-        raise die(f"{file} is a folder; give one photo or video")
     from PIL import Image
 
     ctx = open_ctx()
     try:
-        file = file.absolute()
+        file = file.absolute() if file.is_file() else _first_file(ctx, file)
         masks = _preview_masks(ctx, file, subject_masks)
         image, original, poisoned, subject = _render(ctx, file, spec_options, masks)
         target = (out or Path.cwd() / f"{file.stem}.ppd-preview.png").absolute()

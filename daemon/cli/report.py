@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from daemon.cli.errors import die, one_line, warning
+from daemon.cli.errors import die, one_line
 from daemon.cli.options import dataset_option, folder_option
 from daemon.cli.output import console
 
@@ -30,22 +30,19 @@ def _open_store(source: str | None, dataset: str | None) -> AppContext | None:
 
 def _write(ctx: AppContext | None, source: str | None, dataset: str | None, folder: Path | None,
            out: Path | None) -> Path:  # fmt: skip
-    from daemon.cli.targets import resolve_target
-    from daemon.report import build_report, report_path
+    from daemon.cli.targets import resolve_target, say_note
+    from daemon.report import build_dataset_report, build_report, report_path
     from verifier.report import write_report
 
     if ctx is not None:
         chosen = resolve_target(ctx.store, source, dataset=dataset, folder=folder)
-        if chosen.note and chosen.folder is None:
-            warning(chosen.note)  # a name that is also a folder here: say which was taken
-        elif chosen.note:
-            console().print(chosen.note, markup=False)
+        say_note(chosen, console())
         name, path = chosen.dataset, chosen.folder
     else:
         name, path = None, (folder or Path(source or ".")).expanduser()
-    if name is not None:
+    if name is not None:  # the dataset, never its folder read as a verification folder
         assert ctx is not None
-        return write_report(build_report(name, ctx), out or report_path(ctx.paths, name))
+        return write_report(build_dataset_report(ctx, name), out or report_path(ctx.paths, name))
     assert path is not None
     return write_report(build_report(str(path)), out or path / "report.html")
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections import Counter
 from pathlib import Path
 
@@ -12,7 +13,9 @@ from daemon.cli.output import console, err_console
 
 
 def restore(
-    target: str = typer.Argument(..., help="A dataset name or a patched file."),
+    target: str = typer.Argument(
+        ..., help="A dataset (its name, its folder, a verification folder of it) or a patched file."
+    ),
     force: bool = typer.Option(False, "--force", help="Overwrite even if the file changed since."),
 ) -> None:
     """Put originals back from the vault (atomic). Files in an --out or publish folder are
@@ -21,20 +24,26 @@ def restore(
     \b
     Examples:
       ppd restore castle                 every patched file of the dataset
+      ppd restore ~/shoots/castle        the same, by its folder
       ppd restore ~/shoots/castle/a.jpg  one file
     """
+    from daemon.cli.targets import TargetError, dataset_or_die
     from daemon.protect import restore_file
     from daemon.states import FileState
 
     ctx = open_ctx()
     try:
-        as_path = Path(target).absolute()
-        if ctx.store.file(as_path) is not None:
+        as_path = Path(os.path.abspath(Path(target).expanduser()))
+        if as_path.is_file() or ctx.store.file(as_path) is not None:
+            if ctx.store.file(as_path) is None:
+                raise die(f"{target}: not a file ppd patched (see `ppd status`)")
             paths = [as_path]
-        elif ctx.store.dataset(target) is not None:
-            paths = [Path(r["path"]) for r in ctx.store.files(target, state=FileState.PATCHED)]
         else:
-            raise die(f"{target!r} is neither a dataset nor a file in the store")
+            try:
+                name = dataset_or_die(ctx.store, target, console(), "nothing to restore there")
+            except TargetError as exc:
+                raise die(exc) from None
+            paths = [Path(r["path"]) for r in ctx.store.files(name, state=FileState.PATCHED)]
         outcomes = [restore_file(ctx, p, force=force) for p in sorted(set(paths))]
         counts = Counter(o.state for o in outcomes)
         console().print(

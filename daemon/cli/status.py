@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from daemon.cli.errors import open_ctx, warning
+from daemon.cli.errors import die, open_ctx, warning
 from daemon.cli.output import console, err_console
 from verifier.verdict import Verdict
 
@@ -173,7 +173,9 @@ def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -
 
 
 def status(
-    dataset: str | None = typer.Argument(None, help="One dataset (default: all)."),
+    dataset: str | None = typer.Argument(
+        None, help="One dataset: its name, its folder or a verification folder (default: all)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
     long: bool = typer.Option(False, "--long", "-l", help="Also the spec and each profile's verdict."),
     failed: bool = typer.Option(False, "--failed", help="List each failed file with its reason."),
@@ -188,11 +190,18 @@ def status(
       ppd status castle --failed  the files that failed, and why
     """
     from daemon.cli.status_queries import dataset_status, failed_files
+    from daemon.cli.targets import TargetError, dataset_or_die
     from daemon.syncdirs import find_sync_folder
 
     ctx = open_ctx()
     try:
-        names = [dataset] if dataset else [d["name"] for d in ctx.store.datasets()]
+        names = [d["name"] for d in ctx.store.datasets()]
+        if dataset:  # a name, a folder or a verification folder: one resolver (daemon.cli.targets)
+            say = err_console() if as_json else console()
+            try:
+                names = [dataset_or_die(ctx.store, dataset, say, "give a dataset (see `ppd status`)")]
+            except TargetError as exc:
+                raise die(exc) from None
         report = [dataset_status(ctx, n) for n in names]
         if failed:
             for d in report:

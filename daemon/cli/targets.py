@@ -1,15 +1,29 @@
-"""What `ppd verify X` and `ppd report X` mean by X: a dataset name, or a folder, and which
-dataset a folder is when `ppd poison` patched it (the store knows its rows and originals).
+"""What a command means by the dataset it is given: one resolver for `restore`, `report`, `verify`,
+`status`, `preview` and `auto` (and `experiment`'s folders), from any working folder.
 
-A name that is both a dataset and a folder here is taken as the dataset, and the command says so
-and names the explicit form for the other (`--folder PATH`, `--dataset NAME`).
+X may be
+- a dataset name (the store knows it);
+- a dataset's folder, relative to the working folder or absolute: the folder `ppd poison` patched
+  in place, or the one its patched copies went to (`--out`);
+- a verification folder (one holding report.json, e.g. DATA/runs/DATASET/RUN): the dataset whose
+  runs it holds, if any;
+- any other folder (commands that can use a plain folder say so; the others say what to give).
+
+When two readings are possible (a dataset name that is also an unrelated folder here, a
+verification folder of a dataset) the dataset is taken and the command says so, naming the
+explicit form for the other reading (`--folder PATH`, `--dataset NAME`).
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from daemon.cli.errors import warning
+
+REPORT_FILE = "report.json"  # what a verification or experiment folder holds (verifier.report)
 
 
 class TargetError(ValueError):
@@ -19,24 +33,70 @@ class TargetError(ValueError):
 @dataclass(frozen=True)
 class Target:
     dataset: str | None  # the daemon dataset to use, or None for a plain folder
-    folder: Path | None  # the folder given, when one was
+    folder: Path | None  # the folder given, when one was (absolute)
     note: str | None = None  # one line for the user: what X was taken as, and why
+    took_dataset_over_folder: bool = False  # the note is a warning: the folder reading was set aside
+
+
+def _absolute(path: Path) -> Path:
+    """Absolute and normalised ('..' and '.' folded) without following symlinks: how the store
+    records a dataset's root."""
+    return Path(os.path.abspath(path.expanduser()))
+
+
+def _same_folder(a: Path, b: Path) -> bool:
+    if _absolute(a) == _absolute(b):
+        return True
+    try:
+        return a.resolve() == b.resolve()  # one of them reached through a symlink
+    except OSError:
+        return False
 
 
 def dataset_for_folder(store: Any, folder: Path) -> str | None:
     """The dataset whose folder this is: its root (patched in place) or the folder its patched
     copies were written to (`--out`), or None. The newest match wins when several do."""
-    folder = folder.expanduser().absolute()
+    folder = _absolute(folder)
     for row in store.datasets():
-        if row["root"] and Path(row["root"]).absolute() == folder:
+        if row["root"] and _same_folder(Path(row["root"]), folder):
             return row["name"]
     best: tuple[int, str] | None = None
     for row in store.datasets():
-        paths = [Path(r.get("published_path") or r["path"]) for r in store.files(row["name"])]
+        paths = [_absolute(Path(r.get("published_path") or r["path"])) for r in store.files(row["name"])]
         inside = sum(1 for p in paths if p.is_relative_to(folder))
         if inside and (best is None or inside > best[0]):
             best = (inside, row["name"])
     return None if best is None else best[1]
+
+
+def dataset_for_verification_folder(store: Any, folder: Path) -> str | None:
+    """The dataset a verification folder (report.json inside) belongs to: the one whose recorded
+    runs' model folders lie in it, or None (a folder `ppd verify --clean` or `experiment` wrote)."""
+    if not (folder / REPORT_FILE).is_file():
+        return None
+    folder = _absolute(folder)
+    for row in store.datasets():
+        for run in store.verification_runs(row["name"], limit=1000):
+            model = run.get("model_dir")
+            if model and _absolute(Path(model)).is_relative_to(folder):
+                return row["name"]
+    return None
+
+
+def _folder_target(store: Any, path: Path, explicit: bool) -> Target:
+    folder = _absolute(path)
+    name = dataset_for_folder(store, folder)
+    if name is not None:
+        same = "" if explicit else f"; --dataset {name} says the same"
+        return Target(name, folder, f"{path} is dataset {name!r} (patched by ppd{same})")
+    name = dataset_for_verification_folder(store, folder)
+    if name is not None:
+        return Target(
+            name, folder,
+            f"{path} is a verification of dataset {name!r}: took the dataset (--folder {path}: this run)",
+            took_dataset_over_folder=True,
+        )  # fmt: skip
+    return Target(None, folder)
 
 
 def resolve_target(
@@ -51,29 +111,47 @@ def resolve_target(
             raise TargetError(f"no dataset {dataset!r} in the store (see `ppd status`)")
         return Target(dataset, None)
     if folder is not None:
-        if not folder.is_dir():
+        if not folder.expanduser().is_dir():
             raise TargetError(f"{folder} is not a folder")
-        name = dataset_for_folder(store, folder)
+        name = dataset_for_folder(store, folder)  # explicit: never a verification's dataset
         note = f"{folder} is dataset {name!r} (patched by ppd)" if name else None
-        return Target(name, folder.absolute(), note)
+        return Target(name, _absolute(folder), note)
     assert target is not None
     path = Path(target).expanduser()
     is_dataset = store.dataset(target) is not None
     if is_dataset and path.is_dir():
-        owner = dataset_for_folder(store, path)
-        if owner == target:
-            return Target(target, path.absolute())
+        reading = _folder_target(store, path, explicit=False)
+        if reading.dataset == target:  # the dataset's own folder: one reading
+            return Target(target, reading.folder)
         note = (
             f"{target!r} is both a dataset and a folder here: took the dataset "
             f"(use --folder {path} for the folder)"
         )
-        return Target(target, None, note)
+        return Target(target, None, note, took_dataset_over_folder=True)
     if is_dataset:
         return Target(target, None)
     if path.is_dir():
-        name = dataset_for_folder(store, path)
-        note = (
-            f"{path} is dataset {name!r} (patched by ppd; --dataset {name} says the same)" if name else None
-        )
-        return Target(name, path.absolute(), note)
+        return _folder_target(store, path, explicit=False)
+    if path.exists():
+        raise TargetError(f"{target} is a file, not a dataset or a folder")
     raise TargetError(f"no dataset {target!r} in the store, and no folder of that name (see `ppd status`)")
+
+
+def say_note(chosen: Target, console: Any) -> None:
+    """The resolver's note: a warning when a reading was set aside, else a plain line."""
+    if chosen.note is None:
+        return
+    if chosen.took_dataset_over_folder:
+        warning(chosen.note)
+    else:
+        console.print(chosen.note, markup=False, highlight=False)
+
+
+def dataset_or_die(store: Any, target: str | None, console: Any, what: str) -> str:
+    """For commands that work on datasets only (restore, status, auto --show): the dataset X names,
+    its note said, or a one-line TargetError naming what to give."""
+    chosen = resolve_target(store, target)
+    say_note(chosen, console)
+    if chosen.dataset is None:
+        raise TargetError(f"{chosen.folder} is not a folder ppd patched; {what}")
+    return chosen.dataset

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from daemon.cli.errors import EXIT_USAGE, die, one_line, warning
+from daemon.cli.errors import EXIT_USAGE, die, one_line
 from daemon.cli.options import dataset_option, folder_option, subject_masks_option
 from verifier.verdict import Verdict
 
@@ -46,7 +46,7 @@ def _verify_folder(path: Path, clean: Path, out: Path | None, profiles: tuple[st
 def _verify_stored(target: str | None, dataset: str | None, folder: Path | None,
                    profiles: tuple[str, ...], options: Any, console: Console) -> Any:  # fmt: skip
     """A dataset of the store (named, or the folder ppd patched) against its vault originals."""
-    from daemon.cli.targets import resolve_target
+    from daemon.cli.targets import resolve_target, say_note
     from daemon.context import AppContext
     from daemon.verify import verify_dataset
     from verifier.verification import VerificationInputError
@@ -60,10 +60,7 @@ def _verify_stored(target: str | None, dataset: str | None, folder: Path | None,
         ) from None
     try:
         chosen = resolve_target(ctx.store, target, dataset=dataset, folder=folder)
-        if chosen.note and chosen.folder is None:
-            warning(chosen.note)  # a name that is also a folder here: say which was taken
-        elif chosen.note:
-            console.print(chosen.note, markup=False)
+        say_note(chosen, console)
         if chosen.dataset is None:
             raise VerificationInputError(
                 f"{chosen.folder} is not a folder ppd patched: give its clean originals with --clean DIR"
