@@ -1,0 +1,139 @@
+"""Every command that takes a dataset takes it as a name, a folder (relative or absolute) or a
+verification folder, from any working folder (issue 26). Real store, real vault, real files; the
+CLI in-process (typer's runner) with a real working folder (chdir). No COLMAP: a verification
+folder is a real report.json beside a run row of the store."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from daemon.context import AppContext
+
+runner = CliRunner()
+WHERE = ("holder", "inside", "elsewhere")  # the working folder: holds castle/, is castle/, neither
+FORMS = ("name", "relative", "absolute")
+
+
+def _shoot(root: Path) -> Path:
+    folder = root / "photos" / "castle"
+    folder.mkdir(parents=True)
+    for i in range(2):
+        rng = np.random.default_rng(i)
+        Image.fromarray(rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)).save(folder / f"view{i}.png")
+    return folder
+
+
+def _chdir_and_arg(shoot: Path, where: str, form: str, monkeypatch: pytest.MonkeyPatch) -> str:
+    cwd = {"holder": shoot.parent, "inside": shoot, "elsewhere": shoot.parents[1] / "elsewhere"}[where]
+    cwd.mkdir(exist_ok=True)
+    monkeypatch.chdir(cwd)
+    if form == "name":
+        return "castle"
+    if form == "absolute":
+        return str(shoot)
+    return os.path.relpath(shoot, cwd)  # "castle", "." or "../photos/castle"
+
+
+@pytest.fixture
+def shoot(ppd_env: dict[str, Path], tmp_path: Path) -> Path:
+    folder = _shoot(tmp_path)
+    done = runner.invoke(app, ["poison", str(folder)])
+    assert done.exit_code == 0, done.output
+    return folder
+
+
+def _originals_back(shoot: Path) -> bool:
+    for i in range(2):
+        rng = np.random.default_rng(i)
+        expected = rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)
+        if not np.array_equal(np.asarray(Image.open(shoot / f"view{i}.png")), expected):
+            return False
+    return True
+
+
+@pytest.mark.parametrize("where", WHERE)
+@pytest.mark.parametrize("form", FORMS)
+def test_restore_takes_a_name_or_a_folder_from_anywhere(
+    shoot: Path, where: str, form: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    assert not _originals_back(shoot)  # ppd poison changed them
+    arg = _chdir_and_arg(shoot, where, form, monkeypatch)
+    done = runner.invoke(app, ["restore", arg])
+    assert done.exit_code == 0, done.output
+    assert "restored 2" in done.output
+    assert _originals_back(shoot)
+
+
+@pytest.mark.parametrize("where", WHERE)
+@pytest.mark.parametrize("form", FORMS)
+def test_report_takes_a_name_or_a_folder_from_anywhere(
+    shoot: Path, where: str, form: str, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    arg = _chdir_and_arg(shoot, where, form, monkeypatch)
+    out = tmp_path / f"{where}-{form}.html"
+    done = runner.invoke(app, ["report", arg, "--out", str(out)])
+    assert done.exit_code == 0, done.output
+    page = out.read_text()
+    assert "dataset castle" in page  # the dataset's page, not a folder's "no report.json here"
+    assert "error" not in done.output
+
+
+def test_status_verify_preview_take_the_folder(shoot: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(shoot)
+    status = runner.invoke(app, ["status", "."])
+    assert status.exit_code == 0, status.output
+    assert "castle" in status.output and "patched, not verified" in status.output
+    verify = runner.invoke(app, ["verify", ".", "--profile", "default"])
+    assert verify.exit_code == 2 and "dataset 'castle' has 2" in verify.output  # the dataset, not COLMAP
+    empty = shoot.parents[1] / "empty"
+    empty.mkdir()
+    preview = runner.invoke(app, ["preview", str(empty), "--no-visibility"])
+    assert preview.exit_code == 2 and "no photo or video to preview there" in preview.output
+    preview = runner.invoke(app, ["preview", ".", "--no-visibility", "--out", str(shoot.parent / "p.png")])
+    assert preview.exit_code == 0, preview.output
+    assert (shoot.parent / "p.png").is_file()
+    missing = runner.invoke(app, ["status", "no-such-thing"])
+    assert missing.exit_code == 2 and "no dataset 'no-such-thing'" in missing.output
+
+
+def test_a_verification_folder_is_its_dataset_and_says_so(
+    shoot: Path, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    ctx = AppContext.open()
+    try:
+        run = Path(ctx.paths.data_dir) / "runs" / "castle" / "20260101T000000-abc"
+        (run / "default").mkdir(parents=True)
+        (run / "report.json").write_text("{}")
+        now = time.time()
+        model = str(run / "default")
+        ctx.store.add_verification_run("castle", "default", "protected", {}, now - 1, now, model, None)
+    finally:
+        ctx.close()
+    monkeypatch.chdir(run.parent)
+    status = runner.invoke(app, ["status", run.name])
+    assert status.exit_code == 0, status.output
+    assert "verification of dataset 'castle': took the dataset" in status.output
+    restored = runner.invoke(app, ["restore", str(run)])
+    assert restored.exit_code == 0 and "restored 2" in restored.output, restored.output
+    assert _originals_back(shoot)
+
+
+def test_a_name_and_an_unrelated_folder_take_the_dataset(
+    shoot: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    other = shoot.parents[1] / "other"
+    (other / "castle").mkdir(parents=True)  # a folder named like the dataset, not the dataset's
+    monkeypatch.chdir(other)
+    done = runner.invoke(app, ["restore", "castle"])
+    assert done.exit_code == 0 and "restored 2" in done.output, done.output
+    assert "took the dataset" in done.output
+    plain = runner.invoke(app, ["restore", str(other)])
+    assert plain.exit_code == 2 and "not a folder ppd patched" in plain.output
