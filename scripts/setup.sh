@@ -16,6 +16,9 @@ stamp="$VENV/.ppd-installed"
 want=$( (cat pyproject.toml scripts/setup.sh; echo "bench=${PPD_SETUP_BENCH:-0}") | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     "$VENV/bin/python" -m pip install -q --upgrade pip
+    # The build backend in the venv itself: scripts/wheel_smoke.sh builds the wheel without
+    # isolation (no download in CI); >= 77 reads pyproject's SPDX `license`.
+    "$VENV/bin/python" -m pip install -q "setuptools>=77"
     # The CPU wheel first and pinned: an unpinned torch pulls gigabytes of CUDA packages.
     "$VENV/bin/python" -m pip install -q torch==2.13.0
     extras=dev

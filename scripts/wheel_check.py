@@ -63,7 +63,7 @@ def main(argv: list[str]) -> int:
     archives = {wheel.name: wheel_names(wheel)}
     if len(argv) == 3:
         archives[Path(argv[2]).name] = sdist_names(Path(argv[2]))
-    missing = [f"{name}: {path}" for name, names in archives.items() for path in expected if path not in names]
+    missing = [f"{name}: {path}" for name, held in archives.items() for path in expected if path not in held]
     print(f"{wheel.name}: packages " + " ".join(packages_in(archives[wheel.name])))
     for line in missing:
         print(f"missing from {line}", file=sys.stderr)

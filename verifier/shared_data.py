@@ -3,7 +3,7 @@ and the tests read them.
 
 Where they are is the user's to say (`--shared-data DIR`, or $PPD_SHARED_DATA): an installed ppd
 has no checkout beside it to look in. The tests (tests/conftest.py) and the benchmarks
-(bench/__init__.py) set the variable to the checkout's ../shared/datasets.
+(bench/__init__.py) point the variable at the datasets beside the checkout.
 
 lego: NeRF-Synthetic's first n training views composited on white (as 3DGS does), RGB PNG, with
 its transforms_train.json as ground truth. fountain-P11: the images and gt_dense_cameras as they are.
