@@ -3,7 +3,7 @@
 VENV ?= .venv
 PY := $(VENV)/bin/python
 
-.PHONY: setup demo test test-all lint bench
+.PHONY: setup demo test test-all lint bench wheel-smoke
 
 setup:
 	bash scripts/setup.sh
@@ -20,6 +20,11 @@ test: setup
 # and the slow ones on the shared datasets.
 test-all: setup
 	$(PY) -m pytest -m ''
+
+# The installed ppd (what `pipx install` gives a user who does not clone): wheel built and checked,
+# installed alone into a fresh venv, every command run from a temporary folder. CI runs it.
+wheel-smoke: setup
+	PPD_VENV=$(VENV) bash scripts/wheel_smoke.sh
 
 lint: setup
 	$(VENV)/bin/ruff check --no-cache .

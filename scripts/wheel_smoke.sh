@@ -12,7 +12,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 SRC=$PWD
-VENV=$SRC/${PPD_VENV:-.venv}
+VENV=${PPD_VENV:-.venv}
+case $VENV in /*) ;; *) VENV=$SRC/$VENV;; esac
 PY=$VENV/bin/python
 started=$SECONDS
 T=$(mktemp -d "${TMPDIR:-/tmp}/ppd-wheel-smoke.XXXXXX")
