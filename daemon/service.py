@@ -10,6 +10,8 @@ inherit the sandbox, and torch's oneDNN JIT fails under it ("could not create a 
 measured with prctl(PR_SET_MDWE), the same W^X rule), while numpy, Pillow, PyAV and
 pycolmap's SIFT work.
 
+The template is package data (daemon/ppd.service.in, read with importlib.resources), so an
+installed wheel renders the same unit as a checkout.
 `systemd/ppd.service` in the repository is `render_unit(generic_layout())`: the same unit
 with systemd specifiers (%h) for a `pip install --user` layout; a test keeps them equal.
 """
