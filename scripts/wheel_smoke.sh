@@ -85,5 +85,5 @@ grep -qx "ExecStart=$T/venv/bin/ppd watch" <<<"$unit" || fail "ExecStart is not 
 say "service: ExecStart=$T/venv/bin/ppd watch"
 
 # 6. The demo, end to end with its verdict.
-ppd demo --workdir "$T/demo" | tail -4
+ppd demo --workdir "$T/demo" | tail -6
 say "all commands ran from the installed wheel in $((SECONDS - started)) s"
