@@ -18,7 +18,7 @@ PY=$VENV/bin/python
 started=$SECONDS
 T=$(mktemp -d "${TMPDIR:-/tmp}/ppd-wheel-smoke.XXXXXX")
 trap 'rm -rf "$T"' EXIT
-say() { printf 'wheel-smoke: %s\n' "$*"; }
+say() { printf 'wheel-smoke [%ds]: %s\n' "$((SECONDS - started))" "$*"; }
 fail() { printf 'wheel-smoke: FAILED: %s\n' "$*" >&2; exit 1; }
 
 # 1. sdist, then the wheel built from it (what an index or `pipx install` builds; no stale build/).
@@ -56,13 +56,15 @@ ppd preview shoot/kitchen/"$(ls shoot/kitchen | head -1)" --out preview.png --no
 ppd status kitchen
 rc=0; (cd shoot && ppd verify kitchen --profile default --json > "$T/verify.json") || rc=$?
 [ "$rc" -le 1 ] || fail "ppd verify exited $rc"
-python - "$T/verify.json" <<'PY'
+verified=$(python - "$T/verify.json" <<'PY'
 import json, sys
 report = json.load(open(sys.argv[1]))
 clean = report["profiles"]["default"]["clean"]
 assert clean["outcome"] == "ok", clean  # COLMAP ran in a child process of the installed package
-print(f"wheel-smoke: verify: verdict {report['verdict']}, clean SfM registered {clean['registered']}")
+print(f"verify: verdict {report['verdict']}, clean SfM registered {clean['registered']}")
 PY
+) || fail "ppd verify ran no clean SfM"
+say "$verified"
 (cd shoot && ppd report kitchen --out "$T/report.html")
 (cd shoot/kitchen && ppd restore .)
 
@@ -85,5 +87,6 @@ grep -qx "ExecStart=$T/venv/bin/ppd watch" <<<"$unit" || fail "ExecStart is not 
 say "service: ExecStart=$T/venv/bin/ppd watch"
 
 # 6. The demo, end to end with its verdict.
+say "demo"
 ppd demo --workdir "$T/demo" | tail -6
 say "all commands ran from the installed wheel in $((SECONDS - started)) s"
