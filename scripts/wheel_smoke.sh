@@ -88,5 +88,7 @@ say "service: ExecStart=$T/venv/bin/ppd watch"
 
 # 6. The demo, end to end with its verdict.
 say "demo"
-ppd demo --workdir "$T/demo" | tail -6
+ppd demo --workdir "$T/demo" > "$T/demo.log" 2>&1 || { cat "$T/demo.log" >&2; fail "ppd demo"; }
+grep -q '^overall' "$T/demo.log" || { cat "$T/demo.log" >&2; fail "ppd demo printed no verdict"; }
+sed -n '/^overall/,$p' "$T/demo.log"
 say "all commands ran from the installed wheel in $((SECONDS - started)) s"
