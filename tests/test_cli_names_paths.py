@@ -137,3 +137,20 @@ def test_a_name_and_an_unrelated_folder_take_the_dataset(
     assert "took the dataset" in done.output
     plain = runner.invoke(app, ["restore", str(other)])
     assert plain.exit_code == 2 and "not a folder ppd patched" in plain.output
+
+
+def test_auto_and_experiment_take_the_dataset_folder(shoot: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """auto --show reads the dataset's decisions; experiment measures the dataset's originals (from
+    the vault), never the patched files in its folder. Neither runs COLMAP here."""
+    from daemon.cli.experiment import resolve_dataset
+
+    monkeypatch.chdir(shoot.parent)
+    shown = runner.invoke(app, ["auto", "castle/", "--show"])
+    assert shown.exit_code == 0 and "castle: no automatic decision recorded" in shown.output, shown.output
+    clean, gt, name = resolve_dataset("./castle", views=40)
+    assert name == "castle" and gt is None
+    staged = sorted(clean.iterdir())
+    assert [p.name for p in staged] == ["view0.png", "view1.png"]
+    for i, path in enumerate(staged):
+        expected = np.random.default_rng(i).integers(0, 256, (120, 160, 3), dtype=np.uint8)
+        assert np.array_equal(np.asarray(Image.open(path)), expected)  # the originals, not the patched
