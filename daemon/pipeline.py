@@ -273,7 +273,7 @@ def poison_isolated(
 
     args = {
         "kind": kind, "src": os.fsdecode(src), "dst": os.fsdecode(dst), "spec": spec.to_dict(),
-        "marker": {"spec_id": marker.spec_id, "original_sha256": marker.original_sha256, "tool": marker.tool},
+        "marker": {"text": marker.text},  # the placeholder only: the key never leaves this process
         "keep_location": keep_location, "limits": limits,
         "subject_masks": os.fsdecode(subject_masks) if subject_masks is not None else None,
     }  # fmt: skip
@@ -313,11 +313,19 @@ def is_ignored_name(path: Path) -> bool:
     return path.name.startswith(".") or path.name.startswith(TEMP_PREFIX)
 
 
-def provenance_marker(spec_id: str, original_sha256: str | None) -> Any:
-    """What every patched file carries (poisoner.provenance): ppd knows its own output without a row."""
+def provenance_marker(ctx: AppContext, spec_id: str, original_sha256: str | None) -> Any:
+    """The seal placeholder every patched file carries (poisoner.provenance); `seal_output` seals
+    the finished file: ppd knows its own output without a row, nobody else can read or forge it."""
     from poisoner.provenance import Marker
 
-    return Marker(spec_id=spec_id, original_sha256=original_sha256 or "", tool=tool_version())
+    return Marker.placeholder(ctx.seal_key(), spec_id, original_sha256 or "")
+
+
+def seal_output(ctx: AppContext, path: Path) -> None:
+    """Seal a finished patched file in place (its placeholder's tag over exactly its bytes)."""
+    from poisoner.provenance import seal_file
+
+    seal_file(path, ctx.seal_key())
 
 
 def link_or_copy(src: Path, dst: Path) -> None:
@@ -428,8 +436,10 @@ def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, 
         try:
             poison_to(
                 kind, original, scratch, spec, subject_masks=masks_or_none(ctx, row["dataset"]),
-                marker=provenance_marker(spec.spec_id, original_sha), keep_location=ctx.config.keep_location,
+                marker=provenance_marker(ctx, spec.spec_id, original_sha),
+                keep_location=ctx.config.keep_location,
             )  # fmt: skip
+            seal_output(ctx, scratch)
         except Exception:  # cannot redo it: treat the file as new content
             return False
         if sha256_file(scratch) != sha:
@@ -631,26 +641,27 @@ def _corner_sample(job: Job) -> list[Path]:
 
 
 def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
-    """ppd's own output without a row (a lost store): its provenance marker says so. It is never
-    patched again; when the vault holds the original the marker names, the row is written back
-    (so status and restore see it)."""
-    from poisoner.provenance import read_marker
+    """ppd's own output without a row (a lost store): its seal verifies under this installation's
+    key over exactly these bytes (poisoner.provenance). A copied, forged, cropped or edited file
+    does not verify and goes on as a new photo. When the vault holds the original the seal names,
+    the row is written back (so status and restore see it)."""
+    from poisoner.provenance import read_seal
 
     assert job.file is not None and job.sha is not None
-    marker = read_marker(Path(f"/proc/self/fd/{job.file.fd}"))
-    if marker is None:
-        return None
     ctx = job.ctx
-    if job.out_path is None and not job.dry_run and ctx.vault.has(marker.original_sha256):
+    seal = read_seal(Path(f"/proc/self/fd/{job.file.fd}"), ctx.seal_key())
+    if seal is None:
+        return None
+    if job.out_path is None and not job.dry_run and ctx.vault.has(seal.original_sha256):
         ensure_dataset(ctx, job.dataset, job.root, job.wanted_spec)
         ctx.store.record_file(
-            job.path, job.dataset, FileState.PATCHED, original_sha256=marker.original_sha256,
-            poisoned_sha256=job.sha, spec_id=marker.spec_id, tool_version=marker.tool,
+            job.path, job.dataset, FileState.PATCHED, original_sha256=seal.original_sha256,
+            poisoned_sha256=job.sha, spec_id=seal.spec_id, tool_version=None,
             size=job.file.st.st_size, mtime_ns=job.file.st.st_mtime_ns, error=None,
-            event="recognised", detail={"from": "provenance marker"},
+            event="recognised", detail={"from": "provenance seal"},
         )  # fmt: skip
     return job.outcome(
-        Outcome.UNCHANGED, "already ppd output (its provenance marker says so)", poisoned_sha256=job.sha
+        Outcome.UNCHANGED, "already ppd output (its provenance seal says so)", poisoned_sha256=job.sha
     )
 
 
@@ -689,7 +700,7 @@ def poison(job: Job) -> ProtectOutcome | None:
     """3. The complete patched file, written in the private work folder."""
     assert job.work is not None and job.original is not None and job.spec is not None and job.kind
     job.poisoned = job.work / f"{PATCHED_PREFIX}{job.path.name}"
-    marker = provenance_marker(job.spec.spec_id, job.sha)
+    marker = provenance_marker(job.ctx, job.spec.spec_id, job.sha)
     limits = {"max_pixels": job.ctx.config.max_pixels} if job.kind == "image" else {}
     if job.died_before:  # the last attempt took its process down: this one cannot
         job.report = poison_isolated(
@@ -700,6 +711,7 @@ def poison(job: Job) -> ProtectOutcome | None:
             job.kind, job.original, job.poisoned, job.spec, job.progress, job.mask_dir, marker=marker,
             keep_location=job.keep_location, **limits,
         )  # fmt: skip
+    seal_output(job.ctx, job.poisoned)
     job.poisoned_sha = sha256_file(job.poisoned)
     return None
 

@@ -646,3 +646,16 @@ def run_disk_full(fs: Path, leave: int, files: int = 4) -> DiskFullReport:
         ctx.close()
     report.violations_after = check_invariants(paths, originals)
     return report
+
+
+def sealed_patch(src: Path, dst: Path, spec: object, original_sha256: str, data_dir: Path) -> None:
+    """What the pipeline's poison stage writes: the patched file with its seal, made with the
+    installation's key in data_dir (created on first use)."""
+    from daemon.sealkey import load_key
+    from poisoner.formats import poison_file
+    from poisoner.provenance import Marker, seal_file
+
+    key = load_key(data_dir)
+    assert key is not None
+    poison_file(src, dst, spec, marker=Marker.placeholder(key, spec.spec_id, original_sha256))  # type: ignore[arg-type, attr-defined]
+    seal_file(dst, key)

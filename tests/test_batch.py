@@ -36,7 +36,7 @@ def test_pool_writes_what_serial_writes(tmp_path: Path) -> None:
     shutil.copytree(tmp_path / "a", tmp_path / "b")
     originals = {p.name: p.read_bytes() for p in files}
     markers = {
-        p: Marker(spec_id="x" * 16, original_sha256=f"{i:064d}", tool="t") for i, p in enumerate(files)
+        p: Marker.placeholder(bytes(32), "x" * 16, f"{i:064d}") for i, p in enumerate(files)
     }
     serial = poison_many([(p, p) for p in files], spec, workers=1, markers=markers)
     pool_files = [tmp_path / "b" / p.name for p in files]
