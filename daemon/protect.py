@@ -275,7 +275,7 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                         raise ProtectRefused(
                             f"{target} exists; not overwriting it with the original (use --force)"
                         )
-                    ctx.vault.restore(row["original_sha256"], target)
+                    ctx.vault.restore(row["original_sha256"], target, replaces=True if force else None)
                     reason = f"original back at {target}; {reason}"
             else:
                 target = path
@@ -283,7 +283,9 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                     raise ProtectRefused(
                         f"{target.name} changed since ppd patched it; not overwriting (use --force)"
                     )
-                ctx.vault.restore(row["original_sha256"], target)
+                # the check again just before the rename: a writer between the two is not overwritten
+                replaces = True if force else row["poisoned_sha256"]
+                ctx.vault.restore(row["original_sha256"], target, replaces=replaces)
                 reason = None
         except Exception as exc:
             return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))

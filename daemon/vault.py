@@ -237,10 +237,15 @@ class Vault:
         path = self.path_for(sha256)
         return path.is_file() and sha256_file(path) == sha256
 
-    def restore(self, sha256: str, dst: Path) -> None:
+    def restore(self, sha256: str, dst: Path, *, replaces: str | None | bool = True) -> None:
         """Atomically put the original with this digest at dst: a copy (never a link: edits to
         the restored file must not reach the vault), hash-verified while copying; a blob whose
-        content no longer matches its name is refused and dst is left untouched."""
+        content no longer matches its name is refused and dst is left untouched.
+
+        replaces says what dst may hold when the original takes its place, checked just before
+        the rename (compare-and-swap): True anything (--force), a sha256 exactly that content (what
+        ppd wrote) or nothing, None nothing (dst must not exist). Otherwise RestoreRefused, dst
+        untouched."""
         src = self.path_for(sha256)
         try:
             fd = open_regular_nofollow(src)
@@ -248,7 +253,8 @@ class Vault:
             raise VaultError(f"original {sha256[:12]} is not in the vault {self.vault_dir}") from None
         dst = Path(dst)
         try:
-            with atomic_output(dst, mode_like=dst if dst.exists() else None) as tmp:
+            check = None if replaces is True else (lambda: _still_holds(dst, replaces))  # type: ignore[arg-type]
+            with atomic_output(dst, mode_like=dst if dst.exists() else None, check=check) as tmp:
                 digest = hashlib.sha256()
                 offset = 0
                 with open(tmp, "wb") as fout:
@@ -262,6 +268,27 @@ class Vault:
                     )
         finally:
             os.close(fd)
+
+
+class RestoreRefused(VaultError):
+    """dst no longer holds what restore may replace (another writer's bytes)."""
+
+
+def _still_holds(dst: Path, expected: str | None) -> None:
+    """Raise RestoreRefused unless dst is absent or holds exactly expected (None: absent only)."""
+    try:
+        fd = os.open(dst, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return  # nobody's bytes at that name: nothing is overwritten
+    except OSError as exc:
+        raise RestoreRefused(f"{dst.name} cannot be checked ({exc.strerror}); not overwriting it") from None
+    try:
+        if expected is None:
+            raise RestoreRefused(f"{dst} exists; not overwriting it with the original (use --force)")
+        if sha256_fd(fd) != expected:
+            raise RestoreRefused(f"{dst.name} changed since ppd patched it; not overwriting (use --force)")
+    finally:
+        os.close(fd)
 
 
 def _copy_fd(src: int, dst: int) -> tuple[str, str]:

@@ -16,6 +16,7 @@ from reliability_harness import MountUnavailable, fill, small_filesystem
 
 import daemon.vault
 from daemon.vault import (
+    RestoreRefused,
     Vault,
     VaultContentChanged,
     VaultError,
@@ -349,3 +350,28 @@ def test_reflink_where_the_filesystem_shares_extents(btrfs: Path) -> None:
         fh.write(b"EDIT")
     assert vault.path_for(sha).read_bytes() == data and vault.verify(sha)
     assert vault.path_for(sha).stat().st_ino != src.stat().st_ino
+
+
+def test_restore_replaces_only_what_it_may(vault: Vault, tmp_path: Path) -> None:
+    """Issue 29: the check runs just before the rename; bytes ppd did not write are never replaced
+    unless the caller says so (--force)."""
+    src = tmp_path / "a.bin"
+    src.write_bytes(b"original")
+    sha = vault.keep(src)
+    patched = hashlib.sha256(b"patched").hexdigest()
+    src.write_bytes(b"the user's edit")
+    with pytest.raises(RestoreRefused):
+        vault.restore(sha, src, replaces=patched)
+    with pytest.raises(RestoreRefused):
+        vault.restore(sha, src, replaces=None)
+    assert src.read_bytes() == b"the user's edit"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bin", "vault"]  # no temporary left
+    src.write_bytes(b"patched")
+    vault.restore(sha, src, replaces=patched)
+    assert src.read_bytes() == b"original"
+    src.write_bytes(b"anything")
+    vault.restore(sha, src)  # force
+    assert src.read_bytes() == b"original"
+    src.unlink()
+    vault.restore(sha, src, replaces=patched)  # nothing at the name: nothing overwritten
+    assert src.read_bytes() == b"original"
