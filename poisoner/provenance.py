@@ -246,7 +246,8 @@ def _fix_checksum(mm: mmap.mmap, tok: _Token) -> None:
 
 def seal_file(path: Path, key: bytes) -> None:
     """Seal ppd's finished output in place: the placeholder's TAG becomes the file's tag.
-    SealError when the file holds no placeholder made with this key."""
+    SealError when the file holds no placeholder made with this key. Not fsynced: the caller
+    copies the sealed file to its final place and fsyncs that (daemon.pipeline)."""
     fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC)
     try:
         if os.fstat(fd).st_size == 0:
@@ -256,11 +257,9 @@ def seal_file(path: Path, key: bytes) -> None:
                 if tok.tag == _ZERO_TAG and _open_body(key, tok.body) is not None:
                     mm[tok.tag_start : tok.tag_start + _TAG_HEX] = _file_tag(key, mm, tok)
                     _fix_checksum(mm, tok)
-                    mm.flush()
                     break
             else:
                 raise SealError(f"{Path(path).name}: no seal placeholder in the patched file")
-        os.fsync(fd)
     finally:
         os.close(fd)
 
