@@ -42,7 +42,6 @@ if str(REPO) not in sys.path:  # pytest puts tests/ first; bench and tests.* nee
 
 from bench.bench_daemon import Daemon, start_daemon, status_kb  # noqa: E402
 from daemon.paths import AppPaths  # noqa: E402
-from daemon.pipeline import provenance_marker  # noqa: E402
 from daemon.protect import media_kind, poison_to  # noqa: E402
 from daemon.states import FileState  # noqa: E402
 from daemon.store import Store  # noqa: E402
@@ -151,9 +150,16 @@ def expected_output(paths: AppPaths, store: Store, row: dict) -> str | None:
         original = Path(scratch) / Path(row["path"]).name
         shutil.copyfile(paths.vault_dir / row["original_sha256"][:2] / row["original_sha256"], original)
         out = Path(scratch) / f"out{original.suffix}"
-        # The daemon's output carries a provenance marker (spec id, original's hash): so must ours.
-        marker = provenance_marker(row["spec_id"], row["original_sha256"])
+        # The daemon's output carries a provenance seal (its key, over these bytes): so must ours.
+        from daemon.sealkey import load_key
+        from poisoner.provenance import Marker, seal_file
+
+        key = load_key(paths.data_dir, create=False)
+        if key is None:  # nothing was ever sealed here
+            return None
+        marker = Marker.placeholder(key, row["spec_id"], row["original_sha256"])
         poison_to(kind, original, out, spec, marker=marker)
+        seal_file(out, key)
         return sha256(out)
 
 
