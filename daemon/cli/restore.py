@@ -33,6 +33,8 @@ def restore(
             paths = [as_path]
         elif ctx.store.dataset(target) is not None:
             paths = [Path(r["path"]) for r in ctx.store.files(target, state=FileState.PATCHED)]
+        elif as_path.is_file() and not as_path.is_symlink():  # no row (a lost store): its seal and the vault
+            paths = [as_path]
         else:
             raise die(f"{target!r} is neither a dataset nor a file in the store")
         outcomes = [restore_file(ctx, p, force=force) for p in sorted(set(paths))]
