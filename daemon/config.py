@@ -35,6 +35,8 @@ Every key is optional; what is missing comes from the embedded defaults below. L
 
     [daemon]
     quarantine_dir = ""         # files `ppd watch` cannot patch go here ("": <outbox>/../ppd-quarantine)
+    max_debounce_seconds = 30.0 # the quiet time grows (doubles) while a file keeps changing, up to this
+    incomplete_wait_seconds = 120.0  # an incomplete file is waited for until unchanged this long
 
     [limits]
     max_megapixels = 80.0       # larger images are refused before decoding (WebP: a fifth, HEIF: a third)
@@ -182,6 +184,15 @@ class PrivacyConfig(Section, frozen=True):
 
 class DaemonConfig(Section, frozen=True):
     quarantine_dir: Path | None = None  # None: Config.quarantine_dir_for's default
+    # A writer that appends in bursts: the quiet time after a close doubles while the file keeps
+    # changing, up to this; and a file whose structure is incomplete is waited for (re-checked)
+    # until it has not changed for incomplete_wait_seconds, only then quarantined.
+    max_debounce_seconds: float = 30.0
+    incomplete_wait_seconds: float = 120.0
+
+    def __post_init__(self) -> None:
+        if self.max_debounce_seconds < 0 or self.incomplete_wait_seconds < 0:
+            raise ConfigError("max_debounce_seconds and incomplete_wait_seconds must be >= 0")
 
 
 class LimitsConfig(Section, frozen=True):

@@ -110,6 +110,7 @@ class ProtectOutcome:
     signature: FileSignature | None = None
     requeue: bool = False  # a newer version arrived meanwhile: process the path again
     hopeless: bool = False  # failed because of the file itself (format, structure, name): a retry fails too
+    incomplete: bool = False  # failed because its structure is incomplete: its writer may not be done
 
 
 @dataclass

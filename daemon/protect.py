@@ -30,6 +30,7 @@ from daemon.fsops import sha256_fd
 from daemon.locks import LockHeld
 from daemon.pipeline import (
     STAGES,
+    IncompleteFile,
     Job,
     Outcome,
     Progress,
@@ -207,8 +208,9 @@ def _record_failure(
                 extra={"path": str(path), "error": message},
             )  # fmt: skip
     return ProtectOutcome(
-        path=path, dataset=dataset, state=Outcome.FAILED, reason=message, hopeless=file_is_the_cause(exc)
-    )
+        path=path, dataset=dataset, state=Outcome.FAILED, reason=message, hopeless=file_is_the_cause(exc),
+        incomplete=isinstance(exc, IncompleteFile),
+    )  # fmt: skip
 
 
 def _holds_ppd_output(ctx: AppContext, path: Path) -> bool:
