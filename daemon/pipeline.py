@@ -506,11 +506,15 @@ class IncompleteFile(Exception):
     """The file's structure is incomplete (a truncated upload, a writer that gave up)."""
 
 
+class UnrecognisedFile(ValueError):
+    """The file does not begin like any image or video ppd reads (nor can appending make it one)."""
+
+
 def check_complete(job: Job) -> ProtectOutcome | None:
     """Only complete files go on: one still open for writing by another process is skipped (its
     close re-arms the watcher); one whose structure is incomplete, or whose header declares more
     pixels than the decode budget, is refused here, before anything reaches the vault."""
-    from poisoner.completeness import incomplete_reason
+    from poisoner.completeness import incomplete_reason, starts_like_media
 
     assert job.file is not None
     through_fd = Path(f"/proc/self/fd/{job.file.fd}")  # the opened inode, never the path again
@@ -523,6 +527,11 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     if pids:
         why = f"still open for writing by pid {pids[0]}; patched once it is closed"
         return job.outcome(Outcome.SKIPPED, why, signature=None)
+    if starts_like_media(os.pread(job.file.fd, 16, 0)) is False:
+        # before the vault: a tail fragment (a writer's next append) is never kept as an original
+        raise UnrecognisedFile(
+            f"{job.path.name} is not a recognised image or video (its first bytes match no format ppd reads)"
+        )
     if reason is not None:
         raise IncompleteFile(f"{job.path.name} is incomplete ({reason}); not patched")
     if job.kind == "image":

@@ -48,7 +48,8 @@ from daemon.store import Store  # noqa: E402
 from poisoner.atomic import TEMP_PREFIX  # noqa: E402
 from tests.test_watcher import texture, wait_for, write_image  # noqa: E402
 
-DAEMON_ARGS = ("--no-verify", "--debounce", "0.05", "-j", "2")  # no SfM children in fault runs
+# no SfM children in fault runs; an incomplete file is quarantined after 2 s unchanged (default 120)
+DAEMON_ARGS = ("--no-verify", "--debounce", "0.05", "-j", "2", "--incomplete-wait", "2")
 
 __all__ = [
     "DAEMON_ARGS", "RESULTS", "CrashTrialOptions", "CrashTrialReport", "DiskFullReport", "HostileInput",
