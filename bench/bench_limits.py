@@ -33,7 +33,8 @@ MAKE = textwrap.dedent(
         row = np.zeros((w, channels), np.uint16)
         row[:, 0] = np.arange(w, dtype=np.uint16) * 7
         with open(path, "wb") as f:
-            f.write(b"\\x89PNG\\r\\n\\x1a\\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 6 if channels == 4 else 2, 0, 0, 0)))
+            ihdr = struct.pack(">IIBBBBB", w, h, 16, 6 if channels == 4 else 2, 0, 0, 0)
+            f.write(b"\\x89PNG\\r\\n\\x1a\\n" + chunk(b"IHDR", ihdr))
             parts = []
             for y in range(h):
                 parts.append(z.compress(b"\\x00" + (row + y).astype(">u2").tobytes()))

@@ -537,7 +537,8 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     if job.kind == "image":
         from poisoner.limits import check_decode_budget
 
-        check_decode_budget(through_fd, job.ctx.config.max_pixels, name=job.path.name)
+        limits = {"name": job.path.name, "max_bytes": job.ctx.config.max_memory_bytes}
+        check_decode_budget(through_fd, job.ctx.config.max_pixels, **limits)  # type: ignore[arg-type]
     return None
 
 
