@@ -337,6 +337,21 @@ def link_or_copy(src: Path, dst: Path) -> None:
         shutil.copyfile(src, dst)
 
 
+NAME_MAX = 255  # bytes in one file name (Linux filesystems)
+
+
+def work_copy_name(prefix: str, name: str) -> str:
+    """prefix + name for a private work copy, shortened (the suffix kept: poisoners pick the
+    format by it) when that would pass NAME_MAX: a 255-byte name is still patched."""
+    full = prefix + name
+    if len(os.fsencode(full)) <= NAME_MAX:
+        return full
+    import hashlib
+
+    suffix = Path(name).suffix if len(os.fsencode(Path(name).suffix)) <= 32 else ""
+    return f"{prefix}{hashlib.sha256(os.fsencode(name)).hexdigest()[:32]}{suffix}"
+
+
 WORK_PREFIX = ".work-"
 _work_cleared: set[Path] = set()
 
@@ -710,7 +725,7 @@ def mark_pending(job: Job) -> ProtectOutcome | None:
 def poison(job: Job) -> ProtectOutcome | None:
     """3. The complete patched file, written in the private work folder."""
     assert job.work is not None and job.original is not None and job.spec is not None and job.kind
-    job.poisoned = job.work / f"{PATCHED_PREFIX}{job.path.name}"
+    job.poisoned = job.work / work_copy_name(PATCHED_PREFIX, job.path.name)
     marker = provenance_marker(job.ctx, job.spec.spec_id, job.sha)
     limits = {"max_pixels": job.ctx.config.max_pixels} if job.kind == "image" else {}
     if job.died_before:  # the last attempt took its process down: this one cannot
