@@ -130,6 +130,13 @@ def rebuild_store(
     store_path = Path(store_path or paths.db_path)
     config = config or Config()
     report = RebuildReport(store_path=store_path)
+    from daemon.locks import watching
+
+    if holders := watching(paths.data_dir):  # a daemon would go on writing to the store swapped out
+        raise RebuildRefused(
+            f"ppd watch ({holders[0]}) is running on this data folder; stop it first "
+            "(`systemctl --user stop ppd`), then rebuild"
+        )
     report.before = _store_condition(store_path, paths.vault_dir, force)
     old = _read_old_store(store_path) if report.before != "missing" else _OldStore()
     report.old_datasets = len(old.datasets)

@@ -6,12 +6,18 @@ never silently recreated empty; `.keep-*` vault leftovers are cleaned and counte
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
-from reliability_harness import write_image
+from reliability_harness import REPO, write_image
 
+from daemon.locks import LockHeld, outbox_lock
+from daemon.paths import AppPaths
 from daemon.protect import AppContext, protect_file
+from daemon.rebuild import RebuildRefused, rebuild_store
 from daemon.states import FileState
 
 
@@ -28,3 +34,50 @@ def test_a_255_byte_name_is_patched(ppd_env: dict[str, Path], suffix: str) -> No
         assert ctx.store.file(photo)["state"] == FileState.PATCHED
     finally:
         ctx.close()
+
+
+def _hold_outbox_lock(data: Path, outbox: Path) -> subprocess.Popen[str]:
+    """Another process holding `ppd watch`'s lock on outbox (as a running daemon does)."""
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import time; from pathlib import Path; from daemon.locks import outbox_lock\n"
+         f"with outbox_lock(Path({str(data)!r}), Path({str(outbox)!r})):\n"
+         "    print('held', flush=True); time.sleep(60)"],
+        cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+    return holder
+
+
+def test_the_outbox_lock_is_the_folder_not_its_spelling(tmp_path: Path) -> None:
+    """Before: `ppd watch` on a symlink to the outbox ran beside the real daemon (3/3)."""
+    outbox = tmp_path / "outbox"
+    outbox.mkdir()
+    (tmp_path / "link").symlink_to(outbox, target_is_directory=True)
+    (tmp_path / "x").mkdir()
+    data = tmp_path / "data"
+    holder = _hold_outbox_lock(data, outbox)
+    try:
+        for spelling in (tmp_path / "link", tmp_path / "x" / ".." / "outbox", outbox):
+            with pytest.raises(LockHeld, match=rf"pid {holder.pid}"), outbox_lock(data, spelling):
+                pass
+        with outbox_lock(tmp_path / "data", tmp_path):  # another folder: free
+            pass
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_store_rebuild_refuses_while_a_daemon_holds_the_outbox(ppd_env: dict[str, Path]) -> None:
+    """Before: `ppd store rebuild --force` ran under a live daemon (13 of 28 files then missing)."""
+    paths = AppPaths.from_env()
+    paths.ensure()
+    holder = _hold_outbox_lock(paths.data_dir, paths.outbox)
+    try:
+        with pytest.raises(RebuildRefused, match=rf"ppd watch \(pid {holder.pid}\) is running"):
+            rebuild_store(paths, force=True)
+        assert not list(paths.data_dir.glob("*.before-rebuild-*"))  # nothing was swapped
+    finally:
+        holder.kill()
+        holder.wait()
+    assert rebuild_store(paths, force=True).before in ("missing", "empty")  # the daemon gone: it runs
