@@ -41,7 +41,9 @@ class AppContext:
         return cls(
             paths=paths,
             config=config,
-            store=Store(paths.db_path),
+            # a new store beside a vault that holds originals: the earlier one was lost; say so
+            # (and keep saying it) instead of starting a silent empty store (daemon.store.core)
+            store=Store.open_or_warn(paths.db_path, paths.vault_dir),
             vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),
         )
 

@@ -81,3 +81,30 @@ def test_store_rebuild_refuses_while_a_daemon_holds_the_outbox(ppd_env: dict[str
         holder.kill()
         holder.wait()
     assert rebuild_store(paths, force=True).before in ("missing", "empty")  # the daemon gone: it runs
+
+
+def _ppd(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "daemon.cli", *args], cwd=REPO, capture_output=True, text=True, check=False,
+        env={**os.environ, "PYTHONPATH": str(REPO), "COLUMNS": "200"},
+    )  # fmt: skip
+
+
+def test_a_lost_store_is_reported_never_recreated_silently(ppd_env: dict[str, Path]) -> None:
+    """Before: after a store loss `ppd status` and `ppd restore FILE` made an empty store (`store
+    check`: "sound, 0 rows") and restore refused every file before reaching the seal (36/36)."""
+    photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=3)
+    original = photo.read_bytes()
+    ctx = AppContext.open()
+    assert protect_file(photo, ctx).state == "patched"
+    db = ctx.paths.db_path
+    ctx.close()
+    for suffix in ("", "-wal", "-shm"):
+        Path(f"{db}{suffix}").unlink(missing_ok=True)
+    status = _ppd("status")
+    assert "the earlier store was lost" in status.stderr and "ppd store rebuild" in status.stderr
+    check = _ppd("store", "check")
+    assert check.returncode != 0 and "lost" in check.stderr, (check.stdout, check.stderr)
+    restored = _ppd("restore", str(photo))  # no row: the file's seal and the vault
+    assert restored.returncode == 0, restored.stderr
+    assert photo.read_bytes() == original
