@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 
 from daemon.dataset import DEFAULT_DATASET
 from daemon.fsops import NotContained, move_out, open_dir, open_dir_below
-from daemon.paths import make_private_dir
+from daemon.paths import make_dirs_private, make_private_dir
 from daemon.states import FileState
 
 if TYPE_CHECKING:
@@ -63,7 +63,7 @@ def quarantine(ctx: AppContext, path: Path, dataset: str | None, reason: str) ->
         os.close(anchor)
     try:
         target_dir = quarantine_dir(ctx) / folder_rel
-        target_dir.mkdir(parents=True, exist_ok=True)
+        make_dirs_private(target_dir)  # 0700 whatever the umask: it holds unprotected originals
         target = _free_name(target_dir / rel.name)
         try:
             os.link(rel.name, target, src_dir_fd=src_dir, follow_symlinks=False)  # never over a file
@@ -76,6 +76,7 @@ def quarantine(ctx: AppContext, path: Path, dataset: str | None, reason: str) ->
             move_out(src_dir, rel.name, target)
     finally:
         os.close(src_dir)
+    _owner_only(target)
     try:  # the move is what protects; a failing store must not undo it
         from daemon.dataset import dataset_root, ensure_dataset
 
@@ -92,6 +93,21 @@ def quarantine(ctx: AppContext, path: Path, dataset: str | None, reason: str) ->
         extra={"path": str(path), "to": str(target), "reason": reason},
     )  # fmt: skip
     return target
+
+
+def _owner_only(target: Path) -> None:
+    """A quarantined original is readable by its owner only (0600), whatever mode it came with."""
+    try:
+        fd = os.open(target, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        log.warning("cannot restrict %s: %s", target, exc.strerror)
+        return
+    try:
+        os.fchmod(fd, 0o600)
+    except OSError as exc:
+        log.warning("cannot restrict %s: %s", target, exc.strerror)
+    finally:
+        os.close(fd)
 
 
 def _free_name(target: Path) -> Path:

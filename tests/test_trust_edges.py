@@ -108,3 +108,36 @@ def test_a_lost_store_is_reported_never_recreated_silently(ppd_env: dict[str, Pa
     restored = _ppd("restore", str(photo))  # no row: the file's seal and the vault
     assert restored.returncode == 0, restored.stderr
     assert photo.read_bytes() == original
+
+
+def test_folders_0700_and_quarantined_files_0600_whatever_the_umask(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Before, under umask 000: ppd-quarantine/ and the config folder 0777, quarantined originals 0666."""
+    import stat
+
+    from daemon.quarantine import quarantine
+
+    root = tmp_path / "home"
+    for var, name in (("PPD_DATA_DIR", "a/data"), ("PPD_CONFIG_DIR", "b/config"), ("PPD_OUTBOX", "c/outbox")):
+        monkeypatch.setenv(var, str(root / name))
+    monkeypatch.setenv("PPD_CACHE_DIR", str(root / "d" / "cache"))
+    old = os.umask(0)
+    try:
+        ctx = AppContext.open()
+        try:
+            bad = ctx.paths.outbox / "ds" / "deep" / "bad.jpg"
+            bad.parent.mkdir(parents=True)
+            bad.write_bytes(b"not a photo")
+            os.chmod(bad, 0o666)
+            moved = quarantine(ctx, bad, "ds", "not a recognised image")
+        finally:
+            ctx.close()
+    finally:
+        os.umask(old)
+    assert moved is not None and moved.read_bytes() == b"not a photo"
+    assert stat.S_IMODE(moved.stat().st_mode) == 0o600
+    created = [root / n for n in ("a", "a/data", "b", "b/config", "c", "d", "d/cache")]
+    created += [p for p in moved.parents if p.is_relative_to(ctx.config.quarantine_dir_for(ctx.paths.outbox))]
+    for folder in created:
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o700, folder
