@@ -176,6 +176,8 @@ def protect_many(
         on_done=(lambda _i, r: on_outcome(r) if on_outcome is not None and r is not retry else None),
         mp_context=pool_context(("daemon.protect", "poisoner.formats")), initializer=open_worker,
         initargs=_worker_args(ctx),
+        # [limits] max_memory_mb: the files in flight never need more memory than that together
+        weights=[peak_estimate(c.path) for c in calls], budget=ctx.config.max_memory_bytes,
     )  # fmt: skip
     for i, result in enumerate(results):
         if result is retry:
