@@ -6,6 +6,7 @@ never silently recreated empty; `.keep-*` vault leftovers are cleaned and counte
 
 from __future__ import annotations
 
+import hashlib
 import os
 import subprocess
 import sys
@@ -141,3 +142,32 @@ def test_folders_0700_and_quarantined_files_0600_whatever_the_umask(
     created += [p for p in moved.parents if p.is_relative_to(ctx.config.quarantine_dir_for(ctx.paths.outbox))]
     for folder in created:
         assert stat.S_IMODE(folder.stat().st_mode) == 0o700, folder
+
+
+def test_a_fragment_under_a_quarantined_name_is_joined_to_its_head(ppd_env: dict[str, Path]) -> None:
+    """A writer's next append after its head was quarantined (the wait ran out): the tail is not
+    a file of its own; it is joined to the quarantined head (one whole file), which goes back to
+    its name and is patched. Before: a second fragment in quarantine, the tail kept as an original."""
+    from daemon.quarantine import quarantine
+
+    src = write_image(ppd_env["outbox"].parent / "src.png", seed=8, size=256).read_bytes()
+    photo = ppd_env["outbox"] / "ds" / "a.png"
+    photo.parent.mkdir(parents=True)
+    photo.write_bytes(src[: len(src) // 2])
+    ctx = AppContext.open()
+    try:
+        head = protect_file(photo, ctx)
+        assert head.state == "failed" and head.incomplete, head
+        first = quarantine(ctx, photo, "ds", head.reason or "")
+        assert first is not None and first.read_bytes() == src[: len(src) // 2]
+        photo.write_bytes(src[len(src) // 2 :])  # the writer goes on: open(..., "ab") makes a new file
+        tail = protect_file(photo, ctx)
+        assert tail.state == "failed" and "not a recognised image" in (tail.reason or "")
+        assert not ctx.vault.has(hashlib.sha256(src[len(src) // 2 :]).hexdigest())  # no fragment kept
+        joined = quarantine(ctx, photo, "ds", tail.reason or "")
+        assert joined == photo and photo.read_bytes() == src and not first.exists()
+        assert [p for p in first.parent.iterdir()] == []  # nothing left in quarantine
+        done = protect_file(photo, ctx)
+        assert done.state == "patched" and done.original_sha256 == hashlib.sha256(src).hexdigest()
+    finally:
+        ctx.close()
