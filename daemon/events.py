@@ -293,10 +293,6 @@ class OutboxWatcher(FileSystemEventHandler):
             )
             self._cond.notify()
 
-    def quiet_time(self, path: Path) -> float:
-        """The quiet time path gets now (grown while it keeps changing)."""
-        return self._grown(path, self.options.settle_s, time.monotonic())
-
     def _grown(self, path: Path, delay: float, now: float) -> float:
         """delay, doubled from the last one when path was handed on recently (within twice the
         quiet time it had then): a writer that closes, pauses and appends again gets more time."""

@@ -62,12 +62,14 @@ class AppPaths:
 
     def ensure(self) -> None:
         """Create every folder: data, vault and runs private (0700, tightened if looser); the
-        config, cache and outbox folders 0700 when ppd creates them, whatever the umask (an
-        existing one keeps its mode: the user's choice)."""
+        config and cache folders 0700 when ppd creates them, whatever the umask (an existing one
+        keeps its mode: the user's choice). The outbox is the user's visible folder: created
+        under the umask, as `mkdir -p` would."""
         for private in (self.data_dir, self.vault_dir, self.runs_dir):
             make_private_dir(private)
-        for folder in (self.config_dir, self.cache_dir, self.outbox):
+        for folder in (self.config_dir, self.cache_dir):
             make_dirs_private(folder)
+        self.outbox.mkdir(parents=True, exist_ok=True)
 
 
 def make_dirs_private(folder: Path) -> None:
