@@ -24,7 +24,26 @@ MAKE = textwrap.dedent(
     fmt, mp, path = sys.argv[1], float(sys.argv[2]), sys.argv[3]
     w = int((mp * 1e6 * 4 / 3) ** 0.5) // 16 * 16
     h = int(mp * 1e6 / w) // 16 * 16
-    channels = 4 if fmt.endswith("rgba") else 3
+    channels = 4 if "rgba" in fmt else 3
+    if fmt.endswith("16"):  # 16-bit PNG: Pillow cannot write it; rows streamed through zlib
+        import struct, zlib
+        def chunk(t, b):
+            return struct.pack(">I", len(b)) + t + b + struct.pack(">I", zlib.crc32(t + b))
+        z = zlib.compressobj(1)
+        row = np.zeros((w, channels), np.uint16)
+        row[:, 0] = np.arange(w, dtype=np.uint16) * 7
+        with open(path, "wb") as f:
+            ihdr = struct.pack(">IIBBBBB", w, h, 16, 6 if channels == 4 else 2, 0, 0, 0)
+            f.write(b"\\x89PNG\\r\\n\\x1a\\n" + chunk(b"IHDR", ihdr))
+            parts = []
+            for y in range(h):
+                parts.append(z.compress(b"\\x00" + (row + y).astype(">u2").tobytes()))
+                if len(parts) > 256:
+                    f.write(chunk(b"IDAT", b"".join(parts))); parts = []
+            parts.append(z.flush())
+            f.write(chunk(b"IDAT", b"".join(parts)) + chunk(b"IEND", b""))
+        print(w, h)
+        sys.exit(0)
     # a smooth gradient with mild noise: real-photo-like compressibility, quick to encode
     rows = []
     rng = np.random.default_rng(0)

@@ -35,9 +35,14 @@ Every key is optional; what is missing comes from the embedded defaults below. L
 
     [daemon]
     quarantine_dir = ""         # files `ppd watch` cannot patch go here ("": <outbox>/../ppd-quarantine)
+    max_debounce_seconds = 30.0 # the quiet time grows (doubles) while a file keeps changing, up to this
+    incomplete_wait_seconds = 120.0  # an incomplete file is waited for until unchanged this long
 
     [limits]
     max_megapixels = 80.0       # larger images are refused before decoding (WebP: a fifth, HEIF: a third)
+    max_memory_mb = 1024.0      # what patching may take at once, all workers together, in MB (estimated
+                                # from the header: decoded bytes x the format's measured working copies);
+                                # a file that alone needs more is refused, others wait their turn
 
     [visibility]                # automatic mode's budget: what a viewer sees (FLIP, verifier.visibility),
     max_noticeable_area = 0.01  # worst sample image; fraction of the picture with FLIP > 0.5
@@ -182,12 +187,24 @@ class PrivacyConfig(Section, frozen=True):
 
 class DaemonConfig(Section, frozen=True):
     quarantine_dir: Path | None = None  # None: Config.quarantine_dir_for's default
+    # A writer that appends in bursts: the quiet time after a close doubles while the file keeps
+    # changing, up to this; and a file whose structure is incomplete is waited for (re-checked)
+    # until it has not changed for incomplete_wait_seconds, only then quarantined.
+    max_debounce_seconds: float = 30.0
+    incomplete_wait_seconds: float = 120.0
+
+    def __post_init__(self) -> None:
+        if self.max_debounce_seconds < 0 or self.incomplete_wait_seconds < 0:
+            raise ConfigError("max_debounce_seconds and incomplete_wait_seconds must be >= 0")
 
 
 class LimitsConfig(Section, frozen=True):
     max_megapixels: float = 80.0  # poisoner.limits.DEFAULT_MAX_PIXELS, measured
+    max_memory_mb: float = 1024.0  # poisoner.limits.DEFAULT_MAX_PEAK_BYTES: per file, and all workers at once
 
     def __post_init__(self) -> None:
+        if not self.max_memory_mb > 0:
+            raise ConfigError(f"max_memory_mb must be a positive number, got {self.max_memory_mb!r}")
         if not self.max_megapixels > 0:
             raise ConfigError(f"max_megapixels must be a positive number, got {self.max_megapixels!r}")
 
@@ -302,6 +319,11 @@ class Config(msgspec.Struct, frozen=True, dict=True, forbid_unknown_fields=True)
     def max_pixels(self) -> int:
         """[limits] max_megapixels in pixels, as poisoner.limits takes it."""
         return int(self.limits.max_megapixels * 1_000_000)
+
+    @property
+    def max_memory_bytes(self) -> int:
+        """[limits] max_memory_mb in bytes (poisoner.limits.peak_bytes's unit)."""
+        return int(self.limits.max_memory_mb * 1_000_000)
 
     # ---- per dataset ----------------------------------------------------------------------
     def is_auto(self, dataset: str) -> bool:

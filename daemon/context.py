@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from daemon.config import Config
@@ -22,6 +22,16 @@ class AppContext:
     store: Store
     vault: Vault
     lock_wait_s: float = DEFAULT_FILE_WAIT_S  # how long protect/restore wait for another ppd's file lock
+    _seal_key: bytes | None = field(default=None, repr=False)
+
+    def seal_key(self) -> bytes:
+        """The installation's seal key (daemon.sealkey), created on first use."""
+        if self._seal_key is None:
+            from daemon.sealkey import load_key
+
+            self._seal_key = load_key(self.paths.data_dir)
+        assert self._seal_key is not None
+        return self._seal_key
 
     @classmethod
     def open(cls, paths: AppPaths | None = None) -> AppContext:
@@ -31,7 +41,9 @@ class AppContext:
         return cls(
             paths=paths,
             config=config,
-            store=Store(paths.db_path),
+            # a new store beside a vault that holds originals: the earlier one was lost; say so
+            # (and keep saying it) instead of starting a silent empty store (daemon.store.core)
+            store=Store.open_or_warn(paths.db_path, paths.vault_dir),
             vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),
         )
 

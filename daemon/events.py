@@ -161,6 +161,10 @@ class WatchOptions:
     settle_s: float = 2.0  # quiet time after close-after-write (config: debounce_seconds)
     moved_settle_s: float = 0.2  # a rename is atomic: only coalesce bursts
     unclosed_settle_s: float = 10.0  # created, never closed/renamed (hard link, race in a new folder)
+    # A file that keeps changing (a writer appending in bursts, closing between them) gets a quiet
+    # time that doubles each time it is found changed or closed again soon after it was handed
+    # on, up to max_settle_s (config: [daemon] max_debounce_seconds).
+    max_settle_s: float = 30.0
 
 
 @dataclass
@@ -169,6 +173,7 @@ class _Armed:
     delay: float
     closed: bool  # a close/rename was seen (else only a creation)
     last: FileSignature | None
+    recheck: bool = False  # asked by the consumer (a file waited for): handed on even if settled
 
 
 class _OverflowFlag(logging.Handler):
@@ -205,6 +210,7 @@ class OutboxWatcher(FileSystemEventHandler):
         self._on_overflow = on_overflow or (lambda: None)
         self._cond = threading.Condition()
         self._armed: dict[Path, _Armed] = {}
+        self._fired: dict[Path, tuple[float, float]] = {}  # path -> (when handed on, its quiet time)
         self._settled: dict[Path, FileSignature] = {}
         self._settled_lock = threading.Lock()
         self._observer: InotifyObserver | None = None
@@ -276,6 +282,25 @@ class OutboxWatcher(FileSystemEventHandler):
         with self._settled_lock:
             self._settled.pop(path, None)
 
+    def recheck(self, path: Path, delay: float) -> None:
+        """Hand path on again after delay (a file waited for: its writer may not be done), even
+        if it is unchanged and settled by then; an event for it meanwhile takes over."""
+        with self._cond:
+            if self._stopping or path in self._armed:
+                return
+            self._armed[path] = _Armed(
+                time.monotonic() + delay, self.options.settle_s, True, signature(path), recheck=True
+            )
+            self._cond.notify()
+
+    def _grown(self, path: Path, delay: float, now: float) -> float:
+        """delay, doubled from the last one when path was handed on recently (within twice the
+        quiet time it had then): a writer that closes, pauses and appends again gets more time."""
+        fired = self._fired.get(path)
+        if fired is None or now - fired[0] > 2 * fired[1] + self.options.settle_s:
+            return delay
+        return max(delay, min(self.options.max_settle_s, 2 * fired[1]))
+
     # ---- events (watchdog's observer thread) --------------------------------------------------
     def _candidate(self, raw: str | bytes) -> Path | None:
         if not raw:
@@ -342,6 +367,8 @@ class OutboxWatcher(FileSystemEventHandler):
             armed = self._armed.get(path)
             if armed is not None and armed.closed and not closed:
                 return  # a creation never weakens a close already seen
+            if closed:
+                delay = self._grown(path, delay, now)
             self._armed[path] = _Armed(deadline=now + delay, delay=delay, closed=closed, last=signature(path))
             self._cond.notify()
 
@@ -378,14 +405,18 @@ class OutboxWatcher(FileSystemEventHandler):
     def _fire(self, path: Path, armed: _Armed) -> None:
         now_sig = signature(path)
         if now_sig is not None and now_sig != armed.last:
-            # Still changing (a writer that closed early and reopened): wait another round.
+            # Still changing (a writer that closed early and reopened): wait another, longer round.
+            delay = min(self.options.max_settle_s, max(armed.delay * 2, self.options.settle_s))
             with self._cond:
                 if path not in self._armed and not self._stopping:
-                    self._armed[path] = _Armed(
-                        time.monotonic() + armed.delay, armed.delay, armed.closed, now_sig
-                    )
+                    self._armed[path] = _Armed(time.monotonic() + delay, delay, armed.closed, now_sig)
                     self._cond.notify()
             return
-        if now_sig is not None and self.is_settled(path, now_sig):
+        if now_sig is not None and not armed.recheck and self.is_settled(path, now_sig):
             return  # ppd's own output, or content already processed
+        with self._cond:
+            self._fired[path] = (time.monotonic(), armed.delay)
+            if len(self._fired) > 10_000:  # old entries only matter for a few quiet times
+                cutoff = time.monotonic() - 4 * self.options.max_settle_s
+                self._fired = {p: f for p, f in self._fired.items() if f[0] > cutoff}
         self._submit(path)

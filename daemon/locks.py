@@ -80,12 +80,41 @@ def _flock(lock_file: Path, wait_s: float, refusal: Callable[[str], str]) -> Ite
         os.close(fd)
 
 
+def _outbox_key(outbox: Path) -> str:
+    """The outbox folder itself: its device and inode (a symlink or another spelling of the path
+    is the same outbox); its path only while it does not exist yet."""
+    try:
+        st = os.stat(outbox)
+    except OSError:
+        return _key(outbox)
+    return f"dev{st.st_dev:x}-ino{st.st_ino:x}"
+
+
 @contextlib.contextmanager
 def outbox_lock(data_dir: Path, outbox: Path) -> Iterator[None]:
     """Held for the life of `ppd watch` on outbox; LockHeld at once if another process has it."""
-    lock_file = lock_dir(data_dir) / f"watch-{_key(outbox)}.lock"
+    lock_file = lock_dir(data_dir) / f"watch-{_outbox_key(outbox)}.lock"
     with _flock(lock_file, 0.0, lambda holder: f"another ppd watch ({holder}) is already watching {outbox}"):
         yield
+
+
+def watching(data_dir: Path) -> list[str]:
+    """Who holds a `ppd watch` lock of this data folder now ("pid N"): daemons using its store."""
+    holders = []
+    folder = Path(data_dir) / "locks"
+    for lock_file in sorted(folder.glob("watch-*.lock")) if folder.is_dir() else []:
+        try:
+            fd = os.open(lock_file, os.O_RDWR | os.O_CLOEXEC | os.O_NOFOLLOW)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+        except BlockingIOError:
+            holders.append(_holder(fd))
+        finally:
+            os.close(fd)
+    return holders
 
 
 @contextlib.contextmanager

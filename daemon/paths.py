@@ -61,16 +61,37 @@ class AppPaths:
         )
 
     def ensure(self) -> None:
-        """Create every folder; data, vault and runs are private (0700)."""
+        """Create every folder: data, vault and runs private (0700, tightened if looser); the
+        config and cache folders 0700 when ppd creates them, whatever the umask (an existing one
+        keeps its mode: the user's choice). The outbox is the user's visible folder: created
+        under the umask, as `mkdir -p` would."""
         for private in (self.data_dir, self.vault_dir, self.runs_dir):
             make_private_dir(private)
-        for folder in (self.config_dir, self.cache_dir, self.outbox):
-            folder.mkdir(parents=True, exist_ok=True)
+        for folder in (self.config_dir, self.cache_dir):
+            make_dirs_private(folder)
+        self.outbox.mkdir(parents=True, exist_ok=True)
+
+
+def make_dirs_private(folder: Path) -> None:
+    """mkdir -p where every folder created is 0700 whatever the umask (mkdir's mode is only an
+    upper bound, and Python gives created parents 0777 minus the umask); existing ones untouched."""
+    folder = Path(folder)
+    missing = []
+    while not folder.exists() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    for created in reversed(missing):
+        try:
+            created.mkdir(mode=PRIVATE_MODE)
+        except FileExistsError:
+            continue  # made meanwhile by another process: its mode is its own
+        os.chmod(created, PRIVATE_MODE)
 
 
 def make_private_dir(folder: Path) -> None:
-    """mkdir -p with mode 0700 on the leaf, tightened if it already existed looser."""
-    folder.mkdir(parents=True, exist_ok=True, mode=PRIVATE_MODE)
+    """mkdir -p with mode 0700 on every folder created and on the leaf, tightened if it already
+    existed looser."""
+    make_dirs_private(folder)
     if folder.stat().st_mode & 0o077:
         os.chmod(folder, PRIVATE_MODE)
 

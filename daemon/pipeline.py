@@ -110,6 +110,7 @@ class ProtectOutcome:
     signature: FileSignature | None = None
     requeue: bool = False  # a newer version arrived meanwhile: process the path again
     hopeless: bool = False  # failed because of the file itself (format, structure, name): a retry fails too
+    incomplete: bool = False  # failed because its structure is incomplete: its writer may not be done
 
 
 @dataclass
@@ -257,7 +258,7 @@ def poison_isolated(
 
     args = {
         "kind": kind, "src": os.fsdecode(src), "dst": os.fsdecode(dst), "spec": spec.to_dict(),
-        "marker": {"spec_id": marker.spec_id, "original_sha256": marker.original_sha256, "tool": marker.tool},
+        "marker": {"text": marker.text},  # the placeholder only: the key never leaves this process
         "keep_location": keep_location, "limits": limits,
         "subject_masks": os.fsdecode(subject_masks) if subject_masks is not None else None,
     }  # fmt: skip
@@ -298,11 +299,19 @@ def is_ignored_name(path: Path) -> bool:
     return path.name.startswith(".") or path.name.startswith(TEMP_PREFIX)
 
 
-def provenance_marker(spec_id: str, original_sha256: str | None) -> Any:
-    """What every patched file carries (poisoner.provenance): ppd knows its own output without a row."""
+def provenance_marker(ctx: AppContext, spec_id: str, original_sha256: str | None) -> Any:
+    """The seal placeholder every patched file carries (poisoner.provenance); `seal_output` seals
+    the finished file: ppd knows its own output without a row, nobody else can read or forge it."""
     from poisoner.provenance import Marker
 
-    return Marker(spec_id=spec_id, original_sha256=original_sha256 or "", tool=tool_version())
+    return Marker.placeholder(ctx.seal_key(), spec_id, original_sha256 or "")
+
+
+def seal_output(ctx: AppContext, path: Path) -> None:
+    """Seal a finished patched file in place (its placeholder's tag over exactly its bytes)."""
+    from poisoner.provenance import seal_file
+
+    seal_file(path, ctx.seal_key())
 
 
 def link_or_copy(src: Path, dst: Path) -> None:
@@ -311,6 +320,21 @@ def link_or_copy(src: Path, dst: Path) -> None:
         os.link(src, dst)
     except OSError:
         shutil.copyfile(src, dst)
+
+
+NAME_MAX = 255  # bytes in one file name (Linux filesystems)
+
+
+def work_copy_name(prefix: str, name: str) -> str:
+    """prefix + name for a private work copy, shortened (the suffix kept: poisoners pick the
+    format by it) when that would pass NAME_MAX: a 255-byte name is still patched."""
+    full = prefix + name
+    if len(os.fsencode(full)) <= NAME_MAX:
+        return full
+    import hashlib
+
+    suffix = Path(name).suffix if len(os.fsencode(Path(name).suffix)) <= 32 else ""
+    return f"{prefix}{hashlib.sha256(os.fsencode(name)).hexdigest()[:32]}{suffix}"
 
 
 WORK_PREFIX = ".work-"
@@ -413,8 +437,10 @@ def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, 
         try:
             poison_to(
                 kind, original, scratch, spec, subject_masks=masks_or_none(ctx, row["dataset"]),
-                marker=provenance_marker(spec.spec_id, original_sha), keep_location=ctx.config.keep_location,
+                marker=provenance_marker(ctx, spec.spec_id, original_sha),
+                keep_location=ctx.config.keep_location,
             )  # fmt: skip
+            seal_output(ctx, scratch)
         except Exception:  # cannot redo it: treat the file as new content
             return False
         if sha256_file(scratch) != sha:
@@ -480,11 +506,15 @@ class IncompleteFile(Exception):
     """The file's structure is incomplete (a truncated upload, a writer that gave up)."""
 
 
+class UnrecognisedFile(ValueError):
+    """The file does not begin like any image or video ppd reads (nor can appending make it one)."""
+
+
 def check_complete(job: Job) -> ProtectOutcome | None:
     """Only complete files go on: one still open for writing by another process is skipped (its
     close re-arms the watcher); one whose structure is incomplete, or whose header declares more
     pixels than the decode budget, is refused here, before anything reaches the vault."""
-    from poisoner.completeness import incomplete_reason
+    from poisoner.completeness import incomplete_reason, starts_like_media
 
     assert job.file is not None
     through_fd = Path(f"/proc/self/fd/{job.file.fd}")  # the opened inode, never the path again
@@ -497,12 +527,18 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     if pids:
         why = f"still open for writing by pid {pids[0]}; patched once it is closed"
         return job.outcome(Outcome.SKIPPED, why, signature=None)
+    if starts_like_media(os.pread(job.file.fd, 16, 0)) is False:
+        # before the vault: a tail fragment (a writer's next append) is never kept as an original
+        raise UnrecognisedFile(
+            f"{job.path.name} is not a recognised image or video (its first bytes match no format ppd reads)"
+        )
     if reason is not None:
         raise IncompleteFile(f"{job.path.name} is incomplete ({reason}); not patched")
     if job.kind == "image":
         from poisoner.limits import check_decode_budget
 
-        check_decode_budget(through_fd, job.ctx.config.max_pixels, name=job.path.name)
+        limits = {"name": job.path.name, "max_bytes": job.ctx.config.max_memory_bytes}
+        check_decode_budget(through_fd, job.ctx.config.max_pixels, **limits)  # type: ignore[arg-type]
     return None
 
 
@@ -616,26 +652,27 @@ def _corner_sample(job: Job) -> list[Path]:
 
 
 def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
-    """ppd's own output without a row (a lost store): its provenance marker says so. It is never
-    patched again; when the vault holds the original the marker names, the row is written back
-    (so status and restore see it)."""
-    from poisoner.provenance import read_marker
+    """ppd's own output without a row (a lost store): its seal verifies under this installation's
+    key over exactly these bytes (poisoner.provenance). A copied, forged, cropped or edited file
+    does not verify and goes on as a new photo. When the vault holds the original the seal names,
+    the row is written back (so status and restore see it)."""
+    from poisoner.provenance import read_seal
 
     assert job.file is not None and job.sha is not None
-    marker = read_marker(Path(f"/proc/self/fd/{job.file.fd}"))
-    if marker is None:
-        return None
     ctx = job.ctx
-    if job.out_path is None and not job.dry_run and ctx.vault.has(marker.original_sha256):
+    seal = read_seal(Path(f"/proc/self/fd/{job.file.fd}"), ctx.seal_key())
+    if seal is None:
+        return None
+    if job.out_path is None and not job.dry_run and ctx.vault.has(seal.original_sha256):
         ensure_dataset(ctx, job.dataset, job.root, job.wanted_spec)
         ctx.store.record_file(
-            job.path, job.dataset, FileState.PATCHED, original_sha256=marker.original_sha256,
-            poisoned_sha256=job.sha, spec_id=marker.spec_id, tool_version=marker.tool,
+            job.path, job.dataset, FileState.PATCHED, original_sha256=seal.original_sha256,
+            poisoned_sha256=job.sha, spec_id=seal.spec_id, tool_version=None,
             size=job.file.st.st_size, mtime_ns=job.file.st.st_mtime_ns, error=None,
-            event="recognised", detail={"from": "provenance marker"},
+            event="recognised", detail={"from": "provenance seal"},
         )  # fmt: skip
     return job.outcome(
-        Outcome.UNCHANGED, "already ppd output (its provenance marker says so)", poisoned_sha256=job.sha
+        Outcome.UNCHANGED, "already ppd output (its provenance seal says so)", poisoned_sha256=job.sha
     )
 
 
@@ -673,8 +710,8 @@ def mark_pending(job: Job) -> ProtectOutcome | None:
 def poison(job: Job) -> ProtectOutcome | None:
     """3. The complete patched file, written in the private work folder."""
     assert job.work is not None and job.original is not None and job.spec is not None and job.kind
-    job.poisoned = job.work / f"{PATCHED_PREFIX}{job.path.name}"
-    marker = provenance_marker(job.spec.spec_id, job.sha)
+    job.poisoned = job.work / work_copy_name(PATCHED_PREFIX, job.path.name)
+    marker = provenance_marker(job.ctx, job.spec.spec_id, job.sha)
     limits = {"max_pixels": job.ctx.config.max_pixels} if job.kind == "image" else {}
     if job.died_before:  # the last attempt took its process down: this one cannot
         job.report = poison_isolated(
@@ -685,6 +722,7 @@ def poison(job: Job) -> ProtectOutcome | None:
             job.kind, job.original, job.poisoned, job.spec, job.progress, job.mask_dir, marker=marker,
             keep_location=job.keep_location, **limits,
         )  # fmt: skip
+    seal_output(job.ctx, job.poisoned)
     job.poisoned_sha = sha256_file(job.poisoned)
     return None
 

@@ -30,6 +30,7 @@ from daemon.fsops import sha256_fd
 from daemon.locks import LockHeld
 from daemon.pipeline import (
     STAGES,
+    IncompleteFile,
     Job,
     Outcome,
     Progress,
@@ -45,6 +46,7 @@ from daemon.pipeline import (
     provenance_marker,
     report_detail,
     run_stages,
+    seal_output,
     shown_name,
     storable,
     tool_version,
@@ -206,8 +208,9 @@ def _record_failure(
                 extra={"path": str(path), "error": message},
             )  # fmt: skip
     return ProtectOutcome(
-        path=path, dataset=dataset, state=Outcome.FAILED, reason=message, hopeless=file_is_the_cause(exc)
-    )
+        path=path, dataset=dataset, state=Outcome.FAILED, reason=message, hopeless=file_is_the_cause(exc),
+        incomplete=isinstance(exc, IncompleteFile),
+    )  # fmt: skip
 
 
 def _holds_ppd_output(ctx: AppContext, path: Path) -> bool:
@@ -274,7 +277,7 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                         raise ProtectRefused(
                             f"{target} exists; not overwriting it with the original (use --force)"
                         )
-                    ctx.vault.restore(row["original_sha256"], target)
+                    ctx.vault.restore(row["original_sha256"], target, replaces=True if force else None)
                     reason = f"original back at {target}; {reason}"
             else:
                 target = path
@@ -282,7 +285,9 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                     raise ProtectRefused(
                         f"{target.name} changed since ppd patched it; not overwriting (use --force)"
                     )
-                ctx.vault.restore(row["original_sha256"], target)
+                # the check again just before the rename: a writer between the two is not overwritten
+                replaces = True if force else row["poisoned_sha256"]
+                ctx.vault.restore(row["original_sha256"], target, replaces=replaces)
                 reason = None
         except Exception as exc:
             return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
@@ -323,19 +328,20 @@ def _remove_patched_copy(row: dict[str, Any], copy: Path, force: bool) -> str:
 
 
 def _row_from_marker(ctx: AppContext, path: Path) -> dict[str, Any] | None:
-    """A row for ppd's output found without the store: its provenance marker and the vault."""
-    from poisoner.provenance import read_marker
+    """A row for ppd's output found without the store: its seal (verified with this
+    installation's key over the file's bytes) and the vault."""
+    from poisoner.provenance import read_seal
 
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError:
         return None
     try:
-        marker = read_marker(Path(f"/proc/self/fd/{fd}"))
-        sha = sha256_fd(fd) if marker is not None else None
+        seal = read_seal(Path(f"/proc/self/fd/{fd}"), ctx.seal_key())
+        sha = sha256_fd(fd) if seal is not None else None
     finally:
         os.close(fd)
-    if marker is None or not ctx.vault.has(marker.original_sha256):
+    if seal is None or not ctx.vault.has(seal.original_sha256):
         return None
     try:
         dataset = dataset_of(ctx.paths.outbox, path)
@@ -343,7 +349,7 @@ def _row_from_marker(ctx: AppContext, path: Path) -> dict[str, Any] | None:
         dataset = path.parent.name
     return {
         "dataset": dataset, "path": str(path), "state": FileState.PATCHED, "published_path": None,
-        "original_sha256": marker.original_sha256, "poisoned_sha256": sha, "from_marker": True,
+        "original_sha256": seal.original_sha256, "poisoned_sha256": sha, "from_marker": True,
     }  # fmt: skip
 
 
@@ -385,12 +391,13 @@ def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: Patch
                 atomic_output(target) as tmp,
             ):
                 if spec.selects(rel):
-                    marker = provenance_marker(spec.spec_id, row["original_sha256"])
+                    marker = provenance_marker(ctx, spec.spec_id, row["original_sha256"])
                     limits = {"max_pixels": ctx.config.max_pixels} if kind == "image" else {}
                     report = poison_to(
                         kind, original, tmp, spec, subject_masks=subject_masks_for(ctx, dataset),
                         marker=marker, keep_location=ctx.config.keep_location, **limits,
                     )  # fmt: skip
+                    seal_output(ctx, tmp)
                     row_state, state = FileState.PATCHED, Outcome.PATCHED
                 else:
                     shutil.copyfile(original, tmp)

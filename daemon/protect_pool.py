@@ -176,6 +176,8 @@ def protect_many(
         on_done=(lambda _i, r: on_outcome(r) if on_outcome is not None and r is not retry else None),
         mp_context=pool_context(("daemon.protect", "poisoner.formats")), initializer=open_worker,
         initargs=_worker_args(ctx),
+        # [limits] max_memory_mb: the files in flight never need more memory than that together
+        weights=[peak_estimate(c.path) for c in calls], budget=ctx.config.max_memory_bytes,
     )  # fmt: skip
     for i, result in enumerate(results):
         if result is retry:
@@ -187,6 +189,53 @@ def protect_many(
 
 
 # ---- the daemon's workers ---------------------------------------------------------------------------
+VIDEO_PEAK_BYTES = 800_000_000  # poison_video at 3840x2160 peaks at 746 MB (bench_limits, docs/VIDEO.md)
+UNKNOWN_PEAK_BYTES = 400_000_000  # an image whose header the daemon does not read itself
+
+
+class ByteBudget:
+    """Admission by memory: work runs only while the estimates of what runs fit in total bytes.
+    A job estimated over the whole budget runs alone (its worker refuses it from the header,
+    poisoner.limits.check_decode_budget); the budget never blocks the only job there is."""
+
+    def __init__(self, total: int) -> None:
+        self.total = max(1, int(total))
+        self._used = 0
+        self._running = 0
+        self._cond = threading.Condition()
+
+    def reserve(self, nbytes: int) -> int:
+        """Wait until nbytes fit (or nothing else runs); what to release."""
+        nbytes = max(0, int(nbytes))
+        with self._cond:
+            while self._running and self._used + nbytes > self.total:
+                self._cond.wait()
+            self._used += nbytes
+            self._running += 1
+        return nbytes
+
+    def release(self, nbytes: int) -> None:
+        with self._cond:
+            self._used -= nbytes
+            self._running -= 1
+            self._cond.notify_all()
+
+    @property
+    def used(self) -> int:
+        with self._cond:
+            return self._used
+
+
+def peak_estimate(path: Path) -> int:
+    """What protecting path will take in memory, from its header (no decoder loaded here)."""
+    from poisoner.limits import peak_bytes_estimate
+    from poisoner.media import is_video
+
+    if is_video(path):
+        return VIDEO_PEAK_BYTES
+    return peak_bytes_estimate(path, UNKNOWN_PEAK_BYTES)
+
+
 class _Slot:
     """One worker process (started on demand) serving one of the daemon's worker threads."""
 
@@ -239,23 +288,31 @@ class ProtectWorkers:
     """protect_file for the daemon's worker threads, each in a worker process of its own, started on
     the first file and ended after idle_s without one (so an idle daemon holds no decoder memory)."""
 
-    def __init__(self, ctx: AppContext, slots: int, idle_s: float = DEFAULT_IDLE_S) -> None:
+    def __init__(
+        self, ctx: AppContext, slots: int, idle_s: float = DEFAULT_IDLE_S, budget_bytes: int | None = None
+    ) -> None:
         self.idle_s = idle_s
         self._lock = threading.Lock()
         self._free = [_Slot(ctx) for _ in range(max(1, slots))]
         self._all = list(self._free)
         self._busy = threading.Semaphore(len(self._free))
+        # [limits] max_memory_mb: the workers together never hold more than this (estimated)
+        self.budget = ByteBudget(budget_bytes or getattr(ctx.config, "max_memory_bytes", 1_024_000_000))
 
     def protect(self, path: Path) -> ProtectOutcome:
-        self._busy.acquire()
-        with self._lock:
-            slot = self._free.pop()
+        reserved = self.budget.reserve(peak_estimate(Path(path)))
         try:
-            return slot.call(ProtectCall(Path(path)))
-        finally:
+            self._busy.acquire()
             with self._lock:
-                self._free.append(slot)
-            self._busy.release()
+                slot = self._free.pop()
+            try:
+                return slot.call(ProtectCall(Path(path)))
+            finally:
+                with self._lock:
+                    self._free.append(slot)
+                self._busy.release()
+        finally:
+            self.budget.release(reserved)
 
     def warm(self, timeout: float = 60.0) -> None:
         """Start every worker now and wait (up to timeout) until they have loaded the stages and

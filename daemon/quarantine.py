@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 
 from daemon.dataset import DEFAULT_DATASET
 from daemon.fsops import NotContained, move_out, open_dir, open_dir_below
-from daemon.paths import make_private_dir
+from daemon.paths import make_dirs_private, make_private_dir
 from daemon.states import FileState
 
 if TYPE_CHECKING:
@@ -62,8 +62,10 @@ def quarantine(ctx: AppContext, path: Path, dataset: str | None, reason: str) ->
     finally:
         os.close(anchor)
     try:
+        if (joined := _join_fragment(ctx, path, src_dir, rel.name, dataset)) is not None:
+            return joined
         target_dir = quarantine_dir(ctx) / folder_rel
-        target_dir.mkdir(parents=True, exist_ok=True)
+        make_dirs_private(target_dir)  # 0700 whatever the umask: it holds unprotected originals
         target = _free_name(target_dir / rel.name)
         try:
             os.link(rel.name, target, src_dir_fd=src_dir, follow_symlinks=False)  # never over a file
@@ -76,6 +78,7 @@ def quarantine(ctx: AppContext, path: Path, dataset: str | None, reason: str) ->
             move_out(src_dir, rel.name, target)
     finally:
         os.close(src_dir)
+    _owner_only(target)
     try:  # the move is what protects; a failing store must not undo it
         from daemon.dataset import dataset_root, ensure_dataset
 
@@ -92,6 +95,69 @@ def quarantine(ctx: AppContext, path: Path, dataset: str | None, reason: str) ->
         extra={"path": str(path), "to": str(target), "reason": reason},
     )  # fmt: skip
     return target
+
+
+def _join_fragment(ctx: AppContext, path: Path, src_dir: int, name: str, dataset: str | None) -> Path | None:
+    """A file that reappears under a name quarantined as incomplete, and is not a file of its own
+    (it does not begin like any image or video: a writer's next append to a head moved away), is
+    joined to its history: appended to the quarantined head, so quarantine keeps one whole file.
+    When that makes the file complete, it goes back to its name in the outbox (to be protected).
+    The joined file's path, or None when this is not such a fragment."""
+    from poisoner.completeness import incomplete_reason, starts_like_media
+
+    try:
+        event = ctx.store.last_event(path, "quarantined")
+    except Exception:  # the store failing: quarantine as usual
+        return None
+    head = Path(event["detail"].get("to", "")) if event else None
+    if head is None or "incomplete" not in str(event["detail"].get("reason", "")) or not head.is_file():  # type: ignore[index]
+        return None
+    if incomplete_reason(head) is None:
+        return None  # that head is whole already: this is another file
+    fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, dir_fd=src_dir)
+    try:
+        if starts_like_media(os.pread(fd, 16, 0)) is not False:
+            return None  # a file of its own (or too short to tell): quarantined as it is
+        with open(head, "ab") as out:
+            while chunk := os.read(fd, 1 << 20):
+                out.write(chunk)
+            out.flush()
+            os.fsync(out.fileno())
+    finally:
+        os.close(fd)
+    os.unlink(name, dir_fd=src_dir)
+    whole = incomplete_reason(head) is None
+    back = None
+    if whole:  # the head and its tail are one complete file again: back to its name
+        try:
+            os.link(head, name, dst_dir_fd=src_dir, follow_symlinks=False)  # never over a file
+            os.unlink(head)
+            back = path
+        except OSError as exc:
+            log.warning("joined %s but cannot put it back: %s", path.name, exc.strerror)
+    with contextlib.suppress(Exception):
+        ctx.store.add_event(dataset, path, "joined", {"to": str(back or head), "whole": whole})
+    again = " (whole again, back in the outbox)" if back else ""
+    log.warning(
+        "%s: a fragment of %s, joined to it%s", path.name, head, again,
+        extra={"path": str(path), "to": str(back or head)},
+    )  # fmt: skip
+    return back or head
+
+
+def _owner_only(target: Path) -> None:
+    """A quarantined original is readable by its owner only (0600), whatever mode it came with."""
+    try:
+        fd = os.open(target, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        log.warning("cannot restrict %s: %s", target, exc.strerror)
+        return
+    try:
+        os.fchmod(fd, 0o600)
+    except OSError as exc:
+        log.warning("cannot restrict %s: %s", target, exc.strerror)
+    finally:
+        os.close(fd)
 
 
 def _free_name(target: Path) -> Path:

@@ -1,12 +1,14 @@
 """`ppd store rebuild`: a new store from the vault and the provenance markers in patched files.
 
-Every file ppd patches carries a marker in its own metadata (poisoner.provenance: spec id, the
-original's sha256, the tool). A lost or damaged store is rebuilt by walking the folders where
-patched files live (the outbox, the publish folders, the dataset roots the old store still
-names, and any folder given), without following symlinks, and recording a `patched` row for each
-marked file whose original the vault holds, verified by hash. Each dataset gets back its spec
-from `vault/specs/<spec_id>.json` (Vault.keep_spec), the old store, or the config when the ids
-match.
+Every file ppd patches carries a seal in its own metadata (poisoner.provenance: the spec id and
+the original's sha256, encrypted, and a tag over the file's bytes, keyed with this installation's
+secret, daemon.sealkey). A lost or damaged store is rebuilt by walking the folders where patched
+files live (the outbox, the publish folders, the dataset roots the old store still names, and any
+folder given), without following symlinks, and recording a `patched` row for each file whose seal
+verifies (the key and the bytes) and whose original the vault holds, verified by hash. A copied
+seal in another photo, or a patched photo edited since, does not verify and gets no row. Each
+dataset gets back its spec from `vault/specs/<spec_id>.json` (Vault.keep_spec), the old store, or
+the config when the ids match.
 
 The old store is never deleted: its files (with -wal/-shm) are renamed to
 `<name>.before-rebuild-<UTC time>`. The new store is built under a temporary name and renamed
@@ -43,7 +45,7 @@ log = logging.getLogger(__name__)
 ASIDE_INFIX = ".before-rebuild-"
 HEX = frozenset("0123456789abcdef")
 
-MarkerReader = Callable[[Path], Any]  # poisoner.provenance.read_marker: path -> Marker | None
+MarkerReader = Callable[[Path], Any]  # path -> poisoner.provenance.Seal | None (verified)
 
 
 class RebuildRefused(StoreError):
@@ -124,10 +126,17 @@ def rebuild_store(
     collect a row for each marked file whose original the vault holds, recover the specs, write
     the new store beside the old one and swap them."""
     if read_marker is None:
-        from poisoner.provenance import read_marker
+        read_marker = _seal_reader(paths)
     store_path = Path(store_path or paths.db_path)
     config = config or Config()
     report = RebuildReport(store_path=store_path)
+    from daemon.locks import watching
+
+    if holders := watching(paths.data_dir):  # a daemon would go on writing to the store swapped out
+        raise RebuildRefused(
+            f"ppd watch ({holders[0]}) is running on this data folder; stop it first "
+            "(`systemctl --user stop ppd`), then rebuild"
+        )
     report.before = _store_condition(store_path, paths.vault_dir, force)
     old = _read_old_store(store_path) if report.before != "missing" else _OldStore()
     report.old_datasets = len(old.datasets)
@@ -206,12 +215,23 @@ class _RowCollector:
             return
         self.found.rows[str(identity)] = (dataset, {
             "original_sha256": original, "poisoned_sha256": sha, "spec_id": str(marker.spec_id),
-            "tool_version": str(marker.tool), "size": st.st_size, "mtime_ns": st.st_mtime_ns,
+            "tool_version": getattr(marker, "tool", None), "size": st.st_size, "mtime_ns": st.st_mtime_ns,
             "error": None, "published_path": str(path) if source.published else None,
         })  # fmt: skip
         self.found.roots.setdefault(dataset, _root_of(source, dataset, self.paths.outbox, self.old))
         if source.published:
             self.found.publish_dirs.setdefault(dataset, source.folder)
+
+
+def _seal_reader(paths: AppPaths) -> MarkerReader:
+    """read_seal with this installation's key; without a key no file can be recognised."""
+    from daemon.sealkey import load_key
+    from poisoner.provenance import read_seal
+
+    key = load_key(paths.data_dir, create=False)
+    if key is None:
+        log.warning("no seal key in %s: no patched file can be recognised", paths.data_dir)
+    return lambda path: read_seal(path, key)
 
 
 # ---- the old store -----------------------------------------------------------------------------------

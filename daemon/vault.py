@@ -25,6 +25,7 @@ import logging
 import os
 import stat
 import tempfile
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -91,11 +92,44 @@ def open_regular_nofollow(path: Path) -> int:
     return fd
 
 
+STALE_KEEP_S = 10.0  # a `.keep-*` copy younger than this may be between its creation and its lock
+_cleared: set[Path] = set()
+
+
+def clear_stale_keeps(vault_dir: Path, min_age_s: float = STALE_KEEP_S) -> list[Path]:
+    """Remove `.keep-*` partial copies no living process holds (each copy is flock()ed while it is
+    written): what a SIGKILLed keep leaves behind. Younger than min_age_s: left alone."""
+    removed = []
+    for tmp in Path(vault_dir).glob(f"{VAULT_TMP_PREFIX}*"):
+        try:
+            if time.time() - tmp.lstat().st_mtime < min_age_s:
+                continue
+            fd = os.open(tmp, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            continue  # a keep in progress
+        else:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+            removed.append(tmp)
+        finally:
+            os.close(fd)
+    if removed:
+        log.warning("removed %d partial vault copies left by a killed process", len(removed))
+    return removed
+
+
 class Vault:
     def __init__(self, vault_dir: Path, max_bytes: int = 0) -> None:
         self.vault_dir = Path(vault_dir)
         self.max_bytes = max_bytes  # 0 = unlimited
         make_private_dir(self.vault_dir)
+        if self.vault_dir not in _cleared:  # once per process: partial copies of a killed keep
+            _cleared.add(self.vault_dir)
+            clear_stale_keeps(self.vault_dir)
 
     def path_for(self, sha256: str) -> Path:
         if len(sha256) != 64 or any(c not in "0123456789abcdef" for c in sha256):
@@ -137,6 +171,7 @@ class Vault:
         size = st.st_size
         self._check_room(size)
         tmp_fd, tmp_name = tempfile.mkstemp(prefix=VAULT_TMP_PREFIX, dir=self.vault_dir)
+        fcntl.flock(tmp_fd, fcntl.LOCK_EX)  # held while written: clear_stale_keeps leaves it alone
         tmp = Path(tmp_name)
         try:
             try:
@@ -197,7 +232,13 @@ class Vault:
             )
 
     def usage_bytes(self) -> int:
-        return sum(p.stat().st_size for p in self.vault_dir.glob("??/*") if p.is_file())
+        """Kept originals and partial copies (in progress, or left by a killed process)."""
+        kept = sum(p.stat().st_size for p in self.vault_dir.glob("??/*") if p.is_file())
+        partial = 0
+        for p in self.vault_dir.glob(f"{VAULT_TMP_PREFIX}*"):
+            with contextlib.suppress(OSError):
+                partial += p.lstat().st_size
+        return kept + partial
 
     # ---- specs --------------------------------------------------------------------------------
     def spec_path(self, spec_id: str) -> Path:
@@ -237,10 +278,15 @@ class Vault:
         path = self.path_for(sha256)
         return path.is_file() and sha256_file(path) == sha256
 
-    def restore(self, sha256: str, dst: Path) -> None:
+    def restore(self, sha256: str, dst: Path, *, replaces: str | None | bool = True) -> None:
         """Atomically put the original with this digest at dst: a copy (never a link: edits to
         the restored file must not reach the vault), hash-verified while copying; a blob whose
-        content no longer matches its name is refused and dst is left untouched."""
+        content no longer matches its name is refused and dst is left untouched.
+
+        replaces says what dst may hold when the original takes its place, checked just before
+        the rename (compare-and-swap): True anything (--force), a sha256 exactly that content (what
+        ppd wrote) or nothing, None nothing (dst must not exist). Otherwise RestoreRefused, dst
+        untouched."""
         src = self.path_for(sha256)
         try:
             fd = open_regular_nofollow(src)
@@ -248,7 +294,8 @@ class Vault:
             raise VaultError(f"original {sha256[:12]} is not in the vault {self.vault_dir}") from None
         dst = Path(dst)
         try:
-            with atomic_output(dst, mode_like=dst if dst.exists() else None) as tmp:
+            check = None if replaces is True else (lambda: _still_holds(dst, replaces))  # type: ignore[arg-type]
+            with atomic_output(dst, mode_like=dst if dst.exists() else None, check=check) as tmp:
                 digest = hashlib.sha256()
                 offset = 0
                 with open(tmp, "wb") as fout:
@@ -262,6 +309,27 @@ class Vault:
                     )
         finally:
             os.close(fd)
+
+
+class RestoreRefused(VaultError):
+    """dst no longer holds what restore may replace (another writer's bytes)."""
+
+
+def _still_holds(dst: Path, expected: str | None) -> None:
+    """Raise RestoreRefused unless dst is absent or holds exactly expected (None: absent only)."""
+    try:
+        fd = os.open(dst, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return  # nobody's bytes at that name: nothing is overwritten
+    except OSError as exc:
+        raise RestoreRefused(f"{dst.name} cannot be checked ({exc.strerror}); not overwriting it") from None
+    try:
+        if expected is None:
+            raise RestoreRefused(f"{dst} exists; not overwriting it with the original (use --force)")
+        if sha256_fd(fd) != expected:
+            raise RestoreRefused(f"{dst.name} changed since ppd patched it; not overwriting (use --force)")
+    finally:
+        os.close(fd)
 
 
 def _copy_fd(src: int, dst: int) -> tuple[str, str]:

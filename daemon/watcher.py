@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from daemon.events import OutboxWatcher, WatchOptions, is_candidate, scan_outbox, walk_files
+from daemon.events import OutboxWatcher, WatchOptions, is_candidate, scan_outbox, signature, walk_files
 from daemon.locks import outbox_lock
 from daemon.notify import SystemdNotifier
 from daemon.pipeline import Outcome
@@ -50,14 +50,21 @@ class DaemonOptions:
     # loads numpy, PIL or PyAV; the workers exit after worker_idle_s without a file.
     worker_processes: bool = True
     worker_idle_s: float = 30.0
+    # A file whose structure is incomplete is re-checked (its writer may append more after a
+    # pause) and quarantined only once it has not changed for this long (config: [daemon]).
+    incomplete_wait_s: float = 120.0
 
     @classmethod
     def from_config(cls, config: Any, **overrides: Any) -> DaemonOptions:
         """Options from daemon.config.Config (workers, debounce_seconds, verification.enabled)."""
         base = cls(
-            watch=WatchOptions(settle_s=float(config.debounce_seconds)),
+            watch=WatchOptions(
+                settle_s=float(config.debounce_seconds),
+                max_settle_s=float(config.daemon.max_debounce_seconds),
+            ),
             workers=int(config.workers),
             verify=bool(config.verification.enabled),
+            incomplete_wait_s=float(config.daemon.incomplete_wait_seconds),
         )
         settle = overrides.pop("settle_s", None)
         if settle is not None:
@@ -103,6 +110,9 @@ class WatchDaemon:
         self._trim_due = threading.Event()
         # Files that failed for lack of disk space; retried once space returns (no event tells).
         self._no_space: dict[Path, None] = {}
+        # incomplete files waited for: path -> (signature, unchanged since, checks so far)
+        self._incomplete: dict[Path, tuple[Any, float, int]] = {}
+        self._incomplete_lock = threading.Lock()
         self._no_space_lock = threading.Lock()
         self._no_space_since = (0.0, 0)  # (monotonic time, free bytes) of the first such failure
         self.pool = WorkerPool(
@@ -389,7 +399,13 @@ class WatchDaemon:
             return
         if self.watcher.is_settled(path):
             return
+        judged = signature(path)
         outcome = self._protect(path)
+        if outcome.state == Outcome.FAILED and outcome.incomplete and self._wait_for_writer(path, judged):
+            self._count("skipped")
+            return
+        with self._incomplete_lock:
+            self._incomplete.pop(path, None)
         # The signature of what ppd judged or wrote, not of what is there now: a version that
         # arrived meanwhile must not be taken for an echo of ppd's own work.
         if outcome.signature is None and outcome.state == Outcome.FAILED:
@@ -413,6 +429,33 @@ class WatchDaemon:
                 self.scheduler.on_protected(outcome.dataset)
             except Exception:
                 log.exception("verification scheduler failed", extra={"dataset": outcome.dataset})
+
+    def _wait_for_writer(self, path: Path, judged: Any) -> bool:
+        """An incomplete file is waited for, not refused, while its writer may still be at it: it
+        is re-checked after a growing quiet time, and quarantined (one whole file) only once it has
+        not changed for incomplete_wait_s. True: waiting (nothing moved)."""
+        now = time.monotonic()
+        after = signature(path)
+        with self._incomplete_lock:
+            seen = self._incomplete.get(path)
+            since = seen[1] if seen is not None and seen[0] == after else now
+            checks = seen[2] + 1 if seen is not None else 0
+            self._incomplete[path] = (after, since, checks)
+        # Re-checked just before any refusal: changed while it was judged, or within the wait.
+        if after != judged or after is None or now - since < self.options.incomplete_wait_s:
+            self.watcher.forget(path)
+            left = max(0.0, self.options.incomplete_wait_s - (now - since))
+            grown = self.options.watch.settle_s * 2 ** min(checks, 16)
+            delay = max(0.5, min(self.options.watch.max_settle_s, grown, left))
+            self.watcher.recheck(path, delay)
+            log.info(
+                "incomplete, waiting for its writer: %s (re-checked in %.0f s)", path, delay,
+                extra={"path": str(path), "reason": "incomplete", "wait_s": round(delay, 1)},
+            )  # fmt: skip
+            return True
+        with self._incomplete_lock:
+            self._incomplete.pop(path, None)
+        return False
 
     def _protect(self, path: Path) -> Any:
         """protect_file, in a worker process unless the options say in this one."""

@@ -116,8 +116,15 @@ def atomic_replace_at(
 
 
 @contextlib.contextmanager
-def atomic_output(dst: Path, *, mode_like: Path | None = None, mode: int | None = None) -> Iterator[Path]:
-    """Yield a temporary path next to dst; on normal exit it atomically becomes dst.
+def atomic_output(
+    dst: Path,
+    *,
+    mode_like: Path | None = None,
+    mode: int | None = None,
+    check: Callable[[], None] | None = None,
+) -> Iterator[Path]:
+    """Yield a temporary path next to dst; on normal exit it atomically becomes dst (check, when
+    given, runs just before the rename and raises to abandon it: atomic_replace_at).
 
     For folders ppd trusts (the path is resolved once, when the folder is opened). The caller
     writes the complete file to the yielded path (by any means: PIL, PyAV, ...). Permission bits:
@@ -128,7 +135,7 @@ def atomic_output(dst: Path, *, mode_like: Path | None = None, mode: int | None 
     try:
         if mode is None:
             mode = _mode_of(mode_like if mode_like is not None else dst)
-        with atomic_replace_at(dir_fd, dst.name, mode=mode) as (_fd, tmp_name):
+        with atomic_replace_at(dir_fd, dst.name, mode=mode, check=check) as (_fd, tmp_name):
             yield dst.parent / tmp_name
     finally:
         os.close(dir_fd)

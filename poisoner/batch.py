@@ -101,12 +101,18 @@ def bounded_map(
     mp_context: multiprocessing.context.BaseContext | None = None,
     initializer: Callable[..., None] | None = None,
     initargs: tuple[Any, ...] = (),
+    weights: Sequence[int] | None = None,
+    budget: int | None = None,
 ) -> list[R]:
     """fn(*call) for every call in a pool of `workers` processes with at most 2 x workers calls in
     flight; the results in the order of calls. died(i) stands for the result of call i when its
     worker process died (a dead worker breaks the pool: every call not finished by then gets
-    died(i)). on_done(i, result) runs in this process as each call finishes (progress)."""
+    died(i)). on_done(i, result) runs in this process as each call finishes (progress).
+    weights/budget: the calls in flight never weigh more than budget together (bytes of memory,
+    say), except one call alone that weighs more."""
     results: list[R | None] = [None] * len(calls)
+    weight = list(weights) if weights is not None else [0] * len(calls)
+    in_flight = [0]  # their total weight
 
     def finish(i: int, result: R) -> None:
         results[i] = result
@@ -114,32 +120,39 @@ def bounded_map(
             on_done(i, result)
 
     pending: dict[Future[R], int] = {}
-    todo = iter(range(len(calls)))
+    nxt = [0]  # the next call to submit (in order)
     context = mp_context or pool_context()
     with ProcessPoolExecutor(workers, mp_context=context, initializer=initializer, initargs=initargs) as pool:
 
         def submit_next() -> bool:
-            i = next(todo, None)
-            if i is None:
+            i = nxt[0]
+            if i >= len(calls) or len(pending) >= 2 * workers:
                 return False
+            if budget is not None and pending and in_flight[0] + weight[i] > budget:
+                return False  # waits for memory to be released
+            nxt[0] += 1
+            in_flight[0] += weight[i]
             pending[pool.submit(fn, *calls[i])] = i
             return True
 
-        while len(pending) < 2 * workers and submit_next():
+        while submit_next():
             pass
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for fut in done:
                 i = pending.pop(fut)
+                in_flight[0] -= weight[i]
                 try:
                     finish(i, fut.result())
                 except BrokenProcessPool:
                     finish(i, died(i))
-                try:
-                    submit_next()
-                except BrokenProcessPool:
-                    for j in todo:  # the pool is gone: the rest are reported, not raised
-                        finish(j, died(j))
+            try:
+                while submit_next():
+                    pass
+            except BrokenProcessPool:
+                for j in range(nxt[0], len(calls)):  # the pool is gone: the rest are reported, not raised
+                    finish(j, died(j))
+                nxt[0] = len(calls)
     return [r for r in results if r is not None]
 
 

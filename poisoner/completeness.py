@@ -34,6 +34,22 @@ from pathlib import Path
 _JPEG_MARKER = re.compile(rb"\xff[^\x00\xd0-\xd7\xff]")
 
 
+_MAGIC_ENOUGH = 12  # bytes that show every format's signature below
+
+
+def starts_like_media(head: bytes) -> bool | None:
+    """Whether head (a file's first bytes) begins like an image or video this module judges;
+    None when it is too short to tell (a writer may just have started)."""
+    if (
+        head.startswith((b"\xff\xd8", b"\x89PNG\r\n\x1a\n", b"GIF87a", b"GIF89a", b"\x1a\x45\xdf\xa3"))
+        or (head[:4] == b"RIFF" and head[8:12] == b"WEBP")
+        or head[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+        or head[4:8] == b"ftyp"
+    ):
+        return True
+    return None if len(head) < _MAGIC_ENOUGH else False
+
+
 def incomplete_reason(path: Path) -> str | None:
     """None when path is structurally complete, else a one-line reason."""
     try:

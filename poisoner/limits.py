@@ -6,8 +6,12 @@ FFmpeg allocates anything; `poison_file` calls it first. The header readers are 
 (no decoder): JPEG SOF, PNG IHDR/acTL, WebP VP8/VP8L/VP8X/ANMF, GIF screen and frame count,
 TIFF IFDs, HEIF/AVIF `ispe`. Anything else falls back to Pillow's lazy open (header only).
 
-DEFAULT_MAX_PIXELS: peak RSS of poison_file stays under ~1 GB for every format just below it
-(docs/FORMATS.md, "Memory", measured with bench_limits).
+DEFAULT_MAX_PIXELS: peak RSS of poison_file stays under ~1 GB for every 8-bit format just below it
+(docs/FORMATS.md, "Memory", measured with bench_limits). Memory is also bounded in bytes (issue 29):
+`peak_bytes` = the decoded size (width x height x channels x bytes per sample x frames) times the
+working copies the format's path makes (PEAK_FACTOR, measured), plus the imports; a file over
+`max_bytes` is refused (a 16-bit RGBA PNG needs ~4.7 bytes of memory per decoded byte, 8-bit ~1.5),
+and the daemon admits files to its workers by the same estimate (daemon.protect_pool).
 """
 
 from __future__ import annotations
@@ -29,7 +33,13 @@ BUDGET_DIVISOR = {
 }
 # 4096x2160 (DCI 4K) per frame: 3840x2160 peaks at 0.75 GB (x264, lookahead 10; docs/VIDEO.md)
 DEFAULT_MAX_VIDEO_PIXELS = 4096 * 2160
-_HEADER_READ = 1 << 20  # the most read to find a header (JPEG APPn before SOF can be large)
+_HEADER_READ = 1 << 16  # the first read; JPEG segments after it are walked with seeks (no cap)
+# Peak RSS of poison_file per decoded byte, minus the imports (bench_limits, docs/FORMATS.md
+# "Memory"): JPEG 1.62 (85 MP), PNG 8-bit RGB 1.50, RGBA 1.16, 16-bit RGBA 4.6 (FFmpeg's codec, 20
+# and 40 MP), TIFF 2.6, WebP 8.5, HEIF 6.5; rounded up. Unknown formats: the largest of these.
+PEAK_FACTOR = {"JPEG": 1.8, "PNG": 1.6, "PNG16": 4.9, "TIFF": 2.8, "WEBP": 8.8, "HEIF": 6.8, "GIF": 2.0}
+IMPORTS_BYTES = 60_000_000  # a worker's RSS after its imports (43 MB measured), rounded up
+DEFAULT_MAX_PEAK_BYTES = 1_024_000_000  # [limits] max_memory_mb
 
 
 @dataclass(frozen=True)
@@ -49,13 +59,20 @@ class DecodedSize:
     def bytes(self) -> int:
         return self.pixels * self.channels * self.bytes_per_sample
 
+    @property
+    def peak_bytes(self) -> int:
+        """What protecting it takes in memory: the decoded bytes times the format's working copies."""
+        key = "PNG16" if self.format == "PNG" and self.bytes_per_sample == 2 else self.format
+        return IMPORTS_BYTES + int(self.bytes * PEAK_FACTOR.get(key, max(PEAK_FACTOR.values())))
+
 
 class HeaderError(ValueError):
     """The header could not be read (the decoder will give its own error)."""
 
 
-def decoded_size(path: Path) -> DecodedSize:
-    """What decoding path would allocate, from its header. Raises HeaderError."""
+def decoded_size(path: Path, *, pillow: bool = True) -> DecodedSize:
+    """What decoding path would allocate, from its header. Raises HeaderError. pillow=False: no
+    Pillow fallback for other formats (the daemon process never loads it)."""
     try:
         with open(path, "rb") as f:
             head = f.read(_HEADER_READ)
@@ -63,7 +80,7 @@ def decoded_size(path: Path) -> DecodedSize:
         raise HeaderError(str(exc)) from exc
     try:
         if head.startswith(b"\xff\xd8"):
-            return _jpeg(head)
+            return _jpeg(path)
         if head.startswith(b"\x89PNG\r\n\x1a\n"):
             return _png(path)
         if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
@@ -76,7 +93,17 @@ def decoded_size(path: Path) -> DecodedSize:
             return _heif(path)
     except (struct.error, IndexError, ValueError, OSError) as exc:
         raise HeaderError(f"unreadable header ({exc})") from exc
+    if not pillow:
+        raise HeaderError("not a format whose header ppd reads itself")
     return _pillow(path)
+
+
+def peak_bytes_estimate(path: Path, default: int) -> int:
+    """peak_bytes from the header, without Pillow (the daemon's admission); default if unknown."""
+    try:
+        return decoded_size(Path(path), pillow=False).peak_bytes
+    except HeaderError:
+        return default
 
 
 def decoded_bytes_estimate(path: Path) -> int:
@@ -87,11 +114,14 @@ def decoded_bytes_estimate(path: Path) -> int:
         return 0
 
 
-def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS, *, name: str | None = None) -> None:
+def check_decode_budget(
+    path: Path, max_pixels: int = DEFAULT_MAX_PIXELS, *, name: str | None = None, max_bytes: int | None = None
+) -> None:
     """Raise ImageFormatError (one line) when path declares more than max_pixels (all frames
-    together; WebP a fifth of it, HEIF/AVIF a third), before anything is decoded. An unreadable
-    header passes: the decoder refuses it. name: the file's name for the message (path may be
-    a /proc/self/fd link, whose name is only a descriptor number)."""
+    together; WebP a fifth of it, HEIF/AVIF a third), or would take more than max_bytes of memory
+    to protect (peak_bytes; None: not checked), before anything is decoded. An unreadable header
+    passes: the decoder refuses it. name: the file's name for the message (path may be a
+    /proc/self/fd link, whose name is only a descriptor number)."""
     path = Path(path)
     try:
         size = decoded_size(path)
@@ -103,11 +133,18 @@ def check_decode_budget(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS, *, nam
         limit = max_pixels // divisor
         label = "WebP" if size.format == "WEBP" else "HEIF/AVIF"
         why = f" for {label} ({share} of {_mp(max_pixels)} MP: {reason})"
+    frames = f" x {size.frames} frames" if size.frames > 1 else ""
     if size.pixels > limit:
-        frames = f" x {size.frames} frames" if size.frames > 1 else ""
         raise ImageFormatError(
             f"{name or path.name}: {size.width}x{size.height}{frames} ({_mp(size.pixels)} MP) is over the "
             f"{_mp(limit)} MP limit{why}; raise [limits] max_megapixels to protect it"
+        )
+    if max_bytes is not None and size.peak_bytes > max_bytes:
+        depth = f"{8 * size.bytes_per_sample}-bit, {size.channels} channel(s)"
+        raise ImageFormatError(
+            f"{name or path.name}: {size.width}x{size.height}{frames} ({depth}) needs about "
+            f"{size.peak_bytes // 1_000_000} MB to protect, over the {max_bytes // 1_000_000} MB memory "
+            "limit; raise [limits] max_memory_mb to protect it"
         )
 
 
@@ -131,25 +168,30 @@ def _mp(pixels: int) -> str:
 _SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
 
 
-def _jpeg(head: bytes) -> DecodedSize:
-    pos = 2
-    while pos + 4 <= len(head):
-        if head[pos] != 0xFF:
-            raise ValueError("JPEG marker expected")
-        marker = head[pos + 1]
-        if marker == 0xFF:
-            pos += 1
-            continue
-        (length,) = struct.unpack(">H", head[pos + 2 : pos + 4])
-        if marker in _SOF:
-            precision, height, width, comps = struct.unpack(">BHHB", head[pos + 4 : pos + 10])
-            # a DNL-marker JPEG declares height 0: the decoder then allocates per the real height;
-            # treat as unknown width x 65535 (the most a JPEG can have)
-            return DecodedSize("JPEG", width, height or 65535, comps, 2 if precision > 8 else 1)
-        if marker in (0xDA, 0xD9):
-            break
-        pos += 2 + length
-    raise ValueError("no JPEG frame header in the first MB")
+def _jpeg(path: Path) -> DecodedSize:
+    """The SOF, after however many segments (walked with seeks: a few bytes read per segment)."""
+    with open(path, "rb") as f:
+        f.seek(2)
+        while True:
+            head = f.read(4)
+            if len(head) < 4:
+                break
+            if head[0] != 0xFF:
+                raise ValueError("JPEG marker expected")
+            marker = head[1]
+            if marker == 0xFF:
+                f.seek(-3, 1)
+                continue
+            if marker in (0xDA, 0xD9):
+                break
+            (length,) = struct.unpack(">H", head[2:4])
+            if marker in _SOF:
+                precision, height, width, comps = struct.unpack(">BHHB", f.read(6))
+                # a DNL-marker JPEG declares height 0: the decoder then allocates per the real height;
+                # treat as unknown width x 65535 (the most a JPEG can have)
+                return DecodedSize("JPEG", width, height or 65535, comps, 2 if precision > 8 else 1)
+            f.seek(length - 2, 1)
+    raise ValueError("no JPEG frame header before the scan")
 
 
 def _png(path: Path) -> DecodedSize:

@@ -1,75 +1,314 @@
-"""Provenance marker: a protected file says, in its own metadata, that ppd wrote it.
+"""Provenance seal: a patched file says that ppd wrote exactly these bytes, to ppd and nobody else.
 
-The marker carries the spec id, the original's sha256 and the tool, so a lost store never leads
-to poisoning a file twice and originals can be found in the vault by hash alone.
+What a patched file carries is one opaque token (its *seal*), the same ASCII text in every carrier:
 
-Where it lives (deterministic bytes: the same inputs give the same file):
-- JPEG, WebP, TIFF, HEIC/AVIF: XMP, one `rdf:Description` in the namespace `ppd:` (NS below) with
-  attributes SpecId, OriginalSha256, Tool; added to the source's XMP packet (the rest of the
-  packet is kept as it was) or a new minimal packet.
-- PNG: an iTXt chunk, keyword "ppd:provenance", right after IHDR (read without touching IDAT).
-- MP4/MOV: a top-level `uuid` box (UUID below) appended after the last box: no offset in the
-  file moves, players ignore it.
-- Matroska/WebM: a container tag PPD_PROVENANCE (a SimpleTag).
-The non-XMP carriers hold the same three fields as compact JSON with sorted keys.
+    MAGIC NN BODY TAG      NN: two hex digits, BODY's length in bytes; BODY and TAG in hex
+    BODY = version (1 byte) || id (16 bytes) || ciphertext of "original sha256 \\0 spec id"
+    id   = HMAC(key, "id" || plaintext)[:16]; ciphertext = plaintext XOR an HMAC keystream from id
+           (a deterministic SIV construction: the same inputs give the same token, so poisoning
+           stays deterministic and an interrupted run can be redone and compared byte for byte)
+    TAG  = HMAC-SHA256(key, "mac" || id || the file's bytes without TAG's own 64 characters and,
+           in a PNG, without the CRC of the chunk that holds it)
 
-`read_marker` reads structure only (never pixels): a few header reads and seeks per file.
+The key is the installation's secret (daemon.sealkey, 0600 in the data folder). Without it the
+token names no tool and no hash, and cannot be made: a token copied into another photo, or left in
+a cropped or edited one, does not fit the other bytes, so such a file is a new photo.
+
+Writing is two steps: the poisoners embed a placeholder (`Marker`: TAG all zeros); the caller then
+seals the finished file in place (`seal_file`: one read of the file, 64 bytes written, a PNG
+chunk's CRC rewritten). Reading (`read_seal`) finds the token by its magic anywhere in the file
+(mmap; no format parsing, so every carrier is read alike), checks the id first (cheap: a random
+or foreign token fails there) and then the tag over the whole file (one pass, about a sha256).
+
+Where the token lives:
+- JPEG, WebP, TIFF, HEIC/AVIF: XMP, one `rdf:Description` in the namespace NS with one attribute,
+  added to the source's packet (the rest kept as it was) or a new minimal packet;
+- PNG: an uncompressed iTXt chunk (keyword PNG_KEYWORD) right after IHDR;
+- MP4/MOV: a top-level `uuid` box (MP4_UUID) appended after the last box (no offset moves);
+- Matroska/WebM: a container tag MKV_TAG.
+Markers of earlier versions (a clear "ppd:" description, iTXt "ppd:provenance", tag
+PPD_PROVENANCE) are never trusted; they are removed when a file is patched.
 """
 
 from __future__ import annotations
 
-import json
+import hashlib
+import hmac
+import mmap
+import os
 import re
 import struct
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from xml.sax.saxutils import quoteattr, unescape
+from xml.sax.saxutils import quoteattr
 
-NS = "http://ns.ppd.invalid/provenance/1.0/"
-PNG_KEYWORD = b"ppd:provenance"
-MKV_TAG = "PPD_PROVENANCE"
-MP4_UUID = bytes.fromhex("8f2c3e1a5b7d4c6e9a0b1c2d3e4f5a6b")  # ppd's provenance box
+NS = "urn:uuid:5e1f0c3a-92d4-4b7e-8a61-3c0f9d2b7e14"
+PNG_KEYWORD = b"sl"
+MKV_TAG = "SL"
+MP4_UUID = bytes.fromhex("5e1f0c3a92d44b7e8a613c0f9d2b7e14")
+LEGACY_NS = "http://ns.ppd.invalid/provenance/1.0/"  # earlier versions' clear marker (removed)
+LEGACY_PNG_KEYWORD = b"ppd:provenance"
+MKV_TAGS = (MKV_TAG, "PPD_PROVENANCE")  # a tag with one of these names is never copied
 
+MAGIC = b"zQ7kS1"
+VERSION = 1
+KEY_BYTES = 32
+_ID = 16
+_TAG_HEX = 64
+_ZERO_TAG = b"0" * _TAG_HEX
+_MAX_TOKENS = 8  # tokens tried per file: each costs one pass over it
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _XMP_JPEG_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
-_MAX_META_READ = 16 * 1024 * 1024  # no metadata block we read is larger: anything more is refused
-_FIELDS = ("SpecId", "OriginalSha256", "Tool")
+_HEX = frozenset(b"0123456789abcdef")
+
+
+class SealError(ValueError):
+    """A file that should carry a seal placeholder does not (nothing was written)."""
 
 
 @dataclass(frozen=True)
 class Marker:
-    spec_id: str
-    original_sha256: str
-    tool: str
+    """What the poisoners embed: the seal's placeholder text (TAG all zeros), opaque to them."""
 
-    def to_json(self) -> bytes:
-        doc = {"original_sha256": self.original_sha256, "spec_id": self.spec_id, "tool": self.tool}
-        return json.dumps(doc, sort_keys=True, separators=(",", ":"), ensure_ascii=True).encode()
+    text: str
 
     @staticmethod
-    def from_json(data: bytes | str) -> Marker | None:
-        try:
-            doc = json.loads(data)
-            m = Marker(str(doc["spec_id"]), str(doc["original_sha256"]), str(doc["tool"]))
-        except (ValueError, KeyError, TypeError):
+    def placeholder(key: bytes, spec_id: str, original_sha256: str) -> Marker:
+        plain = original_sha256.encode() + b"\0" + spec_id.encode()
+        ident = _mac(key, b"id", plain)[:_ID]
+        body = bytes([VERSION]) + ident + _xor(plain, _keystream(key, ident, len(plain)))
+        if len(body) > 255:
+            raise ValueError("spec id too long for a seal")
+        return Marker((MAGIC + b"%02x" % len(body) + body.hex().encode() + _ZERO_TAG).decode())
+
+
+@dataclass(frozen=True)
+class Seal:
+    """What a verified seal says: the original ppd kept in the vault and the spec it used."""
+
+    original_sha256: str
+    spec_id: str
+
+
+def _mac(key: bytes, label: bytes, data: bytes) -> bytes:
+    return hmac.new(key, label + data, hashlib.sha256).digest()
+
+
+def _keystream(key: bytes, ident: bytes, n: int) -> bytes:
+    out = b"".join(_mac(key, b"ks", ident + struct.pack(">I", i)) for i in range((n + 31) // 32))
+    return out[:n]
+
+
+def _xor(a: bytes, b: bytes) -> bytes:
+    return bytes(x ^ y for x, y in zip(a, b, strict=True))
+
+
+# ---- the token in a file -------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Token:
+    body: bytes
+    tag_start: int  # offset of TAG's 64 hex characters in the file
+    tag: bytes  # those characters
+
+
+def _tokens(mm: mmap.mmap) -> list[_Token]:
+    """The well-formed tokens in the file, in order (at most _MAX_TOKENS)."""
+    found: list[_Token] = []
+    at = mm.find(MAGIC)
+    while at >= 0 and len(found) < _MAX_TOKENS:
+        pos = at + len(MAGIC)
+        head = mm[pos : pos + 2]
+        if len(head) == 2 and set(head) <= _HEX:
+            n = int(head, 16)
+            text = mm[pos + 2 : pos + 2 + 2 * n + _TAG_HEX]
+            if len(text) == 2 * n + _TAG_HEX and set(text) <= _HEX:
+                found.append(_Token(bytes.fromhex(text[: 2 * n].decode()), pos + 2 + 2 * n, text[2 * n :]))
+        at = mm.find(MAGIC, at + 1)
+    return found
+
+
+def _open_body(key: bytes, body: bytes) -> Seal | None:
+    """The seal's content when BODY was made with this key (its id checks), else None."""
+    if len(body) < 1 + _ID or body[0] != VERSION:
+        return None
+    ident, cipher = body[1 : 1 + _ID], body[1 + _ID :]
+    plain = _xor(cipher, _keystream(key, ident, len(cipher)))
+    if not hmac.compare_digest(_mac(key, b"id", plain)[:_ID], ident):
+        return None
+    original, sep, spec_id = plain.partition(b"\0")
+    if not sep:
+        return None
+    try:
+        return Seal(original.decode(), spec_id.decode())
+    except UnicodeDecodeError:
+        return None
+
+
+def _left_out(mm: mmap.mmap, tok: _Token) -> list[tuple[int, int]]:
+    """The byte ranges the tag does not cover: its own text, and the checksum that covers the
+    text's place (a PNG chunk's CRC, a Matroska element's CRC-32), rewritten after sealing."""
+    ranges = [(tok.tag_start, tok.tag_start + _TAG_HEX)]
+    check = _png_crc_of(mm, tok.tag_start) if mm[:8] == _PNG_SIGNATURE else None
+    if check is None and mm[:4] == _EBML_MAGIC:
+        check = _ebml_crc_of(mm, tok.tag_start)
+    if check is not None:
+        ranges.append((check.at, check.at + 4))
+    return sorted(ranges)
+
+
+@dataclass(frozen=True)
+class _Checksum:
+    at: int  # where its 4 bytes are
+    start: int  # the bytes it covers: [start, end)
+    end: int
+    little_endian: bool
+
+
+_EBML_MAGIC = b"\x1a\x45\xdf\xa3"
+
+
+def _png_crc_of(mm: mmap.mmap, offset: int) -> _Checksum | None:
+    """The CRC of the PNG chunk whose data holds offset (over the chunk's type and data)."""
+    pos, size = 8, len(mm)
+    while pos + 12 <= size:
+        (length,) = struct.unpack(">I", mm[pos : pos + 4])
+        crc_at = pos + 8 + length
+        if pos + 8 <= offset < crc_at:
+            return _Checksum(crc_at, pos + 4, crc_at, False) if crc_at + 4 <= size else None
+        pos = crc_at + 4
+    return None
+
+
+def _vint(mm: mmap.mmap, pos: int, keep_marker: bool) -> tuple[int, int]:
+    """(value, position after it) of an EBML variable-size integer; value -1 for an unknown size."""
+    b0 = mm[pos]
+    length = 1
+    while length <= 8 and not b0 & (0x80 >> (length - 1)):
+        length += 1
+    if length > 8:
+        raise ValueError("bad EBML vint")
+    value = b0 if keep_marker else b0 & (0xFF >> length)
+    for byte in mm[pos + 1 : pos + length]:
+        value = (value << 8) | byte
+    if not keep_marker and value == (1 << (7 * length)) - 1:
+        value = -1
+    return value, pos + length
+
+
+def _ebml_crc_of(mm: mmap.mmap, offset: int) -> _Checksum | None:
+    """The CRC-32 child (ID 0xBF) of the Segment's top-level element holding offset, if it has
+    one (FFmpeg writes one in each): little-endian, over the rest of the element's data."""
+    try:
+        _, pos = _vint(mm, 0, True)
+        size, pos = _vint(mm, pos, False)
+        pos += size  # past the EBML header
+        seg_id, pos = _vint(mm, pos, True)
+        if seg_id != 0x18538067:
             return None
-        return m
+        _, pos = _vint(mm, pos, False)
+        while pos < len(mm):
+            _, data = _vint(mm, pos, True)
+            size, data = _vint(mm, data, False)
+            if size < 0:
+                return None
+            end = data + size
+            if data <= offset < end:
+                if mm[data] == 0xBF and mm[data + 1] == 0x84:
+                    return _Checksum(data + 2, data + 6, end, True)
+                return None
+            pos = end
+    except (ValueError, IndexError):
+        return None
+    return None
+
+
+def _file_tag(key: bytes, mm: mmap.mmap, tok: _Token) -> bytes:
+    h = hmac.new(key, b"mac" + tok.body[1 : 1 + _ID], hashlib.sha256)
+    with memoryview(mm) as view:  # no copy of the file's bytes
+        pos = 0
+        for start, end in _left_out(mm, tok):
+            h.update(view[pos:start])
+            pos = end
+        h.update(view[pos:])
+    return h.hexdigest().encode()
+
+
+def _fix_checksum(mm: mmap.mmap, tok: _Token) -> None:
+    """Rewrite the checksum over the token's place (a PNG chunk's CRC, a Matroska CRC-32)."""
+    check = _png_crc_of(mm, tok.tag_start) if mm[:8] == _PNG_SIGNATURE else None
+    if check is None and mm[:4] == _EBML_MAGIC:
+        check = _ebml_crc_of(mm, tok.tag_start)
+    if check is not None:
+        crc = zlib.crc32(mm[check.start : check.end])
+        mm[check.at : check.at + 4] = struct.pack("<I" if check.little_endian else ">I", crc)
+
+
+def seal_file(path: Path, key: bytes) -> None:
+    """Seal ppd's finished output in place: the placeholder's TAG becomes the file's tag.
+    SealError when the file holds no placeholder made with this key. Not fsynced: the caller
+    copies the sealed file to its final place and fsyncs that (daemon.pipeline)."""
+    fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC)
+    try:
+        if os.fstat(fd).st_size == 0:
+            raise SealError(f"{Path(path).name}: empty file, nothing to seal")
+        with mmap.mmap(fd, 0) as mm:
+            for tok in _tokens(mm):
+                if tok.tag == _ZERO_TAG and _open_body(key, tok.body) is not None:
+                    mm[tok.tag_start : tok.tag_start + _TAG_HEX] = _file_tag(key, mm, tok)
+                    _fix_checksum(mm, tok)
+                    break
+            else:
+                raise SealError(f"{Path(path).name}: no seal placeholder in the patched file")
+    finally:
+        os.close(fd)
+
+
+def read_seal(path: Path, key: bytes | None) -> Seal | None:
+    """The seal of a file ppd wrote with this key, when the file's bytes are exactly those it
+    sealed; None for anything else (no token, another key, a copied token, an edited file, an
+    unreadable file, no key)."""
+    if not key:
+        return None
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        if os.fstat(fd).st_size == 0:
+            return None
+        with mmap.mmap(fd, 0, access=mmap.ACCESS_READ) as mm:
+            for tok in _tokens(mm):
+                seal = _open_body(key, tok.body)
+                if seal is not None and hmac.compare_digest(_file_tag(key, mm, tok), tok.tag):
+                    return seal
+    except (OSError, ValueError):
+        return None
+    finally:
+        os.close(fd)
+    return None
+
+
+def has_token(path: Path) -> bool:
+    """Whether the file carries anything shaped like a seal (verified or not): for tests/benches."""
+    try:
+        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            return bool(_tokens(mm))
+    except (OSError, ValueError):
+        return False
 
 
 # ---- XMP -----------------------------------------------------------------------------------------
-_OWN_DESCRIPTION = re.compile(
-    rb"<rdf:Description\s[^>]*xmlns:ppd=\"" + re.escape(NS.encode()) + rb"\"[^>]*/>\s*"
-)
+def _description_pattern(ns: str) -> re.Pattern[bytes]:
+    return re.compile(rb"<rdf:Description\s[^>]*xmlns:\w+=\"" + re.escape(ns.encode()) + rb"\"[^>]*/>\s*")
+
+
+_OWN_DESCRIPTIONS = (_description_pattern(NS), _description_pattern(LEGACY_NS))
 _RDF_CLOSE = re.compile(rb"</([A-Za-z_][\w.-]*:)?RDF\s*>")
 
 
 def marker_description(marker: Marker) -> bytes:
-    attrs = " ".join(
-        f"ppd:{name}={quoteattr(value)}"
-        for name, value in zip(_FIELDS, (marker.spec_id, marker.original_sha256, marker.tool), strict=True)
-    )
-    return f'<rdf:Description rdf:about="" xmlns:ppd="{NS}" {attrs}/>'.encode()
+    return f'<rdf:Description rdf:about="" xmlns:sl="{NS}" sl:k={quoteattr(marker.text)}/>'.encode()
 
 
 def fresh_xmp(marker: Marker) -> bytes:
@@ -82,12 +321,19 @@ def fresh_xmp(marker: Marker) -> bytes:
     )
 
 
+def xmp_without_marker(xmp: bytes) -> bytes:
+    """The packet without any seal or earlier clear marker."""
+    for pattern in _OWN_DESCRIPTIONS:
+        xmp = pattern.sub(b"", xmp)
+    return xmp
+
+
 def xmp_with_marker(xmp: bytes | None, marker: Marker) -> bytes:
-    """The packet with ppd's description (replacing an older one); a new packet when there is
-    none or it has no rdf:RDF element to add to."""
+    """The packet with the seal's description (replacing an older one or an earlier version's
+    clear marker); a new packet when there is none or it has no rdf:RDF element to add to."""
     if not xmp:
         return fresh_xmp(marker)
-    xmp = _OWN_DESCRIPTION.sub(b"", xmp)
+    xmp = xmp_without_marker(xmp)
     closes = list(_RDF_CLOSE.finditer(xmp))
     if not closes or (closes[-1].group(1) or b"rdf:") != b"rdf:":
         return fresh_xmp(marker)
@@ -95,22 +341,9 @@ def xmp_with_marker(xmp: bytes | None, marker: Marker) -> bytes:
     return xmp[:at] + marker_description(marker) + xmp[at:]
 
 
-def marker_from_xmp(xmp: bytes) -> Marker | None:
-    if NS.encode() not in xmp:
-        return None
-    values: list[str] = []
-    for name in _FIELDS:
-        m = re.search(rb"ppd:" + name.encode() + rb"""\s*=\s*(?:"([^"]*)"|'([^']*)')""", xmp)
-        if not m:
-            return None
-        raw = m.group(1) if m.group(1) is not None else m.group(2)
-        values.append(unescape(raw.decode("utf-8", "replace"), {"&quot;": '"', "&apos;": "'"}))
-    return Marker(*values)
-
-
 # ---- embedding -----------------------------------------------------------------------------------
 def embed_jpeg(data: bytes, marker: Marker) -> bytes:
-    """The JPEG with the marker in its XMP APP1 segment; the scans are copied verbatim."""
+    """The JPEG with the seal in its XMP APP1 segment; the scans are copied verbatim."""
     from poisoner.location import jpeg_assemble, jpeg_header_segments
 
     segments, sos = jpeg_header_segments(data)
@@ -133,21 +366,21 @@ def _png_chunk(ctype: bytes, body: bytes) -> bytes:
 
 
 def embed_png(data: bytes, marker: Marker) -> bytes:
-    """The PNG with an iTXt "ppd:provenance" right after IHDR (an older one removed); every other
-    chunk is copied byte for byte."""
+    """The PNG with an iTXt seal chunk right after IHDR (older seals and earlier clear markers
+    removed); every other chunk is copied byte for byte."""
     if not data.startswith(_PNG_SIGNATURE):
         raise ValueError("not a PNG")
     parts = [_PNG_SIGNATURE]
     pos = len(_PNG_SIGNATURE)
-    own = PNG_KEYWORD + b"\x00"
+    own = (PNG_KEYWORD + b"\x00", LEGACY_PNG_KEYWORD + b"\x00")
     while pos + 12 <= len(data):
         (length,) = struct.unpack(">I", data[pos : pos + 4])
         ctype = data[pos + 4 : pos + 8]
         end = pos + 12 + length
-        if not (ctype == b"iTXt" and data[pos + 8 : pos + 8 + len(own)] == own):
+        if not (ctype == b"iTXt" and data[pos + 8 : pos + 8 + length].startswith(own)):
             parts.append(data[pos:end])
         if ctype == b"IHDR":
-            parts.append(_png_chunk(b"iTXt", own + b"\x00\x00\x00\x00" + marker.to_json()))
+            parts.append(_png_chunk(b"iTXt", own[0] + b"\x00\x00\x00\x00" + marker.text.encode()))
         pos = end
         if ctype == b"IEND":
             break
@@ -155,219 +388,11 @@ def embed_png(data: bytes, marker: Marker) -> bytes:
 
 
 def mp4_box(marker: Marker) -> bytes:
-    body = MP4_UUID + marker.to_json()
+    body = MP4_UUID + marker.text.encode()
     return struct.pack(">I", 8 + len(body)) + b"uuid" + body
 
 
-# ---- reading -------------------------------------------------------------------------------------
-def read_marker(path: Path) -> Marker | None:
-    """The marker of a file ppd protected; None when there is none or the file cannot be read.
-    Reads metadata structure only (a few small reads and seeks)."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(16)
-            if head.startswith(b"\xff\xd8"):
-                return _read_jpeg(f)
-            if head.startswith(_PNG_SIGNATURE):
-                return _read_png(f)
-            if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
-                return _read_webp(f)
-            if head[:4] in (b"II*\x00", b"MM\x00*"):
-                return _read_tiff(f, head)
-            if head[:4] == b"\x1a\x45\xdf\xa3":
-                return _read_matroska(f)
-            if head[4:8] == b"ftyp":
-                return _read_isobmff(f, head)
-    except (OSError, ValueError, struct.error, IndexError, zlib.error):
-        return None
-    return None
-
-
-def _read_exact(f, n: int) -> bytes:  # noqa: ANN001 - a binary file
-    if n > _MAX_META_READ:
-        raise ValueError("metadata block too large")
-    data = f.read(n)
-    if len(data) != n:
-        raise ValueError("truncated")
-    return data
-
-
-def _read_jpeg(f) -> Marker | None:  # noqa: ANN001
-    f.seek(2)
-    while True:
-        b = f.read(2)
-        if len(b) < 2 or b[0] != 0xFF:
-            return None
-        if b[1] == 0xFF:
-            f.seek(-1, 1)
-            continue
-        if b[1] in (0xDA, 0xD9):
-            return None
-        (length,) = struct.unpack(">H", _read_exact(f, 2))
-        if b[1] == 0xE1 and length > 2 + len(_XMP_JPEG_HEADER):
-            payload = _read_exact(f, length - 2)
-            if payload.startswith(_XMP_JPEG_HEADER):
-                found = marker_from_xmp(payload)
-                if found:
-                    return found
-        else:
-            f.seek(length - 2, 1)
-
-
-def _read_png(f) -> Marker | None:  # noqa: ANN001
-    f.seek(len(_PNG_SIGNATURE))
-    own = PNG_KEYWORD + b"\x00"
-    while True:
-        head = f.read(8)
-        if len(head) < 8:
-            return None
-        length, ctype = struct.unpack(">I", head[:4])[0], head[4:]
-        if ctype == b"IEND":
-            return None
-        if ctype == b"iTXt" and length < 65536:
-            body = _read_exact(f, length)
-            f.seek(4, 1)
-            if body.startswith(own):
-                return Marker.from_json(body[len(own) + 4 :])
-        else:
-            f.seek(length + 4, 1)
-
-
-def _read_webp(f) -> Marker | None:  # noqa: ANN001
-    f.seek(12)
-    while True:
-        head = f.read(8)
-        if len(head) < 8:
-            return None
-        ctype, (size,) = head[:4], struct.unpack("<I", head[4:])
-        if ctype == b"XMP ":
-            return marker_from_xmp(_read_exact(f, size))
-        f.seek(size + (size & 1), 1)
-
-
-def _read_tiff(f, head: bytes) -> Marker | None:  # noqa: ANN001
-    bo = "<" if head[:2] == b"II" else ">"
-    (ifd,) = struct.unpack(bo + "I", head[4:8])
-    f.seek(ifd)
-    (count,) = struct.unpack(bo + "H", _read_exact(f, 2))
-    entries = _read_exact(f, 12 * count)
-    for i in range(count):
-        tag, typ, n, value = struct.unpack(bo + "HHII", entries[12 * i : 12 * i + 12])
-        if tag == 700:
-            size = n * (1 if typ in (1, 2, 7) else 2 if typ == 3 else 4)
-            if size <= 4:
-                return None
-            f.seek(value)
-            return marker_from_xmp(_read_exact(f, size))
-    return None
-
-
-def _read_isobmff(f, head: bytes) -> Marker | None:  # noqa: ANN001
-    """MP4/MOV: ppd's top-level uuid box. HEIF/AVIF: the XMP item, found by searching the file's
-    bytes for ppd's description (HEIF files are small; no item-location parsing)."""
-    brand = head[8:12]
-    f.seek(0, 2)
-    size = f.tell()
-    if brand in (b"heic", b"heix", b"mif1", b"msf1", b"avif", b"avis", b"heim", b"heis"):
-        if size > 64 * 1024 * 1024:
-            return None
-        f.seek(0)
-        data = f.read()
-        at = data.find(b'xmlns:ppd="' + NS.encode())
-        if at < 0:
-            return None
-        start = data.rfind(b"<rdf:Description", 0, at)
-        end = data.find(b"/>", at)
-        return marker_from_xmp(data[start : end + 2]) if start >= 0 and end > 0 else None
-    pos = 0
-    while pos + 8 <= size:
-        f.seek(pos)
-        box = _read_exact(f, 8)
-        (length,) = struct.unpack(">I", box[:4])
-        if length == 1:
-            (length,) = struct.unpack(">Q", _read_exact(f, 8))
-        elif length == 0:
-            length = size - pos
-        if length < 8:
-            return None
-        if box[4:8] == b"uuid" and length < 65536:
-            body = _read_exact(f, length - 8)
-            if body.startswith(MP4_UUID):
-                return Marker.from_json(body[16:])
-        pos += length
-    return None
-
-
-def _vint(f, keep_marker: bool) -> tuple[int, int]:  # noqa: ANN001
-    """(value, length) of an EBML variable-size integer; value -1 for an unknown size."""
-    first = f.read(1)
-    if not first:
-        raise ValueError("EOF")
-    b0 = first[0]
-    length = 1
-    while length <= 8 and not b0 & (0x80 >> (length - 1)):
-        length += 1
-    if length > 8:
-        raise ValueError("bad EBML vint")
-    rest = _read_exact(f, length - 1)
-    value = b0 if keep_marker else b0 & (0xFF >> length)
-    for byte in rest:
-        value = (value << 8) | byte
-    if not keep_marker and value == (1 << (7 * length)) - 1:
-        return -1, length
-    return value, length
-
-
-def _read_matroska(f) -> Marker | None:  # noqa: ANN001
-    f.seek(0)
-    _vint(f, True)
-    size, _ = _vint(f, False)
-    f.seek(size, 1)
-    seg_id, _ = _vint(f, True)
-    if seg_id != 0x18538067:
-        return None
-    seg_size, _ = _vint(f, False)
-    seg_start = f.tell()
-    seg_end = seg_start + seg_size if seg_size >= 0 else None
-    while seg_end is None or f.tell() < seg_end:
-        try:
-            eid, _ = _vint(f, True)
-            esize, _ = _vint(f, False)
-        except ValueError:
-            return None
-        if esize < 0:
-            return None  # an element of unknown size (a live cluster): nothing to skip to
-        if eid == 0x1254C367:  # Tags
-            return _marker_in_tags(_read_exact(f, esize))
-        f.seek(esize, 1)
-    return None
-
-
-def _ebml_children(data: bytes) -> list[tuple[int, bytes]]:
-    import io
-
-    out: list[tuple[int, bytes]] = []
-    f = io.BytesIO(data)
-    while f.tell() < len(data):
-        eid, _ = _vint(f, True)
-        size, _ = _vint(f, False)
-        if size < 0:
-            break
-        out.append((eid, f.read(size)))
-    return out
-
-
-def _marker_in_tags(tags: bytes) -> Marker | None:
-    for eid, tag in _ebml_children(tags):
-        if eid != 0x7373:
-            continue
-        for sid, simple in _ebml_children(tag):
-            if sid != 0x67C8:
-                continue
-            fields = dict(_ebml_children(simple))
-            if fields.get(0x45A3, b"").decode("utf-8", "replace").upper() == MKV_TAG:
-                return Marker.from_json(fields.get(0x4487, b""))
-    return None
-
-
-__all__ = ["Marker", "NS", "read_marker", "xmp_with_marker", "embed_jpeg", "embed_png", "mp4_box"]
+__all__ = [
+    "Marker", "Seal", "SealError", "NS", "read_seal", "seal_file", "xmp_with_marker", "embed_jpeg",
+    "embed_png", "mp4_box",
+]  # fmt: skip

@@ -42,14 +42,14 @@ if str(REPO) not in sys.path:  # pytest puts tests/ first; bench and tests.* nee
 
 from bench.bench_daemon import Daemon, start_daemon, status_kb  # noqa: E402
 from daemon.paths import AppPaths  # noqa: E402
-from daemon.pipeline import provenance_marker  # noqa: E402
 from daemon.protect import media_kind, poison_to  # noqa: E402
 from daemon.states import FileState  # noqa: E402
 from daemon.store import Store  # noqa: E402
 from poisoner.atomic import TEMP_PREFIX  # noqa: E402
 from tests.test_watcher import texture, wait_for, write_image  # noqa: E402
 
-DAEMON_ARGS = ("--no-verify", "--debounce", "0.05", "-j", "2")  # no SfM children in fault runs
+# no SfM children in fault runs; an incomplete file is quarantined after 2 s unchanged (default 120)
+DAEMON_ARGS = ("--no-verify", "--debounce", "0.05", "-j", "2", "--incomplete-wait", "2")
 
 __all__ = [
     "DAEMON_ARGS", "RESULTS", "CrashTrialOptions", "CrashTrialReport", "DiskFullReport", "HostileInput",
@@ -151,9 +151,16 @@ def expected_output(paths: AppPaths, store: Store, row: dict) -> str | None:
         original = Path(scratch) / Path(row["path"]).name
         shutil.copyfile(paths.vault_dir / row["original_sha256"][:2] / row["original_sha256"], original)
         out = Path(scratch) / f"out{original.suffix}"
-        # The daemon's output carries a provenance marker (spec id, original's hash): so must ours.
-        marker = provenance_marker(row["spec_id"], row["original_sha256"])
+        # The daemon's output carries a provenance seal (its key, over these bytes): so must ours.
+        from daemon.sealkey import load_key
+        from poisoner.provenance import Marker, seal_file
+
+        key = load_key(paths.data_dir, create=False)
+        if key is None:  # nothing was ever sealed here
+            return None
+        marker = Marker.placeholder(key, row["spec_id"], row["original_sha256"])
         poison_to(kind, original, out, spec, marker=marker)
+        seal_file(out, key)
         return sha256(out)
 
 
@@ -646,3 +653,16 @@ def run_disk_full(fs: Path, leave: int, files: int = 4) -> DiskFullReport:
         ctx.close()
     report.violations_after = check_invariants(paths, originals)
     return report
+
+
+def sealed_patch(src: Path, dst: Path, spec: object, original_sha256: str, data_dir: Path) -> None:
+    """What the pipeline's poison stage writes: the patched file with its seal, made with the
+    installation's key in data_dir (created on first use)."""
+    from daemon.sealkey import load_key
+    from poisoner.formats import poison_file
+    from poisoner.provenance import Marker, seal_file
+
+    key = load_key(data_dir)
+    assert key is not None
+    poison_file(src, dst, spec, marker=Marker.placeholder(key, spec.spec_id, original_sha256))  # type: ignore[arg-type, attr-defined]
+    seal_file(dst, key)

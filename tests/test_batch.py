@@ -36,7 +36,7 @@ def test_pool_writes_what_serial_writes(tmp_path: Path) -> None:
     shutil.copytree(tmp_path / "a", tmp_path / "b")
     originals = {p.name: p.read_bytes() for p in files}
     markers = {
-        p: Marker(spec_id="x" * 16, original_sha256=f"{i:064d}", tool="t") for i, p in enumerate(files)
+        p: Marker.placeholder(bytes(32), "x" * 16, f"{i:064d}") for i, p in enumerate(files)
     }
     serial = poison_many([(p, p) for p in files], spec, workers=1, markers=markers)
     pool_files = [tmp_path / "b" / p.name for p in files]
@@ -78,3 +78,29 @@ def test_pool_to_other_folder_leaves_sources(tmp_path: Path) -> None:
 def test_default_workers_bounded() -> None:
     assert default_workers(1) == 1
     assert 1 <= default_workers(1000) <= 8
+
+
+def _probe(i: int, weight: int, folder: str) -> int:
+    """Runs in a pool worker: the total weight of the calls running beside this one (itself included)."""
+    import time
+
+    mark = Path(folder) / f"{i}-{weight}"
+    mark.touch()
+    time.sleep(0.4)
+    total = sum(int(p.name.split("-")[1]) for p in Path(folder).iterdir())
+    mark.unlink()
+    return total
+
+
+def test_bounded_map_never_runs_more_weight_than_its_budget(tmp_path: Path) -> None:
+    """Issue 29: the pool admits files by their memory estimate, never more than the byte budget
+    at once (one file alone over it still runs, to be refused from its header)."""
+    from poisoner.batch import bounded_map
+
+    weights = [600, 600, 300, 300, 2500, 100, 400]
+    calls = [(i, w, str(tmp_path)) for i, w in enumerate(weights)]
+    seen = bounded_map(_probe, calls, 4, lambda i: -1, weights=weights, budget=1000)
+    assert -1 not in seen and seen[4] == 2500  # the heavy one ran alone
+    assert all(total <= 1000 for i, total in enumerate(seen) if i != 4), seen
+    free = bounded_map(_probe, calls, 4, lambda i: -1)  # no budget: they overlap
+    assert max(t for i, t in enumerate(free) if i != 4) > 1000, free

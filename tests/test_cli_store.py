@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import typer
-from reliability_harness import write_image
+from reliability_harness import sealed_patch, write_image
 from typer.testing import CliRunner
 
 from daemon.cli.store import register
@@ -19,8 +19,6 @@ from daemon.states import FileState
 from daemon.store import Store
 from daemon.vault import Vault
 from poisoner.atomic import atomic_output
-from poisoner.formats import poison_file
-from poisoner.provenance import Marker
 from poisoner.spec import PatchSpec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -51,7 +49,7 @@ def _patched_outbox(paths: AppPaths, count: int = 3) -> dict[Path, bytes]:
         vault.keep_spec(spec)
         store.ensure_dataset("shoot", paths.outbox / "shoot", spec)
         with atomic_output(path) as tmp:
-            poison_file(path, tmp, spec, marker=Marker(spec.spec_id, sha, "ppd test"))
+            sealed_patch(path, tmp, spec, sha, paths.data_dir)
         store.record_file(
             path, "shoot", FileState.PATCHED, original_sha256=sha, spec_id=spec.spec_id,
             poisoned_sha256=hashlib.sha256(path.read_bytes()).hexdigest(),

@@ -207,3 +207,87 @@ def test_heif_gets_a_third_of_the_budget(tmp_path: Path) -> None:
     with pytest.raises(ImageFormatError, match=r"limit for HEIF/AVIF \(a third of"):
         check_decode_budget(tmp_path / "a.heic", max_pixels=200 * 100 * 3 - 1)
     check_decode_budget(tmp_path / "a.heic", max_pixels=200 * 100 * 3)
+
+
+# ---- issue 29: memory counted in bytes, headers found wherever they are --------------------------
+def _png16(path: Path, w: int, h: int, channels: int = 4) -> Path:
+    """A real 16-bit PNG of zeros (Pillow cannot write 16-bit colour)."""
+    import struct
+    import zlib
+
+    def chunk(t: bytes, b: bytes) -> bytes:
+        return struct.pack(">I", len(b)) + t + b + struct.pack(">I", zlib.crc32(t + b))
+
+    raw = (b"\x00" + bytes(w * channels * 2)) * h
+    ihdr = struct.pack(">IIBBBBB", w, h, 16, 6 if channels == 4 else 2, 0, 0, 0)
+    body = chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + body)
+    return path
+
+
+def test_jpeg_frame_header_after_megabytes_of_segments_is_found(tmp_path: Path) -> None:
+    """Before: a SOF after 1.1 MB of COM segments was not looked for (1 MiB read) and the file passed."""
+    import io
+    import struct
+
+    out = io.BytesIO()
+    Image.fromarray(np.zeros((16, 16, 3), np.uint8)).save(out, "JPEG")
+    data = out.getvalue()
+    comments = b"".join(b"\xff\xfe" + struct.pack(">H", 65535) + bytes(65533) for _ in range(18))  # 1.18 MB
+    sof = data.index(b"\xff\xc0")
+    big = bytearray(data[:2] + comments + data[2:])
+    at = sof + len(comments)
+    big[at + 5 : at + 9] = struct.pack(">HH", 30000, 30000)  # declares 30000x30000 (900 MP)
+    path = tmp_path / "com.jpg"
+    path.write_bytes(bytes(big))
+    size = decoded_size(path)
+    assert (size.width, size.height) == (30000, 30000)
+    with pytest.raises(ImageFormatError, match="900 MP"):
+        check_decode_budget(path)
+
+
+def test_memory_limit_counts_bytes_per_sample_and_working_copies(tmp_path: Path) -> None:
+    """Same pixels, 16-bit RGBA needs several times the memory of 8-bit RGB (FFmpeg's codec): a
+    byte limit refuses the one and lets the other through; the pixel limit alone let both pass."""
+    deep = _png16(tmp_path / "deep.png", 2000, 2000)
+    flat = tmp_path / "flat.png"
+    Image.new("RGB", (2000, 2000)).save(flat)
+    assert decoded_size(deep).bytes == 2000 * 2000 * 4 * 2 and decoded_size(flat).bytes == 2000 * 2000 * 3
+    assert decoded_size(deep).peak_bytes > 4 * decoded_size(deep).bytes
+    limit = 150_000_000  # 16-bit RGBA: ~60 + 32 x 4.9 = 217 MB; 8-bit RGB: ~60 + 12 x 1.6 = 79 MB
+    check_decode_budget(deep, max_bytes=None)  # the pixel limit alone: 4 MP passes
+    said = r"deep\.png: 2000x2000 \(16-bit, 4 channel\(s\)\) needs about \d+ MB"
+    with pytest.raises(ImageFormatError, match=said):
+        check_decode_budget(deep, max_bytes=limit)
+    check_decode_budget(flat, max_bytes=limit)
+
+
+def test_byte_budget_admits_no_more_than_it_holds() -> None:
+    import threading
+    import time
+
+    from daemon.protect_pool import ByteBudget
+
+    budget = ByteBudget(1000)
+    running: list[int] = []
+    peak: list[int] = []
+    lock = threading.Lock()
+
+    def job(nbytes: int) -> None:
+        held = budget.reserve(nbytes)
+        with lock:
+            running.append(nbytes)
+            peak.append(sum(running))
+        time.sleep(0.05)
+        with lock:
+            running.remove(nbytes)
+        budget.release(held)
+
+    threads = [threading.Thread(target=job, args=(n,)) for n in (600, 600, 300, 300, 2500, 100)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(10)
+    assert not any(t.is_alive() for t in threads)
+    assert max(peak) == 2500  # the oversized one ran, alone
+    assert all(p <= 1000 for p in peak if p != 2500) and budget.used == 0

@@ -209,7 +209,7 @@ def _write_metadata_seeds(
             src,
             folder / f"m{suffix}",
             PatchSpec(patch_size=8, block_size=2),
-            marker=Marker("s", "0" * 64, "t"),
+            marker=Marker.placeholder(bytes(32), "s", "0" * 64),
         )
         seeds[suffix] = (folder / f"m{suffix}").read_bytes()
     return seeds
@@ -229,11 +229,11 @@ def test_fuzz_metadata_readers_never_raise(
 ) -> None:
     from poisoner.completeness import incomplete_reason
     from poisoner.limits import HeaderError, decoded_size
-    from poisoner.provenance import Marker, read_marker
+    from poisoner.provenance import Seal, read_seal
 
     path = tmp_path / f"f{suffix}"
     path.write_bytes(mutate(METADATA_SEEDS[suffix], edits, cut))
-    assert read_marker(path) is None or isinstance(read_marker(path), Marker)
+    assert read_seal(path, bytes(32)) is None or isinstance(read_seal(path, bytes(32)), Seal)
     reason = incomplete_reason(path)
     assert reason is None or (reason and "\n" not in reason)
     with contextlib.suppress(HeaderError):

@@ -1,5 +1,7 @@
-"""The provenance marker (issue 20): written by poison_file in every image format, read back by
-read_marker from metadata alone, deterministic, None for anything ppd did not write."""
+"""The provenance seal (issues 20, 29): embedded by poison_file in every image format, sealed in
+place with the installation's key, verified over exactly the file's bytes; deterministic; None for
+anything ppd did not write with this key (no token, another key, a copied token, an edited file);
+no tool name and no original hash in what is published."""
 
 from __future__ import annotations
 
@@ -12,11 +14,14 @@ from PIL import Image, PngImagePlugin
 
 from poisoner import location
 from poisoner.formats import png_chunks, poison_file
-from poisoner.provenance import Marker, read_marker, xmp_with_marker
+from poisoner.provenance import Marker, Seal, SealError, read_seal, seal_file, xmp_with_marker
 from poisoner.spec import PatchSpec
 
 SPEC = PatchSpec(patch_size=40, block_size=4, position="top-left", offset=(8, 8))
-MARKER = Marker(spec_id="spec-7f3a", original_sha256="ab" * 32, tool='ppd 0.test "quoted" <&>')
+KEY = bytes(range(32))
+ORIGINAL = "ab" * 32
+MARKER = Marker.placeholder(KEY, "spec-7f3a", ORIGINAL)
+SEAL = Seal(ORIGINAL, "spec-7f3a")
 USER_XMP = (
     b'<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
     b'<rdf:Description rdf:about="" xmlns:dc="http://purl.org/dc/elements/1.1/" dc:format="user-kept"/>'
@@ -61,51 +66,151 @@ KINDS = {
 }
 
 
+def sealed(src: Path, dst: Path, marker: Marker = MARKER, **kw: object) -> bytes:
+    poison_file(src, dst, SPEC, marker=marker, **kw)  # type: ignore[arg-type]
+    seal_file(dst, KEY)
+    return dst.read_bytes()
+
+
 @pytest.mark.parametrize("kind", sorted(KINDS))
 @pytest.mark.parametrize("xmp", [False, True])
-def test_marker_round_trip_deterministic(tmp_path: Path, kind: str, xmp: bool) -> None:
+def test_seal_round_trip_deterministic(tmp_path: Path, kind: str, xmp: bool) -> None:
     suffix = KINDS[kind]
     src = tmp_path / f"src{suffix}"
     write(src, kind, xmp)
-    assert read_marker(src) is None  # an ordinary file has none
-    poison_file(src, tmp_path / f"a{suffix}", SPEC, marker=MARKER)
-    poison_file(src, tmp_path / f"b{suffix}", SPEC, marker=MARKER)
-    a, b = (tmp_path / f"a{suffix}").read_bytes(), (tmp_path / f"b{suffix}").read_bytes()
+    assert read_seal(src, KEY) is None  # an ordinary file has none
+    poison_file(src, tmp_path / f"p{suffix}", SPEC, marker=MARKER)
+    assert read_seal(tmp_path / f"p{suffix}", KEY) is None  # a placeholder is no seal
+    a, b = sealed(src, tmp_path / f"a{suffix}"), sealed(src, tmp_path / f"b{suffix}")
     assert hashlib.sha256(a).digest() == hashlib.sha256(b).digest()  # the daemon re-poisons to verify
-    assert read_marker(tmp_path / f"a{suffix}") == MARKER
-    assert Image.open(tmp_path / f"a{suffix}").size == (160, 120)  # still a valid image
+    assert read_seal(tmp_path / f"a{suffix}", KEY) == SEAL
+    assert read_seal(tmp_path / f"a{suffix}", bytes(32)) is None  # another installation's key
+    assert read_seal(tmp_path / f"a{suffix}", None) is None
+    with Image.open(tmp_path / f"a{suffix}") as im:  # still a valid image (a PNG's chunk CRCs too)
+        im.load()
+        assert im.size == (160, 120)
     if xmp:
         assert b"user-kept" in a  # the user's own XMP stays
-    # protecting a marked file again replaces the marker (one marker, the newest)
-    other = Marker("spec-2", "cd" * 32, "ppd")
-    poison_file(tmp_path / f"a{suffix}", tmp_path / f"c{suffix}", SPEC, marker=other)
-    assert read_marker(tmp_path / f"c{suffix}") == other
-    assert (tmp_path / f"c{suffix}").read_bytes().count(b"OriginalSha256") <= 1
+    # protecting a sealed file again replaces the seal (one seal, the newest)
+    other = Marker.placeholder(KEY, "spec-2", "cd" * 32)
+    c = sealed(tmp_path / f"a{suffix}", tmp_path / f"c{suffix}", other)
+    assert read_seal(tmp_path / f"c{suffix}", KEY) == Seal("cd" * 32, "spec-2")
+    assert c.count(b"zQ7kS1") == 1
 
 
-def test_jpeg_marker_touches_only_the_header(tmp_path: Path) -> None:
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_published_file_names_no_tool_and_no_original_hash(tmp_path: Path, kind: str) -> None:
+    suffix = KINDS[kind]
+    src = tmp_path / f"src{suffix}"
+    write(src, kind, xmp=True)
+    original = hashlib.sha256(src.read_bytes()).hexdigest()
+    data = sealed(src, tmp_path / f"a{suffix}", Marker.placeholder(KEY, "0123456789abcdef", original))
+    assert read_seal(tmp_path / f"a{suffix}", KEY) == Seal(original, "0123456789abcdef")
+    meta = metadata_bytes(data)
+    assert b"zQ7kS1" in meta  # the seal is in the metadata looked at
+    for clear in (b"ppd", original.encode(), bytes.fromhex(original), b"0123456789abcdef", b"Sha256"):
+        assert clear not in meta.lower() and clear not in data
+
+
+def metadata_bytes(data: bytes) -> bytes:
+    """Everything but the compressed picture: a JPEG's header, a PNG's chunks other than IDAT, the
+    whole file for the other formats (their metadata is not separated here)."""
+    if data.startswith(b"\xff\xd8"):
+        return data[: location.jpeg_header_segments(data)[1]]
+    if data.startswith(b"\x89PNG"):
+        return b"".join(ctype + body for ctype, body in png_chunks(data) if ctype != b"IDAT")
+    return data
+
+
+@pytest.mark.parametrize("kind", ["jpeg", "png", "webp-lossless", "tiff"])
+def test_copied_seal_and_cropped_file_do_not_verify(tmp_path: Path, kind: str) -> None:
+    """Issue 29: a seal copied into another photo, or kept in a cropped one, is not ppd's output."""
+    suffix = KINDS[kind]
+    src = tmp_path / f"src{suffix}"
+    write(src, kind, xmp=False)
+    patched = tmp_path / f"a{suffix}"
+    sealed(src, patched)
+    with Image.open(patched) as im:
+        im.load()
+        crop = im.crop((40, 30, 160, 120))
+        info = dict(im.info)
+    # the cropped photo keeps the metadata (with the seal) but not the bytes
+    cropped = tmp_path / f"crop{suffix}"
+    if kind == "png":
+        pnginfo = PngImagePlugin.PngInfo()
+        for chunk_type, body in png_chunks(patched.read_bytes()):
+            if chunk_type == b"iTXt":
+                pnginfo.add(chunk_type, body)
+        crop.save(cropped, pnginfo=pnginfo)
+    else:
+        extra = {"tiffinfo": {700: info["xmp"]}} if kind == "tiff" else {"xmp": info["xmp"]}
+        crop.save(cropped, **extra)
+    assert b"zQ7kS1" in cropped.read_bytes()
+    assert read_seal(cropped, KEY) is None
+    # a never-patched photo with the patched file's seal copied into it
+    other = tmp_path / f"other{suffix}"
+    im2 = Image.fromarray(np.full((120, 160, 3), 90, np.uint8))
+    token = patched.read_bytes()
+    at = token.index(b"zQ7kS1")
+    text = token[at : at + 6 + 2 + 2 * int(token[at + 6 : at + 8], 16) + 64].decode()
+    forged_xmp = xmp_with_marker(USER_XMP, Marker(text))
+    if kind == "png":
+        pnginfo = PngImagePlugin.PngInfo()
+        pnginfo.add_itxt("sl", text)
+        im2.save(other, pnginfo=pnginfo)
+    elif kind == "tiff":
+        im2.save(other, tiffinfo={700: forged_xmp})
+    else:
+        im2.save(other, xmp=forged_xmp)
+    assert text.encode() in other.read_bytes()
+    assert read_seal(other, KEY) is None
+
+
+def test_jpeg_seal_touches_only_the_header(tmp_path: Path) -> None:
     src = tmp_path / "a.jpg"
     write(src, "jpeg", xmp=False)
     poison_file(src, tmp_path / "plain.jpg", SPEC, keep_location=True)
-    poison_file(src, tmp_path / "marked.jpg", SPEC, marker=MARKER, keep_location=True)
+    sealed(src, tmp_path / "marked.jpg", keep_location=True)
     plain, marked = (tmp_path / "plain.jpg").read_bytes(), (tmp_path / "marked.jpg").read_bytes()
     _, sos_plain = location.jpeg_header_segments(plain)
     _, sos_marked = location.jpeg_header_segments(marked)
     assert plain[sos_plain:] == marked[sos_marked:]
 
 
-def test_png_marker_chunk_sits_after_ihdr(tmp_path: Path) -> None:
+def test_png_seal_chunk_sits_after_ihdr(tmp_path: Path) -> None:
     src = tmp_path / "a.png"
     write(src, "png", xmp=False)
-    poison_file(src, tmp_path / "m.png", SPEC, marker=MARKER)
+    sealed(src, tmp_path / "m.png")
     chunks = png_chunks((tmp_path / "m.png").read_bytes())
-    assert (
-        chunks[0][0] == b"IHDR" and chunks[1][0] == b"iTXt" and chunks[1][1].startswith(b"ppd:provenance\x00")
-    )
+    assert chunks[0][0] == b"IHDR" and chunks[1][0] == b"iTXt" and chunks[1][1].startswith(b"sl\x00")
     poison_file(src, tmp_path / "plain.png", SPEC)
     np.testing.assert_array_equal(
         np.asarray(Image.open(tmp_path / "m.png")), np.asarray(Image.open(tmp_path / "plain.png"))
     )
+
+
+def test_earlier_clear_marker_is_removed_and_never_trusted(tmp_path: Path) -> None:
+    legacy = (
+        b'<rdf:Description rdf:about="" xmlns:ppd="http://ns.ppd.invalid/provenance/1.0/" '
+        b'ppd:SpecId="s" ppd:OriginalSha256="' + b"ab" * 32 + b'" ppd:Tool="ppd 0.1.0"/>'
+    )
+    src = tmp_path / "a.jpg"
+    Image.fromarray(pixels()).save(src, xmp=USER_XMP.replace(b"</rdf:RDF>", legacy + b"</rdf:RDF>"))
+    assert read_seal(src, KEY) is None
+    data = sealed(src, tmp_path / "b.jpg")
+    assert b"ppd" not in data.lower() and b"user-kept" in data
+
+
+def test_seal_file_without_placeholder_refuses(tmp_path: Path) -> None:
+    src = tmp_path / "a.png"
+    write(src, "png", xmp=False)
+    before = src.read_bytes()
+    with pytest.raises(SealError):
+        seal_file(src, KEY)
+    poison_file(src, tmp_path / "p.png", SPEC, marker=Marker.placeholder(bytes(32), "s", ORIGINAL))
+    with pytest.raises(SealError):  # another key's placeholder
+        seal_file(tmp_path / "p.png", KEY)
+    assert src.read_bytes() == before
 
 
 @pytest.mark.parametrize(
@@ -119,28 +224,29 @@ def test_png_marker_chunk_sits_after_ihdr(tmp_path: Path) -> None:
         b"II*\x00\xff\xff\xff\x7f",
         b"\x00\x00\x00\x18ftypisom" + b"\xff" * 20,
         b"\x1a\x45\xdf\xa3\x80",
+        b"zQ7kS1" + b"ff" + b"0" * 600,
+        b"\x1a\x45\xdf\xa3zQ7kS1" + b"05" + b"0" * 80,
     ],
 )
-def test_garbage_and_truncated_files_have_no_marker(tmp_path: Path, content: bytes) -> None:
+def test_garbage_and_truncated_files_have_no_seal(tmp_path: Path, content: bytes) -> None:
     path = tmp_path / "x.bin"
     path.write_bytes(content)
-    assert read_marker(path) is None
+    assert read_seal(path, KEY) is None
 
 
-def test_truncated_marked_file_reads_none_or_the_marker(tmp_path: Path) -> None:
+def test_truncated_sealed_file_reads_none(tmp_path: Path) -> None:
     src = tmp_path / "a.jpg"
     write(src, "jpeg", xmp=False)
-    poison_file(src, tmp_path / "m.jpg", SPEC, marker=MARKER)
-    data = (tmp_path / "m.jpg").read_bytes()
-    for cut in range(0, 400, 7):
+    data = sealed(src, tmp_path / "m.jpg")
+    for cut in range(0, len(data), max(1, len(data) // 60)):
         (tmp_path / "t.jpg").write_bytes(data[:cut])
-        assert read_marker(tmp_path / "t.jpg") in (None, MARKER)
+        assert read_seal(tmp_path / "t.jpg", KEY) is None
 
 
 def test_missing_file_reads_none(tmp_path: Path) -> None:
-    assert read_marker(tmp_path / "nope.jpg") is None
+    assert read_seal(tmp_path / "nope.jpg", KEY) is None
 
 
 def test_xmp_with_marker_without_rdf_makes_a_packet() -> None:
     out = xmp_with_marker(b"<not-xmp/>", MARKER)
-    assert b"ppd:SpecId" in out and out.count(b"ppd:SpecId") == 1
+    assert out.count(MARKER.text.encode()) == 1

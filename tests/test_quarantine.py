@@ -87,8 +87,9 @@ def test_after_a_death_the_file_is_retried_in_a_child_process(
 def test_an_isolated_poisoner_that_dies_is_a_one_line_failure(tmp_path: Path) -> None:
     import threading
 
-    from daemon.pipeline import PoisonerDied, poison_isolated, provenance_marker
+    from daemon.pipeline import PoisonerDied, poison_isolated
     from poisoner.ladder import default_spec
+    from poisoner.provenance import Marker
 
     src = write_image(tmp_path / "big.png", seed=1, size=2048)
     before = set(os.listdir("/proc"))
@@ -96,9 +97,8 @@ def test_an_isolated_poisoner_that_dies_is_a_one_line_failure(tmp_path: Path) ->
 
     def run() -> None:
         try:
-            poison_isolated(
-                "image", src, tmp_path / "out.png", default_spec(), provenance_marker("x", "0" * 64), False
-            )
+            marker = Marker.placeholder(bytes(32), "x", "0" * 64)
+            poison_isolated("image", src, tmp_path / "out.png", default_spec(), marker, False)
         except BaseException as exc:  # noqa: BLE001 - the test inspects it
             errors.append(exc)
 

@@ -9,17 +9,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from reliability_harness import write_image
+from reliability_harness import sealed_patch, write_image
 
 from daemon.config import Config, DatasetOverride
 from daemon.paths import AppPaths
 from daemon.rebuild import RebuildRefused, rebuild_store
+from daemon.sealkey import load_key
 from daemon.states import FileState
 from daemon.store import Store, StoreError
 from daemon.vault import Vault
 from poisoner.atomic import atomic_output
-from poisoner.formats import poison_file
-from poisoner.provenance import Marker, read_marker
+from poisoner.provenance import read_seal
 from poisoner.spec import PatchSpec
 
 COMPARED = ("path", "dataset", "state", "original_sha256", "poisoned_sha256", "spec_id", "published_path")
@@ -57,7 +57,7 @@ def _patch(
     world.vault.keep_spec(spec)
     world.store.ensure_dataset(dataset, root, spec, publish)
     with atomic_output(path, mode_like=path) as tmp:
-        poison_file(path, tmp, spec, marker=Marker(spec.spec_id, sha, "ppd test"))
+        sealed_patch(path, tmp, spec, sha, world.paths.data_dir)
     final = path
     if publish is not None:
         final = publish / path.relative_to(root)
@@ -114,7 +114,8 @@ def _assert_every_original_restorable(world: World, store: Store, where: Path) -
         world.vault.restore(row["original_sha256"], back)
         assert back.read_bytes() == original, path
         patched = Path(row["published_path"] or row["path"])
-        assert _sha(patched) == row["poisoned_sha256"] and read_marker(patched) is not None
+        assert _sha(patched) == row["poisoned_sha256"]
+        assert read_seal(patched, load_key(world.paths.data_dir)) is not None
 
 
 def test_deleted_store_is_rebuilt_and_every_original_restorable(world: World, tmp_path: Path) -> None:
@@ -148,13 +149,13 @@ def test_symlinks_are_not_followed_and_orphans_are_counted(world: World, tmp_pat
     marked_outside = write_image(outside / "x.png", seed=9, size=96)
     sha = world.vault.keep(marked_outside)
     with atomic_output(marked_outside) as tmp:
-        poison_file(marked_outside, tmp, PatchSpec(), marker=Marker(PatchSpec().spec_id, sha, "ppd test"))
+        sealed_patch(marked_outside, tmp, PatchSpec(), sha, world.paths.data_dir)
     (world.paths.outbox / "shoot" / "link.png").symlink_to(marked_outside)
     (world.paths.outbox / "linked-folder").symlink_to(outside, target_is_directory=True)
     unknown = world.paths.outbox / "shoot" / "lost-original.jpg"
     write_image(unknown, seed=10, size=96)
     with atomic_output(unknown) as tmp:
-        poison_file(unknown, tmp, PatchSpec(), marker=Marker(PatchSpec().spec_id, "f" * 64, "ppd test"))
+        sealed_patch(unknown, tmp, PatchSpec(), "f" * 64, world.paths.data_dir)
     world.store.close()
     _delete_store(world.paths)
 

@@ -49,7 +49,7 @@ def test_lost_store_no_double_poisoning_and_restore_by_marker(ppd_env: dict[str,
         patched_bytes = {p: p.read_bytes() for p in photos}
         again = {p: protect_file(p, ctx) for p in photos}
         for p, o in again.items():
-            assert o.state == "unchanged" and "provenance marker" in o.reason, o
+            assert o.state == "unchanged" and "provenance seal" in o.reason, o
             assert p.read_bytes() == patched_bytes[p]  # not poisoned a second time
             assert ctx.store.file(p)["state"] == FileState.PATCHED  # the row came back
         for p in photos:

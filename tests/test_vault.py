@@ -8,6 +8,7 @@ import os
 import shutil
 import stat
 import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -16,6 +17,7 @@ from reliability_harness import MountUnavailable, fill, small_filesystem
 
 import daemon.vault
 from daemon.vault import (
+    RestoreRefused,
     Vault,
     VaultContentChanged,
     VaultError,
@@ -349,3 +351,65 @@ def test_reflink_where_the_filesystem_shares_extents(btrfs: Path) -> None:
         fh.write(b"EDIT")
     assert vault.path_for(sha).read_bytes() == data and vault.verify(sha)
     assert vault.path_for(sha).stat().st_ino != src.stat().st_ino
+
+
+def test_restore_replaces_only_what_it_may(vault: Vault, tmp_path: Path) -> None:
+    """Issue 29: the check runs just before the rename; bytes ppd did not write are never replaced
+    unless the caller says so (--force)."""
+    src = tmp_path / "a.bin"
+    src.write_bytes(b"original")
+    sha = vault.keep(src)
+    patched = hashlib.sha256(b"patched").hexdigest()
+    src.write_bytes(b"the user's edit")
+    with pytest.raises(RestoreRefused):
+        vault.restore(sha, src, replaces=patched)
+    with pytest.raises(RestoreRefused):
+        vault.restore(sha, src, replaces=None)
+    assert src.read_bytes() == b"the user's edit"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bin", "vault"]  # no temporary left
+    src.write_bytes(b"patched")
+    vault.restore(sha, src, replaces=patched)
+    assert src.read_bytes() == b"original"
+    src.write_bytes(b"anything")
+    vault.restore(sha, src)  # force
+    assert src.read_bytes() == b"original"
+    src.unlink()
+    vault.restore(sha, src, replaces=patched)  # nothing at the name: nothing overwritten
+    assert src.read_bytes() == b"original"
+
+
+def test_partial_copies_of_a_killed_keep_are_cleaned_and_counted(tmp_path: Path) -> None:
+    """Issue 29: a SIGKILLed keep left a `.keep-*` partial original that no start removed and
+    max_bytes did not count. Now: counted while there, removed at the next start unless a living
+    process holds it (a keep in progress), never touching kept originals."""
+    import time
+
+    folder = tmp_path / "vault"
+    vault = Vault(folder, max_bytes=3_000_000)
+    src = tmp_path / "a.bin"
+    src.write_bytes(b"x" * 1000)
+    sha = vault.keep(src)
+    stale = folder / f"{daemon.vault.VAULT_TMP_PREFIX}dead"
+    stale.write_bytes(b"p" * 2_300_000)  # what the killed keep had copied
+    live = folder / f"{daemon.vault.VAULT_TMP_PREFIX}live"
+    live.write_bytes(b"q" * 10)
+    old = time.time() - 3600
+    for p in (stale, live):
+        os.utime(p, (old, old))
+    assert vault.usage_bytes() == 1000 + 2_300_000 + 10
+    big = tmp_path / "big.bin"
+    big.write_bytes(b"y" * 1_000_000)
+    with pytest.raises(VaultFullError):  # the partial copy counts against max_bytes
+        vault.keep(big)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import fcntl, sys, time; f = open(sys.argv[1]); "
+         "fcntl.flock(f, fcntl.LOCK_EX); print('held', flush=True); time.sleep(30)", str(live)],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        assert daemon.vault.clear_stale_keeps(folder) == [stale]  # at start (Vault() runs it once)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert not stale.exists() and live.exists() and vault.verify(sha)

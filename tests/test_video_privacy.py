@@ -1,4 +1,4 @@
-"""poison_video: location tags left out by default (issue 15), the provenance marker (issue 20)."""
+"""poison_video: location tags left out by default (issue 15), the provenance seal (issues 20, 29)."""
 
 from __future__ import annotations
 
@@ -10,14 +10,15 @@ import numpy as np
 import pytest
 
 from bench.bench_video import mux_rgb_frames
-from poisoner.provenance import Marker, read_marker
+from poisoner.provenance import Marker, Seal, read_seal, seal_file
 from poisoner.spec import PatchSpec
 from poisoner.video import VideoOptions, poison_video
 
 SPEC = PatchSpec(patch_size=16, block_size=4, position="top-left", offset=(4, 4))
 FAST = VideoOptions(verify_patch=False, preset="ultrafast", threads=1)
 ISO6709 = "+48.8566+002.3522/"
-MARKER = Marker(spec_id="spec-7f3a", original_sha256="ab" * 32, tool="ppd 0.test")
+KEY = bytes(range(32))
+MARKER = Marker.placeholder(KEY, "spec-7f3a", "ab" * 32)
 
 
 def clip(path: Path, tags: dict[str, str], frames: int = 6) -> Path:
@@ -55,17 +56,27 @@ def test_video_location_tags_removed_title_kept(tmp_path: Path, suffix: str) -> 
 
 
 @pytest.mark.parametrize("suffix", [".mp4", ".mov", ".mkv", ".webm"])
-def test_video_marker_round_trip_and_deterministic(tmp_path: Path, suffix: str) -> None:
+def test_video_seal_round_trip_and_deterministic(tmp_path: Path, suffix: str) -> None:
     src = clip(tmp_path / f"a{suffix}", {"title": "t"})
-    assert read_marker(src) is None
-    poison_video(src, tmp_path / f"o1{suffix}", SPEC, options=FAST, marker=MARKER)
-    poison_video(src, tmp_path / f"o2{suffix}", SPEC, options=FAST, marker=MARKER)
-    assert read_marker(tmp_path / f"o1{suffix}") == MARKER
+    assert read_seal(src, KEY) is None
+    for i in (1, 2):
+        poison_video(src, tmp_path / f"o{i}{suffix}", SPEC, options=FAST, marker=MARKER)
+        seal_file(tmp_path / f"o{i}{suffix}", KEY)
+    assert read_seal(tmp_path / f"o1{suffix}", KEY) == Seal("ab" * 32, "spec-7f3a")
+    assert read_seal(tmp_path / f"o1{suffix}", bytes(32)) is None  # another installation's key
+    data = (tmp_path / f"o1{suffix}").read_bytes()
+    assert b"ab" * 32 not in data and b"spec-7f3a" not in data and b"ppd" not in data.lower()
     digest = [hashlib.sha256((tmp_path / f"o{i}{suffix}").read_bytes()).hexdigest() for i in (1, 2)]
     assert digest[0] == digest[1]
     with av.open(str(tmp_path / f"o1{suffix}")) as c:  # still a valid video with every frame
         assert sum(1 for _ in c.decode(video=0)) == 6
-    # re-poisoning a marked file replaces the marker, never stacks a second one
-    other = Marker("spec-2", "cd" * 32, "ppd 0.test")
+    # re-poisoning a sealed file replaces the seal, never stacks a second one
+    other = Marker.placeholder(KEY, "spec-2", "cd" * 32)
     poison_video(tmp_path / f"o1{suffix}", tmp_path / f"o3{suffix}", SPEC, options=FAST, marker=other)
-    assert read_marker(tmp_path / f"o3{suffix}") == other
+    seal_file(tmp_path / f"o3{suffix}", KEY)
+    assert read_seal(tmp_path / f"o3{suffix}", KEY) == Seal("cd" * 32, "spec-2")
+    # one byte changed anywhere (here: the last frame's data) and it is no longer ppd's output
+    edited = bytearray((tmp_path / f"o1{suffix}").read_bytes())
+    edited[len(edited) // 2] ^= 1
+    (tmp_path / f"e{suffix}").write_bytes(bytes(edited))
+    assert read_seal(tmp_path / f"e{suffix}", KEY) is None

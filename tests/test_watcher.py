@@ -46,6 +46,7 @@ FAST = DaemonOptions(
     queue_size=16,  # small: the 200-file tests overflow into the pending set
     tmp_grace_s=1.0,
     verify=False,
+    incomplete_wait_s=2.0,  # an incomplete file is waited for this long (unchanged) before quarantine
 )
 
 

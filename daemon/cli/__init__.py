@@ -19,6 +19,7 @@ torch or pycolmap (tests/test_cli_startup.py checks it).
 | daemon.cli.experiment | `experiment` |
 | daemon.cli.report | `report` |
 | daemon.cli.store | `store check`, `store rebuild` |
+| daemon.cli.key | `key export`, `key import` (the seal key, daemon.sealkey) |
 
 Shared: daemon.cli.errors (one-line errors, exit codes), daemon.cli.output (consoles, logging),
 daemon.cli.options (shared option sets), daemon.cli.group (the top-level group).
@@ -73,7 +74,7 @@ COMMAND_MODULES = {
     "status": "daemon.cli.status", "dataset": "daemon.cli.dataset", "config": "daemon.cli.config",
     "watch": "daemon.cli.watch", "service": "daemon.cli.watch", "demo": "daemon.cli.demo",
     "verify": "daemon.cli.verify", "auto": "daemon.cli.auto", "experiment": "daemon.cli.experiment",
-    "report": "daemon.cli.report", "store": "daemon.cli.store",
+    "report": "daemon.cli.report", "store": "daemon.cli.store", "key": "daemon.cli.key",
 }  # fmt: skip
 
 

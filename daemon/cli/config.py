@@ -34,6 +34,7 @@ def config_path() -> None:
     typer.echo(f"data     {paths.data_dir}")
     typer.echo(f"store    {paths.db_path}")
     typer.echo(f"vault    {paths.vault_dir}")
+    typer.echo(f"key      {paths.data_dir / 'seal.key'}")
     typer.echo(f"outbox   {paths.outbox}")
     typer.echo(f"cache    {paths.cache_dir}")
 

@@ -114,10 +114,13 @@ def open_ctx() -> AppContext:
     from daemon.store import StoreError
 
     try:
-        return AppContext.open()
+        ctx = AppContext.open()
     except (ConfigError, StoreError) as exc:
         raise die(one_line(exc)) from None
     except OSError as exc:
         raise die(
             f"cannot set up ppd's folders: {os_error_text(exc, hint_out=False)}", EXIT_ENVIRONMENT
         ) from None
+    if ctx.store.lost_warning:  # every command says it until `ppd store rebuild`
+        warning(ctx.store.lost_warning)
+    return ctx

@@ -34,9 +34,9 @@ def restore(
     ctx = open_ctx()
     try:
         as_path = Path(os.path.abspath(Path(target).expanduser()))
-        if as_path.is_file() or ctx.store.file(as_path) is not None:
-            if ctx.store.file(as_path) is None:
-                raise die(f"{target}: not a file ppd patched (see `ppd status`)")
+        if ctx.store.file(as_path) is not None or (as_path.is_file() and not as_path.is_symlink()):
+            # a file: its row, or with no row (a lost store) its seal and the vault (restore_file says
+            # "not in the store and carries no ppd provenance marker" for a file ppd never patched)
             paths = [as_path]
         else:
             try:

@@ -51,6 +51,13 @@ def watch(
     verify: bool | None = typer.Option(
         None, "--verify/--no-verify", help="Schedule SfM verification (config: verification.enabled)."
     ),
+    incomplete_wait: float | None = typer.Option(
+        None,
+        "--incomplete-wait",
+        min=0.0,
+        help="Seconds an incomplete file must stay unchanged before it is quarantined (its writer may "
+        "append more); config: [daemon] incomplete_wait_seconds.",
+    ),
 ) -> None:
     """Watch the outbox and protect every photo or video that lands in it (foreground)."""
     from daemon.subject import SubjectMaskError, check_config_masks
@@ -62,7 +69,9 @@ def watch(
     except SubjectMaskError as exc:
         ctx.close()
         raise _fail(str(exc)) from None
-    options = DaemonOptions.from_config(ctx.config, workers=workers, settle_s=debounce, verify=verify)
+    options = DaemonOptions.from_config(
+        ctx.config, workers=workers, settle_s=debounce, verify=verify, incomplete_wait_s=incomplete_wait
+    )
     daemon = WatchDaemon(ctx, options)
     interrupts = 0
 

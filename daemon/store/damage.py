@@ -43,7 +43,7 @@ def lost_message(db_path: Path, vault_dir: Path) -> str:
     return (
         f"the store {db_path} is new but the vault {vault_dir} already holds originals: "
         "the earlier store was lost; run `ppd store rebuild` to recover their rows from the vault "
-        "and the patched files' markers"
+        "and the patched files' seals"
     )
 
 

@@ -29,6 +29,15 @@ class EventRows(StoreBase):
         with self._write() as conn:
             insert_event(conn, dataset, str(path) if path is not None else None, kind, detail)
 
+    def last_event(self, path: Path | str, kind: str) -> dict[str, Any] | None:
+        """The newest event of this kind for path (detail parsed), or None."""
+        rows = self._rows(
+            "SELECT * FROM events WHERE path = ? AND kind = ? ORDER BY id DESC LIMIT 1", (str(path), kind)
+        )
+        for row in rows:
+            row["detail"] = json.loads(row["detail"]) if row["detail"] else {}
+        return rows[0] if rows else None
+
     def events(self, dataset: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
         """Newest first; detail parsed."""
         if dataset is None:

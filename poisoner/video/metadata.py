@@ -42,8 +42,8 @@ def copy_metadata(
             if removed is not None:
                 removed.append(f"tag {key}")
             continue
-        if key.upper() == provenance.MKV_TAG:
-            continue  # an older marker: the new one (if any) is written by add_marker_tag
+        if key.upper() in provenance.MKV_TAGS:
+            continue  # an older seal or marker: the new one (if any) is written by add_marker_tag
         try:
             dst_obj.metadata[key] = value  # type: ignore[attr-defined]
         except (ValueError, TypeError):
@@ -65,7 +65,7 @@ def is_location_stream(stream: av.stream.Stream) -> bool:
 def add_marker_tag(out: av.container.OutputContainer, muxer: str, marker: Marker | None) -> None:
     """Matroska/WebM: the marker as a container tag (written with the header)."""
     if marker is not None and muxer in MARKER_TAG_MUXERS:
-        out.metadata[provenance.MKV_TAG] = marker.to_json().decode()
+        out.metadata[provenance.MKV_TAG] = marker.text
 
 
 def append_marker_box(dst: Path, muxer: str, marker: Marker | None) -> None:

@@ -1,0 +1,105 @@
+"""The installation's seal key: the secret that makes ppd's provenance seal (poisoner.provenance)
+readable and makeable by this installation only.
+
+One file, `DATA_DIR/seal.key` (`ppd config path` prints the data folder): 64 hex digits and a
+newline, mode 0600, owned by the user. Created on first use, atomically: written and fsynced under
+a temporary name, then hard-linked into place (a link never replaces an existing file, so two
+processes starting at once end up with the same key, the first one's).
+
+Moving to a new machine: copy this file (keeping mode 0600) into the new data folder before ppd
+runs there, with the vault (`ppd key export FILE` / `ppd key import FILE` do the same and check
+it). Without it, files patched here are no longer recognised as ppd's output once the store is
+lost (they would be patched again); with a store, rows still recognise them by hash.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+import stat
+from pathlib import Path
+
+from daemon.paths import make_private_dir
+from poisoner.provenance import KEY_BYTES
+
+KEY_FILE = "seal.key"
+
+
+class SealKeyError(Exception):
+    """The key file exists but cannot be used (wrong mode, owner or content)."""
+
+
+def key_path(data_dir: Path) -> Path:
+    return Path(data_dir) / KEY_FILE
+
+
+def parse_key(text: bytes, where: Path) -> bytes:
+    """The key in a key file's content; SealKeyError with one line otherwise."""
+    value = text.strip()
+    try:
+        key = bytes.fromhex(value.decode("ascii"))
+    except (UnicodeDecodeError, ValueError):
+        key = b""
+    if len(key) != KEY_BYTES:
+        raise SealKeyError(f"{where} is not a ppd seal key ({2 * KEY_BYTES} hex digits expected)")
+    return key
+
+
+def read_key_file(path: Path) -> bytes:
+    """The key in path: a regular file (no symlink) owned by this user and readable by nobody else."""
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_uid != os.getuid():
+            raise SealKeyError(f"{path} is not a regular file owned by this user; not used as the seal key")
+        if st.st_mode & 0o077:
+            raise SealKeyError(
+                f"{path} is readable by others (mode {stat.S_IMODE(st.st_mode):o}); `chmod 600` it to use it"
+            )
+        return parse_key(os.read(fd, 4096), path)
+    finally:
+        os.close(fd)
+
+
+def load_key(data_dir: Path, *, create: bool = True) -> bytes | None:
+    """This installation's key, created on first use when create (else None when there is none)."""
+    path = key_path(data_dir)
+    with contextlib.suppress(FileNotFoundError):
+        return read_key_file(path)
+    if not create:
+        return None
+    install_key(data_dir, secrets.token_bytes(KEY_BYTES), replace=False)
+    return read_key_file(path)  # ours, or the one another process linked first
+
+
+def install_key(data_dir: Path, key: bytes, *, replace: bool) -> Path:
+    """Write key as the installation's key, atomically, mode 0600. Without replace an existing
+    key is kept (and returned as it is)."""
+    if len(key) != KEY_BYTES:
+        raise SealKeyError("a seal key is 32 bytes")
+    make_private_dir(Path(data_dir))
+    path = key_path(data_dir)
+    tmp = path.with_name(f".{KEY_FILE}.{os.getpid()}.{secrets.token_hex(4)}")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+    try:
+        os.fchmod(fd, 0o600)  # whatever the umask
+        os.write(fd, key.hex().encode() + b"\n")
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    try:
+        if replace:
+            os.replace(tmp, path)
+        else:
+            with contextlib.suppress(FileExistsError):
+                os.link(tmp, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+    dir_fd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+    return path

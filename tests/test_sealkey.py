@@ -1,0 +1,106 @@
+"""The installation's seal key (issue 29): created once, atomically, 0600 whatever the umask;
+refused when others can read it; moved to a new machine with `ppd key export/import`, after which
+that machine recognises the files sealed here."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import stat
+from pathlib import Path
+
+import pytest
+import typer
+from reliability_harness import write_image
+from typer.testing import CliRunner
+
+from daemon.cli.key import register
+from daemon.sealkey import SealKeyError, key_path, load_key
+from poisoner.formats import poison_file
+from poisoner.provenance import Marker, Seal, read_seal, seal_file
+from poisoner.spec import PatchSpec
+
+
+def _load(data_dir: str, out: multiprocessing.Queue) -> None:  # type: ignore[type-arg]
+    out.put(load_key(Path(data_dir)))
+
+
+def test_created_once_private_whatever_the_umask(tmp_path: Path) -> None:
+    old = os.umask(0)
+    try:
+        ctx = multiprocessing.get_context("fork")
+        out = ctx.Queue()
+        procs = [ctx.Process(target=_load, args=(str(tmp_path / "data"), out)) for _ in range(4)]
+        for p in procs:
+            p.start()
+        keys = {out.get(timeout=30) for _ in procs}
+        for p in procs:
+            p.join()
+    finally:
+        os.umask(old)
+    assert len(keys) == 1 and len(next(iter(keys))) == 32  # four processes at once: one key
+    st = key_path(tmp_path / "data").stat()
+    assert stat.S_IMODE(st.st_mode) == 0o600
+    assert stat.S_IMODE((tmp_path / "data").stat().st_mode) == 0o700
+    assert load_key(tmp_path / "data") in keys
+    assert sorted(p.name for p in (tmp_path / "data").iterdir()) == ["seal.key"]  # no temporary left
+
+
+def test_missing_key_is_not_created_when_not_asked(tmp_path: Path) -> None:
+    assert load_key(tmp_path, create=False) is None and not key_path(tmp_path).exists()
+
+
+def test_readable_or_linked_key_is_refused(tmp_path: Path) -> None:
+    key = load_key(tmp_path / "data")
+    os.chmod(key_path(tmp_path / "data"), 0o644)
+    with pytest.raises(SealKeyError, match="readable by others"):
+        load_key(tmp_path / "data")
+    (tmp_path / "other").mkdir()
+    key_path(tmp_path / "other").symlink_to(key_path(tmp_path / "data"))
+    with pytest.raises(OSError):
+        load_key(tmp_path / "other")
+    key_path(tmp_path / "data").write_text("not a key\n")
+    os.chmod(key_path(tmp_path / "data"), 0o600)
+    with pytest.raises(SealKeyError, match="not a ppd seal key"):
+        load_key(tmp_path / "data")
+    assert key is not None
+
+
+@pytest.fixture
+def app() -> typer.Typer:
+    app = typer.Typer()
+    register(app)
+
+    @app.callback()
+    def _root() -> None:
+        pass
+
+    return app
+
+
+def test_export_import_moves_recognition_to_a_new_machine(
+    app: typer.Typer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    old_machine, new_machine = tmp_path / "old", tmp_path / "new"
+    src = write_image(tmp_path / "a.png", seed=1, size=96)
+    sealed = tmp_path / "sealed.png"
+    poison_file(src, sealed, PatchSpec(), marker=Marker.placeholder(load_key(old_machine), "s", "ab" * 32))  # type: ignore[arg-type]
+    seal_file(sealed, load_key(old_machine))  # type: ignore[arg-type]
+    runner = CliRunner()
+    monkeypatch.setenv("PPD_DATA_DIR", str(old_machine))
+    exported = runner.invoke(app, ["key", "export", str(tmp_path / "k")])
+    assert exported.exit_code == 0, exported.output
+    assert stat.S_IMODE((tmp_path / "k").stat().st_mode) == 0o600
+    again = runner.invoke(app, ["key", "export", str(tmp_path / "k")])
+    assert again.exit_code == 2 and "exists" in again.output
+    monkeypatch.setenv("PPD_DATA_DIR", str(new_machine))
+    assert read_seal(sealed, load_key(new_machine)) is None  # a fresh installation: not ours
+    refused = runner.invoke(app, ["key", "import", str(tmp_path / "k")])
+    assert refused.exit_code == 2 and "different key" in refused.output
+    imported = runner.invoke(app, ["key", "import", str(tmp_path / "k"), "--force"])
+    assert imported.exit_code == 0, imported.output
+    assert read_seal(sealed, load_key(new_machine)) == Seal("ab" * 32, "s")
+    assert stat.S_IMODE(key_path(new_machine).stat().st_mode) == 0o600
+    (tmp_path / "bad").write_text("x" * 64)
+    bad = runner.invoke(app, ["key", "import", str(tmp_path / "bad")])
+    assert bad.exit_code == 2 and "not a ppd seal key" in bad.output and len(bad.output.splitlines()) == 1
