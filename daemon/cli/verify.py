@@ -19,7 +19,7 @@ from verifier.verdict import Verdict
 if TYPE_CHECKING:
     from rich.console import Console
 
-PROFILE_CHOICES = ("default", "hardened", "published", "masked", "all")
+PROFILE_CHOICES = ("default", "hardened", "published", "global", "masked", "all")
 
 VERIFY_EXAMPLES = """\b
 Examples:
@@ -97,7 +97,8 @@ def verify(
     folder: Path | None = folder_option("Verify this folder (explicit form)."),
     profile: str = typer.Option(
         "all", "--profile", "-p",
-        help="Attacker profile: default, hardened, published, masked (corners masked out) or all.",
+        help="Attacker profile: default, hardened, published, global (COLMAP's global mapper), "
+        "masked (corners masked out) or all.",
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the verdict and every metric as JSON."),
     clean: Path | None = typer.Option(
@@ -122,7 +123,7 @@ def verify(
     """Run COLMAP (structure from motion) on the originals and on the patched set and say
     whether the patch protects: protected, weak, NOT protected, or could not be verified.
 
-    The verdict is the weakest of default, hardened and published. masked (an attacker who masks
+    The verdict is the weakest of default, hardened, published and global. masked (an attacker who masks
     the four corner regions) is run and reported on its own line: it defeats every corner
     (watermark-like) mark by construction; a roaming mark is meant to survive it."""
     from rich.console import Console
