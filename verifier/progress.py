@@ -173,6 +173,9 @@ class ProgressBoard:
         return next(p for p in self._state.profiles if p.profile == name)
 
     def start(self) -> None:
+        if self.path is not None:
+            with contextlib.suppress(OSError):
+                self.path.parent.mkdir(parents=True, exist_ok=True)
         self._publish()
         self._thread = threading.Thread(target=self._loop, name="ppd-verify-progress", daemon=True)
         self._thread.start()

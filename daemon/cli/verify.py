@@ -32,14 +32,21 @@ Examples:
 def _verify_folder(path: Path, clean: Path, out: Path | None, profiles: tuple[str, ...], options: Any,
                    console: Console) -> Any:  # fmt: skip
     """Any patched folder against its clean originals (nothing from the store)."""
+    import dataclasses
     import tempfile
 
+    from daemon.cli.verify_progress import progress_display
+    from daemon.paths import AppPaths
     from verifier.verification import VerificationInputError, verify_folders
 
     if not path.is_dir():
         raise VerificationInputError(f"{path} is not a folder (with --clean, give the patched folder)")
     out_dir = out or Path(tempfile.mkdtemp(prefix="ppd-verify-"))
-    with console.status("running COLMAP on clean and patched sets…"):
+    # issue 30: the clean reference of these originals is reused until they change (a few kept)
+    cache = AppPaths.from_env().cache_dir / "verify-clean"
+    options = dataclasses.replace(options, clean_cache_dir=cache, clean_cache_keep=3)
+    with progress_display(console, str(path)) as on_progress:
+        options = dataclasses.replace(options, on_progress=on_progress)
         return verify_folders(clean, path, out_dir, profiles, options)
 
 
@@ -68,7 +75,12 @@ def _verify_stored(target: str | None, dataset: str | None, folder: Path | None,
             raise VerificationInputError(
                 f"{chosen.folder} is not a folder ppd patched: give its clean originals with --clean DIR"
             )
-        with console.status(f"verifying dataset {chosen.dataset}…"):
+        import dataclasses
+
+        from daemon.cli.verify_progress import progress_display
+
+        with progress_display(console, chosen.dataset) as on_progress:
+            options = dataclasses.replace(options, on_progress=on_progress)
             return verify_dataset(ctx, chosen.dataset, profiles, options)
     finally:
         ctx.close()
