@@ -158,6 +158,7 @@ class SfmOk(msgspec.Struct, tag_field="outcome", tag="ok"):
     num_points3D: int = 0  # noqa: N815 - the JSON key verification reports use
     camera: CameraModel | None = None
     timings: dict[str, float] = {}
+    device: str = ""  # where SIFT ran: "cpu" or "cuda" ("": not recorded)
 
 
 class SfmFailed(msgspec.Struct, tag_field="outcome", tag="failed"):
@@ -252,6 +253,32 @@ def _tail(path: Path, n: int = 300) -> str:
 
 
 # ---- child side (imports pycolmap) ------------------------------------------------------------
+def cuda_device_count() -> int:
+    """CUDA devices the driver sees (0 without a driver or a device); asks libcuda directly, so
+    the answer needs neither torch nor a CUDA build of pycolmap."""
+    import ctypes
+
+    try:
+        cuda = ctypes.CDLL("libcuda.so.1")
+    except OSError:
+        return 0
+    count = ctypes.c_int(0)
+    if cuda.cuInit(0) != 0 or cuda.cuDeviceGetCount(ctypes.byref(count)) != 0:
+        return 0
+    return int(count.value)
+
+
+def sift_device() -> Any:
+    """Where SIFT extraction and matching run: the GPU when this pycolmap is a CUDA build (the
+    `[gpu]` extra, pycolmap-cuda12) and a CUDA device is present, else the CPU. PPD_SFM_DEVICE=cpu
+    forces the CPU (e.g. to compare verdicts on one machine)."""
+    import pycolmap
+
+    if os.environ.get("PPD_SFM_DEVICE", "auto") == "cpu" or not getattr(pycolmap, "has_cuda", False):
+        return pycolmap.Device.cpu
+    return pycolmap.Device.cuda if cuda_device_count() > 0 else pycolmap.Device.cpu
+
+
 def list_images(image_dir: Path) -> list[str]:
     return sorted(p.name for p in Path(image_dir).iterdir() if is_sfm_readable(p))
 
@@ -330,7 +357,7 @@ def extract_features(image_dir: Path, database: Path, settings: SfmSettings, mas
         camera_mode=mode,
         reader_options=reader,
         extraction_options=extraction,
-        device=pycolmap.Device.cpu,
+        device=sift_device(),
     )
 
 
@@ -344,10 +371,10 @@ def match_raw(database: Path, settings: SfmSettings) -> None:
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = settings.sequential_overlap
         pycolmap.match_sequential(
-            database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+            database, matching_options=matching, pairing_options=pairing, device=sift_device()
         )
     elif settings.matching == "exhaustive":
-        pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
+        pycolmap.match_exhaustive(database, matching_options=matching, device=sift_device())
     else:
         raise ValueError(f"unknown matching {settings.matching!r}")
 
@@ -385,6 +412,7 @@ def execute_job(job: SfmJob) -> SfmResult:
             largest = max(models.values(), key=lambda r: r.num_reg_images())
             largest.write(model_dir)
     result.timings = timings
+    result.device = sift_device().name
     return result
 
 
