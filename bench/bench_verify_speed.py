@@ -161,7 +161,8 @@ def write_page(rows: list[dict[str, Any]]) -> None:
         second = f"{s['wall_s']:.0f} s | {s['wall_s'] / b['wall_s']:.2f}x" if s else "- | -"
         lines.append(
             f"| {r['date']} | {r['label']} | {r['set']} | {b['wall_s']:.0f} s | {f['wall_s']:.0f} s | "
-            f"{f['wall_s'] / b['wall_s']:.2f}x | {second} | {f.get('verdict', f.get('error', '-'))} | {loads} |"
+            f"{f['wall_s'] / b['wall_s']:.2f}x | {second} | {f.get('verdict', f.get('error', '-'))} | "
+            f"{loads} |"
         )
     lines += ["", "## Per profile and stage (seconds, from each run's report.json)", ""]
     for r in rows:
