@@ -43,4 +43,3 @@ def running_verification(paths: AppPaths, dataset: str) -> dict[str, Any] | None
 
     state = read_progress(progress_path(paths, dataset))
     return None if state is None else state_to_json(state)
-
