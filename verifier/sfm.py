@@ -435,6 +435,7 @@ def verified_database(
     shutil.copyfile(cache_db, work_db)
     counts = verify_pairs(work_db, settings)
     if shared is not None:
+        shared.parent.mkdir(parents=True, exist_ok=True)
         with atomic_output(shared) as tmp:
             shutil.copyfile(work_db, tmp)
     return counts

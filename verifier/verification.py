@@ -555,8 +555,9 @@ def _run_both_sides(profile: str, run: _Run, settings: SfmSettings) -> tuple[dic
         clean_from = run.clean_cache / f"clean-{source}-{run.clean_key}-{ukey.hexdigest()[:10]}.db"
         poisoned_from = run.cache / f"poisoned-{source}-{ukey.hexdigest()[:10]}.db"
     clean = _run_side(
-        _Side(clean_images, clean_db, clean_model, settings, reuse_key, clean_from, run.clean_cache,
-              profile, "clean"),
+        # verified databases live for this run only: the clean results they lead to are what is kept
+        _Side(clean_images, clean_db, clean_model, settings, reuse_key, clean_from,
+              run.cache / "clean-verified", profile, "clean"),
         run.options, run.board,
     )  # fmt: skip
     if cached:  # the report's model folder holds a copy of the clean model
