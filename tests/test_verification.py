@@ -348,8 +348,13 @@ def test_verify_dataset_records_runs_and_keeps_models(
         model_dir = Path(rows[0]["model_dir"])
         assert (model_dir / "clean" / "images.bin").is_file()
         assert (model_dir / "poisoned" / "images.bin").is_file()
-        run_dirs = list((ctx.paths.runs_dir / "trip").iterdir())
+        run_dirs = [p for p in (ctx.paths.runs_dir / "trip").iterdir() if not p.name.startswith(".")]
         assert len(run_dirs) == 1 and not (run_dirs[0] / ".images").exists()  # staged images removed
+        # issue 30: the clean reference stays for the next verification (the originals' one key);
+        # the progress file went with the run
+        (cached,) = (ctx.paths.runs_dir / "trip" / ".clean-cache").iterdir()
+        assert (cached / "clean-models").is_dir()
+        assert not (ctx.paths.runs_dir / "trip" / ".verifying.json").exists()
         # Verifier II ran on the staged images before they were removed, and its costs are stored
         splat = rows[0]["metrics"]["splat"]
         assert splat["outcome"] == "ok", splat
