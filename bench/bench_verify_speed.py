@@ -142,6 +142,22 @@ def verify_command(
     return row
 
 
+NOTES = [
+    "Before (main at 9ea1f7c, four profiles, nothing shared but features between default and hardened,",
+    "no clean cache in folder mode): issue 30 measured 547 s for `ppd verify --profile all` vs 76 s for one",
+    "default COLMAP run on this machine idle, **7.2x**. The same lane was started again here (2026-11-26",
+    "05:54, load ~10: its default COLMAP run took 404 s) and stopped: at that load its verification would",
+    "have taken about 40 minutes, which this session's time could not hold next to the after lane. The",
+    "after lanes add the `global` profile (five profiles against four before).",
+    "",
+    "Creator scale (40 x 6000x4000): not run. The driver makes the sets (`--set lego-upscaled --width 6000`:",
+    "lego padded to 3:2 and upscaled, no detail beyond its 800 px; `--set synthetic --width 6000`:",
+    "verifier.synthetic's textured scene rendered at full size, whose 512 px noise textures also carry no",
+    "fine detail at that size); making 5 such images took 5 minutes here under load ~10, so 40 of them",
+    "plus the runs did not fit. Protection at 24 MP with real fine detail is still unmeasured.",
+]
+
+
 def write_page(rows: list[dict[str, Any]]) -> None:
     lines = [
         "# Verification speed: whole `ppd verify --profile all` vs one default COLMAP run",
@@ -164,7 +180,7 @@ def write_page(rows: list[dict[str, Any]]) -> None:
             f"{f['wall_s'] / b['wall_s']:.2f}x | {second} | {f.get('verdict', f.get('error', '-'))} | "
             f"{loads} |"
         )
-    lines += ["", "## Per profile and stage (seconds, from each run's report.json)", ""]
+    lines += ["", *NOTES, "", "## Per profile and stage (seconds, from each run's report.json)", ""]
     for r in rows:
         for lane in ("first", "second"):
             run = r.get(lane)
