@@ -124,3 +124,18 @@ def test_ppd_status_shows_a_running_verification_in_text_and_json(
     finally:
         board.close()
     assert "verifying" not in runner.invoke(app, ["status"]).stdout
+
+
+def test_the_terminal_board_has_a_line_per_profile() -> None:
+    from daemon.cli.verify_progress import board_text
+
+    state = BoardState("castle", os.getpid(), 1000.0, 1030.0, 40, [
+        ProfileProgress("default", side="clean", stage="features", done=20, total=40, unit="images",
+                        started_at=1000.0, stage_started_at=1010.0),
+        ProfileProgress("hardened"),
+    ])  # fmt: skip
+    assert board_text(state, now=1030.0).splitlines() == [
+        "verifying castle, 30 s",
+        "  default   clean features 20/40 images, 30 s, ~20 s left in this stage",
+        "  hardened  waiting",
+    ]
