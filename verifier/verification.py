@@ -284,24 +284,27 @@ class _Side:
     side: str = ""
 
 
-def _ensure_features(side: _Side, options: VerifyOptions, board: ProgressBoard | None) -> None:
+def _ensure_features(side: _Side, options: VerifyOptions, board: ProgressBoard | None) -> float:
     """Build side.cache_db once (its features_from first): a features-only child, under a lock so
-    the profiles sharing it wait for one build instead of each extracting. A failure here is left
-    to the profile's own run, which tries again and reports it."""
+    the profiles sharing it wait for one build instead of each extracting; the seconds this side
+    spent building (0 when another profile had built them). A failure here is left to the
+    profile's own run, which tries again and reports it."""
+    spent = 0.0
     if side.features_from is not None:
         unmasked = msgspec.structs.replace(side.settings, mask_corners=0.0)
-        _ensure_features(_Side(side.image_dir, side.features_from, side.model_dir, unmasked,
-                               profile=side.profile, side=side.side), options, board)  # fmt: skip
+        spent += _ensure_features(_Side(side.image_dir, side.features_from, side.model_dir, unmasked,
+                                        profile=side.profile, side=side.side), options, board)  # fmt: skip
     with _path_lock(side.cache_db):
         if side.cache_db.exists() or _cancelled(options):
-            return
+            return spent
         work = side.cache_db.parent / f"{side.cache_db.stem}-features"
         job = SfmJob(
             str(side.image_dir), str(side.cache_db), str(work), side.settings, stop_after="features",
             features_from=str(side.features_from) if side.features_from else "",
         )  # fmt: skip
         with board.side(side.profile, side.side, work / "sfm.log") if board else contextlib.nullcontext():
-            run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
+            built = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
+        return spent + float(built.get("elapsed_s") or 0.0)
 
 
 def _run_side(side: _Side, options: VerifyOptions, board: ProgressBoard | None = None) -> dict[str, Any]:
@@ -311,10 +314,10 @@ def _run_side(side: _Side, options: VerifyOptions, board: ProgressBoard | None =
     if stored is not None:
         log.info("reusing clean SfM result", extra={"model_dir": str(side.model_dir)})
         return stored
-    _ensure_features(side, options, board)
+    features_s = _ensure_features(side, options, board)
     settings = side.settings
     crashes: list[str] = []
-    elapsed = 0.0
+    elapsed = features_s  # the features this side built count towards its cost
     for attempt in range(1 + max(0, options.crash_retries)):
         run_settings = msgspec.structs.replace(settings, random_seed=settings.random_seed + attempt)
         result = _run_job(side, run_settings, options, board)
@@ -324,6 +327,8 @@ def _run_side(side: _Side, options: VerifyOptions, board: ProgressBoard | None =
             break
         crashes.append(str(result.get("signal")))
         log.warning("SfM crashed", extra={"image_dir": str(side.image_dir), "signal": result.get("signal")})
+    if features_s and isinstance(result.get("timings"), dict):  # built by the features-only child
+        result["timings"].setdefault("features_and_matches_s", features_s)
     result["crashes"] = crashes  # signals of crashed attempts (the last one too when all crashed)
     result["settings"] = msgspec.to_builtins(run_settings)
     result["random_seed"] = run_settings.random_seed  # the seed behind these figures (retries add 1)
