@@ -19,8 +19,8 @@ Every key is optional; what is missing comes from the embedded defaults below. L
     enabled = true
     every_new_files = 20        # verify a dataset after this many newly protected files
     period_hours = 24.0         # ... and at least this often while it keeps changing
-    profiles = ["default", "hardened", "published", "masked"]
-                                # the headline verdict counts default, hardened and published;
+    profiles = ["default", "hardened", "published", "global", "masked"]
+                                # the headline verdict counts default, hardened, published, global;
                                 # masked (the attacker masks the corner regions) is reported next
                                 # to them (verifier.verdict.HEADLINE_PROFILES)
     splat = false               # also train clean/poisoned Gaussian splats (~6 more minutes per 40 views)
@@ -160,7 +160,7 @@ class VerificationSchedule(Section, frozen=True):
     period_hours: float = 24.0
     # masked is run and reported; the headline verdict leaves it out (verifier.verdict.HEADLINE_PROFILES).
     # A config that lists its profiles keeps its list.
-    profiles: tuple[Profile, ...] = ("default", "hardened", "published", "masked")
+    profiles: tuple[Profile, ...] = ("default", "hardened", "published", "global", "masked")
     splat: bool = False  # scheduled runs include Verifier II's splat stage
     splat_budget_s: float = 150.0
     keep_runs: int = 5  # run folders kept per dataset (daemon.verify prunes the older ones)

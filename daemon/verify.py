@@ -108,6 +108,10 @@ def dataset_options(ctx: AppContext, dataset: str, options: VerifyOptions) -> Ve
     spec = ctx.store.dataset_spec(dataset)
     if options.corner_mark is None and spec is not None:
         changes["corner_mark"] = spec.corner_bound
+    if options.clean_cache_dir is None:  # issue 30: clean reference cached per dataset; progress file
+        from daemon.verify_state import dataset_run_options
+
+        changes.update(dataset_run_options(ctx.paths, dataset))
     return dataclasses.replace(options, **changes) if changes else options  # type: ignore[arg-type]
 
 

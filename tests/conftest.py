@@ -49,7 +49,8 @@ def pytest_configure(config: pytest.Config) -> None:
     # it) lands here, not in ~/.local/share/ppd, whose state would then decide the result.
     home = tempfile.mkdtemp(prefix="ppd-test-home-")
     config._ppd_test_home = home  # type: ignore[attr-defined]
-    for var, name in (("PPD_DATA_DIR", "data"), ("PPD_CONFIG_DIR", "config"), ("PPD_OUTBOX", "outbox")):
+    for var, name in (("PPD_DATA_DIR", "data"), ("PPD_CONFIG_DIR", "config"), ("PPD_OUTBOX", "outbox"),
+                      ("PPD_CACHE_DIR", "cache")):  # fmt: skip
         os.environ.setdefault(var, os.path.join(home, name))
 
 

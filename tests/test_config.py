@@ -166,6 +166,6 @@ def test_position_set_says_whether_the_user_chose_the_corner() -> None:
 
 
 def test_masked_is_verified_by_default_and_an_explicit_list_is_kept() -> None:
-    assert Config().verification.profiles == ("default", "hardened", "published", "masked")
+    assert Config().verification.profiles == ("default", "hardened", "published", "global", "masked")
     old = Config.from_toml('[verification]\nprofiles = ["default", "hardened", "published"]\n')
     assert old.verification.profiles == ("default", "hardened", "published")

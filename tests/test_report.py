@@ -283,9 +283,10 @@ def test_verification_report_shows_visibility_masked_row_and_what_fails(tmp_path
     assert any("measured on 2 of 4 images" in n for n in data.notes)
     table = next(t for t in data.tables if t.title.startswith("Metrics per profile"))
     rows = {r[0]: r for r in table.rows}
-    assert list(rows) == ["default", "hardened", "published", "masked"]
+    assert list(rows) == ["default", "hardened", "published", "global", "masked"]
     assert rows["masked"][1] == "not run" and rows["hardened"][1] == "not_protected"
-    assert data.holding == "The protection does NOT hold under: hardened (not run here: published, masked)"
+    not_run = "(not run here: published, global, masked)"
+    assert data.holding == f"The protection does NOT hold under: hardened {not_run}"
     page = rp.render_html(data)
     assert 'id="holding"' in page and "does NOT hold under: hardened" in page
     assert "area FLIP &gt; 0.5" in page

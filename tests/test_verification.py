@@ -95,6 +95,10 @@ def test_the_headline_counts_default_hardened_published_and_masked_has_its_own_l
     assert list(vd.headline(run)) == ["default", "hardened", "published"]  # masked left out, in order
     assert vd.headline_verdict(run) == vd.WEAK
     assert vd.headline_verdict({"default": "protected", "masked": "not_protected"}) == vd.PROTECTED
+    # issue 25/30: the global mapper is an attacker like the others: it counts
+    with_global = {**run, "hardened": "protected", "global": "not_protected"}
+    assert list(vd.headline(with_global)) == ["default", "hardened", "published", "global"]
+    assert vd.headline_verdict(with_global) == vd.NOT_PROTECTED
     assert vd.headline({"masked": "weak"}) == {"masked": "weak"}  # only masked run: it is the headline
     corner = vd.masked_line(run, corner_mark=True)
     assert corner == "NOT protected against an attacker who masks the corners (a corner mark cannot be)"
@@ -109,7 +113,7 @@ def test_the_headline_counts_default_hardened_published_and_masked_has_its_own_l
 
 # ---- inputs and helpers -------------------------------------------------------------------------
 def test_profiles_expand_and_reject_unknown() -> None:
-    assert expand_profiles("all") == ["default", "hardened", "published", "masked"]
+    assert expand_profiles("all") == ["default", "hardened", "published", "global", "masked"]
     assert expand_profiles(["hardened", "default", "hardened"]) == ["hardened", "default"]
     with pytest.raises(VerificationInputError, match="unknown profile"):
         expand_profiles(["fast"])
@@ -344,8 +348,13 @@ def test_verify_dataset_records_runs_and_keeps_models(
         model_dir = Path(rows[0]["model_dir"])
         assert (model_dir / "clean" / "images.bin").is_file()
         assert (model_dir / "poisoned" / "images.bin").is_file()
-        run_dirs = list((ctx.paths.runs_dir / "trip").iterdir())
+        run_dirs = [p for p in (ctx.paths.runs_dir / "trip").iterdir() if not p.name.startswith(".")]
         assert len(run_dirs) == 1 and not (run_dirs[0] / ".images").exists()  # staged images removed
+        # issue 30: the clean reference stays for the next verification (the originals' one key);
+        # the progress file went with the run
+        (cached,) = (ctx.paths.runs_dir / "trip" / ".clean-cache").iterdir()
+        assert (cached / "clean-models").is_dir()
+        assert not (ctx.paths.runs_dir / "trip" / ".verifying.json").exists()
         # Verifier II ran on the staged images before they were removed, and its costs are stored
         splat = rows[0]["metrics"]["splat"]
         assert splat["outcome"] == "ok", splat
@@ -411,14 +420,14 @@ def test_crashed_side_is_retried_with_another_seed(tmp_path: Path, monkeypatch: 
     real = vmod.run_sfm_job
     seeds: list[int] = []
 
-    def run_with_fake(job, timeout_s=None, cancel=None):  # same child protocol, other interpreter
+    def run_with_fake(job, timeout_s=None, cancel=None, exclusive=True):  # same protocol, other interpreter
         seeds.append(job.settings.random_seed)
-        return real(job, timeout_s=timeout_s, cancel=cancel, python=str(script))
+        return real(job, timeout_s=timeout_s, cancel=cancel, python=str(script), exclusive=exclusive)
 
     monkeypatch.setattr(vmod, "run_sfm_job", run_with_fake)
-    result = vmod._run_side(
-        tmp_path / "img", tmp_path / "c.db", tmp_path / "m", SfmSettings(), VerifyOptions()
-    )
+    side = vmod._Side(tmp_path / "img", tmp_path / "c.db", tmp_path / "m", SfmSettings())
+    (tmp_path / "c.db").write_bytes(b"")  # features already built: the mapping run is what crashes
+    result = vmod._run_side(side, VerifyOptions())
     assert result["outcome"] == "ok"
     assert result["crashes"] == ["SIGSEGV"]
     assert seeds == [0, 1]

@@ -18,7 +18,7 @@ import msgspec
 
 from poisoner.spec import PatchSpec
 
-Profile = Literal["default", "hardened", "published", "masked"]  # verifier.sfm.profile_sfm_settings
+Profile = Literal["default", "hardened", "published", "global", "masked"]  # verifier.sfm.profile_sfm_settings
 DISPLAY_WIDTH = 1920  # verifier.visibility.DISPLAY_WIDTH: a full-HD screen showing the photo full width
 
 

@@ -37,7 +37,7 @@ from verifier.verdict import MASKED_MEANING, Verdict, headline, headline_verdict
 log = logging.getLogger(__name__)
 
 # Every profile a verification can run: the report's table lists each, "not run" where absent.
-REPORT_PROFILES = ("default", "hardened", "published", "masked")
+REPORT_PROFILES = ("default", "hardened", "published", "global", "masked")
 
 # Banner colours: distinctive, saturated, one per verdict (the screenshot test looks for them).
 VERDICT_COLOURS: dict[str, str] = {
@@ -265,7 +265,7 @@ def _add_profile_content(
     data.reasons = {name: list(m.get("reasons") or []) for name, m in profiles.items()}
     data.holding = _holding_text(profiles, corner_mark)
     if "masked" in profiles:
-        data.notes.append(f"The verdict counts default, hardened and published; {MASKED_MEANING}.")
+        data.notes.append(f"The verdict counts default, hardened, published and global; {MASKED_MEANING}.")
     data.tables.append(profile_table(profiles))
     for name, m in profiles.items():
         fig = trajectory_figure(m.get("model_dir"), name)

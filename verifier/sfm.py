@@ -6,9 +6,14 @@ at low priority, sends the job (`SfmJob`) as JSON on stdin and reads the result 
 imported only by `execute_job`, which runs in the child. A child killed by a signal (pycolmap 4.2.1
 segfaults on some poisoned sets) becomes an outcome, never a crash of the caller.
 
-Features and raw matches are computed once per image set into a cache database; each profile
-copies it and runs only its own geometric verification and mapping (default and hardened differ
-there and nowhere else), which halves the work of verifying two profiles.
+Work shared across profiles (issue 30): features and raw matches are computed once per image set
+into a cache database (a features-only child, `SfmJob.stop_after="features"`); each profile copies
+it and runs only its own geometric verification and mapping (default and hardened differ there and
+nowhere else). Profiles whose two-view options are the same (default and global) also share the
+verified database (`SfmJob.verified_db`). The masked profile's features are the unmasked features
+filtered by position (`SfmJob.features_from`): COLMAP masks keypoints after extraction, so this
+equals its own extraction with the corner masks (measured: identical keypoints and descriptors on
+lego 40 and in tests/test_sfm_shared.py); only its matching runs again.
 """
 
 from __future__ import annotations
@@ -51,6 +56,13 @@ class SfmSettings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     # masked (issue 14): the attacker masks the four corner regions, each this fraction of the
     # width by this fraction of the height, so SIFT finds no features there. 0: no mask.
     mask_corners: float = 0.0
+    # "incremental" (convert.py) or "global": COLMAP 4's global mapper (GLOMAP merged into COLMAP)
+    mapper: str = "incremental"
+
+    def verification_key(self) -> str:
+        """Settings that decide the verified database (features, raw matches, two-view geometry):
+        profiles with the same key share one geometric verification (default and global)."""
+        return f"{self.feature_key()}-stationary{int(self.filter_stationary_matches)}-seed{self.random_seed}"
 
     def feature_key(self) -> str:
         """Settings that decide features + raw matches (the cache is valid across the rest)."""
@@ -71,10 +83,13 @@ def profile_sfm_settings(profile: str, base: SfmSettings) -> SfmSettings:
 
     default / published: base (published differs in its images, not its settings); hardened:
     COLMAP's defences against fixed marks; masked: the four corner regions (20% x 20%) masked
-    out of feature extraction, as an attacker who expects a corner watermark would.
+    out of feature extraction, as an attacker who expects a corner watermark would; global: the
+    default's features and verification, then COLMAP 4's global mapper.
     """
     if profile in ("default", "published"):
         return base
+    if profile == "global":
+        return msgspec.structs.replace(base, mapper="global")
     if profile == "hardened":
         return msgspec.structs.replace(base, filter_stationary_matches=True, ignore_watermarks=True)
     if profile == "masked":
@@ -114,6 +129,10 @@ class SfmJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     model_dir: str  # the largest model is written here (cameras.bin, images.bin, points3D.bin)
     settings: SfmSettings = msgspec.field(default_factory=SfmSettings)
     result_path: str = ""
+    # shared work (issue 30): "" = not shared
+    verified_db: str = ""  # the verified database: copied when it exists, else written after verification
+    features_from: str = ""  # masked: an unmasked cache_db of the same images, filtered by position
+    stop_after: str = ""  # "features": build cache_db (features + raw matches) and stop
 
 
 class CameraPose(msgspec.Struct, frozen=True):
@@ -140,6 +159,7 @@ class SfmOk(msgspec.Struct, tag_field="outcome", tag="ok"):
     num_points3D: int = 0  # noqa: N815 - the JSON key verification reports use
     camera: CameraModel | None = None
     timings: dict[str, float] = {}
+    device: str = ""  # where SIFT ran: "cpu" or "cuda" ("": not recorded)
 
 
 class SfmFailed(msgspec.Struct, tag_field="outcome", tag="failed"):
@@ -167,12 +187,16 @@ def run_sfm_job(
     timeout_s: float | None = None,
     cancel: threading.Event | None = None,
     python: str | None = None,
+    exclusive: bool = True,
 ) -> dict[str, Any]:
     """Run one SfM job in a child process; always returns a result dict with an `outcome`:
 
     `ok` | `failed` (the child reported an error) | `sfm_crashed` (killed by a signal) |
-    `timeout` | `cancelled`.
+    `timeout` | `cancelled`. exclusive: one job at a time in this process (a verification that
+    runs its profiles in parallel bounds its own children instead).
     """
+    if not exclusive:
+        return _run_locked(job, timeout_s, cancel, python)
     with _RUN_LOCK:
         return _run_locked(job, timeout_s, cancel, python)
 
@@ -228,22 +252,87 @@ def _tail(path: Path, n: int = 300) -> str:
 
 
 # ---- child side (imports pycolmap) ------------------------------------------------------------
+def cuda_device_count() -> int:
+    """CUDA devices the driver sees (0 without a driver or a device); asks libcuda directly, so
+    the answer needs neither torch nor a CUDA build of pycolmap."""
+    import ctypes
+
+    try:
+        cuda = ctypes.CDLL("libcuda.so.1")
+    except OSError:
+        return 0
+    count = ctypes.c_int(0)
+    if cuda.cuInit(0) != 0 or cuda.cuDeviceGetCount(ctypes.byref(count)) != 0:
+        return 0
+    return int(count.value)
+
+
+def sift_device() -> Any:
+    """Where SIFT extraction and matching run: the GPU when this pycolmap is a CUDA build (the
+    `[gpu]` extra, pycolmap-cuda12) and a CUDA device is present, else the CPU. PPD_SFM_DEVICE=cpu
+    forces the CPU (e.g. to compare verdicts on one machine)."""
+    import pycolmap
+
+    if os.environ.get("PPD_SFM_DEVICE", "auto") == "cpu" or not getattr(pycolmap, "has_cuda", False):
+        return pycolmap.Device.cpu
+    return pycolmap.Device.cuda if cuda_device_count() > 0 else pycolmap.Device.cpu
+
+
 def list_images(image_dir: Path) -> list[str]:
     return sorted(p.name for p in Path(image_dir).iterdir() if is_sfm_readable(p))
 
 
-def build_cache_db(image_dir: Path, cache_db: Path, settings: SfmSettings) -> None:
+def build_cache_db(
+    image_dir: Path, cache_db: Path, settings: SfmSettings, features_from: Path | None = None
+) -> None:
     """Extract SIFT features and raw (unverified) matches into cache_db, atomically (a killed run
-    leaves no half-built cache under the real name)."""
+    leaves no half-built cache under the real name). With features_from (an unmasked cache of the
+    same images) and corner masks: its features filtered by position instead of an extraction."""
     from poisoner.atomic import atomic_output
 
     mask_dir = cache_db.with_name(f".ppd-tmp-masks-{cache_db.stem}")
     try:
         with atomic_output(cache_db) as tmp:
-            extract_features(image_dir, tmp, settings, mask_dir)
+            if features_from is not None and settings.mask_corners > 0 and features_from.exists():
+                filter_features(features_from, tmp, image_dir, settings.mask_corners)
+            else:
+                extract_features(image_dir, tmp, settings, mask_dir)
             match_raw(tmp, settings)
     finally:
         shutil.rmtree(mask_dir, ignore_errors=True)
+
+
+def filter_features(source_db: Path, database: Path, image_dir: Path, fraction: float) -> None:
+    """database = source_db's cameras, images and features, less the keypoints (and descriptors)
+    inside the corner masks, and no matches: what COLMAP's own masked extraction writes, since it
+    masks keypoints after extracting them (pixel (int x, int y) of the mask, as COLMAP reads it)."""
+    import pycolmap
+    from PIL import Image
+
+    shutil.copyfile(source_db, database)
+    with pycolmap.Database.open(database) as db:
+        db.clear_matches()
+        db.clear_two_view_geometries()
+        kept = {}
+        for image in db.read_all_images():
+            keypoints = db.read_keypoints(image.image_id)
+            descriptors = db.read_descriptors(image.image_id)
+            with Image.open(image_dir / image.name) as im:
+                width, height = im.size
+            mask = corner_mask(width, height, fraction)
+            xs, ys = keypoints[:, 0].astype(int), keypoints[:, 1].astype(int)
+            inside = (xs >= 0) & (xs < width) & (ys >= 0) & (ys < height)  # COLMAP drops the others
+            keep = inside.copy()
+            keep[inside] = mask[ys[inside], xs[inside]] > 0
+            kept[image.image_id] = (
+                keypoints[keep],
+                pycolmap.FeatureDescriptors(descriptors.type, descriptors.data[keep]),
+            )
+        db.clear_keypoints()
+        db.clear_descriptors()
+        for image_id, (keypoints, descriptors) in kept.items():
+            db.write_keypoints(image_id, keypoints)
+            db.write_descriptors(image_id, descriptors)
 
 
 def extract_features(image_dir: Path, database: Path, settings: SfmSettings, mask_dir: Path) -> None:
@@ -267,7 +356,7 @@ def extract_features(image_dir: Path, database: Path, settings: SfmSettings, mas
         camera_mode=mode,
         reader_options=reader,
         extraction_options=extraction,
-        device=pycolmap.Device.cpu,
+        device=sift_device(),
     )
 
 
@@ -281,10 +370,10 @@ def match_raw(database: Path, settings: SfmSettings) -> None:
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = settings.sequential_overlap
         pycolmap.match_sequential(
-            database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+            database, matching_options=matching, pairing_options=pairing, device=sift_device()
         )
     elif settings.matching == "exhaustive":
-        pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
+        pycolmap.match_exhaustive(database, matching_options=matching, device=sift_device())
     else:
         raise ValueError(f"unknown matching {settings.matching!r}")
 
@@ -303,16 +392,18 @@ def execute_job(job: SfmJob) -> SfmResult:
     t0 = time.time()
     if not cache_db.exists():
         cache_db.parent.mkdir(parents=True, exist_ok=True)
-        build_cache_db(image_dir, cache_db, settings)
+        features_from = Path(job.features_from) if job.features_from else None
+        build_cache_db(image_dir, cache_db, settings, features_from)
         timings["features_and_matches_s"] = time.time() - t0
+    if job.stop_after == "features":
+        return SfmOk(num_images=len(list_images(image_dir)), timings=timings)
     work_db = model_dir / "work.db"
-    shutil.copyfile(cache_db, work_db)
     t1 = time.time()
-    num_images, verified_pairs = verify_pairs(work_db, settings)
+    num_images, verified_pairs = verified_database(cache_db, work_db, settings, job.verified_db)
     timings["verification_s"] = time.time() - t1
     t2 = time.time()
     with tempfile.TemporaryDirectory(prefix=".ppd-tmp-map-", dir=model_dir) as tmp:
-        models = pycolmap.incremental_mapping(work_db, image_dir, tmp, options=mapper_options(settings))
+        models = run_mapper(work_db, image_dir, Path(tmp), settings)
         timings["mapping_s"] = time.time() - t2
         work_db.unlink()
         result = summarise_models(models, num_images, verified_pairs)
@@ -320,7 +411,60 @@ def execute_job(job: SfmJob) -> SfmResult:
             largest = max(models.values(), key=lambda r: r.num_reg_images())
             largest.write(model_dir)
     result.timings = timings
+    result.device = sift_device().name
     return result
+
+
+def verified_database(
+    cache_db: Path, work_db: Path, settings: SfmSettings, verified_db: str
+) -> tuple[int, int]:
+    """work_db = cache_db after this profile's geometric verification; (images, verified pairs).
+
+    With verified_db: copied from there when an earlier profile with the same two-view options
+    wrote it, else verified here and kept there (atomically) for the next one."""
+    import pycolmap
+
+    from poisoner.atomic import atomic_output
+
+    shared = Path(verified_db) if verified_db else None
+    if shared is not None and shared.exists():
+        shutil.copyfile(shared, work_db)
+        with pycolmap.Database.open(work_db) as db:
+            return db.num_images(), db.num_verified_image_pairs()
+    shutil.copyfile(cache_db, work_db)
+    counts = verify_pairs(work_db, settings)
+    if shared is not None:
+        shared.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_output(shared) as tmp:
+            shutil.copyfile(work_db, tmp)
+    return counts
+
+
+def run_mapper(work_db: Path, image_dir: Path, out: Path, settings: SfmSettings) -> dict[int, Any]:
+    """The settings' mapper: COLMAP's incremental mapper (convert.py) or its global mapper."""
+    import pycolmap
+
+    if settings.mapper == "global":
+        return pycolmap.global_mapping(work_db, image_dir, out, options=global_options(settings))
+    if settings.mapper != "incremental":
+        raise ValueError(f"unknown mapper {settings.mapper!r}")
+    return pycolmap.incremental_mapping(work_db, image_dir, out, options=mapper_options(settings))
+
+
+def global_options(settings: SfmSettings) -> Any:
+    """COLMAP 4's global mapper as documented (`colmap global_mapper`), with the run's seed; no
+    view-graph calibration (measured on clean lego 40: 40/40 registered without it, 33 with it)."""
+    import pycolmap
+
+    options = pycolmap.GlobalPipelineOptions()
+    options.random_seed = settings.random_seed
+    options.ignore_watermarks = settings.ignore_watermarks
+    if settings.camera_params:  # known intrinsics: kept fixed, as in the incremental mapper
+        ba = options.mapper.bundle_adjustment
+        ba.refine_focal_length = False
+        ba.refine_principal_point = False
+        ba.refine_extra_params = False
+    return options
 
 
 def verify_pairs(work_db: Path, settings: SfmSettings) -> tuple[int, int]:

@@ -165,7 +165,7 @@ _STRENGTH = {Verdict.NOT_PROTECTED: 0, Verdict.WEAK: 1, Verdict.PROTECTED: 2}
 # regions out of SfM) is run and reported next to them but not counted: it defeats every corner
 # (watermark-like) mark by construction, so counting it would make that whole kind of protection
 # "NOT protected" by definition; it is said on its own line instead (masked_line).
-HEADLINE_PROFILES = ("default", "hardened", "published")
+HEADLINE_PROFILES = ("default", "hardened", "published", "global")
 MASKED_PROFILE = "masked"
 MASKED_MEANING = (
     "masked = an attacker who masks the four corner regions (20% x 20%) out of SfM: it defeats any "

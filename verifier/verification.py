@@ -7,23 +7,35 @@ Profiles (what an attacker would run):
   `filter_stationary_matches=True` in verification and `ignore_watermarks=True` in the mapper.
 - `published`: both sets after a platform round trip (long edge <= 2048 px, JPEG quality 85),
   then the default pipeline.
+- `global`: the default's features and two-view geometry, then COLMAP 4's global mapper (GLOMAP
+  merged into COLMAP) instead of the incremental one.
 - `masked`: the attacker who has read about corner marks masks the four corner regions (20% x 20%)
   out of SfM. Reported next to the others, not counted in the headline verdict
   (verifier.verdict.HEADLINE_PROFILES): it defeats every corner mark by construction, which the
   report says on its own line (verifier.verdict.masked_line).
 
-The parent never imports pycolmap: SfM runs in child processes (verifier.sfm), one at a time.
+The parent never imports pycolmap: SfM runs in child processes (verifier.sfm). Work is shared
+across profiles (issue 30): one feature extraction and raw matching per image set (default,
+hardened, global; masked filters those features by position; published has its own pixels), one
+geometric verification for default and global, and the clean reference (features, models, results)
+cached per content of the originals (`clean_cache_dir`) until they change. Profiles run in parallel
+when `workers` > 1; every figure a verdict uses is what the profile run alone gives
+(tests/test_verify_shared.py).
 """
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import hashlib
 import json
 import logging
+import os
 import shutil
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,6 +45,7 @@ import msgspec
 from poisoner.atomic import atomic_write_bytes
 from verifier import poses as posemod
 from verifier.pairs import stage_pairs as stage_pairs  # re-exported: callers stage pairs, then verify
+from verifier.progress import BoardState, ProgressBoard
 from verifier.published import round_trip, unpublish_names
 from verifier.published import to_rgb as to_rgb  # re-exported for verifier.auto
 from verifier.sfm import SfmJob, SfmSettings, list_images, profile_sfm_settings, run_sfm_job
@@ -50,8 +63,11 @@ from verifier.visibility import VISIBILITY_SAMPLE, DatasetVisibility, measure_pa
 
 log = logging.getLogger(__name__)
 
-# masked: the attacker who has read about corner marks masks the four corner regions out of SfM.
-PROFILES = ("default", "hardened", "published", "masked")
+# masked: the attacker who has read about corner marks masks the four corner regions out of SfM;
+# global: COLMAP 4's global mapper on the default's matches.
+PROFILES = ("default", "hardened", "published", "global", "masked")
+# Profiles whose features are the originals' unmasked SIFT features (masked filters those).
+UNMASKED_FEATURE_PROFILES = ("default", "hardened", "global")
 # The splat stage's settings inside a verification: 200 px, at most 1500 iterations and 150 s of
 # training per side, so SfM + splat on 40 views stays near 10 minutes on 2 cores (bench_splat).
 SPLAT_DEFAULTS: dict[str, Any] = {"long_edge": 200, "iterations": 1500, "time_budget_s": 150.0}
@@ -73,6 +89,11 @@ class VerifyOptions:
     crash_retries: int = 1  # rerun a crashed SfM with another RANSAC seed, as an attacker would
     random_seed: int = 0  # COLMAP's RANSAC/mapper seed (an attacker reruns with others)
     clean_cache_dir: Path | None = None  # reuse clean features/results across verifications
+    clean_cache_keep: int = 0  # >0: keep this many originals' caches under clean_cache_dir (LRU)
+    workers: int = 0  # profiles run at once (0: one per 4 cores, at least 1)
+    progress_path: Path | None = None  # the progress file (verifier.progress), removed at the end
+    progress_label: str = ""  # what the progress says is being verified
+    on_progress: Callable[[BoardState], None] | None = None  # e.g. a terminal display
     keep_cache: bool = False  # keep feature databases and round-tripped images
     rule: VerdictRule = field(default_factory=VerdictRule)
     cancel: threading.Event | None = None
@@ -136,7 +157,7 @@ class VerificationReport(msgspec.Struct):
 
     @property
     def verdict(self) -> Verdict:
-        """The headline: the weakest of default, hardened and published (masked is reported apart)."""
+        """The headline: the weakest of default, hardened, published and global (masked apart)."""
         return headline_verdict(self.verdicts())
 
     def not_holding(self) -> list[str]:
@@ -188,12 +209,48 @@ def looks_like_video_frames(names: Sequence[str]) -> bool:
 
 
 # ---- one SfM side, with reuse ---------------------------------------------------------------------
-def _folder_key(image_dir: Path, names: Sequence[str]) -> str:
+def content_key(image_dir: Path, names: Sequence[str]) -> str:
+    """The originals' content key: their names and the SHA-256 of their bytes (a clean reference
+    cached under it is valid until an original changes, whatever its mtime or path)."""
     h = hashlib.sha256()
     for n in names:
-        st = (image_dir / n).stat()
-        h.update(f"{n}:{st.st_size}:{st.st_mtime_ns}\n".encode())
+        with open(image_dir / n, "rb") as fh:
+            digest = hashlib.file_digest(fh, "sha256").hexdigest()
+        h.update(f"{n}:{digest}\n".encode())
     return h.hexdigest()[:16]
+
+
+def default_workers() -> int:
+    """Profiles at once: one per 4 cores (each COLMAP child uses several), at least one."""
+    return max(1, (os.cpu_count() or 1) // 4)
+
+
+def clean_cache_for(root: Path, key: str, keep: int) -> Path:
+    """The clean cache of these originals under root (private: it holds their features and
+    round-tripped copies); with keep > 0, only the keep most recently used caches stay."""
+    root.mkdir(parents=True, exist_ok=True, mode=0o700)
+    here = root / key
+    here.mkdir(exist_ok=True, mode=0o700)
+    os.utime(here)  # most recently used
+    if keep > 0:
+        others = [p for p in root.iterdir() if p.is_dir() and p != here]
+        others.sort(key=lambda p: p.stat().st_mtime)
+        for stale in others[: max(0, len(others) - (keep - 1))]:
+            shutil.rmtree(stale, ignore_errors=True)
+    return here
+
+
+_PATH_LOCKS: dict[str, threading.Lock] = {}
+_PATH_LOCKS_GUARD = threading.Lock()
+
+
+@contextlib.contextmanager
+def _path_lock(path: Path) -> Iterator[None]:
+    """One thread at a time builds a shared file (features, a verified database); the others wait."""
+    with _PATH_LOCKS_GUARD:
+        lock = _PATH_LOCKS.setdefault(str(path), threading.Lock())
+    with lock:
+        yield
 
 
 def write_json(path: Path, data: Any) -> None:
@@ -212,39 +269,94 @@ def _stored_result(result_file: Path, reuse_key: str) -> dict[str, Any] | None:
     return None
 
 
-def _run_side(
-    image_dir: Path,
-    cache_db: Path,
-    model_dir: Path,
-    settings: SfmSettings,
-    options: VerifyOptions,
-    reuse_key: str | None = None,
-) -> dict[str, Any]:
+@dataclass(frozen=True)
+class _Side:
+    """One SfM side of one profile: its images, where its shared work lives, where it reports."""
+
+    image_dir: Path
+    cache_db: Path  # features + raw matches, shared by the profiles with the same feature key
+    model_dir: Path
+    settings: SfmSettings
+    reuse_key: str | None = None  # clean side: a stored result with this key is reused
+    features_from: Path | None = None  # masked: the unmasked cache_db whose features it filters
+    verified_dir: Path | None = None  # where verified databases are shared (by verification key)
+    profile: str = ""
+    side: str = ""
+
+
+def _ensure_features(side: _Side, options: VerifyOptions, board: ProgressBoard | None) -> float:
+    """Build side.cache_db once (its features_from first): a features-only child, under a lock so
+    the profiles sharing it wait for one build instead of each extracting; the seconds this side
+    spent building (0 when another profile had built them). A failure here is left to the
+    profile's own run, which tries again and reports it."""
+    spent = 0.0
+    if side.features_from is not None:
+        unmasked = msgspec.structs.replace(side.settings, mask_corners=0.0)
+        spent += _ensure_features(_Side(side.image_dir, side.features_from, side.model_dir, unmasked,
+                                        profile=side.profile, side=side.side), options, board)  # fmt: skip
+    with _path_lock(side.cache_db):
+        if side.cache_db.exists() or _cancelled(options):
+            return spent
+        work = side.cache_db.parent / f"{side.cache_db.stem}-features"
+        job = SfmJob(
+            str(side.image_dir), str(side.cache_db), str(work), side.settings, stop_after="features",
+            features_from=str(side.features_from) if side.features_from else "",
+        )  # fmt: skip
+        with board.side(side.profile, side.side, work / "sfm.log") if board else contextlib.nullcontext():
+            built = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
+        return spent + float(built.get("elapsed_s") or 0.0)
+
+
+def _run_side(side: _Side, options: VerifyOptions, board: ProgressBoard | None = None) -> dict[str, Any]:
     """One SfM run (child process). With reuse_key, a result stored next to the model is reused."""
-    result_file = model_dir / "result.json"
-    stored = _stored_result(result_file, reuse_key) if reuse_key else None
+    result_file = side.model_dir / "result.json"
+    stored = _stored_result(result_file, side.reuse_key) if side.reuse_key else None
     if stored is not None:
-        log.info("reusing clean SfM result", extra={"model_dir": str(model_dir)})
+        log.info("reusing clean SfM result", extra={"model_dir": str(side.model_dir)})
         return stored
+    features_s = _ensure_features(side, options, board)
+    settings = side.settings
     crashes: list[str] = []
-    elapsed = 0.0
+    elapsed = features_s  # the features this side built count towards its cost
     for attempt in range(1 + max(0, options.crash_retries)):
         run_settings = msgspec.structs.replace(settings, random_seed=settings.random_seed + attempt)
-        job = SfmJob(str(image_dir), str(cache_db), str(model_dir), run_settings)
-        result = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel)
+        result = _run_job(side, run_settings, options, board)
         elapsed += float(result.get("elapsed_s") or 0.0)
         result["elapsed_s"] = elapsed  # all attempts: what the verification cost
         if result.get("outcome") != "sfm_crashed":
             break
         crashes.append(str(result.get("signal")))
-        log.warning("SfM crashed", extra={"image_dir": str(image_dir), "signal": result.get("signal")})
+        log.warning("SfM crashed", extra={"image_dir": str(side.image_dir), "signal": result.get("signal")})
+    if features_s and isinstance(result.get("timings"), dict):  # built by the features-only child
+        result["timings"].setdefault("features_and_matches_s", features_s)
     result["crashes"] = crashes  # signals of crashed attempts (the last one too when all crashed)
     result["settings"] = msgspec.to_builtins(run_settings)
     result["random_seed"] = run_settings.random_seed  # the seed behind these figures (retries add 1)
-    if reuse_key:
-        result["reuse_key"] = reuse_key
+    if side.reuse_key:
+        result["reuse_key"] = side.reuse_key
     write_json(result_file, result)
     return result
+
+
+def _run_job(
+    side: _Side, settings: SfmSettings, options: VerifyOptions, board: ProgressBoard | None
+) -> dict[str, Any]:
+    """The side's SfM child with these settings; profiles with the same two-view options share one
+    geometric verification (the first writes the verified database under a lock, the others copy it)."""
+    verified = ""
+    if side.verified_dir is not None:
+        vkey = hashlib.sha256(settings.verification_key().encode()).hexdigest()[:10]
+        verified = str(side.verified_dir / f"{side.cache_db.stem}-verified-{vkey}.db")
+    job = SfmJob(
+        str(side.image_dir), str(side.cache_db), str(side.model_dir), settings, verified_db=verified,
+        features_from=str(side.features_from) if side.features_from else "",
+    )  # fmt: skip
+    watching = board.side(side.profile, side.side, side.model_dir / "sfm.log") if board else None
+    with watching or contextlib.nullcontext():
+        if verified and not Path(verified).exists():
+            with _path_lock(Path(verified)):  # whoever builds it first, the others wait and copy
+                return run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
+        return run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
 
 
 def _summary(result: dict[str, Any]) -> dict[str, Any]:
@@ -262,10 +374,12 @@ class _Run:
     out_dir: Path
     cache: Path  # this run's feature databases and round-tripped images (removed unless keep_cache)
     clean_cache: Path  # reused across verifications when options.clean_cache_dir is set
-    clean_key: str  # the clean folder's content key (names, sizes, mtimes)
+    clean_key: str  # the clean folder's content key (names, SHA-256 of each file)
     matching: str
     gt: dict[str, posemod.Pose] | None
     options: VerifyOptions
+    profiles: tuple[str, ...] = ()
+    board: ProgressBoard | None = None
 
 
 def verify_folders(
@@ -277,18 +391,27 @@ def verify_folders(
 ) -> VerificationReport:
     """SfM on clean and poisoned sets (same file names) per profile; models under out_dir/<profile>/.
 
-    Stages: inputs -> visibility (a few images) -> SfM per profile -> splat (optional) -> report."""
-    run = _prepare_run(Path(clean_dir), Path(poisoned_dir), Path(out_dir), options or VerifyOptions())
+    Stages: inputs -> visibility (a few images) -> SfM per profile (options.workers at once, shared
+    work) -> splat (optional) -> report."""
     profile_list = expand_profiles(profiles)
+    run = _prepare_run(Path(clean_dir), Path(poisoned_dir), Path(out_dir), options or VerifyOptions())
+    o = run.options
+    board = ProgressBoard(profile_list, len(run.names), o.progress_label or str(poisoned_dir),
+                          o.progress_path, o.on_progress)  # fmt: skip
+    run = dataclasses.replace(run, profiles=tuple(profile_list), board=board)
     reports: dict[str, ProfileReport] = {}
     with _VERIFY_LOCK:
+        board.start()
         try:
             visibility = measure_visibility(run.clean_dir, run.poisoned_dir, run.names, run.options)
-            for profile in profile_list:
-                reports[profile] = _verify_profile(profile, run)
+            workers = max(1, min(len(profile_list), o.workers or default_workers()))
+            with ThreadPoolExecutor(workers, thread_name_prefix="ppd-verify") as pool:
+                results = pool.map(lambda p: _verify_profile(p, run), profile_list)  # in the order asked
+                reports = dict(zip(profile_list, results, strict=True))
             if run.options.splat and not _cancelled(run.options):
                 _splat_stage(reports, run.clean_dir, run.poisoned_dir, run.options)
         finally:
+            board.close()
             if not run.options.keep_cache:
                 shutil.rmtree(run.cache, ignore_errors=True)
     corner = run.options.corner_mark
@@ -310,11 +433,13 @@ def _prepare_run(clean_dir: Path, poisoned_dir: Path, out_dir: Path, options: Ve
     gt = posemod.load_ground_truth(options.ground_truth) if options.ground_truth else None
     out_dir.mkdir(parents=True, exist_ok=True)
     cache = out_dir / ".cache"
-    clean_cache = Path(options.clean_cache_dir) if options.clean_cache_dir else cache
-    return _Run(
-        clean_dir, poisoned_dir, names, out_dir, cache, clean_cache, _folder_key(clean_dir, names),
-        matching, gt, options,
-    )  # fmt: skip
+    key = content_key(clean_dir, names)
+    clean_cache = (
+        clean_cache_for(Path(options.clean_cache_dir), key, options.clean_cache_keep)
+        if options.clean_cache_dir
+        else cache
+    )
+    return _Run(clean_dir, poisoned_dir, names, out_dir, cache, clean_cache, key, matching, gt, options)
 
 
 def _cancelled(options: VerifyOptions) -> bool:
@@ -427,13 +552,28 @@ def _run_both_sides(profile: str, run: _Run, settings: SfmSettings) -> tuple[dic
         else profile_dir / "clean"
     )
     clean_db = run.clean_cache / f"clean-{source}-{run.clean_key}-{skey}.db"
-    clean = _run_side(clean_images, clean_db, clean_model, settings, run.options, reuse_key=reuse_key)
+    poisoned_db = run.cache / f"poisoned-{source}-{skey}.db"
+    clean_from = poisoned_from = None
+    if settings.mask_corners > 0 and any(p in run.profiles for p in UNMASKED_FEATURE_PROFILES):
+        # the unmasked features this run extracts anyway, filtered by position (verifier.sfm)
+        ukey = hashlib.sha256(msgspec.structs.replace(settings, mask_corners=0.0).feature_key().encode())
+        clean_from = run.clean_cache / f"clean-{source}-{run.clean_key}-{ukey.hexdigest()[:10]}.db"
+        poisoned_from = run.cache / f"poisoned-{source}-{ukey.hexdigest()[:10]}.db"
+    clean = _run_side(
+        # verified databases live for this run only: the clean results they lead to are what is kept
+        _Side(clean_images, clean_db, clean_model, settings, reuse_key, clean_from,
+              run.cache / "clean-verified", profile, "clean"),
+        run.options, run.board,
+    )  # fmt: skip
     if cached:  # the report's model folder holds a copy of the clean model
         _copy_model(clean_model, profile_dir / "clean")
     poisoned: dict[str, Any] = {"outcome": "cancelled", "error": "cancelled"}
     if not _cancelled(run.options):
-        poisoned_db = run.cache / f"poisoned-{source}-{skey}.db"
-        poisoned = _run_side(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, run.options)
+        poisoned = _run_side(
+            _Side(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, None, poisoned_from,
+                  run.cache, profile, "poisoned"),
+            run.options, run.board,
+        )  # fmt: skip
     if source == "published":
         for side in (clean, poisoned):
             side["poses"] = unpublish_names(side.get("poses", {}), run.names)
@@ -482,6 +622,8 @@ def _verify_profile(profile: str, run: _Run) -> ProfileReport:
     )
     write_json(profile_dir / "report.json", report.to_dict())
     log.info("profile verified", extra={"profile": profile, "verdict": report.verdict})
+    if run.board is not None:
+        run.board.finish(profile, str(report.verdict))
     return report
 
 

@@ -159,6 +159,8 @@ def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any) -> Non
 
 
 def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -> None:
+    from daemon.cli.status_queries import print_running
+
     if not report:
         console().print(f"no datasets yet; outbox {ctx.paths.outbox}", markup=False)
         return
@@ -168,6 +170,7 @@ def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -
         for d in report:
             _print_details(d)
     _print_next_steps(report)
+    print_running(report)  # issue 30: a verification running now, and how far it has got
     _print_report_links(ctx, [d["name"] for d in report])
     _print_regressions(report)
 

@@ -109,6 +109,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     """Everything `ppd status NAME --json` says about one dataset."""
     from daemon.auto import status_text as auto_status_text  # light: no torch, no pycolmap
     from daemon.states import patched_count
+    from daemon.verify_state import running_verification  # light: msgspec and a small JSON file
 
     row = ctx.store.dataset(name)
     if row is None:
@@ -131,6 +132,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "protection": _protection(counts, verdicts, name),
         "last_verification": _last_verification(runs[0] if runs else None),
         "verdicts": verdicts,
+        "verifying": running_verification(ctx.paths, name),  # a verification running now (issue 30)
         "regression": None
         if regression is None
         else {
@@ -149,3 +151,13 @@ def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
         {"path": r["path"], "reason": file_reason(r["path"], r.get("error"))}
         for r in ctx.store.files(name, state=FileState.FAILED.value)
     ]
+
+
+def print_running(report: list[dict[str, Any]]) -> None:
+    """One line per dataset being verified now: `castle: verifying, 4 min, default 1/5: ...`."""
+    from daemon.cli.output import console
+
+    for d in report:
+        running = d.get("verifying")
+        if running:
+            console().print(f"{d['name']}: {running['line']}", markup=False, soft_wrap=False)

@@ -19,7 +19,7 @@ from verifier.verdict import Verdict
 if TYPE_CHECKING:
     from rich.console import Console
 
-PROFILE_CHOICES = ("default", "hardened", "published", "masked", "all")
+PROFILE_CHOICES = ("default", "hardened", "published", "global", "masked", "all")
 
 VERIFY_EXAMPLES = """\b
 Examples:
@@ -32,14 +32,21 @@ Examples:
 def _verify_folder(path: Path, clean: Path, out: Path | None, profiles: tuple[str, ...], options: Any,
                    console: Console) -> Any:  # fmt: skip
     """Any patched folder against its clean originals (nothing from the store)."""
+    import dataclasses
     import tempfile
 
+    from daemon.cli.verify_progress import progress_display
+    from daemon.paths import AppPaths
     from verifier.verification import VerificationInputError, verify_folders
 
     if not path.is_dir():
         raise VerificationInputError(f"{path} is not a folder (with --clean, give the patched folder)")
     out_dir = out or Path(tempfile.mkdtemp(prefix="ppd-verify-"))
-    with console.status("running COLMAP on clean and patched sets…"):
+    # issue 30: the clean reference of these originals is reused until they change (a few kept)
+    cache = AppPaths.from_env().cache_dir / "verify-clean"
+    options = dataclasses.replace(options, clean_cache_dir=cache, clean_cache_keep=3)
+    with progress_display(console, str(path)) as on_progress:
+        options = dataclasses.replace(options, on_progress=on_progress)
         return verify_folders(clean, path, out_dir, profiles, options)
 
 
@@ -65,7 +72,12 @@ def _verify_stored(target: str | None, dataset: str | None, folder: Path | None,
             raise VerificationInputError(
                 f"{chosen.folder} is not a folder ppd patched: give its clean originals with --clean DIR"
             )
-        with console.status(f"verifying dataset {chosen.dataset}…"):
+        import dataclasses
+
+        from daemon.cli.verify_progress import progress_display
+
+        with progress_display(console, chosen.dataset) as on_progress:
+            options = dataclasses.replace(options, on_progress=on_progress)
             return verify_dataset(ctx, chosen.dataset, profiles, options)
     finally:
         ctx.close()
@@ -94,7 +106,8 @@ def verify(
     folder: Path | None = folder_option("Verify this folder (explicit form)."),
     profile: str = typer.Option(
         "all", "--profile", "-p",
-        help="Attacker profile: default, hardened, published, masked (corners masked out) or all.",
+        help="Attacker profile: default, hardened, published, global (COLMAP's global mapper), "
+        "masked (corners masked out) or all.",
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the verdict and every metric as JSON."),
     clean: Path | None = typer.Option(
@@ -119,7 +132,7 @@ def verify(
     """Run COLMAP (structure from motion) on the originals and on the patched set and say
     whether the patch protects: protected, weak, NOT protected, or could not be verified.
 
-    The verdict is the weakest of default, hardened and published. masked (an attacker who masks
+    The verdict is the weakest of default, hardened, published and global. masked (an attacker who masks
     the four corner regions) is run and reported on its own line: it defeats every corner
     (watermark-like) mark by construction; a roaming mark is meant to survive it."""
     from rich.console import Console

@@ -1,0 +1,54 @@
+"""Issue 30: SIFT on a CUDA GPU when there is one (the `[gpu]` extra, pycolmap-cuda12 4.2.1), same
+verdicts as on the CPU. Machines without a CUDA device or without the CUDA build skip, saying which."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from verifier.sfm import cuda_device_count, sift_device
+
+
+def _has_cuda_build() -> bool:
+    import pycolmap
+
+    return bool(getattr(pycolmap, "has_cuda", False))
+
+
+def test_the_cpu_is_used_without_a_cuda_build_or_device_or_when_asked(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import pycolmap
+
+    monkeypatch.setenv("PPD_SFM_DEVICE", "cpu")
+    assert sift_device() == pycolmap.Device.cpu  # forced, whatever the machine has
+    monkeypatch.delenv("PPD_SFM_DEVICE")
+    expected = pycolmap.Device.cuda if _has_cuda_build() and cuda_device_count() > 0 else pycolmap.Device.cpu
+    assert sift_device() == expected
+
+
+GPU_REASON = (
+    "no CUDA GPU here: needs a CUDA device and pycolmap's CUDA build (pip install '.[gpu]'); "
+    f"this machine: {cuda_device_count()} CUDA device(s), CUDA build of pycolmap: {_has_cuda_build()}"
+)
+
+
+@pytest.mark.integration
+@pytest.mark.skipif(cuda_device_count() == 0 or not _has_cuda_build(), reason=GPU_REASON)
+def test_gpu_sift_gives_the_cpus_verdicts(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from tests.test_verify_shared import SHARING, SMALL, figures, poison_folder
+    from verifier.synthetic import render_scene
+    from verifier.verification import VerifyOptions, verify_folders
+
+    render_scene(tmp_path / "clean", SMALL)
+    poisoned = poison_folder(tmp_path / "clean", tmp_path / "poisoned")
+    options = VerifyOptions(timeout_s=300, camera_params=SMALL.camera_params(), visibility_images=0)
+    gpu = verify_folders(tmp_path / "clean", poisoned, tmp_path / "gpu", SHARING, options)
+    assert gpu.profiles["default"].poisoned["device"] == "cuda"
+    monkeypatch.setenv("PPD_SFM_DEVICE", "cpu")
+    cpu = verify_folders(tmp_path / "clean", poisoned, tmp_path / "cpu", SHARING, options)
+    assert cpu.profiles["default"].poisoned["device"] == "cpu"
+    assert {n: p["verdict"] for n, p in figures(gpu).items()} == {
+        n: p["verdict"] for n, p in figures(cpu).items()
+    }
