@@ -76,10 +76,20 @@ def die_with_parent(parent: int | None) -> None:
         os._exit(1)
 
 
+def ignore_interrupts() -> None:
+    """A terminal's Ctrl-C reaches every process of its group: a worker leaves it to its caller,
+    which stops handing out files and lets the one in progress finish (no traceback, nothing
+    half-written). SIGTERM stays: systemd ends a unit's processes with it."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def open_worker(paths: AppPaths, config: object, lock_wait_s: float, parent: int | None = None) -> None:
     """A worker's AppContext: the caller's paths and config, the worker's own store connection."""
     global _worker_ctx
     die_with_parent(parent)
+    ignore_interrupts()
     from daemon.context import AppContext
     from daemon.store import Store
     from daemon.vault import Vault
@@ -140,6 +150,7 @@ def protect_many(
     keep_location: bool | None = None,
     on_outcome: Callable[[ProtectOutcome], None] | None = None,
     subject_masks: Path | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> list[ProtectOutcome]:
     """protect_file for every (file, dataset, root, out_path) job on a bounded pool of worker
     processes; the outcomes in the order of jobs, the same bytes written as serial runs.
@@ -149,7 +160,9 @@ def protect_many(
     subject_masks: a folder of subject masks for every job (default: each dataset's config).
     on_outcome: called in this process as each file finishes (a progress bar). Files whose worker
     died are run once more, one at a time, in this process: their attempt marker makes the
-    poisoner run isolated in a child (a file that kills its process fails alone)."""
+    poisoner run isolated in a child (a file that kills its process fails alone).
+    stop: once it returns true (Ctrl-C, SIGTERM), no file starts any more and the files in
+    progress finish: the outcomes are those of the files that ran, so fewer than the jobs."""
     from poisoner.batch import bounded_map, pool_context
 
     def spec_for(dataset: str) -> PatchSpec | None:
@@ -163,27 +176,38 @@ def protect_many(
         for f, d, r, o in jobs
     ]  # fmt: skip
     n = max(1, min(ctx.config.workers if workers is None else workers, len(calls) or 1))
+    stopped = stop or (lambda: False)
+    if stopped():
+        return []
     if n == 1:
         outcomes = []
         for call in calls:
+            if stopped():
+                break
             outcomes.append(run_call(call, ctx))
             if on_outcome is not None:
                 on_outcome(outcomes[-1])
         return outcomes
     retry = object()  # stands for a call whose worker died: re-run below
-    results = bounded_map(
-        run_call, [(c,) for c in calls], n, lambda i: retry,  # type: ignore[arg-type,return-value]
-        on_done=(lambda _i, r: on_outcome(r) if on_outcome is not None and r is not retry else None),
+    results: dict[int, object] = {}
+
+    def done(i: int, result: object) -> None:
+        results[i] = result
+        if on_outcome is not None and result is not retry:
+            on_outcome(result)  # type: ignore[arg-type]
+
+    bounded_map(
+        run_call, [(c,) for c in calls], n, lambda i: retry, on_done=done,  # type: ignore[arg-type,return-value]
         mp_context=pool_context(("daemon.protect", "poisoner.formats")), initializer=open_worker,
-        initargs=_worker_args(ctx),
+        initargs=_worker_args(ctx), stop=stop,
     )  # fmt: skip
-    for i, result in enumerate(results):
-        if result is retry:
+    for i in sorted(results):
+        if results[i] is retry and not stopped():
             log.warning("%s: %s; trying it once more", calls[i].path.name, DIED)
             results[i] = run_call(calls[i], ctx)
             if on_outcome is not None:
-                on_outcome(results[i])
-    return results  # type: ignore[return-value]
+                on_outcome(results[i])  # type: ignore[arg-type]
+    return [results[i] for i in sorted(results) if results[i] is not retry]  # type: ignore[misc]
 
 
 # ---- the daemon's workers ---------------------------------------------------------------------------

@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # types only: importing this module stays light
     from poisoner.spec import PatchSpec
 
 MAX_DEFAULT_WORKERS = 8  # each worker holds one decoded file at a time
+STOP_POLL_S = 0.2  # how soon bounded_map notices its stop() turned true
 R = TypeVar("R")
 
 
@@ -101,11 +102,14 @@ def bounded_map(
     mp_context: multiprocessing.context.BaseContext | None = None,
     initializer: Callable[..., None] | None = None,
     initargs: tuple[Any, ...] = (),
+    stop: Callable[[], bool] | None = None,
 ) -> list[R]:
     """fn(*call) for every call in a pool of `workers` processes with at most 2 x workers calls in
     flight; the results in the order of calls. died(i) stands for the result of call i when its
     worker process died (a dead worker breaks the pool: every call not finished by then gets
-    died(i)). on_done(i, result) runs in this process as each call finishes (progress)."""
+    died(i)). on_done(i, result) runs in this process as each call finishes (progress).
+    stop(): checked as calls finish (and every STOP_POLL_S); once true, no call starts any more,
+    the queued ones are cancelled and those running finish: the results are those that ran."""
     results: list[R | None] = [None] * len(calls)
 
     def finish(i: int, result: R) -> None:
@@ -128,13 +132,21 @@ def bounded_map(
         while len(pending) < 2 * workers and submit_next():
             pass
         while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            done, _ = wait(pending, timeout=STOP_POLL_S if stop else None, return_when=FIRST_COMPLETED)
+            stopping = stop is not None and stop()
+            if stopping:  # the calls not started yet never run; the running ones finish
+                todo = iter(())
+                for fut in pending:
+                    fut.cancel()
             for fut in done:
                 i = pending.pop(fut)
+                if fut.cancelled():
+                    continue
                 try:
                     finish(i, fut.result())
                 except BrokenProcessPool:
-                    finish(i, died(i))
+                    if not stopping:  # stopping: a worker killed with its caller is not run again
+                        finish(i, died(i))
                 try:
                     submit_next()
                 except BrokenProcessPool:
