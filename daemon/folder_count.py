@@ -57,26 +57,38 @@ def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
     return sorted(found)
 
 
-def copies_folder(rows: Iterable[Mapping[str, Any]], folder: Path) -> Path | None:
-    """Where `ppd poison --out` put a dataset's copies: the deepest folder holding every row
-    outside the dataset's folder (OUT/DATASET for a folder given whole); None without such rows."""
-    outside = [str(Path(row["path"]).parent) for row in rows if not Path(row["path"]).is_relative_to(folder)]
-    return Path(os.path.commonpath(outside)) if outside else None
+Parts = tuple[str, ...]
+
+
+def _match_copies(outside: list[Path], rels: set[Parts]) -> tuple[set[Parts], Path | None]:
+    """The folder files that `--out` copies stand for (OUT/DATASET/a/b.jpg: a/b.jpg, the longest
+    tail of the copy's path that names a file of the folder), and the copies' folder (OUT/DATASET;
+    without a match, the deepest folder holding every copy)."""
+    covered: set[Parts] = set()
+    roots: list[str] = []
+    for path in outside:
+        parts = path.parts
+        tail = next((parts[-k:] for k in range(len(parts) - 1, 0, -1) if parts[-k:] in rels), None)
+        if tail is not None:
+            covered.add(tail)
+            roots.append(str(Path(*parts[: -len(tail)])))
+    if not roots:
+        roots = [str(p.parent) for p in outside]
+    return covered, (Path(os.path.commonpath(roots)) if roots else None)
 
 
 def count_folder(folder: Path, rows: Iterable[Mapping[str, Any]], skip: Iterable[Path] = ()) -> FolderCount:
     """The folder's media files and those of them no row mentions: by path, or for `--out` copies
     by their path below the copies' folder (OUT/DATASET/a/b.jpg stands for FOLDER/a/b.jpg)."""
     folder = Path(folder).absolute()
-    rows = list(rows)
-    copies = copies_folder(rows, folder)
+    paths = [Path(row["path"]) for row in rows]
+    outside = [p for p in paths if not p.is_relative_to(folder)]
+    files = folder_media(folder, skip) if folder.is_dir() else []
+    covered, copies = _match_copies(outside, {f.relative_to(folder).parts for f in files})
     if not folder.is_dir():
         return FolderCount(folder, exists=False, copies=copies)
-    files = folder_media(folder, skip)
-    paths = {str(row["path"]) for row in rows}
-    if copies is not None:  # a copy's path below its folder names the input it came from
-        paths |= {str(folder / Path(p).relative_to(copies)) for p in paths if Path(p).is_relative_to(copies)}
-    untracked = [f for f in files if str(f) not in paths]
+    inside = {str(p) for p in paths}
+    untracked = [f for f in files if str(f) not in inside and f.relative_to(folder).parts not in covered]
     return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies)
 
 
