@@ -25,7 +25,7 @@ from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import msgspec
 
@@ -38,6 +38,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+T = TypeVar("T")
 DIED = "worker process died"
 DEFAULT_IDLE_S = 30.0  # a daemon's workers exit after this long without a file
 
@@ -85,11 +86,44 @@ def ignore_interrupts() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def open_worker(paths: AppPaths, config: object, lock_wait_s: float, parent: int | None = None) -> None:
+class WorkerFormatter(logging.Formatter):
+    """A `ppd poison` worker's warnings in the CLI's one style: `ppd: warning: MESSAGE`."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return f"ppd: {record.levelname.lower()}: {record.getMessage()}"
+
+
+def caller_formatter() -> logging.Formatter:
+    """How this process's ppd handler writes records (the daemon's key=value formatter), for its
+    workers to write theirs alike; the CLI's one-line style otherwise."""
+    for handler in logging.getLogger().handlers:
+        if getattr(handler, "_ppd", False) and handler.formatter is not None:
+            return handler.formatter
+    return WorkerFormatter()
+
+
+def log_like_caller(formatter: logging.Formatter | None) -> None:
+    """A worker's warnings on stderr, written as its caller writes them (never the bare message
+    of logging's last-resort handler, which drops the file's name). Its per-file record is the
+    caller's to write: a worker says only what went wrong."""
+    if formatter is None:
+        return
+    handler = logging.StreamHandler()
+    handler.setFormatter(formatter)
+    root = logging.getLogger()
+    root.addHandler(handler)
+    root.setLevel(logging.WARNING)
+
+
+def open_worker(
+    paths: AppPaths, config: object, lock_wait_s: float, parent: int | None = None,
+    formatter: logging.Formatter | None = None,
+) -> None:  # fmt: skip
     """A worker's AppContext: the caller's paths and config, the worker's own store connection."""
     global _worker_ctx
     die_with_parent(parent)
     ignore_interrupts()
+    log_like_caller(formatter)
     from daemon.context import AppContext
     from daemon.store import Store
     from daemon.vault import Vault
@@ -135,7 +169,7 @@ def died_outcome(call: ProtectCall, detail: str = "") -> ProtectOutcome:
 
 
 def _worker_args(ctx: AppContext, parent: int | None = None) -> tuple[object, ...]:
-    return (ctx.paths, ctx.config, ctx.lock_wait_s, parent)
+    return (ctx.paths, ctx.config, ctx.lock_wait_s, parent, caller_formatter())
 
 
 # ---- a batch: ppd poison ----------------------------------------------------------------------------
@@ -229,15 +263,21 @@ class _Slot:
             )  # fmt: skip
         return self._pool
 
+    def _submit(self, fn: Callable[..., T], *args: object) -> Future[T]:
+        from poisoner.batch import interrupts_held
+
+        with interrupts_held():  # the worker process starts on a pool's first submit
+            return self._started().submit(fn, *args)
+
     def warm(self) -> Future[None]:
         """Start the worker and its imports now."""
         self.last_used = time.monotonic()
-        return self._started().submit(warm_up)
+        return self._submit(warm_up)
 
     def call(self, call: ProtectCall) -> ProtectOutcome:
         for attempt in (1, 2):
             try:
-                return self._started().submit(run_call_for_daemon, call).result()
+                return self._submit(run_call_for_daemon, call).result()
             except BrokenProcessPool:
                 self.close()
                 log.warning(
@@ -312,8 +352,8 @@ class ProtectWorkers:
             self._busy.release()
         with self._lock:
             waits = [self.idle_s - (now - s.last_used) for s in self._free if s.running]
-        if idle:
-            log.info("ended %d idle worker process(es)", len(idle))
+        if idle:  # quiet: the daemon's terminal says what it did to files, not to its workers
+            log.debug("ended %d idle worker process(es)", len(idle))
         return max(0.0, min(waits)) if waits else None
 
     def close(self) -> None:

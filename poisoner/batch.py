@@ -17,11 +17,13 @@ dies (a codec crash) fails only the files it had, which are reported, never rais
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
+import signal
 import sys
 import tempfile
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -92,6 +94,23 @@ def pool_context(preload: Sequence[str] = ("poisoner.formats",)) -> multiprocess
     return multiprocessing.get_context("spawn")
 
 
+@contextlib.contextmanager
+def interrupts_held() -> Iterator[None]:
+    """Worker processes started inside never see a terminal's Ctrl-C: SIGINT is blocked in this
+    thread while they start, and a child inherits the mask (a forkserver passes it on to the
+    workers it forks). A worker would otherwise die with a KeyboardInterrupt traceback when the
+    terminal's SIGINT reaches its whole process group; the caller decides when to stop. A SIGINT
+    for this process meanwhile is held, not lost: it arrives when the block ends."""
+    if not hasattr(signal, "pthread_sigmask"):  # not POSIX
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 def bounded_map(
     fn: Callable[..., R],
     calls: Sequence[tuple[Any, ...]],
@@ -129,8 +148,9 @@ def bounded_map(
             pending[pool.submit(fn, *calls[i])] = i
             return True
 
-        while len(pending) < 2 * workers and submit_next():
-            pass
+        with interrupts_held():  # the workers start on these first submits
+            while len(pending) < 2 * workers and submit_next():
+                pass
         while pending:
             done, _ = wait(pending, timeout=STOP_POLL_S if stop else None, return_when=FIRST_COMPLETED)
             stopping = stop is not None and stop()

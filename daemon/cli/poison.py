@@ -181,10 +181,10 @@ def poison(
     subject_masks: Path | None = subject_masks_option(),
     spec_options: SpecOptions = SpecOptions(),
 ) -> None:
-    ctx = open_ctx()
     # From here Ctrl-C / SIGTERM stop between files: the one in progress finishes, one line says
     # what is left and how to finish (a second signal stops at once).
     with StopOnSignal() as stop:
+        ctx = open_ctx()
         try:
             _poison(ctx, paths, dataset, out, subject_masks, spec_options, dry_run, force, workers, stop)
         finally:
