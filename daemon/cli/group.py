@@ -106,7 +106,8 @@ def _exit_code(exc: Exception) -> int:
     if isinstance(exc, ClickException):
         error(exc.format_message())
         return exc.exit_code
-    if isinstance(exc, typer.Abort):
+    if isinstance(exc, typer.Abort):  # click's word for a KeyboardInterrupt it caught
+        sys.stderr.write("ppd: interrupted\n")
         return EXIT_INTERRUPTED
     code = known_error(exc)
     if code is None:

@@ -130,13 +130,22 @@ def _print_details(d: dict[str, Any]) -> None:
         out.print("  verified: never", markup=False, soft_wrap=False)
 
 
+def failed_lines(d: dict[str, Any]) -> list[str]:
+    """`castle: 1 failed, 1 quarantined`, then one line per file: `PATH: reason` (mat2's habit),
+    a quarantined one marked so: the same counts as the table's."""
+    rows = d.get("failed_files") or []
+    c = d["counts"]
+    lines = [f"{d['name']}: {c.get('failed', 0)} failed, {c.get('quarantined', 0)} quarantined"]
+    for r in rows:
+        mark = " (quarantined: moved out of the outbox)" if r.get("state") == "quarantined" else ""
+        lines.append(f"  {r['path']}: {r['reason']}{mark}")
+    return lines
+
+
 def _print_failed(report: list[dict[str, Any]]) -> None:
-    """One line per failed file: `PATH: reason` (mat2's habit), grouped by dataset."""
     for d in report:
-        rows = d.get("failed_files") or []
-        console().print(f"{d['name']}: {len(rows)} failed", markup=False)
-        for r in rows:
-            console().print(f"  {r['path']}: {r['reason']}", markup=False)
+        for line in failed_lines(d):
+            console().print(line, markup=False)
 
 
 def _print_report_links(ctx: AppContext, names: list[str]) -> None:
@@ -160,8 +169,9 @@ def next_step_lines(d: dict[str, Any]) -> list[str]:
         lines.append(f"{name}: {resume}")
     elif d["protection"]["next"]:
         lines.append(f"{name}: {d['protection']['next']}")
-    if c.get("failed", 0):
-        lines.append(f"{name}: {c['failed']} failed: ppd status {name} --failed")
+    not_patched = [f"{c[k]} {k}" for k in ("failed", "quarantined") if c.get(k, 0)]
+    if not_patched:
+        lines.append(f"{name}: {', '.join(not_patched)}: ppd status {name} --failed")
     return lines
 
 

@@ -16,7 +16,6 @@ if TYPE_CHECKING:
     from poisoner.spec import PatchSpec
 
 
-
 def spec_summary(spec: PatchSpec) -> str:
     def length(v: int | float) -> str:
         return f"{v * 100:g}%" if isinstance(v, float) and v < 1 else f"{v:g}px"
@@ -170,10 +169,14 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
 
 
 def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
-    """Each failed file of a dataset with its one-line reason (the store row's error)."""
+    """Each file of a dataset that could not be patched, with its one-line reason (the store row's
+    error): failed ones (still in place) and quarantined ones (moved out of the outbox: where to)."""
     from daemon.states import FileState
 
-    return [
-        {"path": r["path"], "reason": file_reason(r["path"], r.get("error"))}
-        for r in ctx.store.files(name, state=FileState.FAILED.value)
-    ]
+    listed = []
+    for state in (FileState.FAILED, FileState.QUARANTINED):
+        for r in ctx.store.files(name, state=state.value):
+            listed.append(
+                {"path": r["path"], "state": state.value, "reason": file_reason(r["path"], r.get("error"))}
+            )
+    return listed
