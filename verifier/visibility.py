@@ -180,6 +180,38 @@ def display_region(picture: Any, display_width: int, region: Region) -> np.ndarr
     return np.asarray(part).astype(np.float32) / 255.0
 
 
+class _Cropped:
+    """Part of a picture that display_region reads as if it were the whole (its size, and a box
+    moved by the part's offset): what the resize filter needs around a region, not a copy of
+    all of it."""
+
+    def __init__(self, rgb: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> None:
+        from PIL import Image
+
+        self.size = (rgb.shape[1], rgb.shape[0])
+        self._offset = (x0, y0)
+        self._part = Image.fromarray(np.ascontiguousarray(rgb[y0:y1, x0:x1]))
+
+    def resize(self, size: tuple[int, int], resample: Any, box: tuple[float, ...]) -> Any:
+        ox, oy = self._offset
+        return self._part.resize(size, resample, box=(box[0] - ox, box[1] - oy, box[2] - ox, box[3] - oy))
+
+    def crop(self, region: Region) -> Any:
+        ox, oy = self._offset
+        return self._part.crop((region[0] - ox, region[1] - oy, region[2] - ox, region[3] - oy))
+
+
+def _around(rgb: np.ndarray, region: Region, scale: float) -> _Cropped:
+    """The full-resolution part of rgb that the display region (display px, `scale` display px
+    per source px) and its resize filter read: Lanczos reaches 3 source px per display px."""
+    h, w = rgb.shape[:2]
+    reach = int(np.ceil(3 / min(scale, 1.0))) + 2
+    x0, y0, x1, y1 = region
+    sx0, sy0 = max(0, int(x0 / scale) - reach), max(0, int(y0 / scale) - reach)
+    sx1, sy1 = min(w, int(np.ceil(x1 / scale)) + reach), min(h, int(np.ceil(y1 / scale)) + reach)
+    return _Cropped(rgb, sx0, sy0, sx1, sy1)
+
+
 def local_region(box: Region, width: int, shape: tuple[int, int], ppd: float) -> Region:
     """The display region FLIP must see around a change at `box` (full-resolution pixels of a
     picture `width` wide, shown at `shape`): FLIP_MARGIN_DEG degrees of view around it, plus the
@@ -267,7 +299,7 @@ def _quick_figures(
         region = local_region(box, w, shape, ppd)
         x0, y0, x1, y1 = region
         error = np.zeros(shape, dtype=np.float64)
-        changed = display_region(Image.fromarray(b), display_width, region)
+        changed = display_region(_around(b, region, shape[1] / w), display_width, region)
         error[y0:y1, x0:x1] = flip_map(display_region(original, display_width, region), changed, ppd)
         stats = _flip_stats(error)
     if not jpeg_reference:
@@ -276,7 +308,11 @@ def _quick_figures(
     if not tiles:  # too small to sample: the whole picture
         ref, jpeg = to_display(a, display_width), to_display(jpeg_reencode(a), display_width)
         return stats, _flip_stats(flip_map(ref, jpeg, ppd))[2]
-    reencoded = Image.fromarray(jpeg_reencode(a))
+    buf = io.BytesIO()  # jpeg_reencode's re-encode, kept as a picture (no 12 MP array round trip)
+    original.save(buf, "JPEG", quality=JPEG_REFERENCE_QUALITY)
+    buf.seek(0)
+    reencoded = Image.open(buf)
+    reencoded.load()
     pairs = [
         (display_region(original, display_width, t), display_region(reencoded, display_width, t))
         for t in tiles

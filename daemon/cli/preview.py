@@ -17,9 +17,10 @@ if TYPE_CHECKING:
     from poisoner.spec import PatchSpec
 
 
-# The JPEG q85 budget is estimated on this fraction of the picture (verifier.visibility.sampled_flip:
-# within a few percent of the whole picture's figure on our sets, at a fraction of its cost); the
-# mark's own figures are exact (evaluated around it). Verification measures the whole picture.
+# The JPEG q85 budget is estimated on this fraction of the picture (verifier.visibility
+# _quick_figures: tiles spread evenly; within a few percent of the whole picture's figure on photos,
+# lower on a mostly plain picture), the mark's own figures evaluated around it (the whole picture's
+# to rounding). Verification measures the whole picture.
 PREVIEW_JPEG_SAMPLE = 0.05
 
 
