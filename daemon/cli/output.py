@@ -65,16 +65,24 @@ class KeyValueFormatter(logging.Formatter):
     """`level=info logger=daemon.watcher msg="..." path=/x dataset=y`: one line per record, the
     record's `extra` fields as keys, for journald and grep. No time stamp: journald adds its own."""
 
-    def __init__(self, with_time: bool = False) -> None:
+    def __init__(self, with_time: bool = False, terminal: bool = False) -> None:
+        """terminal: for a person at 80 columns: the time of day first, the level only when it is
+        not info, no logger (the journal's lines keep all three)."""
         super().__init__()
         self.with_time = with_time
+        self.terminal = terminal
 
     def format(self, record: logging.LogRecord) -> str:
         parts = []
-        if self.with_time:
-            parts.append(f"ts={self.formatTime(record, '%Y-%m-%dT%H:%M:%S')}")
-        parts += [f"level={record.levelname.lower()}", f"logger={record.name}",
-                  f"msg={_field(record.getMessage())}"]  # fmt: skip
+        if self.terminal:
+            parts.append(f"ts={self.formatTime(record, '%H:%M:%S')}")
+            if record.levelno != logging.INFO:
+                parts.append(f"level={record.levelname.lower()}")
+        else:
+            if self.with_time:
+                parts.append(f"ts={self.formatTime(record, '%Y-%m-%dT%H:%M:%S')}")
+            parts += [f"level={record.levelname.lower()}", f"logger={record.name}"]
+        parts.append(f"msg={_field(record.getMessage())}")
         message = record.getMessage()
         for key, value in vars(record).items():
             if key in _RECORD_FIELDS or key.startswith("_") or value is None:
@@ -114,7 +122,8 @@ def daemon_handler() -> logging.Handler:
     """`ppd watch` (and its worker processes): key=value lines on stderr, on a terminal too (with a
     time stamp there; journald adds its own), one line per record."""
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(KeyValueFormatter(with_time=err_console().is_terminal))
+    on_terminal = err_console().is_terminal
+    handler.setFormatter(KeyValueFormatter(with_time=on_terminal, terminal=on_terminal))
     return handler
 
 

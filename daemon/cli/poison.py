@@ -91,7 +91,9 @@ def interrupted_summary(outcomes: list[ProtectOutcome], total: int, dry_run: boo
     import sys
 
     command = shlex.join(["ppd", *sys.argv[1:]])  # as typed: same folders, same --out and --dataset
-    console().print(interrupted_line(outcomes, total, dry_run, command), markup=False, soft_wrap=True)
+    out = console()  # word-wrapped on a terminal (never mid-word), one line into a pipe
+    line = interrupted_line(outcomes, total, dry_run, command)
+    out.print(line, markup=False, soft_wrap=not out.is_terminal)
     for o in outcomes:
         if o.state == "failed":
             err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
