@@ -71,8 +71,9 @@ def _reason(data: mmap.mmap, size: int) -> str | None:
         return _isobmff(data, size)
     if head[:4] == b"\x1a\x45\xdf\xa3":
         return _matroska(data, size)
-    if size < 32 and any(sig.startswith(bytes(head[: len(sig)])) for sig in _SIGNATURES):
-        # the first bytes of a known format: a writer has only just begun
+    begun = any(sig.startswith(bytes(head[: len(sig)])) for sig in _SIGNATURES)
+    begun = begun or (size < 8 and b"ftyp".startswith(bytes(head[4:])))  # ISO-BMFF: any 4 bytes, then ftyp
+    if size < 32 and begun:  # the first bytes of a known format: a writer has only just begun
         return f"too short ({size} bytes) to be a complete image or video"
     return None
 
