@@ -153,6 +153,8 @@ def render(rows: list[dict], full_s: float, source: str, seed: int) -> str:
     ]
     for r in rows:
         exit_text = f"{r['rc']}{'' if r['signalled'] else ' (done first)'}{'' if r['line'] else ', no line'}"
+        if r["signalled"] and r["rc"] == 0:  # the files were all done: the usual summary, no scene notes
+            exit_text = "0 (signal after the last file)"
         resume = "done" if r["resume_rc"] == 0 and r["resumed_all"] else "**failed**"
         cells = [r["moment_s"], r["workers"], exit_text, r["patched"], r["not_patched_yet"],
                  r["status_files"], r["on_disk"], r["changed"], "yes" if r["status_true"] else "**no**",
