@@ -25,7 +25,7 @@ from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import msgspec
 
@@ -38,6 +38,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+T = TypeVar("T")
 DIED = "worker process died"
 DEFAULT_IDLE_S = 30.0  # a daemon's workers exit after this long without a file
 
@@ -76,10 +77,53 @@ def die_with_parent(parent: int | None) -> None:
         os._exit(1)
 
 
-def open_worker(paths: AppPaths, config: object, lock_wait_s: float, parent: int | None = None) -> None:
+def ignore_interrupts() -> None:
+    """A terminal's Ctrl-C reaches every process of its group: a worker leaves it to its caller,
+    which stops handing out files and lets the one in progress finish (no traceback, nothing
+    half-written). SIGTERM stays: systemd ends a unit's processes with it."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+class WorkerFormatter(logging.Formatter):
+    """A `ppd poison` worker's warnings in the CLI's one style: `ppd: warning: MESSAGE`."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return f"ppd: {record.levelname.lower()}: {record.getMessage()}"
+
+
+def caller_formatter() -> logging.Formatter:
+    """How this process's ppd handler writes records (the daemon's key=value formatter), for its
+    workers to write theirs alike; the CLI's one-line style otherwise."""
+    for handler in logging.getLogger().handlers:
+        if getattr(handler, "_ppd", False) and handler.formatter is not None:
+            return handler.formatter
+    return WorkerFormatter()
+
+
+def log_like_caller(formatter: logging.Formatter | None) -> None:
+    """A worker's warnings on stderr, written as its caller writes them (never the bare message
+    of logging's last-resort handler, which drops the file's name). Its per-file record is the
+    caller's to write: a worker says only what went wrong."""
+    if formatter is None:
+        return
+    handler = logging.StreamHandler()
+    handler.setFormatter(formatter)
+    root = logging.getLogger()
+    root.addHandler(handler)
+    root.setLevel(logging.WARNING)
+
+
+def open_worker(
+    paths: AppPaths, config: object, lock_wait_s: float, parent: int | None = None,
+    formatter: logging.Formatter | None = None,
+) -> None:  # fmt: skip
     """A worker's AppContext: the caller's paths and config, the worker's own store connection."""
     global _worker_ctx
     die_with_parent(parent)
+    ignore_interrupts()
+    log_like_caller(formatter)
     from daemon.context import AppContext
     from daemon.store import Store
     from daemon.vault import Vault
@@ -125,7 +169,7 @@ def died_outcome(call: ProtectCall, detail: str = "") -> ProtectOutcome:
 
 
 def _worker_args(ctx: AppContext, parent: int | None = None) -> tuple[object, ...]:
-    return (ctx.paths, ctx.config, ctx.lock_wait_s, parent)
+    return (ctx.paths, ctx.config, ctx.lock_wait_s, parent, caller_formatter())
 
 
 # ---- a batch: ppd poison ----------------------------------------------------------------------------
@@ -140,6 +184,7 @@ def protect_many(
     keep_location: bool | None = None,
     on_outcome: Callable[[ProtectOutcome], None] | None = None,
     subject_masks: Path | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> list[ProtectOutcome]:
     """protect_file for every (file, dataset, root, out_path) job on a bounded pool of worker
     processes; the outcomes in the order of jobs, the same bytes written as serial runs.
@@ -149,7 +194,9 @@ def protect_many(
     subject_masks: a folder of subject masks for every job (default: each dataset's config).
     on_outcome: called in this process as each file finishes (a progress bar). Files whose worker
     died are run once more, one at a time, in this process: their attempt marker makes the
-    poisoner run isolated in a child (a file that kills its process fails alone)."""
+    poisoner run isolated in a child (a file that kills its process fails alone).
+    stop: once it returns true (Ctrl-C, SIGTERM), no file starts any more and the files in
+    progress finish: the outcomes are those of the files that ran, so fewer than the jobs."""
     from poisoner.batch import bounded_map, pool_context
 
     def spec_for(dataset: str) -> PatchSpec | None:
@@ -163,29 +210,40 @@ def protect_many(
         for f, d, r, o in jobs
     ]  # fmt: skip
     n = max(1, min(ctx.config.workers if workers is None else workers, len(calls) or 1))
+    stopped = stop or (lambda: False)
+    if stopped():
+        return []
     if n == 1:
         outcomes = []
         for call in calls:
+            if stopped():
+                break
             outcomes.append(run_call(call, ctx))
             if on_outcome is not None:
                 on_outcome(outcomes[-1])
         return outcomes
     retry = object()  # stands for a call whose worker died: re-run below
-    results = bounded_map(
-        run_call, [(c,) for c in calls], n, lambda i: retry,  # type: ignore[arg-type,return-value]
-        on_done=(lambda _i, r: on_outcome(r) if on_outcome is not None and r is not retry else None),
+    results: dict[int, object] = {}
+
+    def done(i: int, result: object) -> None:
+        results[i] = result
+        if on_outcome is not None and result is not retry:
+            on_outcome(result)  # type: ignore[arg-type]
+
+    bounded_map(
+        run_call, [(c,) for c in calls], n, lambda i: retry, on_done=done,  # type: ignore[arg-type,return-value]
         mp_context=pool_context(("daemon.protect", "poisoner.formats")), initializer=open_worker,
-        initargs=_worker_args(ctx),
+        initargs=_worker_args(ctx), stop=stop,
         # [limits] max_memory_mb: the files in flight never need more memory than that together
         weights=[peak_estimate(c.path) for c in calls], budget=ctx.config.max_memory_bytes,
     )  # fmt: skip
-    for i, result in enumerate(results):
-        if result is retry:
+    for i in sorted(results):
+        if results[i] is retry and not stopped():
             log.warning("%s: %s; trying it once more", calls[i].path.name, DIED)
             results[i] = run_call(calls[i], ctx)
             if on_outcome is not None:
-                on_outcome(results[i])
-    return results  # type: ignore[return-value]
+                on_outcome(results[i])  # type: ignore[arg-type]
+    return [results[i] for i in sorted(results) if results[i] is not retry]  # type: ignore[misc]
 
 
 # ---- the daemon's workers ---------------------------------------------------------------------------
@@ -254,15 +312,21 @@ class _Slot:
             )  # fmt: skip
         return self._pool
 
+    def _submit(self, fn: Callable[..., T], *args: object) -> Future[T]:
+        from poisoner.batch import interrupts_held
+
+        with interrupts_held():  # the worker process starts on a pool's first submit
+            return self._started().submit(fn, *args)
+
     def warm(self) -> Future[None]:
         """Start the worker and its imports now."""
         self.last_used = time.monotonic()
-        return self._started().submit(warm_up)
+        return self._submit(warm_up)
 
     def call(self, call: ProtectCall) -> ProtectOutcome:
         for attempt in (1, 2):
             try:
-                return self._started().submit(run_call_for_daemon, call).result()
+                return self._submit(run_call_for_daemon, call).result()
             except BrokenProcessPool:
                 self.close()
                 log.warning(
@@ -345,8 +409,8 @@ class ProtectWorkers:
             self._busy.release()
         with self._lock:
             waits = [self.idle_s - (now - s.last_used) for s in self._free if s.running]
-        if idle:
-            log.info("ended %d idle worker process(es)", len(idle))
+        if idle:  # quiet: the daemon's terminal says what it did to files, not to its workers
+            log.debug("ended %d idle worker process(es)", len(idle))
         return max(0.0, min(waits)) if waits else None
 
     def close(self) -> None:

@@ -90,7 +90,7 @@ def quarantine(ctx: AppContext, path: Path, dataset: str | None, reason: str) ->
         )  # fmt: skip
     except Exception as exc:
         log.error("quarantined %s but could not record it: %s", path.name, exc, extra={"path": str(path)})
-    log.warning(
+    log.debug(  # the daemon's line for the file says it (daemon.watcher.say_outcome)
         "quarantined %s: %s (moved to %s)", path.name, reason, target,
         extra={"path": str(path), "to": str(target), "reason": reason},
     )  # fmt: skip

@@ -356,10 +356,10 @@ class WatchDaemon:
                 extra={"path": str(crashed.path)},
             )  # fmt: skip
 
-    def _quarantine_if_hopeless(self, path: Path, outcome: Any) -> bool:
-        """A file that failed for a reason a retry will not change leaves the outbox."""
+    def _quarantine_if_hopeless(self, path: Path, outcome: Any) -> Path | None:
+        """A file that failed for a reason a retry will not change leaves the outbox: where it went."""
         if outcome.state != Outcome.FAILED or not outcome.hopeless:
-            return False  # a full disk or vault, a busy store, another ppd's lock: retried, not moved
+            return None  # a full disk or vault, a busy store, another ppd's lock: retried, not moved
         reason = outcome.reason or ""
         from daemon.quarantine import quarantine
 
@@ -367,11 +367,10 @@ class WatchDaemon:
             moved = quarantine(self.ctx, path, outcome.dataset, reason)
         except OSError as exc:
             log.error("cannot quarantine %s: %s", path, exc.strerror, extra={"path": str(path)})
-            return False
+            return None
         if moved is not None:
             self.watcher.forget(path)
-            self._count("quarantined")
-        return moved is not None
+        return moved
 
     def _known_rows(self) -> dict[str, dict[str, Any]]:
         store = self.ctx.store
@@ -400,6 +399,8 @@ class WatchDaemon:
         if self.watcher.is_settled(path):
             return
         judged = signature(path)
+        event = "changed" if self.ctx.store.file(path) is not None else "new"
+        started = time.monotonic()
         outcome = self._protect(path)
         if outcome.state == Outcome.FAILED and outcome.incomplete and self._wait_for_writer(path, judged):
             self._count("skipped")
@@ -414,16 +415,11 @@ class WatchDaemon:
             self.watcher.settle_as(path, outcome.signature)
         if outcome.requeue:
             self.pool.submit(path)  # runs once more after this job (daemon.workers)
-        self._count(outcome.state)
         self._note_no_space(path, outcome.reason if outcome.state == Outcome.FAILED else None)
-        if outcome.state == Outcome.FAILED:
-            log.warning(
-                "failed: %s: %s",
-                path,
-                outcome.reason,
-                extra={"path": str(path), "dataset": outcome.dataset, "reason": outcome.reason},
-            )
-            self._quarantine_if_hopeless(path, outcome)
+        moved = self._quarantine_if_hopeless(path, outcome)
+        state = Outcome.QUARANTINED.value if moved is not None else str(outcome.state)
+        self._count(state)  # one count per file: a quarantined file is not also "failed"
+        say_outcome(event, path, outcome, state, time.monotonic() - started, moved)
         if outcome.state == Outcome.PATCHED and self.scheduler is not None and outcome.dataset:
             try:
                 self.scheduler.on_protected(outcome.dataset)
@@ -493,7 +489,22 @@ class WatchDaemon:
                 detail={"previous_state": r["state"]},
             )
             self._count("removed")  # DaemonCounts.removed
-            log.info("removed: %s", r["path"], extra={"path": r["path"], "dataset": r["dataset"]})
+            extra = {"event": "removed", "dataset": r["dataset"], "file": r["path"], "outcome": "removed"}
+            log.info("removed %s", Path(r["path"]).name, extra=extra)
+
+
+def say_outcome(event: str, path: Path, outcome: Any, state: str, seconds: float, moved: Path | None) -> None:
+    """The daemon's one line per file, on the terminal and in the journal: `msg="patched IMG_1.jpg"
+    event=new dataset=kitchen file=/outbox/kitchen/IMG_1.jpg outcome=patched seconds=0.84`, plus
+    the reason when it was not patched and where a quarantined file went."""
+    failed = state in (Outcome.FAILED, Outcome.QUARANTINED)
+    extra: dict[str, Any] = {"event": event, "dataset": outcome.dataset, "file": str(path), "outcome": state,
+                             "seconds": round(seconds, 2)}  # fmt: skip
+    if outcome.reason and state != Outcome.PATCHED:
+        extra["reason"] = outcome.reason
+    if moved is not None:
+        extra["to"] = str(moved)
+    log.log(logging.WARNING if failed else logging.INFO, "%s %s", state, path.name, extra=extra)
 
 
 def release_free_memory() -> None:

@@ -17,11 +17,13 @@ dies (a codec crash) fails only the files it had, which are reported, never rais
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
+import signal
 import sys
 import tempfile
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -34,6 +36,7 @@ if TYPE_CHECKING:  # types only: importing this module stays light
     from poisoner.spec import PatchSpec
 
 MAX_DEFAULT_WORKERS = 8  # each worker holds one decoded file at a time
+STOP_POLL_S = 0.2  # how soon bounded_map notices its stop() turned true
 R = TypeVar("R")
 
 
@@ -91,6 +94,23 @@ def pool_context(preload: Sequence[str] = ("poisoner.formats",)) -> multiprocess
     return multiprocessing.get_context("spawn")
 
 
+@contextlib.contextmanager
+def interrupts_held() -> Iterator[None]:
+    """Worker processes started inside never see a terminal's Ctrl-C: SIGINT is blocked in this
+    thread while they start, and a child inherits the mask (a forkserver passes it on to the
+    workers it forks). A worker would otherwise die with a KeyboardInterrupt traceback when the
+    terminal's SIGINT reaches its whole process group; the caller decides when to stop. A SIGINT
+    for this process meanwhile is held, not lost: it arrives when the block ends."""
+    if not hasattr(signal, "pthread_sigmask"):  # not POSIX
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 def bounded_map(
     fn: Callable[..., R],
     calls: Sequence[tuple[Any, ...]],
@@ -103,13 +123,16 @@ def bounded_map(
     initargs: tuple[Any, ...] = (),
     weights: Sequence[int] | None = None,
     budget: int | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> list[R]:
     """fn(*call) for every call in a pool of `workers` processes with at most 2 x workers calls in
     flight; the results in the order of calls. died(i) stands for the result of call i when its
     worker process died (a dead worker breaks the pool: every call not finished by then gets
     died(i)). on_done(i, result) runs in this process as each call finishes (progress).
     weights/budget: the calls in flight never weigh more than budget together (bytes of memory,
-    say), except one call alone that weighs more."""
+    say), except one call alone that weighs more.
+    stop(): checked as calls finish (and every STOP_POLL_S); once true, no call starts any more,
+    the queued ones are cancelled and those running finish: the results are those that ran."""
     results: list[R | None] = [None] * len(calls)
     weight = list(weights) if weights is not None else [0] * len(calls)
     in_flight = [0]  # their total weight
@@ -135,17 +158,29 @@ def bounded_map(
             pending[pool.submit(fn, *calls[i])] = i
             return True
 
-        while submit_next():
-            pass
+        with interrupts_held():  # the workers start on these first submits
+            while submit_next():
+                pass
         while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            done, _ = wait(pending, timeout=STOP_POLL_S if stop else None, return_when=FIRST_COMPLETED)
+            stopping = stop is not None and stop()
+            if stopping:  # the calls not started yet never run; the running ones finish
+                nxt[0] = len(calls)
+                for fut in pending:
+                    fut.cancel()
             for fut in done:
                 i = pending.pop(fut)
                 in_flight[0] -= weight[i]
+                if fut.cancelled():
+                    continue
                 try:
                     finish(i, fut.result())
                 except BrokenProcessPool:
-                    finish(i, died(i))
+                    if not stopping:  # stopping: a worker killed with its caller is not run again
+                        finish(i, died(i))
+            if stopping:  # cancelled futures never complete: drop them, wait only for running ones
+                for fut in [f for f in pending if f.cancelled()]:
+                    in_flight[0] -= weight[pending.pop(fut)]
             try:
                 while submit_next():
                     pass

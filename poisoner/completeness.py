@@ -19,8 +19,9 @@ What "complete" means per format (docs/FORMATS.md, "Complete files"):
   live recorders write it until they finish) is complete only if every top-level element has a
   known size that fits and a Cues element is present. Limit: a live file whose writer already
   wrote Cues but keeps appending cannot be told apart.
-Other formats: None (not judged here; the decoder refuses what it cannot read), except files
-under 32 bytes, too short to recognise and so reported as incomplete.
+Other formats: None (not judged here; the decoder refuses what it cannot read: a text file named
+`.jpg` is "not an image"), except files under 32 bytes that begin like a judged format (a writer
+has only just begun), reported as incomplete.
 """
 
 from __future__ import annotations
@@ -65,6 +66,11 @@ def incomplete_reason(path: Path) -> str | None:
         return f"malformed structure ({exc})"
 
 
+# How each judged format begins (ISO-BMFF's `ftyp` sits at offset 4: any 4 bytes may come first).
+_SIGNATURES = (b"\xff\xd8", b"\x89PNG\r\n\x1a\n", b"RIFF", b"GIF87a", b"GIF89a", b"II*\x00", b"MM\x00*",
+               b"II+\x00", b"MM\x00+", b"\x1a\x45\xdf\xa3")  # fmt: skip
+
+
 def _reason(data: mmap.mmap, size: int) -> str | None:
     head = data[:16]
     if head.startswith(b"\xff\xd8"):
@@ -81,7 +87,9 @@ def _reason(data: mmap.mmap, size: int) -> str | None:
         return _isobmff(data, size)
     if head[:4] == b"\x1a\x45\xdf\xa3":
         return _matroska(data, size)
-    if size < 32:
+    begun = any(sig.startswith(bytes(head[: len(sig)])) for sig in _SIGNATURES)
+    begun = begun or (size < 8 and b"ftyp".startswith(bytes(head[4:])))  # ISO-BMFF: any 4 bytes, then ftyp
+    if size < 32 and begun:  # the first bytes of a known format: a writer has only just begun
         return f"too short ({size} bytes) to be a complete image or video"
     return None
 

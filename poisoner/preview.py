@@ -28,6 +28,8 @@ BACKGROUND = 32
 def to_rgb8(pixels: np.ndarray) -> np.ndarray:
     """Any H x W (x 1..4) uint8/uint16 picture as RGB uint8; alpha composited over white."""
     arr = np.asarray(pixels)
+    if arr.dtype == np.uint8 and arr.ndim == 3 and arr.shape[2] == 3:
+        return arr  # already RGB uint8: a 12 MP photo is not copied through float64 twice
     if arr.dtype == np.uint16:
         arr = (arr.astype(np.uint32) * 255 + 32767) // 65535
     elif arr.dtype != np.uint8:

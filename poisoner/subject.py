@@ -191,7 +191,8 @@ def _corner_from_detail(paths: Sequence[Path], region: float) -> CornerChoice:
         try:
             grad = detail_map(path)
         except ImageFormatError as exc:  # the pipeline reports the file; the others still count
-            log.warning("image unreadable for the corner", extra={"path": str(path), "reason": str(exc)})
+            log.warning("%s: unreadable, left out of the corner choice (%s)", Path(path).name, exc,
+                        extra={"path": str(path)})  # fmt: skip
             continue
         h, w = grad.shape
         for corner in CORNERS:

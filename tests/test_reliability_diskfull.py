@@ -89,7 +89,7 @@ def test_full_tmpfs_under_the_daemon_retries_when_space_returns(tmp_path: Path) 
             def all_tried() -> bool:  # one clear line per file (the store may be full as well)
                 log = daemon.log.read_text(errors="replace").splitlines()
                 said = [line for line in log if is_no_space(line)]
-                return all(any(f"failed: {p}: " in line for line in said) for p in targets[1:])
+                return all(any(f"file={p} outcome=failed" in line for line in said) for p in targets[1:])
 
             wait_for(all_tried, 30, "each file to fail for lack of space")
             store = Store(paths.db_path)

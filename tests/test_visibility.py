@@ -216,3 +216,41 @@ def test_a_smaller_subject_mask_is_read_at_the_image_size(tmp_path: Path) -> Non
     vis = measure_pairs(pairs, sample=2, subject_mask_dir=masks)
     assert vis is not None and vis.measured == 2 and not vis.skipped
     assert vis.worst.touches_subject is True
+
+
+# ---- the local evaluation and the quick answer (issue 28: `ppd preview` in seconds) ------------
+def big_photo(seed: int = 3) -> np.ndarray:
+    """A 960 x 720 photo-like picture: large enough that the mark is a small part of it."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:720, 0:960]
+    base = 120 + 60 * np.sin(xx / 37.0) * np.cos(yy / 23.0)
+    detail = np.kron(rng.normal(0, 14, (120, 160)), np.ones((6, 6)))
+    rgb = np.stack([base + detail, base * 0.9 + detail, base * 0.7 + 30 - detail], axis=2)
+    return np.clip(rgb, 0, 255).astype(np.uint8)
+
+
+def test_flip_around_a_local_mark_is_the_whole_pictures_flip() -> None:
+    from verifier.visibility import FLIP_DEFAULT_PPD, flip_map, local_flip_map, to_display
+
+    a = big_photo()
+    b = with_square(a, 30, 600, 64)  # a mark in one corner
+    ref, test = to_display(a, 640), to_display(b, 640)
+    whole = flip_map(ref, test)
+    local = local_flip_map(ref, test, (30, 600, 94, 664), 960, FLIP_DEFAULT_PPD)
+    assert whole.max() > 0.5 and np.array_equal(whole, local)  # the same map, bit for bit
+
+
+def test_the_quick_answer_gives_the_marks_figures_and_estimates_the_budget() -> None:
+    a = big_photo()
+    b = with_square(a, 860, 20, 64)
+    exact = visibility_report(a, b, display_width=640)
+    quick = visibility_report(a, b, display_width=640, jpeg_sample=0.1)
+    # the mark's own figures: the same up to the region resize's rounding
+    for field in ("flip_mean", "flip_p99", "flip_p999", "flip_max", "area_above_half"):
+        assert getattr(quick, field) == pytest.approx(getattr(exact, field), rel=0.02, abs=1e-4), field
+    assert quick.changed_area == exact.changed_area and quick.changed_box == exact.changed_box
+    assert exact.jpeg_p999 is not None and quick.jpeg_p999 is not None
+    assert quick.jpeg_p999 == pytest.approx(exact.jpeg_p999, rel=0.15)  # an estimate from a tenth
+    assert quick.p999_vs_jpeg > 1 and exact.p999_vs_jpeg > 1  # the square is far above the budget
+    untouched = visibility_report(a, a.copy(), display_width=640, jpeg_sample=0.1)
+    assert untouched.flip_max == 0.0 and untouched.changed_box is None

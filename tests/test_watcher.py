@@ -540,7 +540,8 @@ def test_bad_files_fail_cleanly_and_the_daemon_keeps_going(ppd_env: dict[str, Pa
         fake.write_text("this is not a PNG")
         empty = ds / "empty.jpg"
         empty.write_bytes(b"")
-        wait_for(lambda: daemon.counts.failed >= 2, 20, "two failures")
+        wait_for(lambda: daemon.counts.quarantined >= 2, 20, "two files quarantined")
+        assert daemon.counts.failed == 0  # one count per file: quarantined, not failed as well
         good = write_image(ds / "good.png", 1)
         readonly = write_image(ds / "readonly.png", 2)
         readonly.chmod(0o444)

@@ -34,6 +34,7 @@ DISPLAY_WIDTH = 1920
 FLIP_DEFAULT_PPD = 67.02064514160156  # flip-evaluator's default viewing condition
 JPEG_REFERENCE_QUALITY = 85
 VISIBLE_THRESHOLD = 0.5  # FLIP above this: a clearly visible difference at that pixel
+FLIP_MARGIN_DEG = 0.5  # around a local change, FLIP is evaluated this many degrees of view further
 
 
 class VisibilityError(ValueError):
@@ -150,6 +151,175 @@ def box_in_one_corner(box: tuple[int, int, int, int], width: int, height: int, r
     return horizontal and vertical
 
 
+Region = tuple[int, int, int, int]  # (x0, y0, x1, y1) in display pixels
+
+
+def display_shape(height: int, width: int, display_width: int) -> tuple[int, int]:
+    """(height, width) of a picture shown display_width wide (to_display's size)."""
+    return (
+        height if width == display_width else max(1, round(height * display_width / width)),
+        display_width,
+    )
+
+
+def display_region(picture: Any, display_width: int, region: Region) -> np.ndarray:
+    """to_display(rgb, display_width)[y0:y1, x0:x1] of a PIL picture, without resizing the rest
+    of it (Pillow's box: the filter still reads the pixels around the region); the same pixels to
+    one level of rounding in a few in ten thousand."""
+    from PIL import Image
+
+    x0, y0, x1, y1 = region
+    w, h = picture.size
+    if w == display_width:
+        return np.asarray(picture.crop(region)).astype(np.float32) / 255.0
+    dh, dw = display_shape(h, w, display_width)
+    sx, sy = w / dw, h / dh
+    part = picture.resize(
+        (x1 - x0, y1 - y0), Image.Resampling.LANCZOS, box=(x0 * sx, y0 * sy, x1 * sx, y1 * sy)
+    )
+    return np.asarray(part).astype(np.float32) / 255.0
+
+
+class _Cropped:
+    """Part of a picture that display_region reads as if it were the whole (its size, and a box
+    moved by the part's offset): what the resize filter needs around a region, not a copy of
+    all of it."""
+
+    def __init__(self, rgb: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> None:
+        from PIL import Image
+
+        self.size = (rgb.shape[1], rgb.shape[0])
+        self._offset = (x0, y0)
+        self._part = Image.fromarray(np.ascontiguousarray(rgb[y0:y1, x0:x1]))
+
+    def resize(self, size: tuple[int, int], resample: Any, box: tuple[float, ...]) -> Any:
+        ox, oy = self._offset
+        return self._part.resize(size, resample, box=(box[0] - ox, box[1] - oy, box[2] - ox, box[3] - oy))
+
+    def crop(self, region: Region) -> Any:
+        ox, oy = self._offset
+        return self._part.crop((region[0] - ox, region[1] - oy, region[2] - ox, region[3] - oy))
+
+
+def _around(rgb: np.ndarray, region: Region, scale: float) -> _Cropped:
+    """The full-resolution part of rgb that the display region (display px, `scale` display px
+    per source px) and its resize filter read: Lanczos reaches 3 source px per display px."""
+    h, w = rgb.shape[:2]
+    reach = int(np.ceil(3 / min(scale, 1.0))) + 2
+    x0, y0, x1, y1 = region
+    sx0, sy0 = max(0, int(x0 / scale) - reach), max(0, int(y0 / scale) - reach)
+    sx1, sy1 = min(w, int(np.ceil(x1 / scale)) + reach), min(h, int(np.ceil(y1 / scale)) + reach)
+    return _Cropped(rgb, sx0, sy0, sx1, sy1)
+
+
+def local_region(box: Region, width: int, shape: tuple[int, int], ppd: float) -> Region:
+    """The display region FLIP must see around a change at `box` (full-resolution pixels of a
+    picture `width` wide, shown at `shape`): FLIP_MARGIN_DEG degrees of view around it, plus the
+    resize's reach."""
+    h, w = shape
+    scale = w / width
+    margin = int(np.ceil(FLIP_MARGIN_DEG * ppd)) + int(np.ceil(4 / min(scale, 1.0)))
+    left, top, right, bottom = box
+    x0, y0 = max(0, int(left * scale) - margin), max(0, int(top * scale) - margin)
+    x1, y1 = min(w, int(np.ceil(right * scale)) + margin), min(h, int(np.ceil(bottom * scale)) + margin)
+    return x0, y0, x1, y1
+
+
+def local_flip_map(
+    ref: np.ndarray, test: np.ndarray, box: tuple[int, int, int, int], width: int, ppd: float
+) -> np.ndarray:
+    """flip_map of two display images that differ only near `box` (full-resolution pixels of an
+    image `width` wide): FLIP evaluated on local_region, zero elsewhere. The same map as the
+    whole-image evaluation (FLIP's filters reach well under a degree, and identical pixels beyond
+    them give exactly 0; tests/test_visibility.py checks it), at a fraction of the cost: a mark
+    in one corner is a few percent of a 12 MP photo (issue 28: `ppd preview` took 48 s)."""
+    h, w = ref.shape[:2]
+    x0, y0, x1, y1 = local_region(box, width, (h, w), ppd)
+    if (x1 - x0) * (y1 - y0) >= 0.5 * w * h:  # most of the picture: the whole is as cheap
+        return flip_map(ref, test, ppd)
+    error = np.zeros((h, w), dtype=np.float64)
+    error[y0:y1, x0:x1] = flip_map(ref[y0:y1, x0:x1], test[y0:y1, x0:x1], ppd)
+    return error
+
+
+SAMPLE_TILE = 128  # display px: the side of one sampled tile
+TILE_MARGIN = 32  # display px evaluated around a tile and dropped: FLIP's filters reach ~20 px at 67 ppd
+
+
+def tile_regions(shape: tuple[int, int], fraction: float) -> list[Region]:
+    """About `fraction` of a display picture as SAMPLE_TILE px tiles on an even grid (every k-th
+    in both directions, offset row by row; none within TILE_MARGIN of the border), each region
+    with its TILE_MARGIN of context."""
+    h, w = shape
+    side = SAMPLE_TILE + 2 * TILE_MARGIN
+    rows, cols = (h - 2 * TILE_MARGIN) // SAMPLE_TILE, (w - 2 * TILE_MARGIN) // SAMPLE_TILE
+    stride = max(1, round((1.0 / max(fraction, 1e-3)) ** 0.5))
+    return [
+        (c * SAMPLE_TILE, r * SAMPLE_TILE, c * SAMPLE_TILE + side, r * SAMPLE_TILE + side)
+        for r in range(0, rows, stride)
+        for c in range((r // stride) % stride, cols, stride)
+    ]
+
+
+def mosaic_flip(pairs: Sequence[tuple[np.ndarray, np.ndarray]], ppd: float) -> np.ndarray:
+    """FLIP of many (reference, test) tiles, each with TILE_MARGIN px of context, laid side by side
+    into one mosaic evaluated at once (each FLIP call has a fixed cost); the values of the tiles
+    without their context, so each is the whole picture's evaluation's."""
+    side = SAMPLE_TILE + 2 * TILE_MARGIN
+    per_row = int(np.ceil(np.sqrt(len(pairs))))
+    shape = (-(-len(pairs) // per_row) * side, per_row * side, 3)
+    mosaics = [np.zeros(shape, np.float32) for _ in range(2)]
+    for i, pair in enumerate(pairs):
+        my, mx = (i // per_row) * side, (i % per_row) * side
+        for mosaic, tile in zip(mosaics, pair, strict=True):
+            mosaic[my : my + side, mx : mx + side] = tile
+    error = flip_map(mosaics[0], mosaics[1], ppd)
+    values = []
+    for i in range(len(pairs)):
+        my, mx = (i // per_row) * side + TILE_MARGIN, (i % per_row) * side + TILE_MARGIN
+        values.append(error[my : my + SAMPLE_TILE, mx : mx + SAMPLE_TILE].ravel())
+    return np.concatenate(values)
+
+
+def _quick_figures(
+    a: np.ndarray, b: np.ndarray, box: Region | None, display_width: int, ppd: float, jpeg_sample: float,
+    jpeg_reference: bool,
+) -> tuple[tuple[float, float, float, float, float], float | None]:  # fmt: skip
+    """visibility_report's FLIP figures resizing only what FLIP must see: the mark's local region
+    (its figures are the whole picture's) and, for the JPEG budget, jpeg_sample of the picture
+    in tiles (an estimate: within a few percent of the whole picture's on photos, lower on a
+    picture that is mostly plain background). No full-size resize, one FLIP call each."""
+    from PIL import Image
+
+    h, w = a.shape[:2]
+    shape = display_shape(h, w, display_width)
+    original = Image.fromarray(a)  # once: each conversion copies the whole picture
+    stats = (0.0, 0.0, 0.0, 0.0, 0.0)
+    if box is not None:
+        region = local_region(box, w, shape, ppd)
+        x0, y0, x1, y1 = region
+        error = np.zeros(shape, dtype=np.float64)
+        changed = display_region(_around(b, region, shape[1] / w), display_width, region)
+        error[y0:y1, x0:x1] = flip_map(display_region(original, display_width, region), changed, ppd)
+        stats = _flip_stats(error)
+    if not jpeg_reference:
+        return stats, None
+    tiles = tile_regions(shape, jpeg_sample)
+    if not tiles:  # too small to sample: the whole picture
+        ref, jpeg = to_display(a, display_width), to_display(jpeg_reencode(a), display_width)
+        return stats, _flip_stats(flip_map(ref, jpeg, ppd))[2]
+    buf = io.BytesIO()  # jpeg_reencode's re-encode, kept as a picture (no 12 MP array round trip)
+    original.save(buf, "JPEG", quality=JPEG_REFERENCE_QUALITY)
+    buf.seek(0)
+    reencoded = Image.open(buf)
+    reencoded.load()
+    pairs = [
+        (display_region(original, display_width, t), display_region(reencoded, display_width, t))
+        for t in tiles
+    ]
+    return stats, float(np.percentile(mosaic_flip(pairs, ppd), 99.9))
+
+
 def _flip_stats(error: np.ndarray) -> tuple[float, float, float, float, float]:
     p99, p999 = np.percentile(error, [99.0, 99.9])
     return (
@@ -170,12 +340,15 @@ def visibility_report(
     subject_mask: np.ndarray | None = None,
     corner_region: float = 0.2,
     jpeg_reference: bool = True,
+    jpeg_sample: float = 1.0,
 ) -> Visibility:
     """How visible `changed` is next to `original` on a display_width-wide screen at `ppd`.
 
     subject_mask (H x W, nonzero = subject) answers whether any changed pixel lies on the subject.
     jpeg_reference adds the budget: FLIP p99.9 of a JPEG q85 re-encode of the original (one more
-    FLIP evaluation, about as long as the first).
+    FLIP evaluation over the whole picture: the dearest part). jpeg_sample < 1 is the quick
+    answer (`ppd preview`, _quick_figures): the mark's figures from its region alone, the budget
+    estimated on that fraction of the picture; verification and auto mode use the whole picture.
     """
     a, b = _rgb8(original, "original"), _rgb8(changed, "changed")
     if a.shape != b.shape:
@@ -193,15 +366,19 @@ def visibility_report(
         if m.shape != (h, w):
             raise VisibilityError(f"subject mask is {m.shape}, image is {(h, w)}")
         touches = bool(np.any(diff & (m > 0)))
-    ref = to_display(a, display_width)
-    if box is None:
-        stats = (0.0, 0.0, 0.0, 0.0, 0.0)  # identical images: FLIP is 0 everywhere by definition
-    else:
-        stats = _flip_stats(flip_map(ref, to_display(b, display_width), ppd))
     jpeg_p999 = ratio = None
-    if jpeg_reference:
-        jpeg = to_display(jpeg_reencode(a), display_width)
-        jpeg_p999 = _flip_stats(flip_map(ref, jpeg, ppd))[2]
+    if jpeg_sample < 1.0:
+        stats, jpeg_p999 = _quick_figures(a, b, box, display_width, ppd, jpeg_sample, jpeg_reference)
+    else:
+        ref = to_display(a, display_width)
+        if box is None:
+            stats = (0.0, 0.0, 0.0, 0.0, 0.0)  # identical images: FLIP is 0 everywhere by definition
+        else:
+            stats = _flip_stats(local_flip_map(ref, to_display(b, display_width), box, w, ppd))
+        if jpeg_reference:
+            jpeg = to_display(jpeg_reencode(a), display_width)
+            jpeg_p999 = _flip_stats(flip_map(ref, jpeg, ppd))[2]
+    if jpeg_p999 is not None:
         ratio = stats[2] / jpeg_p999 if jpeg_p999 > 0 else None
     return Visibility(
         display_width=display_width,

@@ -27,13 +27,28 @@ daemon.cli.options (shared option sets), daemon.cli.group (the top-level group).
 
 from __future__ import annotations
 
+import os
+import signal
 import sys
+from types import FrameType
 
-import typer
 
-from daemon.cli.errors import EXIT_CODES_HELP
-from daemon.cli.group import PpdGroup
-from daemon.cli.output import setup_logging
+def _interrupted_while_loading(_signum: int, _frame: FrameType | None) -> None:
+    """Ctrl-C while ppd is still loading: nothing was done yet; one line, no traceback."""
+    os.write(2, b"ppd: interrupted\n")
+    os._exit(130)
+
+
+# The `ppd` script (or `python -m daemon.cli`), not a test importing the app: a Ctrl-C during the
+# imports below ends quietly. PpdGroup.main hands SIGINT back to Python once they are done.
+if os.path.basename(sys.argv[0]) in ("ppd", "-m"):
+    signal.signal(signal.SIGINT, _interrupted_while_loading)
+
+import typer  # noqa: E402
+
+from daemon.cli.errors import EXIT_CODES_HELP  # noqa: E402
+from daemon.cli.group import PpdGroup  # noqa: E402
+from daemon.cli.output import setup_logging  # noqa: E402
 
 app = typer.Typer(
     name="ppd",

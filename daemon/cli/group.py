@@ -3,6 +3,8 @@ readable help (no `<bool>`, `PATHS...`, words for types), light value conversion
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -71,6 +73,9 @@ class PpdGroup(TyperGroup):
         standalone_mode: bool = True,
         **extra: Any,
     ) -> Any:
+        if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # loaded: Ctrl-C is Python's again
+            with contextlib.suppress(ValueError):  # not the main thread: its handler is not ours
+                signal.signal(signal.SIGINT, signal.default_int_handler)
         tidy_help(self)
         coerce.install()
         try:
@@ -81,7 +86,8 @@ class PpdGroup(TyperGroup):
             code = rv if isinstance(rv, int) else EXIT_OK
         except Exception as exc:
             code = _exit_code(exc)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt:  # one line, never a traceback (ppd poison says more itself)
+            sys.stderr.write("ppd: interrupted\n")
             code = EXIT_INTERRUPTED
         if not standalone_mode:
             return code
@@ -100,7 +106,8 @@ def _exit_code(exc: Exception) -> int:
     if isinstance(exc, ClickException):
         error(exc.format_message())
         return exc.exit_code
-    if isinstance(exc, typer.Abort):
+    if isinstance(exc, typer.Abort):  # click's word for a KeyboardInterrupt it caught
+        sys.stderr.write("ppd: interrupted\n")
         return EXIT_INTERRUPTED
     code = known_error(exc)
     if code is None:

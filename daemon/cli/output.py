@@ -57,25 +57,37 @@ def _field(value: Any) -> str:
     return text
 
 
+# The keys of the daemon's line per file: always there, so `grep outcome=quarantined` finds each.
+ALWAYS_SHOWN = frozenset({"event", "dataset", "file", "outcome", "seconds"})
+
+
 class KeyValueFormatter(logging.Formatter):
     """`level=info logger=daemon.watcher msg="..." path=/x dataset=y`: one line per record, the
     record's `extra` fields as keys, for journald and grep. No time stamp: journald adds its own."""
 
-    def __init__(self, with_time: bool = False) -> None:
+    def __init__(self, with_time: bool = False, terminal: bool = False) -> None:
+        """terminal: for a person at 80 columns: the time of day first, the level only when it is
+        not info, no logger (the journal's lines keep all three)."""
         super().__init__()
         self.with_time = with_time
+        self.terminal = terminal
 
     def format(self, record: logging.LogRecord) -> str:
         parts = []
-        if self.with_time:
-            parts.append(f"ts={self.formatTime(record, '%Y-%m-%dT%H:%M:%S')}")
-        parts += [f"level={record.levelname.lower()}", f"logger={record.name}",
-                  f"msg={_field(record.getMessage())}"]  # fmt: skip
+        if self.terminal:
+            parts.append(f"ts={self.formatTime(record, '%H:%M:%S')}")
+            if record.levelno != logging.INFO:
+                parts.append(f"level={record.levelname.lower()}")
+        else:
+            if self.with_time:
+                parts.append(f"ts={self.formatTime(record, '%Y-%m-%dT%H:%M:%S')}")
+            parts += [f"level={record.levelname.lower()}", f"logger={record.name}"]
+        parts.append(f"msg={_field(record.getMessage())}")
         message = record.getMessage()
         for key, value in vars(record).items():
             if key in _RECORD_FIELDS or key.startswith("_") or value is None:
                 continue
-            if isinstance(value, str) and len(value) > 8 and value in message:
+            if key not in ALWAYS_SHOWN and isinstance(value, str) and len(value) > 8 and value in message:
                 continue  # said in msg already: one copy per line (a full disk has little room)
             parts.append(f"{key}={_field(value)}")
         if record.exc_info:
@@ -91,44 +103,46 @@ def log_level(verbose: int) -> int:
     return {0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG)
 
 
-class _RichOnFirstRecord(logging.Handler):
-    """The CLI's handler: a RichHandler on the stderr console, built at the first record, so a
-    command that logs nothing (`ppd poison --help`) never imports rich.logging."""
-
-    def __init__(self, **rich_options: Any) -> None:
-        super().__init__()
-        self._options = rich_options
-        self._rich: logging.Handler | None = None
+class LineHandler(logging.Handler):
+    """The CLI's handler: one unpadded line per record on the stderr console (so a record lands
+    above a progress bar, never inside it), `ppd: warning: MESSAGE` in the style of ppd's errors;
+    INFO and DEBUG (-v, -vv) as the message alone."""
 
     def emit(self, record: logging.LogRecord) -> None:
-        if self._rich is None:
-            from rich.logging import RichHandler
+        try:
+            message = record.getMessage()
+            if record.levelno >= logging.WARNING:
+                message = f"ppd: {record.levelname.lower()}: {message}"
+            err_console().print(message, markup=False, highlight=False, soft_wrap=True)
+        except Exception:
+            self.handleError(record)
 
-            self._rich = RichHandler(console=err_console(), **self._options)
-        self._rich.handle(record)
+
+def daemon_handler() -> logging.Handler:
+    """`ppd watch` (and its worker processes): key=value lines on stderr, on a terminal too (with a
+    time stamp there; journald adds its own), one line per record."""
+    handler = logging.StreamHandler(sys.stderr)
+    on_terminal = err_console().is_terminal
+    handler.setFormatter(KeyValueFormatter(with_time=on_terminal, terminal=on_terminal))
+    return handler
 
 
 def setup_logging(verbose: int, *, daemon: bool = False) -> None:
-    """One handler on the root logger. The CLI logs through the rich stderr console (so a record
-    lands above a progress bar, never inside it); the daemon logs key=value lines, coloured only
-    when stderr is a terminal."""
+    """One handler on the root logger: the CLI's one-line records (LineHandler), the daemon's
+    key=value lines (daemon_handler)."""
     _verbosity[0] = verbose
     root = logging.getLogger()
     for handler in list(root.handlers):
         if getattr(handler, "_ppd", False):
             root.removeHandler(handler)
-    handler: logging.Handler
-    if daemon and not err_console().is_terminal:
-        handler = logging.StreamHandler(sys.stderr)
-        handler.setFormatter(KeyValueFormatter())
-    elif daemon:
-        handler = _RichOnFirstRecord(show_path=False, rich_tracebacks=False)
-    else:
-        handler = _RichOnFirstRecord(show_time=False, show_path=False, markup=False)
+    handler = daemon_handler() if daemon else LineHandler()
     handler._ppd = True  # type: ignore[attr-defined]
     root.addHandler(handler)
     root.setLevel(log_level(verbose) if not daemon else min(log_level(verbose), logging.INFO))
     if not daemon and verbose < 2:
-        # The CLI names each file itself with -v; the core's per-file record would say it twice.
+        # The CLI names each file itself with -v, and prints the corner it chose; the core's
+        # records would say each twice.
+        for name in ("daemon.protect", "daemon.subject", "poisoner"):
+            logging.getLogger(name).setLevel(logging.WARNING)
+    if daemon and verbose < 2:  # the daemon's terminal says what it did to each file, once
         logging.getLogger("daemon.protect").setLevel(logging.WARNING)
-        logging.getLogger("poisoner").setLevel(logging.WARNING)

@@ -4,12 +4,14 @@ original in the vault, or as copies with --out; one summary, then what each data
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import typer
 
-from daemon.cli.errors import EXIT_FAILED, die, file_reason, open_ctx
+from daemon.cli.errors import EXIT_FAILED, EXIT_INTERRUPTED, die, file_reason, open_ctx
+from daemon.cli.interrupt import StopOnSignal
 from daemon.cli.options import SpecOptions, spec_options, subject_masks_option, workers_option
 from daemon.cli.output import console, err_console, interactive, verbosity
 
@@ -49,14 +51,19 @@ def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
             err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
 
 
-def summary(ctx: AppContext, jobs: list[Job], outcomes: list[ProtectOutcome], dry_run: bool) -> None:
+def summary(
+    ctx: AppContext, jobs: list[Job], outcomes: list[ProtectOutcome], dry_run: bool,
+    scene_notes: Callable[[], bool] = lambda: True,
+) -> None:  # fmt: skip
     """The counts, then where copies went, what each dataset is now and the command that says
-    more (a verification's verdict, or that there is none yet: never "protected" by default)."""
+    more (a verification's verdict, or that there is none yet: never "protected" by default).
+    scene_notes(): whether to judge the scenes (not once the user pressed Ctrl-C: it takes seconds)."""
     from daemon.cli.planning import output_places
     from daemon.cli.status_queries import protection_line
 
     _print_counts(outcomes, dry_run)
-    _print_scene_notes(jobs)
+    if scene_notes():
+        _print_scene_notes(jobs)
     if dry_run:
         return
     for place in output_places(jobs):
@@ -67,6 +74,29 @@ def summary(ctx: AppContext, jobs: list[Job], outcomes: list[ProtectOutcome], dr
     names = sorted({o.dataset for o in outcomes if o.state == "failed" and o.dataset})
     if names:
         console().print(f"failed files and reasons: ppd status {names[0]} --failed", markup=False)
+
+
+def interrupted_line(outcomes: list[ProtectOutcome], total: int, dry_run: bool, command: str) -> str:
+    """The one line a stopped run ends with: what it did, what is left, the command that finishes."""
+    counts = Counter(outcome_word(o) for o in outcomes)
+    words = ["would patch" if dry_run else "patched", "unchanged", "skipped", "failed"]
+    done = ", ".join(f"{w} {counts.get(w, 0)}" for w in words)
+    left = total - len(outcomes)
+    return f"interrupted: {done}; {left} of {total} not patched yet: run `{command}` to finish"
+
+
+def interrupted_summary(outcomes: list[ProtectOutcome], total: int, dry_run: bool) -> None:
+    """Ctrl-C or SIGTERM stopped the run between files: the one line, then each failed file."""
+    import shlex
+    import sys
+
+    command = shlex.join(["ppd", *sys.argv[1:]])  # as typed: same folders, same --out and --dataset
+    out = console()  # word-wrapped on a terminal (never mid-word), one line into a pipe
+    line = interrupted_line(outcomes, total, dry_run, command)
+    out.print(line, markup=False, soft_wrap=not out.is_terminal)
+    for o in outcomes:
+        if o.state == "failed":
+            err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
 
 
 def _print_scene_notes(jobs: list[Job]) -> None:
@@ -96,10 +126,12 @@ def run_jobs(
     force: bool,
     workers: int | None = None,
     subject_masks: Path | None = None,
+    stop: StopOnSignal | None = None,
 ) -> list[ProtectOutcome]:
     """Every job through protect_many on `workers` processes (default: the config's). A progress
     bar only on a terminal (nothing per file unless -v, which names each file with its outcome);
-    the outcomes sorted by path for the summary."""
+    the outcomes sorted by path for the summary. stop: once it is true (Ctrl-C), no file starts
+    any more and those in progress finish: fewer outcomes than jobs."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from daemon.protect_pool import protect_many
@@ -107,6 +139,8 @@ def run_jobs(
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=err_console(), transient=True, disable=not interactive()) as progress:
         task = progress.add_task("patching", total=len(jobs))
+        if stop is not None:  # the bar says why it waits: the files in progress are finishing
+            stop._on_stop = lambda _name: progress.update(task, description="stopping")
 
         def finished(outcome: ProtectOutcome) -> None:
             if verbosity() > 0:
@@ -116,6 +150,7 @@ def run_jobs(
         outcomes = protect_many(
             ctx, [(job.path, job.dataset, job.root, job.out_path) for job in jobs], workers=workers,
             force=force, dry_run=dry_run, spec=wanted, on_outcome=finished, subject_masks=subject_masks,
+            stop=stop,
         )  # fmt: skip
     return sorted(outcomes, key=lambda o: str(o.path))
 
@@ -148,30 +183,44 @@ def poison(
     subject_masks: Path | None = subject_masks_option(),
     spec_options: SpecOptions = SpecOptions(),
 ) -> None:
+    # From here Ctrl-C / SIGTERM stop between files: the one in progress finishes, one line says
+    # what is left and how to finish (a second signal stops at once).
+    with StopOnSignal() as stop:
+        ctx = open_ctx()
+        try:
+            _poison(ctx, paths, dataset, out, subject_masks, spec_options, dry_run, force, workers, stop)
+        finally:
+            ctx.close()
+
+
+def _poison(
+    ctx: AppContext, paths: list[Path], dataset: str | None, out: Path | None, subject_masks: Path | None,
+    spec_options: SpecOptions, dry_run: bool, force: bool, workers: int | None, stop: StopOnSignal,
+) -> None:  # fmt: skip
     from daemon.cli import planning
 
-    ctx = open_ctx()
-    try:
-        jobs = planning.plan_jobs(ctx, paths, dataset, out)
-        if not jobs:
-            raise die("no files to patch in " + ", ".join(str(p) for p in paths))
-        planning.check_dataset_roots(ctx, jobs)
-        planning.check_writable(jobs, dry_run)
-        masks = planning.dataset_masks(ctx, jobs, subject_masks)
-        jobs, notes = planning.without_masks(jobs, masks)
-        if not jobs:
-            raise die("no files to patch besides the subject masks in " + ", ".join(str(p) for p in paths))
-        wanted, corner_lines = planning.apply_spec(ctx, jobs, spec_options, dry_run, masks)
-        for line in [*notes, *corner_lines]:
-            console().print(line, markup=False)
-        outcomes = run_jobs(
-            ctx, jobs, wanted, dry_run=dry_run, force=force, workers=workers, subject_masks=subject_masks
-        )
-        summary(ctx, jobs, outcomes, dry_run)
-        if any(o.state == "failed" for o in outcomes):
-            raise typer.Exit(EXIT_FAILED)
-    finally:
-        ctx.close()
+    jobs = planning.plan_jobs(ctx, paths, dataset, out)
+    if not jobs:
+        raise die("no files to patch in " + ", ".join(str(p) for p in paths))
+    planning.check_dataset_roots(ctx, jobs)
+    planning.check_writable(jobs, dry_run)
+    masks = planning.dataset_masks(ctx, jobs, subject_masks)
+    jobs, notes = planning.without_masks(jobs, masks)
+    if not jobs:
+        raise die("no files to patch besides the subject masks in " + ", ".join(str(p) for p in paths))
+    wanted, corner_lines = planning.apply_spec(ctx, jobs, spec_options, dry_run, masks)
+    for line in [*notes, *corner_lines]:
+        console().print(line, markup=False)
+    outcomes = run_jobs(
+        ctx, jobs, wanted, dry_run=dry_run, force=force, workers=workers, subject_masks=subject_masks,
+        stop=stop,
+    )  # fmt: skip
+    if stop() and len(outcomes) < len(jobs):
+        interrupted_summary(outcomes, len(jobs), dry_run)
+        raise typer.Exit(EXIT_INTERRUPTED)
+    summary(ctx, jobs, outcomes, dry_run, scene_notes=lambda: not stop())  # a Ctrl-C there skips the notes
+    if any(o.state == "failed" for o in outcomes):
+        raise typer.Exit(EXIT_FAILED)
 
 
 def register(app: typer.Typer) -> None:

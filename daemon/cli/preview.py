@@ -17,6 +17,13 @@ if TYPE_CHECKING:
     from poisoner.spec import PatchSpec
 
 
+# The JPEG q85 budget is estimated on this fraction of the picture (verifier.visibility
+# _quick_figures: tiles spread evenly; within a few percent of the whole picture's figure on photos,
+# lower on a mostly plain picture), the mark's own figures evaluated around it (the whole picture's
+# to rounding). Verification measures the whole picture.
+PREVIEW_JPEG_SAMPLE = 0.05
+
+
 def _is_video(path: Path) -> bool:
     from poisoner.media import is_video
 
@@ -171,7 +178,8 @@ def _visibility_line(original: Any, poisoned: Any, display_width: int, subject: 
             # A picture narrower than the screen is shown at its own size, not magnified (magnifying
             # would make a JPEG re-encode's artefacts, the budget, look larger than any viewer sees them).
             width = min(display_width, original.shape[1])
-            figures = visibility_report(original, poisoned, display_width=width, subject_mask=subject)
+            figures = visibility_report(original, poisoned, display_width=width, subject_mask=subject,
+                                        jpeg_sample=PREVIEW_JPEG_SAMPLE)  # fmt: skip
             touches = {True: "; changed pixels TOUCH the subject", False: "; no changed pixel on the subject"}
             return figures.summary() + touches.get(figures.touches_subject, "")
     except VisibilityError as exc:
@@ -240,7 +248,7 @@ def preview(
         image, original, poisoned, subject = _render(ctx, file, spec_options, masks)
         target = (out or Path.cwd() / f"{file.stem}.ppd-preview.png").absolute()
         try:
-            Image.fromarray(image).save(target, format="PNG")
+            Image.fromarray(image).save(target, format="PNG", compress_level=1)  # quick, not small
         except OSError as exc:
             raise die(os_error_text(exc, hint_out=False), EXIT_ENVIRONMENT) from None
         console().print(f"preview written to {target}", markup=False)

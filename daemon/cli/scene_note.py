@@ -31,5 +31,5 @@ def print_scene_notes(console: Any, datasets: Mapping[str, Sequence[Path]]) -> N
     for name in sorted(datasets):
         images = [p for p in datasets[name] if is_image(p)]
         line = scene_line(name, images) if images else None
-        if line:
-            console.print(line, markup=False, highlight=False)
+        if line:  # word-wrapped on a terminal (a terminal's own wrap breaks mid-word), one line in a pipe
+            console.print(line, markup=False, highlight=False, soft_wrap=not console.is_terminal)

@@ -82,40 +82,70 @@ def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Tabl
     return table
 
 
-def _print_details(d: dict[str, Any]) -> None:
-    """--long (or one dataset): where it is, the spec, each profile's verdict."""
+# What a count key is called in the details line ("untracked": files in the folder without a row).
+COUNT_WORDS = {"untracked": "not patched yet"}
+
+
+def files_line(counts: dict[str, Any]) -> str:
+    """`files 23: not patched yet 17, patched 6`: every count of the dataset, once."""
     from collections import Counter
 
     from daemon.states import state_word
 
-    out = console()
-    c = d["counts"]
-    out.print(f"[bold]{d['name']}[/]  {d['root']}")
     states: Counter[str] = Counter()
-    for key, n in c.items():
+    for key, n in counts.items():
         if key != "files" and n:
-            states[state_word(key)] += n
+            states[COUNT_WORDS.get(key) or state_word(key)] += n
     listed = ", ".join(f"{k} {n}" for k, n in sorted(states.items()))
-    lines = [f"  files {c['files']}: {listed}", f"  spec {d['spec_id'] or '-'}: {d['spec_summary'] or '-'}"]
-    if d["auto"]:
-        lines.append(f"  {d['auto']}")
+    return f"files {counts['files']}: {listed}" if listed else f"files {counts['files']}"
+
+
+def place_lines(d: dict[str, Any]) -> list[str]:
+    """Where the dataset is: its folder (said when it is gone), where `--out` put its copies and
+    where published files go."""
+    folder = d.get("folder") or {}
+    lines = []
+    if folder and not folder.get("exists", True):
+        lines.append(f"folder {d['root']} is gone; counts are the store's")
+    if folder.get("copies"):
+        lines.append(f"patched copies in {folder['copies']}")
     if d["publish_dir"]:
-        lines.append(f"  publish to {d['publish_dir']}")
+        lines.append(f"publish to {d['publish_dir']}")
+    return lines
+
+
+def _print_details(d: dict[str, Any]) -> None:
+    """--long (or one dataset): where it is, the spec, each profile's verdict."""
+    out = console()
+    out.print(f"[bold]{d['name']}[/]  {d['root']}")
+    lines = [files_line(d["counts"]), f"spec {d['spec_id'] or '-'}: {d['spec_summary'] or '-'}"]
+    if d["auto"]:
+        lines.append(d["auto"])
+    lines += place_lines(d)
     for line in lines:
-        out.print(line, markup=False, soft_wrap=False)
+        out.print("  " + line, markup=False, soft_wrap=False)
     for profile, v in d["verdicts"].items():
         out.print("  " + verdict_text(profile, v), soft_wrap=False)
     if not d["verdicts"]:
         out.print("  verified: never", markup=False, soft_wrap=False)
 
 
+def failed_lines(d: dict[str, Any]) -> list[str]:
+    """`castle: 1 failed, 1 quarantined`, then one line per file: `PATH: reason` (mat2's habit),
+    a quarantined one marked so: the same counts as the table's."""
+    rows = d.get("failed_files") or []
+    c = d["counts"]
+    lines = [f"{d['name']}: {c.get('failed', 0)} failed, {c.get('quarantined', 0)} quarantined"]
+    for r in rows:
+        mark = " (quarantined: moved out of the outbox)" if r.get("state") == "quarantined" else ""
+        lines.append(f"  {r['path']}: {r['reason']}{mark}")
+    return lines
+
+
 def _print_failed(report: list[dict[str, Any]]) -> None:
-    """One line per failed file: `PATH: reason` (mat2's habit), grouped by dataset."""
     for d in report:
-        rows = d.get("failed_files") or []
-        console().print(f"{d['name']}: {len(rows)} failed", markup=False)
-        for r in rows:
-            console().print(f"  {r['path']}: {r['reason']}", markup=False)
+        for line in failed_lines(d):
+            console().print(line, markup=False)
 
 
 def _print_report_links(ctx: AppContext, names: list[str]) -> None:
@@ -128,15 +158,28 @@ def _print_report_links(ctx: AppContext, names: list[str]) -> None:
             console().print(f"report {name}: file://{path}", markup=False)
 
 
+def next_step_lines(d: dict[str, Any]) -> list[str]:
+    """What to run next for one dataset: finish an interrupted run first (verifying half a
+    dataset says nothing about the rest), else the protection's next step; then its failures."""
+    from daemon.folder_count import resume_line
+
+    c, name, lines = d["counts"], d["name"], []
+    resume = resume_line(c, d["resume"]) if d.get("resume") else None
+    if resume:
+        lines.append(f"{name}: {resume}")
+    elif d["protection"]["next"]:
+        lines.append(f"{name}: {d['protection']['next']}")
+    not_patched = [f"{c[k]} {k}" for k in ("failed", "quarantined") if c.get(k, 0)]
+    if not_patched:
+        lines.append(f"{name}: {', '.join(not_patched)}: ppd status {name} --failed")
+    return lines
+
+
 def _print_next_steps(report: list[dict[str, Any]]) -> None:
     """Word-wrapped to the terminal (soft_wrap off): these lines say what to run next."""
     for d in report:
-        if d["protection"]["next"]:
-            console().print(f"{d['name']}: {d['protection']['next']}", markup=False, soft_wrap=False)
-        n_failed = d["counts"].get("failed", 0)
-        if n_failed:
-            console().print(f"{d['name']}: {n_failed} failed: ppd status {d['name']} --failed",
-                            markup=False, soft_wrap=False)  # fmt: skip
+        for line in next_step_lines(d):
+            console().print(line, markup=False, soft_wrap=False)
 
 
 def _print_regressions(report: list[dict[str, Any]]) -> None:

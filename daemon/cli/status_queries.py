@@ -4,6 +4,7 @@ from the store: counts, the newest verdict per attacker profile, a regression, t
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.cli.errors import die, file_reason
@@ -11,8 +12,8 @@ from verifier.verdict import Verdict
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
+    from daemon.folder_count import FolderCount
     from poisoner.spec import PatchSpec
-
 
 
 def spec_summary(spec: PatchSpec) -> str:
@@ -105,9 +106,30 @@ def _last_verification(latest: dict[str, Any] | None) -> dict[str, Any] | None:
     }
 
 
+def mask_folders(ctx: AppContext, name: str) -> list[Path]:
+    """The dataset's subject-mask folders (its config's, the one its corner was chosen with):
+    masks are never patched, so they are not files of the dataset."""
+    from daemon.subject import latest_choice, masks_or_none
+
+    folders = [masks_or_none(ctx, name)]
+    used = (latest_choice(ctx, name) or {}).get("subject_masks")
+    folders.append(Path(used) if used else None)
+    return [f for f in folders if f is not None]
+
+
+def folder_count(ctx: AppContext, name: str, root: str) -> FolderCount:
+    """The dataset's folder next to its rows (daemon.folder_count)."""
+    from daemon.folder_count import count_folder
+
+    return count_folder(Path(root), ctx.store.files(name), skip=mask_folders(ctx, name))
+
+
 def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
-    """Everything `ppd status NAME --json` says about one dataset."""
+    """Everything `ppd status NAME --json` says about one dataset. Its counts are the rows' and
+    the folder's: files no row mentions (a run stopped half-way) are "untracked" and counted in
+    "files"; "resume" says what finishes the dataset."""
     from daemon.auto import status_text as auto_status_text  # light: no torch, no pycolmap
+    from daemon.folder_count import not_patched_yet, resume_command, with_folder
     from daemon.states import patched_count
     from daemon.verify_state import running_verification  # light: msgspec and a small JSON file
 
@@ -117,11 +139,16 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     spec = ctx.store.get_spec(row["spec_id"]) if row["spec_id"] else None
     runs = ctx.store.verification_runs(name, limit=50)
     regression = regression_of(runs)
-    counts = ctx.store.counts(name)
+    folder = folder_count(ctx, name, row["root"])
+    counts = with_folder(ctx.store.counts(name), folder)
     verdicts = latest_by_profile(runs)
+    left = not_patched_yet(counts)
     return {
         "name": name,
         "root": row["root"],
+        "folder": folder.to_dict(),
+        "not_patched_yet": left,
+        "resume": resume_command(name, folder) if left else None,
         "publish_dir": row["publish_dir"],
         "spec_id": row["spec_id"],
         "spec": spec.to_dict() if spec else None,
@@ -144,13 +171,17 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
 
 
 def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
-    """Each failed file of a dataset with its one-line reason (the store row's error)."""
+    """Each file of a dataset that could not be patched, with its one-line reason (the store row's
+    error): failed ones (still in place) and quarantined ones (moved out of the outbox: where to)."""
     from daemon.states import FileState
 
-    return [
-        {"path": r["path"], "reason": file_reason(r["path"], r.get("error"))}
-        for r in ctx.store.files(name, state=FileState.FAILED.value)
-    ]
+    listed = []
+    for state in (FileState.FAILED, FileState.QUARANTINED):
+        for r in ctx.store.files(name, state=state.value):
+            listed.append(
+                {"path": r["path"], "state": state.value, "reason": file_reason(r["path"], r.get("error"))}
+            )
+    return listed
 
 
 def print_running(report: list[dict[str, Any]]) -> None:

@@ -1,0 +1,49 @@
+"""Ctrl-C and SIGTERM for a command that works through files (`ppd poison`): the first asks it
+to stop between files, so the file in progress is finished and nothing is left half-done; the
+second acts at once, as it would have without ppd (the crash-safe order of daemon.pipeline makes
+that safe too)."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Callable
+from types import FrameType, TracebackType
+from typing import Any
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class StopOnSignal:
+    """A context manager and a predicate: true once SIGINT or SIGTERM arrived inside it.
+    on_stop runs in the signal handler (keep it short: a progress bar's label)."""
+
+    def __init__(self, on_stop: Callable[[str], None] | None = None) -> None:
+        self.signal_name: str | None = None
+        self._on_stop = on_stop
+        self._previous: dict[int, Any] = {}
+
+    def __call__(self) -> bool:
+        return self.signal_name is not None
+
+    def _handle(self, signum: int, _frame: FrameType | None) -> None:
+        self.signal_name = signal.Signals(signum).name
+        self._restore()  # a second signal acts at once
+        if self._on_stop is not None:
+            self._on_stop(self.signal_name)
+
+    def _restore(self) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous = {}
+
+    def __enter__(self) -> StopOnSignal:
+        if threading.current_thread() is threading.main_thread():  # only there can handlers be set
+            for signum in STOP_SIGNALS:
+                self._previous[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self._restore()

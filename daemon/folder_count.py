@@ -1,0 +1,126 @@
+"""A dataset's files as its folder holds them, next to its store rows.
+
+The store has a row only for files ppd has reached: after a run stopped half-way (Ctrl-C, a
+SIGTERM, a crash) the folder still holds originals that no row mentions. `ppd status` counts them
+from the folder, so it never says "8 files, 6 patched" of a folder of 23 photos.
+
+Light at import (`ppd status` loads it): no numpy, no PIL.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from daemon.states import FileState, patched_count
+from poisoner.atomic import TEMP_PREFIX
+from poisoner.media import is_media
+
+# A row in one of these states stands for a file that still needs `ppd poison`: it was never
+# finished (pending: the run stopped between the vault and the provenance row).
+UNFINISHED_STATES = frozenset({FileState.PENDING.value})
+
+
+@dataclass(frozen=True)
+class FolderCount:
+    """What the dataset's folder holds beside the rows."""
+
+    folder: Path
+    exists: bool
+    on_disk: int = 0  # media files in the folder now (hidden files, temporaries, mask folders left out)
+    untracked: list[Path] = field(default_factory=list)  # media files that no row mentions
+    copies: Path | None = None  # `ppd poison --out`: the folder the patched copies went to
+
+    def to_dict(self) -> dict[str, Any]:
+        copies = None if self.copies is None else str(self.copies)
+        return {"folder": str(self.folder), "exists": self.exists, "on_disk": self.on_disk,
+                "untracked": len(self.untracked), "copies": copies}  # fmt: skip
+
+
+def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
+    """Media files under folder, sorted: no hidden files or folders, no ppd temporaries, nothing
+    under a skipped folder (subject masks are never patched), no symlinks."""
+    skipped = [Path(s).absolute() for s in skip]
+    found: list[Path] = []
+    for dirpath, dirnames, filenames in os.walk(folder):
+        here = Path(dirpath)
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith(".") and here / d not in skipped)
+        for name in filenames:
+            path = here / name
+            if name.startswith((".", TEMP_PREFIX)) or not is_media(name) or path.is_symlink():
+                continue
+            found.append(path)
+    return sorted(found)
+
+
+Parts = tuple[str, ...]
+
+
+def _match_copies(outside: list[Path], rels: set[Parts]) -> tuple[set[Parts], Path | None]:
+    """The folder files that `--out` copies stand for (OUT/DATASET/a/b.jpg: a/b.jpg, the longest
+    tail of the copy's path that names a file of the folder), and the copies' folder (OUT/DATASET;
+    without a match, the deepest folder holding every copy)."""
+    covered: set[Parts] = set()
+    roots: list[str] = []
+    for path in outside:
+        parts = path.parts
+        tail = next((parts[-k:] for k in range(len(parts) - 1, 0, -1) if parts[-k:] in rels), None)
+        if tail is not None:
+            covered.add(tail)
+            roots.append(str(Path(*parts[: -len(tail)])))
+    if not roots:
+        roots = [str(p.parent) for p in outside]
+    return covered, (Path(os.path.commonpath(roots)) if roots else None)
+
+
+def count_folder(folder: Path, rows: Iterable[Mapping[str, Any]], skip: Iterable[Path] = ()) -> FolderCount:
+    """The folder's media files and those of them no row mentions: by path, or for `--out` copies
+    by their path below the copies' folder (OUT/DATASET/a/b.jpg stands for FOLDER/a/b.jpg)."""
+    folder = Path(folder).absolute()
+    paths = [Path(row["path"]) for row in rows]
+    outside = [p for p in paths if not p.is_relative_to(folder)]
+    files = folder_media(folder, skip) if folder.is_dir() else []
+    covered, copies = _match_copies(outside, {f.relative_to(folder).parts for f in files})
+    if not folder.is_dir():
+        return FolderCount(folder, exists=False, copies=copies)
+    inside = {str(p) for p in paths}
+    untracked = [f for f in files if str(f) not in inside and f.relative_to(folder).parts not in covered]
+    return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies)
+
+
+def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int]:
+    """Store.counts() with the folder's files that have no row as "untracked", counted in "files"."""
+    merged = dict(counts)
+    merged["untracked"] = len(folder.untracked)
+    merged["files"] = int(counts.get("files", 0)) + len(folder.untracked)
+    return merged
+
+
+def not_patched_yet(counts: Mapping[str, int]) -> int:
+    """Files a run has still to do: those without a row and those it left unfinished."""
+    return int(counts.get("untracked", 0)) + sum(int(counts.get(s, 0)) for s in UNFINISHED_STATES)
+
+
+def resume_command(name: str, count: FolderCount) -> str:
+    """The `ppd poison` that finishes the dataset: its folder, its name when that is not the
+    folder's, and `--out` when its copies went elsewhere (never in place by mistake)."""
+    words = ["ppd", "poison", str(count.folder)]
+    if name != count.folder.name:
+        words += ["--dataset", name]
+    if count.copies is not None:
+        out = count.copies.parent if count.copies.name == name else count.copies
+        words += ["--out", str(out)]
+    return shlex.join(words)
+
+
+def resume_line(counts: Mapping[str, int], command: str) -> str | None:
+    """`patched 6 of 23; 17 not patched yet: run `ppd poison FOLDER``, or None when none is left."""
+    left = not_patched_yet(counts)
+    if not left:
+        return None
+    done = f"patched {patched_count(counts)} of {counts.get('files', 0)}"
+    return f"{done}; {left} not patched yet: run `{command}`"

@@ -1,0 +1,151 @@
+"""An interrupted `ppd poison` is visible and resumable: `ppd status` counts the dataset's files
+from its folder as well as its rows, Ctrl-C / SIGTERM end the run between files with one line and
+the command that finishes it, and no process prints a traceback. Real `ppd` processes, real
+signals, the real store."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from daemon.folder_count import count_folder, folder_media, not_patched_yet, resume_command, with_folder
+from tests.test_cli_poison import make_image
+
+REPO = Path(__file__).resolve().parents[1]
+runner = CliRunner()
+
+
+def status_of(name: str) -> dict:
+    result = runner.invoke(app, ["status", name, "--json"])
+    assert result.exit_code == 0, result.output
+    (d,) = json.loads(result.output)["datasets"]
+    return d
+
+
+# ---- the count, from the folder and the rows (CliRunner: runs by default) -----------------------
+def test_status_counts_the_folders_files_that_no_run_reached(ppd_env: dict, tmp_path: Path) -> None:
+    shoot = tmp_path / "castle"
+    for i in range(3):
+        make_image(shoot / f"view{i}.png", i)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    for i in range(3, 8):  # what an interrupted run leaves: originals no row mentions
+        make_image(shoot / f"view{i}.png", i)
+    (shoot / "notes.txt").write_text("not a photo")  # not media: not a file of the dataset
+    (shoot / ".hidden.png").write_bytes(b"x")
+
+    d = status_of("castle")
+    assert d["counts"]["files"] == 8 and d["patched"] == 3 and d["not_patched_yet"] == 5
+    assert d["counts"]["untracked"] == 5 and d["folder"]["on_disk"] == 8
+    assert d["resume"] == f"ppd poison {shoot}"
+    text = runner.invoke(app, ["status", "castle"]).output
+    assert f"castle: patched 3 of 8; 5 not patched yet: run `ppd poison {shoot}`" in " ".join(text.split())
+    assert "ppd verify" not in text  # verifying half a dataset says nothing: finish it first
+    assert "files 8: not patched yet 5, patched 3" in text
+
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    d = status_of("castle")
+    assert d["counts"]["files"] == 8 and d["patched"] == 8
+    assert d["not_patched_yet"] == 0 and d["resume"] is None
+
+
+def test_out_copies_count_for_their_inputs_and_resume_keeps_out(ppd_env: dict, tmp_path: Path) -> None:
+    shoot, out = tmp_path / "castle", tmp_path / "pub"
+    for i in range(2):
+        make_image(shoot / "sub" / f"view{i}.png", i)
+    assert runner.invoke(app, ["poison", str(shoot), "--out", str(out)]).exit_code == 0
+    make_image(shoot / "sub" / "view2.png", 2)
+    d = status_of("castle")
+    assert d["counts"]["files"] == 3 and d["patched"] == 2 and d["not_patched_yet"] == 1
+    assert d["folder"]["copies"] == str(out / "castle")  # OUT/DATASET, whatever folders lie below
+    assert d["resume"] == f"ppd poison {shoot} --out {out}"  # never in place by mistake
+
+
+def test_count_folder_leaves_out_masks_temporaries_and_other_files(tmp_path: Path) -> None:
+    folder = tmp_path / "set"
+    for name in ("a.jpg", "b.png", "masks/a.png", ".ppd-tmp-x.jpg", "readme.md", ".git/c.jpg"):
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        (folder / name).write_bytes(b"x")
+    assert [p.name for p in folder_media(folder, skip=[folder / "masks"])] == ["a.jpg", "b.png"]
+    rows = [{"path": str(folder / "a.jpg"), "state": "patched"}]
+    count = count_folder(folder, rows, skip=[folder / "masks"])
+    assert count.exists and count.on_disk == 2 and count.untracked == [folder / "b.png"]
+    counts = with_folder({"files": 1, "patched": 1, "pending": 0}, count)
+    assert counts["files"] == 2 and not_patched_yet(counts) == 1
+    assert not_patched_yet({"files": 3, "pending": 2, "untracked": 0}) == 2  # unfinished rows too
+    assert resume_command("other", count) == f"ppd poison {folder} --dataset other"
+    gone = count_folder(tmp_path / "gone", rows)
+    assert not gone.exists and gone.untracked == []
+
+
+# ---- a real run stopped by a real signal (subprocesses) -----------------------------------------
+def _photos(folder: Path, n: int) -> None:
+    """n JPEG photos heavy enough (noise at 1200x900) that a run takes a few seconds."""
+    rng = np.random.default_rng(7)
+    folder.mkdir(parents=True)
+    base = rng.integers(0, 256, (900, 1200, 3), dtype=np.uint8)
+    for i in range(n):
+        Image.fromarray(np.roll(base, 37 * i, axis=1)).save(folder / f"IMG_{i:04d}.jpg", quality=92)
+
+
+def _patched_rows(db: Path) -> int:
+    if not db.exists():
+        return 0
+    try:
+        with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=1) as conn:
+            return conn.execute("SELECT COUNT(*) FROM files WHERE state = 'patched'").fetchone()[0]
+    except sqlite3.Error:
+        return 0
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize(
+    ("workers", "signum", "group"),
+    [("1", signal.SIGINT, True), ("2", signal.SIGINT, True), ("2", signal.SIGTERM, False)],
+    ids=["serial-ctrl-c", "workers-ctrl-c", "workers-sigterm"],
+)
+def test_a_signal_mid_run_leaves_a_true_status_and_a_run_that_finishes(
+    ppd_env: dict[str, Path], tmp_path: Path, workers: str, signum: int, group: bool
+) -> None:
+    shoot, n = tmp_path / "shoot", 23
+    _photos(shoot, n)
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    command = [sys.executable, "-m", "daemon.cli", "poison", str(shoot), "--workers", workers]
+    # group: a terminal's Ctrl-C reaches every process of the foreground group (workers too)
+    proc = subprocess.Popen(command, env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)  # fmt: skip
+    deadline = time.monotonic() + 120
+    while _patched_rows(ppd_env["data"] / "ppd.sqlite3") < 1:  # the moment: the first file is done
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.05)
+    os.killpg(proc.pid, signum) if group else proc.send_signal(signum)
+    out, err = proc.communicate(timeout=120)
+
+    assert proc.returncode == 130, (out, err)
+    assert "Traceback" not in err and "Traceback" not in out, err
+    (line,) = [x for x in out.splitlines() if x.startswith("interrupted:")]
+    assert f"not patched yet: run `ppd poison {shoot} --workers {workers}` to finish" in line
+    d = status_of("shoot")
+    on_disk = len(list(shoot.glob("*.jpg")))
+    assert d["counts"]["files"] == on_disk == n  # the folder's files, not only the rows
+    assert d["patched"] >= 1 and d["patched"] + d["not_patched_yet"] == n, d["counts"]
+    assert d["patched"] < n and d["resume"] == f"ppd poison {shoot}"
+    assert f"{n - d['patched']} of {n} not patched yet" in line  # the run's line and status agree
+    assert not list(shoot.glob(".ppd-tmp-*"))  # nothing half-written
+
+    resumed = subprocess.run([sys.executable, "-m", "daemon.cli", "poison", str(shoot)], env=env, cwd=REPO,
+                             capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr
+    d = status_of("shoot")
+    assert d["patched"] == d["counts"]["files"] == n and d["not_patched_yet"] == 0
