@@ -50,9 +50,9 @@ from poisoner import jpeg as jpeg_codec
 from poisoner import location, provenance
 from poisoner.atomic import atomic_output
 from poisoner.blend import apply_patch_at
-from poisoner.errors import ImageFormatError
+from poisoner.errors import ImageFormatError, MarkNotWritten
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
-from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box
+from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box, written_pixels
 from poisoner.image.png import PNG_SIGNATURE, png_chunks, poison_png, splice_png, strip_png_location
 from poisoner.image.read import load_decoded, one_line, open_decoded
 from poisoner.image.tiff import poison_tiff
@@ -107,6 +107,7 @@ class PoisonReport:
     src_bytes: int = 0
     dst_bytes: int = 0
     location_removed: list[str] = field(default_factory=list)  # e.g. "EXIF GPS IFD", "XMP exif:GPSLatitude"
+    written: int = 0  # pixels the mark writes (never 0: poison_file refuses that file, MarkNotWritten)
 
 
 # ---- JPEG ----------------------------------------------------------------------------------------
@@ -283,13 +284,23 @@ def poison_file(
     width, height = im.size
     placement = _placement(src, im, spec)
     keep = checked_keep_out(src.name, keep_out, (width, height))
+    written = written_pixels(placement, keep)
+    if written == 0:  # never "patched" with no changed pixel (issue 25): nothing is written to dst
+        raise MarkNotWritten(
+            f"{src.name}: the subject mask covers the whole mark, no pixel would change: not patched"
+        )
     out, preserved, notes, method, lossless, removed = _write_format(
         src, im, data, fmt, placement, keep, keep_location=keep_location, marker=marker, loaded=not region
     )
+    if method == "jpeg-unchanged":  # whole MCUs near the mask are kept: none left to write
+        raise MarkNotWritten(
+            f"{src.name}: the subject mask reaches every 8x8 block of the mark, no pixel would change: not patched"
+        )
     notes += [n for n in [kept_out_note(placement, keep)] if n] + _file_notes(src, im, fmt, removed)
     dst.write_bytes(out)
     report = PoisonReport(
-        fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out), removed
+        fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out), removed,
+        written,
     )
     log.info(
         "poisoned image",
