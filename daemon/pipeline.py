@@ -370,6 +370,13 @@ def clear_stale_work_folders(vault_dir: Path, min_age_s: float = 10.0) -> list[P
     return removed
 
 
+def place_note(report: Any) -> str | None:
+    """A patched file's note when its per-photo mark found no free place (issue 25: said per file
+    and counted in the summary, never silent); None otherwise."""
+    place = getattr(report, "place", None)
+    return place.short() if place is not None else None
+
+
 def report_detail(report: Any) -> dict[str, Any]:
     detail: dict[str, Any] = {}
     for name in ("format", "width", "height", "preserved", "notes", "frames", "codec"):
@@ -383,6 +390,10 @@ def report_detail(report: Any) -> dict[str, Any]:
             "size": placement.size,
             "block": placement.block,
         }
+    place = getattr(report, "place", None)
+    if place is not None:  # where a per-photo mark shows and why (ppd report, status)
+        detail["place"] = {"box": list(place.box), "words": place.words, "source": place.source,
+                           "free": place.free, "orientation": place.orientation}  # fmt: skip
     return detail
 
 
@@ -795,7 +806,8 @@ def run_stages(
             if outcome is not None:
                 return outcome
         return job.outcome(
-            Outcome.PATCHED, None, original_sha256=job.sha, poisoned_sha256=job.poisoned_sha,
+            Outcome.PATCHED, place_note(job.report), original_sha256=job.sha,
+            poisoned_sha256=job.poisoned_sha,
             spec_id=job.spec.spec_id if job.spec else None, output=job.final, report=job.report,
             signature=job.written,
         )  # fmt: skip

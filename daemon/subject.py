@@ -117,6 +117,12 @@ def place_corner(spec: PatchSpec, files: Sequence[Path], mask_dir: Path | None) 
     return Placed(spec.replace(position=choice.corner), choice)
 
 
+def per_photo_line(dataset: str, mask_dir: Path | None) -> str:
+    """`lego: mark placed per photo, where each photo is plainest (estimated from its detail)`."""
+    why = f"off the subject masks in {mask_dir}" if mask_dir else "estimated from its detail; no masks"
+    return f"{dataset}: mark placed per photo, where each photo is plainest as shown ({why})"
+
+
 def corner_line(dataset: str, choice: Any) -> str:
     """`lego: mark in the bottom-right corner (estimated: least detail)`."""
     return _corner_words(dataset, choice.corner, choice.source)
