@@ -614,15 +614,18 @@ def decide(job: Job) -> ProtectOutcome | None:
 def _dataset_spec(job: Job) -> PatchSpec:
     """The dataset's subject masks (checked), then its spec: a new dataset's is set now, its corner
     judged on this file and its neighbours (daemon.dataset.ensure_dataset)."""
-    from daemon.subject import subject_masks_for
+    from daemon.subject import remember_masks, subject_masks_for
 
     ctx = job.ctx
     job.mask_dir = subject_masks_for(ctx, job.dataset, job.subject_masks)
     if job.dry_run:
         return job.wanted_spec or ctx.store.dataset_spec(job.dataset) or ctx.config.spec_for(job.dataset)
-    return ensure_dataset(
+    spec = ensure_dataset(
         ctx, job.dataset, job.root, job.wanted_spec, sample=lambda: _corner_sample(job), mask_dir=job.mask_dir
     )
+    if job.subject_masks is not None:  # issue 25: kept with the dataset for later runs and the daemon
+        remember_masks(ctx, job.dataset, job.mask_dir)
+    return spec
 
 
 def _corner_sample(job: Job) -> list[Path]:

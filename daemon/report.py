@@ -34,7 +34,9 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
     if ctx.store.dataset(dataset) is None:
         raise ReportError(f"no dataset {dataset!r} (see `ppd status`)")
     runs = ctx.store.verification_runs(dataset, limit=history)
-    latest = latest_run_group(runs)
+    current = {r["id"] for r in ctx.store.current_verification_runs(dataset, limit=history)}
+    # the headline rests on runs that measured today's pixels (issue 25); older ones are history
+    latest = [r for r in latest_run_group(runs) if r["id"] in current]
     state, under = dataset_protection(ctx.store.counts(dataset), {r["profile"]: r for r in latest})
     step = next_step(state, dataset)
     data = dataset_history_report(

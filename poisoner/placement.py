@@ -115,7 +115,11 @@ PLAIN_SHARE = 0.02  # a footprint with at most this share of detailed thumbnail 
 NO_PLAIN_SHARE = 0.25  # the best footprint still this detailed: no plain region (likely on the subject)
 COST_STEP = 0.02  # detail shares within one step are equally plain: the preferred anchor decides
 GRID = 24  # candidate anchors per frame side (the stride is the shorter side / GRID)
-MARGIN = 0.01  # of the shorter side: the footprint is judged grown by this much ("away from")
+MARGIN = 0.03  # of the shorter side: the footprint is judged grown by this much ("away from")
+# Without masks a plain patch inside the frame may be part of the subject (a white ruler, a blade's
+# highlight); the frame's border band rarely is. A footprint d (fraction of the shorter side) from
+# the nearest edge costs EDGE_WEIGHT * d, as if that share of it held detail.
+EDGE_WEIGHT = 0.5
 
 
 def orientation_of(value: object) -> int:
@@ -265,9 +269,11 @@ def choose_spot(
     area = np.maximum(area, 1)
     share = sums["detail"] / area
     on_subject = sums["subject"] / area if subject is not None else np.zeros(ax.shape)
+    inward = np.minimum.reduce([ax + rx0, ay + ry0, w - (ax + rx1), h - (ay + ry1)]) / min(w, h)
+    cost = share + EDGE_WEIGHT * np.maximum(inward, 0)
     distance = (ax - preferred[0]) ** 2 + (ay - preferred[1]) ** 2
     # lexsort: the last key is the primary one
-    order = np.lexsort((ax, ay, distance, np.round(share / COST_STEP), np.round(on_subject, 6)))
+    order = np.lexsort((ax, ay, distance, np.round(cost / COST_STEP), np.round(on_subject, 6)))
     best = int(order[0])
     subject_share = float(on_subject[best]) if subject is not None else None
     free = subject_share == 0.0 if subject_share is not None else float(share[best]) <= NO_PLAIN_SHARE
