@@ -5,6 +5,7 @@ Real files (PNG, JPEG with EXIF orientation), the real CLI and store; no mocks."
 from __future__ import annotations
 
 import io
+import re
 from pathlib import Path
 
 import numpy as np
@@ -222,3 +223,51 @@ def test_no_plain_region_is_said_per_file_and_in_the_summary(
     assert "mark on the subject in 2 photos: no plain region" in result.output
     assert result.output.count("mark on the subject: no plain region") == 2  # -v: per file
     assert "busy: mark placed per photo, where each photo is plainest as shown" in result.output
+
+
+# ---- preview, report and pixels agree on a phone photo (EXIF orientation 6) --------------------------
+MARK_AT = re.compile(r"mark at the (\S+), pixels \((\d+),(\d+)\)-\((\d+),(\d+)\) as shown")
+
+
+def test_exif_6_preview_report_and_pixels_agree(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    from daemon.context import AppContext
+    from daemon.report import build_dataset_report
+
+    folder = tmp_path / "phone"
+    folder.mkdir()
+    for i in (1, 2):
+        phone_jpeg(folder / f"IMG_000{i}.jpg")
+    src = folder / "IMG_0001.jpg"
+    original = src.read_bytes()
+    before = runner.invoke(app, ["preview", str(src), "--out", str(tmp_path / "p1.png"), "--no-visibility"])
+    assert before.exit_code == 0, before.output
+    planned = MARK_AT.search(before.output)
+    assert planned is not None, before.output
+    assert runner.invoke(app, ["poison", str(folder), "-j", "1"]).exit_code == 0
+    after = runner.invoke(app, ["preview", str(src), "--out", str(tmp_path / "p2.png"), "--no-visibility"])
+    assert after.exit_code == 0, after.output
+    stored = MARK_AT.search(after.output)
+    assert stored is not None and stored.groups() == planned.groups()  # before and after: one answer
+    words, box = planned.group(1), tuple(int(v) for v in planned.groups()[1:])
+    assert words.startswith("bottom")  # the plain floor as the viewer sees it
+    changed = changed_shown_bytes_oriented(original, src)
+    ys, xs = np.nonzero(changed)
+    assert position_words((xs.min(), ys.min(), xs.max() + 1, ys.max() + 1), 240, 320) == words
+    assert xs.min() >= box[0] - 8 and ys.min() >= box[1] - 8  # within a JPEG MCU's reach of the box
+    assert xs.max() < box[2] + 8 and ys.max() < box[3] + 8
+    ctx = AppContext.open()
+    try:
+        data = build_dataset_report(ctx, "phone")
+    finally:
+        ctx.close()
+    captions = [f.caption for f in data.figures if f.caption.startswith("Patch preview")]
+    found = [MARK_AT.search(c) for c in captions]
+    assert found and all(m is not None for m in found), captions
+    assert any(m.group(1) == words for m in found if m is not None)
+    assert any(n.startswith("Placement: per photo") for n in data.notes)
+
+
+def changed_shown_bytes_oriented(original: bytes, patched: Path) -> np.ndarray:
+    a = np.asarray(ImageOps.exif_transpose(Image.open(io.BytesIO(original))).convert("RGB")).astype(int)
+    b = np.asarray(ImageOps.exif_transpose(Image.open(patched)).convert("RGB")).astype(int)
+    return np.abs(a - b).max(axis=2) > 0
