@@ -256,6 +256,13 @@ def display_detail(data: bytes, name: str = "image") -> tuple[np.ndarray, int]:
     return orient_array(grad > DETAIL_LEVEL, orientation), orientation
 
 
+def frame_detail(rgb: np.ndarray) -> np.ndarray:
+    """display_detail for a decoded frame (H x W x 3 uint8, as shown): True = visible detail."""
+    from PIL import Image
+
+    return _gradient(_grey_thumbnail(Image.fromarray(rgb))) > DETAIL_LEVEL
+
+
 def display_subject(keep_out: np.ndarray, orientation: int, shape: tuple[int, int]) -> np.ndarray:
     """A stored-pixel subject mask (H x W, True = subject) as shown, on a thumbnail grid of `shape`
     (h, w): a cell is subject when any pixel in it is."""

@@ -271,3 +271,13 @@ def changed_shown_bytes_oriented(original: bytes, patched: Path) -> np.ndarray:
     a = np.asarray(ImageOps.exif_transpose(Image.open(io.BytesIO(original))).convert("RGB")).astype(int)
     b = np.asarray(ImageOps.exif_transpose(Image.open(patched)).convert("RGB")).astype(int)
     return np.abs(a - b).max(axis=2) > 0
+
+
+def test_video_anchors_glide_between_keyframes() -> None:
+    from poisoner.placement import anchor_at, smooth_anchors
+
+    anchors = smooth_anchors([(0.0, (0, 0)), (1.0, (300, 0)), (2.0, (300, 0))], max_step=100.0)
+    assert anchors[1][1] == (100.0, 0.0)  # a 300 px jump in 1 s is spread at 100 px/s
+    xs = [anchor_at(anchors, t / 10)[0] for t in range(0, 31)]
+    assert xs[0] == 0 and xs[20] == 200 and xs[-1] == 200  # as far as the speed allows, then held
+    assert max(b - a for a, b in zip(xs, xs[1:], strict=False)) <= 10  # 100 px/s at 0.1 s steps
