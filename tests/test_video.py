@@ -15,7 +15,6 @@ from PIL import Image
 
 from bench.bench_video import mux_sine
 from poisoner.atomic import TEMP_PREFIX, atomic_output
-from poisoner.blend import patch_coverage
 from poisoner.ladder import default_spec, named_spec
 from poisoner.media import VIDEO_SUFFIXES, is_video
 from poisoner.spec import PatchPlacement, PatchSpec
