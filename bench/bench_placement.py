@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -84,9 +85,10 @@ def shown_rgb(path: Path) -> np.ndarray:
         return np.asarray(ImageOps.exif_transpose(im).convert("RGB"))
 
 
-def judge_set(images: Path, masks: Path, out: Path, spec: Any) -> dict[str, Any]:
-    """Poison every image with poison_file (no masks given); per view whether a changed pixel touches
-    the subject (as shown), the changed area, where the mark went, and FLIP on three views."""
+def judge_set(images: Path, masks: Path, out: Path, spec: Any, give_masks: bool = False) -> dict[str, Any]:
+    """Poison every image with poison_file (no masks given, unless give_masks: then as keep-out, what
+    --subject-masks does); per view whether a changed pixel touches the subject (as shown), the
+    changed area, where the mark went, and FLIP on three views."""
     from poisoner.formats import poison_file
     from verifier.visibility import visibility_report
 
@@ -96,10 +98,10 @@ def judge_set(images: Path, masks: Path, out: Path, spec: Any) -> dict[str, Any]
     views, vis = [], []
     t0 = time.perf_counter()
     for f in files:
-        report = poison_file(f, out / f.name, spec)
+        subject = np.asarray(Image.open(masks / f"{f.stem}.png")) > 0
+        report = poison_file(f, out / f.name, spec, keep_out=subject if give_masks else None)
         a, b = shown_rgb(f), shown_rgb(out / f.name)
         changed = np.any(a != b, axis=2)
-        subject = np.asarray(Image.open(masks / f"{f.stem}.png")) > 0
         place = report.place
         views.append({
             "name": f.name, "touches": bool((changed & subject).any()), "changed_area": float(changed.mean()),
@@ -139,6 +141,11 @@ def touch(args: argparse.Namespace) -> None:
             r.update(set=name, design=label)
             print(json.dumps({k: v for k, v in r.items() if k != "per_view"}), flush=True)
             rows.append(r)
+        if name == "crop70":  # the floor: the masks themselves given (keep-out: never written on them)
+            r = judge_set(images, masks, WORK / name / "out-masks", new, give_masks=True)
+            r.update(set=name, design="per-photo, subject masks given")
+            print(json.dumps({k: v for k, v in r.items() if k != "per_view"}), flush=True)
+            rows.append(r)
     (WORK / "touch.json").write_text(json.dumps(rows))
     picture(WORK / "crop70")
     write_markdown()
@@ -163,8 +170,9 @@ def picture(folder: Path) -> None:
                 tile[y0 : y1 + 1, max(xx - 1, 0) : xx + 2] = (255, 0, 0)
         tiles.append(tile)
     gap = np.full((tiles[0].shape[0], 8, 3), 32, dtype=np.uint8)
-    row = np.concatenate([tiles[0], gap, tiles[1], gap, tiles[2]], axis=1)
-    Image.fromarray(row).save(PICTURE, optimize=True)
+    row = Image.fromarray(np.concatenate([tiles[0], gap, tiles[1], gap, tiles[2]], axis=1))
+    row = row.resize((1600, round(row.height * 1600 / row.width)), Image.Resampling.LANCZOS)  # repo-sized
+    row.save(PICTURE, optimize=True)
 
 
 # ---- (c) COLMAP ----------------------------------------------------------------------------------------
@@ -218,6 +226,41 @@ def _load(path: Path) -> list[dict[str, Any]]:
     return json.loads(path.read_text()) if path.exists() else []
 
 
+# ---- what per-photo placement costs -------------------------------------------------------------------
+def speed(args: argparse.Namespace) -> None:
+    """poison_file with the per-photo default against the same spec in one fixed corner, interleaved
+    in one run (ratio, median of `--repeat` rounds): a 1600x1200 PNG and a 4000x3000 JPEG."""
+    import statistics
+
+    from poisoner.formats import poison_file
+    from poisoner.ladder import default_spec
+
+    folder = WORK / "speed"
+    folder.mkdir(parents=True, exist_ok=True)
+    src = SHARED / "dtu_scan37" / "images" / "000010.png"
+    png, jpg = folder / "000010.png", folder / "IMG_0010.jpg"
+    shutil.copy(src, png)
+    with Image.open(src) as im:
+        im.convert("RGB").resize((4000, 3000), Image.Resampling.LANCZOS).save(jpg, quality=92)
+    new = default_spec()
+    old = new.replace(position="top-left")
+    rows = []
+    for f in (png, jpg):
+        times: dict[str, list[float]] = {"per-photo": [], "corner": []}
+        for _ in range(args.repeat):
+            for label, spec in (("per-photo", new), ("corner", old)):
+                t = time.perf_counter()
+                poison_file(f, folder / f"out{f.suffix}", spec)
+                times[label].append(time.perf_counter() - t)
+        med = {k: statistics.median(v) for k, v in times.items()}
+        rows.append({"file": f.name, "per_photo_s": round(med["per-photo"], 4),
+                     "corner_s": round(med["corner"], 4), "ratio": round(med["per-photo"] / med["corner"], 2),
+                     "repeat": args.repeat})  # fmt: skip
+        print(json.dumps(rows[-1]), flush=True)
+    (WORK / "speed.json").write_text(json.dumps(rows))
+    write_markdown()
+
+
 # ---- the page ------------------------------------------------------------------------------------------
 def write_markdown() -> None:
     lines = ["# Per-photo placement (issue 25)", ""]
@@ -243,6 +286,16 @@ def write_markdown() -> None:
                 f"| {r['seconds']} |"
             )
         lines += ["", f"Picture: `{PICTURE.name}` (three 70% crops, the new default's mark in red).", ""]
+    speeds = _load(WORK / "speed.json")
+    if speeds:
+        lines += ["## What it costs", "",
+                  "`poison_file` per file, the per-photo default against the same spec in one fixed corner,",
+                  "interleaved in one run (median of the rounds):", "",
+                  "| file | per-photo s | corner s | ratio | rounds |", "|---|---|---|---|---|"]  # fmt: skip
+        for r in speeds:
+            cells = (r["file"], r["per_photo_s"], r["corner_s"], r["ratio"], r["repeat"])
+            lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+        lines.append("")
     runs = _load(WORK / "colmap.json")
     if runs:
         lines += [
@@ -273,9 +326,11 @@ def main(argv: list[str] | None = None) -> None:
     c.add_argument("--sets", default="lego,dtu")
     c.add_argument("--profiles", default="default,hardened,published,masked")
     c.add_argument("--seeds", default="0")
+    sp = sub.add_parser("speed")
+    sp.add_argument("--repeat", type=int, default=7)
     args = parser.parse_args(argv)
     WORK.mkdir(parents=True, exist_ok=True)
-    {"touch": touch, "colmap": colmap}[args.part](args)
+    {"touch": touch, "colmap": colmap, "speed": speed}[args.part](args)
 
 
 if __name__ == "__main__":
