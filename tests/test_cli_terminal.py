@@ -239,7 +239,8 @@ def test_designs_and_flags_express_the_paper_and_the_default() -> None:
     assert SpecOptions(design="default").build(PatchSpec()) == default_spec()
     values = (
         ("pattern", "random_blocks"), ("patch_size", "6%"), ("block_size", "0.25%"), ("motion", "slide"),
-        ("motion_step", "0.75%"), ("motion_span", "14%"), ("lanes", 2), ("slide_run", 8), ("position", "auto"),
+        ("motion_step", "0.75%"), ("motion_span", "14%"), ("lanes", 2), ("slide_run", 8),
+        ("position", "auto"),
     )  # fmt: skip
     assert SpecOptions(values=values).build(PatchSpec()) == default_spec()
     moved = SpecOptions(design="paper", values=(("motion", "orbit"), ("motion_step", "8"))).build(
