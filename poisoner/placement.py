@@ -1,4 +1,8 @@
-"""Subject-aware placement of a corner mark (issue 14): which corner, and which pixels to keep out.
+"""Where the mark goes. Two rules, both pure functions (arrays in, answers out):
+- per photo (issue 25, the default design's position "auto"): `place_on_photo` / `choose_spot` below;
+- one corner per dataset (issue 14, a corner spec), described here:
+
+Subject-aware placement of a corner mark (issue 14): which corner, and which pixels to keep out.
 
 Pure functions, arrays in, answers out. A watermark-like mark lives in one corner region
 (`region` of the width x `region` of the height). Over a dataset, the mark stays in ONE corner (a
