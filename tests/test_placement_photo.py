@@ -281,3 +281,19 @@ def test_video_anchors_glide_between_keyframes() -> None:
     xs = [anchor_at(anchors, t / 10)[0] for t in range(0, 31)]
     assert xs[0] == 0 and xs[20] == 200 and xs[-1] == 200  # as far as the speed allows, then held
     assert max(b - a for a, b in zip(xs, xs[1:], strict=False)) <= 10  # 100 px/s at 0.1 s steps
+
+
+def test_lanes_move_by_different_amounts_between_photos_whatever_their_anchors() -> None:
+    """Between two photos the two lanes never move by one and the same vector (COLMAP's watermark test
+    removes a pure translation): the slide per image index stays, the per-photo anchor is added to it."""
+    top_plain = np.ones((192, 256), dtype=bool)
+    top_plain[:40] = False
+    bottom_plain = np.ones((192, 256), dtype=bool)
+    bottom_plain[150:] = False
+    for a, b in ((top_plain, top_plain), (top_plain, bottom_plain)):
+        p1, _ = place_on_photo(SPEC, 800, 600, "v_3.png", 1, a)
+        p2, _ = place_on_photo(SPEC, 800, 600, "v_4.png", 1, b)
+        lanes1 = [(p1.x + dx, p1.y + dy) for dx, dy, _ in p1.parts]
+        lanes2 = [(p2.x + dx, p2.y + dy) for dx, dy, _ in p2.parts]
+        moves = {(x2 - x1, y2 - y1) for (x1, y1), (x2, y2) in zip(lanes1, lanes2, strict=True)}
+        assert len(moves) == 2, moves
