@@ -379,6 +379,13 @@ def clear_stale_work_folders(vault_dir: Path, min_age_s: float = 10.0) -> list[P
     return removed
 
 
+def place_note(report: Any) -> str | None:
+    """A patched file's note when its per-photo mark found no free place (issue 25: said per file
+    and counted in the summary, never silent); None otherwise."""
+    place = getattr(report, "place", None)
+    return place.short() if place is not None else None
+
+
 def report_detail(report: Any) -> dict[str, Any]:
     detail: dict[str, Any] = {}
     for name in ("format", "width", "height", "preserved", "notes", "frames", "codec"):
@@ -392,6 +399,10 @@ def report_detail(report: Any) -> dict[str, Any]:
             "size": placement.size,
             "block": placement.block,
         }
+    place = getattr(report, "place", None)
+    if place is not None:  # where a per-photo mark shows and why (ppd report, status)
+        detail["place"] = {"box": list(place.box), "words": place.words, "source": place.source,
+                           "free": place.free, "orientation": place.orientation}  # fmt: skip
     return detail
 
 
@@ -624,15 +635,18 @@ def decide(job: Job) -> ProtectOutcome | None:
 def _dataset_spec(job: Job) -> PatchSpec:
     """The dataset's subject masks (checked), then its spec: a new dataset's is set now, its corner
     judged on this file and its neighbours (daemon.dataset.ensure_dataset)."""
-    from daemon.subject import subject_masks_for
+    from daemon.subject import remember_masks, subject_masks_for
 
     ctx = job.ctx
     job.mask_dir = subject_masks_for(ctx, job.dataset, job.subject_masks)
     if job.dry_run:
         return job.wanted_spec or ctx.store.dataset_spec(job.dataset) or ctx.config.spec_for(job.dataset)
-    return ensure_dataset(
+    spec = ensure_dataset(
         ctx, job.dataset, job.root, job.wanted_spec, sample=lambda: _corner_sample(job), mask_dir=job.mask_dir
     )
+    if job.subject_masks is not None:  # issue 25: kept with the dataset for later runs and the daemon
+        remember_masks(ctx, job.dataset, job.mask_dir)
+    return spec
 
 
 def _corner_sample(job: Job) -> list[Path]:
@@ -818,7 +832,8 @@ def run_stages(
             if outcome is not None:
                 return outcome
         return job.outcome(
-            Outcome.PATCHED, None, original_sha256=job.sha, poisoned_sha256=job.poisoned_sha,
+            Outcome.PATCHED, place_note(job.report), original_sha256=job.sha,
+            poisoned_sha256=job.poisoned_sha,
             spec_id=job.spec.spec_id if job.spec else None, output=job.final, report=job.report,
             signature=job.written,
         )  # fmt: skip

@@ -35,7 +35,10 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
         raise ReportError(f"no dataset {dataset!r} (see `ppd status`)")
     runs = ctx.store.verification_runs(dataset, limit=history)
     latest = latest_run_group(runs)
-    state, under = dataset_protection(ctx.store.counts(dataset), {r["profile"]: r for r in latest})
+    current = {r["id"] for r in ctx.store.current_verification_runs(dataset, limit=history)}
+    # the headline rests on runs that measured today's pixels (issue 25); older ones are history
+    verdicts = {r["profile"]: r for r in latest if r["id"] in current}
+    state, under = dataset_protection(ctx.store.counts(dataset), verdicts)
     step = next_step(state, dataset)
     data = dataset_history_report(
         f"ppd report — dataset {dataset}",
@@ -45,6 +48,13 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
         ctx.store.dataset_spec(dataset),
         f"Dataset {dataset!r} has never been verified: run `ppd verify {dataset}`.",
     )
+    if latest and not verdicts:
+        data.notes.insert(0, "The latest verification measured earlier pixels (files were patched or "
+                          "restored since): it is history, not today's verdict.")  # fmt: skip
+    spec = ctx.store.dataset_spec(dataset)
+    if spec is not None and spec.per_photo:
+        data.notes.insert(0, "Placement: per photo, where each photo is plainest as shown (off the subject "
+                          "masks when given); the preview below says where this file's mark is.")  # fmt: skip
     corner = choice_text(dataset, latest_choice(ctx, dataset))
     if corner is not None:  # where the mark went, and why (daemon.subject)
         data.notes.insert(0, f"Placement: {corner}.")

@@ -65,13 +65,25 @@ def check_mask_folder(folder: Path, outbox: Path, what: str = "--subject-masks")
 
 
 def subject_masks_for(ctx: AppContext, dataset: str, given: Path | None = None) -> Path | None:
-    """The dataset's mask folder: given (a command's --subject-masks), else the config's; checked."""
+    """The dataset's mask folder: given (a command's --subject-masks), else the config's, else the one
+    remembered with the dataset (issue 25: `remember_masks`, so `ppd poison --force` after a restore
+    and the daemon keep the mark off the subject without the flag); checked."""
     if given is not None:
         return check_mask_folder(given, ctx.paths.outbox)
     configured = ctx.config.subject_masks_for(dataset)
-    if configured is None:
+    if configured is not None:
+        return check_mask_folder(configured, ctx.paths.outbox, f"[datasets.{dataset}] subject_masks")
+    stored = ctx.store.dataset_masks(dataset)
+    if stored is None:
         return None
-    return check_mask_folder(configured, ctx.paths.outbox, f"[datasets.{dataset}] subject_masks")
+    return check_mask_folder(stored, ctx.paths.outbox, f"{dataset}'s remembered subject masks ({stored})")
+
+
+def remember_masks(ctx: AppContext, dataset: str, folder: Path | None) -> None:
+    """Keep a dataset's mask folder with its store row (a no-op before the row exists or when no
+    folder was given: a run without --subject-masks never forgets the one remembered)."""
+    if folder is not None:
+        ctx.store.set_dataset_masks(dataset, Path(folder).absolute())
 
 
 def masks_or_none(ctx: AppContext, dataset: str) -> Path | None:
@@ -115,6 +127,12 @@ def place_corner(spec: PatchSpec, files: Sequence[Path], mask_dir: Path | None) 
     if choice.source == "default":
         return Placed(spec, CornerChoice(corner=spec.position, source="default", cover={}))
     return Placed(spec.replace(position=choice.corner), choice)
+
+
+def per_photo_line(dataset: str, mask_dir: Path | None) -> str:
+    """`lego: mark placed per photo, where each photo is plainest (estimated from its detail)`."""
+    why = f"off the subject masks in {mask_dir}" if mask_dir else "estimated from its detail; no masks"
+    return f"{dataset}: mark placed per photo, where each photo is plainest as shown ({why})"
 
 
 def corner_line(dataset: str, choice: Any) -> str:

@@ -18,6 +18,7 @@ import numpy as np
 
 from poisoner.logo import mark_shape
 from poisoner.patterns import pattern_levels, pattern_mask
+from poisoner.placement import unorient_array
 from poisoner.spec import PatchPlacement, PatchSpec
 
 RGBA_POLICY = "patch region opaque, composited over white"
@@ -70,7 +71,11 @@ def _lanes(placement: PatchPlacement) -> tuple[np.ndarray, np.ndarray]:
 
 def patch_coverage(placement: PatchPlacement) -> np.ndarray:
     """Which pixels of the placement's box the patch changes (all of them unless it is turned or
-    shaped as text / a logo)."""
+    shaped as text / a logo), in the stored layout (placement.turn)."""
+    return np.ascontiguousarray(unorient_array(_coverage(placement), placement.turn))
+
+
+def _coverage(placement: PatchPlacement) -> np.ndarray:
     if placement.parts:
         return _lanes(placement)[1]
     if placement.texture_size == 0:
@@ -91,7 +96,8 @@ def patch_values(placement: PatchPlacement, max_value: int = 255) -> np.ndarray:
         mask = pattern_mask(placement.pattern, placement.size, placement.block, placement.seed)
     else:
         mask = _turned(placement)[0]
-    return pattern_levels(mask, placement.contrast, max_value)
+    # laid out as the picture is shown, stored turned back (issue 25)
+    return pattern_levels(unorient_array(mask, placement.turn), placement.contrast, max_value)
 
 
 def apply_patch(

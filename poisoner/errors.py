@@ -7,3 +7,8 @@ from __future__ import annotations
 
 class ImageFormatError(Exception):
     """A file that cannot be poisoned faithfully (message: one line)."""
+
+
+class MarkNotWritten(ImageFormatError):
+    """The mark would change no pixel of the file (a keep-out mask covers all of it): the file is
+    not protected, so it is a failure, never "patched" (issue 25)."""

@@ -50,9 +50,9 @@ from poisoner import jpeg as jpeg_codec
 from poisoner import location, provenance
 from poisoner.atomic import atomic_output
 from poisoner.blend import apply_patch_at
-from poisoner.errors import ImageFormatError
+from poisoner.errors import ImageFormatError, MarkNotWritten
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
-from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box
+from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box, written_pixels
 from poisoner.image.png import PNG_SIGNATURE, png_chunks, poison_png, splice_png, strip_png_location
 from poisoner.image.read import load_decoded, one_line, open_decoded
 from poisoner.image.tiff import poison_tiff
@@ -60,8 +60,10 @@ from poisoner.image.webp import poison_webp, vp8_quantizers, webp_quality_from_q
 from poisoner.image.write import image_from_array, paste_patch, save_explicit
 from poisoner.limits import DEFAULT_MAX_PIXELS, check_decode_budget
 from poisoner.media import is_image
+from poisoner.placement import MarkPlace, place_on_photo
 from poisoner.provenance import Marker
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
+from poisoner.subject import display_detail, display_subject
 
 # Re-exported: importers of poisoner.formats keep finding these here.
 __all__ = [
@@ -89,6 +91,8 @@ log = logging.getLogger(__name__)
 JPEG_REGION_DECODE = True
 
 ORIENTATION_POLICY = "patch placed in stored pixels (EXIF orientation ignored, tag kept)"
+# a per-photo mark (issue 25) is placed where the photo is plain as a viewer sees it
+SHOWN_ORIENTATION_POLICY = "mark placed as the photo is shown, turned with it into the stored pixels"
 PALETTE_POLICY = "patch colours appended to the palette when there is room, else written as RGB(A)"
 
 _load_decoded = load_decoded  # the JPEG writer's name for it
@@ -107,6 +111,8 @@ class PoisonReport:
     src_bytes: int = 0
     dst_bytes: int = 0
     location_removed: list[str] = field(default_factory=list)  # e.g. "EXIF GPS IFD", "XMP exif:GPSLatitude"
+    written: int = 0  # pixels the mark writes (never 0: poison_file refuses that file, MarkNotWritten)
+    place: MarkPlace | None = None  # a per-photo mark: where it shows and why (poisoner.placement)
 
 
 # ---- JPEG ----------------------------------------------------------------------------------------
@@ -281,15 +287,27 @@ def poison_file(
     if region and fmt != "JPEG":
         load_decoded(src, im)
     width, height = im.size
-    placement = _placement(src, im, spec)
     keep = checked_keep_out(src.name, keep_out, (width, height))
+    placement, place = plan_mark(src.name, data, (width, height), spec, keep)
+    written = written_pixels(placement, keep)
+    if written == 0:  # never "patched" with no changed pixel (issue 25): nothing is written to dst
+        raise MarkNotWritten(
+            f"{src.name}: the subject mask covers the whole mark, no pixel would change: not patched"
+        )
     out, preserved, notes, method, lossless, removed = _write_format(
         src, im, data, fmt, placement, keep, keep_location=keep_location, marker=marker, loaded=not region
     )
-    notes += [n for n in [kept_out_note(placement, keep)] if n] + _file_notes(src, im, fmt, removed)
+    if method == "jpeg-unchanged":  # whole MCUs near the mask are kept: none left to write
+        raise MarkNotWritten(
+            f"{src.name}: the subject mask reaches every 8x8 block of the mark, no pixel would change: "
+            "not patched"
+        )
+    notes += [n for n in [kept_out_note(placement, keep)] if n]
+    notes += _file_notes(src, im, fmt, removed, shown=place is not None)
     dst.write_bytes(out)
     report = PoisonReport(
-        fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out), removed
+        fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out), removed,
+        written, place,
     )
     log.info(
         "poisoned image",
@@ -309,12 +327,22 @@ def _read_source(src: Path, dst: Path, max_pixels: int | None) -> bytes:
         raise ImageFormatError(f"{src.name}: cannot read ({one_line(exc)})") from exc
 
 
-def _placement(src: Path, im: Image.Image, spec: PatchSpec) -> PatchPlacement:
-    width, height = im.size
+def plan_mark(
+    name: str, data: bytes, size: tuple[int, int], spec: PatchSpec, keep: np.ndarray | None = None
+) -> tuple[PatchPlacement, MarkPlace | None]:
+    """Where the mark goes on this file (stored pixels) and, for a per-photo spec, where it shows
+    and why. A per-photo spec judges the file's own display-oriented thumbnail and its keep-out
+    (subject) mask (poisoner.placement.place_on_photo); any other spec resolves on the stored size
+    (the real name: moving specs, issue #9). What ppd preview calls too, so both agree."""
+    width, height = size
     try:
-        return spec.resolve(width, height, image_key=src.name)  # the real name: moving specs (issue #9)
-    except SpecError as exc:
-        raise ImageFormatError(f"{src.name}: {exc}") from exc
+        if not spec.per_photo:
+            return spec.resolve(width, height, image_key=name), None
+        detail, orientation = display_detail(data, name)
+        subject = None if keep is None else display_subject(keep, orientation, detail.shape)
+        return place_on_photo(spec, width, height, name, orientation, detail, subject)
+    except (SpecError, ValueError) as exc:
+        raise ImageFormatError(f"{name}: {exc}") from exc
 
 
 def _write_format(
@@ -361,14 +389,15 @@ def _write_format(
     return out, preserved, notes, method, lossless, removed
 
 
-def _file_notes(src: Path, im: Image.Image, fmt: str, removed: list[str]) -> list[str]:
+def _file_notes(src: Path, im: Image.Image, fmt: str, removed: list[str], shown: bool = False) -> list[str]:
     """Notes on the file as a whole: location removed, orientation kept, a suffix that lies."""
     notes: list[str] = []
     if removed:
         notes.append(f"location removed ({len(removed)}): " + ", ".join(removed))
     orientation = im.getexif().get(0x0112)
     if orientation and orientation != 1:
-        notes.append(f"EXIF orientation {orientation} kept; {ORIENTATION_POLICY}")
+        policy = SHOWN_ORIENTATION_POLICY if shown else ORIENTATION_POLICY
+        notes.append(f"EXIF orientation {orientation} kept; {policy}")
     if is_image(src) and not _suffix_matches(src.suffix.lower(), fmt):
         notes.append(f"content is {fmt} despite the {src.suffix} suffix: written as {fmt}")
     return notes

@@ -145,7 +145,9 @@ WATERMARK_LANES_SPEC = PatchSpec(
 #   to 0.5% blocks at 800 px), so a full-size photo's mark has four times the blocks of a 0.5% mark and
 #   about three times the keypoints under COLMAP's 8192-feature cap (dtu_scan37 at 1600x1200: the mark's
 #   share of the two-view inliers is what decides; bench/results/patch_votes.md).
-WATERMARK_LANES_2_SPEC = WATERMARK_LANES_SPEC.replace(slide_run=8, block_size=0.0025)
+# Issue 25: position "auto": each photo's lanes go where that photo is plainest as it is shown
+# (poisoner.placement.place_on_photo), not in one corner per dataset; `--position CORNER` keeps one corner.
+WATERMARK_LANES_2_SPEC = WATERMARK_LANES_SPEC.replace(slide_run=8, block_size=0.0025, position="auto")
 
 
 def named_specs() -> dict[str, PatchSpec]:

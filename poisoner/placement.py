@@ -1,4 +1,8 @@
-"""Subject-aware placement of a corner mark (issue 14): which corner, and which pixels to keep out.
+"""Where the mark goes. Two rules, both pure functions (arrays in, answers out):
+- per photo (issue 25, the default design's position "auto"): `place_on_photo` / `choose_spot` below;
+- one corner per dataset (issue 14, a corner spec), described here:
+
+Subject-aware placement of a corner mark (issue 14): which corner, and which pixels to keep out.
 
 Pure functions, arrays in, answers out. A watermark-like mark lives in one corner region
 (`region` of the width x `region` of the height). Over a dataset, the mark stays in ONE corner (a
@@ -11,9 +15,13 @@ where it reaches into the chosen corner.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
+
+from poisoner.spec import PatchPlacement, PatchSpec
 
 CORNERS = ("top-left", "top-right", "bottom-left", "bottom-right")
 
@@ -94,3 +102,320 @@ def keep_out_mask(
             src = occupied[max(0, -dy) : h - max(0, dy), max(0, -dx) : w - max(0, dx)]
             grown[max(0, dy) : h - max(0, -dy), max(0, dx) : w - max(0, -dx)] |= src
     return grown
+
+
+# ---- per-photo placement (issue 25) ---------------------------------------------------------------
+# One dataset-wide corner lands on the subject whenever the subject fills that corner in some views
+# (13 of 25 views of a subject-filling capture), and an attacker who masks the four corners removes
+# it. So each photo gets its own place, in what a viewer sees (EXIF orientation applied): the
+# plainest spot for the mark's footprint in that photo (no subject pixel where masks are given, the
+# least image detail otherwise), anywhere in the frame, ties going to one preferred anchor (the top
+# edge's centre) so that the photos of a plain-background set share their anchor and the lanes
+# move between them exactly as the measured corner lanes did.
+
+# EXIF orientation -> the one that undoes it (5, 7 and the flips are their own inverse)
+INVERSE_ORIENTATION = {1: 1, 2: 2, 3: 3, 4: 4, 5: 5, 6: 8, 7: 7, 8: 6}
+PLAIN_SHARE = 0.02  # a footprint with at most this share of detailed thumbnail pixels is plain
+NO_PLAIN_SHARE = 0.25  # the best footprint still this detailed: no plain region (likely on the subject)
+COST_STEP = 0.02  # detail shares within one step are equally plain: the preferred anchor decides
+GRID = 24  # candidate anchors per frame side (the stride is the shorter side / GRID)
+MARGIN = 0.03  # of the shorter side: the footprint is judged grown by this much ("away from")
+# Without masks a plain patch inside the frame may be part of the subject (a white ruler, a blade's
+# highlight); the frame's border band rarely is. A footprint d (fraction of the shorter side) from
+# the nearest edge costs EDGE_WEIGHT * d, as if that share of it held detail.
+EDGE_WEIGHT = 0.5
+
+
+def orientation_of(value: object) -> int:
+    """An EXIF orientation value as 1..8 (anything else: 1, what viewers do with a bad tag)."""
+    return value if isinstance(value, int) and 1 <= value <= 8 else 1
+
+
+def orient_array(a: np.ndarray, orientation: int) -> np.ndarray:
+    """Stored pixels (H x W (x C)) as a viewer shows them under an EXIF orientation, as PIL's
+    ImageOps.exif_transpose does (2: mirror, 3: 180, 4: flip, 5: transpose, 6: 90 clockwise,
+    7: transverse, 8: 90 counter-clockwise)."""
+    o = orientation_of(orientation)
+    if o == 2:
+        return a[:, ::-1]
+    if o == 3:
+        return a[::-1, ::-1]
+    if o == 4:
+        return a[::-1]
+    if o == 5:
+        return np.swapaxes(a, 0, 1)
+    if o == 6:
+        return np.swapaxes(a, 0, 1)[:, ::-1]
+    if o == 7:
+        return np.swapaxes(a, 0, 1)[::-1, ::-1]
+    if o == 8:
+        return np.swapaxes(a, 0, 1)[::-1]
+    return a
+
+
+def unorient_array(a: np.ndarray, orientation: int) -> np.ndarray:
+    """A display-space array back in the stored layout (orient_array's inverse)."""
+    return orient_array(a, INVERSE_ORIENTATION[orientation_of(orientation)])
+
+
+def display_size(width: int, height: int, orientation: int) -> tuple[int, int]:
+    """(w, h) a viewer sees of a stored width x height picture."""
+    return (height, width) if orientation_of(orientation) >= 5 else (width, height)
+
+
+def turn_square(x: int, y: int, side: int, orientation: int, width: int, height: int) -> tuple[int, int]:
+    """Top-left of a side x side square at (x, y) of a width x height frame once the frame is shown
+    under `orientation` (the inverse orientation maps display back to stored)."""
+    return {
+        2: (width - x - side, y),
+        3: (width - x - side, height - y - side),
+        4: (x, height - y - side),
+        5: (y, x),
+        6: (height - y - side, x),
+        7: (height - y - side, width - x - side),
+        8: (y, width - x - side),
+    }.get(orientation_of(orientation), (x, y))
+
+
+ROWS = ("top", "middle", "bottom")
+COLUMNS = ("left", "centre", "right")
+
+
+def position_words(box: tuple[int, int, int, int], width: int, height: int) -> str:
+    """Where a box sits in a width x height frame, in words: which third across and down its
+    centre falls in ("top-centre", "bottom-left", "centre")."""
+    cx, cy = (box[0] + box[2]) / 2 / width, (box[1] + box[3]) / 2 / height
+    row, col = ROWS[min(2, int(cy * 3))], COLUMNS[min(2, int(cx * 3))]
+    if row == "middle" and col == "centre":
+        return "centre"
+    return f"{row}-{col}"
+
+
+@dataclass(frozen=True)
+class Spot:
+    """The anchor (display px) chosen for a photo's mark and how plain its footprint is there.
+
+    detail: share of the footprint (grown by the margin) holding image detail; subject: share on
+    the subject mask (None without one); free: no subject pixel (masks) / plain (no masks)."""
+
+    x: int
+    y: int
+    detail: float
+    subject: float | None
+    free: bool
+
+
+def _axis(lo: int, hi: int, preferred: int, stride: int) -> np.ndarray:
+    """Candidate anchors on one axis: the preferred one, every stride either side, and both ends."""
+    if hi < lo:
+        return np.array([], dtype=np.int64)
+    p = min(max(preferred, lo), hi)
+    below = np.arange(p, lo - 1, -stride) if stride > 0 else np.array([p])
+    above = np.arange(p, hi + 1, stride) if stride > 0 else np.array([p])
+    return np.unique(np.concatenate([below, above, [lo, hi]])).astype(np.int64)
+
+
+def _rect_sums(
+    integral: np.ndarray, x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray
+) -> np.ndarray:
+    """Sums of a map over [y0, y1) x [x0, x1) from its integral image (one row/column of zeros first)."""
+    return integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
+
+
+def choose_spot(
+    detail: np.ndarray,
+    subject: np.ndarray | None,
+    size: tuple[int, int],
+    rects: list[tuple[int, int, int, int]],
+    preferred: tuple[int, int],
+    bounds: tuple[int, int, int, int] | None = None,
+) -> Spot:
+    """The anchor for a mark whose parts cover `rects` (display px, relative to the anchor) in a
+    frame of `size` (w, h) display px: the plainest place, judged on `detail` (a thumbnail of the
+    frame, True/1 = image detail) and `subject` (same grid, True = subject; None: no mask).
+
+    Order: no subject pixel first (masks), then the least detail (in COST_STEP steps), then the
+    nearest to `preferred`, then top-left first: deterministic for a given picture. bounds
+    (relative to the anchor, default: the rects' union) must lie inside the frame."""
+    w, h = size
+    th, tw = detail.shape
+    sx, sy = tw / w, th / h
+    margin = max(1, round(MARGIN * min(w, h)))
+    rx0, ry0, rx1, ry1 = bounds or (
+        min(r[0] for r in rects), min(r[1] for r in rects), max(r[2] for r in rects), max(r[3] for r in rects)
+    )
+    stride = max(1, min(w, h) // GRID)
+    # an anchor is where the mark's path starts: never left of or above the frame
+    xs = _axis(max(0, -rx0), w - rx1, preferred[0], stride)
+    ys = _axis(max(0, -ry0), h - ry1, preferred[1], stride)
+    if xs.size == 0 or ys.size == 0:
+        raise ValueError(f"the mark ({rx1 - rx0}x{ry1 - ry0} px) does not fit a {w}x{h} frame")
+    ax, ay = (a.ravel() for a in np.meshgrid(xs, ys))
+
+    def integral(m: np.ndarray) -> np.ndarray:
+        out = np.zeros((th + 1, tw + 1))
+        out[1:, 1:] = np.asarray(m, dtype=np.float64).cumsum(0).cumsum(1)
+        return out
+
+    maps = {"detail": integral(detail)}
+    if subject is not None:
+        maps["subject"] = integral(subject)
+    sums = {k: np.zeros(ax.shape) for k in maps}
+    area = np.zeros(ax.shape)
+    for x0, y0, x1, y1 in rects:  # each part grown by the margin, in thumbnail cells (outward)
+        cx0 = np.clip(np.floor((ax + x0 - margin) * sx), 0, tw).astype(np.int64)
+        cy0 = np.clip(np.floor((ay + y0 - margin) * sy), 0, th).astype(np.int64)
+        cx1 = np.clip(np.ceil((ax + x1 + margin) * sx), 0, tw).astype(np.int64)
+        cy1 = np.clip(np.ceil((ay + y1 + margin) * sy), 0, th).astype(np.int64)
+        area += np.maximum(cx1 - cx0, 0) * np.maximum(cy1 - cy0, 0)
+        for k, m in maps.items():
+            sums[k] += _rect_sums(m, cx0, cy0, cx1, cy1)
+    area = np.maximum(area, 1)
+    share = sums["detail"] / area
+    on_subject = sums["subject"] / area if subject is not None else np.zeros(ax.shape)
+    inward = np.minimum.reduce([ax + rx0, ay + ry0, w - (ax + rx1), h - (ay + ry1)]) / min(w, h)
+    cost = share + EDGE_WEIGHT * np.maximum(inward, 0)
+    distance = (ax - preferred[0]) ** 2 + (ay - preferred[1]) ** 2
+    # lexsort: the last key is the primary one
+    order = np.lexsort((ax, ay, distance, np.round(cost / COST_STEP), np.round(on_subject, 6)))
+    best = int(order[0])
+    subject_share = float(on_subject[best]) if subject is not None else None
+    free = subject_share == 0.0 if subject_share is not None else float(share[best]) <= NO_PLAIN_SHARE
+    return Spot(int(ax[best]), int(ay[best]), float(share[best]), subject_share, free)
+
+
+SOURCE_WORDS = {
+    "masks": "from the subject mask: no subject pixel there",
+    "estimated": "the plainest region of this photo (estimated from its detail)",
+    "no-free-masks": "no region free of the subject mask: the least covered place, "
+    "the mask's pixels left unwritten",
+    "no-plain": "no plain region: the least detailed place, likely on the subject",
+    "preferred": "the default place (nothing to judge on)",
+}
+
+
+@dataclass(frozen=True)
+class MarkPlace:
+    """Where a photo's mark went, as a viewer sees the photo, and why (ppd poison -v, preview).
+
+    box: the mark's box (left, top, right, bottom) in display px of a `frame` (w, h) display frame;
+    source: a SOURCE_WORDS key; free: False when no free region was found (the summary counts it)."""
+
+    box: tuple[int, int, int, int]
+    frame: tuple[int, int]
+    source: str
+    free: bool
+    detail: float = 0.0
+    subject: float | None = None
+    orientation: int = 1
+    anchor: tuple[int, int] = (0, 0)  # where the mark's path starts, display px (videos interpolate it)
+
+    @property
+    def words(self) -> str:
+        return position_words(self.box, *self.frame)
+
+    @property
+    def why(self) -> str:
+        return SOURCE_WORDS.get(self.source, self.source)
+
+    def line(self) -> str:
+        """`mark at the top-centre, pixels (320,0)-(480,160) as shown (why)`."""
+        x0, y0, x1, y1 = self.box
+        turned = f", EXIF orientation {self.orientation}" if self.orientation != 1 else ""
+        return f"mark at the {self.words}, pixels ({x0},{y0})-({x1},{y1}) as shown{turned} ({self.why})"
+
+    def short(self) -> str | None:
+        """The per-file note when the place is not free (None when it is)."""
+        if self.free:
+            return None
+        if self.source == "no-free-masks":
+            return "mark partly on the subject mask (left unwritten there): no free region"
+        return "mark on the subject: no plain region"
+
+
+def _parts(placement: PatchPlacement) -> list[tuple[int, int, int, int]]:
+    """The squares a placement writes (lanes, or its box), frame coordinates."""
+    if not placement.parts:
+        return [placement.box]
+    s = placement.lane_size
+    return [(placement.x + dx, placement.y + dy, placement.x + dx + s, placement.y + dy + s)
+            for dx, dy, _ in placement.parts]  # fmt: skip
+
+
+def place_on_photo(
+    spec: PatchSpec,
+    width: int,
+    height: int,
+    image_key: str | None,
+    orientation: int,
+    detail: np.ndarray | None,
+    subject: np.ndarray | None = None,
+    *,
+    index: float | None = None,
+) -> tuple[PatchPlacement, MarkPlace]:
+    """A per-photo spec's placement on one stored width x height photo, in stored pixels, and where
+    it shows. detail / subject: display-oriented thumbnails (True = detail / subject); detail None:
+    nothing to judge on (the preferred anchor). The mark is laid out in display space (its lanes
+    slide right and down as the photo is shown) and turned back with the photo (PatchPlacement.turn)."""
+    o = orientation_of(orientation)
+    dw, dh = display_size(width, height, o)
+    preferred = spec.auto_anchor(dw, dh)
+    if detail is None:
+        spot = Spot(preferred[0], preferred[1], 0.0, None, True)
+        source = "preferred"
+    else:
+        zero = spec.resolve(dw, dh, image_key, index=index, anchor=(0, 0))
+        spot = choose_spot(detail, subject, (dw, dh), _parts(zero), preferred, zero.box)
+        if subject is not None:
+            source = "masks" if spot.free else "no-free-masks"
+        else:
+            source = "estimated" if spot.free else "no-plain"
+    shown = spec.resolve(dw, dh, image_key, index=index, anchor=(spot.x, spot.y))
+    x, y = turn_square(shown.x, shown.y, shown.size, INVERSE_ORIENTATION[o], dw, dh)
+    stored = dataclasses.replace(shown, x=x, y=y, turn=o)
+    place = MarkPlace(shown.box, (dw, dh), source, spot.free, spot.detail, spot.subject, o, (spot.x, spot.y))
+    return stored, place
+
+
+def stored_box_shown(placement: PatchPlacement, width: int, height: int) -> tuple[int, int, int, int]:
+    """A stored placement's box as shown under its own turn (the inverse of place_on_photo's turn)."""
+    x, y = turn_square(placement.x, placement.y, placement.size, placement.turn, width, height)
+    return (x, y, x + placement.size, y + placement.size)
+
+
+# ---- videos and frame sets: the same rule per keyframe, moving smoothly between them ----------------
+MAX_ANCHOR_SPEED = 0.25  # of the frame's shorter side per second: how fast a video's mark may move
+
+
+def smooth_anchors(
+    keys: Sequence[tuple[float, tuple[int, int]]], max_step: float
+) -> list[tuple[float, tuple[float, float]]]:
+    """Keyframe anchors (time, (x, y)) limited to move at most max_step px per unit of time from
+    one keyframe to the next (a jump is spread out: the video's mark glides, never teleports)."""
+    out: list[tuple[float, tuple[float, float]]] = []
+    for t, (x, y) in sorted(keys):
+        if not out:
+            out.append((t, (float(x), float(y))))
+            continue
+        pt, (px, py) = out[-1]
+        reach = max_step * max(t - pt, 0.0)
+        dx, dy = x - px, y - py
+        dist = float(np.hypot(dx, dy))
+        scale = 1.0 if dist <= reach or dist == 0 else reach / dist
+        out.append((t, (px + dx * scale, py + dy * scale)))
+    return out
+
+
+def anchor_at(anchors: Sequence[tuple[float, tuple[float, float]]], t: float) -> tuple[int, int]:
+    """The whole-pixel anchor at time t, linear between the (smoothed) keyframe anchors."""
+    if not anchors:
+        raise ValueError("no keyframe anchors")
+    if t <= anchors[0][0]:
+        x, y = anchors[0][1]
+        return (round(x), round(y))
+    for (t0, (x0, y0)), (t1, (x1, y1)) in zip(anchors, anchors[1:], strict=False):
+        if t <= t1:
+            f = 0.0 if t1 == t0 else (t - t0) / (t1 - t0)
+            return (round(x0 + f * (x1 - x0)), round(y0 + f * (y1 - y0)))
+    x, y = anchors[-1][1]
+    return (round(x), round(y))

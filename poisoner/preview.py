@@ -15,9 +15,12 @@ the zoom row is always taken from the full-resolution arrays, so the pattern's b
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 
-from poisoner.spec import PatchPlacement
+from poisoner.spec import PatchPlacement, PatchSpec
 
 GAP = 4  # pixels of dark grey between panels
 OUTLINE = np.array([255, 0, 0], dtype=np.uint8)
@@ -203,3 +206,46 @@ def oriented_placement(
         8: (y, width - x - s),
     }.get(orientation or 1, (x, y))
     return dataclasses.replace(placement, x=new[0], y=new[1])
+
+
+# ---- where the mark goes (issue 25): the same answer as poison_file's ------------------------------
+def planned_mark(
+    path: Path, spec: PatchSpec, keep_out: np.ndarray | None = None, name: str | None = None
+) -> Any:
+    """(placement in stored pixels, MarkPlace or None) that poison_file gives the file at path (named
+    `name`, default its own: a vault copy is judged under its dataset name), from the same bytes."""
+    from PIL import Image
+
+    from poisoner.formats import plan_mark
+    from poisoner.image.keep_out import checked_keep_out
+
+    data = Path(path).read_bytes()
+    with Image.open(path) as im:
+        size = im.size
+    label = name or Path(path).name
+    return plan_mark(label, data, size, spec, checked_keep_out(label, keep_out, size))
+
+
+def shown_placement(
+    placement: PatchPlacement, place: Any, orientation: int | None, width: int, height: int
+) -> Any:
+    """The box to outline on the shown picture: a per-photo mark's own (MarkPlace.box), else the
+    stored placement turned as the picture is shown (oriented_placement)."""
+    import dataclasses
+
+    if place is not None:
+        return dataclasses.replace(placement, x=place.box[0], y=place.box[1])
+    return oriented_placement(placement, orientation, width, height)
+
+
+def mark_line(placement: PatchPlacement, place: Any, orientation: int | None, width: int, height: int) -> str:
+    """`mark at the top-centre, pixels (x0,y0)-(x1,y1) as shown (why)` for any spec."""
+    if place is not None:
+        return str(place.line())
+    from poisoner.placement import display_size, orientation_of, position_words
+
+    shown = oriented_placement(placement, orientation, width, height)
+    w, h = display_size(width, height, orientation_of(orientation))
+    x0, y0, x1, y1 = shown.box
+    words = position_words(shown.box, w, h)
+    return f"mark at the {words}, pixels ({x0},{y0})-({x1},{y1}) as shown (the spec's position)"

@@ -107,9 +107,13 @@ def sentence(dataset: str, kind: SceneKind, textured_fraction: float, edge_textu
                 "textured) — the kind of set ppd's mark protected in our tests, unless the subject itself is "
                 "richly textured; `ppd verify` tells you for sure.")  # fmt: skip
     if kind == SceneKind.TEXTURED_SUPPORT:
-        return (f"{dataset}: texture reaches the frame's edges ({edge_textured_fraction:.0%} of them: a "
-                "textured support, or a subject filling the frame) — borderline in our tests (held in "
-                "most runs, not all); `ppd verify` tells you for sure.")  # fmt: skip
+        # Issue 25: this class holds sets we measured (an object on a textured stone: dtu_scan37, held
+        # in most runs at 800 px) and sets we did not, or that failed (a façade under open sky: NOT
+        # protected); one image cannot tell them apart, so the line claims nothing for the class.
+        return (f"{dataset}: texture reaches the frame's edges ({edge_textured_fraction:.0%} of them): an "
+                "object on a textured support, a façade, or a subject filling the frame — ppd's mark held "
+                "on one object-on-stone set in our tests and failed on façades; for the rest nothing is "
+                "measured; `ppd verify` tells you for sure.")  # fmt: skip
     return (f"{dataset}: richly textured everywhere ({textured_fraction:.0%} of the frame) — in our tests no "
             "mark within the visibility budget protected sets like this; `ppd verify` will say.")  # fmt: skip
 

@@ -53,7 +53,10 @@ PATTERNS = (
     "multiscale_blocks",
 )
 
-POSITIONS = ("top-left", "top-right", "bottom-left", "bottom-right", "center")
+POSITIONS = ("top-left", "top-right", "bottom-left", "bottom-right", "center", "auto")
+# "auto" (issue 25): each photo's mark goes where that photo is plainest (poisoner.placement
+# place_on_photo); resolve() then takes the photo's anchor, and without one uses auto_anchor().
+AUTO = "auto"
 
 # Smallest block the spec resolves to. The paper's block-size ablation (P=100) finds b=1 and
 # b=2 nearly harmless (render SSIM 0.952/0.953 vs 0.969 clean) and b=4..8 strongest, because
@@ -131,6 +134,10 @@ class PatchPlacement:
     # square relative to (x, y). Empty: one mark filling the box.
     parts: tuple[tuple[int, int, int], ...] = ()
     lane_size: int = 0
+    # issue 25: the EXIF orientation of the picture the mark was placed for. The mark is laid out
+    # as a viewer sees the picture (display space) and turned back into the stored pixels, so its
+    # copies are pixel-identical across photos as they are shown. 1: stored = shown.
+    turn: int = 1
 
     @property
     def box(self) -> tuple[int, int, int, int]:
@@ -211,8 +218,8 @@ class PatchSpec:
             raise SpecError(f"corner_region must be in (0, 0.5], got {self.corner_region}")
         if not 0.0 < self.tumble_scale <= 1.0:
             raise SpecError(f"tumble_scale must be in (0, 1], got {self.tumble_scale}")
-        if self.motion in CORNER_MOTIONS and self.position == "center":
-            raise SpecError("a tumbling mark lives in a corner: position must not be 'center'")
+        if self.motion in CORNER_MOTIONS and self.position in ("center", AUTO):
+            raise SpecError(f"a tumbling mark lives in a corner: position must not be {self.position!r}")
         if not isinstance(self.mark_text, str) or not isinstance(self.mark_image, str):
             raise SpecError("mark_text and mark_image must be strings")
         lanes_ok = isinstance(self.lanes, int) and not isinstance(self.lanes, bool)
@@ -233,14 +240,30 @@ class PatchSpec:
 
     # ---- geometry -------------------------------------------------------------------------
     def resolve(
-        self, width: int, height: int, image_key: str | None = None, *, index: float | None = None
+        self,
+        width: int,
+        height: int,
+        image_key: str | None = None,
+        *,
+        index: float | None = None,
+        anchor: tuple[int, int] | None = None,
     ) -> PatchPlacement:
         """Pixel placement of this spec's patch on a width x height image.
 
         image_key (the image's file name) only matters for a moving spec: it picks the image's
         point on the path; a static spec places every image's patch identically. `index` gives
         the point on the path directly instead (videos: a fractional index per frame).
+        anchor (position "auto" only): the photo's own anchor, the top-left the mark's path starts
+        from (poisoner.placement.place_on_photo); None: auto_anchor(width, height).
         """
+        if self.position == AUTO:
+            ax, ay = anchor if anchor is not None else self.auto_anchor(width, height)
+            if ax < 0 or ay < 0:
+                raise SpecError(f"anchor ({ax},{ay}) falls outside a {width}x{height} image")
+            # the mark's path starts at the anchor and runs right/down, as from a top-left corner
+            return self.replace(position="top-left", offset=(int(ax), int(ay))).resolve(
+                width, height, image_key, index=index
+            )
         size = _resolve_length(self.patch_size, width)
         block = _resolve_length(self.block_size, width)
         if isinstance(self.block_size, float) and self.block_size < 1:
@@ -381,7 +404,34 @@ class PatchSpec:
     def corner_bound(self) -> bool:
         """Whether the mark lives in one corner region (the corner is `position`): a dataset's
         corner can then be chosen off its subject (poisoner.subject.dataset_corner)."""
-        return self.position != "center" and (self.motion in CORNER_MOTIONS or self.motion == "slide")
+        moving = self.motion in CORNER_MOTIONS or self.motion == "slide"
+        return self.position not in ("center", AUTO) and moving
+
+    @property
+    def per_photo(self) -> bool:
+        """Whether each photo's mark goes where that photo is plainest (position "auto", issue 25)."""
+        return self.position == AUTO
+
+    def path_extent(self, width: int, height: int) -> tuple[int, int]:
+        """(w, h) px the mark covers over its whole path from a top-left anchor (every index)."""
+        if self.lanes > 1 or self.motion == "slide":
+            span = _resolve_length(self.motion_span, width)
+            one = self.replace(position="top-left", offset=(0, 0)).resolve(width, height, index=0)
+            size = one.lane_size or one.size
+            rise = span // self.slide_run if self.slide_run else 0
+            pitch = round(size * 7 / 6)
+            return (span + size, rise + (self.lanes - 1) * pitch + size)
+        one = self.replace(position="top-left", offset=(0, 0)).resolve(width, height, index=0)
+        span = _resolve_length(self.motion_span, width) if self.moves else 0
+        return (one.size + span, one.size + span)
+
+    def auto_anchor(self, width: int, height: int) -> tuple[int, int]:
+        """The preferred anchor of a per-photo mark: its whole path centred along the top edge.
+        Where the top is as plain as anywhere, every photo takes this one, so the lanes move
+        between photos exactly as in one fixed place; off the four corners, which an attacker
+        who masks corners (the `masked` profile) removes."""
+        ew, _eh = self.path_extent(width, height)
+        return (max(0, (width - ew) // 2), 0)
 
     @property
     def moves(self) -> bool:

@@ -211,18 +211,67 @@ def _corner_from_detail(paths: Sequence[Path], region: float) -> CornerChoice:
 def detail_map(path: Path) -> np.ndarray:
     """Gradient magnitude (8-bit levels per pixel) of a grey thumbnail of the image, at most
     THUMBNAIL_PX on its longest side; transparent pixels read as white (what loaders show)."""
-    import numpy as np
     from PIL import Image
 
     from poisoner.image.read import decode_errors
 
     with decode_errors(path), Image.open(path) as im:
-        im.draft("RGB", (THUMBNAIL_PX, THUMBNAIL_PX))  # JPEG: a scaled DCT decode, much cheaper
-        im.thumbnail((THUMBNAIL_PX, THUMBNAIL_PX), Image.Resampling.BOX)
-        if "A" in im.getbands() or "transparency" in im.info:
-            rgba = im.convert("RGBA")
-            white = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
-            im = Image.alpha_composite(white, rgba)
-        grey = np.asarray(im.convert("L"), dtype=np.float64)
+        return _gradient(_grey_thumbnail(im))
+
+
+def _grey_thumbnail(im: Image.Image) -> np.ndarray:
+    import numpy as np
+    from PIL import Image
+
+    im.draft("RGB", (THUMBNAIL_PX, THUMBNAIL_PX))  # JPEG: a scaled DCT decode, much cheaper
+    im.thumbnail((THUMBNAIL_PX, THUMBNAIL_PX), Image.Resampling.BOX)
+    if "A" in im.getbands() or "transparency" in im.info:
+        rgba = im.convert("RGBA")
+        white = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+        im = Image.alpha_composite(white, rgba)
+    return np.asarray(im.convert("L"), dtype=np.float64)
+
+
+def _gradient(grey: np.ndarray) -> np.ndarray:
+    import numpy as np
+
     gy, gx = np.gradient(grey)
     return np.hypot(gx, gy)
+
+
+def display_detail(data: bytes, name: str = "image") -> tuple[np.ndarray, int]:
+    """(detail, orientation) of an encoded image: detail is True where a THUMBNAIL_PX thumbnail, as
+    a viewer shows it (EXIF orientation applied), has visible detail (gradient above DETAIL_LEVEL);
+    what per-photo placement judges (poisoner.placement.place_on_photo). Decoded from the bytes
+    alone, so ppd poison and ppd preview judge exactly the same thumbnail."""
+    import io
+
+    from PIL import Image
+
+    from poisoner.image.read import decode_errors
+    from poisoner.placement import orient_array, orientation_of
+
+    with decode_errors(Path(name)), Image.open(io.BytesIO(data)) as im:
+        orientation = orientation_of(im.getexif().get(0x0112))
+        grad = _gradient(_grey_thumbnail(im))
+    return orient_array(grad > DETAIL_LEVEL, orientation), orientation
+
+
+def frame_detail(rgb: np.ndarray) -> np.ndarray:
+    """display_detail for a decoded frame (H x W x 3 uint8, as shown): True = visible detail."""
+    from PIL import Image
+
+    return _gradient(_grey_thumbnail(Image.fromarray(rgb))) > DETAIL_LEVEL
+
+
+def display_subject(keep_out: np.ndarray, orientation: int, shape: tuple[int, int]) -> np.ndarray:
+    """A stored-pixel subject mask (H x W, True = subject) as shown, on a thumbnail grid of `shape`
+    (h, w): a cell is subject when any pixel in it is."""
+    import numpy as np
+    from PIL import Image
+
+    from poisoner.placement import orient_array
+
+    shown = np.ascontiguousarray(orient_array(np.asarray(keep_out) > 0, orientation)).astype(np.uint8) * 255
+    small = Image.fromarray(shown).resize((shape[1], shape[0]), Image.Resampling.BOX)
+    return np.asarray(small) > 0

@@ -194,12 +194,12 @@ def test_status_fits_and_keeps_the_verdict_whole(
     poisoned = runner.invoke(app, ["poison", str(shoot), "--dataset", "a-rather-long-dataset-name"])
     assert poisoned.exit_code == 0, poisoned.output
     ctx = AppContext.open()
-    now = time.time()
+    now = time.time()  # verified after the poison: a verdict on today's pixels (issue 25)
     ctx.store.add_verification_run(
-        "a-rather-long-dataset-name", "default", "protected", {}, now - 30, now - 20, None, None
+        "a-rather-long-dataset-name", "default", "protected", {}, now, now + 1, None, None
     )
     ctx.store.add_verification_run(
-        "a-rather-long-dataset-name", "hardened", "not_protected", {}, now - 10, now - 5, None, None
+        "a-rather-long-dataset-name", "hardened", "not_protected", {}, now + 2, now + 3, None, None
     )
     ctx.close()
     proc = ppd(narrow_env, "status", columns=columns)
@@ -240,6 +240,7 @@ def test_designs_and_flags_express_the_paper_and_the_default() -> None:
     values = (
         ("pattern", "random_blocks"), ("patch_size", "6%"), ("block_size", "0.25%"), ("motion", "slide"),
         ("motion_step", "0.75%"), ("motion_span", "14%"), ("lanes", 2), ("slide_run", 8),
+        ("position", "auto"),
     )  # fmt: skip
     assert SpecOptions(values=values).build(PatchSpec()) == default_spec()
     moved = SpecOptions(design="paper", values=(("motion", "orbit"), ("motion_step", "8"))).build(

@@ -336,19 +336,35 @@ def test_jpeg_reencode_fallback_keeps_the_mask(
     assert_lossy_halves(before, pixels(dst))
 
 
-@needs_jpegtran
-def test_mask_over_the_whole_mark_leaves_the_pixels(tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", ["a.jpg", "a.png"])
+def test_mask_over_the_whole_mark_is_a_failure_not_a_patched_file(tmp_path: Path, name: str) -> None:
+    """Issue 25: a mark the mask erases whole would leave the file unprotected; that is a failure
+    (one line, nothing written), never a "patched" file identical to its original."""
+    from poisoner.errors import MarkNotWritten
+
+    src, dst = tmp_path / name, tmp_path / f"out{Path(name).suffix}"
+    if name.endswith(".jpg"):
+        write_jpeg(src, "420")
+    else:
+        Image.fromarray(photo()).save(src)
+    full = np.ones((H, W), dtype=bool)
+    with pytest.raises(MarkNotWritten, match="no pixel would change: not patched"):
+        poison_file(src, dst, SPEC, keep_out=full, keep_location=True)
+    assert not dst.exists()
+
+
+def test_mask_reaching_every_mcu_of_the_mark_is_a_failure(tmp_path: Path) -> None:
+    """A JPEG mask that leaves mark pixels free but touches every MCU of the mark: still no pixel
+    changes (whole MCUs near the mask are kept), so still a failure."""
+    from poisoner.errors import MarkNotWritten
+
     src = tmp_path / "a.jpg"
     write_jpeg(src, "420")
-    full = np.ones((H, W), dtype=bool)
-    report = poison_file(src, tmp_path / "out.jpg", SPEC, keep_out=full, keep_location=True)
-    assert report.method == "jpeg-unchanged"
-    assert "keep-out mask covers the whole mark: nothing written in this image" in report.notes
-    assert (tmp_path / "out.jpg").read_bytes() == src.read_bytes()
-    png = tmp_path / "a.png"
-    Image.fromarray(photo()).save(png)
-    poison_file(png, tmp_path / "out.png", SPEC, keep_out=full)
-    assert np.array_equal(pixels(png), pixels(tmp_path / "out.png"))
+    grid = np.zeros((H, W), dtype=bool)
+    grid[::8, ::8] = True  # one pixel in every 8x8 block
+    with pytest.raises(MarkNotWritten):
+        poison_file(src, tmp_path / "out.jpg", SPEC, keep_out=grid)
+    assert not (tmp_path / "out.jpg").exists()
 
 
 @needs_jpegtran

@@ -21,7 +21,8 @@ TILTED = WATERMARK_LANES_SPEC.replace(slide_run=8)
 
 
 def test_the_named_spec_is_the_tilted_lanes() -> None:
-    assert named_spec("watermark-lanes-2") == WATERMARK_LANES_2_SPEC == TILTED.replace(block_size=0.0025)
+    tilted = TILTED.replace(block_size=0.0025, position="auto")
+    assert named_spec("watermark-lanes-2") == WATERMARK_LANES_2_SPEC == tilted
     assert TILTED.lanes == 2 and TILTED.motion == "slide"
 FRAMES = [(800, 600), (1024, 683), (1920, 1080), (800, 800), (600, 800), (3072, 2048)]
 

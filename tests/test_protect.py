@@ -64,8 +64,8 @@ def test_paths_follow_env_overrides(ppd_env: dict[str, Path]) -> None:
 
 def test_config_defaults_overrides_and_errors(ppd_env: dict[str, Path]) -> None:
     paths = AppPaths.from_env()
-    assert Config.load(paths).spec == default_spec()  # the corner lanes, not the paper's patch
-    assert default_spec() != PatchSpec() and default_spec().corner_bound and default_spec().lanes == 2
+    assert Config.load(paths).spec == default_spec()  # the per-photo lanes, not the paper's patch
+    assert default_spec() != PatchSpec() and default_spec().per_photo and default_spec().lanes == 2
     paths.config_file.write_text(
         'workers = 3\n[patch]\npatch_size = "6%"\nblock_size = 4\n'
         "[verification]\nevery_new_files = 5\n"
@@ -156,8 +156,8 @@ def test_second_run_is_unchanged(ctx: AppContext, ppd_env: dict[str, Path]) -> N
 
 
 def _default_with_its_corner(spec: PatchSpec) -> bool:
-    """The product's default spec, its corner chosen for the dataset (daemon.subject)."""
-    return spec.position in CORNERS and spec.replace(position=default_spec().position) == default_spec()
+    """The product's default spec: placed per photo (issue 25), so no corner is chosen for the dataset."""
+    return spec == default_spec() and spec.per_photo and spec.position not in CORNERS
 
 
 def test_every_file_of_a_dataset_gets_the_identical_patch(ctx: AppContext, ppd_env: dict[str, Path]) -> None:
@@ -166,7 +166,7 @@ def test_every_file_of_a_dataset_gets_the_identical_patch(ctx: AppContext, ppd_e
     spec = ctx.store.dataset_spec("shoot")
     assert _default_with_its_corner(spec)
     assert {o.spec_id for o in outcomes} == {spec.spec_id}
-    placements = [spec.resolve(160, 120, image_key=f.name) for f in files]
+    placements = [o.report.placement for o in outcomes]  # each photo's own place (issue 25)
     assert len({p.box for p in placements}) == 3  # the default mark moves from image to image ...
     lanes = []
     for f, p in zip(files, placements, strict=True):

@@ -10,6 +10,7 @@ import os
 import re
 import shutil
 import subprocess
+import time
 from pathlib import Path
 from typing import Any
 
@@ -124,7 +125,8 @@ def _protected_dataset(ppd_env: dict[str, Path], tmp_path: Path) -> Any:
         Image.fromarray(rng.integers(0, 256, (200, 240, 3), dtype=np.uint8)).save(trip / f"v{i}.png")
         assert protect_file(trip / f"v{i}.png", ctx).state == "patched"
     run_dir = ctx.paths.runs_dir / "trip" / "20260101T000000-abcdef"
-    for profile, verdict, t in (("default", "protected", 100.0), ("hardened", "not_protected", 101.0)):
+    now = time.time()  # verified after the files were patched: the verdict is current (issue 25)
+    for profile, verdict, t in (("default", "protected", now + 99), ("hardened", "not_protected", now + 100)):
         d = _profile_dir(run_dir, profile, verdict)
         ctx.store.add_verification_run(
             "trip", profile, verdict,
@@ -335,8 +337,8 @@ def test_dataset_report_shows_the_recorded_visibility(ppd_env: dict[str, Path], 
         run_dir = ctx.paths.runs_dir / "trip" / "20260102T000000-abcdef"
         masked = ProfileReport(
             profile="masked", verdict="not_protected", reasons=["masked reason"], clean={"outcome": "ok"},
-            poisoned={"outcome": "ok"}, vs_clean=None, model_dir=str(run_dir / "masked"), started_at=200.0,
-            finished_at=201.0,
+            poisoned={"outcome": "ok"}, vs_clean=None, model_dir=str(run_dir / "masked"),
+            started_at=time.time() + 200, finished_at=time.time() + 201,  # after _protected_dataset's run
         )  # fmt: skip
         record_report(ctx, "trip", VerificationReport("c", "p", str(run_dir), 3, {"masked": masked}, vis))
         data = dataset_reports.build_dataset_report(ctx, "trip")

@@ -227,3 +227,13 @@ def test_heic_images_are_read_as_poisoning_reads_them(tmp_path: Path) -> None:
     run = [sys.executable, "-c", code, str(tmp_path)]
     out = subprocess.run(run, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["3", "richly-textured"], out.stdout + out.stderr
+
+
+@pytest.mark.parametrize("kind", list(SceneKind))
+def test_no_sentence_claims_a_result_for_an_unmeasured_class(kind: SceneKind) -> None:
+    """Issue 25: a castle façade under open sky reads as 'textured support'; the line must not say the
+    mark held there ("held in most runs"): that class mixes measured and unmeasured scenes."""
+    line = sentence("castle", kind, 0.6, 0.5)
+    assert "held in most runs" not in line
+    if kind == SceneKind.TEXTURED_SUPPORT:
+        assert "façade" in line and "nothing is measured" in line

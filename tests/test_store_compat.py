@@ -114,9 +114,10 @@ def test_a_store_written_with_the_shipped_schema_reads_back_through_store(tmp_pa
         assert store.get_spec(SPEC.spec_id) == SPEC and store.dataset_spec("trip") == SPEC
         assert store.dataset_spec("bare") is None
         assert store.datasets() == [
-            {"name": "bare", "root": "/o/bare", "spec_id": None, "created_at": 12.0, "publish_dir": None},
+            {"name": "bare", "root": "/o/bare", "spec_id": None, "created_at": 12.0, "publish_dir": None,
+             "subject_masks": None},
             {"name": "trip", "root": "/o/trip", "spec_id": SPEC.spec_id, "created_at": 11.0,
-             "publish_dir": "/pub/trip"},
+             "publish_dir": "/pub/trip", "subject_masks": None},
         ]  # fmt: skip
         assert store.file("/o/trip/a.jpg") == {
             "id": 5, "dataset": "trip", "path": "/o/trip/a.jpg", "state": FileState.PATCHED,

@@ -219,24 +219,34 @@ def history_table(runs: Sequence[Mapping[str, Any]]) -> Table:
 
 
 def patch_preview_figure(original: Path, protected: Path, spec: Any) -> Figure | None:
-    """poisoner.preview of one original and its patched file (image files only). The zoom is
-    where this file's patch is: a moving spec places it by the file's name (its image index)."""
-    from poisoner.preview import orient, oriented_placement, render_preview
+    """poisoner.preview of one original and its patched file (image files only), as a viewer shows
+    them (EXIF orientation applied). The zoom and the caption's words are where the pixels changed
+    (issue 25): the same answer for a corner mark and a per-photo one, whatever masks were used."""
+    from poisoner.placement import position_words
+    from poisoner.preview import orient, render_preview
+    from poisoner.spec import PatchPlacement
 
     try:
         with Image.open(original) as a_im, Image.open(protected) as b_im:
             a, b = np.asarray(a_im.convert("RGB")), np.asarray(b_im.convert("RGB"))
             orientation = b_im.getexif().get(0x0112)
-        # the patch sits in the stored pixels (poisoner.formats); show both as a viewer would
-        placement = spec.resolve(a.shape[1], a.shape[0], image_key=protected.name)
-        placement = oriented_placement(placement, orientation, a.shape[1], a.shape[0])
         a, b = orient(a, orientation), orient(b, orientation)
-        pixels = render_preview(a, b, placement, labels=("original", f"patched ({protected.name})"))
+        ys, xs = np.nonzero(np.any(a != b, axis=2))
+        if xs.size == 0:
+            return Figure(f"Patch preview: {protected.name}: no pixel changed", png_bytes(b))
+        x0, y0, x1, y1 = int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
+        side = max(x1 - x0, y1 - y0)
+        h, w = a.shape[:2]
+        box = PatchPlacement(min(x0, w - side), min(y0, h - side), side, 1, 255, 255, spec.pattern, spec.seed)
+        pixels = render_preview(a, b, box, labels=("original", f"patched ({protected.name})"))
+        words = position_words((x0, y0, x1, y1), w, h)
     except Exception as exc:  # a preview is a nicety: never fail the report for it
         log.warning("no patch preview", extra={"file": str(protected), "error": str(exc)})
         return None
     return Figure(
-        f"Patch preview: original | patched ({protected.name}), zoom on the patch below", png_bytes(pixels)
+        f"Patch preview: original | patched ({protected.name}), zoom on the patch below; mark at the "
+        f"{words}, pixels ({x0},{y0})-({x1},{y1}) as shown",
+        png_bytes(pixels),
     )
 
 

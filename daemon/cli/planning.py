@@ -143,7 +143,7 @@ def apply_spec(
     new datasets now), and one line per dataset whose corner was chosen. A new dataset whose mark
     is corner-bound gets the corner daemon.subject.place_corner picks over all its files given here."""
     from daemon.store import DatasetSpecLocked
-    from daemon.subject import corner_line, place_corner, record_choice, wants_corner
+    from daemon.subject import corner_line, per_photo_line, place_corner, record_choice, wants_corner
 
     wanted: dict[str, PatchSpec] = {}
     lines: list[str] = []
@@ -151,6 +151,8 @@ def apply_spec(
         spec, choice = _flag_spec(ctx, name, options), None
         new = ctx.store.dataset_spec(name) is None
         base = spec or ctx.config.spec_for(name)
+        if new and base.per_photo:  # issue 25: no corner for the set; each photo's own place
+            lines.append(per_photo_line(name, masks.get(name)))
         if new and wants_corner(base, options.sets_position() or ctx.config.position_set(name)):
             placed = place_corner(base, [job.path for job in jobs if job.dataset == name], masks.get(name))
             spec, choice = placed.spec, placed.choice

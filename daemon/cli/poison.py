@@ -37,12 +37,29 @@ def _restored_left(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
     return [o for o in outcomes if o.state == "unchanged" and (o.reason or "").startswith(RESTORED_BY_USER)]
 
 
+# per-file notes of a patched file whose mark found no free place (daemon.pipeline.place_note)
+NOT_FREE = {
+    "mark on the subject: no plain region": "mark on the subject in {n} photo{s}: no plain region",
+    "mark partly on the subject mask (left unwritten there): no free region":
+        "mark partly on the subject mask in {n} photo{s} (left unwritten there): no free region",
+}  # fmt: skip
+
+
+def place_lines(outcomes: list[ProtectOutcome]) -> list[str]:
+    """The summary's lines for marks that found no free place ("mark on the subject in 2 photos:
+    no plain region"): never silent (issue 25)."""
+    counts = Counter(o.reason for o in outcomes if o.state in OUTCOME_PATCHED and o.reason in NOT_FREE)
+    return [NOT_FREE[r].format(n=n, s="" if n == 1 else "s") for r, n in sorted(counts.items()) if r]
+
+
 def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
     """exiftool-style counts, the files left restored, each failed file with its reason."""
     counts = Counter(outcome_word(o) for o in outcomes)
     words = ["would patch" if dry_run else "patched", "unchanged", "skipped", "failed"]
     line = ", ".join(f"{w} {counts.get(w, 0)}" for w in words)
     console().print(("dry run, nothing changed: " if dry_run else "") + line)
+    for line in place_lines(outcomes):
+        console().print(line, markup=False)
     left = _restored_left(outcomes)
     if left:
         console().print(f"left unprotected (restored by you): {len(left)}; use --force to protect them again")
@@ -114,6 +131,9 @@ def _say_outcome(progress_console: Any, outcome: ProtectOutcome) -> None:
     """-v: one line per file with its outcome (above the progress bar)."""
     where = f" -> {outcome.output}" if outcome.output and outcome.output != outcome.path else ""
     why = f" ({outcome.reason})" if outcome.reason and outcome.state != "failed" else ""
+    place = getattr(outcome.report, "place", None)
+    if place is not None and outcome.state in OUTCOME_PATCHED:  # a per-photo mark: where it shows
+        why = f" (mark at the {place.words}{'; ' + outcome.reason if outcome.reason else ''})"
     progress_console.print(f"{outcome_word(outcome)} {outcome.path}{where}{why}", markup=False)
 
 

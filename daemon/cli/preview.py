@@ -65,13 +65,27 @@ def _load(path: Path) -> tuple[Any, int | None]:
         raise die(f"cannot read {path.name}: {one_line(exc)}") from None
 
 
-def _stored_pair(ctx: AppContext, file: Path, row: Any) -> tuple[Any, Any, Any, int | None, tuple[str, str]]:
+def _mark_of(spec: PatchSpec, source: Path, original: Any, file: Path, keep_out: Any) -> tuple[Any, Any]:
+    """(stored placement, MarkPlace or None): a per-photo spec judges the photo's own bytes exactly
+    as poison_file does (poisoner.preview.planned_mark), named as the file; a video its first frame."""
+    if spec.per_photo and not _is_video(file):
+        from poisoner.preview import planned_mark
+
+        return planned_mark(source, spec, keep_out, name=file.name)
+    return placement_for(spec, original, file), None
+
+
+def _stored_pair(
+    ctx: AppContext, file: Path, row: Any, keep_out: Any
+) -> tuple[Any, Any, Any, Any, int | None, tuple[str, str]]:
     """A patched file against its vault original, with the spec it was patched with."""
     spec = ctx.store.get_spec(row["spec_id"])
-    original, _ = _load(ctx.vault.path_for(row["original_sha256"]))
+    vault_copy = ctx.vault.path_for(row["original_sha256"])
+    original, _ = _load(vault_copy)
     poisoned, orientation = _load(file)
     labels = ("original (vault)", f"patched ({file.name})")
-    return original, poisoned, placement_for(spec, original, file), orientation, labels
+    placement, place = _mark_of(spec, vault_copy, original, file, keep_out)
+    return original, poisoned, placement, place, orientation, labels
 
 
 def _planned_spec(
@@ -93,22 +107,20 @@ def _planned_spec(
 
 def _planned_pair(
     ctx: AppContext, file: Path, options: SpecOptions, masks: Path | None, keep_out: Any
-) -> tuple[Any, Any, Any, int | None, tuple[str, str]]:
-    """Any photo with its dataset's spec (or the flags'), patched in memory only; off the subject
-    (keep_out, the file's subject mask) where it has one."""
-    from poisoner.blend import apply_patch, poison_array
+) -> tuple[Any, Any, Any, Any, int | None, tuple[str, str]]:
+    """Any photo with its dataset's spec (or the flags'), patched in memory only, where ppd poison
+    would put it; off the subject (keep_out, the file's subject mask) where it has one."""
+    from poisoner.blend import apply_patch
 
     spec, line = _planned_spec(ctx, file, options, masks)
     if line is not None:
         console().print(line, markup=False)
     original, orientation = _load(file)
-    if _is_video(file):  # the first frame, as poison_video patches it
-        placement = placement_for(spec, original, file)
-        poisoned = apply_patch(original, placement)
-    else:
-        poisoned, placement = poison_array(original, spec, image_key=file.name, keep_out=keep_out)
+    placement, place = _mark_of(spec, file, original, file, keep_out)
+    # a video's first frame, as poison_video patches it (no keep-out for videos)
+    poisoned = apply_patch(original, placement, None if _is_video(file) else keep_out)
     labels = (f"original ({file.name})", "patched (preview, not written)")
-    return original, poisoned, placement, orientation, labels
+    return original, poisoned, placement, place, orientation, labels
 
 
 def _oriented(mask: Any, orientation: int | None) -> Any:
@@ -132,28 +144,32 @@ def _subject_of(masks: Path | None, file: Path) -> Any:
 
 def _render(
     ctx: AppContext, file: Path, options: SpecOptions, masks: Path | None
-) -> tuple[Any, Any, Any, Any]:
-    """(preview picture, original, patched, subject mask or None), oriented as a viewer sees them;
-    the subject's edge is drawn on the zooms."""
+) -> tuple[Any, Any, Any, Any, str]:
+    """(preview picture, original, patched, subject mask or None, where the mark is and why), oriented
+    as a viewer sees them; the subject's edge is drawn on the zooms."""
     from daemon.states import PATCHED_VALUES
     from poisoner.errors import ImageFormatError
-    from poisoner.preview import orient, oriented_placement, render_preview
+    from poisoner.image.keep_out import checked_keep_out, written_pixels
+    from poisoner.preview import mark_line, orient, render_preview, shown_placement
     from poisoner.spec import SpecError
 
     row = ctx.store.file(file)
     try:
         keep_out = _subject_of(masks, file)
         if row is not None and row["state"] in PATCHED_VALUES and not options.given():
-            original, poisoned, placement, orientation, labels = _stored_pair(ctx, file, row)
+            original, poisoned, placement, place, orientation, labels = _stored_pair(ctx, file, row, keep_out)
         else:
             planned = _planned_pair(ctx, file, options, masks, keep_out)
-            original, poisoned, placement, orientation, labels = planned
+            original, poisoned, placement, place, orientation, labels = planned
         h, w = original.shape[:2]
-        placement = oriented_placement(placement, orientation, w, h)
+        where = mark_line(placement, place, orientation, w, h)
+        if written_pixels(placement, checked_keep_out(file.name, keep_out, (w, h))) == 0:
+            where += "; NO pixel would change (the subject mask covers the mark): ppd poison fails this file"
+        shown = shown_placement(placement, place, orientation, w, h)
         original, poisoned = orient(original, orientation), orient(poisoned, orientation)
         subject = None if keep_out is None else _oriented(keep_out, orientation)
-        picture = render_preview(original, poisoned, placement, labels=labels, subject=subject)
-        return picture, original, poisoned, subject
+        picture = render_preview(original, poisoned, shown, labels=labels, subject=subject)
+        return picture, original, poisoned, subject, where
     except (SpecError, ValueError, ImageFormatError) as exc:
         raise die(one_line(exc)) from None
 
@@ -245,13 +261,14 @@ def preview(
     try:
         file = file.absolute() if file.is_file() else _first_file(ctx, file)
         masks = _preview_masks(ctx, file, subject_masks)
-        image, original, poisoned, subject = _render(ctx, file, spec_options, masks)
+        image, original, poisoned, subject, where = _render(ctx, file, spec_options, masks)
         target = (out or Path.cwd() / f"{file.stem}.ppd-preview.png").absolute()
         try:
             Image.fromarray(image).save(target, format="PNG", compress_level=1)  # quick, not small
         except OSError as exc:
             raise die(os_error_text(exc, hint_out=False), EXIT_ENVIRONMENT) from None
         console().print(f"preview written to {target}", markup=False)
+        console().print(where, markup=False, soft_wrap=True)
         if visibility:
             line = _visibility_line(original, poisoned, display_width, subject)
             console().print(line, markup=False, soft_wrap=True)

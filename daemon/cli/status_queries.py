@@ -76,7 +76,7 @@ def protection_line(ctx: AppContext, name: str) -> str:
     from daemon.states import dataset_protection, next_step, protection_text
 
     protection, profiles = dataset_protection(
-        ctx.store.counts(name), latest_by_profile(ctx.store.verification_runs(name, limit=50))
+        ctx.store.counts(name), latest_by_profile(ctx.store.current_verification_runs(name, limit=50))
     )
     step = next_step(protection, name)
     return f"{name}: {protection_text(protection, profiles)}" + (f": {step}" if step else "")
@@ -141,7 +141,9 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     regression = regression_of(runs)
     folder = folder_count(ctx, name, row["root"])
     counts = with_folder(ctx.store.counts(name), folder)
-    verdicts = latest_by_profile(runs)
+    # only runs that measured the pixels as they are now make the verdict (issue 25); runs before
+    # the last change stay in the history
+    verdicts = latest_by_profile(ctx.store.current_verification_runs(name, limit=50))
     left = not_patched_yet(counts)
     return {
         "name": name,
@@ -150,6 +152,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "not_patched_yet": left,
         "resume": resume_command(name, folder) if left else None,
         "publish_dir": row["publish_dir"],
+        "subject_masks": row.get("subject_masks"),  # remembered with the dataset (issue 25)
         "spec_id": row["spec_id"],
         "spec": spec.to_dict() if spec else None,
         "spec_summary": spec_summary(spec) if spec else None,

@@ -123,6 +123,21 @@ class DatasetRows(StoreBase):
                 conn, name, None, "spec_set", {"spec_id": spec.spec_id, "previous": row[0] if row else None}
             )
 
+    def set_dataset_masks(self, name: str, folder: Path | None) -> None:
+        """Remember a dataset's subject-mask folder (None: forget it); an event says so when it changes."""
+        value = str(folder) if folder is not None else None
+        with self._write() as conn:
+            row = conn.execute("SELECT subject_masks FROM datasets WHERE name = ?", (name,)).fetchone()
+            if row is None or row[0] == value:
+                return
+            conn.execute("UPDATE datasets SET subject_masks = ? WHERE name = ?", (value, name))
+            insert_event(conn, name, None, "subject_masks", {"folder": value, "was": row[0]})
+
+    def dataset_masks(self, name: str) -> Path | None:
+        """The subject-mask folder remembered for a dataset, or None."""
+        row = self.dataset(name)
+        return Path(row["subject_masks"]) if row and row.get("subject_masks") else None
+
     def set_dataset_publish_dir(self, name: str, publish_dir: Path | None) -> None:
         with self._write() as conn:
             conn.execute(

@@ -132,6 +132,9 @@ MIGRATIONS: tuple[str, ...] = (
         created_at REAL NOT NULL
     );
     """,
+    # 6 (issue 25): the dataset's subject-mask folder, remembered so that a later `ppd poison --force`
+    # or the daemon keeps the mark off the subject without the flag being repeated.
+    "ALTER TABLE datasets ADD COLUMN subject_masks TEXT;",
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 AUTO_TRIGGERS = ("interim", "preflight", "escalation", "manual")  # auto_decisions.trigger's CHECK

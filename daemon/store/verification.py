@@ -14,6 +14,9 @@ from daemon.store.events import insert_event
 from daemon.store.schema import AUTO_TRIGGERS
 from poisoner.spec import PatchSpec
 
+# events that change a dataset's pixels: a verdict measured before the newest of them is history
+PIXEL_EVENTS = ("patched", "reprotected", "recovered", "restored")
+
 
 class VerificationRows(StoreBase):
     # ---- verification runs ----------------------------------------------------------------
@@ -43,6 +46,22 @@ class VerificationRows(StoreBase):
     def verification_runs(self, dataset: str, limit: int = 20) -> list[dict[str, Any]]:
         """Newest first; metrics parsed."""
         return self._newest("verification_runs", "finished_at", "metrics", dataset, limit)
+
+    def pixels_changed_at(self, dataset: str) -> float | None:
+        """When the dataset's pixels last changed (a file patched, re-patched or restored), or None."""
+        kinds = ", ".join("?" for _ in PIXEL_EVENTS)
+        rows = self._rows(
+            f"SELECT MAX(ts) AS ts FROM events WHERE dataset = ? AND kind IN ({kinds})",
+            (dataset, *PIXEL_EVENTS),
+        )
+        return rows[0]["ts"] if rows and rows[0]["ts"] is not None else None
+
+    def current_verification_runs(self, dataset: str, limit: int = 50) -> list[dict[str, Any]]:
+        """The runs that measured the dataset's pixels as they are now (issue 25): those started after
+        its last pixel change. Older runs stay in verification_runs (history), never in a verdict."""
+        changed = self.pixels_changed_at(dataset)
+        runs = self.verification_runs(dataset, limit=limit)
+        return runs if changed is None else [r for r in runs if r["started_at"] >= changed]
 
     def latest_verification(self, dataset: str) -> dict[str, Any] | None:
         runs = self.verification_runs(dataset, limit=1)

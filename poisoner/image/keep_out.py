@@ -96,3 +96,13 @@ def written_box(placement: PatchPlacement, box: Box, keep: np.ndarray | None) ->
     if ys.size == 0:
         return None
     return (x0 + int(xs.min()), y0 + int(ys.min()), x0 + int(xs.max()) + 1, y0 + int(ys.max()) + 1)
+
+
+def written_pixels(placement: PatchPlacement, keep: np.ndarray | None) -> int:
+    """How many pixels the mark writes once `keep` (whole picture, True = never change) is left
+    alone; 0 means the file would come out unprotected (poisoner.errors.MarkNotWritten)."""
+    cover = patch_coverage(placement)
+    if keep is None:
+        return int(cover.sum())
+    x0, y0, x1, y1 = placement.box
+    return int((cover & ~keep[y0:y1, x0:x1]).sum())

@@ -8,6 +8,7 @@ import logging
 from collections.abc import Callable
 from pathlib import Path
 
+import av
 import av.error
 import numpy as np
 
@@ -53,7 +54,7 @@ def poison_video(
     state_before = _check_source(src)
     info = probe(src, max_pixels=max_pixels)
     try:
-        placement_at = frame_placements(spec, info, options)
+        placement_at = frame_placements(spec, info, options, src)
         placement = placement_at(0)
     except SpecError as exc:
         raise VideoFormatError(f"{src.name}: {exc}") from exc
@@ -76,15 +77,64 @@ def poison_video(
 
 
 def frame_placements(
-    spec: PatchSpec, info: model.SourceInfo, options: model.VideoOptions
+    spec: PatchSpec, info: model.SourceInfo, options: model.VideoOptions, src: Path | None = None
 ) -> model.PlacementAt:
     """Where frame i's patch goes: one placement for a static spec, a point on the path per frame
     for a moving one (poisoner.video's docstring). Raises SpecError when a placement does not fit."""
+    if spec.per_photo and src is not None:
+        return _per_photo_placements(spec, info, options, src)
     first = spec.resolve(info.width, info.height, index=0.0)
     if not spec.moves or options.motion_steps_per_second <= 0:
         return lambda _i: first
     per_frame = options.motion_steps_per_second / model.frame_rate(info)
     return lambda i: spec.resolve(info.width, info.height, index=i * per_frame)
+
+
+def _per_photo_placements(
+    spec: PatchSpec, info: model.SourceInfo, options: model.VideoOptions, src: Path
+) -> model.PlacementAt:
+    """A per-photo mark in a video (issue 25): each keyframe (decoded alone, cheap) judged as a photo
+    is (poisoner.placement.place_on_photo on its own detail), the anchor moving between keyframes
+    along a straight line at most MAX_ANCHOR_SPEED of the frame per second, so the mark glides to
+    the next plain place instead of jumping; the lanes' own slide goes on on top of it."""
+    from poisoner.placement import MAX_ANCHOR_SPEED, anchor_at, place_on_photo, smooth_anchors
+    from poisoner.subject import frame_detail
+
+    rate = model.frame_rate(info)
+    per_frame = options.motion_steps_per_second / rate if spec.moves else 0.0
+    keys: list[tuple[float, tuple[int, int]]] = []
+    start: float | None = None
+    try:
+        with av.open(str(src)) as container:
+            stream = container.streams.video[0]
+            stream.codec_context.skip_frame = "NONKEY"
+            for frame in container.decode(stream):
+                start = float(frame.time or 0.0) if start is None else start
+                i = round((float(frame.time or 0.0) - start) * rate)  # frame number, the first is 0
+                rgb = frame.to_ndarray(format="rgb24")
+                _, place = place_on_photo(spec, info.width, info.height, None, 1, frame_detail(rgb),
+                                          index=i * per_frame)  # fmt: skip
+                keys.append((i / rate, place.anchor))
+                if len(keys) >= MAX_KEYFRAMES:
+                    break
+    except av.error.FFmpegError as exc:
+        log.info("keyframes unreadable: the mark keeps its preferred place", extra={"reason": one_line(exc)})
+    if not keys:
+        return lambda i: spec.resolve(info.width, info.height, index=i * per_frame)
+    anchors = smooth_anchors(keys, MAX_ANCHOR_SPEED * min(info.width, info.height))
+    # between keyframes the slide goes on: keep room for the mark's box anywhere on its path
+    side = max(spec.path_extent(info.width, info.height))
+    hi = (max(0, info.width - side), max(0, info.height - side))
+
+    def at(i: int) -> PatchPlacement:
+        x, y = anchor_at(anchors, i / rate)
+        anchor = (min(max(x, 0), hi[0]), min(max(y, 0), hi[1]))
+        return spec.resolve(info.width, info.height, index=i * per_frame, anchor=anchor)
+
+    return at
+
+
+MAX_KEYFRAMES = 600  # keyframes judged per video (a long video's later ones keep the last place)
 
 
 def _check_source(src: Path) -> tuple[int, int]:
