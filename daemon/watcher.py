@@ -388,7 +388,9 @@ class WatchDaemon:
             return
         if self.watcher.is_settled(path):
             return
-        event = "changed" if self.ctx.store.file(path) is not None else "new"
+        from daemon.pipeline import storable  # a name the store cannot hold has no row
+
+        event = "changed" if storable(path) and self.ctx.store.file(path) is not None else "new"
         started = time.monotonic()
         outcome = self._protect(path)
         # The signature of what ppd judged or wrote, not of what is there now: a version that
