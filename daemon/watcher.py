@@ -399,7 +399,9 @@ class WatchDaemon:
         if self.watcher.is_settled(path):
             return
         judged = signature(path)
-        event = "changed" if self.ctx.store.file(path) is not None else "new"
+        from daemon.pipeline import storable  # a name the store cannot hold has no row
+
+        event = "changed" if storable(path) and self.ctx.store.file(path) is not None else "new"
         started = time.monotonic()
         outcome = self._protect(path)
         if outcome.state == Outcome.FAILED and outcome.incomplete and self._wait_for_writer(path, judged):
