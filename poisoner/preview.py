@@ -195,16 +195,9 @@ def oriented_placement(
     in another corner of what the viewer shows."""
     import dataclasses
 
-    x, y, s = placement.x, placement.y, placement.size
-    new = {
-        2: (width - x - s, y),
-        3: (width - x - s, height - y - s),
-        4: (x, height - y - s),
-        5: (y, x),
-        6: (height - y - s, x),
-        7: (height - y - s, width - x - s),
-        8: (y, width - x - s),
-    }.get(orientation or 1, (x, y))
+    from poisoner.placement import turn_square
+
+    new = turn_square(placement.x, placement.y, placement.size, orientation or 1, width, height)
     return dataclasses.replace(placement, x=new[0], y=new[1])
 
 
