@@ -23,7 +23,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -32,10 +34,10 @@ import numpy as np
 from PIL import Image, ImageOps  # PIL before anything that may load pycolmap
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path("/work/shared/datasets")
+SHARED = Path(os.environ["PPD_SHARED_DATA"])  # bench/__init__.py: the checkout's ../shared/datasets
 RESULTS_MD = ROOT / "bench" / "results" / "placement.md"
 PICTURE = ROOT / "bench" / "results" / "placement_dtu_crops.png"
-WORK = Path("/tmp/ppd-bench-placement")
+WORK = Path(tempfile.gettempdir()) / "ppd-bench-placement"
 SIZE = (800, 600)
 
 
