@@ -68,7 +68,8 @@ def test_warnings_name_their_file_unpadded_and_v_says_the_corner_once(
     for i in range(3):
         make_image(shoot / f"view{i}.jpg", i)
     (shoot / "broken.jpg").write_text("not a photo at all")
-    result = runner.invoke(app, ["-v", "poison", str(shoot)])
+    # a corner design: its corner is chosen once per dataset (the default is placed per photo)
+    result = runner.invoke(app, ["-v", "poison", str(shoot), "--design", "watermark"])
     warnings = [x for x in result.output.splitlines() if "corner choice" in x]
     assert warnings, result.output
     assert all(x.startswith("ppd: warning: broken.jpg: unreadable") for x in warnings), result.output

@@ -31,6 +31,16 @@ def err_console() -> Console:
     return Console(stderr=True, soft_wrap=True, highlight=False)
 
 
+def print_line(out: Console, line: str) -> None:
+    """One line of plain words wrapped at spaces to the console's width, never inside a word: a path
+    or a command to copy stays whole (rich folds a word longer than the width)."""
+    import textwrap
+
+    wrapped = textwrap.wrap(line, out.width, break_long_words=False, break_on_hyphens=False,
+                            subsequent_indent=" " * (len(line) - len(line.lstrip(" "))))  # fmt: skip
+    out.print("\n".join(wrapped) or line, markup=False, soft_wrap=True)
+
+
 def interactive() -> bool:
     """Progress bars and spinners only where a person watches a real terminal."""
     err = err_console()

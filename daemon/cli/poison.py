@@ -13,7 +13,7 @@ import typer
 from daemon.cli.errors import EXIT_FAILED, EXIT_INTERRUPTED, die, file_reason, open_ctx
 from daemon.cli.interrupt import StopOnSignal
 from daemon.cli.options import SpecOptions, spec_options, subject_masks_option, workers_option
-from daemon.cli.output import console, err_console, interactive, verbosity
+from daemon.cli.output import console, err_console, interactive, print_line, verbosity
 
 if TYPE_CHECKING:
     from daemon.cli.planning import Job
@@ -110,7 +110,7 @@ def interrupted_summary(outcomes: list[ProtectOutcome], total: int, dry_run: boo
     command = shlex.join(["ppd", *sys.argv[1:]])  # as typed: same folders, same --out and --dataset
     out = console()  # word-wrapped on a terminal (never mid-word), one line into a pipe
     line = interrupted_line(outcomes, total, dry_run, command)
-    out.print(line, markup=False, soft_wrap=not out.is_terminal)
+    print_line(out, line)
     for o in outcomes:
         if o.state == "failed":
             err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)

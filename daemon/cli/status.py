@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from daemon.cli.errors import die, open_ctx, warning
-from daemon.cli.output import console, err_console
+from daemon.cli.output import console, err_console, print_line
 from verifier.verdict import Verdict
 
 if TYPE_CHECKING:
@@ -123,11 +123,11 @@ def _print_details(d: dict[str, Any]) -> None:
         lines.append(d["auto"])
     lines += place_lines(d)
     for line in lines:
-        out.print("  " + line, markup=False, soft_wrap=False)
+        print_line(out, "  " + line)
     for profile, v in d["verdicts"].items():
         out.print("  " + verdict_text(profile, v), soft_wrap=False)
     if not d["verdicts"]:
-        out.print("  verified: never", markup=False, soft_wrap=False)
+        print_line(out, "  verified: never")
 
 
 def failed_lines(d: dict[str, Any]) -> list[str]:
@@ -179,7 +179,7 @@ def _print_next_steps(report: list[dict[str, Any]]) -> None:
     """Word-wrapped to the terminal (soft_wrap off): these lines say what to run next."""
     for d in report:
         for line in next_step_lines(d):
-            console().print(line, markup=False, soft_wrap=False)
+            print_line(console(), line)
 
 
 def _print_regressions(report: list[dict[str, Any]]) -> None:
