@@ -169,8 +169,9 @@ HEADLINE_PROFILES = ("default", "hardened", "published", "global")
 MASKED_PROFILE = "masked"
 MASKED_MEANING = (
     "masked = an attacker who masks the four corner regions (20% x 20%) out of SfM: it defeats any "
-    "mark kept in a corner by construction; the default's per-photo mark sits off the corners where a "
-    "photo allows (measured: held on lego, not on dtu_scan37), a roaming mark is meant to survive it"
+    "corner (watermark-like) mark by construction; the default's per-photo mark sits off the corners "
+    "where a photo allows (held on lego, not on dtu_scan37 in our runs); a roaming mark is meant to "
+    "survive it"
 )
 
 
