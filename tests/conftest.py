@@ -47,11 +47,19 @@ def pytest_configure(config: pytest.Config) -> None:
         config._ppd_short_basetemp = config.option.basetemp  # type: ignore[attr-defined]
     # No test reads or writes the real user's ppd folders: a test that forgets ppd_env (or undoes
     # it) lands here, not in ~/.local/share/ppd, whose state would then decide the result.
+    from verifier.lpips_weights import weights_dir
+
+    installed_lpips = weights_dir()  # the set-up's converted LPIPS weights, read before the cache moves
     home = tempfile.mkdtemp(prefix="ppd-test-home-")
     config._ppd_test_home = home  # type: ignore[attr-defined]
     for var, name in (("PPD_DATA_DIR", "data"), ("PPD_CONFIG_DIR", "config"), ("PPD_OUTBOX", "outbox"),
                       ("PPD_CACHE_DIR", "cache")):  # fmt: skip
         os.environ.setdefault(var, os.path.join(home, name))
+    # the isolated cache still sees the weights `make test` installed (read-only use: a link)
+    test_lpips = weights_dir()
+    if installed_lpips.is_dir() and test_lpips != installed_lpips and not test_lpips.exists():
+        test_lpips.parent.mkdir(parents=True, exist_ok=True)
+        test_lpips.symlink_to(installed_lpips, target_is_directory=True)
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
