@@ -55,8 +55,8 @@ __all__ = [
     "DAEMON_ARGS", "RESULTS", "CrashTrialOptions", "CrashTrialReport", "DiskFullReport", "HostileInput",
     "MountUnavailable", "app_paths", "fill", "run_disk_full", "small_filesystem",
     "build_hostile_corpus", "check_invariants", "drop_files", "kill_daemon", "leftover_temporaries",
-    "make_media", "percentile", "protected_counts", "run_crash_trials", "sha256", "start_daemon",
-    "status_kb", "wait_all_protected", "wait_for", "write_image", "write_results_section",
+    "make_media", "patched_then_store_lost", "percentile", "protected_counts", "run_crash_trials", "sha256",
+    "start_daemon", "status_kb", "wait_all_protected", "wait_for", "write_image", "write_results_section",
 ]  # fmt: skip
 
 
@@ -666,3 +666,19 @@ def sealed_patch(src: Path, dst: Path, spec: object, original_sha256: str, data_
     assert key is not None
     poison_file(src, dst, spec, marker=Marker.placeholder(key, spec.spec_id, original_sha256))  # type: ignore[arg-type, attr-defined]
     seal_file(dst, key)
+
+
+def patched_then_store_lost(folder: Path, seed: int) -> tuple[Path, bytes]:
+    """A photo ppd patched in `folder` (an outbox dataset), then the store deleted: (photo, its
+    original bytes). What is left to find it by is the vault and the file's seal."""
+    from daemon.protect import AppContext, protect_file
+
+    photo = write_image(folder / "a.png", seed=seed)
+    original = photo.read_bytes()
+    ctx = AppContext.open()
+    assert protect_file(photo, ctx).state == "patched"
+    db = ctx.paths.db_path
+    ctx.close()
+    for suffix in ("", "-wal", "-shm"):
+        Path(f"{db}{suffix}").unlink(missing_ok=True)
+    return photo, original

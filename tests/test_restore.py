@@ -6,7 +6,7 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-from reliability_harness import write_image
+from reliability_harness import patched_then_store_lost, write_image
 
 from daemon.protect import AppContext, protect_file, restore_file
 from daemon.states import FileState
@@ -60,14 +60,7 @@ def test_lost_store_no_double_poisoning_and_restore_by_marker(ppd_env: dict[str,
 
 
 def test_restore_without_any_row_uses_the_marker(ppd_env: dict[str, Path]) -> None:
-    photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=7)
-    original = photo.read_bytes()
-    ctx = AppContext.open()
-    assert protect_file(photo, ctx).state == "patched"
-    db = ctx.paths.db_path
-    ctx.close()
-    for suffix in ("", "-wal", "-shm"):
-        Path(f"{db}{suffix}").unlink(missing_ok=True)
+    photo, original = patched_then_store_lost(ppd_env["outbox"] / "ds", seed=7)
     ctx = AppContext.open()
     try:
         outcome = restore_file(ctx, photo)

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from reliability_harness import REPO, write_image
+from reliability_harness import REPO, patched_then_store_lost, write_image
 
 from daemon.locks import LockHeld, outbox_lock
 from daemon.paths import AppPaths
@@ -94,14 +94,7 @@ def _ppd(*args: str) -> subprocess.CompletedProcess[str]:
 def test_a_lost_store_is_reported_never_recreated_silently(ppd_env: dict[str, Path]) -> None:
     """Before: after a store loss `ppd status` and `ppd restore FILE` made an empty store (`store
     check`: "sound, 0 rows") and restore refused every file before reaching the seal (36/36)."""
-    photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=3)
-    original = photo.read_bytes()
-    ctx = AppContext.open()
-    assert protect_file(photo, ctx).state == "patched"
-    db = ctx.paths.db_path
-    ctx.close()
-    for suffix in ("", "-wal", "-shm"):
-        Path(f"{db}{suffix}").unlink(missing_ok=True)
+    photo, original = patched_then_store_lost(ppd_env["outbox"] / "ds", seed=3)
     status = _ppd("status")
     assert "the earlier store was lost" in status.stderr and "ppd store rebuild" in status.stderr
     check = _ppd("store", "check")
