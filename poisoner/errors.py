@@ -4,6 +4,26 @@ each other. poisoner.formats re-exports it."""
 
 from __future__ import annotations
 
+from enum import IntEnum
+
+
+class ExitStatus(IntEnum):
+    """ppd's exit statuses (the epilog of `ppd --help` lists them). Defined at the lowest layer so
+    that every error, wherever it arises, can carry its own."""
+
+    OK = 0
+    FAILED = 1  # some files failed, or the verification verdict is not "protected"
+    USAGE = 2  # bad input: unknown option, missing file, bad spec value, unknown dataset
+    ENVIRONMENT = 3  # ppd cannot work here: folder not writable, disk full, damaged store, lock held
+    INTERRUPTED = 130
+
+
+class PpdError(Exception):
+    """The one base of ppd's own errors: a one-line message and the exit status the CLI uses.
+    Subclasses are defined where they arise; the CLI catches PpdError once, by type."""
+
+    exit_status: ExitStatus = ExitStatus.USAGE
+
 
 class ImageFormatError(Exception):
     """A file that cannot be poisoned faithfully (message: one line)."""
