@@ -25,8 +25,10 @@ class PpdError(Exception):
     exit_status: ExitStatus = ExitStatus.USAGE
 
 
-class ImageFormatError(Exception):
+class ImageFormatError(PpdError):
     """A file that cannot be poisoned faithfully (message: one line)."""
+
+    exit_status = ExitStatus.FAILED
 
 
 class MarkNotWritten(ImageFormatError):

@@ -20,7 +20,7 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
-from poisoner.errors import ImageFormatError
+from poisoner.errors import ExitStatus, ImageFormatError, PpdError
 
 DEFAULT_MAX_PIXELS = 80_000_000  # peak RSS at 85 MP: JPEG 455 MB, PNG 438 MB (docs/FORMATS.md "Memory")
 # Formats whose codecs need several times JPEG/PNG's memory get a fraction of the pixel budget
@@ -66,8 +66,10 @@ class DecodedSize:
         return IMPORTS_BYTES + int(self.bytes * PEAK_FACTOR.get(key, max(PEAK_FACTOR.values())))
 
 
-class HeaderError(ValueError):
+class HeaderError(PpdError, ValueError):
     """The header could not be read (the decoder will give its own error)."""
+
+    exit_status = ExitStatus.FAILED
 
 
 def decoded_size(path: Path, *, pillow: bool = True) -> DecodedSize:

@@ -25,6 +25,8 @@ import re
 import struct
 import zlib
 
+from poisoner.errors import ExitStatus, PpdError
+
 EXIF_HEADER = b"Exif\x00\x00"
 GPS_IFD_TAG = 0x8825
 XMP_JPEG_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
@@ -36,8 +38,10 @@ MAX_TEXT_INFLATE = 8 * 1024 * 1024
 _TYPE_SIZES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 8, 6: 1, 7: 1, 8: 2, 9: 4, 10: 8, 11: 4, 12: 8, 13: 4}
 
 
-class MetadataParseError(ValueError):
+class MetadataParseError(PpdError, ValueError):
     """A metadata block too malformed to edit safely."""
+
+    exit_status = ExitStatus.FAILED
 
 
 # ---- EXIF ----------------------------------------------------------------------------------------

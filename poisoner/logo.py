@@ -20,12 +20,16 @@ from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from poisoner.errors import ExitStatus, PpdError
+
 if TYPE_CHECKING:
     import numpy as np
 
 
-class LogoError(ValueError):
+class LogoError(PpdError, ValueError):
     """Text that cannot be rendered or a logo file that cannot be read as a mark."""
+
+    exit_status = ExitStatus.USAGE
 
 
 def _lines_for(words: list[str], n_lines: int) -> list[str]:

@@ -43,6 +43,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
+from poisoner.errors import ExitStatus, PpdError
+
 NS = "urn:uuid:5e1f0c3a-92d4-4b7e-8a61-3c0f9d2b7e14"
 PNG_KEYWORD = b"sl"
 MKV_TAG = "SL"
@@ -63,8 +65,10 @@ _XMP_JPEG_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
 _HEX = frozenset(b"0123456789abcdef")
 
 
-class SealError(ValueError):
+class SealError(PpdError, ValueError):
     """A file that should carry a seal placeholder does not (nothing was written)."""
+
+    exit_status = ExitStatus.FAILED
 
 
 @dataclass(frozen=True)

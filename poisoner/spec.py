@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from poisoner.errors import ExitStatus, PpdError
 from poisoner.logo import LogoError, mark_shape
 from poisoner.motion import (
     CORNER_MOTIONS,
@@ -92,8 +93,10 @@ LANES_MAX_AREA = 0.0096
 MIN_SLIDE_RUN = 6
 
 
-class SpecError(ValueError):
+class SpecError(PpdError, ValueError):
     """A PatchSpec that cannot be built or cannot be placed on an image."""
+
+    exit_status = ExitStatus.USAGE
 
 
 Length = int | float

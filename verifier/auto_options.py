@@ -16,6 +16,7 @@ from typing import Literal
 
 import msgspec
 
+from poisoner.errors import ExitStatus, PpdError
 from poisoner.spec import PatchSpec
 
 Profile = Literal["default", "hardened", "published", "global", "masked"]  # verifier.sfm.profile_sfm_settings
@@ -44,8 +45,10 @@ class Outcome(StrEnum):
     INCONCLUSIVE = "inconclusive"
 
 
-class PreflightInputError(ValueError):
+class PreflightInputError(PpdError, ValueError):
     """A sample or a setting that cannot be preflighted (message = one clear line)."""
+
+    exit_status = ExitStatus.USAGE
 
 
 class VisibilityBudget(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

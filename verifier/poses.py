@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from poisoner.errors import ExitStatus, PpdError
+
 Pose = tuple[np.ndarray, np.ndarray]  # (R 3x3 world-to-camera, t 3)
 Poses = Mapping[str, Pose]
 
@@ -251,8 +253,10 @@ def compare_poses(est: Poses, ref: Poses, seed: int = 0) -> dict[str, float | in
 
 
 # ---- ground truth readers ---------------------------------------------------------------------
-class GroundTruthError(ValueError):
+class GroundTruthError(PpdError, ValueError):
     """A ground-truth file that cannot be read."""
+
+    exit_status = ExitStatus.USAGE
 
 
 def _pose_from_c2w(c2w: np.ndarray) -> Pose:

@@ -32,6 +32,7 @@ import numpy as np
 from PIL import Image
 
 from poisoner.atomic import atomic_write_bytes
+from poisoner.errors import ExitStatus, PpdError
 from verifier.verdict import MASKED_MEANING, Verdict, headline, headline_verdict, masked_line, not_holding
 
 log = logging.getLogger(__name__)
@@ -57,8 +58,10 @@ VERDICT_TEXT = {
 }
 
 
-class ReportError(ValueError):
+class ReportError(PpdError, ValueError):
     """Nothing to report on (message = one clear line)."""
+
+    exit_status = ExitStatus.USAGE
 
 
 @dataclass

@@ -43,6 +43,7 @@ from typing import Any
 import msgspec
 
 from poisoner.atomic import atomic_write_bytes
+from poisoner.errors import ExitStatus, PpdError
 from verifier import poses as posemod
 from verifier.pairs import stage_pairs as stage_pairs  # re-exported: callers stage pairs, then verify
 from verifier.progress import BoardState, ProgressBoard
@@ -74,8 +75,10 @@ SPLAT_DEFAULTS: dict[str, Any] = {"long_edge": 200, "iterations": 1500, "time_bu
 _VERIFY_LOCK = threading.Lock()  # one verification at a time in this process
 
 
-class VerificationInputError(ValueError):
+class VerificationInputError(PpdError, ValueError):
     """Folders that cannot be verified (message = one clear line)."""
+
+    exit_status = ExitStatus.USAGE
 
 
 @dataclass

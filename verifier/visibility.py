@@ -30,6 +30,8 @@ from typing import Any
 import msgspec
 import numpy as np
 
+from poisoner.errors import ExitStatus, PpdError
+
 DISPLAY_WIDTH = 1920
 FLIP_DEFAULT_PPD = 67.02064514160156  # flip-evaluator's default viewing condition
 JPEG_REFERENCE_QUALITY = 85
@@ -37,8 +39,10 @@ VISIBLE_THRESHOLD = 0.5  # FLIP above this: a clearly visible difference at that
 FLIP_MARGIN_DEG = 0.5  # around a local change, FLIP is evaluated this many degrees of view further
 
 
-class VisibilityError(ValueError):
+class VisibilityError(PpdError, ValueError):
     """Images that cannot be compared (message = one clear line)."""
+
+    exit_status = ExitStatus.USAGE
 
 
 class Visibility(msgspec.Struct, frozen=True):

@@ -3,9 +3,13 @@ imports neither PyAV nor numpy."""
 
 from __future__ import annotations
 
+from poisoner.errors import ExitStatus, PpdError
 
-class VideoFormatError(Exception):
+
+class VideoFormatError(PpdError):
     """A video that cannot be poisoned; the message is one clear line."""
+
+    exit_status = ExitStatus.FAILED
 
 
 def one_line(exc: BaseException) -> str:
