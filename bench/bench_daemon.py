@@ -212,7 +212,8 @@ if libc.prctl(65, 1, 0, 0, 0) != 0:  # PR_SET_MDWE, PR_MDWE_REFUSE_EXEC_GAIN: sy
 what = sys.argv[1]
 import PIL.Image, numpy as np
 if what == "daemon":
-    import daemon.cli, daemon.protect, daemon.watcher, sqlite3, av  # everything the daemon loads
+    # everything the daemon loads
+    import daemon.cli, daemon.protect.one_file, daemon.watch.watcher, sqlite3, av
     a = (np.random.rand(512, 512, 3) * 255).astype("uint8"); PIL.Image.fromarray(a).save("/dev/null", "PNG")
 elif what == "torch":
     import torch
@@ -423,9 +424,9 @@ def burst_and_mdwe_lines(r: dict) -> list[str]:
         "",
         "Goal: under 60 MB RSS idle, no polling. ppd's threads (main loop, debounce, workers) and",
         "watchdog's (inotify reader, emitter, dispatcher) block until an event arrives; the one timer is",
-        "the verification scheduler's (daemon.scheduler, poll_s = 30 s) when verification is on, and",
-        "the WATCHDOG=1 ping under systemd (every WatchdogSec/2 = 30 s). After a batch the daemon calls",
-        "malloc_trim so decoded images' memory goes back to the OS.",
+        "the verification scheduler's (daemon.verification.scheduler, poll_s = 30 s) when verification is",
+        "on, and the WATCHDOG=1 ping under systemd (every WatchdogSec/2 = 30 s). After a batch the daemon",
+        "calls malloc_trim so decoded images' memory goes back to the OS.",
         "",
         f"Stop (SIGTERM to exit 0, nothing in flight): {r['stop_seconds']:.2f} s.",
         "",

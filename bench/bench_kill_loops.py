@@ -368,7 +368,7 @@ def memory_run(root: Path, seconds: float, limit: int, big_png_mp: int = 0) -> d
     stage = root / "stage" / "hostile"
     stage.mkdir(parents=True)
     files = write_memory_corpus(stage, big_png_mp)
-    from daemon.protect import media_kind
+    from daemon.protect.one_file import media_kind
 
     ignored = sorted(p.name for p in files if media_kind(p) is None)  # e.g. GIF: not a ppd format
     names = {p.name for p in files if media_kind(p) is not None}

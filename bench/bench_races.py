@@ -27,7 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from daemon.protect import AppContext, protect_file
+from daemon.protect.one_file import AppContext, protect_file
 from tests.reliability_harness import app_paths, make_media, sha256, write_results_section
 
 

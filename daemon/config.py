@@ -163,7 +163,7 @@ class VerificationSchedule(Section, frozen=True):
     profiles: tuple[Profile, ...] = ("default", "hardened", "published", "global", "masked")
     splat: bool = False  # scheduled runs include Verifier II's splat stage
     splat_budget_s: float = 150.0
-    keep_runs: int = 5  # run folders kept per dataset (daemon.verify prunes the older ones)
+    keep_runs: int = 5  # run folders kept per dataset (daemon.verification.verify prunes the older ones)
 
     def __post_init__(self) -> None:
         if isinstance(self.keep_runs, bool) or not isinstance(self.keep_runs, int) or self.keep_runs < 1:
@@ -214,7 +214,7 @@ class DatasetOverride(Section, frozen=True, omit_defaults=True):
 
     spec: str = ""  # "auto": automatic mode picks the patch (docs/AUTO.md); "" = not automatic
     publish_dir: Path | None = None
-    subject_masks: Path | None = None  # a folder of subject masks (daemon.subject)
+    subject_masks: Path | None = None  # a folder of subject masks (daemon.datasets.subject_masks)
     patch: dict[str, Any] = {}  # fields replaced on the default spec
 
     def __post_init__(self) -> None:
@@ -344,7 +344,7 @@ class Config(msgspec.Struct, frozen=True, dict=True, forbid_unknown_fields=True)
 
     def position_set(self, dataset: str) -> bool:
         """Whether the user chose where the mark goes ([patch] or [datasets.NAME.patch] position):
-        a corner mark's corner is then theirs, not chosen per dataset (daemon.subject)."""
+        a corner mark's corner is then theirs, not chosen per dataset (daemon.datasets.subject_masks)."""
         override = self.datasets.get(dataset)
         return "position" in self.patch or bool(override and "position" in override.patch)
 

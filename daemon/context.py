@@ -12,7 +12,7 @@ from daemon.config import Config
 from daemon.locks import DEFAULT_FILE_WAIT_S, file_lock
 from daemon.paths import AppPaths
 from daemon.store import Store
-from daemon.vault import Vault
+from daemon.store.vault import Vault
 
 
 @dataclass
@@ -25,9 +25,9 @@ class AppContext:
     _seal_key: bytes | None = field(default=None, repr=False)
 
     def seal_key(self) -> bytes:
-        """The installation's seal key (daemon.sealkey), created on first use."""
+        """The installation's seal key (daemon.store.sealkey), created on first use."""
         if self._seal_key is None:
-            from daemon.sealkey import load_key
+            from daemon.store.sealkey import load_key
 
             self._seal_key = load_key(self.paths.data_dir)
         assert self._seal_key is not None

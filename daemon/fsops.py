@@ -17,7 +17,6 @@ import hashlib
 import os
 import stat
 import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -213,66 +212,6 @@ def clear_stale_temps_once(dir_fd: int) -> list[str]:
         return clear_stale_temps(dir_fd)
     except OSError:
         return []
-
-
-WRITERS_TTL_S = 0.5  # one /proc scan serves a burst of files (a scan takes ~10-50 ms)
-_writers_cache: tuple[float, dict[tuple[int, int], int]] = (-1.0, {})
-_writers_lock = threading.Lock()
-
-
-def writers_of(st: os.stat_result, proc: Path = Path("/proc"), *, fresh: bool = False) -> list[int]:
-    """Pids of processes that hold the file (by device and inode) open for writing.
-
-    Limits: Linux /proc only (elsewhere: []); only processes whose /proc/PID/fd this user may
-    read (the user's own; root sees all); one scan is reused for WRITERS_TTL_S unless fresh; a writer that
-    closed the file and will reopen it later is not seen (the format check,
-    poisoner.completeness, catches most of those), nor one writing through a memory mapping
-    after closing its descriptor."""
-    global _writers_cache
-    with _writers_lock:
-        taken, table = _writers_cache
-        if fresh or time.monotonic() - taken > WRITERS_TTL_S or proc != Path("/proc"):
-            table = _scan_writers(proc)
-            if proc == Path("/proc"):
-                _writers_cache = (time.monotonic(), table)
-    pid = table.get((st.st_dev, st.st_ino))
-    return [] if pid is None else [pid]
-
-
-def _scan_writers(proc: Path) -> dict[tuple[int, int], int]:
-    """(device, inode) -> a pid holding it open for writing, over every readable process."""
-    table: dict[tuple[int, int], int] = {}
-    try:
-        entries = os.listdir(proc)
-    except OSError:
-        return table
-    for entry in entries:
-        if not entry.isdigit():
-            continue
-        fd_dir = proc / entry / "fd"
-        try:
-            fds = os.listdir(fd_dir)
-        except OSError:
-            continue  # gone, or another user's process
-        for fd in fds:
-            try:
-                target = os.stat(fd_dir / fd)
-            except OSError:
-                continue
-            if stat.S_ISREG(target.st_mode) and _opened_for_writing(proc / entry / "fdinfo" / fd):
-                table.setdefault((target.st_dev, target.st_ino), int(entry))
-    return table
-
-
-def _opened_for_writing(fdinfo: Path) -> bool:
-    try:
-        text = fdinfo.read_text()
-    except OSError:
-        return False
-    for line in text.splitlines():
-        if line.startswith("flags:"):
-            return int(line.split()[1], 8) & os.O_ACCMODE in (os.O_WRONLY, os.O_RDWR)
-    return False
 
 
 def move_out(src_dir_fd: int, name: str, dst: Path) -> Path:

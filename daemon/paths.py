@@ -21,6 +21,8 @@ from pathlib import Path
 
 import platformdirs
 
+from daemon.platform import mounts_of_device
+
 APP_NAME = "ppd"
 DEFAULT_OUTBOX_NAME = "PPD Outbox"
 PRIVATE_MODE = 0o700  # the vault holds unpoisoned originals: nobody else may read them
@@ -124,35 +126,10 @@ def filesystem_of(path: Path) -> Filesystem:
     vfs = os.statvfs(path)
     free = vfs.f_bavail * vfs.f_frsize
     real = Path(os.path.realpath(path))
-    for mount_point, fs_type, source in _mounts_of_device(st.st_dev):
+    for mount_point, fs_type, source in mounts_of_device(st.st_dev):
         if real == mount_point or mount_point in real.parents:
             return Filesystem(mount_point, fs_type, source, free)
     return Filesystem(_walk_to_mount_point(real, st.st_dev), "", "", free)
-
-
-def _mounts_of_device(dev: int) -> list[tuple[Path, str, str]]:
-    """(mount point, type, source) of every mount of device dev, longest mount point first."""
-    wanted = f"{os.major(dev)}:{os.minor(dev)}"
-    found = []
-    try:
-        lines = Path("/proc/self/mountinfo").read_text().splitlines()
-    except OSError:
-        return []
-    for line in lines:
-        fields = line.split()
-        if len(fields) < 10 or fields[2] != wanted or "-" not in fields[6:]:
-            continue
-        after = fields.index("-", 6)
-        mount_point, source = Path(_unescape_mount(fields[4])), _unescape_mount(fields[after + 2])
-        found.append((mount_point, fields[after + 1], source))
-    return sorted(found, key=lambda m: len(str(m[0])), reverse=True)
-
-
-def _unescape_mount(text: str) -> str:
-    """mountinfo writes space, tab, newline and backslash as octal escapes (\\040 ...)."""
-    for code in ("040", "011", "012", "134"):
-        text = text.replace(f"\\{code}", chr(int(code, 8)))
-    return text
 
 
 def _walk_to_mount_point(path: Path, dev: int) -> Path:

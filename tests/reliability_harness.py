@@ -42,7 +42,7 @@ if str(REPO) not in sys.path:  # pytest puts tests/ first; bench and tests.* nee
 
 from bench.bench_daemon import Daemon, start_daemon, status_kb  # noqa: E402
 from daemon.paths import AppPaths  # noqa: E402
-from daemon.protect import media_kind, poison_to  # noqa: E402
+from daemon.protect.one_file import media_kind, poison_to  # noqa: E402
 from daemon.states import FileState  # noqa: E402
 from daemon.store import Store  # noqa: E402
 from poisoner.atomic import TEMP_PREFIX  # noqa: E402
@@ -152,7 +152,7 @@ def expected_output(paths: AppPaths, store: Store, row: dict) -> str | None:
         shutil.copyfile(paths.vault_dir / row["original_sha256"][:2] / row["original_sha256"], original)
         out = Path(scratch) / f"out{original.suffix}"
         # The daemon's output carries a provenance seal (its key, over these bytes): so must ours.
-        from daemon.sealkey import load_key
+        from daemon.store.sealkey import load_key
         from poisoner.provenance import Marker, seal_file
 
         key = load_key(paths.data_dir, create=False)
@@ -628,7 +628,7 @@ def run_disk_full(fs: Path, leave: int, files: int = 4) -> DiskFullReport:
     """protect_file in this process with outbox, store and vault on the small filesystem fs:
     one file protected, the disk filled (leaving `leave` bytes), the rest tried, space given
     back, the rest tried again."""
-    from daemon.protect import AppContext, protect_file
+    from daemon.protect.one_file import AppContext, protect_file
 
     paths = app_paths(fs)
     report = DiskFullReport(leave_bytes=leave, files=files)
@@ -658,7 +658,7 @@ def run_disk_full(fs: Path, leave: int, files: int = 4) -> DiskFullReport:
 def sealed_patch(src: Path, dst: Path, spec: object, original_sha256: str, data_dir: Path) -> None:
     """What the pipeline's poison stage writes: the patched file with its seal, made with the
     installation's key in data_dir (created on first use)."""
-    from daemon.sealkey import load_key
+    from daemon.store.sealkey import load_key
     from poisoner.formats import poison_file
     from poisoner.provenance import Marker, seal_file
 
@@ -671,7 +671,7 @@ def sealed_patch(src: Path, dst: Path, spec: object, original_sha256: str, data_
 def patched_then_store_lost(folder: Path, seed: int) -> tuple[Path, bytes]:
     """A photo ppd patched in `folder` (an outbox dataset), then the store deleted: (photo, its
     original bytes). What is left to find it by is the vault and the file's seal."""
-    from daemon.protect import AppContext, protect_file
+    from daemon.protect.one_file import AppContext, protect_file
 
     photo = write_image(folder / "a.png", seed=seed)
     original = photo.read_bytes()

@@ -10,11 +10,11 @@ from typing import Any
 
 import pytest
 
-from daemon import auto as daemon_auto
-from daemon.protect import AppContext, protect_file
-from daemon.scheduler import SchedulePolicy, VerificationScheduler
+from daemon.protect.one_file import AppContext, protect_file
 from daemon.states import FileState
-from daemon.verify import record_report
+from daemon.verification import auto_mode as daemon_auto
+from daemon.verification.scheduler import SchedulePolicy, VerificationScheduler
+from daemon.verification.verify import record_report
 from poisoner.spec import PatchSpec
 from verifier.auto import LadderEntry, PreflightJob
 from verifier.synthetic import SyntheticOptions, render_scene
@@ -233,7 +233,7 @@ def test_interim_runs_in_the_child_and_the_daemon_side_stays_light(
         daemon_auto.run_interim(ctx, "trip", ladder=[A, B, C], cancel=_set(threading.Event()))
     code = (
         "import sys\n"
-        "import daemon.auto, daemon.config, daemon.scheduler\n"
+        "import daemon.verification.auto_mode, daemon.config, daemon.verification.scheduler\n"
         "light = [m for m in ('numpy', 'PIL', 'flip_evaluator', 'torch', 'pycolmap') if m in sys.modules]\n"
         "from pathlib import Path\n"
         "from verifier.auto import LadderEntry, VisibilityBudget, choose_interim\n"

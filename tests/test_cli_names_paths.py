@@ -142,7 +142,7 @@ def test_a_name_and_an_unrelated_folder_take_the_dataset(
 def test_auto_and_experiment_take_the_dataset_folder(shoot: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """auto --show reads the dataset's decisions; experiment measures the dataset's originals (from
     the vault), never the patched files in its folder. Neither runs COLMAP here."""
-    from daemon.cli.experiment import resolve_dataset
+    from daemon.cli.experiment_cmd import resolve_dataset
 
     monkeypatch.chdir(shoot.parent)
     shown = runner.invoke(app, ["auto", "castle/", "--show"])

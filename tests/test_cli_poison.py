@@ -13,7 +13,7 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from daemon.cli import app
-from daemon.protect import AppContext
+from daemon.protect.one_file import AppContext
 from daemon.states import FileState
 from poisoner.ladder import default_spec, named_spec
 from poisoner.spec import PatchSpec
@@ -258,7 +258,7 @@ def test_workers_write_the_bytes_of_a_serial_run(ppd_env: dict[str, Path], tmp_p
 
 def test_a_known_dataset_name_keeps_its_folder(shoot: Path, tmp_path: Path) -> None:
     """--dataset NAME of a known dataset: files inside its folder join it; a folder elsewhere is
-    refused in one line before anything is written (daemon.dataset.attribute)."""
+    refused in one line before anything is written (daemon.datasets.dataset.attribute)."""
     assert runner.invoke(app, ["poison", str(shoot / "view0.png"), "--dataset", "castle"]).exit_code == 0
     inner = runner.invoke(app, ["poison", str(shoot / "inner"), "--dataset", "castle"])
     assert inner.exit_code == 0, inner.output

@@ -40,7 +40,7 @@ def env(ppd_env: dict[str, Path]) -> dict[str, str]:
 def test_help_loads_nothing_heavy(env: dict[str, str], command: list[str]) -> None:
     loaded = imported_modules(env, *command)
     assert not loaded & set(HEAVY), sorted(loaded & set(HEAVY))
-    assert "daemon.protect" not in loaded and "poisoner.blend" not in loaded
+    assert "daemon.protect.one_file" not in loaded and "poisoner.blend" not in loaded
     assert "rich" not in loaded  # nothing is drawn: the consoles are made on first use
 
 
@@ -50,8 +50,8 @@ def test_status_loads_no_pixels_and_no_verifier(env: dict[str, str]) -> None:
     if "sqlite_utils" in loaded:  # the store's connection wrapper imports numpy when present
         pixel_and_sfm.discard("numpy")
     assert not loaded & pixel_and_sfm, sorted(loaded & pixel_and_sfm)
-    assert "daemon.protect" not in loaded and "verifier.verification" not in loaded
-    assert "daemon.cli.poison" not in loaded  # `ppd COMMAND` registers that command only
+    assert "daemon.protect.one_file" not in loaded and "verifier.verification" not in loaded
+    assert "daemon.cli.poison_cmd" not in loaded  # `ppd COMMAND` registers that command only
 
 
 def test_top_level_help_lists_every_command(env: dict[str, str]) -> None:

@@ -13,16 +13,16 @@ import typer
 from reliability_harness import sealed_patch, write_image
 from typer.testing import CliRunner
 
-from daemon.cli.store import register
+from daemon.cli.store_cmd import register
 from daemon.paths import AppPaths
 from daemon.states import FileState
 from daemon.store import Store
-from daemon.vault import Vault
+from daemon.store.vault import Vault
 from poisoner.atomic import atomic_output
 from poisoner.spec import PatchSpec
 
 ROOT = Path(__file__).resolve().parents[1]
-CLI = "import typer; from daemon.cli.store import register; app = typer.Typer(); register(app); app()"
+CLI = "import typer; from daemon.cli.store_cmd import register; app = typer.Typer(); register(app); app()"
 
 
 @pytest.fixture

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from daemon.cli import app
 from daemon.cli.targets import TargetError, dataset_for_folder, resolve_target
-from daemon.protect import AppContext
+from daemon.protect.one_file import AppContext
 
 runner = CliRunner()
 

@@ -21,7 +21,7 @@ from daemon.cli import app
 from daemon.cli.errors import os_error_text, reason_text
 from daemon.cli.options import SpecOptions, designs, spec_fields
 from daemon.cli.output import KeyValueFormatter
-from daemon.protect import AppContext
+from daemon.protect.one_file import AppContext
 from daemon.states import FileState, Protection, dataset_protection, protection_text
 from poisoner.ladder import default_spec, named_specs
 from poisoner.spec import PatchSpec
@@ -271,12 +271,12 @@ def test_daemon_log_lines_are_key_value() -> None:
     import logging
 
     args = ("/home/me/PPD Outbox",)
-    record = logging.LogRecord("daemon.watcher", logging.INFO, __file__, 1, "watching %s", args, None)
+    record = logging.LogRecord("daemon.watch.watcher", logging.INFO, __file__, 1, "watching %s", args, None)
     record.outbox = "/home/me/PPD Outbox"  # said in msg already: not repeated
     record.workers = 2
     record.dataset = "trip x"
     line = KeyValueFormatter().format(record)
-    expected = 'level=info logger=daemon.watcher msg="watching /home/me/PPD Outbox" workers=2 dataset="trip x"'  # noqa: E501
+    expected = 'level=info logger=daemon.watch.watcher msg="watching /home/me/PPD Outbox" workers=2 dataset="trip x"'  # noqa: E501
     assert line == expected
     assert "\x1b[" not in line
 

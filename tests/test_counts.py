@@ -11,8 +11,8 @@ from pathlib import Path
 from typer.testing import CliRunner
 
 from daemon.cli import app
-from daemon.protect import AppContext
-from daemon.quarantine import quarantine
+from daemon.protect.one_file import AppContext
+from daemon.protect.quarantine import quarantine
 from tests.test_cli_poison import make_image
 
 runner = CliRunner()

@@ -1,5 +1,5 @@
-"""daemon.subject: where a dataset's subject masks come from, and its corner chosen once (real files,
-a real store; the pixels are poisoner.subject's, tested in tests/test_subject.py)."""
+"""daemon.datasets.subject_masks: where a dataset's subject masks come from, and its corner chosen once
+(real files, a real store; the pixels are poisoner.subject's, tested in tests/test_subject.py)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,7 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from daemon.protect import AppContext, protect_file
-from daemon.subject import (
+from daemon.datasets.subject_masks import (
     SubjectMaskError,
     check_mask_folder,
     choice_text,
@@ -17,6 +16,7 @@ from daemon.subject import (
     latest_choice,
     place_corner,
 )
+from daemon.protect.one_file import AppContext, protect_file
 from poisoner.ladder import named_spec
 from poisoner.subject import CornerChoice
 from tests.test_cli_poison import MASKED_SIZE, masked_shoot

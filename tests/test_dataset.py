@@ -1,4 +1,4 @@
-"""daemon.dataset.attribute: the one rule for which dataset a file or folder belongs to, on a real
+"""daemon.datasets.dataset.attribute: the one rule for which dataset a file or folder belongs to, on a real
 store and real folders."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from daemon.context import AppContext
-from daemon.dataset import DEFAULT_DATASET, DatasetConflict, attribute, ensure_dataset
+from daemon.datasets.dataset import DEFAULT_DATASET, DatasetConflict, attribute, ensure_dataset
 
 
 @pytest.fixture

@@ -39,7 +39,7 @@ def test_demo_protects_every_view_with_the_default_spec(tmp_path: Path) -> None:
     with sqlite3.connect(tmp_path / "data" / "ppd.sqlite3") as db:
         (stored,) = db.execute("SELECT json FROM specs WHERE id = ?", (rows[0][1],)).fetchone()
     spec = PatchSpec.from_dict(json.loads(stored))
-    # the default kind, its corner chosen for the dataset (daemon.subject)
+    # the default kind, its corner chosen for the dataset (daemon.datasets.subject_masks)
     assert spec.replace(position=default_spec().position) == default_spec()
     assert {r[1] for r in rows} == {spec.spec_id}
     # the patch moves: the protected views differ from their vault originals in different places

@@ -15,7 +15,7 @@ import PIL.PngImagePlugin
 import pytest
 from reliability_harness import make_media
 
-from daemon.protect import AppContext, protect_file, restore_file
+from daemon.protect.one_file import AppContext, protect_file, restore_file
 from daemon.states import FileState
 from poisoner.provenance import MAGIC, MP4_UUID
 

@@ -20,7 +20,13 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from daemon.cli import app
-from daemon.folder_count import count_folder, folder_media, not_patched_yet, resume_command, with_folder
+from daemon.datasets.folder_count import (
+    count_folder,
+    folder_media,
+    not_patched_yet,
+    resume_command,
+    with_folder,
+)
 from tests.test_cli_poison import make_image
 
 REPO = Path(__file__).resolve().parents[1]

@@ -12,7 +12,7 @@ from pathlib import Path
 from reliability_harness import write_image
 
 import daemon.fsops
-from daemon.protect import AppContext, protect_file
+from daemon.protect.one_file import AppContext, protect_file
 from poisoner.atomic import TEMP_PREFIX
 
 
@@ -52,7 +52,7 @@ def test_stale_temporaries_go_live_ones_and_others_stay(ppd_env: dict[str, Path]
 
 
 def test_stale_work_folders_in_the_vault_go(ppd_env: dict[str, Path]) -> None:
-    import daemon.pipeline
+    import daemon.protect.stages
 
     ctx = AppContext.open()
     try:
@@ -60,7 +60,7 @@ def test_stale_work_folders_in_the_vault_go(ppd_env: dict[str, Path]) -> None:
         dead.mkdir()
         (dead / "patched-a.png").write_bytes(b"x" * 1000)
         _age(dead, 3600)
-        daemon.pipeline._work_cleared.clear()
+        daemon.protect.stages._work_cleared.clear()
         photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=2)
         assert protect_file(photo, ctx).state == "patched"
         assert not dead.exists()

@@ -266,7 +266,7 @@ def test_byte_budget_admits_no_more_than_it_holds() -> None:
     import threading
     import time
 
-    from daemon.protect_pool import ByteBudget
+    from daemon.protect.pool import ByteBudget
 
     budget = ByteBudget(1000)
     running: list[int] = []

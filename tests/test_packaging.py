@@ -6,7 +6,6 @@ the repository. The full install-and-run check is scripts/wheel_smoke.sh (CI, .c
 from __future__ import annotations
 
 import inspect
-import logging
 import re
 import shutil
 import subprocess
@@ -60,7 +59,7 @@ def test_the_wheel_holds_every_package_and_data_file(tmp_path: Path) -> None:
 
 
 def test_one_version_source_the_package_metadata() -> None:
-    from daemon.pipeline import tool_version
+    from daemon.protect.stages import tool_version
     from daemon.version import ppd_version
 
     assert ppd_version() == version("patchpoison") == PYPROJECT["project"]["version"]
@@ -100,30 +99,22 @@ def test_typer_private_apis_ppd_patches_are_there() -> None:
     assert shown.exit_code == 2 and "--workers" in shown.output
 
 
-def test_watchdog_overflow_warning_ppd_listens_for_is_there() -> None:
-    """daemon/events.py learns of an inotify queue overflow only from watchdog's warning on the
-    'watchdog.observers' loggers (it says nothing else); a release that renames it breaks rescans."""
+def test_watchdog_inotify_api_ppd_hooks_is_there() -> None:
+    """daemon/platform/linux.py learns of an inotify queue overflow from the event itself: it
+    subclasses watchdog's InotifyFD (handle_event, InotifyEvent.is_queue_overflow) and builds the
+    observer as InotifyObserver does; a release that renames these breaks rescans."""
     watchdog_req = _requirement("watchdog")
     assert any(s.operator == "<" for s in watchdog_req.specifier), "watchdog needs an upper bound"
     assert version("watchdog") in watchdog_req.specifier
-    from watchdog.observers import inotify_c
-    from watchdog.observers.inotify import InotifyObserver
+    from watchdog.observers.inotify import InotifyFullEmitter, InotifyObserver
+    from watchdog.observers.inotify_c import InotifyConstants, InotifyEvent, InotifyFD
 
-    assert inotify_c.logger.name.startswith("watchdog.observers")
-    source = inspect.getsource(inotify_c)
-    assert re.search(r'logger\.warning\(\s*"[^"]*[Oo]verflow', source)
     assert "generate_full_events" in inspect.signature(InotifyObserver).parameters
-
-    from daemon.events import _OverflowFlag
-
-    seen: list[bool] = []
-    flag = _OverflowFlag(lambda: seen.append(True))
-    inotify_c.logger.addHandler(flag)
-    try:
-        inotify_c.logger.warning("Inotify queue overflowed; filesystem events were lost")
-    finally:
-        inotify_c.logger.removeHandler(flag)
-    assert seen and logging.getLogger("watchdog.observers") is inotify_c.logger.parent
+    assert "inotify_fd" in inspect.signature(InotifyFullEmitter).parameters
+    assert list(inspect.signature(InotifyFD.handle_event).parameters) == ["self", "event"]
+    overflow = InotifyEvent(-1, InotifyConstants.IN_Q_OVERFLOW, 0, b"")
+    assert overflow.is_queue_overflow
+    assert "_inotify_fd" in inspect.getsource(InotifyObserver.__init__)
 
 
 def test_no_product_code_reads_a_path_of_the_repository() -> None:
@@ -149,7 +140,7 @@ def test_a_child_imports_the_same_ppd_as_its_parent() -> None:
     env = child_env({"PYTHONPATH": "/elsewhere"})
     assert env["PYTHONPATH"].split(":") == [str(REPO), "/elsewhere"] and import_root() == REPO
     done = subprocess.run(
-        [sys.executable, "-c", "import daemon.poison_child as m; print(m.__file__)"],
+        [sys.executable, "-c", "import daemon.protect.child as m; print(m.__file__)"],
         env=child_env({}), cwd="/", capture_output=True, text=True, timeout=60,
     )  # fmt: skip
-    assert done.stdout.strip() == str(REPO / "daemon" / "poison_child.py"), done.stderr
+    assert done.stdout.strip() == str(REPO / "daemon" / "protect" / "child.py"), done.stderr

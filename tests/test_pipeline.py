@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 from reliability_harness import write_image
 
-import daemon.pipeline
-from daemon.pipeline import STAGES, Outcome
-from daemon.protect import AppContext, protect_file
+import daemon.protect.stages
+from daemon.protect.one_file import AppContext, protect_file
+from daemon.protect.stages import STAGES, Outcome
 from daemon.states import FileState
 
 
@@ -55,7 +55,7 @@ def test_the_crash_safe_order_is_one_list_of_named_stages(ctx: AppContext) -> No
 
 
 def _swap_after_poisoning(monkeypatch: pytest.MonkeyPatch, swap: object) -> None:
-    real = daemon.pipeline.poison_to
+    real = daemon.protect.stages.poison_to
     done: list[bool] = []
 
     def poison_then_swap(*args: object, **kw: object) -> object:
@@ -65,7 +65,7 @@ def _swap_after_poisoning(monkeypatch: pytest.MonkeyPatch, swap: object) -> None
             swap()  # type: ignore[operator]
         return result
 
-    monkeypatch.setattr(daemon.pipeline, "poison_to", poison_then_swap)
+    monkeypatch.setattr(daemon.protect.stages, "poison_to", poison_then_swap)
 
 
 def test_folder_swapped_for_a_symlink_before_the_write(
@@ -123,7 +123,7 @@ def test_a_subject_mask_in_the_outbox_is_never_patched_nor_quarantined(ppd_env: 
     mask = write_image(masks / "000.png", seed=2)
     photo = write_image(ppd_env["outbox"] / "shoot" / "000000.png", seed=3)
     (ppd_env["config"] / "config.toml").write_text(f'[datasets.shoot]\nsubject_masks = "{masks}"\n')
-    from daemon.subject import SubjectMaskError, check_config_masks
+    from daemon.datasets.subject_masks import SubjectMaskError, check_config_masks
 
     ctx = AppContext.open()
     try:

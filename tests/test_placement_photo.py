@@ -231,7 +231,7 @@ MARK_AT = re.compile(r"mark at the (\S+), pixels \((\d+),(\d+)\)-\((\d+),(\d+)\)
 
 def test_exif_6_preview_report_and_pixels_agree(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     from daemon.context import AppContext
-    from daemon.report import build_dataset_report
+    from daemon.verification.dataset_report import build_dataset_report
 
     folder = tmp_path / "phone"
     folder.mkdir()

@@ -12,12 +12,12 @@ import pytest
 from PIL import Image
 
 from daemon.config import Config, ConfigError, parse_length
-from daemon.dataset import DEFAULT_DATASET, OutsideOutboxError, dataset_of
+from daemon.datasets.dataset import DEFAULT_DATASET, OutsideOutboxError, dataset_of
 from daemon.paths import AppPaths
-from daemon.protect import AppContext, dataset_pairs, protect_file, reprotect_dataset, restore_file
+from daemon.protect.one_file import AppContext, dataset_pairs, protect_file, reprotect_dataset, restore_file
 from daemon.states import FileState
 from daemon.store import DatasetSpecLocked
-from daemon.syncdirs import find_sync_folder
+from daemon.watch.syncdirs import find_sync_folder
 from poisoner.blend import patch_coverage
 from poisoner.ladder import default_spec, named_spec
 from poisoner.placement import CORNERS
@@ -426,7 +426,7 @@ def test_interrupted_run_is_recovered_not_poisoned_twice(ctx: AppContext, ppd_en
 def test_a_renamed_dataset_folder_keeps_its_provenance(ppd_env) -> None:
     """Moving protected files (a dataset folder renamed in the outbox) must not drop them out of
     the store: the rows follow the files, and the vault pairs still resolve."""
-    from daemon.protect import AppContext, dataset_pairs, protect_file
+    from daemon.protect.one_file import AppContext, dataset_pairs, protect_file
 
     ctx = AppContext.open()
     try:

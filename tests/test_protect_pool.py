@@ -1,4 +1,4 @@
-"""protect_many (daemon.protect_pool): worker processes write byte for byte what serial protect_file
+"""protect_many (daemon.protect.pool): worker processes write byte for byte what serial protect_file
 writes, and record the same rows; real files, a real SQLite store, a real vault."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import pytest
 from PIL import Image
 
 from daemon.context import AppContext
-from daemon.dataset import attribute
-from daemon.pipeline import ProtectOutcome
-from daemon.protect_pool import protect_many
+from daemon.datasets.dataset import attribute
+from daemon.protect.pool import protect_many
+from daemon.protect.stages import ProtectOutcome
 
 VOLATILE = {"id", "path", "dataset", "updated_at", "created_at", "mtime_ns"}  # when and where, not what
 
@@ -101,7 +101,7 @@ def test_dry_run_in_workers_changes_nothing(ctx: AppContext, tmp_path: Path) -> 
 def test_the_daemons_workers_use_the_configs_subject_masks(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     """`ppd watch`'s worker processes (ProtectWorkers): a new outbox dataset with a corner mark in the
     config gets its corner from the config's masks once, and every file keeps its mark off the subject."""
-    from daemon.protect_pool import ProtectWorkers
+    from daemon.protect.pool import ProtectWorkers
     from tests.test_cli_poison import assert_in_corner_off_subject, changed_pixels, masked_shoot
 
     masks = tmp_path / "masks"

@@ -23,7 +23,7 @@ from reliability_harness import (
     write_image,
 )
 
-from daemon.protect import AppContext, protect_file, restore_file
+from daemon.protect.one_file import AppContext, protect_file, restore_file
 from daemon.states import FileState
 from daemon.store import Store
 
@@ -65,14 +65,14 @@ def test_after_a_death_the_file_is_retried_in_a_child_process(
     daemon down again (no crash loop), and a file that was not the cause is simply patched."""
     photo = write_image(ppd_env["outbox"] / "ds" / "boom.png", seed=3)
     die = (
-        "import os; from pathlib import Path; from daemon.quarantine import attempt\n"
+        "import os; from pathlib import Path; from daemon.protect.quarantine import attempt\n"
         f"with attempt(Path({str(ppd_env['data'])!r}), Path({str(photo)!r}), 'ds'):\n"
         "    os.kill(os.getpid(), 9)"
     )
     ppd_env["data"].mkdir(parents=True, exist_ok=True)
     done = subprocess.run([sys.executable, "-c", die], cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert done.returncode == -9
-    from daemon.quarantine import crashed_attempts
+    from daemon.protect.quarantine import crashed_attempts
 
     assert [c.path for c in crashed_attempts(ppd_env["data"])] == [photo]
     ctx = AppContext.open()
@@ -87,7 +87,7 @@ def test_after_a_death_the_file_is_retried_in_a_child_process(
 def test_an_isolated_poisoner_that_dies_is_a_one_line_failure(tmp_path: Path) -> None:
     import threading
 
-    from daemon.pipeline import PoisonerDied, poison_isolated
+    from daemon.protect.stages import PoisonerDied, poison_isolated
     from poisoner.ladder import default_spec
     from poisoner.provenance import Marker
 

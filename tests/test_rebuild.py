@@ -13,11 +13,11 @@ from reliability_harness import sealed_patch, write_image
 
 from daemon.config import Config, DatasetOverride
 from daemon.paths import AppPaths
-from daemon.rebuild import RebuildRefused, rebuild_store
-from daemon.sealkey import load_key
+from daemon.protect.rebuild import RebuildRefused, rebuild_store
 from daemon.states import FileState
 from daemon.store import Store, StoreError
-from daemon.vault import Vault
+from daemon.store.sealkey import load_key
+from daemon.store.vault import Vault
 from poisoner.atomic import atomic_output
 from poisoner.provenance import read_seal
 from poisoner.spec import PatchSpec

@@ -88,7 +88,7 @@ def test_duplicate_killed_between_rename_and_record_is_recovered(
 
     from reliability_harness import write_image
 
-    from daemon.protect import AppContext, protect_file
+    from daemon.protect.one_file import AppContext, protect_file
 
     ctx = AppContext.open()
     first = write_image(ppd_env["outbox"] / "one" / "p.png", seed=1)

@@ -34,14 +34,14 @@ from reliability_harness import (
     write_image,
 )
 
-import daemon.pipeline
-import daemon.vault
+import daemon.protect.stages
+import daemon.store.vault
 import poisoner.atomic
 import poisoner.formats
-from daemon.protect import AppContext, protect_file
+from daemon.protect.one_file import AppContext, protect_file
 from daemon.states import FileState
 from daemon.store import Store
-from daemon.watcher import is_no_space
+from daemon.watch.watcher import is_no_space
 
 ENOSPC_TEXT = os.strerror(errno.ENOSPC)  # "No space left on device"
 
@@ -129,7 +129,7 @@ def _fail_write_bytes(monkeypatch: pytest.MonkeyPatch) -> None:
     real = Path.write_bytes
 
     def write_bytes(self: Path, data: bytes) -> int:
-        if self.name.startswith(daemon.pipeline.PATCHED_PREFIX):  # the poison stage's output
+        if self.name.startswith(daemon.protect.stages.PATCHED_PREFIX):  # the poison stage's output
             with open(self, "wb") as fh:  # half of it lands, then the disk is full
                 fh.write(data[: len(data) // 2])
             _raise_enospc()
@@ -155,7 +155,7 @@ def _fail_replace(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def _fail_vault_copy(monkeypatch: pytest.MonkeyPatch) -> None:
     """The vault's copy (no reflink here) runs out of space in the kernel copy."""
-    monkeypatch.setattr(daemon.vault, "_copy_file_range_step", _raise_enospc)
+    monkeypatch.setattr(daemon.store.vault, "_copy_file_range_step", _raise_enospc)
 
 
 INJECTIONS: dict[str, Callable[[pytest.MonkeyPatch], None]] = {
@@ -189,7 +189,8 @@ def test_enospc_at_each_point_loses_nothing_and_a_retry_protects(
         assert ctx.store.file(outcome.path)["error"] == outcome.reason
     assert all(sha256(p) == digest for p, digest in originals.items())
     assert not list(ctx.paths.outbox.rglob(".ppd-tmp-*"))
-    assert not [p for p in ctx.paths.vault_dir.iterdir() if p.name.startswith(daemon.vault.VAULT_TMP_PREFIX)]
+    tmp_prefix = daemon.store.vault.VAULT_TMP_PREFIX
+    assert not [p for p in ctx.paths.vault_dir.iterdir() if p.name.startswith(tmp_prefix)]
     assert check_invariants(ctx.paths, originals) == []
     again = [protect_file(p, ctx) for p in originals]  # space is back
     assert [o.state for o in again] == ["patched", "patched"], [o.reason for o in again]
@@ -198,11 +199,11 @@ def test_enospc_at_each_point_loses_nothing_and_a_retry_protects(
 
 def test_enospc_module_points_exist() -> None:
     """The injection points name real code paths (a rename would silently disarm a test)."""
-    assert callable(poisoner.formats.poison_file) and hasattr(daemon.vault, "VAULT_TMP_PREFIX")
+    assert callable(poisoner.formats.poison_file) and hasattr(daemon.store.vault, "VAULT_TMP_PREFIX")
     assert "dst.write_bytes(out)" in Path(poisoner.formats.__file__).read_text()
     assert (
-        callable(daemon.vault._copy_file_range_step)
-        and "_copy_file_range_step" in Path(daemon.vault.__file__).read_text()
+        callable(daemon.store.vault._copy_file_range_step)
+        and "_copy_file_range_step" in Path(daemon.store.vault.__file__).read_text()
     )
-    assert "PATCHED_PREFIX" in Path(daemon.pipeline.__file__).read_text()
+    assert "PATCHED_PREFIX" in Path(daemon.protect.stages.__file__).read_text()
     assert "os.rename(tmp_name, name" in Path(poisoner.atomic.__file__).read_text()

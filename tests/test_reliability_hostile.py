@@ -26,9 +26,9 @@ from reliability_harness import (
     wait_for,
 )
 
-import daemon.pipeline
+import daemon.protect.stages
 from daemon.paths import AppPaths
-from daemon.protect import AppContext, ProtectOutcome, protect_file
+from daemon.protect.one_file import AppContext, ProtectOutcome, protect_file
 from daemon.states import FileState
 from daemon.store import Store
 
@@ -186,7 +186,7 @@ def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
 def _replace_after_poisoning(monkeypatch: pytest.MonkeyPatch, replace: Callable[[], None]) -> None:
     """Make a concurrent writer act at the worst instant, once: right after the patched file is
     complete, before protect_file compares and swaps it into place."""
-    real = daemon.pipeline.poison_to
+    real = daemon.protect.stages.poison_to
     done: list[bool] = []
 
     def poison_then_replace(kind: str, src: Path, dst: Path, *args: object, **kw: object) -> object:
@@ -196,7 +196,7 @@ def _replace_after_poisoning(monkeypatch: pytest.MonkeyPatch, replace: Callable[
             replace()
         return result
 
-    monkeypatch.setattr(daemon.pipeline, "poison_to", poison_then_replace)
+    monkeypatch.setattr(daemon.protect.stages, "poison_to", poison_then_replace)
 
 
 @pytest.mark.parametrize("how", ["rename-over", "rewrite-in-place", "symlink-swap"])

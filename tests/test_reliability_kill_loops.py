@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from bench.bench_kill_loops import REPO, poison_loop, store_deleted_round
-from daemon.watcher import scan_outbox
+from daemon.watch.watcher import scan_outbox
 from poisoner.atomic import clear_stale_temps
 
 pytestmark = pytest.mark.integration
@@ -84,13 +84,13 @@ def test_a_writer_that_closed_within_the_scan_cache_does_not_skip_the_file(ppd_e
     """Before: a /proc scan taken while the file was open for writing (here by this process, as
     when ppd's own temporary is renamed in place) was reused for 0.5 s, and the file was skipped
     as 'still open for writing by pid <ppd itself>' after the writer had closed it."""
-    import daemon.fsops
-    from daemon.protect import AppContext, protect_file
+    import daemon.platform.linux
+    from daemon.protect.one_file import AppContext, protect_file
     from tests.test_watcher import write_image
 
     photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=3)
     fd = os.open(photo, os.O_WRONLY)
-    assert daemon.fsops.writers_of(os.stat(photo), fresh=True) == [os.getpid()]  # now cached
+    assert daemon.platform.linux.writers_of(os.stat(photo), fresh=True) == [os.getpid()]  # now cached
     os.close(fd)
     ctx = AppContext.open()
     try:

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from daemon import report as dataset_reports
+from daemon.verification import dataset_report as dataset_reports
 from poisoner.spec import PatchSpec
 from verifier import report as rp
 from verifier.poses import poses_to_json
@@ -115,7 +115,7 @@ def test_experiment_folder_report(tmp_path: Path) -> None:
 
 # ---- a daemon dataset, real Store / Vault / protect_file ------------------------------------------
 def _protected_dataset(ppd_env: dict[str, Path], tmp_path: Path) -> Any:
-    from daemon.protect import AppContext, protect_file
+    from daemon.protect.one_file import AppContext, protect_file
 
     ctx = AppContext.open()
     trip = ppd_env["outbox"] / "trip"
@@ -323,13 +323,13 @@ def test_old_run_folder_without_visibility_still_reads(tmp_path: Path) -> None:
 
 
 def test_dataset_report_shows_the_recorded_visibility(ppd_env: dict[str, Path], tmp_path: Path) -> None:
-    from daemon.verify import record_report
+    from daemon.verification.verify import record_report
     from verifier.verification import ProfileReport, VerificationReport
     from verifier.visibility import measure_pairs
 
     ctx = _protected_dataset(ppd_env, tmp_path)
     try:
-        from daemon.protect import dataset_pairs
+        from daemon.protect.one_file import dataset_pairs
 
         pairs = dataset_pairs(ctx, "trip")
         vis = measure_pairs(pairs, sample=3)
@@ -355,7 +355,7 @@ def test_dataset_report_counts_the_headline_and_says_the_masked_line_and_the_cor
 ) -> None:
     """A corner-mark dataset: its report's verdict is default/hardened/published's, the masked attacker
     has its own plain line, and the placement (corner and why) is said."""
-    from daemon.protect import AppContext, protect_file
+    from daemon.protect.one_file import AppContext, protect_file
 
     (ppd_env["config"] / "config.toml").write_text(
         '[patch]\ndesign = "watermark"\n'

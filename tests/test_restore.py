@@ -8,7 +8,7 @@ from pathlib import Path
 
 from reliability_harness import patched_then_store_lost, write_image
 
-from daemon.protect import AppContext, protect_file, restore_file
+from daemon.protect.one_file import AppContext, protect_file, restore_file
 from daemon.states import FileState
 
 

@@ -1,5 +1,5 @@
-"""daemon.scheduler: when a dataset's verification is due, one run at a time in a background thread,
-stop() cancelling it, and the options a scheduled run gets from the config; a real AppContext (real
+"""daemon.verification.scheduler: when a dataset's verification is due, one run at a time in a background
+thread, stop() cancelling it, and the options a scheduled run gets from the config; a real AppContext (real
 SQLite store and config file in a temporary folder)."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from daemon.context import AppContext
-from daemon.scheduler import SchedulePolicy, VerificationScheduler, is_due
+from daemon.verification.scheduler import SchedulePolicy, VerificationScheduler, is_due
 
 
 def open_ctx(ppd_env: dict[str, Path], config_toml: str = "") -> AppContext:

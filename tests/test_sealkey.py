@@ -14,8 +14,8 @@ import typer
 from reliability_harness import write_image
 from typer.testing import CliRunner
 
-from daemon.cli.key import register
-from daemon.sealkey import SealKeyError, key_path, load_key
+from daemon.cli.key_cmd import register
+from daemon.store.sealkey import SealKeyError, key_path, load_key
 from poisoner.formats import poison_file
 from poisoner.provenance import Marker, Seal, read_seal, seal_file
 from poisoner.spec import PatchSpec

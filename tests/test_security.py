@@ -23,7 +23,7 @@ from reliability_harness import (
     write_image,
 )
 
-from daemon.protect import AppContext, protect_file
+from daemon.protect.one_file import AppContext, protect_file
 from daemon.states import FileState
 from daemon.store import Store
 

@@ -13,7 +13,7 @@ import pytest
 
 from daemon.config import Config
 from daemon.paths import AppPaths
-from daemon.service import (
+from daemon.watch.service import (
     UNIT_NAME,
     generic_layout,
     installed_layout,

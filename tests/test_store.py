@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 
-from daemon import auto as daemon_auto
 from daemon.states import FileState
 from daemon.store import (
     MIGRATIONS,
@@ -22,6 +21,7 @@ from daemon.store import (
     StoreError,
 )
 from daemon.store.schema import split_sql
+from daemon.verification import auto_mode as daemon_auto
 from poisoner.spec import PatchSpec
 from verifier.auto import LadderEntry
 

@@ -17,8 +17,8 @@ from reliability_harness import REPO, patched_then_store_lost, write_image
 
 from daemon.locks import LockHeld, outbox_lock
 from daemon.paths import AppPaths
-from daemon.protect import AppContext, protect_file
-from daemon.rebuild import RebuildRefused, rebuild_store
+from daemon.protect.one_file import AppContext, protect_file
+from daemon.protect.rebuild import RebuildRefused, rebuild_store
 from daemon.states import FileState
 
 
@@ -110,7 +110,7 @@ def test_folders_0700_and_quarantined_files_0600_whatever_the_umask(
     """Before, under umask 000: ppd-quarantine/ and the config folder 0777, quarantined originals 0666."""
     import stat
 
-    from daemon.quarantine import quarantine
+    from daemon.protect.quarantine import quarantine
 
     root = tmp_path / "home"
     for var, name in (("PPD_DATA_DIR", "a/data"), ("PPD_CONFIG_DIR", "b/config"), ("PPD_OUTBOX", "c/outbox")):
@@ -141,7 +141,7 @@ def test_a_fragment_under_a_quarantined_name_is_joined_to_its_head(ppd_env: dict
     """A writer's next append after its head was quarantined (the wait ran out): the tail is not
     a file of its own; it is joined to the quarantined head (one whole file), which goes back to
     its name and is patched. Before: a second fragment in quarantine, the tail kept as an original."""
-    from daemon.quarantine import quarantine
+    from daemon.protect.quarantine import quarantine
 
     src = write_image(ppd_env["outbox"].parent / "src.png", seed=8, size=256).read_bytes()
     photo = ppd_env["outbox"] / "ds" / "a.png"

@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 from reliability_harness import MountUnavailable, fill, small_filesystem
 
-import daemon.vault
-from daemon.vault import (
+import daemon.store.vault
+from daemon.store.vault import (
     RestoreRefused,
     Vault,
     VaultContentChanged,
@@ -33,7 +33,7 @@ def _sha(data: bytes) -> str:
 
 
 def _temporaries(vault: Vault) -> list[Path]:
-    return [p for p in vault.vault_dir.iterdir() if p.name.startswith(daemon.vault.VAULT_TMP_PREFIX)]
+    return [p for p in vault.vault_dir.iterdir() if p.name.startswith(daemon.store.vault.VAULT_TMP_PREFIX)]
 
 
 @pytest.fixture
@@ -160,7 +160,7 @@ def test_keep_fd_leaves_the_callers_offset_alone(vault: Vault, tmp_path: Path) -
 @pytest.mark.parametrize("method", ["copy_file_range", "sendfile", "read"])
 def test_every_copy_method_gives_an_identical_independent_file(tmp_path: Path, method: str) -> None:
     """The fallbacks of _copy_fd, each run for real (reflink needs btrfs/XFS, absent here)."""
-    data = os.urandom(3 * daemon.vault.CHUNK + 12345)
+    data = os.urandom(3 * daemon.store.vault.CHUNK + 12345)
     src, dst = tmp_path / "src", tmp_path / "dst"
     src.write_bytes(data)
     src_fd = os.open(src, os.O_RDONLY)
@@ -168,11 +168,11 @@ def test_every_copy_method_gives_an_identical_independent_file(tmp_path: Path, m
     try:
         if method == "read":
             digest = hashlib.sha256()
-            daemon.vault._read_loop(src_fd, dst_fd, 0, digest)
+            daemon.store.vault._read_loop(src_fd, dst_fd, 0, digest)
             assert digest.hexdigest() == _sha(data)
         else:
-            step = getattr(daemon.vault, f"_{method}_step")
-            assert daemon.vault._kernel_copy(src_fd, dst_fd, step) == len(data)
+            step = getattr(daemon.store.vault, f"_{method}_step")
+            assert daemon.store.vault._kernel_copy(src_fd, dst_fd, step) == len(data)
     finally:
         os.close(src_fd)
         os.close(dst_fd)
@@ -338,7 +338,7 @@ def test_reflink_where_the_filesystem_shares_extents(btrfs: Path) -> None:
     src_fd = os.open(src, os.O_RDONLY)
     dst_fd = os.open(btrfs / "clone", os.O_RDWR | os.O_CREAT, 0o600)
     try:
-        assert daemon.vault._copy_fd(src_fd, dst_fd) == ("reflink", _sha(data))
+        assert daemon.store.vault._copy_fd(src_fd, dst_fd) == ("reflink", _sha(data))
     finally:
         os.close(src_fd)
         os.close(dst_fd)
@@ -389,9 +389,9 @@ def test_partial_copies_of_a_killed_keep_are_cleaned_and_counted(tmp_path: Path)
     src = tmp_path / "a.bin"
     src.write_bytes(b"x" * 1000)
     sha = vault.keep(src)
-    stale = folder / f"{daemon.vault.VAULT_TMP_PREFIX}dead"
+    stale = folder / f"{daemon.store.vault.VAULT_TMP_PREFIX}dead"
     stale.write_bytes(b"p" * 2_300_000)  # what the killed keep had copied
-    live = folder / f"{daemon.vault.VAULT_TMP_PREFIX}live"
+    live = folder / f"{daemon.store.vault.VAULT_TMP_PREFIX}live"
     live.write_bytes(b"q" * 10)
     old = time.time() - 3600
     for p in (stale, live):
@@ -408,7 +408,7 @@ def test_partial_copies_of_a_killed_keep_are_cleaned_and_counted(tmp_path: Path)
     )  # fmt: skip
     try:
         assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
-        assert daemon.vault.clear_stale_keeps(folder) == [stale]  # at start (Vault() runs it once)
+        assert daemon.store.vault.clear_stale_keeps(folder) == [stale]  # at start (Vault() runs it once)
     finally:
         holder.kill()
         holder.wait()

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from daemon.verify import prune_runs
+from daemon.verification.verify import prune_runs
 from poisoner.blend import poison_array
 from poisoner.spec import PatchSpec
 from verifier import verdict as vd
@@ -214,7 +214,7 @@ def test_a_datasets_verification_gets_its_subject_masks_and_corner_kind(
     """verify_dataset's options: the config's subject masks (visibility's "touches subject") and
     whether the dataset's mark is corner-bound (the masked attacker's line); a bad mask folder is one line."""
     from daemon.context import AppContext
-    from daemon.verify import dataset_options
+    from daemon.verification.verify import dataset_options
     from poisoner.ladder import named_spec
 
     masks = tmp_path / "masks"
@@ -325,8 +325,8 @@ def test_patch_breaks_default_colmap_and_hardened_colmap_resists(
 def test_verify_dataset_records_runs_and_keeps_models(
     synthetic_sets: dict[str, Path], ppd_env: dict[str, Path]
 ) -> None:
-    protect = pytest.importorskip("daemon.protect")
-    from daemon.verify import verify_dataset
+    protect = pytest.importorskip("daemon.protect.one_file")
+    from daemon.verification.verify import verify_dataset
 
     ctx = protect.AppContext.open()
     try:
@@ -492,8 +492,8 @@ def test_verify_dataset_reports_masked_apart_and_measures_the_subject(
     default and masked: masked is recorded and said on its own line, the headline is default's,
     and the visibility stage measured the subject."""
     from daemon.context import AppContext
-    from daemon.protect import protect_file
-    from daemon.verify import verify_dataset
+    from daemon.protect.one_file import protect_file
+    from daemon.verification.verify import verify_dataset
 
     obj, masks = ppd_env["outbox"] / "obj", tmp_path / "masks"
     shutil.copytree(object_sets["clean"], obj)

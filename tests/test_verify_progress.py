@@ -100,7 +100,7 @@ def test_ppd_status_shows_a_running_verification_in_text_and_json(
 
     from daemon.cli import app
     from daemon.paths import AppPaths
-    from daemon.verify_state import progress_path
+    from daemon.verification.verify_state import progress_path
 
     runner = CliRunner()
     shoot = tmp_path / "castle"

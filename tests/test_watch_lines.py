@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon.protect import AppContext
+from daemon.protect.one_file import AppContext
 from daemon.states import FileState
 from tests.test_cli_poison import make_image
 

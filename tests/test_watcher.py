@@ -26,14 +26,14 @@ import numpy as np
 import PIL.Image
 import pytest
 
-from daemon.events import WatchOptions, ignore_reason, is_candidate, scan_outbox
-from daemon.notify import SystemdNotifier, notify_socket_address, watchdog_interval
 from daemon.paths import AppPaths
-from daemon.protect import AppContext
+from daemon.protect.one_file import AppContext
 from daemon.states import FileState
 from daemon.store import Store
-from daemon.watcher import DaemonOptions, WatchDaemon
-from daemon.workers import PoolOptions, WorkerPool
+from daemon.watch.notify import SystemdNotifier, notify_socket_address, watchdog_interval
+from daemon.watch.outbox import WatchOptions, ignore_reason, is_candidate, scan_outbox
+from daemon.watch.watcher import DaemonOptions, WatchDaemon
+from daemon.watch.workers import PoolOptions, WorkerPool
 from poisoner.atomic import TEMP_PREFIX
 from poisoner.media import MEDIA_SUFFIXES
 
@@ -689,8 +689,8 @@ def test_daemon_process_stays_light(ppd_env: dict[str, Path], tmp_path: Path) ->
 import json, sys, threading
 from daemon.cli import app  # what `ppd` imports
 from daemon.paths import AppPaths
-from daemon.protect import AppContext
-from daemon.watcher import DaemonOptions, WatchDaemon, WatchOptions
+from daemon.protect.one_file import AppContext
+from daemon.watch.watcher import DaemonOptions, WatchDaemon, WatchOptions
 ctx = AppContext.open(AppPaths.from_env())
 d = WatchDaemon(ctx, DaemonOptions(watch=WatchOptions(settle_s=0.1), verify=True))
 t = threading.Thread(target=d.run); t.start()
@@ -707,7 +707,7 @@ print(json.dumps({"protected": d.counts.patched, "modules": sorted(sys.modules)}
     assert report["protected"] == 1
     heavy = [m for m in report["modules"] if m.split(".")[0] in ("torch", "pycolmap", "skimage")]
     assert heavy == [], heavy
-    # files are protected in worker processes (daemon.protect_pool): no decoder in the daemon's memory
+    # files are protected in worker processes (daemon.protect.pool): no decoder in the daemon's memory
     decoders = [m for m in report["modules"] if m.split(".")[0] in ("PIL", "av")]
     assert decoders == [], decoders
     # numpy only as sqlite_utils's own import (daemon.store), never for the poisoner
@@ -725,7 +725,7 @@ def test_bad_config_is_one_line_and_exit_status_1(ppd_env: dict[str, Path]) -> N
     assert len(lines) == 1 and "workers" in lines[0] and "Traceback" not in proc.stderr
 
 
-# ---- per-file worker processes (daemon.protect_pool) -------------------------------------------------
+# ---- per-file worker processes (daemon.protect.pool) -------------------------------------------------
 def _worker_pids() -> set[int]:
     """This process's child processes (the daemon's protect workers run under the test's process)."""
     pids: set[int] = set()

@@ -6,20 +6,20 @@ torch or pycolmap (tests/test_cli_startup.py checks it).
 
 | module | commands |
 |---|---|
-| daemon.cli.poison | `poison` (planning: daemon.cli.planning) |
-| daemon.cli.restore | `restore` |
-| daemon.cli.preview | `preview` |
-| daemon.cli.status | `status` (queries: daemon.cli.status_queries) |
-| daemon.cli.dataset | `dataset show`, `dataset set` |
-| daemon.cli.config | `config show`, `config path` |
-| daemon.cli.watch | `watch`, `service install/uninstall/status` |
-| daemon.cli.demo | `demo` |
-| daemon.cli.verify | `verify` (tables: daemon.cli.verify_tables; targets: daemon.cli.targets) |
-| daemon.cli.auto | `auto` |
-| daemon.cli.experiment | `experiment` |
-| daemon.cli.report | `report` |
-| daemon.cli.store | `store check`, `store rebuild` |
-| daemon.cli.key | `key export`, `key import` (the seal key, daemon.sealkey) |
+| daemon.cli.poison_cmd | `poison` (planning: daemon.cli.planning) |
+| daemon.cli.restore_cmd | `restore` |
+| daemon.cli.preview_cmd | `preview` |
+| daemon.cli.status_cmd | `status` (queries: daemon.cli.status_queries) |
+| daemon.cli.dataset_cmd | `dataset show`, `dataset set` |
+| daemon.cli.config_cmd | `config show`, `config path` |
+| daemon.cli.watch_cmd | `watch`, `service install/uninstall/status` |
+| daemon.cli.demo_cmd | `demo` |
+| daemon.cli.verify_cmd | `verify` (tables: daemon.cli.verify_tables; targets: daemon.cli.targets) |
+| daemon.cli.auto_cmd | `auto` |
+| daemon.cli.experiment_cmd | `experiment` |
+| daemon.cli.report_cmd | `report` |
+| daemon.cli.store_cmd | `store check`, `store rebuild` |
+| daemon.cli.key_cmd | `key export`, `key import` (the seal key, daemon.store.sealkey) |
 
 Shared: daemon.cli.errors (one-line errors, exit codes), daemon.cli.output (consoles, logging),
 daemon.cli.options (shared option sets), daemon.cli.group (the top-level group).
@@ -85,11 +85,13 @@ def _main(
 
 
 COMMAND_MODULES = {
-    "poison": "daemon.cli.poison", "restore": "daemon.cli.restore", "preview": "daemon.cli.preview",
-    "status": "daemon.cli.status", "dataset": "daemon.cli.dataset", "config": "daemon.cli.config",
-    "watch": "daemon.cli.watch", "service": "daemon.cli.watch", "demo": "daemon.cli.demo",
-    "verify": "daemon.cli.verify", "auto": "daemon.cli.auto", "experiment": "daemon.cli.experiment",
-    "report": "daemon.cli.report", "store": "daemon.cli.store", "key": "daemon.cli.key",
+    "poison": "daemon.cli.poison_cmd", "restore": "daemon.cli.restore_cmd",
+    "preview": "daemon.cli.preview_cmd", "status": "daemon.cli.status_cmd",
+    "dataset": "daemon.cli.dataset_cmd", "config": "daemon.cli.config_cmd",
+    "watch": "daemon.cli.watch_cmd", "service": "daemon.cli.watch_cmd", "demo": "daemon.cli.demo_cmd",
+    "verify": "daemon.cli.verify_cmd", "auto": "daemon.cli.auto_cmd",
+    "experiment": "daemon.cli.experiment_cmd", "report": "daemon.cli.report_cmd",
+    "store": "daemon.cli.store_cmd", "key": "daemon.cli.key_cmd",
 }  # fmt: skip
 
 

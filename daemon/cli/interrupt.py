@@ -1,6 +1,6 @@
 """Ctrl-C and SIGTERM for a command that works through files (`ppd poison`): the first asks it
 to stop between files, so the file in progress is finished and nothing is left half-done; the
-second acts at once, as it would have without ppd (the crash-safe order of daemon.pipeline makes
+second acts at once, as it would have without ppd (the crash-safe order of daemon.protect.stages makes
 that safe too)."""
 
 from __future__ import annotations

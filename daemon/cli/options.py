@@ -117,7 +117,7 @@ class SpecOptions:
 
     def sets_position(self) -> bool:
         """Whether these flags place the mark (--position or a spec file): its corner is then the
-        user's, not chosen per dataset (daemon.subject)."""
+        user's, not chosen per dataset (daemon.datasets.subject_masks)."""
         return self.spec_file is not None or any(name == "position" for name, _ in self.values)
 
     def build(self, base: PatchSpec) -> PatchSpec:

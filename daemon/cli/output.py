@@ -72,7 +72,7 @@ ALWAYS_SHOWN = frozenset({"event", "dataset", "file", "outcome", "seconds"})
 
 
 class KeyValueFormatter(logging.Formatter):
-    """`level=info logger=daemon.watcher msg="..." path=/x dataset=y`: one line per record, the
+    """`level=info logger=daemon.watch.watcher msg="..." path=/x dataset=y`: one line per record, the
     record's `extra` fields as keys, for journald and grep. No time stamp: journald adds its own."""
 
     def __init__(self, with_time: bool = False, terminal: bool = False) -> None:
@@ -152,7 +152,7 @@ def setup_logging(verbose: int, *, daemon: bool = False) -> None:
     if not daemon and verbose < 2:
         # The CLI names each file itself with -v, and prints the corner it chose; the core's
         # records would say each twice.
-        for name in ("daemon.protect", "daemon.subject", "poisoner"):
+        for name in ("daemon.protect.one_file", "daemon.datasets.subject_masks", "poisoner"):
             logging.getLogger(name).setLevel(logging.WARNING)
     if daemon and verbose < 2:  # the daemon's terminal says what it did to each file, once
-        logging.getLogger("daemon.protect").setLevel(logging.WARNING)
+        logging.getLogger("daemon.protect.one_file").setLevel(logging.WARNING)

@@ -27,7 +27,7 @@ class Job:
 
 def media_files(folder: Path) -> list[Path]:
     """Regular, non-hidden files under folder (hidden folders skipped too), sorted."""
-    from daemon.protect import is_ignored_name
+    from daemon.protect.one_file import is_ignored_name
 
     files = []
     for p in sorted(folder.rglob("*")):
@@ -41,9 +41,9 @@ def media_files(folder: Path) -> list[Path]:
 
 def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Path | None) -> list[Job]:
     """One job per file of the targets, each with its dataset by the one rule of attribution
-    (daemon.dataset.attribute: a folder is one dataset, a file belongs to its outbox dataset or
+    (daemon.datasets.dataset.attribute: a folder is one dataset, a file belongs to its outbox dataset or
     to one named after its parent; --dataset names it, and a known name keeps its root)."""
-    from daemon.dataset import DatasetConflict, attribute
+    from daemon.datasets.dataset import DatasetConflict, attribute
 
     jobs: list[Job] = []
     for target in targets:
@@ -98,7 +98,7 @@ def check_writable(jobs: list[Job], dry_run: bool) -> None:
 def dataset_masks(ctx: AppContext, jobs: list[Job], given: Path | None) -> dict[str, Path | None]:
     """Each dataset's subject-mask folder (given, else its config's), checked before anything is
     written: a folder that is missing, unreadable or inside the outbox is a one-line error."""
-    from daemon.subject import SubjectMaskError, subject_masks_for
+    from daemon.datasets.subject_masks import SubjectMaskError, subject_masks_for
 
     masks: dict[str, Path | None] = {}
     for job in jobs:
@@ -141,9 +141,16 @@ def apply_spec(
 ) -> tuple[dict[str, PatchSpec], list[str]]:
     """The spec each dataset will use when flags were given or its corner is chosen now (set on
     new datasets now), and one line per dataset whose corner was chosen. A new dataset whose mark
-    is corner-bound gets the corner daemon.subject.place_corner picks over all its files given here."""
+    is corner-bound gets the corner daemon.datasets.subject_masks.place_corner picks over all its files
+    given here."""
+    from daemon.datasets.subject_masks import (
+        corner_line,
+        per_photo_line,
+        place_corner,
+        record_choice,
+        wants_corner,
+    )
     from daemon.store import DatasetSpecLocked
-    from daemon.subject import corner_line, per_photo_line, place_corner, record_choice, wants_corner
 
     wanted: dict[str, PatchSpec] = {}
     lines: list[str] = []

@@ -12,7 +12,7 @@ from verifier.verdict import Verdict
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
-    from daemon.folder_count import FolderCount
+    from daemon.datasets.folder_count import FolderCount
     from poisoner.spec import PatchSpec
 
 
@@ -109,7 +109,7 @@ def _last_verification(latest: dict[str, Any] | None) -> dict[str, Any] | None:
 def mask_folders(ctx: AppContext, name: str) -> list[Path]:
     """The dataset's subject-mask folders (its config's, the one its corner was chosen with):
     masks are never patched, so they are not files of the dataset."""
-    from daemon.subject import latest_choice, masks_or_none
+    from daemon.datasets.subject_masks import latest_choice, masks_or_none
 
     folders = [masks_or_none(ctx, name)]
     used = (latest_choice(ctx, name) or {}).get("subject_masks")
@@ -118,8 +118,8 @@ def mask_folders(ctx: AppContext, name: str) -> list[Path]:
 
 
 def folder_count(ctx: AppContext, name: str, root: str) -> FolderCount:
-    """The dataset's folder next to its rows (daemon.folder_count)."""
-    from daemon.folder_count import count_folder
+    """The dataset's folder next to its rows (daemon.datasets.folder_count)."""
+    from daemon.datasets.folder_count import count_folder
 
     return count_folder(Path(root), ctx.store.files(name), skip=mask_folders(ctx, name))
 
@@ -128,10 +128,10 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     """Everything `ppd status NAME --json` says about one dataset. Its counts are the rows' and
     the folder's: files no row mentions (a run stopped half-way) are "untracked" and counted in
     "files"; "resume" says what finishes the dataset."""
-    from daemon.auto import status_text as auto_status_text  # light: no torch, no pycolmap
-    from daemon.folder_count import not_patched_yet, resume_command, with_folder
+    from daemon.datasets.folder_count import not_patched_yet, resume_command, with_folder
     from daemon.states import patched_count
-    from daemon.verify_state import running_verification  # light: msgspec and a small JSON file
+    from daemon.verification.auto_mode import status_text as auto_status_text  # light: no torch, no pycolmap
+    from daemon.verification.verify_state import running_verification  # light: msgspec and a small JSON file
 
     row = ctx.store.dataset(name)
     if row is None:

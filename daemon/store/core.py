@@ -11,7 +11,7 @@ from pathlib import Path
 from daemon.store.damage import LOST_NOTE, check_pages, lost_message, vault_holds_originals
 from daemon.store.datasets import DatasetRows
 from daemon.store.errors import StoreError
-from daemon.store.events import EventRows
+from daemon.store.event_log import EventRows
 from daemon.store.files import FileRows
 from daemon.store.schema import migrate
 from daemon.store.verification import VerificationRows

@@ -11,7 +11,7 @@ from typing import Any
 from daemon.states import FileState
 from daemon.store.connection import StoreBase
 from daemon.store.errors import DatasetSpecLocked, StoreError
-from daemon.store.events import insert_event
+from daemon.store.event_log import insert_event
 from poisoner.spec import PatchSpec
 
 

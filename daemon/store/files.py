@@ -12,7 +12,7 @@ from typing import Any
 from daemon.states import FileState
 from daemon.store.connection import StoreBase
 from daemon.store.errors import PatchedNotFailed, StoreError
-from daemon.store.events import insert_event
+from daemon.store.event_log import insert_event
 
 FILE_STATES: tuple[FileState, ...] = tuple(FileState)
 FILE_FIELDS = frozenset(

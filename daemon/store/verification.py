@@ -10,7 +10,7 @@ from typing import Any
 from daemon.store.connection import StoreBase
 from daemon.store.datasets import insert_spec
 from daemon.store.errors import StoreError
-from daemon.store.events import insert_event
+from daemon.store.event_log import insert_event
 from daemon.store.schema import AUTO_TRIGGERS
 from poisoner.spec import PatchSpec
 

@@ -1,0 +1,102 @@
+"""`ppd dataset show NAME` and `ppd dataset set NAME [spec flags]`: a dataset's patch spec."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import typer
+
+from daemon.cli.errors import die, file_reason, one_line, open_ctx
+from daemon.cli.options import SpecOptions, spec_options
+from daemon.cli.output import console, err_console
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
+    from poisoner.spec import PatchSpec
+
+dataset_app = typer.Typer(help="Show or set a dataset's patch spec.", no_args_is_help=True)
+
+
+@dataset_app.command("show")
+def dataset_show(name: str, as_json: bool = typer.Option(False, "--json")) -> None:
+    """A dataset's spec and counts."""
+    from daemon.cli.status_queries import dataset_status
+    from poisoner.spec import PatchSpec
+
+    ctx = open_ctx()
+    try:
+        info = dataset_status(ctx, name)
+        if as_json:
+            typer.echo(json.dumps(info, indent=2, default=str))
+            return
+        console().print(f"[bold]{name}[/] at {info['root']}  spec {info['spec_id']}: {info['spec_summary']}")
+        if info["spec"]:
+            console().print(PatchSpec.from_dict(info["spec"]).to_toml(), end="")
+        console().print(" ".join(f"{k}={v}" for k, v in info["counts"].items()))
+    finally:
+        ctx.close()
+
+
+def _reprotect(ctx: AppContext, name: str, spec: PatchSpec) -> None:
+    """Every patched file of the dataset again from its vault original, with the new spec."""
+    from daemon.protect.one_file import reprotect_dataset
+
+    outcomes = reprotect_dataset(ctx, name, spec)
+    counts = Counter(o.state for o in outcomes)
+    console().print(f"patched again {name}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+    for o in outcomes:
+        if o.state == "failed":
+            err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
+
+
+@dataset_app.command("set")
+@spec_options()
+def dataset_set(
+    name: str = typer.Argument(..., help="The dataset."),
+    root: Path | None = typer.Option(None, "--root", help="Dataset folder (default: OUTBOX/NAME)."),
+    publish_dir: Path | None = typer.Option(None, "--publish-dir", help="Move patched files here."),
+    reprotect: bool = typer.Option(False, "--reprotect", help="Patch again from the vault originals."),
+    spec_options: SpecOptions = SpecOptions(),
+) -> None:
+    """Set a dataset's spec. Once files are patched, a new spec needs --reprotect (every
+    image must carry the same patch).
+
+    \b
+    Examples:
+      ppd dataset set castle --design paper
+      ppd dataset set castle --patch-size 8% --reprotect
+    """
+    from daemon.cli.status_queries import spec_summary
+    from daemon.datasets.dataset import dataset_root
+    from daemon.store import DatasetSpecLocked
+    from poisoner.spec import SpecError
+
+    ctx = open_ctx()
+    try:
+        existing = ctx.store.dataset(name)
+        base = ctx.store.dataset_spec(name) or ctx.config.spec_for(name)
+        try:
+            spec = spec_options.build(base)
+        except (SpecError, OSError, ValueError) as exc:
+            raise die(one_line(exc)) from None
+        folder = root.absolute() if root else (Path(existing["root"]) if existing else None)
+        folder = folder or dataset_root(ctx.paths.outbox.absolute(), name)
+        if reprotect and existing is not None:
+            _reprotect(ctx, name, spec)
+        else:
+            try:
+                ctx.store.set_dataset_spec(name, spec, root=folder)
+            except DatasetSpecLocked as exc:
+                raise die(str(exc)) from None
+        if publish_dir is not None:
+            ctx.store.set_dataset_publish_dir(name, publish_dir.absolute())
+        console().print(f"{name}: spec {spec.spec_id} ({spec_summary(spec)})", markup=False)
+    finally:
+        ctx.close()
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(dataset_app, name="dataset")

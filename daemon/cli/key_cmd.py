@@ -1,0 +1,85 @@
+"""`ppd key export FILE` and `ppd key import FILE`: move the installation's seal key (the secret
+that lets ppd recognise its own patched files, daemon.store.sealkey) to a new machine, with the vault."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from daemon.cli.errors import EXIT_ENVIRONMENT, die
+
+key_app = typer.Typer(
+    help="The seal key: what lets ppd, and only ppd here, recognise the files it patched.",
+    no_args_is_help=True,
+)
+
+
+@key_app.command("export")
+def key_export(
+    file: Path = typer.Argument(..., help="Where to write the key (mode 0600; never inside the outbox)."),
+    force: bool = typer.Option(False, "--force", help="Replace FILE if it exists."),
+) -> None:
+    """Write this installation's seal key to FILE (created on first use if there is none yet)."""
+    import os
+
+    from daemon.paths import AppPaths
+    from daemon.store.sealkey import SealKeyError, load_key
+
+    paths = AppPaths.from_env()
+    try:
+        key = load_key(paths.data_dir)
+    except (SealKeyError, OSError) as exc:
+        raise die(str(exc), EXIT_ENVIRONMENT) from None
+    assert key is not None
+    flags = os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC | (os.O_TRUNC if force else os.O_EXCL)
+    try:
+        fd = os.open(file, flags, 0o600)
+    except FileExistsError:
+        raise die(f"{file} exists; not overwriting it (use --force)") from None
+    except OSError as exc:
+        raise die(f"cannot write {file}: {exc.strerror}", EXIT_ENVIRONMENT) from None
+    try:
+        os.fchmod(fd, 0o600)
+        os.write(fd, key.hex().encode() + b"\n")
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    typer.echo(f"seal key written to {file} (keep it private; `ppd key import {file}` on the new machine)")
+
+
+@key_app.command("import")
+def key_import(
+    file: Path = typer.Argument(..., help="A key written by `ppd key export`."),
+    force: bool = typer.Option(
+        False,
+        "--force",
+        help="Replace a different key already here (files it sealed are then not recognised).",
+    ),
+) -> None:
+    """Make the key in FILE this installation's seal key (before the first run on a new machine)."""
+    from daemon.paths import AppPaths
+    from daemon.store.sealkey import SealKeyError, install_key, key_path, load_key, parse_key
+
+    paths = AppPaths.from_env()
+    try:
+        key = parse_key(file.read_bytes()[:4096], file)
+        current = load_key(paths.data_dir, create=False)
+    except SealKeyError as exc:
+        raise die(str(exc)) from None
+    except OSError as exc:
+        raise die(f"cannot read {exc.filename}: {exc.strerror}") from None
+    if current == key:
+        typer.echo(f"{key_path(paths.data_dir)} already holds this key")
+        return
+    if current is not None and not force:
+        raise die(
+            f"{key_path(paths.data_dir)} holds a different key: files it sealed would no longer be "
+            "recognised after a store loss (use --force to replace it)"
+        )
+    where = install_key(paths.data_dir, key, replace=True)
+    typer.echo(f"seal key installed at {where}")
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(key_app, name="key")

@@ -1,0 +1,247 @@
+"""`ppd poison PATHS...`: patch files and folders (a folder is one dataset), in place with each
+original in the vault, or as copies with --out; one summary, then what each dataset is now."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import typer
+
+from daemon.cli.errors import EXIT_FAILED, EXIT_INTERRUPTED, die, file_reason, open_ctx
+from daemon.cli.interrupt import StopOnSignal
+from daemon.cli.options import SpecOptions, spec_options, subject_masks_option, workers_option
+from daemon.cli.output import console, err_console, interactive, print_line, verbosity
+
+if TYPE_CHECKING:
+    from daemon.cli.planning import Job
+    from daemon.context import AppContext
+    from daemon.protect.one_file import ProtectOutcome
+    from poisoner.spec import PatchSpec
+
+# The outcome state of protect_file for a file it wrote its mark into (daemon.protect.stages.Outcome).
+OUTCOME_PATCHED = frozenset({"patched"})
+RESTORED_BY_USER = "restored by the user"
+
+
+def outcome_word(outcome: ProtectOutcome) -> str:
+    """The word for one file's outcome: patched / would patch / unchanged / skipped / failed."""
+    if outcome.state in OUTCOME_PATCHED:
+        return "would patch" if outcome.dry_run else "patched"
+    return outcome.state
+
+
+def _restored_left(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
+    return [o for o in outcomes if o.state == "unchanged" and (o.reason or "").startswith(RESTORED_BY_USER)]
+
+
+# per-file notes of a patched file whose mark found no free place (daemon.protect.stages.place_note)
+NOT_FREE = {
+    "mark on the subject: no plain region": "mark on the subject in {n} photo{s}: no plain region",
+    "mark partly on the subject mask (left unwritten there): no free region":
+        "mark partly on the subject mask in {n} photo{s} (left unwritten there): no free region",
+}  # fmt: skip
+
+
+def place_lines(outcomes: list[ProtectOutcome]) -> list[str]:
+    """The summary's lines for marks that found no free place ("mark on the subject in 2 photos:
+    no plain region"): never silent (issue 25)."""
+    counts = Counter(o.reason for o in outcomes if o.state in OUTCOME_PATCHED and o.reason in NOT_FREE)
+    return [NOT_FREE[r].format(n=n, s="" if n == 1 else "s") for r, n in sorted(counts.items()) if r]
+
+
+def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
+    """exiftool-style counts, the files left restored, each failed file with its reason."""
+    counts = Counter(outcome_word(o) for o in outcomes)
+    words = ["would patch" if dry_run else "patched", "unchanged", "skipped", "failed"]
+    line = ", ".join(f"{w} {counts.get(w, 0)}" for w in words)
+    console().print(("dry run, nothing changed: " if dry_run else "") + line)
+    for line in place_lines(outcomes):
+        console().print(line, markup=False)
+    left = _restored_left(outcomes)
+    if left:
+        console().print(f"left unprotected (restored by you): {len(left)}; use --force to protect them again")
+    for o in outcomes:
+        if o.state == "failed":
+            err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
+
+
+def summary(
+    ctx: AppContext, jobs: list[Job], outcomes: list[ProtectOutcome], dry_run: bool,
+    scene_notes: Callable[[], bool] = lambda: True,
+) -> None:  # fmt: skip
+    """The counts, then where copies went, what each dataset is now and the command that says
+    more (a verification's verdict, or that there is none yet: never "protected" by default).
+    scene_notes(): whether to judge the scenes (not once the user pressed Ctrl-C: it takes seconds)."""
+    from daemon.cli.planning import output_places
+    from daemon.cli.status_queries import protection_line
+
+    _print_counts(outcomes, dry_run)
+    if scene_notes():
+        _print_scene_notes(jobs)
+    if dry_run:
+        return
+    for place in output_places(jobs):
+        console().print(f"written to {place}", markup=False)
+    for name in sorted({job.dataset for job in jobs}):
+        if ctx.store.dataset(name) is not None:
+            console().print(protection_line(ctx, name), markup=False)
+    names = sorted({o.dataset for o in outcomes if o.state == "failed" and o.dataset})
+    if names:
+        console().print(f"failed files and reasons: ppd status {names[0]} --failed", markup=False)
+
+
+def interrupted_line(outcomes: list[ProtectOutcome], total: int, dry_run: bool, command: str) -> str:
+    """The one line a stopped run ends with: what it did, what is left, the command that finishes."""
+    counts = Counter(outcome_word(o) for o in outcomes)
+    words = ["would patch" if dry_run else "patched", "unchanged", "skipped", "failed"]
+    done = ", ".join(f"{w} {counts.get(w, 0)}" for w in words)
+    left = total - len(outcomes)
+    return f"interrupted: {done}; {left} of {total} not patched yet: run `{command}` to finish"
+
+
+def interrupted_summary(outcomes: list[ProtectOutcome], total: int, dry_run: bool) -> None:
+    """Ctrl-C or SIGTERM stopped the run between files: the one line, then each failed file."""
+    import shlex
+    import sys
+
+    command = shlex.join(["ppd", *sys.argv[1:]])  # as typed: same folders, same --out and --dataset
+    out = console()  # word-wrapped on a terminal (never mid-word), one line into a pipe
+    line = interrupted_line(outcomes, total, dry_run, command)
+    print_line(out, line)
+    for o in outcomes:
+        if o.state == "failed":
+            err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
+
+
+def _print_scene_notes(jobs: list[Job]) -> None:
+    """One line per dataset saying what kind of scene it looks like (poisoner.scene): what ppd can
+    and cannot protect, up front; it never claims protection."""
+    from daemon.cli.scene_note import print_scene_notes  # numpy/PIL only when it runs
+
+    by_dataset: dict[str, list[Path]] = {}
+    for job in jobs:
+        by_dataset.setdefault(job.dataset, []).append(job.path)
+    print_scene_notes(console(), by_dataset)
+
+
+def _say_outcome(progress_console: Any, outcome: ProtectOutcome) -> None:
+    """-v: one line per file with its outcome (above the progress bar)."""
+    where = f" -> {outcome.output}" if outcome.output and outcome.output != outcome.path else ""
+    why = f" ({outcome.reason})" if outcome.reason and outcome.state != "failed" else ""
+    place = getattr(outcome.report, "place", None)
+    if place is not None and outcome.state in OUTCOME_PATCHED:  # a per-photo mark: where it shows
+        why = f" (mark at the {place.words}{'; ' + outcome.reason if outcome.reason else ''})"
+    progress_console.print(f"{outcome_word(outcome)} {outcome.path}{where}{why}", markup=False)
+
+
+def run_jobs(
+    ctx: AppContext,
+    jobs: list[Job],
+    wanted: dict[str, PatchSpec],
+    *,
+    dry_run: bool,
+    force: bool,
+    workers: int | None = None,
+    subject_masks: Path | None = None,
+    stop: StopOnSignal | None = None,
+) -> list[ProtectOutcome]:
+    """Every job through protect_many on `workers` processes (default: the config's). A progress
+    bar only on a terminal (nothing per file unless -v, which names each file with its outcome);
+    the outcomes sorted by path for the summary. stop: once it is true (Ctrl-C), no file starts
+    any more and those in progress finish: fewer outcomes than jobs."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from daemon.protect.pool import protect_many
+
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=err_console(), transient=True, disable=not interactive()) as progress:
+        task = progress.add_task("patching", total=len(jobs))
+        if stop is not None:  # the bar says why it waits: the files in progress are finishing
+            stop._on_stop = lambda _name: progress.update(task, description="stopping")
+
+        def finished(outcome: ProtectOutcome) -> None:
+            if verbosity() > 0:
+                _say_outcome(progress.console, outcome)
+            progress.advance(task)
+
+        outcomes = protect_many(
+            ctx, [(job.path, job.dataset, job.root, job.out_path) for job in jobs], workers=workers,
+            force=force, dry_run=dry_run, spec=wanted, on_outcome=finished, subject_masks=subject_masks,
+            stop=stop,
+        )  # fmt: skip
+    return sorted(outcomes, key=lambda o: str(o.path))
+
+
+POISON_HELP = """Patch photos and videos so 3D reconstruction from them fails.
+
+A folder is one dataset. In place by default (each original is kept in the vault,
+`ppd restore` puts it back); with --out the inputs stay as they are. Re-running is a
+no-op. Whether the patch protects is a verification's answer: `ppd verify DATASET`.
+
+\b
+Examples:
+  ppd poison ~/shoots/castle              patch in place
+  ppd poison ~/shoots/castle --out ~/pub  patched copies in ~/pub/castle/
+  ppd poison castle --design paper --dry-run
+  ppd poison dtu/image --design watermark --subject-masks dtu/mask
+"""
+
+
+@spec_options()
+def poison(
+    paths: list[Path] = typer.Argument(..., help="Files or folders; a folder is one dataset."),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Say what would be patched; change nothing."),
+    out: Path | None = typer.Option(
+        None, "--out", metavar="DIR", help="Write patched copies to DIR/DATASET/; leave the inputs."
+    ),
+    dataset: str | None = typer.Option(None, "--dataset", help="Dataset name (default: the folder's)."),
+    force: bool = typer.Option(False, "--force", help="Patch again files you restored."),
+    workers: int | None = workers_option(),
+    subject_masks: Path | None = subject_masks_option(),
+    spec_options: SpecOptions = SpecOptions(),
+) -> None:
+    # From here Ctrl-C / SIGTERM stop between files: the one in progress finishes, one line says
+    # what is left and how to finish (a second signal stops at once).
+    with StopOnSignal() as stop:
+        ctx = open_ctx()
+        try:
+            _poison(ctx, paths, dataset, out, subject_masks, spec_options, dry_run, force, workers, stop)
+        finally:
+            ctx.close()
+
+
+def _poison(
+    ctx: AppContext, paths: list[Path], dataset: str | None, out: Path | None, subject_masks: Path | None,
+    spec_options: SpecOptions, dry_run: bool, force: bool, workers: int | None, stop: StopOnSignal,
+) -> None:  # fmt: skip
+    from daemon.cli import planning
+
+    jobs = planning.plan_jobs(ctx, paths, dataset, out)
+    if not jobs:
+        raise die("no files to patch in " + ", ".join(str(p) for p in paths))
+    planning.check_dataset_roots(ctx, jobs)
+    planning.check_writable(jobs, dry_run)
+    masks = planning.dataset_masks(ctx, jobs, subject_masks)
+    jobs, notes = planning.without_masks(jobs, masks)
+    if not jobs:
+        raise die("no files to patch besides the subject masks in " + ", ".join(str(p) for p in paths))
+    wanted, corner_lines = planning.apply_spec(ctx, jobs, spec_options, dry_run, masks)
+    for line in [*notes, *corner_lines]:
+        console().print(line, markup=False)
+    outcomes = run_jobs(
+        ctx, jobs, wanted, dry_run=dry_run, force=force, workers=workers, subject_masks=subject_masks,
+        stop=stop,
+    )  # fmt: skip
+    if stop() and len(outcomes) < len(jobs):
+        interrupted_summary(outcomes, len(jobs), dry_run)
+        raise typer.Exit(EXIT_INTERRUPTED)
+    summary(ctx, jobs, outcomes, dry_run, scene_notes=lambda: not stop())  # a Ctrl-C there skips the notes
+    if any(o.state == "failed" for o in outcomes):
+        raise typer.Exit(EXIT_FAILED)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("poison", help=POISON_HELP)(poison)

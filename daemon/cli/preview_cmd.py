@@ -1,0 +1,280 @@
+"""`ppd preview FILE`: original and patched side by side, a zoom on the patch, and how visible
+the mark is at display size (FLIP next to a JPEG q85 re-encode)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import typer
+
+from daemon.cli.errors import EXIT_ENVIRONMENT, die, one_line, open_ctx, os_error_text
+from daemon.cli.options import SpecOptions, spec_options, subject_masks_option
+from daemon.cli.output import console, err_console
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
+    from poisoner.spec import PatchSpec
+
+
+# The JPEG q85 budget is estimated on this fraction of the picture (verifier.visibility
+# _quick_figures: tiles spread evenly; within a few percent of the whole picture's figure on photos,
+# lower on a mostly plain picture), the mark's own figures evaluated around it (the whole picture's
+# to rounding). Verification measures the whole picture.
+PREVIEW_JPEG_SAMPLE = 0.05
+
+
+def _is_video(path: Path) -> bool:
+    from poisoner.media import is_video
+
+    return is_video(path)
+
+
+def placement_for(spec: PatchSpec, original: Any, file: Path) -> Any:
+    """Where spec puts the patch on this picture (a video: its first frame's place)."""
+    h, w = original.shape[:2]
+    if _is_video(file):
+        return spec.resolve(w, h, index=0.0)
+    return spec.resolve(w, h, image_key=file.name)
+
+
+def load_picture(path: Path) -> tuple[Any, int | None]:
+    """(stored RGB pixels, EXIF orientation or None); a video's first frame. ppd patches the
+    stored pixels, so the preview works in them and orients only what it shows."""
+    import numpy as np
+    from PIL import Image
+
+    if _is_video(path):
+        import av
+
+        from poisoner.video import frame_to_rgb
+
+        with av.open(str(path)) as container:
+            for frame in container.decode(video=0):
+                return frame_to_rgb(frame), None
+        raise ValueError("no video frame")
+    with Image.open(path) as im:
+        orientation = im.getexif().get(0x0112)
+        return np.asarray(im.convert("RGB")), orientation if isinstance(orientation, int) else None
+
+
+def _load(path: Path) -> tuple[Any, int | None]:
+    try:
+        return load_picture(path)
+    except (OSError, ValueError) as exc:
+        raise die(f"cannot read {path.name}: {one_line(exc)}") from None
+
+
+def _mark_of(spec: PatchSpec, source: Path, original: Any, file: Path, keep_out: Any) -> tuple[Any, Any]:
+    """(stored placement, MarkPlace or None): a per-photo spec judges the photo's own bytes exactly
+    as poison_file does (poisoner.preview.planned_mark), named as the file; a video its first frame."""
+    if spec.per_photo and not _is_video(file):
+        from poisoner.preview import planned_mark
+
+        return planned_mark(source, spec, keep_out, name=file.name)
+    return placement_for(spec, original, file), None
+
+
+def _stored_pair(
+    ctx: AppContext, file: Path, row: Any, keep_out: Any
+) -> tuple[Any, Any, Any, Any, int | None, tuple[str, str]]:
+    """A patched file against its vault original, with the spec it was patched with."""
+    spec = ctx.store.get_spec(row["spec_id"])
+    vault_copy = ctx.vault.path_for(row["original_sha256"])
+    original, _ = _load(vault_copy)
+    poisoned, orientation = _load(file)
+    labels = ("original (vault)", f"patched ({file.name})")
+    placement, place = _mark_of(spec, vault_copy, original, file, keep_out)
+    return original, poisoned, placement, place, orientation, labels
+
+
+def _planned_spec(
+    ctx: AppContext, file: Path, options: SpecOptions, masks: Path | None
+) -> tuple[Any, str | None]:
+    """The spec `ppd poison` would give this file, and the corner line when its corner is chosen now
+    (a new dataset's corner mark: judged on the file and its neighbours, as `ppd poison FOLDER` does)."""
+    from daemon.datasets.dataset import attribute
+    from daemon.datasets.subject_masks import corner_line, place_corner, sibling_images, wants_corner
+
+    name, _root = attribute(ctx, file, folder=False)
+    stored = ctx.store.dataset_spec(name)
+    spec = options.build(stored or ctx.config.spec_for(name))
+    if stored is None and wants_corner(spec, options.sets_position() or ctx.config.position_set(name)):
+        placed = place_corner(spec, [file, *sibling_images(file)], masks)
+        return placed.spec, corner_line(name, placed.choice)
+    return spec, None
+
+
+def _planned_pair(
+    ctx: AppContext, file: Path, options: SpecOptions, masks: Path | None, keep_out: Any
+) -> tuple[Any, Any, Any, Any, int | None, tuple[str, str]]:
+    """Any photo with its dataset's spec (or the flags'), patched in memory only, where ppd poison
+    would put it; off the subject (keep_out, the file's subject mask) where it has one."""
+    from poisoner.blend import apply_patch
+
+    spec, line = _planned_spec(ctx, file, options, masks)
+    if line is not None:
+        console().print(line, markup=False)
+    original, orientation = _load(file)
+    placement, place = _mark_of(spec, file, original, file, keep_out)
+    # a video's first frame, as poison_video patches it (no keep-out for videos)
+    poisoned = apply_patch(original, placement, None if _is_video(file) else keep_out)
+    labels = (f"original ({file.name})", "patched (preview, not written)")
+    return original, poisoned, placement, place, orientation, labels
+
+
+def _oriented(mask: Any, orientation: int | None) -> Any:
+    """A bool mask of the stored pixels as the picture is shown (uint8 0/255, H x W)."""
+    import numpy as np
+
+    from poisoner.preview import orient
+
+    shown = orient(np.asarray(mask, np.uint8) * 255, orientation)
+    return shown if shown.ndim == 2 else shown[..., 0]
+
+
+def _subject_of(masks: Path | None, file: Path) -> Any:
+    """The file's subject mask (stored pixels, bool), or None (no masks, none for it, a video)."""
+    if masks is None or _is_video(file):
+        return None
+    from daemon.datasets.subject_masks import load_keep_out
+
+    return load_keep_out(masks, file)
+
+
+def _render(
+    ctx: AppContext, file: Path, options: SpecOptions, masks: Path | None
+) -> tuple[Any, Any, Any, Any, str]:
+    """(preview picture, original, patched, subject mask or None, where the mark is and why), oriented
+    as a viewer sees them; the subject's edge is drawn on the zooms."""
+    from daemon.states import PATCHED_VALUES
+    from poisoner.errors import ImageFormatError
+    from poisoner.image.keep_out import checked_keep_out, written_pixels
+    from poisoner.preview import mark_line, orient, render_preview, shown_placement
+    from poisoner.spec import SpecError
+
+    row = ctx.store.file(file)
+    try:
+        keep_out = _subject_of(masks, file)
+        if row is not None and row["state"] in PATCHED_VALUES and not options.given():
+            original, poisoned, placement, place, orientation, labels = _stored_pair(ctx, file, row, keep_out)
+        else:
+            planned = _planned_pair(ctx, file, options, masks, keep_out)
+            original, poisoned, placement, place, orientation, labels = planned
+        h, w = original.shape[:2]
+        where = mark_line(placement, place, orientation, w, h)
+        if written_pixels(placement, checked_keep_out(file.name, keep_out, (w, h))) == 0:
+            where += "; NO pixel would change (the subject mask covers the mark): ppd poison fails this file"
+        shown = shown_placement(placement, place, orientation, w, h)
+        original, poisoned = orient(original, orientation), orient(poisoned, orientation)
+        subject = None if keep_out is None else _oriented(keep_out, orientation)
+        picture = render_preview(original, poisoned, shown, labels=labels, subject=subject)
+        return picture, original, poisoned, subject, where
+    except (SpecError, ValueError, ImageFormatError) as exc:
+        raise die(one_line(exc)) from None
+
+
+def _preview_masks(ctx: AppContext, file: Path, given: Path | None) -> Path | None:
+    """The subject masks for this file's dataset (--subject-masks, else the config's), checked."""
+    from daemon.datasets.dataset import attribute
+    from daemon.datasets.subject_masks import SubjectMaskError, subject_masks_for
+
+    try:
+        return subject_masks_for(ctx, attribute(ctx, file, folder=False)[0], given)
+    except SubjectMaskError as exc:
+        raise die(str(exc)) from None
+
+
+def _visibility_line(original: Any, poisoned: Any, display_width: int, subject: Any = None) -> str:
+    """The visibility summary (arrays (H, W, C)); with the subject's mask, whether the mark touches it."""
+    from verifier.visibility import VisibilityError, visibility_report
+
+    try:
+        with console().status("measuring visibility"):
+            # A picture narrower than the screen is shown at its own size, not magnified (magnifying
+            # would make a JPEG re-encode's artefacts, the budget, look larger than any viewer sees them).
+            width = min(display_width, original.shape[1])
+            figures = visibility_report(original, poisoned, display_width=width, subject_mask=subject,
+                                        jpeg_sample=PREVIEW_JPEG_SAMPLE)  # fmt: skip
+            touches = {True: "; changed pixels TOUCH the subject", False: "; no changed pixel on the subject"}
+            return figures.summary() + touches.get(figures.touches_subject, "")
+    except VisibilityError as exc:
+        raise die(one_line(exc)) from None
+
+
+def _first_file(ctx: AppContext, given: Path) -> Path:
+    """A dataset (its name, its folder, a verification folder of it) or a folder: its first
+    patched file, else the folder's first photo or video; or one line saying what to give."""
+    from daemon.cli.targets import TargetError, resolve_target, say_note
+    from daemon.states import FileState
+    from poisoner.media import is_image, is_video
+
+    try:
+        chosen = resolve_target(ctx.store, str(given))
+    except TargetError:
+        raise die(f"{given} does not exist, and is not a dataset (see `ppd status`)") from None
+    say_note(chosen, err_console())
+    if chosen.dataset is not None:
+        rows = ctx.store.files(chosen.dataset, state=FileState.PATCHED)
+        present = sorted(p for p in (Path(r.get("published_path") or r["path"]) for r in rows) if p.is_file())
+        if present:
+            return present[0]
+    folder = chosen.folder
+    media = sorted(p for p in folder.iterdir() if is_image(p.name) or is_video(p.name)) if folder else []
+    if not media:
+        raise die(f"{given}: no photo or video to preview there")
+    return media[0]
+
+
+@spec_options(with_ratio=False)
+def preview(
+    file: Path = typer.Argument(
+        ..., help="A photo or a video (original or patched), or a dataset (name or folder): its first file."
+    ),
+    out: Path | None = typer.Option(
+        None, "--out", metavar="PNG", help="PNG to write (default: ./NAME.ppd-preview.png)."
+    ),
+    spec_options: SpecOptions = SpecOptions(),
+    display_width: int = typer.Option(
+        1920, "--display-width", metavar="PX", help="Screen width the visibility is judged at."
+    ),
+    visibility: bool = typer.Option(
+        True, "--visibility/--no-visibility", help="Measure how visible the mark is (FLIP; a few seconds)."
+    ),
+    subject_masks: Path | None = subject_masks_option(),
+) -> None:
+    """Original and patched side by side, with a zoom on the patch, and how visible the mark is
+    at display size (FLIP, next to a JPEG q85 re-encode of the same picture). A patched file is
+    shown against its vault original; any other photo with its dataset's spec (or the flags').
+
+    \b
+    Examples:
+      ppd preview IMG_0042.jpg                   the spec this file would get
+      ppd preview castle                         a dataset's first patched file
+      ppd preview IMG_0042.jpg --design paper    the paper's static patch
+      ppd preview clip.mp4 --out clip.png        a frame of a video
+      ppd preview image/000000.png --design watermark --subject-masks mask/
+    """
+    from PIL import Image
+
+    ctx = open_ctx()
+    try:
+        file = file.absolute() if file.is_file() else _first_file(ctx, file)
+        masks = _preview_masks(ctx, file, subject_masks)
+        image, original, poisoned, subject, where = _render(ctx, file, spec_options, masks)
+        target = (out or Path.cwd() / f"{file.stem}.ppd-preview.png").absolute()
+        try:
+            Image.fromarray(image).save(target, format="PNG", compress_level=1)  # quick, not small
+        except OSError as exc:
+            raise die(os_error_text(exc, hint_out=False), EXIT_ENVIRONMENT) from None
+        console().print(f"preview written to {target}", markup=False)
+        console().print(where, markup=False, soft_wrap=True)
+        if visibility:
+            line = _visibility_line(original, poisoned, display_width, subject)
+            console().print(line, markup=False, soft_wrap=True)
+    finally:
+        ctx.close()
+
+
+def register(app: typer.Typer) -> None:
+    app.command("preview")(preview)

@@ -1,0 +1,92 @@
+"""`ppd restore DATASET|FILE`: put originals back from the vault."""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import typer
+
+from daemon.cli.errors import EXIT_FAILED, die, open_ctx, reason_text
+from daemon.cli.output import console, err_console
+
+if TYPE_CHECKING:
+    from daemon.protect.stages import ProtectOutcome
+
+
+def restore(
+    target: str = typer.Argument(
+        ..., help="A dataset (its name, its folder, a verification folder of it) or a patched file."
+    ),
+    force: bool = typer.Option(False, "--force", help="Overwrite even if the file changed since."),
+) -> None:
+    """Put originals back from the vault (atomic). Files in an --out or publish folder are
+    removed there, never replaced by originals. The daemon does not patch restored files again.
+
+    \b
+    Examples:
+      ppd restore castle                 every patched file of the dataset
+      ppd restore ~/shoots/castle        the same, by its folder
+      ppd restore ~/shoots/castle/a.jpg  one file
+    """
+    from daemon.cli.targets import TargetError, dataset_or_die
+    from daemon.protect.one_file import restore_file
+    from daemon.states import FileState
+
+    ctx = open_ctx()
+    try:
+        as_path = Path(os.path.abspath(Path(target).expanduser()))
+        if ctx.store.file(as_path) is not None or (as_path.is_file() and not as_path.is_symlink()):
+            # a file: its row, or with no row (a lost store) its seal and the vault (restore_file says
+            # "not in the store and carries no ppd provenance marker" for a file ppd never patched)
+            paths = [as_path]
+        else:
+            try:
+                name = dataset_or_die(ctx.store, target, console(), "nothing to restore there")
+            except TargetError as exc:
+                raise die(exc) from None
+            paths = [Path(r["path"]) for r in ctx.store.files(name, state=FileState.PATCHED)]
+        outcomes = [restore_file(ctx, p, force=force) for p in sorted(set(paths))]
+        _print_outcomes(outcomes)
+        counts = Counter(restore_word(o) for o in outcomes)
+        if counts.get("failed"):
+            raise typer.Exit(EXIT_FAILED)
+    finally:
+        ctx.close()
+
+
+def restore_word(outcome: ProtectOutcome) -> str:
+    """restored: the original is back at its place; removed: a patched copy (`--out`) was deleted
+    and nothing put back (its input was never changed); unchanged; failed."""
+    if outcome.state == "restored" and outcome.output is None:
+        return "removed"
+    return str(outcome.state)
+
+
+def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
+    """One count line, where removed copies were (a folder, not a line per file unless -v), then
+    each file that was not restored with its reason."""
+    import os
+
+    from daemon.cli.output import verbosity
+
+    counts = Counter(restore_word(o) for o in outcomes)
+    words = ("restored", "removed", "unchanged", "failed")
+    console().print(", ".join(f"{k} {counts.get(k, 0)}" for k in words))
+    removed = [o.path for o in outcomes if restore_word(o) == "removed"]
+    if removed:
+        folder = removed[0].parent if len(removed) == 1 else Path(os.path.commonpath(removed))
+        said = f"removed {len(removed)} patched copies from {folder} (their inputs were never changed)"
+        console().print(said, markup=False)
+    for o in outcomes:
+        word = restore_word(o)
+        if word == "failed":
+            err_console().print(f"ppd: not restored: {o.path}: {reason_text(o.reason)}", markup=False)
+        elif o.reason and (word not in ("restored", "unchanged", "removed") or verbosity() > 0):
+            console().print(f"{word} {o.path}: {o.reason}", markup=False)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("restore")(restore)

@@ -1,0 +1,273 @@
+"""`ppd status [DATASET]`: each dataset's files, whether it is protected (a verification's
+verdict) or only patched, what to run next; warnings on regressions and sync folders."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import typer
+
+from daemon.cli.errors import die, open_ctx, warning
+from daemon.cli.output import console, err_console, print_line
+from verifier.verdict import Verdict
+
+if TYPE_CHECKING:
+    from rich.table import Table
+
+    from daemon.context import AppContext
+
+VERDICT_STYLE = {
+    Verdict.PROTECTED: "green", Verdict.WEAK: "yellow", Verdict.NOT_PROTECTED: "bold red",
+    Verdict.SFM_CRASHED: "magenta",
+}  # fmt: skip
+
+
+def verdict_text(profile: str, v: dict[str, Any], markup: bool = True) -> str:
+    from daemon.cli.status_queries import age
+    from daemon.states import verdict_words
+
+    label = verdict_words(v["verdict"])
+    frac = v.get("frac_within_5deg")
+    detail = f", {frac:.0%} of cameras within 5°" if isinstance(frac, int | float) else ""
+    shown = f"[{VERDICT_STYLE.get(v['verdict'], 'bold')}]{label}[/]" if markup else label
+    return f"{profile}: {shown}{detail} ({age(v['finished_at'])})"
+
+
+def _protection_cell(d: dict[str, Any]) -> str:
+    from daemon.states import Protection
+
+    style = {
+        Protection.PROTECTED: "bold green",
+        Protection.WEAK: "bold yellow",
+        Protection.NOT_PROTECTED: "bold red",
+        Protection.UNVERIFIABLE: "magenta",
+        Protection.PATCHED_NOT_VERIFIED: "yellow",
+    }.get(Protection(d["protection"]["state"]), "bold")
+    return f"[{style}]{d['protection']['text']}[/]"
+
+
+def _columns(width: int) -> list[str]:
+    """Columns drop as the terminal narrows (files, then failed, then patched)."""
+    columns = ["dataset", "files", "patched", "failed", "protection"]
+    for column, below in (("files", 72), ("failed", 56), ("patched", 44)):
+        if width < below:
+            columns.remove(column)
+    return columns
+
+
+def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Table:
+    """One row per dataset; the dataset name and the protection words are folded, never cut."""
+    from rich.table import Table
+
+    columns = _columns(width)
+    table = Table(expand=False)
+    for column in columns:
+        numeric = column in ("files", "patched", "failed")
+        table.add_column(
+            column, justify="right" if numeric else "left", overflow="fold", no_wrap=numeric,
+            min_width=len(column) if numeric else None, ratio=None if numeric else 1,
+        )  # fmt: skip
+    for d in report:
+        c = d["counts"]
+        cells = {
+            "dataset": d["name"],
+            "files": str(c["files"]),
+            "patched": str(d["patched"]),
+            "failed": str(c.get("failed", 0)),
+            "protection": _protection_cell(d),
+        }
+        table.add_row(*(cells[k] for k in columns))
+    return table
+
+
+# What a count key is called in the details line ("untracked": files in the folder without a row).
+COUNT_WORDS = {"untracked": "not patched yet"}
+
+
+def files_line(counts: dict[str, Any]) -> str:
+    """`files 23: not patched yet 17, patched 6`: every count of the dataset, once."""
+    from collections import Counter
+
+    from daemon.states import state_word
+
+    states: Counter[str] = Counter()
+    for key, n in counts.items():
+        if key != "files" and n:
+            states[COUNT_WORDS.get(key) or state_word(key)] += n
+    listed = ", ".join(f"{k} {n}" for k, n in sorted(states.items()))
+    return f"files {counts['files']}: {listed}" if listed else f"files {counts['files']}"
+
+
+def place_lines(d: dict[str, Any]) -> list[str]:
+    """Where the dataset is: its folder (said when it is gone), where `--out` put its copies and
+    where published files go."""
+    folder = d.get("folder") or {}
+    lines = []
+    if folder and not folder.get("exists", True):
+        lines.append(f"folder {d['root']} is gone; counts are the store's")
+    if folder.get("copies"):
+        lines.append(f"patched copies in {folder['copies']}")
+    if d["publish_dir"]:
+        lines.append(f"publish to {d['publish_dir']}")
+    return lines
+
+
+def _print_details(d: dict[str, Any]) -> None:
+    """--long (or one dataset): where it is, the spec, each profile's verdict."""
+    out = console()
+    out.print(f"[bold]{d['name']}[/]  {d['root']}")
+    lines = [files_line(d["counts"]), f"spec {d['spec_id'] or '-'}: {d['spec_summary'] or '-'}"]
+    if d["auto"]:
+        lines.append(d["auto"])
+    lines += place_lines(d)
+    for line in lines:
+        print_line(out, "  " + line)
+    for profile, v in d["verdicts"].items():
+        out.print("  " + verdict_text(profile, v), soft_wrap=False)
+    if not d["verdicts"]:
+        print_line(out, "  verified: never")
+
+
+def failed_lines(d: dict[str, Any]) -> list[str]:
+    """`castle: 1 failed, 1 quarantined`, then one line per file: `PATH: reason` (mat2's habit),
+    a quarantined one marked so: the same counts as the table's."""
+    rows = d.get("failed_files") or []
+    c = d["counts"]
+    lines = [f"{d['name']}: {c.get('failed', 0)} failed, {c.get('quarantined', 0)} quarantined"]
+    for r in rows:
+        mark = " (quarantined: moved out of the outbox)" if r.get("state") == "quarantined" else ""
+        lines.append(f"  {r['path']}: {r['reason']}{mark}")
+    return lines
+
+
+def _print_failed(report: list[dict[str, Any]]) -> None:
+    for d in report:
+        for line in failed_lines(d):
+            console().print(line, markup=False)
+
+
+def _print_report_links(ctx: AppContext, names: list[str]) -> None:
+    """One line per dataset that has a report (`ppd report DATASET` writes it)."""
+    from daemon.verification.dataset_report import report_path  # light: no torch, no pycolmap
+
+    for name in names:
+        path = report_path(ctx.paths, name)
+        if path.is_file():
+            console().print(f"report {name}: file://{path}", markup=False)
+
+
+def next_step_lines(d: dict[str, Any]) -> list[str]:
+    """What to run next for one dataset: finish an interrupted run first (verifying half a
+    dataset says nothing about the rest), else the protection's next step; then its failures."""
+    from daemon.datasets.folder_count import resume_line
+
+    c, name, lines = d["counts"], d["name"], []
+    resume = resume_line(c, d["resume"]) if d.get("resume") else None
+    if resume:
+        lines.append(f"{name}: {resume}")
+    elif d["protection"]["next"]:
+        lines.append(f"{name}: {d['protection']['next']}")
+    not_patched = [f"{c[k]} {k}" for k in ("failed", "quarantined") if c.get(k, 0)]
+    if not_patched:
+        lines.append(f"{name}: {', '.join(not_patched)}: ppd status {name} --failed")
+    return lines
+
+
+def _print_next_steps(report: list[dict[str, Any]]) -> None:
+    """Word-wrapped to the terminal (soft_wrap off): these lines say what to run next."""
+    for d in report:
+        for line in next_step_lines(d):
+            print_line(console(), line)
+
+
+def _print_regressions(report: list[dict[str, Any]]) -> None:
+    for d in report:
+        if d["regression"]:
+            err_console().print(
+                f"[bold red]REGRESSION:[/] dataset {d['name']!r} went from protected to NOT protected "
+                f"in its last {d['regression']['profile']!r} verification; its published images "
+                "may reconstruct: check `ppd verify` and the spec."
+            )
+
+
+def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any) -> None:
+    payload = {
+        "outbox": str(ctx.paths.outbox),
+        "sync_folder": None if sync is None else {"client": sync.client, "root": str(sync.root)},
+        "datasets": report,
+    }
+    typer.echo(json.dumps(payload, indent=2, default=str))
+
+
+def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -> None:
+    from daemon.cli.status_queries import print_running
+
+    if not report:
+        console().print(f"no datasets yet; outbox {ctx.paths.outbox}", markup=False)
+        return
+    console().print(status_table(report, console().width, ctx.paths.outbox))
+    if detailed:
+        console().print(f"outbox {ctx.paths.outbox}", markup=False)
+        for d in report:
+            _print_details(d)
+    _print_next_steps(report)
+    print_running(report)  # issue 30: a verification running now, and how far it has got
+    _print_report_links(ctx, [d["name"] for d in report])
+    _print_regressions(report)
+
+
+def status(
+    dataset: str | None = typer.Argument(
+        None, help="One dataset: its name, its folder or a verification folder (default: all)."
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
+    long: bool = typer.Option(False, "--long", "-l", help="Also the spec and each profile's verdict."),
+    failed: bool = typer.Option(False, "--failed", help="List each failed file with its reason."),
+) -> None:
+    """Each dataset: files patched and failed, and whether it is protected (a verification's
+    verdict) or only patched; warns on regressions and on sync folders.
+
+    \b
+    Examples:
+      ppd status                  every dataset, one line each
+      ppd status castle           one dataset in detail
+      ppd status castle --failed  the files that failed, and why
+    """
+    from daemon.cli.status_queries import dataset_status, failed_files
+    from daemon.cli.targets import TargetError, dataset_or_die
+    from daemon.watch.syncdirs import find_sync_folder
+
+    ctx = open_ctx()
+    try:
+        names = [d["name"] for d in ctx.store.datasets()]
+        if dataset:  # a name, a folder or a verification folder: one resolver (daemon.cli.targets)
+            say = err_console() if as_json else console()
+            try:
+                names = [dataset_or_die(ctx.store, dataset, say, "give a dataset (see `ppd status`)")]
+            except TargetError as exc:
+                raise die(exc) from None
+        report = [dataset_status(ctx, n) for n in names]
+        if failed:
+            for d in report:
+                d["failed_files"] = failed_files(ctx, d["name"])
+        sync = find_sync_folder(ctx.paths.outbox)
+        if as_json:
+            _print_json(ctx, report, sync)
+            return
+        if sync is not None:
+            warning(
+                f"the outbox {ctx.paths.outbox} is inside a {sync.client} folder ({sync.root}): "
+                "originals may be uploaded before ppd patches them"
+            )
+        if failed:
+            _print_failed(report)
+        else:
+            _print_text(ctx, report, detailed=long or bool(dataset))
+    finally:
+        ctx.close()
+
+
+def register(app: typer.Typer) -> None:
+    app.command("status")(status)

@@ -1,0 +1,147 @@
+"""`ppd store check` and `ppd store rebuild [FOLDER...]`: the provenance store's health, and a new
+store from the vault and the markers in patched files when it was lost or damaged (docs/STORE.md).
+
+Exit status: 0 = done / sound; 1 = the store needs a rebuild (check) or the rebuild could not be
+done (one line on stderr, never a traceback).
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import typer
+
+if TYPE_CHECKING:
+    from rich.console import Console
+
+store_app = typer.Typer(
+    help="The provenance store: check it, rebuild it from the vault.", no_args_is_help=True
+)
+
+
+@functools.cache
+def _console(stderr: bool = False) -> Console:
+    from rich.console import Console
+
+    return Console(stderr=stderr, soft_wrap=True)
+
+
+def _fail(message: str, code: int = 1) -> typer.Exit:
+    from rich.markup import escape
+
+    _console(stderr=True).print(f"[red]error:[/red] {escape(message)}", highlight=False)
+    return typer.Exit(code)
+
+
+@store_app.command("check")
+def check() -> None:
+    """Say whether the store opens sound, or what to run when it does not."""
+    from daemon.paths import AppPaths
+    from daemon.store import Store, StoreError, vault_holds_originals
+
+    paths = AppPaths.from_env()
+    if not paths.db_path.exists():
+        if vault_holds_originals(paths.vault_dir):
+            raise _fail(
+                f"there is no store at {paths.db_path} but the vault {paths.vault_dir} holds originals; "
+                "run `ppd store rebuild`"
+            )
+        _console().print(
+            f"no store at {paths.db_path} yet (ppd creates it with the first file)",
+            highlight=False,
+            markup=False,
+        )
+        return
+    try:
+        store = Store.open_or_warn(paths.db_path, paths.vault_dir)
+    except StoreError as exc:
+        raise _fail(str(exc).splitlines()[0]) from None
+    try:
+        if store.lost_warning:
+            raise _fail(store.lost_warning)
+        datasets = store.datasets()
+        files = sum(store.counts(d["name"])["files"] for d in datasets)
+        version = store.schema_version()
+    except StoreError as exc:
+        raise _fail(str(exc).splitlines()[0]) from None
+    finally:
+        store.close()
+    _console().print(
+        f"store {paths.db_path}: sound (schema {version}), {files} file row(s) in {len(datasets)} dataset(s)",
+        highlight=False,
+        markup=False,
+    )
+
+
+@store_app.command("rebuild")
+def rebuild(
+    folders: list[Path] = typer.Argument(
+        None, help="More folders holding patched files (`ppd poison FOLDER` in place); one dataset each."
+    ),
+    force: bool = typer.Option(False, "--force", help="Rebuild a sound store too (it is kept aside)."),
+    verbose: bool = typer.Option(
+        False, "--verbose", "-v", help="A table per dataset, and every file left out."
+    ),
+) -> None:
+    """Rebuild the store from the vault and the provenance markers in patched files.
+
+    Walks the outbox, the publish folders, the dataset folders the old store still names and the
+    FOLDERs given, without following symlinks. The old store is kept aside, never deleted. Stop
+    `ppd watch` first."""
+    from daemon.config import Config, ConfigError
+    from daemon.paths import AppPaths
+    from daemon.protect.rebuild import rebuild_store
+    from daemon.store import StoreError
+    from daemon.store.vault import VaultError
+
+    paths = AppPaths.from_env()
+    try:
+        config = Config.load(paths)
+        paths.ensure()
+        report = rebuild_store(paths, config=config, folders=folders or [], force=force)
+    except (ConfigError, StoreError, VaultError) as exc:
+        raise _fail(str(exc).splitlines()[0]) from None
+    except OSError as exc:
+        raise _fail(
+            f"cannot rebuild the store: {exc.strerror or exc}: {exc.filename or paths.db_path}"
+        ) from None
+    _console().print(report.summary(), highlight=False, markup=False)
+    if verbose:
+        _print_details(paths, report)
+
+
+def _print_details(paths: Any, report: Any) -> None:
+    """--verbose: a table per dataset, every file left out, the folders walked."""
+    from rich.table import Table
+
+    from daemon.store import Store
+
+    table = Table(title="rebuilt datasets")
+    for column in ("dataset", "patched files", "spec", "spec from"):
+        table.add_column(column)
+    store = Store(paths.db_path)
+    try:
+        for name in sorted({d["name"] for d in store.datasets()}):
+            spec_id = store.dataset(name)["spec_id"]
+            source = report.specs.get(spec_id, "not recovered") if spec_id else "not recovered"
+            table.add_row(name, str(report.datasets.get(name, 0)), spec_id or "—", source)
+    finally:
+        store.close()
+    _console().print(table)
+    for label, items in (
+        ("marked, original not in the vault", report.without_original),
+        ("duplicate, skipped", report.conflicts),
+    ):
+        for path in items:
+            _console().print(f"{label}: {path}", highlight=False, markup=False)
+    for spec_id in report.specs_missing:
+        _console().print(f"spec not recovered: {spec_id}", highlight=False, markup=False)
+    _console().print(
+        f"folders walked: {', '.join(str(f) for f in report.folders)}", highlight=False, markup=False
+    )
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(store_app, name="store")

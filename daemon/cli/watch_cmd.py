@@ -1,0 +1,172 @@
+"""`ppd watch [OUTBOX]` (the daemon, in the foreground: systemd runs exactly this) and
+`ppd service install|uninstall|status` (its systemd user unit)."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import signal
+import sys
+from pathlib import Path
+from types import FrameType
+
+import typer
+
+from daemon.cli.errors import die
+from daemon.cli.output import err_console
+
+log = logging.getLogger(__name__)
+
+service_app = typer.Typer(help="The systemd user service that runs `ppd watch`.", no_args_is_help=True)
+
+
+def _fail(message: str, code: int = 1) -> typer.Exit:  # 1: systemd and tests read it so
+    return die(message, code)
+
+
+def _open_context(outbox: Path | None):  # -> daemon.context.AppContext
+    from daemon.config import ConfigError
+    from daemon.context import AppContext
+    from daemon.paths import AppPaths
+    from daemon.store import StoreError
+
+    paths = AppPaths.from_env()
+    if outbox is not None:
+        paths = dataclasses.replace(paths, outbox=outbox.expanduser().absolute())
+    try:
+        return AppContext.open(paths)
+    except (ConfigError, StoreError) as exc:
+        raise _fail(str(exc).splitlines()[0]) from None
+    except OSError as exc:
+        raise _fail(f"cannot set up ppd's folders: {exc.strerror}: {exc.filename}") from None
+
+
+def watch(
+    outbox: Path | None = typer.Argument(None, help="Folder to watch (default: $PPD_OUTBOX)."),
+    workers: int | None = typer.Option(None, "--workers", "-j", min=1, help="Files protected at once."),
+    debounce: float | None = typer.Option(
+        None, "--debounce", min=0.0, help="Quiet seconds after a file is closed; config: debounce_seconds."
+    ),
+    verify: bool | None = typer.Option(
+        None, "--verify/--no-verify", help="Schedule SfM verification (config: verification.enabled)."
+    ),
+    incomplete_wait: float | None = typer.Option(
+        None,
+        "--incomplete-wait",
+        min=0.0,
+        help="Seconds an incomplete file must stay unchanged before it is quarantined (its writer may "
+        "append more); config: [daemon] incomplete_wait_seconds.",
+    ),
+) -> None:
+    """Watch the outbox and protect every photo or video that lands in it (foreground)."""
+    from daemon.datasets.subject_masks import SubjectMaskError, check_config_masks
+    from daemon.watch.watcher import DaemonOptions, WatchDaemon
+
+    ctx = _open_context(outbox)
+    try:
+        check_config_masks(ctx.config, ctx.paths.outbox)  # a mask folder in the outbox would be published
+    except SubjectMaskError as exc:
+        ctx.close()
+        raise _fail(str(exc)) from None
+    options = DaemonOptions.from_config(
+        ctx.config, workers=workers, settle_s=debounce, verify=verify, incomplete_wait_s=incomplete_wait
+    )
+    daemon = WatchDaemon(ctx, options)
+    interrupts = 0
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        nonlocal interrupts
+        interrupts += 1
+        if interrupts > 1:  # a second Ctrl-C: leave now; temporaries are cleaned at next start
+            os._exit(130)
+        log.info("signal %s: stopping", signal.Signals(signum).name)
+        daemon.request_stop()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    try:
+        code = daemon.run()
+    finally:
+        ctx.close()
+    raise typer.Exit(code)
+
+
+def _unit_place() -> str:
+    """Where the unit goes, as the user's environment says it ($XDG_CONFIG_HOME when set)."""
+    xdg = os.environ.get("XDG_CONFIG_HOME")
+    return f"$XDG_CONFIG_HOME/systemd/user ({xdg}/systemd/user)" if xdg else "~/.config/systemd/user"
+
+
+def service_install(
+    start: bool = typer.Option(True, "--start/--no-start", help="Enable and start it now."),
+    print_only: bool = typer.Option(
+        False, "--print", help="Print the unit on stdout; write nothing, start nothing."
+    ),
+) -> None:
+    from daemon.watch import service
+
+    ctx = _open_context(None)
+    try:
+        layout = service.installed_layout(ctx.paths, ctx.config)
+    except FileNotFoundError as exc:
+        raise _fail(str(exc)) from None
+    finally:
+        ctx.close()
+    if print_only:
+        sys.stdout.write(service.render_unit(layout))
+        return
+    target = service.install_unit(service.render_unit(layout))
+    err_console().print(f"wrote {target}", highlight=False)
+    reload = service.systemctl_user("daemon-reload")
+    if not reload.ran:
+        err_console().print(
+            "no systemd user manager reachable here; once logged in with one, run:\n"
+            "  systemctl --user daemon-reload && systemctl --user enable --now ppd",
+            highlight=False,
+        )
+        return
+    if start:
+        enabled = service.systemctl_user("enable", "--now", service.UNIT_NAME)
+        err_console().print(enabled.output or f"enabled and started {service.UNIT_NAME}", highlight=False)
+        if enabled.returncode != 0:
+            raise typer.Exit(1)
+
+
+@service_app.command("uninstall")
+def service_uninstall() -> None:
+    """Stop and disable the service, remove its unit file, reload systemd."""
+    from daemon.watch import service
+
+    stopped = service.systemctl_user("disable", "--now", service.UNIT_NAME)
+    removed = service.uninstall_unit()
+    err_console().print(f"removed {removed}" if removed else "ppd.service was not installed", highlight=False)
+    if stopped.ran:
+        service.systemctl_user("daemon-reload")
+
+
+@service_app.command("status")
+def service_status() -> None:
+    """Where the unit file is, and what systemd says about the service."""
+    from daemon.watch import service
+
+    target = service.unit_dir() / service.UNIT_NAME
+    state = "installed" if target.is_file() else "not installed"
+    err_console().print(f"unit file: {target} ({state})", highlight=False)
+    result = service.systemctl_user("status", "--no-pager", "--lines=5", service.UNIT_NAME)
+    if not result.ran:
+        reason = (result.output.splitlines() or ["unknown reason"])[0]
+        err_console().print(f"systemd user manager: not reachable ({reason})", highlight=False)
+        raise typer.Exit(0 if target.is_file() else 3)
+    sys.stdout.write(result.output + "\n")
+    raise typer.Exit(result.returncode)
+
+
+def register(app: typer.Typer) -> None:
+    service_app.command(
+        "install",
+        help=f"Write ppd.service for this installation into {_unit_place()} and reload systemd.\n\n"
+        "\b\nExamples:\n  ppd service install\n  ppd service install --print   show the unit only",
+    )(service_install)
+    app.command("watch")(watch)
+    app.add_typer(service_app, name="service")

@@ -1,0 +1,116 @@
+"""Which dataset a file or folder belongs to: one rule, `attribute`.
+
+In the outbox a dataset is a first-level subfolder: `outbox/shoot-01/a.jpg` and
+`outbox/shoot-01/raw/b.jpg` both belong to "shoot-01"; files directly in the outbox form the
+dataset "default". Outside the outbox (`ppd poison FOLDER`) a folder is one dataset named after
+it, and a file belongs to a dataset named after its parent folder. An explicit name keeps a known
+dataset's stored root.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
+    from poisoner.spec import PatchSpec
+
+DEFAULT_DATASET = "default"
+
+
+class OutsideOutboxError(ValueError):
+    """The path is not inside the outbox."""
+
+
+class DatasetConflict(ValueError):
+    """An explicit dataset name whose stored root does not hold the target."""
+
+
+def dataset_of(outbox: Path, path: Path) -> str:
+    """The dataset name of path, a file inside outbox (compared without resolving symlinks,
+    so a link inside the outbox is attributed by where it sits, and refused later)."""
+    try:
+        rel = Path(path).absolute().relative_to(Path(outbox).absolute())
+    except ValueError:
+        raise OutsideOutboxError(f"{path} is not inside the outbox {outbox}") from None
+    parts = rel.parts
+    if len(parts) <= 1:
+        return DEFAULT_DATASET
+    return parts[0]
+
+
+def dataset_root(outbox: Path, dataset: str) -> Path:
+    """The folder that holds a dataset of the outbox."""
+    return Path(outbox) if dataset == DEFAULT_DATASET else Path(outbox) / dataset
+
+
+def attribute(
+    ctx: AppContext, target: Path, dataset: str | None = None, *, folder: bool | None = None
+) -> tuple[str, Path]:
+    """The dataset name and root folder of target, a file or a folder (given on the command line
+    or seen by the daemon).
+
+    - no name, inside the outbox: its outbox dataset (first-level subfolder, or "default");
+    - no name, outside: a folder is a dataset named after it; a file, one named after its parent;
+    - an explicit name: a known dataset keeps its stored root (DatasetConflict when target lies
+      outside it); a new one gets the folder itself, or the file's parent folder.
+
+    folder: whether target is a folder; None asks the file system (following a symlink, as a
+    folder named on the command line may be one). The daemon says False: a name it sees is a file.
+
+    >>> attribute(ctx, outbox / "shoot" / "raw" / "a.jpg")   # doctest: +SKIP
+    ('shoot', PosixPath('.../outbox/shoot'))
+    """
+    target = Path(target).absolute()
+    is_folder = target.is_dir() if folder is None else folder
+    home = target if is_folder else target.parent
+    if dataset:
+        row = ctx.store.dataset(dataset)
+        if row is None:
+            return dataset, home
+        stored = Path(row["root"])
+        if not target.is_relative_to(stored.absolute()):
+            raise DatasetConflict(
+                f"dataset {dataset!r} already belongs to {stored}; name this one with --dataset NAME"
+            )
+        return dataset, stored
+    outbox = Path(ctx.paths.outbox).absolute()
+    if target.is_relative_to(outbox) and target != outbox:
+        name = dataset_of(outbox, target / "x" if is_folder else target)
+        return name, dataset_root(outbox, name)
+    return (home.name or DEFAULT_DATASET), home
+
+
+def ensure_dataset(
+    ctx: AppContext,
+    dataset: str,
+    root: Path,
+    spec: PatchSpec | None,
+    *,
+    sample: Callable[[], Sequence[Path]] | None = None,
+    mask_dir: Path | None = None,
+) -> PatchSpec:
+    """The dataset's one spec; a new dataset gets spec (else the config's) with its first file.
+
+    A new dataset on the config's spec whose mark is corner-bound and whose position the config
+    does not set gets its corner now (daemon.datasets.subject_masks.place_corner over `sample()`, the
+    files seen first, and mask_dir's masks); the caller's own spec is taken as it is (`ppd poison` chose its
+    corner over all the files it was given)."""
+    from daemon.datasets.subject_masks import place_corner, record_choice, wants_corner
+
+    initial = spec or ctx.config.spec_for(dataset)
+    placed = None
+    if (
+        spec is None
+        and sample is not None
+        and wants_corner(initial, ctx.config.position_set(dataset))
+        and ctx.store.dataset_spec(dataset) is None
+    ):
+        placed = place_corner(initial, sample(), mask_dir)
+        initial = placed.spec
+    _, stored = ctx.store.ensure_dataset(dataset, root, initial, ctx.config.publish_dir_for(dataset))
+    if placed is not None and stored.spec_id == initial.spec_id:  # ours won (not a concurrent first file's)
+        record_choice(ctx, dataset, placed.choice, mask_dir)
+    return stored

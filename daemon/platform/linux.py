@@ -1,0 +1,167 @@
+"""Everything ppd does that only Linux offers, in one place (daemon.platform is its interface).
+
+- `fd_path(fd)`: a path that names an open descriptor's inode (/proc/self/fd/N): read again through
+  the descriptor ppd opened, never through a name that may have been swapped since.
+- `mounts_of_device(dev)`: the mounts of a device from /proc/self/mountinfo (for error messages).
+- `writers_of(st)`: processes that hold a file open for writing (a scan of /proc/PID/fd).
+- `reflink(dst_fd, src_fd)`: the FICLONE ioctl (a copy that shares extents on btrfs/XFS).
+- `inotify_observer(on_overflow)`: watchdog's inotify observer that also calls on_overflow when the
+  kernel reports IN_Q_OVERFLOW (events were lost: the owner rescans). watchdog rebuilds its watches
+  on an overflow but tells the application nothing; the event itself is read here, by its mask.
+
+Standard library only at import (daemon.paths imports this module and `ppd status` imports that);
+watchdog is imported by the one function that needs it.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import stat
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from watchdog.observers.api import BaseObserver
+    from watchdog.observers.inotify_c import InotifyFD
+
+PROC = Path("/proc")
+FICLONE = 0x40049409  # _IOW(0x94, 9, int), linux/fs.h
+
+
+def fd_path(fd: int) -> Path:
+    """The path that reaches fd's inode (what it was opened as, even if its name changed since)."""
+    return PROC / "self" / "fd" / str(fd)
+
+
+# ---- mounts ------------------------------------------------------------------------------------
+def mounts_of_device(dev: int) -> list[tuple[Path, str, str]]:
+    """(mount point, type, source) of every mount of device dev, longest mount point first; [] where
+    /proc/self/mountinfo cannot be read."""
+    wanted = f"{os.major(dev)}:{os.minor(dev)}"
+    found = []
+    try:
+        lines = (PROC / "self" / "mountinfo").read_text().splitlines()
+    except OSError:
+        return []
+    for line in lines:
+        fields = line.split()
+        if len(fields) < 10 or fields[2] != wanted or "-" not in fields[6:]:
+            continue
+        after = fields.index("-", 6)
+        mount_point, source = Path(unescape_mount(fields[4])), unescape_mount(fields[after + 2])
+        found.append((mount_point, fields[after + 1], source))
+    return sorted(found, key=lambda m: len(str(m[0])), reverse=True)
+
+
+def unescape_mount(text: str) -> str:
+    """mountinfo writes space, tab, newline and backslash as octal escapes (\\040 ...)."""
+    for code in ("040", "011", "012", "134"):
+        text = text.replace(f"\\{code}", chr(int(code, 8)))
+    return text
+
+
+# ---- who writes a file -------------------------------------------------------------------------
+WRITERS_TTL_S = 0.5  # one /proc scan serves a burst of files (a scan takes ~10-50 ms)
+_writers_cache: tuple[float, dict[tuple[int, int], int]] = (-1.0, {})
+_writers_lock = threading.Lock()
+
+
+def writers_of(st: os.stat_result, proc: Path = PROC, *, fresh: bool = False) -> list[int]:
+    """Pids of processes that hold the file (by device and inode) open for writing.
+
+    Limits: Linux /proc only (elsewhere: []); only processes whose /proc/PID/fd this user may
+    read (the user's own; root sees all); one scan is reused for WRITERS_TTL_S unless fresh; a writer that
+    closed the file and will reopen it later is not seen (the format check,
+    poisoner.completeness, catches most of those), nor one writing through a memory mapping
+    after closing its descriptor."""
+    global _writers_cache
+    with _writers_lock:
+        taken, table = _writers_cache
+        if fresh or time.monotonic() - taken > WRITERS_TTL_S or proc != PROC:
+            table = _scan_writers(proc)
+            if proc == PROC:
+                _writers_cache = (time.monotonic(), table)
+    pid = table.get((st.st_dev, st.st_ino))
+    return [] if pid is None else [pid]
+
+
+def _scan_writers(proc: Path) -> dict[tuple[int, int], int]:
+    """(device, inode) -> a pid holding it open for writing, over every readable process."""
+    table: dict[tuple[int, int], int] = {}
+    try:
+        entries = os.listdir(proc)
+    except OSError:
+        return table
+    for entry in entries:
+        if not entry.isdigit():
+            continue
+        fd_dir = proc / entry / "fd"
+        try:
+            fds = os.listdir(fd_dir)
+        except OSError:
+            continue  # gone, or another user's process
+        for fd in fds:
+            try:
+                target = os.stat(fd_dir / fd)
+            except OSError:
+                continue
+            if stat.S_ISREG(target.st_mode) and _opened_for_writing(proc / entry / "fdinfo" / fd):
+                table.setdefault((target.st_dev, target.st_ino), int(entry))
+    return table
+
+
+def _opened_for_writing(fdinfo: Path) -> bool:
+    try:
+        text = fdinfo.read_text()
+    except OSError:
+        return False
+    for line in text.splitlines():
+        if line.startswith("flags:"):
+            return int(line.split()[1], 8) & os.O_ACCMODE in (os.O_WRONLY, os.O_RDWR)
+    return False
+
+
+# ---- copies that share extents -----------------------------------------------------------------
+def reflink(dst_fd: int, src_fd: int) -> None:
+    """Make the empty file dst_fd a clone of src_fd (FICLONE); OSError where the filesystem cannot
+    (then dst is left empty)."""
+    fcntl.ioctl(dst_fd, FICLONE, src_fd)
+
+
+# ---- inotify -----------------------------------------------------------------------------------
+def overflow_aware_inotify(on_overflow: Callable[[], None]) -> InotifyFD:
+    """watchdog's inotify reader (not started) that calls on_overflow for each IN_Q_OVERFLOW it reads,
+    before watchdog's own handling (which rebuilds its recursive watches)."""
+    from watchdog.observers.inotify_c import InotifyEvent
+    from watchdog.observers.inotify_c import InotifyFD as _InotifyFD
+
+    class _OverflowAwareFD(_InotifyFD):
+        def handle_event(self, event: InotifyEvent) -> None:
+            if event.is_queue_overflow:
+                on_overflow()
+            super().handle_event(event)
+
+    return _OverflowAwareFD()
+
+
+def inotify_observer(on_overflow: Callable[[], None], *, full_events: bool = True) -> BaseObserver:
+    """watchdog's InotifyObserver reading through overflow_aware_inotify. full_events: a rename from
+    outside the watched folder arrives as a move (InotifyFullEmitter), as
+    InotifyObserver(generate_full_events=True) gives."""
+    from watchdog.observers.api import DEFAULT_OBSERVER_TIMEOUT
+    from watchdog.observers.inotify import InotifyEmitter, InotifyFullEmitter, InotifyObserver
+
+    class _Observer(InotifyObserver):
+        def __init__(self) -> None:  # InotifyObserver.__init__ with ppd's reader
+            self._inotify_fd = overflow_aware_inotify(on_overflow)
+            self._inotify_fd.start()
+            emitter = InotifyFullEmitter if full_events else InotifyEmitter
+            super(InotifyObserver, self).__init__(
+                emitter, timeout=DEFAULT_OBSERVER_TIMEOUT, inotify_fd=self._inotify_fd
+            )
+
+    return _Observer()

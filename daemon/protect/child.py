@@ -1,0 +1,29 @@
+"""`python -m daemon.protect.child ARGS_JSON`: one file patched in a child process
+(daemon.protect.stages.poison_isolated), so that a file that kills its process kills only the child.
+
+ARGS_JSON: kind, src, dst, spec (PatchSpec.to_dict), marker (Marker fields), keep_location,
+limits (keyword arguments of poison_to), subject_masks (a folder or null).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+
+def main(argv: list[str]) -> None:
+    from daemon.protect.stages import poison_to
+    from poisoner.provenance import Marker
+    from poisoner.spec import PatchSpec
+
+    a = json.loads(argv[0])
+    masks = Path(a["subject_masks"]) if a["subject_masks"] is not None else None
+    poison_to(
+        a["kind"], Path(a["src"]), Path(a["dst"]), PatchSpec.from_dict(a["spec"]), subject_masks=masks,
+        marker=Marker(**a["marker"]), keep_location=a["keep_location"], **a["limits"],
+    )  # fmt: skip
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

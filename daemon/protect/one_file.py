@@ -1,0 +1,418 @@
+"""The application's entry points for one file: protect_file, restore_file, reprotect_dataset.
+
+protect_file runs daemon.protect.stages's named stages (the crash-safe order is listed there, once)
+under a per-file lock shared by every ppd process (daemon.locks), and turns any exception into a
+'failed' outcome with a one-line reason. Shared by `ppd poison` and the daemon's workers.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import os
+import shutil
+import stat
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from daemon.context import AppContext
+from daemon.datasets.dataset import (
+    DatasetConflict,
+    OutsideOutboxError,
+    attribute,
+    dataset_of,
+    dataset_root,
+    ensure_dataset,
+)
+from daemon.datasets.subject_masks import masks_or_none, sibling_images, subject_masks_for
+from daemon.fsops import sha256_fd
+from daemon.locks import LockHeld
+from daemon.platform import fd_path
+from daemon.protect.stages import (
+    STAGES,
+    IncompleteFile,
+    Job,
+    Outcome,
+    Progress,
+    ProtectOutcome,
+    ProtectRefused,
+    SourceChanged,
+    file_is_the_cause,
+    is_ignored_name,
+    media_kind,
+    named_vault_copy,
+    one_line,
+    poison_to,
+    provenance_marker,
+    report_detail,
+    run_stages,
+    seal_output,
+    shown_name,
+    storable,
+    tool_version,
+)
+from daemon.states import FileState
+from daemon.store.vault import sha256_file
+from poisoner.atomic import atomic_output
+from poisoner.spec import PatchSpec
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "STAGES", "AppContext", "Outcome", "ProtectOutcome", "ProtectRefused", "SourceChanged", "dataset_pairs",
+    "is_ignored_name", "media_kind", "poison_to", "protect_file", "reprotect_dataset", "restore_file",
+    "shown_name", "storable", "tool_version",
+]  # fmt: skip
+OUTCOME_STATES = (Outcome.PATCHED, Outcome.SKIPPED, Outcome.FAILED, Outcome.UNCHANGED)  # protect_file
+RESTORE_STATES = (Outcome.RESTORED, Outcome.UNCHANGED, Outcome.FAILED)  # restore_file
+SOURCE_CHANGE_TRIES = 3  # a file replaced while being patched is started over this many times
+
+
+def failure_message(exc: BaseException, path: Path) -> str:
+    """The one-line reason for a failure; a name with a newline is escaped first, so the line
+    is not cut in the middle of the file's name."""
+    text = str(exc)
+    if path.name and shown_name(path) != path.name:
+        text = text.replace(path.name, shown_name(path))
+    lines = text.strip().splitlines()
+    return lines[0] if lines else type(exc).__name__
+
+
+def anchor_for(ctx: AppContext, path: Path, root: Path) -> Path:
+    """The trusted folder containment is judged from: the outbox for its files (a dataset folder
+    inside it may itself be swapped for a symlink), else the dataset's root."""
+    outbox = Path(ctx.paths.outbox).absolute()
+    return outbox if path.is_relative_to(outbox) and root.absolute().is_relative_to(outbox) else root
+
+
+def _resolve_dataset(ctx: AppContext, path: Path, dataset: str | None, root: Path | None) -> tuple[str, Path]:
+    """The caller's (dataset, root) when both are given (`ppd poison` planned them), else
+    daemon.datasets.dataset.attribute's, the one rule; a root given alone is kept. Named by neither, the
+    file must be in the outbox (OutsideOutboxError): a file from elsewhere comes with its dataset."""
+    if dataset is not None and root is not None:
+        return dataset, root
+    if dataset is None and root is None:
+        dataset_of(ctx.paths.outbox, path)  # raises outside the outbox
+    name, found = attribute(ctx, path, dataset, folder=False)
+    return name, root or found
+
+
+def protect_file(
+    path: Path,
+    ctx: AppContext,
+    dataset: str | None = None,
+    *,
+    root: Path | None = None,
+    out_path: Path | None = None,
+    dry_run: bool = False,
+    force: bool = False,
+    progress: Progress | None = None,
+    spec: PatchSpec | None = None,
+    keep_location: bool | None = None,
+    subject_masks: Path | None = None,
+) -> ProtectOutcome:
+    """Patch one file: daemon.protect.stages.STAGES, under the file's lock (daemon.locks).
+
+    dataset/root: default from the outbox layout (daemon.datasets.dataset); `ppd poison FOLDER` passes
+    the folder's name and the folder. out_path: write the patched copy there and leave path
+    as it is. force: re-patch a file the user restored. spec: the spec a dataset without one
+    gets (default: the config's), and the one a dry run assumes. subject_masks: the folder of
+    subject masks (`--subject-masks`; default: the dataset's [datasets.NAME] subject_masks). A
+    version that replaces the file while it is being patched is left in place and patched next (up
+    to SOURCE_CHANGE_TRIES runs; then the outcome asks for a requeue). Never raises for a bad file:
+    the outcome says 'failed' with a one-line reason, and nothing is lost.
+    """
+    started = time.monotonic()
+    path = Path(path).absolute()
+    try:
+        dataset, root = _resolve_dataset(ctx, path, dataset, root)
+    except (OutsideOutboxError, DatasetConflict) as exc:
+        return ProtectOutcome(path=path, dataset=None, state=Outcome.FAILED, reason=one_line(exc))
+    root = Path(root).absolute()
+    keep = ctx.config.keep_location if keep_location is None else keep_location
+    new_job = functools.partial(
+        Job, path=path, ctx=ctx, dataset=dataset, root=root, anchor=anchor_for(ctx, path, root),
+        out_path=out_path, dry_run=dry_run, force=force, progress=progress, wanted_spec=spec,
+        keep_location=keep, subject_masks=subject_masks,
+    )  # fmt: skip
+    try:
+        with ctx.path_lock(out_path or path):
+            outcome = _run_until_settled(new_job)
+    except LockHeld as exc:  # another process is on it; its own row says what happened
+        outcome = ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
+    except OSError as exc:  # the lock file itself (a full disk): nothing was done
+        outcome = _record_failure(ctx, path, dataset, root, out_path, exc, dry_run, spec)
+    outcome.seconds = time.monotonic() - started
+    log.log(
+        logging.INFO if outcome.state in (Outcome.PATCHED, Outcome.FAILED) else logging.DEBUG,
+        "protect %s: %s",
+        outcome.state,
+        path.name,
+        extra={"path": str(path), "dataset": dataset, "state": outcome.state, "reason": outcome.reason,
+               "seconds": round(outcome.seconds, 3)},
+    )  # fmt: skip
+    return outcome
+
+
+def _run_until_settled(new_job: Callable[[], Job]) -> ProtectOutcome:
+    """The stages on a fresh Job, again while the source changes under them (SOURCE_CHANGE_TRIES
+    runs, then an outcome asking for a requeue); any other exception is recorded as 'failed'."""
+    for _ in range(SOURCE_CHANGE_TRIES):
+        job = new_job()
+        try:
+            return run_stages(job)
+        except SourceChanged as exc:
+            outcome = job.outcome(Outcome.SKIPPED, one_line(exc), requeue=True, signature=None)
+            log.info("%s: %s", shown_name(job.path), outcome.reason, extra={"path": str(job.path)})
+        except Exception as exc:  # one bad file must not stop the others; record and go on
+            return _record_failure(
+                job.ctx, job.path, job.dataset, job.root, job.out_path, exc, job.dry_run, job.wanted_spec
+            )
+    return outcome
+
+
+def _record_failure(
+    ctx: AppContext,
+    path: Path,
+    dataset: str,
+    root: Path,
+    out_path: Path | None,
+    exc: Exception,
+    dry_run: bool,
+    spec: PatchSpec | None,
+) -> ProtectOutcome:
+    message = failure_message(exc, path)
+    if not isinstance(exc, ProtectRefused | SourceChanged):
+        log.debug("protect failed", exc_info=exc)
+    if out_path is None and not dry_run and _holds_ppd_output(ctx, path):
+        # Another run (or process) patched it meanwhile: a patched row is never made 'failed'.
+        return ProtectOutcome(
+            path=path, dataset=dataset, state=Outcome.UNCHANGED, reason=f"already patched ({message})"
+        )
+    if not storable(out_path or path):  # no row can name it; the log line says why
+        log.warning("not recorded: %s: %s", shown_name(path), message, extra={"path": repr(str(path))})
+    elif not dry_run:
+        try:  # a new dataset's corner is judged on the files next to this one (it could not be read)
+            ensure_dataset(
+                ctx, dataset, root, spec, sample=lambda: sibling_images(path),
+                mask_dir=masks_or_none(ctx, dataset),
+            )  # fmt: skip
+            ctx.store.record_file(
+                out_path or path, dataset, FileState.FAILED, error=message, event="failed",
+                detail={"error": message, "exception": type(exc).__name__},
+            )  # fmt: skip
+        except Exception as store_exc:  # the store itself failing (disk full) must not hide the first error
+            log.error(
+                "could not record failure of %s: %s", shown_name(path), one_line(store_exc),
+                extra={"path": str(path), "error": message},
+            )  # fmt: skip
+    return ProtectOutcome(
+        path=path, dataset=dataset, state=Outcome.FAILED, reason=message, hopeless=file_is_the_cause(exc),
+        incomplete=isinstance(exc, IncompleteFile),
+    )  # fmt: skip
+
+
+def _holds_ppd_output(ctx: AppContext, path: Path) -> bool:
+    """Whether the regular file at path (not followed if a symlink) is ppd's recorded output."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return False
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return False
+        sha = sha256_fd(fd)
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+    try:
+        row = ctx.store.file(path)
+        return (row is not None and row["poisoned_sha256"] == sha) or ctx.store.find_poisoned(sha) is not None
+    except Exception:  # the store failing too: say failed, as asked
+        return False
+
+
+# ---- datasets as a whole ---------------------------------------------------------------------
+def dataset_pairs(ctx: AppContext, dataset: str) -> list[tuple[Path, Path]]:
+    """(original in the vault, protected file) for every protected file of a dataset whose two
+    files both still exist (missing ones are logged, not returned)."""
+    pairs = []
+    for row in ctx.store.files(dataset, state=FileState.PATCHED):
+        original = ctx.vault.path_for(row["original_sha256"])
+        protected = Path(row["published_path"] or row["path"])
+        if original.is_file() and protected.is_file():
+            pairs.append((original, protected))
+        else:
+            log.warning("pair missing", extra={"dataset": dataset, "path": row["path"]})
+    return pairs
+
+
+def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> ProtectOutcome:
+    """Put a patched file's original back where the file was changed in place (atomic); never
+    into an output (`--out`) or publish folder: a patched copy there is removed instead, and the
+    reason says so. Refuses when the file is no longer ppd's output (the user changed it) unless
+    force. With no row (a lost store), the file's provenance marker names its original."""
+    path = Path(path).absolute()
+    row = ctx.store.file(path) or _row_from_marker(ctx, path)
+    if row is None:
+        return ProtectOutcome(
+            path=path, dataset=None, state=Outcome.FAILED,
+            reason=f"{path} is not in the store and carries no ppd provenance marker",
+        )  # fmt: skip
+    dataset = row["dataset"]
+    if row["state"] != FileState.PATCHED or not row["original_sha256"]:
+        return ProtectOutcome(
+            path=path, dataset=dataset, state=Outcome.UNCHANGED, reason=f"state is {row['state']}"
+        )
+    copy = _copy_outside_the_source(ctx, row)
+    with ctx.path_lock(path):
+        try:
+            if copy is not None:
+                reason = _remove_patched_copy(row, copy, force)
+                target = Path(row["path"]) if row["published_path"] else None
+                if target is not None:  # published: the original goes back to where it was patched
+                    if (target.exists() or target.is_symlink()) and not force:
+                        raise ProtectRefused(
+                            f"{target} exists; not overwriting it with the original (use --force)"
+                        )
+                    ctx.vault.restore(row["original_sha256"], target, replaces=True if force else None)
+                    reason = f"original back at {target}; {reason}"
+            else:
+                target = path
+                if target.exists() and not force and sha256_file(target) != row["poisoned_sha256"]:
+                    raise ProtectRefused(
+                        f"{target.name} changed since ppd patched it; not overwriting (use --force)"
+                    )
+                # the check again just before the rename: a writer between the two is not overwritten
+                replaces = True if force else row["poisoned_sha256"]
+                ctx.vault.restore(row["original_sha256"], target, replaces=replaces)
+                reason = None
+        except Exception as exc:
+            return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
+        if row.get("from_marker"):  # the store had lost it: the dataset row comes back with it
+            ensure_dataset(ctx, dataset, dataset_root(ctx.paths.outbox, dataset), None)
+        ctx.store.record_file(
+            path, dataset, FileState.RESTORED, original_sha256=row["original_sha256"], published_path=None,
+            event="restored",
+            detail={"to": str(target) if target else None, "sha256": row["original_sha256"], "note": reason},
+        )  # fmt: skip
+    return ProtectOutcome(
+        path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
+        original_sha256=row["original_sha256"], output=target,
+    )  # fmt: skip
+
+
+def _copy_outside_the_source(ctx: AppContext, row: dict[str, Any]) -> Path | None:
+    """Where a patched *copy* sits that must never receive an original: the publish folder
+    (published_path), or an output folder (`ppd poison --out`: the row's path lies outside its
+    dataset's source folder). None: the file was patched in place."""
+    if row["published_path"]:
+        return Path(row["published_path"])
+    dataset = ctx.store.dataset(row["dataset"])
+    if dataset is not None and not Path(row["path"]).is_relative_to(Path(dataset["root"])):
+        return Path(row["path"])
+    return None
+
+
+def _remove_patched_copy(row: dict[str, Any], copy: Path, force: bool) -> str:
+    """Delete ppd's patched copy from an output/publish folder; the reason line for the outcome."""
+    where = "publish folder" if row["published_path"] else "output folder"
+    if not copy.exists():
+        return f"no patched copy left in the {where} {copy.parent}; originals are never written there"
+    if sha256_file(copy) != row["poisoned_sha256"] and not force:
+        raise ProtectRefused(f"{copy} changed since ppd patched it; not removing it (use --force)")
+    copy.unlink()
+    return f"removed the patched copy {copy} from the {where}: restore never writes originals there"
+
+
+def _row_from_marker(ctx: AppContext, path: Path) -> dict[str, Any] | None:
+    """A row for ppd's output found without the store: its seal (verified with this
+    installation's key over the file's bytes) and the vault."""
+    from poisoner.provenance import read_seal
+
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        seal = read_seal(fd_path(fd), ctx.seal_key())
+        sha = sha256_fd(fd) if seal is not None else None
+    finally:
+        os.close(fd)
+    if seal is None or not ctx.vault.has(seal.original_sha256):
+        return None
+    try:
+        dataset = dataset_of(ctx.paths.outbox, path)
+    except OutsideOutboxError:
+        dataset = path.parent.name
+    return {
+        "dataset": dataset, "path": str(path), "state": FileState.PATCHED, "published_path": None,
+        "original_sha256": seal.original_sha256, "poisoned_sha256": sha, "from_marker": True,
+    }  # fmt: skip
+
+
+def reprotect_dataset(ctx: AppContext, dataset: str, spec: PatchSpec) -> list[ProtectOutcome]:
+    """Give a dataset a new spec and re-poison its protected files from their vault originals.
+
+    The new poisoned file is made from the vault copy and renamed over the old poisoned one,
+    so the original never reappears at the published path, not even briefly.
+    """
+    row = ctx.store.dataset(dataset)
+    if row is None:
+        raise ValueError(f"no dataset {dataset!r}")
+    root = Path(row["root"])
+    ctx.store.set_dataset_spec(dataset, spec, allow_protected=True)
+    outcomes = []
+    for file_row in ctx.store.files(dataset):
+        path = Path(file_row["path"])
+        if file_row["state"] == FileState.PATCHED:
+            outcomes.append(_reprotect_one(ctx, file_row, root, spec))
+        elif file_row["state"] in (FileState.SKIPPED, FileState.FAILED, FileState.PENDING) and path.is_file():
+            outcomes.append(protect_file(path, ctx, dataset, root=root))
+    return outcomes
+
+
+def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: PatchSpec) -> ProtectOutcome:
+    path = Path(row["path"])
+    dataset = row["dataset"]
+    target = Path(row["published_path"] or row["path"])
+    with ctx.path_lock(path):
+        try:
+            if not target.is_file() or sha256_file(target) != row["poisoned_sha256"]:
+                raise ProtectRefused(f"{target.name} changed since ppd protected it; not re-protecting it")
+            if not ctx.vault.verify(row["original_sha256"]):
+                raise ProtectRefused(f"the vault copy of {path.name} is missing or corrupt")
+            kind = media_kind(path) or "image"
+            rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else path.name
+            with (
+                named_vault_copy(ctx, row["original_sha256"], path.name) as original,
+                atomic_output(target) as tmp,
+            ):
+                if spec.selects(rel):
+                    marker = provenance_marker(ctx, spec.spec_id, row["original_sha256"])
+                    limits = {"max_pixels": ctx.config.max_pixels} if kind == "image" else {}
+                    report = poison_to(
+                        kind, original, tmp, spec, subject_masks=subject_masks_for(ctx, dataset),
+                        marker=marker, keep_location=ctx.config.keep_location, **limits,
+                    )  # fmt: skip
+                    seal_output(ctx, tmp)
+                    row_state, state = FileState.PATCHED, Outcome.PATCHED
+                else:
+                    shutil.copyfile(original, tmp)
+                    report, row_state, state = None, FileState.SKIPPED, Outcome.SKIPPED
+                new_sha = sha256_file(tmp)
+            st = target.stat()
+            ctx.store.record_file(
+                path, dataset, row_state, poisoned_sha256=new_sha if state == Outcome.PATCHED else None,
+                spec_id=spec.spec_id, tool_version=tool_version(), size=st.st_size, mtime_ns=st.st_mtime_ns,
+                error=None, event="reprotected", detail={"spec_id": spec.spec_id, **report_detail(report)},
+            )  # fmt: skip
+        except Exception as exc:
+            return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
+    return ProtectOutcome(
+        path=path, dataset=dataset, state=state, original_sha256=row["original_sha256"],
+        poisoned_sha256=new_sha if state == Outcome.PATCHED else None, spec_id=spec.spec_id, output=target,
+    )  # fmt: skip

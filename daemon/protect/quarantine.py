@@ -1,0 +1,243 @@
+"""Files the daemon cannot patch leave the outbox, so nothing unpatched is published by accident.
+
+- `quarantine(ctx, path, reason)`: moves the file (never following a symlink) from the outbox to
+  the quarantine folder (config `[daemon] quarantine_dir`, default `<outbox>/../ppd-quarantine`,
+  a visible folder next to the outbox and outside it), under `<dataset>/<its path below the
+  dataset>`, never over an existing file; the store row becomes 'quarantined' with the reason.
+- Attempt markers: before the heavy work on a file, the pipeline holds a flock()ed marker naming
+  it in the private data folder (`attempts/`); a marker still there at the next attempt means the
+  process died working on that file (OOM killer, a decoder segfault, or a plain kill -9: ppd
+  cannot tell which). So the next attempt runs the poisoner in a child process
+  (daemon.protect.stages.poison_isolated): if the child dies too, the file is the cause, and the daemon
+  quarantines it with that reason; the daemon itself does not die again, so there is no crash
+  loop. If the child succeeds, the earlier death was not the file's fault.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import hashlib
+import json
+import logging
+import os
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from daemon.datasets.dataset import DEFAULT_DATASET
+from daemon.fsops import NotContained, move_out, open_dir, open_dir_below
+from daemon.paths import make_dirs_private, make_private_dir
+from daemon.states import FileState
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
+
+log = logging.getLogger(__name__)
+
+CRASH_LOOP_TRIES = 3
+
+
+def quarantine_dir(ctx: AppContext) -> Path:
+    return ctx.config.quarantine_dir_for(ctx.paths.outbox)
+
+
+def quarantine(ctx: AppContext, path: Path, dataset: str | None, reason: str) -> Path | None:
+    """Move path out of the outbox into the quarantine folder; its new path (None: nothing moved)."""
+    outbox = Path(ctx.paths.outbox).absolute()
+    path = Path(path).absolute()
+    try:
+        rel = path.relative_to(outbox)
+    except ValueError:
+        return None  # only the outbox is ppd's to empty
+    folder_rel = rel.parent if dataset and dataset != DEFAULT_DATASET else Path(DEFAULT_DATASET) / rel.parent
+    anchor = open_dir(outbox)
+    try:
+        src_dir = open_dir_below(anchor, rel.parts[:-1], path)
+    except (NotContained, OSError):
+        return None
+    finally:
+        os.close(anchor)
+    try:
+        if (joined := _join_fragment(ctx, path, src_dir, rel.name, dataset)) is not None:
+            return joined
+        target_dir = quarantine_dir(ctx) / folder_rel
+        make_dirs_private(target_dir)  # 0700 whatever the umask: it holds unprotected originals
+        target = _free_name(target_dir / rel.name)
+        try:
+            os.link(rel.name, target, src_dir_fd=src_dir, follow_symlinks=False)  # never over a file
+            os.unlink(rel.name, dir_fd=src_dir)
+        except OSError as exc:
+            if exc.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK, errno.ENOTSUP):
+                if exc.errno == errno.ENOENT:
+                    return None
+                raise
+            move_out(src_dir, rel.name, target)
+    finally:
+        os.close(src_dir)
+    _owner_only(target)
+    try:  # the move is what protects; a failing store must not undo it
+        from daemon.datasets.dataset import dataset_root, ensure_dataset
+
+        name = dataset or DEFAULT_DATASET
+        ensure_dataset(ctx, name, dataset_root(outbox, name), None)
+        ctx.store.record_file(
+            path, dataset or DEFAULT_DATASET, FileState.QUARANTINED, error=reason, event="quarantined",
+            detail={"to": str(target), "reason": reason},
+        )  # fmt: skip
+    except Exception as exc:
+        log.error("quarantined %s but could not record it: %s", path.name, exc, extra={"path": str(path)})
+    log.debug(  # the daemon's line for the file says it (daemon.watch.watcher.say_outcome)
+        "quarantined %s: %s (moved to %s)", path.name, reason, target,
+        extra={"path": str(path), "to": str(target), "reason": reason},
+    )  # fmt: skip
+    return target
+
+
+def _join_fragment(ctx: AppContext, path: Path, src_dir: int, name: str, dataset: str | None) -> Path | None:
+    """A file that reappears under a name quarantined as incomplete, and is not a file of its own
+    (it does not begin like any image or video: a writer's next append to a head moved away), is
+    joined to its history: appended to the quarantined head, so quarantine keeps one whole file.
+    When that makes the file complete, it goes back to its name in the outbox (to be protected).
+    The joined file's path, or None when this is not such a fragment."""
+    from poisoner.completeness import incomplete_reason, starts_like_media
+
+    try:
+        event = ctx.store.last_event(path, "quarantined")
+    except Exception:  # the store failing: quarantine as usual
+        return None
+    head = Path(event["detail"].get("to", "")) if event else None
+    if head is None or "incomplete" not in str(event["detail"].get("reason", "")) or not head.is_file():  # type: ignore[index]
+        return None
+    if incomplete_reason(head) is None:
+        return None  # that head is whole already: this is another file
+    fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, dir_fd=src_dir)
+    try:
+        if starts_like_media(os.pread(fd, 16, 0)) is not False:
+            return None  # a file of its own (or too short to tell): quarantined as it is
+        with open(head, "ab") as out:
+            while chunk := os.read(fd, 1 << 20):
+                out.write(chunk)
+            out.flush()
+            os.fsync(out.fileno())
+    finally:
+        os.close(fd)
+    os.unlink(name, dir_fd=src_dir)
+    whole = incomplete_reason(head) is None
+    back = None
+    if whole:  # the head and its tail are one complete file again: back to its name
+        try:
+            os.link(head, name, dst_dir_fd=src_dir, follow_symlinks=False)  # never over a file
+            os.unlink(head)
+            back = path
+        except OSError as exc:
+            log.warning("joined %s but cannot put it back: %s", path.name, exc.strerror)
+    with contextlib.suppress(Exception):
+        ctx.store.add_event(dataset, path, "joined", {"to": str(back or head), "whole": whole})
+    again = " (whole again, back in the outbox)" if back else ""
+    log.warning(
+        "%s: a fragment of %s, joined to it%s", path.name, head, again,
+        extra={"path": str(path), "to": str(back or head)},
+    )  # fmt: skip
+    return back or head
+
+
+def _owner_only(target: Path) -> None:
+    """A quarantined original is readable by its owner only (0600), whatever mode it came with."""
+    try:
+        fd = os.open(target, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        log.warning("cannot restrict %s: %s", target, exc.strerror)
+        return
+    try:
+        os.fchmod(fd, 0o600)
+    except OSError as exc:
+        log.warning("cannot restrict %s: %s", target, exc.strerror)
+    finally:
+        os.close(fd)
+
+
+def _free_name(target: Path) -> Path:
+    n = 1
+    candidate = target
+    while candidate.exists() or candidate.is_symlink():
+        candidate = target.with_name(f"{target.stem}.{n}{target.suffix}")
+        n += 1
+    return candidate
+
+
+# ---- attempt markers ------------------------------------------------------------------------------
+def _attempts_dir(data_dir: Path) -> Path:
+    folder = Path(data_dir) / "attempts"
+    make_private_dir(folder)
+    return folder
+
+
+@contextlib.contextmanager
+def attempt(data_dir: Path, path: Path, dataset: str | None) -> Iterator[int]:
+    """Hold a marker naming path while the heavy work runs (see the module docstring); yields how
+    many attempts on it died before this one."""
+    marker = _attempts_dir(data_dir) / f"{hashlib.sha256(os.fsencode(str(path))).hexdigest()[:32]}.json"
+    fd = os.open(marker, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        try:  # a marker still there is an attempt that died: count it
+            tries = int(json.loads(os.pread(fd, 1 << 16, 0) or b"{}").get("tries", 0)) + 1
+        except (ValueError, TypeError, AttributeError):
+            tries = 1
+        doc = {"path": os.fsdecode(str(path)), "dataset": dataset, "pid": os.getpid(), "started": time.time(),
+               "tries": tries}  # fmt: skip
+        with contextlib.suppress(OSError):
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, json.dumps(doc).encode(), 0)
+        yield tries - 1
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(marker)
+    finally:
+        os.close(fd)  # a SIGKILL skips the unlink: the marker stays, unlocked
+
+
+@dataclass(frozen=True)
+class CrashedAttempt:
+    path: Path
+    dataset: str | None
+    pid: int
+    started: float
+    marker: Path
+    tries: int  # attempts in a row that died on this file (a single kill -9 is not a crash loop)
+
+    @property
+    def reason(self) -> str:
+        when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self.started))
+        return (
+            f"ppd died {self.tries} times in a row while patching it (last: pid {self.pid}, started {when}; "
+            "out of memory or a decoder crash); quarantined instead of retried"
+        )
+
+
+def crashed_attempts(data_dir: Path) -> list[CrashedAttempt]:
+    """Markers left by a process that died mid-work (unlocked); markers of live work are skipped."""
+    found = []
+    for marker in sorted(_attempts_dir(data_dir).glob("*.json")):
+        try:
+            fd = os.open(marker, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+        except OSError:
+            continue
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except BlockingIOError:
+                continue  # someone is working on it now
+            try:
+                doc = json.loads(os.pread(fd, 1 << 16, 0) or b"{}")
+                path, pid, started = Path(doc["path"]), int(doc["pid"]), float(doc["started"])
+                tries = int(doc.get("tries", 1))
+                found.append(CrashedAttempt(path, doc.get("dataset"), pid, started, marker, tries))
+            except (ValueError, KeyError, TypeError):
+                marker.unlink(missing_ok=True)  # torn write at the instant of the crash: nothing to name
+        finally:
+            os.close(fd)
+    return found

@@ -1,0 +1,485 @@
+"""`ppd store rebuild`: a new store from the vault and the provenance markers in patched files.
+
+Every file ppd patches carries a seal in its own metadata (poisoner.provenance: the spec id and
+the original's sha256, encrypted, and a tag over the file's bytes, keyed with this installation's
+secret, daemon.store.sealkey). A lost or damaged store is rebuilt by walking the folders where patched
+files live (the outbox, the publish folders, the dataset roots the old store still names, and any
+folder given), without following symlinks, and recording a `patched` row for each file whose seal
+verifies (the key and the bytes) and whose original the vault holds, verified by hash. A copied
+seal in another photo, or a patched photo edited since, does not verify and gets no row. Each
+dataset gets back its spec from `vault/specs/<spec_id>.json` (Vault.keep_spec), the old store, or
+the config when the ids match.
+
+The old store is never deleted: its files (with -wal/-shm) are renamed to
+`<name>.before-rebuild-<UTC time>`. The new store is built under a temporary name and renamed
+into place, so a crash mid-rebuild leaves the old store (or its kept-aside copy) and no half
+store. Stop `ppd watch` first: a daemon still holding the old store would keep writing to it.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import logging
+import os
+import sqlite3
+import stat
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from daemon.config import Config
+from daemon.datasets.dataset import DEFAULT_DATASET, dataset_of, dataset_root
+from daemon.fsops import sha256_fd
+from daemon.paths import AppPaths
+from daemon.platform import fd_path
+from daemon.states import FileState
+from daemon.store import SQLITE_SUFFIXES, Store, StoreError
+from daemon.store.vault import Vault, VaultError
+from poisoner.atomic import fsync_dir
+from poisoner.spec import PatchSpec
+
+log = logging.getLogger(__name__)
+
+ASIDE_INFIX = ".before-rebuild-"
+HEX = frozenset("0123456789abcdef")
+
+MarkerReader = Callable[[Path], Any]  # path -> poisoner.provenance.Seal | None (verified)
+
+
+class RebuildRefused(StoreError):
+    """The store is sound and holds rows; rebuilding it needs force."""
+
+
+@dataclass
+class RebuildReport:
+    store_path: Path
+    before: str = "missing"  # missing | damaged | lost | empty | sound: what the store was
+    kept_aside: list[Path] = field(default_factory=list)  # the old store's files, renamed
+    folders: list[Path] = field(default_factory=list)  # walked
+    files_seen: int = 0  # regular files looked at
+    marked: int = 0  # of them, carrying ppd's marker
+    recorded: int = 0  # patched rows written
+    datasets: dict[str, int] = field(default_factory=dict)  # patched rows per dataset
+    without_original: list[Path] = field(default_factory=list)  # marked, original not (intact) in the vault
+    conflicts: list[Path] = field(default_factory=list)  # a second file for a path already recorded
+    symlinks_skipped: int = 0
+    specs: dict[str, str] = field(default_factory=dict)  # spec id -> where it was recovered from
+    specs_missing: list[str] = field(default_factory=list)
+    old_datasets: int = 0  # dataset rows read back from the old store
+    unreferenced_originals: int = 0  # vault originals no rebuilt row names
+
+    def summary(self) -> str:
+        """One line."""
+        text = (
+            f"store rebuilt at {self.store_path}: {self.recorded} patched file(s) in {len(self.datasets)} "
+            f"dataset(s) from {self.marked} marked file(s) of {self.files_seen} looked at"
+        )
+        notes = []
+        if self.without_original:
+            notes.append(f"{len(self.without_original)} marked without their original in the vault")
+        if self.specs_missing:
+            notes.append(f"{len(self.specs_missing)} spec(s) not recovered")
+        if self.conflicts:
+            notes.append(f"{len(self.conflicts)} duplicate(s) skipped")
+        if self.unreferenced_originals:
+            notes.append(f"{self.unreferenced_originals} vault original(s) no file names")
+        if notes:
+            text += f" ({'; '.join(notes)})"
+        if self.kept_aside:
+            text += f"; the {self.before} store is kept at {self.kept_aside[0]}"
+        return text
+
+
+@dataclass(frozen=True)
+class _Source:
+    """A folder to walk and how its files map to store rows."""
+
+    folder: Path
+    dataset: str | None  # None: by the outbox layout (dataset_of)
+    identity_root: Path | None = None  # publish folder: row path = identity_root / rel
+    published: bool = False
+
+
+@dataclass
+class _OldStore:
+    datasets: dict[str, dict[str, Any]] = field(default_factory=dict)
+    specs: dict[str, str] = field(default_factory=dict)  # id -> json
+
+
+def rebuild_store(
+    paths: AppPaths,
+    store_path: Path | None = None,
+    *,
+    config: Config | None = None,
+    folders: Sequence[Path] = (),
+    force: bool = False,
+    read_marker: MarkerReader | None = None,
+) -> RebuildReport:
+    """Rebuild the store at store_path (default paths.db_path) from the vault and the markers.
+
+    folders: more folders holding patched files (`ppd poison FOLDER` in place), each one dataset
+    named after the folder. A sound store with rows is refused (RebuildRefused) unless force.
+
+    The steps, in order: judge the old store (refuse a sound one), read what it still gives back,
+    collect a row for each marked file whose original the vault holds, recover the specs, write
+    the new store beside the old one and swap them."""
+    if read_marker is None:
+        read_marker = _seal_reader(paths)
+    store_path = Path(store_path or paths.db_path)
+    config = config or Config()
+    report = RebuildReport(store_path=store_path)
+    from daemon.locks import watching
+
+    if holders := watching(paths.data_dir):  # a daemon would go on writing to the store swapped out
+        raise RebuildRefused(
+            f"ppd watch ({holders[0]}) is running on this data folder; stop it first "
+            "(`systemctl --user stop ppd`), then rebuild"
+        )
+    report.before = _store_condition(store_path, paths.vault_dir, force)
+    old = _read_old_store(store_path) if report.before != "missing" else _OldStore()
+    report.old_datasets = len(old.datasets)
+    vault = Vault(paths.vault_dir)
+    found = _collect_rows(paths, _sources(paths, config, old, folders), old, vault, read_marker, report)
+    by_dataset: dict[str, list[str]] = collections.defaultdict(list)
+    for dataset, fields in found.rows.values():
+        by_dataset[dataset].append(fields["spec_id"])
+    specs = _recover_specs(vault, old, config, {s for ids in by_dataset.values() for s in ids}, report)
+    _write_new_store(store_path, found, by_dataset, specs, old, report)
+    report.recorded = len(found.rows)
+    report.datasets = {name: len(ids) for name, ids in sorted(by_dataset.items())}
+    referenced = {fields["original_sha256"] for _, fields in found.rows.values()}
+    report.unreferenced_originals = len(set(vault.blobs()) - referenced)
+    log.info(report.summary())
+    return report
+
+
+@dataclass
+class _Found:
+    """The rows a rebuild will write, and where each dataset lives."""
+
+    rows: dict[str, tuple[str, dict[str, Any]]] = field(default_factory=dict)  # row path -> (dataset, fields)
+    roots: dict[str, Path] = field(default_factory=dict)
+    publish_dirs: dict[str, Path] = field(default_factory=dict)
+
+
+def _collect_rows(
+    paths: AppPaths,
+    sources: list[_Source],
+    old: _OldStore,
+    vault: Vault,
+    read_marker: MarkerReader,
+    report: RebuildReport,
+) -> _Found:
+    """Walk the sources in order (an earlier source's row wins a conflict) and keep a patched row
+    for every marked file whose original is intact in the vault."""
+    collector = _RowCollector(paths, old, vault, report)
+    skip_dirs = {os.path.realpath(p) for p in (paths.vault_dir, paths.data_dir)}
+    seen_inodes: set[tuple[int, int]] = set()
+    for source in sources:
+        if not source.folder.is_dir():
+            continue
+        report.folders.append(source.folder)
+        for path in _walk(source.folder, skip_dirs, report):
+            looked = _marked_file(path, read_marker, seen_inodes)
+            if looked is None:
+                continue
+            report.files_seen += looked[0]
+            if looked[1] is not None:
+                report.marked += 1
+                collector.keep(source, path, *looked[1])
+    return collector.found
+
+
+@dataclass
+class _RowCollector:
+    paths: AppPaths
+    old: _OldStore
+    vault: Vault
+    report: RebuildReport
+    found: _Found = field(default_factory=_Found)
+    intact: dict[str, bool] = field(default_factory=dict)  # original sha256 -> intact in the vault
+
+    def keep(self, source: _Source, path: Path, marker: Any, sha: str, st: os.stat_result) -> None:
+        """One marked file's row, unless its original is not intact or its path is taken."""
+        original = str(marker.original_sha256)
+        if original not in self.intact:
+            self.intact[original] = _original_intact(self.vault, original)
+        if not self.intact[original]:
+            self.report.without_original.append(path)
+            return
+        dataset, identity = _identity(source, self.paths.outbox.absolute(), path)
+        if str(identity) in self.found.rows:
+            self.report.conflicts.append(path)
+            return
+        self.found.rows[str(identity)] = (dataset, {
+            "original_sha256": original, "poisoned_sha256": sha, "spec_id": str(marker.spec_id),
+            "tool_version": getattr(marker, "tool", None), "size": st.st_size, "mtime_ns": st.st_mtime_ns,
+            "error": None, "published_path": str(path) if source.published else None,
+        })  # fmt: skip
+        self.found.roots.setdefault(dataset, _root_of(source, dataset, self.paths.outbox, self.old))
+        if source.published:
+            self.found.publish_dirs.setdefault(dataset, source.folder)
+
+
+def _seal_reader(paths: AppPaths) -> MarkerReader:
+    """read_seal with this installation's key; without a key no file can be recognised."""
+    from daemon.store.sealkey import load_key
+    from poisoner.provenance import read_seal
+
+    key = load_key(paths.data_dir, create=False)
+    if key is None:
+        log.warning("no seal key in %s: no patched file can be recognised", paths.data_dir)
+    return lambda path: read_seal(path, key)
+
+
+# ---- the old store -----------------------------------------------------------------------------------
+def _store_condition(store_path: Path, vault_dir: Path, force: bool) -> str:
+    if not any(Path(f"{store_path}{s}").exists() for s in SQLITE_SUFFIXES):
+        return "missing"
+    try:
+        store = Store(store_path)
+    except StoreError:
+        return "damaged"
+    try:
+        if store.lost_note():
+            return "lost"
+        count = store.file_count()
+    except StoreError:
+        return "damaged"
+    finally:
+        store.close()
+    if count == 0:
+        return "empty"
+    if not force:
+        raise RebuildRefused(
+            f"the store {store_path} is sound and holds {count} file row(s); "
+            "`ppd store rebuild --force` replaces it (the current one is kept aside)"
+        )
+    return "sound"
+
+
+def _read_old_store(store_path: Path) -> _OldStore:
+    """Whatever the old store still gives back of its datasets and specs (read-only; any damage
+    simply ends the reading)."""
+    old = _OldStore()
+    if not store_path.is_file():
+        return old
+    try:
+        conn = sqlite3.connect(f"file:{store_path}?mode=ro", uri=True)
+    except sqlite3.Error:
+        return old
+    try:
+        with contextlib.suppress(sqlite3.Error):
+            for spec_id, text in conn.execute("SELECT id, json FROM specs"):
+                old.specs[str(spec_id)] = str(text)
+        with contextlib.suppress(sqlite3.Error):
+            for name, root, spec_id, publish_dir in conn.execute(
+                "SELECT name, root, spec_id, publish_dir FROM datasets"
+            ):
+                old.datasets[str(name)] = {"root": root, "spec_id": spec_id, "publish_dir": publish_dir}
+    finally:
+        conn.close()
+    return old
+
+
+# ---- walking ---------------------------------------------------------------------------------------
+def _sources(paths: AppPaths, config: Config, old: _OldStore, folders: Sequence[Path]) -> list[_Source]:
+    """The outbox first (its rows win a conflict), then publish folders, old roots, given folders."""
+    outbox = paths.outbox.absolute()
+    sources = [_Source(outbox, None)]
+    publish: dict[str, Path] = {}
+    names = set(old.datasets) | set(config.datasets)
+    if config.publish_dir is not None and config.publish_dir.is_dir():
+        names |= {p.name for p in config.publish_dir.iterdir() if p.is_dir() and not p.is_symlink()}
+    for name in sorted(names):
+        stored = old.datasets.get(name, {}).get("publish_dir")
+        target = Path(stored) if stored else config.publish_dir_for(name)
+        if target is not None:
+            publish[name] = target.absolute()
+    for name, folder in sorted(publish.items()):
+        root = old.datasets.get(name, {}).get("root")
+        sources.append(_Source(folder, name, Path(root) if root else dataset_root(outbox, name), True))
+    for name, info in sorted(old.datasets.items()):
+        root = Path(info["root"]).absolute() if info.get("root") else None
+        if root is not None and root != outbox and not root.is_relative_to(outbox):
+            sources.append(_Source(root, name))
+    for folder in folders:
+        folder = Path(folder).expanduser().absolute()
+        sources.append(_Source(folder, folder.name or DEFAULT_DATASET))
+    return sources
+
+
+def _walk(top: Path, skip_dirs: set[str], report: RebuildReport) -> Iterator[Path]:
+    """Regular, non-hidden files under top; symlinks (files and folders) are counted, not followed."""
+    for folder, dirs, files in os.walk(top, followlinks=False):
+        keep = []
+        for name in dirs:
+            full = os.path.join(folder, name)
+            if os.path.islink(full):
+                report.symlinks_skipped += 1
+            elif not name.startswith(".") and os.path.realpath(full) not in skip_dirs:
+                keep.append(name)
+        dirs[:] = sorted(keep)
+        for name in sorted(files):
+            if name.startswith("."):  # dot-files and ppd's own .ppd-tmp-* leftovers
+                continue
+            path = Path(folder, name)
+            if os.path.islink(path):
+                report.symlinks_skipped += 1
+                continue
+            yield path
+
+
+def _marked_file(
+    path: Path, read_marker: MarkerReader, seen: set[tuple[int, int]]
+) -> tuple[int, tuple[Any, str, os.stat_result] | None] | None:
+    """(1, (marker, sha256, stat)) for a marked regular file, (1, None) for an unmarked one, None
+    for something not looked at (vanished, not regular, already seen through another folder).
+
+    The file is opened once with O_NOFOLLOW and read through that descriptor only (the marker via
+    /proc/self/fd), so a file swapped for a symlink meanwhile is not followed."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or (st.st_dev, st.st_ino) in seen:
+            return None
+        seen.add((st.st_dev, st.st_ino))
+        by_fd = fd_path(fd)
+        marker = read_marker(by_fd if by_fd.exists() else path)
+        if marker is None:
+            return 1, None
+        return 1, (marker, sha256_fd(fd), st)
+    finally:
+        os.close(fd)
+
+
+def _original_intact(vault: Vault, sha256: str) -> bool:
+    if len(sha256) != 64 or not set(sha256) <= HEX:
+        return False
+    try:
+        return vault.verify(sha256)
+    except (OSError, VaultError):
+        return False
+
+
+def _identity(source: _Source, outbox: Path, path: Path) -> tuple[str, Path]:
+    """(dataset, the row's path) of a file found under source."""
+    if source.dataset is None:
+        return dataset_of(outbox, path), path
+    if source.published and source.identity_root is not None:
+        return source.dataset, source.identity_root / path.relative_to(source.folder)
+    return source.dataset, path
+
+
+def _root_of(source: _Source, dataset: str, outbox: Path, old: _OldStore) -> Path:
+    stored = old.datasets.get(dataset, {}).get("root")
+    if stored:
+        return Path(stored)
+    if source.dataset is None or source.published:
+        return dataset_root(outbox, dataset)
+    return source.folder
+
+
+# ---- specs and the new store ---------------------------------------------------------------------
+def _recover_specs(
+    vault: Vault, old: _OldStore, config: Config, spec_ids: set[str], report: RebuildReport
+) -> dict[str, PatchSpec]:
+    """Each spec id's PatchSpec from the vault, the old store, the config or the defaults (only
+    where the content hashes to the id); recovered specs are kept in the vault for next time."""
+    wanted = spec_ids | {info["spec_id"] for info in old.datasets.values() if info.get("spec_id")}
+    candidates: dict[str, tuple[PatchSpec, str]] = {}
+    for text in old.specs.values():
+        with contextlib.suppress(ValueError, TypeError, KeyError):
+            spec = PatchSpec.from_json(text)
+            candidates.setdefault(spec.spec_id, (spec, "old store"))
+    for name in config.datasets:
+        with contextlib.suppress(Exception):  # an automatic dataset's interim spec may not load here
+            spec = config.spec_for(name)
+            candidates.setdefault(spec.spec_id, (spec, "config"))
+    candidates.setdefault(config.spec.spec_id, (config.spec, "config"))
+    candidates.setdefault(PatchSpec().spec_id, (PatchSpec(), "defaults"))
+    found: dict[str, PatchSpec] = {}
+    for spec_id in sorted(wanted):
+        kept = vault.load_spec(spec_id) if spec_id and set(spec_id) <= HEX else None
+        if kept is not None:
+            found[spec_id], report.specs[spec_id] = kept, "vault"
+        elif spec_id in candidates:
+            found[spec_id], report.specs[spec_id] = candidates[spec_id]
+            with contextlib.suppress(OSError, VaultError):
+                vault.keep_spec(found[spec_id])
+        else:
+            report.specs_missing.append(spec_id)
+    return found
+
+
+def _write_new_store(
+    store_path: Path,
+    found: _Found,
+    by_dataset: dict[str, list[str]],
+    specs: dict[str, PatchSpec],
+    old: _OldStore,
+    report: RebuildReport,
+) -> None:
+    """Build the new store under a temporary name, keep the old one aside, rename the new one in."""
+    tmp = store_path.with_name(f".{store_path.name}.rebuilding-{os.getpid()}")
+    for suffix in SQLITE_SUFFIXES:
+        Path(f"{tmp}{suffix}").unlink(missing_ok=True)
+    store = Store(tmp)
+    try:
+        _fill_new_store(store, store_path, found, by_dataset, specs, old)
+        store.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        store.conn.execute("PRAGMA journal_mode = DELETE")  # one self-contained file to rename
+    finally:
+        store.close()
+    _keep_aside(store_path, report)
+    os.replace(tmp, store_path)
+    fsync_dir(store_path.parent)
+    check = Store(store_path)  # reopen: WAL mode, permissions, and a proof it opens
+    check.close()
+
+
+def _fill_new_store(
+    store: Store,
+    store_path: Path,
+    found: _Found,
+    by_dataset: dict[str, list[str]],
+    specs: dict[str, PatchSpec],
+    old: _OldStore,
+) -> None:
+    """Datasets (each with its markers' most common spec), every recovered spec, the file rows."""
+    for name in sorted(set(by_dataset) | set(old.datasets)):
+        ids = by_dataset.get(name, [])
+        spec_id = collections.Counter(ids).most_common(1)[0][0] if ids else old.datasets[name].get("spec_id")
+        info = old.datasets.get(name, {})
+        publish = info.get("publish_dir") or found.publish_dirs.get(name)
+        root = Path(info.get("root") or found.roots.get(name) or store_path.parent)
+        store.add_dataset(
+            name, root, specs.get(spec_id or ""), Path(publish) if publish else None, event="rebuilt",
+            detail={"files": len(ids), "spec_id_from_markers": spec_id},
+        )  # fmt: skip
+    for spec in specs.values():
+        store.ensure_spec(spec)  # a file's own spec (a dataset mid re-protect) resolves too
+    store.record_files(
+        (path, dataset, FileState.PATCHED, fields) for path, (dataset, fields) in found.rows.items()
+    )
+
+
+def _keep_aside(store_path: Path, report: RebuildReport) -> None:
+    """Rename the old store's files (with -wal/-shm) to `<name>.before-rebuild-<UTC time>`."""
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    aside = store_path.with_name(f"{store_path.name}{ASIDE_INFIX}{stamp}")
+    n = 1
+    while any(Path(f"{aside}{s}").exists() for s in SQLITE_SUFFIXES):
+        n += 1
+        aside = store_path.with_name(f"{store_path.name}{ASIDE_INFIX}{stamp}-{n}")
+    for suffix in SQLITE_SUFFIXES:
+        current = Path(f"{store_path}{suffix}")
+        if current.exists():
+            os.replace(current, Path(f"{aside}{suffix}"))
+            report.kept_aside.append(Path(f"{aside}{suffix}"))

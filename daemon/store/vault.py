@@ -1,0 +1,387 @@
+"""The originals vault: every original ppd patches is kept here first, content-addressed.
+
+Layout: vault_dir/ab/abcdef... (sha256 of the content, no suffix), folders mode 0700; the specs
+that patched them under vault_dir/specs/<spec_id>.json (so a lost store can be rebuilt).
+
+The vault owns its bytes: each original is an independent copy, never a hard link to a file the
+user (or a writer that still holds it open) can change. The copy is a reflink (FICLONE) where
+the filesystem shares extents copy-on-write (btrfs, XFS, bcachefs: no extra disk), else a real
+copy made by the kernel (copy_file_range, sendfile) or a read loop. It is written under a
+temporary name, fsynced, hashed as kept, and renamed into place; the folder is fsynced. The
+blob's name is therefore always the hash of its content.
+
+Blobs are never deleted implicitly. An optional size limit makes `keep` refuse (VaultFullError),
+so a full vault stops protection instead of losing originals; a full filesystem gives a
+VaultNoSpaceError that names the filesystem and its free bytes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import hashlib
+import logging
+import os
+import stat
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from daemon.fsops import sha256_fd
+from daemon.paths import filesystem_of, make_private_dir
+from daemon.platform import reflink
+from poisoner.atomic import atomic_output, fsync_dir
+from poisoner.spec import PatchSpec
+
+log = logging.getLogger(__name__)
+
+CHUNK = 1 << 20
+VAULT_TMP_PREFIX = ".keep-"
+SPECS_DIR = "specs"
+# errnos meaning "this copy method is not available here", so the next one is tried; any other
+# error (ENOSPC, EIO, ...) is real and raised.
+NOT_AVAILABLE = frozenset(
+    {errno.EOPNOTSUPP, errno.ENOTSUP, errno.EXDEV, errno.EINVAL, errno.ENOTTY, errno.ENOSYS, errno.EBADF}
+)
+NO_SPACE = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+
+class VaultError(RuntimeError):
+    """A vault operation failed (message = one line)."""
+
+
+class VaultFullError(VaultError):
+    """Keeping another original would exceed the configured vault size limit."""
+
+
+class VaultNoSpaceError(VaultFullError):
+    """The vault's filesystem is full; the message names it and its free bytes."""
+
+    def __init__(self, message: str, errno_: int) -> None:
+        super().__init__(message)
+        self.errno = errno_
+
+
+class VaultContentChanged(VaultError):
+    """What was read is not what the caller hashed: the file changed; nothing was kept."""
+
+
+def sha256_file(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while chunk := fh.read(CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def open_regular_nofollow(path: Path) -> int:
+    """An fd of path for reading; refuses a symlink (O_NOFOLLOW) and anything not a regular file
+    (O_NONBLOCK so a FIFO cannot block the open)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise VaultError(f"{path} is a symbolic link; ppd keeps only regular files") from None
+        raise
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise VaultError(f"{path} is not a regular file; ppd keeps only regular files")
+    return fd
+
+
+STALE_KEEP_S = 10.0  # a `.keep-*` copy younger than this may be between its creation and its lock
+_cleared: set[Path] = set()
+
+
+def clear_stale_keeps(vault_dir: Path, min_age_s: float = STALE_KEEP_S) -> list[Path]:
+    """Remove `.keep-*` partial copies no living process holds (each copy is flock()ed while it is
+    written): what a SIGKILLed keep leaves behind. Younger than min_age_s: left alone."""
+    removed = []
+    for tmp in Path(vault_dir).glob(f"{VAULT_TMP_PREFIX}*"):
+        try:
+            if time.time() - tmp.lstat().st_mtime < min_age_s:
+                continue
+            fd = os.open(tmp, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            continue  # a keep in progress
+        else:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+            removed.append(tmp)
+        finally:
+            os.close(fd)
+    if removed:
+        log.warning("removed %d partial vault copies left by a killed process", len(removed))
+    return removed
+
+
+class Vault:
+    def __init__(self, vault_dir: Path, max_bytes: int = 0) -> None:
+        self.vault_dir = Path(vault_dir)
+        self.max_bytes = max_bytes  # 0 = unlimited
+        make_private_dir(self.vault_dir)
+        if self.vault_dir not in _cleared:  # once per process: partial copies of a killed keep
+            _cleared.add(self.vault_dir)
+            clear_stale_keeps(self.vault_dir)
+
+    def path_for(self, sha256: str) -> Path:
+        if len(sha256) != 64 or any(c not in "0123456789abcdef" for c in sha256):
+            raise VaultError(f"not a sha256 hex digest: {sha256!r}")
+        return self.vault_dir / sha256[:2] / sha256
+
+    def has(self, sha256: str) -> bool:
+        return self.path_for(sha256).is_file()
+
+    def blobs(self) -> list[str]:
+        """The sha256 of every kept original (by name)."""
+        return sorted(p.name for p in self.vault_dir.glob("??/*") if len(p.name) == 64 and p.is_file())
+
+    def is_empty(self) -> bool:
+        return not any(len(p.name) == 64 for p in self.vault_dir.glob("??/*"))
+
+    # ---- keeping ------------------------------------------------------------------------------
+    def keep(self, path: Path, *, link: bool | None = None, expected_sha256: str | None = None) -> str:
+        """Keep the content of the regular file at path (never through a symlink); its sha256.
+
+        `link` is accepted for older callers and ignored: the vault always holds its own copy."""
+        del link
+        fd = open_regular_nofollow(Path(path))
+        try:
+            return self.keep_fd(fd, expected_sha256)
+        finally:
+            os.close(fd)
+
+    def keep_fd(self, fd: int, expected_sha256: str | None = None) -> str:
+        """Keep an independent copy of the open file's content; returns its sha256.
+
+        The copy is a reflink where possible, else a real copy; it is fsynced, hashed as kept
+        and renamed to its content-addressed place. With expected_sha256, a copy whose hash
+        differs (the file changed since the caller hashed it) is dropped and
+        VaultContentChanged is raised. The fd's offset is not moved."""
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise VaultError("ppd keeps only regular files (this descriptor is not one)")
+        size = st.st_size
+        self._check_room(size)
+        tmp_fd, tmp_name = tempfile.mkstemp(prefix=VAULT_TMP_PREFIX, dir=self.vault_dir)
+        fcntl.flock(tmp_fd, fcntl.LOCK_EX)  # held while written: clear_stale_keeps leaves it alone
+        tmp = Path(tmp_name)
+        try:
+            try:
+                method, sha = _copy_fd(fd, tmp_fd)
+                os.fsync(tmp_fd)
+            finally:
+                os.close(tmp_fd)
+            if expected_sha256 is not None and sha != expected_sha256:
+                raise VaultContentChanged(
+                    f"the file changed while being kept (sha256 {sha[:12]}, "
+                    f"expected {expected_sha256[:12]}); nothing kept"
+                )
+            final = self.path_for(sha)
+            if self._already_kept(final):
+                return sha  # the same content is already kept (content addressing)
+            make_private_dir(final.parent)
+            os.replace(tmp, final)
+            fsync_dir(final.parent)
+            log.debug("vault kept", extra={"sha256": sha, "method": method})
+            return sha
+        except OSError as exc:
+            if exc.errno in NO_SPACE:
+                raise self._no_space(exc, size) from None
+            raise
+        finally:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+
+    @staticmethod
+    def _already_kept(final: Path) -> bool:
+        """An existing blob counts only if the vault alone holds it: a blob with other hard links
+        (kept by an older ppd) could still be edited through them, so it is replaced by the
+        fresh independent copy."""
+        try:
+            return os.lstat(final).st_nlink == 1
+        except FileNotFoundError:
+            return False
+
+    def _no_space(self, exc: OSError, size: int) -> VaultNoSpaceError:
+        try:
+            where = filesystem_of(self.vault_dir).describe()
+        except OSError:
+            where = "filesystem unknown"
+        return VaultNoSpaceError(
+            f"the vault {self.vault_dir} is full: {exc.strerror} ({where}; "
+            f"this original needs {size} bytes); nothing kept, the file is left as it is",
+            exc.errno or errno.ENOSPC,
+        )
+
+    def _check_room(self, size: int) -> None:
+        if not self.max_bytes:
+            return
+        used = self.usage_bytes()
+        if used + size > self.max_bytes:
+            raise VaultFullError(
+                f"vault {self.vault_dir} holds {used} bytes; keeping {size} more would pass its limit of "
+                f"{self.max_bytes} (raise [vault] max_bytes; ppd never deletes originals on its own)"
+            )
+
+    def usage_bytes(self) -> int:
+        """Kept originals and partial copies (in progress, or left by a killed process)."""
+        kept = sum(p.stat().st_size for p in self.vault_dir.glob("??/*") if p.is_file())
+        partial = 0
+        for p in self.vault_dir.glob(f"{VAULT_TMP_PREFIX}*"):
+            with contextlib.suppress(OSError):
+                partial += p.lstat().st_size
+        return kept + partial
+
+    # ---- specs --------------------------------------------------------------------------------
+    def spec_path(self, spec_id: str) -> Path:
+        if not spec_id or any(c not in "0123456789abcdef" for c in spec_id):
+            raise VaultError(f"not a spec id: {spec_id!r}")
+        return self.vault_dir / SPECS_DIR / f"{spec_id}.json"
+
+    def keep_spec(self, spec: PatchSpec) -> Path:
+        """Keep the spec that patched originals next to them (atomic, once per spec id), so a
+        store rebuilt from the vault and the files' markers knows each dataset's patch."""
+        path = self.spec_path(spec.spec_id)
+        if path.is_file():
+            return path
+        make_private_dir(path.parent)
+        try:
+            with atomic_output(path) as tmp:
+                tmp.write_text(spec.to_json())
+                os.chmod(tmp, 0o600)
+            os.chmod(path, 0o600)
+        except OSError as exc:
+            if exc.errno in NO_SPACE:
+                raise self._no_space(exc, len(spec.to_json())) from None
+            raise
+        return path
+
+    def load_spec(self, spec_id: str) -> PatchSpec | None:
+        """The kept spec with this id; None when it was never kept (or does not match its id)."""
+        try:
+            spec = PatchSpec.from_json(self.spec_path(spec_id).read_text())
+        except (OSError, ValueError, TypeError, KeyError):
+            return None
+        return spec if spec.spec_id == spec_id else None
+
+    # ---- reading back -------------------------------------------------------------------------
+    def verify(self, sha256: str) -> bool:
+        """Whether the blob still has the content its name says."""
+        path = self.path_for(sha256)
+        return path.is_file() and sha256_file(path) == sha256
+
+    def restore(self, sha256: str, dst: Path, *, replaces: str | None | bool = True) -> None:
+        """Atomically put the original with this digest at dst: a copy (never a link: edits to
+        the restored file must not reach the vault), hash-verified while copying; a blob whose
+        content no longer matches its name is refused and dst is left untouched.
+
+        replaces says what dst may hold when the original takes its place, checked just before
+        the rename (compare-and-swap): True anything (--force), a sha256 exactly that content (what
+        ppd wrote) or nothing, None nothing (dst must not exist). Otherwise RestoreRefused, dst
+        untouched."""
+        src = self.path_for(sha256)
+        try:
+            fd = open_regular_nofollow(src)
+        except FileNotFoundError:
+            raise VaultError(f"original {sha256[:12]} is not in the vault {self.vault_dir}") from None
+        dst = Path(dst)
+        try:
+            check = None if replaces is True else (lambda: _still_holds(dst, replaces))  # type: ignore[arg-type]
+            with atomic_output(dst, mode_like=dst if dst.exists() else None, check=check) as tmp:
+                digest = hashlib.sha256()
+                offset = 0
+                with open(tmp, "wb") as fout:
+                    while chunk := os.pread(fd, CHUNK, offset):
+                        digest.update(chunk)
+                        fout.write(chunk)
+                        offset += len(chunk)
+                if digest.hexdigest() != sha256:
+                    raise VaultError(
+                        f"vault blob {sha256[:12]} is corrupt (content changed); not restoring it"
+                    )
+        finally:
+            os.close(fd)
+
+
+class RestoreRefused(VaultError):
+    """dst no longer holds what restore may replace (another writer's bytes)."""
+
+
+def _still_holds(dst: Path, expected: str | None) -> None:
+    """Raise RestoreRefused unless dst is absent or holds exactly expected (None: absent only)."""
+    try:
+        fd = os.open(dst, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return  # nobody's bytes at that name: nothing is overwritten
+    except OSError as exc:
+        raise RestoreRefused(f"{dst.name} cannot be checked ({exc.strerror}); not overwriting it") from None
+    try:
+        if expected is None:
+            raise RestoreRefused(f"{dst} exists; not overwriting it with the original (use --force)")
+        if sha256_fd(fd) != expected:
+            raise RestoreRefused(f"{dst.name} changed since ppd patched it; not overwriting (use --force)")
+    finally:
+        os.close(fd)
+
+
+def _copy_fd(src: int, dst: int) -> tuple[str, str]:
+    """Copy src's whole content into the empty file dst; (method, sha256 of what dst holds).
+
+    Tries, in order: a reflink, copy_file_range, sendfile, a read loop. The kernel methods move
+    no bytes through Python, so dst is hashed afterwards (what is hashed is what was kept); the
+    read loop hashes while copying."""
+    with contextlib.suppress(OSError):
+        reflink(dst, src)
+        return "reflink", sha256_fd(dst)
+    # A failed clone leaves dst empty; anything else is a real error and will surface below.
+    os.ftruncate(dst, 0)
+    for method, step in (("copy_file_range", _copy_file_range_step), ("sendfile", _sendfile_step)):
+        try:
+            offset = _kernel_copy(src, dst, step)
+        except OSError as exc:
+            if exc.errno not in NOT_AVAILABLE:
+                raise
+            os.ftruncate(dst, 0)
+            continue
+        # A kernel copy may stop short on some filesystems (procfs-like, FUSE): finish by reading.
+        if os.pread(src, 1, offset):
+            _read_loop(src, dst, offset, None)
+        return method, sha256_fd(dst)
+    digest = hashlib.sha256()
+    _read_loop(src, dst, 0, digest)
+    return "read", digest.hexdigest()
+
+
+def _copy_file_range_step(src: int, dst: int, offset: int) -> int:
+    return os.copy_file_range(src, dst, CHUNK * 64, offset, offset)
+
+
+def _sendfile_step(src: int, dst: int, offset: int) -> int:
+    os.lseek(dst, offset, os.SEEK_SET)
+    return os.sendfile(dst, src, offset, CHUNK * 64)
+
+
+def _kernel_copy(src: int, dst: int, step: Callable[[int, int, int], int]) -> int:
+    offset = 0
+    while copied := step(src, dst, offset):
+        offset += copied
+    return offset
+
+
+def _read_loop(src: int, dst: int, offset: int, digest: Any) -> None:
+    os.lseek(dst, offset, os.SEEK_SET)
+    while chunk := os.pread(src, CHUNK, offset):
+        if digest is not None:
+            digest.update(chunk)
+        view = memoryview(chunk)
+        while view:
+            view = view[os.write(dst, view) :]
+        offset += len(chunk)

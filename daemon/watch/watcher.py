@@ -1,0 +1,547 @@
+"""`ppd watch`: the daemon around the event layer (daemon.watch.outbox).
+
+WatchDaemon owns the outbox lock, a catch-up scan at start (and after lost events), the worker
+pool (daemon.watch.workers: threads, back-pressure), the per-file worker processes
+(daemon.protect.pool: each file's stages run there, so this process stays free of numpy, PIL
+and PyAV), quarantine of hopeless files, retries once disk space returns, verification
+scheduling, and the systemd protocol (daemon.watch.notify). Its main thread sleeps until an event
+needs it; the one timer is systemd's watchdog (and a worker process's idle exit).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import errno
+import logging
+import os
+import stat
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from daemon.locks import outbox_lock
+from daemon.protect.stages import Outcome
+from daemon.states import FileState
+from daemon.watch.notify import SystemdNotifier
+from daemon.watch.outbox import OutboxWatcher, WatchOptions, is_candidate, scan_outbox, signature, walk_files
+from daemon.watch.workers import PoolOptions, PoolStats, WorkerPool
+from poisoner.media import MEDIA_SUFFIXES
+
+__all__ = ["DaemonOptions", "WatchDaemon", "WatchOptions", "is_no_space", "scan_outbox"]
+
+log = logging.getLogger(__name__)
+
+
+# ---- the daemon: watcher + catch-up + workers + systemd ---------------------------------------
+@dataclass(frozen=True)
+class DaemonOptions:
+    watch: WatchOptions = WatchOptions()
+    workers: int = 2
+    queue_size: int = 256
+    max_pending: int = 100_000
+    tmp_grace_s: float = 60.0  # younger `.ppd-tmp-*` files may belong to a running `ppd poison`
+    no_space_poll_s: float = 5.0  # while files wait for disk space: how often free space is checked
+    no_space_retry_s: float = 300.0  # ... and retried anyway (space freed elsewhere, quota raised)
+    verify: bool = True  # run the VerificationScheduler (daemon.verification.scheduler)
+    # Each file is protected in a worker process (daemon.protect.pool), so this process never
+    # loads numpy, PIL or PyAV; the workers exit after worker_idle_s without a file.
+    worker_processes: bool = True
+    worker_idle_s: float = 30.0
+    # A file whose structure is incomplete is re-checked (its writer may append more after a
+    # pause) and quarantined only once it has not changed for this long (config: [daemon]).
+    incomplete_wait_s: float = 120.0
+
+    @classmethod
+    def from_config(cls, config: Any, **overrides: Any) -> DaemonOptions:
+        """Options from daemon.config.Config (workers, debounce_seconds, verification.enabled)."""
+        base = cls(
+            watch=WatchOptions(
+                settle_s=float(config.debounce_seconds),
+                max_settle_s=float(config.daemon.max_debounce_seconds),
+            ),
+            workers=int(config.workers),
+            verify=bool(config.verification.enabled),
+            incomplete_wait_s=float(config.daemon.incomplete_wait_seconds),
+        )
+        settle = overrides.pop("settle_s", None)
+        if settle is not None:
+            base = dataclasses.replace(base, watch=dataclasses.replace(base.watch, settle_s=settle))
+        return dataclasses.replace(base, **{k: v for k, v in overrides.items() if v is not None})
+
+
+@dataclass
+class DaemonCounts:
+    patched: int = 0
+    unchanged: int = 0
+    skipped: int = 0
+    failed: int = 0
+    removed: int = 0
+    quarantined: int = 0
+
+
+def status_line(counts: DaemonCounts, stats: PoolStats, armed: int) -> str:
+    """The one-line STATUS= systemd shows in `systemctl --user status ppd`."""
+    return (
+        f"patched {counts.patched}, failed {counts.failed}, quarantined {counts.quarantined}, "
+        f"unchanged {counts.unchanged}, removed {counts.removed}; queued {stats.queued + stats.pending}, "
+        f"in flight {stats.in_flight}, settling {armed}"
+    )
+
+
+class WatchDaemon:
+    """`ppd watch`: catch-up scan, live watching, the worker pool, verification scheduling
+    and the systemd protocol, until `request_stop()` (SIGTERM/SIGINT)."""
+
+    def __init__(self, ctx: Any, options: DaemonOptions, notifier: SystemdNotifier | None = None) -> None:
+        self.ctx = ctx  # daemon.protect.one_file.AppContext
+        self.outbox = Path(ctx.paths.outbox).absolute()
+        self.options = options
+        self.notifier = notifier or SystemdNotifier()
+        self.suffixes = MEDIA_SUFFIXES
+        self.counts = DaemonCounts()
+        self._counts_lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._rescan_needed = threading.Event()
+        self.ready = threading.Event()  # set once watching (tests, embedding)
+        self._trim_due = threading.Event()
+        # Files that failed for lack of disk space; retried once space returns (no event tells).
+        self._no_space: dict[Path, None] = {}
+        # incomplete files waited for: path -> (signature, unchanged since, checks so far)
+        self._incomplete: dict[Path, tuple[Any, float, int]] = {}
+        self._incomplete_lock = threading.Lock()
+        self._no_space_lock = threading.Lock()
+        self._no_space_since = (0.0, 0)  # (monotonic time, free bytes) of the first such failure
+        self.pool = WorkerPool(
+            self.process,
+            PoolOptions(
+                workers=options.workers, queue_size=options.queue_size, max_pending=options.max_pending
+            ),
+            on_idle=self._on_pool_idle,
+        )
+        self.watcher = OutboxWatcher(
+            self.outbox, self.pool.submit, options.watch, self.suffixes, self._on_lost_events
+        )
+        self.scheduler: Any = None
+        self._owner = contextlib.ExitStack()
+        self.protectors: Any = None  # daemon.protect.pool.ProtectWorkers, made on start
+
+    # ---- lifecycle ----------------------------------------------------------------------------
+    def request_stop(self) -> None:
+        """Safe from a signal handler: only sets two events."""
+        self._stop.set()
+        self._wake.set()
+
+    def start(self) -> None:
+        """Raises daemon.locks.LockHeld (one line naming the holder's pid) when another
+        `ppd watch` already watches this outbox."""
+        self.outbox.mkdir(parents=True, exist_ok=True)
+        self._owner.enter_context(outbox_lock(self.ctx.paths.data_dir, self.outbox))
+        self.scheduler = self._start_scheduler() if self.options.verify else None
+        if self.options.worker_processes:
+            from daemon.protect.pool import ProtectWorkers
+
+            self.protectors = ProtectWorkers(self.ctx, self.options.workers, self.options.worker_idle_s)
+            self.protectors.warm()  # ready means the first files need not wait for a worker's imports
+        self.pool.start()
+        self.watcher.start()  # before the scan: nothing written during the scan is missed
+        self.catch_up(remove_leftovers=True)
+
+    def run(self) -> int:
+        """Start, serve until asked to stop, shut down; the exit status (0 on a clean stop)."""
+        self.start()
+        self.notifier.ready(self.status())
+        self.ready.set()
+        log.info("ppd watch ready", extra={"outbox": str(self.outbox), "workers": self.options.workers})
+        ping = self.notifier.watchdog_interval
+        last_status = ""
+        while not self._stop.is_set():
+            # Sleeps until an event needs the main thread; the only timer is systemd's watchdog.
+            self._wake.wait(timeout=self._wake_timeout(ping))
+            self._wake.clear()
+            if self._stop.is_set():
+                break
+            self._keep_watching()
+            self._retry_if_space_returned()
+            if self.pool.take_overflow():
+                self._rescan_needed.set()
+            if self._rescan_needed.is_set() and self._idle_enough():
+                self._rescan_needed.clear()
+                self.catch_up()
+            if self._trim_due.is_set() and self._idle_enough():
+                self._trim_due.clear()
+                release_free_memory()
+            if self.protectors is not None:
+                self.protectors.end_idle()
+            if ping and self.watcher.is_alive():
+                self.notifier.watchdog()  # only while events can still arrive
+            status = self.status()
+            if status != last_status:
+                self.notifier.status(status)
+                last_status = status
+        self.shutdown()
+        return 0
+
+    def shutdown(self) -> None:
+        self.notifier.stopping("stopping: finishing files in flight")
+        log.info("stopping: no new work; waiting for files in flight", extra=self._stats_extra())
+        self.watcher.stop()
+        dropped = self.pool.stop()
+        if self.protectors is not None:
+            self.protectors.close()
+        if dropped:
+            log.info("%d queued file(s) left for the next start's catch-up scan", len(dropped))
+        if self.scheduler is not None:
+            try:
+                self.scheduler.stop()
+            except Exception:
+                log.exception("verification scheduler did not stop cleanly")
+        log.info("stopped: %s", self.status())
+        self._owner.close()  # the outbox lock
+
+    # ---- helpers of the main loop -------------------------------------------------------------
+    def _start_scheduler(self) -> Any:
+        from daemon.verification.scheduler import (
+            VerificationScheduler,  # light: the verifier loads when a run starts
+        )
+
+        scheduler = VerificationScheduler(self.ctx)
+        scheduler.start()
+        return scheduler
+
+    def _on_pool_idle(self) -> None:
+        self._trim_due.set()
+        self._wake.set()
+
+    def _on_lost_events(self) -> None:
+        self._rescan_needed.set()
+        self._wake.set()
+
+    def _wake_timeout(self, ping: float | None) -> float | None:
+        """How long the main loop may sleep: systemd's watchdog, a pending rescan, files
+        waiting for disk space."""
+        waits = [ping] if ping else []
+        if self._rescan_needed.is_set():
+            waits.append(5.0)
+        if self._no_space:
+            waits.append(self.options.no_space_poll_s)
+        if self.protectors is not None and (idle_in := self.protectors.end_idle()) is not None:
+            waits.append(idle_in + 0.05)  # then the idle workers exit
+        return min(waits) if waits else None
+
+    def _note_no_space(self, path: Path, reason: str | None) -> None:
+        """Remember a file that failed for lack of space (or forget one that did not)."""
+        with self._no_space_lock:
+            if not is_no_space(reason):
+                self._no_space.pop(path, None)
+                return
+            if not self._no_space:
+                self._no_space_since = (time.monotonic(), self._free_bytes())
+            self._no_space[path] = None
+        self._wake.set()
+
+    def _free_bytes(self) -> int:
+        """Free bytes on the fuller of the outbox's and the data folder's filesystems."""
+        free = []
+        for folder in (self.outbox, Path(self.ctx.paths.data_dir)):
+            try:
+                st = os.statvfs(folder)
+            except OSError:
+                continue
+            free.append(st.f_bavail * st.f_frsize)
+        return min(free) if free else 0
+
+    def _retry_if_space_returned(self) -> None:
+        """Queue the files that failed for lack of space again once free space has grown by
+        1 MiB since (or after no_space_retry_s in any case)."""
+        with self._no_space_lock:
+            if not self._no_space:
+                return
+            since, free_then = self._no_space_since
+            grown = self._free_bytes() > free_then + (1 << 20)
+            if not grown and time.monotonic() - since < self.options.no_space_retry_s:
+                return
+            paths, self._no_space = list(self._no_space), {}
+        log.info("disk space returned: retrying %d file(s)", len(paths), extra={"files": len(paths)})
+        for path in paths:
+            self.watcher.forget(path)  # its signature was recorded as processed
+            self.pool.submit(path)
+
+    def _idle_enough(self) -> bool:
+        stats = self.pool.stats()
+        return stats.queued + stats.pending == 0
+
+    def _keep_watching(self) -> None:
+        """Restart the observer when the outbox was deleted or moved away (and recreate it)."""
+        if self.watcher.is_alive() and self.outbox.is_dir():
+            return
+        log.error("outbox watch lost; recreating %s and rescanning", self.outbox)
+        self.watcher.stop()
+        try:
+            self.outbox.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            log.error("cannot recreate the outbox %s: %s", self.outbox, exc.strerror)
+            self._rescan_needed.set()  # retried on the next wake-up (every 5 s while needed)
+            return
+        self.watcher = OutboxWatcher(
+            self.outbox, self.pool.submit, self.options.watch, self.suffixes, self._on_lost_events
+        )
+        self.watcher.start()
+        self._rescan_needed.set()
+
+    def status(self) -> str:
+        with self._counts_lock:
+            counts = dataclasses.replace(self.counts)
+        return status_line(counts, self.pool.stats(), self.watcher.armed_count)
+
+    def _stats_extra(self) -> dict[str, Any]:
+        return {"status": self.status()}
+
+    def _count(self, state: str) -> None:
+        with self._counts_lock:
+            if hasattr(self.counts, state):
+                setattr(self.counts, state, getattr(self.counts, state) + 1)
+        self._wake.set()  # the main loop refreshes STATUS=
+
+    # ---- catch-up -----------------------------------------------------------------------------
+    def catch_up(self, remove_leftovers: bool = False) -> int:
+        """Reconcile the outbox with the store after a downtime (or lost events).
+
+        remove_leftovers: delete old `.ppd-tmp-*` files, crash leftovers. Only at start-up:
+        later, this daemon's own workers have temporaries in progress (a video's for minutes).
+
+        Queues every candidate file whose (size, mtime) differ from its patched row (new or
+        changed while ppd was down; protect_file itself says 'unchanged' for its own output),
+        and every path the store knows but the disk no longer has (recorded 'removed').
+        Returns how many paths were queued.
+        """
+        started = time.monotonic()
+        if remove_leftovers:
+            self._report_crashed_attempts()
+        grace = self.options.tmp_grace_s if remove_leftovers else None
+        result = scan_outbox(self.outbox, self.suffixes, grace)
+        for tmp in result.stale_temps_removed:
+            log.info("removed leftover temporary file %s", tmp, extra={"path": str(tmp)})
+        rows = self._known_rows()
+        queued = 0
+        on_disk = set()
+        for path in result.files:
+            on_disk.add(str(path))
+            row = rows.get(str(path))
+            if row is not None and _row_matches_disk(row, path):
+                self.watcher.mark_settled(path)
+                continue
+            queued += int(self.pool.submit(path))
+        for path_text, row in rows.items():
+            gone = path_text not in on_disk and row["state"] != FileState.REMOVED
+            if gone and _is_under(self.outbox, path_text):
+                queued += int(self.pool.submit(Path(path_text)))
+        seconds = round(time.monotonic() - started, 3)
+        log.info(
+            "catch-up scan: %d file(s) on disk, %d queued", len(result.files), queued,
+            extra={"files": len(result.files), "queued": queued, "seconds": seconds},
+        )  # fmt: skip
+        return queued
+
+    def _report_crashed_attempts(self) -> None:
+        """Files whose last attempt died with ppd: their next attempt runs the poisoner in a child
+        process (daemon.protect.stages.poison_isolated), and a child that dies gets the file quarantined."""
+        from daemon.protect.quarantine import crashed_attempts
+
+        for crashed in crashed_attempts(self.ctx.paths.data_dir):
+            log.warning(
+                "ppd died while patching %s (pid %d); its next attempt runs isolated",
+                crashed.path, crashed.pid,
+                extra={"path": str(crashed.path)},
+            )  # fmt: skip
+
+    def _quarantine_if_hopeless(self, path: Path, outcome: Any) -> Path | None:
+        """A file that failed for a reason a retry will not change leaves the outbox: where it went."""
+        if outcome.state != Outcome.FAILED or not outcome.hopeless:
+            return None  # a full disk or vault, a busy store, another ppd's lock: retried, not moved
+        reason = outcome.reason or ""
+        from daemon.protect.quarantine import quarantine
+
+        try:
+            moved = quarantine(self.ctx, path, outcome.dataset, reason)
+        except OSError as exc:
+            log.error("cannot quarantine %s: %s", path, exc.strerror, extra={"path": str(path)})
+            return None
+        if moved is not None:
+            self.watcher.forget(path)
+        return moved
+
+    def _known_rows(self) -> dict[str, dict[str, Any]]:
+        store = self.ctx.store
+        return {row["path"]: row for ds in store.datasets() for row in store.files(ds["name"])}
+
+    # ---- the worker's job ---------------------------------------------------------------------
+    def process(self, path: Path) -> None:
+        """Whatever the path now is: protect a file, walk a moved-in folder, record a removal."""
+        try:
+            st = os.stat(path, follow_symlinks=False)
+        except FileNotFoundError:
+            self.watcher.forget(path)
+            self._record_removed(path)
+            return
+        except OSError as exc:
+            log.warning("cannot stat %s: %s", path, exc.strerror, extra={"path": str(path)})
+            st = None
+        if st is not None and stat.S_ISDIR(st.st_mode):
+            for child in walk_files(path):
+                if is_candidate(self.outbox, child, self.suffixes) and not self.watcher.is_settled(child):
+                    self.pool.submit(child)
+            return
+        if st is not None and not stat.S_ISREG(st.st_mode):
+            log.info("not a regular file, left alone: %s", path, extra={"path": str(path)})
+            return
+        if self.watcher.is_settled(path):
+            return
+        judged = signature(path)
+        from daemon.protect.stages import storable  # a name the store cannot hold has no row
+
+        event = "changed" if storable(path) and self.ctx.store.file(path) is not None else "new"
+        started = time.monotonic()
+        outcome = self._protect(path)
+        if outcome.state == Outcome.FAILED and outcome.incomplete and self._wait_for_writer(path, judged):
+            self._count("skipped")
+            return
+        with self._incomplete_lock:
+            self._incomplete.pop(path, None)
+        # The signature of what ppd judged or wrote, not of what is there now: a version that
+        # arrived meanwhile must not be taken for an echo of ppd's own work.
+        if outcome.signature is None and outcome.state == Outcome.FAILED:
+            self.watcher.mark_settled(path)  # the same bytes fail the same way: no event loop
+        else:
+            self.watcher.settle_as(path, outcome.signature)
+        if outcome.requeue:
+            self.pool.submit(path)  # runs once more after this job (daemon.watch.workers)
+        self._note_no_space(path, outcome.reason if outcome.state == Outcome.FAILED else None)
+        moved = self._quarantine_if_hopeless(path, outcome)
+        state = Outcome.QUARANTINED.value if moved is not None else str(outcome.state)
+        self._count(state)  # one count per file: a quarantined file is not also "failed"
+        say_outcome(event, path, outcome, state, time.monotonic() - started, moved)
+        if outcome.state == Outcome.PATCHED and self.scheduler is not None and outcome.dataset:
+            try:
+                self.scheduler.on_protected(outcome.dataset)
+            except Exception:
+                log.exception("verification scheduler failed", extra={"dataset": outcome.dataset})
+
+    def _wait_for_writer(self, path: Path, judged: Any) -> bool:
+        """An incomplete file is waited for, not refused, while its writer may still be at it: it
+        is re-checked after a growing quiet time, and quarantined (one whole file) only once it has
+        not changed for incomplete_wait_s. True: waiting (nothing moved)."""
+        now = time.monotonic()
+        after = signature(path)
+        with self._incomplete_lock:
+            seen = self._incomplete.get(path)
+            since = seen[1] if seen is not None and seen[0] == after else now
+            checks = seen[2] + 1 if seen is not None else 0
+            self._incomplete[path] = (after, since, checks)
+        # Re-checked just before any refusal: changed while it was judged, or within the wait.
+        if after != judged or after is None or now - since < self.options.incomplete_wait_s:
+            self.watcher.forget(path)
+            left = max(0.0, self.options.incomplete_wait_s - (now - since))
+            grown = self.options.watch.settle_s * 2 ** min(checks, 16)
+            delay = max(0.5, min(self.options.watch.max_settle_s, grown, left))
+            self.watcher.recheck(path, delay)
+            log.info(
+                "incomplete, waiting for its writer: %s (re-checked in %.0f s)", path, delay,
+                extra={"path": str(path), "reason": "incomplete", "wait_s": round(delay, 1)},
+            )  # fmt: skip
+            return True
+        with self._incomplete_lock:
+            self._incomplete.pop(path, None)
+        return False
+
+    def _protect(self, path: Path) -> Any:
+        """protect_file, in a worker process unless the options say in this one."""
+        if self.protectors is not None:
+            return self.protectors.protect(path)
+        from daemon.protect.one_file import protect_file  # lazy: keeps `import daemon.watch.watcher` light
+
+        return protect_file(path, self.ctx)
+
+    def _record_removed(self, path: Path) -> None:
+        """Rows for path, or for every file under path when it was a folder, become 'removed'."""
+        from daemon.protect.stages import storable
+
+        if not storable(path):
+            return  # a name the store cannot hold has no row (quarantined ones included)
+        store = self.ctx.store
+        row = store.file(path)
+        rows = [row] if row is not None else []
+        if not rows and not is_candidate(self.outbox, path, self.suffixes):
+            # Perhaps a folder: its files' rows. (A media name is taken for a file, so deleting
+            # 10k unknown files does not scan the store 10k times.)
+            prefix = str(path) + os.sep
+            rows = [r for r in self._known_rows().values() if r["path"].startswith(prefix)]
+        for r in rows:
+            if r["state"] in (FileState.REMOVED, FileState.QUARANTINED) or Path(r["path"]).exists():
+                continue
+            published = r.get("published_path")
+            if r["state"] == FileState.PATCHED and published and Path(published).exists():
+                continue  # moved to its publish folder by ppd itself, not removed
+            store.record_file(
+                r["path"],
+                r["dataset"],
+                FileState.REMOVED,
+                event="removed",
+                detail={"previous_state": r["state"]},
+            )
+            self._count("removed")  # DaemonCounts.removed
+            extra = {"event": "removed", "dataset": r["dataset"], "file": r["path"], "outcome": "removed"}
+            log.info("removed %s", Path(r["path"]).name, extra=extra)
+
+
+def say_outcome(event: str, path: Path, outcome: Any, state: str, seconds: float, moved: Path | None) -> None:
+    """The daemon's one line per file, on the terminal and in the journal: `msg="patched IMG_1.jpg"
+    event=new dataset=kitchen file=/outbox/kitchen/IMG_1.jpg outcome=patched seconds=0.84`, plus
+    the reason when it was not patched and where a quarantined file went."""
+    failed = state in (Outcome.FAILED, Outcome.QUARANTINED)
+    extra: dict[str, Any] = {"event": event, "dataset": outcome.dataset, "file": str(path), "outcome": state,
+                             "seconds": round(seconds, 2)}  # fmt: skip
+    if outcome.reason and state != Outcome.PATCHED:
+        extra["reason"] = outcome.reason
+    if moved is not None:
+        extra["to"] = str(moved)
+    log.log(logging.WARNING if failed else logging.INFO, "%s %s", state, path.name, extra=extra)
+
+
+def release_free_memory() -> None:
+    """Give freed heap back to the OS once a batch is done (glibc's malloc_trim).
+
+    Decoding a 12 MP photo takes ~100 MB that glibc keeps in its per-thread arenas after the
+    batch; trimming brings an idle daemon back near its start-up size. No-op elsewhere."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
+NO_SPACE_MESSAGES = (os.strerror(errno.ENOSPC), os.strerror(errno.EDQUOT), "database or disk is full")
+
+
+def is_no_space(reason: str | None) -> bool:
+    """Whether a failure's one-line reason says the disk (or quota) was full."""
+    return reason is not None and any(m.lower() in reason.lower() for m in NO_SPACE_MESSAGES)
+
+
+def _row_matches_disk(row: dict[str, Any], path: Path) -> bool:
+    """A patched row whose recorded size and mtime are the file's: nothing to do."""
+    if row["state"] != FileState.PATCHED or row.get("published_path") or row.get("size") is None:
+        return False
+    try:
+        st = path.stat()
+    except OSError:
+        return False
+    return (st.st_size, st.st_mtime_ns) == (row["size"], row["mtime_ns"])
+
+
+def _is_under(outbox: Path, path_text: str) -> bool:
+    return path_text.startswith(str(outbox) + os.sep)
