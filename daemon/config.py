@@ -84,6 +84,7 @@ from typing import Any, ClassVar
 import msgspec
 
 from daemon.paths import AppPaths
+from poisoner.errors import ExitStatus, PpdError
 from poisoner.ladder import default_spec, design_specs, strongest_spec
 from poisoner.spec import PatchSpec, SpecError
 from verifier.auto_options import PreflightOptions, Profile, VisibilityBudget
@@ -94,8 +95,10 @@ _EMPTY_MEANS_UNSET = ("publish_dir", "quarantine_dir", "subject_masks")
 _OLD_BUDGET_KEYS = ("min_ssim", "max_lpips")
 
 
-class ConfigError(ValueError):
+class ConfigError(PpdError, ValueError):
     """config.toml cannot be read or holds an invalid value (message = one line)."""
+
+    exit_status = ExitStatus.USAGE
 
 
 def parse_length(value: Any) -> int | float:

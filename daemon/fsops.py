@@ -21,14 +21,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from poisoner.atomic import atomic_replace_at, clear_stale_temps, fsync_dir
+from poisoner.errors import ExitStatus, PpdError
 
 CHUNK = 1 << 20
 _DIR_FLAGS = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC
 _FILE_FLAGS = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC  # NONBLOCK: a FIFO must not hang
 
 
-class NotContained(Exception):
+class NotContained(PpdError):
     """The path is not a regular file reachable inside its anchor without following a symlink."""
+
+    exit_status = ExitStatus.FAILED
 
 
 Identity = tuple[int, int, int, int]  # (device, inode, size, mtime_ns)

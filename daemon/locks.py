@@ -21,13 +21,16 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from daemon.paths import make_private_dir
+from poisoner.errors import ExitStatus, PpdError
 
 DEFAULT_FILE_WAIT_S = 600.0  # a video can take minutes; the waiter then finds ppd's output ("unchanged")
 _POLL_S = 0.05
 
 
-class LockHeld(RuntimeError):
+class LockHeld(PpdError, RuntimeError):
     """Another process holds the lock (message: one line naming its pid)."""
+
+    exit_status = ExitStatus.ENVIRONMENT
 
 
 def lock_dir(data_dir: Path) -> Path:

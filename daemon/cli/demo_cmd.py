@@ -17,8 +17,9 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from daemon.cli.errors import EXIT_FAILED, die
+from daemon.cli.errors import die
 from daemon.cli.output import console
+from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -125,7 +126,7 @@ def demo(
     patched = patched_count(ctx.store.counts(DEMO_DATASET))
     status(None, as_json=False, long=False, failed=False)
     if patched < views:
-        raise die(f"only {patched} of {views} views patched in {timeout:.0f} s", EXIT_FAILED)
+        raise die(f"only {patched} of {views} views patched in {timeout:.0f} s", ExitStatus.FAILED)
     preview = workdir / "preview.png"
     _write_preview(ctx, sorted(target.glob("*.png"))[0], preview)
     console().print(f"preview of the patch: {preview}")

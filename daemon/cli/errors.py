@@ -10,16 +10,12 @@ from typing import TYPE_CHECKING
 
 import typer
 
+from poisoner.errors import ExitStatus, PpdError
+
 if TYPE_CHECKING:
     from daemon.context import AppContext
 
-# ---- exit codes (the epilog of `ppd --help` lists them) -------------------------------------
-EXIT_OK = 0
-EXIT_FAILED = 1  # some files failed, or the verification verdict is not "protected"
-EXIT_USAGE = 2  # bad input: unknown option, missing file, bad spec value, unknown dataset
-EXIT_ENVIRONMENT = 3  # ppd cannot work here: folder not writable, disk full, damaged store, lock held
-EXIT_INTERRUPTED = 130
-
+# ---- exit statuses: poisoner.errors.ExitStatus (the epilog of `ppd --help` lists them) ----------
 EXIT_CODES_HELP = """\b
 Exit status:
   0    done
@@ -50,7 +46,7 @@ def warning(message: object) -> None:
     sys.stderr.flush()
 
 
-def die(message: object, code: int = EXIT_USAGE) -> typer.Exit:
+def die(message: object, code: int = ExitStatus.USAGE) -> typer.Exit:
     """Print the error; return the Exit to raise (`raise die(...) from None`)."""
     error(message)
     return typer.Exit(code)
@@ -87,23 +83,22 @@ def file_reason(path: Path | str, reason: str | None) -> str:
 
 
 def known_error(exc: Exception) -> int | None:
-    """ppd's own one-line errors that reach the top (named, not imported: this module stays
-    light): print them in the one style and give their exit code; None = a bug, let it show."""
+    """ppd's own one-line errors that reach the top, by type: print them in the one style and give
+    their exit status; None = a bug, let it show."""
     if isinstance(exc, OSError):
         if exc.errno == errno.EPIPE:  # `ppd status | head`: the reader left
-            return EXIT_FAILED
+            return ExitStatus.FAILED
         error(os_error_text(exc))
-        return EXIT_ENVIRONMENT
-    names = {cls.__name__ for cls in type(exc).__mro__}
-    if names & {"LockHeld", "StoreError"}:
+        return ExitStatus.ENVIRONMENT
+    if isinstance(exc, PpdError):  # every ppd error, wherever it arose, carries its exit status
         error(exc)
-        return EXIT_ENVIRONMENT
-    if "DatabaseError" in names:  # sqlite3's, from a damaged store file
+        return exc.exit_status
+    # sqlite3's, from a damaged store file. Looked up, not imported (this module stays light): a
+    # process that never loaded sqlite3 cannot be raising its errors.
+    sqlite3 = sys.modules.get("sqlite3")
+    if sqlite3 is not None and isinstance(exc, sqlite3.DatabaseError):
         error(f"ppd's store is damaged ({one_line(exc)}); see `ppd config path` for where it is")
-        return EXIT_ENVIRONMENT
-    if names & {"ConfigError", "SpecError"}:
-        error(exc)
-        return EXIT_USAGE
+        return ExitStatus.ENVIRONMENT
     return None
 
 
@@ -119,7 +114,7 @@ def open_ctx() -> AppContext:
         raise die(one_line(exc)) from None
     except OSError as exc:
         raise die(
-            f"cannot set up ppd's folders: {os_error_text(exc, hint_out=False)}", EXIT_ENVIRONMENT
+            f"cannot set up ppd's folders: {os_error_text(exc, hint_out=False)}", ExitStatus.ENVIRONMENT
         ) from None
     if ctx.store.lost_warning:  # every command says it until `ppd store rebuild`
         warning(ctx.store.lost_warning)

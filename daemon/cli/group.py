@@ -13,7 +13,8 @@ import typer
 from typer.core import TyperArgument, TyperGroup
 
 from daemon.cli import coerce
-from daemon.cli.errors import EXIT_INTERRUPTED, EXIT_OK, error, known_error
+from daemon.cli.errors import error, known_error
+from poisoner.errors import ExitStatus
 
 try:  # typer >= 0.22 vendors click: its exceptions are the ones raised
     from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError
@@ -83,12 +84,12 @@ class PpdGroup(TyperGroup):
                 args=args, prog_name=prog_name or "ppd", complete_var=complete_var,
                 standalone_mode=False, **extra,
             )  # fmt: skip
-            code = rv if isinstance(rv, int) else EXIT_OK
+            code = rv if isinstance(rv, int) else ExitStatus.OK
         except Exception as exc:
             code = _exit_code(exc)
         except KeyboardInterrupt:  # one line, never a traceback (ppd poison says more itself)
             sys.stderr.write("ppd: interrupted\n")
-            code = EXIT_INTERRUPTED
+            code = ExitStatus.INTERRUPTED
         if not standalone_mode:
             return code
         sys.exit(code)
@@ -98,7 +99,7 @@ def _exit_code(exc: Exception) -> int:
     """The exit code of an exception that reached the top, its one line printed; a bug re-raised."""
     if isinstance(exc, NoArgsIsHelpError):  # `ppd` alone: the help, on stdout, is the answer
         sys.stdout.write(exc.format_message() + "\n")
-        return EXIT_OK
+        return ExitStatus.OK
     if isinstance(exc, UsageError):
         hint = f" (see `{exc.ctx.command_path} --help`)" if exc.ctx is not None else ""
         error(f"{exc.format_message()}{hint}")
@@ -108,7 +109,7 @@ def _exit_code(exc: Exception) -> int:
         return exc.exit_code
     if isinstance(exc, typer.Abort):  # click's word for a KeyboardInterrupt it caught
         sys.stderr.write("ppd: interrupted\n")
-        return EXIT_INTERRUPTED
+        return ExitStatus.INTERRUPTED
     code = known_error(exc)
     if code is None:
         raise exc

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import typer
 
-from daemon.cli.errors import EXIT_ENVIRONMENT, die
+from daemon.cli.errors import die
+from poisoner.errors import ExitStatus
 
 key_app = typer.Typer(
     help="The seal key: what lets ppd, and only ppd here, recognise the files it patched.",
@@ -30,7 +31,7 @@ def key_export(
     try:
         key = load_key(paths.data_dir)
     except (SealKeyError, OSError) as exc:
-        raise die(str(exc), EXIT_ENVIRONMENT) from None
+        raise die(str(exc), ExitStatus.ENVIRONMENT) from None
     assert key is not None
     flags = os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC | (os.O_TRUNC if force else os.O_EXCL)
     try:
@@ -38,7 +39,7 @@ def key_export(
     except FileExistsError:
         raise die(f"{file} exists; not overwriting it (use --force)") from None
     except OSError as exc:
-        raise die(f"cannot write {file}: {exc.strerror}", EXIT_ENVIRONMENT) from None
+        raise die(f"cannot write {file}: {exc.strerror}", ExitStatus.ENVIRONMENT) from None
     try:
         os.fchmod(fd, 0o600)
         os.write(fd, key.hex().encode() + b"\n")

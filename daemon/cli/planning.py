@@ -9,7 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from daemon.cli.errors import EXIT_ENVIRONMENT, die, one_line, os_error_text
+from daemon.cli.errors import die, one_line, os_error_text
+from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
     from daemon.cli.options import SpecOptions
@@ -85,14 +86,14 @@ def check_writable(jobs: list[Job], dry_run: bool) -> None:
     folders = {job.path.parent for job in jobs if job.out_path is None}
     for folder in sorted(folders):
         if not os.access(folder, os.W_OK | os.X_OK):
-            raise die(f"folder not writable: {folder}; use --out DIR", EXIT_ENVIRONMENT)
+            raise die(f"folder not writable: {folder}; use --out DIR", ExitStatus.ENVIRONMENT)
     for out_folder in sorted({job.out_path.parent for job in jobs if job.out_path is not None}):
         try:
             out_folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise die(os_error_text(exc, hint_out=False), EXIT_ENVIRONMENT) from None
+            raise die(os_error_text(exc, hint_out=False), ExitStatus.ENVIRONMENT) from None
         if not os.access(out_folder, os.W_OK | os.X_OK):
-            raise die(f"folder not writable: {out_folder}", EXIT_ENVIRONMENT)
+            raise die(f"folder not writable: {out_folder}", ExitStatus.ENVIRONMENT)
 
 
 def dataset_masks(ctx: AppContext, jobs: list[Job], given: Path | None) -> dict[str, Path | None]:

@@ -10,10 +10,11 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from daemon.cli.errors import EXIT_FAILED, EXIT_INTERRUPTED, die, file_reason, open_ctx
+from daemon.cli.errors import die, file_reason, open_ctx
 from daemon.cli.interrupt import StopOnSignal
 from daemon.cli.options import SpecOptions, spec_options, subject_masks_option, workers_option
 from daemon.cli.output import console, err_console, interactive, print_line, verbosity
+from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
     from daemon.cli.planning import Job
@@ -237,10 +238,10 @@ def _poison(
     )  # fmt: skip
     if stop() and len(outcomes) < len(jobs):
         interrupted_summary(outcomes, len(jobs), dry_run)
-        raise typer.Exit(EXIT_INTERRUPTED)
+        raise typer.Exit(ExitStatus.INTERRUPTED)
     summary(ctx, jobs, outcomes, dry_run, scene_notes=lambda: not stop())  # a Ctrl-C there skips the notes
     if any(o.state == "failed" for o in outcomes):
-        raise typer.Exit(EXIT_FAILED)
+        raise typer.Exit(ExitStatus.FAILED)
 
 
 def register(app: typer.Typer) -> None:

@@ -8,9 +8,10 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from daemon.cli.errors import EXIT_ENVIRONMENT, die, one_line, open_ctx, os_error_text
+from daemon.cli.errors import die, one_line, open_ctx, os_error_text
 from daemon.cli.options import SpecOptions, spec_options, subject_masks_option
 from daemon.cli.output import console, err_console
+from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -266,7 +267,7 @@ def preview(
         try:
             Image.fromarray(image).save(target, format="PNG", compress_level=1)  # quick, not small
         except OSError as exc:
-            raise die(os_error_text(exc, hint_out=False), EXIT_ENVIRONMENT) from None
+            raise die(os_error_text(exc, hint_out=False), ExitStatus.ENVIRONMENT) from None
         console().print(f"preview written to {target}", markup=False)
         console().print(where, markup=False, soft_wrap=True)
         if visibility:

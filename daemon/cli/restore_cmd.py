@@ -9,8 +9,9 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from daemon.cli.errors import EXIT_FAILED, die, open_ctx, reason_text
+from daemon.cli.errors import die, open_ctx, reason_text
 from daemon.cli.output import console, err_console
+from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
     from daemon.protect.stages import ProtectOutcome
@@ -52,7 +53,7 @@ def restore(
         _print_outcomes(outcomes)
         counts = Counter(restore_word(o) for o in outcomes)
         if counts.get("failed"):
-            raise typer.Exit(EXIT_FAILED)
+            raise typer.Exit(ExitStatus.FAILED)
     finally:
         ctx.close()
 

@@ -22,12 +22,15 @@ from pathlib import Path
 from typing import Any
 
 from daemon.cli.errors import warning
+from poisoner.errors import ExitStatus, PpdError
 
 REPORT_FILE = "report.json"  # what a verification or experiment folder holds (verifier.report)
 
 
-class TargetError(ValueError):
+class TargetError(PpdError, ValueError):
     """X names nothing usable; the message is one line that says what to give instead."""
+
+    exit_status = ExitStatus.USAGE
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,9 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from daemon.cli.errors import EXIT_USAGE, die, one_line
+from daemon.cli.errors import die, one_line
 from daemon.cli.options import dataset_option, folder_option, subject_masks_option
+from poisoner.errors import ExitStatus
 from verifier.verdict import Verdict
 
 if TYPE_CHECKING:
@@ -89,7 +90,7 @@ def _options(timeout: float, ground_truth: Path | None, splat: bool, splat_budge
     from verifier.verification import VerifyOptions
 
     if subject_masks is not None and not subject_masks.is_dir():
-        raise die(f"--subject-masks: {subject_masks} is not a folder", EXIT_USAGE)
+        raise die(f"--subject-masks: {subject_masks} is not a folder", ExitStatus.USAGE)
     options = VerifyOptions(
         timeout_s=timeout, ground_truth=ground_truth, splat=splat,
         subject_masks=subject_masks.absolute() if subject_masks is not None else None,
@@ -143,7 +144,7 @@ def verify(
 
     console = Console(stderr=as_json, soft_wrap=True, highlight=False)
     if profile not in PROFILE_CHOICES:
-        raise die(f"--profile must be one of {', '.join(PROFILE_CHOICES)}", EXIT_USAGE)
+        raise die(f"--profile must be one of {', '.join(PROFILE_CHOICES)}", ExitStatus.USAGE)
     profiles = PROFILES if profile == "all" else (profile,)
     options = _options(timeout, ground_truth, splat, splat_budget, white_background, subject_masks)
     try:
@@ -152,7 +153,7 @@ def verify(
         else:
             report = _verify_stored(target, dataset, folder, profiles, options, console)
     except (VerificationInputError, TargetError, ValueError, OSError) as exc:
-        raise die(str(exc), EXIT_USAGE) from None
+        raise die(str(exc), ExitStatus.USAGE) from None
     if as_json:
         print(json.dumps(json_safe(report.to_dict()), indent=1))
     else:

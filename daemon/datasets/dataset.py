@@ -13,6 +13,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from poisoner.errors import ExitStatus, PpdError
+
 if TYPE_CHECKING:
     from daemon.context import AppContext
     from poisoner.spec import PatchSpec
@@ -20,12 +22,16 @@ if TYPE_CHECKING:
 DEFAULT_DATASET = "default"
 
 
-class OutsideOutboxError(ValueError):
+class OutsideOutboxError(PpdError, ValueError):
     """The path is not inside the outbox."""
 
+    exit_status = ExitStatus.USAGE
 
-class DatasetConflict(ValueError):
+
+class DatasetConflict(PpdError, ValueError):
     """An explicit dataset name whose stored root does not hold the target."""
+
+    exit_status = ExitStatus.USAGE
 
 
 def dataset_of(outbox: Path, path: Path) -> str:

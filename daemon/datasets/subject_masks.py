@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from poisoner.errors import ExitStatus, PpdError
+
 if TYPE_CHECKING:
     from daemon.context import AppContext
     from poisoner.spec import PatchSpec
@@ -37,9 +39,11 @@ SOURCE_WORDS = {
 }
 
 
-class SubjectMaskError(Exception):
+class SubjectMaskError(PpdError):
     """A subject-mask folder that cannot be used (message = one line). Not a ValueError on purpose:
     a file that fails for it is not the file's fault (daemon.protect.stages.file_is_the_cause)."""
+
+    exit_status = ExitStatus.USAGE
 
 
 @dataclass(frozen=True)

@@ -60,6 +60,7 @@ from daemon.platform import fd_path, writers_of
 from daemon.states import FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import TEMP_PREFIX, atomic_replace_at
+from poisoner.errors import ExitStatus, PpdError
 from poisoner.media import is_image, is_video
 from poisoner.spec import PatchSpec
 
@@ -84,12 +85,16 @@ class Outcome(StrEnum):
     RESTORED = "restored"  # restore_file put the original back
 
 
-class ProtectRefused(Exception):
+class ProtectRefused(PpdError):
     """The file must not be touched (symlink, outside its dataset, not a regular file)."""
 
+    exit_status = ExitStatus.FAILED
 
-class SourceChanged(Exception):
+
+class SourceChanged(PpdError):
     """The source changed while it was being patched."""
+
+    exit_status = ExitStatus.FAILED
 
 
 @dataclass
@@ -236,8 +241,10 @@ def poison_to(
     return poison_file(src, dst, spec, **options)
 
 
-class PoisonerDied(Exception):
+class PoisonerDied(PpdError):
     """The isolated poisoner process died (a signal: out of memory, a decoder crash)."""
+
+    exit_status = ExitStatus.FAILED
 
 
 def poison_isolated(
@@ -514,12 +521,16 @@ def open_contained_file(job: Job) -> ProtectOutcome | None:
     return None  # an empty file is judged by check_complete (a writer may be about to fill it)
 
 
-class IncompleteFile(Exception):
+class IncompleteFile(PpdError):
     """The file's structure is incomplete (a truncated upload, a writer that gave up)."""
 
+    exit_status = ExitStatus.FAILED
 
-class UnrecognisedFile(ValueError):
+
+class UnrecognisedFile(PpdError, ValueError):
     """The file does not begin like any image or video ppd reads (nor can appending make it one)."""
+
+    exit_status = ExitStatus.FAILED
 
 
 def check_complete(job: Job) -> ProtectOutcome | None:

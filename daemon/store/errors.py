@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from poisoner.errors import ExitStatus, PpdError
 
-class StoreError(RuntimeError):
+
+class StoreError(PpdError, RuntimeError):
     """A store operation that cannot be done as asked (message = one line)."""
+
+    exit_status = ExitStatus.ENVIRONMENT
 
 
 class StoreDamaged(StoreError):

@@ -21,13 +21,16 @@ import stat
 from pathlib import Path
 
 from daemon.paths import make_private_dir
+from poisoner.errors import ExitStatus, PpdError
 from poisoner.provenance import KEY_BYTES
 
 KEY_FILE = "seal.key"
 
 
-class SealKeyError(Exception):
+class SealKeyError(PpdError):
     """The key file exists but cannot be used (wrong mode, owner or content)."""
+
+    exit_status = ExitStatus.ENVIRONMENT
 
 
 def key_path(data_dir: Path) -> Path:

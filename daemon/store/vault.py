@@ -34,6 +34,7 @@ from daemon.fsops import sha256_fd
 from daemon.paths import filesystem_of, make_private_dir
 from daemon.platform import reflink
 from poisoner.atomic import atomic_output, fsync_dir
+from poisoner.errors import ExitStatus, PpdError
 from poisoner.spec import PatchSpec
 
 log = logging.getLogger(__name__)
@@ -49,8 +50,10 @@ NOT_AVAILABLE = frozenset(
 NO_SPACE = frozenset({errno.ENOSPC, errno.EDQUOT})
 
 
-class VaultError(RuntimeError):
+class VaultError(PpdError, RuntimeError):
     """A vault operation failed (message = one line)."""
+
+    exit_status = ExitStatus.ENVIRONMENT
 
 
 class VaultFullError(VaultError):
@@ -313,6 +316,8 @@ class Vault:
 
 class RestoreRefused(VaultError):
     """dst no longer holds what restore may replace (another writer's bytes)."""
+
+    exit_status = ExitStatus.FAILED
 
 
 def _still_holds(dst: Path, expected: str | None) -> None:
