@@ -60,7 +60,7 @@ def test_stale_work_folders_in_the_vault_go(ppd_env: dict[str, Path]) -> None:
         dead.mkdir()
         (dead / "patched-a.png").write_bytes(b"x" * 1000)
         _age(dead, 3600)
-        daemon.protect.stages._work_cleared.clear()
+        daemon.protect.poisoning._work_cleared.clear()
         photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=2)
         assert protect_file(photo, ctx).state == "patched"
         assert not dead.exists()

@@ -59,7 +59,7 @@ def test_the_wheel_holds_every_package_and_data_file(tmp_path: Path) -> None:
 
 
 def test_one_version_source_the_package_metadata() -> None:
-    from daemon.protect.stages import tool_version
+    from daemon.protect.job import tool_version
     from daemon.version import ppd_version
 
     assert ppd_version() == version("patchpoison") == PYPROJECT["project"]["version"]

@@ -11,8 +11,9 @@ import pytest
 from reliability_harness import write_image
 
 import daemon.protect.stages
+from daemon.protect.job import Outcome
 from daemon.protect.one_file import AppContext, protect_file
-from daemon.protect.stages import STAGES, Outcome
+from daemon.protect.stages import STAGES
 from daemon.states import FileState
 
 

@@ -12,8 +12,8 @@ from PIL import Image
 
 from daemon.context import AppContext
 from daemon.datasets.dataset import attribute
+from daemon.protect.job import ProtectOutcome
 from daemon.protect.pool import protect_many
-from daemon.protect.stages import ProtectOutcome
 
 VOLATILE = {"id", "path", "dataset", "updated_at", "created_at", "mtime_ns"}  # when and where, not what
 

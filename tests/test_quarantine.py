@@ -87,7 +87,7 @@ def test_after_a_death_the_file_is_retried_in_a_child_process(
 def test_an_isolated_poisoner_that_dies_is_a_one_line_failure(tmp_path: Path) -> None:
     import threading
 
-    from daemon.protect.stages import PoisonerDied, poison_isolated
+    from daemon.protect.poisoning import PoisonerDied, poison_isolated
     from poisoner.ladder import default_spec
     from poisoner.provenance import Marker
 

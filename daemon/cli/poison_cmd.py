@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from daemon.protect.one_file import ProtectOutcome
     from poisoner.spec import PatchSpec
 
-# The outcome state of protect_file for a file it wrote its mark into (daemon.protect.stages.Outcome).
+# The outcome state of protect_file for a file it wrote its mark into (daemon.protect.job.Outcome).
 OUTCOME_PATCHED = frozenset({"patched"})
 RESTORED_BY_USER = "restored by the user"
 
@@ -38,7 +38,7 @@ def _restored_left(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
     return [o for o in outcomes if o.state == "unchanged" and (o.reason or "").startswith(RESTORED_BY_USER)]
 
 
-# per-file notes of a patched file whose mark found no free place (daemon.protect.stages.place_note)
+# per-file notes of a patched file whose mark found no free place (daemon.protect.job.place_note)
 NOT_FREE = {
     "mark on the subject: no plain region": "mark on the subject in {n} photo{s}: no plain region",
     "mark partly on the subject mask (left unwritten there): no free region":

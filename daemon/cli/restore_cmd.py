@@ -14,7 +14,7 @@ from daemon.cli.output import console, err_console
 from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
-    from daemon.protect.stages import ProtectOutcome
+    from daemon.protect.job import ProtectOutcome
 
 
 def restore(

@@ -41,7 +41,7 @@ SOURCE_WORDS = {
 
 class SubjectMaskError(PpdError):
     """A subject-mask folder that cannot be used (message = one line). Not a ValueError on purpose:
-    a file that fails for it is not the file's fault (daemon.protect.stages.file_is_the_cause)."""
+    a file that fails for it is not the file's fault (daemon.protect.poisoning.file_is_the_cause)."""
 
     exit_status = ExitStatus.USAGE
 

@@ -1,5 +1,5 @@
 """`python -m daemon.protect.child ARGS_JSON`: one file patched in a child process
-(daemon.protect.stages.poison_isolated), so that a file that kills its process kills only the child.
+(daemon.protect.poisoning.poison_isolated), so that a file that kills its process kills only the child.
 
 ARGS_JSON: kind, src, dst, spec (PatchSpec.to_dict), marker (Marker fields), keep_location,
 limits (keyword arguments of poison_to), subject_masks (a folder or null).
@@ -13,7 +13,7 @@ from pathlib import Path
 
 
 def main(argv: list[str]) -> None:
-    from daemon.protect.stages import poison_to
+    from daemon.protect.poisoning import poison_to
     from poisoner.provenance import Marker
     from poisoner.spec import PatchSpec
 

@@ -30,8 +30,7 @@ from daemon.datasets.subject_masks import masks_or_none, sibling_images, subject
 from daemon.fsops import sha256_fd
 from daemon.locks import LockHeld
 from daemon.platform import fd_path
-from daemon.protect.stages import (
-    STAGES,
+from daemon.protect.job import (
     IncompleteFile,
     Job,
     Outcome,
@@ -39,20 +38,22 @@ from daemon.protect.stages import (
     ProtectOutcome,
     ProtectRefused,
     SourceChanged,
-    file_is_the_cause,
     is_ignored_name,
     media_kind,
-    named_vault_copy,
     one_line,
-    poison_to,
-    provenance_marker,
     report_detail,
-    run_stages,
-    seal_output,
     shown_name,
     storable,
     tool_version,
 )
+from daemon.protect.poisoning import (
+    file_is_the_cause,
+    named_vault_copy,
+    poison_to,
+    provenance_marker,
+    seal_output,
+)
+from daemon.protect.stages import STAGES, run_stages
 from daemon.states import FileState
 from daemon.store.vault import sha256_file
 from poisoner.atomic import atomic_output

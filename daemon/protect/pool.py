@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, TypeVar
 
 import msgspec
 
-from daemon.protect.stages import Outcome, ProtectOutcome
+from daemon.protect.job import Outcome, ProtectOutcome
 
 if TYPE_CHECKING:
     from daemon.context import AppContext

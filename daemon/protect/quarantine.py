@@ -8,7 +8,7 @@
   it in the private data folder (`attempts/`); a marker still there at the next attempt means the
   process died working on that file (OOM killer, a decoder segfault, or a plain kill -9: ppd
   cannot tell which). So the next attempt runs the poisoner in a child process
-  (daemon.protect.stages.poison_isolated): if the child dies too, the file is the cause, and the daemon
+  (daemon.protect.poisoning.poison_isolated): if the child dies too, the file is the cause, and the daemon
   quarantines it with that reason; the daemon itself does not die again, so there is no crash
   loop. If the child succeeds, the earlier death was not the file's fault.
 """

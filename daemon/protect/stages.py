@@ -23,6 +23,9 @@ The crash-safety argument is the order of the last six (docs/STORE.md):
 A crash between any two steps leaves the original or the complete patched file at the path, and
 the original in the vault whenever the path may hold the patched one.
 
+Beside this file: the Job and its outcome (job.py), the poisoner's calls, the seal and the private
+work folders (poisoning.py), runs that stopped half-way and files that moved (recovery.py).
+
 Containment (daemon.fsops): the file is opened once, relative to a descriptor of its folder
 reached from the anchor (the outbox or the folder given to `ppd poison`) without following a
 symlink; every later read and write goes through those descriptors, never through the path.
@@ -30,24 +33,15 @@ symlink; every later read and write goes through those descriptors, never throug
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
 import logging
 import os
-import shutil
 import stat
-import tempfile
-import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
-from enum import StrEnum
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
 from daemon.datasets.dataset import ensure_dataset
-from daemon.datasets.subject_masks import SubjectMaskError, mask_folder_holding, masks_or_none
+from daemon.datasets.subject_masks import SubjectMaskError, mask_folder_holding
 from daemon.fsops import (
-    ContainedFile,
     clear_stale_temps_once,
     copy_fd_to_path,
     copy_path_to_fd,
@@ -57,435 +51,41 @@ from daemon.fsops import (
     open_dir,
 )
 from daemon.platform import fd_path, writers_of
+from daemon.protect.job import (
+    IncompleteFile,
+    Job,
+    Outcome,
+    ProtectOutcome,
+    ProtectRefused,
+    SourceChanged,
+    is_ignored_name,
+    media_kind,
+    place_note,
+    publish_dir,
+    report_detail,
+    shown_name,
+    storable,
+    tool_version,
+)
+from daemon.protect.poisoning import (
+    link_or_copy,
+    poison_isolated,
+    poison_to,
+    provenance_marker,
+    seal_output,
+    work_copy_name,
+    work_folder,
+)
+from daemon.protect.recovery import carry_moved_row, recover_pending
 from daemon.states import FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
-from poisoner.atomic import TEMP_PREFIX, atomic_replace_at
+from poisoner.atomic import atomic_replace_at
 from poisoner.errors import ExitStatus, PpdError
-from poisoner.media import is_image, is_video
 from poisoner.spec import PatchSpec
-
-if TYPE_CHECKING:
-    from daemon.context import AppContext
 
 log = logging.getLogger(__name__)
 
-Progress = Callable[[int, int | None], None]
 PATCHED_PREFIX = "patched-"  # the poison stage's output in the private work folder
-FileSignature = tuple[int, int, int]  # (inode, size, mtime_ns), as daemon.watch.watcher compares them
-
-
-class Outcome(StrEnum):
-    """What protect_file / restore_file did with one file (ProtectOutcome.state)."""
-
-    PATCHED = "patched"  # the mark is in the file now
-    UNCHANGED = "unchanged"  # nothing to do (already ppd's output, restored by the user, ...)
-    SKIPPED = "skipped"  # left as it is (not a supported file, not selected, still being written)
-    FAILED = "failed"  # could not be patched; reason says why, nothing lost
-    QUARANTINED = "quarantined"  # the daemon moved it out of the outbox (reason says why)
-    RESTORED = "restored"  # restore_file put the original back
-
-
-class ProtectRefused(PpdError):
-    """The file must not be touched (symlink, outside its dataset, not a regular file)."""
-
-    exit_status = ExitStatus.FAILED
-
-
-class SourceChanged(PpdError):
-    """The source changed while it was being patched."""
-
-    exit_status = ExitStatus.FAILED
-
-
-@dataclass
-class ProtectOutcome:
-    path: Path
-    dataset: str | None
-    state: str  # an Outcome
-    reason: str | None = None  # why skipped/unchanged, or the one-line error when failed
-    kind: str | None = None  # 'image' | 'video'
-    original_sha256: str | None = None
-    poisoned_sha256: str | None = None
-    spec_id: str | None = None
-    output: Path | None = None  # where the patched file is now
-    seconds: float = 0.0
-    dry_run: bool = False
-    report: Any = None  # poisoner.formats.PoisonReport (poisoner.video.VideoReport is one)
-    # What ppd judged or wrote at path (the watcher's echo filter): a later version differs.
-    signature: FileSignature | None = None
-    requeue: bool = False  # a newer version arrived meanwhile: process the path again
-    hopeless: bool = False  # failed because of the file itself (format, structure, name): a retry fails too
-    incomplete: bool = False  # failed because its structure is incomplete: its writer may not be done
-
-
-@dataclass
-class Job:
-    """The state one file carries through the stages."""
-
-    path: Path  # absolute, as asked; for messages and the store only
-    ctx: AppContext
-    dataset: str
-    root: Path  # the dataset's folder (the spec's ratio is judged by the path below it)
-    anchor: Path  # the trusted folder containment is judged from (outbox, or the dataset's root)
-    out_path: Path | None = None  # `ppd poison --out`: write there, leave path as it is
-    dry_run: bool = False
-    force: bool = False
-    progress: Progress | None = None
-    wanted_spec: PatchSpec | None = None
-    keep_location: bool = False
-    subject_masks: Path | None = None  # the caller's mask folder (`--subject-masks`); else the config's
-    # filled by the stages
-    mask_dir: Path | None = None  # the dataset's subject masks, checked (daemon.datasets.subject_masks)
-    file: ContainedFile | None = None
-    kind: str | None = None
-    sha: str | None = None
-    row: dict[str, Any] | None = None
-    spec: PatchSpec | None = None
-    work: Path | None = None  # private folder inside the vault
-    original: Path | None = None  # private copy of the original, named like the file
-    poisoned: Path | None = None
-    poisoned_sha: str | None = None
-    written: FileSignature | None = None
-    report: Any = None
-    final: Path | None = None
-    held: contextlib.ExitStack = field(default_factory=contextlib.ExitStack)  # released by close()
-    died_before: int = 0  # earlier attempts on this file that died with their process
-
-    @property
-    def record_path(self) -> Path:
-        return Path(self.out_path).absolute() if self.out_path is not None else self.path
-
-    def outcome(self, state: str, reason: str | None = None, **kw: Any) -> ProtectOutcome:
-        kw.setdefault("kind", self.kind)
-        if "signature" not in kw and self.file is not None:
-            kw["signature"] = (self.file.st.st_ino, self.file.st.st_size, self.file.st.st_mtime_ns)
-        return ProtectOutcome(
-            path=self.path, dataset=self.dataset, state=state, reason=reason, dry_run=self.dry_run, **kw
-        )
-
-    def close(self) -> None:
-        self.held.close()
-        if self.file is not None:
-            self.file.close()
-        if self.work is not None:
-            shutil.rmtree(self.work, ignore_errors=True)
-
-
-# ---- small helpers ---------------------------------------------------------------------------
-def tool_version() -> str:
-    from daemon.version import ppd_version
-
-    return f"ppd {ppd_version()}"
-
-
-def one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
-
-
-def storable(path: Path) -> bool:
-    """Whether the store can record this path: SQLite text is UTF-8, and a name with bytes
-    that are not UTF-8 (surrogate-escaped by Python) cannot be written to it."""
-    try:
-        str(path).encode("utf-8")
-    except UnicodeEncodeError:
-        return False
-    return True
-
-
-def shown_name(path: Path) -> str:
-    """path's name as it can be shown on one line: escaped (repr-style) when it holds a newline,
-    another control character or bytes that are not UTF-8."""
-    name = path.name
-    return name if name.isprintable() and storable(path) else repr(name)[1:-1]
-
-
-def media_kind(path: Path) -> str | None:
-    """'image', 'video' or None, by suffix."""
-    if is_image(path):
-        return "image"
-    return "video" if is_video(path) else None
-
-
-def poison_to(
-    kind: str,
-    src: Path,
-    dst: Path,
-    spec: PatchSpec,
-    progress: Progress | None = None,
-    subject_masks: Path | None = None,
-    **options: Any,
-) -> Any:
-    """Write the complete poisoned version of src to dst; never touches src. subject_masks: a folder
-    whose mask for src's name (daemon.datasets.subject_masks.load_keep_out) marks pixels the mark never
-    changes;
-    a folder without one for this image patches it without keep-out (logged)."""
-    if kind == "video":
-        from poisoner.video import poison_video
-
-        return poison_video(src, dst, spec, progress=progress, **options)
-    from PIL import Image
-
-    from poisoner.formats import poison_file
-
-    max_pixels = options.get("max_pixels")
-    if max_pixels is not None and (Image.MAX_IMAGE_PIXELS or 0) < max_pixels:
-        # Pillow's own bomb check would refuse what the user's raised [limits] allows.
-        Image.MAX_IMAGE_PIXELS = max_pixels
-    if subject_masks is not None:
-        from daemon.datasets.subject_masks import load_keep_out
-
-        keep_out = load_keep_out(Path(subject_masks), src)
-        if keep_out is not None:
-            options["keep_out"] = keep_out
-    return poison_file(src, dst, spec, **options)
-
-
-class PoisonerDied(PpdError):
-    """The isolated poisoner process died (a signal: out of memory, a decoder crash)."""
-
-    exit_status = ExitStatus.FAILED
-
-
-def poison_isolated(
-    kind: str,
-    src: Path,
-    dst: Path,
-    spec: PatchSpec,
-    marker: Any,
-    keep_location: bool,
-    subject_masks: Path | None = None,
-    **limits: int,
-) -> None:
-    """poison_to in a child process: a file that kills its process kills only the child. A child
-    killed by a signal raises PoisonerDied; one that fails raises its last error line. The mask
-    folder crosses as a path; the child loads the mask."""
-    import json
-    import subprocess
-    import sys
-
-    args = {
-        "kind": kind, "src": os.fsdecode(src), "dst": os.fsdecode(dst), "spec": spec.to_dict(),
-        "marker": {"text": marker.text},  # the placeholder only: the key never leaves this process
-        "keep_location": keep_location, "limits": limits,
-        "subject_masks": os.fsdecode(subject_masks) if subject_masks is not None else None,
-    }  # fmt: skip
-    from verifier.childenv import child_env
-
-    done = subprocess.run(
-        [sys.executable, "-m", "daemon.protect.child", json.dumps(args)],
-        capture_output=True, text=True, env=child_env(), check=False,
-    )  # fmt: skip
-    if done.returncode < 0:
-        raise PoisonerDied(
-            f"{src.name}: patching it killed its process twice (signal {-done.returncode}: out of memory or "
-            "a decoder crash); not retried"
-        )
-    if done.returncode != 0:
-        lines = [line for line in done.stderr.strip().splitlines() if line.strip()]
-        raise RuntimeError(lines[-1] if lines else f"the isolated poisoner failed ({done.returncode})")
-    return None
-
-
-def file_is_the_cause(exc: BaseException) -> bool:
-    """Whether a failure is the file's own (its format, structure, size or name), so retrying it
-    changes nothing (the daemon quarantines such files); disk, store, lock and vault-limit
-    failures are not."""
-    from poisoner.formats import ImageFormatError
-
-    try:
-        from poisoner.video import VideoFormatError
-    except ImportError:  # PyAV missing
-        VideoFormatError = ImageFormatError  # noqa: N806
-    return isinstance(
-        exc, ProtectRefused | IncompleteFile | PoisonerDied | ImageFormatError | VideoFormatError
-    ) or (isinstance(exc, ValueError) and not isinstance(exc, OSError))
-
-
-def is_ignored_name(path: Path) -> bool:
-    """Dot-files and our own temporaries are never protected."""
-    return path.name.startswith(".") or path.name.startswith(TEMP_PREFIX)
-
-
-def provenance_marker(ctx: AppContext, spec_id: str, original_sha256: str | None) -> Any:
-    """The seal placeholder every patched file carries (poisoner.provenance); `seal_output` seals
-    the finished file: ppd knows its own output without a row, nobody else can read or forge it."""
-    from poisoner.provenance import Marker
-
-    return Marker.placeholder(ctx.seal_key(), spec_id, original_sha256 or "")
-
-
-def seal_output(ctx: AppContext, path: Path) -> None:
-    """Seal a finished patched file in place (its placeholder's tag over exactly its bytes)."""
-    from poisoner.provenance import seal_file
-
-    seal_file(path, ctx.seal_key())
-
-
-def link_or_copy(src: Path, dst: Path) -> None:
-    """A hard link between two of ppd's private files (the vault and its work folders), else a copy."""
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copyfile(src, dst)
-
-
-NAME_MAX = 255  # bytes in one file name (Linux filesystems)
-
-
-def work_copy_name(prefix: str, name: str) -> str:
-    """prefix + name for a private work copy, shortened (the suffix kept: poisoners pick the
-    format by it) when that would pass NAME_MAX: a 255-byte name is still patched."""
-    full = prefix + name
-    if len(os.fsencode(full)) <= NAME_MAX:
-        return full
-    import hashlib
-
-    suffix = Path(name).suffix if len(os.fsencode(Path(name).suffix)) <= 32 else ""
-    return f"{prefix}{hashlib.sha256(os.fsencode(name)).hexdigest()[:32]}{suffix}"
-
-
-WORK_PREFIX = ".work-"
-_work_cleared: set[Path] = set()
-
-
-def work_folder(ctx: AppContext, held: contextlib.ExitStack | None = None) -> Path:
-    """A private scratch folder inside the vault (same filesystem: the vault links from it),
-    flock()ed while in use (held owns the lock). The first call in a process removes stale
-    ones: left by a killed process, so unlocked."""
-    vault_dir = Path(ctx.vault.vault_dir)
-    if vault_dir not in _work_cleared:
-        _work_cleared.add(vault_dir)
-        clear_stale_work_folders(vault_dir)
-    folder = Path(tempfile.mkdtemp(prefix=WORK_PREFIX, dir=vault_dir))
-    if held is not None:
-        fd = os.open(folder / ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        held.callback(os.close, fd)
-    return folder
-
-
-def clear_stale_work_folders(vault_dir: Path, min_age_s: float = 10.0) -> list[Path]:
-    """Remove `.work-*` folders no living process holds (their lock is free) and at least
-    min_age_s old (the instant between a folder's creation and its lock)."""
-    removed = []
-    for folder in Path(vault_dir).glob(f"{WORK_PREFIX}*"):
-        try:
-            if time.time() - folder.lstat().st_mtime < min_age_s or folder.is_symlink():
-                continue
-            fd = os.open(folder / ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
-        except OSError:
-            continue
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            continue
-        finally:
-            os.close(fd)
-        shutil.rmtree(folder, ignore_errors=True)
-        removed.append(folder)
-    return removed
-
-
-def place_note(report: Any) -> str | None:
-    """A patched file's note when its per-photo mark found no free place (issue 25: said per file
-    and counted in the summary, never silent); None otherwise."""
-    place = getattr(report, "place", None)
-    return place.short() if place is not None else None
-
-
-def report_detail(report: Any) -> dict[str, Any]:
-    detail: dict[str, Any] = {}
-    for name in ("format", "width", "height", "preserved", "notes", "frames", "codec"):
-        if hasattr(report, name):
-            detail[name] = getattr(report, name)
-    placement = getattr(report, "placement", None)
-    if placement is not None:
-        detail["placement"] = {
-            "x": placement.x,
-            "y": placement.y,
-            "size": placement.size,
-            "block": placement.block,
-        }
-    place = getattr(report, "place", None)
-    if place is not None:  # where a per-photo mark shows and why (ppd report, status)
-        detail["place"] = {"box": list(place.box), "words": place.words, "source": place.source,
-                           "free": place.free, "orientation": place.orientation}  # fmt: skip
-    return detail
-
-
-def publish_dir(ctx: AppContext, dataset: str) -> Path | None:
-    row = ctx.store.dataset(dataset)
-    return Path(row["publish_dir"]) if row and row["publish_dir"] else None
-
-
-# ---- runs that stopped half-way, files that moved ------------------------------------------
-def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, dataset: str, root: Path) -> bool:
-    """A patched file that was moved or renamed (a dataset folder renamed in the outbox, say)
-    keeps its provenance: its row follows it to the new path instead of dropping out of the
-    store, so status, restore and verification still see it. Copies (the old path still there)
-    are left as they are."""
-    old = Path(earlier["path"])
-    if old == path or old.exists() or earlier["state"] not in (FileState.PATCHED, FileState.REMOVED):
-        return False
-    fields = {k: earlier[k] for k in ("original_sha256", "poisoned_sha256", "spec_id", "tool_version")}
-    # A dataset first seen through moved files (a renamed folder) inherits their patch spec.
-    ensure_dataset(ctx, dataset, root, ctx.store.get_spec(earlier["spec_id"]))
-    st = path.stat()
-    ctx.store.record_file(
-        path, dataset, FileState.PATCHED, event="moved", detail={"from": str(old)},
-        size=st.st_size, mtime_ns=st.st_mtime_ns, **fields,
-    )  # fmt: skip
-    ctx.store.record_file(
-        old, earlier["dataset"], FileState.REMOVED, event="moved_away", detail={"to": str(path)}
-    )
-    return True
-
-
-def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str | None) -> bool:
-    """A 'pending' row means a run stopped between keeping the original and recording the
-    result. If the file now differs from the original, it may be our complete output (the
-    rename happened, the final row did not): poisoning is deterministic, so poison the vault
-    original again and compare. True (and the row completed) when it is ours."""
-    original_sha = row["original_sha256"]
-    if not kind or not original_sha or sha == original_sha or not ctx.vault.verify(original_sha):
-        return False
-    spec = ctx.store.get_spec(row["spec_id"])
-    with named_vault_copy(ctx, original_sha, path.name) as original:
-        scratch = original.with_name(f"redo{path.suffix}")
-        try:
-            poison_to(
-                kind, original, scratch, spec, subject_masks=masks_or_none(ctx, row["dataset"]),
-                marker=provenance_marker(ctx, spec.spec_id, original_sha),
-                keep_location=ctx.config.keep_location,
-            )  # fmt: skip
-            seal_output(ctx, scratch)
-        except Exception:  # cannot redo it: treat the file as new content
-            return False
-        if sha256_file(scratch) != sha:
-            return False
-    st = path.stat()
-    ctx.store.record_file(
-        path, row["dataset"], FileState.PATCHED, poisoned_sha256=sha, size=st.st_size,
-        mtime_ns=st.st_mtime_ns, error=None, event="recovered", detail={"from": "pending"},
-    )  # fmt: skip
-    return True
-
-
-@contextlib.contextmanager
-def named_vault_copy(ctx: AppContext, sha256: str, name: str) -> Iterator[Path]:
-    """The vault blob under its original file name (poisoners pick the format by suffix), as a
-    hard link in a private temporary folder inside the vault."""
-    folder = Path(tempfile.mkdtemp(prefix=".named-", dir=ctx.vault.vault_dir))
-    link = folder / name
-    try:
-        try:
-            os.link(ctx.vault.path_for(sha256), link)
-        except OSError:
-            shutil.copyfile(ctx.vault.path_for(sha256), link)
-        yield link
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
 
 
 # ---- the stages ------------------------------------------------------------------------------
@@ -519,12 +119,6 @@ def open_contained_file(job: Job) -> ProtectOutcome | None:
     if job.kind is None:  # not ours to judge (sidecars, notes): left alone, no row
         return job.outcome(Outcome.SKIPPED, "not a supported image or video")
     return None  # an empty file is judged by check_complete (a writer may be about to fill it)
-
-
-class IncompleteFile(PpdError):
-    """The file's structure is incomplete (a truncated upload, a writer that gave up)."""
-
-    exit_status = ExitStatus.FAILED
 
 
 class UnrecognisedFile(PpdError, ValueError):

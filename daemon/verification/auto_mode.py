@@ -100,8 +100,8 @@ def decided_spec(ctx: AppContext, dataset: str) -> PatchSpec | None:
 def apply_spec(ctx: AppContext, dataset: str, spec: PatchSpec) -> int:
     """Re-protect the dataset from its vault originals with spec (nothing when it already has it).
     Returns the number of files re-protected."""
+    from daemon.protect.job import Outcome
     from daemon.protect.one_file import reprotect_dataset
-    from daemon.protect.stages import Outcome
 
     current = ctx.store.dataset_spec(dataset)
     if current is not None and current.spec_id == spec.spec_id:

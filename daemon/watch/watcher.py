@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.locks import outbox_lock
-from daemon.protect.stages import Outcome
+from daemon.protect.job import Outcome
 from daemon.states import FileState
 from daemon.watch.notify import SystemdNotifier
 from daemon.watch.outbox import OutboxWatcher, WatchOptions, is_candidate, scan_outbox, signature, walk_files
@@ -348,7 +348,8 @@ class WatchDaemon:
 
     def _report_crashed_attempts(self) -> None:
         """Files whose last attempt died with ppd: their next attempt runs the poisoner in a child
-        process (daemon.protect.stages.poison_isolated), and a child that dies gets the file quarantined."""
+        process (daemon.protect.poisoning.poison_isolated), and a child that dies gets the file
+        quarantined."""
         from daemon.protect.quarantine import crashed_attempts
 
         for crashed in crashed_attempts(self.ctx.paths.data_dir):
@@ -401,7 +402,7 @@ class WatchDaemon:
         if self.watcher.is_settled(path):
             return
         judged = signature(path)
-        from daemon.protect.stages import storable  # a name the store cannot hold has no row
+        from daemon.protect.job import storable  # a name the store cannot hold has no row
 
         event = "changed" if storable(path) and self.ctx.store.file(path) is not None else "new"
         started = time.monotonic()
@@ -467,7 +468,7 @@ class WatchDaemon:
 
     def _record_removed(self, path: Path) -> None:
         """Rows for path, or for every file under path when it was a folder, become 'removed'."""
-        from daemon.protect.stages import storable
+        from daemon.protect.job import storable
 
         if not storable(path):
             return  # a name the store cannot hold has no row (quarantined ones included)

@@ -1,0 +1,200 @@
+"""One file's run as data: the Job the stages carry, the outcome they end with, and the small
+helpers every stage and daemon.protect.one_file share (names as the store and a line can hold them)."""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from daemon.fsops import ContainedFile
+from poisoner.atomic import TEMP_PREFIX
+from poisoner.errors import ExitStatus, PpdError
+from poisoner.media import is_image, is_video
+from poisoner.spec import PatchSpec
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
+
+
+Progress = Callable[[int, int | None], None]
+FileSignature = tuple[int, int, int]  # (inode, size, mtime_ns), as daemon.watch.watcher compares them
+
+
+class IncompleteFile(PpdError):
+    """The file's structure is incomplete (a truncated upload, a writer that gave up)."""
+
+    exit_status = ExitStatus.FAILED
+
+
+class Outcome(StrEnum):
+    """What protect_file / restore_file did with one file (ProtectOutcome.state)."""
+
+    PATCHED = "patched"  # the mark is in the file now
+    UNCHANGED = "unchanged"  # nothing to do (already ppd's output, restored by the user, ...)
+    SKIPPED = "skipped"  # left as it is (not a supported file, not selected, still being written)
+    FAILED = "failed"  # could not be patched; reason says why, nothing lost
+    QUARANTINED = "quarantined"  # the daemon moved it out of the outbox (reason says why)
+    RESTORED = "restored"  # restore_file put the original back
+
+
+class ProtectRefused(PpdError):
+    """The file must not be touched (symlink, outside its dataset, not a regular file)."""
+
+    exit_status = ExitStatus.FAILED
+
+
+class SourceChanged(PpdError):
+    """The source changed while it was being patched."""
+
+    exit_status = ExitStatus.FAILED
+
+
+@dataclass
+class ProtectOutcome:
+    path: Path
+    dataset: str | None
+    state: str  # an Outcome
+    reason: str | None = None  # why skipped/unchanged, or the one-line error when failed
+    kind: str | None = None  # 'image' | 'video'
+    original_sha256: str | None = None
+    poisoned_sha256: str | None = None
+    spec_id: str | None = None
+    output: Path | None = None  # where the patched file is now
+    seconds: float = 0.0
+    dry_run: bool = False
+    report: Any = None  # poisoner.formats.PoisonReport (poisoner.video.VideoReport is one)
+    # What ppd judged or wrote at path (the watcher's echo filter): a later version differs.
+    signature: FileSignature | None = None
+    requeue: bool = False  # a newer version arrived meanwhile: process the path again
+    hopeless: bool = False  # failed because of the file itself (format, structure, name): a retry fails too
+    incomplete: bool = False  # failed because its structure is incomplete: its writer may not be done
+
+
+@dataclass
+class Job:
+    """The state one file carries through the stages."""
+
+    path: Path  # absolute, as asked; for messages and the store only
+    ctx: AppContext
+    dataset: str
+    root: Path  # the dataset's folder (the spec's ratio is judged by the path below it)
+    anchor: Path  # the trusted folder containment is judged from (outbox, or the dataset's root)
+    out_path: Path | None = None  # `ppd poison --out`: write there, leave path as it is
+    dry_run: bool = False
+    force: bool = False
+    progress: Progress | None = None
+    wanted_spec: PatchSpec | None = None
+    keep_location: bool = False
+    subject_masks: Path | None = None  # the caller's mask folder (`--subject-masks`); else the config's
+    # filled by the stages
+    mask_dir: Path | None = None  # the dataset's subject masks, checked (daemon.datasets.subject_masks)
+    file: ContainedFile | None = None
+    kind: str | None = None
+    sha: str | None = None
+    row: dict[str, Any] | None = None
+    spec: PatchSpec | None = None
+    work: Path | None = None  # private folder inside the vault
+    original: Path | None = None  # private copy of the original, named like the file
+    poisoned: Path | None = None
+    poisoned_sha: str | None = None
+    written: FileSignature | None = None
+    report: Any = None
+    final: Path | None = None
+    held: contextlib.ExitStack = field(default_factory=contextlib.ExitStack)  # released by close()
+    died_before: int = 0  # earlier attempts on this file that died with their process
+
+    @property
+    def record_path(self) -> Path:
+        return Path(self.out_path).absolute() if self.out_path is not None else self.path
+
+    def outcome(self, state: str, reason: str | None = None, **kw: Any) -> ProtectOutcome:
+        kw.setdefault("kind", self.kind)
+        if "signature" not in kw and self.file is not None:
+            kw["signature"] = (self.file.st.st_ino, self.file.st.st_size, self.file.st.st_mtime_ns)
+        return ProtectOutcome(
+            path=self.path, dataset=self.dataset, state=state, reason=reason, dry_run=self.dry_run, **kw
+        )
+
+    def close(self) -> None:
+        self.held.close()
+        if self.file is not None:
+            self.file.close()
+        if self.work is not None:
+            shutil.rmtree(self.work, ignore_errors=True)
+
+
+def tool_version() -> str:
+    from daemon.version import ppd_version
+
+    return f"ppd {ppd_version()}"
+
+
+def one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def storable(path: Path) -> bool:
+    """Whether the store can record this path: SQLite text is UTF-8, and a name with bytes
+    that are not UTF-8 (surrogate-escaped by Python) cannot be written to it."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def shown_name(path: Path) -> str:
+    """path's name as it can be shown on one line: escaped (repr-style) when it holds a newline,
+    another control character or bytes that are not UTF-8."""
+    name = path.name
+    return name if name.isprintable() and storable(path) else repr(name)[1:-1]
+
+
+def media_kind(path: Path) -> str | None:
+    """'image', 'video' or None, by suffix."""
+    if is_image(path):
+        return "image"
+    return "video" if is_video(path) else None
+
+
+def is_ignored_name(path: Path) -> bool:
+    """Dot-files and our own temporaries are never protected."""
+    return path.name.startswith(".") or path.name.startswith(TEMP_PREFIX)
+
+
+def place_note(report: Any) -> str | None:
+    """A patched file's note when its per-photo mark found no free place (issue 25: said per file
+    and counted in the summary, never silent); None otherwise."""
+    place = getattr(report, "place", None)
+    return place.short() if place is not None else None
+
+
+def report_detail(report: Any) -> dict[str, Any]:
+    detail: dict[str, Any] = {}
+    for name in ("format", "width", "height", "preserved", "notes", "frames", "codec"):
+        if hasattr(report, name):
+            detail[name] = getattr(report, name)
+    placement = getattr(report, "placement", None)
+    if placement is not None:
+        detail["placement"] = {
+            "x": placement.x,
+            "y": placement.y,
+            "size": placement.size,
+            "block": placement.block,
+        }
+    place = getattr(report, "place", None)
+    if place is not None:  # where a per-photo mark shows and why (ppd report, status)
+        detail["place"] = {"box": list(place.box), "words": place.words, "source": place.source,
+                           "free": place.free, "orientation": place.orientation}  # fmt: skip
+    return detail
+
+
+def publish_dir(ctx: AppContext, dataset: str) -> Path | None:
+    row = ctx.store.dataset(dataset)
+    return Path(row["publish_dir"]) if row and row["publish_dir"] else None

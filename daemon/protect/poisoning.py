@@ -1,0 +1,214 @@
+"""The poisoner called on a private copy: in this process (poison_to) or isolated in a child
+(poison_isolated, `python -m daemon.protect.child`: a file that kills its process kills only the
+child); the provenance seal; ppd's private work folders inside the vault, and vault originals
+under their file names. Whether a failure is the file's own (file_is_the_cause)."""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from daemon.protect.job import IncompleteFile, Progress, ProtectRefused
+from poisoner.errors import ExitStatus, PpdError
+from poisoner.spec import PatchSpec
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
+
+
+def poison_to(
+    kind: str,
+    src: Path,
+    dst: Path,
+    spec: PatchSpec,
+    progress: Progress | None = None,
+    subject_masks: Path | None = None,
+    **options: Any,
+) -> Any:
+    """Write the complete poisoned version of src to dst; never touches src. subject_masks: a folder
+    whose mask for src's name (daemon.datasets.subject_masks.load_keep_out) marks pixels the mark never
+    changes;
+    a folder without one for this image patches it without keep-out (logged)."""
+    if kind == "video":
+        from poisoner.video import poison_video
+
+        return poison_video(src, dst, spec, progress=progress, **options)
+    from PIL import Image
+
+    from poisoner.formats import poison_file
+
+    max_pixels = options.get("max_pixels")
+    if max_pixels is not None and (Image.MAX_IMAGE_PIXELS or 0) < max_pixels:
+        # Pillow's own bomb check would refuse what the user's raised [limits] allows.
+        Image.MAX_IMAGE_PIXELS = max_pixels
+    if subject_masks is not None:
+        from daemon.datasets.subject_masks import load_keep_out
+
+        keep_out = load_keep_out(Path(subject_masks), src)
+        if keep_out is not None:
+            options["keep_out"] = keep_out
+    return poison_file(src, dst, spec, **options)
+
+
+class PoisonerDied(PpdError):
+    """The isolated poisoner process died (a signal: out of memory, a decoder crash)."""
+
+    exit_status = ExitStatus.FAILED
+
+
+def poison_isolated(
+    kind: str,
+    src: Path,
+    dst: Path,
+    spec: PatchSpec,
+    marker: Any,
+    keep_location: bool,
+    subject_masks: Path | None = None,
+    **limits: int,
+) -> None:
+    """poison_to in a child process: a file that kills its process kills only the child. A child
+    killed by a signal raises PoisonerDied; one that fails raises its last error line. The mask
+    folder crosses as a path; the child loads the mask."""
+    import json
+    import subprocess
+    import sys
+
+    args = {
+        "kind": kind, "src": os.fsdecode(src), "dst": os.fsdecode(dst), "spec": spec.to_dict(),
+        "marker": {"text": marker.text},  # the placeholder only: the key never leaves this process
+        "keep_location": keep_location, "limits": limits,
+        "subject_masks": os.fsdecode(subject_masks) if subject_masks is not None else None,
+    }  # fmt: skip
+    from verifier.childenv import child_env
+
+    done = subprocess.run(
+        [sys.executable, "-m", "daemon.protect.child", json.dumps(args)],
+        capture_output=True, text=True, env=child_env(), check=False,
+    )  # fmt: skip
+    if done.returncode < 0:
+        raise PoisonerDied(
+            f"{src.name}: patching it killed its process twice (signal {-done.returncode}: out of memory or "
+            "a decoder crash); not retried"
+        )
+    if done.returncode != 0:
+        lines = [line for line in done.stderr.strip().splitlines() if line.strip()]
+        raise RuntimeError(lines[-1] if lines else f"the isolated poisoner failed ({done.returncode})")
+    return None
+
+
+def file_is_the_cause(exc: BaseException) -> bool:
+    """Whether a failure is the file's own (its format, structure, size or name), so retrying it
+    changes nothing (the daemon quarantines such files); disk, store, lock and vault-limit
+    failures are not."""
+    from poisoner.formats import ImageFormatError
+
+    try:
+        from poisoner.video import VideoFormatError
+    except ImportError:  # PyAV missing
+        VideoFormatError = ImageFormatError  # noqa: N806
+    return isinstance(
+        exc, ProtectRefused | IncompleteFile | PoisonerDied | ImageFormatError | VideoFormatError
+    ) or (isinstance(exc, ValueError) and not isinstance(exc, OSError))
+
+
+def provenance_marker(ctx: AppContext, spec_id: str, original_sha256: str | None) -> Any:
+    """The seal placeholder every patched file carries (poisoner.provenance); `seal_output` seals
+    the finished file: ppd knows its own output without a row, nobody else can read or forge it."""
+    from poisoner.provenance import Marker
+
+    return Marker.placeholder(ctx.seal_key(), spec_id, original_sha256 or "")
+
+
+def seal_output(ctx: AppContext, path: Path) -> None:
+    """Seal a finished patched file in place (its placeholder's tag over exactly its bytes)."""
+    from poisoner.provenance import seal_file
+
+    seal_file(path, ctx.seal_key())
+
+
+def link_or_copy(src: Path, dst: Path) -> None:
+    """A hard link between two of ppd's private files (the vault and its work folders), else a copy."""
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copyfile(src, dst)
+
+
+NAME_MAX = 255  # bytes in one file name (Linux filesystems)
+
+
+def work_copy_name(prefix: str, name: str) -> str:
+    """prefix + name for a private work copy, shortened (the suffix kept: poisoners pick the
+    format by it) when that would pass NAME_MAX: a 255-byte name is still patched."""
+    full = prefix + name
+    if len(os.fsencode(full)) <= NAME_MAX:
+        return full
+    import hashlib
+
+    suffix = Path(name).suffix if len(os.fsencode(Path(name).suffix)) <= 32 else ""
+    return f"{prefix}{hashlib.sha256(os.fsencode(name)).hexdigest()[:32]}{suffix}"
+
+
+WORK_PREFIX = ".work-"
+_work_cleared: set[Path] = set()
+
+
+def work_folder(ctx: AppContext, held: contextlib.ExitStack | None = None) -> Path:
+    """A private scratch folder inside the vault (same filesystem: the vault links from it),
+    flock()ed while in use (held owns the lock). The first call in a process removes stale
+    ones: left by a killed process, so unlocked."""
+    vault_dir = Path(ctx.vault.vault_dir)
+    if vault_dir not in _work_cleared:
+        _work_cleared.add(vault_dir)
+        clear_stale_work_folders(vault_dir)
+    folder = Path(tempfile.mkdtemp(prefix=WORK_PREFIX, dir=vault_dir))
+    if held is not None:
+        fd = os.open(folder / ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        held.callback(os.close, fd)
+    return folder
+
+
+def clear_stale_work_folders(vault_dir: Path, min_age_s: float = 10.0) -> list[Path]:
+    """Remove `.work-*` folders no living process holds (their lock is free) and at least
+    min_age_s old (the instant between a folder's creation and its lock)."""
+    removed = []
+    for folder in Path(vault_dir).glob(f"{WORK_PREFIX}*"):
+        try:
+            if time.time() - folder.lstat().st_mtime < min_age_s or folder.is_symlink():
+                continue
+            fd = os.open(folder / ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            continue
+        finally:
+            os.close(fd)
+        shutil.rmtree(folder, ignore_errors=True)
+        removed.append(folder)
+    return removed
+
+
+@contextlib.contextmanager
+def named_vault_copy(ctx: AppContext, sha256: str, name: str) -> Iterator[Path]:
+    """The vault blob under its original file name (poisoners pick the format by suffix), as a
+    hard link in a private temporary folder inside the vault."""
+    folder = Path(tempfile.mkdtemp(prefix=".named-", dir=ctx.vault.vault_dir))
+    link = folder / name
+    try:
+        try:
+            os.link(ctx.vault.path_for(sha256), link)
+        except OSError:
+            shutil.copyfile(ctx.vault.path_for(sha256), link)
+        yield link
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)

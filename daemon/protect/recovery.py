@@ -1,0 +1,69 @@
+"""Runs that stopped half-way and files that moved: a 'pending' row completed when the file is
+ppd's own output (recover_pending), a patched file's row carried to its new path (carry_moved_row).
+See the crash-safe order in daemon.protect.stages."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from daemon.datasets.dataset import ensure_dataset
+from daemon.datasets.subject_masks import masks_or_none
+from daemon.protect.poisoning import named_vault_copy, poison_to, provenance_marker, seal_output
+from daemon.states import FileState
+from daemon.store.vault import sha256_file
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
+
+
+def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, dataset: str, root: Path) -> bool:
+    """A patched file that was moved or renamed (a dataset folder renamed in the outbox, say)
+    keeps its provenance: its row follows it to the new path instead of dropping out of the
+    store, so status, restore and verification still see it. Copies (the old path still there)
+    are left as they are."""
+    old = Path(earlier["path"])
+    if old == path or old.exists() or earlier["state"] not in (FileState.PATCHED, FileState.REMOVED):
+        return False
+    fields = {k: earlier[k] for k in ("original_sha256", "poisoned_sha256", "spec_id", "tool_version")}
+    # A dataset first seen through moved files (a renamed folder) inherits their patch spec.
+    ensure_dataset(ctx, dataset, root, ctx.store.get_spec(earlier["spec_id"]))
+    st = path.stat()
+    ctx.store.record_file(
+        path, dataset, FileState.PATCHED, event="moved", detail={"from": str(old)},
+        size=st.st_size, mtime_ns=st.st_mtime_ns, **fields,
+    )  # fmt: skip
+    ctx.store.record_file(
+        old, earlier["dataset"], FileState.REMOVED, event="moved_away", detail={"to": str(path)}
+    )
+    return True
+
+
+def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str | None) -> bool:
+    """A 'pending' row means a run stopped between keeping the original and recording the
+    result. If the file now differs from the original, it may be our complete output (the
+    rename happened, the final row did not): poisoning is deterministic, so poison the vault
+    original again and compare. True (and the row completed) when it is ours."""
+    original_sha = row["original_sha256"]
+    if not kind or not original_sha or sha == original_sha or not ctx.vault.verify(original_sha):
+        return False
+    spec = ctx.store.get_spec(row["spec_id"])
+    with named_vault_copy(ctx, original_sha, path.name) as original:
+        scratch = original.with_name(f"redo{path.suffix}")
+        try:
+            poison_to(
+                kind, original, scratch, spec, subject_masks=masks_or_none(ctx, row["dataset"]),
+                marker=provenance_marker(ctx, spec.spec_id, original_sha),
+                keep_location=ctx.config.keep_location,
+            )  # fmt: skip
+            seal_output(ctx, scratch)
+        except Exception:  # cannot redo it: treat the file as new content
+            return False
+        if sha256_file(scratch) != sha:
+            return False
+    st = path.stat()
+    ctx.store.record_file(
+        path, row["dataset"], FileState.PATCHED, poisoned_sha256=sha, size=st.st_size,
+        mtime_ns=st.st_mtime_ns, error=None, event="recovered", detail={"from": "pending"},
+    )  # fmt: skip
+    return True
