@@ -11,7 +11,7 @@ error message. With a typer that has no such converter this module does nothing.
 from __future__ import annotations
 
 import re
-from typing import Any, get_args, get_origin
+from typing import Any, cast, get_args, get_origin
 
 _INT = re.compile(r"-?[0-9]+")
 _FLOAT = re.compile(r"-?([0-9]+(\.[0-9]*)?|\.[0-9]+)")
@@ -77,5 +77,6 @@ def install() -> None:
             )
         return typers_own(self)
 
-    _TyperParameter.get_runtime_param = get_runtime_param  # type: ignore[method-assign]
-    _TyperParameter._ppd_plain = True  # type: ignore[attr-defined]
+    patched = cast(Any, _TyperParameter)  # typer's private class, patched on purpose (test_packaging)
+    patched.get_runtime_param = get_runtime_param
+    patched._ppd_plain = True

@@ -14,6 +14,7 @@ import typer
 
 from daemon.cli.errors import die
 from daemon.cli.output import console
+from poisoner.errors import PpdError
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -34,13 +35,15 @@ def resolve_dataset(dataset: str, views: int, shared: Path | None = None) -> tup
     its folder or a verification folder of it: its originals, staged from the vault), a folder of
     clean images, or the shared lego set (first `views` views composited on white by
     verifier.shared_data.prepare_lego, GT included)."""
+    import sqlite3
+
     from daemon.cli.targets import TargetError, resolve_target, say_note
     from daemon.context import AppContext
 
     path = Path(dataset).expanduser()
     try:
         ctx = AppContext.open()
-    except Exception:  # no usable store: folders and the shared set still work
+    except (PpdError, OSError, sqlite3.Error):  # no usable store: folders and the shared set still work
         ctx = None
     if ctx is not None:
         try:

@@ -19,7 +19,7 @@ from poisoner.errors import ExitStatus
 try:  # typer >= 0.22 vendors click: its exceptions are the ones raised
     from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError
 except ImportError:  # pragma: no cover - older typer on the real click
-    from click.exceptions import ClickException, NoArgsIsHelpError, UsageError  # type: ignore[no-redef]
+    from click.exceptions import ClickException, NoArgsIsHelpError, UsageError
 
 _TYPE_WORDS = {"int": "N", "int range": "N", "float": "NUM", "float range": "NUM", "path": "PATH",
                "list[Path]": "PATH", "list[str]": "TEXT"}  # fmt: skip
@@ -66,7 +66,7 @@ def tidy_help(command: Any) -> None:
 class PpdGroup(TyperGroup):
     """typer's group with click's errors (usage, missing files) in ppd's one-line style."""
 
-    def main(  # type: ignore[override]
+    def main(
         self,
         args: Sequence[str] | None = None,
         prog_name: str | None = None,

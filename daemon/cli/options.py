@@ -17,7 +17,7 @@ import inspect
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import typer
 
@@ -198,7 +198,7 @@ def spec_options(*, with_ratio: bool = True) -> Callable[[Callable[..., Any]], C
             return func(*args, spec_options=options, **kwargs)
 
         # Positional-or-keyword parameters first, then keyword-only: a valid signature for typer.
-        command.__signature__ = sig.replace(  # type: ignore[attr-defined]
+        cast(Any, command).__signature__ = sig.replace(
             parameters=[p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in own] + extra
         )
         return command

@@ -11,7 +11,7 @@ import functools
 import logging
 import os
 import sys
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -146,7 +146,7 @@ def setup_logging(verbose: int, *, daemon: bool = False) -> None:
         if getattr(handler, "_ppd", False):
             root.removeHandler(handler)
     handler = daemon_handler() if daemon else LineHandler()
-    handler._ppd = True  # type: ignore[attr-defined]
+    cast(Any, handler)._ppd = True  # ours: the next setup_logging replaces it
     root.addHandler(handler)
     root.setLevel(log_level(verbose) if not daemon else min(log_level(verbose), logging.INFO))
     if not daemon and verbose < 2:

@@ -11,6 +11,7 @@ import typer
 from daemon.cli.errors import die, one_line
 from daemon.cli.options import dataset_option, folder_option
 from daemon.cli.output import console
+from poisoner.errors import PpdError
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -18,11 +19,13 @@ if TYPE_CHECKING:
 
 def _open_store(source: str | None, dataset: str | None) -> AppContext | None:
     """ppd's store, or None when it cannot be opened and a folder can still have its report."""
-    try:
-        from daemon.context import AppContext
+    import sqlite3
 
+    from daemon.context import AppContext
+
+    try:
         return AppContext.open()
-    except Exception as exc:  # no store: folders still have reports
+    except (PpdError, OSError, sqlite3.Error) as exc:  # no store: folders still have reports
         if dataset is not None or (source is not None and not Path(source).expanduser().is_dir()):
             raise die(f"ppd's store cannot be opened: {one_line(exc)}") from None
         return None

@@ -69,7 +69,6 @@ def restore_word(outcome: ProtectOutcome) -> str:
 def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
     """One count line, where removed copies were (a folder, not a line per file unless -v), then
     each file that was not restored with its reason."""
-    import os
 
     from daemon.cli.output import verbosity
 

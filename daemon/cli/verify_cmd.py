@@ -14,7 +14,7 @@ import typer
 
 from daemon.cli.errors import die, one_line
 from daemon.cli.options import dataset_option, folder_option, subject_masks_option
-from poisoner.errors import ExitStatus
+from poisoner.errors import ExitStatus, PpdError
 from verifier.verdict import Verdict
 
 if TYPE_CHECKING:
@@ -54,6 +54,8 @@ def _verify_folder(path: Path, clean: Path, out: Path | None, profiles: tuple[st
 def _verify_stored(target: str | None, dataset: str | None, folder: Path | None,
                    profiles: tuple[str, ...], options: Any, console: Console) -> Any:  # fmt: skip
     """A dataset of the store (named, or the folder ppd patched) against its vault originals."""
+    import sqlite3
+
     from daemon.cli.targets import resolve_target, say_note
     from daemon.context import AppContext
     from daemon.verification.verify import verify_dataset
@@ -61,7 +63,7 @@ def _verify_stored(target: str | None, dataset: str | None, folder: Path | None,
 
     try:
         ctx = AppContext.open()
-    except Exception as exc:  # no usable store: only --clean can verify a folder
+    except (PpdError, OSError, sqlite3.Error) as exc:  # no usable store: only --clean can verify a folder
         raise VerificationInputError(
             f"ppd's store cannot be opened ({one_line(exc)}); for a folder, "
             "give its clean originals with --clean DIR"

@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from daemon.datasets.subject_masks import place_corner, record_choice, wants_corner
 from poisoner.errors import ExitStatus, PpdError
 
 if TYPE_CHECKING:
@@ -104,7 +105,6 @@ def ensure_dataset(
     does not set gets its corner now (daemon.datasets.subject_masks.place_corner over `sample()`, the
     files seen first, and mask_dir's masks); the caller's own spec is taken as it is (`ppd poison` chose its
     corner over all the files it was given)."""
-    from daemon.datasets.subject_masks import place_corner, record_choice, wants_corner
 
     initial = spec or ctx.config.spec_for(dataset)
     placed = None

@@ -11,9 +11,10 @@ import json
 import sys
 from pathlib import Path
 
+from daemon.protect.poisoning import poison_to
+
 
 def main(argv: list[str]) -> None:
-    from daemon.protect.poisoning import poison_to
     from poisoner.provenance import Marker
     from poisoner.spec import PatchSpec
 

@@ -11,6 +11,7 @@ import functools
 import logging
 import os
 import shutil
+import sqlite3
 import stat
 import time
 from collections.abc import Callable
@@ -57,6 +58,7 @@ from daemon.protect.stages import STAGES, run_stages
 from daemon.states import FileState
 from daemon.store.vault import sha256_file
 from poisoner.atomic import atomic_output
+from poisoner.errors import PpdError
 from poisoner.spec import PatchSpec
 
 log = logging.getLogger(__name__)
@@ -217,6 +219,8 @@ def _record_failure(
 
 def _holds_ppd_output(ctx: AppContext, path: Path) -> bool:
     """Whether the regular file at path (not followed if a symlink) is ppd's recorded output."""
+    if not storable(path):  # no row can name it (the store would refuse the name itself)
+        return False
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError:
@@ -232,7 +236,11 @@ def _holds_ppd_output(ctx: AppContext, path: Path) -> bool:
     try:
         row = ctx.store.file(path)
         return (row is not None and row["poisoned_sha256"] == sha) or ctx.store.find_poisoned(sha) is not None
-    except Exception:  # the store failing too: say failed, as asked
+    except (PpdError, sqlite3.Error) as exc:  # the store failing too: say failed, as asked
+        log.warning(
+            "%s: the store cannot say whether it is ppd's output (%s)", shown_name(path), one_line(exc),
+            extra={"path": str(path)},
+        )  # fmt: skip
         return False
 
 

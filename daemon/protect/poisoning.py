@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from daemon.datasets.subject_masks import load_keep_out
 from daemon.protect.job import IncompleteFile, Progress, ProtectRefused
 from poisoner.errors import ExitStatus, PpdError
 from poisoner.spec import PatchSpec
@@ -49,7 +50,6 @@ def poison_to(
         # Pillow's own bomb check would refuse what the user's raised [limits] allows.
         Image.MAX_IMAGE_PIXELS = max_pixels
     if subject_masks is not None:
-        from daemon.datasets.subject_masks import load_keep_out
 
         keep_out = load_keep_out(Path(subject_masks), src)
         if keep_out is not None:
@@ -112,7 +112,7 @@ def file_is_the_cause(exc: BaseException) -> bool:
     try:
         from poisoner.video import VideoFormatError
     except ImportError:  # PyAV missing
-        VideoFormatError = ImageFormatError  # noqa: N806
+        VideoFormatError = ImageFormatError
     return isinstance(
         exc, ProtectRefused | IncompleteFile | PoisonerDied | ImageFormatError | VideoFormatError
     ) or (isinstance(exc, ValueError) and not isinstance(exc, OSError))

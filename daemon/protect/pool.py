@@ -25,13 +25,14 @@ from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, TypeVar, cast
 
 import msgspec
 
 from daemon.protect.job import Outcome, ProtectOutcome
 
 if TYPE_CHECKING:
+    from daemon.config import Config
     from daemon.context import AppContext
     from daemon.paths import AppPaths
     from poisoner.spec import PatchSpec
@@ -116,7 +117,7 @@ def log_like_caller(formatter: logging.Formatter | None) -> None:
 
 
 def open_worker(
-    paths: AppPaths, config: object, lock_wait_s: float, parent: int | None = None,
+    paths: AppPaths, config: Config, lock_wait_s: float, parent: int | None = None,
     formatter: logging.Formatter | None = None,
 ) -> None:  # fmt: skip
     """A worker's AppContext: the caller's paths and config, the worker's own store connection."""
@@ -129,8 +130,8 @@ def open_worker(
     from daemon.store.vault import Vault
 
     _worker_ctx = AppContext(
-        paths=paths, config=config, store=Store(paths.db_path),  # type: ignore[arg-type]
-        vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),  # type: ignore[attr-defined]
+        paths=paths, config=config, store=Store(paths.db_path),
+        vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),
         lock_wait_s=lock_wait_s,
     )  # fmt: skip
 
@@ -228,10 +229,13 @@ def protect_many(
     def done(i: int, result: object) -> None:
         results[i] = result
         if on_outcome is not None and result is not retry:
-            on_outcome(result)  # type: ignore[arg-type]
+            on_outcome(cast(ProtectOutcome, result))
+
+    def died(_i: int) -> object:
+        return retry
 
     bounded_map(
-        run_call, [(c,) for c in calls], n, lambda i: retry, on_done=done,  # type: ignore[arg-type,return-value]
+        cast(Callable[..., object], run_call), [(c,) for c in calls], n, died, on_done=done,
         mp_context=pool_context(("daemon.protect.one_file", "poisoner.formats")), initializer=open_worker,
         initargs=_worker_args(ctx), stop=stop,
         # [limits] max_memory_mb: the files in flight never need more memory than that together
@@ -242,8 +246,8 @@ def protect_many(
             log.warning("%s: %s; trying it once more", calls[i].path.name, DIED)
             results[i] = run_call(calls[i], ctx)
             if on_outcome is not None:
-                on_outcome(results[i])  # type: ignore[arg-type]
-    return [results[i] for i in sorted(results) if results[i] is not retry]  # type: ignore[misc]
+                on_outcome(cast(ProtectOutcome, results[i]))
+    return [cast(ProtectOutcome, results[i]) for i in sorted(results) if results[i] is not retry]
 
 
 # ---- the daemon's workers ---------------------------------------------------------------------------

@@ -22,16 +22,18 @@ import hashlib
 import json
 import logging
 import os
+import sqlite3
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from daemon.datasets.dataset import DEFAULT_DATASET
+from daemon.datasets.dataset import DEFAULT_DATASET, dataset_root, ensure_dataset
 from daemon.fsops import NotContained, move_out, open_dir, open_dir_below
 from daemon.paths import make_dirs_private, make_private_dir
 from daemon.states import FileState
+from poisoner.errors import PpdError
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -80,7 +82,6 @@ def quarantine(ctx: AppContext, path: Path, dataset: str | None, reason: str) ->
         os.close(src_dir)
     _owner_only(target)
     try:  # the move is what protects; a failing store must not undo it
-        from daemon.datasets.dataset import dataset_root, ensure_dataset
 
         name = dataset or DEFAULT_DATASET
         ensure_dataset(ctx, name, dataset_root(outbox, name), None)
@@ -107,10 +108,18 @@ def _join_fragment(ctx: AppContext, path: Path, src_dir: int, name: str, dataset
 
     try:
         event = ctx.store.last_event(path, "quarantined")
-    except Exception:  # the store failing: quarantine as usual
+    except UnicodeEncodeError:  # a name the store cannot hold (not UTF-8) has no history there
         return None
-    head = Path(event["detail"].get("to", "")) if event else None
-    if head is None or "incomplete" not in str(event["detail"].get("reason", "")) or not head.is_file():  # type: ignore[index]
+    except (PpdError, sqlite3.Error) as exc:  # the store failing: quarantine as usual
+        log.warning(
+            "%s: the store cannot say whether it was quarantined before (%s)", path.name, exc,
+            extra={"path": str(path)},
+        )  # fmt: skip
+        return None
+    if event is None:
+        return None
+    head = Path(event["detail"].get("to", ""))
+    if "incomplete" not in str(event["detail"].get("reason", "")) or not head.is_file():
         return None
     if incomplete_reason(head) is None:
         return None  # that head is whole already: this is another file

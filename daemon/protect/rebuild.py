@@ -33,10 +33,12 @@ from typing import Any
 from daemon.config import Config
 from daemon.datasets.dataset import DEFAULT_DATASET, dataset_of, dataset_root
 from daemon.fsops import sha256_fd
+from daemon.locks import watching
 from daemon.paths import AppPaths
 from daemon.platform import fd_path
 from daemon.states import FileState
 from daemon.store import SQLITE_SUFFIXES, Store, StoreError
+from daemon.store.sealkey import load_key
 from daemon.store.vault import Vault, VaultError
 from poisoner.atomic import fsync_dir
 from poisoner.spec import PatchSpec
@@ -131,7 +133,6 @@ def rebuild_store(
     store_path = Path(store_path or paths.db_path)
     config = config or Config()
     report = RebuildReport(store_path=store_path)
-    from daemon.locks import watching
 
     if holders := watching(paths.data_dir):  # a daemon would go on writing to the store swapped out
         raise RebuildRefused(
@@ -226,7 +227,6 @@ class _RowCollector:
 
 def _seal_reader(paths: AppPaths) -> MarkerReader:
     """read_seal with this installation's key; without a key no file can be recognised."""
-    from daemon.store.sealkey import load_key
     from poisoner.provenance import read_seal
 
     key = load_key(paths.data_dir, create=False)

@@ -4,17 +4,21 @@ See the crash-safe order in daemon.protect.stages."""
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.datasets.dataset import ensure_dataset
 from daemon.datasets.subject_masks import masks_or_none
+from daemon.protect.job import one_line, shown_name
 from daemon.protect.poisoning import named_vault_copy, poison_to, provenance_marker, seal_output
 from daemon.states import FileState
 from daemon.store.vault import sha256_file
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
+
+log = logging.getLogger(__name__)
 
 
 def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, dataset: str, root: Path) -> bool:
@@ -57,7 +61,11 @@ def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, 
                 keep_location=ctx.config.keep_location,
             )  # fmt: skip
             seal_output(ctx, scratch)
-        except Exception:  # cannot redo it: treat the file as new content
+        except Exception as exc:  # any poisoner failure: cannot redo it, the file is treated as new content
+            log.warning(
+                "%s: the run that stopped half-way cannot be redone (%s); treated as new content",
+                shown_name(path), one_line(exc), extra={"path": str(path)},
+            )  # fmt: skip
             return False
         if sha256_file(scratch) != sha:
             return False

@@ -38,10 +38,19 @@ import os
 import stat
 from collections.abc import Callable
 from pathlib import Path
+from typing import cast
 
 from daemon.datasets.dataset import ensure_dataset
-from daemon.datasets.subject_masks import SubjectMaskError, mask_folder_holding
+from daemon.datasets.subject_masks import (
+    SubjectMaskError,
+    mask_folder_holding,
+    remember_masks,
+    sibling_images,
+    subject_masks_for,
+)
 from daemon.fsops import (
+    ContainedFile,
+    NotContained,
     clear_stale_temps_once,
     copy_fd_to_path,
     copy_path_to_fd,
@@ -52,6 +61,7 @@ from daemon.fsops import (
 )
 from daemon.platform import fd_path, writers_of
 from daemon.protect.job import (
+    FileSignature,
     IncompleteFile,
     Job,
     Outcome,
@@ -76,6 +86,7 @@ from daemon.protect.poisoning import (
     work_copy_name,
     work_folder,
 )
+from daemon.protect.quarantine import attempt
 from daemon.protect.recovery import carry_moved_row, recover_pending
 from daemon.states import FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
@@ -109,7 +120,6 @@ def check_name(job: Job) -> ProtectOutcome | None:
 
 def open_contained_file(job: Job) -> ProtectOutcome | None:
     """Open the file once, without following a symlink anywhere below the anchor (daemon.fsops)."""
-    from daemon.fsops import NotContained
 
     try:
         job.file = open_contained(job.anchor, job.path)
@@ -154,8 +164,10 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     if job.kind == "image":
         from poisoner.limits import check_decode_budget
 
-        limits = {"name": job.path.name, "max_bytes": job.ctx.config.max_memory_bytes}
-        check_decode_budget(through_fd, job.ctx.config.max_pixels, **limits)  # type: ignore[arg-type]
+        config = job.ctx.config
+        check_decode_budget(
+            through_fd, config.max_pixels, name=job.path.name, max_bytes=config.max_memory_bytes
+        )
     return None
 
 
@@ -225,7 +237,8 @@ def decide(job: Job) -> ProtectOutcome | None:
             if out_path is not None:  # the copy is published as it is
                 job.work = work_folder(ctx, job.held)
                 copy = job.work / job.path.name
-                if copy_fd_to_path(job.file.fd, copy) != sha:  # type: ignore[union-attr]
+                opened = cast(ContainedFile, job.file)  # by open_contained_file, an earlier stage
+                if copy_fd_to_path(opened.fd, copy) != sha:
                     raise SourceChanged(f"{job.path.name} changed while being patched; left as it is now")
                 _write_out(job, copy)
             ctx.store.record_file(
@@ -241,7 +254,6 @@ def decide(job: Job) -> ProtectOutcome | None:
 def _dataset_spec(job: Job) -> PatchSpec:
     """The dataset's subject masks (checked), then its spec: a new dataset's is set now, its corner
     judged on this file and its neighbours (daemon.datasets.dataset.ensure_dataset)."""
-    from daemon.datasets.subject_masks import remember_masks, subject_masks_for
 
     ctx = job.ctx
     job.mask_dir = subject_masks_for(ctx, job.dataset, job.subject_masks)
@@ -259,7 +271,6 @@ def _corner_sample(job: Job) -> list[Path]:
     """The files a new dataset's corner is judged on: this one, copied through its descriptor under its
     own name (masks are found by name), and the image files next to it
     (daemon.datasets.subject_masks.sibling_images)."""
-    from daemon.datasets.subject_masks import sibling_images
 
     assert job.file is not None
     if job.kind != "image":  # a video is never judged (nor copied for it): its neighbours are
@@ -316,7 +327,6 @@ def mark_pending(job: Job) -> ProtectOutcome | None:
     """2. A pending row: after a crash we know this path's original is in the vault. An attempt
     marker is held from here until the run ends: if the heavy work kills the process, the daemon
     quarantines the file at its next start instead of retrying it (daemon.protect.quarantine)."""
-    from daemon.protect.quarantine import attempt
 
     assert job.spec is not None
     job.died_before = job.held.enter_context(attempt(job.ctx.paths.data_dir, job.path, job.dataset))
@@ -386,7 +396,8 @@ def record_provenance(job: Job) -> ProtectOutcome | None:
     assert job.spec is not None
     record_path = job.record_path
     st = os.stat(record_path, follow_symlinks=False) if job.out_path is not None else None
-    size, mtime = (st.st_size, st.st_mtime_ns) if st else (job.written[1], job.written[2])  # type: ignore[index]
+    written = cast(FileSignature, job.written)  # set by replace_atomically, the stage before
+    size, mtime = (st.st_size, st.st_mtime_ns) if st else (written[1], written[2])
     job.ctx.store.record_file(
         record_path, job.dataset, FileState.PATCHED, original_sha256=job.sha,
         poisoned_sha256=job.poisoned_sha, spec_id=job.spec.spec_id, tool_version=tool_version(),

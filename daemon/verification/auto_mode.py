@@ -34,6 +34,8 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
+from daemon.protect.job import Outcome
+from daemon.protect.one_file import dataset_pairs, reprotect_dataset
 from daemon.states import FileState
 from poisoner.ladder import strongest_spec
 from poisoner.spec import PatchSpec
@@ -100,8 +102,6 @@ def decided_spec(ctx: AppContext, dataset: str) -> PatchSpec | None:
 def apply_spec(ctx: AppContext, dataset: str, spec: PatchSpec) -> int:
     """Re-protect the dataset from its vault originals with spec (nothing when it already has it).
     Returns the number of files re-protected."""
-    from daemon.protect.job import Outcome
-    from daemon.protect.one_file import reprotect_dataset
 
     current = ctx.store.dataset_spec(dataset)
     if current is not None and current.spec_id == spec.spec_id:
@@ -117,7 +117,6 @@ def apply_spec(ctx: AppContext, dataset: str, spec: PatchSpec) -> int:
 # ---- step 2: the interim choice (FLIP, in the daemon) ---------------------------------------------
 def dataset_images(ctx: AppContext, dataset: str) -> list[tuple[Path, str]]:
     """(vault original, file name) of every protected file: the originals under their names."""
-    from daemon.protect.one_file import dataset_pairs
 
     return [(original, Path(protected).name) for original, protected in dataset_pairs(ctx, dataset)]
 

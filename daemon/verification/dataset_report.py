@@ -13,6 +13,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from daemon.datasets.subject_masks import choice_text, latest_choice
+from daemon.protect.one_file import dataset_pairs
+from daemon.states import dataset_protection, next_step, protection_text
+
 if TYPE_CHECKING:
     from daemon.context import AppContext
     from daemon.paths import AppPaths
@@ -26,9 +30,6 @@ def report_path(paths: AppPaths, dataset: str) -> Path:
 
 def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> ReportData:
     """A daemon dataset: latest verification per profile, its history, models, and a patch preview."""
-    from daemon.datasets.subject_masks import choice_text, latest_choice
-    from daemon.protect.one_file import dataset_pairs
-    from daemon.states import dataset_protection, next_step, protection_text
     from verifier.report import ReportError, dataset_history_report, latest_run_group
 
     if ctx.store.dataset(dataset) is None:

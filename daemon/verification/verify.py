@@ -16,7 +16,7 @@ import time
 import uuid
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 
@@ -99,7 +99,7 @@ def dataset_options(ctx: AppContext, dataset: str, options: VerifyOptions) -> Ve
     whether its mark lives in one corner (what the masked attacker's line says)."""
     from daemon.datasets.subject_masks import SubjectMaskError, subject_masks_for
 
-    changes: dict[str, object] = {}
+    changes: dict[str, Any] = {}
     if options.subject_masks is None:
         try:
             changes["subject_masks"] = subject_masks_for(ctx, dataset)
@@ -112,7 +112,7 @@ def dataset_options(ctx: AppContext, dataset: str, options: VerifyOptions) -> Ve
         from daemon.verification.verify_state import dataset_run_options
 
         changes.update(dataset_run_options(ctx.paths, dataset))
-    return dataclasses.replace(options, **changes) if changes else options  # type: ignore[arg-type]
+    return dataclasses.replace(options, **changes) if changes else options
 
 
 def record_report(ctx: AppContext, dataset: str, report: VerificationReport) -> list[int]:
