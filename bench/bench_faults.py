@@ -158,7 +158,7 @@ def _fuzz_images(folder: Path, examples: int, result: FuzzResult) -> None:
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
 
-    from tests.test_properties import SEEDS, fuzz_image_reader, mutate
+    from tests.poisoner.test_properties import SEEDS, fuzz_image_reader, mutate
 
     seeds = {**SEEDS, ".bin": b""}
 
@@ -189,7 +189,7 @@ def _fuzz_videos(folder: Path, clip: bytes, examples: int, result: FuzzResult) -
 
     from poisoner.spec import PatchSpec
     from poisoner.video import VideoFormatError, poison_video
-    from tests.test_properties import mutate
+    from tests.poisoner.test_properties import mutate
 
     @settings(max_examples=max(20, examples // 15), deadline=None, database=None,
               suppress_health_check=list(HealthCheck))  # fmt: skip

@@ -37,6 +37,7 @@ from daemon.paths import AppPaths
 from daemon.states import FileState
 from daemon.store import Store
 from poisoner.atomic import TEMP_PREFIX
+from tests.daemon.watch.test_watcher import texture
 from tests.reliability_harness import (
     DAEMON_ARGS,
     CrashTrialOptions,
@@ -51,7 +52,6 @@ from tests.reliability_harness import (
     subprocess_env,
     wait_for,
 )
-from tests.test_watcher import texture
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -3,7 +3,7 @@
     nice -n 19 python -m bench.bench_video_motion [--every 4 8 12]
 
 Renders verifier.synthetic's object scene (a textured box on a plain floor and wall, the scene
-kind where the patch wins the vote: tests/test_auto.py) as an H.264 video from a camera moving
+kind where the patch wins the vote: tests/verifier/test_auto.py) as an H.264 video from a camera moving
 along a 90 deg arc, poisons it four ways (the paper's static checkerboard; ppd's default moving
 texture gliding at 2 and at 6 photo-steps per second; the same texture held still), samples
 every k-th frame as an attacker would, and runs Verifier I (default and hardened profiles, true

@@ -27,17 +27,17 @@ os.environ.setdefault("PPD_SHARED_DATA", str(SHARED / "datasets"))
 # The other integration tests run with `make test-all` or `pytest -m integration`. A node id without
 # [parameters] takes every parameter; tests/test_selection.py checks that each names an integration test.
 REPRESENTATIVE = (
-    "tests/test_sfm.py::test_clean_sfm_recovers_synthetic_cameras",
-    "tests/test_verification.py::test_patch_breaks_default_colmap_and_hardened_colmap_resists",
-    "tests/test_demo.py::test_demo_verifies_and_prints_the_verdict",
-    "tests/test_quarantine.py::test_a_file_ppd_cannot_patch_leaves_the_outbox",
-    "tests/test_reliability_kill_loops.py::test_store_deleted_no_double_poisoning_and_every_original_restored",
+    "tests/verifier/test_sfm.py::test_clean_sfm_recovers_synthetic_cameras",
+    "tests/verifier/test_verification.py::test_patch_breaks_default_colmap_and_hardened_colmap_resists",
+    "tests/daemon/cli/test_demo.py::test_demo_verifies_and_prints_the_verdict",
+    "tests/daemon/protect/test_quarantine.py::test_a_file_ppd_cannot_patch_leaves_the_outbox",
+    "tests/reliability/test_reliability_kill_loops.py::test_store_deleted_no_double_poisoning_and_every_original_restored",
 )
 
 # AF_UNIX socket paths are limited to 107 bytes by the kernel, and tests bind sockets (sd_notify
 # receivers, systemd-analyze's runtime dir) under tmp_path. Under a long TMPDIR the tests' own
 # folders go to a short private one; what ppd itself does with TMPDIR still sees the long path
-# (tests/test_cli_terminal.py runs `ppd` under a 150-character TMPDIR on purpose).
+# (tests/daemon/cli/test_cli_terminal.py runs `ppd` under a 150-character TMPDIR on purpose).
 LONG_TMPDIR = 40
 
 

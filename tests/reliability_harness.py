@@ -46,7 +46,7 @@ from daemon.protect.one_file import media_kind, poison_to  # noqa: E402
 from daemon.states import FileState  # noqa: E402
 from daemon.store import Store  # noqa: E402
 from poisoner.atomic import TEMP_PREFIX  # noqa: E402
-from tests.test_watcher import texture, wait_for, write_image  # noqa: E402
+from tests.daemon.watch.test_watcher import texture, wait_for, write_image  # noqa: E402
 
 # no SfM children in fault runs; an incomplete file is quarantined after 2 s unchanged (default 120)
 DAEMON_ARGS = ("--no-verify", "--debounce", "0.05", "-j", "2", "--incomplete-wait", "2")
@@ -90,7 +90,7 @@ def subprocess_env(root: Path) -> dict[str, str]:
 
 def make_video(path: Path, seed: int, frames: int = 12) -> Path:
     """A small H.264 MP4 (160x120, no audio), distinct per seed."""
-    from tests.test_video import Clip, make_clip  # lazy: loads PyAV
+    from tests.poisoner.test_video import Clip, make_clip  # lazy: loads PyAV
 
     make_clip(path, Clip(width=160, height=120, frames=frames, audio=None))
     # make_clip's scene is the same for every clip: mark each one by appending a free atom,

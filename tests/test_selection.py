@@ -52,7 +52,7 @@ def test_each_representative_names_an_integration_test_that_is_not_slow() -> Non
 
 
 def test_the_default_selection_takes_the_representatives_and_leaves_the_other_integration_tests() -> None:
-    files = ["tests/test_sfm.py", "tests/test_quarantine.py"]  # each has both kinds
+    files = ["tests/verifier/test_sfm.py", "tests/daemon/protect/test_quarantine.py"]  # each has both kinds
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
 
     def collected(*options: str) -> set[str]:

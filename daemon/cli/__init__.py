@@ -2,7 +2,7 @@
 
 Each command module is light at import (typer and the shared option sets); what a command runs
 is imported inside it, so `ppd poison --help` and `ppd status` never load numpy, PIL, PyAV,
-torch or pycolmap (tests/test_cli_startup.py checks it).
+torch or pycolmap (tests/daemon/cli/test_cli_startup.py checks it).
 
 | module | commands |
 |---|---|
@@ -108,7 +108,7 @@ def _modules_for(argv: list[str]) -> tuple[str, ...]:
 def _register() -> None:
     for name in _modules_for(sys.argv):
         # __import__, not importlib.import_module: `python -X importtime` sees only the former,
-        # and tests/test_cli_startup.py reads what each command imports from it.
+        # and tests/daemon/cli/test_cli_startup.py reads what each command imports from it.
         __import__(name, fromlist=["register"]).register(app)
 
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Headless Chromium for the HTML report test (tests/test_report.py: the page loads with no console
+# Headless Chromium for the HTML report test (tests/verifier/test_report.py: the page loads with no console
 # error and its screenshot shows the verdict). Debian's `chromium` package; a quick no-op when a
 # chromium binary is already on PATH. Not fatal: without it that one test skips and says why.
 set -euo pipefail

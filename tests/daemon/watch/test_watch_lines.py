@@ -17,9 +17,9 @@ import pytest
 
 from daemon.protect.one_file import AppContext
 from daemon.states import FileState
-from tests.test_cli_poison import make_image
+from tests.daemon.cli.test_cli_poison import make_image
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 pytestmark = pytest.mark.integration
 
 

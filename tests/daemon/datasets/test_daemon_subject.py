@@ -1,5 +1,5 @@
 """daemon.datasets.subject_masks: where a dataset's subject masks come from, and its corner chosen once
-(real files, a real store; the pixels are poisoner.subject's, tested in tests/test_subject.py)."""
+(real files, a real store; the pixels are poisoner.subject's, tested in tests/poisoner/test_subject.py)."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from daemon.datasets.subject_masks import (
 from daemon.protect.one_file import AppContext, protect_file
 from poisoner.ladder import named_spec
 from poisoner.subject import CornerChoice
-from tests.test_cli_poison import MASKED_SIZE, masked_shoot
+from tests.daemon.cli.test_cli_poison import MASKED_SIZE, masked_shoot
 
 CORNER_CONFIG = '[patch]\ndesign = "watermark"\n'
 

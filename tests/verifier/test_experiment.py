@@ -24,7 +24,7 @@ from poisoner.baselines import BaselineSpec
 from poisoner.spec import PatchSpec
 from verifier import experiment as ex
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 # ---- parsing and the grid -----------------------------------------------------------------------

@@ -37,7 +37,7 @@ GPU_REASON = (
 @pytest.mark.integration
 @pytest.mark.skipif(cuda_device_count() == 0 or not _has_cuda_build(), reason=GPU_REASON)
 def test_gpu_sift_gives_the_cpus_verdicts(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from tests.test_verify_shared import SHARING, SMALL, figures, poison_folder
+    from tests.verifier.test_verify_shared import SHARING, SMALL, figures, poison_folder
     from verifier.synthetic import render_scene
     from verifier.verification import VerifyOptions, verify_folders
 

@@ -27,9 +27,9 @@ from daemon.datasets.folder_count import (
     resume_command,
     with_folder,
 )
-from tests.test_cli_poison import make_image
+from tests.daemon.cli.test_cli_poison import make_image
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 runner = CliRunner()
 
 

@@ -17,7 +17,7 @@ from daemon.states import FileState
 from daemon.store import SCHEMA_VERSION, Store, StoreDamaged, StoreError
 from poisoner.spec import PatchSpec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 ROWS = 2000
 
 

@@ -139,7 +139,7 @@ def test_importing_the_config_stays_light() -> None:
     """`ppd status` starts by reading the config: no numpy, PIL or flip_evaluator on the way."""
     heavy = "('numpy', 'PIL', 'flip_evaluator', 'torch')"
     code = f"import sys, daemon.config; print(sorted(m for m in {heavy} if m in sys.modules))"
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=root)
     assert out.stdout.strip() == "[]", out.stdout + out.stderr
 

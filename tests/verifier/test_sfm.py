@@ -69,7 +69,7 @@ def test_child_without_result_is_a_failure(tmp_path: Path) -> None:
 def test_child_runs_at_low_priority() -> None:
     code = "from verifier.child import lower_priority; import os; lower_priority(); print(os.nice(0))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         cwd=Path(__file__).resolve().parents[1])  # fmt: skip
+                         cwd=Path(__file__).resolve().parents[2])  # fmt: skip
     assert int(out.stdout.strip()) >= os.nice(0) + 10 or int(out.stdout.strip()) == 19
 
 

@@ -62,7 +62,7 @@ def test_sigkill_at_random_instants_never_leaves_a_partial_file(tmp_path: Path) 
     outcomes = set()
     for delay in (0.0, 0.05, 0.1, 0.2, 0.3, 0.45, 0.7, 1.2):
         dst.write_bytes(original)
-        proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(dst)], cwd=Path(__file__).parents[1])
+        proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(dst)], cwd=Path(__file__).parents[2])
         time.sleep(delay)
         proc.send_signal(signal.SIGKILL)
         proc.wait()

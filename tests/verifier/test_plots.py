@@ -14,7 +14,7 @@ from verifier import plots
 from verifier.experiment import Stat
 from verifier.poses import Pose
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _img(png: bytes) -> np.ndarray:

@@ -21,7 +21,7 @@ from daemon.store.vault import Vault
 from poisoner.atomic import atomic_output
 from poisoner.spec import PatchSpec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 CLI = "import typer; from daemon.cli.store_cmd import register; app = typer.Typer(); register(app); app()"
 
 

@@ -37,7 +37,7 @@ from daemon.watch.workers import PoolOptions, WorkerPool
 from poisoner.atomic import TEMP_PREFIX
 from poisoner.media import MEDIA_SUFFIXES
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 
 # Fast settings for tests: the defaults (2 s debounce) are for real writers.
 FAST = DaemonOptions(
