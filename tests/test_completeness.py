@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bench.bench_video import mux_rgb_frames
 from poisoner.completeness import incomplete_reason
+from testkit.video import mux_rgb_frames
 
 
 def pixels(h: int = 90, w: int = 120) -> np.ndarray:

@@ -8,12 +8,12 @@ import os
 from pathlib import Path
 
 import pytest
-from reliability_harness import write_image
 
 import daemon.pipeline
 from daemon.pipeline import STAGES, Outcome
 from daemon.protect import AppContext, protect_file
 from daemon.states import FileState
+from testkit.reliability import write_image
 
 
 def _sha(path: Path) -> str:
@@ -110,7 +110,7 @@ def test_file_swapped_for_a_symlink_is_never_read_or_stored(
 
 def test_a_few_random_instant_races_write_nothing_outside(tmp_path: Path, ppd_env: dict[str, Path]) -> None:
     """The bench scenario (bench/bench_races.py, >= 100 trials) in miniature."""
-    from bench.bench_races import run_symlink_races
+    from testkit.races import run_symlink_races
 
     result = run_symlink_races(tmp_path / "races", trials=6, seed=5)
     assert result.trials == 6 and result.violations == [], result.violations

@@ -12,7 +12,11 @@ import time
 from pathlib import Path
 
 import pytest
-from reliability_harness import (
+
+from daemon.protect import AppContext, protect_file, restore_file
+from daemon.states import FileState
+from daemon.store import Store
+from testkit.reliability import (
     DAEMON_ARGS,
     REPO,
     app_paths,
@@ -22,10 +26,6 @@ from reliability_harness import (
     wait_for,
     write_image,
 )
-
-from daemon.protect import AppContext, protect_file, restore_file
-from daemon.states import FileState
-from daemon.store import Store
 
 pytestmark = pytest.mark.integration
 

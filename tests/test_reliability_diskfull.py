@@ -18,7 +18,16 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from reliability_harness import (
+
+import daemon.pipeline
+import daemon.vault
+import poisoner.atomic
+import poisoner.formats
+from daemon.protect import AppContext, protect_file
+from daemon.states import FileState
+from daemon.store import Store
+from daemon.watcher import is_no_space
+from testkit.reliability import (
     DAEMON_ARGS,
     MountUnavailable,
     app_paths,
@@ -33,15 +42,6 @@ from reliability_harness import (
     wait_for,
     write_image,
 )
-
-import daemon.pipeline
-import daemon.vault
-import poisoner.atomic
-import poisoner.formats
-from daemon.protect import AppContext, protect_file
-from daemon.states import FileState
-from daemon.store import Store
-from daemon.watcher import is_no_space
 
 ENOSPC_TEXT = os.strerror(errno.ENOSPC)  # "No space left on device"
 

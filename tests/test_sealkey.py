@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 import typer
-from reliability_harness import write_image
 from typer.testing import CliRunner
 
 from daemon.cli.key import register
@@ -19,6 +18,7 @@ from daemon.sealkey import SealKeyError, key_path, load_key
 from poisoner.formats import poison_file
 from poisoner.provenance import Marker, Seal, read_seal, seal_file
 from poisoner.spec import PatchSpec
+from testkit.reliability import write_image
 
 
 def _load(data_dir: str, out: multiprocessing.Queue) -> None:  # type: ignore[type-arg]

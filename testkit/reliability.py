@@ -8,9 +8,8 @@ that must hold at any instant (docs/RELIABILITY.md):
   names an original in the vault and the disk holds that original or its exact poisoned form);
 * the SQLite file passes `PRAGMA integrity_check`.
 
-Used from pytest (tests/ on sys.path) and from `python -m bench` (repo root on sys.path); the
-real-process daemon helpers are bench.bench_daemon's, the image/clip writers are the watcher's
-and the video tests' own.
+Used from pytest and from `python -m bench`; the real-process daemon helpers are
+testkit/daemon_proc.py's, the image/clip writers testkit/media.py's and testkit/video.py's.
 """
 
 from __future__ import annotations
@@ -36,17 +35,15 @@ from pathlib import Path
 import PIL.Image  # before anything that could load pycolmap (pillow 13 import-order crash)
 import PIL.PngImagePlugin
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # pytest puts tests/ first; bench and tests.* need the root
-    sys.path.insert(0, str(REPO))
+from daemon.paths import AppPaths
+from daemon.protect import media_kind, poison_to
+from daemon.states import FileState
+from daemon.store import Store
+from poisoner.atomic import TEMP_PREFIX
+from testkit.daemon_proc import Daemon, start_daemon, status_kb
+from testkit.media import texture, wait_for, write_image
 
-from bench.bench_daemon import Daemon, start_daemon, status_kb  # noqa: E402
-from daemon.paths import AppPaths  # noqa: E402
-from daemon.protect import media_kind, poison_to  # noqa: E402
-from daemon.states import FileState  # noqa: E402
-from daemon.store import Store  # noqa: E402
-from poisoner.atomic import TEMP_PREFIX  # noqa: E402
-from tests.test_watcher import texture, wait_for, write_image  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 # no SfM children in fault runs; an incomplete file is quarantined after 2 s unchanged (default 120)
 DAEMON_ARGS = ("--no-verify", "--debounce", "0.05", "-j", "2", "--incomplete-wait", "2")
@@ -90,7 +87,7 @@ def subprocess_env(root: Path) -> dict[str, str]:
 
 def make_video(path: Path, seed: int, frames: int = 12) -> Path:
     """A small H.264 MP4 (160x120, no audio), distinct per seed."""
-    from tests.test_video import Clip, make_clip  # lazy: loads PyAV
+    from testkit.video import Clip, make_clip  # lazy: loads PyAV
 
     make_clip(path, Clip(width=160, height=120, frames=frames, audio=None))
     # make_clip's scene is the same for every clip: mark each one by appending a free atom,

@@ -2,7 +2,7 @@
 
 Every generator writes a real, well-formed file in bounded memory (streamed compression, or a
 header patched onto a bitstream that does not depend on the size). Used by tests/test_limits.py;
-`python tests/hostile_images.py OUT_DIR` writes the corpus for bench or manual runs.
+`python -m testkit.hostile_images OUT_DIR` writes the corpus for bench or manual runs.
 """
 
 from __future__ import annotations
