@@ -19,7 +19,7 @@ from daemon.subject import (
 )
 from poisoner.ladder import named_spec
 from poisoner.subject import CornerChoice
-from tests.test_cli_poison import MASKED_SIZE, masked_shoot
+from testkit.photos import MASKED_SIZE, masked_shoot
 
 CORNER_CONFIG = '[patch]\ndesign = "watermark"\n'
 

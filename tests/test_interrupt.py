@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 
 from daemon.cli import app
 from daemon.folder_count import count_folder, folder_media, not_patched_yet, resume_command, with_folder
-from tests.test_cli_poison import make_image
+from testkit.photos import make_image
 
 REPO = Path(__file__).resolve().parents[1]
 runner = CliRunner()

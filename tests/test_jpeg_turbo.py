@@ -18,7 +18,7 @@ from poisoner import jpeg_turbo
 from poisoner.blend import apply_patch
 from poisoner.ladder import default_spec
 from poisoner.spec import PatchSpec
-from tests.test_jpeg_region import gps_exif, textured
+from testkit.photos import gps_exif, textured
 
 pytestmark = pytest.mark.skipif(
     jpeg_codec.turbo_available() is not None, reason=f"libturbojpeg: {jpeg_codec.turbo_available()}"

@@ -17,7 +17,7 @@ import pytest
 
 from daemon.protect import AppContext
 from daemon.states import FileState
-from tests.test_cli_poison import make_image
+from testkit.photos import make_image
 
 REPO = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.integration
