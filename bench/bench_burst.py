@@ -25,7 +25,7 @@ sys.path.insert(0, str(REPO))
 from daemon.states import FileState  # noqa: E402
 from daemon.store import Store  # noqa: E402
 from testkit.daemon_proc import stop_daemon  # noqa: E402
-from testkit.media import burst_writer  # noqa: E402
+from testkit.photos import burst_writer  # noqa: E402
 from testkit.reliability import app_paths, start_daemon, wait_for, write_image  # noqa: E402
 
 

@@ -35,7 +35,7 @@ from daemon.store import Store
 from poisoner.atomic import TEMP_PREFIX
 from testkit.daemon_proc import Daemon
 from testkit.kill_loops import concurrency_round, poison_loop, store_deleted_round, write_photo
-from testkit.media import texture
+from testkit.photos import texture
 from testkit.reliability import (
     DAEMON_ARGS,
     CrashTrialOptions,

@@ -1,5 +1,6 @@
 """`ppd watch` as a real process: started with its folders under one root and a systemd-style
-notify socket (it returns once READY=1 arrives), stopped with SIGTERM, its /proc status read."""
+notify socket (it returns once READY=1 arrives), stopped with SIGTERM, its /proc status read;
+and a polling wait for what a daemon (a process or in this one) is expected to do."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,3 +79,12 @@ def status_kb(pid: int, key: str) -> int:
         if line.startswith(key + ":"):
             return int(line.split()[1])
     raise KeyError(key)
+
+
+def wait_for(predicate: Callable[[], bool], timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")

@@ -20,7 +20,7 @@ import PIL.Image  # before anything that could load pycolmap
 from daemon.states import FileState
 from daemon.store import Store
 from poisoner.atomic import TEMP_PREFIX
-from testkit.media import texture
+from testkit.photos import texture
 from testkit.reliability import (
     DAEMON_ARGS,
     app_paths,

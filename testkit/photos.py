@@ -1,14 +1,27 @@
-"""Generated photos for the CLI and format tests: random-pixel frames, a masked set whose subject
-leaves one corner free (and the checks that a mark stayed in it), smooth textures with sharp chroma
-edges for the JPEG splice, and an EXIF block with a GPS position."""
+"""Generated photos: random-pixel frames (PNG or JPEG by suffix), a masked set whose subject leaves
+one corner free (and the checks that a mark stayed in it), smooth textures with sharp chroma edges
+for the JPEG splice, an EXIF block with a GPS position, and a writer that appends in bursts."""
 
 from __future__ import annotations
 
 import io
+import time
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
+
+
+def texture(seed: int, size: int = 256) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return (rng.random((size, size, 3)) * 255).astype(np.uint8)
+
+
+def write_image(path: Path, seed: int, size: int = 256) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fmt = "JPEG" if path.suffix.lower() in (".jpg", ".jpeg") else "PNG"
+    Image.fromarray(texture(seed, size)).save(path, format=fmt)
+    return path
 
 
 def make_image(path: Path, seed: int, size: tuple[int, int] = (160, 120)) -> Path:
@@ -71,3 +84,13 @@ def gps_exif() -> Image.Exif:
     gps = exif.get_ifd(0x8825)
     gps[1], gps[2] = "N", (48.0, 51.0, 24.0)
     return exif
+
+
+def burst_writer(path: Path, data: bytes, bursts: int, gap_s: float) -> None:
+    """open(path, 'ab'), write a part, close; pause; again: how some uploaders and sync tools write."""
+    step = -(-len(data) // bursts)
+    for i in range(bursts):
+        with open(path, "ab") as f:
+            f.write(data[i * step : (i + 1) * step])
+        if i < bursts - 1:
+            time.sleep(gap_s)

@@ -9,7 +9,7 @@ that must hold at any instant (docs/RELIABILITY.md):
 * the SQLite file passes `PRAGMA integrity_check`.
 
 Used from pytest and from `python -m bench`; the real-process daemon helpers are
-testkit/daemon_proc.py's, the image/clip writers testkit/media.py's and testkit/video.py's.
+testkit/daemon_proc.py's, the image/clip writers testkit/photos.py's and testkit/video.py's.
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ from daemon.protect import media_kind, poison_to
 from daemon.states import FileState
 from daemon.store import Store
 from poisoner.atomic import TEMP_PREFIX
-from testkit.daemon_proc import Daemon, start_daemon, status_kb
-from testkit.media import texture, wait_for, write_image
+from testkit.daemon_proc import Daemon, start_daemon, status_kb, wait_for
+from testkit.photos import texture, write_image
 
 REPO = Path(__file__).resolve().parents[1]
 

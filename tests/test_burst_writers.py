@@ -14,7 +14,7 @@ import pytest
 from daemon.states import FileState
 from daemon.store import Store
 from testkit.daemon_proc import stop_daemon
-from testkit.media import burst_writer
+from testkit.photos import burst_writer
 from testkit.reliability import app_paths, start_daemon, wait_for, write_image
 
 pytestmark = pytest.mark.integration

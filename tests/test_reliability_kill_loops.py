@@ -86,7 +86,7 @@ def test_a_writer_that_closed_within_the_scan_cache_does_not_skip_the_file(ppd_e
     as 'still open for writing by pid <ppd itself>' after the writer had closed it."""
     import daemon.fsops
     from daemon.protect import AppContext, protect_file
-    from testkit.media import write_image
+    from testkit.photos import write_image
 
     photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=3)
     fd = os.open(photo, os.O_WRONLY)

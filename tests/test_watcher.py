@@ -34,7 +34,8 @@ from daemon.watcher import DaemonOptions, WatchDaemon
 from daemon.workers import PoolOptions, WorkerPool
 from poisoner.atomic import TEMP_PREFIX
 from poisoner.media import MEDIA_SUFFIXES
-from testkit.media import wait_for, write_image
+from testkit.daemon_proc import wait_for
+from testkit.photos import write_image
 
 REPO = Path(__file__).resolve().parents[1]
 
