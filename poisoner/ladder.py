@@ -1,6 +1,6 @@
 """The candidate ladder: concrete patch designs for auto mode, least visible first by intent.
 
-Contract with auto mode (verifier/auto.py, issue #9): `candidate_ladder()` returns concrete
+Contract with auto mode (verifier/auto_search.py, issue #9): `candidate_ladder()` returns concrete
 `Candidate`s (every spec a valid PatchSpec, never "auto"), ordered from least to most visible by
 design intent. Auto mode measures each candidate's actual visibility on the dataset and never
 relies on this order for the visibility budget.

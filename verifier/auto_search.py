@@ -19,7 +19,7 @@
 The visibility measures live in verifier.auto_visibility; what a preflight takes (budget, options,
 job) in verifier.auto_options.
 
-Runs as a child process for the daemon: `python -m verifier.auto JOB.json` (see `main`; the job is a
+Runs as a child process for the daemon: `python -m verifier.auto_search JOB.json` (see `main`; the job is a
 `PreflightJob`, the result an `AutoDecision` or `{"error": ...}`, JSON both ways through msgspec).
 torch (LPIPS) is imported only when LPIPS is measured; pycolmap only in the SfM grandchildren.
 """
@@ -534,11 +534,11 @@ def run_job(job: PreflightJob) -> AutoDecision | InterimChoice:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """`python -m verifier.auto JOB.json`: writes the decision (or interim choice) JSON to job.result
+    """`python -m verifier.auto_search JOB.json`: writes the decision (or interim choice) JSON to job.result
     (atomically); {"error": ...} when the job cannot run."""
     args = list(sys.argv[1:] if argv is None else argv)
     if len(args) != 1:
-        print("usage: python -m verifier.auto JOB.json", file=sys.stderr)
+        print("usage: python -m verifier.auto_search JOB.json", file=sys.stderr)
         return 2
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s %(message)s")
     try:
