@@ -21,17 +21,15 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from daemon.states import FileState
+from testkit.disk_full import MountUnavailable, run_disk_full, small_filesystem
+from testkit.hostile_inputs import build_hostile_corpus
 from testkit.reliability import (
     DAEMON_ARGS,
     CrashTrialOptions,
     CrashTrialReport,
-    MountUnavailable,
     app_paths,
-    build_hostile_corpus,
     kill_daemon,
     run_crash_trials,
-    run_disk_full,
-    small_filesystem,
     start_daemon,
     wait_for,
     write_results_section,

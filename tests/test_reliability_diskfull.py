@@ -27,16 +27,13 @@ from daemon.protect import AppContext, protect_file
 from daemon.states import FileState
 from daemon.store import Store
 from daemon.watcher import is_no_space
+from testkit.disk_full import MountUnavailable, fill, run_disk_full, small_filesystem
 from testkit.reliability import (
     DAEMON_ARGS,
-    MountUnavailable,
     app_paths,
     check_invariants,
-    fill,
     kill_daemon,
-    run_disk_full,
     sha256,
-    small_filesystem,
     start_daemon,
     wait_all_protected,
     wait_for,

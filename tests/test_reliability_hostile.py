@@ -20,11 +20,10 @@ from daemon.paths import AppPaths
 from daemon.protect import AppContext, ProtectOutcome, protect_file
 from daemon.states import FileState
 from daemon.store import Store
+from testkit.hostile_inputs import HostileInput, build_hostile_corpus
 from testkit.reliability import (
     DAEMON_ARGS,
-    HostileInput,
     app_paths,
-    build_hostile_corpus,
     check_invariants,
     kill_daemon,
     sha256,

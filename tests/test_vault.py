@@ -25,7 +25,7 @@ from daemon.vault import (
     open_regular_nofollow,
 )
 from poisoner.spec import PatchSpec
-from testkit.reliability import MountUnavailable, fill, small_filesystem
+from testkit.disk_full import MountUnavailable, fill, small_filesystem
 
 
 def _sha(data: bytes) -> str:
