@@ -238,7 +238,7 @@ def memory_run(root: Path, seconds: float, limit: int, big_png_mp: int = 0) -> d
     }  # fmt: skip
 
 
-def rounds(fn, root: Path, count: int, files: int, name: str) -> dict[str, object]:  # noqa: ANN001
+def rounds(fn, root: Path, count: int, files: int, name: str) -> dict[str, object]:
     total: Counter[str] = Counter()
     started = time.monotonic()
     for i in range(count):

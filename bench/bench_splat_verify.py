@@ -20,13 +20,13 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads: verifier/splat/__init__.py
 
-import numpy as np  # noqa: E402
-from PIL import Image  # noqa: E402  (before pycolmap)
+import numpy as np
+from PIL import Image  # before pycolmap
 
-from bench.bench_verify import WORK, poison_folder, prepare_lego  # noqa: E402
-from poisoner.ladder import default_spec  # noqa: E402
-from poisoner.spec import PatchSpec  # noqa: E402
-from verifier.verification import VerifyOptions, verify_folders  # noqa: E402
+from bench.bench_verify import WORK, poison_folder, prepare_lego
+from poisoner.ladder import default_spec
+from poisoner.spec import PatchSpec
+from verifier.verification import VerifyOptions, verify_folders
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "splat_verify.md"

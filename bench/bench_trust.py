@@ -146,7 +146,7 @@ def daemon_phase(root: Path, n: int) -> Counter[str]:
     return counts
 
 
-def _settled(paths, files: list[Path]) -> bool:  # noqa: ANN001
+def _settled(paths, files: list[Path]) -> bool:
     """Every file patched (a row naming what is at its path now) or left alone for a while."""
     store = Store(paths.db_path)
     try:

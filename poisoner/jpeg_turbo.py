@@ -142,7 +142,7 @@ def filter_spec(
 
     errors: list[BaseException] = []
 
-    def trampoline(coeffs, array_region, _plane, component, index, _t) -> int:  # noqa: ANN001
+    def trampoline(coeffs, array_region, _plane, component, index, _t) -> int:
         try:
             row = array_region.y // 8
             if wanted is not None and row not in wanted(component):
@@ -151,7 +151,7 @@ def filter_spec(
             blocks = np.frombuffer((ctypes.c_short * count).from_address(coeffs), dtype=np.int16)
             on_row(row, blocks.reshape(-1, 64), component, index)
             return 0
-        except BaseException as exc:  # noqa: BLE001 - an exception must not cross the C frames
+        except BaseException as exc:  # an exception must not cross the C frames
             errors.append(exc)
             return -1
 

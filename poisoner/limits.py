@@ -360,6 +360,6 @@ def _pillow(path: Path) -> DecodedSize:
                 channels = len(im.getbands())
     except Image.DecompressionBombError as exc:
         raise HeaderError(str(exc)) from exc
-    except Exception as exc:  # noqa: BLE001 - any reader failure means "header unknown"
+    except Exception as exc:  # any reader failure means "header unknown"
         raise HeaderError(f"{type(exc).__name__}: {exc}") from exc
     return DecodedSize("other", w, h, channels, 1, frames)

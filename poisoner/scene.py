@@ -230,7 +230,7 @@ def scene_hint(
     for path in evenly_spaced(images, sample):
         try:
             figures.append(image_figures(load_gray(path)))
-        except Exception:  # noqa: BLE001 - unreadable, not an image, too large: a hint never stops a command
+        except Exception:  # unreadable, not an image, too large: a hint never stops a command
             continue
     if not figures:
         return None

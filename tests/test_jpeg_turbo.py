@@ -67,7 +67,7 @@ def box_and_patch(data: bytes, spec: PatchSpec, name: str = "a.jpg"):
 
 def blocks_outside_equal(a: bytes, b: bytes, layout: jpeg_codec.JpegLayout, box) -> None:
     """Every DCT block of every component outside the box is the same in a and b; inside differs."""
-    offsets = jpeg_codec._component_offsets(layout, box)  # noqa: SLF001
+    offsets = jpeg_codec._component_offsets(layout, box)
     mw, mh = layout.mcu_size
     inside_changed = False
     for ci, (ba, bb) in enumerate(zip(jpeg_turbo.read_blocks(a), jpeg_turbo.read_blocks(b), strict=True)):

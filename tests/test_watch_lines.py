@@ -43,7 +43,7 @@ class Watch:
         for line in self.proc.stdout:
             self.lines.append(line.rstrip("\n"))
 
-    def wait_for(self, what: str, test, timeout: float = 60) -> None:  # noqa: ANN001
+    def wait_for(self, what: str, test, timeout: float = 60) -> None:
         deadline = time.monotonic() + timeout
         while not test():
             assert self.proc.poll() is None, "\n".join(self.lines)
