@@ -17,6 +17,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads: verifier/splat/__init__.py
 
@@ -74,9 +75,10 @@ def lpips_timing(clean: Path, poisoned: Path, pairs: int) -> dict[str, float]:
 
 
 def _get(d: dict, *keys: str) -> object:
+    value: Any = d  # JSON data: a dict at every key but the last
     for k in keys:
-        d = (d or {}).get(k)  # type: ignore[assignment]
-    return d
+        value = (value or {}).get(k)
+    return value
 
 
 def _child_peak_mb() -> float:

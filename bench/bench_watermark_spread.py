@@ -99,7 +99,7 @@ VARIANTS = {
     )
 }
 # held-out render (verifier/synthetic.py): a new seed and camera arc; no design was tuned on it
-RENDER_OPTIONS = dict(
+RENDER_OPTIONS: dict[str, Any] = dict(
     num_views=20, width=800, height=600, focal=960.0, arc_deg=100.0, seed=23, backdrop="plain"
 )
 
@@ -135,7 +135,7 @@ def setup(variant: Variant) -> Dataset:
     if variant.base == "render":
         from verifier.synthetic import SyntheticOptions, render_scene
 
-        opts = SyntheticOptions(**RENDER_OPTIONS)  # type: ignore[arg-type]
+        opts = SyntheticOptions(**RENDER_OPTIONS)
         if not clean.exists():
             render_scene(clean, opts, base_dir / "gt.json")
         return Dataset(variant.name, clean, None, opts.camera_params())

@@ -37,6 +37,7 @@ from daemon.protect import media_kind, poison_to
 from daemon.states import FileState
 from daemon.store import Store
 from poisoner.atomic import TEMP_PREFIX
+from poisoner.spec import PatchSpec
 from testkit.daemon_proc import Daemon, start_daemon, status_kb, wait_for
 from testkit.photos import texture, write_image
 
@@ -408,7 +409,7 @@ def percentile(values: list[float], q: float) -> float:
     return ordered[rank - 1]
 
 
-def sealed_patch(src: Path, dst: Path, spec: object, original_sha256: str, data_dir: Path) -> None:
+def sealed_patch(src: Path, dst: Path, spec: PatchSpec, original_sha256: str, data_dir: Path) -> None:
     """What the pipeline's poison stage writes: the patched file with its seal, made with the
     installation's key in data_dir (created on first use)."""
     from daemon.sealkey import load_key
@@ -417,7 +418,7 @@ def sealed_patch(src: Path, dst: Path, spec: object, original_sha256: str, data_
 
     key = load_key(data_dir)
     assert key is not None
-    poison_file(src, dst, spec, marker=Marker.placeholder(key, spec.spec_id, original_sha256))  # type: ignore[arg-type, attr-defined]
+    poison_file(src, dst, spec, marker=Marker.placeholder(key, spec.spec_id, original_sha256))
     seal_file(dst, key)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -54,7 +55,7 @@ def test_the_crash_safe_order_is_one_list_of_named_stages(ctx: AppContext) -> No
     assert os.stat(ctx.vault.path_for(before)).st_nlink == 1
 
 
-def _swap_after_poisoning(monkeypatch: pytest.MonkeyPatch, swap: object) -> None:
+def _swap_after_poisoning(monkeypatch: pytest.MonkeyPatch, swap: Callable[[], object]) -> None:
     real = daemon.pipeline.poison_to
     done: list[bool] = []
 
@@ -62,7 +63,7 @@ def _swap_after_poisoning(monkeypatch: pytest.MonkeyPatch, swap: object) -> None
         result = real(*args, **kw)
         if not done:
             done.append(True)
-            swap()  # type: ignore[operator]
+            swap()
         return result
 
     monkeypatch.setattr(daemon.pipeline, "poison_to", poison_then_swap)

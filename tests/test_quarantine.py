@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from daemon.paths import AppPaths
 from daemon.protect import AppContext, protect_file, restore_file
 from daemon.states import FileState
 from daemon.store import Store
@@ -30,8 +31,8 @@ from testkit.reliability import (
 pytestmark = pytest.mark.integration
 
 
-def _row(paths: object, path: Path) -> dict | None:
-    store = Store(paths.db_path)  # type: ignore[attr-defined]
+def _row(paths: AppPaths, path: Path) -> dict | None:
+    store = Store(paths.db_path)
     try:
         return store.file(path)
     finally:

@@ -245,7 +245,7 @@ class CompositeFunction(torch.autograd.Function):
     """image (3 x H x W) = composite(means2d, conics, opacity, colours, bg; tile lists)."""
 
     @staticmethod
-    def forward(  # type: ignore[override]
+    def forward(
         ctx: torch.autograd.function.FunctionCtx,
         means2d: torch.Tensor, conics: torch.Tensor, opacity: torch.Tensor, colours: torch.Tensor,
         bg: torch.Tensor, radii: torch.Tensor, starts: torch.Tensor, counts: torch.Tensor,
@@ -267,7 +267,7 @@ class CompositeFunction(torch.autograd.Function):
         return torch.from_numpy(image).to(means2d.dtype).permute(2, 0, 1)
 
     @staticmethod
-    def backward(  # type: ignore[override]
+    def backward(
         ctx: torch.autograd.function.FunctionCtx, grad_image: torch.Tensor
     ) -> tuple[torch.Tensor | None, ...]:
         width, height, tile, tiles_x = ctx.geometry
