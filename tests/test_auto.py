@@ -4,6 +4,7 @@ end-to-end preflight with real COLMAP)."""
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import msgspec
@@ -154,12 +155,17 @@ def test_two_profile_walk_passes_the_static_patch_and_chooses_the_moving_one(
     assert without.chosen is None and NO_CANDIDATE in without.reason and "paper-static" in without.reason
 
 
-def test_candidate_that_does_not_fit_is_recorded_not_fatal(tmp_path: Path) -> None:
+def test_candidate_that_does_not_fit_is_recorded_not_fatal(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     for i in range(3):
         Image.fromarray((_textured(40, 40, i) * 255).astype(np.uint8)).save(tmp_path / f"v{i}.png")
     too_big = LadderEntry("too-big", PatchSpec(patch_size=64), "does not fit 40 px images")
-    decision = preflight(sorted(tmp_path.glob("*.png")), [too_big], VisibilityBudget(display_width=40),
-                         PreflightOptions(), tmp_path / "out")  # fmt: skip
+    with caplog.at_level(logging.INFO, logger="verifier.auto_search"):
+        decision = preflight(sorted(tmp_path.glob("*.png")), [too_big], VisibilityBudget(display_width=40),
+                             PreflightOptions(), tmp_path / "out")  # fmt: skip
     first = decision.evidence[0]
     assert first.status == auto_search.FAILED and "does not fit" in (first.error or "")
+    said = [r.__dict__ for r in caplog.records if r.getMessage() == "candidate not measurable"]
+    assert [(s["candidate"], s["file"], s["error"]) for s in said] == [("too-big", "v0.png", first.error)]
     assert decision.chosen is None
