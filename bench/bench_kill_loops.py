@@ -9,7 +9,8 @@ systemd-style restarts, two daemons plus a CLI on one outbox, and a deleted stor
     python -m bench.bench_kill_loops render --inputs A.json B.json ...   (writes the results section)
 
 Each prints one JSON line of figures (and writes it to --json when given); the tables are in
-bench/results/reliability.md, section `kill-loops`, and docs/RELIABILITY.md.
+bench/results/reliability.md, section `kill-loops`, and docs/RELIABILITY.md. The poison loop, the
+concurrency and store-deleted rounds are testkit/kill_loops.py's (the tests run them small).
 """
 
 from __future__ import annotations

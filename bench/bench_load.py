@@ -10,7 +10,8 @@ includes the queueing behind the files before it). Soak: one file copied in (clo
 write, the daemon's default 2 s debounce) every `interval` seconds, a 256x256 PNG or JPEG, and
 a small MP4 every 50th file; latency = 'patched' event time minus the end of the copy.
 RSS of the daemon process sampled every second (flood) or 5 s (soak) from /proc.
-Writes the `load` section of bench/results/reliability.md.
+Writes the `load` section of bench/results/reliability.md. The scenarios are testkit/load.py's (the
+tests run them small).
 """
 
 from __future__ import annotations

@@ -9,7 +9,8 @@
 
     python -m bench.bench_races [--trials 120] [--videos 24]
 
-Writes the `races` section of bench/results/reliability.md.
+Writes the `races` section of bench/results/reliability.md. The scenarios are testkit/races.py's (the
+tests run them small).
 """
 
 from __future__ import annotations
