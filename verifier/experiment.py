@@ -277,8 +277,7 @@ def make_poisoned_copy(clean_dir: Path, dst_dir: Path, setting: Setting) -> int:
 def _rgb_unit(path: Path) -> np.ndarray:
     with Image.open(path) as im:
         if im.mode in ("RGBA", "LA", "P"):
-            im = im.convert("RGBA")
-            rgba = np.asarray(im).astype(np.float64) / 255
+            rgba = np.asarray(im.convert("RGBA")).astype(np.float64) / 255
             return rgba[..., :3] * rgba[..., 3:] + (1 - rgba[..., 3:])  # on white, as 3DGS for NeRF data
         return np.asarray(im.convert("RGB")).astype(np.float64) / 255
 

@@ -55,7 +55,7 @@ VERDICT_COLOURS: dict[str, str] = {
     Verdict.INCONCLUSIVE: "#4a5568",
     "error": "#4a5568",
 }
-VERDICT_TEXT = {
+VERDICT_TEXT: dict[str, str] = {
     Verdict.PROTECTED: "PROTECTED — the attacker's SfM does not recover the cameras",
     Verdict.WEAK: "WEAK — a partial reconstruction is likely",
     Verdict.NOT_PROTECTED: "NOT PROTECTED — the attacker gets a usable reconstruction",
