@@ -14,6 +14,7 @@ demo: setup
 test: setup
 	$(VENV)/bin/ruff check --no-cache .
 	$(VENV)/bin/lint-imports --no-cache
+	$(VENV)/bin/mypy poisoner verifier
 	$(PY) -m pytest
 
 # Everything: every integration test (the default runs the representative few, tests/conftest.py)
@@ -26,9 +27,11 @@ test-all: setup
 wheel-smoke: setup
 	PPD_VENV=$(VENV) bash scripts/wheel_smoke.sh
 
+# mypy: the product's pure and verification packages ([tool.mypy] in pyproject; the daemon is not yet typed).
 lint: setup
 	$(VENV)/bin/ruff check --no-cache .
 	$(VENV)/bin/lint-imports --no-cache
+	$(VENV)/bin/mypy poisoner verifier
 
 bench:
 	PPD_SETUP_BENCH=1 bash scripts/setup.sh

@@ -108,7 +108,7 @@ def run_ppd(folder: Path, workers: int) -> None:
         # their CPU (private API, bench only).
         from multiprocessing import forkserver
 
-        forkserver._forkserver._stop()  # noqa: SLF001
+        forkserver._forkserver._stop()
         failed = [r for r in results if r.error]
         if failed:
             raise SystemExit(f"{len(failed)} failed: {failed[0].error}")

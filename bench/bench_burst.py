@@ -20,15 +20,13 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))
 sys.path.insert(0, str(REPO))
 
-from reliability_harness import app_paths, start_daemon, wait_for, write_image  # noqa: E402
-from test_burst_writers import burst_writer  # noqa: E402
-
-from bench.bench_daemon import stop_daemon  # noqa: E402
 from daemon.states import FileState  # noqa: E402
 from daemon.store import Store  # noqa: E402
+from testkit.daemon_proc import stop_daemon  # noqa: E402
+from testkit.photos import burst_writer  # noqa: E402
+from testkit.reliability import app_paths, start_daemon, wait_for, write_image  # noqa: E402
 
 
 def main() -> None:

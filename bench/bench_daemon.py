@@ -19,17 +19,16 @@ import json
 import os
 import platform
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import PIL.Image
+
+from testkit.daemon_proc import start_daemon, status_kb, stop_daemon
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "datasets"
@@ -68,73 +67,10 @@ def variant(img: PIL.Image.Image, i: int) -> PIL.Image.Image:
     return out
 
 
-# ---- the daemon process ----------------------------------------------------------------------------
-@dataclass
-class Daemon:
-    proc: subprocess.Popen[bytes]
-    sock: socket.socket
-    log: Path
-
-    @property
-    def pid(self) -> int:
-        return self.proc.pid
-
-
-def start_daemon(root: Path, *args: str) -> Daemon:
-    env = dict(os.environ)
-    env.update(
-        PPD_DATA_DIR=str(root / "data"), PPD_CONFIG_DIR=str(root / "config"),
-        PPD_OUTBOX=str(root / "outbox"), PPD_CACHE_DIR=str(root / "cache"),
-        NOTIFY_SOCKET=str(root / "notify.sock"),
-    )  # fmt: skip
-    sock_path = root / "notify.sock"
-    sock_path.unlink(missing_ok=True)
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    sock.bind(str(sock_path))
-    sock.settimeout(60)
-    exe = Path(sys.executable).parent / "ppd"
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "daemon.cli"]
-    log = root / f"daemon-{time.monotonic_ns()}.log"
-    with open(log, "wb") as fh:
-        proc = subprocess.Popen(
-            [*cmd, "watch", *args], env=env, cwd=REPO, stdout=fh, stderr=subprocess.STDOUT
-        )
-    while not sock.recv(4096).startswith(b"READY=1"):
-        pass
-    # Keep reading, as systemd does: STATUS= updates arrive after every file.
-    threading.Thread(target=_drain, args=(sock,), daemon=True).start()
-    return Daemon(proc, sock, log)
-
-
-def _drain(sock: socket.socket) -> None:
-    sock.settimeout(None)
-    with contextlib.suppress(OSError):
-        while sock.recv(4096):
-            pass
-
-
-def stop_daemon(daemon: Daemon) -> float:
-    started = time.monotonic()
-    daemon.proc.terminate()
-    code = daemon.proc.wait(60)
-    with contextlib.suppress(OSError):
-        daemon.sock.shutdown(socket.SHUT_RDWR)  # wakes the drain thread
-    daemon.sock.close()
-    if code != 0:
-        raise RuntimeError(f"ppd watch exited {code}; see {daemon.log}")
-    return time.monotonic() - started
-
-
+# ---- the daemon process: testkit/daemon_proc.py -------------------------------------------------
 def cpu_ticks(pid: int) -> int:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return int(fields[11]) + int(fields[12])  # utime, stime (fields 14 and 15 of stat)
-
-
-def status_kb(pid: int, key: str) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith(key + ":"):
-            return int(line.split()[1])
-    raise KeyError(key)
 
 
 def context_switches(pid: int) -> int:

@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from PIL import Image  # noqa: F401  (PIL before anything that may load pycolmap)
+from PIL import Image  # PIL before anything that may load pycolmap
 
 from bench.bench_verify import prepare_lego
 from bench.results_page import ANALYSIS_MARKER

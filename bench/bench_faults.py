@@ -21,17 +21,15 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from daemon.states import FileState
-from tests.reliability_harness import (
+from testkit.disk_full import MountUnavailable, run_disk_full, small_filesystem
+from testkit.hostile_inputs import build_hostile_corpus
+from testkit.reliability import (
     DAEMON_ARGS,
     CrashTrialOptions,
     CrashTrialReport,
-    MountUnavailable,
     app_paths,
-    build_hostile_corpus,
     kill_daemon,
     run_crash_trials,
-    run_disk_full,
-    small_filesystem,
     start_daemon,
     wait_for,
     write_results_section,
@@ -158,7 +156,7 @@ def _fuzz_images(folder: Path, examples: int, result: FuzzResult) -> None:
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
 
-    from tests.poisoner.test_properties import SEEDS, fuzz_image_reader, mutate
+    from testkit.fuzz import SEEDS, fuzz_image_reader, mutate
 
     seeds = {**SEEDS, ".bin": b""}
 
@@ -189,7 +187,7 @@ def _fuzz_videos(folder: Path, clip: bytes, examples: int, result: FuzzResult) -
 
     from poisoner.spec import PatchSpec
     from poisoner.video import VideoFormatError, poison_video
-    from tests.poisoner.test_properties import mutate
+    from testkit.fuzz import mutate
 
     @settings(max_examples=max(20, examples // 15), deadline=None, database=None,
               suppress_health_check=list(HealthCheck))  # fmt: skip
@@ -214,7 +212,7 @@ def _fuzz_videos(folder: Path, clip: bytes, examples: int, result: FuzzResult) -
 def fuzz_run(root: Path, examples: int) -> FuzzResult:
     """Mutated PNG/JPEG/WebP/TIFF files and random bytes through poison_file, and mutated MP4s
     through poison_video: only their one-line error types may come out."""
-    from tests.reliability_harness import make_video
+    from testkit.reliability import make_video
 
     result = FuzzResult()
     started = time.monotonic()

@@ -34,7 +34,7 @@ SECTION = "## Mark vs scene in COLMAP's two-view vote (issue 14)"
 
 def mark_boxes(design: str, position: str, name: str, width: int, height: int) -> list[tuple[int, ...]]:
     """The mark squares (x0, y0, x1, y1) of one image under a bench design."""
-    from bench.bench_watermark import designs
+    from testkit.watermark_designs import designs
 
     boxes = []
     for spec in designs()[design]:
@@ -139,7 +139,7 @@ def keypoint_child(image_dir: str, position: str, count: int, out: str) -> None:
 
 # ---- parent ---------------------------------------------------------------------------------------------
 def measure(set_name: str, design: str) -> dict[str, Any]:
-    from bench.bench_watermark import designs
+    from testkit.watermark_designs import designs
     from verifier.supervise import run_child
 
     spec_id = designs()[design][0].spec_id

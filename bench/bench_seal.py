@@ -35,7 +35,7 @@ def make(path: Path, mb: float) -> None:
     path.write_bytes(head[:-2] + rng.bytes(int(mb * 1e6)) + b"\xff\xd9")
 
 
-def timed(fn, runs: int) -> float:  # noqa: ANN001
+def timed(fn, runs: int) -> float:
     times = []
     for _ in range(runs):
         t = time.perf_counter()

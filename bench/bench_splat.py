@@ -21,11 +21,11 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads libgomp: verifier/splat/__init__.py
 
-import numpy as np  # noqa: E402
-import PIL.Image  # noqa: E402, F401  (before pycolmap)
-import torch  # noqa: E402
+import numpy as np
+import PIL.Image  # before pycolmap
+import torch
 
-from verifier.metrics import psnr, ssim  # noqa: E402
+from verifier.metrics import psnr, ssim
 from verifier.splat.camera import scene_extent
 from verifier.splat.gaussians import from_points
 from verifier.splat.scenes import load_blender_scene

@@ -17,16 +17,17 @@ import shutil
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads: verifier/splat/__init__.py
 
-import numpy as np  # noqa: E402
-from PIL import Image  # noqa: E402  (before pycolmap)
+import numpy as np
+from PIL import Image  # before pycolmap
 
-from bench.bench_verify import WORK, poison_folder, prepare_lego  # noqa: E402
-from poisoner.ladder import default_spec  # noqa: E402
-from poisoner.spec import PatchSpec  # noqa: E402
-from verifier.verification import VerifyOptions, verify_folders  # noqa: E402
+from bench.bench_verify import WORK, poison_folder, prepare_lego
+from poisoner.ladder import default_spec
+from poisoner.spec import PatchSpec
+from verifier.verification import VerifyOptions, verify_folders
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "splat_verify.md"
@@ -74,9 +75,10 @@ def lpips_timing(clean: Path, poisoned: Path, pairs: int) -> dict[str, float]:
 
 
 def _get(d: dict, *keys: str) -> object:
+    value: Any = d  # JSON data: a dict at every key but the last
     for k in keys:
-        d = (d or {}).get(k)  # type: ignore[assignment]
-    return d
+        value = (value or {}).get(k)
+    return value
 
 
 def _child_peak_mb() -> float:

@@ -25,10 +25,13 @@ from collections import Counter
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))
 sys.path.insert(0, str(REPO))
 
-from reliability_harness import (  # noqa: E402
+from daemon.states import FileState  # noqa: E402
+from daemon.store import Store  # noqa: E402
+from testkit.daemon_proc import stop_daemon  # noqa: E402
+from testkit.forgery import edited, forged  # noqa: E402
+from testkit.reliability import (  # noqa: E402
     DAEMON_ARGS,
     app_paths,
     make_media,
@@ -36,11 +39,6 @@ from reliability_harness import (  # noqa: E402
     subprocess_env,
     wait_for,
 )
-from test_forged_seal import edited, forged  # noqa: E402
-
-from bench.bench_daemon import stop_daemon  # noqa: E402
-from daemon.states import FileState  # noqa: E402
-from daemon.store import Store  # noqa: E402
 
 KINDS = ("jpg", "png", "mp4")
 
@@ -148,7 +146,7 @@ def daemon_phase(root: Path, n: int) -> Counter[str]:
     return counts
 
 
-def _settled(paths, files: list[Path]) -> bool:  # noqa: ANN001
+def _settled(paths, files: list[Path]) -> bool:
     """Every file patched (a row naming what is at its path now) or left alone for a while."""
     store = Store(paths.db_path)
     try:

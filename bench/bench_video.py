@@ -11,7 +11,6 @@ import argparse
 import platform
 import tempfile
 import time
-from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,6 +20,7 @@ import numpy as np
 
 from poisoner.spec import PatchSpec
 from poisoner.video import VideoOptions, choose_encoder, poison_video, probe
+from testkit.video import mux_rgb_frames, mux_sine
 
 RESULTS = Path(__file__).resolve().parent / "results" / "video.md"
 THREADS = 2
@@ -31,43 +31,6 @@ def textured_frame(width: int, height: int, index: int, tex: np.ndarray) -> np.n
     dy, dx = (index * 2) % 64, index * 6
     return np.ascontiguousarray(tex[dy : dy + height, dx : dx + width])
 
-
-def mux_rgb_frames(out: Any, stream: Any, frames: Iterable[np.ndarray]) -> None:
-    """Encode RGB frames (pts 0, 1, ...) into stream as yuv420p, then flush the encoder."""
-    for i, rgb in enumerate(frames):
-        frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
-        frame.pts = i
-        for pkt in stream.encode(frame.reformat(format="yuv420p")):
-            out.mux(pkt)
-    for pkt in stream.encode(None):
-        out.mux(pkt)
-
-
-def mux_sine(
-    out: Any,
-    aud: Any,
-    samples: int,
-    *,
-    hz: float,
-    amplitude: float,
-    fmt: str,
-    layout: str,
-    fallback_step: int = 1024,
-) -> None:
-    """A 48 kHz sine tone of `samples` samples per channel into the audio stream aud (the same
-    wave in every channel of layout, "mono" or "stereo"), then flush the encoder."""
-    rate, t = 48000, 0
-    step = aud.codec_context.frame_size or fallback_step
-    channels = 2 if layout == "stereo" else 1
-    while t < samples:
-        wave = (amplitude * np.sin(2 * np.pi * hz * np.arange(t, t + step) / rate)).astype(np.float32)
-        af = av.AudioFrame.from_ndarray(np.stack([wave] * channels), format=fmt, layout=layout)
-        af.sample_rate, af.pts = rate, t
-        for pkt in aud.encode(af):
-            out.mux(pkt)
-        t += step
-    for pkt in aud.encode(None):
-        out.mux(pkt)
 
 
 def make_source(path: Path, width: int, height: int, fps: int, seconds: float, crf: int = 20) -> Path:

@@ -41,7 +41,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TypedDict, Unpack
+from typing import Any, TypedDict, Unpack
 
 import numpy as np
 from PIL import Image
@@ -116,7 +116,7 @@ class PoisonReport:
 
 
 # ---- JPEG ----------------------------------------------------------------------------------------
-def _jpeg_preserved(layout: jpeg_codec.JpegLayout, info: dict[str, object]) -> list[str]:
+def _jpeg_preserved(layout: jpeg_codec.JpegLayout, info: dict[str | tuple[int, int], Any]) -> list[str]:
     kept = ["JPEG quantisation tables", f"JPEG sampling {layout.sampling}"]
     names = {
         b"Exif\x00\x00": "EXIF",

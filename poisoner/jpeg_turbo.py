@@ -21,7 +21,7 @@ import ctypes
 import ctypes.util
 import os
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import numpy as np
@@ -142,7 +142,7 @@ def filter_spec(
 
     errors: list[BaseException] = []
 
-    def trampoline(coeffs, array_region, _plane, component, index, _t) -> int:  # noqa: ANN001
+    def trampoline(coeffs, array_region, _plane, component, index, _t) -> int:
         try:
             row = array_region.y // 8
             if wanted is not None and row not in wanted(component):
@@ -151,7 +151,7 @@ def filter_spec(
             blocks = np.frombuffer((ctypes.c_short * count).from_address(coeffs), dtype=np.int16)
             on_row(row, blocks.reshape(-1, 64), component, index)
             return 0
-        except BaseException as exc:  # noqa: BLE001 - an exception must not cross the C frames
+        except BaseException as exc:  # an exception must not cross the C frames
             errors.append(exc)
             return -1
 
@@ -171,13 +171,14 @@ class Outputs:
         self.sizes = (ctypes.c_ulong * n)()
 
     def finished(self, index: int) -> bytes:
-        if not self.bufs[index]:
+        buf = self.bufs[index]
+        if not buf:
             raise TurboUnavailable(f"transform {index} wrote nothing")
-        return ctypes.string_at(self.bufs[index], self.sizes[index])
+        return ctypes.string_at(buf, self.sizes[index])
 
 
 def transform(
-    data: bytes, specs: list[tuple[TjTransform, object]], outputs: Outputs | None = None
+    data: bytes, specs: list[tuple[TjTransform, Any]], outputs: Outputs | None = None
 ) -> list[bytes]:
     """Run the transforms on data (one entropy decode); the output file of each. Any library error
     or warning (corrupt or truncated data) raises TurboUnavailable; an exception raised by a
@@ -197,7 +198,7 @@ def transform(
                 raise keep[1][0]
         if rc != 0:
             raise TurboUnavailable(f"libturbojpeg: {lib.tjGetErrorStr2(handle).decode(errors='replace')}")
-        return [ctypes.string_at(bufs[i], sizes[i]) if bufs[i] else b"" for i in range(n)]
+        return [ctypes.string_at(buf, sizes[i]) if (buf := bufs[i]) else b"" for i in range(n)]
     finally:
         for i in range(n):
             if bufs[i]:

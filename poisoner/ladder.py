@@ -1,6 +1,6 @@
 """The candidate ladder: concrete patch designs for auto mode, least visible first by intent.
 
-Contract with auto mode (verifier/auto.py, issue #9): `candidate_ladder()` returns concrete
+Contract with auto mode (verifier/auto_search.py, issue #9): `candidate_ladder()` returns concrete
 `Candidate`s (every spec a valid PatchSpec, never "auto"), ordered from least to most visible by
 design intent. Auto mode measures each candidate's actual visibility on the dataset and never
 relies on this order for the visibility budget.
@@ -194,5 +194,5 @@ def default_spec() -> PatchSpec:
 
 def strongest_spec() -> PatchSpec:
     """The ladder's strongest candidate by design (its last): what an automatic dataset's files get
-    while nothing is measured yet (daemon.auto's interim spec)."""
+    while nothing is measured yet (daemon.verification.auto_mode's interim spec)."""
     return candidate_ladder()[-1].spec

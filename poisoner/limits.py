@@ -11,7 +11,7 @@ DEFAULT_MAX_PIXELS: peak RSS of poison_file stays under ~1 GB for every 8-bit fo
 `peak_bytes` = the decoded size (width x height x channels x bytes per sample x frames) times the
 working copies the format's path makes (PEAK_FACTOR, measured), plus the imports; a file over
 `max_bytes` is refused (a 16-bit RGBA PNG needs ~4.7 bytes of memory per decoded byte, 8-bit ~1.5),
-and the daemon admits files to its workers by the same estimate (daemon.protect_pool).
+and the daemon admits files to its workers by the same estimate (daemon.protect.pool).
 """
 
 from __future__ import annotations
@@ -360,6 +360,6 @@ def _pillow(path: Path) -> DecodedSize:
                 channels = len(im.getbands())
     except Image.DecompressionBombError as exc:
         raise HeaderError(str(exc)) from exc
-    except Exception as exc:  # noqa: BLE001 - any reader failure means "header unknown"
+    except Exception as exc:  # any reader failure means "header unknown"
         raise HeaderError(f"{type(exc).__name__}: {exc}") from exc
     return DecodedSize("other", w, h, channels, 1, frames)

@@ -133,7 +133,8 @@ def tumble_pose(index: float, seed: int, min_scale: float) -> tuple[float, float
     a1 = _pose_at(lo + 1, seed, min_scale)
     turn = (a1[0] - a0[0] + 180.0) % 360.0 - 180.0
     angle = (a0[0] + t * turn) % 360.0
-    return (angle, *(a0[i] + t * (a1[i] - a0[i]) for i in (1, 2, 3)))  # type: ignore[return-value]
+    scale, x, y = (a0[i] + t * (a1[i] - a0[i]) for i in (1, 2, 3))
+    return angle, scale, x, y
 
 
 def spin_pose(index: float, seed: int, min_scale: float) -> tuple[float, float, float, float]:

@@ -10,7 +10,7 @@ What a patched file carries is one opaque token (its *seal*), the same ASCII tex
     TAG  = HMAC-SHA256(key, "mac" || id || the file's bytes without TAG's own 64 characters and,
            in a PNG, without the CRC of the chunk that holds it)
 
-The key is the installation's secret (daemon.sealkey, 0600 in the data folder). Without it the
+The key is the installation's secret (daemon.store.sealkey, 0600 in the data folder). Without it the
 token names no tool and no hash, and cannot be made: a token copied into another photo, or left in
 a cropped or edited one, does not fit the other bytes, so such a file is a new photo.
 
@@ -251,7 +251,7 @@ def _fix_checksum(mm: mmap.mmap, tok: _Token) -> None:
 def seal_file(path: Path, key: bytes) -> None:
     """Seal ppd's finished output in place: the placeholder's TAG becomes the file's tag.
     SealError when the file holds no placeholder made with this key. Not fsynced: the caller
-    copies the sealed file to its final place and fsyncs that (daemon.pipeline)."""
+    copies the sealed file to its final place and fsyncs that (daemon.protect.stages)."""
     fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC)
     try:
         if os.fstat(fd).st_size == 0:

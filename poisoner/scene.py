@@ -27,6 +27,7 @@ mark's blocks are 4 px), never enlarged. The hint never claims protection: only 
 from __future__ import annotations
 
 import functools
+import logging
 from collections.abc import Sequence
 from enum import StrEnum
 from pathlib import Path
@@ -38,6 +39,8 @@ if TYPE_CHECKING:
     import numpy as np
 
     from poisoner.spec import PatchSpec
+
+log = logging.getLogger(__name__)
 
 # The mark's blocks are 0.5% of the width: 4 px here, SIFT's finest scale (spec.MIN_BLOCK_PX).
 ANALYSIS_WIDTH = 800
@@ -230,7 +233,9 @@ def scene_hint(
     for path in evenly_spaced(images, sample):
         try:
             figures.append(image_figures(load_gray(path)))
-        except Exception:  # noqa: BLE001 - unreadable, not an image, too large: a hint never stops a command
+        except Exception as exc:  # unreadable, not an image, too large: a hint never stops a command
+            why = f"{type(exc).__name__}: {exc}".splitlines()[0]
+            log.info("scene hint: image skipped", extra={"file": str(path), "error": why})
             continue
     if not figures:
         return None

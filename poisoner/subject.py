@@ -94,13 +94,15 @@ def load_subject_mask(
 
     from poisoner.image.read import decode_errors
 
+    wanted = (size[0], size[1])  # a list from JSON compares as this tuple
     with decode_errors(path), Image.open(path) as im:
         im.load()
-        if im.size != tuple(size):
+        mask: Image.Image = im
+        if im.size != wanted:
             if same_shape:
                 _check_same_shape(path, im.size, size)
-            im = im.resize(tuple(size), Image.Resampling.NEAREST)
-        values = _mask_values(im)
+            mask = im.resize(wanted, Image.Resampling.NEAREST)
+        values = _mask_values(mask)
     top = values.max() if values.size else 0
     return values > top / 2 if top > 0 else np.zeros(values.shape, dtype=bool)
 

@@ -5,7 +5,8 @@
 Expected: every `*.py` under each folder of daemon/, poisoner/, verifier/ that has an
 `__init__.py` (a package), and every file pyproject's [tool.setuptools.package-data] names. Prints
 the packages found in the wheel; exit 1 naming each missing file (a package list in pyproject that
-misses a subpackage, a data file not declared). Used by scripts/wheel_smoke.sh and
+misses a subpackage, a data file not declared) and each file of the code ppd's packages never ship
+(testkit/, tests/, bench/: the tests' and benchmarks' own). Used by scripts/wheel_smoke.sh and
 tests/test_packaging.py.
 """
 
@@ -18,6 +19,7 @@ import zipfile
 from pathlib import Path
 
 TOP = ("daemon", "poisoner", "verifier")
+NOT_SHIPPED = ("testkit/", "tests/", "bench/")  # test and bench code: a checkout's, never the wheel's
 
 
 def expected_files(root: Path) -> list[str]:
@@ -64,12 +66,15 @@ def main(argv: list[str]) -> int:
     if len(argv) == 3:
         archives[Path(argv[2]).name] = sdist_names(Path(argv[2]))
     missing = [f"{name}: {path}" for name, held in archives.items() for path in expected if path not in held]
+    extra = sorted(n for n in archives[wheel.name] if n.startswith(NOT_SHIPPED))
     print(f"{wheel.name}: packages " + " ".join(packages_in(archives[wheel.name])))
     for line in missing:
         print(f"missing from {line}", file=sys.stderr)
+    for name in extra:
+        print(f"not for the wheel: {name}", file=sys.stderr)
     if not missing:
         print(f"every one of {len(expected)} modules and data files is in " + " and ".join(archives))
-    return 1 if missing else 0
+    return 1 if missing or extra else 0
 
 
 if __name__ == "__main__":

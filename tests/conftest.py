@@ -39,19 +39,22 @@ REPRESENTATIVE = (
 # folders go to a short private one; what ppd itself does with TMPDIR still sees the long path
 # (tests/daemon/cli/test_cli_terminal.py runs `ppd` under a 150-character TMPDIR on purpose).
 LONG_TMPDIR = 40
+# The folders this run made for itself, removed when it ends (pytest's typed per-run store).
+SHORT_BASETEMP = pytest.StashKey[str]()
+TEST_HOME = pytest.StashKey[str]()
 
 
 def pytest_configure(config: pytest.Config) -> None:
     if config.option.basetemp is None and len(tempfile.gettempdir()) > LONG_TMPDIR and os.path.isdir("/tmp"):
         config.option.basetemp = tempfile.mkdtemp(prefix="ppd-pytest-", dir="/tmp")
-        config._ppd_short_basetemp = config.option.basetemp  # type: ignore[attr-defined]
+        config.stash[SHORT_BASETEMP] = config.option.basetemp
     # No test reads or writes the real user's ppd folders: a test that forgets ppd_env (or undoes
     # it) lands here, not in ~/.local/share/ppd, whose state would then decide the result.
     from verifier.lpips_weights import weights_dir
 
     installed_lpips = weights_dir()  # the set-up's converted LPIPS weights, read before the cache moves
     home = tempfile.mkdtemp(prefix="ppd-test-home-")
-    config._ppd_test_home = home  # type: ignore[attr-defined]
+    config.stash[TEST_HOME] = home
     for var, name in (("PPD_DATA_DIR", "data"), ("PPD_CONFIG_DIR", "config"), ("PPD_OUTBOX", "outbox"),
                       ("PPD_CACHE_DIR", "cache")):  # fmt: skip
         os.environ.setdefault(var, os.path.join(home, name))
@@ -63,7 +66,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
-    for folder in (getattr(config, "_ppd_short_basetemp", None), getattr(config, "_ppd_test_home", None)):
+    for folder in (config.stash.get(SHORT_BASETEMP, None), config.stash.get(TEST_HOME, None)):
         if folder:
             shutil.rmtree(folder, ignore_errors=True)
 

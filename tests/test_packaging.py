@@ -27,10 +27,11 @@ def _requirement(name: str) -> Requirement:
 
 def test_the_wheel_holds_every_package_and_data_file(tmp_path: Path) -> None:
     """A real build (setuptools, no isolation: no download) of a copy of the sources, checked by
-    the script CI uses; a `packages = [...]` list that misses daemon/cli fails here."""
+    the script CI uses; a `packages = [...]` list that misses daemon/cli, or a discovery that takes
+    testkit (the tests' and benchmarks' helpers) in, fails here."""
     src = tmp_path / "src"
     skip = shutil.ignore_patterns("__pycache__", "*.pyc")
-    for top in ("daemon", "poisoner", "verifier"):
+    for top in ("daemon", "poisoner", "verifier", "testkit"):  # testkit: found by discovery, yet not shipped
         shutil.copytree(REPO / top, src / top, ignore=skip)
     for name in ("pyproject.toml", "README.md"):
         shutil.copy(REPO / name, src / name)

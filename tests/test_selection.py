@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conftest import REPRESENTATIVE
+from tests.conftest import REPRESENTATIVE
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -120,7 +120,7 @@ class LadderEntry(msgspec.Struct, frozen=True):
 
 
 class PreflightJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """What the daemon's automatic-mode child runs (`python -m verifier.auto JOB.json`): the
+    """What the daemon's automatic-mode child runs (`python -m verifier.auto_search JOB.json`): the
     preflight, or the interim choice (mode "interim": the strongest candidate within the budget on
     the first files, measured without SfM), so the daemon itself never poisons or measures."""
 

@@ -1,6 +1,6 @@
 """What a viewer sees of a candidate patch on a dataset's sample, against the visibility budget.
 
-Step 2 of the preflight (verifier.auto) and the whole of the interim choice: each sample image
+Step 2 of the preflight (verifier.auto_search) and the whole of the interim choice: each sample image
 clean vs poisoned through FLIP (verifier.visibility) at the budget's viewing condition, the worst
 image per figure, and how much of the budget (verifier.auto_options.VisibilityBudget) that uses.
 Whole-image SSIM (as 3DGS) and LPIPS are measured alongside and reported, never gating.

@@ -1,5 +1,5 @@
 """The environment of ppd's own Python children (`python -m verifier.child`, `python -m
-daemon.poison_child`, ...): the same interpreter, importing the same copy of ppd as the parent.
+daemon.protect.child`, ...): the same interpreter, importing the same copy of ppd as the parent.
 
 Installed (a wheel in site-packages), the child finds ppd on its own sys.path and nothing is
 added. Run from a source tree that is on the parent's sys.path only through the working folder or

@@ -28,13 +28,13 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from PIL import Image  # PIL before anything that may load pycolmap
 
 from poisoner.atomic import atomic_write_bytes
-from poisoner.baselines import BASELINE_KINDS, BaselineSpec, apply_baseline
+from poisoner.baselines import BASELINE_KINDS, BaselineKind, BaselineSpec, apply_baseline
 from poisoner.errors import ExitStatus, PpdError
 from poisoner.formats import poison_file
 from poisoner.media import is_image
@@ -162,9 +162,11 @@ def parse_baseline(text: str) -> list[BaselineSpec]:
             f"bad baseline {text!r}: expected KIND=V1,V2 with KIND in {', '.join(BASELINE_KINDS)}"
         )
     out = []
+    # kind is one of BASELINE_KINDS (checked above); BaselineSpec checks axis and raises ValueError.
+    extra: dict[str, Any] = {"axis": axis} if axis else {}
     for v in values.split(","):
         try:
-            out.append(BaselineSpec(kind, float(v), **({"axis": axis} if axis else {})))  # type: ignore[arg-type]
+            out.append(BaselineSpec(cast(BaselineKind, kind), float(v), **extra))
         except (ValueError, TypeError) as exc:
             raise ExperimentError(f"bad baseline {kind}={v}: {exc}") from exc
     return out
@@ -275,8 +277,7 @@ def make_poisoned_copy(clean_dir: Path, dst_dir: Path, setting: Setting) -> int:
 def _rgb_unit(path: Path) -> np.ndarray:
     with Image.open(path) as im:
         if im.mode in ("RGBA", "LA", "P"):
-            im = im.convert("RGBA")
-            rgba = np.asarray(im).astype(np.float64) / 255
+            rgba = np.asarray(im.convert("RGBA")).astype(np.float64) / 255
             return rgba[..., :3] * rgba[..., 3:] + (1 - rgba[..., 3:])  # on white, as 3DGS for NeRF data
         return np.asarray(im.convert("RGB")).astype(np.float64) / 255
 

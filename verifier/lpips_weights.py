@@ -26,7 +26,7 @@ import sys
 import tarfile
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -182,7 +182,7 @@ def _write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
 
     path.parent.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()  # a few MB: whole in memory, then one atomic replace
-    np.savez(buf, **arrays)
+    np.savez(buf, **cast(dict[str, Any], arrays))  # names -> arrays (numpy's stub reads allow_pickle)
     atomic_write_bytes(path, buf.getvalue())
 
 

@@ -132,15 +132,19 @@ def parameter_pngs(
         if len(members) < 2:
             continue
         values = [e.get("params", {}).get(param) for e in members]
-        numeric = all(_numeric(v) is not None for v in values)
-        order = sorted(range(len(members)), key=lambda i: _numeric(values[i]) if numeric else str(values[i]))
+        floats = [x for x in (_numeric(v) for v in values) if x is not None]
+        numeric = len(floats) == len(values)
+        if numeric:
+            order = sorted(range(len(members)), key=lambda i: floats[i])
+        else:
+            order = sorted(range(len(members)), key=lambda i: str(values[i]))
         panels = [m for m in metrics if any(_mean_std(e, m)[0] is not None for e in members)]
         if not panels:
             continue
         fig = Figure(figsize=(options.width_in, 2.6 * len(panels)), dpi=options.dpi)
         for k, metric in enumerate(panels):
             ax = fig.add_subplot(len(panels), 1, k + 1)
-            xs = [_numeric(values[i]) if numeric else k2 for k2, i in enumerate(order)]
+            xs = [floats[i] if numeric else float(k2) for k2, i in enumerate(order)]
             stats = [_mean_std(members[i], metric) for i in order]
             ys = [np.nan if m is None else m for m, _ in stats]
             ax.errorbar(xs, ys, yerr=[s for _, s in stats], fmt="o-", color=KIND_COLOURS["patch"], capsize=3)

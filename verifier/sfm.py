@@ -156,7 +156,7 @@ class SfmOk(msgspec.Struct, tag_field="outcome", tag="ok"):
     registered: int = 0
     poses: dict[str, CameraPose] = {}
     mean_reprojection_error: float | None = None
-    num_points3D: int = 0  # noqa: N815 - the JSON key verification reports use
+    num_points3D: int = 0  # the JSON key verification reports use
     camera: CameraModel | None = None
     timings: dict[str, float] = {}
     device: str = ""  # where SIFT ran: "cpu" or "cuda" ("": not recorded)

@@ -67,7 +67,7 @@ def run_child(
     preexec = (lambda: os.nice(nice)) if nice > 0 else None  # only nice(): no locks taken
     Path(log_path).parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "ab" if append_log else "wb") as log_fh:
-        proc = subprocess.Popen(  # noqa: PLW1509 - preexec_fn only calls nice()
+        proc = subprocess.Popen(  # preexec_fn only calls nice()
             list(cmd),
             stdin=subprocess.PIPE if stdin_data is not None else subprocess.DEVNULL,
             stdout=subprocess.DEVNULL if discard_stdout else log_fh,

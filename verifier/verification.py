@@ -48,7 +48,7 @@ from verifier import poses as posemod
 from verifier.pairs import stage_pairs as stage_pairs  # re-exported: callers stage pairs, then verify
 from verifier.progress import BoardState, ProgressBoard
 from verifier.published import round_trip, unpublish_names
-from verifier.published import to_rgb as to_rgb  # re-exported for verifier.auto
+from verifier.published import to_rgb as to_rgb  # re-exported for verifier.auto_search
 from verifier.sfm import SfmJob, SfmSettings, list_images, profile_sfm_settings, run_sfm_job
 from verifier.verdict import (
     Verdict,

@@ -468,8 +468,8 @@ def sample_evenly(count: int, k: int) -> list[int]:
 def _load_rgb(path: Path) -> np.ndarray:
     from PIL import Image, ImageOps
 
-    with Image.open(path) as im:
-        im = ImageOps.exif_transpose(im)  # as a viewer sees it
+    with Image.open(path) as opened:
+        im = ImageOps.exif_transpose(opened)  # as a viewer sees it
         if im.mode in ("RGBA", "LA", "PA", "P"):
             return _rgb8(np.asarray(im.convert("RGBA")), str(path))
         return np.asarray(im.convert("RGB"))

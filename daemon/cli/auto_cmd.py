@@ -178,8 +178,8 @@ def _preflight(ctx: AppContext, target: str, images: list[Any], is_dataset: bool
     import msgspec
 
     from daemon.verification import auto_mode as daemon_auto
-    from verifier.auto import preflight
     from verifier.auto_options import PreflightInputError
+    from verifier.auto_search import preflight
 
     try:
         budget, options = _settings(ctx, given)

@@ -196,7 +196,7 @@ def write_plots(exp_dir: Path, entries: list[dict]) -> list[Path]:
 
 
 def _write_folder_report(folder: Path, out: Path | None = None) -> Path:
-    from verifier.report import build_report, write_report
+    from verifier.html_report import build_report, write_report
 
     return write_report(build_report(str(folder)), out or folder / "report.html")
 

@@ -35,7 +35,7 @@ def _write(ctx: AppContext | None, source: str | None, dataset: str | None, fold
            out: Path | None) -> Path:  # fmt: skip
     from daemon.cli.targets import resolve_target, say_note
     from daemon.verification.dataset_report import build_dataset_report, build_report, report_path
-    from verifier.report import write_report
+    from verifier.html_report import write_report
 
     if ctx is not None:
         chosen = resolve_target(ctx.store, source, dataset=dataset, folder=folder)
@@ -68,7 +68,7 @@ def report(
       ppd report runs/exp1 --out r.html
     """
     from daemon.cli.targets import TargetError
-    from verifier.report import ReportError
+    from verifier.html_report import ReportError
 
     try:
         ctx = _open_store(source, dataset)

@@ -188,7 +188,7 @@ def run_preflight_child(
     from verifier.childenv import child_env
 
     ended = run_child(
-        [sys.executable, "-m", "verifier.auto", str(job_file)], env=child_env(),
+        [sys.executable, "-m", "verifier.auto_search", str(job_file)], env=child_env(),
         log_path=log_file, append_log=True, timeout_s=timeout_s, cancel=cancel, nice=10, grace_s=10.0,
     )  # fmt: skip
     if ended.kind == "cancelled":

@@ -20,7 +20,7 @@ from daemon.states import dataset_protection, next_step, protection_text
 if TYPE_CHECKING:
     from daemon.context import AppContext
     from daemon.paths import AppPaths
-    from verifier.report import ReportData
+    from verifier.html_report import ReportData
 
 
 def report_path(paths: AppPaths, dataset: str) -> Path:
@@ -30,7 +30,7 @@ def report_path(paths: AppPaths, dataset: str) -> Path:
 
 def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> ReportData:
     """A daemon dataset: latest verification per profile, its history, models, and a patch preview."""
-    from verifier.report import ReportError, dataset_history_report, latest_run_group
+    from verifier.html_report import ReportError, dataset_history_report, latest_run_group
 
     if ctx.store.dataset(dataset) is None:
         raise ReportError(f"no dataset {dataset!r} (see `ppd status`)")
@@ -64,7 +64,7 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
 
 def build_report(source: str, ctx: AppContext | None = None) -> ReportData:
     """source: an experiment folder, a verification folder, or a dataset name (needs ctx)."""
-    from verifier.report import build_report as build_folder_or_dataset
+    from verifier.html_report import build_report as build_folder_or_dataset
 
     lookup = (lambda name: build_dataset_report(ctx, name)) if ctx is not None else None
     return build_folder_or_dataset(source, lookup)

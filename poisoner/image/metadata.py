@@ -3,6 +3,8 @@ location removed unless kept, the provenance marker added to the XMP, the ICC pr
 
 from __future__ import annotations
 
+from typing import cast
+
 from poisoner import location, provenance
 from poisoner.provenance import Marker
 
@@ -12,22 +14,22 @@ def clean_exif_xmp(
 ) -> tuple[bytes | None, bytes | None, list[str]]:
     """The source's EXIF and XMP for a re-encoded file: location removed unless kept, the
     provenance marker added to the XMP when given."""
-    exif = info.get("exif") or None
-    xmp = info.get("xmp") or None
+    # Pillow's info holds EXIF and XMP as bytes (XMP as str from some plugins: encoded below).
+    exif = cast("bytes | None", info.get("exif") or None)
+    raw_xmp = info.get("xmp") or None
+    xmp = raw_xmp.encode() if isinstance(raw_xmp, str) else cast("bytes | None", raw_xmp)
     removed: list[str] = []
-    if isinstance(xmp, str):
-        xmp = xmp.encode()
     if marker is not None:
-        xmp = provenance.xmp_with_marker(xmp, marker)  # type: ignore[arg-type]
+        xmp = provenance.xmp_with_marker(xmp, marker)
     if keep_location:
-        return exif, xmp, removed  # type: ignore[return-value]
+        return exif, xmp, removed
     if isinstance(exif, bytes):
         exif, gone = location.clean_exif(exif)
         removed += [f"{label} {g}" for g in gone]
     if isinstance(xmp, bytes):
         xmp, gone = location.strip_xmp_location(xmp)
         removed += [f"{label} {g}" for g in gone]
-    return exif, xmp, removed  # type: ignore[return-value]
+    return exif, xmp, removed
 
 
 

@@ -76,9 +76,9 @@ def open_decoded(src: Path, data: bytes, *, load: bool = True) -> Image.Image:
             raise ImageFormatError(
                 f"{src.name}: {im.size[0]}x{im.size[1]} exceeds the {limit}-pixel decompression-bomb limit"
             )
-        if getattr(im, "n_frames", 1) > 1:
+        if (frames := getattr(im, "n_frames", 1)) > 1:
             raise ImageFormatError(
-                f"{src.name}: {im.format} with {im.n_frames} frames/pages is not supported"
+                f"{src.name}: {im.format} with {frames} frames/pages is not supported"
             )
         if ImageFile.LOAD_TRUNCATED_IMAGES:
             raise ImageFormatError("refusing to run with PIL LOAD_TRUNCATED_IMAGES enabled")

@@ -4,9 +4,10 @@ unless kept); palette and bilevel pictures are written as RGB(A) / greyscale."""
 from __future__ import annotations
 
 import io
+from typing import cast
 
 import numpy as np
-from PIL import Image
+from PIL import Image, TiffImagePlugin
 
 from poisoner import location
 from poisoner.blend import apply_patch
@@ -44,7 +45,8 @@ def poison_tiff(
 ) -> tuple[bytes, list[str], list[str], bool, list[str]]:  # fmt: skip
     if im.mode not in ("L", "LA", "RGB", "RGBA", "I;16", "I;16B", "P", "1"):
         raise ImageFormatError(f"TIFF mode {im.mode} is not supported")
-    bits = im.tag_v2.get(258)
+    tags = cast(TiffImagePlugin.TiffImageFile, im).tag_v2  # the opened TIFF's own tags
+    bits = tags.get(258)
     if im.mode in ("RGB", "RGBA") and bits and max(bits) > 8:
         raise ImageFormatError("16-bit colour TIFF is not supported (Pillow reads it as 8-bit)")
     notes: list[str] = []
@@ -58,7 +60,7 @@ def poison_tiff(
         out = image_from_array(apply_patch(np.asarray(src).astype(np.uint16), placement, keep_out), "I;16")
     else:
         out = paste_patch(src, placement, keep_out)
-    info = {tag: im.tag_v2[tag] for tag in _TIFF_KEEP_TAGS if tag in im.tag_v2}
+    info = {tag: tags[tag] for tag in _TIFF_KEEP_TAGS if tag in tags}
     opts: dict[str, object] = {"compression": compression, "tiffinfo": info}
     preserved = [f"TIFF {_TIFF_KEEP_TAGS[t]}" for t in info]
     removed: list[str] = []
@@ -69,8 +71,8 @@ def poison_tiff(
     if xmp:
         info[700] = xmp  # Pillow's TIFF writer takes XMP as tag 700, not as xmp=
         preserved.append("TIFF XMP")
-    if 33723 in im.tag_v2:  # IPTC
-        iptc = im.tag_v2[33723]
+    if 33723 in tags:  # IPTC
+        iptc = tags[33723]
         if not keep_location:
             raw = iptc if isinstance(iptc, bytes) else bytes(iptc) if isinstance(iptc, tuple) else None
             try:
@@ -82,7 +84,7 @@ def poison_tiff(
         if iptc is not None:
             info[33723] = iptc
             preserved.append("TIFF IPTC")
-    if 34853 in im.tag_v2:  # GPS IFD
+    if 34853 in tags:  # GPS IFD
         if keep_location:
             info[34853] = im.getexif().get_ifd(0x8825)
             preserved.append("TIFF GPS IFD")
@@ -91,7 +93,7 @@ def poison_tiff(
     if compression == "jpeg":
         opts["quality"] = 95
         notes.append("JPEG-compressed TIFF re-encoded at quality 95")
-    if 34665 in im.tag_v2:
+    if 34665 in tags:
         notes.append("TIFF EXIF sub-IFD not copied")
     buf = io.BytesIO()
     save_explicit(out, buf, "TIFF", **opts)

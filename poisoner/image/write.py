@@ -37,6 +37,6 @@ def save_explicit(im: Image.Image, fp: io.BytesIO, fmt: str, **opts: object) -> 
     EXIF, XMP...) for what opts leave out, and its TIFF writer copies XMP/IPTC from a TIFF
     source's own tags: either would bring removed location back. A plain Image sharing the
     pixel memory (no copy) carries neither."""
-    plain = im._new(im.im)  # noqa: SLF001 - Pillow's own shallow constructor
+    plain = im._new(im.im)  # Pillow's own shallow constructor
     plain.info = {}
     plain.save(fp, fmt, **opts)

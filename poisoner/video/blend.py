@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any, cast
 
 import av
 import numpy as np
@@ -39,7 +40,7 @@ def _plane_array(frame: av.VideoFrame, index: int, dtype: np.dtype) -> np.ndarra
     """A writable 2-D view (rows x samples) of one plane, padding columns excluded."""
     plane = frame.planes[index]
     row = plane.line_size // dtype.itemsize
-    data = np.frombuffer(plane, dtype=dtype)
+    data = np.frombuffer(cast(Any, plane), dtype=dtype)  # a plane is a buffer (not in PyAV's stubs)
     return data[: plane.height * row].reshape(plane.height, row)[:, : plane.width]
 
 

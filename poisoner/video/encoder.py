@@ -5,6 +5,7 @@ rotation)."""
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import av
 import av.error
@@ -115,7 +116,9 @@ def configure_video_stream(
     """The output's video stream: choice's encoder with the source's size, pixel format, time
     base, frame rate, colour tags and display matrix."""
     rate = info.average_rate if info.average_rate and info.average_rate > 0 else None
-    stream = out.add_stream(choice.encoder, rate=rate, options=dict(choice.options))
+    stream = cast(  # a video encoder's stream
+        av.video.stream.VideoStream, out.add_stream(choice.encoder, rate=rate, options=dict(choice.options))
+    )
     cc = stream.codec_context
     stream.width, stream.height = info.width, info.height
     stream.pix_fmt = info.pix_fmt

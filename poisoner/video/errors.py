@@ -1,4 +1,4 @@
-"""The video poisoner's one-line error; its own module so that catching it (daemon.pipeline)
+"""The video poisoner's one-line error; its own module so that catching it (daemon.protect.stages)
 imports neither PyAV nor numpy."""
 
 from __future__ import annotations

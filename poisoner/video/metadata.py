@@ -5,6 +5,7 @@ and the list of what was preserved."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Protocol
 
 import av
 import numpy as np
@@ -27,8 +28,15 @@ MARKER_TAG_MUXERS = ("matroska", "webm")  # the marker is a tag (provenance.MKV_
 MARKER_BOX_MUXERS = ("mp4", "mov")  # the marker is a uuid box appended to the file
 
 
+class Tagged(Protocol):
+    """What carries tags in PyAV: an output container or one of its streams."""
+
+    @property
+    def metadata(self) -> dict[str, str]: ...
+
+
 def copy_metadata(
-    src: dict[str, str], dst_obj: object, keep_location: bool = True, removed: list[str] | None = None
+    src: dict[str, str], dst_obj: Tagged, keep_location: bool = True, removed: list[str] | None = None
 ) -> None:
     """Copy tags, except FFmpeg's own and (unless keep_location) those naming a place."""
     for key, value in src.items():
@@ -45,7 +53,7 @@ def copy_metadata(
         if key.upper() in provenance.MKV_TAGS:
             continue  # an older seal or marker: the new one (if any) is written by add_marker_tag
         try:
-            dst_obj.metadata[key] = value  # type: ignore[attr-defined]
+            dst_obj.metadata[key] = value
         except (ValueError, TypeError):
             continue
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 from fractions import Fraction
 from pathlib import Path
+from typing import Any, cast
 
 import av
 import av.error
@@ -51,7 +52,7 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
             width=first.width,
             height=first.height,
             pix_fmt=first.format.name,
-            time_base=Fraction(stream.time_base),
+            time_base=Fraction(cast(Fraction, stream.time_base)),  # a decoded stream's is set
             average_rate=Fraction(stream.average_rate) if stream.average_rate else None,
             frames_declared=int(stream.frames or 0),
             duration_s=duration_s,
@@ -88,7 +89,8 @@ def _side_data(frame: av.VideoFrame) -> tuple[tuple[int, ...] | None, dict[str, 
     """(display matrix, HDR side data by type name) of a decoded frame."""
     matrix: tuple[int, ...] | None = None
     hdr: dict[str, bytes] = {}
-    for sd in frame.side_data:
+    side_data: list[Any] = list(frame.side_data)  # SideData objects (PyAV's stubs say str)
+    for sd in side_data:
         if sd.type.name == "DISPLAYMATRIX":
             matrix = tuple(int(v) for v in np.frombuffer(bytes(sd), "<i4"))
         elif sd.type.name in HDR_SIDE_DATA:

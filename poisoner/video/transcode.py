@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import av
 import av.error
@@ -96,7 +97,7 @@ def _video_stream(
     keep_location: bool,
     removed: list[str],
 ) -> av.video.stream.VideoStream:
-    vin = inp.streams[info.stream_index]
+    vin = cast(av.video.stream.VideoStream, inp.streams[info.stream_index])  # the source's video stream
     vin.thread_type = "AUTO"
     if choice.encoder == "libx265" and info.hdr_side_data:
         hdr = x265_hdr_params(info.hdr_side_data)

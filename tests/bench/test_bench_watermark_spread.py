@@ -1,5 +1,6 @@
-"""The pure parts of bench/bench_watermark_spread.py: crops and resizes move images and intrinsics
-together (a known 3D point lands on the same content after the transform); the run summaries."""
+"""The pure parts of bench/bench_watermark_spread.py (testkit/spread_geometry.py): crops and resizes
+move images and intrinsics together (a known 3D point lands on the same content after the transform);
+the run summaries."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bench.bench_watermark_spread import (
+from testkit.spread_geometry import (
     Intrinsics,
     centre_crop_fractions,
     crop_box,

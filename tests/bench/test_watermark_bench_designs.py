@@ -1,12 +1,12 @@
-"""bench/bench_watermark.py's designs: the claims its results table leans on."""
+"""bench/bench_watermark.py's designs (testkit/watermark_designs.py): claims its results table leans on."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from bench.bench_watermark import designs
 from poisoner.blend import apply_patch
 from poisoner.spec import PatchSpec
+from testkit.watermark_designs import designs
 
 
 def _same_pixels(one: PatchSpec, other: PatchSpec, w: int, h: int) -> bool:

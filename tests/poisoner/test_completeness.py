@@ -14,15 +14,15 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bench.bench_video import mux_rgb_frames
 from poisoner.completeness import incomplete_reason
+from testkit.video import mux_rgb_frames
 
 
 def pixels(h: int = 90, w: int = 120) -> np.ndarray:
     return np.random.default_rng(5).integers(0, 256, size=(h, w, 3)).astype(np.uint8)
 
 
-def image(fmt: str, **opts: object):  # noqa: ANN201 - a writer for the table below
+def image(fmt: str, **opts: object):  # a writer for the table below
     def write(path: Path) -> None:
         if fmt in ("HEIF", "AVIF"):
             import pillow_heif
@@ -38,7 +38,7 @@ def gif(path: Path) -> None:
     frames[0].save(path, "GIF", save_all=True, append_images=frames[1:])
 
 
-def video(muxer: str, encoder: str = "libx264", options: dict[str, str] | None = None):  # noqa: ANN201
+def video(muxer: str, encoder: str = "libx264", options: dict[str, str] | None = None):
     def write(path: Path) -> None:
         with av.open(str(path), "w", format=muxer, options=options or {}) as out:
             vs = out.add_stream(encoder, rate=10)

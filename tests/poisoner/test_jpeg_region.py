@@ -18,24 +18,9 @@ from poisoner.formats import ImageFormatError, poison_file
 from poisoner.ladder import default_spec
 from poisoner.provenance import Marker
 from poisoner.spec import PatchSpec
+from testkit.photos import gps_exif, textured
 
 pytestmark = pytest.mark.skipif(shutil.which("jpegtran") is None, reason="jpegtran not installed")
-
-
-def textured(h: int, w: int, seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    base = np.stack([128 + 90 * np.sin(xx / 17.0), 100 + 80 * np.cos(yy / 13.0), 60 + 0.4 * xx], axis=-1)
-    base += 40.0 * ((xx // 11 + yy // 7) % 2)[..., None]  # sharp chroma edges: upsampling matters
-    return np.clip(base + rng.normal(0, 6, base.shape), 0, 255).astype(np.uint8)
-
-
-def gps_exif() -> Image.Exif:
-    exif = Image.Exif()
-    exif[0x010F] = "ppd-cam"
-    gps = exif.get_ifd(0x8825)
-    gps[1], gps[2] = "N", (48.0, 51.0, 24.0)
-    return exif
 
 
 # (name, size, save options): every sampling, greyscale, progressive, restart markers, odd sizes.

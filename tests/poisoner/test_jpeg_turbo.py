@@ -18,7 +18,7 @@ from poisoner import jpeg_turbo
 from poisoner.blend import apply_patch
 from poisoner.ladder import default_spec
 from poisoner.spec import PatchSpec
-from tests.poisoner.test_jpeg_region import gps_exif, textured
+from testkit.photos import gps_exif, textured
 
 pytestmark = pytest.mark.skipif(
     jpeg_codec.turbo_available() is not None, reason=f"libturbojpeg: {jpeg_codec.turbo_available()}"
@@ -67,7 +67,7 @@ def box_and_patch(data: bytes, spec: PatchSpec, name: str = "a.jpg"):
 
 def blocks_outside_equal(a: bytes, b: bytes, layout: jpeg_codec.JpegLayout, box) -> None:
     """Every DCT block of every component outside the box is the same in a and b; inside differs."""
-    offsets = jpeg_codec._component_offsets(layout, box)  # noqa: SLF001
+    offsets = jpeg_codec._component_offsets(layout, box)
     mw, mh = layout.mcu_size
     inside_changed = False
     for ci, (ba, bb) in enumerate(zip(jpeg_turbo.read_blocks(a), jpeg_turbo.read_blocks(b), strict=True)):

@@ -9,7 +9,6 @@ import textwrap
 from pathlib import Path
 
 import av
-import hostile_images
 import numpy as np
 import pytest
 from PIL import Image
@@ -23,6 +22,7 @@ from poisoner.limits import (
 )
 from poisoner.spec import PatchSpec
 from poisoner.video import VideoFormatError, VideoOptions, poison_video
+from testkit import hostile_images
 
 SPEC = PatchSpec(patch_size=16, block_size=4, position="top-left", offset=(4, 4))
 LOW_MEMORY_MB = 300

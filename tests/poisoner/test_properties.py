@@ -5,7 +5,6 @@ complete output), never another exception. The long fuzz run is `python -m bench
 from __future__ import annotations
 
 import contextlib
-import io
 import tempfile
 from pathlib import Path
 
@@ -17,9 +16,10 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from poisoner.blend import apply_patch, poison_array
-from poisoner.formats import ImageFormatError, poison_file
+from poisoner.formats import poison_file
 from poisoner.patterns import pattern_levels, pattern_mask
 from poisoner.spec import PATTERNS, POSITIONS, PatchSpec, SpecError
+from testkit.fuzz import SEEDS, fuzz_image_reader, mutate
 
 lengths = st.one_of(st.integers(1, 64), st.floats(0.001, 0.5))
 specs = st.builds(
@@ -107,49 +107,6 @@ def test_ratio_selection_is_a_pure_function_of_the_name(ratio: float, seed: int,
 
 
 # ---- fuzzing the readers ------------------------------------------------------------------------
-def _seed_files() -> dict[str, bytes]:
-    rng = np.random.default_rng(3)
-    pixels = rng.integers(0, 256, (40, 56, 3), dtype=np.uint8)
-    seeds = {}
-    for fmt, suffix in (("PNG", ".png"), ("JPEG", ".jpg"), ("WEBP", ".webp"), ("TIFF", ".tif")):
-        buf = io.BytesIO()
-        PIL.Image.fromarray(pixels).save(buf, format=fmt)
-        seeds[suffix] = buf.getvalue()
-    return seeds
-
-
-SEEDS = _seed_files()
-
-
-def mutate(data: bytes, edits: list[tuple[int, int]], cut: int | None) -> bytes:
-    """Overwrite bytes at (position mod length) with values, then optionally truncate."""
-    out = bytearray(data)
-    for pos, value in edits:
-        out[pos % len(out)] = value
-    return bytes(out[:cut] if cut is not None else out)
-
-
-def fuzz_image_reader(folder: Path, suffix: str, data: bytes) -> str:
-    """Feed bytes to poison_file; 'ok' or 'refused'. Any other exception propagates (a bug).
-
-    A refusal writes nothing: no output file (not even an empty or partial one) and nothing else
-    left in the folder."""
-    src, dst = folder / f"fuzz{suffix}", folder / f"out{suffix}"
-    src.write_bytes(data)
-    dst.unlink(missing_ok=True)  # an earlier example's output (hypothesis reuses the folder)
-    before = sorted(folder.iterdir())
-    try:
-        poison_file(src, dst, PatchSpec(patch_size=8, block_size=2))
-    except ImageFormatError as exc:
-        assert str(exc) and "\n" not in str(exc)
-        assert not dst.exists(), f"refused, yet {dst.name} was written ({dst.stat().st_size} bytes)"
-        assert sorted(folder.iterdir()) == before, "a refusal left files behind"
-        return "refused"
-    assert dst.stat().st_size > 0
-    PIL.Image.open(dst).load()  # what it wrote is a complete image
-    return "ok"
-
-
 @pytest.mark.parametrize("suffix", sorted(SEEDS))
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -66,8 +67,8 @@ KINDS = {
 }
 
 
-def sealed(src: Path, dst: Path, marker: Marker = MARKER, **kw: object) -> bytes:
-    poison_file(src, dst, SPEC, marker=marker, **kw)  # type: ignore[arg-type]
+def sealed(src: Path, dst: Path, marker: Marker = MARKER, **kw: Any) -> bytes:
+    poison_file(src, dst, SPEC, marker=marker, **kw)
     seal_file(dst, KEY)
     return dst.read_bytes()
 

@@ -3,6 +3,7 @@ generated images, on the shared sets where they exist, and the one line `ppd poi
 
 from __future__ import annotations
 
+import logging
 import subprocess
 import sys
 from pathlib import Path
@@ -137,12 +138,17 @@ def test_transparent_pixels_are_read_on_white(tmp_path: Path) -> None:
     assert figures.edge_textured_fraction == 0.0 and figures.textured_fraction < 0.2
 
 
-def test_unreadable_files_are_skipped_and_none_when_nothing_reads(tmp_path: Path) -> None:
+def test_unreadable_files_are_skipped_and_none_when_nothing_reads(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     files = _object_on_plain(tmp_path, count=3)
     bad = tmp_path / "broken.png"
     bad.write_bytes(b"not an image")
-    hint = scene_hint("obj", [*files, bad])
+    with caplog.at_level(logging.INFO, logger="poisoner.scene"):
+        hint = scene_hint("obj", [*files, bad])
     assert hint is not None and hint.images == 3
+    (skipped,) = [r for r in caplog.records if r.name == "poisoner.scene"]  # said once, with file and reason
+    assert skipped.__dict__["file"] == str(bad) and "not a recognised image" in skipped.__dict__["error"]
     assert scene_hint("none", [bad]) is None and scene_hint("empty", []) is None
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Sequence
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -13,7 +12,6 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bench.bench_video import mux_sine
 from poisoner.atomic import TEMP_PREFIX, atomic_output
 from poisoner.ladder import default_spec, named_spec
 from poisoner.media import VIDEO_SUFFIXES, is_video
@@ -28,76 +26,12 @@ from poisoner.video import (
     poison_video,
     sample_frames,
 )
+from testkit.video import Clip, make_clip
 
 SPEC = PatchSpec()  # the paper's patch: checkerboard, 6% of the width, static
 
 
-# ---- generating test videos ---------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Clip:
-    """A generated test video: a textured scene panning under a fixed camera grid, with audio."""
-
-    suffix: str = ".mp4"
-    encoder: str = "libx264"
-    pix_fmt: str = "yuv420p"
-    width: int = 320
-    height: int = 240
-    fps: int = 20
-    frames: int = 40
-    audio: str | None = "aac"
-    rotation: int | None = None
-    pts: Sequence[int] | None = None  # explicit timestamps (variable frame rate)
-    time_base: Fraction | None = None
-    options: tuple[tuple[str, str], ...] = ()
-    colour: tuple[int, int, int, int] | None = None  # range, space, primaries, trc
-
-
-def scene(width: int, height: int, index: int) -> np.ndarray:
-    """A moving textured scene: a random block texture panning diagonally, plus a gradient."""
-    rng = np.random.default_rng(7)
-    tex = (rng.random((height // 4 + 40, width // 4 + 60, 3)) * 200 + 28).astype(np.uint8)
-    tex = tex.repeat(4, 0).repeat(4, 1)
-    dy, dx = index % 20, 3 * index
-    return np.ascontiguousarray(tex[dy : dy + height, dx : dx + width])
-
-
-def make_clip(path: Path, clip: Clip) -> Path:
-    with av.open(str(path), "w") as out:
-        vs = out.add_stream(clip.encoder, rate=clip.fps, options=dict(clip.options))
-        vs.width, vs.height, vs.pix_fmt = clip.width, clip.height, clip.pix_fmt
-        if clip.time_base is not None:
-            vs.codec_context.time_base = clip.time_base
-            vs.time_base = clip.time_base
-        if clip.colour is not None:
-            cc = vs.codec_context
-            cc.color_range, cc.colorspace, cc.color_primaries, cc.color_trc = clip.colour
-        if clip.rotation is not None:
-            vs.set_display_rotation(clip.rotation)
-        aud = None
-        if clip.audio:
-            aud = out.add_stream(clip.audio, rate=48000)
-            aud.layout = "mono"
-        for i in range(clip.frames):
-            rgb = scene(clip.width, clip.height, i)
-            frame = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format=clip.pix_fmt)
-            if clip.colour is not None:
-                frame.color_range, frame.colorspace = clip.colour[0], clip.colour[1]
-            frame.pts = clip.pts[i] if clip.pts is not None else i
-            if clip.time_base is not None:
-                frame.time_base = clip.time_base
-            for pkt in vs.encode(frame):
-                out.mux(pkt)
-        for pkt in vs.encode(None):
-            out.mux(pkt)
-        if aud is not None:
-            samples = int(clip.frames / clip.fps * 48000)
-            mux_sine(out, aud, samples, hz=440, amplitude=0.3, fmt="flt", layout="mono", fallback_step=960)
-    return path
-
-
-# ---- reading them back --------------------------------------------------------------------
+# ---- generated test videos: testkit/video.py ---------------------------------------------------
 
 
 @dataclass

@@ -9,10 +9,10 @@ import av
 import numpy as np
 import pytest
 
-from bench.bench_video import mux_rgb_frames
 from poisoner.provenance import Marker, Seal, read_seal, seal_file
 from poisoner.spec import PatchSpec
 from poisoner.video import VideoOptions, poison_video
+from testkit.video import mux_rgb_frames
 
 SPEC = PatchSpec(patch_size=16, block_size=4, position="top-left", offset=(4, 4))
 FAST = VideoOptions(verify_patch=False, preset="ultrafast", threads=1)

@@ -8,7 +8,11 @@ import os
 from pathlib import Path
 
 import pytest
-from reliability_harness import (
+
+from daemon.paths import AppPaths
+from daemon.states import FileState
+from daemon.store import Store
+from testkit.reliability import (
     CrashTrialOptions,
     app_paths,
     check_invariants,
@@ -19,10 +23,6 @@ from reliability_harness import (
     start_daemon,
     wait_all_protected,
 )
-
-from daemon.paths import AppPaths
-from daemon.states import FileState
-from daemon.store import Store
 
 
 def test_random_sigkills_lose_nothing_and_a_restart_finishes(tmp_path: Path) -> None:
@@ -65,7 +65,7 @@ def test_invariant_checker_sees_loss_and_corruption(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("files", [300])
 def test_short_load_every_file_protected_exactly_once(tmp_path: Path, files: int) -> None:
-    from bench.bench_load import FloodOptions, run_flood
+    from testkit.load import FloodOptions, run_flood
 
     result = run_flood(tmp_path, FloodOptions(files=files, size=48))
     assert result.protected == files and result.failed == 0
@@ -86,9 +86,8 @@ def test_duplicate_killed_between_rename_and_record_is_recovered(
     output') and left the second row 'pending' for ever."""
     import shutil
 
-    from reliability_harness import write_image
-
     from daemon.protect.one_file import AppContext, protect_file
+    from testkit.reliability import write_image
 
     ctx = AppContext.open()
     first = write_image(ppd_env["outbox"] / "one" / "p.png", seed=1)

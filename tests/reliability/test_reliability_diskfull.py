@@ -18,21 +18,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from reliability_harness import (
-    DAEMON_ARGS,
-    MountUnavailable,
-    app_paths,
-    check_invariants,
-    fill,
-    kill_daemon,
-    run_disk_full,
-    sha256,
-    small_filesystem,
-    start_daemon,
-    wait_all_protected,
-    wait_for,
-    write_image,
-)
 
 import daemon.protect.stages
 import daemon.store.vault
@@ -42,6 +27,18 @@ from daemon.protect.one_file import AppContext, protect_file
 from daemon.states import FileState
 from daemon.store import Store
 from daemon.watch.watcher import is_no_space
+from testkit.disk_full import MountUnavailable, fill, run_disk_full, small_filesystem
+from testkit.reliability import (
+    DAEMON_ARGS,
+    app_paths,
+    check_invariants,
+    kill_daemon,
+    sha256,
+    start_daemon,
+    wait_all_protected,
+    wait_for,
+    write_image,
+)
 
 ENOSPC_TEXT = os.strerror(errno.ENOSPC)  # "No space left on device"
 

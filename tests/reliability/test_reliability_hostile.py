@@ -14,23 +14,22 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from reliability_harness import (
-    DAEMON_ARGS,
-    HostileInput,
-    app_paths,
-    build_hostile_corpus,
-    check_invariants,
-    kill_daemon,
-    sha256,
-    start_daemon,
-    wait_for,
-)
 
 import daemon.protect.stages
 from daemon.paths import AppPaths
 from daemon.protect.one_file import AppContext, ProtectOutcome, protect_file
 from daemon.states import FileState
 from daemon.store import Store
+from testkit.hostile_inputs import HostileInput, build_hostile_corpus
+from testkit.reliability import (
+    DAEMON_ARGS,
+    app_paths,
+    check_invariants,
+    kill_daemon,
+    sha256,
+    start_daemon,
+    wait_for,
+)
 
 
 @pytest.fixture
@@ -206,7 +205,7 @@ def test_file_replaced_mid_processing_is_left_as_the_user_made_it(
     """Before: the new version was left in place but the run ended 'failed', so nothing patched it
     until another event. Now: never overwritten, and patched next in the same call (its bytes are
     the vault's original); a symlink put in its place is refused and never written through."""
-    from reliability_harness import write_image
+    from testkit.reliability import write_image
 
     target = write_image(ctx.paths.outbox / "race" / "a.png", seed=1)
     newer = write_image(tmp_path / "newer.png", seed=2)
@@ -243,7 +242,7 @@ def test_name_that_is_not_utf8_is_refused_with_a_clear_reason(
 ) -> None:
     """Before the fix: a raw UnicodeEncodeError from SQLite as the reason, no row, and a
     traceback logged for the failure to record it."""
-    from reliability_harness import write_image
+    from testkit.reliability import write_image
 
     folder = ctx.paths.outbox / "names"
     good = write_image(folder / "plain.png", seed=1)
@@ -274,7 +273,7 @@ def test_newline_in_a_name_does_not_cut_the_reason(ctx: AppContext) -> None:
 def test_decode_budget_refusal_names_the_file_not_its_descriptor(ctx: AppContext) -> None:
     """The budget check reads through /proc/self/fd/N; before the fix the stored reason began
     with the descriptor number ("11: 100000x100000 ...") instead of the file's name."""
-    from hostile_images import tiff_huge
+    from testkit.hostile_images import tiff_huge
 
     bomb = ctx.paths.outbox / "bombs" / "huge.tif"
     bomb.parent.mkdir(parents=True)

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from bench.bench_kill_loops import REPO, poison_loop, store_deleted_round
 from daemon.watch.watcher import scan_outbox
 from poisoner.atomic import clear_stale_temps
+from testkit.kill_loops import REPO, poison_loop, store_deleted_round
 
 pytestmark = pytest.mark.integration
 
@@ -86,7 +86,7 @@ def test_a_writer_that_closed_within_the_scan_cache_does_not_skip_the_file(ppd_e
     as 'still open for writing by pid <ppd itself>' after the writer had closed it."""
     import daemon.platform.linux
     from daemon.protect.one_file import AppContext, protect_file
-    from tests.daemon.watch.test_watcher import write_image
+    from testkit.photos import write_image
 
     photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=3)
     fd = os.open(photo, os.O_WRONLY)

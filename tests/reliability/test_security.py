@@ -13,7 +13,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from reliability_harness import (
+
+from daemon.protect.one_file import AppContext, protect_file
+from daemon.states import FileState
+from daemon.store import Store
+from testkit.reliability import (
     DAEMON_ARGS,
     app_paths,
     kill_daemon,
@@ -22,10 +26,6 @@ from reliability_harness import (
     wait_all_protected,
     write_image,
 )
-
-from daemon.protect.one_file import AppContext, protect_file
-from daemon.states import FileState
-from daemon.store import Store
 
 NOBODY = 65534
 

@@ -13,13 +13,13 @@ import sys
 from pathlib import Path
 
 import pytest
-from reliability_harness import REPO, patched_then_store_lost, write_image
 
 from daemon.locks import LockHeld, outbox_lock
 from daemon.paths import AppPaths
 from daemon.protect.one_file import AppContext, protect_file
 from daemon.protect.rebuild import RebuildRefused, rebuild_store
 from daemon.states import FileState
+from testkit.reliability import REPO, patched_then_store_lost, write_image
 
 
 @pytest.mark.parametrize("suffix", [".jpg", ".png"])

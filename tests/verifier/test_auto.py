@@ -1,9 +1,10 @@
-"""verifier.auto: visibility measured as a viewer sees it (FLIP) with the paper's SSIM/LPIPS reported,
+"""verifier.auto_search: visibility measured as a viewer sees it (FLIP) with the paper's SSIM/LPIPS reported,
 the budget, the sample, and the preflight's ladder walk (over-budget candidates never reach SfM; one
 end-to-end preflight with real COLMAP)."""
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import msgspec
@@ -13,8 +14,8 @@ from PIL import Image
 
 from poisoner.ladder import named_spec
 from poisoner.spec import PatchSpec
-from verifier import auto
-from verifier.auto import (
+from verifier import auto_search
+from verifier.auto_search import (
     NO_CANDIDATE,
     AutoDecision,
     LadderEntry,
@@ -73,7 +74,7 @@ def test_over_budget_candidates_never_reach_sfm_and_it_is_said_plainly(scene: Pa
     assert NO_CANDIDATE in decision.reason and "big-static" in decision.reason
     assert not decision.lpips_checked and "LPIPS not measured" in decision.reason  # said, not pretended
     (e,) = decision.evidence
-    assert e.status == auto.OVER_BUDGET and e.profiles == {}  # no SfM ran
+    assert e.status == auto_search.OVER_BUDGET and e.profiles == {}  # no SfM ran
     assert e.visibility.noticeable_area_max > 0.05 and e.budget_use > 5 and not e.within_budget
     assert e.visibility.p999_vs_jpeg_max > 1.0  # calibrated on this dataset against JPEG q85
     assert e.visibility.ssim_min < 0.99  # the paper's figure, still reported
@@ -89,7 +90,7 @@ def test_time_budget_stops_the_walk_and_says_so(scene: Path, tmp_path: Path) -> 
     )  # fmt: skip
     assert decision.chosen is None and decision.outcome == "time_budget"
     assert "stopped at the time budget" in decision.reason and "paper-static" in decision.reason
-    assert decision.evidence[0].status == auto.NOT_REACHED
+    assert decision.evidence[0].status == auto_search.NOT_REACHED
 
 
 def test_decision_round_trips_through_json(scene: Path, tmp_path: Path) -> None:
@@ -107,7 +108,7 @@ def test_corner_only_budget_keeps_only_marks_in_one_corner(scene: Path, tmp_path
     decision = preflight(sorted(scene.glob("*.png")), [PAPER, MOVING], corner, options, tmp_path)
     paper, moving = decision.evidence
     assert paper.within_budget and paper.visibility.in_one_corner is True
-    assert moving.status == auto.OVER_BUDGET and moving.visibility.in_one_corner is False
+    assert moving.status == auto_search.OVER_BUDGET and moving.visibility.in_one_corner is False
     assert moving.budget_use <= 1.0  # small enough: only the corner rule excludes it
     assert any("corner region" in n for n in moving.budget_notes)
 
@@ -122,8 +123,8 @@ def test_preflight_end_to_end_with_real_colmap(scene: Path, tmp_path: Path) -> N
     assert decision.chosen == "paper-static", decision.reason
     assert decision.spec == PAPER.spec
     big, paper = decision.evidence
-    assert big.status == auto.OVER_BUDGET and big.profiles == {}
-    assert paper.status == auto.PROTECTED
+    assert big.status == auto_search.OVER_BUDGET and big.profiles == {}
+    assert paper.status == auto_search.PROTECTED
     assert paper.profiles["default"].verdict == "protected"
     assert paper.profiles["default"].frac_within_5deg <= 0.25
     assert paper.profiles["default"].clean_registered == 12
@@ -140,10 +141,10 @@ def test_two_profile_walk_passes_the_static_patch_and_chooses_the_moving_one(
     options = PreflightOptions(camera_params=OBJECT.camera_params())
     decision = preflight(sorted(scene.glob("*.png")), [PAPER, MOVING], budget, options, tmp_path)
     paper, moving = decision.evidence
-    assert paper.status == auto.NOT_PROTECTED
+    assert paper.status == auto_search.NOT_PROTECTED
     assert paper.profiles["default"].verdict == "protected"
     assert paper.profiles["hardened"].verdict == "not_protected"
-    assert moving.status == auto.PROTECTED, moving.profiles
+    assert moving.status == auto_search.PROTECTED, moving.profiles
     assert {p: v.verdict for p, v in moving.profiles.items()} == {
         "default": "protected", "hardened": "protected"
     }  # fmt: skip
@@ -154,11 +155,17 @@ def test_two_profile_walk_passes_the_static_patch_and_chooses_the_moving_one(
     assert without.chosen is None and NO_CANDIDATE in without.reason and "paper-static" in without.reason
 
 
-def test_candidate_that_does_not_fit_is_recorded_not_fatal(tmp_path: Path) -> None:
+def test_candidate_that_does_not_fit_is_recorded_not_fatal(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     for i in range(3):
         Image.fromarray((_textured(40, 40, i) * 255).astype(np.uint8)).save(tmp_path / f"v{i}.png")
     too_big = LadderEntry("too-big", PatchSpec(patch_size=64), "does not fit 40 px images")
-    decision = preflight(sorted(tmp_path.glob("*.png")), [too_big], VisibilityBudget(display_width=40),
-                         PreflightOptions(), tmp_path / "out")  # fmt: skip
-    assert decision.evidence[0].status == auto.FAILED and "does not fit" in (decision.evidence[0].error or "")
+    with caplog.at_level(logging.INFO, logger="verifier.auto_search"):
+        decision = preflight(sorted(tmp_path.glob("*.png")), [too_big], VisibilityBudget(display_width=40),
+                             PreflightOptions(), tmp_path / "out")  # fmt: skip
+    first = decision.evidence[0]
+    assert first.status == auto_search.FAILED and "does not fit" in (first.error or "")
+    said = [r.__dict__ for r in caplog.records if r.getMessage() == "candidate not measurable"]
+    assert [(s["candidate"], s["file"], s["error"]) for s in said] == [("too-big", "v0.png", first.error)]
     assert decision.chosen is None

@@ -21,7 +21,8 @@ from PIL import Image
 
 from daemon.verification import dataset_report as dataset_reports
 from poisoner.spec import PatchSpec
-from verifier import report as rp
+from verifier import html_report as rp
+from verifier import report_figures as rf
 from verifier.poses import poses_to_json
 
 
@@ -230,11 +231,11 @@ def test_report_of_a_patch_spec_has_a_preview_size_that_fits(tmp_path: Path) -> 
     b, _ = poison_array(a, PatchSpec(patch_size=24, block_size=4))
     Image.fromarray(a).save(tmp_path / "a.png")
     Image.fromarray(b).save(tmp_path / "b.png")
-    fig = rp.patch_preview_figure(
+    fig = rf.patch_preview_figure(
         tmp_path / "a.png", tmp_path / "b.png", PatchSpec(patch_size=24, block_size=4)
     )
     assert fig is not None and Image.open(io.BytesIO(fig.png)).size[0] >= 2 * 160
-    assert rp.patch_preview_figure(tmp_path / "a.png", tmp_path / "missing.png", PatchSpec()) is None
+    assert rf.patch_preview_figure(tmp_path / "a.png", tmp_path / "missing.png", PatchSpec()) is None
 
 
 # ---- visibility and the profiles the protection does not hold under --------------------------------
@@ -304,7 +305,7 @@ def test_untouched_copy_has_no_visible_area_in_the_report(tmp_path: Path) -> Non
     clean, _ = _marked_folders(tmp_path)
     vis = measure_pairs([(clean / "v0.png", clean / "v0.png")], sample=1)
     assert vis is not None
-    row = rp.visibility_table(json.loads(json.dumps(msgspec.to_builtins(vis)))).rows[-1]
+    row = rf.visibility_table(json.loads(json.dumps(msgspec.to_builtins(vis)))).rows[-1]
     assert row[6] == "0.000%" and row[7] == "0.000%" and row[8] == "nothing changed"
 
 

@@ -20,6 +20,7 @@ cost), so float32 training gets float64 compositing.
 from __future__ import annotations
 
 import math
+from typing import Any, cast
 
 import numba
 import numpy as np
@@ -238,15 +239,16 @@ def set_kernel_threads(threads: int | None) -> None:
 
 def _sync_threads() -> None:
     wanted = KERNEL_THREADS or torch.get_num_threads()
-    numba.set_num_threads(max(1, min(wanted, numba.config.NUMBA_NUM_THREADS)))
+    ceiling = cast(Any, numba.config).NUMBA_NUM_THREADS  # set from the environment at import
+    numba.set_num_threads(max(1, min(wanted, ceiling)))
 
 
 class CompositeFunction(torch.autograd.Function):
     """image (3 x H x W) = composite(means2d, conics, opacity, colours, bg; tile lists)."""
 
     @staticmethod
-    def forward(  # type: ignore[override]
-        ctx: torch.autograd.function.FunctionCtx,
+    def forward(
+        ctx: Any,  # torch's FunctionCtx: forward leaves what backward needs as its attributes
         means2d: torch.Tensor, conics: torch.Tensor, opacity: torch.Tensor, colours: torch.Tensor,
         bg: torch.Tensor, radii: torch.Tensor, starts: torch.Tensor, counts: torch.Tensor,
         gauss_ids: torch.Tensor, geometry: tuple[int, int, int, int],
@@ -267,13 +269,13 @@ class CompositeFunction(torch.autograd.Function):
         return torch.from_numpy(image).to(means2d.dtype).permute(2, 0, 1)
 
     @staticmethod
-    def backward(  # type: ignore[override]
-        ctx: torch.autograd.function.FunctionCtx, grad_image: torch.Tensor
+    def backward(
+        ctx: Any, grad_image: torch.Tensor
     ) -> tuple[torch.Tensor | None, ...]:
         width, height, tile, tiles_x = ctx.geometry
         _sync_threads()
         grad_hwc = _np64(grad_image.permute(1, 2, 0))
-        pair_grad = _backward_kernel(
+        pair_grad = cast(Any, _backward_kernel)(  # numba's Dispatcher: its typing knows no arguments
             *ctx.arrays, ctx.final_t, ctx.n_walked, grad_hwc, width, height, tile, tiles_x
         )
         gauss_ids = torch.from_numpy(ctx.arrays[2])

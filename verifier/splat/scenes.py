@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import PIL.Image  # before pycolmap (pillow 13 + pycolmap 4.2.1 crash otherwise)
@@ -43,8 +44,8 @@ def to_chw(arr: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(arr)).permute(2, 0, 1).contiguous()
 
 
-def _rigid(image: object) -> tuple[np.ndarray, np.ndarray]:
-    pose = image.cam_from_world  # type: ignore[attr-defined]
+def _rigid(image: Any) -> tuple[np.ndarray, np.ndarray]:  # a pycolmap.Image (pycolmap ships no types)
+    pose = image.cam_from_world
     pose = pose() if callable(pose) else pose  # a method in pycolmap 4.x, a property before
     rot = np.asarray(pose.rotation.matrix(), dtype=np.float64)
     return rot, np.asarray(pose.translation, dtype=np.float64)

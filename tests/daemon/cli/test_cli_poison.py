@@ -17,15 +17,9 @@ from daemon.protect.one_file import AppContext
 from daemon.states import FileState
 from poisoner.ladder import default_spec, named_spec
 from poisoner.spec import PatchSpec
+from testkit.photos import MASKED_SIZE, assert_in_corner_off_subject, changed_pixels, make_image, masked_shoot
 
 runner = CliRunner()
-
-
-def make_image(path: Path, seed: int, size: tuple[int, int] = (160, 120)) -> Path:
-    rng = np.random.default_rng(seed)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(rng.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8)).save(path)
-    return path
 
 
 def snapshot(folder: Path) -> dict[str, bytes]:
@@ -277,47 +271,6 @@ def test_a_known_dataset_name_keeps_its_folder(shoot: Path, tmp_path: Path) -> N
 
 
 # ---- issue 14: subject masks and the dataset's corner ---------------------------------------------
-MASKED_SIZE = (320, 240)
-
-
-def masked_shoot(images: Path, masks: Path, n: int = 5, size: tuple[int, int] = MASKED_SIZE) -> list[Path]:
-    """n textured photos and their subject masks (DTU naming: `000.png` for `000000.png`): the subject
-    fills the left and the top and reaches a little into the bottom-right corner region, so that corner
-    is the freest and the mark must step around the subject inside it."""
-    w, h = size
-    masks.mkdir(parents=True, exist_ok=True)
-    files = []
-    for i in range(n):
-        files.append(make_image(images / f"{i:06d}.png", 20 + i, size))
-        m = np.zeros((h, w), np.uint8)
-        m[:, : int(0.62 * w)] = 255
-        m[: h // 4, :] = 255
-        m[int(0.85 * h) :, : int(0.85 * w)] = 255  # a tongue into the bottom-right corner region
-        Image.fromarray(m).save(masks / f"{i:03d}.png")
-    return files
-
-
-def changed_pixels(original: bytes | Path, patched: Path) -> np.ndarray:
-    import io
-
-    source = io.BytesIO(original) if isinstance(original, bytes) else original
-    a = np.asarray(Image.open(source).convert("RGB"))
-    return np.any(a != np.asarray(Image.open(patched).convert("RGB")), axis=2)
-
-
-def assert_in_corner_off_subject(changed: np.ndarray, mask_file: Path | None, corner: str) -> None:
-    """Something changed, every change inside that corner's 20% x 20% region, none on the subject."""
-    h, w = changed.shape
-    ys, xs = np.nonzero(changed)
-    assert len(xs) > 50
-    in_x = xs.min() >= 0.8 * w if corner.endswith("right") else xs.max() < 0.2 * w
-    in_y = ys.min() >= 0.8 * h if corner.startswith("bottom") else ys.max() < 0.2 * h
-    assert in_x and in_y, (corner, xs.min(), xs.max(), ys.min(), ys.max())
-    if mask_file is not None:
-        subject = np.asarray(Image.open(mask_file)) > 0
-        assert not np.any(changed & subject)
-
-
 def test_subject_masks_keep_the_mark_off_the_subject_in_one_corner(
     ppd_env: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 import typer
-from reliability_harness import sealed_patch, write_image
 from typer.testing import CliRunner
 
 from daemon.cli.store_cmd import register
@@ -20,6 +19,7 @@ from daemon.store import Store
 from daemon.store.vault import Vault
 from poisoner.atomic import atomic_output
 from poisoner.spec import PatchSpec
+from testkit.reliability import sealed_patch, write_image
 
 ROOT = Path(__file__).resolve().parents[3]
 CLI = "import typer; from daemon.cli.store_cmd import register; app = typer.Typer(); register(app); app()"

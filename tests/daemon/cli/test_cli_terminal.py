@@ -25,7 +25,7 @@ from daemon.protect.one_file import AppContext
 from daemon.states import FileState, Protection, dataset_protection, protection_text
 from poisoner.ladder import default_spec, named_specs
 from poisoner.spec import PatchSpec
-from tests.daemon.cli.test_cli_poison import make_image
+from testkit.photos import make_image
 
 REPO = Path(__file__).resolve().parents[3]
 runner = CliRunner()

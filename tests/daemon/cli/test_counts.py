@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 from daemon.cli import app
 from daemon.protect.one_file import AppContext
 from daemon.protect.quarantine import quarantine
-from tests.daemon.cli.test_cli_poison import make_image
+from testkit.photos import make_image
 
 runner = CliRunner()
 

@@ -27,7 +27,7 @@ from daemon.datasets.folder_count import (
     resume_command,
     with_folder,
 )
-from tests.daemon.cli.test_cli_poison import make_image
+from testkit.photos import make_image
 
 REPO = Path(__file__).resolve().parents[3]
 runner = CliRunner()

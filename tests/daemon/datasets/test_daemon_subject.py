@@ -19,7 +19,7 @@ from daemon.datasets.subject_masks import (
 from daemon.protect.one_file import AppContext, protect_file
 from poisoner.ladder import named_spec
 from poisoner.subject import CornerChoice
-from tests.daemon.cli.test_cli_poison import MASKED_SIZE, masked_shoot
+from testkit.photos import MASKED_SIZE, masked_shoot
 
 CORNER_CONFIG = '[patch]\ndesign = "watermark"\n'
 

@@ -9,11 +9,10 @@ import os
 import time
 from pathlib import Path
 
-from reliability_harness import write_image
-
 import daemon.fsops
 from daemon.protect.one_file import AppContext, protect_file
 from poisoner.atomic import TEMP_PREFIX
+from testkit.reliability import write_image
 
 
 def _age(path: Path, seconds: float) -> None:

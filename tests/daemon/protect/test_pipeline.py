@@ -5,16 +5,17 @@ from __future__ import annotations
 
 import hashlib
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from reliability_harness import write_image
 
 import daemon.protect.stages
 from daemon.protect.job import Outcome
 from daemon.protect.one_file import AppContext, protect_file
 from daemon.protect.stages import STAGES
 from daemon.states import FileState
+from testkit.reliability import write_image
 
 
 def _sha(path: Path) -> str:
@@ -55,7 +56,7 @@ def test_the_crash_safe_order_is_one_list_of_named_stages(ctx: AppContext) -> No
     assert os.stat(ctx.vault.path_for(before)).st_nlink == 1
 
 
-def _swap_after_poisoning(monkeypatch: pytest.MonkeyPatch, swap: object) -> None:
+def _swap_after_poisoning(monkeypatch: pytest.MonkeyPatch, swap: Callable[[], object]) -> None:
     real = daemon.protect.stages.poison_to
     done: list[bool] = []
 
@@ -63,7 +64,7 @@ def _swap_after_poisoning(monkeypatch: pytest.MonkeyPatch, swap: object) -> None
         result = real(*args, **kw)
         if not done:
             done.append(True)
-            swap()  # type: ignore[operator]
+            swap()
         return result
 
     monkeypatch.setattr(daemon.protect.stages, "poison_to", poison_then_swap)
@@ -111,7 +112,7 @@ def test_file_swapped_for_a_symlink_is_never_read_or_stored(
 
 def test_a_few_random_instant_races_write_nothing_outside(tmp_path: Path, ppd_env: dict[str, Path]) -> None:
     """The bench scenario (bench/bench_races.py, >= 100 trials) in miniature."""
-    from bench.bench_races import run_symlink_races
+    from testkit.races import run_symlink_races
 
     result = run_symlink_races(tmp_path / "races", trials=6, seed=5)
     assert result.trials == 6 and result.violations == [], result.violations

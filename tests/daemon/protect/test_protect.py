@@ -6,6 +6,7 @@ import hashlib
 import os
 import threading
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ from daemon.states import FileState
 from daemon.store import DatasetSpecLocked
 from daemon.watch.syncdirs import find_sync_folder
 from poisoner.blend import patch_coverage
+from poisoner.formats import PoisonReport
 from poisoner.ladder import default_spec, named_spec
 from poisoner.placement import CORNERS
 from poisoner.spec import PatchSpec
@@ -257,7 +259,7 @@ def test_file_replaced_mid_processing_is_not_clobbered(
     newer_bytes = newer.read_bytes()
     real_poison_file = poisoner.formats.poison_file
 
-    def poison_then_user_saves_a_new_version(s: Path, d: Path, spec: PatchSpec, **kw):  # type: ignore[no-untyped-def]
+    def poison_then_user_saves_a_new_version(s: Path, d: Path, spec: PatchSpec, **kw: Any) -> PoisonReport:
         report = real_poison_file(s, d, spec, **kw)
         if newer.exists():
             os.replace(newer, src)  # the user's editor saves a new version meanwhile (once)

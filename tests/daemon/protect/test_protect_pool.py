@@ -102,7 +102,7 @@ def test_the_daemons_workers_use_the_configs_subject_masks(ppd_env: dict[str, Pa
     """`ppd watch`'s worker processes (ProtectWorkers): a new outbox dataset with a corner mark in the
     config gets its corner from the config's masks once, and every file keeps its mark off the subject."""
     from daemon.protect.pool import ProtectWorkers
-    from tests.daemon.cli.test_cli_poison import assert_in_corner_off_subject, changed_pixels, masked_shoot
+    from testkit.photos import assert_in_corner_off_subject, changed_pixels, masked_shoot
 
     masks = tmp_path / "masks"
     files = masked_shoot(ppd_env["outbox"] / "shoot", masks, n=4)

@@ -12,7 +12,12 @@ import time
 from pathlib import Path
 
 import pytest
-from reliability_harness import (
+
+from daemon.paths import AppPaths
+from daemon.protect.one_file import AppContext, protect_file, restore_file
+from daemon.states import FileState
+from daemon.store import Store
+from testkit.reliability import (
     DAEMON_ARGS,
     REPO,
     app_paths,
@@ -23,15 +28,11 @@ from reliability_harness import (
     write_image,
 )
 
-from daemon.protect.one_file import AppContext, protect_file, restore_file
-from daemon.states import FileState
-from daemon.store import Store
-
 pytestmark = pytest.mark.integration
 
 
-def _row(paths: object, path: Path) -> dict | None:
-    store = Store(paths.db_path)  # type: ignore[attr-defined]
+def _row(paths: AppPaths, path: Path) -> dict | None:
+    store = Store(paths.db_path)
     try:
         return store.file(path)
     finally:
@@ -99,7 +100,7 @@ def test_an_isolated_poisoner_that_dies_is_a_one_line_failure(tmp_path: Path) ->
         try:
             marker = Marker.placeholder(bytes(32), "x", "0" * 64)
             poison_isolated("image", src, tmp_path / "out.png", default_spec(), marker, False)
-        except BaseException as exc:  # noqa: BLE001 - the test inspects it
+        except BaseException as exc:  # the test inspects it
             errors.append(exc)
 
     worker = threading.Thread(target=run)

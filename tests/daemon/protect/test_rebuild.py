@@ -9,7 +9,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from reliability_harness import sealed_patch, write_image
 
 from daemon.config import Config, DatasetOverride
 from daemon.paths import AppPaths
@@ -21,6 +20,7 @@ from daemon.store.vault import Vault
 from poisoner.atomic import atomic_output
 from poisoner.provenance import read_seal
 from poisoner.spec import PatchSpec
+from testkit.reliability import sealed_patch, write_image
 
 COMPARED = ("path", "dataset", "state", "original_sha256", "poisoned_sha256", "spec_id", "published_path")
 

@@ -6,10 +6,9 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-from reliability_harness import patched_then_store_lost, write_image
-
 from daemon.protect.one_file import AppContext, protect_file, restore_file
 from daemon.states import FileState
+from testkit.reliability import patched_then_store_lost, write_image
 
 
 def _sha(path: Path) -> str:

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 import typer
-from reliability_harness import write_image
 from typer.testing import CliRunner
 
 from daemon.cli.key_cmd import register
@@ -19,9 +18,10 @@ from daemon.store.sealkey import SealKeyError, key_path, load_key
 from poisoner.formats import poison_file
 from poisoner.provenance import Marker, Seal, read_seal, seal_file
 from poisoner.spec import PatchSpec
+from testkit.reliability import write_image
 
 
-def _load(data_dir: str, out: multiprocessing.Queue) -> None:  # type: ignore[type-arg]
+def _load(data_dir: str, out: multiprocessing.Queue[bytes | None]) -> None:
     out.put(load_key(Path(data_dir)))
 
 
@@ -84,8 +84,10 @@ def test_export_import_moves_recognition_to_a_new_machine(
     old_machine, new_machine = tmp_path / "old", tmp_path / "new"
     src = write_image(tmp_path / "a.png", seed=1, size=96)
     sealed = tmp_path / "sealed.png"
-    poison_file(src, sealed, PatchSpec(), marker=Marker.placeholder(load_key(old_machine), "s", "ab" * 32))  # type: ignore[arg-type]
-    seal_file(sealed, load_key(old_machine))  # type: ignore[arg-type]
+    key = load_key(old_machine)
+    assert key is not None  # created on first use
+    poison_file(src, sealed, PatchSpec(), marker=Marker.placeholder(key, "s", "ab" * 32))
+    seal_file(sealed, key)
     runner = CliRunner()
     monkeypatch.setenv("PPD_DATA_DIR", str(old_machine))
     exported = runner.invoke(app, ["key", "export", str(tmp_path / "k")])

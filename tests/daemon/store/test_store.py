@@ -23,7 +23,7 @@ from daemon.store import (
 from daemon.store.schema import split_sql
 from daemon.verification import auto_mode as daemon_auto
 from poisoner.spec import PatchSpec
-from verifier.auto import LadderEntry
+from verifier.auto_search import LadderEntry
 
 A = LadderEntry("a-small", PatchSpec(patch_size=0.05), "least visible")  # as in test_auto_daemon.py
 

@@ -13,7 +13,6 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from reliability_harness import MountUnavailable, fill, small_filesystem
 
 import daemon.store.vault
 from daemon.store.vault import (
@@ -26,6 +25,7 @@ from daemon.store.vault import (
     open_regular_nofollow,
 )
 from poisoner.spec import PatchSpec
+from testkit.disk_full import MountUnavailable, fill, small_filesystem
 
 
 def _sha(data: bytes) -> str:

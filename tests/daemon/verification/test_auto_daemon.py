@@ -16,7 +16,7 @@ from daemon.verification import auto_mode as daemon_auto
 from daemon.verification.scheduler import SchedulePolicy, VerificationScheduler
 from daemon.verification.verify import record_report
 from poisoner.spec import PatchSpec
-from verifier.auto import LadderEntry, PreflightJob
+from verifier.auto_search import LadderEntry, PreflightJob
 from verifier.synthetic import SyntheticOptions, render_scene
 from verifier.verification import ProfileReport, VerificationReport
 
@@ -161,7 +161,7 @@ def test_next_step_interim_then_preflight(auto_ctx: AppContext, ppd_env: dict[st
 def test_preflight_child_records_a_plain_no_candidate_decision(
     auto_ctx: AppContext, ppd_env: dict[str, Path]
 ) -> None:
-    """The real child process (python -m verifier.auto) on the vault originals; only an over-budget
+    """The real child process (python -m verifier.auto_search) on the vault originals; only an over-budget
     candidate, so it decides without SfM."""
     ctx = auto_ctx
     _protect_scene(ctx, ppd_env["outbox"], A.spec, views=3)
@@ -236,7 +236,7 @@ def test_interim_runs_in_the_child_and_the_daemon_side_stays_light(
         "import daemon.verification.auto_mode, daemon.config, daemon.verification.scheduler\n"
         "light = [m for m in ('numpy', 'PIL', 'flip_evaluator', 'torch', 'pycolmap') if m in sys.modules]\n"
         "from pathlib import Path\n"
-        "from verifier.auto import LadderEntry, VisibilityBudget, choose_interim\n"
+        "from verifier.auto_search import LadderEntry, VisibilityBudget, choose_interim\n"
         "from poisoner.spec import PatchSpec\n"
         f"imgs = [(p, p.name) for p in sorted(Path({str(ppd_env['outbox'] / 'trip')!r}).glob('*.png'))]\n"
         "ladder = [LadderEntry('x', PatchSpec(patch_size=6)), LadderEntry('y', PatchSpec(patch_size=60))]\n"

@@ -7,27 +7,17 @@ from __future__ import annotations
 
 import hashlib
 import threading
-import time
 from pathlib import Path
 
 import pytest
-from reliability_harness import app_paths, start_daemon, wait_for, write_image
 
-from bench.bench_daemon import stop_daemon
 from daemon.states import FileState
 from daemon.store import Store
+from testkit.daemon_proc import stop_daemon
+from testkit.photos import burst_writer
+from testkit.reliability import app_paths, start_daemon, wait_for, write_image
 
 pytestmark = pytest.mark.integration
-
-
-def burst_writer(path: Path, data: bytes, bursts: int, gap_s: float) -> None:
-    """open(path, 'ab'), write a part, close; pause; again: how some uploaders and sync tools write."""
-    step = -(-len(data) // bursts)
-    for i in range(bursts):
-        with open(path, "ab") as f:
-            f.write(data[i * step : (i + 1) * step])
-        if i < bursts - 1:
-            time.sleep(gap_s)
 
 
 def vault_blobs(vault: Path) -> set[str]:

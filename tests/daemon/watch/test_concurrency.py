@@ -12,7 +12,11 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from reliability_harness import (
+
+from daemon.locks import LockHeld, file_lock, outbox_lock
+from daemon.states import FileState
+from daemon.store import Store
+from testkit.reliability import (
     DAEMON_ARGS,
     REPO,
     app_paths,
@@ -24,10 +28,6 @@ from reliability_harness import (
     wait_for,
     write_image,
 )
-
-from daemon.locks import LockHeld, file_lock, outbox_lock
-from daemon.states import FileState
-from daemon.store import Store
 
 pytestmark = pytest.mark.integration
 

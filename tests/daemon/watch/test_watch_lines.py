@@ -17,7 +17,7 @@ import pytest
 
 from daemon.protect.one_file import AppContext
 from daemon.states import FileState
-from tests.daemon.cli.test_cli_poison import make_image
+from testkit.photos import make_image
 
 REPO = Path(__file__).resolve().parents[3]
 pytestmark = pytest.mark.integration
@@ -43,7 +43,7 @@ class Watch:
         for line in self.proc.stdout:
             self.lines.append(line.rstrip("\n"))
 
-    def wait_for(self, what: str, test, timeout: float = 60) -> None:  # noqa: ANN001
+    def wait_for(self, what: str, test, timeout: float = 60) -> None:
         deadline = time.monotonic() + timeout
         while not test():
             assert self.proc.poll() is None, "\n".join(self.lines)

@@ -18,12 +18,10 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-import numpy as np
-import PIL.Image
 import pytest
 
 from daemon.paths import AppPaths
@@ -36,6 +34,8 @@ from daemon.watch.watcher import DaemonOptions, WatchDaemon
 from daemon.watch.workers import PoolOptions, WorkerPool
 from poisoner.atomic import TEMP_PREFIX
 from poisoner.media import MEDIA_SUFFIXES
+from testkit.daemon_proc import wait_for
+from testkit.photos import write_image
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -51,29 +51,8 @@ FAST = DaemonOptions(
 
 
 # ---- helpers ----------------------------------------------------------------------------------
-def texture(seed: int, size: int = 256) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    return (rng.random((size, size, 3)) * 255).astype(np.uint8)
-
-
-def write_image(path: Path, seed: int, size: int = 256) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fmt = "JPEG" if path.suffix.lower() in (".jpg", ".jpeg") else "PNG"
-    PIL.Image.fromarray(texture(seed, size)).save(path, format=fmt)
-    return path
-
-
 def sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def wait_for(predicate: Callable[[], bool], timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.05)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
 def wait_idle(daemon: WatchDaemon, quiet: float = 0.6, timeout: float = 60.0) -> None:

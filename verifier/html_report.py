@@ -1,4 +1,5 @@
-"""Self-contained HTML reports (issue 7): `build_*` gathers a `ReportData`, `render_html` writes it.
+"""Self-contained HTML reports (issue 7): `build_*` gathers a `ReportData`, `render_html` writes it;
+the figures and tables on the page are verifier.report_figures'.
 
 One file, no remote resources and no JavaScript: pictures are PNG data URIs, CSS is inline. What a
 report shows: the verdict (a coloured banner) and its reasons per profile, the verification
@@ -7,38 +8,45 @@ matplotlib PNG), the splat stage's render comparisons when present, and the patc
 
 Sources:
 - a dataset's verification history (`dataset_history_report(...)`, given its Store rows, model
-  folders and an (original, patched) pair for the preview; daemon.report gathers them);
+  folders and an (original, patched) pair for the preview; daemon.verification.dataset_report
+  gathers them);
 - a verification folder (`build_verification_report(dir)`): `report.json` (verify_dataset's run
   dir) or `<profile>/report.json` files (verify_folders' out dir);
 - an experiment folder (`build_experiment_report(dir)`): results.jsonl -> the paper's tables,
   the trade-off figure and metric-vs-parameter figures.
 
-Where a daemon dataset's latest report lives is the application's convention (daemon.report).
+Where a daemon dataset's latest report lives is the application's convention
+(daemon.verification.dataset_report).
 """
 
 from __future__ import annotations
 
-import base64
 import html
 import json
-import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from PIL import Image
-
 from poisoner.atomic import atomic_write_bytes
 from poisoner.errors import ExitStatus, PpdError
+from verifier.report_figures import (
+    REPORT_PROFILES,
+    Figure,
+    Table,
+    data_uri,
+    history_table,
+    mark_at_display_figure,
+    patch_preview_figure,
+    profile_table,
+    splat_figure,
+    trajectory_figure,
+    visibility_note,
+    visibility_table,
+    when,
+)
 from verifier.verdict import MASKED_MEANING, Verdict, headline, headline_verdict, masked_line, not_holding
-
-log = logging.getLogger(__name__)
-
-# Every profile a verification can run: the report's table lists each, "not run" where absent.
-REPORT_PROFILES = ("default", "hardened", "published", "global", "masked")
 
 # Banner colours: distinctive, saturated, one per verdict (the screenshot test looks for them).
 VERDICT_COLOURS: dict[str, str] = {
@@ -49,7 +57,7 @@ VERDICT_COLOURS: dict[str, str] = {
     Verdict.INCONCLUSIVE: "#4a5568",
     "error": "#4a5568",
 }
-VERDICT_TEXT = {
+VERDICT_TEXT: dict[str, str] = {
     Verdict.PROTECTED: "PROTECTED — the attacker's SfM does not recover the cameras",
     Verdict.WEAK: "WEAK — a partial reconstruction is likely",
     Verdict.NOT_PROTECTED: "NOT PROTECTED — the attacker gets a usable reconstruction",
@@ -65,19 +73,6 @@ class ReportError(PpdError, ValueError):
 
 
 @dataclass
-class Table:
-    title: str
-    header: list[str]
-    rows: list[list[str]]
-
-
-@dataclass
-class Figure:
-    caption: str
-    png: bytes
-
-
-@dataclass
 class ReportData:
     title: str
     verdict: str | None  # None: no verification to judge (e.g. an experiment overview)
@@ -88,169 +83,6 @@ class ReportData:
     generated_at: float = field(default_factory=time.time)
     protection: str | None = None  # a dataset's state in ppd's words, e.g. "patched, not verified"
     holding: str | None = None  # which profiles (attackers) the protection does NOT hold under
-
-
-# ---- small helpers ----------------------------------------------------------------------------
-def png_bytes(pixels: np.ndarray) -> bytes:
-    import io
-
-    buf = io.BytesIO()
-    Image.fromarray(np.asarray(pixels, dtype=np.uint8)).save(buf, format="PNG")
-    return buf.getvalue()
-
-
-def data_uri(png: bytes) -> str:
-    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
-
-
-def fmt(value: Any, digits: int = 2, pct: bool = False) -> str:
-    if value is None:
-        return "—"
-    if isinstance(value, bool):
-        return str(value)
-    if isinstance(value, float):
-        if value != value:  # nan
-            return "—"
-        if value in (float("inf"), float("-inf")):
-            return "inf"
-        return f"{100 * value:.0f}%" if pct else f"{value:.{digits}f}"
-    return str(value)
-
-
-def _when(ts: float | None) -> str:
-    return "—" if not ts else time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(ts))
-
-
-def _load_poses(side_dir: Path) -> dict[str, Any]:
-    from verifier.poses import poses_from_json
-
-    result = side_dir / "result.json"
-    if not result.is_file():
-        return {}
-    try:
-        return poses_from_json(json.loads(result.read_text()).get("poses") or {})
-    except (ValueError, KeyError, TypeError) as exc:
-        log.warning("unreadable poses", extra={"file": str(result), "error": str(exc)})
-        return {}
-
-
-def trajectory_figure(model_dir: str | Path | None, profile: str) -> Figure | None:
-    """Clean vs poisoned camera centres of one profile's models, when both sides have poses."""
-    if not model_dir:
-        return None
-    from verifier.plots import trajectory_png
-
-    clean, poisoned = _load_poses(Path(model_dir) / "clean"), _load_poses(Path(model_dir) / "poisoned")
-    if not clean and not poisoned:
-        return None
-    caption = (
-        f"Camera trajectories, profile {profile}: clean SfM ({len(clean)} cameras, green) vs poisoned SfM "
-        f"({len(poisoned)} cameras, orange, aligned onto clean by a robust similarity); grey lines join "
-        "the same image."
-    )
-    return Figure(caption, trajectory_png(clean, poisoned))
-
-
-def splat_figure(splat: Mapping[str, Any] | None, profile: str) -> Figure | None:
-    preview = (splat or {}).get("preview")
-    if not preview or not Path(preview).is_file():
-        return None
-    layout = (splat or {}).get("preview_layout", "clean render | poisoned render | poisoned input")
-    return Figure(f"Render comparison (splat stage, profile {profile}): {layout}", Path(preview).read_bytes())
-
-
-def profile_table(profiles: Mapping[str, Mapping[str, Any]]) -> Table:
-    """Per profile: registrations, cameras within 5° (of clean and of GT), errors, splat costs."""
-    rows = []
-    for name in [*REPORT_PROFILES, *(p for p in profiles if p not in REPORT_PROFILES)]:
-        if name not in profiles:
-            rows.append([name, "not run", *(["—"] * 8)])
-            continue
-        m = profiles[name]
-        c, p = m.get("clean") or {}, m.get("poisoned") or {}
-        vc, cg, pg = m.get("vs_clean") or {}, m.get("clean_vs_gt") or {}, m.get("poisoned_vs_gt") or {}
-        splat = m.get("splat") or {}
-        c1 = (splat.get("poisoned") or {}).get("cost1") or {}
-        c1c = (splat.get("clean") or {}).get("cost1") or {}
-        c2 = splat.get("cost2") or {}
-        poisoned_reg = (
-            f"{fmt(p.get('registered'))}/{fmt(p.get('num_images'))}"
-            if p.get("outcome") in (None, "ok")
-            else str(p.get("outcome"))
-        )
-        rows.append(
-            [
-                name,
-                str(m.get("verdict", "—")),
-                f"{fmt(c.get('registered'))}/{fmt(c.get('num_images'))}",
-                poisoned_reg,
-                fmt(vc.get("frac_within_5deg"), pct=True),
-                fmt(vc.get("median_rotation_error_deg"), 1),
-                f"{fmt(cg.get('frac_within_5deg'), pct=True)} / {fmt(pg.get('frac_within_5deg'), pct=True)}",
-                f"{fmt(c1c.get('ssim'), 3)} / {fmt(c1.get('ssim'), 3)}",
-                f"{fmt(c1c.get('psnr'))} / {fmt(c1.get('psnr'))}",
-                f"{fmt(c2.get('ssim'), 4)} / {fmt(c2.get('psnr'))} / {fmt(c2.get('lpips'), 4)}",
-            ]
-        )
-    header = [
-        "profile", "verdict", "clean registered", "poisoned registered", "poisoned within 5° of clean",
-        "median rotation error °", "within 5° of GT clean / poisoned", "render SSIM clean / poisoned (cost1)",
-        "render PSNR clean / poisoned", "clean-vs-poisoned SSIM / PSNR / LPIPS (cost2)",
-    ]  # fmt: skip
-    return Table("Metrics per profile (latest verification)", header, rows)
-
-
-def history_table(runs: Sequence[Mapping[str, Any]]) -> Table:
-    rows = []
-    for r in runs:
-        vc = (r.get("metrics") or {}).get("vs_clean") or {}
-        rows.append(
-            [
-                _when(r.get("finished_at")),
-                str(r.get("profile")),
-                str(r.get("verdict")),
-                fmt(vc.get("frac_within_5deg"), pct=True),
-                f"{(r.get('finished_at') or 0) - (r.get('started_at') or 0):.0f}",
-                str(r.get("error") or ""),
-            ]
-        )
-    return Table(
-        "Verification history (newest first)",
-        ["finished", "profile", "verdict", "within 5° of clean", "seconds", "error"],
-        rows,
-    )
-
-
-def patch_preview_figure(original: Path, protected: Path, spec: Any) -> Figure | None:
-    """poisoner.preview of one original and its patched file (image files only), as a viewer shows
-    them (EXIF orientation applied). The zoom and the caption's words are where the pixels changed
-    (issue 25): the same answer for a corner mark and a per-photo one, whatever masks were used."""
-    from poisoner.placement import position_words
-    from poisoner.preview import orient, render_preview
-    from poisoner.spec import PatchPlacement
-
-    try:
-        with Image.open(original) as a_im, Image.open(protected) as b_im:
-            a, b = np.asarray(a_im.convert("RGB")), np.asarray(b_im.convert("RGB"))
-            orientation = b_im.getexif().get(0x0112)
-        a, b = orient(a, orientation), orient(b, orientation)
-        ys, xs = np.nonzero(np.any(a != b, axis=2))
-        if xs.size == 0:
-            return Figure(f"Patch preview: {protected.name}: no pixel changed", png_bytes(b))
-        x0, y0, x1, y1 = int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
-        side = max(x1 - x0, y1 - y0)
-        h, w = a.shape[:2]
-        box = PatchPlacement(min(x0, w - side), min(y0, h - side), side, 1, 255, 255, spec.pattern, spec.seed)
-        pixels = render_preview(a, b, box, labels=("original", f"patched ({protected.name})"))
-        words = position_words((x0, y0, x1, y1), w, h)
-    except Exception as exc:  # a preview is a nicety: never fail the report for it
-        log.warning("no patch preview", extra={"file": str(protected), "error": str(exc)})
-        return None
-    return Figure(
-        f"Patch preview: original | patched ({protected.name}), zoom on the patch below; mark at the "
-        f"{words}, pixels ({x0},{y0})-({x1},{y1}) as shown",
-        png_bytes(pixels),
-    )
 
 
 # ---- builders ---------------------------------------------------------------------------------
@@ -454,7 +286,7 @@ def render_html(data: ReportData) -> str:
         f"<title>{html.escape(data.title)}</title>",
         f"<style>{CSS}</style></head><body>",
         f"<h1>{html.escape(data.title)}</h1>",
-        f'<p class="note">Generated {_when(data.generated_at)} by ppd.</p>',
+        f'<p class="note">Generated {when(data.generated_at)} by ppd.</p>',
     ]
     if data.verdict is not None:
         colour = VERDICT_COLOURS.get(data.verdict, VERDICT_COLOURS[Verdict.INCONCLUSIVE])
@@ -495,116 +327,7 @@ def write_report(data: ReportData, out: Path) -> Path:
     return out
 
 
-# ---- what a viewer sees (verifier.visibility) -------------------------------------------------
-def visibility_table(visibility: Mapping[str, Any]) -> Table:
-    """Per measured file and the worst over them: FLIP figures, changed area, corner, subject."""
-    rows = []
-    for item in visibility.get("images") or []:
-        rows.append(_visibility_row(str(item.get("name")), item.get("figures") or {}))
-    rows.append(_visibility_row(f"worst of {visibility.get('measured')}", visibility.get("worst") or {}))
-    header = [
-        "image", "judged at (px wide)", "FLIP mean", "FLIP p99", "FLIP p99.9", "FLIP max",
-        "area FLIP > 0.5", "changed area", "in one corner", "on subject mask",
-        "p99.9 vs JPEG q85 (its p99.9)",
-    ]  # fmt: skip
-    return Table("Visibility: what a viewer sees (FLIP)", header, rows)
-
-
-def _visibility_row(name: str, v: Mapping[str, Any]) -> list[str]:
-    subject = {True: "YES", False: "no", None: "no mask"}[v.get("touches_subject")]
-    corner = {True: "yes", False: "NO", None: "nothing changed"}[v.get("in_one_corner")]
-    return [
-        name,
-        fmt(v.get("display_width")),
-        fmt(v.get("flip_mean"), 4),
-        fmt(v.get("flip_p99"), 3),
-        fmt(v.get("flip_p999"), 3),
-        fmt(v.get("flip_max"), 3),
-        f"{100 * float(v.get('area_above_half') or 0):.3f}%",
-        f"{100 * float(v.get('changed_area') or 0):.3f}%",
-        corner,
-        subject,
-        f"{fmt(v.get('p999_vs_jpeg'), 1)}x ({fmt(v.get('jpeg_p999'), 3)})",
-    ]
-
-
-def visibility_note(visibility: Mapping[str, Any] | None) -> str:
-    """How visibility was measured, or that it was not."""
-    if not visibility:
-        return (
-            "Visibility was not measured in this verification (older run, or visibility_images = 0): "
-            "run `ppd verify` again to see it."
-        )
-    worst = visibility.get("worst") or {}
-    return (
-        f"Visibility is measured on {visibility.get('measured')} of {visibility.get('total')} images "
-        "(spread over the set, to bound its cost), each shown min(1920, its width) px wide at "
-        f"{fmt(worst.get('ppd'), 0)} pixels per degree (NVIDIA FLIP); a JPEG q85 re-encode of the same "
-        "image is the accepted-as-invisible yardstick. FLIP > 0.5 marks a clearly visible difference."
-    )
-
-
-def mark_at_display_figure(original: Path, protected: Path) -> Figure | None:
-    """One protected image at display size (min(1920, width) px wide) with an enlarged view of where
-    it differs from its original below (original | protected)."""
-    from verifier.visibility import DISPLAY_WIDTH
-
-    try:
-        with Image.open(original) as a_im, Image.open(protected) as b_im:
-            a, b = np.asarray(a_im.convert("RGB")), np.asarray(b_im.convert("RGB"))
-        if a.shape != b.shape:
-            return None
-        pixels, box = _display_with_zoom(a, b, min(DISPLAY_WIDTH, a.shape[1]))
-    except (OSError, ValueError) as exc:  # a picture is a nicety: never fail the report for it
-        log.warning("no display picture", extra={"file": str(protected), "error": str(exc)})
-        return None
-    where = "no pixel differs"
-    if box is not None:
-        where = f"changed pixels in x {box[0]}–{box[2]}, y {box[1]}–{box[3]}"
-    return Figure(
-        f"{protected.name} at display size ({pixels.shape[1]} px wide); below, enlarged: "
-        f"original | protected around the mark ({where})",
-        png_bytes(pixels),
-    )
-
-
-def _display_with_zoom(
-    a: np.ndarray, b: np.ndarray, width: int
-) -> tuple[np.ndarray, tuple[int, int, int, int] | None]:
-    """The protected image resized to width, and below it the changed region of both, enlarged."""
-    h, w = b.shape[:2]
-    display = (
-        b
-        if w == width
-        else np.asarray(
-            Image.fromarray(b).resize((width, max(1, round(h * width / w))), Image.Resampling.LANCZOS)
-        )
-    )
-    ys, xs = np.nonzero(np.any(a != b, axis=2))
-    if len(xs) == 0:
-        return display, None
-    box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
-    pad = max(8, (box[2] - box[0]) // 4, (box[3] - box[1]) // 4)
-    left, top = max(0, box[0] - pad), max(0, box[1] - pad)
-    right, bottom = min(w, box[2] + pad), min(h, box[3] + pad)
-    half = max(16, width // 2 - 8)
-    crops = [_fit(x[top:bottom, left:right], half) for x in (a, b)]
-    gap = np.full((crops[0].shape[0], 8, 3), 255, np.uint8)
-    zoom = np.concatenate([crops[0], gap, crops[1]], axis=1)[:, :width]
-    canvas = np.full((display.shape[0] + 8 + zoom.shape[0], width, 3), 255, np.uint8)
-    canvas[: display.shape[0]] = display
-    canvas[display.shape[0] + 8 :, : zoom.shape[1]] = zoom
-    return canvas, box
-
-
-def _fit(crop: np.ndarray, width: int) -> np.ndarray:
-    """A crop enlarged by a whole factor (nearest: the pixels as they are) or shrunk to width."""
-    w = crop.shape[1]
-    if w > width:
-        height = max(1, round(crop.shape[0] * width / w))
-        return np.asarray(Image.fromarray(crop).resize((width, height), Image.Resampling.LANCZOS))
-    scale = max(1, min(8, width // max(1, w)))
-    return np.repeat(np.repeat(crop, scale, axis=0), scale, axis=1)
+# ---- what a viewer sees and where the protection holds ------------------------------------------
 
 
 def _add_visibility_content(

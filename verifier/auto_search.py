@@ -19,7 +19,7 @@
 The visibility measures live in verifier.auto_visibility; what a preflight takes (budget, options,
 job) in verifier.auto_options.
 
-Runs as a child process for the daemon: `python -m verifier.auto JOB.json` (see `main`; the job is a
+Runs as a child process for the daemon: `python -m verifier.auto_search JOB.json` (see `main`; the job is a
 `PreflightJob`, the result an `AutoDecision` or `{"error": ...}`, JSON both ways through msgspec).
 torch (LPIPS) is imported only when LPIPS is measured; pycolmap only in the SfM grandchildren.
 """
@@ -238,6 +238,7 @@ def _measure(
     shutil.rmtree(images, ignore_errors=True)
     images.mkdir(parents=True)
     per_image = []
+    name = ""
     try:
         for name in names:
             poison_file(clean_dir / name, images / name, spec)
@@ -245,6 +246,8 @@ def _measure(
             per_image.append(measure_image(clean, poisoned, budget, lpips_model, jpeg_p999.get(name)))
     except Exception as exc:  # a candidate that cannot be applied here is recorded, not fatal
         e.status, e.error = FAILED, str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        where = {"candidate": candidate.name, "file": name, "error": e.error}
+        log.info("candidate not measurable", extra=where)
         shutil.rmtree(images, ignore_errors=True)
         return e
     e.visibility = summarise_visibility(per_image)
@@ -471,6 +474,7 @@ def choose_interim(
                 vis = _measure_on(cand.spec, clean_dir, Path(tmp) / str(index), names, budget, jpeg)
             except Exception as exc:  # does not fit these images: recorded, next one
                 why = (str(exc) or type(exc).__name__).splitlines()[0]
+                log.info("candidate not measurable", extra={"candidate": cand.name, "error": why})
                 measured.append(InterimMeasure(cand.name, error=why))
                 continue
             fits = within_budget(vis, budget)
@@ -534,11 +538,11 @@ def run_job(job: PreflightJob) -> AutoDecision | InterimChoice:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """`python -m verifier.auto JOB.json`: writes the decision (or interim choice) JSON to job.result
+    """`python -m verifier.auto_search JOB.json`: writes the decision (or interim choice) JSON to job.result
     (atomically); {"error": ...} when the job cannot run."""
     args = list(sys.argv[1:] if argv is None else argv)
     if len(args) != 1:
-        print("usage: python -m verifier.auto JOB.json", file=sys.stderr)
+        print("usage: python -m verifier.auto_search JOB.json", file=sys.stderr)
         return 2
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s %(message)s")
     try:

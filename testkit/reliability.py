@@ -8,15 +8,13 @@ that must hold at any instant (docs/RELIABILITY.md):
   names an original in the vault and the disk holds that original or its exact poisoned form);
 * the SQLite file passes `PRAGMA integrity_check`.
 
-Used from pytest (tests/ on sys.path) and from `python -m bench` (repo root on sys.path); the
-real-process daemon helpers are bench.bench_daemon's, the image/clip writers are the watcher's
-and the video tests' own.
+Used from pytest and from `python -m bench`; the real-process daemon helpers are
+testkit/daemon_proc.py's, the image/clip writers testkit/photos.py's and testkit/video.py's.
 """
 
 from __future__ import annotations
 
 import contextlib
-import errno
 import hashlib
 import math
 import os
@@ -24,39 +22,36 @@ import random
 import shutil
 import signal
 import socket
-import subprocess
-import sys
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import PIL.Image  # before anything that could load pycolmap (pillow 13 import-order crash)
 import PIL.PngImagePlugin
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # pytest puts tests/ first; bench and tests.* need the root
-    sys.path.insert(0, str(REPO))
+from daemon.paths import AppPaths
+from daemon.protect.one_file import media_kind, poison_to
+from daemon.states import FileState
+from daemon.store import Store
+from poisoner.atomic import TEMP_PREFIX
+from poisoner.spec import PatchSpec
+from testkit.daemon_proc import Daemon, start_daemon, status_kb, wait_for
+from testkit.photos import texture, write_image
 
-from bench.bench_daemon import Daemon, start_daemon, status_kb  # noqa: E402
-from daemon.paths import AppPaths  # noqa: E402
-from daemon.protect.one_file import media_kind, poison_to  # noqa: E402
-from daemon.states import FileState  # noqa: E402
-from daemon.store import Store  # noqa: E402
-from poisoner.atomic import TEMP_PREFIX  # noqa: E402
-from tests.daemon.watch.test_watcher import texture, wait_for, write_image  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 # no SfM children in fault runs; an incomplete file is quarantined after 2 s unchanged (default 120)
 DAEMON_ARGS = ("--no-verify", "--debounce", "0.05", "-j", "2", "--incomplete-wait", "2")
 
 __all__ = [
-    "DAEMON_ARGS", "RESULTS", "CrashTrialOptions", "CrashTrialReport", "DiskFullReport", "HostileInput",
-    "MountUnavailable", "app_paths", "fill", "run_disk_full", "small_filesystem",
-    "build_hostile_corpus", "check_invariants", "drop_files", "kill_daemon", "leftover_temporaries",
-    "make_media", "patched_then_store_lost", "percentile", "protected_counts", "run_crash_trials", "sha256",
-    "start_daemon", "status_kb", "wait_all_protected", "wait_for", "write_image", "write_results_section",
+    "DAEMON_ARGS", "RESULTS", "CrashTrialOptions", "CrashTrialReport", "app_paths", "check_invariants",
+    "drop_files", "kill_daemon", "leftover_temporaries", "make_media", "patched_then_store_lost",
+    "percentile",
+    "protected_counts", "run_crash_trials", "sha256", "start_daemon", "status_kb", "wait_all_protected",
+    "wait_for", "write_image", "write_results_section",
 ]  # fmt: skip
 
 
@@ -90,7 +85,7 @@ def subprocess_env(root: Path) -> dict[str, str]:
 
 def make_video(path: Path, seed: int, frames: int = 12) -> Path:
     """A small H.264 MP4 (160x120, no audio), distinct per seed."""
-    from tests.poisoner.test_video import Clip, make_clip  # lazy: loads PyAV
+    from testkit.video import Clip, make_clip  # lazy: loads PyAV
 
     make_clip(path, Clip(width=160, height=120, frames=frames, audio=None))
     # make_clip's scene is the same for every clip: mark each one by appending a free atom,
@@ -414,248 +409,7 @@ def percentile(values: list[float], q: float) -> float:
     return ordered[rank - 1]
 
 
-# ---- hostile input corpus ----------------------------------------------------------------------
-@dataclass(frozen=True)
-class HostileInput:
-    path: Path  # where it sits (in the outbox)
-    what: str  # what is hostile about it
-    expect: str  # 'protected', 'refused' (failed row, one-line error, file untouched),
-    # 'either' (protected or refused), 'left' (no row, nothing touched: links, FIFOs)
-
-
-def _png_chunk(ctype: bytes, body: bytes) -> bytes:
-    import zlib
-
-    return len(body).to_bytes(4, "big") + ctype + body + zlib.crc32(ctype + body).to_bytes(4, "big")
-
-
-def _header_bomb_png(width: int, height: int) -> bytes:
-    """A valid-looking PNG whose header claims width x height 8-bit grey (a few bytes of IDAT)."""
-    import zlib
-
-    ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 0, 0, 0, 0])
-    return (b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", ihdr)
-            + _png_chunk(b"IDAT", zlib.compress(b"\x00" * 1024)) + _png_chunk(b"IEND", b""))  # fmt: skip
-
-
-def _image_bytes(im: PIL.Image.Image, fmt: str, **kw: object) -> bytes:
-    import io
-
-    buf = io.BytesIO()
-    im.save(buf, format=fmt, **kw)
-    return buf.getvalue()
-
-
-def _flip_middle(data: bytes, count: int = 64) -> bytes:
-    mid = len(data) // 2
-    return data[:mid] + bytes(b ^ 0x5A for b in data[mid : mid + count]) + data[mid + count :]
-
-
-_Put = Callable[[str | bytes, bytes, str, str], None]
-
-
-def _putter(dest: Path, items: list[HostileInput]) -> _Put:
-    """A writer of one hostile file into dest that records what it is and what ppd must do with it."""
-
-    def put(name: str | bytes, data: bytes, what: str, expect: str) -> None:
-        path = Path(os.fsdecode(os.path.join(os.fsencode(dest), os.fsencode(name))))
-        path.write_bytes(data)
-        items.append(HostileInput(path, what, expect))
-
-    return put
-
-
-def _put_broken_media(put: _Put, good: dict[str, bytes], outside: Path) -> None:
-    """Truncated, corrupted and empty copies of every image format and of a video."""
-    suffix = {"JPEG": ".jpg", "PNG": ".png", "WEBP": ".webp", "TIFF": ".tif"}
-    clip = make_video(outside / "clip-src.mp4", seed=1).read_bytes()
-    for fmt, data in [*good.items(), ("MP4", clip)]:
-        ext = suffix.get(fmt, ".mp4")
-        put(f"truncated-half{ext}", data[: len(data) // 2], f"truncated {fmt} (half)", "refused")
-        put(f"truncated-header{ext}", data[:40], f"truncated {fmt} (40 bytes)", "refused")
-        put(f"corrupt-middle{ext}", _flip_middle(data), f"corrupt {fmt} (64 bytes flipped)", "either")
-        put(f"zero-byte{ext}", b"", f"zero-byte {fmt} name", "refused")
-
-
-def _put_odd_images(put: _Put, rgb: PIL.Image.Image) -> None:
-    """Decompression bombs and valid images in modes and layouts ppd must handle or refuse."""
-    import numpy as np
-
-    put("bomb-header.png", _header_bomb_png(100_000, 100_000), "PNG header claiming 10^10 pixels", "refused")
-    grey = PIL.Image.fromarray(np.zeros((10_000, 9_500), dtype=np.uint8))
-    put("bomb-zlib.png", _image_bytes(grey, "PNG", compress_level=9), "95 Mpx of zeros in ~100 KB", "refused")
-    del grey
-    grey16 = PIL.Image.fromarray(np.arange(96 * 96, dtype=np.uint16).reshape(96, 96) * 7)
-    put("grey16.png", _image_bytes(grey16, "PNG"), "16-bit grey PNG", "protected")
-    put("grey16.tif", _image_bytes(grey16, "TIFF"), "16-bit grey TIFF", "protected")
-    put("cmyk.jpg", _image_bytes(rgb.convert("CMYK"), "JPEG"), "CMYK JPEG", "either")
-    put("cmyk.tif", _image_bytes(rgb.convert("CMYK"), "TIFF"), "CMYK TIFF", "either")
-    put("palette.png", _image_bytes(rgb.convert("P"), "PNG"), "palette PNG", "protected")
-    put("palette-transparent.png", _image_bytes(rgb.convert("P"), "PNG", transparency=0),
-        "palette PNG with tRNS", "protected")  # fmt: skip
-    put("la.png", _image_bytes(rgb.convert("LA"), "PNG"), "grey+alpha PNG", "protected")
-    frames = [rgb, rgb.transpose(PIL.Image.Transpose.FLIP_LEFT_RIGHT)]
-    put("animated.png", _image_bytes(frames[0], "PNG", save_all=True, append_images=frames[1:]),
-        "animated PNG (2 frames)", "refused")  # fmt: skip
-    put("animated.webp", _image_bytes(frames[0], "WEBP", save_all=True, append_images=frames[1:]),
-        "animated WebP (2 frames)", "refused")  # fmt: skip
-    put("multipage.tif", _image_bytes(frames[0], "TIFF", save_all=True, append_images=frames[1:]),
-        "multi-page TIFF", "refused")  # fmt: skip
-
-
-def _put_metadata_impostors_and_names(put: _Put, rgb: PIL.Image.Image, good: dict[str, bytes]) -> None:
-    """Huge metadata, non-media content under media names, and hostile file names."""
-    exif = rgb.getexif()
-    exif[0x9286] = b"ASCII\x00\x00\x00" + b"x" * 60_000  # UserComment: APP1 near its 64 KB limit
-    put("huge-exif.jpg", _image_bytes(rgb, "JPEG", exif=exif.tobytes()), "60 KB EXIF", "protected")
-    info = PIL.PngImagePlugin.PngInfo()
-    info.add_text("Comment", "z" * 5_000_000, zip=False)
-    put("huge-text.png", _image_bytes(rgb, "PNG", pnginfo=info), "5 MB tEXt chunk", "protected")
-    put("text.jpg", b"just some notes, not a photo\n" * 10, "text file named .jpg", "refused")
-    put("html.png", b"<!doctype html><html><body>hi</body></html>", "HTML named .png", "refused")
-    put("elf.tif", Path(sys.executable).read_bytes()[:65536], "ELF binary named .tif", "refused")
-    put("pdf.webp", b"%PDF-1.4\n%\xe2\xe3\xcf\xd3\n1 0 obj\n<<>>\nendobj\n", "PDF named .webp", "refused")
-    put("text.mp4", b"not a video at all\n" * 50, "text named .mp4", "refused")
-    put("jpeg-named.png", good["JPEG"], "JPEG content under a .png name", "protected")
-    put("line\nbreak.png", good["PNG"], "newline in the name", "protected")
-    put("bad\nname.jpg", b"not a photo", "non-image with a newline in its name", "refused")
-    put(b"caf\xe9-latin1.png", good["PNG"], "non-UTF-8 name (refused: the store holds UTF-8)", "left")
-    put("東京 🗼 space.jpg", good["JPEG"], "non-ASCII and spaces in the name", "protected")
-    put("-rf.png", good["PNG"], "leading dash in the name", "protected")
-    put("x" * 240 + ".jpg", good["JPEG"], "244-byte name", "protected")
-
-
-def _put_links_and_specials(
-    dest: Path, outside: Path, good: dict[str, bytes], items: list[HostileInput]
-) -> None:
-    """Links never followed out of the outbox (their targets must stay byte-identical), a FIFO, a folder."""
-    secret = outside / "secret.png"
-    secret.write_bytes(good["PNG"])
-    (dest / "link-out.png").symlink_to(secret)
-    items.append(HostileInput(dest / "link-out.png", "symlink to a file outside the outbox", "left"))
-    (dest / "dangling.png").symlink_to(outside / "does-not-exist.png")
-    items.append(HostileInput(dest / "dangling.png", "dangling symlink", "left"))
-    (dest / "loop.png").symlink_to(dest / "loop.png")
-    items.append(HostileInput(dest / "loop.png", "symlink to itself", "left"))
-    outside_dir = outside / "album"
-    outside_dir.mkdir(exist_ok=True)
-    (outside_dir / "inside-linked-dir.png").write_bytes(good["PNG"])
-    (dest / "linked-dir").symlink_to(outside_dir, target_is_directory=True)
-    items.append(HostileInput(dest / "linked-dir" / "inside-linked-dir.png",
-                              "file reached through a symlinked folder", "left"))  # fmt: skip
-    hard_target = outside / "hardlinked.jpg"
-    hard_target.write_bytes(good["JPEG"])
-    os.link(hard_target, dest / "hardlink-out.jpg")
-    items.append(HostileInput(dest / "hardlink-out.jpg", "hard link to a file outside", "protected"))
-    os.mkfifo(dest / "fifo.jpg")
-    items.append(HostileInput(dest / "fifo.jpg", "FIFO named .jpg (opening it would block)", "left"))
-    (dest / "folder.png").mkdir()
-    items.append(HostileInput(dest / "folder.png", "folder named .png", "left"))
-
-
-def build_hostile_corpus(dest: Path, outside: Path) -> list[HostileInput]:
-    """Write the hostile inputs into dest (an outbox dataset folder); `outside` receives the
-    targets of the link tricks (it must be outside the outbox). Generated, never downloaded."""
-    dest.mkdir(parents=True, exist_ok=True)
-    outside.mkdir(parents=True, exist_ok=True)
-    rgb = PIL.Image.fromarray(texture(5, 96))
-    good = {fmt: _image_bytes(rgb, fmt) for fmt in ("JPEG", "PNG", "WEBP", "TIFF")}
-    items: list[HostileInput] = []
-    put = _putter(dest, items)
-    _put_broken_media(put, good, outside)
-    _put_odd_images(put, rgb)
-    _put_metadata_impostors_and_names(put, rgb, good)
-    _put_links_and_specials(dest, outside, good, items)
-    return items
-
-
-# ---- a small real filesystem that fills up -------------------------------------------------------------
-class MountUnavailable(RuntimeError):
-    """A tmpfs cannot be mounted here (not root, no CAP_SYS_ADMIN, a locked-down container)."""
-
-
-@contextlib.contextmanager
-def small_filesystem(where: Path, size: str = "6m") -> Iterator[Path]:
-    """A size-limited tmpfs mounted at where for the block (lazily unmounted afterwards). 6 MiB:
-    the vault keeps an independent copy of every original (no hard link), so a run needs room
-    for both."""
-    where.mkdir(parents=True, exist_ok=True)
-    mounted = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", f"size={size},mode=0755", "tmpfs", str(where)],
-        capture_output=True, text=True,
-    )  # fmt: skip
-    if mounted.returncode != 0:
-        raise MountUnavailable(mounted.stderr.strip() or f"mount exited {mounted.returncode}")
-    try:
-        yield where
-    finally:
-        subprocess.run(["umount", "-l", str(where)], check=False)
-
-
-def fill(folder: Path, leave: int = 0) -> Path:
-    """Write one filler file until the filesystem refuses another byte (ENOSPC), then give
-    `leave` bytes back (room for the store's pages, not for a poisoned image)."""
-    filler = folder / "filler.bin"
-    with open(filler, "wb", buffering=0) as fh:
-        try:
-            while True:
-                fh.write(b"\0" * 4096)
-        except OSError as exc:
-            if exc.errno != errno.ENOSPC:
-                raise
-    with open(filler, "ab", buffering=0) as fh, contextlib.suppress(OSError):  # the last partial block
-        while True:
-            fh.write(b"\0")
-    if leave:
-        os.truncate(filler, max(0, filler.stat().st_size - leave))
-    return filler
-
-
-@dataclass
-class DiskFullReport:
-    leave_bytes: int
-    files: int = 0
-    failed_while_full: int = 0
-    protected_while_full: int = 0
-    unclear_reasons: list[str] = field(default_factory=list)  # failures whose reason is not one line
-    violations_while_full: list[str] = field(default_factory=list)
-    violations_after: list[str] = field(default_factory=list)
-    protected_after_space_returned: int = 0
-    leftover_temporaries: int = 0
-
-
-def run_disk_full(fs: Path, leave: int, files: int = 4) -> DiskFullReport:
-    """protect_file in this process with outbox, store and vault on the small filesystem fs:
-    one file protected, the disk filled (leaving `leave` bytes), the rest tried, space given
-    back, the rest tried again."""
-    from daemon.protect.one_file import AppContext, protect_file
-
-    paths = app_paths(fs)
-    report = DiskFullReport(leave_bytes=leave, files=files)
-    ctx = AppContext.open(paths)
-    try:
-        images = [write_image(paths.outbox / "shoot" / f"{i}.png", seed=i, size=256) for i in range(files)]
-        originals = {f: sha256(f) for f in images}
-        assert protect_file(images[0], ctx).state == "patched"  # the store and vault exist
-        filler = fill(fs, leave)
-        for outcome in (protect_file(f, ctx) for f in images[1:]):
-            report.failed_while_full += outcome.state == "failed"
-            report.protected_while_full += outcome.state == "patched"
-            if outcome.state == "failed" and (not outcome.reason or "\n" in outcome.reason):
-                report.unclear_reasons.append(repr(outcome.reason))
-        report.leftover_temporaries = len(leftover_temporaries(paths))
-        report.violations_while_full = check_invariants(paths, originals)
-        filler.unlink()
-        report.protected_after_space_returned = sum(
-            protect_file(f, ctx).state in ("patched", "unchanged") for f in images
-        )
-    finally:
-        ctx.close()
-    report.violations_after = check_invariants(paths, originals)
-    return report
-
-
-def sealed_patch(src: Path, dst: Path, spec: object, original_sha256: str, data_dir: Path) -> None:
+def sealed_patch(src: Path, dst: Path, spec: PatchSpec, original_sha256: str, data_dir: Path) -> None:
     """What the pipeline's poison stage writes: the patched file with its seal, made with the
     installation's key in data_dir (created on first use)."""
     from daemon.store.sealkey import load_key
@@ -664,7 +418,7 @@ def sealed_patch(src: Path, dst: Path, spec: object, original_sha256: str, data_
 
     key = load_key(data_dir)
     assert key is not None
-    poison_file(src, dst, spec, marker=Marker.placeholder(key, spec.spec_id, original_sha256))  # type: ignore[arg-type, attr-defined]
+    poison_file(src, dst, spec, marker=Marker.placeholder(key, spec.spec_id, original_sha256))
     seal_file(dst, key)
 
 

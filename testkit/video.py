@@ -1,0 +1,117 @@
+"""Generated test videos (PyAV): a textured scene panning under a fixed camera, with a sine tone."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import av
+import numpy as np
+
+
+def mux_rgb_frames(out: Any, stream: Any, frames: Iterable[np.ndarray]) -> None:
+    """Encode RGB frames (pts 0, 1, ...) into stream as yuv420p, then flush the encoder."""
+    for i, rgb in enumerate(frames):
+        frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
+        frame.pts = i
+        for pkt in stream.encode(frame.reformat(format="yuv420p")):
+            out.mux(pkt)
+    for pkt in stream.encode(None):
+        out.mux(pkt)
+
+
+def mux_sine(
+    out: Any,
+    aud: Any,
+    samples: int,
+    *,
+    hz: float,
+    amplitude: float,
+    fmt: str,
+    layout: str,
+    fallback_step: int = 1024,
+) -> None:
+    """A 48 kHz sine tone of `samples` samples per channel into the audio stream aud (the same
+    wave in every channel of layout, "mono" or "stereo"), then flush the encoder."""
+    rate, t = 48000, 0
+    step = aud.codec_context.frame_size or fallback_step
+    channels = 2 if layout == "stereo" else 1
+    while t < samples:
+        wave = (amplitude * np.sin(2 * np.pi * hz * np.arange(t, t + step) / rate)).astype(np.float32)
+        af = av.AudioFrame.from_ndarray(np.stack([wave] * channels), format=fmt, layout=layout)
+        af.sample_rate, af.pts = rate, t
+        for pkt in aud.encode(af):
+            out.mux(pkt)
+        t += step
+    for pkt in aud.encode(None):
+        out.mux(pkt)
+
+
+
+@dataclass(frozen=True)
+class Clip:
+    """A generated test video: a textured scene panning under a fixed camera grid, with audio."""
+
+    suffix: str = ".mp4"
+    encoder: str = "libx264"
+    pix_fmt: str = "yuv420p"
+    width: int = 320
+    height: int = 240
+    fps: int = 20
+    frames: int = 40
+    audio: str | None = "aac"
+    rotation: int | None = None
+    pts: Sequence[int] | None = None  # explicit timestamps (variable frame rate)
+    time_base: Fraction | None = None
+    options: tuple[tuple[str, str], ...] = ()
+    colour: tuple[int, int, int, int] | None = None  # range, space, primaries, trc
+
+
+def scene(width: int, height: int, index: int) -> np.ndarray:
+    """A moving textured scene: a random block texture panning diagonally, plus a gradient."""
+    rng = np.random.default_rng(7)
+    tex = (rng.random((height // 4 + 40, width // 4 + 60, 3)) * 200 + 28).astype(np.uint8)
+    tex = tex.repeat(4, 0).repeat(4, 1)
+    dy, dx = index % 20, 3 * index
+    return np.ascontiguousarray(tex[dy : dy + height, dx : dx + width])
+
+
+def make_clip(path: Path, clip: Clip) -> Path:
+    with av.open(str(path), "w") as out:
+        vs = out.add_stream(clip.encoder, rate=clip.fps, options=dict(clip.options))
+        vs.width, vs.height, vs.pix_fmt = clip.width, clip.height, clip.pix_fmt
+        if clip.time_base is not None:
+            vs.codec_context.time_base = clip.time_base
+            vs.time_base = clip.time_base
+        if clip.colour is not None:
+            cc = vs.codec_context
+            cc.color_range, cc.colorspace, cc.color_primaries, cc.color_trc = clip.colour
+        if clip.rotation is not None:
+            vs.set_display_rotation(clip.rotation)
+        aud = None
+        if clip.audio:
+            aud = out.add_stream(clip.audio, rate=48000)
+            aud.layout = "mono"
+        for i in range(clip.frames):
+            rgb = scene(clip.width, clip.height, i)
+            frame = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format=clip.pix_fmt)
+            if clip.colour is not None:
+                frame.color_range, frame.colorspace = clip.colour[0], clip.colour[1]
+            frame.pts = clip.pts[i] if clip.pts is not None else i
+            if clip.time_base is not None:
+                frame.time_base = clip.time_base
+            for pkt in vs.encode(frame):
+                out.mux(pkt)
+        for pkt in vs.encode(None):
+            out.mux(pkt)
+        if aud is not None:
+            samples = int(clip.frames / clip.fps * 48000)
+            mux_sine(out, aud, samples, hz=440, amplitude=0.3, fmt="flt", layout="mono", fallback_step=960)
+    return path
+
+
+# ---- reading them back --------------------------------------------------------------------
+
