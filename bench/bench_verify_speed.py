@@ -40,7 +40,8 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS_JSON = ROOT / "bench" / "results" / "verify_speed.json"
 RESULTS_MD = ROOT / "bench" / "results" / "verify_speed.md"
-WORK = Path("/tmp/ppd-bench-verify-speed")
+# PPD_BENCH_WORK: a folder of its own (engineers sharing a machine each set theirs)
+WORK = Path(os.environ.get("PPD_BENCH_WORK") or Path(tempfile.gettempdir()) / "ppd-bench-verify-speed")
 
 
 def load() -> float:

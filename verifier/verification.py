@@ -346,13 +346,16 @@ def _run_job(
 ) -> dict[str, Any]:
     """The side's SfM child with these settings; profiles with the same two-view options share one
     geometric verification (the first writes the verified database under a lock, the others copy it)."""
-    verified = ""
+    verified = stationary_from = ""
     if side.verified_dir is not None:
-        vkey = hashlib.sha256(settings.verification_key().encode()).hexdigest()[:10]
-        verified = str(side.verified_dir / f"{side.cache_db.stem}-verified-{vkey}.db")
+        verified = str(_verified_path(side, settings))
+        if settings.filter_stationary_matches:  # hardened: from the default's verification, when there
+            base = _verified_path(side, msgspec.structs.replace(settings, filter_stationary_matches=False))
+            with _path_lock(base):  # a profile building it now finishes first
+                stationary_from = str(base)
     job = SfmJob(
         str(side.image_dir), str(side.cache_db), str(side.model_dir), settings, verified_db=verified,
-        features_from=str(side.features_from) if side.features_from else "",
+        features_from=str(side.features_from) if side.features_from else "", stationary_from=stationary_from,
     )  # fmt: skip
     watching = board.side(side.profile, side.side, side.model_dir / "sfm.log") if board else None
     with watching or contextlib.nullcontext():
@@ -360,6 +363,13 @@ def _run_job(
             with _path_lock(Path(verified)):  # whoever builds it first, the others wait and copy
                 return run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
         return run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
+
+
+def _verified_path(side: _Side, settings: SfmSettings) -> Path:
+    """Where the verified database of side's raw matches under these two-view options is shared."""
+    assert side.verified_dir is not None
+    vkey = hashlib.sha256(settings.verification_key().encode()).hexdigest()[:10]
+    return side.verified_dir / f"{side.cache_db.stem}-verified-{vkey}.db"
 
 
 def _summary(result: dict[str, Any]) -> dict[str, Any]:
