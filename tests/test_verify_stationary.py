@@ -23,6 +23,7 @@ from poisoner.ladder import named_spec
 from verifier.sfm import SfmSettings, build_cache_db, reverify_stationary, stationary_pairs, verify_pairs
 from verifier.synthetic import SyntheticOptions, render_scene
 
+
 def geometries(database: Path) -> dict[int, dict[str, Any]]:
     """Every pair's two-view geometry as plain values (what the mapper reads)."""
     import pycolmap

@@ -500,7 +500,10 @@ def stationary_pairs(database: Path, max_error: float) -> list[tuple[int, int]]:
     # a hair wider than COLMAP's `<=` in doubles: verifying an unchanged pair again changes nothing
     limit = max_error * max_error * (1 + 1e-9) + 1e-9
     with pycolmap.Database.open(database) as db:
-        xy = {im.image_id: db.read_keypoints(im.image_id)[:, :2].astype(np.float64) for im in db.read_all_images()}
+        xy = {
+            im.image_id: db.read_keypoints(im.image_id)[:, :2].astype(np.float64)
+            for im in db.read_all_images()
+        }
         pair_ids, all_matches = db.read_all_matches()
     pairs = []
     for pair_id, matches in zip(pair_ids, all_matches, strict=True):
