@@ -95,7 +95,7 @@ class VerifyOptions:
     random_seed: int = 0  # COLMAP's RANSAC/mapper seed (an attacker reruns with others)
     clean_cache_dir: Path | None = None  # reuse clean features/results across verifications
     clean_cache_keep: int = 0  # >0: keep this many originals' caches under clean_cache_dir (LRU)
-    workers: int = 0  # profiles run at once (0: one per 4 cores, at least 1)
+    workers: int = 0  # profiles run at once (0: default_workers())
     progress_path: Path | None = None  # the progress file (verifier.progress), removed at the end
     progress_label: str = ""  # what the progress says is being verified
     on_progress: Callable[[BoardState], None] | None = None  # e.g. a terminal display
@@ -214,8 +214,12 @@ def looks_like_video_frames(names: Sequence[str]) -> bool:
 
 
 def default_workers() -> int:
-    """Profiles at once: one per 4 cores (each COLMAP child uses several), at least one."""
-    return max(1, (os.cpu_count() or 1) // 4)
+    """Profiles at once: one per 4 cores (each COLMAP child's extraction, matching and verification
+    use them all), and two from 2 cores up: COLMAP's incremental mapping, most of a poisoned set's run
+    (lego 40: 7 of 8 minutes, registration retries), keeps one core busy, so a second profile uses
+    the other."""
+    cores = os.cpu_count() or 1
+    return max(min(2, cores), cores // 4)
 
 
 def _summary(result: dict[str, Any]) -> dict[str, Any]:
