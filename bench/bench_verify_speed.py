@@ -19,7 +19,11 @@ Sets (`--set`):
 - `lego-upscaled`: the same views padded to 3:2 and upscaled (Lanczos) to `--width` (6000 x 4000 for a
   creator's 24 MP): creator-sized files, but no fine detail beyond the 800 px source;
 - `synthetic`: verifier.synthetic's textured scene rendered at `--width` (real multi-scale texture at
-  full resolution, a box on a textured floor; not a real photo).
+  full resolution, a box on a textured floor; not a real photo);
+- `creator`: bench/creator_set.py: a box with real photographs (fountain-P11 crops) as its textures
+  on a plain backdrop, `--width` x 2/3 (6000 x 4000: 24 MP), camera-like JPEG, poisoned by ppd's own
+  file path (real fine detail at full size; synthetic geometry).
+`--profile NAME` times `ppd verify --profile NAME` instead of all (what fits at 24 MP).
 The poisoned set is ppd's default mark (poison_array, default_spec) on each view, PNG.
 """
 
@@ -57,6 +61,11 @@ def make_sets(kind: str, views: int, width: int) -> tuple[Path, Path]:
     from poisoner.ladder import default_spec
 
     root = WORK / f"{kind}-{views}-{width}"
+    if kind == "creator":  # real photo textures at full size, JPEG (bench/creator_set.py)
+        from bench.creator_set import make_creator_set
+
+        clean, poisoned, _ = make_creator_set(root, views, width, width * 2 // 3)
+        return clean, poisoned
     clean, poisoned = root / "clean", root / "poisoned"
     if (poisoned / ".done").exists():
         return clean, poisoned
@@ -104,9 +113,10 @@ def baseline_run(poisoned: Path, work: Path, timeout_s: float) -> dict[str, Any]
 
 
 def verify_command(
-    tree: Path, clean: Path, poisoned: Path, out: Path, env_root: Path, timeout_s: float
+    tree: Path, clean: Path, poisoned: Path, out: Path, env_root: Path, timeout_s: float, profile: str = "all"
 ) -> dict[str, Any]:
-    """The whole `ppd verify --profile all` of the code at tree, timed as one process."""
+    """The whole `ppd verify --profile PROFILE` (all: every profile) of the code at tree, timed as
+    one process."""
     env = dict(os.environ)
     for var, name in (("PPD_DATA_DIR", "data"), ("PPD_CONFIG_DIR", "config"), ("PPD_CACHE_DIR", "cache"),
                       ("PPD_OUTBOX", "outbox")):  # fmt: skip
@@ -114,7 +124,7 @@ def verify_command(
     env["PYTHONPATH"] = str(tree)
     shutil.rmtree(out, ignore_errors=True)
     cmd = [sys.executable, "-m", "daemon.cli", "verify", str(poisoned), "--clean", str(clean),
-           "--out", str(out), "--profile", "all", "--json"]  # fmt: skip
+           "--out", str(out), "--profile", profile, "--json"]  # fmt: skip
     before = load()
     t0 = time.monotonic()
     proc = subprocess.run(cmd, env=env, cwd=tree, capture_output=True, text=True, timeout=timeout_s)
@@ -220,7 +230,8 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tree", type=Path, default=ROOT, help="checkout whose `ppd verify` is timed")
     ap.add_argument("--label", default="after")
-    ap.add_argument("--set", default="lego", choices=("lego", "lego-upscaled", "synthetic"))
+    ap.add_argument("--set", default="lego", choices=("lego", "lego-upscaled", "synthetic", "creator"))
+    ap.add_argument("--profile", default="all", help="the profile `ppd verify` runs (all: every profile)")
     ap.add_argument("--views", type=int, default=40)
     ap.add_argument("--width", type=int, default=800, help="lego-upscaled / synthetic: image width")
     ap.add_argument(
@@ -231,14 +242,17 @@ def main(argv: list[str] | None = None) -> None:
     clean, poisoned = make_sets(args.set, args.views, args.width)
     env_root = Path(tempfile.mkdtemp(prefix="ppd-bench-env-"))
     row: dict[str, Any] = {"date": time.strftime("%Y-%m-%d %H:%M"), "label": args.label,
-                           "set": f"{args.set} {args.views} views, width {args.width}",
+                           "set": f"{args.set} {args.views} views, width {args.width}"
+                                  + ("" if args.profile == "all" else f", --profile {args.profile}"),
                            "machine": f"{platform.node()} {os.cpu_count()} cores"}  # fmt: skip
     row["baseline"] = baseline_run(poisoned, WORK / "baseline", args.timeout)
     print("baseline", row["baseline"], flush=True)
-    row["first"] = verify_command(args.tree, clean, poisoned, WORK / "out1", env_root, args.timeout)
+    row["first"] = verify_command(args.tree, clean, poisoned, WORK / "out1", env_root, args.timeout,
+                                  args.profile)  # fmt: skip
     print("first", row["first"]["wall_s"], row["first"].get("verdict"), flush=True)
     if args.second:
-        row["second"] = verify_command(args.tree, clean, poisoned, WORK / "out2", env_root, args.timeout)
+        row["second"] = verify_command(args.tree, clean, poisoned, WORK / "out2", env_root, args.timeout,
+                                       args.profile)  # fmt: skip
         print("second", row["second"]["wall_s"], row["second"].get("verdict"), flush=True)
     shutil.rmtree(env_root, ignore_errors=True)
     rows = json.loads(RESULTS_JSON.read_text()) if RESULTS_JSON.exists() else []
