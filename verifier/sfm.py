@@ -135,7 +135,8 @@ class SfmJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     # hardened: the verified database of the same raw matches without the stationary filter (the
     # default's); only the pairs that filter changes are verified again (reverify_stationary)
     stationary_from: str = ""
-    stop_after: str = ""  # "features": build cache_db (features + raw matches) and stop
+    # "features": build cache_db (features + raw matches) and stop; "verified": also write verified_db
+    stop_after: str = ""
 
 
 class CameraPose(msgspec.Struct, frozen=True):
@@ -406,6 +407,10 @@ def execute_job(job: SfmJob) -> SfmResult:
         cache_db, work_db, settings, job.verified_db, job.stationary_from
     )
     timings["verification_s"] = time.time() - t1
+    if job.stop_after == "verified":  # the shared verified database is written: no mapping here
+        model_dir.mkdir(parents=True, exist_ok=True)
+        work_db.unlink()
+        return SfmOk(num_images=num_images, verified_pairs=verified_pairs, timings=timings)
     t2 = time.time()
     with tempfile.TemporaryDirectory(prefix=".ppd-tmp-map-", dir=model_dir) as tmp:
         models = run_mapper(work_db, image_dir, Path(tmp), settings)

@@ -100,6 +100,10 @@ class SfmSide:
     reuse_key: str | None = None  # clean side: a stored result with this key is reused
     features_from: Path | None = None  # masked: the unmasked cache_db whose features it filters
     verified_dir: Path | None = None  # where verified databases are shared (by verification key)
+    # other profiles of this run use this side's verification (default, global) or hardened builds
+    # from it: verified databases are built by verify-only children first, under a lock each, so a
+    # profile waits for a verification, never for another profile's mapping
+    share_verification: bool = False
     profile: str = ""
     side: str = ""
 
@@ -140,7 +144,7 @@ def run_side(side: SfmSide, options: VerifyOptions, board: ProgressBoard | None 
     elapsed = features_s  # the features this side built count towards its cost
     for attempt in range(1 + max(0, options.crash_retries)):
         run_settings = msgspec.structs.replace(settings, random_seed=settings.random_seed + attempt)
-        result = run_job(side, run_settings, options, board)
+        result = run_job(side, run_settings, options, board, first=attempt == 0)
         elapsed += float(result.get("elapsed_s") or 0.0)
         result["elapsed_s"] = elapsed  # all attempts: what the verification cost
         if result.get("outcome") != "sfm_crashed":
@@ -159,17 +163,26 @@ def run_side(side: SfmSide, options: VerifyOptions, board: ProgressBoard | None 
 
 
 def run_job(
-    side: SfmSide, settings: SfmSettings, options: VerifyOptions, board: ProgressBoard | None
+    side: SfmSide,
+    settings: SfmSettings,
+    options: VerifyOptions,
+    board: ProgressBoard | None,
+    first: bool = True,
 ) -> dict[str, Any]:
     """The side's SfM child with these settings; profiles with the same two-view options share one
-    geometric verification (the first writes the verified database under a lock, the others copy it)."""
+    geometric verification (the first writes the verified database under a lock, the others copy it),
+    and hardened's is made from the default's (verifier.sfm.reverify_stationary)."""
     verified = stationary_from = ""
+    spent = 0.0  # seconds of verify-only children this side ran
     if side.verified_dir is not None:
         verified = str(verified_path(side, settings))
-        if settings.filter_stationary_matches:  # hardened: from the default's verification, when there
-            base = verified_path(side, msgspec.structs.replace(settings, filter_stationary_matches=False))
-            with path_lock(base):  # a profile building it now finishes first
-                stationary_from = str(base)
+        base_settings = msgspec.structs.replace(settings, filter_stationary_matches=False)
+        if settings.filter_stationary_matches and side.share_verification and first:
+            spent += ensure_verified(side, base_settings, options, board)  # the default's, once
+        if settings.filter_stationary_matches:
+            stationary_from = str(verified_path(side, base_settings))  # used when it is there
+        if side.share_verification:
+            spent += ensure_verified(side, settings, options, board, stationary_from)
     job = SfmJob(
         str(side.image_dir), str(side.cache_db), str(side.model_dir), settings, verified_db=verified,
         features_from=str(side.features_from) if side.features_from else "", stationary_from=stationary_from,
@@ -178,8 +191,37 @@ def run_job(
     with watching or contextlib.nullcontext():
         if verified and not Path(verified).exists():
             with path_lock(Path(verified)):  # whoever builds it first, the others wait and copy
-                return run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
-        return run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
+                result = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
+        else:
+            result = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
+    if spent:  # the verify-only children's time is this side's verification
+        result["elapsed_s"] = float(result.get("elapsed_s") or 0.0) + spent
+        if isinstance(result.get("timings"), dict):
+            result["timings"]["verification_s"] = float(result["timings"].get("verification_s", 0.0)) + spent
+    return result
+
+
+def ensure_verified(
+    side: SfmSide, settings: SfmSettings, options: VerifyOptions, board: ProgressBoard | None,
+    stationary_from: str = "",
+) -> float:  # fmt: skip
+    """Write the verified database of side's raw matches under settings' two-view options once: a
+    verify-only child, under that database's lock (the profiles sharing it wait for the
+    verification only); the seconds spent (0 when it was there). A failure is left to the
+    profile's own run, which verifies itself."""
+    path = verified_path(side, settings)
+    with path_lock(path):
+        if path.exists() or cancelled(options):
+            return 0.0
+        work = path.parent / f"{path.stem}-work"
+        job = SfmJob(
+            str(side.image_dir), str(side.cache_db), str(work), settings, verified_db=str(path),
+            features_from=str(side.features_from) if side.features_from else "",
+            stationary_from=stationary_from, stop_after="verified",
+        )  # fmt: skip
+        with board.side(side.profile, side.side, work / "sfm.log") if board else contextlib.nullcontext():
+            built = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
+        return float(built.get("elapsed_s") or 0.0)
 
 
 def verified_path(side: SfmSide, settings: SfmSettings) -> Path:

@@ -418,10 +418,13 @@ def _run_both_sides(profile: str, run: _Run, settings: SfmSettings) -> tuple[dic
         ukey = hashlib.sha256(msgspec.structs.replace(settings, mask_corners=0.0).feature_key().encode())
         clean_from = run.clean_cache / f"clean-{source}-{run.clean_key}-{ukey.hexdigest()[:10]}.db"
         poisoned_from = run.cache / f"poisoned-{source}-{ukey.hexdigest()[:10]}.db"
+    # default, hardened and global use one verification (hardened's made from it) when two of them run
+    sharing = [p for p in UNMASKED_FEATURE_PROFILES if p in run.profiles]
+    share = profile in sharing and len(sharing) > 1
     clean = run_side(
         # verified databases live for this run only: the clean results they lead to are what is kept
         SfmSide(clean_images, clean_db, clean_model, settings, reuse_key, clean_from,
-              run.cache / "clean-verified", profile, "clean"),
+                run.cache / "clean-verified", share_verification=share, profile=profile, side="clean"),
         run.options, run.board,
     )  # fmt: skip
     if cached:  # the report's model folder holds a copy of the clean model
@@ -430,7 +433,7 @@ def _run_both_sides(profile: str, run: _Run, settings: SfmSettings) -> tuple[dic
     if not cancelled(run.options):
         poisoned = run_side(
             SfmSide(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, None, poisoned_from,
-                  run.cache, profile, "poisoned"),
+                    run.cache, share_verification=share, profile=profile, side="poisoned"),
             run.options, run.board,
         )  # fmt: skip
     if source == "published":
