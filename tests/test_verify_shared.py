@@ -171,3 +171,10 @@ def test_lego_shared_verification_matches_each_profile_alone(
     for profile in PROFILES:
         alone.update(figures(verify_folders(views, poisoned, tmp_path / profile, [profile], options)))
     assert figures(shared) == alone
+
+
+def test_published_starts_first_the_rest_as_asked() -> None:
+    from verifier.verification import start_order
+
+    assert start_order(PROFILES) == ["published", "default", "hardened", "global", "masked"]
+    assert start_order(["masked", "default"]) == ["masked", "default"]

@@ -222,6 +222,13 @@ def default_workers() -> int:
     return max(min(2, cores), cores // 4)
 
 
+def start_order(profiles: Sequence[str]) -> list[str]:
+    """The order profiles start in: `published` first, the one that shares no work (its own
+    extraction and matching on both sides, lego 20: the last to finish when it started third), so
+    it overlaps the others instead of running alone at the end; the rest as asked."""
+    return sorted(profiles, key=lambda p: p != "published")
+
+
 def _summary(result: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in result.items() if k not in ("poses", "settings", "reuse_key")}
 
@@ -269,8 +276,8 @@ def verify_folders(
             visibility = measure_visibility(run.clean_dir, run.poisoned_dir, run.names, run.options)
             workers = max(1, min(len(profile_list), o.workers or default_workers()))
             with ThreadPoolExecutor(workers, thread_name_prefix="ppd-verify") as pool:
-                results = pool.map(lambda p: _verify_profile(p, run), profile_list)  # in the order asked
-                reports = dict(zip(profile_list, results, strict=True))
+                futures = {p: pool.submit(_verify_profile, p, run) for p in start_order(profile_list)}
+                reports = {p: futures[p].result() for p in profile_list}  # in the order asked
             if run.options.splat and not cancelled(run.options):
                 _splat_stage(reports, run.clean_dir, run.poisoned_dir, run.options)
         finally:
