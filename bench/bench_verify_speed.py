@@ -141,16 +141,22 @@ def verify_command(
         row["error"] = (proc.stderr or proc.stdout)[-500:]
         return row
     row["verdict"] = report.get("verdict")
-    row["profiles"] = {}
-    for name, p in report["profiles"].items():
+    row["profiles"] = profile_stages(report["profiles"])
+    return row
+
+
+def profile_stages(profiles: dict[str, Any]) -> dict[str, Any]:
+    """Per profile: verdict, cameras within 5 degrees, seconds per stage and side (report.json)."""
+    rows = {}
+    for name, p in profiles.items():
         stages: dict[str, float] = {}
         for side in ("clean", "poisoned"):
             for k, v in (p[side].get("timings") or {}).items():
                 stages[f"{side}_{k}"] = round(float(v), 1)
             stages[f"{side}_elapsed_s"] = round(float(p[side].get("elapsed_s") or 0.0), 1)
         frac = (p.get("vs_clean") or {}).get("frac_within_5deg")
-        row["profiles"][name] = {"verdict": p["verdict"], "frac_within_5deg": frac, "stages": stages}
-    return row
+        rows[name] = {"verdict": p["verdict"], "frac_within_5deg": frac, "stages": stages}
+    return rows
 
 
 NOTES = [
@@ -200,9 +206,10 @@ def write_page(rows: list[dict[str, Any]]) -> None:
         b, f, s = r["baseline"], r["first"], r.get("second") or {}
         loads = ", ".join(f"{x['load_before']:.1f}/{x['load_after']:.1f}" for x in (b, f, s) if x)
         second = f"{s['wall_s']:.0f} s | {s['wall_s'] / b['wall_s']:.2f}x" if s else "- | -"
+        more = ">" if f.get("stopped") else ""  # stopped before the end: at least this long
         lines.append(
-            f"| {r['date']} | {r['label']} | {r['set']} | {b['wall_s']:.0f} s | {f['wall_s']:.0f} s | "
-            f"{f['wall_s'] / b['wall_s']:.2f}x | {second} | {f.get('verdict', f.get('error', '-'))} | "
+            f"| {r['date']} | {r['label']} | {r['set']} | {b['wall_s']:.0f} s | {more}{f['wall_s']:.0f} s | "
+            f"{more}{f['wall_s'] / b['wall_s']:.2f}x | {second} | {f.get('verdict', f.get('error', '-'))} | "
             f"{loads} |"
         )
     lines += ["", *NOTES, "", "## Per profile and stage (seconds, from each run's report.json)", ""]
