@@ -254,9 +254,12 @@ def write_page(rows: list[dict[str, Any]]) -> None:
         loads = ", ".join(f"{x['load_before']:.1f}/{x['load_after']:.1f}" for x in (b, f, s) if x)
         second = f"{s['wall_s']:.0f} s | {s['wall_s'] / b['wall_s']:.2f}x" if s else "- | -"
         more = ">" if f.get("stopped") else ""  # stopped before the end: at least this long
+        verdict = f.get("verdict", f.get("error", "-"))
+        if s and s.get("verdict") != f.get("verdict"):
+            verdict += f"; second: {s.get('verdict', s.get('error', '-'))}"
         lines.append(
             f"| {r['date']} | {r['label']} | {r['set']} | {b['wall_s']:.0f} s | {more}{f['wall_s']:.0f} s | "
-            f"{more}{f['wall_s'] / b['wall_s']:.2f}x | {second} | {f.get('verdict', f.get('error', '-'))} | "
+            f"{more}{f['wall_s'] / b['wall_s']:.2f}x | {second} | {verdict} | "
             f"{loads} |"
         )
     lines += ["", *ROUND2_NOTES, *NOTES, ""]
