@@ -132,7 +132,11 @@ class SfmJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     # shared work (issue 30): "" = not shared
     verified_db: str = ""  # the verified database: copied when it exists, else written after verification
     features_from: str = ""  # masked: an unmasked cache_db of the same images, filtered by position
-    stop_after: str = ""  # "features": build cache_db (features + raw matches) and stop
+    # hardened: the verified database of the same raw matches without the stationary filter (the
+    # default's); only the pairs that filter changes are verified again (reverify_stationary)
+    stationary_from: str = ""
+    # "features": build cache_db (features + raw matches) and stop; "verified": also write verified_db
+    stop_after: str = ""
 
 
 class CameraPose(msgspec.Struct, frozen=True):
@@ -399,8 +403,14 @@ def execute_job(job: SfmJob) -> SfmResult:
         return SfmOk(num_images=len(list_images(image_dir)), timings=timings)
     work_db = model_dir / "work.db"
     t1 = time.time()
-    num_images, verified_pairs = verified_database(cache_db, work_db, settings, job.verified_db)
+    num_images, verified_pairs = verified_database(
+        cache_db, work_db, settings, job.verified_db, job.stationary_from
+    )
     timings["verification_s"] = time.time() - t1
+    if job.stop_after == "verified":  # the shared verified database is written: no mapping here
+        model_dir.mkdir(parents=True, exist_ok=True)
+        work_db.unlink()
+        return SfmOk(num_images=num_images, verified_pairs=verified_pairs, timings=timings)
     t2 = time.time()
     with tempfile.TemporaryDirectory(prefix=".ppd-tmp-map-", dir=model_dir) as tmp:
         models = run_mapper(work_db, image_dir, Path(tmp), settings)
@@ -416,12 +426,14 @@ def execute_job(job: SfmJob) -> SfmResult:
 
 
 def verified_database(
-    cache_db: Path, work_db: Path, settings: SfmSettings, verified_db: str
+    cache_db: Path, work_db: Path, settings: SfmSettings, verified_db: str, stationary_from: str = ""
 ) -> tuple[int, int]:
     """work_db = cache_db after this profile's geometric verification; (images, verified pairs).
 
     With verified_db: copied from there when an earlier profile with the same two-view options
-    wrote it, else verified here and kept there (atomically) for the next one."""
+    wrote it, else verified here and kept there (atomically) for the next one. With
+    stationary_from (hardened, the default's verified database there): only the pairs the
+    stationary filter changes are verified again."""
     import pycolmap
 
     from poisoner.atomic import atomic_output
@@ -431,8 +443,12 @@ def verified_database(
         shutil.copyfile(shared, work_db)
         with pycolmap.Database.open(work_db) as db:
             return db.num_images(), db.num_verified_image_pairs()
-    shutil.copyfile(cache_db, work_db)
-    counts = verify_pairs(work_db, settings)
+    base = Path(stationary_from) if stationary_from else None
+    if settings.filter_stationary_matches and base is not None and base.exists():
+        counts = reverify_stationary(base, work_db, settings)
+    else:
+        shutil.copyfile(cache_db, work_db)
+        counts = verify_pairs(work_db, settings)
     if shared is not None:
         shared.parent.mkdir(parents=True, exist_ok=True)
         with atomic_output(shared) as tmp:
@@ -477,6 +493,51 @@ def verify_pairs(work_db: Path, settings: SfmSettings) -> tuple[int, int]:
     pycolmap.geometric_verification(work_db, two_view_geometry_options=two_view)
     with pycolmap.Database.open(work_db) as db:
         return db.num_images(), db.num_verified_image_pairs()
+
+
+def stationary_pairs(database: Path, max_error: float) -> list[tuple[int, int]]:
+    """The image pairs whose raw matches hold a match that COLMAP's stationary filter removes: the
+    same keypoint position, within max_error px, in both images (FilterStationaryMatches in
+    colmap/estimators/two_view_geometry.cc, applied to a pair's matches before its RANSAC)."""
+    import numpy as np
+    import pycolmap
+
+    # a hair wider than COLMAP's `<=` in doubles: verifying an unchanged pair again changes nothing
+    limit = max_error * max_error * (1 + 1e-9) + 1e-9
+    with pycolmap.Database.open(database) as db:
+        xy = {
+            im.image_id: db.read_keypoints(im.image_id)[:, :2].astype(np.float64)
+            for im in db.read_all_images()
+        }
+        pair_ids, all_matches = db.read_all_matches()
+    pairs = []
+    for pair_id, matches in zip(pair_ids, all_matches, strict=True):
+        if len(matches) == 0:
+            continue
+        id1, id2 = pycolmap.pair_id_to_image_pair(pair_id)
+        moved = xy[id1][matches[:, 0]] - xy[id2][matches[:, 1]]
+        if bool(np.any(np.einsum("ij,ij->i", moved, moved) <= limit)):
+            pairs.append((int(id1), int(id2)))
+    return pairs
+
+
+def reverify_stationary(default_verified: Path, work_db: Path, settings: SfmSettings) -> tuple[int, int]:
+    """work_db = the hardened verification of the raw matches, from the default's verified database
+    of the same raw matches: the stationary filter changes a pair's input only where it removes a
+    match, and RANSAC with a fixed seed is a function of its input, so every other pair's two-view
+    geometry is the default's; those pairs' geometries are deleted and COLMAP's own verification
+    (which skips pairs that have one) computes them with the filter. Equal to a whole hardened
+    verification pair by pair (tests/test_verify_stationary.py); (images, verified pairs)."""
+    import pycolmap
+
+    shutil.copyfile(default_verified, work_db)
+    two_view = pycolmap.TwoViewGeometryOptions()
+    pairs = stationary_pairs(work_db, two_view.stationary_matches_max_error)
+    with pycolmap.Database.open(work_db) as db:
+        for id1, id2 in pairs:
+            db.delete_two_view_geometry(id1, id2)
+    print(f"ppd: stationary filter: {len(pairs)} pair(s) verified again", file=sys.stderr, flush=True)
+    return verify_pairs(work_db, settings)
 
 
 def mapper_options(settings: SfmSettings) -> Any:

@@ -18,14 +18,14 @@ The parent never imports pycolmap: SfM runs in child processes (verifier.sfm). W
 across profiles (issue 30): one feature extraction and raw matching per image set (default,
 hardened, global; masked filters those features by position; published has its own pixels), one
 geometric verification for default and global, and the clean reference (features, models, results)
-cached per content of the originals (`clean_cache_dir`) until they change. Profiles run in parallel
-when `workers` > 1; every figure a verdict uses is what the profile run alone gives
-(tests/test_verify_shared.py).
+cached per content of the originals (`clean_cache_dir`) until they change; hardened's verification
+is the default's with only the pairs its stationary filter changes verified again. How a side reuses
+that work: verifier.shared_sfm. Profiles run in parallel when `workers` > 1; every figure a verdict
+uses is what the profile run alone gives (tests/test_verify_shared.py, tests/test_verify_stationary.py).
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import hashlib
 import json
@@ -34,7 +34,7 @@ import os
 import shutil
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,14 +42,16 @@ from typing import Any
 
 import msgspec
 
-from poisoner.atomic import atomic_write_bytes
 from poisoner.errors import ExitStatus, PpdError
 from verifier import poses as posemod
 from verifier.pairs import stage_pairs as stage_pairs  # re-exported: callers stage pairs, then verify
 from verifier.progress import BoardState, ProgressBoard
 from verifier.published import round_trip, unpublish_names
 from verifier.published import to_rgb as to_rgb  # re-exported for verifier.auto_search
-from verifier.sfm import SfmJob, SfmSettings, list_images, profile_sfm_settings, run_sfm_job
+from verifier.sfm import SfmSettings, list_images, profile_sfm_settings
+from verifier.shared_sfm import SfmSide, cancelled, clean_cache_for, run_side
+from verifier.shared_sfm import content_key as content_key  # re-exported: the clean cache's key
+from verifier.shared_sfm import write_json as write_json  # re-exported: reports are written with it
 from verifier.verdict import (
     Verdict,
     VerdictRule,
@@ -93,7 +95,7 @@ class VerifyOptions:
     random_seed: int = 0  # COLMAP's RANSAC/mapper seed (an attacker reruns with others)
     clean_cache_dir: Path | None = None  # reuse clean features/results across verifications
     clean_cache_keep: int = 0  # >0: keep this many originals' caches under clean_cache_dir (LRU)
-    workers: int = 0  # profiles run at once (0: one per 4 cores, at least 1)
+    workers: int = 0  # profiles run at once (0: default_workers())
     progress_path: Path | None = None  # the progress file (verifier.progress), removed at the end
     progress_label: str = ""  # what the progress says is being verified
     on_progress: Callable[[BoardState], None] | None = None  # e.g. a terminal display
@@ -211,155 +213,20 @@ def looks_like_video_frames(names: Sequence[str]) -> bool:
     return bool(names) and all("frame" in Path(n).stem.lower() for n in names)
 
 
-# ---- one SfM side, with reuse ---------------------------------------------------------------------
-def content_key(image_dir: Path, names: Sequence[str]) -> str:
-    """The originals' content key: their names and the SHA-256 of their bytes (a clean reference
-    cached under it is valid until an original changes, whatever its mtime or path)."""
-    h = hashlib.sha256()
-    for n in names:
-        with open(image_dir / n, "rb") as fh:
-            digest = hashlib.file_digest(fh, "sha256").hexdigest()
-        h.update(f"{n}:{digest}\n".encode())
-    return h.hexdigest()[:16]
-
-
 def default_workers() -> int:
-    """Profiles at once: one per 4 cores (each COLMAP child uses several), at least one."""
-    return max(1, (os.cpu_count() or 1) // 4)
+    """Profiles at once: one per 4 cores (each COLMAP child's extraction, matching and verification
+    use them all), and two from 2 cores up: COLMAP's incremental mapping, most of a poisoned set's run
+    (lego 40: 7 of 8 minutes, registration retries), keeps one core busy, so a second profile uses
+    the other."""
+    cores = os.cpu_count() or 1
+    return max(min(2, cores), cores // 4)
 
 
-def clean_cache_for(root: Path, key: str, keep: int) -> Path:
-    """The clean cache of these originals under root (private: it holds their features and
-    round-tripped copies); with keep > 0, only the keep most recently used caches stay."""
-    root.mkdir(parents=True, exist_ok=True, mode=0o700)
-    here = root / key
-    here.mkdir(exist_ok=True, mode=0o700)
-    os.utime(here)  # most recently used
-    if keep > 0:
-        others = [p for p in root.iterdir() if p.is_dir() and p != here]
-        others.sort(key=lambda p: p.stat().st_mtime)
-        for stale in others[: max(0, len(others) - (keep - 1))]:
-            shutil.rmtree(stale, ignore_errors=True)
-    return here
-
-
-_PATH_LOCKS: dict[str, threading.Lock] = {}
-_PATH_LOCKS_GUARD = threading.Lock()
-
-
-@contextlib.contextmanager
-def _path_lock(path: Path) -> Iterator[None]:
-    """One thread at a time builds a shared file (features, a verified database); the others wait."""
-    with _PATH_LOCKS_GUARD:
-        lock = _PATH_LOCKS.setdefault(str(path), threading.Lock())
-    with lock:
-        yield
-
-
-def write_json(path: Path, data: Any) -> None:
-    """A report or result as indented JSON, replaced atomically (a reader never sees half a file)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(path, msgspec.json.format(msgspec.json.encode(data), indent=1))
-
-
-def _stored_result(result_file: Path, reuse_key: str) -> dict[str, Any] | None:
-    """A clean SfM result stored next to its model by an earlier run with the same inputs, if any."""
-    if not result_file.exists():
-        return None
-    stored = json.loads(result_file.read_text())
-    if stored.get("reuse_key") == reuse_key and stored.get("outcome") == "ok":
-        return stored
-    return None
-
-
-@dataclass(frozen=True)
-class _Side:
-    """One SfM side of one profile: its images, where its shared work lives, where it reports."""
-
-    image_dir: Path
-    cache_db: Path  # features + raw matches, shared by the profiles with the same feature key
-    model_dir: Path
-    settings: SfmSettings
-    reuse_key: str | None = None  # clean side: a stored result with this key is reused
-    features_from: Path | None = None  # masked: the unmasked cache_db whose features it filters
-    verified_dir: Path | None = None  # where verified databases are shared (by verification key)
-    profile: str = ""
-    side: str = ""
-
-
-def _ensure_features(side: _Side, options: VerifyOptions, board: ProgressBoard | None) -> float:
-    """Build side.cache_db once (its features_from first): a features-only child, under a lock so
-    the profiles sharing it wait for one build instead of each extracting; the seconds this side
-    spent building (0 when another profile had built them). A failure here is left to the
-    profile's own run, which tries again and reports it."""
-    spent = 0.0
-    if side.features_from is not None:
-        unmasked = msgspec.structs.replace(side.settings, mask_corners=0.0)
-        spent += _ensure_features(_Side(side.image_dir, side.features_from, side.model_dir, unmasked,
-                                        profile=side.profile, side=side.side), options, board)  # fmt: skip
-    with _path_lock(side.cache_db):
-        if side.cache_db.exists() or _cancelled(options):
-            return spent
-        work = side.cache_db.parent / f"{side.cache_db.stem}-features"
-        job = SfmJob(
-            str(side.image_dir), str(side.cache_db), str(work), side.settings, stop_after="features",
-            features_from=str(side.features_from) if side.features_from else "",
-        )  # fmt: skip
-        with board.side(side.profile, side.side, work / "sfm.log") if board else contextlib.nullcontext():
-            built = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
-        return spent + float(built.get("elapsed_s") or 0.0)
-
-
-def _run_side(side: _Side, options: VerifyOptions, board: ProgressBoard | None = None) -> dict[str, Any]:
-    """One SfM run (child process). With reuse_key, a result stored next to the model is reused."""
-    result_file = side.model_dir / "result.json"
-    stored = _stored_result(result_file, side.reuse_key) if side.reuse_key else None
-    if stored is not None:
-        log.info("reusing clean SfM result", extra={"model_dir": str(side.model_dir)})
-        return stored
-    features_s = _ensure_features(side, options, board)
-    settings = side.settings
-    crashes: list[str] = []
-    elapsed = features_s  # the features this side built count towards its cost
-    for attempt in range(1 + max(0, options.crash_retries)):
-        run_settings = msgspec.structs.replace(settings, random_seed=settings.random_seed + attempt)
-        result = _run_job(side, run_settings, options, board)
-        elapsed += float(result.get("elapsed_s") or 0.0)
-        result["elapsed_s"] = elapsed  # all attempts: what the verification cost
-        if result.get("outcome") != "sfm_crashed":
-            break
-        crashes.append(str(result.get("signal")))
-        log.warning("SfM crashed", extra={"image_dir": str(side.image_dir), "signal": result.get("signal")})
-    if features_s and isinstance(result.get("timings"), dict):  # built by the features-only child
-        result["timings"].setdefault("features_and_matches_s", features_s)
-    result["crashes"] = crashes  # signals of crashed attempts (the last one too when all crashed)
-    result["settings"] = msgspec.to_builtins(run_settings)
-    result["random_seed"] = run_settings.random_seed  # the seed behind these figures (retries add 1)
-    if side.reuse_key:
-        result["reuse_key"] = side.reuse_key
-    write_json(result_file, result)
-    return result
-
-
-def _run_job(
-    side: _Side, settings: SfmSettings, options: VerifyOptions, board: ProgressBoard | None
-) -> dict[str, Any]:
-    """The side's SfM child with these settings; profiles with the same two-view options share one
-    geometric verification (the first writes the verified database under a lock, the others copy it)."""
-    verified = ""
-    if side.verified_dir is not None:
-        vkey = hashlib.sha256(settings.verification_key().encode()).hexdigest()[:10]
-        verified = str(side.verified_dir / f"{side.cache_db.stem}-verified-{vkey}.db")
-    job = SfmJob(
-        str(side.image_dir), str(side.cache_db), str(side.model_dir), settings, verified_db=verified,
-        features_from=str(side.features_from) if side.features_from else "",
-    )  # fmt: skip
-    watching = board.side(side.profile, side.side, side.model_dir / "sfm.log") if board else None
-    with watching or contextlib.nullcontext():
-        if verified and not Path(verified).exists():
-            with _path_lock(Path(verified)):  # whoever builds it first, the others wait and copy
-                return run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
-        return run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
+def start_order(profiles: Sequence[str]) -> list[str]:
+    """The order profiles start in: `published` first, the one that shares no work (its own
+    extraction and matching on both sides, lego 20: the last to finish when it started third), so
+    it overlaps the others instead of running alone at the end; the rest as asked."""
+    return sorted(profiles, key=lambda p: p != "published")
 
 
 def _summary(result: dict[str, Any]) -> dict[str, Any]:
@@ -409,9 +276,9 @@ def verify_folders(
             visibility = measure_visibility(run.clean_dir, run.poisoned_dir, run.names, run.options)
             workers = max(1, min(len(profile_list), o.workers or default_workers()))
             with ThreadPoolExecutor(workers, thread_name_prefix="ppd-verify") as pool:
-                results = pool.map(lambda p: _verify_profile(p, run), profile_list)  # in the order asked
-                reports = dict(zip(profile_list, results, strict=True))
-            if run.options.splat and not _cancelled(run.options):
+                futures = {p: pool.submit(_verify_profile, p, run) for p in start_order(profile_list)}
+                reports = {p: futures[p].result() for p in profile_list}  # in the order asked
+            if run.options.splat and not cancelled(run.options):
                 _splat_stage(reports, run.clean_dir, run.poisoned_dir, run.options)
         finally:
             board.close()
@@ -443,10 +310,6 @@ def _prepare_run(clean_dir: Path, poisoned_dir: Path, out_dir: Path, options: Ve
         else cache
     )
     return _Run(clean_dir, poisoned_dir, names, out_dir, cache, clean_cache, key, matching, gt, options)
-
-
-def _cancelled(options: VerifyOptions) -> bool:
-    return bool(options.cancel and options.cancel.is_set())
 
 
 def measure_visibility(
@@ -562,19 +425,22 @@ def _run_both_sides(profile: str, run: _Run, settings: SfmSettings) -> tuple[dic
         ukey = hashlib.sha256(msgspec.structs.replace(settings, mask_corners=0.0).feature_key().encode())
         clean_from = run.clean_cache / f"clean-{source}-{run.clean_key}-{ukey.hexdigest()[:10]}.db"
         poisoned_from = run.cache / f"poisoned-{source}-{ukey.hexdigest()[:10]}.db"
-    clean = _run_side(
+    # default, hardened and global use one verification (hardened's made from it) when two of them run
+    sharing = [p for p in UNMASKED_FEATURE_PROFILES if p in run.profiles]
+    share = profile in sharing and len(sharing) > 1
+    clean = run_side(
         # verified databases live for this run only: the clean results they lead to are what is kept
-        _Side(clean_images, clean_db, clean_model, settings, reuse_key, clean_from,
-              run.cache / "clean-verified", profile, "clean"),
+        SfmSide(clean_images, clean_db, clean_model, settings, reuse_key, clean_from,
+                run.cache / "clean-verified", share_verification=share, profile=profile, side="clean"),
         run.options, run.board,
     )  # fmt: skip
     if cached:  # the report's model folder holds a copy of the clean model
         _copy_model(clean_model, profile_dir / "clean")
     poisoned: dict[str, Any] = {"outcome": "cancelled", "error": "cancelled"}
-    if not _cancelled(run.options):
-        poisoned = _run_side(
-            _Side(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, None, poisoned_from,
-                  run.cache, profile, "poisoned"),
+    if not cancelled(run.options):
+        poisoned = run_side(
+            SfmSide(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, None, poisoned_from,
+                    run.cache, share_verification=share, profile=profile, side="poisoned"),
             run.options, run.board,
         )  # fmt: skip
     if source == "published":

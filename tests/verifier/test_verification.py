@@ -404,7 +404,7 @@ def test_cli_verify_bad_folders_is_one_clear_line(tmp_path: Path) -> None:
 
 
 def test_crashed_side_is_retried_with_another_seed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from verifier import verification as vmod
+    from verifier import shared_sfm as vmod
     from verifier.sfm import SfmSettings
 
     # a real interpreter stand-in that segfaults on the first run and succeeds on the second
@@ -425,9 +425,9 @@ def test_crashed_side_is_retried_with_another_seed(tmp_path: Path, monkeypatch: 
         return real(job, timeout_s=timeout_s, cancel=cancel, python=str(script), exclusive=exclusive)
 
     monkeypatch.setattr(vmod, "run_sfm_job", run_with_fake)
-    side = vmod._Side(tmp_path / "img", tmp_path / "c.db", tmp_path / "m", SfmSettings())
+    side = vmod.SfmSide(tmp_path / "img", tmp_path / "c.db", tmp_path / "m", SfmSettings())
     (tmp_path / "c.db").write_bytes(b"")  # features already built: the mapping run is what crashes
-    result = vmod._run_side(side, VerifyOptions())
+    result = vmod.run_side(side, VerifyOptions())
     assert result["outcome"] == "ok"
     assert result["crashes"] == ["SIGSEGV"]
     assert seeds == [0, 1]

@@ -8,6 +8,7 @@ change.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 from typing import Any
@@ -101,7 +102,8 @@ def test_a_shared_verification_gives_each_profiles_figures_alone(
     small_sets: dict[str, Path], tmp_path: Path
 ) -> None:
     options = VerifyOptions(timeout_s=300, camera_params=SMALL.camera_params(), visibility_images=0)
-    shared = verify_folders(small_sets["clean"], small_sets["poisoned"], tmp_path / "all", SHARING, options)
+    kept = dataclasses.replace(options, keep_cache=True)
+    shared = verify_folders(small_sets["clean"], small_sets["poisoned"], tmp_path / "all", SHARING, kept)
     alone = {}
     for profile in SHARING:
         report = verify_folders(
@@ -115,6 +117,9 @@ def test_a_shared_verification_gives_each_profiles_figures_alone(
     # the sharing happened: global copied default's verified database, masked filtered its features
     assert "features_and_matches_s" not in shared.profiles["hardened"].poisoned["timings"]
     assert "features_and_matches_s" not in shared.profiles["global"].poisoned["timings"]
+    # hardened's verification was made from the default's, on both sides (a verify-only child each)
+    logs = [p.read_text() for p in (tmp_path / "all" / ".cache").rglob("sfm.log")]
+    assert sum("stationary filter:" in text for text in logs) == 2
 
 
 def test_the_clean_reference_is_cached_until_an_original_changes(
@@ -166,3 +171,10 @@ def test_lego_shared_verification_matches_each_profile_alone(
     for profile in PROFILES:
         alone.update(figures(verify_folders(views, poisoned, tmp_path / profile, [profile], options)))
     assert figures(shared) == alone
+
+
+def test_published_starts_first_the_rest_as_asked() -> None:
+    from verifier.verification import start_order
+
+    assert start_order(PROFILES) == ["published", "default", "hardened", "global", "masked"]
+    assert start_order(["masked", "default"]) == ["masked", "default"]
