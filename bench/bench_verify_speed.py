@@ -166,7 +166,7 @@ ROUND2_NOTES = [
     "drops a pair's matches *before* its RANSAC, and RANSAC with a fixed seed is a function of its input,",
     "so only the pairs holding a stationary match are verified again: lego 20 clean 8 of 190 pairs,",
     "poisoned 24 of 190; lego 40 poisoned 113 of 780; equal pair by pair to a whole hardened verification",
-    "on a generated set and on lego 16 at seeds 0 and 1: tests/test_verify_stationary.py); shared",
+    "on a generated set and on lego 16 at seeds 0 and 1: tests/verifier/test_verify_stationary.py); shared",
     "verifications are built by verify-only children under their own lock, so a profile waits for a",
     "verification, never for another profile's mapping; two profiles at once from 2 cores up;",
     "`published` starts first (added after the lego 20 lane below, not measured).",

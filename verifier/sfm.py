@@ -527,7 +527,7 @@ def reverify_stationary(default_verified: Path, work_db: Path, settings: SfmSett
     match, and RANSAC with a fixed seed is a function of its input, so every other pair's two-view
     geometry is the default's; those pairs' geometries are deleted and COLMAP's own verification
     (which skips pairs that have one) computes them with the filter. Equal to a whole hardened
-    verification pair by pair (tests/test_verify_stationary.py); (images, verified pairs)."""
+    verification pair by pair (tests/verifier/test_verify_stationary.py); (images, verified pairs)."""
     import pycolmap
 
     shutil.copyfile(default_verified, work_db)
