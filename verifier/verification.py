@@ -21,7 +21,8 @@ geometric verification for default and global, and the clean reference (features
 cached per content of the originals (`clean_cache_dir`) until they change; hardened's verification
 is the default's with only the pairs its stationary filter changes verified again. How a side reuses
 that work: verifier.shared_sfm. Profiles run in parallel when `workers` > 1; every figure a verdict
-uses is what the profile run alone gives (tests/verifier/test_verify_shared.py, tests/verifier/test_verify_stationary.py).
+uses is what the profile run alone gives (tests/verifier/test_verify_shared.py,
+tests/verifier/test_verify_stationary.py).
 """
 
 from __future__ import annotations
