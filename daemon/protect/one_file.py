@@ -16,7 +16,7 @@ import stat
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from daemon.context import AppContext
 from daemon.datasets.dataset import (
@@ -296,7 +296,7 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                         f"{target.name} changed since ppd patched it; not overwriting (use --force)"
                     )
                 # the check again just before the rename: a writer between the two is not overwritten
-                replaces = True if force else row["poisoned_sha256"]
+                replaces: str | None | Literal[True] = True if force else row["poisoned_sha256"]
                 ctx.vault.restore(row["original_sha256"], target, replaces=replaces)
                 reason = None
         except Exception as exc:

@@ -28,7 +28,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from daemon.fsops import sha256_fd
 from daemon.paths import filesystem_of, make_private_dir
@@ -281,7 +281,7 @@ class Vault:
         path = self.path_for(sha256)
         return path.is_file() and sha256_file(path) == sha256
 
-    def restore(self, sha256: str, dst: Path, *, replaces: str | None | bool = True) -> None:
+    def restore(self, sha256: str, dst: Path, *, replaces: str | None | Literal[True] = True) -> None:
         """Atomically put the original with this digest at dst: a copy (never a link: edits to
         the restored file must not reach the vault), hash-verified while copying; a blob whose
         content no longer matches its name is refused and dst is left untouched.
@@ -297,7 +297,8 @@ class Vault:
             raise VaultError(f"original {sha256[:12]} is not in the vault {self.vault_dir}") from None
         dst = Path(dst)
         try:
-            check = None if replaces is True else (lambda: _still_holds(dst, replaces))  # type: ignore[arg-type]
+            expected = None if replaces is True else replaces  # what dst may hold (narrowed for the check)
+            check = None if replaces is True else (lambda: _still_holds(dst, expected))
             with atomic_output(dst, mode_like=dst if dst.exists() else None, check=check) as tmp:
                 digest = hashlib.sha256()
                 offset = 0
