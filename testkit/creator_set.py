@@ -24,11 +24,15 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from verifier.shared_data import shared_root
 from verifier.synthetic import SyntheticOptions, camera_poses, write_ground_truth
+
+if TYPE_CHECKING:  # PIL loads in the workers only
+    from PIL import Image
 
 # The box's four faces a camera on the arc can see: (origin, edge_u, edge_v, outward normal, shade).
 _A = np.array
@@ -118,12 +122,12 @@ def render(view: View) -> np.ndarray:
     return np.clip(arr + np.rint(noise).astype(np.int16), 0, 255).astype(np.uint8)
 
 
-def _crop(im: object, size: int) -> object:
+def _crop(im: Image.Image, size: int) -> Image.Image:
     """The centre size x size of a photo (fountain's are 3072 x 2048: its full height)."""
-    w, h = im.size  # type: ignore[attr-defined]
+    w, h = im.size
     side = min(size, w, h)
     left, top = (w - side) // 2, (h - side) // 2
-    return im.crop((left, top, left + side, top + side))  # type: ignore[attr-defined]
+    return im.crop((left, top, left + side, top + side))
 
 
 def make_view(view: View) -> str:
