@@ -24,7 +24,7 @@ from typing import Any
 from daemon.cli.errors import warning
 from poisoner.errors import ExitStatus, PpdError
 
-REPORT_FILE = "report.json"  # what a verification or experiment folder holds (verifier.report)
+REPORT_FILE = "report.json"  # what a verification or experiment folder holds (verifier.html_report)
 
 
 class TargetError(PpdError, ValueError):

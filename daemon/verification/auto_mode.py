@@ -4,12 +4,12 @@ decision names (docs/AUTO.md).
 Life of an automatic dataset:
 1. first file: `Config.spec_for` gives the interim spec (`interim_spec`: the ladder's strongest
    candidate by design), so nothing is ever published unprotected;
-2. the scheduler thread then has a child process (`python -m verifier.auto`, mode "interim")
+2. the scheduler thread then has a child process (`python -m verifier.auto_search`, mode "interim")
    measure what a viewer sees of every candidate on the first files (FLIP against the
    [visibility] budget, no SfM, no LPIPS) and re-protects with the strongest candidate within the
    budget: a decision with trigger 'interim';
 3. once `preflight.sample_size` files are protected, the preflight runs in a child process
-   (`python -m verifier.auto`, SfM in grandchildren) on the vault originals; its decision
+   (`python -m verifier.auto_search`, SfM in grandchildren) on the vault originals; its decision
    (trigger 'preflight') is recorded with its evidence and the dataset is re-protected from the
    vault with the chosen spec;
 4. a scheduled verification that finds a profile weak or not_protected escalates: the next
@@ -174,7 +174,7 @@ def run_interim(
 def run_preflight_child(
     job: PreflightJob, timeout_s: float, cancel: threading.Event | None
 ) -> dict[str, Any]:
-    """`python -m verifier.auto JOB.json` at low priority in its own process group; killed (group)
+    """`python -m verifier.auto_search JOB.json` at low priority in its own process group; killed (group)
     on cancel or after timeout_s. Returns the child's result as JSON data (an AutoDecision, or an
     InterimChoice for an interim job), or {"error": ...}."""
     from poisoner.atomic import atomic_write_bytes
@@ -223,7 +223,7 @@ def preflight_job(
 
 
 def record_decision(ctx: AppContext, dataset: str, decision: Mapping[str, Any], trigger: str) -> int:
-    """Store a preflight decision (verifier.auto.AutoDecision as JSON data) and apply its spec."""
+    """Store a preflight decision (verifier.auto_search.AutoDecision as JSON data) and apply its spec."""
     spec = PatchSpec.from_dict(decision["spec"]) if decision.get("spec") else None
     decision_id = ctx.store.add_auto_decision(
         dataset, decision.get("chosen"), spec, str(decision["reason"]), dict(decision), trigger

@@ -1,6 +1,6 @@
 """Reports on the daemon's datasets: what `ppd report DATASET` and `ppd status` show.
 
-The page itself is the verifier's (verifier.report); this module gathers a dataset's Store rows,
+The page itself is the verifier's (verifier.html_report); this module gathers a dataset's Store rows,
 its protection state and an (original, patched) pair for the patch preview, and owns where a
 dataset's latest report lives: `<data_dir>/reports/<dataset>/latest.html`.
 
