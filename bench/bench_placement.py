@@ -191,7 +191,8 @@ def colmap(args: argparse.Namespace) -> None:
     spec = default_spec()
     for name in args.sets.split(","):
         ds = bw.setup(name)
-        pois_work = WORK / "sfm" / name / f"per-photo-{spec.spec_id}"
+        # the placement rule changed between rounds under the same spec: each round its own files
+        pois_work = WORK / "sfm" / name / f"per-photo-{spec.spec_id}{'' if args.round == 1 else f'-r{args.round}'}"
         pois = pois_work / "images"
         if not pois.exists():
             pois.mkdir(parents=True)
@@ -208,7 +209,7 @@ def colmap(args: argparse.Namespace) -> None:
                 t = time.time()
                 res = bw.sfm(pimg, pois_work, msgspec.structs.replace(settings, random_seed=seed),
                              f"{profile}@{seed}", source)  # fmt: skip
-                cell: dict[str, Any] = {"set": name, "profile": profile, "seed": seed}
+                cell: dict[str, Any] = {"set": name, "profile": profile, "seed": seed, "round": args.round}
                 cell.update(outcome=res.get("outcome"), s=round(time.time() - t))
                 if clean.get("outcome") == "ok" and res.get("outcome") == "ok":
                     vc = posemod.compare_poses(
@@ -219,7 +220,8 @@ def colmap(args: argparse.Namespace) -> None:
                 cell["clean_registered"] = clean.get("registered")
                 print(json.dumps(cell), flush=True)
                 runs = _load(WORK / "colmap.json")
-                runs = [r for r in runs if (r["set"], r["profile"], r["seed"]) != (name, profile, seed)]
+                key = (name, profile, seed, args.round)
+                runs = [r for r in runs if (r["set"], r["profile"], r["seed"], r.get("round", 1)) != key]
                 (WORK / "colmap.json").write_text(json.dumps([*runs, cell]))
                 write_markdown()
 
@@ -305,13 +307,15 @@ def write_markdown() -> None:
             "The default design as `ppd poison` writes it (per-photo placement, no masks given),",
             "ppd verify's",
             "profiles; one entry per COLMAP seed; a crash is a crash, not protection.", "",
-            "| set | profile | seed | within 5 deg | registered (clean) | outcome | s |",
-            "|---|---|---|---|---|---|---|",
+            "Round 1: the first per-photo rule; round 2: this round's (plain places equal, off the",
+            "corners, anchors along the slide's line).", "",
+            "| round | set | profile | seed | within 5 deg | registered (clean) | outcome | s |",
+            "|---|---|---|---|---|---|---|---|",
         ]  # fmt: skip
-        for c in sorted(runs, key=lambda r: (r["set"], r["profile"], r["seed"])):
+        for c in sorted(runs, key=lambda r: (-r.get("round", 1), r["set"], r["profile"], r["seed"])):
             w5 = f"{c['within5']:.0%}" if c.get("within5") is not None else "-"
             lines.append(
-                f"| {c['set']} | {c['profile']} | {c['seed']} | {w5} | {c.get('registered')} "
+                f"| {c.get('round', 1)} | {c['set']} | {c['profile']} | {c['seed']} | {w5} | {c.get('registered')} "
                 f"({c.get('clean_registered')}) | {c['outcome']} | {c['s']} |"
             )
         lines.append("")
@@ -328,6 +332,7 @@ def main(argv: list[str] | None = None) -> None:
     c.add_argument("--sets", default="lego,dtu")
     c.add_argument("--profiles", default="default,hardened,published,masked")
     c.add_argument("--seeds", default="0")
+    c.add_argument("--round", type=int, default=2, help="placement round (1: issue 25's first, kept)")
     sp = sub.add_parser("speed")
     sp.add_argument("--repeat", type=int, default=7)
     args = parser.parse_args(argv)

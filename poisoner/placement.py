@@ -115,7 +115,10 @@ def keep_out_mask(
 
 # EXIF orientation -> the one that undoes it (5, 7 and the flips are their own inverse)
 INVERSE_ORIENTATION = {1: 1, 2: 2, 3: 3, 4: 4, 5: 5, 6: 8, 7: 7, 8: 6}
-PLAIN_SHARE = 0.02  # a footprint with at most this share of detailed thumbnail pixels is plain
+# A footprint with at most this much detail cost is plain: all plain places are equally good, so the
+# preferred anchor wins (round 2: shares of 0.01 against 0.00 had moved 11 of dtu_scan37's 25 marks off
+# their shared anchor, breaking the lanes' common motion between those photos).
+PLAIN_SHARE = 0.02
 NO_PLAIN_SHARE = 0.25  # the best footprint still this detailed: no plain region (likely on the subject)
 COST_STEP = 0.02  # detail shares within one step are equally plain: the preferred anchor decides
 GRID = 24  # candidate anchors per frame side (the stride is the shorter side / GRID)
@@ -124,6 +127,9 @@ MARGIN = 0.03  # of the shorter side: the footprint is judged grown by this much
 # highlight); the frame's border band rarely is. A footprint d (fraction of the shorter side) from
 # the nearest edge costs EDGE_WEIGHT * d, as if that share of it held detail.
 EDGE_WEIGHT = 0.5
+# Round 2 (the masked attacker): the four corner regions (this share of the width and of the height)
+# are what the `masked` profile removes; a plain place off them wins over a plain corner.
+CORNER_REGION = 0.2
 
 
 def orientation_of(value: object) -> int:
@@ -222,6 +228,33 @@ def _rect_sums(
     return integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
 
 
+def _line(
+    preferred: tuple[int, int], direction: tuple[int, int], xr: tuple[int, int], yr: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every whole-step anchor on the line through `preferred` along `direction` (either way) whose
+    x and y stay within the ranges (inclusive)."""
+    dx, dy = direction
+    reach = max(xr[1] - xr[0], yr[1] - yr[0]) // max(1, min(abs(dx) or 1, abs(dy) or 1)) + 1
+    u = np.arange(-reach, reach + 1)
+    lx, ly = preferred[0] + dx * u, preferred[1] + dy * u
+    ok = (lx >= xr[0]) & (lx <= xr[1]) & (ly >= yr[0]) & (ly <= yr[1])
+    return lx[ok].astype(np.int64), ly[ok].astype(np.int64)
+
+
+def _in_corners(
+    ax: np.ndarray, ay: np.ndarray, rects: list[tuple[int, int, int, int]], size: tuple[int, int], region: float
+) -> np.ndarray:
+    """1 where any part of the mark at anchor (ax, ay) overlaps one of the four corner regions."""
+    w, h = size
+    rw, rh = int(region * w), int(region * h)
+    hit = np.zeros(ax.shape, dtype=bool)
+    for x0, y0, x1, y1 in rects:
+        left, right = ax + x0 < rw, ax + x1 > w - rw
+        top, bottom = ay + y0 < rh, ay + y1 > h - rh
+        hit |= (left | right) & (top | bottom)
+    return hit.astype(np.int64)
+
+
 def choose_spot(
     detail: np.ndarray,
     subject: np.ndarray | None,
@@ -229,12 +262,18 @@ def choose_spot(
     rects: list[tuple[int, int, int, int]],
     preferred: tuple[int, int],
     bounds: tuple[int, int, int, int] | None = None,
+    direction: tuple[int, int] = (1, 0),
+    corner_region: float = CORNER_REGION,
 ) -> Spot:
     """The anchor for a mark whose parts cover `rects` (display px, relative to the anchor) in a
     frame of `size` (w, h) display px: the plainest place, judged on `detail` (a thumbnail of the
     frame, True/1 = image detail) and `subject` (same grid, True = subject; None: no mask).
 
-    Order: no subject pixel first (masks), then the least detail (in COST_STEP steps), then the
+    Order: no subject pixel first (masks), then the least detail (every footprint up to PLAIN_SHARE
+    equally plain, then COST_STEP steps), then off the four corner regions (what the masked attacker
+    removes), then on the line through `preferred` along `direction` (the mark's own slide direction:
+    two photos whose anchors differ along it still show the lanes moving in parallel by different
+    amounts, one consistent phantom geometry; any other shift breaks it for that pair), then the
     nearest to `preferred`, then top-left first: deterministic for a given picture. bounds
     (relative to the anchor, default: the rects' union) must lie inside the frame."""
     w, h = size
@@ -250,7 +289,9 @@ def choose_spot(
     ys = _axis(max(0, -ry0), h - ry1, preferred[1], stride)
     if xs.size == 0 or ys.size == 0:
         raise ValueError(f"the mark ({rx1 - rx0}x{ry1 - ry0} px) does not fit a {w}x{h} frame")
-    ax, ay = (a.ravel() for a in np.meshgrid(xs, ys))
+    gx, gy = (a.ravel() for a in np.meshgrid(xs, ys))
+    lx, ly = _line(preferred, direction, (max(0, -rx0), w - rx1), (max(0, -ry0), h - ry1))
+    ax, ay = np.concatenate([gx, lx]), np.concatenate([gy, ly])
 
     def integral(m: np.ndarray) -> np.ndarray:
         out = np.zeros((th + 1, tw + 1))
@@ -275,9 +316,13 @@ def choose_spot(
     on_subject = sums["subject"] / area if subject is not None else np.zeros(ax.shape)
     inward = np.minimum.reduce([ax + rx0, ay + ry0, w - (ax + rx1), h - (ay + ry1)]) / min(w, h)
     cost = share + EDGE_WEIGHT * np.maximum(inward, 0)
+    steps = np.where(cost <= PLAIN_SHARE, 0, np.ceil(cost / COST_STEP))
+    cornered = _in_corners(ax, ay, rects, (w, h), corner_region)
+    dx, dy = direction
+    off_line = np.abs((ax - preferred[0]) * dy - (ay - preferred[1]) * dx)  # x |direction|: same order
     distance = (ax - preferred[0]) ** 2 + (ay - preferred[1]) ** 2
     # lexsort: the last key is the primary one
-    order = np.lexsort((ax, ay, distance, np.round(cost / COST_STEP), np.round(on_subject, 6)))
+    order = np.lexsort((ax, ay, distance, off_line, cornered, steps, np.round(on_subject, 6)))
     best = int(order[0])
     subject_share = float(on_subject[best]) if subject is not None else None
     free = subject_share == 0.0 if subject_share is not None else float(share[best]) <= NO_PLAIN_SHARE
@@ -365,7 +410,8 @@ def place_on_photo(
         source = "preferred"
     else:
         zero = spec.resolve(dw, dh, image_key, index=index, anchor=(0, 0))
-        spot = choose_spot(detail, subject, (dw, dh), _parts(zero), preferred, zero.box)
+        spot = choose_spot(detail, subject, (dw, dh), _parts(zero), preferred, zero.box,
+                           spec.slide_direction, spec.corner_region)  # fmt: skip
         if subject is not None:
             source = "masks" if spot.free else "no-free-masks"
         else:

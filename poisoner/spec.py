@@ -429,12 +429,24 @@ class PatchSpec:
         return (one.size + span, one.size + span)
 
     def auto_anchor(self, width: int, height: int) -> tuple[int, int]:
-        """The preferred anchor of a per-photo mark: its whole path centred along the top edge.
-        Where the top is as plain as anywhere, every photo takes this one, so the lanes move
+        """The preferred anchor of a per-photo mark: its whole path centred across the top of the
+        frame. Where the top is as plain as anywhere, every photo takes this one, so the lanes move
         between photos exactly as in one fixed place; off the four corners, which an attacker
-        who masks corners (the `masked` profile) removes."""
-        ew, _eh = self.path_extent(width, height)
-        return (max(0, (width - ew) // 2), 0)
+        who masks corners (the `masked` profile) removes. A tilted slide's anchor sits as far below
+        the top edge as the slide's line drops from the left corner region to it (20 px on an
+        800 px frame), so that other photos' anchors can move either way along that line
+        (poisoner.placement.choose_spot) without leaving the frame."""
+        ew, eh = self.path_extent(width, height)
+        x = max(0, (width - ew) // 2)
+        if not self.slide_run:
+            return (x, 0)
+        drop = math.ceil(max(0, x - int(self.corner_region * width)) / self.slide_run)
+        return (x, max(0, min(drop, height - eh)))
+
+    @property
+    def slide_direction(self) -> tuple[int, int]:
+        """The direction (whole px) the mark slides along between photos: (slide_run, 1), or along x."""
+        return (self.slide_run, 1) if self.slide_run else (1, 0)
 
     @property
     def moves(self) -> bool:
