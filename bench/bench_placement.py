@@ -192,7 +192,8 @@ def colmap(args: argparse.Namespace) -> None:
     for name in args.sets.split(","):
         ds = bw.setup(name)
         # the placement rule changed between rounds under the same spec: each round its own files
-        pois_work = WORK / "sfm" / name / f"per-photo-{spec.spec_id}{'' if args.round == 1 else f'-r{args.round}'}"
+        suffix = "" if args.round == 1 else f"-r{args.round}"
+        pois_work = WORK / "sfm" / name / f"per-photo-{spec.spec_id}{suffix}"
         pois = pois_work / "images"
         if not pois.exists():
             pois.mkdir(parents=True)
@@ -315,7 +316,8 @@ def write_markdown() -> None:
         for c in sorted(runs, key=lambda r: (-r.get("round", 1), r["set"], r["profile"], r["seed"])):
             w5 = f"{c['within5']:.0%}" if c.get("within5") is not None else "-"
             lines.append(
-                f"| {c.get('round', 1)} | {c['set']} | {c['profile']} | {c['seed']} | {w5} | {c.get('registered')} "
+                f"| {c.get('round', 1)} | {c['set']} | {c['profile']} | {c['seed']} | {w5} "
+                f"| {c.get('registered')} "
                 f"({c.get('clean_registered')}) | {c['outcome']} | {c['s']} |"
             )
         lines.append("")

@@ -242,7 +242,11 @@ def _line(
 
 
 def _in_corners(
-    ax: np.ndarray, ay: np.ndarray, rects: list[tuple[int, int, int, int]], size: tuple[int, int], region: float
+    ax: np.ndarray,
+    ay: np.ndarray,
+    rects: list[tuple[int, int, int, int]],
+    size: tuple[int, int],
+    region: float,
 ) -> np.ndarray:
     """1 where any part of the mark at anchor (ax, ay) overlaps one of the four corner regions."""
     w, h = size
