@@ -82,6 +82,28 @@ def make_crops(keep: float, orientation: int, folder: Path) -> tuple[Path, Path]
     return images, masks
 
 
+def make_lego_crops(keep: float, folder: Path, count: int = 25) -> tuple[Path, Path]:
+    """Not dtu (round 2): lego's first `count` training views (an object on nothing, composited on
+    white as 3DGS does) cropped to `keep` of the frame around the subject's alpha bounding box, so
+    the subject fills the frame; 600x600; masks = the alpha, used only to judge."""
+    images, masks = folder / "images", folder / "masks"
+    if images.exists():
+        return images, masks
+    images.mkdir(parents=True)
+    masks.mkdir(parents=True)
+    src = SHARED / "nerf_synthetic_lego" / "train"
+    for i in range(count):
+        with Image.open(src / f"r_{i}.png") as im:
+            rgba = im.convert("RGBA")
+        alpha = np.asarray(rgba.getchannel("A")) > 0
+        box = subject_crop_box(alpha, keep)
+        shown = Image.alpha_composite(Image.new("RGBA", rgba.size, (255, 255, 255, 255)), rgba).convert("RGB")
+        shown.crop(box).resize((600, 600), Image.Resampling.LANCZOS).save(images / f"r_{i:03d}.png")
+        mask = Image.fromarray(alpha.astype(np.uint8) * 255).crop(box)
+        mask.resize((600, 600), Image.Resampling.NEAREST).save(masks / f"r_{i:03d}.png")
+    return images, masks
+
+
 def shown_rgb(path: Path) -> np.ndarray:
     with Image.open(path) as im:
         return np.asarray(ImageOps.exif_transpose(im).convert("RGB"))
@@ -91,6 +113,7 @@ def judge_set(images: Path, masks: Path, out: Path, spec: Any, give_masks: bool 
     """Poison every image with poison_file (no masks given, unless give_masks: then as keep-out, what
     --subject-masks does); per view whether a changed pixel touches the subject (as shown), the
     changed area, where the mark went, and FLIP on three views."""
+    from poisoner.errors import MarkNotWritten
     from poisoner.formats import poison_file
     from verifier.visibility import visibility_report
 
@@ -101,7 +124,12 @@ def judge_set(images: Path, masks: Path, out: Path, spec: Any, give_masks: bool 
     t0 = time.perf_counter()
     for f in files:
         subject = np.asarray(Image.open(masks / f"{f.stem}.png")) > 0
-        report = poison_file(f, out / f.name, spec, keep_out=subject if give_masks else None)
+        try:
+            report = poison_file(f, out / f.name, spec, keep_out=subject if give_masks else None)
+        except MarkNotWritten:  # the mask covers the whole mark: a failure, never "patched"
+            views.append({"name": f.name, "touches": False, "changed_area": 0.0, "words": "-", "free": False,
+                          "unwritten": True})  # fmt: skip
+            continue
         a, b = shown_rgb(f), shown_rgb(out / f.name)
         changed = np.any(a != b, axis=2)
         place = report.place
@@ -118,11 +146,12 @@ def judge_set(images: Path, masks: Path, out: Path, spec: Any, give_masks: bool 
         "views": len(views),
         "touch": sum(v["touches"] for v in views),
         "said_not_free": sum(v["free"] is False for v in views),
+        "unwritten": sum(bool(v.get("unwritten")) for v in views),
         "changed_area_max": max(v["changed_area"] for v in views),
-        "flip_p999_max": max(v["flip_p999"] for v in vis),
-        "area_above_half_max": max(v["area_above_half"] for v in vis),
-        "p999_vs_jpeg_max": max(v["p999_vs_jpeg"] or 0 for v in vis),
-        "places": sorted({v["words"] for v in views}),
+        "flip_p999_max": max((v["flip_p999"] for v in vis), default=0.0),
+        "area_above_half_max": max((v["area_above_half"] for v in vis), default=0.0),
+        "p999_vs_jpeg_max": max((v["p999_vs_jpeg"] or 0 for v in vis), default=0.0),
+        "places": sorted({v["words"] for v in views} - {"-"}),
         "seconds": round(seconds, 1),
         "per_view": views,
     }
@@ -133,8 +162,12 @@ def touch(args: argparse.Namespace) -> None:
     from poisoner.subject import dataset_corner
 
     rows = []
-    for name, keep, o in (("crop70", 0.70, 1), ("crop55", 0.55, 1), ("crop70-exif6", 0.70, 6)):
-        images, masks = make_crops(keep, o, WORK / name)
+    sets = (("crop70", 0.70, 1), ("crop55", 0.55, 1), ("crop70-exif6", 0.70, 6), ("lego-fill", 0.55, 1))
+    for name, keep, o in sets:
+        if name.startswith("lego"):
+            images, masks = make_lego_crops(keep, WORK / name)
+        else:
+            images, masks = make_crops(keep, o, WORK / name)
         new = default_spec()
         corner = dataset_corner(sorted(images.iterdir()), None, region=new.corner_region).corner
         old = new.replace(position=corner)  # the previous default: one corner per dataset
@@ -143,7 +176,7 @@ def touch(args: argparse.Namespace) -> None:
             r.update(set=name, design=label)
             print(json.dumps({k: v for k, v in r.items() if k != "per_view"}), flush=True)
             rows.append(r)
-        if name == "crop70":  # the floor: the masks themselves given (keep-out: never written on them)
+        if name in ("crop70", "crop55", "lego-fill"):  # the floor: the masks given (never written on them)
             r = judge_set(images, masks, WORK / name / "out-masks", new, give_masks=True)
             r.update(set=name, design="per-photo, subject masks given")
             print(json.dumps({k: v for k, v in r.items() if k != "per_view"}), flush=True)
@@ -270,27 +303,39 @@ def speed(args: argparse.Namespace) -> None:
 def write_markdown() -> None:
     lines = ["# Per-photo placement (issue 25)", ""]
     lines += ["Written by `bench/bench_placement.py` (its docstring: what each part measures).", ""]
-    rows = _load(WORK / "touch.json")
+    rounds = (("round 2 (this round's rule)", "touch.json"),
+              ("round 1 (issue 25's first rule, kept)", "touch_r1.json"))
+    for title, name in rounds:
+        _touch_table(lines, title, _load(WORK / name))
+    _rest(lines)
+
+
+def _touch_table(lines: list[str], title: str, rows: list[dict[str, Any]]) -> None:
     if rows:
         lines += [
-            "## (a, b) Where the mark lands without masks, and how visible it is", "",
+            f"## (a, b) Where the mark lands without masks, and how visible it is: {title}", "",
             "dtu_scan37's 25 views cropped around the subject (crop centred on the subject mask's",
             "bounding box), 800x600 as shown; masks used only to judge. `touch`: views where a changed",
-            "pixel is on the subject; `said`: views ppd reported as 'no plain region'. FLIP at 800 px",
-            "(the picture's own width), worst of",
+            "pixel is on the subject; `said`: views ppd reported as 'no plain region' (with masks given,",
+            "'no free region'; `unwritten`: the mask covered the whole mark, the file failed).",
+            "FLIP at the picture's own width, worst of",
             "three views; changed area: worst view.", "",
-            "| set | design | touch (of 25) | said | changed area max | FLIP p99.9 | FLIP > 0.5 area "
-            "| places | s |",
-            "|---|---|---|---|---|---|---|---|---|",
+            "| set | design | touch (of 25) | said | unwritten | changed area max | FLIP p99.9 "
+            "| FLIP > 0.5 area | places | s |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]  # fmt: skip
         for r in rows:
             lines.append(
                 f"| {r['set']} | {r['design']} | {r['touch']} | {r['said_not_free']} "
+                f"| {r.get('unwritten', 0)} "
                 f"| {r['changed_area_max']:.2%} "
                 f"| {r['flip_p999_max']:.2f} | {r['area_above_half_max']:.3%} | {', '.join(r['places'])} "
                 f"| {r['seconds']} |"
             )
         lines += ["", f"Picture: `{PICTURE.name}` (three 70% crops, the new default's mark in red).", ""]
+
+
+def _rest(lines: list[str]) -> None:
     speeds = _load(WORK / "speed.json")
     if speeds:
         lines += ["## What it costs", "",
