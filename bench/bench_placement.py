@@ -124,11 +124,12 @@ def judge_set(images: Path, masks: Path, out: Path, spec: Any, give_masks: bool 
     t0 = time.perf_counter()
     for f in files:
         subject = np.asarray(Image.open(masks / f"{f.stem}.png")) > 0
+        share = float(subject.mean())
         try:
             report = poison_file(f, out / f.name, spec, keep_out=subject if give_masks else None)
         except MarkNotWritten:  # the mask covers the whole mark: a failure, never "patched"
             views.append({"name": f.name, "touches": False, "changed_area": 0.0, "words": "-", "free": False,
-                          "unwritten": True})  # fmt: skip
+                          "unwritten": True, "subject_share": share})  # fmt: skip
             continue
         a, b = shown_rgb(f), shown_rgb(out / f.name)
         changed = np.any(a != b, axis=2)
@@ -136,6 +137,7 @@ def judge_set(images: Path, masks: Path, out: Path, spec: Any, give_masks: bool 
         views.append({
             "name": f.name, "touches": bool((changed & subject).any()), "changed_area": float(changed.mean()),
             "words": place.words if place else spec.position, "free": place.free if place else None,
+            "subject_share": share,
         })  # fmt: skip
         if f.name in picks:
             v = visibility_report(a, b, display_width=min(1920, a.shape[1]), subject_mask=subject)
@@ -144,6 +146,7 @@ def judge_set(images: Path, masks: Path, out: Path, spec: Any, give_masks: bool 
     seconds = time.perf_counter() - t0
     return {
         "views": len(views),
+        "subject_share": round(float(np.mean([v["subject_share"] for v in views])), 3),
         "touch": sum(v["touches"] for v in views),
         "said_not_free": sum(v["free"] is False for v in views),
         "unwritten": sum(bool(v.get("unwritten")) for v in views),
@@ -182,23 +185,23 @@ def touch(args: argparse.Namespace) -> None:
             print(json.dumps({k: v for k, v in r.items() if k != "per_view"}), flush=True)
             rows.append(r)
     (WORK / "touch.json").write_text(json.dumps(rows))
-    picture(WORK / "crop70")
+    picture([WORK / "crop70", WORK / "crop55", WORK / "lego-fill"])
     write_markdown()
 
 
-def picture(folder: Path) -> None:
-    """Three crops side by side, the new default's mark as written, its box outlined in red."""
-    names = sorted(p.name for p in (folder / "out-new").iterdir())
-    picks = [names[0], names[len(names) // 2], names[-1]]
+def picture(folders: list[Path]) -> None:
+    """Three photos side by side (the first of the first set, the middle one of the second, the last
+    of the third), the new default's mark as written, each changed square outlined in red."""
     tiles = []
-    for n in picks:
+    for k, folder in enumerate(folders):
+        names = sorted(p.name for p in (folder / "out-new").iterdir())
+        n = names[(0, len(names) // 2, -1)[k]]
         a, b = shown_rgb(folder / "images" / n), shown_rgb(folder / "out-new" / n)
+        a, b = _to_size(a), _to_size(b)
         tile = b.copy()
-        ys, xs = np.nonzero(np.any(a != b, axis=2))
-        if xs.size:
-            x0, y0, x1, y1 = xs.min() - 3, ys.min() - 3, xs.max() + 3, ys.max() + 3
-            x0, y0 = max(x0, 0), max(y0, 0)
-            x1, y1 = min(x1, tile.shape[1] - 1), min(y1, tile.shape[0] - 1)
+        for x0, y0, x1, y1 in _squares(np.any(a != b, axis=2)):  # split lanes: one box each
+            x0, y0 = max(x0 - 3, 0), max(y0 - 3, 0)
+            x1, y1 = min(x1 + 3, tile.shape[1] - 1), min(y1 + 3, tile.shape[0] - 1)
             for yy in (y0, y1):
                 tile[max(yy - 1, 0) : yy + 2, x0 : x1 + 1] = (255, 0, 0)
             for xx in (x0, x1):
@@ -208,6 +211,32 @@ def picture(folder: Path) -> None:
     row = Image.fromarray(np.concatenate([tiles[0], gap, tiles[1], gap, tiles[2]], axis=1))
     row = row.resize((1600, round(row.height * 1600 / row.width)), Image.Resampling.LANCZOS)  # repo-sized
     row.save(PICTURE, optimize=True)
+
+
+def _to_size(rgb: np.ndarray) -> np.ndarray:
+    """A tile of the picture: 800x600 (a square photo padded with grey at the sides), the same scale."""
+    if rgb.shape[:2] == (SIZE[1], SIZE[0]):
+        return rgb
+    scaled = np.asarray(Image.fromarray(rgb).resize((SIZE[1], SIZE[1]), Image.Resampling.NEAREST))
+    out = np.full((SIZE[1], SIZE[0], 3), 32, dtype=np.uint8)
+    left = (SIZE[0] - SIZE[1]) // 2
+    out[:, left : left + SIZE[1]] = scaled
+    return out
+
+
+def _squares(changed: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Bounding boxes of the changed pixels' clusters (columns, then rows, split at gaps > 8 px)."""
+    boxes = []
+    for xs in _runs(np.nonzero(changed.any(axis=0))[0]):
+        sub = changed[:, xs[0] : xs[-1] + 1]
+        for ys in _runs(np.nonzero(sub.any(axis=1))[0]):
+            cols = np.nonzero(sub[ys[0] : ys[-1] + 1].any(axis=0))[0] + xs[0]
+            boxes.append((int(cols.min()), int(ys[0]), int(cols.max()), int(ys[-1])))
+    return boxes
+
+
+def _runs(idx: np.ndarray) -> list[np.ndarray]:
+    return [r for r in np.split(idx, np.nonzero(np.diff(idx) > 8)[0] + 1) if r.size]
 
 
 # ---- (c) COLMAP ----------------------------------------------------------------------------------------
@@ -222,6 +251,9 @@ def colmap(args: argparse.Namespace) -> None:
 
     bw.WORK = WORK / "sfm"  # clean runs and features cached here
     spec = default_spec()
+    design = "default"
+    if args.mark_text:  # issue 25 (3): the creator's own text as the lanes' shape
+        spec, design = spec.replace(mark_text=args.mark_text), f"text {args.mark_text!r}"
     for name in args.sets.split(","):
         ds = bw.setup(name)
         # the placement rule changed between rounds under the same spec: each round its own files
@@ -244,6 +276,8 @@ def colmap(args: argparse.Namespace) -> None:
                 res = bw.sfm(pimg, pois_work, msgspec.structs.replace(settings, random_seed=seed),
                              f"{profile}@{seed}", source)  # fmt: skip
                 cell: dict[str, Any] = {"set": name, "profile": profile, "seed": seed, "round": args.round}
+                if design != "default":
+                    cell["design"] = design
                 cell.update(outcome=res.get("outcome"), s=round(time.time() - t))
                 if clean.get("outcome") == "ok" and res.get("outcome") == "ok":
                     vc = posemod.compare_poses(
@@ -254,10 +288,14 @@ def colmap(args: argparse.Namespace) -> None:
                 cell["clean_registered"] = clean.get("registered")
                 print(json.dumps(cell), flush=True)
                 runs = _load(WORK / "colmap.json")
-                key = (name, profile, seed, args.round)
-                runs = [r for r in runs if (r["set"], r["profile"], r["seed"], r.get("round", 1)) != key]
+                key = (name, profile, seed, args.round, design)
+                runs = [r for r in runs if _key(r) != key]
                 (WORK / "colmap.json").write_text(json.dumps([*runs, cell]))
                 write_markdown()
+
+
+def _key(r: dict[str, Any]) -> tuple[Any, ...]:
+    return (r["set"], r["profile"], r["seed"], r.get("round", 1), r.get("design", "default"))
 
 
 def _load(path: Path) -> list[dict[str, Any]]:
@@ -320,19 +358,26 @@ def _touch_table(lines: list[str], title: str, rows: list[dict[str, Any]]) -> No
             "'no free region'; `unwritten`: the mask covered the whole mark, the file failed).",
             "FLIP at the picture's own width, worst of",
             "three views; changed area: worst view.", "",
-            "| set | design | touch (of 25) | said | unwritten | changed area max | FLIP p99.9 "
+            "| set | subject | design | touch (of 25) | said | unwritten | changed area max | FLIP p99.9 "
             "| FLIP > 0.5 area | places | s |",
-            "|---|---|---|---|---|---|---|---|---|---|",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
         ]  # fmt: skip
         for r in rows:
             lines.append(
-                f"| {r['set']} | {r['design']} | {r['touch']} | {r['said_not_free']} "
+                f"| {r['set']} | {_share(r)} | {r['design']} | {r['touch']} | {r['said_not_free']} "
                 f"| {r.get('unwritten', 0)} "
                 f"| {r['changed_area_max']:.2%} "
                 f"| {r['flip_p999_max']:.2f} | {r['area_above_half_max']:.3%} | {', '.join(r['places'])} "
                 f"| {r['seconds']} |"
             )
-        lines += ["", f"Picture: `{PICTURE.name}` (three 70% crops, the new default's mark in red).", ""]
+        lines += ["", "`lego-fill`: lego's first 25 views cropped to 55% around the model, 600x600 (masks:",
+                  "its alpha, only to judge). `subject`: the mean share of the frame the subject covers.", "",
+                  f"Picture: `{PICTURE.name}` (a 70% crop, a 55% crop, a lego-fill view; marks in red).",
+                  ""]  # fmt: skip
+
+
+def _share(row: dict[str, Any]) -> str:
+    return f"{row['subject_share']:.0%}" if "subject_share" in row else "-"
 
 
 def _rest(lines: list[str]) -> None:
@@ -355,13 +400,14 @@ def _rest(lines: list[str]) -> None:
             "profiles; one entry per COLMAP seed; a crash is a crash, not protection.", "",
             "Round 1: the first per-photo rule; round 2: this round's (plain places equal, off the",
             "corners, anchors along the slide's line).", "",
-            "| round | set | profile | seed | within 5 deg | registered (clean) | outcome | s |",
-            "|---|---|---|---|---|---|---|---|",
+            "| round | design | set | profile | seed | within 5 deg | registered (clean) | outcome | s |",
+            "|---|---|---|---|---|---|---|---|---|",
         ]  # fmt: skip
-        for c in sorted(runs, key=lambda r: (-r.get("round", 1), r["set"], r["profile"], r["seed"])):
+        for c in sorted(runs, key=lambda r: (-r.get("round", 1), r.get("design", ""), *_key(r)[:3])):
             w5 = f"{c['within5']:.0%}" if c.get("within5") is not None else "-"
             lines.append(
-                f"| {c.get('round', 1)} | {c['set']} | {c['profile']} | {c['seed']} | {w5} "
+                f"| {c.get('round', 1)} | {c.get('design', 'default')} | {c['set']} | {c['profile']} "
+                f"| {c['seed']} | {w5} "
                 f"| {c.get('registered')} "
                 f"({c.get('clean_registered')}) | {c['outcome']} | {c['s']} |"
             )
@@ -380,6 +426,7 @@ def main(argv: list[str] | None = None) -> None:
     c.add_argument("--profiles", default="default,hardened,published,masked")
     c.add_argument("--seeds", default="0")
     c.add_argument("--round", type=int, default=2, help="placement round (1: issue 25's first, kept)")
+    c.add_argument("--mark-text", default="", help="the creator's text as the mark (the default's lanes)")
     sp = sub.add_parser("speed")
     sp.add_argument("--repeat", type=int, default=7)
     args = parser.parse_args(argv)
