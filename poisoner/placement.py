@@ -119,7 +119,6 @@ INVERSE_ORIENTATION = {1: 1, 2: 2, 3: 3, 4: 4, 5: 5, 6: 8, 7: 7, 8: 6}
 # preferred anchor wins (round 2: shares of 0.01 against 0.00 had moved 11 of dtu_scan37's 25 marks off
 # their shared anchor, breaking the lanes' common motion between those photos).
 PLAIN_SHARE = 0.02
-NO_PLAIN_SHARE = 0.1  # the best footprint still this detailed: no plain region (likely on the subject)
 COST_STEP = 0.02  # detail shares within one step are equally plain: the preferred anchor decides
 GRID = 24  # candidate anchors per frame side (the stride is the shorter side / GRID)
 MARGIN = 0.03  # of the shorter side: the footprint is judged grown by this much ("away from")
@@ -326,7 +325,9 @@ def choose_spot(
         # where the squares themselves are plainest, even close to the subject, beats one on it.
         best, share, on_subject, _ = best_at(0)
     subject_share = float(on_subject[best]) if subject is not None else None
-    free = subject_share == 0.0 if subject_share is not None else float(share[best]) <= NO_PLAIN_SHARE
+    # without masks, only a place plain with its margin is called free: the fallback's low detail
+    # may be a plain part of the subject (a stone's smooth face, a ruler), so ppd says so
+    free = subject_share == 0.0 if subject_share is not None else plain
     return Spot(int(ax[best]), int(ay[best]), float(share[best]), subject_share, free, plain)
 
 
@@ -404,9 +405,9 @@ def choose_split(
     flat = np.lexsort((rank.ravel(), total.ravel(), worst.ravel(), ~ok.ravel()))
     a, b = np.unravel_index(flat[0], ok.shape)
     spots = []
-    for (xx, yy, cc, ss), k in (((pax, pay, pc, ps), a), ((qax, qay, qc, qs), b)):
+    for (xx, yy, cc, ss, bb), k in (((pax, pay, pc, ps, pb), a), ((qax, qay, qc, qs, qb), b)):
         subject_share = float(ss[k]) if subject is not None else None
-        free = subject_share == 0.0 if subject_share is not None else float(cc[k]) <= NO_PLAIN_SHARE
+        free = subject_share == 0.0 if subject_share is not None else bool(bb[k] == 0)
         spots.append(Spot(int(xx[k]), int(yy[k]), float(cc[k]), subject_share, free, bool(worst[a, b] == 0)))
     return spots, float(worst[a, b])
 
