@@ -302,6 +302,89 @@ def _load(path: Path) -> list[dict[str, Any]]:
     return json.loads(path.read_text()) if path.exists() else []
 
 
+# ---- (e) the masked attacker: where the marks sit, and how many of their matches survive the mask -------
+def matches(args: argparse.Namespace) -> None:
+    """Per round, from (c)'s files: marks wholly / partly inside the four 20% corners, and the raw SIFT
+    matches (COLMAP's feature cache, before geometric verification) that join mark pixels in both
+    views, without and with the corner mask; pairs where those outnumber the scene's."""
+    from poisoner.ladder import default_spec
+
+    rows = []
+    for name in args.sets.split(","):
+        base = WORK / "sfm" / name
+        for rnd, suffix in ((1, ""), (2, "-r2")):
+            work = base / f"per-photo-{default_spec().spec_id}{suffix}"
+            if not (work / "images").exists():
+                continue
+            files = sorted((work / "images").iterdir())
+            exact = {f.name: _changed(base / "clean" / f.name, f) for f in files}
+            marks = {n: _grown(m, 4) for n, m in exact.items()}  # a keypoint on the mark's edge is the mark's
+            row: dict[str, Any] = {"set": name, "round": rnd, **_in_corners(exact)}
+            for db in sorted(work.glob("features-original-*.db")):
+                row["masked" if db.stem.endswith("mask0.2") else "unmasked"] = _mark_matches(db, marks)
+            print(json.dumps(row), flush=True)
+            rows.append(row)
+    (WORK / "matches.json").write_text(json.dumps(rows))
+
+
+def _changed(clean: Path, poisoned: Path) -> np.ndarray:
+    """Pixels the mark changed."""
+    a, b = shown_rgb(clean).astype(int), shown_rgb(poisoned).astype(int)
+    return np.abs(a - b).max(axis=2) > 0
+
+
+def _grown(m: np.ndarray, px: int) -> np.ndarray:
+    grown = m.copy()
+    for d in range(1, px + 1):
+        grown[d:] |= m[:-d]
+        grown[:-d] |= m[d:]
+        grown[:, d:] |= m[:, :-d]
+        grown[:, :-d] |= m[:, d:]
+    return grown
+
+
+def _in_corners(marks: dict[str, np.ndarray]) -> dict[str, int]:
+    whole = part = 0
+    for m in marks.values():
+        h, w = m.shape
+        rw, rh = int(0.2 * w), int(0.2 * h)
+        corners = np.zeros_like(m)
+        corners[:rh, :rw] = corners[:rh, -rw:] = corners[-rh:, :rw] = corners[-rh:, -rw:] = True
+        inside = (m & corners).sum() / max(1, m.sum())
+        whole, part = whole + int(inside == 1), part + int(0 < inside < 1)
+    return {"in_corner_wholly": whole, "in_corner_partly": part}
+
+
+def _mark_matches(db: Path, marks: dict[str, np.ndarray]) -> dict[str, int]:
+    import sqlite3
+
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    try:
+        names = dict(con.execute("select image_id, name from images"))
+        kps = {}
+        for iid, n, cols, data in con.execute("select image_id, rows, cols, data from keypoints"):
+            kps[iid] = np.frombuffer(data, np.float32).reshape(n, cols)[:, :2] if n else np.zeros((0, 2))
+
+        def on_mark(iid: int, idx: np.ndarray) -> np.ndarray:
+            m = marks[Path(names[iid]).name]
+            xy = kps[iid][idx].astype(int)
+            return m[np.clip(xy[:, 1], 0, m.shape[0] - 1), np.clip(xy[:, 0], 0, m.shape[1] - 1)]
+
+        mark = scene = majority = pairs = 0
+        for pid, n, cols, data in con.execute("select pair_id, rows, cols, data from matches"):
+            if not n:
+                continue
+            i2 = pid % 2147483647
+            i1 = (pid - i2) // 2147483647
+            mm = np.frombuffer(data, np.uint32).reshape(n, cols)
+            both = on_mark(i1, mm[:, 0]) & on_mark(i2, mm[:, 1])
+            mark, scene, pairs = mark + int(both.sum()), scene + int((~both).sum()), pairs + 1
+            majority += int(both.sum() > (~both).sum())
+    finally:
+        con.close()
+    return {"pairs": pairs, "mark_matches": mark, "scene_matches": scene, "pairs_mark_majority": majority}
+
+
 # ---- what per-photo placement costs -------------------------------------------------------------------
 def speed(args: argparse.Namespace) -> None:
     """poison_file with the per-photo default against the same spec in one fixed corner, interleaved
@@ -391,6 +474,25 @@ def _rest(lines: list[str]) -> None:
             cells = (r["file"], r["per_photo_s"], r["corner_s"], r["ratio"], r["repeat"])
             lines.append("| " + " | ".join(str(c) for c in cells) + " |")
         lines.append("")
+    found = _load(WORK / "matches.json")
+    if found:
+        lines += ["## (e) The masked attacker: where the marks sit, what survives the corner mask", "",
+                  "`python -m bench.bench_placement matches`, on (c)'s files: marks wholly / partly",
+                  "inside the four 20% corners; raw SIFT matches (COLMAP's feature cache, before geometric",
+                  "verification) joining mark pixels in both views, without / with the corner mask; pairs",
+                  "where they outnumber the scene's.", "",
+                  "| set | round | marks in a corner (wholly / partly) | mark matches | kept under the mask "
+                  "| pairs mark > scene (unmasked / masked) |", "|---|---|---|---|---|---|"]  # fmt: skip
+        for r in found:
+            u, m = r.get("unmasked", {}), r.get("masked", {})
+            kept = f"{m.get('mark_matches', 0) / max(1, u.get('mark_matches', 0)):.0%}" if u and m else "-"
+            lines.append(
+                f"| {r['set']} | {r['round']} | {r['in_corner_wholly']} / {r['in_corner_partly']} "
+                f"| {u.get('mark_matches', '-')} | {m.get('mark_matches', '-')} ({kept}) "
+                f"| {u.get('pairs_mark_majority', '-')} of {u.get('pairs', '-')} / "
+                f"{m.get('pairs_mark_majority', '-')} of {m.get('pairs', '-')} |"
+            )
+        lines.append("")
     runs = _load(WORK / "colmap.json")
     if runs:
         lines += [
@@ -427,11 +529,14 @@ def main(argv: list[str] | None = None) -> None:
     c.add_argument("--seeds", default="0")
     c.add_argument("--round", type=int, default=2, help="placement round (1: issue 25's first, kept)")
     c.add_argument("--mark-text", default="", help="the creator's text as the mark (the default's lanes)")
+    m = sub.add_parser("matches")
+    m.add_argument("--sets", default="dtu,lego")
     sp = sub.add_parser("speed")
     sp.add_argument("--repeat", type=int, default=7)
     args = parser.parse_args(argv)
     WORK.mkdir(parents=True, exist_ok=True)
-    {"touch": touch, "colmap": colmap, "speed": speed}[args.part](args)
+    {"touch": touch, "colmap": colmap, "speed": speed, "matches": matches}[args.part](args)
+    write_markdown()
 
 
 if __name__ == "__main__":
