@@ -302,6 +302,37 @@ def _load(path: Path) -> list[dict[str, Any]]:
     return json.loads(path.read_text()) if path.exists() else []
 
 
+# ---- (f) the creator's own mark: its picture ---------------------------------------------------------
+TEXT_PICTURE = ROOT / "bench" / "results" / "placement_mark_text.png"
+
+
+def text_picture(args: argparse.Namespace) -> None:
+    """One lego view with the creator's text as the mark (as (c) measured it): the photo, and its two
+    lanes enlarged 3x (nearest neighbour), side by side."""
+    from poisoner.formats import poison_file
+    from poisoner.ladder import default_spec
+
+    spec = default_spec().replace(mark_text=args.mark_text)
+    src = SHARED / "nerf_synthetic_lego" / "train" / "r_3.png"
+    folder = WORK / "text-picture"
+    folder.mkdir(parents=True, exist_ok=True)
+    with Image.open(src) as im:
+        rgba = im.convert("RGBA")
+    white = Image.alpha_composite(Image.new("RGBA", rgba.size, (255, 255, 255, 255)), rgba).convert("RGB")
+    white.save(folder / "r_3.png")
+    poison_file(folder / "r_3.png", folder / "out.png", spec)
+    a, b = shown_rgb(folder / "r_3.png"), shown_rgb(folder / "out.png")
+    ys, xs = np.nonzero(np.any(a != b, axis=2))
+    x0, y0, x1, y1 = xs.min() - 8, ys.min() - 8, xs.max() + 9, ys.max() + 9
+    zoom = Image.fromarray(b[y0:y1, x0:x1]).resize(((x1 - x0) * 3, (y1 - y0) * 3), Image.Resampling.NEAREST)
+    photo = Image.fromarray(b)
+    canvas = Image.new("RGB", (photo.width + 16 + zoom.width, max(photo.height, zoom.height)), (32, 32, 32))
+    canvas.paste(photo, (0, 0))
+    canvas.paste(zoom, (photo.width + 16, 0))
+    canvas.save(TEXT_PICTURE, optimize=True)
+    print(f"wrote {TEXT_PICTURE}")
+
+
 # ---- (e) the masked attacker: where the marks sit, and how many of their matches survive the mask -------
 def matches(args: argparse.Namespace) -> None:
     """Per round, from (c)'s files: marks wholly / partly inside the four 20% corners, and the raw SIFT
@@ -531,11 +562,15 @@ def main(argv: list[str] | None = None) -> None:
     c.add_argument("--mark-text", default="", help="the creator's text as the mark (the default's lanes)")
     m = sub.add_parser("matches")
     m.add_argument("--sets", default="dtu,lego")
+    tp = sub.add_parser("text-picture")
+    tp.add_argument("--mark-text", default="© Ana 2026")
     sp = sub.add_parser("speed")
     sp.add_argument("--repeat", type=int, default=7)
     args = parser.parse_args(argv)
     WORK.mkdir(parents=True, exist_ok=True)
-    {"touch": touch, "colmap": colmap, "speed": speed, "matches": matches}[args.part](args)
+    parts = {"touch": touch, "colmap": colmap, "speed": speed, "matches": matches}
+    parts["text-picture"] = text_picture
+    parts[args.part](args)
     write_markdown()
 
 
