@@ -517,11 +517,14 @@ def place_on_photo(
     subject: np.ndarray | None = None,
     *,
     index: float | None = None,
+    split: bool = True,
 ) -> tuple[PatchPlacement, MarkPlace]:
     """A per-photo spec's placement on one stored width x height photo, in stored pixels, and where
     it shows. detail / subject: display-oriented thumbnails (True = detail / subject); detail None:
-    nothing to judge on (the preferred anchor). The mark is laid out in display space (its lanes
-    slide right and down as the photo is shown) and turned back with the photo (PatchPlacement.turn)."""
+    nothing to judge on (the preferred anchor). split False: the lanes stay stacked (a video's
+    keyframes: one anchor glides between them for both lanes). The mark is laid out in display space
+    (its lanes slide right and down as the photo is shown) and turned back with the photo
+    (PatchPlacement.turn)."""
     o = orientation_of(orientation)
     dw, dh = display_size(width, height, o)
     preferred = spec.auto_anchor(dw, dh)
@@ -536,7 +539,8 @@ def place_on_photo(
             source = "masks" if spot.free else "no-free-masks"
         else:
             source = "estimated" if spot.free else "no-plain"
-        lanes = None if spot.plain else _split_lanes(spec, (dw, dh), zero, spot, detail, subject, preferred)
+        stacked = spot.plain or not split
+        lanes = None if stacked else _split_lanes(spec, (dw, dh), zero, spot, detail, subject, preferred)
         if lanes is not None:
             return _placed(spec, (width, height), o, image_key, index, lanes, subject is not None)
     shown = spec.resolve(dw, dh, image_key, index=index, anchor=(spot.x, spot.y))

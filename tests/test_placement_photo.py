@@ -388,3 +388,18 @@ def test_split_lanes_keep_their_textures_and_move_in_parallel_by_different_amoun
     dx, dy = spec.slide_direction
     assert all(mx * dy == my * dx for mx, my in moves)  # both parallel to the slide
     assert lanes1[0][0] >= 300 and lanes1[1][1] >= 440  # each at its own anchor
+
+
+def test_a_video_keyframe_keeps_its_lanes_stacked(tmp_path: Path) -> None:
+    """split=False (videos: one anchor glides between keyframes for both lanes): the two pockets that
+    split a photo's lanes give one stacked mark there, said not free."""
+    from poisoner.subject import display_detail
+
+    src = tmp_path / "v_5.png"
+    two_pockets(src)
+    detail, _ = display_detail(src.read_bytes())
+    split, place = place_on_photo(SPEC, 800, 600, "v_5.png", 1, detail)
+    stacked, kept = place_on_photo(SPEC, 800, 600, "v_5.png", 1, detail, split=False)
+    assert place.source == "estimated-split" and kept.source == "no-plain" and not kept.free
+    assert stacked == SPEC.resolve(800, 600, "v_5.png", anchor=kept.anchor)  # the stacked layout
+    assert split.parts != stacked.parts
