@@ -14,7 +14,13 @@ as lossless PNG so that only the orientation differs: judged as shown).
 (b) Visibility of the same files: changed area and FLIP at display size (verifier.visibility).
 (d) A picture of three crops with their marks: bench/results/placement_dtu_crops.png.
 (c) Cameras within 5 deg of the clean solution, the default design written by poison_file (per-photo
-placement, no masks), under ppd verify's profiles (verifier.sfm.profile_sfm_settings), per COLMAP seed.
+placement, no masks), under ppd verify's profiles (verifier.sfm.profile_sfm_settings), per COLMAP seed;
+`--round` names the placement rule's round (each its own files), `--mark-text` the creator's text as
+the mark, `--sets dtu-full` dtu_scan37 at its full 1600x1200.
+Round 2 (issue 25's second round) adds: `lego-fill` to (a), a subject-filling capture that is not dtu
+(lego cropped to 55% around the model); `matches` (e): where (c)'s marks sit against the masked
+attacker's corners and how many of their raw matches survive the mask; `text-picture` (f): the
+creator's text as the mark on one lego view (bench/results/placement_mark_text.png).
 
 Results: bench/results/placement.md (rewritten from WORK/*.json after each part).
 """
