@@ -61,6 +61,37 @@ def _noise(sigma: float) -> Transform:
     return add
 
 
+def _subject_fill(keep: float) -> Transform:
+    """Issue 25: the subject filling the frame: `keep` of the frame around the bounding box of the
+    pixels that are not the white backdrop (an object shot close up)."""
+
+    def crop(im: Image.Image) -> Image.Image:
+        fg = np.asarray(im.convert("L")) < 250
+        ys, xs = np.nonzero(fg)
+        cx, cy = (xs.min() + xs.max()) / 2, (ys.min() + ys.max()) / 2
+        cw, ch = round(keep * im.width), round(keep * im.height)
+        x0 = int(min(max(round(cx - cw / 2), 0), im.width - cw))
+        y0 = int(min(max(round(cy - ch / 2), 0), im.height - ch))
+        return im.crop((x0, y0, x0 + cw, y0 + ch))
+
+    return crop
+
+
+def _open_sky(share: float) -> Transform:
+    """Issue 25: a façade under open sky: the top `share` of the frame replaced by a smooth sky
+    (a vertical blue gradient, no texture), the façade below as photographed."""
+
+    def sky(im: Image.Image) -> Image.Image:
+        arr = np.array(im.convert("RGB"))
+        rows = round(share * arr.shape[0])
+        t = np.linspace(0, 1, rows)[:, None]
+        top, horizon = np.array([70, 120, 200]), np.array([170, 200, 235])
+        arr[:rows] = (top * (1 - t) + horizon * t)[:, None, :].round().astype(np.uint8)
+        return Image.fromarray(arr)
+
+    return sky
+
+
 def _marked(name: str) -> Transform:
     """The picture as `ppd poison` leaves it: what the hint reads when it runs after poisoning."""
     from poisoner.blend import poison_array
@@ -80,6 +111,7 @@ VARIANTS: dict[str, list[tuple[str, Transform | None, str]]] = {
         ("sensor noise sigma 8 levels", _noise(8.0), "png"),
         ("JPEG q85", None, "jpg"), ("after ppd's default mark", _marked("default"), "png"),
         ("after the watermark mark", _marked("watermark"), "png"),
+        ("subject filling the frame (55% around it)", _subject_fill(0.55), "png"),
     ],
     "dtu_scan37": [
         ("reduced to 800 px", _width(800), "png"), ("as published (1600 px)", None, "png"),
@@ -87,11 +119,14 @@ VARIANTS: dict[str, list[tuple[str, Transform | None, str]]] = {
         ("lower half (the support)", _crop(0.0, 0.5, 1.0, 1.0), "png"),
         ("upper half", _crop(0.0, 0.0, 1.0, 0.5), "png"), ("JPEG q85", None, "jpg"),
         ("after the watermark mark", _marked("watermark"), "png"),
+        ("subject filling the frame (55% around it)", _subject_fill(0.55), "png"),
     ],
     "fountain-P11": [
         ("as published (3072 px)", None, "jpg"), ("reduced to 1600 px", _width(1600), "jpg"),
         ("reduced to 800 px", _width(800), "jpg"), ("centre crop 50%", _crop(0.25, 0.25, 0.75, 0.75), "jpg"),
         ("corner crop 40%", _crop(0.0, 0.0, 0.4, 0.4), "jpg"),
+        ("façade under open sky (top 35% sky)", _open_sky(0.35), "jpg"),
+        ("façade under open sky (top 50% sky)", _open_sky(0.5), "jpg"),
     ],
 }  # fmt: skip
 

@@ -4,7 +4,7 @@
 (src -> dst) for each pair in a bounded pool of worker processes: at most `workers` processes and
 at most 2 x workers files in flight, so memory stays at workers x one file's peak. Each file is
 independent and `poison_file` is deterministic, so the bytes written do not depend on the number
-of workers or the order of completion (tests/test_batch.py checks byte identity with serial runs).
+of workers or the order of completion (tests/poisoner/test_batch.py checks byte identity with serial runs).
 
 Workers come from a "forkserver" (Linux): a fresh, single-threaded process that has imported the
 poisoner once and forks a worker per pool slot, so a caller with threads (the daemon) never forks

@@ -87,7 +87,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 # JPEG: decode only a lossless crop around the patch's MCUs (poisoner.jpeg.decode_box) instead of
-# the whole picture. Same output bytes either way (tests/test_jpeg_region.py); False: whole decode.
+# the whole picture. Same output bytes either way (tests/poisoner/test_jpeg_region.py); False: whole decode.
 JPEG_REGION_DECODE = True
 
 ORIENTATION_POLICY = "patch placed in stored pixels (EXIF orientation ignored, tag kept)"

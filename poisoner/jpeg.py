@@ -327,7 +327,7 @@ def decode_box(
     """The decoded pixels of the MCU-aligned `box`, without decoding the rest of the picture:
     `jpegtran -crop` losslessly cuts crop_box(box) out (its coefficients copied, entropy
     decoding only), Pillow decodes that small file. Equal to np.asarray(full decode)[box]
-    (tests/test_jpeg_region.py). Raises SpliceUnavailable (the caller decodes everything)."""
+    (tests/poisoner/test_jpeg_region.py). Raises SpliceUnavailable (the caller decodes everything)."""
     binary = _check_splice_layout(src, layout)
     if box != mcu_box(box, layout):
         raise ValueError(f"box {box} is not MCU-aligned")
@@ -451,7 +451,7 @@ def patch_in_one_pass(
     lossless crop of the box + one MCU ring is written (small) and decoded by Pillow, and the
     whole picture is written once with the box's blocks swapped in; every other block, every
     marker segment and the quantisation tables are copied. Same bytes as the jpegtran path
-    (tests/test_jpeg_turbo.py). keep_mcus (the box's MCU rows x MCU columns, True = keep): those
+    (tests/poisoner/test_jpeg_turbo.py). keep_mcus (the box's MCU rows x MCU columns, True = keep): those
     MCUs keep the source's blocks too (pixels the patch must not touch, e.g. a subject mask; the
     jpegtran path gets them back with keep_source_mcus). Raises SpliceUnavailable when it cannot be
     done here."""

@@ -115,8 +115,10 @@ def keep_out_mask(
 
 # EXIF orientation -> the one that undoes it (5, 7 and the flips are their own inverse)
 INVERSE_ORIENTATION = {1: 1, 2: 2, 3: 3, 4: 4, 5: 5, 6: 8, 7: 7, 8: 6}
-PLAIN_SHARE = 0.02  # a footprint with at most this share of detailed thumbnail pixels is plain
-NO_PLAIN_SHARE = 0.25  # the best footprint still this detailed: no plain region (likely on the subject)
+# A footprint with at most this much detail cost is plain: all plain places are equally good, so the
+# preferred anchor wins (round 2: shares of 0.01 against 0.00 had moved 11 of dtu_scan37's 25 marks off
+# their shared anchor, breaking the lanes' common motion between those photos).
+PLAIN_SHARE = 0.02
 COST_STEP = 0.02  # detail shares within one step are equally plain: the preferred anchor decides
 GRID = 24  # candidate anchors per frame side (the stride is the shorter side / GRID)
 MARGIN = 0.03  # of the shorter side: the footprint is judged grown by this much ("away from")
@@ -124,6 +126,9 @@ MARGIN = 0.03  # of the shorter side: the footprint is judged grown by this much
 # highlight); the frame's border band rarely is. A footprint d (fraction of the shorter side) from
 # the nearest edge costs EDGE_WEIGHT * d, as if that share of it held detail.
 EDGE_WEIGHT = 0.5
+# Round 2 (the masked attacker): the four corner regions (this share of the width and of the height)
+# are what the `masked` profile removes; a plain place off them wins over a plain corner.
+CORNER_REGION = 0.2
 
 
 def orientation_of(value: object) -> int:
@@ -203,6 +208,7 @@ class Spot:
     detail: float
     subject: float | None
     free: bool
+    plain: bool = True  # plain with the margin (False: the fallback without it, or nowhere plain)
 
 
 def _axis(lo: int, hi: int, preferred: int, stride: int) -> np.ndarray:
@@ -222,6 +228,37 @@ def _rect_sums(
     return integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
 
 
+def _line(
+    preferred: tuple[int, int], direction: tuple[int, int], xr: tuple[int, int], yr: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every whole-step anchor on the line through `preferred` along `direction` (either way) whose
+    x and y stay within the ranges (inclusive)."""
+    dx, dy = direction
+    reach = max(xr[1] - xr[0], yr[1] - yr[0]) // max(1, min(abs(dx) or 1, abs(dy) or 1)) + 1
+    u = np.arange(-reach, reach + 1)
+    lx, ly = preferred[0] + dx * u, preferred[1] + dy * u
+    ok = (lx >= xr[0]) & (lx <= xr[1]) & (ly >= yr[0]) & (ly <= yr[1])
+    return lx[ok].astype(np.int64), ly[ok].astype(np.int64)
+
+
+def _in_corners(
+    ax: np.ndarray,
+    ay: np.ndarray,
+    rects: list[tuple[int, int, int, int]],
+    size: tuple[int, int],
+    region: float,
+) -> np.ndarray:
+    """1 where any part of the mark at anchor (ax, ay) overlaps one of the four corner regions."""
+    w, h = size
+    rw, rh = int(region * w), int(region * h)
+    hit = np.zeros(ax.shape, dtype=bool)
+    for x0, y0, x1, y1 in rects:
+        left, right = ax + x0 < rw, ax + x1 > w - rw
+        top, bottom = ay + y0 < rh, ay + y1 > h - rh
+        hit |= (left | right) & (top | bottom)
+    return hit.astype(np.int64)
+
+
 def choose_spot(
     detail: np.ndarray,
     subject: np.ndarray | None,
@@ -229,12 +266,18 @@ def choose_spot(
     rects: list[tuple[int, int, int, int]],
     preferred: tuple[int, int],
     bounds: tuple[int, int, int, int] | None = None,
+    direction: tuple[int, int] = (1, 0),
+    corner_region: float = CORNER_REGION,
 ) -> Spot:
     """The anchor for a mark whose parts cover `rects` (display px, relative to the anchor) in a
     frame of `size` (w, h) display px: the plainest place, judged on `detail` (a thumbnail of the
     frame, True/1 = image detail) and `subject` (same grid, True = subject; None: no mask).
 
-    Order: no subject pixel first (masks), then the least detail (in COST_STEP steps), then the
+    Order: no subject pixel first (masks), then the least detail (every footprint up to PLAIN_SHARE
+    equally plain, then COST_STEP steps), then off the four corner regions (what the masked attacker
+    removes), then on the line through `preferred` along `direction` (the mark's own slide direction:
+    two photos whose anchors differ along it still show the lanes moving in parallel by different
+    amounts, one consistent phantom geometry; any other shift breaks it for that pair), then the
     nearest to `preferred`, then top-left first: deterministic for a given picture. bounds
     (relative to the anchor, default: the rects' union) must lie inside the frame."""
     w, h = size
@@ -250,38 +293,158 @@ def choose_spot(
     ys = _axis(max(0, -ry0), h - ry1, preferred[1], stride)
     if xs.size == 0 or ys.size == 0:
         raise ValueError(f"the mark ({rx1 - rx0}x{ry1 - ry0} px) does not fit a {w}x{h} frame")
-    ax, ay = (a.ravel() for a in np.meshgrid(xs, ys))
+    gx, gy = (a.ravel() for a in np.meshgrid(xs, ys))
+    lx, ly = _line(preferred, direction, (max(0, -rx0), w - rx1), (max(0, -ry0), h - ry1))
+    ax, ay = np.concatenate([gx, lx]), np.concatenate([gy, ly])
 
-    def integral(m: np.ndarray) -> np.ndarray:
-        out = np.zeros((th + 1, tw + 1))
-        out[1:, 1:] = np.asarray(m, dtype=np.float64).cumsum(0).cumsum(1)
-        return out
-
-    maps = {"detail": integral(detail)}
+    maps = {"detail": _integral(detail)}
     if subject is not None:
-        maps["subject"] = integral(subject)
+        maps["subject"] = _integral(subject)
+    inward = np.minimum.reduce([ax + rx0, ay + ry0, w - (ax + rx1), h - (ay + ry1)]) / min(w, h)
+    cornered = _in_corners(ax, ay, rects, (w, h), corner_region)
+    dx, dy = direction
+    off_line = np.abs((ax - preferred[0]) * dy - (ay - preferred[1]) * dx)  # x |direction|: same order
+    distance = (ax - preferred[0]) ** 2 + (ay - preferred[1]) ** 2
+
+    core, _ = _shares(maps, rects, ax, ay, 0, (sx, sy))
+
+    def best_at(grow: int) -> tuple[int, np.ndarray, np.ndarray, bool]:
+        share, on_subject = _shares(maps, rects, ax, ay, grow, (sx, sy))
+        cost = share + EDGE_WEIGHT * np.maximum(inward, 0)
+        # plain: a little detail in the margin, none under the squares themselves (a plain-looking
+        # place whose squares reach a subject's edge is not plain)
+        steps = np.where((cost <= PLAIN_SHARE) & (core == 0), 0, np.ceil(cost / COST_STEP) + 1)
+        # lexsort: the last key is the primary one
+        order = np.lexsort((ax, ay, distance, off_line, cornered, steps, np.round(on_subject, 6)))
+        best = int(order[0])
+        return best, share, on_subject, bool(on_subject[best] == 0 and steps[best] == 0)
+
+    best, share, on_subject, plain = best_at(margin)
+    if not plain:
+        # Nowhere plain with the margin (a subject filling the frame, a small backdrop): the place
+        # where the squares themselves are plainest, even close to the subject, beats one on it.
+        best, share, on_subject, _ = best_at(0)
+    subject_share = float(on_subject[best]) if subject is not None else None
+    # without masks, only a place plain with its margin is called free: the fallback's low detail
+    # may be a plain part of the subject (a stone's smooth face, a ruler), so ppd says so
+    free = subject_share == 0.0 if subject_share is not None else plain
+    return Spot(int(ax[best]), int(ay[best]), float(share[best]), subject_share, free, plain)
+
+
+SPLIT_CANDIDATES = 80  # best places kept per square when each square looks for its own
+
+
+def _badness(
+    maps: dict[str, np.ndarray],
+    rects: list[tuple[int, int, int, int]],
+    ax: np.ndarray,
+    ay: np.ndarray,
+    margin: int,
+    scale: tuple[float, float],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(badness, core detail share, core subject share) of a mark's parts at each anchor, one number
+    in choose_spot's two-pass order: 0 = no subject and plain with the margin; then by the subject
+    and detail under the parts themselves."""
+    share_m, subject_m = _shares(maps, rects, ax, ay, margin, scale)
+    core, subject_c = _shares(maps, rects, ax, ay, 0, scale)
+    plain = (share_m <= PLAIN_SHARE) & (core == 0) & (subject_m == 0)
+    fallback = 1 + (subject_c > 0) * 1000 + np.ceil(np.round(core, 6) / COST_STEP)
+    return np.where(plain, 0, fallback), core, subject_c
+
+
+def choose_split(
+    detail: np.ndarray,
+    subject: np.ndarray | None,
+    size: tuple[int, int],
+    lane_rects: list[tuple[int, int, int, int]],
+    preferred: list[tuple[int, int]],
+    direction: tuple[int, int] = (1, 0),
+    corner_region: float = CORNER_REGION,
+) -> tuple[list[Spot], float] | None:
+    """Each lane's square in its own place (round 2: a subject filling the frame leaves plain places
+    too small for the stacked lanes): lane k's square covers lane_rects[k] relative to its anchor,
+    its preferred anchor preferred[k] (the stacked layout's), candidates on its own line along
+    `direction` first, as in choose_spot, so lanes that split stay on the lines the stacked lanes
+    move along. The pair is the best of each square's SPLIT_CANDIDATES places that do not overlap
+    (a sixth of a square apart) and fit one square box inside the frame, worst square first.
+    Returns (spots, worst badness) or None when no pair fits."""
+    w, h = size
+    th, tw = detail.shape
+    scale = (tw / w, th / h)
+    margin = max(1, round(MARGIN * min(w, h)))
+    stride = max(1, min(w, h) // GRID)
+    maps = {"detail": _integral(detail)}
+    if subject is not None:
+        maps["subject"] = _integral(subject)
+    picks = []
+    for (x0, y0, x1, y1), pref in zip(lane_rects, preferred, strict=True):
+        xr, yr = (max(0, -x0), w - x1), (max(0, -y0), h - y1)
+        xs, ys = _axis(*xr, pref[0], stride), _axis(*yr, pref[1], stride)
+        if xs.size == 0 or ys.size == 0:
+            return None
+        gx, gy = (a.ravel() for a in np.meshgrid(xs, ys))
+        lx, ly = _line(pref, direction, xr, yr)
+        ax, ay = np.concatenate([gx, lx]), np.concatenate([gy, ly])
+        bad, core, subj = _badness(maps, [(x0, y0, x1, y1)], ax, ay, margin, scale)
+        cornered = _in_corners(ax, ay, [(x0, y0, x1, y1)], size, corner_region)
+        off_line = np.abs((ax - pref[0]) * direction[1] - (ay - pref[1]) * direction[0])
+        distance = (ax - pref[0]) ** 2 + (ay - pref[1]) ** 2
+        order = np.lexsort((ax, ay, distance, off_line, cornered, bad))[:SPLIT_CANDIDATES]
+        o = order
+        picks.append((ax[o] + x0, ay[o] + y0, bad[o], core[o], subj[o], ax[o], ay[o]))
+    (px, py, pb, pc, ps, pax, pay), (qx, qy, qb, qc, qs, qax, qay) = picks[0], picks[1]
+    side = lane_rects[0][2] - lane_rects[0][0]
+    gap = max(1, side // 6)
+    i, j = np.meshgrid(np.arange(px.size), np.arange(qx.size), indexing="ij")
+    apart = (np.abs(px[i] - qx[j]) >= side + gap) | (np.abs(py[i] - qy[j]) >= side + gap)
+    box = np.maximum(np.abs(px[i] - qx[j]), np.abs(py[i] - qy[j])) + side
+    ok = apart & (box <= min(w, h))
+    if not ok.any():
+        return None
+    worst, total, rank = np.maximum(pb[i], qb[j]), pb[i] + qb[j], i + j
+    flat = np.lexsort((rank.ravel(), total.ravel(), worst.ravel(), ~ok.ravel()))
+    a, b = np.unravel_index(flat[0], ok.shape)
+    spots = []
+    for (xx, yy, cc, ss, bb), k in (((pax, pay, pc, ps, pb), a), ((qax, qay, qc, qs, qb), b)):
+        subject_share = float(ss[k]) if subject is not None else None
+        free = subject_share == 0.0 if subject_share is not None else bool(bb[k] == 0)
+        spots.append(Spot(int(xx[k]), int(yy[k]), float(cc[k]), subject_share, free, bool(worst[a, b] == 0)))
+    return spots, float(worst[a, b])
+
+
+def _integral(m: np.ndarray) -> np.ndarray:
+    """A map's integral image, one row and column of zeros first (for _rect_sums)."""
+    th, tw = m.shape
+    out = np.zeros((th + 1, tw + 1))
+    out[1:, 1:] = np.asarray(m, dtype=np.float64).cumsum(0).cumsum(1)
+    return out
+
+
+def _shares(
+    maps: dict[str, np.ndarray],
+    rects: list[tuple[int, int, int, int]],
+    ax: np.ndarray,
+    ay: np.ndarray,
+    grow: int,
+    scale: tuple[float, float],
+) -> tuple[np.ndarray, np.ndarray]:
+    """(detail share, subject share) of the mark's parts at each anchor, each part grown by `grow`
+    px, counted in thumbnail cells (outward); the subject share is 0 without a subject map."""
+    sx, sy = scale
+    th, tw = (n - 1 for n in maps["detail"].shape)
     sums = {k: np.zeros(ax.shape) for k in maps}
     area = np.zeros(ax.shape)
-    for x0, y0, x1, y1 in rects:  # each part grown by the margin, in thumbnail cells (outward)
-        cx0 = np.clip(np.floor((ax + x0 - margin) * sx), 0, tw).astype(np.int64)
-        cy0 = np.clip(np.floor((ay + y0 - margin) * sy), 0, th).astype(np.int64)
-        cx1 = np.clip(np.ceil((ax + x1 + margin) * sx), 0, tw).astype(np.int64)
-        cy1 = np.clip(np.ceil((ay + y1 + margin) * sy), 0, th).astype(np.int64)
+    for x0, y0, x1, y1 in rects:
+        cx0 = np.clip(np.floor((ax + x0 - grow) * sx), 0, tw).astype(np.int64)
+        cy0 = np.clip(np.floor((ay + y0 - grow) * sy), 0, th).astype(np.int64)
+        cx1 = np.clip(np.ceil((ax + x1 + grow) * sx), 0, tw).astype(np.int64)
+        cy1 = np.clip(np.ceil((ay + y1 + grow) * sy), 0, th).astype(np.int64)
         area += np.maximum(cx1 - cx0, 0) * np.maximum(cy1 - cy0, 0)
         for k, m in maps.items():
             sums[k] += _rect_sums(m, cx0, cy0, cx1, cy1)
     area = np.maximum(area, 1)
-    share = sums["detail"] / area
-    on_subject = sums["subject"] / area if subject is not None else np.zeros(ax.shape)
-    inward = np.minimum.reduce([ax + rx0, ay + ry0, w - (ax + rx1), h - (ay + ry1)]) / min(w, h)
-    cost = share + EDGE_WEIGHT * np.maximum(inward, 0)
-    distance = (ax - preferred[0]) ** 2 + (ay - preferred[1]) ** 2
-    # lexsort: the last key is the primary one
-    order = np.lexsort((ax, ay, distance, np.round(cost / COST_STEP), np.round(on_subject, 6)))
-    best = int(order[0])
-    subject_share = float(on_subject[best]) if subject is not None else None
-    free = subject_share == 0.0 if subject_share is not None else float(share[best]) <= NO_PLAIN_SHARE
-    return Spot(int(ax[best]), int(ay[best]), float(share[best]), subject_share, free)
+    on_subject = sums["subject"] / area if "subject" in sums else np.zeros(ax.shape)
+    return sums["detail"] / area, on_subject
 
 
 SOURCE_WORDS = {
@@ -291,6 +454,8 @@ SOURCE_WORDS = {
     "the mask's pixels left unwritten",
     "no-plain": "no plain region: the least detailed place, likely on the subject",
     "preferred": "the default place (nothing to judge on)",
+    "masks-split": "from the subject mask: no place holds both squares, each in its own, no subject pixel",
+    "estimated-split": "no plain place holds both squares: each in its own plainest place",
 }
 
 
@@ -352,11 +517,14 @@ def place_on_photo(
     subject: np.ndarray | None = None,
     *,
     index: float | None = None,
+    split: bool = True,
 ) -> tuple[PatchPlacement, MarkPlace]:
     """A per-photo spec's placement on one stored width x height photo, in stored pixels, and where
     it shows. detail / subject: display-oriented thumbnails (True = detail / subject); detail None:
-    nothing to judge on (the preferred anchor). The mark is laid out in display space (its lanes
-    slide right and down as the photo is shown) and turned back with the photo (PatchPlacement.turn)."""
+    nothing to judge on (the preferred anchor). split False: the lanes stay stacked (a video's
+    keyframes: one anchor glides between them for both lanes). The mark is laid out in display space
+    (its lanes slide right and down as the photo is shown) and turned back with the photo
+    (PatchPlacement.turn)."""
     o = orientation_of(orientation)
     dw, dh = display_size(width, height, o)
     preferred = spec.auto_anchor(dw, dh)
@@ -365,15 +533,75 @@ def place_on_photo(
         source = "preferred"
     else:
         zero = spec.resolve(dw, dh, image_key, index=index, anchor=(0, 0))
-        spot = choose_spot(detail, subject, (dw, dh), _parts(zero), preferred, zero.box)
+        spot = choose_spot(detail, subject, (dw, dh), _parts(zero), preferred, zero.box,
+                           spec.slide_direction, spec.corner_region)  # fmt: skip
         if subject is not None:
             source = "masks" if spot.free else "no-free-masks"
         else:
             source = "estimated" if spot.free else "no-plain"
+        stacked = spot.plain or not split
+        lanes = None if stacked else _split_lanes(spec, (dw, dh), zero, spot, detail, subject, preferred)
+        if lanes is not None:
+            return _placed(spec, (width, height), o, image_key, index, lanes, subject is not None)
     shown = spec.resolve(dw, dh, image_key, index=index, anchor=(spot.x, spot.y))
     x, y = turn_square(shown.x, shown.y, shown.size, INVERSE_ORIENTATION[o], dw, dh)
     stored = dataclasses.replace(shown, x=x, y=y, turn=o)
     place = MarkPlace(shown.box, (dw, dh), source, spot.free, spot.detail, spot.subject, o, (spot.x, spot.y))
+    return stored, place
+
+
+def _split_lanes(
+    spec: PatchSpec,
+    frame: tuple[int, int],
+    zero: PatchPlacement,
+    spot: Spot,
+    detail: np.ndarray,
+    subject: np.ndarray | None,
+    preferred: tuple[int, int],
+) -> list[Spot] | None:
+    """Each lane's own place, when that is better than the best stacked place (None otherwise)."""
+    parts = _parts(zero)
+    if len(parts) < 2:
+        return None
+    base = [k * round(zero.lane_size * 7 / 6) for k in range(len(parts))]  # lane k's row in the stack
+    rects = [(x0, y0 - b, x1, y1 - b) for (x0, y0, x1, y1), b in zip(parts, base, strict=True)]
+    prefs = [(preferred[0], preferred[1] + b) for b in base]
+    found = choose_split(detail, subject, frame, rects, prefs, spec.slide_direction, spec.corner_region)
+    if found is None:
+        return None
+    spots, worst = found
+    stacked, _, _ = _badness(
+        {"detail": _integral(detail), **({"subject": _integral(subject)} if subject is not None else {})},
+        parts, np.array([spot.x]), np.array([spot.y]), max(1, round(MARGIN * min(frame))),
+        (detail.shape[1] / frame[0], detail.shape[0] / frame[1]),
+    )  # fmt: skip
+    return spots if worst < float(stacked[0]) else None
+
+
+def _placed(
+    spec: PatchSpec,
+    size: tuple[int, int],
+    o: int,
+    image_key: str | None,
+    index: float | None,
+    lanes: list[Spot],
+    masked: bool,
+) -> tuple[PatchPlacement, MarkPlace]:
+    """The placement and MarkPlace of split lanes (display anchors), turned back to stored pixels."""
+    dw, dh = display_size(*size, o)
+    at = tuple((s.x, s.y) for s in lanes)
+    shown = spec.resolve(dw, dh, image_key, index=index, lanes_at=at)
+    x, y = turn_square(shown.x, shown.y, shown.size, INVERSE_ORIENTATION[o], dw, dh)
+    stored = dataclasses.replace(shown, x=x, y=y, turn=o)
+    free = all(s.free for s in lanes)
+    if masked:
+        source = "masks-split" if free else "no-free-masks"
+        subject: float | None = max(s.subject or 0.0 for s in lanes)
+    else:
+        source = "estimated-split" if free else "no-plain"
+        subject = None
+    detail = max(s.detail for s in lanes)
+    place = MarkPlace(shown.box, (dw, dh), source, free, detail, subject, o, at[0])
     return stored, place
 
 

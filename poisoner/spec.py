@@ -250,6 +250,7 @@ class PatchSpec:
         *,
         index: float | None = None,
         anchor: tuple[int, int] | None = None,
+        lanes_at: tuple[tuple[int, int], ...] | None = None,
     ) -> PatchPlacement:
         """Pixel placement of this spec's patch on a width x height image.
 
@@ -258,6 +259,9 @@ class PatchSpec:
         the point on the path directly instead (videos: a fractional index per frame).
         anchor (position "auto" only): the photo's own anchor, the top-left the mark's path starts
         from (poisoner.placement.place_on_photo); None: auto_anchor(width, height).
+        lanes_at (position "auto", lanes > 1): each lane's own anchor instead (round 2: where no
+        place holds the lanes stacked, each square goes to its own plain place); the box is then
+        the smallest square holding them, inside the frame.
         """
         if self.position == AUTO:
             ax, ay = anchor if anchor is not None else self.auto_anchor(width, height)
@@ -265,7 +269,7 @@ class PatchSpec:
                 raise SpecError(f"anchor ({ax},{ay}) falls outside a {width}x{height} image")
             # the mark's path starts at the anchor and runs right/down, as from a top-left corner
             return self.replace(position="top-left", offset=(int(ax), int(ay))).resolve(
-                width, height, image_key, index=index
+                width, height, image_key, index=index, lanes_at=lanes_at
             )
         size = _resolve_length(self.patch_size, width)
         block = _resolve_length(self.block_size, width)
@@ -279,7 +283,9 @@ class PatchSpec:
         if self.motion in CORNER_MOTIONS:
             return self._resolve_tumble(width, height, size, block, image_key, index)
         if self.lanes > 1:
-            return self._resolve_lanes(width, height, size, block, (dx, dy), image_key, index)
+            return self._resolve_lanes(width, height, size, block, (dx, dy), image_key, index, lanes_at)
+        if lanes_at is not None:
+            raise SpecError("lanes_at needs a mark of several lanes")
         mx, my = self._motion_offset(width, image_key, index)
         if self.position == "center":
             x, y = (width - size) // 2 + dx + mx, (height - size) // 2 + dy + my
@@ -345,9 +351,10 @@ class PatchSpec:
         offset: tuple[int, int],
         image_key: str | None,
         index: float | None,
+        lanes_at: tuple[tuple[int, int], ...] | None = None,
     ) -> PatchPlacement:
         """Several slide marks in one square box anchored at the corner (the box's other pixels
-        are left alone: patch_coverage)."""
+        are left alone: patch_coverage); lanes_at: each lane's own top-left anchor (top-left only)."""
         step = _resolve_length(self.motion_step, width) if self.motion_step != 0 else 0
         span = _resolve_length(self.motion_span, width)
         if index is None:
@@ -356,8 +363,13 @@ class PatchSpec:
         pitch = round(size * 7 / 6)
         left, top = self.position.endswith("left"), self.position.startswith("top")
         lanes = []
+        if lanes_at is not None and (len(lanes_at) != self.lanes or not (left and top)):
+            raise SpecError(f"lanes_at needs {self.lanes} anchors and a top-left position")
         for k in range(self.lanes):
             mx, my = self._slide_offset(index, step * (k + 1), span)
+            if lanes_at is not None:
+                lanes.append((lanes_at[k][0] + mx, lanes_at[k][1] + my))
+                continue
             inward_y = offset[1] + k * pitch + my
             x = offset[0] + mx if left else width - size - offset[0] - mx
             y = inward_y if top else height - size - inward_y
@@ -366,6 +378,8 @@ class PatchSpec:
         x1, y1 = max(x for x, _ in lanes) + size, max(y for _, y in lanes) + size
         side = max(x1 - x0, y1 - y0)
         bx, by = (x0 if left else x1 - side), (y0 if top else y1 - side)
+        if lanes_at is not None:  # split lanes: the square box slides back inside the frame
+            bx, by = max(0, min(bx, width - side)), max(0, min(by, height - side))
         if bx < 0 or by < 0 or bx + side > width or by + side > height:
             raise SpecError(f"{self.lanes} lanes of {size} px do not fit a {width}x{height} image")
         parts = tuple(
@@ -429,12 +443,24 @@ class PatchSpec:
         return (one.size + span, one.size + span)
 
     def auto_anchor(self, width: int, height: int) -> tuple[int, int]:
-        """The preferred anchor of a per-photo mark: its whole path centred along the top edge.
-        Where the top is as plain as anywhere, every photo takes this one, so the lanes move
+        """The preferred anchor of a per-photo mark: its whole path centred across the top of the
+        frame. Where the top is as plain as anywhere, every photo takes this one, so the lanes move
         between photos exactly as in one fixed place; off the four corners, which an attacker
-        who masks corners (the `masked` profile) removes."""
-        ew, _eh = self.path_extent(width, height)
-        return (max(0, (width - ew) // 2), 0)
+        who masks corners (the `masked` profile) removes. A tilted slide's anchor sits as far below
+        the top edge as the slide's line drops from the left corner region to it (20 px on an
+        800 px frame), so that other photos' anchors can move either way along that line
+        (poisoner.placement.choose_spot) without leaving the frame."""
+        ew, eh = self.path_extent(width, height)
+        x = max(0, (width - ew) // 2)
+        if not self.slide_run:
+            return (x, 0)
+        drop = math.ceil(max(0, x - int(self.corner_region * width)) / self.slide_run)
+        return (x, max(0, min(drop, height - eh)))
+
+    @property
+    def slide_direction(self) -> tuple[int, int]:
+        """The direction (whole px) the mark slides along between photos: (slide_run, 1), or along x."""
+        return (self.slide_run, 1) if self.slide_run else (1, 0)
 
     @property
     def moves(self) -> bool:

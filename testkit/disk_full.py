@@ -1,6 +1,6 @@
 """A small real filesystem that fills up (a size-limited tmpfs; root or CAP_SYS_ADMIN), and
-protect_file run on it as the disk runs out and space comes back (tests/test_reliability_diskfull.py,
-tests/test_vault.py)."""
+protect_file run on it as the disk runs out and space comes back
+(tests/reliability/test_reliability_diskfull.py, tests/daemon/store/test_vault.py)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Fuzzing ppd's image readers: small seed files of each format, a byte mutator, and one reader run
-that says 'ok' or 'refused' and lets any other exception through (tests/test_properties.py's
+that says 'ok' or 'refused' and lets any other exception through (tests/poisoner/test_properties.py's
 hypothesis tests and bench/bench_faults.py's long fuzz runs)."""
 
 from __future__ import annotations

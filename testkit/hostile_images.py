@@ -1,7 +1,7 @@
 """Hostile image corpus: tiny files that decode huge (issue 20, row 6).
 
 Every generator writes a real, well-formed file in bounded memory (streamed compression, or a
-header patched onto a bitstream that does not depend on the size). Used by tests/test_limits.py;
+header patched onto a bitstream that does not depend on the size). Used by tests/poisoner/test_limits.py;
 `python -m testkit.hostile_images OUT_DIR` writes the corpus for bench or manual runs.
 """
 

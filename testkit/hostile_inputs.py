@@ -1,4 +1,4 @@
-"""The hostile input corpus dropped into a watched outbox (tests/test_reliability_hostile.py):
+"""The hostile input corpus dropped into a watched outbox (tests/reliability/test_reliability_hostile.py):
 truncated, corrupt and empty media, decompression bombs, odd modes and layouts, huge metadata,
 non-media under media names, hostile file names, links out of the outbox, a FIFO and a folder;
 each with what ppd must do with it. Generated, never downloaded (docs/RELIABILITY.md)."""

@@ -1,6 +1,6 @@
 """SIGKILL loops on `ppd poison` (a real CLI process killed at random instants), two daemons plus a
 CLI on one outbox, and a deleted store (issues 15, 20): bench/bench_kill_loops.py runs them at
-length, tests/test_reliability_kill_loops.py a few rounds. Each returns its figures as a dict."""
+length, tests/reliability/test_reliability_kill_loops.py a few rounds. Each returns its figures as a dict."""
 
 from __future__ import annotations
 

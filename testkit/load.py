@@ -1,5 +1,5 @@
 """The load scenarios on `ppd watch` as a real process (bench/bench_load.py times them at full size,
-tests/test_reliability_crash.py runs a small flood): a flood of files moved in at once, and a
+tests/reliability/test_reliability_crash.py runs a small flood): a flood of files moved in at once, and a
 soak with a steady trickle. Every file must be protected exactly once; RSS is sampled from /proc."""
 
 from __future__ import annotations

@@ -1,5 +1,6 @@
 """Races against protect_file at random instants (issue 20, rows 1 and 3); bench/bench_races.py
-runs them at length, tests/test_pipeline.py a few trials. The scenarios are bench_races' docstring's:
+runs them at length, tests/daemon/protect/test_pipeline.py a few trials. The scenarios are
+bench_races' docstring's:
 a folder or file swapped for a symlink during protection, a new version renamed over the file."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The pure parts of bench/bench_watermark_spread.py (tests/test_bench_watermark_spread.py checks
+"""The pure parts of bench/bench_watermark_spread.py (tests/bench/test_bench_watermark_spread.py checks
 them): crops and resizes that move images and pinhole intrinsics together, and the run summaries
 of its results page."""
 

@@ -1,4 +1,4 @@
-"""The mark designs bench/bench_watermark.py measures (tests/test_watermark_bench_designs.py checks
+"""The mark designs bench/bench_watermark.py measures (tests/bench/test_watermark_bench_designs.py checks
 the claims its results table leans on): the product's named kinds plus issue 14's hypotheses."""
 
 from __future__ import annotations

@@ -110,7 +110,7 @@ def _add_profile_content(
     data.reasons = {name: list(m.get("reasons") or []) for name, m in profiles.items()}
     data.holding = _holding_text(profiles, corner_mark)
     if "masked" in profiles:
-        data.notes.append(f"The verdict counts default, hardened, published and global; {MASKED_MEANING}.")
+        data.notes.append(f"The verdict counts every attacker run, masked included; {MASKED_MEANING}.")
     data.tables.append(profile_table(profiles))
     for name, m in profiles.items():
         fig = trajectory_figure(m.get("model_dir"), name)

@@ -13,7 +13,7 @@ nowhere else). Profiles whose two-view options are the same (default and global)
 verified database (`SfmJob.verified_db`). The masked profile's features are the unmasked features
 filtered by position (`SfmJob.features_from`): COLMAP masks keypoints after extraction, so this
 equals its own extraction with the corner masks (measured: identical keypoints and descriptors on
-lego 40 and in tests/test_sfm_shared.py); only its matching runs again.
+lego 40 and in tests/verifier/test_verify_shared.py); only its matching runs again.
 """
 
 from __future__ import annotations

@@ -162,16 +162,17 @@ def decide(
 _STRENGTH = {Verdict.NOT_PROTECTED: 0, Verdict.WEAK: 1, Verdict.PROTECTED: 2}
 
 # The attackers a dataset's headline verdict counts. `masked` (the attacker masks the four corner
-# regions out of SfM) is run and reported next to them but not counted: it defeats every corner
-# (watermark-like) mark by construction, so counting it would make that whole kind of protection
-# "NOT protected" by definition; it is said on its own line instead (masked_line).
-HEADLINE_PROFILES = ("default", "hardened", "published", "global")
+# regions out of SfM) counts too since issue 25's second round: the default's per-photo mark sits off
+# the corners and held it on lego and dtu_scan37 (800 px, two COLMAP seeds each;
+# bench/results/placement.md). It defeats every corner (watermark-like) mark by construction, so a
+# corner design verified under it is NOT protected, which is the truth; masked_line says why.
+HEADLINE_PROFILES = ("default", "hardened", "published", "global", "masked")
 MASKED_PROFILE = "masked"
 MASKED_MEANING = (
     "masked = an attacker who masks the four corner regions (20% x 20%) out of SfM: it defeats any "
     "corner (watermark-like) mark by construction; the default's per-photo mark sits off the corners "
-    "where a photo allows (held on lego, not on dtu_scan37 in our runs); a roaming mark is meant to "
-    "survive it"
+    "and held it on lego and dtu_scan37 in our runs (800 px, two seeds each; dtu at 1600 px: 8%, one "
+    "seed); a roaming mark is meant to survive it"
 )
 
 
@@ -219,13 +220,14 @@ def masked_line(verdicts: Mapping[str, str], corner_mark: bool | None) -> str | 
 
     corner_mark: whether the dataset's mark lives in one corner (None: unknown)."""
     verdict = verdicts.get(MASKED_PROFILE)
-    if verdict is None or not any(name in HEADLINE_PROFILES for name in verdicts):
+    others = [name for name in verdicts if name in HEADLINE_PROFILES and name != MASKED_PROFILE]
+    if verdict is None or not others:
         return None
     if verdict in (Verdict.NOT_PROTECTED, Verdict.WEAK):
         if corner_mark:
             return "NOT protected against an attacker who masks the corners (a corner mark cannot be)"
         return (
-            f"{verdict_words(verdict)} against an attacker who masks the corners (not counted in the "
+            f"{verdict_words(verdict)} against an attacker who masks the corners (counted in the "
             f"verdict above); {MASKED_MEANING}"
         )
     if verdict == Verdict.PROTECTED:

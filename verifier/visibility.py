@@ -235,7 +235,7 @@ def local_flip_map(
     """flip_map of two display images that differ only near `box` (full-resolution pixels of an
     image `width` wide): FLIP evaluated on local_region, zero elsewhere. The same map as the
     whole-image evaluation (FLIP's filters reach well under a degree, and identical pixels beyond
-    them give exactly 0; tests/test_visibility.py checks it), at a fraction of the cost: a mark
+    them give exactly 0; tests/verifier/test_visibility.py checks it), at a fraction of the cost: a mark
     in one corner is a few percent of a 12 MP photo (issue 28: `ppd preview` took 48 s)."""
     h, w = ref.shape[:2]
     x0, y0, x1, y1 = local_region(box, width, (h, w), ppd)

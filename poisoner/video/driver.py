@@ -113,7 +113,7 @@ def _per_photo_placements(
                 i = round((float(frame.time or 0.0) - start) * rate)  # frame number, the first is 0
                 rgb = frame.to_ndarray(format="rgb24")
                 _, place = place_on_photo(spec, info.width, info.height, None, 1, frame_detail(rgb),
-                                          index=i * per_frame)  # fmt: skip
+                                          index=i * per_frame, split=False)  # fmt: skip
                 keys.append((i / rate, place.anchor))
                 if len(keys) >= MAX_KEYFRAMES:
                     break

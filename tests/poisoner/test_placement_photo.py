@@ -297,3 +297,109 @@ def test_lanes_move_by_different_amounts_between_photos_whatever_their_anchors()
         lanes2 = [(p2.x + dx, p2.y + dy) for dx, dy, _ in p2.parts]
         moves = {(x2 - x1, y2 - y1) for (x1, y1), (x2, y2) in zip(lanes1, lanes2, strict=True)}
         assert len(moves) == 2, moves
+
+
+# ---- round 2: plain places are equal, off the corners, along the slide's line; split lanes ------------
+def test_a_plain_place_off_the_corners_beats_a_nearer_plain_corner() -> None:
+    """Busy everywhere but the top-left corner region and a patch in the middle of the left edge: the
+    mark takes the middle-left patch (the masked attacker removes the four 20% corners), not the corner."""
+    detail = np.ones((60, 80), dtype=bool)
+    detail[:12, :16] = False  # the top-left corner region (20% x 20%) is plain
+    detail[24:36, :10] = False  # so is a patch of the left edge, outside every corner region
+    spot = choose_spot(detail, None, (800, 600), [(0, 0, 60, 60)], preferred=(0, 0))
+    assert spot.plain and spot.y >= 120 and spot.y + 60 <= 480  # off the corners, though farther
+    corner_only = np.ones((60, 80), dtype=bool)
+    corner_only[:12, :16] = False
+    spot = choose_spot(corner_only, None, (800, 600), [(0, 0, 60, 60)], preferred=(370, 0))
+    assert spot.plain and spot.x + 60 <= 160 and spot.y + 60 <= 120  # a plain corner beats busy pixels
+
+
+def test_anchors_move_along_the_slide_line_before_anywhere_else() -> None:
+    """The preferred place busy, the rest plain: the anchor moves along the line of the mark's own slide
+    direction (8, 1) through the preferred anchor, so that the lanes of this photo and of a photo at the
+    preferred anchor still move exactly in parallel."""
+    spec = default_spec()
+    pref = spec.auto_anchor(800, 600)
+    assert pref[1] > 0  # below the top edge: the line can go either way
+    detail = np.zeros((192, 256), dtype=bool)
+    x0, y0 = (pref[0] * 256) // 800, (pref[1] * 192) // 600
+    detail[y0 : y0 + 20, x0 : x0 + 12] = True  # something detailed at the preferred place
+    _, place = place_on_photo(spec, 800, 600, "v_3.png", 1, detail)
+    ax, ay = place.anchor
+    assert (ax, ay) != pref and place.free
+    dx, dy = spec.slide_direction
+    assert (ax - pref[0]) * dy == (ay - pref[1]) * dx  # on the line
+
+
+def test_a_little_detail_at_the_edge_of_the_margin_does_not_move_the_mark() -> None:
+    """All plain places are equal: a few detailed cells in the margin around the preferred place (1%)
+    leave every photo of a plain-background set at the same anchor."""
+    spec = default_spec()
+    pref = spec.auto_anchor(800, 600)
+    detail = np.zeros((192, 256), dtype=bool)
+    ew, eh = spec.path_extent(800, 600)
+    detail[(pref[1] + eh) * 192 // 600 + 2, (pref[0] * 256) // 800] = True  # one cell below the mark
+    _, place = place_on_photo(spec, 800, 600, "v_3.png", 1, detail)
+    assert place.anchor == pref
+
+
+def two_pockets(path: Path) -> tuple[np.ndarray, list[tuple[slice, slice]]]:
+    """A busy 800x600 picture with two plain pockets, each room for one square of the mark but not
+    for the two stacked (a subject filling the frame, backdrop showing in two places)."""
+    pixels = textured(600, 800, 3)
+    pockets = [(slice(0, 110), slice(300, 420)), (slice(420, 600), slice(0, 120))]
+    for rows, cols in pockets:
+        pixels[rows, cols] = 230
+    Image.fromarray(pixels).save(path)
+    return pixels, pockets
+
+
+def test_lanes_split_into_two_plain_pockets_when_no_place_holds_both(tmp_path: Path) -> None:
+    src = tmp_path / "v_5.png"
+    _, pockets = two_pockets(src)
+    report = poison_file(src, tmp_path / "out.png", SPEC)
+    place = report.place
+    assert place is not None and place.free and place.source == "estimated-split"
+    changed = changed_shown(src, tmp_path / "out.png")
+    inside = np.zeros(changed.shape, dtype=bool)
+    for rows, cols in pockets:
+        inside[rows, cols] = True
+        assert changed[rows, cols].any()  # one square in each pocket
+    assert changed.any() and not (changed & ~inside).any()  # nothing on the busy "subject"
+    assert changed.mean() <= 0.01
+    poison_file(src, tmp_path / "again.png", SPEC)
+    assert (tmp_path / "again.png").read_bytes() == (tmp_path / "out.png").read_bytes()
+
+
+def test_split_lanes_keep_their_textures_and_move_in_parallel_by_different_amounts() -> None:
+    """Split lanes are the same squares (each lane's texture) at their own anchors; between two photos
+    at the same anchors both move along the slide direction, by different amounts."""
+    spec = default_spec()
+    at = ((300, 10), (40, 440))
+    p1 = spec.resolve(800, 600, "v_3.png", lanes_at=at)
+    p2 = spec.resolve(800, 600, "v_4.png", lanes_at=at)
+    stacked = spec.resolve(800, 600, "v_3.png")
+    assert [seed for *_, seed in p1.parts] == [seed for *_, seed in stacked.parts]
+    assert p1.lane_size == stacked.lane_size and p1.x + p1.size <= 800 and p1.y + p1.size <= 600
+    lanes1 = [(p1.x + dx, p1.y + dy) for dx, dy, _ in p1.parts]
+    lanes2 = [(p2.x + dx, p2.y + dy) for dx, dy, _ in p2.parts]
+    moves = [(x2 - x1, y2 - y1) for (x1, y1), (x2, y2) in zip(lanes1, lanes2, strict=True)]
+    assert moves[0] != moves[1]
+    dx, dy = spec.slide_direction
+    assert all(mx * dy == my * dx for mx, my in moves)  # both parallel to the slide
+    assert lanes1[0][0] >= 300 and lanes1[1][1] >= 440  # each at its own anchor
+
+
+def test_a_video_keyframe_keeps_its_lanes_stacked(tmp_path: Path) -> None:
+    """split=False (videos: one anchor glides between keyframes for both lanes): the two pockets that
+    split a photo's lanes give one stacked mark there, said not free."""
+    from poisoner.subject import display_detail
+
+    src = tmp_path / "v_5.png"
+    two_pockets(src)
+    detail, _ = display_detail(src.read_bytes())
+    split, place = place_on_photo(SPEC, 800, 600, "v_5.png", 1, detail)
+    stacked, kept = place_on_photo(SPEC, 800, 600, "v_5.png", 1, detail, split=False)
+    assert place.source == "estimated-split" and kept.source == "no-plain" and not kept.free
+    assert stacked == SPEC.resolve(800, 600, "v_5.png", anchor=kept.anchor)  # the stacked layout
+    assert split.parts != stacked.parts

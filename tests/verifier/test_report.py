@@ -354,8 +354,8 @@ def test_dataset_report_shows_the_recorded_visibility(ppd_env: dict[str, Path], 
 def test_dataset_report_counts_the_headline_and_says_the_masked_line_and_the_corner(
     ppd_env: dict[str, Path], tmp_path: Path
 ) -> None:
-    """A corner-mark dataset: its report's verdict is default/hardened/published's, the masked attacker
-    has its own plain line, and the placement (corner and why) is said."""
+    """A corner-mark dataset: its report's verdict counts the masked attacker too (issue 25, round 2),
+    which also has its own plain line saying why, and the placement (corner and why) is said."""
     from daemon.protect.one_file import AppContext, protect_file
 
     (ppd_env["config"] / "config.toml").write_text(
@@ -381,9 +381,9 @@ def test_dataset_report_counts_the_headline_and_says_the_masked_line_and_the_cor
         data = dataset_reports.build_dataset_report(ctx, "shoot")
     finally:
         ctx.close()
-    assert data.verdict == "protected"  # masked is reported, not counted
+    assert data.verdict == "not_protected"  # masked counts: no corner mark survives it
     assert data.holding is not None
-    assert data.holding.startswith("The protection holds under every profile run (default, hardened)")
+    assert data.holding.startswith("The protection does NOT hold under: masked")
     assert "NOT protected against an attacker who masks the corners (a corner mark cannot be)" in data.holding
     assert "Placement: shoot: mark in the bottom-right corner (estimated: least detail)." in data.notes
     assert any("masks the four corner regions" in n for n in data.notes)

@@ -90,21 +90,25 @@ def test_overall_is_the_weakest_profile() -> None:
     assert vd.overall([vd.INCONCLUSIVE]) == vd.INCONCLUSIVE
 
 
-def test_the_headline_counts_default_hardened_published_and_masked_has_its_own_line() -> None:
-    run = {"masked": "not_protected", "published": "protected", "default": "protected", "hardened": "weak"}
-    assert list(vd.headline(run)) == ["default", "hardened", "published"]  # masked left out, in order
+def test_the_headline_counts_every_attacker_and_masked_has_its_own_line_too() -> None:
+    run = {"masked": "weak", "published": "protected", "default": "protected", "hardened": "protected"}
+    # issue 25, round 2: the per-photo mark holds the masked attacker, so it counts like the others
+    assert list(vd.headline(run)) == ["default", "hardened", "published", "masked"]  # in that order
     assert vd.headline_verdict(run) == vd.WEAK
-    assert vd.headline_verdict({"default": "protected", "masked": "not_protected"}) == vd.PROTECTED
+    assert vd.headline_verdict({"default": "protected", "masked": "not_protected"}) == vd.NOT_PROTECTED
+    assert vd.headline_verdict({"default": "protected", "masked": "protected"}) == vd.PROTECTED
     # issue 25/30: the global mapper is an attacker like the others: it counts
-    with_global = {**run, "hardened": "protected", "global": "not_protected"}
-    assert list(vd.headline(with_global)) == ["default", "hardened", "published", "global"]
+    with_global = {**run, "masked": "protected", "global": "not_protected"}
+    assert list(vd.headline(with_global)) == ["default", "hardened", "published", "global", "masked"]
     assert vd.headline_verdict(with_global) == vd.NOT_PROTECTED
+    run = {**run, "masked": "not_protected"}
     assert vd.headline({"masked": "weak"}) == {"masked": "weak"}  # only masked run: it is the headline
     corner = vd.masked_line(run, corner_mark=True)
     assert corner == "NOT protected against an attacker who masks the corners (a corner mark cannot be)"
     roaming = vd.masked_line(run, corner_mark=False)
     assert roaming is not None and roaming.startswith("NOT protected against an attacker who masks")
     assert "a corner mark cannot be" not in roaming and "defeats any corner" in roaming
+    assert "(counted in the verdict above)" in roaming
     held = vd.masked_line({"default": "protected", "masked": "protected"}, corner_mark=False)
     assert held is not None and held.startswith("protected against an attacker who masks the corners too")
     assert vd.masked_line({"default": "protected"}, corner_mark=True) is None  # not run: nothing said
@@ -192,15 +196,15 @@ def test_verification_results_carry_visibility_and_what_ppd_verify_prints(tmp_pa
     # a corner mark (the visibility stage saw every change inside one corner)
     report = VerificationReport(str(clean), str(pois), str(tmp_path), 4, profiles, vis, corner_mark=True)
     data = json.loads(json.dumps(report.to_dict()))
-    # masked is reported, not counted: the headline is default's
-    assert data["verdict"] == "protected" and data["profiles"]["masked"]["verdict"] == "not_protected"
-    assert data["verdict_counts"] == ["default"]
+    # masked counts (issue 25, round 2): a corner mark is NOT protected against it, and says why
+    assert data["verdict"] == "not_protected" and data["profiles"]["masked"]["verdict"] == "not_protected"
+    assert data["verdict_counts"] == ["default", "masked"]
     assert data["visibility"]["worst"]["area_above_half"] == vis.worst.area_above_half
     summary = "\n".join(data["summary"])
     assert f"{vis.worst.area_above_half:.2%} of the picture clearly visible (FLIP > 0.5)" in summary
-    assert "the protection holds under every profile run (default)" in summary
+    assert "the protection does NOT hold under: masked" in summary
     assert "NOT protected against an attacker who masks the corners (a corner mark cannot be)" in summary
-    assert report.not_holding() == []
+    assert report.not_holding() == ["masked"]
     roaming = VerificationReport(str(clean), str(pois), str(tmp_path), 4, profiles, vis, corner_mark=False)
     assert "a corner mark cannot be" not in "\n".join(roaming.summary_lines())
     assert "NOT protected against an attacker who masks the corners" in "\n".join(roaming.summary_lines())
@@ -489,7 +493,7 @@ def test_verify_dataset_reports_masked_apart_and_measures_the_subject(
     object_sets: dict[str, Path], ppd_env: dict[str, Path], tmp_path: Path
 ) -> None:
     """A corner-mark dataset with subject masks in the config, verified by the daemon's path under
-    default and masked: masked is recorded and said on its own line, the headline is default's,
+    default and masked: masked is recorded, counted (issue 25, round 2) and said on its own line,
     and the visibility stage measured the subject."""
     from daemon.context import AppContext
     from daemon.protect.one_file import protect_file
@@ -513,7 +517,8 @@ def test_verify_dataset_reports_masked_apart_and_measures_the_subject(
         report = verify_dataset(ctx, "obj", ["default", "masked"], VerifyOptions(timeout_s=300))
         rows = {r["profile"]: r for r in ctx.store.verification_runs("obj")}
         assert set(rows) == {"default", "masked"} and rows["masked"]["metrics"]["corner_mark"] is True
-        assert report.verdict == report.profiles["default"].verdict  # masked is not counted
+        assert report.verdict == vd.headline_verdict(report.verdicts())  # masked counts
+        assert list(vd.headline(report.verdicts())) == ["default", "masked"]
         assert report.visibility is not None and report.visibility.worst.touches_subject is False
         said = vd.masked_line(report.verdicts(), corner_mark=True)  # whatever this run's masked verdict
         assert said is not None and said in report.summary_lines() and "masks the" in said

@@ -130,9 +130,12 @@ def test_dataset_protection_is_never_more_than_the_verdicts() -> None:
     assert dataset_protection(patched, both) == (Protection.PROTECTED, ["default", "hardened"])
     one_fails = {"default": _run("protected"), "hardened": _run("not_protected")}
     assert dataset_protection(patched, one_fails) == (Protection.NOT_PROTECTED, ["hardened"])
-    # the masked attacker is reported on its own line, not in the headline; alone, it is the headline
+    # the masked attacker counts like the others (issue 25, round 2: the per-photo mark holds it)
     masked_fails = {**both, "masked": _run("not_protected")}
-    assert dataset_protection(patched, masked_fails) == (Protection.PROTECTED, ["default", "hardened"])
+    assert dataset_protection(patched, masked_fails) == (Protection.NOT_PROTECTED, ["masked"])
+    masked_holds = {**both, "masked": _run("protected")}
+    held = (Protection.PROTECTED, ["default", "hardened", "masked"])
+    assert dataset_protection(patched, masked_holds) == held
     assert dataset_protection(patched, {"masked": _run("weak")}) == (Protection.WEAK, ["masked"])
     assert dataset_protection(patched, {"default": _run("weak")}) == (Protection.WEAK, ["default"])
     crashed = {"default": _run("sfm_crashed")}

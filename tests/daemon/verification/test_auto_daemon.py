@@ -50,8 +50,9 @@ def test_which_verdicts_escalate() -> None:
     assert daemon_auto.needs_escalation({"default": "weak"})
     assert not daemon_auto.needs_escalation({"default": "protected", "hardened": "protected"})
     assert not daemon_auto.needs_escalation({"default": "sfm_crashed", "hardened": "inconclusive"})
-    # the masked attacker is reported, not counted: it alone does not move the dataset
-    assert not daemon_auto.needs_escalation({"default": "protected", "masked": "not_protected"})
+    # the masked attacker counts (issue 25, round 2): a mark it defeats is not enough
+    assert daemon_auto.needs_escalation({"default": "protected", "masked": "not_protected"})
+    assert not daemon_auto.needs_escalation({"default": "protected", "masked": "protected"})
 
 
 # ---- escalation through the scheduler, with the real Store, vault and files --------------------------------
