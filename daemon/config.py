@@ -20,9 +20,8 @@ Every key is optional; what is missing comes from the embedded defaults below. L
     every_new_files = 20        # verify a dataset after this many newly protected files
     period_hours = 24.0         # ... and at least this often while it keeps changing
     profiles = ["default", "hardened", "published", "global", "masked"]
-                                # the headline verdict counts default, hardened, published, global;
-                                # masked (the attacker masks the corner regions) is reported next
-                                # to them (verifier.verdict.HEADLINE_PROFILES)
+                                # the headline verdict counts all five, masked (the attacker
+                                # masks the corner regions) included (verifier.verdict.HEADLINE_PROFILES)
     splat = false               # also train clean/poisoned Gaussian splats (~6 more minutes per 40 views)
     splat_budget_s = 150.0      # splat training seconds per side
     keep_runs = 5               # run folders (SfM models) kept per dataset; older ones are deleted
@@ -161,7 +160,7 @@ class VerificationSchedule(Section, frozen=True):
     enabled: bool = True
     every_new_files: int = 20
     period_hours: float = 24.0
-    # masked is run and reported; the headline verdict leaves it out (verifier.verdict.HEADLINE_PROFILES).
+    # The headline verdict counts every one of them, masked included (verifier.verdict.HEADLINE_PROFILES).
     # A config that lists its profiles keeps its list.
     profiles: tuple[Profile, ...] = ("default", "hardened", "published", "global", "masked")
     splat: bool = False  # scheduled runs include Verifier II's splat stage

@@ -10,9 +10,9 @@ Profiles (what an attacker would run):
 - `global`: the default's features and two-view geometry, then COLMAP 4's global mapper (GLOMAP
   merged into COLMAP) instead of the incremental one.
 - `masked`: the attacker who has read about corner marks masks the four corner regions (20% x 20%)
-  out of SfM. Reported next to the others, not counted in the headline verdict
-  (verifier.verdict.HEADLINE_PROFILES): it defeats every corner mark by construction, which the
-  report says on its own line (verifier.verdict.masked_line).
+  out of SfM. Counted in the headline verdict since the mark is placed per photo, off the corners
+  where it can be (verifier.verdict.HEADLINE_PROFILES); it defeats every corner mark by
+  construction, which the report also says on its own line (verifier.verdict.masked_line).
 
 The parent never imports pycolmap: SfM runs in child processes (verifier.sfm). Work is shared
 across profiles (issue 30): one feature extraction and raw matching per image set (default,

@@ -283,7 +283,7 @@ def next_step(ctx: AppContext, dataset: str) -> str | None:
 # ---- step 4: escalation ---------------------------------------------------------------------------
 def needs_escalation(verdicts: Mapping[str, str]) -> bool:
     """A headline profile that is weak or not_protected means this patch is not enough for this
-    dataset (`masked` is reported, not counted: verifier.verdict.headline). Crashed/inconclusive runs
+    dataset (masked included: verifier.verdict.headline). Crashed/inconclusive runs
     prove nothing either way and do not move the dataset."""
     from verifier.verdict import headline
 
