@@ -18,7 +18,7 @@ import numpy as np
 
 from poisoner.logo import mark_shape
 from poisoner.patterns import pattern_levels, pattern_mask
-from poisoner.placement import unorient_array
+from poisoner.orientation import unorient_array
 from poisoner.spec import PatchPlacement, PatchSpec
 
 RGBA_POLICY = "patch region opaque, composited over white"

@@ -21,6 +21,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from poisoner.orientation import (
+    INVERSE_ORIENTATION,
+    display_size,
+    orientation_of,
+    position_words,
+    turn_square,
+)
 from poisoner.spec import PatchPlacement, PatchSpec
 
 CORNERS = ("top-left", "top-right", "bottom-left", "bottom-right")
@@ -113,8 +120,6 @@ def keep_out_mask(
 # edge's centre) so that the photos of a plain-background set share their anchor and the lanes
 # move between them exactly as the measured corner lanes did.
 
-# EXIF orientation -> the one that undoes it (5, 7 and the flips are their own inverse)
-INVERSE_ORIENTATION = {1: 1, 2: 2, 3: 3, 4: 4, 5: 5, 6: 8, 7: 7, 8: 6}
 # A footprint with at most this much detail cost is plain: all plain places are equally good, so the
 # preferred anchor wins (round 2: shares of 0.01 against 0.00 had moved 11 of dtu_scan37's 25 marks off
 # their shared anchor, breaking the lanes' common motion between those photos).
@@ -129,71 +134,6 @@ EDGE_WEIGHT = 0.5
 # Round 2 (the masked attacker): the four corner regions (this share of the width and of the height)
 # are what the `masked` profile removes; a plain place off them wins over a plain corner.
 CORNER_REGION = 0.2
-
-
-def orientation_of(value: object) -> int:
-    """An EXIF orientation value as 1..8 (anything else: 1, what viewers do with a bad tag)."""
-    return value if isinstance(value, int) and 1 <= value <= 8 else 1
-
-
-def orient_array(a: np.ndarray, orientation: int) -> np.ndarray:
-    """Stored pixels (H x W (x C)) as a viewer shows them under an EXIF orientation, as PIL's
-    ImageOps.exif_transpose does (2: mirror, 3: 180, 4: flip, 5: transpose, 6: 90 clockwise,
-    7: transverse, 8: 90 counter-clockwise)."""
-    o = orientation_of(orientation)
-    if o == 2:
-        return a[:, ::-1]
-    if o == 3:
-        return a[::-1, ::-1]
-    if o == 4:
-        return a[::-1]
-    if o == 5:
-        return np.swapaxes(a, 0, 1)
-    if o == 6:
-        return np.swapaxes(a, 0, 1)[:, ::-1]
-    if o == 7:
-        return np.swapaxes(a, 0, 1)[::-1, ::-1]
-    if o == 8:
-        return np.swapaxes(a, 0, 1)[::-1]
-    return a
-
-
-def unorient_array(a: np.ndarray, orientation: int) -> np.ndarray:
-    """A display-space array back in the stored layout (orient_array's inverse)."""
-    return orient_array(a, INVERSE_ORIENTATION[orientation_of(orientation)])
-
-
-def display_size(width: int, height: int, orientation: int) -> tuple[int, int]:
-    """(w, h) a viewer sees of a stored width x height picture."""
-    return (height, width) if orientation_of(orientation) >= 5 else (width, height)
-
-
-def turn_square(x: int, y: int, side: int, orientation: int, width: int, height: int) -> tuple[int, int]:
-    """Top-left of a side x side square at (x, y) of a width x height frame once the frame is shown
-    under `orientation` (the inverse orientation maps display back to stored)."""
-    return {
-        2: (width - x - side, y),
-        3: (width - x - side, height - y - side),
-        4: (x, height - y - side),
-        5: (y, x),
-        6: (height - y - side, x),
-        7: (height - y - side, width - x - side),
-        8: (y, width - x - side),
-    }.get(orientation_of(orientation), (x, y))
-
-
-ROWS = ("top", "middle", "bottom")
-COLUMNS = ("left", "centre", "right")
-
-
-def position_words(box: tuple[int, int, int, int], width: int, height: int) -> str:
-    """Where a box sits in a width x height frame, in words: which third across and down its
-    centre falls in ("top-centre", "bottom-left", "centre")."""
-    cx, cy = (box[0] + box[2]) / 2 / width, (box[1] + box[3]) / 2 / height
-    row, col = ROWS[min(2, int(cy * 3))], COLUMNS[min(2, int(cx * 3))]
-    if row == "middle" and col == "centre":
-        return "centre"
-    return f"{row}-{col}"
 
 
 @dataclass(frozen=True)

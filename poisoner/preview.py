@@ -195,7 +195,7 @@ def oriented_placement(
     in another corner of what the viewer shows."""
     import dataclasses
 
-    from poisoner.placement import turn_square
+    from poisoner.orientation import turn_square
 
     new = turn_square(placement.x, placement.y, placement.size, orientation or 1, width, height)
     return dataclasses.replace(placement, x=new[0], y=new[1])
@@ -235,7 +235,7 @@ def mark_line(placement: PatchPlacement, place: Any, orientation: int | None, wi
     """`mark at the top-centre, pixels (x0,y0)-(x1,y1) as shown (why)` for any spec."""
     if place is not None:
         return str(place.line())
-    from poisoner.placement import display_size, orientation_of, position_words
+    from poisoner.orientation import display_size, orientation_of, position_words
 
     shown = oriented_placement(placement, orientation, width, height)
     w, h = display_size(width, height, orientation_of(orientation))

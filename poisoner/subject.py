@@ -251,7 +251,7 @@ def display_detail(data: bytes, name: str = "image") -> tuple[np.ndarray, int]:
     from PIL import Image
 
     from poisoner.image.read import decode_errors
-    from poisoner.placement import orient_array, orientation_of
+    from poisoner.orientation import orient_array, orientation_of
 
     with decode_errors(Path(name)), Image.open(io.BytesIO(data)) as im:
         orientation = orientation_of(im.getexif().get(0x0112))
@@ -272,7 +272,7 @@ def display_subject(keep_out: np.ndarray, orientation: int, shape: tuple[int, in
     import numpy as np
     from PIL import Image
 
-    from poisoner.placement import orient_array
+    from poisoner.orientation import orient_array
 
     shown = np.ascontiguousarray(orient_array(np.asarray(keep_out) > 0, orientation)).astype(np.uint8) * 255
     small = Image.fromarray(shown).resize((shape[1], shape[0]), Image.Resampling.BOX)

@@ -174,7 +174,7 @@ def patch_preview_figure(original: Path, protected: Path, spec: Any) -> Figure |
     """poisoner.preview of one original and its patched file (image files only), as a viewer shows
     them (EXIF orientation applied). The zoom and the caption's words are where the pixels changed
     (issue 25): the same answer for a corner mark and a per-photo one, whatever masks were used."""
-    from poisoner.placement import position_words
+    from poisoner.orientation import position_words
     from poisoner.preview import orient, render_preview
     from poisoner.spec import PatchPlacement
 

@@ -17,14 +17,8 @@ from daemon.cli import app
 from poisoner.blend import patch_coverage
 from poisoner.formats import poison_file
 from poisoner.ladder import default_spec
-from poisoner.placement import (
-    choose_spot,
-    orient_array,
-    place_on_photo,
-    position_words,
-    stored_box_shown,
-    unorient_array,
-)
+from poisoner.orientation import orient_array, position_words, unorient_array
+from poisoner.placement import choose_spot, place_on_photo, stored_box_shown
 from poisoner.spec import PatchSpec
 
 runner = CliRunner()
