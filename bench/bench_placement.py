@@ -62,7 +62,7 @@ def subject_crop_box(mask: np.ndarray, keep: float) -> tuple[int, int, int, int]
 def make_crops(keep: float, orientation: int, folder: Path) -> tuple[Path, Path]:
     """dtu_scan37's 25 views cropped around their subject (images/, masks/ as shown, 800x600 shown);
     orientation 6: the pixels are stored turned, with the EXIF tag, as a phone writes a portrait."""
-    from poisoner.placement import unorient_array
+    from poisoner.orientation import unorient_array
 
     images, masks = folder / "images", folder / "masks"
     if images.exists():
