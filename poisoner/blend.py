@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from poisoner.logo import mark_shape
-from poisoner.patterns import pattern_levels, pattern_mask
 from poisoner.orientation import unorient_array
+from poisoner.patterns import pattern_levels, pattern_mask
 from poisoner.spec import PatchPlacement, PatchSpec
 
 RGBA_POLICY = "patch region opaque, composited over white"
