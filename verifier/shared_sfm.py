@@ -20,16 +20,14 @@ import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import msgspec
 
 from poisoner.atomic import atomic_write_bytes
 from verifier.progress import ProgressBoard
 from verifier.sfm import SfmJob, SfmSettings, run_sfm_job
-
-if TYPE_CHECKING:
-    from verifier.verification import VerifyOptions
+from verifier.verify_options import VerifyOptions
 
 log = logging.getLogger(__name__)
 
