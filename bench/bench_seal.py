@@ -11,12 +11,12 @@ one it has just hashed). Median of --runs.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import statistics
 import tempfile
 import time
 from pathlib import Path
 
+from daemon.store.vault import sha256_file
 from poisoner.provenance import Marker, embed_jpeg, read_seal, seal_file
 
 KEY = bytes(range(32))
@@ -44,14 +44,6 @@ def timed(fn, runs: int) -> float:
     return statistics.median(times)
 
 
-def sha256_of(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(1 << 20):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--mb", type=float, nargs="+", default=[2.0, 20.0, 200.0])
@@ -68,7 +60,7 @@ def main() -> None:
             path = Path(tmp) / "a.jpg"
             make(path, mb)
             blank = path.read_bytes()
-            base = timed(lambda p=path: sha256_of(p), args.runs)
+            base = timed(lambda p=path: sha256_file(p), args.runs)
 
             def seal(p: Path = path, data: bytes = blank) -> None:
                 p.write_bytes(data)  # (re)written, as the poison stage's output is: in the page cache

@@ -15,7 +15,6 @@ testkit/daemon_proc.py's, the image/clip writers testkit/photos.py's and testkit
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import math
 import os
 import random
@@ -36,6 +35,7 @@ from daemon.paths import AppPaths
 from daemon.protect.one_file import media_kind, poison_to
 from daemon.states import FileState
 from daemon.store import Store
+from daemon.store.vault import sha256_file as sha256  # the vault's own hash, so audits agree with it
 from poisoner.atomic import TEMP_PREFIX
 from poisoner.spec import PatchSpec
 from testkit.daemon_proc import Daemon, start_daemon, status_kb, wait_for
@@ -53,14 +53,6 @@ __all__ = [
     "protected_counts", "run_crash_trials", "sha256", "start_daemon", "status_kb", "wait_all_protected",
     "wait_for", "write_image", "write_results_section",
 ]  # fmt: skip
-
-
-def sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        while chunk := fh.read(1 << 20):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def app_paths(root: Path) -> AppPaths:
