@@ -1,0 +1,89 @@
+#!/usr/bin/env bash
+# The GPU checks of issue 30, on a lent CUDA machine (this workplace's `device` tool), from the
+# repository root. Two steps, because what travels to that machine is capped at 64 MiB:
+#   setup: install the carried `.dev/` (pycolmap-cuda12 4.2.1 as tar.xz, the few wheels of ppd's
+#          dependencies the machine's image lacks, X11 client libraries pycolmap links) into /tmp/site
+#          and check that pycolmap sees the GPU, with a small SIFT run on both devices;
+#   main:  with `.devdata/` carried (fountain-P11's four texture photos, lego's first 40 views):
+#          the 40 x 24 MP creator set, SIFT GPU vs CPU on 12 of its photos (bench_gpu_sift), then
+#          bench_verify_speed on it (one default COLMAP run, `ppd verify --profile all` first and
+#          second), each lane saved to $OUT as it ends; lego 40 if time is left.
+#   pack:  (here, before both) make `.dev/` and `.devdata/` (both in .git/info/exclude) from the
+#          package registry and ../shared.
+# Needs the `run` tool's $OUT. Nothing here is part of the product or of CI.
+set -u
+mode=${1:?setup or main}
+deadline=$(( $(date +%s) + ${2:-540} ))
+left() { echo $(( deadline - $(date +%s) )); }
+export PYTHONUNBUFFERED=1 PYTHONPATH=/tmp/site:$PWD
+views=${PPD_GPU_VIEWS:-40} width=${PPD_GPU_WIDTH:-6000}  # smaller only to try the script out
+
+if [ "$mode" = pack ]; then
+    py=${PYTHON:-.venv/bin/python} shared=${PPD_SHARED_DATA:-../shared/datasets}
+    get() { "$py" -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+        --platform manylinux_2_28_x86_64 --platform manylinux2014_x86_64 --platform manylinux_2_17_x86_64 "$@"; }
+    rm -rf .dev .devdata && mkdir -p .dev/whl .dev/lib .devdata/whl /tmp/ppd-pack
+    get -d /tmp/ppd-pack pycolmap-cuda12==4.2.1 || exit 3
+    repo=$PWD
+    (cd /tmp/ppd-pack && rm -rf x && mkdir x && cd x && unzip -q ../pycolmap_cuda12-*.whl &&
+        tar -cf - . | xz -9e -T0 > "$repo/.dev/pycolmap_cuda12.tar.xz") || exit 3
+    get -d .dev/whl nvidia-cuda-runtime-cu12==12.9.79 msgspec watchdog sqlite-utils sqlite-fts4 \
+        click-default-group platformdirs tomli-w flip-evaluator typer==0.29.2 annotated-doc pydantic \
+        pydantic-core annotated-types typing-inspection || exit 3
+    get -d .devdata/whl pillow==13.0.0 || exit 3
+    for lib in libSM.so.6 libICE.so.6 libX11.so.6 libXext.so.6 libxcb.so.1 libXau.so.6 libXdmcp.so.6; do
+        cp -L "/usr/lib/x86_64-linux-gnu/$lib" .dev/lib/
+    done
+    mkdir -p .devdata/fountain_P11/images .devdata/nerf_synthetic_lego/train
+    for i in 1 4 7 9; do cp "$shared/fountain_P11/images/000$i.jpg" .devdata/fountain_P11/images/; done
+    for n in $(ls "$shared/fountain_P11/images"); do  # creator_set picks photos 1, 4, 7, 9 by sorted name
+        [ -e ".devdata/fountain_P11/images/$n" ] || ln -s 0001.jpg ".devdata/fountain_P11/images/$n"
+    done
+    cp "$shared/nerf_synthetic_lego/transforms_train.json" .devdata/nerf_synthetic_lego/
+    for i in $(seq 0 39); do cp "$shared/nerf_synthetic_lego/train/r_$i.png" .devdata/nerf_synthetic_lego/train/; done
+    du -sh .dev .devdata
+    exit
+fi
+
+if [ "$mode" = setup ]; then
+    mkdir -p /tmp/site /tmp/devlib
+    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+        --target /tmp/site .dev/whl/*.whl || exit 3
+    tar -xJf .dev/pycolmap_cuda12.tar.xz -C /tmp/site || exit 3
+    for lib in .dev/lib/*; do  # only what the image lacks: its own libraries stay first
+        ldconfig -p | grep -q "$(basename "$lib")" || cp "$lib" /tmp/devlib/
+    done
+    curand=$(dirname "$(find / -xdev -name 'libcurand.so.10*' 2>/dev/null | head -1)")
+    echo "export LD_LIBRARY_PATH=/tmp/site/nvidia/cuda_runtime/lib:$curand:/tmp/devlib:\${LD_LIBRARY_PATH:-}" \
+        > /tmp/ppd-env.sh
+    cat /tmp/ppd-env.sh; ls /tmp/devlib; nvidia-smi -L
+    . /tmp/ppd-env.sh
+    python3 -c "import pycolmap, PIL, numpy; print('pycolmap', pycolmap.__version__, 'cuda', pycolmap.has_cuda, 'PIL', PIL.__version__, 'numpy', numpy.__version__)" || exit 4
+    python3 -c "
+from pathlib import Path
+from verifier.synthetic import SyntheticOptions, render_scene
+render_scene(Path('/tmp/syn6'), SyntheticOptions(num_views=6, width=1200, height=800, focal=1440))"
+    python3 -m daemon.cli verify --help > /dev/null || exit 4  # the CLI imports here
+    timeout "$(left)" python3 -m bench.bench_gpu_sift /tmp/syn6 --out "$OUT/gpu_sift_smoke.json"
+    exit
+fi
+
+[ -f /tmp/ppd-env.sh ] || { echo "setup has not run on this machine"; exit 5; }
+. /tmp/ppd-env.sh
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+    --target /tmp/site .devdata/whl/*.whl || exit 3
+export PPD_SHARED_DATA=$PWD/.devdata PPD_BENCH_WORK=/tmp/pbw PPD_BENCH_RESULTS=$OUT
+label="gpu $(nvidia-smi --query-gpu=name --format=csv,noheader | head -1), $(nproc) cores ($(git rev-parse --short HEAD 2>/dev/null || echo tree))"
+set -x
+t0=$(date +%s)
+timeout "$(left)" python3 -m testkit.creator_set /tmp/pbw/creator-$views-$width --views "$views" --width "$width" --height $(( width * 2 / 3 ))
+echo "creator set made in $(( $(date +%s) - t0 )) s" | tee "$OUT/creator_set.txt"
+[ "$views" = 40 ] && mkdir -p /tmp/c12 && for f in $(ls /tmp/pbw/creator-$views-$width/poisoned/*.jpg | head -12); do ln -sf "$f" /tmp/c12/; done
+[ "$views" = 40 ] && timeout 150 python3 -m bench.bench_gpu_sift /tmp/c12 --out "$OUT/gpu_sift_creator12.json" --timeout 140
+timeout "$(( $(left) - 10 ))" python3 -m bench.bench_verify_speed --set creator --views "$views" --width "$width" \
+    --second --timeout "${PPD_GPU_LANE_S:-300}" --label "$label" --sift-device cuda
+if [ "$(left)" -gt 240 ]; then
+    timeout "$(( $(left) - 10 ))" python3 -m bench.bench_verify_speed --set lego --views 40 \
+        --second --timeout 200 --label "$label" --sift-device cuda
+fi
+echo "done, $(left) s left"
