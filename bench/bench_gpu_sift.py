@@ -1,11 +1,12 @@
 """SIFT extraction and raw matching on the GPU against the CPU, on one folder, one machine (issue 30).
 
-`python -m bench.bench_gpu_sift FOLDER [--out FILE]` runs verifier.sfm's own features-only job (the one
-`ppd verify` shares between profiles: SIFT at COLMAP's 3200 px, exhaustive raw matching) twice in
-child processes, PPD_SFM_DEVICE=cpu and then auto (the GPU when this pycolmap is a CUDA build and a
-device is present), each into a fresh database, and reports wall seconds, features and raw matches
-per side. A child that crashes is reported as a crash. Needs the `[gpu]` extra (pycolmap-cuda12) and
-a CUDA device for the GPU side; without them the second run is the CPU again and says so.
+`python -m bench.bench_gpu_sift [FOLDER] [--out FILE]` (no folder: 6 synthetic views of 1200 x 800) runs
+verifier.sfm's own features-only job (the one `ppd verify` shares between profiles: SIFT at COLMAP's
+3200 px, exhaustive raw matching) twice in child processes, PPD_SFM_DEVICE=auto (the GPU when
+this pycolmap is a CUDA build and a device is present) and then cpu, each into a fresh database, and reports
+wall seconds, features and raw matches per side. A child that crashes is reported as a crash. Needs the
+`[gpu]` extra (pycolmap-cuda12) and a CUDA device for the GPU side; without them the second run is the
+CPU again and says so.
 """
 
 from __future__ import annotations
@@ -53,10 +54,10 @@ def features_run(folder: Path, work: Path, device: str, timeout_s: float) -> dic
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("folder", type=Path)
+    ap.add_argument("folder", type=Path, nargs="?", help="photos (default: 6 synthetic views rendered here)")
     ap.add_argument("--out", type=Path, help="also write the rows here as JSON")
     ap.add_argument("--timeout", type=float, default=600.0)
-    args = ap.parse_args(argv)
+    args = ap.parse_args(argv if argv is not None else [])  # `python -m bench` runs it with defaults
     import pycolmap
 
     from verifier.sfm import cuda_device_count, sift_device
@@ -66,6 +67,11 @@ def main(argv: list[str] | None = None) -> None:
            "cores": os.cpu_count()}  # fmt: skip
     print(json.dumps(env), flush=True)
     work = Path(tempfile.mkdtemp(prefix="ppd-gpu-sift-"))
+    if args.folder is None:
+        from verifier.synthetic import SyntheticOptions, render_scene
+
+        args.folder = work / "synthetic"
+        render_scene(args.folder, SyntheticOptions(num_views=6, width=1200, height=800, focal=1440))
     rows = [env]
     for device in ("auto", "cpu"):  # the GPU first: the CPU side is the slow one, stopped first
         row = features_run(args.folder, work / device, device, args.timeout)
