@@ -71,7 +71,10 @@ class SfmSettings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             f"{self.sequential_overlap}-{self.max_image_size}"
         )
         # masks change the features; unmasked keys stay as they were (existing caches stay valid)
-        return key + (f"-mask{self.mask_corners:g}" if self.mask_corners > 0 else "")
+        key += f"-mask{self.mask_corners:g}" if self.mask_corners > 0 else ""
+        # GPU SIFT (SiftGPU) finds other features than the CPU's: a cache made on one is not reused on
+        # the other; CPU keys stay as they were
+        return key + ("-cuda" if sift_device_name() == "cuda" else "")
 
 
 # Issue 14: what an attacker who has read the paper does about a corner mark.
@@ -269,6 +272,20 @@ def cuda_device_count() -> int:
     if cuda.cuInit(0) != 0 or cuda.cuDeviceGetCount(ctypes.byref(count)) != 0:
         return 0
     return int(count.value)
+
+
+def sift_device_name() -> str:
+    """"cuda" or "cpu", as sift_device() will pick in the child, without importing pycolmap here
+    (the parent never loads it): the CUDA build is the installed `pycolmap-cuda12` distribution."""
+    from importlib import metadata
+
+    if os.environ.get("PPD_SFM_DEVICE", "auto") == "cpu":
+        return "cpu"
+    try:
+        metadata.distribution("pycolmap-cuda12")
+    except metadata.PackageNotFoundError:
+        return "cpu"
+    return "cuda" if cuda_device_count() > 0 else "cpu"
 
 
 def sift_device() -> Any:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from verifier.sfm import cuda_device_count, sift_device
+from verifier.sfm import SfmSettings, cuda_device_count, sift_device, sift_device_name
 
 
 def _has_cuda_build() -> bool:
@@ -26,6 +26,29 @@ def test_the_cpu_is_used_without_a_cuda_build_or_device_or_when_asked(
     monkeypatch.delenv("PPD_SFM_DEVICE")
     expected = pycolmap.Device.cuda if _has_cuda_build() and cuda_device_count() > 0 else pycolmap.Device.cpu
     assert sift_device() == expected
+
+
+def test_the_parent_names_the_device_the_child_will_use(monkeypatch: pytest.MonkeyPatch) -> None:
+    import pycolmap
+
+    # the parent keys its caches on sift_device_name() without importing pycolmap; it must agree
+    assert sift_device_name() == ("cuda" if sift_device() == pycolmap.Device.cuda else "cpu")
+    monkeypatch.setenv("PPD_SFM_DEVICE", "cpu")
+    assert sift_device_name() == "cpu"
+
+
+def test_feature_caches_are_keyed_by_device_cpu_keys_unchanged(monkeypatch: pytest.MonkeyPatch) -> None:
+    settings = SfmSettings()
+    monkeypatch.setenv("PPD_SFM_DEVICE", "cpu")
+    cpu_key = settings.feature_key()
+    # the key caches made before devices were told apart carry: CPU caches stay valid
+    legacy = (
+        f"{settings.camera_model}-{int(settings.single_camera)}-{settings.camera_params}-"
+        f"{settings.matching}-{settings.sequential_overlap}-{settings.max_image_size}"
+    )
+    assert cpu_key == legacy
+    monkeypatch.delenv("PPD_SFM_DEVICE")
+    assert settings.feature_key() == (cpu_key + "-cuda" if sift_device_name() == "cuda" else cpu_key)
 
 
 GPU_REASON = (
