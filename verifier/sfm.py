@@ -275,8 +275,8 @@ def cuda_device_count() -> int:
 
 
 def sift_device_name() -> str:
-    """"cuda" or "cpu", as sift_device() will pick in the child, without importing pycolmap here
-    (the parent never loads it): the CUDA build is the installed `pycolmap-cuda12` distribution."""
+    """The device sift_device() will pick in the child, "cuda" or "cpu", told without importing
+    pycolmap here (the parent never loads it): the CUDA build is the installed `pycolmap-cuda12`."""
     from importlib import metadata
 
     if os.environ.get("PPD_SFM_DEVICE", "auto") == "cpu":
