@@ -380,6 +380,7 @@ def _run_both_sides(profile: str, run: _Run, settings: SfmSettings) -> tuple[dic
     profile_dir = run.out_dir / profile
     settings_json = json.dumps(msgspec.to_builtins(settings), sort_keys=True)
     reuse_key = f"{run.clean_key}-{profile}-{settings_json}-{source}"
+    reuse_key += "-cuda" if settings.feature_key().endswith("-cuda") else ""  # a CPU key stays as it was
     cached = bool(run.options.clean_cache_dir)
     clean_model = (
         run.clean_cache / "clean-models" / hashlib.sha256(reuse_key.encode()).hexdigest()[:16]
