@@ -327,6 +327,82 @@ def profile(args: argparse.Namespace) -> None:
     shutil.rmtree(work, ignore_errors=True)
 
 
+# What `spans` times inside each file's run, besides the stages themselves (module, function).
+SPAN_CALLS = (
+    ("poisoner.formats", "plan_mark"),
+    ("poisoner.formats", "_write_format"),
+    ("daemon.protect.poisoning", "seal_output"),
+    ("daemon.store.vault", "Vault.keep_fd"),
+    ("daemon.fsops", "sha256_fd"),
+    ("daemon.store.vault", "sha256_file"),
+    ("os", "fsync"),
+)
+
+
+def spans(args: argparse.Namespace) -> None:
+    """Where the time of one `ppd poison --workers 1 <folder>` process goes: the command run in
+    this process with every stage of daemon.protect.stages (and the calls in SPAN_CALLS) wrapped in
+    a timer (CPU: time.process_time, wall: time.perf_counter); start-up = process start to the
+    first stage. Nested spans are counted in each (a stage's time includes its calls')."""
+    import importlib
+    from collections import defaultdict
+
+    cache = Path(args.cache)
+    src = cache / args.only
+    if args.only == "jpeg":
+        make_jpegs(src, args.count)
+    else:
+        make_pngs(src, args.count)
+    work = fresh_copy(src, cache / "work-spans", args.count)
+    env = fresh_state(cache / "state-spans")
+    os.environ.update(env)
+    totals: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0])
+
+    def timed_call(label: str, fn):  # noqa: ANN001, ANN202 - a bench wrapper
+        def wrapper(*a, **kw):  # noqa: ANN002, ANN003, ANN202
+            c0, w0 = time.process_time(), time.perf_counter()
+            try:
+                return fn(*a, **kw)
+            finally:
+                t = totals[label]
+                t[0] += time.process_time() - c0
+                t[1] += time.perf_counter() - w0
+                t[2] += 1
+
+        return wrapper
+
+    t_start_cpu = time.process_time()  # interpreter start-up before this line is not counted here
+    from daemon.protect import stages
+
+    wrapped = tuple(timed_call(f"stage {s.__name__}", s) for s in stages.STAGES)
+    stages.run_stages.__defaults__ = (wrapped,)
+    users = [importlib.import_module(m) for m in ("daemon.protect.stages", "daemon.protect.one_file")]
+    for module, name in SPAN_CALLS:
+        mod = importlib.import_module(module)
+        owner, attr = (getattr(mod, name.split(".")[0]), name.split(".")[1]) if "." in name else (mod, name)
+        original = getattr(owner, attr)
+        wrapper = timed_call(name, original)
+        setattr(owner, attr, wrapper)
+        for user in users:  # modules that imported the name itself
+            if getattr(user, attr, None) is original:
+                setattr(user, attr, wrapper)
+    from daemon.cli import app
+
+    c0, w0 = time.process_time(), time.perf_counter()
+    try:
+        app(["poison", str(work), "--workers", "1"], standalone_mode=False)
+    except SystemExit:
+        pass
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    print(f"{args.count} x {args.only}: whole command in-process CPU {cpu:.2f} s, wall {wall:.2f} s "
+          f"(imports before it {c0 - t_start_cpu:.2f} s CPU)")
+    print("| span | calls | CPU ms per file | wall ms per file |")
+    print("|---|---|---|---|")
+    for label, (c, w, n) in totals.items():
+        print(f"| {label} | {n} | {c * 1000 / args.count:.1f} | {w * 1000 / args.count:.1f} |")
+    shutil.rmtree(work, ignore_errors=True)
+
+
 STARTUP_COMMANDS = {
     "import daemon.cli": ["-c", "import daemon.cli"],
     "ppd poison --help": ["-m", "daemon.cli", "poison", "--help"],
@@ -389,6 +465,10 @@ def main() -> None:
     p.add_argument("--count", type=int, default=8)
     p.add_argument("--top", type=int, default=30)
     p.add_argument("--cache", default=str(DEFAULT_CACHE))
+    sp = sub.add_parser("spans", help="per-stage CPU and wall of one `ppd poison` process")
+    sp.add_argument("--count", type=int, default=24)
+    sp.add_argument("--only", choices=("jpeg", "png"), default="jpeg")
+    sp.add_argument("--cache", default=str(DEFAULT_CACHE))
     s = sub.add_parser("startup", help="CPU of CLI start-up and the biggest imports")
     s.add_argument("--runs", type=int, default=5)
     s.add_argument("--top", type=int, default=25)
@@ -404,6 +484,8 @@ def main() -> None:
         run_floor(args.folder)
     elif args.cmd == "profile":
         profile(args)
+    elif args.cmd == "spans":
+        spans(args)
     elif args.cmd == "startup":
         startup(args)
     else:
