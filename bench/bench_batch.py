@@ -33,6 +33,7 @@ Writes bench/results/batch.md (the measure command).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import platform
 import shutil
@@ -42,6 +43,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 RESULTS = Path(__file__).resolve().parent / "results" / "batch.md"
 LEGO = Path(__file__).resolve().parents[2] / "shared/datasets/nerf_synthetic_lego/train"
@@ -358,8 +360,8 @@ def spans(args: argparse.Namespace) -> None:
     os.environ.update(env)
     totals: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0])
 
-    def timed_call(label: str, fn):  # noqa: ANN001, ANN202 - a bench wrapper
-        def wrapper(*a, **kw):  # noqa: ANN002, ANN003, ANN202
+    def timed_call(label: str, fn: Any) -> Any:
+        def wrapper(*a: Any, **kw: Any) -> Any:
             c0, w0 = time.process_time(), time.perf_counter()
             try:
                 return fn(*a, **kw)
@@ -389,10 +391,8 @@ def spans(args: argparse.Namespace) -> None:
     from daemon.cli import app
 
     c0, w0 = time.process_time(), time.perf_counter()
-    try:
+    with contextlib.suppress(SystemExit):
         app(["poison", str(work), "--workers", "1"], standalone_mode=False)
-    except SystemExit:
-        pass
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
     print(f"{args.count} x {args.only}: whole command in-process CPU {cpu:.2f} s, wall {wall:.2f} s "
           f"(imports before it {c0 - t_start_cpu:.2f} s CPU)")

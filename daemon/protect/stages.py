@@ -33,6 +33,7 @@ symlink; every later read and write goes through those descriptors, never throug
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import stat
@@ -58,6 +59,8 @@ from daemon.fsops import (
     move_out,
     open_contained,
     open_dir,
+    read_fd,
+    write_all,
 )
 from daemon.platform import fd_path, writers_of
 from daemon.protect.job import (
@@ -171,9 +174,19 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     return None
 
 
+IN_MEMORY_MAX = 256 << 20  # an original up to this size is read once, for its hash and its vault copy
+
+
 def hash_original(job: Job) -> ProtectOutcome | None:
+    """The original's sha256, read through its descriptor. A file up to IN_MEMORY_MAX is read into
+    memory once: its vault copy (keep_in_vault) is written from these very bytes, never read
+    or hashed a second time."""
     assert job.file is not None
-    job.sha = job.file.sha256()
+    if job.file.st.st_size <= IN_MEMORY_MAX:
+        job.data = read_fd(job.file.fd)
+        job.sha = hashlib.sha256(job.data).hexdigest()
+    else:
+        job.sha = job.file.sha256()
     job.row = job.ctx.store.file(job.record_path)
     return None
 
@@ -311,8 +324,12 @@ def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
 def keep_in_vault(job: Job) -> ProtectOutcome | None:
     """1. An independent copy of the original (read through its descriptor) goes to the vault."""
     assert job.file is not None and job.sha is not None
+    data, job.data = job.data, None  # not held through the poison
     try:
-        job.ctx.vault.keep_fd(job.file.fd, expected_sha256=job.sha)
+        if data is not None:  # the bytes that were hashed: written as they are, not read again
+            job.ctx.vault.keep_bytes(data, job.sha)
+        else:
+            job.ctx.vault.keep_fd(job.file.fd, expected_sha256=job.sha)
     except VaultContentChanged:
         raise SourceChanged(f"{job.path.name} was written to while being kept; left as it is now") from None
     if job.file.changed():
@@ -333,7 +350,7 @@ def mark_pending(job: Job) -> ProtectOutcome | None:
     job.ctx.store.record_file(
         job.record_path, job.dataset, FileState.PENDING, original_sha256=job.sha, spec_id=job.spec.spec_id,
         poisoned_sha256=None, error=None, tool_version=tool_version(), event="pending",
-        detail={"kind": job.kind},
+        detail={"kind": job.kind}, durable=False,  # no fsync: see the order at the top
     )  # fmt: skip
     return None
 
@@ -354,7 +371,11 @@ def poison(job: Job) -> ProtectOutcome | None:
             keep_location=job.keep_location, **limits,
         )  # fmt: skip
     seal_output(job.ctx, job.poisoned)
-    job.poisoned_sha = sha256_file(job.poisoned)
+    if job.poisoned.stat().st_size <= IN_MEMORY_MAX:  # read once: hashed here, written by the replace
+        job.poisoned_data = job.poisoned.read_bytes()
+        job.poisoned_sha = hashlib.sha256(job.poisoned_data).hexdigest()
+    else:
+        job.poisoned_sha = sha256_file(job.poisoned)
     return None
 
 
@@ -384,8 +405,12 @@ def replace_atomically(job: Job) -> ProtectOutcome | None:
         fd,
         _tmp,
     ):
-        copy_path_to_fd(job.poisoned, fd)
+        if job.poisoned_data is not None:  # the bytes poison() hashed
+            write_all(fd, job.poisoned_data)
+        else:
+            copy_path_to_fd(job.poisoned, fd)
         st = os.fstat(fd)
+    job.poisoned_data = None
     job.written = (st.st_ino, st.st_size, st.st_mtime_ns)
     job.final = job.path
     return None
