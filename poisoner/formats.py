@@ -259,11 +259,12 @@ def lane_placements(placement: PatchPlacement) -> list[PatchPlacement] | None:
     stored = unorient_array(labels, placement.turn)  # the squares where the stored pixels hold them
     lanes = []
     for k, (_dx, _dy, seed) in enumerate(placement.parts):
-        ys, xs = np.nonzero(stored == k + 1)
-        if ys.size != t * t:  # cut by the box's edge: not a whole square
+        square = stored == k + 1
+        rows, cols = square.any(axis=1), square.any(axis=0)
+        if rows.sum() != t or cols.sum() != t:  # cut by the box's edge: not a whole square
             return None
         lanes.append(
-            replace(placement, x=placement.x + int(xs.min()), y=placement.y + int(ys.min()), size=t,
+            replace(placement, x=placement.x + int(cols.argmax()), y=placement.y + int(rows.argmax()), size=t,
                     parts=((0, 0, seed),))
         )  # fmt: skip
     return lanes

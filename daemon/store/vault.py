@@ -185,7 +185,7 @@ class Vault:
         """The crash-safe keep: a flock()ed temporary filled by fill(fd) -> (method, sha256), fsynced
         (its bytes are durable before they have a name), renamed to its content address, and the
         folder fsynced (the name is durable before anyone relies on it; the vault folder too when
-        the two-letter folder is new)."""
+        the two-letter folder is new: its own name)."""
         self._check_room(size)
         tmp_fd, tmp_name = tempfile.mkstemp(prefix=VAULT_TMP_PREFIX, dir=self.vault_dir)
         fcntl.flock(tmp_fd, fcntl.LOCK_EX)  # held while written: clear_stale_keeps leaves it alone

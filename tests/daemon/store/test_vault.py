@@ -436,3 +436,4 @@ def test_partial_copies_of_a_killed_keep_are_cleaned_and_counted(tmp_path: Path)
         holder.kill()
         holder.wait()
     assert not stale.exists() and live.exists() and vault.verify(sha)
+
