@@ -54,6 +54,7 @@ from poisoner.errors import ImageFormatError, MarkNotWritten
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
 from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box, written_pixels
 from poisoner.image.png import PNG_SIGNATURE, png_chunks, poison_png, splice_png, strip_png_location
+from poisoner.image.png_rows import poison_png_rows
 from poisoner.image.read import load_decoded, one_line, open_decoded
 from poisoner.image.tiff import poison_tiff
 from poisoner.image.webp import poison_webp, vp8_quantizers, webp_quality_from_quantizer
@@ -446,7 +447,9 @@ def _write_format(
         if marker is not None:
             out = _jpeg_marker(src, out, marker)
     elif fmt == "PNG":
-        out, preserved, notes = poison_png(im, data, placement, keep_out)
+        # the source's filtered rows re-used where the file allows, else the whole re-encode
+        fast = poison_png_rows(im, data, lane_placements(placement) or [placement], keep_out)
+        out, preserved, notes = fast if fast is not None else poison_png(im, data, placement, keep_out)
         method, lossless = "png-lossless", True
         if not keep_location:
             out, removed = strip_png_location(out)
