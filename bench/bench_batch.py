@@ -141,7 +141,9 @@ def run_floor(folder: Path) -> None:
 
 
 # ---- timing --------------------------------------------------------------------------------------
-def timed(argv: list[str], quiet: bool = False, env: dict[str, str] | None = None) -> dict[str, float]:
+def timed(
+    argv: list[str], quiet: bool = False, env: dict[str, str] | None = None, cwd: str | None = None
+) -> dict[str, float]:
     """One whole process under /usr/bin/time: wall, cpu (user+sys, children included), rss MB."""
     with tempfile.NamedTemporaryFile("r", suffix=".time") as out:
         subprocess.run(
@@ -150,6 +152,7 @@ def timed(argv: list[str], quiet: bool = False, env: dict[str, str] | None = Non
             check=True,
             stdout=subprocess.DEVNULL if quiet else None,
             env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), **(env or {})},
+            cwd=cwd,
         )
         wall, user, system, rss = out.read().split()[-4:]
     return {"wall": float(wall), "cpu": float(user) + float(system), "rss": int(rss) / 1024}
@@ -211,17 +214,25 @@ def fresh_state(root: Path) -> dict[str, str]:
 
 
 def paired(
-    src: Path, work: Path, pairs: int, workers: int, via: str = "library", count: int | None = None
+    src: Path, work: Path, pairs: int, workers: int, via: str = "library", count: int | None = None,
+    baseline: Path | None = None,
 ) -> tuple[dict, str]:
+    """Runs alternating ppd / floor (/ the baseline checkout's same ppd command, when given), the
+    order reversed every other round."""
     ppd_cmd, how = ppd_command(work, workers, via)
     floor_cmd = [sys.executable, "-m", "bench.bench_batch", "_floor", str(work)]
     runs: dict[str, list[dict[str, float]]] = {"ppd": [], "floor": []}
+    order = [("ppd", ppd_cmd, None), ("floor", floor_cmd, None)]
+    if baseline is not None:  # the same command from another checkout (PYTHONPATH), e.g. the start commit
+        runs["base"] = []
+        order.append(("base", ppd_cmd, str(baseline.resolve())))
     for i in range(pairs):
-        order = [("ppd", ppd_cmd), ("floor", floor_cmd)]
-        for name, cmd in order if i % 2 == 0 else order[::-1]:
+        for name, cmd, path in order if i % 2 == 0 else order[::-1]:
             fresh_copy(src, work, count)
-            env = fresh_state(work.parent / "state") if name == "ppd" and how == "ppd poison" else None
-            runs[name].append(timed(cmd, quiet=how == "ppd poison", env=env))
+            env = fresh_state(work.parent / "state") if name != "floor" and how == "ppd poison" else {}
+            if path is not None:
+                env = {**(env or {}), "PYTHONPATH": path}
+            runs[name].append(timed(cmd, quiet=how == "ppd poison", env=env or None, cwd=path))
     return runs, how
 
 
@@ -233,6 +244,9 @@ def summarise(runs: dict[str, list[dict[str, float]]]) -> dict[str, float]:
     }
     med["cpu_ratio"] = med["ppd_cpu"] / med["floor_cpu"]
     med["wall_ratio"] = med["ppd_wall"] / med["floor_wall"]
+    if "base" in runs:
+        med["base_cpu_ratio"] = med["base_cpu"] / med["floor_cpu"]
+        med["base_wall_ratio"] = med["base_wall"] / med["floor_wall"]
     return med
 
 
@@ -255,7 +269,7 @@ def measure(args: argparse.Namespace) -> None:
         for workers in args.workers:
             t0 = time.perf_counter()
             load = os.getloadavg()[0]
-            runs, how = paired(src, work, args.pairs, workers, args.via, args.count)
+            runs, how = paired(src, work, args.pairs, workers, args.via, args.count, args.baseline)
             med = summarise(runs)
             print(f"{label} workers={workers} ({how}): {med} ({time.perf_counter() - t0:.0f} s)", flush=True)
             rows.append((label, f"{workers} ({how})", med, (load, os.getloadavg()[0])))
@@ -297,6 +311,22 @@ def write_results(args: argparse.Namespace, rows: list, load_before: tuple, load
             f"| {m['ppd_wall']:.2f} | {m['floor_wall']:.2f} | {m['wall_ratio']:.2f}x | {m['ppd_rss']:.0f} "
             f"| {m['floor_rss']:.0f} | {load[0]:.2f} / {load[1]:.2f} |"
         )
+    if args.baseline is not None:
+        lines += [
+            "",
+            f"The same ppd command from the baseline checkout `{args.baseline}` (PYTHONPATH), alternating "
+            "with the two above in the same rounds:",
+            "",
+            "| files | ppd workers (how) | baseline CPU s | baseline CPU ratio to the floor "
+            "| baseline wall s | baseline wall ratio | ppd CPU / baseline CPU | baseline peak RSS MB |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for label, workers, m, _load in rows:
+            lines.append(
+                f"| {label} | {workers} | {m['base_cpu']:.2f} | {m['base_cpu_ratio']:.2f}x "
+                f"| {m['base_wall']:.2f} | {m['base_wall_ratio']:.2f}x | {m['ppd_cpu'] / m['base_cpu']:.2f}x "
+                f"| {m['base_rss']:.0f} |"
+            )
     lines.append("")
     text = "\n".join(lines)
     results = args.results
@@ -461,6 +491,9 @@ def main() -> None:
     m.add_argument("--via", choices=("library", "cli"), default="library", help="what the ppd side runs")
     m.add_argument("--only", choices=("jpeg", "png"), help="one of the two folders")
     m.add_argument("--results", type=Path, default=RESULTS, help="where the table goes")
+    m.add_argument(
+        "--baseline", type=Path, default=None, help="another checkout (an older commit): its ppd runs too"
+    )
     p = sub.add_parser("profile", help="cProfile of one ppd process over --count JPEGs")
     p.add_argument("--count", type=int, default=8)
     p.add_argument("--top", type=int, default=30)
