@@ -8,10 +8,14 @@ Each stage is a small function `stage(job) -> ProtectOutcome | None`: None hands
 next stage, an outcome ends the run there (unchanged, skipped, dry run). Exceptions end it as
 'failed' (daemon.protect.one_file.protect_file records them).
 
-The crash-safety argument is the order of the last six (docs/STORE.md):
-1. keep_in_vault: an independent copy of the original's bytes (Vault.keep_fd, read through the
-   file's descriptor, never a link) is in the vault, fsynced and hash-checked, before anything else;
-2. mark_pending: a 'pending' row naming the original's sha256 is committed;
+The crash-safety argument is the order of the last six (docs/STORE.md, with the fsyncs each file
+costs and why each is needed):
+1. keep_in_vault: an independent copy of the original's bytes (Vault.keep_bytes: the bytes
+   hash_original read through the file's descriptor and hashed, never a link; Vault.keep_fd for a
+   file over IN_MEMORY_MAX) is in the vault, fsynced with its folder, before anything else;
+2. mark_pending: a 'pending' row naming the original's sha256 is committed (not fsynced: after a
+   power cut the patched file's seal names the original, durable in the vault, and the next run
+   writes the row back; a killed process loses nothing of it);
 3. poison: the complete patched file (with its provenance marker) is written in ppd's private
    work folder (in a child process when the last attempt on this file died with its process);
 4. replace_atomically: it is copied to a flock()ed temporary in the file's own folder (through
@@ -174,15 +178,17 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     return None
 
 
-IN_MEMORY_MAX = 256 << 20  # an original up to this size is read once, for its hash and its vault copy
+# An image up to this size is read into memory once, for its hash and its vault copy (and its
+# patched output once, for its hash and its replace); larger files and videos stream as before.
+IN_MEMORY_MAX = 64 << 20
 
 
 def hash_original(job: Job) -> ProtectOutcome | None:
-    """The original's sha256, read through its descriptor. A file up to IN_MEMORY_MAX is read into
+    """The original's sha256, read through its descriptor. An image up to IN_MEMORY_MAX is read into
     memory once: its vault copy (keep_in_vault) is written from these very bytes, never read
     or hashed a second time."""
     assert job.file is not None
-    if job.file.st.st_size <= IN_MEMORY_MAX:
+    if job.kind == "image" and job.file.st.st_size <= IN_MEMORY_MAX:
         job.data = read_fd(job.file.fd)
         job.sha = hashlib.sha256(job.data).hexdigest()
     else:
@@ -371,7 +377,7 @@ def poison(job: Job) -> ProtectOutcome | None:
             keep_location=job.keep_location, **limits,
         )  # fmt: skip
     seal_output(job.ctx, job.poisoned)
-    if job.poisoned.stat().st_size <= IN_MEMORY_MAX:  # read once: hashed here, written by the replace
+    if job.kind == "image" and job.poisoned.stat().st_size <= IN_MEMORY_MAX:  # hashed here, written later
         job.poisoned_data = job.poisoned.read_bytes()
         job.poisoned_sha = hashlib.sha256(job.poisoned_data).hexdigest()
     else:
