@@ -361,6 +361,8 @@ def profile(args: argparse.Namespace) -> None:
 
 # What `spans` times inside each file's run, besides the stages themselves (module, function).
 SPAN_CALLS = (
+    ("daemon.protect.pool", "protect_many"),  # every file's stages
+    ("daemon.cli.scene_note", "scene_line"),  # the summary's scene hint (reads a sample of the images)
     ("poisoner.formats", "plan_mark"),
     ("poisoner.formats", "_write_format"),
     ("daemon.protect.poisoning", "seal_output"),
@@ -403,12 +405,12 @@ def spans(args: argparse.Namespace) -> None:
 
         return wrapper
 
-    t_start_cpu = time.process_time()  # interpreter start-up before this line is not counted here
     from daemon.protect import stages
 
     wrapped = tuple(timed_call(f"stage {s.__name__}", s) for s in stages.STAGES)
     stages.run_stages.__defaults__ = (wrapped,)
-    users = [importlib.import_module(m) for m in ("daemon.protect.stages", "daemon.protect.one_file")]
+    users = [importlib.import_module(m) for m in ("daemon.protect.stages", "daemon.protect.one_file",
+                                                  "daemon.cli.poison_cmd")]  # fmt: skip
     for module, name in SPAN_CALLS:
         mod = importlib.import_module(module)
         owner, attr = (getattr(mod, name.split(".")[0]), name.split(".")[1]) if "." in name else (mod, name)
@@ -424,8 +426,11 @@ def spans(args: argparse.Namespace) -> None:
     with contextlib.suppress(SystemExit):
         app(["poison", str(work), "--workers", "1"], standalone_mode=False)
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-    print(f"{args.count} x {args.only}: whole command in-process CPU {cpu:.2f} s, wall {wall:.2f} s "
-          f"(imports before it {c0 - t_start_cpu:.2f} s CPU)")
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    print(f"{args.count} x {args.only}: the command in-process CPU {cpu:.2f} s, wall {wall:.2f} s; the whole "
+          f"process (interpreter start and imports included) {usage.ru_utime + usage.ru_stime:.2f} s CPU")
     print("| span | calls | CPU ms per file | wall ms per file |")
     print("|---|---|---|---|")
     for label, (c, w, n) in totals.items():
