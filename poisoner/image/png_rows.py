@@ -7,7 +7,7 @@ Why: the whole re-encode (Pillow: an adaptive filter choice per row, then deflat
 deflate runs first with a fast setting (level 1, Z_RLE: ~15-25 ms per 800x800 file, measured on the
 lego views and on camera-like noise). Its output is kept only while the new IDAT stays within
 SIZE_BOUND of the source's IDAT; past that, the stream is compressed again at level 6 with
-Z_FILTERED (Pillow's own PNG setting), so a file never grows much for the speed.
+Z_FILTERED (what reproduces Pillow's own output size), so a file never grows much for the speed.
 
 Lossless like the re-encode: the decoded pixels are the patched picture exactly (tests). Every
 chunk but IDAT is copied byte for byte, in its place. Only 8-bit, non-interlaced grey, grey+alpha,
@@ -29,7 +29,7 @@ from poisoner.spec import PatchPlacement
 
 SIZE_BOUND = 1.05  # the fast deflate is kept while the new IDAT is at most this x the source's
 FAST = (1, zlib.Z_RLE)  # (level, strategy)
-FALLBACK = (6, zlib.Z_FILTERED)  # what Pillow writes by default (its PNG encoder's strategy)
+FALLBACK = (6, zlib.Z_FILTERED)  # gives exactly Pillow's own IDAT size on its rows (measured)
 _BYTES_PER_PIXEL = {0: 1, 2: 3, 4: 2, 6: 4}  # colour type -> bytes per 8-bit pixel
 _MODES = {0: "L", 2: "RGB", 4: "LA", 6: "RGBA"}
 _NOT_HERE = {b"tRNS", b"acTL", b"fcTL", b"fdAT", b"PLTE"}  # colour keys, animation, palettes
