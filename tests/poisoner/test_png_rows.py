@@ -143,7 +143,9 @@ def test_the_deflate_falls_back_when_the_fast_one_would_grow_the_file(tmp_path: 
     assert any("level 6" in n for n in report.notes), report.notes
     src_idat = sum(len(b) for t, b in png_chunks(src.read_bytes()) if t == b"IDAT")
     out_idat = sum(len(b) for t, b in png_chunks(dst.read_bytes()) if t == b"IDAT")
-    fast = len(png_rows._deflate(_rows(dst.read_bytes()).tobytes(), png_rows.FAST))
+    level, strategy = png_rows.FAST
+    deflate = zlib.compressobj(level, zlib.DEFLATED, 15, 9, strategy)
+    fast = len(deflate.compress(_rows(dst.read_bytes()).tobytes()) + deflate.flush())
     assert fast > png_rows.SIZE_BOUND * src_idat and out_idat < fast
     with Image.open(src) as im:
         expected = apply_patch(np.asarray(im), report.placement)
@@ -183,3 +185,50 @@ def test_an_interlaced_png_is_not_taken(tmp_path: Path) -> None:
     placement = PatchSpec(patch_size=20, block_size=4).resolve(80, 64)
     assert png_rows.poison_png_rows(Image.fromarray(pixels), interlaced, [placement]) is None
     assert png_rows.poison_png_rows(Image.fromarray(pixels), data, [placement]) is not None
+
+
+def test_the_inflated_rows_are_never_held_whole(tmp_path: Path) -> None:
+    """Memory: the rows pass ROWS_PER_STEP at a time (Python's allocations during the call stay far
+    under the inflated stream's size; holding it, or a copy, would pass it). The band's own
+    filtering (a few int16 arrays of its rows) is what remains: a tall picture keeps it small."""
+    import tracemalloc
+
+    h, w = 6000, 300
+    ramp = (np.arange(w, dtype=np.uint16)[None, :] * 255 // w).astype(np.uint8)
+    pixels = np.repeat(np.repeat(ramp, h, axis=0)[..., None], 3, axis=2)
+    data = write_png(pixels, 2, [1] * h, level=6)
+    raw_size = h * (w * 3 + 1)
+    im = Image.open(io.BytesIO(data))
+    im.load()
+    placement = PatchSpec(patch_size=60, block_size=4).resolve(w, h)
+    tracemalloc.start()
+    try:
+        out = png_rows.poison_png_rows(im, data, [placement])
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert out is not None
+    assert peak < raw_size / 2, (peak, raw_size)  # holding the rows, or a copy of them: >= 1x
+
+
+@pytest.mark.parametrize("damage", ["extra rows", "bad filter type", "rows missing"])
+def test_a_stream_unlike_its_header_is_left_to_the_re_encode_untouched(damage: str) -> None:
+    """The stream is checked as it is read again; a file that does not hold exactly its rows returns
+    None, and the decoded picture it was given is unchanged (the re-encode then patches it once)."""
+    h, w = 40, 50
+    pixels = _picture(h, w, 3, seed=5)
+    data = write_png(pixels, 2, [0] * h)
+    raw = bytearray(zlib.decompress(b"".join(b for t, b in png_chunks(data) if t == b"IDAT")))
+    if damage == "extra rows":
+        raw += raw[: w * 3 + 1]
+    elif damage == "bad filter type":
+        raw[(w * 3 + 1) * 30] = 7
+    else:
+        del raw[-(w * 3 + 1) :]
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
+    bad = b"".join([b"\x89PNG\r\n\x1a\n", _chunk(b"IHDR", ihdr), _chunk(b"IDAT", zlib.compress(bytes(raw))),
+                    _chunk(b"IEND", b"")])  # fmt: skip
+    im = Image.fromarray(pixels)
+    before = np.asarray(im).copy()
+    assert png_rows.poison_png_rows(im, bad, [PatchSpec(patch_size=20, block_size=4).resolve(w, h)]) is None
+    assert np.array_equal(np.asarray(im), before)
