@@ -1,11 +1,14 @@
 """Image files, faithfully: read a photo, blend the dataset's patch in, write the same kind of file.
 
 What "faithfully" means per format (docs/FORMATS.md has the measured details):
-- JPEG: only the MCUs the patch touches are re-encoded (DCT-coefficient splice, poisoner.jpeg);
+- JPEG: only the MCUs the patch writes in are re-encoded (DCT-coefficient splice, poisoner.jpeg; a
+  mark of two squares placed apart leaves the MCUs between them as they were, lane_placements);
   if that is impossible, one re-encode with the source's own quantisation tables and chroma
   subsampling. EXIF, ICC, XMP, IPTC and comments are kept.
-- PNG: lossless; the new pixel data (IHDR/PLTE/tRNS/IDAT) is spliced between the source's own
-  ancillary chunks, copied byte for byte (text, iCCP, eXIf, pHYs, gAMA, cHRM, sRGB, tIME, ...).
+- PNG: lossless; 8-bit files keep the source's filtered rows outside the mark's rows and are only
+  deflated again (poisoner.image.png_rows); otherwise the new pixel data (IHDR/PLTE/tRNS/IDAT) is
+  spliced between the source's own ancillary chunks, copied byte for byte (text, iCCP, eXIf, pHYs,
+  gAMA, cHRM, sRGB, tIME, ...).
   16-bit colour PNGs go through FFmpeg's PNG codec (PyAV) because Pillow reads them as 8-bit.
 - WebP: lossless stays lossless (exact, RGB under transparent pixels kept); lossy is re-encoded at
   the quality estimated from the source's VP8 quantiser. EXIF, ICC and XMP are kept.
