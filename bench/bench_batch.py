@@ -33,6 +33,7 @@ Writes bench/results/batch.md (the measure command).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import platform
 import shutil
@@ -42,6 +43,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 RESULTS = Path(__file__).resolve().parent / "results" / "batch.md"
 LEGO = Path(__file__).resolve().parents[2] / "shared/datasets/nerf_synthetic_lego/train"
@@ -139,7 +141,9 @@ def run_floor(folder: Path) -> None:
 
 
 # ---- timing --------------------------------------------------------------------------------------
-def timed(argv: list[str], quiet: bool = False, env: dict[str, str] | None = None) -> dict[str, float]:
+def timed(
+    argv: list[str], quiet: bool = False, env: dict[str, str] | None = None, cwd: str | None = None
+) -> dict[str, float]:
     """One whole process under /usr/bin/time: wall, cpu (user+sys, children included), rss MB."""
     with tempfile.NamedTemporaryFile("r", suffix=".time") as out:
         subprocess.run(
@@ -148,6 +152,7 @@ def timed(argv: list[str], quiet: bool = False, env: dict[str, str] | None = Non
             check=True,
             stdout=subprocess.DEVNULL if quiet else None,
             env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), **(env or {})},
+            cwd=cwd,
         )
         wall, user, system, rss = out.read().split()[-4:]
     return {"wall": float(wall), "cpu": float(user) + float(system), "rss": int(rss) / 1024}
@@ -209,17 +214,25 @@ def fresh_state(root: Path) -> dict[str, str]:
 
 
 def paired(
-    src: Path, work: Path, pairs: int, workers: int, via: str = "library", count: int | None = None
+    src: Path, work: Path, pairs: int, workers: int, via: str = "library", count: int | None = None,
+    baseline: Path | None = None,
 ) -> tuple[dict, str]:
+    """Runs alternating ppd / floor (/ the baseline checkout's same ppd command, when given), the
+    order reversed every other round."""
     ppd_cmd, how = ppd_command(work, workers, via)
     floor_cmd = [sys.executable, "-m", "bench.bench_batch", "_floor", str(work)]
     runs: dict[str, list[dict[str, float]]] = {"ppd": [], "floor": []}
+    order = [("ppd", ppd_cmd, None), ("floor", floor_cmd, None)]
+    if baseline is not None:  # the same command from another checkout (PYTHONPATH), e.g. the start commit
+        runs["base"] = []
+        order.append(("base", ppd_cmd, str(baseline.resolve())))
     for i in range(pairs):
-        order = [("ppd", ppd_cmd), ("floor", floor_cmd)]
-        for name, cmd in order if i % 2 == 0 else order[::-1]:
+        for name, cmd, path in order if i % 2 == 0 else order[::-1]:
             fresh_copy(src, work, count)
-            env = fresh_state(work.parent / "state") if name == "ppd" and how == "ppd poison" else None
-            runs[name].append(timed(cmd, quiet=how == "ppd poison", env=env))
+            env = fresh_state(work.parent / "state") if name != "floor" and how == "ppd poison" else {}
+            if path is not None:
+                env = {**(env or {}), "PYTHONPATH": path}
+            runs[name].append(timed(cmd, quiet=how == "ppd poison", env=env or None, cwd=path))
     return runs, how
 
 
@@ -231,6 +244,9 @@ def summarise(runs: dict[str, list[dict[str, float]]]) -> dict[str, float]:
     }
     med["cpu_ratio"] = med["ppd_cpu"] / med["floor_cpu"]
     med["wall_ratio"] = med["ppd_wall"] / med["floor_wall"]
+    if "base" in runs:
+        med["base_cpu_ratio"] = med["base_cpu"] / med["floor_cpu"]
+        med["base_wall_ratio"] = med["base_wall"] / med["floor_wall"]
     return med
 
 
@@ -253,7 +269,7 @@ def measure(args: argparse.Namespace) -> None:
         for workers in args.workers:
             t0 = time.perf_counter()
             load = os.getloadavg()[0]
-            runs, how = paired(src, work, args.pairs, workers, args.via, args.count)
+            runs, how = paired(src, work, args.pairs, workers, args.via, args.count, args.baseline)
             med = summarise(runs)
             print(f"{label} workers={workers} ({how}): {med} ({time.perf_counter() - t0:.0f} s)", flush=True)
             rows.append((label, f"{workers} ({how})", med, (load, os.getloadavg()[0])))
@@ -295,6 +311,22 @@ def write_results(args: argparse.Namespace, rows: list, load_before: tuple, load
             f"| {m['ppd_wall']:.2f} | {m['floor_wall']:.2f} | {m['wall_ratio']:.2f}x | {m['ppd_rss']:.0f} "
             f"| {m['floor_rss']:.0f} | {load[0]:.2f} / {load[1]:.2f} |"
         )
+    if args.baseline is not None:
+        lines += [
+            "",
+            f"The same ppd command from the baseline checkout `{args.baseline}` (PYTHONPATH), alternating "
+            "with the two above in the same rounds:",
+            "",
+            "| files | ppd workers (how) | baseline CPU s | baseline CPU ratio to the floor "
+            "| baseline wall s | baseline wall ratio | ppd CPU / baseline CPU | baseline peak RSS MB |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for label, workers, m, _load in rows:
+            lines.append(
+                f"| {label} | {workers} | {m['base_cpu']:.2f} | {m['base_cpu_ratio']:.2f}x "
+                f"| {m['base_wall']:.2f} | {m['base_wall_ratio']:.2f}x | {m['ppd_cpu'] / m['base_cpu']:.2f}x "
+                f"| {m['base_rss']:.0f} |"
+            )
     lines.append("")
     text = "\n".join(lines)
     results = args.results
@@ -324,6 +356,85 @@ def profile(args: argparse.Namespace) -> None:
     run_ppd(work, 1)
     prof.disable()
     pstats.Stats(prof).sort_stats("cumulative").print_stats(args.top)
+    shutil.rmtree(work, ignore_errors=True)
+
+
+# What `spans` times inside each file's run, besides the stages themselves (module, function).
+SPAN_CALLS = (
+    ("daemon.protect.pool", "protect_many"),  # every file's stages
+    ("daemon.cli.scene_note", "scene_line"),  # the summary's scene hint (reads a sample of the images)
+    ("poisoner.formats", "plan_mark"),
+    ("poisoner.formats", "_write_format"),
+    ("daemon.protect.poisoning", "seal_output"),
+    ("daemon.store.vault", "Vault.keep_fd"),
+    ("daemon.fsops", "sha256_fd"),
+    ("daemon.store.vault", "sha256_file"),
+    ("os", "fsync"),
+)
+
+
+def spans(args: argparse.Namespace) -> None:
+    """Where the time of one `ppd poison --workers 1 <folder>` process goes: the command run in
+    this process with every stage of daemon.protect.stages (and the calls in SPAN_CALLS) wrapped in
+    a timer (CPU: time.process_time, wall: time.perf_counter); start-up = process start to the
+    first stage. Nested spans are counted in each (a stage's time includes its calls')."""
+    import importlib
+    from collections import defaultdict
+
+    cache = Path(args.cache)
+    src = cache / args.only
+    if args.only == "jpeg":
+        make_jpegs(src, args.count)
+    else:
+        make_pngs(src, args.count)
+    work = fresh_copy(src, cache / "work-spans", args.count)
+    env = fresh_state(cache / "state-spans")
+    os.environ.update(env)
+    totals: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0])
+
+    def timed_call(label: str, fn: Any) -> Any:
+        def wrapper(*a: Any, **kw: Any) -> Any:
+            c0, w0 = time.process_time(), time.perf_counter()
+            try:
+                return fn(*a, **kw)
+            finally:
+                t = totals[label]
+                t[0] += time.process_time() - c0
+                t[1] += time.perf_counter() - w0
+                t[2] += 1
+
+        return wrapper
+
+    from daemon.protect import stages
+
+    wrapped = tuple(timed_call(f"stage {s.__name__}", s) for s in stages.STAGES)
+    stages.run_stages.__defaults__ = (wrapped,)
+    users = [importlib.import_module(m) for m in ("daemon.protect.stages", "daemon.protect.one_file",
+                                                  "daemon.cli.poison_cmd")]  # fmt: skip
+    for module, name in SPAN_CALLS:
+        mod = importlib.import_module(module)
+        owner, attr = (getattr(mod, name.split(".")[0]), name.split(".")[1]) if "." in name else (mod, name)
+        original = getattr(owner, attr)
+        wrapper = timed_call(name, original)
+        setattr(owner, attr, wrapper)
+        for user in users:  # modules that imported the name itself
+            if getattr(user, attr, None) is original:
+                setattr(user, attr, wrapper)
+    from daemon.cli import app
+
+    c0, w0 = time.process_time(), time.perf_counter()
+    with contextlib.suppress(SystemExit):
+        app(["poison", str(work), "--workers", "1"], standalone_mode=False)
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    print(f"{args.count} x {args.only}: the command in-process CPU {cpu:.2f} s, wall {wall:.2f} s; the whole "
+          f"process (interpreter start and imports included) {usage.ru_utime + usage.ru_stime:.2f} s CPU")
+    print("| span | calls | CPU ms per file | wall ms per file |")
+    print("|---|---|---|---|")
+    for label, (c, w, n) in totals.items():
+        print(f"| {label} | {n} | {c * 1000 / args.count:.1f} | {w * 1000 / args.count:.1f} |")
     shutil.rmtree(work, ignore_errors=True)
 
 
@@ -385,10 +496,17 @@ def main() -> None:
     m.add_argument("--via", choices=("library", "cli"), default="library", help="what the ppd side runs")
     m.add_argument("--only", choices=("jpeg", "png"), help="one of the two folders")
     m.add_argument("--results", type=Path, default=RESULTS, help="where the table goes")
+    m.add_argument(
+        "--baseline", type=Path, default=None, help="another checkout (an older commit): its ppd runs too"
+    )
     p = sub.add_parser("profile", help="cProfile of one ppd process over --count JPEGs")
     p.add_argument("--count", type=int, default=8)
     p.add_argument("--top", type=int, default=30)
     p.add_argument("--cache", default=str(DEFAULT_CACHE))
+    sp = sub.add_parser("spans", help="per-stage CPU and wall of one `ppd poison` process")
+    sp.add_argument("--count", type=int, default=24)
+    sp.add_argument("--only", choices=("jpeg", "png"), default="jpeg")
+    sp.add_argument("--cache", default=str(DEFAULT_CACHE))
     s = sub.add_parser("startup", help="CPU of CLI start-up and the biggest imports")
     s.add_argument("--runs", type=int, default=5)
     s.add_argument("--top", type=int, default=25)
@@ -404,6 +522,8 @@ def main() -> None:
         run_floor(args.folder)
     elif args.cmd == "profile":
         profile(args)
+    elif args.cmd == "spans":
+        spans(args)
     elif args.cmd == "startup":
         startup(args)
     else:

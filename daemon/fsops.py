@@ -168,6 +168,27 @@ def sha256_fd(fd: int) -> str:
     return digest.hexdigest()
 
 
+def read_fd(fd: int) -> bytes:
+    """The open file's whole content, read from offset 0 (the fd's own offset is not moved)."""
+    size = os.fstat(fd).st_size
+    data = os.pread(fd, size, 0) if size else b""
+    if len(data) < size:  # a short read (a file cut meanwhile) or a pipe-like file: read on
+        chunks = [data]
+        offset = len(data)
+        while chunk := os.pread(fd, CHUNK, offset):
+            chunks.append(chunk)
+            offset += len(chunk)
+        data = b"".join(chunks)
+    elif size:  # a file grown meanwhile: its new tail too (what is hashed is what is read)
+        tail = []
+        offset = size
+        while chunk := os.pread(fd, CHUNK, offset):
+            tail.append(chunk)
+            offset += len(chunk)
+        data = b"".join([data, *tail]) if tail else data
+    return data
+
+
 def write_all(fd: int, data: bytes) -> None:
     """os.write until every byte is written (a nearly full disk takes a short write first)."""
     view = memoryview(data)

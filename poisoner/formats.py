@@ -1,11 +1,14 @@
 """Image files, faithfully: read a photo, blend the dataset's patch in, write the same kind of file.
 
 What "faithfully" means per format (docs/FORMATS.md has the measured details):
-- JPEG: only the MCUs the patch touches are re-encoded (DCT-coefficient splice, poisoner.jpeg);
+- JPEG: only the MCUs the patch writes in are re-encoded (DCT-coefficient splice, poisoner.jpeg; a
+  mark of two squares placed apart leaves the MCUs between them as they were, lane_placements);
   if that is impossible, one re-encode with the source's own quantisation tables and chroma
   subsampling. EXIF, ICC, XMP, IPTC and comments are kept.
-- PNG: lossless; the new pixel data (IHDR/PLTE/tRNS/IDAT) is spliced between the source's own
-  ancillary chunks, copied byte for byte (text, iCCP, eXIf, pHYs, gAMA, cHRM, sRGB, tIME, ...).
+- PNG: lossless; 8-bit files keep the source's filtered rows outside the mark's rows and are only
+  deflated again (poisoner.image.png_rows); otherwise the new pixel data (IHDR/PLTE/tRNS/IDAT) is
+  spliced between the source's own ancillary chunks, copied byte for byte (text, iCCP, eXIf, pHYs,
+  gAMA, cHRM, sRGB, tIME, ...).
   16-bit colour PNGs go through FFmpeg's PNG codec (PyAV) because Pillow reads them as 8-bit.
 - WebP: lossless stays lossless (exact, RGB under transparent pixels kept); lossy is re-encoded at
   the quality estimated from the source's VP8 quantiser. EXIF, ICC and XMP are kept.
@@ -39,7 +42,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypedDict, Unpack
 
@@ -49,17 +52,19 @@ from PIL import Image
 from poisoner import jpeg as jpeg_codec
 from poisoner import location, provenance
 from poisoner.atomic import atomic_output
-from poisoner.blend import apply_patch_at
+from poisoner.blend import apply_patch_at, patch_coverage
 from poisoner.errors import ImageFormatError, MarkNotWritten
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
 from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box, written_pixels
 from poisoner.image.png import PNG_SIGNATURE, png_chunks, poison_png, splice_png, strip_png_location
+from poisoner.image.png_rows import poison_png_rows
 from poisoner.image.read import load_decoded, one_line, open_decoded
 from poisoner.image.tiff import poison_tiff
 from poisoner.image.webp import poison_webp, vp8_quantizers, webp_quality_from_quantizer
 from poisoner.image.write import image_from_array, paste_patch, save_explicit
 from poisoner.limits import DEFAULT_MAX_PIXELS, check_decode_budget
 from poisoner.media import is_image
+from poisoner.orientation import unorient_array
 from poisoner.placement import MarkPlace, place_on_photo
 from poisoner.provenance import Marker
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
@@ -161,22 +166,28 @@ def _poison_jpeg(
         notes.append("the keep-out mask reaches every MCU of the mark: pixels left unchanged")
         return data, preserved, notes, "jpeg-unchanged"
 
+    lanes = lane_placements(placement)
+
     def patch(pixels: np.ndarray, at: tuple[int, int, int, int] = box) -> np.ndarray:
         window = None if keep is None else keep[at[1] - mark_box[1] : at[3] - mark_box[1],
                                                  at[0] - mark_box[0] : at[2] - mark_box[0]]  # fmt: skip
-        return apply_patch_at(pixels, placement, (at[0], at[1]), window)
+        return _patch_window(pixels, placement, lanes, (at[0], at[1]), window)
 
     # The splice only needs the MCU box's pixels: with JPEG_REGION_DECODE they come from a
     # lossless crop around the box (jpeg_codec.decode_box), so the rest of the picture is never
     # decoded to pixels; otherwise (or when the crop is refused) from the whole decoded picture,
     # of which only the box is converted to an array.
-    holes = None if keep is None else _kept_mcus(keep, mark_box, box, layout)
+    masked = None if keep is None else _kept_mcus(keep, mark_box, box, layout)
+    # MCUs of the box where the mark writes no pixel (between two squares placed apart) keep
+    # their coefficients too: never re-encoded, so never changed.
+    idle = _idle_mcus(placement, keep, mark_box, box, layout)
+    holes = masked if idle is None else idle if masked is None else masked | idle
     try:
         out, kept_exactly = _splice_jpeg(src, data, im, layout, box, patch, loaded, holes)
         notes.append(f"DCT splice: only MCU box {box} re-encoded, all other coefficients copied")
-        if holes is not None:
+        if masked is not None:
             how = "coefficients copied" if kept_exactly else "re-encoded from their own pixels, unpatched"
-            notes.append(f"{int(holes.sum())} MCU(s) of the box reach the keep-out mask: {how}")
+            notes.append(f"{int(masked.sum())} MCU(s) of the box reach the keep-out mask: {how}")
         return out, preserved, notes, "jpeg-dct-splice"
     except jpeg_codec.SpliceUnavailable as exc:
         notes.append(f"DCT splice impossible ({exc}): whole image re-encoded with the source tables")
@@ -210,6 +221,78 @@ def _splice_box(
     MCUs of the mark's box that carry no written pixel keep their coefficients."""
     written = written_box(placement, mark_box, keep)
     return None if written is None else jpeg_codec.mcu_box(written, layout)
+
+
+def _idle_mcus(
+    placement: PatchPlacement, keep: np.ndarray | None, mark_box: tuple[int, int, int, int],
+    box: tuple[int, int, int, int], layout: jpeg_codec.JpegLayout,
+) -> np.ndarray | None:
+    """The splice box's MCUs (rows x columns, True) in which the mark writes no pixel (keep, over
+    mark_box, left alone); None when it writes in every one."""
+    x0, y0, x1, y1 = box
+    mw, mh = layout.mcu_size
+    rows, cols = -(-(y1 - y0) // mh), -(-(x1 - x0) // mw)
+    write = np.zeros((rows * mh, cols * mw), dtype=bool)
+    px0, py0, px1, py1 = placement.box
+    cover = patch_coverage(placement)
+    # the mark's box clipped to the splice box (the picture's edge may cut both)
+    cx0, cy0, cx1, cy1 = max(px0, x0), max(py0, y0), min(px1, x1), min(py1, y1)
+    if cx0 < cx1 and cy0 < cy1:
+        part = cover[cy0 - py0 : cy1 - py0, cx0 - px0 : cx1 - px0]
+        if keep is not None:
+            part = part & ~keep[cy0 - mark_box[1] : cy1 - mark_box[1], cx0 - mark_box[0] : cx1 - mark_box[0]]
+        write[cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0] = part
+    idle = ~write.reshape(rows, mh, cols, mw).any(axis=(1, 3))
+    return idle if idle.any() else None
+
+
+def lane_placements(placement: PatchPlacement) -> list[PatchPlacement] | None:
+    """A mark of several lanes (placement.parts) as one single-lane placement per lane, each on its
+    own square in stored pixels, writing exactly the pixels the whole placement writes there: a
+    writer then blends each square alone instead of the box around squares placed far apart.
+    None when the placement is not made of lanes, or its squares overlap (then only the whole
+    placement says which lane wins)."""
+    if not placement.parts or placement.lane_size <= 0:
+        return None
+    n, t = placement.size, placement.lane_size
+    labels = np.zeros((n, n), dtype=np.uint8)
+    for k, (dx, dy, _seed) in enumerate(placement.parts):
+        if labels[dy : dy + t, dx : dx + t].any():
+            return None
+        labels[dy : dy + t, dx : dx + t] = k + 1
+    stored = unorient_array(labels, placement.turn)  # the squares where the stored pixels hold them
+    lanes = []
+    for k, (_dx, _dy, seed) in enumerate(placement.parts):
+        square = stored == k + 1
+        rows, cols = square.any(axis=1), square.any(axis=0)
+        if rows.sum() != t or cols.sum() != t:  # cut by the box's edge: not a whole square
+            return None
+        lanes.append(
+            replace(placement, x=placement.x + int(cols.argmax()), y=placement.y + int(rows.argmax()), size=t,
+                    parts=((0, 0, seed),))
+        )  # fmt: skip
+    return lanes
+
+
+def _patch_window(
+    pixels: np.ndarray, placement: PatchPlacement, lanes: list[PatchPlacement] | None,
+    origin: tuple[int, int], keep: np.ndarray | None,
+) -> np.ndarray:
+    """apply_patch_at(pixels, placement, origin, keep), a lane at a time when lanes is given (the
+    same pixels: each lane's square blended alone)."""
+    if lanes is None:
+        return apply_patch_at(pixels, placement, origin, keep)
+    out = pixels.copy()
+    ox, oy = origin
+    h, w = pixels.shape[:2]
+    for lane in lanes:
+        lx0, ly0, lx1, ly1 = lane.box
+        x0, y0, x1, y1 = max(lx0 - ox, 0), max(ly0 - oy, 0), min(lx1 - ox, w), min(ly1 - oy, h)
+        if x0 >= x1 or y0 >= y1:
+            continue
+        window = None if keep is None else keep[y0:y1, x0:x1]
+        out[y0:y1, x0:x1] = apply_patch_at(pixels[y0:y1, x0:x1], lane, (ox + x0, oy + y0), window)
+    return out
 
 
 def _kept_mcus(
@@ -367,7 +450,9 @@ def _write_format(
         if marker is not None:
             out = _jpeg_marker(src, out, marker)
     elif fmt == "PNG":
-        out, preserved, notes = poison_png(im, data, placement, keep_out)
+        # the source's filtered rows re-used where the file allows, else the whole re-encode
+        fast = poison_png_rows(im, data, lane_placements(placement) or [placement], keep_out)
+        out, preserved, notes = fast if fast is not None else poison_png(im, data, placement, keep_out)
         method, lossless = "png-lossless", True
         if not keep_location:
             out, removed = strip_png_location(out)

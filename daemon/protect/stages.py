@@ -8,10 +8,14 @@ Each stage is a small function `stage(job) -> ProtectOutcome | None`: None hands
 next stage, an outcome ends the run there (unchanged, skipped, dry run). Exceptions end it as
 'failed' (daemon.protect.one_file.protect_file records them).
 
-The crash-safety argument is the order of the last six (docs/STORE.md):
-1. keep_in_vault: an independent copy of the original's bytes (Vault.keep_fd, read through the
-   file's descriptor, never a link) is in the vault, fsynced and hash-checked, before anything else;
-2. mark_pending: a 'pending' row naming the original's sha256 is committed;
+The crash-safety argument is the order of the last six (docs/STORE.md, with the fsyncs each file
+costs and why each is needed):
+1. keep_in_vault: an independent copy of the original's bytes (Vault.keep_bytes: the bytes
+   hash_original read through the file's descriptor and hashed, never a link; Vault.keep_fd for a
+   file over IN_MEMORY_MAX) is in the vault, fsynced with its folder, before anything else;
+2. mark_pending: a 'pending' row naming the original's sha256 is committed (not fsynced: after a
+   power cut the patched file's seal names the original, durable in the vault, and the next run
+   writes the row back; a killed process loses nothing of it);
 3. poison: the complete patched file (with its provenance marker) is written in ppd's private
    work folder (in a child process when the last attempt on this file died with its process);
 4. replace_atomically: it is copied to a flock()ed temporary in the file's own folder (through
@@ -33,6 +37,7 @@ symlink; every later read and write goes through those descriptors, never throug
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import stat
@@ -58,6 +63,8 @@ from daemon.fsops import (
     move_out,
     open_contained,
     open_dir,
+    read_fd,
+    write_all,
 )
 from daemon.platform import fd_path, writers_of
 from daemon.protect.job import (
@@ -171,9 +178,21 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     return None
 
 
+# An image up to this size is read into memory once, for its hash and its vault copy (and its
+# patched output once, for its hash and its replace); larger files and videos stream as before.
+IN_MEMORY_MAX = 64 << 20
+
+
 def hash_original(job: Job) -> ProtectOutcome | None:
+    """The original's sha256, read through its descriptor. An image up to IN_MEMORY_MAX is read into
+    memory once: its vault copy (keep_in_vault) is written from these very bytes, never read
+    or hashed a second time."""
     assert job.file is not None
-    job.sha = job.file.sha256()
+    if job.kind == "image" and job.file.st.st_size <= IN_MEMORY_MAX:
+        job.data = read_fd(job.file.fd)
+        job.sha = hashlib.sha256(job.data).hexdigest()
+    else:
+        job.sha = job.file.sha256()
     job.row = job.ctx.store.file(job.record_path)
     return None
 
@@ -311,8 +330,12 @@ def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
 def keep_in_vault(job: Job) -> ProtectOutcome | None:
     """1. An independent copy of the original (read through its descriptor) goes to the vault."""
     assert job.file is not None and job.sha is not None
+    data, job.data = job.data, None  # not held through the poison
     try:
-        job.ctx.vault.keep_fd(job.file.fd, expected_sha256=job.sha)
+        if data is not None:  # the bytes that were hashed: written as they are, not read again
+            job.ctx.vault.keep_bytes(data, job.sha)
+        else:
+            job.ctx.vault.keep_fd(job.file.fd, expected_sha256=job.sha)
     except VaultContentChanged:
         raise SourceChanged(f"{job.path.name} was written to while being kept; left as it is now") from None
     if job.file.changed():
@@ -333,7 +356,7 @@ def mark_pending(job: Job) -> ProtectOutcome | None:
     job.ctx.store.record_file(
         job.record_path, job.dataset, FileState.PENDING, original_sha256=job.sha, spec_id=job.spec.spec_id,
         poisoned_sha256=None, error=None, tool_version=tool_version(), event="pending",
-        detail={"kind": job.kind},
+        detail={"kind": job.kind}, durable=False,  # no fsync: see the order at the top
     )  # fmt: skip
     return None
 
@@ -354,7 +377,11 @@ def poison(job: Job) -> ProtectOutcome | None:
             keep_location=job.keep_location, **limits,
         )  # fmt: skip
     seal_output(job.ctx, job.poisoned)
-    job.poisoned_sha = sha256_file(job.poisoned)
+    if job.kind == "image" and job.poisoned.stat().st_size <= IN_MEMORY_MAX:  # hashed here, written later
+        job.poisoned_data = job.poisoned.read_bytes()
+        job.poisoned_sha = hashlib.sha256(job.poisoned_data).hexdigest()
+    else:
+        job.poisoned_sha = sha256_file(job.poisoned)
     return None
 
 
@@ -384,8 +411,12 @@ def replace_atomically(job: Job) -> ProtectOutcome | None:
         fd,
         _tmp,
     ):
-        copy_path_to_fd(job.poisoned, fd)
+        if job.poisoned_data is not None:  # the bytes poison() hashed
+            write_all(fd, job.poisoned_data)
+        else:
+            copy_path_to_fd(job.poisoned, fd)
         st = os.fstat(fd)
+    job.poisoned_data = None
     job.written = (st.st_ino, st.st_size, st.st_mtime_ns)
     job.final = job.path
     return None

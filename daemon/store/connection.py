@@ -96,22 +96,33 @@ class StoreBase:
         self._local = threading.local()
 
     @contextlib.contextmanager
-    def _write(self) -> Iterator[sqlite3.Connection]:
+    def _write(self, durable: bool = True) -> Iterator[sqlite3.Connection]:
         """A write transaction that holds SQLite's write lock from its first statement.
 
+        durable=False: the commit is appended to the WAL without an fsync (synchronous=NORMAL for
+        this transaction only): it survives the process being killed, not a power cut, and the next
+        durable commit (or checkpoint) makes it durable too, in order. For a row whose loss at a
+        power cut the caller can recover from (the protect stages' 'pending' row).
         Damage met inside it becomes StoreDamaged (one line), whatever the statement."""
         if self._damage is not None:
             raise StoreDamaged(self._damage)
         with self._damage_as_store_error():
             conn = self.conn
-            conn.execute("BEGIN IMMEDIATE")
+            if not durable:
+                conn.execute("PRAGMA synchronous = NORMAL")
             try:
-                yield conn
-            except BaseException:
-                with contextlib.suppress(sqlite3.Error):  # a damaged file may refuse even this
-                    conn.execute("ROLLBACK")
-                raise
-            conn.execute("COMMIT")
+                conn.execute("BEGIN IMMEDIATE")
+                try:
+                    yield conn
+                except BaseException:
+                    with contextlib.suppress(sqlite3.Error):  # a damaged file may refuse even this
+                        conn.execute("ROLLBACK")
+                    raise
+                conn.execute("COMMIT")
+            finally:
+                if not durable:
+                    with contextlib.suppress(sqlite3.Error):
+                        conn.execute("PRAGMA synchronous = FULL")
 
     @contextlib.contextmanager
     def _damage_as_store_error(self) -> Iterator[None]:

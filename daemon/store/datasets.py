@@ -54,6 +54,9 @@ class DatasetRows(StoreBase):
         Thread-safe: concurrent first files of a new dataset all get the same spec (the first
         writer's), because the insert-or-read runs under SQLite's write lock.
         """
+        known = self._one("SELECT spec_id FROM datasets WHERE name = ?", (name,))
+        if known is not None and known["spec_id"] is not None:  # every file but a dataset's first: no write
+            return self._dataset_and_spec(name)
         with self._write() as conn:
             row = conn.execute("SELECT spec_id FROM datasets WHERE name = ?", (name,)).fetchone()
             if row is None:
@@ -65,6 +68,9 @@ class DatasetRows(StoreBase):
             elif row[0] is None:
                 insert_spec(conn, spec)
                 conn.execute("UPDATE datasets SET spec_id = ? WHERE name = ?", (spec.spec_id, name))
+        return self._dataset_and_spec(name)
+
+    def _dataset_and_spec(self, name: str) -> tuple[dict[str, Any], PatchSpec]:
         dataset = self.dataset(name)
         assert dataset is not None
         return dataset, self.get_spec(dataset["spec_id"])

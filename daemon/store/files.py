@@ -62,9 +62,13 @@ class FileRows(StoreBase):
         event: str | None = None,
         detail: dict[str, Any] | None = None,
         current_sha256: str | None = None,
+        durable: bool = True,
         **fields: Any,
     ) -> None:
         """Insert or update the row for path (and optionally log an event), in one transaction.
+
+        durable=False: committed without an fsync (StoreBase._write): for a row whose loss at a power
+        cut is recovered from elsewhere (the 'pending' row: daemon.protect.stages).
 
         current_sha256, when the caller knows the file's content now: a FAILED for a row that
         is PATCHED with exactly that content as its poisoned_sha256 is refused (StoreError), in
@@ -72,7 +76,7 @@ class FileRows(StoreBase):
         failed would make `ppd restore` skip it and a later run patch it twice."""
         state = file_state(state)
         check_fields(fields)
-        with self._write() as conn:
+        with self._write(durable) as conn:
             upsert_file(conn, path, dataset, state, fields, current_sha256)
             if event:
                 insert_event(conn, dataset, str(path), event, detail or {})

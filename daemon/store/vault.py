@@ -5,10 +5,12 @@ that patched them under vault_dir/specs/<spec_id>.json (so a lost store can be r
 
 The vault owns its bytes: each original is an independent copy, never a hard link to a file the
 user (or a writer that still holds it open) can change. The copy is a reflink (FICLONE) where
-the filesystem shares extents copy-on-write (btrfs, XFS, bcachefs: no extra disk), else a real
-copy made by the kernel (copy_file_range, sendfile) or a read loop. It is written under a
-temporary name, fsynced, hashed as kept, and renamed into place; the folder is fsynced. The
-blob's name is therefore always the hash of its content.
+the filesystem shares extents copy-on-write (btrfs, XFS, bcachefs: no extra disk), else a read
+loop that hashes while it copies; `keep_bytes` writes bytes the caller read and hashed once
+(the protect stages: the original is read once for its hash and its copy). It is written under a
+temporary name, fsynced, and renamed into place; the folder is fsynced. The blob's name is
+therefore always the hash of its content. Content already kept (same hash and size, the vault's
+own inode) is not copied again.
 
 Blobs are never deleted implicitly. An optional size limit makes `keep` refuse (VaultFullError),
 so a full vault stops protection instead of losing originals; a full filesystem gives a
@@ -42,11 +44,6 @@ log = logging.getLogger(__name__)
 CHUNK = 1 << 20
 VAULT_TMP_PREFIX = ".keep-"
 SPECS_DIR = "specs"
-# errnos meaning "this copy method is not available here", so the next one is tried; any other
-# error (ENOSPC, EIO, ...) is real and raised.
-NOT_AVAILABLE = frozenset(
-    {errno.EOPNOTSUPP, errno.ENOTSUP, errno.EXDEV, errno.EINVAL, errno.ENOTTY, errno.ENOSYS, errno.EBADF}
-)
 NO_SPACE = frozenset({errno.ENOSPC, errno.EDQUOT})
 
 
@@ -164,21 +161,38 @@ class Vault:
     def keep_fd(self, fd: int, expected_sha256: str | None = None) -> str:
         """Keep an independent copy of the open file's content; returns its sha256.
 
-        The copy is a reflink where possible, else a real copy; it is fsynced, hashed as kept
-        and renamed to its content-addressed place. With expected_sha256, a copy whose hash
-        differs (the file changed since the caller hashed it) is dropped and
-        VaultContentChanged is raised. The fd's offset is not moved."""
+        The copy is a reflink where possible (then hashed as kept: no byte passed through here),
+        else a read loop that hashes each chunk as it writes it (one pass over the bytes). With
+        expected_sha256, content already kept is not copied again, and a copy whose hash differs
+        (the file changed since the caller hashed it) is dropped and VaultContentChanged is
+        raised. The fd's offset is not moved."""
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             raise VaultError("ppd keeps only regular files (this descriptor is not one)")
-        size = st.st_size
+        if expected_sha256 is not None and self._already_kept(self.path_for(expected_sha256), st.st_size):
+            return expected_sha256
+        return self._keep(st.st_size, lambda tmp_fd: _copy_fd(fd, tmp_fd), expected_sha256)
+
+    def keep_bytes(self, data: bytes, sha256: str) -> str:
+        """Keep `data`, whose sha256 the caller computed over exactly these bytes (read once through
+        the file's descriptor, daemon.protect.stages.hash_original): written, fsynced and renamed
+        into place without being read or hashed again. Content already kept is not written again."""
+        if self._already_kept(self.path_for(sha256), len(data)):
+            return sha256
+        return self._keep(len(data), lambda tmp_fd: ("bytes", _write_blob(tmp_fd, data, sha256)), sha256)
+
+    def _keep(self, size: int, fill: Callable[[int], tuple[str, str]], expected_sha256: str | None) -> str:
+        """The crash-safe keep: a flock()ed temporary filled by fill(fd) -> (method, sha256), fsynced
+        (its bytes are durable before they have a name), renamed to its content address, and the
+        folder fsynced (the name is durable before anyone relies on it; the vault folder too when
+        the two-letter folder is new: its own name)."""
         self._check_room(size)
         tmp_fd, tmp_name = tempfile.mkstemp(prefix=VAULT_TMP_PREFIX, dir=self.vault_dir)
         fcntl.flock(tmp_fd, fcntl.LOCK_EX)  # held while written: clear_stale_keeps leaves it alone
         tmp = Path(tmp_name)
         try:
             try:
-                method, sha = _copy_fd(fd, tmp_fd)
+                method, sha = fill(tmp_fd)
                 os.fsync(tmp_fd)
             finally:
                 os.close(tmp_fd)
@@ -188,11 +202,14 @@ class Vault:
                     f"expected {expected_sha256[:12]}); nothing kept"
                 )
             final = self.path_for(sha)
-            if self._already_kept(final):
+            if self._already_kept(final, size):
                 return sha  # the same content is already kept (content addressing)
+            new_folder = not final.parent.is_dir()
             make_private_dir(final.parent)
             os.replace(tmp, final)
             fsync_dir(final.parent)
+            if new_folder:  # the two-letter folder's own name, in the vault folder
+                fsync_dir(self.vault_dir)
             log.debug("vault kept", extra={"sha256": sha, "method": method})
             return sha
         except OSError as exc:
@@ -204,14 +221,16 @@ class Vault:
                 tmp.unlink()
 
     @staticmethod
-    def _already_kept(final: Path) -> bool:
+    def _already_kept(final: Path, size: int | None = None) -> bool:
         """An existing blob counts only if the vault alone holds it: a blob with other hard links
         (kept by an older ppd) could still be edited through them, so it is replaced by the
-        fresh independent copy."""
+        fresh independent copy. size: also the size the content must have (checked before a copy
+        is skipped; a blob's name is its hash, written only by a fsynced rename)."""
         try:
-            return os.lstat(final).st_nlink == 1
+            st = os.lstat(final)
         except FileNotFoundError:
             return False
+        return stat.S_ISREG(st.st_mode) and st.st_nlink == 1 and (size is None or st.st_size == size)
 
     def _no_space(self, exc: OSError, size: int) -> VaultNoSpaceError:
         try:
@@ -341,45 +360,26 @@ def _still_holds(dst: Path, expected: str | None) -> None:
 def _copy_fd(src: int, dst: int) -> tuple[str, str]:
     """Copy src's whole content into the empty file dst; (method, sha256 of what dst holds).
 
-    Tries, in order: a reflink, copy_file_range, sendfile, a read loop. The kernel methods move
-    no bytes through Python, so dst is hashed afterwards (what is hashed is what was kept); the
-    read loop hashes while copying."""
+    A reflink first (no bytes copied where the filesystem shares extents; dst is then hashed:
+    what is hashed is what was kept), else a read loop that hashes each chunk as it writes it:
+    one pass over the bytes. (A kernel copy, copy_file_range, would need a second pass to hash
+    what it wrote: not cheaper where the vault must know the hash.)"""
     with contextlib.suppress(OSError):
         reflink(dst, src)
         return "reflink", sha256_fd(dst)
     # A failed clone leaves dst empty; anything else is a real error and will surface below.
     os.ftruncate(dst, 0)
-    for method, step in (("copy_file_range", _copy_file_range_step), ("sendfile", _sendfile_step)):
-        try:
-            offset = _kernel_copy(src, dst, step)
-        except OSError as exc:
-            if exc.errno not in NOT_AVAILABLE:
-                raise
-            os.ftruncate(dst, 0)
-            continue
-        # A kernel copy may stop short on some filesystems (procfs-like, FUSE): finish by reading.
-        if os.pread(src, 1, offset):
-            _read_loop(src, dst, offset, None)
-        return method, sha256_fd(dst)
     digest = hashlib.sha256()
     _read_loop(src, dst, 0, digest)
     return "read", digest.hexdigest()
 
 
-def _copy_file_range_step(src: int, dst: int, offset: int) -> int:
-    return os.copy_file_range(src, dst, CHUNK * 64, offset, offset)
-
-
-def _sendfile_step(src: int, dst: int, offset: int) -> int:
-    os.lseek(dst, offset, os.SEEK_SET)
-    return os.sendfile(dst, src, offset, CHUNK * 64)
-
-
-def _kernel_copy(src: int, dst: int, step: Callable[[int, int, int], int]) -> int:
-    offset = 0
-    while copied := step(src, dst, offset):
-        offset += copied
-    return offset
+def _write_blob(fd: int, data: bytes, sha256: str) -> str:
+    """Write data (already hashed by the caller: sha256) into the empty file fd; sha256."""
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
+    return sha256
 
 
 def _read_loop(src: int, dst: int, offset: int, digest: Any) -> None:

@@ -439,3 +439,29 @@ def test_paper_psnr_on_lego_views(
         poisoned = composite_on_white(np.asarray(Image.open(dst)))
         mse = np.mean((clean - poisoned) ** 2)
         assert 10 * np.log10(1.0 / mse) == pytest.approx(expected, abs=0.01)
+
+
+@pytest.mark.parametrize("turn", range(1, 9))
+def test_a_mark_of_two_squares_blended_a_square_at_a_time_writes_the_same_pixels(turn: int) -> None:
+    """poisoner.formats.lane_placements: each square of a two-lane mark blended alone (the JPEG
+    writer's way for squares placed apart) gives exactly apply_patch_at's pixels over the whole
+    box, in every EXIF orientation, with a keep-out mask."""
+    import dataclasses
+
+    from poisoner.blend import apply_patch_at
+    from poisoner.formats import _patch_window, lane_placements
+    from poisoner.ladder import default_spec
+
+    spec = default_spec()
+    far = spec.resolve(1600, 1200, image_key="IMG_0003.jpg", lanes_at=((40, 30), (1100, 700)))
+    placement = dataclasses.replace(far, turn=turn)
+    lanes = lane_placements(placement)
+    assert lanes is not None and len(lanes) == 2
+    x0, y0, x1, y1 = placement.box
+    rng = np.random.default_rng(turn)
+    pixels = rng.integers(0, 256, (y1 - y0 + 9, x1 - x0 + 7, 3), dtype=np.uint8)
+    keep = rng.random(pixels.shape[:2]) < 0.05
+    origin = (x0 - 3, y0 - 5)
+    whole = apply_patch_at(pixels, placement, origin, keep)
+    assert (whole != pixels).any()
+    assert np.array_equal(_patch_window(pixels, placement, lanes, origin, keep), whole)

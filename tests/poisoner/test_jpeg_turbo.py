@@ -171,10 +171,13 @@ def test_an_error_in_the_patch_is_raised_as_it_was(tmp_path: Path) -> None:
 
 
 @needs_jpegtran
+@pytest.mark.parametrize("spec", ["top-left", "center"])
 def test_poison_file_same_bytes_with_the_library_switched_off(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, spec: str
 ) -> None:
-    """PPD_TURBOJPEG="" takes the jpegtran path through poison_file: the same file is written."""
+    """PPD_TURBOJPEG="" takes the jpegtran path through poison_file: the same file is written (a
+    one-square mark, which writes in every MCU of its box; MCUs a mark of two squares leaves idle
+    keep their coefficients only where libturbojpeg is there: the next test)."""
     from poisoner.formats import poison_file
 
     src = tmp_path / "IMG_0002.jpg"
@@ -185,10 +188,43 @@ def test_poison_file_same_bytes_with_the_library_switched_off(
             monkeypatch.delenv(jpeg_turbo.TURBOJPEG_ENV, raising=False)
         else:
             monkeypatch.setenv(jpeg_turbo.TURBOJPEG_ENV, "")
-        report = poison_file(src, tmp_path / f"out-{setting}.jpg", SPECS["product-default"])
+        report = poison_file(src, tmp_path / f"out-{setting}.jpg", SPECS[spec])
         assert report.method == "jpeg-dct-splice"
         outs[setting] = (tmp_path / f"out-{setting}.jpg").read_bytes()
     assert outs["on"] == outs[""] != src.read_bytes()
+
+
+@pytest.mark.parametrize("case", ["420", "444", "grey"])
+def test_mcus_the_two_squares_leave_idle_keep_their_coefficients(tmp_path: Path, case: str) -> None:
+    """The product's mark is two squares: in its MCU box, every MCU in which it writes no pixel
+    keeps the source's DCT blocks exactly (not re-encoded from pixels), and every MCU it writes in
+    changes (luma)."""
+    from poisoner.formats import _idle_mcus, poison_file
+
+    src, out = tmp_path / "IMG_0002.jpg", tmp_path / "out.jpg"
+    data = write_case(src, case)
+    report = poison_file(src, out, SPECS["product-default"])
+    layout = jpeg_codec.read_layout(data)
+    box = jpeg_codec.mcu_box(report.placement.box, layout)
+    idle = _idle_mcus(report.placement, None, box, box, layout)
+    assert idle is not None and idle.any() and not idle.all()  # the test needs both kinds
+    factors = [(1, 1)] if layout.components == 1 else list(layout.sampling)
+    offsets = jpeg_codec._component_offsets(layout, box)
+    written = ~idle
+    pairs = zip(jpeg_turbo.read_blocks(data), jpeg_turbo.read_blocks(out.read_bytes()), strict=True)
+    for ci, (before, after) in enumerate(pairs):
+        h, v = factors[ci] if layout.components > 1 else (1, 1)
+        col0, row0 = offsets[ci]
+        per_block = np.repeat(np.repeat(idle, v, axis=0), h, axis=1)
+        rows, cols = per_block.shape
+        region_b = before[row0 : row0 + rows, col0 : col0 + cols]
+        region_a = after[row0 : row0 + rows, col0 : col0 + cols]
+        assert np.array_equal(region_b[per_block], region_a[per_block])
+        changed = (region_b != region_a).any(axis=2)
+        mcus_changed = changed.reshape(idle.shape[0], v, idle.shape[1], h).any(axis=(1, 3))
+        if ci == 0:  # the mark's two levels always move luma; chroma may stay for a grey pattern
+            assert mcus_changed[written].all()
+    assert out.read_bytes() != data
 
 
 def test_poison_file_takes_the_in_process_pass(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

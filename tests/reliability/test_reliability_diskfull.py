@@ -151,8 +151,8 @@ def _fail_replace(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def _fail_vault_copy(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The vault's copy (no reflink here) runs out of space in the kernel copy."""
-    monkeypatch.setattr(daemon.store.vault, "_copy_file_range_step", _raise_enospc)
+    """The vault's copy (no reflink here) runs out of space while writing the original's bytes."""
+    monkeypatch.setattr(daemon.store.vault, "_write_blob", _raise_enospc)
 
 
 INJECTIONS: dict[str, Callable[[pytest.MonkeyPatch], None]] = {
@@ -199,8 +199,8 @@ def test_enospc_module_points_exist() -> None:
     assert callable(poisoner.formats.poison_file) and hasattr(daemon.store.vault, "VAULT_TMP_PREFIX")
     assert "dst.write_bytes(out)" in Path(poisoner.formats.__file__).read_text()
     assert (
-        callable(daemon.store.vault._copy_file_range_step)
-        and "_copy_file_range_step" in Path(daemon.store.vault.__file__).read_text()
+        callable(daemon.store.vault._write_blob)
+        and "_write_blob(tmp_fd" in Path(daemon.store.vault.__file__).read_text()
     )
     assert "PATCHED_PREFIX" in Path(daemon.protect.stages.__file__).read_text()
     assert "os.rename(tmp_name, name" in Path(poisoner.atomic.__file__).read_text()

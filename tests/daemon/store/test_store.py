@@ -381,3 +381,40 @@ def test_store_files_are_owner_only(tmp_path: Path) -> None:
             assert stat.S_IMODE(path.stat().st_mode) == 0o600, (path, oct(path.stat().st_mode))
     finally:
         store.close()
+
+
+def test_a_row_written_without_an_fsync_is_committed_and_the_next_write_is_durable(tmp_path: Path) -> None:
+    """record_file(durable=False) (the protect stages' 'pending' row): committed (another
+    connection reads it), written with synchronous=NORMAL, and the connection back at FULL after."""
+    store = Store(tmp_path / "ppd.sqlite3")
+    other = Store(tmp_path / "ppd.sqlite3")
+    try:
+        store.ensure_dataset("shoot", tmp_path, PatchSpec())
+        a = tmp_path / "a.jpg"
+        store.record_file(a, "shoot", FileState.PENDING, original_sha256="0" * 64, durable=False)
+        assert other.file(a)["state"] == FileState.PENDING
+        assert store.conn.execute("PRAGMA synchronous").fetchone()[0] == 2  # FULL
+        with pytest.raises(StoreError):
+            store.record_file(tmp_path / "b.jpg", "shoot", "no-such-state", durable=False)
+        assert store.conn.execute("PRAGMA synchronous").fetchone()[0] == 2
+    finally:
+        store.close()
+        other.close()
+
+
+def test_a_known_dataset_costs_no_write_transaction(tmp_path: Path) -> None:
+    """ensure_dataset for every file of a dataset writes only for its first: with another
+    connection holding SQLite's write lock, a known dataset is still answered (no lock wanted)."""
+    store = Store(tmp_path / "ppd.sqlite3")
+    other = sqlite3.connect(tmp_path / "ppd.sqlite3", isolation_level=None)
+    try:
+        store.ensure_dataset("shoot", tmp_path, PatchSpec())
+        store.conn.execute("PRAGMA busy_timeout = 100")
+        other.execute("BEGIN IMMEDIATE")  # the write lock, held
+        row, spec = store.ensure_dataset("shoot", tmp_path, PatchSpec(patch_size=0.1))
+        assert row["name"] == "shoot" and spec == PatchSpec()  # the first file's spec stays
+        with pytest.raises(sqlite3.OperationalError, match="locked"):  # a new dataset needs the lock
+            store.ensure_dataset("other", tmp_path, PatchSpec())
+    finally:
+        other.close()
+        store.close()

@@ -157,26 +157,49 @@ def test_keep_fd_leaves_the_callers_offset_alone(vault: Vault, tmp_path: Path) -
     assert vault.path_for(sha).read_bytes() == src.read_bytes()
 
 
-@pytest.mark.parametrize("method", ["copy_file_range", "sendfile", "read"])
-def test_every_copy_method_gives_an_identical_independent_file(tmp_path: Path, method: str) -> None:
-    """The fallbacks of _copy_fd, each run for real (reflink needs btrfs/XFS, absent here)."""
+def test_the_read_loop_copy_is_identical_independent_and_hashed_as_copied(tmp_path: Path) -> None:
+    """_copy_fd's copy where there is no reflink (this filesystem): one pass, hashed as it copies."""
     data = os.urandom(3 * daemon.store.vault.CHUNK + 12345)
     src, dst = tmp_path / "src", tmp_path / "dst"
     src.write_bytes(data)
     src_fd = os.open(src, os.O_RDONLY)
     dst_fd = os.open(dst, os.O_RDWR | os.O_CREAT, 0o600)
     try:
-        if method == "read":
-            digest = hashlib.sha256()
-            daemon.store.vault._read_loop(src_fd, dst_fd, 0, digest)
-            assert digest.hexdigest() == _sha(data)
-        else:
-            step = getattr(daemon.store.vault, f"_{method}_step")
-            assert daemon.store.vault._kernel_copy(src_fd, dst_fd, step) == len(data)
+        method, sha = daemon.store.vault._copy_fd(src_fd, dst_fd)
     finally:
         os.close(src_fd)
         os.close(dst_fd)
+    assert (method, sha) == ("read", _sha(data))
     assert dst.read_bytes() == data and dst.stat().st_ino != src.stat().st_ino
+
+
+def test_keep_bytes_writes_what_the_caller_hashed_and_nothing_twice(vault: Vault) -> None:
+    data = os.urandom(100_000)
+    sha = vault.keep_bytes(data, _sha(data))
+    blob = vault.path_for(sha)
+    assert sha == _sha(data) and blob.read_bytes() == data and blob.stat().st_mode & 0o777 == 0o600
+    inode = blob.stat().st_ino
+    assert vault.keep_bytes(data, sha) == sha and blob.stat().st_ino == inode  # already kept: no new copy
+    assert _temporaries(vault) == []
+
+
+def test_keep_fd_with_the_expected_hash_skips_content_already_kept(vault: Vault, tmp_path: Path) -> None:
+    src = tmp_path / "a.png"
+    src.write_bytes(b"kept once")
+    sha = vault.keep(src)
+    inode = vault.path_for(sha).stat().st_ino
+    assert vault.keep(src, expected_sha256=sha) == sha
+    assert vault.path_for(sha).stat().st_ino == inode
+
+
+def test_a_blob_of_the_wrong_size_is_not_taken_as_kept(vault: Vault) -> None:
+    """A blob at the hash's name with another size (not written by a keep) is replaced, not trusted."""
+    data = b"the real original"
+    sha = _sha(data)
+    blob = vault.path_for(sha)
+    blob.parent.mkdir(mode=0o700, exist_ok=True)
+    blob.write_bytes(b"short")
+    assert vault.keep_bytes(data, sha) == sha and blob.read_bytes() == data
 
 
 def test_an_old_hard_linked_blob_is_replaced_by_an_own_copy(vault: Vault, tmp_path: Path) -> None:
@@ -413,3 +436,4 @@ def test_partial_copies_of_a_killed_keep_are_cleaned_and_counted(tmp_path: Path)
         holder.kill()
         holder.wait()
     assert not stale.exists() and live.exists() and vault.verify(sha)
+
