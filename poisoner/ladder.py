@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from poisoner.spec import PatchSpec
+from poisoner.spec import SIFT_MAX_EDGE, PatchSpec
 
 
 @dataclass(frozen=True)
@@ -150,6 +150,16 @@ WATERMARK_LANES_SPEC = PatchSpec(
 WATERMARK_LANES_2_SPEC = WATERMARK_LANES_SPEC.replace(slide_run=8, block_size=0.0025, position="auto")
 
 
+# - "watermark-lanes-3" (issue 30): watermark-lanes-2 with blocks of 4 px as COLMAP's SIFT sees the photo
+#   (sift_edge: a long edge above 3200 px is downsized to 3200 first), so 8 px on a 6000 x 4000 photo
+#   where watermark-lanes-2 has 15 px (8 px as SIFT sees it). Pixel-identical to watermark-lanes-2 up to
+#   1600 px wide. Why: at 6000 px the scene's raw matches double while the mark's do not, and with 8 px
+#   blocks (as seen) the mark's matches lose the two-view vote (23% of the verified inliers where 1600 px
+#   gives it 73%); with 4 px blocks as seen its keypoints per photo rise ~1.5x and it wins it again
+#   (75%). bench/results/protection_24mp.md.
+WATERMARK_LANES_3_SPEC = WATERMARK_LANES_2_SPEC.replace(block_size=4, sift_edge=SIFT_MAX_EDGE)
+
+
 def named_specs() -> dict[str, PatchSpec]:
     """The named kinds of protection (see above); every spec is concrete."""
     return {
@@ -159,6 +169,7 @@ def named_specs() -> dict[str, PatchSpec]:
         "watermark-multiscale": WATERMARK_SPEC.replace(pattern="multiscale_blocks"),
         "watermark-lanes": WATERMARK_LANES_SPEC,
         "watermark-lanes-2": WATERMARK_LANES_2_SPEC,
+        "watermark-lanes-3": WATERMARK_LANES_3_SPEC,
     }
 
 
