@@ -237,6 +237,43 @@ def _to_shape(mask: np.ndarray, image: Path) -> np.ndarray:
     return np.asarray(small) > 0
 
 
+def pairs(args: argparse.Namespace) -> None:
+    """Per verified pair of a kept verified database (no COLMAP run: SQLite only): the mark's and the
+    scene's inliers; summed by how many views apart the pair is."""
+    root = Path(args.set)
+    poisoned = root / args.label
+    marks = mark_masks(root / "clean", poisoned)
+    con = sqlite3.connect(f"file:{args.db}?mode=ro", uri=True)
+    try:
+        names = dict(con.execute("select image_id, name from images"))
+        on = {}
+        for iid, n, cols, data in con.execute("select image_id, rows, cols, data from keypoints"):
+            k = np.frombuffer(data, np.float32).reshape(n, cols) if n else np.zeros((0, 6), np.float32)
+            m = marks[Path(names[iid]).name]
+            xy = k[:, :2].astype(int)
+            on[iid] = m[np.clip(xy[:, 1], 0, m.shape[0] - 1), np.clip(xy[:, 0], 0, m.shape[1] - 1)]
+        by_gap: dict[int, dict[str, int]] = {}
+        for pid, n, cols, data in con.execute("select pair_id, rows, cols, data from two_view_geometries"):
+            i2 = pid % PAIR_BASE
+            i1 = (pid - i2) // PAIR_BASE
+            gap = abs(int(Path(names[i1]).stem[-4:]) - int(Path(names[i2]).stem[-4:]))
+            g = by_gap.setdefault(gap, {"pairs": 0, "verified": 0, "mark_won": 0, "mark": 0, "scene": 0})
+            g["pairs"] += 1
+            if not n:
+                continue
+            mm = np.frombuffer(data, np.uint32).reshape(n, cols)
+            a, b = on[i1][mm[:, 0]], on[i2][mm[:, 1]]
+            mark, scene = int((a & b).sum()), int((~a & ~b).sum())
+            g["verified"] += 1
+            g["mark_won"] += int(mark > scene)
+            g["mark"] += mark
+            g["scene"] += scene
+    finally:
+        con.close()
+    for gap in sorted(by_gap):
+        print(json.dumps({"db": Path(args.db).name, "views_apart": gap, **by_gap[gap]}), flush=True)
+
+
 def poison(args: argparse.Namespace) -> None:
     """A candidate mark on the same set: the default spec, another block size / pattern; ppd's file path."""
     from concurrent.futures import ProcessPoolExecutor
@@ -280,13 +317,18 @@ def main(argv: list[str] | None = None) -> None:
     s.add_argument("--labels", default="poisoned", help="poisoned folders of the set, comma-separated")
     s.add_argument("--views", type=int, default=4)
     s.add_argument("--published", action="store_true", help="after the published round trip (2048 px, q85)")
+    q = sub.add_parser("pairs")
+    q.add_argument("set")
+    q.add_argument("db", help="a verified feature database kept by `verify`")
+    q.add_argument("--label", default="poisoned", help="the poisoned folder the database was made from")
     p = sub.add_parser("poison")
     p.add_argument("set")
     p.add_argument("--label", required=True)
     p.add_argument("--block", required=True, help="px (an integer) or a fraction of the width (0.005)")
     p.add_argument("--pattern", default="random_blocks")
     args = ap.parse_args(argv)
-    {"verify": verify, "counts": counts, "poison": poison, "screen": screen}[args.part](args)
+    parts = {"verify": verify, "counts": counts, "poison": poison, "screen": screen, "pairs": pairs}
+    parts[args.part](args)
 
 
 if __name__ == "__main__":
