@@ -240,10 +240,27 @@ def _to_shape(mask: np.ndarray, image: Path) -> np.ndarray:
 def pairs(args: argparse.Namespace) -> None:
     """Per verified pair of a kept verified database (no COLMAP run: SQLite only): the mark's and the
     scene's inliers; summed by how many views apart the pair is."""
+    import shutil
+    import tempfile
+
     root = Path(args.set)
     poisoned = root / args.label
     marks = mark_masks(root / "clean", poisoned)
-    con = sqlite3.connect(f"file:{args.db}?mode=ro", uri=True)
+    with tempfile.TemporaryDirectory(prefix=".ppd-tmp-") as tmp:
+        db = Path(args.db)
+        if args.verify:  # a raw cache: the default profile's geometric verification of a copy first
+            from verifier.sfm import SfmSettings, profile_sfm_settings, verify_pairs
+
+            db = Path(tmp) / "work.db"
+            shutil.copyfile(args.db, db)
+            verify_pairs(db, profile_sfm_settings("default", SfmSettings()))
+        by_gap = _pair_tally(db, marks)
+    for gap in sorted(by_gap):
+        print(json.dumps({"db": Path(args.db).name, "views_apart": gap, **by_gap[gap]}), flush=True)
+
+
+def _pair_tally(db: Path, marks: dict[str, np.ndarray]) -> dict[int, dict[str, int]]:
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
     try:
         names = dict(con.execute("select image_id, name from images"))
         on = {}
@@ -270,8 +287,7 @@ def pairs(args: argparse.Namespace) -> None:
             g["scene"] += scene
     finally:
         con.close()
-    for gap in sorted(by_gap):
-        print(json.dumps({"db": Path(args.db).name, "views_apart": gap, **by_gap[gap]}), flush=True)
+    return by_gap
 
 
 def poison(args: argparse.Namespace) -> None:
@@ -321,6 +337,7 @@ def main(argv: list[str] | None = None) -> None:
     q.add_argument("set")
     q.add_argument("db", help="a verified feature database kept by `verify`")
     q.add_argument("--label", default="poisoned", help="the poisoned folder the database was made from")
+    q.add_argument("--verify", action="store_true", help="a raw cache: verify a copy first (COLMAP)")
     p = sub.add_parser("poison")
     p.add_argument("set")
     p.add_argument("--label", required=True)
