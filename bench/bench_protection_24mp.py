@@ -10,7 +10,11 @@ fountain-P11 crops as faces, plain backdrop, JPEG q92, poisoned by ppd's own `po
 - `counts SET`: from the kept feature databases: keypoints kept per image (COLMAP caps them at 8192
   locations), how many lie on the mark (its changed pixels grown by 4 px), their scale (octave), raw
   matches joining mark pixels in both views vs the rest, and the same among verified inliers.
-- `extract SET --spec NAME`: features only, for a candidate mark (no mapping): what survives the cap.
+- `screen SET --labels A,B --views 4 [--published]`: features, raw matches and a verified copy of the
+  first views only (no mapping): a cheap first look at a candidate mark; four views are not the set.
+- `pairs SET DB [--verify]`: per verified pair of a whole verification's kept database, the mark's and
+  the scene's inliers, by how many views apart the pair is (what decides the mapping).
+- `poison SET --label L --block PX [--pattern P]`: a candidate mark on the same clean photos.
 
 Results: bench/results/protection_24mp.md (written by hand from these rows, with the commands).
 """
@@ -20,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import sqlite3
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -314,8 +319,10 @@ def _poison_one(job: tuple[Path, Path, Any]) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    if argv is None and Path(sys.argv[0]).stem != Path(__file__).stem:
+        argv = []  # called by `python -m bench`: its arguments are bench names, not ours
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    sub = ap.add_subparsers(dest="part", required=True)
+    sub = ap.add_subparsers(dest="part")
     v = sub.add_parser("verify")
     v.add_argument("set")
     v.add_argument("--seeds", default="0,1")
@@ -344,6 +351,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--block", required=True, help="px (an integer) or a fraction of the width (0.005)")
     p.add_argument("--pattern", default="random_blocks")
     args = ap.parse_args(argv)
+    if args.part is None:  # hours of COLMAP on sets made by hand: run by parts, never by `python -m bench`
+        print("bench_protection_24mp: run its parts on a creator set (see its docstring); nothing run")
+        return
     parts = {"verify": verify, "counts": counts, "poison": poison, "screen": screen, "pairs": pairs}
     parts[args.part](args)
 
