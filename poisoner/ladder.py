@@ -153,10 +153,10 @@ WATERMARK_LANES_2_SPEC = WATERMARK_LANES_SPEC.replace(slide_run=8, block_size=0.
 # - "watermark-lanes-3" (issue 30): watermark-lanes-2 with blocks of 4 px as COLMAP's SIFT sees the photo
 #   (sift_edge: a long edge above 3200 px is downsized to 3200 first), so 8 px on a 6000 x 4000 photo
 #   where watermark-lanes-2 has 15 px (8 px as SIFT sees it). Pixel-identical to watermark-lanes-2 up to
-#   1600 px wide. Why: at 6000 px the scene's raw matches double while the mark's do not, and with 8 px
-#   blocks (as seen) the mark's matches lose the two-view vote (23% of the verified inliers where 1600 px
-#   gives it 73%); with 4 px blocks as seen its keypoints per photo rise ~1.5x and it wins it again
-#   (75%). bench/results/protection_24mp.md.
+#   1600 px wide. Measured, NOT the default: it gives the mark back the inliers per pair it has at 1600 px
+#   (~500 a neighbour pair at 6000 px, 170 with 8 px blocks as seen) but a finely textured 24 MP object
+#   gives neighbouring views ~2500, so it does not hold there either (12 views of 6000 px: 58% / 58%
+#   within 5 deg under default, 67% / 58% published; bench/results/protection_24mp.md, issue 30).
 WATERMARK_LANES_3_SPEC = WATERMARK_LANES_2_SPEC.replace(block_size=4, sift_edge=SIFT_MAX_EDGE)
 
 
