@@ -150,13 +150,14 @@ WATERMARK_LANES_SPEC = PatchSpec(
 WATERMARK_LANES_2_SPEC = WATERMARK_LANES_SPEC.replace(slide_run=8, block_size=0.0025, position="auto")
 
 
-# - "watermark-lanes-3" (issue 30): watermark-lanes-2 with blocks of 4 px as COLMAP's SIFT sees the photo
+# - WATERMARK_LANES_3_SPEC (issue 30; measured, not offered by name): watermark-lanes-2 with blocks of
+#   4 px as COLMAP's SIFT sees the photo
 #   (sift_edge: a long edge above 3200 px is downsized to 3200 first), so 8 px on a 6000 x 4000 photo
 #   where watermark-lanes-2 has 15 px (8 px as SIFT sees it). Pixel-identical to watermark-lanes-2 up to
 #   1600 px wide. Measured, NOT the default: it gives the mark back the inliers per pair it has at 1600 px
-#   (~500 a neighbour pair at 6000 px, 170 with 8 px blocks as seen) but a finely textured 24 MP object
-#   gives neighbouring views ~2500, so it does not hold there either (12 views of 6000 px: 58% / 58%
-#   within 5 deg under default, 67% / 58% published; bench/results/protection_24mp.md, issue 30).
+#   (~500 a neighbour pair at 6000 px, ~150 with 8 px blocks as seen) but a finely textured 24 MP object
+#   gives neighbouring views ~2500, and it holds no better than watermark-lanes-2 (12 views of 6000 px,
+#   seeds 0 / 1: 58% / 58% within 5 deg under default, against 67% / 0%; bench/results/protection_24mp.md).
 WATERMARK_LANES_3_SPEC = WATERMARK_LANES_2_SPEC.replace(block_size=4, sift_edge=SIFT_MAX_EDGE)
 
 
@@ -169,7 +170,6 @@ def named_specs() -> dict[str, PatchSpec]:
         "watermark-multiscale": WATERMARK_SPEC.replace(pattern="multiscale_blocks"),
         "watermark-lanes": WATERMARK_LANES_SPEC,
         "watermark-lanes-2": WATERMARK_LANES_2_SPEC,
-        "watermark-lanes-3": WATERMARK_LANES_3_SPEC,
     }
 
 

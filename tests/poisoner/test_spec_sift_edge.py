@@ -1,6 +1,6 @@
-"""Issue 30: the block measured as COLMAP's SIFT sees the photo (PatchSpec.sift_edge), and the mark that
-uses it (watermark-lanes-3): the same pixels as watermark-lanes-2 up to 1600 px, 4 px blocks as SIFT
-sees larger photos, the lanes' rules kept."""
+"""Issue 30: the block measured as COLMAP's SIFT sees the photo (PatchSpec.sift_edge), and the measured
+mark that uses it (WATERMARK_LANES_3_SPEC, not the default, not offered by name): the same pixels as
+watermark-lanes-2 up to 1600 px, 4 px blocks as SIFT sees larger photos, the lanes' rules kept."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from PIL import Image
 
 from poisoner.blend import apply_patch
 from poisoner.formats import poison_file
-from poisoner.ladder import WATERMARK_LANES_2_SPEC, WATERMARK_LANES_3_SPEC, named_spec
+from poisoner.ladder import WATERMARK_LANES_2_SPEC, WATERMARK_LANES_3_SPEC, named_spec, named_specs
 from poisoner.spec import LANES_MAX_AREA, SIFT_MAX_EDGE, PatchSpec, SpecError
 
 NEW, OLD = WATERMARK_LANES_3_SPEC, WATERMARK_LANES_2_SPEC
@@ -21,7 +21,9 @@ UP_TO_1600 = [(640, 480), (800, 600), (800, 800), (600, 800), (1024, 683), (1200
 
 
 def test_watermark_lanes_3_is_lanes_2_with_4_px_blocks_as_sift_sees_the_photo() -> None:
-    assert named_spec("watermark-lanes-3") == NEW == OLD.replace(block_size=4, sift_edge=SIFT_MAX_EDGE)
+    assert OLD.replace(block_size=4, sift_edge=SIFT_MAX_EDGE) == NEW
+    assert named_spec("watermark-lanes-2") == OLD
+    assert NEW not in named_specs().values()  # measured, not offered
     assert OLD.spec_id == "db31915163f28c84"  # sift_edge at 0 stays out of the id: stored specs keep theirs
     assert "sift_edge" not in OLD.to_dict() and NEW.to_dict()["sift_edge"] == 3200
     assert PatchSpec.from_json(NEW.to_json()) == NEW
