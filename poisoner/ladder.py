@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from poisoner.spec import PatchSpec
+from poisoner.spec import SIFT_MAX_EDGE, PatchSpec
 
 
 @dataclass(frozen=True)
@@ -148,6 +148,17 @@ WATERMARK_LANES_SPEC = PatchSpec(
 # Issue 25: position "auto": each photo's lanes go where that photo is plainest as it is shown
 # (poisoner.placement.place_on_photo), not in one corner per dataset; `--position CORNER` keeps one corner.
 WATERMARK_LANES_2_SPEC = WATERMARK_LANES_SPEC.replace(slide_run=8, block_size=0.0025, position="auto")
+
+
+# - WATERMARK_LANES_3_SPEC (issue 30; measured, not offered by name): watermark-lanes-2 with blocks of
+#   4 px as COLMAP's SIFT sees the photo
+#   (sift_edge: a long edge above 3200 px is downsized to 3200 first), so 8 px on a 6000 x 4000 photo
+#   where watermark-lanes-2 has 15 px (8 px as SIFT sees it). Pixel-identical to watermark-lanes-2 up to
+#   1600 px wide. Measured, NOT the default: it gives the mark back the inliers per pair it has at 1600 px
+#   (~500 a neighbour pair at 6000 px, ~150 with 8 px blocks as seen) but a finely textured 24 MP object
+#   gives neighbouring views ~2500, and it holds no better than watermark-lanes-2 (12 views of 6000 px,
+#   seeds 0 / 1: 58% / 58% within 5 deg under default, against 67% / 0%; bench/results/protection_24mp.md).
+WATERMARK_LANES_3_SPEC = WATERMARK_LANES_2_SPEC.replace(block_size=4, sift_edge=SIFT_MAX_EDGE)
 
 
 def named_specs() -> dict[str, PatchSpec]:

@@ -64,6 +64,9 @@ AUTO = "auto"
 # SIFT's finest octave needs corners a few pixels apart. A fractional block on a small image
 # must not fall below this.
 MIN_BLOCK_PX = 4
+# COLMAP's SIFT downsizes a picture whose long edge exceeds this (SiftExtraction.max_image_size, the
+# extractor default pycolmap 4.2.1 uses): what a creator's 24 MP photo is to an attacker's SfM.
+SIFT_MAX_EDGE = 3200
 
 # Fields added by issue #9. They stay out of the canonical dict (and so out of spec_id) while at
 # these defaults: every spec stored before them keeps its id.
@@ -78,6 +81,7 @@ NEW_FIELD_DEFAULTS: dict[str, Any] = {
     "mark_image": "",
     "lanes": 1,
     "slide_run": 0,
+    "sift_edge": 0,
 }
 
 # Lanes of a multi-lane mark: lane k sits k pitches inward (pitch = 7/6 of the mark, a gap of a
@@ -194,6 +198,10 @@ class PatchSpec:
     # inward in y (whole pixels, lanes exactly parallel): exact x-only motion crashes COLMAP's
     # shared-focal solver (poisoner/motion.py tilted_slide_offset)
     slide_run: int = 0
+    # issue 30: 0 = block_size is measured on the stored pixels; N = on the picture as COLMAP's SIFT
+    # sees it (long edge downsized to N px: SIFT_MAX_EDGE), then scaled back to the stored pixels, so
+    # a 6000 px photo's mark has the blocks that SIFT sees on a <= N px one (bench/results/protection_24mp.md)
+    sift_edge: int = 0
 
     def __post_init__(self) -> None:
         if self.pattern not in PATTERNS:
@@ -235,6 +243,9 @@ class PatchSpec:
             raise SpecError(f"slide_run must be 0 or an integer >= {MIN_SLIDE_RUN}, got {self.slide_run!r}")
         if self.slide_run and self.motion != "slide":
             raise SpecError("slide_run needs motion 'slide'")
+        edge_ok = isinstance(self.sift_edge, int) and not isinstance(self.sift_edge, bool)
+        if not edge_ok or self.sift_edge < 0:
+            raise SpecError(f"sift_edge must be 0 or a long edge in px, got {self.sift_edge!r}")
         if self.mark_text and self.mark_image:
             raise SpecError("give mark_text or mark_image, not both")
         if self.mark_text and not self.mark_text.strip():
@@ -272,10 +283,7 @@ class PatchSpec:
                 width, height, image_key, index=index, lanes_at=lanes_at
             )
         size = _resolve_length(self.patch_size, width)
-        block = _resolve_length(self.block_size, width)
-        if isinstance(self.block_size, float) and self.block_size < 1:
-            block = max(block, MIN_BLOCK_PX)
-        block = min(block, size)
+        block = min(self.block_px(width, height), size)
         dx = 0 if self.offset[0] == 0 else _resolve_length(abs(self.offset[0]), width)
         dy = 0 if self.offset[1] == 0 else _resolve_length(abs(self.offset[1]), width)
         if size > width or size > height:
@@ -296,6 +304,16 @@ class PatchSpec:
         if x < 0 or y < 0 or x + size > width or y + size > height:
             raise SpecError(f"patch at ({x},{y}) size {size} falls outside a {width}x{height} image")
         return self._placement(x, y, size, block)
+
+    def block_px(self, width: int, height: int) -> int:
+        """The texture's block in stored pixels on a width x height picture (before the patch's
+        side caps it). With sift_edge, measured on the picture as SIFT sees it and scaled back."""
+        seen = min(1.0, self.sift_edge / max(width, height)) if self.sift_edge else 1.0
+        seen_width = max(1, math.floor(width * seen + 0.5))
+        block = _resolve_length(self.block_size, seen_width)
+        if isinstance(self.block_size, float) and self.block_size < 1:
+            block = max(block, MIN_BLOCK_PX)
+        return block if seen >= 1.0 else math.floor(block / seen + 0.5)  # whole pixels
 
     def _placement(self, x: int, y: int, size: int, block: int, **tumble: Any) -> PatchPlacement:
         if self.mark_text or self.mark_image:

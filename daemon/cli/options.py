@@ -48,6 +48,7 @@ _HELP = {
     "mark_image": "A logo PNG whose alpha is the mark's shape, filled with the texture.",
     "lanes": "Marks sliding side by side in one corner (watermark-lanes uses 2).",
     "slide_run": "Lanes slide along (N, 1): N px along x per px in y (0 = along x; watermark-lanes-2: 8).",
+    "sift_edge": "Block measured as SIFT sees the photo, long edge downsized to N px (0 = as stored).",
 }
 
 
