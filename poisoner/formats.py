@@ -59,9 +59,10 @@ from poisoner.image.tiff import poison_tiff
 from poisoner.image.webp import poison_webp, vp8_quantizers, webp_quality_from_quantizer
 from poisoner.image.write import image_from_array, paste_patch, save_explicit
 from poisoner.limits import DEFAULT_MAX_PIXELS, check_decode_budget
+from poisoner.mark_place import MarkPlace
 from poisoner.media import is_image
-from poisoner.placement import MarkPlace, place_on_photo
 from poisoner.provenance import Marker
+from poisoner.shrink import place_fitting
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 from poisoner.subject import display_detail, display_subject
 
@@ -340,7 +341,8 @@ def plan_mark(
             return spec.resolve(width, height, image_key=name), None
         detail, orientation = display_detail(data, name)
         subject = None if keep is None else display_subject(keep, orientation, detail.shape)
-        return place_on_photo(spec, width, height, name, orientation, detail, subject)
+        # issue 25 round 3: squares cropped to fit where no plain place holds them whole
+        return place_fitting(spec, width, height, name, orientation, detail, subject)
     except (SpecError, ValueError) as exc:
         raise ImageFormatError(f"{name}: {exc}") from exc
 
