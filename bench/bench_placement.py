@@ -277,7 +277,9 @@ def colmap(args: argparse.Namespace) -> None:
                 poison_file(f, pois / f.name, spec)
         names = bw.names_of(ds.clean)
         for profile in args.profiles.split(","):
-            settings = profile_sfm_settings(profile, SfmSettings(camera_params=ds.camera_params))
+            # a crop set: each view its own principal point, so each its own camera (clean and poisoned)
+            base = SfmSettings(camera_params=ds.camera_params, single_camera=not crop)
+            settings = profile_sfm_settings(profile, base)
             source = "published" if profile == "published" else "original"
             cimg = bw.profile_images(ds.clean, profile, bw.WORK / ds.name / "clean-published")
             clean = bw.sfm(cimg, bw.WORK / ds.name / "clean-runs", settings, f"{profile}@0", source)
