@@ -133,12 +133,12 @@ def _true_matches(pa: Any, kpa: np.ndarray, da: np.ndarray, pb: Any, kpb: np.nda
     dist = np.arccos(np.clip(da @ db.T, -1, 1))
     ab, ba = dist.argmin(1), dist.argmin(0)
     two = np.sort(dist, axis=1)[:, :2]
-    good = 0
+    good: int = 0
     for i, j in enumerate(ab):
         if ba[j] != i or two[i, 0] > 0.8 * two[i, 1]:
             continue
         la, lb = _lane_point(pa, kpa[i]), _lane_point(pb, kpb[j])
-        good += la is not None and lb is not None and la[0] == lb[0] and np.hypot(*(la[1] - lb[1])) <= 2
+        good += int(la is not None and lb is not None and la[0] == lb[0] and np.hypot(*(la[1] - lb[1])) <= 2)
     return good
 
 
