@@ -3,6 +3,7 @@
 `nice -n 19 python -m bench.bench_shrink fountain`   (a) a subject-filling capture that is not dtu
 `nice -n 19 python -m bench.bench_shrink floor`      (b) why the crop stops at half the side
 `nice -n 19 python -m bench.bench_shrink logo`       (c) the creator's logo: the file, and its picture
+`nice -n 19 python -m bench.bench_shrink cost`       (d) what trying the cropped sides costs
 
 (a) fountain-P11's 11 views cropped square around the fountain (basin included) so that it fills the
 frame, 800x800; the subject is a box marked by hand around the fountain in each view (FOUNTAIN_BOXES,
@@ -15,6 +16,9 @@ cropped copy still gives COLMAP against the whole copies of the other photos.
 (c) A bold monogram (a disc with "AK" knocked out) drawn with Pillow, no download: WORK/logo/monogram.png,
 what `bench.bench_placement colmap --mark-image` measures; its picture on a dtu_scan37 view:
 bench/results/placement_mark_logo.png.
+(d) Placing the mark on each of the 55% dtu crops (bench.bench_placement touch's crop55): round 3's
+place_fitting against round 2's place_on_photo alone (same thumbnail), interleaved, median of rounds per
+view; the ratio per kind of view (whole mark fits / cropped / nowhere plain even cropped).
 
 Results: bench/results/placement.md (touch.json via bench.bench_placement.write_markdown) and
 WORK/floor.json (quoted in placement.md's analysis).
@@ -197,14 +201,43 @@ def logo(args: argparse.Namespace) -> None:
     print(f"wrote {LOGO} and {LOGO_PICTURE}")
 
 
+# ---- (d) the cost ---------------------------------------------------------------------------------------
+def cost(args: argparse.Namespace) -> None:
+    import statistics
+    import time
+
+    from poisoner.ladder import default_spec
+    from poisoner.placement import place_on_photo
+    from poisoner.shrink import place_fitting
+    from poisoner.subject import display_detail
+
+    spec = default_spec()
+    kinds: dict[str, list[float]] = {}
+    for f in sorted((WORK / "crop55" / "images").iterdir()):
+        detail, o = display_detail(f.read_bytes(), f.name)
+        times: dict[str, list[float]] = {"r2": [], "r3": []}
+        for _ in range(5):
+            for label, fn in (("r2", place_on_photo), ("r3", place_fitting)):
+                t = time.perf_counter()
+                _, place = fn(spec, 800, 600, f.name, o, detail)
+                times[label].append(time.perf_counter() - t)
+        kind = "cropped" if place.shrunk else ("whole" if place.free else "nowhere plain")
+        kinds.setdefault(kind, []).append(statistics.median(times["r3"]) / statistics.median(times["r2"]))
+    rows = [{"kind": k, "views": len(v), "ratio_median": round(statistics.median(v), 2)}
+            for k, v in kinds.items()]  # fmt: skip
+    print(json.dumps(rows))
+    (WORK / "cost.json").write_text(json.dumps(rows))
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="part", required=True)
-    for name in ("fountain", "floor", "logo"):
+    parts = {"fountain": fountain, "floor": floor, "logo": logo, "cost": cost}
+    for name in parts:
         sub.add_parser(name)
     args = parser.parse_args(argv)
     WORK.mkdir(parents=True, exist_ok=True)
-    {"fountain": fountain, "floor": floor, "logo": logo}[args.part](args)
+    parts[args.part](args)
 
 
 if __name__ == "__main__":
