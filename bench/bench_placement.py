@@ -499,7 +499,10 @@ def _touch_table(lines: list[str], title: str, rows: list[dict[str, Any]]) -> No
                 f"| {r['seconds']} |"
             )
         lines += ["", "`lego-fill`: lego's first 25 views cropped to 55% around the model, 600x600 (masks:",
-                  "its alpha, only to judge). `subject`: the mean share of the frame the subject covers.", "",
+                  "its alpha, only to judge). `subject`: the mean share of the frame the subject covers.",
+                  "`fountain-fill` (round 3, `bench.bench_shrink fountain`): fountain-P11 cropped",
+                  "square around the fountain, 800x800, judged on a hand-marked box around it", "(wall and "
+                  "pavement at its edges).", "",
                   f"Picture: `{PICTURE.name}` (a 70% crop, a 55% crop, a lego-fill view; marks in red).",
                   ""]  # fmt: skip
 
