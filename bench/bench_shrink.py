@@ -4,6 +4,7 @@
 `nice -n 19 python -m bench.bench_shrink floor`      (b) why the crop stops at half the side
 `nice -n 19 python -m bench.bench_shrink logo`       (c) the creator's logo: the file, and its picture
 `nice -n 19 python -m bench.bench_shrink cost`       (d) what trying the cropped sides costs
+`nice -n 19 python -m bench.bench_shrink room`       (e) the room off the subject on the 55% dtu crops
 
 (a) fountain-P11's 11 views cropped square around the fountain (basin included) so that it fills the
 frame, 800x800; the subject is a box marked by hand around the fountain in each view (FOUNTAIN_BOXES,
@@ -19,6 +20,8 @@ bench/results/placement_mark_logo.png.
 (d) Placing the mark on each of the 55% dtu crops (bench.bench_placement touch's crop55): round 3's
 place_fitting against round 2's place_on_photo alone (same thumbnail), interleaved, median of rounds per
 view; the ratio per kind of view (whole mark fits / cropped / nowhere plain even cropped).
+(e) Per view of the 55% dtu crops: the share of the frame the subject mask covers and the side of the
+largest square holding no subject pixel (WORK/room.json).
 
 Results: bench/results/placement.md (touch.json via bench.bench_placement.write_markdown) and
 WORK/floor.json (quoted in placement.md's analysis).
@@ -229,10 +232,35 @@ def cost(args: argparse.Namespace) -> None:
     (WORK / "cost.json").write_text(json.dumps(rows))
 
 
+# ---- (e) the room off the subject ----------------------------------------------------------------------
+def largest_free_square(free: np.ndarray) -> int:
+    """The side of the largest square of True pixels (the classic dynamic programme, a row at a time)."""
+    h, w = free.shape
+    prev = np.zeros(w + 1, dtype=np.int32)
+    best = 0
+    for y in range(h):
+        row = np.zeros(w + 1, dtype=np.int32)
+        for x in np.nonzero(free[y])[0]:
+            row[x + 1] = 1 + min(prev[x + 1], row[x], prev[x])
+        best = max(best, int(row.max()))
+        prev = row
+    return best
+
+
+def room(args: argparse.Namespace) -> None:
+    rows = []
+    for m in sorted((WORK / "crop55" / "masks").iterdir()):
+        subject = np.asarray(Image.open(m)) > 0
+        rows.append({"name": m.name, "subject": round(float(subject.mean()), 3),
+                     "largest_free_square": largest_free_square(~subject)})  # fmt: skip
+        print(json.dumps(rows[-1]), flush=True)
+    (WORK / "room.json").write_text(json.dumps(rows))
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="part", required=True)
-    parts = {"fountain": fountain, "floor": floor, "logo": logo, "cost": cost}
+    parts = {"fountain": fountain, "floor": floor, "logo": logo, "cost": cost, "room": room}
     for name in parts:
         sub.add_parser(name)
     args = parser.parse_args(argv)
