@@ -143,7 +143,7 @@ def judge_set(images: Path, masks: Path, out: Path, spec: Any, give_masks: bool 
         views.append({
             "name": f.name, "touches": bool((changed & subject).any()), "changed_area": float(changed.mean()),
             "words": place.words if place else spec.position, "free": place.free if place else None,
-            "subject_share": share,
+            "subject_share": share, "shrunk": bool(place and place.shrunk),
         })  # fmt: skip
         if f.name in picks:
             v = visibility_report(a, b, display_width=min(1920, a.shape[1]), subject_mask=subject)
@@ -156,6 +156,7 @@ def judge_set(images: Path, masks: Path, out: Path, spec: Any, give_masks: bool 
         "touch": sum(v["touches"] for v in views),
         "said_not_free": sum(v["free"] is False for v in views),
         "unwritten": sum(bool(v.get("unwritten")) for v in views),
+        "shrunk": sum(bool(v.get("shrunk")) for v in views),
         "changed_area_max": max(v["changed_area"] for v in views),
         "flip_p999_max": max((v["flip_p999"] for v in vis), default=0.0),
         "area_above_half_max": max((v["area_above_half"] for v in vis), default=0.0),
@@ -260,8 +261,12 @@ def colmap(args: argparse.Namespace) -> None:
     design = "default"
     if args.mark_text:  # issue 25 (3): the creator's own text as the lanes' shape
         spec, design = spec.replace(mark_text=args.mark_text), f"text {args.mark_text!r}"
+    if args.mark_image:  # round 3: the creator's logo (bench.bench_shrink.make_logo)
+        spec, design = spec.replace(mark_image=str(args.mark_image)), f"logo {Path(args.mark_image).name}"
     for name in args.sets.split(","):
-        ds = bw.setup(name)
+        # round 3: a subject-filling set (touch's crops, e.g. crop55) as the dataset itself
+        crop = name.startswith("crop")
+        ds = bw.Dataset(name, WORK / name / "images", WORK / name / "masks", None) if crop else bw.setup(name)
         # the placement rule changed between rounds under the same spec: each round its own files
         suffix = "" if args.round == 1 else f"-r{args.round}"
         pois_work = WORK / "sfm" / name / f"per-photo-{spec.spec_id}{suffix}"
@@ -272,7 +277,9 @@ def colmap(args: argparse.Namespace) -> None:
                 poison_file(f, pois / f.name, spec)
         names = bw.names_of(ds.clean)
         for profile in args.profiles.split(","):
-            settings = profile_sfm_settings(profile, SfmSettings(camera_params=ds.camera_params))
+            # a crop set: each view its own principal point, so each its own camera (clean and poisoned)
+            base = SfmSettings(camera_params=ds.camera_params, single_camera=not crop)
+            settings = profile_sfm_settings(profile, base)
             source = "published" if profile == "published" else "original"
             cimg = bw.profile_images(ds.clean, profile, bw.WORK / ds.name / "clean-published")
             clean = bw.sfm(cimg, bw.WORK / ds.name / "clean-runs", settings, f"{profile}@0", source)
@@ -461,8 +468,8 @@ def speed(args: argparse.Namespace) -> None:
 def write_markdown() -> None:
     lines = ["# Per-photo placement (issue 25)", ""]
     lines += ["Written by `bench/bench_placement.py` (its docstring: what each part measures).", ""]
-    rounds = (("round 2 (this round's rule)", "touch.json"),
-              ("round 1 (issue 25's first rule, kept)", "touch_r1.json"))
+    rounds = (("round 3 (this round's rule: squares cropped to fit)", "touch.json"),
+              ("round 2 (kept)", "touch_r2.json"), ("round 1 (issue 25's first rule, kept)", "touch_r1.json"))
     for title, name in rounds:
         _touch_table(lines, title, _load(WORK / name))
     _rest(lines)
@@ -475,23 +482,27 @@ def _touch_table(lines: list[str], title: str, rows: list[dict[str, Any]]) -> No
             "dtu_scan37's 25 views cropped around the subject (crop centred on the subject mask's",
             "bounding box), 800x600 as shown; masks used only to judge. `touch`: views where a changed",
             "pixel is on the subject; `said`: views ppd reported as 'no plain region' (with masks given,",
-            "'no free region'; `unwritten`: the mask covered the whole mark, the file failed).",
+            "'no free region'; `unwritten`: the mask covered the whole mark, the file failed; `shrunk`:",
+            "squares cropped to fit a plain place, round 3).",
             "FLIP at the picture's own width, worst of",
             "three views; changed area: worst view.", "",
-            "| set | subject | design | touch (of 25) | said | unwritten | changed area max | FLIP p99.9 "
-            "| FLIP > 0.5 area | places | s |",
-            "|---|---|---|---|---|---|---|---|---|---|---|",
+            "| set | subject | design | touch (of N) | said | unwritten | shrunk | changed area max "
+            "| FLIP p99.9 | FLIP > 0.5 area | places | s |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]  # fmt: skip
         for r in rows:
             lines.append(
-                f"| {r['set']} | {_share(r)} | {r['design']} | {r['touch']} | {r['said_not_free']} "
-                f"| {r.get('unwritten', 0)} "
+                f"| {r['set']} | {_share(r)} | {r['design']} | {r['touch']} of {r['views']} "
+                f"| {r['said_not_free']} | {r.get('unwritten', 0)} | {r.get('shrunk', '-')} "
                 f"| {r['changed_area_max']:.2%} "
                 f"| {r['flip_p999_max']:.2f} | {r['area_above_half_max']:.3%} | {', '.join(r['places'])} "
                 f"| {r['seconds']} |"
             )
         lines += ["", "`lego-fill`: lego's first 25 views cropped to 55% around the model, 600x600 (masks:",
-                  "its alpha, only to judge). `subject`: the mean share of the frame the subject covers.", "",
+                  "its alpha, only to judge). `subject`: the mean share of the frame the subject covers.",
+                  "`fountain-fill` (round 3, `bench.bench_shrink fountain`): fountain-P11 cropped",
+                  "square around the fountain, 800x800, judged on a hand-marked box around it", "(wall and "
+                  "pavement at its edges).", "",
                   f"Picture: `{PICTURE.name}` (a 70% crop, a 55% crop, a lego-fill view; marks in red).",
                   ""]  # fmt: skip
 
@@ -537,8 +548,9 @@ def _rest(lines: list[str]) -> None:
             "The default design as `ppd poison` writes it (per-photo placement, no masks given),",
             "ppd verify's",
             "profiles; one entry per COLMAP seed; a crash is a crash, not protection.", "",
-            "Round 1: the first per-photo rule; round 2: this round's (plain places equal, off the",
-            "corners, anchors along the slide's line).", "",
+            "Round 1: the first per-photo rule; round 2: plain places equal, off the corners, anchors",
+            "along the slide's line; round 3: squares cropped to fit where none holds them whole (set",
+            "`crop55`: touch's 55% dtu crops as the dataset).", "",
             "| round | design | set | profile | seed | within 5 deg | registered (clean) | outcome | s |",
             "|---|---|---|---|---|---|---|---|---|",
         ]  # fmt: skip
@@ -564,8 +576,9 @@ def main(argv: list[str] | None = None) -> None:
     c.add_argument("--sets", default="lego,dtu")
     c.add_argument("--profiles", default="default,hardened,published,masked")
     c.add_argument("--seeds", default="0")
-    c.add_argument("--round", type=int, default=2, help="placement round (1: issue 25's first, kept)")
+    c.add_argument("--round", type=int, default=3, help="placement round (1, 2: issue 25's earlier rules)")
     c.add_argument("--mark-text", default="", help="the creator's text as the mark (the default's lanes)")
+    c.add_argument("--mark-image", default="", help="the creator's logo (a PNG whose alpha is the shape)")
     m = sub.add_parser("matches")
     m.add_argument("--sets", default="dtu,lego")
     tp = sub.add_parser("text-picture")

@@ -58,14 +58,15 @@ def _turned(placement: PatchPlacement) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _lanes(placement: PatchPlacement) -> tuple[np.ndarray, np.ndarray]:
-    """(pattern mask, coverage) on the box for a multi-lane mark: each lane its own texture square."""
-    n, t = placement.size, placement.lane_size
+    """(pattern mask, coverage) on the box for a multi-lane mark: each lane its own texture square,
+    or its top-left lane_crop square (round 3: the same blocks cropped, never rescaled)."""
+    n, t, c = placement.size, placement.lane_size, placement.lane_side
     dark = np.zeros((n, n), dtype=bool)
     cover = np.zeros((n, n), dtype=bool)
     shape = mark_shape(placement.mark_text, placement.mark_image, t)
     for dx, dy, seed in placement.parts:
-        dark[dy : dy + t, dx : dx + t] = pattern_mask(placement.pattern, t, placement.block, seed)
-        cover[dy : dy + t, dx : dx + t] = True if shape is None else shape
+        dark[dy : dy + c, dx : dx + c] = pattern_mask(placement.pattern, t, placement.block, seed)[:c, :c]
+        cover[dy : dy + c, dx : dx + c] = True if shape is None else shape[:c, :c]
     return dark & cover, cover
 
 

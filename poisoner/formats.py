@@ -63,10 +63,11 @@ from poisoner.image.tiff import poison_tiff
 from poisoner.image.webp import poison_webp, vp8_quantizers, webp_quality_from_quantizer
 from poisoner.image.write import image_from_array, paste_patch, save_explicit
 from poisoner.limits import DEFAULT_MAX_PIXELS, check_decode_budget
+from poisoner.mark_place import MarkPlace
 from poisoner.media import is_image
 from poisoner.orientation import unorient_array
-from poisoner.placement import MarkPlace, place_on_photo
 from poisoner.provenance import Marker
+from poisoner.shrink import place_fitting
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 from poisoner.subject import display_detail, display_subject
 
@@ -242,7 +243,7 @@ def _idle_mcus(
         if keep is not None:
             part = part & ~keep[cy0 - mark_box[1] : cy1 - mark_box[1], cx0 - mark_box[0] : cx1 - mark_box[0]]
         write[cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0] = part
-    idle = ~write.reshape(rows, mh, cols, mw).any(axis=(1, 3))
+    idle = np.asarray(~write.reshape(rows, mh, cols, mw).any(axis=(1, 3)))
     return idle if idle.any() else None
 
 
@@ -253,6 +254,8 @@ def lane_placements(placement: PatchPlacement) -> list[PatchPlacement] | None:
     None when the placement is not made of lanes, or its squares overlap (then only the whole
     placement says which lane wins)."""
     if not placement.parts or placement.lane_size <= 0:
+        return None
+    if placement.lane_crop:  # cropped squares (poisoner.shrink) are written whole-box: rare, and exact
         return None
     n, t = placement.size, placement.lane_size
     labels = np.zeros((n, n), dtype=np.uint8)
@@ -423,7 +426,8 @@ def plan_mark(
             return spec.resolve(width, height, image_key=name), None
         detail, orientation = display_detail(data, name)
         subject = None if keep is None else display_subject(keep, orientation, detail.shape)
-        return place_on_photo(spec, width, height, name, orientation, detail, subject)
+        # issue 25 round 3: squares cropped to fit where no plain place holds them whole
+        return place_fitting(spec, width, height, name, orientation, detail, subject)
     except (SpecError, ValueError) as exc:
         raise ImageFormatError(f"{name}: {exc}") from exc
 

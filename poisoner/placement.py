@@ -21,13 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from poisoner.orientation import (
-    INVERSE_ORIENTATION,
-    display_size,
-    orientation_of,
-    position_words,
-    turn_square,
-)
+from poisoner.mark_place import MarkPlace
+from poisoner.orientation import INVERSE_ORIENTATION, display_size, orientation_of, turn_square
 from poisoner.spec import PatchPlacement, PatchSpec
 
 CORNERS = ("top-left", "top-right", "bottom-left", "bottom-right")
@@ -387,62 +382,11 @@ def _shares(
     return sums["detail"] / area, on_subject
 
 
-SOURCE_WORDS = {
-    "masks": "from the subject mask: no subject pixel there",
-    "estimated": "the plainest region of this photo (estimated from its detail)",
-    "no-free-masks": "no region free of the subject mask: the least covered place, "
-    "the mask's pixels left unwritten",
-    "no-plain": "no plain region: the least detailed place, likely on the subject",
-    "preferred": "the default place (nothing to judge on)",
-    "masks-split": "from the subject mask: no place holds both squares, each in its own, no subject pixel",
-    "estimated-split": "no plain place holds both squares: each in its own plainest place",
-}
-
-
-@dataclass(frozen=True)
-class MarkPlace:
-    """Where a photo's mark went, as a viewer sees the photo, and why (ppd poison -v, preview).
-
-    box: the mark's box (left, top, right, bottom) in display px of a `frame` (w, h) display frame;
-    source: a SOURCE_WORDS key; free: False when no free region was found (the summary counts it)."""
-
-    box: tuple[int, int, int, int]
-    frame: tuple[int, int]
-    source: str
-    free: bool
-    detail: float = 0.0
-    subject: float | None = None
-    orientation: int = 1
-    anchor: tuple[int, int] = (0, 0)  # where the mark's path starts, display px (videos interpolate it)
-
-    @property
-    def words(self) -> str:
-        return position_words(self.box, *self.frame)
-
-    @property
-    def why(self) -> str:
-        return SOURCE_WORDS.get(self.source, self.source)
-
-    def line(self) -> str:
-        """`mark at the top-centre, pixels (320,0)-(480,160) as shown (why)`."""
-        x0, y0, x1, y1 = self.box
-        turned = f", EXIF orientation {self.orientation}" if self.orientation != 1 else ""
-        return f"mark at the {self.words}, pixels ({x0},{y0})-({x1},{y1}) as shown{turned} ({self.why})"
-
-    def short(self) -> str | None:
-        """The per-file note when the place is not free (None when it is)."""
-        if self.free:
-            return None
-        if self.source == "no-free-masks":
-            return "mark partly on the subject mask (left unwritten there): no free region"
-        return "mark on the subject: no plain region"
-
-
 def _parts(placement: PatchPlacement) -> list[tuple[int, int, int, int]]:
     """The squares a placement writes (lanes, or its box), frame coordinates."""
     if not placement.parts:
         return [placement.box]
-    s = placement.lane_size
+    s = placement.lane_side
     return [(placement.x + dx, placement.y + dy, placement.x + dx + s, placement.y + dy + s)
             for dx, dy, _ in placement.parts]  # fmt: skip
 
@@ -458,13 +402,14 @@ def place_on_photo(
     *,
     index: float | None = None,
     split: bool = True,
+    crop: int = 0,
 ) -> tuple[PatchPlacement, MarkPlace]:
     """A per-photo spec's placement on one stored width x height photo, in stored pixels, and where
     it shows. detail / subject: display-oriented thumbnails (True = detail / subject); detail None:
     nothing to judge on (the preferred anchor). split False: the lanes stay stacked (a video's
-    keyframes: one anchor glides between them for both lanes). The mark is laid out in display space
-    (its lanes slide right and down as the photo is shown) and turned back with the photo
-    (PatchPlacement.turn)."""
+    keyframes: one anchor glides between them for both lanes). crop: each lane's square cropped to
+    this side (poisoner.shrink). The mark is laid out in display space (its lanes slide right and
+    down as the photo is shown) and turned back with the photo (PatchPlacement.turn)."""
     o = orientation_of(orientation)
     dw, dh = display_size(width, height, o)
     preferred = spec.auto_anchor(dw, dh)
@@ -472,7 +417,7 @@ def place_on_photo(
         spot = Spot(preferred[0], preferred[1], 0.0, None, True)
         source = "preferred"
     else:
-        zero = spec.resolve(dw, dh, image_key, index=index, anchor=(0, 0))
+        zero = spec.resolve(dw, dh, image_key, index=index, anchor=(0, 0), crop=crop)
         spot = choose_spot(detail, subject, (dw, dh), _parts(zero), preferred, zero.box,
                            spec.slide_direction, spec.corner_region)  # fmt: skip
         if subject is not None:
@@ -482,8 +427,8 @@ def place_on_photo(
         stacked = spot.plain or not split
         lanes = None if stacked else _split_lanes(spec, (dw, dh), zero, spot, detail, subject, preferred)
         if lanes is not None:
-            return _placed(spec, (width, height), o, image_key, index, lanes, subject is not None)
-    shown = spec.resolve(dw, dh, image_key, index=index, anchor=(spot.x, spot.y))
+            return _placed(spec, (width, height), o, (image_key, index, crop), lanes, subject is not None)
+    shown = spec.resolve(dw, dh, image_key, index=index, anchor=(spot.x, spot.y), crop=crop)
     x, y = turn_square(shown.x, shown.y, shown.size, INVERSE_ORIENTATION[o], dw, dh)
     stored = dataclasses.replace(shown, x=x, y=y, turn=o)
     place = MarkPlace(shown.box, (dw, dh), source, spot.free, spot.detail, spot.subject, o, (spot.x, spot.y))
@@ -522,15 +467,16 @@ def _placed(
     spec: PatchSpec,
     size: tuple[int, int],
     o: int,
-    image_key: str | None,
-    index: float | None,
+    which: tuple[str | None, float | None, int],
     lanes: list[Spot],
     masked: bool,
 ) -> tuple[PatchPlacement, MarkPlace]:
-    """The placement and MarkPlace of split lanes (display anchors), turned back to stored pixels."""
+    """The placement and MarkPlace of split lanes (display anchors), turned back to stored pixels;
+    which: (image_key, index, crop) as place_on_photo got them."""
     dw, dh = display_size(*size, o)
     at = tuple((s.x, s.y) for s in lanes)
-    shown = spec.resolve(dw, dh, image_key, index=index, lanes_at=at)
+    image_key, index, crop = which
+    shown = spec.resolve(dw, dh, image_key, index=index, lanes_at=at, crop=crop)
     x, y = turn_square(shown.x, shown.y, shown.size, INVERSE_ORIENTATION[o], dw, dh)
     stored = dataclasses.replace(shown, x=x, y=y, turn=o)
     free = all(s.free for s in lanes)

@@ -145,6 +145,15 @@ class PatchPlacement:
     # as a viewer sees the picture (display space) and turned back into the stored pixels, so its
     # copies are pixel-identical across photos as they are shown. 1: stored = shown.
     turn: int = 1
+    # issue 25 round 3: each lane's square shown at this side, the top-left lane_crop x lane_crop of
+    # its lane_size texture (the same blocks, cropped, never rescaled: the copies' SIFT features stay
+    # those of the full squares). 0: the whole square.
+    lane_crop: int = 0
+
+    @property
+    def lane_side(self) -> int:
+        """The side of each lane's square as written (lane_crop when cropped)."""
+        return self.lane_crop or self.lane_size
 
     @property
     def box(self) -> tuple[int, int, int, int]:
@@ -262,6 +271,7 @@ class PatchSpec:
         index: float | None = None,
         anchor: tuple[int, int] | None = None,
         lanes_at: tuple[tuple[int, int], ...] | None = None,
+        crop: int = 0,
     ) -> PatchPlacement:
         """Pixel placement of this spec's patch on a width x height image.
 
@@ -273,6 +283,8 @@ class PatchSpec:
         lanes_at (position "auto", lanes > 1): each lane's own anchor instead (round 2: where no
         place holds the lanes stacked, each square goes to its own plain place); the box is then
         the smallest square holding them, inside the frame.
+        crop (lanes > 1; round 3): each lane's square cropped to this side (px, 0 or >= the lane's
+        side: whole), where no plain place holds it whole (poisoner.shrink).
         """
         if self.position == AUTO:
             ax, ay = anchor if anchor is not None else self.auto_anchor(width, height)
@@ -280,7 +292,7 @@ class PatchSpec:
                 raise SpecError(f"anchor ({ax},{ay}) falls outside a {width}x{height} image")
             # the mark's path starts at the anchor and runs right/down, as from a top-left corner
             return self.replace(position="top-left", offset=(int(ax), int(ay))).resolve(
-                width, height, image_key, index=index, lanes_at=lanes_at
+                width, height, image_key, index=index, lanes_at=lanes_at, crop=crop
             )
         size = _resolve_length(self.patch_size, width)
         block = min(self.block_px(width, height), size)
@@ -291,9 +303,9 @@ class PatchSpec:
         if self.motion in CORNER_MOTIONS:
             return self._resolve_tumble(width, height, size, block, image_key, index)
         if self.lanes > 1:
-            return self._resolve_lanes(width, height, size, block, (dx, dy), image_key, index, lanes_at)
-        if lanes_at is not None:
-            raise SpecError("lanes_at needs a mark of several lanes")
+            return self._resolve_lanes(width, height, size, block, (dx, dy), image_key, index, lanes_at, crop)
+        if lanes_at is not None or crop:
+            raise SpecError("lanes_at and crop need a mark of several lanes")
         mx, my = self._motion_offset(width, image_key, index)
         if self.position == "center":
             x, y = (width - size) // 2 + dx + mx, (height - size) // 2 + dy + my
@@ -370,14 +382,19 @@ class PatchSpec:
         image_key: str | None,
         index: float | None,
         lanes_at: tuple[tuple[int, int], ...] | None = None,
+        crop: int = 0,
     ) -> PatchPlacement:
         """Several slide marks in one square box anchored at the corner (the box's other pixels
-        are left alone: patch_coverage); lanes_at: each lane's own top-left anchor (top-left only)."""
+        are left alone: patch_coverage); lanes_at: each lane's own top-left anchor (top-left only);
+        crop: each square's side as written (its texture cropped, the lanes' layout and slide kept)."""
         step = _resolve_length(self.motion_step, width) if self.motion_step != 0 else 0
         span = _resolve_length(self.motion_span, width)
         if index is None:
             index = image_index(image_key) if image_key is not None else 0
         size = min(size, self._lane_cap(width, height))
+        if crop < 0:
+            raise SpecError(f"crop must be >= 0, got {crop}")
+        shown = size if crop == 0 or crop >= size else crop
         pitch = round(size * 7 / 6)
         left, top = self.position.endswith("left"), self.position.startswith("top")
         lanes = []
@@ -389,11 +406,11 @@ class PatchSpec:
                 lanes.append((lanes_at[k][0] + mx, lanes_at[k][1] + my))
                 continue
             inward_y = offset[1] + k * pitch + my
-            x = offset[0] + mx if left else width - size - offset[0] - mx
-            y = inward_y if top else height - size - inward_y
+            x = offset[0] + mx if left else width - shown - offset[0] - mx
+            y = inward_y if top else height - shown - inward_y
             lanes.append((x, y))
         x0, y0 = min(x for x, _ in lanes), min(y for _, y in lanes)
-        x1, y1 = max(x for x, _ in lanes) + size, max(y for _, y in lanes) + size
+        x1, y1 = max(x for x, _ in lanes) + shown, max(y for _, y in lanes) + shown
         side = max(x1 - x0, y1 - y0)
         bx, by = (x0 if left else x1 - side), (y0 if top else y1 - side)
         if lanes_at is not None:  # split lanes: the square box slides back inside the frame
@@ -403,7 +420,8 @@ class PatchSpec:
         parts = tuple(
             (x - bx, y - by, self.seed + LANE_SEED_STEP * k) for k, (x, y) in enumerate(lanes)
         )
-        return self._placement(bx, by, side, block, parts=parts, lane_size=size)
+        cropped = {"lane_crop": shown} if shown < size else {}
+        return self._placement(bx, by, side, block, parts=parts, lane_size=size, **cropped)
 
     def _slide_offset(self, index: float, step: int, span: int) -> tuple[int, int]:
         """Inward (dx, dy) on the slide path: along x, or along (slide_run, 1) when tilted."""

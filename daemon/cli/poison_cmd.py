@@ -48,9 +48,17 @@ NOT_FREE = {
 
 def place_lines(outcomes: list[ProtectOutcome]) -> list[str]:
     """The summary's lines for marks that found no free place ("mark on the subject in 2 photos:
-    no plain region"): never silent (issue 25)."""
-    counts = Counter(o.reason for o in outcomes if o.state in OUTCOME_PATCHED and o.reason in NOT_FREE)
-    return [NOT_FREE[r].format(n=n, s="" if n == 1 else "s") for r, n in sorted(counts.items()) if r]
+    no plain region") or were shrunk to fit one (round 3): never silent (issue 25)."""
+    from poisoner.mark_place import SHRUNK  # here, not at start-up: it loads numpy
+
+    patched = [o.reason or "" for o in outcomes if o.state in OUTCOME_PATCHED]
+    counts = Counter(r for r in patched if r in NOT_FREE)
+    lines = [NOT_FREE[r].format(n=n, s="" if n == 1 else "s") for r, n in sorted(counts.items()) if r]
+    shrunk = sum(r.startswith(SHRUNK) for r in patched)  # round 3: squares cropped to fit a plain place
+    if shrunk:
+        s = "" if shrunk == 1 else "s"
+        lines.append(f"{SHRUNK} in {shrunk} photo{s} (its squares cropped): no plain place held it whole")
+    return lines
 
 
 def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:

@@ -441,8 +441,9 @@ def test_paper_psnr_on_lego_views(
         assert 10 * np.log10(1.0 / mse) == pytest.approx(expected, abs=0.01)
 
 
+@pytest.mark.parametrize("crop", [False, True])
 @pytest.mark.parametrize("turn", range(1, 9))
-def test_a_mark_of_two_squares_blended_a_square_at_a_time_writes_the_same_pixels(turn: int) -> None:
+def test_two_squares_blended_a_square_at_a_time_write_the_same_pixels(turn: int, crop: bool) -> None:
     """poisoner.formats.lane_placements: each square of a two-lane mark blended alone (the JPEG
     writer's way for squares placed apart) gives exactly apply_patch_at's pixels over the whole
     box, in every EXIF orientation, with a keep-out mask."""
@@ -454,8 +455,15 @@ def test_a_mark_of_two_squares_blended_a_square_at_a_time_writes_the_same_pixels
 
     spec = default_spec()
     far = spec.resolve(1600, 1200, image_key="IMG_0003.jpg", lanes_at=((40, 30), (1100, 700)))
+    if crop:  # issue 25 round 3: squares cropped to fit a small plain place (poisoner.shrink)
+        side = far.lane_size * 2 // 3
+        far = spec.resolve(1600, 1200, image_key="IMG_0003.jpg", lanes_at=((40, 30), (1100, 700)), crop=side)
+        assert 0 < far.lane_side < far.lane_size
     placement = dataclasses.replace(far, turn=turn)
     lanes = lane_placements(placement)
+    if crop:  # cropped squares are not split: the writer blends the whole box (exact by construction)
+        assert lanes is None
+        return
     assert lanes is not None and len(lanes) == 2
     x0, y0, x1, y1 = placement.box
     rng = np.random.default_rng(turn)

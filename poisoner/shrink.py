@@ -1,0 +1,66 @@
+"""Issue 25, round 3: a subject that fills the frame. Pure functions, arrays in, answers out.
+
+Round 2 measured the limit of moving a whole mark: on dtu_scan37 cropped to 55% around its subject
+(the subject covering 82% of the frame), 6 of the 7 views whose mark touched the subject had no
+place off it for even one full square. So where no plain place holds the squares whole, each square
+is CROPPED (never rescaled) to the largest side, in whole blocks, that a plain place holds: the
+top-left part of the same texture, the same blocks at the same block size, so its SIFT features are
+those of the full copies in the other photos, both lanes keep pixel-identical copies and keep sliding
+by whole pixels (poisoner/spec.py `_resolve_lanes`, poisoner/motion.py). Only when even the floor
+size finds no plain place does the mark go whole to the least-bad place, said "no plain region" as
+before. A photo whose full mark has a plain place is placed exactly as before (byte-identical).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from poisoner.mark_place import MarkPlace
+from poisoner.placement import place_on_photo
+from poisoner.spec import PatchPlacement, PatchSpec
+
+# The smallest side a square is cropped to, as a share of its full side. Half the side is a quarter
+# of the texture (12 x 12 blocks of 4 px -> 6 x 6 on an 800 px frame): SIFT's features are found at
+# a blob scale of a few blocks and need a descriptor window of about four times that, so below half
+# the side the cropped copy keeps few of the full copy's features whole (its border cuts the rest);
+# bench/bench_shrink.py `floor` measures how many of a full copy's matches each side keeps.
+SHRINK_FLOOR = 0.5
+
+
+def crop_sides(full: int, block: int, floor: float = SHRINK_FLOOR) -> list[int]:
+    """The sides to try, largest first: every whole number of blocks below `full` down to
+    floor x full (rounded up to a whole block, at least one block)."""
+    if full <= 0 or block <= 0:
+        return []
+    low = max(block, math.ceil(floor * full / block) * block)
+    top = (full - 1) // block * block
+    return list(range(top, low - 1, -block))
+
+
+def place_fitting(
+    spec: PatchSpec,
+    width: int,
+    height: int,
+    image_key: str | None,
+    orientation: int,
+    detail: np.ndarray | None,
+    subject: np.ndarray | None = None,
+    floor: float = SHRINK_FLOOR,
+) -> tuple[PatchPlacement, MarkPlace]:
+    """place_on_photo's answer where it found a free place (or had nothing to judge on, or the mark
+    has no lanes to crop); otherwise the largest crop of the squares (crop_sides) that finds a
+    free place, its MarkPlace saying so (`shrunk`); otherwise the whole mark at the least-bad place."""
+    placement, place = place_on_photo(spec, width, height, image_key, orientation, detail, subject)
+    if place.free or detail is None or not placement.parts:
+        return placement, place
+    full = placement.lane_size
+    for side in crop_sides(full, placement.block, floor):
+        cropped, where = place_on_photo(
+            spec, width, height, image_key, orientation, detail, subject, crop=side
+        )
+        if where.free:
+            return cropped, dataclasses.replace(where, shrunk=(side, full))
+    return placement, place
