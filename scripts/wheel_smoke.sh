@@ -39,8 +39,10 @@ SITE=$("$T/venv/bin/python" -c "import sysconfig; print(sysconfig.get_path('pure
 mkdir -p "$T/work" && cd "$T/work"
 export PATH="$T/venv/bin:$PATH" PPD_DATA_DIR="$T/data" PPD_CONFIG_DIR="$T/config" PPD_OUTBOX="$T/outbox"
 unset PYTHONPATH PPD_SHARED_DATA
-where=$(python -c "import daemon, poisoner, verifier; print(' '.join(m.__file__ for m in (daemon, poisoner, verifier)))")
-for f in $where; do case $f in "$SITE"/*) ;; *) fail "ppd imported from $f, not from the installed wheel";; esac; done
+# one path a line: a temporary folder may hold spaces
+while IFS= read -r f; do
+    case $f in "$SITE"/*) ;; *) fail "ppd imported from $f, not from the installed wheel";; esac
+done < <(python -c "import daemon, poisoner, verifier; print(*(m.__file__ for m in (daemon, poisoner, verifier)), sep='\n')")
 [ "$(command -v ppd)" = "$T/venv/bin/ppd" ] || fail "ppd on PATH is $(command -v ppd)"
 version=$(ppd --version)
 [ "$version" = "ppd $(python -c 'from importlib.metadata import version; print(version("patchpoison"))')" ] \
@@ -83,7 +85,9 @@ say "watch: the outbox file was patched, SIGTERM exit 0"
 
 # 5. The service unit runs this installation's ppd.
 unit=$(ppd service install --print)
-grep -qx "ExecStart=$T/venv/bin/ppd watch" <<<"$unit" || fail "ExecStart is not $T/venv/bin/ppd: $(grep ExecStart <<<"$unit")"
+exe="$T/venv/bin/ppd"
+case $exe in *[[:space:]]*) exe="\"$exe\"";; esac  # systemd quotes a path with spaces (service.quote_word)
+grep -qxF "ExecStart=$exe watch" <<<"$unit" || fail "ExecStart is not $exe: $(grep ExecStart <<<"$unit")"
 say "service: ExecStart=$T/venv/bin/ppd watch"
 
 # 6. The demo, end to end with its verdict.
