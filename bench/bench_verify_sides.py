@@ -14,7 +14,6 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -26,29 +25,15 @@ RESULTS_MD = Path(os.environ.get("PPD_BENCH_RESULTS") or ROOT / "bench" / "resul
 
 
 def one_run(clean: Path, poisoned: Path, profile: str, sides: str, timeout_s: float) -> dict[str, Any]:
-    """One first verification in fresh folders, timed as a whole process."""
+    """One first verification in fresh folders (bench_verify_speed's whole command), timed."""
+    from bench.bench_verify_speed import verify_command
+
+    os.environ["PPD_VERIFY_SIDES"] = sides  # the command inherits it
     with tempfile.TemporaryDirectory(prefix="ppd-bench-sides-") as tmp:
-        env = dict(os.environ, PPD_VERIFY_SIDES=sides)
-        for var, name in (("PPD_DATA_DIR", "data"), ("PPD_CONFIG_DIR", "config"), ("PPD_CACHE_DIR", "cache"),
-                          ("PPD_OUTBOX", "outbox")):  # fmt: skip
-            env[var] = str(Path(tmp) / name)
-        env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])
-        cmd = [sys.executable, "-m", "daemon.cli", "verify", str(poisoned), "--clean", str(clean),
-               "--out", str(Path(tmp) / "out"), "--profile", profile, "--json"]  # fmt: skip
-        t0 = time.monotonic()
-        try:
-            proc = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True, timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            return {"sides": sides, "wall_s": time.monotonic() - t0, "verdict": "stopped at its limit"}
-        wall = time.monotonic() - t0
-    try:
-        report = json.loads(proc.stdout)
-    except json.JSONDecodeError:
-        return {"sides": sides, "wall_s": wall, "verdict": "error: " + (proc.stderr or "")[-200:]}
-    p = report["profiles"][profile]
-    frac = (p.get("vs_clean") or {}).get("frac_within_5deg")
-    return {"sides": sides, "wall_s": wall, "verdict": p["verdict"], "frac_within_5deg": frac,
-            "load": os.getloadavg()[0]}  # fmt: skip
+        row = verify_command(ROOT, clean, poisoned, Path(tmp) / "out", Path(tmp), timeout_s, profile)
+    p = (row.get("profiles") or {}).get(profile, {})
+    return {"sides": sides, "wall_s": row["wall_s"], "verdict": p.get("verdict", row.get("error", "-")),
+            "frac_within_5deg": p.get("frac_within_5deg"), "load": row["load_after"]}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -19,6 +19,7 @@ lego 40 and in tests/verifier/test_verify_shared.py); only its matching runs aga
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 import shutil
@@ -277,15 +278,21 @@ def cuda_device_count() -> int:
 def sift_device_name() -> str:
     """The device sift_device() will pick in the child, "cuda" or "cpu", told without importing
     pycolmap here (the parent never loads it): the CUDA build is the installed `pycolmap-cuda12`."""
-    from importlib import metadata
-
     if os.environ.get("PPD_SFM_DEVICE", "auto") == "cpu":
         return "cpu"
+    return "cuda" if _cuda_build_and_device() else "cpu"
+
+
+@functools.cache
+def _cuda_build_and_device() -> bool:
+    """pycolmap-cuda12 installed and a CUDA device present: asked once (feature keys ask often)."""
+    from importlib import metadata
+
     try:
         metadata.distribution("pycolmap-cuda12")
     except metadata.PackageNotFoundError:
-        return "cpu"
-    return "cuda" if cuda_device_count() > 0 else "cpu"
+        return False
+    return cuda_device_count() > 0
 
 
 def sift_device() -> Any:

@@ -49,7 +49,7 @@ from verifier.pairs import stage_pairs as stage_pairs  # re-exported: callers st
 from verifier.progress import ProgressBoard
 from verifier.published import round_trip, unpublish_names
 from verifier.published import to_rgb as to_rgb  # re-exported for verifier.auto_search
-from verifier.sfm import SfmSettings, list_images, profile_sfm_settings
+from verifier.sfm import SfmSettings, list_images, profile_sfm_settings, sift_device_name
 from verifier.shared_sfm import SfmSide, cancelled, clean_cache_for, run_side
 from verifier.shared_sfm import content_key as content_key  # re-exported: the clean cache's key
 from verifier.shared_sfm import write_json as write_json  # re-exported: reports are written with it
@@ -393,7 +393,7 @@ def _run_both_sides(profile: str, run: _Run, settings: SfmSettings) -> tuple[dic
     profile_dir = run.out_dir / profile
     settings_json = json.dumps(msgspec.to_builtins(settings), sort_keys=True)
     reuse_key = f"{run.clean_key}-{profile}-{settings_json}-{source}"
-    reuse_key += "-cuda" if settings.feature_key().endswith("-cuda") else ""  # a CPU key stays as it was
+    reuse_key += "-cuda" if sift_device_name() == "cuda" else ""  # a CPU key stays as it was
     cached = bool(run.options.clean_cache_dir)
     clean_model = (
         run.clean_cache / "clean-models" / hashlib.sha256(reuse_key.encode()).hexdigest()[:16]

@@ -22,16 +22,10 @@ from poisoner.placement import place_on_photo
 from poisoner.shrink import SHRINK_FLOOR, crop_sides
 from poisoner.spec import SpecError
 from poisoner.subject import display_detail
+from tests.poisoner.test_placement_photo import textured
 
 runner = CliRunner()
 SPEC = default_spec()
-
-
-def textured(h: int, w: int, seed: int) -> np.ndarray:
-    """An RGB picture full of detail (every region busy)."""
-    rng = np.random.default_rng(seed)
-    small = rng.integers(0, 256, (h // 4 + 1, w // 4 + 1, 3), dtype=np.uint8)
-    return np.repeat(np.repeat(small, 4, axis=0), 4, axis=1)[:h, :w].copy()
 
 
 def pockets(path: Path, side: int) -> list[tuple[slice, slice]]:
