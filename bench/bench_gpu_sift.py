@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv if argv is not None else [])  # `python -m bench` runs it with defaults
     import pycolmap
 
-    from verifier.sfm import cuda_device_count, sift_device
+    from verifier.sift_device import cuda_device_count, sift_device
 
     env = {"pycolmap": pycolmap.__version__, "has_cuda": bool(getattr(pycolmap, "has_cuda", False)),
            "cuda_devices": cuda_device_count(), "sift_device_auto": str(sift_device()),

@@ -49,10 +49,11 @@ from verifier.pairs import stage_pairs as stage_pairs  # re-exported: callers st
 from verifier.progress import ProgressBoard
 from verifier.published import round_trip, unpublish_names
 from verifier.published import to_rgb as to_rgb  # re-exported for verifier.auto_search
-from verifier.sfm import SfmSettings, list_images, profile_sfm_settings, sift_device_name
+from verifier.sfm import SfmSettings, list_images, profile_sfm_settings
 from verifier.shared_sfm import SfmSide, cancelled, clean_cache_for, run_side
 from verifier.shared_sfm import content_key as content_key  # re-exported: the clean cache's key
 from verifier.shared_sfm import write_json as write_json  # re-exported: reports are written with it
+from verifier.sift_device import sift_device_name
 from verifier.verdict import (
     Verdict,
     decide,

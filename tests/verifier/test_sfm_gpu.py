@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from verifier.sfm import SfmSettings, cuda_device_count, sift_device, sift_device_name
+from verifier.sfm import SfmSettings
+from verifier.sift_device import cuda_device_count, sift_device, sift_device_name
 
 
 def _has_cuda_build() -> bool:
