@@ -32,7 +32,6 @@ REPRESENTATIVE = (
     "tests/daemon/cli/test_demo.py::test_demo_verifies_and_prints_the_verdict",
     "tests/daemon/protect/test_quarantine.py::test_a_file_ppd_cannot_patch_leaves_the_outbox",
     "tests/reliability/test_reliability_kill_loops.py::test_store_deleted_no_double_poisoning_and_every_original_restored",
-    "tests/verifier/test_verify_sides.py::test_sides_side_by_side_give_the_figures_of_one_after_the_other",
 )
 
 # AF_UNIX socket paths are limited to 107 bytes by the kernel, and tests bind sockets (sd_notify

@@ -192,18 +192,6 @@ def default_workers() -> int:
     return max(min(2, cores), cores // 4)
 
 
-def sides_at_once(workers: int, cores: int | None = None) -> int:
-    """2 when a profile's clean and poisoned SfM can run side by side, else 1. A COLMAP mapping keeps
-    about one core busy (registration) while extraction and matching use them all, so the sides
-    go together while every running side still has two cores (16 cores: four profiles, eight
-    sides; 2 cores: one profile's two sides). PPD_VERIFY_SIDES=1|2 fixes it (benchmarks)."""
-    fixed = os.environ.get("PPD_VERIFY_SIDES", "")
-    if fixed in ("1", "2"):
-        return int(fixed)
-    cores = cores or os.cpu_count() or 1
-    return 2 if 2 * workers <= max(2, cores // 2) else 1
-
-
 def start_order(profiles: Sequence[str]) -> list[str]:
     """The order profiles start in: `published` first, the one that shares no work (its own
     extraction and matching on both sides, lego 20: the last to finish when it started third), so
@@ -232,7 +220,6 @@ class _Run:
     options: VerifyOptions
     profiles: tuple[str, ...] = ()
     board: ProgressBoard | None = None
-    sides: int = 1  # a profile's clean and poisoned SfM at once (2) or one after the other (1)
 
 
 def verify_folders(
@@ -251,13 +238,13 @@ def verify_folders(
     o = run.options
     board = ProgressBoard(profile_list, len(run.names), o.progress_label or str(poisoned_dir),
                           o.progress_path, o.on_progress)  # fmt: skip
-    workers = max(1, min(len(profile_list), o.workers or default_workers()))
-    run = dataclasses.replace(run, profiles=tuple(profile_list), board=board, sides=sides_at_once(workers))
+    run = dataclasses.replace(run, profiles=tuple(profile_list), board=board)
     reports: dict[str, ProfileReport] = {}
     with _VERIFY_LOCK:
         board.start()
         try:
             visibility = measure_visibility(run.clean_dir, run.poisoned_dir, run.names, run.options)
+            workers = max(1, min(len(profile_list), o.workers or default_workers()))
             with ThreadPoolExecutor(workers, thread_name_prefix="ppd-verify") as pool:
                 futures = {p: pool.submit(_verify_profile, p, run) for p in start_order(profile_list)}
                 reports = {p: futures[p].result() for p in profile_list}  # in the order asked
@@ -419,18 +406,12 @@ def _run_both_sides(profile: str, run: _Run, settings: SfmSettings) -> tuple[dic
     poisoned_side = SfmSide(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, None,
                             poisoned_from, run.cache, share_verification=share, profile=profile,
                             side="poisoned")  # fmt: skip
-    poisoned: dict[str, Any] = {"outcome": "cancelled", "error": "cancelled"}
-    if run.sides > 1:  # each side its own child: nothing is shared between the two but the options
-        with ThreadPoolExecutor(2, thread_name_prefix=f"ppd-{profile}") as pool:
-            clean_future = pool.submit(run_side, clean_side, run.options, run.board)
-            poisoned_future = pool.submit(run_side, poisoned_side, run.options, run.board)
-            clean, poisoned = clean_future.result(), poisoned_future.result()
-    else:
-        clean = run_side(clean_side, run.options, run.board)
-        if not cancelled(run.options):
-            poisoned = run_side(poisoned_side, run.options, run.board)
+    clean = run_side(clean_side, run.options, run.board)
     if cached:  # the report's model folder holds a copy of the clean model
         _copy_model(clean_model, profile_dir / "clean")
+    poisoned: dict[str, Any] = {"outcome": "cancelled", "error": "cancelled"}
+    if not cancelled(run.options):
+        poisoned = run_side(poisoned_side, run.options, run.board)
     if source == "published":
         for side in (clean, poisoned):
             side["poses"] = unpublish_names(side.get("poses", {}), run.names)
