@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sqlite3
 import sys
 import time
@@ -306,16 +307,22 @@ def poison(args: argparse.Namespace) -> None:
     out.mkdir(exist_ok=True)
     block: float | int = float(args.block) if "." in args.block else int(args.block)
     spec = default_spec().replace(block_size=block, pattern=args.pattern)
+    if args.area:  # issue 30's area sweep: lanes up to this share of the frame, stacked in 45% of the height
+        spec = spec.replace(patch_size=0.5, corner_region=0.45)
     files = sorted((root / "clean").glob("*.jpg"))
-    with ProcessPoolExecutor(2) as pool:
-        list(pool.map(_poison_one, [(f, out / f.name, spec) for f in files]))
+    with ProcessPoolExecutor(min(8, os.cpu_count() or 2)) as pool:
+        list(pool.map(_poison_one, [(f, out / f.name, spec, args.area) for f in files]))
     print(json.dumps({"label": args.label, "spec": spec.to_dict(), "files": len(files)}))
 
 
-def _poison_one(job: tuple[Path, Path, Any]) -> None:
+def _poison_one(job: tuple[Path, Path, Any, float]) -> None:
+    import poisoner.spec
     from poisoner.formats import poison_file
 
-    poison_file(*job)
+    src, dst, spec, area = job
+    if area:  # an experiment only: ppd's cap is the visibility budget (issue 14: 1%)
+        poisoner.spec.LANES_MAX_AREA = area
+    poison_file(src, dst, spec)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -350,6 +357,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--label", required=True)
     p.add_argument("--block", required=True, help="px (an integer) or a fraction of the width (0.005)")
     p.add_argument("--pattern", default="random_blocks")
+    p.add_argument("--area", type=float, default=0.0, help="lanes area cap, share of the frame (ppd: 0.0096)")
     args = ap.parse_args(argv)
     if args.part is None:  # hours of COLMAP on sets made by hand: run by parts, never by `python -m bench`
         print("bench_protection_24mp: run its parts on a creator set (see its docstring); nothing run")

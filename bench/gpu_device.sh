@@ -29,7 +29,7 @@ if [ "$mode" = pack ]; then
         tar -cf - . | xz -9e -T0 > "$repo/.dev/pycolmap_cuda12.tar.xz") || exit 3
     get -d .dev/whl nvidia-cuda-runtime-cu12==12.9.79 msgspec watchdog sqlite-utils sqlite-fts4 \
         click-default-group platformdirs tomli-w flip-evaluator typer==0.29.2 annotated-doc pydantic \
-        pydantic-core annotated-types typing-inspection || exit 3
+        pydantic-core annotated-types typing-inspection pytest pluggy iniconfig packaging || exit 3
     get -d .devdata/whl pillow==13.0.0 || exit 3
     for lib in libSM.so.6 libICE.so.6 libX11.so.6 libXext.so.6 libxcb.so.1 libXau.so.6 libXdmcp.so.6; do
         cp -L "/usr/lib/x86_64-linux-gnu/$lib" .dev/lib/
@@ -73,6 +73,43 @@ fi
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
     --target /tmp/site .devdata/whl/*.whl || exit 3
 export PPD_SHARED_DATA=$PWD/.devdata PPD_BENCH_WORK=/tmp/pbw PPD_BENCH_RESULTS=$OUT
+
+if [ "$mode" = sweep ]; then
+    # round 4: GPU vs CPU verdicts (the integration test), then the mark's area at 24 MP: the lanes'
+    # area cap at 1% (ppd's), 2% and 4% of the frame with 8 px blocks (4 px as SIFT sees them), and the
+    # default, on the 12-view creator set, default profile, COLMAP seeds 0 and 1 (bench_protection_24mp).
+    set -x
+    timeout 170 python3 -m pytest -q -p no:cacheprovider -m integration tests/verifier/test_sfm_gpu.py \
+        2>&1 | tail -15 | tee "$OUT/test_sfm_gpu.txt"
+    cs=/tmp/pbw/cs$width
+    timeout 60 python3 -m testkit.creator_set "$cs" --views 12 --width "$width" --height $(( width * 2 / 3 ))
+    B=bench.bench_protection_24mp
+    for v in ${PPD_SWEEP:-b15a0096:15:0 b8a04:8:0.04 b8a02:8:0.02 b8a0096:8:0}; do
+        IFS=: read -r lab blk area <<< "$v"
+        [ "$(left)" -lt 60 ] && { echo "no time for $lab"; continue; }
+        timeout 60 python3 -m $B poison "$cs" --label "$lab" --block "$blk" --area "$area" | tail -c 300
+        timeout "$(( $(left) - 15 ))" python3 -m $B verify "$cs" --poisoned "$cs/$lab" --label "$lab" \
+            --profiles default --seeds 0,1
+        cp "$cs/runs.json" "$OUT/sweep_runs.json"
+    done
+    python3 - "$cs" <<'PY' > "$OUT/sweep_area.txt"
+import sys
+from pathlib import Path
+import numpy as np
+from PIL import Image
+root = Path(sys.argv[1])
+clean = sorted((root / "clean").glob("*.jpg"))[:3]
+for d in sorted(p for p in root.iterdir() if p.is_dir() and p.name[:1] == "b"):
+    shares = []
+    for c in clean:
+        a = np.asarray(Image.open(c)); b = np.asarray(Image.open(d / c.name))
+        diff = np.abs(a.astype(int) - b).max(axis=2)
+        shares.append(f"{(diff > 0).mean():.2%} / {(diff > 8).mean():.2%}")
+    print(d.name, "changed area (|diff| > 0 / > 8, first 3 views):", shares)
+PY
+    echo "done, $(left) s left"
+    exit
+fi
 label="gpu $(nvidia-smi --query-gpu=name --format=csv,noheader | head -1), $(nproc) cores ($(git rev-parse --short HEAD 2>/dev/null || echo tree))"
 set -x
 t0=$(date +%s)
