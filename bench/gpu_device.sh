@@ -28,9 +28,10 @@ if [ "$mode" = pack ]; then
     (cd /tmp/ppd-pack && rm -rf x && mkdir x && cd x && unzip -q ../pycolmap_cuda12-*.whl &&
         tar -cf - . | xz -9e -T0 > "$repo/.dev/pycolmap_cuda12.tar.xz") || exit 3
     get -d .dev/whl nvidia-cuda-runtime-cu12==12.9.79 msgspec watchdog sqlite-utils sqlite-fts4 \
-        click-default-group platformdirs tomli-w flip-evaluator typer==0.29.2 annotated-doc pydantic \
-        pydantic-core annotated-types typing-inspection pytest pluggy iniconfig packaging pygments || exit 3
-    get -d .devdata/whl pillow==13.0.0 || exit 3
+        click-default-group platformdirs tomli-w typer==0.29.2 annotated-doc pydantic \
+        pydantic-core annotated-types typing-inspection || exit 3
+    # the second call's: what setup does not need (the 64 MiB a call carries is nearly full with .dev)
+    get -d .devdata/whl pillow==13.0.0 flip-evaluator pytest pluggy iniconfig packaging pygments || exit 3
     for lib in libSM.so.6 libICE.so.6 libX11.so.6 libXext.so.6 libxcb.so.1 libXau.so.6 libXdmcp.so.6; do
         cp -L "/usr/lib/x86_64-linux-gnu/$lib" .dev/lib/
     done
