@@ -35,8 +35,7 @@ def evidence_table(evidence: list[dict[str, Any]], profiles: list[str]) -> Table
 
     table = Table(title="candidates (least visible first by measured budget use)", show_lines=False)
     for col in ("candidate", "status", "noticeable", "p99.9 vs JPEG", "SSIM min", "LPIPS max", "budget use"):
-        justify = "right" if col not in ("candidate", "status") else "left"
-        table.add_column(col, justify=justify, overflow="fold")
+        table.add_column(col, justify="left" if col in ("candidate", "status") else "right", overflow="fold")
     for p in profiles:
         table.add_column(f"{p}: verdict, within 5°", overflow="fold")
     table.add_column("s", justify="right", overflow="fold")

@@ -39,7 +39,9 @@ def plain_value(annotation: Any, value: Any, low: float | None = None, high: flo
         number = float(value) if type(value) in (int, float) else _NOT_PLAIN
     else:
         return _NOT_PLAIN
-    if number is _NOT_PLAIN or (low is not None and number < low) or (high is not None and number > high):
+    if not isinstance(number, int | float):
+        return _NOT_PLAIN
+    if (low is not None and number < low) or (high is not None and number > high):
         return _NOT_PLAIN
     return number
 

@@ -143,6 +143,8 @@ def _write_preview(ctx: AppContext, protected: Path, out: Path) -> None:
     from poisoner.preview import render_preview
 
     row = ctx.store.file(protected)
+    if row is None:  # the demo patched it a moment ago: its row is there unless the store was changed
+        raise die(f"{protected.name}: no record of it in the store")
     spec = ctx.store.get_spec(row["spec_id"])
     with Image.open(ctx.vault.path_for(row["original_sha256"])) as im:
         original = np.asarray(im.convert("RGB"))

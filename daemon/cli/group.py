@@ -19,7 +19,7 @@ from poisoner.errors import ExitStatus
 try:  # typer >= 0.22 vendors click: its exceptions are the ones raised
     from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError
 except ImportError:  # pragma: no cover - older typer on the real click
-    from click.exceptions import ClickException, NoArgsIsHelpError, UsageError
+    from click.exceptions import ClickException, NoArgsIsHelpError, UsageError  # type: ignore[assignment]
 
 _TYPE_WORDS = {"int": "N", "int range": "N", "float": "NUM", "float range": "NUM", "path": "PATH",
                "list[Path]": "PATH", "list[str]": "TEXT"}  # fmt: skip
@@ -48,9 +48,10 @@ def _tidy_param(param: Any) -> None:
         name = (param.name or "arg").upper()
         usage = name if param.required else f"[{name}]"
         usage += "..." if param.nargs != 1 else ""
-        param.display_type_rich = lambda ctx: None
-        param._usage_display_name = lambda usage=usage: usage
-        param._rich_display_name = lambda name=name: name
+        # typer's own display hooks, replaced on this parameter object (setattr: they are methods)
+        setattr(param, "display_type_rich", lambda ctx: None)  # noqa: B010
+        setattr(param, "_usage_display_name", lambda usage=usage: usage)  # noqa: B010
+        setattr(param, "_rich_display_name", lambda name=name: name)  # noqa: B010
 
 
 def tidy_help(command: Any) -> None:
@@ -72,6 +73,7 @@ class PpdGroup(TyperGroup):
         prog_name: str | None = None,
         complete_var: str | None = None,
         standalone_mode: bool = True,
+        windows_expand_args: bool = True,
         **extra: Any,
     ) -> Any:
         if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # loaded: Ctrl-C is Python's again
@@ -82,7 +84,7 @@ class PpdGroup(TyperGroup):
         try:
             rv = super().main(
                 args=args, prog_name=prog_name or "ppd", complete_var=complete_var,
-                standalone_mode=False, **extra,
+                standalone_mode=False, windows_expand_args=windows_expand_args, **extra,
             )  # fmt: skip
             code = rv if isinstance(rv, int) else ExitStatus.OK
         except Exception as exc:

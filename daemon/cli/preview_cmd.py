@@ -198,7 +198,8 @@ def _visibility_line(original: Any, poisoned: Any, display_width: int, subject: 
             figures = visibility_report(original, poisoned, display_width=width, subject_mask=subject,
                                         jpeg_sample=PREVIEW_JPEG_SAMPLE)  # fmt: skip
             touches = {True: "; changed pixels TOUCH the subject", False: "; no changed pixel on the subject"}
-            return figures.summary() + touches.get(figures.touches_subject, "")
+            touch = figures.touches_subject  # None: no subject mask to judge by
+            return figures.summary() + (touches[touch] if touch is not None else "")
     except VisibilityError as exc:
         raise die(one_line(exc)) from None
 

@@ -124,7 +124,7 @@ def _print_details(paths: Any, report: Any) -> None:
     store = Store(paths.db_path)
     try:
         for name in sorted({d["name"] for d in store.datasets()}):
-            spec_id = store.dataset(name)["spec_id"]
+            spec_id = (store.dataset(name) or {}).get("spec_id")
             source = report.specs.get(spec_id, "not recovered") if spec_id else "not recovered"
             table.add_row(name, str(report.datasets.get(name, 0)), spec_id or "—", source)
     finally:

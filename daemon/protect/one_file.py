@@ -402,7 +402,7 @@ def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: Patch
             ):
                 if spec.selects(rel):
                     marker = provenance_marker(ctx, spec.spec_id, row["original_sha256"])
-                    limits = {"max_pixels": ctx.config.max_pixels} if kind == "image" else {}
+                    limits: dict[str, Any] = {"max_pixels": ctx.config.max_pixels} if kind == "image" else {}
                     report = poison_to(
                         kind, original, tmp, spec, subject_masks=subject_masks_for(ctx, dataset),
                         marker=marker, keep_location=ctx.config.keep_location, **limits,

@@ -72,11 +72,13 @@ def poison_isolated(
     keep_location: bool,
     subject_masks: Path | None = None,
     **limits: int,
-) -> None:
+) -> Any:
     """poison_to in a child process: a file that kills its process kills only the child. A child
     killed by a signal raises PoisonerDied; one that fails raises its last error line. The mask
-    folder crosses as a path; the child loads the mask."""
+    folder crosses as a path; the child loads the mask. Returns the child's report (where the mark
+    went and why, what was kept), as poison_to does: a file patched here is said like any other."""
     import json
+    import pickle
     import subprocess
     import sys
 
@@ -86,6 +88,11 @@ def poison_isolated(
         "keep_location": keep_location, "limits": limits,
         "subject_masks": os.fsdecode(subject_masks) if subject_masks is not None else None,
     }  # fmt: skip
+    # the report comes back through a file beside dst (ppd's private work folder): stdout is the
+    # poisoner's to write on; pickle, since the report is the poisoner's own dataclasses, between this
+    # process and its own child
+    report_file = dst.with_name(f"{dst.name}.report")
+    args["report"] = os.fsdecode(report_file)
     from verifier.childenv import child_env
 
     done = subprocess.run(
@@ -97,10 +104,13 @@ def poison_isolated(
             f"{src.name}: patching it killed its process twice (signal {-done.returncode}: out of memory or "
             "a decoder crash); not retried"
         )
-    if done.returncode != 0:
-        lines = [line for line in done.stderr.strip().splitlines() if line.strip()]
-        raise RuntimeError(lines[-1] if lines else f"the isolated poisoner failed ({done.returncode})")
-    return None
+    try:
+        if done.returncode != 0:
+            lines = [line for line in done.stderr.strip().splitlines() if line.strip()]
+            raise RuntimeError(lines[-1] if lines else f"the isolated poisoner failed ({done.returncode})")
+        return pickle.loads(report_file.read_bytes())
+    finally:
+        report_file.unlink(missing_ok=True)
 
 
 def file_is_the_cause(exc: BaseException) -> bool:
@@ -109,13 +119,14 @@ def file_is_the_cause(exc: BaseException) -> bool:
     failures are not."""
     from poisoner.formats import ImageFormatError
 
+    causes: tuple[type[BaseException], ...] = (ProtectRefused, IncompleteFile, PoisonerDied, ImageFormatError)
     try:
         from poisoner.video import VideoFormatError
+
+        causes += (VideoFormatError,)
     except ImportError:  # PyAV missing
-        VideoFormatError = ImageFormatError
-    return isinstance(
-        exc, ProtectRefused | IncompleteFile | PoisonerDied | ImageFormatError | VideoFormatError
-    ) or (isinstance(exc, ValueError) and not isinstance(exc, OSError))
+        pass
+    return isinstance(exc, causes) or (isinstance(exc, ValueError) and not isinstance(exc, OSError))
 
 
 def provenance_marker(ctx: AppContext, spec_id: str, original_sha256: str | None) -> Any:

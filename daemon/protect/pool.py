@@ -310,9 +310,9 @@ class _Slot:
         if self._pool is None:
             import multiprocessing
 
-            self._pool = ProcessPoolExecutor(
-                1, mp_context=multiprocessing.get_context("spawn"), initializer=open_worker,
-                initargs=_worker_args(self._ctx, os.getpid()),
+            self._pool = ProcessPoolExecutor(  # typeshed ties initargs to a no-argument initializer
+                1, mp_context=multiprocessing.get_context("spawn"), initializer=open_worker,  # type: ignore[arg-type]
+                initargs=_worker_args(self._ctx, os.getpid()),  # type: ignore[arg-type]
             )  # fmt: skip
         return self._pool
 
@@ -365,7 +365,7 @@ class ProtectWorkers:
         self._all = list(self._free)
         self._busy = threading.Semaphore(len(self._free))
         # [limits] max_memory_mb: the workers together never hold more than this (estimated)
-        self.budget = ByteBudget(budget_bytes or getattr(ctx.config, "max_memory_bytes", 1_024_000_000))
+        self.budget = ByteBudget(budget_bytes or int(getattr(ctx.config, "max_memory_bytes", 1_024_000_000)))
 
     def protect(self, path: Path) -> ProtectOutcome:
         reserved = self.budget.reserve(peak_estimate(Path(path)))

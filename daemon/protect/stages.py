@@ -202,6 +202,7 @@ def recognise(job: Job) -> ProtectOutcome | None:
     store, or its provenance marker), a run of this path that was interrupted (finished here), a
     file the user restored (unless force)."""
     ctx, row, sha, out_path = job.ctx, job.row, job.sha, job.out_path
+    assert sha is not None  # hash_original ran first
     # Never poison twice: ppd's own output (here or anywhere) is left alone.
     if out_path is None and row is not None and row["poisoned_sha256"] == sha:
         return job.outcome(Outcome.UNCHANGED, "already patched", poisoned_sha256=sha, output=job.path)
@@ -210,7 +211,7 @@ def recognise(job: Job) -> ProtectOutcome | None:
     interrupted = (
         out_path is None and row is not None and row["state"] == FileState.PENDING and not job.dry_run
     )
-    if interrupted and recover_pending(ctx, row, job.path, sha, job.kind):
+    if interrupted and row is not None and recover_pending(ctx, row, job.path, sha, job.kind):
         return job.outcome(Outcome.UNCHANGED, "recovered after an interrupted run", poisoned_sha256=sha)
     earlier = ctx.store.find_poisoned(sha)
     if earlier is not None:

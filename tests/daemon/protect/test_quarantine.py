@@ -172,3 +172,22 @@ def test_truncated_file_without_a_writer_is_refused_before_the_vault(ppd_env: di
         assert not ctx.vault.has(sha256(cut))
     finally:
         ctx.close()
+
+
+def test_an_isolated_poisoner_returns_the_report_poison_to_does(tmp_path: Path) -> None:
+    """A file patched in the isolated child (after a poisoner crash) is said like any other: where
+    its mark went and why (issue 25's per-file note), what was kept; before, the report was lost."""
+    from daemon.protect.job import place_note, report_detail
+    from daemon.protect.poisoning import poison_isolated, poison_to
+    from poisoner.ladder import default_spec
+    from poisoner.provenance import Marker
+
+    src = write_image(tmp_path / "photo.png", seed=4, size=640)
+    marker = Marker.placeholder(bytes(32), "x", "0" * 64)
+    here = poison_to("image", src, tmp_path / "here.png", default_spec(), marker=marker, keep_location=False)
+    child = poison_isolated("image", src, tmp_path / "child.png", default_spec(), marker, False)
+    assert child is not None and child.place is not None
+    assert (tmp_path / "child.png").read_bytes() == (tmp_path / "here.png").read_bytes()
+    assert report_detail(child) == report_detail(here)
+    assert place_note(child) == place_note(here)
+    assert not (tmp_path / "child.png.report").exists()  # the hand-over file is gone
