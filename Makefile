@@ -14,7 +14,7 @@ demo: setup
 test: setup
 	$(VENV)/bin/ruff check --no-cache .
 	$(VENV)/bin/lint-imports --no-cache
-	$(VENV)/bin/mypy poisoner verifier
+	$(VENV)/bin/mypy poisoner verifier daemon
 	$(PY) -m pytest
 
 # Everything: every integration test (the default runs the representative few, tests/conftest.py)
@@ -27,11 +27,11 @@ test-all: setup
 wheel-smoke: setup
 	PPD_VENV=$(VENV) bash scripts/wheel_smoke.sh
 
-# mypy: the product's pure and verification packages ([tool.mypy] in pyproject; the daemon is not yet typed).
+# mypy: every package of the product ([tool.mypy] in pyproject).
 lint: setup
 	$(VENV)/bin/ruff check --no-cache .
 	$(VENV)/bin/lint-imports --no-cache
-	$(VENV)/bin/mypy poisoner verifier
+	$(VENV)/bin/mypy poisoner verifier daemon
 
 bench:
 	PPD_SETUP_BENCH=1 bash scripts/setup.sh
