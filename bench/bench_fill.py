@@ -1,0 +1,265 @@
+"""Issue 25, round 4: subject-filling captures judged per view, fairly.
+
+`nice -n 19 python -m bench.bench_fill touch`    every own set, no masks given to ppd (a few minutes)
+`nice -n 19 python -m bench.bench_fill picture`  one view per new set with its mask outline and mark
+
+Each own set is poisoned as `ppd poison` writes it (poison_file, the default design, no masks) and
+judged as round 3 judged it (bench.bench_placement judge_set: a touch is a changed pixel on the
+subject, as shown). New in round 4, per view (display orientation, from the subject mask):
+- `room`: the side of the largest square holding no subject pixel, against the mark's square side
+  (`full`) and the smallest side ppd crops a square to (`floor`, poisoner.shrink.SHRINK_FLOOR);
+- `two at floor` / `two whole`: whether two non-overlapping squares of that side fit off the subject
+  (the default mark is two squares; where no place holds both, each takes its own);
+so a touch where two floor-size squares had room off the subject ("a free place existed") is counted
+apart from a touch where no placement could avoid the subject.
+The sets: bench.bench_placement's dtu crops (70%, 55%, 70% stored with EXIF orientation 6) and
+lego-fill; fountain-fill (round 3's crops of fountain-P11) judged on a per-view mask of the fountain
+drawn by eye as polygons (bench/fountain_masks.json; round 3 judged a hand-marked box); creator-fill
+(testkit/fill_set.py: a box of real photo faces filling about 2/3 of the frame in front of a real
+photo wall and pavement, exact masks).
+
+Results: the round 4 block at the top of bench/results/placement.md (WORK/fill.json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image, ImageDraw  # PIL before anything that may load pycolmap
+
+from bench.bench_placement import RESULTS_MD, ROOT, SHARED, judge_set, make_crops, make_lego_crops, shown_rgb
+from bench.bench_shrink import FOUNTAIN_BOXES, FOUNTAIN_SIDE, fountain_crop
+
+WORK = Path("/tmp") / "ppd-bench-fill"  # its own folder: other rounds' files stay as they were
+POLYGONS = ROOT / "bench" / "fountain_masks.json"
+PICTURE = ROOT / "bench" / "results" / "placement_fill_sets.png"
+BEGIN, END = "<!-- round 4 -->", "<!-- /round 4 -->"
+
+
+# ---- the sets ------------------------------------------------------------------------------------------
+def fountain_mask(view: str, size: tuple[int, int]) -> np.ndarray:
+    """The fountain's mask in a fountain-P11 photo of `size` (w, h): its polygon, filled."""
+    data = json.loads(POLYGONS.read_text())
+    scale = data["scale"]
+    mask = Image.new("L", size, 0)
+    points = [(x * scale, y * scale) for x, y in data["views"][view]]
+    ImageDraw.Draw(mask).polygon(points, fill=255)
+    return np.asarray(mask) > 0
+
+
+def make_fountain(folder: Path) -> tuple[Path, Path]:
+    """Round 3's fountain-fill crops (the same pixels), masks from the per-view polygons."""
+    images, masks = folder / "images", folder / "masks"
+    if images.exists():
+        return images, masks
+    images.mkdir(parents=True)
+    masks.mkdir(parents=True)
+    for i, box in enumerate(FOUNTAIN_BOXES):
+        with Image.open(SHARED / "fountain_P11" / "images" / f"{i:04d}.jpg") as im:
+            rgb = im.convert("RGB")
+        crop = fountain_crop(box, rgb.size)
+        out = (FOUNTAIN_SIDE, FOUNTAIN_SIDE)
+        rgb.crop(crop).resize(out, Image.Resampling.LANCZOS).save(images / f"{i:04d}.png")
+        mask = Image.fromarray(fountain_mask(f"{i:04d}", rgb.size).astype(np.uint8) * 255)
+        mask.crop(crop).resize(out, Image.Resampling.NEAREST).save(masks / f"{i:04d}.png")
+    return images, masks
+
+
+def make_set(name: str) -> tuple[Path, Path]:
+    folder = WORK / name
+    if name == "crop70":
+        return make_crops(0.70, 1, folder)
+    if name == "crop55":
+        return make_crops(0.55, 1, folder)
+    if name == "crop70-exif6":
+        return make_crops(0.70, 6, folder)
+    if name == "lego-fill":
+        return make_lego_crops(0.55, folder)
+    if name == "fountain-fill":
+        return make_fountain(folder)
+    if name == "creator-fill":
+        from testkit.fill_set import make_fill_set
+
+        return make_fill_set(folder)
+    raise SystemExit(f"unknown set {name!r}")
+
+
+SETS = ("crop70", "crop55", "crop70-exif6", "lego-fill", "fountain-fill", "creator-fill")
+
+
+# ---- the room off the subject --------------------------------------------------------------------------
+def fits(subject: np.ndarray, side: int) -> np.ndarray:
+    """Top-left corners (a bool map) where a side x side square holds no subject pixel."""
+    h, w = subject.shape
+    if side > min(h, w):
+        return np.zeros((0, 0), dtype=bool)
+    s = np.zeros((h + 1, w + 1), dtype=np.int64)
+    s[1:, 1:] = subject.astype(np.int64).cumsum(0).cumsum(1)
+    sums = s[side:, side:] - s[:-side, side:] - s[side:, :-side] + s[:-side, :-side]
+    return sums == 0
+
+
+def largest_free_square(subject: np.ndarray) -> int:
+    """The side of the largest square holding no subject pixel (binary search on fits)."""
+    lo, hi = 0, min(subject.shape)
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if fits(subject, mid).any():
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
+
+
+def two_fit(subject: np.ndarray, side: int) -> bool:
+    """Whether two non-overlapping side x side squares fit off the subject: two top-left corners
+    at least `side` apart in x or in y exist exactly when the corners that fit span that much."""
+    ok = fits(subject, side)
+    if not ok.any():
+        return False
+    ys, xs = np.nonzero(ok)
+    return bool(xs.max() - xs.min() >= side or ys.max() - ys.min() >= side)
+
+
+def room(subject: np.ndarray, full: int, floor: int) -> dict[str, Any]:
+    return {"room": largest_free_square(subject), "full": full, "floor": floor,
+            "two_whole": two_fit(subject, full), "two_floor": two_fit(subject, floor)}  # fmt: skip
+
+
+def sides(width: int, height: int, name: str) -> tuple[int, int]:
+    """(the mark's square side, the floor side) on a width x height frame as shown."""
+    from poisoner.ladder import default_spec
+    from poisoner.shrink import crop_sides
+
+    p = default_spec().resolve(width, height, name)
+    tried = crop_sides(p.lane_size, p.block)
+    return p.lane_size, (tried[-1] if tried else p.lane_size)
+
+
+# ---- the judge -----------------------------------------------------------------------------------------
+def judge(name: str, out: str = "out-new") -> dict[str, Any]:
+    from poisoner.ladder import default_spec
+
+    images, masks = make_set(name)
+    r = judge_set(images, masks, WORK / name / out, default_spec())
+    for v in r["per_view"]:
+        subject = np.asarray(Image.open(masks / f"{Path(v['name']).stem}.png")) > 0
+        full, floor = sides(subject.shape[1], subject.shape[0], v["name"])
+        v.update(room(subject, full, floor))
+    views = r["per_view"]
+    r.update(set=name, design="per-photo (default)",
+             touch_free=sum(v["touches"] and v["two_floor"] for v in views),
+             touch_no_room=sum(v["touches"] and not v["two_floor"] for v in views),
+             no_room=sum(not v["two_floor"] for v in views))  # fmt: skip
+    return r
+
+
+def touch(args: argparse.Namespace) -> None:
+    rows = []
+    for name in args.sets.split(","):
+        r = judge(name)
+        print(json.dumps({k: v for k, v in r.items() if k != "per_view"}), flush=True)
+        rows.append(r)
+    path = WORK / "fill.json"
+    done = {r["set"] for r in rows}
+    kept = [r for r in (json.loads(path.read_text()) if path.exists() else []) if r["set"] not in done]
+    every = sorted(kept + rows, key=lambda r: SETS.index(r["set"]))
+    path.write_text(json.dumps(every))
+    write_markdown(every)
+
+
+# ---- the page ------------------------------------------------------------------------------------------
+ABOUT = {
+    "crop70": "dtu_scan37 cropped to 70% around the subject, 800x600",
+    "crop55": "dtu_scan37 cropped to 55% around the subject, 800x600",
+    "crop70-exif6": "crop70 stored turned with EXIF orientation 6 (judged as shown)",
+    "lego-fill": "lego's first 25 views cropped to 55% around the model, 600x600",
+    "fountain-fill": "fountain-P11 cropped square around the fountain, 800x800; mask: the fountain "
+    "drawn by eye per view (bench/fountain_masks.json)",
+    "creator-fill": "testkit/fill_set.py: a box of real photo faces in front of a real photo wall and "
+    "pavement, 800x800, exact masks",
+}
+
+
+def write_markdown(rows: list[dict[str, Any]]) -> None:
+    lines = [BEGIN, "## (a) Subject-filling captures, no masks given, judged per view: round 4", "",
+             "`python -m bench.bench_fill touch` (its docstring). `touch`: views with a changed pixel on",
+             "the subject (as shown); `touch, room existed`: of those, views where two squares of the",
+             "floor side (half the mark's side) fit off the subject, so a placement off it existed;",
+             "`no room`: views where they do not (no placement avoids the subject); `said`: views ppd",
+             "reported 'no plain region'; `shrunk`: squares cropped to fit. Goal: touch <= 10% of views.", "",
+             "| set | subject | touch (of N) | touch, room existed | touch, no room | no room | said "
+             "| shrunk | goal (<= 10%) |", "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in rows:
+        n = r["views"]
+        met = "met" if r["touch"] <= 0.10 * n else "**not met**"
+        lines.append(f"| {r['set']} | {r['subject_share']:.0%} | {r['touch']} of {n} | {r['touch_free']} "
+                     f"| {r['touch_no_room']} | {r['no_room']} | {r['said_not_free']} | {r['shrunk']} "
+                     f"| {met} |")  # fmt: skip
+    lines += ["", "Sets: " + "; ".join(f"`{r['set']}`: {ABOUT[r['set']]}" for r in rows) + ".", ""]
+    lines += ["Per view (`room`: the largest square with no subject pixel, px; `full` / `floor`: the mark's",
+              "square side and the smallest side ppd crops it to; `two`: two squares of that side fit off",
+              "the subject; `touch`: a changed pixel on the subject; `said`: 'no plain region'):",
+              ""]  # fmt: skip
+    for r in rows:
+        lines += [f"<details><summary>{r['set']}: per view</summary>", "",
+                  "| view | subject | room | full / floor | two whole | two at floor | touch | said | shrunk "
+                  "| place |", "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        for v in r["per_view"]:
+            yes = {True: "yes", False: "-"}
+            lines.append(
+                f"| {v['name']} | {v['subject_share']:.0%} | {v['room']} | {v['full']} / {v['floor']} "
+                f"| {yes[v['two_whole']]} | {yes[v['two_floor']]} | {'**touch**' if v['touches'] else '-'} "
+                f"| {yes[v['free'] is False]} | {yes[bool(v.get('shrunk'))]} | {v['words']} |"
+            )
+        lines += ["", "</details>", ""]
+    lines.append(END)
+    block = "\n".join(lines)
+    text = RESULTS_MD.read_text()
+    if BEGIN in text:
+        head, rest = text.split(BEGIN, 1)
+        text = head + block + rest.split(END, 1)[1]
+    else:  # first time: right under the page's title and its one line
+        first, sep, rest = text.partition("\n\n")
+        second, sep2, rest2 = rest.partition("\n\n")
+        text = first + sep + second + sep2 + block + "\n\n" + rest2
+    RESULTS_MD.write_text(text)
+
+
+# ---- the picture ---------------------------------------------------------------------------------------
+def picture(args: argparse.Namespace) -> None:
+    """A view of fountain-fill and one of creator-fill as poisoned by `touch`: the subject mask's outline
+    in green, the changed pixels in red."""
+    tiles = []
+    for name, view in (("fountain-fill", "0005.png"), ("creator-fill", "view_12.png")):
+        folder = WORK / name
+        a, b = shown_rgb(folder / "images" / view), shown_rgb(folder / "out-new" / view)
+        subject = np.asarray(Image.open(folder / "masks" / view)) > 0
+        edge = subject ^ np.roll(subject, 1, 0) | subject ^ np.roll(subject, 1, 1)
+        tile = b.copy()
+        grown = edge | np.roll(edge, 1, 0) | np.roll(edge, 1, 1)
+        tile[grown] = (0, 255, 0)
+        tile[np.any(a != b, axis=2)] = (255, 0, 0)
+        tiles.append(tile)
+    gap = np.full((tiles[0].shape[0], 8, 3), 32, dtype=np.uint8)
+    Image.fromarray(np.concatenate([tiles[0], gap, tiles[1]], axis=1)).save(PICTURE, optimize=True)
+    print(f"wrote {PICTURE}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="part", required=True)
+    t = sub.add_parser("touch")
+    t.add_argument("--sets", default=",".join(SETS))
+    sub.add_parser("picture")
+    args = parser.parse_args(argv)
+    WORK.mkdir(parents=True, exist_ok=True)
+    {"touch": touch, "picture": picture}[args.part](args)
+
+
+if __name__ == "__main__":
+    main()
