@@ -33,6 +33,8 @@ from PIL import Image, ImageDraw  # PIL before anything that may load pycolmap
 
 from bench.bench_placement import RESULTS_MD, ROOT, SHARED, judge_set, make_crops, make_lego_crops, shown_rgb
 from bench.bench_shrink import FOUNTAIN_BOXES, FOUNTAIN_SIDE, fountain_crop
+from poisoner.placement import MARGIN
+from testkit.free_room import largest_free_square, two_fit
 
 WORK = Path("/tmp") / "ppd-bench-fill"  # its own folder: other rounds' files stay as they were
 POLYGONS = ROOT / "bench" / "fountain_masks.json"
@@ -91,43 +93,13 @@ def make_set(name: str) -> tuple[Path, Path]:
 SETS = ("crop70", "crop55", "crop70-exif6", "lego-fill", "fountain-fill", "creator-fill")
 
 
-# ---- the room off the subject --------------------------------------------------------------------------
-def fits(subject: np.ndarray, side: int) -> np.ndarray:
-    """Top-left corners (a bool map) where a side x side square holds no subject pixel."""
-    h, w = subject.shape
-    if side > min(h, w):
-        return np.zeros((0, 0), dtype=bool)
-    s = np.zeros((h + 1, w + 1), dtype=np.int64)
-    s[1:, 1:] = subject.astype(np.int64).cumsum(0).cumsum(1)
-    sums = s[side:, side:] - s[:-side, side:] - s[side:, :-side] + s[:-side, :-side]
-    return sums == 0
-
-
-def largest_free_square(subject: np.ndarray) -> int:
-    """The side of the largest square holding no subject pixel (binary search on fits)."""
-    lo, hi = 0, min(subject.shape)
-    while lo < hi:
-        mid = (lo + hi + 1) // 2
-        if fits(subject, mid).any():
-            lo = mid
-        else:
-            hi = mid - 1
-    return lo
-
-
-def two_fit(subject: np.ndarray, side: int) -> bool:
-    """Whether two non-overlapping side x side squares fit off the subject: two top-left corners
-    at least `side` apart in x or in y exist exactly when the corners that fit span that much."""
-    ok = fits(subject, side)
-    if not ok.any():
-        return False
-    ys, xs = np.nonzero(ok)
-    return bool(xs.max() - xs.min() >= side or ys.max() - ys.min() >= side)
-
-
-def room(subject: np.ndarray, full: int, floor: int) -> dict[str, Any]:
-    return {"room": largest_free_square(subject), "full": full, "floor": floor,
-            "two_whole": two_fit(subject, full), "two_floor": two_fit(subject, floor)}  # fmt: skip
+# ---- the room off the subject (testkit/free_room.py) ---------------------------------------------------
+def room(subject: np.ndarray, full: int, floor: int, margin: int) -> dict[str, Any]:
+    """The view's room off the subject against the mark's sides; `two_floor_margin`: two floor-size
+    squares each with ppd's margin around it (without masks ppd calls a place plain only with it)."""
+    return {"room": largest_free_square(subject), "full": full, "floor": floor, "margin": margin,
+            "two_whole": two_fit(subject, full), "two_floor": two_fit(subject, floor),
+            "two_floor_margin": two_fit(subject, floor + 2 * margin)}  # fmt: skip
 
 
 def sides(width: int, height: int, name: str) -> tuple[int, int]:
@@ -149,10 +121,12 @@ def judge(name: str, out: str = "out-new") -> dict[str, Any]:
     for v in r["per_view"]:
         subject = np.asarray(Image.open(masks / f"{Path(v['name']).stem}.png")) > 0
         full, floor = sides(subject.shape[1], subject.shape[0], v["name"])
-        v.update(room(subject, full, floor))
+        margin = max(1, round(MARGIN * min(subject.shape)))  # poisoner.placement's margin
+        v.update(room(subject, full, floor, margin))
     views = r["per_view"]
     r.update(set=name, design="per-photo (default)",
              touch_free=sum(v["touches"] and v["two_floor"] for v in views),
+             touch_margin=sum(v["touches"] and v["two_floor_margin"] for v in views),
              touch_no_room=sum(v["touches"] and not v["two_floor"] for v in views),
              no_room=sum(not v["two_floor"] for v in views))  # fmt: skip
     return r
@@ -190,30 +164,36 @@ def write_markdown(rows: list[dict[str, Any]]) -> None:
              "`python -m bench.bench_fill touch` (its docstring). `touch`: views with a changed pixel on",
              "the subject (as shown); `touch, room existed`: of those, views where two squares of the",
              "floor side (half the mark's side) fit off the subject, so a placement off it existed;",
-             "`no room`: views where they do not (no placement avoids the subject); `said`: views ppd",
-             "reported 'no plain region'; `shrunk`: squares cropped to fit. Goal: touch <= 10% of views.", "",
-             "| set | subject | touch (of N) | touch, room existed | touch, no room | no room | said "
-             "| shrunk | goal (<= 10%) |", "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+             "`no room`: views where they do not (no placement avoids the subject); `with margin`: of the",
+             "touches, views where the two squares fit with ppd's margin around each (3% of the shorter",
+             "side: without masks ppd calls a place plain only with it); `said`: views ppd reported 'no",
+             "plain region'; `shrunk`: squares cropped to fit. Goal: touch <= 10% of views.", "",
+             "| set | subject | touch (of N) | touch, room existed | of which with margin | touch, no room "
+             "| no room | said | shrunk | goal (<= 10%) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in rows:
         n = r["views"]
         met = "met" if r["touch"] <= 0.10 * n else "**not met**"
         lines.append(f"| {r['set']} | {r['subject_share']:.0%} | {r['touch']} of {n} | {r['touch_free']} "
-                     f"| {r['touch_no_room']} | {r['no_room']} | {r['said_not_free']} | {r['shrunk']} "
+                     f"| {r['touch_margin']} | {r['touch_no_room']} | {r['no_room']} | {r['said_not_free']} "
+                     f"| {r['shrunk']} "
                      f"| {met} |")  # fmt: skip
     lines += ["", "Sets: " + "; ".join(f"`{r['set']}`: {ABOUT[r['set']]}" for r in rows) + ".", ""]
     lines += ["Per view (`room`: the largest square with no subject pixel, px; `full` / `floor`: the mark's",
               "square side and the smallest side ppd crops it to; `two`: two squares of that side fit off",
-              "the subject; `touch`: a changed pixel on the subject; `said`: 'no plain region'):",
+              "the subject (`+ margin`: floor-size squares with ppd's margin); `touch`: a changed pixel on",
+              "the subject; `said`: 'no plain region'):",
               ""]  # fmt: skip
     for r in rows:
         lines += [f"<details><summary>{r['set']}: per view</summary>", "",
-                  "| view | subject | room | full / floor | two whole | two at floor | touch | said | shrunk "
-                  "| place |", "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                  "| view | subject | room | full / floor | two whole | two at floor | + margin | touch "
+                  "| said | shrunk | place |", "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for v in r["per_view"]:
             yes = {True: "yes", False: "-"}
             lines.append(
                 f"| {v['name']} | {v['subject_share']:.0%} | {v['room']} | {v['full']} / {v['floor']} "
-                f"| {yes[v['two_whole']]} | {yes[v['two_floor']]} | {'**touch**' if v['touches'] else '-'} "
+                f"| {yes[v['two_whole']]} | {yes[v['two_floor']]} | {yes[v['two_floor_margin']]} "
+                f"| {'**touch**' if v['touches'] else '-'} "
                 f"| {yes[v['free'] is False]} | {yes[bool(v.get('shrunk'))]} | {v['words']} |"
             )
         lines += ["", "</details>", ""]
@@ -246,7 +226,9 @@ def picture(args: argparse.Namespace) -> None:
         tile[np.any(a != b, axis=2)] = (255, 0, 0)
         tiles.append(tile)
     gap = np.full((tiles[0].shape[0], 8, 3), 32, dtype=np.uint8)
-    Image.fromarray(np.concatenate([tiles[0], gap, tiles[1]], axis=1)).save(PICTURE, optimize=True)
+    row = Image.fromarray(np.concatenate([tiles[0], gap, tiles[1]], axis=1))
+    row = row.resize((1008, round(row.height * 1008 / row.width)), Image.Resampling.LANCZOS)
+    row.quantize(256).save(PICTURE, optimize=True)  # repo-sized
     print(f"wrote {PICTURE}")
 
 
