@@ -2,6 +2,7 @@
 
 `nice -n 19 python -m bench.bench_fill touch`    every own set, no masks given to ppd (a few minutes)
 `nice -n 19 python -m bench.bench_fill picture`  one view per new set with its mask outline and mark
+`nice -n 19 python -m bench.bench_fill cost`     what this round's finer split grid costs
 
 Each own set is poisoned as `ppd poison` writes it (poison_file, the default design, no masks) and
 judged as round 3 judged it (bench.bench_placement judge_set: a touch is a changed pixel on the
@@ -210,6 +211,46 @@ def write_markdown(rows: list[dict[str, Any]]) -> None:
     RESULTS_MD.write_text(text)
 
 
+# ---- the cost ------------------------------------------------------------------------------------------
+def cost(args: argparse.Namespace) -> None:
+    """Placement alone (poisoner.shrink.place_fitting on the display thumbnail) per view of the sets, this
+    round's split grid (SPLIT_GRID) against round 3's (the stacked mark's GRID) in the same process,
+    interleaved, median of 5 rounds per view; the ratio's median per kind of view (whole mark plain:
+    never reaches the split, so the same work; split or cropped; nowhere plain)."""
+    import statistics
+    import time
+
+    from poisoner import placement
+    from poisoner.ladder import default_spec
+    from poisoner.shrink import place_fitting
+    from poisoner.subject import display_detail
+
+    spec, fine = default_spec(), placement.SPLIT_GRID
+    kinds: dict[str, list[float]] = {}
+    for name in args.sets.split(","):
+        images, _ = make_set(name)
+        for f in sorted(images.iterdir()):
+            detail, o = display_detail(f.read_bytes(), f.name)
+            with Image.open(f) as im:
+                size = im.size
+            times: dict[int, list[float]] = {fine: [], placement.GRID: []}
+            for _ in range(5):
+                for grid in times:
+                    placement.SPLIT_GRID = grid
+                    t = time.perf_counter()
+                    _, place = place_fitting(spec, *size, f.name, o, detail)
+                    times[grid].append(time.perf_counter() - t)
+            placement.SPLIT_GRID = fine
+            whole = place.free and not place.shrunk and place.source == "estimated"
+            kind = "whole, stacked" if whole else ("split or cropped" if place.free else "nowhere plain")
+            ratio = statistics.median(times[fine]) / statistics.median(times[placement.GRID])
+            kinds.setdefault(kind, []).append(ratio)
+    rows = [{"kind": k, "views": len(v), "ratio_median": round(statistics.median(v), 2),
+             "ratio_max": round(max(v), 2)} for k, v in kinds.items()]  # fmt: skip
+    print(json.dumps(rows))
+    (WORK / "cost.json").write_text(json.dumps(rows))
+
+
 # ---- the picture ---------------------------------------------------------------------------------------
 def picture(args: argparse.Namespace) -> None:
     """A view of fountain-fill and one of creator-fill as poisoned by `touch`: the subject mask's outline
@@ -238,9 +279,11 @@ def main(argv: list[str] | None = None) -> None:
     t = sub.add_parser("touch")
     t.add_argument("--sets", default=",".join(SETS))
     sub.add_parser("picture")
+    c = sub.add_parser("cost")
+    c.add_argument("--sets", default="crop55,fountain-fill,creator-fill")
     args = parser.parse_args(argv)
     WORK.mkdir(parents=True, exist_ok=True)
-    {"touch": touch, "picture": picture}[args.part](args)
+    {"touch": touch, "picture": picture, "cost": cost}[args.part](args)
 
 
 if __name__ == "__main__":
