@@ -32,7 +32,15 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw  # PIL before anything that may load pycolmap
 
-from bench.bench_placement import RESULTS_MD, ROOT, SHARED, judge_set, make_crops, make_lego_crops, shown_rgb
+from bench.bench_placement import (
+    RESULTS_MD,
+    ROOT,
+    SHARED,
+    judge_set,
+    make_crops,
+    make_lego_crops,
+    shown_rgb,
+)
 from bench.bench_shrink import FOUNTAIN_BOXES, FOUNTAIN_SIDE, fountain_crop
 from poisoner.placement import MARGIN
 from testkit.free_room import largest_free_square, two_fit
@@ -40,7 +48,9 @@ from testkit.free_room import largest_free_square, two_fit
 WORK = Path("/tmp") / "ppd-bench-fill"  # its own folder: other rounds' files stay as they were
 POLYGONS = ROOT / "bench" / "fountain_masks.json"
 PICTURE = ROOT / "bench" / "results" / "placement_fill_sets.png"
-BEGIN, END = "<!-- round 4 -->", "<!-- /round 4 -->"
+# the tables between BEGIN and END, notes (by hand) after them up to NOTES_END: bench_placement's
+# write_markdown carries the whole block over when it rewrites the page
+BEGIN, END, NOTES_END = "<!-- round 4 -->", "<!-- /round 4 -->", "<!-- /round 4 notes -->"
 
 
 # ---- the sets ------------------------------------------------------------------------------------------
@@ -114,18 +124,21 @@ def sides(width: int, height: int, name: str) -> tuple[int, int]:
 
 
 # ---- the judge -----------------------------------------------------------------------------------------
-def judge(name: str, out: str = "out-new") -> dict[str, Any]:
+def judge(name: str, give_masks: bool = False) -> dict[str, Any]:
+    """A set poisoned as ppd poison writes it (no masks; give_masks: with them, as --subject-masks),
+    judged per view."""
     from poisoner.ladder import default_spec
 
     images, masks = make_set(name)
-    r = judge_set(images, masks, WORK / name / out, default_spec())
+    out = WORK / name / ("out-masks" if give_masks else "out-new")
+    r = judge_set(images, masks, out, default_spec(), give_masks=give_masks)
     for v in r["per_view"]:
         subject = np.asarray(Image.open(masks / f"{Path(v['name']).stem}.png")) > 0
         full, floor = sides(subject.shape[1], subject.shape[0], v["name"])
         margin = max(1, round(MARGIN * min(subject.shape)))  # poisoner.placement's margin
         v.update(room(subject, full, floor, margin))
     views = r["per_view"]
-    r.update(set=name, design="per-photo (default)",
+    r.update(set=name, design="masks given" if give_masks else "per-photo (default)",
              touch_free=sum(v["touches"] and v["two_floor"] for v in views),
              touch_margin=sum(v["touches"] and v["two_floor_margin"] for v in views),
              touch_no_room=sum(v["touches"] and not v["two_floor"] for v in views),
@@ -136,13 +149,16 @@ def judge(name: str, out: str = "out-new") -> dict[str, Any]:
 def touch(args: argparse.Namespace) -> None:
     rows = []
     for name in args.sets.split(","):
-        r = judge(name)
-        print(json.dumps({k: v for k, v in r.items() if k != "per_view"}), flush=True)
-        rows.append(r)
+        # with the masks: the floor, what room the masks leave ppd (exif6's masks are as shown, ppd
+        # takes them in stored pixels: not given there, as in round 3)
+        for give_masks in (False, True) if name != "crop70-exif6" else (False,):
+            r = judge(name, give_masks)
+            print(json.dumps({k: v for k, v in r.items() if k != "per_view"}), flush=True)
+            rows.append(r)
     path = WORK / "fill.json"
     done = {r["set"] for r in rows}
     kept = [r for r in (json.loads(path.read_text()) if path.exists() else []) if r["set"] not in done]
-    every = sorted(kept + rows, key=lambda r: SETS.index(r["set"]))
+    every = sorted(kept + rows, key=lambda r: (SETS.index(r["set"]), r["design"] == "masks given"))
     path.write_text(json.dumps(every))
     write_markdown(every)
 
@@ -172,6 +188,8 @@ def write_markdown(rows: list[dict[str, Any]]) -> None:
              "| set | subject | touch (of N) | touch, room existed | of which with margin | touch, no room "
              "| no room | said | shrunk | goal (<= 10%) |",
              "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    given = [r for r in rows if r["design"] == "masks given"]
+    rows = [r for r in rows if r["design"] != "masks given"]
     for r in rows:
         n = r["views"]
         met = "met" if r["touch"] <= 0.10 * n else "**not met**"
@@ -180,6 +198,15 @@ def write_markdown(rows: list[dict[str, Any]]) -> None:
                      f"| {r['shrunk']} "
                      f"| {met} |")  # fmt: skip
     lines += ["", "Sets: " + "; ".join(f"`{r['set']}`: {ABOUT[r['set']]}" for r in rows) + ".", ""]
+    if given:
+        lines += ["The same sets with the subject masks given (`--subject-masks`; ppd never writes on them):",
+                  "`unwritten`: the mask covered the whole mark, the file failed (never \"patched\").", "",
+                  "| set | touch (of N) | no room | said 'no free region' | unwritten | shrunk |",
+                  "|---|---|---|---|---|---|"]  # fmt: skip
+        for r in given:
+            lines.append(f"| {r['set']} | {r['touch']} of {r['views']} | {r['no_room']} "
+                         f"| {r['said_not_free']} | {r['unwritten']} | {r['shrunk']} |")  # fmt: skip
+        lines.append("")
     lines += ["Per view (`room`: the largest square with no subject pixel, px; `full` / `floor`: the mark's",
               "square side and the smallest side ppd crops it to; `two`: two squares of that side fit off",
               "the subject (`+ margin`: floor-size squares with ppd's margin); `touch`: a changed pixel on",
@@ -204,10 +231,10 @@ def write_markdown(rows: list[dict[str, Any]]) -> None:
     if BEGIN in text:
         head, rest = text.split(BEGIN, 1)
         text = head + block + rest.split(END, 1)[1]
-    else:  # first time: right under the page's title and its one line
+    else:  # first time: right under the page's title and its one line, notes to be written after it
         first, sep, rest = text.partition("\n\n")
         second, sep2, rest2 = rest.partition("\n\n")
-        text = first + sep + second + sep2 + block + "\n\n" + rest2
+        text = first + sep + second + sep2 + block + "\n\n" + NOTES_END + "\n\n" + rest2
     RESULTS_MD.write_text(text)
 
 
