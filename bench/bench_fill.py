@@ -35,13 +35,12 @@ from PIL import Image, ImageDraw  # PIL before anything that may load pycolmap
 from bench.bench_placement import (
     RESULTS_MD,
     ROOT,
-    SHARED,
     judge_set,
     make_crops,
     make_lego_crops,
     shown_rgb,
 )
-from bench.bench_shrink import FOUNTAIN_BOXES, FOUNTAIN_SIDE, fountain_crop
+from bench.bench_shrink import make_fountain
 from poisoner.placement import MARGIN
 from testkit.free_room import largest_free_square, two_fit
 
@@ -54,32 +53,15 @@ BEGIN, END, NOTES_END = "<!-- round 4 -->", "<!-- /round 4 -->", "<!-- /round 4 
 
 
 # ---- the sets ------------------------------------------------------------------------------------------
-def fountain_mask(view: str, size: tuple[int, int]) -> np.ndarray:
-    """The fountain's mask in a fountain-P11 photo of `size` (w, h): its polygon, filled."""
+def fountain_mask(i: int, box: tuple[int, int, int, int], size: tuple[int, int]) -> np.ndarray:
+    """The fountain's mask in fountain-P11's view i (a photo of `size`, w x h): its polygon, filled
+    (255 = subject; `box`, round 3's judge, unused)."""
     data = json.loads(POLYGONS.read_text())
     scale = data["scale"]
     mask = Image.new("L", size, 0)
-    points = [(x * scale, y * scale) for x, y in data["views"][view]]
+    points = [(x * scale, y * scale) for x, y in data["views"][f"{i:04d}"]]
     ImageDraw.Draw(mask).polygon(points, fill=255)
-    return np.asarray(mask) > 0
-
-
-def make_fountain(folder: Path) -> tuple[Path, Path]:
-    """Round 3's fountain-fill crops (the same pixels), masks from the per-view polygons."""
-    images, masks = folder / "images", folder / "masks"
-    if images.exists():
-        return images, masks
-    images.mkdir(parents=True)
-    masks.mkdir(parents=True)
-    for i, box in enumerate(FOUNTAIN_BOXES):
-        with Image.open(SHARED / "fountain_P11" / "images" / f"{i:04d}.jpg") as im:
-            rgb = im.convert("RGB")
-        crop = fountain_crop(box, rgb.size)
-        out = (FOUNTAIN_SIDE, FOUNTAIN_SIDE)
-        rgb.crop(crop).resize(out, Image.Resampling.LANCZOS).save(images / f"{i:04d}.png")
-        mask = Image.fromarray(fountain_mask(f"{i:04d}", rgb.size).astype(np.uint8) * 255)
-        mask.crop(crop).resize(out, Image.Resampling.NEAREST).save(masks / f"{i:04d}.png")
-    return images, masks
+    return np.asarray(mask)
 
 
 def make_set(name: str) -> tuple[Path, Path]:
@@ -92,8 +74,8 @@ def make_set(name: str) -> tuple[Path, Path]:
         return make_crops(0.70, 6, folder)
     if name == "lego-fill":
         return make_lego_crops(0.55, folder)
-    if name == "fountain-fill":
-        return make_fountain(folder)
+    if name == "fountain-fill":  # round 3's crops (the same pixels), judged on the outline
+        return make_fountain(folder, mask_of=fountain_mask)
     if name == "creator-fill":
         from testkit.fill_set import make_fill_set
 

@@ -19,13 +19,12 @@ Real texture, synthetic geometry: not a real photo shoot (say so where it is mea
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from verifier.shared_data import shared_root
-from verifier.synthetic import SyntheticOptions, camera_poses
+from verifier.synthetic import Rect, SyntheticOptions, camera_poses
 
 SIDE = 800
 SUPER = 2  # samples per pixel side
@@ -40,16 +39,9 @@ WALL_TEXTURE = ("0000.jpg", (1820, 0, 3072, 1200))  # brick, scaffold, white pla
 FLOOR_TEXTURE = ("0005.jpg", (1700, 1780, 3072, 2048))  # pavement and moss, right of the marker
 
 
-@dataclass(frozen=True)
-class Plane:
-    """origin + u * edge_u + v * edge_v, u, v in [0, 1); texture rows follow v, columns u."""
-
-    origin: np.ndarray
-    edge_u: np.ndarray
-    edge_v: np.ndarray
-    texture: np.ndarray  # H x W x 3 float in [0, 1]
-    shade: float
-    subject: bool
+# a scene plane: verifier.synthetic's Rect (its texture H x W here, rows along edge_v, columns along
+# edge_u) and whether it is the subject
+Plane = tuple[Rect, bool]
 
 
 def _texture(name: str, box: tuple[int, int, int, int] | None, size: tuple[int, int]) -> np.ndarray:
@@ -74,9 +66,9 @@ def scene() -> list[Plane]:
     floor = _texture(*FLOOR_TEXTURE, size=(1372, 536))
     planes = [
         # floor z = 0, from in front of the cameras to the wall; texture rows run away from the viewer
-        Plane(a([-8.0, 3.0, 0.0]), a([16.0, 0, 0]), a([0, -8.0, 0]), floor, 0.9, False),
+        (Rect(a([-8.0, 3.0, 0.0]), a([16.0, 0, 0]), a([0, -8.0, 0]), floor, 0.9), False),
         # wall y = 3, 16 x 16/3 (the texture's 3:1), its rows run down from its top
-        Plane(a([-8.0, 3.0, 16 / 3]), a([16.0, 0, 0]), a([0, 0, -16 / 3]), wall, 1.0, False),
+        (Rect(a([-8.0, 3.0, 16 / 3]), a([16.0, 0, 0]), a([0, 0, -16 / 3]), wall, 1.0), False),
     ]
     faces = (  # the box's faces seen from the arc (-y side), texture top at the face's top edge
         (a([-1.0, -1.0, 2.0]), a([2.0, 0, 0]), a([0, 0, -2.0]), 1.0),  # y = -1
@@ -85,7 +77,7 @@ def scene() -> list[Plane]:
         (a([-1.0, 1.0, 2.0]), a([2.0, 0, 0]), a([0, -2.0, 0]), 0.95),  # top
     )
     for (origin, eu, ev, shade), (name, box) in zip(faces, BOX_TEXTURES, strict=True):
-        planes.append(Plane(origin, eu, ev, _texture(name, box, (600, 600)), shade, True))
+        planes.append((Rect(origin, eu, ev, _texture(name, box, (600, 600)), shade), True))
     return planes
 
 
@@ -102,7 +94,7 @@ def render(
     depth = np.full(dirs.shape[0], np.inf)
     colour = np.full((dirs.shape[0], 3), 0.5)
     subject = np.zeros(dirs.shape[0], dtype=bool)
-    for p in planes:
+    for p, is_subject in planes:
         normal = np.cross(p.edge_u, p.edge_v)
         with np.errstate(divide="ignore", invalid="ignore"):
             dist = ((p.origin - centre) @ normal) / (dirs @ normal)
@@ -115,7 +107,7 @@ def render(
         tj = np.clip((su[ok] * tw).astype(int), 0, tw - 1)
         colour[ok] = p.texture[ti, tj] * p.shade
         depth[ok] = dist[ok]
-        subject[ok] = p.subject
+        subject[ok] = is_subject
     if np.isinf(depth).any():
         missed = int(np.isinf(depth).sum())
         raise ValueError(f"view {index}: {missed} samples hit no plane (widen the planes)")
