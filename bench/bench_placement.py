@@ -468,6 +468,9 @@ def speed(args: argparse.Namespace) -> None:
 def write_markdown() -> None:
     lines = ["# Per-photo placement (issue 25)", ""]
     lines += ["Written by `bench/bench_placement.py` (its docstring: what each part measures).", ""]
+    old = RESULTS_MD.read_text() if RESULTS_MD.exists() else ""
+    start, end = old.find("<!-- round 4 -->"), old.find(notes := "<!-- /round 4 notes -->")
+    lines += [old[start : end + len(notes)], ""] if 0 <= start < end else []  # bench_fill's block, kept
     rounds = (("round 3 (this round's rule: squares cropped to fit)", "touch.json"),
               ("round 2 (kept)", "touch_r2.json"), ("round 1 (issue 25's first rule, kept)", "touch_r1.json"))
     for title, name in rounds:

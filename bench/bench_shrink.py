@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -63,7 +64,16 @@ def fountain_crop(box: tuple[int, int, int, int], size: tuple[int, int]) -> tupl
     return (left, top, left + side, top + side)
 
 
-def make_fountain(folder: Path) -> tuple[Path, Path]:
+def box_mask(i: int, box: tuple[int, int, int, int], size: tuple[int, int]) -> np.ndarray:
+    """Round 3's judge: the hand-marked box around the fountain, as a mask of the photo (255 = subject)."""
+    mask = np.zeros((size[1], size[0]), dtype=np.uint8)
+    mask[box[1] : box[3], box[0] : box[2]] = 255
+    return mask
+
+
+def make_fountain(folder: Path, mask_of: Callable[..., np.ndarray] = box_mask) -> tuple[Path, Path]:
+    """fountain-P11's views cropped square around the fountain; mask_of(view index, box, photo size):
+    the subject mask of each photo (round 4: bench.bench_fill's per-view outline)."""
     images, masks = folder / "images", folder / "masks"
     if images.exists():
         return images, masks
@@ -73,8 +83,7 @@ def make_fountain(folder: Path) -> tuple[Path, Path]:
         with Image.open(SHARED / "fountain_P11" / "images" / f"{i:04d}.jpg") as im:
             rgb = im.convert("RGB")
         crop = fountain_crop(box, rgb.size)
-        mask = np.zeros((rgb.height, rgb.width), dtype=np.uint8)
-        mask[box[1] : box[3], box[0] : box[2]] = 255
+        mask = mask_of(i, box, rgb.size)
         out = (FOUNTAIN_SIDE, FOUNTAIN_SIDE)
         rgb.crop(crop).resize(out, Image.Resampling.LANCZOS).save(images / f"{i:04d}.png")
         Image.fromarray(mask).crop(crop).resize(out, Image.Resampling.NEAREST).save(masks / f"{i:04d}.png")

@@ -1,0 +1,73 @@
+"""Issue 25, round 4: a subject filling the frame, no masks given. Where no place holds the stacked
+mark plain, each square looks for its own place on a finer grid (SPLIT_GRID) and, without masks, only
+near the frame's edge, as the stacked mark does (a plain patch inside the frame may be the subject's
+smooth face); the masks, when given, still allow any place off the subject. A photo whose stacked
+mark has a plain place is placed as before (bench/bench_identical.py: lego, dtu_scan37 byte for byte).
+
+Real files (PNG); no mocks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from poisoner.formats import poison_file
+from poisoner.ladder import default_spec
+from tests.poisoner.test_placement_photo import changed_shown, textured
+
+SPEC = default_spec()
+EDGE = [(slice(0, 110), slice(560, 680)), (slice(470, 600), slice(680, 800))]  # two backdrop pockets
+FACE = (slice(200, 340), slice(280, 420))  # a smooth face in the middle of the busy subject
+
+
+def busy_with_pockets(path: Path, pockets: list[tuple[slice, slice]]) -> None:
+    pixels = textured(600, 800, 5)
+    for rows, cols in pockets:
+        pixels[rows, cols] = 230
+    Image.fromarray(pixels).save(path)
+
+
+def region(shape: tuple[int, int], where: list[tuple[slice, slice]]) -> np.ndarray:
+    inside = np.zeros(shape, dtype=bool)
+    for rows, cols in where:
+        inside[rows, cols] = True
+    return inside
+
+
+def test_without_masks_split_squares_keep_to_the_edges_not_a_smooth_face(tmp_path: Path) -> None:
+    src = tmp_path / "v_5.png"
+    busy_with_pockets(src, [*EDGE, FACE])
+    report = poison_file(src, tmp_path / "out.png", SPEC)
+    assert report.place is not None and report.place.free and report.place.source == "estimated-split"
+    diff = changed_shown(src, tmp_path / "out.png")
+    assert not diff[FACE].any()  # round 3 put a square on the smooth face, nearer the preferred anchor
+    for rows, cols in EDGE:
+        assert diff[rows, cols].any()  # one square in each backdrop pocket
+    assert not (diff & ~region(diff.shape, EDGE)).any()
+
+
+def test_with_masks_a_smooth_face_off_the_subject_is_free(tmp_path: Path) -> None:
+    """The same picture, the masks saying the middle pocket is backdrop: a square may go there (the
+    edge rule is for the estimate without masks only)."""
+    src = tmp_path / "v_5.png"
+    busy_with_pockets(src, [*EDGE, FACE])
+    subject = ~region((600, 800), [*EDGE, FACE])
+    report = poison_file(src, tmp_path / "out.png", SPEC, keep_out=subject)
+    assert report.place is not None and report.place.free
+    diff = changed_shown(src, tmp_path / "out.png")
+    assert diff[FACE].any() and not (diff & subject).any()
+
+
+def test_a_square_finds_a_pocket_between_the_coarse_grid_anchors(tmp_path: Path) -> None:
+    """Two edge pockets just large enough for one whole square with its margin, at offsets the
+    stacked mark's grid (a 25 px stride on 600 px) steps over: found, whole (round 3 cropped the
+    squares to fit the grid's anchors), off the busy subject."""
+    pockets = [(slice(0, 82), slice(437, 537)), (slice(518, 600), slice(213, 313))]
+    src = tmp_path / "v_6.png"
+    busy_with_pockets(src, pockets)
+    report = poison_file(src, tmp_path / "out.png", SPEC)
+    assert report.place is not None and report.place.free and report.place.shrunk is None
+    diff = changed_shown(src, tmp_path / "out.png")
+    assert diff.sum() == 2 * 48 * 48 and not (diff & ~region(diff.shape, pockets)).any()
