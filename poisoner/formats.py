@@ -183,8 +183,11 @@ def _poison_jpeg(
     # their coefficients too: never re-encoded, so never changed.
     idle = _idle_mcus(placement, keep, mark_box, box, layout)
     holes = masked if idle is None else idle if masked is None else masked | idle
+    # Squares placed apart: each square's MCUs decoded, blended and encoded alone, not the box
+    # between them (whose idle MCUs keep their coefficients anyway): the same blocks.
+    parts = _lane_parts(lanes, box, layout) if lanes is not None and idle is not None else None
     try:
-        out, kept_exactly = _splice_jpeg(src, data, im, layout, box, patch, loaded, holes)
+        out, kept_exactly = _splice_jpeg(src, data, im, layout, box, patch, loaded, holes, parts)
         notes.append(f"DCT splice: only MCU box {box} re-encoded, all other coefficients copied")
         if masked is not None:
             how = "coefficients copied" if kept_exactly else "re-encoded from their own pixels, unpatched"
@@ -298,6 +301,22 @@ def _patch_window(
     return out
 
 
+def _lane_parts(
+    lanes: list[PatchPlacement], box: tuple[int, int, int, int], layout: jpeg_codec.JpegLayout
+) -> list[tuple[int, int, int, int]] | None:
+    """Each lane's MCU box clipped to the splice box (None when one of them misses it): where the
+    JPEG writer decodes, blends and encodes a square alone. Two of them may share an MCU: each then
+    blends every lane's pixels there (_patch_window clips every lane to its window), so both write
+    the same blocks."""
+    parts = []
+    for lane in lanes:
+        x0, y0, x1, y1 = jpeg_codec.mcu_box(lane.box, layout)
+        part = (max(x0, box[0]), max(y0, box[1]), min(x1, box[2]), min(y1, box[3]))
+        if part[0] < part[2] and part[1] < part[3]:
+            parts.append(part)
+    return parts or None
+
+
 def _kept_mcus(
     keep: np.ndarray, mark_box: tuple[int, int, int, int], box: tuple[int, int, int, int],
     layout: jpeg_codec.JpegLayout,
@@ -312,7 +331,8 @@ def _kept_mcus(
 
 def _splice_jpeg(
     src: Path, data: bytes, im: Image.Image, layout: jpeg_codec.JpegLayout, box: tuple[int, int, int, int],
-    patch: Callable[[np.ndarray], np.ndarray], loaded: bool, holes: np.ndarray | None = None,
+    patch: Callable[..., np.ndarray], loaded: bool, holes: np.ndarray | None = None,
+    parts: list[tuple[int, int, int, int]] | None = None,
 ) -> tuple[bytes, bool]:
     """The patched JPEG with only the box's blocks re-encoded (patch: the box's pixels, patched), and
     whether the MCUs in `holes` kept their coefficients (wherever libturbojpeg is there; without it
@@ -324,7 +344,7 @@ def _splice_jpeg(
     if loaded:
         return jpeg_codec.splice_patch(src, im, layout, patch(np.asarray(im.crop(box))), box, holes), exact
     try:
-        return jpeg_codec.patch_in_one_pass(data, im, layout, box, patch, holes), True
+        return jpeg_codec.patch_in_one_pass(data, im, layout, box, patch, holes, parts), True
     except jpeg_codec.SpliceUnavailable as exc:
         log.info("jpeg in-process splice unavailable", extra={"path": str(src), "reason": str(exc)})
     try:

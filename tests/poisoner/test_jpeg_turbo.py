@@ -239,3 +239,63 @@ def test_poison_file_takes_the_in_process_pass(tmp_path: Path, monkeypatch: pyte
     monkeypatch.setenv(jpeg_turbo.TURBOJPEG_ENV, "")
     report = poison_file(src, tmp_path / "neither.jpg", SPECS["product-default"])
     assert report.method == "jpeg-reencode-same-tables"
+
+
+# ---- a mark of squares placed apart: each square's MCUs patched and encoded alone ----------------
+@pytest.mark.parametrize("seed", [0, 3])
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_squares_patched_a_part_at_a_time_give_the_whole_box_bytes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str, seed: int
+) -> None:
+    """poison_file's JPEG writer decodes, blends and encodes each square's MCUs alone (issue 30): the
+    file is byte for byte the one the whole box between the squares gives, and the parts are smaller
+    than the box (what makes it cheaper)."""
+    from poisoner import formats
+
+    src = tmp_path / f"IMG_{seed:04d}.jpg"
+    write_case(src, case, seed=seed)
+    windows: list[tuple[int, int, int, int]] = []
+    real = jpeg_codec._patched_blocks
+
+    def spy(crops, im, layout, box, parts, patch):
+        windows.append(box)
+        windows.extend(parts)
+        return real(crops, im, layout, box, parts, patch)
+
+    monkeypatch.setattr(jpeg_codec, "_patched_blocks", spy)
+    formats.poison_file(src, tmp_path / "parts.jpg", SPECS["product-default"])
+    box, *parts = windows
+    area = lambda b: (b[2] - b[0]) * (b[3] - b[1])  # noqa: E731
+    assert len(parts) == 2 and sum(map(area, parts)) < area(box)
+    monkeypatch.setattr(formats, "_lane_parts", lambda *_: None)  # the whole box, as before
+    formats.poison_file(src, tmp_path / "box.jpg", SPECS["product-default"])
+    assert windows[3:] == [box, box]
+    assert (tmp_path / "parts.jpg").read_bytes() == (tmp_path / "box.jpg").read_bytes() != src.read_bytes()
+
+
+def test_parts_that_leave_an_mcu_out_fall_back_to_the_whole_box(tmp_path: Path) -> None:
+    """An MCU in no part and not kept would keep the source's blocks unpatched: the whole box is
+    patched instead (same bytes as without parts), never a file with part of the mark missing."""
+    data = write_case(tmp_path / "a.jpg", "420", seed=4)
+    im, layout, box, patch = box_and_patch(data, SPECS["center"])
+    half = jpeg_codec.mcu_box((box[0], box[1], box[0] + 16, box[3]), layout)
+    assert not jpeg_codec.parts_cover(layout, box, [half], None)
+    seen: list[tuple[int, ...]] = []
+    out = jpeg_codec.patch_in_one_pass(
+        data, im, layout, box, lambda px, at: seen.append(at) or patch(px), parts=[half]
+    )
+    assert seen == [box]
+    assert out == jpeg_codec.patch_in_one_pass(data, im, layout, box, patch)
+
+
+def test_parts_cover_needs_every_mcu_not_kept() -> None:
+    layout = jpeg_codec.JpegLayout(320, 240, 0xC0, 3, ((2, 2), (1, 1), (1, 1)), 0)
+    box = (32, 16, 96, 64)  # 4 x 3 MCUs of 16 px
+    left, right = (32, 16, 64, 64), (64, 16, 96, 64)
+    assert jpeg_codec.parts_cover(layout, box, [left, right], None)
+    assert not jpeg_codec.parts_cover(layout, box, [left], None)
+    keep = np.zeros((3, 4), dtype=bool)
+    keep[:, 2:] = True  # the right half kept: the left part is enough
+    assert jpeg_codec.parts_cover(layout, box, [left], keep)
+    assert not jpeg_codec.parts_cover(layout, box, [(32, 16, 60, 64), right], None)  # not MCU-aligned
+    assert not jpeg_codec.parts_cover(layout, box, [left, (64, 16, 112, 64)], None)  # beyond the box
