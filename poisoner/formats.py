@@ -181,7 +181,7 @@ def _poison_jpeg(
     masked = None if keep is None else _kept_mcus(keep, mark_box, box, layout)
     # MCUs of the box where the mark writes no pixel (between two squares placed apart) keep
     # their coefficients too: never re-encoded, so never changed.
-    idle = _idle_mcus(placement, keep, mark_box, box, layout)
+    idle = _idle_mcus(placement, keep, mark_box, box, layout, lanes)
     holes = masked if idle is None else idle if masked is None else masked | idle
     # Squares placed apart: each square's MCUs decoded, blended and encoded alone, not the box
     # between them (whose idle MCUs keep their coefficients anyway): the same blocks.
@@ -229,24 +229,32 @@ def _splice_box(
 
 def _idle_mcus(
     placement: PatchPlacement, keep: np.ndarray | None, mark_box: tuple[int, int, int, int],
-    box: tuple[int, int, int, int], layout: jpeg_codec.JpegLayout,
+    box: tuple[int, int, int, int], layout: jpeg_codec.JpegLayout, lanes: list[PatchPlacement] | None = None,
 ) -> np.ndarray | None:
     """The splice box's MCUs (rows x columns, True) in which the mark writes no pixel (keep, over
-    mark_box, left alone); None when it writes in every one."""
+    mark_box, left alone); None when it writes in every one. With lanes (lane_placements(placement):
+    the same pixels written) only each square's pixels are looked at, not the whole box between
+    squares placed apart (up to 7 MP on a 12 MP photo)."""
     x0, y0, x1, y1 = box
     mw, mh = layout.mcu_size
     rows, cols = -(-(y1 - y0) // mh), -(-(x1 - x0) // mw)
-    write = np.zeros((rows * mh, cols * mw), dtype=bool)
-    px0, py0, px1, py1 = placement.box
-    cover = patch_coverage(placement)
-    # the mark's box clipped to the splice box (the picture's edge may cut both)
-    cx0, cy0, cx1, cy1 = max(px0, x0), max(py0, y0), min(px1, x1), min(py1, y1)
-    if cx0 < cx1 and cy0 < cy1:
-        part = cover[cy0 - py0 : cy1 - py0, cx0 - px0 : cx1 - px0]
+    idle = np.ones((rows, cols), dtype=bool)
+    for part in lanes or [placement]:
+        # the part's box clipped to the splice box (the picture's edge may cut both), then grown to
+        # whole MCUs of the splice box's grid
+        px0, py0, px1, py1 = part.box
+        cx0, cy0, cx1, cy1 = max(px0, x0), max(py0, y0), min(px1, x1), min(py1, y1)
+        if cx0 >= cx1 or cy0 >= cy1:
+            continue
+        r0, c0 = (cy0 - y0) // mh, (cx0 - x0) // mw
+        r1, c1 = -(-(cy1 - y0) // mh), -(-(cx1 - x0) // mw)
+        write = np.zeros(((r1 - r0) * mh, (c1 - c0) * mw), dtype=bool)
+        covered = patch_coverage(part)[cy0 - py0 : cy1 - py0, cx0 - px0 : cx1 - px0]
         if keep is not None:
-            part = part & ~keep[cy0 - mark_box[1] : cy1 - mark_box[1], cx0 - mark_box[0] : cx1 - mark_box[0]]
-        write[cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0] = part
-    idle = np.asarray(~write.reshape(rows, mh, cols, mw).any(axis=(1, 3)))
+            covered = covered & ~keep[cy0 - mark_box[1] : cy1 - mark_box[1], cx0 - mark_box[0] : cx1 - mark_box[0]]
+        oy, ox = cy0 - y0 - r0 * mh, cx0 - x0 - c0 * mw
+        write[oy : oy + cy1 - cy0, ox : ox + cx1 - cx0] = covered
+        idle[r0:r1, c0:c1] &= ~write.reshape(r1 - r0, mh, c1 - c0, mw).any(axis=(1, 3))
     return idle if idle.any() else None
 
 

@@ -473,3 +473,38 @@ def test_two_squares_blended_a_square_at_a_time_write_the_same_pixels(turn: int,
     whole = apply_patch_at(pixels, placement, origin, keep)
     assert (whole != pixels).any()
     assert np.array_equal(_patch_window(pixels, placement, lanes, origin, keep), whole)
+
+
+@pytest.mark.parametrize("edge", [False, True])
+@pytest.mark.parametrize("turn", range(1, 9))
+@pytest.mark.parametrize("where", [((40, 30), (1100, 700)), ((500, 400), (620, 520))])
+def test_idle_mcus_from_the_squares_alone_are_the_whole_boxs(turn: int, where: tuple, edge: bool) -> None:
+    """The JPEG writer finds the MCUs a mark of squares placed apart leaves idle from each square's
+    pixels (issue 30: not from the whole box between them): the same MCUs, in every orientation, at
+    the picture's edges, with squares sharing MCUs, with a keep-out mask and a splice box cut by it."""
+    import dataclasses
+
+    from poisoner import jpeg as jpeg_codec
+    from poisoner.formats import _idle_mcus, lane_placements
+    from poisoner.ladder import default_spec
+
+    placement = dataclasses.replace(
+        default_spec().resolve(1600, 1200, image_key="IMG_0004.jpg", lanes_at=where), turn=turn
+    )
+    lanes = lane_placements(placement)
+    assert lanes is not None
+    rng = np.random.default_rng(turn)
+    for sampling in (((2, 2), (1, 1), (1, 1)), ((1, 1), (1, 1), (1, 1)), ((2, 1), (1, 1), (1, 1))):
+        # edge: the picture ends inside the mark's last MCUs (width and height not MCU multiples)
+        size = (placement.box[2] - 5, placement.box[3] - 3) if edge else (1600, 1200)
+        layout = jpeg_codec.JpegLayout(*size, 0xC0, 3, sampling, 0)
+        mark_box = jpeg_codec.mcu_box(placement.box, layout)
+        mark_h, mark_w = mark_box[3] - mark_box[1], mark_box[2] - mark_box[0]
+        mw, mh = layout.mcu_size
+        cut = (mark_box[0] + mw, mark_box[1], mark_box[2], mark_box[3] - mh)  # a smaller splice box
+        for keep in (None, rng.random((mark_h, mark_w)) < 0.002):
+            for box in (mark_box, cut):
+                whole = _idle_mcus(placement, keep, mark_box, box, layout)
+                assert whole is not None and whole.any()
+                parts = _idle_mcus(placement, keep, mark_box, box, layout, lanes)
+                assert parts is not None and np.array_equal(parts, whole)
