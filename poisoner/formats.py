@@ -251,7 +251,8 @@ def _idle_mcus(
         write = np.zeros(((r1 - r0) * mh, (c1 - c0) * mw), dtype=bool)
         covered = patch_coverage(part)[cy0 - py0 : cy1 - py0, cx0 - px0 : cx1 - px0]
         if keep is not None:
-            covered = covered & ~keep[cy0 - mark_box[1] : cy1 - mark_box[1], cx0 - mark_box[0] : cx1 - mark_box[0]]
+            kx, ky = mark_box[0], mark_box[1]
+            covered = covered & ~keep[cy0 - ky : cy1 - ky, cx0 - kx : cx1 - kx]
         oy, ox = cy0 - y0 - r0 * mh, cx0 - x0 - c0 * mw
         write[oy : oy + cy1 - cy0, ox : ox + cx1 - cx0] = covered
         idle[r0:r1, c0:c1] &= ~write.reshape(r1 - r0, mh, c1 - c0, mw).any(axis=(1, 3))
