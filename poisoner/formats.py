@@ -65,7 +65,7 @@ from poisoner.image.write import image_from_array, paste_patch, save_explicit
 from poisoner.limits import DEFAULT_MAX_PIXELS, check_decode_budget
 from poisoner.mark_place import MarkPlace
 from poisoner.media import is_image
-from poisoner.orientation import unorient_array
+from poisoner.orientation import INVERSE_ORIENTATION, orientation_of, turn_square
 from poisoner.provenance import Marker
 from poisoner.shrink import place_fitting
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
@@ -270,22 +270,19 @@ def lane_placements(placement: PatchPlacement) -> list[PatchPlacement] | None:
     if placement.lane_crop:  # cropped squares (poisoner.shrink) are written whole-box: rare, and exact
         return None
     n, t = placement.size, placement.lane_size
-    labels = np.zeros((n, n), dtype=np.uint8)
-    for k, (dx, dy, _seed) in enumerate(placement.parts):
-        if labels[dy : dy + t, dx : dx + t].any():
-            return None
-        labels[dy : dy + t, dx : dx + t] = k + 1
-    stored = unorient_array(labels, placement.turn)  # the squares where the stored pixels hold them
+    corners = [(dx, dy) for dx, dy, _seed in placement.parts]
+    if any(dx < 0 or dy < 0 or dx + t > n or dy + t > n for dx, dy in corners):
+        return None  # cut by the box's edge: not a whole square
+    for i, (ax, ay) in enumerate(corners):
+        if any(abs(ax - bx) < t and abs(ay - by) < t for bx, by in corners[:i]):
+            return None  # overlapping squares
+    # where the stored pixels hold each square: the box turned back (unorient_array's turn), worked
+    # out on the corners instead of on an n x n label picture (n: up to 2600 px on a 12 MP photo)
+    back = INVERSE_ORIENTATION[orientation_of(placement.turn)]
     lanes = []
-    for k, (_dx, _dy, seed) in enumerate(placement.parts):
-        square = stored == k + 1
-        rows, cols = square.any(axis=1), square.any(axis=0)
-        if rows.sum() != t or cols.sum() != t:  # cut by the box's edge: not a whole square
-            return None
-        lanes.append(
-            replace(placement, x=placement.x + int(cols.argmax()), y=placement.y + int(rows.argmax()), size=t,
-                    parts=((0, 0, seed),))
-        )  # fmt: skip
+    for dx, dy, seed in placement.parts:
+        x, y = turn_square(dx, dy, t, back, n, n)
+        lanes.append(replace(placement, x=placement.x + x, y=placement.y + y, size=t, parts=((0, 0, seed),)))
     return lanes
 
 

@@ -508,3 +508,61 @@ def test_idle_mcus_from_the_squares_alone_are_the_whole_boxs(turn: int, where: t
                 assert whole is not None and whole.any()
                 parts = _idle_mcus(placement, keep, mark_box, box, layout, lanes)
                 assert parts is not None and np.array_equal(parts, whole)
+
+
+def _lane_placements_on_labels(placement):
+    """lane_placements as it was before issue 30 (an n x n label picture turned back), kept here only
+    to compare."""
+    import dataclasses
+
+    from poisoner.orientation import unorient_array
+
+    if not placement.parts or placement.lane_size <= 0 or placement.lane_crop:
+        return None
+    n, t = placement.size, placement.lane_size
+    labels = np.zeros((n, n), dtype=np.uint8)
+    for k, (dx, dy, _seed) in enumerate(placement.parts):
+        if labels[dy : dy + t, dx : dx + t].any():
+            return None
+        labels[dy : dy + t, dx : dx + t] = k + 1
+    stored = unorient_array(labels, placement.turn)
+    lanes = []
+    for k, (_dx, _dy, seed) in enumerate(placement.parts):
+        square = stored == k + 1
+        rows, cols = square.any(axis=1), square.any(axis=0)
+        if rows.sum() != t or cols.sum() != t:
+            return None
+        x, y = placement.x + int(cols.argmax()), placement.y + int(rows.argmax())
+        lanes.append(dataclasses.replace(placement, x=x, y=y, size=t, parts=((0, 0, seed),)))
+    return lanes
+
+
+@pytest.mark.parametrize("turn", range(0, 10))
+def test_lane_placements_from_the_corners_are_the_label_pictures(turn: int) -> None:
+    """lane_placements works the stored squares out from their corners (issue 30): the same lanes as
+    turning an n x n label picture back, in every orientation (0 and 9: not a valid tag, read as 1),
+    for squares apart, touching, overlapping, cut by the box's edge, and three of them."""
+    import dataclasses
+
+    from poisoner.formats import lane_placements
+    from poisoner.ladder import default_spec
+
+    base = default_spec().resolve(1600, 1200, image_key="IMG_0005.jpg", lanes_at=((40, 30), (1100, 700)))
+    n, t = base.size, base.lane_size
+    seeds = [seed for _, _, seed in base.parts]
+    arrangements = {
+        "apart": ((0, n - t), (n - t, 0)),
+        "diagonal": ((0, 0), (n - t, n - t)),
+        "touching": ((0, 0), (t, 0)),
+        "overlapping": ((0, 0), (t - 1, t - 1)),
+        "cut": ((0, 0), (n - t + 1, 5)),
+        "three": ((0, 0), (n - t, 0), (n // 2, n - t)),
+    }
+    outcomes = set()
+    for name, corners in arrangements.items():
+        parts = tuple((dx, dy, seeds[i % len(seeds)] + i) for i, (dx, dy) in enumerate(corners))
+        placement = dataclasses.replace(base, parts=parts, turn=turn)
+        new, old = lane_placements(placement), _lane_placements_on_labels(placement)
+        assert new == old, name
+        outcomes.add(new is None)
+    assert outcomes == {True, False}
