@@ -401,7 +401,8 @@ def poison_file(
     width, height = im.size
     keep = checked_keep_out(src.name, keep_out, (width, height))
     placement, place = plan_mark(src.name, data, (width, height), spec, keep)
-    written = written_pixels(placement, keep)
+    lanes = lane_placements(placement)  # squares placed apart: counted a square at a time (the same pixels)
+    written = sum(written_pixels(square, keep) for square in lanes or [placement])
     if written == 0:  # never "patched" with no changed pixel (issue 25): nothing is written to dst
         raise MarkNotWritten(
             f"{src.name}: the subject mask covers the whole mark, no pixel would change: not patched"

@@ -566,3 +566,27 @@ def test_lane_placements_from_the_corners_are_the_label_pictures(turn: int) -> N
         assert new == old, name
         outcomes.add(new is None)
     assert outcomes == {True, False}
+
+
+@pytest.mark.parametrize("masked", [False, True])
+@pytest.mark.parametrize("turn", [1, 6])
+def test_written_pixels_counted_a_square_at_a_time(tmp_path: Path, turn: int, masked: bool) -> None:
+    """poison_file counts the pixels a mark of squares placed apart writes a square at a time (issue
+    30): the same count as over the whole placement, with and without a keep-out mask."""
+    from poisoner.formats import lane_placements, poison_file
+    from poisoner.image.keep_out import written_pixels
+    from poisoner.ladder import default_spec
+
+    src = tmp_path / "IMG_0006.jpg"
+    exif = Image.Exif()
+    exif[0x0112] = turn
+    Image.fromarray(np.random.default_rng(turn).integers(0, 256, (480, 640, 3), dtype=np.uint8)).save(
+        src, quality=90, exif=exif
+    )
+    keep = None
+    if masked:
+        keep = np.zeros((480, 640), dtype=bool)
+        keep[::37, ::41] = True
+    report = poison_file(src, tmp_path / "out.jpg", default_spec(), keep_out=keep)
+    assert lane_placements(report.placement) is not None  # the two squares, counted one at a time
+    assert report.written == written_pixels(report.placement, keep) > 0
