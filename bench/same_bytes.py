@@ -14,7 +14,8 @@ Inputs (generated under --cache, never committed; the shared datasets are read i
   placed as the photo is shown, then turned into the stored pixels);
 - the same view as 4:4:4, as progressive, and with its subject mask as keep-out (masked MCUs keep
   their coefficients);
-- lego train views (800 px PNG) and dtu views (1600 px PNG, with and without their masks).
+- lego train views (800 px PNG) and dtu views (1600 px PNG, with and without their masks);
+- two fountain_P11 photos (3072x2048, optimised Huffman tables: the jpegtran path).
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ DTU = SHARED / "dtu_scan37"
 LEGO = SHARED / "nerf_synthetic_lego/train"
 DEFAULT_CACHE = Path(tempfile.gettempdir()) / "ppd-same-bytes"
 
-# Run in each checkout's child: poison every (src, mask) into out/, print {name: method}.
+# Run in each checkout's child: poison every (src, mask) into out/, print {name: the report's method,
+# written pixels, notes, kept metadata, placement, lossless flag, size}: those must agree too.
 CHILD = """
 import json, sys
 from pathlib import Path
@@ -46,9 +48,10 @@ spec, methods = default_spec(), {}
 for name, src, mask in cases:
     keep = None if mask is None else np.asarray(Image.open(mask).convert("L")) > 127
     try:
-        methods[name] = poison_file(Path(src), out / name, spec, keep_out=keep).method
+        r = poison_file(Path(src), out / name, spec, keep_out=keep)
+        methods[name] = [r.method, r.written, r.notes, r.preserved, str(r.placement), r.lossless, r.dst_bytes]
     except Exception as exc:  # the same refusal on both sides is the same behaviour
-        methods[name] = f"error: {type(exc).__name__}: {exc}"
+        methods[name] = [f"error: {type(exc).__name__}: {exc}"]
 print(json.dumps(methods))
 """
 
@@ -85,13 +88,17 @@ def make_inputs(cache: Path) -> list[tuple[str, str, str | None]]:
             Image.open(png).convert("RGB").save(dtu_jpeg, quality=92)
             cases.append((dtu_jpeg.name, str(dtu_jpeg), None))
             cases.append((f"dtu-{i:03d}-masked.jpg", str(dtu_jpeg), str(DTU / f"mask/{i:03d}.png")))
+    for i in (0, 5):  # optimised Huffman tables: the jpegtran path
+        fountain = SHARED / f"fountain_P11/images/{i:04d}.jpg"
+        if fountain.exists():
+            cases.append((f"fountain-{i:04d}.jpg", str(fountain), None))
     for i in (3, 17, 42, 77, 99):
         if (LEGO / f"r_{i}.png").exists():
             cases.append((f"lego-r_{i}.png", str(LEGO / f"r_{i}.png"), None))
     return cases
 
 
-def poison_with(tree: Path, cases: list[tuple[str, str, str | None]], out: Path) -> dict[str, str]:
+def poison_with(tree: Path, cases: list[tuple[str, str, str | None]], out: Path) -> dict[str, list]:
     out.mkdir(parents=True, exist_ok=True)
     for old in out.iterdir():
         old.unlink()
@@ -116,16 +123,17 @@ def main() -> None:
     differ = []
     for name, _src, _mask in cases:
         a, b = args.cache / "out-baseline" / name, args.cache / "out-this" / name
-        same_method = sides["baseline"][name] == sides["this"][name]
-        if a.exists() != b.exists() or not same_method:
+        same_report = sides["baseline"][name] == sides["this"][name]
+        if a.exists() != b.exists() or not same_report:
             differ.append(f"{name}: baseline {sides['baseline'][name]}, this {sides['this'][name]}")
         elif a.exists() and subprocess.run(["cmp", "-s", str(a), str(b)], check=False).returncode != 0:
-            differ.append(f"{name}: bytes differ ({sides['this'][name]})")
+            differ.append(f"{name}: bytes differ ({sides['this'][name][0]})")
     methods: dict[str, int] = {}
-    for method in sides["this"].values():
-        methods[method] = methods.get(method, 0) + 1
+    for report in sides["this"].values():
+        methods[report[0]] = methods.get(report[0], 0) + 1
     print(f"{len(cases)} files, baseline {args.baseline} vs {here}: {len(cases) - len(differ)} identical "
-          f"(cmp), {len(differ)} differ; methods: {methods}")  # fmt: skip
+          f"(cmp, and the same report: method, written pixels, notes, placement), {len(differ)} differ; "
+          f"methods: {methods}")  # fmt: skip
     for line in differ:
         print("  DIFFER", line)
     raise SystemExit(1 if differ else 0)
