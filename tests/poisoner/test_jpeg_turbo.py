@@ -299,3 +299,28 @@ def test_parts_cover_needs_every_mcu_not_kept() -> None:
     assert jpeg_codec.parts_cover(layout, box, [left], keep)
     assert not jpeg_codec.parts_cover(layout, box, [(32, 16, 60, 64), right], None)  # not MCU-aligned
     assert not jpeg_codec.parts_cover(layout, box, [left, (64, 16, 112, 64)], None)  # beyond the box
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_parts_at_the_pictures_edges_give_the_whole_box_bytes(tmp_path: Path, case: str) -> None:
+    """Two parts, one at the top-left, one ending at the picture's right and bottom edges (partial
+    MCUs and blocks, padding rows): encoded a part at a time, the same file as the whole box around
+    them with the MCUs between them kept."""
+    data = write_case(tmp_path / "a.jpg", case, seed=6)
+    im, layout = Image.open(io.BytesIO(data)), jpeg_codec.read_layout(data)
+    mw, mh = layout.mcu_size
+    box = (0, 0, layout.width, layout.height)
+    far = jpeg_codec.mcu_box((layout.width - 3 * mw // 2, layout.height - 3 * mh // 2, *box[2:]), layout)
+    parts = [(0, 0, 2 * mw, 3 * mh), far]
+    keep = ~np.zeros((-(-layout.height // mh), -(-layout.width // mw)), dtype=bool)
+    for x0, y0, x1, y1 in parts:
+        keep[y0 // mh : -(-y1 // mh), x0 // mw : -(-x1 // mw)] = False
+
+    def paint(pixels: np.ndarray, at: tuple[int, int, int, int]) -> np.ndarray:
+        yy, xx = np.mgrid[at[1] : at[1] + pixels.shape[0], at[0] : at[0] + pixels.shape[1]]
+        stripes = ((xx // 3 + yy // 5) % 2 * 200 + 20).astype(np.uint8)
+        return stripes if pixels.ndim == 2 else np.repeat(stripes[..., None], 3, axis=2)
+
+    by_parts = jpeg_codec.patch_in_one_pass(data, im, layout, box, paint, keep, parts=parts)
+    whole = jpeg_codec.patch_in_one_pass(data, im, layout, box, lambda px: paint(px, box), keep)
+    assert by_parts == whole != data
