@@ -65,6 +65,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, JpegImagePlugin
 
+from poisoner.jpeg_parts import box_block_shapes, parts_cover
+
 log = logging.getLogger(__name__)
 
 JPEGTRAN_ENV = "PPD_JPEGTRAN"  # override the jpegtran binary (or "" to disable the splice, in-process too)
@@ -416,36 +418,6 @@ def _component_rows(layout: JpegLayout, box: tuple[int, int, int, int]) -> list[
     return [-(-(box[3] - box[1]) * v // mh) for _, v in layout.sampling]
 
 
-def _box_block_shapes(layout: JpegLayout, box: tuple[int, int, int, int]) -> list[tuple[int, int]]:
-    """(block rows, block columns) per component of `box` encoded alone, as read_blocks gives them:
-    the rows run to a whole MCU row, the columns to the last (partial) block."""
-    mw, mh = layout.mcu_size
-    w, h = box[2] - box[0], box[3] - box[1]
-    factors = [(1, 1)] if layout.components == 1 else list(layout.sampling)
-    return [(-(-h // mh) * v, -(-w * f // mw)) for f, v in factors]
-
-
-def parts_cover(
-    layout: JpegLayout, box: tuple[int, int, int, int], parts: Sequence[tuple[int, int, int, int]],
-    keep_mcus: np.ndarray | None,
-) -> bool:
-    """Whether the MCU-aligned `parts` (inside box) hold every MCU of box not in keep_mcus: only then
-    may the box be patched a part at a time (the MCUs outside every part keep the source's blocks)."""
-    mw, mh = layout.mcu_size
-    rows, cols = -(-(box[3] - box[1]) // mh), -(-(box[2] - box[0]) // mw)
-    covered = np.zeros((rows, cols), dtype=bool) if keep_mcus is None else keep_mcus.astype(bool).copy()
-    if covered.shape != (rows, cols):
-        return False
-    for part in parts:
-        if part != mcu_box(part, layout) or not (
-            box[0] <= part[0] < part[2] <= box[2] and box[1] <= part[1] < part[3] <= box[3]
-        ):
-            return False
-        covered[(part[1] - box[1]) // mh : -(-(part[3] - box[1]) // mh),
-                (part[0] - box[0]) // mw : -(-(part[2] - box[0]) // mw)] = True  # fmt: skip
-    return bool(covered.all())
-
-
 def _patched_blocks(
     crops: list[bytes],
     src: Image.Image,
@@ -466,7 +438,7 @@ def _patched_blocks(
 
     whole = None
     if len(parts) > 1 or parts[0] != box:
-        whole = [np.zeros((*shape, 64), dtype=np.int16) for shape in _box_block_shapes(layout, box)]
+        whole = [np.zeros((*shape, 64), dtype=np.int16) for shape in box_block_shapes(layout, box)]
     mw, mh = layout.mcu_size
     factors = [(1, 1)] if layout.components == 1 else list(layout.sampling)
     for crop_jpeg, part in zip(crops, parts, strict=True):

@@ -299,6 +299,9 @@ def test_parts_cover_needs_every_mcu_not_kept() -> None:
     assert jpeg_codec.parts_cover(layout, box, [left], keep)
     assert not jpeg_codec.parts_cover(layout, box, [(32, 16, 60, 64), right], None)  # not MCU-aligned
     assert not jpeg_codec.parts_cover(layout, box, [left, (64, 16, 112, 64)], None)  # beyond the box
+    edge = jpeg_codec.JpegLayout(90, 61, 0xC0, 3, ((2, 2), (1, 1), (1, 1)), 0)  # ends mid-MCU
+    assert jpeg_codec.parts_cover(edge, (0, 0, 90, 61), [(0, 0, 48, 61), (48, 0, 90, 61)], None)
+    assert not jpeg_codec.parts_cover(edge, (0, 0, 90, 61), [(0, 0, 48, 61), (48, 0, 89, 61)], None)
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
