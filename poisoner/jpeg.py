@@ -65,7 +65,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, JpegImagePlugin
 
-from poisoner.jpeg_parts import box_block_shapes, parts_cover
+from poisoner.jpeg_parts import box_block_shapes, parts_cover, rows_taking_blocks
 
 log = logging.getLogger(__name__)
 
@@ -516,7 +516,10 @@ def patch_in_one_pass(
         blocks[col0 : col0 + replacement.shape[1]][row_take] = replacement[row - row0][row_take]
 
     specs = [(jpeg_turbo.crop_spec(crop_box(part, layout)), None) for part in parts]
-    specs.append(jpeg_turbo.filter_spec(swap_in, wanted=wanted.__getitem__, progressive=layout.progressive))
+    # Rows whose blocks all stay the source's (between two squares placed apart) are not even handed
+    # to Python: the callback returns at once there.
+    needed = wanted if keep_mcus is None else rows_taking_blocks(layout, keep_mcus, wanted)
+    specs.append(jpeg_turbo.filter_spec(swap_in, wanted=needed.__getitem__, progressive=layout.progressive))
     try:
         out = jpeg_turbo.transform(data, specs, outputs)[-1]
     except jpeg_turbo.TurboUnavailable as exc:

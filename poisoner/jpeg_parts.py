@@ -56,3 +56,14 @@ def parts_cover(layout: JpegLayout, box: Box, parts: Sequence[Box], keep_mcus: n
         covered[(part[1] - box[1]) // mh : -(-(part[3] - box[1]) // mh),
                 (part[0] - box[0]) // mw : -(-(part[2] - box[0]) // mw)] = True  # fmt: skip
     return bool(covered.all())
+
+
+def rows_taking_blocks(layout: JpegLayout, keep_mcus: np.ndarray, wanted: list[range]) -> list[frozenset]:
+    """Per component, the block rows of `wanted` (the box's, from its top block row) in which some MCU
+    not in keep_mcus lies: the only rows whose blocks the splice changes."""
+    factors = [1] if layout.components == 1 else [v for _, v in layout.sampling]
+    mcu_rows = np.flatnonzero(~keep_mcus.all(axis=1))
+    return [
+        frozenset(row for m in mcu_rows for k in range(v) if (row := rows.start + int(m) * v + k) in rows)
+        for v, rows in zip(factors, wanted, strict=True)
+    ]

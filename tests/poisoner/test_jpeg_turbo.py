@@ -327,3 +327,16 @@ def test_parts_at_the_pictures_edges_give_the_whole_box_bytes(tmp_path: Path, ca
     by_parts = jpeg_codec.patch_in_one_pass(data, im, layout, box, paint, keep, parts=parts)
     whole = jpeg_codec.patch_in_one_pass(data, im, layout, box, lambda px: paint(px, box), keep)
     assert by_parts == whole != data
+
+
+def test_only_rows_with_a_block_to_take_are_handed_to_python() -> None:
+    """Between two squares placed apart every MCU keeps its blocks: those block rows are skipped."""
+    from poisoner.jpeg_parts import rows_taking_blocks
+
+    layout = jpeg_codec.JpegLayout(320, 240, 0xC0, 3, ((2, 2), (1, 1), (1, 1)), 0)
+    keep = np.array([[False, True], [True, True], [True, False]])  # 3 MCU rows, the middle one idle
+    wanted = [range(10, 15), range(5, 8), range(5, 8)]  # the last MCU row cut by the picture's edge
+    luma, cb, cr = rows_taking_blocks(layout, keep, wanted)
+    assert luma == {10, 11, 14} and cb == cr == {5, 7}
+    grey = jpeg_codec.JpegLayout(320, 240, 0xC0, 1, ((1, 1),), 0)
+    assert rows_taking_blocks(grey, keep, [range(3, 6)]) == [{3, 5}]
