@@ -6,7 +6,8 @@ protection figures in bench/results were measured on those bytes. Each checkout 
 inputs in its own child process (PYTHONPATH = that checkout, the shared interpreter), with
 `poisoner.formats.poison_file` and the product's default spec (what `ppd poison` writes before its
 provenance marker and seal, which carry a per-install key and so differ between any two runs), and
-every output is compared byte for byte (`cmp`), the writer's method with it.
+every output is compared byte for byte (`cmp`), the writer's report with it. With --cli, the whole
+`ppd poison <folder>` too, from each checkout, both with the same seal key (marker and seal included).
 
 Inputs (generated under --cache, never committed; the shared datasets are read in place):
 - the bench folder: bench.bench_batch's 24 JPEGs (4240x2832 q92 4:2:0) and 24 PNGs (lego views);
@@ -110,10 +111,51 @@ def poison_with(tree: Path, cases: list[tuple[str, str, str | None]], out: Path)
     return json.loads(run.stdout.strip().splitlines()[-1])
 
 
+def cli_same_bytes(trees: dict[str, Path], cases: list[tuple[str, str, str | None]], cache: Path) -> list[str]:  # noqa: E501
+    """The whole command: `ppd poison <folder> --workers 1` from each checkout on its own copy of one
+    folder (every unmasked case), its own empty state, the same seal key (the first run makes it, the
+    second gets a copy: the marker and the seal are keyed), then every file compared with `cmp`.
+    Returns the names that differ."""
+    import os
+    import shutil
+
+    differ = []
+    keys: Path | None = None
+    folders = {}
+    for label, tree in trees.items():
+        root = cache / f"cli-{label}"
+        shutil.rmtree(root, ignore_errors=True)
+        folder = root / "shoot"
+        folder.mkdir(parents=True)
+        for name, src, mask in cases:
+            if mask is None:
+                shutil.copyfile(src, folder / name)
+        state = {v: root / d for v, d in (("PPD_DATA_DIR", "data"), ("PPD_CONFIG_DIR", "config"),
+                                          ("PPD_OUTBOX", "outbox"), ("PPD_CACHE_DIR", "cache"))}  # fmt: skip
+        for d in state.values():
+            d.mkdir()
+        if keys is not None:
+            shutil.copyfile(keys, state["PPD_DATA_DIR"] / "seal.key")
+            (state["PPD_DATA_DIR"] / "seal.key").chmod(0o600)  # ppd refuses a key others can read
+        env = {**os.environ, "PYTHONPATH": str(tree), **{k: str(v) for k, v in state.items()}}
+        command = ["nice", sys.executable, "-m", "daemon.cli", "poison", str(folder), "--workers", "1"]
+        run = subprocess.run(command, env=env, cwd=tree, capture_output=True, text=True, check=False)
+        if run.returncode != 0:
+            raise SystemExit(f"ppd poison from {tree} failed: {run.stderr[-500:]}")
+        keys = keys or state["PPD_DATA_DIR"] / "seal.key"
+        folders[label] = folder
+    for path in sorted(folders["baseline"].iterdir()):
+        other = folders["this"] / path.name
+        if subprocess.run(["cmp", "-s", str(path), str(other)], check=False).returncode != 0:
+            differ.append(path.name)
+    return differ
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--baseline", type=Path, required=True, help="the other checkout (e.g. /work/main)")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
+    parser.add_argument("--cli", action="store_true", help="also `ppd poison` from each checkout, same key")
     args = parser.parse_args()
     here = Path(__file__).resolve().parents[1]
     cases = make_inputs(args.cache)
@@ -131,6 +173,13 @@ def main() -> None:
     methods: dict[str, int] = {}
     for report in sides["this"].values():
         methods[report[0]] = methods.get(report[0], 0) + 1
+    if args.cli:
+        unmasked = [c for c in cases if c[2] is None]
+        cli_differ = cli_same_bytes({"baseline": args.baseline.resolve(), "this": here}, unmasked, args.cache)
+        same = len(unmasked) - len(cli_differ)
+        print(f"ppd poison (whole command, same seal key): {same} of {len(unmasked)} files identical (cmp), "
+              f"{len(cli_differ)} differ: {cli_differ}")  # fmt: skip
+        differ += [f"{name}: ppd poison output differs" for name in cli_differ]
     print(f"{len(cases)} files, baseline {args.baseline} vs {here}: {len(cases) - len(differ)} identical "
           f"(cmp, and the same report: method, written pixels, notes, placement), {len(differ)} differ; "
           f"methods: {methods}")  # fmt: skip
