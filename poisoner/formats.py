@@ -65,7 +65,7 @@ from poisoner.image.write import image_from_array, paste_patch, save_explicit
 from poisoner.limits import DEFAULT_MAX_PIXELS, check_decode_budget
 from poisoner.mark_place import MarkPlace
 from poisoner.media import is_image
-from poisoner.orientation import unorient_array
+from poisoner.orientation import INVERSE_ORIENTATION, orientation_of, turn_square
 from poisoner.provenance import Marker
 from poisoner.shrink import place_fitting
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
@@ -181,10 +181,13 @@ def _poison_jpeg(
     masked = None if keep is None else _kept_mcus(keep, mark_box, box, layout)
     # MCUs of the box where the mark writes no pixel (between two squares placed apart) keep
     # their coefficients too: never re-encoded, so never changed.
-    idle = _idle_mcus(placement, keep, mark_box, box, layout)
+    idle = _idle_mcus(placement, keep, mark_box, box, layout, lanes)
     holes = masked if idle is None else idle if masked is None else masked | idle
+    # Squares placed apart: each square's MCUs decoded, blended and encoded alone, not the box
+    # between them (whose idle MCUs keep their coefficients anyway): the same blocks.
+    parts = _lane_parts(lanes, box, layout) if lanes is not None and idle is not None else None
     try:
-        out, kept_exactly = _splice_jpeg(src, data, im, layout, box, patch, loaded, holes)
+        out, kept_exactly = _splice_jpeg(src, data, im, layout, box, patch, loaded, holes, parts)
         notes.append(f"DCT splice: only MCU box {box} re-encoded, all other coefficients copied")
         if masked is not None:
             how = "coefficients copied" if kept_exactly else "re-encoded from their own pixels, unpatched"
@@ -226,24 +229,33 @@ def _splice_box(
 
 def _idle_mcus(
     placement: PatchPlacement, keep: np.ndarray | None, mark_box: tuple[int, int, int, int],
-    box: tuple[int, int, int, int], layout: jpeg_codec.JpegLayout,
+    box: tuple[int, int, int, int], layout: jpeg_codec.JpegLayout, lanes: list[PatchPlacement] | None = None,
 ) -> np.ndarray | None:
     """The splice box's MCUs (rows x columns, True) in which the mark writes no pixel (keep, over
-    mark_box, left alone); None when it writes in every one."""
+    mark_box, left alone); None when it writes in every one. With lanes (lane_placements(placement):
+    the same pixels written) only each square's pixels are looked at, not the whole box between
+    squares placed apart (up to 7 MP on a 12 MP photo)."""
     x0, y0, x1, y1 = box
     mw, mh = layout.mcu_size
     rows, cols = -(-(y1 - y0) // mh), -(-(x1 - x0) // mw)
-    write = np.zeros((rows * mh, cols * mw), dtype=bool)
-    px0, py0, px1, py1 = placement.box
-    cover = patch_coverage(placement)
-    # the mark's box clipped to the splice box (the picture's edge may cut both)
-    cx0, cy0, cx1, cy1 = max(px0, x0), max(py0, y0), min(px1, x1), min(py1, y1)
-    if cx0 < cx1 and cy0 < cy1:
-        part = cover[cy0 - py0 : cy1 - py0, cx0 - px0 : cx1 - px0]
+    idle = np.ones((rows, cols), dtype=bool)
+    for part in lanes or [placement]:
+        # the part's box clipped to the splice box (the picture's edge may cut both), then grown to
+        # whole MCUs of the splice box's grid
+        px0, py0, px1, py1 = part.box
+        cx0, cy0, cx1, cy1 = max(px0, x0), max(py0, y0), min(px1, x1), min(py1, y1)
+        if cx0 >= cx1 or cy0 >= cy1:
+            continue
+        r0, c0 = (cy0 - y0) // mh, (cx0 - x0) // mw
+        r1, c1 = -(-(cy1 - y0) // mh), -(-(cx1 - x0) // mw)
+        write = np.zeros(((r1 - r0) * mh, (c1 - c0) * mw), dtype=bool)
+        covered = patch_coverage(part)[cy0 - py0 : cy1 - py0, cx0 - px0 : cx1 - px0]
         if keep is not None:
-            part = part & ~keep[cy0 - mark_box[1] : cy1 - mark_box[1], cx0 - mark_box[0] : cx1 - mark_box[0]]
-        write[cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0] = part
-    idle = np.asarray(~write.reshape(rows, mh, cols, mw).any(axis=(1, 3)))
+            kx, ky = mark_box[0], mark_box[1]
+            covered = covered & ~keep[cy0 - ky : cy1 - ky, cx0 - kx : cx1 - kx]
+        oy, ox = cy0 - y0 - r0 * mh, cx0 - x0 - c0 * mw
+        write[oy : oy + cy1 - cy0, ox : ox + cx1 - cx0] = covered
+        idle[r0:r1, c0:c1] &= ~write.reshape(r1 - r0, mh, c1 - c0, mw).any(axis=(1, 3))
     return idle if idle.any() else None
 
 
@@ -258,22 +270,19 @@ def lane_placements(placement: PatchPlacement) -> list[PatchPlacement] | None:
     if placement.lane_crop:  # cropped squares (poisoner.shrink) are written whole-box: rare, and exact
         return None
     n, t = placement.size, placement.lane_size
-    labels = np.zeros((n, n), dtype=np.uint8)
-    for k, (dx, dy, _seed) in enumerate(placement.parts):
-        if labels[dy : dy + t, dx : dx + t].any():
-            return None
-        labels[dy : dy + t, dx : dx + t] = k + 1
-    stored = unorient_array(labels, placement.turn)  # the squares where the stored pixels hold them
+    corners = [(dx, dy) for dx, dy, _seed in placement.parts]
+    if any(dx < 0 or dy < 0 or dx + t > n or dy + t > n for dx, dy in corners):
+        return None  # cut by the box's edge: not a whole square
+    for i, (ax, ay) in enumerate(corners):
+        if any(abs(ax - bx) < t and abs(ay - by) < t for bx, by in corners[:i]):
+            return None  # overlapping squares
+    # where the stored pixels hold each square: the box turned back (unorient_array's turn), worked
+    # out on the corners instead of on an n x n label picture (n: up to 2600 px on a 12 MP photo)
+    back = INVERSE_ORIENTATION[orientation_of(placement.turn)]
     lanes = []
-    for k, (_dx, _dy, seed) in enumerate(placement.parts):
-        square = stored == k + 1
-        rows, cols = square.any(axis=1), square.any(axis=0)
-        if rows.sum() != t or cols.sum() != t:  # cut by the box's edge: not a whole square
-            return None
-        lanes.append(
-            replace(placement, x=placement.x + int(cols.argmax()), y=placement.y + int(rows.argmax()), size=t,
-                    parts=((0, 0, seed),))
-        )  # fmt: skip
+    for dx, dy, seed in placement.parts:
+        x, y = turn_square(dx, dy, t, back, n, n)
+        lanes.append(replace(placement, x=placement.x + x, y=placement.y + y, size=t, parts=((0, 0, seed),)))
     return lanes
 
 
@@ -298,6 +307,22 @@ def _patch_window(
     return out
 
 
+def _lane_parts(
+    lanes: list[PatchPlacement], box: tuple[int, int, int, int], layout: jpeg_codec.JpegLayout
+) -> list[tuple[int, int, int, int]] | None:
+    """Each lane's MCU box clipped to the splice box (None when one of them misses it): where the
+    JPEG writer decodes, blends and encodes a square alone. Two of them may share an MCU: each then
+    blends every lane's pixels there (_patch_window clips every lane to its window), so both write
+    the same blocks."""
+    parts = []
+    for lane in lanes:
+        x0, y0, x1, y1 = jpeg_codec.mcu_box(lane.box, layout)
+        part = (max(x0, box[0]), max(y0, box[1]), min(x1, box[2]), min(y1, box[3]))
+        if part[0] < part[2] and part[1] < part[3]:
+            parts.append(part)
+    return parts or None
+
+
 def _kept_mcus(
     keep: np.ndarray, mark_box: tuple[int, int, int, int], box: tuple[int, int, int, int],
     layout: jpeg_codec.JpegLayout,
@@ -312,7 +337,8 @@ def _kept_mcus(
 
 def _splice_jpeg(
     src: Path, data: bytes, im: Image.Image, layout: jpeg_codec.JpegLayout, box: tuple[int, int, int, int],
-    patch: Callable[[np.ndarray], np.ndarray], loaded: bool, holes: np.ndarray | None = None,
+    patch: Callable[..., np.ndarray], loaded: bool, holes: np.ndarray | None = None,
+    parts: list[tuple[int, int, int, int]] | None = None,
 ) -> tuple[bytes, bool]:
     """The patched JPEG with only the box's blocks re-encoded (patch: the box's pixels, patched), and
     whether the MCUs in `holes` kept their coefficients (wherever libturbojpeg is there; without it
@@ -324,7 +350,7 @@ def _splice_jpeg(
     if loaded:
         return jpeg_codec.splice_patch(src, im, layout, patch(np.asarray(im.crop(box))), box, holes), exact
     try:
-        return jpeg_codec.patch_in_one_pass(data, im, layout, box, patch, holes), True
+        return jpeg_codec.patch_in_one_pass(data, im, layout, box, patch, holes, parts), True
     except jpeg_codec.SpliceUnavailable as exc:
         log.info("jpeg in-process splice unavailable", extra={"path": str(src), "reason": str(exc)})
     try:
@@ -375,7 +401,8 @@ def poison_file(
     width, height = im.size
     keep = checked_keep_out(src.name, keep_out, (width, height))
     placement, place = plan_mark(src.name, data, (width, height), spec, keep)
-    written = written_pixels(placement, keep)
+    lanes = lane_placements(placement)  # squares placed apart: counted a square at a time (the same pixels)
+    written = sum(written_pixels(square, keep) for square in lanes or [placement])
     if written == 0:  # never "patched" with no changed pixel (issue 25): nothing is written to dst
         raise MarkNotWritten(
             f"{src.name}: the subject mask covers the whole mark, no pixel would change: not patched"

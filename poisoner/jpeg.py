@@ -58,12 +58,14 @@ import os
 import shutil
 import struct
 import subprocess
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from PIL import Image, JpegImagePlugin
+
+from poisoner.jpeg_parts import box_block_shapes, parts_cover, rows_taking_blocks
 
 log = logging.getLogger(__name__)
 
@@ -417,25 +419,45 @@ def _component_rows(layout: JpegLayout, box: tuple[int, int, int, int]) -> list[
 
 
 def _patched_blocks(
-    crop_jpeg: bytes,
+    crops: list[bytes],
     src: Image.Image,
     layout: JpegLayout,
     box: tuple[int, int, int, int],
-    patch: Callable[[np.ndarray], np.ndarray],
+    parts: Sequence[tuple[int, int, int, int]],
+    patch: Callable[[np.ndarray, tuple[int, int, int, int]], np.ndarray],
 ) -> list[np.ndarray]:
-    """The DCT blocks of the patched MCU box, coded as the jpegtran path codes its drop file:
-    the crop (box + one MCU ring) decoded by Pillow, the box cut out and patched, encoded with
-    the source's tables and sampling, its coefficients read back."""
+    """The DCT blocks of the patched MCU box, coded as the jpegtran path codes its drop file: each
+    part's crop (part + one MCU ring) decoded by Pillow, the part cut out and patched, encoded with
+    the source's tables and sampling, its coefficients read back and put at the part's place in the
+    box. A block's coefficients depend on its own MCU's pixels only (colour conversion per pixel,
+    downsampling inside the MCU from its even column, DCT and quantisation per block), and every part
+    starts on an MCU edge and ends on one or on the box's, so a part encoded alone gives the very
+    blocks the whole box encoded gives there; blocks in no part are left zero (the caller keeps the
+    source's there: parts_cover)."""
     from poisoner import jpeg_turbo
 
-    cropped = Image.open(io.BytesIO(crop_jpeg))
-    cx0, cy0, cx1, cy1 = crop_box(box, layout)
-    if cropped.size != (cx1 - cx0, cy1 - cy0) or cropped.mode != src.mode:
-        raise SpliceUnavailable(f"in-process crop gave {cropped.mode} {cropped.size}")
-    x0, y0, x1, y1 = box
-    pixels = np.asarray(cropped.crop((x0 - cx0, y0 - cy0, x1 - cx0, y1 - cy0)))
-    drop = encode_like(np.ascontiguousarray(patch(pixels)), src, layout, metadata=False)
-    return jpeg_turbo.read_blocks(drop)
+    whole = None
+    if len(parts) > 1 or parts[0] != box:
+        whole = [np.zeros((*shape, 64), dtype=np.int16) for shape in box_block_shapes(layout, box)]
+    mw, mh = layout.mcu_size
+    factors = [(1, 1)] if layout.components == 1 else list(layout.sampling)
+    for crop_jpeg, part in zip(crops, parts, strict=True):
+        cropped = Image.open(io.BytesIO(crop_jpeg))
+        cx0, cy0, cx1, cy1 = crop_box(part, layout)
+        if cropped.size != (cx1 - cx0, cy1 - cy0) or cropped.mode != src.mode:
+            raise SpliceUnavailable(f"in-process crop gave {cropped.mode} {cropped.size}")
+        x0, y0, x1, y1 = part
+        pixels = np.asarray(cropped.crop((x0 - cx0, y0 - cy0, x1 - cx0, y1 - cy0)))
+        drop = encode_like(np.ascontiguousarray(patch(pixels, part)), src, layout, metadata=False)
+        blocks = jpeg_turbo.read_blocks(drop)
+        if whole is None:
+            return blocks
+        for target, got, (f, v) in zip(whole, blocks, factors, strict=True):
+            r0, c0 = (y0 - box[1]) // mh * v, (x0 - box[0]) // mw * f
+            rows, cols = min(got.shape[0], target.shape[0] - r0), min(got.shape[1], target.shape[1] - c0)
+            target[r0 : r0 + rows, c0 : c0 + cols] = got[:rows, :cols]
+    assert whole is not None
+    return whole
 
 
 def patch_in_one_pass(
@@ -443,8 +465,9 @@ def patch_in_one_pass(
     src: Image.Image,
     layout: JpegLayout,
     box: tuple[int, int, int, int],
-    patch: Callable[[np.ndarray], np.ndarray],
+    patch: Callable[..., np.ndarray],
     keep_mcus: np.ndarray | None = None,
+    parts: Sequence[tuple[int, int, int, int]] | None = None,
 ) -> bytes:
     """The source JPEG (its bytes: data) with only the MCUs of the MCU-aligned `box` replaced by
     patch(box pixels), in one libturbojpeg call: the coefficients are entropy-decoded once, a
@@ -453,8 +476,11 @@ def patch_in_one_pass(
     marker segment and the quantisation tables are copied. Same bytes as the jpegtran path
     (tests/poisoner/test_jpeg_turbo.py). keep_mcus (the box's MCU rows x MCU columns, True = keep): those
     MCUs keep the source's blocks too (pixels the patch must not touch, e.g. a subject mask; the
-    jpegtran path gets them back with keep_source_mcus). Raises SpliceUnavailable when it cannot be
-    done here."""
+    jpegtran path gets them back with keep_source_mcus). parts (MCU-aligned boxes inside box that
+    hold every MCU not in keep_mcus, e.g. one per square of a mark placed apart): each part is
+    decoded, patched (patch(pixels, part)) and encoded alone, the same blocks as the whole box's at
+    a fraction of its pixels; without parts patch(box pixels). Raises SpliceUnavailable when it
+    cannot be done here."""
     from poisoner import jpeg_turbo
 
     reason = turbo_available() or turbo_refusal(src, layout)
@@ -462,7 +488,12 @@ def patch_in_one_pass(
         raise SpliceUnavailable(reason)
     if box != mcu_box(box, layout):
         raise ValueError(f"box {box} is not MCU-aligned")
-    outputs = jpeg_turbo.Outputs(2)
+    patch_part = patch
+    if parts is None:
+        parts, patch_part = [box], lambda pixels, _part: patch(pixels)
+    elif not parts_cover(layout, box, parts, keep_mcus):  # some MCU would be left unpatched: whole box
+        parts = [box]
+    outputs = jpeg_turbo.Outputs(len(parts) + 1)
     offsets = _component_offsets(layout, box)
     new_blocks: list[np.ndarray] = []
 
@@ -471,7 +502,8 @@ def patch_in_one_pass(
 
     def swap_in(row: int, blocks: np.ndarray, component: int, _index: int) -> None:
         if not new_blocks:  # first box row of the whole-picture transform: the crop is written by now
-            new_blocks.extend(_patched_blocks(outputs.finished(0), src, layout, box, patch))
+            crops = [outputs.finished(i) for i in range(len(parts))]
+            new_blocks.extend(_patched_blocks(crops, src, layout, box, parts, patch_part))
             take.extend(_blocks_to_take(layout, keep_mcus, [b.shape[:2] for b in new_blocks]))
         col0, row0 = offsets[component]
         replacement = new_blocks[component]
@@ -483,12 +515,13 @@ def patch_in_one_pass(
         row_take = take[component][row - row0]
         blocks[col0 : col0 + replacement.shape[1]][row_take] = replacement[row - row0][row_take]
 
-    specs = [
-        (jpeg_turbo.crop_spec(crop_box(box, layout)), None),
-        jpeg_turbo.filter_spec(swap_in, wanted=wanted.__getitem__, progressive=layout.progressive),
-    ]
+    specs = [(jpeg_turbo.crop_spec(crop_box(part, layout)), None) for part in parts]
+    # Rows whose blocks all stay the source's (between two squares placed apart) are not even handed
+    # to Python: the callback returns at once there.
+    needed = wanted if keep_mcus is None else rows_taking_blocks(layout, keep_mcus, wanted)
+    specs.append(jpeg_turbo.filter_spec(swap_in, wanted=needed.__getitem__, progressive=layout.progressive))
     try:
-        out = jpeg_turbo.transform(data, specs, outputs)[1]
+        out = jpeg_turbo.transform(data, specs, outputs)[-1]
     except jpeg_turbo.TurboUnavailable as exc:
         raise SpliceUnavailable(str(exc)) from exc
     check = read_layout(out)

@@ -473,3 +473,120 @@ def test_two_squares_blended_a_square_at_a_time_write_the_same_pixels(turn: int,
     whole = apply_patch_at(pixels, placement, origin, keep)
     assert (whole != pixels).any()
     assert np.array_equal(_patch_window(pixels, placement, lanes, origin, keep), whole)
+
+
+@pytest.mark.parametrize("edge", [False, True])
+@pytest.mark.parametrize("turn", range(1, 9))
+@pytest.mark.parametrize("where", [((40, 30), (1100, 700)), ((500, 400), (620, 520))])
+def test_idle_mcus_from_the_squares_alone_are_the_whole_boxs(turn: int, where: tuple, edge: bool) -> None:
+    """The JPEG writer finds the MCUs a mark of squares placed apart leaves idle from each square's
+    pixels (issue 30: not from the whole box between them): the same MCUs, in every orientation, at
+    the picture's edges, with squares sharing MCUs, with a keep-out mask and a splice box cut by it."""
+    import dataclasses
+
+    from poisoner import jpeg as jpeg_codec
+    from poisoner.formats import _idle_mcus, lane_placements
+    from poisoner.ladder import default_spec
+
+    placement = dataclasses.replace(
+        default_spec().resolve(1600, 1200, image_key="IMG_0004.jpg", lanes_at=where), turn=turn
+    )
+    lanes = lane_placements(placement)
+    assert lanes is not None
+    rng = np.random.default_rng(turn)
+    for sampling in (((2, 2), (1, 1), (1, 1)), ((1, 1), (1, 1), (1, 1)), ((2, 1), (1, 1), (1, 1))):
+        # edge: the picture ends inside the mark's last MCUs (width and height not MCU multiples)
+        size = (placement.box[2] - 5, placement.box[3] - 3) if edge else (1600, 1200)
+        layout = jpeg_codec.JpegLayout(*size, 0xC0, 3, sampling, 0)
+        mark_box = jpeg_codec.mcu_box(placement.box, layout)
+        mark_h, mark_w = mark_box[3] - mark_box[1], mark_box[2] - mark_box[0]
+        mw, mh = layout.mcu_size
+        cut = (mark_box[0] + mw, mark_box[1], mark_box[2], mark_box[3] - mh)  # a smaller splice box
+        for keep in (None, rng.random((mark_h, mark_w)) < 0.002):
+            for box in (mark_box, cut):
+                whole = _idle_mcus(placement, keep, mark_box, box, layout)
+                assert whole is not None and whole.any()
+                parts = _idle_mcus(placement, keep, mark_box, box, layout, lanes)
+                assert parts is not None and np.array_equal(parts, whole)
+
+
+def _lane_placements_on_labels(placement):
+    """lane_placements as it was before issue 30 (an n x n label picture turned back), kept here only
+    to compare."""
+    import dataclasses
+
+    from poisoner.orientation import unorient_array
+
+    if not placement.parts or placement.lane_size <= 0 or placement.lane_crop:
+        return None
+    n, t = placement.size, placement.lane_size
+    labels = np.zeros((n, n), dtype=np.uint8)
+    for k, (dx, dy, _seed) in enumerate(placement.parts):
+        if labels[dy : dy + t, dx : dx + t].any():
+            return None
+        labels[dy : dy + t, dx : dx + t] = k + 1
+    stored = unorient_array(labels, placement.turn)
+    lanes = []
+    for k, (_dx, _dy, seed) in enumerate(placement.parts):
+        square = stored == k + 1
+        rows, cols = square.any(axis=1), square.any(axis=0)
+        if rows.sum() != t or cols.sum() != t:
+            return None
+        x, y = placement.x + int(cols.argmax()), placement.y + int(rows.argmax())
+        lanes.append(dataclasses.replace(placement, x=x, y=y, size=t, parts=((0, 0, seed),)))
+    return lanes
+
+
+@pytest.mark.parametrize("turn", range(0, 10))
+def test_lane_placements_from_the_corners_are_the_label_pictures(turn: int) -> None:
+    """lane_placements works the stored squares out from their corners (issue 30): the same lanes as
+    turning an n x n label picture back, in every orientation (0 and 9: not a valid tag, read as 1),
+    for squares apart, touching, overlapping, cut by the box's edge, and three of them."""
+    import dataclasses
+
+    from poisoner.formats import lane_placements
+    from poisoner.ladder import default_spec
+
+    base = default_spec().resolve(1600, 1200, image_key="IMG_0005.jpg", lanes_at=((40, 30), (1100, 700)))
+    n, t = base.size, base.lane_size
+    seeds = [seed for _, _, seed in base.parts]
+    arrangements = {
+        "apart": ((0, n - t), (n - t, 0)),
+        "diagonal": ((0, 0), (n - t, n - t)),
+        "touching": ((0, 0), (t, 0)),
+        "overlapping": ((0, 0), (t - 1, t - 1)),
+        "cut": ((0, 0), (n - t + 1, 5)),
+        "three": ((0, 0), (n - t, 0), (n // 2, n - t)),
+    }
+    outcomes = set()
+    for name, corners in arrangements.items():
+        parts = tuple((dx, dy, seeds[i % len(seeds)] + i) for i, (dx, dy) in enumerate(corners))
+        placement = dataclasses.replace(base, parts=parts, turn=turn)
+        new, old = lane_placements(placement), _lane_placements_on_labels(placement)
+        assert new == old, name
+        outcomes.add(new is None)
+    assert outcomes == {True, False}
+
+
+@pytest.mark.parametrize("masked", [False, True])
+@pytest.mark.parametrize("turn", [1, 6])
+def test_written_pixels_counted_a_square_at_a_time(tmp_path: Path, turn: int, masked: bool) -> None:
+    """poison_file counts the pixels a mark of squares placed apart writes a square at a time (issue
+    30): the same count as over the whole placement, with and without a keep-out mask."""
+    from poisoner.formats import lane_placements, poison_file
+    from poisoner.image.keep_out import written_pixels
+    from poisoner.ladder import default_spec
+
+    src = tmp_path / "IMG_0006.jpg"
+    exif = Image.Exif()
+    exif[0x0112] = turn
+    Image.fromarray(np.random.default_rng(turn).integers(0, 256, (480, 640, 3), dtype=np.uint8)).save(
+        src, quality=90, exif=exif
+    )
+    keep = None
+    if masked:
+        keep = np.zeros((480, 640), dtype=bool)
+        keep[::37, ::41] = True
+    report = poison_file(src, tmp_path / "out.jpg", default_spec(), keep_out=keep)
+    assert lane_placements(report.placement) is not None  # the two squares, counted one at a time
+    assert report.written == written_pixels(report.placement, keep) > 0

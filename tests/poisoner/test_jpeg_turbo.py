@@ -239,3 +239,104 @@ def test_poison_file_takes_the_in_process_pass(tmp_path: Path, monkeypatch: pyte
     monkeypatch.setenv(jpeg_turbo.TURBOJPEG_ENV, "")
     report = poison_file(src, tmp_path / "neither.jpg", SPECS["product-default"])
     assert report.method == "jpeg-reencode-same-tables"
+
+
+# ---- a mark of squares placed apart: each square's MCUs patched and encoded alone ----------------
+@pytest.mark.parametrize("seed", [0, 3])
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_squares_patched_a_part_at_a_time_give_the_whole_box_bytes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str, seed: int
+) -> None:
+    """poison_file's JPEG writer decodes, blends and encodes each square's MCUs alone (issue 30): the
+    file is byte for byte the one the whole box between the squares gives, and the parts are smaller
+    than the box (what makes it cheaper)."""
+    from poisoner import formats
+
+    src = tmp_path / f"IMG_{seed:04d}.jpg"
+    write_case(src, case, seed=seed)
+    windows: list[tuple[int, int, int, int]] = []
+    real = jpeg_codec._patched_blocks
+
+    def spy(crops, im, layout, box, parts, patch):
+        windows.append(box)
+        windows.extend(parts)
+        return real(crops, im, layout, box, parts, patch)
+
+    monkeypatch.setattr(jpeg_codec, "_patched_blocks", spy)
+    formats.poison_file(src, tmp_path / "parts.jpg", SPECS["product-default"])
+    box, *parts = windows
+    area = lambda b: (b[2] - b[0]) * (b[3] - b[1])  # noqa: E731
+    assert len(parts) == 2 and sum(map(area, parts)) < area(box)
+    monkeypatch.setattr(formats, "_lane_parts", lambda *_: None)  # the whole box, as before
+    formats.poison_file(src, tmp_path / "box.jpg", SPECS["product-default"])
+    assert windows[3:] == [box, box]
+    assert (tmp_path / "parts.jpg").read_bytes() == (tmp_path / "box.jpg").read_bytes() != src.read_bytes()
+
+
+def test_parts_that_leave_an_mcu_out_fall_back_to_the_whole_box(tmp_path: Path) -> None:
+    """An MCU in no part and not kept would keep the source's blocks unpatched: the whole box is
+    patched instead (same bytes as without parts), never a file with part of the mark missing."""
+    data = write_case(tmp_path / "a.jpg", "420", seed=4)
+    im, layout, box, patch = box_and_patch(data, SPECS["center"])
+    half = jpeg_codec.mcu_box((box[0], box[1], box[0] + 16, box[3]), layout)
+    assert not jpeg_codec.parts_cover(layout, box, [half], None)
+    seen: list[tuple[int, ...]] = []
+    out = jpeg_codec.patch_in_one_pass(
+        data, im, layout, box, lambda px, at: seen.append(at) or patch(px), parts=[half]
+    )
+    assert seen == [box]
+    assert out == jpeg_codec.patch_in_one_pass(data, im, layout, box, patch)
+
+
+def test_parts_cover_needs_every_mcu_not_kept() -> None:
+    layout = jpeg_codec.JpegLayout(320, 240, 0xC0, 3, ((2, 2), (1, 1), (1, 1)), 0)
+    box = (32, 16, 96, 64)  # 4 x 3 MCUs of 16 px
+    left, right = (32, 16, 64, 64), (64, 16, 96, 64)
+    assert jpeg_codec.parts_cover(layout, box, [left, right], None)
+    assert not jpeg_codec.parts_cover(layout, box, [left], None)
+    keep = np.zeros((3, 4), dtype=bool)
+    keep[:, 2:] = True  # the right half kept: the left part is enough
+    assert jpeg_codec.parts_cover(layout, box, [left], keep)
+    assert not jpeg_codec.parts_cover(layout, box, [(32, 16, 60, 64), right], None)  # not MCU-aligned
+    assert not jpeg_codec.parts_cover(layout, box, [left, (64, 16, 112, 64)], None)  # beyond the box
+    edge = jpeg_codec.JpegLayout(90, 61, 0xC0, 3, ((2, 2), (1, 1), (1, 1)), 0)  # ends mid-MCU
+    assert jpeg_codec.parts_cover(edge, (0, 0, 90, 61), [(0, 0, 48, 61), (48, 0, 90, 61)], None)
+    assert not jpeg_codec.parts_cover(edge, (0, 0, 90, 61), [(0, 0, 48, 61), (48, 0, 89, 61)], None)
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_parts_at_the_pictures_edges_give_the_whole_box_bytes(tmp_path: Path, case: str) -> None:
+    """Two parts, one at the top-left, one ending at the picture's right and bottom edges (partial
+    MCUs and blocks, padding rows): encoded a part at a time, the same file as the whole box around
+    them with the MCUs between them kept."""
+    data = write_case(tmp_path / "a.jpg", case, seed=6)
+    im, layout = Image.open(io.BytesIO(data)), jpeg_codec.read_layout(data)
+    mw, mh = layout.mcu_size
+    box = (0, 0, layout.width, layout.height)
+    far = jpeg_codec.mcu_box((layout.width - 3 * mw // 2, layout.height - 3 * mh // 2, *box[2:]), layout)
+    parts = [(0, 0, 2 * mw, 3 * mh), far]
+    keep = ~np.zeros((-(-layout.height // mh), -(-layout.width // mw)), dtype=bool)
+    for x0, y0, x1, y1 in parts:
+        keep[y0 // mh : -(-y1 // mh), x0 // mw : -(-x1 // mw)] = False
+
+    def paint(pixels: np.ndarray, at: tuple[int, int, int, int]) -> np.ndarray:
+        yy, xx = np.mgrid[at[1] : at[1] + pixels.shape[0], at[0] : at[0] + pixels.shape[1]]
+        stripes = ((xx // 3 + yy // 5) % 2 * 200 + 20).astype(np.uint8)
+        return stripes if pixels.ndim == 2 else np.repeat(stripes[..., None], 3, axis=2)
+
+    by_parts = jpeg_codec.patch_in_one_pass(data, im, layout, box, paint, keep, parts=parts)
+    whole = jpeg_codec.patch_in_one_pass(data, im, layout, box, lambda px: paint(px, box), keep)
+    assert by_parts == whole != data
+
+
+def test_only_rows_with_a_block_to_take_are_handed_to_python() -> None:
+    """Between two squares placed apart every MCU keeps its blocks: those block rows are skipped."""
+    from poisoner.jpeg_parts import rows_taking_blocks
+
+    layout = jpeg_codec.JpegLayout(320, 240, 0xC0, 3, ((2, 2), (1, 1), (1, 1)), 0)
+    keep = np.array([[False, True], [True, True], [True, False]])  # 3 MCU rows, the middle one idle
+    wanted = [range(10, 15), range(5, 8), range(5, 8)]  # the last MCU row cut by the picture's edge
+    luma, cb, cr = rows_taking_blocks(layout, keep, wanted)
+    assert luma == {10, 11, 14} and cb == cr == {5, 7}
+    grey = jpeg_codec.JpegLayout(320, 240, 0xC0, 1, ((1, 1),), 0)
+    assert rows_taking_blocks(grey, keep, [range(3, 6)]) == [{3, 5}]

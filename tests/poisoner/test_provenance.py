@@ -251,3 +251,15 @@ def test_missing_file_reads_none(tmp_path: Path) -> None:
 def test_xmp_with_marker_without_rdf_makes_a_packet() -> None:
     out = xmp_with_marker(b"<not-xmp/>", MARKER)
     assert out.count(MARKER.text.encode()) == 1
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["", "plain", 'a "quoted" one', "it's", "both \" and ' here", "<&>\n\r\t", "&amp; already", "é ü 漢"],
+)
+def test_quoteattr_is_the_standard_librarys(text: str) -> None:
+    from xml.sax.saxutils import quoteattr as standard
+
+    from poisoner.provenance import quoteattr
+
+    assert quoteattr(text) == standard(text)

@@ -88,3 +88,22 @@ def test_bad_values_keep_typers_messages(env: dict[str, str]) -> None:
                               capture_output=True, text=True, timeout=120)  # fmt: skip
         assert proc.returncode == 2, (args, proc.stderr)
         assert proc.stderr.startswith("ppd: error: ") and word in proc.stderr, proc.stderr
+
+
+def test_poison_run_loads_no_scipy_no_sfm_and_no_network_stack(env: dict[str, str], tmp_path: Path) -> None:
+    """A real `ppd poison` of two photos (issue 30: its whole-process CPU against the codec floor): the
+    scene hint's filters are numpy (no scipy, 0.45 s CPU a process), the provenance marker's XML
+    quoting does not pull in urllib/http/ssl, and nothing of the verifier's SfM or GPU stack loads."""
+    from PIL import Image
+
+    from testkit.photos import textured
+
+    folder = tmp_path / "shoot"
+    folder.mkdir()
+    for i in range(2):
+        Image.fromarray(textured(240, 320, seed=i)).save(folder / f"IMG_{i}.jpg", quality=90)
+    loaded = imported_modules(env, "poison", str(folder))
+    assert "poisoner.scene" in loaded and "poisoner.provenance" in loaded  # the hint and marker ran
+    unwanted = {"scipy", "ssl", "urllib.request", "http", "pycolmap", "torch", "skimage", "flip_evaluator"}
+    unwanted.add("av")
+    assert not loaded & unwanted, sorted(loaded & unwanted)

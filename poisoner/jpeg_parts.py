@@ -1,0 +1,69 @@
+"""A JPEG splice box patched a part at a time (issue 30): a mark of squares placed far apart has a
+box of up to 7 MP around them on a 12 MP photo, of which only each square's MCUs are written. The
+in-process pass (poisoner.jpeg.patch_in_one_pass) decodes, blends and encodes each part alone and
+puts its DCT blocks where the whole box's encode would have put them; these pure functions say
+whether the parts may stand for the box, and the shape of the box's block arrays."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from poisoner.jpeg import JpegLayout
+
+Box = tuple[int, int, int, int]
+
+
+def box_block_shapes(layout: JpegLayout, box: Box) -> list[tuple[int, int]]:
+    """(block rows, block columns) per component of `box` encoded alone, as
+    poisoner.jpeg_turbo.read_blocks gives them: the rows run to a whole MCU row, the columns to the
+    last (partial) block."""
+    mw, mh = layout.mcu_size
+    w, h = box[2] - box[0], box[3] - box[1]
+    factors = [(1, 1)] if layout.components == 1 else list(layout.sampling)
+    return [(-(-h // mh) * v, -(-w * f // mw)) for f, v in factors]
+
+
+def _mcu_aligned(part: Box, layout: JpegLayout) -> bool:
+    """poisoner.jpeg.mcu_box(part) == part: MCU edges, or the picture's right and bottom edges."""
+    mw, mh = layout.mcu_size
+    x0, y0, x1, y1 = part
+    return (
+        x0 % mw == 0
+        and y0 % mh == 0
+        and (x1 % mw == 0 or x1 == layout.width)
+        and (y1 % mh == 0 or y1 == layout.height)
+        and x1 <= layout.width
+        and y1 <= layout.height
+    )
+
+
+def parts_cover(layout: JpegLayout, box: Box, parts: Sequence[Box], keep_mcus: np.ndarray | None) -> bool:
+    """Whether the MCU-aligned `parts` (inside box) hold every MCU of box not in keep_mcus: only then
+    may the box be patched a part at a time (the MCUs outside every part keep the source's blocks)."""
+    mw, mh = layout.mcu_size
+    rows, cols = -(-(box[3] - box[1]) // mh), -(-(box[2] - box[0]) // mw)
+    covered = np.zeros((rows, cols), dtype=bool) if keep_mcus is None else keep_mcus.astype(bool).copy()
+    if covered.shape != (rows, cols):
+        return False
+    for part in parts:
+        inside = box[0] <= part[0] < part[2] <= box[2] and box[1] <= part[1] < part[3] <= box[3]
+        if not inside or not _mcu_aligned(part, layout):
+            return False
+        covered[(part[1] - box[1]) // mh : -(-(part[3] - box[1]) // mh),
+                (part[0] - box[0]) // mw : -(-(part[2] - box[0]) // mw)] = True  # fmt: skip
+    return bool(covered.all())
+
+
+def rows_taking_blocks(layout: JpegLayout, keep_mcus: np.ndarray, wanted: list[range]) -> list[frozenset]:
+    """Per component, the block rows of `wanted` (the box's, from its top block row) in which some MCU
+    not in keep_mcus lies: the only rows whose blocks the splice changes."""
+    factors = [1] if layout.components == 1 else [v for _, v in layout.sampling]
+    mcu_rows = np.flatnonzero(~keep_mcus.all(axis=1))
+    return [
+        frozenset(row for m in mcu_rows for k in range(v) if (row := rows.start + int(m) * v + k) in rows)
+        for v, rows in zip(factors, wanted, strict=True)
+    ]
