@@ -515,11 +515,13 @@ def patch_in_one_pass(
         row_take = take[component][row - row0]
         blocks[col0 : col0 + replacement.shape[1]][row_take] = replacement[row - row0][row_take]
 
-    specs = [(jpeg_turbo.crop_spec(crop_box(part, layout)), None) for part in parts]
+    specs: list[tuple[jpeg_turbo.TjTransform, object]] = [
+        (jpeg_turbo.crop_spec(crop_box(part, layout)), None) for part in parts
+    ]
     # Rows whose blocks all stay the source's (between two squares placed apart) are not even handed
     # to Python: the callback returns at once there.
     needed = wanted if keep_mcus is None else rows_taking_blocks(layout, keep_mcus, wanted)
-    specs.append(jpeg_turbo.filter_spec(swap_in, wanted=needed.__getitem__, progressive=layout.progressive))
+    specs.append(jpeg_turbo.filter_spec(swap_in, wanted=lambda c: needed[c], progressive=layout.progressive))
     try:
         out = jpeg_turbo.transform(data, specs, outputs)[-1]
     except jpeg_turbo.TurboUnavailable as exc:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Container
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -68,7 +68,7 @@ TjTransform._fields_ = [
 BlockRowFilter = Callable[[int, "np.ndarray", int, int], None]
 # component index -> the block rows the filter wants to see (the callback returns at once for
 # the others: it runs for every block row of a 12 MP picture, ~700 times).
-WantedRows = Callable[[int], range]
+WantedRows = Callable[[int], Container[int]]  # the block rows to hand on_row, per component
 
 _lib: ctypes.CDLL | None = None
 _lib_error: str | None = None

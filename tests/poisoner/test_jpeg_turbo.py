@@ -242,7 +242,9 @@ def test_poison_file_takes_the_in_process_pass(tmp_path: Path, monkeypatch: pyte
 
 
 # ---- a mark of squares placed apart: each square's MCUs patched and encoded alone ----------------
-@pytest.mark.parametrize("seed", [0, 3])
+# seeds whose photos get their two squares placed apart in every case (issue 25 round 4's placement put
+# 420-progressive seed 0's side by side, tiling the box: nothing to save there, so not this test's case)
+@pytest.mark.parametrize("seed", [1, 3])
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_squares_patched_a_part_at_a_time_give_the_whole_box_bytes(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str, seed: int
