@@ -23,6 +23,7 @@ import daemon.protect.stages
 import daemon.store.vault
 import poisoner.atomic
 import poisoner.formats
+from daemon.cli.output import _field  # the log line's own quoting (a path with a space)
 from daemon.protect.one_file import AppContext, protect_file
 from daemon.states import FileState
 from daemon.store import Store
@@ -86,7 +87,8 @@ def test_full_tmpfs_under_the_daemon_retries_when_space_returns(tmp_path: Path) 
             def all_tried() -> bool:  # one clear line per file (the store may be full as well)
                 log = daemon.log.read_text(errors="replace").splitlines()
                 said = [line for line in log if is_no_space(line)]
-                return all(any(f"file={p} outcome=failed" in line for line in said) for p in targets[1:])
+                lines = [f"file={_field(p)} outcome=failed" for p in targets[1:]]
+                return all(any(want in line for line in said) for want in lines)
 
             wait_for(all_tried, 30, "each file to fail for lack of space")
             store = Store(paths.db_path)

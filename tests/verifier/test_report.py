@@ -10,6 +10,7 @@ import os
 import re
 import shutil
 import subprocess
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -185,15 +186,19 @@ def _chromium() -> str:
 
 def load_in_chromium(page: Path, shot: Path, profile: Path) -> list[str]:
     """Load a page headless; return its console lines (errors, failed loads, any console output)."""
-    proc = subprocess.run(
-        [_chromium(), "--headless=new", "--no-sandbox", "--disable-gpu", "--enable-logging=stderr", "--v=0",
-         "--virtual-time-budget=3000", f"--screenshot={shot}", "--window-size=1280,1000",
-         f"--user-data-dir={profile}", "--no-first-run", page.resolve().as_uri()],
-        capture_output=True, text=True, timeout=120, check=False,
-        # chromium binds its singleton socket under TMPDIR: keep that path under the kernel's
-        # 107-byte AF_UNIX limit whatever TMPDIR the suite runs with
-        env={**os.environ, "TMPDIR": str(profile.parent)},
-    )  # fmt: skip
+    # chromium binds its singleton socket under TMPDIR: a short private one keeps that path under the
+    # kernel's 107-byte AF_UNIX limit whatever temp path the suite runs under (Debian's wrapper script
+    # also reads TMPDIR unquoted: a space there breaks it)
+    short = tempfile.mkdtemp(prefix="ppd-chromium-", dir="/tmp" if os.path.isdir("/tmp") else None)
+    try:
+        proc = subprocess.run(
+            [_chromium(), "--headless=new", "--no-sandbox", "--disable-gpu", "--enable-logging=stderr",
+             "--v=0", "--virtual-time-budget=3000", f"--screenshot={shot}", "--window-size=1280,1000",
+             f"--user-data-dir={profile}", "--no-first-run", page.resolve().as_uri()],
+            capture_output=True, text=True, timeout=120, check=False, env={**os.environ, "TMPDIR": short},
+        )  # fmt: skip
+    finally:
+        shutil.rmtree(short, ignore_errors=True)
     assert shot.is_file(), proc.stderr[-2000:]
     return [line for line in proc.stderr.splitlines() if ":CONSOLE" in line]
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import shutil
 import subprocess
 import sys
@@ -416,7 +417,7 @@ def test_crashed_side_is_retried_with_another_seed(tmp_path: Path, monkeypatch: 
     script = tmp_path / "fake-python"
     script.write_text(
         "#!/bin/sh\njob=$(cat)\n"
-        f"if [ ! -e {marker} ]; then touch {marker}; kill -SEGV $$; fi\n"
+        f"if [ ! -e {shlex.quote(str(marker))} ]; then touch {shlex.quote(str(marker))}; kill -SEGV $$; fi\n"
         'out=$(printf %s "$job" | sed -E \'s/.*"result_path": "([^"]*)".*/\\1/\')\n'
         'printf \'{"outcome": "ok", "registered": 0, "poses": {}}\' > "$out"\n'
     )
@@ -508,7 +509,7 @@ def test_verify_dataset_reports_masked_apart_and_measures_the_subject(
         subject = np.abs(pixels - backdrop).sum(axis=2) > 30  # the object on its plain backdrop
         Image.fromarray((subject * 255).astype(np.uint8)).save(masks / p.name)
     (ppd_env["config"] / "config.toml").write_text(
-        '[patch]\nmotion = "tumble"\npatch_size = 0.075\ncorner_region = 0.2\ntumble_scale = 0.75\n'
+        '[patch]\ndesign = "watermark"\n'  # the tumbling corner mark (random blocks, 7.5%, 20% corner)
         f'[datasets.obj]\nsubject_masks = "{masks}"\n'
     )
     ctx = AppContext.open()

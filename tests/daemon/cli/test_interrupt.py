@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import signal
 import sqlite3
 import subprocess
@@ -54,9 +55,10 @@ def test_status_counts_the_folders_files_that_no_run_reached(ppd_env: dict, tmp_
     d = status_of("castle")
     assert d["counts"]["files"] == 8 and d["patched"] == 3 and d["not_patched_yet"] == 5
     assert d["counts"]["untracked"] == 5 and d["folder"]["on_disk"] == 8
-    assert d["resume"] == f"ppd poison {shoot}"
+    assert d["resume"] == shlex.join(["ppd", "poison", str(shoot)])  # a folder with a space is quoted
     text = runner.invoke(app, ["status", "castle"]).output
-    assert f"castle: patched 3 of 8; 5 not patched yet: run `ppd poison {shoot}`" in " ".join(text.split())
+    said = f"castle: patched 3 of 8; 5 not patched yet: run `{d['resume']}`"
+    assert " ".join(said.split()) in " ".join(text.split())
     assert "ppd verify" not in text  # verifying half a dataset says nothing: finish it first
     assert "files 8: not patched yet 5, patched 3" in text
 
@@ -75,7 +77,7 @@ def test_out_copies_count_for_their_inputs_and_resume_keeps_out(ppd_env: dict, t
     d = status_of("castle")
     assert d["counts"]["files"] == 3 and d["patched"] == 2 and d["not_patched_yet"] == 1
     assert d["folder"]["copies"] == str(out / "castle")  # OUT/DATASET, whatever folders lie below
-    assert d["resume"] == f"ppd poison {shoot} --out {out}"  # never in place by mistake
+    assert d["resume"] == shlex.join(["ppd", "poison", str(shoot), "--out", str(out)])  # never in place
 
 
 def test_count_folder_leaves_out_masks_temporaries_and_other_files(tmp_path: Path) -> None:
@@ -90,7 +92,7 @@ def test_count_folder_leaves_out_masks_temporaries_and_other_files(tmp_path: Pat
     counts = with_folder({"files": 1, "patched": 1, "pending": 0}, count)
     assert counts["files"] == 2 and not_patched_yet(counts) == 1
     assert not_patched_yet({"files": 3, "pending": 2, "untracked": 0}) == 2  # unfinished rows too
-    assert resume_command("other", count) == f"ppd poison {folder} --dataset other"
+    assert resume_command("other", count) == shlex.join(["ppd", "poison", str(folder), "--dataset", "other"])
     gone = count_folder(tmp_path / "gone", rows)
     assert not gone.exists and gone.untracked == []
 
@@ -140,13 +142,15 @@ def test_a_signal_mid_run_leaves_a_true_status_and_a_run_that_finishes(
 
     assert proc.returncode == 130, (out, err)
     assert "Traceback" not in err and "Traceback" not in out, err
-    (line,) = [x for x in out.splitlines() if x.startswith("interrupted:")]
-    assert f"not patched yet: run `ppd poison {shoot} --workers {workers}` to finish" in line
+    (start,) = [i for i, x in enumerate(out.splitlines()) if x.startswith("interrupted:")]
+    line = " ".join(" ".join(out.splitlines()[start:]).split())  # wrapped at spaces to the width
+    resume = shlex.join(["ppd", "poison", str(shoot), "--workers", workers])
+    assert " ".join(f"not patched yet: run `{resume}` to finish".split()) in line
     d = status_of("shoot")
     on_disk = len(list(shoot.glob("*.jpg")))
     assert d["counts"]["files"] == on_disk == n  # the folder's files, not only the rows
     assert d["patched"] >= 1 and d["patched"] + d["not_patched_yet"] == n, d["counts"]
-    assert d["patched"] < n and d["resume"] == f"ppd poison {shoot}"
+    assert d["patched"] < n and d["resume"] == shlex.join(["ppd", "poison", str(shoot)])
     assert f"{n - d['patched']} of {n} not patched yet" in line  # the run's line and status agree
     assert not list(shoot.glob(".ppd-tmp-*"))  # nothing half-written
 

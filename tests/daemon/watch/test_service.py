@@ -7,6 +7,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -39,12 +40,15 @@ def unit_settings(text: str) -> dict[str, list[str]]:
 
 def analyze_verify(unit: Path, home: Path) -> str:
     """`systemd-analyze --user verify`; returns what it printed (empty when the unit is clean)."""
-    runtime = home / "runtime"
-    runtime.mkdir(mode=0o700, exist_ok=True)
-    env = {**os.environ, "HOME": str(home), "XDG_RUNTIME_DIR": str(runtime)}
-    proc = subprocess.run(
-        [SYSTEMD_ANALYZE, "--user", "verify", str(unit)], capture_output=True, text=True, env=env, timeout=60
-    )
+    # the machine's other user units put sockets under the runtime dir: a short private one keeps their
+    # paths under the 107-byte AF_UNIX limit whatever temp path the suite runs under
+    runtime = tempfile.mkdtemp(prefix="ppd-rt-", dir="/tmp" if os.path.isdir("/tmp") else None)
+    env = {**os.environ, "HOME": str(home), "XDG_RUNTIME_DIR": runtime}
+    try:
+        proc = subprocess.run([SYSTEMD_ANALYZE, "--user", "verify", str(unit)],
+                              capture_output=True, text=True, env=env, timeout=60)  # fmt: skip
+    finally:
+        shutil.rmtree(runtime, ignore_errors=True)
     output = (proc.stdout + proc.stderr).strip()
     assert proc.returncode == 0 or output, "systemd-analyze failed silently"
     return output if proc.returncode == 0 else f"rc={proc.returncode}: {output}"
@@ -73,7 +77,8 @@ def test_installed_unit_passes_systemd_analyze_verify(ppd_env: dict[str, Path], 
     for folder in (ppd_env["outbox"], ppd_env["data"]):
         assert str(folder) in read_write
     assert '"-/srv/ppd published"' in read_write  # optional folder, quoted for its space
-    assert f"Environment=PPD_OUTBOX={ppd_env['outbox']}" in unit.read_text()
+    outbox = ppd_env["outbox"]
+    assert f"Environment={quote_word(f'PPD_OUTBOX={outbox}')}" in unit.read_text()
     assert "MemoryDenyWriteExecute" not in settings  # torch's JIT dies under it (docs/DAEMON.md)
 
 
@@ -150,6 +155,6 @@ def test_service_install_print_writes_nothing(ppd_env: dict[str, Path], tmp_path
     assert "[Service]" in printed.stdout and f"PPD_OUTBOX={ppd_env['outbox']}" in printed.stdout
     assert not xdg.exists()  # nothing written
     shown = _ppd("service", "install", "--help", env=env)
-    assert "$XDG_CONFIG_HOME" in shown.stdout and str(xdg) in "".join(shown.stdout.split())
+    assert "$XDG_CONFIG_HOME" in shown.stdout and "".join(str(xdg).split()) in "".join(shown.stdout.split())
     plain = _ppd("service", "install", "--help", env={k: v for k, v in env.items() if k != "XDG_CONFIG_HOME"})
     assert "~/.config/systemd/user" in plain.stdout
