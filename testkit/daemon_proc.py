@@ -29,7 +29,9 @@ class Daemon:
         return self.proc.pid
 
 
-def start_daemon(root: Path, *args: str) -> Daemon:
+def start_daemon(root: Path, *args: str, log_dir: Path | None = None) -> Daemon:
+    """`ppd watch` with its folders under root; its stdout/stderr go to a log in log_dir (root when
+    not given: a test that fills root's filesystem passes another, or the log loses lines)."""
     env = dict(os.environ)
     env.update(
         PPD_DATA_DIR=str(root / "data"), PPD_CONFIG_DIR=str(root / "config"),
@@ -43,7 +45,7 @@ def start_daemon(root: Path, *args: str) -> Daemon:
     sock.settimeout(60)
     exe = Path(sys.executable).parent / "ppd"
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "daemon.cli"]
-    log = root / f"daemon-{time.monotonic_ns()}.log"
+    log = (log_dir or root) / f"daemon-{time.monotonic_ns()}.log"
     with open(log, "wb") as fh:
         proc = subprocess.Popen(
             [*cmd, "watch", *args], env=env, cwd=REPO, stdout=fh, stderr=subprocess.STDOUT
