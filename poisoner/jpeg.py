@@ -65,7 +65,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, JpegImagePlugin
 
-from poisoner.jpeg_parts import box_block_shapes, parts_cover, rows_taking_blocks
+from poisoner.jpeg_parts import box_block_shapes, mcu_box, parts_cover, rows_taking_blocks
 
 log = logging.getLogger(__name__)
 
@@ -205,18 +205,6 @@ def keeps_standard_huffman(layout: JpegLayout) -> bool:
     if layout.progressive or layout.arithmetic or not layout.huffman:
         return False
     return set(layout.huffman) <= standard_huffman_tables()
-
-
-def mcu_box(box: tuple[int, int, int, int], layout: JpegLayout) -> tuple[int, int, int, int]:
-    """The smallest MCU-aligned box holding `box`, clipped to the picture."""
-    mw, mh = layout.mcu_size
-    x0, y0, x1, y1 = box
-    return (
-        (x0 // mw) * mw,
-        (y0 // mh) * mh,
-        min(-(-x1 // mw) * mw, layout.width),
-        min(-(-y1 // mh) * mh, layout.height),
-    )
 
 
 # ---- same-tables encoding ------------------------------------------------------------------

@@ -7,17 +7,42 @@ whether the parts may stand for the box, and the shape of the box's block arrays
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from poisoner.jpeg import JpegLayout
 
 Box = tuple[int, int, int, int]
 
 
-def box_block_shapes(layout: JpegLayout, box: Box) -> list[tuple[int, int]]:
+class McuGrid(Protocol):
+    """What these functions read of poisoner.jpeg.JpegLayout (a protocol, so the two modules do not
+    import each other)."""
+
+    @property
+    def width(self) -> int: ...
+    @property
+    def height(self) -> int: ...
+    @property
+    def components(self) -> int: ...
+    @property
+    def sampling(self) -> tuple[tuple[int, int], ...]: ...
+    @property
+    def mcu_size(self) -> tuple[int, int]: ...
+
+
+def mcu_box(box: Box, layout: McuGrid) -> Box:
+    """The smallest MCU-aligned box holding `box`, clipped to the picture."""
+    mw, mh = layout.mcu_size
+    x0, y0, x1, y1 = box
+    return (
+        (x0 // mw) * mw,
+        (y0 // mh) * mh,
+        min(-(-x1 // mw) * mw, layout.width),
+        min(-(-y1 // mh) * mh, layout.height),
+    )
+
+
+def box_block_shapes(layout: McuGrid, box: Box) -> list[tuple[int, int]]:
     """(block rows, block columns) per component of `box` encoded alone, as
     poisoner.jpeg_turbo.read_blocks gives them: the rows run to a whole MCU row, the columns to the
     last (partial) block."""
@@ -27,21 +52,7 @@ def box_block_shapes(layout: JpegLayout, box: Box) -> list[tuple[int, int]]:
     return [(-(-h // mh) * v, -(-w * f // mw)) for f, v in factors]
 
 
-def _mcu_aligned(part: Box, layout: JpegLayout) -> bool:
-    """poisoner.jpeg.mcu_box(part) == part: MCU edges, or the picture's right and bottom edges."""
-    mw, mh = layout.mcu_size
-    x0, y0, x1, y1 = part
-    return (
-        x0 % mw == 0
-        and y0 % mh == 0
-        and (x1 % mw == 0 or x1 == layout.width)
-        and (y1 % mh == 0 or y1 == layout.height)
-        and x1 <= layout.width
-        and y1 <= layout.height
-    )
-
-
-def parts_cover(layout: JpegLayout, box: Box, parts: Sequence[Box], keep_mcus: np.ndarray | None) -> bool:
+def parts_cover(layout: McuGrid, box: Box, parts: Sequence[Box], keep_mcus: np.ndarray | None) -> bool:
     """Whether the MCU-aligned `parts` (inside box) hold every MCU of box not in keep_mcus: only then
     may the box be patched a part at a time (the MCUs outside every part keep the source's blocks)."""
     mw, mh = layout.mcu_size
@@ -51,14 +62,14 @@ def parts_cover(layout: JpegLayout, box: Box, parts: Sequence[Box], keep_mcus: n
         return False
     for part in parts:
         inside = box[0] <= part[0] < part[2] <= box[2] and box[1] <= part[1] < part[3] <= box[3]
-        if not inside or not _mcu_aligned(part, layout):
+        if not inside or mcu_box(part, layout) != part:  # MCU edges, or the picture's right/bottom
             return False
         covered[(part[1] - box[1]) // mh : -(-(part[3] - box[1]) // mh),
                 (part[0] - box[0]) // mw : -(-(part[2] - box[0]) // mw)] = True  # fmt: skip
     return bool(covered.all())
 
 
-def rows_taking_blocks(layout: JpegLayout, keep_mcus: np.ndarray, wanted: list[range]) -> list[frozenset]:
+def rows_taking_blocks(layout: McuGrid, keep_mcus: np.ndarray, wanted: list[range]) -> list[frozenset]:
     """Per component, the block rows of `wanted` (the box's, from its top block row) in which some MCU
     not in keep_mcus lies: the only rows whose blocks the splice changes."""
     factors = [1] if layout.components == 1 else [v for _, v in layout.sampling]
