@@ -10,6 +10,7 @@
 #          second), each lane saved to $OUT as it ends; lego 40 if time is left.
 #   pack:  (here, before both) make `.dev/` and `.devdata/` (both in .git/info/exclude) from the
 #          package registry and ../shared.
+#   placement: (issue 25) lego 40's COLMAP protection, CPU SIFT, one process per profile and seed.
 # Needs the `run` tool's $OUT. Nothing here is part of the product or of CI.
 set -u
 mode=${1:?setup or main}
@@ -109,6 +110,22 @@ for d in sorted(p for p in root.iterdir() if p.is_dir() and p.name[:1] == "b"):
     print(d.name, "changed area (|diff| > 0 / > 8, first 3 views):", shares)
 PY
     echo "done, $(left) s left"
+    exit
+fi
+if [ "$mode" = placement ]; then
+    # issue 25 round 5: lego 40's five profiles x seeds with the CPU SIFT this machine's checks use
+    # (PPD_SFM_DEVICE=cpu), one process per cell on the lent machine's cores; the clean runs are this
+    # machine's (carried in .devdata/lego-clean-runs), each cell's colmap.json saved to $OUT
+    export PPD_SFM_DEVICE=${PPD_PLACEMENT_SIFT:-cpu}
+    for seed in ${PPD_SEEDS:-0 1}; do for p in ${PPD_PROFILES:-default hardened published masked global}; do
+        d=/tmp/pl/$p-$seed && mkdir -p "$d/ppd-bench-placement/sfm/lego/clean-runs"
+        cp .devdata/lego-clean-runs/*.json "$d/ppd-bench-placement/sfm/lego/clean-runs/"
+        (TMPDIR=$d timeout "$(( $(left) - 15 ))" python3 -m bench.bench_placement colmap --sets lego \
+            --profiles "$p" --seeds "$seed" --round 5 > "$OUT/$p-$seed.log" 2>&1
+         cp "$d/ppd-bench-placement/colmap.json" "$OUT/colmap-$p-$seed.json") &
+    done; done
+    sleep 60; sha256sum /tmp/pl/default-0/ppd-bench-placement/sfm/lego/per-photo-*-r5/images/* > "$OUT/lego_r5.sha256"
+    wait; echo "done, $(left) s left"
     exit
 fi
 label="gpu $(nvidia-smi --query-gpu=name --format=csv,noheader | head -1), $(nproc) cores ($(git rev-parse --short HEAD 2>/dev/null || echo tree))"
