@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import sys
 import time
@@ -51,7 +52,7 @@ from verifier.verification import round_trip
 from verifier.visibility import box_in_one_corner, visibility_report
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared" / "datasets"
+SHARED = Path(os.environ["PPD_SHARED_DATA"])  # bench/__init__.py: the checkout's ../shared/datasets
 RESULTS_MD = ROOT / "bench" / "results" / "watermark.md"
 WORK = Path("/tmp/ppd-bench-watermark")
 RESULTS_JSONL = WORK / "results.jsonl"
