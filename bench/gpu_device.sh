@@ -122,10 +122,18 @@ if [ "$mode" = placement ]; then
         cp .devdata/lego-clean-runs/*.json "$d/ppd-bench-placement/sfm/lego/clean-runs/"
         (TMPDIR=$d timeout "$(( $(left) - 15 ))" python3 -m bench.bench_placement colmap --sets lego \
             --profiles "$p" --seeds "$seed" --round 5 > "$OUT/$p-$seed.log" 2>&1
-         cp "$d/ppd-bench-placement/colmap.json" "$OUT/colmap-$p-$seed.json") &
+         cp "$d/ppd-bench-placement/colmap.json" "$OUT/colmap-$p-$seed.json" 2>/dev/null) &
     done; done
-    sleep 60; sha256sum /tmp/pl/default-0/ppd-bench-placement/sfm/lego/per-photo-*-r5/images/* > "$OUT/lego_r5.sha256"
-    wait; echo "done, $(left) s left"
+    wait
+    # one file back (the tool returns a few files only): every cell's log, run results and the files' hashes
+    for d in /tmp/pl/*; do
+        echo "== $d"; tail -c 1500 "$OUT/$(basename "$d").log"; rm -f "$OUT/$(basename "$d").log"
+        for f in "$d"/ppd-bench-placement/sfm/lego/per-photo-*-r5/*.json "$d"/ppd-bench-placement/sfm/lego/per-photo-*-r5/*.log; do
+            [ -f "$f" ] && { echo "-- $f"; head -c 3000 "$f"; echo; }
+        done
+    done > "$OUT/placement.txt" 2>&1
+    sha256sum /tmp/pl/default-0/ppd-bench-placement/sfm/lego/per-photo-*-r5/images/* >> "$OUT/placement.txt"
+    echo "done, $(left) s left"
     exit
 fi
 label="gpu $(nvidia-smi --query-gpu=name --format=csv,noheader | head -1), $(nproc) cores ($(git rev-parse --short HEAD 2>/dev/null || echo tree))"
