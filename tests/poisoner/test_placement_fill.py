@@ -4,9 +4,6 @@ near the frame's edge, as the stacked mark does (a plain patch inside the frame 
 smooth face); the masks, when given, still allow any place off the subject. A photo whose stacked
 mark has a plain place is placed as before (bench/bench_identical.py: lego, dtu_scan37 byte for byte).
 
-Round 5: off the slide's line, a place still plain at twice the margin first, never pulling a mark
-into a corner region.
-
 Real files (PNG); no mocks."""
 
 from __future__ import annotations
@@ -18,7 +15,6 @@ from PIL import Image
 
 from poisoner.formats import poison_file
 from poisoner.ladder import default_spec
-from poisoner.placement import MARGIN, choose_spot
 from tests.poisoner.test_placement_photo import changed_shown, textured
 
 SPEC = default_spec()
@@ -75,27 +71,3 @@ def test_a_square_finds_a_pocket_between_the_coarse_grid_anchors(tmp_path: Path)
     assert report.place is not None and report.place.free and report.place.shrunk is None
     diff = changed_shown(src, tmp_path / "out.png")
     assert diff.sum() == 2 * 48 * 48 and not (diff & ~region(diff.shape, pockets)).any()
-
-
-# ---- round 5: off the slide's line, room to spare before nearness ---------------------------------------
-def test_off_the_line_a_place_with_twice_the_margin_beats_one_nearer_the_subject() -> None:
-    """creator-fill: the subject's bottom strip is as plain as the floor below it, so the plain place
-    nearest the slide's line sat against the subject's detail and overlapped the strip. Busy above
-    y = 300 (the line through the preferred anchor is busy), plain below: the mark keeps twice ppd's
-    margin from the detail, not just the margin."""
-    detail = np.zeros((60, 80), dtype=bool)
-    detail[:30] = True
-    spot = choose_spot(detail, None, (800, 600), [(0, 0, 60, 60)], preferred=(370, 0))
-    margin = round(MARGIN * 600)
-    assert spot.plain and spot.y >= 300 + 2 * margin, spot
-
-
-def test_the_wider_room_never_pulls_a_mark_into_another_corner() -> None:
-    """dtu_scan37 800: preferring room to spare moved a mark from a plain pocket in one corner wholly
-    into another corner, and the masked attacker (who removes the four 20% corners) recovered 33% of
-    the cameras. Both pockets lie in corner regions: the one nearer the line stays, cramped or not."""
-    detail = np.ones((60, 80), dtype=bool)
-    detail[:9, 64:] = False  # top-right pocket, y 0-90: plain with the margin, not with twice it
-    detail[45:, :20] = False  # bottom-left pocket, y 450-600: room to spare, farther from the line
-    spot = choose_spot(detail, None, (800, 600), [(0, 0, 60, 60)], preferred=(370, 150))
-    assert spot.plain and spot.x >= 640 and spot.y + 60 <= 120, spot  # the top-right corner
