@@ -247,10 +247,9 @@ def choose_spot(
     # round 5: off the slide's line, a place still plain at twice the margin before one nearer the
     # line (creator-fill: the subject's bottom strip was as plain as the floor below it, so the plain
     # place nearest the line slid up against it); on the line nothing changes (the lanes' shared
-    # anchor: applied there too, it moved 30 of lego's 40 marks) nor in the corner regions (dtu_scan37
-    # 800: a mark half in one corner moved wholly into another, and the masked attacker recovered 33%)
+    # anchor: applied there too, it moved 30 of lego's 40 marks)
     wide, wide_subject = _shares(maps, rects, ax, ay, 2 * margin, (sx, sy))
-    crowded = ((wide + edge > PLAIN_SHARE) | (wide_subject > 0)) & (off_line > 0) & (cornered == 0)
+    crowded = ((wide + edge > PLAIN_SHARE) | (wide_subject > 0)) & (off_line > 0)
 
     def best_at(grow: int) -> tuple[int, np.ndarray, np.ndarray, bool]:
         share, on_subject = _shares(maps, rects, ax, ay, grow, (sx, sy))
