@@ -212,10 +212,9 @@ def choose_spot(
     equally plain, then COST_STEP steps), then off the four corner regions (what the masked attacker
     removes), then on the line through `preferred` along `direction` (the mark's own slide direction:
     two photos whose anchors differ along it still show the lanes moving in parallel by different
-    amounts, one consistent phantom geometry; any other shift breaks it for that pair; off it, a
-    place still plain at twice the margin first, round 5), then the nearest to `preferred`, then
-    top-left first: deterministic for a given picture. bounds (relative to the anchor, default: the
-    rects' union) must lie inside the frame."""
+    amounts, one consistent phantom geometry; any other shift breaks it for that pair), then the
+    nearest to `preferred`, then top-left first: deterministic for a given picture. bounds
+    (relative to the anchor, default: the rects' union) must lie inside the frame."""
     w, h = size
     th, tw = detail.shape
     sx, sy = tw / w, th / h
@@ -243,22 +242,15 @@ def choose_spot(
     distance = (ax - preferred[0]) ** 2 + (ay - preferred[1]) ** 2
 
     core, _ = _shares(maps, rects, ax, ay, 0, (sx, sy))
-    edge = EDGE_WEIGHT * np.maximum(inward, 0)
-    # round 5: off the slide's line, a place still plain at twice the margin before one nearer the
-    # line (creator-fill: the subject's bottom strip was as plain as the floor below it, so the plain
-    # place nearest the line slid up against it); on the line nothing changes (the lanes' shared
-    # anchor: applied there too, it moved 30 of lego's 40 marks)
-    wide, wide_subject = _shares(maps, rects, ax, ay, 2 * margin, (sx, sy))
-    crowded = ((wide + edge > PLAIN_SHARE) | (wide_subject > 0)) & (off_line > 0)
 
     def best_at(grow: int) -> tuple[int, np.ndarray, np.ndarray, bool]:
         share, on_subject = _shares(maps, rects, ax, ay, grow, (sx, sy))
-        cost = share + edge
+        cost = share + EDGE_WEIGHT * np.maximum(inward, 0)
         # plain: a little detail in the margin, none under the squares themselves (a plain-looking
         # place whose squares reach a subject's edge is not plain)
         steps = np.where((cost <= PLAIN_SHARE) & (core == 0), 0, np.ceil(cost / COST_STEP) + 1)
         # lexsort: the last key is the primary one
-        order = np.lexsort((ax, ay, distance, off_line, crowded, cornered, steps, np.round(on_subject, 6)))
+        order = np.lexsort((ax, ay, distance, off_line, cornered, steps, np.round(on_subject, 6)))
         best = int(order[0])
         return best, share, on_subject, bool(on_subject[best] == 0 and steps[best] == 0)
 
