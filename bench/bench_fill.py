@@ -1,4 +1,4 @@
-"""Issue 25, round 4: subject-filling captures judged per view, fairly.
+"""Issue 25, rounds 4 and 5: subject-filling captures judged per view, fairly.
 
 `nice -n 19 python -m bench.bench_fill touch`    every own set, no masks given to ppd (a few minutes)
 `nice -n 19 python -m bench.bench_fill picture`  one view per new set with its mask outline and mark
@@ -42,7 +42,7 @@ from bench.bench_placement import (
 )
 from bench.bench_shrink import make_fountain
 from poisoner.placement import MARGIN
-from testkit.free_room import largest_free_square, two_fit
+from testkit.free_room import largest_free_square, two_fit, two_fit_within
 
 WORK = Path("/tmp") / "ppd-bench-fill"  # its own folder: other rounds' files stay as they were
 POLYGONS = ROOT / "bench" / "fountain_masks.json"
@@ -92,7 +92,9 @@ def room(subject: np.ndarray, full: int, floor: int, margin: int) -> dict[str, A
     squares each with ppd's margin around it (without masks ppd calls a place plain only with it)."""
     return {"room": largest_free_square(subject), "full": full, "floor": floor, "margin": margin,
             "two_whole": two_fit(subject, full), "two_floor": two_fit(subject, floor),
-            "two_floor_margin": two_fit(subject, floor + 2 * margin)}  # fmt: skip
+            "two_floor_margin": two_fit(subject, floor + 2 * margin),
+            # round 5: as the mark can be placed, both squares inside one square of the shorter side
+            "two_floor_box": two_fit_within(subject, floor, min(subject.shape))}  # fmt: skip
 
 
 def sides(width: int, height: int, name: str) -> tuple[int, int]:
@@ -121,10 +123,11 @@ def judge(name: str, give_masks: bool = False) -> dict[str, Any]:
         v.update(room(subject, full, floor, margin))
     views = r["per_view"]
     r.update(set=name, design="masks given" if give_masks else "per-photo (default)",
-             touch_free=sum(v["touches"] and v["two_floor"] for v in views),
+             touch_apart=sum(v["touches"] and v["two_floor"] for v in views),
+             touch_free=sum(v["touches"] and v["two_floor_box"] for v in views),
              touch_margin=sum(v["touches"] and v["two_floor_margin"] for v in views),
-             touch_no_room=sum(v["touches"] and not v["two_floor"] for v in views),
-             no_room=sum(not v["two_floor"] for v in views))  # fmt: skip
+             touch_no_room=sum(v["touches"] and not v["two_floor_box"] for v in views),
+             no_room=sum(not v["two_floor_box"] for v in views))  # fmt: skip
     return r
 
 
@@ -159,24 +162,28 @@ ABOUT = {
 
 
 def write_markdown(rows: list[dict[str, Any]]) -> None:
-    lines = [BEGIN, "## (a) Subject-filling captures, no masks given, judged per view: round 4", "",
+    lines = [BEGIN, "## (a) Subject-filling captures, no masks given, judged per view: round 5", "",
              "`python -m bench.bench_fill touch` (its docstring). `touch`: views with a changed pixel on",
              "the subject (as shown); `touch, room existed`: of those, views where two squares of the",
-             "floor side (half the mark's side) fit off the subject, so a placement off it existed;",
-             "`no room`: views where they do not (no placement avoids the subject); `with margin`: of the",
-             "touches, views where the two squares fit with ppd's margin around each (3% of the shorter",
-             "side: without masks ppd calls a place plain only with it); `said`: views ppd reported 'no",
-             "plain region'; `shrunk`: squares cropped to fit. Goal: touch <= 10% of views.", "",
-             "| set | subject | touch (of N) | touch, room existed | of which with margin | touch, no room "
-             "| no room | said | shrunk | goal (<= 10%) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+             "floor side (half the mark's side) fit off the subject inside one square of the frame's",
+             "shorter side (as ppd places its two squares), so a placement off it existed; `no room`:",
+             "views where they do not (no placement of the mark avoids the subject); `two apart`: of the",
+             "touches, views where two such squares fit off the subject anywhere (round 4's judge: pockets",
+             "at opposite ends of the frame count); `with margin`: of the touches, views where the two",
+             "squares fit with ppd's margin around each (3% of the shorter side: without masks ppd calls",
+             "a place plain only with it); `said`: views ppd reported 'no plain region'; `shrunk`: squares",
+             "cropped to fit. Goal: touch <= 10% of views.", "",
+             "| set | subject | touch (of N) | touch, room existed | two apart | of which with margin "
+             "| touch, no room | no room | said | shrunk | goal (<= 10%) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     given = [r for r in rows if r["design"] == "masks given"]
     rows = [r for r in rows if r["design"] != "masks given"]
     for r in rows:
         n = r["views"]
         met = "met" if r["touch"] <= 0.10 * n else "**not met**"
         lines.append(f"| {r['set']} | {r['subject_share']:.0%} | {r['touch']} of {n} | {r['touch_free']} "
-                     f"| {r['touch_margin']} | {r['touch_no_room']} | {r['no_room']} | {r['said_not_free']} "
+                     f"| {r['touch_apart']} | {r['touch_margin']} | {r['touch_no_room']} | {r['no_room']} "
+                     f"| {r['said_not_free']} "
                      f"| {r['shrunk']} "
                      f"| {met} |")  # fmt: skip
     lines += ["", "Sets: " + "; ".join(f"`{r['set']}`: {ABOUT[r['set']]}" for r in rows) + ".", ""]
@@ -196,13 +203,15 @@ def write_markdown(rows: list[dict[str, Any]]) -> None:
               ""]  # fmt: skip
     for r in rows:
         lines += [f"<details><summary>{r['set']}: per view</summary>", "",
-                  "| view | subject | room | full / floor | two whole | two at floor | + margin | touch "
-                  "| said | shrunk | place |", "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                  "| view | subject | room | full / floor | two whole | two at floor | in one box | + margin "
+                  "| touch | said | shrunk | place |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for v in r["per_view"]:
             yes = {True: "yes", False: "-"}
             lines.append(
                 f"| {v['name']} | {v['subject_share']:.0%} | {v['room']} | {v['full']} / {v['floor']} "
-                f"| {yes[v['two_whole']]} | {yes[v['two_floor']]} | {yes[v['two_floor_margin']]} "
+                f"| {yes[v['two_whole']]} | {yes[v['two_floor']]} | {yes[v['two_floor_box']]} "
+                f"| {yes[v['two_floor_margin']]} "
                 f"| {'**touch**' if v['touches'] else '-'} "
                 f"| {yes[v['free'] is False]} | {yes[bool(v.get('shrunk'))]} | {v['words']} |"
             )

@@ -6,9 +6,11 @@ place off it for even one full square. So where no plain place holds the squares
 is CROPPED (never rescaled) to the largest side, in whole blocks, that a plain place holds: the
 top-left part of the same texture, the same blocks at the same block size, so its SIFT features are
 those of the full copies in the other photos, both lanes keep pixel-identical copies and keep sliding
-by whole pixels (poisoner/spec.py `_resolve_lanes`, poisoner/motion.py). Only when even the floor
-size finds no plain place does the mark go whole to the least-bad place, said "no plain region" as
-before. A photo whose full mark has a plain place is placed exactly as before (byte-identical).
+by whole pixels (poisoner/spec.py `_resolve_lanes`, poisoner/motion.py). When even the floor size
+finds no plain place, the mark goes to the least-bad place, said "no plain region" as before: round 5
+(no masks) takes there the crop whose squares themselves hold the least detail, whole or cropped
+(dtu_scan37's 70% crops: half-size squares fit plain pockets by the subject, 2 -> 0 views touching
+it). A photo whose full mark has a plain place is placed exactly as before (byte-identical).
 """
 
 from __future__ import annotations
@@ -52,15 +54,23 @@ def place_fitting(
 ) -> tuple[PatchPlacement, MarkPlace]:
     """place_on_photo's answer where it found a free place (or had nothing to judge on, or the mark
     has no lanes to crop); otherwise the largest crop of the squares (crop_sides) that finds a
-    free place, its MarkPlace saying so (`shrunk`); otherwise the whole mark at the least-bad place."""
+    free place, its MarkPlace saying so (`shrunk`); otherwise the least-bad place: without masks, of
+    the whole mark and its crops the one whose squares hold the least detail (the largest on a tie),
+    with masks the whole mark's (the keep-out decides what is written)."""
     placement, place = place_on_photo(spec, width, height, image_key, orientation, detail, subject)
     if place.free or detail is None or not placement.parts:
         return placement, place
     full = placement.lane_size
+    least_bad = (place.detail, placement, place)
     for side in crop_sides(full, placement.block, floor):
         cropped, where = place_on_photo(
             spec, width, height, image_key, orientation, detail, subject, crop=side
         )
         if where.free:
             return cropped, dataclasses.replace(where, shrunk=(side, full))
-    return placement, place
+        if subject is None and where.detail < least_bad[0]:
+            least_bad = (where.detail, cropped, dataclasses.replace(where, shrunk=(side, full)))
+    # round 5: nowhere free, no masks: the crop whose squares themselves hold the least detail (a
+    # subject filling all but a few pockets of the frame: half-size squares fit pockets whole ones
+    # cannot), still said "no plain region"; with masks the keep-out decides what is written
+    return least_bad[1], least_bad[2]

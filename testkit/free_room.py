@@ -38,3 +38,24 @@ def two_fit(subject: np.ndarray, side: int) -> bool:
         return False
     ys, xs = np.nonzero(ok)
     return bool(xs.max() - xs.min() >= side or ys.max() - ys.min() >= side)
+
+
+def two_fit_within(subject: np.ndarray, side: int, box: int) -> bool:
+    """two_fit with the default mark's own geometry: both squares inside one box x box square (ppd
+    keeps its two lanes within a square of the frame's shorter side, poisoner.placement.choose_split),
+    so pockets at opposite ends of a wide frame do not count as room for the mark. A fitting corner p
+    has a partner q when some fitting corner lies within box - side of it in x and y (Chebyshev) but
+    not within side - 1 of it (the squares would overlap): two window counts on one integral image."""
+    ok = fits(subject, side)
+    if not ok.any() or box < 2 * side:
+        return False
+    s = np.zeros((ok.shape[0] + 1, ok.shape[1] + 1), dtype=np.int64)
+    s[1:, 1:] = ok.astype(np.int64).cumsum(0).cumsum(1)
+    ys, xs = np.nonzero(ok)
+
+    def count(radius: int) -> np.ndarray:
+        y0, y1 = np.clip(ys - radius, 0, ok.shape[0]), np.clip(ys + radius + 1, 0, ok.shape[0])
+        x0, x1 = np.clip(xs - radius, 0, ok.shape[1]), np.clip(xs + radius + 1, 0, ok.shape[1])
+        return s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0]
+
+    return bool((count(box - side) - count(side - 1) > 0).any())

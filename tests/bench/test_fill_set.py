@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from testkit.free_room import fits, largest_free_square, two_fit
+from testkit.free_room import fits, largest_free_square, two_fit, two_fit_within
 
 
 def test_the_largest_free_square_is_the_biggest_hole_in_the_mask() -> None:
@@ -53,3 +53,18 @@ def test_a_fill_view_has_its_subject_about_two_thirds_of_the_frame(shared_dir: P
     assert around.std() > 15  # a real textured surrounding, not a plain backdrop
     again, _ = render(rot, trans, planes, 12)
     assert np.array_equal(rgb, again)  # deterministic: the same bytes every run
+
+
+def test_two_squares_count_as_room_only_within_one_box_of_the_shorter_side() -> None:
+    """Two pockets at opposite ends of a wide frame hold a square each, but ppd keeps its two squares
+    inside one square of the frame's shorter side: room for two squares, not for the mark."""
+    subject = np.ones((60, 200), dtype=bool)
+    subject[:10, :10] = False  # a pocket top-left
+    subject[50:, 190:] = False  # and one bottom-right, 180 px away
+    assert two_fit(subject, 10)
+    assert not two_fit_within(subject, 10, 60)
+    subject[50:, 40:50] = False  # a third pocket 40 px from the first: both inside a 60 px square
+    assert two_fit_within(subject, 10, 60) and not two_fit_within(subject, 10, 49)
+    one = np.ones((60, 60), dtype=bool)
+    one[:15, :15] = False  # room for one 10 px square only: its fitting corners overlap each other
+    assert not two_fit_within(one, 10, 60)

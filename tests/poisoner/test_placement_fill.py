@@ -4,6 +4,8 @@ near the frame's edge, as the stacked mark does (a plain patch inside the frame 
 smooth face); the masks, when given, still allow any place off the subject. A photo whose stacked
 mark has a plain place is placed as before (bench/bench_identical.py: lego, dtu_scan37 byte for byte).
 
+Round 5: where no place is free even cropped (no masks), the crop whose squares hold the least detail.
+
 Real files (PNG); no mocks."""
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from PIL import Image
 
 from poisoner.formats import poison_file
 from poisoner.ladder import default_spec
+from poisoner.placement import _parts
+from poisoner.shrink import place_fitting
 from tests.poisoner.test_placement_photo import changed_shown, textured
 
 SPEC = default_spec()
@@ -71,3 +75,21 @@ def test_a_square_finds_a_pocket_between_the_coarse_grid_anchors(tmp_path: Path)
     assert report.place is not None and report.place.free and report.place.shrunk is None
     diff = changed_shown(src, tmp_path / "out.png")
     assert diff.sum() == 2 * 48 * 48 and not (diff & ~region(diff.shape, pockets)).any()
+
+
+# ---- round 5: nowhere free, the least-bad place of the cropped squares too ------------------------------
+def test_nowhere_free_the_squares_go_cropped_into_pockets_the_whole_mark_cannot_fit() -> None:
+    """A busy frame with two plain pockets at the top edge, each room for a cropped square but not with
+    ppd's margin (so no place is called free, even cropped): the least-bad place is the crop whose
+    squares hold no detail, not the whole mark over busy pixels (round 4: 81% of its footprint); it is
+    still said 'no plain region', and marked as shrunk."""
+    detail = np.ones((150, 200), dtype=bool)  # 4 px cells of an 800 x 600 frame
+    detail[0:8, 75:83] = False  # x 300-332, y 0-32
+    detail[0:8, 90:98] = False  # x 360-392
+    placement, where = place_fitting(SPEC, 800, 600, "v_1.png", 1, detail)
+    assert not where.free and where.source == "no-plain"
+    assert where.shrunk is not None and where.shrunk[0] < placement.lane_size
+    assert where.detail == 0.0
+    for x0, y0, x1, y1 in _parts(placement):
+        cells = detail[y0 // 4 : -(-y1 // 4), x0 // 4 : -(-x1 // 4)]
+        assert not cells.any(), (x0, y0, x1, y1)  # each written square inside a pocket
