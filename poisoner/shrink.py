@@ -8,7 +8,7 @@ top-left part of the same texture, the same blocks at the same block size, so it
 those of the full copies in the other photos, both lanes keep pixel-identical copies and keep sliding
 by whole pixels (poisoner/spec.py `_resolve_lanes`, poisoner/motion.py). When even the floor size
 finds no plain place, the mark goes to the least-bad place, said "no plain region" as before: round 5
-(no masks) takes there the crop whose squares themselves hold the least detail, whole or cropped
+(no masks) takes there a crop whose squares themselves are plain, if any, without the margin
 (dtu_scan37's 70% crops: half-size squares fit plain pockets by the subject, 2 -> 0 views touching
 it). A photo whose full mark has a plain place is placed exactly as before (byte-identical).
 """
@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from poisoner.mark_place import MarkPlace
-from poisoner.placement import place_on_photo
+from poisoner.placement import PLAIN_SHARE, place_on_photo
 from poisoner.spec import PatchPlacement, PatchSpec
 
 # The smallest side a square is cropped to, as a share of its full side. Half the side is a quarter
@@ -54,9 +54,9 @@ def place_fitting(
 ) -> tuple[PatchPlacement, MarkPlace]:
     """place_on_photo's answer where it found a free place (or had nothing to judge on, or the mark
     has no lanes to crop); otherwise the largest crop of the squares (crop_sides) that finds a
-    free place, its MarkPlace saying so (`shrunk`); otherwise the least-bad place: without masks, of
-    the whole mark and its crops the one whose squares hold the least detail (the largest on a tie),
-    with masks the whole mark's (the keep-out decides what is written)."""
+    free place, its MarkPlace saying so (`shrunk`); otherwise the least-bad place: without masks the
+    plainest crop whose squares are plain (PLAIN_SHARE) where the whole mark's are not (the largest on
+    a tie), else the whole mark's."""
     placement, place = place_on_photo(spec, width, height, image_key, orientation, detail, subject)
     if place.free or detail is None or not placement.parts:
         return placement, place
@@ -68,9 +68,10 @@ def place_fitting(
         )
         if where.free:
             return cropped, dataclasses.replace(where, shrunk=(side, full))
-        if subject is None and where.detail < least_bad[0]:
+        if subject is None and where.detail < least_bad[0] and where.detail <= PLAIN_SHARE:
             least_bad = (where.detail, cropped, dataclasses.replace(where, shrunk=(side, full)))
-    # round 5: nowhere free, no masks: the crop whose squares themselves hold the least detail (a
-    # subject filling all but a few pockets of the frame: half-size squares fit pockets whole ones
-    # cannot), still said "no plain region"; with masks the keep-out decides what is written
+    # round 5: nowhere free, no masks: a crop whose squares themselves are plain (a subject filling
+    # all but a few pockets of the frame: half-size squares fit pockets whole ones cannot), the
+    # plainest, still said "no plain region"; a busy photo keeps its whole mark (a crop a shade less
+    # busy is no better place and a weaker mark); with masks the keep-out decides what is written
     return least_bad[1], least_bad[2]

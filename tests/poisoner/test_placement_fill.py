@@ -93,3 +93,12 @@ def test_nowhere_free_the_squares_go_cropped_into_pockets_the_whole_mark_cannot_
     for x0, y0, x1, y1 in _parts(placement):
         cells = detail[y0 // 4 : -(-y1 // 4), x0 // 4 : -(-x1 // 4)]
         assert not cells.any(), (x0, y0, x1, y1)  # each written square inside a pocket
+
+
+def test_nowhere_plain_at_all_the_whole_mark_stays_whole() -> None:
+    """Busy everywhere: a crop is a shade less busy somewhere, but no better place and a weaker mark;
+    the whole mark goes to the least-bad place, uncropped."""
+    detail = np.ones((150, 200), dtype=bool)
+    detail[::7, ::5] = False  # a few scattered plain cells, no pocket a square fits
+    placement, where = place_fitting(SPEC, 800, 600, "v_1.png", 1, detail)
+    assert not where.free and where.shrunk is None and where.detail > 0.5
