@@ -13,6 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from poisoner.formats import poison_file
@@ -102,3 +103,36 @@ def test_nowhere_plain_at_all_the_whole_mark_stays_whole() -> None:
     detail[::7, ::5] = False  # a few scattered plain cells, no pocket a square fits
     placement, where = place_fitting(SPEC, 800, 600, "v_1.png", 1, detail)
     assert not where.free and where.shrunk is None and where.detail > 0.5
+
+
+def test_skipping_crops_no_square_could_be_plain_changes_no_answer(monkeypatch: pytest.MonkeyPatch) -> None:
+    """place_fitting skips a crop side when no square of it holds <= PLAIN_SHARE detail anywhere (a
+    necessary condition of a free place and of the plain-crop fallback): on busy maps with pockets of
+    every size, the answer is the one the unskipped loop gives."""
+    import poisoner.shrink as shrink
+
+    rng = np.random.default_rng(5)
+    cases = []
+    for k in range(12):
+        detail = rng.random((150, 200)) < 0.6
+        for _ in range(k % 4):  # 0-3 plain pockets of 4-12 cells (16-48 px), anywhere
+            y, x, s = rng.integers(0, 140), rng.integers(0, 190), rng.integers(4, 13)
+            detail[y : y + s, x : x + s] = False
+            if k % 2:  # a speck of detail: plain, not empty (a share between 0 and PLAIN_SHARE)
+                detail[y + s // 2, x + s // 2] = True
+        cases.append(detail)
+    skipped = [place_fitting(SPEC, 800, 600, f"v_{i}.png", 1, d) for i, d in enumerate(cases)]
+    monkeypatch.setattr(shrink, "_some_square_plain", lambda *a: True)
+    every = [place_fitting(SPEC, 800, 600, f"v_{i}.png", 1, d) for i, d in enumerate(cases)]
+    assert skipped == every
+    assert any(p.shrunk for _, p in every)  # the cases reach the crops
+
+
+def test_some_square_plain_sees_a_pocket_of_the_side_and_nothing_smaller() -> None:
+    from poisoner.shrink import _some_square_plain
+
+    detail = np.ones((150, 200), dtype=bool)
+    assert not _some_square_plain(detail, (800, 600), 24)
+    detail[10:17, 50:57] = False  # 7 x 7 cells = 28 px: room for a 24 px square (6-7 cells)
+    assert _some_square_plain(detail, (800, 600), 24)
+    assert not _some_square_plain(detail, (800, 600), 40)  # 10-11 cells: more than the pocket
