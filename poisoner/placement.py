@@ -232,9 +232,9 @@ def choose_spot(
     lx, ly = _line(preferred, direction, (max(0, -rx0), w - rx1), (max(0, -ry0), h - ry1))
     ax, ay = np.concatenate([gx, lx]), np.concatenate([gy, ly])
 
-    maps = {"detail": _integral(detail)}
+    maps = {"detail": integral_image(detail)}
     if subject is not None:
-        maps["subject"] = _integral(subject)
+        maps["subject"] = integral_image(subject)
     inward = np.minimum.reduce([ax + rx0, ay + ry0, w - (ax + rx1), h - (ay + ry1)]) / min(w, h)
     cornered = _in_corners(ax, ay, rects, (w, h), corner_region)
     dx, dy = direction
@@ -316,9 +316,9 @@ def choose_split(
     scale = (tw / w, th / h)
     margin = max(1, round(MARGIN * min(w, h)))
     stride = max(1, min(w, h) // SPLIT_GRID)
-    maps = {"detail": _integral(detail)}
+    maps = {"detail": integral_image(detail)}
     if subject is not None:
-        maps["subject"] = _integral(subject)
+        maps["subject"] = integral_image(subject)
     picks = []
     for (x0, y0, x1, y1), pref in zip(lane_rects, preferred, strict=True):
         xr, yr = (max(0, -x0), w - x1), (max(0, -y0), h - y1)
@@ -367,7 +367,7 @@ def _inward(
     return np.minimum.reduce([ax + x0, ay + y0, w - (ax + x1), h - (ay + y1)]) / min(w, h)
 
 
-def _integral(m: np.ndarray) -> np.ndarray:
+def integral_image(m: np.ndarray) -> np.ndarray:
     """A map's integral image, one row and column of zeros first (for _rect_sums)."""
     th, tw = m.shape
     out = np.zeros((th + 1, tw + 1))
@@ -477,7 +477,8 @@ def _split_lanes(
     spots, worst = found
     at = np.array([spot.x]), np.array([spot.y])
     stacked, _, _ = _badness(
-        {"detail": _integral(detail), **({"subject": _integral(subject)} if subject is not None else {})},
+        {"detail": integral_image(detail),
+         **({"subject": integral_image(subject)} if subject is not None else {})},
         parts, *at, max(1, round(MARGIN * min(frame))),
         (detail.shape[1] / frame[0], detail.shape[0] / frame[1]),
         _inward(*at, zero.box, frame) if subject is None else None,

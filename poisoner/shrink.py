@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from poisoner.mark_place import MarkPlace
-from poisoner.placement import PLAIN_SHARE, place_on_photo
+from poisoner.placement import PLAIN_SHARE, integral_image, place_on_photo
 from poisoner.spec import PatchPlacement, PatchSpec
 
 # The smallest side a square is cropped to, as a share of its full side. Half the side is a quarter
@@ -62,8 +62,9 @@ def place_fitting(
         return placement, place
     full = placement.lane_size
     least_bad = (place.detail, placement, place)
+    sums = integral_image(detail)
     for side in crop_sides(full, placement.block, floor):
-        if subject is None and not _some_square_plain(detail, place.frame, side):
+        if subject is None and not _some_square_plain(sums, place.frame, side):
             continue  # no square of this side is plain anywhere: neither free nor the fallback's
         cropped, where = place_on_photo(
             spec, width, height, image_key, orientation, detail, subject, crop=side
@@ -79,21 +80,20 @@ def place_fitting(
     return least_bad[1], least_bad[2]
 
 
-def _some_square_plain(detail: np.ndarray, frame: tuple[int, int], side: int) -> bool:
+def _some_square_plain(integral: np.ndarray, frame: tuple[int, int], side: int) -> bool:
     """Whether any side x side square of a frame (w, h display px) could hold at most PLAIN_SHARE
-    detail on the thumbnail: what a free place (no detail under its squares) and the plain-crop
-    fallback both need, so a side that fails is skipped without changing the answer (round 5: on a
-    photo busy everywhere, 10 of the 11 placements place_fitting tried). A square's thumbnail cells
-    (poisoner.placement._shares) span ceil(side x scale) or one more per axis; one fewer is also
-    tried, against float rounding, which only makes this say yes more often."""
-    th, tw = detail.shape
+    detail on the thumbnail (`integral`: its placement.integral_image): what a free place (no detail
+    under its squares) and the plain-crop fallback both need, so a side that fails is skipped without
+    changing the answer (round 5: on a photo busy everywhere, 10 of the 11 placements place_fitting
+    tried). A square's thumbnail cells (poisoner.placement._shares) span ceil(side x scale) or one
+    more per axis; one fewer is also tried, against float rounding, which only makes this say yes
+    more often."""
+    th, tw = (n - 1 for n in integral.shape)
     w, h = frame
     spans = []
     for cells_per_side in (side * tw / w, side * th / h):
         c = math.ceil(cells_per_side)
         spans.append(sorted({max(1, c - 1), c, c + 1}))
-    integral = np.zeros((th + 1, tw + 1))
-    integral[1:, 1:] = np.asarray(detail, dtype=np.float64).cumsum(0).cumsum(1)
     for cw in spans[0]:
         for ch in spans[1]:
             if cw > tw or ch > th:

@@ -129,10 +129,11 @@ def test_skipping_crops_no_square_could_be_plain_changes_no_answer(monkeypatch: 
 
 
 def test_some_square_plain_sees_a_pocket_of_the_side_and_nothing_smaller() -> None:
+    from poisoner.placement import integral_image
     from poisoner.shrink import _some_square_plain
 
     detail = np.ones((150, 200), dtype=bool)
-    assert not _some_square_plain(detail, (800, 600), 24)
+    assert not _some_square_plain(integral_image(detail), (800, 600), 24)
     detail[10:17, 50:57] = False  # 7 x 7 cells = 28 px: room for a 24 px square (6-7 cells)
-    assert _some_square_plain(detail, (800, 600), 24)
-    assert not _some_square_plain(detail, (800, 600), 40)  # 10-11 cells: more than the pocket
+    assert _some_square_plain(integral_image(detail), (800, 600), 24)
+    assert not _some_square_plain(integral_image(detail), (800, 600), 40)  # 10-11 cells: more than the pocket
