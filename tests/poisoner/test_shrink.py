@@ -143,12 +143,29 @@ def test_with_masks_cropped_squares_stay_off_the_subject(tmp_path: Path) -> None
 
 def test_nowhere_plain_even_at_the_floor_keeps_the_whole_mark_and_says_so(tmp_path: Path) -> None:
     src = tmp_path / "v_2.png"
-    where = pockets(src, 60)  # too small even for half squares with their margin
+    where = pockets(src, 20)  # smaller than the half-size square itself
     assert where
     report = poison_file(src, tmp_path / "out.png", SPEC)
     place = report.place
     assert place is not None and not place.free and place.shrunk is None
     assert report.placement.lane_crop == 0 and place.short() == "mark on the subject: no plain region"
+
+
+def test_pockets_too_small_for_the_margin_take_the_cropped_squares_and_say_so(tmp_path: Path) -> None:
+    """Round 5: 60 px pockets hold the half-size squares but not their margin, so no place is free,
+    even cropped (round 4 wrote the whole mark over the busy subject); the least-bad place is now the
+    cropped squares inside the pockets, every changed pixel in them, still said."""
+    src = tmp_path / "v_2.png"
+    where = pockets(src, 60)
+    report = poison_file(src, tmp_path / "out.png", SPEC)
+    place = report.place
+    assert place is not None and not place.free and place.shrunk is not None
+    assert place.short() == "mark on the subject: no plain region"
+    diff = changed(src, tmp_path / "out.png")
+    inside = np.zeros_like(diff)
+    for rows, cols in where:
+        inside[rows, cols] = True
+    assert diff.any() and not (diff & ~inside).any()
 
 
 def test_a_shrunk_mark_is_said_per_file_in_the_summary_and_by_preview(
