@@ -400,7 +400,8 @@ def poison_file(
         load_decoded(src, im)
     width, height = im.size
     keep = checked_keep_out(src.name, keep_out, (width, height))
-    placement, place = plan_mark(src.name, data, (width, height), spec, keep)
+    loaded = not region or fmt != "JPEG"  # a JPEG patched by region is not decoded whole
+    placement, place = plan_mark(src.name, data, (width, height), spec, keep, im if loaded else None)
     lanes = lane_placements(placement)  # squares placed apart: counted a square at a time (the same pixels)
     written = sum(written_pixels(square, keep) for square in lanes or [placement])
     if written == 0:  # never "patched" with no changed pixel (issue 25): nothing is written to dst
@@ -441,17 +442,23 @@ def _read_source(src: Path, dst: Path, max_pixels: int | None) -> bytes:
 
 
 def plan_mark(
-    name: str, data: bytes, size: tuple[int, int], spec: PatchSpec, keep: np.ndarray | None = None
+    name: str,
+    data: bytes,
+    size: tuple[int, int],
+    spec: PatchSpec,
+    keep: np.ndarray | None = None,
+    decoded: Image.Image | None = None,
 ) -> tuple[PatchPlacement, MarkPlace | None]:
     """Where the mark goes on this file (stored pixels) and, for a per-photo spec, where it shows
     and why. A per-photo spec judges the file's own display-oriented thumbnail and its keep-out
     (subject) mask (poisoner.placement.place_on_photo); any other spec resolves on the stored size
-    (the real name: moving specs, issue #9). What ppd preview calls too, so both agree."""
+    (the real name: moving specs, issue #9). What ppd preview calls too, so both agree. `decoded`:
+    the file already loaded, so the thumbnail need not decode it again where that is exact."""
     width, height = size
     try:
         if not spec.per_photo:
             return spec.resolve(width, height, image_key=name), None
-        detail, orientation = display_detail(data, name)
+        detail, orientation = display_detail(data, name, decoded)
         subject = None if keep is None else display_subject(keep, orientation, detail.shape)
         # issue 25 round 3: squares cropped to fit where no plain place holds them whole
         return place_fitting(spec, width, height, name, orientation, detail, subject)

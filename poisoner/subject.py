@@ -241,11 +241,15 @@ def _gradient(grey: np.ndarray) -> np.ndarray:
     return np.hypot(gx, gy)
 
 
-def display_detail(data: bytes, name: str = "image") -> tuple[np.ndarray, int]:
+def display_detail(
+    data: bytes, name: str = "image", decoded: Image.Image | None = None
+) -> tuple[np.ndarray, int]:
     """(detail, orientation) of an encoded image: detail is True where a THUMBNAIL_PX thumbnail, as
     a viewer shows it (EXIF orientation applied), has visible detail (gradient above DETAIL_LEVEL);
     what per-photo placement judges (poisoner.placement.place_on_photo). Decoded from the bytes
-    alone, so ppd poison and ppd preview judge exactly the same thumbnail."""
+    alone, so ppd poison and ppd preview judge exactly the same thumbnail. `decoded`: the same bytes
+    already opened and loaded by the caller; used instead of a second decode only where that gives
+    the same thumbnail (reuses_decode), else ignored."""
     import io
 
     from PIL import Image
@@ -253,10 +257,27 @@ def display_detail(data: bytes, name: str = "image") -> tuple[np.ndarray, int]:
     from poisoner.image.read import decode_errors
     from poisoner.orientation import orient_array, orientation_of
 
-    with decode_errors(Path(name)), Image.open(io.BytesIO(data)) as im:
-        orientation = orientation_of(im.getexif().get(0x0112))
-        grad = _gradient(_grey_thumbnail(im))
+    # The orientation is read once the pixels are decoded: Pillow turns a TIFF upright as it loads
+    # it and drops its orientation tag (read from the header, the thumbnail was turned twice).
+    with decode_errors(Path(name)):
+        if decoded is not None and reuses_decode(decoded):
+            grad = _gradient(_grey_thumbnail(decoded.copy()))  # thumbnail() resizes in place
+            orientation = orientation_of(decoded.getexif().get(0x0112))
+        else:
+            with Image.open(io.BytesIO(data)) as im:
+                grad = _gradient(_grey_thumbnail(im))
+                orientation = orientation_of(im.getexif().get(0x0112))
     return orient_array(grad > DETAIL_LEVEL, orientation), orientation
+
+
+def reuses_decode(im: Image.Image) -> bool:
+    """Whether a (loaded) image gives display_detail the thumbnail its bytes give: when its format
+    decodes the same pixels at any requested size (no scaled decode: `draft` is Pillow's no-op; a
+    JPEG's draft decodes at 1/8 and differs from the full decode). Issue 30: a PNG was decoded twice
+    per file (once to poison, once here), 24 ms of an 800 px view's ~150 ms."""
+    from PIL import Image
+
+    return type(im).draft is Image.Image.draft
 
 
 def frame_detail(rgb: np.ndarray) -> np.ndarray:

@@ -55,8 +55,9 @@ def load_picture(path: Path) -> tuple[Any, int | None]:
                 return frame_to_rgb(frame), None
         raise ValueError("no video frame")
     with Image.open(path) as im:
-        orientation = im.getexif().get(0x0112)
-        return np.asarray(im.convert("RGB")), orientation if isinstance(orientation, int) else None
+        rgb = np.asarray(im.convert("RGB"))
+        orientation = im.getexif().get(0x0112)  # after the decode: Pillow turns a TIFF upright as it loads
+        return rgb, orientation if isinstance(orientation, int) else None
 
 
 def _load(path: Path) -> tuple[Any, int | None]:

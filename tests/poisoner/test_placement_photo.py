@@ -129,6 +129,41 @@ def test_exif_6_phone_photo_gets_the_mark_where_it_shows_plain(tmp_path: Path) -
     assert stored_box_shown(report.placement, report.width, report.height) == place.box
 
 
+
+@pytest.mark.parametrize("fmt", ["TIFF", "WEBP", "PNG", "HEIF"])
+def test_a_turned_photo_in_any_format_is_marked_where_it_shows_plain(fmt: str, tmp_path: Path) -> None:
+    """Orientation 6 in every format that carries it: the place ppd reports, the pixels it changed
+    and `ppd preview`'s line agree, as shown. Pillow turns a TIFF (and pillow-heif a HEIC) upright as
+    it decodes it and drops the tag: read from the header first, the TIFF's thumbnail was turned
+    twice and ppd said "top-left" of a mark it wrote at the bottom."""
+    if fmt == "HEIF":
+        pytest.importorskip("pillow_heif").register_heif_opener()
+    shown = textured(320, 240, 7)
+    shown[250:, :] = 190  # plain floor at the bottom of what the viewer sees
+    im = Image.fromarray(np.ascontiguousarray(unorient_array(shown, 6)))
+    exif = im.getexif()
+    exif[0x0112] = 6
+    suffix = {"TIFF": "tif", "WEBP": "webp", "PNG": "png", "HEIF": "heic"}[fmt]
+    src, dst = tmp_path / f"IMG_0001.{suffix}", tmp_path / f"out.{suffix}"
+    options = {"WEBP": {"lossless": True}, "HEIF": {"quality": 95}}.get(fmt, {})
+    im.save(src, format=fmt, exif=exif.tobytes(), **options)
+    report = poison_file(src, dst, SPEC)
+    place = report.place
+    assert place is not None and place.free and place.frame == (240, 320)
+    assert place.words.startswith("bottom"), place.words
+    a = np.asarray(ImageOps.exif_transpose(Image.open(src)).convert("RGB")).astype(int)
+    b = np.asarray(ImageOps.exif_transpose(Image.open(dst)).convert("RGB")).astype(int)
+    changed = np.abs(a - b).max(axis=2) > (40 if fmt == "HEIF" else 0)  # HEIC: its re-encode's noise
+    ys, xs = np.nonzero(changed)
+    x0, y0, x1, y1 = place.box
+    assert ys.size > 100 and ys.min() >= 250
+    assert xs.min() >= x0 and xs.max() < x1 and ys.min() >= y0 and ys.max() < y1
+    out = runner.invoke(app, ["preview", str(src), "--out", str(tmp_path / "p.png"), "--no-visibility"])
+    assert out.exit_code == 0, out.output
+    said = MARK_AT.search(out.output)
+    assert said is not None and said.group(1) == place.words, out.output
+    assert tuple(int(v) for v in said.groups()[1:]) == place.box
+
 def test_lanes_are_pixel_identical_as_shown_whatever_the_orientation(tmp_path: Path) -> None:
     """The same photo stored upright and stored turned (orientation 6): as shown, the same mark at
     the same place, pixel for pixel (lossless PNG)."""
