@@ -63,8 +63,9 @@ def place_fitting(
     full = placement.lane_size
     least_bad = (place.detail, placement, place)
     sums = integral_image(detail)
+    plain_boxes: dict[tuple[int, int], bool] = {}  # neighbouring sides share most box sizes
     for side in crop_sides(full, placement.block, floor):
-        if subject is None and not _some_square_plain(sums, place.frame, side):
+        if subject is None and not _some_square_plain(sums, place.frame, side, plain_boxes):
             continue  # no square of this side is plain anywhere: neither free nor the fallback's
         cropped, where = place_on_photo(
             spec, width, height, image_key, orientation, detail, subject, crop=side
@@ -80,14 +81,17 @@ def place_fitting(
     return least_bad[1], least_bad[2]
 
 
-def _some_square_plain(integral: np.ndarray, frame: tuple[int, int], side: int) -> bool:
+def _some_square_plain(
+    integral: np.ndarray, frame: tuple[int, int], side: int, known: dict[tuple[int, int], bool] | None = None
+) -> bool:
     """Whether any side x side square of a frame (w, h display px) could hold at most PLAIN_SHARE
     detail on the thumbnail (`integral`: its placement.integral_image): what a free place (no detail
     under its squares) and the plain-crop fallback both need, so a side that fails is skipped without
     changing the answer (round 5: on a photo busy everywhere, 10 of the 11 placements place_fitting
     tried). A square's thumbnail cells (poisoner.placement._shares) span ceil(side x scale) or one
     more per axis; one fewer is also tried, against float rounding, which only makes this say yes
-    more often."""
+    more often. `known`: answers per box size (cells wide, high) already found for this integral."""
+    known = {} if known is None else known
     th, tw = (n - 1 for n in integral.shape)
     w, h = frame
     spans = []
@@ -98,7 +102,9 @@ def _some_square_plain(integral: np.ndarray, frame: tuple[int, int], side: int) 
         for ch in spans[1]:
             if cw > tw or ch > th:
                 continue
-            sums = integral[ch:, cw:] - integral[:-ch, cw:] - integral[ch:, :-cw] + integral[:-ch, :-cw]
-            if (sums / (cw * ch) <= PLAIN_SHARE).any():
+            if (cw, ch) not in known:
+                sums = integral[ch:, cw:] - integral[:-ch, cw:] - integral[ch:, :-cw] + integral[:-ch, :-cw]
+                known[cw, ch] = bool((sums / (cw * ch) <= PLAIN_SHARE).any())
+            if known[cw, ch]:
                 return True
     return False

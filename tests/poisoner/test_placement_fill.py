@@ -137,3 +137,24 @@ def test_some_square_plain_sees_a_pocket_of_the_side_and_nothing_smaller() -> No
     detail[10:17, 50:57] = False  # 7 x 7 cells = 28 px: room for a 24 px square (6-7 cells)
     assert _some_square_plain(integral_image(detail), (800, 600), 24)
     assert not _some_square_plain(integral_image(detail), (800, 600), 40)  # 10-11 cells: more than the pocket
+
+
+def test_some_square_plain_answers_the_same_with_box_sizes_remembered_across_sides() -> None:
+    """place_fitting remembers each box size's answer across the crop sides it tries (neighbouring
+    sides share most): every side gets the answer a fresh call gives, yes and no both occurring."""
+    from poisoner.placement import integral_image
+    from poisoner.shrink import _some_square_plain
+
+    rng = np.random.default_rng(11)
+    answers = []
+    for k in range(6):
+        detail = rng.random((171, 256)) < 0.7
+        y, x, s = rng.integers(0, 150), rng.integers(0, 230), 6 + 3 * k  # one pocket, a size per map
+        detail[y : y + s, x : x + s] = False
+        sums, known = integral_image(detail), {}
+        for side in range(400, 100, -10):  # sides as crop_sides gives them at 4240 px: 10 px blocks
+            shared = _some_square_plain(sums, (4240, 2832), side, known)
+            assert shared == _some_square_plain(sums, (4240, 2832), side)
+            answers.append(shared)
+        assert known  # the sizes were remembered
+    assert any(answers) and not all(answers)
