@@ -127,6 +127,24 @@ def test_the_hint_does_not_depend_on_the_size(tmp_path: Path) -> None:
     assert abs(small.edge_textured_fraction - large.edge_textured_fraction) < 0.05
 
 
+
+def test_photos_larger_than_any_set_the_mark_held_on_are_said_so(tmp_path: Path) -> None:
+    """Issue 30: a plain-background set held at 1600 px and was NOT protected at 3200 and 6000 px, which
+    the figures (taken at the mark's scale) cannot see: the line names the size above HELD_UP_TO_PX,
+    and only there; the kind does not change."""
+    from poisoner.scene import HELD_UP_TO_PX
+
+    files = _object_on_plain(tmp_path)
+    big = tmp_path / "big"
+    big.mkdir()
+    for f in files:
+        with Image.open(f) as im:
+            im.resize((3200, 2400), Image.Resampling.BICUBIC).save(big / f.name)
+    small, large = scene_hint("obj", files), scene_hint("obj", sorted(big.iterdir()))
+    assert small is not None and large is not None and small.kind == large.kind == SceneKind.PLAIN
+    assert small.long_side == W <= HELD_UP_TO_PX and "NOT protected" not in small.sentence
+    assert large.long_side == 3200 and "At 3200 px" in large.sentence and "NOT protected" in large.sentence
+
 def test_transparent_pixels_are_read_on_white(tmp_path: Path) -> None:
     """NeRF-style RGBA: whatever colour hides under alpha 0 is not texture."""
     rng = np.random.default_rng(4)
