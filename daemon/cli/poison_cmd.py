@@ -89,7 +89,7 @@ def summary(
 
     _print_counts(outcomes, dry_run)
     if scene_notes():
-        _print_scene_notes(jobs)
+        _print_scene_notes(ctx, jobs, outcomes)
     if dry_run:
         return
     for place in output_places(jobs):
@@ -125,15 +125,22 @@ def interrupted_summary(outcomes: list[ProtectOutcome], total: int, dry_run: boo
             err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
 
 
-def _print_scene_notes(jobs: list[Job]) -> None:
+def _print_scene_notes(ctx: AppContext, jobs: list[Job], outcomes: list[ProtectOutcome]) -> None:
     """One line per dataset saying what kind of scene it looks like (poisoner.scene): what ppd can
-    and cannot protect, up front; it never claims protection."""
+    and cannot protect, up front; it never claims protection. It reads each file's original where
+    the vault holds it (the file itself carries ppd's mark by now), else the file."""
     from daemon.cli.scene_note import print_scene_notes  # numpy/PIL only when it runs
 
     by_dataset: dict[str, list[Path]] = {}
     for job in jobs:
         by_dataset.setdefault(job.dataset, []).append(job.path)
-    print_scene_notes(console(), by_dataset)
+    kept = {o.path: o.original_sha256 for o in outcomes if o.original_sha256 and not o.dry_run}
+
+    def original(path: Path) -> Path:
+        sha = kept.get(path)
+        return ctx.vault.path_for(sha) if sha and ctx.vault.has(sha) else path
+
+    print_scene_notes(console(), by_dataset, original)
 
 
 def _say_outcome(progress_console: Any, outcome: ProtectOutcome) -> None:

@@ -396,3 +396,29 @@ def test_a_folder_holding_its_mask_folder_leaves_the_masks_as_they_are(
     assert snapshot(scan / "mask") == masks_before
     assert all(changed_pixels(make_image(tmp_path / "x" / f.name, 20 + i, MASKED_SIZE), f).any()
                for i, f in enumerate(files))  # fmt: skip
+
+
+def test_the_hint_judges_the_originals_not_the_mark_just_written(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """After `ppd poison` the files carry the mark in their plainest place, the edge band the hint
+    measures: the line is the originals' (read from the vault), not the patched files'."""
+    from daemon.cli.scene_note import scene_line
+
+    folder, originals = tmp_path / "photos" / "obj", tmp_path / "originals"
+    folder.mkdir(parents=True)
+    originals.mkdir()
+    rng = np.random.default_rng(2)
+    for i in range(4):  # an object on a plain, softly shaded backdrop: the mark goes on the backdrop
+        frame = np.linspace(170, 200, 640)[None, :, None] * np.ones((480, 1, 3))
+        frame[150 + 10 * i : 330 + 10 * i, 220 + 20 * i : 420 + 20 * i] = rng.integers(0, 256, (180, 200, 3))
+        Image.fromarray(frame.astype(np.uint8)).save(folder / f"view{i}.png")
+        Image.fromarray(frame.astype(np.uint8)).save(originals / f"view{i}.png")
+    result = runner.invoke(app, ["poison", str(folder)])
+    assert result.exit_code == 0, result.output
+    hints = [line for line in result.output.splitlines() if line.startswith("hint: ")]
+    assert len(hints) == 1, result.output
+    clean = scene_line("obj", sorted(originals.iterdir()))
+    marked = scene_line("obj", sorted(folder.iterdir()))
+    assert clean is not None and marked is not None and clean != marked  # the mark moves the figures
+    assert hints[0] == clean
