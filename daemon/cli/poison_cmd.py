@@ -38,27 +38,12 @@ def _restored_left(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
     return [o for o in outcomes if o.state == "unchanged" and (o.reason or "").startswith(RESTORED_BY_USER)]
 
 
-# per-file notes of a patched file whose mark found no free place (daemon.protect.job.place_note)
-NOT_FREE = {
-    "mark on the subject: no plain region": "mark on the subject in {n} photo{s}: no plain region",
-    "mark partly on the subject mask (left unwritten there): no free region":
-        "mark partly on the subject mask in {n} photo{s} (left unwritten there): no free region",
-}  # fmt: skip
-
-
 def place_lines(outcomes: list[ProtectOutcome]) -> list[str]:
     """The summary's lines for marks that found no free place ("mark on the subject in 2 photos:
     no plain region") or were shrunk to fit one (round 3): never silent (issue 25)."""
-    from poisoner.mark_place import SHRUNK  # here, not at start-up: it loads numpy
+    from daemon.cli.mark_notes import mark_note_lines
 
-    patched = [o.reason or "" for o in outcomes if o.state in OUTCOME_PATCHED]
-    counts = Counter(r for r in patched if r in NOT_FREE)
-    lines = [NOT_FREE[r].format(n=n, s="" if n == 1 else "s") for r, n in sorted(counts.items()) if r]
-    shrunk = sum(r.startswith(SHRUNK) for r in patched)  # round 3: squares cropped to fit a plain place
-    if shrunk:
-        s = "" if shrunk == 1 else "s"
-        lines.append(f"{SHRUNK} in {shrunk} photo{s} (its squares cropped): no plain place held it whole")
-    return lines
+    return mark_note_lines(o.reason for o in outcomes if o.state in OUTCOME_PATCHED)
 
 
 def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:

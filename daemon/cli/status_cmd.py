@@ -122,6 +122,7 @@ def _print_details(d: dict[str, Any]) -> None:
     if d["auto"]:
         lines.append(d["auto"])
     lines += place_lines(d)
+    lines += d.get("mark_notes") or []
     for line in lines:
         print_line(out, "  " + line)
     for profile, v in d["verdicts"].items():

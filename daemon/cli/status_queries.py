@@ -128,6 +128,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     """Everything `ppd status NAME --json` says about one dataset. Its counts are the rows' and
     the folder's: files no row mentions (a run stopped half-way) are "untracked" and counted in
     "files"; "resume" says what finishes the dataset."""
+    from daemon.cli.mark_notes import mark_note_lines
     from daemon.datasets.folder_count import not_patched_yet, resume_command, with_folder
     from daemon.states import patched_count
     from daemon.verification.auto_mode import status_text as auto_status_text  # light: no torch, no pycolmap
@@ -159,6 +160,8 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "auto": auto_status_text(ctx, name),  # automatic mode's decision in force (None: not decided)
         "counts": counts,
         "patched": patched_count(counts),
+        # where marks found no plain place, as `ppd poison` says it (issue 25): the daemon's files too
+        "mark_notes": mark_note_lines(ctx.store.patched_place_notes(name)),
         "protection": _protection(counts, verdicts, name),
         "last_verification": _last_verification(runs[0] if runs else None),
         "verdicts": verdicts,

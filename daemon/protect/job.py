@@ -193,7 +193,8 @@ def report_detail(report: Any) -> dict[str, Any]:
     place = getattr(report, "place", None)
     if place is not None:  # where a per-photo mark shows and why (ppd report, status)
         detail["place"] = {"box": list(place.box), "words": place.words, "source": place.source,
-                           "free": place.free, "orientation": place.orientation}  # fmt: skip
+                           "free": place.free, "orientation": place.orientation,
+                           "note": place.short()}  # fmt: skip  # ppd status counts it (mark_notes)
     return detail
 
 

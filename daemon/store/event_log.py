@@ -49,3 +49,15 @@ class EventRows(StoreBase):
         for row in rows:
             row["detail"] = json.loads(row["detail"]) if row["detail"] else {}
         return rows
+
+    def patched_place_notes(self, dataset: str) -> list[str | None]:
+        """For each file of the dataset patched now, the place note of the run that patched it (its
+        newest 'patched' event: daemon.protect.job.report_detail), None where the mark found a free
+        place or the event says nothing of it (a corner design, a video, an older ppd)."""
+        rows = self._rows(
+            "SELECT e.path, e.detail FROM events e JOIN files f ON f.path = e.path AND f.state = 'patched' "
+            "WHERE e.dataset = ? AND f.dataset = ? AND e.kind = 'patched' ORDER BY e.id",
+            (dataset, dataset),
+        )
+        newest = {row["path"]: json.loads(row["detail"]) if row["detail"] else {} for row in rows}
+        return [(detail.get("place") or {}).get("note") for detail in newest.values()]

@@ -5,6 +5,7 @@ Real files (PNG, JPEG with EXIF orientation), the real CLI and store; no mocks."
 from __future__ import annotations
 
 import io
+import json
 import re
 from pathlib import Path
 
@@ -252,6 +253,16 @@ def test_no_plain_region_is_said_per_file_and_in_the_summary(
     assert "mark on the subject in 2 photos: no plain region" in result.output
     assert result.output.count("mark on the subject: no plain region") == 2  # -v: per file
     assert "busy: mark placed per photo, where each photo is plainest as shown" in result.output
+    # `ppd status` says it too, from the store (the daemon's files print no summary), for the files
+    # patched now: a restored one no longer counts
+    status = runner.invoke(app, ["status", "busy"])
+    assert status.exit_code == 0 and "mark on the subject in 2 photos: no plain region" in status.output
+    assert runner.invoke(app, ["restore", str(folder / "v0.png")]).exit_code == 0
+    status = runner.invoke(app, ["status", "busy", "--json"])
+    assert status.exit_code == 0, status.output
+    assert json.loads(status.output)["datasets"][0]["mark_notes"] == [
+        "mark on the subject in 1 photo: no plain region"
+    ], status.output
 
 
 # ---- preview, report and pixels agree on a phone photo (EXIF orientation 6) --------------------------
