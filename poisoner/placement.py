@@ -528,6 +528,13 @@ def stored_box_shown(placement: PatchPlacement, width: int, height: int) -> tupl
     return (x, y, x + placement.size, y + placement.size)
 
 
+def shown_squares(placement: PatchPlacement, width: int, height: int) -> list[tuple[int, int, int, int]]:
+    """The squares a stored placement writes, as shown (its lanes are laid out in display space
+    around the shown anchor: place_on_photo, _placed)."""
+    x0, y0, _, _ = stored_box_shown(placement, width, height)
+    return _parts(dataclasses.replace(placement, x=x0, y=y0))
+
+
 # ---- videos and frame sets: the same rule per keyframe, moving smoothly between them ----------------
 MAX_ANCHOR_SPEED = 0.25  # of the frame's shorter side per second: how fast a video's mark may move
 

@@ -96,6 +96,46 @@ def test_nowhere_free_the_squares_go_cropped_into_pockets_the_whole_mark_cannot_
         assert not cells.any(), (x0, y0, x1, y1)  # each written square inside a pocket
 
 
+
+def test_nowhere_free_the_cropped_squares_never_go_into_a_corner_region() -> None:
+    """Round 6: the same two pockets moved into the top-left corner region (the masked attacker's):
+    the crop is not taken there, the whole mark keeps its least-bad place (dtu_scan37's 55% crops: four
+    such crops let `masked` recover 93% of the cameras); at the top edge's middle it is."""
+    from poisoner.placement import CORNER_REGION
+    from poisoner.shrink import reaches_a_corner
+
+    detail = np.ones((150, 200), dtype=bool)
+    detail[0:8, 5:13] = False  # x 20-52, y 0-32: inside the top-left 20% (160 x 120 px)
+    detail[0:8, 20:28] = False  # x 80-112
+    placement, where = place_fitting(SPEC, 800, 600, "v_1.png", 1, detail)
+    assert not where.free and where.shrunk is None and placement.lane_crop == 0
+    moved = np.ones((150, 200), dtype=bool)
+    moved[0:8, 75:83] = moved[0:8, 90:98] = False  # the same pockets, top edge's middle
+    cropped, there = place_fitting(SPEC, 800, 600, "v_1.png", 1, moved)
+    assert there.shrunk is not None and not reaches_a_corner(cropped, 800, 600, there.frame, CORNER_REGION)
+
+
+@pytest.mark.parametrize("orientation", [1, 6])
+def test_reaches_a_corner_sees_each_square_as_shown(orientation: int) -> None:
+    """Squares placed apart, one at the top edge's middle and one at the left edge's middle: their
+    union box reaches the top-left corner region, neither square does; moved into it, one does."""
+    from poisoner.orientation import display_size
+    from poisoner.placement import place_on_photo, shown_squares
+    from poisoner.shrink import reaches_a_corner
+
+    width, height = (800, 600) if orientation == 1 else (600, 800)  # stored; shown 800 x 600 either way
+    assert display_size(width, height, orientation) == (800, 600)
+    for pockets, corner in (([(0, 88), (62, 0)], False), ([(0, 2), (62, 0)], True)):
+        detail = np.ones((150, 200), dtype=bool)
+        for r, c in pockets:  # thumbnail cells (4 px): room for a whole square and its margin
+            detail[r : r + 26, c : c + 26] = False
+        placement, where = place_on_photo(SPEC, width, height, "v_1.png", orientation, detail)
+        assert where.free and where.source == "estimated-split", where
+        first, second = shown_squares(placement, width, height)
+        assert max(abs(first[0] - second[0]), abs(first[1] - second[1])) > 200  # apart
+        assert reaches_a_corner(placement, width, height, where.frame, 0.2) is corner
+
+
 def test_nowhere_plain_at_all_the_whole_mark_stays_whole() -> None:
     """Busy everywhere: a crop is a shade less busy somewhere, but no better place and a weaker mark;
     the whole mark goes to the least-bad place, uncropped."""
