@@ -116,16 +116,18 @@ def test_the_hint_does_not_depend_on_the_size(tmp_path: Path) -> None:
     """The mark scales with the width, so the figures are taken at the mark's scale: a 1600 px copy of
     the same scene gives the same kind and nearly the same shares."""
     files = _object_on_textured_ground(tmp_path)
-    big = tmp_path / "big"
-    big.mkdir()
-    for f in files:
-        with Image.open(f) as im:
-            im.resize((1600, 1200), Image.Resampling.BICUBIC).save(big / f.name)
-    small, large = scene_hint("a", files), scene_hint("a", sorted(big.iterdir()))
+    small, large = scene_hint("a", files), scene_hint("a", _enlarged(files, tmp_path / "big", (1600, 1200)))
     assert small is not None and large is not None and small.kind == large.kind
     assert large.analysis_width == 800 and abs(small.textured_fraction - large.textured_fraction) < 0.05
     assert abs(small.edge_textured_fraction - large.edge_textured_fraction) < 0.05
 
+
+def _enlarged(files: list[Path], folder: Path, size: tuple[int, int]) -> list[Path]:
+    folder.mkdir()
+    for f in files:
+        with Image.open(f) as im:
+            im.resize(size, Image.Resampling.BICUBIC).save(folder / f.name)
+    return sorted(folder.iterdir())
 
 
 def test_photos_larger_than_any_set_the_mark_held_on_are_said_so(tmp_path: Path) -> None:
@@ -135,12 +137,8 @@ def test_photos_larger_than_any_set_the_mark_held_on_are_said_so(tmp_path: Path)
     from poisoner.scene import HELD_UP_TO_PX
 
     files = _object_on_plain(tmp_path)
-    big = tmp_path / "big"
-    big.mkdir()
-    for f in files:
-        with Image.open(f) as im:
-            im.resize((3200, 2400), Image.Resampling.BICUBIC).save(big / f.name)
-    small, large = scene_hint("obj", files), scene_hint("obj", sorted(big.iterdir()))
+    big = _enlarged(files, tmp_path / "big", (3200, 2400))
+    small, large = scene_hint("obj", files), scene_hint("obj", big)
     assert small is not None and large is not None and small.kind == large.kind == SceneKind.PLAIN
     assert small.long_side == W <= HELD_UP_TO_PX and "NOT protected" not in small.sentence
     assert large.long_side == 3200 and "At 3200 px" in large.sentence and "NOT protected" in large.sentence
