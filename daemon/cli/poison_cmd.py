@@ -41,7 +41,7 @@ def _restored_left(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
 def place_lines(outcomes: list[ProtectOutcome]) -> list[str]:
     """The summary's lines for marks that found no free place ("mark on the subject in 2 photos:
     no plain region") or were shrunk to fit one (round 3): never silent (issue 25)."""
-    from daemon.cli.mark_notes import mark_note_lines
+    from daemon.protect.mark_notes import mark_note_lines
 
     return mark_note_lines(o.reason for o in outcomes if o.state in OUTCOME_PATCHED)
 

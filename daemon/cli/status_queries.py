@@ -128,8 +128,8 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     """Everything `ppd status NAME --json` says about one dataset. Its counts are the rows' and
     the folder's: files no row mentions (a run stopped half-way) are "untracked" and counted in
     "files"; "resume" says what finishes the dataset."""
-    from daemon.cli.mark_notes import mark_note_lines
     from daemon.datasets.folder_count import not_patched_yet, resume_command, with_folder
+    from daemon.protect.mark_notes import mark_note_lines
     from daemon.states import patched_count
     from daemon.verification.auto_mode import status_text as auto_status_text  # light: no torch, no pycolmap
     from daemon.verification.verify_state import running_verification  # light: msgspec and a small JSON file

@@ -54,6 +54,11 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
                           "restored since): it is history, not today's verdict.")  # fmt: skip
     spec = ctx.store.dataset_spec(dataset)
     if spec is not None and spec.per_photo:
+        from daemon.protect.mark_notes import mark_note_lines
+
+        # where marks found no plain place, in the words of ppd poison's summary and ppd status (issue 25)
+        for line in reversed(mark_note_lines(ctx.store.patched_place_notes(dataset))):
+            data.notes.insert(0, f"Placement: {line}.")
         data.notes.insert(0, "Placement: per photo, where each photo is plainest as shown (off the subject "
                           "masks when given); the preview below says where this file's mark is.")  # fmt: skip
     corner = choice_text(dataset, latest_choice(ctx, dataset))

@@ -265,6 +265,15 @@ def test_no_plain_region_is_said_per_file_and_in_the_summary(
     assert json.loads(status.output)["datasets"][0]["mark_notes"] == [
         "mark on the subject in 1 photo: no plain region"
     ], status.output
+    from daemon.context import AppContext
+    from daemon.verification.dataset_report import build_dataset_report
+
+    ctx = AppContext.open()
+    try:  # and the HTML report's notes, in the same words
+        notes = build_dataset_report(ctx, "busy").notes
+    finally:
+        ctx.close()
+    assert "Placement: mark on the subject in 1 photo: no plain region." in notes, notes
 
 
 # ---- preview, report and pixels agree on a phone photo (EXIF orientation 6) --------------------------
