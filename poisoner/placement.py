@@ -535,6 +535,16 @@ def shown_squares(placement: PatchPlacement, width: int, height: int) -> list[tu
     return _parts(dataclasses.replace(placement, x=x0, y=y0))
 
 
+def reaches_a_corner(
+    placement: PatchPlacement, width: int, height: int, frame: tuple[int, int], region: float
+) -> bool:
+    """Whether a square of a stored width x height placement overlaps, as shown in `frame` (w, h),
+    one of the four corner regions (`region` of each side: what the masked attacker masks), by
+    choose_spot's own rule (_in_corners)."""
+    at = np.zeros(1, dtype=np.int64)
+    return bool(_in_corners(at, at, shown_squares(placement, width, height), frame, region)[0])
+
+
 # ---- videos and frame sets: the same rule per keyframe, moving smoothly between them ----------------
 MAX_ANCHOR_SPEED = 0.25  # of the frame's shorter side per second: how fast a video's mark may move
 

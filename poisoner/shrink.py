@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from poisoner.mark_place import MarkPlace
-from poisoner.placement import PLAIN_SHARE, integral_image, place_on_photo, shown_squares
+from poisoner.placement import PLAIN_SHARE, integral_image, place_on_photo, reaches_a_corner
 from poisoner.spec import PatchPlacement, PatchSpec
 
 # The smallest side a square is cropped to, as a share of its full side. Half the side is a quarter
@@ -87,20 +87,6 @@ def place_fitting(
     # on dtu_scan37's 55% crops four such crops let `masked` recover 93% of the cameras (0% with the
     # whole marks, and with the other three crops kept: bench/results/placement.md)
     return least_bad[1], least_bad[2]
-
-
-def reaches_a_corner(
-    placement: PatchPlacement, width: int, height: int, frame: tuple[int, int], region: float
-) -> bool:
-    """Whether a square of a stored width x height placement overlaps, as shown in `frame` (w, h),
-    one of the four corner regions (`region` of each side: what the masked attacker masks; the rule
-    of placement._in_corners)."""
-    w, h = frame
-    rw, rh = int(region * w), int(region * h)
-    return any(
-        (x0 < rw or x1 > w - rw) and (y0 < rh or y1 > h - rh)
-        for x0, y0, x1, y1 in shown_squares(placement, width, height)
-    )
 
 
 def _some_square_plain(

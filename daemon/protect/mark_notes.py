@@ -1,6 +1,6 @@
 """The lines that say where marks found no plain place (issue 25: never silent): one wording for
-`ppd poison`'s summary (this run's files) and `ppd status` (the dataset's patched files, from the
-store), so a creator who lets the daemon work sees in `ppd status` what `ppd poison` would print."""
+`ppd poison`'s summary (this run's files), `ppd status` and `ppd report` (the dataset's patched files,
+from the store), so a creator who lets the daemon work sees there what `ppd poison` would print."""
 
 from __future__ import annotations
 

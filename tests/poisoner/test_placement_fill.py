@@ -101,8 +101,7 @@ def test_nowhere_free_the_cropped_squares_never_go_into_a_corner_region() -> Non
     """Round 6: the same two pockets moved into the top-left corner region (the masked attacker's):
     the crop is not taken there, the whole mark keeps its least-bad place (dtu_scan37's 55% crops: four
     such crops let `masked` recover 93% of the cameras); at the top edge's middle it is."""
-    from poisoner.placement import CORNER_REGION
-    from poisoner.shrink import reaches_a_corner
+    from poisoner.placement import CORNER_REGION, reaches_a_corner
 
     detail = np.ones((150, 200), dtype=bool)
     detail[0:8, 5:13] = False  # x 20-52, y 0-32: inside the top-left 20% (160 x 120 px)
@@ -120,8 +119,7 @@ def test_reaches_a_corner_sees_each_square_as_shown(orientation: int) -> None:
     """Squares placed apart, one at the top edge's middle and one at the left edge's middle: their
     union box reaches the top-left corner region, neither square does; moved into it, one does."""
     from poisoner.orientation import display_size
-    from poisoner.placement import place_on_photo, shown_squares
-    from poisoner.shrink import reaches_a_corner
+    from poisoner.placement import place_on_photo, reaches_a_corner, shown_squares
 
     width, height = (800, 600) if orientation == 1 else (600, 800)  # stored; shown 800 x 600 either way
     assert display_size(width, height, orientation) == (800, 600)
