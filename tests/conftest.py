@@ -20,7 +20,7 @@ SHARED = Path(__file__).resolve().parents[2] / "shared"
 os.environ.setdefault("PPD_SHARED_DATA", str(SHARED / "datasets"))
 
 # The integration tests CI runs (`make test`, the default selection), one for each real part: pycolmap
-# SfM on a synthetic scene; the paper's verdict (the patch breaks default COLMAP, hardened COLMAP
+# SfM on a synthetic scene; an unpoisoned copy called not protected, its two sides run at once; the paper's verdict (the patch breaks default COLMAP, hardened COLMAP
 # resists); `ppd demo`, the real watchdog daemon end to end up to a printed verdict; a file the daemon
 # cannot patch leaving the outbox (real daemon processes); a deleted store, no double poisoning, every
 # original restored. The video path has no integration test: tests/test_video*.py run by default.
@@ -29,6 +29,7 @@ os.environ.setdefault("PPD_SHARED_DATA", str(SHARED / "datasets"))
 REPRESENTATIVE = (
     "tests/verifier/test_sfm.py::test_clean_sfm_recovers_synthetic_cameras",
     "tests/verifier/test_verification.py::test_patch_breaks_default_colmap_and_hardened_colmap_resists",
+    "tests/verifier/test_verification.py::test_unpoisoned_copy_is_not_protected",
     "tests/daemon/cli/test_demo.py::test_demo_verifies_and_prints_the_verdict",
     "tests/daemon/protect/test_quarantine.py::test_a_file_ppd_cannot_patch_leaves_the_outbox",
     "tests/reliability/test_reliability_kill_loops.py::test_store_deleted_no_double_poisoning_and_every_original_restored",

@@ -165,7 +165,10 @@ class ProgressBoard:
         self._lock = threading.Lock()
         rows = [ProfileProgress(p) for p in profiles]
         self._state = BoardState(label, os.getpid(), now, now, num_images, rows)
-        self._logs: dict[str, tuple[Path, int]] = {}  # profile -> (log being read, offset)
+        # profile -> its running sides' logs, first started first: the row follows the first (both
+        # sides of a profile can run at once; the row shows one, then the other when it ends)
+        self._running: dict[str, list[tuple[str, Path]]] = {}
+        self._offsets: dict[Path, int] = {}  # how far each followed log has been read
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -191,21 +194,37 @@ class ProgressBoard:
 
     @contextlib.contextmanager
     def side(self, profile: str, side: str, log_path: Path) -> Iterator[None]:
-        """While one SfM child of profile runs (writing log_path), its log is followed."""
-        now = time.time()
+        """While one SfM child of profile runs (writing log_path), its log is followed; when both
+        sides of a profile run at once, the row follows the one that started first."""
         with self._lock:
-            p = self._profile(profile)
-            p.side, p.started_at = side, p.started_at or now
-            if p.stage in ("waiting", "done"):
-                p.stage, p.stage_started_at, p.done, p.total, p.unit = "features", now, 0, 0, ""
-            self._logs[profile] = (log_path, 0)
+            running = self._running.setdefault(profile, [])
+            running.append((side, log_path))
+            if len(running) == 1:
+                self._follow(profile, side, log_path)
         self._publish()
         try:
             yield
         finally:
             self._read_logs()
             with self._lock:
-                self._logs.pop(profile, None)
+                running = self._running.get(profile, [])
+                followed = bool(running) and running[0] == (side, log_path)
+                if (side, log_path) in running:
+                    running.remove((side, log_path))
+                self._offsets.pop(log_path, None)
+                if followed and running:  # the other side goes on: the row follows it from its start
+                    self._follow(profile, *running[0])
+                if not running:
+                    self._running.pop(profile, None)
+
+    def _follow(self, profile: str, side: str, log_path: Path) -> None:
+        """The row of profile shows this side from its log's start (called with the lock held)."""
+        now = time.time()
+        p = self._profile(profile)
+        p.side, p.started_at = side, p.started_at or now
+        if p.stage != "done":
+            p.stage, p.stage_started_at, p.done, p.total, p.unit = "features", now, 0, 0, ""
+        self._offsets[log_path] = 0
 
     def finish(self, profile: str, verdict: str) -> None:
         with self._lock:
@@ -221,23 +240,24 @@ class ProgressBoard:
     def _read_logs(self) -> bool:
         changed = False
         with self._lock:
-            logs = dict(self._logs)
-        for profile, (path, offset) in logs.items():
+            followed = {profile: sides[0] for profile, sides in self._running.items() if sides}
+        for profile, (side, path) in followed.items():
             try:
                 with open(path, "rb") as fh:
-                    fh.seek(offset)
+                    fh.seek(self._offsets.get(path, 0))
                     data = fh.read()
             except OSError:
                 continue
             end = data.rfind(b"\n") + 1  # whole lines only; the rest is read next time
             now = time.time()
             with self._lock:
-                if profile not in self._logs:
-                    continue
+                sides = self._running.get(profile)
+                if not sides or sides[0] != (side, path) or path not in self._offsets:
+                    continue  # it ended, or the row moved to the other side, while this was read
                 p = self._profile(profile)
                 for line in data[:end].decode(errors="replace").splitlines():
                     changed |= apply_log_line(p, line, self._state.num_images, now)
-                self._logs[profile] = (path, offset + end)
+                self._offsets[path] += end
         return changed
 
     def _publish(self) -> None:

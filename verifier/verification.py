@@ -20,8 +20,9 @@ hardened, global; masked filters those features by position; published has its o
 geometric verification for default and global, and the clean reference (features, models, results)
 cached per content of the originals (`clean_cache_dir`) until they change; hardened's verification
 is the default's with only the pairs its stationary filter changes verified again. How a side reuses
-that work: verifier.shared_sfm. Profiles run in parallel when `workers` > 1; every figure a verdict
-uses is what the profile run alone gives (tests/verifier/test_verify_shared.py,
+that work: verifier.shared_sfm. Every profile's clean and poisoned sides start together and run
+`workers` SfM children at once (default_workers()); every figure a verdict uses is what the profile
+run alone gives (tests/verifier/test_verify_shared.py,
 tests/verifier/test_verify_stationary.py).
 """
 
@@ -184,12 +185,14 @@ def looks_like_video_frames(names: Sequence[str]) -> bool:
 
 
 def default_workers() -> int:
-    """Profiles at once: one per 4 cores (each COLMAP child's extraction, matching and verification
-    use them all), and two from 2 cores up: COLMAP's incremental mapping, most of a poisoned set's run
-    (lego 40: 7 of 8 minutes, registration retries), keeps one core busy, so a second profile uses
-    the other."""
+    """SfM sides at once (a side: one profile's clean or poisoned run), two from 2 cores up, one per
+    2 cores beyond: COLMAP's incremental mapping, most of a side's time once features are shared
+    (lego 40: 7 of 8 minutes of a poisoned run, registration retries; 12 x 24 MP on 16 cores with
+    SIFT on a GPU: 20-60 s of mapping against a few seconds of SIFT), keeps one or two cores busy,
+    so on 16 cores eight sides at once keep them busy where four profiles, one side after the
+    other, left half of them idle."""
     cores = os.cpu_count() or 1
-    return max(min(2, cores), cores // 4)
+    return max(min(2, cores), cores // 2)
 
 
 def start_order(profiles: Sequence[str]) -> list[str]:
@@ -220,6 +223,9 @@ class _Run:
     options: VerifyOptions
     profiles: tuple[str, ...] = ()
     board: ProgressBoard | None = None
+    # SfM sides running at once (options.workers or default_workers()); every profile's two sides
+    # are started together and wait here for a slot, in start order
+    slots: threading.BoundedSemaphore = dataclasses.field(default_factory=threading.BoundedSemaphore)
 
 
 def verify_folders(
@@ -231,21 +237,22 @@ def verify_folders(
 ) -> VerificationReport:
     """SfM on clean and poisoned sets (same file names) per profile; models under out_dir/<profile>/.
 
-    Stages: inputs -> visibility (a few images) -> SfM per profile (options.workers at once, shared
-    work) -> splat (optional) -> report."""
+    Stages: inputs -> visibility (a few images) -> SfM per profile and side (options.workers sides
+    at once, shared work) -> splat (optional) -> report."""
     profile_list = expand_profiles(profiles)
     run = _prepare_run(Path(clean_dir), Path(poisoned_dir), Path(out_dir), options or VerifyOptions())
     o = run.options
     board = ProgressBoard(profile_list, len(run.names), o.progress_label or str(poisoned_dir),
                           o.progress_path, o.on_progress)  # fmt: skip
-    run = dataclasses.replace(run, profiles=tuple(profile_list), board=board)
+    slots = threading.BoundedSemaphore(max(1, o.workers or default_workers()))
+    run = dataclasses.replace(run, profiles=tuple(profile_list), board=board, slots=slots)
     reports: dict[str, ProfileReport] = {}
     with _VERIFY_LOCK:
         board.start()
         try:
             visibility = measure_visibility(run.clean_dir, run.poisoned_dir, run.names, run.options)
-            workers = max(1, min(len(profile_list), o.workers or default_workers()))
-            with ThreadPoolExecutor(workers, thread_name_prefix="ppd-verify") as pool:
+            # a thread per profile: they wait for SfM slots (run.slots), not for each other
+            with ThreadPoolExecutor(len(profile_list), thread_name_prefix="ppd-verify") as pool:
                 futures = {p: pool.submit(_verify_profile, p, run) for p in start_order(profile_list)}
                 reports = {p: futures[p].result() for p in profile_list}  # in the order asked
             if run.options.splat and not cancelled(run.options):
@@ -406,16 +413,25 @@ def _run_both_sides(profile: str, run: _Run, settings: SfmSettings) -> tuple[dic
     poisoned_side = SfmSide(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, None,
                             poisoned_from, run.cache, share_verification=share, profile=profile,
                             side="poisoned")  # fmt: skip
-    clean = run_side(clean_side, run.options, run.board)
-    if cached:  # the report's model folder holds a copy of the clean model
+    # the two sides are independent runs: both start now and take SfM slots as they come free
+    with ThreadPoolExecutor(2, thread_name_prefix=f"ppd-verify-{profile}") as sides:
+        clean_run = sides.submit(_run_side_in_slot, clean_side, run)
+        poisoned_run = sides.submit(_run_side_in_slot, poisoned_side, run)
+        clean, poisoned = clean_run.result(), poisoned_run.result()
+    if cached and clean.get("outcome") != "cancelled":  # the report's model folder holds a copy
         _copy_model(clean_model, profile_dir / "clean")
-    poisoned: dict[str, Any] = {"outcome": "cancelled", "error": "cancelled"}
-    if not cancelled(run.options):
-        poisoned = run_side(poisoned_side, run.options, run.board)
     if source == "published":
         for side in (clean, poisoned):
             side["poses"] = unpublish_names(side.get("poses", {}), run.names)
     return clean, poisoned
+
+
+def _run_side_in_slot(side: SfmSide, run: _Run) -> dict[str, Any]:
+    """One side once an SfM slot is free (a cancelled verification starts no more sides)."""
+    with run.slots:
+        if cancelled(run.options):
+            return {"outcome": "cancelled", "error": "cancelled"}
+        return run_side(side, run.options, run.board)
 
 
 def _compare_poses(

@@ -30,7 +30,7 @@ class VerifyOptions:
     random_seed: int = 0  # COLMAP's RANSAC/mapper seed (an attacker reruns with others)
     clean_cache_dir: Path | None = None  # reuse clean features/results across verifications
     clean_cache_keep: int = 0  # >0: keep this many originals' caches under clean_cache_dir (LRU)
-    workers: int = 0  # profiles run at once (0: default_workers())
+    workers: int = 0  # SfM sides (a profile's clean or poisoned run) at once (0: default_workers())
     progress_path: Path | None = None  # the progress file (verifier.progress), removed at the end
     progress_label: str = ""  # what the progress says is being verified
     on_progress: Callable[[BoardState], None] | None = None  # e.g. a terminal display

@@ -3,6 +3,7 @@ that `ppd status` (text and --json) shows while the verification runs."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
@@ -77,6 +78,24 @@ def test_a_board_follows_a_childs_log_and_writes_its_file_atomically(tmp_path: P
     assert seen and seen[-1].profiles[0].stage == "done"
     board.close()
     assert not path.exists()  # the verification is over: status shows nothing running
+
+
+def test_both_sides_of_a_profile_at_once_show_one_then_the_other(tmp_path: Path) -> None:
+    """A profile's clean and poisoned sides run together (verifier.verification): its row follows
+    the side that started first, then the other from its own log's start when the first ends."""
+    board = ProgressBoard(["default"], 40, "castle")
+    clean_log, poisoned_log = tmp_path / "clean.log", tmp_path / "poisoned.log"
+    clean_log.write_text(EXTRACT + "\n")
+    poisoned_log.write_text(EXTRACT + "\n" + VERIFY + "\n" + REGISTER + "\n")
+    with contextlib.ExitStack() as poisoned_running:
+        with board.side("default", "clean", clean_log):
+            poisoned_running.enter_context(board.side("default", "poisoned", poisoned_log))
+            board._read_logs()
+            row = board.snapshot().profiles[0]
+            assert (row.side, row.stage, row.done) == ("clean", "features", 10)  # not the poisoned log's
+        board._read_logs()  # the clean side ended, the poisoned one runs on
+        row = board.snapshot().profiles[0]
+        assert (row.side, row.stage, row.done) == ("poisoned", "mapping", 12)
 
 
 def test_a_progress_file_left_by_a_dead_process_is_ignored(tmp_path: Path) -> None:
