@@ -178,3 +178,13 @@ def test_published_starts_first_the_rest_as_asked() -> None:
 
     assert start_order(PROFILES) == ["published", "default", "hardened", "global", "masked"]
     assert start_order(["masked", "default"]) == ["masked", "default"]
+
+
+def test_every_clean_side_takes_a_slot_before_any_poisoned_one() -> None:
+    from verifier.verification import side_order
+
+    order = side_order(["default", "published", "masked"])
+    assert order == [
+        ("published", "clean"), ("default", "clean"), ("masked", "clean"),
+        ("published", "poisoned"), ("default", "poisoned"), ("masked", "poisoned"),
+    ]  # fmt: skip
