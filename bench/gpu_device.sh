@@ -136,7 +136,7 @@ if [ "$mode" = placement ]; then
     echo "done, $(left) s left"
     exit
 fi
-label="gpu $(nvidia-smi --query-gpu=name --format=csv,noheader | head -1), $(nproc) cores ($(git rev-parse --short HEAD 2>/dev/null || echo "${PPD_CODE:-tree}"))"
+label="gpu $(nvidia-smi --query-gpu=name --format=csv,noheader | head -1), $(nproc) cores ($(echo "${PPD_CODE:-$(git rev-parse --short HEAD 2>/dev/null || echo tree)}"))"
 set -x
 t0=$(date +%s)
 timeout "$(left)" python3 -m testkit.creator_set /tmp/pbw/creator-$views-$width --views "$views" --width "$width" --height $(( width * 2 / 3 ))
