@@ -58,6 +58,21 @@ def clean_cache_for(root: Path, key: str, keep: int) -> Path:
     return here
 
 
+def feature_builds_at_once(memory_bytes: int | None = None) -> int:
+    """Feature-building children (SIFT + raw matching) at once, whatever the SfM slots: one per
+    8 GiB of memory, at least one. One such child on four 24 MP photos peaked at 4.0 GB with 2
+    threads on the 2-core machine, and it starts a thread per core; the sides of a verification
+    start together, so without a cap four sets (clean, poisoned, and published's two) could be
+    extracted at once on a machine with many cores and little memory."""
+    if memory_bytes is None:
+        try:
+            memory_bytes = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        except (OSError, ValueError):
+            memory_bytes = 0
+    return max(1, memory_bytes // (8 << 30))
+
+
+_FEATURE_BUILDS = threading.BoundedSemaphore(feature_builds_at_once())
 _PATH_LOCKS: dict[str, threading.Lock] = {}
 _PATH_LOCKS_GUARD = threading.Lock()
 
@@ -124,7 +139,9 @@ def ensure_features(side: SfmSide, options: VerifyOptions, board: ProgressBoard 
             str(side.image_dir), str(side.cache_db), str(work), side.settings, stop_after="features",
             features_from=str(side.features_from) if side.features_from else "",
         )  # fmt: skip
-        with board.side(side.profile, side.side, work / "sfm.log") if board else contextlib.nullcontext():
+        log_path = work / "sfm.log"
+        watching = board.side(side.profile, side.side, log_path) if board else contextlib.nullcontext()
+        with _FEATURE_BUILDS, watching:  # the slot first: the row says "features" once it runs
             built = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
         return spent + float(built.get("elapsed_s") or 0.0)
 

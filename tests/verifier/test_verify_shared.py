@@ -188,3 +188,15 @@ def test_every_clean_side_takes_a_slot_before_any_poisoned_one() -> None:
         ("published", "clean"), ("default", "clean"), ("masked", "clean"),
         ("published", "poisoned"), ("default", "poisoned"), ("masked", "poisoned"),
     ]  # fmt: skip
+
+
+def test_feature_builds_at_once_follow_the_memory() -> None:
+    from verifier.shared_sfm import feature_builds_at_once
+
+    gib = 1 << 30
+    assert feature_builds_at_once(4 * gib) == 1  # a small machine: one set's SIFT at a time
+    assert feature_builds_at_once(16 * gib) == 2
+    assert feature_builds_at_once(24 * gib) == 3
+    assert feature_builds_at_once(128 * gib) == 16
+    assert feature_builds_at_once(0) == 1  # memory unknown: still one
+    assert feature_builds_at_once() >= 1  # this machine's
