@@ -20,9 +20,9 @@ hardened, global; masked filters those features by position; published has its o
 geometric verification for default and global, and the clean reference (features, models, results)
 cached per content of the originals (`clean_cache_dir`) until they change; hardened's verification
 is the default's with only the pairs its stationary filter changes verified again. How a side reuses
-that work: verifier.shared_sfm. Every profile's clean and poisoned sides start together and run
-`workers` SfM children at once (default_workers()); every figure a verdict uses is what the profile
-run alone gives (tests/verifier/test_verify_shared.py,
+that work: verifier.shared_sfm. Each profile's clean and poisoned sides are tasks of their own,
+`workers` at once (default_workers()), every clean side first (side_order); every figure a verdict
+uses is what the profile run alone gives (tests/verifier/test_verify_shared.py,
 tests/verifier/test_verify_stationary.py).
 """
 
@@ -240,7 +240,6 @@ class _ProfilePlan:
     """One attacker's two SfM sides, planned before either runs (they run independently)."""
 
     profile: str
-    settings: SfmSettings
     sides: dict[str, SfmSide]  # "clean", "poisoned"
     clean_model_copy: Path | None  # where the report keeps a copy of a cached clean model
     started: dict[str, float] = dataclasses.field(default_factory=dict)  # side -> when it took a slot
@@ -440,7 +439,7 @@ def _plan_profile(profile: str, run: _Run) -> _ProfilePlan:
                             poisoned_from, run.cache, share_verification=share, profile=profile,
                             side="poisoned")  # fmt: skip
     copy = profile_dir / "clean" if cached else None  # the report's model folder holds a copy
-    return _ProfilePlan(profile, settings, {"clean": clean_side, "poisoned": poisoned_side}, copy)
+    return _ProfilePlan(profile, {"clean": clean_side, "poisoned": poisoned_side}, copy)
 
 
 def _run_planned_side(plan: _ProfilePlan, side: str, run: _Run) -> dict[str, Any]:
