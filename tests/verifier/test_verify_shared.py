@@ -166,11 +166,28 @@ def test_lego_shared_verification_matches_each_profile_alone(
         os.link(clean / f"r_{i}.png", views / f"r_{i}.png")
     poisoned = poison_folder(views, tmp_path / "poisoned")
     options = VerifyOptions(timeout_s=1200, random_seed=seed, visibility_images=0)
-    shared = verify_folders(views, poisoned, tmp_path / "all", PROFILES, options)
+    shared = figures(verify_folders(views, poisoned, tmp_path / "all", PROFILES, options))
     alone = {}
     for profile in PROFILES:
         alone.update(figures(verify_folders(views, poisoned, tmp_path / profile, [profile], options)))
-    assert figures(shared) == alone
+    # On lego, COLMAP itself varies from run to run where the verdict does not look: the same masked
+    # run alone on the same 16 views gave 77, 78, 78 clean verified pairs, and the default's poisoned
+    # mapping left side models of [2] or [8, 2] beside the same 9 registered images (2026-11-27). So
+    # the verdict's own inputs must be equal, and the verified pairs within 2%.
+    assert verdict_inputs(shared) == verdict_inputs(alone)
+    for profile in PROFILES:
+        for side in ("clean", "poisoned"):
+            a, b = shared[profile][side]["verified_pairs"], alone[profile][side]["verified_pairs"]
+            assert (a is None) == (b is None) and abs((a or 0) - (b or 0)) <= max(1, 0.02 * (b or 0))
+
+
+def verdict_inputs(figured: dict[str, Any]) -> dict[str, Any]:
+    """figures() without what the verdict does not read: verified pairs, the side models' sizes."""
+    return {
+        name: {k: ({f: v for f, v in x.items() if f not in ("verified_pairs", "model_sizes")}
+                   if isinstance(x, dict) else x) for k, x in p.items()}
+        for name, p in figured.items()
+    }  # fmt: skip
 
 
 def test_published_starts_first_the_rest_as_asked() -> None:
