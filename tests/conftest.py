@@ -19,13 +19,14 @@ SHARED = Path(__file__).resolve().parents[2] / "shared"
 # ppd finds the shared datasets only where it is told (verifier/shared_data.py): the checkout's.
 os.environ.setdefault("PPD_SHARED_DATA", str(SHARED / "datasets"))
 
-# The integration tests CI runs (`make test`, the default selection), one for each real part: pycolmap
-# SfM on a synthetic scene; an unpoisoned copy called not protected, its two sides run at once; the paper's verdict (the patch breaks default COLMAP, hardened COLMAP
-# resists); `ppd demo`, the real watchdog daemon end to end up to a printed verdict; a file the daemon
-# cannot patch leaving the outbox (real daemon processes); a deleted store, no double poisoning, every
-# original restored. The video path has no integration test: tests/test_video*.py run by default.
-# The other integration tests run with `make test-all` or `pytest -m integration`. A node id without
-# [parameters] takes every parameter; tests/test_selection.py checks that each names an integration test.
+# The integration tests CI runs (`make test`, the default selection), one for each real part: pycolmap SfM
+# on a synthetic scene; an unpoisoned copy called not protected, its two sides run at once; the paper's
+# verdict (the patch breaks default COLMAP, hardened COLMAP resists); `ppd demo`, the real watchdog daemon
+# end to end up to a printed verdict; a file the daemon cannot patch leaving the outbox (real daemon
+# processes); a deleted store, no double poisoning, every original restored. The video path has no
+# integration test: tests/test_video*.py run by default. The other integration tests run with `make
+# test-all` or `pytest -m integration`. A node id without [parameters] takes every parameter;
+# tests/test_selection.py checks that each names an integration test.
 REPRESENTATIVE = (
     "tests/verifier/test_sfm.py::test_clean_sfm_recovers_synthetic_cameras",
     "tests/verifier/test_verification.py::test_patch_breaks_default_colmap_and_hardened_colmap_resists",
