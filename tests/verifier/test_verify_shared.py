@@ -48,8 +48,9 @@ def figures(report: VerificationReport) -> dict[str, Any]:
     """Every figure a verdict uses, per profile, and the verdict. Not the median rotation error of
     the poisoned cameras (a reason's detail, not the verdict's input): COLMAP's mappers are not
     bit-reproducible (three identical global-mapper runs on SMALL's poisoned set: 144.03, 146.95,
-    144.02 deg; incremental: 14.0228 and 14.0232), while geometric verification is (identical
-    inliers in three runs), which is why sharing it changes nothing."""
+    144.02 deg; incremental: 14.0228 and 14.0232), while geometric verification is on this set
+    (identical inliers in three runs), which is why sharing it changes nothing. On lego it is not
+    always: test_lego_shared_verification_matches_each_profile_alone says how that test compares."""
     out = {}
     for name, p in report.profiles.items():
         sides = {
