@@ -157,7 +157,8 @@ def test_the_clean_reference_is_cached_until_an_original_changes(
 def test_lego_shared_verification_matches_each_profile_alone(
     shared_dir: Path, tmp_path: Path, seed: int
 ) -> None:
-    """Lego, 16 views at 800 px: the shared run's figures are each profile's figures alone."""
+    """Lego, 16 views at 800 px: what sharing decides (verdicts, outcomes, verified pairs) is what
+    each profile alone gives."""
     from verifier.shared_data import prepare_lego
 
     clean, _, _ = prepare_lego(16)
@@ -171,10 +172,11 @@ def test_lego_shared_verification_matches_each_profile_alone(
     alone = {}
     for profile in PROFILES:
         alone.update(figures(verify_folders(views, poisoned, tmp_path / profile, [profile], options)))
-    # On lego, COLMAP itself varies from run to run where the verdict does not look: the same masked
-    # run alone on the same 16 views gave 77, 78, 78 clean verified pairs, and the default's poisoned
-    # mapping left side models of [2] or [8, 2] beside the same 9 registered images (2026-11-27). So
-    # the verdict's own inputs must be equal, and the verified pairs within 2%.
+    # On lego's 16 views COLMAP itself varies from run to run (2026-11-27, this code, the same inputs,
+    # each profile alone): masked's clean verified pairs 77, 78, 78; the default's poisoned mapping at
+    # seed 1 registered 16, 16 and 10 views. So what sharing decides is asserted (each profile's
+    # verdict, outcomes, verified pairs within 2%); what COLMAP's mapper alone varies (registered
+    # views, the share within 5 deg) is not compared here: the small set's test above compares it.
     assert verdict_inputs(shared) == verdict_inputs(alone)
     for profile in PROFILES:
         for side in ("clean", "poisoned"):
@@ -183,10 +185,12 @@ def test_lego_shared_verification_matches_each_profile_alone(
 
 
 def verdict_inputs(figured: dict[str, Any]) -> dict[str, Any]:
-    """figures() without what the verdict does not read: verified pairs, the side models' sizes."""
+    """figures() without what COLMAP's mapper alone varies on lego: registered views, side models'
+    sizes, the share within 5 deg (and verified pairs, compared within 2%)."""
+    mapper = ("verified_pairs", "model_sizes", "registered")
     return {
-        name: {k: ({f: v for f, v in x.items() if f not in ("verified_pairs", "model_sizes")}
-                   if isinstance(x, dict) else x) for k, x in p.items()}
+        name: {k: ({f: v for f, v in x.items() if f not in mapper} if isinstance(x, dict) else x)
+               for k, x in p.items() if k != "frac_within_5deg"}
         for name, p in figured.items()
     }  # fmt: skip
 
