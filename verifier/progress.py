@@ -207,10 +207,9 @@ class ProgressBoard:
         finally:
             self._read_logs()
             with self._lock:
-                running = self._running.get(profile, [])
-                followed = bool(running) and running[0] == (side, log_path)
-                if (side, log_path) in running:
-                    running.remove((side, log_path))
+                running = self._running[profile]
+                followed = running[0] == (side, log_path)
+                running.remove((side, log_path))
                 self._offsets.pop(log_path, None)
                 if followed and running:  # the other side goes on: the row follows it from its start
                     self._follow(profile, *running[0])
@@ -218,12 +217,14 @@ class ProgressBoard:
                     self._running.pop(profile, None)
 
     def _follow(self, profile: str, side: str, log_path: Path) -> None:
-        """The row of profile shows this side from its log's start (called with the lock held)."""
+        """The row of profile shows this side from its log's start (called with the lock held). The
+        stage starts again only for the other side: the same side's next child (mapping after its
+        features) moves the row on from where it is, as its log says."""
         now = time.time()
         p = self._profile(profile)
-        p.side, p.started_at = side, p.started_at or now
-        if p.stage != "done":
+        if p.stage in ("waiting", "done") or p.side != side:
             p.stage, p.stage_started_at, p.done, p.total, p.unit = "features", now, 0, 0, ""
+        p.side, p.started_at = side, p.started_at or now
         self._offsets[log_path] = 0
 
     def finish(self, profile: str, verdict: str) -> None:

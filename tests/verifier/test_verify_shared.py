@@ -50,7 +50,7 @@ def figures(report: VerificationReport) -> dict[str, Any]:
     bit-reproducible (three identical global-mapper runs on SMALL's poisoned set: 144.03, 146.95,
     144.02 deg; incremental: 14.0228 and 14.0232), while geometric verification is on this set
     (identical inliers in three runs), which is why sharing it changes nothing. On lego it is not
-    always: test_lego_shared_verification_matches_each_profile_alone says how that test compares."""
+    always (test_lego_shared_verification_matches_each_profile_alone's docstring)."""
     out = {}
     for name, p in report.profiles.items():
         sides = {
@@ -157,8 +157,10 @@ def test_the_clean_reference_is_cached_until_an_original_changes(
 def test_lego_shared_verification_matches_each_profile_alone(
     shared_dir: Path, tmp_path: Path, seed: int
 ) -> None:
-    """Lego, 16 views at 800 px: what sharing decides (verdicts, outcomes, verified pairs) is what
-    each profile alone gives."""
+    """Lego, 16 views at 800 px: the shared run's figures are each profile's figures alone. COLMAP
+    itself varies on this set (2026-11-27, the same code and inputs, each profile alone: masked's
+    clean verified pairs 77, 78, 78; the default's poisoned mapping at seed 1 registered 16, 16, 10
+    views), so this test can fail with no sharing at fault; it failed at both seeds that day."""
     from verifier.shared_data import prepare_lego
 
     clean, _, _ = prepare_lego(16)
@@ -168,31 +170,11 @@ def test_lego_shared_verification_matches_each_profile_alone(
         os.link(clean / f"r_{i}.png", views / f"r_{i}.png")
     poisoned = poison_folder(views, tmp_path / "poisoned")
     options = VerifyOptions(timeout_s=1200, random_seed=seed, visibility_images=0)
-    shared = figures(verify_folders(views, poisoned, tmp_path / "all", PROFILES, options))
+    shared = verify_folders(views, poisoned, tmp_path / "all", PROFILES, options)
     alone = {}
     for profile in PROFILES:
         alone.update(figures(verify_folders(views, poisoned, tmp_path / profile, [profile], options)))
-    # On lego's 16 views COLMAP itself varies from run to run (2026-11-27, this code, the same inputs,
-    # each profile alone): masked's clean verified pairs 77, 78, 78; the default's poisoned mapping at
-    # seed 1 registered 16, 16 and 10 views. So what sharing decides is asserted (each profile's
-    # verdict, outcomes, verified pairs within 2%); what COLMAP's mapper alone varies (registered
-    # views, the share within 5 deg) is not compared here: the small set's test above compares it.
-    assert verdict_inputs(shared) == verdict_inputs(alone)
-    for profile in PROFILES:
-        for side in ("clean", "poisoned"):
-            a, b = shared[profile][side]["verified_pairs"], alone[profile][side]["verified_pairs"]
-            assert (a is None) == (b is None) and abs((a or 0) - (b or 0)) <= max(1, 0.02 * (b or 0))
-
-
-def verdict_inputs(figured: dict[str, Any]) -> dict[str, Any]:
-    """figures() without what COLMAP's mapper alone varies on lego: registered views, side models'
-    sizes, the share within 5 deg (and verified pairs, compared within 2%)."""
-    mapper = ("verified_pairs", "model_sizes", "registered")
-    return {
-        name: {k: ({f: v for f, v in x.items() if f not in mapper} if isinstance(x, dict) else x)
-               for k, x in p.items() if k != "frac_within_5deg"}
-        for name, p in figured.items()
-    }  # fmt: skip
+    assert figures(shared) == alone
 
 
 def test_published_starts_first_the_rest_as_asked() -> None:

@@ -98,6 +98,17 @@ def test_both_sides_of_a_profile_at_once_show_one_then_the_other(tmp_path: Path)
         assert (row.side, row.stage, row.done) == ("poisoned", "mapping", 12)
 
 
+def test_the_same_sides_next_child_does_not_take_the_row_back_to_features(tmp_path: Path) -> None:
+    board = ProgressBoard(["default"], 40, "castle")
+    features_log, mapping_log = tmp_path / "features.log", tmp_path / "mapping.log"
+    features_log.write_text(EXTRACT + "\n" + VERIFY + "\n")
+    mapping_log.write_text("")
+    with board.side("default", "clean", features_log):
+        pass
+    with board.side("default", "clean", mapping_log):  # the side's mapping child, its log still empty
+        assert board.snapshot().profiles[0].stage == "verification"
+
+
 def test_a_progress_file_left_by_a_dead_process_is_ignored(tmp_path: Path) -> None:
     dead = subprocess.run(
         [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
