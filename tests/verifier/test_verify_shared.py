@@ -121,6 +121,18 @@ def test_a_shared_verification_gives_each_profiles_figures_alone(
     # hardened's verification was made from the default's, on both sides (a verify-only child each)
     logs = [p.read_text() for p in (tmp_path / "all" / ".cache").rglob("sfm.log")]
     assert sum("stationary filter:" in text for text in logs) == 2
+    # on the clean photos its filters changed nothing, so its mapping is the default's (one mapper
+    # run, copied); on the poisoned ones they did (the mark's matches): its own mapping
+    clean_hardened = shared.profiles["hardened"].clean
+    assert any("stationary filter: 0 pair(s)" in text for text in logs)
+    assert clean_hardened["mapping_shared_with"] == "default"
+    for key in ("registered", "num_points3D", "mean_reprojection_error", "verified_pairs"):
+        assert clean_hardened[key] == clean_default[key], key
+    hardened_model, default_model = (tmp_path / "all" / p / "clean" for p in ("hardened", "default"))
+    for name in ("cameras.bin", "images.bin", "points3D.bin"):  # the model itself, for reports
+        assert (hardened_model / name).read_bytes() == (default_model / name).read_bytes()
+    assert "mapping_shared_with" not in shared.profiles["hardened"].poisoned
+    assert "mapping_shared_with" not in shared.profiles["global"].clean  # another mapper
 
 
 def test_the_clean_reference_is_cached_until_an_original_changes(
@@ -192,6 +204,11 @@ def test_every_clean_side_takes_a_slot_before_any_poisoned_one() -> None:
         ("published", "clean"), ("default", "clean"), ("masked", "clean"),
         ("published", "poisoned"), ("default", "poisoned"), ("masked", "poisoned"),
     ]  # fmt: skip
+    # hardened's clean side, which may copy the default's mapping, after the other clean sides
+    order = side_order(["default", "hardened", "global"])
+    assert [p for p, side in order if side == "clean"] == ["default", "global", "hardened"]
+    assert [p for p, side in order if side == "poisoned"] == ["default", "hardened", "global"]
+    assert side_order(["hardened", "masked"])[0] == ("hardened", "clean")  # nothing to wait for
 
 
 def test_feature_builds_at_once_follow_the_memory() -> None:
