@@ -145,7 +145,14 @@ echo "creator set made in $(( $(date +%s) - t0 )) s" | tee "$OUT/creator_set.txt
 [ "$views" = 40 ] && timeout 150 python3 -m bench.bench_gpu_sift /tmp/c12 --out "$OUT/gpu_sift_creator12.json" --timeout 140
 timeout "$(( $(left) - 10 ))" python3 -m bench.bench_verify_speed --set creator --views "$views" --width "$width" \
     --second --timeout "${PPD_GPU_LANE_S:-300}" --label "$label" --sift-device cuda
-if [ "$(left)" -gt 240 ]; then
+# before/after on one warm machine: the same lane with the code of a carried `git archive` (.devdata/base,
+# its commit in PPD_BASE_CODE), its own baseline in the lane
+if [ -d .devdata/base ] && [ "$(left)" -gt "${PPD_GPU_BASE_NEEDS_S:-200}" ]; then
+    timeout "$(( $(left) - 10 ))" python3 -m bench.bench_verify_speed --set creator --views "$views" \
+        --width "$width" --second --timeout "${PPD_GPU_LANE_S:-300}" --tree "$PWD/.devdata/base" \
+        --label "${label%(*}(${PPD_BASE_CODE:-base})" --sift-device cuda
+fi
+if [ "${PPD_GPU_LEGO:-1}" = 1 ] && [ "$(left)" -gt 240 ]; then
     timeout "$(( $(left) - 10 ))" python3 -m bench.bench_verify_speed --set lego --views 40 \
         --second --timeout 200 --label "$label" --sift-device cuda
 fi
