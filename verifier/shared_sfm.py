@@ -16,9 +16,8 @@ import json
 import logging
 import os
 import shutil
-import sqlite3
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -203,19 +202,13 @@ def run_job(
         str(side.image_dir), str(side.cache_db), str(side.model_dir), settings, verified_db=verified,
         features_from=str(side.features_from) if side.features_from else "", stationary_from=stationary_from,
     )  # fmt: skip
-
-    def run_child() -> dict[str, Any]:
-        watching = board.side(side.profile, side.side, side.model_dir / "sfm.log") if board else None
-        with watching or contextlib.nullcontext():
-            if verified and not Path(verified).exists():
-                with path_lock(Path(verified)):  # whoever builds it first, the others wait and copy
-                    return run_sfm_job(
-                        job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False
-                    )
-            return run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
-
-    key = mapping_key(side, settings, Path(verified)) if side.share_verification and verified else None
-    result = shared_mapping(side, key, run_child) if key else run_child()
+    watching = board.side(side.profile, side.side, side.model_dir / "sfm.log") if board else None
+    with watching or contextlib.nullcontext():
+        if verified and not Path(verified).exists():
+            with path_lock(Path(verified)):  # whoever builds it first, the others wait and copy
+                result = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
+        else:
+            result = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
     if spent:  # the verify-only children's time is this side's verification
         result["elapsed_s"] = float(result.get("elapsed_s") or 0.0) + spent
         if isinstance(result.get("timings"), dict):
@@ -244,71 +237,6 @@ def ensure_verified(
         with board.side(side.profile, side.side, work / "sfm.log") if board else contextlib.nullcontext():
             built = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)
         return float(built.get("elapsed_s") or 0.0)
-
-
-# COLMAP's TwoViewGeometry::WATERMARK: a pair the default verification flags as a watermark, which
-# the mapper's ignore_watermarks (hardened) leaves out
-WATERMARK_CONFIG = 7
-
-
-def mapping_key(side: SfmSide, settings: SfmSettings, verified_db: Path) -> str | None:
-    """What decides a mapping's result, as one key: every table of the verified database the mapper
-    reads (cameras, images, keypoints, matches and two-view geometries, by content), the images
-    it reads colours from, and the mapper's options. ignore_watermarks counts only where a pair is
-    flagged as a watermark: without one it leaves the mapper's input as it was. So hardened's clean
-    side, whose stationary filter changed no pair and where no pair is flagged, has the default's
-    key. None when the database is not there (this side's child verifies for itself)."""
-    if not verified_db.exists():
-        return None
-    h = hashlib.sha256()
-    with contextlib.closing(sqlite3.connect(f"file:{verified_db}?mode=ro", uri=True)) as db:
-        tables = [r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table' ORDER BY name")]
-        for table in tables:
-            h.update(f"\0table {table}\0".encode())
-            for row in db.execute(f'SELECT * FROM "{table}" ORDER BY rowid'):
-                for value in row:  # blobs (keypoints, matches) as their bytes, the rest by value
-                    h.update(value if isinstance(value, bytes) else f"\0{value!r}\0".encode())
-        flagged = bool(db.execute("SELECT 1 FROM two_view_geometries WHERE config = ? LIMIT 1",
-                                  (WATERMARK_CONFIG,)).fetchone())  # fmt: skip
-    mapper = msgspec.structs.replace(
-        settings, ignore_watermarks=settings.ignore_watermarks and flagged, filter_stationary_matches=False
-    )
-    h.update(f"{side.image_dir}\0{msgspec.json.encode(mapper).decode()}".encode())
-    return h.hexdigest()[:20]
-
-
-def shared_mapping(side: SfmSide, key: str, run_child: Callable[[], dict[str, Any]]) -> dict[str, Any]:
-    """The side's mapping, or a copy of another profile's in this run with the same mapping_key
-    (its model and result): one mapper run where the input is the same, not two. The first side
-    with a key maps under that key's lock, the others wait and copy; only a mapping that ran ("ok")
-    is shared, a crash or timeout is each side's own."""
-    assert side.verified_dir is not None
-    record = side.verified_dir / "mapped" / f"{key}.json"
-    with path_lock(record):
-        if record.exists():
-            shared = json.loads(record.read_text())
-            copy_model(Path(shared["model_dir"]), side.model_dir)
-            result = dict(shared["result"])
-            result["elapsed_s"] = 0.0
-            result["timings"] = {"verification_s": 0.0, "mapping_s": 0.0}  # run_job adds its verification
-            result["mapping_shared_with"] = shared["profile"]
-            log.info(
-                "mapping shared",
-                extra={"profile": side.profile, "side": side.side, "with": shared["profile"]},
-            )
-            return result
-        result = run_child()
-        if result.get("outcome") == "ok":
-            write_json(record, {"model_dir": str(side.model_dir), "profile": side.profile, "result": result})
-        return result
-
-
-def copy_model(src: Path, dst: Path) -> None:
-    """A model folder's files (COLMAP's .bin / .txt and ppd's result.json) into dst."""
-    dst.mkdir(parents=True, exist_ok=True)
-    for f in src.iterdir():
-        if f.is_file() and (f.suffix in (".bin", ".txt") or f.name == "result.json"):
-            shutil.copyfile(f, dst / f.name)
 
 
 def verified_path(side: SfmSide, settings: SfmSettings) -> Path:

@@ -52,7 +52,7 @@ from verifier.progress import ProgressBoard
 from verifier.published import round_trip, unpublish_names
 from verifier.published import to_rgb as to_rgb  # re-exported for verifier.auto_search
 from verifier.sfm import SfmSettings, list_images, profile_sfm_settings
-from verifier.shared_sfm import SfmSide, cancelled, clean_cache_for, copy_model, run_side
+from verifier.shared_sfm import SfmSide, cancelled, clean_cache_for, run_side
 from verifier.shared_sfm import content_key as content_key  # re-exported: the clean cache's key
 from verifier.shared_sfm import write_json as write_json  # re-exported: reports are written with it
 from verifier.sift_device import sift_device_name
@@ -209,11 +209,7 @@ def side_order(profiles: Sequence[str]) -> list[tuple[str, str]]:
     (12 x 24 MP on 16 cores: 42-84 s of mapping against 14-39 s poisoned), so the last clean side
     no longer starts after the first poisoned ones end and finishes last."""
     order = start_order(profiles)
-    # hardened's clean mapping is usually the default's (shared_sfm.shared_mapping: its filters
-    # change nothing on clean photos); taken last, it finds that mapping done instead of holding a
-    # slot while it waits for it
-    clean = sorted(order, key=lambda p: p == "hardened" and "default" in order)
-    return [(p, "clean") for p in clean] + [(p, "poisoned") for p in order]
+    return [(p, "clean") for p in order] + [(p, "poisoned") for p in order]
 
 
 def _summary(result: dict[str, Any]) -> dict[str, Any]:
@@ -460,7 +456,7 @@ def _run_planned_side(plan: _ProfilePlan, side: str, run: _Run) -> dict[str, Any
         round_trip(source, planned.image_dir, run.names, o.published_long_edge, o.published_jpeg_quality)
     result = run_side(planned, run.options, run.board)
     if side == "clean" and plan.clean_model_copy is not None and result.get("outcome") != "cancelled":
-        copy_model(planned.model_dir, plan.clean_model_copy)
+        _copy_model(planned.model_dir, plan.clean_model_copy)
     if plan.profile == "published":
         result["poses"] = unpublish_names(result.get("poses", {}), run.names)
     return result
@@ -522,3 +518,10 @@ def _decide_profile(
     if run.board is not None:
         run.board.finish(profile, str(report.verdict))
     return report
+
+
+def _copy_model(src: Path, dst: Path) -> None:
+    dst.mkdir(parents=True, exist_ok=True)
+    for f in src.iterdir():
+        if f.is_file() and (f.suffix in (".bin", ".txt") or f.name == "result.json"):
+            shutil.copyfile(f, dst / f.name)

@@ -13,7 +13,6 @@ import os
 from pathlib import Path
 from typing import Any
 
-import msgspec
 import numpy as np
 import pytest
 from PIL import Image
@@ -122,18 +121,6 @@ def test_a_shared_verification_gives_each_profiles_figures_alone(
     # hardened's verification was made from the default's, on both sides (a verify-only child each)
     logs = [p.read_text() for p in (tmp_path / "all" / ".cache").rglob("sfm.log")]
     assert sum("stationary filter:" in text for text in logs) == 2
-    # on the clean photos its filters changed nothing, so its mapping is the default's (one mapper
-    # run, copied); on the poisoned ones they did (the mark's matches): its own mapping
-    clean_hardened = shared.profiles["hardened"].clean
-    assert any("stationary filter: 0 pair(s)" in text for text in logs)
-    assert clean_hardened["mapping_shared_with"] == "default"
-    for key in ("registered", "num_points3D", "mean_reprojection_error", "verified_pairs"):
-        assert clean_hardened[key] == clean_default[key], key
-    hardened_model, default_model = (tmp_path / "all" / p / "clean" for p in ("hardened", "default"))
-    for name in ("cameras.bin", "images.bin", "points3D.bin"):  # the model itself, for reports
-        assert (hardened_model / name).read_bytes() == (default_model / name).read_bytes()
-    assert "mapping_shared_with" not in shared.profiles["hardened"].poisoned
-    assert "mapping_shared_with" not in shared.profiles["global"].clean  # another mapper
 
 
 def test_the_clean_reference_is_cached_until_an_original_changes(
@@ -205,11 +192,6 @@ def test_every_clean_side_takes_a_slot_before_any_poisoned_one() -> None:
         ("published", "clean"), ("default", "clean"), ("masked", "clean"),
         ("published", "poisoned"), ("default", "poisoned"), ("masked", "poisoned"),
     ]  # fmt: skip
-    # hardened's clean side, which may copy the default's mapping, after the other clean sides
-    order = side_order(["default", "hardened", "global"])
-    assert [p for p, side in order if side == "clean"] == ["default", "global", "hardened"]
-    assert [p for p, side in order if side == "poisoned"] == ["default", "hardened", "global"]
-    assert side_order(["hardened", "masked"])[0] == ("hardened", "clean")  # nothing to wait for
 
 
 def test_feature_builds_at_once_follow_the_memory() -> None:
@@ -222,42 +204,3 @@ def test_feature_builds_at_once_follow_the_memory() -> None:
     assert feature_builds_at_once(128 * gib) == 16
     assert feature_builds_at_once(0) == 1  # memory unknown: still one
     assert feature_builds_at_once() >= 1  # this machine's
-
-
-def test_the_mapping_key_follows_what_the_mapper_reads(tmp_path: Path) -> None:
-    """Two sides map once only where the mapper's input is the same: the verified database's content
-    (not its file), the images, the mapper options; ignore_watermarks only where a pair is flagged."""
-    import sqlite3
-
-    import pycolmap  # the flag's value is COLMAP's own
-
-    from verifier.sfm import SfmSettings, profile_sfm_settings
-    from verifier.shared_sfm import WATERMARK_CONFIG, SfmSide, mapping_key
-
-    assert int(pycolmap.TwoViewGeometryConfiguration.WATERMARK) == WATERMARK_CONFIG
-
-    def database(path: Path, config: int = 2, inliers: bytes = b"\x01\x02") -> Path:
-        with sqlite3.connect(path) as db:
-            columns = "pair_id INTEGER PRIMARY KEY, rows INT, data BLOB, config INT"
-            db.execute(f"CREATE TABLE two_view_geometries ({columns})")
-            db.execute("INSERT INTO two_view_geometries VALUES (1, 1, ?, ?)", (inliers, config))
-        return path
-
-    default = profile_sfm_settings("default", SfmSettings())
-    hardened = profile_sfm_settings("hardened", SfmSettings())
-    side = SfmSide(tmp_path / "images", tmp_path / "cache.db", tmp_path / "model", default)
-    plain = database(tmp_path / "a.db")
-    assert mapping_key(side, default, plain) == mapping_key(side, hardened, plain)  # no pair flagged
-    assert mapping_key(side, default, plain) == mapping_key(side, default, database(tmp_path / "b.db"))
-    flagged = database(tmp_path / "c.db", config=WATERMARK_CONFIG)
-    assert mapping_key(side, default, flagged) != mapping_key(side, hardened, flagged)
-    assert mapping_key(side, default, plain) != mapping_key(
-        side, default, database(tmp_path / "d.db", inliers=b"\x01")
-    )
-    other_seed = msgspec.structs.replace(default, random_seed=1)
-    assert mapping_key(side, default, plain) != mapping_key(side, other_seed, plain)
-    glomap = profile_sfm_settings("global", SfmSettings())
-    assert mapping_key(side, default, plain) != mapping_key(side, glomap, plain)
-    elsewhere = dataclasses.replace(side, image_dir=tmp_path / "published")
-    assert mapping_key(side, default, plain) != mapping_key(elsewhere, default, plain)
-    assert mapping_key(side, default, tmp_path / "missing.db") is None
