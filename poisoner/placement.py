@@ -489,7 +489,8 @@ def place_on_photo(
         lanes = None if stacked else _split_lanes(spec, (dw, dh), zero, spot, detail, subject, preferred,
                                                   faint if spot.doubtful else None)  # fmt: skip
         if lanes is not None:
-            return _placed(spec, (width, height), o, (image_key, index, crop), lanes, subject is not None)
+            return _placed(spec, (width, height), o, (image_key, index, crop), lanes, subject is not None,
+                           spot.doubtful)  # fmt: skip
     shown = spec.resolve(dw, dh, image_key, index=index, anchor=(spot.x, spot.y), crop=crop)
     x, y = turn_square(shown.x, shown.y, shown.size, INVERSE_ORIENTATION[o], dw, dh)
     stored = dataclasses.replace(shown, x=x, y=y, turn=o)
@@ -553,9 +554,10 @@ def _placed(
     which: tuple[str | None, float | None, int],
     lanes: list[Spot],
     masked: bool,
+    doubted: bool = False,
 ) -> tuple[PatchPlacement, MarkPlace]:
     """The placement and MarkPlace of split lanes (display anchors), turned back to stored pixels;
-    which: (image_key, index, crop) as place_on_photo got them."""
+    which: (image_key, index, crop) as place_on_photo got them; doubted: split from a doubtful place."""
     dw, dh = display_size(*size, o)
     at = tuple((s.x, s.y) for s in lanes)
     image_key, index, crop = which
@@ -567,7 +569,7 @@ def _placed(
         source = "masks-split" if free else "no-free-masks"
         subject: float | None = max(s.subject or 0.0 for s in lanes)
     else:
-        source = "estimated-split" if free else "no-plain"
+        source = ("estimated-doubt-split" if doubted else "estimated-split") if free else "no-plain"
         subject = None
     detail = max(s.detail for s in lanes)
     place = MarkPlace(shown.box, (dw, dh), source, free, detail, subject, o, at[0])

@@ -61,7 +61,8 @@ def test_the_stacked_mark_touching_a_faint_face_splits_into_the_floor_band(tmp_p
     before, _ = place_on_photo(SPEC, SIDE, SIDE, src.name, 1, detail)
     assert min(y0 for _, y0, _, _ in shown_squares(before, SIDE, SIDE)) < RIM
     report = poison_file(src, tmp_path / "out.png", SPEC)
-    assert report.place is not None and report.place.free and report.place.source == "estimated-split"
+    assert report.place is not None and report.place.free and report.place.source == "estimated-doubt-split"
+    assert "faint texture" in report.place.line()  # what ppd poison -v and ppd preview say
     changed = changed_shown(src, tmp_path / "out.png")
     assert changed.any() and not changed[:RIM].any()  # nothing on the subject, its face included
     placed, _ = place_on_photo(SPEC, SIDE, SIDE, src.name, 1, detail, faint=faint)
