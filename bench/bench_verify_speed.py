@@ -166,6 +166,30 @@ def profile_stages(profiles: dict[str, Any]) -> dict[str, Any]:
     return rows
 
 
+ROUND6_NOTES = [
+    "## Round 6: one mapping where two sides' input is the same, tried and taken back (2026-11-27)",
+    "",
+    "No device was lent this session: this 2-core CPU only, lego 40, two back-to-back pairs, each lane",
+    "its own baseline, both trees `git archive`s (f30a2a5 with the change, 87ca9fa without it).",
+    "- **The idea** (the last round's open item): hardened's clean side maps exactly the default's input",
+    "  wherever its stationary filter changes no pair and no pair is flagged a watermark, so key each",
+    "  mapping by the content of the verified database it reads and map once per key. It fired on the",
+    "  6-view synthetic test set (0 pairs verified again), and **never on lego 40**: 32 of its 780 clean",
+    "  pairs hold a raw match at the same position in both views (within COLMAP's stationary error), so",
+    "  hardened verifies them again and its geometries differ from the default's. On lego a clean",
+    "  mapping is 5 s anyway; the clean side's cost is its geometric verification (56-85 s: 780 pairs,",
+    "  most of them mostly outliers, so RANSAC runs long), done three times (default's, shared with",
+    "  hardened and global; masked's own matches; published's own pixels).",
+    "- **Measured:** first 399 s (8.17x, the clean run 2) against 408-409 s (6.76x, 8.34x) without it;",
+    "  second 201 s against 160-161 s (the change does not touch a second verification: poisoned",
+    "  mappings alone varied 33-110 s between runs). Within this machine's noise; **taken back**",
+    "  (09c33eb). f30a2a5 run 1 started while another job used the CPU (its baseline 93 s).",
+    "- Goals (first <= 3x, second <= 2x) **missed** on 2 cores, as before: the sides' own seconds add up",
+    "  to about 750 s, against a 49-60 s baseline.",
+    "",
+]
+
+
 ROUND5_NOTES = [
     "## Round 5: every side its own task, clean sides first (2026-11-27, a lent H200)",
     "",
@@ -345,7 +369,7 @@ def write_page(rows: list[dict[str, Any]]) -> None:
             f"{more}{f['wall_s'] / b['wall_s']:.2f}x | {second} | {verdict} | "
             f"{loads} |"
         )
-    lines += ["", *ROUND5_NOTES, *ROUND4_NOTES, *ROUND3_NOTES, *ROUND2_NOTES, *NOTES, ""]
+    lines += ["", *ROUND6_NOTES, *ROUND5_NOTES, *ROUND4_NOTES, *ROUND3_NOTES, *ROUND2_NOTES, *NOTES, ""]
     lines += ["## Per profile and stage (seconds, from each run's report.json)", ""]
     for r in rows:
         for lane in ("first", "second"):
