@@ -265,12 +265,12 @@ def colmap(args: argparse.Namespace) -> None:
         spec, design = spec.replace(mark_image=str(args.mark_image)), f"logo {Path(args.mark_image).name}"
     for name in args.sets.split(","):
         # round 3: a subject-filling set (touch's crops, e.g. crop55) as the dataset itself
-        crop = name.startswith("crop") or name.endswith("-fill")
+        crop = name.startswith("crop") or name == "creator-fill"
         ds = bw.Dataset(name, WORK / name / "images", WORK / name / "masks", None) if crop else bw.setup(name)
-        if name.endswith("-fill"):  # round 7: bench_fill's own sets (creator-fill), made there
-            from bench.bench_fill import make_set
+        if name == "creator-fill":  # round 7: bench_fill's own set, in bench_fill's folder
+            from testkit.fill_set import make_fill_set
 
-            ds = bw.Dataset(name, *make_set(name), None)
+            ds = bw.Dataset(name, *make_fill_set(Path("/tmp") / "ppd-bench-fill" / name), None)
         # the placement rule changed between rounds under the same spec: each round its own files
         suffix = "" if args.round == 1 else f"-r{args.round}"
         pois_work = WORK / "sfm" / name / f"per-photo-{spec.spec_id}{suffix}"
