@@ -265,12 +265,9 @@ def colmap(args: argparse.Namespace) -> None:
         spec, design = spec.replace(mark_image=str(args.mark_image)), f"logo {Path(args.mark_image).name}"
     for name in args.sets.split(","):
         # round 3: a subject-filling set (touch's crops, e.g. crop55) as the dataset itself
-        crop = name.startswith("crop") or name == "creator-fill"
-        ds = bw.Dataset(name, WORK / name / "images", WORK / name / "masks", None) if crop else bw.setup(name)
-        if name == "creator-fill":  # round 7: bench_fill's own set, in bench_fill's folder
-            from testkit.fill_set import make_fill_set
-
-            ds = bw.Dataset(name, *make_fill_set(Path("/tmp") / "ppd-bench-fill" / name), None)
+        crop = name.startswith("crop") or name == "creator-fill"  # round 7: bench_fill's set (made there)
+        own = Path("/tmp") / "ppd-bench-fill" / name if name == "creator-fill" else WORK / name
+        ds = bw.Dataset(name, own / "images", own / "masks", None) if crop else bw.setup(name)
         # the placement rule changed between rounds under the same spec: each round its own files
         suffix = "" if args.round == 1 else f"-r{args.round}"
         pois_work = WORK / "sfm" / name / f"per-photo-{spec.spec_id}{suffix}"
@@ -565,9 +562,8 @@ def _rest(lines: list[str]) -> None:
             w5 = f"{c['within5']:.0%}" if c.get("within5") is not None else "-"
             lines.append(
                 f"| {c.get('round', 1)} | {c.get('design', 'default')} | {c['set']} | {c['profile']} "
-                f"| {c['seed']} | {w5} "
-                f"| {c.get('registered')} "
-                f"({c.get('clean_registered')}) | {c['outcome']} | {c['s']} |"
+                f"| {c['seed']} | {w5} | {c.get('registered')} ({c.get('clean_registered')}) "
+                f"| {c['outcome']} | {c['s']} |"
             )
         lines.append("")
     old = RESULTS_MD.read_text() if RESULTS_MD.exists() else ""
