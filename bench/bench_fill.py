@@ -33,6 +33,7 @@ import numpy as np
 from PIL import Image, ImageDraw  # PIL before anything that may load pycolmap
 
 from bench.bench_placement import (
+    FILL_WORK,
     RESULTS_MD,
     ROOT,
     judge_set,
@@ -44,7 +45,7 @@ from bench.bench_shrink import make_fountain
 from poisoner.placement import MARGIN
 from testkit.free_room import largest_free_square, two_fit, two_fit_within
 
-WORK = Path("/tmp") / "ppd-bench-fill"  # its own folder: other rounds' files stay as they were
+WORK = FILL_WORK  # its own folder: other rounds' files stay as they were
 POLYGONS = ROOT / "bench" / "fountain_masks.json"
 PICTURE = ROOT / "bench" / "results" / "placement_fill_sets.png"
 # the tables between BEGIN and END, notes (by hand) after them up to NOTES_END: bench_placement's

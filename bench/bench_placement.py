@@ -22,8 +22,7 @@ Round 2 (issue 25's second round) adds: `lego-fill` to (a), a subject-filling ca
 attacker's corners and how many of their raw matches survive the mask; `text-picture` (f): the
 creator's text as the mark on one lego view (bench/results/placement_mark_text.png).
 
-Results: bench/results/placement.md (rewritten from WORK/*.json after each part).
-"""
+Results: bench/results/placement.md (rewritten from WORK/*.json after each part)."""
 
 from __future__ import annotations
 
@@ -44,6 +43,7 @@ SHARED = Path(os.environ["PPD_SHARED_DATA"])  # bench/__init__.py: the checkout'
 RESULTS_MD = ROOT / "bench" / "results" / "placement.md"
 PICTURE = ROOT / "bench" / "results" / "placement_dtu_crops.png"
 WORK = Path(tempfile.gettempdir()) / "ppd-bench-placement"
+FILL_WORK = Path("/tmp") / "ppd-bench-fill"  # bench_fill's sets (its WORK; `colmap` reads creator-fill)
 SIZE = (800, 600)
 
 
@@ -266,7 +266,7 @@ def colmap(args: argparse.Namespace) -> None:
     for name in args.sets.split(","):
         # round 3: a subject-filling set (touch's crops, e.g. crop55) as the dataset itself
         crop = name.startswith("crop") or name == "creator-fill"  # round 7: bench_fill's set (made there)
-        own = Path("/tmp") / "ppd-bench-fill" / name if name == "creator-fill" else WORK / name
+        own = FILL_WORK / name if name == "creator-fill" else WORK / name
         ds = bw.Dataset(name, own / "images", own / "masks", None) if crop else bw.setup(name)
         # the placement rule changed between rounds under the same spec: each round its own files
         suffix = "" if args.round == 1 else f"-r{args.round}"

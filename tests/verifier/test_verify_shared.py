@@ -51,15 +51,14 @@ def figures(report: VerificationReport) -> dict[str, Any]:
     144.02 deg; incremental: 14.0228 and 14.0232), while geometric verification is on this set
     (identical inliers in three runs), which is why sharing it changes nothing. On lego it is not
     always (test_lego_shared_verification_matches_each_profile_alone's docstring). Of the models, the
-    largest (the verdict's): the small side models besides it vary from run to run (2026-11-27, the
-    code unchanged, hardened's clean side alone gave [6, 2] where the shared run gave [6]; the first
-    failure of this test in CI, with a COLMAP run beside it)."""
+    largest, the verdict's (`registered` is its size): the small side models besides it vary from run
+    to run (2026-11-27, the code unchanged, hardened's clean side alone gave [6, 2] where the shared
+    run gave [6]; the first failure of this test in CI, with a COLMAP run beside it)."""
     out = {}
     for name, p in report.profiles.items():
         sides = {
             side: {
-                **{k: d.get(k) for k in ("outcome", "num_images", "verified_pairs", "registered")},
-                "largest_model": (d.get("model_sizes") or [0])[0],
+                k: d.get(k) for k in ("outcome", "num_images", "verified_pairs", "registered")
             }
             for side, d in (("clean", p.clean), ("poisoned", p.poisoned))
         }
