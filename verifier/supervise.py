@@ -4,6 +4,8 @@ Every child gets its own process group (so a kill reaches whatever it started), 
 limit, an optional cancel event, and ends in exactly one `ChildOutcome`: it exited (with its return
 code), it was killed by a signal (a crash, e.g. a pycolmap segfault), it ran past its limit, or it
 was cancelled. Timeout and cancel kill the whole group: SIGTERM, then SIGKILL after a grace period.
+On Linux a child also dies with its parent (`die_with_parent`): a parent killed outright runs no
+kill_group, and a child in its own session would otherwise go on alone.
 """
 
 from __future__ import annotations
@@ -16,7 +18,9 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
+from typing import Any
 
 POLL_S = 0.2  # how often a running child is checked for its deadline and the cancel event
 
@@ -43,6 +47,44 @@ def signal_name(number: int) -> str:
         return str(number)
 
 
+@cache
+def _prctl() -> Any | None:
+    """libc's prctl, looked up in the parent (a forked child only calls it: no dlopen there), or None
+    where there is none (not Linux)."""
+    import ctypes
+
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+
+
+def die_with_parent(parent: int | None, prctl: Any | None = None) -> None:
+    """Linux: this process is SIGKILLed when the thread that started it dies (PR_SET_PDEATHSIG), as
+    systemd stopping the unit kills them all, so a parent killed outright leaves no child going on
+    alone. parent: the pid that must still be the parent (None: not checked, e.g. under a
+    forkserver); where it died before the signal took effect, this process exits at once.
+    prctl: _prctl(), looked up beforehand (between fork and exec)."""
+    call = prctl if prctl is not None else _prctl()
+    if call is None:
+        return
+    call(1, signal.SIGKILL, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    if parent is not None and os.getppid() != parent:
+        os._exit(1)
+
+
+def _before_exec(nice: int) -> Callable[[], None]:
+    """What a child runs between fork and exec: nice(), die_with_parent; nothing that takes a lock."""
+    parent, prctl = os.getpid(), _prctl()
+
+    def setup() -> None:
+        if nice > 0:
+            os.nice(nice)
+        die_with_parent(parent, prctl)
+
+    return setup
+
+
 def run_child(
     cmd: Sequence[str],
     *,
@@ -61,13 +103,14 @@ def run_child(
     goes to log_path.
 
     Returns when the child has ended; a child still running at timeout_s, or when cancel is set,
-    is killed with its whole group. nice > 0 lowers the child's priority before it starts.
+    is killed with its whole group. nice > 0 lowers the child's priority before it starts. The
+    child dies with the calling thread (die_with_parent): run_child waits in it until the end.
     """
     started = time.monotonic()
-    preexec = (lambda: os.nice(nice)) if nice > 0 else None  # only nice(): no locks taken
+    preexec = _before_exec(nice)
     Path(log_path).parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "ab" if append_log else "wb") as log_fh:
-        proc = subprocess.Popen(  # preexec_fn only calls nice()
+        proc = subprocess.Popen(  # preexec_fn: _before_exec
             list(cmd),
             stdin=subprocess.PIPE if stdin_data is not None else subprocess.DEVNULL,
             stdout=subprocess.DEVNULL if discard_stdout else log_fh,

@@ -34,6 +34,7 @@ def _verify_folder(path: Path, clean: Path, out: Path | None, profiles: tuple[st
                    console: Console) -> Any:  # fmt: skip
     """Any patched folder against its clean originals (nothing from the store)."""
     import dataclasses
+    import shutil
     import tempfile
 
     from daemon.cli.verify_progress import progress_display
@@ -46,9 +47,14 @@ def _verify_folder(path: Path, clean: Path, out: Path | None, profiles: tuple[st
     # issue 30: the clean reference of these originals is reused until they change (a few kept)
     cache = AppPaths.from_env().cache_dir / "verify-clean"
     options = dataclasses.replace(options, clean_cache_dir=cache, clean_cache_keep=3)
-    with progress_display(console, str(path)) as on_progress:
-        options = dataclasses.replace(options, on_progress=on_progress)
-        return verify_folders(clean, path, out_dir, profiles, options)
+    try:
+        with progress_display(console, str(path)) as on_progress:
+            options = dataclasses.replace(options, on_progress=on_progress)
+            return verify_folders(clean, path, out_dir, profiles, options)
+    except BaseException:  # a run with no report leaves no folder of ppd's behind (a given --out stays)
+        if out is None:
+            shutil.rmtree(out_dir, ignore_errors=True)
+        raise
 
 
 def _verify_stored(target: str | None, dataset: str | None, folder: Path | None,

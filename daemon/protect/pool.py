@@ -62,22 +62,6 @@ class ProtectCall(msgspec.Struct, frozen=True):
 _worker_ctx: AppContext | None = None
 
 
-def die_with_parent(parent: int | None) -> None:
-    """Linux: this worker is SIGKILLed when the process (thread) that started it dies, as systemd
-    stopping the unit kills them all: a daemon killed in the middle of a file leaves the state a
-    kill always left (a pending row, the attempt marker), never an orphan finishing on its own.
-    parent: the pid that must still be the parent (None: not checked, e.g. under a forkserver)."""
-    import ctypes
-    import signal
-
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):  # not Linux
-        return
-    if parent is not None and os.getppid() != parent:  # it died before prctl took effect
-        os._exit(1)
-
-
 def ignore_interrupts() -> None:
     """A terminal's Ctrl-C reaches every process of its group: a worker leaves it to its caller,
     which stops handing out files and lets the one in progress finish (no traceback, nothing
@@ -122,6 +106,8 @@ def open_worker(
 ) -> None:  # fmt: skip
     """A worker's AppContext: the caller's paths and config, the worker's own store connection."""
     global _worker_ctx
+    from verifier.supervise import die_with_parent  # the one helper for it (SfM children too)
+
     die_with_parent(parent)
     ignore_interrupts()
     log_like_caller(formatter)

@@ -77,3 +77,39 @@ def test_cancel_kills_the_whole_group(tmp_path: Path) -> None:
     setter.join()
     assert ended.kind == "cancelled"
     assert _gone(int(pid_file.read_text()))
+
+
+# A parent that runs a sleeping child through run_child; the child writes its pid first.
+_PARENT = (
+    "import sys\n"
+    "from pathlib import Path\n"
+    "from verifier.supervise import run_child\n"
+    "code = 'import os, sys, time; open(sys.argv[1], \"w\").write(str(os.getpid())); time.sleep(60)'\n"
+    "run_child([sys.executable, '-c', code, sys.argv[1]], log_path=Path(sys.argv[2]), nice=5)\n"
+)
+
+
+def test_a_child_dies_with_its_parent(tmp_path: Path) -> None:
+    """A parent killed outright (SIGKILL: no handler, no kill_group) takes its SfM child with it:
+    the child lives in its own session, so nothing else would stop it."""
+    import signal
+    import subprocess
+
+    from verifier.childenv import child_env
+
+    pid_file = tmp_path / "child.pid"
+    parent = subprocess.Popen(
+        [sys.executable, "-c", _PARENT, str(pid_file), str(tmp_path / "c.log")], env=child_env()
+    )
+    try:
+        _wait_for_file(pid_file)
+        child = int(pid_file.read_text())
+        assert _alive(child)
+        parent.send_signal(signal.SIGKILL)
+        parent.wait(10)
+        assert _gone(child), "the child outlived its killed parent"
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+        if pid_file.is_file() and pid_file.read_text() and _alive(int(pid_file.read_text())):
+            os.kill(int(pid_file.read_text()), signal.SIGKILL)

@@ -396,18 +396,23 @@ def test_cli_verify_splat_json(synthetic_sets: dict[str, Path], tmp_path: Path) 
     assert (out / "default" / "splat" / "splat.json").is_file()
 
 
-def test_cli_verify_bad_folders_is_one_clear_line(tmp_path: Path) -> None:
+def test_cli_verify_bad_folders_is_one_clear_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import tempfile
+
     from typer.testing import CliRunner
 
     from daemon.cli import app
 
     _write_images(tmp_path / "c", ["a.png", "b.png", "c.png"])
     _write_images(tmp_path / "p", ["a.png", "b.png"])
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
     result = CliRunner().invoke(
         app, ["verify", str(tmp_path / "p"), "--clean", str(tmp_path / "c"), "--json"]
     )
     assert result.exit_code == 2
     assert "same file names" in result.output
+    assert list((tmp_path / "tmp").iterdir()) == []  # the report folder it made is gone with the run
     result = CliRunner().invoke(app, ["verify", str(tmp_path / "p")])
     assert result.exit_code == 2
     assert "--clean" in result.output
