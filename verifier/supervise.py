@@ -73,7 +73,7 @@ def die_with_parent(parent: int | None, prctl: Any | None = None) -> None:
         os._exit(1)
 
 
-def _before_exec(nice: int) -> Callable[[], None]:
+def before_exec(nice: int) -> Callable[[], None]:
     """What a child runs between fork and exec: nice(), die_with_parent; nothing that takes a lock."""
     parent, prctl = os.getpid(), _prctl()
 
@@ -107,10 +107,10 @@ def run_child(
     child dies with the calling thread (die_with_parent): run_child waits in it until the end.
     """
     started = time.monotonic()
-    preexec = _before_exec(nice)
+    preexec = before_exec(nice)
     Path(log_path).parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "ab" if append_log else "wb") as log_fh:
-        proc = subprocess.Popen(  # preexec_fn: _before_exec
+        proc = subprocess.Popen(  # preexec_fn: before_exec
             list(cmd),
             stdin=subprocess.PIPE if stdin_data is not None else subprocess.DEVNULL,
             stdout=subprocess.DEVNULL if discard_stdout else log_fh,

@@ -94,10 +94,11 @@ def poison_isolated(
     report_file = dst.with_name(f"{dst.name}.report")
     args["report"] = os.fsdecode(report_file)
     from verifier.childenv import child_env
+    from verifier.supervise import before_exec
 
-    done = subprocess.run(
+    done = subprocess.run(  # the child dies with this process: no patch finishing on its own
         [sys.executable, "-m", "daemon.protect.child", json.dumps(args)],
-        capture_output=True, text=True, env=child_env(), check=False,
+        capture_output=True, text=True, env=child_env(), check=False, preexec_fn=before_exec(0),
     )  # fmt: skip
     if done.returncode < 0:
         raise PoisonerDied(
