@@ -113,7 +113,7 @@ def test_an_isolated_poisoner_that_dies_is_a_one_line_failure(tmp_path: Path) ->
                 cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
             except OSError:
                 continue
-            if b"poison_to" in cmd and pid.isdigit():
+            if b"daemon.protect.child" in cmd and pid.isdigit():
                 child = int(pid)
         time.sleep(0.01)
     assert child is not None
