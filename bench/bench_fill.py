@@ -163,7 +163,7 @@ ABOUT = {
 
 
 def write_markdown(rows: list[dict[str, Any]]) -> None:
-    lines = [BEGIN, "## (a) Subject-filling captures, no masks given, judged per view: round 6", "",
+    lines = [BEGIN, "## (a) Subject-filling captures, no masks given, judged per view: round 7", "",
              "`python -m bench.bench_fill touch` (its docstring). `touch`: views with a changed pixel on",
              "the subject (as shown); `touch, room existed`: of those, views where two squares of the",
              "floor side (half the mark's side) fit off the subject inside one square of the frame's",

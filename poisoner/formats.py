@@ -69,7 +69,7 @@ from poisoner.orientation import INVERSE_ORIENTATION, orientation_of, turn_squar
 from poisoner.provenance import Marker
 from poisoner.shrink import place_fitting
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
-from poisoner.subject import display_detail, display_subject
+from poisoner.subject import display_details, display_subject
 
 # Re-exported: importers of poisoner.formats keep finding these here.
 __all__ = [
@@ -458,10 +458,10 @@ def plan_mark(
     try:
         if not spec.per_photo:
             return spec.resolve(width, height, image_key=name), None
-        detail, orientation = display_detail(data, name, decoded)
+        detail, faint, orientation = display_details(data, name, decoded)
         subject = None if keep is None else display_subject(keep, orientation, detail.shape)
         # issue 25 round 3: squares cropped to fit where no plain place holds them whole
-        return place_fitting(spec, width, height, name, orientation, detail, subject)
+        return place_fitting(spec, width, height, name, orientation, detail, subject, faint=faint)
     except (SpecError, ValueError) as exc:
         raise ImageFormatError(f"{name}: {exc}") from exc
 

@@ -129,6 +129,17 @@ EDGE_WEIGHT = 0.5
 # Round 2 (the masked attacker): the four corner regions (this share of the width and of the height)
 # are what the `masked` profile removes; a plain place off them wins over a plain corner.
 CORNER_REGION = 0.2
+# Round 7 (no masks): a plain place is doubtful when one of its squares, grown by the margin, holds
+# more than this share of FAINT detail (poisoner.subject.FAINT_LEVEL): a subject's face may look plain
+# at DETAIL_LEVEL where it shows a photo of what lies beside it (creator-fill: pavement on the box's
+# lower face just above the real pavement, their edge too faint to count; 0.09 to 0.16 on the three
+# views whose mark touched it). A studio backdrop has next to no faint texture: at most 0.036 at the
+# places lego, dtu_scan37 (800 and 1600 px) and the dtu/lego fill crops get, none doubtful, so their
+# marks stay where they were, byte for byte. A doubtful place is kept unless each square finds its own
+# place, plain and not doubtful, off any corner region the stacked mark kept off (place_on_photo);
+# moving the stacked mark to a less faint place instead moved creator-fill's view_16 onto the box's
+# plain lower-left corner.
+FAINT_DOUBT = 0.06
 
 
 @dataclass(frozen=True)
@@ -144,6 +155,7 @@ class Spot:
     subject: float | None
     free: bool
     plain: bool = True  # plain with the margin (False: the fallback without it, or nowhere plain)
+    doubtful: bool = False  # plain, but its faint share is above FAINT_DOUBT (round 7)
 
 
 def _axis(lo: int, hi: int, preferred: int, stride: int) -> np.ndarray:
@@ -203,6 +215,7 @@ def choose_spot(
     bounds: tuple[int, int, int, int] | None = None,
     direction: tuple[int, int] = (1, 0),
     corner_region: float = CORNER_REGION,
+    faint: np.ndarray | None = None,
 ) -> Spot:
     """The anchor for a mark whose parts cover `rects` (display px, relative to the anchor) in a
     frame of `size` (w, h) display px: the plainest place, judged on `detail` (a thumbnail of the
@@ -214,7 +227,9 @@ def choose_spot(
     two photos whose anchors differ along it still show the lanes moving in parallel by different
     amounts, one consistent phantom geometry; any other shift breaks it for that pair), then the
     nearest to `preferred`, then top-left first: deterministic for a given picture. bounds
-    (relative to the anchor, default: the rects' union) must lie inside the frame."""
+    (relative to the anchor, default: the rects' union) must lie inside the frame. faint: the
+    detail map at a lower level (same grid; None: not checked; only without masks): the spot is
+    said `doubtful` where it is plain but a square's faint share is above FAINT_DOUBT."""
     w, h = size
     th, tw = detail.shape
     sx, sy = tw / w, th / h
@@ -255,6 +270,9 @@ def choose_spot(
         return best, share, on_subject, bool(on_subject[best] == 0 and steps[best] == 0)
 
     best, share, on_subject, plain = best_at(margin)
+    doubtful, one = False, slice(best, best + 1)
+    if plain and faint is not None and subject is None:  # round 7
+        doubtful = bool(_doubtful(faint, rects, ax[one], ay[one], margin, (sx, sy))[0])
     if not plain:
         # Nowhere plain with the margin (a subject filling the frame, a small backdrop): the place
         # where the squares themselves are plainest, even close to the subject, beats one on it.
@@ -263,7 +281,23 @@ def choose_spot(
     # without masks, only a place plain with its margin is called free: the fallback's low detail
     # may be a plain part of the subject (a stone's smooth face, a ruler), so ppd says so
     free = subject_share == 0.0 if subject_share is not None else plain
-    return Spot(int(ax[best]), int(ay[best]), float(share[best]), subject_share, free, plain)
+    return Spot(int(ax[best]), int(ay[best]), float(share[best]), subject_share, free, plain, doubtful)
+
+
+def _doubtful(
+    faint: np.ndarray,
+    rects: list[tuple[int, int, int, int]],
+    ax: np.ndarray,
+    ay: np.ndarray,
+    margin: int,
+    scale: tuple[float, float],
+) -> np.ndarray:
+    """Round 7: True at each anchor where a square, grown by the margin, holds more than FAINT_DOUBT
+    faint detail. Each square on its own: the sliver of a subject's face that one square reaches is
+    half as much of both."""
+    maps = {"detail": integral_image(faint)}
+    share = np.maximum.reduce([_shares(maps, [r], ax, ay, margin, scale)[0] for r in rects])
+    return np.asarray(np.round(share, 6) > FAINT_DOUBT)
 
 
 SPLIT_CANDIDATES = 80  # best places kept per square when each square looks for its own
@@ -303,6 +337,7 @@ def choose_split(
     preferred: list[tuple[int, int]],
     direction: tuple[int, int] = (1, 0),
     corner_region: float = CORNER_REGION,
+    faint: np.ndarray | None = None,
 ) -> tuple[list[Spot], float] | None:
     """Each lane's square in its own place (round 2: a subject filling the frame leaves plain places
     too small for the stacked lanes): lane k's square covers lane_rects[k] relative to its anchor,
@@ -310,7 +345,8 @@ def choose_split(
     `direction` first, as in choose_spot, so lanes that split stay on the lines the stacked lanes
     move along. The pair is the best of each square's SPLIT_CANDIDATES places that do not overlap
     (a sixth of a square apart) and fit one square box inside the frame, worst square first.
-    Returns (spots, worst badness) or None when no pair fits."""
+    Returns (spots, worst badness) or None when no pair fits. faint (round 7, a doubtful stacked
+    place's split): a plain square doubtful by it (_doubtful) has badness 0.5."""
     w, h = size
     th, tw = detail.shape
     scale = (tw / w, th / h)
@@ -332,6 +368,8 @@ def choose_split(
         # plain patch inside the frame may be the subject's smooth face: fountain-fill's basin)
         inward = _inward(ax, ay, (x0, y0, x1, y1), size) if subject is None else None
         bad, core, subj = _badness(maps, [(x0, y0, x1, y1)], ax, ay, margin, scale, inward)
+        if faint is not None:
+            bad = np.where((bad == 0) & _doubtful(faint, [(x0, y0, x1, y1)], ax, ay, margin, scale), 0.5, bad)
         cornered = _in_corners(ax, ay, [(x0, y0, x1, y1)], size, corner_region)
         off_line = np.abs((ax - pref[0]) * direction[1] - (ay - pref[1]) * direction[0])
         distance = (ax - pref[0]) ** 2 + (ay - pref[1]) ** 2
@@ -423,13 +461,15 @@ def place_on_photo(
     index: float | None = None,
     split: bool = True,
     crop: int = 0,
+    faint: np.ndarray | None = None,
 ) -> tuple[PatchPlacement, MarkPlace]:
     """A per-photo spec's placement on one stored width x height photo, in stored pixels, and where
     it shows. detail / subject: display-oriented thumbnails (True = detail / subject); detail None:
     nothing to judge on (the preferred anchor). split False: the lanes stay stacked (a video's
     keyframes: one anchor glides between them for both lanes). crop: each lane's square cropped to
-    this side (poisoner.shrink). The mark is laid out in display space (its lanes slide right and
-    down as the photo is shown) and turned back with the photo (PatchPlacement.turn)."""
+    this side (poisoner.shrink). faint: choose_spot's. The mark is laid out in display space (its
+    lanes slide right and down as the photo is shown) and turned back with the photo
+    (PatchPlacement.turn)."""
     o = orientation_of(orientation)
     dw, dh = display_size(width, height, o)
     preferred = spec.auto_anchor(dw, dh)
@@ -439,15 +479,18 @@ def place_on_photo(
     else:
         zero = spec.resolve(dw, dh, image_key, index=index, anchor=(0, 0), crop=crop)
         spot = choose_spot(detail, subject, (dw, dh), _parts(zero), preferred, zero.box,
-                           spec.slide_direction, spec.corner_region)  # fmt: skip
+                           spec.slide_direction, spec.corner_region, faint)  # fmt: skip
         if subject is not None:
             source = "masks" if spot.free else "no-free-masks"
         else:
             source = "estimated" if spot.free else "no-plain"
-        stacked = spot.plain or not split
-        lanes = None if stacked else _split_lanes(spec, (dw, dh), zero, spot, detail, subject, preferred)
+        # round 7: a doubtful plain place tries each square in its own place too
+        stacked = (spot.plain and not spot.doubtful) or not split
+        lanes = None if stacked else _split_lanes(spec, (dw, dh), zero, spot, detail, subject, preferred,
+                                                  faint if spot.doubtful else None)  # fmt: skip
         if lanes is not None:
-            return _placed(spec, (width, height), o, (image_key, index, crop), lanes, subject is not None)
+            return _placed(spec, (width, height), o, (image_key, index, crop), lanes, subject is not None,
+                           spot.doubtful)  # fmt: skip
     shown = spec.resolve(dw, dh, image_key, index=index, anchor=(spot.x, spot.y), crop=crop)
     x, y = turn_square(shown.x, shown.y, shown.size, INVERSE_ORIENTATION[o], dw, dh)
     stored = dataclasses.replace(shown, x=x, y=y, turn=o)
@@ -463,18 +506,28 @@ def _split_lanes(
     detail: np.ndarray,
     subject: np.ndarray | None,
     preferred: tuple[int, int],
+    faint: np.ndarray | None = None,
 ) -> list[Spot] | None:
-    """Each lane's own place, when that is better than the best stacked place (None otherwise)."""
+    """Each lane's own place, when that is better than the best stacked place (None otherwise).
+    faint: the stacked place is plain but doubtful (round 7): only a split whose squares are both
+    plain and not doubtful is better."""
     parts = _parts(zero)
     if len(parts) < 2:
         return None
     base = [k * round(zero.lane_size * 7 / 6) for k in range(len(parts))]  # lane k's row in the stack
     rects = [(x0, y0 - b, x1, y1 - b) for (x0, y0, x1, y1), b in zip(parts, base, strict=True)]
     prefs = [(preferred[0], preferred[1] + b) for b in base]
-    found = choose_split(detail, subject, frame, rects, prefs, spec.slide_direction, spec.corner_region)
+    found = choose_split(detail, subject, frame, rects, prefs, spec.slide_direction, spec.corner_region,
+                         faint)  # fmt: skip
     if found is None:
         return None
     spots, worst = found
+    if faint is not None:  # and never into a corner region the stacked place kept off
+        one = np.zeros(1, dtype=np.int64)
+        was_in = _in_corners(one + spot.x, one + spot.y, parts, frame, spec.corner_region)[0]
+        now_in = any(_in_corners(one + s.x, one + s.y, [r], frame, spec.corner_region)[0]
+                     for s, r in zip(spots, rects, strict=True))  # fmt: skip
+        return spots if worst == 0 and (was_in or not now_in) else None
     at = np.array([spot.x]), np.array([spot.y])
     stacked, _, _ = _badness(
         {"detail": integral_image(detail),
@@ -501,9 +554,10 @@ def _placed(
     which: tuple[str | None, float | None, int],
     lanes: list[Spot],
     masked: bool,
+    doubted: bool = False,
 ) -> tuple[PatchPlacement, MarkPlace]:
     """The placement and MarkPlace of split lanes (display anchors), turned back to stored pixels;
-    which: (image_key, index, crop) as place_on_photo got them."""
+    which: (image_key, index, crop) as place_on_photo got them; doubted: split from a doubtful place."""
     dw, dh = display_size(*size, o)
     at = tuple((s.x, s.y) for s in lanes)
     image_key, index, crop = which
@@ -515,7 +569,7 @@ def _placed(
         source = "masks-split" if free else "no-free-masks"
         subject: float | None = max(s.subject or 0.0 for s in lanes)
     else:
-        source = "estimated-split" if free else "no-plain"
+        source = ("estimated-doubt-split" if doubted else "estimated-split") if free else "no-plain"
         subject = None
     detail = max(s.detail for s in lanes)
     place = MarkPlace(shown.box, (dw, dh), source, free, detail, subject, o, at[0])
@@ -544,40 +598,3 @@ def reaches_a_corner(
     at = np.zeros(1, dtype=np.int64)
     return bool(_in_corners(at, at, shown_squares(placement, width, height), frame, region)[0])
 
-
-# ---- videos and frame sets: the same rule per keyframe, moving smoothly between them ----------------
-MAX_ANCHOR_SPEED = 0.25  # of the frame's shorter side per second: how fast a video's mark may move
-
-
-def smooth_anchors(
-    keys: Sequence[tuple[float, tuple[int, int]]], max_step: float
-) -> list[tuple[float, tuple[float, float]]]:
-    """Keyframe anchors (time, (x, y)) limited to move at most max_step px per unit of time from
-    one keyframe to the next (a jump is spread out: the video's mark glides, never teleports)."""
-    out: list[tuple[float, tuple[float, float]]] = []
-    for t, (x, y) in sorted(keys):
-        if not out:
-            out.append((t, (float(x), float(y))))
-            continue
-        pt, (px, py) = out[-1]
-        reach = max_step * max(t - pt, 0.0)
-        dx, dy = x - px, y - py
-        dist = float(np.hypot(dx, dy))
-        scale = 1.0 if dist <= reach or dist == 0 else reach / dist
-        out.append((t, (px + dx * scale, py + dy * scale)))
-    return out
-
-
-def anchor_at(anchors: Sequence[tuple[float, tuple[float, float]]], t: float) -> tuple[int, int]:
-    """The whole-pixel anchor at time t, linear between the (smoothed) keyframe anchors."""
-    if not anchors:
-        raise ValueError("no keyframe anchors")
-    if t <= anchors[0][0]:
-        x, y = anchors[0][1]
-        return (round(x), round(y))
-    for (t0, (x0, y0)), (t1, (x1, y1)) in zip(anchors, anchors[1:], strict=False):
-        if t <= t1:
-            f = 0.0 if t1 == t0 else (t - t0) / (t1 - t0)
-            return (round(x0 + f * (x1 - x0)), round(y0 + f * (y1 - y0)))
-    x, y = anchors[-1][1]
-    return (round(x), round(y))

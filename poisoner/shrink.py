@@ -51,13 +51,17 @@ def place_fitting(
     detail: np.ndarray | None,
     subject: np.ndarray | None = None,
     floor: float = SHRINK_FLOOR,
+    *,
+    faint: np.ndarray | None = None,
 ) -> tuple[PatchPlacement, MarkPlace]:
     """place_on_photo's answer where it found a free place (or had nothing to judge on, or the mark
     has no lanes to crop); otherwise the largest crop of the squares (crop_sides) that finds a
     free place, its MarkPlace saying so (`shrunk`); otherwise the least-bad place: without masks the
     plainest crop whose squares are plain (PLAIN_SHARE) where the whole mark's are not (the largest on
-    a tie), else the whole mark's."""
-    placement, place = place_on_photo(spec, width, height, image_key, orientation, detail, subject)
+    a tie), else the whole mark's. faint: place_on_photo's."""
+    placement, place = place_on_photo(
+        spec, width, height, image_key, orientation, detail, subject, faint=faint
+    )
     if place.free or detail is None or not placement.parts:
         return placement, place
     full = placement.lane_size
@@ -68,7 +72,7 @@ def place_fitting(
         if subject is None and not _some_square_plain(sums, place.frame, side, plain_boxes):
             continue  # no square of this side is plain anywhere: neither free nor the fallback's
         cropped, where = place_on_photo(
-            spec, width, height, image_key, orientation, detail, subject, crop=side
+            spec, width, height, image_key, orientation, detail, subject, crop=side, faint=faint
         )
         if where.free:
             return cropped, dataclasses.replace(where, shrunk=(side, full))

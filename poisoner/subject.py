@@ -34,6 +34,10 @@ log = logging.getLogger(__name__)
 
 THUMBNAIL_PX = 256  # longest side of the picture the estimate looks at
 DETAIL_LEVEL = 6.0  # gradient magnitude (8-bit levels per thumbnail pixel) that counts as detail
+# Issue 25, round 7: faint detail (a photo of pavement on a subject's face, beside real pavement), what
+# per-photo placement checks a plain place against (poisoner.placement.FAINT_DOUBT), never what it
+# calls detail
+FAINT_LEVEL = 3.0
 MASK_GRID = (256, 256)  # (w, h): masks of differently sized images compared on one grid
 # what a mask file may be: any image ppd or COLMAP reads (COLMAP's own masks are PNG: tried first)
 _MASK_SUFFIXES = (".png", *sorted((IMAGE_SUFFIXES | SFM_SUFFIXES) - {".png"}))
@@ -244,12 +248,21 @@ def _gradient(grey: np.ndarray) -> np.ndarray:
 def display_detail(
     data: bytes, name: str = "image", decoded: Image.Image | None = None
 ) -> tuple[np.ndarray, int]:
-    """(detail, orientation) of an encoded image: detail is True where a THUMBNAIL_PX thumbnail, as
-    a viewer shows it (EXIF orientation applied), has visible detail (gradient above DETAIL_LEVEL);
-    what per-photo placement judges (poisoner.placement.place_on_photo). Decoded from the bytes
-    alone, so ppd poison and ppd preview judge exactly the same thumbnail. `decoded`: the same bytes
-    already opened and loaded by the caller; used instead of a second decode only where that gives
-    the same thumbnail (reuses_decode), else ignored."""
+    """(detail, orientation): display_details without its faint map."""
+    detail, _, orientation = display_details(data, name, decoded)
+    return detail, orientation
+
+
+def display_details(
+    data: bytes, name: str = "image", decoded: Image.Image | None = None
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """(detail, faint, orientation) of an encoded image: detail is True where a THUMBNAIL_PX
+    thumbnail, as a viewer shows it (EXIF orientation applied), has visible detail (gradient above
+    DETAIL_LEVEL), faint where it is above FAINT_LEVEL: what per-photo placement judges
+    (poisoner.placement.place_on_photo). Decoded from the bytes alone, so ppd poison and ppd
+    preview judge exactly the same thumbnail. `decoded`: the same bytes already opened and loaded
+    by the caller; used instead of a second decode only where that gives the same thumbnail
+    (reuses_decode), else ignored."""
     import io
 
     from PIL import Image
@@ -267,7 +280,8 @@ def display_detail(
             with Image.open(io.BytesIO(data)) as im:
                 grad = _gradient(_grey_thumbnail(im))
                 orientation = orientation_of(im.getexif().get(0x0112))
-    return orient_array(grad > DETAIL_LEVEL, orientation), orientation
+    faint = orient_array(grad > FAINT_LEVEL, orientation)
+    return orient_array(grad > DETAIL_LEVEL, orientation), faint, orientation
 
 
 def reuses_decode(im: Image.Image) -> bool:

@@ -97,7 +97,8 @@ def _per_photo_placements(
     is (poisoner.placement.place_on_photo on its own detail), the anchor moving between keyframes
     along a straight line at most MAX_ANCHOR_SPEED of the frame per second, so the mark glides to
     the next plain place instead of jumping; the lanes' own slide goes on on top of it."""
-    from poisoner.placement import MAX_ANCHOR_SPEED, anchor_at, place_on_photo, smooth_anchors
+    from poisoner.keyframes import MAX_ANCHOR_SPEED, anchor_at, smooth_anchors
+    from poisoner.placement import place_on_photo
     from poisoner.subject import frame_detail
 
     rate = model.frame_rate(info)

@@ -325,7 +325,7 @@ def changed_shown_bytes_oriented(original: bytes, patched: Path) -> np.ndarray:
 
 
 def test_video_anchors_glide_between_keyframes() -> None:
-    from poisoner.placement import anchor_at, smooth_anchors
+    from poisoner.keyframes import anchor_at, smooth_anchors
 
     anchors = smooth_anchors([(0.0, (0, 0)), (1.0, (300, 0)), (2.0, (300, 0))], max_step=100.0)
     assert anchors[1][1] == (100.0, 0.0)  # a 300 px jump in 1 s is spread at 100 px/s
