@@ -124,12 +124,14 @@ def sentence(
                 f"richly textured.{size} `ppd verify` tells you for sure.")  # fmt: skip
     if kind == SceneKind.TEXTURED_SUPPORT:
         # Issue 25: this class holds sets we measured (an object on a textured stone: dtu_scan37, held
-        # in most runs at 800 px) and sets we did not, or that failed (a façade under open sky: NOT
-        # protected); one image cannot tell them apart, so the line claims nothing for the class.
+        # in most runs at 800 px) and sets we did not, or that failed (a façade under open sky; a box of
+        # real photo faces filling 2/3 of the frame, testkit/fill_set.py: COLMAP's global mapper 100%,
+        # bench/results/placement.md); one image cannot tell them apart, so the line claims nothing.
         return (f"{dataset}: texture reaches the frame's edges ({edge_textured_fraction:.0%} of them): an "
                 "object on a textured support, a façade, or a subject filling the frame — ppd's mark held "
-                "on one object-on-stone set in our tests and failed on façades; for the rest nothing is "
-                f"measured.{size} `ppd verify` tells you for sure.")  # fmt: skip
+                "on one object-on-stone set in our tests and failed on façades and on a photo-textured box "
+                "filling the frame; for the rest nothing is measured."
+                f"{size} `ppd verify` tells you for sure.")  # fmt: skip
     return (f"{dataset}: richly textured everywhere ({textured_fraction:.0%} of the frame) — in our tests no "
             "mark within the visibility budget protected sets like this; `ppd verify` will say.")  # fmt: skip
 
