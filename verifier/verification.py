@@ -521,6 +521,7 @@ def _decide_profile(
 
 
 def _copy_model(src: Path, dst: Path) -> None:
+    """A model folder's files (COLMAP's .bin / .txt and ppd's result.json) into dst."""
     dst.mkdir(parents=True, exist_ok=True)
     for f in src.iterdir():
         if f.is_file() and (f.suffix in (".bin", ".txt") or f.name == "result.json"):
