@@ -59,6 +59,8 @@ class SfmSettings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     mask_corners: float = 0.0
     # "incremental" (convert.py) or "global": COLMAP 4's global mapper (GLOMAP merged into COLMAP)
     mapper: str = "incremental"
+    # SIFT on the CPU even where a GPU is (small images: verifier.sift_device.gpu_sift_suits)
+    cpu_sift: bool = False
 
     def verification_key(self) -> str:
         """Settings that decide the verified database (features, raw matches, two-view geometry):
@@ -75,7 +77,11 @@ class SfmSettings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         key += f"-mask{self.mask_corners:g}" if self.mask_corners > 0 else ""
         # GPU SIFT (SiftGPU) finds other features than the CPU's: a cache made on one is not reused on
         # the other; CPU keys stay as they were
-        return key + ("-cuda" if sift_device_name() == "cuda" else "")
+        return key + ("-cuda" if self.sift_device_name() == "cuda" else "")
+
+    def sift_device_name(self) -> str:
+        """Where these settings' SIFT runs, "cuda" or "cpu" (asked without loading pycolmap)."""
+        return sift_device_name(cpu_only=self.cpu_sift)
 
 
 # Issue 14: what an attacker who has read the paper does about a corner mark.
@@ -141,6 +147,9 @@ class SfmJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     stationary_from: str = ""
     # "features": build cache_db (features + raw matches) and stop; "verified": also write verified_db
     stop_after: str = ""
+    # CPU threads of the geometric verification and the mapping (-1: every core, COLMAP's default);
+    # fewer when many sides run at once (verifier.verification.threads_per_side)
+    threads: int = -1
 
 
 class CameraPose(msgspec.Struct, frozen=True):
@@ -338,7 +347,7 @@ def extract_features(image_dir: Path, database: Path, settings: SfmSettings, mas
         camera_mode=mode,
         reader_options=reader,
         extraction_options=extraction,
-        device=sift_device(),
+        device=sift_device(settings.cpu_sift),
     )
 
 
@@ -348,14 +357,13 @@ def match_raw(database: Path, settings: SfmSettings) -> None:
 
     matching = pycolmap.FeatureMatchingOptions()
     matching.skip_geometric_verification = True
+    device = sift_device(settings.cpu_sift)
     if settings.matching == "sequential":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = settings.sequential_overlap
-        pycolmap.match_sequential(
-            database, matching_options=matching, pairing_options=pairing, device=sift_device()
-        )
+        pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing, device=device)
     elif settings.matching == "exhaustive":
-        pycolmap.match_exhaustive(database, matching_options=matching, device=sift_device())
+        pycolmap.match_exhaustive(database, matching_options=matching, device=device)
     else:
         raise ValueError(f"unknown matching {settings.matching!r}")
 
@@ -382,7 +390,7 @@ def execute_job(job: SfmJob) -> SfmResult:
     work_db = model_dir / "work.db"
     t1 = time.time()
     num_images, verified_pairs = verified_database(
-        cache_db, work_db, settings, job.verified_db, job.stationary_from
+        cache_db, work_db, settings, job.verified_db, job.stationary_from, job.threads
     )
     timings["verification_s"] = time.time() - t1
     if job.stop_after == "verified":  # the shared verified database is written: no mapping here
@@ -391,7 +399,7 @@ def execute_job(job: SfmJob) -> SfmResult:
         return SfmOk(num_images=num_images, verified_pairs=verified_pairs, timings=timings)
     t2 = time.time()
     with tempfile.TemporaryDirectory(prefix=".ppd-tmp-map-", dir=model_dir) as tmp:
-        models = run_mapper(work_db, image_dir, Path(tmp), settings)
+        models = run_mapper(work_db, image_dir, Path(tmp), settings, job.threads)
         timings["mapping_s"] = time.time() - t2
         work_db.unlink()
         result = summarise_models(models, num_images, verified_pairs)
@@ -399,12 +407,13 @@ def execute_job(job: SfmJob) -> SfmResult:
             largest = max(models.values(), key=lambda r: r.num_reg_images())
             largest.write(model_dir)
     result.timings = timings
-    result.device = sift_device().name
+    result.device = sift_device(settings.cpu_sift).name
     return result
 
 
 def verified_database(
-    cache_db: Path, work_db: Path, settings: SfmSettings, verified_db: str, stationary_from: str = ""
+    cache_db: Path, work_db: Path, settings: SfmSettings, verified_db: str, stationary_from: str = "",
+    threads: int = -1,
 ) -> tuple[int, int]:
     """work_db = cache_db after this profile's geometric verification; (images, verified pairs).
 
@@ -423,10 +432,10 @@ def verified_database(
             return db.num_images(), db.num_verified_image_pairs()
     base = Path(stationary_from) if stationary_from else None
     if settings.filter_stationary_matches and base is not None and base.exists():
-        counts = reverify_stationary(base, work_db, settings)
+        counts = reverify_stationary(base, work_db, settings, threads)
     else:
         shutil.copyfile(cache_db, work_db)
-        counts = verify_pairs(work_db, settings)
+        counts = verify_pairs(work_db, settings, threads)
     if shared is not None:
         shared.parent.mkdir(parents=True, exist_ok=True)
         with atomic_output(shared) as tmp:
@@ -434,23 +443,26 @@ def verified_database(
     return counts
 
 
-def run_mapper(work_db: Path, image_dir: Path, out: Path, settings: SfmSettings) -> dict[int, Any]:
+def run_mapper(
+    work_db: Path, image_dir: Path, out: Path, settings: SfmSettings, threads: int = -1
+) -> dict[int, Any]:
     """The settings' mapper: COLMAP's incremental mapper (convert.py) or its global mapper."""
     import pycolmap
 
     if settings.mapper == "global":
-        return pycolmap.global_mapping(work_db, image_dir, out, options=global_options(settings))
+        return pycolmap.global_mapping(work_db, image_dir, out, options=global_options(settings, threads))
     if settings.mapper != "incremental":
         raise ValueError(f"unknown mapper {settings.mapper!r}")
-    return pycolmap.incremental_mapping(work_db, image_dir, out, options=mapper_options(settings))
+    return pycolmap.incremental_mapping(work_db, image_dir, out, options=mapper_options(settings, threads))
 
 
-def global_options(settings: SfmSettings) -> Any:
+def global_options(settings: SfmSettings, threads: int = -1) -> Any:
     """COLMAP 4's global mapper as documented (`colmap global_mapper`), with the run's seed; no
     view-graph calibration (measured on clean lego 40: 40/40 registered without it, 33 with it)."""
     import pycolmap
 
     options = pycolmap.GlobalPipelineOptions()
+    options.num_threads = threads
     options.random_seed = settings.random_seed
     options.ignore_watermarks = settings.ignore_watermarks
     if settings.camera_params:  # known intrinsics: kept fixed, as in the incremental mapper
@@ -461,14 +473,16 @@ def global_options(settings: SfmSettings) -> Any:
     return options
 
 
-def verify_pairs(work_db: Path, settings: SfmSettings) -> tuple[int, int]:
+def verify_pairs(work_db: Path, settings: SfmSettings, threads: int = -1) -> tuple[int, int]:
     """This profile's geometric verification of the raw matches; (images, verified pairs)."""
     import pycolmap
 
     two_view = pycolmap.TwoViewGeometryOptions()
     two_view.filter_stationary_matches = settings.filter_stationary_matches
     two_view.ransac.random_seed = settings.random_seed
-    pycolmap.geometric_verification(work_db, two_view_geometry_options=two_view)
+    verifier = pycolmap.GeometricVerifierOptions()
+    verifier.num_threads = threads
+    pycolmap.geometric_verification(work_db, verifier_options=verifier, two_view_geometry_options=two_view)
     with pycolmap.Database.open(work_db) as db:
         return db.num_images(), db.num_verified_image_pairs()
 
@@ -499,7 +513,9 @@ def stationary_pairs(database: Path, max_error: float) -> list[tuple[int, int]]:
     return pairs
 
 
-def reverify_stationary(default_verified: Path, work_db: Path, settings: SfmSettings) -> tuple[int, int]:
+def reverify_stationary(
+    default_verified: Path, work_db: Path, settings: SfmSettings, threads: int = -1
+) -> tuple[int, int]:
     """work_db = the hardened verification of the raw matches, from the default's verified database
     of the same raw matches: the stationary filter changes a pair's input only where it removes a
     match, and RANSAC with a fixed seed is a function of its input, so every other pair's two-view
@@ -515,14 +531,15 @@ def reverify_stationary(default_verified: Path, work_db: Path, settings: SfmSett
         for id1, id2 in pairs:
             db.delete_two_view_geometry(id1, id2)
     print(f"ppd: stationary filter: {len(pairs)} pair(s) verified again", file=sys.stderr, flush=True)
-    return verify_pairs(work_db, settings)
+    return verify_pairs(work_db, settings, threads)
 
 
-def mapper_options(settings: SfmSettings) -> Any:
-    """COLMAP's incremental mapper options for these settings."""
+def mapper_options(settings: SfmSettings, threads: int = -1) -> Any:
+    """COLMAP's incremental mapper options for these settings, on this many threads (-1: all)."""
     import pycolmap
 
     mapper = pycolmap.IncrementalPipelineOptions()
+    mapper.num_threads = threads
     mapper.ignore_watermarks = settings.ignore_watermarks
     mapper.random_seed = settings.random_seed
     if settings.camera_params:  # known intrinsics: keep them fixed, as a careful attacker would

@@ -28,6 +28,7 @@ tests/verifier/test_verify_stationary.py).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -44,6 +45,7 @@ from pathlib import Path
 from typing import Any
 
 import msgspec
+from PIL import Image
 
 from poisoner.errors import ExitStatus, PpdError
 from verifier import poses as posemod
@@ -55,7 +57,7 @@ from verifier.sfm import SfmSettings, list_images, profile_sfm_settings
 from verifier.shared_sfm import SfmSide, cancelled, clean_cache_for, run_side
 from verifier.shared_sfm import content_key as content_key  # re-exported: the clean cache's key
 from verifier.shared_sfm import write_json as write_json  # re-exported: reports are written with it
-from verifier.sift_device import sift_device_name
+from verifier.sift_device import gpu_sift_suits
 from verifier.verdict import (
     Verdict,
     decide,
@@ -196,6 +198,17 @@ def default_workers() -> int:
     return max(min(2, cores), cores // 2)
 
 
+def threads_per_side(workers: int, cores: int | None = None) -> int:
+    """CPU threads each SfM side's geometric verification and mapping may start (-1: every core,
+    COLMAP's default, kept where it is at most two per core anyway). Eight sides at once on 16 cores
+    each starting 16 threads made the same mappings 1.6-2.6x slower than with five at once (lego 40,
+    H200: masked's poisoned mapping 110 s vs 43 s); twice the cores' share leaves room for the
+    sides that are in a single-threaded step."""
+    cores = cores or os.cpu_count() or 1
+    share = max(2, 2 * cores // max(1, workers))
+    return -1 if share >= cores else share
+
+
 def start_order(profiles: Sequence[str]) -> list[str]:
     """The order profiles start in: `published` first, the one that shares no work (its own
     extraction and matching on both sides, lego 20: the last to finish when it started third), so
@@ -233,6 +246,8 @@ class _Run:
     options: VerifyOptions
     profiles: tuple[str, ...] = ()
     board: ProgressBoard | None = None
+    long_edge: int = 0  # the originals' longest side, px (where SIFT runs: gpu_sift_suits)
+    threads: int = -1  # CPU threads per SfM side (threads_per_side)
 
 
 @dataclass(frozen=True)
@@ -314,7 +329,18 @@ def _prepare_run(clean_dir: Path, poisoned_dir: Path, out_dir: Path, options: Ve
         if options.clean_cache_dir
         else cache
     )
-    return _Run(clean_dir, poisoned_dir, names, out_dir, cache, clean_cache, key, matching, gt, options)
+    workers = max(1, options.workers or default_workers())
+    return _Run(clean_dir, poisoned_dir, names, out_dir, cache, clean_cache, key, matching, gt, options,
+                long_edge=longest_side(clean_dir, names), threads=threads_per_side(workers))  # fmt: skip
+
+
+def longest_side(image_dir: Path, names: Sequence[str]) -> int:
+    """The largest width or height among the images (headers only; 0 where none can be read)."""
+    edge = 0
+    for name in names:
+        with contextlib.suppress(OSError, ValueError), Image.open(image_dir / name) as im:
+            edge = max(edge, *im.size)
+    return edge
 
 
 def measure_visibility(
@@ -404,16 +430,21 @@ def _plan_profile(profile: str, run: _Run) -> _ProfilePlan:
     through a platform's downscale and JPEG re-encode), where its shared work lives, and the key a
     clean result is reused under (cached with the same inputs and settings)."""
     settings = profile_settings(profile, run.matching, run.options.camera_params)
-    settings = msgspec.structs.replace(settings, random_seed=run.options.random_seed)
     source = "published" if profile == "published" else "original"
+    edge = min(run.long_edge, run.options.published_long_edge) if source == "published" else run.long_edge
+    settings = msgspec.structs.replace(
+        settings, random_seed=run.options.random_seed, cpu_sift=not gpu_sift_suits(edge)
+    )
     clean_images, poisoned_images = run.clean_dir, run.poisoned_dir
     if source == "published":
         clean_images, poisoned_images = _published_copy("clean", run), _published_copy("poisoned", run)
     skey = hashlib.sha256(settings.feature_key().encode()).hexdigest()[:10]
     profile_dir = run.out_dir / profile
-    settings_json = json.dumps(msgspec.to_builtins(settings), sort_keys=True)
+    # the SIFT device is said by the key's end alone, so a CPU key stays as it was
+    as_json = {k: v for k, v in msgspec.to_builtins(settings).items() if k != "cpu_sift"}
+    settings_json = json.dumps(as_json, sort_keys=True)
     reuse_key = f"{run.clean_key}-{profile}-{settings_json}-{source}"
-    reuse_key += "-cuda" if sift_device_name() == "cuda" else ""  # a CPU key stays as it was
+    reuse_key += "-cuda" if settings.sift_device_name() == "cuda" else ""
     cached = bool(run.options.clean_cache_dir)
     clean_model = (
         run.clean_cache / "clean-models" / hashlib.sha256(reuse_key.encode()).hexdigest()[:16]
@@ -434,10 +465,10 @@ def _plan_profile(profile: str, run: _Run) -> _ProfilePlan:
     # verified databases live for this run only: the clean results they lead to are what is kept
     clean_side = SfmSide(clean_images, clean_db, clean_model, settings, reuse_key, clean_from,
                          run.cache / "clean-verified", share_verification=share, profile=profile,
-                         side="clean")  # fmt: skip
+                         side="clean", threads=run.threads)  # fmt: skip
     poisoned_side = SfmSide(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, None,
                             poisoned_from, run.cache, share_verification=share, profile=profile,
-                            side="poisoned")  # fmt: skip
+                            side="poisoned", threads=run.threads)  # fmt: skip
     copy = profile_dir / "clean" if cached else None  # the report's model folder holds a copy
     return _ProfilePlan(profile, {"clean": clean_side, "poisoned": poisoned_side}, copy)
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from verifier.sfm import SfmSettings
-from verifier.sift_device import cuda_device_count, sift_device, sift_device_name
+from verifier.sift_device import cuda_device_count, gpu_sift_suits, sift_device, sift_device_name
 
 
 def _has_cuda_build() -> bool:
@@ -52,6 +52,18 @@ def test_feature_caches_are_keyed_by_device_cpu_keys_unchanged(monkeypatch: pyte
     assert settings.feature_key() == (cpu_key + "-cuda" if sift_device_name() == "cuda" else cpu_key)
 
 
+def test_small_photos_get_the_cpus_sift_on_any_machine() -> None:
+    import pycolmap
+
+    # lego's 800 px renders lost published's and masked's clean control with GPU SIFT (gpu.md round 5)
+    assert not gpu_sift_suits(800) and not gpu_sift_suits(1600)
+    assert gpu_sift_suits(2048) and gpu_sift_suits(6000)
+    small = SfmSettings(cpu_sift=True)
+    assert sift_device(cpu_only=True) == pycolmap.Device.cpu
+    assert small.sift_device_name() == "cpu" and not small.feature_key().endswith("-cuda")
+    assert SfmSettings().sift_device_name() == sift_device_name()  # large photos: the machine's device
+
+
 GPU_REASON = (
     "no CUDA GPU here: needs a CUDA device and pycolmap's CUDA build (pip install '.[gpu]'); "
     f"this machine: {cuda_device_count()} CUDA device(s), CUDA build of pycolmap: {_has_cuda_build()}"
@@ -67,11 +79,12 @@ def test_gpu_sift_gives_the_cpus_verdicts(tmp_path: Path, monkeypatch: pytest.Mo
     from verifier.synthetic import render_scene
     from verifier.verification import VerifyOptions, verify_folders
 
-    # 800 px, not the CPU tests' 320 px: on an H200 (2026-11-26), GPU SIFT found 28% fewer raw matches
+    # 1800 px, not the CPU tests' 320 px: on an H200 (2026-11-26), GPU SIFT found 28% fewer raw matches
     # than the CPU's at 320 px (713 vs 991) and its clean mapping registered 2 of 6 views ("inconclusive"
-    # where the CPU says "not_protected"); at 800 px both registered 6 of 6 with the same verdicts and
-    # the same share within 5 degrees under every profile (bench/results/gpu.md, round 4)
-    small = dataclasses.replace(SMALL, width=800, height=800, focal=960.0)
+    # where the CPU says "not_protected"); at 800 px both registered 6 of 6 with the same verdicts
+    # (bench/results/gpu.md, round 4), but lego's 800 px renders lost two profiles' clean control
+    # (round 5): photos up to 1600 px get the CPU's SIFT (gpu_sift_suits), so this set is larger
+    small = dataclasses.replace(SMALL, width=1800, height=1200, focal=2160.0)
     render_scene(tmp_path / "clean", small)
     poisoned = poison_folder(tmp_path / "clean", tmp_path / "poisoned")
     options = VerifyOptions(timeout_s=300, camera_params=small.camera_params(), visibility_images=0)
