@@ -28,11 +28,11 @@ if [ "$mode" = pack ]; then
     repo=$PWD
     (cd /tmp/ppd-pack && rm -rf x && mkdir x && cd x && unzip -q ../pycolmap_cuda12-*.whl &&
         tar -cf - . | xz -9e -T0 > "$repo/.dev/pycolmap_cuda12.tar.xz") || exit 3
-    get -d .dev/whl nvidia-cuda-runtime-cu12==12.9.79 msgspec watchdog sqlite-utils sqlite-fts4 \
-        click-default-group platformdirs tomli-w typer==0.29.2 annotated-doc pydantic \
-        pydantic-core annotated-types typing-inspection || exit 3
+    get -d .dev/whl nvidia-cuda-runtime-cu12==12.9.79 msgspec || exit 3
     # the second call's: what setup does not need (the 64 MiB a call carries is nearly full with .dev)
-    get -d .devdata/whl pillow==13.0.0 flip-evaluator pytest pluggy iniconfig packaging pygments || exit 3
+    get -d .devdata/whl pillow==13.0.0 flip-evaluator pytest pluggy iniconfig packaging pygments \
+        watchdog sqlite-utils sqlite-fts4 click-default-group platformdirs tomli-w typer==0.29.2 \
+        annotated-doc pydantic pydantic-core annotated-types typing-inspection || exit 3
     for lib in libSM.so.6 libICE.so.6 libX11.so.6 libXext.so.6 libxcb.so.1 libXau.so.6 libXdmcp.so.6; do
         cp -L "/usr/lib/x86_64-linux-gnu/$lib" .dev/lib/
     done
@@ -65,7 +65,6 @@ if [ "$mode" = setup ]; then
 from pathlib import Path
 from verifier.synthetic import SyntheticOptions, render_scene
 render_scene(Path('/tmp/syn6'), SyntheticOptions(num_views=6, width=1200, height=800, focal=1440))"
-    python3 -m daemon.cli verify --help > /dev/null || exit 4  # the CLI imports here
     timeout "$(left)" python3 -m bench.bench_gpu_sift /tmp/syn6 --out "$OUT/gpu_sift_smoke.json"
     exit
 fi
@@ -74,6 +73,7 @@ fi
 . /tmp/ppd-env.sh
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
     --target /tmp/site .devdata/whl/*.whl || exit 3
+python3 -m daemon.cli verify --help > /dev/null || exit 4  # the CLI imports here
 export PPD_SHARED_DATA=$PWD/.devdata PPD_BENCH_WORK=/tmp/pbw PPD_BENCH_RESULTS=$OUT
 
 if [ "$mode" = sweep ]; then
