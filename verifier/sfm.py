@@ -147,9 +147,6 @@ class SfmJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     stationary_from: str = ""
     # "features": build cache_db (features + raw matches) and stop; "verified": also write verified_db
     stop_after: str = ""
-    # CPU threads of the geometric verification and the mapping (-1: every core, COLMAP's default);
-    # fewer when many sides run at once (verifier.verification.threads_per_side)
-    threads: int = -1
 
 
 class CameraPose(msgspec.Struct, frozen=True):
@@ -390,7 +387,7 @@ def execute_job(job: SfmJob) -> SfmResult:
     work_db = model_dir / "work.db"
     t1 = time.time()
     num_images, verified_pairs = verified_database(
-        cache_db, work_db, settings, job.verified_db, job.stationary_from, job.threads
+        cache_db, work_db, settings, job.verified_db, job.stationary_from
     )
     timings["verification_s"] = time.time() - t1
     if job.stop_after == "verified":  # the shared verified database is written: no mapping here
@@ -399,7 +396,7 @@ def execute_job(job: SfmJob) -> SfmResult:
         return SfmOk(num_images=num_images, verified_pairs=verified_pairs, timings=timings)
     t2 = time.time()
     with tempfile.TemporaryDirectory(prefix=".ppd-tmp-map-", dir=model_dir) as tmp:
-        models = run_mapper(work_db, image_dir, Path(tmp), settings, job.threads)
+        models = run_mapper(work_db, image_dir, Path(tmp), settings)
         timings["mapping_s"] = time.time() - t2
         work_db.unlink()
         result = summarise_models(models, num_images, verified_pairs)
@@ -412,8 +409,7 @@ def execute_job(job: SfmJob) -> SfmResult:
 
 
 def verified_database(
-    cache_db: Path, work_db: Path, settings: SfmSettings, verified_db: str, stationary_from: str = "",
-    threads: int = -1,
+    cache_db: Path, work_db: Path, settings: SfmSettings, verified_db: str, stationary_from: str = ""
 ) -> tuple[int, int]:
     """work_db = cache_db after this profile's geometric verification; (images, verified pairs).
 
@@ -432,10 +428,10 @@ def verified_database(
             return db.num_images(), db.num_verified_image_pairs()
     base = Path(stationary_from) if stationary_from else None
     if settings.filter_stationary_matches and base is not None and base.exists():
-        counts = reverify_stationary(base, work_db, settings, threads)
+        counts = reverify_stationary(base, work_db, settings)
     else:
         shutil.copyfile(cache_db, work_db)
-        counts = verify_pairs(work_db, settings, threads)
+        counts = verify_pairs(work_db, settings)
     if shared is not None:
         shared.parent.mkdir(parents=True, exist_ok=True)
         with atomic_output(shared) as tmp:
@@ -443,26 +439,23 @@ def verified_database(
     return counts
 
 
-def run_mapper(
-    work_db: Path, image_dir: Path, out: Path, settings: SfmSettings, threads: int = -1
-) -> dict[int, Any]:
+def run_mapper(work_db: Path, image_dir: Path, out: Path, settings: SfmSettings) -> dict[int, Any]:
     """The settings' mapper: COLMAP's incremental mapper (convert.py) or its global mapper."""
     import pycolmap
 
     if settings.mapper == "global":
-        return pycolmap.global_mapping(work_db, image_dir, out, options=global_options(settings, threads))
+        return pycolmap.global_mapping(work_db, image_dir, out, options=global_options(settings))
     if settings.mapper != "incremental":
         raise ValueError(f"unknown mapper {settings.mapper!r}")
-    return pycolmap.incremental_mapping(work_db, image_dir, out, options=mapper_options(settings, threads))
+    return pycolmap.incremental_mapping(work_db, image_dir, out, options=mapper_options(settings))
 
 
-def global_options(settings: SfmSettings, threads: int = -1) -> Any:
+def global_options(settings: SfmSettings) -> Any:
     """COLMAP 4's global mapper as documented (`colmap global_mapper`), with the run's seed; no
     view-graph calibration (measured on clean lego 40: 40/40 registered without it, 33 with it)."""
     import pycolmap
 
     options = pycolmap.GlobalPipelineOptions()
-    options.num_threads = threads
     options.random_seed = settings.random_seed
     options.ignore_watermarks = settings.ignore_watermarks
     if settings.camera_params:  # known intrinsics: kept fixed, as in the incremental mapper
@@ -473,16 +466,14 @@ def global_options(settings: SfmSettings, threads: int = -1) -> Any:
     return options
 
 
-def verify_pairs(work_db: Path, settings: SfmSettings, threads: int = -1) -> tuple[int, int]:
+def verify_pairs(work_db: Path, settings: SfmSettings) -> tuple[int, int]:
     """This profile's geometric verification of the raw matches; (images, verified pairs)."""
     import pycolmap
 
     two_view = pycolmap.TwoViewGeometryOptions()
     two_view.filter_stationary_matches = settings.filter_stationary_matches
     two_view.ransac.random_seed = settings.random_seed
-    verifier = pycolmap.GeometricVerifierOptions()
-    verifier.num_threads = threads
-    pycolmap.geometric_verification(work_db, verifier_options=verifier, two_view_geometry_options=two_view)
+    pycolmap.geometric_verification(work_db, two_view_geometry_options=two_view)
     with pycolmap.Database.open(work_db) as db:
         return db.num_images(), db.num_verified_image_pairs()
 
@@ -513,9 +504,7 @@ def stationary_pairs(database: Path, max_error: float) -> list[tuple[int, int]]:
     return pairs
 
 
-def reverify_stationary(
-    default_verified: Path, work_db: Path, settings: SfmSettings, threads: int = -1
-) -> tuple[int, int]:
+def reverify_stationary(default_verified: Path, work_db: Path, settings: SfmSettings) -> tuple[int, int]:
     """work_db = the hardened verification of the raw matches, from the default's verified database
     of the same raw matches: the stationary filter changes a pair's input only where it removes a
     match, and RANSAC with a fixed seed is a function of its input, so every other pair's two-view
@@ -531,15 +520,14 @@ def reverify_stationary(
         for id1, id2 in pairs:
             db.delete_two_view_geometry(id1, id2)
     print(f"ppd: stationary filter: {len(pairs)} pair(s) verified again", file=sys.stderr, flush=True)
-    return verify_pairs(work_db, settings, threads)
+    return verify_pairs(work_db, settings)
 
 
-def mapper_options(settings: SfmSettings, threads: int = -1) -> Any:
-    """COLMAP's incremental mapper options for these settings, on this many threads (-1: all)."""
+def mapper_options(settings: SfmSettings) -> Any:
+    """COLMAP's incremental mapper options for these settings."""
     import pycolmap
 
     mapper = pycolmap.IncrementalPipelineOptions()
-    mapper.num_threads = threads
     mapper.ignore_watermarks = settings.ignore_watermarks
     mapper.random_seed = settings.random_seed
     if settings.camera_params:  # known intrinsics: keep them fixed, as a careful attacker would

@@ -119,7 +119,6 @@ class SfmSide:
     share_verification: bool = False
     profile: str = ""
     side: str = ""
-    threads: int = -1  # CPU threads of its verification and mapping (SfmJob.threads)
 
 
 def ensure_features(side: SfmSide, options: VerifyOptions, board: ProgressBoard | None) -> float:
@@ -202,7 +201,6 @@ def run_job(
     job = SfmJob(
         str(side.image_dir), str(side.cache_db), str(side.model_dir), settings, verified_db=verified,
         features_from=str(side.features_from) if side.features_from else "", stationary_from=stationary_from,
-        threads=side.threads,
     )  # fmt: skip
     watching = board.side(side.profile, side.side, side.model_dir / "sfm.log") if board else None
     with watching or contextlib.nullcontext():
@@ -234,7 +232,7 @@ def ensure_verified(
         job = SfmJob(
             str(side.image_dir), str(side.cache_db), str(work), settings, verified_db=str(path),
             features_from=str(side.features_from) if side.features_from else "",
-            stationary_from=stationary_from, stop_after="verified", threads=side.threads,
+            stationary_from=stationary_from, stop_after="verified",
         )  # fmt: skip
         with board.side(side.profile, side.side, work / "sfm.log") if board else contextlib.nullcontext():
             built = run_sfm_job(job, timeout_s=options.timeout_s, cancel=options.cancel, exclusive=False)

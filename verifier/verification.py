@@ -198,17 +198,6 @@ def default_workers() -> int:
     return max(min(2, cores), cores // 2)
 
 
-def threads_per_side(workers: int, cores: int | None = None) -> int:
-    """CPU threads each SfM side's geometric verification and mapping may start (-1: every core,
-    COLMAP's default, kept where it is at most two per core anyway). Eight sides at once on 16 cores
-    each starting 16 threads made the same mappings 1.6-2.6x slower than with five at once (lego 40,
-    H200: masked's poisoned mapping 110 s vs 43 s); twice the cores' share leaves room for the
-    sides that are in a single-threaded step."""
-    cores = cores or os.cpu_count() or 1
-    share = max(2, 2 * cores // max(1, workers))
-    return -1 if share >= cores else share
-
-
 def start_order(profiles: Sequence[str]) -> list[str]:
     """The order profiles start in: `published` first, the one that shares no work (its own
     extraction and matching on both sides, lego 20: the last to finish when it started third), so
@@ -247,7 +236,6 @@ class _Run:
     profiles: tuple[str, ...] = ()
     board: ProgressBoard | None = None
     long_edge: int = 0  # the originals' longest side, px (where SIFT runs: gpu_sift_suits)
-    threads: int = -1  # CPU threads per SfM side (threads_per_side)
 
 
 @dataclass(frozen=True)
@@ -329,9 +317,8 @@ def _prepare_run(clean_dir: Path, poisoned_dir: Path, out_dir: Path, options: Ve
         if options.clean_cache_dir
         else cache
     )
-    workers = max(1, options.workers or default_workers())
     return _Run(clean_dir, poisoned_dir, names, out_dir, cache, clean_cache, key, matching, gt, options,
-                long_edge=longest_side(clean_dir, names), threads=threads_per_side(workers))  # fmt: skip
+                long_edge=longest_side(clean_dir, names))  # fmt: skip
 
 
 def longest_side(image_dir: Path, names: Sequence[str]) -> int:
@@ -465,10 +452,10 @@ def _plan_profile(profile: str, run: _Run) -> _ProfilePlan:
     # verified databases live for this run only: the clean results they lead to are what is kept
     clean_side = SfmSide(clean_images, clean_db, clean_model, settings, reuse_key, clean_from,
                          run.cache / "clean-verified", share_verification=share, profile=profile,
-                         side="clean", threads=run.threads)  # fmt: skip
+                         side="clean")  # fmt: skip
     poisoned_side = SfmSide(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, None,
                             poisoned_from, run.cache, share_verification=share, profile=profile,
-                            side="poisoned", threads=run.threads)  # fmt: skip
+                            side="poisoned")  # fmt: skip
     copy = profile_dir / "clean" if cached else None  # the report's model folder holds a copy
     return _ProfilePlan(profile, {"clean": clean_side, "poisoned": poisoned_side}, copy)
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -203,39 +202,6 @@ def test_every_clean_side_takes_a_slot_before_any_poisoned_one() -> None:
         ("published", "clean"), ("default", "clean"), ("masked", "clean"),
         ("published", "poisoned"), ("default", "poisoned"), ("masked", "poisoned"),
     ]  # fmt: skip
-
-
-def test_many_sides_at_once_each_start_fewer_threads(tmp_path: Path) -> None:
-    from verifier.sfm import SfmSettings, global_options, mapper_options, verify_pairs
-    from verifier.verification import threads_per_side
-
-    assert threads_per_side(2, cores=2) == -1  # two sides on 2 cores: COLMAP's own default, as before
-    assert threads_per_side(1, cores=16) == -1
-    assert threads_per_side(8, cores=16) == 4  # eight sides on 16 cores: twice their share, not 16 each
-    assert threads_per_side(16, cores=16) == 2
-    assert mapper_options(SfmSettings(), 3).num_threads == 3
-    assert global_options(SfmSettings(), 3).num_threads == 3
-    assert mapper_options(SfmSettings()).num_threads == -1
-    # a real verification on one thread gives what every core gives (RANSAC's seed is fixed)
-    from verifier.sfm import build_cache_db
-
-    images = tmp_path / "images"
-    render_scene(images, dataclasses.replace(SMALL, num_views=3))
-    db = tmp_path / "raw.db"
-    build_cache_db(images, db, SfmSettings())
-    one, every = tmp_path / "one.db", tmp_path / "every.db"
-    shutil.copyfile(db, one)
-    shutil.copyfile(db, every)
-    assert verify_pairs(one, SfmSettings(), threads=1) == verify_pairs(every, SfmSettings())
-    assert _inliers(one) == _inliers(every) and sum(_inliers(one).values()) > 0
-
-
-def _inliers(database: Path) -> dict[int, int]:
-    import pycolmap
-
-    with pycolmap.Database.open(database) as db:
-        pair_ids, geometries = db.read_two_view_geometries()
-        return {int(p): len(g.inlier_matches) for p, g in zip(pair_ids, geometries, strict=True)}
 
 
 def test_feature_builds_at_once_follow_the_memory() -> None:
