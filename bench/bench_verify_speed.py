@@ -166,6 +166,30 @@ def profile_stages(profiles: dict[str, Any]) -> dict[str, Any]:
     return rows
 
 
+ROUND7_NOTES = [
+    "## Round 7: a thread cap per side, tried and taken back; small photos' SIFT on the CPU (2026-11-27)",
+    "",
+    "A lent H200 (16 cores, pycolmap-cuda12 4.2.1), creator 12 x 24 MP, two lanes back to back in one",
+    "call, each its own baseline: c4dbdc6 (each side's geometric verification and mapping started",
+    "`2 x cores / sides` threads: 4 with 8 sides on 16 cores, where COLMAP starts 16 each) and c58c994",
+    "(without it, a `git archive`). The rows' dates are the lent machine's clock.",
+    "- **Measured:** baseline 31 s / 37 s; first 120 s (**3.85x**) / 140 s (**3.79x**); second 65 s",
+    "  (**2.07x**) / not run (the call's time ran out). The clean mappings took 86-88 s against 100-105 s,",
+    "  but the baseline's own mapping also took 22.6 s against 27.7 s: the machine ran about 20% slower in",
+    "  the second lane, and the ratio, the goal's measure, did not move. **Taken back** (78c6d69).",
+    "- Goals (first <= 3x, second <= 2x): **missed** on this lease (3.79-3.85x; 2.07x). Round 5's 3.31x /",
+    "  1.52x were another H200 lease: the ratio moves by 15-35% between leases, so one lane per side",
+    "  decides nothing smaller than that.",
+    "- Protection at 24 MP (every lane): default, hardened, published and masked 67% within 5 deg, global",
+    "  0%: NOT protected, as in rounds 3-5.",
+    "- **Landed:** photos up to 1600 px get the CPU's SIFT on a GPU machine (`gpu_sift_suits`; published",
+    "  judged at its 2048 px round trip): with GPU SIFT, lego's 800 px renders cost `published` and",
+    "  `masked` their clean control (round 5). CPU feature and clean-result keys are unchanged. Not run",
+    "  again on lego with a GPU (no device time left); on this CPU nothing changes.",
+    "",
+]
+
+
 ROUND6_NOTES = [
     "## Round 6: one mapping where two sides' input is the same, tried and taken back (2026-11-27)",
     "",
@@ -369,7 +393,7 @@ def write_page(rows: list[dict[str, Any]]) -> None:
             f"{more}{f['wall_s'] / b['wall_s']:.2f}x | {second} | {verdict} | "
             f"{loads} |"
         )
-    lines += ["", *ROUND6_NOTES, *ROUND5_NOTES, *ROUND4_NOTES, *ROUND3_NOTES, *ROUND2_NOTES, *NOTES, ""]
+    lines += ["", *ROUND7_NOTES, *ROUND6_NOTES, *ROUND5_NOTES, *ROUND4_NOTES, *ROUND3_NOTES, *ROUND2_NOTES, *NOTES, ""]
     lines += ["## Per profile and stage (seconds, from each run's report.json)", ""]
     for r in rows:
         for lane in ("first", "second"):
