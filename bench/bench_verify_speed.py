@@ -393,7 +393,8 @@ def write_page(rows: list[dict[str, Any]]) -> None:
             f"{more}{f['wall_s'] / b['wall_s']:.2f}x | {second} | {verdict} | "
             f"{loads} |"
         )
-    lines += ["", *ROUND7_NOTES, *ROUND6_NOTES, *ROUND5_NOTES, *ROUND4_NOTES, *ROUND3_NOTES, *ROUND2_NOTES, *NOTES, ""]
+    rounds = (ROUND7_NOTES, ROUND6_NOTES, ROUND5_NOTES, ROUND4_NOTES, ROUND3_NOTES, ROUND2_NOTES, NOTES)
+    lines += ["", *(line for notes in rounds for line in notes), ""]
     lines += ["## Per profile and stage (seconds, from each run's report.json)", ""]
     for r in rows:
         for lane in ("first", "second"):
