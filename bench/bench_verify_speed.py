@@ -172,7 +172,7 @@ ROUND7_NOTES = [
     "A lent H200 (16 cores, pycolmap-cuda12 4.2.1), creator 12 x 24 MP, two lanes back to back in one",
     "call, each its own baseline: c4dbdc6 (each side's geometric verification and mapping started",
     "`2 x cores / sides` threads: 4 with 8 sides on 16 cores, where COLMAP starts 16 each) and c58c994",
-    "(without it, a `git archive`). The rows' dates are the lent machine's clock.",
+    "(without it, a `git archive`).",
     "- **Measured:** baseline 31 s / 37 s; first 120 s (**3.85x**) / 140 s (**3.79x**); second 65 s",
     "  (**2.07x**) / not run (the call's time ran out). The clean mappings took 86-88 s against 100-105 s,",
     "  but the baseline's own mapping also took 22.6 s against 27.7 s: the machine ran about 20% slower in",
