@@ -131,9 +131,9 @@ def _enlarged(files: list[Path], folder: Path, size: tuple[int, int]) -> list[Pa
 
 
 def test_photos_larger_than_any_set_the_mark_held_on_are_said_so(tmp_path: Path) -> None:
-    """Issue 30: a plain-background set held at 1600 px and was NOT protected at 3200 and 6000 px, which
-    the figures (taken at the mark's scale) cannot see: the line names the size above HELD_UP_TO_PX,
-    and only there; the kind does not change."""
+    """Issue 30: no set held above 1600 px (a plain-background box was NOT protected at 2048, 3200 and
+    6000 px), which the figures (taken at the mark's scale) cannot see: the line names the size above
+    HELD_UP_TO_PX, and only there; the kind does not change."""
     from poisoner.scene import HELD_UP_TO_PX
 
     files = _object_on_plain(tmp_path)
