@@ -11,6 +11,7 @@
 #   pack:  (here, before both) make `.dev/` and `.devdata/` (both in .git/info/exclude) from the
 #          package registry and ../shared.
 #   placement: (issue 25) lego 40's COLMAP protection, CPU SIFT, one process per profile and seed.
+#   verdicts: the GPU-vs-CPU test (tests/verifier/test_sfm_gpu.py) and lego 40's verification.
 # Needs the `run` tool's $OUT. Nothing here is part of the product or of CI.
 set -u
 mode=${1:?setup or main}
@@ -109,6 +110,19 @@ for d in sorted(p for p in root.iterdir() if p.is_dir() and p.name[:1] == "b"):
         shares.append(f"{(diff > 0).mean():.2%} / {(diff > 8).mean():.2%}")
     print(d.name, "changed area (|diff| > 0 / > 8, first 3 views):", shares)
 PY
+    echo "done, $(left) s left"
+    exit
+fi
+if [ "$mode" = verdicts ]; then
+    # issue 30, what 78c6d69 left unrun on a GPU: the GPU-vs-CPU test on its decisive set (and 320 px
+    # photos on the CPU's SIFT), then lego 40's verification, whose 800 px photos now keep the CPU's
+    # SIFT (round 5 with GPU SIFT: published and masked inconclusive)
+    set -x
+    timeout 200 python3 -m pytest -q -p no:cacheprovider -m "integration or not integration" \
+        tests/verifier/test_sfm_gpu.py 2>&1 | tail -15 | tee "$OUT/test_sfm_gpu.txt"
+    timeout "$(( $(left) - 10 ))" python3 -m bench.bench_verify_speed --set lego --views 40 --second \
+        --timeout 240 --label "gpu $(nvidia-smi --query-gpu=name --format=csv,noheader | head -1), \
+$(nproc) cores (${PPD_CODE:-tree}), lego on the CPU's SIFT" --sift-device cpu
     echo "done, $(left) s left"
     exit
 fi
