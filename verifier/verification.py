@@ -45,9 +45,9 @@ from pathlib import Path
 from typing import Any
 
 import msgspec
-from PIL import Image
 
 from poisoner.errors import ExitStatus, PpdError
+from poisoner.limits import HeaderError, decoded_size
 from verifier import poses as posemod
 from verifier.pairs import stage_pairs as stage_pairs  # re-exported: callers stage pairs, then verify
 from verifier.progress import ProgressBoard
@@ -322,11 +322,13 @@ def _prepare_run(clean_dir: Path, poisoned_dir: Path, out_dir: Path, options: Ve
 
 
 def longest_side(image_dir: Path, names: Sequence[str]) -> int:
-    """The largest width or height among the images (headers only; 0 where none can be read)."""
+    """The largest width or height among the images (their headers: poisoner.limits.decoded_size;
+    0 where none can be read)."""
     edge = 0
     for name in names:
-        with contextlib.suppress(OSError, ValueError), Image.open(image_dir / name) as im:
-            edge = max(edge, *im.size)
+        with contextlib.suppress(HeaderError):
+            size = decoded_size(image_dir / name)
+            edge = max(edge, size.width, size.height)
     return edge
 
 

@@ -65,6 +65,17 @@ def test_small_photos_get_the_cpus_sift_on_any_machine() -> None:
     assert SfmSettings().sift_device_name() == sift_device_name()  # large photos: the machine's device
 
 
+def test_the_verification_judges_the_originals_by_their_longest_side(tmp_path: Path) -> None:
+    from verifier.verification import longest_side
+
+    Image.new("RGB", (320, 240)).save(tmp_path / "a.png")
+    Image.new("RGB", (100, 1700)).save(tmp_path / "b.jpg")  # portrait: the height is the long side
+    (tmp_path / "c.jpg").write_bytes(b"not an image")
+    assert longest_side(tmp_path, ["a.png", "b.jpg", "c.jpg"]) == 1700
+    assert longest_side(tmp_path, ["a.png", "c.jpg"]) == 320 and not gpu_sift_suits(320)
+    assert longest_side(tmp_path, ["c.jpg", "missing.png"]) == 0
+
+
 GPU_REASON = (
     "no CUDA GPU here: needs a CUDA device and pycolmap's CUDA build (pip install '.[gpu]'); "
     f"this machine: {cuda_device_count()} CUDA device(s), CUDA build of pycolmap: {_has_cuda_build()}"
