@@ -159,13 +159,13 @@ class Spot:
 
 
 def _axis(lo: int, hi: int, preferred: int, stride: int) -> np.ndarray:
-    """Candidate anchors on one axis: the preferred one, every stride either side, and both ends."""
+    """Sorted anchors on one axis: the preferred, each stride either way, both ends (np.unique: numpy.ma)."""
     if hi < lo:
         return np.array([], dtype=np.int64)
     p = min(max(preferred, lo), hi)
     below = np.arange(p, lo - 1, -stride) if stride > 0 else np.array([p])
     above = np.arange(p, hi + 1, stride) if stride > 0 else np.array([p])
-    return np.unique(np.concatenate([below, above, [lo, hi]])).astype(np.int64)
+    return np.array(sorted({*below.tolist(), *above.tolist(), lo, hi}), dtype=np.int64)
 
 
 def _rect_sums(

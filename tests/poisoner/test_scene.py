@@ -331,3 +331,52 @@ def test_the_hint_imports_no_scipy(tmp_path: Path) -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["plain", "False"], out.stdout + out.stderr
+
+
+def test_the_hint_imports_no_numpy_ma(tmp_path: Path) -> None:
+    """np.median and np.unique import numpy.ma (18 ms of every `ppd poison`): the hint and the
+    placement it follows use neither."""
+    files = _object_on_plain(tmp_path, count=3)
+    code = (
+        "import sys\nfrom pathlib import Path\nfrom poisoner.scene import scene_hint\n"
+        "from poisoner.formats import poison_in_place\nfrom poisoner.ladder import default_spec\n"
+        f"paths = [Path(p) for p in {[str(f) for f in files]!r}]\n"
+        "poison_in_place(paths[0], default_spec())\n"
+        "hint = scene_hint('set', paths)\n"
+        "print(hint.kind, 'numpy.ma' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["plain", "False"], out.stdout + out.stderr
+
+
+def test_array_median_is_np_median() -> None:
+    from poisoner.scene import array_median
+
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 3, 4, 7, 10, 1001, 40_000):
+        for values in (rng.random(n).astype(np.float32), rng.integers(0, 9, n).astype(np.float32)):
+            assert array_median(values) == np.median(values)
+            assert array_median(values.reshape(-1, 1)) == np.median(values)
+
+
+@pytest.mark.parametrize("design", ["default", "watermark", "paper", "roaming"])
+def test_the_marks_figures_from_a_crop_are_the_whole_frames(design: str) -> None:
+    """mark_figures filters only a crop around the mark: the same area and response count as the
+    whole flat frame filtered (marks at frame edges and on small frames included)."""
+    from poisoner import scene
+    from poisoner.blend import poison_array
+    from poisoner.ladder import design_specs
+
+    spec = design_specs()[design]
+    for width, height in ((800, 800), (800, 533), (600, 800), (160, 120)):
+        flat = np.full((height, width, 3), 128, dtype=np.uint8)
+        try:
+            marked, _ = poison_array(flat, spec, image_key="scene-hint.png")
+        except ValueError:  # the spec does not fit this frame: mark_figures raises too
+            with pytest.raises(ValueError):
+                scene.mark_figures(width, height, spec)
+            continue
+        gray = marked.astype(np.float32).mean(axis=2) / 255.0
+        whole = (float((marked != flat).any(axis=2).mean()), image_figures(gray).responses)
+        assert whole[1] > 0
+        assert scene.mark_figures(width, height, spec) == whole, (design, width, height)
