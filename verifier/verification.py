@@ -136,7 +136,7 @@ class VerificationReport(msgspec.Struct):
 
     @property
     def verdict(self) -> Verdict:
-        """The headline: the weakest of default, hardened, published and global (masked apart)."""
+        """The headline: the weakest of the headline profiles run (verifier.verdict.HEADLINE_PROFILES)."""
         return headline_verdict(self.verdicts())
 
     def not_holding(self) -> list[str]:

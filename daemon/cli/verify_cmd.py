@@ -141,9 +141,10 @@ def verify(
     """Run COLMAP (structure from motion) on the originals and on the patched set and say
     whether the patch protects: protected, weak, NOT protected, or could not be verified.
 
-    The verdict is the weakest of default, hardened, published and global. masked (an attacker who masks
-    the four corner regions) is run and reported on its own line: it defeats every corner
-    (watermark-like) mark by construction; a roaming mark is meant to survive it."""
+    The verdict is the weakest of default, hardened, published, global and masked (an attacker who
+    masks the four corner regions: it defeats every corner (watermark-like) mark by construction, and
+    its own line says so). Each is one COLMAP run with seed 0: an attacker may rerun with other seeds,
+    and on a set near the line another seed can recover more cameras."""
     from rich.console import Console
 
     from daemon.cli.targets import TargetError
