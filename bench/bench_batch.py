@@ -96,6 +96,20 @@ def make_pngs(folder: Path, count: int) -> tuple[list[Path], str]:
     return paths, source
 
 
+def make_camera_pngs(folder: Path, count: int) -> list[Path]:
+    """The JPEG folder's pictures saved as PNG (RGB, Pillow's defaults): a camera's 12 MP, lossless."""
+    from PIL import Image
+
+    jpegs = make_jpegs(folder.parent / "jpeg", count)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = [folder / f"{j.stem}.png" for j in jpegs]
+    for jpeg, path in zip(jpegs, paths, strict=True):
+        if not path.exists():
+            with Image.open(jpeg) as im:
+                im.convert("RGB").save(path)
+    return paths
+
+
 # ---- the measured processes ----------------------------------------------------------------------
 def run_ppd(folder: Path, workers: int) -> None:
     from poisoner.ladder import default_spec
@@ -263,6 +277,10 @@ def measure(args: argparse.Namespace) -> None:
         "jpeg": (f"{args.count} x JPEG 4240x2832 q92 4:2:0", jpeg_dir),
         "png": (f"{args.count} x PNG {png_source}", png_dir),
     }
+    if args.only == "png12":  # only when asked: its floor alone is minutes per run
+        make_camera_pngs(cache / "png12", args.count)
+        w, h = JPEG_SIZE
+        folders["png12"] = (f"{args.count} x PNG {w}x{h} RGB (the JPEG folder's pictures)", cache / "png12")
     for kind, (label, src) in folders.items():
         if args.only and kind != args.only:
             continue
@@ -494,7 +512,8 @@ def main() -> None:
     m.add_argument("--cache", default=str(DEFAULT_CACHE))
     m.add_argument("--keep-notes", action="store_true", default=True)
     m.add_argument("--via", choices=("library", "cli"), default="library", help="what the ppd side runs")
-    m.add_argument("--only", choices=("jpeg", "png"), help="one of the two folders")
+    m.add_argument("--only", choices=("jpeg", "png", "png12"),
+                   help="one folder (png12: the JPEG folder's 12 MP pictures as PNG, only when asked)")
     m.add_argument("--results", type=Path, default=RESULTS, help="where the table goes")
     m.add_argument(
         "--baseline", type=Path, default=None, help="another checkout (an older commit): its ppd runs too"

@@ -24,6 +24,7 @@ Every key is optional; what is missing comes from the embedded defaults below. L
                                 # masks the corner regions) included (verifier.verdict.HEADLINE_PROFILES)
     splat = false               # also train clean/poisoned Gaussian splats (~6 more minutes per 40 views)
     splat_budget_s = 150.0      # splat training seconds per side
+    seeds = 1                   # COLMAP runs per attacker on the patched set (`ppd verify --seeds`)
     keep_runs = 5               # run folders (SfM models) kept per dataset; older ones are deleted
 
     [vault]
@@ -89,6 +90,7 @@ from poisoner.spec import PatchSpec, SpecError
 from verifier.auto_options import PreflightOptions, Profile, VisibilityBudget
 
 AUTO_SPEC = "auto"  # `spec = "auto"` in [datasets.NAME]
+MAX_SEEDS = 10  # [verification] seeds and `ppd verify --seeds`: each seed is one more mapping per profile
 # folders: "" = not set (TOML has no null)
 _EMPTY_MEANS_UNSET = ("publish_dir", "quarantine_dir", "subject_masks")
 _OLD_BUDGET_KEYS = ("min_ssim", "max_lpips")
@@ -165,9 +167,12 @@ class VerificationSchedule(Section, frozen=True):
     profiles: tuple[Profile, ...] = ("default", "hardened", "published", "global", "masked")
     splat: bool = False  # scheduled runs include Verifier II's splat stage
     splat_budget_s: float = 150.0
+    seeds: int = 1  # the attacker's COLMAP runs per profile: seeds 0..seeds-1, the weakest counts
     keep_runs: int = 5  # run folders kept per dataset (daemon.verification.verify prunes the older ones)
 
     def __post_init__(self) -> None:
+        if not 0 < self.seeds <= MAX_SEEDS:  # a bool or a float never gets here (msgspec: an int)
+            raise ConfigError(f"seeds must be a whole number from 1 to {MAX_SEEDS}, got {self.seeds!r}")
         if isinstance(self.keep_runs, bool) or not isinstance(self.keep_runs, int) or self.keep_runs < 1:
             raise ConfigError(f"keep_runs must be a whole number >= 1, got {self.keep_runs!r}")
         if self.every_new_files < 1:

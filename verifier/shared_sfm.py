@@ -158,7 +158,9 @@ def run_side(side: SfmSide, options: VerifyOptions, board: ProgressBoard | None 
     crashes: list[str] = []
     elapsed = features_s  # the features this side built count towards its cost
     for attempt in range(1 + max(0, options.crash_retries)):
-        run_settings = msgspec.structs.replace(settings, random_seed=settings.random_seed + attempt)
+        # a retry takes the next seed no other run of this profile uses (options.seeds: one each)
+        retry_seed = settings.random_seed + attempt * max(1, options.seeds)
+        run_settings = msgspec.structs.replace(settings, random_seed=retry_seed)
         result = run_job(side, run_settings, options, board, first=attempt == 0)
         elapsed += float(result.get("elapsed_s") or 0.0)
         result["elapsed_s"] = elapsed  # all attempts: what the verification cost

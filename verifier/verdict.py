@@ -16,7 +16,7 @@ Rule (justified by measurements in docs/VERIFIER.md):
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
@@ -69,6 +69,21 @@ class Decision:
 
     verdict: Verdict
     reasons: list[str] = field(default_factory=list)
+
+
+# Which of several COLMAP seeds' decisions a profile reports: the attacker keeps the run that
+# recovered most, so the weakest decisive verdict (then the most cameras within the threshold); a crash
+# or an unfinished run says nothing about the others and is reported only when no seed decided.
+_SEED_RANK = {Verdict.NOT_PROTECTED: 0, Verdict.WEAK: 1, Verdict.PROTECTED: 2, Verdict.SFM_CRASHED: 3,
+              Verdict.INCONCLUSIVE: 4}  # fmt: skip
+
+
+def worst_seed(decisions: Sequence[Decision], fractions: Sequence[float | None]) -> int:
+    """The index of the run a profile reports among its seeds' runs (decisions, and each run's
+    fraction of cameras within the threshold, None where it gave no poses): the weakest decisive
+    verdict, the most cameras recovered among equals, the first seed among ties."""
+    return min(range(len(decisions)),
+               key=lambda i: (_SEED_RANK[decisions[i].verdict], -(fractions[i] or 0.0), i))  # fmt: skip
 
 
 def _pct(x: float) -> str:

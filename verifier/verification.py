@@ -54,7 +54,7 @@ from verifier.progress import ProgressBoard
 from verifier.published import round_trip, unpublish_names
 from verifier.published import to_rgb as to_rgb  # re-exported for verifier.auto_search
 from verifier.sfm import SfmSettings, list_images, profile_sfm_settings
-from verifier.shared_sfm import SfmSide, cancelled, clean_cache_for, run_side
+from verifier.shared_sfm import SfmSide, cancelled, clean_cache_for, path_lock, run_side
 from verifier.shared_sfm import content_key as content_key  # re-exported: the clean cache's key
 from verifier.shared_sfm import write_json as write_json  # re-exported: reports are written with it
 from verifier.sift_device import gpu_sift_suits
@@ -66,6 +66,8 @@ from verifier.verdict import (
     holding_line,
     masked_line,
     not_holding,
+    verdict_words,
+    worst_seed,
 )
 from verifier.verify_options import SPLAT_DEFAULTS as SPLAT_DEFAULTS  # re-exported
 from verifier.verify_options import VerifyOptions as VerifyOptions  # re-exported: callers build it
@@ -102,6 +104,8 @@ class ProfileReport(msgspec.Struct):
     started_at: float = 0.0
     finished_at: float = 0.0
     splat: dict[str, Any] | None = None  # run_splat_stage's result when the splat stage ran here
+    # options.seeds > 1: each poisoned run's seed, verdict and figure (the fields above: the weakest)
+    seeds: list[dict[str, Any]] | None = None
 
     @property
     def error(self) -> str | None:
@@ -112,7 +116,7 @@ class ProfileReport(msgspec.Struct):
 
     def metrics(self) -> dict[str, Any]:
         """Everything but the verdict, JSON-ready (what the Store records)."""
-        keep = ("reasons", "clean", "poisoned", "vs_clean", "clean_vs_gt", "poisoned_vs_gt", "splat")
+        keep = ("reasons", "clean", "poisoned", "vs_clean", "clean_vs_gt", "poisoned_vs_gt", "splat", "seeds")
         return {k: v for k, v in msgspec.to_builtins(self).items() if k in keep}
 
     def to_dict(self) -> dict[str, Any]:
@@ -205,13 +209,20 @@ def start_order(profiles: Sequence[str]) -> list[str]:
     return sorted(profiles, key=lambda p: p != "published")
 
 
-def side_order(profiles: Sequence[str]) -> list[tuple[str, str]]:
+def poisoned_sides(seeds: int) -> list[str]:
+    """A profile's poisoned sides: "poisoned" (the first seed), then "poisoned-run2", ... (one per
+    further seed; each its own model folder)."""
+    return ["poisoned", *(f"poisoned-run{k + 1}" for k in range(1, max(1, seeds)))]
+
+
+def side_order(profiles: Sequence[str], seeds: int = 1) -> list[tuple[str, str]]:
     """The order SfM sides take their slots: every clean side first, in start_order, then the
-    poisoned ones. A clean reference registers every view and is the longest run of its profile
-    (12 x 24 MP on 16 cores: 42-84 s of mapping against 14-39 s poisoned), so the last clean side
-    no longer starts after the first poisoned ones end and finishes last."""
+    poisoned ones (each profile's first seed, then the further seeds). A clean reference registers
+    every view and is the longest run of its profile (12 x 24 MP on 16 cores: 42-84 s of mapping
+    against 14-39 s poisoned), so the last clean side no longer starts after the first poisoned ones
+    end and finishes last."""
     order = start_order(profiles)
-    return [(p, "clean") for p in order] + [(p, "poisoned") for p in order]
+    return [(p, "clean") for p in order] + [(p, side) for side in poisoned_sides(seeds) for p in order]
 
 
 def _summary(result: dict[str, Any]) -> dict[str, Any]:
@@ -296,10 +307,10 @@ def _run_profiles(profile_list: Sequence[str], run: _Run) -> dict[str, ProfileRe
     workers = max(1, run.options.workers or default_workers())
     with ThreadPoolExecutor(workers, thread_name_prefix="ppd-verify") as pool:
         sides = {(p, side): pool.submit(_run_planned_side, plans[p], side, run)
-                 for p, side in side_order(profile_list)}  # fmt: skip
+                 for p, side in side_order(profile_list, run.options.seeds)}  # fmt: skip
         for p in _profiles_as_done(sides):
-            clean, poisoned = sides[(p, "clean")].result(), sides[(p, "poisoned")].result()
-            reports[p] = _decide_profile(plans[p], clean, poisoned, run)
+            poisoned = [sides[(p, side)].result() for side in poisoned_sides(run.options.seeds)]
+            reports[p] = _decide_profile(plans[p], sides[(p, "clean")].result(), poisoned, run)
     return {p: reports[p] for p in profile_list}  # in the order asked
 
 
@@ -356,10 +367,12 @@ def _splat_stage(
     if report.clean.get("outcome") != "ok" or report.poisoned.get("outcome") != "ok":
         report.splat = {"outcome": "skipped", "error": f"SfM of the {name} profile did not give two models"}
     else:
+        # with several seeds, the poses of the run the verdict counts (the attacker's best)
+        chosen = [e["model"] for e in report.seeds or () if e["seed"] == report.poisoned.get("random_seed")]
         result = run_splat_stage(
             profile_dir / "clean",
             clean_dir,
-            profile_dir / "poisoned",
+            profile_dir / (chosen[0] if chosen else "poisoned"),
             poisoned_dir,
             profile_dir / "splat",
             dict(options.splat_options),
@@ -459,7 +472,12 @@ def _plan_profile(profile: str, run: _Run) -> _ProfilePlan:
                             poisoned_from, run.cache, share_verification=share, profile=profile,
                             side="poisoned")  # fmt: skip
     copy = profile_dir / "clean" if cached else None  # the report's model folder holds a copy
-    return _ProfilePlan(profile, {"clean": clean_side, "poisoned": poisoned_side}, copy)
+    sides = {"clean": clean_side, "poisoned": poisoned_side}
+    for k, side in enumerate(poisoned_sides(run.options.seeds)[1:], start=1):  # the attacker's reruns
+        seeded = msgspec.structs.replace(settings, random_seed=settings.random_seed + k)
+        sides[side] = dataclasses.replace(poisoned_side, model_dir=profile_dir / side, settings=seeded,
+                                          side=side)  # fmt: skip
+    return _ProfilePlan(profile, sides, copy)
 
 
 def _run_planned_side(plan: _ProfilePlan, side: str, run: _Run) -> dict[str, Any]:
@@ -473,7 +491,8 @@ def _run_planned_side(plan: _ProfilePlan, side: str, run: _Run) -> dict[str, Any
     if plan.profile == "published":
         o = run.options
         source = run.clean_dir if side == "clean" else run.poisoned_dir
-        round_trip(source, planned.image_dir, run.names, o.published_long_edge, o.published_jpeg_quality)
+        with path_lock(planned.image_dir):  # the poisoned runs of several seeds share one round trip
+            round_trip(source, planned.image_dir, run.names, o.published_long_edge, o.published_jpeg_quality)
     result = run_side(planned, run.options, run.board)
     if side == "clean" and plan.clean_model_copy is not None and result.get("outcome") != "cancelled":
         _copy_model(planned.model_dir, plan.clean_model_copy)
@@ -512,18 +531,33 @@ def _compare_poses(
 
 
 def _decide_profile(
-    plan: _ProfilePlan, clean: dict[str, Any], poisoned: dict[str, Any], run: _Run
+    plan: _ProfilePlan, clean: dict[str, Any], poisoned_runs: list[dict[str, Any]], run: _Run
 ) -> ProfileReport:
-    """One attacker: both sides' poses compared, the verdict; written to <profile>/report.json."""
+    """One attacker: each poisoned run's poses compared with the clean ones, the verdict of the run
+    the attacker would keep (the weakest: verdict.worst_seed, when options.seeds > 1); written to
+    <profile>/report.json."""
     profile = plan.profile
     started = min(plan.started.values(), default=time.time())
-    vs_clean, clean_vs_gt, poisoned_vs_gt = _compare_poses(clean, poisoned, run)
-    decision = decide(clean, poisoned, vs_clean, run.options.rule)
+    rule = run.options.rule
+    compared = [_compare_poses(clean, poisoned, run) for poisoned in poisoned_runs]
+    decisions = [decide(clean, r, vs[0], rule) for r, vs in zip(poisoned_runs, compared, strict=True)]
+    within = f"frac_within_{rule.threshold_deg}deg"
+    fractions = [vs[0].get(within) if vs[0] else None for vs in compared]
+    pick = worst_seed(decisions, fractions)
+    poisoned, decision = poisoned_runs[pick], decisions[pick]
+    vs_clean, clean_vs_gt, poisoned_vs_gt = compared[pick]
+    seeds, reasons = None, decision.reasons
+    if len(poisoned_runs) > 1:
+        models = poisoned_sides(len(poisoned_runs))  # each run's model folder under the profile's
+        seeds = [{"seed": r.get("random_seed"), "outcome": r.get("outcome"), "verdict": str(d.verdict),
+                  "frac_within": f, "registered": r.get("registered"), "model": m}
+                 for r, d, f, m in zip(poisoned_runs, decisions, fractions, models, strict=True)]  # fmt: skip
+        reasons = [seeds_sentence(seeds, rule.threshold_deg), *reasons]
     profile_dir = run.out_dir / profile
     report = ProfileReport(
         profile=profile,
         verdict=decision.verdict,
-        reasons=decision.reasons,
+        reasons=reasons,
         clean=_summary(clean),
         poisoned=_summary(poisoned),
         vs_clean=vs_clean,
@@ -532,12 +566,23 @@ def _decide_profile(
         model_dir=str(profile_dir),
         started_at=started,
         finished_at=time.time(),
+        seeds=seeds,
     )
     write_json(profile_dir / "report.json", report.to_dict())
     log.info("profile verified", extra={"profile": profile, "verdict": report.verdict})
     if run.board is not None:
         run.board.finish(profile, str(report.verdict))
     return report
+
+
+def seeds_sentence(seeds: list[dict[str, Any]], threshold_deg: int) -> str:
+    """What a profile's several poisoned runs found, in one line (its first reason)."""
+    def figure(e: dict[str, Any]) -> str:
+        return f"{e['frac_within']:.0%}" if e["frac_within"] is not None else verdict_words(e["verdict"])
+
+    runs = ", ".join(f"seed {e['seed']}: {figure(e)}" for e in seeds)
+    return (f"the weakest of {len(seeds)} COLMAP runs on the patched set, as an attacker keeps the best "
+            f"({runs} of the clean cameras within {threshold_deg} deg)")  # fmt: skip
 
 
 def _copy_model(src: Path, dst: Path) -> None:

@@ -28,6 +28,9 @@ class VerifyOptions:
     published_jpeg_quality: int = 85
     crash_retries: int = 1  # rerun a crashed SfM with another RANSAC seed, as an attacker would
     random_seed: int = 0  # COLMAP's RANSAC/mapper seed (an attacker reruns with others)
+    # the attacker's runs per profile: seeds random_seed, +1, ... on the same features and matches,
+    # against one clean reference (random_seed); the profile reports its weakest (verdict.worst_seed)
+    seeds: int = 1
     clean_cache_dir: Path | None = None  # reuse clean features/results across verifications
     clean_cache_keep: int = 0  # >0: keep this many originals' caches under clean_cache_dir (LRU)
     workers: int = 0  # SfM sides (a profile's clean or poisoned run) at once (0: default_workers())

@@ -93,14 +93,18 @@ def _verify_stored(target: str | None, dataset: str | None, folder: Path | None,
 
 
 def _options(timeout: float, ground_truth: Path | None, splat: bool, splat_budget: float,
-             white_background: bool, subject_masks: Path | None) -> Any:  # fmt: skip
-    """The run's VerifyOptions from the command line (a --subject-masks that is no folder: one line)."""
+             white_background: bool, subject_masks: Path | None, seeds: int = 1) -> Any:  # fmt: skip
+    """The run's VerifyOptions from the command line (a --subject-masks that is no folder, --seeds
+    out of range: one line)."""
+    from daemon.config import MAX_SEEDS
     from verifier.verification import VerifyOptions
 
     if subject_masks is not None and not subject_masks.is_dir():
         raise die(f"--subject-masks: {subject_masks} is not a folder", ExitStatus.USAGE)
+    if not 1 <= seeds <= MAX_SEEDS:
+        raise die(f"--seeds must be between 1 and {MAX_SEEDS} (got {seeds})", ExitStatus.USAGE)
     options = VerifyOptions(
-        timeout_s=timeout, ground_truth=ground_truth, splat=splat,
+        timeout_s=timeout, ground_truth=ground_truth, splat=splat, seeds=seeds,
         subject_masks=subject_masks.absolute() if subject_masks is not None else None,
     )  # fmt: skip
     options.splat_options.update(time_budget_s=splat_budget, white_background=white_background)
@@ -137,14 +141,20 @@ def verify(
         False, "--white-background", help="Composite transparent images on white (NeRF-Synthetic)."
     ),
     subject_masks: Path | None = subject_masks_option(),
+    seeds: int = typer.Option(
+        1, "--seeds", metavar="N",
+        help="COLMAP runs per attacker on the patched set (seeds 0..N-1 on the same features and raw "
+        "matches): the weakest counts, as an attacker keeps the best.",
+    ),
 ) -> None:
     """Run COLMAP (structure from motion) on the originals and on the patched set and say
     whether the patch protects: protected, weak, NOT protected, or could not be verified.
 
     The verdict is the weakest of default, hardened, published, global and masked (an attacker who
     masks the four corner regions: it defeats every corner (watermark-like) mark by construction, and
-    its own line says so). Each is one COLMAP run with seed 0: an attacker may rerun with other seeds,
-    and on a set near the line another seed can recover more cameras."""
+    its own line says so). Each is one COLMAP run with seed 0 unless --seeds asks for more: an
+    attacker may rerun with other seeds, and on a set near the line another seed can recover more
+    cameras."""
     from rich.console import Console
 
     from daemon.cli.targets import TargetError
@@ -155,7 +165,7 @@ def verify(
     if profile not in PROFILE_CHOICES:
         raise die(f"--profile must be one of {', '.join(PROFILE_CHOICES)}", ExitStatus.USAGE)
     profiles = PROFILES if profile == "all" else (profile,)
-    options = _options(timeout, ground_truth, splat, splat_budget, white_background, subject_masks)
+    options = _options(timeout, ground_truth, splat, splat_budget, white_background, subject_masks, seeds)
     try:
         if clean is not None:
             report = _verify_folder(folder or Path(target or ""), clean, out, profiles, options, console)

@@ -33,6 +33,7 @@ class SchedulePolicy:
     enabled: bool = True
     splat: bool = False  # include Verifier II's splat stage
     splat_budget_s: float = 150.0
+    seeds: int = 1  # the attacker's COLMAP runs per profile (VerifyOptions.seeds)
 
     @classmethod
     def from_config(cls, config: Config) -> SchedulePolicy:
@@ -44,6 +45,7 @@ class SchedulePolicy:
             enabled=bool(ver.enabled),
             splat=bool(ver.splat),
             splat_budget_s=float(ver.splat_budget_s),
+            seeds=int(ver.seeds),
         )
 
 
@@ -226,10 +228,10 @@ class VerificationScheduler:
         return verify_dataset(self.ctx, dataset, self.profiles, self.verify_options())
 
     def verify_options(self) -> Any:
-        """What a scheduled run does: the policy's splat stage when configured, cancellable."""
+        """What a scheduled run does: the policy's splat stage and seeds when configured, cancellable."""
         from verifier.verification import VerifyOptions
 
-        options = VerifyOptions(cancel=self._cancel, splat=self.policy.splat)
+        options = VerifyOptions(cancel=self._cancel, splat=self.policy.splat, seeds=self.policy.seeds)
         options.splat_options["time_budget_s"] = self.policy.splat_budget_s
         return options
 

@@ -418,7 +418,12 @@ def test_cli_verify_bad_folders_is_one_clear_line(tmp_path: Path, monkeypatch: p
     assert "--clean" in result.output
 
 
-def test_crashed_side_is_retried_with_another_seed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize(("runs", "retried_with"), [(1, 1), (3, 3)])
+def test_crashed_side_is_retried_with_another_seed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, runs: int, retried_with: int
+) -> None:
+    """A crash is rerun once with the next seed no other run of the profile uses (--seeds 3 runs
+    seeds 0, 1 and 2: seed 0's retry is seed 3)."""
     from verifier import shared_sfm as vmod
     from verifier.sfm import SfmSettings
 
@@ -442,10 +447,39 @@ def test_crashed_side_is_retried_with_another_seed(tmp_path: Path, monkeypatch: 
     monkeypatch.setattr(vmod, "run_sfm_job", run_with_fake)
     side = vmod.SfmSide(tmp_path / "img", tmp_path / "c.db", tmp_path / "m", SfmSettings())
     (tmp_path / "c.db").write_bytes(b"")  # features already built: the mapping run is what crashes
-    result = vmod.run_side(side, VerifyOptions())
+    result = vmod.run_side(side, VerifyOptions(seeds=runs))
     assert result["outcome"] == "ok"
     assert result["crashes"] == ["SIGSEGV"]
-    assert seeds == [0, 1]
+    assert seeds == [0, retried_with]
+    assert result["random_seed"] == retried_with
+
+
+def test_a_profile_reports_the_attackers_best_run_of_its_seeds() -> None:
+    """--seeds N: the weakest decisive verdict counts (then the most cameras recovered); a crashed
+    or unfinished run counts only when no run decided."""
+    protected, weak, not_protected = (vd.Decision(v) for v in (vd.PROTECTED, vd.WEAK, vd.NOT_PROTECTED))
+    crashed, unfinished = vd.Decision(vd.SFM_CRASHED), vd.Decision(vd.INCONCLUSIVE)
+    assert vd.worst_seed([protected, weak, protected], [0.0, 0.42, 0.1]) == 1
+    assert vd.worst_seed([protected, not_protected, weak], [0.0, 0.9, 0.5]) == 1
+    assert vd.worst_seed([protected, protected], [0.1, 0.2]) == 1  # the more cameras within 5 deg
+    assert vd.worst_seed([protected, protected], [0.2, 0.2]) == 0  # ties: the first seed
+    assert vd.worst_seed([crashed, protected], [None, 0.0]) == 1  # a crash is no verdict
+    assert vd.worst_seed([unfinished, crashed], [None, None]) == 1
+    assert vd.worst_seed([protected], [0.0]) == 0
+
+
+def test_cli_verify_seeds_out_of_range_is_one_clear_line(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from daemon.cli import app
+
+    _write_images(tmp_path / "c", ["a.png", "b.png"])
+    _write_images(tmp_path / "p", ["a.png", "b.png"])
+    for seeds in ("0", "11"):
+        result = CliRunner().invoke(app, ["verify", str(tmp_path / "p"), "--clean", str(tmp_path / "c"),
+                                          "--seeds", seeds])  # fmt: skip
+        assert result.exit_code == 2, result.output
+        assert f"--seeds must be between 1 and 10 (got {seeds})" in result.output
 
 
 # ---- shared datasets (slow: minutes of SfM each; run with `pytest -m slow`) -----------------------
@@ -485,6 +519,29 @@ def test_lego_clean_sfm_matches_ground_truth(shared_dir: Path, tmp_path: Path) -
     gt = pm.load_ground_truth(lego / "transforms_train.json")
     m = pm.compare_poses(pm.poses_from_json(result["poses"]), {n: gt[n] for n in os.listdir(clean)})
     assert m["frac_within_5deg"] >= 0.7, m
+
+
+@pytest.mark.integration
+def test_several_seeds_report_the_weakest_run(object_sets: dict[str, Path], tmp_path: Path) -> None:
+    """--seeds 2: the patched set mapped at seeds 0 and 1 on the same features, one clean reference;
+    the profile's figures are the run an attacker would keep, each run is listed and has its model."""
+    from verifier.verification import seeds_sentence
+
+    options = VerifyOptions(timeout_s=300, camera_params=OBJECT.camera_params(), seeds=2)
+    out = tmp_path / "o"
+    report = verify_folders(object_sets["clean"], object_sets["poisoned"], out, ["default"], options)
+    p = report.profiles["default"]
+    assert p.seeds is not None and [e["seed"] for e in p.seeds] in ([0, 1], [0, 3], [2, 1], [2, 3])
+    assert p.clean["random_seed"] == 0
+    fracs = [e["frac_within"] for e in p.seeds]
+    decided = [f for f, e in zip(fracs, p.seeds, strict=True) if e["outcome"] == "ok"]
+    assert decided and p.vs_clean is not None and p.vs_clean["frac_within_5deg"] == max(decided)
+    assert p.poisoned["random_seed"] == p.seeds[fracs.index(max(decided))]["seed"]
+    assert p.reasons[0] == seeds_sentence(p.seeds, 5)
+    assert [e["model"] for e in p.seeds] == ["poisoned", "poisoned-run2"]
+    assert all((out / "default" / e["model"] / "result.json").is_file() for e in p.seeds)
+    stored = json.loads((out / "report.json").read_text())
+    assert stored["profiles"]["default"]["seeds"] == p.seeds
 
 
 @pytest.mark.integration

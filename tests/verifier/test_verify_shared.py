@@ -202,6 +202,11 @@ def test_every_clean_side_takes_a_slot_before_any_poisoned_one() -> None:
         ("published", "clean"), ("default", "clean"), ("masked", "clean"),
         ("published", "poisoned"), ("default", "poisoned"), ("masked", "poisoned"),
     ]  # fmt: skip
+    # --seeds 2: every profile's first poisoned run before any profile's second
+    assert side_order(["default", "published"], seeds=2) == [
+        ("published", "clean"), ("default", "clean"), ("published", "poisoned"), ("default", "poisoned"),
+        ("published", "poisoned-run2"), ("default", "poisoned-run2"),
+    ]  # fmt: skip
 
 
 def test_feature_builds_at_once_follow_the_memory() -> None:

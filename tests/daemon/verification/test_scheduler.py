@@ -113,6 +113,22 @@ def test_scheduled_runs_include_the_splat_stage_when_configured(ppd_env: dict[st
             ctx.close()
 
 
+def test_scheduled_runs_take_the_configured_seeds(ppd_env: dict[str, Path]) -> None:
+    from daemon.config import Config, ConfigError
+
+    assert Config.from_toml("").verification.seeds == 1
+    ctx = open_ctx(ppd_env, "[verification]\nseeds = 3\n")
+    try:
+        assert VerificationScheduler(ctx).verify_options().seeds == 3
+    finally:
+        ctx.close()
+    refused = {"0": "from 1 to 10, got 0", "11": "from 1 to 10, got 11",
+               "true": "expected `int`, got `bool`", "1.5": "expected `int`, got `float`"}  # fmt: skip
+    for bad, said in refused.items():
+        with pytest.raises(ConfigError, match=said):
+            Config.from_toml(f"[verification]\nseeds = {bad}\n")
+
+
 def test_keep_runs_is_a_config_field() -> None:
     from daemon.config import Config, ConfigError
 
