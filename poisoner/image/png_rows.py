@@ -6,8 +6,10 @@ Why: the whole re-encode (Pillow: an adaptive filter choice per row, then deflat
 ~110 ms of a 800x800 RGBA file's ~125 ms of codec work; here the rows are untouched bytes and the
 deflate runs first with a fast setting (level 1, Z_RLE: ~15-25 ms per 800x800 file, measured on the
 lego views and on camera-like noise). Its output is kept only while the new IDAT stays within
-SIZE_BOUND of the source's IDAT; past that, the stream is compressed again at level 6 with
-Z_FILTERED (what reproduces Pillow's own output size), so a file never grows much for the speed.
+SIZE_BOUND of the source's IDAT; past that, the stream is compressed again at level 6, first with
+zlib's default strategy (a photograph's size, 0.84x the CPU), then with Z_FILTERED (what reproduces
+Pillow's own output size on renders), so a file never grows much for the speed. A setting that
+runs past the bound on the rows so far is given up there, not at the end.
 
 Lossless like the re-encode: the decoded pixels are the patched picture exactly (tests). Every
 chunk but IDAT is copied byte for byte, in its place. Only 8-bit, non-interlaced grey, grey+alpha,
@@ -27,9 +29,18 @@ from poisoner.blend import apply_patch_at
 from poisoner.image.png import PNG_SIGNATURE, png_chunks
 from poisoner.spec import PatchPlacement
 
-SIZE_BOUND = 1.05  # the fast deflate is kept while the new IDAT is at most this x the source's
+SIZE_BOUND = 1.05  # a deflate setting is kept while the new IDAT is at most this x the source's
 FAST = (1, zlib.Z_RLE)  # (level, strategy)
+# Photographs (sensor noise): run-length coding grows them ~19%, zlib's default strategy at level 6
+# keeps their size (1.00x) at 0.84x Z_FILTERED's CPU; renders with flat areas (lego) are the other
+# way round (default 1.08x, filtered 1.01x). Tried in this order, each given up as soon as its output
+# runs past the bound on the rows so far; FALLBACK always ends it.
+MIDDLE = (6, zlib.Z_DEFAULT_STRATEGY)
 FALLBACK = (6, zlib.Z_FILTERED)  # gives exactly Pillow's own IDAT size on its rows (measured)
+SETTINGS = (FAST, MIDDLE, FALLBACK)
+# Given up early once the output passes SIZE_BOUND x the source bytes its rows came from by more
+# than this (deflate holds back up to a block of output; a few early rows may compress worse).
+EARLY_SLACK_BYTES, EARLY_SLACK_SHARE = 64 << 10, 0.02
 _BYTES_PER_PIXEL = {0: 1, 2: 3, 4: 2, 6: 4}  # colour type -> bytes per 8-bit pixel
 _MODES = {0: "L", 2: "RGB", 4: "LA", 6: "RGBA"}
 _NOT_HERE = {b"tRNS", b"acTL", b"fcTL", b"fdAT", b"PLTE"}  # colour keys, animation, palettes
@@ -65,13 +76,14 @@ def _chunk(ctype: bytes, body: bytes) -> bytes:
 
 def _restream(
     idat: bytes, height: int, top: int, band: tuple[np.ndarray, np.ndarray], bpp: int,
-    setting: tuple[int, int], give_up_at: float,
+    setting: tuple[int, int], bound: float | None,
 ) -> list[bytes] | None:
     """The IDAT stream again, ROWS_PER_STEP rows at a time: inflated, the band's rows (from `top`:
     band = (their new unfiltered rows, the row above each)) filtered again with the filter type each
-    had, deflated with `setting`. None once the output passes give_up_at bytes (the caller tries
-    the next setting). _Refused when the stream does not hold exactly height rows of the band's
-    width with filter types 0-4, or fails its checksum."""
+    had, deflated with `setting`. With a bound (x the source's IDAT size), None once the output
+    passes it, or passes bound x the source bytes of the rows so far by more than the early slack
+    (the caller tries the next setting). _Refused when the stream does not hold exactly height rows
+    of the band's width with filter types 0-4, or fails its checksum."""
     level, strategy = setting
     inflate, deflate = zlib.decompressobj(), zlib.compressobj(level, zlib.DEFLATED, 15, 9, strategy)
     current, above = band
@@ -80,6 +92,8 @@ def _restream(
     parts: list[bytes] = []
     size = 0
     tail: bytes = idat
+    give_up_at = float("inf") if bound is None else bound * len(idat)
+    slack = EARLY_SLACK_BYTES + EARLY_SLACK_SHARE * len(idat)
     for y in range(0, height, ROWS_PER_STEP):
         n = min(ROWS_PER_STEP, height - y)
         want = n * row_len
@@ -105,7 +119,7 @@ def _restream(
         out = deflate.compress(block)
         parts.append(out)
         size += len(out)
-        if size > give_up_at:
+        if size > give_up_at or (bound is not None and size > bound * (len(idat) - len(tail)) + slack):
             return None
     try:
         rest = inflate.decompress(tail) + inflate.flush()
@@ -144,12 +158,13 @@ def poison_png_rows(
     pixels = pixels.reshape(-1, stride)
     current = pixels[1:] if top > 0 else pixels
     above = pixels[:-1] if top > 0 else np.concatenate([np.zeros((1, stride), np.uint8), pixels[:-1]])
+    parts: list[bytes] | None = None
     try:
-        setting = FAST
-        parts = _restream(idat, height, top, (current, above), bpp, FAST, SIZE_BOUND * len(idat))
-        if parts is None:
-            setting = FALLBACK
-            parts = _restream(idat, height, top, (current, above), bpp, FALLBACK, float("inf"))
+        for setting in SETTINGS:  # the last one always ends it (no bound)
+            bound = None if setting == SETTINGS[-1] else SIZE_BOUND
+            parts = _restream(idat, height, top, (current, above), bpp, setting, bound)
+            if parts is not None:
+                break
     except _Refused:
         return None
     assert parts is not None
@@ -166,6 +181,7 @@ def poison_png_rows(
     if chunks[-1][0] != b"IEND":
         out.append(_chunk(b"IEND", b""))
     kept = [t.decode("latin-1") for t, _ in chunks if t not in (b"IHDR", b"IDAT", b"IEND")]
-    how = "level 1, run-length" if setting == FAST else f"level {setting[0]} (level 1 passed {SIZE_BOUND}x)"
+    names = {FAST: "level 1, run-length", MIDDLE: "level 6", FALLBACK: "level 6, filtered"}
+    how = names[setting] + ("" if setting == FAST else f" (the faster settings passed {SIZE_BOUND}x)")
     notes = [f"PNG: only rows {top}..{end - 1} filtered again (every other row's bytes kept); deflate {how}"]
     return b"".join(out), [f"PNG {t}" for t in kept], notes

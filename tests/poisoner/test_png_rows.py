@@ -153,6 +153,64 @@ def test_the_deflate_falls_back_when_the_fast_one_would_grow_the_file(tmp_path: 
         assert np.array_equal(np.asarray(im), expected)
 
 
+def _repeating(h: int, w: int, seed: int) -> np.ndarray:
+    """Shading under one small noise tile repeated (a pattern, a screen capture, bench_batch's
+    synthetic camera pictures): LZ finds the repeats, run-length coding does not."""
+    rng = np.random.default_rng(seed)
+    tile = rng.integers(-12, 13, size=(32, 32, 3))
+    shade = 128 + 60 * np.sin(np.arange(w) / 37.0)[None, :, None] * np.ones((h, 1, 3))
+    return np.clip(shade + np.tile(tile, (h // 32 + 1, w // 32 + 1, 1))[:h, :w], 0, 255).astype(np.uint8)
+
+
+def test_a_repeating_picture_takes_level_6_default_within_the_bound(tmp_path: Path) -> None:
+    """Run-length coding grows such a picture far past the bound; zlib's default strategy at level 6
+    keeps its size (and costs less CPU than Z_FILTERED), so that is what the file gets, lossless."""
+    src, dst = tmp_path / "IMG_0003.png", tmp_path / "out.png"
+    Image.fromarray(_repeating(480, 640, seed=4)).save(src)  # Pillow's own: level 6, adaptive filters
+    rows = _rows(src.read_bytes()).tobytes()
+    src_idat = sum(len(b) for t, b in png_chunks(src.read_bytes()) if t == b"IDAT")
+    sizes = {}
+    for setting in png_rows.SETTINGS:
+        deflate = zlib.compressobj(setting[0], zlib.DEFLATED, 15, 9, setting[1])
+        sizes[setting] = len(deflate.compress(rows) + deflate.flush())
+    assert sizes[png_rows.FAST] > png_rows.SIZE_BOUND * src_idat >= sizes[png_rows.MIDDLE]
+    report = poison_file(src, dst, default_spec())
+    assert any("deflate level 6 (" in n for n in report.notes), report.notes
+    out_idat = sum(len(b) for t, b in png_chunks(dst.read_bytes()) if t == b"IDAT")
+    assert out_idat <= png_rows.SIZE_BOUND * src_idat
+    with Image.open(src) as im:
+        expected = apply_patch(np.asarray(im), report.placement)
+    with Image.open(dst) as im:
+        assert np.array_equal(np.asarray(im), expected)
+
+
+def test_a_setting_past_the_bound_is_given_up_early(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The run-length try on such a picture stops within its first rows, not at the stream's end."""
+    data = io.BytesIO()
+    Image.fromarray(_repeating(2000, 400, seed=5)).save(data, "PNG")
+    idat = b"".join(b for t, b in png_chunks(data.getvalue()) if t == b"IDAT")
+    stride = 400 * 3
+    fed: list[int] = []
+    real = zlib.compressobj
+
+    class Counting:
+        def __init__(self, *args: object) -> None:
+            self._inner = real(*args)  # type: ignore[arg-type]
+
+        def compress(self, block: bytes) -> bytes:
+            fed.append(len(block))
+            return self._inner.compress(block)
+
+        def flush(self) -> bytes:
+            return self._inner.flush()
+
+    monkeypatch.setattr(png_rows.zlib, "compressobj", Counting)
+    band = (np.zeros((1, stride), np.uint8), np.zeros((1, stride), np.uint8))
+    out = png_rows._restream(idat, 2000, 0, band, 3, png_rows.FAST, png_rows.SIZE_BOUND)
+    assert out is None
+    assert 0 < sum(fed) < 0.25 * 2000 * (stride + 1), sum(fed)  # most rows never deflated
+
+
 @pytest.mark.parametrize("case", ["palette", "16-bit", "colour key"])
 def test_the_files_it_does_not_take_are_re_encoded(tmp_path: Path, case: str) -> None:
     pixels = _picture(64, 80, 3, seed=2)
