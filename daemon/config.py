@@ -91,6 +91,12 @@ from verifier.auto_options import PreflightOptions, Profile, VisibilityBudget
 
 AUTO_SPEC = "auto"  # `spec = "auto"` in [datasets.NAME]
 MAX_SEEDS = 10  # [verification] seeds and `ppd verify --seeds`: each seed is one more mapping per profile
+
+
+def seeds_problem(seeds: int) -> str | None:
+    """Why a count of COLMAP seeds is refused ([verification] seeds, `ppd verify --seeds`); None: taken."""
+    return None if 0 < seeds <= MAX_SEEDS else f"must be a whole number from 1 to {MAX_SEEDS}, got {seeds!r}"
+
 # folders: "" = not set (TOML has no null)
 _EMPTY_MEANS_UNSET = ("publish_dir", "quarantine_dir", "subject_masks")
 _OLD_BUDGET_KEYS = ("min_ssim", "max_lpips")
@@ -171,8 +177,8 @@ class VerificationSchedule(Section, frozen=True):
     keep_runs: int = 5  # run folders kept per dataset (daemon.verification.verify prunes the older ones)
 
     def __post_init__(self) -> None:
-        if not 0 < self.seeds <= MAX_SEEDS:  # a bool or a float never gets here (msgspec: an int)
-            raise ConfigError(f"seeds must be a whole number from 1 to {MAX_SEEDS}, got {self.seeds!r}")
+        if why := seeds_problem(self.seeds):  # a bool or a float never gets here (msgspec: an int)
+            raise ConfigError(f"seeds {why}")
         if isinstance(self.keep_runs, bool) or not isinstance(self.keep_runs, int) or self.keep_runs < 1:
             raise ConfigError(f"keep_runs must be a whole number >= 1, got {self.keep_runs!r}")
         if self.every_new_files < 1:

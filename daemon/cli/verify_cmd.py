@@ -96,13 +96,13 @@ def _options(timeout: float, ground_truth: Path | None, splat: bool, splat_budge
              white_background: bool, subject_masks: Path | None, seeds: int = 1) -> Any:  # fmt: skip
     """The run's VerifyOptions from the command line (a --subject-masks that is no folder, --seeds
     out of range: one line)."""
-    from daemon.config import MAX_SEEDS
+    from daemon.config import seeds_problem
     from verifier.verification import VerifyOptions
 
     if subject_masks is not None and not subject_masks.is_dir():
         raise die(f"--subject-masks: {subject_masks} is not a folder", ExitStatus.USAGE)
-    if not 1 <= seeds <= MAX_SEEDS:
-        raise die(f"--seeds must be between 1 and {MAX_SEEDS} (got {seeds})", ExitStatus.USAGE)
+    if why := seeds_problem(seeds):
+        raise die(f"--seeds {why}", ExitStatus.USAGE)
     options = VerifyOptions(
         timeout_s=timeout, ground_truth=ground_truth, splat=splat, seeds=seeds,
         subject_masks=subject_masks.absolute() if subject_masks is not None else None,

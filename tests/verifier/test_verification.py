@@ -479,7 +479,7 @@ def test_cli_verify_seeds_out_of_range_is_one_clear_line(tmp_path: Path) -> None
         result = CliRunner().invoke(app, ["verify", str(tmp_path / "p"), "--clean", str(tmp_path / "c"),
                                           "--seeds", seeds])  # fmt: skip
         assert result.exit_code == 2, result.output
-        assert f"--seeds must be between 1 and 10 (got {seeds})" in result.output
+        assert f"--seeds must be a whole number from 1 to 10, got {seeds}" in result.output
 
 
 # ---- shared datasets (slow: minutes of SfM each; run with `pytest -m slow`) -----------------------
