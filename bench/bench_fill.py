@@ -94,8 +94,10 @@ def room(subject: np.ndarray, full: int, floor: int, margin: int) -> dict[str, A
     return {"room": largest_free_square(subject), "full": full, "floor": floor, "margin": margin,
             "two_whole": two_fit(subject, full), "two_floor": two_fit(subject, floor),
             "two_floor_margin": two_fit(subject, floor + 2 * margin),
-            # round 5: as the mark can be placed, both squares inside one square of the shorter side
-            "two_floor_box": two_fit_within(subject, floor, min(subject.shape))}  # fmt: skip
+            # round 5: as the mark can be placed, both squares inside one square of the shorter side;
+            # 2026-11-27: and a sixth of a side apart, as poisoner.placement.choose_split keeps them
+            "two_floor_box": two_fit_within(subject, floor, min(subject.shape), gap=max(1, floor // 6)),
+            }  # fmt: skip
 
 
 def sides(width: int, height: int, name: str) -> tuple[int, int]:
@@ -167,7 +169,8 @@ def write_markdown(rows: list[dict[str, Any]]) -> None:
              "`python -m bench.bench_fill touch` (its docstring). `touch`: views with a changed pixel on",
              "the subject (as shown); `touch, room existed`: of those, views where two squares of the",
              "floor side (half the mark's side) fit off the subject inside one square of the frame's",
-             "shorter side (as ppd places its two squares), so a placement off it existed; `no room`:",
+             "shorter side, a sixth of a side apart (as ppd places its two squares; the gap since",
+             "2026-11-27), so a placement off it existed; `no room`:",
              "views where they do not (no placement of the mark avoids the subject); `two apart`: of the",
              "touches, views where two such squares fit off the subject anywhere (round 4's judge: pockets",
              "at opposite ends of the frame count); `with margin`: of the touches, views where the two",

@@ -40,14 +40,16 @@ def two_fit(subject: np.ndarray, side: int) -> bool:
     return bool(xs.max() - xs.min() >= side or ys.max() - ys.min() >= side)
 
 
-def two_fit_within(subject: np.ndarray, side: int, box: int) -> bool:
+def two_fit_within(subject: np.ndarray, side: int, box: int, gap: int = 0) -> bool:
     """two_fit with the default mark's own geometry: both squares inside one box x box square (ppd
     keeps its two lanes within a square of the frame's shorter side, poisoner.placement.choose_split),
-    so pockets at opposite ends of a wide frame do not count as room for the mark. A fitting corner p
+    so pockets at opposite ends of a wide frame do not count as room for the mark, and at least `gap`
+    px apart in x or y (choose_split keeps split squares a sixth of a side apart). A fitting corner p
     has a partner q when some fitting corner lies within box - side of it in x and y (Chebyshev) but
-    not within side - 1 of it (the squares would overlap): two window counts on one integral image."""
+    not within side + gap - 1 of it (the squares would overlap or touch): two window counts on one
+    integral image."""
     ok = fits(subject, side)
-    if not ok.any() or box < 2 * side:
+    if not ok.any() or box < 2 * side + gap:
         return False
     s = np.zeros((ok.shape[0] + 1, ok.shape[1] + 1), dtype=np.int64)
     s[1:, 1:] = ok.astype(np.int64).cumsum(0).cumsum(1)
@@ -58,4 +60,4 @@ def two_fit_within(subject: np.ndarray, side: int, box: int) -> bool:
         x0, x1 = np.clip(xs - radius, 0, ok.shape[1]), np.clip(xs + radius + 1, 0, ok.shape[1])
         return s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0]
 
-    return bool((count(box - side) - count(side - 1) > 0).any())
+    return bool((count(box - side) - count(side + gap - 1) > 0).any())

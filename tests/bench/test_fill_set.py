@@ -68,3 +68,14 @@ def test_two_squares_count_as_room_only_within_one_box_of_the_shorter_side() -> 
     one = np.ones((60, 60), dtype=bool)
     one[:15, :15] = False  # room for one 10 px square only: its fitting corners overlap each other
     assert not two_fit_within(one, 10, 60)
+
+
+def test_two_squares_that_fit_only_touching_do_not_fit_with_the_gap_ppd_keeps() -> None:
+    """ppd keeps split squares a sixth of a side apart (choose_split): a pocket that holds two squares
+    only edge to edge (dtu crop55's view 24) is no room for the mark."""
+    subject = np.ones((60, 60), dtype=bool)
+    subject[:10, :20] = False  # two 10 px squares side by side, touching, and no more
+    assert two_fit_within(subject, 10, 60)
+    assert not two_fit_within(subject, 10, 60, gap=2)
+    subject[:10, :22] = False  # two px more: room with the gap
+    assert two_fit_within(subject, 10, 60, gap=2) and not two_fit_within(subject, 10, 60, gap=3)
