@@ -1,16 +1,20 @@
-"""Plain option values (ints, floats, text, flags) converted without loading pydantic.
+"""Plain option values (ints, floats, text, flags, paths) converted without loading pydantic.
 
 typer (0.29) converts every option value through a pydantic TypeAdapter, and importing pydantic
 costs about 55 ms, a third of the start-up budget of `ppd status` and `ppd poison --help`
-(issue 19). For the plain forms (`3`, `-1`, `0.5`, text, a list of text, True/False) the answer
-is the one pydantic gives, so it is computed here; anything else (paths, choices, `1e3`, an
-out-of-range or malformed value) goes to typer's own converter, which gives its own result or
+(issue 19), and about 100 ms of CPU of every `ppd poison DATASET` run (issue 30: 3% of 24 PNGs'
+whole process). For the plain forms (`3`, `-1`, `0.5`, text, a list of text, True/False, a path
+or a list of paths without typer's path checks) the answer is the one pydantic gives, so it is
+computed here; anything else (choices, `1e3`, an out-of-range or malformed value, a path option
+asking typer to check or resolve it) goes to typer's own converter, which gives its own result or
 error message. With a typer that has no such converter this module does nothing.
 """
 
 from __future__ import annotations
 
+import os
 import re
+from pathlib import Path
 from typing import Any, cast, get_args, get_origin
 
 _INT = re.compile(r"-?[0-9]+")
@@ -46,6 +50,33 @@ def plain_value(annotation: Any, value: Any, low: float | None = None, high: flo
     return number
 
 
+def _plain_path_text(value: Any) -> bool:
+    # pydantic makes Path(value) of any text; the empty and the NUL-bearing go to typer to judge
+    return type(value) is str and value != "" and "\0" not in value
+
+
+def plain_path(annotation: Any, value: Any, info: Any) -> Any:
+    """A Path or list[Path] value as typer 0.29 gives it, or _NOT_PLAIN.
+
+    list[Path]: pydantic's list of Path(item), typer checks nothing more. Path: Path(value), then
+    typer's coerce_cli_path checks what its flags ask (exists, file_okay, dir_okay, readable,
+    writable, resolve_path, allow_dash, path_type): only the defaults are taken here, whose one
+    check is that an existing path is readable; an unreadable one goes to typer for its message."""
+    if get_origin(annotation) is list:
+        if get_args(annotation) != (Path,) or not isinstance(value, list | tuple):
+            return _NOT_PLAIN
+        return [Path(v) for v in value] if all(_plain_path_text(v) for v in value) else _NOT_PLAIN
+    if annotation is not Path or not _plain_path_text(value):
+        return _NOT_PLAIN
+    defaults = (info.exists, info.file_okay, info.dir_okay, info.writable, info.readable,
+                info.resolve_path, info.allow_dash, info.path_type)  # fmt: skip
+    if defaults != (False, True, True, False, True, False, False, None):
+        return _NOT_PLAIN
+    if os.path.exists(value) and not os.access(value, os.R_OK):
+        return _NOT_PLAIN
+    return Path(value)
+
+
 def install() -> None:
     """From now on, every typer parameter of this process converts plain values here first."""
     try:
@@ -61,6 +92,8 @@ def install() -> None:
             info = self.parameter_info
             if info.parser is None and not info.clamp:
                 converted = plain_value(self.annotation, value, info.min, info.max)
+                if converted is _NOT_PLAIN:
+                    converted = plain_path(self.annotation, value, info)
                 if converted is not _NOT_PLAIN:
                     return converted
             real = build_runtime_param(param.type_descriptor)
