@@ -5,6 +5,8 @@
 - `mounts_of_device(dev)`: the mounts of a device from /proc/self/mountinfo (for error messages).
 - `writers_of(st)`: processes that hold a file open for writing (a scan of /proc/PID/fd).
 - `reflink(dst_fd, src_fd)`: the FICLONE ioctl (a copy that shares extents on btrfs/XFS).
+- `keep_freed_memory()`: glibc's malloc keeps freed memory for the next file instead of handing it
+  back to the kernel at once (a worker's page faults: issue 30).
 - `inotify_observer(on_overflow)`: watchdog's inotify observer that also calls on_overflow when the
   kernel reports IN_Q_OVERFLOW (events were lost: the owner rescans). watchdog rebuilds its watches
   on an overflow but tells the application nothing; the event itself is read here, by its mask.
@@ -130,6 +132,31 @@ def reflink(dst_fd: int, src_fd: int) -> None:
     """Make the empty file dst_fd a clone of src_fd (FICLONE); OSError where the filesystem cannot
     (then dst is left empty)."""
     fcntl.ioctl(dst_fd, FICLONE, src_fd)
+
+
+# ---- memory ------------------------------------------------------------------------------------
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # mallopt's parameters, malloc.h
+HEAP_BLOCKS_UP_TO = 32 << 20  # glibc's largest mmap threshold on 64-bit: bigger blocks still map
+KEEP_FREED = 64 << 20  # freed memory kept at the heap's top, at most, per process
+
+
+def keep_freed_memory() -> bool:
+    """Tell glibc's malloc to serve blocks up to HEAP_BLOCKS_UP_TO from its heap and keep up to
+    KEEP_FREED of freed memory for the next allocation. Why: by default every numpy array over a
+    few MiB is a fresh mapping, and its pages are faulted in and zeroed by the kernel again for each
+    photo; `ppd poison` of 24 PNGs of 800 px took 118k page faults and 0.47 s of system CPU, 16k
+    and 0.2 s with this, the same peak memory (bench/results/batch.md, round 9). A process that
+    does pixel work (a `ppd poison` run, a worker) calls it; the daemon itself does not. False where
+    the C library is not glibc (nothing changed)."""
+    try:
+        if not os.confstr("CS_GNU_LIBC_VERSION"):
+            return False
+    except (ValueError, OSError):
+        return False
+    import ctypes
+
+    mallopt = ctypes.CDLL(None).mallopt  # the process's own C library
+    return bool(mallopt(M_MMAP_THRESHOLD, HEAP_BLOCKS_UP_TO)) and bool(mallopt(M_TRIM_THRESHOLD, KEEP_FREED))
 
 
 # ---- inotify -----------------------------------------------------------------------------------

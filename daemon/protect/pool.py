@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, TypeVar, cast
 
 import msgspec
 
+from daemon.platform import keep_freed_memory
 from daemon.protect.job import Outcome, ProtectOutcome
 
 if TYPE_CHECKING:
@@ -110,6 +111,7 @@ def open_worker(
 
     die_with_parent(parent)
     ignore_interrupts()
+    keep_freed_memory()
     log_like_caller(formatter)
     from daemon.context import AppContext
     from daemon.store import Store
@@ -201,6 +203,7 @@ def protect_many(
     if stopped():
         return []
     if n == 1:
+        keep_freed_memory()  # this process does the pixel work (open_worker: each worker does)
         outcomes = []
         for call in calls:
             if stopped():

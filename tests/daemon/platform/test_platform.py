@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import logging
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -13,6 +15,7 @@ from watchdog.observers.inotify_c import CallbackId, InotifyConstants, InotifyEv
 from daemon.platform import fd_path, mounts_of_device, overflow_aware_inotify, reflink, writers_of
 
 MAX_QUEUED = Path("/proc/sys/fs/inotify/max_queued_events")
+REPO = Path(__file__).resolve().parents[3]
 
 
 class _Quiet:
@@ -127,3 +130,34 @@ def test_reflink_clones_or_refuses_leaving_the_copy_empty(tmp_path: Path) -> Non
     finally:
         os.close(s)
         os.close(d)
+
+
+_WHERE_A_BLOCK_LIVES = """
+import sys
+import numpy as np
+from daemon.platform import keep_freed_memory
+if sys.argv[1] == "keep":
+    assert keep_freed_memory()
+block = np.empty(30 << 20, np.uint8)  # 30 MiB: over glibc's default threshold, under the one set
+at = block.ctypes.data
+for line in open("/proc/self/maps"):
+    lo, hi = (int(x, 16) for x in line.split()[0].split("-"))
+    if lo <= at < hi:
+        print("heap" if line.rstrip().endswith("[heap]") else "own mapping")
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "confstr") or not os.confstr("CS_GNU_LIBC_VERSION"), reason="not glibc")
+def test_pixel_work_keeps_big_blocks_on_the_heap() -> None:
+    """keep_freed_memory (issue 30): a 30 MiB array comes from malloc's heap, whose freed memory the
+    next photo reuses, not from a mapping of its own that the kernel faults in and zeroes each time."""
+
+    def where(mode: str) -> str:
+        env = {**os.environ, "PYTHONPATH": str(REPO)}
+        proc = subprocess.run([sys.executable, "-c", _WHERE_A_BLOCK_LIVES, mode], capture_output=True,
+                              text=True, timeout=60, cwd=REPO, env=env)  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        return proc.stdout.strip()
+
+    assert where("default") == "own mapping"
+    assert where("keep") == "heap"
