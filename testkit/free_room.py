@@ -46,8 +46,8 @@ def two_fit_within(subject: np.ndarray, side: int, box: int, gap: int = 0) -> bo
     so pockets at opposite ends of a wide frame do not count as room for the mark, and at least `gap`
     px apart in x or y (choose_split keeps split squares a sixth of a side apart). A fitting corner p
     has a partner q when some fitting corner lies within box - side of it in x and y (Chebyshev) but
-    not within side + gap - 1 of it (the squares would overlap or touch): two window counts on one
-    integral image."""
+    not within side + gap - 1 of it (the squares would overlap, or lie closer than gap): two window
+    counts on one integral image."""
     ok = fits(subject, side)
     if not ok.any() or box < 2 * side + gap:
         return False

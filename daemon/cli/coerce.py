@@ -50,31 +50,34 @@ def plain_value(annotation: Any, value: Any, low: float | None = None, high: flo
     return number
 
 
-def _plain_path_text(value: Any) -> bool:
-    # pydantic makes Path(value) of any text; the empty and the NUL-bearing go to typer to judge
-    return type(value) is str and value != "" and "\0" not in value
-
-
 def plain_path(annotation: Any, value: Any, info: Any) -> Any:
     """A Path or list[Path] value as typer 0.29 gives it, or _NOT_PLAIN.
 
-    list[Path]: pydantic's list of Path(item), typer checks nothing more. Path: Path(value), then
-    typer's coerce_cli_path checks what its flags ask (exists, file_okay, dir_okay, readable,
-    writable, resolve_path, allow_dash, path_type): only the defaults are taken here, whose one
-    check is that an existing path is readable; an unreadable one goes to typer for its message."""
-    if get_origin(annotation) is list:
-        if get_args(annotation) != (Path,) or not isinstance(value, list | tuple):
-            return _NOT_PLAIN
-        return [Path(v) for v in value] if all(_plain_path_text(v) for v in value) else _NOT_PLAIN
-    if annotation is not Path or not _plain_path_text(value):
-        return _NOT_PLAIN
+    typer makes Path(text) of each item (pydantic), then checks what the parameter's flags ask
+    (coerce_cli_path: exists, file_okay, dir_okay, readable, writable, resolve_path, allow_dash,
+    path_type), for a list's items too. Only the defaults are taken here, whose one check is that an
+    existing path is readable; an unreadable one goes to typer for its message."""
     defaults = (info.exists, info.file_okay, info.dir_okay, info.writable, info.readable,
                 info.resolve_path, info.allow_dash, info.path_type)  # fmt: skip
     if defaults != (False, True, True, False, True, False, False, None):
         return _NOT_PLAIN
-    if os.path.exists(value) and not os.access(value, os.R_OK):
+    if get_origin(annotation) is list:
+        if get_args(annotation) != (Path,) or not isinstance(value, list | tuple):
+            return _NOT_PLAIN
+        paths = [_readable_path(v) for v in value]
+        return _NOT_PLAIN if any(p is _NOT_PLAIN for p in paths) else paths
+    return _readable_path(value) if annotation is Path else _NOT_PLAIN
+
+
+def _readable_path(value: Any) -> Any:
+    # pydantic makes Path(value) of any text; the empty and the NUL-bearing go to typer to judge.
+    # typer stats the Path (a trailing "/" dropped), so the check does too.
+    if type(value) is not str or value == "" or "\0" in value:
         return _NOT_PLAIN
-    return Path(value)
+    path = Path(value)
+    if os.path.exists(path) and not os.access(path, os.R_OK):
+        return _NOT_PLAIN
+    return path
 
 
 def install() -> None:

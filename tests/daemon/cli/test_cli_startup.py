@@ -5,6 +5,7 @@ modules loaded, not on a time (speed is measured in bench/bench_startup.py)."""
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -103,11 +104,35 @@ def test_paths_convert_as_typer_does(tmp_path: Path) -> None:
     for annotation, value in ((Path, ""), (Path, "a\0b"), (list[Path], ("a", "")), (list[int], ("1",)),
                               (Path, 3), (str, "a")):  # fmt: skip
         assert plain_path(annotation, value, info) is _NOT_PLAIN, (annotation, value)
-    locked = shoot / "locked.jpg"
+    for flags in (OptionInfo(exists=True), OptionInfo(readable=False)):  # typer's checks, lists too
+        assert plain_path(list[Path], (str(shoot),), flags) is _NOT_PLAIN
+
+
+def _refused_unreadable_files() -> list[str]:
+    """A command prefix under which a mode-0 file is unreadable, root included (root reads anything
+    unless its capability to override file modes is dropped: util-linux's setpriv)."""
+    if os.geteuid() != 0:
+        return []
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        pytest.skip("running as root without setpriv: every file is readable")
+    return [setpriv, "--bounding-set=-dac_override,-dac_read_search", "--"]
+
+
+def test_an_unreadable_path_keeps_typers_message(env: dict[str, str], tmp_path: Path) -> None:
+    """A path that exists but cannot be read goes to typer's converter and its one-line error, given
+    alone, in a list of paths or with a trailing slash (typer stats the Path, which drops it)."""
+    locked = tmp_path / "locked.jpg"
     locked.write_bytes(b"x")
     locked.chmod(0)
-    if not os.access(locked, os.R_OK):  # root reads anything: then typer accepts it too
-        assert plain_path(Path, str(locked), info) is _NOT_PLAIN  # typer's "is not readable" message
+    readable = tmp_path / "fine.jpg"
+    readable.write_bytes(b"x")
+    prefix = _refused_unreadable_files()
+    for paths in ([str(locked)], [str(readable), str(locked)], [f"{locked}/"]):
+        proc = subprocess.run([*prefix, sys.executable, "-m", "daemon.cli", "poison", "--dry-run", *paths],
+                              cwd=REPO, env=env, capture_output=True, text=True, timeout=120)  # fmt: skip
+        assert proc.returncode == 2, (paths, proc.stderr)
+        assert proc.stderr.startswith("ppd: error: ") and "is not readable" in proc.stderr, proc.stderr
 
 
 def test_bad_values_keep_typers_messages(env: dict[str, str]) -> None:
