@@ -16,9 +16,8 @@ rename, poisoner.atomic) are all counted:
          default Huffman tables, i.e. what "re-saving with the same settings" costs), PNG with
          Pillow's default settings.
 
-Every tree timed (this one, --baseline) has its bytecode compiled first, as a pip install leaves it:
-with PYTHONDONTWRITEBYTECODE set, a tree without __pycache__ compiles every module it imports from
-source in each run (0.1-0.3 s of CPU here, more for the side that imports more).
+Every tree timed (this one, --baseline) has its bytecode compiled first, as a pip install leaves it
+(bench/bytecode.py says why).
 
 Runs alternate in pairs (ppd, floor, then floor, ppd, ...); the table gives the median of each
 side and the ratio of the medians, CPU (user + system, children included) and wall. The load
@@ -48,6 +47,8 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Any
+
+from bench.bytecode import compile_bytecode
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "batch.md"
@@ -300,17 +301,6 @@ def measure(args: argparse.Namespace) -> None:
     shutil.rmtree(work, ignore_errors=True)
     shutil.rmtree(cache / "state", ignore_errors=True)
     write_results(args, rows, load_before, os.getloadavg())
-
-
-def compile_bytecode(trees: list[Path]) -> None:
-    """Each tree's packages compiled to __pycache__ (what `pip install` does), so no timed run pays
-    for compiling them."""
-    import compileall
-
-    for tree in trees:
-        for package in ("daemon", "poisoner", "verifier", "bench", "testkit"):
-            if (tree / package).is_dir():
-                compileall.compile_dir(tree / package, quiet=1)
 
 
 def write_results(args: argparse.Namespace, rows: list, load_before: tuple, load_after: tuple) -> None:

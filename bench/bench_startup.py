@@ -24,6 +24,8 @@ import time
 import zlib
 from pathlib import Path
 
+from bench.bytecode import compile_bytecode
+
 REPO = Path(__file__).resolve().parents[1]
 COMMANDS = {
     "ppd poison --help": ["-m", "daemon.cli", "poison", "--help"],
@@ -106,6 +108,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--runs", type=int, default=9)
     parser.add_argument("--baseline", type=Path, help="Another checkout to compare with (before/after).")
     args = parser.parse_args(argv)
+    compile_bytecode([REPO, *([args.baseline] if args.baseline else [])])  # as an install leaves it
     other_name = f"baseline {args.baseline}" if args.baseline else "floor: python -c 'import typer'"
     print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; {os.cpu_count()} CPUs")
     print(f"| command | CPU ms | wall ms | RSS MB | {other_name}: CPU ms | CPU ratio |")
