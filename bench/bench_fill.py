@@ -42,7 +42,7 @@ from bench.bench_placement import (
     shown_rgb,
 )
 from bench.bench_shrink import make_fountain
-from poisoner.placement import MARGIN
+from poisoner.placement import MARGIN, split_gap
 from testkit.free_room import largest_free_square, two_fit, two_fit_within
 
 WORK = FILL_WORK  # its own folder: other rounds' files stay as they were
@@ -95,8 +95,8 @@ def room(subject: np.ndarray, full: int, floor: int, margin: int) -> dict[str, A
             "two_whole": two_fit(subject, full), "two_floor": two_fit(subject, floor),
             "two_floor_margin": two_fit(subject, floor + 2 * margin),
             # round 5: as the mark can be placed, both squares inside one square of the shorter side;
-            # 2026-11-27: and a sixth of a side apart, as poisoner.placement.choose_split keeps them
-            "two_floor_box": two_fit_within(subject, floor, min(subject.shape), gap=max(1, floor // 6)),
+            # 2026-11-27: and as far apart as poisoner.placement.choose_split keeps them
+            "two_floor_box": two_fit_within(subject, floor, min(subject.shape), split_gap(floor)),
             }  # fmt: skip
 
 

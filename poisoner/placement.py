@@ -1,18 +1,14 @@
 """Where the mark goes. Two rules, both pure functions (arrays in, answers out):
 - per photo (issue 25, the default design's position "auto"): `place_on_photo` / `choose_spot` below;
-- one corner per dataset (issue 14, a corner spec), described here:
+- one corner per dataset (issue 14, a corner spec): which corner, and which pixels to keep out.
 
-Subject-aware placement of a corner mark (issue 14): which corner, and which pixels to keep out.
-
-Pure functions, arrays in, answers out. A watermark-like mark lives in one corner region
-(`region` of the width x `region` of the height). Over a dataset, the mark stays in ONE corner (a
-photographer signs every picture in the same place), so the corner is chosen from all the images'
-subject masks together: the corner whose region the subject (and any keep-out area) covers least,
-ties broken by the distance from the subject's centre (farthest wins). Pixels on the subject are then
-never written (poisoner.blend.apply_patch's keep_out), so no changed pixel touches the subject even
-where it reaches into the chosen corner.
+A corner mark lives in one corner region (`region` of the width x `region` of the height). Over a
+dataset it stays in ONE corner (a photographer signs every picture in the same place), so the corner
+is chosen from all the images' subject masks together: the corner whose region the subject (and any
+keep-out area) covers least, ties broken by the distance from the subject's centre (farthest wins).
+Pixels on the subject are then never written (poisoner.blend.apply_patch's keep_out), so no changed
+pixel touches the subject even where it reaches into the chosen corner.
 """
-
 from __future__ import annotations
 
 import dataclasses
@@ -107,13 +103,13 @@ def keep_out_mask(
 
 
 # ---- per-photo placement (issue 25) ---------------------------------------------------------------
-# One dataset-wide corner lands on the subject whenever the subject fills that corner in some views
-# (13 of 25 views of a subject-filling capture), and an attacker who masks the four corners removes
-# it. So each photo gets its own place, in what a viewer sees (EXIF orientation applied): the
-# plainest spot for the mark's footprint in that photo (no subject pixel where masks are given, the
-# least image detail otherwise), anywhere in the frame, ties going to one preferred anchor (the top
-# edge's centre) so that the photos of a plain-background set share their anchor and the lanes
-# move between them exactly as the measured corner lanes did.
+# One dataset-wide corner lands on the subject whenever the subject fills that corner in some views (13 of
+# 25 views of a subject-filling capture), and an attacker who masks the four corners removes it. So each
+# photo gets its own place, in what a viewer sees (EXIF orientation applied): the plainest spot for the
+# mark's footprint in that photo (no subject pixel where masks are given, the least image detail
+# otherwise), anywhere in the frame, ties going to one preferred anchor (the top edge's centre) so that
+# the photos of a plain-background set share their anchor and the lanes move between them exactly as the
+# measured corner lanes did.
 
 # A footprint with at most this much detail cost is plain: all plain places are equally good, so the
 # preferred anchor wins (round 2: shares of 0.01 against 0.00 had moved 11 of dtu_scan37's 25 marks off
@@ -129,16 +125,15 @@ EDGE_WEIGHT = 0.5
 # Round 2 (the masked attacker): the four corner regions (this share of the width and of the height)
 # are what the `masked` profile removes; a plain place off them wins over a plain corner.
 CORNER_REGION = 0.2
-# Round 7 (no masks): a plain place is doubtful when one of its squares, grown by the margin, holds
-# more than this share of FAINT detail (poisoner.subject.FAINT_LEVEL): a subject's face may look plain
-# at DETAIL_LEVEL where it shows a photo of what lies beside it (creator-fill: pavement on the box's
-# lower face just above the real pavement, their edge too faint to count; 0.09 to 0.16 on the three
-# views whose mark touched it). A studio backdrop has next to no faint texture: at most 0.036 at the
-# places lego, dtu_scan37 (800 and 1600 px) and the dtu/lego fill crops get, none doubtful, so their
-# marks stay where they were, byte for byte. A doubtful place is kept unless each square finds its own
-# place, plain and not doubtful, off any corner region the stacked mark kept off (place_on_photo);
-# moving the stacked mark to a less faint place instead moved creator-fill's view_16 onto the box's
-# plain lower-left corner.
+# Round 7 (no masks): a plain place is doubtful when one of its squares, grown by the margin, holds more than
+# this share of FAINT detail (poisoner.subject.FAINT_LEVEL): a subject's face may look plain at DETAIL_LEVEL
+# where it shows a photo of what lies beside it (creator-fill: pavement on the box's lower face just above
+# the real pavement, their edge too faint to count; 0.09 to 0.16 on the three views whose mark touched it).
+# A studio backdrop has next to no faint texture: at most 0.036 at the places lego, dtu_scan37 (800 and
+# 1600 px) and the dtu/lego fill crops get, none doubtful, so their marks stay where they were, byte for
+# byte. A doubtful place is kept unless each square finds its own place, plain and not doubtful, off any
+# corner region the stacked mark kept off (place_on_photo); moving the stacked mark to a less faint place
+# instead moved creator-fill's view_16 onto the box's plain lower-left corner.
 FAINT_DOUBT = 0.06
 
 
@@ -301,11 +296,16 @@ def _doubtful(
 
 
 SPLIT_CANDIDATES = 80  # best places kept per square when each square looks for its own
-# Round 4: each square alone looks on a finer grid than the stacked mark (GRID): the plain pockets
-# a subject filling the frame leaves along the edges are a few strides of GRID wide, and a square
-# with its margin fits them only at some anchors (fountain-fill's pavement corner). Reached only
-# where no place holds the stacked mark plain: a photo that has one is placed as before.
+# Round 4: each square alone looks on a finer grid than the stacked mark (GRID): the plain pockets a subject
+# filling the frame leaves along the edges are a few strides of GRID wide, and a square with its margin fits
+# them only at some anchors (fountain-fill's pavement corner). Reached only where no place holds the
+# stacked mark plain: a photo that has one is placed as before.
 SPLIT_GRID = 96
+
+
+def split_gap(side: int) -> int:
+    """How far apart, in x or y, choose_split keeps two squares of this side: a sixth of a side."""
+    return max(1, side // 6)
 
 
 def _badness(
@@ -378,7 +378,7 @@ def choose_split(
         picks.append((ax[o] + x0, ay[o] + y0, bad[o], core[o], subj[o], ax[o], ay[o]))
     (px, py, pb, pc, ps, pax, pay), (qx, qy, qb, qc, qs, qax, qay) = picks[0], picks[1]
     side = lane_rects[0][2] - lane_rects[0][0]
-    gap = max(1, side // 6)
+    gap = split_gap(side)
     i, j = np.meshgrid(np.arange(px.size), np.arange(qx.size), indexing="ij")
     apart = (np.abs(px[i] - qx[j]) >= side + gap) | (np.abs(py[i] - qy[j]) >= side + gap)
     box = np.maximum(np.abs(px[i] - qx[j]), np.abs(py[i] - qy[j])) + side
