@@ -13,7 +13,10 @@ nowhere else). Profiles whose two-view options are the same (default and global)
 verified database (`SfmJob.verified_db`). The masked profile's features are the unmasked features
 filtered by position (`SfmJob.features_from`): COLMAP masks keypoints after extraction, so this
 equals its own extraction with the corner masks (measured: identical keypoints and descriptors on
-lego 40 and in tests/verifier/test_verify_shared.py); only its matching runs again.
+lego 40 and in tests/verifier/test_verify_shared.py). A pair whose images the masks took no keypoint
+from keeps the default's raw matches and two-view geometry; only the other pairs are matched and
+verified again, as hardened verifies again only the pairs its stationary filter changes
+(verifier/reuse.py).
 """
 
 from __future__ import annotations
@@ -143,8 +146,11 @@ class SfmJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     verified_db: str = ""  # the verified database: copied when it exists, else written after verification
     features_from: str = ""  # masked: an unmasked cache_db of the same images, filtered by position
     # hardened: the verified database of the same raw matches without the stationary filter (the
-    # default's); only the pairs that filter changes are verified again (reverify_stationary)
+    # default's); only the pairs that filter changes are verified again (verifier.reuse)
     stationary_from: str = ""
+    # masked: the default's verified database of the unmasked features (same two-view options); the
+    # pairs whose input is the same take its geometry (verifier.reuse.reverify_masked)
+    verified_from: str = ""
     # "features": build cache_db (features + raw matches) and stop; "verified": also write verified_db
     stop_after: str = ""
 
@@ -283,6 +289,11 @@ def build_cache_db(
         with atomic_output(cache_db) as tmp:
             if features_from is not None and settings.mask_corners > 0 and features_from.exists():
                 filter_features(features_from, tmp, image_dir, settings.mask_corners)
+                from verifier.reuse import copy_unmasked_matches
+
+                copied, pairs = copy_unmasked_matches(features_from, tmp)
+                print(f"ppd: masked: {copied} of {pairs} pair(s) keep the unmasked raw matches",
+                      file=sys.stderr, flush=True)  # fmt: skip
             else:
                 extract_features(image_dir, tmp, settings, mask_dir)
             match_raw(tmp, settings)
@@ -387,7 +398,7 @@ def execute_job(job: SfmJob) -> SfmResult:
     work_db = model_dir / "work.db"
     t1 = time.time()
     num_images, verified_pairs = verified_database(
-        cache_db, work_db, settings, job.verified_db, job.stationary_from
+        cache_db, work_db, settings, job.verified_db, job.stationary_from, job.verified_from
     )
     timings["verification_s"] = time.time() - t1
     if job.stop_after == "verified":  # the shared verified database is written: no mapping here
@@ -409,14 +420,16 @@ def execute_job(job: SfmJob) -> SfmResult:
 
 
 def verified_database(
-    cache_db: Path, work_db: Path, settings: SfmSettings, verified_db: str, stationary_from: str = ""
-) -> tuple[int, int]:
+    cache_db: Path, work_db: Path, settings: SfmSettings, verified_db: str, stationary_from: str = "",
+    verified_from: str = "",
+) -> tuple[int, int]:  # fmt: skip
     """work_db = cache_db after this profile's geometric verification; (images, verified pairs).
 
     With verified_db: copied from there when an earlier profile with the same two-view options
     wrote it, else verified here and kept there (atomically) for the next one. With
     stationary_from (hardened, the default's verified database there): only the pairs the
-    stationary filter changes are verified again."""
+    stationary filter changes are verified again. With verified_from (masked, the default's verified
+    database of the unmasked features): only the pairs whose input the masks changed."""
     import pycolmap
 
     from poisoner.atomic import atomic_output
@@ -429,6 +442,8 @@ def verified_database(
     base = Path(stationary_from) if stationary_from else None
     if settings.filter_stationary_matches and base is not None and base.exists():
         counts = reverify_stationary(base, work_db, settings)
+    elif settings.mask_corners > 0 and verified_from and Path(verified_from).exists():
+        counts = reverify_masked(Path(verified_from), cache_db, work_db, settings)
     else:
         shutil.copyfile(cache_db, work_db)
         counts = verify_pairs(work_db, settings)
@@ -478,48 +493,29 @@ def verify_pairs(work_db: Path, settings: SfmSettings) -> tuple[int, int]:
         return db.num_images(), db.num_verified_image_pairs()
 
 
-def stationary_pairs(database: Path, max_error: float) -> list[tuple[int, int]]:
-    """The image pairs whose raw matches hold a match that COLMAP's stationary filter removes: the
-    same keypoint position, within max_error px, in both images (FilterStationaryMatches in
-    colmap/estimators/two_view_geometry.cc, applied to a pair's matches before its RANSAC)."""
-    import numpy as np
-    import pycolmap
-
-    # a hair wider than COLMAP's `<=` in doubles: verifying an unchanged pair again changes nothing
-    limit = max_error * max_error * (1 + 1e-9) + 1e-9
-    with pycolmap.Database.open(database) as db:
-        xy = {
-            im.image_id: db.read_keypoints(im.image_id)[:, :2].astype(np.float64)
-            for im in db.read_all_images()
-        }
-        pair_ids, all_matches = db.read_all_matches()
-    pairs = []
-    for pair_id, matches in zip(pair_ids, all_matches, strict=True):
-        if len(matches) == 0:
-            continue
-        id1, id2 = pycolmap.pair_id_to_image_pair(pair_id)
-        moved = xy[id1][matches[:, 0]] - xy[id2][matches[:, 1]]
-        if bool(np.any(np.einsum("ij,ij->i", moved, moved) <= limit)):
-            pairs.append((int(id1), int(id2)))
-    return pairs
-
-
 def reverify_stationary(default_verified: Path, work_db: Path, settings: SfmSettings) -> tuple[int, int]:
     """work_db = the hardened verification of the raw matches, from the default's verified database
-    of the same raw matches: the stationary filter changes a pair's input only where it removes a
-    match, and RANSAC with a fixed seed is a function of its input, so every other pair's two-view
-    geometry is the default's; those pairs' geometries are deleted and COLMAP's own verification
-    (which skips pairs that have one) computes them with the filter. Equal to a whole hardened
-    verification pair by pair (tests/verifier/test_verify_stationary.py); (images, verified pairs)."""
-    import pycolmap
+    of the same raw matches: every pair the stationary filter changes nothing in keeps the default's
+    geometry; COLMAP's own verification (which skips pairs that have one) computes the others with
+    the filter. Equal to a whole hardened verification pair by pair; (images, verified pairs)."""
+    from verifier.reuse import drop_stationary_geometries
 
-    shutil.copyfile(default_verified, work_db)
-    two_view = pycolmap.TwoViewGeometryOptions()
-    pairs = stationary_pairs(work_db, two_view.stationary_matches_max_error)
-    with pycolmap.Database.open(work_db) as db:
-        for id1, id2 in pairs:
-            db.delete_two_view_geometry(id1, id2)
-    print(f"ppd: stationary filter: {len(pairs)} pair(s) verified again", file=sys.stderr, flush=True)
+    again = drop_stationary_geometries(default_verified, work_db)
+    print(f"ppd: stationary filter: {again} pair(s) verified again", file=sys.stderr, flush=True)
+    return verify_pairs(work_db, settings)
+
+
+def reverify_masked(
+    default_verified: Path, cache_db: Path, work_db: Path, settings: SfmSettings
+) -> tuple[int, int]:
+    """work_db = the masked verification of cache_db's raw matches, with the default's geometry for
+    every pair whose keypoints and raw matches are the default's; COLMAP verifies the others. Equal
+    to a whole masked verification pair by pair; (images, verified pairs)."""
+    from verifier.reuse import take_unmasked_geometries
+
+    taken, pairs = take_unmasked_geometries(default_verified, cache_db, work_db)
+    print(f"ppd: masked: {taken} of {pairs} pair(s) taken from the default's verification",
+          file=sys.stderr, flush=True)  # fmt: skip
     return verify_pairs(work_db, settings)
 
 

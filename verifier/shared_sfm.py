@@ -3,14 +3,16 @@
 What a verification (verifier.verification) plans per side, and how the side's child runs reuse
 each other's work: features and raw matches built once per image set (`ensure_features`, under a
 lock, so profiles that share them wait for one build), a verified database shared by the profiles
-with the same two-view options (default and global) and hardened's verification made from the
-default's (`run_job`; verifier.sfm.reverify_stationary), and a clean result stored next to its
-model reused while the originals' content key (`content_key`) and the settings are the same.
+with the same two-view options (default and global), hardened's verification made from the
+default's, and masked's too for the pairs its masks leave alone (`run_job`; verifier/reuse.py), and a
+clean result stored next to its model reused while the originals' content key (`content_key`) and
+the settings are the same.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import logging
@@ -117,6 +119,9 @@ class SfmSide:
     # from it: verified databases are built by verify-only children first, under a lock each, so a
     # profile waits for a verification, never for another profile's mapping
     share_verification: bool = False
+    # masked: this run verifies the unmasked features with the default's two-view options (default
+    # or global runs), and the pairs the masks left alone take that geometry (verifier.reuse)
+    takes_default_verification: bool = False
     profile: str = ""
     side: str = ""
 
@@ -188,8 +193,8 @@ def run_job(
 ) -> dict[str, Any]:
     """The side's SfM child with these settings; profiles with the same two-view options share one
     geometric verification (the first writes the verified database under a lock, the others copy it),
-    and hardened's is made from the default's (verifier.sfm.reverify_stationary)."""
-    verified = stationary_from = ""
+    and hardened's and masked's are made from the default's (verifier.reuse)."""
+    verified = stationary_from = verified_from = ""
     spent = 0.0  # seconds of verify-only children this side ran
     if side.verified_dir is not None:
         verified = str(verified_path(side, settings))
@@ -200,9 +205,16 @@ def run_job(
             stationary_from = str(verified_path(side, base_settings))  # used when it is there
         if side.share_verification:
             spent += ensure_verified(side, settings, options, board, stationary_from)
+        if side.takes_default_verification and side.features_from is not None:
+            unmasked = dataclasses.replace(side, cache_db=side.features_from, features_from=None)
+            base_settings = msgspec.structs.replace(settings, mask_corners=0.0)
+            if first:  # the default's, which this run makes anyway: waited for, or made here first
+                spent += ensure_verified(unmasked, base_settings, options, board)
+            verified_from = str(verified_path(unmasked, base_settings))  # used when it is there
     job = SfmJob(
         str(side.image_dir), str(side.cache_db), str(side.model_dir), settings, verified_db=verified,
         features_from=str(side.features_from) if side.features_from else "", stationary_from=stationary_from,
+        verified_from=verified_from,
     )  # fmt: skip
     watching = board.side(side.profile, side.side, side.model_dir / "sfm.log") if board else None
     with watching or contextlib.nullcontext():

@@ -461,15 +461,19 @@ def _plan_profile(profile: str, run: _Run) -> _ProfilePlan:
         ukey = hashlib.sha256(msgspec.structs.replace(settings, mask_corners=0.0).feature_key().encode())
         clean_from = run.clean_cache / f"clean-{source}-{run.clean_key}-{ukey.hexdigest()[:10]}.db"
         poisoned_from = run.cache / f"poisoned-{source}-{ukey.hexdigest()[:10]}.db"
-    # default, hardened and global use one verification (hardened's made from it) when two of them run
+    # default, hardened and global use one verification (hardened's made from it) when two of them run;
+    # masked takes the default's geometry for the pairs its masks leave alone when default or global runs
     sharing = [p for p in UNMASKED_FEATURE_PROFILES if p in run.profiles]
-    share = profile in sharing and len(sharing) > 1
+    masked_takes = "masked" in run.profiles and any(p in run.profiles for p in ("default", "global"))
+    takes_default = clean_from is not None and masked_takes
+    share = profile in sharing and (len(sharing) > 1 or masked_takes)
     # verified databases live for this run only: the clean results they lead to are what is kept
     clean_side = SfmSide(clean_images, clean_db, clean_model, settings, reuse_key, clean_from,
-                         run.cache / "clean-verified", share_verification=share, profile=profile,
-                         side="clean")  # fmt: skip
+                         run.cache / "clean-verified", share_verification=share,
+                         takes_default_verification=takes_default, profile=profile, side="clean")  # fmt: skip
     poisoned_side = SfmSide(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, None,
-                            poisoned_from, run.cache, share_verification=share, profile=profile,
+                            poisoned_from, run.cache, share_verification=share,
+                            takes_default_verification=takes_default, profile=profile,
                             side="poisoned")  # fmt: skip
     copy = profile_dir / "clean" if cached else None  # the report's model folder holds a copy
     sides = {"clean": clean_side, "poisoned": poisoned_side}

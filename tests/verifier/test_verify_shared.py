@@ -129,6 +129,37 @@ def test_a_shared_verification_gives_each_profiles_figures_alone(
     assert sum("stationary filter:" in text for text in logs) == 2
 
 
+def test_masked_takes_the_defaults_verification_where_its_masks_change_nothing(tmp_path: Path) -> None:
+    """Half the views have plain corners: masked's clean and poisoned sides take those pairs' matches
+    and geometry from the default's (verifier.reuse), and its figures are masked's alone."""
+    import re
+
+    from tests.verifier.test_verify_masked_reuse import plain_corners
+
+    render_scene(tmp_path / "rendered", SMALL)
+    clean = tmp_path / "clean"
+    clean.mkdir()
+    for i, p in enumerate(sorted((tmp_path / "rendered").glob("*.png"))):
+        arr = np.asarray(Image.open(p).convert("RGB"))
+        Image.fromarray(plain_corners(arr) if i % 2 == 0 else arr).save(clean / p.name)
+    poisoned = poison_folder(clean, tmp_path / "poisoned")
+    options = VerifyOptions(timeout_s=300, camera_params=SMALL.camera_params(), visibility_images=0)
+    kept = dataclasses.replace(options, keep_cache=True)
+    both = verify_folders(clean, poisoned, tmp_path / "both", ["default", "masked"], kept)
+    alone = verify_folders(clean, poisoned, tmp_path / "alone", ["masked"], kept)
+    assert figures(both)["masked"] == figures(alone)["masked"]
+
+    def said(run: str, what: str) -> list[tuple[int, int]]:
+        text = "".join(p.read_text() for p in (tmp_path / run).rglob("sfm.log"))
+        return [(int(a), int(b)) for a, b in re.findall(rf"masked: (\d+) of (\d+) pair\(s\) {what}", text)]
+
+    for what in ("keep the unmasked raw matches", "taken from the default's verification"):
+        counts = said("both", what)
+        assert len(counts) == 2, what  # the clean side and the poisoned one
+        assert all(0 < n < pairs for n, pairs in counts), counts  # some pairs, not all
+        assert said("alone", what) == []  # nothing to take without the default in the run
+
+
 def test_the_clean_reference_is_cached_until_an_original_changes(
     small_sets: dict[str, Path], tmp_path: Path
 ) -> None:

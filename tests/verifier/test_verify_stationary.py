@@ -3,7 +3,7 @@
 COLMAP's stationary filter removes a pair's matches that sit at the same position in both images
 before that pair's RANSAC; a pair it removes nothing from gets the default's geometry. So the
 hardened verification is the default's with only the filtered pairs verified again
-(verifier.sfm.reverify_stationary); here it is compared pair by pair with a whole hardened
+(verifier.sfm.reverify_stationary, verifier/reuse.py); here it is compared pair by pair with a whole hardened
 verification, on a set carrying the paper's static mark (stationary matches in many pairs) and,
 under `integration`, on lego's poisoned set.
 """
@@ -20,7 +20,8 @@ from PIL import Image
 
 from poisoner.blend import poison_array
 from poisoner.ladder import named_spec
-from verifier.sfm import SfmSettings, build_cache_db, reverify_stationary, stationary_pairs, verify_pairs
+from verifier.reuse import stationary_pairs
+from verifier.sfm import SfmSettings, build_cache_db, reverify_stationary, verify_pairs
 from verifier.synthetic import SyntheticOptions, render_scene
 
 

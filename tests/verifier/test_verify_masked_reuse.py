@@ -1,0 +1,112 @@
+"""Issue 30: the masked profile's matching and verification from the default's (real pycolmap, real
+databases).
+
+Masked's features are the default's less the keypoints in the four corner masks, so a pair of images
+the masks took nothing from has the default's raw matches and two-view geometry
+(verifier.reuse, verifier.sfm.reverify_masked). Here both are compared pair by pair with a
+masked run of its own (every pair matched and verified), on a set where some views have plain corners
+and the others a textured one, and, under `integration`, on lego. Its features are the unmasked ones
+filtered by position, which test_verify_shared.py compares with COLMAP's masked extraction by name
+(a second extraction numbers the images in the order its threads finish).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from poisoner.blend import poison_array
+from poisoner.ladder import default_spec
+from tests.verifier.test_verify_stationary import geometries
+from verifier.reuse import copy_unmasked_matches
+from verifier.sfm import (
+    MASKED_CORNER_FRACTION,
+    SfmSettings,
+    build_cache_db,
+    corner_mask,
+    filter_features,
+    match_raw,
+    reverify_masked,
+    verify_pairs,
+)
+from verifier.synthetic import SyntheticOptions, render_scene
+
+
+def raw_matches(database: Path) -> dict[int, list[list[int]]]:
+    import pycolmap
+
+    with pycolmap.Database.open(database) as db:
+        return {int(p): np.asarray(m).tolist() for p, m in zip(*db.read_all_matches(), strict=True)}
+
+
+def compare(images: Path, tmp_path: Path, seed: int) -> tuple[int, int]:
+    """(pairs whose raw matches were copied, pairs); asserts that the masked cache and verification
+    made from the default's equal a masked run of its own, pair by pair."""
+    default = SfmSettings(random_seed=seed)
+    masked = SfmSettings(random_seed=seed, mask_corners=MASKED_CORNER_FRACTION)
+    unmasked_cache, own_cache, reused_cache = (tmp_path / f"{n}.db" for n in ("unmasked", "own", "reused"))
+    build_cache_db(images, unmasked_cache, default)
+    filter_features(unmasked_cache, own_cache, images, MASKED_CORNER_FRACTION)
+    match_raw(own_cache, masked)  # every pair matched
+    build_cache_db(images, reused_cache, masked, features_from=unmasked_cache)
+    assert raw_matches(reused_cache) == raw_matches(own_cache)
+
+    default_verified, own, reused = tmp_path / "default-verified.db", tmp_path / "own-v.db", tmp_path / "r.db"
+    shutil.copyfile(unmasked_cache, default_verified)
+    verify_pairs(default_verified, default)
+    shutil.copyfile(own_cache, own)
+    counts_own = verify_pairs(own, masked)
+    counts_reused = reverify_masked(default_verified, reused_cache, reused, masked)
+    assert counts_reused == counts_own
+    assert geometries(reused) == geometries(own)
+
+    scratch = tmp_path / "copy.db"  # how many pairs the shortcut took (the cache build says it too)
+    filter_features(unmasked_cache, scratch, images, MASKED_CORNER_FRACTION)
+    return copy_unmasked_matches(unmasked_cache, scratch)
+
+
+def plain_corners(arr: np.ndarray) -> np.ndarray:
+    """The view flat grey but for its central 40 x 40% (no keypoint in the masked corners: the grey's
+    edge, where SIFT finds blobs, lies a tenth of the frame away from them)."""
+    h, w = arr.shape[:2]
+    out = np.full_like(arr, 128)
+    centre = (slice(3 * h // 10, 7 * h // 10), slice(3 * w // 10, 7 * w // 10))
+    out[centre] = arr[centre]
+    assert (corner_mask(w, h, MASKED_CORNER_FRACTION) == 0).any()
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_masked_matching_and_verification_from_the_defaults_equal_its_own(tmp_path: Path, seed: int) -> None:
+    render_scene(tmp_path / "clean", SyntheticOptions(num_views=6))
+    images = tmp_path / "images"
+    images.mkdir()
+    for i, p in enumerate(sorted((tmp_path / "clean").glob("*.png"))):
+        arr = np.asarray(Image.open(p).convert("RGB"))
+        arr = plain_corners(arr) if i % 2 == 0 else arr  # the masks take nothing from half the views
+        arr, _ = poison_array(arr, default_spec(), image_key=p.name)
+        Image.fromarray(arr).save(images / p.name)
+    copied, pairs = compare(images, tmp_path, seed)
+    # the three views with plain corners make three pairs; the textured corners change the rest
+    assert copied == 3 and pairs > copied
+
+
+@pytest.mark.slow
+@pytest.mark.integration
+def test_lego_masked_from_the_defaults(tmp_path: Path) -> None:
+    """Lego, 16 views at 800 px with ppd's default mark: the same masked matches and geometry."""
+    from verifier.shared_data import prepare_lego
+
+    clean, _, _ = prepare_lego(16)
+    poisoned = tmp_path / "poisoned"
+    poisoned.mkdir()
+    for i in range(16):
+        arr = np.asarray(Image.open(clean / f"r_{i}.png").convert("RGB"))
+        out, _ = poison_array(arr, default_spec(), image_key=f"r_{i}.png")
+        Image.fromarray(out).save(poisoned / f"r_{i}.png")
+    copied, pairs = compare(poisoned, tmp_path, seed=0)
+    assert 0 < copied <= pairs
