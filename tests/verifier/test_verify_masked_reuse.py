@@ -21,7 +21,7 @@ from PIL import Image
 
 from poisoner.blend import poison_array
 from poisoner.ladder import default_spec
-from tests.verifier.test_verify_stationary import geometries
+from tests.verifier.test_verify_stationary import every_geometry, geometries
 from verifier.reuse import copy_unmasked_matches
 from verifier.sfm import (
     MASKED_CORNER_FRACTION,
@@ -31,6 +31,7 @@ from verifier.sfm import (
     filter_features,
     match_raw,
     reverify_masked,
+    reverify_stationary,
     verify_pairs,
 )
 from verifier.synthetic import SyntheticOptions, render_scene
@@ -43,9 +44,9 @@ def raw_matches(database: Path) -> dict[int, list[list[int]]]:
         return {int(p): np.asarray(m).tolist() for p, m in zip(*db.read_all_matches(), strict=True)}
 
 
-def compare(images: Path, tmp_path: Path, seed: int) -> tuple[int, int]:
-    """(pairs whose raw matches were copied, pairs); asserts that the masked cache and verification
-    made from the default's equal a masked run of its own, pair by pair."""
+def compare(images: Path, tmp_path: Path, seed: int) -> tuple[int, int, int]:
+    """(pairs whose raw matches were copied, pairs, failed pairs); asserts that the masked cache and
+    verification made from the default's equal a masked run of its own, pair by pair."""
     default = SfmSettings(random_seed=seed)
     masked = SfmSettings(random_seed=seed, mask_corners=MASKED_CORNER_FRACTION)
     unmasked_cache, own_cache, reused_cache = (tmp_path / f"{n}.db" for n in ("unmasked", "own", "reused"))
@@ -62,11 +63,13 @@ def compare(images: Path, tmp_path: Path, seed: int) -> tuple[int, int]:
     counts_own = verify_pairs(own, masked)
     counts_reused = reverify_masked(default_verified, reused_cache, reused, masked)
     assert counts_reused == counts_own
-    assert geometries(reused) == geometries(own)
+    assert every_geometry(reused) == every_geometry(own)
+    assert geometries(reused) == geometries(own)  # what the mapper reads
+    failed = sum(not g["inliers"] for g in every_geometry(own).values())
 
     scratch = tmp_path / "copy.db"  # how many pairs the shortcut took (the cache build says it too)
     filter_features(unmasked_cache, scratch, images, MASKED_CORNER_FRACTION)
-    return copy_unmasked_matches(unmasked_cache, scratch)
+    return (*copy_unmasked_matches(unmasked_cache, scratch), failed)
 
 
 def plain_corners(arr: np.ndarray) -> np.ndarray:
@@ -90,15 +93,52 @@ def test_masked_matching_and_verification_from_the_defaults_equal_its_own(tmp_pa
         arr = plain_corners(arr) if i % 2 == 0 else arr  # the masks take nothing from half the views
         arr, _ = poison_array(arr, default_spec(), image_key=p.name)
         Image.fromarray(arr).save(images / p.name)
-    copied, pairs = compare(images, tmp_path, seed)
+    copied, pairs, _ = compare(images, tmp_path, seed)
     # the three views with plain corners make three pairs; the textured corners change the rest
     assert copied == 3 and pairs > copied
+
+
+def test_a_failed_pair_of_the_defaults_is_taken_as_failed(tmp_path: Path) -> None:
+    """COLMAP keeps a row without inliers for a pair whose verification failed, and verifies such a
+    pair again (it skips only pairs with inliers): masked and hardened set those rows aside while
+    COLMAP verifies the rest (verifier.reuse.failed_pairs_set_aside) instead of running that pair's
+    RANSAC again, where a real failure costs the most: every trial. Here one untouched pair's row is
+    made a failed one in the default's database, so whether it was taken shows in theirs; the raw
+    matches are put back as they were."""
+    import pycolmap
+
+    render_scene(tmp_path / "clean", SyntheticOptions(num_views=4))
+    images = tmp_path / "images"
+    images.mkdir()
+    for p in sorted((tmp_path / "clean").glob("*.png")):
+        Image.fromarray(plain_corners(np.asarray(Image.open(p).convert("RGB")))).save(images / p.name)
+    masked = SfmSettings(mask_corners=MASKED_CORNER_FRACTION)
+    unmasked, cache, default_verified = tmp_path / "u.db", tmp_path / "m.db", tmp_path / "dv.db"
+    build_cache_db(images, unmasked, SfmSettings())
+    build_cache_db(images, cache, masked, features_from=unmasked)
+    shutil.copyfile(unmasked, default_verified)
+    verify_pairs(default_verified, SfmSettings())
+    before = every_geometry(default_verified)
+    pair = next(p for p, g in before.items() if g["inliers"])
+    failed = pycolmap.TwoViewGeometry()
+    failed.config = pycolmap.TwoViewGeometryConfiguration.DEGENERATE  # what a real failure's row says
+    with pycolmap.Database.open(default_verified) as db:
+        db.update_two_view_geometry(*pycolmap.pair_id_to_image_pair(pair), failed)
+    reverify_masked(default_verified, cache, tmp_path / "work.db", masked)
+    hardened = SfmSettings(filter_stationary_matches=True, ignore_watermarks=True)
+    reverify_stationary(default_verified, tmp_path / "hardened.db", hardened)  # the same for hardened
+    for work in ("work.db", "hardened.db"):
+        after = every_geometry(tmp_path / work)
+        assert after[pair]["inliers"] == [] and before[pair]["inliers"]  # taken, not verified again
+        assert {p: g for p, g in after.items() if p != pair} == {p: g for p, g in before.items() if p != pair}
+        assert raw_matches(tmp_path / work) == raw_matches(cache if work == "work.db" else unmasked)
 
 
 @pytest.mark.slow
 @pytest.mark.integration
 def test_lego_masked_from_the_defaults(tmp_path: Path) -> None:
-    """Lego, 16 views at 800 px with ppd's default mark: the same masked matches and geometry."""
+    """Lego, 16 views at 800 px, clean (pairs that fail verification, mostly outliers) and with ppd's
+    default mark: the same masked matches and geometry, every row."""
     from verifier.shared_data import prepare_lego
 
     clean, _, _ = prepare_lego(16)
@@ -108,5 +148,9 @@ def test_lego_masked_from_the_defaults(tmp_path: Path) -> None:
         arr = np.asarray(Image.open(clean / f"r_{i}.png").convert("RGB"))
         out, _ = poison_array(arr, default_spec(), image_key=f"r_{i}.png")
         Image.fromarray(out).save(poisoned / f"r_{i}.png")
-    copied, pairs = compare(poisoned, tmp_path, seed=0)
-    assert 0 < copied <= pairs
+    (tmp_path / "c").mkdir()
+    copied, pairs, failed = compare(clean, tmp_path / "c", seed=0)
+    assert 0 < copied < pairs and failed > 0
+    (tmp_path / "p").mkdir()
+    copied, pairs, _ = compare(poisoned, tmp_path / "p", seed=0)
+    assert 0 < copied < pairs

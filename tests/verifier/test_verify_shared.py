@@ -158,6 +158,8 @@ def test_masked_takes_the_defaults_verification_where_its_masks_change_nothing(t
         assert len(counts) == 2, what  # the clean side and the poisoned one
         assert all(0 < n < pairs for n, pairs in counts), counts  # some pairs, not all
         assert said("alone", what) == []  # nothing to take without the default in the run
+    # the default's verification was made once per side (a verify-only child), for both profiles
+    assert len(list((tmp_path / "both" / ".cache").rglob("*-verified-*-work"))) == 2
 
 
 def test_the_clean_reference_is_cached_until_an_original_changes(

@@ -25,18 +25,34 @@ from verifier.sfm import SfmSettings, build_cache_db, reverify_stationary, verif
 from verifier.synthetic import SyntheticOptions, render_scene
 
 
+def geometry_values(g: Any) -> dict[str, Any]:
+    """A pycolmap TwoViewGeometry as plain values."""
+    return {
+        "config": int(g.config),
+        "inliers": np.asarray(g.inlier_matches).tolist(),
+        **{m: None if getattr(g, m) is None else np.asarray(getattr(g, m)).tolist() for m in "EFH"},
+    }
+
+
 def geometries(database: Path) -> dict[int, dict[str, Any]]:
-    """Every pair's two-view geometry as plain values (what the mapper reads)."""
+    """Every pair's two-view geometry with inliers as plain values (what the mapper reads)."""
+    import pycolmap
+
+    with pycolmap.Database.open(database) as db:
+        return {int(p): geometry_values(g) for p, g in zip(*db.read_two_view_geometries(), strict=True)}
+
+
+def every_geometry(database: Path) -> dict[int, dict[str, Any]]:
+    """Every pair's two-view geometry row, failed pairs' (no inliers) too, which
+    `read_two_view_geometries` leaves out, as plain values."""
     import pycolmap
 
     out = {}
     with pycolmap.Database.open(database) as db:
-        for pair_id, g in zip(*db.read_two_view_geometries(), strict=True):
-            out[int(pair_id)] = {
-                "config": int(g.config),
-                "inliers": np.asarray(g.inlier_matches).tolist(),
-                **{m: None if getattr(g, m) is None else np.asarray(getattr(g, m)).tolist() for m in "EFH"},
-            }
+        for pair_id in db.read_num_matches()[0]:
+            id1, id2 = pycolmap.pair_id_to_image_pair(pair_id)
+            if db.exists_two_view_geometry(id1, id2):
+                out[int(pair_id)] = geometry_values(db.read_two_view_geometry(id1, id2))
     return out
 
 
@@ -54,6 +70,7 @@ def compare(images: Path, tmp_path: Path, seed: int) -> tuple[int, int, int]:
     counts_patched = reverify_stationary(default, patched, hardened)
     assert counts_patched == counts_whole
     assert geometries(patched) == geometries(whole)
+    assert every_geometry(patched) == every_geometry(whole)  # failed pairs' rows too
     base, hard = geometries(default), geometries(whole)
     changed = sum(base[p] != hard[p] for p in hard)
     return len(stationary_pairs(cache, 4.0)), changed, len(hard)
@@ -92,3 +109,6 @@ def test_lego_hardened_verification_from_the_defaults(shared_dir: Path, tmp_path
         Image.fromarray(out).save(poisoned / f"r_{i}.png")
     reverified, _, pairs = compare(poisoned, tmp_path, seed=seed)
     assert 0 < reverified < pairs
+    (tmp_path / "clean").mkdir()  # clean: pairs whose verification fails, their rows kept as they were
+    reverified, _, pairs = compare(clean, tmp_path / "clean", seed=seed)
+    assert reverified < pairs
