@@ -21,7 +21,7 @@ from PIL import Image
 
 from poisoner.blend import poison_array
 from poisoner.ladder import default_spec
-from tests.verifier.test_verify_stationary import every_geometry, geometries
+from tests.verifier.test_verify_stationary import every_geometry, geometries, lego_sets
 from verifier.reuse import copy_unmasked_matches
 from verifier.sfm import (
     MASKED_CORNER_FRACTION,
@@ -37,16 +37,25 @@ from verifier.sfm import (
 from verifier.synthetic import SyntheticOptions, render_scene
 
 
-def raw_matches(database: Path) -> dict[int, list[list[int]]]:
+def raw_matches(database: Path) -> dict[tuple[int, int], list[list[int]]]:
+    """Every image pair's raw-match row, empty ones too (COLMAP's readers leave those out)."""
+    import itertools
+
     import pycolmap
 
     with pycolmap.Database.open(database) as db:
-        return {int(p): np.asarray(m).tolist() for p, m in zip(*db.read_all_matches(), strict=True)}
+        ids = sorted(im.image_id for im in db.read_all_images())
+        return {
+            (a, b): np.asarray(db.read_matches(a, b)).tolist()
+            for a, b in itertools.combinations(ids, 2)
+            if db.exists_matches(a, b)
+        }
 
 
-def compare(images: Path, tmp_path: Path, seed: int) -> tuple[int, int, int]:
-    """(pairs whose raw matches were copied, pairs, failed pairs); asserts that the masked cache and
-    verification made from the default's equal a masked run of its own, pair by pair."""
+def compare(images: Path, tmp_path: Path, seed: int) -> tuple[int, int, int, int]:
+    """(pairs whose raw-match rows were copied, pairs with a row, of those copied the empty ones,
+    failed pairs); asserts that the masked cache and verification made from the default's equal a
+    masked run of its own, pair by pair."""
     default = SfmSettings(random_seed=seed)
     masked = SfmSettings(random_seed=seed, mask_corners=MASKED_CORNER_FRACTION)
     unmasked_cache, own_cache, reused_cache = (tmp_path / f"{n}.db" for n in ("unmasked", "own", "reused"))
@@ -69,7 +78,9 @@ def compare(images: Path, tmp_path: Path, seed: int) -> tuple[int, int, int]:
 
     scratch = tmp_path / "copy.db"  # how many pairs the shortcut took (the cache build says it too)
     filter_features(unmasked_cache, scratch, images, MASKED_CORNER_FRACTION)
-    return (*copy_unmasked_matches(unmasked_cache, scratch), failed)
+    copied, pairs = copy_unmasked_matches(unmasked_cache, scratch)
+    empty = sum(not m for m in raw_matches(scratch).values())
+    return copied, pairs, empty, failed
 
 
 def plain_corners(arr: np.ndarray) -> np.ndarray:
@@ -93,7 +104,7 @@ def test_masked_matching_and_verification_from_the_defaults_equal_its_own(tmp_pa
         arr = plain_corners(arr) if i % 2 == 0 else arr  # the masks take nothing from half the views
         arr, _ = poison_array(arr, default_spec(), image_key=p.name)
         Image.fromarray(arr).save(images / p.name)
-    copied, pairs, _ = compare(images, tmp_path, seed)
+    copied, pairs, _, _ = compare(images, tmp_path, seed)
     # the three views with plain corners make three pairs; the textured corners change the rest
     assert copied == 3 and pairs > copied
 
@@ -139,18 +150,10 @@ def test_a_failed_pair_of_the_defaults_is_taken_as_failed(tmp_path: Path) -> Non
 def test_lego_masked_from_the_defaults(tmp_path: Path) -> None:
     """Lego, 16 views at 800 px, clean (pairs that fail verification, mostly outliers) and with ppd's
     default mark: the same masked matches and geometry, every row."""
-    from verifier.shared_data import prepare_lego
-
-    clean, _, _ = prepare_lego(16)
-    poisoned = tmp_path / "poisoned"
-    poisoned.mkdir()
-    for i in range(16):
-        arr = np.asarray(Image.open(clean / f"r_{i}.png").convert("RGB"))
-        out, _ = poison_array(arr, default_spec(), image_key=f"r_{i}.png")
-        Image.fromarray(out).save(poisoned / f"r_{i}.png")
+    clean, poisoned = lego_sets(tmp_path)
     (tmp_path / "c").mkdir()
-    copied, pairs, failed = compare(clean, tmp_path / "c", seed=0)
-    assert 0 < copied < pairs and failed > 0
+    copied, pairs, empty, failed = compare(clean, tmp_path / "c", seed=0)
+    assert 0 < copied < pairs and failed > 0 and empty > 0  # too few matches, failed: both taken
     (tmp_path / "p").mkdir()
-    copied, pairs, _ = compare(poisoned, tmp_path / "p", seed=0)
+    copied, pairs, _, _ = compare(poisoned, tmp_path / "p", seed=0)
     assert 0 < copied < pairs

@@ -92,21 +92,27 @@ def test_hardened_verification_from_the_defaults_equals_a_whole_one(tmp_path: Pa
     assert reverified < pairs  # ... while verifying fewer pairs than a whole verification
 
 
+def lego_sets(tmp_path: Path, views: int = 16) -> tuple[Path, Path]:
+    """(clean, poisoned): lego's first views at 800 px on white, and with ppd's default mark."""
+    from poisoner.ladder import default_spec
+    from verifier.shared_data import prepare_lego
+
+    clean, _, _ = prepare_lego(views)
+    poisoned = tmp_path / "poisoned"
+    poisoned.mkdir()
+    for i in range(views):
+        arr = np.asarray(Image.open(clean / f"r_{i}.png").convert("RGB"))
+        out, _ = poison_array(arr, default_spec(), image_key=f"r_{i}.png")
+        Image.fromarray(out).save(poisoned / f"r_{i}.png")
+    return clean, poisoned
+
+
 @pytest.mark.slow
 @pytest.mark.integration
 @pytest.mark.parametrize("seed", [0, 1])
 def test_lego_hardened_verification_from_the_defaults(shared_dir: Path, tmp_path: Path, seed: int) -> None:
     """Lego, 16 views at 800 px with ppd's default mark: the same hardened geometry, pair by pair."""
-    from poisoner.ladder import default_spec
-    from verifier.shared_data import prepare_lego
-
-    clean, _, _ = prepare_lego(16)
-    poisoned = tmp_path / "poisoned"
-    poisoned.mkdir()
-    for i in range(16):
-        arr = np.asarray(Image.open(clean / f"r_{i}.png").convert("RGB"))
-        out, _ = poison_array(arr, default_spec(), image_key=f"r_{i}.png")
-        Image.fromarray(out).save(poisoned / f"r_{i}.png")
+    clean, poisoned = lego_sets(tmp_path)
     reverified, _, pairs = compare(poisoned, tmp_path, seed=seed)
     assert 0 < reverified < pairs
     (tmp_path / "clean").mkdir()  # clean: pairs whose verification fails, their rows kept as they were
