@@ -94,16 +94,14 @@ def copy_unmasked_matches(unmasked_db: Path, database: Path) -> tuple[int, int]:
     import pycolmap
 
     with pycolmap.Database.open(unmasked_db) as src, pycolmap.Database.open(database) as dst:
-        whole = sorted(_kept_whole(src, dst, descriptors=True))
+        whole = _kept_whole(src, dst, descriptors=True)
         ids = sorted(im.image_id for im in src.read_all_images())
         rows = [(a, b) for a, b in itertools.combinations(ids, 2) if src.exists_matches(a, b)]
-        copied = 0
+        taken = [(a, b) for a, b in rows if a in whole and b in whole]
         with pycolmap.DatabaseTransaction(dst):
-            for id1, id2 in itertools.combinations(whole, 2):
-                if src.exists_matches(id1, id2):
-                    dst.write_matches(id1, id2, src.read_matches(id1, id2))
-                    copied += 1
-    return copied, len(rows)
+            for id1, id2 in taken:
+                dst.write_matches(id1, id2, src.read_matches(id1, id2))
+    return len(taken), len(rows)
 
 
 def take_unmasked_geometries(default_verified: Path, cache_db: Path, work_db: Path) -> tuple[int, int]:

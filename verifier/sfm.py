@@ -481,10 +481,11 @@ def global_options(settings: SfmSettings) -> Any:
     return options
 
 
-def verify_pairs(work_db: Path, settings: SfmSettings, keep_failed: bool = False) -> tuple[int, int]:
-    """This profile's geometric verification of the raw matches; (images, verified pairs). COLMAP
-    skips a pair that has a geometry with inliers; keep_failed: also one whose row says it failed
-    (taken from the default's verification: verifier.reuse.failed_pairs_set_aside)."""
+def verify_pairs(work_db: Path, settings: SfmSettings) -> tuple[int, int]:
+    """This profile's geometric verification of the raw matches; (images, verified pairs). A pair
+    that already has a two-view row keeps it: COLMAP skips one with inliers, and one whose row says
+    it failed (taken from the default's verification) is set aside while COLMAP runs
+    (verifier.reuse.failed_pairs_set_aside)."""
     import pycolmap
 
     from verifier.reuse import failed_pairs_set_aside
@@ -492,7 +493,7 @@ def verify_pairs(work_db: Path, settings: SfmSettings, keep_failed: bool = False
     two_view = pycolmap.TwoViewGeometryOptions()
     two_view.filter_stationary_matches = settings.filter_stationary_matches
     two_view.ransac.random_seed = settings.random_seed
-    with failed_pairs_set_aside(work_db) if keep_failed else contextlib.nullcontext():
+    with failed_pairs_set_aside(work_db):
         pycolmap.geometric_verification(work_db, two_view_geometry_options=two_view)
     with pycolmap.Database.open(work_db) as db:
         return db.num_images(), db.num_verified_image_pairs()
@@ -507,7 +508,7 @@ def reverify_stationary(default_verified: Path, work_db: Path, settings: SfmSett
 
     again = drop_stationary_geometries(default_verified, work_db)
     print(f"ppd: stationary filter: {again} pair(s) verified again", file=sys.stderr, flush=True)
-    return verify_pairs(work_db, settings, keep_failed=True)
+    return verify_pairs(work_db, settings)
 
 
 def reverify_masked(
@@ -521,7 +522,7 @@ def reverify_masked(
     taken, pairs = take_unmasked_geometries(default_verified, cache_db, work_db)
     print(f"ppd: masked: {taken} of {pairs} pair(s) taken from the default's verification",
           file=sys.stderr, flush=True)  # fmt: skip
-    return verify_pairs(work_db, settings, keep_failed=True)
+    return verify_pairs(work_db, settings)
 
 
 def mapper_options(settings: SfmSettings) -> Any:

@@ -207,10 +207,10 @@ def run_job(
             spent += ensure_verified(side, settings, options, board, stationary_from)
         if side.takes_default_verification and side.features_from is not None:
             unmasked = dataclasses.replace(side, cache_db=side.features_from, features_from=None)
-            base_settings = msgspec.structs.replace(settings, mask_corners=0.0)
+            unmasked_settings = msgspec.structs.replace(settings, mask_corners=0.0)
             if first:  # the default's, which this run makes anyway: waited for, or made here first
-                spent += ensure_verified(unmasked, base_settings, options, board)
-            verified_from = str(verified_path(unmasked, base_settings))  # used when it is there
+                spent += ensure_verified(unmasked, unmasked_settings, options, board)
+            verified_from = str(verified_path(unmasked, unmasked_settings))  # used when it is there
     job = SfmJob(
         str(side.image_dir), str(side.cache_db), str(side.model_dir), settings, verified_db=verified,
         features_from=str(side.features_from) if side.features_from else "", stationary_from=stationary_from,
