@@ -20,44 +20,49 @@ hardened, global; masked filters those features by position; published has its o
 geometric verification for default and global, and the clean reference (features, models, results)
 cached per content of the originals (`clean_cache_dir`) until they change; hardened's verification
 is the default's with only the pairs its stationary filter changes verified again. How a side reuses
-that work: verifier.shared_sfm. Each profile's clean and poisoned sides are tasks of their own,
-`workers` at once (default_workers()), every clean side first (side_order); every figure a verdict
-uses is what the profile run alone gives (tests/verifier/test_verify_shared.py,
-tests/verifier/test_verify_stationary.py).
+that work: verifier.shared_sfm; what each side sees and where its work lives: verifier.plan. Each
+profile's clean and poisoned sides are tasks of their own, `workers` at once (default_workers()),
+every clean side first (side_order); every figure a verdict uses is what the profile run alone
+gives (tests/verifier/test_verify_shared.py, tests/verifier/test_verify_stationary.py).
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import hashlib
-import json
 import logging
-import os
 import shutil
 import threading
 import time
 from collections import Counter
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, as_completed
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import msgspec
 
-from poisoner.errors import ExitStatus, PpdError
-from poisoner.limits import HeaderError, decoded_size
 from verifier import poses as posemod
 from verifier.pairs import stage_pairs as stage_pairs  # re-exported: callers stage pairs, then verify
+from verifier.plan import PROFILES as PROFILES  # re-exported: the CLI and the daemon name it here
+from verifier.plan import (
+    ProfilePlan,
+    VerifyRun,
+    expand_profiles,
+    plan_profile,
+    poisoned_sides,
+    prepare_run,
+    side_order,
+)
+from verifier.plan import VerificationInputError as VerificationInputError
+from verifier.plan import default_workers as default_workers
+from verifier.plan import longest_side as longest_side
+from verifier.plan import start_order as start_order
 from verifier.progress import ProgressBoard
 from verifier.published import round_trip, unpublish_names
 from verifier.published import to_rgb as to_rgb  # re-exported for verifier.auto_search
-from verifier.sfm import SfmSettings, list_images, profile_sfm_settings
-from verifier.shared_sfm import SfmSide, cancelled, clean_cache_for, path_lock, run_side
+from verifier.shared_sfm import cancelled, path_lock, run_side
 from verifier.shared_sfm import content_key as content_key  # re-exported: the clean cache's key
 from verifier.shared_sfm import write_json as write_json  # re-exported: reports are written with it
-from verifier.sift_device import gpu_sift_suits
 from verifier.verdict import (
     Verdict,
     decide,
@@ -75,18 +80,7 @@ from verifier.visibility import DatasetVisibility, measure_pairs
 
 log = logging.getLogger(__name__)
 
-# masked: the attacker who has read about corner marks masks the four corner regions out of SfM;
-# global: COLMAP 4's global mapper on the default's matches.
-PROFILES = ("default", "hardened", "published", "global", "masked")
-# Profiles whose features are the originals' unmasked SIFT features (masked filters those).
-UNMASKED_FEATURE_PROFILES = ("default", "hardened", "global")
 _VERIFY_LOCK = threading.Lock()  # one verification at a time in this process
-
-
-class VerificationInputError(PpdError, ValueError):
-    """Folders that cannot be verified (message = one clear line)."""
-
-    exit_status = ExitStatus.USAGE
 
 
 class ProfileReport(msgspec.Struct):
@@ -165,98 +159,8 @@ class VerificationReport(msgspec.Struct):
         return {"verdict": str(self.verdict), "verdict_counts": counted, **d, "summary": self.summary_lines()}
 
 
-# ---- settings per profile ------------------------------------------------------------------------
-def profile_settings(profile: str, matching: str, camera_params: str | None) -> SfmSettings:
-    try:
-        return profile_sfm_settings(profile, SfmSettings(matching=matching, camera_params=camera_params))
-    except ValueError:
-        choices = ", ".join(PROFILES)
-        raise VerificationInputError(f"unknown profile {profile!r}; choose from {choices}") from None
-
-
-def expand_profiles(profiles: Sequence[str] | str) -> list[str]:
-    names = [profiles] if isinstance(profiles, str) else list(profiles)
-    out: list[str] = []
-    for n in names:
-        for p in PROFILES if n == "all" else (n,):
-            if p not in PROFILES:
-                raise VerificationInputError(f"unknown profile {p!r}; choose from {', '.join(PROFILES)}, all")
-            if p not in out:
-                out.append(p)
-    return out
-
-
-def looks_like_video_frames(names: Sequence[str]) -> bool:
-    """Frames sampled from a video are named with a frame index (poisoner.video.sample_frames)."""
-    return bool(names) and all("frame" in Path(n).stem.lower() for n in names)
-
-
-def default_workers() -> int:
-    """SfM sides at once (a side: one profile's clean or poisoned run), two from 2 cores up, one per
-    2 cores beyond: COLMAP's incremental mapping, most of a side's time once features are shared
-    (lego 40: 7 of 8 minutes of a poisoned run, registration retries; 12 x 24 MP on 16 cores with
-    SIFT on a GPU: 20-60 s of mapping against a few seconds of SIFT), keeps one or two cores busy,
-    so on 16 cores eight sides at once keep them busy where four profiles, one side after the
-    other, left half of them idle."""
-    cores = os.cpu_count() or 1
-    return max(min(2, cores), cores // 2)
-
-
-def start_order(profiles: Sequence[str]) -> list[str]:
-    """The order profiles start in: `published` first, the one that shares no work (its own
-    extraction and matching on both sides, lego 20: the last to finish when it started third), so
-    it overlaps the others instead of running alone at the end; the rest as asked."""
-    return sorted(profiles, key=lambda p: p != "published")
-
-
-def poisoned_sides(seeds: int) -> list[str]:
-    """A profile's poisoned sides: "poisoned" (the first seed), then "poisoned-run2", ... (one per
-    further seed; each its own model folder)."""
-    return ["poisoned", *(f"poisoned-run{k + 1}" for k in range(1, max(1, seeds)))]
-
-
-def side_order(profiles: Sequence[str], seeds: int = 1) -> list[tuple[str, str]]:
-    """The order SfM sides take their slots: every clean side first, in start_order, then the
-    poisoned ones (each profile's first seed, then the further seeds). A clean reference registers
-    every view and is the longest run of its profile (12 x 24 MP on 16 cores: 42-84 s of mapping
-    against 14-39 s poisoned), so the last clean side no longer starts after the first poisoned ones
-    end and finishes last."""
-    order = start_order(profiles)
-    return [(p, "clean") for p in order] + [(p, side) for side in poisoned_sides(seeds) for p in order]
-
-
 def _summary(result: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in result.items() if k not in ("poses", "settings", "reuse_key")}
-
-
-# ---- the run ------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Run:
-    """What every profile of one verification shares: inputs, folders, caches, ground truth."""
-
-    clean_dir: Path
-    poisoned_dir: Path
-    names: list[str]
-    out_dir: Path
-    cache: Path  # this run's feature databases and round-tripped images (removed unless keep_cache)
-    clean_cache: Path  # reused across verifications when options.clean_cache_dir is set
-    clean_key: str  # the clean folder's content key (names, SHA-256 of each file)
-    matching: str
-    gt: dict[str, posemod.Pose] | None
-    options: VerifyOptions
-    profiles: tuple[str, ...] = ()
-    board: ProgressBoard | None = None
-    long_edge: int = 0  # the originals' longest side, px (where SIFT runs: gpu_sift_suits)
-
-
-@dataclass(frozen=True)
-class _ProfilePlan:
-    """One attacker's two SfM sides, planned before either runs (they run independently)."""
-
-    profile: str
-    sides: dict[str, SfmSide]  # "clean", "poisoned"
-    clean_model_copy: Path | None  # where the report keeps a copy of a cached clean model
-    started: dict[str, float] = dataclasses.field(default_factory=dict)  # side -> when it took a slot
 
 
 def verify_folders(
@@ -271,7 +175,7 @@ def verify_folders(
     Stages: inputs -> visibility (a few images) -> SfM per profile and side (options.workers sides
     at once, shared work) -> splat (optional) -> report."""
     profile_list = expand_profiles(profiles)
-    run = _prepare_run(Path(clean_dir), Path(poisoned_dir), Path(out_dir), options or VerifyOptions())
+    run = prepare_run(Path(clean_dir), Path(poisoned_dir), Path(out_dir), options or VerifyOptions())
     o = run.options
     board = ProgressBoard(profile_list, len(run.names), o.progress_label or str(poisoned_dir),
                           o.progress_path, o.on_progress)  # fmt: skip
@@ -299,10 +203,10 @@ def verify_folders(
     return report
 
 
-def _run_profiles(profile_list: Sequence[str], run: _Run) -> dict[str, ProfileReport]:
+def _run_profiles(profile_list: Sequence[str], run: VerifyRun) -> dict[str, ProfileReport]:
     """Every profile's two sides, each its own task taken in side_order by `workers` threads (one SfM
     child each at a time); a profile is decided as soon as both its sides are done."""
-    plans = {p: _plan_profile(p, run) for p in profile_list}
+    plans = {p: plan_profile(p, run) for p in profile_list}
     reports: dict[str, ProfileReport] = {}
     workers = max(1, run.options.workers or default_workers())
     with ThreadPoolExecutor(workers, thread_name_prefix="ppd-verify") as pool:
@@ -312,35 +216,6 @@ def _run_profiles(profile_list: Sequence[str], run: _Run) -> dict[str, ProfileRe
             poisoned = [sides[(p, side)].result() for side in poisoned_sides(run.options.seeds)]
             reports[p] = _decide_profile(plans[p], sides[(p, "clean")].result(), poisoned, run)
     return {p: reports[p] for p in profile_list}  # in the order asked
-
-
-def _prepare_run(clean_dir: Path, poisoned_dir: Path, out_dir: Path, options: VerifyOptions) -> _Run:
-    names = _check_inputs(clean_dir, poisoned_dir)
-    matching = options.matching
-    if matching == "auto":
-        matching = "sequential" if looks_like_video_frames(names) else "exhaustive"
-    gt = posemod.load_ground_truth(options.ground_truth) if options.ground_truth else None
-    out_dir.mkdir(parents=True, exist_ok=True)
-    cache = out_dir / ".cache"
-    key = content_key(clean_dir, names)
-    clean_cache = (
-        clean_cache_for(Path(options.clean_cache_dir), key, options.clean_cache_keep)
-        if options.clean_cache_dir
-        else cache
-    )
-    return _Run(clean_dir, poisoned_dir, names, out_dir, cache, clean_cache, key, matching, gt, options,
-                long_edge=longest_side(clean_dir, names))  # fmt: skip
-
-
-def longest_side(image_dir: Path, names: Sequence[str]) -> int:
-    """The largest width or height among the images (their headers: poisoner.limits.decoded_size;
-    0 where none can be read)."""
-    edge = 0
-    for name in names:
-        with contextlib.suppress(HeaderError):
-            size = decoded_size(image_dir / name)
-            edge = max(edge, size.width, size.height)
-    return edge
 
 
 def measure_visibility(
@@ -399,92 +274,7 @@ def splat_finding(splat: dict[str, Any] | None) -> str:
     )
 
 
-def _check_inputs(clean_dir: Path, poisoned_dir: Path) -> list[str]:
-    for d in (clean_dir, poisoned_dir):
-        if not d.is_dir():
-            raise VerificationInputError(f"not a folder: {d}")
-    clean, poisoned = list_images(clean_dir), list_images(poisoned_dir)
-    if not clean:
-        raise VerificationInputError(f"no images in {clean_dir}")
-    if set(clean) != set(poisoned):
-        only_c = sorted(set(clean) - set(poisoned))[:3]
-        only_p = sorted(set(poisoned) - set(clean))[:3]
-        raise VerificationInputError(
-            "clean and poisoned folders must hold the same file names "
-            f"(only clean: {only_c}, only poisoned: {only_p})"
-        )
-    if len(clean) < 3:
-        raise VerificationInputError(f"need at least 3 images for SfM, got {len(clean)}")
-    return clean
-
-
-def _published_copy(side: str, run: _Run) -> Path:
-    """Where the published profile's round-tripped copies of one side's images live."""
-    o = run.options
-    tag = f"{o.published_long_edge}-{o.published_jpeg_quality}"
-    if side == "clean":
-        return run.clean_cache / f"published-{tag}-{run.clean_key}"
-    return run.cache / f"published-{tag}-poisoned"
-
-
-def _plan_profile(profile: str, run: _Run) -> _ProfilePlan:
-    """The profile's two SfM sides: what each sees (the published profile's are round-tripped
-    through a platform's downscale and JPEG re-encode), where its shared work lives, and the key a
-    clean result is reused under (cached with the same inputs and settings)."""
-    settings = profile_settings(profile, run.matching, run.options.camera_params)
-    source = "published" if profile == "published" else "original"
-    edge = min(run.long_edge, run.options.published_long_edge) if source == "published" else run.long_edge
-    settings = msgspec.structs.replace(
-        settings, random_seed=run.options.random_seed, cpu_sift=not gpu_sift_suits(edge)
-    )
-    clean_images, poisoned_images = run.clean_dir, run.poisoned_dir
-    if source == "published":
-        clean_images, poisoned_images = _published_copy("clean", run), _published_copy("poisoned", run)
-    skey = hashlib.sha256(settings.feature_key().encode()).hexdigest()[:10]
-    profile_dir = run.out_dir / profile
-    # the SIFT device is said by the key's end alone, so a CPU key stays as it was
-    as_json = {k: v for k, v in msgspec.to_builtins(settings).items() if k != "cpu_sift"}
-    settings_json = json.dumps(as_json, sort_keys=True)
-    reuse_key = f"{run.clean_key}-{profile}-{settings_json}-{source}"
-    reuse_key += "-cuda" if settings.sift_device_name() == "cuda" else ""
-    cached = bool(run.options.clean_cache_dir)
-    clean_model = (
-        run.clean_cache / "clean-models" / hashlib.sha256(reuse_key.encode()).hexdigest()[:16]
-        if cached
-        else profile_dir / "clean"
-    )
-    clean_db = run.clean_cache / f"clean-{source}-{run.clean_key}-{skey}.db"
-    poisoned_db = run.cache / f"poisoned-{source}-{skey}.db"
-    clean_from = poisoned_from = None
-    if settings.mask_corners > 0 and any(p in run.profiles for p in UNMASKED_FEATURE_PROFILES):
-        # the unmasked features this run extracts anyway, filtered by position (verifier.sfm)
-        ukey = hashlib.sha256(msgspec.structs.replace(settings, mask_corners=0.0).feature_key().encode())
-        clean_from = run.clean_cache / f"clean-{source}-{run.clean_key}-{ukey.hexdigest()[:10]}.db"
-        poisoned_from = run.cache / f"poisoned-{source}-{ukey.hexdigest()[:10]}.db"
-    # default, hardened and global use one verification (hardened's made from it) when two of them run;
-    # masked takes the default's geometry for the pairs its masks leave alone when default or global runs
-    sharing = [p for p in UNMASKED_FEATURE_PROFILES if p in run.profiles]
-    masked_takes = "masked" in run.profiles and any(p in run.profiles for p in ("default", "global"))
-    takes_default = clean_from is not None and masked_takes
-    share = profile in sharing and (len(sharing) > 1 or masked_takes)
-    # verified databases live for this run only: the clean results they lead to are what is kept
-    clean_side = SfmSide(clean_images, clean_db, clean_model, settings, reuse_key, clean_from,
-                         run.cache / "clean-verified", share_verification=share,
-                         takes_default_verification=takes_default, profile=profile, side="clean")  # fmt: skip
-    poisoned_side = SfmSide(poisoned_images, poisoned_db, profile_dir / "poisoned", settings, None,
-                            poisoned_from, run.cache, share_verification=share,
-                            takes_default_verification=takes_default, profile=profile,
-                            side="poisoned")  # fmt: skip
-    copy = profile_dir / "clean" if cached else None  # the report's model folder holds a copy
-    sides = {"clean": clean_side, "poisoned": poisoned_side}
-    for k, side in enumerate(poisoned_sides(run.options.seeds)[1:], start=1):  # the attacker's reruns
-        seeded = msgspec.structs.replace(settings, random_seed=settings.random_seed + k)
-        sides[side] = dataclasses.replace(poisoned_side, model_dir=profile_dir / side, settings=seeded,
-                                          side=side)  # fmt: skip
-    return _ProfilePlan(profile, sides, copy)
-
-
-def _run_planned_side(plan: _ProfilePlan, side: str, run: _Run) -> dict[str, Any]:
+def _run_planned_side(plan: ProfilePlan, side: str, run: VerifyRun) -> dict[str, Any]:
     """One side of one profile, once a slot is free: its images (the published round trip), its SfM
     (a clean result reused when cached), its poses under the originals' names. A cancelled
     verification starts no more sides."""
@@ -517,7 +307,7 @@ def _profiles_as_done(sides: dict[tuple[str, str], Future[dict[str, Any]]]) -> I
 
 
 def _compare_poses(
-    clean: dict[str, Any], poisoned: dict[str, Any], run: _Run
+    clean: dict[str, Any], poisoned: dict[str, Any], run: VerifyRun
 ) -> tuple[dict[str, Any] | None, dict[str, Any] | None, dict[str, Any] | None]:
     """(poisoned vs clean, clean vs ground truth, poisoned vs ground truth); None where a side failed."""
     vs_clean = clean_vs_gt = poisoned_vs_gt = None
@@ -535,7 +325,7 @@ def _compare_poses(
 
 
 def _decide_profile(
-    plan: _ProfilePlan, clean: dict[str, Any], poisoned_runs: list[dict[str, Any]], run: _Run
+    plan: ProfilePlan, clean: dict[str, Any], poisoned_runs: list[dict[str, Any]], run: VerifyRun
 ) -> ProfileReport:
     """One attacker: each poisoned run's poses compared with the clean ones, the verdict of the run
     the attacker would keep (the weakest: verdict.worst_seed, when options.seeds > 1); written to
