@@ -42,8 +42,8 @@ from PIL import Image  # PIL before anything that may load pycolmap
 
 from bench.results_page import rewrite_keeping_analysis
 from poisoner.blend import apply_patch
+from poisoner.corner import choose_corner
 from poisoner.motion import CORNER_MOTIONS
-from poisoner.placement import choose_corner
 from poisoner.spec import PatchSpec
 from testkit.watermark_designs import designs
 from verifier import poses as posemod

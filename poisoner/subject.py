@@ -4,7 +4,7 @@ Two sources, best first:
 - subject masks: one file per image in a mask folder (white / nonzero / opaque = subject), the DTU,
   NeuS and IDR convention. `load_subject_mask` finds an image's mask by name and reads it at the
   image's size; `dataset_corner` picks the corner the union of a sample of the set's masks covers
-  least (poisoner.placement.choose_corner).
+  least (poisoner.corner.choose_corner).
 - no masks: a cheap estimate. A subject carries the picture's detail; a plain backdrop, sky, floor
   or table does not. On a ~256 px thumbnail of up to `sample` images, each corner region's share of
   pixels with visible detail (gradient above DETAIL_LEVEL levels per thumbnail pixel) is averaged
@@ -150,11 +150,11 @@ def dataset_corner(
     image_paths: Sequence[Path], mask_dir: Path | None, region: float = 0.2, sample: int = 8
 ) -> CornerChoice:
     """The corner for a dataset's mark: with a mask folder, the corner a sample of the set's subject
-    masks covers least (placement.choose_corner on their union); without one (or with no mask for any
+    masks covers least (poisoner.corner.choose_corner on their union); without one (or with no mask for any
     sampled image), the corner with the least image detail over a sample of the images; with
     neither, the default corner."""
+    from poisoner.corner import CORNERS
     from poisoner.media import is_image
-    from poisoner.placement import CORNERS
 
     paths = sorted(Path(p) for p in image_paths if is_image(p))
     picked = _sampled(paths, sample)
@@ -168,7 +168,7 @@ def dataset_corner(
 
 
 def _corner_from_masks(paths: Sequence[Path], mask_dir: Path, region: float) -> CornerChoice | None:
-    from poisoner.placement import choose_corner, corner_cover
+    from poisoner.corner import choose_corner, corner_cover
 
     present = []
     for path in paths:
@@ -189,7 +189,7 @@ def _corner_from_masks(paths: Sequence[Path], mask_dir: Path, region: float) -> 
 
 
 def _corner_from_detail(paths: Sequence[Path], region: float) -> CornerChoice:
-    from poisoner.placement import CORNERS, corner_box
+    from poisoner.corner import CORNERS, corner_box
 
     shares: dict[str, list[float]] = {c: [] for c in CORNERS}
     means: dict[str, list[float]] = {c: [] for c in CORNERS}

@@ -430,8 +430,8 @@ def test_dtu_photo_mark_stays_off_its_subject(
     """A real photo and its real mask, the lanes watermark: in the corner chosen from the set's masks,
     and in the top-right, where view 2's subject covers about half of the mark. No changed pixel on
     the subject; every change inside the one corner region."""
+    from poisoner.corner import corner_box
     from poisoner.ladder import WATERMARK_LANES_SPEC
-    from poisoner.placement import corner_box
     from poisoner.subject import dataset_corner, load_subject_mask
 
     root = shared_dir / "datasets" / "dtu_scan37"

@@ -9,9 +9,9 @@ import pytest
 from PIL import Image, ImageDraw
 
 from poisoner.blend import apply_patch, patch_coverage
+from poisoner.corner import corner_box
 from poisoner.ladder import WATERMARK_SPEC
 from poisoner.logo import LogoError, image_shape, text_shape
-from poisoner.placement import corner_box
 from poisoner.spec import PatchSpec, SpecError
 
 SIGNATURE = "\u00a9 Ana 2026"

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from poisoner.blend import apply_patch
+from poisoner.corner import CORNERS, corner_box
 from poisoner.ladder import WATERMARK_SPEC
 from poisoner.motion import SPIN_DEG_PER_INDEX, spin_pose, tumble_pose
-from poisoner.placement import CORNERS, corner_box
 from poisoner.spec import SpecError
 
 

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from poisoner.blend import apply_patch, patch_coverage
+from poisoner.corner import CORNERS, corner_box
 from poisoner.ladder import WATERMARK_LANES_2_SPEC, WATERMARK_LANES_SPEC, named_spec
 from poisoner.motion import tilted_slide_offset
-from poisoner.placement import CORNERS, corner_box
 from poisoner.spec import LANES_MAX_AREA, PatchSpec, SpecError
 
 TILTED = WATERMARK_LANES_SPEC.replace(slide_run=8)

@@ -9,8 +9,8 @@ import pytest
 from PIL import Image
 
 from poisoner.blend import apply_patch
+from poisoner.corner import CORNERS, choose_corner, corner_box, corner_cover, keep_out_mask
 from poisoner.ladder import WATERMARK_SPEC
-from poisoner.placement import CORNERS, choose_corner, corner_box, corner_cover, keep_out_mask
 
 
 def _dtu(shared_dir: Path, width: int = 800) -> tuple[list[str], list[np.ndarray], list[np.ndarray]]:

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from poisoner.corner import CORNERS, corner_box
 from poisoner.errors import ImageFormatError
-from poisoner.placement import CORNERS, corner_box
 from poisoner.subject import CornerChoice, dataset_corner, load_subject_mask, mask_path
 
 

@@ -20,9 +20,9 @@ from daemon.states import FileState
 from daemon.store import DatasetSpecLocked
 from daemon.watch.syncdirs import find_sync_folder
 from poisoner.blend import patch_coverage
+from poisoner.corner import CORNERS
 from poisoner.formats import PoisonReport
 from poisoner.ladder import default_spec, named_spec
-from poisoner.placement import CORNERS
 from poisoner.spec import PatchSpec
 
 
