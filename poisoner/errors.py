@@ -32,5 +32,6 @@ class ImageFormatError(PpdError):
 
 
 class MarkNotWritten(ImageFormatError):
-    """The mark would change no pixel of the file (a keep-out mask covers all of it): the file is
-    not protected, so it is a failure, never "patched" (issue 25)."""
+    """The mark would change no pixel of the file (a keep-out mask covers all of it, or its blocks
+    match the photo's pixels where it lands): the file is not protected, so it is a failure, never
+    "patched" (issue 25)."""

@@ -61,7 +61,7 @@ from poisoner.image.png_rows import poison_png_rows
 from poisoner.image.read import load_decoded, one_line, open_decoded
 from poisoner.image.tiff import poison_tiff
 from poisoner.image.webp import poison_webp, vp8_quantizers, webp_quality_from_quantizer
-from poisoner.image.write import image_from_array, paste_patch, save_explicit
+from poisoner.image.write import changes_a_pixel, image_from_array, paste_patch, save_explicit
 from poisoner.limits import DEFAULT_MAX_PIXELS, check_decode_budget
 from poisoner.mark_place import MarkPlace
 from poisoner.media import is_image
@@ -407,6 +407,11 @@ def poison_file(
     if written == 0:  # never "patched" with no changed pixel (issue 25): nothing is written to dst
         raise MarkNotWritten(
             f"{src.name}: the subject mask covers the whole mark, no pixel would change: not patched"
+        )
+    if loaded and not changes_a_pixel(im, lanes or [placement], keep):  # a JPEG by region: its splice says
+        raise MarkNotWritten(
+            f"{src.name}: the mark's blocks match the photo's pixels where it goes, no pixel would change: "
+            "not patched"
         )
     out, preserved, notes, method, lossless, removed = _write_format(
         src, im, data, fmt, placement, keep, keep_location=keep_location, marker=marker, loaded=not region

@@ -4,6 +4,7 @@ metadata the caller passes (never the source's, which could bring removed locati
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
 
 import numpy as np
 from PIL import Image
@@ -30,6 +31,26 @@ def paste_patch(
     region = apply_patch_at(np.asarray(im.crop(placement.box)), placement, (x0, y0), window)
     im.paste(image_from_array(region, im.mode), (x0, y0))
     return im
+
+
+# modes whose array values are what a viewer sees (a palette index or a 1-bit pixel is not)
+_VALUE_MODES = ("L", "LA", "RGB", "RGBA", "I;16")
+
+
+def changes_a_pixel(im: Image.Image, squares: Sequence[PatchPlacement], keep_out: np.ndarray | None) -> bool:
+    """Whether blending these squares into im changes any pixel's value. A mark whose blocks match
+    the photo where they land (a black block on black, in a photo too small for more than one block
+    a square) writes nothing, and such a file must fail, never be called patched (issue 25)."""
+    for square in squares:
+        x0, y0, x1, y1 = square.box
+        crop = im.crop(square.box)
+        if crop.mode not in _VALUE_MODES:
+            crop = crop.convert("RGBA")
+        window = np.asarray(crop)
+        kept = None if keep_out is None else keep_out[y0:y1, x0:x1]
+        if not np.array_equal(apply_patch_at(window, square, (x0, y0), kept), window):
+            return True
+    return False
 
 
 def save_explicit(im: Image.Image, fp: io.BytesIO, fmt: str, **opts: object) -> None:

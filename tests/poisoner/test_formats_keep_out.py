@@ -353,6 +353,42 @@ def test_mask_over_the_whole_mark_is_a_failure_not_a_patched_file(tmp_path: Path
     assert not dst.exists()
 
 
+@pytest.mark.parametrize("size", [(40, 30), (64, 48)])
+def test_a_mark_that_matches_the_photo_is_a_failure_not_a_patched_file(
+    tmp_path: Path, size: tuple[int, int]
+) -> None:
+    """Found on an installed ppd: a small photo, black where the default mark went, whose one-block
+    squares were black too, came out pixel-identical and was called "patched". No mask is involved:
+    the mark would change no pixel, so the file fails (one line) and nothing is written."""
+    from poisoner.errors import MarkNotWritten
+    from poisoner.ladder import default_spec
+
+    src, dst = tmp_path / "black.png", tmp_path / "out.png"
+    Image.fromarray(np.zeros((size[1], size[0], 3), dtype=np.uint8)).save(src)
+    with pytest.raises(MarkNotWritten, match="match the photo's pixels .* no pixel would change"):
+        poison_file(src, dst, default_spec())
+    assert not dst.exists()
+    Image.fromarray(np.full((size[1], size[0], 3), 128, dtype=np.uint8)).save(src)  # grey: it shows
+    report = poison_file(src, dst, default_spec())
+    assert (np.asarray(Image.open(dst)) != 128).any() and report.written > 0
+
+
+def test_changes_a_pixel_is_false_only_where_the_mark_is_already_there() -> None:
+    """The check behind the failure above: a photo that already holds the mark's exact pixels in the
+    square's box changes nowhere; the photo itself does, and a mask over the changed pixels hides it."""
+    from poisoner.blend import apply_patch_at
+    from poisoner.image.write import changes_a_pixel
+
+    square = SPEC.resolve(W, H)
+    before = photo()
+    painted = apply_patch_at(before, square, (0, 0))
+    assert changes_a_pixel(Image.fromarray(before), [square], None)
+    assert not changes_a_pixel(Image.fromarray(painted), [square], None)
+    changed = (painted != before).any(axis=2)
+    assert changed.any()
+    assert not changes_a_pixel(Image.fromarray(before), [square], changed)
+
+
 def test_mask_reaching_every_mcu_of_the_mark_is_a_failure(tmp_path: Path) -> None:
     """A JPEG mask that leaves mark pixels free but touches every MCU of the mark: still no pixel
     changes (whole MCUs near the mask are kept), so still a failure."""
