@@ -46,6 +46,8 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
     to one named after its parent; --dataset names it, and a known name keeps its root)."""
     from daemon.datasets.dataset import DatasetConflict, attribute
 
+    if out is not None and out.exists() and not out.is_dir():
+        raise die(f"--out must be a folder: {out} is a file")
     jobs: list[Job] = []
     for target in targets:
         target = target.absolute()
@@ -55,6 +57,8 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
             name, root = attribute(ctx, target, dataset)
         except DatasetConflict as exc:
             raise die(one_line(exc)) from None
+        if out is not None:
+            check_out_outside(out, root)
         files = media_files(target) if target.is_dir() else [target]
         for f in files:
             out_path = None
@@ -63,6 +67,14 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
                 out_path = (out.absolute() / name / rel) if target.is_dir() else out.absolute() / rel
             jobs.append(Job(f, name, root, out_path))
     return jobs
+
+
+def check_out_outside(out: Path, root: Path) -> None:
+    """--out must lie outside the dataset's folder: copies inside it would be files of the dataset
+    they protect (counted as not patched yet, and a restore would put originals there)."""
+    where, folder = out.resolve(), root.resolve()
+    if where == folder or where.is_relative_to(folder):
+        raise die(f"--out {out} is inside the dataset's folder {root}: choose a folder outside it")
 
 
 def check_dataset_roots(ctx: AppContext, jobs: list[Job]) -> None:

@@ -73,6 +73,26 @@ def test_poison_out_leaves_inputs(shoot: Path, tmp_path: Path) -> None:
     assert rerun.exit_code == 0 and snapshot(out / "castle") == produced
 
 
+@pytest.mark.parametrize("inside", ["castle/published", "castle", "castle/view0.png"])
+def test_out_inside_the_dataset_or_a_file_is_refused_and_nothing_is_written(
+    shoot: Path, ppd_env: dict[str, Path], inside: str
+) -> None:
+    """Found on an installed ppd: `--out` inside the folder it protects made copies that were files of
+    that dataset, and `ppd restore` then put the unprotected originals into the copies' folder. Such
+    an --out (and one that is a file) is a one-line error before anything is written."""
+    before = snapshot(shoot.parent)
+    for target in (shoot, shoot / "view1.png"):
+        result = runner.invoke(app, ["poison", str(target), "--out", str(shoot.parent / inside)])
+        assert result.exit_code == 2, result.output
+        said = " ".join(result.output.split())
+        why = "is a file" if inside.endswith(".png") else "is inside the dataset's folder"
+        assert said.count("error:") == 1 and why in said, result.output
+        assert snapshot(shoot.parent) == before
+    ctx = AppContext.open()
+    assert ctx.store.files("castle") == []
+    ctx.close()
+
+
 def test_dry_run_changes_nothing(shoot: Path, ppd_env: dict[str, Path]) -> None:
     before = snapshot(shoot)
     result = runner.invoke(app, ["poison", str(shoot), "--dry-run", "--alpha", "0.5"])
