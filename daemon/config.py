@@ -117,13 +117,15 @@ def parse_length(value: Any) -> int | float:
         return value
     text = str(value).strip()
     try:
-        if text.endswith("%"):
-            return float(text[:-1]) / 100.0
-        number = float(text)
+        number = float(text[:-1]) / 100.0 if text.endswith("%") else float(text)
     except ValueError:
         raise SpecError(  # noqa: B904 - the ValueError adds nothing to this message
             f"cannot read length {value!r}: use pixels (48), a fraction (0.06) or a percentage (6%)"
         )
+    if text.endswith("%"):
+        if abs(number) >= 1:  # a length of 1 or more is read as pixels: 200% would have been 2 px
+            raise SpecError(f"{text} of the width is no length for the mark: give a percentage under 100%")
+        return number
     return int(number) if number.is_integer() and number >= 1 else number
 
 

@@ -88,13 +88,23 @@ def _option_type(f: dataclasses.Field) -> type:
 def _parse_field(f: dataclasses.Field, raw: Any) -> Any:
     from daemon.config import parse_length
 
+    option = f"--{f.name.replace('_', '-')}"
     if _is_pair(f):
         parts = [p.strip() for p in str(raw).split(",")]
         if len(parts) != 2:
-            raise SpecError(f"--{f.name.replace('_', '-')} takes two values DX,DY, got {raw!r}")
-        return tuple(parse_length(p) if p not in ("0", "") else 0 for p in parts)
+            raise SpecError(f"{option} takes two values DX,DY, got {raw!r}")
+        try:
+            return tuple(parse_length(p) if p not in ("0", "") else 0 for p in parts)
+        except SpecError as exc:
+            raise SpecError(f"{option}: {exc}") from None
     if _is_length(f):
-        return parse_length(raw)
+        try:
+            length = parse_length(raw)
+        except SpecError as exc:
+            raise SpecError(f"{option}: {exc}") from None
+        if length <= 0:  # said here with the option's name (the spec would say "length must be positive")
+            raise SpecError(f"{option} must be positive, got {raw}")
+        return length
     return raw
 
 

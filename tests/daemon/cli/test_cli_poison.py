@@ -93,6 +93,27 @@ def test_out_inside_the_dataset_or_a_file_is_refused_and_nothing_is_written(
     ctx.close()
 
 
+@pytest.mark.parametrize(
+    ("option", "value", "said"),
+    [
+        ("--patch-size", "200%", "--patch-size: 200% of the width is no length for the mark"),
+        ("--patch-size", "0", "--patch-size must be positive, got 0"),
+        ("--block-size", "0", "--block-size must be positive, got 0"),
+        ("--offset", "5%,abc", "--offset: cannot read length 'abc'"),
+    ],
+)
+def test_a_bad_length_names_its_option_and_writes_nothing(
+    shoot: Path, option: str, value: str, said: str
+) -> None:
+    """Found on an installed ppd: `--patch-size 200%` became a 2 px mark and was called patched, and
+    `--block-size 0` said only "length must be positive" without naming the option."""
+    before = snapshot(shoot)
+    result = runner.invoke(app, ["poison", str(shoot), option, value])
+    assert result.exit_code == 2, result.output
+    assert said in " ".join(result.output.split()), result.output
+    assert snapshot(shoot) == before
+
+
 def test_dry_run_changes_nothing(shoot: Path, ppd_env: dict[str, Path]) -> None:
     before = snapshot(shoot)
     result = runner.invoke(app, ["poison", str(shoot), "--dry-run", "--alpha", "0.5"])

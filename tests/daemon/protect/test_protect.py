@@ -104,6 +104,11 @@ def test_parse_length() -> None:
     assert parse_length("6%") == pytest.approx(0.06)
     with pytest.raises(ValueError):
         parse_length("six")
+    # found on an installed ppd: "200%" was 2.0, read as 2 px (a length of 1 or more is pixels)
+    for whole in ("100%", "200%", "-150%"):
+        with pytest.raises(ValueError, match="give a percentage under 100%"):
+            parse_length(whole)
+    assert parse_length("99%") == pytest.approx(0.99)
 
 
 def test_dataset_of(tmp_path: Path) -> None:
