@@ -131,7 +131,8 @@ def _print_scene_notes(ctx: AppContext, jobs: list[Job], outcomes: list[ProtectO
 def _say_outcome(progress_console: Any, outcome: ProtectOutcome) -> None:
     """-v: one line per file with its outcome (above the progress bar)."""
     where = f" -> {outcome.output}" if outcome.output and outcome.output != outcome.path else ""
-    why = f" ({outcome.reason})" if outcome.reason and outcome.state != "failed" else ""
+    said = outcome.reason if outcome.reason != outcome_word(outcome) else None  # "would patch (would patch)"
+    why = f" ({said})" if said and outcome.state != "failed" else ""
     place = getattr(outcome.report, "place", None)
     if place is not None and outcome.state in OUTCOME_PATCHED:  # a per-photo mark: where it shows
         why = f" (mark at the {place.words}{'; ' + outcome.reason if outcome.reason else ''})"

@@ -227,7 +227,7 @@ def recognise(job: Job) -> ProtectOutcome | None:
         and row["original_sha256"] == sha
         and not job.force
     ):
-        return job.outcome(Outcome.UNCHANGED, "restored by the user (use --force to protect it again)")
+        return job.outcome(Outcome.UNCHANGED, "restored by the user; use --force to protect it again")
     return None
 
 

@@ -126,6 +126,19 @@ def test_dry_run_changes_nothing(shoot: Path, ppd_env: dict[str, Path]) -> None:
     ctx.close()
 
 
+def test_each_file_line_says_its_reason_once(shoot: Path) -> None:
+    """-v's line per file: no "would patch X (would patch)", no reason in nested brackets."""
+    dry = runner.invoke(app, ["-v", "poison", str(shoot / "view0.png"), "--dry-run"])
+    assert dry.exit_code == 0, dry.output
+    assert "would patch" in dry.output and "(would patch)" not in dry.output, dry.output
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert runner.invoke(app, ["restore", str(shoot / "view1.png")]).exit_code == 0
+    again = runner.invoke(app, ["-v", "poison", str(shoot)])
+    line = next(s for s in again.output.splitlines() if "view1.png" in s)
+    assert line.startswith("unchanged") and "restored by the user; use --force" in line, again.output
+    assert line.count("(") == 1, line
+
+
 def test_failures_give_nonzero_exit_and_lose_nothing(shoot: Path) -> None:
     (shoot / "broken.png").write_bytes(b"\x89PNG but truncated")
     result = runner.invoke(app, ["poison", str(shoot)])
