@@ -65,11 +65,11 @@ from poisoner.image.write import changes_a_pixel, image_from_array, paste_patch,
 from poisoner.limits import DEFAULT_MAX_PIXELS, check_decode_budget
 from poisoner.mark_place import MarkPlace
 from poisoner.media import is_image
-from poisoner.orientation import INVERSE_ORIENTATION, orientation_of, turn_square
+from poisoner.orientation import INVERSE_ORIENTATION, display_size, orientation_of, turn_square
 from poisoner.provenance import Marker
 from poisoner.shrink import place_fitting
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
-from poisoner.subject import display_details, display_subject
+from poisoner.subject import display_details, display_subject, shown_orientation
 
 # Re-exported: importers of poisoner.formats keep finding these here.
 __all__ = [
@@ -96,8 +96,7 @@ log = logging.getLogger(__name__)
 # the whole picture. Same output bytes either way (tests/poisoner/test_jpeg_region.py); False: whole decode.
 JPEG_REGION_DECODE = True
 
-ORIENTATION_POLICY = "patch placed in stored pixels (EXIF orientation ignored, tag kept)"
-# a per-photo mark (issue 25) is placed where the photo is plain as a viewer sees it
+# every mark (per photo, or a corner: issue 25) is placed as a viewer sees the photo
 SHOWN_ORIENTATION_POLICY = "mark placed as the photo is shown, turned with it into the stored pixels"
 PALETTE_POLICY = "patch colours appended to the palette when there is room, else written as RGB(A)"
 
@@ -422,7 +421,7 @@ def poison_file(
             "not patched"
         )
     notes += [n for n in [kept_out_note(placement, keep)] if n]
-    notes += _file_notes(src, im, fmt, removed, shown=place is not None)
+    notes += _file_notes(src, im, fmt, removed)
     dst.write_bytes(out)
     report = PoisonReport(
         fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out), removed,
@@ -456,19 +455,33 @@ def plan_mark(
 ) -> tuple[PatchPlacement, MarkPlace | None]:
     """Where the mark goes on this file (stored pixels) and, for a per-photo spec, where it shows
     and why. A per-photo spec judges the file's own display-oriented thumbnail and its keep-out
-    (subject) mask (poisoner.placement.place_on_photo); any other spec resolves on the stored size
-    (the real name: moving specs, issue #9). What ppd preview calls too, so both agree. `decoded`:
-    the file already loaded, so the thumbnail need not decode it again where that is exact."""
+    (subject) mask (poisoner.placement.place_on_photo); any other spec (a corner, `--position`)
+    resolves on the size a viewer sees, its corner the one the photo shows (EXIF orientation: a
+    phone's portrait photo gets its top-left mark top-left as shown, issue 25), turned back to the
+    stored pixels (the real name: moving specs, issue #9). What ppd preview calls too, so both agree.
+    `decoded`: the file already loaded, so the thumbnail need not decode it again where that is exact."""
     width, height = size
     try:
         if not spec.per_photo:
-            return spec.resolve(width, height, image_key=name), None
+            return _resolved_as_shown(spec, width, height, name, shown_orientation(data, decoded)), None
         detail, faint, orientation = display_details(data, name, decoded)
         subject = None if keep is None else display_subject(keep, orientation, detail.shape)
         # issue 25 round 3: squares cropped to fit where no plain place holds them whole
         return place_fitting(spec, width, height, name, orientation, detail, subject, faint=faint)
     except (SpecError, ValueError) as exc:
         raise ImageFormatError(f"{name}: {exc}") from exc
+
+
+def _resolved_as_shown(
+    spec: PatchSpec, width: int, height: int, name: str, orientation: int
+) -> PatchPlacement:
+    """spec resolved on the picture as shown (display size), turned back to stored pixels."""
+    if orientation == 1:
+        return spec.resolve(width, height, image_key=name)
+    dw, dh = display_size(width, height, orientation)
+    shown = spec.resolve(dw, dh, image_key=name)
+    x, y = turn_square(shown.x, shown.y, shown.size, INVERSE_ORIENTATION[orientation], dw, dh)
+    return replace(shown, x=x, y=y, turn=orientation)
 
 
 def _write_format(
@@ -517,15 +530,14 @@ def _write_format(
     return out, preserved, notes, method, lossless, removed
 
 
-def _file_notes(src: Path, im: Image.Image, fmt: str, removed: list[str], shown: bool = False) -> list[str]:
+def _file_notes(src: Path, im: Image.Image, fmt: str, removed: list[str]) -> list[str]:
     """Notes on the file as a whole: location removed, orientation kept, a suffix that lies."""
     notes: list[str] = []
     if removed:
         notes.append(f"location removed ({len(removed)}): " + ", ".join(removed))
     orientation = im.getexif().get(0x0112)
     if orientation and orientation != 1:
-        policy = SHOWN_ORIENTATION_POLICY if shown else ORIENTATION_POLICY
-        notes.append(f"EXIF orientation {orientation} kept; {policy}")
+        notes.append(f"EXIF orientation {orientation} kept; {SHOWN_ORIENTATION_POLICY}")
     if is_image(src) and not _suffix_matches(src.suffix.lower(), fmt):
         notes.append(f"content is {fmt} despite the {src.suffix} suffix: written as {fmt}")
     return notes

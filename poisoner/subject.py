@@ -169,16 +169,16 @@ def dataset_corner(
 
 def _corner_from_masks(paths: Sequence[Path], mask_dir: Path, region: float) -> CornerChoice | None:
     from poisoner.corner import choose_corner, corner_cover
+    from poisoner.orientation import orient_array
 
     present = []
     for path in paths:
         try:
             mask = load_subject_mask(mask_dir, path.name, MASK_GRID, same_shape=False)
-        except ImageFormatError as exc:  # one bad mask does not decide the set's corner
+            if mask is not None:  # the corners as the photo shows them (its EXIF orientation)
+                present.append(orient_array(mask, shown_orientation(path)))
+        except (ImageFormatError, OSError) as exc:  # one bad mask or photo does not decide the corner
             log.warning("subject mask unreadable", extra={"path": str(path), "reason": str(exc)})
-            continue
-        if mask is not None:
-            present.append(mask)
     if not present:
         return None
     import numpy as np
@@ -215,14 +215,35 @@ def _corner_from_detail(paths: Sequence[Path], region: float) -> CornerChoice:
 
 
 def detail_map(path: Path) -> np.ndarray:
-    """Gradient magnitude (8-bit levels per pixel) of a grey thumbnail of the image, at most
-    THUMBNAIL_PX on its longest side; transparent pixels read as white (what loaders show)."""
+    """Gradient magnitude (8-bit levels per pixel) of a grey thumbnail of the image as a viewer shows
+    it (EXIF orientation applied: a corner is the corner the photo shows), at most THUMBNAIL_PX on
+    its longest side; transparent pixels read as white (what loaders show)."""
     from PIL import Image
 
     from poisoner.image.read import decode_errors
+    from poisoner.orientation import orient_array, orientation_of
 
     with decode_errors(path), Image.open(path) as im:
-        return _gradient(_grey_thumbnail(im))
+        grad = _gradient(_grey_thumbnail(im))
+        return orient_array(grad, orientation_of(im.getexif().get(0x0112)))  # read once decoded: TIFF
+
+
+def shown_orientation(source: bytes | Path, decoded: Image.Image | None = None) -> int:
+    """The EXIF orientation a viewer applies to the stored pixels (of the encoded bytes, a file, or
+    the same bytes already decoded). Read after decoding where Pillow turns the picture as it loads
+    it (a TIFF: upright, its tag dropped)."""
+    import io
+
+    from PIL import Image
+
+    from poisoner.orientation import orientation_of
+
+    if decoded is not None:
+        return orientation_of(decoded.getexif().get(0x0112))
+    with Image.open(io.BytesIO(source) if isinstance(source, bytes) else source) as im:
+        if im.format == "TIFF":
+            im.load()
+        return orientation_of(im.getexif().get(0x0112))
 
 
 def _grey_thumbnail(im: Image.Image) -> np.ndarray:

@@ -62,6 +62,14 @@ def outside_patch(arr: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray
     return arr[mask]
 
 
+def assert_lossless_patch_shown(src_pixels: np.ndarray, out_pixels: np.ndarray, spec: PatchSpec) -> None:
+    """assert_lossless_patch as a viewer sees a photo stored with EXIF orientation 6 (EXIF_ORIENT_6):
+    the mark goes where the photo shows its corner (issue 25)."""
+    from poisoner.orientation import orient_array
+
+    assert_lossless_patch(orient_array(src_pixels, 6), orient_array(out_pixels, 6), spec)
+
+
 def assert_lossless_patch(src_pixels: np.ndarray, out_pixels: np.ndarray, spec: PatchSpec) -> None:
     placement = spec.resolve(src_pixels.shape[1], src_pixels.shape[0])
     expected = apply_patch(src_pixels, placement)
@@ -99,7 +107,7 @@ def test_png_modes_round_trip_lossless_with_metadata(tmp_path: Path, mode: str) 
     assert sha(src) == before
     out = Image.open(dst)
     assert out.mode == mode
-    assert_lossless_patch(pixels, np.asarray(out), SPEC)
+    assert_lossless_patch_shown(pixels, np.asarray(out), SPEC)
     src_chunks = {t: b for t, b in png_chunks(src.read_bytes()) if t in ANCILLARY}
     out_chunks = {t: b for t, b in png_chunks(dst.read_bytes()) if t in ANCILLARY}
     assert set(src_chunks) == set(ANCILLARY)
@@ -188,7 +196,7 @@ def test_webp_lossless_stays_lossless_with_metadata(tmp_path: Path) -> None:
     report = poison_file(src, dst, SPEC)
     out = Image.open(dst)
     assert b"VP8L" in dst.read_bytes()[:4096]
-    assert_lossless_patch(pixels, np.asarray(out), SPEC)
+    assert_lossless_patch_shown(pixels, np.asarray(out), SPEC)
     assert out.info["icc_profile"] == ICC and out.info["xmp"] == XMP
     assert out.getexif()[0x010F] == "ppd-test-camera"
     assert report.lossless and report.method == "webp-lossless"
@@ -345,18 +353,23 @@ def test_poison_in_place_failure_leaves_file(tmp_path: Path) -> None:
 
 
 # ---- orientation -----------------------------------------------------------------------------------
-def test_orientation_patch_goes_in_stored_pixels(tmp_path: Path) -> None:
-    """Stored 160 wide x 120 high with orientation 6 (displayed 120 x 160): the patch is placed
-    at the stored top-left and the tag is kept (what COLMAP and 3DGS loaders read)."""
+def test_a_corner_mark_goes_in_the_corner_the_photo_shows(tmp_path: Path) -> None:
+    """Stored 160 wide x 120 high with orientation 6 (displayed 120 x 160): the top-left corner spec
+    marks the top-left corner as shown (issue 25: a phone's portrait photo showed it top-right),
+    turned with the photo into the stored pixels; the tag is kept (COLMAP reads stored pixels)."""
+    from poisoner.orientation import orient_array
+
     pixels = textured()
     src, dst = tmp_path / "rot.png", tmp_path / "out.png"
     Image.fromarray(pixels).save(src, exif=EXIF_ORIENT_6)
     report = poison_file(src, dst, SPEC)
     out = Image.open(dst)
     assert out.size == (160, 120) and out.getexif()[0x0112] == 6
-    assert_lossless_patch(pixels, np.asarray(out), SPEC)
-    assert report.placement == SPEC.resolve(160, 120)
-    assert any("orientation 6" in n for n in report.notes)
+    shown_before, shown_after = orient_array(pixels, 6), orient_array(np.asarray(out), 6)
+    assert shown_before.shape[:2] == (160, 120)
+    assert_lossless_patch(shown_before, shown_after, SPEC)  # as if the photo had been stored upright
+    assert report.placement.turn == 6 and report.placement != SPEC.resolve(160, 120)
+    assert any("orientation 6 kept; mark placed as the photo is shown" in n for n in report.notes)
 
 
 @pytest.mark.integration

@@ -19,6 +19,8 @@ from poisoner.provenance import Marker, Seal, SealError, read_seal, seal_file, x
 from poisoner.spec import PatchSpec
 
 SPEC = PatchSpec(patch_size=40, block_size=4, position="top-left", offset=(8, 8))
+# the same mark elsewhere: protecting a file again with SPEC would change no pixel (a failure)
+MOVED = PatchSpec(patch_size=40, block_size=4, position="top-left", offset=(60, 40))
 KEY = bytes(range(32))
 ORIGINAL = "ab" * 32
 MARKER = Marker.placeholder(KEY, "spec-7f3a", ORIGINAL)
@@ -67,8 +69,8 @@ KINDS = {
 }
 
 
-def sealed(src: Path, dst: Path, marker: Marker = MARKER, **kw: Any) -> bytes:
-    poison_file(src, dst, SPEC, marker=marker, **kw)
+def sealed(src: Path, dst: Path, marker: Marker = MARKER, spec: PatchSpec = SPEC, **kw: Any) -> bytes:
+    poison_file(src, dst, spec, marker=marker, **kw)
     seal_file(dst, KEY)
     return dst.read_bytes()
 
@@ -94,7 +96,7 @@ def test_seal_round_trip_deterministic(tmp_path: Path, kind: str, xmp: bool) -> 
         assert b"user-kept" in a  # the user's own XMP stays
     # protecting a sealed file again replaces the seal (one seal, the newest)
     other = Marker.placeholder(KEY, "spec-2", "cd" * 32)
-    c = sealed(tmp_path / f"a{suffix}", tmp_path / f"c{suffix}", other)
+    c = sealed(tmp_path / f"a{suffix}", tmp_path / f"c{suffix}", other, spec=MOVED)
     assert read_seal(tmp_path / f"c{suffix}", KEY) == Seal("cd" * 32, "spec-2")
     assert c.count(b"zQ7kS1") == 1
 

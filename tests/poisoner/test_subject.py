@@ -143,6 +143,27 @@ def test_masks_win_over_the_estimate(tmp_path: Path) -> None:
     assert dataset_corner(paths, tmp_path / "empty").source == "estimated"
 
 
+def test_the_corner_is_the_one_a_phone_photo_shows(tmp_path: Path) -> None:
+    """Photos stored landscape with EXIF orientation 6 (shown portrait, turned 90 degrees clockwise):
+    the stored top-left is shown top-right. Busy everywhere but the stored top-left corner, the set's
+    plain corner is the top-right as shown, from the pictures and from the masks alike (issue 25)."""
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    images, masks = tmp_path / "images", tmp_path / "masks"
+    images.mkdir()
+    masks.mkdir()
+    subject = np.ones((300, 400), dtype=bool)
+    subject[:75, :100] = False  # the stored top-left region is free
+    for i in range(3):
+        busy = ("top-right", "bottom-left", "bottom-right")
+        Image.fromarray(_picture(busy, seed=i)).save(images / f"{i:03d}.jpg", quality=85, exif=exif)
+        _write_mask(masks / f"{i:03d}.png", subject)
+    paths = sorted(images.glob("*.jpg"))
+    assert dataset_corner(paths, None).corner == "top-right"
+    choice = dataset_corner(paths, masks)
+    assert choice.source == "masks" and choice.corner == "top-right"
+
+
 def test_nothing_to_go_on_is_the_default() -> None:
     choice = dataset_corner([], None)
     assert choice == CornerChoice("top-left", "default", {})
