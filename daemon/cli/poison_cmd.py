@@ -14,6 +14,7 @@ from daemon.cli.errors import die, file_reason, open_ctx
 from daemon.cli.interrupt import StopOnSignal
 from daemon.cli.options import SpecOptions, spec_options, subject_masks_option, workers_option
 from daemon.cli.output import console, err_console, interactive, print_line, verbosity
+from daemon.states import FileState
 from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
@@ -123,6 +124,9 @@ def _print_scene_notes(ctx: AppContext, jobs: list[Job], outcomes: list[ProtectO
 
     def original(path: Path) -> Path:
         sha = kept.get(path)
+        if sha is None:  # patched by an earlier run (a rerun, a dry run): its row names the original
+            row = ctx.store.file(path)
+            sha = row["original_sha256"] if row and row["state"] == FileState.PATCHED else None
         return ctx.vault.path_for(sha) if sha and ctx.vault.has(sha) else path
 
     print_scene_notes(console(), by_dataset, original)

@@ -139,6 +139,27 @@ def test_each_file_line_says_its_reason_once(shoot: Path) -> None:
     assert line.count("(") == 1, line
 
 
+def test_the_scene_hint_reads_the_originals_on_a_rerun_too(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """Found on an installed ppd: a rerun (or a dry run) of a patched set judged the patched files,
+    ppd's own mark in the frame's edge band ("frame edges 3% textured" where the first run said 0%)."""
+    folder = tmp_path / "studio"
+    folder.mkdir()
+    for i in range(4):  # a textured subject in the middle of a plain grey backdrop
+        pixels = np.full((300, 400, 3), 128, dtype=np.uint8)
+        pixels[90:210, 130:270] = np.random.default_rng(i).integers(0, 256, (120, 140, 3))
+        Image.fromarray(pixels).save(folder / f"v{i}.png")
+
+    def hint(*args: str) -> str:
+        result = runner.invoke(app, ["poison", str(folder), *args])
+        assert result.exit_code == 0, result.output
+        said = " ".join(result.output.split())
+        return said[said.index("hint: ") : said.index("for sure.")]
+
+    first = hint()
+    assert "frame edges 0% textured" in first, first
+    assert hint() == first and hint("--dry-run") == first
+
+
 def test_failures_give_nonzero_exit_and_lose_nothing(shoot: Path) -> None:
     (shoot / "broken.png").write_bytes(b"\x89PNG but truncated")
     result = runner.invoke(app, ["poison", str(shoot)])
