@@ -46,7 +46,7 @@ from verifier.report_figures import (
     visibility_table,
     when,
 )
-from verifier.verdict import MASKED_MEANING, Verdict, headline, headline_verdict, masked_line, not_holding
+from verifier.verdict import MASKED_MEANING, Verdict, headline, headline_verdict, masked_line
 
 # Banner colours: distinctive, saturated, one per verdict (the screenshot test looks for them).
 VERDICT_COLOURS: dict[str, str] = {
@@ -82,7 +82,7 @@ class ReportData:
     notes: list[str] = field(default_factory=list)
     generated_at: float = field(default_factory=time.time)
     protection: str | None = None  # a dataset's state in ppd's words, e.g. "patched, not verified"
-    holding: str | None = None  # which profiles (attackers) the protection does NOT hold under
+    holding: str | None = None  # where the protection does NOT hold, and where it could not be verified
 
 
 # ---- builders ---------------------------------------------------------------------------------
@@ -351,7 +351,7 @@ def _holding_text(profiles: Mapping[str, Mapping[str, Any]], corner_mark: bool |
     verdicts = _verdicts(profiles)
     counted = headline(verdicts)
     missing = [p for p in REPORT_PROFILES if p not in profiles]
-    line = holding_line(not_holding(counted), counted)
+    line = holding_line(counted)
     line = line[0].upper() + line[1:] + (f" (not run here: {', '.join(missing)})" if missing else "")
     masked = masked_line(verdicts, corner_mark)
     return f"{line}. {masked[0].upper()}{masked[1:]}." if masked else line

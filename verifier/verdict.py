@@ -206,16 +206,33 @@ def overall(verdicts: Iterable[str]) -> Verdict:
 
 
 def not_holding(verdicts: Mapping[str, str]) -> list[str]:
-    """The profiles (attackers) under which the protection does not hold: any verdict but protected."""
-    return [name for name, v in verdicts.items() if v != Verdict.PROTECTED]
+    """The profiles (attackers) under which the protection does not hold: weak or NOT protected.
+
+    A crashed or inconclusive profile is not among them: it told us nothing (see unverified)."""
+    return [name for name, v in verdicts.items() if v in (Verdict.WEAK, Verdict.NOT_PROTECTED)]
 
 
-def holding_line(failing: Iterable[str], profiles: Iterable[str]) -> str:
-    """One plain sentence: the attackers (profiles) the protection does not hold under."""
-    failing, profiles = list(failing), list(profiles)
-    if not failing:
-        return f"the protection holds under every profile run ({', '.join(profiles)})"
-    return f"the protection does NOT hold under: {', '.join(failing)}"
+def unverified(verdicts: Mapping[str, str]) -> list[str]:
+    """The profiles that could not be verified (SfM crashed, inconclusive): no claim either way."""
+    return [name for name, v in verdicts.items() if v not in _STRENGTH]
+
+
+def holding_line(verdicts: Mapping[str, str]) -> str:
+    """One plain sentence: the attackers (profiles) the protection does not hold under, and those
+    it could not be verified under; never says it holds or fails where nothing was concluded."""
+    failing, unknown = not_holding(verdicts), unverified(verdicts)
+    if not failing and not unknown:
+        return f"the protection holds under every profile run ({', '.join(verdicts)})"
+    parts = []
+    if failing:
+        parts.append(f"does NOT hold under: {', '.join(failing)}")
+    else:
+        held = [name for name, v in verdicts.items() if v == Verdict.PROTECTED]
+        if held:  # said only when nothing failed: the weakest answer is the one that counts
+            parts.append(f"holds under: {', '.join(held)}")
+    if unknown:
+        parts.append(f"could not be verified under: {', '.join(unknown)}")
+    return "the protection " + "; ".join(parts)
 
 
 def headline(verdicts: Mapping[str, str]) -> dict[str, str]:

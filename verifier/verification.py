@@ -138,14 +138,15 @@ class VerificationReport(msgspec.Struct):
         return headline_verdict(self.verdicts())
 
     def not_holding(self) -> list[str]:
-        """The headline profiles (attackers) the protection does NOT hold under."""
+        """The headline profiles (attackers) the protection does NOT hold under (weak or NOT
+        protected; a crashed or inconclusive profile is not among them)."""
         return not_holding(headline(self.verdicts()))
 
     def summary_lines(self) -> list[str]:
         """The dataset-level lines `ppd verify` prints under the profiles: visibility, where the
         protection does not hold, and the masked attacker."""
         lines = self.visibility.lines() if self.visibility is not None else []
-        lines.append(holding_line(self.not_holding(), list(headline(self.verdicts()))))
+        lines.append(holding_line(headline(self.verdicts())))
         masked = masked_line(self.verdicts(), self.corner_mark)
         if masked is not None:
             lines.append(masked)

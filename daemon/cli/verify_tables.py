@@ -48,6 +48,15 @@ def _side_rows(clean: dict[str, Any], poisoned: dict[str, Any]) -> list[tuple[st
     ]  # fmt: skip
 
 
+def _has_reference(clean: dict[str, Any], vs_clean: dict[str, Any]) -> bool:
+    """Whether the clean column's figures vs clean mean anything: the clean run registered cameras
+    and the poisoned run was compared with them. Otherwise "100%" would be a claim over nothing."""
+    if clean.get("outcome") != "ok" or not vs_clean:
+        return False
+    compared = vs_clean.get("cameras_compared")  # absent in reports written before it was recorded
+    return int(clean.get("registered") or 0) > 0 and (compared is None or int(compared) > 0)
+
+
 def profile_table(p: dict[str, Any]) -> Table:
     verdict = p["verdict"]
     table = Table(
@@ -62,14 +71,17 @@ def profile_table(p: dict[str, Any]) -> Table:
         table.add_row(*row)
     vc = p.get("vs_clean") or {}
     gt_c, gt_p = p.get("clean_vs_gt") or {}, p.get("poisoned_vs_gt") or {}
+    ref = _has_reference(p["clean"], vc)
     for t in (5, 10, 20):
-        table.add_row(f"cameras within {t}° of clean", "100%", _num(vc.get(f"frac_within_{t}deg"), True))
-    table.add_row("median rotation error (°)", "0", _num(vc.get("median_rotation_error_deg")))
+        table.add_row(f"cameras within {t}° of clean", "100%" if ref else "-",
+                      _num(vc.get(f"frac_within_{t}deg"), True))  # fmt: skip
+    table.add_row("median rotation error (°)", "0" if ref else "-", _num(vc.get("median_rotation_error_deg")))
     table.add_row(
-        "median relative rotation error (°)", "0", _num(vc.get("median_relative_rotation_error_deg"))
-    )
+        "median relative rotation error (°)", "0" if ref else "-",
+        _num(vc.get("median_relative_rotation_error_deg")),
+    )  # fmt: skip
     aucs = " / ".join(_num(vc.get(f"auc_{t}")) for t in (5, 10, 20))
-    table.add_row("pair pose AUC@5/10/20 vs clean", "1 / 1 / 1", aucs)
+    table.add_row("pair pose AUC@5/10/20 vs clean", "1 / 1 / 1" if ref else "-", aucs)
     if gt_c or gt_p:
         for t in (5, 10, 20):
             table.add_row(f"within {t}° of ground truth", _num(gt_c.get(f"frac_within_{t}deg"), True),
