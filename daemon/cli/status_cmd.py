@@ -128,7 +128,19 @@ def _print_details(d: dict[str, Any]) -> None:
     for profile, v in d["verdicts"].items():
         out.print("  " + verdict_text(profile, v), soft_wrap=False)
     if not d["verdicts"]:
-        print_line(out, "  verified: never")
+        print_line(out, "  " + unverified_line(d.get("last_verification")))
+
+
+def unverified_line(last: dict[str, Any] | None) -> str:
+    """What a dataset with no verdict on its pixels as they are now says: never verified, or
+    verified before its files last changed (issue 25: that verdict is history, not the verdict)."""
+    from daemon.cli.status_queries import age
+    from daemon.states import verdict_words
+
+    if last is None:
+        return "verified: never"
+    verdict = f"{last['profile']}: {verdict_words(last['verdict'])}"
+    return f"not verified since the files changed (last verification: {age(last['finished_at'])}, {verdict})"
 
 
 def failed_lines(d: dict[str, Any]) -> list[str]:

@@ -118,10 +118,16 @@ def mask_folders(ctx: AppContext, name: str) -> list[Path]:
 
 
 def folder_count(ctx: AppContext, name: str, root: str) -> FolderCount:
-    """The dataset's folder next to its rows (daemon.datasets.folder_count)."""
-    from daemon.datasets.folder_count import count_folder
+    """The dataset's folder next to its rows (daemon.datasets.folder_count), without the files
+    that are other datasets' (a dataset nested in its folder, the outbox's, another's row)."""
+    from daemon.datasets.folder_count import count_folder, owned_elsewhere
 
-    return count_folder(Path(root), ctx.store.files(name), skip=mask_folders(ctx, name))
+    folder = Path(root)
+    roots = [Path(d["root"]) for d in ctx.store.datasets() if d["name"] != name]
+    theirs = [r["path"] for r in ctx.store.files_under(folder, not_of=name)]
+    skip, foreign = owned_elsewhere(folder, roots, theirs, outbox=ctx.paths.outbox)
+    masks = mask_folders(ctx, name)
+    return count_folder(folder, ctx.store.files(name), skip=[*masks, *skip], foreign=foreign)
 
 
 def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:

@@ -4,6 +4,10 @@ The store has a row only for files ppd has reached: after a run stopped half-way
 SIGTERM, a crash) the folder still holds originals that no row mentions. `ppd status` counts them
 from the folder, so it never says "8 files, 6 patched" of a folder of 23 photos.
 
+A folder may hold another dataset's files (`owned_elsewhere`): a dataset whose folder is nested in
+this one, the outbox's datasets, a file another dataset's row names. They are never this dataset's
+"not patched yet": `ppd poison FOLDER` would find them patched already, or finish the wrong dataset.
+
 Light at import (`ppd status` loads it): no numpy, no PIL.
 """
 
@@ -77,13 +81,40 @@ def _match_copies(outside: list[Path], rels: set[Parts]) -> tuple[set[Parts], Pa
     return covered, (Path(os.path.commonpath(roots)) if roots else None)
 
 
-def count_folder(folder: Path, rows: Iterable[Mapping[str, Any]], skip: Iterable[Path] = ()) -> FolderCount:
+def owned_elsewhere(
+    folder: Path, roots: Iterable[Path], paths: Iterable[str], outbox: Path | None = None
+) -> tuple[list[Path], set[str]]:
+    """What of folder belongs to other datasets: the folders to skip and the files to leave out.
+
+    roots: the other datasets' folders; those strictly inside folder are skipped (one with the same
+    folder shares it: its files are told apart by paths). paths: the files other datasets' rows name.
+    outbox: by the outbox's rule (daemon.datasets.dataset) its first-level subfolders are datasets
+    of their own, registered or not, so the outbox's loose-file dataset skips them, and a folder
+    holding the outbox skips it."""
+    folder = Path(folder).absolute()
+    others = {Path(root).absolute() for root in roots}
+    skip = sorted(r for r in others if r != folder and r.is_relative_to(folder))
+    if outbox is not None:
+        box = Path(outbox).absolute()
+        if box == folder and folder.is_dir():
+            skip += sorted(d for d in folder.iterdir() if d.is_dir() and d not in skip)
+        elif box != folder and box.is_relative_to(folder) and box not in skip:
+            skip.append(box)
+    return skip, {str(p) for p in paths}
+
+
+def count_folder(
+    folder: Path, rows: Iterable[Mapping[str, Any]], skip: Iterable[Path] = (), foreign: Iterable[str] = ()
+) -> FolderCount:
     """The folder's media files and those of them no row mentions: by path, or for `--out` copies
-    by their path below the copies' folder (OUT/DATASET/a/b.jpg stands for FOLDER/a/b.jpg)."""
+    by their path below the copies' folder (OUT/DATASET/a/b.jpg stands for FOLDER/a/b.jpg).
+    skip: folders whose files are not the dataset's; foreign: files (str paths) that are another
+    dataset's (owned_elsewhere): neither is counted."""
     folder = Path(folder).absolute()
     paths = [Path(row["path"]) for row in rows]
     outside = [p for p in paths if not p.is_relative_to(folder)]
-    files = folder_media(folder, skip) if folder.is_dir() else []
+    theirs = set(foreign)
+    files = [f for f in folder_media(folder, skip) if str(f) not in theirs] if folder.is_dir() else []
     covered, copies = _match_copies(outside, {f.relative_to(folder).parts for f in files})
     if not folder.is_dir():
         return FolderCount(folder, exists=False, copies=copies)

@@ -43,6 +43,16 @@ class FileRows(StoreBase):
             (dataset, file_state(state).value),
         )
 
+    def files_under(self, folder: Path | str, not_of: str | None = None) -> list[dict[str, Any]]:
+        """The path and dataset of every row whose path lies below folder (by path; not_of: leaving
+        out that dataset's rows), by path. A range over the path index: '/' + 1 is '0'."""
+        below = str(folder).rstrip("/") + "/"
+        sql = "SELECT path, dataset FROM files WHERE path >= ? AND path < ?"
+        params: tuple[str, ...] = (below, below[:-1] + "0")
+        if not_of is not None:
+            sql, params = sql + " AND dataset != ?", (*params, not_of)
+        return self._rows(sql + " ORDER BY path", params)
+
     def find_poisoned(self, sha256: str) -> dict[str, Any] | None:
         """A row whose patched output has this content (ppd's own output, anywhere)."""
         return self._one("SELECT * FROM files WHERE poisoned_sha256 = ? LIMIT 1", (sha256,))
