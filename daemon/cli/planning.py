@@ -5,6 +5,7 @@ spec each dataset gets."""
 from __future__ import annotations
 
 import os
+import shlex
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -133,6 +134,28 @@ def without_masks(jobs: list[Job], masks: dict[str, Path | None]) -> tuple[list[
         left = sum(job.path.absolute().is_relative_to(folder) for job in jobs)
         if left:
             notes.append(f"left {left} subject mask(s) in {folder} as they are (masks are never patched)")
+    return kept, notes
+
+
+def without_nested(ctx: AppContext, jobs: list[Job]) -> tuple[list[Job], list[str]]:
+    """The jobs without the files of another dataset whose folder lies inside this one's (`ppd
+    poison PARENT` with PARENT/inner a dataset of its own): they are that dataset's, with its spec
+    and rows, so they are left to it, one line per such dataset."""
+    roots = {Path(d["root"]).absolute(): d["name"] for d in ctx.store.datasets()}
+    kept: list[Job] = []
+    left: dict[tuple[str, Path], int] = {}
+    for job in jobs:
+        root, path = job.root.absolute(), job.path.absolute()
+        holders = [(r, n) for r, n in roots.items() if r != root and path.is_relative_to(r)]
+        owner = next(((n, r) for r, n in holders if n != job.dataset and r.is_relative_to(root)), None)
+        if owner is None:
+            kept.append(job)
+        else:
+            left[owner] = left.get(owner, 0) + 1
+    notes = []
+    for (name, folder), n in sorted(left.items()):
+        command = shlex.join(["ppd", "poison", str(folder)])
+        notes.append(f"left {n} file(s) to dataset {name!r}, whose folder is inside: `{command}` does them")
     return kept, notes
 
 

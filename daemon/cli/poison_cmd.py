@@ -232,6 +232,8 @@ def _poison(
     planning.check_writable(jobs, dry_run)
     masks = planning.dataset_masks(ctx, jobs, subject_masks)
     jobs, notes = planning.without_masks(jobs, masks)
+    jobs, nested = planning.without_nested(ctx, jobs)
+    notes += nested
     if not jobs:
         raise die("no files to patch besides the subject masks in " + ", ".join(str(p) for p in paths))
     wanted, corner_lines = planning.apply_spec(ctx, jobs, spec_options, dry_run, masks)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shlex
 import time
 from pathlib import Path
 
@@ -158,6 +159,27 @@ def test_the_scene_hint_reads_the_originals_on_a_rerun_too(ppd_env: dict[str, Pa
     first = hint()
     assert "frame edges 0% textured" in first, first
     assert hint() == first and hint("--dry-run") == first
+
+
+def test_a_parent_folder_leaves_a_nested_dataset_its_files(shoot: Path) -> None:
+    """`ppd poison PARENT` where PARENT/inner is a dataset of its own: inner's files (a new one
+    too) stay inner's, its rows and spec; one line says so, and `ppd poison PARENT/inner` does them."""
+    inner = shoot / "inner"
+    assert runner.invoke(app, ["poison", str(inner)]).exit_code == 0
+    make_image(inner / "view10.png", 10)  # new in inner: not the parent's to patch
+    fresh = (inner / "view10.png").read_bytes()
+    result = runner.invoke(app, ["poison", str(shoot)])
+    assert result.exit_code == 0, result.output
+    assert "left 2 file(s) to dataset 'inner'" in " ".join(result.output.split()), result.output
+    assert (inner / "view10.png").read_bytes() == fresh
+    ctx = AppContext.open()
+    assert {Path(r["path"]).name for r in ctx.store.files("castle")} == {f"view{i}.png" for i in range(4)}
+    assert {Path(r["path"]).name for r in ctx.store.files("inner")} == {"view9.png"}
+    ctx.close()
+    command = shlex.join(["ppd", "poison", str(inner)])  # quoted where the temporary path has spaces
+    assert f"`{command}` does them" in " ".join(result.output.split()), result.output
+    assert runner.invoke(app, ["poison", str(inner)]).exit_code == 0
+    assert (inner / "view10.png").read_bytes() != fresh
 
 
 def test_failures_give_nonzero_exit_and_lose_nothing(shoot: Path) -> None:
