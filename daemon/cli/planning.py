@@ -45,7 +45,7 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
     """One job per file of the targets, each with its dataset by the one rule of attribution
     (daemon.datasets.dataset.attribute: a folder is one dataset, a file belongs to its outbox dataset or
     to one named after its parent; --dataset names it, and a known name keeps its root)."""
-    from daemon.datasets.dataset import DatasetConflict, attribute
+    from daemon.datasets.dataset import DatasetConflict, DatasetNameError, attribute
 
     if out is not None and out.exists() and not out.is_dir():
         raise die(f"--out must be a folder: {out} is a file")
@@ -56,7 +56,7 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
             raise die(f"{target} does not exist")
         try:
             name, root = attribute(ctx, target, dataset)
-        except DatasetConflict as exc:
+        except (DatasetConflict, DatasetNameError) as exc:
             raise die(one_line(exc)) from None
         if out is not None:
             check_out_outside(out, root)

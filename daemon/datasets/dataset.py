@@ -9,6 +9,7 @@ dataset's stored root.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -33,6 +34,23 @@ class DatasetConflict(PpdError, ValueError):
     """An explicit dataset name whose stored root does not hold the target."""
 
     exit_status = ExitStatus.USAGE
+
+
+class DatasetNameError(PpdError, ValueError):
+    """A dataset name that is not one plain folder name (it names folders: runs, --out copies)."""
+
+    exit_status = ExitStatus.USAGE
+
+
+def check_name(name: str) -> str:
+    """name, when it is one plain folder name: a name with '/' or '..' would put --out copies and
+    verification runs outside their folders (`--dataset ../shoot` wrote over the inputs)."""
+    if not name or name in (".", "..") or any(c in name for c in "/\\\0") or name.startswith("."):
+        raise DatasetNameError(
+            f"dataset name {name!r} is not a plain name (no '/' or '\\', not starting with '.'): "
+            "give one with --dataset NAME"
+        )
+    return name
 
 
 def dataset_of(outbox: Path, path: Path) -> str:
@@ -70,10 +88,11 @@ def attribute(
     >>> attribute(ctx, outbox / "shoot" / "raw" / "a.jpg")   # doctest: +SKIP
     ('shoot', PosixPath('.../outbox/shoot'))
     """
-    target = Path(target).absolute()
+    target = Path(os.path.normpath(Path(target).absolute()))  # "shoot/.." names its parent, not ".."
     is_folder = target.is_dir() if folder is None else folder
     home = target if is_folder else target.parent
     if dataset:
+        check_name(dataset)
         row = ctx.store.dataset(dataset)
         if row is None:
             return dataset, home
@@ -87,7 +106,7 @@ def attribute(
     if target.is_relative_to(outbox) and target != outbox:
         name = dataset_of(outbox, target / "x" if is_folder else target)
         return name, dataset_root(outbox, name)
-    return (home.name or DEFAULT_DATASET), home
+    return check_name(home.name or DEFAULT_DATASET), home
 
 
 def ensure_dataset(

@@ -21,6 +21,7 @@ from typing import Any, Literal
 from daemon.context import AppContext
 from daemon.datasets.dataset import (
     DatasetConflict,
+    DatasetNameError,
     OutsideOutboxError,
     attribute,
     dataset_of,
@@ -131,7 +132,7 @@ def protect_file(
     path = Path(path).absolute()
     try:
         dataset, root = _resolve_dataset(ctx, path, dataset, root)
-    except (OutsideOutboxError, DatasetConflict) as exc:
+    except (OutsideOutboxError, DatasetConflict, DatasetNameError) as exc:
         return ProtectOutcome(path=path, dataset=None, state=Outcome.FAILED, reason=one_line(exc))
     root = Path(root).absolute()
     keep = ctx.config.keep_location if keep_location is None else keep_location

@@ -115,6 +115,24 @@ def test_a_bad_length_names_its_option_and_writes_nothing(
     assert snapshot(shoot) == before
 
 
+@pytest.mark.parametrize("name", ["../castle", "{abs}", ".hidden", "a/b"])
+def test_a_dataset_name_that_is_a_path_is_refused_and_nothing_is_written(
+    shoot: Path, tmp_path: Path, name: str
+) -> None:
+    """Found on an installed ppd: `--out OUT --dataset ../castle` wrote the copies over the inputs
+    (OUT/../castle), and `ppd restore` then removed them as copies. A name is one plain name."""
+    name = name.format(abs=shoot)
+    out = tmp_path / "published"
+    before = snapshot(shoot.parent)
+    result = runner.invoke(app, ["poison", str(shoot), "--out", str(out), "--dataset", name])
+    assert result.exit_code == 2, result.output
+    assert "is not a plain name" in " ".join(result.output.split()), result.output
+    assert snapshot(shoot.parent) == before and not out.exists()
+    ctx = AppContext.open()
+    assert ctx.store.dataset(name) is None and ctx.store.files(name) == []
+    ctx.close()
+
+
 def test_dry_run_changes_nothing(shoot: Path, ppd_env: dict[str, Path]) -> None:
     before = snapshot(shoot)
     result = runner.invoke(app, ["poison", str(shoot), "--dry-run", "--alpha", "0.5"])
