@@ -144,6 +144,11 @@ class SpecOptions:
 
         by_name = {f.name: f for f in spec_fields()}
         changes = {name: _parse_field(by_name[name], raw) for name, raw in self.values}
+        if changes.get("mark_image"):  # read now, once, from where the user stands: never a per-file failure
+            from poisoner.logo import image_shape
+
+            changes["mark_image"] = str(Path(changes["mark_image"]).expanduser().absolute())
+            image_shape(changes["mark_image"], 32)  # LogoError (one line) when it is no logo
         return spec_from_table(changes, base)
 
 

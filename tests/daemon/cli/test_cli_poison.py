@@ -101,6 +101,7 @@ def test_out_inside_the_dataset_or_a_file_is_refused_and_nothing_is_written(
         ("--patch-size", "0", "--patch-size must be positive, got 0"),
         ("--block-size", "0", "--block-size must be positive, got 0"),
         ("--offset", "5%,abc", "--offset: cannot read length 'abc'"),
+        ("--mark-image", "/nonexistent/logo.png", "cannot read logo /nonexistent/logo.png"),  # not per file
     ],
 )
 def test_a_bad_length_names_its_option_and_writes_nothing(
@@ -109,10 +110,14 @@ def test_a_bad_length_names_its_option_and_writes_nothing(
     """Found on an installed ppd: `--patch-size 200%` became a 2 px mark and was called patched, and
     `--block-size 0` said only "length must be positive" without naming the option."""
     before = snapshot(shoot)
-    result = runner.invoke(app, ["poison", str(shoot), option, value])
-    assert result.exit_code == 2, result.output
-    assert said in " ".join(result.output.split()), result.output
-    assert snapshot(shoot) == before
+    for dry in ([], ["--dry-run"]):
+        result = runner.invoke(app, ["poison", str(shoot), option, value, *dry])
+        assert result.exit_code == 2, result.output
+        assert said in " ".join(result.output.split()), result.output
+        assert snapshot(shoot) == before
+    ctx = AppContext.open()
+    assert ctx.store.dataset("castle") is None  # no spec stored
+    ctx.close()
 
 
 @pytest.mark.parametrize("name", ["../castle", "{abs}", ".hidden", "a/b"])
