@@ -203,13 +203,15 @@ def apply_spec(
         if spec is None:
             continue
         wanted[name] = spec
-        if not dry_run:
-            try:
-                ctx.store.set_dataset_spec(name, spec, root=next(j.root for j in jobs if j.dataset == name))
-            except DatasetSpecLocked as exc:
-                raise die(str(exc)) from None
-            if choice is not None:
-                record_choice(ctx, name, choice, masks.get(name))
+        try:
+            if dry_run:  # refused as the real run would be, storing nothing
+                ctx.store.check_spec_change(name, spec)
+                continue
+            ctx.store.set_dataset_spec(name, spec, root=next(j.root for j in jobs if j.dataset == name))
+        except DatasetSpecLocked as exc:
+            raise die(str(exc)) from None
+        if choice is not None:
+            record_choice(ctx, name, choice, masks.get(name))
     return wanted, lines
 
 

@@ -129,6 +129,13 @@ class DatasetRows(StoreBase):
                 conn, name, None, "spec_set", {"spec_id": spec.spec_id, "previous": row[0] if row else None}
             )
 
+    def check_spec_change(self, name: str, spec: PatchSpec) -> None:
+        """DatasetSpecLocked when set_dataset_spec(name, spec) would be refused (a dry run asks)."""
+        with self._write() as conn:
+            row = conn.execute("SELECT spec_id FROM datasets WHERE name = ?", (name,)).fetchone()
+            if row is not None and row[0] != spec.spec_id:
+                _refuse_if_patched(conn, name, row[0])
+
     def set_dataset_masks(self, name: str, folder: Path | None) -> None:
         """Remember a dataset's subject-mask folder (None: forget it); an event says so when it changes."""
         value = str(folder) if folder is not None else None

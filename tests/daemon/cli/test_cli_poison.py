@@ -205,6 +205,18 @@ def test_a_parent_folder_leaves_a_nested_dataset_its_files(shoot: Path) -> None:
     assert (inner / "view10.png").read_bytes() != fresh
 
 
+def test_a_dry_run_refuses_a_spec_change_as_the_real_run_does(shoot: Path) -> None:
+    """Found on an installed ppd: after a run, `--position top-left --dry-run` said "unchanged 5",
+    exit 0, where the real run refuses (its patched files carry the old spec)."""
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    after = snapshot(shoot)
+    for dry in (["--dry-run"], []):
+        result = runner.invoke(app, ["poison", str(shoot), "--position", "top-left", *dry])
+        assert result.exit_code == 2, result.output
+        assert "needs a re-protect" in " ".join(result.output.split()), result.output
+        assert snapshot(shoot) == after
+
+
 def test_failures_give_nonzero_exit_and_lose_nothing(shoot: Path) -> None:
     (shoot / "broken.png").write_bytes(b"\x89PNG but truncated")
     result = runner.invoke(app, ["poison", str(shoot)])
