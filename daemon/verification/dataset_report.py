@@ -49,7 +49,8 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
         ctx.store.dataset_spec(dataset),
         f"Dataset {dataset!r} has never been verified: run `ppd verify {dataset}`.",
     )
-    if latest and not verdicts:
+    if latest and not verdicts:  # the banner says today's state ("patched, not verified"), not an old verdict
+        data.verdict, data.holding = None, None
         data.notes.insert(0, "The latest verification measured earlier pixels (files were patched or "
                           "restored since): it is history, not today's verdict.")  # fmt: skip
     spec = ctx.store.dataset_spec(dataset)

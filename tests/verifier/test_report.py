@@ -158,6 +158,39 @@ def test_dataset_report_with_the_real_store(ppd_env: dict[str, Path], tmp_path: 
         ctx.close()
 
 
+def test_a_verdict_on_earlier_pixels_is_no_banner(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """Found on an installed ppd: after a file was restored, the report's banner still showed the
+    old verdict. A verdict that measured earlier pixels is history (issue 25): the banner says the
+    dataset's state now, the history table keeps the old runs."""
+    from daemon.protect.one_file import AppContext, protect_file, restore_file
+
+    ctx = AppContext.open()
+    try:
+        trip = ppd_env["outbox"] / "trip"
+        trip.mkdir()
+        for i in range(3):
+            pixels = np.random.default_rng(i).integers(0, 256, (200, 240, 3), dtype=np.uint8)
+            Image.fromarray(pixels).save(trip / f"v{i}.png")
+            assert protect_file(trip / f"v{i}.png", ctx).state == "patched"
+        now = time.time()  # verified after the patching, before the restore below
+        for profile in ("default", "hardened"):
+            d = _profile_dir(ctx.paths.runs_dir / "trip" / "run1", profile, "inconclusive")
+            ctx.store.add_verification_run("trip", profile, "inconclusive", {"reasons": []}, now, now + 0.01,
+                                           str(d), None)  # fmt: skip
+        assert dataset_reports.build_dataset_report(ctx, "trip").verdict == "inconclusive"  # current
+        time.sleep(0.05)
+        assert restore_file(ctx, trip / "v0.png").state == "restored"
+        data = dataset_reports.build_dataset_report(ctx, "trip")
+        assert data.verdict is None and data.holding is None
+        page = rp.render_html(data)
+        assert 'id="verdict"' not in page and "not verified" in (data.protection or ""), data.protection
+        assert any("it is history, not today's verdict" in n for n in data.notes)
+        history = next(t for t in data.tables if t.title.startswith("Verification history"))
+        assert len(history.rows) == 2
+    finally:
+        ctx.close()
+
+
 def test_cli_report_and_status_link(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
@@ -378,9 +411,10 @@ def test_dataset_report_counts_the_headline_and_says_the_masked_line_and_the_cor
             assert protect_file(shoot / f"v{i}.png", ctx).state == "patched"
         run_dir = ctx.paths.runs_dir / "shoot" / "20260101T000000-abcdef"
         verdicts = (("default", "protected"), ("hardened", "protected"), ("masked", "not_protected"))
+        now = time.time()  # verified after the patching: today's verdict (issue 25)
         for profile, verdict in verdicts:
             ctx.store.add_verification_run(
-                "shoot", profile, verdict, {"reasons": [], "corner_mark": True}, 50.0, 100.0,
+                "shoot", profile, verdict, {"reasons": [], "corner_mark": True}, now, now + 1,
                 str(_profile_dir(run_dir, profile, verdict)), None,
             )  # fmt: skip
         data = dataset_reports.build_dataset_report(ctx, "shoot")
