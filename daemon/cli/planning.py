@@ -137,6 +137,23 @@ def without_masks(jobs: list[Job], masks: dict[str, Path | None]) -> tuple[list[
     return kept, notes
 
 
+def missing_mask_lines(jobs: list[Job], done: set[Path], masks: dict[str, Path | None]) -> list[str]:
+    """One line per mask folder that lacks a mask for some of the photos patched here (`done`): their
+    marks were placed without keep-out, which the per-file warning alone left easy to miss."""
+    from poisoner.media import is_image
+    from poisoner.subject import mask_path
+
+    lines = []
+    for folder in sorted({m for m in masks.values() if m is not None}):
+        names = [j.path.name for j in jobs if masks.get(j.dataset) == folder and j.path in done]
+        missing = [n for n in names if is_image(Path(n)) and mask_path(folder, n) is None]
+        if missing:
+            s, more = ("", "") if len(missing) == 1 else ("s", ", ...")
+            lines.append(f"no subject mask in {folder} for {len(missing)} photo{s} ({missing[0]}{more}): "
+                         "marked without keeping off a subject")  # fmt: skip
+    return lines
+
+
 def without_nested(ctx: AppContext, jobs: list[Job]) -> tuple[list[Job], list[str]]:
     """The jobs without the files of another dataset whose folder lies inside this one's (`ppd
     poison PARENT` with PARENT/inner a dataset of its own): they are that dataset's, with its spec

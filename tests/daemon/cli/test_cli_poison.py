@@ -217,6 +217,23 @@ def test_a_dry_run_refuses_a_spec_change_as_the_real_run_does(shoot: Path) -> No
         assert snapshot(shoot) == after
 
 
+def test_photos_without_a_subject_mask_are_counted_in_the_summary(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """Found on an installed ppd: a photo with no mask in --subject-masks was marked without keep-out
+    and only a stderr warning said so; the summary said "off the subject masks". Now a summary line
+    counts them."""
+    images, masks = tmp_path / "shoot", tmp_path / "masks"
+    masked_shoot(images, masks, n=3)
+    (masks / "001.png").unlink()
+    result = runner.invoke(app, ["poison", str(images), "--subject-masks", str(masks)])
+    assert result.exit_code == 0, result.output
+    said = " ".join(result.output.split())
+    assert (
+        f"no subject mask in {masks} for 1 photo (000001.png): marked without keeping off a subject" in said
+    )
+
+
 def test_failures_give_nonzero_exit_and_lose_nothing(shoot: Path) -> None:
     (shoot / "broken.png").write_bytes(b"\x89PNG but truncated")
     result = runner.invoke(app, ["poison", str(shoot)])
@@ -248,9 +265,7 @@ def test_status_json_and_regression_warning(shoot: Path, tmp_path: Path) -> None
     assert result.exit_code == 0, result.output
     data = json.loads(result.stdout)
     (castle,) = data["datasets"]
-    assert (
-        castle["name"] == "castle" and castle["patched"] == 5 and castle["counts"]["failed"] == 1
-    )
+    assert castle["name"] == "castle" and castle["patched"] == 5 and castle["counts"]["failed"] == 1
     ctx = AppContext.open()
     stored = ctx.store.dataset_spec("castle")
     ctx.close()
