@@ -160,16 +160,22 @@ def parameter_pngs(
 
 def aligned_centres(poisoned: Mapping[str, Pose], clean: Mapping[str, Pose]) -> dict[str, np.ndarray]:
     """Poisoned camera centres mapped into the clean frame (robust similarity on common cameras)."""
+    return alignment(poisoned, clean)[0]
+
+
+def alignment(poisoned: Mapping[str, Pose], clean: Mapping[str, Pose]) -> tuple[dict[str, np.ndarray], bool]:
+    """(poisoned camera centres in the clean frame, whether they could be aligned): with fewer than
+    3 common cameras, or no similarity found, the centres stay as they were (a caption says so)."""
     common = sorted(set(poisoned) & set(clean))
     centres = {n: camera_centre(p) for n, p in poisoned.items()}
     if len(common) < 3:
-        return centres
+        return centres, False
     sim, _ = robust_similarity(
         np.array([centres[n] for n in common]), np.array([camera_centre(clean[n]) for n in common])
     )
     if sim is None:
-        return centres
-    return {n: sim.apply(c[None])[0] for n, c in centres.items()}
+        return centres, False
+    return {n: sim.apply(c[None])[0] for n, c in centres.items()}, True
 
 
 def _view_box(points: np.ndarray) -> tuple[np.ndarray, float]:

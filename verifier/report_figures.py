@@ -92,12 +92,16 @@ def trajectory_figure(model_dir: str | Path | None, profile: str) -> Figure | No
     clean, poisoned = _load_poses(Path(model_dir) / "clean"), _load_poses(Path(model_dir) / "poisoned")
     if not clean and not poisoned:
         return None
+    from verifier.plots import alignment
+
+    aligned = alignment(poisoned, clean)[1]  # never said "aligned" of cameras that were not (0 clean)
+    how = "aligned onto clean by a robust similarity" if aligned else "NOT aligned: too few cameras in both"
     caption = (
         f"Camera trajectories, profile {profile}: clean SfM ({len(clean)} cameras, green) vs poisoned SfM "
-        f"({len(poisoned)} cameras, orange, aligned onto clean by a robust similarity); grey lines join "
-        "the same image."
+        f"({len(poisoned)} cameras, orange, {how}); grey lines join the same image."
     )
-    return Figure(caption, trajectory_png(clean, poisoned))
+    title = "Camera centres: clean SfM vs poisoned SfM" + (" (aligned onto clean)" if aligned else "")
+    return Figure(caption, trajectory_png(clean, poisoned, title=title))
 
 
 def splat_figure(splat: Mapping[str, Any] | None, profile: str) -> Figure | None:

@@ -57,6 +57,20 @@ def _profile_dir(folder: Path, profile: str, verdict: str) -> Path:
     return d
 
 
+def test_the_camera_plot_says_when_nothing_could_be_aligned(tmp_path: Path) -> None:
+    """Found on an installed ppd: a clean run with no camera still had its plot captioned "aligned
+    onto clean by a robust similarity"."""
+    from verifier.report_figures import trajectory_figure
+
+    d = _profile_dir(tmp_path, "default", "inconclusive")
+    aligned = trajectory_figure(d, "default")
+    assert aligned is not None and "aligned onto clean by a robust similarity" in aligned.caption
+    (d / "clean" / "result.json").write_text(json.dumps({"outcome": "ok", "poses": {}}))
+    alone = trajectory_figure(d, "default")
+    assert alone is not None and "(0 cameras, green)" in alone.caption
+    assert "NOT aligned" in alone.caption and "by a robust similarity" not in alone.caption
+
+
 def _srcs(page: str) -> list[str]:
     return re.findall(r'(?:src|href)="([^"]*)"', page)
 
