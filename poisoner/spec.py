@@ -429,6 +429,14 @@ class PatchSpec:
             return tilted_slide_offset(index, step, span, self.slide_run)
         return path_offset("slide", index, step, span)
 
+    def capped_side(self, width: int, height: int) -> tuple[int, int] | None:
+        """(the lane side patch_size asks for, the side the visibility budget allows) on a width x
+        height picture when the budget is the smaller (a lanes mark only; None otherwise)."""
+        if self.lanes <= 0:
+            return None
+        asked, allowed = _resolve_length(self.patch_size, width), self._lane_cap(width, height)
+        return (asked, allowed) if allowed < asked else None
+
     def _lane_cap(self, width: int, height: int) -> int:
         """Largest lane side within LANES_MAX_AREA and stacked inside corner_region of the height
         (less the y a tilted slide travels)."""

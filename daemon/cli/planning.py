@@ -8,7 +8,7 @@ import os
 import shlex
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from daemon.cli.errors import die, one_line, os_error_text
 from poisoner.errors import ExitStatus
@@ -151,6 +151,31 @@ def missing_mask_lines(jobs: list[Job], done: set[Path], masks: dict[str, Path |
             s, more = ("", "") if len(missing) == 1 else ("s", ", ...")
             lines.append(f"no subject mask in {folder} for {len(missing)} photo{s} ({missing[0]}{more}): "
                          "marked without keeping off a subject")  # fmt: skip
+    return lines
+
+
+def capped_lines(outcomes: list[Any], wanted: dict[str, PatchSpec], options: SpecOptions) -> list[str]:
+    """One line per dataset whose asked --patch-size the visibility budget capped (the lanes' squares
+    together change at most poisoner.spec.LANES_MAX_AREA of a picture): said, never silent."""
+    if not any(name == "patch_size" for name, _ in options.values):
+        return []
+    from poisoner.spec import LANES_MAX_AREA
+
+    capped: dict[str, list[tuple[int, int]]] = {}
+    for o in outcomes:
+        spec, report = wanted.get(o.dataset or ""), getattr(o, "report", None)
+        if spec is None or report is None or o.state != "patched":
+            continue
+        sides = spec.capped_side(report.width, report.height)
+        if sides is not None:
+            capped.setdefault(o.dataset, []).append(sides)
+    lines = []
+    for name, sides in sorted(capped.items()):
+        asked, allowed = max(a for a, _ in sides), min(b for _, b in sides)
+        s = "" if len(sides) == 1 else "s"
+        budget = f"the visibility budget (all squares at most {LANES_MAX_AREA:.2%} of the picture)"
+        lines.append(f"{name}: --patch-size asks {asked} px squares; {budget} kept them at {allowed} px "
+                     f"in {len(sides)} photo{s}")  # fmt: skip
     return lines
 
 

@@ -248,7 +248,8 @@ def _poison(
         raise typer.Exit(ExitStatus.INTERRUPTED)
     summary(ctx, jobs, outcomes, dry_run, scene_notes=lambda: not stop())  # a Ctrl-C there skips the notes
     done = {o.path for o in outcomes if o.state in OUTCOME_PATCHED}
-    for line in planning.missing_mask_lines(jobs, done, masks):
+    capped = planning.capped_lines(outcomes, wanted, spec_options)
+    for line in planning.missing_mask_lines(jobs, done, masks) + capped:
         console().print(line, markup=False)
     if any(o.state == "failed" for o in outcomes):
         raise typer.Exit(ExitStatus.FAILED)

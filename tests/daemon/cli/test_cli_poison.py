@@ -234,6 +234,20 @@ def test_photos_without_a_subject_mask_are_counted_in_the_summary(
     )
 
 
+def test_a_patch_size_the_visibility_budget_caps_is_said(shoot: Path) -> None:
+    """Found on an installed ppd: --patch-size 30% gave the same squares as the default, silently
+    (a lanes mark's squares together stay within the visibility budget). The summary says so."""
+    result = runner.invoke(app, ["poison", str(shoot), "--patch-size", "30%"])
+    assert result.exit_code == 0, result.output
+    said = " ".join(result.output.split())
+    assert "castle: --patch-size asks 48 px squares; the visibility budget" in said, result.output
+    assert "kept them at" in said and "in 5 photos" in said
+    make_image(shoot.parent / "small" / "view0.png", 0)
+    again = runner.invoke(app, ["poison", str(shoot.parent / "small"), "--patch-size", "4%"])
+    assert again.exit_code == 0 and "patched 1" in again.output, again.output
+    assert "--patch-size asks" not in again.output, again.output  # within the budget: nothing to say
+
+
 def test_failures_give_nonzero_exit_and_lose_nothing(shoot: Path) -> None:
     (shoot / "broken.png").write_bytes(b"\x89PNG but truncated")
     result = runner.invoke(app, ["poison", str(shoot)])
