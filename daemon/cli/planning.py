@@ -166,16 +166,16 @@ def capped_lines(outcomes: list[Any], wanted: dict[str, PatchSpec], options: Spe
         spec, report = wanted.get(o.dataset or ""), getattr(o, "report", None)
         if spec is None or report is None or o.state != "patched":
             continue
-        sides = spec.capped_side(report.width, report.height)
-        if sides is not None:
-            capped.setdefault(o.dataset, []).append(sides)
+        pair = spec.capped_side(report.width, report.height)
+        if pair is not None:
+            capped.setdefault(o.dataset, []).append(pair)
     lines = []
-    for name, sides in sorted(capped.items()):
-        asked, allowed = max(a for a, _ in sides), min(b for _, b in sides)
-        s = "" if len(sides) == 1 else "s"
+    for name, pairs in sorted(capped.items()):
+        asked, allowed = max(a for a, _ in pairs), min(b for _, b in pairs)
+        s = "" if len(pairs) == 1 else "s"
         budget = f"the visibility budget (all squares at most {LANES_MAX_AREA:.2%} of the picture)"
         lines.append(f"{name}: --patch-size asks {asked} px squares; {budget} kept them at {allowed} px "
-                     f"in {len(sides)} photo{s}")  # fmt: skip
+                     f"in {len(pairs)} photo{s}")  # fmt: skip
     return lines
 
 

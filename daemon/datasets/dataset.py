@@ -78,7 +78,8 @@ def attribute(
     or seen by the daemon).
 
     - no name, inside the outbox: its outbox dataset (first-level subfolder, or "default");
-    - no name, outside: a folder is a dataset named after it; a file, one named after its parent;
+    - no name, outside: inside a known dataset's folder, that dataset (the innermost); else a folder
+      is a dataset named after it, a file one named after its parent;
     - an explicit name: a known dataset keeps its stored root (DatasetConflict when target lies
       outside it); a new one gets the folder itself, or the file's parent folder.
 
@@ -106,6 +107,10 @@ def attribute(
     if target.is_relative_to(outbox) and target != outbox:
         name = dataset_of(outbox, target / "x" if is_folder else target)
         return name, dataset_root(outbox, name)
+    holders = [d for d in ctx.store.datasets() if home.is_relative_to(Path(d["root"]).absolute())]
+    if holders:  # a folder inside a known dataset's folder is that dataset's (`ppd poison FOLDER` covers it)
+        row = max(holders, key=lambda d: len(Path(d["root"]).absolute().parts))  # the innermost
+        return row["name"], Path(row["root"])
     return check_name(home.name or DEFAULT_DATASET), home
 
 

@@ -248,6 +248,21 @@ def test_a_patch_size_the_visibility_budget_caps_is_said(shoot: Path) -> None:
     assert "--patch-size asks" not in again.output, again.output  # within the budget: nothing to say
 
 
+def test_a_subfolder_of_a_dataset_is_that_dataset(shoot: Path) -> None:
+    """Found on an installed ppd: after `ppd poison castle`, `ppd poison castle/sub` spoke of a
+    dataset "sub" that did not exist. A folder inside a known dataset's folder is that dataset:
+    a new photo there gets castle's spec and row."""
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    make_image(shoot / "sub" / "view20.png", 20)
+    result = runner.invoke(app, ["poison", str(shoot / "sub")])
+    assert result.exit_code == 0, result.output
+    assert "sub:" not in result.output and "castle: patched" in " ".join(result.output.split()), result.output
+    ctx = AppContext.open()
+    assert ctx.store.dataset("sub") is None
+    assert ctx.store.file(shoot / "sub" / "view20.png")["dataset"] == "castle"
+    ctx.close()
+
+
 def test_failures_give_nonzero_exit_and_lose_nothing(shoot: Path) -> None:
     (shoot / "broken.png").write_bytes(b"\x89PNG but truncated")
     result = runner.invoke(app, ["poison", str(shoot)])
