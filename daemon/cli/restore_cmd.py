@@ -84,7 +84,9 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
         word = restore_word(o)
         if word == "failed":
             err_console().print(f"ppd: not restored: {o.path}: {reason_text(o.reason)}", markup=False)
-        elif o.reason and (word not in ("restored", "unchanged", "removed") or verbosity() > 0):
+        elif verbosity() > 0:  # -v names each file (README), with its reason when it has one
+            console().print(f"{word} {o.path}" + (f": {o.reason}" if o.reason else ""), markup=False)
+        elif o.reason and word not in ("restored", "unchanged", "removed"):
             console().print(f"{word} {o.path}: {o.reason}", markup=False)
 
 

@@ -263,6 +263,18 @@ def test_a_subfolder_of_a_dataset_is_that_dataset(shoot: Path) -> None:
     ctx.close()
 
 
+def test_restore_v_names_each_file(shoot: Path) -> None:
+    """Found on an installed ppd: `ppd -v restore` listed no file, where the README says -v names each."""
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    quiet = runner.invoke(app, ["restore", str(shoot / "view0.png")])
+    assert quiet.exit_code == 0 and "view0.png" not in quiet.output, quiet.output
+    loud = runner.invoke(app, ["-v", "restore", "castle"])
+    assert loud.exit_code == 0, loud.output
+    lines = loud.output.splitlines()
+    for i in range(1, 4):
+        assert any(s.startswith("restored ") and s.endswith(f"view{i}.png") for s in lines), loud.output
+
+
 def test_failures_give_nonzero_exit_and_lose_nothing(shoot: Path) -> None:
     (shoot / "broken.png").write_bytes(b"\x89PNG but truncated")
     result = runner.invoke(app, ["poison", str(shoot)])
