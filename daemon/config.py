@@ -75,6 +75,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import os
 import re
 import tomllib
@@ -118,6 +119,8 @@ def parse_length(value: Any) -> int | float:
     text = str(value).strip()
     try:
         number = float(text[:-1]) / 100.0 if text.endswith("%") else float(text)
+        if not math.isfinite(number):  # inf, nan: no length (int() of them is a traceback)
+            raise ValueError(text)
     except ValueError:
         raise SpecError(  # noqa: B904 - the ValueError adds nothing to this message
             f"cannot read length {value!r}: use pixels (48), a fraction (0.06) or a percentage (6%)"

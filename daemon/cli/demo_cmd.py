@@ -150,13 +150,10 @@ def _write_preview(ctx: AppContext, protected: Path, out: Path) -> None:
         original = np.asarray(im.convert("RGB"))
     with Image.open(protected) as im:
         poisoned = np.asarray(im.convert("RGB"))
-    if spec.per_photo:  # where poison_file put it (issue 25), judged on the vault original's bytes
-        from poisoner.preview import planned_mark
+    from poisoner.preview import planned_mark
 
-        vault_copy = ctx.vault.path_for(row["original_sha256"])
-        placement, _place = planned_mark(vault_copy, spec, name=protected.name)
-    else:  # moving specs: by the file's name
-        placement = spec.resolve(original.shape[1], original.shape[0], image_key=protected.name)
+    # where poison_file put it (issue 25: per photo, or a corner as shown), judged on the vault original
+    placement, _place = planned_mark(ctx.vault.path_for(row["original_sha256"]), spec, name=protected.name)
     labels = ("original (vault)", f"patched ({protected.name})")
     Image.fromarray(render_preview(original, poisoned, placement, labels=labels)).save(out)
 

@@ -59,23 +59,30 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
         except (DatasetConflict, DatasetNameError) as exc:
             raise die(one_line(exc)) from None
         if out is not None:
-            check_out_outside(out, root)
+            check_out_outside(out, root, name, folder=target.is_dir())
         files = media_files(target) if target.is_dir() else [target]
         for f in files:
             out_path = None
-            if out is not None:
-                rel = f.relative_to(target) if target.is_dir() else Path(f.name)
-                out_path = (out.absolute() / name / rel) if target.is_dir() else out.absolute() / rel
+            if out is not None and target.is_dir():  # OUT/DATASET/<the file's path in the dataset>:
+                # a subfolder's copies never land on the dataset's other copies (OUT/castle/a.jpg)
+                rel = f.relative_to(root) if f.is_relative_to(root) else f.relative_to(target)
+                out_path = out.absolute() / name / rel
+            elif out is not None:
+                out_path = out.absolute() / f.name
             jobs.append(Job(f, name, root, out_path))
     return jobs
 
 
-def check_out_outside(out: Path, root: Path) -> None:
+def check_out_outside(out: Path, root: Path, name: str, *, folder: bool) -> None:
     """--out must lie outside the dataset's folder: copies inside it would be files of the dataset
-    they protect (counted as not patched yet, and a restore would put originals there)."""
-    where, folder = out.resolve(), root.resolve()
-    if where == folder or where.is_relative_to(folder):
+    they protect (counted as not patched yet, and a restore would put originals there); and a
+    folder's copies (OUT/NAME/...) must not land in it either (`--out` its parent: over the inputs)."""
+    where, source = out.resolve(), root.resolve()
+    copies = (out / name).resolve() if folder else where
+    if where == source or where.is_relative_to(source):
         raise die(f"--out {out} is inside the dataset's folder {root}: choose a folder outside it")
+    if copies == source or copies.is_relative_to(source) or source.is_relative_to(copies):
+        raise die(f"--out {out} would put the copies into the dataset's folder {root}: choose another")
 
 
 def check_dataset_roots(ctx: AppContext, jobs: list[Job]) -> None:
@@ -189,7 +196,9 @@ def without_nested(ctx: AppContext, jobs: list[Job]) -> tuple[list[Job], list[st
     for job in jobs:
         root, path = job.root.absolute(), job.path.absolute()
         holders = [(r, n) for r, n in roots.items() if r != root and path.is_relative_to(r)]
-        owner = next(((n, r) for r, n in holders if n != job.dataset and r.is_relative_to(root)), None)
+        nested = sorted(((r, n) for r, n in holders if n != job.dataset and r.is_relative_to(root)),
+                        key=lambda rn: -len(rn[0].parts))  # the innermost dataset holds the file  # fmt: skip
+        owner = (nested[0][1], nested[0][0]) if nested else None
         if owner is None:
             kept.append(job)
         else:

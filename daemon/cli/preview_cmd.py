@@ -68,9 +68,10 @@ def _load(path: Path) -> tuple[Any, int | None]:
 
 
 def _mark_of(spec: PatchSpec, source: Path, original: Any, file: Path, keep_out: Any) -> tuple[Any, Any]:
-    """(stored placement, MarkPlace or None): a per-photo spec judges the photo's own bytes exactly
-    as poison_file does (poisoner.preview.planned_mark), named as the file; a video its first frame."""
-    if spec.per_photo and not _is_video(file):
+    """(stored placement, MarkPlace or None): a photo's place exactly as poison_file decides it
+    (poisoner.preview.planned_mark: per photo, or a corner as the photo shows it), named as the
+    file; a video its first frame."""
+    if not _is_video(file):
         from poisoner.preview import planned_mark
 
         return planned_mark(source, spec, keep_out, name=file.name)

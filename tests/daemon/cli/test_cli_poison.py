@@ -138,6 +138,46 @@ def test_a_dataset_name_that_is_a_path_is_refused_and_nothing_is_written(
     ctx.close()
 
 
+def test_out_above_the_dataset_and_a_subfolder_run_never_write_over_anything(
+    shoot: Path, tmp_path: Path
+) -> None:
+    """Found in review: `--out` the folder holding the dataset put the copies (OUT/castle/...) over the
+    inputs; and a subfolder's copies went to OUT/castle/<name>, over the dataset's other copies."""
+    before = snapshot(shoot.parent)
+    result = runner.invoke(app, ["poison", str(shoot), "--out", str(shoot.parent)])
+    said = " ".join(result.output.split())
+    assert result.exit_code == 2 and "would put the copies into the dataset's folder" in said, said
+    assert snapshot(shoot.parent) == before
+    out = tmp_path / "pub"
+    assert runner.invoke(app, ["poison", str(shoot), "--out", str(out)]).exit_code == 0
+    make_image(shoot / "inner" / "view0.png", 30)  # the same name as a file one folder up
+    copies = snapshot(out)
+    result = runner.invoke(app, ["poison", str(shoot / "inner"), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    after = snapshot(out)
+    assert all(after[k] == v for k, v in copies.items())  # no earlier copy written over
+    assert "castle/inner/view0.png" in after
+
+
+def test_preview_puts_a_corner_mark_where_poison_does_on_a_phone_photo(tmp_path: Path) -> None:
+    """Found in review: `ppd preview` placed a corner spec on the stored pixels while `ppd poison`
+    places it as the photo shows (EXIF orientation 6); both now ask poison_file's own planner."""
+    from daemon.cli.preview_cmd import _load, _mark_of
+    from poisoner.formats import poison_file
+
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    src = tmp_path / "phone.jpg"
+    Image.fromarray(np.random.default_rng(0).integers(0, 256, (600, 800, 3), dtype=np.uint8)).save(
+        src, quality=90, exif=exif
+    )
+    spec = PatchSpec(position="top-left")
+    written = poison_file(src, tmp_path / "out.jpg", spec).placement
+    original, _orientation = _load(src)
+    shown, _place = _mark_of(spec, src, original, src, None)
+    assert shown == written and written.turn == 6
+
+
 def test_dry_run_changes_nothing(shoot: Path, ppd_env: dict[str, Path]) -> None:
     before = snapshot(shoot)
     result = runner.invoke(app, ["poison", str(shoot), "--dry-run", "--alpha", "0.5"])

@@ -109,6 +109,9 @@ def test_parse_length() -> None:
         with pytest.raises(ValueError, match="give a percentage under 100%"):
             parse_length(whole)
     assert parse_length("99%") == pytest.approx(0.99)
+    for nothing in ("inf", "1e400", "nan", "nan%", "-inf%"):  # found in review: a traceback, no option named
+        with pytest.raises(ValueError, match="cannot read length"):
+            parse_length(nothing)
 
 
 def test_dataset_of(tmp_path: Path) -> None:
