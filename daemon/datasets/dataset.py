@@ -108,7 +108,10 @@ def attribute(
         name = dataset_of(outbox, target / "x" if is_folder else target)
         return name, dataset_root(outbox, name)
     holders = [d for d in ctx.store.datasets() if home.is_relative_to(Path(d["root"]).absolute())]
-    if holders:  # a folder inside a known dataset's folder is that dataset's (`ppd poison FOLDER` covers it)
+    if holders:  # a folder whose files a dataset above it already holds is that dataset's (castle/day2)
+        holding = {r["dataset"] for r in ctx.store.files_under(home)}  # not any folder below a dataset's
+        holders = [d for d in holders if d["name"] in holding]  # root: one photo's ~/Desktop is no shoot
+    if holders:
         row = max(holders, key=lambda d: len(Path(d["root"]).absolute().parts))  # the innermost
         return row["name"], Path(row["root"])
     return check_name(home.name or DEFAULT_DATASET), home
