@@ -66,6 +66,7 @@ from poisoner.limits import DEFAULT_MAX_PIXELS, check_decode_budget
 from poisoner.mark_place import MarkPlace
 from poisoner.media import is_image
 from poisoner.orientation import INVERSE_ORIENTATION, display_size, orientation_of, turn_square
+from poisoner.placement import turned_to_stored
 from poisoner.provenance import Marker
 from poisoner.shrink import place_fitting
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
@@ -479,9 +480,7 @@ def _resolved_as_shown(
     if orientation == 1:
         return spec.resolve(width, height, image_key=name)
     dw, dh = display_size(width, height, orientation)
-    shown = spec.resolve(dw, dh, image_key=name)
-    x, y = turn_square(shown.x, shown.y, shown.size, INVERSE_ORIENTATION[orientation], dw, dh)
-    return replace(shown, x=x, y=y, turn=orientation)
+    return turned_to_stored(spec.resolve(dw, dh, image_key=name), orientation, (dw, dh))
 
 
 def _write_format(

@@ -403,8 +403,7 @@ def place_on_photo(
             return _placed(spec, (width, height), o, (image_key, index, crop), lanes, subject is not None,
                            spot.doubtful)  # fmt: skip
     shown = spec.resolve(dw, dh, image_key, index=index, anchor=(spot.x, spot.y), crop=crop)
-    x, y = turn_square(shown.x, shown.y, shown.size, INVERSE_ORIENTATION[o], dw, dh)
-    stored = dataclasses.replace(shown, x=x, y=y, turn=o)
+    stored = turned_to_stored(shown, o, (dw, dh))
     place = MarkPlace(shown.box, (dw, dh), source, spot.free, spot.detail, spot.subject, o, (spot.x, spot.y))
     return stored, place
 
@@ -473,8 +472,7 @@ def _placed(
     at = tuple((s.x, s.y) for s in lanes)
     image_key, index, crop = which
     shown = spec.resolve(dw, dh, image_key, index=index, lanes_at=at, crop=crop)
-    x, y = turn_square(shown.x, shown.y, shown.size, INVERSE_ORIENTATION[o], dw, dh)
-    stored = dataclasses.replace(shown, x=x, y=y, turn=o)
+    stored = turned_to_stored(shown, o, (dw, dh))
     free = all(s.free for s in lanes)
     if masked:
         source = "masks-split" if free else "no-free-masks"
@@ -485,6 +483,13 @@ def _placed(
     detail = max(s.detail for s in lanes)
     place = MarkPlace(shown.box, (dw, dh), source, free, detail, subject, o, at[0])
     return stored, place
+
+
+def turned_to_stored(shown: PatchPlacement, orientation: int, size: tuple[int, int]) -> PatchPlacement:
+    """A placement laid out on the picture as shown (size: its display w, h) turned back into the
+    stored pixels with the photo (PatchPlacement.turn: every writer honours it)."""
+    x, y = turn_square(shown.x, shown.y, shown.size, INVERSE_ORIENTATION[orientation], *size)
+    return dataclasses.replace(shown, x=x, y=y, turn=orientation)
 
 
 def stored_box_shown(placement: PatchPlacement, width: int, height: int) -> tuple[int, int, int, int]:

@@ -195,14 +195,13 @@ def without_nested(ctx: AppContext, jobs: list[Job]) -> tuple[list[Job], list[st
     left: dict[tuple[str, Path], int] = {}
     for job in jobs:
         root, path = job.root.absolute(), job.path.absolute()
-        holders = [(r, n) for r, n in roots.items() if r != root and path.is_relative_to(r)]
-        nested = sorted(((r, n) for r, n in holders if n != job.dataset and r.is_relative_to(root)),
-                        key=lambda rn: -len(rn[0].parts))  # the innermost dataset holds the file  # fmt: skip
-        owner = (nested[0][1], nested[0][0]) if nested else None
-        if owner is None:
+        inside = [(r, n) for r, n in roots.items() if r != root and r.is_relative_to(root)]
+        inner = [(r, n) for r, n in inside if n != job.dataset and path.is_relative_to(r)]
+        if not inner:
             kept.append(job)
-        else:
-            left[owner] = left.get(owner, 0) + 1
+            continue
+        folder, name = max(inner, key=lambda rn: len(rn[0].parts))  # the innermost dataset holds the file
+        left[(name, folder)] = left.get((name, folder), 0) + 1
     notes = []
     for (name, folder), n in sorted(left.items()):
         command = shlex.join(["ppd", "poison", str(folder)])
