@@ -50,7 +50,7 @@ import numpy as np
 from PIL import Image
 
 from poisoner import jpeg as jpeg_codec
-from poisoner import location, provenance
+from poisoner import jpeg_scan, location, provenance
 from poisoner.atomic import atomic_output
 from poisoner.blend import apply_patch_at, patch_coverage
 from poisoner.errors import ImageFormatError, MarkNotWritten
@@ -344,11 +344,19 @@ def _splice_jpeg(
     whether the MCUs in `holes` kept their coefficients (wherever libturbojpeg is there; without it
     jpegtran's drop re-encodes them from their own pixels). Raises SpliceUnavailable.
 
-    Cheapest first: one in-process coefficient pass (libturbojpeg), else jpegtran's lossless crop of the
-    box, else the box cut from the whole decoded picture; the three write the same bytes."""
+    Cheapest first: the bit-level splice (poisoner/jpeg_scan.py: one Huffman decode, every other MCU's
+    bits copied), else one in-process coefficient pass (libturbojpeg), else jpegtran's lossless crop of
+    the box, else the box cut from the whole decoded picture; the four write the same coefficients."""
     exact = jpeg_codec.turbo_available() is None
     if loaded:
         return jpeg_codec.splice_patch(src, im, layout, patch(np.asarray(im.crop(box))), box, holes), exact
+    try:
+        def encode(pixels: np.ndarray) -> bytes:
+            return jpeg_codec.encode_like(pixels, im, layout, metadata=False)
+
+        return jpeg_scan.patch_in_place(data, encode, box, patch, holes, parts), True
+    except jpeg_scan.Unsupported as exc:
+        log.info("jpeg bit-level splice unavailable", extra={"path": str(src), "reason": str(exc)})
     try:
         return jpeg_codec.patch_in_one_pass(data, im, layout, box, patch, holes, parts), True
     except jpeg_codec.SpliceUnavailable as exc:
@@ -416,6 +424,7 @@ def poison_file(
     out, preserved, notes, method, lossless, removed = _write_format(
         src, im, data, fmt, placement, keep, keep_location=keep_location, marker=marker, loaded=not region
     )
+    jpeg_scan.forget()  # the source's index (as large as the file) is done with
     if method == "jpeg-unchanged":  # whole MCUs near the mask are kept: none left to write
         raise MarkNotWritten(
             f"{src.name}: the subject mask reaches every 8x8 block of the mark, no pixel would change: "

@@ -1,6 +1,12 @@
 """JPEG, faithfully: put the patch in while changing as little of the file as possible.
 
-Three ways, best first:
+Four ways, best first:
+
+-1. The bit-level splice (poisoner/jpeg_scan.py, its C module poisoner/_jpeg_entropy.c): one
+   Huffman decode of the picture indexes every MCU; the patched MCUs are coded with the source's
+   own tables and every other MCU's bits are copied as they are. The same coefficients and, for a
+   source with libjpeg's standard tables, the same entropy-coded bytes as 0.; the source's header
+   bytes are kept as they are. Baseline files without restart markers only; the rest take 0.
 
 0. The same splice in one in-process pass (`patch_in_one_pass`, poisoner/jpeg_turbo.py): one
    libturbojpeg `tjTransform` call reads every coefficient once, writes the lossless crop of the
@@ -65,7 +71,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, JpegImagePlugin
 
-from poisoner.jpeg_parts import box_block_shapes, mcu_box, parts_cover, rows_taking_blocks
+from poisoner.jpeg_parts import box_block_shapes, crop_box, mcu_box, parts_cover, rows_taking_blocks
 
 log = logging.getLogger(__name__)
 
@@ -268,17 +274,6 @@ def jpegtran_binary() -> str | None:
     if override is not None:
         return override or None
     return shutil.which("jpegtran")
-
-
-def crop_box(box: tuple[int, int, int, int], layout: JpegLayout) -> tuple[int, int, int, int]:
-    """The MCU box grown by one MCU on every side (clipped): the lossless crop whose decode gives
-    the MCU box's pixels exactly as a whole-picture decode does. Fancy chroma upsampling reads one
-    chroma sample beyond a pixel's own, and a crop's border samples are replicated instead of
-    read from the neighbour, so the ring absorbs that; the IDCT is per block and colour
-    conversion per pixel."""
-    mw, mh = layout.mcu_size
-    x0, y0, x1, y1 = box
-    return (max(0, x0 - mw), max(0, y0 - mh), min(layout.width, x1 + mw), min(layout.height, y1 + mh))
 
 
 def _check_splice_layout(src: Image.Image, layout: JpegLayout) -> str:
@@ -579,6 +574,8 @@ def turbo_available() -> str | None:
 
 
 def splice_available() -> bool:
-    """Whether a JPEG can be patched without decoding the whole picture: the in-process pass or
-    jpegtran is there."""
-    return turbo_available() is None or jpegtran_binary() is not None
+    """Whether a JPEG can be patched without decoding the whole picture: the bit-level path
+    (poisoner/jpeg_scan.py), the in-process pass or jpegtran is there."""
+    from poisoner import jpeg_scan
+
+    return jpeg_scan.available() is None or turbo_available() is None or jpegtran_binary() is not None

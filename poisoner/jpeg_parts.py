@@ -42,6 +42,17 @@ def mcu_box(box: Box, layout: McuGrid) -> Box:
     )
 
 
+def crop_box(box: Box, layout: McuGrid) -> Box:
+    """The MCU box grown by one MCU on every side (clipped): the lossless crop whose decode gives
+    the MCU box's pixels exactly as a whole-picture decode does. Fancy chroma upsampling reads one
+    chroma sample beyond a pixel's own, and a crop's border samples are replicated instead of
+    read from the neighbour, so the ring absorbs that; the IDCT is per block and colour
+    conversion per pixel."""
+    mw, mh = layout.mcu_size
+    x0, y0, x1, y1 = box
+    return (max(0, x0 - mw), max(0, y0 - mh), min(layout.width, x1 + mw), min(layout.height, y1 + mh))
+
+
 def box_block_shapes(layout: McuGrid, box: Box) -> list[tuple[int, int]]:
     """(block rows, block columns) per component of `box` encoded alone, as
     poisoner.jpeg_turbo.read_blocks gives them: the rows run to a whole MCU row, the columns to the

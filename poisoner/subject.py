@@ -250,7 +250,9 @@ def _grey_thumbnail(im: Image.Image) -> np.ndarray:
     import numpy as np
     from PIL import Image
 
-    im.draft("RGB", (THUMBNAIL_PX, THUMBNAIL_PX))  # JPEG: a scaled DCT decode, much cheaper
+    # JPEG: a scaled DCT decode of the luma alone, much cheaper; at 1/8 it is the luma blocks' DC
+    # values, which _jpeg_dc_thumbnail reads without Pillow (the same pixels).
+    im.draft("L", (THUMBNAIL_PX, THUMBNAIL_PX))
     im.thumbnail((THUMBNAIL_PX, THUMBNAIL_PX), Image.Resampling.BOX)
     if "A" in im.getbands() or "transparency" in im.info:
         rgba = im.convert("RGBA")
@@ -299,10 +301,30 @@ def display_details(
             orientation = orientation_of(decoded.getexif().get(0x0112))
         else:
             with Image.open(io.BytesIO(data)) as im:
-                grad = _gradient(_grey_thumbnail(im))
+                grey = _jpeg_dc_thumbnail(data, im.size) if im.format == "JPEG" else None
+                grad = _gradient(_grey_thumbnail(im) if grey is None else grey)
                 orientation = orientation_of(im.getexif().get(0x0112))
     faint = orient_array(grad > FAINT_LEVEL, orientation)
     return orient_array(grad > DETAIL_LEVEL, orientation), faint, orientation
+
+
+def _jpeg_dc_thumbnail(data: bytes, size: tuple[int, int]) -> np.ndarray | None:
+    """_grey_thumbnail of a JPEG that Pillow would decode at 1/8, from the luma DC values of the
+    bit-level index (poisoner/jpeg_scan.py), which the splice then reuses: one Huffman decode of the
+    picture for both. None where that path cannot take the file (Pillow's decode then)."""
+    import numpy as np
+    from PIL import Image
+
+    from poisoner import jpeg_scan
+
+    if jpeg_scan.thumbnail_scale(*size, THUMBNAIL_PX) != jpeg_scan.THUMBNAIL_SCALE:
+        return None
+    try:
+        grey = Image.fromarray(jpeg_scan.luma_thumbnail(jpeg_scan.index(data)))
+    except jpeg_scan.Unsupported:
+        return None
+    grey.thumbnail((THUMBNAIL_PX, THUMBNAIL_PX), Image.Resampling.BOX)
+    return np.asarray(grey, dtype=np.float64)
 
 
 def reuses_decode(im: Image.Image) -> bool:

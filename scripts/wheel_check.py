@@ -3,7 +3,8 @@
     python scripts/wheel_check.py CHECKOUT WHEEL [SDIST]
 
 Expected: every `*.py` under each folder of daemon/, poisoner/, verifier/ that has an
-`__init__.py` (a package), and every file pyproject's [tool.setuptools.package-data] names. Prints
+`__init__.py` (a package), every file pyproject's [tool.setuptools.package-data] names, and each C
+source's compiled module (setup.py; the sdist holds the source). Prints
 the packages found in the wheel; exit 1 naming each missing file (a package list in pyproject that
 misses a subpackage, a data file not declared) and each file of the code ppd's packages never ship
 (testkit/, tests/, bench/: the tests' and benchmarks' own). Used by scripts/wheel_smoke.sh and
@@ -41,6 +42,17 @@ def expected_files(root: Path) -> list[str]:
     return sorted(set(found))
 
 
+def extension_sources(root: Path) -> list[str]:
+    """The C sources of the packages' compiled modules (setup.py builds each into <its name>.*.so)."""
+    return sorted(p.relative_to(root).as_posix() for top in TOP for p in (root / top).rglob("*.c"))
+
+
+def holds_extension(names: set[str], source: str) -> bool:
+    """Whether a wheel holds the compiled module of a C source (poisoner/_x.c: poisoner/_x.<tag>.so)."""
+    stem = source[: -len(".c")] + "."
+    return any(n.startswith(stem) and n.endswith((".so", ".pyd")) for n in names)
+
+
 def wheel_names(wheel: Path) -> set[str]:
     with zipfile.ZipFile(wheel) as z:
         return set(z.namelist())
@@ -66,6 +78,11 @@ def main(argv: list[str]) -> int:
     if len(argv) == 3:
         archives[Path(argv[2]).name] = sdist_names(Path(argv[2]))
     missing = [f"{name}: {path}" for name, held in archives.items() for path in expected if path not in held]
+    for source in extension_sources(root):  # the wheel holds it compiled, the sdist as source
+        if not holds_extension(archives[wheel.name], source):
+            missing.append(f"{wheel.name}: {source} compiled (no C compiler at build?)")
+        sdists = [name for name in archives if name != wheel.name]
+        missing += [f"{name}: {source}" for name in sdists if source not in archives[name]]
     extra = sorted(n for n in archives[wheel.name] if n.startswith(NOT_SHIPPED))
     print(f"{wheel.name}: packages " + " ".join(packages_in(archives[wheel.name])))
     for line in missing:

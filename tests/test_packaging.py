@@ -30,10 +30,10 @@ def test_the_wheel_holds_every_package_and_data_file(tmp_path: Path) -> None:
     the script CI uses; a `packages = [...]` list that misses daemon/cli, or a discovery that takes
     testkit (the tests' and benchmarks' helpers) in, fails here."""
     src = tmp_path / "src"
-    skip = shutil.ignore_patterns("__pycache__", "*.pyc")
+    skip = shutil.ignore_patterns("__pycache__", "*.pyc", "*.so")  # the build compiles its own
     for top in ("daemon", "poisoner", "verifier", "testkit"):  # testkit: found by discovery, yet not shipped
         shutil.copytree(REPO / top, src / top, ignore=skip)
-    for name in ("pyproject.toml", "README.md"):
+    for name in ("pyproject.toml", "setup.py", "README.md"):
         shutil.copy(REPO / name, src / name)
     built = subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "-v", "--no-deps", "--no-build-isolation", "-w", str(tmp_path),
@@ -55,6 +55,8 @@ def test_the_wheel_holds_every_package_and_data_file(tmp_path: Path) -> None:
 
     with zipfile.ZipFile(wheel) as z:
         assert "daemon/ppd.service.in" in z.namelist()
+        # the bit-level JPEG splice, compiled (wheel_check names it too): without it ppd runs, slower
+        assert any(n.startswith("poisoner/_jpeg_entropy.") and n.endswith(".so") for n in z.namelist())
         entry = z.read(next(n for n in z.namelist() if n.endswith("entry_points.txt"))).decode()
     assert "ppd = daemon.cli:app" in entry
 

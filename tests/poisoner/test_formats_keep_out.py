@@ -311,6 +311,7 @@ def test_jpeg_diagonal_mask_jpegtran_path(tmp_path: Path, monkeypatch: pytest.Mo
     """Without the in-process pass, unwritten MCUs inside the box are re-encoded from their own
     pixels: the masked pixels move by the codec's rounding only, never by the mark."""
     monkeypatch.setenv(jpeg_turbo.TURBOJPEG_ENV, "")
+    monkeypatch.setenv("PPD_JPEG_SCAN", "")  # nor the bit-level splice
     src, dst = tmp_path / "a.jpg", tmp_path / "out.jpg"
     before = write_jpeg(src, "420")
     mask = diagonal_mask()

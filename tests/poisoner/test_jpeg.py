@@ -163,6 +163,7 @@ def test_fallback_reencode_keeps_tables_and_metadata(tmp_path: Path, monkeypatch
 def test_fallback_when_jpegtran_refuses(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(jpeg_codec.JPEGTRAN_ENV, "/bin/false")
     monkeypatch.setenv("PPD_TURBOJPEG", "")  # and no in-process pass
+    monkeypatch.setenv("PPD_JPEG_SCAN", "")  # nor the bit-level one
     src, dst = tmp_path / "a.jpg", tmp_path / "out.jpg"
     write_jpeg(src, camera_like(), quality=80)
     report = poison_file(src, dst, SPEC)

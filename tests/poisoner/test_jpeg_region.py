@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from poisoner import formats
+from poisoner import formats, jpeg_scan
 from poisoner import jpeg as jpeg_codec
 from poisoner.formats import ImageFormatError, poison_file
 from poisoner.ladder import default_spec
@@ -40,6 +40,13 @@ SPECS = {
     "bottom-right": PatchSpec(patch_size=29, block_size=5, position="bottom-right"),
     "product-default": default_spec(),
 }
+
+
+@pytest.fixture(autouse=True)
+def _libjpeg_paths(monkeypatch: pytest.MonkeyPatch) -> None:
+    """These tests are about libjpeg-turbo's paths: the bit-level splice, which poison_file takes
+    first, is off (tests/poisoner/test_jpeg_scan.py tests it against them)."""
+    monkeypatch.setenv(jpeg_scan.SCAN_ENV, "")
 
 
 def write_case(path: Path, case: str, seed: int = 0) -> None:

@@ -14,7 +14,7 @@ import pytest
 from PIL import Image
 
 from poisoner import jpeg as jpeg_codec
-from poisoner import jpeg_turbo
+from poisoner import jpeg_scan, jpeg_turbo
 from poisoner.blend import apply_patch
 from poisoner.ladder import default_spec
 from poisoner.spec import PatchSpec
@@ -40,6 +40,13 @@ SPECS = {
     "bottom-right": PatchSpec(patch_size=29, block_size=5, position="bottom-right"),
     "product-default": default_spec(),
 }
+
+
+@pytest.fixture(autouse=True)
+def _libjpeg_paths(monkeypatch: pytest.MonkeyPatch) -> None:
+    """These tests are about libjpeg-turbo's paths: the bit-level splice, which poison_file takes
+    first, is off (tests/poisoner/test_jpeg_scan.py tests it against them)."""
+    monkeypatch.setenv(jpeg_scan.SCAN_ENV, "")
 
 
 def write_case(path: Path, case: str, seed: int = 0, **extra: object) -> bytes:

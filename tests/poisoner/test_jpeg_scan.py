@@ -1,0 +1,277 @@
+"""The bit-level JPEG splice (poisoner/jpeg_scan.py over poisoner/_jpeg_entropy.c), checked against
+libjpeg-turbo: poison_file writes the coefficients libjpeg-turbo's path writes (same pixels, same
+blocks, the same entropy-coded bytes), the placement thumbnail from the luma DCs is the picture
+libjpeg's 1/8 greyscale decode gives, anything the path does not handle goes to libjpeg-turbo's path,
+and no byte string makes the C code crash (a child process fuzzes it)."""
+
+from __future__ import annotations
+
+import io
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from poisoner import jpeg as jpeg_codec
+from poisoner import jpeg_scan, jpeg_turbo
+from poisoner.formats import poison_file
+from poisoner.ladder import default_spec
+from poisoner.spec import PatchSpec
+from poisoner.subject import display_details
+from testkit.photos import gps_exif, textured
+
+needs_turbo = pytest.mark.skipif(jpeg_codec.turbo_available() is not None, reason="libturbojpeg missing")
+
+# (size, save options): every sampling, greyscale, sizes that are no multiple of the MCU.
+CASES = {
+    "444": ((331, 250), {"subsampling": 0}),
+    "422": ((320, 241), {"subsampling": 1}),
+    "420": ((333, 247), {"subsampling": 2}),
+    "grey": ((250, 190), {"grey": True}),
+}
+SPECS = {
+    "bottom-right": PatchSpec(patch_size=29, block_size=5, position="bottom-right"),
+    "center": PatchSpec(patch_size=37, block_size=4, position="center"),
+    "product-default": default_spec(),  # per photo, two squares: patched a part at a time
+}
+
+
+def write_case(path: Path, case: str, seed: int = 0, **extra: object) -> bytes:
+    (w, h), opts = CASES[case]
+    opts = {**opts, **extra}
+    im = Image.fromarray(textured(h, w, seed))
+    if opts.pop("grey", False):
+        im = im.convert("L")
+    im.save(path, "JPEG", quality=90, exif=gps_exif(), comment=b"scan test", **opts)
+    return path.read_bytes()
+
+
+def scan_bytes(data: bytes) -> bytes:
+    """The entropy-coded data, SOS header to EOI."""
+    return data[jpeg_scan.parse(data).scan_start :]
+
+
+def test_the_extension_is_built_here() -> None:
+    """The README's set-up compiles it (setup.py); without it ppd still works, at libjpeg-turbo's cost."""
+    assert jpeg_scan.available() is None
+
+
+@needs_turbo
+@pytest.mark.parametrize("spec", sorted(SPECS))
+@pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.parametrize("seed", [1, 3])
+def test_poison_file_writes_what_libjpeg_turbo_writes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, case: str, spec: str, seed: int
+) -> None:
+    src = tmp_path / f"IMG_{seed:04d}.jpg"
+    write_case(src, case, seed)
+    spliced: list[int] = []
+    real = jpeg_scan.splice
+    monkeypatch.setattr(jpeg_scan, "splice", lambda ix, data, which, coef: spliced.append(len(which)) or real(
+        ix, data, which, coef))  # fmt: skip
+    ours = poison_file(src, tmp_path / "scan.jpg", SPECS[spec])
+    assert spliced and spliced[0] > 0, "the bit-level path was not taken"
+    monkeypatch.setenv(jpeg_scan.SCAN_ENV, "")
+    theirs = poison_file(src, tmp_path / "turbo.jpg", SPECS[spec])
+    assert len(spliced) == 1 and ours.method == theirs.method == "jpeg-dct-splice"
+    assert ours.placement == theirs.placement
+    a, b, s = ((tmp_path / n).read_bytes() for n in ("scan.jpg", "turbo.jpg", src.name))
+    for x, y in zip(jpeg_turbo.read_blocks(a), jpeg_turbo.read_blocks(b), strict=True):
+        assert np.array_equal(x, y)
+    assert scan_bytes(a) == scan_bytes(b) != scan_bytes(s)
+    assert jpeg_codec.read_layout(a).segments == jpeg_codec.read_layout(b).segments  # marker, no GPS
+    assert np.array_equal(np.asarray(Image.open(io.BytesIO(a))), np.asarray(Image.open(io.BytesIO(b))))
+
+
+@needs_turbo
+@pytest.mark.parametrize("case", ["420", "444", "grey"])
+def test_mcus_the_keep_out_mask_reaches_keep_their_bits(tmp_path: Path, case: str) -> None:
+    """A subject mask reaching into the mark's box: those MCUs are never re-coded, so every pixel
+    of the subject decodes exactly as before, and the file equals libjpeg-turbo's."""
+    src = tmp_path / "a.jpg"
+    write_case(src, case)
+    w, h = CASES[case][0]
+    x0, y0, x1, y1 = SPECS["bottom-right"].resolve(w, h).box
+    yy, xx = np.mgrid[0:h, 0:w]
+    mask = ((xx - x0) + (yy - y0) < (x1 - x0) // 2).astype(np.uint8)  # the subject reaches into the mark
+    ours = poison_file(src, tmp_path / "scan.jpg", SPECS["bottom-right"], keep_out=mask)
+    assert any("coefficients copied" in n for n in ours.notes), ours.notes
+    before, after = (np.asarray(Image.open(p)).astype(int) for p in (src, tmp_path / "scan.jpg"))
+    assert np.array_equal(before[mask > 0], after[mask > 0]) and not np.array_equal(before, after)
+
+
+def test_box_at_every_edge_and_overlapping_parts(tmp_path: Path) -> None:
+    """patch_in_place against libjpeg-turbo's pass on boxes touching each edge of a picture whose
+    size is no multiple of the MCU (partial MCUs, dummy blocks), and on two parts sharing an MCU."""
+    data = write_case(tmp_path / "a.jpg", "420", 5)
+    im, layout = Image.open(io.BytesIO(data)), jpeg_codec.read_layout(data)
+
+    def patch(px: np.ndarray, _part: object = None) -> np.ndarray:
+        out = px.copy()
+        out[::3, ::2] = 255 - out[::3, ::2]
+        return out
+
+    def encode(px: np.ndarray) -> bytes:
+        return jpeg_codec.encode_like(px, im, layout, metadata=False)
+
+    w, h = im.size
+    edges = [(0, 0, 48, 32), (w - w % 16, h - h % 16, w, h), (16, h - h % 16 - 16, w, h), (96, 64, 160, 96)]
+    for box in edges:
+        ours = jpeg_scan.patch_in_place(data, encode, box, patch)
+        theirs = jpeg_codec.patch_in_one_pass(data, im, layout, box, patch)
+        assert scan_bytes(ours) == scan_bytes(theirs), box
+    parts = [(96, 64, 144, 96), (128, 64, 160, 96)]  # both hold the MCU at x 128..144
+    ours = jpeg_scan.patch_in_place(data, encode, (96, 64, 160, 96), patch, parts=parts)
+    assert scan_bytes(ours) == scan_bytes(jpeg_scan.patch_in_place(data, encode, (96, 64, 160, 96), patch))
+
+
+@pytest.mark.parametrize("size", [(2100, 2060), (2333, 2049), (4100, 2300)])
+@pytest.mark.parametrize("grey", [False, True])
+def test_luma_thumbnail_is_libjpegs_eighth_scale_grey_decode(tmp_path: Path, size: tuple, grey: bool) -> None:
+    w, h = size
+    im = Image.fromarray(textured(h, w, 2))
+    (im.convert("L") if grey else im).save(tmp_path / "big.jpg", "JPEG", quality=85)
+    data = (tmp_path / "big.jpg").read_bytes()
+    with Image.open(io.BytesIO(data)) as pil:
+        pil.draft("L", (256, 256))
+        assert pil.size == (-(-w // 8), -(-h // 8))
+        expected = np.asarray(pil)
+    assert np.array_equal(jpeg_scan.luma_thumbnail(jpeg_scan.index(data)), expected)
+
+
+def test_placement_judges_the_same_thumbnail_either_way(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """ppd poison (which reads the DCs) and a machine without the extension (Pillow's decode) place the
+    mark on the same detail map."""
+    Image.fromarray(textured(2080, 2600, 4)).save(tmp_path / "big.jpg", "JPEG", quality=88)
+    data = (tmp_path / "big.jpg").read_bytes()
+    with_scan = display_details(data, "big.jpg")
+    jpeg_scan.forget()
+    monkeypatch.setenv(jpeg_scan.SCAN_ENV, "")
+    without = display_details(data, "big.jpg")
+    assert all(np.array_equal(x, y) for x, y in zip(with_scan[:2], without[:2], strict=True))
+    assert with_scan[0].any() and not with_scan[0].all()
+
+
+@needs_turbo
+@pytest.mark.parametrize(
+    "kind, options",
+    [
+        ("progressive", {"progressive": True}),
+        ("restart markers", {"restart_marker_blocks": 2}),
+        ("CMYK", {}),
+    ],
+)
+def test_files_it_does_not_handle_go_to_libjpeg_turbo(tmp_path: Path, kind: str, options: dict) -> None:
+    src = tmp_path / "a.jpg"
+    im = Image.fromarray(textured(200, 240))
+    (im.convert("CMYK") if kind == "CMYK" else im).save(src, "JPEG", quality=90, **options)
+    with pytest.raises(jpeg_scan.Unsupported):
+        jpeg_scan.index(src.read_bytes())
+    if kind != "CMYK":  # ppd refuses CMYK JPEG anyway
+        report = poison_file(src, tmp_path / "out.jpg", SPECS["center"])
+        assert report.method == "jpeg-dct-splice"
+
+
+def test_optimised_tables_kept_or_handed_on(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A source with optimised Huffman tables: the new blocks are coded with its tables where they hold
+    every symbol needed, else libjpeg's path re-optimises; either way the coefficients are the same."""
+    src = tmp_path / "a.jpg"
+    Image.fromarray(textured(240, 320, 7)).save(src, "JPEG", quality=90, optimize=True)
+    ours = (poison_file(src, tmp_path / "scan.jpg", SPECS["center"]), (tmp_path / "scan.jpg").read_bytes())
+    monkeypatch.setenv(jpeg_scan.SCAN_ENV, "")
+    poison_file(src, tmp_path / "turbo.jpg", SPECS["center"])
+    theirs = (tmp_path / "turbo.jpg").read_bytes()
+    for x, y in zip(jpeg_turbo.read_blocks(ours[1]), jpeg_turbo.read_blocks(theirs), strict=True):
+        assert np.array_equal(x, y)
+
+
+def test_the_c_calls_refuse_bad_arguments() -> None:
+    from poisoner import _jpeg_entropy as c  # type: ignore[attr-defined]
+
+    data = write_case_bytes()
+    ix = jpeg_scan.index(data)
+    lay = ix.layout
+    with pytest.raises(ValueError, match="increase"):
+        c.splice(ix.clean, ix.nbytes, lay.coding, lay.tables, ix.offsets, ix.dc,
+                 np.array([3, 2], dtype=np.int64), np.zeros((2, 6, 64), np.int16))  # fmt: skip
+    with pytest.raises(ValueError, match="buffer"):
+        c.splice(ix.clean, ix.nbytes, lay.coding, lay.tables, ix.offsets, ix.dc,
+                 np.array([3], dtype=np.int64), np.zeros((1, 2, 64), np.int16))  # fmt: skip
+    with pytest.raises(ValueError, match="padding"):
+        c.decode(ix.clean[:-2000], ix.nbytes, lay.coding, lay.tables, ix.offsets, ix.dc,
+                 np.array([0], dtype=np.int64), np.zeros((1, 6, 64), np.int16))  # fmt: skip
+    with pytest.raises(ValueError, match="Huffman"):
+        c.encode(np.zeros((1, 6, 64), np.int16), lay.coding, (b"\x05" * 16 + b"\x00" * 80, *lay.tables[1:]))
+
+
+def test_a_table_libjpeg_refuses_is_refused() -> None:
+    """A DC table holding a symbol above 15 (one no block uses): libjpeg refuses the file, so does
+    this path (found by tests/poisoner/test_properties.py's fuzzing), and never writes it."""
+    data = bytearray(write_case_bytes())
+    at = data.index(b"\xff\xc4")
+    assert data[at + 4] == 0x00  # Pillow's first table: DC 0
+    values = at + 4 + 17
+    data[values + sum(data[at + 5 : at + 21]) - 1] = 16
+    with pytest.raises(jpeg_scan.Unsupported, match="Huffman"):
+        jpeg_scan.index(bytes(data))
+
+
+def write_case_bytes() -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(textured(64, 96, 9)).save(buf, "JPEG", quality=90)
+    return buf.getvalue()
+
+
+FUZZ = textwrap.dedent(
+    """
+    import io, sys
+    import numpy as np
+    from PIL import Image
+    from poisoner import jpeg, jpeg_scan
+    from testkit.photos import textured
+    buf = io.BytesIO()
+    Image.fromarray(textured(72, 104, 1)).save(buf, "JPEG", quality=85)
+    seed = buf.getvalue()
+    start = jpeg_scan.parse(seed).scan_start
+    rng = np.random.default_rng(int(sys.argv[1]))
+    counts = {"refused": 0, "written": 0}
+    for trial in range(int(sys.argv[2])):
+        data = bytearray(seed)
+        for _ in range(int(rng.integers(1, 4))):  # header bytes a third of the time, scan bytes else
+            pos = int(rng.integers(2, start)) if rng.random() < 0.33 else int(rng.integers(start, len(data)))
+            data[pos] = int(rng.integers(0, 256))
+        if rng.random() < 0.2:
+            data = data[: int(rng.integers(2, len(data)))]
+        data = bytes(data)
+        jpeg_scan.forget()
+        try:
+            im = Image.open(io.BytesIO(data))
+            layout = jpeg.read_layout(data)
+            out = jpeg_scan.patch_in_place(
+                data, lambda px: jpeg.encode_like(px, im, layout, metadata=False), (16, 16, 48, 48),
+                lambda px, _part: 255 - px)
+        except (jpeg_scan.Unsupported, OSError, ValueError, SyntaxError):
+            counts["refused"] += 1
+            continue
+        Image.open(io.BytesIO(out)).load()  # what it wrote, libjpeg decodes
+        counts["written"] += 1
+    print(counts["refused"], counts["written"])
+    """
+)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_no_byte_string_crashes_it(seed: int) -> None:
+    """Corrupt headers and scans, truncations: each is refused (libjpeg's path then judges it) or
+    written as a file libjpeg decodes; the child process never dies of a signal."""
+    done = subprocess.run([sys.executable, "-c", FUZZ, str(seed), "400"], capture_output=True, text=True,
+                          timeout=300, cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    refused, written = map(int, done.stdout.split())
+    assert refused + written == 400 and refused > 50 and written > 50
