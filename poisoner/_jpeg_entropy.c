@@ -242,6 +242,42 @@ static int decode_block(Reader *r, const Huff *dc, const Huff *ac, int32_t *dc_d
     return 0;
 }
 
+/* One block skipped (index): only its DC difference is kept. A symbol and its value take one
+ * shift; the accumulator is refilled only when fewer than 32 bits are left. Same acceptance as
+ * decode_block. */
+static inline int skip_block(Reader *r, const Huff *dc, const Huff *ac, int32_t *dc_diff)
+{
+    fill(r);
+    int s = get_symbol(r, dc);
+    if (s < 0 || s > 15) return -1;
+    *dc_diff = s ? get_value(r, s) : 0;
+    for (int k = 1; k < 64;) {
+        if (r->n < 32) fill(r);
+        unsigned e = ac->look[r->acc >> 55];
+        int rs;
+        if (e >> 8) {
+            rs = e & 0xFF;
+            consume(r, (int)(e >> 8) + (rs & 15));
+        } else {
+            rs = get_symbol(r, ac);
+            if (rs < 0) return -1;
+            consume(r, rs & 15);
+        }
+        int run = rs >> 4;
+        if (rs & 15) {
+            k += run;
+            if (k > 63) return -1;
+            k++;
+        } else if (run == 15) {
+            k += 16;
+        } else {
+            break;
+        }
+    }
+    if (reader_pos(r) > r->nbits) return -1;
+    return 0;
+}
+
 /* ---- bits out --------------------------------------------------------------------------------- */
 typedef struct {
     uint8_t *buf;
@@ -531,7 +567,7 @@ static PyObject *py_index(PyObject *self, PyObject *args)
         for (int b = 0; b < c->bpm; b++) {
             int ci = c->comp_of[b];
             int32_t diff;
-            if (decode_block(&r, c->dc[ci], c->ac[ci], &diff, NULL) < 0) {
+            if (skip_block(&r, c->dc[ci], c->ac[ci], &diff) < 0) {
                 bad = 1;
                 break;
             }
