@@ -603,6 +603,40 @@ static int check_offsets(const int64_t *off, Py_ssize_t n_mcus, uint64_t nbits)
     return 0;
 }
 
+/* What decode and splice share: the coding, a reader on the clean stream, and the index (offsets,
+ * dc), the MCU numbers (in the picture; increasing for a splice) and the coefficient buffer (one MCU's
+ * blocks per number) checked against each other and the stream. NULL, an exception set, when
+ * something does not fit. */
+static Coding *open_indexed(PyObject *comps, PyObject *tables, Py_buffer *clean, Py_ssize_t nbytes,
+                            Py_buffer *offsets, Py_buffer *dcs, Py_buffer *mcus, Py_buffer *coefs, int increasing,
+                            Reader *r)
+{
+    Coding *c = malloc(sizeof(Coding));
+    if (!c) {
+        PyErr_NoMemory();
+        return NULL;
+    }
+    if (parse_coding(c, comps, tables) < 0 || reader_from(r, clean, nbytes) < 0) goto fail;
+    Py_ssize_t n_mcus = offsets->len / 8 - 1, count = mcus->len / 8;
+    if (n_mcus < 1 || check_buffer(dcs, n_mcus * c->bpm * 2, "dc") < 0 ||
+        check_buffer(coefs, count * c->bpm * 128, "coef") < 0)
+        goto fail;
+    const int64_t *off = offsets->buf, *which = mcus->buf;
+    if (check_offsets(off, n_mcus, r->nbits) < 0) {
+        PyErr_SetString(PyExc_ValueError, "offsets do not fit the stream");
+        goto fail;
+    }
+    for (Py_ssize_t i = 0; i < count; i++)
+        if (which[i] < 0 || which[i] >= n_mcus || (increasing && i && which[i] <= which[i - 1])) {
+            PyErr_SetString(PyExc_ValueError, "MCU numbers must lie in the picture (and increase, to splice)");
+            goto fail;
+        }
+    return c;
+fail:
+    free(c);
+    return NULL;
+}
+
 PyDoc_STRVAR(decode_doc,
              "decode(clean, nbytes, comps, tables, offsets, dc, mcus, out): the coefficients of the MCUs\n"
              "whose indices are in mcus (int64), into out (int16, len(mcus) x blocks per MCU x 64, natural\n"
@@ -616,32 +650,17 @@ static PyObject *py_decode(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "y*nOOy*y*y*w*", &clean, &nbytes, &comps, &tables, &offsets, &dcs, &mcus, &out))
         return NULL;
     PyObject *result = NULL;
-    Coding *c = malloc(sizeof(Coding));
     Reader r;
-    if (!c) {
-        PyErr_NoMemory();
-        goto done;
-    }
-    if (parse_coding(c, comps, tables) < 0 || reader_from(&r, &clean, nbytes) < 0) goto done;
-    Py_ssize_t n_mcus = offsets.len / 8 - 1, count = mcus.len / 8;
-    if (n_mcus < 1 || check_buffer(&dcs, n_mcus * c->bpm * 2, "dc") < 0 ||
-        check_buffer(&out, count * c->bpm * 128, "out") < 0)
-        goto done;
+    Coding *c = open_indexed(comps, tables, &clean, nbytes, &offsets, &dcs, &mcus, &out, 0, &r);
+    if (!c) goto done;
     const int64_t *off = offsets.buf, *which = mcus.buf;
     const int16_t *dc = dcs.buf;
     int16_t *coef = out.buf;
-    if (check_offsets(off, n_mcus, r.nbits) < 0) {
-        PyErr_SetString(PyExc_ValueError, "offsets do not fit the stream");
-        goto done;
-    }
+    Py_ssize_t count = mcus.len / 8;
     memset(coef, 0, (size_t)(count * c->bpm * 128));
     int bad = 0;
     for (Py_ssize_t i = 0; i < count && !bad; i++) {
         int64_t m = which[i];
-        if (m < 0 || m >= n_mcus) {
-            bad = 1;
-            break;
-        }
         seek(&r, (uint64_t)off[m]);
         for (int b = 0; b < c->bpm; b++) {
             int ci = c->comp_of[b];
@@ -743,29 +762,13 @@ static PyObject *py_splice(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "y*nOOy*y*y*y*", &clean, &nbytes, &comps, &tables, &offsets, &dcs, &mcus, &coefs))
         return NULL;
     PyObject *result = NULL;
-    Coding *c = malloc(sizeof(Coding));
     Writer w = {0};
     Reader r;
-    if (!c) {
-        PyErr_NoMemory();
-        goto done;
-    }
-    if (parse_coding(c, comps, tables) < 0 || reader_from(&r, &clean, nbytes) < 0) goto done;
+    Coding *c = open_indexed(comps, tables, &clean, nbytes, &offsets, &dcs, &mcus, &coefs, 1, &r);
+    if (!c) goto done;
     Py_ssize_t n_mcus = offsets.len / 8 - 1, count = mcus.len / 8;
-    if (n_mcus < 1 || check_buffer(&dcs, n_mcus * c->bpm * 2, "dc") < 0 ||
-        check_buffer(&coefs, count * c->bpm * 128, "coef") < 0)
-        goto done;
     const int64_t *off = offsets.buf, *which = mcus.buf;
     const int16_t *dc = dcs.buf, *coef = coefs.buf;
-    if (check_offsets(off, n_mcus, r.nbits) < 0) {
-        PyErr_SetString(PyExc_ValueError, "offsets do not fit the stream");
-        goto done;
-    }
-    for (Py_ssize_t i = 0; i < count; i++)
-        if (which[i] < 0 || which[i] >= n_mcus || (i && which[i] <= which[i - 1])) {
-            PyErr_SetString(PyExc_ValueError, "MCU indices must increase and lie in the picture");
-            goto done;
-        }
     if (writer_init(&w, (size_t)nbytes + 4096) < 0) {
         PyErr_NoMemory();
         goto done;

@@ -99,24 +99,17 @@ _KNOWN = frozenset({0xC0, 0xC1, 0xC4, 0xDA, 0xDB, 0xDD, 0xFE, *range(0xE0, 0xF0)
 
 def parse(data: bytes) -> ScanLayout:
     """The header up to the scan, or Unsupported (the reason) when this path cannot take it."""
-    if data[:2] != b"\xff\xd8":
-        raise Unsupported("not a JPEG")
-    pos = 2
+    from poisoner.location import MetadataParseError, jpeg_header_segments
+
+    try:
+        segments, sos = jpeg_header_segments(data)
+    except MetadataParseError as exc:
+        raise Unsupported(str(exc)) from exc
     tables: list[bytes | None] = [None] * 8
     quant: dict[int, bytes] = {}
     dqt: list[bytes] = []
     frame: bytes | None = None
-    while pos + 4 <= len(data):
-        if data[pos] != 0xFF:
-            raise Unsupported(f"marker expected at byte {pos}")
-        marker = data[pos + 1]
-        if marker == 0xFF:
-            pos += 1
-            continue
-        (length,) = struct.unpack(">H", data[pos + 2 : pos + 4])
-        payload = data[pos + 4 : pos + 2 + length]
-        if len(payload) != length - 2 or length < 2:
-            raise Unsupported("header truncated")
+    for marker, payload in segments:
         if marker not in _KNOWN:  # libjpeg's path judges anything else (other codings, odd markers)
             raise Unsupported(f"marker 0x{marker:02X} (progressive, lossless, arithmetic or unknown)")
         if marker in (0xC0, 0xC1):
@@ -128,17 +121,19 @@ def parse(data: bytes) -> ScanLayout:
         elif marker == 0xEE and payload.startswith(b"Adobe") and len(payload) >= 12 and payload[11] == 0:
             raise Unsupported("RGB-coded (Adobe transform 0)")
         elif marker == 0xDB:
-            dqt.append(data[pos : pos + 2 + length])
+            dqt.append(b"\xff\xdb" + struct.pack(">H", len(payload) + 2) + payload)
             _read_dqt(payload, quant)
         elif marker == 0xC4:
             _read_dht(payload, tables)
-        elif marker == 0xDA:
-            if frame is None:
-                raise Unsupported("scan before the frame header")
-            return _layout(frame, payload, tables, quant, b"".join(dqt), data[pos : pos + 2 + length],
-                           pos + 2 + length)  # fmt: skip
-        pos += 2 + length
-    raise Unsupported("no scan")
+    if data[sos + 1 : sos + 2] != b"\xda" or len(data) < sos + 4:
+        raise Unsupported("no scan")
+    if frame is None:
+        raise Unsupported("scan before the frame header")
+    (length,) = struct.unpack(">H", data[sos + 2 : sos + 4])
+    header = data[sos : sos + 2 + length]
+    if len(header) != 2 + length or length < 2:
+        raise Unsupported("scan header truncated")
+    return _layout(frame, header[4:], tables, quant, b"".join(dqt), header, sos + 2 + length)
 
 
 def _read_dqt(payload: bytes, quant: dict[int, bytes]) -> None:
