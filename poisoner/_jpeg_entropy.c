@@ -24,6 +24,14 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* Big-endian words in memory: swapped on a little-endian machine. GCC and Clang builtins: where they
+ * are missing the build leaves the module out (setup.py: optional), and ppd takes libjpeg-turbo. */
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+#define BE64(x) (x)
+#else
+#define BE64(x) __builtin_bswap64(x)
+#endif
+
 #define PAD 1024          /* > one block's bits (64 x 32) / 8, with room for the 8-byte load */
 #define MAX_COMPS 4
 #define MAX_BLOCKS 10     /* per MCU (JPEG's limit) */
@@ -157,7 +165,7 @@ static inline uint64_t load_be64(const uint8_t *p)
 {
     uint64_t v;
     memcpy(&v, p, 8);
-    return __builtin_bswap64(v);
+    return BE64(v);
 }
 
 static inline void fill(Reader *r)
@@ -312,7 +320,7 @@ static inline void put_bits(Writer *w, uint64_t bits, int k)
     w->acc |= bits << (64 - k - w->n);
     w->n += k;
     if (w->n >= 32) {
-        uint64_t v = __builtin_bswap64(w->acc);
+        uint64_t v = BE64(w->acc);
         memcpy(w->buf + w->len, &v, 8);
         int bytes = w->n >> 3;
         w->len += (size_t)bytes;
@@ -413,7 +421,7 @@ static int copy_bits(Writer *w, Reader *r, uint64_t n)
             uint64_t i = 0;
             for (; i + 8 <= bytes; i += 8) {
                 uint64_t v = (load_be64(src + i) << sh) | (uint64_t)(src[i + 8] >> (8 - sh));
-                v = __builtin_bswap64(v);
+                v = BE64(v);
                 memcpy(dst + i, &v, 8);
             }
             for (; i < bytes; i++) dst[i] = (uint8_t)((src[i] << sh) | (src[i + 1] >> (8 - sh)));
