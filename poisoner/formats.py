@@ -44,7 +44,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, TypedDict, Unpack
+from typing import TypedDict, Unpack
 
 import numpy as np
 from PIL import Image
@@ -54,6 +54,7 @@ from poisoner import jpeg_scan, location, provenance
 from poisoner.atomic import atomic_output
 from poisoner.blend import apply_patch_at, patch_coverage
 from poisoner.errors import ImageFormatError, MarkNotWritten
+from poisoner.image import jpeg_file
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
 from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box, written_pixels
 from poisoner.image.png import PNG_SIGNATURE, png_chunks, poison_png, splice_png, strip_png_location
@@ -119,30 +120,10 @@ class PoisonReport:
     location_removed: list[str] = field(default_factory=list)  # e.g. "EXIF GPS IFD", "XMP exif:GPSLatitude"
     written: int = 0  # pixels the mark writes (never 0: poison_file refuses that file, MarkNotWritten)
     place: MarkPlace | None = None  # a per-photo mark: where it shows and why (poisoner.placement)
+    trailer_bytes: int = 0  # bytes after a JPEG's picture (an appended image, a trailer): not written
 
 
 # ---- JPEG ----------------------------------------------------------------------------------------
-def _jpeg_preserved(layout: jpeg_codec.JpegLayout, info: dict[str | tuple[int, int], Any]) -> list[str]:
-    kept = ["JPEG quantisation tables", f"JPEG sampling {layout.sampling}"]
-    names = {
-        b"Exif\x00\x00": "EXIF",
-        b"ICC_PROFILE\x00": "ICC",
-        b"http://ns.adobe.com/xap/1.0/\x00": "XMP",
-        b"Photoshop 3.0\x00": "IPTC/Photoshop",
-    }
-    for seg in layout.segments:
-        if seg.marker == 0xFE:
-            kept.append("JPEG comment")
-        for prefix, name in names.items():
-            if seg.payload.startswith(prefix) and f"JPEG {name}" not in kept:
-                kept.append(f"JPEG {name}")
-    if layout.progressive:
-        kept.append("progressive")
-    if layout.restart_interval:
-        kept.append(f"restart interval {layout.restart_interval}")
-    return kept
-
-
 def _poison_jpeg(
     src: Path, im: Image.Image, data: bytes, placement: PatchPlacement, keep_out: np.ndarray | None, *,
     loaded: bool,
@@ -156,7 +137,7 @@ def _poison_jpeg(
         raise ImageFormatError(f"{src.name}: bad JPEG header ({exc})") from exc
     if im.mode not in ("L", "RGB"):
         raise ImageFormatError(f"{src.name}: {im.mode} JPEG is not supported")
-    preserved = _jpeg_preserved(layout, im.info)
+    preserved = jpeg_file.preserved(layout, im.info)
     notes: list[str] = []
     mark_box = jpeg_codec.mcu_box(placement.box, layout)
     keep = None
@@ -406,6 +387,8 @@ def poison_file(
     fmt = im.format or "unknown"
     if region and fmt != "JPEG":
         load_decoded(src, im)
+    if fmt == "JPEG":
+        jpeg_file.check_arithmetic(src, data)
     width, height = im.size
     keep = checked_keep_out(src.name, keep_out, (width, height))
     loaded = not region or fmt != "JPEG"  # a JPEG patched by region is not decoded whole
@@ -432,10 +415,13 @@ def poison_file(
         )
     notes += [n for n in [kept_out_note(placement, keep)] if n]
     notes += _file_notes(src, im, fmt, removed)
+    trailer = jpeg_file.trailer_bytes(data) if fmt == "JPEG" else 0
+    if trailer:
+        notes.append(f"{trailer} bytes after the picture's end (an appended image or a trailer) not written")
     dst.write_bytes(out)
     report = PoisonReport(
         fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out), removed,
-        written, place,
+        written, place, trailer,
     )
     log.info(
         "poisoned image",

@@ -284,11 +284,21 @@ def _check_splice_layout(src: Image.Image, layout: JpegLayout) -> str:
         raise SpliceUnavailable("lossless JPEG")
     if src.mode not in ("RGB", "L") or layout.components not in (1, 3):
         raise SpliceUnavailable(f"{src.mode} JPEG with {layout.components} components")
-    if layout.components == 3 and any(s != (1, 1) for s in layout.sampling[1:]):
-        # jpegtran drops need chroma at 1x1 with luma carrying the subsampling (the
-        # libjpeg default); other layouts Pillow's encoder cannot reproduce.
-        raise SpliceUnavailable(f"unusual sampling factors {layout.sampling}")
+    if (why := sampling_refusal(src, layout)) is not None:
+        raise SpliceUnavailable(why)
     return binary
+
+
+def sampling_refusal(src: Image.Image, layout: JpegLayout) -> str | None:
+    """Why the patched blocks cannot be coded with the source's chroma sampling, or None. They are
+    encoded by Pillow (encode_like), which writes 4:4:4, 4:2:2 and 4:2:0 only: a 4:1:1 source's
+    patched MCUs came out 4:2:0 and were laid into 4:1:1 block rows, wrong colours in the mark's box
+    (found testing an installed wheel, issue 30 round 10). Such a file is re-encoded whole."""
+    if layout.components != 3:
+        return None
+    if any(s != (1, 1) for s in layout.sampling[1:]) or JpegImagePlugin.get_sampling(src) == -1:
+        return f"chroma sampling {layout.sampling} that Pillow cannot write"
+    return None
 
 
 def _jpegtran(cmd: list[str], src_path: Path, op: str, stdin: bytes | None = None) -> bytes:
@@ -375,8 +385,8 @@ def turbo_refusal(src: Image.Image, layout: JpegLayout) -> str | None:
         return "lossless or arithmetic-coded JPEG"
     if src.mode not in ("RGB", "L") or layout.components not in (1, 3):
         return f"{src.mode} JPEG with {layout.components} components"
-    if layout.components == 3 and any(s != (1, 1) for s in layout.sampling[1:]):
-        return f"unusual sampling factors {layout.sampling}"
+    if (why := sampling_refusal(src, layout)) is not None:
+        return why
     if layout.restart_interval:
         return "restart markers (tjTransform cannot write them)"
     if not layout.progressive and not (STANDARD_HUFFMAN_AS_SOURCE and keeps_standard_huffman(layout)):

@@ -47,13 +47,43 @@ def place_lines(outcomes: list[ProtectOutcome]) -> list[str]:
     return mark_note_lines(o.reason for o in outcomes if o.state in OUTCOME_PATCHED)
 
 
+def jpeg_lines(outcomes: list[ProtectOutcome]) -> list[str]:
+    """The summary's lines for JPEGs written otherwise than a photographer would assume: re-encoded
+    whole (every pixel one JPEG generation more; their sampling possibly changed) and data after the
+    picture left out. Never silent (they were in the store's notes only)."""
+
+    def names(files: list[ProtectOutcome]) -> str:
+        shown = ", ".join(o.path.name for o in files[:3])
+        return shown + (f" and {len(files) - 3} more" if len(files) > 3 else "")
+
+    patched = [(o, o.report) for o in outcomes if o.state in OUTCOME_PATCHED and o.report is not None]
+    whole = [o for o, r in patched if getattr(r, "method", "") == "jpeg-reencode-same-tables"]
+    resampled = [o for o, r in patched if any("not reproducible by Pillow" in n for n in r.notes)]
+    trailer = [o for o, r in patched if getattr(r, "trailer_bytes", 0)]
+    lines = []
+    if whole:
+        s = "" if len(whole) == 1 else "s"
+        line = (f"JPEG re-encoded whole in {len(whole)} photo{s} ({names(whole)}): ppd could not copy the "
+                "blocks outside the mark (damaged data, padding, or a layout it cannot splice), so every "
+                "pixel went through one more JPEG generation")  # fmt: skip
+        if resampled:
+            line += f"; {len(resampled)} of them now 4:2:0 (their chroma sampling Pillow cannot write)"
+        lines.append(line)
+    if trailer:
+        s = "" if len(trailer) == 1 else "s"
+        lines.append(f"data after the picture left out of {len(trailer)} photo{s} ({names(trailer)}): an "
+                     "appended image or trailer, never published; `ppd restore` brings the file back "
+                     "whole")  # fmt: skip
+    return lines
+
+
 def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
     """exiftool-style counts, the files left restored, each failed file with its reason."""
     counts = Counter(outcome_word(o) for o in outcomes)
     words = ["would patch" if dry_run else "patched", "unchanged", "skipped", "failed"]
     line = ", ".join(f"{w} {counts.get(w, 0)}" for w in words)
     console().print(("dry run, nothing changed: " if dry_run else "") + line)
-    for line in place_lines(outcomes):
+    for line in place_lines(outcomes) + jpeg_lines(outcomes):
         console().print(line, markup=False)
     left = _restored_left(outcomes)
     if left:

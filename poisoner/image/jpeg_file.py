@@ -1,0 +1,62 @@
+"""What a JPEG file carries besides the picture ppd patches: the metadata the output keeps, the bytes
+after the picture (no JPEG path of ppd's writes them), and a coding Pillow cannot decode, refused
+in words. Pure: the bytes in, facts out."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Any
+
+from PIL import Image
+
+from poisoner.completeness import jpeg_end
+from poisoner.errors import ImageFormatError
+from poisoner.image.read import one_line
+from poisoner.jpeg import JpegLayout, read_layout
+
+
+def preserved(layout: JpegLayout, info: dict[str | tuple[int, int], Any]) -> list[str]:
+    """What of the source the written JPEG keeps (the report's `preserved`)."""
+    kept = ["JPEG quantisation tables", f"JPEG sampling {layout.sampling}"]
+    names = {
+        b"Exif\x00\x00": "EXIF",
+        b"ICC_PROFILE\x00": "ICC",
+        b"http://ns.adobe.com/xap/1.0/\x00": "XMP",
+        b"Photoshop 3.0\x00": "IPTC/Photoshop",
+    }
+    for seg in layout.segments:
+        if seg.marker == 0xFE:
+            kept.append("JPEG comment")
+        for prefix, name in names.items():
+            if seg.payload.startswith(prefix) and f"JPEG {name}" not in kept:
+                kept.append(f"JPEG {name}")
+    if layout.progressive:
+        kept.append("progressive")
+    if layout.restart_interval:
+        kept.append(f"restart interval {layout.restart_interval}")
+    return kept
+
+
+def check_arithmetic(src: Path, data: bytes) -> None:
+    """An arithmetic-coded JPEG Pillow's libjpeg cannot decode (some that djpeg reads: found testing
+    an installed wheel) fails saying so, not as "broken data stream". Only such files pay the trial
+    decode; a broken header is left to the paths that judge it."""
+    try:
+        arithmetic = read_layout(data).arithmetic
+    except ValueError:
+        return
+    if arithmetic:
+        try:
+            with Image.open(io.BytesIO(data)) as im:
+                im.load()
+        except (OSError, ValueError, SyntaxError) as exc:
+            why = f"arithmetic-coded JPEG that Pillow cannot decode ({one_line(exc)})"
+            hint = "saved with Huffman coding (the usual) it can be"
+            raise ImageFormatError(f"{src.name}: {why}; {hint}") from exc
+
+
+def trailer_bytes(data: bytes) -> int:
+    """How many bytes follow the JPEG's picture (its first EOI): no JPEG path of ppd's writes them."""
+    end = jpeg_end(data)
+    return 0 if end is None else len(data) - end
