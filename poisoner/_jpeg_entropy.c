@@ -82,6 +82,9 @@ static int build_huff(Huff *t, const uint8_t *spec, Py_ssize_t len, int is_dc)
     int k = 0;
     for (int l = 1; l <= 16; l++) {
         int n = spec[l - 1];
+        /* checked before the codes are written (the lookahead holds 512 entries): a length may not
+         * take more codes than it has, and the all-ones code is reserved (as libjpeg checks) */
+        if (n && code + n >= (1 << l)) return -1;
         t->valoff[l] = k - code;
         for (int i = 0; i < n; i++, k++, code++) {
             int sym = t->vals[k];
@@ -94,8 +97,6 @@ static int build_huff(Huff *t, const uint8_t *spec, Py_ssize_t len, int is_dc)
                 t->size[sym] = (uint8_t)l;
             }
         }
-        if (code >= (1 << l) && n) return -1; /* the all-ones code is reserved (as libjpeg checks) */
-        if (code > (1 << l)) return -1;
         t->maxcode[l] = n ? code - 1 : -1;
         code <<= 1;
     }

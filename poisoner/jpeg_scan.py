@@ -32,6 +32,7 @@ from poisoner.jpeg_parts import crop_box, mcu_box, parts_cover
 SCAN_ENV = "PPD_JPEG_SCAN"
 JPEGTRAN_ENV = "PPD_JPEGTRAN"
 THUMBNAIL_SCALE = 8  # the DCs are a 1/8 decode
+MAX_DIMENSION = 65500  # libjpeg's JPEG_MAX_DIMENSION
 
 Box = tuple[int, int, int, int]
 
@@ -156,6 +157,8 @@ def _read_dht(payload: bytes, tables: list[bytes | None]) -> None:
             raise Unsupported("bad DHT segment")
         tables[cls * 4 + ident] = payload[i + 1 : end]
         i = end
+    if i != len(payload):  # bytes left over: libjpeg refuses the segment's length
+        raise Unsupported("bad DHT segment")
 
 
 def _layout(
@@ -166,13 +169,17 @@ def _layout(
         raise Unsupported("not 8-bit")
     height, width = struct.unpack(">HH", frame[1:5])
     n = frame[5]
-    if n not in (1, 3) or len(frame) < 6 + 3 * n or not width or not height:
-        raise Unsupported(f"{n} components or no size")
+    if n not in (1, 3) or len(frame) != 6 + 3 * n:
+        raise Unsupported(f"{n} components or a frame header of another length")
+    if not 0 < width <= MAX_DIMENSION or not 0 < height <= MAX_DIMENSION:  # libjpeg's limit
+        raise Unsupported(f"size {width}x{height}")
     ids = [frame[6 + 3 * i] for i in range(n)]
     sampling = tuple((frame[7 + 3 * i] >> 4, frame[7 + 3 * i] & 15) for i in range(n))
+    if any(not (1 <= h <= 4 and 1 <= v <= 4) for h, v in sampling):
+        raise Unsupported(f"sampling factors {sampling}")
     if n == 3 and any(s != (1, 1) for s in sampling[1:]):
         raise Unsupported(f"unusual sampling factors {sampling}")
-    if sos[0] != n or len(sos) != 1 + 2 * n + 3 or sos[1 + 2 * n :] != b"\x00\x3f\x00":
+    if not sos or sos[0] != n or len(sos) != 1 + 2 * n + 3 or sos[1 + 2 * n :] != b"\x00\x3f\x00":
         raise Unsupported("not one sequential scan of every component")
     if [sos[1 + 2 * i] for i in range(n)] != ids:
         raise Unsupported("scan components in another order than the frame's")
@@ -255,22 +262,34 @@ def thumbnail_scale(width: int, height: int, size: int) -> int:
 
 def luma_thumbnail(ix: Indexed) -> np.ndarray:
     """The 1/8 greyscale picture (uint8, ceil(h/8) x ceil(w/8)) from the luma DCs: what libjpeg's
-    scaled decode to greyscale gives (its 1x1 IDCT: (DC x q + 4) >> 3, plus 128, clamped)."""
+    scaled decode to greyscale gives (its 1x1 IDCT: (DC x q + 4) >> 3 through its range-limit table,
+    which clamps within -512..511 and wraps beyond, as a damaged DC can be)."""
     lay = ix.layout
     h, v = lay.coding[0][:2]
     cols, rows = lay.mcus
     grid = ix.dc[:, : h * v].reshape(rows, cols, v, h).transpose(0, 2, 1, 3).reshape(rows * v, cols * h)
     q = lay.quant[0]
     dc_step = struct.unpack(">H", q[1:3])[0] if q[0] >> 4 else q[1]
-    grey = ((grid.astype(np.int32) * dc_step + 4) >> 3) + 128
-    return np.clip(grey, 0, 255).astype(np.uint8)[: -(-lay.height // 8), : -(-lay.width // 8)]
+    value = ((grid.astype(np.int64) * dc_step + 4) >> 3) & 1023  # libjpeg's RANGE_MASK
+    return _RANGE_LIMIT[value][: -(-lay.height // 8), : -(-lay.width // 8)]
+
+
+# libjpeg's post-IDCT range-limit table (jdmaster.c prepare_range_limit_table), indexed by value & 1023:
+# 0..127 -> 128..255, up to 511 -> 255, up to 895 -> 0, 896..1023 (-128..-1) -> 0..127.
+_RANGE_LIMIT = np.concatenate(
+    [np.arange(128, 256), np.full(384, 255), np.zeros(384), np.arange(0, 128)]
+).astype(np.uint8)
 
 
 def decode_mcus(ix: Indexed, which: np.ndarray) -> np.ndarray:
     """The coefficients (MCUs, blocks per MCU, 64; natural order) of the MCUs numbered `which`."""
     which = np.ascontiguousarray(which, dtype=np.int64)
     out = np.empty((len(which), ix.dc.shape[1], 64), dtype=np.int16)
-    _codec().decode(ix.clean, ix.nbytes, ix.layout.coding, ix.layout.tables, ix.offsets, ix.dc, which, out)
+    lay = ix.layout
+    try:
+        _codec().decode(ix.clean, ix.nbytes, lay.coding, lay.tables, ix.offsets, ix.dc, which, out)
+    except (LookupError, ValueError) as exc:  # damaged data in these MCUs
+        raise Unsupported(str(exc)) from exc
     return out
 
 
@@ -313,7 +332,10 @@ def _standard_coding(
 
 def _jpeg_of(lay: ScanLayout, width: int, height: int, coef: np.ndarray) -> bytes:
     coding, tables = _standard_coding(lay)
-    scan = _codec().encode(np.ascontiguousarray(coef), coding, tables)
+    try:
+        scan = _codec().encode(np.ascontiguousarray(coef), coding, tables)
+    except (LookupError, ValueError) as exc:  # a coefficient no baseline table codes (damaged data)
+        raise Unsupported(str(exc)) from exc
     frame = bytearray(lay.frame)
     sof = b"\x08" + struct.pack(">HH", height, width) + bytes(frame)
     dht = b"".join(bytes([(i // 4) << 4 | i % 4]) + t for i, t in enumerate(tables) if t is not None)

@@ -10,6 +10,7 @@ import io
 import subprocess
 import sys
 import textwrap
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -294,3 +295,148 @@ def test_next_marker_finds_what_the_completeness_check_finds() -> None:
         assert next_marker(data, start) == (-1 if m is None else m.start()), (data, start)
         found += m is not None
     assert 1000 < found < 4500
+
+
+# ---- crafted files: what a damaged or hostile header or scan can hold (found by review) -------------
+
+
+def _bits_of(value: int) -> tuple[int, int]:
+    """A coefficient's JPEG size category and its bits (negative: ones' complement)."""
+    size = abs(value).bit_length()
+    return size, (value if value >= 0 else value + (1 << size) - 1)
+
+
+def _segment(marker: int, payload: bytes) -> bytes:
+    return bytes((0xFF, marker)) + (len(payload) + 2).to_bytes(2, "big") + payload
+
+
+def crafted_grey_jpeg(dcs: list[int], ac1: list[int], dc_q: int = 1, cols: int = 2) -> bytes:
+    """A baseline greyscale JPEG written by hand, one 8x8 block per DC (cols blocks a row): its DC
+    values and its first AC coefficients as given, whatever baseline libjpeg would write (categories
+    up to 15: a damaged or hostile file's)."""
+    dc_codes = {s: (s, 5) for s in range(16)}  # 16 codes of 5 bits: 0..15
+    ac_symbols = [0x00] + [s for s in range(1, 16)]  # EOB, then run 0 size 1..15: 16 codes of 5 bits
+    ac_codes = {sym: (i, 5) for i, sym in enumerate(ac_symbols)}
+    out = bytearray()
+    acc, n = 0, 0
+
+    def put(value: int, length: int) -> None:
+        nonlocal acc, n
+        acc, n = (acc << length) | value, n + length
+        while n >= 8:
+            byte = (acc >> (n - 8)) & 0xFF
+            out.append(byte)
+            if byte == 0xFF:
+                out.append(0)
+            n -= 8
+
+    last = 0
+    for dc, ac in zip(dcs, ac1, strict=True):
+        size, bits = _bits_of(dc - last)
+        last = dc
+        put(*dc_codes[size])
+        if size:
+            put(bits, size)
+        if ac:
+            size, bits = _bits_of(ac)
+            put(*ac_codes[size])
+            put(bits, size)
+        put(*ac_codes[0x00])
+    if n:
+        put((1 << (8 - n)) - 1, 8 - n)
+    rows = -(-len(dcs) // cols)
+    dqt = b"\x00" + bytes([dc_q] + [1] * 63)
+    sof = b"\x08" + (8 * rows).to_bytes(2, "big") + (8 * cols).to_bytes(2, "big") + b"\x01\x01\x11\x00"
+    dht = b"\x00" + bytes([0, 0, 0, 0, 16] + [0] * 11) + bytes(range(16))
+    dht += b"\x10" + bytes([0, 0, 0, 0, 16] + [0] * 11) + bytes(ac_symbols)
+    sos = b"\x01\x01\x00\x00\x3f\x00"
+    return (b"\xff\xd8" + _segment(0xDB, dqt) + _segment(0xC0, sof) + _segment(0xC4, dht)
+            + _segment(0xDA, sos) + bytes(out) + b"\xff\xd9")  # fmt: skip
+
+
+def test_the_crafted_file_is_what_libjpeg_reads() -> None:
+    """The hand-written file above decodes in libjpeg to its coefficients (the tests below rely on it)."""
+    data = crafted_grey_jpeg([10, -20, 3, 0], [5, 0, -300, 0])
+    blocks = jpeg_turbo.read_blocks(data)[0].reshape(-1, 64)
+    assert blocks[:, 0].tolist() == [10, -20, 3, 0]
+    assert blocks[:, 1].tolist() == [5, 0, -300, 0]
+    ix = jpeg_scan.index(data)
+    assert ix.dc[:, 0].tolist() == [10, -20, 3, 0]
+
+
+@pytest.mark.parametrize("dc_q", [1, 2, 9])
+def test_thumbnail_of_out_of_range_dcs_is_libjpegs(dc_q: int) -> None:
+    """A damaged DC far outside the picture's range: libjpeg's 1/8 decode wraps it through its range
+    table (a DC of 3000 at q 2 reads as black), and the thumbnail placement judges is that very one."""
+    dcs = [3000, -3000, 1000, -1000, 2040, -2040, 500, 30000 // dc_q]
+    data = crafted_grey_jpeg(dcs, [0] * len(dcs), dc_q=dc_q, cols=4)
+    with Image.open(io.BytesIO(data)) as im:
+        im.draft("L", (im.width // 8, im.height // 8))
+        expected = np.asarray(im.convert("L"))
+    assert expected.shape == (2, 4)
+    got = jpeg_scan.luma_thumbnail(jpeg_scan.index(data))
+    assert got.tolist() == expected.tolist()
+
+
+@pytest.mark.parametrize("dcs, ac1", [([0, 0, 0, 0], [0, 1500, 0, 0]), ([3000, 0, 0, 0], [0, 0, 0, 0])])
+def test_coefficients_no_baseline_table_codes_are_refused(dcs: list[int], ac1: list[int]) -> None:
+    """An AC of 1500 or a DC step of 3000 (beyond what an 8-bit baseline encoder writes): the lossless
+    crop cannot code it, so the bit-level path refuses (libjpeg's path judges the file) instead of
+    raising a bare ValueError out of poison_file."""
+    data = crafted_grey_jpeg(dcs, ac1)
+    with pytest.raises(jpeg_scan.Unsupported):
+        jpeg_scan.patch_in_place(data, lambda px: b"", (0, 0, 16, 8), lambda px, _part: px)
+
+
+def _with_segment_payload(data: bytes, marker: int, edit: Callable[[bytes], bytes]) -> bytes:
+    at = data.index(bytes((0xFF, marker)))
+    length = int.from_bytes(data[at + 2 : at + 4], "big")
+    payload = edit(data[at + 4 : at + 2 + length])
+    return data[:at] + _segment(marker, payload) + data[at + 2 + length :]
+
+
+@pytest.mark.parametrize(
+    "marker, edit, reason",
+    [
+        (0xC4, lambda p: p + b"\x00\x01", "DHT"),  # bytes after the last table
+        (0xC0, lambda p: p[:1] + b"\xff\xff" + p[3:], "size"),  # 65535 rows: beyond libjpeg's 65500
+        (0xC0, lambda p: p + b"\x00", "length"),  # a frame header a byte too long
+        (0xC0, lambda p: p[:7] + b"\x01" + p[8:], "sampling"),  # luma sampled 0x1
+        (0xDA, lambda p: b"", "scan"),  # a scan header of no components
+    ],
+)
+def test_headers_libjpeg_refuses_are_refused(
+    marker: int, edit: Callable[[bytes], bytes], reason: str
+) -> None:
+    data = _with_segment_payload(crafted_grey_jpeg([1, 2, 3, 4], [0, 0, 0, 0]), marker, edit)
+    with pytest.raises(jpeg_scan.Unsupported, match=reason):
+        jpeg_scan.index(data)
+
+
+OVERFLOW = textwrap.dedent(
+    """
+    import sys
+    from poisoner import jpeg_scan
+    data = bytes.fromhex(sys.argv[1])
+    try:
+        jpeg_scan.index(data)
+    except jpeg_scan.Unsupported as exc:
+        print("refused:", exc)
+    else:
+        print("indexed")
+    """
+)
+
+
+def test_a_table_with_more_short_codes_than_fit_is_refused_before_it_is_built() -> None:
+    """An unused AC table claiming 255 codes of one bit: libjpeg-turbo never builds it, ppd's C module
+    built every table and wrote its lookahead past the end before checking (a heap overflow, found by
+    review under AddressSanitizer). It is refused now, checked before a code is written; in a child
+    process, as a heap overflow may not die at once."""
+    data = crafted_grey_jpeg([1, 2, 3, 4], [0, 0, 0, 0])
+    bad = b"\x13" + bytes([255] + [0] * 15) + bytes(255)
+    data = _with_segment_payload(data, 0xC4, lambda p: p + bad)
+    done = subprocess.run([sys.executable, "-c", OVERFLOW, data.hex()], capture_output=True, text=True,
+                          timeout=120, cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.startswith("refused:") and "Huffman" in done.stdout, done.stdout
