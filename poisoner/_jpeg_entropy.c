@@ -35,6 +35,7 @@
 #define PAD 1024          /* > one block's bits (64 x 32) / 8, with room for the 8-byte load */
 #define MAX_COMPS 4
 #define MAX_BLOCKS 10     /* per MCU (JPEG's limit) */
+#define SKIP_EOB 127      /* skip table's advance for end of block: takes k past any coefficient's */
 
 static const uint8_t NATURAL[64 + 16] = {
     0,  1,  8,  16, 9,  2,  3,  10, 17, 24, 32, 25, 18, 11, 4,  5,  12, 19, 26, 33, 40, 48,
@@ -45,6 +46,9 @@ static const uint8_t NATURAL[64 + 16] = {
 typedef struct {
     int present;
     uint16_t look[512];    /* 9-bit lookahead: (length << 8) | symbol; length 0: longer code */
+    uint16_t skip[512];    /* the same codes for skipping an AC symbol: (advance << 5) | bits, where
+                            * bits = code length + value bits and advance = run + 1 (16 for ZRL,
+                            * SKIP_EOB for end of block); 0: a longer code (get_symbol) */
     int32_t maxcode[18];   /* largest code of each length, -1 when none */
     int32_t valoff[18];    /* index of a length's first value minus its first code */
     uint8_t vals[256];
@@ -90,7 +94,12 @@ static int build_huff(Huff *t, const uint8_t *spec, Py_ssize_t len, int is_dc)
             int sym = t->vals[k];
             if (l <= 9) {
                 int shift = 9 - l;
-                for (int j = 0; j < (1 << shift); j++) t->look[(code << shift) + j] = (uint16_t)((l << 8) | sym);
+                int size = sym & 15, run = sym >> 4;
+                int advance = size ? run + 1 : (run == 15 ? 16 : SKIP_EOB);
+                for (int j = 0; j < (1 << shift); j++) {
+                    t->look[(code << shift) + j] = (uint16_t)((l << 8) | sym);
+                    t->skip[(code << shift) + j] = (uint16_t)((advance << 5) | (l + size));
+                }
             }
             if (t->size[sym] == 0) {
                 t->code[sym] = (uint16_t)code;
@@ -251,38 +260,32 @@ static int decode_block(Reader *r, const Huff *dc, const Huff *ac, int32_t *dc_d
     return 0;
 }
 
-/* One block skipped (index): only its DC difference is kept. A symbol and its value take one
- * shift; the accumulator is refilled only when fewer than 32 bits are left. Same acceptance as
- * decode_block. */
+/* One block skipped (index): only its DC difference is kept. An AC symbol and its value take one
+ * table look-up and one shift (the skip table); the accumulator is refilled only when fewer than 32
+ * bits are left. Same acceptance as decode_block. */
 static inline int skip_block(Reader *r, const Huff *dc, const Huff *ac, int32_t *dc_diff)
 {
     fill(r);
     int s = get_symbol(r, dc);
     if (s < 0 || s > 15) return -1;
     *dc_diff = s ? get_value(r, s) : 0;
-    for (int k = 1; k < 64;) {
+    int k = 1;
+    while (k < 64) {
         if (r->n < 32) fill(r);
-        unsigned e = ac->look[r->acc >> 55];
-        int rs;
-        if (e >> 8) {
-            rs = e & 0xFF;
-            consume(r, (int)(e >> 8) + (rs & 15));
+        unsigned e = ac->skip[r->acc >> 55];
+        if (e) {
+            consume(r, (int)(e & 31));
+            k += (int)(e >> 5);
         } else {
-            rs = get_symbol(r, ac);
+            int rs = get_symbol(r, ac);
             if (rs < 0) return -1;
             consume(r, rs & 15);
-        }
-        int run = rs >> 4;
-        if (rs & 15) {
-            k += run;
-            if (k > 63) return -1;
-            k++;
-        } else if (run == 15) {
-            k += 16;
-        } else {
-            break;
+            k += (rs & 15) ? (rs >> 4) + 1 : ((rs >> 4) == 15 ? 16 : SKIP_EOB);
         }
     }
+    /* k is 64 after a coefficient at 63, >= SKIP_EOB + 1 after an end of block; between, a run
+     * (or a ZRL) went past the block's last coefficient */
+    if (k > 64 && k <= 63 + 16) return -1;
     if (reader_pos(r) > r->nbits) return -1;
     return 0;
 }

@@ -310,12 +310,14 @@ def _segment(marker: int, payload: bytes) -> bytes:
     return bytes((0xFF, marker)) + (len(payload) + 2).to_bytes(2, "big") + payload
 
 
-def crafted_grey_jpeg(dcs: list[int], ac1: list[int], dc_q: int = 1, cols: int = 2) -> bytes:
+def crafted_grey_jpeg(
+    dcs: list[int], ac1: list[int], dc_q: int = 1, cols: int = 2, zrls: list[int] | None = None
+) -> bytes:
     """A baseline greyscale JPEG written by hand, one 8x8 block per DC (cols blocks a row): its DC
     values and its first AC coefficients as given, whatever baseline libjpeg would write (categories
-    up to 15: a damaged or hostile file's)."""
+    up to 15: a damaged or hostile file's); zrls: runs of 16 zeros written before each block's AC."""
     dc_codes = {s: (s, 5) for s in range(16)}  # 16 codes of 5 bits: 0..15
-    ac_symbols = [0x00] + [s for s in range(1, 16)]  # EOB, then run 0 size 1..15: 16 codes of 5 bits
+    ac_symbols = [0x00, *range(1, 16), 0xF0]  # EOB, run 0 size 1..15, ZRL: 17 codes of 5 bits
     ac_codes = {sym: (i, 5) for i, sym in enumerate(ac_symbols)}
     out = bytearray()
     acc, n = 0, 0
@@ -331,12 +333,14 @@ def crafted_grey_jpeg(dcs: list[int], ac1: list[int], dc_q: int = 1, cols: int =
             n -= 8
 
     last = 0
-    for dc, ac in zip(dcs, ac1, strict=True):
+    for dc, ac, zrl in zip(dcs, ac1, zrls or [0] * len(dcs), strict=True):
         size, bits = _bits_of(dc - last)
         last = dc
         put(*dc_codes[size])
         if size:
             put(bits, size)
+        for _ in range(zrl):
+            put(*ac_codes[0xF0])
         if ac:
             size, bits = _bits_of(ac)
             put(*ac_codes[size])
@@ -348,7 +352,7 @@ def crafted_grey_jpeg(dcs: list[int], ac1: list[int], dc_q: int = 1, cols: int =
     dqt = b"\x00" + bytes([dc_q] + [1] * 63)
     sof = b"\x08" + (8 * rows).to_bytes(2, "big") + (8 * cols).to_bytes(2, "big") + b"\x01\x01\x11\x00"
     dht = b"\x00" + bytes([0, 0, 0, 0, 16] + [0] * 11) + bytes(range(16))
-    dht += b"\x10" + bytes([0, 0, 0, 0, 16] + [0] * 11) + bytes(ac_symbols)
+    dht += b"\x10" + bytes([0, 0, 0, 0, 17] + [0] * 11) + bytes(ac_symbols)
     sos = b"\x01\x01\x00\x00\x3f\x00"
     return (b"\xff\xd8" + _segment(0xDB, dqt) + _segment(0xC0, sof) + _segment(0xC4, dht)
             + _segment(0xDA, sos) + bytes(out) + b"\xff\xd9")  # fmt: skip
@@ -440,3 +444,19 @@ def test_a_table_with_more_short_codes_than_fit_is_refused_before_it_is_built() 
                           timeout=120, cwd=Path(__file__).resolve().parents[2])  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.startswith("refused:") and "Huffman" in done.stdout, done.stdout
+
+
+def test_a_run_past_the_blocks_end_is_refused(tmp_path: Path) -> None:
+    """Four runs of 16 zeros carry a block past its 63rd coefficient: no encoder writes that, the index
+    refuses it (the C module's skip table, and decode_block, take runs past the end as damage) and
+    libjpeg's path patches the file (libjpeg reads such a block, ignoring what lies past its end)."""
+    cols, blocks = 16, 128
+    fine = crafted_grey_jpeg([5] * blocks, [0] * blocks, cols=cols, zrls=[3 * (i == 9) for i in range(blocks)])
+    assert jpeg_scan.index(fine).dc[:, 0].tolist() == [5] * blocks  # three runs end at 49: a fine block
+    data = crafted_grey_jpeg([5] * blocks, [0] * blocks, cols=cols, zrls=[4 * (i == 9) for i in range(blocks)])
+    with pytest.raises(jpeg_scan.Unsupported):
+        jpeg_scan.index(data)
+    (tmp_path / "a.jpg").write_bytes(data)
+    poison_file(tmp_path / "a.jpg", tmp_path / "out.jpg", SPECS["bottom-right"])
+    with Image.open(tmp_path / "out.jpg") as out, Image.open(tmp_path / "a.jpg") as src:
+        assert out.size == src.size and np.asarray(out).tolist() != np.asarray(src).tolist()
