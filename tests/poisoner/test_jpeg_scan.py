@@ -450,10 +450,10 @@ def test_a_run_past_the_blocks_end_is_refused(tmp_path: Path) -> None:
     """Four runs of 16 zeros carry a block past its 63rd coefficient: no encoder writes that, the index
     refuses it (the C module's skip table, and decode_block, take runs past the end as damage) and
     libjpeg's path patches the file (libjpeg reads such a block, ignoring what lies past its end)."""
-    cols, blocks = 16, 128
-    fine = crafted_grey_jpeg([5] * blocks, [0] * blocks, cols=cols, zrls=[3 * (i == 9) for i in range(blocks)])
-    assert jpeg_scan.index(fine).dc[:, 0].tolist() == [5] * blocks  # three runs end at 49: a fine block
-    data = crafted_grey_jpeg([5] * blocks, [0] * blocks, cols=cols, zrls=[4 * (i == 9) for i in range(blocks)])
+    cols, n = 16, 128
+    fine = crafted_grey_jpeg([5] * n, [0] * n, cols=cols, zrls=[3 * (i == 9) for i in range(n)])
+    assert jpeg_scan.index(fine).dc[:, 0].tolist() == [5] * n  # three runs end at 49: a fine block
+    data = crafted_grey_jpeg([5] * n, [0] * n, cols=cols, zrls=[4 * (i == 9) for i in range(n)])
     with pytest.raises(jpeg_scan.Unsupported):
         jpeg_scan.index(data)
     (tmp_path / "a.jpg").write_bytes(data)
