@@ -83,6 +83,7 @@ __all__ = [
     "image_from_array",
     "paste_patch",
     "png_chunks",
+    "poison_bytes",
     "poison_file",
     "poison_in_place",
     "save_explicit",
@@ -371,7 +372,7 @@ def poison_file(
     max_pixels: int | None = None,
     keep_out: np.ndarray | None = None,
 ) -> PoisonReport:
-    """Read src, write the complete poisoned file to dst (src is only read).
+    """Read src, write the complete poisoned file to dst (src is only read): poison_bytes, written.
 
     Location metadata (GPS, place names) is removed from dst unless keep_location; with a marker,
     dst carries it (poisoner.provenance). A file whose header declares more than max_pixels
@@ -380,7 +381,30 @@ def poison_file(
     from poisoner.subject): the mark is not written there (a JPEG keeps the whole MCUs that reach
     such a pixel); a mask of another size is an ImageFormatError."""
     src, dst = Path(src), Path(dst)
-    data = _read_source(src, dst, max_pixels)
+    if src.resolve() == dst.resolve():
+        raise ImageFormatError(f"{src.name}: dst must differ from src (use poison_in_place)")
+    out, report = poison_bytes(src, spec, marker=marker, keep_location=keep_location, max_pixels=max_pixels,
+                               keep_out=keep_out)  # fmt: skip
+    dst.write_bytes(out)
+    return report
+
+
+def poison_bytes(
+    src: Path,
+    spec: PatchSpec,
+    *,
+    data: bytes | None = None,
+    marker: Marker | None = None,
+    keep_location: bool = False,
+    max_pixels: int | None = None,
+    keep_out: np.ndarray | None = None,
+) -> tuple[bytes, PoisonReport]:
+    """The complete poisoned file's bytes and the report, nothing written: poison_file's work, for a
+    caller that writes the bytes itself (the daemon seals, hashes and writes them once). data: src's
+    bytes when the caller holds them already (they must be src's: src names the file in messages
+    and is what a decoder that reads by path reads)."""
+    src = Path(src)
+    data = _read_source(src, max_pixels, data)
     # A JPEG need not be decoded to pixels whole (only the patch's MCUs, _poison_jpeg).
     region = JPEG_REGION_DECODE and data[:2] == b"\xff\xd8" and jpeg_codec.splice_available()
     im = open_decoded(src, data, load=not region)
@@ -418,7 +442,6 @@ def poison_file(
     trailer = jpeg_file.trailer_bytes(data) if fmt == "JPEG" else 0
     if trailer:
         notes.append(f"{trailer} bytes after the picture's end (an appended image or a trailer) not written")
-    dst.write_bytes(out)
     report = PoisonReport(
         fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out), removed,
         written, place, trailer,
@@ -427,14 +450,14 @@ def poison_file(
         "poisoned image",
         extra={"src": str(src), "format": fmt, "method": method, "size": f"{width}x{height}", "notes": notes},
     )
-    return report
+    return out, report
 
 
-def _read_source(src: Path, dst: Path, max_pixels: int | None) -> bytes:
-    """src's bytes, once dst is known to be another file and the header's size within budget."""
-    if src.resolve() == dst.resolve():
-        raise ImageFormatError(f"{src.name}: dst must differ from src (use poison_in_place)")
+def _read_source(src: Path, max_pixels: int | None, held: bytes | None) -> bytes:
+    """src's bytes (held: the caller's copy of them), once the header's size is within budget."""
     check_decode_budget(src, DEFAULT_MAX_PIXELS if max_pixels is None else max_pixels)
+    if held is not None:
+        return held
     try:
         return src.read_bytes()
     except OSError as exc:

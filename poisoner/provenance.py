@@ -44,6 +44,8 @@ from pathlib import Path
 
 from poisoner.errors import ExitStatus, PpdError
 
+_Bytes = mmap.mmap | bytearray  # a file's bytes: mapped (a file sealed or read in place) or in memory
+
 NS = "urn:uuid:5e1f0c3a-92d4-4b7e-8a61-3c0f9d2b7e14"
 PNG_KEYWORD = b"sl"
 MKV_TAG = "SL"
@@ -115,7 +117,7 @@ class _Token:
     tag: bytes  # those characters
 
 
-def _tokens(mm: mmap.mmap) -> list[_Token]:
+def _tokens(mm: _Bytes) -> list[_Token]:
     """The well-formed tokens in the file, in order (at most _MAX_TOKENS)."""
     found: list[_Token] = []
     at = mm.find(MAGIC)
@@ -124,7 +126,7 @@ def _tokens(mm: mmap.mmap) -> list[_Token]:
         head = mm[pos : pos + 2]
         if len(head) == 2 and set(head) <= _HEX:
             n = int(head, 16)
-            text = mm[pos + 2 : pos + 2 + 2 * n + _TAG_HEX]
+            text = bytes(mm[pos + 2 : pos + 2 + 2 * n + _TAG_HEX])
             if len(text) == 2 * n + _TAG_HEX and set(text) <= _HEX:
                 found.append(_Token(bytes.fromhex(text[: 2 * n].decode()), pos + 2 + 2 * n, text[2 * n :]))
         at = mm.find(MAGIC, at + 1)
@@ -148,7 +150,7 @@ def _open_body(key: bytes, body: bytes) -> Seal | None:
         return None
 
 
-def _left_out(mm: mmap.mmap, tok: _Token) -> list[tuple[int, int]]:
+def _left_out(mm: _Bytes, tok: _Token) -> list[tuple[int, int]]:
     """The byte ranges the tag does not cover: its own text, and the checksum that covers the
     text's place (a PNG chunk's CRC, a Matroska element's CRC-32), rewritten after sealing."""
     ranges = [(tok.tag_start, tok.tag_start + _TAG_HEX)]
@@ -171,7 +173,7 @@ class _Checksum:
 _EBML_MAGIC = b"\x1a\x45\xdf\xa3"
 
 
-def _png_crc_of(mm: mmap.mmap, offset: int) -> _Checksum | None:
+def _png_crc_of(mm: _Bytes, offset: int) -> _Checksum | None:
     """The CRC of the PNG chunk whose data holds offset (over the chunk's type and data)."""
     pos, size = 8, len(mm)
     while pos + 12 <= size:
@@ -183,7 +185,7 @@ def _png_crc_of(mm: mmap.mmap, offset: int) -> _Checksum | None:
     return None
 
 
-def _vint(mm: mmap.mmap, pos: int, keep_marker: bool) -> tuple[int, int]:
+def _vint(mm: _Bytes, pos: int, keep_marker: bool) -> tuple[int, int]:
     """(value, position after it) of an EBML variable-size integer; value -1 for an unknown size."""
     b0 = mm[pos]
     length = 1
@@ -199,7 +201,7 @@ def _vint(mm: mmap.mmap, pos: int, keep_marker: bool) -> tuple[int, int]:
     return value, pos + length
 
 
-def _ebml_crc_of(mm: mmap.mmap, offset: int) -> _Checksum | None:
+def _ebml_crc_of(mm: _Bytes, offset: int) -> _Checksum | None:
     """The CRC-32 child (ID 0xBF) of the Segment's top-level element holding offset, if it has
     one (FFmpeg writes one in each): little-endian, over the rest of the element's data."""
     try:
@@ -226,7 +228,7 @@ def _ebml_crc_of(mm: mmap.mmap, offset: int) -> _Checksum | None:
     return None
 
 
-def _file_tag(key: bytes, mm: mmap.mmap, tok: _Token) -> bytes:
+def _file_tag(key: bytes, mm: _Bytes, tok: _Token) -> bytes:
     h = hmac.new(key, b"mac" + tok.body[1 : 1 + _ID], hashlib.sha256)
     with memoryview(mm) as view:  # no copy of the file's bytes
         pos = 0
@@ -237,7 +239,7 @@ def _file_tag(key: bytes, mm: mmap.mmap, tok: _Token) -> bytes:
     return h.hexdigest().encode()
 
 
-def _fix_checksum(mm: mmap.mmap, tok: _Token) -> None:
+def _fix_checksum(mm: _Bytes, tok: _Token) -> None:
     """Rewrite the checksum over the token's place (a PNG chunk's CRC, a Matroska CRC-32)."""
     check = _png_crc_of(mm, tok.tag_start) if mm[:8] == _PNG_SIGNATURE else None
     if check is None and mm[:4] == _EBML_MAGIC:
@@ -256,15 +258,28 @@ def seal_file(path: Path, key: bytes) -> None:
         if os.fstat(fd).st_size == 0:
             raise SealError(f"{Path(path).name}: empty file, nothing to seal")
         with mmap.mmap(fd, 0) as mm:
-            for tok in _tokens(mm):
-                if tok.tag == _ZERO_TAG and _open_body(key, tok.body) is not None:
-                    mm[tok.tag_start : tok.tag_start + _TAG_HEX] = _file_tag(key, mm, tok)
-                    _fix_checksum(mm, tok)
-                    break
-            else:
-                raise SealError(f"{Path(path).name}: no seal placeholder in the patched file")
+            _seal(mm, key, Path(path).name)
     finally:
         os.close(fd)
+
+
+def seal_bytes(data: bytes, key: bytes, name: str) -> bytes:
+    """seal_file for a finished output held in memory (name: the file's, for the error): the same
+    bytes seal_file leaves in a file holding data."""
+    if not data:
+        raise SealError(f"{name}: empty file, nothing to seal")
+    buf = bytearray(data)
+    _seal(buf, key, name)
+    return bytes(buf)
+
+
+def _seal(mm: _Bytes, key: bytes, name: str) -> None:
+    for tok in _tokens(mm):
+        if tok.tag == _ZERO_TAG and _open_body(key, tok.body) is not None:
+            mm[tok.tag_start : tok.tag_start + _TAG_HEX] = _file_tag(key, mm, tok)
+            _fix_checksum(mm, tok)
+            return
+    raise SealError(f"{name}: no seal placeholder in the patched file")
 
 
 def read_seal(path: Path, key: bytes | None) -> Seal | None:

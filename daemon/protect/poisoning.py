@@ -41,20 +41,34 @@ def poison_to(
         from poisoner.video import poison_video
 
         return poison_video(src, dst, spec, progress=progress, **options)
-    from PIL import Image
-
     from poisoner.formats import poison_file
+
+    return poison_file(src, dst, spec, **_image_options(src, subject_masks, options))
+
+
+def poison_image_bytes(
+    src: Path, data: bytes, spec: PatchSpec, subject_masks: Path | None = None, **options: Any
+) -> tuple[bytes, Any]:
+    """poison_to for an image whose bytes (data, src's) are in memory: the complete poisoned file's
+    bytes, not written anywhere (the caller seals, hashes and writes them once), and the report."""
+    from poisoner.formats import poison_bytes
+
+    return poison_bytes(src, spec, data=data, **_image_options(src, subject_masks, options))
+
+
+def _image_options(src: Path, subject_masks: Path | None, options: dict[str, Any]) -> dict[str, Any]:
+    """The image poisoner's options: the subject mask loaded (keep_out), Pillow's limit raised."""
+    from PIL import Image
 
     max_pixels = options.get("max_pixels")
     if max_pixels is not None and (Image.MAX_IMAGE_PIXELS or 0) < max_pixels:
         # Pillow's own bomb check would refuse what the user's raised [limits] allows.
         Image.MAX_IMAGE_PIXELS = max_pixels
     if subject_masks is not None:
-
         keep_out = load_keep_out(Path(subject_masks), src)
         if keep_out is not None:
             options["keep_out"] = keep_out
-    return poison_file(src, dst, spec, **options)
+    return options
 
 
 class PoisonerDied(PpdError):
@@ -143,6 +157,13 @@ def seal_output(ctx: AppContext, path: Path) -> None:
     from poisoner.provenance import seal_file
 
     seal_file(path, ctx.seal_key())
+
+
+def sealed_bytes(ctx: AppContext, data: bytes, name: str) -> bytes:
+    """seal_output for a finished patched file held in memory."""
+    from poisoner.provenance import seal_bytes
+
+    return seal_bytes(data, ctx.seal_key(), name)
 
 
 def link_or_copy(src: Path, dst: Path) -> None:

@@ -16,8 +16,9 @@ costs and why each is needed):
 2. mark_pending: a 'pending' row naming the original's sha256 is committed (not fsynced: after a
    power cut the patched file's seal names the original, durable in the vault, and the next run
    writes the row back; a killed process loses nothing of it);
-3. poison: the complete patched file (with its provenance marker) is written in ppd's private
-   work folder (in a child process when the last attempt on this file died with its process);
+3. poison: the complete patched file (with its provenance marker) is made: in memory for an image
+   up to IN_MEMORY_MAX (nothing is written until replace_atomically), else in ppd's private work
+   folder (and in a child process when the last attempt on this file died with its process);
 4. replace_atomically: it is copied to a flock()ed temporary in the file's own folder (through
    that folder's descriptor), fsynced, and renamed over the file only if the file at that name is
    still the one that was hashed (compare-and-swap on device, inode, size, mtime and sha256, just
@@ -86,10 +87,12 @@ from daemon.protect.job import (
 )
 from daemon.protect.poisoning import (
     link_or_copy,
+    poison_image_bytes,
     poison_isolated,
     poison_to,
     provenance_marker,
     seal_output,
+    sealed_bytes,
     work_copy_name,
     work_folder,
 )
@@ -331,7 +334,7 @@ def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
 def keep_in_vault(job: Job) -> ProtectOutcome | None:
     """1. An independent copy of the original (read through its descriptor) goes to the vault."""
     assert job.file is not None and job.sha is not None
-    data, job.data = job.data, None  # not held through the poison
+    data = job.data  # held on: the poisoner's input (poison)
     try:
         if data is not None:  # the bytes that were hashed: written as they are, not read again
             job.ctx.vault.keep_bytes(data, job.sha)
@@ -363,11 +366,23 @@ def mark_pending(job: Job) -> ProtectOutcome | None:
 
 
 def poison(job: Job) -> ProtectOutcome | None:
-    """3. The complete patched file, written in the private work folder."""
+    """3. The complete patched file, sealed and hashed: made in memory from the bytes hash_original
+    read (an image up to IN_MEMORY_MAX, in this process), else written in the private work folder."""
     assert job.work is not None and job.original is not None and job.spec is not None and job.kind
-    job.poisoned = job.work / work_copy_name(PATCHED_PREFIX, job.path.name)
+    data, job.data = job.data, None
     marker = provenance_marker(job.ctx, job.spec.spec_id, job.sha)
     limits = {"max_pixels": job.ctx.config.max_pixels} if job.kind == "image" else {}
+    if data is not None and not job.died_before:  # an image in memory: patched, sealed, hashed there
+        out, job.report = poison_image_bytes(
+            job.original, data, job.spec, job.mask_dir, marker=marker, keep_location=job.keep_location,
+            **limits,
+        )  # fmt: skip
+        del data
+        job.poisoned_data = sealed_bytes(job.ctx, out, job.path.name)
+        job.poisoned_sha = hashlib.sha256(job.poisoned_data).hexdigest()
+        return None
+    del data
+    job.poisoned = job.work / work_copy_name(PATCHED_PREFIX, job.path.name)
     if job.died_before:  # the last attempt took its process down: this one cannot
         job.report = poison_isolated(
             job.kind, job.original, job.poisoned, job.spec, marker, job.keep_location, job.mask_dir, **limits
@@ -390,9 +405,9 @@ def replace_atomically(job: Job) -> ProtectOutcome | None:
     """4. The patched file replaces the original at its name, through the folder's descriptor, only
     if the name still holds the version that was hashed (else SourceChanged: the newer version
     stays). With --out, the copy is written into the output folder instead."""
-    assert job.file is not None and job.poisoned is not None
+    assert job.file is not None and (job.poisoned is not None or job.poisoned_data is not None)
     if job.out_path is not None:
-        _write_out(job, job.poisoned)
+        _write_out(job, _patched(job))
         return None
     f = job.file
     clear_stale_temps_once(f.dir_fd)
@@ -412,10 +427,7 @@ def replace_atomically(job: Job) -> ProtectOutcome | None:
         fd,
         _tmp,
     ):
-        if job.poisoned_data is not None:  # the bytes poison() hashed
-            write_all(fd, job.poisoned_data)
-        else:
-            copy_path_to_fd(job.poisoned, fd)
+        _write_content(fd, _patched(job))
         st = os.fstat(fd)
     job.poisoned_data = None
     job.written = (st.st_ino, st.st_size, st.st_mtime_ns)
@@ -492,7 +504,21 @@ def run_stages(
 
 
 # ---- writing outside the file's folder ---------------------------------------------------------
-def _write_out(job: Job, content: Path) -> None:
+def _patched(job: Job) -> Path | bytes:
+    """The patched file poison() hashed: its bytes in memory, or its work file."""
+    content = job.poisoned_data if job.poisoned_data is not None else job.poisoned
+    assert content is not None
+    return content
+
+
+def _write_content(fd: int, content: Path | bytes) -> None:
+    if isinstance(content, bytes):
+        write_all(fd, content)
+    else:
+        copy_path_to_fd(content, fd)
+
+
+def _write_out(job: Job, content: Path | bytes) -> None:
     """`--out`: the copy goes into the output folder the user named (trusted, created if needed)."""
     out = job.record_path
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -501,6 +527,6 @@ def _write_out(job: Job, content: Path) -> None:
         clear_stale_temps_once(dir_fd)
         mode = stat.S_IMODE(job.file.st.st_mode) if job.file is not None else None
         with atomic_replace_at(dir_fd, out.name, mode=mode) as (fd, _tmp):
-            copy_path_to_fd(content, fd)
+            _write_content(fd, content)
     finally:
         os.close(dir_fd)

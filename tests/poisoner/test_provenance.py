@@ -14,8 +14,8 @@ import pytest
 from PIL import Image, PngImagePlugin
 
 from poisoner import location
-from poisoner.formats import png_chunks, poison_file
-from poisoner.provenance import Marker, Seal, SealError, read_seal, seal_file, xmp_with_marker
+from poisoner.formats import png_chunks, poison_bytes, poison_file
+from poisoner.provenance import Marker, Seal, SealError, read_seal, seal_bytes, seal_file, xmp_with_marker
 from poisoner.spec import PatchSpec
 
 SPEC = PatchSpec(patch_size=40, block_size=4, position="top-left", offset=(8, 8))
@@ -202,6 +202,25 @@ def test_earlier_clear_marker_is_removed_and_never_trusted(tmp_path: Path) -> No
     assert read_seal(src, KEY) is None
     data = sealed(src, tmp_path / "b.jpg")
     assert b"ppd" not in data.lower() and b"user-kept" in data
+
+
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_sealed_in_memory_is_sealed_on_disk(tmp_path: Path, kind: str) -> None:
+    """The daemon makes an image's patched file in memory (poison_bytes, seal_bytes) and writes it
+    once: the very bytes poison_file and seal_file leave on disk (a PNG's chunk CRC included)."""
+    suffix = KINDS[kind]
+    src = tmp_path / f"src{suffix}"
+    write(src, kind, True)
+    out, report = poison_bytes(src, SPEC, data=src.read_bytes(), marker=MARKER)
+    in_memory = seal_bytes(out, KEY, src.name)
+    assert in_memory != out and report.dst_bytes == len(out)
+    assert in_memory == sealed(src, tmp_path / f"a{suffix}")
+    (tmp_path / f"m{suffix}").write_bytes(in_memory)
+    assert read_seal(tmp_path / f"m{suffix}", KEY) == SEAL
+    with pytest.raises(SealError, match="no seal placeholder"):
+        seal_bytes(src.read_bytes(), KEY, src.name)
+    with pytest.raises(SealError, match="empty"):
+        seal_bytes(b"", KEY, src.name)
 
 
 def test_seal_file_without_placeholder_refuses(tmp_path: Path) -> None:

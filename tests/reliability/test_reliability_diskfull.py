@@ -127,6 +127,8 @@ def _raise_enospc(*_: object, **__: object) -> None:
 
 
 def _fail_write_bytes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The patched bytes' first write fails half-way: an image's, made in memory, into the temporary
+    beside the file (replace_atomically); a work file's (a large image, a video) in the vault."""
     real = Path.write_bytes
 
     def write_bytes(self: Path, data: bytes) -> int:
@@ -136,7 +138,12 @@ def _fail_write_bytes(monkeypatch: pytest.MonkeyPatch) -> None:
             _raise_enospc()
         return real(self, data)
 
+    def write_all(fd: int, data: bytes) -> None:
+        os.write(fd, data[: len(data) // 2])
+        _raise_enospc()
+
     monkeypatch.setattr(Path, "write_bytes", write_bytes)
+    monkeypatch.setattr(daemon.protect.stages, "write_all", write_all)
 
 
 def _fail_fsync(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -206,5 +213,6 @@ def test_enospc_module_points_exist() -> None:
         callable(daemon.store.vault._write_blob)
         and "_write_blob(tmp_fd" in Path(daemon.store.vault.__file__).read_text()
     )
-    assert "PATCHED_PREFIX" in Path(daemon.protect.stages.__file__).read_text()
+    stages = Path(daemon.protect.stages.__file__).read_text()
+    assert "PATCHED_PREFIX" in stages and "write_all(fd, content)" in stages
     assert "os.rename(tmp_name, name" in Path(poisoner.atomic.__file__).read_text()

@@ -185,17 +185,20 @@ def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
 def _replace_after_poisoning(monkeypatch: pytest.MonkeyPatch, replace: Callable[[], None]) -> None:
     """Make a concurrent writer act at the worst instant, once: right after the patched file is
     complete, before protect_file compares and swaps it into place."""
-    real = daemon.protect.stages.poison_to
     done: list[bool] = []
 
-    def poison_then_replace(kind: str, src: Path, dst: Path, *args: object, **kw: object) -> object:
-        result = real(kind, src, dst, *args, **kw)
-        if not done:
-            done.append(True)
-            replace()
-        return result
+    def then_replace(real: Callable[..., object]) -> Callable[..., object]:
+        def poison_then_replace(*args: object, **kw: object) -> object:
+            result = real(*args, **kw)
+            if not done:
+                done.append(True)
+                replace()
+            return result
 
-    monkeypatch.setattr(daemon.protect.stages, "poison_to", poison_then_replace)
+        return poison_then_replace
+
+    for name in ("poison_to", "poison_image_bytes"):  # a work file, or an image made in memory
+        monkeypatch.setattr(daemon.protect.stages, name, then_replace(getattr(daemon.protect.stages, name)))
 
 
 @pytest.mark.parametrize("how", ["rename-over", "rewrite-in-place", "symlink-swap"])

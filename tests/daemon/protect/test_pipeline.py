@@ -57,17 +57,21 @@ def test_the_crash_safe_order_is_one_list_of_named_stages(ctx: AppContext) -> No
 
 
 def _swap_after_poisoning(monkeypatch: pytest.MonkeyPatch, swap: Callable[[], object]) -> None:
-    real = daemon.protect.stages.poison_to
+    """swap() once, right after the poisoner ran (in memory or to a work file), before the replace."""
     done: list[bool] = []
 
-    def poison_then_swap(*args: object, **kw: object) -> object:
-        result = real(*args, **kw)
-        if not done:
-            done.append(True)
-            swap()
-        return result
+    def then_swap(real: Callable[..., object]) -> Callable[..., object]:
+        def poison_then_swap(*args: object, **kw: object) -> object:
+            result = real(*args, **kw)
+            if not done:
+                done.append(True)
+                swap()
+            return result
 
-    monkeypatch.setattr(daemon.protect.stages, "poison_to", poison_then_swap)
+        return poison_then_swap
+
+    for name in ("poison_to", "poison_image_bytes"):
+        monkeypatch.setattr(daemon.protect.stages, name, then_swap(getattr(daemon.protect.stages, name)))
 
 
 def test_folder_swapped_for_a_symlink_before_the_write(

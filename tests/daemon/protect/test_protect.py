@@ -265,15 +265,17 @@ def test_file_replaced_mid_processing_is_not_clobbered(
     src = make_image(ppd_env["outbox"] / "shoot" / "a.png", 1)
     newer = make_image(ppd_env["outbox"] / ".newer.png", 99)
     newer_bytes = newer.read_bytes()
-    real_poison_file = poisoner.formats.poison_file
+    real_poison_bytes = poisoner.formats.poison_bytes  # what poison_file and the daemon's in-memory path run
 
-    def poison_then_user_saves_a_new_version(s: Path, d: Path, spec: PatchSpec, **kw: Any) -> PoisonReport:
-        report = real_poison_file(s, d, spec, **kw)
+    def poison_then_user_saves_a_new_version(
+        s: Path, spec: PatchSpec, **kw: Any
+    ) -> tuple[bytes, PoisonReport]:
+        made = real_poison_bytes(s, spec, **kw)
         if newer.exists():
             os.replace(newer, src)  # the user's editor saves a new version meanwhile (once)
-        return report
+        return made
 
-    monkeypatch.setattr(poisoner.formats, "poison_file", poison_then_user_saves_a_new_version)
+    monkeypatch.setattr(poisoner.formats, "poison_bytes", poison_then_user_saves_a_new_version)
     outcome = protect_file(src, ctx)
     # The new version is never overwritten: the run starts over and patches it.
     new_sha = hashlib.sha256(newer_bytes).hexdigest()
