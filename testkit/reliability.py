@@ -428,3 +428,24 @@ def patched_then_store_lost(folder: Path, seed: int) -> tuple[Path, bytes]:
     for suffix in ("", "-wal", "-shm"):
         Path(f"{db}{suffix}").unlink(missing_ok=True)
     return photo, original
+
+
+def act_after_poisoning(monkeypatch: object, action: Callable[[], object]) -> None:
+    """Run action() once, at the worst instant for a concurrent change: right after the poisoner made
+    the patched file (in memory, or a work file), before protect_file compares and swaps it in."""
+    import daemon.protect.stages as stages
+
+    done: list[bool] = []
+
+    def then_act(real: Callable[..., object]) -> Callable[..., object]:
+        def poison_then_act(*args: object, **kw: object) -> object:
+            result = real(*args, **kw)
+            if not done:
+                done.append(True)
+                action()
+            return result
+
+        return poison_then_act
+
+    for name in ("poison_to", "poison_image_bytes"):
+        monkeypatch.setattr(stages, name, then_act(getattr(stages, name)))  # type: ignore[attr-defined]

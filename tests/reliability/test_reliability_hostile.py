@@ -15,7 +15,6 @@ from pathlib import Path
 
 import pytest
 
-import daemon.protect.stages
 from daemon.paths import AppPaths
 from daemon.protect.one_file import AppContext, ProtectOutcome, protect_file
 from daemon.states import FileState
@@ -23,6 +22,7 @@ from daemon.store import Store
 from testkit.hostile_inputs import HostileInput, build_hostile_corpus
 from testkit.reliability import (
     DAEMON_ARGS,
+    act_after_poisoning,
     app_paths,
     check_invariants,
     kill_daemon,
@@ -183,22 +183,8 @@ def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
 
 
 def _replace_after_poisoning(monkeypatch: pytest.MonkeyPatch, replace: Callable[[], None]) -> None:
-    """Make a concurrent writer act at the worst instant, once: right after the patched file is
-    complete, before protect_file compares and swaps it into place."""
-    done: list[bool] = []
-
-    def then_replace(real: Callable[..., object]) -> Callable[..., object]:
-        def poison_then_replace(*args: object, **kw: object) -> object:
-            result = real(*args, **kw)
-            if not done:
-                done.append(True)
-                replace()
-            return result
-
-        return poison_then_replace
-
-    for name in ("poison_to", "poison_image_bytes"):  # a work file, or an image made in memory
-        monkeypatch.setattr(daemon.protect.stages, name, then_replace(getattr(daemon.protect.stages, name)))
+    """Make a concurrent writer act at the worst instant, once (testkit.reliability)."""
+    act_after_poisoning(monkeypatch, replace)
 
 
 @pytest.mark.parametrize("how", ["rename-over", "rewrite-in-place", "symlink-swap"])

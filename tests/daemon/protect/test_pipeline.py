@@ -10,12 +10,11 @@ from pathlib import Path
 
 import pytest
 
-import daemon.protect.stages
 from daemon.protect.job import Outcome
 from daemon.protect.one_file import AppContext, protect_file
 from daemon.protect.stages import STAGES
 from daemon.states import FileState
-from testkit.reliability import write_image
+from testkit.reliability import act_after_poisoning, write_image
 
 
 def _sha(path: Path) -> str:
@@ -57,21 +56,7 @@ def test_the_crash_safe_order_is_one_list_of_named_stages(ctx: AppContext) -> No
 
 
 def _swap_after_poisoning(monkeypatch: pytest.MonkeyPatch, swap: Callable[[], object]) -> None:
-    """swap() once, right after the poisoner ran (in memory or to a work file), before the replace."""
-    done: list[bool] = []
-
-    def then_swap(real: Callable[..., object]) -> Callable[..., object]:
-        def poison_then_swap(*args: object, **kw: object) -> object:
-            result = real(*args, **kw)
-            if not done:
-                done.append(True)
-                swap()
-            return result
-
-        return poison_then_swap
-
-    for name in ("poison_to", "poison_image_bytes"):
-        monkeypatch.setattr(daemon.protect.stages, name, then_swap(getattr(daemon.protect.stages, name)))
+    act_after_poisoning(monkeypatch, swap)
 
 
 def test_folder_swapped_for_a_symlink_before_the_write(
