@@ -39,6 +39,7 @@ import os
 import re
 import struct
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -117,20 +118,21 @@ class _Token:
     tag: bytes  # those characters
 
 
-def _tokens(mm: _Bytes) -> list[_Token]:
-    """The well-formed tokens in the file, in order (at most _MAX_TOKENS)."""
-    found: list[_Token] = []
+def _tokens(mm: _Bytes) -> Iterator[_Token]:
+    """The well-formed tokens in the file, in order (at most _MAX_TOKENS), found as they are asked
+    for: sealing stops at its placeholder (in the header) instead of searching the rest."""
+    found = 0
     at = mm.find(MAGIC)
-    while at >= 0 and len(found) < _MAX_TOKENS:
+    while at >= 0 and found < _MAX_TOKENS:
         pos = at + len(MAGIC)
         head = mm[pos : pos + 2]
         if len(head) == 2 and set(head) <= _HEX:
             n = int(head, 16)
             text = bytes(mm[pos + 2 : pos + 2 + 2 * n + _TAG_HEX])
             if len(text) == 2 * n + _TAG_HEX and set(text) <= _HEX:
-                found.append(_Token(bytes.fromhex(text[: 2 * n].decode()), pos + 2 + 2 * n, text[2 * n :]))
+                found += 1
+                yield _Token(bytes.fromhex(text[: 2 * n].decode()), pos + 2 + 2 * n, text[2 * n :])
         at = mm.find(MAGIC, at + 1)
-    return found
 
 
 def _open_body(key: bytes, body: bytes) -> Seal | None:
@@ -311,7 +313,7 @@ def has_token(path: Path) -> bool:
     """Whether the file carries anything shaped like a seal (verified or not): for tests/benches."""
     try:
         with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-            return bool(_tokens(mm))
+            return next(_tokens(mm), None) is not None
     except (OSError, ValueError):
         return False
 
