@@ -401,9 +401,11 @@ SPAN_CALLS = (
 def spans(args: argparse.Namespace) -> None:
     """Where the time of one `ppd poison --workers 1 <folder>` process goes: the command run in
     this process with every stage of daemon.protect.stages (and the calls in SPAN_CALLS) wrapped in
-    a timer (CPU: time.process_time, wall: time.perf_counter); start-up = process start to the
-    first stage. Nested spans are counted in each (a stage's time includes its calls')."""
+    a timer (CPU: time.process_time, wall: time.perf_counter; the kernel's share of the CPU and the
+    minor page faults from getrusage); start-up = process start to the first stage. Nested spans are
+    counted in each (a stage's time includes its calls')."""
     import importlib
+    import resource
     from collections import defaultdict
 
     cache = Path(args.cache)
@@ -415,18 +417,21 @@ def spans(args: argparse.Namespace) -> None:
     work = fresh_copy(src, cache / "work-spans", args.count)
     env = fresh_state(cache / "state-spans")
     os.environ.update(env)
-    totals: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0])
+    totals: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0, 0.0, 0])
 
     def timed_call(label: str, fn: Any) -> Any:
         def wrapper(*a: Any, **kw: Any) -> Any:
-            c0, w0 = time.process_time(), time.perf_counter()
+            c0, w0, r0 = time.process_time(), time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
             try:
                 return fn(*a, **kw)
             finally:
+                r1 = resource.getrusage(resource.RUSAGE_SELF)
                 t = totals[label]
                 t[0] += time.process_time() - c0
                 t[1] += time.perf_counter() - w0
                 t[2] += 1
+                t[3] += r1.ru_stime - r0.ru_stime
+                t[4] += r1.ru_minflt - r0.ru_minflt
 
         return wrapper
 
@@ -451,15 +456,15 @@ def spans(args: argparse.Namespace) -> None:
     with contextlib.suppress(SystemExit):
         app(["poison", str(work), "--workers", "1"], standalone_mode=False)
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-    import resource
-
     usage = resource.getrusage(resource.RUSAGE_SELF)
     print(f"{args.count} x {args.only}: the command in-process CPU {cpu:.2f} s, wall {wall:.2f} s; the whole "
           f"process (interpreter start and imports included) {usage.ru_utime + usage.ru_stime:.2f} s CPU")
-    print("| span | calls | CPU ms per file | wall ms per file |")
-    print("|---|---|---|---|")
-    for label, (c, w, n) in totals.items():
-        print(f"| {label} | {n} | {c * 1000 / args.count:.1f} | {w * 1000 / args.count:.1f} |")
+    print("| span | calls | CPU ms per file | of which system | wall ms per file | minor faults per file |")
+    print("|---|---|---|---|---|---|")
+    for label, (c, w, n, sys_s, faults) in totals.items():
+        per = args.count
+        print(f"| {label} | {n} | {c * 1000 / per:.1f} | {sys_s * 1000 / per:.1f} | {w * 1000 / per:.1f} | "
+              f"{faults / per:.0f} |")
     shutil.rmtree(work, ignore_errors=True)
 
 
