@@ -390,7 +390,8 @@ SPAN_CALLS = (
     ("daemon.cli.scene_note", "scene_line"),  # the summary's scene hint (reads a sample of the images)
     ("poisoner.formats", "plan_mark"),
     ("poisoner.formats", "_write_format"),
-    ("daemon.protect.poisoning", "seal_output"),
+    ("daemon.protect.poisoning", "seal_output"),  # a work file's seal (videos, images over 64 MiB)
+    ("daemon.protect.poisoning", "seal_in_memory"),  # an image's, made in memory
     ("daemon.store.vault", "Vault.keep_fd"),
     ("daemon.fsops", "sha256_fd"),
     ("daemon.store.vault", "sha256_file"),

@@ -189,7 +189,7 @@ def read_fd(fd: int) -> bytes:
     return data
 
 
-def write_all(fd: int, data: bytes) -> None:
+def write_all(fd: int, data: bytes | bytearray) -> None:
     """os.write until every byte is written (a nearly full disk takes a short write first)."""
     view = memoryview(data)
     while view:

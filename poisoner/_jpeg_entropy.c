@@ -262,7 +262,9 @@ static int decode_block(Reader *r, const Huff *dc, const Huff *ac, int32_t *dc_d
 
 /* One block skipped (index): only its DC difference is kept. An AC symbol and its value take one
  * table look-up and one shift (the skip table); the accumulator is refilled only when fewer than 32
- * bits are left. Same acceptance as decode_block. */
+ * bits are left. Accepts what decode_block accepts, except a zero run (ZRL) past the block's end,
+ * which decode_block (like libjpeg) reads and this refuses: the index runs first, so a file it
+ * accepts is one decode_block reads the same way. */
 static inline int skip_block(Reader *r, const Huff *dc, const Huff *ac, int32_t *dc_diff)
 {
     fill(r);

@@ -265,14 +265,12 @@ def seal_file(path: Path, key: bytes) -> None:
         os.close(fd)
 
 
-def seal_bytes(data: bytes, key: bytes, name: str) -> bytes:
-    """seal_file for a finished output held in memory (name: the file's, for the error): the same
-    bytes seal_file leaves in a file holding data."""
+def seal_bytes(data: bytearray, key: bytes, name: str) -> None:
+    """seal_file for a finished output held in memory, sealed in place (name: the file's, for the
+    error): data then holds the bytes seal_file leaves in a file that held them."""
     if not data:
         raise SealError(f"{name}: empty file, nothing to seal")
-    buf = bytearray(data)
-    _seal(buf, key, name)
-    return bytes(buf)
+    _seal(data, key, name)
 
 
 def _seal(mm: _Bytes, key: bytes, name: str) -> None:

@@ -96,14 +96,14 @@ class Job:
     file: ContainedFile | None = None
     kind: str | None = None
     sha: str | None = None
-    data: bytes | None = None  # the original's bytes as hashed (small files), until keep_in_vault
+    data: bytes | None = None  # the original's bytes as hashed (small images), until poison
     row: dict[str, Any] | None = None
     spec: PatchSpec | None = None
     work: Path | None = None  # private folder inside the vault
     original: Path | None = None  # private copy of the original, named like the file
     poisoned: Path | None = None
     poisoned_sha: str | None = None
-    poisoned_data: bytes | None = None  # the sealed output's bytes as hashed (small files)
+    poisoned_data: bytes | bytearray | None = None  # the sealed output's bytes as hashed (small images)
     written: FileSignature | None = None
     report: Any = None
     final: Path | None = None

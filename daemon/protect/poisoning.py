@@ -159,11 +159,11 @@ def seal_output(ctx: AppContext, path: Path) -> None:
     seal_file(path, ctx.seal_key())
 
 
-def sealed_bytes(ctx: AppContext, data: bytes, name: str) -> bytes:
-    """seal_output for a finished patched file held in memory."""
+def seal_in_memory(ctx: AppContext, data: bytearray, name: str) -> None:
+    """seal_output for a finished patched file held in memory (sealed in place)."""
     from poisoner.provenance import seal_bytes
 
-    return seal_bytes(data, ctx.seal_key(), name)
+    seal_bytes(data, ctx.seal_key(), name)
 
 
 def link_or_copy(src: Path, dst: Path) -> None:

@@ -91,8 +91,8 @@ from daemon.protect.poisoning import (
     poison_isolated,
     poison_to,
     provenance_marker,
+    seal_in_memory,
     seal_output,
-    sealed_bytes,
     work_copy_name,
     work_folder,
 )
@@ -378,8 +378,11 @@ def poison(job: Job) -> ProtectOutcome | None:
             **limits,
         )  # fmt: skip
         del data
-        job.poisoned_data = sealed_bytes(job.ctx, out, job.path.name)
-        job.poisoned_sha = hashlib.sha256(job.poisoned_data).hexdigest()
+        patched = bytearray(out)  # sealed in place; the unsealed copy dropped at once (peak: two copies)
+        del out
+        seal_in_memory(job.ctx, patched, job.path.name)
+        job.poisoned_data = patched
+        job.poisoned_sha = hashlib.sha256(patched).hexdigest()
         return None
     del data
     job.poisoned = job.work / work_copy_name(PATCHED_PREFIX, job.path.name)
@@ -504,21 +507,21 @@ def run_stages(
 
 
 # ---- writing outside the file's folder ---------------------------------------------------------
-def _patched(job: Job) -> Path | bytes:
+def _patched(job: Job) -> Path | bytes | bytearray:
     """The patched file poison() hashed: its bytes in memory, or its work file."""
     content = job.poisoned_data if job.poisoned_data is not None else job.poisoned
     assert content is not None
     return content
 
 
-def _write_content(fd: int, content: Path | bytes) -> None:
-    if isinstance(content, bytes):
+def _write_content(fd: int, content: Path | bytes | bytearray) -> None:
+    if not isinstance(content, Path):
         write_all(fd, content)
     else:
         copy_path_to_fd(content, fd)
 
 
-def _write_out(job: Job, content: Path | bytes) -> None:
+def _write_out(job: Job, content: Path | bytes | bytearray) -> None:
     """`--out`: the copy goes into the output folder the user named (trusted, created if needed)."""
     out = job.record_path
     out.parent.mkdir(parents=True, exist_ok=True)

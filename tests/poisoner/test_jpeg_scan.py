@@ -448,8 +448,8 @@ def test_a_table_with_more_short_codes_than_fit_is_refused_before_it_is_built() 
 
 def test_a_run_past_the_blocks_end_is_refused(tmp_path: Path) -> None:
     """Four runs of 16 zeros carry a block past its 63rd coefficient: no encoder writes that, the index
-    refuses it (the C module's skip table, and decode_block, take runs past the end as damage) and
-    libjpeg's path patches the file (libjpeg reads such a block, ignoring what lies past its end)."""
+    refuses it (the C module's index takes a run past the end as damage; decode_block, like libjpeg,
+    reads it, and runs only on files the index accepted) and libjpeg's path patches the file."""
     cols, n = 16, 128
     fine = crafted_grey_jpeg([5] * n, [0] * n, cols=cols, zrls=[3 * (i == 9) for i in range(n)])
     assert jpeg_scan.index(fine).dc[:, 0].tolist() == [5] * n  # three runs end at 49: a fine block

@@ -212,15 +212,18 @@ def test_sealed_in_memory_is_sealed_on_disk(tmp_path: Path, kind: str) -> None:
     src = tmp_path / f"src{suffix}"
     write(src, kind, True)
     out, report = poison_bytes(src, SPEC, data=src.read_bytes(), marker=MARKER)
-    in_memory = seal_bytes(out, KEY, src.name)
+    in_memory = bytearray(out)
+    seal_bytes(in_memory, KEY, src.name)
     assert in_memory != out and report.dst_bytes == len(out)
-    assert in_memory == sealed(src, tmp_path / f"a{suffix}")
+    assert bytes(in_memory) == sealed(src, tmp_path / f"a{suffix}")
     (tmp_path / f"m{suffix}").write_bytes(in_memory)
     assert read_seal(tmp_path / f"m{suffix}", KEY) == SEAL
+    unsealed = bytearray(src.read_bytes())
     with pytest.raises(SealError, match="no seal placeholder"):
-        seal_bytes(src.read_bytes(), KEY, src.name)
+        seal_bytes(unsealed, KEY, src.name)
+    assert unsealed == src.read_bytes()
     with pytest.raises(SealError, match="empty"):
-        seal_bytes(b"", KEY, src.name)
+        seal_bytes(bytearray(), KEY, src.name)
 
 
 def test_seal_file_without_placeholder_refuses(tmp_path: Path) -> None:

@@ -126,24 +126,31 @@ def _raise_enospc(*_: object, **__: object) -> None:
     raise OSError(errno.ENOSPC, ENOSPC_TEXT)
 
 
-def _fail_write_bytes(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The patched bytes' first write fails half-way: an image's, made in memory, into the temporary
-    beside the file (replace_atomically); a work file's (a large image, a video) in the vault."""
-    real = Path.write_bytes
-
-    def write_bytes(self: Path, data: bytes) -> int:
-        if self.name.startswith(daemon.protect.stages.PATCHED_PREFIX):  # the poison stage's output
-            with open(self, "wb") as fh:  # half of it lands, then the disk is full
-                fh.write(data[: len(data) // 2])
-            _raise_enospc()
-        return real(self, data)
+def _fail_patched_write(monkeypatch: pytest.MonkeyPatch) -> None:
+    """An image's patched bytes, made in memory, fail half-way through their one write: into the
+    temporary beside the file (replace_atomically)."""
 
     def write_all(fd: int, data: bytes) -> None:
         os.write(fd, data[: len(data) // 2])
         _raise_enospc()
 
-    monkeypatch.setattr(Path, "write_bytes", write_bytes)
     monkeypatch.setattr(daemon.protect.stages, "write_all", write_all)
+
+
+def _fail_work_file_write(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The poison stage's work file (an image over IN_MEMORY_MAX, a video: made small here, so both
+    test images take that path) fails half-way through its write in the vault's work folder."""
+    real = Path.write_bytes
+
+    def write_bytes(self: Path, data: bytes) -> int:
+        if self.name.startswith(daemon.protect.stages.PATCHED_PREFIX):
+            with open(self, "wb") as fh:  # half of it lands, then the disk is full
+                fh.write(data[: len(data) // 2])
+            _raise_enospc()
+        return real(self, data)
+
+    monkeypatch.setattr(daemon.protect.stages, "IN_MEMORY_MAX", 0)
+    monkeypatch.setattr(Path, "write_bytes", write_bytes)
 
 
 def _fail_fsync(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -167,7 +174,8 @@ def _fail_vault_copy(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 INJECTIONS: dict[str, Callable[[pytest.MonkeyPatch], None]] = {
-    "poisoned-write": _fail_write_bytes,
+    "poisoned-write": _fail_patched_write,
+    "poisoned-work-file-write": _fail_work_file_write,
     "fsync": _fail_fsync,
     "atomic-rename": _fail_replace,
     "vault-copy": _fail_vault_copy,
