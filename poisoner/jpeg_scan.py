@@ -195,7 +195,10 @@ def _layout(
             raise Unsupported("Huffman table missing")
         coding.append((h, v, td, ta))
     tables_of = tuple(quant[frame[8 + 3 * i]] for i in range(n))
-    return ScanLayout(width, height, frame[5:], sampling, tuple(coding), tuple(tables), tables_of, dqt,
+    # only the tables the scan uses are built (as libjpeg builds them): another one may hold anything
+    used = {td for _, _, td, _ in coding} | {4 + ta for _, _, _, ta in coding}
+    scan_tables = tuple(t if i in used else None for i, t in enumerate(tables))
+    return ScanLayout(width, height, frame[5:], sampling, tuple(coding), tuple(scan_tables), tables_of, dqt,
                       scan_header, start)  # fmt: skip
 
 
