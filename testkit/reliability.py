@@ -267,6 +267,11 @@ class CrashTrialOptions:
     image_size: int = 192  # px (square)
     video_every: int = 4  # trial i drops one small MP4 when i % video_every == 0 (0: never)
     kill_after_s: tuple[float, float] = (0.0, 1.2)  # uniform delay after the drop
+    # Every n-th trial (0: none) waits, up to 10 s, until the daemon is seen working (a pending row or
+    # a temporary) and kills it 0-40 ms later: a kill mid-work however fast the machine protects and
+    # however slow the daemon starts (four 640 px photos take ~0.1 s, so a fixed window after the drop
+    # can miss the work in every trial).
+    kill_when_working_every: int = 0
     seed: int = 0
     final_timeout_s: float = 180.0
 
@@ -325,6 +330,12 @@ def _work_pending(paths: AppPaths) -> bool:
         store.close()
 
 
+def _wait_for_work(paths: AppPaths, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not (paths.db_path.exists() and _work_pending(paths)):
+        time.sleep(0.005)
+
+
 def run_crash_trials(
     root: Path, options: CrashTrialOptions, on_trial: Callable[[int, CrashTrialReport], None] | None = None
 ) -> CrashTrialReport:
@@ -347,7 +358,12 @@ def run_crash_trials(
             report.videos += 1
         dest = paths.outbox / f"set{trial % 3}"
         originals.update(drop_files(root / "stage", dest, names, options.image_size))
-        time.sleep(rng.uniform(*options.kill_after_s))
+        every = options.kill_when_working_every
+        if every and trial % every == every - 1:
+            _wait_for_work(paths, 10.0)
+            time.sleep(rng.uniform(0.0, 0.04))
+        else:
+            time.sleep(rng.uniform(*options.kill_after_s))
         report.exit_codes[kill_daemon(daemon)] += 1
         report.trials += 1
         report.killed_with_work_pending += int(_work_pending(paths))

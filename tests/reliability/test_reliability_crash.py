@@ -27,7 +27,8 @@ from testkit.reliability import (
 
 def test_random_sigkills_lose_nothing_and_a_restart_finishes(tmp_path: Path) -> None:
     options = CrashTrialOptions(
-        trials=10, images_per_trial=4, image_size=640, video_every=5, seed=8, kill_after_s=(0.1, 0.7)
+        trials=10, images_per_trial=4, image_size=640, video_every=5, seed=8, kill_after_s=(0.1, 0.7),
+        kill_when_working_every=2,
     )
     report = run_crash_trials(tmp_path, options)
     summary = f"{report}"
