@@ -22,7 +22,8 @@ or foreign token fails there) and then the tag over the whole file (one pass, ab
 
 Where the token lives:
 - JPEG, WebP, TIFF, HEIC/AVIF: XMP, one `rdf:Description` in the namespace NS with one attribute,
-  added to the source's packet (the rest kept as it was) or a new minimal packet;
+  added to the source's packet (the rest kept as it was) or a new minimal packet; a JPEG packet with
+  no room left in its 64 KB segment: its padding, else a comment (COM) segment (embed_jpeg);
 - PNG: an uncompressed iTXt chunk (keyword PNG_KEYWORD) right after IHDR;
 - MP4/MOV: a top-level `uuid` box (MP4_UUID) appended after the last box (no offset moves);
 - Matroska/WebM: a container tag MKV_TAG.
@@ -374,15 +375,30 @@ def xmp_with_marker(xmp: bytes | None, marker: Marker) -> bytes:
 
 
 # ---- embedding -----------------------------------------------------------------------------------
+_SEGMENT_MAX = 0xFFFF - 2  # a JPEG segment's payload, at most
+_PACKET_END = re.compile(rb"(\s*)<\?xpacket\s+end=")
+
+
 def embed_jpeg(data: bytes, marker: Marker) -> bytes:
-    """The JPEG with the seal in its XMP APP1 segment; the scans are copied verbatim."""
+    """The JPEG with the seal in its XMP APP1 segment; the scans are copied verbatim. A packet with
+    no room left in its 64 KB segment gives up the padding its writer left for in-place edits (the
+    whitespace before `<?xpacket end`, 2 KB from Adobe's writers); one with too little padding is
+    kept as it is and the seal goes into a comment (COM) segment after it. A seal an earlier run put
+    in a comment is removed either way."""
     from poisoner.location import jpeg_assemble, jpeg_header_segments
 
     segments, sos = jpeg_header_segments(data)
+    segments = [(m, p) for m, p in segments if not (m == 0xFE and p.startswith(MAGIC))]
+    room = _SEGMENT_MAX - len(_XMP_JPEG_HEADER)
     for i, (m, payload) in enumerate(segments):
         if m == 0xE1 and payload.startswith(_XMP_JPEG_HEADER):
-            body = xmp_with_marker(payload[len(_XMP_JPEG_HEADER) :], marker)
-            segments[i] = (m, _XMP_JPEG_HEADER + body)
+            xmp = payload[len(_XMP_JPEG_HEADER) :]
+            body = _within(xmp_with_marker(xmp, marker), room)
+            if body is None:  # the user's packet stays whole (an earlier seal taken out of it)
+                segments[i] = (m, _XMP_JPEG_HEADER + xmp_without_marker(xmp))
+                segments.insert(i + 1, (0xFE, marker.text.encode()))
+            else:
+                segments[i] = (m, _XMP_JPEG_HEADER + body)
             break
     else:
         # after the leading APP0/APP1 run (JFIF, EXIF): where XMP conventionally sits
@@ -391,6 +407,19 @@ def embed_jpeg(data: bytes, marker: Marker) -> bytes:
             at += 1
         segments.insert(at, (0xE1, _XMP_JPEG_HEADER + fresh_xmp(marker)))
     return jpeg_assemble(segments, data, sos)
+
+
+def _within(xmp: bytes, room: int) -> bytes | None:
+    """The packet in `room` bytes, taking what it needs from its trailing padding; None when the
+    padding is too short."""
+    over = len(xmp) - room
+    if over <= 0:
+        return xmp
+    ends = list(_PACKET_END.finditer(xmp))
+    if not ends or len(ends[-1].group(1)) < over:
+        return None
+    pad_end = ends[-1].end(1)
+    return xmp[: pad_end - over] + xmp[pad_end:]
 
 
 def _png_chunk(ctype: bytes, body: bytes) -> bytes:

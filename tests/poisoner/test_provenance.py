@@ -287,3 +287,48 @@ def test_quoteattr_is_the_standard_librarys(text: str) -> None:
     from poisoner.provenance import quoteattr
 
     assert quoteattr(text) == standard(text)
+
+
+def _full_xmp(padding: int) -> bytes:
+    """An XMP packet filling a JPEG's APP1 segment but for 60 bytes, `padding` of them the trailing
+    whitespace writers leave for in-place edits (Adobe's: 2 KB)."""
+    head = (b'<?xpacket begin="\xef\xbb\xbf" id="W5M0MpCehiHzreSzNTczkc9d"?>'
+            b'<x:xmpmeta xmlns:x="adobe:ns:meta/">'
+            b'<rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+            b'<rdf:Description rdf:about="" xmlns:dc="http://purl.org/dc/elements/1.1/"><dc:description>')
+    tail = b"</dc:description></rdf:Description></rdf:RDF></x:xmpmeta>"
+    end = b'<?xpacket end="w"?>'
+    size = 0xFFFF - 2 - len(b"http://ns.adobe.com/xap/1.0/\x00") - 60
+    words = (size - len(head + tail + end) - padding) // 10
+    return head + b"user-kept " * words + tail + b" " * padding + end
+
+
+def _segments(data: bytes, marker: int) -> list[bytes]:
+    segments, _ = location.jpeg_header_segments(data)
+    return [p for m, p in segments if m == marker]
+
+
+@pytest.mark.parametrize("padding", [2048, 0])
+def test_a_full_xmp_segment_still_takes_the_seal(tmp_path: Path, padding: int) -> None:
+    """A JPEG whose XMP all but fills its 64 KB segment (long histories, extended XMP's main packet)
+    was refused ("segment over 64 KB"): the photo stayed unprotected. The seal now takes the packet's
+    padding, or, with too little, goes into a comment segment beside the user's packet, kept whole."""
+    xmp = _full_xmp(padding)
+    src = tmp_path / "a.jpg"
+    Image.fromarray(pixels()).save(src, "JPEG", quality=90, xmp=xmp)
+    assert _segments(src.read_bytes(), 0xE1)[-1].endswith(xmp)
+    out = sealed(src, tmp_path / "b.jpg")
+    assert read_seal(tmp_path / "b.jpg", KEY) == SEAL
+    packets = [p for p in _segments(out, 0xE1) if p.startswith(b"http://ns.adobe.com/xap/1.0/")]
+    comments = [p for p in _segments(out, 0xFE) if p.startswith(MARKER.text[:6].encode())]
+    assert len(packets) == 1 and packets[0].count(b"user-kept ") == xmp.count(b"user-kept ")
+    if padding:  # in the packet, its padding shortened by what the seal took
+        assert comments == [] and MARKER.text[:40].encode() in packets[0]
+        assert packets[0].endswith(b'<?xpacket end="w"?>') and b" " * 1000 in packets[0]
+    else:  # the user's packet byte for byte, the seal in one comment
+        assert packets[0].endswith(xmp) and len(comments) == 1
+    # protected again (another spec): one seal, the new one
+    other = Marker.placeholder(KEY, "spec-2", "cd" * 32)
+    again = sealed(tmp_path / "b.jpg", tmp_path / "c.jpg", other, spec=MOVED)
+    assert read_seal(tmp_path / "c.jpg", KEY) == Seal("cd" * 32, "spec-2")
+    assert again.count(MARKER.text[:6].encode()) == 1
