@@ -465,3 +465,67 @@ def test_a_run_past_the_blocks_end_is_refused(tmp_path: Path) -> None:
     poison_file(tmp_path / "a.jpg", tmp_path / "out.jpg", SPECS["bottom-right"])
     with Image.open(tmp_path / "out.jpg") as out, Image.open(tmp_path / "a.jpg") as src:
         assert out.size == src.size and np.asarray(out).tolist() != np.asarray(src).tolist()
+
+
+# ---- the index's skip table (two AC symbols a look-up) against the one-symbol decoder --------------
+
+
+def _random_blocks(rng: np.random.Generator, n: int) -> np.ndarray:
+    """n blocks (natural order) of every shape a scan holds: empty, sparse with long zero runs
+    (ZRLs), dense, a last coefficient at 63 (no end of block), only the 63rd; values up to the
+    baseline's 10 bits (AC) and DC differences up to 11 bits."""
+    blocks = np.zeros((n, 64), dtype=np.int16)
+    zigzag = np.array(_zigzag())
+    for i in range(n):
+        kind = i % 6
+        density = (0.0, 0.03, 0.2, 0.7, 1.0, 0.0)[kind]
+        ac = np.where(rng.random(63) < density, rng.integers(1, 1024, 63) * rng.choice((-1, 1), 63), 0)
+        if kind in (2, 3) and rng.random() < 0.5:
+            ac[-1] = rng.integers(1, 1024)  # the block ends at 63: the next symbol is a DC
+        if kind == 5:
+            ac[-1] = rng.choice((-1, 1)) * rng.integers(1, 4)  # 62 zeros: three ZRLs, then run 14
+        blocks[i, zigzag[1:]] = ac
+        blocks[i, 0] = rng.integers(-1000, 1000)
+    return blocks
+
+
+def _zigzag() -> list[int]:
+    """Natural index of each zigzag position (the C module's NATURAL)."""
+    order = sorted((x + y, y if (x + y) % 2 else x, y * 8 + x) for y in range(8) for x in range(8))
+    return [n for _, _, n in order]
+
+
+def _shuffled_table(table: bytes, rng: np.random.Generator) -> bytes:
+    """The same code lengths, the symbols dealt to them anew: frequent symbols get long codes and
+    rare ones short, so the skip table's pairs, its single entries and the long-code path all run."""
+    values = bytearray(table[16:])
+    rng.shuffle(values)
+    return table[:16] + bytes(values)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("sampling", [((1, 1),), ((2, 2), (1, 1), (1, 1))])
+def test_the_index_reads_what_the_one_symbol_decoder_reads(seed: int, sampling: tuple) -> None:
+    """Random blocks coded with the standard tables (seed 0) or shuffled ones: the index's DC values
+    and MCU offsets (one look-up for two AC symbols where both fit in its 12 bits) let the
+    one-symbol decoder read back every coefficient coded."""
+    rng = np.random.default_rng(seed)
+    codec = jpeg_scan._codec()
+    buf = io.BytesIO()
+    Image.new("RGB", (16, 16)).save(buf, "JPEG")
+    tables = list(jpeg_scan.parse(buf.getvalue()).tables)
+    if seed:
+        tables = [_shuffled_table(t, rng) if i >= 4 and t else t for i, t in enumerate(tables)]
+    coding = tuple((h, v, min(i, 1), min(i, 1)) for i, (h, v) in enumerate(sampling))
+    bpm = sum(h * v for h, v in sampling)
+    n_mcus = 300
+    coef = _random_blocks(rng, n_mcus * bpm).reshape(n_mcus, bpm, 64)
+    scan = codec.encode(np.ascontiguousarray(coef), coding, tuple(tables)) + b"\xff\xd9"
+    clean, nbytes, _ = codec.unstuff(scan, 0)
+    offsets = np.empty(n_mcus + 1, dtype=np.int64)
+    dc = np.empty((n_mcus, bpm), dtype=np.int16)
+    codec.index(clean, nbytes, coding, tuple(tables), n_mcus, offsets, dc)
+    assert dc.tolist() == coef[:, :, 0].tolist()
+    back = np.empty_like(coef)
+    codec.decode(clean, nbytes, coding, tuple(tables), offsets, dc, np.arange(n_mcus, dtype=np.int64), back)
+    assert back.tolist() == coef.tolist()
