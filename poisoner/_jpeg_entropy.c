@@ -126,7 +126,8 @@ static int build_huff(Huff *t, const uint8_t *spec, Py_ssize_t len, int is_dc)
             int sym = t->vals[k];
             if (l <= 9) {
                 int shift = 9 - l;
-                for (int j = 0; j < (1 << shift); j++) t->look[(code << shift) + j] = (uint16_t)((l << 8) | sym);
+                for (int j = 0; j < (1 << shift); j++)
+                    t->look[(code << shift) + j] = (uint16_t)((l << 8) | sym);
             }
             if (!is_dc && l <= SKIP_BITS) {
                 int shift = SKIP_BITS - l;
@@ -296,12 +297,13 @@ static int decode_block(Reader *r, const Huff *dc, const Huff *ac, int32_t *dc_d
 }
 
 /* One block skipped (index): only its DC difference is kept. Two AC symbols with their values take
- * one table look-up and one shift where both codes lie in the next 12 bits (at q92 most do: a third
- * less time than one symbol a look-up, bench/results/batch.md round 12), one symbol otherwise; the
- * pair is taken only when the block goes on after its first symbol (else the second is the next
- * block's DC). The accumulator is refilled only when fewer than 32 bits are left. Accepts what decode_block accepts, except a zero run (ZRL) past the block's end,
- * which decode_block (like libjpeg) reads and this refuses: the index runs first, so a file it
- * accepts is one decode_block reads the same way. */
+ * one table look-up and one shift where both codes lie in the next SKIP_BITS bits (a 12 MP q92 file
+ * indexed in a third less time than with one symbol a look-up: bench/results/batch.md round 12), one
+ * symbol otherwise; the pair is taken only when the block goes on after its first symbol (else the
+ * second is the next block's DC). The accumulator is refilled only when fewer than 32 bits are left.
+ * Accepts what decode_block accepts, except a zero run (ZRL) past the block's end, which decode_block
+ * (like libjpeg) reads and this refuses: the index runs first, so a file it accepts is one decode_block
+ * reads the same way. */
 static inline int skip_block(Reader *r, const Huff *dc, const Huff *ac, int32_t *dc_diff)
 {
     fill(r);
