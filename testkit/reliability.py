@@ -127,6 +127,30 @@ def _vault_ok(paths: AppPaths, digest: str | None) -> bool:
     return blob.is_file() and sha256(blob) == digest
 
 
+def _sealed_for(paths: AppPaths, path: Path, row: dict) -> bool:
+    """Whether path holds ppd's complete output for row: its seal verifies over exactly these
+    bytes under this installation's key and names row's original and spec (the daemon's own test,
+    daemon.protect.recovery)."""
+    from daemon.store.sealkey import load_key
+    from poisoner.provenance import read_seal
+
+    seal = read_seal(path, load_key(paths.data_dir, create=False))
+    named = (row["original_sha256"], row["spec_id"])
+    return seal is not None and (seal.original_sha256, seal.spec_id) == named
+
+
+def _what_it_holds(paths: AppPaths, path: Path, on_disk: str | None, expected: str | None) -> str:
+    """For the failure message: enough to tell a torn file from another seal or another encode."""
+    from daemon.store.sealkey import load_key
+    from poisoner.provenance import has_token, read_seal
+
+    seal = read_seal(path, load_key(paths.data_dir, create=False))
+    named = f"a seal naming {seal.original_sha256[:12]} / {seal.spec_id}" if seal else "no valid seal"
+    token = "a seal token" if has_token(path) else "no seal token"
+    return (f"{path.stat().st_size} bytes, sha256 {(on_disk or '')[:12]}, {named}, {token}; "
+            f"re-poisoning gives {(expected or 'nothing')[:12]}")  # fmt: skip
+
+
 def expected_output(paths: AppPaths, store: Store, row: dict) -> str | None:
     """sha256 of what ppd writes for this row's original under its spec (poisoning is
     deterministic): the only non-original content a 'pending' path may hold."""
@@ -186,8 +210,11 @@ def _row_problems(paths: AppPaths, store: Store, row: dict, original: str | None
     elif state == "pending":
         if not _vault_ok(paths, row["original_sha256"]):
             return [f"vault: pending row's original of {path.name} missing or corrupt"]
-        if on_disk not in (None, row["original_sha256"]) and on_disk != expected_output(paths, store, row):
-            return [f"corrupted: pending {path.name} holds neither its original nor its protected form"]
+        if on_disk in (None, row["original_sha256"]) or _sealed_for(paths, path, row):
+            return []
+        if on_disk != (expected := expected_output(paths, store, row)):
+            return [f"corrupted: pending {path.name} holds neither its original nor its protected form "
+                    f"({_what_it_holds(paths, path, on_disk, expected)})"]  # fmt: skip
     elif state in ("failed", "skipped") and original is not None and on_disk not in (None, original):
         return [f"corrupted: {state} {path.name} was changed on disk"]
     return []

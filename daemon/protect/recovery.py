@@ -43,14 +43,20 @@ def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, datase
     return True
 
 
-def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str | None) -> bool:
-    """A 'pending' row means a run stopped between keeping the original and recording the
-    result. If the file now differs from the original, it may be our complete output (the
-    rename happened, the final row did not): poisoning is deterministic, so poison the vault
-    original again and compare. True (and the row completed) when it is ours."""
+def _sealed_for(ctx: AppContext, content: Path, row: dict[str, Any]) -> bool:
+    """Whether content carries ppd's seal over exactly its bytes naming row's original and spec:
+    the file ppd finished for this row (no re-encode needed, and no reliance on an encoder giving
+    the same bytes twice)."""
+    from poisoner.provenance import read_seal
+
+    seal = read_seal(content, ctx.seal_key())
+    named = (row["original_sha256"], row["spec_id"])
+    return seal is not None and (seal.original_sha256, seal.spec_id) == named
+
+
+def _redone_is(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str) -> bool:
+    """Whether poisoning row's vault original again under its spec gives exactly sha."""
     original_sha = row["original_sha256"]
-    if not kind or not original_sha or sha == original_sha or not ctx.vault.verify(original_sha):
-        return False
     spec = ctx.store.get_spec(row["spec_id"])
     with named_vault_copy(ctx, original_sha, path.name) as original:
         scratch = original.with_name(f"redo{path.suffix}")
@@ -67,8 +73,23 @@ def recover_pending(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, 
                 shown_name(path), one_line(exc), extra={"path": str(path)},
             )  # fmt: skip
             return False
-        if sha256_file(scratch) != sha:
-            return False
+        return sha256_file(scratch) == sha
+
+
+def recover_pending(
+    ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str | None, content: Path | None = None
+) -> bool:
+    """A 'pending' row means a run stopped between keeping the original and recording the
+    result. If the file now differs from the original, it may be our complete output (the
+    rename happened, the final row did not). It is when its provenance seal verifies over exactly
+    these bytes and names this row's original and spec (content: where to read the bytes that
+    were hashed, the opened file's descriptor path; default path); else poison the vault original
+    again and compare (poisoning is deterministic). True (and the row completed) when it is ours."""
+    original_sha = row["original_sha256"]
+    if not kind or not original_sha or sha == original_sha or not ctx.vault.verify(original_sha):
+        return False
+    if not _sealed_for(ctx, content or path, row) and not _redone_is(ctx, row, path, sha, kind):
+        return False
     st = path.stat()
     ctx.store.record_file(
         path, row["dataset"], FileState.PATCHED, poisoned_sha256=sha, size=st.st_size,

@@ -214,7 +214,8 @@ def recognise(job: Job) -> ProtectOutcome | None:
     interrupted = (
         out_path is None and row is not None and row["state"] == FileState.PENDING and not job.dry_run
     )
-    if interrupted and row is not None and recover_pending(ctx, row, job.path, sha, job.kind):
+    opened = fd_path(job.file.fd) if job.file is not None else None  # the bytes that were hashed
+    if interrupted and row is not None and recover_pending(ctx, row, job.path, sha, job.kind, opened):
         return job.outcome(Outcome.UNCHANGED, "recovered after an interrupted run", poisoned_sha256=sha)
     earlier = ctx.store.find_poisoned(sha)
     if earlier is not None:

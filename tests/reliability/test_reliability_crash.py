@@ -115,3 +115,57 @@ def test_duplicate_killed_between_rename_and_record_is_recovered(
     assert outcome.state == "unchanged" and "recovered" in outcome.reason, outcome
     assert row["state"] == FileState.PATCHED and row["poisoned_sha256"] == sha256(second)
     assert check_invariants(AppPaths.from_env(), {}) == []
+
+
+def test_a_pending_file_sealed_for_its_row_is_recovered_without_patching_it_again(
+    ppd_env: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """CI found a pending video whose bytes were not what patching its original again gave. Its
+    seal is what tells ppd's complete output: a run killed between the rename and the row, then a
+    restart under which re-poisoning gives other bytes (here: keep_location switched on, the photo
+    has GPS), completes the row from the seal; a file whose seal names another original does not."""
+    from PIL import Image
+
+    from daemon.protect.one_file import AppContext, protect_file
+    from poisoner.provenance import read_seal
+    from testkit.photos import gps_exif
+    from testkit.reliability import texture
+
+    photo = ppd_env["outbox"] / "trip" / "p.jpg"
+    photo.parent.mkdir()
+    Image.fromarray(texture(3, 320)).save(photo, quality=92, exif=gps_exif())
+    ctx = AppContext.open()
+    real_record = ctx.store.record_file
+
+    def die_before_recording_protected(path: Path | str, dataset: str, state: str, **kw: object) -> None:
+        if state == FileState.PATCHED:
+            raise Killed
+        real_record(path, dataset, state, **kw)
+
+    with monkeypatch.context() as patch, pytest.raises(Killed):
+        patch.setattr(ctx.store, "record_file", die_before_recording_protected)
+        protect_file(photo, ctx)
+    killed_output, seal = sha256(photo), read_seal(photo, ctx.seal_key())
+    assert seal is not None and ctx.store.file(photo)["state"] == "pending"
+    ctx.close()
+    (ppd_env["config"] / "config.toml").write_text("[privacy]\nkeep_location = true\n")
+    ctx = AppContext.open()
+    assert ctx.config.keep_location  # re-poisoning now keeps the GPS: other bytes
+    outcome = protect_file(photo, ctx)  # the restart
+    row = ctx.store.file(photo)
+    assert outcome.state == "unchanged" and "recovered" in outcome.reason, outcome
+    assert row["state"] == FileState.PATCHED and row["poisoned_sha256"] == killed_output == sha256(photo)
+    assert check_invariants(AppPaths.from_env(), {}) == []
+
+    # A sealed file for another original at a pending path is not taken as this row's output.
+    other = ppd_env["outbox"] / "trip" / "q.jpg"
+    Image.fromarray(texture(4, 320)).save(other, quality=92)
+    with monkeypatch.context() as patch, pytest.raises(Killed):
+        patch.setattr(ctx.store, "record_file", die_before_recording_protected)
+        protect_file(other, ctx)
+    pending = ctx.store.file(other)
+    ctx.close()
+    other.write_bytes(photo.read_bytes())  # ppd's sealed output, but of p.jpg's original
+    problems = check_invariants(AppPaths.from_env(), {})
+    assert pending["state"] == "pending", pending
+    assert any("q.jpg" in p and "a seal naming" in p for p in problems), problems
