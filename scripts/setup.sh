@@ -13,7 +13,7 @@ if [ ! -x "$VENV/bin/python" ]; then
 fi
 
 stamp="$VENV/.ppd-installed"
-want=$( (cat pyproject.toml setup.py poisoner/_jpeg_entropy.c scripts/setup.sh; echo "bench=${PPD_SETUP_BENCH:-0}") | sha256sum | cut -d' ' -f1)
+want=$( (cat pyproject.toml setup.py poisoner/_jpeg_entropy.c poisoner/_scene_filter.c scripts/setup.sh; echo "bench=${PPD_SETUP_BENCH:-0}") | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     "$VENV/bin/python" -m pip install -q --upgrade pip
     # The build backend in the venv itself: scripts/wheel_smoke.sh builds the wheel without

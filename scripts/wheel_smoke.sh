@@ -51,6 +51,8 @@ say "$version from $T/venv (checkout not on sys.path)"
 # The compiled module came with the wheel and loads (else JPEGs would quietly take the slower path).
 python -c "from poisoner import jpeg_scan; why = jpeg_scan.available(); assert why is None, why" \
     || fail "the bit-level JPEG splice (poisoner/_jpeg_entropy) does not load from the wheel"
+python -c "from poisoner import scene; assert scene._compiled_filter() is not None" \
+    || fail "the scene hint's filter (poisoner/_scene_filter) does not load from the wheel"
 
 # 3. A small shoot: an object on a plain backdrop (verifier.synthetic, the installed one).
 python -c "import sys; from pathlib import Path; from verifier.synthetic import SyntheticOptions, render_scene

@@ -57,6 +57,8 @@ def test_the_wheel_holds_every_package_and_data_file(tmp_path: Path) -> None:
         assert "daemon/ppd.service.in" in z.namelist()
         # the bit-level JPEG splice, compiled (wheel_check names it too): without it ppd runs, slower
         assert any(n.startswith("poisoner/_jpeg_entropy.") and n.endswith(".so") for n in z.namelist())
+        # and the scene hint's filter (else the hint takes its numpy loop, slower)
+        assert any(n.startswith("poisoner/_scene_filter.") and n.endswith(".so") for n in z.namelist())
         entry = z.read(next(n for n in z.namelist() if n.endswith("entry_points.txt"))).decode()
     assert "ppd = daemon.cli:app" in entry
 

@@ -273,13 +273,23 @@ def _frames() -> list[np.ndarray]:
     return [textured, plain, rng.random((17, 23), dtype=np.float32), rng.random((9, 800), dtype=np.float32)]
 
 
+@pytest.mark.parametrize("path", ["compiled", "numpy"])
 @pytest.mark.parametrize("sigma", [1.0, 2.0])
-def test_gaussian_is_scipys_bit_for_bit(sigma: float) -> None:
+def test_gaussian_is_scipys_bit_for_bit(sigma: float, path: str) -> None:
+    """Both filters: the C one (poisoner/_scene_filter.c, what a built package runs) and the numpy one
+    (a package built without a C compiler); lines shorter than the kernel (mirrored more than once) and
+    a strided view as well."""
     ndimage = pytest.importorskip("scipy.ndimage")
-    from poisoner.scene import gaussian
+    from poisoner.scene import _compiled_filter, gaussian, gaussian_numpy
 
-    for frame in _frames():
-        assert np.array_equal(gaussian(frame, sigma), ndimage.gaussian_filter(frame, sigma))
+    if path == "compiled" and _compiled_filter() is None:
+        pytest.fail("poisoner._scene_filter is not built (setup.py; `make setup` builds it)")
+    run = gaussian if path == "compiled" else gaussian_numpy
+    rng = np.random.default_rng(11)
+    frames = [*_frames(), rng.random((3, 5), dtype=np.float32), rng.random((1, 40), dtype=np.float32),
+              rng.random((60, 90), dtype=np.float32)[::2, ::3]]  # fmt: skip
+    for frame in frames:
+        assert np.array_equal(run(frame, sigma), ndimage.gaussian_filter(frame, sigma)), frame.shape
 
 
 def test_maximum3_is_scipys_maximum_filter() -> None:
