@@ -10,6 +10,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <stdlib.h>
+#include <string.h>
 
 static Py_ssize_t reflect(Py_ssize_t i, Py_ssize_t n)
 {
@@ -59,22 +60,63 @@ static void along_columns(const float *in, float *out, Py_ssize_t h, Py_ssize_t 
     }
 }
 
-/* gaussian(src, dst, height, width, weights): src and dst float32 C-contiguous buffers of
- * height * width, weights the kernel's 2r + 1 doubles; dst may not be src. */
+/* Whether a buffer's struct format is `fmt` in this machine's byte order. */
+static int native(const char *format, const char *fmt)
+{
+    const char *f = format ? format : "B";
+    if (f[0] == '@' || f[0] == '=' || f[0] == (PY_LITTLE_ENDIAN ? '<' : '>'))
+        f++;
+    return strcmp(f, fmt) == 0;
+}
+
+/* A C-contiguous buffer of n items of the struct format `fmt` ("f" float, "d" double). */
+static int get_buffer(PyObject *obj, Py_buffer *view, int writable, const char *fmt, Py_ssize_t n,
+                      const char *what)
+{
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, view, flags) < 0)
+        return -1;
+    if (!native(view->format, fmt) || view->len != n * view->itemsize) {
+        PyErr_Format(PyExc_ValueError, "gaussian: %s must hold %zd items of format '%s'", what, n, fmt);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+/* gaussian(src, dst, height, width, weights): src and dst C-contiguous float32 buffers of
+ * height * width items, weights the kernel's 2r + 1 doubles (r < width and height need not hold:
+ * the borders mirror as often as needed). */
 static PyObject *py_gaussian(PyObject *self, PyObject *args)
 {
-    Py_buffer src, dst, weights;
+    PyObject *src_obj, *dst_obj, *weights_obj;
     Py_ssize_t h, w;
     (void)self;
-    if (!PyArg_ParseTuple(args, "y*w*nny*", &src, &dst, &h, &w, &weights))
+    if (!PyArg_ParseTuple(args, "OOnnO", &src_obj, &dst_obj, &h, &w, &weights_obj))
         return NULL;
+    /* the sizes first: every product below stays far inside Py_ssize_t */
+    if (h <= 0 || w <= 0 || w > PY_SSIZE_T_MAX / 16 / h) {
+        PyErr_SetString(PyExc_ValueError, "gaussian: height and width must be positive and not huge");
+        return NULL;
+    }
+    Py_buffer src, dst, weights;
+    if (get_buffer(src_obj, &src, 0, "f", h * w, "src") < 0)
+        return NULL;
+    if (get_buffer(dst_obj, &dst, 1, "f", h * w, "dst") < 0) {
+        PyBuffer_Release(&src);
+        return NULL;
+    }
     PyObject *result = NULL;
-    Py_ssize_t taps = weights.len / (Py_ssize_t)sizeof(double);
     float *mid = NULL;
     double *acc = NULL, *pad = NULL;
-    if (h <= 0 || w <= 0 || src.len != h * w * (Py_ssize_t)sizeof(float) || dst.len != src.len ||
-        taps % 2 != 1 || weights.len != taps * (Py_ssize_t)sizeof(double)) {
-        PyErr_SetString(PyExc_ValueError, "gaussian: buffers do not match height, width and an odd kernel");
+    if (PyObject_GetBuffer(weights_obj, &weights, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
+        PyBuffer_Release(&src);
+        PyBuffer_Release(&dst);
+        return NULL;
+    }
+    Py_ssize_t taps = weights.itemsize ? weights.len / weights.itemsize : 0;
+    if (!native(weights.format, "d") || taps % 2 != 1 || taps > 4097) {
+        PyErr_SetString(PyExc_ValueError, "gaussian: weights must be an odd number (at most 4097) of doubles");
         goto done;
     }
     int r = (int)(taps / 2);
@@ -105,6 +147,8 @@ static PyMethodDef methods[] = {
     {NULL, NULL, 0, NULL},
 };
 
-static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_scene_filter", NULL, -1, methods};
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, .m_name = "_scene_filter", .m_doc = NULL, .m_size = -1, .m_methods = methods,
+};
 
 PyMODINIT_FUNC PyInit__scene_filter(void) { return PyModule_Create(&module); }

@@ -174,7 +174,9 @@ def gaussian(image: np.ndarray, sigma: float) -> np.ndarray:
 
     weights = _gaussian_weights(sigma)
     out = image.astype(np.float32, copy=False)
-    if (compiled := _compiled_filter()) is not None and out.ndim == 2 and out.size:
+    if out.size == 0:
+        return out.copy()
+    if (compiled := _compiled_filter()) is not None and out.ndim == 2:
         src = np.ascontiguousarray(out)
         dst = np.empty_like(src)
         compiled.gaussian(src, dst, src.shape[0], src.shape[1], np.asarray(weights, dtype=np.float64))

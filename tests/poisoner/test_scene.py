@@ -292,6 +292,29 @@ def test_gaussian_is_scipys_bit_for_bit(sigma: float, path: str) -> None:
         assert np.array_equal(run(frame, sigma), ndimage.gaussian_filter(frame, sigma)), frame.shape
 
 
+def test_the_compiled_gaussian_refuses_buffers_that_do_not_match() -> None:
+    """poisoner._scene_filter reads raw buffers: another dtype, byte order or size, a kernel of even
+    length or floats, or a size whose product overflows is a ValueError, never a read out of bounds."""
+    from poisoner.scene import _compiled_filter, _gaussian_weights, gaussian
+
+    c = _compiled_filter()
+    if c is None:
+        pytest.fail("poisoner._scene_filter is not built (setup.py; `make setup` builds it)")
+    src = np.random.default_rng(3).random((5, 7), dtype=np.float32)
+    dst, weights = np.empty_like(src), np.asarray(_gaussian_weights(1.0))
+    c.gaussian(src, dst, 5, 7, weights)  # the good call works
+    bad_calls = [
+        (src.astype(np.float64), dst, 5, 7, weights), (src.astype(">f4"), dst, 5, 7, weights),
+        (src, dst.astype(np.float64), 5, 7, weights), (src, dst, 5, 8, weights),
+        (src, dst, 2**62 + 5, 4, weights), (src, dst, 0, 7, weights),
+        (src, dst, 5, 7, weights.astype(np.float32)), (src, dst, 5, 7, weights[:-1]),
+    ]  # fmt: skip
+    for args in bad_calls:
+        with pytest.raises(ValueError):
+            c.gaussian(*args)
+    assert gaussian(np.zeros((0, 4), dtype=np.float32), 1.0).shape == (0, 4)
+
+
 def test_maximum3_is_scipys_maximum_filter() -> None:
     ndimage = pytest.importorskip("scipy.ndimage")
     from poisoner.scene import maximum3

@@ -126,6 +126,7 @@ def test_a_pending_file_sealed_for_its_row_is_recovered_without_patching_it_agai
     has GPS), completes the row from the seal; a file whose seal names another original does not."""
     from PIL import Image
 
+    from daemon.protect import recovery
     from daemon.protect.one_file import AppContext, protect_file
     from poisoner.provenance import read_seal
     from testkit.photos import gps_exif
@@ -150,7 +151,10 @@ def test_a_pending_file_sealed_for_its_row_is_recovered_without_patching_it_agai
     ctx.close()
     (ppd_env["config"] / "config.toml").write_text("[privacy]\nkeep_location = true\n")
     ctx = AppContext.open()
-    assert ctx.config.keep_location  # re-poisoning now keeps the GPS: other bytes
+    assert ctx.config.keep_location
+    pending = ctx.store.file(photo)
+    # re-poisoning now keeps the GPS: other bytes, so only the seal can tell this file is ppd's
+    assert not recovery._redone_is(ctx, pending, photo, killed_output, "image")
     outcome = protect_file(photo, ctx)  # the restart
     row = ctx.store.file(photo)
     assert outcome.state == "unchanged" and "recovered" in outcome.reason, outcome
@@ -164,8 +168,12 @@ def test_a_pending_file_sealed_for_its_row_is_recovered_without_patching_it_agai
         patch.setattr(ctx.store, "record_file", die_before_recording_protected)
         protect_file(other, ctx)
     pending = ctx.store.file(other)
-    ctx.close()
     other.write_bytes(photo.read_bytes())  # ppd's sealed output, but of p.jpg's original
     problems = check_invariants(AppPaths.from_env(), {})
     assert pending["state"] == "pending", pending
     assert any("q.jpg" in p and "a seal naming" in p for p in problems), problems
+    # ... nor by the daemon: not recovered as q.jpg's output (it is p.jpg's, and said so)
+    assert not recovery.recover_pending(ctx, pending, other, sha256(other), "image")
+    again = protect_file(other, ctx)
+    ctx.close()
+    assert "recovered" not in again.reason and again.state == "unchanged", again
