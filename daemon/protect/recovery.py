@@ -5,6 +5,7 @@ See the crash-safe order in daemon.protect.stages."""
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -77,18 +78,21 @@ def _redone_is(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind:
 
 
 def recover_pending(
-    ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str | None, content: Path | None = None
-) -> bool:
+    ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str | None, content: Path | None = None,
+    unchanged: Callable[[], bool] = lambda: True,
+) -> bool:  # fmt: skip
     """A 'pending' row means a run stopped between keeping the original and recording the
     result. If the file now differs from the original, it may be our complete output (the
     rename happened, the final row did not). It is when its provenance seal verifies over exactly
     these bytes and names this row's original and spec (content: where to read the bytes that
-    were hashed, the opened file's descriptor path; default path); else poison the vault original
+    were hashed, the opened file's descriptor path; default path; unchanged: whether the file is
+    still the version that was hashed, asked after the seal is read); else poison the vault original
     again and compare (poisoning is deterministic). True (and the row completed) when it is ours."""
     original_sha = row["original_sha256"]
     if not kind or not original_sha or sha == original_sha or not ctx.vault.verify(original_sha):
         return False
-    if not _sealed_for(ctx, content or path, row) and not _redone_is(ctx, row, path, sha, kind):
+    sealed = _sealed_for(ctx, content or path, row) and unchanged()  # the seal read was of the hashed bytes
+    if not sealed and not _redone_is(ctx, row, path, sha, kind):
         return False
     st = path.stat()
     ctx.store.record_file(

@@ -214,9 +214,12 @@ def recognise(job: Job) -> ProtectOutcome | None:
     interrupted = (
         out_path is None and row is not None and row["state"] == FileState.PENDING and not job.dry_run
     )
-    opened = fd_path(job.file.fd) if job.file is not None else None  # the bytes that were hashed
-    if interrupted and row is not None and recover_pending(ctx, row, job.path, sha, job.kind, opened):
-        return job.outcome(Outcome.UNCHANGED, "recovered after an interrupted run", poisoned_sha256=sha)
+    opened = job.file
+    if interrupted and row is not None and opened is not None:
+        # the bytes that were hashed: read through the descriptor, checked unchanged afterwards
+        hashed, unchanged = fd_path(opened.fd), (lambda: not opened.changed())
+        if recover_pending(ctx, row, job.path, sha, job.kind, hashed, unchanged):
+            return job.outcome(Outcome.UNCHANGED, "recovered after an interrupted run", poisoned_sha256=sha)
     earlier = ctx.store.find_poisoned(sha)
     if earlier is not None:
         moved = out_path is None and not job.dry_run
