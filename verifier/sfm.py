@@ -348,6 +348,13 @@ def extract_features(image_dir: Path, database: Path, settings: SfmSettings, mas
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = settings.max_image_size
     mode = pycolmap.CameraMode.SINGLE if settings.single_camera else pycolmap.CameraMode.AUTO
+    # The images written first, in name order: COLMAP's extraction numbers images in the order its
+    # threads finish, and the numbering decides which image of a pair is matched against the other,
+    # so the same photos gave other verified pairs (and verdict figures) from run to run. Extraction
+    # then finds each image by name and keeps its id.
+    pycolmap.Database.open(database).close()
+    pycolmap.import_images(database, image_dir, camera_mode=mode, image_names=list_images(image_dir),
+                           options=reader)  # fmt: skip
     pycolmap.extract_features(
         database,
         image_dir,
