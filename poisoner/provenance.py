@@ -308,6 +308,13 @@ def read_seal(path: Path, key: bytes | None) -> Seal | None:
     return None
 
 
+def sealed_for(path: Path, key: bytes | None, original_sha256: str, spec_id: str) -> bool:
+    """Whether path is ppd's finished output of that original under that spec: its seal verifies over
+    exactly its bytes (read_seal) and names both."""
+    seal = read_seal(path, key)
+    return seal is not None and (seal.original_sha256, seal.spec_id) == (original_sha256, spec_id)
+
+
 def has_token(path: Path) -> bool:
     """Whether the file carries anything shaped like a seal (verified or not): for tests/benches."""
     try:

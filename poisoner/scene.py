@@ -165,7 +165,7 @@ def gaussian(image: np.ndarray, sigma: float) -> np.ndarray:
     """scipy.ndimage.gaussian_filter(image, sigma) of a 2-D float32 image, the same float32 values
     without scipy, so `ppd poison`'s summary never imports it (0.45 s CPU per process, issue 30); in C
     where the package was built with it (poisoner/_scene_filter.c: 12 filters of the hint's 800 px
-    frames 0.24 -> 0.03 s), else in numpy. Each axis
+    frames 0.31 -> 0.05-0.07 s here), else in numpy. Each axis
     in turn (rows first), the borders mirrored ('reflect': d c b a | a b c d), every sum in float64
     in scipy's own order (the centre tap, then each symmetric pair from the outermost in:
     ni_filters.c's symmetric case), cast to float32 after each axis
@@ -211,7 +211,7 @@ def gaussian_numpy(image: np.ndarray, sigma: float) -> np.ndarray:
 
 @functools.cache
 def _compiled_filter() -> ModuleType | None:
-    """poisoner/_scene_filter.c (the same values as the numpy loop below, several times faster), or
+    """poisoner/_scene_filter.c (the same values as gaussian_numpy, several times faster), or
     None where the package was built without a C compiler."""
     try:
         from poisoner import _scene_filter  # type: ignore[attr-defined]

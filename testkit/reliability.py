@@ -127,18 +127,6 @@ def _vault_ok(paths: AppPaths, digest: str | None) -> bool:
     return blob.is_file() and sha256(blob) == digest
 
 
-def _sealed_for(paths: AppPaths, path: Path, row: dict) -> bool:
-    """Whether path holds ppd's complete output for row: its seal verifies over exactly these
-    bytes under this installation's key and names row's original and spec (the daemon's own test,
-    daemon.protect.recovery)."""
-    from daemon.store.sealkey import load_key
-    from poisoner.provenance import read_seal
-
-    seal = read_seal(path, load_key(paths.data_dir, create=False))
-    named = (row["original_sha256"], row["spec_id"])
-    return seal is not None and (seal.original_sha256, seal.spec_id) == named
-
-
 def _what_it_holds(paths: AppPaths, path: Path, on_disk: str | None, expected: str | None) -> str:
     """For the failure message: enough to tell a torn file from another seal or another encode."""
     from daemon.store.sealkey import load_key
@@ -210,8 +198,12 @@ def _row_problems(paths: AppPaths, store: Store, row: dict, original: str | None
     elif state == "pending":
         if not _vault_ok(paths, row["original_sha256"]):
             return [f"vault: pending row's original of {path.name} missing or corrupt"]
-        if on_disk in (None, row["original_sha256"]) or _sealed_for(paths, path, row):
-            return []
+        from daemon.store.sealkey import load_key
+        from poisoner.provenance import sealed_for
+
+        original_sha, key = row["original_sha256"], load_key(paths.data_dir, create=False)
+        if on_disk in (None, original_sha) or sealed_for(path, key, original_sha, row["spec_id"]):
+            return []  # the original, or a file ppd finished for this row (its seal says so)
         if on_disk != (expected := expected_output(paths, store, row)):
             return [f"corrupted: pending {path.name} holds neither its original nor its protected form "
                     f"({_what_it_holds(paths, path, on_disk, expected)})"]  # fmt: skip

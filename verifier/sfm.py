@@ -338,12 +338,13 @@ def extract_features(image_dir: Path, database: Path, settings: SfmSettings, mas
     """SIFT features of every image into database (corner masks written to mask_dir when asked)."""
     import pycolmap
 
+    names = list_images(image_dir)
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = settings.camera_model
     if settings.camera_params:
         reader.camera_params = settings.camera_params
     if settings.mask_corners > 0:
-        write_corner_masks(image_dir, list_images(image_dir), mask_dir, settings.mask_corners)
+        write_corner_masks(image_dir, names, mask_dir, settings.mask_corners)
         reader.mask_path = str(mask_dir)
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = settings.max_image_size
@@ -353,12 +354,12 @@ def extract_features(image_dir: Path, database: Path, settings: SfmSettings, mas
     # so the same photos gave other verified pairs (and verdict figures) from run to run. Extraction
     # then finds each image by name and keeps its id.
     pycolmap.Database.open(database).close()
-    pycolmap.import_images(database, image_dir, camera_mode=mode, image_names=list_images(image_dir),
+    pycolmap.import_images(database, image_dir, camera_mode=mode, image_names=names,
                            options=reader)  # fmt: skip
     pycolmap.extract_features(
         database,
         image_dir,
-        image_names=list_images(image_dir),
+        image_names=names,
         camera_mode=mode,
         reader_options=reader,
         extraction_options=extraction,

@@ -15,6 +15,7 @@ from daemon.protect.job import one_line, shown_name
 from daemon.protect.poisoning import named_vault_copy, poison_to, provenance_marker, seal_output
 from daemon.states import FileState
 from daemon.store.vault import sha256_file
+from poisoner.provenance import sealed_for
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -42,17 +43,6 @@ def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, datase
         old, earlier["dataset"], FileState.REMOVED, event="moved_away", detail={"to": str(path)}
     )
     return True
-
-
-def _sealed_for(ctx: AppContext, content: Path, row: dict[str, Any]) -> bool:
-    """Whether content carries ppd's seal over exactly its bytes naming row's original and spec:
-    the file ppd finished for this row (no re-encode needed, and no reliance on an encoder giving
-    the same bytes twice)."""
-    from poisoner.provenance import read_seal
-
-    seal = read_seal(content, ctx.seal_key())
-    named = (row["original_sha256"], row["spec_id"])
-    return seal is not None and (seal.original_sha256, seal.spec_id) == named
 
 
 def _redone_is(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str) -> bool:
@@ -91,7 +81,9 @@ def recover_pending(
     original_sha = row["original_sha256"]
     if not kind or not original_sha or sha == original_sha or not ctx.vault.verify(original_sha):
         return False
-    sealed = _sealed_for(ctx, content or path, row) and unchanged()  # the seal read was of the hashed bytes
+    sealed = (  # the seal read must be of the bytes that were hashed
+        sealed_for(content or path, ctx.seal_key(), original_sha, row["spec_id"]) and unchanged()
+    )
     if not sealed and not _redone_is(ctx, row, path, sha, kind):
         return False
     st = path.stat()
