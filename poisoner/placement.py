@@ -5,6 +5,7 @@ corner per dataset (issue 14) is poisoner.corner.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -171,8 +172,7 @@ def choose_spot(
         # place whose squares reach a subject's edge is not plain)
         steps = np.where((cost <= PLAIN_SHARE) & (core == 0), 0, np.ceil(cost / COST_STEP) + 1)
         # lexsort: the last key is the primary one
-        order = np.lexsort((ax, ay, distance, off_line, cornered, steps, np.round(on_subject, 6)))
-        best = int(order[0])
+        best = lexsort_first((ax, ay, distance, off_line, cornered, steps, np.round(on_subject, 6)))
         return best, share, on_subject, bool(on_subject[best] == 0 and steps[best] == 0)
 
     best, share, on_subject, plain = best_at(margin)
@@ -284,8 +284,7 @@ def choose_split(
         cornered = _in_corners(ax, ay, [(x0, y0, x1, y1)], size, corner_region)
         off_line = np.abs((ax - pref[0]) * direction[1] - (ay - pref[1]) * direction[0])
         distance = (ax - pref[0]) ** 2 + (ay - pref[1]) ** 2
-        order = np.lexsort((ax, ay, distance, off_line, cornered, bad))[:SPLIT_CANDIDATES]
-        o = order
+        o = lexsort_head((ax, ay, distance, off_line, cornered, bad), SPLIT_CANDIDATES)
         picks.append((ax[o] + x0, ay[o] + y0, bad[o], core[o], subj[o], ax[o], ay[o]))
     (px, py, pb, pc, ps, pax, pay), (qx, qy, qb, qc, qs, qax, qay) = picks[0], picks[1]
     side = lane_rects[0][2] - lane_rects[0][0]
@@ -322,6 +321,57 @@ def integral_image(m: np.ndarray) -> np.ndarray:
     out = np.zeros((th + 1, tw + 1))
     out[1:, 1:] = np.asarray(m, dtype=np.float64).cumsum(0).cumsum(1)
     return out
+
+
+def count_integral(mask: np.ndarray) -> np.ndarray:
+    """integral_image of a True/False map as exact int32 counts: the same sums as integral_image's
+    float64 (whole numbers either way) at half the memory traffic, for scans of every box position
+    (poisoner.shrink._some_square_plain)."""
+    if mask.dtype != np.bool_:
+        raise TypeError(f"count_integral takes a True/False map, not {mask.dtype}")
+    th, tw = mask.shape
+    if (th + 1) * (tw + 1) >= 2**31:
+        raise ValueError(f"a {tw}x{th} map is too large to count in int32")
+    out = np.zeros((th + 1, tw + 1), dtype=np.int32)
+    np.cumsum(mask, axis=0, dtype=np.int32, out=out[1:, 1:])
+    np.cumsum(out[1:, 1:], axis=1, out=out[1:, 1:])
+    return out
+
+
+def most_plain_count(cells: int) -> int:
+    """The most detail cells a footprint of `cells` cells may hold and still be plain: the largest
+    count c with c / cells <= PLAIN_SHARE exactly as float division decides it, so comparing whole
+    counts with it answers as comparing the shares does (-1: not even an empty footprint)."""
+    c = math.floor(PLAIN_SHARE * cells)
+    while (c + 1) / cells <= PLAIN_SHARE:
+        c += 1
+    while c >= 0 and c / cells > PLAIN_SHARE:
+        c -= 1
+    return c
+
+
+def lexsort_head(keys: tuple[np.ndarray, ...], count: int) -> np.ndarray:
+    """np.lexsort(keys)[:count] (the last key primary), sorting only the candidates that can be
+    among the first `count`: those whose primary key is at most its count-th smallest value. The
+    subset keeps its original order, so ties fall as the stable sort of all of them lets them."""
+    primary = keys[-1]
+    if primary.size <= count:
+        return np.lexsort(keys)[:count]
+    kth = np.partition(primary, count - 1)[count - 1]
+    candidates = np.flatnonzero(primary <= kth)
+    return candidates[np.lexsort(tuple(k[candidates] for k in keys))][:count]
+
+
+def lexsort_first(keys: tuple[np.ndarray, ...]) -> int:
+    """int(np.lexsort(keys)[0]) without sorting: the candidates are narrowed to the smallest value
+    of each key in turn, primary (last) first; the lowest index of those left (the stable sort's)."""
+    candidates = np.arange(keys[-1].size)
+    for key in reversed(keys):
+        values = key[candidates]
+        candidates = candidates[values == values.min()]
+        if candidates.size == 1:
+            break
+    return int(candidates[0])
 
 
 def _shares(
