@@ -206,7 +206,11 @@ def test_lego_shared_verification_matches_each_profile_alone(
     views), so this test can fail with no sharing at fault; it failed at both seeds that day. One cause
     is gone (2026-12-02, images numbered in name order, docs/VERIFIER.md): at seed 1 every profile's
     verified pairs then agreed (hardened 78 clean, 120 patched), and it still failed on hardened's
-    clean mapping (a figure after the verified pairs differed): the mapper varies too."""
+    clean mapping (a figure after the verified pairs differed): the mapper varies too. Measured
+    later that day: COLMAP's incremental mapper on its default threads maps one verified database
+    differently when the machine is busy (3 of 12 runs, two at a time), and this test's seed 1 failed
+    on the default's patched `registered` (11 shared, 16 alone); one thread would make it
+    reproducible but changes what the mapper does (docs/VERIFIER.md, "Mapping under load")."""
     from verifier.shared_data import prepare_lego
 
     clean, _, _ = prepare_lego(16)
