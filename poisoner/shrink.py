@@ -72,7 +72,7 @@ def place_fitting(
         return placement, place
     full = placement.lane_size
     least_bad = (place.detail, placement, place)
-    counts = count_integral(np.asarray(detail, dtype=bool))
+    counts = count_integral(detail)  # detail is True/False (display_details); a float map raises
     plain_boxes: dict[tuple[int, int], bool] = {}  # neighbouring sides share most box sizes
     for side in crop_sides(full, placement.block, floor):
         if subject is None and not _some_square_plain(counts, place.frame, side, plain_boxes):
