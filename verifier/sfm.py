@@ -41,6 +41,8 @@ from verifier.supervise import run_child
 
 log = logging.getLogger(__name__)
 
+KEPT_DATABASE = "database.db"  # SfmJob.keep_database: the mapper's input, beside its model
+
 # Serialises verification runs inside one process: SfM is CPU-heavy and the machine is shared.
 _RUN_LOCK = threading.Lock()
 
@@ -153,6 +155,7 @@ class SfmJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     verified_from: str = ""
     # "features": build cache_db (features + raw matches) and stop; "verified": also write verified_db
     stop_after: str = ""
+    keep_database: bool = False  # the verified database the mapper read stays as model_dir/database.db
 
 
 class CameraPose(msgspec.Struct, frozen=True):
@@ -417,7 +420,10 @@ def execute_job(job: SfmJob) -> SfmResult:
     with tempfile.TemporaryDirectory(prefix=".ppd-tmp-map-", dir=model_dir) as tmp:
         models = run_mapper(work_db, image_dir, Path(tmp), settings)
         timings["mapping_s"] = time.time() - t2
-        work_db.unlink()
+        if job.keep_database:
+            work_db.replace(model_dir / KEPT_DATABASE)
+        else:
+            work_db.unlink()
         result = summarise_models(models, num_images, verified_pairs)
         if models:
             largest = max(models.values(), key=lambda r: r.num_reg_images())

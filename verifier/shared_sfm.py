@@ -214,7 +214,7 @@ def run_job(
     job = SfmJob(
         str(side.image_dir), str(side.cache_db), str(side.model_dir), settings, verified_db=verified,
         features_from=str(side.features_from) if side.features_from else "", stationary_from=stationary_from,
-        verified_from=verified_from,
+        verified_from=verified_from, keep_database=options.keep_databases,
     )  # fmt: skip
     watching = board.side(side.profile, side.side, side.model_dir / "sfm.log") if board else None
     with watching or contextlib.nullcontext():
