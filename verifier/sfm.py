@@ -42,6 +42,8 @@ from verifier.supervise import run_child
 log = logging.getLogger(__name__)
 
 KEPT_DATABASE = "database.db"  # SfmJob.keep_database: the mapper's input, beside its model
+WORK_DB = "work.db"  # the child's verified working copy, in its model folder
+MAP_TEMP_PREFIX = ".ppd-tmp-map-"  # the mapper's temporary folder, in the model folder
 
 # Serialises verification runs inside one process: SfM is CPU-heavy and the machine is shared.
 _RUN_LOCK = threading.Lock()
@@ -247,6 +249,7 @@ def _run_locked(
         on_start=lambda pid: log.info("sfm child started", extra={"pid": pid, "image_dir": job.image_dir}),
     )
     elapsed = time.time() - started
+    remove_child_leftovers(Path(job.model_dir))
     base: dict[str, Any] = {"elapsed_s": elapsed, "returncode": ended.returncode, "log": str(stderr_path)}
     if ended.kind in ("timeout", "cancelled"):
         return {**base, "outcome": ended.kind, "error": f"{ended.kind} after {elapsed:.0f} s"}
@@ -264,6 +267,18 @@ def _run_locked(
         with contextlib.suppress(OSError):
             os.unlink(result_path)
     return {**base, **result}
+
+
+def remove_child_leftovers(model_dir: Path) -> None:
+    """What an SfM child leaves in its model folder when it is killed (a timeout, a cancel, a crash)
+    before its own clean-up: its working copy of the verified database (SQLite's -wal and -shm with
+    it) and the mapper's temporary folder. Never an output: a finished child has removed or renamed
+    them (KEPT_DATABASE), so this is called after every child, which is gone by then."""
+    for suffix in ("", "-wal", "-shm", "-journal"):
+        with contextlib.suppress(FileNotFoundError):
+            (model_dir / (WORK_DB + suffix)).unlink()
+    for folder in model_dir.glob(MAP_TEMP_PREFIX + "*"):
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _tail(path: Path, n: int = 300) -> str:
@@ -406,7 +421,7 @@ def execute_job(job: SfmJob) -> SfmResult:
         timings["features_and_matches_s"] = time.time() - t0
     if job.stop_after == "features":
         return SfmOk(num_images=len(list_images(image_dir)), timings=timings)
-    work_db = model_dir / "work.db"
+    work_db = model_dir / WORK_DB
     t1 = time.time()
     num_images, verified_pairs = verified_database(
         cache_db, work_db, settings, job.verified_db, job.stationary_from, job.verified_from
@@ -416,13 +431,13 @@ def execute_job(job: SfmJob) -> SfmResult:
         model_dir.mkdir(parents=True, exist_ok=True)
         work_db.unlink()
         return SfmOk(num_images=num_images, verified_pairs=verified_pairs, timings=timings)
+    if job.keep_database:  # kept under its name before the mapper opens it: there however mapping ends
+        work_db = work_db.replace(model_dir / KEPT_DATABASE)
     t2 = time.time()
-    with tempfile.TemporaryDirectory(prefix=".ppd-tmp-map-", dir=model_dir) as tmp:
+    with tempfile.TemporaryDirectory(prefix=MAP_TEMP_PREFIX, dir=model_dir) as tmp:
         models = run_mapper(work_db, image_dir, Path(tmp), settings)
         timings["mapping_s"] = time.time() - t2
-        if job.keep_database:
-            work_db.replace(model_dir / KEPT_DATABASE)
-        else:
+        if not job.keep_database:
             work_db.unlink()
         result = summarise_models(models, num_images, verified_pairs)
         if models:

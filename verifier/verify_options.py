@@ -38,8 +38,8 @@ class VerifyOptions:
     progress_label: str = ""  # what the progress says is being verified
     on_progress: Callable[[BoardState], None] | None = None  # e.g. a terminal display
     keep_cache: bool = False  # keep feature databases and round-tripped images
-    # keep each mapping's input, its verified database, beside its model (database.db): what the
-    # mapper was given, to inspect or to compare two runs (tests/verifier/test_verify_shared.py)
+    # keep each mapping's input, its verified database, beside its model (database.db), whether or
+    # not the mapping finishes: what the mapper was given, to inspect or to compare two runs
     keep_databases: bool = False
     rule: VerdictRule = field(default_factory=VerdictRule)
     cancel: threading.Event | None = None

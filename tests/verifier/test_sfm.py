@@ -49,6 +49,27 @@ def test_timeout_kills_the_child(tmp_path: Path) -> None:
     assert result["returncode"] is not None  # reaped: the child is gone
 
 
+# what the real child has in its model folder while it maps (paths quoted: CI's temp path has spaces)
+LEFTOVERS = (
+    "mkdir -p '{m}/.ppd-tmp-map-x1' && touch '{m}/.ppd-tmp-map-x1/points3D.bin' '{m}/work.db' "
+    "'{m}/work.db-wal' '{m}/work.db-shm'"
+)
+
+
+@pytest.mark.parametrize("death", ["kill -KILL $$", "exec sleep 60"])  # a crash, a timeout
+def test_a_killed_childs_working_files_are_removed(tmp_path: Path, death: str) -> None:
+    """A child killed while mapping leaves its copy of the verified database and the mapper's
+    temporary folder in the model folder, as the real one does (seen after a 1200 s timeout on lego
+    16 at seed 0): they are removed once it is gone; its log and what was there before stay."""
+    model = tmp_path / "model"
+    model.mkdir()
+    (model / "result.json").write_text("{}")  # an earlier run's output: not the child's to remove
+    body = "cat >/dev/null; " + LEFTOVERS.format(m=model) + "; " + death
+    result = run_sfm_job(job_in(tmp_path), timeout_s=3, python=fake_python(tmp_path, body))
+    assert result["outcome"] in ("sfm_crashed", "timeout")
+    assert sorted(p.name for p in model.iterdir()) == ["result.json", "sfm.log"]
+
+
 def test_cancel_kills_the_child(tmp_path: Path) -> None:
     cancel = threading.Event()
     threading.Timer(0.5, cancel.set).start()

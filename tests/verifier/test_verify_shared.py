@@ -222,13 +222,6 @@ def database_digest(path: Path) -> dict[str, str]:
         con.close()
 
 
-def before_mapping(report: VerificationReport) -> dict[str, Any]:
-    """What each profile's sides were before their mapping: outcome, images, verified pairs."""
-    return {name: {side: {k: d.get(k) for k in ("outcome", "num_images", "verified_pairs")}
-                   for side, d in (("clean", p.clean), ("poisoned", p.poisoned))}
-            for name, p in report.profiles.items()}  # fmt: skip
-
-
 @pytest.mark.slow
 @pytest.mark.integration
 @pytest.mark.parametrize("seed", [0, 1])
@@ -237,8 +230,11 @@ def test_lego_shared_verification_gives_each_profiles_mapper_what_it_gets_alone(
 ) -> None:
     """Lego, 16 views at 800 px, every profile shared and each alone: every side's mapper reads the
     same verified database, table by table and row by row in COLMAP's reading order (features, raw
-    matches, two-view geometries, cameras, images), and the verified pairs agree. That is all the
-    sharing touches. The figures after the mapping are not compared: COLMAP 4.2.1's incremental
+    matches, two-view geometries, cameras, images). That is all the sharing touches; the database
+    is kept before the mapper opens it, so a mapping cut by the timeout (seed 0: hardened's patched
+    side spends minutes an image in structure-less registrations) still shows what it was given,
+    and a short timeout keeps the test's time down. The figures after the mapping are not
+    compared: COLMAP 4.2.1's incremental
     mapper on its default threads maps one database differently when the machine is busy (3 of 12
     runs, two at a time; docs/VERIFIER.md, "Mapping under load"), so they differ between any two
     runs, shared or not (this test's figure version failed so at both seeds: 2026-11-27 masked's
@@ -253,11 +249,10 @@ def test_lego_shared_verification_gives_each_profiles_mapper_what_it_gets_alone(
     for i in range(16):
         os.link(clean / f"r_{i}.png", views / f"r_{i}.png")
     poisoned = poison_folder(views, tmp_path / "poisoned")
-    options = VerifyOptions(timeout_s=1200, random_seed=seed, visibility_images=0, keep_databases=True)
+    options = VerifyOptions(timeout_s=240, random_seed=seed, visibility_images=0, keep_databases=True)
     shared = verify_folders(views, poisoned, tmp_path / "all", PROFILES, options)
     for profile in PROFILES:
         alone = verify_folders(views, poisoned, tmp_path / profile, [profile], options)
-        assert before_mapping(alone)[profile] == before_mapping(shared)[profile]
         for side in ("clean", "poisoned"):
             dbs = [Path(r.profiles[profile].model_dir or "") / side / KEPT_DATABASE for r in (shared, alone)]
             assert all(db.is_file() for db in dbs), (profile, side)
