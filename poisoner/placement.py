@@ -355,16 +355,22 @@ def lexsort_head(keys: tuple[np.ndarray, ...], count: int) -> np.ndarray:
     among the first `count`: those whose primary key is at most its count-th smallest value. The
     subset keeps its original order, so ties fall as the stable sort of all of them lets them."""
     primary = keys[-1]
-    if primary.size <= count:
+    if primary.size <= count or _any_nan(keys):  # NaN sorts last in lexsort: leave those to it
         return np.lexsort(keys)[:count]
     kth = np.partition(primary, count - 1)[count - 1]
     candidates = np.flatnonzero(primary <= kth)
     return candidates[np.lexsort(tuple(k[candidates] for k in keys))][:count]
 
 
+def _any_nan(keys: tuple[np.ndarray, ...]) -> bool:
+    return any(k.dtype.kind in "fc" and bool(np.isnan(k).any()) for k in keys)
+
+
 def lexsort_first(keys: tuple[np.ndarray, ...]) -> int:
     """int(np.lexsort(keys)[0]) without sorting: the candidates are narrowed to the smallest value
     of each key in turn, primary (last) first; the lowest index of those left (the stable sort's)."""
+    if keys[-1].size == 0 or _any_nan(keys):  # NaN sorts last in lexsort: leave those to it
+        return int(np.lexsort(keys)[0])
     candidates = np.arange(keys[-1].size)
     for key in reversed(keys):
         values = key[candidates]

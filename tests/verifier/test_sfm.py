@@ -49,25 +49,44 @@ def test_timeout_kills_the_child(tmp_path: Path) -> None:
     assert result["returncode"] is not None  # reaped: the child is gone
 
 
-# what the real child has in its model folder while it maps (paths quoted: CI's temp path has spaces)
-LEFTOVERS = (
-    "mkdir -p '{m}/.ppd-tmp-map-x1' && touch '{m}/.ppd-tmp-map-x1/points3D.bin' '{m}/work.db' "
-    "'{m}/work.db-wal' '{m}/work.db-shm'"
-)
+# A child stand-in that makes what the real child has in its model folder while it maps (named with
+# its token, as verifier.sfm names them), says so in a marker outside that folder, then dies.
+LEFTOVERS = """
+import os, signal, sys, time
+from pathlib import Path
+import msgspec
+from verifier.sfm import SfmJob, map_temp_prefix, work_db_path
+job = msgspec.json.decode(sys.stdin.buffer.read(), type=SfmJob)
+work = work_db_path(job)
+for suffix in ("", "-wal", "-shm"):
+    work.with_name(work.name + suffix).write_bytes(b"x")
+folder = Path(job.model_dir) / (map_temp_prefix(job) + "abc")
+folder.mkdir()
+(folder / "points3D.bin").write_bytes(b"x")
+Path(sys.argv[1]).write_text("made")
+if sys.argv[2] == "crash":
+    os.kill(os.getpid(), signal.SIGKILL)
+time.sleep(60)
+"""
 
 
-@pytest.mark.parametrize("death", ["kill -KILL $$", "exec sleep 60"])  # a crash, a timeout
+@pytest.mark.parametrize("death", ["crash", "timeout"])
 def test_a_killed_childs_working_files_are_removed(tmp_path: Path, death: str) -> None:
     """A child killed while mapping leaves its copy of the verified database and the mapper's
     temporary folder in the model folder, as the real one does (seen after a 1200 s timeout on lego
-    16 at seed 0): they are removed once it is gone; its log and what was there before stay."""
+    16 at seed 0): they are removed once it is gone. Its log, an earlier output and another child's
+    working files (another token) stay."""
     model = tmp_path / "model"
     model.mkdir()
-    (model / "result.json").write_text("{}")  # an earlier run's output: not the child's to remove
-    body = "cat >/dev/null; " + LEFTOVERS.format(m=model) + "; " + death
-    result = run_sfm_job(job_in(tmp_path), timeout_s=3, python=fake_python(tmp_path, body))
-    assert result["outcome"] in ("sfm_crashed", "timeout")
-    assert sorted(p.name for p in model.iterdir()) == ["result.json", "sfm.log"]
+    (model / "result.json").write_text("{}")  # an earlier run's output
+    (model / ".ppd-tmp-sfm-other-work.db").write_bytes(b"x")  # another child's, running beside it
+    script, marker = tmp_path / "stand_in.py", tmp_path / "made"
+    script.write_text(LEFTOVERS)
+    body = f'exec "{sys.executable}" "{script}" "{marker}" {death}'
+    result = run_sfm_job(job_in(tmp_path), timeout_s=10, python=fake_python(tmp_path, body))
+    assert marker.read_text() == "made"  # the working files were there before the child died
+    assert result["outcome"] == ("sfm_crashed" if death == "crash" else "timeout")
+    assert sorted(p.name for p in model.iterdir()) == [".ppd-tmp-sfm-other-work.db", "result.json", "sfm.log"]
 
 
 def test_cancel_kills_the_child(tmp_path: Path) -> None:
