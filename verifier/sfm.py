@@ -35,14 +35,18 @@ from typing import Any
 import msgspec
 
 from poisoner.media import is_sfm_readable
+from verifier.child_files import (
+    KEPT_DATABASE,
+    RESULT_PREFIX,
+    map_temp_prefix,
+    remove_child_leftovers,
+    work_db_path,
+)
 from verifier.childenv import child_env
 from verifier.sift_device import sift_device, sift_device_name
 from verifier.supervise import run_child
 
 log = logging.getLogger(__name__)
-
-KEPT_DATABASE = "database.db"  # SfmJob.keep_database: the mapper's input, beside its model
-RESULT_PREFIX = ".ppd-tmp-sfm-"  # the child's result file, named anew for each child: its token
 
 # Serialises verification runs inside one process: SfM is CPU-heavy and the machine is shared.
 _RUN_LOCK = threading.Lock()
@@ -248,7 +252,7 @@ def _run_locked(
         on_start=lambda pid: log.info("sfm child started", extra={"pid": pid, "image_dir": job.image_dir}),
     )
     elapsed = time.time() - started
-    remove_child_leftovers(job)
+    remove_child_leftovers(job.model_dir, job.result_path)
     base: dict[str, Any] = {"elapsed_s": elapsed, "returncode": ended.returncode, "log": str(stderr_path)}
     if ended.kind in ("timeout", "cancelled"):
         return {**base, "outcome": ended.kind, "error": f"{ended.kind} after {elapsed:.0f} s"}
@@ -266,36 +270,6 @@ def _run_locked(
         with contextlib.suppress(OSError):
             os.unlink(result_path)
     return {**base, **result}
-
-
-def job_token(job: SfmJob) -> str:
-    """The part of the child's result file name that is this child's alone (mkstemp's): it names the
-    child's working files, so removing one child's leftovers never touches another's in the folder."""
-    return Path(job.result_path).stem.removeprefix(RESULT_PREFIX) if job.result_path else ""
-
-
-def work_db_path(job: SfmJob) -> Path:
-    """The child's working copy of the verified database, in its model folder."""
-    return Path(job.model_dir) / f"{RESULT_PREFIX}{job_token(job)}-work.db"
-
-
-def map_temp_prefix(job: SfmJob) -> str:
-    """The prefix of the mapper's temporary folder, in the model folder."""
-    return f"{RESULT_PREFIX}{job_token(job)}-map-"
-
-
-def remove_child_leftovers(job: SfmJob) -> None:
-    """What an SfM child leaves in its model folder when it is killed (a timeout, a cancel, a crash)
-    before its own clean-up: its working copy of the verified database (SQLite's -wal and -shm with
-    it) and the mapper's temporary folder, both named with the child's token. Never an output: a
-    finished child has removed or renamed them (KEPT_DATABASE); called after every child, once it
-    is gone."""
-    work_db = work_db_path(job)
-    for suffix in ("", "-wal", "-shm", "-journal"):
-        with contextlib.suppress(FileNotFoundError):
-            work_db.with_name(work_db.name + suffix).unlink()
-    for folder in Path(job.model_dir).glob(map_temp_prefix(job) + "*"):
-        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _tail(path: Path, n: int = 300) -> str:
@@ -438,7 +412,7 @@ def execute_job(job: SfmJob) -> SfmResult:
         timings["features_and_matches_s"] = time.time() - t0
     if job.stop_after == "features":
         return SfmOk(num_images=len(list_images(image_dir)), timings=timings)
-    work_db = work_db_path(job)
+    work_db = work_db_path(model_dir, job.result_path)
     t1 = time.time()
     num_images, verified_pairs = verified_database(
         cache_db, work_db, settings, job.verified_db, job.stationary_from, job.verified_from
@@ -451,7 +425,7 @@ def execute_job(job: SfmJob) -> SfmResult:
     if job.keep_database:  # kept under its name before the mapper opens it: there however mapping ends
         work_db = work_db.replace(model_dir / KEPT_DATABASE)
     t2 = time.time()
-    with tempfile.TemporaryDirectory(prefix=map_temp_prefix(job), dir=model_dir) as tmp:
+    with tempfile.TemporaryDirectory(prefix=map_temp_prefix(job.result_path), dir=model_dir) as tmp:
         models = run_mapper(work_db, image_dir, Path(tmp), settings)
         timings["mapping_s"] = time.time() - t2
         if not job.keep_database:

@@ -50,17 +50,18 @@ def test_timeout_kills_the_child(tmp_path: Path) -> None:
 
 
 # A child stand-in that makes what the real child has in its model folder while it maps (named with
-# its token, as verifier.sfm names them), says so in a marker outside that folder, then dies.
+# its token, as verifier.child_files names them), says so in a marker outside that folder, then dies.
 LEFTOVERS = """
 import os, signal, sys, time
 from pathlib import Path
 import msgspec
-from verifier.sfm import SfmJob, map_temp_prefix, work_db_path
+from verifier.child_files import map_temp_prefix, work_db_path
+from verifier.sfm import SfmJob
 job = msgspec.json.decode(sys.stdin.buffer.read(), type=SfmJob)
-work = work_db_path(job)
+work = work_db_path(job.model_dir, job.result_path)
 for suffix in ("", "-wal", "-shm"):
     work.with_name(work.name + suffix).write_bytes(b"x")
-folder = Path(job.model_dir) / (map_temp_prefix(job) + "abc")
+folder = Path(job.model_dir) / (map_temp_prefix(job.result_path) + "abc")
 folder.mkdir()
 (folder / "points3D.bin").write_bytes(b"x")
 Path(sys.argv[1]).write_text("made")

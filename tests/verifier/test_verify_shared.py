@@ -106,7 +106,7 @@ def test_masked_features_filtered_by_position_equal_colmaps_masked_extraction(
 def test_a_shared_verification_gives_each_profiles_figures_alone(
     small_sets: dict[str, Path], tmp_path: Path
 ) -> None:
-    from verifier.sfm import KEPT_DATABASE
+    from verifier.child_files import KEPT_DATABASE
 
     options = VerifyOptions(
         timeout_s=300, camera_params=SMALL.camera_params(), visibility_images=0, keep_databases=True
@@ -240,7 +240,7 @@ def test_lego_shared_verification_gives_each_profiles_mapper_what_it_gets_alone(
     runs, shared or not (this test's figure version failed so at both seeds: 2026-11-27 masked's
     verified pairs, since fixed by numbering images by name; 2026-12-02 the default's patched
     `registered`, 11 shared against 16 alone, with identical databases)."""
-    from verifier.sfm import KEPT_DATABASE
+    from verifier.child_files import KEPT_DATABASE
     from verifier.shared_data import prepare_lego
 
     clean, _, _ = prepare_lego(16)
