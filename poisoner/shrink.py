@@ -121,7 +121,7 @@ def _some_square_plain(
         for ch in spans[1]:
             if cw > tw or ch > th:
                 continue
-            if (cw, ch) not in known:  # every position's count in one buffer (issue 30: 3.8 -> 1 ms a photo)
+            if (cw, ch) not in known:  # every position's count in one buffer (3.8 -> 1.3 ms a photo)
                 counts = np.subtract(integral[ch:, cw:], integral[:-ch, cw:])
                 counts -= integral[ch:, :-cw]
                 counts += integral[:-ch, :-cw]

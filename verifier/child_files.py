@@ -4,7 +4,9 @@ or a crash kills it before its own clean-up).
 
 Each child's result file is named anew by mkstemp (`RESULT_PREFIX` + a token); its working files
 carry the same token, so removing one child's leftovers never touches another's: two verifications
-of the same originals map the cached clean side in one folder.
+of the same originals map the cached clean side in one folder. The working database's name does
+not start with poisoner.atomic's TEMP_PREFIX: a file so named is one that a stale-temporary sweep
+may delete once it is 10 s old and unlocked, and this one lives as long as a mapping.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from pathlib import Path
 
 RESULT_PREFIX = ".ppd-tmp-sfm-"  # the child's result file, named anew for each child: its token
 KEPT_DATABASE = "database.db"  # SfmJob.keep_database: the mapper's input, beside its model
+MAP_TEMP_PREFIX = ".ppd-tmp-map-"  # the mapper's temporary folder (a folder: no sweep removes it)
 
 
 def job_token(result_path: str) -> str:
@@ -24,12 +27,12 @@ def job_token(result_path: str) -> str:
 
 def work_db_path(model_dir: str | Path, result_path: str) -> Path:
     """The child's working copy of the verified database, in its model folder."""
-    return Path(model_dir) / f"{RESULT_PREFIX}{job_token(result_path)}-work.db"
+    return Path(model_dir) / f"work-{job_token(result_path)}.db"
 
 
 def map_temp_prefix(result_path: str) -> str:
     """The prefix of the mapper's temporary folder, in the model folder."""
-    return f"{RESULT_PREFIX}{job_token(result_path)}-map-"
+    return f"{MAP_TEMP_PREFIX}{job_token(result_path)}-"
 
 
 def remove_child_leftovers(model_dir: str | Path, result_path: str) -> None:

@@ -80,14 +80,14 @@ def test_a_killed_childs_working_files_are_removed(tmp_path: Path, death: str) -
     model = tmp_path / "model"
     model.mkdir()
     (model / "result.json").write_text("{}")  # an earlier run's output
-    (model / ".ppd-tmp-sfm-other-work.db").write_bytes(b"x")  # another child's, running beside it
+    (model / "work-other.db").write_bytes(b"x")  # another child's, running beside it
     script, marker = tmp_path / "stand_in.py", tmp_path / "made"
     script.write_text(LEFTOVERS)
     body = f'exec "{sys.executable}" "{script}" "{marker}" {death}'
     result = run_sfm_job(job_in(tmp_path), timeout_s=10, python=fake_python(tmp_path, body))
     assert marker.read_text() == "made"  # the working files were there before the child died
     assert result["outcome"] == ("sfm_crashed" if death == "crash" else "timeout")
-    assert sorted(p.name for p in model.iterdir()) == [".ppd-tmp-sfm-other-work.db", "result.json", "sfm.log"]
+    assert sorted(p.name for p in model.iterdir()) == ["result.json", "sfm.log", "work-other.db"]
 
 
 def test_cancel_kills_the_child(tmp_path: Path) -> None:

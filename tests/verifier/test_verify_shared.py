@@ -234,8 +234,8 @@ def test_lego_shared_verification_gives_each_profiles_mapper_what_it_gets_alone(
     is kept before the mapper opens it, so a mapping cut by the timeout (seed 0: hardened's patched
     side spends minutes an image in structure-less registrations) still shows what it was given,
     and a short timeout keeps the test's time down. The figures after the mapping are not
-    compared: COLMAP 4.2.1's incremental
-    mapper on its default threads maps one database differently when the machine is busy (3 of 12
+    compared: COLMAP 4.2.1's incremental mapper on its default threads maps one database
+    differently when the machine is busy (3 of 12
     runs, two at a time; docs/VERIFIER.md, "Mapping under load"), so they differ between any two
     runs, shared or not (this test's figure version failed so at both seeds: 2026-11-27 masked's
     verified pairs, since fixed by numbering images by name; 2026-12-02 the default's patched
