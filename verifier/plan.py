@@ -74,6 +74,20 @@ def default_workers() -> int:
     return max(min(2, cores), cores // 2)
 
 
+def mapper_threads(asked: int, workers: int, cores: int | None = None) -> int:
+    """Each incremental mapping's threads: what was asked (n, or -1 for COLMAP's every core), else
+    one where a side's slot holds no more than a core (cores <= sides at once: 2 cores), COLMAP's own
+    elsewhere. On one thread COLMAP 4.2.1's mapper gives one database one model every time, where on
+    several a busy machine changes it (lego 16: 3 of 12 mappings; docs/VERIFIER.md), and on 2 cores,
+    two sides mapping at once, it cost nothing measurable (bench/results/verify_speed.md round 10:
+    lego 40, 6.49x against 6.73x). Not beyond: on many cores the last long mapping runs alone, and one
+    structure-less registration took 237-242 s on one thread against 137 s on two."""
+    if asked:
+        return asked
+    cores = cores or os.cpu_count() or 1
+    return 1 if cores <= max(1, workers) else -1
+
+
 def start_order(profiles: Sequence[str]) -> list[str]:
     """The order profiles start in: `published` first, the one that shares no work (its own
     extraction and matching on both sides, lego 20: the last to finish when it started third), so
@@ -191,16 +205,22 @@ def plan_profile(profile: str, run: VerifyRun) -> ProfilePlan:
     settings = profile_settings(profile, run.matching, run.options.camera_params)
     source = "published" if profile == "published" else "original"
     edge = min(run.long_edge, run.options.published_long_edge) if source == "published" else run.long_edge
+    o = run.options
     settings = msgspec.structs.replace(
-        settings, random_seed=run.options.random_seed, cpu_sift=not gpu_sift_suits(edge)
-    )
+        settings, random_seed=o.random_seed, cpu_sift=not gpu_sift_suits(edge),
+        mapper_threads=mapper_threads(o.mapper_threads, o.workers or default_workers()),
+    )  # fmt: skip
     clean_images, poisoned_images = run.clean_dir, run.poisoned_dir
     if source == "published":
         clean_images, poisoned_images = published_copy("clean", run), published_copy("poisoned", run)
     skey = hashlib.sha256(settings.feature_key().encode()).hexdigest()[:10]
     profile_dir = run.out_dir / profile
-    # the SIFT device is said by the key's end alone, so a CPU key stays as it was
-    as_json = {k: v for k, v in msgspec.to_builtins(settings).items() if k != "cpu_sift"}
+    # the SIFT device is said by the key's end alone, so a CPU key stays as it was; COLMAP's own
+    # mapper threads are not said at all (a key made before the setting stays as it was)
+    as_json = {
+        k: v for k, v in msgspec.to_builtins(settings).items()
+        if k != "cpu_sift" and (k, v) != ("mapper_threads", -1)
+    }  # fmt: skip
     settings_json = json.dumps(as_json, sort_keys=True)
     reuse_key = f"{run.clean_key}-{profile}-{settings_json}-{source}"
     reuse_key += "-cuda" if settings.sift_device_name() == "cuda" else ""

@@ -71,6 +71,9 @@ class SfmSettings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     mapper: str = "incremental"
     # SIFT on the CPU even where a GPU is (small images: verifier.sift_device.gpu_sift_suits)
     cpu_sift: bool = False
+    # the incremental mapper's threads; -1: COLMAP's (every core). One thread maps one database to
+    # one model every time, which several do not (docs/VERIFIER.md, "Mapping under load")
+    mapper_threads: int = -1
 
     def verification_key(self) -> str:
         """Settings that decide the verified database (features, raw matches, two-view geometry):
@@ -552,6 +555,7 @@ def mapper_options(settings: SfmSettings) -> Any:
     mapper = pycolmap.IncrementalPipelineOptions()
     mapper.ignore_watermarks = settings.ignore_watermarks
     mapper.random_seed = settings.random_seed
+    mapper.num_threads = settings.mapper_threads
     if settings.camera_params:  # known intrinsics: keep them fixed, as a careful attacker would
         mapper.ba_refine_focal_length = False
         mapper.ba_refine_principal_point = False

@@ -34,6 +34,9 @@ class VerifyOptions:
     clean_cache_dir: Path | None = None  # reuse clean features/results across verifications
     clean_cache_keep: int = 0  # >0: keep this many originals' caches under clean_cache_dir (LRU)
     workers: int = 0  # SfM sides (a profile's clean or poisoned run) at once (0: default_workers())
+    # each incremental mapping's threads: 0 chooses (verifier.plan.mapper_threads), -1 is COLMAP's
+    # own (every core), n pins it (1: the same model from the same database every time)
+    mapper_threads: int = 0
     progress_path: Path | None = None  # the progress file (verifier.progress), removed at the end
     progress_label: str = ""  # what the progress says is being verified
     on_progress: Callable[[BoardState], None] | None = None  # e.g. a terminal display
