@@ -30,6 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
+from poisoner.pool_exit import claim_temp_dir, exit_with_caller
+
 if TYPE_CHECKING:  # types only: importing this module stays light
     from poisoner.formats import PoisonReport
     from poisoner.provenance import Marker
@@ -94,6 +96,15 @@ def pool_context(preload: Sequence[str] = ("poisoner.formats",)) -> multiprocess
     return multiprocessing.get_context("spawn")
 
 
+def start_worker(
+    caller: int, temp_dir: str | None, initializer: Callable[..., None] | None, initargs: tuple[Any, ...]
+) -> None:
+    """A pool worker's start: it exits when its caller ends, then runs the caller's initializer."""
+    exit_with_caller(caller, temp_dir)
+    if initializer is not None:
+        initializer(*initargs)
+
+
 @contextlib.contextmanager
 def interrupts_held() -> Iterator[None]:
     """Worker processes started inside never see a terminal's Ctrl-C: SIGINT is blocked in this
@@ -145,7 +156,10 @@ def bounded_map(
     pending: dict[Future[R], int] = {}
     nxt = [0]  # the next call to submit (in order)
     context = mp_context or pool_context()
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=initializer, initargs=initargs) as pool:
+    # Workers end with this process even when it is killed outright (poisoner.pool_exit).
+    temp_dir = claim_temp_dir() if context.get_start_method() == "forkserver" else None
+    start = (os.getpid(), temp_dir, initializer, initargs)
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=start_worker, initargs=start) as pool:
 
         def submit_next() -> bool:
             i = nxt[0]

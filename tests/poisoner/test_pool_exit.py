@@ -1,0 +1,81 @@
+"""poisoner.pool_exit: which pymp-* folders are removed (only a ppd process's, once it has ended),
+and a worker that watches its caller exits when the caller does."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from poisoner.pool_exit import LOCK_NAME, remove_if_stale, sweep_stale_temp_dirs
+from testkit.kill_loops import REPO
+
+HOLDER = (
+    "import fcntl, os, sys, time\n"
+    "fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT, 0o600)\n"
+    "fcntl.flock(fd, fcntl.LOCK_EX)\n"
+    "print('held', flush=True)\n"
+    "time.sleep(600)\n"
+)
+
+
+def _held(lock: Path) -> subprocess.Popen[str]:
+    proc = subprocess.Popen([sys.executable, "-c", HOLDER, str(lock)], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_only_an_ended_ppd_processs_folder_is_removed(tmp_path: Path) -> None:
+    live, dead, foreign = (tmp_path / f"pymp-{name}" for name in ("live", "dead", "foreign"))
+    named_otherwise = tmp_path / "other-dead"
+    for folder in (live, dead, foreign, named_otherwise):
+        folder.mkdir()
+        (folder / "listener-x").write_bytes(b"")
+    (dead / LOCK_NAME).write_bytes(b"")  # its process ended: nobody holds the lock
+    (named_otherwise / LOCK_NAME).write_bytes(b"")  # not multiprocessing's: not ours to judge
+    holder = _held(live / LOCK_NAME)
+    try:
+        assert sweep_stale_temp_dirs(tmp_path) == 1
+        assert not dead.exists()
+        assert live.is_dir() and foreign.is_dir() and named_otherwise.is_dir()
+    finally:
+        holder.kill()
+        holder.wait()
+    assert remove_if_stale(live)  # its holder has ended now
+    assert not live.exists() and foreign.is_dir()
+
+
+WATCHED = (
+    "import sys, time\n"
+    "from poisoner.pool_exit import exit_with_caller\n"
+    "exit_with_caller(int(sys.argv[1]), sys.argv[2])\n"
+    "print('watching', flush=True)\n"
+    "time.sleep(600)\n"
+)
+
+
+@pytest.mark.skipif(not hasattr(os, "pidfd_open") and sys.platform != "darwin", reason="no way to watch")
+def test_a_worker_exits_when_the_caller_it_watches_is_killed_and_removes_its_folder(tmp_path: Path) -> None:
+    folder = tmp_path / "pymp-caller"
+    folder.mkdir()
+    caller = _held(folder / LOCK_NAME)  # stands for ppd: holds the folder's lock while it lives
+    worker = subprocess.Popen([sys.executable, "-c", WATCHED, str(caller.pid), str(folder)], cwd=REPO,
+                              stdout=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert worker.stdout is not None and worker.stdout.readline().strip() == "watching"
+        time.sleep(0.3)
+        assert worker.poll() is None and folder.is_dir()  # the caller lives: the worker goes on
+        os.kill(caller.pid, signal.SIGKILL)
+        caller.wait()
+        assert worker.wait(30) == 1
+        assert not folder.exists()
+    finally:
+        for proc in (caller, worker):
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
