@@ -41,6 +41,9 @@ def watchdog_interval(env: Mapping[str, str], pid: int | None = None) -> float |
     return int(usec) / 1_000_000 / 2
 
 
+MUST_ARRIVE_S = 2.0  # READY= and STOPPING= wait this long for room in a full receiver queue
+
+
 class SystemdNotifier:
     """Sends READY/STATUS/WATCHDOG/STOPPING; never raises (a lost datagram must not stop work)."""
 
@@ -53,17 +56,24 @@ class SystemdNotifier:
     def enabled(self) -> bool:
         return self.address is not None
 
-    def send(self, *fields: str) -> bool:
+    def send(self, *fields: str, wait_s: float = 0.0) -> bool:
+        """wait_s: how long a full receiver queue may hold this message up (0: dropped at once)."""
         if self.address is None:
             return False
         message = "\n".join(fields).encode()
         try:
             # Non-blocking: a receiver that stopped reading (its queue holds ~10 datagrams)
-            # must never stall the daemon's main loop; a lost STATUS= is harmless.
+            # must never stall the daemon's main loop; a lost STATUS= is harmless. READY= and
+            # STOPPING= wait a moment: systemd fails a start whose READY=1 never came.
             with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as sock:
-                sock.setblocking(False)
-                sock.sendto(message, self.address)
-        except BlockingIOError:
+                if wait_s > 0:  # connected: a wait for the peer's queue, not a spin
+                    sock.settimeout(wait_s)
+                    sock.connect(self.address)
+                    sock.send(message)
+                else:
+                    sock.setblocking(False)
+                    sock.sendto(message, self.address)
+        except (BlockingIOError, TimeoutError):
             log.debug("sd_notify dropped: receiver queue full", extra={"fields": fields})
             return False
         except OSError as exc:
@@ -72,7 +82,7 @@ class SystemdNotifier:
         return True
 
     def ready(self, status: str = "") -> bool:
-        return self.send("READY=1", *([f"STATUS={status}"] if status else []))
+        return self.send("READY=1", *([f"STATUS={status}"] if status else []), wait_s=MUST_ARRIVE_S)
 
     def status(self, text: str) -> bool:
         return self.send(f"STATUS={text}")
@@ -81,4 +91,4 @@ class SystemdNotifier:
         return self.send("WATCHDOG=1")
 
     def stopping(self, status: str = "") -> bool:
-        return self.send("STOPPING=1", *([f"STATUS={status}"] if status else []))
+        return self.send("STOPPING=1", *([f"STATUS={status}"] if status else []), wait_s=MUST_ARRIVE_S)

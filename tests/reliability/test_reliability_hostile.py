@@ -162,12 +162,16 @@ def test_hostile_corpus_under_the_daemon(tmp_path: Path) -> None:
         items, before, outside_before = _move_corpus_into_outbox(tmp_path, paths, outside)
         store = Store(paths.db_path)
         _wait_until_all_decided(store, items)
-        assert daemon.proc.poll() is None, "the daemon died"
-        rows = {r["path"]: r for r in store.files("hostile")}
         store.close()
+        assert daemon.proc.poll() is None, "the daemon died"
     finally:
         code = kill_daemon(daemon, signal.SIGTERM)
     assert code == 0
+    # Read once the daemon has stopped: a refused file's row says `failed` (its worker) a moment
+    # before the daemon moves the file out and says `quarantined`.
+    store = Store(paths.db_path)
+    rows = {r["path"]: r for r in store.files("hostile")}
+    store.close()
     quarantine = tmp_path / "ppd-quarantine"  # the default: next to the outbox
     problems = _daemon_problems(paths, quarantine, items, rows, before)
     assert problems == []

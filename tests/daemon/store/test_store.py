@@ -170,7 +170,7 @@ def test_reader_is_not_blocked_by_a_writer(tmp_path: Path) -> None:
     assert held.wait(10)
     started = time.monotonic()
     assert [d["name"] for d in cli_store.datasets()] == ["d"]  # WAL: reads while a write is open
-    assert time.monotonic() - started < 2.0
+    assert time.monotonic() - started < 5.0  # a blocked read would wait for the 10 s release
     release.set()
     t.join()
     daemon_store.close()

@@ -5,6 +5,7 @@ file in the stop summary, no traceback, workers drained."""
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -65,9 +66,19 @@ def rows(ppd_env: dict[str, Path], dataset: str) -> list[dict]:
         ctx.close()
 
 
+FIELD = re.compile(r'(\w+)=("(?:[^"\\]|\\.)*"|\S+)')
+
+
 def fields(line: str) -> dict[str, str]:
-    """key=value pairs of one log line (values without spaces suffice here)."""
-    return dict(part.split("=", 1) for part in line.split() if "=" in part and not part.startswith('"'))
+    """key=value pairs of one log line, a quoted value (a path with a space) unquoted as
+    daemon.cli.output._field quotes it."""
+    unescape = {"n": "\n"}
+    return {
+        key: re.sub(r"\\(.)", lambda m: unescape.get(m[1], m[1]), value[1:-1])
+        if value.startswith('"')
+        else value
+        for key, value in FIELD.findall(line)
+    }
 
 
 def test_the_daemon_names_each_file_once_and_stops_cleanly_on_ctrl_c(ppd_env: dict[str, Path]) -> None:

@@ -238,12 +238,12 @@ def test_pool_overflow_asks_for_a_rescan_once_drained() -> None:
 
 
 def test_pool_stop_finishes_in_flight_and_returns_the_rest() -> None:
-    started = threading.Event()
+    started, release = threading.Event(), threading.Event()
     finished: list[Path] = []
 
     def handle(path: Path) -> None:
         started.set()
-        time.sleep(0.3)
+        release.wait(30)  # held until stop() has dropped the queue, however slow this machine
         finished.append(path)
 
     pool = WorkerPool(handle, PoolOptions(workers=1, queue_size=4))
@@ -251,7 +251,15 @@ def test_pool_stop_finishes_in_flight_and_returns_the_rest() -> None:
     for i in range(5):
         pool.submit(Path(f"/{i}"))
     assert started.wait(5)
+
+    def release_once_stopping() -> None:
+        wait_for(lambda: pool.stats().queued + pool.stats().pending == 0, 30, "stop() to drop the queue")
+        release.set()
+
+    releaser = threading.Thread(target=release_once_stopping)
+    releaser.start()
     dropped = pool.stop()
+    releaser.join(30)
     assert finished == [Path("/0")]  # the one in flight completed before stop returned
     assert sorted(dropped) == [Path(f"/{i}") for i in range(1, 5)]
     assert not pool.submit(Path("/late"))
@@ -280,12 +288,40 @@ def test_notify_never_blocks_on_a_receiver_that_stopped_reading(tmp_path: Path) 
     sock.bind(str(path))
     notifier = SystemdNotifier({"NOTIFY_SOCKET": str(path)})
     results: list[bool] = []
-    sender = threading.Thread(target=lambda: results.extend(notifier.status(str(i)) for i in range(500)))
+    # More than the kernel queues (net.unix.max_dgram_qlen: 10 here, 512 where systemd sets it)
+    qlen = Path("/proc/sys/net/unix/max_dgram_qlen")
+    count = max(2000, int(qlen.read_text()) + 100) if qlen.exists() else 2000
+    sender = threading.Thread(target=lambda: results.extend(notifier.status(str(i)) for i in range(count)))
     sender.start()
     sender.join(30)  # a blocking send would hang here forever
     sock.close()
-    assert not sender.is_alive() and len(results) == 500
+    assert not sender.is_alive() and len(results) == count
     assert results[0] and not all(results)  # the first got through; the overflow was dropped
+
+
+def test_ready_and_stopping_wait_for_room_in_a_full_queue(tmp_path: Path) -> None:
+    """systemd fails a start whose READY=1 never arrives: these two wait for a slow reader."""
+    path = tmp_path / "slow.sock"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(path))
+    notifier = SystemdNotifier({"NOTIFY_SOCKET": str(path)})
+    queued = 0
+    while notifier.status(str(queued)):  # fill the receiver's queue
+        queued += 1
+    assert not notifier.status("dropped")
+
+    def read_late() -> None:
+        time.sleep(0.3)
+        for _ in range(queued):
+            sock.recv(4096)
+
+    reader = threading.Thread(target=read_late)
+    reader.start()
+    assert notifier.stopping("bye")  # waited for the reader instead of being dropped
+    reader.join(10)
+    sock.settimeout(5)
+    assert sock.recv(4096) == b"STOPPING=1\nSTATUS=bye"
+    sock.close()
 
 
 def test_notify_is_a_no_op_outside_systemd() -> None:
@@ -522,8 +558,10 @@ def test_bad_files_fail_cleanly_and_the_daemon_keeps_going(ppd_env: dict[str, Pa
         wait_for(lambda: daemon.counts.quarantined >= 2, 20, "two files quarantined")
         assert daemon.counts.failed == 0  # one count per file: quarantined, not failed as well
         good = write_image(ds / "good.png", 1)
-        readonly = write_image(ds / "readonly.png", 2)
-        readonly.chmod(0o444)
+        staged = write_image(ppd_env["outbox"].parent / "staging" / "readonly.png", 2)
+        staged.chmod(0o444)  # before it arrives: a chmod during the patch would race its replace
+        readonly = ds / "readonly.png"
+        os.rename(staged, readonly)
         wait_for(lambda: daemon.counts.patched >= 2, 20, "good files after bad ones")
         wait_idle(daemon)
         assert daemon.watcher.is_alive()
@@ -718,7 +756,7 @@ def _worker_pids() -> set[int]:
 
 def test_worker_processes_exit_after_their_idle_period(ppd_env: dict[str, Path]) -> None:
     before = _worker_pids()
-    options = dataclasses.replace(FAST, worker_idle_s=1.0)
+    options = dataclasses.replace(FAST, worker_idle_s=3.0)  # long enough to see it there first
     with running(ppd_env, options) as daemon:
         photo = write_image(ppd_env["outbox"] / "ds" / "a.png", 1)
         original = sha(photo)
