@@ -8,76 +8,34 @@ run recovers the same file. So each worker watches its caller (`exit_with_caller
 5.3+; elsewhere its parent's pid, polled) and exits at once when it ends: the state is then the one a
 process-group kill leaves, which ppd's recovery handles. The forkserver's socket lives in a `pymp-*`
 folder that multiprocessing removes only at a clean exit; the caller marks the folder as its own
-with a lock held for its lifetime (`claim_temp_dir`), and a folder whose lock nobody holds is removed
-by the worker that saw its caller end, or by the next pool's caller (`sweep_stale_temp_dirs`).
+with a lock held for its lifetime (`claim_temp_dir`, poisoner.scratch), and a folder whose lock nobody
+holds is removed by the worker that saw its caller end, or by the next ppd process that makes one.
 """
 
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import select
-import shutil
-import tempfile
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
-LOCK_NAME = "ppd.lock"  # in multiprocessing's pymp-* folder: this folder is a ppd process's
+from poisoner import scratch
+
 POLL_S = 1.0  # where no pidfd exists: how often a worker checks its parent
-_claimed: dict[str, int] = {}  # folder -> the open, locked lock file's descriptor (this process)
 
 
 def claim_temp_dir() -> str:
-    """multiprocessing's temporary folder for this process (made now if it is not yet), marked as
-    a ppd process's by a lock held until this process ends. Stale folders of dead ppd processes
-    are removed first."""
+    """multiprocessing's temporary folder for this process (made now if it is not yet), marked as a
+    ppd process's until this process ends (poisoner.scratch); stale ones are swept first."""
     import multiprocessing.util
 
-    sweep_stale_temp_dirs()
+    scratch.sweep()
     folder = multiprocessing.util.get_temp_dir()
-    if folder not in _claimed:
-        fd = os.open(os.path.join(folder, LOCK_NAME), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
-        fcntl.flock(fd, fcntl.LOCK_EX)  # released by the kernel when this process ends, however
-        _claimed[folder] = fd
+    scratch.claim(folder)
     return folder
-
-
-def remove_if_stale(folder: str | Path) -> bool:
-    """Remove a pymp-* folder of ours whose ppd process has ended (its lock is free); True if removed.
-    A folder without ppd's lock, someone else's, or one still held is left alone."""
-    path = Path(folder)
-    if not path.name.startswith("pymp-"):
-        return False
-    try:
-        if path.lstat().st_uid != os.getuid() or not path.is_dir():
-            return False
-        fd = os.open(path / LOCK_NAME, os.O_RDWR | os.O_CLOEXEC | os.O_NOFOLLOW)
-    except OSError:  # gone, not ours, or no lock file: not a ppd process's folder
-        return False
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:  # its process is alive
-        os.close(fd)
-        return False
-    try:
-        shutil.rmtree(path, ignore_errors=True)
-    finally:
-        os.close(fd)
-    return not path.exists()
-
-
-def sweep_stale_temp_dirs(root: str | Path | None = None) -> int:
-    """Remove the pymp-* folders that dead ppd processes left in root (the temporary folder)."""
-    base = Path(root if root is not None else tempfile.gettempdir())
-    try:
-        candidates = [p for p in base.iterdir() if p.name.startswith("pymp-")]
-    except OSError:
-        return 0
-    return sum(remove_if_stale(p) for p in candidates)
 
 
 def exit_with_caller(caller: int, temp_dir: str | None) -> None:
@@ -126,5 +84,5 @@ def _poll(alive: Callable[[], bool]) -> None:
 def _caller_ended(temp_dir: str | None) -> None:
     if temp_dir is not None:
         with contextlib.suppress(OSError):
-            remove_if_stale(temp_dir)
+            scratch.remove_if_stale(temp_dir)
     os._exit(1)

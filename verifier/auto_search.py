@@ -30,7 +30,6 @@ import logging
 import os
 import shutil
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Sequence
@@ -41,6 +40,7 @@ import msgspec
 
 from poisoner.atomic import atomic_write_bytes
 from poisoner.media import SFM_SUFFIXES, is_sfm_readable
+from poisoner.scratch import owned_temp_dir
 from poisoner.spec import PatchSpec
 from verifier.auto_options import (
     CandidateStatus,
@@ -460,7 +460,7 @@ def choose_interim(
     """The strongest candidate (latest in the ladder) within the visibility budget on images; with
     none within it, the least visible one measured (within_budget False: the caller says so)."""
     measured: list[InterimMeasure] = []
-    with tempfile.TemporaryDirectory(prefix=".ppd-auto-") as tmp:
+    with owned_temp_dir(".ppd-auto-") as tmp:  # copies of the originals: swept if this process is killed
         clean_dir = Path(tmp) / "clean"
         clean_dir.mkdir()
         for src, name in images:

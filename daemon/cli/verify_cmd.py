@@ -34,27 +34,30 @@ def _verify_folder(path: Path, clean: Path, out: Path | None, profiles: tuple[st
                    console: Console) -> Any:  # fmt: skip
     """Any patched folder against its clean originals (nothing from the store)."""
     import dataclasses
-    import shutil
-    import tempfile
 
     from daemon.cli.verify_progress import progress_display
     from daemon.paths import AppPaths
+    from poisoner import scratch
     from verifier.verification import VerificationInputError, verify_folders
 
     if not path.is_dir():
         raise VerificationInputError(f"{path} is not a folder (with --clean, give the patched folder)")
-    out_dir = out or Path(tempfile.mkdtemp(prefix="ppd-verify-"))
+    # Ours until the report is in it: a run killed outright leaves it to the next ppd's sweep.
+    out_dir = out or scratch.make_owned_temp_dir("ppd-verify-")
     # issue 30: the clean reference of these originals is reused until they change (a few kept)
     cache = AppPaths.from_env().cache_dir / "verify-clean"
     options = dataclasses.replace(options, clean_cache_dir=cache, clean_cache_keep=3)
     try:
         with progress_display(console, str(path)) as on_progress:
             options = dataclasses.replace(options, on_progress=on_progress)
-            return verify_folders(clean, path, out_dir, profiles, options)
+            report = verify_folders(clean, path, out_dir, profiles, options)
     except BaseException:  # a run with no report leaves no folder of ppd's behind (a given --out stays)
         if out is None:
-            shutil.rmtree(out_dir, ignore_errors=True)
+            scratch.remove_owned(out_dir)
         raise
+    if out is None:
+        scratch.release(out_dir, keep=True)  # the report's folder is the user's now
+    return report
 
 
 def _verify_stored(target: str | None, dataset: str | None, folder: Path | None,
@@ -118,7 +121,9 @@ def verify(
     dataset: str | None = dataset_option("Verify this dataset (explicit form)."),
     folder: Path | None = folder_option("Verify this folder (explicit form)."),
     profile: str = typer.Option(
-        "all", "--profile", "-p",
+        "all",
+        "--profile",
+        "-p",
         help="Attacker profile: default, hardened, published, global (COLMAP's global mapper), "
         "masked (corners masked out) or all.",
     ),
@@ -142,7 +147,9 @@ def verify(
     ),
     subject_masks: Path | None = subject_masks_option(),
     seeds: int = typer.Option(
-        1, "--seeds", metavar="N",
+        1,
+        "--seeds",
+        metavar="N",
         help="COLMAP runs per attacker on the patched set (seeds 0..N-1 on the same features and raw "
         "matches): the weakest counts, as an attacker keeps the best.",
     ),

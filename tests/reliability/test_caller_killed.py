@@ -88,3 +88,44 @@ def test_sigkilled_ppd_poison_leaves_no_worker_running_and_no_pymp_folder(
             for pid in _running(started | {proc.pid}):
                 with contextlib.suppress(OSError):
                     os.kill(pid, signal.SIGKILL)
+
+
+def test_a_killed_verification_leaves_its_folder_to_the_next_ppd_only(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """`ppd verify P --clean C` without --out works in a ppd-verify-* folder of the temporary folder;
+    killed outright, it stays there until the next ppd that makes one sweeps it."""
+    rng = np.random.default_rng(1)
+    for side, count in (("clean", 6), ("patched", 6), ("other", 5)):
+        (tmp_path / side).mkdir()
+        for i in range(count):
+            noise = rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)
+            PIL.Image.fromarray(noise).save(tmp_path / side / f"v{i}.png")
+    exe = Path(sys.executable).parent / "ppd"
+    command = [str(exe)] if exe.exists() else [sys.executable, "-m", "daemon.cli"]
+    tmp = tmp_path / "t"
+    tmp.mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp)}
+    verify = [*command, "verify"]
+    quiet = subprocess.DEVNULL
+    proc = subprocess.Popen([*verify, str(tmp_path / "patched"), "--clean", str(tmp_path / "clean")],
+                            env=env, cwd=REPO, stdout=quiet, stderr=quiet)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while (
+            not list(tmp.glob("ppd-verify-*/*.lock")) and proc.poll() is None and time.monotonic() < deadline
+        ):
+            time.sleep(0.02)
+        assert proc.poll() is None, "the verification ended before it could be killed"
+        time.sleep(0.5)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    (left,) = tmp.glob("ppd-verify-*")  # what the killed run left
+    # The next verification (of mismatched folders: refused at once) sweeps it, and removes its own.
+    refused = subprocess.run([*verify, str(tmp_path / "other"), "--clean", str(tmp_path / "clean")],
+                             env=env, cwd=REPO, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert refused.returncode == 2, refused.stdout + refused.stderr
+    assert not left.exists() and list(tmp.iterdir()) == []

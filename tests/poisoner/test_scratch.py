@@ -1,5 +1,6 @@
-"""poisoner.pool_exit: which pymp-* folders are removed (only a ppd process's, once it has ended),
-and a worker that watches its caller exits when the caller does."""
+"""poisoner.scratch: which of ppd's temporary folders are removed (only a ppd process's, once it has
+ended; never one kept for the user); poisoner.pool_exit: a worker that watches its caller exits when
+the caller does."""
 
 from __future__ import annotations
 
@@ -7,12 +8,14 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import pytest
 
-from poisoner.pool_exit import LOCK_NAME, remove_if_stale, sweep_stale_temp_dirs
+from poisoner import scratch
+from poisoner.scratch import LOCK_NAME, remove_if_stale
 from testkit.kill_loops import REPO
 
 HOLDER = (
@@ -31,16 +34,17 @@ def _held(lock: Path) -> subprocess.Popen[str]:
 
 
 def test_only_an_ended_ppd_processs_folder_is_removed(tmp_path: Path) -> None:
-    live, dead, foreign = (tmp_path / f"pymp-{name}" for name in ("live", "dead", "foreign"))
+    live, dead, foreign = (tmp_path / name for name in ("pymp-live", "ppd-verify-dead", ".ppd-auto-foreign"))
     named_otherwise = tmp_path / "other-dead"
     for folder in (live, dead, foreign, named_otherwise):
         folder.mkdir()
-        (folder / "listener-x").write_bytes(b"")
+        (folder / "work").mkdir()
+        (folder / "work" / "listener-x").write_bytes(b"")
     (dead / LOCK_NAME).write_bytes(b"")  # its process ended: nobody holds the lock
     (named_otherwise / LOCK_NAME).write_bytes(b"")  # not multiprocessing's: not ours to judge
     holder = _held(live / LOCK_NAME)
     try:
-        assert sweep_stale_temp_dirs(tmp_path) == 1
+        assert scratch.sweep(tmp_path) == 1
         assert not dead.exists()
         assert live.is_dir() and foreign.is_dir() and named_otherwise.is_dir()
     finally:
@@ -79,3 +83,19 @@ def test_a_worker_exits_when_the_caller_it_watches_is_killed_and_removes_its_fol
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
+
+
+def test_an_owned_folder_goes_at_the_end_or_stays_for_the_user_and_is_never_swept_then(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    with scratch.owned_temp_dir(".ppd-auto-") as used:
+        assert used.parent == tmp_path and (used / LOCK_NAME).is_file()
+        assert scratch.sweep() == 0 and used.is_dir()  # its process (this one) lives
+    assert not used.exists()
+    kept = scratch.make_owned_temp_dir("ppd-verify-")
+    (kept / "report.json").write_text("{}")
+    scratch.release(kept, keep=True)
+    assert scratch.sweep() == 0 and (kept / "report.json").is_file() and not (kept / LOCK_NAME).exists()
+    with pytest.raises(ValueError):
+        scratch.make_owned_temp_dir("not-ppd-")
