@@ -30,8 +30,15 @@ def claim(folder: str | Path) -> None:
     key = os.fspath(folder)
     if key in _held:
         return
-    fd = os.open(os.path.join(key, LOCK_NAME), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
-    fcntl.flock(fd, fcntl.LOCK_EX)  # released by the kernel when this process ends, however it ends
+    # Locked under another name, then renamed: a sweep never sees the lock file unlocked.
+    pending = os.path.join(key, f"{LOCK_NAME}.{os.getpid()}")
+    fd = os.open(pending, os.O_RDWR | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)  # released by the kernel when this process ends, however it ends
+        os.rename(pending, os.path.join(key, LOCK_NAME))
+    except BaseException:
+        os.close(fd)
+        raise
     _held[key] = fd
 
 
