@@ -277,6 +277,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--files", type=int, default=12)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--pid-only-every", type=int, default=0,
+                        help="poison: every Nth trial SIGKILLs ppd's pid alone, not its group")  # fmt: skip
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--inputs", type=Path, nargs="*", default=[], help="render: JSON files to tabulate")
     args = parser.parse_args(argv)
@@ -287,7 +289,8 @@ def main(argv: list[str] | None = None) -> None:
     try:
         if args.scenario == "poison":
             window = tuple(float(x) for x in args.window.split(","))
-            result = poison_loop(root, args.kills, args.seed, args.per_kill, args.video_every, window)
+            result = poison_loop(root, args.kills, args.seed, args.per_kill, args.video_every, window,
+                                 args.pid_only_every)  # fmt: skip
         elif args.scenario == "watch":
             result = watch_loop(root, args.kills, args.chains)
         elif args.scenario == "memory":

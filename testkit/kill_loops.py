@@ -111,15 +111,35 @@ def _add_trial_files(root: Path, rng: random.Random, trial: int, per_kill: int, 
 
 
 def _kill_at_random(proc: subprocess.Popen, rng: random.Random, window: tuple[float, float],
-                    full_runs: list[float], figures: Counter[str]) -> None:  # fmt: skip
+                    full_runs: list[float], figures: Counter[str],
+                    pid_only: bool = False) -> None:  # fmt: skip
+    """SIGKILL the run's process group (a terminal, systemd) or, pid_only, ppd's own pid (`kill -9
+    PID`, the OOM killer): then whatever it started must end by itself within 15 s."""
     delay = rng.uniform(*(w * statistics.median(full_runs) for w in window))
     try:
         proc.wait(delay)
         figures["finished before the kill"] += 1
     except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
+        (os.kill if pid_only else os.killpg)(proc.pid, signal.SIGKILL)
         proc.wait()
         figures["kills"] += 1
+        if pid_only:
+            figures["kills of ppd's pid only"] += 1
+            figures["pid-only kills after which its processes ran on"] += not _group_ends(proc.pid, 15.0)
+
+
+def _group_ends(pgid: int, within_s: float) -> bool:
+    """Whether process group pgid has no process left within within_s (then SIGKILLs what is left)."""
+    deadline = time.monotonic() + within_s
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(pgid, 0)
+        except ProcessLookupError:
+            return True
+        time.sleep(0.05)
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(pgid, signal.SIGKILL)
+    return False
 
 
 def _count_kill_state(root: Path, folder: Path, names: list[str], originals: dict[Path, str],
@@ -156,12 +176,13 @@ def _recover_and_audit(root: Path, folder: Path, trial: int, originals: dict[Pat
 
 
 def poison_loop(root: Path, kills: int, seed: int, per_kill: int, video_every: int,
-                window: tuple[float, float] = (0.0, 1.2)) -> dict[str, object]:  # fmt: skip
+                window: tuple[float, float] = (0.0, 1.2),
+                pid_only_every: int = 0) -> dict[str, object]:  # fmt: skip
     """Each trial adds `per_kill` photos (and a 1 s video every `video_every`-th trial) to one
     folder, starts `ppd poison FOLDER`, SIGKILLs its process group at a uniform random instant in
     `window` x the median run of a whole trial (every 10th trial runs uncut to measure it) until
     `kills` runs were killed, checks no original was lost, then runs `ppd poison` again
-    to completion and audits the folder."""
+    to completion and audits the folder. pid_only_every N: every Nth trial kills ppd's pid alone."""
     rng = random.Random(seed)
     folder = root / "photos" / "trip"
     originals: dict[Path, str] = {}
@@ -179,7 +200,8 @@ def poison_loop(root: Path, kills: int, seed: int, per_kill: int, video_every: i
             proc.wait(300)
             full_runs.append(time.monotonic() - t0)
             continue
-        _kill_at_random(proc, rng, window, full_runs, figures)
+        pid_only = pid_only_every > 0 and trial % pid_only_every == 0
+        _kill_at_random(proc, rng, window, full_runs, figures, pid_only)
         _count_kill_state(root, folder, names, originals, figures)
         _recover_and_audit(root, folder, trial, originals, figures, findings)
         if trial % 10 == 9:

@@ -19,11 +19,12 @@ pytestmark = pytest.mark.integration
 
 
 def test_sigkilled_ppd_poison_then_run_again_loses_nothing_and_leaves_nothing(tmp_path: Path) -> None:
-    result = poison_loop(tmp_path, kills=4, seed=3, per_kill=8, video_every=0)
+    result = poison_loop(tmp_path, kills=4, seed=3, per_kill=8, video_every=0, pid_only_every=2)
     assert result["kills"] == 4
     assert result["findings"] == []
     for figure in ("invariants", "not_patched", "double", "not_restorable", "corrupt", "leftovers"):
         assert result[figure] == 0, (figure, result)
+    assert result.get("pid-only kills after which its processes ran on", 0) == 0, result
 
 
 def test_store_deleted_no_double_poisoning_and_every_original_restored(tmp_path: Path) -> None:
