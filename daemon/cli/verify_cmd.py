@@ -121,9 +121,7 @@ def verify(
     dataset: str | None = dataset_option("Verify this dataset (explicit form)."),
     folder: Path | None = folder_option("Verify this folder (explicit form)."),
     profile: str = typer.Option(
-        "all",
-        "--profile",
-        "-p",
+        "all", "--profile", "-p",
         help="Attacker profile: default, hardened, published, global (COLMAP's global mapper), "
         "masked (corners masked out) or all.",
     ),
@@ -147,9 +145,7 @@ def verify(
     ),
     subject_masks: Path | None = subject_masks_option(),
     seeds: int = typer.Option(
-        1,
-        "--seeds",
-        metavar="N",
+        1, "--seeds", metavar="N",
         help="COLMAP runs per attacker on the patched set (seeds 0..N-1 on the same features and raw "
         "matches): the weakest counts, as an attacker keeps the best.",
     ),
