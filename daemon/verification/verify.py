@@ -49,6 +49,19 @@ def prune_runs(dataset_runs: Path, keep_last: int) -> list[Path]:
     return doomed
 
 
+def remove_unfinished_runs(dataset_runs: Path) -> list[Path]:
+    """Delete the run folders without a report.json: verifications killed or failed midway (their
+    staged images, feature caches and partial models). Called under the verification lock, so no
+    verification is running."""
+    if not dataset_runs.is_dir():
+        return []
+    runs = [p for p in dataset_runs.iterdir() if p.is_dir() and not p.name.startswith(".")]  # .clean-cache
+    doomed = [p for p in runs if not (p / "report.json").is_file()]
+    for p in doomed:
+        shutil.rmtree(p, ignore_errors=True)
+    return doomed
+
+
 @contextlib.contextmanager
 def _process_lock(lock_path: Path) -> Iterator[None]:
     """One verification at a time across processes (the daemon's scheduler and `ppd verify`)."""
@@ -81,6 +94,7 @@ def verify_dataset(
     runs_root = Path(ctx.paths.runs_dir)
     run_dir = runs_root / dataset / new_run_id()
     with _process_lock(runs_root / ".verify.lock"):
+        remove_unfinished_runs(runs_root / dataset)  # what a killed verification left
         images = run_dir / ".images"
         try:
             matching = stage_pairs(pairs, images / "clean", images / "poisoned")

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from daemon.verification.verify import prune_runs
+from daemon.verification.verify import prune_runs, remove_unfinished_runs
 from poisoner.blend import poison_array
 from poisoner.spec import PatchSpec
 from verifier import verdict as vd
@@ -162,6 +162,20 @@ def test_prune_keeps_the_newest_runs(tmp_path: Path) -> None:
     removed = prune_runs(tmp_path, keep_last=2)
     assert sorted(p.name for p in removed) == ["20260101T000000-a", "20260102T000000-b"]
     assert sorted(os.listdir(tmp_path)) == ["20260103T000000-c", "20260104T000000-d"]
+
+
+def test_a_run_folder_without_its_report_is_a_killed_verifications_and_goes(tmp_path: Path) -> None:
+    finished, killed = tmp_path / "20260103T000000-c", tmp_path / "20260104T000000-d"
+    for run in (finished, killed):
+        (run / ".images" / "clean").mkdir(parents=True)
+        (run / ".images" / "clean" / "v0.png").write_bytes(b"staged")
+    (finished / "report.json").write_text("{}")
+    (tmp_path / ".verify.lock").write_text("")
+    (tmp_path / ".clean-cache" / "key").mkdir(parents=True)  # the clean reference kept across runs
+    assert remove_unfinished_runs(tmp_path) == [killed]
+    assert finished.is_dir() and not killed.exists() and (tmp_path / ".verify.lock").is_file()
+    assert (tmp_path / ".clean-cache" / "key").is_dir()
+    assert remove_unfinished_runs(tmp_path / "no such dataset") == []
 
 
 # ---- visibility in the verification's results ------------------------------------------------------
