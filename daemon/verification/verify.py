@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import fcntl
+import re
 import shutil
 import time
 import uuid
@@ -39,23 +40,33 @@ def new_run_id() -> str:
 
 
 def prune_runs(dataset_runs: Path, keep_last: int) -> list[Path]:
-    """Delete all but the newest keep_last run folders of a dataset (run ids sort by time)."""
+    """Delete all but the newest keep_last folders of each kind in a dataset's runs: verification
+    runs (run ids sort by time), the automatic mode's auto-<time> and auto-interim-<time>. Kept
+    apart because "auto-..." sorts after every run id: mixed, a verification just recorded was
+    pruned as the oldest when keep_last auto folders existed."""
     if not dataset_runs.is_dir():
         return []
-    runs = sorted(p for p in dataset_runs.iterdir() if p.is_dir() and not p.name.startswith("."))
-    doomed = runs[: max(0, len(runs) - keep_last)]
+    kinds: dict[str, list[Path]] = {}
+    for p in dataset_runs.iterdir():
+        if p.is_dir() and not p.name.startswith("."):
+            kinds.setdefault(re.sub(r"\d{8}T\d{6}.*$", "", p.name), []).append(p)
+    doomed = [p for runs in kinds.values() for p in sorted(runs)[: max(0, len(runs) - keep_last)]]
     for p in doomed:
         shutil.rmtree(p, ignore_errors=True)
     return doomed
 
 
+RUN_ID = re.compile(r"\d{8}T\d{6}-[0-9a-f]{6}")  # new_run_id()'s names, and nothing else of the folder
+
+
 def remove_unfinished_runs(dataset_runs: Path) -> list[Path]:
-    """Delete the run folders without a report.json: verifications killed or failed midway (their
-    staged images, feature caches and partial models). Called under the verification lock, so no
-    verification is running."""
+    """Delete the verification run folders without a report.json: verifications killed or failed
+    midway (their staged images, feature caches and partial models). Called under the verification
+    lock, so no verification is running; only run-id names (not the automatic mode's auto-* folders,
+    not .clean-cache)."""
     if not dataset_runs.is_dir():
         return []
-    runs = [p for p in dataset_runs.iterdir() if p.is_dir() and not p.name.startswith(".")]  # .clean-cache
+    runs = [p for p in dataset_runs.iterdir() if RUN_ID.fullmatch(p.name) and p.is_dir()]
     doomed = [p for p in runs if not (p / "report.json").is_file()]
     for p in doomed:
         shutil.rmtree(p, ignore_errors=True)

@@ -159,22 +159,29 @@ def test_round_trip_downscales_and_recompresses(tmp_path: Path) -> None:
 def test_prune_keeps_the_newest_runs(tmp_path: Path) -> None:
     for name in ["20260101T000000-a", "20260102T000000-b", "20260103T000000-c", "20260104T000000-d"]:
         (tmp_path / name).mkdir()
+    autos = [f"auto-2026010{d}T000000" for d in (5, 6, 7)] + ["auto-interim-20260101T000000"]
+    for name in autos:
+        (tmp_path / name).mkdir()
     removed = prune_runs(tmp_path, keep_last=2)
-    assert sorted(p.name for p in removed) == ["20260101T000000-a", "20260102T000000-b"]
-    assert sorted(os.listdir(tmp_path)) == ["20260103T000000-c", "20260104T000000-d"]
+    assert sorted(p.name for p in removed) == ["20260101T000000-a", "20260102T000000-b", autos[0]]
+    assert sorted(os.listdir(tmp_path)) == ["20260103T000000-c", "20260104T000000-d", *autos[1:]]
 
 
 def test_a_run_folder_without_its_report_is_a_killed_verifications_and_goes(tmp_path: Path) -> None:
-    finished, killed = tmp_path / "20260103T000000-c", tmp_path / "20260104T000000-d"
+    finished, killed = tmp_path / "20260103T000000-c0ffee", tmp_path / "20260104T000000-d00d1e"
     for run in (finished, killed):
         (run / ".images" / "clean").mkdir(parents=True)
         (run / ".images" / "clean" / "v0.png").write_bytes(b"staged")
     (finished / "report.json").write_text("{}")
     (tmp_path / ".verify.lock").write_text("")
     (tmp_path / ".clean-cache" / "key").mkdir(parents=True)  # the clean reference kept across runs
+    autos = ("auto-20261206T100000", "auto-interim-20261206T090000")  # the automatic mode's folders
+    for auto in autos:
+        (tmp_path / auto / "sample").mkdir(parents=True)
     assert remove_unfinished_runs(tmp_path) == [killed]
     assert finished.is_dir() and not killed.exists() and (tmp_path / ".verify.lock").is_file()
     assert (tmp_path / ".clean-cache" / "key").is_dir()
+    assert all((tmp_path / auto).is_dir() for auto in autos)
     assert remove_unfinished_runs(tmp_path / "no such dataset") == []
 
 
