@@ -20,6 +20,7 @@ import select
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from poisoner import scratch
@@ -59,21 +60,40 @@ def _waiter(caller: int) -> Callable[[], Any] | None:
         pidfd = os.pidfd_open(caller)
     except ProcessLookupError:
         return None
-    except (AttributeError, OSError):  # no pidfd here (not Linux, or before 5.3): poll the parent
-        if os.getppid() != caller:
-            return None if not _alive(caller) else (lambda: _poll(lambda: _alive(caller)))
-        return lambda: _poll(lambda: os.getppid() == caller)
+    except (AttributeError, OSError):  # no pidfd (not Linux, before 5.3, a seccomp filter): poll
+        if os.getppid() == caller:  # spawned by it: reparented when it ends
+            return lambda: _poll(lambda: os.getppid() == caller)
+        started = _start_time(caller)
+        if not _alive(caller, started):
+            return None
+        return lambda: _poll(lambda: _alive(caller, started))
     return lambda: select.select([pidfd], [], [])
 
 
-def _alive(pid: int) -> bool:
+def _start_time(pid: int) -> str | None:
+    """When pid started (/proc's clock ticks since boot), or None where there is no /proc."""
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19]
+    except (OSError, IndexError):
+        return None
+
+
+def _alive(pid: int, started: str | None) -> bool:
+    """pid still names the process that started at `started`, and it has not ended (a zombie,
+    whose parent has not reaped it, has ended)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except FileNotFoundError:
         return False
-    except PermissionError:
+    except OSError:  # no /proc: the pid alone
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        except PermissionError:
+            return True
         return True
-    return True
+    return fields[0] != "Z" and (started is None or fields[19] == started)
 
 
 def _poll(alive: Callable[[], bool]) -> None:

@@ -25,21 +25,30 @@ PREFIXES = ("pymp-", "ppd-verify-", ".ppd-auto-")
 _held: dict[str, int] = {}  # folder -> this process's open, locked descriptor of its lock file
 
 
-def claim(folder: str | Path) -> None:
-    """Mark folder as this process's until it ends (or `release`)."""
+def claim(folder: str | Path) -> bool:
+    """Mark folder as this process's until it ends (or `release`); False where it cannot be (a
+    filesystem without flock, say): the folder then works as before, unmarked, never swept."""
     key = os.fspath(folder)
     if key in _held:
-        return
-    # Locked under another name, then renamed: a sweep never sees the lock file unlocked.
+        return True
+    # Locked under a name of its own, then linked into place: a sweep never sees the lock file
+    # unlocked, and a folder already marked (by another process) keeps its owner's lock.
     pending = os.path.join(key, f"{LOCK_NAME}.{os.getpid()}")
-    fd = os.open(pending, os.O_RDWR | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+    try:
+        fd = os.open(pending, os.O_RDWR | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+    except OSError:
+        return False
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)  # released by the kernel when this process ends, however it ends
-        os.rename(pending, os.path.join(key, LOCK_NAME))
-    except BaseException:
+        os.link(pending, os.path.join(key, LOCK_NAME))
+    except OSError:  # no flock or no hard links here, or the folder is someone else's already
         os.close(fd)
-        raise
+        return False
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(pending)
     _held[key] = fd
+    return True
 
 
 def release(folder: str | Path, keep: bool = False) -> None:
@@ -94,11 +103,14 @@ def remove_if_stale(folder: str | Path) -> bool:
         return False
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:  # its process lives
-        os.close(fd)
-        return False
-    try:
+        # Still the folder's lock file? A folder kept for the user unlinks it before its owner lets
+        # the lock go: a lock won on the unlinked file says nothing about the folder.
+        held, now = os.fstat(fd), os.stat(path / LOCK_NAME, follow_symlinks=False)
+        if (held.st_dev, held.st_ino) != (now.st_dev, now.st_ino):
+            return False
         shutil.rmtree(path, ignore_errors=True)
+    except OSError:  # its process lives, or the lock file went meanwhile
+        return False
     finally:
         os.close(fd)
     return not path.exists()

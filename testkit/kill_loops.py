@@ -129,17 +129,28 @@ def _kill_at_random(proc: subprocess.Popen, rng: random.Random, window: tuple[fl
 
 
 def _group_ends(pgid: int, within_s: float) -> bool:
-    """Whether process group pgid has no process left within within_s (then SIGKILLs what is left)."""
+    """Whether process group pgid has no running process left within within_s (zombies have ended:
+    a PID 1 that reaps nobody keeps them); then SIGKILLs what is left."""
     deadline = time.monotonic() + within_s
     while time.monotonic() < deadline:
-        try:
-            os.killpg(pgid, 0)
-        except ProcessLookupError:
+        if not _running_in_group(pgid):
             return True
         time.sleep(0.05)
     with contextlib.suppress(ProcessLookupError):
         os.killpg(pgid, signal.SIGKILL)
     return False
+
+
+def _running_in_group(pgid: int) -> list[int]:
+    """The pids of group pgid's processes that have not ended (/proc: state, then the group)."""
+    running = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            with contextlib.suppress(OSError, IndexError):
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+                if fields[0] != "Z" and int(fields[2]) == pgid:
+                    running.append(int(entry.name))
+    return running
 
 
 def _count_kill_state(root: Path, folder: Path, names: list[str], originals: dict[Path, str],
