@@ -63,37 +63,40 @@ def _waiter(caller: int) -> Callable[[], Any] | None:
     except (AttributeError, OSError):  # no pidfd (not Linux, before 5.3, a seccomp filter): poll
         if os.getppid() == caller:  # spawned by it: reparented when it ends
             return lambda: _poll(lambda: os.getppid() == caller)
-        started = _start_time(caller)
-        if not _alive(caller, started):
+        if not Path("/proc").is_dir():
+            return lambda: _poll(lambda: _signalable(caller))
+        started = _stat(caller)
+        if started is None or started[0] == "Z":  # gone, or ended and not yet reaped
             return None
-        return lambda: _poll(lambda: _alive(caller, started))
+        return lambda: _poll(lambda: _same_process(caller, started[1]))
     return lambda: select.select([pidfd], [], [])
 
 
-def _start_time(pid: int) -> str | None:
-    """When pid started (/proc's clock ticks since boot), or None where there is no /proc."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19]
-    except (OSError, IndexError):
-        return None
-
-
-def _alive(pid: int, started: str | None) -> bool:
-    """pid still names the process that started at `started`, and it has not ended (a zombie,
-    whose parent has not reaped it, has ended)."""
+def _stat(pid: int) -> tuple[str, str] | None:
+    """(state, start time in clock ticks since boot) from /proc; None: no such process."""
     try:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except FileNotFoundError:
+    except (OSError, IndexError):
+        return None
+    return fields[0], fields[19]
+
+
+def _same_process(pid: int, started: str) -> bool:
+    """pid still names the process that started then, and it has not ended (a zombie, whose parent
+    has not reaped it, has ended; a reused pid is another process)."""
+    now = _stat(pid)
+    return now is not None and now[0] != "Z" and now[1] == started
+
+
+def _signalable(pid: int) -> bool:
+    """Where there is no /proc (macOS): whether the pid alone still answers."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
         return False
-    except OSError:  # no /proc: the pid alone
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            return False
-        except PermissionError:
-            return True
+    except PermissionError:
         return True
-    return fields[0] != "Z" and (started is None or fields[19] == started)
+    return True
 
 
 def _poll(alive: Callable[[], bool]) -> None:

@@ -141,16 +141,21 @@ def _group_ends(pgid: int, within_s: float) -> bool:
     return False
 
 
-def _running_in_group(pgid: int) -> list[int]:
-    """The pids of group pgid's processes that have not ended (/proc: state, then the group)."""
-    running = []
+def running_processes() -> dict[int, tuple[int, int]]:
+    """pid -> (parent pid, process group) of every process that has not ended, from /proc
+    (zombies left out: a PID 1 that reaps nobody keeps them, ended)."""
+    table = {}
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             with contextlib.suppress(OSError, IndexError):
                 fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-                if fields[0] != "Z" and int(fields[2]) == pgid:
-                    running.append(int(entry.name))
-    return running
+                if fields[0] != "Z":
+                    table[int(entry.name)] = (int(fields[1]), int(fields[2]))
+    return table
+
+
+def _running_in_group(pgid: int) -> list[int]:
+    return [pid for pid, (_, group) in running_processes().items() if group == pgid]
 
 
 def _count_kill_state(root: Path, folder: Path, names: list[str], originals: dict[Path, str],

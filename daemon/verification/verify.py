@@ -39,6 +39,10 @@ def new_run_id() -> str:
     return time.strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:6]
 
 
+STAMP = r"\d{8}T\d{6}"  # a folder name's time (new_run_id, the automatic mode's auto-<time>)
+RUN_ID = re.compile(STAMP + r"-[0-9a-f]{6}")  # new_run_id()'s names, and nothing else of the folder
+
+
 def prune_runs(dataset_runs: Path, keep_last: int) -> list[Path]:
     """Delete all but the newest keep_last folders of each kind in a dataset's runs: verification
     runs (run ids sort by time), the automatic mode's auto-<time> and auto-interim-<time>. Kept
@@ -49,14 +53,11 @@ def prune_runs(dataset_runs: Path, keep_last: int) -> list[Path]:
     kinds: dict[str, list[Path]] = {}
     for p in dataset_runs.iterdir():
         if p.is_dir() and not p.name.startswith("."):
-            kinds.setdefault(re.sub(r"\d{8}T\d{6}.*$", "", p.name), []).append(p)
+            kinds.setdefault(re.sub(STAMP + ".*$", "", p.name), []).append(p)
     doomed = [p for runs in kinds.values() for p in sorted(runs)[: max(0, len(runs) - keep_last)]]
     for p in doomed:
         shutil.rmtree(p, ignore_errors=True)
     return doomed
-
-
-RUN_ID = re.compile(r"\d{8}T\d{6}-[0-9a-f]{6}")  # new_run_id()'s names, and nothing else of the folder
 
 
 def remove_unfinished_runs(dataset_runs: Path) -> list[Path]:

@@ -17,24 +17,14 @@ import numpy as np
 import PIL.Image
 import pytest
 
-from testkit.kill_loops import REPO
-
-
-def _children() -> dict[int, list[int]]:
-    """Every live process's children, from /proc (zombies left out: they have ended)."""
-    tree: dict[int, list[int]] = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        with contextlib.suppress(OSError):
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            if fields[0] != "Z":
-                tree.setdefault(int(fields[1]), []).append(int(entry.name))
-    return tree
+from testkit.kill_loops import REPO, running_processes
 
 
 def _descendants(pid: int) -> set[int]:
-    tree, found, todo = _children(), set(), [pid]
+    tree: dict[int, list[int]] = {}
+    for child, (parent, _) in running_processes().items():
+        tree.setdefault(parent, []).append(child)
+    found, todo = set(), [pid]
     while todo:
         for child in tree.get(todo.pop(), []):
             found.add(child)
@@ -43,12 +33,7 @@ def _descendants(pid: int) -> set[int]:
 
 
 def _running(pids: set[int]) -> set[int]:
-    alive = set()
-    for pid in pids:
-        with contextlib.suppress(OSError):
-            if Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
-                alive.add(pid)
-    return alive
+    return pids & running_processes().keys()
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the forkserver and /proc are Linux's")
