@@ -64,7 +64,8 @@ EDGE_BAND = 0.1  # the outer tenth of each side
 PLAIN_EDGE_BELOW = 0.2  # at most a fifth of the edge band textured: a plain surround
 RICH_FROM = 0.8  # texture covers four fifths of the frame or more
 SAMPLE = 6  # images per dataset; a hint, not a measurement of every file
-# The largest photos (long side, px) any set held on in our tests (dtu_scan37 at its full 1600 px). A
+# The largest real photos (long side, px) a set held on in our tests (dtu_scan37 at its full 1600 px;
+# upscaled to 6000 px, so no finer detail, it held in 28 of 30 profile-seed rows at the 10% bar). A
 # box of real photo faces on a plain backdrop was NOT protected at 2048, 3200 and 6000 px, and at 1600
 # px only at one COLMAP seed of three: SIFT sees the subject's fine texture and its true matches
 # out-vote the mark (bench/results/protection_24mp.md). The figures above are taken at the mark's
@@ -121,9 +122,9 @@ def sentence(
     """One line for the user; it says what our tests found for sets like this, never 'protected'."""
     size = ""
     if long_side > HELD_UP_TO_PX:  # issue 30: no set held above 1600 px
-        size = (f" At {long_side} px these photos are larger than any set the mark held on in our "
-                f"tests ({HELD_UP_TO_PX} px): a finely textured subject was NOT protected at 2048, 3200 "
-                "and 6000 px.")  # fmt: skip
+        size = (f" At {long_side} px these photos are larger than any real capture the mark held on in "
+                f"our tests ({HELD_UP_TO_PX} px): a finely textured subject was NOT protected at 2048, 3200 "
+                "and 6000 px; a soft one (a capture upscaled to 6000 px) mostly was.")  # fmt: skip
     if kind == SceneKind.PLAIN:
         return (f"{dataset}: plain background around the subject (frame edges {edge_textured_fraction:.0%} "
                 "textured) — the kind of set ppd's mark protected in our tests, unless the subject itself is "
@@ -300,7 +301,7 @@ def responses(dog: np.ndarray, threshold: float) -> int:
 
 def load_gray(path: Path, width: int = ANALYSIS_WIDTH) -> np.ndarray:
     """The image as grey floats in [0, 1], reduced to `width` (never enlarged); transparency on white,
-    as NeRF-style sets are reconstructed. JPEGs are decoded at a reduced scale (cheap). Opened as
+    as NeRF-style sets are reconstructed. JPEGs are decoded at a reduced scale, as luma (cheap). Opened as
     poisoning opens it (HEIC, the decompression-bomb limit): a file it cannot read raises
     ImageFormatError."""
     return load_gray_sized(path, width)[0]
@@ -316,7 +317,10 @@ def load_gray_sized(path: Path, width: int = ANALYSIS_WIDTH) -> tuple[np.ndarray
     im = open_decoded(path, Path(path).read_bytes(), load=False)
     stored = im.size
     if im.format == "JPEG":
-        im.draft("RGB", (width, max(1, im.height * width // im.width)))
+        # libjpeg's luma (Y) straight from the scan: no chroma IDCT, upsampling or colour conversion
+        # (6-7 ms of a 12 MP photo's 32); on photos the same grey as RGB -> L within one level
+        # (saturated colours: within a few). CMYK keeps its mode and converts below.
+        im.draft("L", (width, max(1, im.height * width // im.width)))
     load_decoded(path, im)
     if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
         rgba = im.convert("RGBA")

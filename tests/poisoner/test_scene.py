@@ -131,9 +131,9 @@ def _enlarged(files: list[Path], folder: Path, size: tuple[int, int]) -> list[Pa
 
 
 def test_photos_larger_than_any_set_the_mark_held_on_are_said_so(tmp_path: Path) -> None:
-    """Issue 30: no set held above 1600 px (a plain-background box was NOT protected at 2048, 3200 and
-    6000 px), which the figures (taken at the mark's scale) cannot see: the line names the size above
-    HELD_UP_TO_PX, and only there; the kind does not change."""
+    """Issue 30: no real capture held above 1600 px (a plain-background box was NOT protected at 2048,
+    3200 and 6000 px), which the figures (taken at the mark's scale) cannot see: the line names the size
+    above HELD_UP_TO_PX, and only there; the kind does not change."""
     from poisoner.scene import HELD_UP_TO_PX
 
     files = _object_on_plain(tmp_path)
@@ -142,6 +142,7 @@ def test_photos_larger_than_any_set_the_mark_held_on_are_said_so(tmp_path: Path)
     assert small is not None and large is not None and small.kind == large.kind == SceneKind.PLAIN
     assert small.long_side == W <= HELD_UP_TO_PX and "NOT protected" not in small.sentence
     assert large.long_side == 3200 and "At 3200 px" in large.sentence and "NOT protected" in large.sentence
+    assert "larger than any real capture" in large.sentence  # an upscaled (soft) one held at 6000 px
 
 def test_transparent_pixels_are_read_on_white(tmp_path: Path) -> None:
     """NeRF-style RGBA: whatever colour hides under alpha 0 is not texture."""
@@ -413,3 +414,24 @@ def test_the_marks_figures_from_a_crop_are_the_whole_frames(design: str) -> None
         whole = (float((marked != flat).any(axis=2).mean()), image_figures(gray).responses)
         assert whole[1] > 0
         assert scene.mark_figures(width, height, spec) == whole, (design, width, height)
+
+
+def test_a_jpeg_is_read_as_its_own_luma_the_grey_of_its_colour_decode(tmp_path: Path) -> None:
+    """The hint reads a JPEG's luma straight from libjpeg (no colour decode): on a photo-like picture
+    the same grey as decoding RGB and converting, within one level, so the figures do not move."""
+    rng = np.random.default_rng(5)
+    h, w = 1200, 1800
+    base = rng.random((h // 24 + 1, w // 24 + 1, 3))
+    pixels = np.kron(base, np.ones((24, 24, 1)))[:h, :w] * 150 + 50 + rng.normal(0, 6, (h, w, 3))
+    path = tmp_path / "photo.jpg"
+    Image.fromarray(np.clip(pixels, 0, 255).astype(np.uint8)).save(path, quality=90)
+    with Image.open(path) as im:  # the colour decode at the same reduced scale, then grey
+        im.draft("RGB", (800, 800 * h // w))
+        colour = im.convert("RGB")
+        assert colour.width > 800  # reduced by libjpeg, then to 800 px below
+        reference = colour.convert("L").resize((800, 533), Image.Resampling.BILINEAR)
+    expected = np.asarray(reference, dtype=np.float32) / 255.0
+    grey = load_gray(path)
+    assert grey.shape == expected.shape
+    assert np.abs(grey - expected).max() <= 1.5 / 255
+    assert image_figures(grey) == image_figures(expected)
