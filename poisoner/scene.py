@@ -312,7 +312,7 @@ def load_gray_sized(path: Path, width: int = ANALYSIS_WIDTH) -> tuple[np.ndarray
     import numpy as np
     from PIL import Image
 
-    from poisoner.image.read import load_decoded, open_decoded
+    from poisoner.image.read import eight_bit_grey, load_decoded, open_decoded
 
     im = open_decoded(path, Path(path).read_bytes(), load=False)
     stored = im.size
@@ -326,7 +326,7 @@ def load_gray_sized(path: Path, width: int = ANALYSIS_WIDTH) -> tuple[np.ndarray
         rgba = im.convert("RGBA")
         im = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
         im.alpha_composite(rgba)
-    gray = im.convert("L")
+    gray = eight_bit_grey(im).convert("L")
     if gray.width > width:
         size = (width, max(1, round(gray.height * width / gray.width)))
         gray = gray.resize(size, Image.Resampling.BILINEAR)

@@ -250,9 +250,12 @@ def _grey_thumbnail(im: Image.Image) -> np.ndarray:
     import numpy as np
     from PIL import Image
 
+    from poisoner.image.read import eight_bit_grey
+
     # JPEG: a scaled DCT decode of the luma alone, much cheaper; at 1/8 it is the luma blocks' DC
     # values, which _jpeg_dc_thumbnail reads without Pillow (the same pixels).
     im.draft("L", (THUMBNAIL_PX, THUMBNAIL_PX))
+    im = eight_bit_grey(im)
     im.thumbnail((THUMBNAIL_PX, THUMBNAIL_PX), Image.Resampling.BOX)
     if "A" in im.getbands() or "transparency" in im.info:
         rgba = im.convert("RGBA")

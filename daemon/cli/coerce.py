@@ -69,6 +69,18 @@ def plain_path(annotation: Any, value: Any, info: Any) -> Any:
     return _readable_path(value) if annotation is Path else _NOT_PLAIN
 
 
+EMPTY_PATH = "an empty path (an unset variable in a script?); give a file or folder ('.' for this one)"
+
+
+def empty_path(annotation: Any, value: Any) -> bool:
+    """Whether a path parameter got the empty text, which Path() reads as '.': `ppd poison "$DIR"`
+    with DIR unset would patch every photo under the working folder."""
+    if annotation is Path or (get_origin(annotation) is list and get_args(annotation) == (Path,)):
+        values = value if isinstance(value, list | tuple) else [value]
+        return any(type(v) is str and v == "" for v in values)
+    return False
+
+
 def _readable_path(value: Any) -> Any:
     # pydantic makes Path(value) of any text; the empty and the NUL-bearing go to typer to judge.
     # typer stats the Path (a trailing "/" dropped), so the check does too.
@@ -83,6 +95,7 @@ def _readable_path(value: Any) -> Any:
 def install() -> None:
     """From now on, every typer parameter of this process converts plain values here first."""
     try:
+        from typer._click.exceptions import BadParameter
         from typer._coercion import RuntimeParam, build_runtime_param
         from typer.core import _TyperParameter
     except ImportError:  # another typer: nothing to do
@@ -92,6 +105,8 @@ def install() -> None:
 
     class PlainRuntimeParam(RuntimeParam):  # a frozen dataclass through its base
         def _coerce_value(self, value: Any, param: Any, ctx: Any) -> Any:
+            if empty_path(self.annotation, value):
+                raise BadParameter(EMPTY_PATH, ctx=ctx, param=param)
             info = self.parameter_info
             if info.parser is None and not info.clamp:
                 converted = plain_value(self.annotation, value, info.min, info.max)

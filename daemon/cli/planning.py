@@ -45,13 +45,18 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
     """One job per file of the targets, each with its dataset by the one rule of attribution
     (daemon.datasets.dataset.attribute: a folder is one dataset, a file belongs to its outbox dataset or
     to one named after its parent; --dataset names it, and a known name keeps its root)."""
+    from daemon.cli.targets import TargetError, user_path
     from daemon.datasets.dataset import DatasetConflict, DatasetNameError, attribute
 
+    try:
+        targets = [user_path(t) for t in targets]
+        out = None if out is None else user_path(out)
+    except TargetError as exc:
+        raise die(exc) from None
     if out is not None and out.exists() and not out.is_dir():
         raise die(f"--out must be a folder: {out} is a file")
     jobs: list[Job] = []
     for target in targets:
-        target = target.absolute()
         if not target.exists() and not target.is_symlink():
             raise die(f"{target} does not exist")
         try:

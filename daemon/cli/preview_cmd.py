@@ -206,6 +206,17 @@ def _visibility_line(original: Any, poisoned: Any, display_width: int, subject: 
         raise die(one_line(exc)) from None
 
 
+def _user_file(given: Path) -> Path:
+    """A file named on the command line as the store records it ('..' folded): the vault's original
+    of a patched file is found by that path."""
+    from daemon.cli.targets import TargetError, user_path
+
+    try:
+        return user_path(given)
+    except TargetError as exc:
+        raise die(exc) from None
+
+
 def _first_file(ctx: AppContext, given: Path) -> Path:
     """A dataset (its name, its folder, a verification folder of it) or a folder: its first
     patched file, else the folder's first photo or video; or one line saying what to give."""
@@ -263,7 +274,7 @@ def preview(
 
     ctx = open_ctx()
     try:
-        file = file.absolute() if file.is_file() else _first_file(ctx, file)
+        file = _user_file(file) if file.is_file() else _first_file(ctx, file)
         masks = _preview_masks(ctx, file, subject_masks)
         image, original, poisoned, subject, where = _render(ctx, file, spec_options, masks)
         target = (out or Path.cwd() / f"{file.stem}.ppd-preview.png").absolute()

@@ -32,13 +32,13 @@ def restore(
       ppd restore ~/shoots/castle        the same, by its folder
       ppd restore ~/shoots/castle/a.jpg  one file
     """
-    from daemon.cli.targets import TargetError, dataset_or_die
+    from daemon.cli.targets import TargetError, dataset_or_die, user_path
     from daemon.protect.one_file import restore_file
     from daemon.states import FileState
 
     ctx = open_ctx()
     try:
-        as_path = Path(os.path.abspath(Path(target).expanduser()))
+        as_path = user_path(target)
         if ctx.store.file(as_path) is not None or (as_path.is_file() and not as_path.is_symlink()):
             # a file: its row, or with no row (a lost store) its seal and the vault (restore_file says
             # "not in the store and carries no ppd provenance marker" for a file ppd never patched)

@@ -255,7 +255,7 @@ def status(
     ctx = open_ctx()
     try:
         names = [d["name"] for d in ctx.store.datasets()]
-        if dataset:  # a name, a folder or a verification folder: one resolver (daemon.cli.targets)
+        if dataset is not None:  # a name, a folder or a verification folder ("" refused): one resolver
             say = err_console() if as_json else console()
             try:
                 names = [dataset_or_die(ctx.store, dataset, say, "give a dataset (see `ppd status`)")]

@@ -47,6 +47,33 @@ def _absolute(path: Path) -> Path:
     return Path(os.path.abspath(path.expanduser()))
 
 
+def user_path(path: Path | str) -> Path:
+    """A path as typed, the way the store records paths: '~' expanded, absolute, '.' and '..'
+    folded (`ppd poison ../shoot` patches the files of /home/me/shoot, not of
+    /home/me/work/../shoot, which no dataset root contains). Where a '..' follows a symlink the
+    kernel goes elsewhere than the folded path, so such a path is refused, never guessed."""
+    if str(path) == "":
+        raise TargetError("an empty path (an unset variable in a script?); give a file or folder")
+    given = Path(path).expanduser().absolute()
+    folded = Path(os.path.normpath(given))
+    if folded != given and ".." in given.parts and not _same_place(given, folded):
+        raise TargetError(
+            f"{path}: a '..' in it follows a symlink, so it reads another folder than it names; "
+            "give the path without '..'"
+        )
+    return folded
+
+
+def _same_place(a: Path, b: Path) -> bool:
+    """a and b name one file or folder (or neither exists, so nothing is read through them)."""
+    if os.path.lexists(a) != os.path.lexists(b):
+        return False
+    try:
+        return not os.path.lexists(a) or os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
 def _same_folder(a: Path, b: Path) -> bool:
     if _absolute(a) == _absolute(b):
         return True
@@ -87,7 +114,7 @@ def dataset_for_verification_folder(store: Any, folder: Path) -> str | None:
 
 
 def _folder_target(store: Any, path: Path, explicit: bool) -> Target:
-    folder = _absolute(path)
+    folder = user_path(path)
     name = dataset_for_folder(store, folder)
     if name is not None:
         same = "" if explicit else f"; --dataset {name} says the same"
@@ -109,6 +136,8 @@ def resolve_target(
     given = [x for x in (target, dataset, folder) if x is not None]
     if len(given) != 1:
         raise TargetError("give one of: DATASET or FOLDER, --dataset NAME, --folder PATH")
+    if target == "" or dataset == "":  # Path("") is '.': `ppd restore "$SHOOT"` with SHOOT unset
+        raise TargetError("an empty dataset or folder (an unset variable in a script?); give a name or path")
     if dataset is not None:
         if store.dataset(dataset) is None:
             raise TargetError(f"no dataset {dataset!r} in the store (see `ppd status`)")
@@ -118,7 +147,7 @@ def resolve_target(
             raise TargetError(f"{folder} is not a folder")
         name = dataset_for_folder(store, folder)  # explicit: never a verification's dataset
         note = f"{folder} is dataset {name!r} (patched by ppd)" if name else None
-        return Target(name, _absolute(folder), note)
+        return Target(name, user_path(folder), note)
     assert target is not None
     path = Path(target).expanduser()
     is_dataset = store.dataset(target) is not None

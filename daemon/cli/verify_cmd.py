@@ -171,6 +171,8 @@ def verify(
     options = _options(timeout, ground_truth, splat, splat_budget, white_background, subject_masks, seeds)
     try:
         if clean is not None:
+            if target == "":  # Path("") is '.'
+                raise TargetError("an empty folder (an unset variable in a script?); give the patched folder")
             report = _verify_folder(folder or Path(target or ""), clean, out, profiles, options, console)
         else:
             report = _verify_stored(target, dataset, folder, profiles, options, console)

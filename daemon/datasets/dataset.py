@@ -92,7 +92,7 @@ def attribute(
     target = Path(os.path.normpath(Path(target).absolute()))  # "shoot/.." names its parent, not ".."
     is_folder = target.is_dir() if folder is None else folder
     home = target if is_folder else target.parent
-    if dataset:
+    if dataset is not None:  # "" too: refused by check_name, never taken as "no name"
         check_name(dataset)
         row = ctx.store.dataset(dataset)
         if row is None:

@@ -91,3 +91,17 @@ def load_decoded(src: Path, im: Image.Image) -> Image.Image:
     with decode_errors(src):
         im.load()
     return im
+
+
+def eight_bit_grey(im: Image.Image) -> Image.Image:
+    """16-bit grey (a PNG's I;16, or I) as the 8-bit grey a display shows: its top byte. Pillow
+    serves it badly: its reduce (a thumbnail of a photo 4x the size) refuses the mode, and its
+    conversion to L clips every level over 255 to white, a flat picture with no detail anywhere."""
+    import numpy as np
+
+    if not (im.mode.startswith("I;16") or im.mode == "I"):
+        return im
+    levels = np.clip(np.asarray(im), 0, 65535)
+    if im.mode == "I" and levels.max(initial=0) <= 255:  # 32-bit integers holding 8-bit levels
+        return Image.fromarray(levels.astype(np.uint8))
+    return Image.fromarray((levels >> 8).astype(np.uint8))

@@ -42,7 +42,8 @@ def _encoded(kind: str, seed: int) -> bytes:
     elif kind == "png-p-transparency":
         im.quantize(64).save(buf, "PNG", transparency=0)
     elif kind == "png-l16":
-        Image.fromarray(rgb[:, :, 1].astype(np.uint16)).save(buf, "PNG")  # Pillow reads I;16 as 0-255 grey
+        # 16-bit levels (x 257: 255 is white); levels 0-255 would be a near-black picture, no detail
+        Image.fromarray(rgb[:, :, 1].astype(np.uint16) * 257).save(buf, "PNG")
     elif kind == "tiff":
         im.save(buf, "TIFF", exif=exif)
     elif kind == "webp-lossless":

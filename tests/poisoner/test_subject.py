@@ -15,7 +15,7 @@ from PIL import Image
 
 from poisoner.corner import CORNERS, corner_box
 from poisoner.errors import ImageFormatError
-from poisoner.subject import CornerChoice, dataset_corner, load_subject_mask, mask_path
+from poisoner.subject import CornerChoice, dataset_corner, display_details, load_subject_mask, mask_path
 
 
 def _write_mask(path: Path, mask: np.ndarray, mode: str = "L") -> None:
@@ -245,3 +245,26 @@ def test_unreadable_files_do_not_decide_the_corner(tmp_path: Path) -> None:
     assert choice.cover["bottom-right"] == 1.0
     only_broken = dataset_corner([images / "003.png"], None)
     assert only_broken.source == "default"
+
+
+@pytest.mark.parametrize("width", [800, 1024, 1600])
+def test_sixteen_bit_grey_is_judged_by_its_levels_at_any_size(width: int) -> None:
+    """A 16-bit grey PNG (Pillow's I;16): its thumbnail is its top byte as a display shows it. Before,
+    Pillow's reduce refused the mode from 1024 px up ('cannot decode (image has wrong mode)', the photo
+    not patched) and below it the conversion to L clipped every level over 255 to white: no detail
+    anywhere, so the mark could land on the subject."""
+    import io
+
+    height = width * 3 // 4
+    rng = np.random.default_rng(3)
+    levels = np.full((height, width), 30000, dtype=np.uint16)
+    blocks = rng.integers(0, 20000, (height // 8 + 1, width // 16 + 1), dtype=np.uint16)
+    levels[:, : width // 2] += np.kron(blocks, np.ones((8, 8), dtype=np.uint16))[:height, : width // 2]
+    buf = io.BytesIO()
+    Image.fromarray(levels).save(buf, format="PNG")
+    with Image.open(io.BytesIO(buf.getvalue())) as im:
+        assert im.mode == "I;16"
+    detail, _faint, _orientation = display_details(buf.getvalue(), "grey16.png")
+    half = detail.shape[1] // 2
+    assert detail[:, : half - 2].mean() > 0.5  # the textured half is detail
+    assert detail[:, half + 2 :].mean() < 0.05  # the flat half is not

@@ -154,3 +154,62 @@ def test_auto_and_experiment_take_the_dataset_folder(shoot: Path, monkeypatch: p
     for i, path in enumerate(staged):
         expected = np.random.default_rng(i).integers(0, 256, (120, 160, 3), dtype=np.uint8)
         assert np.array_equal(np.asarray(Image.open(path)), expected)  # the originals, not the patched
+
+
+def _digests(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+def test_poison_and_preview_take_a_path_through_dotdot(
+    ppd_env: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`ppd poison ../photos/castle` patches the folder as its absolute path does. Before, every file
+    failed ('... is not inside ...': the files kept the '..', the dataset's root did not), the failures
+    stayed in the store as extra rows, and `ppd preview ../.../view0.png` took the patched file for an
+    original and drew a second mark on it."""
+    shoot = _shoot(tmp_path)
+    (tmp_path / "work").mkdir()
+    monkeypatch.chdir(tmp_path / "work")
+    done = runner.invoke(app, ["poison", "../photos/castle"])
+    assert done.exit_code == 0, done.output
+    assert "patched 2" in done.output and "failed 0" in done.output
+    status = runner.invoke(app, ["status", "castle"])
+    assert "files 2: patched 2" in status.output, status.output
+    via_dotdot = runner.invoke(
+        app, ["preview", "../photos/castle/view0.png", "--no-visibility", "--out", "a.png"]
+    )
+    direct = runner.invoke(
+        app, ["preview", str(shoot / "view0.png"), "--no-visibility", "--out", str(tmp_path / "b.png")]
+    )
+    assert via_dotdot.exit_code == direct.exit_code == 0, via_dotdot.output + direct.output
+    assert np.array_equal(np.asarray(Image.open("a.png")), np.asarray(Image.open(tmp_path / "b.png")))
+
+
+def test_a_dotdot_after_a_symlink_is_refused(
+    ppd_env: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """link/../view0.png reads the link target's parent; folded it would name another file: refused."""
+    shoot = _shoot(tmp_path)
+    (shoot / "inner").mkdir()
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "link").symlink_to(shoot / "inner")
+    before = _digests(shoot)
+    done = runner.invoke(app, ["poison", "link/../view0.png"])
+    assert done.exit_code == 2 and "follows a symlink" in done.output, done.output
+    assert _digests(shoot) == before
+
+
+def test_an_empty_path_or_name_is_refused(
+    ppd_env: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`ppd poison "$SHOOT"` with SHOOT unset gave Path('') = '.': every photo under the working
+    folder patched in place. An empty path, dataset name or target is now a one-line error (2)."""
+    shoot = _shoot(tmp_path)
+    monkeypatch.chdir(shoot)
+    before = _digests(shoot)
+    for argv in (["poison", ""], ["poison", ".", "--dataset", ""], ["poison", ".", "--subject-masks", ""],
+                 ["poison", ".", "--out", ""], ["preview", ""], ["restore", ""], ["status", ""]):  # fmt: skip
+        done = runner.invoke(app, argv)
+        assert done.exit_code == 2, (argv, done.output)
+        assert "empty" in done.output or "not a plain name" in done.output, (argv, done.output)
+    assert _digests(shoot) == before
