@@ -18,7 +18,9 @@ key_app = typer.Typer(
 
 @key_app.command("export")
 def key_export(
-    file: Path = typer.Argument(..., help="Where to write the key (mode 0600; never inside the outbox)."),
+    file: Path = typer.Argument(
+        ..., help="Where to write the key (mode 0600; never where photos are published)."
+    ),
     force: bool = typer.Option(False, "--force", help="Replace FILE if it exists."),
 ) -> None:
     """Write this installation's seal key to FILE (created on first use if there is none yet)."""
@@ -27,6 +29,10 @@ def key_export(
     from daemon.paths import AppPaths
     from daemon.store.sealkey import SealKeyError, load_key
 
+    published = _published_folder_holding(file)
+    if published is not None:
+        raise die(f"{file} is inside {published}, whose files are published; the key would go out with your "
+                  "photos: write it elsewhere")  # fmt: skip
     paths = AppPaths.from_env()
     try:
         key = load_key(paths.data_dir)
@@ -47,6 +53,34 @@ def key_export(
     finally:
         os.close(fd)
     typer.echo(f"seal key written to {file} (keep it private; `ppd key import {file}` on the new machine)")
+
+
+def _published_folder_holding(file: Path) -> str | None:
+    """The outbox, or a dataset's folder or its publish folder, that FILE would be written into
+    (symlinks followed: what a sync client uploads), said in words; None when it is none of them.
+    The datasets come from the store when it opens (a key is also exported to leave a broken one)."""
+    import contextlib
+    import os
+
+    from daemon.context import AppContext
+    from daemon.paths import AppPaths
+
+    where = Path(os.path.abspath(file.expanduser())).parent.resolve()
+    folders = [("the outbox", Path(AppPaths.from_env().outbox))]
+    with contextlib.suppress(Exception):
+        ctx = AppContext.open()
+        try:
+            for row in ctx.store.datasets():
+                folders.append((f"the folder of dataset {row['name']!r}", Path(row["root"])))
+                if row.get("publish_dir"):
+                    publish = Path(row["publish_dir"])
+                    folders.append((f"the publish folder of dataset {row['name']!r}", publish))
+        finally:
+            ctx.close()
+    for words, folder in folders:
+        if where.is_relative_to(folder.resolve()):
+            return f"{words} {folder}"
+    return None
 
 
 @key_app.command("import")

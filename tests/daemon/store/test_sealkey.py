@@ -106,3 +106,30 @@ def test_export_import_moves_recognition_to_a_new_machine(
     (tmp_path / "bad").write_text("x" * 64)
     bad = runner.invoke(app, ["key", "import", str(tmp_path / "bad")])
     assert bad.exit_code == 2 and "not a ppd seal key" in bad.output and len(bad.output.splitlines()) == 1
+
+
+def test_export_refuses_a_folder_whose_files_are_published(
+    app: typer.Typer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The help said "never inside the outbox" and nothing checked it: the key (the secret that
+    seals ppd's files) was written into the outbox, a synced folder. The outbox and every dataset's
+    folder are refused, by any path (relative, through a symlink); elsewhere it is written."""
+    from daemon.cli import app as ppd
+
+    monkeypatch.setenv("PPD_DATA_DIR", str(tmp_path / "data"))
+    monkeypatch.setenv("PPD_CONFIG_DIR", str(tmp_path / "config"))
+    outbox = tmp_path / "outbox"
+    monkeypatch.setenv("PPD_OUTBOX", str(outbox))
+    shoot = tmp_path / "shoot"
+    write_image(shoot / "a.png", seed=1, size=96)
+    runner = CliRunner()
+    assert runner.invoke(ppd, ["poison", str(shoot)]).exit_code == 0
+    outbox.mkdir(exist_ok=True)
+    (tmp_path / "to-outbox").symlink_to(outbox)
+    monkeypatch.chdir(outbox)
+    for target in (outbox / "k.key", Path("k.key"), tmp_path / "to-outbox" / "k.key", shoot / "k.key"):
+        refused = runner.invoke(app, ["key", "export", str(target)])
+        assert refused.exit_code == 2 and "published" in refused.output, (target, refused.output)
+    assert sorted(p.name for p in outbox.iterdir()) == [] and not (shoot / "k.key").exists()
+    written = runner.invoke(app, ["key", "export", str(tmp_path / "k.key")])
+    assert written.exit_code == 0, written.output
