@@ -43,7 +43,6 @@ def load_picture(path: Path) -> tuple[Any, int | None]:
     """(stored RGB pixels, EXIF orientation or None); a video's first frame. ppd patches the
     stored pixels, so the preview works in them and orients only what it shows."""
     import numpy as np
-    from PIL import Image
 
     if _is_video(path):
         import av
@@ -54,15 +53,21 @@ def load_picture(path: Path) -> tuple[Any, int | None]:
             for frame in container.decode(video=0):
                 return frame_to_rgb(frame), None
         raise ValueError("no video frame")
-    with Image.open(path) as im:
+    from poisoner.image.read import open_decoded
+
+    with open_decoded(path, path.read_bytes()) as im:  # as `ppd poison` opens it: HEIC, the bomb limit
         rgb = np.asarray(im.convert("RGB"))
         orientation = im.getexif().get(0x0112)  # after the decode: Pillow turns a TIFF upright as it loads
         return rgb, orientation if isinstance(orientation, int) else None
 
 
 def _load(path: Path) -> tuple[Any, int | None]:
+    from poisoner.errors import ImageFormatError
+
     try:
         return load_picture(path)
+    except ImageFormatError as exc:  # one line that names the file already
+        raise die(f"cannot read {one_line(exc)}") from None
     except (OSError, ValueError) as exc:
         raise die(f"cannot read {path.name}: {one_line(exc)}") from None
 

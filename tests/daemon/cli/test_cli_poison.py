@@ -654,3 +654,26 @@ def test_the_hint_judges_the_originals_not_the_mark_just_written(
     marked = scene_line("obj", sorted(folder.iterdir()))
     assert clean is not None and marked is not None and clean != marked  # the mark moves the figures
     assert hints[0] == clean
+
+
+def test_preview_reads_a_heic_as_poison_does(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd poison` patches HEIC (pillow-heif) and `ppd preview` refused it: 'cannot identify image
+    file'. A fresh process, since the HEIC opener, once registered, stays for the whole process."""
+    import os
+    import subprocess
+    import sys
+
+    import pillow_heif
+
+    pillow_heif.register_heif_opener()
+    src = tmp_path / "p.heic"
+    Image.open(make_image(tmp_path / "p.png", seed=3)).save(src, "HEIF", quality=90)
+    out = tmp_path / "h.png"
+    done = subprocess.run(
+        [sys.executable, "-m", "daemon.cli", "preview", str(src), "--out", str(out), "--no-visibility"],
+        capture_output=True, text=True, env={**os.environ, "COLUMNS": "200"}, timeout=120,
+        cwd=Path(__file__).resolve().parents[3],
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    with Image.open(out) as im:
+        assert im.format == "PNG" and im.width >= 2 * 160
