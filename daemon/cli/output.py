@@ -33,9 +33,13 @@ def err_console() -> Console:
 
 def print_line(out: Console, line: str) -> None:
     """One line of plain words wrapped at spaces to the console's width, never inside a word: a path
-    or a command to copy stays whole (rich folds a word longer than the width)."""
+    or a command to copy stays whole (rich folds a word longer than the width). Into a pipe or a file
+    with no COLUMNS set there is no width (rich's 80 is a guess): one line, a command whole for grep."""
     import textwrap
 
+    if not out.is_terminal and not os.environ.get("COLUMNS"):
+        out.print(line, markup=False, soft_wrap=True)
+        return
     wrapped = textwrap.wrap(line, out.width, break_long_words=False, break_on_hyphens=False,
                             subsequent_indent=" " * (len(line) - len(line.lstrip(" "))))  # fmt: skip
     out.print("\n".join(wrapped) or line, markup=False, soft_wrap=True)

@@ -334,3 +334,16 @@ def test_a_damaged_store_is_one_line(narrow_env: dict[str, str], ppd_env: dict[s
     proc = ppd(narrow_env, "status")
     line = one_error_line(proc)
     assert proc.returncode in (2, 3) and "store" in line.lower()
+
+
+def test_a_pipe_with_no_width_keeps_each_line_whole(shoot: Path, narrow_env: dict[str, str]) -> None:
+    """Into a pipe or a file with no COLUMNS there is no width: rich's guess (80) broke the command a
+    status or summary line tells you to run across two lines. With COLUMNS set it is still kept."""
+    name = "a-very-long-dataset-name-for-the-kitchen-shoot-in-spring"
+    assert runner.invoke(app, ["poison", str(shoot), "--dataset", name]).exit_code == 0
+    unset = {k: v for k, v in narrow_env.items() if k != "COLUMNS"}
+    proc = ppd(unset, "status")
+    assert proc.returncode == 0, proc.stderr
+    assert f"{name}: run `ppd verify {name}`" in proc.stdout.splitlines(), proc.stdout
+    narrow = ppd(narrow_env, "status").stdout.splitlines()  # COLUMNS=40: wrapped at spaces
+    assert f"{name}:" in narrow and "run `ppd verify" in narrow and f"{name}`" in narrow, narrow
