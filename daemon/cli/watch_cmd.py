@@ -15,6 +15,7 @@ import typer
 
 from daemon.cli.errors import die
 from daemon.cli.output import err_console
+from poisoner.errors import ExitStatus
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +35,8 @@ def _open_context(outbox: Path | None):  # -> daemon.context.AppContext
     paths = AppPaths.from_env()
     if outbox is not None:
         paths = dataclasses.replace(paths, outbox=outbox.expanduser().absolute())
+    if paths.outbox.exists() and not paths.outbox.is_dir():  # bad input, before anything is made
+        raise _fail(f"{paths.outbox} is a file, not a folder: give the folder to watch", ExitStatus.USAGE)
     try:
         return AppContext.open(paths)
     except (ConfigError, StoreError) as exc:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -347,3 +348,15 @@ def test_a_pipe_with_no_width_keeps_each_line_whole(shoot: Path, narrow_env: dic
     assert f"{name}: run `ppd verify {name}`" in proc.stdout.splitlines(), proc.stdout
     narrow = ppd(narrow_env, "status").stdout.splitlines()  # COLUMNS=40: wrapped at spaces
     assert f"{name}:" in narrow and "run `ppd verify" in narrow and f"{name}`" in narrow, narrow
+
+
+def test_watch_of_a_file_is_bad_input(tmp_path: Path, narrow_env: dict[str, str]) -> None:
+    """`ppd watch photo.jpg` said "cannot set up ppd's folders: File exists" (1, an environment
+    failure) after making ppd's folders; it is bad input (2), said as such, and nothing is made."""
+    photo = make_image(tmp_path / "d" / "r_0.png", 0)
+    data = Path(narrow_env["PPD_DATA_DIR"])
+    shutil.rmtree(data)
+    proc = ppd(narrow_env, "watch", str(photo))
+    assert proc.returncode == 2, proc.stderr
+    assert "is a file, not a folder" in one_error_line(proc)
+    assert not data.exists()
