@@ -103,6 +103,7 @@ class _Source:
     dataset: str | None  # None: by the outbox layout (dataset_of)
     identity_root: Path | None = None  # publish folder: row path = identity_root / rel
     published: bool = False
+    inner: frozenset[str] = frozenset()  # other datasets' roots inside this one (real paths): theirs
 
 
 @dataclass
@@ -183,7 +184,7 @@ def _collect_rows(
         if not source.folder.is_dir():
             continue
         report.folders.append(source.folder)
-        for path in _walk(source.folder, skip_dirs, report):
+        for path in _walk(source.folder, skip_dirs | source.inner, report):
             looked = _marked_file(path, read_marker, seen_inodes)
             if looked is None:
                 continue
@@ -302,10 +303,14 @@ def _sources(paths: AppPaths, config: Config, old: _OldStore, folders: Sequence[
     for name, folder in sorted(publish.items()):
         root = old.datasets.get(name, {}).get("root")
         sources.append(_Source(folder, name, Path(root) if root else dataset_root(outbox, name), True))
-    for name, info in sorted(old.datasets.items()):
-        root = Path(info["root"]).absolute() if info.get("root") else None
-        if root is not None and root != outbox and not root.is_relative_to(outbox):
-            sources.append(_Source(root, name))
+    roots = {name: Path(info["root"]).absolute() for name, info in old.datasets.items() if info.get("root")}
+    for name, root in sorted(roots.items()):
+        if root != outbox and not root.is_relative_to(outbox):
+            # a dataset patched inside another's folder (`ppd poison album/zoo --dataset zoo`) keeps
+            # its files: the outer walk leaves its folder to its own source
+            inside = [r for r in roots.values() if r != root and r.is_relative_to(root)]
+            inner = frozenset(os.path.realpath(r) for r in inside)
+            sources.append(_Source(root, name, inner=inner))
     for folder in folders:
         folder = Path(folder).expanduser().absolute()
         sources.append(_Source(folder, folder.name or DEFAULT_DATASET))

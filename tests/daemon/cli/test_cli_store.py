@@ -118,3 +118,28 @@ def test_a_garbage_store_is_one_line_in_a_real_process(ppd_env: dict[str, Path])
         "1 patched file(s)" in _one_line(rebuild.stdout) and "the damaged store is kept at" in rebuild.stdout
     )
     assert ppd("store", "check").returncode == 0
+
+
+def test_rebuild_keeps_a_dataset_patched_inside_another(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd poison album/zoo --dataset zoo`, then `ppd poison album`: two datasets, one inside the
+    other's folder. The rebuild walked the old roots by name, so album (first) took zoo's files: zoo
+    was left with none and `ppd restore zoo` said "restored 0" while its photos stayed patched."""
+    from daemon.cli import app as ppd
+
+    album = tmp_path / "shoots" / "album"
+    for i in range(2):
+        write_image(album / f"a{i}.png", seed=i, size=96)
+    originals = {i: write_image(album / "zoo" / f"z{i}.png", seed=10 + i, size=96).read_bytes()
+                 for i in range(3)}  # fmt: skip
+    runner = CliRunner()
+    assert runner.invoke(ppd, ["poison", str(album / "zoo"), "--dataset", "zoo"]).exit_code == 0
+    assert runner.invoke(ppd, ["poison", str(album)]).exit_code == 0
+    rebuilt = runner.invoke(ppd, ["store", "rebuild", "--force"])
+    assert rebuilt.exit_code == 0, rebuilt.output
+    store = Store(AppPaths.from_env().db_path)
+    assert {r["path"].split("/")[-1] for r in store.files("zoo")} == {"z0.png", "z1.png", "z2.png"}
+    assert len(store.files("album")) == 2
+    store.close()
+    restored = runner.invoke(ppd, ["restore", "zoo"])
+    assert restored.exit_code == 0 and "restored 3" in restored.output, restored.output
+    assert all((album / "zoo" / f"z{i}.png").read_bytes() == data for i, data in originals.items())
