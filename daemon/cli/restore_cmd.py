@@ -48,7 +48,10 @@ def restore(
                 name = dataset_or_die(ctx.store, target, console(), "nothing to restore there")
             except TargetError as exc:
                 raise die(exc) from None
-            paths = [Path(r["path"]) for r in ctx.store.files(name, state=FileState.PATCHED)]
+            # pending: a run killed after replacing a file, before recording it (restore_file reads its seal)
+            rows = [*ctx.store.files(name, state=FileState.PATCHED)]
+            rows += ctx.store.files(name, state=FileState.PENDING)
+            paths = [Path(r["path"]) for r in rows]
         outcomes = [restore_file(ctx, p, force=force) for p in sorted(set(paths))]
         _print_outcomes(outcomes)
         counts = Counter(restore_word(o) for o in outcomes)

@@ -273,6 +273,8 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
             reason=f"{path} is not in the store and carries no ppd provenance marker",
         )  # fmt: skip
     dataset = row["dataset"]
+    if row["state"] == FileState.PENDING:  # a run killed mid-file: the file says whether it is patched
+        row = _pending_as_patched(ctx, path, row)
     if row["state"] != FileState.PATCHED or not row["original_sha256"]:
         return ProtectOutcome(
             path=path, dataset=dataset, state=Outcome.UNCHANGED, reason=f"state is {row['state']}"
@@ -336,6 +338,17 @@ def _remove_patched_copy(row: dict[str, Any], copy: Path, force: bool) -> str:
         raise ProtectRefused(f"{copy} changed since ppd patched it; not removing it (use --force)")
     copy.unlink()
     return f"removed the patched copy {copy} from the {where}: restore never writes originals there"
+
+
+def _pending_as_patched(ctx: AppContext, path: Path, row: dict[str, Any]) -> dict[str, Any]:
+    """A pending row (ppd was killed between replacing the file and recording it) read as patched
+    when the file in place carries this installation's seal naming the row's original: restore then
+    puts the original back. Before, it said "state is pending" and left the patched file, exit 0.
+    A file without that seal (the original, never replaced) keeps the pending row: nothing to do."""
+    sealed = _row_from_marker(ctx, path)
+    if sealed is None or sealed["original_sha256"] != row["original_sha256"]:
+        return row
+    return {**row, "state": FileState.PATCHED, "poisoned_sha256": sealed["poisoned_sha256"]}
 
 
 def _row_from_marker(ctx: AppContext, path: Path) -> dict[str, Any] | None:

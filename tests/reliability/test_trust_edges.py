@@ -164,3 +164,42 @@ def test_a_fragment_under_a_quarantined_name_is_joined_to_its_head(ppd_env: dict
         assert done.state == "patched" and done.original_sha256 == hashlib.sha256(src).hexdigest()
     finally:
         ctx.close()
+
+
+# A `ppd poison` that SIGKILLs itself as record_provenance starts: the patched file renamed into place,
+# its row still pending (what a kill in those milliseconds leaves).
+_KILLED_BEFORE_ITS_ROW = """
+import os, sys
+import daemon.protect.stages as stages
+def _killed(job):  # runs with stages' globals (its __code__ is swapped in): os is there, 9 is SIGKILL
+    os.kill(os.getpid(), 9)
+stages.record_provenance.__code__ = _killed.__code__
+from daemon.cli import app
+sys.argv = ["ppd", "poison", sys.argv[1]]
+app()
+"""
+
+
+@pytest.mark.parametrize("form", ["file", "dataset"])
+def test_restore_of_a_file_patched_but_not_yet_recorded_puts_the_original_back(
+    ppd_env: dict[str, Path], tmp_path: Path, form: str
+) -> None:
+    """Found by a crash-safety review: after that kill `ppd restore FILE` said "state is pending",
+    left the patched file in place and exited 0. The file's own seal names its original: restored."""
+    from typer.testing import CliRunner
+
+    from daemon.cli import app
+
+    photo = write_image(tmp_path / "shoot" / "a.png", seed=4, size=96)
+    original = photo.read_bytes()
+    killed = subprocess.run(
+        [sys.executable, "-c", _KILLED_BEFORE_ITS_ROW, str(photo)], cwd=REPO, capture_output=True, timeout=120
+    )
+    assert killed.returncode == -9, killed.stderr
+    assert photo.read_bytes() != original  # patched in place, its row pending
+    ctx = AppContext.open()
+    assert ctx.store.file(photo)["state"] == FileState.PENDING
+    ctx.close()
+    done = CliRunner().invoke(app, ["restore", str(photo if form == "file" else photo.parent)])
+    assert done.exit_code == 0 and "restored 1" in done.output, done.output
+    assert photo.read_bytes() == original
