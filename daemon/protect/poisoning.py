@@ -10,13 +10,13 @@ import fcntl
 import os
 import shutil
 import tempfile
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.datasets.subject_masks import load_keep_out
 from daemon.protect.job import IncompleteFile, Progress, ProtectRefused
+from daemon.store.vault import WORK_LOCK, WORK_PREFIX
 from poisoner.errors import ExitStatus, PpdError
 from poisoner.spec import PatchSpec
 
@@ -189,59 +189,31 @@ def work_copy_name(prefix: str, name: str) -> str:
     return f"{prefix}{hashlib.sha256(os.fsencode(name)).hexdigest()[:32]}{suffix}"
 
 
-WORK_PREFIX = ".work-"
-_work_cleared: set[Path] = set()
-
-
 def work_folder(ctx: AppContext, held: contextlib.ExitStack | None = None) -> Path:
     """A private scratch folder inside the vault (same filesystem: the vault links from it),
-    flock()ed while in use (held owns the lock). The first call in a process removes stale
-    ones: left by a killed process, so unlocked."""
-    vault_dir = Path(ctx.vault.vault_dir)
-    if vault_dir not in _work_cleared:
-        _work_cleared.add(vault_dir)
-        clear_stale_work_folders(vault_dir)
-    folder = Path(tempfile.mkdtemp(prefix=WORK_PREFIX, dir=vault_dir))
+    flock()ed while in use (held owns the lock). Opening the vault removes those a killed process
+    left (daemon.store.vault.clear_stale_work_folders)."""
+    folder = Path(tempfile.mkdtemp(prefix=WORK_PREFIX, dir=ctx.vault.vault_dir))
     if held is not None:
-        fd = os.open(folder / ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        fd = os.open(folder / WORK_LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
         fcntl.flock(fd, fcntl.LOCK_EX)
         held.callback(os.close, fd)
     return folder
 
 
-def clear_stale_work_folders(vault_dir: Path, min_age_s: float = 10.0) -> list[Path]:
-    """Remove `.work-*` folders no living process holds (their lock is free) and at least
-    min_age_s old (the instant between a folder's creation and its lock)."""
-    removed = []
-    for folder in Path(vault_dir).glob(f"{WORK_PREFIX}*"):
-        try:
-            if time.time() - folder.lstat().st_mtime < min_age_s or folder.is_symlink():
-                continue
-            fd = os.open(folder / ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
-        except OSError:
-            continue
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            continue
-        finally:
-            os.close(fd)
-        shutil.rmtree(folder, ignore_errors=True)
-        removed.append(folder)
-    return removed
-
-
 @contextlib.contextmanager
 def named_vault_copy(ctx: AppContext, sha256: str, name: str) -> Iterator[Path]:
     """The vault blob under its original file name (poisoners pick the format by suffix), as a
-    hard link in a private temporary folder inside the vault."""
-    folder = Path(tempfile.mkdtemp(prefix=".named-", dir=ctx.vault.vault_dir))
-    link = folder / name
-    try:
+    hard link in a private work folder inside the vault (locked while used: a killed process's is
+    removed by the next that opens the vault)."""
+    with contextlib.ExitStack() as held:
+        folder = work_folder(ctx, held)
+        link = folder / name
         try:
-            os.link(ctx.vault.path_for(sha256), link)
-        except OSError:
-            shutil.copyfile(ctx.vault.path_for(sha256), link)
-        yield link
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
+            try:
+                os.link(ctx.vault.path_for(sha256), link)
+            except OSError:
+                shutil.copyfile(ctx.vault.path_for(sha256), link)
+            yield link
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)

@@ -135,6 +135,9 @@ def open_contained_file(job: Job) -> ProtectOutcome | None:
         job.file = open_contained(job.anchor, job.path)
     except NotContained as exc:
         raise ProtectRefused(str(exc)) from None
+    # ppd's own temporaries a killed run left in this folder (a re-protect's too), even when every
+    # file in it turns out to be done already: once a folder, a process
+    clear_stale_temps_once(job.file.dir_fd)
     job.kind = media_kind(job.path)
     if job.kind is None:  # not ours to judge (sidecars, notes): left alone, no row
         return job.outcome(Outcome.SKIPPED, "not a supported image or video")

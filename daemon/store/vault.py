@@ -25,6 +25,7 @@ import fcntl
 import hashlib
 import logging
 import os
+import shutil
 import stat
 import tempfile
 import time
@@ -122,14 +123,44 @@ def clear_stale_keeps(vault_dir: Path, min_age_s: float = STALE_KEEP_S) -> list[
     return removed
 
 
+WORK_PREFIX = ".work-"  # a protect's scratch folder in the vault (daemon.protect.poisoning.work_folder)
+WORK_LOCK = ".lock"  # in each: flock()ed by the process using the folder, for as long as it does
+
+
+def clear_stale_work_folders(vault_dir: Path, min_age_s: float = STALE_KEEP_S) -> list[Path]:
+    """Remove `.work-*` folders no living process holds (their lock is free) and at least min_age_s
+    old (the instant between a folder's creation and its lock): a killed protect's patched copy and
+    hard link to its original, up to twice a large file's size."""
+    removed = []
+    for folder in Path(vault_dir).glob(f"{WORK_PREFIX}*"):
+        try:
+            if time.time() - folder.lstat().st_mtime < min_age_s or folder.is_symlink():
+                continue
+            fd = os.open(folder / WORK_LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            continue
+        finally:
+            os.close(fd)
+        shutil.rmtree(folder, ignore_errors=True)
+        removed.append(folder)
+    if removed:
+        log.warning("removed %d scratch folders left in the vault by a killed process", len(removed))
+    return removed
+
+
 class Vault:
     def __init__(self, vault_dir: Path, max_bytes: int = 0) -> None:
         self.vault_dir = Path(vault_dir)
         self.max_bytes = max_bytes  # 0 = unlimited
         make_private_dir(self.vault_dir)
-        if self.vault_dir not in _cleared:  # once per process: partial copies of a killed keep
+        if self.vault_dir not in _cleared:  # once per process: what a killed keep or protect left
             _cleared.add(self.vault_dir)
             clear_stale_keeps(self.vault_dir)
+            clear_stale_work_folders(self.vault_dir)
 
     def path_for(self, sha256: str) -> Path:
         if len(sha256) != 64 or any(c not in "0123456789abcdef" for c in sha256):

@@ -51,18 +51,51 @@ def test_stale_temporaries_go_live_ones_and_others_stay(ppd_env: dict[str, Path]
 
 
 def test_stale_work_folders_in_the_vault_go(ppd_env: dict[str, Path]) -> None:
-    import daemon.protect.stages
+    """A killed protect's `.work-*` (its original's link and patched copy, up to twice a large file)
+    goes when the next process opens the vault, whatever it does: before, only a process that
+    patched a large file itself cleared them, so reruns with nothing left to patch kept them."""
+    import daemon.store.vault
 
     ctx = AppContext.open()
+    vault_dir = ctx.paths.vault_dir
+    ctx.close()
+    dead = vault_dir / ".work-deadbeef"
+    dead.mkdir()
+    (dead / "patched-a.png").write_bytes(b"x" * 1000)
+    _age(dead, 3600)
+    young = vault_dir / ".work-young"  # between its creation and its lock
+    young.mkdir()
+    held = vault_dir / ".work-held"  # another process still working in it
+    held.mkdir()
+    _age(held, 3600)
+    holder = os.open(held / ".lock", os.O_RDWR | os.O_CREAT, 0o600)
+    fcntl.flock(holder, fcntl.LOCK_EX)
+    daemon.store.vault._cleared.clear()  # a new process
+    ctx = AppContext.open()  # nothing patched: `ppd status`, a rerun with every file done
     try:
-        dead = ctx.paths.vault_dir / ".work-deadbeef"
-        dead.mkdir()
-        (dead / "patched-a.png").write_bytes(b"x" * 1000)
-        _age(dead, 3600)
-        daemon.protect.poisoning._work_cleared.clear()
+        assert not dead.exists()
+        assert young.exists() and held.exists()
         photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=2)
         assert protect_file(photo, ctx).state == "patched"
-        assert not dead.exists()
-        assert not list(ctx.paths.vault_dir.glob(".work-*"))  # its own are gone after each run
+        assert sorted(p.name for p in vault_dir.glob(".work-*")) == [".work-held", ".work-young"]
+    finally:
+        os.close(holder)
+        ctx.close()
+
+
+def test_a_stale_temporary_goes_on_a_rerun_with_nothing_to_patch(ppd_env: dict[str, Path]) -> None:
+    """A re-protect killed mid-write leaves `.ppd-tmp-*` beside its file (found in review); a rerun
+    whose files are all done already never replaced anything there, so it never cleared the folder."""
+    folder = ppd_env["outbox"] / "ds"
+    photo = write_image(folder / "a.png", seed=3)
+    ctx = AppContext.open()
+    try:
+        assert protect_file(photo, ctx).state == "patched"
+        stale = folder / f"{TEMP_PREFIX}L630ad606c82b.png"
+        stale.write_bytes(b"")
+        _age(stale, 3600)
+        daemon.fsops._cleared.clear()  # a new process
+        assert protect_file(photo, ctx).state == "unchanged"
+        assert not stale.exists()
     finally:
         ctx.close()
