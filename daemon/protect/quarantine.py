@@ -185,11 +185,15 @@ def _attempts_dir(data_dir: Path) -> Path:
     return folder
 
 
+def _marker_of(path: Path) -> str:
+    return f"{hashlib.sha256(os.fsencode(str(path))).hexdigest()[:32]}.json"
+
+
 @contextlib.contextmanager
 def attempt(data_dir: Path, path: Path, dataset: str | None) -> Iterator[int]:
     """Hold a marker naming path while the heavy work runs (see the module docstring); yields how
     many attempts on it died before this one."""
-    marker = _attempts_dir(data_dir) / f"{hashlib.sha256(os.fsencode(str(path))).hexdigest()[:32]}.json"
+    marker = _attempts_dir(data_dir) / _marker_of(path)
     fd = os.open(marker, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
@@ -207,6 +211,24 @@ def attempt(data_dir: Path, path: Path, dataset: str | None) -> Iterator[int]:
             os.unlink(marker)
     finally:
         os.close(fd)  # a SIGKILL skips the unlink: the marker stays, unlocked
+
+
+def forget_attempt(data_dir: Path, path: Path) -> None:
+    """A dead attempt's marker for path, removed once the file is settled without a new attempt (an
+    interrupted run's file found patched, or recovered): else every start reports a crash that was
+    recovered from, and the next attempt on the path runs isolated for nothing. A live one's stays."""
+    marker = Path(data_dir) / "attempts" / _marker_of(path)
+    try:
+        fd = os.open(marker, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError:  # none (every file that never crashed): nothing to do
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        marker.unlink(missing_ok=True)
+    except BlockingIOError:
+        pass  # an attempt at work on it now
+    finally:
+        os.close(fd)
 
 
 @dataclass(frozen=True)

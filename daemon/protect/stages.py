@@ -96,7 +96,7 @@ from daemon.protect.poisoning import (
     work_copy_name,
     work_folder,
 )
-from daemon.protect.quarantine import attempt
+from daemon.protect.quarantine import attempt, forget_attempt
 from daemon.protect.recovery import carry_moved_row, recover_pending
 from daemon.states import FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
@@ -211,6 +211,7 @@ def recognise(job: Job) -> ProtectOutcome | None:
     assert sha is not None  # hash_original ran first
     # Never poison twice: ppd's own output (here or anywhere) is left alone.
     if out_path is None and row is not None and row["poisoned_sha256"] == sha:
+        forget_attempt(ctx.paths.data_dir, job.path)  # killed after its row, before letting go
         return job.outcome(Outcome.UNCHANGED, "already patched", poisoned_sha256=sha, output=job.path)
     # An interrupted run of this very path first: its output may equal another file's (the same
     # photo in two datasets), which the look-up below would take as "someone else's output".
@@ -222,6 +223,7 @@ def recognise(job: Job) -> ProtectOutcome | None:
         # the bytes that were hashed: read through the descriptor, checked unchanged afterwards
         hashed, unchanged = fd_path(opened.fd), (lambda: not opened.changed())
         if recover_pending(ctx, row, job.path, sha, job.kind, hashed, unchanged):
+            forget_attempt(ctx.paths.data_dir, job.path)
             return job.outcome(Outcome.UNCHANGED, "recovered after an interrupted run", poisoned_sha256=sha)
     earlier = ctx.store.find_poisoned(sha)
     if earlier is not None:

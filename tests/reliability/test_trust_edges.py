@@ -203,3 +203,26 @@ def test_restore_of_a_file_patched_but_not_yet_recorded_puts_the_original_back(
     done = CliRunner().invoke(app, ["restore", str(photo if form == "file" else photo.parent)])
     assert done.exit_code == 0 and "restored 1" in done.output, done.output
     assert photo.read_bytes() == original
+
+
+def test_a_rerun_that_finds_the_file_done_lets_go_of_its_dead_attempt(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """Found by a crash-safety review: after that kill the rerun recovered the file ("recovered after
+    an interrupted run") but its attempt marker stayed, so every `ppd watch` start said "ppd died while
+    patching" it and its next attempt ran isolated for nothing."""
+    from typer.testing import CliRunner
+
+    from daemon.cli import app
+    from daemon.protect.quarantine import crashed_attempts
+
+    photo = write_image(tmp_path / "shoot" / "a.png", seed=5, size=96)
+    killed = subprocess.run(
+        [sys.executable, "-c", _KILLED_BEFORE_ITS_ROW, str(photo)], cwd=REPO, capture_output=True, timeout=120
+    )
+    assert killed.returncode == -9, killed.stderr
+    data_dir = AppPaths.from_env().data_dir
+    assert [a.path for a in crashed_attempts(data_dir)] == [photo]
+    rerun = CliRunner().invoke(app, ["-v", "poison", str(photo.parent)])
+    assert rerun.exit_code == 0 and "recovered after an interrupted run" in rerun.output, rerun.output
+    assert crashed_attempts(data_dir) == []
