@@ -25,6 +25,9 @@ MAKE = textwrap.dedent(
     w = int((mp * 1e6 * 4 / 3) ** 0.5) // 16 * 16
     h = int(mp * 1e6 / w) // 16 * 16
     channels = 4 if "rgba" in fmt else 3
+    noise = fmt.endswith("-noise")  # what deflate cannot shrink: a photo's sensor noise, at its worst
+    fmt = fmt.removesuffix("-noise")
+    rng = np.random.default_rng(0)
     if fmt.endswith("16"):  # 16-bit PNG: Pillow cannot write it; rows streamed through zlib
         import struct, zlib
         def chunk(t, b):
@@ -37,7 +40,8 @@ MAKE = textwrap.dedent(
             f.write(b"\\x89PNG\\r\\n\\x1a\\n" + chunk(b"IHDR", ihdr))
             parts = []
             for y in range(h):
-                parts.append(z.compress(b"\\x00" + (row + y).astype(">u2").tobytes()))
+                line = rng.integers(0, 65536, (w, channels), dtype=np.uint16) if noise else row + y
+                parts.append(z.compress(b"\\x00" + line.astype(">u2").tobytes()))
                 if len(parts) > 256:
                     f.write(chunk(b"IDAT", b"".join(parts))); parts = []
             parts.append(z.flush())
@@ -46,11 +50,14 @@ MAKE = textwrap.dedent(
         sys.exit(0)
     # a smooth gradient with mild noise: real-photo-like compressibility, quick to encode
     rows = []
-    rng = np.random.default_rng(0)
     yy = np.arange(h, dtype=np.uint16)[:, None]
     base = ((np.arange(w, dtype=np.uint16)[None, :] + yy) % 256).astype(np.uint8)
     arr = np.repeat(base[:, :, None], channels, axis=2)
     arr[:: 7, :: 5] ^= 0x55
+    if noise:
+        arr = rng.integers(0, 256, arr.shape, dtype=np.uint8)
+        if channels == 4:
+            arr[..., 3] = 255
     im = Image.fromarray(arr, "RGBA" if channels == 4 else "RGB")
     kind = fmt.split("-")[0]
     opts = {"jpeg": {"quality": 92}, "png": {"compress_level": 1}, "webp": {"lossless": True, "method": 0},
@@ -68,11 +75,11 @@ MEASURE = textwrap.dedent(
     import resource, sys, time
     from pathlib import Path
     from poisoner.formats import poison_file
-    from poisoner.spec import PatchSpec
+    from poisoner.ladder import default_spec
     src, dst = Path(sys.argv[1]), Path(sys.argv[2])
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     t = time.perf_counter()
-    poison_file(src, dst, PatchSpec(), max_pixels=10**12)
+    poison_file(src, dst, default_spec(), max_pixels=10**12)  # ppd's own mark: two squares, per photo
     dt = time.perf_counter() - t
     print(base // 1024, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024, f"{dt:.1f}")
     """

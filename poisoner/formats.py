@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypedDict, Unpack
 
@@ -52,7 +52,7 @@ from PIL import Image
 from poisoner import jpeg as jpeg_codec
 from poisoner import jpeg_scan, location, provenance
 from poisoner.atomic import atomic_output
-from poisoner.blend import apply_patch_at, patch_coverage
+from poisoner.blend import apply_patch_at, lane_placements, patch_coverage
 from poisoner.errors import ImageFormatError, MarkNotWritten
 from poisoner.image import jpeg_file
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
@@ -66,7 +66,7 @@ from poisoner.image.write import changes_a_pixel, image_from_array, paste_patch,
 from poisoner.limits import DEFAULT_MAX_PIXELS, check_decode_budget
 from poisoner.mark_place import MarkPlace
 from poisoner.media import is_image
-from poisoner.orientation import INVERSE_ORIENTATION, display_size, orientation_of, turn_square
+from poisoner.orientation import display_size
 from poisoner.placement import turned_to_stored
 from poisoner.provenance import Marker
 from poisoner.shrink import place_fitting
@@ -239,33 +239,6 @@ def _idle_mcus(
         write[oy : oy + cy1 - cy0, ox : ox + cx1 - cx0] = covered
         idle[r0:r1, c0:c1] &= ~write.reshape(r1 - r0, mh, c1 - c0, mw).any(axis=(1, 3))
     return idle if idle.any() else None
-
-
-def lane_placements(placement: PatchPlacement) -> list[PatchPlacement] | None:
-    """A mark of several lanes (placement.parts) as one single-lane placement per lane, each on its
-    own square in stored pixels, writing exactly the pixels the whole placement writes there: a
-    writer then blends each square alone instead of the box around squares placed far apart.
-    None when the placement is not made of lanes, or its squares overlap (then only the whole
-    placement says which lane wins)."""
-    if not placement.parts or placement.lane_size <= 0:
-        return None
-    if placement.lane_crop:  # cropped squares (poisoner.shrink) are written whole-box: rare, and exact
-        return None
-    n, t = placement.size, placement.lane_size
-    corners = [(dx, dy) for dx, dy, _seed in placement.parts]
-    if any(dx < 0 or dy < 0 or dx + t > n or dy + t > n for dx, dy in corners):
-        return None  # cut by the box's edge: not a whole square
-    for i, (ax, ay) in enumerate(corners):
-        if any(abs(ax - bx) < t and abs(ay - by) < t for bx, by in corners[:i]):
-            return None  # overlapping squares
-    # where the stored pixels hold each square: the box turned back (unorient_array's turn), worked
-    # out on the corners instead of on an n x n label picture (n: up to 2600 px on a 12 MP photo)
-    back = INVERSE_ORIENTATION[orientation_of(placement.turn)]
-    lanes = []
-    for dx, dy, seed in placement.parts:
-        x, y = turn_square(dx, dy, t, back, n, n)
-        lanes.append(replace(placement, x=placement.x + x, y=placement.y + y, size=t, parts=((0, 0, seed),)))
-    return lanes
 
 
 def _patch_window(

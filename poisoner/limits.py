@@ -16,8 +16,9 @@ and the daemon admits files to its workers by the same estimate (daemon.protect.
 
 from __future__ import annotations
 
+import os
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from poisoner.errors import ExitStatus, ImageFormatError, PpdError
@@ -37,7 +38,13 @@ _HEADER_READ = 1 << 16  # the first read; JPEG segments after it are walked with
 # Peak RSS of poison_file per decoded byte, minus the imports (bench_limits, docs/FORMATS.md
 # "Memory"): JPEG 1.62 (85 MP), PNG 8-bit RGB 1.50, RGBA 1.16, 16-bit RGBA 4.6 (FFmpeg's codec, 20
 # and 40 MP), TIFF 2.6, WebP 8.5, HEIF 6.5; rounded up. Unknown formats: the largest of these.
-PEAK_FACTOR = {"JPEG": 1.8, "PNG": 1.6, "PNG16": 4.9, "TIFF": 2.8, "WEBP": 8.8, "HEIF": 6.8, "GIF": 2.0}
+# PNG measured again in issue 30 through `ppd poison` with ppd's own two-square mark (bench_limits used
+# one corner patch), on gradients and on noise that deflate cannot shrink (a photo's sensor noise):
+# 8-bit 2.8-3.1 per decoded byte plus 3.5-4.7 per byte of the file (held as read, as IDAT, as written,
+# as sealed), 16-bit 5.2-6.0 plus 2.4-2.7 (FFmpeg's codec); rounded up. Before, noise-like PNGs took
+# up to 3x the estimate.
+PEAK_FACTOR = {"JPEG": 1.8, "PNG": 3.2, "PNG16": 6.2, "TIFF": 2.8, "WEBP": 8.8, "HEIF": 6.8, "GIF": 2.0}
+FILE_FACTOR = {"PNG": 4.8, "PNG16": 2.9}  # per byte of the file, on top (other formats: in PEAK_FACTOR)
 IMPORTS_BYTES = 60_000_000  # a worker's RSS after its imports (43 MB measured), rounded up
 DEFAULT_MAX_PEAK_BYTES = 1_024_000_000  # [limits] max_memory_mb
 
@@ -50,6 +57,7 @@ class DecodedSize:
     channels: int
     bytes_per_sample: int
     frames: int = 1
+    file_bytes: int = 0  # the file's own size (decoded_size sets it)
 
     @property
     def pixels(self) -> int:
@@ -61,9 +69,11 @@ class DecodedSize:
 
     @property
     def peak_bytes(self) -> int:
-        """What protecting it takes in memory: the decoded bytes times the format's working copies."""
+        """What protecting it takes in memory: the decoded bytes times the format's working copies,
+        and for PNG the file's bytes times the copies of it held (a photo deflates poorly)."""
         key = "PNG16" if self.format == "PNG" and self.bytes_per_sample == 2 else self.format
-        return IMPORTS_BYTES + int(self.bytes * PEAK_FACTOR.get(key, max(PEAK_FACTOR.values())))
+        held = self.file_bytes * FILE_FACTOR.get(key, 0.0)
+        return IMPORTS_BYTES + int(self.bytes * PEAK_FACTOR.get(key, max(PEAK_FACTOR.values())) + held)
 
 
 class HeaderError(PpdError, ValueError):
@@ -78,8 +88,13 @@ def decoded_size(path: Path, *, pillow: bool = True) -> DecodedSize:
     try:
         with open(path, "rb") as f:
             head = f.read(_HEADER_READ)
+            file_bytes = os.fstat(f.fileno()).st_size
     except OSError as exc:
         raise HeaderError(str(exc)) from exc
+    return replace(_declared_size(path, head, pillow), file_bytes=file_bytes)
+
+
+def _declared_size(path: Path, head: bytes, pillow: bool) -> DecodedSize:
     try:
         if head.startswith(b"\xff\xd8"):
             return _jpeg(path)

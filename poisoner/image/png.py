@@ -12,7 +12,7 @@ import numpy as np
 from PIL import Image
 
 from poisoner import location
-from poisoner.blend import apply_patch
+from poisoner.blend import apply_lanes
 from poisoner.errors import ImageFormatError
 from poisoner.image.write import paste_patch
 from poisoner.spec import PatchPlacement
@@ -121,7 +121,7 @@ def _palette_patch(
     has_alpha = "transparency" in im.info
     rgb_mode = "RGBA" if has_alpha else "RGB"
     full = np.asarray(im.convert(rgb_mode))
-    patched = apply_patch(full, placement, keep_out)
+    patched = apply_lanes(full, placement, keep_out)
     x0, y0, x1, y1 = placement.box
     region = patched[y0:y1, x0:x1].reshape(-1, full.shape[2])
     palette = np.asarray(im.getpalette(rawmode="RGB"), dtype=np.uint8).reshape(-1, 3)
@@ -165,7 +165,7 @@ def poison_png(
     buf = io.BytesIO()
     if depth == 16 and colour_type in (2, 6):
         pixels = _decode_png16_colour(data, colour_type)
-        encoded = _encode_png16_colour(apply_patch(pixels, placement, keep_out))
+        encoded = _encode_png16_colour(apply_lanes(pixels, placement, keep_out))
         notes.append("16-bit colour PNG coded with FFmpeg's PNG codec (Pillow reads it as 8-bit)")
     elif depth == 16 and colour_type == 4:
         raise ImageFormatError("16-bit grey+alpha PNG is not supported (Pillow reads it as 8-bit)")

@@ -137,7 +137,7 @@ def poison_png_rows(
     """The patched PNG (bytes, kept chunk types, notes) with the source's filtered rows re-used,
     or None when this file needs the whole re-encode (see the module docstring). `im` is the
     decoded source, left as it is (only the band's rows are patched, as a copy); `lanes` the
-    mark's placements, each blended on its own (poisoner.formats.lane_placements). Memory: the decoded
+    mark's placements, each blended on its own (poisoner.blend.lane_placements). Memory: the decoded
     picture, the source and the output; the inflated rows pass ROWS_PER_STEP at a time."""
     chunks = png_chunks(data)
     ihdr = chunks[0][1]

@@ -10,7 +10,7 @@ import numpy as np
 from PIL import Image, TiffImagePlugin
 
 from poisoner import location
-from poisoner.blend import apply_patch
+from poisoner.blend import apply_lanes
 from poisoner.errors import ImageFormatError
 from poisoner.image.metadata import clean_exif_xmp
 from poisoner.image.write import image_from_array, paste_patch, save_explicit
@@ -57,7 +57,7 @@ def poison_tiff(
         notes.append(f"{im.mode} TIFF written as {mode}")
     src = im.convert(mode) if mode != im.mode else im
     if mode == "I;16B":
-        out = image_from_array(apply_patch(np.asarray(src).astype(np.uint16), placement, keep_out), "I;16")
+        out = image_from_array(apply_lanes(np.asarray(src).astype(np.uint16), placement, keep_out), "I;16")
     else:
         out = paste_patch(src, placement, keep_out)
     info = {tag: tags[tag] for tag in _TIFF_KEEP_TAGS if tag in tags}

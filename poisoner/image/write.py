@@ -9,7 +9,7 @@ from collections.abc import Sequence
 import numpy as np
 from PIL import Image
 
-from poisoner.blend import apply_patch_at
+from poisoner.blend import apply_patch_at, lane_placements
 from poisoner.spec import PatchPlacement
 
 
@@ -23,13 +23,16 @@ def image_from_array(pixels: np.ndarray, mode: str) -> Image.Image:
 def paste_patch(
     im: Image.Image, placement: PatchPlacement, keep_out: np.ndarray | None = None
 ) -> Image.Image:
-    """im with the patch blended in, in place: only the patch box goes through numpy, so memory
-    stays at one decoded picture (a whole-picture array costs one or two more, measured).
-    keep_out (H x W of im, nonzero = leave alone): those pixels keep their values."""
-    x0, y0, x1, y1 = placement.box
-    window = None if keep_out is None else keep_out[y0:y1, x0:x1]
-    region = apply_patch_at(np.asarray(im.crop(placement.box)), placement, (x0, y0), window)
-    im.paste(image_from_array(region, im.mode), (x0, y0))
+    """im with the patch blended in, in place: only the patch's squares go through numpy (each on its
+    own where the mark is made of squares placed apart, blend.lane_placements), so memory stays at
+    one decoded picture (a whole-picture array costs one or two more, measured; the box between
+    squares far apart, as floats, several). keep_out (H x W of im, nonzero = leave alone): those
+    pixels keep their values."""
+    for part in lane_placements(placement) or [placement]:
+        x0, y0, x1, y1 = part.box
+        window = None if keep_out is None else keep_out[y0:y1, x0:x1]
+        region = apply_patch_at(np.asarray(im.crop(part.box)), part, (x0, y0), window)
+        im.paste(image_from_array(region, im.mode), (x0, y0))
     return im
 
 

@@ -457,13 +457,15 @@ def test_paper_psnr_on_lego_views(
 @pytest.mark.parametrize("crop", [False, True])
 @pytest.mark.parametrize("turn", range(1, 9))
 def test_two_squares_blended_a_square_at_a_time_write_the_same_pixels(turn: int, crop: bool) -> None:
-    """poisoner.formats.lane_placements: each square of a two-lane mark blended alone (the JPEG
+    """poisoner.blend.lane_placements: each square of a two-lane mark blended alone (the JPEG
     writer's way for squares placed apart) gives exactly apply_patch_at's pixels over the whole
-    box, in every EXIF orientation, with a keep-out mask."""
+    box, in every EXIF orientation, with a keep-out mask, whole or cropped (issue 25 round 3's
+    squares cropped to a small plain place were blended whole-box: a float copy of the box between
+    squares far apart, 0.9 GB on a 10 MP RGBA PNG)."""
     import dataclasses
 
-    from poisoner.blend import apply_patch_at
-    from poisoner.formats import _patch_window, lane_placements
+    from poisoner.blend import apply_patch_at, lane_placements
+    from poisoner.formats import _patch_window
     from poisoner.ladder import default_spec
 
     spec = default_spec()
@@ -473,10 +475,7 @@ def test_two_squares_blended_a_square_at_a_time_write_the_same_pixels(turn: int,
         far = spec.resolve(1600, 1200, image_key="IMG_0003.jpg", lanes_at=((40, 30), (1100, 700)), crop=side)
         assert 0 < far.lane_side < far.lane_size
     placement = dataclasses.replace(far, turn=turn)
-    lanes = lane_placements(placement)
-    if crop:  # cropped squares are not split: the writer blends the whole box (exact by construction)
-        assert lanes is None
-        return
+    lanes = lane_placements(placement)  # cropped squares too: each lane keeps its crop
     assert lanes is not None and len(lanes) == 2
     x0, y0, x1, y1 = placement.box
     rng = np.random.default_rng(turn)
@@ -603,3 +602,35 @@ def test_written_pixels_counted_a_square_at_a_time(tmp_path: Path, turn: int, ma
     report = poison_file(src, tmp_path / "out.jpg", default_spec(), keep_out=keep)
     assert lane_placements(report.placement) is not None  # the two squares, counted one at a time
     assert report.written == written_pixels(report.placement, keep) > 0
+
+
+@pytest.mark.parametrize("crop", [False, True])
+@pytest.mark.parametrize("turn", [1, 6, 8])
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_every_writer_blends_a_square_at_a_time_the_whole_boxs_pixels(
+    turn: int, crop: bool, dtype: type
+) -> None:
+    """apply_lanes (16-bit PNG and TIFF, palettes) and paste_patch (every Pillow writer) blend each
+    square alone: exactly apply_patch's picture, whole squares or cropped, with a keep-out mask."""
+    import dataclasses
+
+    from poisoner.blend import apply_lanes, apply_patch
+    from poisoner.image.write import paste_patch
+    from poisoner.ladder import default_spec
+
+    spec = default_spec()
+    where = {"image_key": "IMG_0003.jpg", "lanes_at": ((40, 30), (1100, 700))}
+    far = spec.resolve(1600, 1200, **where)
+    if crop:  # squares cropped to a small plain place (poisoner.shrink)
+        far = spec.resolve(1600, 1200, **where, crop=far.lane_size * 2 // 3)
+    placement = dataclasses.replace(far, turn=turn)
+    rng = np.random.default_rng(turn)
+    top = 65535 if dtype is np.uint16 else 255
+    pixels = rng.integers(0, top + 1, (1200, 1600, 3), dtype=dtype)
+    keep = rng.random(pixels.shape[:2]) < 0.05
+    whole = apply_patch(pixels, placement, keep)
+    assert (whole != pixels).any()
+    assert np.array_equal(apply_lanes(pixels, placement, keep), whole)
+    if dtype is np.uint8:
+        pasted = paste_patch(Image.fromarray(pixels), placement, keep)
+        assert np.array_equal(np.asarray(pasted), whole)
