@@ -149,6 +149,17 @@ def without_masks(jobs: list[Job], masks: dict[str, Path | None]) -> tuple[list[
     return kept, notes
 
 
+def _masked(jobs: list[Job], dataset: str, folder: Path | None) -> tuple[int, int] | None:
+    """(photos of the dataset here with a mask in folder, photos); None without a folder."""
+    if folder is None:
+        return None
+    from poisoner.media import is_image
+    from poisoner.subject import mask_path
+
+    names = [j.path.name for j in jobs if j.dataset == dataset and is_image(j.path)]
+    return sum(mask_path(folder, n) is not None for n in names), len(names)
+
+
 def missing_mask_lines(jobs: list[Job], done: set[Path], masks: dict[str, Path | None]) -> list[str]:
     """One line per mask folder that lacks a mask for some of the photos patched here (`done`): their
     marks were placed without keep-out, which the per-file warning alone left easy to miss."""
@@ -250,7 +261,7 @@ def apply_spec(
         new = ctx.store.dataset_spec(name) is None
         base = spec or ctx.config.spec_for(name)
         if new and base.per_photo:  # issue 25: no corner for the set; each photo's own place
-            lines.append(per_photo_line(name, masks.get(name)))
+            lines.append(per_photo_line(name, masks.get(name), _masked(jobs, name, masks.get(name))))
         if new and wants_corner(base, options.sets_position() or ctx.config.position_set(name)):
             placed = place_corner(base, [job.path for job in jobs if job.dataset == name], masks.get(name))
             spec, choice = placed.spec, placed.choice

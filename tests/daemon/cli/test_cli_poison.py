@@ -677,3 +677,21 @@ def test_preview_reads_a_heic_as_poison_does(ppd_env: dict[str, Path], tmp_path:
     assert done.returncode == 0, done.stderr
     with Image.open(out) as im:
         assert im.format == "PNG" and im.width >= 2 * 160
+
+
+def test_the_placement_line_never_claims_masks_that_matched_no_photo(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """Found by a black-box review: with --subject-masks pointing at masks for other photos, the first
+    line said "off the subject masks in DIR" and the photos were placed without keep-out."""
+    shoot, masks = tmp_path / "shoot", tmp_path / "masks"
+    for i in range(2):
+        make_image(shoot / f"view{i}.png", i)
+    masks.mkdir()
+    Image.new("L", (160, 120), 255).save(masks / "other.png")
+    none = runner.invoke(app, ["poison", str(shoot), "--subject-masks", str(masks), "--dry-run"])
+    assert f"no mask in {masks} matches these photos" in none.output, none.output
+    assert "off the subject masks" not in none.output
+    Image.new("L", (160, 120), 0).save(masks / "view0.png")
+    some = runner.invoke(app, ["poison", str(shoot), "--subject-masks", str(masks), "--dry-run"])
+    assert f"off the subject masks in {masks} for 1 of 2 photos" in some.output, some.output
