@@ -63,7 +63,7 @@ def restore(
 
 def restore_word(outcome: ProtectOutcome) -> str:
     """restored: the original is back at its place; removed: a patched copy (`--out`) was deleted
-    and nothing put back (its input was never changed); unchanged; failed."""
+    and nothing put back there (an --out copy has no original of its own); unchanged; failed."""
     if outcome.state == "restored" and outcome.output is None:
         return "removed"
     return str(outcome.state)
@@ -81,7 +81,7 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
     removed = [o.path for o in outcomes if restore_word(o) == "removed"]
     if removed:
         folder = removed[0].parent if len(removed) == 1 else Path(os.path.commonpath(removed))
-        said = f"removed {len(removed)} patched copies from {folder} (their inputs were never changed)"
+        said = f"removed {len(removed)} patched copies from {folder} (--out copies: no original goes there)"
         console().print(said, markup=False)
     for o in outcomes:
         word = restore_word(o)

@@ -4,6 +4,7 @@ verdict) or only patched, what to run next; warnings on regressions and sync fol
 from __future__ import annotations
 
 import json
+import shlex
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -185,6 +186,10 @@ def next_step_lines(d: dict[str, Any]) -> list[str]:
     not_patched = [f"{c[k]} {k}" for k in ("failed", "quarantined") if c.get(k, 0)]
     if not_patched:
         lines.append(f"{name}: {', '.join(not_patched)}: ppd status {name} --failed")
+    if c.get("restored", 0):  # published as they are, unprotected: said where the overview is read
+        root = shlex.quote(str(d["root"]))
+        lines.append(f"{name}: {c['restored']} restored by you, NOT protected: "
+                     f"`ppd poison {root} --force` patches them again")  # fmt: skip
     return lines
 
 

@@ -360,3 +360,14 @@ def test_watch_of_a_file_is_bad_input(tmp_path: Path, narrow_env: dict[str, str]
     assert proc.returncode == 2, proc.stderr
     assert "is a file, not a folder" in one_error_line(proc)
     assert not data.exists()
+
+
+def test_status_says_restored_photos_are_not_protected(shoot: Path) -> None:
+    """Found by a black-box review: after `ppd restore` of one photo, `ppd status` said only "run
+    ppd verify" for the dataset; the restored photo is published unprotected, and the overview says
+    so with the command that patches it again (only `ppd poison` said it before)."""
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert runner.invoke(app, ["restore", str(shoot / "view0.png")]).exit_code == 0
+    status = runner.invoke(app, ["status"])
+    assert "castle: 1 restored by you, NOT protected" in status.output, status.output
+    assert "--force` patches them again" in status.output
