@@ -56,29 +56,28 @@ def key_export(
 
 
 def _published_folder_holding(file: Path) -> str | None:
-    """The outbox, or a dataset's folder or its publish folder, that FILE would be written into
-    (symlinks followed: what a sync client uploads), said in words; None when it is none of them.
-    The datasets come from the store when it opens (a key is also exported to leave a broken one)."""
-    import contextlib
+    """Where FILE would be written among what is published, in words; None when nowhere: anywhere
+    in the outbox or a dataset's publish folder, or right beside a dataset's photos (its root; a
+    subfolder of a root that is the home folder is the user's own). Symlinks followed: what a sync
+    client uploads. The datasets come from the store when there is one to read; nothing is made."""
     import os
 
-    from daemon.context import AppContext
     from daemon.paths import AppPaths
+    from daemon.protect.rebuild import stored_datasets
 
+    paths = AppPaths.from_env()
     where = Path(os.path.abspath(file.expanduser())).parent.resolve()
-    folders = [("the outbox", Path(AppPaths.from_env().outbox))]
-    with contextlib.suppress(Exception):
-        ctx = AppContext.open()
-        try:
-            for row in ctx.store.datasets():
-                folders.append((f"the folder of dataset {row['name']!r}", Path(row["root"])))
-                if row.get("publish_dir"):
-                    publish = Path(row["publish_dir"])
-                    folders.append((f"the publish folder of dataset {row['name']!r}", publish))
-        finally:
-            ctx.close()
-    for words, folder in folders:
+    trees = [("the outbox", Path(paths.outbox))]
+    roots: list[tuple[str, Path]] = []
+    for name, row in stored_datasets(Path(paths.db_path)).items():  # none yet or broken: what it gives
+        roots.append((f"the folder of dataset {name!r}", Path(row["root"])))
+        if row.get("publish_dir"):
+            trees.append((f"the publish folder of dataset {name!r}", Path(row["publish_dir"])))
+    for words, folder in trees:
         if where.is_relative_to(folder.resolve()):
+            return f"{words} {folder}"
+    for words, folder in roots:
+        if where == folder.resolve():
             return f"{words} {folder}"
     return None
 

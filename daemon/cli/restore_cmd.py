@@ -38,7 +38,7 @@ def restore(
 
     ctx = open_ctx()
     try:
-        as_path = user_path(target)
+        as_path = user_path(Path(target).expanduser())  # a dataset name or path, '~' as before
         if ctx.store.file(as_path) is not None or (as_path.is_file() and not as_path.is_symlink()):
             # a file: its row, or with no row (a lost store) its seal and the vault (restore_file says
             # "not in the store and carries no ppd provenance marker" for a file ppd never patched)

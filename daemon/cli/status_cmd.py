@@ -186,9 +186,9 @@ def next_step_lines(d: dict[str, Any]) -> list[str]:
     not_patched = [f"{c[k]} {k}" for k in ("failed", "quarantined") if c.get(k, 0)]
     if not_patched:
         lines.append(f"{name}: {', '.join(not_patched)}: ppd status {name} --failed")
-    if c.get("restored", 0):  # published as they are, unprotected: said where the overview is read
+    if d.get("restored_in_place"):  # originals back where they are published: said in the overview
         root = shlex.quote(str(d["root"]))
-        lines.append(f"{name}: {c['restored']} restored by you, NOT protected: "
+        lines.append(f"{name}: {d['restored_in_place']} restored by you, NOT protected: "
                      f"`ppd poison {root} --force` patches them again")  # fmt: skip
     return lines
 

@@ -165,6 +165,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "spec_summary": spec_summary(spec) if spec else None,
         "auto": auto_status_text(ctx, name),  # automatic mode's decision in force (None: not decided)
         "counts": counts,
+        "restored_in_place": restored_in_place(ctx, name, row["root"]) if counts.get("restored") else 0,
         "patched": patched_count(counts),
         # where marks found no plain place, as `ppd poison` says it (issue 25): the daemon's files too
         "mark_notes": mark_note_lines(ctx.store.patched_place_notes(name)),
@@ -180,6 +181,16 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
             "finished_at": regression["finished_at"],
         },
     }
+
+
+def restored_in_place(ctx: AppContext, name: str, root: str) -> int:
+    """Files the user restored where they were patched in place: their originals are back where they
+    are published. A restored `--out` or publish-folder copy was removed, which leaves nothing
+    unprotected behind."""
+    from daemon.states import FileState
+
+    rows = ctx.store.files(name, state=FileState.RESTORED)
+    return sum(not r.get("published_path") and Path(r["path"]).is_relative_to(root) for r in rows)
 
 
 def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:

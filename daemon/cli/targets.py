@@ -48,13 +48,14 @@ def _absolute(path: Path) -> Path:
 
 
 def user_path(path: Path | str) -> Path:
-    """A path as typed, the way the store records paths: '~' expanded, absolute, '.' and '..'
-    folded (`ppd poison ../shoot` patches the files of /home/me/shoot, not of
-    /home/me/work/../shoot, which no dataset root contains). Where a '..' follows a symlink the
-    kernel goes elsewhere than the folded path, so such a path is refused, never guessed."""
+    """A path as given, the way the store records paths: absolute, '.' and '..' folded (`ppd poison
+    ../shoot` patches the files of /home/me/shoot, not of /home/me/work/../shoot, which no dataset
+    root contains). Where a '..' follows a symlink the kernel goes elsewhere than the folded path,
+    so such a path is refused, never guessed. '~' is the shell's to expand: a folder named `~`
+    (`./~/photos`) is that folder, not the home one."""
     if str(path) == "":
         raise TargetError("an empty path (an unset variable in a script?); give a file or folder")
-    given = Path(path).expanduser().absolute()
+    given = Path(path).absolute()
     folded = Path(os.path.normpath(given))
     if folded != given and ".." in given.parts and not _same_place(given, folded):
         raise TargetError(
@@ -147,7 +148,7 @@ def resolve_target(
             raise TargetError(f"{folder} is not a folder")
         name = dataset_for_folder(store, folder)  # explicit: never a verification's dataset
         note = f"{folder} is dataset {name!r} (patched by ppd)" if name else None
-        return Target(name, user_path(folder), note)
+        return Target(name, user_path(folder.expanduser()), note)
     assert target is not None
     path = Path(target).expanduser()
     is_dataset = store.dataset(target) is not None

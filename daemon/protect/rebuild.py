@@ -262,6 +262,12 @@ def _store_condition(store_path: Path, vault_dir: Path, force: bool) -> str:
     return "sound"
 
 
+def stored_datasets(store_path: Path) -> dict[str, dict[str, Any]]:
+    """The store's datasets (root, spec_id, publish_dir), read-only, whatever state it is in (none
+    yet, damaged: what can be read): for a command that must not make or lock the store."""
+    return _read_old_store(store_path).datasets
+
+
 def _read_old_store(store_path: Path) -> _OldStore:
     """Whatever the old store still gives back of its datasets and specs (read-only; any damage
     simply ends the reading)."""

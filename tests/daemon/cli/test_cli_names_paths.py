@@ -213,3 +213,19 @@ def test_an_empty_path_or_name_is_refused(
         assert done.exit_code == 2, (argv, done.output)
         assert "empty" in done.output or "not a plain name" in done.output, (argv, done.output)
     assert _digests(shoot) == before
+
+
+def test_a_folder_named_tilde_is_that_folder_not_home(
+    ppd_env: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Found in review: folding paths expanded '~' on a path typer had already made, so `./~/photos`
+    (a folder literally named ~) read $HOME/photos. The shell expands '~'; ppd does not again."""
+    home = tmp_path / "home"
+    (home / "photos").mkdir(parents=True)
+    make = _shoot(tmp_path / "here" / "~")  # ~/photos/castle, 2 photos, under a folder named "~"
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(tmp_path / "here")
+    done = runner.invoke(app, ["poison", "./~/photos/castle", "--dry-run"])
+    assert done.exit_code == 0, done.output
+    assert "would patch 2" in done.output, done.output
+    assert make.is_dir() and not (home / "photos" / "castle").exists()

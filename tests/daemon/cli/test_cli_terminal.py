@@ -371,3 +371,13 @@ def test_status_says_restored_photos_are_not_protected(shoot: Path) -> None:
     status = runner.invoke(app, ["status"])
     assert "castle: 1 restored by you, NOT protected" in status.output, status.output
     assert "--force` patches them again" in status.output
+
+
+def test_restored_out_copies_are_not_called_unprotected(shoot: Path, tmp_path: Path) -> None:
+    """Found in review: restoring an `--out` dataset removes its copies (the inputs were never
+    changed); the hint then told the user to run an in-place `ppd poison --force`, which would have
+    patched the originals themselves. Nothing unprotected is published there: no hint."""
+    assert runner.invoke(app, ["poison", str(shoot), "--out", str(tmp_path / "pub")]).exit_code == 0
+    assert runner.invoke(app, ["restore", "castle"]).exit_code == 0
+    status = runner.invoke(app, ["status"])
+    assert status.exit_code == 0 and "restored by you" not in status.output, status.output
