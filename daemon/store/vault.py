@@ -125,6 +125,7 @@ def clear_stale_keeps(vault_dir: Path, min_age_s: float = STALE_KEEP_S) -> list[
 
 WORK_PREFIX = ".work-"  # a protect's scratch folder in the vault (daemon.protect.poisoning.work_folder)
 WORK_LOCK = ".lock"  # in each: flock()ed by the process using the folder, for as long as it does
+NAMED_PREFIX = ".named-"  # what ppd before issue 30 called its named copies (no lock): swept alike
 
 
 def clear_stale_work_folders(vault_dir: Path, min_age_s: float = STALE_KEEP_S) -> list[Path]:
@@ -132,7 +133,8 @@ def clear_stale_work_folders(vault_dir: Path, min_age_s: float = STALE_KEEP_S) -
     old (the instant between a folder's creation and its lock): a killed protect's patched copy and
     hard link to its original, up to twice a large file's size."""
     removed = []
-    for folder in Path(vault_dir).glob(f"{WORK_PREFIX}*"):
+    folders = [*Path(vault_dir).glob(f"{WORK_PREFIX}*"), *Path(vault_dir).glob(f"{NAMED_PREFIX}*")]
+    for folder in folders:
         try:
             if time.time() - folder.lstat().st_mtime < min_age_s or folder.is_symlink():
                 continue

@@ -63,6 +63,10 @@ def test_stale_work_folders_in_the_vault_go(ppd_env: dict[str, Path]) -> None:
     dead.mkdir()
     (dead / "patched-a.png").write_bytes(b"x" * 1000)
     _age(dead, 3600)
+    named = vault_dir / ".named-old1"  # an older ppd's named copy (no lock), left by a kill
+    named.mkdir()
+    (named / "a.png").write_bytes(b"y" * 1000)
+    _age(named, 3600)
     young = vault_dir / ".work-young"  # between its creation and its lock
     young.mkdir()
     held = vault_dir / ".work-held"  # another process still working in it
@@ -73,7 +77,7 @@ def test_stale_work_folders_in_the_vault_go(ppd_env: dict[str, Path]) -> None:
     daemon.store.vault._cleared.clear()  # a new process
     ctx = AppContext.open()  # nothing patched: `ppd status`, a rerun with every file done
     try:
-        assert not dead.exists()
+        assert not dead.exists() and not named.exists()
         assert young.exists() and held.exists()
         photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=2)
         assert protect_file(photo, ctx).state == "patched"
