@@ -409,6 +409,7 @@ class WatchDaemon:
         outcome = self._protect(path)
         if outcome.state == Outcome.FAILED and outcome.incomplete and self._wait_for_writer(path, judged):
             self._count("skipped")
+            self._record_waiting(path, outcome)
             return
         with self._incomplete_lock:
             self._incomplete.pop(path, None)
@@ -430,6 +431,24 @@ class WatchDaemon:
                 self.scheduler.on_protected(outcome.dataset)
             except Exception:
                 log.exception("verification scheduler failed", extra={"dataset": outcome.dataset})
+
+    def _record_waiting(self, path: Path, outcome: Any) -> None:
+        """The row of a file waited for says so (skipped, for now), not the failure its worker
+        recorded: `ppd status --failed` listed a file still being written as failed while the
+        daemon's own count said failed 0. Patched or quarantined later, the row says that."""
+        from daemon.protect.job import storable
+        from daemon.states import FileState
+
+        if not outcome.dataset or not storable(path):
+            return
+        why = "incomplete, waiting for its writer (patched once complete)"
+        try:
+            self.ctx.store.record_file(
+                path, outcome.dataset, FileState.SKIPPED, error=why, durable=False, event="waiting",
+                detail={"reason": outcome.reason},
+            )  # fmt: skip
+        except Exception:  # the store failing must not stop the wait: the failed row stays
+            log.exception("could not record a waited-for file", extra={"path": str(path)})
 
     def _wait_for_writer(self, path: Path, judged: Any) -> bool:
         """An incomplete file is waited for, not refused, while its writer may still be at it: it

@@ -796,3 +796,33 @@ def test_a_worker_killed_mid_file_is_retried_once_isolated(ppd_env: dict[str, Pa
     assert killed and killed[0] not in _worker_pids()
     assert_protected_once(ppd_env, [dest], {dest: original})
     assert not list(dest.parent.glob(f"{TEMP_PREFIX}*")), "temporary files left behind"
+
+
+def test_a_file_waited_for_is_not_listed_as_failed(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """Found by a black-box review: while the daemon waited for an incomplete file's writer, its row
+    said failed (`ppd status --failed` listed it) and the daemon's count said failed 0. The row now
+    says it is waited for; the completed file is then patched once."""
+    from daemon.cli.status_queries import failed_files
+
+    src = write_image(tmp_path / "big.png", seed=8, size=256)
+    data = src.read_bytes()
+    target = ppd_env["outbox"] / "trip" / "cut.png"
+    target.parent.mkdir()
+    options = dataclasses.replace(FAST, incomplete_wait_s=60.0)
+    with running(ppd_env, options) as daemon:
+        target.write_bytes(data[: len(data) // 2])  # a writer that paused half way
+        wait_for(lambda: daemon.counts.skipped >= 1, 30, "the half file waited for")
+        row = store_of(ppd_env).file(target)
+        assert row is not None and row["state"] == FileState.SKIPPED, row
+        assert "waiting for its writer" in (row["error"] or "")
+        ctx = AppContext.open(AppPaths.from_env())
+        try:
+            assert failed_files(ctx, "trip") == []
+        finally:
+            ctx.close()
+        with open(target, "ab") as fh:  # the writer goes on
+            fh.write(data[len(data) // 2 :])
+        wait_for(lambda: daemon.counts.patched >= 1, 60, "the completed file patched")
+        wait_idle(daemon)
+        assert daemon.counts.failed == 0
+    assert_protected_once(ppd_env, [target], {target: hashlib.sha256(data).hexdigest()})
