@@ -38,13 +38,14 @@ _HEADER_READ = 1 << 16  # the first read; JPEG segments after it are walked with
 # Peak RSS of poison_file per decoded byte, minus the imports (bench_limits, docs/FORMATS.md
 # "Memory"): JPEG 1.62 (85 MP), PNG 8-bit RGB 1.50, RGBA 1.16, 16-bit RGBA 4.6 (FFmpeg's codec, 20
 # and 40 MP), TIFF 2.6, WebP 8.5, HEIF 6.5; rounded up. Unknown formats: the largest of these.
-# PNG measured again in issue 30 through `ppd poison` with ppd's own two-square mark (bench_limits used
-# one corner patch), on gradients and on noise that deflate cannot shrink (a photo's sensor noise):
-# 8-bit 2.8-3.1 per decoded byte plus 3.5-4.7 per byte of the file (held as read, as IDAT, as written,
-# as sealed), 16-bit 5.2-6.0 plus 2.4-2.7 (FFmpeg's codec); rounded up. Before, noise-like PNGs took
-# up to 3x the estimate.
-PEAK_FACTOR = {"JPEG": 1.8, "PNG": 3.2, "PNG16": 6.2, "TIFF": 2.8, "WEBP": 8.8, "HEIF": 6.8, "GIF": 2.0}
-FILE_FACTOR = {"PNG": 4.8, "PNG16": 2.9}  # per byte of the file, on top (other formats: in PEAK_FACTOR)
+# Measured again in issue 30 with ppd's own two-square mark (bench_limits used one corner patch), on
+# gradients and on noise that the codec cannot shrink (a photo's sensor noise), per decoded byte plus
+# per byte of the file (held as read, as compressed data, as written, as sealed): PNG 8-bit 2.8-3.1
+# plus 3.5-4.7, 16-bit 5.2-6.0 plus 2.4-2.7 (FFmpeg's codec), TIFF LZW 1.9 plus 2.7, lossless WebP
+# (8.8 on gradients) plus 7.8; JPEG of noise stays under 1.8 alone; rounded up. Before, noise-like
+# PNG, TIFF and WebP took up to 3x, 1.6x and 1.5x the estimate. HEIF not measured again.
+PEAK_FACTOR = {"JPEG": 1.8, "PNG": 3.2, "PNG16": 6.2, "TIFF": 2.0, "WEBP": 8.8, "HEIF": 6.8, "GIF": 2.0}
+FILE_FACTOR = {"PNG": 4.8, "PNG16": 2.9, "TIFF": 3.0, "WEBP": 8.0}  # per byte of the file, on top
 IMPORTS_BYTES = 60_000_000  # a worker's RSS after its imports (43 MB measured), rounded up
 DEFAULT_MAX_PEAK_BYTES = 1_024_000_000  # [limits] max_memory_mb
 
