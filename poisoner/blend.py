@@ -220,16 +220,34 @@ def lane_placements(placement: PatchPlacement) -> list[PatchPlacement] | None:
 def apply_lanes(
     pixels: np.ndarray, placement: PatchPlacement, keep_out: np.ndarray | None = None
 ) -> np.ndarray:
-    """apply_patch's pixels (a copy of pixels with the patch blended in), a square at a time where
-    the mark is made of squares (lane_placements): the same pixels without blending the box between
-    squares placed far apart, whose float copies were several times the picture (a 10 MP RGB PNG
-    of 16 bits: 0.8 GB)."""
-    lanes = lane_placements(placement)
+    """apply_patch's pixels, a square at a time where the mark is made of squares (apply_lanes_at)."""
+    x0, y0, x1, y1 = placement.box
+    if x0 < 0 or y0 < 0 or x1 > pixels.shape[1] or y1 > pixels.shape[0]:
+        raise ValueError(f"patch box {placement.box} outside image of shape {pixels.shape}")
+    return apply_lanes_at(pixels, placement, (0, 0), keep_out, lane_placements(placement))
+
+
+def apply_lanes_at(
+    window: np.ndarray,
+    placement: PatchPlacement,
+    origin: tuple[int, int],
+    keep_out: np.ndarray | None,
+    lanes: list[PatchPlacement] | None,
+) -> np.ndarray:
+    """apply_patch_at(window, placement, origin, keep_out), a lane at a time when lanes (the
+    placement's lane_placements) is given: the same pixels without blending the box between squares
+    placed far apart, whose float copies were several times the picture (a 10 MP 16-bit RGB PNG:
+    0.8 GB)."""
     if lanes is None:
-        return apply_patch(pixels, placement, keep_out)
-    out = pixels.copy()
+        return apply_patch_at(window, placement, origin, keep_out)
+    out = window.copy()
+    ox, oy = origin
+    h, w = window.shape[:2]
     for lane in lanes:
-        x0, y0, x1, y1 = lane.box
-        window = None if keep_out is None else keep_out[y0:y1, x0:x1]
-        out[y0:y1, x0:x1] = apply_patch_at(out[y0:y1, x0:x1], lane, (x0, y0), window)
+        lx0, ly0, lx1, ly1 = lane.box
+        x0, y0, x1, y1 = max(lx0 - ox, 0), max(ly0 - oy, 0), min(lx1 - ox, w), min(ly1 - oy, h)
+        if x0 >= x1 or y0 >= y1:
+            continue
+        part = None if keep_out is None else keep_out[y0:y1, x0:x1]
+        out[y0:y1, x0:x1] = apply_patch_at(window[y0:y1, x0:x1], lane, (ox + x0, oy + y0), part)
     return out

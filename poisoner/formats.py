@@ -52,7 +52,7 @@ from PIL import Image
 from poisoner import jpeg as jpeg_codec
 from poisoner import jpeg_scan, location, provenance
 from poisoner.atomic import atomic_output
-from poisoner.blend import apply_patch_at, lane_placements, patch_coverage
+from poisoner.blend import apply_lanes_at, lane_placements, patch_coverage
 from poisoner.errors import ImageFormatError, MarkNotWritten
 from poisoner.image import jpeg_file
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
@@ -154,7 +154,7 @@ def _poison_jpeg(
     def patch(pixels: np.ndarray, at: tuple[int, int, int, int] = box) -> np.ndarray:
         window = None if keep is None else keep[at[1] - mark_box[1] : at[3] - mark_box[1],
                                                  at[0] - mark_box[0] : at[2] - mark_box[0]]  # fmt: skip
-        return _patch_window(pixels, placement, lanes, (at[0], at[1]), window)
+        return apply_lanes_at(pixels, placement, (at[0], at[1]), window, lanes)
 
     # The splice only needs the MCU box's pixels: with JPEG_REGION_DECODE they come from a
     # lossless crop around the box (jpeg_codec.decode_box), so the rest of the picture is never
@@ -241,33 +241,12 @@ def _idle_mcus(
     return idle if idle.any() else None
 
 
-def _patch_window(
-    pixels: np.ndarray, placement: PatchPlacement, lanes: list[PatchPlacement] | None,
-    origin: tuple[int, int], keep: np.ndarray | None,
-) -> np.ndarray:
-    """apply_patch_at(pixels, placement, origin, keep), a lane at a time when lanes is given (the
-    same pixels: each lane's square blended alone)."""
-    if lanes is None:
-        return apply_patch_at(pixels, placement, origin, keep)
-    out = pixels.copy()
-    ox, oy = origin
-    h, w = pixels.shape[:2]
-    for lane in lanes:
-        lx0, ly0, lx1, ly1 = lane.box
-        x0, y0, x1, y1 = max(lx0 - ox, 0), max(ly0 - oy, 0), min(lx1 - ox, w), min(ly1 - oy, h)
-        if x0 >= x1 or y0 >= y1:
-            continue
-        window = None if keep is None else keep[y0:y1, x0:x1]
-        out[y0:y1, x0:x1] = apply_patch_at(pixels[y0:y1, x0:x1], lane, (ox + x0, oy + y0), window)
-    return out
-
-
 def _lane_parts(
     lanes: list[PatchPlacement], box: tuple[int, int, int, int], layout: jpeg_codec.JpegLayout
 ) -> list[tuple[int, int, int, int]] | None:
     """Each lane's MCU box clipped to the splice box (None when one of them misses it): where the
     JPEG writer decodes, blends and encodes a square alone. Two of them may share an MCU: each then
-    blends every lane's pixels there (_patch_window clips every lane to its window), so both write
+    blends every lane's pixels there (apply_lanes_at clips every lane to its window), so both write
     the same blocks."""
     parts = []
     for lane in lanes:

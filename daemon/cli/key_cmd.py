@@ -4,11 +4,15 @@ that lets ppd recognise its own patched files, daemon.store.sealkey) to a new ma
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from daemon.cli.errors import die
 from poisoner.errors import ExitStatus
+
+if TYPE_CHECKING:
+    from daemon.paths import AppPaths
 
 key_app = typer.Typer(
     help="The seal key: what lets ppd, and only ppd here, recognise the files it patched.",
@@ -29,11 +33,11 @@ def key_export(
     from daemon.paths import AppPaths
     from daemon.store.sealkey import SealKeyError, load_key
 
-    published = _published_folder_holding(file)
+    paths = AppPaths.from_env()
+    published = _published_folder_holding(file, paths)
     if published is not None:
         raise die(f"{file} is inside {published}, whose files are published; the key would go out with your "
                   "photos: write it elsewhere")  # fmt: skip
-    paths = AppPaths.from_env()
     try:
         key = load_key(paths.data_dir)
     except (SealKeyError, OSError) as exc:
@@ -55,17 +59,15 @@ def key_export(
     typer.echo(f"seal key written to {file} (keep it private; `ppd key import {file}` on the new machine)")
 
 
-def _published_folder_holding(file: Path) -> str | None:
+def _published_folder_holding(file: Path, paths: AppPaths) -> str | None:
     """Where FILE would be written among what is published, in words; None when nowhere: anywhere
     in the outbox or a dataset's publish folder, or right beside a dataset's photos (its root; a
     subfolder of a root that is the home folder is the user's own). Symlinks followed: what a sync
     client uploads. The datasets come from the store when there is one to read; nothing is made."""
     import os
 
-    from daemon.paths import AppPaths
     from daemon.protect.rebuild import stored_datasets
 
-    paths = AppPaths.from_env()
     where = Path(os.path.abspath(file.expanduser())).parent.resolve()
     trees = [("the outbox", Path(paths.outbox))]
     roots: list[tuple[str, Path]] = []

@@ -54,7 +54,9 @@ def user_path(path: Path | str) -> Path:
     so such a path is refused, never guessed. '~' is the shell's to expand: a folder named `~`
     (`./~/photos`) is that folder, not the home one."""
     if str(path) == "":
-        raise TargetError("an empty path (an unset variable in a script?); give a file or folder")
+        from daemon.cli.coerce import EMPTY_PATH  # what the option parser says of an empty path
+
+        raise TargetError(EMPTY_PATH)
     given = Path(path).absolute()
     folded = Path(os.path.normpath(given))
     if folded != given and ".." in given.parts and not _same_place(given, folded):

@@ -160,6 +160,7 @@ def verify(
     cameras."""
     from rich.console import Console
 
+    from daemon.cli.coerce import EMPTY_PATH
     from daemon.cli.targets import TargetError
     from daemon.cli.verify_tables import json_safe, print_report
     from verifier.verification import PROFILES, VerificationInputError
@@ -171,8 +172,8 @@ def verify(
     options = _options(timeout, ground_truth, splat, splat_budget, white_background, subject_masks, seeds)
     try:
         if clean is not None:
-            if target == "":  # Path("") is '.'
-                raise TargetError("an empty folder (an unset variable in a script?); give the patched folder")
+            if target == "":  # Path("") is '.', as no target means
+                raise TargetError(EMPTY_PATH)
             report = _verify_folder(folder or Path(target or ""), clean, out, profiles, options, console)
         else:
             report = _verify_stored(target, dataset, folder, profiles, options, console)

@@ -179,8 +179,11 @@ def _free_name(target: Path) -> Path:
 
 
 # ---- attempt markers ------------------------------------------------------------------------------
+ATTEMPTS = "attempts"  # the markers' folder in the data folder
+
+
 def _attempts_dir(data_dir: Path) -> Path:
-    folder = Path(data_dir) / "attempts"
+    folder = Path(data_dir) / ATTEMPTS
     make_private_dir(folder)
     return folder
 
@@ -217,7 +220,7 @@ def forget_attempt(data_dir: Path, path: Path) -> None:
     """A dead attempt's marker for path, removed once the file is settled without a new attempt (an
     interrupted run's file found patched, or recovered): else every start reports a crash that was
     recovered from, and the next attempt on the path runs isolated for nothing. A live one's stays."""
-    marker = Path(data_dir) / "attempts" / _marker_of(path)
+    marker = Path(data_dir) / ATTEMPTS / _marker_of(path)  # not made here: most files never crash
     try:
         fd = os.open(marker, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
     except OSError:  # none (every file that never crashed): nothing to do

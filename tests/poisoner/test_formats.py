@@ -464,8 +464,7 @@ def test_two_squares_blended_a_square_at_a_time_write_the_same_pixels(turn: int,
     squares far apart, 0.9 GB on a 10 MP RGBA PNG)."""
     import dataclasses
 
-    from poisoner.blend import apply_patch_at, lane_placements
-    from poisoner.formats import _patch_window
+    from poisoner.blend import apply_lanes_at, apply_patch_at, lane_placements
     from poisoner.ladder import default_spec
 
     spec = default_spec()
@@ -484,7 +483,7 @@ def test_two_squares_blended_a_square_at_a_time_write_the_same_pixels(turn: int,
     origin = (x0 - 3, y0 - 5)
     whole = apply_patch_at(pixels, placement, origin, keep)
     assert (whole != pixels).any()
-    assert np.array_equal(_patch_window(pixels, placement, lanes, origin, keep), whole)
+    assert np.array_equal(apply_lanes_at(pixels, placement, origin, keep, lanes), whole)
 
 
 @pytest.mark.parametrize("edge", [False, True])
