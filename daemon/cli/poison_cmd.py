@@ -3,6 +3,8 @@ original in the vault, or as copies with --out; one summary, then what each data
 
 from __future__ import annotations
 
+import os
+import sys
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
@@ -239,6 +241,7 @@ def poison(
     subject_masks: Path | None = subject_masks_option(),
     spec_options: SpecOptions = SpecOptions(),
 ) -> None:
+    one_blas_thread()
     # From here Ctrl-C / SIGTERM stop between files: the one in progress finishes, one line says
     # what is left and how to finish (a second signal stops at once).
     with StopOnSignal() as stop:
@@ -247,6 +250,16 @@ def poison(
             _poison(ctx, paths, dataset, out, subject_masks, spec_options, dry_run, force, workers, stop)
         finally:
             ctx.close()
+
+
+def one_blas_thread() -> None:
+    """numpy's OpenBLAS on one thread in this process and its patch workers (a user's own setting
+    stands): the patch pass makes no BLAS call worth a thread, and OpenBLAS's idle threads spin at
+    numpy's import and after each call: 0.11 s of CPU a 24-photo run (bench/results/batch.md round
+    18). Set before numpy is imported, or it has no effect; `ppd poison` runs no COLMAP, whose
+    bundled OpenBLAS keeps its threads in the commands that do."""
+    if "numpy" not in sys.modules:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def _poison(

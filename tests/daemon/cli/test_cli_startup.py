@@ -164,3 +164,40 @@ def test_poison_run_loads_no_scipy_no_sfm_and_no_network_stack(env: dict[str, st
                 "pydantic"}  # fmt: skip
     unwanted.add("av")
     assert not loaded & unwanted, sorted(loaded & unwanted)
+
+
+BLAS_THREADS = """
+import contextlib, os, sys
+from daemon.cli import app
+with contextlib.suppress(SystemExit):
+    app(["poison", sys.argv[1], "--workers", "1"], standalone_mode=False)
+print("numpy" in sys.modules, len(os.listdir("/proc/self/task")), os.environ.get("OPENBLAS_NUM_THREADS"))
+"""
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2 or not Path("/proc/self/task").is_dir(),
+                    reason="OpenBLAS starts no threads of its own on one core; /proc is Linux's")  # fmt: skip
+@pytest.mark.parametrize("users", [None, "2"])
+def test_poison_runs_numpy_on_one_blas_thread(env: dict[str, str], tmp_path: Path, users: str | None) -> None:
+    """`ppd poison` does no BLAS work worth a thread, and OpenBLAS's idle threads spin for CPU at
+    numpy's import (bench/results/batch.md round 18): after a real run the process has no thread but
+    its own, unless the user set OPENBLAS_NUM_THREADS, which stands."""
+    from PIL import Image
+
+    shoot = tmp_path / "shoot"
+    shoot.mkdir()
+    for i in range(2):
+        Image.new("RGB", (320, 240), (40 * i, 90, 160)).save(shoot / f"v{i}.jpg", quality=90)
+    env = {k: v for k, v in env.items() if k != "OPENBLAS_NUM_THREADS"}
+    if users is not None:
+        env["OPENBLAS_NUM_THREADS"] = users
+    proc = subprocess.run([sys.executable, "-c", BLAS_THREADS, str(shoot)], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    numpy_loaded, threads, setting = proc.stdout.split()[-3:]
+    assert numpy_loaded == "True"  # the patch pass ran (numpy is what starts OpenBLAS)
+    if users is None:
+        assert int(threads) == 1
+    else:
+        assert int(threads) >= 2  # the user's two threads: the main one and one of OpenBLAS's
+    assert setting == (users or "1")
