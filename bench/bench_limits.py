@@ -61,10 +61,10 @@ MAKE = textwrap.dedent(
     im = Image.fromarray(arr, "RGBA" if channels == 4 else "RGB")
     kind = fmt.split("-")[0]
     opts = {"jpeg": {"quality": 92}, "png": {"compress_level": 1}, "webp": {"lossless": True, "method": 0},
-            "tiff": {"compression": "tiff_lzw"}}.get(kind, {})
+            "webpq": {"quality": 90, "method": 0}, "tiff": {"compression": "tiff_lzw"}}.get(kind, {})
     if kind == "heif":
         import pillow_heif; pillow_heif.register_heif_opener(); opts = {"quality": 80}
-    names = {"jpeg": "JPEG", "png": "PNG", "webp": "WEBP", "tiff": "TIFF", "heif": "HEIF"}
+    names = {"jpeg": "JPEG", "png": "PNG", "webp": "WEBP", "webpq": "WEBP", "tiff": "TIFF", "heif": "HEIF"}
     im.save(path, names[kind], **opts)
     print(w, h)
     """
@@ -77,11 +77,13 @@ MEASURE = textwrap.dedent(
     from poisoner.formats import poison_file
     from poisoner.ladder import default_spec
     src, dst = Path(sys.argv[1]), Path(sys.argv[2])
+    from poisoner.limits import decoded_size
+    estimate = decoded_size(src).peak_bytes // 2**20
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     t = time.perf_counter()
     poison_file(src, dst, default_spec(), max_pixels=10**12)  # ppd's own mark: two squares, per photo
     dt = time.perf_counter() - t
-    print(base // 1024, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024, f"{dt:.1f}")
+    print(base // 1024, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024, f"{dt:.1f}", estimate)
     """
 )
 
@@ -142,10 +144,10 @@ def measure_video(size: str, lookahead: str, work: Path) -> str:
     return f"| {size} | {lookahead} | {peak} | {secs} | {crf} |"
 
 
-SUFFIX = {"jpeg": ".jpg", "png": ".png", "webp": ".webp", "tiff": ".tif", "heif": ".heic"}
+SUFFIX = {"jpeg": ".jpg", "png": ".png", "webp": ".webp", "webpq": ".webp", "tiff": ".tif", "heif": ".heic"}
 
 
-def measure(fmt: str, mp: float, work: Path) -> tuple[str, int, int, str]:
+def measure(fmt: str, mp: float, work: Path) -> tuple[str, int, int, str, str, int]:
     src = work / f"{fmt}-{mp:g}{SUFFIX[fmt.split('-')[0]]}"
     made = subprocess.run(
         [sys.executable, "-c", MAKE, fmt, str(mp), str(src)], capture_output=True, text=True, check=True
@@ -157,10 +159,11 @@ def measure(fmt: str, mp: float, work: Path) -> tuple[str, int, int, str]:
         check=False,
     )
     if run.returncode != 0:
-        return made.stdout.strip().replace(" ", "x"), -1, -1, run.stderr.strip().splitlines()[-1]
-    base, peak, secs = run.stdout.split()
+        return made.stdout.strip().replace(" ", "x"), -1, -1, run.stderr.strip().splitlines()[-1], "-", 0
+    base, peak, secs, estimate = run.stdout.split()
+    file_mb = src.stat().st_size // 2**20
     src.unlink()
-    return made.stdout.strip().replace(" ", "x"), int(base), int(peak), secs
+    return made.stdout.strip().replace(" ", "x"), int(base), int(peak), secs, estimate, file_mb
 
 
 def main() -> None:
@@ -180,14 +183,15 @@ def main() -> None:
                 print(measure_video(size, args.lookahead, Path(tmp)), flush=True)
         return
     lines = [
-        "| format | MP | size | RSS after imports (MB) | peak RSS (MB) | seconds |",
-        "|---|---|---|---|---|---|",
+        "| format | MP | size | file (MB) | RSS after imports (MB) | peak RSS (MB) | ppd's estimate (MB) "
+        "| seconds |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     with tempfile.TemporaryDirectory(prefix="ppd-limits-") as tmp:
         for fmt in args.formats:
             for mp in args.mp:
-                size, base, peak, secs = measure(fmt, mp, Path(tmp))
-                line = f"| {fmt} | {mp:g} | {size} | {base} | {peak} | {secs} |"
+                size, base, peak, secs, estimate, file_mb = measure(fmt, mp, Path(tmp))
+                line = f"| {fmt} | {mp:g} | {size} | {file_mb} | {base} | {peak} | {estimate} | {secs} |"
                 print(line, flush=True)
                 lines.append(line)
     if args.out:

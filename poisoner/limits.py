@@ -43,9 +43,17 @@ _HEADER_READ = 1 << 16  # the first read; JPEG segments after it are walked with
 # per byte of the file (held as read, as compressed data, as written, as sealed): PNG 8-bit 2.8-3.1
 # plus 3.5-4.7, 16-bit 5.2-6.0 plus 2.4-2.7 (FFmpeg's codec), TIFF LZW 1.9 plus 2.7, lossless WebP
 # (8.8 on gradients) plus 7.8; JPEG of noise stays under 1.8 alone; rounded up. Before, noise-like
-# PNG, TIFF and WebP took up to 3x, 1.6x and 1.5x the estimate. HEIF not measured again.
-PEAK_FACTOR = {"JPEG": 1.8, "PNG": 3.2, "PNG16": 6.2, "TIFF": 2.0, "WEBP": 8.8, "HEIF": 6.8, "GIF": 2.0}
-FILE_FACTOR = {"PNG": 4.8, "PNG16": 2.9, "TIFF": 3.0, "WEBP": 8.0}  # per byte of the file, on top
+# PNG, TIFF and WebP took up to 3x, 1.6x and 1.5x the estimate. Then HEIF and lossy WebP, at 5-20
+# and 5-15 MP (bench_limits, docs/FORMATS.md): HEIF 5.9-6.4 per decoded byte at the margin, plus a
+# fixed ~30 MB, plus 6.6 per file byte (noise took 1.2x its old estimate, gradients 1.05x); lossy
+# WebP 6.2-6.6 plus 27 per file byte (libwebp's encoder holds its tokens: noise took 1.18x); rounded
+# up, the fixed part in HEIF's 7.5.
+PEAK_FACTOR = {
+    "JPEG": 1.8, "PNG": 3.2, "PNG16": 6.2, "TIFF": 2.0, "WEBP": 8.8, "WEBP-LOSSY": 6.6, "HEIF": 7.5,
+    "GIF": 2.0,
+}  # fmt: skip
+# per byte of the file, on top
+FILE_FACTOR = {"PNG": 4.8, "PNG16": 2.9, "TIFF": 3.0, "WEBP": 8.0, "WEBP-LOSSY": 27.5, "HEIF": 6.8}
 IMPORTS_BYTES = 60_000_000  # a worker's RSS after its imports (43 MB measured), rounded up
 DEFAULT_MAX_PEAK_BYTES = 1_024_000_000  # [limits] max_memory_mb
 
@@ -59,6 +67,7 @@ class DecodedSize:
     bytes_per_sample: int
     frames: int = 1
     file_bytes: int = 0  # the file's own size (decoded_size sets it)
+    lossy: bool = False  # a WebP coded with VP8 (its encoder's memory follows the file's size)
 
     @property
     def pixels(self) -> int:
@@ -73,6 +82,7 @@ class DecodedSize:
         """What protecting it takes in memory: the decoded bytes times the format's working copies,
         and for PNG the file's bytes times the copies of it held (a photo deflates poorly)."""
         key = "PNG16" if self.format == "PNG" and self.bytes_per_sample == 2 else self.format
+        key = "WEBP-LOSSY" if key == "WEBP" and self.lossy else key
         held = self.file_bytes * FILE_FACTOR.get(key, 0.0)
         return IMPORTS_BYTES + int(self.bytes * PEAK_FACTOR.get(key, max(PEAK_FACTOR.values())) + held)
 
@@ -240,7 +250,7 @@ def _webp(path: Path, head: bytes) -> DecodedSize:
     kind = head[12:16]
     if kind == b"VP8 ":
         w, h = struct.unpack("<HH", head[26:30])
-        return DecodedSize("WEBP", w & 0x3FFF, h & 0x3FFF, 3, 1)
+        return DecodedSize("WEBP", w & 0x3FFF, h & 0x3FFF, 3, 1, lossy=True)
     if kind == b"VP8L":
         (bits,) = struct.unpack("<I", head[21:25])
         return DecodedSize("WEBP", (bits & 0x3FFF) + 1, ((bits >> 14) & 0x3FFF) + 1, 4, 1)
@@ -249,19 +259,20 @@ def _webp(path: Path, head: bytes) -> DecodedSize:
     flags = head[20]
     width = int.from_bytes(head[24:27], "little") + 1
     height = int.from_bytes(head[27:30], "little") + 1
-    frames = 1
-    if flags & 0x02:  # animation: count the frames (chunk headers only)
-        frames = 0
-        with open(path, "rb") as f:
-            f.seek(12)
-            for _ in range(1_000_000):
-                hdr = f.read(8)
-                if len(hdr) < 8:
-                    break
-                ctype, size = hdr[:4], struct.unpack("<I", hdr[4:])[0]
-                frames += ctype == b"ANMF"
-                f.seek(size + (size & 1), 1)
-    return DecodedSize("WEBP", width, height, 4, 1, max(1, frames))
+    frames, lossy = 0, False
+    with open(path, "rb") as f:  # the chunk headers only: frames of an animation, a still's coding
+        f.seek(12)
+        for _ in range(1_000_000):
+            hdr = f.read(8)
+            if len(hdr) < 8:
+                break
+            ctype, size = hdr[:4], struct.unpack("<I", hdr[4:])[0]
+            frames += ctype == b"ANMF"
+            if ctype in (b"VP8 ", b"VP8L") and not flags & 0x02:
+                lossy = ctype == b"VP8 "
+                break
+            f.seek(size + (size & 1), 1)
+    return DecodedSize("WEBP", width, height, 4, 1, max(1, frames), lossy=lossy)
 
 
 def _gif(path: Path, head: bytes) -> DecodedSize:

@@ -305,3 +305,53 @@ def test_a_png_that_deflates_poorly_is_counted_by_its_file_too(tmp_path: Path) -
     assert a.bytes == b.bytes and a.file_bytes > 100 * b.file_bytes
     assert a.file_bytes == noisy.stat().st_size
     assert a.peak_bytes - b.peak_bytes >= 4 * (a.file_bytes - b.file_bytes)
+
+
+def test_lossy_webp_is_told_from_lossless(tmp_path: Path) -> None:
+    """libwebp's lossy encoder holds memory by the file's size, its lossless one by the picture's
+    (docs/FORMATS.md "Memory"): the header says which, plain (VP8 ) or extended (VP8X + VP8)."""
+    exif = b"Exif\x00\x00II*\x00\x08\x00\x00\x00\x00\x00"
+    plain = _save(tmp_path / "plain.webp", "RGB", (64, 48), "WEBP", quality=80)
+    extended = _save(tmp_path / "ext.webp", "RGB", (64, 48), "WEBP", quality=80, exif=exif)
+    lossless = _save(tmp_path / "ll.webp", "RGB", (64, 48), "WEBP", lossless=True, exif=exif)
+    assert plain.read_bytes()[12:16] == b"VP8 " and extended.read_bytes()[12:16] == b"VP8X"
+    assert decoded_size(plain).lossy and decoded_size(extended).lossy
+    assert not decoded_size(lossless).lossy
+    ext = decoded_size(extended)
+    assert (ext.width, ext.height, ext.frames) == (64, 48, 1)
+
+
+PEAK_CHILD = textwrap.dedent(
+    """
+    import sys
+    from pathlib import Path
+    from poisoner.formats import poison_file
+    from poisoner.ladder import default_spec
+    from poisoner.limits import decoded_size
+
+    src = Path(sys.argv[1])
+    estimate = decoded_size(src).peak_bytes
+    poison_file(src, src.with_name("out" + src.suffix), default_spec(), max_pixels=10**12)
+    hwm = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM:"))
+    print(hwm * 1024, estimate)
+    """
+)
+
+
+@pytest.mark.parametrize(("fmt", "suffix", "mp"), [("WEBP", ".webp", 5.0), ("HEIF", ".heic", 3.0)])
+def test_noise_like_photos_stay_within_the_estimate(tmp_path: Path, fmt: str, suffix: str, mp: float) -> None:
+    """The estimate the daemon admits files by and `ppd poison` refuses by must cover what protecting
+    a file takes: measured in a fresh child (VmHWM) on the worst case, pixels the codec cannot shrink
+    (a photo's sensor noise), ppd's own mark. Lossy WebP took 1.12x and HEIF 1.2x their old estimates."""
+    opts: dict[str, object] = {"quality": 90}
+    if fmt == "HEIF":
+        import pillow_heif
+
+        pillow_heif.register_heif_opener()
+    w = int((mp * 1e6 * 4 / 3) ** 0.5) // 16 * 16
+    src = _save(tmp_path / f"noise{suffix}", "RGB", (w, int(mp * 1e6 / w) // 16 * 16), fmt, **opts)
+    run = subprocess.run([sys.executable, "-c", PEAK_CHILD, str(src)], capture_output=True, text=True,
+                         timeout=300, cwd=Path(__file__).resolve().parents[2])  # fmt: skip
+    assert run.returncode == 0, run.stderr[-2000:]
+    peak, estimate = map(int, run.stdout.split())
+    assert peak <= estimate, f"{fmt}: peak {peak / 1e6:.0f} MB over the estimate {estimate / 1e6:.0f} MB"
