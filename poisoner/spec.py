@@ -413,9 +413,11 @@ class PatchSpec:
         x1, y1 = max(x for x, _ in lanes) + shown, max(y for _, y in lanes) + shown
         side = max(x1 - x0, y1 - y0)
         bx, by = (x0 if left else x1 - side), (y0 if top else y1 - side)
-        if lanes_at is not None:  # split lanes: the square box slides back inside the frame
-            bx, by = max(0, min(bx, width - side)), max(0, min(by, height - side))
-        if bx < 0 or by < 0 or bx + side > width or by + side > height:
+        # The box is square, its side the lanes' longer extent: on the other axis it can pass the
+        # frame's edge while every lane is inside (split lanes; a video's mark anchored at the far
+        # edge of its path, its lanes slid along: it slides back inside the frame, the lanes unmoved.
+        bx, by = max(0, min(bx, width - side)), max(0, min(by, height - side))
+        if x0 < 0 or y0 < 0 or x1 > width or y1 > height or side > min(width, height):
             raise SpecError(f"{self.lanes} lanes of {size} px do not fit a {width}x{height} image")
         parts = tuple(
             (x - bx, y - by, self.seed + LANE_SEED_STEP * k) for k, (x, y) in enumerate(lanes)

@@ -185,3 +185,22 @@ def test_tumbling_mark_that_cannot_fit_or_has_no_corner_is_refused() -> None:
         PatchSpec(corner_region=0.0)
     with pytest.raises(SpecError, match="tumble_scale"):
         PatchSpec(tumble_scale=1.5)
+
+
+@pytest.mark.parametrize(("width", "height"), [(640, 480), (1920, 1080), (480, 640), (320, 240)])
+def test_default_lanes_anchored_at_the_far_edge_fit_at_every_step(width: int, height: int) -> None:
+    """A per-photo anchor may sit as far right and down as the mark's whole path allows (a video's
+    keyframe clamps it there): at every point of the slide each lane is inside the frame, and so is
+    the square box that holds them (it slid back where its side, the lanes' taller extent, would
+    have passed the edge on the other axis: SpecError before, and the clip failed)."""
+    from poisoner.ladder import default_spec
+
+    spec = default_spec()
+    reach = max(spec.path_extent(width, height))
+    anchor = (width - reach, height - reach)
+    for step in range(400):
+        p = spec.resolve(width, height, index=step / 4, anchor=anchor)
+        side = p.lane_size
+        assert 0 <= p.x <= width - p.size and 0 <= p.y <= height - p.size
+        for dx, dy, _ in p.parts:
+            assert 0 <= dx <= p.size - side and 0 <= dy <= p.size - side

@@ -311,6 +311,37 @@ def test_default_lanes_slide_in_video_at_full_contrast(tmp_path: Path) -> None:
         assert abs(p.x - q.x) + abs(p.y - q.y) <= 16, (p.box, q.box)
 
 
+def test_default_mark_placed_at_the_frame_edge_slides_on(tmp_path: Path) -> None:
+    """A clip whose only plain place is a band along the right edge: the keyframe puts the mark's
+    path against that edge, and as the lanes slide the square box around them (its side the lanes'
+    taller extent) reached past the frame while every lane was inside: 'frame 28: 2 lanes of 38 px
+    do not fit a 640x480 image', and the clip went out unprotected (a black-box review, 2026-12-07:
+    five of seven ordinary clips). Now the box slides back and every frame carries both lanes."""
+    from testkit.video import mux_rgb_frames
+
+    w, h = 640, 480
+    rng = np.random.default_rng(3)
+    still = np.full((h, w, 3), 128, np.uint8)
+    texture = (rng.random((h // 4, w // 4, 3)) * 200 + 28).astype(np.uint8).repeat(4, 0).repeat(4, 1)
+    still[:, : int(w * 0.8)] = texture[:, : int(w * 0.8)]
+    src = tmp_path / "still.mp4"
+    with av.open(str(src), "w") as out:
+        stream = out.add_stream("libx264", rate=30)
+        stream.width, stream.height, stream.pix_fmt = w, h, "yuv420p"
+        mux_rgb_frames(out, stream, [still] * 60)
+    spec = default_spec()
+    poison_video(src, tmp_path / "out.mp4", spec)
+    from poisoner.video.driver import frame_placements
+    from poisoner.video.model import VideoOptions
+    from poisoner.video.source import probe
+
+    at = [frame_placements(spec, probe(src), VideoOptions(), src)(i) for i in range(60)]
+    assert max(p.x + p.size for p in at) == w  # the box met the right edge...
+    assert len({(p.x + dx, p.y + dy) for p in at for dx, dy, _ in p.parts}) > 20  # ...and the lanes slid on
+    contrast = measure_video_patch(tmp_path / "out.mp4", lambda i: at[i])
+    assert min(contrast) / intended_contrast(at[0]) >= 0.8, contrast
+
+
 def test_moving_spec_can_be_held_still_in_video_and_says_so(tmp_path: Path) -> None:
     spec = named_spec("roaming").replace(motion_step=8, motion_span=40)
     src = make_clip(tmp_path / "clip.mp4", Clip(frames=6, audio=None))
