@@ -4,6 +4,7 @@ spec each dataset gets."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shlex
 from dataclasses import dataclass
@@ -103,22 +104,37 @@ def check_dataset_roots(ctx: AppContext, jobs: list[Job]) -> None:
             )
 
 
-def check_writable(jobs: list[Job], dry_run: bool) -> None:
+def check_writable(jobs: list[Job], dry_run: bool) -> list[Path]:
     """Refuse before touching anything when a folder ppd must write into is not writable
-    (instead of one `[Errno 13] ... .ppd-tmp-x.jpg` per file)."""
+    (instead of one `[Errno 13] ... .ppd-tmp-x.jpg` per file). Returns the --out folders it made,
+    deepest first, for remove_if_empty once the run is over."""
     if dry_run:
-        return
+        return []
     folders = {job.path.parent for job in jobs if job.out_path is None}
     for folder in sorted(folders):
         if not os.access(folder, os.W_OK | os.X_OK):
             raise die(f"folder not writable: {folder}; use --out DIR", ExitStatus.ENVIRONMENT)
+    made: list[Path] = []
     for out_folder in sorted({job.out_path.parent for job in jobs if job.out_path is not None}):
+        missing = [f for f in (out_folder, *out_folder.parents) if not f.exists()]
         try:
             out_folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
+            remove_if_empty(made)
             raise die(os_error_text(exc, hint_out=False), ExitStatus.ENVIRONMENT) from None
+        made = [*missing, *made]
         if not os.access(out_folder, os.W_OK | os.X_OK):
+            remove_if_empty(made)
             raise die(f"folder not writable: {out_folder}", ExitStatus.ENVIRONMENT)
+    return sorted(set(made), key=lambda f: len(f.parts), reverse=True)
+
+
+def remove_if_empty(folders: list[Path]) -> None:
+    """The folders check_writable made, where nothing was written into them (every file failed, a
+    refusal came later, Ctrl-C): an empty --out folder is not left behind. Deepest first."""
+    for folder in sorted(folders, key=lambda f: len(f.parts), reverse=True):
+        with contextlib.suppress(OSError):  # not empty, or gone: left as it is
+            folder.rmdir()
 
 
 def dataset_masks(ctx: AppContext, jobs: list[Job], given: Path | None) -> dict[str, Path | None]:

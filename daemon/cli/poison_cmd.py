@@ -110,7 +110,9 @@ def summary(
         _print_scene_notes(ctx, jobs, outcomes)
     if dry_run:
         return
-    for place in output_places(jobs):
+    # where copies are now: not for a file that failed, whose --out copy was never written
+    copied = {o.path for o in outcomes if o.output is not None and o.state in ("patched", "unchanged")}
+    for place in output_places([job for job in jobs if job.path in copied]):
         console().print(f"written to {place}", markup=False)
     for name in sorted({job.dataset for job in jobs}):
         if ctx.store.dataset(name) is not None:
@@ -272,7 +274,19 @@ def _poison(
     if not jobs:
         raise die("no files to patch in " + ", ".join(str(p) for p in paths))
     planning.check_dataset_roots(ctx, jobs)
-    planning.check_writable(jobs, dry_run)
+    made = planning.check_writable(jobs, dry_run)
+    try:
+        _run_planned(ctx, jobs, spec_options, dry_run, force, workers, subject_masks, stop, paths)
+    finally:
+        planning.remove_if_empty(made)
+
+
+def _run_planned(
+    ctx: AppContext, jobs: list[Job], spec_options: SpecOptions, dry_run: bool, force: bool,
+    workers: int | None, subject_masks: Path | None, stop: StopOnSignal, paths: list[Path],
+) -> None:  # fmt: skip
+    from daemon.cli import planning
+
     masks = planning.dataset_masks(ctx, jobs, subject_masks)
     jobs, notes = planning.without_masks(jobs, masks)
     jobs, nested = planning.without_nested(ctx, jobs)

@@ -74,6 +74,32 @@ def test_poison_out_leaves_inputs(shoot: Path, tmp_path: Path) -> None:
     assert rerun.exit_code == 0 and snapshot(out / "castle") == produced
 
 
+def test_out_says_only_where_copies_were_written_and_leaves_no_empty_folder(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """Found by a black-box review: a run whose every file failed printed `written to OUT/...` and
+    left the empty folders it had made to check they were writable. Now the line names only copies
+    that exist, a folder ppd made and wrote nothing into is gone, and one the user had stays."""
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    make_image(tmp_path / "whole.jpg", 3, size=(200, 150))
+    (broken / "cut.jpg").write_bytes((tmp_path / "whole.jpg").read_bytes()[:900])
+    out = tmp_path / "new" / "published"
+    result = runner.invoke(app, ["poison", str(broken), "--out", str(out)])
+    assert result.exit_code == 1, result.output
+    assert "written to" not in result.output and "failed 1" in result.output
+    assert not (tmp_path / "new").exists()
+    kept = tmp_path / "mine"
+    kept.mkdir()
+    result = runner.invoke(app, ["poison", str(broken), "--out", str(kept)])
+    assert result.exit_code == 1 and kept.is_dir() and not any(kept.iterdir())
+    make_image(broken / "good.png", 4, size=(200, 150))
+    result = runner.invoke(app, ["poison", str(broken), "--out", str(out)])
+    assert result.exit_code == 1, result.output
+    assert f"written to {out / 'broken' / 'good.png'}" in " ".join(result.output.split())
+    assert sorted(p.name for p in (out / "broken").iterdir()) == ["good.png"]
+
+
 @pytest.mark.parametrize("inside", ["castle/published", "castle", "castle/view0.png"])
 def test_out_inside_the_dataset_or_a_file_is_refused_and_nothing_is_written(
     shoot: Path, ppd_env: dict[str, Path], inside: str
