@@ -31,20 +31,36 @@ def _is_video(path: Path) -> bool:
     return is_video(path)
 
 
-def placement_for(spec: PatchSpec, original: Any, file: Path) -> Any:
-    """Where spec puts the patch on this picture (a video: its first frame's place)."""
-    h, w = original.shape[:2]
-    if _is_video(file):
-        return spec.resolve(w, h, index=0.0)
-    return spec.resolve(w, h, image_key=file.name)
+PREVIEW_PREFIX = "ppd-preview-"  # poisoner.scratch.PREFIXES: swept after a killed preview
 
 
-def load_picture(path: Path) -> tuple[Any, int | None]:
-    """(stored RGB pixels, EXIF orientation or None); a video's first frame. ppd patches the
-    stored pixels, so the preview works in them and orients only what it shows."""
+def video_placement(spec: PatchSpec, source: Path) -> Any:
+    """The first frame's placement exactly as poison_video decides it for the video at source (a
+    per-photo mark: judged on the clip's keyframes; a vault copy has no suffix, the video is probed)."""
+    from poisoner.video.driver import frame_placements
+    from poisoner.video.model import VideoOptions
+    from poisoner.video.source import probe
+
+    return frame_placements(spec, probe(source), VideoOptions(), source)(0)
+
+
+def video_mark_line(placement: Any, width: int, height: int) -> str:
+    """Where the mark is on a video's first frame, in its stored pixels (a phone clip's rotation is
+    not applied to the frame the preview shows)."""
+    from poisoner.orientation import position_words
+
+    x0, y0, x1, y1 = placement.box
+    return (f"mark at the {position_words(placement.box, width, height)} of the first frame, pixels "
+            f"({x0},{y0})-({x1},{y1}) as stored (where ppd poison writes it on that frame)")  # fmt: skip
+
+
+def load_picture(path: Path, video: bool | None = None) -> tuple[Any, int | None]:
+    """(stored RGB pixels, EXIF orientation or None); a video's first frame (video: whether path holds
+    one; default: by its name). ppd patches the stored pixels, so the preview works in them and
+    orients only what it shows."""
     import numpy as np
 
-    if _is_video(path):
+    if _is_video(path) if video is None else video:
         import av
 
         from poisoner.video import frame_to_rgb
@@ -61,11 +77,11 @@ def load_picture(path: Path) -> tuple[Any, int | None]:
         return rgb, orientation if isinstance(orientation, int) else None
 
 
-def _load(path: Path) -> tuple[Any, int | None]:
+def _load(path: Path, video: bool | None = None) -> tuple[Any, int | None]:
     from poisoner.errors import ImageFormatError
 
     try:
-        return load_picture(path)
+        return load_picture(path, video)
     except ImageFormatError as exc:  # one line that names the file already
         raise die(f"cannot read {one_line(exc)}") from None
     except (OSError, ValueError) as exc:
@@ -75,12 +91,12 @@ def _load(path: Path) -> tuple[Any, int | None]:
 def _mark_of(spec: PatchSpec, source: Path, original: Any, file: Path, keep_out: Any) -> tuple[Any, Any]:
     """(stored placement, MarkPlace or None): a photo's place exactly as poison_file decides it
     (poisoner.preview.planned_mark: per photo, or a corner as the photo shows it), named as the
-    file; a video its first frame."""
+    file; a video its first frame's, as poison_video decides it."""
     if not _is_video(file):
         from poisoner.preview import planned_mark
 
         return planned_mark(source, spec, keep_out, name=file.name)
-    return placement_for(spec, original, file), None
+    return video_placement(spec, source), None
 
 
 def _stored_pair(
@@ -89,10 +105,20 @@ def _stored_pair(
     """A patched file against its vault original, with the spec it was patched with."""
     spec = ctx.store.get_spec(row["spec_id"])
     vault_copy = ctx.vault.path_for(row["original_sha256"])
-    original, _ = _load(vault_copy)
     poisoned, orientation = _load(file)
     labels = ("original (vault)", f"patched ({file.name})")
-    placement, place = _mark_of(spec, vault_copy, original, file, keep_out)
+    if not _is_video(file):
+        original, _ = _load(vault_copy)
+        placement, place = _mark_of(spec, vault_copy, original, file, keep_out)
+        return original, poisoned, placement, place, orientation, labels
+    from poisoner.scratch import owned_temp_dir
+
+    # a vault copy's name is its hash: the video reader wants the container's suffix, as poisoning does
+    with owned_temp_dir(PREVIEW_PREFIX) as scratch:
+        named = scratch / f"original{file.suffix.lower()}"
+        named.symlink_to(vault_copy)
+        original, _ = _load(named)
+        placement, place = _mark_of(spec, named, original, file, keep_out)
     return original, poisoned, placement, place, orientation, labels
 
 
@@ -170,7 +196,10 @@ def _render(
             planned = _planned_pair(ctx, file, options, masks, keep_out)
             original, poisoned, placement, place, orientation, labels = planned
         h, w = original.shape[:2]
-        where = mark_line(placement, place, orientation, w, h)
+        if _is_video(file):
+            where = video_mark_line(placement, w, h)
+        else:
+            where = mark_line(placement, place, orientation, w, h)
         if written_pixels(placement, checked_keep_out(file.name, keep_out, (w, h))) == 0:
             where += "; NO pixel would change (the subject mask covers the mark): ppd poison fails this file"
         shown = shown_placement(placement, place, orientation, w, h)

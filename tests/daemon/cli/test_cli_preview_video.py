@@ -1,0 +1,63 @@
+"""`ppd preview` of a video (found by a black-box review, 2026-12-07): a patched clip could not be
+previewed at all (its vault original, named by its hash, was read as a photo), and an unpatched one
+showed the default mark where `ppd poison` does not write it (the spec's preferred place, where the
+clip's own keyframes decide it)."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import av
+import numpy as np
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from poisoner.ladder import default_spec
+from poisoner.video.driver import frame_placements
+from poisoner.video.model import VideoOptions
+from poisoner.video.source import probe
+from testkit.video import mux_rgb_frames
+
+runner = CliRunner()
+
+
+def plain_band_clip(path: Path, w: int = 320, h: int = 240) -> Path:
+    """A still scene textured everywhere but a band along the right edge: the per-photo mark goes
+    there, far from its preferred place across the top."""
+    rng = np.random.default_rng(5)
+    still = np.full((h, w, 3), 128, np.uint8)
+    texture = (rng.random((h // 4, w // 4, 3)) * 200 + 28).astype(np.uint8).repeat(4, 0).repeat(4, 1)
+    still[:, : int(w * 0.75)] = texture[:, : int(w * 0.75)]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with av.open(str(path), "w") as out:
+        stream = out.add_stream("libx264", rate=12)
+        stream.width, stream.height, stream.pix_fmt = w, h, "yuv420p"
+        mux_rgb_frames(out, stream, [still] * 12)
+    return path
+
+
+def said_box(output: str) -> tuple[int, int, int, int]:
+    """The pixels (x0,y0)-(x1,y1) of the preview's mark line."""
+    text = " ".join(output.split())
+    start = text.index("pixels (") + len("pixels (")
+    first, second = text[start:].split(")", 1)[0], text[start:].split("-(", 1)[1].split(")", 1)[0]
+    x0, y0 = map(int, first.split(","))
+    x1, y1 = map(int, second.split(","))
+    return (x0, y0, x1, y1)
+
+
+def test_preview_of_a_clip_shows_where_poison_writes_and_works_once_it_is_patched(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    clip = plain_band_clip(tmp_path / "shoot" / "clip.mp4")
+    written = frame_placements(default_spec(), probe(clip), VideoOptions(), clip)(0).box
+    assert written != default_spec().resolve(320, 240, index=0.0).box  # not the preferred place
+    before = runner.invoke(app, ["preview", str(clip), "--out", str(tmp_path / "p1.png"), "--no-visibility"])
+    assert before.exit_code == 0, before.output
+    assert said_box(before.output) == written and "of the first frame" in " ".join(before.output.split())
+    assert runner.invoke(app, ["poison", str(clip.parent)]).exit_code == 0
+    after = runner.invoke(app, ["preview", str(clip), "--out", str(tmp_path / "p2.png"), "--no-visibility"])
+    assert after.exit_code == 0, after.output  # was: "cannot read <hash>: not a recognised image file"
+    assert said_box(after.output) == written and (tmp_path / "p2.png").stat().st_size > 0
+    assert not list(Path(tempfile.gettempdir()).glob("ppd-preview-*"))  # its scratch folder is gone
