@@ -59,7 +59,7 @@ from poisoner.image.heif import HEIF_QUALITY, poison_heif
 from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box, written_pixels
 from poisoner.image.png import PNG_SIGNATURE, png_chunks, poison_png, splice_png, strip_png_location
 from poisoner.image.png_rows import poison_png_rows
-from poisoner.image.read import load_decoded, one_line, open_decoded
+from poisoner.image.read import format_refusal, load_decoded, one_line, open_decoded
 from poisoner.image.tiff import poison_tiff
 from poisoner.image.webp import poison_webp, vp8_quantizers, webp_quality_from_quantizer
 from poisoner.image.write import changes_a_pixel, image_from_array, paste_patch, save_explicit
@@ -136,8 +136,8 @@ def _poison_jpeg(
         layout = jpeg_codec.read_layout(data)
     except ValueError as exc:
         raise ImageFormatError(f"{src.name}: bad JPEG header ({exc})") from exc
-    if im.mode not in ("L", "RGB"):
-        raise ImageFormatError(f"{src.name}: {im.mode} JPEG is not supported")
+    if (why := format_refusal(im)) is not None:
+        raise ImageFormatError(f"{src.name}: {why}")
     preserved = jpeg_file.preserved(layout, im.info)
     notes: list[str] = []
     mark_box = jpeg_codec.mcu_box(placement.box, layout)

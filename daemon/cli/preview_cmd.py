@@ -251,6 +251,23 @@ def _user_file(given: Path) -> Path:
         raise die(exc) from None
 
 
+def _check_protectable(file: Path) -> None:
+    """One line, exit 2, for what `ppd poison` would not patch (a GIF it skips, a CMYK JPEG it fails):
+    a preview of a mark that will never be written is a false promise (a black-box review)."""
+    from poisoner.errors import ImageFormatError
+    from poisoner.image.read import check_writable_image
+    from poisoner.media import is_image, is_video
+
+    if is_video(file.name):
+        return
+    if not is_image(file.name):
+        raise die(f"{file.name}: not a photo or video ppd protects (ppd poison skips it)")
+    try:
+        check_writable_image(file, file.name)
+    except ImageFormatError as exc:
+        raise die(f"{one_line(exc)}; ppd poison fails this file") from None
+
+
 def _first_file(ctx: AppContext, given: Path) -> Path:
     """A dataset (its name, its folder, a verification folder of it) or a folder: its first
     patched file, else the folder's first photo or video; or one line saying what to give."""
@@ -309,6 +326,7 @@ def preview(
     ctx = open_ctx()
     try:
         file = _user_file(file) if file.is_file() else _first_file(ctx, file)
+        _check_protectable(file)
         masks = _preview_masks(ctx, file, subject_masks)
         image, original, poisoned, subject, where = _render(ctx, file, spec_options, masks)
         target = (out or Path.cwd() / f"{file.stem}.ppd-preview.png").absolute()

@@ -152,8 +152,9 @@ class UnrecognisedFile(PpdError, ValueError):
 
 def check_complete(job: Job) -> ProtectOutcome | None:
     """Only complete files go on: one still open for writing by another process is skipped (its
-    close re-arms the watcher); one whose structure is incomplete, or whose header declares more
-    pixels than the decode budget, is refused here, before anything reaches the vault."""
+    close re-arms the watcher); one whose structure is incomplete, whose header declares more
+    pixels than the decode budget, or that no writer takes, is refused here, before anything
+    reaches the vault."""
     from poisoner.completeness import incomplete_reason, starts_like_media
 
     assert job.file is not None
@@ -175,12 +176,16 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     if reason is not None:
         raise IncompleteFile(f"{job.path.name} is incomplete ({reason}); not patched")
     if job.kind == "image":
+        from poisoner.image.read import check_writable_image
         from poisoner.limits import check_decode_budget
 
         config = job.ctx.config
         check_decode_budget(
             through_fd, config.max_pixels, name=job.path.name, max_bytes=config.max_memory_bytes
         )
+        # what no writer takes (CMYK JPEG, 16-bit colour TIFF, ...): failed here, not after the
+        # vault, and a dry run does not call it "would patch"
+        check_writable_image(through_fd, job.path.name)
     return None
 
 

@@ -14,6 +14,7 @@ from PIL import Image
 from poisoner import location
 from poisoner.blend import apply_lanes
 from poisoner.errors import ImageFormatError
+from poisoner.image.read import PNG_MODES
 from poisoner.image.write import paste_patch
 from poisoner.spec import PatchPlacement
 
@@ -183,7 +184,7 @@ def poison_png(
             im = im.convert("L")
             mode = "L"
             notes.append("1-bit PNG written as 8-bit greyscale")
-        if mode not in ("L", "LA", "RGB", "RGBA", "I;16"):
+        if mode not in PNG_MODES:
             raise ImageFormatError(f"PNG mode {mode} is not supported")
         out = paste_patch(im, placement, keep_out)
         save_opts = {}

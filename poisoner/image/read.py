@@ -87,6 +87,44 @@ def open_decoded(src: Path, data: bytes, *, load: bool = True) -> Image.Image:
     return im
 
 
+# What each writer takes (poisoner.image.png, poisoner.image.tiff, poisoner.formats' JPEG path).
+PNG_MODES = ("1", "L", "LA", "P", "RGB", "RGBA", "I;16")
+TIFF_MODES = ("L", "LA", "RGB", "RGBA", "I;16", "I;16B", "P", "1")
+
+
+def format_refusal(im: Image.Image) -> str | None:
+    """Why ppd cannot write this opened image (header only: nothing decoded) in its own format, or
+    None: what the writers refuse, said before anything reaches the vault (daemon.protect.stages
+    check_complete) and before a dry run or a preview claims it would be patched."""
+    mode = im.mode
+    if im.format == "JPEG" and mode not in ("L", "RGB"):
+        return f"{mode} JPEG is not supported"
+    if im.format == "TIFF":
+        if mode not in TIFF_MODES:
+            return f"TIFF mode {mode} is not supported"
+        bits = getattr(im, "tag_v2", {}).get(258)
+        if mode in ("RGB", "RGBA") and bits and max(bits) > 8:
+            return "16-bit colour TIFF is not supported (Pillow reads it as 8-bit)"
+    if im.format == "PNG":
+        if im.tile and im.tile[0].args == "LA;16B":  # Pillow opens it as 8-bit RGBA
+            return "16-bit grey+alpha PNG is not supported (Pillow reads it as 8-bit)"
+        if mode not in PNG_MODES:
+            return f"PNG mode {mode} is not supported"
+    return None
+
+
+def check_writable_image(path: Path, name: str) -> None:
+    """ImageFormatError (one line naming the file) when the image at path cannot be protected in its
+    own format (format_refusal) or is not an image ppd reads; only its header is read."""
+    _register_heif()
+    with decode_errors(Path(name)), Image.open(path) as im:
+        if (frames := getattr(im, "n_frames", 1)) > 1:
+            raise ImageFormatError(f"{name}: {im.format} with {frames} frames/pages is not supported")
+        why = format_refusal(im)
+    if why is not None:
+        raise ImageFormatError(f"{name}: {why}")
+
+
 def load_decoded(src: Path, im: Image.Image) -> Image.Image:
     with decode_errors(src):
         im.load()

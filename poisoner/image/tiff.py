@@ -13,6 +13,7 @@ from poisoner import location
 from poisoner.blend import apply_lanes
 from poisoner.errors import ImageFormatError
 from poisoner.image.metadata import clean_exif_xmp
+from poisoner.image.read import format_refusal
 from poisoner.image.write import image_from_array, paste_patch, save_explicit
 from poisoner.provenance import Marker
 from poisoner.spec import PatchPlacement
@@ -43,12 +44,9 @@ def poison_tiff(
     im: Image.Image, placement: PatchPlacement, keep_location: bool, marker: Marker | None,
     keep_out: np.ndarray | None = None,
 ) -> tuple[bytes, list[str], list[str], bool, list[str]]:  # fmt: skip
-    if im.mode not in ("L", "LA", "RGB", "RGBA", "I;16", "I;16B", "P", "1"):
-        raise ImageFormatError(f"TIFF mode {im.mode} is not supported")
+    if (why := format_refusal(im)) is not None:
+        raise ImageFormatError(why)
     tags = cast(TiffImagePlugin.TiffImageFile, im).tag_v2  # the opened TIFF's own tags
-    bits = tags.get(258)
-    if im.mode in ("RGB", "RGBA") and bits and max(bits) > 8:
-        raise ImageFormatError("16-bit colour TIFF is not supported (Pillow reads it as 8-bit)")
     notes: list[str] = []
     compression = im.info.get("compression", "raw")
     mode = im.mode

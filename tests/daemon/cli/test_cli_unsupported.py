@@ -1,0 +1,36 @@
+"""A file `ppd poison` cannot protect is said so everywhere, before anything is kept (a black-box
+review, 2026-12-07): a CMYK JPEG was 'would patch' in a dry run, got a preview, and had its original
+copied into the vault before the writer refused it; a GIF, which poison skips, got a preview."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from PIL import Image
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from testkit.photos import make_image
+
+runner = CliRunner()
+
+
+def test_cmyk_jpeg_fails_before_the_vault_in_a_dry_run_and_a_preview(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    shoot = tmp_path / "shoot"
+    make_image(shoot / "a.jpg", 1, size=(200, 150))
+    Image.new("CMYK", (200, 150), (10, 200, 30, 0)).save(shoot / "print.jpg", "JPEG")
+    dry = runner.invoke(app, ["poison", str(shoot), "--dry-run"])
+    text = " ".join(dry.output.split())
+    assert "would patch 1," in text and "failed 1" in text and "CMYK JPEG is not supported" in text, text
+    real = runner.invoke(app, ["poison", str(shoot)])
+    assert real.exit_code == 1 and "patched 1," in " ".join(real.output.split())
+    kept = [p for p in (ppd_env["data"] / "vault").rglob("*") if p.is_file() and len(p.name) == 64]
+    assert len(kept) == 1  # a.jpg's original only: nothing kept for a file that was never patched
+    for name, said in (("print.jpg", "CMYK JPEG is not supported"), ("anim.gif", "ppd poison skips it")):
+        if name.endswith(".gif"):
+            Image.new("P", (32, 32)).save(shoot / name)
+        result = runner.invoke(app, ["preview", str(shoot / name), "--out", str(tmp_path / "p.png")])
+        assert result.exit_code == 2 and said in " ".join(result.output.split()), result.output
+        assert not (tmp_path / "p.png").exists()
