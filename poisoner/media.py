@@ -16,6 +16,15 @@ MEDIA_SUFFIXES: frozenset[str] = IMAGE_SUFFIXES | VIDEO_SUFFIXES
 # What COLMAP reads: the verifier's SfM sample is drawn from these.
 SFM_SUFFIXES: frozenset[str] = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp"})
 
+# Photos and videos ppd does not protect but a reconstruction can read (COLMAP reads BMP; raw files
+# and GIFs convert in one step): a folder that holds them is not protected by patching the rest.
+UNPROTECTED_SUFFIXES: frozenset[str] = frozenset({
+    ".gif", ".bmp", ".dib", ".jxl", ".jp2", ".j2k", ".psd", ".exr", ".hdr", ".ppm", ".pgm", ".pnm",
+    ".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".orf", ".rw2", ".raf",
+    ".pef", ".srw", ".x3f", ".3fr", ".iiq", ".erf", ".mrw", ".kdc", ".dcr",
+    ".avi", ".mpg", ".mpeg", ".wmv", ".flv", ".3gp", ".mts", ".m2ts", ".ts", ".ogv", ".mxf", ".braw",
+})  # fmt: skip
+
 # Names that mean "still being written": browsers, download managers, sync tools, editors.
 PARTIAL_SUFFIXES: frozenset[str] = frozenset({
     ".crdownload", ".part", ".partial", ".download", ".opdownload", ".filepart", ".crswap",
@@ -39,11 +48,17 @@ def is_media(path: str | os.PathLike[str]) -> bool:
     return suffix_of(path) in MEDIA_SUFFIXES
 
 
+def is_unprotected_media(path: str | os.PathLike[str]) -> bool:
+    """A photo or video ppd leaves as it is (UNPROTECTED_SUFFIXES)."""
+    return suffix_of(path) in UNPROTECTED_SUFFIXES
+
+
 def is_sfm_readable(path: str | os.PathLike[str]) -> bool:
     return suffix_of(path) in SFM_SUFFIXES
 
 
 __all__ = [
-    "IMAGE_SUFFIXES", "MEDIA_SUFFIXES", "PARTIAL_SUFFIXES", "SFM_SUFFIXES", "VIDEO_SUFFIXES",
-    "is_image", "is_media", "is_sfm_readable", "is_video", "suffix_of",
+    "IMAGE_SUFFIXES", "MEDIA_SUFFIXES", "PARTIAL_SUFFIXES", "SFM_SUFFIXES", "UNPROTECTED_SUFFIXES",
+    "VIDEO_SUFFIXES", "is_image", "is_media", "is_sfm_readable", "is_unprotected_media", "is_video",
+    "suffix_of",
 ]  # fmt: skip

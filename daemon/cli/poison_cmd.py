@@ -37,6 +37,14 @@ def outcome_word(outcome: ProtectOutcome) -> str:
     return outcome.state
 
 
+def unprotected_media(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
+    """The skipped files that are photos or videos in a format ppd does not write (a GIF, a BMP, a
+    camera's raw file): skipped like a sidecar, but publishing them gives a reconstruction away."""
+    from poisoner.media import is_unprotected_media
+
+    return [o for o in outcomes if o.state == "skipped" and is_unprotected_media(o.path)]
+
+
 def _restored_left(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
     return [o for o in outcomes if o.state == "unchanged" and (o.reason or "").startswith(RESTORED_BY_USER)]
 
@@ -87,6 +95,13 @@ def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
     console().print(("dry run, nothing changed: " if dry_run else "") + line)
     for line in place_lines(outcomes) + jpeg_lines(outcomes):
         console().print(line, markup=False)
+    if unread := unprotected_media(outcomes):
+        shown = ", ".join(o.path.name for o in unread[:5]) + (", ..." if len(unread) > 5 else "")
+        err_console().print(
+            f"not protected: {len(unread)} photo(s) or video(s) ppd cannot read ({shown}); a reconstruction "
+            "can still use them: convert them to JPEG, PNG, TIFF, WebP, HEIC or MP4 first, or leave them out",
+            markup=False,
+        )
     left = _restored_left(outcomes)
     if left:
         console().print(f"left unprotected (restored by you): {len(left)}; use --force to protect them again")

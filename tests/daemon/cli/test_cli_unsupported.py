@@ -34,3 +34,24 @@ def test_cmyk_jpeg_fails_before_the_vault_in_a_dry_run_and_a_preview(
         result = runner.invoke(app, ["preview", str(shoot / name), "--out", str(tmp_path / "p.png")])
         assert result.exit_code == 2 and said in " ".join(result.output.split()), result.output
         assert not (tmp_path / "p.png").exists()
+
+
+def test_photos_ppd_cannot_read_are_named_apart_from_sidecars(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A GIF or a camera's raw file in the folder was only counted 'skipped', like a sidecar, and the
+    run said nothing else: published beside the patched photos it hands a reconstruction a clean view."""
+    shoot = tmp_path / "shoot"
+    make_image(shoot / "a.jpg", 1, size=(200, 150))
+    Image.new("P", (64, 48)).save(shoot / "loop.gif")
+    Image.new("RGB", (64, 48)).save(shoot / "scan.bmp")
+    (shoot / "raw.DNG").write_bytes(b"II*\x00" + bytes(60))
+    (shoot / "notes.txt").write_text("shot list")
+    (shoot / "a.xmp").write_text("<x:xmpmeta/>")
+    result = runner.invoke(app, ["poison", str(shoot)])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert "skipped 5" in text and "not protected: 3 photo(s) or video(s) ppd cannot read" in text, text
+    line = text[text.index("not protected:") :]
+    assert all(n in line for n in ("loop.gif", "scan.bmp", "raw.DNG"))
+    assert "notes.txt" not in line and "a.xmp" not in line
