@@ -57,6 +57,35 @@ def place_lines(outcomes: list[ProtectOutcome]) -> list[str]:
     return mark_note_lines(o.reason for o in outcomes if o.state in OUTCOME_PATCHED)
 
 
+# Notes that change a file beyond its mark, which a creator would not assume (the rest, e.g. the JPEG
+# splice's own, say how and are for `ppd -v poison` only).
+CHANGE_NOTES = (
+    ("re-encoded at quality", "re-encoded (lossy: one more generation of its codec's loss)"),
+    (" written as ", "written in another pixel layout (e.g. a full palette widened to RGB)"),
+    ("location removed", "location (GPS) removed"),
+)
+
+
+def change_lines(outcomes: list[ProtectOutcome]) -> list[str]:
+    """One summary line per kind of change beyond the mark (CHANGE_NOTES), naming the files: they were
+    only in the store's notes (a black-box review). `ppd -v poison` gives each file's notes."""
+    patched = [(o, o.report.notes) for o in outcomes if o.state in OUTCOME_PATCHED and o.report is not None]
+    lines = []
+    for needle, words in CHANGE_NOTES:
+        files = [o.path.name for o, notes in patched if any(needle in n for n in notes)]
+        if files:
+            shown = ", ".join(files[:3]) + (f" and {len(files) - 3} more" if len(files) > 3 else "")
+            lines.append(f"{words}: {len(files)} file(s) ({shown}); `ppd -v poison` says how")
+    return lines
+
+
+def verbose_notes(outcome: ProtectOutcome) -> list[str]:
+    """-v: a patched file's notes worth a line (the JPEG splice's own note, on every JPEG, is not)."""
+    if outcome.state not in OUTCOME_PATCHED or outcome.report is None:
+        return []
+    return [n for n in outcome.report.notes if not n.startswith("DCT splice: only MCU box")]
+
+
 def jpeg_lines(outcomes: list[ProtectOutcome]) -> list[str]:
     """The summary's lines for JPEGs written otherwise than a photographer would assume: re-encoded
     whole (every pixel one JPEG generation more; their sampling possibly changed) and data after the
@@ -93,7 +122,7 @@ def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
     words = ["would patch" if dry_run else "patched", "unchanged", "skipped", "failed"]
     line = ", ".join(f"{w} {counts.get(w, 0)}" for w in words)
     console().print(("dry run, nothing changed: " if dry_run else "") + line)
-    for line in place_lines(outcomes) + jpeg_lines(outcomes):
+    for line in place_lines(outcomes) + jpeg_lines(outcomes) + change_lines(outcomes):
         console().print(line, markup=False)
     if unread := unprotected_media(outcomes):
         shown = ", ".join(o.path.name for o in unread[:5]) + (", ..." if len(unread) > 5 else "")
@@ -190,6 +219,8 @@ def _say_outcome(progress_console: Any, outcome: ProtectOutcome) -> None:
     if place is not None and outcome.state in OUTCOME_PATCHED:  # a per-photo mark: where it shows
         why = f" (mark at the {place.words}{'; ' + outcome.reason if outcome.reason else ''})"
     progress_console.print(f"{outcome_word(outcome)} {outcome.path}{where}{why}", markup=False)
+    for note in verbose_notes(outcome):
+        progress_console.print(f"  note: {note}", markup=False)
 
 
 def run_jobs(

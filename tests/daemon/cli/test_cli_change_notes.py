@@ -1,0 +1,37 @@
+"""What ppd changed in a file beyond its mark reaches the user (a black-box review, 2026-12-07: a
+lossy WebP re-encoded at another quality, a full palette widened to RGB, location removed: all only
+in the store's notes). The summary names the files per kind of change; `ppd -v poison` gives each
+file's notes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+from typer.testing import CliRunner
+
+from daemon.cli import app
+
+runner = CliRunner()
+
+
+def test_summary_and_verbose_lines_say_what_changed_beyond_the_mark(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    shoot = tmp_path / "shoot"
+    shoot.mkdir()
+    rng = np.random.default_rng(0)
+    Image.fromarray(rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)).save(shoot / "a.webp", quality=70)
+    full = Image.fromarray(rng.integers(0, 256, (240, 320), dtype=np.uint8), "P")
+    full.putpalette(list(rng.integers(0, 256, 768, dtype=np.uint8)))
+    full.save(shoot / "b.png")
+    Image.fromarray(rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)).save(shoot / "c.png")
+    result = runner.invoke(app, ["-v", "poison", str(shoot)])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert "re-encoded (lossy: one more generation of its codec's loss): 1 file(s) (a.webp)" in text, text
+    assert "written in another pixel layout (e.g. a full palette widened to RGB): 1 file(s) (b.png)" in text
+    assert "note: lossy WebP re-encoded at quality" in text
+    assert "note: palette full (256 + " in text
+    assert "c.png)" not in text  # nothing beyond its mark changed in it
