@@ -308,6 +308,22 @@ def read_seal(path: Path, key: bytes | None) -> Seal | None:
     return None
 
 
+def read_claim(path: Path, key: bytes | None) -> Seal | None:
+    """What a token made with this key says (the original and spec ppd patched from), whether or not
+    the file's bytes are still those it sealed: a claim, not proof. Someone can copy a token onto
+    another photo; the caller checks the pixels before trusting it (daemon.protect.edited)."""
+    if not key:
+        return None
+    try:
+        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            for tok in _tokens(mm):
+                if (seal := _open_body(key, tok.body)) is not None:
+                    return seal
+    except (OSError, ValueError):
+        return None
+    return None
+
+
 def sealed_for(path: Path, key: bytes | None, original_sha256: str, spec_id: str) -> bool:
     """Whether path is ppd's finished output of that original under that spec: its seal verifies over
     exactly its bytes (read_seal) and names both."""

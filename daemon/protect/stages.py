@@ -68,6 +68,7 @@ from daemon.fsops import (
     write_all,
 )
 from daemon.platform import fd_path, writers_of
+from daemon.protect.edited import recognise_edited_output
 from daemon.protect.job import (
     FileSignature,
     IncompleteFile,
@@ -236,7 +237,7 @@ def recognise(job: Job) -> ProtectOutcome | None:
         if moved and carry_moved_row(ctx, earlier, job.path, job.dataset, job.root):
             return job.outcome(Outcome.UNCHANGED, f"moved from {earlier['path']}", poisoned_sha256=sha)
         return job.outcome(Outcome.UNCHANGED, "already ppd output", poisoned_sha256=sha)
-    if (recognised := _recognise_by_marker(job)) is not None:
+    if (recognised := _recognise_by_marker(job) or recognise_edited_output(job)) is not None:
         return recognised
     if (
         row is not None
