@@ -112,13 +112,21 @@ def service_install(
     ctx = _open_context(None)
     try:
         layout = service.installed_layout(ctx.paths, ctx.config)
+        quarantine = service.quarantine_folder(ctx.paths.outbox, ctx.config)
     except FileNotFoundError as exc:
         raise _fail(str(exc)) from None
     finally:
         ctx.close()
+    for folder in service.temporary_folders(layout):
+        err_console().print(
+            f"warning: {folder} is under a temporary folder, which the service cannot see (PrivateTmp): "
+            "set PPD_OUTBOX, PPD_DATA_DIR and PPD_CACHE_DIR elsewhere before installing",
+            highlight=False, markup=False,
+        )  # fmt: skip
     if print_only:
         sys.stdout.write(service.render_unit(layout))
         return
+    quarantine.mkdir(mode=0o700, parents=True, exist_ok=True)  # the sandbox cannot make it later
     target = service.install_unit(service.render_unit(layout))
     err_console().print(f"wrote {target}", highlight=False)
     reload = service.systemctl_user("daemon-reload")

@@ -52,7 +52,7 @@ class UnitLayout:
 def quote_word(word: str) -> str:
     """A word for an ExecStart=/ReadWritePaths= line: quoted when it has spaces or quotes;
     '%' doubled (systemd specifier escape) unless it is one of our own specifiers (%h)."""
-    if "%" in word and not word.startswith("%h"):
+    if "%" in word and not word.removeprefix("-").startswith("%h"):  # '-': ReadWritePaths' "if it exists"
         word = word.replace("%", "%%")
     if any(c in word for c in " \t\"'\\"):
         return '"' + word.replace("\\", "\\\\").replace('"', '\\"') + '"'
@@ -75,7 +75,7 @@ def generic_layout() -> UnitLayout:
     """The repository's systemd/ppd.service: `pip install --user` paths, default folders."""
     return UnitLayout(
         exec_start=("%h/.local/bin/ppd", "watch"),
-        read_write=("%h/PPD Outbox", "%h/.local/share/ppd", "%h/.cache/ppd"),
+        read_write=("%h/PPD Outbox", "%h/.local/share/ppd", "%h/.cache/ppd", "-%h/ppd-quarantine"),
         docs=DOCS_URL,
     )
 
@@ -120,6 +120,9 @@ def installed_layout(
         Path(getattr(paths, n)).absolute() for n in ("outbox", "data_dir", "cache_dir", "config_dir")
     )
     read_write = [str(outbox), str(data), str(cache)]
+    # where the daemon moves what it cannot patch (ProtectSystem=strict: else read-only, and a broken
+    # file stayed in the outbox; `ppd service install` makes the folder, so it is there at start)
+    read_write.append("-" + str(quarantine_folder(outbox, config)))
     for publish in _publish_dirs(config):
         read_write.append("-" + str(publish))  # '-': a missing folder does not stop the unit
     return UnitLayout(
@@ -135,6 +138,21 @@ def installed_layout(
         },
         docs=DOCS_URL,  # the docs are not installed with the wheel: the published page
     )
+
+
+def quarantine_folder(outbox: Path, config: object | None) -> Path:
+    """The daemon's quarantine folder for this outbox: the config's, else beside the outbox."""
+    where = getattr(config, "quarantine_dir_for", None)
+    if where is None:
+        return outbox.absolute().parent / "ppd-quarantine"
+    return Path(where(outbox)).absolute()
+
+
+def temporary_folders(layout: UnitLayout) -> list[str]:
+    """The unit's writable folders under /tmp or /var/tmp: PrivateTmp=yes gives the service a /tmp of
+    its own, where such a folder does not exist."""
+    paths = [p.lstrip("-") for p in layout.read_write]
+    return [p for p in paths if Path(p).is_relative_to("/tmp") or Path(p).is_relative_to("/var/tmp")]
 
 
 def _publish_dirs(config: object | None) -> list[Path]:

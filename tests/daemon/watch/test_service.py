@@ -139,6 +139,11 @@ def test_service_install_status_uninstall(ppd_env: dict[str, Path], tmp_path: Pa
     unit = tmp_path / "xdg" / "systemd" / "user" / UNIT_NAME
     assert unit.is_file()
     assert f"PPD_OUTBOX={ppd_env['outbox']}" in unit.read_text()
+    # the daemon's quarantine is writable under ProtectSystem=strict, and exists (the sandbox cannot
+    # make it): before, a broken file stayed in the outbox ("Read-only file system", a black-box review)
+    quarantine = ppd_env["outbox"].parent / "ppd-quarantine"
+    assert quarantine.is_dir() and (quarantine.stat().st_mode & 0o777) == 0o700
+    assert quote_word(f"-{quarantine}") in unit_settings(unit.read_text())["ReadWritePaths"][0]
     status = _ppd("service", "status", env=env)
     assert "installed" in status.stderr and "not installed" not in status.stderr
     removed = _ppd("service", "uninstall", env=env)
@@ -154,6 +159,11 @@ def test_service_install_print_writes_nothing(ppd_env: dict[str, Path], tmp_path
     assert printed.returncode == 0, printed.stderr
     assert "[Service]" in printed.stdout and f"PPD_OUTBOX={ppd_env['outbox']}" in printed.stdout
     assert not xdg.exists()  # nothing written
+    assert not (ppd_env["outbox"].parent / "ppd-quarantine").exists()
+    in_tmp = any(ppd_env["outbox"].is_relative_to(t) for t in ("/tmp", "/var/tmp"))
+    assert (
+        "under a temporary folder, which the service cannot see" in " ".join(printed.stderr.split())
+    ) == in_tmp
     shown = _ppd("service", "install", "--help", env=env)
     assert "$XDG_CONFIG_HOME" in shown.stdout and "".join(str(xdg).split()) in "".join(shown.stdout.split())
     plain = _ppd("service", "install", "--help", env={k: v for k, v in env.items() if k != "XDG_CONFIG_HOME"})
