@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from daemon.states import FileState, patched_count
+from daemon.states import PATCHED_VALUES, FileState, patched_count
 from poisoner.atomic import TEMP_PREFIX
 from poisoner.media import is_media
 
@@ -38,11 +38,12 @@ class FolderCount:
     on_disk: int = 0  # media files in the folder now (hidden files, temporaries, mask folders left out)
     untracked: list[Path] = field(default_factory=list)  # media files that no row mentions
     copies: Path | None = None  # `ppd poison --out`: the folder the patched copies went to
+    changed: list[Path] = field(default_factory=list)  # patched in place, another size or time now
 
     def to_dict(self) -> dict[str, Any]:
         copies = None if self.copies is None else str(self.copies)
         return {"folder": str(self.folder), "exists": self.exists, "on_disk": self.on_disk,
-                "untracked": len(self.untracked), "copies": copies}  # fmt: skip
+                "untracked": len(self.untracked), "copies": copies, "changed": len(self.changed)}  # fmt: skip
 
 
 def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
@@ -111,6 +112,7 @@ def count_folder(
     skip: folders whose files are not the dataset's; foreign: files (str paths) that are another
     dataset's (owned_elsewhere): neither is counted."""
     folder = Path(folder).absolute()
+    rows = list(rows)
     paths = [Path(row["path"]) for row in rows]
     outside = [p for p in paths if not p.is_relative_to(folder)]
     theirs = set(foreign)
@@ -120,7 +122,23 @@ def count_folder(
         return FolderCount(folder, exists=False, copies=copies)
     inside = {str(p) for p in paths}
     untracked = [f for f in files if str(f) not in inside and f.relative_to(folder).parts not in covered]
-    return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies)
+    present = {str(f) for f in files}
+    changed = [Path(r["path"]) for r in rows if r["path"] in present and _changed(r)]
+    return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies,
+                       changed=changed)  # fmt: skip
+
+
+def _changed(row: Mapping[str, Any]) -> bool:
+    """Whether a file patched in place now has another size or modification time than ppd wrote: an
+    original copied back over it, an edit. What the daemon's catch-up scan looks at (a black-box
+    review: with no daemon running, `ppd status` counted such files patched)."""
+    if row["state"] not in PATCHED_VALUES or row.get("published_path") or row.get("size") is None:
+        return False
+    try:
+        st = os.stat(row["path"], follow_symlinks=False)
+    except OSError:
+        return False
+    return (st.st_size, st.st_mtime_ns) != (row["size"], row.get("mtime_ns"))
 
 
 def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int]:
@@ -128,6 +146,9 @@ def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int
     merged = dict(counts)
     merged["untracked"] = len(folder.untracked)
     merged["files"] = int(counts.get("files", 0)) + len(folder.untracked)
+    if folder.changed:  # no longer ppd's output: not counted patched
+        merged["changed"] = len(folder.changed)
+        merged[FileState.PATCHED.value] = int(counts.get(FileState.PATCHED.value, 0)) - len(folder.changed)
     return merged
 
 

@@ -218,6 +218,17 @@ def recognise(job: Job) -> ProtectOutcome | None:
     # Never poison twice: ppd's own output (here or anywhere) is left alone.
     if out_path is None and row is not None and row["poisoned_sha256"] == sha:
         forget_attempt(ctx.paths.data_dir, job.path)  # killed after its row, before letting go
+        st = job.file.st if job.file is not None else None
+        if (
+            st is not None
+            and not job.dry_run
+            and (row.get("size"), row.get("mtime_ns")) != (st.st_size, st.st_mtime_ns)
+        ):
+            # the same bytes under a new time (touched, copied with a new mtime): `ppd status`, which
+            # compares the time, would call it changed since patched
+            ctx.store.record_file(
+                job.path, row["dataset"], FileState.PATCHED, size=st.st_size, mtime_ns=st.st_mtime_ns
+            )
         return job.outcome(Outcome.UNCHANGED, "already patched", poisoned_sha256=sha, output=job.path)
     # An interrupted run of this very path first: its output may equal another file's (the same
     # photo in two datasets), which the look-up below would take as "someone else's output".

@@ -1,0 +1,52 @@
+"""`ppd status` checks each file patched in place against the size and time ppd wrote (a black-box
+review, 2026-12-07: with no daemon running, originals copied back over patched files were counted
+patched, and nothing warned). A file touched but not changed stops counting once a run sees it."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from testkit.photos import write_image
+
+runner = CliRunner()
+
+
+def counts(name: str) -> dict[str, int]:
+    result = runner.invoke(app, ["status", name, "--json"])
+    assert result.exit_code == 0, result.output
+    return json.loads(result.output)["datasets"][0]["counts"]
+
+
+def test_an_original_copied_back_is_not_counted_patched(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    shoot = ppd_env["outbox"] / "dtu"
+    originals = tmp_path / "orig"
+    for i in range(3):
+        write_image(originals / f"v{i}.png", seed=i)
+    shutil.copytree(originals, shoot)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert counts("dtu")["patched"] == 3 and counts("dtu").get("changed", 0) == 0
+    shutil.copy(originals / "v1.png", shoot / "v1.png")  # the unprotected original back, no daemon
+    now = counts("dtu")
+    assert now["patched"] == 2 and now["changed"] == 1 and now["files"] == 3
+    text = " ".join(runner.invoke(app, ["status"]).output.split())
+    assert "dtu: 1 changed since ppd patched them, NOT protected now: `ppd poison" in text, text
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0  # patches it again
+    assert counts("dtu")["patched"] == 3 and counts("dtu").get("changed", 0) == 0
+
+
+def test_a_touched_file_is_changed_until_a_run_sees_its_bytes_are_ppds(ppd_env: dict[str, Path]) -> None:
+    shoot = ppd_env["outbox"] / "set"
+    write_image(shoot / "a.png", seed=3)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    st = (shoot / "a.png").stat()
+    os.utime(shoot / "a.png", ns=(st.st_atime_ns, st.st_mtime_ns + 5_000_000_000))
+    assert counts("set")["changed"] == 1
+    again = runner.invoke(app, ["poison", str(shoot)])
+    assert again.exit_code == 0 and "unchanged 1" in " ".join(again.output.split())
+    assert counts("set").get("changed", 0) == 0 and counts("set")["patched"] == 1
