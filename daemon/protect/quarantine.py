@@ -155,7 +155,10 @@ def _join_fragment(ctx: AppContext, path: Path, src_dir: int, name: str, dataset
 
 
 def _owner_only(target: Path) -> None:
-    """A quarantined original is readable by its owner only (0600), whatever mode it came with."""
+    """A quarantined original is readable by its owner only (0600), whatever mode it came with (a
+    quarantined symlink has no mode of its own: left as it is, its target never touched)."""
+    if target.is_symlink():
+        return
     try:
         fd = os.open(target, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError as exc:

@@ -359,6 +359,26 @@ class WatchDaemon:
                 extra={"path": str(crashed.path)},
             )  # fmt: skip
 
+    def _quarantine_link(self, path: Path) -> None:
+        """A photo's name that is a symlink: ppd never follows one (it would patch a file outside the
+        outbox), and a publisher that does (`cp -L`, `rsync -L`, a web server) would ship the file it
+        points to unprotected. The link itself (never its target) leaves the outbox, as DAEMON.md says;
+        it was left in place, logged at info on every start (a black-box review)."""
+        from daemon.datasets.dataset import dataset_of
+        from daemon.protect.quarantine import quarantine
+
+        reason = f"{path.name} is a symlink: ppd never follows one; put the file itself in the outbox"
+        try:
+            moved = quarantine(self.ctx, path, dataset_of(self.outbox, path), reason)
+        except OSError as exc:
+            log.error("cannot quarantine %s: %s", path, exc.strerror, extra={"path": str(path)})
+            return
+        if moved is not None:
+            self.watcher.forget(path)
+            self._count("quarantined")
+            log.warning("quarantined %s: %s (moved to %s)", path, reason, moved,
+                        extra={"path": str(path), "to": str(moved)})  # fmt: skip
+
     def _quarantine_if_hopeless(self, path: Path, outcome: Any) -> Path | None:
         """A file that failed for a reason a retry will not change leaves the outbox: where it went."""
         if outcome.state != Outcome.FAILED or not outcome.hopeless:
@@ -395,6 +415,9 @@ class WatchDaemon:
             for child in walk_files(path):
                 if is_candidate(self.outbox, child, self.suffixes) and not self.watcher.is_settled(child):
                     self.pool.submit(child)
+            return
+        if st is not None and stat.S_ISLNK(st.st_mode) and is_candidate(self.outbox, path, self.suffixes):
+            self._quarantine_link(path)
             return
         if st is not None and not stat.S_ISREG(st.st_mode):
             log.info("not a regular file, left alone: %s", path, extra={"path": str(path)})

@@ -826,3 +826,23 @@ def test_a_file_waited_for_is_not_listed_as_failed(ppd_env: dict[str, Path], tmp
         wait_idle(daemon)
         assert daemon.counts.failed == 0
     assert_protected_once(ppd_env, [target], {target: hashlib.sha256(data).hexdigest()})
+
+
+def test_a_photo_named_symlink_leaves_the_outbox_its_target_untouched(ppd_env: dict[str, Path]) -> None:
+    """DAEMON.md: a symlink is quarantined. It was left in place (logged at info on every start) and
+    `ppd status` counted nothing: published with `cp -L` or by a web server it ships the unprotected
+    file it points to (a black-box review, 2026-12-07). The link moves; its target is never touched."""
+    outside = write_image(ppd_env["outbox"].parent / "elsewhere" / "real.png", 4)
+    before, mode = sha(outside), outside.stat().st_mode
+    ds = ppd_env["outbox"] / "shoot"
+    ds.mkdir()
+    with running(ppd_env) as daemon:
+        (ds / "link.png").symlink_to(outside)
+        wait_for(lambda: daemon.counts.quarantined >= 1, 20, "the link quarantined")
+        wait_idle(daemon)
+    assert not (ds / "link.png").is_symlink() and not (ds / "link.png").exists()
+    moved = ppd_env["outbox"].parent / "ppd-quarantine" / "shoot" / "link.png"
+    assert moved.is_symlink() and moved.resolve() == outside.resolve()
+    assert sha(outside) == before and outside.stat().st_mode == mode
+    row = store_of(ppd_env).file(ds / "link.png")
+    assert row["state"] == FileState.QUARANTINED and "symlink" in row["error"]
