@@ -84,7 +84,9 @@ def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Tabl
 
 
 # What a count key is called in the details line ("untracked": files in the folder without a row).
-COUNT_WORDS = {"untracked": "not patched yet", "changed": "changed since patched"}
+COUNT_WORDS = {
+    "untracked": "not patched yet", "changed": "changed since patched", "waiting": "still being written",
+}  # fmt: skip
 
 
 def files_line(counts: dict[str, Any]) -> str:
@@ -186,6 +188,9 @@ def next_step_lines(d: dict[str, Any]) -> list[str]:
     not_patched = [f"{c[k]} {k}" for k in ("failed", "quarantined") if c.get(k, 0)]
     if not_patched:
         lines.append(f"{name}: {', '.join(not_patched)}: ppd status {name} --failed")
+    if c.get("waiting"):
+        lines.append(f"{name}: {c['waiting']} still being written (incomplete), NOT protected yet: the "
+                     "daemon patches each once complete, or quarantines it if it stays so")  # fmt: skip
     if c.get("changed"):  # another size or time than ppd wrote: an original copied back, an edit
         root = shlex.quote(str(d["root"]))
         lines.append(f"{name}: {c['changed']} changed since ppd patched them, NOT protected now: "

@@ -464,7 +464,9 @@ class WatchDaemon:
 
         if not outcome.dataset or not storable(path):
             return
-        why = "incomplete, waiting for its writer (patched once complete)"
+        from daemon.states import WAITING_PREFIX
+
+        why = f"{WAITING_PREFIX} (patched once complete)"
         try:
             self.ctx.store.record_file(
                 path, outcome.dataset, FileState.SKIPPED, error=why, durable=False, event="waiting",

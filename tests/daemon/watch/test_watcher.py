@@ -802,7 +802,8 @@ def test_a_file_waited_for_is_not_listed_as_failed(ppd_env: dict[str, Path], tmp
     """Found by a black-box review: while the daemon waited for an incomplete file's writer, its row
     said failed (`ppd status --failed` listed it) and the daemon's count said failed 0. The row now
     says it is waited for; the completed file is then patched once."""
-    from daemon.cli.status_queries import failed_files
+    from daemon.cli.status_cmd import next_step_lines
+    from daemon.cli.status_queries import dataset_status, failed_files
 
     src = write_image(tmp_path / "big.png", seed=8, size=256)
     data = src.read_bytes()
@@ -818,6 +819,11 @@ def test_a_file_waited_for_is_not_listed_as_failed(ppd_env: dict[str, Path], tmp
         ctx = AppContext.open(AppPaths.from_env())
         try:
             assert failed_files(ctx, "trip") == []
+            # and `ppd status` says it is still being written, not "skipped" (the ratio's word)
+            status = dataset_status(ctx, "trip")
+            assert status["counts"]["waiting"] == 1 and status["counts"]["skipped"] == 0
+            lines = " ".join(next_step_lines(status))
+            assert "trip: 1 still being written (incomplete), NOT protected yet" in lines
         finally:
             ctx.close()
         with open(target, "ab") as fh:  # the writer goes on
