@@ -124,7 +124,7 @@ def demo(
     daemon.request_stop()
     runner.join(timeout=60)
     patched = patched_count(ctx.store.counts(DEMO_DATASET))
-    status(None, as_json=False, long=False, failed=False)
+    status(None, as_json=False, long=False, failed=False, check=False)
     if patched < views:
         raise die(f"only {patched} of {views} views patched in {timeout:.0f} s", ExitStatus.FAILED)
     preview = workdir / "preview.png"
@@ -132,7 +132,7 @@ def demo(
     console().print(f"preview of the patch: {preview}")
     if verify:
         _verify(ctx, scene, profiles)
-        status(None, as_json=False, long=False, failed=False)
+        status(None, as_json=False, long=False, failed=False, check=False)
     ctx.close()
 
 

@@ -12,6 +12,7 @@ import typer
 
 from daemon.cli.errors import die, open_ctx, warning
 from daemon.cli.output import console, err_console, print_line
+from poisoner.errors import ExitStatus
 from verifier.verdict import Verdict
 
 if TYPE_CHECKING:
@@ -252,15 +253,20 @@ def status(
     as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
     long: bool = typer.Option(False, "--long", "-l", help="Also the spec and each profile's verdict."),
     failed: bool = typer.Option(False, "--failed", help="List each failed file with its reason."),
+    check: bool = typer.Option(
+        False, "--check", help="Exit 1 unless every file shown is patched and the verdict is 'protected'."
+    ),
 ) -> None:
     """Each dataset: files patched and failed, and whether it is protected (a verification's
-    verdict) or only patched; warns on regressions and on sync folders.
+    verdict) or only patched; warns on regressions and on sync folders. Exits 0 (a report) unless
+    --check: then 1 when a dataset is not ready to publish, with one line saying why.
 
     \b
     Examples:
       ppd status                  every dataset, one line each
       ppd status castle           one dataset in detail
       ppd status castle --failed  the files that failed, and why
+      ppd status castle --check && publish castle
     """
     from daemon.cli.status_queries import dataset_status, failed_files
     from daemon.cli.targets import TargetError, dataset_or_die
@@ -294,6 +300,37 @@ def status(
             _print_text(ctx, report, detailed=long or bool(dataset))
     finally:
         ctx.close()
+    _exit_if_unready(report, check)
+
+
+def unready_reasons(d: dict[str, Any]) -> list[str]:
+    """Why a dataset is not ready to publish: files left unprotected, or a verdict other than
+    'protected' (patched, not verified included: only a verification says it holds)."""
+    from daemon.states import Protection
+
+    c = d["counts"]
+    words = {
+        "failed": "failed", "quarantined": "quarantined", "waiting": "still being written",
+        "changed": "changed since patched", "untracked": "not patched yet", "pending": "not finished",
+    }  # fmt: skip
+    reasons = [f"{c[k]} {w}" for k, w in words.items() if c.get(k, 0) > 0]
+    if d.get("restored_in_place"):
+        reasons.append(f"{d['restored_in_place']} restored by you")
+    if d["protection"]["state"] != Protection.PROTECTED:
+        reasons.append(d["protection"]["text"])
+    return reasons
+
+
+def _exit_if_unready(report: list[dict[str, Any]], check: bool) -> None:
+    """--check: one line per dataset not ready to publish (stderr), then exit 1."""
+    if not check:
+        return
+    unready = [(d["name"], unready_reasons(d)) for d in report]
+    unready = [(name, why) for name, why in unready if why]
+    for name, why in unready:
+        err_console().print(f"not ready to publish: {name}: {', '.join(why)}", markup=False, highlight=False)
+    if unready or not report:
+        raise typer.Exit(ExitStatus.FAILED)
 
 
 def register(app: typer.Typer) -> None:

@@ -50,3 +50,32 @@ def test_a_touched_file_is_changed_until_a_run_sees_its_bytes_are_ppds(ppd_env: 
     again = runner.invoke(app, ["poison", str(shoot)])
     assert again.exit_code == 0 and "unchanged 1" in " ".join(again.output.split())
     assert counts("set").get("changed", 0) == 0 and counts("set")["patched"] == 1
+
+
+def test_status_check_gates_publishing(ppd_env: dict[str, Path]) -> None:
+    """`ppd --help` says exit 1 when the verdict is not 'protected', and `ppd status` always exited 0,
+    so `ppd status X && publish` published anyway (a black-box review). A report still exits 0;
+    `--check` exits 1 and says why until every file is patched and a verification says protected."""
+    import time
+
+    from daemon.protect.one_file import AppContext
+
+    shoot = ppd_env["outbox"] / "set"
+    for i in range(2):
+        write_image(shoot / f"v{i}.png", seed=i)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert runner.invoke(app, ["status", "set"]).exit_code == 0  # a report
+    unverified = runner.invoke(app, ["status", "set", "--check"])
+    assert unverified.exit_code == 1
+    assert "not ready to publish: set: patched, not verified" in " ".join(unverified.output.split())
+    ctx = AppContext.open()
+    try:
+        now = time.time() + 1
+        for profile in ("default", "hardened", "published", "global", "masked"):
+            ctx.store.add_verification_run("set", profile, "protected", {}, now, now + 1, None, None)
+    finally:
+        ctx.close()
+    assert runner.invoke(app, ["status", "set", "--check"]).exit_code == 0
+    (shoot / "v2.jpg").write_bytes(b"\xff\xd8 not really")  # a file not patched yet
+    late = runner.invoke(app, ["status", "set", "--check"])
+    assert late.exit_code == 1 and "1 not patched yet" in " ".join(late.output.split()), late.output
