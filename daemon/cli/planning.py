@@ -57,6 +57,7 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
     if out is not None and out.exists() and not out.is_dir():
         raise die(f"--out must be a folder: {out} is a file")
     jobs: list[Job] = []
+    planned: set[Path] = set()  # a file named twice (`a.jpg a.jpg`, a folder and a file in it) is one job
     for target in targets:
         if not target.exists() and not target.is_symlink():
             raise die(f"{target} does not exist")
@@ -68,6 +69,9 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
             check_out_outside(out, root, name, folder=target.is_dir())
         files = media_files(target) if target.is_dir() else [target]
         for f in files:
+            if f.absolute() in planned:
+                continue
+            planned.add(f.absolute())
             out_path = None
             if out is not None and target.is_dir():  # OUT/DATASET/<the file's path in the dataset>:
                 # a subfolder's copies never land on the dataset's other copies (OUT/castle/a.jpg)

@@ -55,3 +55,22 @@ def test_photos_ppd_cannot_read_are_named_apart_from_sidecars(
     line = text[text.index("not protected:") :]
     assert all(n in line for n in ("loop.gif", "scan.bmp", "raw.DNG"))
     assert "notes.txt" not in line and "a.xmp" not in line
+
+
+def test_a_file_named_twice_is_one_job(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd poison a.jpg a.jpg --out X` said 'patched 1, unchanged 1' and 'written to X/a.jpg/'; a
+    folder and a file in it made two copies in two places (a black-box review). The first naming
+    counts, once."""
+    shoot = tmp_path / "bad"
+    make_image(shoot / "a.jpg", 1, size=(200, 150))
+    twice = runner.invoke(
+        app, ["poison", str(shoot / "a.jpg"), str(shoot / "a.jpg"), "--out", str(tmp_path / "o1")]
+    )
+    text = " ".join(twice.output.split())
+    assert twice.exit_code == 0 and "patched 1, unchanged 0" in text, text
+    assert f"written to {tmp_path / 'o1' / 'a.jpg'}" in text and f"{tmp_path / 'o1' / 'a.jpg'}/" not in text
+    both = runner.invoke(app, ["poison", str(shoot), str(shoot / "a.jpg"), "--out", str(tmp_path / "o2")])
+    assert both.exit_code == 0 and "patched 1, unchanged 0" in " ".join(both.output.split()), both.output
+    assert sorted(p.relative_to(tmp_path / "o2").as_posix() for p in (tmp_path / "o2").rglob("*.jpg")) == [
+        "bad/a.jpg"
+    ]
