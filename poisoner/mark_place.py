@@ -43,9 +43,15 @@ class MarkPlace:
     # round 3: (written side, full side) px of each square when no plain place held it whole and its
     # texture was cropped to fit one (poisoner.shrink); None: whole
     shrunk: tuple[int, int] | None = None
+    # each square's box (display px) when they went to places of their own; () when stacked
+    squares: tuple[tuple[int, int, int, int], ...] = ()
 
     @property
     def words(self) -> str:
+        """`top-centre`; split squares: each one's (`top-right and bottom-centre`), not their box's
+        middle, where neither is (a black-box review)."""
+        if self.squares:
+            return " and ".join(dict.fromkeys(position_words(b, *self.frame) for b in self.squares))
         return position_words(self.box, *self.frame)
 
     @property
@@ -54,9 +60,15 @@ class MarkPlace:
 
     def line(self) -> str:
         """`mark at the top-centre, pixels (320,0)-(480,160) as shown (why)`."""
-        x0, y0, x1, y1 = self.box
         turned = f", EXIF orientation {self.orientation}" if self.orientation != 1 else ""
         why = f"{self.why}; {self.shrunk_words}" if self.shrunk else self.why
+        if self.squares:
+            where = " and ".join(
+                f"the {position_words(b, *self.frame)}, pixels ({b[0]},{b[1]})-({b[2]},{b[3]})"
+                for b in self.squares
+            )
+            return f"mark in {len(self.squares)} squares, at {where} as shown{turned} ({why})"
+        x0, y0, x1, y1 = self.box
         return f"mark at the {self.words}, pixels ({x0},{y0})-({x1},{y1}) as shown{turned} ({why})"
 
     @property

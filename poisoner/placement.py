@@ -537,7 +537,11 @@ def _placed(
         source = ("estimated-doubt-split" if doubted else "estimated-split") if free else "no-plain"
         subject = None
     detail = max(s.detail for s in lanes)
-    place = MarkPlace(shown.box, (dw, dh), source, free, detail, subject, o, at[0])
+    s, x, y = shown.lane_side, shown.x, shown.y
+    # each square's box as shown, top first (the words read down the picture)
+    squares = tuple(sorted(((x + dx, y + dy, x + dx + s, y + dy + s) for dx, dy, _ in shown.parts),
+                           key=lambda b: (b[1], b[0])))  # fmt: skip
+    place = MarkPlace(shown.box, (dw, dh), source, free, detail, subject, o, at[0], squares=squares)
     return stored, place
 
 

@@ -418,6 +418,13 @@ def test_lanes_split_into_two_plain_pockets_when_no_place_holds_both(tmp_path: P
         assert changed[rows, cols].any()  # one square in each pocket
     assert changed.any() and not (changed & ~inside).any()  # nothing on the busy "subject"
     assert changed.mean() <= 0.01
+    # the line names each square where it is, not the middle of their box (a black-box review: "mark
+    # at the middle-right" for squares at the top-right and the bottom-centre)
+    assert len(place.squares) == 2
+    for (x0, y0, x1, y1), (rows, cols) in zip(place.squares, pockets, strict=True):  # top first
+        assert changed[y0:y1, x0:x1].any() and rows.start <= y0 and cols.start <= x0
+    assert place.words == "top-centre and bottom-left", place.words
+    assert place.line().startswith("mark in 2 squares, at the top-centre, pixels ("), place.line()
     poison_file(src, tmp_path / "again.png", SPEC)
     assert (tmp_path / "again.png").read_bytes() == (tmp_path / "out.png").read_bytes()
 
