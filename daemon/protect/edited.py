@@ -69,7 +69,8 @@ def _pixels_are_ppds_output(job: Job, claim: Seal, current: bytes) -> bool:
         masks = subject_masks_for(ctx, job.dataset, job.subject_masks)
         expected, _ = poison_image_bytes(job.path, original, spec, masks, max_pixels=ctx.config.max_pixels)
         with open_decoded(job.path, expected) as want, open_decoded(job.path, current) as have:
-            return want.size == have.size and want.mode == have.mode and np.array_equal(want, have)
+            same = want.size == have.size and want.mode == have.mode
+            return same and np.array_equal(np.asarray(want), np.asarray(have))
     except (PpdError, OSError, ValueError) as exc:  # no spec, unreadable: not recognised, patched as new
         log.info("ppd token: output not checked", extra={"path": str(job.path), "error": str(exc)})
         return False

@@ -106,7 +106,8 @@ def format_refusal(im: Image.Image) -> str | None:
         if mode in ("RGB", "RGBA") and bits and max(bits) > 8:
             return "16-bit colour TIFF is not supported (Pillow reads it as 8-bit)"
     if im.format == "PNG":
-        if im.tile and im.tile[0].args == "LA;16B":  # Pillow opens it as 8-bit RGBA
+        tile = getattr(im, "tile", None) or []  # an opened file's (ImageFile), read lazily
+        if tile and tile[0].args == "LA;16B":  # Pillow opens it as 8-bit RGBA
             return "16-bit grey+alpha PNG is not supported (Pillow reads it as 8-bit)"
         if mode not in PNG_MODES:
             return f"PNG mode {mode} is not supported"
