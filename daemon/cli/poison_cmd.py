@@ -3,6 +3,7 @@ original in the vault, or as copies with --out; one summary, then what each data
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from collections import Counter
@@ -245,8 +246,11 @@ def run_jobs(
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=err_console(), transient=True, disable=not interactive()) as progress:
         task = progress.add_task("patching", total=len(jobs))
-        if stop is not None:  # the bar says why it waits: the files in progress are finishing
-            stop._on_stop = lambda _name: progress.update(task, description="stopping")
+        if stop is not None and interactive():  # the bar says why it waits: the files in progress finish
+            def on_stop(name: str) -> None:
+                progress.update(task, description=f"stopping ({stop_key(name)} again: now)")
+
+            stop._on_stop = on_stop
 
         def finished(outcome: ProtectOutcome) -> None:
             if verbosity() > 0:
@@ -292,12 +296,24 @@ def poison(
     one_blas_thread()
     # From here Ctrl-C / SIGTERM stop between files: the one in progress finishes, one line says
     # what is left and how to finish (a second signal stops at once).
-    with StopOnSignal() as stop:
+    with StopOnSignal(say_stopping) as stop:
         ctx = open_ctx()
         try:
             _poison(ctx, paths, dataset, out, subject_masks, spec_options, dry_run, force, workers, stop)
         finally:
             ctx.close()
+
+
+def stop_key(signal_name: str) -> str:
+    return "Ctrl-C" if signal_name == "SIGINT" else signal_name
+
+
+def say_stopping(signal_name: str) -> None:
+    """At the first Ctrl-C (SIGINT) or SIGTERM, at once: a long video's file could run on for minutes
+    with nothing said (a black-box review). Written straight to stderr: this runs in the handler."""
+    key = stop_key(signal_name)
+    with contextlib.suppress(OSError):
+        os.write(2, f"\nppd: {key}: stopping after the file in progress; {key} again stops now\n".encode())
 
 
 def one_blas_thread() -> None:
