@@ -363,7 +363,7 @@ def keep_in_vault(job: Job) -> ProtectOutcome | None:
     data = job.data  # held on: the poisoner's input (poison)
     try:
         if data is not None:  # the bytes that were hashed: written as they are, not read again
-            job.ctx.vault.keep_bytes(data, job.sha)
+            job.ctx.vault.keep_bytes(data, job.sha, times=(job.file.st.st_atime_ns, job.file.st.st_mtime_ns))
         else:
             job.ctx.vault.keep_fd(job.file.fd, expected_sha256=job.sha)
     except VaultContentChanged:

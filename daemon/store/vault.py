@@ -204,21 +204,29 @@ class Vault:
             raise VaultError("ppd keeps only regular files (this descriptor is not one)")
         if expected_sha256 is not None and self._already_kept(self.path_for(expected_sha256), st.st_size):
             return expected_sha256
-        return self._keep(st.st_size, lambda tmp_fd: _copy_fd(fd, tmp_fd), expected_sha256)
+        times = (st.st_atime_ns, st.st_mtime_ns)
+        return self._keep(st.st_size, lambda tmp_fd: _copy_fd(fd, tmp_fd), expected_sha256, times)
 
-    def keep_bytes(self, data: bytes, sha256: str) -> str:
+    def keep_bytes(self, data: bytes, sha256: str, times: tuple[int, int] | None = None) -> str:
         """Keep `data`, whose sha256 the caller computed over exactly these bytes (read once through
         the file's descriptor, daemon.protect.stages.hash_original): written, fsynced and renamed
-        into place without being read or hashed again. Content already kept is not written again."""
+        into place without being read or hashed again. Content already kept is not written again.
+        times: the original's (atime, mtime) in ns, which restore gives back."""
         if self._already_kept(self.path_for(sha256), len(data)):
             return sha256
-        return self._keep(len(data), lambda tmp_fd: ("bytes", _write_blob(tmp_fd, data, sha256)), sha256)
+        fill = lambda tmp_fd: ("bytes", _write_blob(tmp_fd, data, sha256))  # noqa: E731
+        return self._keep(len(data), fill, sha256, times)
 
-    def _keep(self, size: int, fill: Callable[[int], tuple[str, str]], expected_sha256: str | None) -> str:
+    def _keep(
+        self, size: int, fill: Callable[[int], tuple[str, str]], expected_sha256: str | None,
+        times: tuple[int, int] | None = None,
+    ) -> str:  # fmt: skip
         """The crash-safe keep: a flock()ed temporary filled by fill(fd) -> (method, sha256), fsynced
         (its bytes are durable before they have a name), renamed to its content address, and the
         folder fsynced (the name is durable before anyone relies on it; the vault folder too when
-        the two-letter folder is new: its own name)."""
+        the two-letter folder is new: its own name). times: the blob then takes the original's
+        modification time (restore gives it back; set on the name, after the rename: a temporary
+        that looked old could be swept as a stale one)."""
         self._check_room(size)
         tmp_fd, tmp_name = tempfile.mkstemp(prefix=VAULT_TMP_PREFIX, dir=self.vault_dir)
         fcntl.flock(tmp_fd, fcntl.LOCK_EX)  # held while written: clear_stale_keeps leaves it alone
@@ -243,6 +251,9 @@ class Vault:
             fsync_dir(final.parent)
             if new_folder:  # the two-letter folder's own name, in the vault folder
                 fsync_dir(self.vault_dir)
+            if times is not None:
+                with contextlib.suppress(OSError):  # a date, not the original: never fails the keep
+                    os.utime(final, ns=times, follow_symlinks=False)
             log.debug("vault kept", extra={"sha256": sha, "method": method})
             return sha
         except OSError as exc:
@@ -363,6 +374,8 @@ class Vault:
                     raise VaultError(
                         f"vault blob {sha256[:12]} is corrupt (content changed); not restoring it"
                     )
+                kept = os.fstat(fd)  # the original's dates, as the vault kept them (keep's times)
+                os.utime(tmp, ns=(kept.st_atime_ns, kept.st_mtime_ns))
         finally:
             os.close(fd)
 
