@@ -70,6 +70,8 @@ def restore_word(outcome: ProtectOutcome) -> str:
 
 
 def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
+    from daemon.protect.one_file import FROM_PUBLISH_FOLDER
+
     """One count line, where removed copies were (a folder, not a line per file unless -v), then
     each file that was not restored with its reason."""
 
@@ -83,6 +85,12 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
         folder = removed[0].parent if len(removed) == 1 else Path(os.path.commonpath(removed))
         said = f"removed {len(removed)} patched copies from {folder} (--out copies: no original goes there)"
         console().print(said, markup=False)
+    # a published file's original goes back to where it was patched, and its copy leaves the publish
+    # folder: said, not only under -v (a black-box review: 'restored 2' and the published copies gone)
+    unpublished = [o for o in outcomes if o.state == "restored" and FROM_PUBLISH_FOLDER in (o.reason or "")]
+    if unpublished:
+        console().print(f"removed {len(unpublished)} published copies from the publish folder; their "
+                        "originals are back where they were patched", markup=False)  # fmt: skip
     for o in outcomes:
         word = restore_word(o)
         if word == "failed":

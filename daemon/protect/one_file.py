@@ -329,6 +329,9 @@ def _copy_outside_the_source(ctx: AppContext, row: dict[str, Any]) -> Path | Non
     return None
 
 
+FROM_PUBLISH_FOLDER = "from the publish folder"  # the reason's words `ppd restore` counts
+
+
 def _remove_patched_copy(row: dict[str, Any], copy: Path, force: bool) -> str:
     """Delete ppd's patched copy from an output/publish folder; the reason line for the outcome."""
     where = "publish folder" if row["published_path"] else "output folder"
@@ -337,7 +340,8 @@ def _remove_patched_copy(row: dict[str, Any], copy: Path, force: bool) -> str:
     if sha256_file(copy) != row["poisoned_sha256"] and not force:
         raise ProtectRefused(f"{copy} changed since ppd patched it; not removing it (use --force)")
     copy.unlink()
-    return f"removed the patched copy {copy} from the {where}: restore never writes originals there"
+    said = FROM_PUBLISH_FOLDER if row["published_path"] else f"from the {where}"
+    return f"removed the patched copy {copy} {said}: restore never writes originals there"
 
 
 def _pending_as_patched(ctx: AppContext, path: Path, row: dict[str, Any]) -> dict[str, Any]:

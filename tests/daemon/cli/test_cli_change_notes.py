@@ -35,3 +35,21 @@ def test_summary_and_verbose_lines_say_what_changed_beyond_the_mark(
     assert "note: lossy WebP re-encoded at quality" in text
     assert "note: palette full (256 + " in text
     assert "c.png)" not in text  # nothing beyond its mark changed in it
+
+
+def test_restore_says_the_published_copies_it_removed(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd restore` of a dataset with a publish folder said 'restored 2' and deleted both published
+    copies without a word (a black-box review). It now says so."""
+    publish = tmp_path / "www"
+    (ppd_env["config"] / "config.toml").write_text(f'publish_dir = "{publish}"\n')
+    shoot = ppd_env["outbox"] / "pubset"
+    shoot.mkdir()
+    for i in range(2):
+        Image.new("RGB", (200, 150), (40 * i, 90, 160)).save(shoot / f"v{i}.png")
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert sorted(p.name for p in (publish / "pubset").iterdir()) == ["v0.png", "v1.png"]
+    result = runner.invoke(app, ["restore", "pubset"])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 0 and "restored 2" in text, text
+    assert "removed 2 published copies from the publish folder" in text
+    assert not any((publish / "pubset").iterdir()) and len(list(shoot.iterdir())) == 2
