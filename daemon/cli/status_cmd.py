@@ -154,7 +154,9 @@ def failed_lines(d: dict[str, Any]) -> list[str]:
     c = d["counts"]
     lines = [f"{d['name']}: {c.get('failed', 0)} failed, {c.get('quarantined', 0)} quarantined"]
     for r in rows:
-        mark = " (quarantined: moved out of the outbox)" if r.get("state") == "quarantined" else ""
+        mark = ""
+        if r.get("state") == "quarantined":
+            mark = f" (quarantined: moved to {r['moved_to']})" if r.get("moved_to") else " (quarantined)"
         lines.append(f"  {r['path']}: {r['reason']}{mark}")
     return lines
 

@@ -213,9 +213,11 @@ def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
     listed = []
     for state in (FileState.FAILED, FileState.QUARANTINED):
         for r in ctx.store.files(name, state=state.value):
-            listed.append(
-                {"path": r["path"], "state": state.value, "reason": file_reason(r["path"], r.get("error"))}
-            )
+            item = {"path": r["path"], "state": state.value, "reason": file_reason(r["path"], r.get("error"))}
+            if state is FileState.QUARANTINED:  # where it went (the watch log said it; status did not)
+                moved = ctx.store.last_event(r["path"], "quarantined")
+                item["moved_to"] = (moved or {}).get("detail", {}).get("to")
+            listed.append(item)
     return listed
 
 

@@ -573,6 +573,17 @@ def test_bad_files_fail_cleanly_and_the_daemon_keeps_going(ppd_env: dict[str, Pa
         assert not bad.exists()
     assert (quarantine / "fake.png").read_text() == "this is not a PNG"
     assert (quarantine / "empty.jpg").read_bytes() == b""
+    # `ppd status bad --failed` says where each went (a black-box review: only the watch log did)
+    from daemon.cli.status_cmd import failed_lines
+    from daemon.cli.status_queries import dataset_status, failed_files
+
+    ctx = AppContext.open(AppPaths.from_env())
+    try:
+        d = dataset_status(ctx, "bad") | {"failed_files": failed_files(ctx, "bad")}
+    finally:
+        ctx.close()
+    said = " ".join(failed_lines(d))
+    assert f"(quarantined: moved to {quarantine / 'fake.png'})" in said, said
     assert store.file(good)["state"] == FileState.PATCHED
     assert store.file(readonly)["state"] == FileState.PATCHED
     assert readonly.stat().st_mode & 0o777 == 0o444  # permission bits kept by the atomic replace
