@@ -35,6 +35,8 @@ def _open_context(outbox: Path | None):  # -> daemon.context.AppContext
     paths = AppPaths.from_env()
     if outbox is not None:
         paths = dataclasses.replace(paths, outbox=outbox.expanduser().absolute())
+        if not paths.outbox.exists() and not paths.outbox.is_symlink():  # a typo is not a new outbox
+            raise _fail(f"{paths.outbox} does not exist: make it first, or check its name", ExitStatus.USAGE)
     if paths.outbox.exists() and not paths.outbox.is_dir():  # bad input, before anything is made
         raise _fail(f"{paths.outbox} is a file, not a folder: give the folder to watch", ExitStatus.USAGE)
     try:

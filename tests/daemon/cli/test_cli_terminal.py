@@ -363,6 +363,17 @@ def test_watch_of_a_file_is_bad_input(tmp_path: Path, narrow_env: dict[str, str]
     assert not data.exists()
 
 
+def test_watch_of_a_missing_folder_is_bad_input(tmp_path: Path, narrow_env: dict[str, str]) -> None:
+    """`ppd watch ~/Picturs` (a typo) made the folder and said "ppd watch ready" while the photos sat
+    in the real one (a black-box review). A folder named on the command line must exist."""
+    data = Path(narrow_env["PPD_DATA_DIR"])
+    shutil.rmtree(data)
+    proc = ppd(narrow_env, "watch", str(tmp_path / "nonexistent_dir"))
+    assert proc.returncode == 2, proc.stderr
+    assert "does not exist: make it first, or check its name" in one_error_line(proc)
+    assert not (tmp_path / "nonexistent_dir").exists() and not data.exists()
+
+
 def test_status_says_restored_photos_are_not_protected(shoot: Path) -> None:
     """Found by a black-box review: after `ppd restore` of one photo, `ppd status` said only "run
     ppd verify" for the dataset; the restored photo is published unprotected, and the overview says
