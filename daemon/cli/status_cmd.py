@@ -157,7 +157,8 @@ def failed_lines(d: dict[str, Any]) -> list[str]:
         mark = ""
         if r.get("state") == "quarantined":
             mark = f" (quarantined: moved to {r['moved_to']})" if r.get("moved_to") else " (quarantined)"
-        lines.append(f"  {r['path']}: {r['reason']}{mark}")
+        shown = r.get("source") or r["path"]  # --out: the file that failed, not the copy never written
+        lines.append(f"  {shown}: {r['reason']}{mark}")
     return lines
 
 

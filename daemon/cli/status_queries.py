@@ -217,6 +217,9 @@ def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
             if state is FileState.QUARANTINED:  # where it went (the watch log said it; status did not)
                 moved = ctx.store.last_event(r["path"], "quarantined")
                 item["moved_to"] = (moved or {}).get("detail", {}).get("to")
+            elif not Path(r["path"]).exists():  # an --out copy never written: the source to fix
+                said = ctx.store.last_event(r["path"], "failed")
+                item["source"] = (said or {}).get("detail", {}).get("source")
             listed.append(item)
     return listed
 

@@ -205,7 +205,9 @@ def _record_failure(
             )  # fmt: skip
             ctx.store.record_file(
                 out_path or path, dataset, FileState.FAILED, error=message, event="failed",
-                detail={"error": message, "exception": type(exc).__name__},
+                # --out: the row is the copy's, never written; the file to fix is the source
+                detail={"error": message, "exception": type(exc).__name__,
+                        **({"source": str(path)} if out_path is not None else {})},
             )  # fmt: skip
         except Exception as store_exc:  # the store itself failing (disk full) must not hide the first error
             log.error(

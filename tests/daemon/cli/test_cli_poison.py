@@ -93,6 +93,9 @@ def test_out_says_only_where_copies_were_written_and_leaves_no_empty_folder(
     kept.mkdir()
     result = runner.invoke(app, ["poison", str(broken), "--out", str(kept)])
     assert result.exit_code == 1 and kept.is_dir() and not any(kept.iterdir())
+    failed = runner.invoke(app, ["status", "broken", "--failed"])  # names the file to fix, not the copy
+    said = " ".join(failed.output.split())
+    assert f"{broken / 'cut.jpg'}: " in said and f"{kept / 'broken' / 'cut.jpg'}:" not in said, said
     make_image(broken / "good.png", 4, size=(200, 150))
     result = runner.invoke(app, ["poison", str(broken), "--out", str(out)])
     assert result.exit_code == 1, result.output
