@@ -263,6 +263,10 @@ def _finish_report(
     report.duration_s = info.duration_s
     report.output_bit_rate = output_bit_rate
     report.preserved = preserved_list(info, choice)
+    # every frame is re-encoded (lossy): said, with the quality chosen (the summary counts it)
+    quality = f"CRF {choice.crf}" if choice.crf is not None else f"{(choice.bit_rate or 0) // 1000} kbit/s"
+    made_at = f"; the source was made at CRF {info.encoded_crf:g}" if info.encoded_crf is not None else ""
+    report.notes.append(f"video re-encoded at quality {quality} with {choice.encoder} (lossy){made_at}")
     if report.location_removed:
         report.notes.append(
             f"location removed ({len(report.location_removed)}): " + ", ".join(report.location_removed)

@@ -69,6 +69,9 @@ class SourceInfo:
     color_trc: int
     hdr_side_data: dict[str, bytes]
     stream_index: int
+    # the CRF the source's own encoder wrote in its stream (x264/x265 put their settings in an SEI
+    # message of the first frame), or None: the quality it was made at, which ppd does not go below
+    encoded_crf: float | None = None
 
 
 @dataclass

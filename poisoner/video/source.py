@@ -4,6 +4,7 @@ HDR) before anything is written; a frame size over the budget is refused from th
 from __future__ import annotations
 
 import os
+import re
 from fractions import Fraction
 from pathlib import Path
 from typing import Any, cast
@@ -41,7 +42,7 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
         stream = main_video_stream(container, path.name)
         cc = stream.codec_context
         _refuse_over_budget(path.name, cc.width or 0, cc.height or 0, max_pixels)
-        first = _first_frame(container, stream, path.name)
+        first, encoded_crf = _first_frame(container, stream, path.name)
         # The header did not say (width 0): one frame decoded, no more.
         _refuse_over_budget(path.name, first.width, first.height, max_pixels)
         matrix, hdr = _side_data(first)
@@ -65,7 +66,13 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
             color_trc=int(first.color_trc),
             hdr_side_data=hdr,
             stream_index=stream.index,
+            encoded_crf=encoded_crf,
         )
+
+
+# x264 ("x264 - core 164 ... options: ... crf=20.0 ...") and x265 ("x265 (build 199) - ... crf=28.0")
+# write their settings as text in an SEI message of the stream's first frame.
+_ENCODER_SETTINGS = re.compile(rb"(?:x264 - core|x265 \(build)[^\x00]{0,4000}?[ :]crf=(\d+(?:\.\d+)?)")
 
 
 def _refuse_over_budget(name: str, width: int, height: int, max_pixels: int | None) -> None:
@@ -76,13 +83,22 @@ def _refuse_over_budget(name: str, width: int, height: int, max_pixels: int | No
 
 def _first_frame(
     container: av.container.InputContainer, stream: av.video.stream.VideoStream, name: str
-) -> av.VideoFrame:
+) -> tuple[av.VideoFrame, float | None]:
+    """The first decoded frame, and the CRF x264 or x265 recorded in the stream's first packet (its
+    settings SEI), or None."""
+    crf: float | None = None
+    first_packet = True
     try:
-        return next(container.decode(stream))
-    except StopIteration:
-        raise VideoFormatError(f"{name}: the video stream has no decodable frame") from None
+        for packet in container.demux(stream):
+            if first_packet and packet.size:
+                first_packet = False
+                found = _ENCODER_SETTINGS.search(bytes(packet)[:65536])
+                crf = float(found.group(1)) if found else None
+            for frame in packet.decode():
+                return cast(av.VideoFrame, frame), crf
     except av.error.FFmpegError as exc:
         raise VideoFormatError(f"{name}: cannot decode the first frame ({one_line(exc)})") from exc
+    raise VideoFormatError(f"{name}: the video stream has no decodable frame")
 
 
 def _side_data(frame: av.VideoFrame) -> tuple[tuple[int, ...] | None, dict[str, bytes]]:
