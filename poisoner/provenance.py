@@ -287,41 +287,42 @@ def read_seal(path: Path, key: bytes | None) -> Seal | None:
     """The seal of a file ppd wrote with this key, when the file's bytes are exactly those it
     sealed; None for anything else (no token, another key, a copied token, an edited file, an
     unreadable file, no key)."""
-    if not key:
-        return None
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
-    except OSError:
-        return None
-    try:
-        if os.fstat(fd).st_size == 0:
-            return None
-        with mmap.mmap(fd, 0, access=mmap.ACCESS_READ) as mm:
-            for tok in _tokens(mm):
-                seal = _open_body(key, tok.body)
-                if seal is not None and hmac.compare_digest(_file_tag(key, mm, tok), tok.tag):
-                    return seal
-    except (OSError, ValueError):
-        return None
-    finally:
-        os.close(fd)
-    return None
+    return read_seal_and_claim(path, key)[0]
 
 
 def read_claim(path: Path, key: bytes | None) -> Seal | None:
     """What a token made with this key says (the original and spec ppd patched from), whether or not
     the file's bytes are still those it sealed: a claim, not proof. Someone can copy a token onto
     another photo; the caller checks the pixels before trusting it (daemon.protect.edited)."""
+    return read_seal_and_claim(path, key)[1]
+
+
+def read_seal_and_claim(path: Path, key: bytes | None) -> tuple[Seal | None, Seal | None]:
+    """(read_seal, read_claim) from one scan of the file: the protect stages ask both of every new
+    file, and a file without a token is read once (1.5 ms of a 12 MP JPEG)."""
     if not key:
-        return None
+        return None, None
     try:
-        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None, None
+    claim: Seal | None = None
+    try:
+        if os.fstat(fd).st_size == 0:
+            return None, None
+        with mmap.mmap(fd, 0, access=mmap.ACCESS_READ) as mm:
             for tok in _tokens(mm):
-                if (seal := _open_body(key, tok.body)) is not None:
-                    return seal
+                seal = _open_body(key, tok.body)
+                if seal is None:
+                    continue
+                if hmac.compare_digest(_file_tag(key, mm, tok), tok.tag):
+                    return seal, seal
+                claim = claim or seal
     except (OSError, ValueError):
-        return None
-    return None
+        return None, claim
+    finally:
+        os.close(fd)
+    return None, claim
 
 
 def sealed_for(path: Path, key: bytes | None, original_sha256: str, spec_id: str) -> bool:

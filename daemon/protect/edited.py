@@ -4,7 +4,7 @@ looked like a new photo: the marked file went into the vault as an "original", g
 and `ppd restore` could only give back the once-marked file (a black-box review, 2026-12-07).
 
 A token made with this installation's key names the original and the spec (poisoner.provenance
-read_claim). That is a claim: a token can be copied onto another photo. So it is trusted only when
+read_seal_and_claim). That is a claim: a token can be copied onto another photo. So it is trusted only when
 the file's pixels are exactly those ppd writes from that original with that spec, patched again in
 memory: then the file is ppd's output, recorded as such, and never patched twice."""
 
@@ -14,7 +14,6 @@ import logging
 from typing import TYPE_CHECKING
 
 from daemon.fsops import read_fd
-from daemon.platform import fd_path
 from daemon.protect.job import Job, Outcome, ProtectOutcome
 from daemon.states import FileState
 
@@ -24,17 +23,13 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
-def recognise_edited_output(job: Job) -> ProtectOutcome | None:
-    """UNCHANGED, its row recorded as ppd's output of the original its token names, when the image's
-    pixels are ppd's output of that original; None for anything else (it goes on as a new photo)."""
-    from poisoner.provenance import read_claim
-
+def recognise_edited_output(job: Job, claim: Seal) -> ProtectOutcome | None:
+    """UNCHANGED, its row recorded as ppd's output of the original its token names (claim:
+    poisoner.provenance.read_seal_and_claim's), when the image's pixels are ppd's output of that
+    original; None for anything else (it goes on as a new photo)."""
     assert job.file is not None and job.sha is not None
     ctx = job.ctx
-    if job.kind != "image" or job.out_path is not None:
-        return None
-    claim = read_claim(fd_path(job.file.fd), ctx.seal_key())
-    if claim is None or not ctx.vault.has(claim.original_sha256):
+    if job.kind != "image" or job.out_path is not None or not ctx.vault.has(claim.original_sha256):
         return None
     current = job.data if job.data is not None else read_fd(job.file.fd)
     if not _pixels_are_ppds_output(job, claim, current):

@@ -248,7 +248,7 @@ def recognise(job: Job) -> ProtectOutcome | None:
         if moved and carry_moved_row(ctx, earlier, job.path, job.dataset, job.root):
             return job.outcome(Outcome.UNCHANGED, f"moved from {earlier['path']}", poisoned_sha256=sha)
         return job.outcome(Outcome.UNCHANGED, "already ppd output", poisoned_sha256=sha)
-    if (recognised := _recognise_by_marker(job) or recognise_edited_output(job)) is not None:
+    if (recognised := _recognise_by_marker(job)) is not None:
         return recognised
     if (
         row is not None
@@ -337,13 +337,13 @@ def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
     key over exactly these bytes (poisoner.provenance). A copied, forged, cropped or edited file
     does not verify and goes on as a new photo. When the vault holds the original the seal names,
     the row is written back (so status and restore see it)."""
-    from poisoner.provenance import read_seal
+    from poisoner.provenance import read_seal_and_claim
 
     assert job.file is not None and job.sha is not None
     ctx = job.ctx
-    seal = read_seal(fd_path(job.file.fd), ctx.seal_key())
-    if seal is None:
-        return None
+    seal, claim = read_seal_and_claim(fd_path(job.file.fd), ctx.seal_key())  # one scan of the file
+    if seal is None:  # a token that opens but no longer verifies: ppd's output, edited since?
+        return recognise_edited_output(job, claim) if claim is not None else None
     if job.out_path is None and not job.dry_run and ctx.vault.has(seal.original_sha256):
         ensure_dataset(ctx, job.dataset, job.root, job.wanted_spec)
         ctx.store.record_file(
