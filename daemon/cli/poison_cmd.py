@@ -17,6 +17,7 @@ from daemon.cli.errors import die, file_reason, open_ctx
 from daemon.cli.interrupt import StopOnSignal
 from daemon.cli.options import SpecOptions, spec_options, subject_masks_option, workers_option
 from daemon.cli.output import console, err_console, interactive, print_line, verbosity
+from daemon.protect.job import shown_path
 from daemon.states import FileState
 from poisoner.errors import ExitStatus
 
@@ -137,7 +138,8 @@ def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
         console().print(f"left unprotected (restored by you): {len(left)}; use --force to protect them again")
     for o in outcomes:
         if o.state == "failed":
-            err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
+            said = f"ppd: failed: {shown_path(o.path)}: {file_reason(o.path, o.reason)}"
+            err_console().print(said, markup=False)
 
 
 def summary(
@@ -187,7 +189,8 @@ def interrupted_summary(outcomes: list[ProtectOutcome], total: int, dry_run: boo
     print_line(out, line)
     for o in outcomes:
         if o.state == "failed":
-            err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
+            said = f"ppd: failed: {shown_path(o.path)}: {file_reason(o.path, o.reason)}"
+            err_console().print(said, markup=False)
 
 
 def _print_scene_notes(ctx: AppContext, jobs: list[Job], outcomes: list[ProtectOutcome]) -> None:
@@ -219,7 +222,7 @@ def _say_outcome(progress_console: Any, outcome: ProtectOutcome) -> None:
     place = getattr(outcome.report, "place", None)
     if place is not None and outcome.state in OUTCOME_PATCHED:  # a per-photo mark: where it shows
         why = f" (mark at the {place.words}{'; ' + outcome.reason if outcome.reason else ''})"
-    progress_console.print(f"{outcome_word(outcome)} {outcome.path}{where}{why}", markup=False)
+    progress_console.print(f"{outcome_word(outcome)} {shown_path(outcome.path)}{where}{why}", markup=False)
     for note in verbose_notes(outcome):
         progress_console.print(f"  note: {note}", markup=False)
 

@@ -158,6 +158,13 @@ def shown_name(path: Path) -> str:
     return name if name.isprintable() and storable(path) else repr(name)[1:-1]
 
 
+def shown_path(path: Path) -> str:
+    """path on one line: its name escaped as shown_name escapes it (a name with a newline split the
+    line that named it: a black-box review)."""
+    name = shown_name(path)
+    return str(path) if name == path.name else str(path.parent / name)
+
+
 def media_kind(path: Path) -> str | None:
     """'image', 'video' or None, by suffix."""
     if is_image(path):

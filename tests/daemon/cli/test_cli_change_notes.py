@@ -53,3 +53,14 @@ def test_restore_says_the_published_copies_it_removed(ppd_env: dict[str, Path], 
     assert result.exit_code == 0 and "restored 2" in text, text
     assert "removed 2 published copies from the publish folder" in text
     assert not any((publish / "pubset").iterdir()) and len(list(shoot.iterdir())) == 2
+
+
+def test_a_name_with_a_newline_stays_on_its_line(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd -v poison` printed a name with a newline raw, splitting its line (a black-box review)."""
+    shoot = tmp_path / "d"
+    shoot.mkdir()
+    Image.new("RGB", (200, 150), (9, 99, 199)).save(shoot / "new\nline.png")
+    result = runner.invoke(app, ["-v", "poison", str(shoot)])
+    assert result.exit_code == 0, result.output
+    lines = [x for x in result.output.splitlines() if "line.png" in x]
+    assert len(lines) == 1 and "new\\nline.png" in lines[0] and lines[0].startswith("patched "), lines
