@@ -153,7 +153,9 @@ def summary(
     from daemon.cli.status_queries import protection_line
 
     _print_counts(outcomes, dry_run)
-    if scene_notes():
+    # the scene's hint with the run that patches (or would): a rerun that changes nothing said it
+    # again each time (a black-box review), and judging the scene costs a few photos' decode
+    if scene_notes() and any(o.state in OUTCOME_PATCHED for o in outcomes):
         _print_scene_notes(ctx, jobs, outcomes)
     if dry_run:
         return
