@@ -232,13 +232,25 @@ def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any) -> Non
     typer.echo(json.dumps(payload, indent=2, default=str))
 
 
+def _gone(d: dict[str, Any]) -> bool:
+    """A dataset whose folder is gone and that holds no file now (all its rows removed)."""
+    return not (d.get("folder") or {}).get("exists", True) and not d["counts"].get("files")
+
+
 def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -> None:
     from daemon.cli.status_queries import print_running
 
     if not report:
         console().print(f"no datasets yet; outbox {ctx.paths.outbox}", markup=False)
         return
-    console().print(status_table(report, console().width, ctx.paths.outbox))
+    gone = [] if detailed else [d for d in report if _gone(d)]
+    report = [d for d in report if d not in gone]
+    if report:
+        console().print(status_table(report, console().width, ctx.paths.outbox))
+    if gone:  # a folder renamed or deleted: its old name stayed in the table forever (a black-box review)
+        names = ", ".join(d["name"] for d in gone)
+        print_line(console(), f"not shown: {len(gone)} dataset(s) whose folder is gone and that hold no "
+                              f"file now ({names}); `ppd status NAME` shows one")  # fmt: skip
     if detailed:
         console().print(f"outbox {ctx.paths.outbox}", markup=False)
         for d in report:

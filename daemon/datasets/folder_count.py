@@ -145,7 +145,9 @@ def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int
     """Store.counts() with the folder's files that have no row as "untracked", counted in "files"."""
     merged = dict(counts)
     merged["untracked"] = len(folder.untracked)
-    merged["files"] = int(counts.get("files", 0)) + len(folder.untracked)
+    # a removed file (deleted, moved away) is no longer one of the dataset's: its row is history
+    removed = int(counts.get(FileState.REMOVED.value, 0))
+    merged["files"] = int(counts.get("files", 0)) - removed + len(folder.untracked)
     if folder.changed:  # no longer ppd's output: not counted patched
         merged["changed"] = len(folder.changed)
         merged[FileState.PATCHED.value] = int(counts.get(FileState.PATCHED.value, 0)) - len(folder.changed)

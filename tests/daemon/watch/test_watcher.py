@@ -545,6 +545,17 @@ def test_live_removal_and_folder_rename_are_recorded(ppd_env: dict[str, Path]) -
     assert all(store.file(f)["state"] == "removed" for f in files)
     for name, digest in poisoned.items():
         assert sha(ppd_env["outbox"] / "trip-renamed" / name) == digest
+    # `ppd status`: the old name, its folder gone and its files all elsewhere, leaves the table (it
+    # stayed there as "3 files, nothing patched" for ever: a black-box review) and is named once
+    from typer.testing import CliRunner
+
+    from daemon.cli import app
+
+    output = CliRunner().invoke(app, ["status"]).output
+    rows = [line.split("│")[1].strip() for line in output.splitlines() if line.startswith("│")]
+    assert "trip-renamed" in rows and "trip" not in rows, output
+    said = " ".join(output.split())
+    assert "not shown: 1 dataset(s) whose folder is gone and that hold no file now (trip)" in said
 
 
 def test_bad_files_fail_cleanly_and_the_daemon_keeps_going(ppd_env: dict[str, Path]) -> None:
