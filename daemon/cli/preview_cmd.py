@@ -251,7 +251,7 @@ def _user_file(given: Path) -> Path:
         raise die(exc) from None
 
 
-def _check_protectable(file: Path) -> None:
+def _check_protectable(file: Path, max_pixels: int | None) -> None:
     """One line, exit 2, for what `ppd poison` would not patch (a GIF it skips, a CMYK JPEG it fails):
     a preview of a mark that will never be written is a false promise (a black-box review)."""
     from poisoner.errors import ImageFormatError
@@ -263,7 +263,7 @@ def _check_protectable(file: Path) -> None:
     if not is_image(file.name):
         raise die(f"{file.name}: not a photo or video ppd protects (ppd poison skips it)")
     try:
-        check_writable_image(file, file.name)
+        check_writable_image(file, file.name, max_pixels)
     except ImageFormatError as exc:
         raise die(f"{one_line(exc)}; ppd poison fails this file") from None
 
@@ -326,7 +326,7 @@ def preview(
     ctx = open_ctx()
     try:
         file = _user_file(file) if file.is_file() else _first_file(ctx, file)
-        _check_protectable(file)
+        _check_protectable(file, ctx.config.max_pixels)
         masks = _preview_masks(ctx, file, subject_masks)
         image, original, poisoned, subject, where = _render(ctx, file, spec_options, masks)
         target = (out or Path.cwd() / f"{file.stem}.ppd-preview.png").absolute()

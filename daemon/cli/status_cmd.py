@@ -197,8 +197,8 @@ def next_step_lines(d: dict[str, Any]) -> list[str]:
                      "daemon patches each once complete, or quarantines it if it stays so")  # fmt: skip
     if c.get("changed"):  # another size or time than ppd wrote: an original copied back, an edit
         root = shlex.quote(str(d["root"]))
-        lines.append(f"{name}: {c['changed']} changed since ppd patched them, NOT protected now: "
-                     f"`ppd poison {root}` patches them again")  # fmt: skip
+        lines.append(f"{name}: {c['changed']} changed since ppd patched them (size or time), maybe NOT "
+                     f"protected now: `ppd poison {root}` checks them and patches what needs it")  # fmt: skip
     if d.get("restored_in_place"):  # originals back where they are published: said in the overview
         root = shlex.quote(str(d["root"]))
         lines.append(f"{name}: {d['restored_in_place']} restored by you, NOT protected: "
@@ -230,6 +230,20 @@ def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any) -> Non
         "datasets": report,
     }
     typer.echo(json.dumps(payload, indent=2, default=str))
+
+
+def _print_report(
+    ctx: AppContext, report: list[dict[str, Any]], sync: Any, failed: bool, detailed: bool
+) -> None:
+    if sync is not None:
+        warning(
+            f"the outbox {ctx.paths.outbox} is inside a {sync.client} folder ({sync.root}): "
+            "originals may be uploaded before ppd patches them"
+        )
+    if failed:
+        _print_failed(report)
+    else:
+        _print_text(ctx, report, detailed=detailed)
 
 
 def _gone(d: dict[str, Any]) -> bool:
@@ -303,16 +317,8 @@ def status(
         sync = find_sync_folder(ctx.paths.outbox)
         if as_json:
             _print_json(ctx, report, sync)
-            return
-        if sync is not None:
-            warning(
-                f"the outbox {ctx.paths.outbox} is inside a {sync.client} folder ({sync.root}): "
-                "originals may be uploaded before ppd patches them"
-            )
-        if failed:
-            _print_failed(report)
         else:
-            _print_text(ctx, report, detailed=long or bool(dataset))
+            _print_report(ctx, report, sync, failed, detailed=long or bool(dataset))
     finally:
         ctx.close()
     _exit_if_unready(report, check)

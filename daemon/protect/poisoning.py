@@ -58,12 +58,10 @@ def poison_image_bytes(
 
 def _image_options(src: Path, subject_masks: Path | None, options: dict[str, Any]) -> dict[str, Any]:
     """The image poisoner's options: the subject mask loaded (keep_out), Pillow's limit raised."""
-    from PIL import Image
+    from poisoner.image.read import raise_bomb_limit
 
-    max_pixels = options.get("max_pixels")
-    if max_pixels is not None and (Image.MAX_IMAGE_PIXELS or 0) < max_pixels:
-        # Pillow's own bomb check would refuse what the user's raised [limits] allows.
-        Image.MAX_IMAGE_PIXELS = max_pixels
+    # Pillow's own bomb check would refuse what the user's raised [limits] allows.
+    raise_bomb_limit(options.get("max_pixels"))
     if subject_masks is not None:
         keep_out = load_keep_out(Path(subject_masks), src)
         if keep_out is not None:

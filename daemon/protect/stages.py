@@ -186,7 +186,7 @@ def check_complete(job: Job) -> ProtectOutcome | None:
         )
         # what no writer takes (CMYK JPEG, 16-bit colour TIFF, ...): failed here, not after the
         # vault, and a dry run does not call it "would patch"
-        check_writable_image(through_fd, job.path.name)
+        check_writable_image(through_fd, job.path.name, config.max_pixels)
     return None
 
 

@@ -114,16 +114,25 @@ def format_refusal(im: Image.Image) -> str | None:
     return None
 
 
-def check_writable_image(path: Path, name: str) -> None:
+def check_writable_image(path: Path, name: str, max_pixels: int | None = None) -> None:
     """ImageFormatError (one line naming the file) when the image at path cannot be protected in its
-    own format (format_refusal) or is not an image ppd reads; only its header is read."""
+    own format (format_refusal) or is not an image ppd reads; only its header is read. max_pixels: the
+    user's [limits] (the caller checked the size against it): Pillow's own bomb limit is raised to it,
+    as the poisoner raises it, or a photo the user allowed is refused here."""
     _register_heif()
+    raise_bomb_limit(max_pixels)
     with decode_errors(Path(name)), Image.open(path) as im:
         if (frames := getattr(im, "n_frames", 1)) > 1:
             raise ImageFormatError(f"{name}: {im.format} with {frames} frames/pages is not supported")
         why = format_refusal(im)
     if why is not None:
         raise ImageFormatError(f"{name}: {why}")
+
+
+def raise_bomb_limit(max_pixels: int | None) -> None:
+    """Pillow's decompression-bomb limit raised (never lowered) to the user's [limits] max_pixels."""
+    if max_pixels is not None and (Image.MAX_IMAGE_PIXELS or 0) < max_pixels:
+        Image.MAX_IMAGE_PIXELS = max_pixels
 
 
 def load_decoded(src: Path, im: Image.Image) -> Image.Image:

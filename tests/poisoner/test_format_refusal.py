@@ -56,3 +56,22 @@ def test_what_the_writers_take_passes(tmp_path: Path, name: str, mode: str) -> N
     src = tmp_path / name
     Image.new(mode, (64, 48)).save(src)
     check_writable_image(src, name)  # no error
+
+
+def test_the_header_check_keeps_the_users_raised_pixel_limit(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A 95 MP photo with [limits] max_megapixels = 150 was refused here ("decompression-bomb limit":
+    Pillow's own 89.5 MP, raised only later by the poisoner) and the daemon quarantined it (a diff
+    review). The header check raises Pillow's limit to the user's, as the poisoner does."""
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", Image.MAX_IMAGE_PIXELS)  # restored afterwards
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    big = tmp_path / "big.png"  # the header of a 10000 x 9500 RGB PNG: nothing is decoded here
+    big.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 10000, 9500, 8, 2, 0, 0, 0))
+                    + chunk(b"IDAT", zlib.compress(b"\x00")) + chunk(b"IEND", b""))  # fmt: skip
+    with pytest.raises(ImageFormatError, match="decompression-bomb"):
+        check_writable_image(big, "big.png")  # Pillow's default: over it
+    check_writable_image(big, "big.png", max_pixels=150_000_000)  # the user's: within it

@@ -35,7 +35,7 @@ def test_an_original_copied_back_is_not_counted_patched(ppd_env: dict[str, Path]
     now = counts("dtu")
     assert now["patched"] == 2 and now["changed"] == 1 and now["files"] == 3
     text = " ".join(runner.invoke(app, ["status"]).output.split())
-    assert "dtu: 1 changed since ppd patched them, NOT protected now: `ppd poison" in text, text
+    assert "dtu: 1 changed since ppd patched them (size or time), maybe NOT protected now" in text, text
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0  # patches it again
     assert counts("dtu")["patched"] == 3 and counts("dtu").get("changed", 0) == 0
 
@@ -66,6 +66,7 @@ def test_status_check_gates_publishing(ppd_env: dict[str, Path]) -> None:
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     assert runner.invoke(app, ["status", "set"]).exit_code == 0  # a report
     unverified = runner.invoke(app, ["status", "set", "--check"])
+    assert runner.invoke(app, ["status", "set", "--check", "--json"]).exit_code == 1  # a script's gate too
     assert unverified.exit_code == 1
     assert "not ready to publish: set: patched, not verified" in " ".join(unverified.output.split())
     ctx = AppContext.open()
