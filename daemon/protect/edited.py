@@ -5,14 +5,16 @@ and `ppd restore` could only give back the once-marked file (a black-box review,
 
 A token made with this installation's key names the original and the spec (poisoner.provenance
 read_seal_and_claim). That is a claim: a token can be copied onto another photo. So it is trusted only when
-the file's pixels are exactly those ppd writes from that original with that spec, patched again in
-memory: then the file is ppd's output, recorded as such, and never patched twice."""
+the file codes exactly the picture ppd writes from that original with that spec, patched again in
+memory and compared as coded (JPEG and PNG; no decode, a patch's memory): then the file is ppd's
+output, recorded as such, and never patched twice."""
 
 from __future__ import annotations
 
 import logging
 from typing import TYPE_CHECKING
 
+from daemon.datasets.dataset import ensure_dataset
 from daemon.fsops import read_fd
 from daemon.protect.job import Job, Outcome, ProtectOutcome
 from daemon.states import FileState
@@ -35,6 +37,7 @@ def recognise_edited_output(job: Job, claim: Seal) -> ProtectOutcome | None:
     if not _pixels_are_ppds_output(job, claim, current):
         return None
     if not job.dry_run:
+        ensure_dataset(ctx, job.dataset, job.root, job.wanted_spec)  # a folder ppd has not seen yet
         ctx.store.record_file(
             job.path, job.dataset, FileState.PATCHED, original_sha256=claim.original_sha256,
             poisoned_sha256=job.sha, spec_id=claim.spec_id, tool_version=None,
@@ -48,24 +51,24 @@ def recognise_edited_output(job: Job, claim: Seal) -> ProtectOutcome | None:
 
 
 def _pixels_are_ppds_output(job: Job, claim: Seal, current: bytes) -> bool:
-    """Whether current decodes to exactly the pixels ppd writes from the claimed original with the
-    claimed spec (under this name and the dataset's subject masks, as the poison stage would)."""
-    import numpy as np
-
+    """Whether current codes exactly the picture ppd writes from the claimed original with the
+    claimed spec (under this name and the dataset's subject masks, as the poison stage would),
+    compared as coded, without a decode (poisoner.image.coded: JPEG and PNG; any other format is
+    not recognised and is patched as a new photo, as before)."""
     from daemon.datasets.subject_masks import subject_masks_for
     from daemon.protect.poisoning import poison_image_bytes
     from poisoner.errors import PpdError
-    from poisoner.image.read import open_decoded
+    from poisoner.image.coded import same_coded_picture
 
     ctx = job.ctx
+    if same_coded_picture(current, current) is None:  # a format it cannot compare: not worth a patch
+        return False
     try:
         spec = ctx.store.get_spec(claim.spec_id)
         original = ctx.vault.path_for(claim.original_sha256).read_bytes()
         masks = subject_masks_for(ctx, job.dataset, job.subject_masks)
         expected, _ = poison_image_bytes(job.path, original, spec, masks, max_pixels=ctx.config.max_pixels)
-        with open_decoded(job.path, expected) as want, open_decoded(job.path, current) as have:
-            same = want.size == have.size and want.mode == have.mode
-            return same and np.array_equal(np.asarray(want), np.asarray(have))
     except (PpdError, OSError, ValueError) as exc:  # no spec, unreadable: not recognised, patched as new
         log.info("ppd token: output not checked", extra={"path": str(job.path), "error": str(exc)})
         return False
+    return same_coded_picture(expected, current) is True

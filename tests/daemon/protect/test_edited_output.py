@@ -85,3 +85,20 @@ def test_a_token_copied_onto_another_photo_is_not_trusted(ppd_env: dict[str, Pat
         assert other.read_bytes() != before
     finally:
         ctx.close()
+
+
+def test_an_edited_output_copied_into_a_new_folder_is_recognised_there(ppd_env: dict[str, Path]) -> None:
+    """A diff review: in a folder ppd had not seen, recording it failed ('FOREIGN KEY constraint
+    failed': no dataset row yet) and the file was reported failed."""
+    photo = write_image(ppd_env["outbox"] / "a" / "p.jpg", seed=9)
+    ctx = AppContext.open()
+    try:
+        assert protect_file(photo, ctx).state == "patched"
+        copy = ppd_env["outbox"] / "newds" / "p.jpg"
+        copy.parent.mkdir()
+        copy.write_bytes(with_comment(photo.read_bytes(), b"rated 5 stars"))
+        outcome = protect_file(copy, ctx)
+        assert outcome.state == "unchanged", outcome.reason
+        assert ctx.store.file(copy)["state"] == FileState.PATCHED
+    finally:
+        ctx.close()
