@@ -23,6 +23,7 @@ import json
 import logging
 import os
 import sqlite3
+import stat
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -64,29 +65,50 @@ def quarantine(ctx: AppContext, path: Path, dataset: str | None, reason: str) ->
     finally:
         os.close(anchor)
     try:
-        if (joined := _join_fragment(ctx, path, src_dir, rel.name, dataset)) is not None:
+        is_link = stat.S_ISLNK(os.lstat(rel.name, dir_fd=src_dir).st_mode)
+        if not is_link and (joined := _join_fragment(ctx, path, src_dir, rel.name, dataset)) is not None:
             return joined
         target_dir = quarantine_dir(ctx) / folder_rel
         make_dirs_private(target_dir)  # 0700 whatever the umask: it holds unprotected originals
         target = _free_name(target_dir / rel.name)
-        try:
-            os.link(rel.name, target, src_dir_fd=src_dir, follow_symlinks=False)  # never over a file
-            os.unlink(rel.name, dir_fd=src_dir)
-        except OSError as exc:
-            if exc.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK, errno.ENOTSUP):
-                if exc.errno == errno.ENOENT:
-                    return None
-                raise
-            move_out(src_dir, rel.name, target)
+        if is_link:  # the link made again there, its target never opened (any filesystem)
+            _move_link(src_dir, rel.name, path.parent, target)
+        else:
+            _move_file(src_dir, rel.name, target)
+    except FileNotFoundError:
+        return None
     finally:
         os.close(src_dir)
+    _record_quarantined(ctx, path, dataset, target, reason)
+    return target
+
+
+def _move_link(src_dir: int, name: str, folder: Path, target: Path) -> None:
+    """A symlink moved as a link: the same target, made absolute (a relative one would point
+    elsewhere from the quarantine folder); rename does not cross filesystems, link() then fails too."""
+    text = os.readlink(name, dir_fd=src_dir)
+    os.symlink(text if os.path.isabs(text) else os.path.normpath(folder / text), target)
+    os.unlink(name, dir_fd=src_dir)
+
+
+def _move_file(src_dir: int, name: str, target: Path) -> None:
+    try:
+        os.link(name, target, src_dir_fd=src_dir, follow_symlinks=False)  # never over a file
+        os.unlink(name, dir_fd=src_dir)
+    except OSError as exc:
+        if exc.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK, errno.ENOTSUP):
+            raise
+        move_out(src_dir, name, target)
+
+
+def _record_quarantined(ctx: AppContext, path: Path, dataset: str | None, target: Path, reason: str) -> None:
+    """The quarantined file readable by its owner only, its row and event (after the move)."""
     _owner_only(target)
     try:  # the move is what protects; a failing store must not undo it
-
         name = dataset or DEFAULT_DATASET
-        ensure_dataset(ctx, name, dataset_root(outbox, name), None)
+        ensure_dataset(ctx, name, dataset_root(Path(ctx.paths.outbox).absolute(), name), None)
         ctx.store.record_file(
-            path, dataset or DEFAULT_DATASET, FileState.QUARANTINED, error=reason, event="quarantined",
+            path, name, FileState.QUARANTINED, error=reason, event="quarantined",
             detail={"to": str(target), "reason": reason},
         )  # fmt: skip
     except Exception as exc:
@@ -95,7 +117,6 @@ def quarantine(ctx: AppContext, path: Path, dataset: str | None, reason: str) ->
         "quarantined %s: %s (moved to %s)", path.name, reason, target,
         extra={"path": str(path), "to": str(target), "reason": reason},
     )  # fmt: skip
-    return target
 
 
 def _join_fragment(ctx: AppContext, path: Path, src_dir: int, name: str, dataset: str | None) -> Path | None:
