@@ -249,6 +249,7 @@ def run_jobs(
     from daemon.protect.pool import protect_many
 
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    said_before = stop._on_stop if stop is not None else None  # said again once the bar is gone
     with Progress(*columns, console=err_console(), transient=True, disable=not interactive()) as progress:
         task = progress.add_task("patching", total=len(jobs))
         if stop is not None and interactive():  # the bar says why it waits: the files in progress finish
@@ -267,6 +268,8 @@ def run_jobs(
             force=force, dry_run=dry_run, spec=wanted, on_outcome=finished, subject_masks=subject_masks,
             stop=stop,
         )  # fmt: skip
+    if stop is not None:
+        stop._on_stop = said_before
     return sorted(outcomes, key=lambda o: str(o.path))
 
 

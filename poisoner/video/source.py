@@ -72,7 +72,7 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
 
 # x264 ("x264 - core 164 ... options: ... crf=20.0 ...") and x265 ("x265 (build 199) - ... crf=28.0")
 # write their settings as text in an SEI message of the stream's first frame.
-_ENCODER_SETTINGS = re.compile(rb"(?:x264 - core|x265 \(build)[^\x00]{0,4000}?[ :]crf=(\d+(?:\.\d+)?)")
+_ENCODER_SETTINGS = re.compile(rb"(?:x264 - core|x265 \(build)[^\x00]{0,16000}?[ :]crf=(\d+(?:\.\d+)?)")
 
 
 def _refuse_over_budget(name: str, width: int, height: int, max_pixels: int | None) -> None:
@@ -81,19 +81,23 @@ def _refuse_over_budget(name: str, width: int, height: int, max_pixels: int | No
         raise VideoFormatError(refusal)
 
 
+def _recorded_crf(data: bytes) -> float | None:
+    found = _ENCODER_SETTINGS.search(data)
+    return float(found.group(1)) if found else None
+
+
 def _first_frame(
     container: av.container.InputContainer, stream: av.video.stream.VideoStream, name: str
 ) -> tuple[av.VideoFrame, float | None]:
-    """The first decoded frame, and the CRF x264 or x265 recorded in the stream's first packet (its
-    settings SEI), or None."""
-    crf: float | None = None
-    first_packet = True
+    """The first decoded frame, and the CRF x264 or x265 recorded in the stream (its settings SEI: in
+    the codec's extradata or the first packet), or None."""
+    crf = _recorded_crf(bytes(stream.codec_context.extradata or b""))  # x265 in MP4: the hvcC's SEI
+    first_packet = crf is None
     try:
         for packet in container.demux(stream):
             if first_packet and packet.size:
                 first_packet = False
-                found = _ENCODER_SETTINGS.search(bytes(packet)[:65536])
-                crf = float(found.group(1)) if found else None
+                crf = _recorded_crf(bytes(packet)[:65536])
             for frame in packet.decode():
                 return cast(av.VideoFrame, frame), crf
     except av.error.FFmpegError as exc:

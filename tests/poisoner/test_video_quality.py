@@ -52,3 +52,15 @@ def test_a_low_bit_rate_no_longer_means_a_coarse_encode() -> None:
 def test_a_vp9_source_has_no_recorded_crf(tmp_path: Path) -> None:
     src = make_clip(tmp_path / "clip.webm", Clip(suffix=".webm", encoder="libvpx-vp9", frames=6, audio=None))
     assert probe(src).encoded_crf is None
+
+
+def test_an_x265_sources_crf_is_read_from_its_extradata(tmp_path: Path) -> None:
+    """x265 in MP4 writes its settings in the hvcC's SEI (the codec's extradata), not in the first packet."""
+    import av
+
+    if "libx265" not in av.codecs_available:
+        pytest.skip("this PyAV build has no libx265")
+    options = (("crf", "24"), ("x265-params", "log-level=error"))
+    src = make_clip(tmp_path / "clip.mp4", Clip(encoder="libx265", frames=6, audio=None, options=options))
+    info = probe(src)
+    assert info.codec == "hevc" and info.encoded_crf == 24.0
