@@ -308,9 +308,12 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
             return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
         if row.get("from_marker"):  # the store had lost it: the dataset row comes back with it
             ensure_dataset(ctx, dataset, dataset_root(ctx.paths.outbox, dataset), None)
+        # the restored file's size and time: the daemon's catch-up scan leaves it alone while they hold
+        # (it judged every restored file again at each start, one "restored by the user" line each)
+        signature = _size_and_time(target) if target is not None else {}
         ctx.store.record_file(
             path, dataset, FileState.RESTORED, original_sha256=row["original_sha256"], published_path=None,
-            event="restored",
+            event="restored", **signature,
             detail={"to": str(target) if target else None, "sha256": row["original_sha256"], "note": reason},
         )  # fmt: skip
     return ProtectOutcome(
@@ -329,6 +332,14 @@ def _copy_outside_the_source(ctx: AppContext, row: dict[str, Any]) -> Path | Non
     if dataset is not None and not Path(row["path"]).is_relative_to(Path(dataset["root"])):
         return Path(row["path"])
     return None
+
+
+def _size_and_time(path: Path) -> dict[str, Any]:
+    try:
+        st = os.stat(path, follow_symlinks=False)
+    except OSError:
+        return {}
+    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
 
 
 FROM_PUBLISH_FOLDER = "from the publish folder"  # the reason's words `ppd restore` counts

@@ -578,8 +578,11 @@ def is_no_space(reason: str | None) -> bool:
 
 
 def _row_matches_disk(row: dict[str, Any], path: Path) -> bool:
-    """A patched row whose recorded size and mtime are the file's: nothing to do."""
-    if row["state"] != FileState.PATCHED or row.get("published_path") or row.get("size") is None:
+    """A patched row, or a restored one (the user's restore stands), whose recorded size and mtime
+    are the file's: nothing to do."""
+    if row["state"] not in (FileState.PATCHED, FileState.RESTORED):
+        return False
+    if row.get("published_path") or row.get("size") is None:
         return False
     try:
         st = path.stat()

@@ -874,3 +874,24 @@ def test_a_photo_named_symlink_leaves_the_outbox_its_target_untouched(ppd_env: d
     assert sha(outside) == before and outside.stat().st_mode == mode
     row = store_of(ppd_env).file(ds / "link.png")
     assert row["state"] == FileState.QUARANTINED and "symlink" in row["error"]
+
+
+def test_a_restored_file_is_left_alone_at_start_until_it_changes(ppd_env: dict[str, Path]) -> None:
+    """Every daemon start judged each restored file again, one "unchanged ... restored by the user"
+    line each (58 at one start in a black-box review). Restore now records the file's size and time,
+    and the catch-up scan leaves it alone while they hold; a new version written over it is patched."""
+    from daemon.protect.one_file import protect_file, restore_file
+
+    photo = write_image(ppd_env["outbox"] / "kept" / "a.png", seed=3)
+    ctx = AppContext.open(AppPaths.from_env())
+    try:
+        assert protect_file(photo, ctx).state == "patched"
+        assert restore_file(ctx, photo).state == "restored"
+    finally:
+        ctx.close()
+    with running(ppd_env) as daemon:
+        wait_idle(daemon)
+        assert daemon.counts.unchanged == 0 and daemon.counts.patched == 0  # not judged again
+        staged = write_image(ppd_env["outbox"].parent / "stage" / "a.png", seed=4)
+        os.replace(staged, photo)  # a new version over the restored file
+        wait_for(lambda: daemon.counts.patched >= 1, 30, "the new version patched")
