@@ -15,6 +15,8 @@ the zoom row is always taken from the full-resolution arrays, so the pattern's b
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -83,11 +85,14 @@ def render_preview(
     max_width: int = 1600,
     labels: tuple[str, str] | None = None,
     subject: np.ndarray | None = None,
+    squares: Sequence[tuple[int, int, int, int]] = (),
 ) -> np.ndarray:
     """Original | poisoned side by side, with a nearest-neighbour zoom of the patch region below;
     with labels, each panel gets its caption in a strip above it. subject (H x W, nonzero = the
     subject, the keep_out the poisoned picture was made with): its edge is drawn on the zooms, so
-    a viewer sees the mark stop at it."""
+    a viewer sees the mark stop at it. squares: the mark's squares where they went to places of their
+    own (MarkPlace.squares): each outlined and zoomed on its own row (their common box can be most of
+    the picture, no zoom at all: a black-box review)."""
     a, b = to_rgb8(original), to_rgb8(poisoned)
     if a.shape != b.shape:
         raise ValueError(f"original {a.shape} and poisoned {b.shape} differ in size")
@@ -95,38 +100,44 @@ def render_preview(
         raise ValueError(f"subject mask {subject.shape[:2]} does not match the picture {a.shape[:2]}")
     h, w = a.shape[:2]
     step = max(1, -(-(2 * w + GAP) // max_width))  # subsample so both panels fit max_width
-    x0, y0, x1, y1 = placement.box
-    small_box = (x0 // step, y0 // step, -(-x1 // step), -(-y1 // step))
+    boxes = list(squares) or [placement.box]
     panels = []
     for img in (a, b):
         small = img[::step, ::step].copy()
-        _outline(small, small_box)
+        for x0, y0, x1, y1 in boxes:
+            _outline(small, (x0 // step, y0 // step, -(-x1 // step), -(-y1 // step)))
         panels.append(small)
-    top = _hstack(panels[0], panels[1])
-
-    zx0, zy0, zx1, zy1 = zoom_box(placement, w, h)
+    rows = [_hstack(panels[0], panels[1])]
     # Each zoom is exactly as wide as the panel above it (nearest neighbour, so the blocks stay
     # sharp): the zooms fill the bottom row instead of leaving part of the canvas empty.
     panel_width = panels[0].shape[1]
-    zoom_size = (panel_width, max(1, round(panel_width * (zy1 - zy0) / max(1, zx1 - zx0))))
-    crops = [img[zy0:zy1, zx0:zx1].copy() for img in (a, b)]
-    if subject is not None:
-        edge = _mask_edge(subject[zy0:zy1, zx0:zx1] > 0)
-        for crop in crops:
-            crop[edge] = SUBJECT_EDGE
-    zooms = [_nearest(crop, zoom_size) for crop in crops]
-    bottom = _hstack(zooms[0], zooms[1])
-    width = max(top.shape[1], bottom.shape[1])
-    out = np.full((top.shape[0] + GAP + bottom.shape[0], width, 3), BACKGROUND, dtype=np.uint8)
-    out[: top.shape[0], : top.shape[1]] = top
-    out[top.shape[0] + GAP :, : bottom.shape[1]] = bottom
+    for box in boxes:
+        side = box[2] - box[0]
+        zx0, zy0, zx1, zy1 = zoom_box(dataclasses.replace(placement, x=box[0], y=box[1], size=side), w, h)
+        zoom_size = (panel_width, max(1, round(panel_width * (zy1 - zy0) / max(1, zx1 - zx0))))
+        crops = [img[zy0:zy1, zx0:zx1].copy() for img in (a, b)]
+        if subject is not None:
+            edge = _mask_edge(subject[zy0:zy1, zx0:zx1] > 0)
+            for crop in crops:
+                crop[edge] = SUBJECT_EDGE
+        zooms = [_nearest(crop, zoom_size) for crop in crops]
+        rows.append(_hstack(zooms[0], zooms[1]))
+    width = max(r.shape[1] for r in rows)
+    height = sum(r.shape[0] for r in rows) + GAP * (len(rows) - 1)
+    out = np.full((height, width, 3), BACKGROUND, dtype=np.uint8)
+    tops, y = [], 0
+    for r in rows:
+        out[y : y + r.shape[0], : r.shape[1]] = r
+        tops.append(y)
+        y += r.shape[0] + GAP
     if labels is None:
         return out
     left, right = labels
-    panel = panels[0].shape[1] + GAP
+    panel = panel_width + GAP
     out = _caption(out, [(0, left), (panel, right)])
-    zoom_row = LABEL_HEIGHT + top.shape[0] + GAP
-    _write(out, zoom_row, [(0, "zoom on the patch"), (zooms[0].shape[1] + GAP, "zoom on the patch")])
+    for k, top in enumerate(tops[1:]):
+        said = "zoom on the patch" if len(boxes) == 1 else f"zoom on square {k + 1}"
+        _write(out, LABEL_HEIGHT + top, [(0, said), (panel, said)])
     return out
 
 

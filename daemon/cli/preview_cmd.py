@@ -205,7 +205,8 @@ def _render(
         shown = shown_placement(placement, place, orientation, w, h)
         original, poisoned = orient(original, orientation), orient(poisoned, orientation)
         subject = None if keep_out is None else _oriented(keep_out, orientation)
-        picture = render_preview(original, poisoned, shown, labels=labels, subject=subject)
+        squares = getattr(place, "squares", ()) or ()  # split squares: each outlined and zoomed
+        picture = render_preview(original, poisoned, shown, labels=labels, subject=subject, squares=squares)
         return picture, original, poisoned, subject, where
     except (SpecError, ValueError, ImageFormatError) as exc:
         raise die(one_line(exc)) from None

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -140,3 +142,22 @@ def test_subject_edge_is_drawn_on_the_zooms() -> None:
     assert (zoom_right[20 * scale, dx * scale] == original[zy0 + 20, 140]).all()
     with pytest.raises(ValueError, match="subject mask"):
         render_preview(original, poisoned, placement, subject=subject[:10])
+
+
+def test_split_squares_are_outlined_and_zoomed_each() -> None:
+    """Squares that went to places of their own: their common box was outlined and 'zoomed' (most of
+    the picture: no zoom at all; a black-box review). Each square now gets its outline and its row."""
+    original = scene()
+    placement = PatchSpec(patch_size=40, block_size=4, position="center").resolve(300, 200)
+    squares = [(10, 10, 30, 30), (250, 160, 270, 180)]
+    out = render_preview(original, original, placement, squares=squares)
+    left = out[:200, :300]
+    for x0, y0, _, _ in squares:
+        assert (left[y0, x0 + 5] == [255, 0, 0]).all()  # outlined
+    assert not (left[placement.y, placement.x + 5] == [255, 0, 0]).all()  # not the common box
+    rows = 1 + len(squares)
+    first = zoom_box(dataclasses.replace(placement, x=10, y=10, size=20), 300, 200)
+    zoom_height = round(300 * (first[3] - first[1]) / (first[2] - first[0]))
+    assert out.shape[0] >= 200 + (rows - 1) * (zoom_height + GAP) - GAP
+    # the first zoom row shows the first square's region, enlarged
+    np.testing.assert_array_equal(out[200 + GAP, 0], original[first[1], first[0]])
