@@ -31,12 +31,12 @@ def recognise_edited_output(job: Job, claim: Seal) -> ProtectOutcome | None:
     original; None for anything else (it goes on as a new photo)."""
     assert job.file is not None and job.sha is not None
     ctx = job.ctx
-    if job.kind != "image" or job.out_path is not None or not ctx.vault.has(claim.original_sha256):
+    if job.kind != "image" or not ctx.vault.has(claim.original_sha256):
         return None
     current = job.data if job.data is not None else read_fd(job.file.fd)
     if not _pixels_are_ppds_output(job, claim, current):
         return None
-    if not job.dry_run:
+    if not job.dry_run and job.out_path is None:  # --out: left as ppd's sealed output is (no copy, no row)
         ensure_dataset(ctx, job.dataset, job.root, job.wanted_spec)  # a folder ppd has not seen yet
         ctx.store.record_file(
             job.path, job.dataset, FileState.PATCHED, original_sha256=claim.original_sha256,

@@ -102,3 +102,20 @@ def test_an_edited_output_copied_into_a_new_folder_is_recognised_there(ppd_env: 
         assert ctx.store.file(copy)["state"] == FileState.PATCHED
     finally:
         ctx.close()
+
+
+def test_an_edited_output_given_to_out_is_not_marked_again(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """With --out, an edited output was patched again into the copy (a second mark) and kept in the
+    vault as an "original" (a diff review); it is left as ppd's sealed output is."""
+    photo = write_image(ppd_env["outbox"] / "k" / "b.jpg", seed=11)
+    ctx = AppContext.open()
+    try:
+        assert protect_file(photo, ctx).state == "patched"
+        edited = with_comment(photo.read_bytes(), b"keywords")
+        replace(photo, edited)
+        out = tmp_path / "out" / "b.jpg"
+        outcome = protect_file(photo, ctx, out_path=out)
+        assert outcome.state == "unchanged", outcome.reason
+        assert not ctx.vault.has(hashlib.sha256(edited).hexdigest())
+    finally:
+        ctx.close()
