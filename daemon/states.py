@@ -60,6 +60,10 @@ def patched_count(store_counts: Mapping[str, int]) -> int:
     return sum(int(store_counts.get(value, 0)) for value in PATCHED_VALUES)
 
 
+# Folder counts (daemon.datasets.folder_count) of files a verification did not measure.
+UNVERIFIED_FILES = ("changed", "untracked", "waiting")
+
+
 def dataset_protection(
     store_counts: Mapping[str, int], latest_runs_by_profile: Mapping[str, Mapping[str, Any]]
 ) -> tuple[Protection, list[str]]:
@@ -76,12 +80,18 @@ def dataset_protection(
     verdicts = headline({p: str(run.get("verdict") or "") for p, run in latest_runs_by_profile.items()})
     if not verdicts:
         return Protection.PATCHED_NOT_VERIFIED, []
+    # files the verification never saw: changed since patched, new, still being written (the folder's
+    # counts, daemon.datasets.folder_count): a verdict that holds is not today's (a black-box review:
+    # an original copied back still read "protected"); one that does not hold still warns
+    unseen = any(int(store_counts.get(k, 0)) for k in UNVERIFIED_FILES)
     for verdict, protection in (
         (_VERDICT_NOT_PROTECTED, Protection.NOT_PROTECTED),
         (_VERDICT_WEAK, Protection.WEAK),
         (_VERDICT_PROTECTED, Protection.PROTECTED),
     ):
         profiles = sorted(p for p, v in verdicts.items() if v == verdict)
+        if profiles and unseen and protection in (Protection.PROTECTED, Protection.WEAK):
+            return Protection.PATCHED_NOT_VERIFIED, []
         if profiles:
             return protection, profiles
     return Protection.UNVERIFIABLE, sorted(verdicts)

@@ -128,11 +128,14 @@ def dataset_history_report(
     pairs: Sequence[tuple[Path, Path]],
     spec: Any | None,
     unverified_note: str,
+    current: Sequence[Mapping[str, Any]] | None = None,
 ) -> ReportData:
     """A dataset's verification history (Store rows, newest first, with their model folders) and a
     patch preview from its first (original, patched) image pair. protection is the dataset's state
-    in the user's words; unverified_note is said when there is no run at all."""
-    latest = latest_run_group(runs)
+    in the user's words; unverified_note is said when there is no run at all. current: the rows the
+    verdict and the profile table rest on (the newest of each profile that measured today's pixels);
+    default, the newest verification's rows."""
+    latest = latest_run_group(runs) if current is None else list(current)
     profiles = {r["profile"]: {**(r.get("metrics") or {}), "verdict": r["verdict"],
                                "model_dir": r.get("model_dir")} for r in latest}  # fmt: skip
     data = ReportData(title=title, verdict=headline_verdict(_verdicts(profiles)) if latest else None)

@@ -12,7 +12,6 @@ from verifier.verdict import Verdict
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
-    from daemon.datasets.folder_count import FolderCount
     from poisoner.spec import PatchSpec
 
 
@@ -106,35 +105,11 @@ def _last_verification(latest: dict[str, Any] | None) -> dict[str, Any] | None:
     }
 
 
-def mask_folders(ctx: AppContext, name: str) -> list[Path]:
-    """The dataset's subject-mask folders (its config's, the one its corner was chosen with):
-    masks are never patched, so they are not files of the dataset."""
-    from daemon.datasets.subject_masks import latest_choice, masks_or_none
-
-    folders = [masks_or_none(ctx, name)]
-    used = (latest_choice(ctx, name) or {}).get("subject_masks")
-    folders.append(Path(used) if used else None)
-    return [f for f in folders if f is not None]
-
-
-def folder_count(ctx: AppContext, name: str, root: str) -> FolderCount:
-    """The dataset's folder next to its rows (daemon.datasets.folder_count), without the files
-    that are other datasets' (a dataset nested in its folder, the outbox's, another's row)."""
-    from daemon.datasets.folder_count import count_folder, owned_elsewhere
-
-    folder = Path(root)
-    roots = [Path(d["root"]) for d in ctx.store.datasets() if d["name"] != name]
-    theirs = [r["path"] for r in ctx.store.files_under(folder, not_of=name)]
-    skip, foreign = owned_elsewhere(folder, roots, theirs, outbox=ctx.paths.outbox)
-    masks = mask_folders(ctx, name)
-    return count_folder(folder, ctx.store.files(name), skip=[*masks, *skip], foreign=foreign)
-
-
 def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     """Everything `ppd status NAME --json` says about one dataset. Its counts are the rows' and
     the folder's: files no row mentions (a run stopped half-way) are "untracked" and counted in
     "files"; "resume" says what finishes the dataset."""
-    from daemon.datasets.folder_count import not_patched_yet, resume_command, with_folder
+    from daemon.datasets.folder_count import current_counts, dataset_folder, not_patched_yet, resume_command
     from daemon.protect.mark_notes import mark_note_lines
     from daemon.states import patched_count
     from daemon.verification.auto_mode import status_text as auto_status_text  # light: no torch, no pycolmap
@@ -146,11 +121,8 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     spec = ctx.store.get_spec(row["spec_id"]) if row["spec_id"] else None
     runs = ctx.store.verification_runs(name, limit=50)
     regression = regression_of(runs)
-    folder = folder_count(ctx, name, row["root"])
-    counts = with_folder(ctx.store.counts(name), folder)
-    if waiting := waiting_for_writer(ctx, name):  # skipped for now, not by the spec's ratio
-        counts["waiting"] = waiting
-        counts["skipped"] = counts.get("skipped", 0) - waiting
+    folder = dataset_folder(ctx, name, row["root"])
+    counts = current_counts(ctx, name, folder)
     # only runs that measured the pixels as they are now make the verdict (issue 25); runs before
     # the last change stay in the history
     verdicts = latest_by_profile(ctx.store.current_verification_runs(name, limit=50))
@@ -184,15 +156,6 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
             "finished_at": regression["finished_at"],
         },
     }
-
-
-def waiting_for_writer(ctx: AppContext, name: str) -> int:
-    """Files the daemon is waiting for (incomplete, their writer may go on): skipped rows for now,
-    which `ppd status` showed as 'skipped', the spec's ratio's word, with no hint (a black-box review)."""
-    from daemon.states import WAITING_PREFIX, FileState
-
-    rows = ctx.store.files(name, state=FileState.SKIPPED)
-    return sum(str(r.get("error") or "").startswith(WAITING_PREFIX) for r in rows)
 
 
 def restored_in_place(ctx: AppContext, name: str, root: str) -> int:

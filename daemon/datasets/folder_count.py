@@ -18,11 +18,14 @@ import shlex
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from daemon.states import PATCHED_VALUES, FileState, patched_count
+from daemon.states import PATCHED_VALUES, WAITING_PREFIX, FileState, patched_count
 from poisoner.atomic import TEMP_PREFIX
 from poisoner.media import is_media
+
+if TYPE_CHECKING:
+    from daemon.context import AppContext
 
 # A row in one of these states stands for a file that still needs `ppd poison`: it was never
 # finished (pending: the run stopped between the vault and the provenance row).
@@ -178,3 +181,38 @@ def resume_line(counts: Mapping[str, int], command: str) -> str | None:
         return None
     done = f"patched {patched_count(counts)} of {counts.get('files', 0)}"
     return f"{done}; {left} not patched yet: run `{command}`"
+
+
+def mask_folders(ctx: AppContext, name: str) -> list[Path]:
+    """The dataset's subject-mask folders (its config's, the one its corner was chosen with):
+    masks are never patched, so they are not files of the dataset."""
+    from daemon.datasets.subject_masks import latest_choice, masks_or_none
+
+    folders = [masks_or_none(ctx, name)]
+    used = (latest_choice(ctx, name) or {}).get("subject_masks")
+    folders.append(Path(used) if used else None)
+    return [f for f in folders if f is not None]
+
+
+def dataset_folder(ctx: AppContext, name: str, root: str) -> FolderCount:
+    """The dataset's folder next to its rows, without the files that are other datasets' (a dataset
+    nested in its folder, the outbox's, another's row)."""
+    folder = Path(root)
+    roots = [Path(d["root"]) for d in ctx.store.datasets() if d["name"] != name]
+    theirs = [r["path"] for r in ctx.store.files_under(folder, not_of=name)]
+    skip, foreign = owned_elsewhere(folder, roots, theirs, outbox=ctx.paths.outbox)
+    masks = mask_folders(ctx, name)
+    return count_folder(folder, ctx.store.files(name), skip=[*masks, *skip], foreign=foreign)
+
+
+def current_counts(ctx: AppContext, name: str, folder: FolderCount) -> dict[str, int]:
+    """The dataset's counts as its folder is now: the store's rows, the folder's files no row mentions
+    ("untracked"), files changed since ppd patched them, files the daemon waits for ("waiting", not
+    "skipped"). What `ppd status` and `ppd report` both judge protection on."""
+    counts = with_folder(ctx.store.counts(name), folder)
+    skipped = ctx.store.files(name, state=FileState.SKIPPED)
+    waiting = sum(str(r.get("error") or "").startswith(WAITING_PREFIX) for r in skipped)
+    if waiting:  # skipped for now, not by the spec's ratio
+        counts["waiting"] = waiting
+        counts["skipped"] = counts.get("skipped", 0) - waiting
+    return counts

@@ -11,11 +11,11 @@ when a report is built.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from daemon.datasets.subject_masks import choice_text, latest_choice
 from daemon.protect.one_file import dataset_pairs
-from daemon.states import dataset_protection, next_step, protection_text
+from daemon.states import Protection, dataset_protection, next_step, protection_text
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -30,16 +30,25 @@ def report_path(paths: AppPaths, dataset: str) -> Path:
 
 def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> ReportData:
     """A daemon dataset: latest verification per profile, its history, models, and a patch preview."""
+    from daemon.datasets.folder_count import current_counts, dataset_folder
     from verifier.html_report import ReportError, dataset_history_report, latest_run_group
 
-    if ctx.store.dataset(dataset) is None:
+    row = ctx.store.dataset(dataset)
+    if row is None:
         raise ReportError(f"no dataset {dataset!r} (see `ppd status`)")
     runs = ctx.store.verification_runs(dataset, limit=history)
     latest = latest_run_group(runs)
-    current = {r["id"] for r in ctx.store.current_verification_runs(dataset, limit=history)}
-    # the headline rests on runs that measured today's pixels (issue 25); older ones are history
-    verdicts = {r["profile"]: r for r in latest if r["id"] in current}
-    state, under = dataset_protection(ctx.store.counts(dataset), verdicts)
+    # The headline rests on the newest run of each profile that measured today's pixels (issue 25),
+    # as `ppd status` judges it: the newest run alone let a default pass hide a masked failure
+    # measured minutes before on the same pixels (a black-box review: "Verdict: PROTECTED" where
+    # status said NOT protected). Older runs are history.
+    verdicts: dict[str, dict[str, Any]] = {}
+    for r in ctx.store.current_verification_runs(dataset, limit=history):  # newest first
+        verdicts.setdefault(r["profile"], r)
+    # and on the folder as it is now: files changed since patched, new, or being written were not
+    # measured (daemon.states.dataset_protection)
+    counts = current_counts(ctx, dataset, dataset_folder(ctx, dataset, row["root"]))
+    state, under = dataset_protection(counts, verdicts)
     step = next_step(state, dataset)
     data = dataset_history_report(
         f"ppd report — dataset {dataset}",
@@ -48,7 +57,12 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
         dataset_pairs(ctx, dataset),
         ctx.store.dataset_spec(dataset),
         f"Dataset {dataset!r} has never been verified: run `ppd verify {dataset}`.",
+        current=list(verdicts.values()),
     )
+    if verdicts and state is Protection.PATCHED_NOT_VERIFIED:  # verified, then files changed or came
+        data.verdict, data.holding = None, None
+        data.notes.insert(0, "Files changed, were added or are being written since the last verification: "
+                          "its verdict is history, not today's.")  # fmt: skip
     if latest and not verdicts:  # the banner says today's state ("patched, not verified"), not an old verdict
         data.verdict, data.holding = None, None
         data.notes.insert(0, "The latest verification measured earlier pixels (files were patched or "
