@@ -120,10 +120,10 @@ def verify(
     ),
     dataset: str | None = dataset_option("Verify this dataset (explicit form)."),
     folder: Path | None = folder_option("Verify this folder (explicit form)."),
-    profile: str = typer.Option(
-        "all", "--profile", "-p",
+    profile: list[str] = typer.Option(
+        ["all"], "--profile", "-p",
         help="Attacker profile: default, hardened, published, global (COLMAP's global mapper), "
-        "masked (corners masked out) or all.",
+        "masked (corners masked out) or all; repeat it for several.",
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the verdict and every metric as JSON."),
     clean: Path | None = typer.Option(
@@ -166,9 +166,11 @@ def verify(
     from verifier.verification import PROFILES, VerificationInputError
 
     console = Console(stderr=as_json, soft_wrap=True, highlight=False)
-    if profile not in PROFILE_CHOICES:
-        raise die(f"--profile must be one of {', '.join(PROFILE_CHOICES)}", ExitStatus.USAGE)
-    profiles = PROFILES if profile == "all" else (profile,)
+    for one in profile:
+        if one not in PROFILE_CHOICES:
+            raise die(f"--profile must be one of {', '.join(PROFILE_CHOICES)}", ExitStatus.USAGE)
+    # several -p: every one given, in the usual order (only the last was run: a black-box review)
+    profiles = PROFILES if "all" in profile else tuple(p for p in PROFILES if p in profile)
     options = _options(timeout, ground_truth, splat, splat_budget, white_background, subject_masks, seeds)
     try:
         if clean is not None:

@@ -9,6 +9,7 @@ import os
 import shutil
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from daemon.cli import app
@@ -80,3 +81,22 @@ def test_status_check_gates_publishing(ppd_env: dict[str, Path]) -> None:
     (shoot / "v2.jpg").write_bytes(b"\xff\xd8 not really")  # a file not patched yet
     late = runner.invoke(app, ["status", "set", "--check"])
     assert late.exit_code == 1 and "1 not patched yet" in " ".join(late.output.split()), late.output
+
+
+def test_verify_takes_every_profile_given(ppd_env: dict[str, Path], monkeypatch: pytest.MonkeyPatch) -> None:
+    """`ppd verify X -p masked -p default` ran only the last (a black-box review): every one given is
+    now read, each checked (a bad one refused even when another follows it). What reaches the
+    verification is captured (the COLMAP runs themselves are other tests')."""
+    from daemon.cli import verify_cmd
+
+    bad_first = runner.invoke(app, ["verify", "nosuch", "-p", "bogus", "-p", "default"])
+    assert bad_first.exit_code == 2 and "--profile must be one of" in " ".join(bad_first.output.split())
+    seen: list[tuple[str, ...]] = []
+
+    def capture(*args: object) -> None:
+        seen.append(args[3])  # type: ignore[arg-type]
+        raise SystemExit(0)
+
+    monkeypatch.setattr(verify_cmd, "_verify_stored", capture)
+    runner.invoke(app, ["verify", "set", "-p", "masked", "-p", "default"])
+    assert seen == [("default", "masked")]
