@@ -100,3 +100,30 @@ def test_verify_takes_every_profile_given(ppd_env: dict[str, Path], monkeypatch:
     monkeypatch.setattr(verify_cmd, "_verify_stored", capture)
     runner.invoke(app, ["verify", "set", "-p", "masked", "-p", "default"])
     assert seen == [("default", "masked")]
+
+
+def test_verify_says_the_files_it_did_not_measure(
+    ppd_env: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A black-box review: with 5 of 10 photos restored, `ppd verify` said "protected", exit 0, and
+    nothing of the 5 originals it had left out. The line after a verification says them."""
+    from daemon.cli.verify_cmd import _say_left_out
+    from daemon.protect.one_file import AppContext, restore_file
+
+    shoot = ppd_env["outbox"] / "half"
+    for i in range(4):
+        write_image(shoot / f"v{i}.png", seed=i)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    ctx = AppContext.open()
+    try:
+        _say_left_out(ctx, "half")
+        assert capsys.readouterr().err == ""  # every file measured: nothing to say
+        for i in (0, 2):
+            assert restore_file(ctx, shoot / f"v{i}.png").state == "restored"
+        _say_left_out(ctx, "half")
+    finally:
+        ctx.close()
+    said = " ".join(capsys.readouterr().err.split())
+    assert (
+        "not verified, and NOT protected: 2 restored by you (only the 2 patched files were measured)" in said
+    )
