@@ -39,6 +39,15 @@ def lower_priority() -> None:
         pass
 
 
+def logs_to_stderr() -> None:
+    """COLMAP's glog writes a log file per process into $TMPDIR (`.vm.<user>.log.INFO.<date>.<pid>`:
+    hundreds after a few verifications, never removed: a black-box review); to stderr instead, which
+    is this child's log in its run folder (verifier.supervise)."""
+    import pycolmap
+
+    pycolmap.logging.logtostderr = True
+
+
 def main() -> int:
     lower_priority()
     import msgspec
@@ -52,6 +61,7 @@ def main() -> int:
         print(f"bad SfM job: {exc}", file=sys.stderr)
         return 2
     result: SfmResult
+    logs_to_stderr()
     try:
         result = execute_job(job)
     except Exception as exc:  # any error becomes a result the parent can record

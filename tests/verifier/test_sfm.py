@@ -162,10 +162,14 @@ def test_result_from_the_child_is_checked(tmp_path: Path) -> None:
 
 
 @pytest.mark.integration
-def test_clean_sfm_recovers_synthetic_cameras(tmp_path: Path) -> None:
+def test_clean_sfm_recovers_synthetic_cameras(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     options = SyntheticOptions(num_views=10)
     gt = render_scene(tmp_path / "img", options)
+    scratch = tmp_path / "tmp"  # the child's $TMPDIR: COLMAP's glog left a log file a process there
+    scratch.mkdir()
+    monkeypatch.setenv("TMPDIR", str(scratch))
     result = run_sfm_job(job_in(tmp_path), timeout_s=300)
+    assert not [p.name for p in scratch.iterdir() if ".log." in p.name]  # its logs go to the child's log
     assert result["outcome"] == "ok", result.get("error")
     assert result["registered"] == 10
     assert result["model_sizes"][0] == 10  # COLMAP may add a small overlapping second model
