@@ -101,7 +101,7 @@ def verify_dataset(
     pairs = dataset_pairs(ctx, dataset)
     if len(pairs) < 3:
         raise VerificationInputError(
-            f"dataset {dataset!r} has {len(pairs)} protected file(s); SfM needs at least 3"
+            f"dataset {dataset!r} has {len(pairs)} patched file(s); SfM needs at least 3 to verify"
         )
     runs_root = Path(ctx.paths.runs_dir)
     run_dir = runs_root / dataset / new_run_id()
