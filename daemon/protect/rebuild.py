@@ -86,8 +86,10 @@ class RebuildReport:
             notes.append(f"{len(self.specs_missing)} spec(s) not recovered")
         if self.conflicts:
             notes.append(f"{len(self.conflicts)} duplicate(s) skipped")
-        if self.unreferenced_originals:
-            notes.append(f"{self.unreferenced_originals} vault original(s) no file names")
+        if self.unreferenced_originals:  # photos patched in folders it did not walk (a black-box review:
+            # "0 patched file(s)" and nothing said of how to find them)
+            notes.append(f"{self.unreferenced_originals} vault original(s) no file names: give the "
+                         "folders patched outside the outbox, `ppd store rebuild FOLDER ...`")  # fmt: skip
         if notes:
             text += f" ({'; '.join(notes)})"
         if self.kept_aside:

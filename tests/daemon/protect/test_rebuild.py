@@ -165,6 +165,9 @@ def test_symlinks_are_not_followed_and_orphans_are_counted(world: World, tmp_pat
     assert report.without_original == [unknown]
     assert report.recorded == 5 and "trip" not in report.datasets
     assert report.unreferenced_originals == 2  # trip's e.jpg and the one behind the symlink
+    # and the line says how to find them (a black-box review: "0 patched file(s)", nothing more)
+    assert "2 vault original(s) no file names: give the folders patched outside the outbox, " \
+        "`ppd store rebuild FOLDER ...`" in report.summary()
     store = Store(world.paths.db_path)
     assert store.file(world.paths.outbox / "shoot" / "link.png") is None
     assert not [r for r in store.files("linked-folder")]
