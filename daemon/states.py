@@ -7,7 +7,7 @@ question that only a verification verdict answers. "Protected" is never said of 
 from __future__ import annotations
 
 import shlex
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from enum import StrEnum
 from typing import Any
 
@@ -58,6 +58,15 @@ def state_word(state: str) -> str:
 def patched_count(store_counts: Mapping[str, int]) -> int:
     """Files whose mark is in place, from Store.counts()."""
     return sum(int(store_counts.get(value, 0)) for value in PATCHED_VALUES)
+
+
+def newest_per_profile(runs: Iterable[Mapping[str, Any]]) -> dict[str, Mapping[str, Any]]:
+    """The newest run of each profile (runs newest first, as the store lists them): what a verdict
+    rests on. The newest run alone would hide a masked failure behind a later default pass."""
+    newest: dict[str, Mapping[str, Any]] = {}
+    for run in runs:
+        newest.setdefault(run["profile"], run)
+    return newest
 
 
 # Folder counts (daemon.datasets.folder_count) of files a verification did not measure.

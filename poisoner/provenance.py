@@ -290,16 +290,12 @@ def read_seal(path: Path, key: bytes | None) -> Seal | None:
     return read_seal_and_claim(path, key)[0]
 
 
-def read_claim(path: Path, key: bytes | None) -> Seal | None:
-    """What a token made with this key says (the original and spec ppd patched from), whether or not
-    the file's bytes are still those it sealed: a claim, not proof. Someone can copy a token onto
-    another photo; the caller checks the pixels before trusting it (daemon.protect.edited)."""
-    return read_seal_and_claim(path, key)[1]
-
-
 def read_seal_and_claim(path: Path, key: bytes | None) -> tuple[Seal | None, Seal | None]:
-    """(read_seal, read_claim) from one scan of the file: the protect stages ask both of every new
-    file, and a file without a token is read once (1.5 ms of a 12 MP JPEG)."""
+    """(read_seal, the claim) from one scan of the file. The claim: what the first token made with this
+    key says (the original and spec ppd patched from), whether or not the file's bytes are still those
+    it sealed: not proof, a token can be copied onto another photo; the caller checks the picture
+    before trusting it (daemon.protect.edited). The protect stages ask both of every new file, and a
+    file without a token is read once (1.5 ms of a 12 MP JPEG)."""
     if not key:
         return None, None
     try:

@@ -327,16 +327,10 @@ def status(
 def unready_reasons(d: dict[str, Any]) -> list[str]:
     """Why a dataset is not ready to publish: files left unprotected, or a verdict other than
     'protected' (patched, not verified included: only a verification says it holds)."""
+    from daemon.cli.status_queries import unprotected_files
     from daemon.states import Protection
 
-    c = d["counts"]
-    words = {
-        "failed": "failed", "quarantined": "quarantined", "waiting": "still being written",
-        "changed": "changed since patched", "untracked": "not patched yet", "pending": "not finished",
-    }  # fmt: skip
-    reasons = [f"{c[k]} {w}" for k, w in words.items() if c.get(k, 0) > 0]
-    if d.get("restored_in_place"):
-        reasons.append(f"{d['restored_in_place']} restored by you")
+    reasons = unprotected_files(d)
     if d["protection"]["state"] != Protection.PROTECTED:
         reasons.append(d["protection"]["text"])
     return reasons

@@ -54,20 +54,18 @@ def regression_of(runs: list[dict[str, Any]]) -> dict[str, Any] | None:
 
 
 def latest_by_profile(runs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """The newest verdict of each profile, with the number it rests on. One newest row would
-    hide a hardened failure behind a default pass (or the reverse)."""
-    latest: dict[str, dict[str, Any]] = {}
-    for run in runs:  # newest first
-        if run["profile"] in latest:
-            continue
-        vs_clean = (run.get("metrics") or {}).get("vs_clean") or {}
-        latest[run["profile"]] = {
+    """The newest verdict of each profile (daemon.states.newest_per_profile), with the number it rests on."""
+    from daemon.states import newest_per_profile
+
+    return {
+        profile: {
             "verdict": run["verdict"],
-            "frac_within_5deg": vs_clean.get("frac_within_5deg"),
+            "frac_within_5deg": ((run.get("metrics") or {}).get("vs_clean") or {}).get("frac_within_5deg"),
             "finished_at": run["finished_at"],
             "error": run["error"],
         }
-    return latest
+        for profile, run in newest_per_profile(runs).items()
+    }
 
 
 def protection_line(ctx: AppContext, name: str) -> str:
@@ -156,6 +154,23 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
             "finished_at": regression["finished_at"],
         },
     }
+
+
+# How `ppd status --check` and `ppd verify` name the files of a dataset that are not protected.
+UNPROTECTED_WORDS = {
+    "failed": "failed", "quarantined": "quarantined", "waiting": "still being written",
+    "changed": "changed since patched", "untracked": "not patched yet", "pending": "not finished",
+}  # fmt: skip
+
+
+def unprotected_files(d: dict[str, Any]) -> list[str]:
+    """`2 failed`, `5 restored by you`, ...: the files of a dataset_status report that carry no mark
+    (or no longer the one ppd wrote), one phrase per kind."""
+    c = d["counts"]
+    said = [f"{c[k]} {w}" for k, w in UNPROTECTED_WORDS.items() if c.get(k, 0) > 0]
+    if d.get("restored_in_place"):
+        said.append(f"{d['restored_in_place']} restored by you")
+    return said
 
 
 def restored_in_place(ctx: AppContext, name: str, root: str) -> int:

@@ -102,16 +102,10 @@ def _say_left_out(ctx: Any, dataset: str) -> None:
     patched files only, and a restored or failed photo published beside them is not protected (a
     black-box review: "protected" with exit 0 and nothing said of 5 restored originals)."""
     from daemon.cli.output import err_console
-    from daemon.cli.status_queries import dataset_status
+    from daemon.cli.status_queries import dataset_status, unprotected_files
 
     d = dataset_status(ctx, dataset)
-    c = d["counts"]
-    words = {"failed": "failed", "quarantined": "quarantined", "untracked": "not patched yet",
-             "changed": "changed since patched", "waiting": "still being written"}  # fmt: skip
-    left = [f"{c[k]} {w}" for k, w in words.items() if c.get(k, 0)]
-    if d.get("restored_in_place"):
-        left.append(f"{d['restored_in_place']} restored by you")
-    if left:
+    if left := unprotected_files(d):
         err_console().print(f"not verified, and NOT protected: {', '.join(left)} (only the {d['patched']} "
                             "patched files were measured); `ppd status --failed` and `ppd poison` say more",
                             markup=False, highlight=False)  # fmt: skip

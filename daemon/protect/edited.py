@@ -58,10 +58,10 @@ def _pixels_are_ppds_output(job: Job, claim: Seal, current: bytes) -> bool:
     from daemon.datasets.subject_masks import subject_masks_for
     from daemon.protect.poisoning import poison_image_bytes
     from poisoner.errors import PpdError
-    from poisoner.image.coded import same_coded_picture
+    from poisoner.image.coded import comparable, same_coded_picture
 
     ctx = job.ctx
-    if same_coded_picture(current, current) is None:  # a format it cannot compare: not worth a patch
+    if not comparable(current):  # a format it cannot compare: not worth a patch
         return False
     try:
         spec = ctx.store.get_spec(claim.spec_id)

@@ -214,7 +214,10 @@ class Vault:
         times: the original's (atime, mtime) in ns, which restore gives back."""
         if self._already_kept(self.path_for(sha256), len(data)):
             return sha256
-        fill = lambda tmp_fd: ("bytes", _write_blob(tmp_fd, data, sha256))  # noqa: E731
+
+        def fill(tmp_fd: int) -> tuple[str, str]:
+            return "bytes", _write_blob(tmp_fd, data, sha256)
+
         return self._keep(len(data), fill, sha256, times)
 
     def _keep(

@@ -11,11 +11,11 @@ when a report is built.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from daemon.datasets.subject_masks import choice_text, latest_choice
 from daemon.protect.one_file import dataset_pairs
-from daemon.states import Protection, dataset_protection, next_step, protection_text
+from daemon.states import Protection, dataset_protection, newest_per_profile, next_step, protection_text
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -42,9 +42,7 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
     # as `ppd status` judges it: the newest run alone let a default pass hide a masked failure
     # measured minutes before on the same pixels (a black-box review: "Verdict: PROTECTED" where
     # status said NOT protected). Older runs are history.
-    verdicts: dict[str, dict[str, Any]] = {}
-    for r in ctx.store.current_verification_runs(dataset, limit=history):  # newest first
-        verdicts.setdefault(r["profile"], r)
+    verdicts = newest_per_profile(ctx.store.current_verification_runs(dataset, limit=history))
     # and on the folder as it is now: files changed since patched, new, or being written were not
     # measured (daemon.states.dataset_protection)
     counts = current_counts(ctx, dataset, dataset_folder(ctx, dataset, row["root"]))

@@ -14,6 +14,11 @@ _JPEG_PICTURE = frozenset({*range(0xC0, 0xD0), 0xDB, 0xDD, 0xEE}) - {0xC8}
 _PNG_PICTURE = frozenset({b"IHDR", b"PLTE", b"tRNS", b"IDAT"})
 
 
+def comparable(data: bytes) -> bool:
+    """Whether same_coded_picture can compare a file of this format (JPEG, PNG)."""
+    return data[:2] == b"\xff\xd8" or data.startswith(PNG_SIGNATURE)
+
+
 def same_coded_picture(a: bytes, b: bytes) -> bool | None:
     """True when a and b code the same picture (JPEG or PNG, compared as coded), False when they do
     not, None when neither comparison applies (another format, or a header that does not parse)."""
