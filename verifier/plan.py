@@ -9,6 +9,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -143,6 +144,8 @@ class ProfilePlan:
 
 def prepare_run(clean_dir: Path, poisoned_dir: Path, out_dir: Path, options: VerifyOptions) -> VerifyRun:
     names = check_inputs(clean_dir, poisoned_dir)
+    if options.cancel is None:  # what a Ctrl-C sets to end the running SfM children (run_profiles)
+        options = dataclasses.replace(options, cancel=threading.Event())
     matching = options.matching
     if matching == "auto":
         matching = "sequential" if looks_like_video_frames(names) else "exhaustive"

@@ -213,9 +213,16 @@ def _run_profiles(profile_list: Sequence[str], run: VerifyRun) -> dict[str, Prof
     with ThreadPoolExecutor(workers, thread_name_prefix="ppd-verify") as pool:
         sides = {(p, side): pool.submit(_run_planned_side, plans[p], side, run)
                  for p, side in side_order(profile_list, run.options.seeds)}  # fmt: skip
-        for p in _profiles_as_done(sides):
-            poisoned = [sides[(p, side)].result() for side in poisoned_sides(run.options.seeds)]
-            reports[p] = _decide_profile(plans[p], sides[(p, "clean")].result(), poisoned, run)
+        try:
+            for p in _profiles_as_done(sides):
+                poisoned = [sides[(p, side)].result() for side in poisoned_sides(run.options.seeds)]
+                reports[p] = _decide_profile(plans[p], sides[(p, "clean")].result(), poisoned, run)
+        except BaseException:  # Ctrl-C: the pool's exit waited for every side still to run (16-41 s)
+            for future in sides.values():
+                future.cancel()
+            if run.options.cancel is not None:  # the running children are ended within a second
+                run.options.cancel.set()
+            raise
     return {p: reports[p] for p in profile_list}  # in the order asked
 
 

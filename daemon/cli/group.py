@@ -67,6 +67,15 @@ def tidy_help(command: Any) -> None:
 class PpdGroup(TyperGroup):
     """typer's group with click's errors (usage, missing files) in ppd's one-line style."""
 
+    def invoke(self, ctx: Any) -> Any:
+        # typer turns a KeyboardInterrupt inside a command into a silent Exit(130): a Ctrl-C'd
+        # `ppd verify` ended with nothing said. The line is said here, where the command ended.
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt:
+            sys.stderr.write("ppd: interrupted\n")
+            raise typer.Exit(ExitStatus.INTERRUPTED) from None
+
     def main(
         self,
         args: Sequence[str] | None = None,

@@ -112,6 +112,9 @@ def verify_dataset(
             matching = stage_pairs(pairs, images / "clean", images / "poisoned")
             opts = dataclasses.replace(options, matching=matching if matching != "auto" else options.matching)
             report = verify_folders(images / "clean", images / "poisoned", run_dir, profiles, opts)
+        except BaseException:  # a run with no report (Ctrl-C, a failure) leaves no folder of ppd's
+            shutil.rmtree(run_dir, ignore_errors=True)
+            raise
         finally:
             shutil.rmtree(images, ignore_errors=True)
         # verify_folders wrote run_dir/report.json (what `ppd report RUN_DIR` reads)
