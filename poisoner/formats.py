@@ -389,6 +389,8 @@ def poison_bytes(
             f"{src.name}: the subject mask reaches every 8x8 block of the mark, no pixel would change: "
             "not patched"
         )
+    if fmt == "JPEG" and jpeg_file.same_coded_picture(data, out):  # a mark too faint (--alpha 0.001)
+        raise MarkNotWritten(f"{src.name}: the mark is too faint to change any pixel of it: not patched")
     notes += [n for n in [kept_out_note(placement, keep)] if n]
     notes += _file_notes(src, im, fmt, removed)
     trailer = jpeg_file.trailer_bytes(data) if fmt == "JPEG" else 0

@@ -60,3 +60,16 @@ def trailer_bytes(data: bytes) -> int:
     """How many bytes follow the JPEG's picture (its first EOI): no JPEG path of ppd's writes them."""
     end = jpeg_end(data)
     return 0 if end is None else len(data) - end
+
+
+def same_coded_picture(before: bytes, after: bytes) -> bool:
+    """Whether two JPEGs hold the very same scans from their first SOS on (their headers may differ:
+    ppd's marker, location removed): the mark changed no pixel. A header that cannot be read: False."""
+    from poisoner.location import MetadataParseError, jpeg_header_segments
+
+    try:
+        _, start_before = jpeg_header_segments(before)
+        _, start_after = jpeg_header_segments(after)
+    except MetadataParseError:
+        return False
+    return before[start_before:] == after[start_after:]

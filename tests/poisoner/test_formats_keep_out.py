@@ -374,6 +374,21 @@ def test_a_mark_that_matches_the_photo_is_a_failure_not_a_patched_file(
     assert (np.asarray(Image.open(dst)) != 128).any() and report.written > 0
 
 
+def test_a_jpeg_whose_mark_changes_no_coefficient_is_a_failure_not_a_patched_file(tmp_path: Path) -> None:
+    """A black-box review: `ppd poison --alpha 0.001` on a JPEG said "patched" with the coded picture
+    byte for byte the source's (a PNG already failed). The splice's scan is compared with the source's."""
+    from poisoner.errors import MarkNotWritten
+    from poisoner.ladder import default_spec
+
+    src, dst = tmp_path / "white.jpg", tmp_path / "out.jpg"
+    Image.new("RGB", (640, 480), (255, 255, 255)).save(src, quality=90)
+    with pytest.raises(MarkNotWritten, match="too faint to change any pixel"):
+        poison_file(src, dst, default_spec().replace(alpha=0.001))
+    assert not dst.exists()
+    report = poison_file(src, dst, default_spec())  # the default's alpha: it shows
+    assert (np.asarray(Image.open(dst)) != np.asarray(Image.open(src))).any() and report.written > 0
+
+
 def test_changes_a_pixel_is_false_only_where_the_mark_is_already_there() -> None:
     """The check behind the failure above: a photo that already holds the mark's exact pixels in the
     square's box changes nowhere; the photo itself does, and a mask over the changed pixels hides it."""
