@@ -110,7 +110,9 @@ def attribute(
     holders = [d for d in ctx.store.datasets() if home.is_relative_to(Path(d["root"]).absolute())]
     if holders:  # a folder whose files a dataset above it already holds is that dataset's (castle/day2)
         holding = {r["dataset"] for r in ctx.store.files_under(home)}  # not any folder below a dataset's
-        holders = [d for d in holders if d["name"] in holding]  # root: one photo's ~/Desktop is no shoot
+        # root: one photo's ~/Desktop is no shoot. A dataset's own root is its own, rows or none (--out
+        # keeps its rows with the copies: `ppd preview` of an original there ignored its remembered masks)
+        holders = [d for d in holders if d["name"] in holding or Path(d["root"]).absolute() == home]
     if holders:
         row = max(holders, key=lambda d: len(Path(d["root"]).absolute().parts))  # the innermost
         return row["name"], Path(row["root"])

@@ -87,3 +87,22 @@ def test_verify_and_report_accept_the_patched_folder(shoot: Path, tmp_path: Path
     assert "dataset 'castle'" in report.output and (tmp_path / "r.html").is_file()
     explicit = runner.invoke(app, ["report", "--dataset", "castle", "--out", str(tmp_path / "e.html")])
     assert explicit.exit_code == 0, explicit.output
+
+
+def test_the_originals_of_a_dataset_patched_with_out_are_that_datasets(ppd_env: dict[str, Path],
+                                                                     tmp_path: Path) -> None:  # fmt: skip
+    """`ppd poison shoot --dataset crop --subject-masks masks --out pub`: the dataset's root is shoot,
+    its rows the copies. A black-box review: `ppd preview shoot/x.png` took shoot for a new dataset
+    and drew the mark on the subject its remembered masks keep it off."""
+    from testkit.photos import masked_shoot
+
+    images, masks = tmp_path / "shoot", tmp_path / "masks"
+    masked_shoot(images, masks, n=3)
+    pub = str(tmp_path / "pub")
+    args = ["poison", str(images), "--dataset", "crop", "--subject-masks", str(masks), "--out", pub]
+    assert runner.invoke(app, args).exit_code == 0
+    result = runner.invoke(app, ["preview", str(images / "000001.png"), "--out", str(tmp_path / "p.png")])
+    assert result.exit_code == 0, result.output
+    assert "from the subject mask" in " ".join(result.output.split()), result.output
+    again = runner.invoke(app, ["poison", str(images), "--out", pub])  # no name: the same dataset
+    assert again.exit_code == 0 and "crop" in again.output and "shoot:" not in again.output, again.output
