@@ -197,6 +197,30 @@ def missing_mask_lines(jobs: list[Job], done: set[Path], masks: dict[str, Path |
     return lines
 
 
+def turned_mask_lines(outcomes: list[Any], masks: dict[str, Path | None]) -> list[str]:
+    """One line per mask folder used on photos shown turned (EXIF orientation other than 1): their
+    masks are read in the stored pixels, as COLMAP reads the photos. A mask drawn on such a photo as
+    shown is refused where its shape differs (a portrait shot), and silently upside down where it does
+    not (orientation 3: a black-box review found the mark on the subject, called patched)."""
+    from poisoner.subject import mask_path
+
+    turned: dict[Path, list[tuple[str, int]]] = {}
+    for o in outcomes:
+        folder, place = masks.get(o.dataset or ""), getattr(getattr(o, "report", None), "place", None)
+        if folder is None or place is None or place.orientation == 1 or o.state != "patched":
+            continue
+        if mask_path(folder, o.path.name) is not None:
+            turned.setdefault(folder, []).append((o.path.name, place.orientation))
+    lines = []
+    for folder, names in sorted(turned.items()):
+        (first, orientation), s = names[0], "" if len(names) == 1 else "s"
+        more = "" if len(names) == 1 else ", ..."
+        lines.append(f"{len(names)} photo{s} shown turned ({first}: EXIF orientation {orientation}{more}): "
+                     f"their masks in {folder} were read in the files' stored pixels, as COLMAP reads them; "
+                     "a mask drawn on the photo as shown must be turned back first")  # fmt: skip
+    return lines
+
+
 def capped_lines(outcomes: list[Any], wanted: dict[str, PatchSpec], options: SpecOptions) -> list[str]:
     """One line per dataset whose asked --patch-size the visibility budget capped (the lanes' squares
     together change at most poisoner.spec.LANES_MAX_AREA of a picture): said, never silent."""

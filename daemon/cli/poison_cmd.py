@@ -376,7 +376,8 @@ def _run_planned(
     summary(ctx, jobs, outcomes, dry_run, scene_notes=lambda: not stop())  # a Ctrl-C there skips the notes
     done = {o.path for o in outcomes if o.state in OUTCOME_PATCHED}
     capped = planning.capped_lines(outcomes, wanted, spec_options)
-    for line in planning.missing_mask_lines(jobs, done, masks) + capped:
+    turned = planning.turned_mask_lines(outcomes, masks)
+    for line in planning.missing_mask_lines(jobs, done, masks) + turned + capped:
         console().print(line, markup=False)
     if any(o.state == "failed" for o in outcomes):
         raise typer.Exit(ExitStatus.FAILED)

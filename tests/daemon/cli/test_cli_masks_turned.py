@@ -1,0 +1,49 @@
+"""Subject masks are read in a photo's stored pixels (as COLMAP reads it). On a photo shown turned
+whose mask has the same shape either way (EXIF orientation 2-4: upside down, mirrored) a mask drawn
+as the photo is shown is silently wrong: a black-box review found the mark on the subject, called
+patched. `ppd poison` says, once per mask folder, which photos that concerns."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+from typer.testing import CliRunner
+
+from daemon.cli import app
+
+runner = CliRunner()
+
+
+def _shoot(folder: Path, masks: Path, orientations: list[int]) -> None:
+    folder.mkdir()
+    masks.mkdir()
+    rng = np.random.default_rng(0)
+    for i, o in enumerate(orientations):
+        pixels = np.full((240, 320, 3), 200, dtype=np.uint8)
+        pixels[:100] = rng.integers(0, 256, (100, 320, 3))
+        exif = Image.Exif()
+        exif[0x0112] = o
+        Image.fromarray(pixels).save(folder / f"v{i}.jpg", quality=95, exif=exif.tobytes())
+        mask = np.zeros((240, 320), dtype=np.uint8)
+        mask[:100] = 255
+        Image.fromarray(mask).save(masks / f"v{i}.png")
+
+
+def test_poison_says_which_masked_photos_are_shown_turned(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    _shoot(tmp_path / "shoot", tmp_path / "masks", [1, 3, 1, 3])
+    masks = ["--subject-masks", str(tmp_path / "masks")]
+    result = runner.invoke(app, ["poison", str(tmp_path / "shoot"), *masks])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert "2 photos shown turned (v1.jpg: EXIF orientation 3, ...): their masks in" in text, text
+    assert "stored pixels" in text
+
+
+def test_no_such_line_when_every_masked_photo_is_upright(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    _shoot(tmp_path / "shoot", tmp_path / "masks", [1, 1, 1])
+    masks = ["--subject-masks", str(tmp_path / "masks")]
+    result = runner.invoke(app, ["poison", str(tmp_path / "shoot"), *masks])
+    assert result.exit_code == 0, result.output
+    assert "shown turned" not in result.output
