@@ -116,9 +116,11 @@ def _check_same_shape(path: Path, mask: tuple[int, int], image: tuple[int, int])
     mask drawn on a phone photo's turned view (EXIF orientation) is its transpose, and stretching it
     would put the subject elsewhere."""
     if abs(mask[0] * image[1] - mask[1] * image[0]) > 0.02 * mask[0] * image[1]:
+        turned = abs(mask[0] * image[0] - mask[1] * image[1]) <= 0.02 * mask[0] * image[0]
+        why = " (drawn on a turned view?); masks are in the file's stored pixels" if turned else ""
         raise ImageFormatError(
             f"{path.name}: the mask is {mask[0]}x{mask[1]}, the image {image[0]}x{image[1]}: not the same "
-            "shape (drawn on a turned view?); masks are in the file's stored pixels"
+            f"shape{why}"
         )
 
 
