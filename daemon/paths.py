@@ -22,10 +22,17 @@ from pathlib import Path
 import platformdirs
 
 from daemon.platform import mounts_of_device
+from poisoner.errors import ExitStatus, PpdError
 
 APP_NAME = "ppd"
 DEFAULT_OUTBOX_NAME = "PPD Outbox"
 PRIVATE_MODE = 0o700  # the vault holds unpoisoned originals: nobody else may read them
+
+
+class DataPlaceError(PpdError):
+    """ppd's data folder is somewhere the vault's originals would be published or mixed with photos."""
+
+    exit_status = ExitStatus.ENVIRONMENT
 
 
 @dataclass(frozen=True)
@@ -66,12 +73,34 @@ class AppPaths:
         """Create every folder: data, vault and runs private (0700, tightened if looser); the
         config and cache folders 0700 when ppd creates them, whatever the umask (an existing one
         keeps its mode: the user's choice). The outbox is the user's visible folder: created
-        under the umask, as `mkdir -p` would."""
+        under the umask, as `mkdir -p` would. A data folder where the vault's originals would be
+        published, or that is a photo or holds photos, is refused before anything is made (a
+        black-box review: PPD_DATA_DIR in the outbox put the originals there; on a photo, made it 0700)."""
+        if why := self.data_dir_problem():
+            raise DataPlaceError(f"the data folder {self.data_dir} (PPD_DATA_DIR) cannot hold the vault of "
+                                 f"originals: {why}")  # fmt: skip
         for private in (self.data_dir, self.vault_dir, self.runs_dir):
             make_private_dir(private)
         for folder in (self.config_dir, self.cache_dir):
             make_dirs_private(folder)
         self.outbox.mkdir(parents=True, exist_ok=True)
+
+
+    def data_dir_problem(self) -> str | None:
+        """Why the data folder cannot hold the vault, in words; None when it can."""
+        data, outbox = self.data_dir.resolve(), self.outbox.resolve()
+        if data.is_relative_to(outbox):
+            return f"inside the outbox {self.outbox}, whose files are published"
+        if data.exists() and not data.is_dir():
+            return "not a folder"
+        if data.is_dir():
+            from poisoner.media import is_media
+
+            with os.scandir(data) as entries:
+                photo = next((e.name for e in entries if e.is_file() and is_media(Path(e.name))), None)
+            if photo is not None:
+                return f"it holds photos or videos ({photo}): not a folder of ppd's own"
+        return None
 
 
 def make_dirs_private(folder: Path) -> None:

@@ -1,0 +1,65 @@
+"""ppd's data folder holds the vault of originals: it is refused (one line, exit 3, nothing made or
+changed) where they would be published or mixed with photos. A black-box review: PPD_DATA_DIR inside
+the outbox put the originals there; set to a dataset's folder it made that folder 0700; set to a
+photo, it made the photo 0700 and then failed."""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from daemon.paths import AppPaths
+from poisoner.errors import PpdError
+
+runner = CliRunner()
+
+
+def _paths(tmp_path: Path, data: Path) -> AppPaths:
+    env = {"PPD_DATA_DIR": str(data), "PPD_CONFIG_DIR": str(tmp_path / "config"),
+           "PPD_OUTBOX": str(tmp_path / "outbox"), "PPD_CACHE_DIR": str(tmp_path / "cache")}  # fmt: skip
+    return AppPaths.from_env(env)
+
+
+def _shoot(tmp_path: Path) -> Path:
+    shoot = tmp_path / "shoot"
+    shoot.mkdir()
+    Image.new("RGB", (64, 48), (90, 90, 90)).save(shoot / "a.jpg")
+    return shoot
+
+
+@pytest.mark.parametrize("where", ["outbox", "photos", "photo"])
+def test_a_data_folder_where_originals_would_be_published_is_refused(tmp_path: Path, where: str) -> None:
+    shoot = _shoot(tmp_path)
+    data = {"outbox": tmp_path / "outbox" / "data", "photos": shoot, "photo": shoot / "a.jpg"}[where]
+    before = {p: os.stat(p).st_mode for p in (shoot, shoot / "a.jpg")}
+    paths = _paths(tmp_path, data)
+    with pytest.raises(PpdError, match="cannot hold the vault of originals"):
+        paths.ensure()
+    assert {p: os.stat(p).st_mode for p in before} == before  # nothing made private
+    assert not (tmp_path / "outbox" / "data").exists() and not (shoot / "vault").exists()
+
+
+def test_the_command_says_it_in_one_line_with_exit_3(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    shoot = _shoot(tmp_path)
+    places = {"PPD_DATA_DIR": shoot, "PPD_CONFIG_DIR": tmp_path / "config", "PPD_OUTBOX": tmp_path / "outbox",
+              "PPD_CACHE_DIR": tmp_path / "cache"}  # fmt: skip
+    for var, value in places.items():
+        monkeypatch.setenv(var, str(value))
+    result = runner.invoke(app, ["poison", str(shoot)])
+    assert result.exit_code == 3, result.output
+    assert "holds photos or videos (a.jpg)" in " ".join(result.output.split())
+    assert stat.S_IMODE(os.stat(shoot).st_mode) != 0o700
+
+
+def test_a_data_folder_of_ppds_own_is_kept(tmp_path: Path) -> None:
+    paths = _paths(tmp_path, tmp_path / "data")
+    paths.ensure()
+    (tmp_path / "data" / "ppd.sqlite3").write_bytes(b"")
+    paths.ensure()  # its own files are no photos
+    assert paths.vault_dir.is_dir()
