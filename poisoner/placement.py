@@ -63,6 +63,7 @@ class Spot:
     free: bool
     plain: bool = True  # plain with the margin (False: the fallback without it, or nowhere plain)
     doubtful: bool = False  # plain, but its faint share is above FAINT_DOUBT (round 7)
+    cornered: bool = False  # reaches into a corner region (what the masked attacker removes)
 
 
 def _axis(lo: int, hi: int, preferred: int, stride: int) -> np.ndarray:
@@ -113,6 +114,27 @@ def _in_corners(
     return hit.astype(np.int64)
 
 
+def _anchor_range(lo: int, hi: int, side: int, reach: bool) -> tuple[int, int]:
+    """The anchors on one axis of a mark covering lo..hi relative to its anchor, in a frame `side` px
+    long. The anchor is where the mark's path starts, so by default never left of or above the frame;
+    with reach it may be, as far as this photo's squares, slid along the path, stay inside (a plain
+    strip at the left edge narrower than the slide: 15 of 24 such photos failed or went on the
+    subject, none at the right edge; only where the frame holds no better place: place_on_photo)."""
+    return (-lo if reach else max(0, -lo), side - hi)
+
+
+def _better(reached: Spot, spot: Spot) -> bool:
+    """Whether a place found with reach beats one found without it: freer of the subject, else off
+    the corner regions where the other is not, else plain where the other is not (a plain place in a
+    corner is not worth the split lanes off it that a place not plain leads to; a shade less detail
+    is not worth moving a mark that was measured)."""
+
+    def rank(s: Spot) -> tuple[bool, float, bool, bool]:
+        return (not s.free, round(s.subject or 0.0, 6), s.cornered, not s.plain)
+
+    return rank(reached) < rank(spot)
+
+
 def choose_spot(
     detail: np.ndarray,
     subject: np.ndarray | None,
@@ -123,6 +145,7 @@ def choose_spot(
     direction: tuple[int, int] = (1, 0),
     corner_region: float = CORNER_REGION,
     faint: np.ndarray | None = None,
+    reach: bool = False,
 ) -> Spot:
     """The anchor for a mark whose parts cover `rects` (display px, relative to the anchor) in a
     frame of `size` (w, h) display px: the plainest place, judged on `detail` (a thumbnail of the
@@ -136,7 +159,8 @@ def choose_spot(
     nearest to `preferred`, then top-left first: deterministic for a given picture. bounds
     (relative to the anchor, default: the rects' union) must lie inside the frame. faint: the
     detail map at a lower level (same grid; None: not checked; only without masks): the spot is
-    said `doubtful` where it is plain but a square's faint share is above FAINT_DOUBT."""
+    said `doubtful` where it is plain but a square's faint share is above FAINT_DOUBT. reach: the
+    anchor may also lie left of or above the frame (_anchor_range)."""
     w, h = size
     th, tw = detail.shape
     sx, sy = tw / w, th / h
@@ -145,13 +169,12 @@ def choose_spot(
         min(r[0] for r in rects), min(r[1] for r in rects), max(r[2] for r in rects), max(r[3] for r in rects)
     )
     stride = max(1, min(w, h) // GRID)
-    # an anchor is where the mark's path starts: never left of or above the frame
-    xs = _axis(max(0, -rx0), w - rx1, preferred[0], stride)
-    ys = _axis(max(0, -ry0), h - ry1, preferred[1], stride)
+    xr, yr = _anchor_range(rx0, rx1, w, reach), _anchor_range(ry0, ry1, h, reach)
+    xs, ys = _axis(*xr, preferred[0], stride), _axis(*yr, preferred[1], stride)
     if xs.size == 0 or ys.size == 0:
         raise ValueError(f"the mark ({rx1 - rx0}x{ry1 - ry0} px) does not fit a {w}x{h} frame")
     gx, gy = (a.ravel() for a in np.meshgrid(xs, ys))
-    lx, ly = _line(preferred, direction, (max(0, -rx0), w - rx1), (max(0, -ry0), h - ry1))
+    lx, ly = _line(preferred, direction, xr, yr)
     ax, ay = np.concatenate([gx, lx]), np.concatenate([gy, ly])
 
     maps = {"detail": integral_image(detail)}
@@ -187,7 +210,8 @@ def choose_spot(
     # without masks, only a place plain with its margin is called free: the fallback's low detail
     # may be a plain part of the subject (a stone's smooth face, a ruler), so ppd says so
     free = subject_share == 0.0 if subject_share is not None else plain
-    return Spot(int(ax[best]), int(ay[best]), float(share[best]), subject_share, free, plain, doubtful)
+    return Spot(int(ax[best]), int(ay[best]), float(share[best]), subject_share, free, plain, doubtful,
+                bool(cornered[best]))  # fmt: skip
 
 
 def _doubtful(
@@ -249,6 +273,7 @@ def choose_split(
     direction: tuple[int, int] = (1, 0),
     corner_region: float = CORNER_REGION,
     faint: np.ndarray | None = None,
+    reach: bool = False,
 ) -> tuple[list[Spot], float] | None:
     """Each lane's square in its own place (round 2: a subject filling the frame leaves plain places
     too small for the stacked lanes): lane k's square covers lane_rects[k] relative to its anchor,
@@ -257,7 +282,7 @@ def choose_split(
     move along. The pair is the best of each square's SPLIT_CANDIDATES places that do not overlap
     (a sixth of a square apart) and fit one square box inside the frame, worst square first.
     Returns (spots, worst badness) or None when no pair fits. faint (round 7, a doubtful stacked
-    place's split): a plain square doubtful by it (_doubtful) has badness 0.5."""
+    place's split): a plain square doubtful by it (_doubtful) has badness 0.5. reach: choose_spot's."""
     w, h = size
     th, tw = detail.shape
     scale = (tw / w, th / h)
@@ -268,7 +293,7 @@ def choose_split(
         maps["subject"] = integral_image(subject)
     picks = []
     for (x0, y0, x1, y1), pref in zip(lane_rects, preferred, strict=True):
-        xr, yr = (max(0, -x0), w - x1), (max(0, -y0), h - y1)
+        xr, yr = _anchor_range(x0, x1, w, reach), _anchor_range(y0, y1, h, reach)
         xs, ys = _axis(*xr, pref[0], stride), _axis(*yr, pref[1], stride)
         if xs.size == 0 or ys.size == 0:
             return None
@@ -445,12 +470,13 @@ def place_on_photo(
         source = "preferred"
     else:
         zero = spec.resolve(dw, dh, image_key, index=index, anchor=(0, 0), crop=crop)
-        spot = choose_spot(detail, subject, (dw, dh), _parts(zero), preferred, zero.box,
-                           spec.slide_direction, spec.corner_region, faint)  # fmt: skip
-        if subject is not None:
-            source = "masks" if spot.free else "no-free-masks"
-        else:
-            source = "estimated" if spot.free else "no-plain"
+        where = (detail, subject, (dw, dh), _parts(zero), preferred, zero.box, spec.slide_direction,
+                 spec.corner_region, faint)  # fmt: skip
+        spot, last_resort = choose_spot(*where), None
+        if not spot.plain and _better(reached := choose_spot(*where, reach=True), spot):
+            # before the edge: the stacked mark where it is off the corners, else only where the
+            # lanes find no split place either (what such a photo got before)
+            spot, last_resort = (reached, None) if not reached.cornered else (spot, reached)
         # round 7: a doubtful plain place tries each square in its own place too
         stacked = (spot.plain and not spot.doubtful) or not split
         lanes = None if stacked else _split_lanes(spec, (dw, dh), zero, spot, detail, subject, preferred,
@@ -458,6 +484,11 @@ def place_on_photo(
         if lanes is not None:
             return _placed(spec, (width, height), o, (image_key, index, crop), lanes, subject is not None,
                            spot.doubtful)  # fmt: skip
+        spot = last_resort or spot
+        if subject is not None:
+            source = "masks" if spot.free else "no-free-masks"
+        else:
+            source = "estimated" if spot.free else "no-plain"
     shown = spec.resolve(dw, dh, image_key, index=index, anchor=(spot.x, spot.y), crop=crop)
     stored = turned_to_stored(shown, o, (dw, dh))
     place = MarkPlace(shown.box, (dw, dh), source, spot.free, spot.detail, spot.subject, o, (spot.x, spot.y))
@@ -483,8 +514,12 @@ def _split_lanes(
     base = [k * round(zero.lane_size * 7 / 6) for k in range(len(parts))]  # lane k's row in the stack
     rects = [(x0, y0 - b, x1, y1 - b) for (x0, y0, x1, y1), b in zip(parts, base, strict=True)]
     prefs = [(preferred[0], preferred[1] + b) for b in base]
-    found = choose_split(detail, subject, frame, rects, prefs, spec.slide_direction, spec.corner_region,
-                         faint)  # fmt: skip
+    where = (detail, subject, frame, rects, prefs, spec.slide_direction, spec.corner_region, faint)
+    found = choose_split(*where)
+    if found is None or found[1] > 0:  # as for the stacked mark: before the edge where that is better
+        reached = choose_split(*where, reach=True)
+        if reached is not None and (found is None or reached[1] < found[1]):
+            found = reached
     if found is None:
         return None
     spots, worst = found
