@@ -281,7 +281,12 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
         return ProtectOutcome(
             path=path, dataset=dataset, state=Outcome.UNCHANGED, reason=f"state is {row['state']}"
         )
-    copy = _copy_outside_the_source(ctx, row)
+    # A file found by its seal, not by its path, is ppd's output moved or copied by the user: it is
+    # theirs, never removed as an --out copy (a black-box review: `ppd restore desk/moved.jpg` deleted
+    # it); a copy of an --out or published copy still gets no original.
+    copy = None if row.get("from_marker") else _copy_outside_the_source(ctx, row)
+    if row.get("from_marker") and (refusal := _copied_output(ctx, row)):
+        return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=refusal)
     with ctx.path_lock(path):
         try:
             if copy is not None:
@@ -307,7 +312,9 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
         except Exception as exc:
             return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
         if row.get("from_marker"):  # the store had lost it: the dataset row comes back with it
-            ensure_dataset(ctx, dataset, dataset_root(ctx.paths.outbox, dataset), None)
+            outbox = Path(ctx.paths.outbox).absolute()  # outside it, the folder (not one in the outbox)
+            root = dataset_root(outbox, dataset) if path.is_relative_to(outbox) else path.parent
+            ensure_dataset(ctx, dataset, root, None)
         # the restored file's size and time: the daemon's catch-up scan leaves it alone while they hold
         # (it judged every restored file again at each start, one "restored by the user" line each)
         signature = _size_and_time(target) if target is not None else {}
@@ -332,6 +339,19 @@ def _copy_outside_the_source(ctx: AppContext, row: dict[str, Any]) -> Path | Non
     if dataset is not None and not Path(row["path"]).is_relative_to(Path(dataset["root"])):
         return Path(row["path"])
     return None
+
+
+def _copied_output(ctx: AppContext, row: dict[str, Any]) -> str | None:
+    """Why a file found by its seal gets no original: the store's row of the same output is a copy
+    in an --out or publish folder (originals never go where copies are published); None otherwise."""
+    stored = ctx.store.find_poisoned(row["poisoned_sha256"]) if row["poisoned_sha256"] else None
+    if stored is None or stored["state"] != FileState.PATCHED:
+        return None
+    copy = _copy_outside_the_source(ctx, stored)
+    if copy is None:
+        return None
+    return (f"a copy of ppd's output in {copy.parent}, which gets no original; "
+            f"`ppd restore {stored['dataset']}` puts the originals back at their source")
 
 
 def _size_and_time(path: Path) -> dict[str, Any]:

@@ -1,0 +1,47 @@
+"""`ppd restore FILE` on ppd's output that the user moved out of its dataset's folder: the file is
+found by its seal and its original comes back there, every time. A black-box review: the first such
+restore made a dataset of the new folder rooted in the outbox, and the second took the next moved
+photo for an --out copy and deleted it. A copy of an --out copy still gets no original."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from testkit.photos import make_image
+
+runner = CliRunner()
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_photos_moved_out_of_their_folder_get_their_originals_back(ppd_env: dict[str, Path],
+                                                                 tmp_path: Path) -> None:  # fmt: skip
+    shoot, desk = tmp_path / "shoot", tmp_path / "desk"
+    originals = {i: _sha(make_image(shoot / f"v{i}.png", i)) for i in range(3)}
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    desk.mkdir()
+    for i in (1, 2):
+        (shoot / f"v{i}.png").rename(desk / f"moved{i}.png")
+    for i in (1, 2):
+        result = runner.invoke(app, ["restore", str(desk / f"moved{i}.png")])
+        assert result.exit_code == 0 and "restored 1" in result.output, result.output
+        assert _sha(desk / f"moved{i}.png") == originals[i]  # there, and the original's bytes
+
+
+def test_a_copy_of_an_out_copy_gets_no_original(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    shoot, pub, desk = tmp_path / "shoot", tmp_path / "pub", tmp_path / "desk"
+    make_image(shoot / "v0.png", 0)
+    assert runner.invoke(app, ["poison", str(shoot), "--out", str(pub)]).exit_code == 0
+    (copy,) = pub.rglob("v0.png")
+    desk.mkdir()
+    moved = desk / "v0.png"
+    moved.write_bytes(copy.read_bytes())
+    result = runner.invoke(app, ["restore", str(moved)])
+    assert result.exit_code == 1 and "gets no original" in " ".join(result.output.split()), result.output
+    assert moved.read_bytes() == copy.read_bytes()  # left as it was, not deleted
