@@ -301,13 +301,15 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                     reason = f"original back at {target}; {reason}"
             else:
                 target = path
-                if target.exists() and not force and sha256_file(target) != row["poisoned_sha256"]:
+                now = sha256_file(target) if target.exists() and not force else row["poisoned_sha256"]
+                if now not in (row["poisoned_sha256"], row["original_sha256"]):
                     raise ProtectRefused(
                         f"{target.name} changed since ppd patched it; not overwriting (use --force)"
                     )
                 # the check again just before the rename: a writer between the two is not overwritten
                 replaces: str | None | Literal[True] = True if force else row["poisoned_sha256"]
-                ctx.vault.restore(row["original_sha256"], target, replaces=replaces)
+                if now != row["original_sha256"]:  # the original already (a restore killed after its
+                    ctx.vault.restore(row["original_sha256"], target, replaces=replaces)  # rename): recorded
                 reason = None
         except Exception as exc:
             return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))

@@ -33,7 +33,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal
 
-from daemon.fsops import sha256_fd
+from daemon.fsops import clear_stale_temps_once, sha256_fd
 from daemon.paths import filesystem_of, make_private_dir
 from daemon.platform import reflink
 from poisoner.atomic import atomic_output, fsync_dir
@@ -362,6 +362,7 @@ class Vault:
         except FileNotFoundError:
             raise VaultError(f"original {sha256[:12]} is not in the vault {self.vault_dir}") from None
         dst = Path(dst)
+        _clear_stale_temps_beside(dst)  # a restore killed before its rename left a copy of the original
         try:
             expected = None if replaces is True else replaces  # what dst may hold (narrowed for the check)
             check = None if replaces is True else (lambda: _still_holds(dst, expected))
@@ -381,6 +382,20 @@ class Vault:
                 os.utime(tmp, ns=(kept.st_atime_ns, kept.st_mtime_ns))
         finally:
             os.close(fd)
+
+
+def _clear_stale_temps_beside(dst: Path) -> None:
+    """ppd's stale temporaries in dst's folder, removed once per process: a restore killed before its
+    rename leaves a hidden copy of the original there, where the folder is published (a black-box
+    review: only the next `ppd poison` removed it)."""
+    try:
+        dir_fd = os.open(dst.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError:
+        return
+    try:
+        clear_stale_temps_once(dir_fd)
+    finally:
+        os.close(dir_fd)
 
 
 class RestoreRefused(VaultError):
