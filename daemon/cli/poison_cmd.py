@@ -379,7 +379,8 @@ def _run_planned(
     turned = planning.turned_mask_lines(outcomes, masks)
     for line in planning.missing_mask_lines(jobs, done, masks) + turned + capped:
         console().print(line, markup=False)
-    if any(o.state == "failed" for o in outcomes):
+    # a photo ppd cannot write (BMP, GIF, raw) left beside the patched ones: not protected, as a failure
+    if any(o.state == "failed" for o in outcomes) or unprotected_media(outcomes):
         raise typer.Exit(ExitStatus.FAILED)
 
 

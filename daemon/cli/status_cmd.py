@@ -199,6 +199,10 @@ def next_step_lines(d: dict[str, Any]) -> list[str]:
         root = shlex.quote(str(d["root"]))
         lines.append(f"{name}: {c['changed']} changed since ppd patched them (size or time), maybe NOT "
                      f"protected now: `ppd poison {root}` checks them and patches what needs it")  # fmt: skip
+    if c.get("unprotectable"):  # a reconstruction reads them all the same (a black-box review)
+        lines.append(f"{name}: {c['unprotectable']} photo(s) or video(s) in a format ppd cannot protect, "
+                     "NOT protected: convert them to JPEG, PNG, TIFF, WebP, HEIC or MP4, or move them "
+                     "out")  # fmt: skip
     if d.get("restored_in_place"):  # originals back where they are published: said in the overview
         root = shlex.quote(str(d["root"]))
         lines.append(f"{name}: {d['restored_in_place']} restored by you, NOT protected: "

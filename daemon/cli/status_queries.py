@@ -160,6 +160,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
 UNPROTECTED_WORDS = {
     "failed": "failed", "quarantined": "quarantined", "waiting": "still being written",
     "changed": "changed since patched", "untracked": "not patched yet", "pending": "not finished",
+    "unprotectable": "in a format ppd cannot protect",
 }  # fmt: skip
 
 

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from daemon.states import PATCHED_VALUES, WAITING_PREFIX, FileState, patched_count
 from poisoner.atomic import TEMP_PREFIX
-from poisoner.media import is_media
+from poisoner.media import is_media, is_unprotected_media
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -42,27 +42,40 @@ class FolderCount:
     untracked: list[Path] = field(default_factory=list)  # media files that no row mentions
     copies: Path | None = None  # `ppd poison --out`: the folder the patched copies went to
     changed: list[Path] = field(default_factory=list)  # patched in place, another size or time now
+    # photos and videos ppd cannot protect (poisoner.media.UNPROTECTED_SUFFIXES: BMP, GIF, raw files),
+    # which a reconstruction reads all the same (a black-box review: status and --check ignored them)
+    unprotectable: list[Path] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         copies = None if self.copies is None else str(self.copies)
         return {"folder": str(self.folder), "exists": self.exists, "on_disk": self.on_disk,
-                "untracked": len(self.untracked), "copies": copies, "changed": len(self.changed)}  # fmt: skip
+                "untracked": len(self.untracked), "copies": copies, "changed": len(self.changed),
+                "unprotectable": len(self.unprotectable)}  # fmt: skip
 
 
 def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
     """Media files under folder, sorted: no hidden files or folders, no ppd temporaries, nothing
     under a skipped folder (subject masks are never patched), no symlinks."""
+    return _walk(folder, skip)[0]
+
+
+def _walk(folder: Path, skip: Iterable[Path] = ()) -> tuple[list[Path], list[Path]]:
+    """(folder_media's files, the photos and videos of formats ppd cannot protect), sorted, one walk."""
     skipped = [Path(s).absolute() for s in skip]
     found: list[Path] = []
+    unprotectable: list[Path] = []
     for dirpath, dirnames, filenames in os.walk(folder):
         here = Path(dirpath)
         dirnames[:] = sorted(d for d in dirnames if not d.startswith(".") and here / d not in skipped)
         for name in filenames:
             path = here / name
-            if name.startswith((".", TEMP_PREFIX)) or not is_media(name) or path.is_symlink():
+            if name.startswith((".", TEMP_PREFIX)) or path.is_symlink():
                 continue
-            found.append(path)
-    return sorted(found)
+            if is_media(name):
+                found.append(path)
+            elif is_unprotected_media(name):
+                unprotectable.append(path)
+    return sorted(found), sorted(unprotectable)
 
 
 Parts = tuple[str, ...]
@@ -119,7 +132,8 @@ def count_folder(
     paths = [Path(row["path"]) for row in rows]
     outside = [p for p in paths if not p.is_relative_to(folder)]
     theirs = set(foreign)
-    files = [f for f in folder_media(folder, skip) if str(f) not in theirs] if folder.is_dir() else []
+    files, unprotectable = _walk(folder, skip) if folder.is_dir() else ([], [])
+    files = [f for f in files if str(f) not in theirs]
     covered, copies = _match_copies(outside, {f.relative_to(folder).parts for f in files})
     if not folder.is_dir():
         return FolderCount(folder, exists=False, copies=copies)
@@ -128,7 +142,7 @@ def count_folder(
     present = {str(f) for f in files}
     changed = [Path(r["path"]) for r in rows if r["path"] in present and _changed(r)]
     return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies,
-                       changed=changed)  # fmt: skip
+                       changed=changed, unprotectable=unprotectable)  # fmt: skip
 
 
 def _changed(row: Mapping[str, Any]) -> bool:
@@ -151,6 +165,8 @@ def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int
     # a removed file (deleted, moved away) is no longer one of the dataset's: its row is history
     removed = int(counts.get(FileState.REMOVED.value, 0))
     merged["files"] = int(counts.get("files", 0)) - removed + len(folder.untracked)
+    if folder.unprotectable:
+        merged["unprotectable"] = len(folder.unprotectable)
     if folder.changed:  # no longer ppd's output: not counted patched
         merged["changed"] = len(folder.changed)
         merged[FileState.PATCHED.value] = int(counts.get(FileState.PATCHED.value, 0)) - len(folder.changed)

@@ -49,12 +49,20 @@ def test_photos_ppd_cannot_read_are_named_apart_from_sidecars(
     (shoot / "notes.txt").write_text("shot list")
     (shoot / "a.xmp").write_text("<x:xmpmeta/>")
     result = runner.invoke(app, ["poison", str(shoot)])
-    assert result.exit_code == 0, result.output
+    assert result.exit_code == 1, result.output  # left unprotected beside the patched photo: exit 1
     text = " ".join(result.output.split())
     assert "skipped 5" in text and "not protected: 3 photo(s) or video(s) ppd cannot read" in text, text
     line = text[text.index("not protected:") :]
     assert all(n in line for n in ("loop.gif", "scan.bmp", "raw.DNG"))
     assert "notes.txt" not in line and "a.xmp" not in line
+    # and ever after: status counts them and --check fails (it forgot them: a black-box review)
+    status = runner.invoke(app, ["status", "shoot"])
+    said = " ".join(status.output.split())
+    assert "unprotectable 3" in said and "3 photo(s) or video(s) in a format ppd cannot protect" in said, said
+    check = runner.invoke(app, ["status", "shoot", "--check"])
+    assert check.exit_code == 1 and "3 in a format ppd cannot protect" in " ".join(check.output.split())
+    (shoot / "loop.gif").unlink(), (shoot / "scan.bmp").unlink(), (shoot / "raw.DNG").unlink()
+    assert "cannot protect" not in runner.invoke(app, ["status", "shoot", "--check"]).output
 
 
 def test_a_file_named_twice_is_one_job(ppd_env: dict[str, Path], tmp_path: Path) -> None:
