@@ -45,6 +45,7 @@ class Protection(StrEnum):
 # A skipped row's error while the daemon waits for a file's writer (an incomplete file): `ppd status`
 # counts these apart, as "still being written", not as skipped by the spec's ratio.
 WAITING_PREFIX = "incomplete, waiting for its writer"
+STILL_OPEN_PREFIX = "still open for writing"  # a file another process writes: skipped, not patched
 
 # The value a store row holds for a patched file (older stores said "protected"; the store's
 # migration renamed them, so no other spelling reaches this code).

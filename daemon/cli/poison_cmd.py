@@ -47,6 +47,13 @@ def unprotected_media(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
     return [o for o in outcomes if o.state == "skipped" and is_unprotected_media(o.path)]
 
 
+def still_open(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
+    """The files skipped because another process still writes them (daemon.states.STILL_OPEN_PREFIX)."""
+    from daemon.states import STILL_OPEN_PREFIX
+
+    return [o for o in outcomes if o.state == "skipped" and str(o.reason or "").startswith(STILL_OPEN_PREFIX)]
+
+
 def _restored_left(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
     return [o for o in outcomes if o.state == "unchanged" and (o.reason or "").startswith(RESTORED_BY_USER)]
 
@@ -133,6 +140,11 @@ def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
             "can still use them: convert them to JPEG, PNG, TIFF, WebP, HEIC or MP4 first, or leave them out",
             markup=False,
         )
+    if still := still_open(outcomes):  # the daemon patches them once closed; this run does not
+        shown = ", ".join(o.path.name for o in still[:5]) + (", ..." if len(still) > 5 else "")
+        err_console().print(f"not patched: {len(still)} file(s) still being written by another program "
+                            f"({shown}): run ppd poison again once they are complete",
+                            markup=False)  # fmt: skip
     left = _restored_left(outcomes)
     if left:
         console().print(f"left unprotected (restored by you): {len(left)}; use --force to protect them again")
@@ -380,7 +392,7 @@ def _run_planned(
     for line in planning.missing_mask_lines(jobs, done, masks) + turned + capped:
         console().print(line, markup=False)
     # a photo ppd cannot write (BMP, GIF, raw) left beside the patched ones: not protected, as a failure
-    if any(o.state == "failed" for o in outcomes) or unprotected_media(outcomes):
+    if any(o.state == "failed" for o in outcomes) or unprotected_media(outcomes) or still_open(outcomes):
         raise typer.Exit(ExitStatus.FAILED)
 
 

@@ -82,3 +82,32 @@ def test_a_file_named_twice_is_one_job(ppd_env: dict[str, Path], tmp_path: Path)
     assert sorted(p.relative_to(tmp_path / "o2").as_posix() for p in (tmp_path / "o2").rglob("*.jpg")) == [
         "bad/a.jpg"
     ]
+
+
+def test_a_photo_still_being_written_is_said_not_patched_and_fails_the_run(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """`ppd poison` skips a file another program still writes. It said 'patched once it is closed'
+    (what the daemon's watcher does; nothing does it after a one-shot run) and exited 0 (a black-box
+    review): the photo stays unprotected in the folder."""
+    import subprocess
+    import sys
+    import time
+
+    shoot = tmp_path / "shoot"
+    make_image(shoot / "a.jpg", 1, size=(200, 150))
+    busy = make_image(shoot / "b.jpg", 2, size=(200, 150))
+    writer = subprocess.Popen([sys.executable, "-c", f"f = open({str(busy)!r}, 'ab'); print(1, flush=True); "
+                               "import time; time.sleep(60)"], stdout=subprocess.PIPE)  # fmt: skip
+    try:
+        assert writer.stdout is not None and writer.stdout.readline()  # the file is open for writing now
+        result = runner.invoke(app, ["poison", str(shoot)])
+    finally:
+        writer.kill()
+        writer.wait()
+    text = " ".join(result.output.split())
+    assert result.exit_code == 1, text
+    said = "not patched: 1 file(s) still being written by another program (b.jpg): run ppd poison again"
+    assert said in text, text
+    time.sleep(0.1)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0  # closed now: patched
