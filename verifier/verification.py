@@ -217,10 +217,12 @@ def _run_profiles(profile_list: Sequence[str], run: VerifyRun) -> dict[str, Prof
             for p in _profiles_as_done(sides):
                 poisoned = [sides[(p, side)].result() for side in poisoned_sides(run.options.seeds)]
                 reports[p] = _decide_profile(plans[p], sides[(p, "clean")].result(), poisoned, run)
-        except BaseException:  # Ctrl-C: the pool's exit waited for every side still to run (16-41 s)
+        except BaseException as exc:  # the pool's exit waited for every side still to run (16-41 s)
             for future in sides.values():
                 future.cancel()
-            if run.options.cancel is not None:  # the running children are ended within a second
+            # Ctrl-C: the running children are ended within a second. Only then: the daemon's
+            # scheduler passes its own long-lived event, which an error here must not set
+            if isinstance(exc, KeyboardInterrupt) and run.options.cancel is not None:
                 run.options.cancel.set()
             raise
     return {p: reports[p] for p in profile_list}  # in the order asked

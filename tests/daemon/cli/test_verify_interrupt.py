@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
@@ -51,3 +52,38 @@ def test_ctrl_c_ends_a_verification_at_once_and_leaves_no_run_behind(
     # the children get SIGTERM, then SIGKILL after 3 s: never the rest of the verification
     assert waited < 10, f"{waited:.1f} s after Ctrl-C"
     assert [p.name for p in runs.iterdir() if not p.name.startswith(".")] == []  # no half run
+    # the feature children it killed left their databases in the clean cache: the next run removes them
+    cache = runs / ".clean-cache"
+    from verifier.shared_sfm import clean_cache_for
+
+    for key in [p.name for p in cache.iterdir() if p.is_dir()] if cache.is_dir() else []:
+        clean_cache_for(cache, key, keep=3)
+        assert not [p.name for p in (cache / key).glob(".ppd-tmp-*")], list((cache / key).iterdir())
+
+
+def test_an_error_in_a_verification_leaves_the_callers_cancel_event_alone(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Only Ctrl-C sets the cancel event: the daemon's scheduler passes its own long-lived one, and a
+    failed verification (a full disk) that set it cancelled every later one until a restart (a diff
+    review)."""
+    import threading
+
+    from verifier import verification
+    from verifier.verification import VerifyOptions, verify_folders
+
+    clean, patched = tmp_path / "clean", tmp_path / "patched"
+    clean.mkdir(), patched.mkdir()
+    for i in range(3):
+        Image.new("RGB", (64, 48), (i * 40, 90, 90)).save(clean / f"v{i}.png")
+        Image.new("RGB", (64, 48), (i * 40, 90, 91)).save(patched / f"v{i}.png")
+
+    def full_disk(*_args: object) -> dict:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(verification, "_run_planned_side", full_disk)
+    event = threading.Event()
+    options = VerifyOptions(cancel=event, visibility_images=0)
+    with pytest.raises(OSError, match="No space left"):
+        verify_folders(clean, patched, tmp_path / "out", ("default",), options)
+    assert not event.is_set()
