@@ -19,6 +19,7 @@ import logging
 import os
 import shutil
 import threading
+import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +27,7 @@ from typing import Any
 
 import msgspec
 
-from poisoner.atomic import atomic_write_bytes
+from poisoner.atomic import STALE_TEMP_AGE_S, TEMP_PREFIX, atomic_write_bytes, remove_if_stale
 from verifier.progress import ProgressBoard
 from verifier.sfm import SfmJob, SfmSettings, run_sfm_job
 from verifier.verify_options import VerifyOptions
@@ -52,12 +53,44 @@ def clean_cache_for(root: Path, key: str, keep: int) -> Path:
     here = root / key
     here.mkdir(exist_ok=True, mode=0o700)
     os.utime(here)  # most recently used
+    sweep_killed_databases(here)
     if keep > 0:
         others = [p for p in root.iterdir() if p.is_dir() and p != here]
         others.sort(key=lambda p: p.stat().st_mtime)
         for stale in others[: max(0, len(others) - (keep - 1))]:
             shutil.rmtree(stale, ignore_errors=True)
     return here
+
+
+SQLITE_SIDECARS = ("-wal", "-shm", "-journal")
+
+
+def sweep_killed_databases(folder: Path) -> list[str]:
+    """The temporaries a feature child killed mid-build left in a clean cache (a Ctrl-C'd or killed
+    verification: its database and SQLite's -wal and -shm beside it, the originals' features, which
+    nothing removed; a diff review). A database goes with its sidecars only once no living writer
+    holds it (poisoner.atomic.remove_if_stale); a sidecar alone only when its database is gone and it
+    is old enough to have no writer."""
+    try:
+        dir_fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError:
+        return []
+    removed: list[str] = []
+    try:
+        names = [n for n in os.listdir(dir_fd) if n.startswith(TEMP_PREFIX)]
+        bases = {n for n in names if not n.endswith(SQLITE_SIDECARS)}
+        removed += [n for n in sorted(bases) if remove_if_stale(dir_fd, n)]
+        for name in names:
+            base = next((name.removesuffix(s) for s in SQLITE_SIDECARS if name.endswith(s)), None)
+            if base is None or (base in bases and base not in removed):
+                continue
+            with contextlib.suppress(OSError):
+                if time.time() - os.stat(name, dir_fd=dir_fd).st_mtime >= STALE_TEMP_AGE_S or base in removed:
+                    os.unlink(name, dir_fd=dir_fd)
+                    removed.append(name)
+    finally:
+        os.close(dir_fd)
+    return removed
 
 
 def feature_builds_at_once(memory_bytes: int | None = None) -> int:
