@@ -475,7 +475,7 @@ def place_on_photo(
         # Before the edge only with masks, where the frame's free places otherwise fail the photo. Without
         # masks it moved two marks of a dtu_scan37 70% crop off the subject (a cropped or split mark),
         # and the default attacker recovered 0-87% of the cameras at seeds 0-4 where it had 0% (round 8)
-        reaching = subject is not None and not spot.plain
+        reaching = subject is not None and split and not spot.plain  # a video's keyframes: never
         if reaching and _better(reached := choose_spot(*where, reach=True), spot):
             # the stacked mark where it is off the corners, else only where the lanes find no split
             # place either (what such a photo got before)

@@ -72,4 +72,5 @@ def same_coded_picture(before: bytes, after: bytes) -> bool:
         _, start_after = jpeg_header_segments(after)
     except MetadataParseError:
         return False
-    return before[start_before:] == after[start_after:]
+    # to each picture's end (EOI): bytes after it (an appended image, a trailer) are not written
+    return before[start_before : jpeg_end(before)] == after[start_after : jpeg_end(after)]

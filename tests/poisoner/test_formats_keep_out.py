@@ -387,6 +387,10 @@ def test_a_jpeg_whose_mark_changes_no_coefficient_is_a_failure_not_a_patched_fil
     assert not dst.exists()
     report = poison_file(src, dst, default_spec())  # the default's alpha: it shows
     assert (np.asarray(Image.open(dst)) != np.asarray(Image.open(src))).any() and report.written > 0
+    trailed = tmp_path / "trailer.jpg"  # bytes after the picture's end, which ppd does not write
+    trailed.write_bytes(src.read_bytes() + b"SAMSUNG-TRAILER" * 8)
+    with pytest.raises(MarkNotWritten, match="too faint to change any pixel"):
+        poison_file(trailed, tmp_path / "out2.jpg", default_spec().replace(alpha=0.001))
 
 
 def test_changes_a_pixel_is_false_only_where_the_mark_is_already_there() -> None:
