@@ -313,7 +313,15 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                 reason = None
         except Exception as exc:
             return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
-        if row.get("from_marker"):  # the store had lost it: the dataset row comes back with it
+        if row.get("from_marker"):
+            # moved or copied out of its dataset by the user: no dataset is made of the folder it
+            # sits in now (a review: that folder's other photos became "not patched yet")
+            if _stored_output(ctx, row) is not None:
+                return ProtectOutcome(
+                    path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
+                    original_sha256=row["original_sha256"], output=target,
+                )  # fmt: skip
+            # the store had lost it: the dataset row comes back with it
             outbox = Path(ctx.paths.outbox).absolute()  # outside it, the folder (not one in the outbox)
             root = dataset_root(outbox, dataset) if path.is_relative_to(outbox) else path.parent
             ensure_dataset(ctx, dataset, root, None)
@@ -343,17 +351,21 @@ def _copy_outside_the_source(ctx: AppContext, row: dict[str, Any]) -> Path | Non
     return None
 
 
+def _stored_output(ctx: AppContext, row: dict[str, Any]) -> dict[str, Any] | None:
+    """The store's row of the output a file found by its seal is (a patched row of the same bytes)."""
+    stored = ctx.store.find_poisoned(row["poisoned_sha256"]) if row["poisoned_sha256"] else None
+    return stored if stored is not None and stored["state"] == FileState.PATCHED else None
+
+
 def _copied_output(ctx: AppContext, row: dict[str, Any]) -> str | None:
     """Why a file found by its seal gets no original: the store's row of the same output is a copy
     in an --out or publish folder (originals never go where copies are published); None otherwise."""
-    stored = ctx.store.find_poisoned(row["poisoned_sha256"]) if row["poisoned_sha256"] else None
-    if stored is None or stored["state"] != FileState.PATCHED:
+    stored = _stored_output(ctx, row)
+    copy = _copy_outside_the_source(ctx, stored) if stored is not None else None
+    if stored is None or copy is None:
         return None
-    copy = _copy_outside_the_source(ctx, stored)
-    if copy is None:
-        return None
-    return (f"a copy of ppd's output in {copy.parent}, which gets no original; "
-            f"`ppd restore {stored['dataset']}` puts the originals back at their source")
+    return (f"a copy of ppd's output in {copy.parent}, which gets no original; its source's photos were "
+            f"never changed (`ppd restore {stored['dataset']}` removes the dataset's copies)")
 
 
 def _size_and_time(path: Path) -> dict[str, Any]:

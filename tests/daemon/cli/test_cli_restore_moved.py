@@ -25,13 +25,15 @@ def test_photos_moved_out_of_their_folder_get_their_originals_back(ppd_env: dict
     shoot, desk = tmp_path / "shoot", tmp_path / "desk"
     originals = {i: _sha(make_image(shoot / f"v{i}.png", i)) for i in range(3)}
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
-    desk.mkdir()
+    make_image(desk / "unrelated.png", 9)  # a photo of the user's own in the folder they moved to
     for i in (1, 2):
         (shoot / f"v{i}.png").rename(desk / f"moved{i}.png")
     for i in (1, 2):
         result = runner.invoke(app, ["restore", str(desk / f"moved{i}.png")])
         assert result.exit_code == 0 and "restored 1" in result.output, result.output
         assert _sha(desk / f"moved{i}.png") == originals[i]  # there, and the original's bytes
+    # no dataset was made of desk (its own photo was listed "not patched yet": a diff review)
+    assert "desk" not in runner.invoke(app, ["status"]).output
 
 
 def test_a_copy_of_an_out_copy_gets_no_original(ppd_env: dict[str, Path], tmp_path: Path) -> None:
@@ -43,7 +45,9 @@ def test_a_copy_of_an_out_copy_gets_no_original(ppd_env: dict[str, Path], tmp_pa
     moved = desk / "v0.png"
     moved.write_bytes(copy.read_bytes())
     result = runner.invoke(app, ["restore", str(moved)])
-    assert result.exit_code == 1 and "gets no original" in " ".join(result.output.split()), result.output
+    text = " ".join(result.output.split())
+    assert result.exit_code == 1 and "gets no original" in text, text
+    assert "removes the dataset's copies" in text, text
     assert moved.read_bytes() == copy.read_bytes()  # left as it was, not deleted
 
 
