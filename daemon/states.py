@@ -71,7 +71,7 @@ def newest_per_profile(runs: Iterable[Mapping[str, Any]]) -> dict[str, Mapping[s
 
 
 # Folder counts (daemon.datasets.folder_count) of files a verification did not measure.
-UNVERIFIED_FILES = ("changed", "untracked", "waiting", "unprotectable")
+UNVERIFIED_FILES = ("changed", "untracked", "waiting")
 
 
 def dataset_protection(

@@ -392,7 +392,10 @@ def _run_planned(
     for line in planning.missing_mask_lines(jobs, done, masks) + turned + capped:
         console().print(line, markup=False)
     # a photo ppd cannot write (BMP, GIF, raw) left beside the patched ones: not protected, as a failure
-    if any(o.state == "failed" for o in outcomes) or unprotected_media(outcomes) or still_open(outcomes):
+    # (with --out it is not copied where the patched ones go: nothing unprotected is published there)
+    in_place = {j.path for j in jobs if j.out_path is None}
+    left = [o for o in unprotected_media(outcomes) if o.path in in_place]
+    if any(o.state == "failed" for o in outcomes) or left or still_open(outcomes):
         raise typer.Exit(ExitStatus.FAILED)
 
 

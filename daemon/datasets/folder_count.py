@@ -165,7 +165,7 @@ def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int
     # a removed file (deleted, moved away) is no longer one of the dataset's: its row is history
     removed = int(counts.get(FileState.REMOVED.value, 0))
     merged["files"] = int(counts.get("files", 0)) - removed + len(folder.untracked)
-    if folder.unprotectable:
+    if folder.unprotectable and folder.copies is None:  # --out: they are not where the copies are
         merged["unprotectable"] = len(folder.unprotectable)
     if folder.changed:  # no longer ppd's output: not counted patched
         merged["changed"] = len(folder.changed)

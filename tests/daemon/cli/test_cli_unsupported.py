@@ -111,3 +111,17 @@ def test_a_photo_still_being_written_is_said_not_patched_and_fails_the_run(
     assert said in text, text
     time.sleep(0.1)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0  # closed now: patched
+
+
+def test_with_out_a_photo_ppd_cannot_read_stays_behind_and_fails_nothing(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """--out copies the patched photos elsewhere; a BMP left in the private source folder is published
+    nowhere: no exit 1, no failing --check (a diff review: it asked to move it out of the source)."""
+    shoot = tmp_path / "shoot"
+    make_image(shoot / "a.jpg", 1, size=(200, 150))
+    Image.new("RGB", (64, 48)).save(shoot / "scan.bmp")
+    result = runner.invoke(app, ["poison", str(shoot), "--out", str(tmp_path / "pub")])
+    assert result.exit_code == 0 and "ppd cannot read (scan.bmp)" in " ".join(result.output.split())
+    assert not list((tmp_path / "pub").rglob("*.bmp"))
+    assert "cannot protect" not in runner.invoke(app, ["status", "shoot", "--check"]).output
