@@ -93,14 +93,28 @@ class AppPaths:
             return f"inside the outbox {self.outbox}, whose files are published"
         if data.exists() and not data.is_dir():
             return "not a folder"
-        if data.is_dir():
-            from poisoner.media import is_media
-
-            with os.scandir(data) as entries:
-                photo = next((e.name for e in entries if e.is_file() and is_media(Path(e.name))), None)
-            if photo is not None:
-                return f"it holds photos or videos ({photo}): not a folder of ppd's own"
+        if data.is_dir() and (photo := _a_photo_in(data)) is not None:
+            return f"it holds photos or videos ({photo}): not a folder of ppd's own"
         return None
+
+
+def _a_photo_in(folder: Path, depth: int = 3, budget: int = 20_000) -> str | None:
+    """A photo or video (any format, protectable or not) within `depth` folders of folder, outside
+    ppd's own (vault, runs, hidden ones), looking at no more than `budget` entries; None: none."""
+    from poisoner.media import is_media, is_unprotected_media
+
+    own = {"vault", "runs", "attempts", "locks"}
+    for here, dirs, files in os.walk(folder):
+        level = len(Path(here).relative_to(folder).parts)
+        skipped = own if level == 0 else set()
+        dirs[:] = [] if level >= depth else [d for d in dirs if not d.startswith(".") and d not in skipped]
+        for name in files:
+            if is_media(name) or is_unprotected_media(name):
+                return str(Path(here, name).relative_to(folder))
+        budget -= len(files) + len(dirs)
+        if budget <= 0:
+            break
+    return None
 
 
 def make_dirs_private(folder: Path) -> None:

@@ -33,11 +33,17 @@ def _shoot(tmp_path: Path) -> Path:
     return shoot
 
 
-@pytest.mark.parametrize("where", ["outbox", "photos", "photo"])
+@pytest.mark.parametrize("where", ["outbox", "photos", "photo", "day folders", "raw files"])
 def test_a_data_folder_where_originals_would_be_published_is_refused(tmp_path: Path, where: str) -> None:
     shoot = _shoot(tmp_path)
-    data = {"outbox": tmp_path / "outbox" / "data", "photos": shoot, "photo": shoot / "a.jpg"}[where]
-    before = {p: os.stat(p).st_mode for p in (shoot, shoot / "a.jpg")}
+    photo = shoot / "a.jpg"
+    if where == "day folders":  # a shoot whose photos are in subfolders only (a diff review)
+        (shoot / "day1").mkdir()
+        photo = photo.rename(shoot / "day1" / "a.jpg")
+    if where == "raw files":  # formats ppd cannot protect are photos all the same
+        photo = photo.rename(shoot / "a.dng")
+    data = {"outbox": tmp_path / "outbox" / "data", "photo": photo}.get(where, shoot)
+    before = {p: os.stat(p).st_mode for p in (shoot, photo)}
     paths = _paths(tmp_path, data)
     with pytest.raises(PpdError, match="cannot hold the vault of originals"):
         paths.ensure()

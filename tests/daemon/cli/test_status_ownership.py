@@ -36,7 +36,7 @@ def flat(text: str) -> str:
 
 
 def test_a_nested_datasets_files_are_not_the_parents(ppd_env: dict[str, Path], tmp_path: Path) -> None:
-    nest = tmp_path / "data" / "nest"
+    nest = tmp_path / "photos" / "nest"  # not in ppd_env's data folder: no photos there
     make_image(nest / "a.png", 5)
     make_image(nest / "inner" / "r_6.png", 6)
     make_image(nest / "inner" / "r_2.png", 2)
