@@ -227,9 +227,9 @@ class Vault:
         """The crash-safe keep: a flock()ed temporary filled by fill(fd) -> (method, sha256), fsynced
         (its bytes are durable before they have a name), renamed to its content address, and the
         folder fsynced (the name is durable before anyone relies on it; the vault folder too when
-        the two-letter folder is new: its own name). times: the blob then takes the original's
-        modification time (restore gives it back; set on the name, after the rename: a temporary
-        that looked old could be swept as a stale one)."""
+        the two-letter folder is new: its own name). times: the blob takes the original's dates
+        (restore gives them back), set on the temporary while it is locked, so the name never
+        exists without them."""
         self._check_room(size)
         tmp_fd, tmp_name = tempfile.mkstemp(prefix=VAULT_TMP_PREFIX, dir=self.vault_dir)
         fcntl.flock(tmp_fd, fcntl.LOCK_EX)  # held while written: clear_stale_keeps leaves it alone
@@ -237,26 +237,26 @@ class Vault:
         try:
             try:
                 method, sha = fill(tmp_fd)
+                if times is not None:  # on the locked temporary, durable with its bytes: a keep killed
+                    with contextlib.suppress(OSError):  # after the rename left the blob dated that
+                        os.utime(tmp_fd, ns=times)  # day, and no later keep fixed it (a review)
                 os.fsync(tmp_fd)
+                if expected_sha256 is not None and sha != expected_sha256:
+                    raise VaultContentChanged(
+                        f"the file changed while being kept (sha256 {sha[:12]}, "
+                        f"expected {expected_sha256[:12]}); nothing kept"
+                    )
+                final = self.path_for(sha)
+                if self._already_kept(final, size):
+                    return sha  # the same content is already kept (content addressing)
+                new_folder = not final.parent.is_dir()
+                make_private_dir(final.parent)
+                os.replace(tmp, final)  # still locked: clear_stale_keeps never takes it for a dead one's
             finally:
                 os.close(tmp_fd)
-            if expected_sha256 is not None and sha != expected_sha256:
-                raise VaultContentChanged(
-                    f"the file changed while being kept (sha256 {sha[:12]}, "
-                    f"expected {expected_sha256[:12]}); nothing kept"
-                )
-            final = self.path_for(sha)
-            if self._already_kept(final, size):
-                return sha  # the same content is already kept (content addressing)
-            new_folder = not final.parent.is_dir()
-            make_private_dir(final.parent)
-            os.replace(tmp, final)
             fsync_dir(final.parent)
             if new_folder:  # the two-letter folder's own name, in the vault folder
                 fsync_dir(self.vault_dir)
-            if times is not None:
-                with contextlib.suppress(OSError):  # a date, not the original: never fails the keep
-                    os.utime(final, ns=times, follow_symlinks=False)
             log.debug("vault kept", extra={"sha256": sha, "method": method})
             return sha
         except OSError as exc:
