@@ -87,6 +87,7 @@ def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Tabl
 # What a count key is called in the details line ("untracked": files in the folder without a row).
 COUNT_WORDS = {
     "untracked": "not patched yet", "changed": "changed since patched", "waiting": "still being written",
+    "gone": "deleted or moved away since patched",
 }  # fmt: skip
 
 

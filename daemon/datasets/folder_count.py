@@ -42,6 +42,7 @@ class FolderCount:
     untracked: list[Path] = field(default_factory=list)  # media files that no row mentions
     copies: Path | None = None  # `ppd poison --out`: the folder the patched copies went to
     changed: list[Path] = field(default_factory=list)  # patched in place, another size or time now
+    gone: list[Path] = field(default_factory=list)  # patched in place, no longer there (deleted, moved)
     # photos and videos ppd cannot protect (poisoner.media.UNPROTECTED_SUFFIXES: BMP, GIF, raw files),
     # which a reconstruction reads all the same (a black-box review: status and --check ignored them)
     unprotectable: list[Path] = field(default_factory=list)
@@ -50,7 +51,7 @@ class FolderCount:
         copies = None if self.copies is None else str(self.copies)
         return {"folder": str(self.folder), "exists": self.exists, "on_disk": self.on_disk,
                 "untracked": len(self.untracked), "copies": copies, "changed": len(self.changed),
-                "unprotectable": len(self.unprotectable)}  # fmt: skip
+                "unprotectable": len(self.unprotectable), "gone": len(self.gone)}  # fmt: skip
 
 
 def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
@@ -141,8 +142,13 @@ def count_folder(
     untracked = [f for f in files if str(f) not in inside and f.relative_to(folder).parts not in covered]
     present = {str(f) for f in files}
     changed = [Path(r["path"]) for r in rows if r["path"] in present and _changed(r)]
+    # a file patched in place that is no longer there is no file of the dataset's (a black-box review:
+    # deleted, it still counted patched); the daemon records it removed, a one-shot user has no daemon
+    gone = [Path(r["path"]) for r in rows if r["state"] in PATCHED_VALUES and not r.get("published_path")
+            and Path(r["path"]).is_relative_to(folder) and r["path"] not in present
+            and str(r["path"]) not in theirs and not os.path.lexists(r["path"])]  # fmt: skip
     return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies,
-                       changed=changed, unprotectable=unprotectable)  # fmt: skip
+                       changed=changed, unprotectable=unprotectable, gone=gone)  # fmt: skip
 
 
 def _changed(row: Mapping[str, Any]) -> bool:
@@ -167,9 +173,13 @@ def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int
     merged["files"] = int(counts.get("files", 0)) - removed + len(folder.untracked)
     if folder.unprotectable and folder.copies is None:  # --out: they are not where the copies are
         merged["unprotectable"] = len(folder.unprotectable)
+    if folder.gone:  # deleted or moved away since patched: neither a file of the dataset nor patched
+        merged["gone"] = len(folder.gone)
+        merged["files"] -= len(folder.gone)
+        merged[FileState.PATCHED.value] = int(merged.get(FileState.PATCHED.value, 0)) - len(folder.gone)
     if folder.changed:  # no longer ppd's output: not counted patched
         merged["changed"] = len(folder.changed)
-        merged[FileState.PATCHED.value] = int(counts.get(FileState.PATCHED.value, 0)) - len(folder.changed)
+        merged[FileState.PATCHED.value] = int(merged.get(FileState.PATCHED.value, 0)) - len(folder.changed)
     return merged
 
 

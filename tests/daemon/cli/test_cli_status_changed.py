@@ -41,6 +41,20 @@ def test_an_original_copied_back_is_not_counted_patched(ppd_env: dict[str, Path]
     assert counts("dtu")["patched"] == 3 and counts("dtu").get("changed", 0) == 0
 
 
+def test_a_patched_photo_deleted_is_no_longer_counted(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A black-box review: a patched photo deleted (or moved away) with no daemon running still
+    counted as a patched file of its dataset."""
+    shoot = tmp_path / "shoot"
+    for i in range(3):
+        write_image(shoot / f"v{i}.png", seed=i)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    (shoot / "v1.png").unlink()
+    now = counts("shoot")
+    assert now["files"] == 2 and now["patched"] == 2 and now["gone"] == 1, now
+    text = " ".join(runner.invoke(app, ["status", "shoot"]).output.split())
+    assert "files 2: deleted or moved away since patched 1, patched 2" in text, text
+
+
 def test_a_touched_file_is_changed_until_a_run_sees_its_bytes_are_ppds(ppd_env: dict[str, Path]) -> None:
     shoot = ppd_env["outbox"] / "set"
     write_image(shoot / "a.png", seed=3)
