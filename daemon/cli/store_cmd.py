@@ -64,15 +64,33 @@ def check() -> None:
         datasets = store.datasets()
         files = sum(store.counts(d["name"])["files"] for d in datasets)
         version = store.schema_version()
+        missing = _missing_originals(store, paths.vault_dir, datasets)
     except StoreError as exc:
         raise _fail(str(exc).splitlines()[0]) from None
     finally:
         store.close()
+    if missing:  # a black-box review: "sound" while the vault had lost the originals to restore
+        raise _fail(f"{len(missing)} patched file(s) have no original in the vault {paths.vault_dir} "
+                    f"({missing[0]}{', ...' if len(missing) > 1 else ''}): ppd cannot restore them; "
+                    "keep the vault folder with your backups")  # fmt: skip
     _console().print(
         f"store {paths.db_path}: sound (schema {version}), {files} file row(s) in {len(datasets)} dataset(s)",
         highlight=False,
         markup=False,
     )
+
+
+def _missing_originals(store: Any, vault_dir: Path, datasets: list[dict[str, Any]]) -> list[str]:
+    """The patched files whose original is not in the vault (by name: a stat each, no hashing)."""
+    from daemon.states import FileState
+
+    missing = []
+    for d in datasets:
+        for row in store.files(d["name"], state=FileState.PATCHED):
+            sha = row.get("original_sha256") or ""
+            if len(sha) == 64 and not (vault_dir / sha[:2] / sha).is_file():
+                missing.append(row["path"])
+    return missing
 
 
 @store_app.command("rebuild")

@@ -143,3 +143,18 @@ def test_rebuild_keeps_a_dataset_patched_inside_another(ppd_env: dict[str, Path]
     restored = runner.invoke(ppd, ["restore", "zoo"])
     assert restored.exit_code == 0 and "restored 3" in restored.output, restored.output
     assert all((album / "zoo" / f"z{i}.png").read_bytes() == data for i, data in originals.items())
+
+
+def test_check_says_when_the_vault_lost_originals(app: typer.Typer, ppd_env: dict[str, Path]) -> None:
+    """A black-box review: `ppd store check` said "sound" with a patched file's original gone from
+    the vault, which only a restore then found out."""
+    paths = AppPaths.from_env()
+    originals = _patched_outbox(paths)
+    runner = CliRunner()
+    assert runner.invoke(app, ["store", "check"]).exit_code == 0
+    first = sorted(originals)[0]
+    sha = Store(paths.db_path).file(first)["original_sha256"]
+    Vault(paths.vault_dir).path_for(sha).unlink()
+    lost = runner.invoke(app, ["store", "check"])
+    assert lost.exit_code == 1, lost.stdout
+    assert "1 patched file(s) have no original in the vault" in _one_line(lost.stderr), lost.stderr
