@@ -20,10 +20,10 @@ import math
 
 import numpy as np
 
+from poisoner.array_search import count_integral
 from poisoner.mark_place import MarkPlace
 from poisoner.placement import (
     PLAIN_SHARE,
-    count_integral,
     most_plain_count,
     place_on_photo,
     reaches_a_corner,

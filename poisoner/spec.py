@@ -291,10 +291,11 @@ class PatchSpec:
             # the mark's path starts at the anchor and runs right/down, as from a top-left corner
             corner = self.replace(position="top-left", offset=(max(0, int(ax)), max(0, int(ay))))
             if (ax < 0 or ay < 0) and lanes_at is None:  # a path starting before the frame's edge
-                lanes_at = corner._stacked_anchors(width, height, (int(ax), int(ay)))
-                if lanes_at is None and (self.lanes > 1 or self.motion in CORNER_MOTIONS):
+                if self.motion in CORNER_MOTIONS:
                     raise SpecError(f"anchor ({ax},{ay}) falls outside a {width}x{height} image")
-                if lanes_at is None:  # one square: the path's point moved back by what is outside
+                if self.lanes > 1:
+                    lanes_at = corner._stacked_anchors(width, height, (int(ax), int(ay)))
+                else:  # one square: the path's point moved back by what lies before the edge
                     one = corner.resolve(width, height, image_key, index=index, crop=crop)
                     x, y = one.x + min(0, int(ax)), one.y + min(0, int(ay))
                     if x < 0 or y < 0:
@@ -432,16 +433,11 @@ class PatchSpec:
         cropped = {"lane_crop": shown} if shown < size else {}
         return self._placement(bx, by, side, block, parts=parts, lane_size=size, **cropped)
 
-    def _stacked_anchors(
-        self, width: int, height: int, anchor: tuple[int, int]
-    ) -> tuple[tuple[int, int], ...] | None:
-        """Each lane's anchor in the stacked layout from one anchor (lanes_at's form, which may start
-        before the frame's edge); None for a mark without lanes."""
-        if self.lanes <= 1 or self.motion in CORNER_MOTIONS:
-            return None
+    def _stacked_anchors(self, width: int, height: int, at: tuple[int, int]) -> tuple[tuple[int, int], ...]:
+        """Each lane's anchor in the stacked layout from one (lanes_at's form: may lie before the edge)."""
         size = min(_resolve_length(self.patch_size, width), self._lane_cap(width, height))
         pitch = round(size * 7 / 6)
-        return tuple((anchor[0], anchor[1] + k * pitch) for k in range(self.lanes))
+        return tuple((at[0], at[1] + k * pitch) for k in range(self.lanes))
 
     def _slide_offset(self, index: float, step: int, span: int) -> tuple[int, int]:
         """Inward (dx, dy) on the slide path: along x, or along (slide_run, 1) when tilted."""

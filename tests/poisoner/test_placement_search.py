@@ -11,14 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from poisoner.placement import (
-    PLAIN_SHARE,
-    count_integral,
-    integral_image,
-    lexsort_first,
-    lexsort_head,
-    most_plain_count,
-)
+from poisoner.array_search import count_integral, integral_image, lexsort_first, lexsort_head
+from poisoner.placement import PLAIN_SHARE, most_plain_count
 from poisoner.shrink import _some_square_plain
 
 
