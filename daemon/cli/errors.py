@@ -110,8 +110,8 @@ def open_ctx() -> AppContext:
 
     try:
         ctx = AppContext.open()
-    except (ConfigError, StoreError) as exc:
-        raise die(one_line(exc)) from None
+    except (ConfigError, StoreError) as exc:  # each with its own status: a damaged store is 3, not 2
+        raise die(one_line(exc), exc.exit_status) from None
     except OSError as exc:
         raise die(
             f"cannot set up ppd's folders: {os_error_text(exc, hint_out=False)}", ExitStatus.ENVIRONMENT
