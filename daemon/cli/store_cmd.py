@@ -128,6 +128,8 @@ def rebuild(
     _console().print(report.summary(), highlight=False, markup=False)
     if verbose:
         _print_details(paths, report)
+    if report.recorded == 0 and report.unreferenced_originals:  # nothing recovered of what the vault
+        raise typer.Exit(1)  # holds: not "done" (a black-box review: a lost seal key, exit 0)
 
 
 def _print_details(paths: Any, report: Any) -> None:

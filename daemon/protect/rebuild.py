@@ -89,7 +89,9 @@ class RebuildReport:
         if self.unreferenced_originals:  # photos patched in folders it did not walk (a black-box review:
             # "0 patched file(s)" and nothing said of how to find them)
             notes.append(f"{self.unreferenced_originals} vault original(s) no file names: give the "
-                         "folders patched outside the outbox, `ppd store rebuild FOLDER ...`")  # fmt: skip
+                         "folders patched outside the outbox, `ppd store rebuild FOLDER ...`, or, if the "
+                         "seal key was lost or replaced since, `ppd key import` the one they were "
+                         "patched with first")  # fmt: skip
         if notes:
             text += f" ({'; '.join(notes)})"
         if self.kept_aside:

@@ -158,3 +158,17 @@ def test_check_says_when_the_vault_lost_originals(app: typer.Typer, ppd_env: dic
     lost = runner.invoke(app, ["store", "check"])
     assert lost.exit_code == 1, lost.stdout
     assert "1 patched file(s) have no original in the vault" in _one_line(lost.stderr), lost.stderr
+
+
+def test_a_rebuild_that_recovers_nothing_fails(app: typer.Typer, ppd_env: dict[str, Path]) -> None:
+    """A black-box review: the seal key and the store both lost, `ppd store rebuild` recorded 0 of the
+    vault's originals and exited 0, naming only folders to walk. It exits 1 and names the key too."""
+    paths = AppPaths.from_env()
+    _patched_outbox(paths)
+    for lost in (paths.data_dir / "seal.key", paths.db_path):
+        lost.unlink()
+    rebuilt = CliRunner().invoke(app, ["store", "rebuild"])
+    assert rebuilt.exit_code == 1, rebuilt.stdout
+    line = _one_line(rebuilt.stdout)
+    assert "0 patched file(s)" in line and "3 vault original(s) no file names" in line
+    assert "`ppd key import`" in line
