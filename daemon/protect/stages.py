@@ -44,7 +44,7 @@ import os
 import stat
 from collections.abc import Callable
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 from daemon.datasets.dataset import ensure_dataset
 from daemon.datasets.subject_masks import (
@@ -250,6 +250,8 @@ def recognise(job: Job) -> ProtectOutcome | None:
         moved = out_path is None and not job.dry_run
         if moved and carry_moved_row(ctx, earlier, job.path, job.dataset, job.root):
             return job.outcome(Outcome.UNCHANGED, f"moved from {earlier['path']}", poisoned_sha256=sha)
+        if moved and earlier["original_sha256"] and ctx.vault.has(earlier["original_sha256"]):
+            _record_copy(job, earlier, sha)  # else status calls it "not patched yet", poison "unchanged"
         return job.outcome(Outcome.UNCHANGED, "already ppd output", poisoned_sha256=sha)
     if (recognised := _recognise_by_marker(job)) is not None:
         return recognised
@@ -358,6 +360,20 @@ def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
     return job.outcome(
         Outcome.UNCHANGED, "already ppd output (its provenance seal says so)", poisoned_sha256=job.sha
     )
+
+
+def _record_copy(job: Job, earlier: dict[str, Any], sha: str) -> None:
+    """A copy of ppd's output kept where it is (another dataset's file copied in): a patched file of
+    this dataset, its original the same vault copy. A black-box review: with no row, `ppd status` said
+    "not patched yet: run ppd poison", and `ppd poison` said "unchanged", round and round."""
+    assert job.file is not None
+    ensure_dataset(job.ctx, job.dataset, job.root, job.wanted_spec)
+    job.ctx.store.record_file(
+        job.path, job.dataset, FileState.PATCHED, original_sha256=earlier["original_sha256"],
+        poisoned_sha256=sha, spec_id=earlier.get("spec_id"), tool_version=earlier.get("tool_version"),
+        size=job.file.st.st_size, mtime_ns=job.file.st.st_mtime_ns, error=None,
+        event="recognised", detail={"from": earlier["path"]},
+    )  # fmt: skip
 
 
 def keep_in_vault(job: Job) -> ProtectOutcome | None:

@@ -67,3 +67,25 @@ def test_a_restore_killed_midway_is_finished_by_the_next_one(ppd_env: dict[str, 
     assert result.exit_code == 0 and "restored 2" in result.output, result.output
     assert sorted(p.name for p in shoot.iterdir()) == ["v0.png", "v1.png"]
     assert all((shoot / f"v{i}.png").read_bytes() == originals[i] for i in range(2))
+
+
+def test_a_patched_photo_copied_into_another_dataset_is_one_of_its_patched_files(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A black-box review: status said "1 not patched yet: run `ppd poison`", and ppd poison said
+    "unchanged (already ppd output)", round and round. The copy is now recorded in the folder's
+    dataset (its original the same vault copy), so the two agree, and restore gives its original."""
+    import json
+
+    a, b = tmp_path / "a", tmp_path / "b"
+    original = make_image(a / "v0.png", 0).read_bytes()
+    make_image(b / "w0.png", 1)
+    assert runner.invoke(app, ["poison", str(a)]).exit_code == 0
+    assert runner.invoke(app, ["poison", str(b)]).exit_code == 0
+    (b / "copied.png").write_bytes((a / "v0.png").read_bytes())
+    again = runner.invoke(app, ["poison", str(b)])
+    assert again.exit_code == 0 and "unchanged 2" in " ".join(again.output.split()), again.output
+    (d,) = json.loads(runner.invoke(app, ["status", "b", "--json"]).output)["datasets"]
+    assert d["not_patched_yet"] == 0 and d["patched"] == 2, d["counts"]
+    assert runner.invoke(app, ["restore", str(b / "copied.png")]).exit_code == 0
+    assert (b / "copied.png").read_bytes() == original
