@@ -64,20 +64,25 @@ def os_error_text(exc: OSError, hint_out: bool = True) -> str:
     return f"{exc.strerror or exc}: {where}" if where else one_line(exc)
 
 
-def reason_text(reason: str | None) -> str:
-    """A failure reason recorded by the core (one line) with raw errno text made readable."""
+def reason_text(reason: str | None, folder: Path | None = None, hint_out: bool = True) -> str:
+    """A failure reason recorded by the core (one line) with raw errno text made readable. folder:
+    the failed file's, named where the error's path is relative (a temporary written beside it:
+    "folder not writable: ."); hint_out: the command has --out (`ppd restore` has not)."""
     if not reason:
         return "unknown reason"
     for code, name in ((errno.EACCES, "Permission denied"), (errno.EROFS, "Read-only file system")):
         if f"[Errno {code}]" in reason or name in reason:
             path = reason.rsplit(":", 1)[-1].strip().strip("'\"")
-            return f"folder not writable: {Path(path).parent if path else '?'}; use --out DIR"
+            where = Path(path).parent if path else None
+            if folder is not None and (where is None or not where.is_absolute()):
+                where = folder
+            return f"folder not writable: {where or '?'}" + ("; use --out DIR" if hint_out else "")
     return one_line(reason)
 
 
 def file_reason(path: Path | str, reason: str | None) -> str:
     """reason_text without the file name the core's reasons often start with (the line has it)."""
-    text = reason_text(reason)
+    text = reason_text(reason, Path(path).absolute().parent)
     name = Path(path).name
     return text[len(name) + 2 :] if text.startswith(f"{name}: ") else text
 

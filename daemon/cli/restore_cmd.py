@@ -94,7 +94,8 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
     for o in outcomes:
         word = restore_word(o)
         if word == "failed":
-            err_console().print(f"ppd: not restored: {o.path}: {reason_text(o.reason)}", markup=False)
+            said = reason_text(o.reason, Path(o.path).parent, hint_out=False)  # restore has no --out
+            err_console().print(f"ppd: not restored: {o.path}: {said}", markup=False)
         elif verbosity() > 0:  # -v names each file (README), with its reason when it has one
             console().print(f"{word} {o.path}" + (f": {o.reason}" if o.reason else ""), markup=False)
         elif o.reason and word not in ("restored", "unchanged", "removed"):

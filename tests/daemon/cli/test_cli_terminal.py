@@ -104,6 +104,11 @@ def test_os_errors_say_what_to_do() -> None:
     raw = "[Errno 13] Permission denied: '/photos/castle/.ppd-tmp-_isopwap.jpg'"
     assert reason_text(raw) == "folder not writable: /photos/castle; use --out DIR"
     assert reason_text("truncated JPEG") == "truncated JPEG"
+    # a temporary written beside the file by a descriptor names no folder: the file's is said (a
+    # black-box review: "folder not writable: ."), and restore, which has no --out, does not offer it
+    beside = "[Errno 13] Permission denied: '.ppd-tmp-L0a1b2c3d4e5f.jpg'"
+    said = reason_text(beside, Path("/photos/castle"), hint_out=False)
+    assert said == "folder not writable: /photos/castle", said
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
