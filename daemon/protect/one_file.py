@@ -293,11 +293,14 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                 reason = _remove_patched_copy(row, copy, force)
                 target = Path(row["path"]) if row["published_path"] else None
                 if target is not None:  # published: the original goes back to where it was patched
-                    if (target.exists() or target.is_symlink()) and not force:
+                    there = target.is_file() and not target.is_symlink()
+                    done = there and sha256_file(target) == row["original_sha256"]  # a restore killed
+                    if (target.exists() or target.is_symlink()) and not force and not done:  # midway
                         raise ProtectRefused(
                             f"{target} exists; not overwriting it with the original (use --force)"
                         )
-                    ctx.vault.restore(row["original_sha256"], target, replaces=True if force else None)
+                    if not done:
+                        ctx.vault.restore(row["original_sha256"], target, replaces=True if force else None)
                     reason = f"original back at {target}; {reason}"
             else:
                 target = path

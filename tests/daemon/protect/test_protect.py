@@ -348,6 +348,28 @@ def test_publish_dir_receives_the_protected_file(ppd_env: dict[str, Path], tmp_p
     ctx.close()
 
 
+def test_a_restore_from_the_publish_folder_killed_midway_is_finished_next_time(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """Killed after the published copy was removed and the original written back, before its row: the
+    next restore refused "a.png exists; not overwriting it" (a diff review). The file holding its
+    original is taken as done; any other file there is still refused."""
+    publish = tmp_path / "www"
+    (ppd_env["config"] / "config.toml").write_text(f'publish_dir = "{publish}"\n')
+    ctx = AppContext.open()
+    src = make_image(ppd_env["outbox"] / "shoot" / "a.png", 3)
+    original = src.read_bytes()
+    assert protect_file(src, ctx).state == "patched"
+    (publish / "shoot" / "a.png").unlink()  # what the killed restore had done, the row not told
+    src.write_bytes(original)
+    assert restore_file(ctx, src).state == "restored" and src.read_bytes() == original
+    other = make_image(ppd_env["outbox"] / "shoot" / "b.png", 4)
+    assert protect_file(other, ctx).state == "patched"
+    make_image(other, 9)  # a different photo now where the original would go
+    assert restore_file(ctx, other).state == "failed"
+    ctx.close()
+
+
 def test_restore_then_daemon_leaves_it_force_reprotects(ctx: AppContext, ppd_env: dict[str, Path]) -> None:
     src = make_image(ppd_env["outbox"] / "a.png", 4)
     original = src.read_bytes()
