@@ -221,6 +221,31 @@ def turned_mask_lines(outcomes: list[Any], masks: dict[str, Path | None]) -> lis
     return lines
 
 
+# The default's squares are 12 blocks across where its protection was measured (48 px of 4 px blocks
+# at 800 px; 9 at 640 px): a square of fewer blocks gives SIFT few features of its own.
+FEW_BLOCKS = 8
+
+
+def small_mark_lines(outcomes: list[Any]) -> list[str]:
+    """One line when some photos got squares of fewer than FEW_BLOCKS blocks across (a very small
+    photo, a panorama whose height caps the squares: a black-box review found 3 x 3 blocks on a
+    200 x 150 photo, said nowhere); a cropped square is said apart (place_lines)."""
+    small = []
+    for o in outcomes:
+        placement = getattr(getattr(o, "report", None), "placement", None)
+        if o.state != "patched" or placement is None or not placement.lane_size or placement.lane_crop:
+            continue
+        if (across := placement.lane_size // max(1, placement.block)) < FEW_BLOCKS:
+            small.append((o.path.name, across, placement.lane_size))
+    if not small:
+        return []
+    name, across, side = min(small, key=lambda item: item[1])
+    s = "" if len(small) == 1 else "s"
+    return [f"{len(small)} photo{s} got squares of fewer than {FEW_BLOCKS} blocks across ({name}: {across} "
+            f"blocks, {side} px; ppd's mark was measured with 12): a small photo or a wide panorama caps "
+            "them, and `ppd verify` tells whether they hold"]
+
+
 def capped_lines(outcomes: list[Any], wanted: dict[str, PatchSpec], options: SpecOptions) -> list[str]:
     """One line per dataset whose asked --patch-size the visibility budget capped (the lanes' squares
     together change at most poisoner.spec.LANES_MAX_AREA of a picture): said, never silent."""

@@ -388,7 +388,7 @@ def _run_planned(
     summary(ctx, jobs, outcomes, dry_run, scene_notes=lambda: not stop())  # a Ctrl-C there skips the notes
     done = {o.path for o in outcomes if o.state in OUTCOME_PATCHED}
     capped = planning.capped_lines(outcomes, wanted, spec_options)
-    turned = planning.turned_mask_lines(outcomes, masks)
+    turned = planning.turned_mask_lines(outcomes, masks) + planning.small_mark_lines(outcomes)
     for line in planning.missing_mask_lines(jobs, done, masks) + turned + capped:
         console().print(line, markup=False)
     # a photo ppd cannot write (BMP, GIF, raw) left beside the patched ones: not protected, as a failure

@@ -47,3 +47,19 @@ def test_no_such_line_when_every_masked_photo_is_upright(ppd_env: dict[str, Path
     result = runner.invoke(app, ["poison", str(tmp_path / "shoot"), *masks])
     assert result.exit_code == 0, result.output
     assert "shown turned" not in result.output
+
+
+def test_poison_says_when_photos_get_squares_of_few_blocks(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A black-box review: a 200 x 150 photo got squares of 3 x 3 blocks, a 4:1 panorama 5 x 5 (12
+    where the mark was measured), and nothing said so. A 640 x 480 photo (9 blocks) is not named."""
+    shoot = tmp_path / "shoot"
+    shoot.mkdir()
+    rng = np.random.default_rng(1)
+    for name, size in (("small.png", (200, 150)), ("pano.png", (2000, 500)), ("normal.png", (640, 480))):
+        pixels = np.full((size[1], size[0], 3), 200, dtype=np.uint8)
+        pixels[size[1] // 2 :] = rng.integers(0, 256, (size[1] - size[1] // 2, size[0], 3))
+        Image.fromarray(pixels).save(shoot / name)
+    result = runner.invoke(app, ["poison", str(shoot)])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert "2 photos got squares of fewer than 8 blocks across (small.png: 3 blocks, 12 px;" in text, text
