@@ -202,6 +202,7 @@ def turned_mask_lines(outcomes: list[Any], masks: dict[str, Path | None]) -> lis
     masks are read in the stored pixels, as COLMAP reads the photos. A mask drawn on such a photo as
     shown is refused where its shape differs (a portrait shot), and silently upside down where it does
     not (orientation 3: a black-box review found the mark on the subject, called patched)."""
+    from daemon.protect.job import shown_name
     from poisoner.subject import mask_path
 
     turned: dict[Path, list[tuple[str, int]]] = {}
@@ -210,7 +211,7 @@ def turned_mask_lines(outcomes: list[Any], masks: dict[str, Path | None]) -> lis
         if folder is None or place is None or place.orientation == 1 or o.state != "patched":
             continue
         if mask_path(folder, o.path.name) is not None:
-            turned.setdefault(folder, []).append((o.path.name, place.orientation))
+            turned.setdefault(folder, []).append((shown_name(o.path), place.orientation))
     lines = []
     for folder, names in sorted(turned.items()):
         (first, orientation), s = names[0], "" if len(names) == 1 else "s"
@@ -230,13 +231,15 @@ def small_mark_lines(outcomes: list[Any]) -> list[str]:
     """One line when some photos got squares of fewer than FEW_BLOCKS blocks across (a very small
     photo, a panorama whose height caps the squares: a black-box review found 3 x 3 blocks on a
     200 x 150 photo, said nowhere); a cropped square is said apart (place_lines)."""
+    from daemon.protect.job import shown_name
+
     small = []
     for o in outcomes:
         placement = getattr(getattr(o, "report", None), "placement", None)
         if o.state != "patched" or placement is None or not placement.lane_size or placement.lane_crop:
             continue
         if (across := placement.lane_size // max(1, placement.block)) < FEW_BLOCKS:
-            small.append((o.path.name, across, placement.lane_size))
+            small.append((shown_name(o.path), across, placement.lane_size))
     if not small:
         return []
     name, across, side = min(small, key=lambda item: item[1])

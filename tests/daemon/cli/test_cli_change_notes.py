@@ -59,8 +59,13 @@ def test_a_name_with_a_newline_stays_on_its_line(ppd_env: dict[str, Path], tmp_p
     """`ppd -v poison` printed a name with a newline raw, splitting its line (a black-box review)."""
     shoot = tmp_path / "d"
     shoot.mkdir()
-    Image.new("RGB", (200, 150), (9, 99, 199)).save(shoot / "new\nline.png")
+    Image.new("RGB", (800, 600), (9, 99, 199)).save(shoot / "new\nline.png")  # no small-squares line
     result = runner.invoke(app, ["-v", "poison", str(shoot)])
     assert result.exit_code == 0, result.output
     lines = [x for x in result.output.splitlines() if "line.png" in x]
     assert len(lines) == 1 and "new\\nline.png" in lines[0] and lines[0].startswith("patched "), lines
+    # the summary's lines that name a file escape it too (small squares: a 200 x 150 photo)
+    Image.new("RGB", (200, 150), (9, 99, 199)).save(shoot / "small\nline.png")
+    result = runner.invoke(app, ["poison", str(shoot)])
+    said = [x for x in result.output.splitlines() if "blocks across" in x or x.startswith("line.png")]
+    assert len(said) == 1 and "small\\nline.png" in said[0], result.output
