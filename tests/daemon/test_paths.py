@@ -69,3 +69,18 @@ def test_a_data_folder_of_ppds_own_is_kept(tmp_path: Path) -> None:
     (tmp_path / "data" / "ppd.sqlite3").write_bytes(b"")
     paths.ensure()  # its own files are no photos
     assert paths.vault_dir.is_dir()
+
+
+def test_a_data_folder_inside_a_publish_folder_is_refused(
+    ppd_env: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The config names the folders ppd publishes to; the vault of originals is never inside one (a
+    diff review: only the outbox was checked, before the config was read)."""
+    from daemon.context import AppContext
+
+    www = tmp_path / "www"
+    (ppd_env["config"] / "config.toml").write_text(f'publish_dir = "{www}"\n')
+    monkeypatch.setenv("PPD_DATA_DIR", str(www / "ppd-data"))
+    with pytest.raises(PpdError, match="inside the publish folder"):
+        AppContext.open()
+    assert not (www / "ppd-data").exists()  # nothing made there
