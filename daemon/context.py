@@ -36,9 +36,9 @@ class AppContext:
     @classmethod
     def open(cls, paths: AppPaths | None = None) -> AppContext:
         paths = paths or AppPaths.from_env()
-        config = Config.load(paths)  # reads one file: nothing is made before the places are checked
-        _check_publish_folders(paths, config)
-        paths.ensure()
+        config = Config.load(paths)  # reads one file: the publish folders, checked before anything is made
+        published = [config.publish_dir] + [d.publish_dir for d in config.datasets.values()]
+        paths.ensure(published=[p for p in published if p is not None])
         return cls(
             paths=paths,
             config=config,
@@ -56,16 +56,3 @@ class AppContext:
         """One worker at a time on a path, across threads and ppd processes (daemon.locks)."""
         with file_lock(self.paths.data_dir, path, self.lock_wait_s):
             yield
-
-
-def _check_publish_folders(paths: AppPaths, config: Config) -> None:
-    """The data folder (the vault of originals) inside a folder ppd publishes to is refused, as it is
-    inside the outbox (daemon.paths): the config names those only once it is loaded (a diff review)."""
-    from daemon.paths import DataPlaceError
-
-    data = Path(paths.data_dir).resolve()
-    folders = [config.publish_dir] + [d.publish_dir for d in config.datasets.values()]
-    for folder in (Path(f).expanduser().resolve() for f in folders if f is not None):
-        if data.is_relative_to(folder):
-            raise DataPlaceError(f"the data folder {paths.data_dir} (PPD_DATA_DIR) cannot hold the vault of "
-                                 f"originals: inside the publish folder {folder}")  # fmt: skip

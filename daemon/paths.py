@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 import stat
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -69,14 +69,15 @@ class AppPaths:
             cache_dir=pick("PPD_CACHE_DIR", platformdirs.user_cache_dir(APP_NAME)),
         )
 
-    def ensure(self) -> None:
+    def ensure(self, published: Iterable[Path] = ()) -> None:
         """Create every folder: data, vault and runs private (0700, tightened if looser); the
         config and cache folders 0700 when ppd creates them, whatever the umask (an existing one
         keeps its mode: the user's choice). The outbox is the user's visible folder: created
         under the umask, as `mkdir -p` would. A data folder where the vault's originals would be
         published, or that is a photo or holds photos, is refused before anything is made (a
-        black-box review: PPD_DATA_DIR in the outbox put the originals there; on a photo, made it 0700)."""
-        if why := self.data_dir_problem():
+        black-box review: PPD_DATA_DIR in the outbox put the originals there; on a photo, made it 0700).
+        published: the folders the config publishes to (publish_dir), refused as the outbox is."""
+        if why := self.data_dir_problem(published):
             raise DataPlaceError(f"the data folder {self.data_dir} (PPD_DATA_DIR) cannot hold the vault of "
                                  f"originals: {why}")  # fmt: skip
         for private in (self.data_dir, self.vault_dir, self.runs_dir):
@@ -86,11 +87,14 @@ class AppPaths:
         self.outbox.mkdir(parents=True, exist_ok=True)
 
 
-    def data_dir_problem(self) -> str | None:
+    def data_dir_problem(self, published: Iterable[Path] = ()) -> str | None:
         """Why the data folder cannot hold the vault, in words; None when it can."""
         data, outbox = self.data_dir.resolve(), self.outbox.resolve()
         if data.is_relative_to(outbox):
             return f"inside the outbox {self.outbox}, whose files are published"
+        for folder in (Path(f).expanduser().resolve() for f in published):
+            if data.is_relative_to(folder):
+                return f"inside the publish folder {folder}"
         if data.exists() and not data.is_dir():
             return "not a folder"
         if data.is_dir() and (photo := _a_photo_in(data)) is not None:

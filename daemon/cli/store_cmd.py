@@ -83,12 +83,13 @@ def check() -> None:
 def _missing_originals(store: Any, vault_dir: Path, datasets: list[dict[str, Any]]) -> list[str]:
     """The patched files whose original is not in the vault (by name: a stat each, no hashing)."""
     from daemon.states import FileState
+    from daemon.store.vault import blob_path
 
     missing = []
     for d in datasets:
         for row in store.files(d["name"], state=FileState.PATCHED):
-            sha = row.get("original_sha256") or ""
-            if len(sha) == 64 and not (vault_dir / sha[:2] / sha).is_file():
+            sha = row.get("original_sha256")
+            if sha and not blob_path(vault_dir, sha).is_file():
                 missing.append(row["path"])
     return missing
 

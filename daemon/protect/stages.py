@@ -44,7 +44,7 @@ import os
 import stat
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, cast
+from typing import cast
 
 from daemon.datasets.dataset import ensure_dataset
 from daemon.datasets.subject_masks import (
@@ -99,7 +99,7 @@ from daemon.protect.poisoning import (
 )
 from daemon.protect.quarantine import attempt, forget_attempt
 from daemon.protect.recovery import carry_moved_row, recover_pending
-from daemon.states import FileState
+from daemon.states import STILL_OPEN_PREFIX, FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import atomic_replace_at
 from poisoner.errors import ExitStatus, PpdError
@@ -167,8 +167,6 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     if reason is not None:
         pids = writers_of(job.file.st, fresh=True)  # the shared scan may predate this writer
     if pids:
-        from daemon.states import STILL_OPEN_PREFIX
-
         # the daemon's watcher patches it once closed; `ppd poison` says to run it again (poison_cmd)
         why = f"{STILL_OPEN_PREFIX} by pid {pids[0]}; patched once it is closed"
         return job.outcome(Outcome.SKIPPED, why, signature=None)
@@ -251,7 +249,10 @@ def recognise(job: Job) -> ProtectOutcome | None:
         if moved and carry_moved_row(ctx, earlier, job.path, job.dataset, job.root):
             return job.outcome(Outcome.UNCHANGED, f"moved from {earlier['path']}", poisoned_sha256=sha)
         if moved and earlier["original_sha256"] and ctx.vault.has(earlier["original_sha256"]):
-            _record_copy(job, earlier, sha)  # else status calls it "not patched yet", poison "unchanged"
+            # a copy of ppd's output kept where it is (another dataset's file copied in): with no row
+            # status called it "not patched yet" and poison "unchanged", round and round (a review)
+            _record_recognised(job, earlier["original_sha256"], sha, earlier.get("spec_id"),
+                               earlier.get("tool_version"), earlier["path"])  # fmt: skip
         return job.outcome(Outcome.UNCHANGED, "already ppd output", poisoned_sha256=sha)
     if (recognised := _recognise_by_marker(job)) is not None:
         return recognised
@@ -350,29 +351,23 @@ def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
     if seal is None:  # a token that opens but no longer verifies: ppd's output, edited since?
         return recognise_edited_output(job, claim) if claim is not None else None
     if job.out_path is None and not job.dry_run and ctx.vault.has(seal.original_sha256):
-        ensure_dataset(ctx, job.dataset, job.root, job.wanted_spec)
-        ctx.store.record_file(
-            job.path, job.dataset, FileState.PATCHED, original_sha256=seal.original_sha256,
-            poisoned_sha256=job.sha, spec_id=seal.spec_id, tool_version=None,
-            size=job.file.st.st_size, mtime_ns=job.file.st.st_mtime_ns, error=None,
-            event="recognised", detail={"from": "provenance seal"},
-        )  # fmt: skip
+        _record_recognised(job, seal.original_sha256, job.sha, seal.spec_id, None, "provenance seal")
     return job.outcome(
         Outcome.UNCHANGED, "already ppd output (its provenance seal says so)", poisoned_sha256=job.sha
     )
 
 
-def _record_copy(job: Job, earlier: dict[str, Any], sha: str) -> None:
-    """A copy of ppd's output kept where it is (another dataset's file copied in): a patched file of
-    this dataset, its original the same vault copy. A black-box review: with no row, `ppd status` said
-    "not patched yet: run ppd poison", and `ppd poison` said "unchanged", round and round."""
+def _record_recognised(
+    job: Job, original: str, sha: str, spec_id: str | None, version: str | None, source: str
+) -> None:
+    """ppd's output recognised in this dataset's folder (by its seal, or as a copy of a stored
+    output: source says which): a patched file of the dataset, its original the vault's copy."""
     assert job.file is not None
     ensure_dataset(job.ctx, job.dataset, job.root, job.wanted_spec)
     job.ctx.store.record_file(
-        job.path, job.dataset, FileState.PATCHED, original_sha256=earlier["original_sha256"],
-        poisoned_sha256=sha, spec_id=earlier.get("spec_id"), tool_version=earlier.get("tool_version"),
-        size=job.file.st.st_size, mtime_ns=job.file.st.st_mtime_ns, error=None,
-        event="recognised", detail={"from": earlier["path"]},
+        job.path, job.dataset, FileState.PATCHED, original_sha256=original, poisoned_sha256=sha,
+        spec_id=spec_id, tool_version=version, size=job.file.st.st_size, mtime_ns=job.file.st.st_mtime_ns,
+        error=None, event="recognised", detail={"from": source},
     )  # fmt: skip
 
 

@@ -154,6 +154,14 @@ def clear_stale_work_folders(vault_dir: Path, min_age_s: float = STALE_KEEP_S) -
     return removed
 
 
+def blob_path(vault_dir: Path, sha256: str) -> Path:
+    """Where the vault in vault_dir keeps the original with this digest (no Vault made: that creates
+    and sweeps the folder, which a check must not)."""
+    if len(sha256) != 64 or any(c not in "0123456789abcdef" for c in sha256):
+        raise VaultError(f"not a sha256 hex digest: {sha256!r}")
+    return Path(vault_dir) / sha256[:2] / sha256
+
+
 class Vault:
     def __init__(self, vault_dir: Path, max_bytes: int = 0) -> None:
         self.vault_dir = Path(vault_dir)
@@ -165,9 +173,7 @@ class Vault:
             clear_stale_work_folders(self.vault_dir)
 
     def path_for(self, sha256: str) -> Path:
-        if len(sha256) != 64 or any(c not in "0123456789abcdef" for c in sha256):
-            raise VaultError(f"not a sha256 hex digest: {sha256!r}")
-        return self.vault_dir / sha256[:2] / sha256
+        return blob_path(self.vault_dir, sha256)
 
     def has(self, sha256: str) -> bool:
         return self.path_for(sha256).is_file()
