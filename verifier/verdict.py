@@ -194,15 +194,19 @@ MASKED_MEANING = (
 def overall(verdicts: Iterable[str]) -> Verdict:
     """The dataset's verdict is its weakest profile's (the attacker picks the pipeline that works).
 
-    Crashed/inconclusive profiles count only when no profile gave a real answer.
+    A crashed profile outranks "protected": that attacker reconstructs the originals (its clean run
+    worked) and its run on the patched set died, so nothing says it fails on a rerun; calling the set
+    protected would count the crash as protection. It never hides a weak or NOT protected profile.
+    An inconclusive profile (its COLMAP did not reconstruct the originals either) is no threat
+    measured, so it counts only when no profile gave an answer.
     """
     vs = list(verdicts)
     decided = [Verdict(v) for v in vs if v in _STRENGTH]
+    crashed = Verdict.SFM_CRASHED in vs
     if decided:
-        return min(decided, key=_STRENGTH.__getitem__)
-    if Verdict.SFM_CRASHED in vs:
-        return Verdict.SFM_CRASHED
-    return Verdict.INCONCLUSIVE
+        weakest = min(decided, key=_STRENGTH.__getitem__)
+        return Verdict.SFM_CRASHED if crashed and weakest is Verdict.PROTECTED else weakest
+    return Verdict.SFM_CRASHED if crashed else Verdict.INCONCLUSIVE
 
 
 def not_holding(verdicts: Mapping[str, str]) -> list[str]:

@@ -87,7 +87,15 @@ def test_verdicts_are_a_str_enum_stored_as_their_value() -> None:
 
 def test_overall_is_the_weakest_profile() -> None:
     assert vd.overall([vd.PROTECTED, vd.NOT_PROTECTED, vd.WEAK]) == vd.NOT_PROTECTED
-    assert vd.overall([vd.PROTECTED, vd.SFM_CRASHED]) == vd.PROTECTED
+    # a crash is no protection: an attacker whose run died is not one the mark held (only that
+    # attacker's clean run worked), so the set is not called protected...
+    assert vd.overall([vd.PROTECTED, vd.SFM_CRASHED]) == vd.SFM_CRASHED
+    assert vd.headline_verdict({"default": "sfm_crashed", "hardened": "protected"}) == vd.SFM_CRASHED
+    # ...but it never hides an attacker the mark measurably failed
+    assert vd.overall([vd.WEAK, vd.SFM_CRASHED, vd.PROTECTED]) == vd.WEAK
+    assert vd.overall([vd.SFM_CRASHED, vd.NOT_PROTECTED]) == vd.NOT_PROTECTED
+    # an inconclusive profile (its COLMAP fails on the originals too) is no threat measured
+    assert vd.overall([vd.PROTECTED, vd.INCONCLUSIVE]) == vd.PROTECTED
     assert vd.overall([vd.SFM_CRASHED, vd.INCONCLUSIVE]) == vd.SFM_CRASHED
     assert vd.overall([vd.INCONCLUSIVE]) == vd.INCONCLUSIVE
 
