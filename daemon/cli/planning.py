@@ -61,6 +61,8 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
     for target in targets:
         if not target.exists() and not target.is_symlink():
             raise die(f"{target} does not exist")
+        if not (target.is_symlink() or target.is_dir() or target.is_file()):  # /dev/null, a fifo
+            raise die(f"{target} is not a photo, video or folder (a device, pipe or socket); nothing done")
         try:
             name, root = attribute(ctx, target, dataset)
         except (DatasetConflict, DatasetNameError) as exc:

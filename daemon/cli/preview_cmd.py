@@ -279,6 +279,8 @@ def _first_file(ctx: AppContext, given: Path) -> Path:
     try:
         chosen = resolve_target(ctx.store, str(given))
     except TargetError:
+        if given.exists():  # /dev/null, a fifo: there, but nothing to preview
+            raise die(f"{given} is not a photo, video or folder (a device, pipe or socket)") from None
         raise die(f"{given} does not exist, and is not a dataset (see `ppd status`)") from None
     say_note(chosen, err_console())
     if chosen.dataset is not None:

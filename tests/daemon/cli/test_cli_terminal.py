@@ -79,6 +79,20 @@ def test_errors_are_one_line_at_40_columns_with_a_long_tmpdir(narrow_env: dict[s
     assert unknown.returncode == 2 and "no-such-dataset" in one_error_line(unknown)
 
 
+def test_a_device_or_pipe_given_to_poison_is_bad_input_and_makes_no_dataset(
+    narrow_env: dict[str, str], tmp_path: Path
+) -> None:
+    """`ppd poison /dev/null` made a dataset "dev" holding one failed file (a black-box review)."""
+    fifo = tmp_path / "shot.jpg"
+    os.mkfifo(fifo)
+    for target in ("/dev/null", str(fifo)):
+        for command in ("poison", "preview"):
+            proc = ppd(narrow_env, command, target)
+            assert proc.returncode == 2 and "not a photo, video or folder" in one_error_line(proc)
+    status = ppd(narrow_env, "status", "--json")
+    assert status.returncode == 0 and json.loads(status.stdout)["datasets"] == []
+
+
 def test_version_and_help_read_well(narrow_env: dict[str, str]) -> None:
     version = ppd(narrow_env, "--version")
     assert version.returncode == 0 and version.stdout.startswith("ppd ")
