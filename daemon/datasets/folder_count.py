@@ -42,7 +42,7 @@ class FolderCount:
     untracked: list[Path] = field(default_factory=list)  # media files that no row mentions
     copies: Path | None = None  # `ppd poison --out`: the folder the patched copies went to
     changed: list[Path] = field(default_factory=list)  # patched in place, another size or time now
-    gone: list[Path] = field(default_factory=list)  # patched in place, no longer there (deleted, moved)
+    gone: list[Path] = field(default_factory=list)  # patched (in place or --out copy), no longer there
     # photos and videos ppd cannot protect (poisoner.media.UNPROTECTED_SUFFIXES: BMP, GIF, raw files),
     # which a reconstruction reads all the same (a black-box review: status and --check ignored them)
     unprotectable: list[Path] = field(default_factory=list)
@@ -135,9 +135,18 @@ def count_folder(
     theirs = set(foreign)
     files, unprotectable = _walk(folder, skip) if folder.is_dir() else ([], [])
     files = [f for f in files if str(f) not in theirs]
-    covered, copies = _match_copies(outside, {f.relative_to(folder).parts for f in files})
+    rels = {f.relative_to(folder).parts for f in files}
+    copies = _match_copies(outside, rels)[1]
     if not folder.is_dir():
         return FolderCount(folder, exists=False, copies=copies)
+    # an `--out` copy deleted or moved away: its photo has no protected copy now (a run makes one
+    # again), so the photo counts "not patched yet" and the copy's row "gone" (a black-box review)
+    copies_gone = [
+        Path(r["path"]) for r in rows
+        if r["state"] in PATCHED_VALUES and not Path(r["path"]).is_relative_to(folder)
+        and not os.path.lexists(r["path"])
+    ]  # fmt: skip
+    covered = _match_copies([p for p in outside if p not in set(copies_gone)], rels)[0]
     inside = {str(p) for p in paths}
     untracked = [f for f in files if str(f) not in inside and f.relative_to(folder).parts not in covered]
     present = {str(f) for f in files}
@@ -146,7 +155,7 @@ def count_folder(
     # deleted, it still counted patched); the daemon records it removed, a one-shot user has no daemon
     gone = [Path(r["path"]) for r in rows if r["state"] in PATCHED_VALUES and not r.get("published_path")
             and Path(r["path"]).is_relative_to(folder) and r["path"] not in present
-            and str(r["path"]) not in theirs and not os.path.lexists(r["path"])]  # fmt: skip
+            and str(r["path"]) not in theirs and not os.path.lexists(r["path"])] + copies_gone  # fmt: skip
     return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies,
                        changed=changed, unprotectable=unprotectable, gone=gone)  # fmt: skip
 

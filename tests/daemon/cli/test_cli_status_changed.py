@@ -141,3 +141,22 @@ def test_verify_says_the_files_it_did_not_measure(
     assert (
         "not verified, and NOT protected: 2 restored by you (only the 2 patched files were measured)" in said
     )
+
+
+def test_an_out_copy_deleted_is_gone_and_its_photo_not_patched_yet(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A black-box review: a `--out` copy deleted still counted patched, and nothing said its photo
+    had no protected copy any more; `ppd poison --out` again makes it."""
+    shoot, out = tmp_path / "shoot", tmp_path / "out"
+    for i in range(3):
+        write_image(shoot / f"v{i}.png", seed=i)
+    assert runner.invoke(app, ["poison", str(shoot), "--out", str(out)]).exit_code == 0
+    assert counts("shoot")["patched"] == 3
+    (out / "shoot" / "v1.png").unlink()
+    now = counts("shoot")
+    assert (now["files"], now["patched"], now["gone"], now["untracked"]) == (3, 2, 1, 1), now
+    again = runner.invoke(app, ["poison", str(shoot), "--out", str(out)])
+    assert again.exit_code == 0 and (out / "shoot" / "v1.png").is_file()
+    now = counts("shoot")
+    assert (now["files"], now["patched"], now.get("gone", 0), now["untracked"]) == (3, 3, 0, 0), now
