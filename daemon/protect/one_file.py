@@ -300,7 +300,10 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                             f"{target} exists; not overwriting it with the original (use --force)"
                         )
                     if not done:
-                        ctx.vault.restore(row["original_sha256"], target, replaces=True if force else None)
+                        ctx.vault.restore(
+                            row["original_sha256"], target, replaces=True if force else None,
+                            mtime_ns=row.get("original_mtime_ns"),
+                        )  # fmt: skip
                     reason = f"original back at {target}; {reason}"
             else:
                 target = path
@@ -312,7 +315,10 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                 # the check again just before the rename: a writer between the two is not overwritten
                 replaces: str | None | Literal[True] = True if force else row["poisoned_sha256"]
                 if now != row["original_sha256"]:  # the original already (a restore killed after its
-                    ctx.vault.restore(row["original_sha256"], target, replaces=replaces)  # rename): recorded
+                    ctx.vault.restore(  # rename): recorded
+                        row["original_sha256"], target, replaces=replaces,
+                        mtime_ns=row.get("original_mtime_ns"),
+                    )  # fmt: skip
                 reason = None
         except Exception as exc:
             return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))

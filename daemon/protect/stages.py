@@ -399,7 +399,8 @@ def mark_pending(job: Job) -> ProtectOutcome | None:
     job.died_before = job.held.enter_context(attempt(job.ctx.paths.data_dir, job.path, job.dataset))
     job.ctx.store.record_file(
         job.record_path, job.dataset, FileState.PENDING, original_sha256=job.sha, spec_id=job.spec.spec_id,
-        poisoned_sha256=None, error=None, tool_version=tool_version(), event="pending",
+        original_mtime_ns=job.file.st.st_mtime_ns if job.file is not None else None, poisoned_sha256=None,
+        error=None, tool_version=tool_version(), event="pending",
         detail={"kind": job.kind}, durable=False,  # no fsync: see the order at the top
     )  # fmt: skip
     return None

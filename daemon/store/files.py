@@ -18,6 +18,7 @@ FILE_STATES: tuple[FileState, ...] = tuple(FileState)
 FILE_FIELDS = frozenset(
     {
         "original_sha256",
+        "original_mtime_ns",
         "poisoned_sha256",
         "spec_id",
         "tool_version",
@@ -135,6 +136,13 @@ def upsert_file(
     columns = ", ".join(values)
     marks = ", ".join("?" for _ in values)
     updates = ", ".join(f"{c} = excluded.{c}" for c in values)
+    if "original_sha256" in fields and "original_mtime_ns" not in fields:
+        # the original's date goes with its content: another original (a seal recognised, an edit)
+        # must not keep the last one's date, which restore would give it
+        updates += (
+            ", original_mtime_ns = CASE WHEN files.original_sha256 IS excluded.original_sha256"
+            " THEN files.original_mtime_ns END"
+        )
     conn.execute(
         f"INSERT INTO files (path, created_at, {columns}) VALUES (?, ?, {marks}) "
         f"ON CONFLICT(path) DO UPDATE SET {updates}",

@@ -135,6 +135,10 @@ MIGRATIONS: tuple[str, ...] = (
     # 6 (issue 25): the dataset's subject-mask folder, remembered so that a later `ppd poison --force`
     # or the daemon keeps the mark off the subject without the flag being repeated.
     "ALTER TABLE datasets ADD COLUMN subject_masks TEXT;",
+    # 7: the original's modification time, which restore gives back: two files with the same bytes
+    # share one vault blob, whose date is the first one kept (a black-box review: restore gave the
+    # second file the first one's date). NULL: unknown, the blob's date is used.
+    "ALTER TABLE files ADD COLUMN original_mtime_ns INTEGER;",
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 AUTO_TRIGGERS = ("interim", "preflight", "escalation", "manual")  # auto_decisions.trigger's CHECK

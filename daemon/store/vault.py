@@ -353,7 +353,10 @@ class Vault:
         path = self.path_for(sha256)
         return path.is_file() and sha256_file(path) == sha256
 
-    def restore(self, sha256: str, dst: Path, *, replaces: str | None | Literal[True] = True) -> None:
+    def restore(
+        self, sha256: str, dst: Path, *, replaces: str | None | Literal[True] = True,
+        mtime_ns: int | None = None,
+    ) -> None:  # fmt: skip
         """Atomically put the original with this digest at dst: a copy (never a link: edits to
         the restored file must not reach the vault), hash-verified while copying; a blob whose
         content no longer matches its name is refused and dst is left untouched.
@@ -361,7 +364,8 @@ class Vault:
         replaces says what dst may hold when the original takes its place, checked just before
         the rename (compare-and-swap): True anything (--force), a sha256 exactly that content (what
         ppd wrote) or nothing, None nothing (dst must not exist). Otherwise RestoreRefused, dst
-        untouched."""
+        untouched. mtime_ns: the original's modification time when the store knows it (a blob
+        shared by two files with the same bytes has the first one's), else the blob's."""
         src = self.path_for(sha256)
         try:
             fd = open_regular_nofollow(src)
@@ -385,7 +389,7 @@ class Vault:
                         f"vault blob {sha256[:12]} is corrupt (content changed); not restoring it"
                     )
                 kept = os.fstat(fd)  # the original's dates, as the vault kept them (keep's times)
-                os.utime(tmp, ns=(kept.st_atime_ns, kept.st_mtime_ns))
+                os.utime(tmp, ns=(kept.st_atime_ns, kept.st_mtime_ns if mtime_ns is None else mtime_ns))
         finally:
             os.close(fd)
 

@@ -26,3 +26,44 @@ def test_restore_gives_back_the_originals_date(ppd_env: dict[str, Path]) -> None
     finally:
         ctx.close()
     assert photo.read_bytes() == original and photo.stat().st_mtime_ns == MAY_2020
+
+
+def test_two_photos_with_the_same_bytes_get_their_own_dates_back(ppd_env: dict[str, Path]) -> None:
+    """The vault keeps one blob for both (content addressing), dated as the first one kept; the store
+    keeps each original's date (a black-box review: the second came back with the first's)."""
+    first = write_image(ppd_env["outbox"] / "trip" / "a.jpg", seed=2)
+    second = first.with_name("b.jpg")
+    second.write_bytes(first.read_bytes())
+    june = MAY_2020 + 31 * 86_400 * 10**9
+    os.utime(first, ns=(MAY_2020, MAY_2020))
+    os.utime(second, ns=(june, june))
+    ctx = AppContext.open()
+    try:
+        for photo in (first, second):
+            assert protect_file(photo, ctx).state == "patched"
+        for photo in (first, second):
+            assert restore_file(ctx, photo).state == "restored"
+    finally:
+        ctx.close()
+    assert (first.stat().st_mtime_ns, second.stat().st_mtime_ns) == (MAY_2020, june)
+
+
+def test_an_original_recognised_by_another_path_does_not_keep_the_rows_old_date(
+    ppd_env: dict[str, Path],
+) -> None:
+    """A row's date belongs to its original: recording another original for the path without one
+    clears it, so restore falls back to the vault's date instead of giving the old one."""
+    from daemon.states import FileState
+    from poisoner.ladder import default_spec
+
+    ctx = AppContext.open()
+    try:
+        path = ppd_env["outbox"] / "trip" / "c.jpg"
+        ctx.store.ensure_dataset("trip", ppd_env["outbox"] / "trip", default_spec())
+        ctx.store.record_file(path, "trip", FileState.PENDING, original_sha256="a" * 64, original_mtime_ns=5)
+        ctx.store.record_file(path, "trip", FileState.PATCHED, original_sha256="a" * 64)
+        assert ctx.store.file(path)["original_mtime_ns"] == 5  # the same original keeps its date
+        ctx.store.record_file(path, "trip", FileState.PATCHED, original_sha256="b" * 64)
+        assert ctx.store.file(path)["original_mtime_ns"] is None
+    finally:
+        ctx.close()

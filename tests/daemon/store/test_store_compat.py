@@ -16,14 +16,19 @@ from daemon.states import FileState
 from daemon.store import LOST_NOTE, MIGRATIONS, SCHEMA_VERSION, Store
 from poisoner.spec import PatchSpec
 
-# sha256 of each migration script as shipped (schema versions 1 to 5). A migration that has
-# shipped is never edited (stores in the field have run it); new ones are appended.
+# sha256 of each migration script as shipped (schema versions 1 to 5: the plain store below). A
+# migration that has shipped is never edited (stores in the field have run it); new ones are appended.
 SHIPPED_MIGRATIONS = (
     "85088ebe6fdf6e664fe0482ba5b6b3e57564e0f914f059f57c6612aaff1f9116",
     "dadd321630d13e95b489562f0ce396b6be46e0f474aa95b80e89743ef7dbe7cd",
     "73927d0888531ceb9a5b62d4aaf7aaf66219f5bc82be8c9e3d836164b697ae21",
     "f48ec9c30ab293dae2c684bd0ad2bb34f7540ce6e8e843c0d7f9e1acd8d5665c",
     "3e811e7875babfd685557d59ee71f260e4880fc7ef76fb9691d51726c29184fd",
+)
+# the ones shipped since (6: subject_masks, 7: original_mtime_ns), never edited either
+LATER_MIGRATIONS = (
+    "855a8668ba38e28ff13967877e31547f670810183b80e0ed9b357327aa542003",
+    "883b5591fa2e7fce858f92db598d56b65077626f7fa2a8f3c3e6395e4b1c569e",
 )
 SPEC = PatchSpec(seed=7)
 AUTO_SPEC = PatchSpec(seed=8)
@@ -88,8 +93,8 @@ def _write_rows(conn: sqlite3.Connection) -> None:
 
 def test_the_shipped_migrations_are_unchanged() -> None:
     assert len(MIGRATIONS) == SCHEMA_VERSION >= len(SHIPPED_MIGRATIONS)
-    digests = tuple(hashlib.sha256(m.encode()).hexdigest() for m in MIGRATIONS[: len(SHIPPED_MIGRATIONS)])
-    assert digests == SHIPPED_MIGRATIONS
+    digests = tuple(hashlib.sha256(m.encode()).hexdigest() for m in MIGRATIONS)
+    assert digests[: len(SHIPPED_MIGRATIONS) + len(LATER_MIGRATIONS)] == SHIPPED_MIGRATIONS + LATER_MIGRATIONS
 
 
 def test_a_new_store_has_the_schema_the_migrations_make_when_run_plainly(tmp_path: Path) -> None:
@@ -123,7 +128,7 @@ def test_a_store_written_with_the_shipped_schema_reads_back_through_store(tmp_pa
             "id": 5, "dataset": "trip", "path": "/o/trip/a.jpg", "state": FileState.PATCHED,
             "original_sha256": "a" * 64, "poisoned_sha256": "b" * 64, "spec_id": SPEC.spec_id,
             "tool_version": "ppd 0.1.0", "size": 123, "mtime_ns": 456, "created_at": 13.0, "updated_at": 14.0,
-            "error": None, "published_path": "/pub/trip/a.jpg",
+            "error": None, "published_path": "/pub/trip/a.jpg", "original_mtime_ns": None,
         }  # fmt: skip
         assert [r["path"] for r in store.files("trip", FileState.QUARANTINED)] == ["/o/trip/b.png"]
         assert store.find_poisoned("b" * 64)["id"] == 5 and [
