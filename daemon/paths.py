@@ -113,7 +113,7 @@ def _a_photo_in(folder: Path, depth: int = 3, budget: int = 20_000) -> str | Non
         skipped = own if level == 0 else set()
         dirs[:] = [] if level >= depth else [d for d in dirs if not d.startswith(".") and d not in skipped]
         for name in files:
-            if is_media(name) or is_unprotected_media(name):
+            if is_media(name) or is_unprotected_media(Path(here, name)):
                 return str(Path(here, name).relative_to(folder))
         budget -= len(files) + len(dirs)
         if budget <= 0:

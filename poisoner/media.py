@@ -48,9 +48,30 @@ def is_media(path: str | os.PathLike[str]) -> bool:
     return suffix_of(path) in MEDIA_SUFFIXES
 
 
+# `.ts` names both an MPEG transport stream (a video) and TypeScript source: such a file is a video
+# only when its bytes say so (a black-box review: a folder's script made `ppd poison` fail).
+MPEG_TS_PACKET = 188
+MPEG_TS_SYNC = 0x47
+
+
 def is_unprotected_media(path: str | os.PathLike[str]) -> bool:
-    """A photo or video ppd leaves as it is (UNPROTECTED_SUFFIXES)."""
-    return suffix_of(path) in UNPROTECTED_SUFFIXES
+    """A photo or video ppd leaves as it is (UNPROTECTED_SUFFIXES). A `.ts` file counts only when
+    it reads as an MPEG transport stream (path must then name the file; unreadable: counted)."""
+    suffix = suffix_of(path)
+    if suffix == ".ts":
+        return _reads_as_mpeg_ts(path)
+    return suffix in UNPROTECTED_SUFFIXES
+
+
+def _reads_as_mpeg_ts(path: str | os.PathLike[str]) -> bool:
+    """Its first two packets start with the sync byte (one packet: the first does)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(MPEG_TS_PACKET + 1)
+    except OSError:
+        return True  # not read: counted as a video ppd cannot protect, never left out in silence
+    one_packet = len(head) <= MPEG_TS_PACKET
+    return bool(head) and head[0] == MPEG_TS_SYNC and (one_packet or head[-1] == MPEG_TS_SYNC)
 
 
 def is_sfm_readable(path: str | os.PathLike[str]) -> bool:

@@ -74,7 +74,7 @@ def _walk(folder: Path, skip: Iterable[Path] = ()) -> tuple[list[Path], list[Pat
                 continue
             if is_media(name):
                 found.append(path)
-            elif is_unprotected_media(name):
+            elif is_unprotected_media(path):
                 unprotectable.append(path)
     return sorted(found), sorted(unprotectable)
 

@@ -65,6 +65,23 @@ def test_photos_ppd_cannot_read_are_named_apart_from_sidecars(
     assert "cannot protect" not in runner.invoke(app, ["status", "shoot", "--check"]).output
 
 
+def test_a_ts_file_is_a_video_only_when_it_reads_as_an_mpeg_transport_stream(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """`.ts` names TypeScript source too: a script beside the photos made `ppd poison` exit 1 and
+    `ppd status` say "NOT protected" (a black-box review)."""
+    shoot = tmp_path / "shoot"
+    make_image(shoot / "a.jpg", 1, size=(200, 150))
+    (shoot / "gallery.ts").write_text("export const views = 25;\n" * 20)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert "cannot protect" not in runner.invoke(app, ["status", "shoot", "--check"]).output
+    (shoot / "clip.ts").write_bytes((bytes([0x47]) + bytes(187)) * 4)  # two packets and more
+    result = runner.invoke(app, ["poison", str(shoot)])
+    line = " ".join(result.output.split())
+    assert result.exit_code == 1 and "ppd cannot read (clip.ts)" in line, result.output
+    assert "unprotectable 1" in " ".join(runner.invoke(app, ["status", "shoot"]).output.split())
+
+
 def test_a_file_named_twice_is_one_job(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     """`ppd poison a.jpg a.jpg --out X` said 'patched 1, unchanged 1' and 'written to X/a.jpg/'; a
     folder and a file in it made two copies in two places (a black-box review). The first naming
