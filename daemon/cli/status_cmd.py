@@ -32,7 +32,9 @@ def verdict_text(profile: str, v: dict[str, Any], markup: bool = True) -> str:
 
     label = verdict_words(v["verdict"])
     frac = v.get("frac_within_5deg")
-    detail = f", {frac:.0%} of cameras within 5°" if isinstance(frac, int | float) else ""
+    decided = v["verdict"] in (Verdict.PROTECTED, Verdict.WEAK, Verdict.NOT_PROTECTED)
+    # an inconclusive or crashed profile's fraction is of no reference: "0%" read as protection
+    detail = f", {frac:.0%} of cameras within 5°" if decided and isinstance(frac, int | float) else ""
     shown = f"[{VERDICT_STYLE.get(v['verdict'], 'bold')}]{label}[/]" if markup else label
     return f"{profile}: {shown}{detail} ({age(v['finished_at'])})"
 

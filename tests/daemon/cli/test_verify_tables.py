@@ -68,3 +68,39 @@ def test_the_printed_report_of_an_inconclusive_run() -> None:
     assert "could not be verified (inconclusive)" in text
     assert "100%" not in text and "does NOT hold" not in text
     assert "the protection could not be verified under: default" in text
+
+
+def test_the_overall_line_names_the_attackers_that_were_not_measured() -> None:
+    """16 lego views: only the global mapper reconstructed the originals; the overall line said
+    "weakest of default, hardened, published, global, masked: protected" as if five had held."""
+    from daemon.cli.verify_tables import overall_basis
+
+    names = ("default", "hardened", "published", "global", "masked")
+    one = {n: {"verdict": "protected" if n == "global" else "inconclusive"} for n in names}
+    basis = overall_basis({"profiles": one, "verdict_counts": list(names)})
+    assert basis == (
+        "weakest of global; not measured under default, hardened, published, masked, whose COLMAP does "
+        "not reconstruct the originals either"
+    )
+    plain = f"weakest of {', '.join(names)}"
+    every = {n: {"verdict": "protected"} for n in names}
+    assert overall_basis({"profiles": every, "verdict_counts": list(names)}) == plain
+    none = {n: {"verdict": "inconclusive"} for n in names}
+    assert overall_basis({"profiles": none, "verdict_counts": list(names)}) == plain
+
+
+def test_status_gives_no_camera_fraction_for_a_profile_that_decided_nothing() -> None:
+    """`ppd status DATASET` said "could not be verified (inconclusive), 0% of cameras within 5°": a 0%
+    over a clean run of 3 cameras of 16 reads as protection."""
+    import time
+
+    from daemon.cli.status_cmd import verdict_text
+
+    def run(verdict: str) -> dict[str, Any]:
+        return {"verdict": verdict, "frac_within_5deg": 0.0, "finished_at": time.time()}
+
+    for verdict in ("inconclusive", "sfm_crashed"):
+        line = verdict_text("default", run(verdict), markup=False)
+        assert "within 5°" not in line and line.startswith("default: could not be verified"), line
+    held = verdict_text("global", run("protected"), markup=False)
+    assert held.startswith("global: protected, 0% of cameras within 5°"), held
