@@ -59,7 +59,8 @@ class MarkPlace:
         return SOURCE_WORDS.get(self.source, self.source)
 
     def line(self) -> str:
-        """`mark at the top-centre, pixels (320,0)-(480,160) as shown (why)`."""
+        """`mark at the top-centre, within pixels (320,0)-(480,160) as shown (why)`: the box the
+        squares lie in (they slide within it from photo to photo), not one square's."""
         turned = f", EXIF orientation {self.orientation}" if self.orientation != 1 else ""
         why = f"{self.why}; {self.shrunk_words}" if self.shrunk else self.why
         if self.squares:
@@ -69,7 +70,7 @@ class MarkPlace:
             )
             return f"mark in {len(self.squares)} squares, at {where} as shown{turned} ({why})"
         x0, y0, x1, y1 = self.box
-        return f"mark at the {self.words}, pixels ({x0},{y0})-({x1},{y1}) as shown{turned} ({why})"
+        return f"mark at the {self.words}, within pixels ({x0},{y0})-({x1},{y1}) as shown{turned} ({why})"
 
     @property
     def shrunk_words(self) -> str:

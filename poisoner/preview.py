@@ -252,4 +252,4 @@ def mark_line(placement: PatchPlacement, place: Any, orientation: int | None, wi
     w, h = display_size(width, height, orientation_of(orientation))
     x0, y0, x1, y1 = shown.box
     words = position_words(shown.box, w, h)
-    return f"mark at the {words}, pixels ({x0},{y0})-({x1},{y1}) as shown (the spec's position)"
+    return f"mark at the {words}, within pixels ({x0},{y0})-({x1},{y1}) as shown (the spec's position)"

@@ -201,7 +201,7 @@ def patch_preview_figure(original: Path, protected: Path, spec: Any) -> Figure |
         return None
     return Figure(
         f"Patch preview: original | patched ({protected.name}), zoom on the patch below; mark at the "
-        f"{words}, pixels ({x0},{y0})-({x1},{y1}) as shown",
+        f"{words}, within pixels ({x0},{y0})-({x1},{y1}) as shown",
         png_bytes(pixels),
     )
 

@@ -277,7 +277,7 @@ def test_no_plain_region_is_said_per_file_and_in_the_summary(
 
 
 # ---- preview, report and pixels agree on a phone photo (EXIF orientation 6) --------------------------
-MARK_AT = re.compile(r"mark at the (\S+), pixels \((\d+),(\d+)\)-\((\d+),(\d+)\) as shown")
+MARK_AT = re.compile(r"mark at the (\S+), within pixels \((\d+),(\d+)\)-\((\d+),(\d+)\) as shown")
 
 
 def test_exif_6_preview_report_and_pixels_agree(ppd_env: dict[str, Path], tmp_path: Path) -> None:
