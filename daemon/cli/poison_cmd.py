@@ -178,7 +178,9 @@ def summary(
     for name in sorted({job.dataset for job in jobs}):
         if ctx.store.dataset(name) is not None:
             console().print(protection_line(ctx, name), markup=False)
-    names = sorted({o.dataset for o in outcomes if o.state == "failed" and o.dataset})
+    from daemon.protect.job import storable  # a name that is not UTF-8 has no row: only its line says why
+
+    names = sorted({o.dataset for o in outcomes if o.state == "failed" and o.dataset and storable(o.path)})
     if names:
         console().print(f"failed files and reasons: ppd status {names[0]} --failed", markup=False)
 

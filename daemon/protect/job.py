@@ -4,6 +4,7 @@ helpers every stage and daemon.protect.one_file share (names as the store and a 
 from __future__ import annotations
 
 import contextlib
+import os
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -155,7 +156,10 @@ def shown_name(path: Path) -> str:
     """path's name as it can be shown on one line: escaped (repr-style) when it holds a newline,
     another control character or bytes that are not UTF-8."""
     name = path.name
-    return name if name.isprintable() and storable(path) else repr(name)[1:-1]
+    if not storable(Path(name)):  # bytes that are not UTF-8 as \xe9, as `ls -b` shows them (not \udce9)
+        shown = os.fsencode(name).decode("utf-8", "backslashreplace")
+        return "".join(c if c.isprintable() else repr(c)[1:-1] for c in shown)
+    return name if name.isprintable() else repr(name)[1:-1]
 
 
 def shown_path(path: Path) -> str:

@@ -196,7 +196,7 @@ def _record_failure(
             path=path, dataset=dataset, state=Outcome.UNCHANGED, reason=f"already patched ({message})"
         )
     if not storable(out_path or path):  # no row can name it; the log line says why
-        log.warning("not recorded: %s: %s", shown_name(path), message, extra={"path": repr(str(path))})
+        log.info("not recorded: %s: %s", shown_name(path), message, extra={"path": repr(str(path))})
     elif not dry_run:
         try:  # a new dataset's corner is judged on the files next to this one (it could not be read)
             ensure_dataset(

@@ -144,7 +144,12 @@ class StoreBase:
     def _rows(self, sql: str, params: tuple[Any, ...] | dict[str, Any] = ()) -> list[dict[str, Any]]:
         """Every row of a query as {column: value} (what sqlite_utils' query gives, without it)."""
         with self._damage_as_store_error():
-            cursor = self.conn.execute(sql, params)
+            try:
+                cursor = self.conn.execute(sql, params)
+            except UnicodeEncodeError:  # a path that is not valid UTF-8 (daemon.fsops.storable):
+                if sql.lstrip().upper().startswith("SELECT"):  # no row can hold it, none matches
+                    return []
+                raise StoreError("a file name that is not valid UTF-8 cannot be recorded") from None
             keys = [d[0] for d in cursor.description]
             return [dict(zip(keys, row, strict=True)) for row in cursor]
 

@@ -245,7 +245,7 @@ def test_name_that_is_not_utf8_is_refused_with_a_clear_reason(
     with caplog.at_level("WARNING"):
         outcome = protect_file(odd, ctx)
     assert outcome.state == "failed"
-    assert outcome.reason.startswith("caf\\udce9.png: the file name is not valid UTF-8")
+    assert outcome.reason.startswith("caf\\xe9.png: the file name is not valid UTF-8")
     assert sha256(odd) == before
     assert "Traceback" not in caplog.text and "could not record" not in caplog.text
     assert protect_file(good, ctx).state == "patched"  # the store still works

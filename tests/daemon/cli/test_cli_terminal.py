@@ -413,3 +413,21 @@ def test_restored_out_copies_are_not_called_unprotected(shoot: Path, tmp_path: P
     assert runner.invoke(app, ["restore", "castle"]).exit_code == 0
     status = runner.invoke(app, ["status"])
     assert status.exit_code == 0 and "restored by you" not in " ".join(status.output.split()), status.output
+
+
+def test_a_name_that_is_not_utf8_fails_its_file_and_the_run_still_ends_in_its_summary(
+    narrow_env: dict[str, str], tmp_path: Path
+) -> None:
+    """A black-box review: after the file's one-line refusal a traceback (UnicodeEncodeError from the
+    store) replaced the summary, and the name showed as caf\\udce9.png."""
+    shoot = tmp_path / "shoot"
+    good = make_image(shoot / "ok.png", 1, size=(200, 150))
+    odd = Path(os.fsdecode(os.fsencode(shoot) + b"/caf\xe9.png"))
+    odd.write_bytes(good.read_bytes())
+    proc = ppd(narrow_env, "poison", str(shoot))
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr and "╭" not in proc.stderr, proc.stderr
+    out = " ".join(proc.stdout.split())
+    assert "patched 1," in out and "failed 1" in out and "shoot: patched, not verified" in out, out
+    assert "--failed" not in out  # no row names it: only its own line says why
+    err = " ".join(proc.stderr.split())
+    assert err.count("caf\\xe9.png: the file name is not valid UTF-8") == 1 and "udce9" not in err, err
