@@ -35,3 +35,9 @@ class MarkNotWritten(ImageFormatError):
     """The mark would change no pixel of the file (a keep-out mask covers all of it, or its blocks
     match the photo's pixels where it lands): the file is not protected, so it is a failure, never
     "patched" (issue 25)."""
+
+
+class SpecError(PpdError, ValueError):
+    """A PatchSpec that cannot be built or cannot be placed on an image."""
+
+    exit_status = ExitStatus.USAGE

@@ -10,8 +10,8 @@ name (poisoner/motion.py), so COLMAP's stationary-match filter no longer removes
 Without a key a moving spec resolves at index 0.
 
 Sizes are pixels when given as an int (or a float >= 1) and a fraction of the image width
-when given as a float in (0, 1): the paper uses 12 px on 800x800 NeRF-Synthetic frames and
-2%-25% of width on Mip-NeRF 360.
+when given as a float in (0, 1) (poisoner.lengths: a 2:1 frame's width on a wider panorama): the
+paper uses 12 px on 800x800 NeRF-Synthetic frames and 2%-25% of width on Mip-NeRF 360.
 """
 
 from __future__ import annotations
@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from poisoner.errors import ExitStatus, PpdError
+from poisoner.errors import SpecError
+from poisoner.lengths import MIN_BLOCK_PX, Length, length_base, resolve_length
 from poisoner.logo import LogoError, mark_shape
 from poisoner.motion import (
     CORNER_MOTIONS,
@@ -59,11 +60,6 @@ POSITIONS = ("top-left", "top-right", "bottom-left", "bottom-right", "center", "
 # place_on_photo); resolve() then takes the photo's anchor, and without one uses auto_anchor().
 AUTO = "auto"
 
-# Smallest block the spec resolves to. The paper's block-size ablation (P=100) finds b=1 and
-# b=2 nearly harmless (render SSIM 0.952/0.953 vs 0.969 clean) and b=4..8 strongest, because
-# SIFT's finest octave needs corners a few pixels apart. A fractional block on a small image
-# must not fall below this.
-MIN_BLOCK_PX = 4
 # COLMAP's SIFT downsizes a picture whose long edge exceeds this (SiftExtraction.max_image_size, the
 # extractor default pycolmap 4.2.1 uses): what a creator's 24 MP photo is to an attacker's SfM.
 SIFT_MAX_EDGE = 3200
@@ -95,26 +91,6 @@ LANES_MAX_AREA = 0.0096
 # stacked lanes could overlap (their gap is a sixth of the lane side, their x distance run px per px
 # of y).
 MIN_SLIDE_RUN = 6
-
-
-class SpecError(PpdError, ValueError):
-    """A PatchSpec that cannot be built or cannot be placed on an image."""
-
-    exit_status = ExitStatus.USAGE
-
-
-Length = int | float
-
-
-def _resolve_length(value: Length, width: int) -> int:
-    """Pixels for a length given in pixels (>= 1) or as a fraction of the width (0 < v < 1)."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise SpecError(f"length must be a number, got {value!r}")
-    if value <= 0:
-        raise SpecError(f"length must be positive, got {value}")
-    if value < 1:
-        return max(1, round(value * width))
-    return int(round(value))
 
 
 @dataclass(frozen=True)
@@ -226,14 +202,14 @@ class PatchSpec:
         if self.version != SPEC_VERSION:
             raise SpecError(f"spec version {self.version} is not supported (this ppd reads {SPEC_VERSION})")
         for v in (self.patch_size, self.block_size):
-            _resolve_length(v, 1000)  # validates type and sign
+            resolve_length(v, 1000)  # validates type and sign
         if len(self.offset) != 2:
             raise SpecError("offset must be (dx, dy)")
         if self.motion not in MOTIONS:
             raise SpecError(f"unknown motion {self.motion!r}; choose one of {', '.join(MOTIONS)}")
         if self.motion_step != 0:
-            _resolve_length(self.motion_step, 1000)
-        _resolve_length(self.motion_span, 1000)
+            resolve_length(self.motion_step, 1000)
+        resolve_length(self.motion_span, 1000)
         if not 0.0 < self.corner_region <= 0.5:
             raise SpecError(f"corner_region must be in (0, 0.5], got {self.corner_region}")
         if not 0.0 < self.tumble_scale <= 1.0:
@@ -302,10 +278,11 @@ class PatchSpec:
                         raise SpecError(f"patch at ({x},{y}) falls outside a {width}x{height} image")
                     return dataclasses.replace(one, x=x, y=y)
             return corner.resolve(width, height, image_key, index=index, lanes_at=lanes_at, crop=crop)
-        size = _resolve_length(self.patch_size, width)
+        base = length_base(width, height)
+        size = resolve_length(self.patch_size, base)
         block = min(self.block_px(width, height), size)
-        dx = 0 if self.offset[0] == 0 else _resolve_length(abs(self.offset[0]), width)
-        dy = 0 if self.offset[1] == 0 else _resolve_length(abs(self.offset[1]), width)
+        dx = 0 if self.offset[0] == 0 else resolve_length(abs(self.offset[0]), base)
+        dy = 0 if self.offset[1] == 0 else resolve_length(abs(self.offset[1]), base)
         if size > width or size > height:
             raise SpecError(f"patch of {size} px does not fit a {width}x{height} image")
         if self.motion in CORNER_MOTIONS:
@@ -314,7 +291,7 @@ class PatchSpec:
             return self._resolve_lanes(width, height, size, block, (dx, dy), image_key, index, lanes_at, crop)
         if lanes_at is not None or crop:
             raise SpecError("lanes_at and crop need a mark of several lanes")
-        mx, my = self._motion_offset(width, image_key, index)
+        mx, my = self._motion_offset(base, image_key, index)
         if self.position == "center":
             x, y = (width - size) // 2 + dx + mx, (height - size) // 2 + dy + my
         else:
@@ -329,8 +306,8 @@ class PatchSpec:
         """The texture's block in stored pixels on a width x height picture (before the patch's
         side caps it). With sift_edge, measured on the picture as SIFT sees it and scaled back."""
         seen = min(1.0, self.sift_edge / max(width, height)) if self.sift_edge else 1.0
-        seen_width = max(1, math.floor(width * seen + 0.5))
-        block = _resolve_length(self.block_size, seen_width)
+        seen_width = max(1, math.floor(length_base(width, height) * seen + 0.5))
+        block = resolve_length(self.block_size, seen_width)
         if isinstance(self.block_size, float) and self.block_size < 1:
             block = max(block, MIN_BLOCK_PX)
         return block if seen >= 1.0 else math.floor(block / seen + 0.5)  # whole pixels
@@ -395,8 +372,9 @@ class PatchSpec:
         """Several slide marks in one square box anchored at the corner (the box's other pixels
         are left alone: patch_coverage); lanes_at: each lane's own top-left anchor (top-left only);
         crop: each square's side as written (its texture cropped, the lanes' layout and slide kept)."""
-        step = _resolve_length(self.motion_step, width) if self.motion_step != 0 else 0
-        span = _resolve_length(self.motion_span, width)
+        base = length_base(width, height)
+        step = resolve_length(self.motion_step, base) if self.motion_step != 0 else 0
+        span = resolve_length(self.motion_span, base)
         if index is None:
             index = image_index(image_key) if image_key is not None else 0
         size = min(size, self._lane_cap(width, height))
@@ -435,7 +413,7 @@ class PatchSpec:
 
     def _stacked_anchors(self, width: int, height: int, at: tuple[int, int]) -> tuple[tuple[int, int], ...]:
         """Each lane's anchor in the stacked layout from one (lanes_at's form: may lie before the edge)."""
-        size = min(_resolve_length(self.patch_size, width), self._lane_cap(width, height))
+        size = min(resolve_length(self.patch_size, length_base(width, height)), self._lane_cap(width, height))
         pitch = round(size * 7 / 6)
         return tuple((at[0], at[1] + k * pitch) for k in range(self.lanes))
 
@@ -450,14 +428,16 @@ class PatchSpec:
         height picture when the budget is the smaller (a lanes mark only; None otherwise)."""
         if self.lanes <= 0:
             return None
-        asked, allowed = _resolve_length(self.patch_size, width), self._lane_cap(width, height)
+        asked = resolve_length(self.patch_size, length_base(width, height))
+        allowed = self._lane_cap(width, height)
         return (asked, allowed) if allowed < asked else None
 
     def _lane_cap(self, width: int, height: int) -> int:
         """Largest lane side within LANES_MAX_AREA and stacked inside corner_region of the height
         (less the y a tilted slide travels)."""
         by_area = math.isqrt(int(LANES_MAX_AREA / self.lanes * width * height))
-        rise = _resolve_length(self.motion_span, width) // self.slide_run if self.slide_run else 0
+        span = resolve_length(self.motion_span, length_base(width, height))
+        rise = span // self.slide_run if self.slide_run else 0
         by_height = int((int(self.corner_region * height) - rise) / (1 + 7 / 6 * (self.lanes - 1)))
         return max(MIN_BLOCK_PX, min(by_area, by_height))
 
@@ -465,8 +445,8 @@ class PatchSpec:
         """Inward (dx, dy) of this image's point on the motion path (centred for "center")."""
         if self.motion == "static" or self.motion_step == 0:
             return (0, 0)
-        step = _resolve_length(self.motion_step, width)
-        span = _resolve_length(self.motion_span, width)
+        step = resolve_length(self.motion_step, width)
+        span = resolve_length(self.motion_span, width)
         if index is None:
             index = image_index(image_key) if image_key is not None else 0
         if self.motion == "slide":
@@ -491,15 +471,16 @@ class PatchSpec:
 
     def path_extent(self, width: int, height: int) -> tuple[int, int]:
         """(w, h) px the mark covers over its whole path from a top-left anchor (every index)."""
+        base = length_base(width, height)
         if self.lanes > 1 or self.motion == "slide":
-            span = _resolve_length(self.motion_span, width)
+            span = resolve_length(self.motion_span, base)
             one = self.replace(position="top-left", offset=(0, 0)).resolve(width, height, index=0)
             size = one.lane_size or one.size
             rise = span // self.slide_run if self.slide_run else 0
             pitch = round(size * 7 / 6)
             return (span + size, rise + (self.lanes - 1) * pitch + size)
         one = self.replace(position="top-left", offset=(0, 0)).resolve(width, height, index=0)
-        span = _resolve_length(self.motion_span, width) if self.moves else 0
+        span = resolve_length(self.motion_span, base) if self.moves else 0
         return (one.size + span, one.size + span)
 
     def auto_anchor(self, width: int, height: int) -> tuple[int, int]:

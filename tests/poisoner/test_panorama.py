@@ -1,0 +1,53 @@
+"""A panorama's mark: fractions of the width are of a 2:1 frame's width of the same height (a black-box
+review: a 12000x1500 photo got blocks of 30 px and squares one block across, two flat black squares
+with no texture, called patched). Every frame up to 2:1 resolves exactly as before."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from poisoner.ladder import default_spec
+from poisoner.lengths import length_base
+from testkit.photos import changed_pixels, textured
+
+runner = CliRunner()
+
+
+def test_frames_up_to_two_to_one_keep_their_blocks_and_squares() -> None:
+    spec = default_spec()
+    # (width, height): (block, lane side) as ppd resolved them before panoramas had their own base
+    before = {(800, 800): (4, 48), (1600, 1200): (4, 96), (1920, 1080): (5, 84), (6000, 4000): (15, 320),
+              (4000, 2000): (10, 152)}  # fmt: skip
+    for (w, h), (block, side) in before.items():
+        assert length_base(w, h) == w
+        p = spec.resolve(w, h, "a.jpg")
+        assert (p.block, p.lane_size) == (block, side), (w, h)
+
+
+def test_a_panorama_gets_squares_of_real_texture() -> None:
+    spec = default_spec()
+    for w, h in ((12000, 1500), (3000, 500), (4000, 1000)):
+        p = spec.resolve(w, h, "a.jpg")
+        assert p.lane_size // p.block >= 8, (w, h, p.block, p.lane_size)
+
+
+def test_poison_of_a_panorama_writes_a_textured_mark(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    shoot = tmp_path / "pano"
+    shoot.mkdir()
+    photo = shoot / "p.png"
+    busy, plain = textured(1500, 6000, seed=1), np.full((1500, 6000, 3), 128, np.uint8)
+    Image.fromarray(np.hstack([busy, plain])).save(photo)
+    original = photo.read_bytes()
+    result = runner.invoke(app, ["poison", str(shoot)])
+    assert result.exit_code == 0, result.output
+    assert "fewer than 8 blocks" not in result.output
+    changed = changed_pixels(original, photo)
+    ys, xs = np.nonzero(changed)
+    box = np.asarray(Image.open(photo).convert("L"))[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
+    assert len(np.unique(box[changed[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]])) >= 2  # not flat
+    assert ys.max() - ys.min() < 400  # squares of a 3000 px frame's, not 30 px blocks of 12000's
