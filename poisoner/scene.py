@@ -240,6 +240,8 @@ def noise_sigma(gray: np.ndarray) -> float:
 
     g = gray[: gray.shape[0] // 2 * 2, : gray.shape[1] // 2 * 2]
     diagonal = (g[0::2, 0::2] - g[0::2, 1::2] - g[1::2, 0::2] + g[1::2, 1::2]) / 2
+    if diagonal.size == 0:  # a picture one pixel wide or high: no diagonal, no noise measured
+        return 0.0
     return min(MAX_NOISE_SIGMA, float(array_median(np.abs(diagonal))) / 0.6745)
 
 

@@ -312,6 +312,20 @@ class PatchSpec:
             block = max(block, MIN_BLOCK_PX)
         return block if seen >= 1.0 else math.floor(block / seen + 0.5)  # whole pixels
 
+    def too_small(self, width: int, height: int) -> str | None:
+        """Why a width x height picture cannot hold this mark (None: it can): it does not fit, or its
+        squares would be one flat block, no texture for SIFT (a 64x64 photo: a 4 px square of one 4 px
+        block had been called patched; a black-box review)."""
+        try:
+            one = self.resolve(width, height, index=0)
+        except SpecError:
+            return f"{width}x{height} is too small for the mark"
+        side = one.lane_size or one.texture_size or one.size
+        if side <= one.block:
+            flat = f"its {side} px squares would be one flat block"
+            return f"{width}x{height} is too small for the mark: {flat}"
+        return None
+
     def _placement(self, x: int, y: int, size: int, block: int, **tumble: Any) -> PatchPlacement:
         if self.mark_text or self.mark_image:
             try:  # a bad logo file or unrenderable text is the spec's error, said before any pixel is written

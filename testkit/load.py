@@ -32,7 +32,7 @@ from testkit.reliability import (
 @dataclass(frozen=True)
 class FloodOptions:
     files: int = 10_000
-    size: int = 48  # px; small files: the flood measures the pipeline, not the codec
+    size: int = 128  # px; small files (the smallest the mark fits): the flood measures the pipeline
     timeout_s: float = 3600.0
 
 

@@ -182,7 +182,7 @@ def check_complete(job: Job) -> ProtectOutcome | None:
         from poisoner.limits import check_decode_budget
 
         config = job.ctx.config
-        check_decode_budget(
+        job.stored_size = check_decode_budget(
             through_fd, config.max_pixels, name=job.path.name, max_bytes=config.max_memory_bytes
         )
         # what no writer takes (CMYK JPEG, 16-bit colour TIFF, ...): failed here, not after the
@@ -272,6 +272,8 @@ def decide(job: Job) -> ProtectOutcome | None:
     ctx, row, sha, out_path = job.ctx, job.row, job.sha, job.out_path
     spec = job.spec = _dataset_spec(job)
     record_path = job.record_path
+    if job.stored_size is not None and (why := spec.too_small(*job.stored_size)) is not None:
+        raise ProtectRefused(f"{shown_name(job.path)}: {why}; not patched")  # the dry run says it too
     if (
         out_path is not None
         and row is not None

@@ -68,7 +68,7 @@ def test_invariant_checker_sees_loss_and_corruption(tmp_path: Path) -> None:
 def test_short_load_every_file_protected_exactly_once(tmp_path: Path, files: int) -> None:
     from testkit.load import FloodOptions, run_flood
 
-    result = run_flood(tmp_path, FloodOptions(files=files, size=48))
+    result = run_flood(tmp_path, FloodOptions(files=files, size=128))
     assert result.protected == files and result.failed == 0
     assert result.not_exactly_once == [] and result.violations == []
     assert result.daemon_exit_code == 0

@@ -62,4 +62,6 @@ def test_poison_says_when_photos_get_squares_of_few_blocks(ppd_env: dict[str, Pa
     result = runner.invoke(app, ["poison", str(shoot)])
     assert result.exit_code == 0, result.output
     text = " ".join(result.output.split())
-    assert "2 photos got squares of fewer than 8 blocks across (small.png: 3 blocks, 12 px;" in text, text
+    # the 4:1 panorama's squares are a 2:1 frame's since (poisoner.lengths): 9 blocks, not named
+    assert "1 photo got squares of fewer than 8 blocks across (small.png: 3 blocks, 12 px;" in text, text
+    assert "pano.png" not in text[text.index("fewer than 8 blocks") :], text

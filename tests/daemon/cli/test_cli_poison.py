@@ -316,7 +316,7 @@ def test_a_patch_size_the_visibility_budget_caps_is_said(shoot: Path) -> None:
     said = " ".join(result.output.split())
     assert "castle: --patch-size asks 48 px squares; the visibility budget" in said, result.output
     assert "kept them at" in said and "in 5 photos" in said
-    make_image(shoot.parent / "small" / "view0.png", 0)
+    make_image(shoot.parent / "small" / "view0.png", 0, size=(400, 300))  # 4%: 16 px, 4 blocks across
     again = runner.invoke(app, ["poison", str(shoot.parent / "small"), "--patch-size", "4%"])
     assert again.exit_code == 0 and "patched 1" in again.output, again.output
     assert "--patch-size asks" not in again.output, again.output  # within the budget: nothing to say

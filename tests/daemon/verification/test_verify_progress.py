@@ -136,7 +136,7 @@ def test_ppd_status_shows_a_running_verification_in_text_and_json(
     shoot = tmp_path / "castle"
     shoot.mkdir()
     for i in range(3):
-        Image.new("RGB", (64, 48), (40 * i, 90, 200)).save(shoot / f"view{i}.png")
+        Image.new("RGB", (160, 120), (40 * i, 90, 200)).save(shoot / f"view{i}.png")
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     data = json.loads(runner.invoke(app, ["status", "--json"]).stdout)
     assert data["datasets"][0]["verifying"] is None  # nothing running: nothing said

@@ -428,7 +428,7 @@ def test_many_slow_writers_at_once(ppd_env: dict[str, Path], tmp_path: Path, n: 
 @pytest.mark.slow
 def test_flood_of_10k_files(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     stage = tmp_path / "flood"
-    seed_img = write_image(tmp_path / "one.png", 1, size=64).read_bytes()
+    seed_img = write_image(tmp_path / "one.png", 1, size=128).read_bytes()
     stage.mkdir()
     n = 10_000
     for i in range(n):  # distinct content: each file's last bytes differ (PNG ignores trailing data)

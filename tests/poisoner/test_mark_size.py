@@ -1,6 +1,11 @@
-"""A panorama's mark: fractions of the width are of a 2:1 frame's width of the same height (a black-box
+"""The mark's size on pictures far from the measured ones.
+
+A panorama's mark: fractions of the width are of a 2:1 frame's width of the same height (a black-box
 review: a 12000x1500 photo got blocks of 30 px and squares one block across, two flat black squares
-with no texture, called patched). Every frame up to 2:1 resolves exactly as before."""
+with no texture, called patched). Every frame up to 2:1 resolves exactly as before.
+
+A picture whose squares would be one flat block fails, in the dry run too (a black-box review: a 64x64
+photo got one flat block, 1x200 was "would patch" in the dry run and failed with a numpy error)."""
 
 from __future__ import annotations
 
@@ -51,3 +56,30 @@ def test_poison_of_a_panorama_writes_a_textured_mark(ppd_env: dict[str, Path], t
     box = np.asarray(Image.open(photo).convert("L"))[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
     assert len(np.unique(box[changed[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]])) >= 2  # not flat
     assert ys.max() - ys.min() < 400  # squares of a 3000 px frame's, not 30 px blocks of 12000's
+
+
+def test_too_small_names_pictures_whose_squares_would_be_one_flat_block() -> None:
+    spec = default_spec()
+    for w, h in ((16, 16), (64, 48), (64, 64), (300, 2), (1, 200)):
+        assert (why := spec.too_small(w, h)) is not None and why.startswith(f"{w}x{h} is too small"), (w, h)
+    for w, h in ((96, 96), (160, 120), (200, 150), (800, 800), (12000, 1500)):
+        assert spec.too_small(w, h) is None, (w, h)
+
+
+def test_a_picture_too_small_fails_in_the_dry_run_and_the_run(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    shoot = tmp_path / "small"
+    shoot.mkdir()
+    for name, size in (("ok.png", (200, 150)), ("thumb.png", (64, 64)), ("line.png", (1, 200))):
+        Image.fromarray(textured(size[1], size[0], seed=2)).save(shoot / name)
+    before = {p.name: p.read_bytes() for p in shoot.iterdir()}
+    for args in (["--dry-run"], []):
+        result = runner.invoke(app, ["poison", str(shoot), *args])
+        text = " ".join(result.output.split())
+        assert result.exit_code == 1 and "failed 2" in text, text
+        assert "thumb.png: 64x64 is too small for the mark" in text, text
+        assert "line.png: 1x200 is too small" in text, text
+        assert "Warning" not in text and "numerical gradient" not in text
+    assert (shoot / "thumb.png").read_bytes() == before["thumb.png"]
+    assert (shoot / "ok.png").read_bytes() != before["ok.png"]
