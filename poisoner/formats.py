@@ -184,8 +184,6 @@ def _poison_jpeg(
     patched[y0:y1, x0:x1] = patch(patched[y0:y1, x0:x1], mark_box)
     if layout.components == 3 and "subsampling" not in jpeg_codec.table_options(im):
         notes.append(f"sampling {layout.sampling} not reproducible by Pillow: written 4:2:0")
-    if any(s.payload.startswith(b"MPF\x00") for s in layout.segments):
-        notes.append("MPF segment and its secondary images dropped")
     return jpeg_codec.encode_like(patched, im, layout), preserved, notes, "jpeg-reencode-same-tables"
 
 
@@ -472,6 +470,9 @@ def _write_format(
     lossless = False
     if fmt == "JPEG":
         out, preserved, notes, method = _poison_jpeg(src, im, data, placement, keep_out, loaded=loaded)
+        out, had_mpf = jpeg_file.without_mpf(out)
+        if had_mpf:
+            notes.append("MPF segment (the index of the images after the picture) not written")
         if not keep_location:
             out, removed = _strip_jpeg(src, out)
         if marker is not None:

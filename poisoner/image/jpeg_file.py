@@ -62,6 +62,26 @@ def trailer_bytes(data: bytes) -> int:
     return 0 if end is None else len(data) - end
 
 
+MPF_HEADER = b"MPF\x00"  # APP2: the Multi-Picture Format index of the images after the picture
+
+
+def without_mpf(data: bytes) -> tuple[bytes, bool]:
+    """The JPEG with its MPF (APP2) segment taken out, and whether it had one. MPF gives the offsets
+    of images appended after the picture (a phone's Ultra HDR gain map, a camera's preview or second
+    view): ppd never writes those (an unprotected view of the scene), so an index kept would point at
+    bytes that are not there. A header that does not parse is returned as it is."""
+    from poisoner.location import MetadataParseError, jpeg_assemble, jpeg_header_segments
+
+    try:
+        segments, sos = jpeg_header_segments(data)
+    except MetadataParseError:
+        return data, False
+    kept = [(m, p) for m, p in segments if not (m == 0xE2 and p.startswith(MPF_HEADER))]
+    if len(kept) == len(segments):
+        return data, False
+    return jpeg_assemble(kept, data, sos), True
+
+
 def same_coded_picture(before: bytes, after: bytes) -> bool:
     """Whether two JPEGs hold the very same scans from their first SOS on (their headers may differ:
     ppd's marker, location removed): the mark changed no pixel. A header that cannot be read: False."""
