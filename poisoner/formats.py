@@ -495,7 +495,9 @@ def _write_format(
         out, preserved, notes, lossless, removed = poison_tiff(im, placement, keep_location, marker, keep_out)
         method = "tiff"
     elif fmt in ("HEIF", "AVIF"):
-        out, preserved, notes, removed = poison_heif(im, fmt, placement, keep_location, marker, keep_out)
+        out, preserved, notes, removed = poison_heif(
+            im, fmt, placement, keep_location, marker, keep_out, data
+        )
         method = fmt.lower()
     else:
         raise ImageFormatError(f"{src.name}: {fmt} files are not supported")

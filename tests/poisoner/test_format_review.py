@@ -6,6 +6,7 @@ import io
 from pathlib import Path
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from poisoner.formats import poison_file
@@ -44,3 +45,52 @@ def test_jpeg_with_an_mpf_second_image_is_patched_without_it(tmp_path: Path) -> 
     segments, _ = jpeg_header_segments(out)
     assert not any(m == 0xE2 and p.startswith(b"MPF\x00") for m, p in segments)
     assert out.endswith(b"\xff\xd9") and out.count(b"\xff\xd8") == 1  # no second image after the EOI
+
+
+@pytest.mark.parametrize("mode", ["RGB;16", "L;16"])
+def test_ten_bit_heic_keeps_its_bit_depth(tmp_path: Path, mode: str) -> None:
+    """A 10-bit HEIC came out 8-bit, its note saying only "re-encoded at quality 90". Now pillow-heif
+    decodes and writes it at 10 bits and the note says so; the mark is there at full scale."""
+    pillow_heif = pytest.importorskip("pillow_heif")
+    src, dst = tmp_path / "x.heic", tmp_path / "out.heic"
+    levels = np.asarray(photo(320, 240)).astype(np.uint16) * 257
+    if mode == "L;16":
+        levels = np.ascontiguousarray(levels[:, :, 1])
+    pillow_heif.from_bytes(mode=mode, size=(320, 240), data=levels.tobytes()).save(src, quality=90)
+    assert pillow_heif.open_heif(src).info["bit_depth"] == 10
+    report = poison_file(src, dst, default_spec())
+    assert pillow_heif.open_heif(dst).info["bit_depth"] == 10
+    assert any("10-bit kept" in n for n in report.notes), report.notes
+    before = np.asarray(pillow_heif.open_heif(src, convert_hdr_to_8bit=False)[0]).astype(int)
+    after = np.asarray(pillow_heif.open_heif(dst, convert_hdr_to_8bit=False)[0]).astype(int)
+    x0, y0, x1, y1 = report.placement.box
+    changed = np.abs(after - before)[y0:y1, x0:x1]
+    assert changed.max() > 8000  # the mark, not the re-encode's noise
+
+
+def ten_bit_avif(path: Path, picture: Image.Image) -> None:
+    """A 10-bit AVIF written with FFmpeg's SVT-AV1 (PyAV): Pillow's AVIF writer has 8 bits only."""
+    av = pytest.importorskip("av")
+    if "libsvtav1" not in av.codecs_available:
+        pytest.skip("no AV1 encoder in this FFmpeg")
+    with av.open(str(path), "w", format="avif") as out:
+        stream = out.add_stream("libsvtav1", rate=1)
+        stream.width, stream.height, stream.pix_fmt = picture.width, picture.height, "yuv420p10le"
+        levels = np.asarray(picture).astype(np.uint16) * 257
+        frame = av.VideoFrame.from_ndarray(levels, format="rgb48le").reformat(format="yuv420p10le")
+        for packet in [*stream.encode(frame), *stream.encode()]:
+            out.mux(packet)
+
+
+def test_ten_bit_avif_written_as_eight_bit_says_so(tmp_path: Path) -> None:
+    """Pillow reads and writes AVIF at 8 bits a sample and pillow-heif here has no AV1 codec: a
+    10-bit AVIF cannot keep its depth, so the note says it was written as 8-bit (ppd poison's
+    summary counts notes saying " written as ")."""
+    from poisoner.image.heif import declared_bit_depth
+
+    src, dst = tmp_path / "a.avif", tmp_path / "out.avif"
+    ten_bit_avif(src, photo(320, 240))
+    assert declared_bit_depth(src.read_bytes()) == 10
+    report = poison_file(src, dst, default_spec())
+    assert declared_bit_depth(dst.read_bytes()) == 8
+    assert any("10-bit samples written as 8-bit" in n for n in report.notes), report.notes
