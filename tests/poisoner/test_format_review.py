@@ -94,3 +94,32 @@ def test_ten_bit_avif_written_as_eight_bit_says_so(tmp_path: Path) -> None:
     report = poison_file(src, dst, default_spec())
     assert declared_bit_depth(dst.read_bytes()) == 8
     assert any("10-bit samples written as 8-bit" in n for n in report.notes), report.notes
+
+
+@pytest.mark.parametrize(("mode", "key"), [("RGB", (0, 0, 0)), ("L", 0), ("RGB", (255, 255, 255))])
+def test_colour_key_png_mark_stays_opaque(tmp_path: Path, mode: str, key: object) -> None:
+    """A PNG with a tRNS colour key (RGB or grey saved with transparency=): mark pixels equal to the
+    key showed as transparent (on a black background most of the mark vanished). Each such pixel is
+    moved one level off the key; the photo's own transparent pixels stay transparent."""
+    from poisoner.blend import lane_placements, patch_coverage
+
+    src, dst = tmp_path / "key.png", tmp_path / "out.png"
+    level = key[0] if isinstance(key, tuple) else key
+    picture = np.full((240, 320, 3) if mode == "RGB" else (240, 320), level, np.uint8)
+    picture[:, 200:] = 128  # an opaque part
+    Image.fromarray(picture, mode).save(src, transparency=key)
+    report = poison_file(src, dst, default_spec())
+    with Image.open(dst) as out:
+        assert out.info.get("transparency") == key  # the key itself is kept
+        alpha = np.asarray(out.convert("RGBA"))[:, :, 3]
+        values = np.asarray(out)
+    covered = np.zeros(alpha.shape, dtype=bool)
+    for part in lane_placements(report.placement) or [report.placement]:
+        x0, y0, x1, y1 = part.box
+        covered[y0:y1, x0:x1] |= patch_coverage(part)
+    assert covered.any() and (alpha[covered] == 255).all()  # every mark pixel opaque
+    clear = (picture[..., 0] if mode == "RGB" else picture) == level
+    assert (alpha[~covered & clear] == 0).all()  # the photo's transparent pixels stay so
+    moved = np.abs(values[covered].astype(int) - level).max(axis=-1) == 1 if mode == "RGB" else None
+    assert moved is None or moved.any()
+    assert any("tRNS colour key moved one level off it" in n for n in report.notes), report.notes
