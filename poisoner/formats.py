@@ -354,15 +354,20 @@ def poison_bytes(
     bytes when the caller holds them already (they must be src's: src names the file in messages
     and is what a decoder that reads by path reads)."""
     src = Path(src)
-    data = _read_source(src, max_pixels, data)
+    data = source = _read_source(src, max_pixels, data)
+    # An arithmetic-coded JPEG is read and patched as jpegtran codes it with Huffman tables (Pillow's
+    # libjpeg may not decode it; the same coefficients), the output coded back as the source was.
+    coding = jpeg_file.arithmetic_coding(data) if data[:2] == b"\xff\xd8" else None
+    if coding is not None:
+        data = jpeg_file.huffman_coded(src, data)
+    elif data[:2] == b"\xff\xd8":  # no jpegtran: Pillow's libjpeg alone must decode it
+        jpeg_file.check_arithmetic(src, data)
     # A JPEG need not be decoded to pixels whole (only the patch's MCUs, _poison_jpeg).
     region = JPEG_REGION_DECODE and data[:2] == b"\xff\xd8" and jpeg_codec.splice_available()
     im = open_decoded(src, data, load=not region)
     fmt = im.format or "unknown"
     if region and fmt != "JPEG":
         load_decoded(src, im)
-    if fmt == "JPEG":
-        jpeg_file.check_arithmetic(src, data)
     width, height = im.size
     keep = checked_keep_out(src.name, keep_out, (width, height))
     loaded = not region or fmt != "JPEG"  # a JPEG patched by region is not decoded whole
@@ -379,7 +384,8 @@ def poison_bytes(
             "not patched"
         )
     out, preserved, notes, method, lossless, removed = _write_format(
-        src, im, data, fmt, placement, keep, keep_location=keep_location, marker=marker, loaded=not region
+        src, im, data, fmt, placement, keep, keep_location=keep_location, marker=marker, loaded=not region,
+        coding=coding,
     )
     jpeg_scan.forget()  # the source's index (as large as the file) is done with
     if method == "jpeg-unchanged":  # whole MCUs near the mask are kept: none left to write
@@ -387,15 +393,15 @@ def poison_bytes(
             f"{src.name}: the subject mask reaches every 8x8 block of the mark, no pixel would change: "
             "not patched"
         )
-    if fmt == "JPEG" and jpeg_file.same_coded_picture(data, out):  # a mark too faint (--alpha 0.001)
-        raise MarkNotWritten(f"{src.name}: the mark is too faint to change any pixel of it: not patched")
+    if fmt == "JPEG" and coding is None:  # (an arithmetic-coded one: checked before it is coded back)
+        _check_changed(src, data, out)
     notes += [n for n in [kept_out_note(placement, keep)] if n]
     notes += _file_notes(src, im, fmt, removed)
-    trailer = jpeg_file.trailer_bytes(data) if fmt == "JPEG" else 0
+    trailer = jpeg_file.trailer_bytes(source) if fmt == "JPEG" else 0
     if trailer:
         notes.append(f"{trailer} bytes after the picture's end (an appended image or a trailer) not written")
     report = PoisonReport(
-        fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out), removed,
+        fmt, width, height, placement, preserved, notes, method, lossless, len(source), len(out), removed,
         written, place, trailer,
     )
     log.info(
@@ -464,12 +470,18 @@ def _write_format(
     keep_location: bool,
     marker: Marker | None,
     loaded: bool,
+    coding: jpeg_codec.JpegLayout | None = None,
 ) -> tuple[bytes, list[str], list[str], str, bool, list[str]]:
-    """The format's writer: (bytes, preserved, notes, method, lossless, location removed)."""
+    """The format's writer: (bytes, preserved, notes, method, lossless, location removed). coding: an
+    arithmetic-coded JPEG's own layout (data is its Huffman-coded copy): the output is coded so again."""
     removed: list[str] = []
     lossless = False
     if fmt == "JPEG":
         out, preserved, notes, method = _poison_jpeg(src, im, data, placement, keep_out, loaded=loaded)
+        if coding is not None and method != "jpeg-unchanged":
+            _check_changed(src, data, out)
+            out = jpeg_file.coded_like(src, out, coding)
+            notes.append("arithmetic coding: patched Huffman-coded, then coded back losslessly (jpegtran)")
         out, had_mpf = jpeg_file.without_mpf(out)
         if had_mpf:
             notes.append("MPF segment (the index of the images after the picture) not written")
@@ -502,6 +514,13 @@ def _write_format(
     else:
         raise ImageFormatError(f"{src.name}: {fmt} files are not supported")
     return out, preserved, notes, method, lossless, removed
+
+
+def _check_changed(src: Path, data: bytes, out: bytes) -> None:
+    """MarkNotWritten when the patched JPEG codes the very picture of the source (a mark too faint to
+    change a coefficient, --alpha 0.001): such a file is never called patched."""
+    if jpeg_file.same_coded_picture(data, out):
+        raise MarkNotWritten(f"{src.name}: the mark is too faint to change any pixel of it: not patched")
 
 
 def _file_notes(src: Path, im: Image.Image, fmt: str, removed: list[str]) -> list[str]:

@@ -69,6 +69,11 @@ def open_decoded(src: Path, data: bytes, *, load: bool = True) -> Image.Image:
     if not data:
         raise ImageFormatError(f"{src.name}: empty file (0 bytes)")
     _register_heif()
+    if data[:2] == b"\xff\xd8":  # arithmetic-coded: what ppd patches, the Huffman-coded copy (formats)
+        from poisoner.image.jpeg_file import arithmetic_coding, huffman_coded
+
+        if arithmetic_coding(data) is not None:
+            data = huffman_coded(src, data)
     with decode_errors(src):
         im = as_jpeg(Image.open(io.BytesIO(data)), io.BytesIO(data))
         limit = Image.MAX_IMAGE_PIXELS
@@ -138,8 +143,15 @@ def check_writable_image(path: Path, name: str, max_pixels: int | None = None) -
         if (frames := getattr(im, "n_frames", 1)) > 1:
             raise ImageFormatError(f"{name}: {im.format} with {frames} frames/pages is not supported")
         why = format_refusal(im)
+        jpeg = im.format == "JPEG"
     if why is not None:
         raise ImageFormatError(f"{name}: {why}")
+    if jpeg:  # arithmetic coding that neither jpegtran (absent) nor Pillow's libjpeg reads: as poisoning says
+        from poisoner.image.jpeg_file import arithmetic_coding, check_arithmetic
+
+        data = Path(path).read_bytes()
+        if arithmetic_coding(data) is None:
+            check_arithmetic(Path(name), data)
 
 
 def raise_bomb_limit(max_pixels: int | None) -> None:

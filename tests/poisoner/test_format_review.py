@@ -123,3 +123,91 @@ def test_colour_key_png_mark_stays_opaque(tmp_path: Path, mode: str, key: object
     moved = np.abs(values[covered].astype(int) - level).max(axis=-1) == 1 if mode == "RGB" else None
     assert moved is None or moved.any()
     assert any("tRNS colour key moved one level off it" in n for n in report.notes), report.notes
+
+
+def arithmetic_jpeg(path: Path, progressive: bool = False, picture: Image.Image | None = None) -> Path:
+    """A JPEG coded arithmetically by jpegtran (libjpeg-turbo) from Pillow's Huffman-coded one."""
+    import shutil
+    import subprocess
+
+    jpegtran = shutil.which("jpegtran")
+    if jpegtran is None:
+        pytest.skip("no jpegtran")
+    huffman = io.BytesIO()
+    (photo() if picture is None else picture).save(huffman, "JPEG", quality=90)
+    cmd = [jpegtran, "-copy", "all", "-arithmetic", *(["-progressive"] if progressive else [])]
+    path.write_bytes(subprocess.run(cmd, input=huffman.getvalue(), capture_output=True, check=True).stdout)
+    return path
+
+
+def cjpeg_arithmetic(path: Path) -> Path:
+    """An arithmetic JPEG of noise as libjpeg-turbo's cjpeg writes it, like the review's file: Pillow's
+    libjpeg fails on it ("broken data stream"), where it decodes the small smooth ones above."""
+    import shutil
+    import subprocess
+
+    if shutil.which("cjpeg") is None:
+        pytest.skip("no cjpeg")
+    ppm = path.with_suffix(".ppm")
+    Image.fromarray(np.random.default_rng(0).integers(0, 256, (480, 640, 3), dtype=np.uint8)).save(ppm)
+    subprocess.run(["cjpeg", "-arithmetic", "-outfile", str(path), str(ppm)], check=True)
+    return path
+
+
+def decoded(data: bytes) -> np.ndarray:
+    """Pixels of any JPEG, arithmetic or not: jpegtran codes it with Huffman tables, Pillow decodes."""
+    import subprocess
+
+    run = subprocess.run(["jpegtran", "-copy", "none"], input=data, capture_output=True, check=True)
+    huffman = run.stdout
+    return np.asarray(Image.open(io.BytesIO(huffman))).astype(int)
+
+
+@pytest.mark.parametrize("progressive", [False, True])
+def test_arithmetic_jpeg_is_patched_and_stays_arithmetic(tmp_path: Path, progressive: bool) -> None:
+    """An arithmetic-coded JPEG: the dry run said "would patch", the run failed ("arithmetic-coded JPEG
+    that Pillow cannot decode"). jpegtran codes it with Huffman tables (the same coefficients), ppd
+    patches that, and the output is coded back as the source was; outside the mark's MCUs no pixel
+    moves."""
+    from poisoner.errors import MarkNotWritten
+    from poisoner.jpeg import read_layout
+
+    src, dst = arithmetic_jpeg(tmp_path / "a.jpg", progressive), tmp_path / "out.jpg"
+    assert read_layout(src.read_bytes()).arithmetic
+    check_writable_image(src, src.name)
+    report = poison_file(src, dst, default_spec())
+    layout = read_layout(dst.read_bytes())
+    assert layout.arithmetic and layout.progressive == progressive
+    assert any("arithmetic coding" in n for n in report.notes), report.notes
+    before, after = decoded(src.read_bytes()), decoded(dst.read_bytes())
+    x0, y0, x1, y1 = report.placement.box
+    moved = np.argwhere((before != after).any(axis=2))
+    assert len(moved)
+    mcu = 16  # Pillow's 4:2:0
+    assert moved.min(0).tolist() >= [y0 // mcu * mcu - 1, x0 // mcu * mcu - 1]
+    assert moved.max(0).tolist() <= [-(-y1 // mcu) * mcu, -(-x1 // mcu) * mcu]
+    plain = arithmetic_jpeg(tmp_path / "white.jpg", progressive, Image.new("RGB", (640, 480), "white"))
+    with pytest.raises(MarkNotWritten, match="too faint"):  # checked before it is coded back
+        poison_file(plain, tmp_path / "faint.jpg", default_spec().replace(alpha=0.001))
+    assert not (tmp_path / "faint.jpg").exists()
+
+
+def test_arithmetic_jpeg_without_jpegtran_is_refused_by_the_header_check_too(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without jpegtran (PPD_JPEGTRAN="") an arithmetic JPEG that Pillow's libjpeg cannot decode is
+    refused: by the dry run's and preview's header check with the same line as by the run."""
+    from poisoner.errors import ImageFormatError
+
+    src = cjpeg_arithmetic(tmp_path / "a.jpg")
+    monkeypatch.setenv("PPD_JPEGTRAN", "")
+    try:
+        Image.open(src).load()
+        pytest.skip("this Pillow decodes arithmetic coding")
+    except OSError:
+        pass
+    with pytest.raises(ImageFormatError) as late:
+        poison_file(src, tmp_path / "out.jpg", default_spec())
+    with pytest.raises(ImageFormatError) as early:
+        check_writable_image(src, src.name)
+    assert str(early.value) == str(late.value) and "arithmetic-coded" in str(early.value)
