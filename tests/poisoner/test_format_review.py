@@ -211,3 +211,18 @@ def test_arithmetic_jpeg_without_jpegtran_is_refused_by_the_header_check_too(
     with pytest.raises(ImageFormatError) as early:
         check_writable_image(src, src.name)
     assert str(early.value) == str(late.value) and "arithmetic-coded" in str(early.value)
+
+
+@pytest.mark.parametrize("compression", ["tiff_lzw", "tiff_adobe_deflate"])
+def test_tiff_keeps_its_horizontal_predictor(tmp_path: Path, compression: str) -> None:
+    """An LZW TIFF with the horizontal predictor (tag 317 = 2) lost it and grew ~23%. Pillow's libtiff
+    writer applies the predictor when the tag is passed: it is, and the size stays the source's."""
+    src, dst = tmp_path / "t.tif", tmp_path / "out.tif"
+    photo(800, 600).save(src, compression=compression, tiffinfo={317: 2})
+    with Image.open(src) as opened:
+        assert opened.tag_v2.get(317) == 2
+    report = poison_file(src, dst, default_spec())
+    with Image.open(dst) as out:
+        assert out.tag_v2.get(317) == 2 and out.info["compression"] == compression
+    assert dst.stat().st_size < src.stat().st_size * 1.05, (dst.stat().st_size, src.stat().st_size)
+    assert "TIFF Predictor" in report.preserved
