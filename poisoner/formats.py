@@ -55,6 +55,7 @@ from poisoner.atomic import atomic_output
 from poisoner.blend import apply_lanes_at, lane_placements, patch_coverage
 from poisoner.errors import ImageFormatError, MarkNotWritten
 from poisoner.image import jpeg_file
+from poisoner.image import png as png_file
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
 from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box, written_pixels
 from poisoner.image.png import PNG_SIGNATURE, png_chunks, poison_png, splice_png, strip_png_location
@@ -121,7 +122,7 @@ class PoisonReport:
     location_removed: list[str] = field(default_factory=list)  # e.g. "EXIF GPS IFD", "XMP exif:GPSLatitude"
     written: int = 0  # pixels the mark writes (never 0: poison_file refuses that file, MarkNotWritten)
     place: MarkPlace | None = None  # a per-photo mark: where it shows and why (poisoner.placement)
-    trailer_bytes: int = 0  # bytes after a JPEG's picture (an appended image, a trailer): not written
+    trailer_bytes: int = 0  # bytes after a JPEG's picture or a PNG's IEND (an appended image...): not written
 
 
 # ---- JPEG ----------------------------------------------------------------------------------------
@@ -397,7 +398,8 @@ def poison_bytes(
         _check_changed(src, data, out)
     notes += [n for n in [kept_out_note(placement, keep)] if n]
     notes += _file_notes(src, im, fmt, removed)
-    trailer = jpeg_file.trailer_bytes(source) if fmt == "JPEG" else 0
+    after = {"JPEG": jpeg_file.trailer_bytes, "PNG": png_file.bytes_after_iend}.get(fmt)
+    trailer = 0 if after is None else after(source)
     if trailer:
         notes.append(f"{trailer} bytes after the picture's end (an appended image or a trailer) not written")
     report = PoisonReport(

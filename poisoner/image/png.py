@@ -40,6 +40,18 @@ def png_chunks(data: bytes) -> list[tuple[bytes, bytes]]:
     return chunks
 
 
+def bytes_after_iend(data: bytes) -> int:
+    """How many bytes follow a PNG's IEND chunk (an appended file, a trailer): no writer keeps them."""
+    pos = len(PNG_SIGNATURE)
+    while pos + 8 <= len(data):
+        (length,) = struct.unpack(">I", data[pos : pos + 4])
+        end = pos + 12 + length
+        if data[pos + 4 : pos + 8] == b"IEND":
+            return max(0, len(data) - end)
+        pos = end
+    return 0
+
+
 def _chunk(ctype: bytes, body: bytes) -> bytes:
     return struct.pack(">I", len(body)) + ctype + body + struct.pack(">I", zlib.crc32(ctype + body))
 

@@ -226,3 +226,15 @@ def test_tiff_keeps_its_horizontal_predictor(tmp_path: Path, compression: str) -
         assert out.tag_v2.get(317) == 2 and out.info["compression"] == compression
     assert dst.stat().st_size < src.stat().st_size * 1.05, (dst.stat().st_size, src.stat().st_size)
     assert "TIFF Predictor" in report.preserved
+
+
+def test_data_after_a_png_iend_is_counted_like_a_jpeg_trailer(tmp_path: Path) -> None:
+    """Bytes after a PNG's IEND were dropped without a word; a JPEG's trailer gets a note and ppd
+    poison's summary line (trailer_bytes). A PNG's now does too."""
+    src, dst = tmp_path / "a.png", tmp_path / "out.png"
+    photo().save(src)
+    src.write_bytes(src.read_bytes() + b"TRAILER!" * 4)
+    report = poison_file(src, dst, default_spec())
+    assert report.trailer_bytes == 32
+    assert any("32 bytes after the picture's end" in n for n in report.notes), report.notes
+    assert dst.read_bytes().endswith(b"IEND\xaeB`\x82")
