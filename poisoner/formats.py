@@ -55,6 +55,7 @@ from poisoner.atomic import atomic_output
 from poisoner.blend import apply_lanes_at, lane_placements, patch_coverage
 from poisoner.errors import ImageFormatError, MarkNotWritten
 from poisoner.image import jpeg_file
+from poisoner.image import png as png_file
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
 from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box, written_pixels
 from poisoner.image.png import PNG_SIGNATURE, png_chunks, poison_png, splice_png, strip_png_location
@@ -121,7 +122,7 @@ class PoisonReport:
     location_removed: list[str] = field(default_factory=list)  # e.g. "EXIF GPS IFD", "XMP exif:GPSLatitude"
     written: int = 0  # pixels the mark writes (never 0: poison_file refuses that file, MarkNotWritten)
     place: MarkPlace | None = None  # a per-photo mark: where it shows and why (poisoner.placement)
-    trailer_bytes: int = 0  # bytes after a JPEG's picture (an appended image, a trailer): not written
+    trailer_bytes: int = 0  # bytes after a JPEG's picture or a PNG's IEND (an appended image...): not written
 
 
 # ---- JPEG ----------------------------------------------------------------------------------------
@@ -184,8 +185,6 @@ def _poison_jpeg(
     patched[y0:y1, x0:x1] = patch(patched[y0:y1, x0:x1], mark_box)
     if layout.components == 3 and "subsampling" not in jpeg_codec.table_options(im):
         notes.append(f"sampling {layout.sampling} not reproducible by Pillow: written 4:2:0")
-    if any(s.payload.startswith(b"MPF\x00") for s in layout.segments):
-        notes.append("MPF segment and its secondary images dropped")
     return jpeg_codec.encode_like(patched, im, layout), preserved, notes, "jpeg-reencode-same-tables"
 
 
@@ -356,15 +355,20 @@ def poison_bytes(
     bytes when the caller holds them already (they must be src's: src names the file in messages
     and is what a decoder that reads by path reads)."""
     src = Path(src)
-    data = _read_source(src, max_pixels, data)
+    data = source = _read_source(src, max_pixels, data)
+    # An arithmetic-coded JPEG is read and patched as jpegtran codes it with Huffman tables (Pillow's
+    # libjpeg may not decode it; the same coefficients), the output coded back as the source was.
+    coding = jpeg_file.arithmetic_coding(data) if data[:2] == b"\xff\xd8" else None
+    if coding is not None:
+        data = jpeg_file.huffman_coded(src, data)
+    elif data[:2] == b"\xff\xd8":  # no jpegtran: Pillow's libjpeg alone must decode it
+        jpeg_file.check_arithmetic(src, data)
     # A JPEG need not be decoded to pixels whole (only the patch's MCUs, _poison_jpeg).
     region = JPEG_REGION_DECODE and data[:2] == b"\xff\xd8" and jpeg_codec.splice_available()
     im = open_decoded(src, data, load=not region)
     fmt = im.format or "unknown"
     if region and fmt != "JPEG":
         load_decoded(src, im)
-    if fmt == "JPEG":
-        jpeg_file.check_arithmetic(src, data)
     width, height = im.size
     keep = checked_keep_out(src.name, keep_out, (width, height))
     loaded = not region or fmt != "JPEG"  # a JPEG patched by region is not decoded whole
@@ -381,7 +385,8 @@ def poison_bytes(
             "not patched"
         )
     out, preserved, notes, method, lossless, removed = _write_format(
-        src, im, data, fmt, placement, keep, keep_location=keep_location, marker=marker, loaded=not region
+        src, im, data, fmt, placement, keep, keep_location=keep_location, marker=marker, loaded=not region,
+        coding=coding,
     )
     jpeg_scan.forget()  # the source's index (as large as the file) is done with
     if method == "jpeg-unchanged":  # whole MCUs near the mask are kept: none left to write
@@ -389,15 +394,16 @@ def poison_bytes(
             f"{src.name}: the subject mask reaches every 8x8 block of the mark, no pixel would change: "
             "not patched"
         )
-    if fmt == "JPEG" and jpeg_file.same_coded_picture(data, out):  # a mark too faint (--alpha 0.001)
-        raise MarkNotWritten(f"{src.name}: the mark is too faint to change any pixel of it: not patched")
+    if fmt == "JPEG" and coding is None:  # (an arithmetic-coded one: checked before it is coded back)
+        _check_changed(src, data, out)
     notes += [n for n in [kept_out_note(placement, keep)] if n]
     notes += _file_notes(src, im, fmt, removed)
-    trailer = jpeg_file.trailer_bytes(data) if fmt == "JPEG" else 0
+    after = {"JPEG": jpeg_file.trailer_bytes, "PNG": png_file.bytes_after_iend}.get(fmt)
+    trailer = 0 if after is None else after(source)
     if trailer:
         notes.append(f"{trailer} bytes after the picture's end (an appended image or a trailer) not written")
     report = PoisonReport(
-        fmt, width, height, placement, preserved, notes, method, lossless, len(data), len(out), removed,
+        fmt, width, height, placement, preserved, notes, method, lossless, len(source), len(out), removed,
         written, place, trailer,
     )
     log.info(
@@ -466,12 +472,21 @@ def _write_format(
     keep_location: bool,
     marker: Marker | None,
     loaded: bool,
+    coding: jpeg_codec.JpegLayout | None = None,
 ) -> tuple[bytes, list[str], list[str], str, bool, list[str]]:
-    """The format's writer: (bytes, preserved, notes, method, lossless, location removed)."""
+    """The format's writer: (bytes, preserved, notes, method, lossless, location removed). coding: an
+    arithmetic-coded JPEG's own layout (data is its Huffman-coded copy): the output is coded so again."""
     removed: list[str] = []
     lossless = False
     if fmt == "JPEG":
         out, preserved, notes, method = _poison_jpeg(src, im, data, placement, keep_out, loaded=loaded)
+        if coding is not None and method != "jpeg-unchanged":
+            _check_changed(src, data, out)
+            out = jpeg_file.coded_like(src, out, coding)
+            notes.append("arithmetic coding: patched Huffman-coded, then coded back losslessly (jpegtran)")
+        out, had_mpf = jpeg_file.without_mpf(out)
+        if had_mpf:
+            notes.append("MPF segment (the index of the images after the picture) not written")
         if not keep_location:
             out, removed = _strip_jpeg(src, out)
         if marker is not None:
@@ -494,11 +509,20 @@ def _write_format(
         out, preserved, notes, lossless, removed = poison_tiff(im, placement, keep_location, marker, keep_out)
         method = "tiff"
     elif fmt in ("HEIF", "AVIF"):
-        out, preserved, notes, removed = poison_heif(im, fmt, placement, keep_location, marker, keep_out)
+        out, preserved, notes, removed = poison_heif(
+            im, fmt, placement, keep_location, marker, keep_out, data
+        )
         method = fmt.lower()
     else:
         raise ImageFormatError(f"{src.name}: {fmt} files are not supported")
     return out, preserved, notes, method, lossless, removed
+
+
+def _check_changed(src: Path, data: bytes, out: bytes) -> None:
+    """MarkNotWritten when the patched JPEG codes the very picture of the source (a mark too faint to
+    change a coefficient, --alpha 0.001): such a file is never called patched."""
+    if jpeg_file.same_coded_picture(data, out):
+        raise MarkNotWritten(f"{src.name}: the mark is too faint to change any pixel of it: not patched")
 
 
 def _file_notes(src: Path, im: Image.Image, fmt: str, removed: list[str]) -> list[str]:

@@ -13,7 +13,7 @@ from PIL import Image
 from poisoner.completeness import jpeg_end
 from poisoner.errors import ImageFormatError
 from poisoner.image.read import one_line
-from poisoner.jpeg import JpegLayout, read_layout
+from poisoner.jpeg import JpegLayout, jpegtran_binary, read_layout
 
 
 def preserved(layout: JpegLayout, info: dict[str | tuple[int, int], Any]) -> list[str]:
@@ -56,10 +56,71 @@ def check_arithmetic(src: Path, data: bytes) -> None:
             raise ImageFormatError(f"{src.name}: {why}; {hint}") from exc
 
 
+def arithmetic_coding(data: bytes) -> JpegLayout | None:
+    """The layout of an arithmetic-coded JPEG that jpegtran can code again (huffman_coded), else None
+    (another JPEG, a header that does not parse, or no jpegtran: check_arithmetic judges it then)."""
+    try:
+        layout = read_layout(data)
+    except ValueError:
+        return None
+    return layout if layout.arithmetic and jpegtran_binary() is not None else None
+
+
+def huffman_coded(src: Path, data: bytes) -> bytes:
+    """An arithmetic-coded JPEG losslessly coded again with Huffman tables by jpegtran (the same
+    coefficients, every marker copied; the bytes after its picture are not): a picture Pillow and
+    ppd's bit-level splice read, where Pillow's libjpeg may not decode arithmetic coding at all.
+    ImageFormatError (one line) when jpegtran refuses it (damaged or truncated data)."""
+    return _transcoded(src, data, [])
+
+
+def coded_like(src: Path, data: bytes, layout: JpegLayout) -> bytes:
+    """The patched JPEG `data` coded again as the source (`layout`) was: arithmetic, progressive,
+    its restart interval (jpegtran; lossless, every marker copied)."""
+    options = ["-arithmetic"] if layout.arithmetic else []
+    if layout.progressive:
+        options.append("-progressive")
+    if layout.restart_interval:
+        options += ["-restart", f"{layout.restart_interval}B"]
+    return _transcoded(src, data, options)
+
+
+def _transcoded(src: Path, data: bytes, options: list[str]) -> bytes:
+    from poisoner.jpeg import SpliceUnavailable, _jpegtran
+
+    binary = jpegtran_binary()
+    if binary is None:
+        raise ImageFormatError(f"{src.name}: arithmetic-coded JPEG needs jpegtran (libjpeg-turbo-progs)")
+    try:
+        return _jpegtran([binary, "-copy", "all", *options], src, "transcode", stdin=data)
+    except SpliceUnavailable as exc:
+        raise ImageFormatError(f"{src.name}: arithmetic-coded JPEG jpegtran cannot read ({exc})") from exc
+
+
 def trailer_bytes(data: bytes) -> int:
     """How many bytes follow the JPEG's picture (its first EOI): no JPEG path of ppd's writes them."""
     end = jpeg_end(data)
     return 0 if end is None else len(data) - end
+
+
+MPF_HEADER = b"MPF\x00"  # APP2: the Multi-Picture Format index of the images after the picture
+
+
+def without_mpf(data: bytes) -> tuple[bytes, bool]:
+    """The JPEG with its MPF (APP2) segment taken out, and whether it had one. MPF gives the offsets
+    of images appended after the picture (a phone's Ultra HDR gain map, a camera's preview or second
+    view): ppd never writes those (an unprotected view of the scene), so an index kept would point at
+    bytes that are not there. A header that does not parse is returned as it is."""
+    from poisoner.location import MetadataParseError, jpeg_assemble, jpeg_header_segments
+
+    try:
+        segments, sos = jpeg_header_segments(data)
+    except MetadataParseError:
+        return data, False
+    kept = [(m, p) for m, p in segments if not (m == 0xE2 and p.startswith(MPF_HEADER))]
+    if len(kept) == len(segments):
+        return data, False
+    return jpeg_assemble(kept, data, sos), True
 
 
 def same_coded_picture(before: bytes, after: bytes) -> bool:

@@ -12,10 +12,10 @@ import numpy as np
 from PIL import Image
 
 from poisoner import location
-from poisoner.blend import apply_lanes
+from poisoner.blend import apply_lanes, lane_placements, patch_coverage
 from poisoner.errors import ImageFormatError
 from poisoner.image.read import PNG_MODES
-from poisoner.image.write import paste_patch
+from poisoner.image.write import image_from_array, paste_patch
 from poisoner.spec import PatchPlacement
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -38,6 +38,18 @@ def png_chunks(data: bytes) -> list[tuple[bytes, bytes]]:
         if ctype == b"IEND":
             break
     return chunks
+
+
+def bytes_after_iend(data: bytes) -> int:
+    """How many bytes follow a PNG's IEND chunk (an appended file, a trailer): no writer keeps them."""
+    pos = len(PNG_SIGNATURE)
+    while pos + 8 <= len(data):
+        (length,) = struct.unpack(">I", data[pos : pos + 4])
+        end = pos + 12 + length
+        if data[pos + 4 : pos + 8] == b"IEND":
+            return max(0, len(data) - end)
+        pos = end
+    return 0
 
 
 def _chunk(ctype: bytes, body: bytes) -> bytes:
@@ -154,6 +166,30 @@ def _palette_patch(
     return out, notes
 
 
+def _off_key(
+    out: Image.Image, placement: PatchPlacement, keep_out: np.ndarray | None, key: object
+) -> int:
+    """Moves every pixel the mark wrote (its coverage, keep_out left alone) that equals the tRNS
+    colour key one level off it, each channel up (down at full scale), in place: a viewer would show
+    it transparent, and on a dark background the mark would vanish. The mark stays opaque, as it is
+    on an RGBA file (poisoner.blend). Returns how many pixels moved."""
+    moved = 0
+    for part in lane_placements(placement) or [placement]:
+        x0, y0, x1, y1 = part.box
+        region = np.array(out.crop(part.box))
+        key_arr = np.asarray(key, dtype=region.dtype)
+        hit = (region == key_arr).all(axis=-1) if region.ndim == 3 else region == key_arr
+        hit &= patch_coverage(part)[: y1 - y0, : x1 - x0]
+        if keep_out is not None:
+            hit &= keep_out[y0:y1, x0:x1] == 0
+        if hit.any():
+            top = np.iinfo(region.dtype).max
+            region[hit] = np.where(key_arr < top, key_arr + 1, key_arr - 1)
+            out.paste(image_from_array(region, out.mode), (x0, y0))
+            moved += int(hit.sum())
+    return moved
+
+
 def poison_png(
     im: Image.Image, data: bytes, placement: PatchPlacement, keep_out: np.ndarray | None = None
 ) -> tuple[bytes, list[str], list[str]]:
@@ -190,12 +226,9 @@ def poison_png(
         save_opts = {}
         if "transparency" in im.info and mode in ("L", "RGB", "I;16"):
             save_opts["transparency"] = im.info["transparency"]  # tRNS colour key
-            key = im.info["transparency"]
-            region = np.asarray(out.crop(placement.box))
-            key_arr = np.asarray(key, dtype=region.dtype)
-            hit = (region == key_arr).all(axis=-1) if region.ndim == 3 else region == key_arr
-            if hit.any():
-                notes.append("some patch pixels equal the tRNS colour key and show as transparent")
+            if nudged := _off_key(out, placement, keep_out, im.info["transparency"]):
+                notes.append(f"{nudged} mark pixel(s) equal to the tRNS colour key moved one level off it "
+                             "(the mark stays opaque)")  # fmt: skip
         out.save(buf, "PNG", **save_opts)
         encoded = buf.getvalue()
     spliced, kept = splice_png(data, encoded)

@@ -69,8 +69,13 @@ def open_decoded(src: Path, data: bytes, *, load: bool = True) -> Image.Image:
     if not data:
         raise ImageFormatError(f"{src.name}: empty file (0 bytes)")
     _register_heif()
+    if data[:2] == b"\xff\xd8":  # arithmetic-coded: what ppd patches, the Huffman-coded copy (formats)
+        from poisoner.image.jpeg_file import arithmetic_coding, huffman_coded
+
+        if arithmetic_coding(data) is not None:
+            data = huffman_coded(src, data)
     with decode_errors(src):
-        im = Image.open(io.BytesIO(data))
+        im = as_jpeg(Image.open(io.BytesIO(data)), io.BytesIO(data))
         limit = Image.MAX_IMAGE_PIXELS
         if limit is not None and im.size[0] * im.size[1] > limit:
             raise ImageFormatError(
@@ -85,6 +90,19 @@ def open_decoded(src: Path, data: bytes, *, load: bool = True) -> Image.Image:
         if load:
             im.load()
     return im
+
+
+def as_jpeg(im: Image.Image, fp: Path | io.BytesIO) -> Image.Image:
+    """A JPEG whose MPF segment indexes images appended after its picture (Pillow opens it as MPO:
+    a phone's Ultra HDR gain map, a camera's preview) opened again as the JPEG it is: its own picture,
+    what ppd patches (the appended images and the MPF segment are never written,
+    poisoner.image.jpeg_file.without_mpf). Any other image is returned as it is."""
+    if im.format != "MPO":
+        return im
+    from PIL import JpegImagePlugin
+
+    im.close()
+    return JpegImagePlugin.JpegImageFile(fp)
 
 
 # What each writer takes (poisoner.image.png, poisoner.image.tiff, poisoner.formats' JPEG path).
@@ -121,12 +139,19 @@ def check_writable_image(path: Path, name: str, max_pixels: int | None = None) -
     as the poisoner raises it, or a photo the user allowed is refused here."""
     _register_heif()
     raise_bomb_limit(max_pixels)
-    with decode_errors(Path(name)), Image.open(path) as im:
+    with decode_errors(Path(name)), Image.open(path) as opened, as_jpeg(opened, path) as im:
         if (frames := getattr(im, "n_frames", 1)) > 1:
             raise ImageFormatError(f"{name}: {im.format} with {frames} frames/pages is not supported")
         why = format_refusal(im)
+        jpeg = im.format == "JPEG"
     if why is not None:
         raise ImageFormatError(f"{name}: {why}")
+    if jpeg:  # arithmetic coding that neither jpegtran (absent) nor Pillow's libjpeg reads: as poisoning says
+        from poisoner.image.jpeg_file import arithmetic_coding, check_arithmetic
+
+        data = Path(path).read_bytes()
+        if arithmetic_coding(data) is None:
+            check_arithmetic(Path(name), data)
 
 
 def raise_bomb_limit(max_pixels: int | None) -> None:

@@ -88,6 +88,9 @@ def poison_tiff(
             preserved.append("TIFF GPS IFD")
         else:
             removed.append("TIFF GPS IFD")
+    if tags.get(317) == 2 and compression in ("tiff_lzw", "tiff_deflate", "tiff_adobe_deflate"):
+        info[317] = 2  # horizontal differencing: Pillow's libtiff writer applies it when asked
+        preserved.append("TIFF Predictor")
     if compression == "jpeg":
         opts["quality"] = 95
         notes.append("JPEG-compressed TIFF re-encoded at quality 95")
