@@ -81,9 +81,12 @@ def test_a_sampling_pillow_cannot_write_is_said(ppd_env: dict[str, Path], tmp_pa
 
 
 @needs_cjpeg
-def test_an_arithmetic_jpeg_pillow_cannot_decode_fails_saying_so(
-    ppd_env: dict[str, Path], tmp_path: Path
+def test_an_arithmetic_jpeg_pillow_cannot_decode_fails_saying_so_without_jpegtran(
+    ppd_env: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """Without jpegtran (PPD_JPEGTRAN empty) ppd cannot read it as Huffman-coded: it fails, untouched;
+    with jpegtran it is patched (tests/poisoner/test_format_review.py) and restored byte for byte."""
+    monkeypatch.setenv("PPD_JPEGTRAN", "")
     shoot = tmp_path / "shoot"
     shoot.mkdir()
     Image.fromarray(textured(1200, 1600, 5)).save(tmp_path / "a.ppm")
@@ -98,4 +101,12 @@ def test_an_arithmetic_jpeg_pillow_cannot_decode_fails_saying_so(
     result = runner.invoke(app, ["poison", str(shoot)])
     assert result.exit_code == 1, result.output
     assert "arith.jpg: arithmetic-coded JPEG that Pillow cannot decode" in said(result), result.output
+    assert (shoot / "arith.jpg").read_bytes() == before
+    monkeypatch.delenv("PPD_JPEGTRAN")
+    if shutil.which("jpegtran") is None:
+        return
+    patched = runner.invoke(app, ["poison", str(shoot)])
+    assert patched.exit_code == 0 and "patched 1," in said(patched), patched.output
+    assert (shoot / "arith.jpg").read_bytes() != before
+    assert runner.invoke(app, ["restore", str(shoot)]).exit_code == 0
     assert (shoot / "arith.jpg").read_bytes() == before
