@@ -46,7 +46,7 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
     """One job per file of the targets, each with its dataset by the one rule of attribution
     (daemon.datasets.dataset.attribute: a folder is one dataset, a file belongs to its outbox dataset or
     to one named after its parent; --dataset names it, and a known name keeps its root)."""
-    from daemon.cli.targets import TargetError, user_path
+    from daemon.cli.targets import TargetError, same_folder, user_path
     from daemon.datasets.dataset import DatasetConflict, DatasetNameError, attribute
 
     try:
@@ -70,10 +70,15 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
         if out is not None:
             check_out_outside(out, root, name, folder=target.is_dir())
         files = media_files(target) if target.is_dir() else [target]
+        # the outbox itself: each file goes to its own outbox dataset (a first-level folder, or
+        # "default" for loose files), as the daemon files it, not all to one dataset "outbox"
+        per_file = dataset is None and same_folder(target, ctx.paths.outbox)
         for f in files:
             if f.absolute() in planned:
                 continue
             planned.add(f.absolute())
+            if per_file:
+                name, root = attribute(ctx, f, None)
             out_path = None
             if out is not None and target.is_dir():  # OUT/DATASET/<the file's path in the dataset>:
                 # a subfolder's copies never land on the dataset's other copies (OUT/castle/a.jpg)

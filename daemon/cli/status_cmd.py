@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shlex
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -230,11 +231,12 @@ def _print_regressions(report: list[dict[str, Any]]) -> None:
             )
 
 
-def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any) -> None:
+def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any, unclaimed: list[Path]) -> None:
     payload = {
         "outbox": str(ctx.paths.outbox),
         "sync_folder": None if sync is None else {"client": sync.client, "root": str(sync.root)},
         "datasets": report,
+        "outbox_not_patched": [str(p) for p in unclaimed],  # in the outbox, no dataset's yet
     }
     typer.echo(json.dumps(payload, indent=2, default=str))
 
@@ -316,19 +318,27 @@ def status(
             try:
                 names = [dataset_or_die(ctx.store, dataset, say, "give a dataset (see `ppd status`)")]
             except TargetError as exc:
+                in_outbox = ctx.paths.outbox / dataset
+                if dataset and "/" not in dataset and in_outbox.is_dir():  # no dataset yet: say so
+                    where = shlex.quote(str(in_outbox))
+                    raise die(f"{dataset}: a folder of the outbox that ppd has not patched yet, NOT "
+                              f"protected: `ppd watch` patches it, or `ppd poison {where}`") from None
                 raise die(exc) from None
         report = [dataset_status(ctx, n) for n in names]
+        unclaimed = [] if dataset is not None else outbox_unclaimed(ctx)
         if failed:
             for d in report:
                 d["failed_files"] = failed_files(ctx, d["name"])
         sync = find_sync_folder(ctx.paths.outbox)
         if as_json:
-            _print_json(ctx, report, sync)
+            _print_json(ctx, report, sync, unclaimed)
         else:
             _print_report(ctx, report, sync, failed, detailed=long or bool(dataset))
+            if unclaimed:
+                print_line(console(), unclaimed_line(ctx.paths.outbox, unclaimed))
     finally:
         ctx.close()
-    _exit_if_unready(report, check)
+    _exit_if_unready(report, check, unclaimed)
 
 
 def unready_reasons(d: dict[str, Any]) -> list[str]:
@@ -343,15 +353,41 @@ def unready_reasons(d: dict[str, Any]) -> list[str]:
     return reasons
 
 
-def _exit_if_unready(report: list[dict[str, Any]], check: bool) -> None:
-    """--check: one line per dataset not ready to publish (stderr), then exit 1."""
+def outbox_unclaimed(ctx: AppContext) -> list[Path]:
+    """The outbox's photos and videos no dataset holds yet (daemon.datasets.folder_count)."""
+    from daemon.datasets.folder_count import outbox_unclaimed as unclaimed
+
+    found = unclaimed(ctx.paths.outbox, [d["root"] for d in ctx.store.datasets()])
+    named = {r["path"] for r in ctx.store.files_under(ctx.paths.outbox)} if found else set()
+    return [p for p in found if str(p) not in named]  # a row names it: some dataset's file
+
+
+def unclaimed_line(outbox: Path, unclaimed: list[Path]) -> str:
+    """One line: how many, which (a few), and what patches them."""
+    from daemon.protect.job import shown_path
+
+    names = [shown_path(p.relative_to(outbox)) for p in unclaimed[:3]]
+    more = f", and {len(unclaimed) - 3} more" if len(unclaimed) > 3 else ""
+    return (
+        f"outbox: {len(unclaimed)} photo(s) or video(s) no dataset holds yet, NOT protected "
+        f"({', '.join(names)}{more}): `ppd watch` patches them, or `ppd poison {shlex.quote(str(outbox))}`"
+    )
+
+
+def _exit_if_unready(report: list[dict[str, Any]], check: bool, unclaimed: Sequence[Path] = ()) -> None:
+    """--check: one line per dataset not ready to publish (stderr), then exit 1. A dataset whose
+    folder is gone and that holds no file now publishes nothing: it is not shown, and not waited for
+    (a black-box review: after a folder was renamed, --check could never pass again)."""
     if not check:
         return
-    unready = [(d["name"], unready_reasons(d)) for d in report]
+    shown = [d for d in report if not _gone(d)]
+    unready = [(d["name"], unready_reasons(d)) for d in shown]
     unready = [(name, why) for name, why in unready if why]
+    if unclaimed:
+        unready.append(("outbox", [f"{len(unclaimed)} photo(s) or video(s) not patched yet"]))
     for name, why in unready:
         err_console().print(f"not ready to publish: {name}: {', '.join(why)}", markup=False, highlight=False)
-    if unready or not report:
+    if unready or not shown:
         raise typer.Exit(ExitStatus.FAILED)
 
 

@@ -77,7 +77,7 @@ def _same_place(a: Path, b: Path) -> bool:
         return False
 
 
-def _same_folder(a: Path, b: Path) -> bool:
+def same_folder(a: Path, b: Path) -> bool:
     if _absolute(a) == _absolute(b):
         return True
     try:
@@ -91,7 +91,7 @@ def dataset_for_folder(store: Any, folder: Path) -> str | None:
     copies were written to (`--out`), or None. The newest match wins when several do."""
     folder = _absolute(folder)
     for row in store.datasets():
-        if row["root"] and _same_folder(Path(row["root"]), folder):
+        if row["root"] and same_folder(Path(row["root"]), folder):
             return row["name"]
     best: tuple[int, str] | None = None
     for row in store.datasets():

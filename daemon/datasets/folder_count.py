@@ -137,8 +137,8 @@ def count_folder(
     files = [f for f in files if str(f) not in theirs]
     rels = {f.relative_to(folder).parts for f in files}
     copies = _match_copies(outside, rels)[1]
-    if not folder.is_dir():
-        return FolderCount(folder, exists=False, copies=copies)
+    if not folder.is_dir():  # deleted or renamed: its files patched in place went with it
+        return FolderCount(folder, exists=False, copies=copies, gone=_gone_in_place(rows, folder, theirs))
     # an `--out` copy deleted or moved away: its photo has no protected copy now (a run makes one
     # again), so the photo counts "not patched yet" and the copy's row "gone" (a black-box review)
     copies_gone = [
@@ -153,11 +153,20 @@ def count_folder(
     changed = [Path(r["path"]) for r in rows if r["path"] in present and _changed(r)]
     # a file patched in place that is no longer there is no file of the dataset's (a black-box review:
     # deleted, it still counted patched); the daemon records it removed, a one-shot user has no daemon
-    gone = [Path(r["path"]) for r in rows if r["state"] in PATCHED_VALUES and not r.get("published_path")
-            and Path(r["path"]).is_relative_to(folder) and r["path"] not in present
-            and str(r["path"]) not in theirs and not os.path.lexists(r["path"])] + copies_gone  # fmt: skip
+    gone = _gone_in_place(rows, folder, theirs | present) + copies_gone
     return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies,
                        changed=changed, unprotectable=unprotectable, gone=gone)  # fmt: skip
+
+
+def _gone_in_place(rows: Iterable[Mapping[str, Any]], folder: Path, left_out: set[str]) -> list[Path]:
+    """The files patched in place under folder that are no longer there (left_out: paths that are
+    another dataset's or present)."""
+    return [
+        Path(r["path"]) for r in rows
+        if r["state"] in PATCHED_VALUES and not r.get("published_path")
+        and Path(r["path"]).is_relative_to(folder) and str(r["path"]) not in left_out
+        and not os.path.lexists(r["path"])
+    ]  # fmt: skip
 
 
 def _changed(row: Mapping[str, Any]) -> bool:
@@ -245,9 +254,46 @@ def current_counts(ctx: AppContext, name: str, folder: FolderCount) -> dict[str,
     ("untracked"), files changed since ppd patched them, files the daemon waits for ("waiting", not
     "skipped"). What `ppd status` and `ppd report` both judge protection on."""
     counts = with_folder(ctx.store.counts(name), folder)
+    if counts.get(FileState.QUARANTINED.value):
+        # a quarantined file the user has since deleted (or taken) from the quarantine folder and not
+        # put back: dealt with, so no longer one of the dataset's (a black-box review: `--check` then
+        # failed on it for ever)
+        cleared = sum(_cleared(ctx, r) for r in ctx.store.files(name, state=FileState.QUARANTINED))
+        counts[FileState.QUARANTINED.value] -= cleared
+        counts["files"] = int(counts.get("files", 0)) - cleared
     skipped = ctx.store.files(name, state=FileState.SKIPPED)
     waiting = sum(str(r.get("error") or "").startswith(WAITING_PREFIX) for r in skipped)
     if waiting:  # skipped for now, not by the spec's ratio
         counts["waiting"] = waiting
         counts["skipped"] = counts.get("skipped", 0) - waiting
     return counts
+
+
+def outbox_unclaimed(outbox: Path, roots: Iterable[str | Path]) -> list[Path]:
+    """Photos and videos in the outbox that no dataset holds yet: its first-level folders that are no
+    dataset's, and its loose files when there is no "default" dataset. The daemon patches them as it
+    sees them; with it stopped (or not watching) they sit there unprotected, and `ppd status`, which
+    listed the store's datasets only, never said so: `--check && publish` passed (a black-box review).
+    roots: the datasets' folders (their files, and folders nested in the outbox's, are theirs)."""
+    box = Path(outbox).absolute()
+    if not box.is_dir():
+        return []
+    known = {Path(root).absolute() for root in roots}
+    found: list[Path] = []
+    for entry in sorted(box.iterdir()):
+        if entry.name.startswith((".", TEMP_PREFIX)) or entry.is_symlink():
+            continue
+        if entry.is_dir():
+            if entry not in known:
+                files, unprotectable = _walk(entry, [k for k in known if k.is_relative_to(entry)])
+                found += files + unprotectable
+        elif box not in known and (is_media(entry.name) or is_unprotected_media(entry)):
+            found.append(entry)
+    return found
+
+
+def _cleared(ctx: AppContext, row: Mapping[str, Any]) -> bool:
+    """A quarantined file that is neither where it was quarantined to nor back at its own path."""
+    moved = ctx.store.last_event(row["path"], "quarantined")
+    to = ((moved or {}).get("detail") or {}).get("to")
+    return to is not None and not os.path.lexists(to) and not os.path.lexists(row["path"])
