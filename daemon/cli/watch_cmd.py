@@ -109,16 +109,25 @@ def service_install(
         False, "--print", help="Print the unit on stdout; write nothing, start nothing."
     ),
 ) -> None:
+    from daemon.config import Config, ConfigError
+    from daemon.paths import AppPaths
     from daemon.watch import service
 
-    ctx = _open_context(None)
+    if print_only:  # the folders and config as they stand: nothing made (a black-box review: the
+        paths = AppPaths.from_env()  # outbox, vault and store were made by "write nothing")
+        try:
+            config = Config.load(paths)
+        except ConfigError as exc:
+            raise _fail(str(exc).splitlines()[0]) from None
+    else:  # the unit's folders must exist when it starts (ReadWritePaths=): made, as the daemon makes them
+        ctx = _open_context(None)
+        paths, config = ctx.paths, ctx.config
+        ctx.close()
     try:
-        layout = service.installed_layout(ctx.paths, ctx.config)
-        quarantine = service.quarantine_folder(ctx.paths.outbox, ctx.config)
+        layout = service.installed_layout(paths, config)
+        quarantine = service.quarantine_folder(paths.outbox, config)
     except FileNotFoundError as exc:
         raise _fail(str(exc)) from None
-    finally:
-        ctx.close()
     for folder in service.temporary_folders(layout):
         err_console().print(
             f"warning: {folder} is under a temporary folder, which the service cannot see (PrivateTmp): "
