@@ -44,7 +44,7 @@ import os
 import stat
 from collections.abc import Callable
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 from daemon.datasets.dataset import ensure_dataset
 from daemon.datasets.subject_masks import (
@@ -244,6 +244,11 @@ def recognise(job: Job) -> ProtectOutcome | None:
             forget_attempt(ctx.paths.data_dir, job.path)
             return job.outcome(Outcome.UNCHANGED, "recovered after an interrupted run", poisoned_sha256=sha)
     earlier = ctx.store.find_poisoned(sha)
+    if earlier is not None and out_path is not None:  # --out of a file patched already (in place)
+        if not job.dry_run:
+            _copy_patched_as_it_is(job, earlier)
+        return job.outcome(Outcome.UNCHANGED, "already ppd output: copied as it is", poisoned_sha256=sha,
+                           output=job.record_path)  # fmt: skip
     if earlier is not None:
         moved = out_path is None and not job.dry_run
         if moved and carry_moved_row(ctx, earlier, job.path, job.dataset, job.root):
@@ -338,6 +343,23 @@ def _corner_sample(job: Job) -> list[Path]:
     copy = folder / job.path.name
     copy_fd_to_path(job.file.fd, copy)
     return [copy, *sibling_images(job.path)]
+
+
+def _copy_patched_as_it_is(job: Job, earlier: dict[str, Any]) -> None:
+    """`--out` of ppd's own output (a folder patched in place, then `--out`): the copy is that output
+    byte for byte, recorded as the dataset's patched copy (a black-box review: nothing was written,
+    "unchanged", exit 0, and the --out folder did not exist)."""
+    assert job.file is not None and job.sha is not None
+    out = job.record_path
+    if not (out.is_file() and sha256_file(out) == job.sha):
+        _write_out(job, job.data if job.data is not None else fd_path(job.file.fd))
+    st = os.stat(out, follow_symlinks=False)
+    ensure_dataset(job.ctx, job.dataset, job.root, job.wanted_spec)
+    job.ctx.store.record_file(
+        out, job.dataset, FileState.PATCHED, original_sha256=earlier["original_sha256"],
+        poisoned_sha256=job.sha, spec_id=earlier.get("spec_id"), tool_version=earlier.get("tool_version"),
+        size=st.st_size, mtime_ns=st.st_mtime_ns, error=None, event="copied", detail={"from": str(job.path)},
+    )  # fmt: skip
 
 
 def _recognise_by_marker(job: Job) -> ProtectOutcome | None:

@@ -160,3 +160,21 @@ def test_an_out_copy_deleted_is_gone_and_its_photo_not_patched_yet(
     assert again.exit_code == 0 and (out / "shoot" / "v1.png").is_file()
     now = counts("shoot")
     assert (now["files"], now["patched"], now.get("gone", 0), now["untracked"]) == (3, 3, 0, 0), now
+
+
+def test_out_after_patching_in_place_copies_the_patched_files(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A black-box review: `ppd poison d4` then `ppd poison d4 --out pub` wrote nothing, said
+    "unchanged 1" and exited 0, and pub did not exist. The copies are ppd's output byte for byte."""
+    shoot, out = tmp_path / "d4", tmp_path / "pub"
+    for i in range(2):
+        write_image(shoot / f"v{i}.png", seed=i)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    result = runner.invoke(app, ["poison", str(shoot), "--out", str(out)])
+    assert result.exit_code == 0 and "written to" in result.output, result.output
+    for i in range(2):
+        assert (out / "d4" / f"v{i}.png").read_bytes() == (shoot / f"v{i}.png").read_bytes()
+    assert counts("d4")["patched"] == 4  # two in place, two copies
+    assert runner.invoke(app, ["restore", "d4"]).exit_code == 0
+    assert not (out / "d4" / "v0.png").exists()  # a restore takes the copies back too
