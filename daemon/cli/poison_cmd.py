@@ -397,8 +397,20 @@ def _run_planned(
     # (with --out it is not copied where the patched ones go: nothing unprotected is published there)
     in_place = {j.path for j in jobs if j.out_path is None}
     left = [o for o in unprotected_media(outcomes) if o.path in in_place]
-    if any(o.state == "failed" for o in outcomes) or left or still_open(outcomes):
+    failed = [o for o in outcomes if o.state == "failed"]
+    if failed and disk_full(failed):  # `--help`: 3 = cannot work here, disk full (a black-box review: 1)
+        full = "ppd: a disk is full (or over its quota): free space, then run the same command again"
+        err_console().print(f"{full}; what was patched stays patched", markup=False, highlight=False)
+        raise typer.Exit(ExitStatus.ENVIRONMENT)
+    if failed or left or still_open(outcomes):
         raise typer.Exit(ExitStatus.FAILED)
+
+
+def disk_full(failed: list[ProtectOutcome]) -> bool:
+    """Whether a failure was for lack of space: the run cannot work here, not a file's fault."""
+    from daemon.watch.watcher import is_no_space
+
+    return any(is_no_space(o.reason) for o in failed)
 
 
 def register(app: typer.Typer) -> None:

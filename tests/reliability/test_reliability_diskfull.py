@@ -224,3 +224,21 @@ def test_enospc_module_points_exist() -> None:
     stages = Path(daemon.protect.stages.__file__).read_text()
     assert "PATCHED_PREFIX" in stages and "write_all(fd, content)" in stages
     assert "os.rename(tmp_name, name" in Path(poisoner.atomic.__file__).read_text()
+
+
+def test_ppd_poison_on_a_full_disk_exits_3_as_its_help_says(tmp_path: Path, ppd_env: dict[str, Path]) -> None:
+    """`ppd --help`: 3 = cannot work here (disk full). A black-box review: a full disk gave exit 1, like a
+    bad file, with no line saying what to do."""
+    from typer.testing import CliRunner
+
+    from daemon.cli import app
+
+    with mounted_or_skip(tmp_path / "small") as fs:
+        shoot = fs / "shoot"
+        photo = write_image(shoot / "a.png", seed=3)
+        before = photo.read_bytes()
+        fill(fs)
+        result = CliRunner().invoke(app, ["poison", str(shoot)])
+        assert result.exit_code == 3, result.output
+        assert "a disk is full" in " ".join(result.output.split())
+        assert photo.read_bytes() == before  # nothing lost
