@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import errno
 import logging
 import os
 import stat
@@ -27,7 +26,15 @@ from daemon.protect.job import Outcome
 from daemon.states import FileState
 from daemon.watch.notify import SystemdNotifier
 from daemon.watch.outbox import OutboxWatcher, WatchOptions, is_candidate, scan_outbox, signature, walk_files
-from daemon.watch.workers import PoolOptions, PoolStats, WorkerPool
+from daemon.watch.outcomes import (
+    DaemonCounts,
+    is_no_space,
+    is_under,
+    row_matches_disk,
+    say_outcome,
+    status_line,
+)
+from daemon.watch.workers import PoolOptions, WorkerPool
 from poisoner.media import MEDIA_SUFFIXES
 
 __all__ = ["DaemonOptions", "WatchDaemon", "WatchOptions", "is_no_space", "scan_outbox"]
@@ -70,25 +77,6 @@ class DaemonOptions:
         if settle is not None:
             base = dataclasses.replace(base, watch=dataclasses.replace(base.watch, settle_s=settle))
         return dataclasses.replace(base, **{k: v for k, v in overrides.items() if v is not None})
-
-
-@dataclass
-class DaemonCounts:
-    patched: int = 0
-    unchanged: int = 0
-    skipped: int = 0
-    failed: int = 0
-    removed: int = 0
-    quarantined: int = 0
-
-
-def status_line(counts: DaemonCounts, stats: PoolStats, armed: int) -> str:
-    """The one-line STATUS= systemd shows in `systemctl --user status ppd`."""
-    return (
-        f"patched {counts.patched}, failed {counts.failed}, quarantined {counts.quarantined}, "
-        f"unchanged {counts.unchanged}, removed {counts.removed}; queued {stats.queued + stats.pending}, "
-        f"in flight {stats.in_flight}, settling {armed}"
-    )
 
 
 class WatchDaemon:
@@ -331,13 +319,13 @@ class WatchDaemon:
         for path in result.files:
             on_disk.add(str(path))
             row = rows.get(str(path))
-            if row is not None and _row_matches_disk(row, path):
+            if row is not None and row_matches_disk(row, path):
                 self.watcher.mark_settled(path)
                 continue
             queued += int(self.pool.submit(path))
         for path_text, row in rows.items():
             gone = path_text not in on_disk and row["state"] != FileState.REMOVED
-            if gone and _is_under(self.outbox, path_text):
+            if gone and is_under(self.outbox, path_text):
                 queued += int(self.pool.submit(Path(path_text)))
         seconds = round(time.monotonic() - started, 3)
         log.info(
@@ -542,20 +530,6 @@ class WatchDaemon:
             log.info("removed %s", Path(r["path"]).name, extra=extra)
 
 
-def say_outcome(event: str, path: Path, outcome: Any, state: str, seconds: float, moved: Path | None) -> None:
-    """The daemon's one line per file, on the terminal and in the journal: `msg="patched IMG_1.jpg"
-    event=new dataset=kitchen file=/outbox/kitchen/IMG_1.jpg outcome=patched seconds=0.84`, plus
-    the reason when it was not patched and where a quarantined file went."""
-    failed = state in (Outcome.FAILED, Outcome.QUARANTINED)
-    extra: dict[str, Any] = {"event": event, "dataset": outcome.dataset, "file": str(path), "outcome": state,
-                             "seconds": round(seconds, 2)}  # fmt: skip
-    if outcome.reason and state != Outcome.PATCHED:
-        extra["reason"] = outcome.reason
-    if moved is not None:
-        extra["to"] = str(moved)
-    log.log(logging.WARNING if failed else logging.INFO, "%s %s", state, path.name, extra=extra)
-
-
 def release_free_memory() -> None:
     """Give freed heap back to the OS once a batch is done (glibc's malloc_trim).
 
@@ -567,29 +541,3 @@ def release_free_memory() -> None:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):
         pass
-
-
-NO_SPACE_MESSAGES = (os.strerror(errno.ENOSPC), os.strerror(errno.EDQUOT), "database or disk is full")
-
-
-def is_no_space(reason: str | None) -> bool:
-    """Whether a failure's one-line reason says the disk (or quota) was full."""
-    return reason is not None and any(m.lower() in reason.lower() for m in NO_SPACE_MESSAGES)
-
-
-def _row_matches_disk(row: dict[str, Any], path: Path) -> bool:
-    """A patched row, or a restored one (the user's restore stands), whose recorded size and mtime
-    are the file's: nothing to do."""
-    if row["state"] not in (FileState.PATCHED, FileState.RESTORED):
-        return False
-    if row.get("published_path") or row.get("size") is None:
-        return False
-    try:
-        st = path.stat()
-    except OSError:
-        return False
-    return (st.st_size, st.st_mtime_ns) == (row["size"], row["mtime_ns"])
-
-
-def _is_under(outbox: Path, path_text: str) -> bool:
-    return path_text.startswith(str(outbox) + os.sep)
