@@ -51,6 +51,14 @@ def say_outcome(event: str, path: Path, outcome: Any, state: str, seconds: float
     log.log(logging.WARNING if failed else logging.INFO, "%s %s", state, path.name, extra=extra)
 
 
+def say_removed(path: Path, dataset: str | None, reason: str | None = None) -> None:
+    """The line for a file gone from the outbox (its row, if any, recorded removed)."""
+    extra: dict[str, Any] = {"event": "removed", "dataset": dataset, "file": str(path), "outcome": "removed"}
+    if reason:
+        extra["reason"] = reason
+    log.info("removed %s", path.name, extra=extra)
+
+
 NO_SPACE_MESSAGES = (os.strerror(errno.ENOSPC), os.strerror(errno.EDQUOT), "database or disk is full")
 
 

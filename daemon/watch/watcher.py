@@ -17,6 +17,7 @@ import os
 import stat
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ from daemon.watch.outcomes import (
     is_under,
     row_matches_disk,
     say_outcome,
+    say_removed,
     status_line,
 )
 from daemon.watch.workers import PoolOptions, WorkerPool
@@ -40,6 +42,9 @@ from poisoner.media import MEDIA_SUFFIXES
 __all__ = ["DaemonOptions", "WatchDaemon", "WatchOptions", "is_no_space", "scan_outbox"]
 
 log = logging.getLogger(__name__)
+
+GONE_MID_WORK = "deleted or moved away while it was being patched"
+REMEMBER_REMOVED = 10_000  # paths counted removed, remembered so that none counts twice
 
 
 # ---- the daemon: watcher + catch-up + workers + systemd ---------------------------------------
@@ -102,6 +107,10 @@ class WatchDaemon:
         self._incomplete: dict[Path, tuple[Any, float, int]] = {}
         self._incomplete_lock = threading.Lock()
         self._no_space_lock = threading.Lock()
+        # Paths counted removed, until a file is processed there again: a file counts once, however
+        # many jobs find it gone (its own, its folder's, its deletion event's); oldest forgotten first.
+        self._removed: OrderedDict[Path, None] = OrderedDict()
+        self._removal_lock = threading.Lock()
         self._no_space_since = (0.0, 0)  # (monotonic time, free bytes) of the first such failure
         self.pool = WorkerPool(
             self.process,
@@ -413,11 +422,16 @@ class WatchDaemon:
         if self.watcher.is_settled(path):
             return
         judged = signature(path)
+        with self._removal_lock:
+            self._removed.pop(path, None)  # a file here again: its removal counts again
         from daemon.protect.job import storable  # a name the store cannot hold has no row
 
         event = "changed" if storable(path) and self.ctx.store.file(path) is not None else "new"
         started = time.monotonic()
         outcome = self._protect(path)
+        if outcome.state == Outcome.FAILED and not os.path.lexists(path):
+            self._gone_mid_work(path, outcome)
+            return
         if outcome.state == Outcome.FAILED and outcome.incomplete and self._wait_for_writer(path, judged):
             self._count("skipped")
             self._record_waiting(path, outcome)
@@ -498,12 +512,38 @@ class WatchDaemon:
 
         return protect_file(path, self.ctx)
 
-    def _record_removed(self, path: Path) -> None:
-        """Rows for path, or for every file under path when it was a folder, become 'removed'."""
+    def _gone_mid_work(self, path: Path, outcome: Any) -> None:
+        """A file deleted, or its folder renamed, while it was being patched: counted and said once,
+        as removed (info), not as failed (a warning, `failed 1` in the stop summary and STATUS=, then
+        `removed` as well for the same file: a black-box review). Its deletion event, queued meanwhile,
+        then finds its row removed already."""
+        from daemon.protect.job import storable
+
+        self.watcher.forget(path)
+        with self._incomplete_lock:
+            self._incomplete.pop(path, None)
+        self._note_no_space(path, None)
+        if self._record_removed(path, GONE_MID_WORK):
+            return
+        with self._removal_lock:
+            if path in self._removed or (storable(path) and self.ctx.store.file(path) is not None):
+                return  # counted by its folder's job meanwhile (or quarantined)
+            self._removed[path] = None
+        self._count("removed")  # no row was written for it: still one count and one line
+        say_removed(path, outcome.dataset, GONE_MID_WORK)
+
+    def _record_removed(self, path: Path, reason: str | None = None) -> int:
+        """Rows for path, or for every file under path when it was a folder, become 'removed'; how
+        many were counted (and said) now. One job at a time: a folder's job and its files' jobs
+        both find a file gone, and each counted and said it (`removed` twice: a black-box review)."""
         from daemon.protect.job import storable
 
         if not storable(path):
-            return  # a name the store cannot hold has no row (quarantined ones included)
+            return 0  # a name the store cannot hold has no row (quarantined ones included)
+        with self._removal_lock:
+            return self._record_removed_locked(path, reason)
+
+    def _record_removed_locked(self, path: Path, reason: str | None) -> int:
         store = self.ctx.store
         row = store.file(path)
         rows = [row] if row is not None else []
@@ -512,6 +552,7 @@ class WatchDaemon:
             # 10k unknown files does not scan the store 10k times.)
             prefix = str(path) + os.sep
             rows = [r for r in self._known_rows().values() if r["path"].startswith(prefix)]
+        counted = 0
         for r in rows:
             if r["state"] in (FileState.REMOVED, FileState.QUARANTINED) or Path(r["path"]).exists():
                 continue
@@ -525,9 +566,16 @@ class WatchDaemon:
                 event="removed",
                 detail={"previous_state": r["state"]},
             )
+            gone = Path(r["path"])
+            if gone in self._removed:
+                continue  # counted already (its worker wrote its row again after): the row only
+            self._removed[gone] = None
+            if len(self._removed) > REMEMBER_REMOVED:
+                self._removed.popitem(last=False)
             self._count("removed")  # DaemonCounts.removed
-            extra = {"event": "removed", "dataset": r["dataset"], "file": r["path"], "outcome": "removed"}
-            log.info("removed %s", Path(r["path"]).name, extra=extra)
+            say_removed(gone, r["dataset"], reason)
+            counted += 1
+        return counted
 
 
 def release_free_memory() -> None:
