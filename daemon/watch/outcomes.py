@@ -41,11 +41,19 @@ def say_outcome(event: str, path: Path, outcome: Any, state: str, seconds: float
     """The daemon's one line per file, on the terminal and in the journal: `msg="patched IMG_1.jpg"
     event=new dataset=kitchen file=/outbox/kitchen/IMG_1.jpg outcome=patched seconds=0.84`, plus
     the reason when it was not patched and where a quarantined file went."""
+    say(event, path, outcome.dataset, state, seconds, outcome.reason, moved)
+
+
+def say(
+    event: str, path: Path, dataset: str | None, state: str, seconds: float, reason: str | None = None,
+    moved: Path | None = None,
+) -> None:  # fmt: skip
+    """say_outcome's line from its fields (a symlink quarantined has no protect outcome)."""
     failed = state in (Outcome.FAILED, Outcome.QUARANTINED)
-    extra: dict[str, Any] = {"event": event, "dataset": outcome.dataset, "file": str(path), "outcome": state,
+    extra: dict[str, Any] = {"event": event, "dataset": dataset, "file": str(path), "outcome": state,
                              "seconds": round(seconds, 2)}  # fmt: skip
-    if outcome.reason and state != Outcome.PATCHED:
-        extra["reason"] = outcome.reason
+    if reason and state != Outcome.PATCHED:
+        extra["reason"] = reason
     if moved is not None:
         extra["to"] = str(moved)
     log.log(logging.WARNING if failed else logging.INFO, "%s %s", state, path.name, extra=extra)

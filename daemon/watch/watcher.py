@@ -32,10 +32,12 @@ from daemon.watch.outcomes import (
     is_no_space,
     is_under,
     row_matches_disk,
+    say,
     say_outcome,
     say_removed,
     status_line,
 )
+from daemon.watch.waiting import WriterWaits
 from daemon.watch.workers import PoolOptions, WorkerPool
 from poisoner.media import MEDIA_SUFFIXES
 
@@ -103,9 +105,9 @@ class WatchDaemon:
         self._trim_due = threading.Event()
         # Files that failed for lack of disk space; retried once space returns (no event tells).
         self._no_space: dict[Path, None] = {}
-        # incomplete files waited for: path -> (signature, unchanged since, checks so far)
-        self._incomplete: dict[Path, tuple[Any, float, int]] = {}
-        self._incomplete_lock = threading.Lock()
+        self.waits = WriterWaits(
+            ctx.store, options.incomplete_wait_s, options.watch.settle_s, options.watch.max_settle_s
+        )  # incomplete files waited for
         self._no_space_lock = threading.Lock()
         # Paths counted removed, until a file is processed there again: a file counts once, however
         # many jobs find it gone (its own, its folder's, its deletion event's); oldest forgotten first.
@@ -365,16 +367,16 @@ class WatchDaemon:
         from daemon.protect.quarantine import quarantine
 
         reason = f"{path.name} is a symlink: ppd never follows one; put the file itself in the outbox"
+        started, event, dataset = time.monotonic(), self._event_of(path), dataset_of(self.outbox, path)
         try:
-            moved = quarantine(self.ctx, path, dataset_of(self.outbox, path), reason)
+            moved = quarantine(self.ctx, path, dataset, reason)
         except OSError as exc:
             log.error("cannot quarantine %s: %s", path, exc.strerror, extra={"path": str(path)})
             return
-        if moved is not None:
+        if moved is not None:  # the line every file gets (it was free text without them: a review)
             self.watcher.forget(path)
             self._count("quarantined")
-            log.warning("quarantined %s: %s (moved to %s)", path, reason, moved,
-                        extra={"path": str(path), "to": str(moved)})  # fmt: skip
+            say(event, path, dataset, Outcome.QUARANTINED.value, time.monotonic() - started, reason, moved)
 
     def _quarantine_if_hopeless(self, path: Path, outcome: Any) -> Path | None:
         """A file that failed for a reason a retry will not change leaves the outbox: where it went."""
@@ -424,20 +426,21 @@ class WatchDaemon:
         judged = signature(path)
         with self._removal_lock:
             self._removed.pop(path, None)  # a file here again: its removal counts again
-        from daemon.protect.job import storable  # a name the store cannot hold has no row
-
-        event = "changed" if storable(path) and self.ctx.store.file(path) is not None else "new"
+        event = self.waits.event_of(path) or self._event_of(path)
         started = time.monotonic()
         outcome = self._protect(path)
         if outcome.state == Outcome.FAILED and not os.path.lexists(path):
             self._gone_mid_work(path, outcome)
             return
-        if outcome.state == Outcome.FAILED and outcome.incomplete and self._wait_for_writer(path, judged):
+        if (
+            outcome.state == Outcome.FAILED
+            and outcome.incomplete
+            and self.waits.wait(path, judged, event, self.watcher)
+        ):
             self._count("skipped")
-            self._record_waiting(path, outcome)
+            self.waits.record(path, outcome)
             return
-        with self._incomplete_lock:
-            self._incomplete.pop(path, None)
+        self.waits.done(path)
         # The signature of what ppd judged or wrote, not of what is there now: a version that
         # arrived meanwhile must not be taken for an echo of ppd's own work.
         if outcome.signature is None and outcome.state == Outcome.FAILED:
@@ -457,52 +460,12 @@ class WatchDaemon:
             except Exception:
                 log.exception("verification scheduler failed", extra={"dataset": outcome.dataset})
 
-    def _record_waiting(self, path: Path, outcome: Any) -> None:
-        """The row of a file waited for says so (skipped, for now), not the failure its worker
-        recorded: `ppd status --failed` listed a file still being written as failed while the
-        daemon's own count said failed 0. Patched or quarantined later, the row says that."""
-        from daemon.protect.job import storable
-        from daemon.states import FileState
+    def _event_of(self, path: Path) -> str:
+        """`changed`: a row says ppd saw a file here before (not one removed since); else `new`."""
+        from daemon.protect.job import storable  # a name the store cannot hold has no row
 
-        if not outcome.dataset or not storable(path):
-            return
-        from daemon.states import WAITING_PREFIX
-
-        why = f"{WAITING_PREFIX} (patched once complete)"
-        try:
-            self.ctx.store.record_file(
-                path, outcome.dataset, FileState.SKIPPED, error=why, durable=False, event="waiting",
-                detail={"reason": outcome.reason},
-            )  # fmt: skip
-        except Exception:  # the store failing must not stop the wait: the failed row stays
-            log.exception("could not record a waited-for file", extra={"path": str(path)})
-
-    def _wait_for_writer(self, path: Path, judged: Any) -> bool:
-        """An incomplete file is waited for, not refused, while its writer may still be at it: it
-        is re-checked after a growing quiet time, and quarantined (one whole file) only once it has
-        not changed for incomplete_wait_s. True: waiting (nothing moved)."""
-        now = time.monotonic()
-        after = signature(path)
-        with self._incomplete_lock:
-            seen = self._incomplete.get(path)
-            since = seen[1] if seen is not None and seen[0] == after else now
-            checks = seen[2] + 1 if seen is not None else 0
-            self._incomplete[path] = (after, since, checks)
-        # Re-checked just before any refusal: changed while it was judged, or within the wait.
-        if after != judged or after is None or now - since < self.options.incomplete_wait_s:
-            self.watcher.forget(path)
-            left = max(0.0, self.options.incomplete_wait_s - (now - since))
-            grown = self.options.watch.settle_s * 2 ** min(checks, 16)
-            delay = max(0.5, min(self.options.watch.max_settle_s, grown, left))
-            self.watcher.recheck(path, delay)
-            log.info(
-                "incomplete, waiting for its writer: %s (re-checked in %.0f s)", path, delay,
-                extra={"path": str(path), "reason": "incomplete", "wait_s": round(delay, 1)},
-            )  # fmt: skip
-            return True
-        with self._incomplete_lock:
-            self._incomplete.pop(path, None)
-        return False
+        row = self.ctx.store.file(path) if storable(path) else None
+        return "changed" if row is not None and row["state"] != FileState.REMOVED else "new"
 
     def _protect(self, path: Path) -> Any:
         """protect_file, in a worker process unless the options say in this one."""
@@ -520,8 +483,7 @@ class WatchDaemon:
         from daemon.protect.job import storable
 
         self.watcher.forget(path)
-        with self._incomplete_lock:
-            self._incomplete.pop(path, None)
+        self.waits.done(path)
         self._note_no_space(path, None)
         if self._record_removed(path, GONE_MID_WORK):
             return
