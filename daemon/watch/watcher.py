@@ -26,7 +26,15 @@ from daemon.locks import outbox_lock
 from daemon.protect.job import Outcome
 from daemon.states import FileState
 from daemon.watch.notify import SystemdNotifier
-from daemon.watch.outbox import OutboxWatcher, WatchOptions, is_candidate, scan_outbox, signature, walk_files
+from daemon.watch.outbox import (
+    OutboxWatcher,
+    WatchOptions,
+    folder_identity,
+    is_candidate,
+    scan_outbox,
+    signature,
+    walk_files,
+)
 from daemon.watch.outcomes import (
     DaemonCounts,
     is_no_space,
@@ -67,6 +75,9 @@ class DaemonOptions:
     # A file whose structure is incomplete is re-checked (its writer may append more after a
     # pause) and quarantined only once it has not changed for this long (config: [daemon]).
     incomplete_wait_s: float = 120.0
+    # A renamed outbox wakes the daemon at once (IN_MOVE_SELF); one moved with a folder above it, or
+    # replaced while the daemon slept, is noticed within this (its folder identity is compared).
+    outbox_check_s: float = 30.0
 
     @classmethod
     def from_config(cls, config: Any, **overrides: Any) -> DaemonOptions:
@@ -121,9 +132,7 @@ class WatchDaemon:
             ),
             on_idle=self._on_pool_idle,
         )
-        self.watcher = OutboxWatcher(
-            self.outbox, self.pool.submit, options.watch, self.suffixes, self._on_lost_events
-        )
+        self.watcher = self._new_watcher()
         self.scheduler: Any = None
         self._owner = contextlib.ExitStack()
         self.protectors: Any = None  # daemon.protect.pool.ProtectWorkers, made on start
@@ -223,13 +232,15 @@ class WatchDaemon:
         """How long the main loop may sleep: systemd's watchdog, a pending rescan, files
         waiting for disk space."""
         waits = [ping] if ping else []
+        # The outbox moved with a folder above it gives no event: its identity is checked this often.
+        waits.append(self.options.outbox_check_s)
         if self._rescan_needed.is_set():
             waits.append(5.0)
         if self._no_space:
             waits.append(self.options.no_space_poll_s)
         if self.protectors is not None and (idle_in := self.protectors.end_idle()) is not None:
             waits.append(idle_in + 0.05)  # then the idle workers exit
-        return min(waits) if waits else None
+        return min(waits)
 
     def _note_no_space(self, path: Path, reason: str | None) -> None:
         """Remember a file that failed for lack of space (or forget one that did not)."""
@@ -273,11 +284,27 @@ class WatchDaemon:
         stats = self.pool.stats()
         return stats.queued + stats.pending == 0
 
+    def _new_watcher(self) -> OutboxWatcher:
+        return OutboxWatcher(
+            self.outbox, self.pool.submit, self.options.watch, self.suffixes, self._on_lost_events,
+            on_moved=self._wake.set,  # a folder renamed: perhaps the outbox (checked by _keep_watching)
+        )  # fmt: skip
+
     def _keep_watching(self) -> None:
-        """Restart the observer when the outbox was deleted or moved away (and recreate it)."""
-        if self.watcher.is_alive() and self.outbox.is_dir():
+        """Restart the observer when the outbox was deleted or moved away (and recreate it), or when
+        the folder at its path is another one: moved away and a folder of the same name made again,
+        the observer alive on the old one (the daemon went deaf for good: a black-box review)."""
+        now = folder_identity(self.outbox)
+        alive = self.watcher.is_alive()
+        if alive and now is not None and now == self.watcher.identity and self.outbox.is_dir():
             return
-        log.error("outbox watch lost; recreating %s and rescanning", self.outbox)
+        if alive and now is not None and self.outbox.is_dir():
+            log.warning(
+                "the outbox %s is another folder now (the one watched was moved away); watching it and "
+                "rescanning", self.outbox, extra={"outbox": str(self.outbox)},
+            )  # fmt: skip
+        else:
+            log.error("outbox watch lost; recreating %s and rescanning", self.outbox)
         self.watcher.stop()
         try:
             self.outbox.mkdir(parents=True, exist_ok=True)
@@ -285,9 +312,7 @@ class WatchDaemon:
             log.error("cannot recreate the outbox %s: %s", self.outbox, exc.strerror)
             self._rescan_needed.set()  # retried on the next wake-up (every 5 s while needed)
             return
-        self.watcher = OutboxWatcher(
-            self.outbox, self.pool.submit, self.options.watch, self.suffixes, self._on_lost_events
-        )
+        self.watcher = self._new_watcher()
         self.watcher.start()
         self._rescan_needed.set()
 
