@@ -312,9 +312,26 @@ class WatchDaemon:
             log.error("cannot recreate the outbox %s: %s", self.outbox, exc.strerror)
             self._rescan_needed.set()  # retried on the next wake-up (every 5 s while needed)
             return
+        self._lock_outbox_again(self.watcher.identity)
         self.watcher = self._new_watcher()
         self.watcher.start()
         self._rescan_needed.set()
+
+    def _lock_outbox_again(self, watched: Any) -> None:
+        """The outbox lock is the folder's (daemon.locks): a new folder at the path gets it, so that no
+        second `ppd watch` is let in on the folder this daemon now watches; the old one's goes."""
+        from daemon.locks import LockHeld
+
+        if watched is not None and folder_identity(self.outbox) == watched:
+            return  # the same folder (its observer died): its lock is held already
+        fresh = contextlib.ExitStack()
+        try:
+            fresh.enter_context(outbox_lock(self.ctx.paths.data_dir, self.outbox))
+        except LockHeld as exc:  # another daemon took the new folder meanwhile: it is said, not fought
+            log.error("%s; this daemon watches it too", exc)
+            return
+        self._owner.close()
+        self._owner = fresh
 
     def status(self) -> str:
         with self._counts_lock:

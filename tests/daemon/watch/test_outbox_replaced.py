@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from daemon.locks import LockHeld, outbox_lock
 from daemon.states import FileState
 from testkit.daemon_proc import wait_for
 from testkit.photos import write_image
@@ -41,6 +42,11 @@ def test_an_outbox_moved_away_and_made_again_is_watched_again(
         wait_for(lambda: daemon.counts.patched >= 3, 20, "a later file in the new outbox")
         wait_idle(daemon)
         assert daemon.counts.patched == 3
+        # the outbox lock moved with the watch: the new folder is held, the moved one free
+        with pytest.raises(LockHeld, match="is already watching"), outbox_lock(ppd_env["data"], outbox):
+            pass
+        with outbox_lock(ppd_env["data"], outbox.parent / "outbox.moved"):
+            pass
     said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
     assert len(said) == 1 and str(outbox) in said[0], said  # said once
     store = store_of(ppd_env)
