@@ -8,7 +8,8 @@ lock behind. The holder writes its pid into the file, so a refusal can say who h
   gets LockHeld at once.
 - `file_lock`: one process (and one thread) at a time works on a given path; others wait up to
   a bound, then get LockHeld. flock locks belong to an open file description, so two threads of
-  one process that each open the lock file exclude each other too.
+  one process that each open the lock file exclude each other too. Its lock file goes when the
+  work is done (see `_flock`).
 """
 
 from __future__ import annotations
@@ -65,28 +66,60 @@ def _write_pid(fd: int, note: str = "") -> None:
 
 
 @contextlib.contextmanager
-def _flock(lock_file: Path, wait_s: float, refusal: Callable[[str], str], note: str = "") -> Iterator[None]:
-    """refusal(holder): the one-line message when the wait runs out. note: written after the pid."""
-    fd = os.open(lock_file, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+def _flock(
+    lock_file: Path, wait_s: float, refusal: Callable[[str], str], note: str = "", remove: bool = False
+) -> Iterator[None]:
+    """refusal(holder): the one-line message when the wait runs out. note: written after the pid.
+
+    remove: the lock file is unlinked when the work is done, while still locked (a lock file per
+    path ever processed piled up: a black-box review). Safe because a lock counts only on the file
+    the name holds: one who opened it before the unlink and got the lock after finds the name gone
+    or another file there, and tries the name again; and no one unlinks a file without its lock."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        fd = os.open(lock_file, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+        try:
+            _lock_by(fd, deadline, refusal)
+        except BaseException:
+            os.close(fd)
+            raise
+        if not remove or _names(lock_file, fd):
+            break
+        os.close(fd)  # unlinked by its last holder while this one waited: the name's file now
     try:
-        deadline = time.monotonic() + wait_s
-        while True:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                if time.monotonic() >= deadline:
-                    raise LockHeld(refusal(_holder(fd))) from None
-                time.sleep(_POLL_S)
         _write_pid(fd, note)
         try:
             yield
         finally:
+            if remove:
+                with contextlib.suppress(OSError):
+                    os.unlink(lock_file)
             with contextlib.suppress(OSError):
                 os.ftruncate(fd, 0)
             fcntl.flock(fd, fcntl.LOCK_UN)
     finally:
         os.close(fd)
+
+
+def _lock_by(fd: int, deadline: float, refusal: Callable[[str], str]) -> None:
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return
+        except BlockingIOError:
+            if time.monotonic() >= deadline:
+                raise LockHeld(refusal(_holder(fd))) from None
+            time.sleep(_POLL_S)
+
+
+def _names(lock_file: Path, fd: int) -> bool:
+    """Whether lock_file still names the file open as fd."""
+    try:
+        st = os.stat(lock_file, follow_symlinks=False)
+    except FileNotFoundError:
+        return False
+    held = os.fstat(fd)
+    return (st.st_dev, st.st_ino) == (held.st_dev, held.st_ino)
 
 
 def _outbox_key(outbox: Path) -> str:
@@ -185,5 +218,5 @@ def file_lock(data_dir: Path, path: Path, wait_s: float = DEFAULT_FILE_WAIT_S) -
     def refusal(holder: str) -> str:
         return f"{name} is being worked on by another ppd process ({holder}); waited {wait_s:g} s, try later"
 
-    with _flock(folder / f"{_key(path)}.lock", wait_s, refusal):
+    with _flock(folder / f"{_key(path)}.lock", wait_s, refusal, remove=True):
         yield
