@@ -4,10 +4,12 @@ Both are advisory fcntl.flock locks on small files in ppd's private data folder 
 user's folders): the kernel drops them when the holding process dies, so a crash never leaves a
 lock behind. The holder writes its pid into the file, so a refusal can say who holds it.
 
-- `outbox_lock`: one `ppd watch` per outbox; a second gets LockHeld at once.
+- `outbox_lock`: one `ppd watch` per outbox, none on a folder above or inside a watched one; a second
+  gets LockHeld at once.
 - `file_lock`: one process (and one thread) at a time works on a given path; others wait up to
   a bound, then get LockHeld. flock locks belong to an open file description, so two threads of
-  one process that each open the lock file exclude each other too.
+  one process that each open the lock file exclude each other too. Its lock file goes when the
+  work is done (see `_flock`).
 """
 
 from __future__ import annotations
@@ -43,44 +45,81 @@ def _key(path: Path) -> str:
     return hashlib.sha256(os.fsencode(str(Path(path).absolute()))).hexdigest()[:32]
 
 
-def _holder(fd: int) -> str:
+def _content(fd: int) -> list[str]:
+    """The holder's lines: its pid, then (a `ppd watch`) the outbox it watches."""
     try:
-        text = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+        return os.pread(fd, 4096, 0).decode("utf-8", "surrogateescape").splitlines()
     except OSError:
-        text = ""
+        return []
+
+
+def _holder(fd: int) -> str:
+    text = (_content(fd) or [""])[0].strip()
     return f"pid {text}" if text.isdigit() else "another process"
 
 
-def _write_pid(fd: int) -> None:
+def _write_pid(fd: int, note: str = "") -> None:
     """Best effort: on a full disk the lock still holds, only the refusal cannot name the pid."""
     with contextlib.suppress(OSError):
         os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        os.pwrite(fd, f"{os.getpid()}\n{note}".encode("utf-8", "surrogateescape"), 0)
 
 
 @contextlib.contextmanager
-def _flock(lock_file: Path, wait_s: float, refusal: Callable[[str], str]) -> Iterator[None]:
-    """refusal(holder): the one-line message when the wait runs out."""
-    fd = os.open(lock_file, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+def _flock(
+    lock_file: Path, wait_s: float, refusal: Callable[[str], str], note: str = "", remove: bool = False
+) -> Iterator[None]:
+    """refusal(holder): the one-line message when the wait runs out. note: written after the pid.
+
+    remove: the lock file is unlinked when the work is done, while still locked (a lock file per
+    path ever processed piled up: a black-box review). Safe because a lock counts only on the file
+    the name holds: one who opened it before the unlink and got the lock after finds the name gone
+    or another file there, and tries the name again; and no one unlinks a file without its lock."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        fd = os.open(lock_file, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+        try:
+            _lock_by(fd, deadline, refusal)
+        except BaseException:
+            os.close(fd)
+            raise
+        if not remove or _names(lock_file, fd):
+            break
+        os.close(fd)  # unlinked by its last holder while this one waited: the name's file now
     try:
-        deadline = time.monotonic() + wait_s
-        while True:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                if time.monotonic() >= deadline:
-                    raise LockHeld(refusal(_holder(fd))) from None
-                time.sleep(_POLL_S)
-        _write_pid(fd)
+        _write_pid(fd, note)
         try:
             yield
         finally:
+            if remove:
+                with contextlib.suppress(OSError):
+                    os.unlink(lock_file)
             with contextlib.suppress(OSError):
                 os.ftruncate(fd, 0)
             fcntl.flock(fd, fcntl.LOCK_UN)
     finally:
         os.close(fd)
+
+
+def _lock_by(fd: int, deadline: float, refusal: Callable[[str], str]) -> None:
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return
+        except BlockingIOError:
+            if time.monotonic() >= deadline:
+                raise LockHeld(refusal(_holder(fd))) from None
+            time.sleep(_POLL_S)
+
+
+def _names(lock_file: Path, fd: int) -> bool:
+    """Whether lock_file still names the file open as fd."""
+    try:
+        st = os.stat(lock_file, follow_symlinks=False)
+    except FileNotFoundError:
+        return False
+    held = os.fstat(fd)
+    return (st.st_dev, st.st_ino) == (held.st_dev, held.st_ino)
 
 
 def _outbox_key(outbox: Path) -> str:
@@ -95,10 +134,59 @@ def _outbox_key(outbox: Path) -> str:
 
 @contextlib.contextmanager
 def outbox_lock(data_dir: Path, outbox: Path) -> Iterator[None]:
-    """Held for the life of `ppd watch` on outbox; LockHeld at once if another process has it."""
-    lock_file = lock_dir(data_dir) / f"watch-{_outbox_key(outbox)}.lock"
-    with _flock(lock_file, 0.0, lambda holder: f"another ppd watch ({holder}) is already watching {outbox}"):
+    """Held for the life of `ppd watch` on outbox; LockHeld at once if another process has it, or
+    watches a folder above it or inside it (both would process the same files: a black-box review).
+
+    The outbox's own lock file is held exclusive, with the holder's pid and the outbox in it; the
+    lock file of every folder above it (its real path's) is held shared. So a daemon on a folder
+    above finds its own lock file held shared (a daemon below) and one on a folder inside finds a
+    folder above held exclusive: each is refused by the kernel's lock, two at once included."""
+    folder = lock_dir(data_dir)
+    outbox = Path(outbox).absolute()
+    with contextlib.ExitStack() as held:
+        for above in Path(os.path.realpath(outbox)).parents:
+            held.enter_context(_shared_above(folder / f"watch-{_outbox_key(above)}.lock", above, outbox))
+        lock_file = folder / f"watch-{_outbox_key(outbox)}.lock"
+        held.enter_context(_flock(lock_file, 0.0, lambda h: _refusal(folder, h, outbox), f"{outbox}\n"))
         yield
+
+
+@contextlib.contextmanager
+def _shared_above(lock_file: Path, above: Path, outbox: Path) -> Iterator[None]:
+    """A folder above the outbox, held shared: LockHeld when a `ppd watch` watches it."""
+    fd = os.open(lock_file, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            lines = _content(fd)
+            watched = lines[1] if len(lines) > 1 else str(above)
+            raise LockHeld(
+                f"another ppd watch ({_holder(fd)}) is already watching {watched}, which holds {outbox}"
+            ) from None
+        yield
+    finally:
+        os.close(fd)
+
+
+def _refusal(folder: Path, holder: str, outbox: Path) -> str:
+    """Why the outbox's own lock is taken: a daemon on it (its pid in the file), else one on a
+    folder inside it (holding it shared: named from its own lock file)."""
+    if holder != "another process":
+        return f"another ppd watch ({holder}) is already watching {outbox}"
+    for lock_file in sorted(folder.glob("watch-*.lock")):
+        with contextlib.suppress(OSError):
+            fd = os.open(lock_file, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+                lines = []  # not held exclusive: what it says is a dead holder's
+            except BlockingIOError:
+                lines = _content(fd)
+            finally:
+                os.close(fd)
+            if len(lines) > 1 and Path(lines[1]).is_relative_to(outbox) and Path(lines[1]) != outbox:
+                return f"another ppd watch (pid {lines[0]}) is already watching {lines[1]}, inside {outbox}"
+    return f"another ppd watch is already watching a folder inside {outbox}"
 
 
 def watching(data_dir: Path) -> list[str]:
@@ -130,5 +218,5 @@ def file_lock(data_dir: Path, path: Path, wait_s: float = DEFAULT_FILE_WAIT_S) -
     def refusal(holder: str) -> str:
         return f"{name} is being worked on by another ppd process ({holder}); waited {wait_s:g} s, try later"
 
-    with _flock(folder / f"{_key(path)}.lock", wait_s, refusal):
+    with _flock(folder / f"{_key(path)}.lock", wait_s, refusal, remove=True):
         yield

@@ -7,9 +7,10 @@
 - `reflink(dst_fd, src_fd)`: the FICLONE ioctl (a copy that shares extents on btrfs/XFS).
 - `keep_freed_memory()`: glibc's malloc keeps freed memory for the next file instead of handing it
   back to the kernel at once (a worker's page faults: issue 30).
-- `inotify_observer(on_overflow)`: watchdog's inotify observer that also calls on_overflow when the
-  kernel reports IN_Q_OVERFLOW (events were lost: the owner rescans). watchdog rebuilds its watches
-  on an overflow but tells the application nothing; the event itself is read here, by its mask.
+- `inotify_observer(on_overflow, on_moved_self=...)`: watchdog's inotify observer that also calls
+  on_overflow when the kernel reports IN_Q_OVERFLOW (events were lost: the owner rescans), and
+  on_moved_self when a watched folder is renamed (IN_MOVE_SELF). watchdog rebuilds its watches on an
+  overflow but tells the application nothing; the event itself is read here, by its mask.
 
 Standard library only at import (daemon.paths imports this module and `ppd status` imports that);
 watchdog is imported by the one function that needs it.
@@ -24,7 +25,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from watchdog.observers.api import BaseObserver
@@ -159,10 +160,14 @@ def keep_freed_memory() -> bool:
     return bool(mallopt(M_MMAP_THRESHOLD, HEAP_BLOCKS_UP_TO)) and bool(mallopt(M_TRIM_THRESHOLD, KEEP_FREED))
 
 
-# ---- inotify -----------------------------------------------------------------------------------
-def overflow_aware_inotify(on_overflow: Callable[[], None]) -> InotifyFD:
+# ---- inotify ----------------------------------------------------------------------------------
+def overflow_aware_inotify(
+    on_overflow: Callable[[], None], on_moved_self: Callable[[], None] | None = None
+) -> InotifyFD:
     """watchdog's inotify reader (not started) that calls on_overflow for each IN_Q_OVERFLOW it reads,
-    before watchdog's own handling (which rebuilds its recursive watches)."""
+    before watchdog's own handling (which rebuilds its recursive watches), and on_moved_self for each
+    IN_MOVE_SELF (a watched folder renamed: watchdog reports nothing, and goes on watching it at its
+    new place under its old name)."""
     from watchdog.observers.inotify_c import InotifyEvent
     from watchdog.observers.inotify_c import InotifyFD as _InotifyFD
 
@@ -170,25 +175,41 @@ def overflow_aware_inotify(on_overflow: Callable[[], None]) -> InotifyFD:
         def handle_event(self, event: InotifyEvent) -> None:
             if event.is_queue_overflow:
                 on_overflow()
+            elif event.is_move_self and on_moved_self is not None:
+                on_moved_self()
             super().handle_event(event)
 
     return _OverflowAwareFD()
 
 
-def inotify_observer(on_overflow: Callable[[], None], *, full_events: bool = True) -> BaseObserver:
+def inotify_observer(
+    on_overflow: Callable[[], None],
+    *,
+    full_events: bool = True,
+    on_moved_self: Callable[[], None] | None = None,
+) -> BaseObserver:
     """watchdog's InotifyObserver reading through overflow_aware_inotify. full_events: a rename from
     outside the watched folder arrives as a move (InotifyFullEmitter), as
-    InotifyObserver(generate_full_events=True) gives."""
+    InotifyObserver(generate_full_events=True) gives. on_moved_self: called when a watched folder is
+    renamed (its watches ask for IN_MOVE_SELF, which watchdog itself never does): the owner checks
+    whether the folder it watches is still the one at its path."""
     from watchdog.observers.api import DEFAULT_OBSERVER_TIMEOUT
     from watchdog.observers.inotify import InotifyEmitter, InotifyFullEmitter, InotifyObserver
+    from watchdog.observers.inotify_c import InotifyConstants
+
+    base = InotifyFullEmitter if full_events else InotifyEmitter
+
+    class _Emitter(base):  # type: ignore[misc,valid-type]
+        def get_event_mask_from_filter(self) -> Any:
+            mask = super().get_event_mask_from_filter()
+            return mask | InotifyConstants.IN_MOVE_SELF if on_moved_self is not None else mask
 
     class _Observer(InotifyObserver):
         def __init__(self) -> None:  # InotifyObserver.__init__ with ppd's reader
-            self._inotify_fd = overflow_aware_inotify(on_overflow)
+            self._inotify_fd = overflow_aware_inotify(on_overflow, on_moved_self)
             self._inotify_fd.start()
-            emitter = InotifyFullEmitter if full_events else InotifyEmitter
             super(InotifyObserver, self).__init__(
-                emitter, timeout=DEFAULT_OBSERVER_TIMEOUT, inotify_fd=self._inotify_fd
+                _Emitter, timeout=DEFAULT_OBSERVER_TIMEOUT, inotify_fd=self._inotify_fd
             )
 
     return _Observer()

@@ -89,6 +89,19 @@ def is_candidate(outbox: Path, path: Path, suffixes: frozenset[str]) -> bool:
     return os.path.splitext(parts[-1])[1].lower() in suffixes
 
 
+FolderIdentity = tuple[int, int]  # (device, inode): the folder itself, whatever its path
+
+
+def folder_identity(path: Path) -> FolderIdentity | None:
+    """The folder at path now (None: none there). A folder moved away and another made under its
+    name has the path, never the identity, of the one watched."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino)
+
+
 def signature(path: Path) -> FileSignature | None:
     try:
         st = os.stat(path, follow_symlinks=False)
@@ -188,13 +201,18 @@ class OutboxWatcher(FileSystemEventHandler):
         options: WatchOptions | None = None,
         suffixes: frozenset[str] | None = None,
         on_overflow: Callable[[], None] | None = None,
+        on_moved: Callable[[], None] | None = None,
     ) -> None:
+        """on_moved: a watched folder was renamed (perhaps the outbox itself: the owner compares
+        folder_identity(outbox) with `identity`, what was watched)."""
         super().__init__()
         self.outbox = Path(outbox).absolute()
         self.options = options or WatchOptions()
         self.suffixes = suffixes if suffixes is not None else MEDIA_SUFFIXES
         self._submit = submit
         self._on_overflow = on_overflow or (lambda: None)
+        self._on_moved = on_moved
+        self.identity: FolderIdentity | None = None  # the outbox folder watched (set by start)
         self._cond = threading.Condition()
         self._armed: dict[Path, _Armed] = {}
         self._fired: dict[Path, tuple[float, float]] = {}  # path -> (when handed on, its quiet time)
@@ -209,7 +227,10 @@ class OutboxWatcher(FileSystemEventHandler):
         # Full events: a rename from outside the outbox arrives as a move (complete file),
         # not as a creation (which would mean "a writer is starting"). An inotify queue overflow
         # (events lost) calls on_overflow: the owner rescans.
-        observer = inotify_observer(self._on_overflow, full_events=True)
+        # The folder's identity is taken before its watch: a folder swapped in between is told apart
+        # on the next check (and watched again), never taken for the one watched.
+        self.identity = folder_identity(self.outbox)
+        observer = inotify_observer(self._on_overflow, full_events=True, on_moved_self=self._on_moved)
         observer.schedule(
             self, str(self.outbox), recursive=True,
             event_filter=[FileClosedEvent, FileCreatedEvent, FileMovedEvent, DirMovedEvent,

@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import errno
 import logging
 import os
 import stat
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,13 +26,35 @@ from daemon.locks import outbox_lock
 from daemon.protect.job import Outcome
 from daemon.states import FileState
 from daemon.watch.notify import SystemdNotifier
-from daemon.watch.outbox import OutboxWatcher, WatchOptions, is_candidate, scan_outbox, signature, walk_files
-from daemon.watch.workers import PoolOptions, PoolStats, WorkerPool
+from daemon.watch.outbox import (
+    OutboxWatcher,
+    WatchOptions,
+    folder_identity,
+    is_candidate,
+    scan_outbox,
+    signature,
+    walk_files,
+)
+from daemon.watch.outcomes import (
+    DaemonCounts,
+    is_no_space,
+    is_under,
+    row_matches_disk,
+    say,
+    say_outcome,
+    say_removed,
+    status_line,
+)
+from daemon.watch.waiting import WriterWaits
+from daemon.watch.workers import PoolOptions, WorkerPool
 from poisoner.media import MEDIA_SUFFIXES
 
 __all__ = ["DaemonOptions", "WatchDaemon", "WatchOptions", "is_no_space", "scan_outbox"]
 
 log = logging.getLogger(__name__)
+
+GONE_MID_WORK = "deleted or moved away while it was being patched"
+REMEMBER_REMOVED = 10_000  # paths counted removed, remembered so that none counts twice
 
 
 # ---- the daemon: watcher + catch-up + workers + systemd ---------------------------------------
@@ -53,6 +75,9 @@ class DaemonOptions:
     # A file whose structure is incomplete is re-checked (its writer may append more after a
     # pause) and quarantined only once it has not changed for this long (config: [daemon]).
     incomplete_wait_s: float = 120.0
+    # A renamed outbox wakes the daemon at once (IN_MOVE_SELF); one moved with a folder above it, or
+    # replaced while the daemon slept, is noticed within this (its folder identity is compared).
+    outbox_check_s: float = 30.0
 
     @classmethod
     def from_config(cls, config: Any, **overrides: Any) -> DaemonOptions:
@@ -70,25 +95,6 @@ class DaemonOptions:
         if settle is not None:
             base = dataclasses.replace(base, watch=dataclasses.replace(base.watch, settle_s=settle))
         return dataclasses.replace(base, **{k: v for k, v in overrides.items() if v is not None})
-
-
-@dataclass
-class DaemonCounts:
-    patched: int = 0
-    unchanged: int = 0
-    skipped: int = 0
-    failed: int = 0
-    removed: int = 0
-    quarantined: int = 0
-
-
-def status_line(counts: DaemonCounts, stats: PoolStats, armed: int) -> str:
-    """The one-line STATUS= systemd shows in `systemctl --user status ppd`."""
-    return (
-        f"patched {counts.patched}, failed {counts.failed}, quarantined {counts.quarantined}, "
-        f"unchanged {counts.unchanged}, removed {counts.removed}; queued {stats.queued + stats.pending}, "
-        f"in flight {stats.in_flight}, settling {armed}"
-    )
 
 
 class WatchDaemon:
@@ -110,10 +116,14 @@ class WatchDaemon:
         self._trim_due = threading.Event()
         # Files that failed for lack of disk space; retried once space returns (no event tells).
         self._no_space: dict[Path, None] = {}
-        # incomplete files waited for: path -> (signature, unchanged since, checks so far)
-        self._incomplete: dict[Path, tuple[Any, float, int]] = {}
-        self._incomplete_lock = threading.Lock()
+        self.waits = WriterWaits(
+            ctx.store, options.incomplete_wait_s, options.watch.settle_s, options.watch.max_settle_s
+        )  # incomplete files waited for
         self._no_space_lock = threading.Lock()
+        # Paths counted removed, until a file is processed there again: a file counts once, however
+        # many jobs find it gone (its own, its folder's, its deletion event's); oldest forgotten first.
+        self._removed: OrderedDict[Path, None] = OrderedDict()
+        self._removal_lock = threading.Lock()
         self._no_space_since = (0.0, 0)  # (monotonic time, free bytes) of the first such failure
         self.pool = WorkerPool(
             self.process,
@@ -122,9 +132,7 @@ class WatchDaemon:
             ),
             on_idle=self._on_pool_idle,
         )
-        self.watcher = OutboxWatcher(
-            self.outbox, self.pool.submit, options.watch, self.suffixes, self._on_lost_events
-        )
+        self.watcher = self._new_watcher()
         self.scheduler: Any = None
         self._owner = contextlib.ExitStack()
         self.protectors: Any = None  # daemon.protect.pool.ProtectWorkers, made on start
@@ -224,13 +232,15 @@ class WatchDaemon:
         """How long the main loop may sleep: systemd's watchdog, a pending rescan, files
         waiting for disk space."""
         waits = [ping] if ping else []
+        # The outbox moved with a folder above it gives no event: its identity is checked this often.
+        waits.append(self.options.outbox_check_s)
         if self._rescan_needed.is_set():
             waits.append(5.0)
         if self._no_space:
             waits.append(self.options.no_space_poll_s)
         if self.protectors is not None and (idle_in := self.protectors.end_idle()) is not None:
             waits.append(idle_in + 0.05)  # then the idle workers exit
-        return min(waits) if waits else None
+        return min(waits)
 
     def _note_no_space(self, path: Path, reason: str | None) -> None:
         """Remember a file that failed for lack of space (or forget one that did not)."""
@@ -274,11 +284,27 @@ class WatchDaemon:
         stats = self.pool.stats()
         return stats.queued + stats.pending == 0
 
+    def _new_watcher(self) -> OutboxWatcher:
+        return OutboxWatcher(
+            self.outbox, self.pool.submit, self.options.watch, self.suffixes, self._on_lost_events,
+            on_moved=self._wake.set,  # a folder renamed: perhaps the outbox (checked by _keep_watching)
+        )  # fmt: skip
+
     def _keep_watching(self) -> None:
-        """Restart the observer when the outbox was deleted or moved away (and recreate it)."""
-        if self.watcher.is_alive() and self.outbox.is_dir():
+        """Restart the observer when the outbox was deleted or moved away (and recreate it), or when
+        the folder at its path is another one: moved away and a folder of the same name made again,
+        the observer alive on the old one (the daemon went deaf for good: a black-box review)."""
+        now = folder_identity(self.outbox)
+        alive = self.watcher.is_alive()
+        if alive and now is not None and now == self.watcher.identity and self.outbox.is_dir():
             return
-        log.error("outbox watch lost; recreating %s and rescanning", self.outbox)
+        if alive and now is not None and self.outbox.is_dir():
+            log.warning(
+                "the outbox %s is another folder now (the one watched was moved away); watching it and "
+                "rescanning", self.outbox, extra={"outbox": str(self.outbox)},
+            )  # fmt: skip
+        else:
+            log.error("outbox watch lost; recreating %s and rescanning", self.outbox)
         self.watcher.stop()
         try:
             self.outbox.mkdir(parents=True, exist_ok=True)
@@ -286,11 +312,26 @@ class WatchDaemon:
             log.error("cannot recreate the outbox %s: %s", self.outbox, exc.strerror)
             self._rescan_needed.set()  # retried on the next wake-up (every 5 s while needed)
             return
-        self.watcher = OutboxWatcher(
-            self.outbox, self.pool.submit, self.options.watch, self.suffixes, self._on_lost_events
-        )
+        self._lock_outbox_again(self.watcher.identity)
+        self.watcher = self._new_watcher()
         self.watcher.start()
         self._rescan_needed.set()
+
+    def _lock_outbox_again(self, watched: Any) -> None:
+        """The outbox lock is the folder's (daemon.locks): a new folder at the path gets it, so that no
+        second `ppd watch` is let in on the folder this daemon now watches; the old one's goes."""
+        from daemon.locks import LockHeld
+
+        if watched is not None and folder_identity(self.outbox) == watched:
+            return  # the same folder (its observer died): its lock is held already
+        fresh = contextlib.ExitStack()
+        try:
+            fresh.enter_context(outbox_lock(self.ctx.paths.data_dir, self.outbox))
+        except LockHeld as exc:  # another daemon took the new folder meanwhile: it is said, not fought
+            log.error("%s; this daemon watches it too", exc)
+            return
+        self._owner.close()
+        self._owner = fresh
 
     def status(self) -> str:
         with self._counts_lock:
@@ -331,13 +372,13 @@ class WatchDaemon:
         for path in result.files:
             on_disk.add(str(path))
             row = rows.get(str(path))
-            if row is not None and _row_matches_disk(row, path):
+            if row is not None and row_matches_disk(row, path):
                 self.watcher.mark_settled(path)
                 continue
             queued += int(self.pool.submit(path))
         for path_text, row in rows.items():
             gone = path_text not in on_disk and row["state"] != FileState.REMOVED
-            if gone and _is_under(self.outbox, path_text):
+            if gone and is_under(self.outbox, path_text):
                 queued += int(self.pool.submit(Path(path_text)))
         seconds = round(time.monotonic() - started, 3)
         log.info(
@@ -368,16 +409,16 @@ class WatchDaemon:
         from daemon.protect.quarantine import quarantine
 
         reason = f"{path.name} is a symlink: ppd never follows one; put the file itself in the outbox"
+        started, event, dataset = time.monotonic(), self._event_of(path), dataset_of(self.outbox, path)
         try:
-            moved = quarantine(self.ctx, path, dataset_of(self.outbox, path), reason)
+            moved = quarantine(self.ctx, path, dataset, reason)
         except OSError as exc:
             log.error("cannot quarantine %s: %s", path, exc.strerror, extra={"path": str(path)})
             return
-        if moved is not None:
+        if moved is not None:  # the line every file gets (it was free text without them: a review)
             self.watcher.forget(path)
             self._count("quarantined")
-            log.warning("quarantined %s: %s (moved to %s)", path, reason, moved,
-                        extra={"path": str(path), "to": str(moved)})  # fmt: skip
+            say(event, path, dataset, Outcome.QUARANTINED.value, time.monotonic() - started, reason, moved)
 
     def _quarantine_if_hopeless(self, path: Path, outcome: Any) -> Path | None:
         """A file that failed for a reason a retry will not change leaves the outbox: where it went."""
@@ -425,17 +466,23 @@ class WatchDaemon:
         if self.watcher.is_settled(path):
             return
         judged = signature(path)
-        from daemon.protect.job import storable  # a name the store cannot hold has no row
-
-        event = "changed" if storable(path) and self.ctx.store.file(path) is not None else "new"
+        with self._removal_lock:
+            self._removed.pop(path, None)  # a file here again: its removal counts again
+        event = self.waits.event_of(path) or self._event_of(path)
         started = time.monotonic()
         outcome = self._protect(path)
-        if outcome.state == Outcome.FAILED and outcome.incomplete and self._wait_for_writer(path, judged):
-            self._count("skipped")
-            self._record_waiting(path, outcome)
+        if outcome.state == Outcome.FAILED and not os.path.lexists(path):
+            self._gone_mid_work(path, outcome)
             return
-        with self._incomplete_lock:
-            self._incomplete.pop(path, None)
+        if (
+            outcome.state == Outcome.FAILED
+            and outcome.incomplete
+            and self.waits.wait(path, judged, event, self.watcher)
+        ):
+            self._count("skipped")
+            self.waits.record(path, outcome)
+            return
+        self.waits.done(path)
         # The signature of what ppd judged or wrote, not of what is there now: a version that
         # arrived meanwhile must not be taken for an echo of ppd's own work.
         if outcome.signature is None and outcome.state == Outcome.FAILED:
@@ -455,52 +502,12 @@ class WatchDaemon:
             except Exception:
                 log.exception("verification scheduler failed", extra={"dataset": outcome.dataset})
 
-    def _record_waiting(self, path: Path, outcome: Any) -> None:
-        """The row of a file waited for says so (skipped, for now), not the failure its worker
-        recorded: `ppd status --failed` listed a file still being written as failed while the
-        daemon's own count said failed 0. Patched or quarantined later, the row says that."""
-        from daemon.protect.job import storable
-        from daemon.states import FileState
+    def _event_of(self, path: Path) -> str:
+        """`changed`: a row says ppd saw a file here before (not one removed since); else `new`."""
+        from daemon.protect.job import storable  # a name the store cannot hold has no row
 
-        if not outcome.dataset or not storable(path):
-            return
-        from daemon.states import WAITING_PREFIX
-
-        why = f"{WAITING_PREFIX} (patched once complete)"
-        try:
-            self.ctx.store.record_file(
-                path, outcome.dataset, FileState.SKIPPED, error=why, durable=False, event="waiting",
-                detail={"reason": outcome.reason},
-            )  # fmt: skip
-        except Exception:  # the store failing must not stop the wait: the failed row stays
-            log.exception("could not record a waited-for file", extra={"path": str(path)})
-
-    def _wait_for_writer(self, path: Path, judged: Any) -> bool:
-        """An incomplete file is waited for, not refused, while its writer may still be at it: it
-        is re-checked after a growing quiet time, and quarantined (one whole file) only once it has
-        not changed for incomplete_wait_s. True: waiting (nothing moved)."""
-        now = time.monotonic()
-        after = signature(path)
-        with self._incomplete_lock:
-            seen = self._incomplete.get(path)
-            since = seen[1] if seen is not None and seen[0] == after else now
-            checks = seen[2] + 1 if seen is not None else 0
-            self._incomplete[path] = (after, since, checks)
-        # Re-checked just before any refusal: changed while it was judged, or within the wait.
-        if after != judged or after is None or now - since < self.options.incomplete_wait_s:
-            self.watcher.forget(path)
-            left = max(0.0, self.options.incomplete_wait_s - (now - since))
-            grown = self.options.watch.settle_s * 2 ** min(checks, 16)
-            delay = max(0.5, min(self.options.watch.max_settle_s, grown, left))
-            self.watcher.recheck(path, delay)
-            log.info(
-                "incomplete, waiting for its writer: %s (re-checked in %.0f s)", path, delay,
-                extra={"path": str(path), "reason": "incomplete", "wait_s": round(delay, 1)},
-            )  # fmt: skip
-            return True
-        with self._incomplete_lock:
-            self._incomplete.pop(path, None)
-        return False
+        row = self.ctx.store.file(path) if storable(path) else None
+        return "changed" if row is not None and row["state"] != FileState.REMOVED else "new"
 
     def _protect(self, path: Path) -> Any:
         """protect_file, in a worker process unless the options say in this one."""
@@ -510,12 +517,37 @@ class WatchDaemon:
 
         return protect_file(path, self.ctx)
 
-    def _record_removed(self, path: Path) -> None:
-        """Rows for path, or for every file under path when it was a folder, become 'removed'."""
+    def _gone_mid_work(self, path: Path, outcome: Any) -> None:
+        """A file deleted, or its folder renamed, while it was being patched: counted and said once,
+        as removed (info), not as failed (a warning, `failed 1` in the stop summary and STATUS=, then
+        `removed` as well for the same file: a black-box review). Its deletion event, queued meanwhile,
+        then finds its row removed already."""
+        from daemon.protect.job import storable
+
+        self.watcher.forget(path)
+        self.waits.done(path)
+        self._note_no_space(path, None)
+        if self._record_removed(path, GONE_MID_WORK):
+            return
+        with self._removal_lock:
+            if path in self._removed or (storable(path) and self.ctx.store.file(path) is not None):
+                return  # counted by its folder's job meanwhile (or quarantined)
+            self._removed[path] = None
+        self._count("removed")  # no row was written for it: still one count and one line
+        say_removed(path, outcome.dataset, GONE_MID_WORK)
+
+    def _record_removed(self, path: Path, reason: str | None = None) -> int:
+        """Rows for path, or for every file under path when it was a folder, become 'removed'; how
+        many were counted (and said) now. One job at a time: a folder's job and its files' jobs
+        both find a file gone, and each counted and said it (`removed` twice: a black-box review)."""
         from daemon.protect.job import storable
 
         if not storable(path):
-            return  # a name the store cannot hold has no row (quarantined ones included)
+            return 0  # a name the store cannot hold has no row (quarantined ones included)
+        with self._removal_lock:
+            return self._record_removed_locked(path, reason)
+
+    def _record_removed_locked(self, path: Path, reason: str | None) -> int:
         store = self.ctx.store
         row = store.file(path)
         rows = [row] if row is not None else []
@@ -524,6 +556,7 @@ class WatchDaemon:
             # 10k unknown files does not scan the store 10k times.)
             prefix = str(path) + os.sep
             rows = [r for r in self._known_rows().values() if r["path"].startswith(prefix)]
+        counted = 0
         for r in rows:
             if r["state"] in (FileState.REMOVED, FileState.QUARANTINED) or Path(r["path"]).exists():
                 continue
@@ -537,23 +570,16 @@ class WatchDaemon:
                 event="removed",
                 detail={"previous_state": r["state"]},
             )
+            gone = Path(r["path"])
+            if gone in self._removed:
+                continue  # counted already (its worker wrote its row again after): the row only
+            self._removed[gone] = None
+            if len(self._removed) > REMEMBER_REMOVED:
+                self._removed.popitem(last=False)
             self._count("removed")  # DaemonCounts.removed
-            extra = {"event": "removed", "dataset": r["dataset"], "file": r["path"], "outcome": "removed"}
-            log.info("removed %s", Path(r["path"]).name, extra=extra)
-
-
-def say_outcome(event: str, path: Path, outcome: Any, state: str, seconds: float, moved: Path | None) -> None:
-    """The daemon's one line per file, on the terminal and in the journal: `msg="patched IMG_1.jpg"
-    event=new dataset=kitchen file=/outbox/kitchen/IMG_1.jpg outcome=patched seconds=0.84`, plus
-    the reason when it was not patched and where a quarantined file went."""
-    failed = state in (Outcome.FAILED, Outcome.QUARANTINED)
-    extra: dict[str, Any] = {"event": event, "dataset": outcome.dataset, "file": str(path), "outcome": state,
-                             "seconds": round(seconds, 2)}  # fmt: skip
-    if outcome.reason and state != Outcome.PATCHED:
-        extra["reason"] = outcome.reason
-    if moved is not None:
-        extra["to"] = str(moved)
-    log.log(logging.WARNING if failed else logging.INFO, "%s %s", state, path.name, extra=extra)
+            say_removed(gone, r["dataset"], reason)
+            counted += 1
+        return counted
 
 
 def release_free_memory() -> None:
@@ -567,29 +593,3 @@ def release_free_memory() -> None:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):
         pass
-
-
-NO_SPACE_MESSAGES = (os.strerror(errno.ENOSPC), os.strerror(errno.EDQUOT), "database or disk is full")
-
-
-def is_no_space(reason: str | None) -> bool:
-    """Whether a failure's one-line reason says the disk (or quota) was full."""
-    return reason is not None and any(m.lower() in reason.lower() for m in NO_SPACE_MESSAGES)
-
-
-def _row_matches_disk(row: dict[str, Any], path: Path) -> bool:
-    """A patched row, or a restored one (the user's restore stands), whose recorded size and mtime
-    are the file's: nothing to do."""
-    if row["state"] not in (FileState.PATCHED, FileState.RESTORED):
-        return False
-    if row.get("published_path") or row.get("size") is None:
-        return False
-    try:
-        st = path.stat()
-    except OSError:
-        return False
-    return (st.st_size, st.st_mtime_ns) == (row["size"], row["mtime_ns"])
-
-
-def _is_under(outbox: Path, path_text: str) -> bool:
-    return path_text.startswith(str(outbox) + os.sep)

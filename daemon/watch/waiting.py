@@ -1,0 +1,93 @@
+"""Incomplete files the daemon waits for (their writer may append more after a pause, issue 29):
+each is re-checked after a growing quiet time and refused (quarantined whole) only once it has not
+changed for `incomplete_wait_s`. Its row says it is waited for, not failed.
+
+Said once: the first check logs at info, the re-checks at debug (a truncated file said "incomplete,
+waiting for its writer" about 8 times over 2 minutes: a black-box review). The file's event (`new`
+or `changed`) is the one judged when it was first seen: ppd's own waiting row made a new file's
+line say `event=changed` once it was complete."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from daemon.watch.outbox import FileSignature, OutboxWatcher, signature
+
+log = logging.getLogger("daemon.watch.watcher")  # the daemon's lines keep the logger they always had
+
+
+@dataclass(frozen=True)
+class _Waited:
+    signature: FileSignature | None  # as last checked
+    since: float  # unchanged since (monotonic)
+    checks: int  # re-checks so far
+    event: str  # "new" or "changed", judged when the file was first seen
+
+
+class WriterWaits:
+    def __init__(self, store: Any, wait_s: float, settle_s: float, max_settle_s: float) -> None:
+        self.store = store
+        self.wait_s = wait_s
+        self.settle_s = settle_s
+        self.max_settle_s = max_settle_s
+        self._waited: dict[Path, _Waited] = {}
+        self._lock = threading.Lock()
+
+    def event_of(self, path: Path) -> str | None:
+        """The event judged when a file waited for was first seen (None: not waited for)."""
+        with self._lock:
+            waited = self._waited.get(path)
+        return None if waited is None else waited.event
+
+    def done(self, path: Path) -> None:
+        with self._lock:
+            self._waited.pop(path, None)
+
+    def wait(self, path: Path, judged: FileSignature | None, event: str, watcher: OutboxWatcher) -> bool:
+        """An incomplete file is waited for, not refused, while its writer may still be at it.
+        True: waiting (nothing moved); False: unchanged for the whole wait, refuse it."""
+        now = time.monotonic()
+        after = signature(path)
+        with self._lock:
+            seen = self._waited.get(path)
+            since = seen.since if seen is not None and seen.signature == after else now
+            checks = seen.checks + 1 if seen is not None else 0
+            self._waited[path] = _Waited(after, since, checks, seen.event if seen is not None else event)
+        # Re-checked just before any refusal: changed while it was judged, or within the wait.
+        if after != judged or after is None or now - since < self.wait_s:
+            watcher.forget(path)
+            left = max(0.0, self.wait_s - (now - since))
+            grown = self.settle_s * 2 ** min(checks, 16)
+            delay = max(0.5, min(self.max_settle_s, grown, left))
+            watcher.recheck(path, delay)
+            log.log(
+                logging.INFO if checks == 0 else logging.DEBUG,
+                "incomplete, waiting for its writer: %s (re-checked in %.0f s)", path, delay,
+                extra={"path": str(path), "reason": "incomplete", "wait_s": round(delay, 1)},
+            )  # fmt: skip
+            return True
+        self.done(path)
+        return False
+
+    def record(self, path: Path, outcome: Any) -> None:
+        """The row of a file waited for says so (skipped, for now), not the failure its worker
+        recorded: `ppd status --failed` listed a file still being written as failed while the
+        daemon's own count said failed 0. Patched or quarantined later, the row says that."""
+        from daemon.protect.job import storable
+        from daemon.states import WAITING_PREFIX, FileState
+
+        if not outcome.dataset or not storable(path):
+            return
+        why = f"{WAITING_PREFIX} (patched once complete)"
+        try:
+            self.store.record_file(
+                path, outcome.dataset, FileState.SKIPPED, error=why, durable=False, event="waiting",
+                detail={"reason": outcome.reason},
+            )  # fmt: skip
+        except Exception:  # the store failing must not stop the wait: the failed row stays
+            log.exception("could not record a waited-for file", extra={"path": str(path)})

@@ -1,0 +1,52 @@
+"""A path's lock file goes when its work is done (a black-box review: data/locks/files held one lock
+file per path ever processed, 421 for 422 rows), and the lock still excludes: a waiter that opened
+the file before its holder unlinked it must not take a lock on the unlinked file while a third
+process locks the new file at the name."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+from daemon.locks import file_lock
+from testkit.daemon_proc import wait_for
+from testkit.photos import write_image
+from tests.daemon.watch.test_watcher import running, wait_idle
+
+
+def test_one_holder_at_a_time_while_lock_files_come_and_go(tmp_path: Path) -> None:
+    inside: list[int] = []
+    overlaps: list[tuple[int, ...]] = []
+    guard = threading.Lock()
+
+    def work(n: int) -> None:
+        for _ in range(150):
+            with file_lock(tmp_path, Path("/o/a.jpg"), wait_s=60):
+                with guard:
+                    inside.append(n)
+                    if len(inside) > 1:
+                        overlaps.append(tuple(inside))
+                time.sleep(0.0005)
+                with guard:
+                    inside.remove(n)
+
+    threads = [threading.Thread(target=work, args=(n,)) for n in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert overlaps == []
+    assert list((tmp_path / "locks" / "files").iterdir()) == []
+
+
+def test_the_daemon_leaves_no_lock_file_behind(ppd_env: dict[str, Path]) -> None:
+    for i in range(4):
+        write_image(ppd_env["outbox"] / "ds" / f"{i}.png", i)
+    with running(ppd_env) as daemon:
+        wait_for(lambda: daemon.counts.patched >= 4, 30, "4 patched")
+        wait_idle(daemon)
+        (ppd_env["outbox"] / "ds" / "0.png").unlink()
+        wait_for(lambda: daemon.counts.removed >= 1, 30, "the removal")
+        wait_idle(daemon)
+        assert list((ppd_env["data"] / "locks" / "files").iterdir()) == []
