@@ -41,3 +41,9 @@ class SpecError(PpdError, ValueError):
     """A PatchSpec that cannot be built or cannot be placed on an image."""
 
     exit_status = ExitStatus.USAGE
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception's first line (a decoder's messages can span several)."""
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__

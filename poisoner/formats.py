@@ -53,14 +53,14 @@ from poisoner import jpeg as jpeg_codec
 from poisoner import jpeg_scan, location, provenance
 from poisoner.atomic import atomic_output
 from poisoner.blend import apply_lanes_at, lane_placements, patch_coverage
-from poisoner.errors import ImageFormatError, MarkNotWritten
+from poisoner.errors import ImageFormatError, MarkNotWritten, one_line
 from poisoner.image import jpeg_file
 from poisoner.image import png as png_file
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
 from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box, written_pixels
 from poisoner.image.png import PNG_SIGNATURE, png_chunks, poison_png, splice_png, strip_png_location
 from poisoner.image.png_rows import poison_png_rows
-from poisoner.image.read import format_refusal, load_decoded, one_line, open_decoded
+from poisoner.image.read import format_refusal, load_decoded, open_decoded
 from poisoner.image.tiff import poison_tiff
 from poisoner.image.webp import poison_webp, vp8_quantizers, webp_quality_from_quantizer
 from poisoner.image.write import changes_a_pixel, image_from_array, paste_patch, save_explicit

@@ -408,7 +408,7 @@ def _run_planned(
 
 def disk_full(failed: list[ProtectOutcome]) -> bool:
     """Whether a failure was for lack of space: the run cannot work here, not a file's fault."""
-    from daemon.watch.watcher import is_no_space
+    from daemon.watch.outcomes import is_no_space
 
     return any(is_no_space(o.reason) for o in failed)
 

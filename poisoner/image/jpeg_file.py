@@ -11,8 +11,7 @@ from typing import Any
 from PIL import Image
 
 from poisoner.completeness import jpeg_end
-from poisoner.errors import ImageFormatError
-from poisoner.image.read import one_line
+from poisoner.errors import ImageFormatError, one_line
 from poisoner.jpeg import JpegLayout, jpegtran_binary, read_layout
 
 

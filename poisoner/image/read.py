@@ -15,7 +15,7 @@ from pathlib import Path
 
 from PIL import Image, ImageFile
 
-from poisoner.errors import ImageFormatError
+from poisoner.errors import ImageFormatError, one_line
 
 log = logging.getLogger("poisoner.formats")
 
@@ -33,11 +33,6 @@ def _register_heif() -> None:
         except ImportError:  # HEIC stays unsupported; everything else works
             log.warning("pillow-heif not installed: HEIC files are unsupported")
         _heif_registered = True
-
-
-def one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
 
 
 @contextlib.contextmanager

@@ -27,7 +27,7 @@ from daemon.cli.output import _field  # the log line's own quoting (a path with 
 from daemon.protect.one_file import AppContext, protect_file
 from daemon.states import FileState
 from daemon.store import Store
-from daemon.watch.watcher import is_no_space
+from daemon.watch.outcomes import is_no_space
 from testkit.disk_full import MountUnavailable, fill, run_disk_full, small_filesystem
 from testkit.reliability import (
     DAEMON_ARGS,
