@@ -9,6 +9,7 @@ COLMAP (in child processes), printing the verdict whatever it is.
 from __future__ import annotations
 
 import os
+import shlex
 import tempfile
 import threading
 import time
@@ -18,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from daemon.cli.errors import die
-from daemon.cli.output import console
+from daemon.cli.output import console, print_line
 from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
@@ -27,9 +28,12 @@ if TYPE_CHECKING:
 DEMO_DATASET = "demo-scene"
 
 
+DEMO_FOLDERS = (("PPD_DATA_DIR", "data"), ("PPD_CONFIG_DIR", "config"), ("PPD_OUTBOX", "outbox"))
+
+
 def _use_private_folders(workdir: Path) -> None:
     """Point ppd's data, config and outbox at the demo folder (this process only)."""
-    for var, sub in (("PPD_DATA_DIR", "data"), ("PPD_CONFIG_DIR", "config"), ("PPD_OUTBOX", "outbox")):
+    for var, sub in DEMO_FOLDERS:
         os.environ[var] = str(workdir / sub)
 
 
@@ -134,6 +138,14 @@ def demo(
         _verify(ctx, scene, profiles)
         status(None, as_json=False, long=False, failed=False, check=False)
     ctx.close()
+    # the lines above name ppd commands; in the user's shell they would read the user's own folders
+    # (a black-box review: `ppd verify demo-scene` there said "no dataset 'demo-scene'")
+    print_line(console(), f"the demo's own folders, for any ppd command: {demo_env(workdir)} ppd status")
+
+
+def demo_env(workdir: Path) -> str:
+    """The environment that points ppd at the demo's folders, as a shell prefix."""
+    return " ".join(f"{var}={shlex.quote(str(workdir / sub))}" for var, sub in DEMO_FOLDERS)
 
 
 def _write_preview(ctx: AppContext, protected: Path, out: Path) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import sqlite3
 import subprocess
 import sys
@@ -49,6 +50,14 @@ def test_demo_protects_every_view_with_the_default_spec(tmp_path: Path) -> None:
     with Image.open(preview) as im:
         assert im.size[0] > 400 and np.asarray(im).std() > 0
     assert "demo-scene" in proc.stdout and "patched, not verified" in proc.stdout
+    # the commands it names work in the user's shell with the demo's folders (a black-box review:
+    # `ppd verify demo-scene` there read the user's own store, "no dataset 'demo-scene'")
+    said = " ".join(proc.stdout.split())
+    prefix = said.split("the demo's own folders, for any ppd command: ", 1)[1].rsplit(" ppd status", 1)[0]
+    env = {**os.environ, **dict(p.split("=", 1) for p in shlex.split(prefix))}
+    listed = subprocess.run([sys.executable, "-m", "daemon.cli", "status", "demo-scene", "--json"], env=env,
+                            capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert listed.returncode == 0 and json.loads(listed.stdout)["datasets"][0]["patched"] == 4, listed.stderr
 
 
 @pytest.mark.integration
