@@ -8,6 +8,7 @@ import logging
 import os
 import signal
 import sys
+import time
 from pathlib import Path
 from types import FrameType
 
@@ -18,6 +19,9 @@ from daemon.cli.output import err_console
 from poisoner.errors import ExitStatus
 
 log = logging.getLogger(__name__)
+# A second stop signal within this many seconds of the first is the same request (one `timeout`,
+# a group kill, a double Ctrl-C); a later one means "now".
+SAME_STOP_S = 3.0
 
 service_app = typer.Typer(help="The systemd user service that runs `ppd watch`.", no_args_is_help=True)
 
@@ -78,13 +82,20 @@ def watch(
         ctx.config, workers=workers, settle_s=debounce, verify=verify, incomplete_wait_s=incomplete_wait
     )
     daemon = WatchDaemon(ctx, options)
-    interrupts = 0
+    first_signal: float | None = None
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
-        nonlocal interrupts
-        interrupts += 1
-        if interrupts > 1:  # a second Ctrl-C: leave now; temporaries are cleaned at next start
+        nonlocal first_signal
+        now = time.monotonic()
+        if first_signal is not None and now - first_signal < SAME_STOP_S:
+            # the same request: `timeout` and `kill -- -PGID` signal the whole group, a terminal's
+            # Ctrl-C pressed twice (a black-box review: the daemon left at once, a file half-done)
+            log.debug("signal %s again: already stopping", signal.Signals(signum).name)
+            return
+        if first_signal is not None:  # asked again later: leave now; the next start finishes the rest
+            sys.stderr.write("ppd: stopping at once: files in flight are finished at the next start\n")
             os._exit(130)
+        first_signal = now
         log.info("signal %s: stopping", signal.Signals(signum).name)
         daemon.request_stop()
 

@@ -64,12 +64,15 @@ _worker_ctx: AppContext | None = None
 
 
 def ignore_interrupts() -> None:
-    """A terminal's Ctrl-C reaches every process of its group: a worker leaves it to its caller,
-    which stops handing out files and lets the one in progress finish (no traceback, nothing
-    half-written). SIGTERM stays: systemd ends a unit's processes with it."""
+    """A terminal's Ctrl-C reaches every process of its group, and so does `timeout` or `kill --
+    -PGID`'s SIGTERM: a worker leaves both to its caller, which stops handing out files and lets the
+    one in progress finish (no traceback, nothing half-written; a black-box review: `timeout 20 ppd
+    watch` killed the workers mid-file). systemd's unit (KillMode=mixed) sends SIGTERM to the caller
+    alone and SIGKILL to the rest at its stop timeout; a worker whose caller is gone ends itself."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 class WorkerFormatter(logging.Formatter):
