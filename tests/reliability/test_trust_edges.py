@@ -62,8 +62,8 @@ def test_the_outbox_lock_is_the_folder_not_its_spelling(tmp_path: Path) -> None:
         for spelling in (tmp_path / "link", tmp_path / "x" / ".." / "outbox", outbox):
             with pytest.raises(LockHeld, match=rf"pid {holder.pid}"), outbox_lock(data, spelling):
                 pass
-        with outbox_lock(tmp_path / "data", tmp_path):  # another folder: free
-            pass
+        with outbox_lock(tmp_path / "data", tmp_path / "x"):  # a folder beside it: free (one above it
+            pass  # holds the outbox: refused since, tests/daemon/watch/test_nested_outboxes.py)
     finally:
         holder.kill()
         holder.wait()
