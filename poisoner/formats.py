@@ -534,7 +534,7 @@ def _file_notes(src: Path, im: Image.Image, fmt: str, removed: list[str]) -> lis
     if orientation and orientation != 1:
         notes.append(f"EXIF orientation {orientation} kept; {SHOWN_ORIENTATION_POLICY}")
     if is_image(src) and not _suffix_matches(src.suffix.lower(), fmt):
-        notes.append(f"content is {fmt} despite the {src.suffix} suffix: written as {fmt}")
+        notes.append(f"content is {fmt} despite the {src.suffix} suffix: kept as {fmt} (not converted)")
     return notes
 
 

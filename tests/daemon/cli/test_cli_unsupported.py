@@ -142,3 +142,19 @@ def test_with_out_a_photo_ppd_cannot_read_stays_behind_and_fails_nothing(
     assert result.exit_code == 0 and "ppd cannot read (scan.bmp)" in " ".join(result.output.split())
     assert not list((tmp_path / "pub").rglob("*.bmp"))
     assert "cannot protect" not in runner.invoke(app, ["status", "shoot", "--check"]).output
+
+
+def test_a_photo_with_another_formats_suffix_is_not_said_to_change_its_pixel_layout(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A black-box review: a PNG named .jpg was listed under "written in another pixel layout (e.g. a
+    full palette widened to RGB)": its note's "written as PNG" matched that line."""
+    shoot = tmp_path / "shoot"
+    make_image(shoot / "a.jpg", 1, size=(200, 150))
+    make_image(tmp_path / "b.png", 2, size=(200, 150))
+    (tmp_path / "b.png").rename(shoot / "b.jpg")  # PNG content, JPEG name
+    result = runner.invoke(app, ["-v", "poison", str(shoot)])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 0 and "patched 2," in text, result.output
+    assert "another pixel layout" not in text, text
+    assert "content is PNG despite the .jpg suffix: kept as PNG" in text, text
