@@ -160,3 +160,8 @@ def setup_logging(verbose: int, *, daemon: bool = False) -> None:
             logging.getLogger(name).setLevel(logging.WARNING)
     if daemon and verbose < 2:  # the daemon's terminal says what it did to each file, once
         logging.getLogger("daemon.protect.one_file").setLevel(logging.WARNING)
+    # a library's Python warnings (Pillow's "Corrupt EXIF data", numpy's on an odd picture) went to
+    # stderr as two raw lines beside ppd's one-line messages (a black-box review): logged, and shown
+    # with -vv only; what they were about is in the file's own outcome
+    logging.captureWarnings(True)
+    logging.getLogger("py.warnings").setLevel(logging.DEBUG if verbose >= 2 else logging.ERROR)

@@ -431,3 +431,17 @@ def test_a_name_that_is_not_utf8_fails_its_file_and_the_run_still_ends_in_its_su
     assert "--failed" not in out  # no row names it: only its own line says why
     err = " ".join(proc.stderr.split())
     assert err.count("caf\\xe9.png: the file name is not valid UTF-8") == 1 and "udce9" not in err, err
+
+
+@pytest.mark.parametrize("verbose", [0, 2])
+def test_a_librarys_python_warning_is_not_printed_beside_the_one_line_messages(verbose: int) -> None:
+    """A black-box review: Pillow's `UserWarning: Corrupt EXIF data` and numpy's `RuntimeWarning: Mean of
+    empty slice` reached stderr as two raw lines each. They are logged, and shown with -vv only."""
+    code = (
+        "import warnings\nfrom daemon.cli.output import setup_logging\n"
+        f"setup_logging({verbose})\nwarnings.warn('Corrupt EXIF data', UserWarning)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60,
+                          env=dict(os.environ, PYTHONPATH=str(REPO)))  # fmt: skip
+    assert proc.returncode == 0
+    assert ("Corrupt EXIF data" in proc.stderr) == (verbose >= 2), proc.stderr
