@@ -245,10 +245,9 @@ def _print_report(
     ctx: AppContext, report: list[dict[str, Any]], sync: Any, failed: bool, detailed: bool
 ) -> None:
     if sync is not None:
-        warning(
-            f"the outbox {ctx.paths.outbox} is inside a {sync.client} folder ({sync.root}): "
-            "originals may be uploaded before ppd patches them"
-        )
+        from daemon.watch.syncdirs import sync_warning
+
+        warning(sync_warning(ctx.paths.outbox) or "")
     if failed:
         _print_failed(report)
     else:

@@ -78,6 +78,7 @@ def watch(
     except SubjectMaskError as exc:
         ctx.close()
         raise _fail(str(exc)) from None
+    _warn_if_synced(ctx.paths.outbox)
     options = DaemonOptions.from_config(
         ctx.config, workers=workers, settle_s=debounce, verify=verify, incomplete_wait_s=incomplete_wait
     )
@@ -106,6 +107,16 @@ def watch(
     finally:
         ctx.close()
     raise typer.Exit(code)
+
+
+def _warn_if_synced(outbox: Path) -> None:
+    """The daemon, which is what would leak the originals, says so too (only `ppd status` did: a
+    black-box review)."""
+    from daemon.watch.syncdirs import sync_warning
+
+    said = sync_warning(outbox)
+    if said is not None:
+        err_console().print(f"warning: {said}", highlight=False, markup=False)
 
 
 def _unit_place() -> str:
@@ -139,6 +150,7 @@ def service_install(
         quarantine = service.quarantine_folder(paths.outbox, config)
     except FileNotFoundError as exc:
         raise _fail(str(exc)) from None
+    _warn_if_synced(paths.outbox)
     for folder in service.temporary_folders(layout):
         err_console().print(
             f"warning: {folder} is under a temporary folder, which the service cannot see (PrivateTmp): "

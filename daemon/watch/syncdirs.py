@@ -54,3 +54,15 @@ def find_sync_folder(path: Path) -> SyncFolder | None:
             if folder.name == name or (name == "OneDrive" and folder.name.startswith("OneDrive")):
                 return SyncFolder(client=client, root=folder, marker=f"folder named {folder.name!r}")
     return None
+
+
+def sync_warning(outbox: Path) -> str | None:
+    """The one line that says the outbox is synced, so originals may be uploaded before ppd patches
+    them (None: not synced). `ppd status`, `ppd watch` and `ppd service install` say the same."""
+    sync = find_sync_folder(outbox)
+    if sync is None:
+        return None
+    return (
+        f"the outbox {outbox} is inside a {sync.client} folder ({sync.root}): originals may be uploaded "
+        "before ppd patches them; keep the outbox out of synced folders"
+    )
