@@ -83,6 +83,8 @@ def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Tabl
             "failed": str(c.get("failed", 0)),
             "protection": _protection_cell(d),
         }
+        if "failed" not in columns and c.get("failed"):  # a narrow terminal still shows a failure
+            cells["protection"] += f"; [bold red]{c['failed']} failed[/]"
         table.add_row(*(cells[k] for k in columns))
     return table
 

@@ -445,3 +445,15 @@ def test_a_librarys_python_warning_is_not_printed_beside_the_one_line_messages(v
                           env=dict(os.environ, PYTHONPATH=str(REPO)))  # fmt: skip
     assert proc.returncode == 0
     assert ("Corrupt EXIF data" in proc.stderr) == (verbose >= 2), proc.stderr
+
+
+def test_a_narrow_status_table_still_shows_a_failure(narrow_env: dict[str, str], tmp_path: Path) -> None:
+    """At 40 columns the files/patched/failed columns drop; a dataset with a failed file read only
+    "patched, not verified" (a black-box review)."""
+    shoot = tmp_path / "tty"
+    make_image(shoot / "a.png", 1, size=(200, 150))
+    (shoot / "b.jpg").write_text("not a photo")
+    assert ppd(narrow_env, "poison", str(shoot)).returncode == 1
+    said = ppd(narrow_env, "status").stdout
+    table = " ".join(said[: said.index("└")].replace("│", " ").split())  # the table alone
+    assert "┃ failed" not in said and "1 failed" in table, said
