@@ -239,6 +239,7 @@ def small_mark_lines(outcomes: list[Any]) -> list[str]:
     photo, a panorama whose height caps the squares: a black-box review found 3 x 3 blocks on a
     200 x 150 photo, said nowhere); a cropped square is said apart (place_lines)."""
     from daemon.protect.job import shown_name
+    from poisoner.media import is_video
 
     small = []
     for o in outcomes:
@@ -246,14 +247,16 @@ def small_mark_lines(outcomes: list[Any]) -> list[str]:
         if o.state != "patched" or placement is None or not placement.lane_size or placement.lane_crop:
             continue
         if (across := placement.lane_size // max(1, placement.block)) < FEW_BLOCKS:
-            small.append((shown_name(o.path), across, placement.lane_size))
+            small.append((shown_name(o.path), across, placement.lane_size, is_video(o.path)))
     if not small:
         return []
-    name, across, side = min(small, key=lambda item: item[1])
+    name, across, side, _ = min(small, key=lambda item: item[1])
+    videos = sum(item[3] for item in small)
+    kind = "video" if videos == len(small) else "photo" if videos == 0 else "file"  # a clip is no photo
     s = "" if len(small) == 1 else "s"
-    return [f"{len(small)} photo{s} got squares of fewer than {FEW_BLOCKS} blocks across ({name}: {across} "
-            f"blocks, {side} px; ppd's mark was measured with 12): a small photo or a wide panorama caps "
-            "them, and `ppd verify` tells whether they hold"]
+    return [f"{len(small)} {kind}{s} got squares of fewer than {FEW_BLOCKS} blocks across ({name}: {across} "
+            f"blocks, {side} px; ppd's mark was measured with 12): a small picture or a wide panorama "
+            "caps them, and `ppd verify` tells whether they hold"]
 
 
 def capped_lines(outcomes: list[Any], wanted: dict[str, PatchSpec], options: SpecOptions) -> list[str]:

@@ -65,3 +65,16 @@ def test_poison_says_when_photos_get_squares_of_few_blocks(ppd_env: dict[str, Pa
     # the 4:1 panorama's squares are a 2:1 frame's since (poisoner.lengths): 9 blocks, not named
     assert "1 photo got squares of fewer than 8 blocks across (small.png: 3 blocks, 12 px;" in text, text
     assert "pano.png" not in text[text.index("fewer than 8 blocks") :], text
+
+
+def test_the_small_squares_line_calls_a_clip_a_video(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A black-box review: "5 photos got squares of fewer than 8 blocks" of five videos."""
+    from testkit.reliability import make_video
+
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    make_video(clips / "a.mp4", seed=1)
+    result = runner.invoke(app, ["poison", str(clips)])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 0, result.output
+    assert "1 video got squares of fewer than 8 blocks across (a.mp4:" in text, text
