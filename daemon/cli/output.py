@@ -133,12 +133,23 @@ class LineHandler(logging.Handler):
 
 
 def daemon_handler() -> logging.Handler:
-    """`ppd watch` (and its worker processes): key=value lines on stderr, on a terminal too (with a
-    time stamp there; journald adds its own), one line per record."""
+    """`ppd watch` (and its worker processes): key=value lines on stderr, on a terminal too, with a
+    time stamp unless they go to journald (which adds its own), one line per record."""
     handler = logging.StreamHandler(sys.stderr)
     on_terminal = err_console().is_terminal
-    handler.setFormatter(KeyValueFormatter(with_time=on_terminal, terminal=on_terminal))
+    # a file or pipe (`nohup ppd watch > log`) gets the date and time too: only journald adds its own
+    handler.setFormatter(KeyValueFormatter(with_time=not to_journal(), terminal=on_terminal))
     return handler
+
+
+def to_journal() -> bool:
+    """Whether stderr is systemd's journal stream (JOURNAL_STREAM names its device:inode)."""
+    stream = os.environ.get("JOURNAL_STREAM", "")
+    try:
+        st = os.fstat(sys.stderr.fileno())
+    except (OSError, ValueError, AttributeError):
+        return False
+    return stream == f"{st.st_dev}:{st.st_ino}"
 
 
 def setup_logging(verbose: int, *, daemon: bool = False) -> None:

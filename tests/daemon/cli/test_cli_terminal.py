@@ -457,3 +457,23 @@ def test_a_narrow_status_table_still_shows_a_failure(narrow_env: dict[str, str],
     said = ppd(narrow_env, "status").stdout
     table = " ".join(said[: said.index("└")].replace("│", " ").split())  # the table alone
     assert "┃ failed" not in said and "1 failed" in table, said
+
+
+def test_the_daemons_lines_carry_a_time_unless_they_go_to_the_journal(tmp_path: Path) -> None:
+    """`nohup ppd watch > log`: its lines had no time stamp (only a terminal got one; a black-box
+    review). journald, recognised by JOURNAL_STREAM, adds its own."""
+    code = (
+        "import logging\nfrom daemon.cli.output import setup_logging\n"
+        "setup_logging(0, daemon=True)\nlogging.getLogger('daemon.x').info('hello')\n"
+    )
+    log = tmp_path / "watch.log"
+    for journal in (False, True):
+        with open(log, "w") as fh:
+            st = os.fstat(fh.fileno())
+            env = dict(os.environ, PYTHONPATH=str(REPO))
+            env.pop("JOURNAL_STREAM", None)
+            if journal:
+                env["JOURNAL_STREAM"] = f"{st.st_dev}:{st.st_ino}"
+            subprocess.run([sys.executable, "-c", code], cwd=REPO, stderr=fh, env=env, check=True, timeout=60)
+        line = log.read_text()
+        assert 'msg=hello' in line and ("ts=20" in line) != journal, line
