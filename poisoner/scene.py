@@ -122,8 +122,9 @@ def sentence(
     """One line for the user; it says what our tests found for sets like this, never 'protected'."""
     size = ""
     if long_side > HELD_UP_TO_PX:  # issue 30: no set held above 1600 px
-        size = (f" At {long_side} px these photos are larger than any real capture the mark held on in "
-                f"our tests ({HELD_UP_TO_PX} px): a finely textured subject was NOT protected at 2048, 3200 "
+        size = (f" At about {long_side} px on their long side these photos are larger than any real capture "
+                f"the mark held on in our tests ({HELD_UP_TO_PX} px): a finely textured subject was NOT "
+                "protected at 2048, 3200 "
                 "and 6000 px; a soft one (a capture upscaled to 6000 px) mostly was.")  # fmt: skip
     if kind == SceneKind.PLAIN:
         return (f"{dataset}: plain background around the subject (frame edges {edge_textured_fraction:.0%} "
