@@ -355,7 +355,7 @@ def _boxes(data: bytes, start: int, end: int) -> list[tuple[bytes, int, int]]:
 def _heif(path: Path) -> DecodedSize:
     with open(path, "rb") as f:
         data = f.read(4 * 1024 * 1024)  # meta precedes mdat in HEIC/AVIF as written by cameras
-    best = (0, 0)
+    best, deep = (0, 0), False
     for typ, s, e in _boxes(data, 0, len(data)):
         if typ != b"meta":
             continue
@@ -370,9 +370,12 @@ def _heif(path: Path) -> DecodedSize:
                         w, h = struct.unpack(">II", data[s4 + 4 : s4 + 12])
                         if w * h > best[0] * best[1]:
                             best = (w, h)
+                    elif t4 == b"pixi":  # bits per channel: a 10- or 12-bit picture is decoded at 16
+                        channels = data[s4 + 4] if len(data) > s4 + 4 else 0
+                        deep = deep or any(b > 8 for b in data[s4 + 5 : s4 + 5 + channels])
     if best == (0, 0):
         return _pillow(path)
-    return DecodedSize("HEIF", best[0], best[1], 4, 1)
+    return DecodedSize("HEIF", best[0], best[1], 4, 2 if deep else 1)
 
 
 def _pillow(path: Path) -> DecodedSize:

@@ -355,3 +355,18 @@ def test_noise_like_photos_stay_within_the_estimate(tmp_path: Path, fmt: str, su
     assert run.returncode == 0, run.stderr[-2000:]
     peak, estimate = map(int, run.stdout.split())
     assert peak <= estimate, f"{fmt}: peak {peak / 1e6:.0f} MB over the estimate {estimate / 1e6:.0f} MB"
+
+
+def test_a_ten_bit_heic_is_budgeted_at_two_bytes_a_sample(tmp_path: Path) -> None:
+    """ppd decodes a 10-bit HEIC at 16 bits to keep its depth (tests/poisoner/test_format_review.py): the
+    memory budget read it as 8-bit, half what protecting it takes (found in the formats review)."""
+    pillow_heif = pytest.importorskip("pillow_heif")
+    from poisoner.limits import decoded_size
+
+    deep = np.random.default_rng(0).integers(0, 65535, (120, 160, 3)).astype(np.uint16)
+    pillow_heif.from_bytes(mode="RGB;16", size=(160, 120), data=deep.tobytes()).save(tmp_path / "x10.heic")
+    shallow = (deep >> 8).astype(np.uint8)
+    pillow_heif.from_bytes(mode="RGB", size=(160, 120), data=shallow.tobytes()).save(tmp_path / "x8.heic")
+    ten, eight = decoded_size(tmp_path / "x10.heic"), decoded_size(tmp_path / "x8.heic")
+    assert (ten.format, ten.bytes_per_sample, eight.bytes_per_sample) == ("HEIF", 2, 1)
+    assert ten.peak_bytes > eight.peak_bytes  # the per-pixel part twice (a fixed part beside it)
