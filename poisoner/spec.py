@@ -318,8 +318,8 @@ class PatchSpec:
         block had been called patched; a black-box review)."""
         try:
             one = self.resolve(width, height, index=0)
-        except SpecError:
-            return f"{width}x{height} is too small for the mark"
+        except SpecError as exc:  # its own words: which part does not fit, and what to change
+            return f"{width}x{height} cannot hold the mark: {exc}"
         side = one.lane_size or one.texture_size or one.size
         if side <= one.block:
             flat = f"its {side} px squares would be one flat block"

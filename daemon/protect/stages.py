@@ -4,9 +4,8 @@
              decide → keep_in_vault → mark_pending → poison → replace_atomically →
              record_provenance → publish
 
-Each stage is a small function `stage(job) -> ProtectOutcome | None`: None hands the job to the
-next stage, an outcome ends the run there (unchanged, skipped, dry run). Exceptions end it as
-'failed' (daemon.protect.one_file.protect_file records them).
+Each stage is a small function `stage(job) -> ProtectOutcome | None`: None hands the job to the next
+stage, an outcome ends the run there; an exception ends it 'failed' (one_file.protect_file records it).
 
 The crash-safety argument is the order of the last six (docs/STORE.md, with the fsyncs each file
 costs and why each is needed):
@@ -23,17 +22,15 @@ costs and why each is needed):
    that folder's descriptor), fsynced, and renamed over the file only if the file at that name is
    still the one that was hashed (compare-and-swap on device, inode, size, mtime and sha256, just
    before the rename); otherwise the new version is left in place and the run starts over;
-5. record_provenance: the patched row with the patched sha256;
-6. publish: the patched file moved to the dataset's publish folder, if it has one.
+5. record_provenance: the patched row with the patched sha256; 6. publish: to the publish folder, if any.
 A crash between any two steps leaves the original or the complete patched file at the path, and
 the original in the vault whenever the path may hold the patched one.
 
-Beside this file: the Job and its outcome (job.py), the poisoner's calls, the seal and the private
-work folders (poisoning.py), runs that stopped half-way and files that moved (recovery.py).
+Beside it: job.py (the Job, its outcome), poisoning.py (poisoner, seal, work folders), recovery.py.
 
-Containment (daemon.fsops): the file is opened once, relative to a descriptor of its folder
-reached from the anchor (the outbox or the folder given to `ppd poison`) without following a
-symlink; every later read and write goes through those descriptors, never through the path.
+Containment (daemon.fsops): the file is opened once, relative to a descriptor of its folder reached
+from the anchor (the outbox, or the folder given to `ppd poison`) without following a symlink; every
+later read and write goes through those descriptors, never through the path.
 """
 
 from __future__ import annotations
@@ -277,8 +274,6 @@ def decide(job: Job) -> ProtectOutcome | None:
     ctx, row, sha, out_path = job.ctx, job.row, job.sha, job.out_path
     spec = job.spec = _dataset_spec(job)
     record_path = job.record_path
-    if job.stored_size is not None and (why := spec.too_small(*job.stored_size)) is not None:
-        raise ProtectRefused(f"{shown_name(job.path)}: {why}; not patched")  # the dry run says it too
     if (
         out_path is not None
         and row is not None
@@ -308,6 +303,11 @@ def decide(job: Job) -> ProtectOutcome | None:
                 poisoned_sha256=None, error=None, event="skipped", detail={"reason": "ratio"},
             )  # fmt: skip
         return job.outcome(Outcome.SKIPPED, "not selected by the spec's ratio", spec_id=spec.spec_id)
+    if job.stored_size is not None and job.file is not None:  # as shown (EXIF); the dry run says it too
+        from poisoner.image.read import shown_size
+
+        if (why := spec.too_small(*shown_size(fd_path(job.file.fd), job.stored_size))) is not None:
+            raise ProtectRefused(f"{shown_name(job.path)}: {why}; not patched")
     if job.dry_run:
         return job.outcome(Outcome.PATCHED, "would patch", original_sha256=sha, spec_id=spec.spec_id)
     return None

@@ -127,6 +127,18 @@ def format_refusal(im: Image.Image) -> str | None:
     return None
 
 
+def shown_size(path: Path, stored: tuple[int, int]) -> tuple[int, int]:
+    """The (width, height) a viewer sees of a picture stored this size: its EXIF orientation applied
+    (the mark is placed on the picture as shown), read from its header alone; stored when unreadable."""
+    from poisoner.orientation import display_size, orientation_of
+
+    try:
+        with Image.open(path) as im:
+            return display_size(*stored, orientation_of(im.getexif().get(0x0112)))
+    except Exception:  # the decoder says what is wrong with it, later
+        return stored
+
+
 def check_writable_image(path: Path, name: str, max_pixels: int | None = None) -> None:
     """ImageFormatError (one line naming the file) when the image at path cannot be protected in its
     own format (format_refusal) or is not an image ppd reads; only its header is read. max_pixels: the

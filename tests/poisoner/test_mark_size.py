@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 from daemon.cli import app
 from poisoner.ladder import default_spec
 from poisoner.lengths import length_base
+from poisoner.spec import PatchSpec
 from testkit.photos import changed_pixels, textured
 
 runner = CliRunner()
@@ -61,7 +62,8 @@ def test_poison_of_a_panorama_writes_a_textured_mark(ppd_env: dict[str, Path], t
 def test_too_small_names_pictures_whose_squares_would_be_one_flat_block() -> None:
     spec = default_spec()
     for w, h in ((16, 16), (64, 48), (64, 64), (300, 2), (1, 200)):
-        assert (why := spec.too_small(w, h)) is not None and why.startswith(f"{w}x{h} is too small"), (w, h)
+        assert (why := spec.too_small(w, h)) is not None and why.startswith(f"{w}x{h} "), (w, h)
+        assert "too small for the mark" in why or "cannot hold the mark" in why, why
     for w, h in ((96, 96), (160, 120), (200, 150), (800, 800), (12000, 1500)):
         assert spec.too_small(w, h) is None, (w, h)
 
@@ -79,7 +81,27 @@ def test_a_picture_too_small_fails_in_the_dry_run_and_the_run(
         text = " ".join(result.output.split())
         assert result.exit_code == 1 and "failed 2" in text, text
         assert "thumb.png: 64x64 is too small for the mark" in text, text
-        assert "line.png: 1x200 is too small" in text, text
+        assert "line.png: 1x200 cannot hold the mark" in text, text
         assert "Warning" not in text and "numerical gradient" not in text
     assert (shoot / "thumb.png").read_bytes() == before["thumb.png"]
     assert (shoot / "ok.png").read_bytes() != before["ok.png"]
+
+
+def test_the_size_check_reads_the_picture_as_shown(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """The diff review: the check read the stored size while the mark is placed on the picture as shown,
+    so three 1000x500 JPEGs with EXIF orientation 6 (shown 500x1000) failed under `--design watermark`,
+    which c8c7375 patched."""
+    shoot = tmp_path / "turned"
+    shoot.mkdir()
+    for i in range(3):
+        exif = Image.Exif()
+        exif[0x0112] = 6
+        Image.fromarray(textured(500, 1000, seed=i)).save(shoot / f"IMG_{i}.jpg", exif=exif, quality=92)
+    result = runner.invoke(app, ["poison", str(shoot), "--design", "watermark"])
+    assert result.exit_code == 0 and "patched 3," in " ".join(result.output.split()), result.output
+
+
+def test_a_mark_that_does_not_fit_says_why_in_the_specs_own_words() -> None:
+    spec = PatchSpec(patch_size=0.3, motion="tumble", position="top-left")
+    why = spec.too_small(2000, 1000)
+    assert why is not None and why.startswith("2000x1000 cannot hold the mark: ") and "corner region" in why
