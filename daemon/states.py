@@ -13,6 +13,7 @@ from typing import Any
 
 from verifier.verdict import NOT_PROTECTED as _VERDICT_NOT_PROTECTED
 from verifier.verdict import PROTECTED as _VERDICT_PROTECTED
+from verifier.verdict import SFM_CRASHED as _VERDICT_SFM_CRASHED
 from verifier.verdict import VERDICT_WORDS as VERDICT_WORDS  # re-exported: the verifier's words
 from verifier.verdict import WEAK as _VERDICT_WEAK
 from verifier.verdict import headline
@@ -102,6 +103,10 @@ def dataset_protection(
         profiles = sorted(p for p, v in verdicts.items() if v == verdict)
         if profiles and unseen and protection in (Protection.PROTECTED, Protection.WEAK):
             return Protection.PATCHED_NOT_VERIFIED, []
+        crashed = sorted(p for p, v in verdicts.items() if v == _VERDICT_SFM_CRASHED)
+        if profiles and protection is Protection.PROTECTED and crashed:
+            # as verifier.verdict.overall: a crash is no protection, so the set is not called protected
+            return Protection.UNVERIFIABLE, crashed
         if profiles:
             return protection, profiles
     return Protection.UNVERIFIABLE, sorted(verdicts)

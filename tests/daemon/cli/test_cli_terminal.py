@@ -161,6 +161,12 @@ def test_dataset_protection_is_never_more_than_the_verdicts() -> None:
     assert dataset_protection(patched, {"default": _run("weak")}) == (Protection.WEAK, ["default"])
     crashed = {"default": _run("sfm_crashed")}
     assert dataset_protection(patched, crashed) == (Protection.UNVERIFIABLE, ["default"])
+    # a crash beside profiles that held is still no protection (as verifier.verdict.overall: the diff
+    # review found status and --check saying "protected" where `ppd verify` said sfm_crashed)
+    one_crashed = {**both, "global": _run("sfm_crashed")}
+    assert dataset_protection(patched, one_crashed) == (Protection.UNVERIFIABLE, ["global"])
+    fails_and_crashed = {**one_fails, "global": _run("sfm_crashed")}
+    assert dataset_protection(patched, fails_and_crashed)[0] == Protection.NOT_PROTECTED
     assert protection_text(Protection.PROTECTED, ["default"]) == "protected under default"
     assert protection_text(Protection.NOT_PROTECTED, ["hardened"]) == "NOT protected (hardened)"
 
