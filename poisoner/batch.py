@@ -107,15 +107,16 @@ def start_worker(
 
 @contextlib.contextmanager
 def interrupts_held() -> Iterator[None]:
-    """Worker processes started inside never see a terminal's Ctrl-C: SIGINT is blocked in this
-    thread while they start, and a child inherits the mask (a forkserver passes it on to the
-    workers it forks). A worker would otherwise die with a KeyboardInterrupt traceback when the
-    terminal's SIGINT reaches its whole process group; the caller decides when to stop. A SIGINT
-    for this process meanwhile is held, not lost: it arrives when the block ends."""
+    """Worker processes started inside never see a signal sent to the whole process group: SIGINT
+    (a terminal's Ctrl-C) and SIGTERM (`timeout`, `kill -- -PGID`) are blocked in this thread while
+    they start, and a child inherits the mask (a forkserver keeps it, and passes it on to the
+    workers it forks; each worker then leaves the group: daemon.protect.pool.ignore_interrupts). A
+    worker would otherwise die mid-file, or with a KeyboardInterrupt traceback; the caller decides
+    when to stop. A signal for this process meanwhile is held, not lost: it arrives at the unblock."""
     if not hasattr(signal, "pthread_sigmask"):  # not POSIX
         yield
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
     try:
         yield
     finally:

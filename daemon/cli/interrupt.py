@@ -1,17 +1,23 @@
 """Ctrl-C and SIGTERM for a command that works through files (`ppd poison`): the first asks it
-to stop between files, so the file in progress is finished and nothing is left half-done; the
-second acts at once, as it would have without ppd (the crash-safe order of daemon.protect.stages makes
-that safe too)."""
+to stop between files, so the file in progress is finished and nothing is left half-done; a second
+within SAME_STOP_S is the same request (`timeout` and `kill -- -PGID` signal the process and its
+group, a Ctrl-C pressed twice); a later one acts at once, as it would have without ppd (the crash-safe
+order of daemon.protect.stages makes that safe too)."""
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
+import time
 from collections.abc import Callable
 from types import FrameType, TracebackType
 from typing import Any
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# A second stop signal within this many seconds of the first is the same request; a later one means
+# "now" (`ppd poison` here, `ppd watch` in daemon.cli.watch_cmd).
+SAME_STOP_S = 3.0
 
 
 class StopOnSignal:
@@ -20,6 +26,7 @@ class StopOnSignal:
 
     def __init__(self, on_stop: Callable[[str], None] | None = None) -> None:
         self.signal_name: str | None = None
+        self._first = 0.0
         self._on_stop = on_stop
         self._previous: dict[int, Any] = {}
 
@@ -27,8 +34,14 @@ class StopOnSignal:
         return self.signal_name is not None
 
     def _handle(self, signum: int, _frame: FrameType | None) -> None:
-        self.signal_name = signal.Signals(signum).name
-        self._restore()  # a second signal acts at once
+        now = time.monotonic()
+        if self.signal_name is not None:
+            if now - self._first < SAME_STOP_S:  # the same request (a group signal, a double Ctrl-C)
+                return
+            self._restore()  # asked again later: acts at once, as without ppd
+            os.kill(os.getpid(), signum)
+            return
+        self.signal_name, self._first = signal.Signals(signum).name, now
         if self._on_stop is not None:
             self._on_stop(self.signal_name)
 

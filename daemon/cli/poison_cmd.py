@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from daemon.cli.errors import die, file_reason, open_ctx
-from daemon.cli.interrupt import StopOnSignal
+from daemon.cli.interrupt import SAME_STOP_S, StopOnSignal
 from daemon.cli.options import SpecOptions, spec_options, subject_masks_option, workers_option
 from daemon.cli.output import console, err_console, interactive, print_line, verbosity
 from daemon.protect.job import shown_path
@@ -335,7 +335,8 @@ def say_stopping(signal_name: str) -> None:
     with nothing said (a black-box review). Written straight to stderr: this runs in the handler."""
     key = stop_key(signal_name)
     with contextlib.suppress(OSError):
-        os.write(2, f"\nppd: {key}: stopping after the file in progress; {key} again stops now\n".encode())
+        later = f"{key} again (after {SAME_STOP_S:g} s) stops now"
+        os.write(2, f"\nppd: {key}: stopping after the file in progress; {later}\n".encode())
 
 
 def one_blas_thread() -> None:

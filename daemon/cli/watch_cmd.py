@@ -15,13 +15,11 @@ from types import FrameType
 import typer
 
 from daemon.cli.errors import die
+from daemon.cli.interrupt import SAME_STOP_S
 from daemon.cli.output import err_console
 from poisoner.errors import ExitStatus
 
 log = logging.getLogger(__name__)
-# A second stop signal within this many seconds of the first is the same request (one `timeout`,
-# a group kill, a double Ctrl-C); a later one means "now".
-SAME_STOP_S = 3.0
 
 service_app = typer.Typer(help="The systemd user service that runs `ppd watch`.", no_args_is_help=True)
 
@@ -88,7 +86,7 @@ def watch(
     def on_signal(signum: int, _frame: FrameType | None) -> None:
         nonlocal first_signal
         now = time.monotonic()
-        if first_signal is not None and now - first_signal < SAME_STOP_S:
+        if first_signal is not None and now - first_signal < SAME_STOP_S:  # daemon.cli.interrupt
             # the same request: `timeout` and `kill -- -PGID` signal the whole group, a terminal's
             # Ctrl-C pressed twice (a black-box review: the daemon left at once, a file half-done)
             log.debug("signal %s again: already stopping", signal.Signals(signum).name)

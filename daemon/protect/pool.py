@@ -64,15 +64,24 @@ _worker_ctx: AppContext | None = None
 
 
 def ignore_interrupts() -> None:
-    """A terminal's Ctrl-C reaches every process of its group, and so does `timeout` or `kill --
-    -PGID`'s SIGTERM: a worker leaves both to its caller, which stops handing out files and lets the
-    one in progress finish (no traceback, nothing half-written; a black-box review: `timeout 20 ppd
-    watch` killed the workers mid-file). systemd's unit (KillMode=mixed) sends SIGTERM to the caller
-    alone and SIGKILL to the rest at its stop timeout; a worker whose caller is gone ends itself."""
+    """Signals meant for the whole process group are the caller's to act on: a terminal's Ctrl-C,
+    `timeout`'s or `kill -- -PGID`'s SIGTERM (a review: `timeout 20 ppd watch` and a group SIGTERM to
+    `ppd poison` killed workers mid-file). The caller stops handing out files and lets the ones in
+    progress finish (no traceback, nothing half-written). So a worker ignores SIGINT and leaves the
+    group; a SIGTERM sent to it alone (the pool's own shutdown of a broken pool) still ends it. The
+    caller blocked both while the worker started (poisoner.batch.interrupts_held): one that arrived
+    meanwhile is dropped, not delivered at the unblock. systemd (KillMode=mixed) signals the caller;
+    a worker whose caller is gone ends itself."""
+    import contextlib
+    import os
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # drops a pending group SIGTERM
+    with contextlib.suppress(OSError):
+        os.setpgid(0, 0)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
 
 
 class WorkerFormatter(logging.Formatter):

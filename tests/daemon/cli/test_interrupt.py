@@ -143,7 +143,7 @@ def test_a_signal_mid_run_leaves_a_true_status_and_a_run_that_finishes(
     assert proc.returncode == 130, (out, err)
     assert "Traceback" not in err and "Traceback" not in out, err
     key = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"  # said at once, before the file ends
-    assert f"ppd: {key}: stopping after the file in progress; {key} again stops now" in err, err
+    assert f"ppd: {key}: stopping after the file in progress; {key} again (after 3 s) stops now" in err, err
     (start,) = [i for i, x in enumerate(out.splitlines()) if x.startswith("interrupted:")]
     line = " ".join(" ".join(out.splitlines()[start:]).split())  # wrapped at spaces to the width
     resume = shlex.join(["ppd", "poison", str(shoot), "--workers", workers])

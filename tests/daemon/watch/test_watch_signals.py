@@ -1,18 +1,20 @@
-"""A stop signal delivered twice is one request (a black-box review: `timeout 20 ppd watch` signals the
-daemon and its process group; the daemon left at once, without its "stopped:" line, leaked its pool's
-semaphores, abandoned the file in flight, and the next start warned that ppd had died while patching).
-Real `ppd watch` processes, real files."""
+"""A stop signal sent to the whole process group (`timeout`, `kill -- -PGID`), and delivered twice, is one
+request (a black-box review and a diff review: `timeout 20 ppd watch` left at once without its "stopped:"
+line, leaking its pool's semaphores and abandoning the file in flight, and the next start warned that ppd
+had died while patching; a group SIGTERM to `ppd poison` killed its forkserver and with it the workers
+mid-file). Real `ppd watch` and `ppd poison` processes in a session of their own, real files."""
 
 from __future__ import annotations
 
 import os
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
-from testkit.daemon_proc import start_daemon
-from testkit.reliability import DAEMON_ARGS, app_paths, make_media, wait_for
+from testkit.daemon_proc import start_daemon, wait_for
+from testkit.reliability import DAEMON_ARGS, app_paths, make_media, subprocess_env
 
 
 def _children(pid: int) -> list[int]:
@@ -20,21 +22,30 @@ def _children(pid: int) -> list[int]:
     return [int(p) for p in found]
 
 
-def test_sigterm_to_the_daemon_and_its_group_twice_stops_it_once_and_cleanly(tmp_path: Path) -> None:
-    daemon = start_daemon(tmp_path, *DAEMON_ARGS)
+def _ppd_in_own_session(root: Path, log: Path, *args: str) -> subprocess.Popen[bytes]:
+    with open(log, "wb") as fh:
+        return subprocess.Popen([sys.executable, "-m", "daemon.cli", *args], env=subprocess_env(root),
+                                stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)  # fmt: skip
+
+
+def _group_sigterm_twice(proc: subprocess.Popen[bytes]) -> None:
+    for _ in range(2):  # `timeout` signals the child, then the group; the second is the same request
+        os.killpg(proc.pid, signal.SIGTERM)
+        time.sleep(0.05)
+
+
+def test_a_group_sigterm_twice_stops_the_daemon_once_and_cleanly(tmp_path: Path) -> None:
+    log = tmp_path / "watch.log"
+    daemon = _ppd_in_own_session(tmp_path, log, "watch", *DAEMON_ARGS)
+    wait_for(lambda: "ready" in log.read_text(), 60, "the daemon to start")
     shoot = app_paths(tmp_path).outbox / "shoot"
     shoot.mkdir(parents=True)
     for i in range(12):
         make_media(shoot / f"v{i}.png", seed=i, size=2400)
-    wait_for(lambda: _children(daemon.proc.pid) != [], 30, "work in flight")
-    for _ in range(2):  # what `timeout` does: the daemon, then its whole group (the workers too)
-        for pid in [daemon.proc.pid, *_children(daemon.proc.pid)]:
-            os.kill(pid, signal.SIGTERM)
-        time.sleep(0.05)
-    assert daemon.proc.poll() is None  # still finishing the files in flight (no exit at once)
-    assert daemon.proc.wait(120) == 0
-    daemon.sock.close()
-    said = daemon.log.read_text()
+    wait_for(lambda: _children(daemon.pid) != [], 30, "work in flight")
+    _group_sigterm_twice(daemon)
+    assert daemon.wait(120) == 0, log.read_text()
+    said = log.read_text()
     assert "stopped:" in said and "leaked semaphore" not in said and "stopping at once" not in said, said
     again = start_daemon(tmp_path, *DAEMON_ARGS)
     time.sleep(1.0)
@@ -42,3 +53,24 @@ def test_sigterm_to_the_daemon_and_its_group_twice_stops_it_once_and_cleanly(tmp
     assert again.proc.wait(120) == 0
     again.sock.close()
     assert "died while patching" not in again.log.read_text(), again.log.read_text()
+
+
+def test_a_group_sigterm_to_ppd_poison_finishes_the_files_in_flight(tmp_path: Path) -> None:
+    shoot = tmp_path / "shoot"
+    shoot.mkdir()
+    for i in range(16):
+        make_media(shoot / f"v{i}.png", seed=i, size=1600)
+    log = tmp_path / "poison.log"
+    run = _ppd_in_own_session(tmp_path, log, "poison", str(shoot), "--workers", "2")
+    wait_for(lambda: len(_children(run.pid)) >= 2, 60, "the workers")
+    time.sleep(1.0)
+    _group_sigterm_twice(run)
+    assert run.wait(120) == 130, log.read_text()  # interrupted: what it did not reach is said
+    attempts = tmp_path / "data" / "attempts"
+    left = [p for p in attempts.rglob("*") if p.is_file()] if attempts.exists() else []
+    assert left == [], left  # no file abandoned mid-patch (an attempt marker names one)
+    resumed = subprocess.run(
+        [sys.executable, "-m", "daemon.cli", "poison", str(shoot)], env=subprocess_env(tmp_path),
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert resumed.returncode == 0 and "failed 0" in resumed.stdout, resumed.stdout + resumed.stderr
