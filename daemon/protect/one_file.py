@@ -250,13 +250,16 @@ def _holds_ppd_output(ctx: AppContext, path: Path) -> bool:
 # ---- datasets as a whole ---------------------------------------------------------------------
 def dataset_pairs(ctx: AppContext, dataset: str) -> list[tuple[Path, Path]]:
     """(original in the vault, protected file) for every protected file of a dataset whose two
-    files both still exist (missing ones are logged, not returned)."""
-    pairs = []
+    files both still exist (missing ones are logged, not returned); one per original: a photo patched
+    in place and copied with `--out` is one view (a diff review: verify staged every view twice)."""
+    pairs, seen = [], set()
     for row in ctx.store.files(dataset, state=FileState.PATCHED):
         original = ctx.vault.path_for(row["original_sha256"])
         protected = Path(row["published_path"] or row["path"])
         if original.is_file() and protected.is_file():
-            pairs.append((original, protected))
+            if row["original_sha256"] not in seen:
+                seen.add(row["original_sha256"])
+                pairs.append((original, protected))
         else:
             log.warning("pair missing", extra={"dataset": dataset, "path": row["path"]})
     return pairs

@@ -178,3 +178,23 @@ def test_out_after_patching_in_place_copies_the_patched_files(
     assert counts("d4")["patched"] == 4  # two in place, two copies
     assert runner.invoke(app, ["restore", "d4"]).exit_code == 0
     assert not (out / "d4" / "v0.png").exists()  # a restore takes the copies back too
+
+
+def test_a_photo_patched_in_place_and_copied_with_out_is_one_view_to_verify(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """The diff review: after `ppd poison DIR` then `ppd poison DIR --out OUT`, verify staged every
+    view twice (identical images), which distorts its verdict and doubles its time."""
+    from daemon.protect.one_file import AppContext, dataset_pairs
+
+    shoot, out = tmp_path / "scan", tmp_path / "pub"
+    for i in range(3):
+        write_image(shoot / f"v{i}.png", seed=i)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert runner.invoke(app, ["poison", str(shoot), "--out", str(out)]).exit_code == 0
+    ctx = AppContext.open()
+    try:
+        pairs = dataset_pairs(ctx, "scan")
+    finally:
+        ctx.close()
+    assert len(pairs) == 3 and len({original for original, _ in pairs}) == 3, pairs
