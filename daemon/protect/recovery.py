@@ -1,17 +1,20 @@
 """Runs that stopped half-way and files that moved: a 'pending' row completed when the file is
-ppd's own output (recover_pending), a patched file's row carried to its new path (carry_moved_row).
+ppd's own output (recover_pending), a patched file's row carried to its new path (carry_moved_row),
+ppd's output copied to `--out` as it is (copy_patched_as_it_is).
 See the crash-safe order in daemon.protect.stages."""
 
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.datasets.dataset import ensure_dataset
 from daemon.datasets.subject_masks import masks_or_none
-from daemon.protect.job import one_line, shown_name
+from daemon.platform import fd_path
+from daemon.protect.job import Job, one_line, shown_name
 from daemon.protect.poisoning import named_vault_copy, poison_to, provenance_marker, seal_output
 from daemon.states import FileState
 from daemon.store.vault import sha256_file
@@ -31,7 +34,8 @@ def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, datase
     old = Path(earlier["path"])
     if old == path or old.exists() or earlier["state"] not in (FileState.PATCHED, FileState.REMOVED):
         return False
-    fields = {k: earlier[k] for k in ("original_sha256", "poisoned_sha256", "spec_id", "tool_version")}
+    keys = ("original_sha256", "original_mtime_ns", "poisoned_sha256", "spec_id", "tool_version")
+    fields: dict[str, Any] = {k: earlier.get(k) for k in keys}  # the original's date: restore gives it
     # A dataset first seen through moved files (a renamed folder) inherits their patch spec.
     ensure_dataset(ctx, dataset, root, ctx.store.get_spec(earlier["spec_id"]))
     st = path.stat()
@@ -43,6 +47,24 @@ def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, datase
         old, earlier["dataset"], FileState.REMOVED, event="moved_away", detail={"to": str(path)}
     )
     return True
+
+
+def copy_patched_as_it_is(job: Job, earlier: dict[str, Any], write: Callable[[Job, Any], None]) -> None:
+    """`--out` of ppd's own output (patched in place, then `--out`): the copy is that output byte for
+    byte, recorded as the dataset's patched copy with the earlier row's original (a black-box review:
+    nothing was written, "unchanged", exit 0). write: stages' `--out` writer."""
+    assert job.file is not None and job.sha is not None
+    out = job.record_path
+    if not (out.is_file() and sha256_file(out) == job.sha):
+        write(job, job.data if job.data is not None else fd_path(job.file.fd))
+    st = os.stat(out, follow_symlinks=False)
+    ensure_dataset(job.ctx, job.dataset, job.root, job.wanted_spec)
+    kept: dict[str, Any] = {k: earlier.get(k) for k in ("original_sha256", "original_mtime_ns", "spec_id",
+                                                          "tool_version")}  # fmt: skip
+    job.ctx.store.record_file(
+        out, job.dataset, FileState.PATCHED, poisoned_sha256=job.sha, size=st.st_size,
+        mtime_ns=st.st_mtime_ns, error=None, event="copied", detail={"from": str(job.path)}, **kept,
+    )  # fmt: skip
 
 
 def _redone_is(ctx: AppContext, row: dict[str, Any], path: Path, sha: str, kind: str) -> bool:

@@ -41,7 +41,7 @@ import os
 import stat
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, cast
+from typing import cast
 
 from daemon.datasets.dataset import ensure_dataset
 from daemon.datasets.subject_masks import (
@@ -95,7 +95,7 @@ from daemon.protect.poisoning import (
     work_folder,
 )
 from daemon.protect.quarantine import attempt, forget_attempt
-from daemon.protect.recovery import carry_moved_row, recover_pending
+from daemon.protect.recovery import carry_moved_row, copy_patched_as_it_is, recover_pending
 from daemon.states import STILL_OPEN_PREFIX, FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import atomic_replace_at
@@ -240,10 +240,10 @@ def recognise(job: Job) -> ProtectOutcome | None:
         if recover_pending(ctx, row, job.path, sha, job.kind, hashed, unchanged):
             forget_attempt(ctx.paths.data_dir, job.path)
             return job.outcome(Outcome.UNCHANGED, "recovered after an interrupted run", poisoned_sha256=sha)
-    earlier = ctx.store.find_poisoned(sha)
+    earlier = ctx.store.find_poisoned(sha, moved_first=out_path is None)
     if earlier is not None and out_path is not None:  # --out of a file patched already (in place)
         if not job.dry_run:
-            _copy_patched_as_it_is(job, earlier)
+            copy_patched_as_it_is(job, earlier, _write_out)
         return job.outcome(Outcome.UNCHANGED, "already ppd output: copied as it is", poisoned_sha256=sha,
                            output=job.record_path)  # fmt: skip
     if earlier is not None:
@@ -254,7 +254,7 @@ def recognise(job: Job) -> ProtectOutcome | None:
             # a copy of ppd's output kept where it is (another dataset's file copied in): with no row
             # status called it "not patched yet" and poison "unchanged", round and round (a review)
             _record_recognised(job, earlier["original_sha256"], sha, earlier.get("spec_id"),
-                               earlier.get("tool_version"), earlier["path"])  # fmt: skip
+                               earlier.get("tool_version"), earlier["path"], earlier.get("original_mtime_ns"))
         return job.outcome(Outcome.UNCHANGED, "already ppd output", poisoned_sha256=sha)
     if (recognised := _recognise_by_marker(job)) is not None:
         return recognised
@@ -345,23 +345,6 @@ def _corner_sample(job: Job) -> list[Path]:
     return [copy, *sibling_images(job.path)]
 
 
-def _copy_patched_as_it_is(job: Job, earlier: dict[str, Any]) -> None:
-    """`--out` of ppd's own output (a folder patched in place, then `--out`): the copy is that output
-    byte for byte, recorded as the dataset's patched copy (a black-box review: nothing was written,
-    "unchanged", exit 0, and the --out folder did not exist)."""
-    assert job.file is not None and job.sha is not None
-    out = job.record_path
-    if not (out.is_file() and sha256_file(out) == job.sha):
-        _write_out(job, job.data if job.data is not None else fd_path(job.file.fd))
-    st = os.stat(out, follow_symlinks=False)
-    ensure_dataset(job.ctx, job.dataset, job.root, job.wanted_spec)
-    job.ctx.store.record_file(
-        out, job.dataset, FileState.PATCHED, original_sha256=earlier["original_sha256"],
-        poisoned_sha256=job.sha, spec_id=earlier.get("spec_id"), tool_version=earlier.get("tool_version"),
-        size=st.st_size, mtime_ns=st.st_mtime_ns, error=None, event="copied", detail={"from": str(job.path)},
-    )  # fmt: skip
-
-
 def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
     """ppd's own output without a row (a lost store): its seal verifies under this installation's
     key over exactly these bytes (poisoner.provenance). A copied, forged, cropped or edited file
@@ -382,8 +365,9 @@ def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
 
 
 def _record_recognised(
-    job: Job, original: str, sha: str, spec_id: str | None, version: str | None, source: str
-) -> None:
+    job: Job, original: str, sha: str, spec_id: str | None, version: str | None, source: str,
+    when: int | None = None,  # the original's modification time, when a row knows it
+) -> None:  # fmt: skip
     """ppd's output recognised in this dataset's folder (by its seal, or as a copy of a stored
     output: source says which): a patched file of the dataset, its original the vault's copy."""
     assert job.file is not None
@@ -391,7 +375,7 @@ def _record_recognised(
     job.ctx.store.record_file(
         job.path, job.dataset, FileState.PATCHED, original_sha256=original, poisoned_sha256=sha,
         spec_id=spec_id, tool_version=version, size=job.file.st.st_size, mtime_ns=job.file.st.st_mtime_ns,
-        error=None, event="recognised", detail={"from": source},
+        error=None, event="recognised", detail={"from": source}, original_mtime_ns=when,
     )  # fmt: skip
 
 

@@ -3,6 +3,7 @@ hashes, and the spec it was patched with."""
 
 from __future__ import annotations
 
+import os
 import sqlite3
 import time
 from collections.abc import Iterable
@@ -54,9 +55,14 @@ class FileRows(StoreBase):
             sql, params = sql + " AND dataset != ?", (*params, not_of)
         return self._rows(sql + " ORDER BY path", params)
 
-    def find_poisoned(self, sha256: str) -> dict[str, Any] | None:
-        """A row whose patched output has this content (ppd's own output, anywhere)."""
-        return self._one("SELECT * FROM files WHERE poisoned_sha256 = ? LIMIT 1", (sha256,))
+    def find_poisoned(self, sha256: str, moved_first: bool = False) -> dict[str, Any] | None:
+        """A row whose patched output has this content (ppd's own output, anywhere). moved_first: of
+        several (two photos with the same bytes patched alike), one whose file is no longer at its path
+        (a file moved or renamed is that one, and keeps that row's original's date), else the first."""
+        if not moved_first:
+            return self._one("SELECT * FROM files WHERE poisoned_sha256 = ? LIMIT 1", (sha256,))
+        rows = self._rows("SELECT * FROM files WHERE poisoned_sha256 = ? ORDER BY id", (sha256,))
+        return next((r for r in rows if not os.path.lexists(r["path"])), rows[0] if rows else None)
 
     def find_original(self, sha256: str) -> list[dict[str, Any]]:
         """Every row whose original has this content (newest first)."""

@@ -67,3 +67,24 @@ def test_an_original_recognised_by_another_path_does_not_keep_the_rows_old_date(
         assert ctx.store.file(path)["original_mtime_ns"] is None
     finally:
         ctx.close()
+
+
+def test_a_renamed_photo_keeps_its_originals_date(ppd_env: dict[str, Path]) -> None:
+    """The diff review: the row carried to a renamed file (carry_moved_row) left the original's date
+    behind, so the rename of the second of two same-bytes photos came back with the first's date."""
+    first = write_image(ppd_env["outbox"] / "trip" / "a.jpg", seed=2)
+    second = first.with_name("b.jpg")
+    second.write_bytes(first.read_bytes())
+    june = MAY_2020 + 31 * 86_400 * 10**9
+    os.utime(first, ns=(MAY_2020, MAY_2020))
+    os.utime(second, ns=(june, june))
+    ctx = AppContext.open()
+    try:
+        for photo in (first, second):
+            assert protect_file(photo, ctx).state == "patched"
+        renamed = second.rename(second.with_name("c.jpg"))
+        assert "moved from" in (protect_file(renamed, ctx).reason or "")
+        assert restore_file(ctx, renamed).state == "restored"
+    finally:
+        ctx.close()
+    assert renamed.stat().st_mtime_ns == june
