@@ -4,6 +4,7 @@ verdict) or only patched, what to run next; warnings on regressions and sync fol
 from __future__ import annotations
 
 import json
+import os
 import shlex
 from collections.abc import Sequence
 from pathlib import Path
@@ -359,15 +360,20 @@ def outbox_unclaimed(ctx: AppContext) -> list[Path]:
     from daemon.datasets.folder_count import outbox_unclaimed as unclaimed
 
     found = unclaimed(ctx.paths.outbox, [d["root"] for d in ctx.store.datasets()])
-    named = {r["path"] for r in ctx.store.files_under(ctx.paths.outbox)} if found else set()
-    return [p for p in found if str(p) not in named]  # a row names it: some dataset's file
+    if not found:
+        return []
+    # a row names it, by whichever spelling of the outbox it was patched through: some dataset's file
+    named = {os.path.realpath(r["path"]) for r in ctx.store.files_under(os.path.realpath(ctx.paths.outbox))}
+    named |= {os.path.realpath(r["path"]) for r in ctx.store.files_under(ctx.paths.outbox)}
+    return [p for p in found if os.path.realpath(p) not in named]
 
 
 def unclaimed_line(outbox: Path, unclaimed: list[Path]) -> str:
     """One line: how many, which (a few), and what patches them."""
     from daemon.protect.job import shown_path
 
-    names = [shown_path(p.relative_to(outbox)) for p in unclaimed[:3]]
+    real = Path(os.path.realpath(outbox))
+    names = [shown_path(p.relative_to(real) if p.is_relative_to(real) else p) for p in unclaimed[:3]]
     more = f", and {len(unclaimed) - 3} more" if len(unclaimed) > 3 else ""
     return (
         f"outbox: {len(unclaimed)} photo(s) or video(s) no dataset holds yet, NOT protected "

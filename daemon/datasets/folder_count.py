@@ -275,10 +275,10 @@ def outbox_unclaimed(outbox: Path, roots: Iterable[str | Path]) -> list[Path]:
     sees them; with it stopped (or not watching) they sit there unprotected, and `ppd status`, which
     listed the store's datasets only, never said so: `--check && publish` passed (a black-box review).
     roots: the datasets' folders (their files, and folders nested in the outbox's, are theirs)."""
-    box = Path(outbox).absolute()
+    box = Path(os.path.realpath(outbox))  # one spelling for both sides (a symlinked outbox: a review)
     if not box.is_dir():
         return []
-    known = {Path(root).absolute() for root in roots}
+    known = {Path(os.path.realpath(root)) for root in roots}
     found: list[Path] = []
     for entry in sorted(box.iterdir()):
         if entry.name.startswith((".", TEMP_PREFIX)) or entry.is_symlink():

@@ -10,6 +10,7 @@ import json
 import shutil
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from daemon.cli import app
@@ -76,3 +77,20 @@ def test_a_quarantined_file_the_user_deleted_no_longer_counts(ppd_env: dict[str,
     counts = json.loads(runner.invoke(app, ["status", "kitchen", "--json"]).output)["datasets"][0]["counts"]
     assert counts["quarantined"] == 0 and counts["files"] == 1, counts
     assert "1 quarantined" not in _said("status", "kitchen", "--check")[1]
+
+
+def test_a_symlinked_outbox_patched_through_its_real_path_is_not_said_unpatched(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The diff review: with PPD_OUTBOX=/x/link/outbox and `ppd poison /x/real/outbox/newds`, status
+    said its photo was NOT protected and --check failed for good."""
+    real = tmp_path / "real"
+    (real / "outbox").mkdir(parents=True)
+    (tmp_path / "link").symlink_to(real, target_is_directory=True)
+    for name in ("data", "config"):
+        monkeypatch.setenv(f"PPD_{name.upper()}_DIR", str(tmp_path / name))
+    monkeypatch.setenv("PPD_OUTBOX", str(tmp_path / "link" / "outbox"))
+    make_image(real / "outbox" / "newds" / "r_6.png", 6)
+    assert "no dataset holds" in _said("status")[1]
+    assert runner.invoke(app, ["poison", str(real / "outbox" / "newds")]).exit_code == 0
+    assert "no dataset holds" not in _said("status")[1]
