@@ -103,7 +103,11 @@ def caller_formatter() -> logging.Formatter:
 def log_like_caller(formatter: logging.Formatter | None) -> None:
     """A worker's warnings on stderr, written as its caller writes them (never the bare message
     of logging's last-resort handler, which drops the file's name). Its per-file record is the
-    caller's to write: a worker says only what went wrong."""
+    caller's to write: a worker says only what went wrong. A library's Python warnings (Pillow's on
+    a damaged EXIF tag) are not what went wrong: logged and dropped, as the caller drops them below
+    -vv (daemon.cli.output.setup_logging; a review found them raw on stderr from workers)."""
+    logging.captureWarnings(True)
+    logging.getLogger("py.warnings").setLevel(logging.ERROR)
     if formatter is None:
         return
     handler = logging.StreamHandler()

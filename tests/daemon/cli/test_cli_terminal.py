@@ -483,3 +483,15 @@ def test_the_daemons_lines_carry_a_time_unless_they_go_to_the_journal(tmp_path: 
             subprocess.run([sys.executable, "-c", code], cwd=REPO, stderr=fh, env=env, check=True, timeout=60)
         line = log.read_text()
         assert 'msg=hello' in line and ("ts=20" in line) != journal, line
+
+
+def test_a_librarys_python_warning_in_a_worker_is_not_printed_either() -> None:
+    """The diff review: `ppd poison --workers 2` printed Pillow's `UserWarning: Tag data larger than file`
+    raw from its workers, which set up their logging themselves (daemon.protect.pool.log_like_caller)."""
+    code = (
+        "import logging, warnings\nfrom daemon.protect.pool import log_like_caller\n"
+        "log_like_caller(logging.Formatter('%(message)s'))\nwarnings.warn('Tag data larger than file')\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60,
+                          env=dict(os.environ, PYTHONPATH=str(REPO)))  # fmt: skip
+    assert proc.returncode == 0 and "Tag data larger than file" not in proc.stderr, proc.stderr
