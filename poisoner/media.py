@@ -51,6 +51,7 @@ def is_media(path: str | os.PathLike[str]) -> bool:
 # `.ts` names both an MPEG transport stream (a video) and TypeScript source: such a file is a video
 # only when its bytes say so (a black-box review: a folder's script made `ppd poison` fail).
 MPEG_TS_PACKET = 188
+MPEG_TS_M2TS_PACKET = 192
 MPEG_TS_SYNC = 0x47
 
 
@@ -64,22 +65,19 @@ def is_unprotected_media(path: str | os.PathLike[str]) -> bool:
 
 
 def _reads_as_mpeg_ts(path: str | os.PathLike[str]) -> bool:
-    """Its first two packets start with the sync byte (one packet: the first does)."""
+    """The sync byte at one offset of every packet read: packets of 188 bytes, or 192 (M2TS, a camera's
+    AVCHD: a 4-byte time code before each), from any offset in the first packet (a stream cut
+    mid-packet); one packet only: it starts the file or follows a time code."""
     try:
         with open(path, "rb") as f:
-            head = f.read(MPEG_TS_PACKET + 1)
+            head = f.read(4 * MPEG_TS_M2TS_PACKET)
     except OSError:
         return True  # not read: counted as a video ppd cannot protect, never left out in silence
-    one_packet = len(head) <= MPEG_TS_PACKET
-    return bool(head) and head[0] == MPEG_TS_SYNC and (one_packet or head[-1] == MPEG_TS_SYNC)
-
-
-def is_sfm_readable(path: str | os.PathLike[str]) -> bool:
-    return suffix_of(path) in SFM_SUFFIXES
-
-
-__all__ = [
-    "IMAGE_SUFFIXES", "MEDIA_SUFFIXES", "PARTIAL_SUFFIXES", "SFM_SUFFIXES", "UNPROTECTED_SUFFIXES",
-    "VIDEO_SUFFIXES", "is_image", "is_media", "is_sfm_readable", "is_unprotected_media", "is_video",
-    "suffix_of",
-]  # fmt: skip
+    if len(head) <= MPEG_TS_M2TS_PACKET:
+        return MPEG_TS_SYNC in head[:5:4]
+    for size in (MPEG_TS_PACKET, MPEG_TS_M2TS_PACKET):
+        for start in range(size):
+            marks = range(start, len(head), size)
+            if len(marks) >= 2 and all(head[i] == MPEG_TS_SYNC for i in marks):
+                return True
+    return False

@@ -80,6 +80,9 @@ def test_a_ts_file_is_a_video_only_when_it_reads_as_an_mpeg_transport_stream(
     line = " ".join(result.output.split())
     assert result.exit_code == 1 and "ppd cannot read (clip.ts)" in line, result.output
     assert "unprotectable 1" in " ".join(runner.invoke(app, ["status", "shoot"]).output.split())
+    # a camera's M2TS (192-byte packets: a time code before each), cut mid-packet: a video too (diff review)
+    (shoot / "avchd.ts").write_bytes(((bytes(4) + bytes([0x47]) + bytes(187)) * 5)[70:])
+    assert "unprotectable 2" in " ".join(runner.invoke(app, ["status", "shoot"]).output.split())
 
 
 def test_a_file_named_twice_is_one_job(ppd_env: dict[str, Path], tmp_path: Path) -> None:
