@@ -244,7 +244,8 @@ def recognise(job: Job) -> ProtectOutcome | None:
     if earlier is not None and out_path is not None:  # --out of a file patched already (in place)
         if not job.dry_run:
             copy_patched_as_it_is(job, earlier, _write_out)
-        return job.outcome(Outcome.UNCHANGED, "already ppd output: copied as it is", poisoned_sha256=sha,
+        said = "would be copied as it is" if job.dry_run else "copied as it is"
+        return job.outcome(Outcome.UNCHANGED, f"already ppd output: {said}", poisoned_sha256=sha,
                            output=job.record_path)  # fmt: skip
     if earlier is not None:
         moved = out_path is None and not job.dry_run
