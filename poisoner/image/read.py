@@ -153,12 +153,40 @@ def check_writable_image(path: Path, name: str, max_pixels: int | None = None) -
         jpeg = im.format == "JPEG"
     if why is not None:
         raise ImageFormatError(f"{name}: {why}")
-    if jpeg:  # arithmetic coding that neither jpegtran (absent) nor Pillow's libjpeg reads: as poisoning says
+    if jpeg and _arithmetic_frame(path):  # coding that neither jpegtran (absent) nor Pillow reads
         from poisoner.image.jpeg_file import arithmetic_coding, check_arithmetic
 
-        data = Path(path).read_bytes()
+        data = Path(path).read_bytes()  # the whole file only for such a JPEG (a review: every one)
         if arithmetic_coding(data) is None:
             check_arithmetic(Path(name), data)
+
+
+ARITHMETIC_SOF = frozenset({0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})  # SOF9-11, SOF13-15
+
+
+def _arithmetic_frame(path: Path) -> bool:
+    """Whether a JPEG's frame header (its SOF marker, before the first scan) says arithmetic coding;
+    read segment by segment up to it, not the whole file."""
+    with open(path, "rb") as f:
+        if f.read(2) != b"\xff\xd8":
+            return False
+        while (byte := f.read(1)) == b"\xff" or byte:
+            if byte != b"\xff":
+                continue  # not a marker's start: resync
+            code = f.read(1)
+            while code == b"\xff":  # fill bytes
+                code = f.read(1)
+            if not code or code[0] in (0xDA, 0xD9):  # a scan or the end before any frame header
+                return False
+            if 0xC0 <= code[0] <= 0xCF and code[0] not in (0xC4, 0xC8, 0xCC):
+                return code[0] in ARITHMETIC_SOF
+            if 0xD0 <= code[0] <= 0xD7 or code[0] == 0x01:
+                continue  # markers without a length
+            size = f.read(2)
+            if len(size) < 2:
+                return False
+            f.seek(int.from_bytes(size, "big") - 2, 1)
+    return False
 
 
 def raise_bomb_limit(max_pixels: int | None) -> None:

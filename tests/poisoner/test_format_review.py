@@ -238,3 +238,27 @@ def test_data_after_a_png_iend_is_counted_like_a_jpeg_trailer(tmp_path: Path) ->
     assert report.trailer_bytes == 32
     assert any("32 bytes after the picture's end" in n for n in report.notes), report.notes
     assert dst.read_bytes().endswith(b"IEND\xaeB`\x82")
+
+
+def test_the_arithmetic_check_reads_the_frame_header_only(tmp_path: Path) -> None:
+    """The header check read every JPEG whole to look for arithmetic coding (a diff review); the frame
+    header says it. Baseline and progressive, Huffman and arithmetic, and a file cut after its header."""
+    import shutil as _shutil
+    import subprocess as _subprocess
+
+    from poisoner.image.read import _arithmetic_frame
+
+    if _shutil.which("cjpeg") is None:
+        pytest.skip("cjpeg (libjpeg-turbo's tools) is not installed")
+    Image.fromarray(np.random.default_rng(3).integers(0, 256, (120, 160, 3), dtype=np.uint8)).save(
+        tmp_path / "x.ppm"
+    )
+    for flags, arithmetic in (([], False), (["-progressive"], False), (["-arithmetic"], True),
+                              (["-arithmetic", "-progressive"], True)):  # fmt: skip
+        out = tmp_path / f"{'_'.join(flags) or 'plain'}.jpg"
+        _subprocess.run(["cjpeg", *flags, "-outfile", str(out), str(tmp_path / "x.ppm")], check=True)
+        assert _arithmetic_frame(out) is arithmetic, flags
+        cut = tmp_path / "cut.jpg"
+        data = out.read_bytes()
+        cut.write_bytes(data[: data.index(b"\xff\xda") + 2])  # nothing after the first scan's marker
+        assert _arithmetic_frame(cut) is arithmetic, flags
