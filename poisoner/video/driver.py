@@ -53,6 +53,9 @@ def poison_video(
     options = options or model.VideoOptions()
     state_before = _check_source(src)
     info = probe(src, max_pixels=max_pixels)
+    # frames too small for squares of texture: refused as a photo is (a review: flat squares, "patched")
+    if (why := spec.too_small(info.width, info.height)) is not None:
+        raise VideoFormatError(f"{src.name}: {why}")
     try:
         placement_at = frame_placements(spec, info, options, src)
         placement = placement_at(0)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
@@ -105,3 +106,14 @@ def test_a_mark_that_does_not_fit_says_why_in_the_specs_own_words() -> None:
     spec = PatchSpec(patch_size=0.3, motion="tumble", position="top-left")
     why = spec.too_small(2000, 1000)
     assert why is not None and why.startswith("2000x1000 cannot hold the mark: ") and "corner region" in why
+
+
+def test_a_video_whose_frames_are_too_small_fails_as_a_photo_does(tmp_path: Path) -> None:
+    """The diff review: the check read only photos' headers, so a 64x48 clip still got flat squares."""
+    from poisoner.video.driver import poison_video
+    from poisoner.video.errors import VideoFormatError
+    from testkit.video import Clip, make_clip
+
+    clip = make_clip(tmp_path / "tiny.mp4", Clip(width=64, height=48, frames=4, audio=None))
+    with pytest.raises(VideoFormatError, match="64x48 is too small for the mark"):
+        poison_video(clip, tmp_path / "out.mp4", default_spec())
