@@ -81,3 +81,14 @@ def _reads_as_mpeg_ts(path: str | os.PathLike[str]) -> bool:
             if len(marks) >= 2 and all(head[i] == MPEG_TS_SYNC for i in marks):
                 return True
     return False
+
+
+def is_sfm_readable(path: str | os.PathLike[str]) -> bool:
+    return suffix_of(path) in SFM_SUFFIXES
+
+
+__all__ = [
+    "IMAGE_SUFFIXES", "MEDIA_SUFFIXES", "PARTIAL_SUFFIXES", "SFM_SUFFIXES", "UNPROTECTED_SUFFIXES",
+    "VIDEO_SUFFIXES", "is_image", "is_media", "is_sfm_readable", "is_unprotected_media", "is_video",
+    "suffix_of",
+]  # fmt: skip
