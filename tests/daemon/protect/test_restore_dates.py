@@ -12,6 +12,17 @@ from daemon.protect.one_file import AppContext, protect_file, restore_file
 from testkit.photos import write_image
 
 MAY_2020 = 1_588_291_200_000_000_000  # ns
+JUNE_2020 = MAY_2020 + 31 * 86_400 * 10**9
+
+
+def _twins(folder: Path) -> tuple[Path, Path]:
+    """a.jpg and b.jpg with the same bytes (one vault blob), dated May and June 2020."""
+    first = write_image(folder / "a.jpg", seed=2)
+    second = first.with_name("b.jpg")
+    second.write_bytes(first.read_bytes())
+    os.utime(first, ns=(MAY_2020, MAY_2020))
+    os.utime(second, ns=(JUNE_2020, JUNE_2020))
+    return first, second
 
 
 def test_restore_gives_back_the_originals_date(ppd_env: dict[str, Path]) -> None:
@@ -31,12 +42,7 @@ def test_restore_gives_back_the_originals_date(ppd_env: dict[str, Path]) -> None
 def test_two_photos_with_the_same_bytes_get_their_own_dates_back(ppd_env: dict[str, Path]) -> None:
     """The vault keeps one blob for both (content addressing), dated as the first one kept; the store
     keeps each original's date (a black-box review: the second came back with the first's)."""
-    first = write_image(ppd_env["outbox"] / "trip" / "a.jpg", seed=2)
-    second = first.with_name("b.jpg")
-    second.write_bytes(first.read_bytes())
-    june = MAY_2020 + 31 * 86_400 * 10**9
-    os.utime(first, ns=(MAY_2020, MAY_2020))
-    os.utime(second, ns=(june, june))
+    first, second = _twins(ppd_env["outbox"] / "trip")
     ctx = AppContext.open()
     try:
         for photo in (first, second):
@@ -45,7 +51,7 @@ def test_two_photos_with_the_same_bytes_get_their_own_dates_back(ppd_env: dict[s
             assert restore_file(ctx, photo).state == "restored"
     finally:
         ctx.close()
-    assert (first.stat().st_mtime_ns, second.stat().st_mtime_ns) == (MAY_2020, june)
+    assert (first.stat().st_mtime_ns, second.stat().st_mtime_ns) == (MAY_2020, JUNE_2020)
 
 
 def test_an_original_recognised_by_another_path_does_not_keep_the_rows_old_date(
@@ -72,12 +78,7 @@ def test_an_original_recognised_by_another_path_does_not_keep_the_rows_old_date(
 def test_a_renamed_photo_keeps_its_originals_date(ppd_env: dict[str, Path]) -> None:
     """The diff review: the row carried to a renamed file (carry_moved_row) left the original's date
     behind, so the rename of the second of two same-bytes photos came back with the first's date."""
-    first = write_image(ppd_env["outbox"] / "trip" / "a.jpg", seed=2)
-    second = first.with_name("b.jpg")
-    second.write_bytes(first.read_bytes())
-    june = MAY_2020 + 31 * 86_400 * 10**9
-    os.utime(first, ns=(MAY_2020, MAY_2020))
-    os.utime(second, ns=(june, june))
+    first, second = _twins(ppd_env["outbox"] / "trip")
     ctx = AppContext.open()
     try:
         for photo in (first, second):
@@ -87,4 +88,4 @@ def test_a_renamed_photo_keeps_its_originals_date(ppd_env: dict[str, Path]) -> N
         assert restore_file(ctx, renamed).state == "restored"
     finally:
         ctx.close()
-    assert renamed.stat().st_mtime_ns == june
+    assert renamed.stat().st_mtime_ns == JUNE_2020
