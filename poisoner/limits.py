@@ -144,18 +144,17 @@ def decoded_bytes_estimate(path: Path) -> int:
 
 def check_decode_budget(
     path: Path, max_pixels: int = DEFAULT_MAX_PIXELS, *, name: str | None = None, max_bytes: int | None = None
-) -> tuple[int, int] | None:
+) -> None:
     """Raise ImageFormatError (one line) when path declares more than max_pixels (all frames
     together; WebP a fifth of it, HEIF/AVIF a third), or would take more than max_bytes of memory
     to protect (peak_bytes; None: not checked), before anything is decoded. An unreadable header
     passes: the decoder refuses it. name: the file's name for the message (path may be a
-    /proc/self/fd link, whose name is only a descriptor number). Returns the stored (width, height),
-    None when the header was not read."""
+    /proc/self/fd link, whose name is only a descriptor number)."""
     path = Path(path)
     try:
         size = decoded_size(path)
     except HeaderError:
-        return None
+        return
     limit, why = max_pixels, ""
     if size.format in BUDGET_DIVISOR:
         divisor, share, reason = BUDGET_DIVISOR[size.format]
@@ -175,7 +174,6 @@ def check_decode_budget(
             f"{size.peak_bytes // 1_000_000} MB to protect, over the {max_bytes // 1_000_000} MB memory "
             "limit; raise [limits] max_memory_mb to protect it"
         )
-    return (size.width, size.height)
 
 
 def check_video_frame_budget(name: str, width: int, height: int, max_pixels: int | None) -> str | None:

@@ -363,8 +363,8 @@ def outbox_unclaimed(ctx: AppContext) -> list[Path]:
     if not found:
         return []
     # a row names it, by whichever spelling of the outbox it was patched through: some dataset's file
-    named = {os.path.realpath(r["path"]) for r in ctx.store.files_under(os.path.realpath(ctx.paths.outbox))}
-    named |= {os.path.realpath(r["path"]) for r in ctx.store.files_under(ctx.paths.outbox)}
+    spellings = {str(ctx.paths.outbox), os.path.realpath(ctx.paths.outbox)}
+    named = {os.path.realpath(r["path"]) for where in spellings for r in ctx.store.files_under(where)}
     return [p for p in found if os.path.realpath(p) not in named]
 
 

@@ -96,7 +96,7 @@ class Job:
     mask_dir: Path | None = None  # the dataset's subject masks, checked (daemon.datasets.subject_masks)
     file: ContainedFile | None = None
     kind: str | None = None
-    stored_size: tuple[int, int] | None = None  # an image's (width, height), read from its header
+    shown_size: tuple[int, int] | None = None  # an image's (width, height) as shown, from its header
     sha: str | None = None
     data: bytes | None = None  # the original's bytes as hashed (small images), until poison
     row: dict[str, Any] | None = None

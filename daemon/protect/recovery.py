@@ -26,6 +26,11 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
+# What a row says of a file's original, carried to another row of the same output (a moved file, an
+# `--out` copy): its date too, which restore gives back.
+ORIGINAL_FIELDS = ("original_sha256", "original_mtime_ns", "spec_id", "tool_version")
+
+
 def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, dataset: str, root: Path) -> bool:
     """A patched file that was moved or renamed (a dataset folder renamed in the outbox, say)
     keeps its provenance: its row follows it to the new path instead of dropping out of the
@@ -34,8 +39,7 @@ def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, datase
     old = Path(earlier["path"])
     if old == path or old.exists() or earlier["state"] not in (FileState.PATCHED, FileState.REMOVED):
         return False
-    keys = ("original_sha256", "original_mtime_ns", "poisoned_sha256", "spec_id", "tool_version")
-    fields: dict[str, Any] = {k: earlier.get(k) for k in keys}  # the original's date: restore gives it
+    fields: dict[str, Any] = {k: earlier.get(k) for k in (*ORIGINAL_FIELDS, "poisoned_sha256")}
     # A dataset first seen through moved files (a renamed folder) inherits their patch spec.
     ensure_dataset(ctx, dataset, root, ctx.store.get_spec(earlier["spec_id"]))
     st = path.stat()
@@ -59,8 +63,7 @@ def copy_patched_as_it_is(job: Job, earlier: dict[str, Any], write: Callable[[Jo
         write(job, job.data if job.data is not None else fd_path(job.file.fd))
     st = os.stat(out, follow_symlinks=False)
     ensure_dataset(job.ctx, job.dataset, job.root, job.wanted_spec)
-    kept: dict[str, Any] = {k: earlier.get(k) for k in ("original_sha256", "original_mtime_ns", "spec_id",
-                                                          "tool_version")}  # fmt: skip
+    kept: dict[str, Any] = {k: earlier.get(k) for k in ORIGINAL_FIELDS}
     job.ctx.store.record_file(
         out, job.dataset, FileState.PATCHED, poisoned_sha256=job.sha, size=st.st_size,
         mtime_ns=st.st_mtime_ns, error=None, event="copied", detail={"from": str(job.path)}, **kept,

@@ -179,12 +179,12 @@ def check_complete(job: Job) -> ProtectOutcome | None:
         from poisoner.limits import check_decode_budget
 
         config = job.ctx.config
-        job.stored_size = check_decode_budget(
+        check_decode_budget(
             through_fd, config.max_pixels, name=job.path.name, max_bytes=config.max_memory_bytes
         )
         # what no writer takes (CMYK JPEG, 16-bit colour TIFF, ...): failed here, not after the
         # vault, and a dry run does not call it "would patch"
-        check_writable_image(through_fd, job.path.name, config.max_pixels)
+        job.shown_size = check_writable_image(through_fd, job.path.name, config.max_pixels)
     return None
 
 
@@ -304,11 +304,8 @@ def decide(job: Job) -> ProtectOutcome | None:
                 poisoned_sha256=None, error=None, event="skipped", detail={"reason": "ratio"},
             )  # fmt: skip
         return job.outcome(Outcome.SKIPPED, "not selected by the spec's ratio", spec_id=spec.spec_id)
-    if job.stored_size is not None and job.file is not None:  # as shown (EXIF); the dry run says it too
-        from poisoner.image.read import shown_size
-
-        if (why := spec.too_small(*shown_size(fd_path(job.file.fd), job.stored_size))) is not None:
-            raise ProtectRefused(f"{shown_name(job.path)}: {why}; not patched")
+    if job.shown_size is not None and (why := spec.too_small(*job.shown_size)) is not None:
+        raise ProtectRefused(f"{shown_name(job.path)}: {why}; not patched")  # the dry run says it too
     if job.dry_run:
         return job.outcome(Outcome.PATCHED, "would patch", original_sha256=sha, spec_id=spec.spec_id)
     return None

@@ -127,23 +127,14 @@ def format_refusal(im: Image.Image) -> str | None:
     return None
 
 
-def shown_size(path: Path, stored: tuple[int, int]) -> tuple[int, int]:
-    """The (width, height) a viewer sees of a picture stored this size: its EXIF orientation applied
-    (the mark is placed on the picture as shown), read from its header alone; stored when unreadable."""
-    from poisoner.orientation import display_size, orientation_of
-
-    try:
-        with Image.open(path) as im:
-            return display_size(*stored, orientation_of(im.getexif().get(0x0112)))
-    except Exception:  # the decoder says what is wrong with it, later
-        return stored
-
-
-def check_writable_image(path: Path, name: str, max_pixels: int | None = None) -> None:
+def check_writable_image(path: Path, name: str, max_pixels: int | None = None) -> tuple[int, int]:
     """ImageFormatError (one line naming the file) when the image at path cannot be protected in its
     own format (format_refusal) or is not an image ppd reads; only its header is read. max_pixels: the
     user's [limits] (the caller checked the size against it): Pillow's own bomb limit is raised to it,
-    as the poisoner raises it, or a photo the user allowed is refused here."""
+    as the poisoner raises it, or a photo the user allowed is refused here. Returns its (width,
+    height) as a viewer sees it (EXIF orientation applied), where the mark is placed."""
+    from poisoner.orientation import display_size, orientation_of
+
     _register_heif()
     raise_bomb_limit(max_pixels)
     with decode_errors(Path(name)), Image.open(path) as opened, as_jpeg(opened, path) as im:
@@ -151,6 +142,7 @@ def check_writable_image(path: Path, name: str, max_pixels: int | None = None) -
             raise ImageFormatError(f"{name}: {im.format} with {frames} frames/pages is not supported")
         why = format_refusal(im)
         jpeg = im.format == "JPEG"
+        shown = display_size(*im.size, orientation_of(_header_exif(im).get(0x0112)))
     if why is not None:
         raise ImageFormatError(f"{name}: {why}")
     if jpeg and _arithmetic_frame(path):  # coding that neither jpegtran (absent) nor Pillow reads
@@ -159,6 +151,18 @@ def check_writable_image(path: Path, name: str, max_pixels: int | None = None) -
         data = Path(path).read_bytes()  # the whole file only for such a JPEG (a review: every one)
         if arithmetic_coding(data) is None:
             check_arithmetic(Path(name), data)
+    return shown
+
+
+def _header_exif(im: Image.Image) -> Image.Exif:
+    """The EXIF an opened picture's header holds, nothing decoded: Pillow's PNG getexif() decodes the
+    whole picture to look for an eXIf chunk after the image data (then: none, orientation 1)."""
+    if im.format != "PNG":
+        return im.getexif()
+    exif = Image.Exif()
+    if raw := im.info.get("exif"):
+        exif.load(raw)
+    return exif
 
 
 ARITHMETIC_SOF = frozenset({0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})  # SOF9-11, SOF13-15

@@ -117,3 +117,17 @@ def test_a_video_whose_frames_are_too_small_fails_as_a_photo_does(tmp_path: Path
     clip = make_clip(tmp_path / "tiny.mp4", Clip(width=64, height=48, frames=4, audio=None))
     with pytest.raises(VideoFormatError, match="64x48 is too small for the mark"):
         poison_video(clip, tmp_path / "out.mp4", default_spec())
+
+
+def test_the_header_check_gives_the_size_as_shown_without_decoding(tmp_path: Path) -> None:
+    """check_writable_image reads the orientation from the header: a JPEG's APP1, a PNG's eXIf chunk
+    (Pillow's own PNG getexif() would decode the whole picture)."""
+    from poisoner.image.read import check_writable_image
+
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    for name in ("turned.jpg", "turned.png"):
+        Image.fromarray(textured(50, 80, seed=1)).save(tmp_path / name, exif=exif)
+        assert check_writable_image(tmp_path / name, name) == (50, 80), name
+    Image.fromarray(textured(50, 80, seed=1)).save(tmp_path / "upright.png")
+    assert check_writable_image(tmp_path / "upright.png", "upright.png") == (80, 50)
