@@ -4,15 +4,12 @@ that lets ppd recognise its own patched files, daemon.store.sealkey) to a new ma
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import typer
 
 from daemon.cli.errors import die
+from daemon.cli.published import published_folder_holding
 from poisoner.errors import ExitStatus
-
-if TYPE_CHECKING:
-    from daemon.paths import AppPaths
 
 key_app = typer.Typer(
     help="The seal key: what lets ppd, and only ppd here, recognise the files it patched.",
@@ -34,7 +31,7 @@ def key_export(
     from daemon.store.sealkey import SealKeyError, load_key
 
     paths = AppPaths.from_env()
-    published = _published_folder_holding(file, paths)
+    published = published_folder_holding(file, paths)
     if published is not None:
         raise die(f"{file} is inside {published}, whose files are published; the key would go out with your "
                   "photos: write it elsewhere")  # fmt: skip
@@ -57,31 +54,6 @@ def key_export(
     finally:
         os.close(fd)
     typer.echo(f"seal key written to {file} (keep it private; `ppd key import {file}` on the new machine)")
-
-
-def _published_folder_holding(file: Path, paths: AppPaths) -> str | None:
-    """Where FILE would be written among what is published, in words; None when nowhere: anywhere
-    in the outbox or a dataset's publish folder, or right beside a dataset's photos (its root; a
-    subfolder of a root that is the home folder is the user's own). Symlinks followed: what a sync
-    client uploads. The datasets come from the store when there is one to read; nothing is made."""
-    import os
-
-    from daemon.protect.rebuild import stored_datasets
-
-    where = Path(os.path.abspath(file.expanduser())).parent.resolve()
-    trees = [("the outbox", Path(paths.outbox))]
-    roots: list[tuple[str, Path]] = []
-    for name, row in stored_datasets(Path(paths.db_path)).items():  # none yet or broken: what it gives
-        roots.append((f"the folder of dataset {name!r}", Path(row["root"])))
-        if row.get("publish_dir"):
-            trees.append((f"the publish folder of dataset {name!r}", Path(row["publish_dir"])))
-    for words, folder in trees:
-        if where.is_relative_to(folder.resolve()):
-            return f"{words} {folder}"
-    for words, folder in roots:
-        if where == folder.resolve():
-            return f"{words} {folder}"
-    return None
 
 
 @key_app.command("import")

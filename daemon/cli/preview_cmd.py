@@ -3,6 +3,7 @@ the mark is at display size (FLIP next to a JPEG q85 re-encode)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -295,13 +296,32 @@ def _first_file(ctx: AppContext, given: Path) -> Path:
     return media[0]
 
 
+def _target(ctx: AppContext, file: Path, out: Path | None) -> Path:
+    """The PNG to write: --out, or the cache folder's previews/. The picture shows the clean original:
+    among photos (the previewed one's folder, a dataset's, the outbox, a publish folder) the next
+    `ppd poison` would patch it as a photo and publish the original inside it (a black-box review
+    found it written into the dataset folder by default, then patched). Refused there."""
+    from daemon.cli.published import published_folder_holding
+
+    if out is None:
+        return Path(ctx.paths.cache_dir) / "previews" / f"{file.stem}.ppd-preview.png"
+    target = Path(os.path.abspath(out.expanduser()))
+    published = published_folder_holding(target, ctx.paths, photo_folders=(file.parent,))
+    if published is not None:
+        raise die(f"{out} is inside {published}; the preview shows the original and would be patched or "
+                  "published with the photos: write it elsewhere (or leave out --out)")  # fmt: skip
+    return target
+
+
 @spec_options(with_ratio=False)
 def preview(
     file: Path = typer.Argument(
         ..., help="A photo or a video (original or patched), or a dataset (name or folder): its first file."
     ),
     out: Path | None = typer.Option(
-        None, "--out", metavar="PNG", help="PNG to write (default: ./NAME.ppd-preview.png)."
+        None, "--out", metavar="PNG",
+        help="PNG to write (default: previews/NAME.ppd-preview.png in ppd's cache folder; never among "
+        "photos: it shows the original).",
     ),
     spec_options: SpecOptions = SpecOptions(),
     display_width: int = typer.Option(
@@ -326,14 +346,17 @@ def preview(
     """
     from PIL import Image
 
+    if visibility and display_width < 1:
+        raise die(f"--display-width must be a positive number of pixels, got {display_width}")
     ctx = open_ctx()
     try:
         file = _user_file(file) if file.is_file() else _first_file(ctx, file)
+        target = _target(ctx, file, out)
         _check_protectable(file, ctx.config.max_pixels)
         masks = _preview_masks(ctx, file, subject_masks)
         image, original, poisoned, subject, where = _render(ctx, file, spec_options, masks)
-        target = (out or Path.cwd() / f"{file.stem}.ppd-preview.png").absolute()
         try:
+            target.parent.mkdir(parents=True, exist_ok=True)
             Image.fromarray(image).save(target, format="PNG", compress_level=1)  # quick, not small
         except OSError as exc:
             raise die(os_error_text(exc, hint_out=False), ExitStatus.ENVIRONMENT) from None

@@ -159,7 +159,7 @@ def test_a_turned_photo_in_any_format_is_marked_where_it_shows_plain(fmt: str, t
     x0, y0, x1, y1 = place.box
     assert ys.size > 100 and ys.min() >= 250
     assert xs.min() >= x0 and xs.max() < x1 and ys.min() >= y0 and ys.max() < y1
-    out = runner.invoke(app, ["preview", str(src), "--out", str(tmp_path / "p.png"), "--no-visibility"])
+    out = runner.invoke(app, ["preview", str(src), "--no-visibility"])  # written to the cache folder
     assert out.exit_code == 0, out.output
     said = MARK_AT.search(out.output)
     assert said is not None and said.group(1) == place.words, out.output

@@ -700,7 +700,8 @@ def test_preview_reads_a_heic_as_poison_does(ppd_env: dict[str, Path], tmp_path:
     import pillow_heif
 
     pillow_heif.register_heif_opener()
-    src = tmp_path / "p.heic"
+    src = tmp_path / "photos" / "p.heic"  # the preview goes beside, not among the photos
+    src.parent.mkdir()
     Image.open(make_image(tmp_path / "p.png", seed=3)).save(src, "HEIF", quality=90)
     out = tmp_path / "h.png"
     done = subprocess.run(

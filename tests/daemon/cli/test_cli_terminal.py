@@ -336,7 +336,8 @@ def test_preview_of_a_phone_photo_is_upright_and_labelled(shoot: Path, tmp_path:
 def test_preview_of_a_video_shows_a_frame(shoot: Path, tmp_path: Path) -> None:
     import av
 
-    clip = tmp_path / "clip.mp4"
+    clip = tmp_path / "videos" / "clip.mp4"  # the preview goes beside, not among the videos
+    clip.parent.mkdir()
     rng = np.random.default_rng(2)
     with av.open(str(clip), "w") as container:
         stream = container.add_stream("mpeg4", rate=10)

@@ -1,0 +1,37 @@
+"""Where a file ppd writes for the user alone (the seal key, a preview showing the clean original)
+must not go: among what gets published. One rule for `ppd key export` and `ppd preview`."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from daemon.paths import AppPaths
+
+
+def published_folder_holding(file: Path, paths: AppPaths, photo_folders: Iterable[Path] = ()) -> str | None:
+    """Where FILE would be written among what is published, in words; None when nowhere: anywhere in
+    the outbox, a dataset's publish folder, a dataset's folder (`ppd poison` takes its subfolders too,
+    and a sync client uploads them) or one of photo_folders (a folder of photos not patched yet: the
+    next `ppd poison` would take FILE for a photo). A root that is the home folder counts for itself
+    alone (its subfolders are the user's own). Symlinks followed: what a sync client uploads. The
+    datasets come from the store when there is one to read; nothing is made."""
+    from daemon.protect.rebuild import stored_datasets
+
+    where = Path(os.path.abspath(file.expanduser())).parent.resolve()
+    home = Path.home().resolve()
+    trees = [("the outbox", Path(paths.outbox))]
+    for name, row in stored_datasets(Path(paths.db_path)).items():  # none yet or broken: what it gives
+        trees.append((f"the folder of dataset {name!r}", Path(row["root"])))
+        if row.get("publish_dir"):
+            trees.append((f"the publish folder of dataset {name!r}", Path(row["publish_dir"])))
+    trees += [("the folder of the photos", Path(folder)) for folder in photo_folders]
+    for words, folder in trees:
+        resolved = folder.resolve()
+        inside = where == resolved if resolved == home else where.is_relative_to(resolved)
+        if inside:
+            return f"{words} {folder}"
+    return None

@@ -1,0 +1,71 @@
+"""Where `ppd preview` writes its picture (a black-box review, 2026-12-07): by default it went to the
+working folder, often the photos' own; the next `ppd poison` patched the collage as a photo and the
+clean original inside it would have been published. It now goes to ppd's cache folder unless --out
+says otherwise, and --out among photos is refused before anything is written."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from testkit.photos import make_image
+
+runner = CliRunner()
+
+
+def _pngs(folder: Path) -> list[str]:
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*.png"))
+
+
+def test_the_preview_is_never_written_among_photos(
+    tmp_path: Path, ppd_env: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("PPD_CACHE_DIR", str(cache))
+    new, patched = tmp_path / "new", tmp_path / "patched"
+    for folder in (new, patched):
+        for i in range(3):
+            make_image(folder / f"v{i}.png", i)
+    (patched / "sub").mkdir()
+    assert runner.invoke(app, ["poison", str(patched)]).exit_code == 0
+    before = {f: _pngs(f) for f in (new, patched, ppd_env["outbox"])}
+
+    monkeypatch.chdir(new)  # the working folder holds the photos: the default is not written here
+    done = runner.invoke(app, ["preview", "v0.png", "--no-visibility"])
+    assert done.exit_code == 0, done.output
+    written = cache / "previews" / "v0.ppd-preview.png"
+    assert written.is_file() and str(written) in done.output.replace("\n", "")
+
+    refused = [
+        (new / "v1.png", new / "p.png"),  # beside the photo, not patched yet
+        (patched / "v1.png", patched / "sub" / "p.png"),  # a dataset's folder, any depth
+        (new / "v1.png", patched / "p.png"),  # another dataset's folder
+        (new / "v1.png", ppd_env["outbox"] / "p.png"),  # the outbox
+        (new / "v1.png", Path("p.png")),  # relative: the working folder, the photos'
+    ]
+    for photo, out in refused:
+        result = runner.invoke(app, ["preview", str(photo), "--out", str(out), "--no-visibility"])
+        assert result.exit_code == 2, (out, result.output)
+        assert "shows the original" in result.output and len(result.output.strip().splitlines()) == 1
+    assert {f: _pngs(f) for f in before} == before
+
+    elsewhere = tmp_path / "previews" / "p.png"  # beside the folders, not in them: written
+    ok = runner.invoke(app, ["preview", str(new / "v1.png"), "--out", str(elsewhere), "--no-visibility"])
+    assert ok.exit_code == 0 and elsewhere.is_file(), ok.output
+    assert os.path.getsize(elsewhere) > 0
+
+
+def test_a_bad_display_width_is_refused_before_writing(
+    tmp_path: Path, ppd_env: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("PPD_CACHE_DIR", str(tmp_path / "cache"))
+    make_image(tmp_path / "shoot" / "v0.png", 0)
+    out = tmp_path / "p.png"
+    result = runner.invoke(app, ["preview", str(tmp_path / "shoot" / "v0.png"), "--out", str(out),
+                                 "--display-width", "0"])  # fmt: skip
+    assert result.exit_code == 2 and "--display-width" in result.output
+    assert not out.exists() and not (tmp_path / "cache" / "previews").exists()
