@@ -151,11 +151,21 @@ def _poison_jpeg(
         return data, preserved, notes, "jpeg-unchanged"
 
     lanes = lane_placements(placement)
+    changed: list[bool] = []  # per patched part: whether the mark changed a decoded pixel's value
 
     def patch(pixels: np.ndarray, at: tuple[int, int, int, int] = box) -> np.ndarray:
         window = None if keep is None else keep[at[1] - mark_box[1] : at[3] - mark_box[1],
                                                  at[0] - mark_box[0] : at[2] - mark_box[0]]  # fmt: skip
-        return apply_lanes_at(pixels, placement, (at[0], at[1]), window, lanes)
+        out = apply_lanes_at(pixels, placement, (at[0], at[1]), window, lanes)
+        changed.append(not np.array_equal(out, pixels))
+        return out
+
+    def faint(out: bytes) -> bytes:
+        # The mark left every decoded pixel as it was (--alpha 0 or 0.001 on a noisy photo): the
+        # splice's re-encode still moves coefficients, so comparing the coded pictures called it patched.
+        if not any(changed):
+            raise MarkNotWritten(f"{src.name}: the mark is too faint to change any pixel of it: not patched")
+        return out
 
     # The splice only needs the MCU box's pixels: with JPEG_REGION_DECODE they come from a
     # lossless crop around the box (jpeg_codec.decode_box), so the rest of the picture is never
@@ -171,6 +181,7 @@ def _poison_jpeg(
     parts = _lane_parts(lanes, box, layout) if lanes is not None and idle is not None else None
     try:
         out, kept_exactly = _splice_jpeg(src, data, im, layout, box, patch, loaded, holes, parts)
+        faint(out)
         notes.append(f"DCT splice: only MCU box {box} re-encoded, all other coefficients copied")
         if masked is not None:
             how = "coefficients copied" if kept_exactly else "re-encoded from their own pixels, unpatched"
@@ -185,7 +196,7 @@ def _poison_jpeg(
     patched[y0:y1, x0:x1] = patch(patched[y0:y1, x0:x1], mark_box)
     if layout.components == 3 and "subsampling" not in jpeg_codec.table_options(im):
         notes.append(f"sampling {layout.sampling} not reproducible by Pillow: written 4:2:0")
-    return jpeg_codec.encode_like(patched, im, layout), preserved, notes, "jpeg-reencode-same-tables"
+    return faint(jpeg_codec.encode_like(patched, im, layout)), preserved, notes, "jpeg-reencode-same-tables"
 
 
 def _chroma_reach(layout: jpeg_codec.JpegLayout) -> tuple[int, int]:

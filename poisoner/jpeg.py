@@ -160,12 +160,17 @@ def read_layout(data: bytes) -> JpegLayout:
             segments.append(Segment(marker, payload))
         elif marker in _SOF_MARKERS:
             sof = marker
+            # a damaged file: one line, not an IndexError
+            if len(payload) < 6 or len(payload) < 6 + 3 * payload[5]:
+                raise ValueError("JPEG frame header (SOF) truncated")
             height, width = struct.unpack(">HH", payload[1:5])
             components = payload[5]
             sampling = tuple(
                 (payload[6 + 3 * i + 1] >> 4, payload[6 + 3 * i + 1] & 0x0F) for i in range(components)
             )
         elif marker == 0xDD:
+            if len(payload) < 2:
+                raise ValueError("JPEG restart interval (DRI) truncated")
             (restart,) = struct.unpack(">H", payload[:2])
         elif marker == 0xC4:
             huffman += _dht_tables(payload)

@@ -193,10 +193,12 @@ class PatchSpec:
             raise SpecError(f"unknown pattern {self.pattern!r}; choose one of {', '.join(PATTERNS)}")
         if self.position not in POSITIONS:
             raise SpecError(f"unknown position {self.position!r}; choose one of {', '.join(POSITIONS)}")
-        if not 0.0 <= self.alpha <= 1.0:
-            raise SpecError(f"alpha must be in [0, 1], got {self.alpha}")
-        if not 0 <= self.contrast <= 255:
-            raise SpecError(f"contrast must be in [0, 255], got {self.contrast}")
+        # 0 is refused for both: alpha 0 blends nothing in, contrast 0 makes the mark one flat colour
+        # (no texture for SIFT), and either was called "patched" (a black-box review)
+        if not 0.0 < self.alpha <= 1.0:
+            raise SpecError(f"alpha must be in (0, 1] (0 writes no mark), got {self.alpha}")
+        if not 0 < self.contrast <= 255:
+            raise SpecError(f"contrast must be in [1, 255] (0: one flat colour), got {self.contrast}")
         if not 0.0 <= self.ratio <= 1.0:
             raise SpecError(f"ratio must be in [0, 1], got {self.ratio}")
         if self.version != SPEC_VERSION:

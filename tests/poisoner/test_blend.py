@@ -123,8 +123,8 @@ def test_all_patterns_are_two_level_and_distinct() -> None:
     img=arrays(np.uint8, st.tuples(st.integers(16, 40), st.integers(16, 40), st.sampled_from([1, 3, 4]))),
     size=st.integers(1, 16),
     block=st.integers(1, 8),
-    alpha=st.floats(0, 1),
-    contrast=st.integers(0, 255),
+    alpha=st.floats(0, 1, exclude_min=True),  # 0 is refused (test_mark_faint.py)
+    contrast=st.integers(1, 255),
 )
 def test_blend_properties(img, size, block, alpha, contrast) -> None:
     img = img[..., 0] if img.shape[2] == 1 else img
@@ -140,8 +140,6 @@ def test_blend_properties(img, size, block, alpha, contrast) -> None:
         lo, hi = 255 - contrast, 255
         region, orig = out[y0:y1, x0:x1].astype(int), img[y0:y1, x0:x1].astype(int)
         assert (region >= np.minimum(orig, lo) - 1).all() and (region <= np.maximum(orig, hi)).all()
-    if alpha == 0 and (img.ndim == 2 or img.shape[2] == 3):
-        assert np.array_equal(out, img)
 
 
 def test_apply_patch_refuses_unsupported_arrays() -> None:
