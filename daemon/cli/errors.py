@@ -131,6 +131,6 @@ def open_ctx(*, needs_key: bool = False) -> AppContext:
         except SealKeyError as exc:
             ctx.close()
             raise die(one_line(exc), exc.exit_status) from None
-    if ctx.store.lost_warning:  # every command says it until `ppd store rebuild`
-        warning(ctx.store.lost_warning)
+    # a lost store: Store.open_or_warn logged its warning, which every command prints until `ppd store
+    # rebuild` (printing ctx.store.lost_warning here too said it twice: a black-box review)
     return ctx

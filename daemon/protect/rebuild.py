@@ -41,6 +41,7 @@ from daemon.store import SQLITE_SUFFIXES, Store, StoreError
 from daemon.store.sealkey import load_key
 from daemon.store.vault import Vault, VaultError
 from poisoner.atomic import fsync_dir
+from poisoner.errors import ExitStatus
 from poisoner.spec import PatchSpec
 
 log = logging.getLogger(__name__)
@@ -52,7 +53,15 @@ MarkerReader = Callable[[Path], Any]  # path -> poisoner.provenance.Seal | None 
 
 
 class RebuildRefused(StoreError):
-    """The store is sound and holds rows; rebuilding it needs force."""
+    """The store is sound and holds rows; rebuilding it needs force (bad input: exit 2)."""
+
+    exit_status = ExitStatus.USAGE
+
+
+class RebuildBlocked(RebuildRefused):
+    """A daemon is running on this data folder (cannot work here: exit 3)."""
+
+    exit_status = ExitStatus.ENVIRONMENT
 
 
 @dataclass
@@ -140,7 +149,7 @@ def rebuild_store(
     report = RebuildReport(store_path=store_path)
 
     if holders := watching(paths.data_dir):  # a daemon would go on writing to the store swapped out
-        raise RebuildRefused(
+        raise RebuildBlocked(
             f"ppd watch ({holders[0]}) is running on this data folder; stop it first "
             "(`systemctl --user stop ppd`), then rebuild"
         )
