@@ -117,6 +117,11 @@ def rebuild(
     from daemon.store import StoreError
     from daemon.store.vault import VaultError
 
+    for folder in folders or []:  # a typo is refused before anything is touched (a black-box review:
+        folder = folder.expanduser()  # `--force /no/such/dir` rebuilt the whole store, exit 0)
+        if not folder.is_dir():
+            what = "not a folder" if folder.exists() else "no such folder"
+            raise _fail(f"{folder}: {what}", ExitStatus.USAGE)
     paths = AppPaths.from_env()
     try:
         config = Config.load(paths)
