@@ -26,6 +26,7 @@ from poisoner.errors import ExitStatus, PpdError
 
 APP_NAME = "ppd"
 DEFAULT_OUTBOX_NAME = "PPD Outbox"
+VAULT_DIR_NAME = "vault"  # DATA_DIR/vault (the seal key's module looks there too)
 PRIVATE_MODE = 0o700  # the vault holds unpoisoned originals: nobody else may read them
 
 
@@ -63,7 +64,7 @@ class AppPaths:
             data_dir=data_dir,
             config_dir=pick("PPD_CONFIG_DIR", platformdirs.user_config_dir(APP_NAME)),
             outbox=pick("PPD_OUTBOX", Path.home() / DEFAULT_OUTBOX_NAME),
-            vault_dir=data_dir / "vault",
+            vault_dir=data_dir / VAULT_DIR_NAME,
             db_path=data_dir / "ppd.sqlite3",
             runs_dir=data_dir / "runs",
             cache_dir=pick("PPD_CACHE_DIR", platformdirs.user_cache_dir(APP_NAME)),

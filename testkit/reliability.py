@@ -438,12 +438,18 @@ def percentile(values: list[float], q: float) -> float:
 
 def sealed_patch(src: Path, dst: Path, spec: PatchSpec, original_sha256: str, data_dir: Path) -> None:
     """What the pipeline's poison stage writes: the patched file with its seal, made with the
-    installation's key in data_dir (created on first use)."""
-    from daemon.store.sealkey import load_key
-    from poisoner.formats import poison_file
-    from poisoner.provenance import Marker, seal_file
+    installation's key in data_dir (made here when there is none: ppd makes it before it vaults the
+    first original, and refuses to make one beside a vault that holds originals)."""
+    import secrets
 
-    key = load_key(data_dir)
+    from daemon.store.sealkey import install_key, load_key
+    from poisoner.formats import poison_file
+    from poisoner.provenance import KEY_BYTES, Marker, seal_file
+
+    key = load_key(data_dir, create=False)
+    if key is None:
+        install_key(data_dir, secrets.token_bytes(KEY_BYTES), replace=False)
+        key = load_key(data_dir, create=False)
     assert key is not None
     poison_file(src, dst, spec, marker=Marker.placeholder(key, spec.spec_id, original_sha256))
     seal_file(dst, key)

@@ -19,7 +19,7 @@ torch or pycolmap (tests/daemon/cli/test_cli_startup.py checks it).
 | daemon.cli.experiment_cmd | `experiment` |
 | daemon.cli.report_cmd | `report` |
 | daemon.cli.store_cmd | `store check`, `store rebuild` |
-| daemon.cli.key_cmd | `key export`, `key import` (the seal key, daemon.store.sealkey) |
+| daemon.cli.key_cmd | `key export`, `key import`, `key new` (the seal key, daemon.store.sealkey) |
 
 Shared: daemon.cli.errors (one-line errors, exit codes), daemon.cli.output (consoles, logging),
 daemon.cli.options (shared option sets), daemon.cli.group (the top-level group).

@@ -74,7 +74,7 @@ def dataset_set(
     from daemon.store import DatasetSpecLocked
     from poisoner.spec import SpecError
 
-    ctx = open_ctx()
+    ctx = open_ctx(needs_key=reprotect)  # --reprotect seals files
     try:
         existing = ctx.store.dataset(name)
         base = ctx.store.dataset_spec(name) or ctx.config.spec_for(name)

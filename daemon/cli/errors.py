@@ -107,11 +107,15 @@ def known_error(exc: Exception) -> int | None:
     return None
 
 
-def open_ctx() -> AppContext:
-    """ppd's folders, config and store, or one line that says why they cannot be opened."""
+def open_ctx(*, needs_key: bool = False) -> AppContext:
+    """ppd's folders, config and store, or one line that says why they cannot be opened. needs_key:
+    the command patches or recognises files by their seal: the key is loaded here, made while the vault
+    is empty (before a worker vaults an original: later it would count as lost), and a lost one stops
+    the command (exit 3) before a file is touched (daemon.store.sealkey)."""
     from daemon.config import ConfigError
     from daemon.context import AppContext
     from daemon.store import StoreError
+    from daemon.store.sealkey import SealKeyError
 
     try:
         ctx = AppContext.open()
@@ -121,6 +125,12 @@ def open_ctx() -> AppContext:
         raise die(
             f"cannot set up ppd's folders: {os_error_text(exc, hint_out=False)}", ExitStatus.ENVIRONMENT
         ) from None
-    if ctx.store.lost_warning:  # every command says it until `ppd store rebuild`
-        warning(ctx.store.lost_warning)
+    if needs_key:
+        try:
+            ctx.seal_key()
+        except SealKeyError as exc:
+            ctx.close()
+            raise die(one_line(exc), exc.exit_status) from None
+    # a lost store: Store.open_or_warn logged its warning, which every command prints until `ppd store
+    # rebuild` (printing ctx.store.lost_warning here too said it twice: a black-box review)
     return ctx

@@ -1,5 +1,7 @@
 """`ppd key export FILE` and `ppd key import FILE`: move the installation's seal key (the secret
-that lets ppd recognise its own patched files, daemon.store.sealkey) to a new machine, with the vault."""
+that lets ppd recognise its own patched files, daemon.store.sealkey) to a new machine, with the vault;
+`ppd key new`: start a new key knowingly when the old one is lost (ppd never does on its own while
+the vault holds originals)."""
 
 from __future__ import annotations
 
@@ -12,7 +14,9 @@ from daemon.cli.published import published_folder_holding
 from poisoner.errors import ExitStatus
 
 key_app = typer.Typer(
-    help="The seal key: what lets ppd, and only ppd here, recognise the files it patched.",
+    help="The seal key: what lets ppd, and only ppd here, recognise the files it patched. Back it up "
+    "with the vault (`ppd key export FILE`): without it, files patched here are not recognised once "
+    "the store is lost.",
     no_args_is_help=True,
 )
 
@@ -87,6 +91,26 @@ def key_import(
         )
     where = install_key(paths.data_dir, key, replace=True)
     typer.echo(f"seal key installed at {where}")
+
+
+@key_app.command("new")
+def key_new() -> None:
+    """Start a new seal key when the old one is lost for good (`ppd key import FILE` brings a saved one
+    back instead). Files patched with the old key are then not recognised by their seal: where the store
+    still has their rows it knows them by hash; where it was lost too, `ppd poison` would patch them
+    again as new photos."""
+    from daemon.paths import AppPaths
+    from daemon.store.sealkey import SealKeyError, key_path, new_key
+
+    paths = AppPaths.from_env()
+    try:
+        where = new_key(paths.data_dir)
+    except FileExistsError:
+        raise die(f"{key_path(paths.data_dir)} already holds a key; not replacing it "
+                  "(`ppd key import FILE --force` replaces it with a saved one)") from None  # fmt: skip
+    except (SealKeyError, OSError) as exc:
+        raise die(f"cannot write {key_path(paths.data_dir)}: {exc}", ExitStatus.ENVIRONMENT) from None
+    typer.echo(f"new seal key made at {where}; back it up: `ppd key export FILE`")
 
 
 def register(app: typer.Typer) -> None:

@@ -319,7 +319,7 @@ def poison(
     # From here Ctrl-C / SIGTERM stop between files: the one in progress finishes, one line says
     # what is left and how to finish (a second signal stops at once).
     with StopOnSignal(say_stopping) as stop:
-        ctx = open_ctx()
+        ctx = open_ctx(needs_key=True)
         try:
             _poison(ctx, paths, dataset, out, subject_masks, spec_options, dry_run, force, workers, stop)
         finally:

@@ -1,8 +1,10 @@
 """`ppd store check` and `ppd store rebuild [FOLDER...]`: the provenance store's health, and a new
 store from the vault and the markers in patched files when it was lost or damaged (docs/STORE.md).
 
-Exit status: 0 = done / sound; 1 = the store needs a rebuild (check) or the rebuild could not be
-done (one line on stderr, never a traceback).
+Exit status, as `ppd --help` lists it for every command (one line on stderr, `ppd: error: ...`, never a
+traceback): 0 = done / sound; 3 = the store is damaged, lost or missing next to originals, or the vault
+lost originals (check), or the rebuild cannot be done here; 2 = a sound store without --force; 1 = a
+rebuild that recovered none of the vault's originals.
 """
 
 from __future__ import annotations
@@ -12,6 +14,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import typer
+
+from daemon.cli.errors import die
+from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -28,11 +33,8 @@ def _console(stderr: bool = False) -> Console:
     return Console(stderr=stderr, soft_wrap=True)
 
 
-def _fail(message: str, code: int = 1) -> typer.Exit:
-    from rich.markup import escape
-
-    _console(stderr=True).print(f"[red]error:[/red] {escape(message)}", highlight=False)
-    return typer.Exit(code)
+def _fail(message: str, code: int = ExitStatus.ENVIRONMENT) -> typer.Exit:
+    return die(message, code)  # the one error style (a black-box review: `error:` here, exit 1)
 
 
 @store_app.command("check")
@@ -55,12 +57,12 @@ def check() -> None:
         )
         return
     try:
-        store = Store.open_or_warn(paths.db_path, paths.vault_dir)
+        store = Store(paths.db_path)  # not open_or_warn: its warning would repeat the error below
     except StoreError as exc:
         raise _fail(str(exc).splitlines()[0]) from None
     try:
-        if store.lost_warning:
-            raise _fail(store.lost_warning)
+        if lost := store.lost_note():
+            raise _fail(lost)
         datasets = store.datasets()
         files = sum(store.counts(d["name"])["files"] for d in datasets)
         version = store.schema_version()
@@ -115,13 +117,18 @@ def rebuild(
     from daemon.store import StoreError
     from daemon.store.vault import VaultError
 
+    for folder in folders or []:  # a typo is refused before anything is touched (a black-box review:
+        folder = folder.expanduser()  # `--force /no/such/dir` rebuilt the whole store, exit 0)
+        if not folder.is_dir():
+            what = "not a folder" if folder.exists() else "no such folder"
+            raise _fail(f"{folder}: {what}", ExitStatus.USAGE)
     paths = AppPaths.from_env()
     try:
         config = Config.load(paths)
         paths.ensure()
         report = rebuild_store(paths, config=config, folders=folders or [], force=force)
-    except (ConfigError, StoreError, VaultError) as exc:
-        raise _fail(str(exc).splitlines()[0]) from None
+    except (ConfigError, StoreError, VaultError) as exc:  # each with its status (a sound store: 2)
+        raise _fail(str(exc).splitlines()[0], exc.exit_status) from None
     except OSError as exc:
         raise _fail(
             f"cannot rebuild the store: {exc.strerror or exc}: {exc.filename or paths.db_path}"
@@ -130,7 +137,7 @@ def rebuild(
     if verbose:
         _print_details(paths, report)
     if report.recorded == 0 and report.unreferenced_originals:  # nothing recovered of what the vault
-        raise typer.Exit(1)  # holds: not "done" (a black-box review: a lost seal key, exit 0)
+        raise typer.Exit(ExitStatus.FAILED)  # holds: not "done" (a black-box review: a lost seal key, exit 0)
 
 
 def _print_details(paths: Any, report: Any) -> None:

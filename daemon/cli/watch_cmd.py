@@ -28,11 +28,12 @@ def _fail(message: str, code: int = 1) -> typer.Exit:  # 1: systemd and tests re
     return die(message, code)
 
 
-def _open_context(outbox: Path | None):  # -> daemon.context.AppContext
+def _open_context(outbox: Path | None, seal_key: bool = False):  # -> daemon.context.AppContext
     from daemon.config import ConfigError
     from daemon.context import AppContext
     from daemon.paths import AppPaths
     from daemon.store import StoreError
+    from daemon.store.sealkey import SealKeyError
 
     paths = AppPaths.from_env()
     if outbox is not None:
@@ -42,11 +43,18 @@ def _open_context(outbox: Path | None):  # -> daemon.context.AppContext
     if paths.outbox.exists() and not paths.outbox.is_dir():  # bad input, before anything is made
         raise _fail(f"{paths.outbox} is a file, not a folder: give the folder to watch", ExitStatus.USAGE)
     try:
-        return AppContext.open(paths)
+        ctx = AppContext.open(paths)
     except (ConfigError, StoreError) as exc:
         raise _fail(str(exc).splitlines()[0]) from None
     except OSError as exc:
         raise _fail(f"cannot set up ppd's folders: {exc.strerror}: {exc.filename}") from None
+    if seal_key:  # made now while the vault is empty; a lost one stops the daemon before it patches
+        try:
+            ctx.seal_key()
+        except SealKeyError as exc:
+            ctx.close()
+            raise _fail(str(exc), ExitStatus.ENVIRONMENT) from None
+    return ctx
 
 
 def watch(
@@ -70,7 +78,7 @@ def watch(
     from daemon.datasets.subject_masks import SubjectMaskError, check_config_masks
     from daemon.watch.watcher import DaemonOptions, WatchDaemon
 
-    ctx = _open_context(outbox)
+    ctx = _open_context(outbox, seal_key=True)
     try:
         check_config_masks(ctx.config, ctx.paths.outbox)  # a mask folder in the outbox would be published
     except SubjectMaskError as exc:

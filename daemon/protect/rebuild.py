@@ -8,7 +8,8 @@ folder given), without following symlinks, and recording a `patched` row for eac
 verifies (the key and the bytes) and whose original the vault holds, verified by hash. A copied
 seal in another photo, or a patched photo edited since, does not verify and gets no row. Each
 dataset gets back its spec from `vault/specs/<spec_id>.json` (Vault.keep_spec), the old store, or
-the config when the ids match.
+the config when the ids match. Restored rows whose file still holds the original and the verification
+history come over from the old store where they can be trusted (rebuild_carry.py).
 
 The old store is never deleted: its files (with -wal/-shm) are renamed to
 `<name>.before-rebuild-<UTC time>`. The new store is built under a temporary name and renamed
@@ -36,11 +37,13 @@ from daemon.fsops import sha256_fd
 from daemon.locks import watching
 from daemon.paths import AppPaths
 from daemon.platform import fd_path
+from daemon.protect import rebuild_carry
 from daemon.states import FileState
 from daemon.store import SQLITE_SUFFIXES, Store, StoreError
 from daemon.store.sealkey import load_key
 from daemon.store.vault import Vault, VaultError
 from poisoner.atomic import fsync_dir
+from poisoner.errors import ExitStatus
 from poisoner.spec import PatchSpec
 
 log = logging.getLogger(__name__)
@@ -52,7 +55,15 @@ MarkerReader = Callable[[Path], Any]  # path -> poisoner.provenance.Seal | None 
 
 
 class RebuildRefused(StoreError):
-    """The store is sound and holds rows; rebuilding it needs force."""
+    """The store is sound and holds rows; rebuilding it needs force (bad input: exit 2)."""
+
+    exit_status = ExitStatus.USAGE
+
+
+class RebuildBlocked(RebuildRefused):
+    """A daemon is running on this data folder (cannot work here: exit 3)."""
+
+    exit_status = ExitStatus.ENVIRONMENT
 
 
 @dataclass
@@ -72,6 +83,7 @@ class RebuildReport:
     specs_missing: list[str] = field(default_factory=list)
     old_datasets: int = 0  # dataset rows read back from the old store
     unreferenced_originals: int = 0  # vault originals no rebuilt row names
+    carried: rebuild_carry.Carried = field(default_factory=rebuild_carry.Carried)  # from the old store
 
     def summary(self) -> str:
         """One line."""
@@ -86,6 +98,7 @@ class RebuildReport:
             notes.append(f"{len(self.specs_missing)} spec(s) not recovered")
         if self.conflicts:
             notes.append(f"{len(self.conflicts)} duplicate(s) skipped")
+        notes.extend(rebuild_carry.summary_notes(self.carried))
         if self.unreferenced_originals:  # photos patched in folders it did not walk (a black-box review:
             # "0 patched file(s)" and nothing said of how to find them)
             notes.append(f"{self.unreferenced_originals} vault original(s) no file names: give the "
@@ -140,23 +153,28 @@ def rebuild_store(
     report = RebuildReport(store_path=store_path)
 
     if holders := watching(paths.data_dir):  # a daemon would go on writing to the store swapped out
-        raise RebuildRefused(
+        raise RebuildBlocked(
             f"ppd watch ({holders[0]}) is running on this data folder; stop it first "
             "(`systemctl --user stop ppd`), then rebuild"
         )
     report.before = _store_condition(store_path, paths.vault_dir, force)
     old = _read_old_store(store_path) if report.before != "missing" else _OldStore()
+    history = rebuild_carry.read_old_history(store_path)
     report.old_datasets = len(old.datasets)
     vault = Vault(paths.vault_dir)
-    found = _collect_rows(paths, _sources(paths, config, old, folders), old, vault, read_marker, report)
+    collector = _RowCollector(paths, old, vault, report)
+    found = _collect_rows(paths, _sources(paths, config, old, folders), collector, read_marker, report)
     by_dataset: dict[str, list[str]] = collections.defaultdict(list)
     for dataset, fields in found.rows.values():
         by_dataset[dataset].append(fields["spec_id"])
     specs = _recover_specs(vault, old, config, {s for ids in by_dataset.values() for s in ids}, report)
+    names = set(by_dataset) | set(old.datasets)  # the new store's datasets (_fill_new_store)
+    report.carried = rebuild_carry.carry_over(history, found.rows.keys(), names, collector.is_intact)
     _write_new_store(store_path, found, by_dataset, specs, old, report)
     report.recorded = len(found.rows)
     report.datasets = {name: len(ids) for name, ids in sorted(by_dataset.items())}
     referenced = {fields["original_sha256"] for _, fields in found.rows.values()}
+    referenced |= {fields["original_sha256"] for _, _, fields in report.carried.restored}
     report.unreferenced_originals = len(set(vault.blobs()) - referenced)
     log.info(report.summary())
     return report
@@ -172,16 +190,11 @@ class _Found:
 
 
 def _collect_rows(
-    paths: AppPaths,
-    sources: list[_Source],
-    old: _OldStore,
-    vault: Vault,
-    read_marker: MarkerReader,
+    paths: AppPaths, sources: list[_Source], collector: _RowCollector, read_marker: MarkerReader,
     report: RebuildReport,
-) -> _Found:
+) -> _Found:  # fmt: skip
     """Walk the sources in order (an earlier source's row wins a conflict) and keep a patched row
     for every marked file whose original is intact in the vault."""
-    collector = _RowCollector(paths, old, vault, report)
     skip_dirs = {os.path.realpath(p) for p in (paths.vault_dir, paths.data_dir)}
     seen_inodes: set[tuple[int, int]] = set()
     for source in sources:
@@ -208,12 +221,16 @@ class _RowCollector:
     found: _Found = field(default_factory=_Found)
     intact: dict[str, bool] = field(default_factory=dict)  # original sha256 -> intact in the vault
 
+    def is_intact(self, original: str) -> bool:
+        """Whether the vault holds this original, verified by hash (once per original)."""
+        if original not in self.intact:
+            self.intact[original] = _original_intact(self.vault, original)
+        return self.intact[original]
+
     def keep(self, source: _Source, path: Path, marker: Any, sha: str, st: os.stat_result) -> None:
         """One marked file's row, unless its original is not intact or its path is taken."""
         original = str(marker.original_sha256)
-        if original not in self.intact:
-            self.intact[original] = _original_intact(self.vault, original)
-        if not self.intact[original]:
+        if not self.is_intact(original):
             self.report.without_original.append(path)
             return
         dataset, identity = _identity(source, self.paths.outbox.absolute(), path)
@@ -448,6 +465,7 @@ def _write_new_store(
     store = Store(tmp)
     try:
         _fill_new_store(store, store_path, found, by_dataset, specs, old)
+        rebuild_carry.write_carried(store, report.carried)
         store.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
         store.conn.execute("PRAGMA journal_mode = DELETE")  # one self-contained file to rename
     finally:

@@ -10,6 +10,11 @@ Moving to a new machine: copy this file (keeping mode 0600) into the new data fo
 runs there, with the vault (`ppd key export FILE` / `ppd key import FILE` do the same and check
 it). Without it, files patched here are no longer recognised as ppd's output once the store is
 lost (they would be patched again); with a store, rows still recognise them by hash.
+
+So a key is made on its own only while the vault is empty: with originals in the vault, a missing key
+is one that was lost (a black-box review: a silent new key, then every patched file patched again and
+its once-marked bytes vaulted as its "original"). Then SealKeyMissing says to import the old key, or
+to start a new one knowingly (`ppd key new`, new_key).
 """
 
 from __future__ import annotations
@@ -20,7 +25,8 @@ import secrets
 import stat
 from pathlib import Path
 
-from daemon.paths import make_private_dir
+from daemon.paths import VAULT_DIR_NAME, make_private_dir
+from daemon.store.damage import vault_holds_originals
 from poisoner.errors import ExitStatus, PpdError
 from poisoner.provenance import KEY_BYTES
 
@@ -33,8 +39,20 @@ class SealKeyError(PpdError):
     exit_status = ExitStatus.ENVIRONMENT
 
 
+class SealKeyMissing(SealKeyError):
+    """No key while the vault holds originals: the key they were sealed with was lost."""
+
+
 def key_path(data_dir: Path) -> Path:
     return Path(data_dir) / KEY_FILE
+
+
+def missing_key_message(data_dir: Path) -> str:
+    return (
+        f"no seal key at {key_path(data_dir)} but the vault holds originals patched with one: "
+        "`ppd key import FILE` the key you exported (`ppd key export`); if it is lost for good, "
+        "`ppd key new` starts a new one (files patched with the old key are then not recognised)"
+    )
 
 
 def parse_key(text: bytes, where: Path) -> bytes:
@@ -66,14 +84,27 @@ def read_key_file(path: Path) -> bytes:
 
 
 def load_key(data_dir: Path, *, create: bool = True) -> bytes | None:
-    """This installation's key, created on first use when create (else None when there is none)."""
+    """This installation's key, created on first use when create (else None when there is none).
+    Never created beside a vault that holds originals (SealKeyMissing): new_key does that, asked."""
     path = key_path(data_dir)
     with contextlib.suppress(FileNotFoundError):
         return read_key_file(path)
     if not create:
         return None
+    if vault_holds_originals(Path(data_dir) / VAULT_DIR_NAME):
+        raise SealKeyMissing(missing_key_message(data_dir))
     install_key(data_dir, secrets.token_bytes(KEY_BYTES), replace=False)
     return read_key_file(path)  # ours, or the one another process linked first
+
+
+def new_key(data_dir: Path) -> Path:
+    """A new key where there is none, whatever the vault holds (`ppd key new`: the user says the old
+    one is lost); FileExistsError when there is one."""
+    path = key_path(data_dir)
+    if path.exists() or path.is_symlink():
+        raise FileExistsError(path)
+    install_key(data_dir, secrets.token_bytes(KEY_BYTES), replace=False)
+    return path
 
 
 def install_key(data_dir: Path, key: bytes, *, replace: bool) -> Path:

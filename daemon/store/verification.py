@@ -63,6 +63,26 @@ class VerificationRows(StoreBase):
         runs = self.verification_runs(dataset, limit=limit)
         return runs if changed is None else [r for r in runs if r["started_at"] >= changed]
 
+    def carry_history(self, runs: list[dict[str, Any]], pixel_events: list[dict[str, Any]]) -> None:
+        """A rebuilt store's copy of the old store's verification runs (metrics as stored, JSON text)
+        and of the events that date its datasets' pixel changes (PIXEL_EVENTS only), with their
+        times: current_verification_runs then tells a current verdict from history as the old store
+        did (daemon.protect.rebuild_carry)."""
+        with self._write() as conn:
+            for e in pixel_events:
+                if e["kind"] in PIXEL_EVENTS:
+                    conn.execute(
+                        "INSERT INTO events (ts, dataset, path, kind, detail) VALUES (?, ?, ?, ?, ?)",
+                        (e["ts"], e["dataset"], e["path"], e["kind"], e["detail"]),
+                    )
+            for r in runs:
+                conn.execute(
+                    "INSERT INTO verification_runs (dataset, profile, verdict, metrics, started_at, "
+                    "finished_at, model_dir, error) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                    (r["dataset"], r["profile"], r["verdict"], r["metrics"], r["started_at"],
+                     r["finished_at"], r["model_dir"], r["error"]),
+                )  # fmt: skip
+
     def latest_verification(self, dataset: str) -> dict[str, Any] | None:
         runs = self.verification_runs(dataset, limit=1)
         return runs[0] if runs else None

@@ -76,7 +76,8 @@ def test_check_then_rebuild_a_deleted_store(app: typer.Typer, ppd_env: dict[str,
         Path(f"{paths.db_path}{suffix}").unlink(missing_ok=True)
 
     missing = runner.invoke(app, ["store", "check"])
-    assert missing.exit_code == 1 and "`ppd store rebuild`" in _one_line(missing.stderr)
+    assert missing.exit_code == 3 and "`ppd store rebuild`" in _one_line(missing.stderr)
+    assert missing.stderr.startswith("ppd: error: ")  # as every other command says it (was `error:`, 1)
     assert not paths.db_path.exists()  # checking creates nothing
 
     rebuilt = runner.invoke(app, ["store", "rebuild"])
@@ -90,7 +91,8 @@ def test_check_then_rebuild_a_deleted_store(app: typer.Typer, ppd_env: dict[str,
         assert vault.path_for(row["original_sha256"]).read_bytes() == data
     store.close()
     again = runner.invoke(app, ["store", "rebuild"])  # now sound: refused, one line
-    assert again.exit_code == 1 and "--force" in _one_line(again.stderr)
+    assert again.exit_code == 2 and "--force" in _one_line(again.stderr)  # bad input: the option missing
+    assert again.stderr.startswith("ppd: error: ")
     verbose = runner.invoke(app, ["store", "rebuild", "--force", "-v"])
     assert verbose.exit_code == 0 and "rebuilt datasets" in verbose.stdout and "vault" in verbose.stdout
 
@@ -109,7 +111,7 @@ def test_a_garbage_store_is_one_line_in_a_real_process(ppd_env: dict[str, Path])
         )
 
     check = ppd("store", "check")
-    assert check.returncode == 1
+    assert check.returncode == 3  # `ppd --help`: 3 = damaged store, as every other command exits
     line = _one_line(check.stderr)
     assert str(paths.db_path) in line and "is damaged" in line and "`ppd store rebuild`" in line
     rebuild = ppd("store", "rebuild")
@@ -156,7 +158,7 @@ def test_check_says_when_the_vault_lost_originals(app: typer.Typer, ppd_env: dic
     sha = Store(paths.db_path).file(first)["original_sha256"]
     Vault(paths.vault_dir).path_for(sha).unlink()
     lost = runner.invoke(app, ["store", "check"])
-    assert lost.exit_code == 1, lost.stdout
+    assert lost.exit_code == 3, lost.stdout
     assert "1 patched file(s) have no original in the vault" in _one_line(lost.stderr), lost.stderr
 
 
@@ -172,3 +174,25 @@ def test_a_rebuild_that_recovers_nothing_fails(app: typer.Typer, ppd_env: dict[s
     line = _one_line(rebuilt.stdout)
     assert "0 patched file(s)" in line and "3 vault original(s) no file names" in line
     assert "`ppd key import`" in line
+
+
+def test_a_lost_store_is_said_once_per_command_and_checked_as_damaged(ppd_env: dict[str, Path]) -> None:
+    """A black-box review: after a store loss every command printed the 'store is new but the vault
+    holds originals' warning twice, and `ppd store check` said `error: ...` with exit 1 where every
+    other command says `ppd: error: ...` with exit 3 (the store cannot be worked with)."""
+    paths = AppPaths.from_env()
+    _patched_outbox(paths, count=1)
+    for suffix in ("", "-wal", "-shm"):
+        Path(f"{paths.db_path}{suffix}").unlink(missing_ok=True)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "80"}
+
+    def ppd(*args: str) -> subprocess.CompletedProcess[str]:
+        command = [sys.executable, "-m", "daemon.cli", *args]
+        return subprocess.run(command, env=env, cwd=ROOT, capture_output=True, text=True, timeout=120)
+
+    status = ppd("status")
+    assert status.returncode == 0, status.stderr
+    assert status.stderr.count("already holds originals") == 1, status.stderr
+    check = ppd("store", "check")
+    assert check.returncode == 3 and check.stderr.count("already holds originals") == 1, check.stderr
+    assert _one_line(check.stderr).startswith("ppd: error: the store ")

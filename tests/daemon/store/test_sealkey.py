@@ -14,7 +14,7 @@ import typer
 from typer.testing import CliRunner
 
 from daemon.cli.key_cmd import register
-from daemon.store.sealkey import SealKeyError, key_path, load_key
+from daemon.store.sealkey import SealKeyError, SealKeyMissing, key_path, load_key
 from poisoner.formats import poison_file
 from poisoner.provenance import Marker, Seal, read_seal, seal_file
 from poisoner.spec import PatchSpec
@@ -48,6 +48,17 @@ def test_created_once_private_whatever_the_umask(tmp_path: Path) -> None:
 
 def test_missing_key_is_not_created_when_not_asked(tmp_path: Path) -> None:
     assert load_key(tmp_path, create=False) is None and not key_path(tmp_path).exists()
+
+
+def test_no_key_is_made_beside_a_vault_that_holds_originals(tmp_path: Path) -> None:
+    """A missing key there is a lost one: a new one would take ppd's own output for new photos."""
+    blob = tmp_path / "data" / "vault" / "ab" / ("ab" * 32)
+    blob.parent.mkdir(parents=True)
+    blob.write_bytes(b"an original")
+    with pytest.raises(SealKeyMissing, match="`ppd key import FILE`"):
+        load_key(tmp_path / "data")
+    assert not key_path(tmp_path / "data").exists()
+    assert load_key(tmp_path / "data", create=False) is None
 
 
 def test_readable_or_linked_key_is_refused(tmp_path: Path) -> None:

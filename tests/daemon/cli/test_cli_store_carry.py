@@ -1,0 +1,102 @@
+"""What `ppd store rebuild` carries over from the old store, and what it says it left out (a black-box
+review: every restored file became "not patched yet", so `ppd poison` patched it again without
+--force; the verification history was dropped; datasets whose files share originals with another's
+vanished from the summary; `--force /no/such/dir` rebuilt anyway with exit 0). Real stores, real files."""
+
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from daemon.paths import AppPaths
+from daemon.states import FileState
+from daemon.store import Store
+from testkit.photos import make_image
+
+runner = CliRunner()
+
+
+def _line(output: str) -> str:
+    lines = [line for line in output.splitlines() if line.strip()]
+    assert len(lines) == 1, output
+    return lines[0]
+
+
+def _run(store: Store, dataset: str, verdict: str) -> None:
+    now = time.time()
+    store.add_verification_run(dataset, "default", verdict, {"n": 1}, now, now + 1, None, None)
+
+
+def test_restored_files_stay_restored_and_the_verification_history_stays(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    paths = AppPaths.from_env()
+    shoot = tmp_path / "shoot"
+    for i in range(4):
+        make_image(shoot / f"v{i}.png", i)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    store = Store(paths.db_path)
+    _run(store, "shoot", "protected")  # then a restore: this verdict becomes history
+    time.sleep(0.01)
+    for name in ("v0.png", "v1.png"):
+        assert runner.invoke(app, ["restore", str(shoot / name)]).exit_code == 0
+    time.sleep(0.01)
+    _run(store, "shoot", "weak")  # current
+    before = [(r["verdict"], r["started_at"]) for r in store.current_verification_runs("shoot")]
+    store.close()
+    make_image(shoot / "v1.png", 9)  # a restored file replaced since: no longer the original
+
+    rebuilt = runner.invoke(app, ["store", "rebuild", "--force"])
+    assert rebuilt.exit_code == 0, rebuilt.output
+    line = _line(rebuilt.stdout)
+    assert "1 file(s) you restored kept as restored" in line and "2 verification run(s) carried over" in line
+    assert "1 restored file(s) no longer hold their original" in line
+    store = Store(paths.db_path)
+    assert store.file(shoot / "v0.png")["state"] == FileState.RESTORED
+    assert store.file(shoot / "v1.png") is None  # its bytes prove nothing: a new photo
+    assert [r["verdict"] for r in store.verification_runs("shoot")] == ["weak", "protected"]
+    assert [(r["verdict"], r["started_at"]) for r in store.current_verification_runs("shoot")] == before
+    store.close()
+    dry = runner.invoke(app, ["poison", str(shoot), "--dry-run"])
+    assert "would patch 1," in dry.stdout, dry.output  # v1, replaced; v0 left as the user chose
+    assert "left unprotected (restored by you): 1" in dry.stdout, dry.output
+
+
+def test_a_folder_that_is_not_there_is_refused_before_anything_is_touched(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    paths = AppPaths.from_env()
+    make_image(tmp_path / "shoot" / "v0.png", 0)
+    assert runner.invoke(app, ["poison", str(tmp_path / "shoot")]).exit_code == 0
+    listing = sorted(p.name for p in paths.data_dir.iterdir())
+    stored = paths.db_path.read_bytes()
+    for folder, said in ((tmp_path / "no" / "such", "no such folder"), (tmp_path / "shoot" / "v0.png",
+                                                                        "not a folder")):  # fmt: skip
+        refused = runner.invoke(app, ["store", "rebuild", "--force", str(folder)])
+        assert refused.exit_code == 2, refused.output
+        assert _line(refused.stderr) == f"ppd: error: {folder}: {said}"
+    assert sorted(p.name for p in paths.data_dir.iterdir()) == listing  # nothing kept aside, nothing made
+    assert paths.db_path.read_bytes() == stored
+
+
+def test_a_dataset_whose_files_were_not_found_again_is_named(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """Copies of the same photos as two datasets: the second's originals are the first's, so moving
+    its folder away left no vault original unnamed and the summary said nothing of it."""
+    shoot, copy = tmp_path / "shoot", tmp_path / "copy"
+    for i in range(3):
+        make_image(shoot / f"v{i}.png", i)
+    shutil.copytree(shoot, copy)
+    for folder in (shoot, copy):
+        assert runner.invoke(app, ["poison", str(folder)]).exit_code == 0
+    copy.rename(tmp_path / "moved")
+    rebuilt = runner.invoke(app, ["store", "rebuild", "--force"])
+    assert rebuilt.exit_code == 0, rebuilt.output
+    line = _line(rebuilt.stdout)
+    assert "3 file(s) the old store listed as patched not found again, in dataset(s) copy (3)" in line
+    assert "`ppd store rebuild --force FOLDER ...`" in line
