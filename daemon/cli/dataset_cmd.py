@@ -12,6 +12,7 @@ import typer
 from daemon.cli.errors import die, file_reason, one_line, open_ctx
 from daemon.cli.options import SpecOptions, spec_options
 from daemon.cli.output import console, err_console
+from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -40,8 +41,9 @@ def dataset_show(name: str, as_json: bool = typer.Option(False, "--json")) -> No
         ctx.close()
 
 
-def _reprotect(ctx: AppContext, name: str, spec: PatchSpec) -> None:
-    """Every patched file of the dataset again from its vault original, with the new spec."""
+def _reprotect(ctx: AppContext, name: str, spec: PatchSpec) -> int:
+    """Every patched file of the dataset again from its vault original, with the new spec; returns
+    how many failed (the command then exits 1, as `ppd poison` does: it exited 0; a black-box review)."""
     from daemon.protect.one_file import reprotect_dataset
 
     outcomes = reprotect_dataset(ctx, name, spec)
@@ -50,6 +52,7 @@ def _reprotect(ctx: AppContext, name: str, spec: PatchSpec) -> None:
     for o in outcomes:
         if o.state == "failed":
             err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
+    return counts.get("failed", 0)
 
 
 @dataset_app.command("set")
@@ -75,6 +78,7 @@ def dataset_set(
     from poisoner.spec import SpecError
 
     ctx = open_ctx(needs_key=reprotect)  # --reprotect seals files
+    failed = 0
     try:
         existing = ctx.store.dataset(name)
         base = ctx.store.dataset_spec(name) or ctx.config.spec_for(name)
@@ -85,7 +89,7 @@ def dataset_set(
         folder = root.absolute() if root else (Path(existing["root"]) if existing else None)
         folder = folder or dataset_root(ctx.paths.outbox.absolute(), name)
         if reprotect and existing is not None:
-            _reprotect(ctx, name, spec)
+            failed = _reprotect(ctx, name, spec)
         else:
             try:
                 ctx.store.set_dataset_spec(name, spec, root=folder)
@@ -96,6 +100,8 @@ def dataset_set(
         console().print(f"{name}: spec {spec.spec_id} ({spec_summary(spec)})", markup=False)
     finally:
         ctx.close()
+    if failed:
+        raise typer.Exit(ExitStatus.FAILED)
 
 
 def register(app: typer.Typer) -> None:

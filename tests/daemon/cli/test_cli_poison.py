@@ -430,6 +430,17 @@ def test_dataset_set_show_and_reprotect(shoot: Path) -> None:
     assert mixed.exit_code == 2 and "--reprotect" in mixed.output
 
 
+def test_reprotect_with_a_failed_file_exits_1(shoot: Path) -> None:
+    """A file edited after patching is not re-protected; the command said so and exited 0 (a
+    black-box review): `ppd dataset set ... --reprotect && publish` went on."""
+    assert runner.invoke(app, ["poison", str(shoot), "--dataset", "castle"]).exit_code == 0
+    edited = sorted(shoot.glob("*.png"))[0]
+    Image.open(edited).crop((0, 0, 60, 50)).save(edited)
+    result = runner.invoke(app, ["dataset", "set", "castle", "--patch-size", "8%", "--reprotect"])
+    assert result.exit_code == 1, result.output
+    assert f"failed: {edited}" in result.output.replace("\n", "") and "changed since" in result.output
+
+
 def test_same_dataset_name_for_another_folder_is_refused(shoot: Path, tmp_path: Path) -> None:
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     other = tmp_path / "elsewhere" / "castle"
