@@ -1,9 +1,9 @@
 """The verdict of one profile: does the poisoned set stop the attacker's SfM from recovering poses?
 
 Rule (justified by measurements in docs/VERIFIER.md):
-- the clean run is the reference. If it crashed, timed out, or registered fewer than half of the
-  images, nothing can be concluded: `inconclusive` (we never call a set protected because COLMAP
-  also fails on the clean originals).
+- the clean run is the reference. If it crashed, timed out, or registered no more than half of the
+  images in its largest model, nothing can be concluded: `inconclusive` (we never call a set protected
+  because COLMAP also fails on the clean originals).
 - the poisoned run was killed by a signal: `sfm_crashed`. The attacker's run died, but a rerun with
   other settings may not: this is recorded as its own outcome, not as protection.
 - otherwise f5 = fraction of the clean run's registered cameras that the poisoned run registers
@@ -97,7 +97,9 @@ def _unusable_reference(clean: Mapping[str, Any], rule: VerdictRule) -> Decision
         return Decision(Verdict.INCONCLUSIVE, [why])
     n_images = int(clean.get("num_images") or 0)
     n_clean = int(clean.get("registered") or 0)
-    if n_images == 0 or n_clean < rule.clean_min_registered_frac * n_images:
+    # more than half, in one model: at exactly half (4 of 8, the rest in a second model) there is no one
+    # reference, and a split poisoned run compared with it read as protected (a black-box review)
+    if n_images == 0 or n_clean <= rule.clean_min_registered_frac * n_images:
         why = (
             f"clean SfM registered only {n_clean}/{n_images} images: "
             "no reliable reference, so no claim either way"

@@ -62,6 +62,10 @@ def test_failed_clean_run_is_inconclusive_never_protected() -> None:
     v = vd.decide(weak_clean, poisoned_result(0), {"frac_within_5deg": 0.0})
     assert v.verdict == vd.INCONCLUSIVE
     assert "6/20" in v.reasons[0]
+    half = {**OK_CLEAN, "registered": 10, "num_models": 2}  # half the views, the rest another model
+    assert vd.decide(half, poisoned_result(0), {"frac_within_5deg": 0.0}).verdict == vd.INCONCLUSIVE
+    more = {**OK_CLEAN, "registered": 11}
+    assert vd.decide(more, poisoned_result(0), {"frac_within_5deg": 0.0}).verdict == vd.PROTECTED
 
 
 def test_poisoned_crash_is_its_own_outcome() -> None:
