@@ -352,6 +352,9 @@ def unready_reasons(d: dict[str, Any]) -> list[str]:
     reasons = unprotected_files(d)
     if d["protection"]["state"] != Protection.PROTECTED:
         reasons.append(d["protection"]["text"])
+    elif missing := d.get("profiles_not_verified"):
+        reasons.append(f"{d['protection']['text']}, not verified under {', '.join(missing)}: "
+                       f"`ppd verify {shlex.quote(d['name'])}`")  # fmt: skip
     return reasons
 
 

@@ -112,6 +112,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     from daemon.states import patched_count
     from daemon.verification.auto_mode import status_text as auto_status_text  # light: no torch, no pycolmap
     from daemon.verification.verify_state import running_verification  # light: msgspec and a small JSON file
+    from verifier.verdict import HEADLINE_PROFILES
 
     row = ctx.store.dataset(name)
     if row is None:
@@ -143,6 +144,11 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         # where marks found no plain place, as `ppd poison` says it (issue 25): the daemon's files too
         "mark_notes": mark_note_lines(ctx.store.patched_place_notes(name)),
         "protection": _protection(counts, verdicts, name),
+        # the configured attackers no current run measured: `--check` waits for them (it passed on
+        # one profile of five; a black-box review)
+        "profiles_not_verified": [
+            p for p in ctx.config.verification.profiles if p in HEADLINE_PROFILES and p not in verdicts
+        ],
         "last_verification": _last_verification(runs[0] if runs else None),
         "verdicts": verdicts,
         "verifying": running_verification(ctx.paths, name),  # a verification running now (issue 30)

@@ -87,7 +87,11 @@ def test_status_check_gates_publishing(ppd_env: dict[str, Path]) -> None:
     ctx = AppContext.open()
     try:
         now = time.time() + 1
-        for profile in ("default", "hardened", "published", "global", "masked"):
+        ctx.store.add_verification_run("set", "default", "protected", {}, now, now + 1, None, None)
+        one = runner.invoke(app, ["status", "set", "--check"])  # one attacker of the five measured
+        said = " ".join(one.output.split())
+        assert one.exit_code == 1 and "not verified under hardened, published, global, masked" in said, said
+        for profile in ("hardened", "published", "global", "masked"):
             ctx.store.add_verification_run("set", profile, "protected", {}, now, now + 1, None, None)
     finally:
         ctx.close()
