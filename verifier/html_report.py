@@ -140,7 +140,7 @@ def dataset_history_report(
                                "model_dir": r.get("model_dir")} for r in latest}  # fmt: skip
     data = ReportData(title=title, verdict=headline_verdict(_verdicts(profiles)) if latest else None)
     data.protection = protection
-    if not latest:
+    if not runs:  # runs that measured earlier pixels are history, not "never verified" (the caller says so)
         data.notes.append(unverified_note)
     corner = next((m["corner_mark"] for m in profiles.values() if m.get("corner_mark") is not None), None)
     _add_profile_content(data, profiles, corner)

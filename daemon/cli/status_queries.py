@@ -107,7 +107,13 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     """Everything `ppd status NAME --json` says about one dataset. Its counts are the rows' and
     the folder's: files no row mentions (a run stopped half-way) are "untracked" and counted in
     "files"; "resume" says what finishes the dataset."""
-    from daemon.datasets.folder_count import current_counts, dataset_folder, not_patched_yet, resume_command
+    from daemon.datasets.folder_count import (
+        current_counts,
+        dataset_folder,
+        not_patched_yet,
+        restored_in_place,
+        resume_command,
+    )
     from daemon.protect.mark_notes import mark_note_lines
     from daemon.states import patched_count
     from daemon.verification.auto_mode import status_text as auto_status_text  # light: no torch, no pycolmap
@@ -162,32 +168,11 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     }
 
 
-# How `ppd status --check` and `ppd verify` name the files of a dataset that are not protected.
-UNPROTECTED_WORDS = {
-    "failed": "failed", "quarantined": "quarantined", "waiting": "still being written",
-    "changed": "changed since patched", "untracked": "not patched yet", "pending": "not finished",
-    "unprotectable": "in a format ppd cannot protect",
-}  # fmt: skip
-
-
 def unprotected_files(d: dict[str, Any]) -> list[str]:
-    """`2 failed`, `5 restored by you`, ...: the files of a dataset_status report that carry no mark
-    (or no longer the one ppd wrote), one phrase per kind."""
-    c = d["counts"]
-    said = [f"{c[k]} {w}" for k, w in UNPROTECTED_WORDS.items() if c.get(k, 0) > 0]
-    if d.get("restored_in_place"):
-        said.append(f"{d['restored_in_place']} restored by you")
-    return said
+    """`2 failed`, `5 restored by you`, ...: the files of a dataset_status report that carry no mark."""
+    from daemon.datasets.folder_count import unprotected_phrases
 
-
-def restored_in_place(ctx: AppContext, name: str, root: str) -> int:
-    """Files the user restored where they were patched in place: their originals are back where they
-    are published. A restored `--out` or publish-folder copy was removed, which leaves nothing
-    unprotected behind."""
-    from daemon.states import FileState
-
-    rows = ctx.store.files(name, state=FileState.RESTORED)
-    return sum(not r.get("published_path") and Path(r["path"]).is_relative_to(root) for r in rows)
+    return unprotected_phrases(d["counts"], d.get("restored_in_place", 0))
 
 
 def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:

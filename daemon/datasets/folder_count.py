@@ -297,3 +297,28 @@ def _cleared(ctx: AppContext, row: Mapping[str, Any]) -> bool:
     moved = ctx.store.last_event(row["path"], "quarantined")
     to = ((moved or {}).get("detail") or {}).get("to")
     return to is not None and not os.path.lexists(to) and not os.path.lexists(row["path"])
+
+
+# How `ppd status --check`, `ppd verify` and `ppd report` name the files of a dataset that are not protected.
+UNPROTECTED_WORDS = {
+    "failed": "failed", "quarantined": "quarantined", "waiting": "still being written",
+    "changed": "changed since patched", "untracked": "not patched yet", "pending": "not finished",
+    "unprotectable": "in a format ppd cannot protect",
+}  # fmt: skip
+
+
+def unprotected_phrases(counts: Mapping[str, int], restored_here: int = 0) -> list[str]:
+    """`2 failed`, `5 restored by you`, ...: a dataset's files (current_counts) that carry no mark (or
+    no longer the one ppd wrote), one phrase per kind; restored_here: restored_in_place's count."""
+    said = [f"{counts[k]} {w}" for k, w in UNPROTECTED_WORDS.items() if counts.get(k, 0) > 0]
+    if restored_here:
+        said.append(f"{restored_here} restored by you")
+    return said
+
+
+def restored_in_place(ctx: AppContext, name: str, root: str) -> int:
+    """Files the user restored where they were patched in place: their originals are back where they
+    are published. A restored `--out` or publish-folder copy was removed, which leaves nothing
+    unprotected behind."""
+    rows = ctx.store.files(name, state=FileState.RESTORED)
+    return sum(not r.get("published_path") and Path(r["path"]).is_relative_to(root) for r in rows)

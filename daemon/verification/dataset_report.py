@@ -30,7 +30,12 @@ def report_path(paths: AppPaths, dataset: str) -> Path:
 
 def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> ReportData:
     """A daemon dataset: latest verification per profile, its history, models, and a patch preview."""
-    from daemon.datasets.folder_count import current_counts, dataset_folder
+    from daemon.datasets.folder_count import (
+        current_counts,
+        dataset_folder,
+        restored_in_place,
+        unprotected_phrases,
+    )
     from verifier.html_report import ReportError, dataset_history_report, latest_run_group
 
     row = ctx.store.dataset(dataset)
@@ -65,6 +70,11 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
         data.verdict, data.holding = None, None
         data.notes.insert(0, "The latest verification measured earlier pixels (files were patched or "
                           "restored since): it is history, not today's verdict.")  # fmt: skip
+    # the files left unprotected, in `ppd status --check`'s words: the page headlined "patched, not
+    # verified" with restored and new files in the folder, and said nothing of them (a black-box review)
+    restored = restored_in_place(ctx, dataset, row["root"]) if counts.get("restored") else 0
+    if left := unprotected_phrases(counts, restored):
+        data.notes.insert(0, f"NOT protected: {', '.join(left)} (`ppd status {dataset}` lists them).")
     spec = ctx.store.dataset_spec(dataset)
     if spec is not None and spec.per_photo:
         from daemon.protect.mark_notes import mark_note_lines

@@ -201,6 +201,12 @@ def test_a_verdict_on_earlier_pixels_is_no_banner(ppd_env: dict[str, Path], tmp_
         assert any("it is history, not today's verdict" in n for n in data.notes)
         history = next(t for t in data.tables if t.title.startswith("Verification history"))
         assert len(history.rows) == 2
+        # the files left unprotected are said, and the history is not "never verified" (a black-box
+        # review: the page named neither the restored nor the new file, above its own history table)
+        Image.fromarray(np.zeros((200, 240, 3), np.uint8) + 90).save(trip / "new.png")
+        page = rp.render_html(dataset_reports.build_dataset_report(ctx, "trip"))
+        assert "NOT protected: 1 not patched yet, 1 restored by you" in page, page[:2000]
+        assert "never been verified" not in page
     finally:
         ctx.close()
 
