@@ -20,8 +20,8 @@ SOURCE_WORDS = {
     "preferred": "the default place (nothing to judge on)",
     "masks-split": "from the subject mask: no place holds both squares, each in its own, no subject pixel",
     "estimated-split": "no plain place holds both squares: each in its own plainest place",
-    "estimated-doubt-split": "the plain place for both squares showed faint texture, maybe a subject's "
-    "face: each square in its own plain place",
+    "estimated-doubt-split": "the plain place for both squares showed faint texture, maybe part of the "
+    "subject: each square in its own plain place",
 }
 
 

@@ -322,9 +322,10 @@ def _flag_spec(ctx: AppContext, dataset: str, options: SpecOptions) -> PatchSpec
 
 def apply_spec(
     ctx: AppContext, jobs: list[Job], options: SpecOptions, dry_run: bool, masks: dict[str, Path | None]
-) -> tuple[dict[str, PatchSpec], list[str]]:
+) -> tuple[dict[str, PatchSpec], list[tuple[str, str]]]:
     """The spec each dataset will use when flags were given or its corner is chosen now (set on
-    new datasets now), and one line per dataset whose corner was chosen. A new dataset whose mark
+    new datasets now), and (dataset, line) for each new dataset's placement: per photo, or the corner
+    chosen. A new dataset whose mark
     is corner-bound gets the corner daemon.datasets.subject_masks.place_corner picks over all its files
     given here."""
     from daemon.datasets.subject_masks import (
@@ -337,17 +338,17 @@ def apply_spec(
     from daemon.store import DatasetSpecLocked
 
     wanted: dict[str, PatchSpec] = {}
-    lines: list[str] = []
+    lines: list[tuple[str, str]] = []
     for name in dict.fromkeys(job.dataset for job in jobs):
         spec, choice = _flag_spec(ctx, name, options), None
         new = ctx.store.dataset_spec(name) is None
         base = spec or ctx.config.spec_for(name)
         if new and base.per_photo:  # issue 25: no corner for the set; each photo's own place
-            lines.append(per_photo_line(name, masks.get(name), _masked(jobs, name, masks.get(name))))
+            lines.append((name, per_photo_line(name, masks.get(name), _masked(jobs, name, masks.get(name)))))
         if new and wants_corner(base, options.sets_position() or ctx.config.position_set(name)):
             placed = place_corner(base, [job.path for job in jobs if job.dataset == name], masks.get(name))
             spec, choice = placed.spec, placed.choice
-            lines.append(corner_line(name, choice))
+            lines.append((name, corner_line(name, choice)))
         if spec is None:
             continue
         wanted[name] = spec

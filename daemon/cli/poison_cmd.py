@@ -378,13 +378,18 @@ def _run_planned(
     notes += nested
     if not jobs:
         raise die("no files to patch besides the subject masks in " + ", ".join(str(p) for p in paths))
-    wanted, corner_lines = planning.apply_spec(ctx, jobs, spec_options, dry_run, masks)
-    for line in [*notes, *corner_lines]:
+    wanted, placement_lines = planning.apply_spec(ctx, jobs, spec_options, dry_run, masks)
+    for line in notes:
         console().print(line, markup=False)
     outcomes = run_jobs(
         ctx, jobs, wanted, dry_run=dry_run, force=force, workers=workers, subject_masks=subject_masks,
         stop=stop,
     )  # fmt: skip
+    # where the marks went, for datasets that got one (it was said of a set whose every file failed)
+    marked = {o.dataset for o in outcomes if o.state in OUTCOME_PATCHED}
+    for dataset, line in placement_lines:
+        if dataset in marked:
+            console().print(line, markup=False)
     if stop() and len(outcomes) < len(jobs):
         interrupted_summary(outcomes, len(jobs), dry_run)
         raise typer.Exit(ExitStatus.INTERRUPTED)

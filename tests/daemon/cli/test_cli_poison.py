@@ -562,8 +562,9 @@ def test_subject_masks_keep_the_mark_off_the_subject_in_one_corner(
     )
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
-    assert "image: mark in the bottom-right corner (from the subject masks" in lines[0]
-    assert "patched 6, unchanged 0, skipped 0, failed 0" in result.output
+    said = next(i for i, line in enumerate(lines) if "image: mark in the bottom-right corner" in line)
+    assert "(from the subject masks" in lines[said]
+    assert "patched 6, unchanged 0, skipped 0, failed 0" in " ".join(lines[said + 1 :])  # then the summary
     for f in files:
         changed = changed_pixels(before[f.name], f)
         assert_in_corner_off_subject(changed, masks / f"{f.stem[-3:]}.png", "bottom-right")
@@ -741,3 +742,18 @@ def test_the_placement_line_never_claims_masks_that_matched_no_photo(
     Image.new("L", (160, 120), 0).save(masks / "view0.png")
     some = runner.invoke(app, ["poison", str(shoot), "--subject-masks", str(masks), "--dry-run"])
     assert f"off the subject masks in {masks} for 1 of 2 photos" in some.output, some.output
+
+
+def test_no_placement_line_where_every_file_failed(tmp_path: Path, ppd_env: dict[str, Path]) -> None:
+    """`ppd poison` said "mark placed per photo, where each photo is plainest" of a set in which
+    nothing was patched (a black-box review): the line is said only where a mark went."""
+    shoot = tmp_path / "tiny"
+    for i in range(2):
+        make_image(shoot / f"v{i}.png", i)
+        Image.open(shoot / f"v{i}.png").resize((40, 30)).save(shoot / f"v{i}.png")  # too small for a mark
+    result = runner.invoke(app, ["poison", str(shoot)])
+    assert result.exit_code == 1 and "failed 2" in " ".join(result.output.split()), result.output
+    assert "mark placed" not in result.output
+    make_image(shoot / "big.png", 3)
+    again = runner.invoke(app, ["poison", str(shoot)])
+    assert "patched 1" in " ".join(again.output.split()), again.output
