@@ -33,7 +33,7 @@ def restore(
       ppd restore ~/shoots/castle/a.jpg  one file
     """
     from daemon.cli.targets import TargetError, dataset_or_die, user_path
-    from daemon.protect.one_file import restore_file
+    from daemon.protect.restoring import restore_file
     from daemon.states import FileState
 
     ctx = open_ctx()
@@ -70,7 +70,7 @@ def restore_word(outcome: ProtectOutcome) -> str:
 
 
 def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
-    from daemon.protect.one_file import FROM_PUBLISH_FOLDER
+    from daemon.protect.restoring import FROM_PUBLISH_FOLDER
 
     """One count line, where removed copies were (a folder, not a line per file unless -v), then
     each file that was not restored with its reason."""
