@@ -21,7 +21,10 @@ def restore(
     target: str = typer.Argument(
         ..., help="A dataset (its name, its folder, a verification folder of it) or a patched file."
     ),
-    force: bool = typer.Option(False, "--force", help="Overwrite even if the file changed since."),
+    force: bool = typer.Option(
+        False, "--force",
+        help="Put the original back even if the file changed since (your version is kept aside).",
+    ),
 ) -> None:
     """Put originals back from the vault (atomic). Files in an --out or publish folder are
     removed there, never replaced by originals. The daemon does not patch restored files again.
@@ -93,6 +96,9 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
                         "originals are back where they were patched", markup=False)  # fmt: skip
     for o in outcomes:
         word = restore_word(o)
+        if o.displaced is not None and word != "failed":  # a failure's reason names it already
+            console().print(f"kept your version of {o.path.name} at {o.displaced} (it was not ppd's output; "
+                            "nothing is published from there)", markup=False)  # fmt: skip
         if word == "failed":
             said = reason_text(o.reason, Path(o.path).parent, hint_out=False)  # restore has no --out
             err_console().print(f"ppd: not restored: {o.path}: {said}", markup=False)

@@ -4,6 +4,7 @@ by the file's row or, without one (a lost store, a file moved or renamed), by it
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 from typing import Any, Literal
 
@@ -11,6 +12,7 @@ from daemon.context import AppContext
 from daemon.datasets.dataset import OutsideOutboxError, dataset_of, dataset_root, ensure_dataset
 from daemon.fsops import sha256_fd
 from daemon.platform import fd_path
+from daemon.protect.displaced import changed_words, displaced_folder, keep_aside
 from daemon.protect.job import Outcome, ProtectOutcome, ProtectRefused, one_line
 from daemon.states import FileState
 from daemon.store.vault import sha256_file
@@ -42,33 +44,39 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
     copy = None if row.get("from_marker") else _copy_outside_the_source(ctx, row)
     if row.get("from_marker") and (refusal := _copied_output(ctx, row)):
         return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=refusal)
+    kept: Path | None = None  # where --force put the user's file that stood in the original's way
     with ctx.path_lock(path):
         try:
             if copy is not None:
-                reason = _remove_patched_copy(row, copy, force)
+                reason, kept = _remove_patched_copy(ctx, row, copy, force)
                 target = Path(row["path"]) if row["published_path"] else None
                 if target is not None:  # published: the original goes back to where it was patched
-                    there = target.is_file() and not target.is_symlink()
-                    done = there and sha256_file(target) == row["original_sha256"]  # a restore killed
-                    if (target.exists() or target.is_symlink()) and not force and not done:  # midway
-                        raise ProtectRefused(
-                            f"{target} exists; not overwriting it with the original (use --force)"
-                        )
-                    if not done:
+                    now = _content_now(target)
+                    replaces: str | None | Literal[True] = None  # nothing there, or a restore killed midway
+                    if now is not None and now != row["original_sha256"]:
+                        if not force:
+                            raise ProtectRefused(
+                                f"{target} exists; not overwriting it with the original (use --force)"
+                            )
+                        kept, replaces = _displace(ctx, dataset, target)
+                    if now != row["original_sha256"]:
                         ctx.vault.restore(
-                            row["original_sha256"], target, replaces=True if force else None,
+                            row["original_sha256"], target, replaces=replaces,
                             mtime_ns=row.get("original_mtime_ns"),
                         )  # fmt: skip
                     reason = f"original back at {target}; {reason}"
             else:
                 target = path
-                now = sha256_file(target) if target.exists() and not force else row["poisoned_sha256"]
-                if now not in (row["poisoned_sha256"], row["original_sha256"]):
-                    raise ProtectRefused(
-                        f"{target.name} changed since ppd patched it; not overwriting (use --force)"
-                    )
+                now = _content_now(target)
                 # the check again just before the rename: a writer between the two is not overwritten
-                replaces: str | None | Literal[True] = True if force else row["poisoned_sha256"]
+                replaces = row["poisoned_sha256"]
+                if now is not None and now not in (row["poisoned_sha256"], row["original_sha256"]):
+                    if not force:
+                        words = changed_words(ctx, target, row["original_sha256"])
+                        aside = displaced_folder(ctx, dataset)
+                        raise ProtectRefused(f"{words}; not overwriting it (--force keeps your version in "
+                                             f"{aside} and puts the original back)")  # fmt: skip
+                    kept, replaces = _displace(ctx, dataset, target)
                 if now != row["original_sha256"]:  # the original already (a restore killed after its
                     ctx.vault.restore(  # rename): recorded
                         row["original_sha256"], target, replaces=replaces,
@@ -76,14 +84,17 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                     )  # fmt: skip
                 reason = None
         except Exception as exc:
-            return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
+            said = one_line(exc) + (f"; your version is kept at {kept}" if kept is not None else "")
+            return ProtectOutcome(
+                path=path, dataset=dataset, state=Outcome.FAILED, reason=said, displaced=kept
+            )
         if row.get("from_marker"):
             # moved or copied out of its dataset by the user: no dataset is made of the folder it
             # sits in now (a review: that folder's other photos became "not patched yet")
             if _stored_output(ctx, row) is not None:
                 return ProtectOutcome(
                     path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
-                    original_sha256=row["original_sha256"], output=target,
+                    original_sha256=row["original_sha256"], output=target, displaced=kept,
                 )  # fmt: skip
             # the store had lost it: the dataset row comes back with it
             outbox = Path(ctx.paths.outbox).absolute()  # outside it, the folder (not one in the outbox)
@@ -95,11 +106,12 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
         ctx.store.record_file(
             path, dataset, FileState.RESTORED, original_sha256=row["original_sha256"], published_path=None,
             event="restored", **signature,
-            detail={"to": str(target) if target else None, "sha256": row["original_sha256"], "note": reason},
+            detail={"to": str(target) if target else None, "sha256": row["original_sha256"], "note": reason,
+                    **({"displaced": str(kept)} if kept is not None else {})},
         )  # fmt: skip
     return ProtectOutcome(
         path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
-        original_sha256=row["original_sha256"], output=target,
+        original_sha256=row["original_sha256"], output=target, displaced=kept,
     )  # fmt: skip
 
 
@@ -143,16 +155,44 @@ def _size_and_time(path: Path) -> dict[str, Any]:
 FROM_PUBLISH_FOLDER = "from the publish folder"  # the reason's words `ppd restore` counts
 
 
-def _remove_patched_copy(row: dict[str, Any], copy: Path, force: bool) -> str:
-    """Delete ppd's patched copy from an output/publish folder; the reason line for the outcome."""
+def _remove_patched_copy(
+    ctx: AppContext, row: dict[str, Any], copy: Path, force: bool
+) -> tuple[str, Path | None]:
+    """Delete ppd's patched copy from an output/publish folder; (the reason line for the outcome, where
+    --force kept a copy that had changed since ppd wrote it)."""
     where = "publish folder" if row["published_path"] else "output folder"
     if not copy.exists():
-        return f"no patched copy left in the {where} {copy.parent}; originals are never written there"
-    if sha256_file(copy) != row["poisoned_sha256"] and not force:
-        raise ProtectRefused(f"{copy} changed since ppd patched it; not removing it (use --force)")
+        return f"no patched copy left in the {where} {copy.parent}; originals are never written there", None
+    kept = None
+    if sha256_file(copy) != row["poisoned_sha256"]:
+        if not force:
+            raise ProtectRefused(f"{copy} changed since ppd patched it; not removing it (use --force)")
+        kept, _ = _displace(ctx, row["dataset"], copy)
     copy.unlink()
     said = FROM_PUBLISH_FOLDER if row["published_path"] else f"from the {where}"
-    return f"removed the patched copy {copy} {said}: restore never writes originals there"
+    return f"removed the patched copy {copy} {said}: restore never writes originals there", kept
+
+
+def _content_now(path: Path) -> str | None:
+    """The sha256 of the regular file at path (not followed); None when nothing is there; a word that
+    is no sha256 for anything else (a symlink, a folder), which matches no row's content."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return None
+    except OSError:
+        return "not a regular file" if os.path.lexists(path) else None
+    try:
+        return sha256_fd(fd) if stat.S_ISREG(os.fstat(fd).st_mode) else "not a regular file"
+    finally:
+        os.close(fd)
+
+
+def _displace(ctx: AppContext, dataset: str | None, path: Path) -> tuple[Path, str | Literal[True]]:
+    """The user's file at path kept aside (daemon.protect.displaced) before --force replaces it; (the
+    copy, what vault.restore may replace: exactly the bytes kept, anything for a symlink)."""
+    kept, sha = keep_aside(ctx, dataset, path)
+    return kept, True if sha is None else sha
 
 
 def _pending_as_patched(ctx: AppContext, path: Path, row: dict[str, Any]) -> dict[str, Any]:
