@@ -14,6 +14,7 @@ from daemon.fsops import sha256_fd
 from daemon.platform import fd_path
 from daemon.protect.displaced import changed_words, displaced_folder, keep_aside
 from daemon.protect.job import Outcome, ProtectOutcome, ProtectRefused, one_line
+from daemon.protect.recovery import ORIGINAL_FIELDS
 from daemon.states import FileState
 from daemon.store.vault import sha256_file
 
@@ -88,24 +89,21 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
             return ProtectOutcome(
                 path=path, dataset=dataset, state=Outcome.FAILED, reason=said, displaced=kept
             )
+        carried: dict[str, Any] = {}
         if row.get("from_marker"):
-            # moved or copied out of its dataset by the user: no dataset is made of the folder it
-            # sits in now (a review: that folder's other photos became "not patched yet")
-            if _stored_output(ctx, row) is not None:
+            where = _record_by_provenance(ctx, path, row)
+            if where is None:
                 return ProtectOutcome(
                     path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
                     original_sha256=row["original_sha256"], output=target, displaced=kept,
                 )  # fmt: skip
-            # the store had lost it: the dataset row comes back with it
-            outbox = Path(ctx.paths.outbox).absolute()  # outside it, the folder (not one in the outbox)
-            root = dataset_root(outbox, dataset) if path.is_relative_to(outbox) else path.parent
-            ensure_dataset(ctx, dataset, root, None)
+            dataset, carried = where
         # the restored file's size and time: the daemon's catch-up scan leaves it alone while they hold
         # (it judged every restored file again at each start, one "restored by the user" line each)
         signature = _size_and_time(target) if target is not None else {}
         ctx.store.record_file(
             path, dataset, FileState.RESTORED, original_sha256=row["original_sha256"], published_path=None,
-            event="restored", **signature,
+            event="restored", **signature, **carried,
             detail={"to": str(target) if target else None, "sha256": row["original_sha256"], "note": reason,
                     **({"displaced": str(kept)} if kept is not None else {})},
         )  # fmt: skip
@@ -128,9 +126,40 @@ def _copy_outside_the_source(ctx: AppContext, row: dict[str, Any]) -> Path | Non
 
 
 def _stored_output(ctx: AppContext, row: dict[str, Any]) -> dict[str, Any] | None:
-    """The store's row of the output a file found by its seal is (a patched row of the same bytes)."""
-    stored = ctx.store.find_poisoned(row["poisoned_sha256"]) if row["poisoned_sha256"] else None
-    return stored if stored is not None and stored["state"] == FileState.PATCHED else None
+    """The store's row of the output a file found by its seal is (a patched row of the same bytes;
+    of several, one whose file is gone from its path: this file is that one, moved or renamed)."""
+    sha = row["poisoned_sha256"]
+    return ctx.store.find_poisoned(sha, moved_first=True, state=FileState.PATCHED) if sha else None
+
+
+def _record_by_provenance(
+    ctx: AppContext, path: Path, row: dict[str, Any]
+) -> tuple[str, dict[str, Any]] | None:
+    """Where the restore of a file found by its seal (no row of its path) is recorded: (the dataset,
+    the fields carried from the store's row of that output); None: nowhere.
+
+    The store's row of the same output whose file is gone from its path is that file, moved or renamed:
+    it is marked removed, and this path takes its place; in that row's dataset folder it is recorded
+    restored there, so `ppd poison` leaves it unpatched as it does every restored file (a black-box
+    review: after `mv A/0000.jpg A/r.jpg; ppd restore A/r.jpg`, poison patched r.jpg again). Moved out
+    of its dataset's folder, it is recorded nowhere: no dataset is made of the folder it sits in now (a
+    review: that folder's other photos became "not patched yet"). With no row of that output (a lost
+    store), the dataset comes back with it."""
+    stored = _stored_output(ctx, row)
+    if stored is None:
+        dataset = row["dataset"]
+        outbox = Path(ctx.paths.outbox).absolute()  # outside it, the folder (not one in the outbox)
+        root = dataset_root(outbox, dataset) if path.is_relative_to(outbox) else path.parent
+        ensure_dataset(ctx, dataset, root, None)
+        return dataset, {}
+    if not os.path.lexists(stored["path"]):
+        ctx.store.record_file(
+            stored["path"], stored["dataset"], FileState.REMOVED, event="moved_away", detail={"to": str(path)}
+        )
+    home = ctx.store.dataset(stored["dataset"])
+    if home is None or not path.is_relative_to(Path(home["root"]).absolute()):
+        return None
+    return stored["dataset"], {k: stored.get(k) for k in ORIGINAL_FIELDS if k != "original_sha256"}
 
 
 def _copied_output(ctx: AppContext, row: dict[str, Any]) -> str | None:
