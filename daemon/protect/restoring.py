@@ -20,18 +20,19 @@ from daemon.store.vault import sha256_file
 
 __all__ = ["FROM_PUBLISH_FOLDER", "restore_file"]
 
+
 def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> ProtectOutcome:
     """Put a patched file's original back where the file was changed in place (atomic); never
     into an output (`--out`) or publish folder: a patched copy there is removed instead, and the
     reason says so. Refuses when the file is no longer ppd's output (the user changed it) unless
-    force. With no row (a lost store), the file's provenance marker names its original."""
+    force. With no row of its path (a lost store, a renamed file), its seal or its exact bytes (another
+    row's recorded output) name its original."""
     path = Path(path).absolute()
-    row = ctx.store.file(path) or _row_from_marker(ctx, path)
+    row, why = ctx.store.file(path), ""
     if row is None:
-        return ProtectOutcome(
-            path=path, dataset=None, state=Outcome.FAILED,
-            reason=f"{path} is not in the store and carries no ppd provenance marker",
-        )  # fmt: skip
+        row, why = _row_by_provenance(ctx, path)
+    if row is None:
+        return ProtectOutcome(path=path, dataset=None, state=Outcome.FAILED, reason=why)
     dataset = row["dataset"]
     if row["state"] == FileState.PENDING:  # a run killed mid-file: the file says whether it is patched
         row = _pending_as_patched(ctx, path, row)
@@ -236,26 +237,54 @@ def _pending_as_patched(ctx: AppContext, path: Path, row: dict[str, Any]) -> dic
 
 
 def _row_from_marker(ctx: AppContext, path: Path) -> dict[str, Any] | None:
-    """A row for ppd's output found without the store: its seal (verified with this
-    installation's key over the file's bytes) and the vault."""
-    from poisoner.provenance import read_seal
+    """A row for ppd's output found without a row of its path (_row_by_provenance), or None."""
+    return _row_by_provenance(ctx, path)[0]
+
+
+def _row_by_provenance(ctx: AppContext, path: Path) -> tuple[dict[str, Any] | None, str]:
+    """A row for ppd's output found without a row of its path: its seal (verified with this
+    installation's key over the file's bytes) and the vault; else its exact bytes, the output a
+    patched row of the store records (as `ppd poison` finds it: a seal made with another key, since
+    replaced). None with the reason in words: no marker, a marker of another key (`ppd key import`),
+    ppd's marker over bytes changed since, or an original not in the vault."""
+    from poisoner.provenance import has_token, read_seal_and_claim
 
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError:
-        return None
+        return None, f"{path} is not in the store and carries no ppd provenance marker"
     try:
-        seal = read_seal(fd_path(fd), ctx.seal_key())
-        sha = sha256_fd(fd) if seal is not None else None
+        seal, claim = read_seal_and_claim(fd_path(fd), ctx.seal_key())
+        marked = seal is not None or claim is not None or has_token(fd_path(fd))
+        sha = sha256_fd(fd)
     finally:
         os.close(fd)
-    if seal is None or not ctx.vault.has(seal.original_sha256):
-        return None
+    stored = ctx.store.find_poisoned(sha, moved_first=True, state=FileState.PATCHED)
+    if seal is not None and ctx.vault.has(seal.original_sha256):
+        original = seal.original_sha256
+    elif stored is not None and stored["original_sha256"] and ctx.vault.has(stored["original_sha256"]):
+        original = stored["original_sha256"]
+    else:
+        return None, _why_not_found(ctx, path, seal, claim, marked)
     try:
         dataset = dataset_of(ctx.paths.outbox, path)
     except OutsideOutboxError:
         dataset = path.parent.name
     return {
         "dataset": dataset, "path": str(path), "state": FileState.PATCHED, "published_path": None,
-        "original_sha256": seal.original_sha256, "poisoned_sha256": sha, "from_marker": True,
-    }  # fmt: skip
+        "original_sha256": original, "poisoned_sha256": sha, "from_marker": True,
+    }, ""  # fmt: skip
+
+
+def _why_not_found(ctx: AppContext, path: Path, seal: Any, claim: Any, marked: bool) -> str:
+    """Why a file with no row of its path has no original to restore, in words that say what to do."""
+    if seal is not None:
+        return (f"{path} carries ppd's seal, but its original {seal.original_sha256[:12]} is not in the "
+                f"vault {ctx.vault.vault_dir}")  # fmt: skip
+    if claim is not None:  # this key's token over other bytes: an edit, or a token copied onto a photo
+        return (f"{path} carries ppd's marker, but it changed since ppd patched it (its seal no longer fits "
+                "its bytes); not restored")  # fmt: skip
+    if marked:  # a review: "carries no ppd provenance marker" for a file sealed before `ppd key import`
+        return (f"{path} carries a ppd marker sealed with another key than this installation's: "
+                "`ppd key import` the key it was patched with, then restore it")  # fmt: skip
+    return f"{path} is not in the store and carries no ppd provenance marker"
