@@ -21,12 +21,15 @@ from daemon.store.vault import sha256_file
 __all__ = ["FROM_PUBLISH_FOLDER", "restore_file"]
 
 
-def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> ProtectOutcome:
+def restore_file(
+    ctx: AppContext, path: Path, *, force: bool = False, home: tuple[str, Path] | None = None
+) -> ProtectOutcome:
     """Put a patched file's original back where the file was changed in place (atomic); never
     into an output (`--out`) or publish folder: a patched copy there is removed instead, and the
     reason says so. Refuses when the file is no longer ppd's output (the user changed it) unless
     force. With no row of its path (a lost store, a renamed file), its seal or its exact bytes (another
-    row's recorded output) name its original."""
+    row's recorded output) name its original. home: the (dataset, root) of the folder `ppd restore`
+    was given, where such a file is recorded unless it lies in its output's dataset folder."""
     path = Path(path).absolute()
     row, why = ctx.store.file(path), ""
     if row is None:
@@ -69,6 +72,9 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
                     reason = f"original back at {target}; {reason}"
             else:
                 target = path
+                if not target.parent.is_dir():  # not a raw "[Errno 2]" per file (a black-box review)
+                    raise ProtectRefused(f"its folder {target.parent} is gone (moved or deleted?); "
+                                         "`ppd restore` the folder or file where it is now")  # fmt: skip
                 now = _content_now(target)
                 # the check again just before the rename: a writer between the two is not overwritten
                 replaces = row["poisoned_sha256"]
@@ -92,7 +98,7 @@ def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> Protect
             )
         carried: dict[str, Any] = {}
         if row.get("from_marker"):
-            where = _record_by_provenance(ctx, path, row)
+            where = _record_by_provenance(ctx, path, row, home)
             if where is None:
                 return ProtectOutcome(
                     path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
@@ -134,7 +140,7 @@ def _stored_output(ctx: AppContext, row: dict[str, Any]) -> dict[str, Any] | Non
 
 
 def _record_by_provenance(
-    ctx: AppContext, path: Path, row: dict[str, Any]
+    ctx: AppContext, path: Path, row: dict[str, Any], home: tuple[str, Path] | None
 ) -> tuple[str, dict[str, Any]] | None:
     """Where the restore of a file found by its seal (no row of its path) is recorded: (the dataset,
     the fields carried from the store's row of that output); None: nowhere.
@@ -142,11 +148,16 @@ def _record_by_provenance(
     The store's row of the same output whose file is gone from its path is that file, moved or renamed:
     it is marked removed, and this path takes its place; in that row's dataset folder it is recorded
     restored there, so `ppd poison` leaves it unpatched as it does every restored file (a black-box
-    review: after `mv A/0000.jpg A/r.jpg; ppd restore A/r.jpg`, poison patched r.jpg again). Moved out
-    of its dataset's folder, it is recorded nowhere: no dataset is made of the folder it sits in now (a
-    review: that folder's other photos became "not patched yet"). With no row of that output (a lost
-    store), the dataset comes back with it."""
+    review: after `mv A/0000.jpg A/r.jpg; ppd restore A/r.jpg`, poison patched r.jpg again). Elsewhere
+    it is recorded in home's dataset, the folder `ppd restore` was given (a dataset folder moved), as
+    `ppd poison` records a moved file in its new folder's dataset; a single file moved out of its
+    dataset's folder is recorded nowhere: no dataset is made of the folder it sits in now (a review:
+    that folder's other photos became "not patched yet"). With no row of that output (a lost store),
+    the dataset comes back with it: home's, else the file's own folder's."""
     stored = _stored_output(ctx, row)
+    if stored is None and home is not None:
+        ensure_dataset(ctx, home[0], home[1], None)
+        return home[0], {}
     if stored is None:
         dataset = row["dataset"]
         outbox = Path(ctx.paths.outbox).absolute()  # outside it, the folder (not one in the outbox)
@@ -157,10 +168,15 @@ def _record_by_provenance(
         ctx.store.record_file(
             stored["path"], stored["dataset"], FileState.REMOVED, event="moved_away", detail={"to": str(path)}
         )
-    home = ctx.store.dataset(stored["dataset"])
-    if home is None or not path.is_relative_to(Path(home["root"]).absolute()):
+    carried = {k: stored.get(k) for k in ORIGINAL_FIELDS if k != "original_sha256"}
+    own = ctx.store.dataset(stored["dataset"])
+    if own is not None and path.is_relative_to(Path(own["root"]).absolute()):
+        return stored["dataset"], carried
+    if home is None:
         return None
-    return stored["dataset"], {k: stored.get(k) for k in ORIGINAL_FIELDS if k != "original_sha256"}
+    spec = ctx.store.get_spec(stored["spec_id"]) if stored["spec_id"] else None
+    ensure_dataset(ctx, home[0], home[1], spec)  # a dataset first seen through moved files: their spec
+    return home[0], carried
 
 
 def _copied_output(ctx: AppContext, row: dict[str, Any]) -> str | None:
@@ -288,3 +304,10 @@ def _why_not_found(ctx: AppContext, path: Path, seal: Any, claim: Any, marked: b
         return (f"{path} carries a ppd marker sealed with another key than this installation's: "
                 "`ppd key import` the key it was patched with, then restore it")  # fmt: skip
     return f"{path} is not in the store and carries no ppd provenance marker"
+
+
+def gone_from_its_place(ctx: AppContext, row: dict[str, Any]) -> bool:
+    """Whether a patched (or pending) row's file, patched in place, is gone from its path: deleted or
+    moved by the user. `ppd restore DATASET` does not make it again (a black-box review: it recreated
+    culled photos and duplicated renamed ones); a copy in an --out or publish folder is not such a row."""
+    return _copy_outside_the_source(ctx, row) is None and not os.path.lexists(row["path"])
