@@ -108,7 +108,7 @@ def _a_photo_in(folder: Path, depth: int = 3, budget: int = 20_000) -> str | Non
     ppd's own (vault, runs, hidden ones), looking at no more than `budget` entries; None: none."""
     from poisoner.media import is_media, is_unprotected_media
 
-    own = {"vault", "runs", "attempts", "locks"}
+    own = {"vault", "runs", "attempts", "locks", "displaced"}  # displaced: `ppd restore --force`'s copies
     for here, dirs, files in os.walk(folder):
         level = len(Path(here).relative_to(folder).parts)
         skipped = own if level == 0 else set()

@@ -329,7 +329,8 @@ def sealed_for(path: Path, key: bytes | None, original_sha256: str, spec_id: str
 
 
 def has_token(path: Path) -> bool:
-    """Whether the file carries anything shaped like a seal (verified or not): for tests/benches."""
+    """Whether the file carries anything shaped like a seal (verified or not, any key): tests, benches,
+    and `ppd restore`, which says of such a file that another key sealed it."""
     try:
         with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
             return next(_tokens(mm), None) is not None

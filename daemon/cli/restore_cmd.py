@@ -14,6 +14,7 @@ from daemon.cli.output import console, err_console
 from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
+    from daemon.context import AppContext
     from daemon.protect.job import ProtectOutcome
 
 
@@ -21,10 +22,15 @@ def restore(
     target: str = typer.Argument(
         ..., help="A dataset (its name, its folder, a verification folder of it) or a patched file."
     ),
-    force: bool = typer.Option(False, "--force", help="Overwrite even if the file changed since."),
+    force: bool = typer.Option(
+        False, "--force",
+        help="Put the original back even if the file changed since (your version is kept aside).",
+    ),
 ) -> None:
     """Put originals back from the vault (atomic). Files in an --out or publish folder are
     removed there, never replaced by originals. The daemon does not patch restored files again.
+    A folder's files that carry ppd's seal are restored too (renamed, moved, a lost store); a
+    file deleted since it was patched is listed, not made again (give its path to restore it).
 
     \b
     Examples:
@@ -32,9 +38,8 @@ def restore(
       ppd restore ~/shoots/castle        the same, by its folder
       ppd restore ~/shoots/castle/a.jpg  one file
     """
-    from daemon.cli.targets import TargetError, dataset_or_die, user_path
-    from daemon.protect.one_file import restore_file
-    from daemon.states import FileState
+    from daemon.cli.targets import TargetError, user_path
+    from daemon.protect.restoring import restore_file
 
     ctx = open_ctx()
     try:
@@ -42,23 +47,63 @@ def restore(
         if ctx.store.file(as_path) is not None or (as_path.is_file() and not as_path.is_symlink()):
             # a file: its row, or with no row (a lost store) its seal and the vault (restore_file says
             # "not in the store and carries no ppd provenance marker" for a file ppd never patched)
-            paths = [as_path]
+            outcomes = [restore_file(ctx, as_path, force=force)]
+            _print_outcomes(outcomes)
         else:
             try:
-                name = dataset_or_die(ctx.store, target, console(), "nothing to restore there")
+                outcomes = _restore_folder(ctx, target, force)
             except TargetError as exc:
                 raise die(exc) from None
-            # pending: a run killed after replacing a file, before recording it (restore_file reads its seal)
-            rows = [*ctx.store.files(name, state=FileState.PATCHED)]
-            rows += ctx.store.files(name, state=FileState.PENDING)
-            paths = [Path(r["path"]) for r in rows]
-        outcomes = [restore_file(ctx, p, force=force) for p in sorted(set(paths))]
-        _print_outcomes(outcomes)
         counts = Counter(restore_word(o) for o in outcomes)
         if counts.get("failed"):
             raise typer.Exit(ExitStatus.FAILED)
     finally:
         ctx.close()
+
+
+def _restore_folder(ctx: AppContext, target: str, force: bool) -> list[ProtectOutcome]:
+    """A dataset or a folder (daemon.cli.restore_folder): its rows' files, then the files in its folder
+    that carry ppd's marker and have no row; the files gone from their path are listed, not made again."""
+    from daemon.cli.restore_folder import marked_files, plan_folder_restore, still_gone
+    from daemon.cli.targets import TargetError
+    from daemon.protect.restoring import restore_file
+
+    plan = plan_folder_restore(ctx, target, console())
+    outcomes = [restore_file(ctx, p, force=force) for p in plan.paths]
+    marked = marked_files(ctx, plan.scan, plan.paths) if plan.scan is not None else []
+    if plan.dataset is None and not marked:
+        raise TargetError(f"{plan.scan} is not a folder ppd patched; nothing to restore there")
+    if plan.dataset is None:
+        console().print(f"{plan.scan}: no dataset of this folder in the store; restoring the {len(marked)} "
+                        "files in it that carry ppd's marker", markup=False)  # fmt: skip
+    outcomes += [restore_file(ctx, p, force=force, home=plan.home) for p in marked]
+    gone = still_gone(ctx, plan.gone)
+    if plan.root_gone is not None and gone and not outcomes:  # one line, not an "[Errno 2]" per file
+        raise TargetError(
+            f"dataset {plan.dataset!r}: its folder {plan.root_gone} is gone (moved or deleted?); "
+            "`ppd restore FOLDER` restores its files in the folder they are in now"
+        )
+    _print_outcomes(outcomes)
+    _print_gone(gone, plan.root_gone)
+    return outcomes
+
+
+def _print_gone(gone: list[Path], root_gone: Path | None) -> None:
+    """The files patched in place that are gone from their path: deleted or moved by the user, not made
+    again (a black-box review: `ppd restore` brought culled photos back into a folder to be published)."""
+    from daemon.cli.output import verbosity
+
+    if not gone:
+        return
+    if root_gone is not None:
+        why = f"their folder {root_gone} is gone (moved? `ppd restore FOLDER` restores them where they are)"
+    else:
+        names = ", ".join(p.name for p in gone[:3]) + (", ..." if len(gone) > 3 else "")
+        why = f"{names} (`ppd restore FILE` brings one back)"
+    console().print(f"{len(gone)} gone since patched, not recreated: {why}", markup=False)
+    if verbosity() > 0:
+        for p in gone:
+            console().print(f"gone {p}", markup=False)
 
 
 def restore_word(outcome: ProtectOutcome) -> str:
@@ -70,7 +115,7 @@ def restore_word(outcome: ProtectOutcome) -> str:
 
 
 def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
-    from daemon.protect.one_file import FROM_PUBLISH_FOLDER
+    from daemon.protect.restoring import FROM_PUBLISH_FOLDER
 
     """One count line, where removed copies were (a folder, not a line per file unless -v), then
     each file that was not restored with its reason."""
@@ -93,6 +138,9 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
                         "originals are back where they were patched", markup=False)  # fmt: skip
     for o in outcomes:
         word = restore_word(o)
+        if o.displaced is not None and word != "failed":  # a failure's reason names it already
+            console().print(f"kept your version of {o.path.name} at {o.displaced} (it was not ppd's output; "
+                            "nothing is published from there)", markup=False)  # fmt: skip
         if word == "failed":
             said = reason_text(o.reason, Path(o.path).parent, hint_out=False)  # restore has no --out
             err_console().print(f"ppd: not restored: {o.path}: {said}", markup=False)

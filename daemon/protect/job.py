@@ -66,6 +66,7 @@ class ProtectOutcome:
     poisoned_sha256: str | None = None
     spec_id: str | None = None
     output: Path | None = None  # where the patched file is now
+    displaced: Path | None = None  # restore --force: where the user's file it replaced was kept
     seconds: float = 0.0
     dry_run: bool = False
     report: Any = None  # poisoner.formats.PoisonReport (poisoner.video.VideoReport is one)

@@ -1,4 +1,5 @@
-"""The application's entry points for one file: protect_file, restore_file, reprotect_dataset.
+"""The application's entry points for one file: protect_file, restore_file (daemon.protect.restoring),
+reprotect_dataset.
 
 protect_file runs daemon.protect.stages's named stages (the crash-safe order is listed there, once)
 under a per-file lock shared by every ppd process (daemon.locks), and turns any exception into a
@@ -16,7 +17,7 @@ import stat
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from daemon.context import AppContext
 from daemon.datasets.dataset import (
@@ -25,13 +26,11 @@ from daemon.datasets.dataset import (
     OutsideOutboxError,
     attribute,
     dataset_of,
-    dataset_root,
     ensure_dataset,
 )
 from daemon.datasets.subject_masks import masks_or_none, sibling_images, subject_masks_for
 from daemon.fsops import sha256_fd
 from daemon.locks import LockHeld
-from daemon.platform import fd_path
 from daemon.protect.job import (
     IncompleteFile,
     Job,
@@ -55,6 +54,7 @@ from daemon.protect.poisoning import (
     provenance_marker,
     seal_output,
 )
+from daemon.protect.restoring import FROM_PUBLISH_FOLDER, restore_file
 from daemon.protect.stages import STAGES, run_stages
 from daemon.states import FileState
 from daemon.store.vault import sha256_file
@@ -65,9 +65,9 @@ from poisoner.spec import PatchSpec
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "STAGES", "AppContext", "Outcome", "ProtectOutcome", "ProtectRefused", "SourceChanged", "dataset_pairs",
-    "is_ignored_name", "media_kind", "poison_to", "protect_file", "reprotect_dataset", "restore_file",
-    "shown_name", "storable", "tool_version",
+    "FROM_PUBLISH_FOLDER", "STAGES", "AppContext", "Outcome", "ProtectOutcome", "ProtectRefused",
+    "SourceChanged", "dataset_pairs", "is_ignored_name", "media_kind", "poison_to", "protect_file",
+    "reprotect_dataset", "restore_file", "shown_name", "storable", "tool_version",
 ]  # fmt: skip
 OUTCOME_STATES = (Outcome.PATCHED, Outcome.SKIPPED, Outcome.FAILED, Outcome.UNCHANGED)  # protect_file
 RESTORE_STATES = (Outcome.RESTORED, Outcome.UNCHANGED, Outcome.FAILED)  # restore_file
@@ -263,181 +263,6 @@ def dataset_pairs(ctx: AppContext, dataset: str) -> list[tuple[Path, Path]]:
         else:
             log.warning("pair missing", extra={"dataset": dataset, "path": row["path"]})
     return pairs
-
-
-def restore_file(ctx: AppContext, path: Path, *, force: bool = False) -> ProtectOutcome:
-    """Put a patched file's original back where the file was changed in place (atomic); never
-    into an output (`--out`) or publish folder: a patched copy there is removed instead, and the
-    reason says so. Refuses when the file is no longer ppd's output (the user changed it) unless
-    force. With no row (a lost store), the file's provenance marker names its original."""
-    path = Path(path).absolute()
-    row = ctx.store.file(path) or _row_from_marker(ctx, path)
-    if row is None:
-        return ProtectOutcome(
-            path=path, dataset=None, state=Outcome.FAILED,
-            reason=f"{path} is not in the store and carries no ppd provenance marker",
-        )  # fmt: skip
-    dataset = row["dataset"]
-    if row["state"] == FileState.PENDING:  # a run killed mid-file: the file says whether it is patched
-        row = _pending_as_patched(ctx, path, row)
-    if row["state"] != FileState.PATCHED or not row["original_sha256"]:
-        return ProtectOutcome(
-            path=path, dataset=dataset, state=Outcome.UNCHANGED, reason=f"state is {row['state']}"
-        )
-    # A file found by its seal, not by its path, is ppd's output moved or copied by the user: it is
-    # theirs, never removed as an --out copy (a black-box review: `ppd restore desk/moved.jpg` deleted
-    # it); a copy of an --out or published copy still gets no original.
-    copy = None if row.get("from_marker") else _copy_outside_the_source(ctx, row)
-    if row.get("from_marker") and (refusal := _copied_output(ctx, row)):
-        return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=refusal)
-    with ctx.path_lock(path):
-        try:
-            if copy is not None:
-                reason = _remove_patched_copy(row, copy, force)
-                target = Path(row["path"]) if row["published_path"] else None
-                if target is not None:  # published: the original goes back to where it was patched
-                    there = target.is_file() and not target.is_symlink()
-                    done = there and sha256_file(target) == row["original_sha256"]  # a restore killed
-                    if (target.exists() or target.is_symlink()) and not force and not done:  # midway
-                        raise ProtectRefused(
-                            f"{target} exists; not overwriting it with the original (use --force)"
-                        )
-                    if not done:
-                        ctx.vault.restore(
-                            row["original_sha256"], target, replaces=True if force else None,
-                            mtime_ns=row.get("original_mtime_ns"),
-                        )  # fmt: skip
-                    reason = f"original back at {target}; {reason}"
-            else:
-                target = path
-                now = sha256_file(target) if target.exists() and not force else row["poisoned_sha256"]
-                if now not in (row["poisoned_sha256"], row["original_sha256"]):
-                    raise ProtectRefused(
-                        f"{target.name} changed since ppd patched it; not overwriting (use --force)"
-                    )
-                # the check again just before the rename: a writer between the two is not overwritten
-                replaces: str | None | Literal[True] = True if force else row["poisoned_sha256"]
-                if now != row["original_sha256"]:  # the original already (a restore killed after its
-                    ctx.vault.restore(  # rename): recorded
-                        row["original_sha256"], target, replaces=replaces,
-                        mtime_ns=row.get("original_mtime_ns"),
-                    )  # fmt: skip
-                reason = None
-        except Exception as exc:
-            return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
-        if row.get("from_marker"):
-            # moved or copied out of its dataset by the user: no dataset is made of the folder it
-            # sits in now (a review: that folder's other photos became "not patched yet")
-            if _stored_output(ctx, row) is not None:
-                return ProtectOutcome(
-                    path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
-                    original_sha256=row["original_sha256"], output=target,
-                )  # fmt: skip
-            # the store had lost it: the dataset row comes back with it
-            outbox = Path(ctx.paths.outbox).absolute()  # outside it, the folder (not one in the outbox)
-            root = dataset_root(outbox, dataset) if path.is_relative_to(outbox) else path.parent
-            ensure_dataset(ctx, dataset, root, None)
-        # the restored file's size and time: the daemon's catch-up scan leaves it alone while they hold
-        # (it judged every restored file again at each start, one "restored by the user" line each)
-        signature = _size_and_time(target) if target is not None else {}
-        ctx.store.record_file(
-            path, dataset, FileState.RESTORED, original_sha256=row["original_sha256"], published_path=None,
-            event="restored", **signature,
-            detail={"to": str(target) if target else None, "sha256": row["original_sha256"], "note": reason},
-        )  # fmt: skip
-    return ProtectOutcome(
-        path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
-        original_sha256=row["original_sha256"], output=target,
-    )  # fmt: skip
-
-
-def _copy_outside_the_source(ctx: AppContext, row: dict[str, Any]) -> Path | None:
-    """Where a patched *copy* sits that must never receive an original: the publish folder
-    (published_path), or an output folder (`ppd poison --out`: the row's path lies outside its
-    dataset's source folder). None: the file was patched in place."""
-    if row["published_path"]:
-        return Path(row["published_path"])
-    dataset = ctx.store.dataset(row["dataset"])
-    if dataset is not None and not Path(row["path"]).is_relative_to(Path(dataset["root"])):
-        return Path(row["path"])
-    return None
-
-
-def _stored_output(ctx: AppContext, row: dict[str, Any]) -> dict[str, Any] | None:
-    """The store's row of the output a file found by its seal is (a patched row of the same bytes)."""
-    stored = ctx.store.find_poisoned(row["poisoned_sha256"]) if row["poisoned_sha256"] else None
-    return stored if stored is not None and stored["state"] == FileState.PATCHED else None
-
-
-def _copied_output(ctx: AppContext, row: dict[str, Any]) -> str | None:
-    """Why a file found by its seal gets no original: the store's row of the same output is a copy
-    in an --out or publish folder (originals never go where copies are published); None otherwise."""
-    stored = _stored_output(ctx, row)
-    copy = _copy_outside_the_source(ctx, stored) if stored is not None else None
-    if stored is None or copy is None:
-        return None
-    return (f"a copy of ppd's output in {copy.parent}, which gets no original; its source's photos were "
-            f"never changed (`ppd restore {stored['dataset']}` removes the dataset's copies)")
-
-
-def _size_and_time(path: Path) -> dict[str, Any]:
-    try:
-        st = os.stat(path, follow_symlinks=False)
-    except OSError:
-        return {}
-    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
-
-
-FROM_PUBLISH_FOLDER = "from the publish folder"  # the reason's words `ppd restore` counts
-
-
-def _remove_patched_copy(row: dict[str, Any], copy: Path, force: bool) -> str:
-    """Delete ppd's patched copy from an output/publish folder; the reason line for the outcome."""
-    where = "publish folder" if row["published_path"] else "output folder"
-    if not copy.exists():
-        return f"no patched copy left in the {where} {copy.parent}; originals are never written there"
-    if sha256_file(copy) != row["poisoned_sha256"] and not force:
-        raise ProtectRefused(f"{copy} changed since ppd patched it; not removing it (use --force)")
-    copy.unlink()
-    said = FROM_PUBLISH_FOLDER if row["published_path"] else f"from the {where}"
-    return f"removed the patched copy {copy} {said}: restore never writes originals there"
-
-
-def _pending_as_patched(ctx: AppContext, path: Path, row: dict[str, Any]) -> dict[str, Any]:
-    """A pending row (ppd was killed between replacing the file and recording it) read as patched
-    when the file in place carries this installation's seal naming the row's original: restore then
-    puts the original back. Before, it said "state is pending" and left the patched file, exit 0.
-    A file without that seal (the original, never replaced) keeps the pending row: nothing to do."""
-    sealed = _row_from_marker(ctx, path)
-    if sealed is None or sealed["original_sha256"] != row["original_sha256"]:
-        return row
-    return {**row, "state": FileState.PATCHED, "poisoned_sha256": sealed["poisoned_sha256"]}
-
-
-def _row_from_marker(ctx: AppContext, path: Path) -> dict[str, Any] | None:
-    """A row for ppd's output found without the store: its seal (verified with this
-    installation's key over the file's bytes) and the vault."""
-    from poisoner.provenance import read_seal
-
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-    except OSError:
-        return None
-    try:
-        seal = read_seal(fd_path(fd), ctx.seal_key())
-        sha = sha256_fd(fd) if seal is not None else None
-    finally:
-        os.close(fd)
-    if seal is None or not ctx.vault.has(seal.original_sha256):
-        return None
-    try:
-        dataset = dataset_of(ctx.paths.outbox, path)
-    except OutsideOutboxError:
-        dataset = path.parent.name
-    return {
-        "dataset": dataset, "path": str(path), "state": FileState.PATCHED, "published_path": None,
-        "original_sha256": seal.original_sha256, "poisoned_sha256": sha, "from_marker": True,
-    }  # fmt: skip
 
 
 def reprotect_dataset(ctx: AppContext, dataset: str, spec: PatchSpec) -> list[ProtectOutcome]:

@@ -55,13 +55,19 @@ class FileRows(StoreBase):
             sql, params = sql + " AND dataset != ?", (*params, not_of)
         return self._rows(sql + " ORDER BY path", params)
 
-    def find_poisoned(self, sha256: str, moved_first: bool = False) -> dict[str, Any] | None:
+    def find_poisoned(
+        self, sha256: str, moved_first: bool = False, state: FileState | None = None
+    ) -> dict[str, Any] | None:
         """A row whose patched output has this content (ppd's own output, anywhere). moved_first: of
         several (two photos with the same bytes patched alike), one whose file is no longer at its path
-        (a file moved or renamed is that one, and keeps that row's original's date), else the first."""
+        (a file moved or renamed is that one, and keeps that row's original's date), else the first.
+        state: only rows in that state (a restored or removed row keeps its output's hash)."""
+        where, params = "poisoned_sha256 = ?", [sha256]
+        if state is not None:
+            where, params = where + " AND state = ?", [sha256, file_state(state).value]
         if not moved_first:
-            return self._one("SELECT * FROM files WHERE poisoned_sha256 = ? LIMIT 1", (sha256,))
-        rows = self._rows("SELECT * FROM files WHERE poisoned_sha256 = ? ORDER BY id", (sha256,))
+            return self._one(f"SELECT * FROM files WHERE {where} ORDER BY id LIMIT 1", tuple(params))
+        rows = self._rows(f"SELECT * FROM files WHERE {where} ORDER BY id", tuple(params))
         return next((r for r in rows if not os.path.lexists(r["path"])), rows[0] if rows else None)
 
     def find_original(self, sha256: str) -> list[dict[str, Any]]:

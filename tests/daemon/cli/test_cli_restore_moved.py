@@ -89,3 +89,23 @@ def test_a_patched_photo_copied_into_another_dataset_is_one_of_its_patched_files
     assert d["not_patched_yet"] == 0 and d["patched"] == 2, d["counts"]
     assert runner.invoke(app, ["restore", str(b / "copied.png")]).exit_code == 0
     assert (b / "copied.png").read_bytes() == original
+
+
+def test_a_photo_renamed_in_its_folder_and_restored_is_left_unpatched(ppd_env: dict[str, Path],
+                                                                      tmp_path: Path) -> None:  # fmt: skip
+    """A black-box review (F5a): after `mv A/0000.jpg A/r.jpg; ppd restore A/r.jpg`, `ppd poison A`
+    patched r.jpg again (the restore by seal recorded nothing), and the store still listed 0000.jpg as
+    patched, so `ppd restore A` brought it back beside r.jpg. The restore is now recorded under the new
+    name and the old name's row as moved away."""
+    shoot = tmp_path / "shoot"
+    originals = {i: _sha(make_image(shoot / f"v{i}.png", i)) for i in range(3)}
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    (shoot / "v0.png").rename(shoot / "r.png")
+    result = runner.invoke(app, ["restore", str(shoot / "r.png")])
+    assert result.exit_code == 0 and "restored 1" in result.output, result.output
+    assert _sha(shoot / "r.png") == originals[0]
+    dry = runner.invoke(app, ["poison", str(shoot), "--dry-run"])
+    text = " ".join(dry.output.split())
+    assert "would patch 0" in text and "left unprotected (restored by you): 1" in text, text
+    assert runner.invoke(app, ["restore", str(shoot)]).exit_code == 0
+    assert sorted(p.name for p in shoot.iterdir()) == ["r.png", "v1.png", "v2.png"]  # v0.png not made again

@@ -67,3 +67,44 @@ def test_restore_without_any_row_uses_the_marker(ppd_env: dict[str, Path]) -> No
         assert photo.read_bytes() == original and _sha(photo) == outcome.original_sha256
     finally:
         ctx.close()
+
+
+def _new_key(ctx: AppContext) -> AppContext:
+    """The seal key replaced (lost, or `ppd key import --force` of another one): a new one is made."""
+    ctx.close()
+    (ctx.paths.data_dir / "seal.key").unlink()
+    return AppContext.open()
+
+
+def test_a_renamed_file_sealed_with_a_replaced_key_is_found_by_its_recorded_bytes(
+    ppd_env: dict[str, Path],
+) -> None:
+    """A black-box review (F10): the store still knew the renamed file's patched sha256, which `ppd
+    poison` uses, but restore read only the seal and said "carries no ppd provenance marker"."""
+    photo = write_image(ppd_env["outbox"] / "ds" / "a.png", seed=3)
+    original = photo.read_bytes()
+    ctx = AppContext.open()
+    try:
+        assert protect_file(photo, ctx).state == "patched"
+        renamed = photo.rename(photo.with_name("r.png"))
+        ctx = _new_key(ctx)
+        outcome = restore_file(ctx, renamed)
+        assert outcome.state == "restored", outcome
+        assert renamed.read_bytes() == original
+    finally:
+        ctx.close()
+
+
+def test_a_file_sealed_with_another_key_says_so(ppd_env: dict[str, Path]) -> None:
+    """No row and a seal this installation's key does not open: not "no ppd provenance marker", but
+    which key to import."""
+    photo, _ = patched_then_store_lost(ppd_env["outbox"] / "ds", seed=5)
+    ctx = AppContext.open()
+    try:
+        ctx = _new_key(ctx)
+        patched = photo.read_bytes()
+        outcome = restore_file(ctx, photo)
+        assert outcome.state == "failed" and "sealed with another key" in outcome.reason, outcome
+        assert "`ppd key import`" in outcome.reason and photo.read_bytes() == patched
+    finally:
+        ctx.close()

@@ -1,0 +1,313 @@
+"""`ppd restore`'s one file: restore_file puts a patched file's original back from the vault, found
+by the file's row or, without one (a lost store, a file moved or renamed), by its provenance seal."""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+from typing import Any, Literal
+
+from daemon.context import AppContext
+from daemon.datasets.dataset import OutsideOutboxError, dataset_of, dataset_root, ensure_dataset
+from daemon.fsops import sha256_fd
+from daemon.platform import fd_path
+from daemon.protect.displaced import changed_words, displaced_folder, keep_aside
+from daemon.protect.job import Outcome, ProtectOutcome, ProtectRefused, one_line
+from daemon.protect.recovery import ORIGINAL_FIELDS
+from daemon.states import FileState
+from daemon.store.vault import sha256_file
+
+__all__ = ["FROM_PUBLISH_FOLDER", "restore_file"]
+
+
+def restore_file(
+    ctx: AppContext, path: Path, *, force: bool = False, home: tuple[str, Path] | None = None
+) -> ProtectOutcome:
+    """Put a patched file's original back where the file was changed in place (atomic); never
+    into an output (`--out`) or publish folder: a patched copy there is removed instead, and the
+    reason says so. Refuses when the file is no longer ppd's output (the user changed it) unless
+    force. With no row of its path (a lost store, a renamed file), its seal or its exact bytes (another
+    row's recorded output) name its original. home: the (dataset, root) of the folder `ppd restore`
+    was given, where such a file is recorded unless it lies in its output's dataset folder."""
+    path = Path(path).absolute()
+    row, why = ctx.store.file(path), ""
+    if row is None:
+        row, why = _row_by_provenance(ctx, path)
+    if row is None:
+        return ProtectOutcome(path=path, dataset=None, state=Outcome.FAILED, reason=why)
+    dataset = row["dataset"]
+    if row["state"] == FileState.PENDING:  # a run killed mid-file: the file says whether it is patched
+        row = _pending_as_patched(ctx, path, row)
+    if row["state"] != FileState.PATCHED or not row["original_sha256"]:
+        return ProtectOutcome(
+            path=path, dataset=dataset, state=Outcome.UNCHANGED, reason=f"state is {row['state']}"
+        )
+    # A file found by its seal, not by its path, is ppd's output moved or copied by the user: it is
+    # theirs, never removed as an --out copy (a black-box review: `ppd restore desk/moved.jpg` deleted
+    # it); a copy of an --out or published copy still gets no original.
+    copy = None if row.get("from_marker") else _copy_outside_the_source(ctx, row)
+    if row.get("from_marker") and (refusal := _copied_output(ctx, row)):
+        return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=refusal)
+    kept: Path | None = None  # where --force put the user's file that stood in the original's way
+    with ctx.path_lock(path):
+        try:
+            if copy is not None:
+                reason, kept = _remove_patched_copy(ctx, row, copy, force)
+                target = Path(row["path"]) if row["published_path"] else None
+                if target is not None:  # published: the original goes back to where it was patched
+                    now = _content_now(target)
+                    replaces: str | None | Literal[True] = None  # nothing there, or a restore killed midway
+                    if now is not None and now != row["original_sha256"]:
+                        if not force:
+                            raise ProtectRefused(
+                                f"{target} exists; not overwriting it with the original (use --force)"
+                            )
+                        kept, replaces = _displace(ctx, dataset, target)
+                    if now != row["original_sha256"]:
+                        ctx.vault.restore(
+                            row["original_sha256"], target, replaces=replaces,
+                            mtime_ns=row.get("original_mtime_ns"),
+                        )  # fmt: skip
+                    reason = f"original back at {target}; {reason}"
+            else:
+                target = path
+                if not target.parent.is_dir():  # not a raw "[Errno 2]" per file (a black-box review)
+                    raise ProtectRefused(f"its folder {target.parent} is gone (moved or deleted?); "
+                                         "`ppd restore` the folder or file where it is now")  # fmt: skip
+                now = _content_now(target)
+                # the check again just before the rename: a writer between the two is not overwritten
+                replaces = row["poisoned_sha256"]
+                if now is not None and now not in (row["poisoned_sha256"], row["original_sha256"]):
+                    if not force:
+                        words = changed_words(ctx, target, row["original_sha256"])
+                        aside = displaced_folder(ctx, dataset)
+                        raise ProtectRefused(f"{words}; not overwriting it (--force keeps your version in "
+                                             f"{aside} and puts the original back)")  # fmt: skip
+                    kept, replaces = _displace(ctx, dataset, target)
+                if now != row["original_sha256"]:  # the original already (a restore killed after its
+                    ctx.vault.restore(  # rename): recorded
+                        row["original_sha256"], target, replaces=replaces,
+                        mtime_ns=row.get("original_mtime_ns"),
+                    )  # fmt: skip
+                reason = None
+        except Exception as exc:
+            said = one_line(exc) + (f"; your version is kept at {kept}" if kept is not None else "")
+            return ProtectOutcome(
+                path=path, dataset=dataset, state=Outcome.FAILED, reason=said, displaced=kept
+            )
+        carried: dict[str, Any] = {}
+        if row.get("from_marker"):
+            where = _record_by_provenance(ctx, path, row, home)
+            if where is None:
+                return ProtectOutcome(
+                    path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
+                    original_sha256=row["original_sha256"], output=target, displaced=kept,
+                )  # fmt: skip
+            dataset, carried = where
+        # the restored file's size and time: the daemon's catch-up scan leaves it alone while they hold
+        # (it judged every restored file again at each start, one "restored by the user" line each)
+        signature = _size_and_time(target) if target is not None else {}
+        ctx.store.record_file(
+            path, dataset, FileState.RESTORED, original_sha256=row["original_sha256"], published_path=None,
+            event="restored", **signature, **carried,
+            detail={"to": str(target) if target else None, "sha256": row["original_sha256"], "note": reason,
+                    **({"displaced": str(kept)} if kept is not None else {})},
+        )  # fmt: skip
+    return ProtectOutcome(
+        path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
+        original_sha256=row["original_sha256"], output=target, displaced=kept,
+    )  # fmt: skip
+
+
+def _copy_outside_the_source(ctx: AppContext, row: dict[str, Any]) -> Path | None:
+    """Where a patched *copy* sits that must never receive an original: the publish folder
+    (published_path), or an output folder (`ppd poison --out`: the row's path lies outside its
+    dataset's source folder). None: the file was patched in place."""
+    if row["published_path"]:
+        return Path(row["published_path"])
+    dataset = ctx.store.dataset(row["dataset"])
+    if dataset is not None and not Path(row["path"]).is_relative_to(Path(dataset["root"])):
+        return Path(row["path"])
+    return None
+
+
+def _stored_output(ctx: AppContext, row: dict[str, Any]) -> dict[str, Any] | None:
+    """The store's row of the output a file found by its seal is (a patched row of the same bytes;
+    of several, one whose file is gone from its path: this file is that one, moved or renamed)."""
+    sha = row["poisoned_sha256"]
+    return ctx.store.find_poisoned(sha, moved_first=True, state=FileState.PATCHED) if sha else None
+
+
+def _record_by_provenance(
+    ctx: AppContext, path: Path, row: dict[str, Any], home: tuple[str, Path] | None
+) -> tuple[str, dict[str, Any]] | None:
+    """Where the restore of a file found by its seal (no row of its path) is recorded: (the dataset,
+    the fields carried from the store's row of that output); None: nowhere.
+
+    The store's row of the same output whose file is gone from its path is that file, moved or renamed:
+    it is marked removed, and this path takes its place; in that row's dataset folder it is recorded
+    restored there, so `ppd poison` leaves it unpatched as it does every restored file (a black-box
+    review: after `mv A/0000.jpg A/r.jpg; ppd restore A/r.jpg`, poison patched r.jpg again). Elsewhere
+    it is recorded in home's dataset, the folder `ppd restore` was given (a dataset folder moved), as
+    `ppd poison` records a moved file in its new folder's dataset; a single file moved out of its
+    dataset's folder is recorded nowhere: no dataset is made of the folder it sits in now (a review:
+    that folder's other photos became "not patched yet"). With no row of that output (a lost store),
+    the dataset comes back with it: home's, else the file's own folder's."""
+    stored = _stored_output(ctx, row)
+    if stored is None and home is not None:
+        ensure_dataset(ctx, home[0], home[1], None)
+        return home[0], {}
+    if stored is None:
+        dataset = row["dataset"]
+        outbox = Path(ctx.paths.outbox).absolute()  # outside it, the folder (not one in the outbox)
+        root = dataset_root(outbox, dataset) if path.is_relative_to(outbox) else path.parent
+        ensure_dataset(ctx, dataset, root, None)
+        return dataset, {}
+    if not os.path.lexists(stored["path"]):
+        ctx.store.record_file(
+            stored["path"], stored["dataset"], FileState.REMOVED, event="moved_away", detail={"to": str(path)}
+        )
+    carried = {k: stored.get(k) for k in ORIGINAL_FIELDS if k != "original_sha256"}
+    own = ctx.store.dataset(stored["dataset"])
+    if own is not None and path.is_relative_to(Path(own["root"]).absolute()):
+        return stored["dataset"], carried
+    if home is None:
+        return None
+    spec = ctx.store.get_spec(stored["spec_id"]) if stored["spec_id"] else None
+    ensure_dataset(ctx, home[0], home[1], spec)  # a dataset first seen through moved files: their spec
+    return home[0], carried
+
+
+def _copied_output(ctx: AppContext, row: dict[str, Any]) -> str | None:
+    """Why a file found by its seal gets no original: the store's row of the same output is a copy
+    in an --out or publish folder (originals never go where copies are published); None otherwise."""
+    stored = _stored_output(ctx, row)
+    copy = _copy_outside_the_source(ctx, stored) if stored is not None else None
+    if stored is None or copy is None:
+        return None
+    return (f"a copy of ppd's output in {copy.parent}, which gets no original; its source's photos were "
+            f"never changed (`ppd restore {stored['dataset']}` removes the dataset's copies)")
+
+
+def _size_and_time(path: Path) -> dict[str, Any]:
+    try:
+        st = os.stat(path, follow_symlinks=False)
+    except OSError:
+        return {}
+    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+FROM_PUBLISH_FOLDER = "from the publish folder"  # the reason's words `ppd restore` counts
+
+
+def _remove_patched_copy(
+    ctx: AppContext, row: dict[str, Any], copy: Path, force: bool
+) -> tuple[str, Path | None]:
+    """Delete ppd's patched copy from an output/publish folder; (the reason line for the outcome, where
+    --force kept a copy that had changed since ppd wrote it)."""
+    where = "publish folder" if row["published_path"] else "output folder"
+    if not copy.exists():
+        return f"no patched copy left in the {where} {copy.parent}; originals are never written there", None
+    kept = None
+    if sha256_file(copy) != row["poisoned_sha256"]:
+        if not force:
+            raise ProtectRefused(f"{copy} changed since ppd patched it; not removing it (use --force)")
+        kept, _ = _displace(ctx, row["dataset"], copy)
+    copy.unlink()
+    said = FROM_PUBLISH_FOLDER if row["published_path"] else f"from the {where}"
+    return f"removed the patched copy {copy} {said}: restore never writes originals there", kept
+
+
+def _content_now(path: Path) -> str | None:
+    """The sha256 of the regular file at path (not followed); None when nothing is there; a word that
+    is no sha256 for anything else (a symlink, a folder), which matches no row's content."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return None
+    except OSError:
+        return "not a regular file" if os.path.lexists(path) else None
+    try:
+        return sha256_fd(fd) if stat.S_ISREG(os.fstat(fd).st_mode) else "not a regular file"
+    finally:
+        os.close(fd)
+
+
+def _displace(ctx: AppContext, dataset: str | None, path: Path) -> tuple[Path, str | Literal[True]]:
+    """The user's file at path kept aside (daemon.protect.displaced) before --force replaces it; (the
+    copy, what vault.restore may replace: exactly the bytes kept, anything for a symlink)."""
+    kept, sha = keep_aside(ctx, dataset, path)
+    return kept, True if sha is None else sha
+
+
+def _pending_as_patched(ctx: AppContext, path: Path, row: dict[str, Any]) -> dict[str, Any]:
+    """A pending row (ppd was killed between replacing the file and recording it) read as patched
+    when the file in place carries this installation's seal naming the row's original: restore then
+    puts the original back. Before, it said "state is pending" and left the patched file, exit 0.
+    A file without that seal (the original, never replaced) keeps the pending row: nothing to do."""
+    sealed = _row_from_marker(ctx, path)
+    if sealed is None or sealed["original_sha256"] != row["original_sha256"]:
+        return row
+    return {**row, "state": FileState.PATCHED, "poisoned_sha256": sealed["poisoned_sha256"]}
+
+
+def _row_from_marker(ctx: AppContext, path: Path) -> dict[str, Any] | None:
+    """A row for ppd's output found without a row of its path (_row_by_provenance), or None."""
+    return _row_by_provenance(ctx, path)[0]
+
+
+def _row_by_provenance(ctx: AppContext, path: Path) -> tuple[dict[str, Any] | None, str]:
+    """A row for ppd's output found without a row of its path: its seal (verified with this
+    installation's key over the file's bytes) and the vault; else its exact bytes, the output a
+    patched row of the store records (as `ppd poison` finds it: a seal made with another key, since
+    replaced). None with the reason in words: no marker, a marker of another key (`ppd key import`),
+    ppd's marker over bytes changed since, or an original not in the vault."""
+    from poisoner.provenance import has_token, read_seal_and_claim
+
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None, f"{path} is not in the store and carries no ppd provenance marker"
+    try:
+        seal, claim = read_seal_and_claim(fd_path(fd), ctx.seal_key())
+        marked = seal is not None or claim is not None or has_token(fd_path(fd))
+        sha = sha256_fd(fd)
+    finally:
+        os.close(fd)
+    stored = ctx.store.find_poisoned(sha, moved_first=True, state=FileState.PATCHED)
+    if seal is not None and ctx.vault.has(seal.original_sha256):
+        original = seal.original_sha256
+    elif stored is not None and stored["original_sha256"] and ctx.vault.has(stored["original_sha256"]):
+        original = stored["original_sha256"]
+    else:
+        return None, _why_not_found(ctx, path, seal, claim, marked)
+    try:
+        dataset = dataset_of(ctx.paths.outbox, path)
+    except OutsideOutboxError:
+        dataset = path.parent.name
+    return {
+        "dataset": dataset, "path": str(path), "state": FileState.PATCHED, "published_path": None,
+        "original_sha256": original, "poisoned_sha256": sha, "from_marker": True,
+    }, ""  # fmt: skip
+
+
+def _why_not_found(ctx: AppContext, path: Path, seal: Any, claim: Any, marked: bool) -> str:
+    """Why a file with no row of its path has no original to restore, in words that say what to do."""
+    if seal is not None:
+        return (f"{path} carries ppd's seal, but its original {seal.original_sha256[:12]} is not in the "
+                f"vault {ctx.vault.vault_dir}")  # fmt: skip
+    if claim is not None:  # this key's token over other bytes: an edit, or a token copied onto a photo
+        return (f"{path} carries ppd's marker, but it changed since ppd patched it (its seal no longer fits "
+                "its bytes); not restored")  # fmt: skip
+    if marked:  # a review: "carries no ppd provenance marker" for a file sealed before `ppd key import`
+        return (f"{path} carries a ppd marker sealed with another key than this installation's: "
+                "`ppd key import` the key it was patched with, then restore it")  # fmt: skip
+    return f"{path} is not in the store and carries no ppd provenance marker"
+
+
+def gone_from_its_place(ctx: AppContext, row: dict[str, Any]) -> bool:
+    """Whether a patched (or pending) row's file, patched in place, is gone from its path: deleted or
+    moved by the user. `ppd restore DATASET` does not make it again (a black-box review: it recreated
+    culled photos and duplicated renamed ones); a copy in an --out or publish folder is not such a row."""
+    return _copy_outside_the_source(ctx, row) is None and not os.path.lexists(row["path"])

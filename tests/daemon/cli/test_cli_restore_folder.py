@@ -1,0 +1,81 @@
+"""`ppd restore DATASET|FOLDER` restores what is in the folder and leaves what the user removed.
+
+A black-box review: after a lost store a folder restore said "not a folder ppd patched", or "restored 0,
+..., failed 0" with exit 0, while its files were still patched (F2); a dataset folder moved or renamed
+could not be restored by its new path, and its old one gave a raw "[Errno 2]" line per file (F3); a
+dataset restore made deleted photos again and duplicated renamed ones, saying only "restored N" (F4)."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from testkit.photos import make_image
+
+runner = CliRunner()
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _shoot(folder: Path, n: int = 3) -> dict[str, str]:
+    originals = {f"v{i}.png": _sha(make_image(folder / f"v{i}.png", i)) for i in range(n)}
+    assert runner.invoke(app, ["poison", str(folder)]).exit_code == 0
+    return originals
+
+
+def _lose_store(data: Path) -> None:
+    for suffix in ("", "-wal", "-shm"):
+        (data / f"ppd.sqlite3{suffix}").unlink(missing_ok=True)
+
+
+def test_a_folder_restore_after_a_lost_store_restores_every_sealed_file(ppd_env: dict[str, Path],
+                                                                        tmp_path: Path) -> None:  # fmt: skip
+    a, b = tmp_path / "a", tmp_path / "b"
+    originals = {**{f"a/{k}": v for k, v in _shoot(a).items()}, **{f"b/{k}": v for k, v in _shoot(b).items()}}
+    _lose_store(ppd_env["data"])
+    first = runner.invoke(app, ["restore", str(a)])  # before: "not a folder ppd patched", rc 2
+    assert first.exit_code == 0 and "restored 3" in first.output, first.output
+    assert runner.invoke(app, ["restore", str(b / "v0.png")]).exit_code == 0  # one file: a dataset b
+    rest = runner.invoke(app, ["restore", str(b)])  # before: "restored 0, ..., failed 0", rc 0
+    assert rest.exit_code == 0 and "restored 2" in rest.output, rest.output
+    assert {f"{p.parent.name}/{p.name}": _sha(p) for p in [*a.iterdir(), *b.iterdir()]} == originals
+    dry = runner.invoke(app, ["poison", str(a), "--dry-run"])  # recorded restored: not patched again
+    assert "would patch 0" in " ".join(dry.output.split()), dry.output
+
+
+def test_a_moved_dataset_folder_is_restored_by_its_new_path(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    shoot, moved = tmp_path / "shoot", tmp_path / "moved"
+    originals = _shoot(shoot)
+    shoot.rename(moved)
+    old = runner.invoke(app, ["restore", "shoot"])
+    lines = [line for line in old.output.splitlines() if line.strip()]
+    assert old.exit_code == 2 and len(lines) == 1 and "[Errno" not in old.output, old.output
+    assert f"its folder {shoot} is gone" in lines[0] and lines[0].startswith("ppd: error: "), lines
+    new = runner.invoke(app, ["restore", str(moved)])  # before: "not a folder ppd patched", rc 2
+    assert new.exit_code == 0 and "restored 3" in new.output, new.output
+    assert {p.name: _sha(p) for p in moved.iterdir()} == originals
+    dry = runner.invoke(app, ["poison", str(moved), "--dry-run"])
+    assert "would patch 0" in " ".join(dry.output.split()), dry.output
+
+
+def test_a_dataset_restore_leaves_deleted_files_gone_and_restores_renamed_ones(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    shoot = tmp_path / "shoot"
+    originals = _shoot(shoot, n=4)
+    (shoot / "v1.png").unlink()  # culled
+    (shoot / "v0.png").rename(shoot / "hero.png")
+    result = runner.invoke(app, ["restore", "shoot"])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 0 and "restored 3" in text, text
+    assert "1 gone since patched, not recreated: v1.png" in text, text
+    assert sorted(p.name for p in shoot.iterdir()) == ["hero.png", "v2.png", "v3.png"]
+    assert _sha(shoot / "hero.png") == originals["v0.png"]
+    # asked for by its name, a deleted photo does come back
+    again = runner.invoke(app, ["restore", str(shoot / "v1.png")])
+    assert again.exit_code == 0 and _sha(shoot / "v1.png") == originals["v1.png"], again.output
