@@ -70,9 +70,12 @@ def test_restore_without_any_row_uses_the_marker(ppd_env: dict[str, Path]) -> No
 
 
 def _new_key(ctx: AppContext) -> AppContext:
-    """The seal key replaced (lost, or `ppd key import --force` of another one): a new one is made."""
+    """The seal key replaced (lost, then `ppd key new`; or `ppd key import --force` of another one)."""
+    from daemon.store.sealkey import new_key
+
     ctx.close()
     (ctx.paths.data_dir / "seal.key").unlink()
+    new_key(ctx.paths.data_dir)  # ppd never makes one on its own beside a vault of originals
     return AppContext.open()
 
 
