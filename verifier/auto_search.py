@@ -159,15 +159,20 @@ def normalise_inputs(pairs_or_images: Sequence[ImageInput]) -> list[tuple[Path, 
     return out
 
 
+# the fewest images a preflight reconstructs from (COLMAP needs three views for a model worth judging)
+MIN_SAMPLE = 3
+
+
 def choose_sample(items: Sequence[tuple[Path, str]], size: int) -> list[tuple[Path, str]]:
     """An evenly spaced sample by name (deterministic; spans the capture, as a walk around does)."""
     usable = sorted(
         {name: (src, name) for src, name in items if is_sfm_readable(name)}.values(),
         key=lambda t: t[1],
     )
-    if len(usable) < 3:
+    if len(usable) < MIN_SAMPLE:
         raise PreflightInputError(
-            f"need at least 3 images COLMAP can read ({', '.join(sorted(SFM_SUFFIXES))}), got {len(usable)}"
+            f"need at least {MIN_SAMPLE} images COLMAP can read ({', '.join(sorted(SFM_SUFFIXES))}), "
+            f"got {len(usable)}"
         )
     if len(usable) <= size:
         return usable
@@ -373,7 +378,7 @@ def _chosen_reason(chosen: CandidateEvidence, budget: VisibilityBudget, failed: 
     )
     return (
         f"{chosen.name}: the least visible candidate within the budget ({budget.describe()}) that Verifier I "
-        f"confirms protected under every profile ({per}){_visibility_text(chosen.visibility)}."
+        f"confirms protected under every profile it ran ({per}){_visibility_text(chosen.visibility)}."
         + (f" Less visible but not protected: {', '.join(failed)}." if failed else "")
     )
 

@@ -132,6 +132,7 @@ def _images(ctx: AppContext, target: str) -> tuple[list[Any], str | None]:
     plain folder). target: a dataset's name, its folder or a verification folder, or any folder."""
     from daemon.cli.targets import TargetError, resolve_target, say_note
     from daemon.verification import auto_mode as daemon_auto
+    from verifier.auto_search import MIN_SAMPLE
 
     try:
         chosen = resolve_target(ctx.store, target)
@@ -139,7 +140,12 @@ def _images(ctx: AppContext, target: str) -> tuple[list[Any], str | None]:
         raise _fail(one_line(exc)) from None
     say_note(chosen, err_console())  # stderr: stdout may be --json
     if chosen.dataset is not None:
-        return daemon_auto.dataset_images(ctx, chosen.dataset), chosen.dataset
+        images = daemon_auto.dataset_images(ctx, chosen.dataset)
+        if len(images) < MIN_SAMPLE:  # restored ones have no vault pair: "got 0 images" said nothing
+            raise _fail(f"dataset {chosen.dataset!r} has {len(images)} patched file(s) with their original "
+                        f"in the vault; automatic mode measures at least {MIN_SAMPLE}: patch them first "
+                        f"(`ppd poison`), or give a folder of originals")  # fmt: skip
+        return images, chosen.dataset
     assert chosen.folder is not None
     folder = chosen.folder
     return sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")), None

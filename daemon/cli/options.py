@@ -37,7 +37,7 @@ _HELP = {
     "contrast": "Bright-minus-dark difference, 1..255.",
     "position": "Corner (or centre) the patch starts from.",
     "offset": "Shift inward from that corner, DX,DY (pixels, fractions or percents).",
-    "ratio": "Fraction of the dataset's images that get the patch, 0..1.",
+    "ratio": "Chance that each image gets the patch, 0..1 (a keyed hash of its name: stable as images come).",
     "seed": "Seed for random textures and for the ratio's choice of images.",
     "motion": "How the patch moves from image to image (static = the paper's fixed patch).",
     "motion_step": "Path length per image: pixels, fraction of the width or percent.",

@@ -54,3 +54,20 @@ def test_auto_json_carries_the_hint_and_prints_nothing_else(
     decision = json.loads(result.output)  # the JSON alone: the hint is not printed as a line
     assert decision["scene_hint"].startswith(f"{PREFIX}room: richly textured everywhere")
     assert decision["sample"] and "chosen" in decision
+
+
+def test_auto_of_a_restored_dataset_says_why_it_has_nothing_to_measure(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """`ppd auto A` after `ppd restore A` said "need at least 3 images COLMAP can read (...), got 0"
+    of a folder of 4 JPEGs (a black-box review): it measures patched files' vault originals."""
+    from daemon.cli import app
+
+    shoot = tmp_path / "A"
+    render_scene(shoot, SyntheticOptions(num_views=4, width=96, height=96))
+    runner = CliRunner()
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert runner.invoke(app, ["restore", "A"]).exit_code == 0
+    result = runner.invoke(app, ["auto", "A", "--no-apply"])
+    said = " ".join(result.output.split())
+    assert result.exit_code == 2 and "has 0 patched file(s)" in said and "`ppd poison`" in said, said
