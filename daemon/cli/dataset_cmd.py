@@ -34,6 +34,8 @@ def dataset_show(name: str, as_json: bool = typer.Option(False, "--json")) -> No
             typer.echo(json.dumps(info, indent=2, default=str))
             return
         console().print(f"[bold]{name}[/] at {info['root']}  spec {info['spec_id']}: {info['spec_summary']}")
+        if info["publish_dir"]:
+            console().print(f"publish folder: {info['publish_dir']}", markup=False)
         if info["spec"]:
             console().print(PatchSpec.from_dict(info["spec"]).to_toml(), end="")
         console().print(" ".join(f"{k}={v}" for k, v in info["counts"].items()))
@@ -97,6 +99,11 @@ def dataset_set(
                 raise die(str(exc)) from None
         if publish_dir is not None:
             ctx.store.set_dataset_publish_dir(name, publish_dir.absolute())
+            # said: it applies to files patched from now on (the review found the folder with 1 photo of 3)
+            earlier = ctx.store.counts(name).get("patched", 0) if existing is not None else 0
+            stay = f"; the {earlier} patched before stay where they are" if earlier else ""
+            console().print(f"{name}: files patched from now on go to {publish_dir.absolute()}{stay}",
+                            markup=False)  # fmt: skip
         console().print(f"{name}: spec {spec.spec_id} ({spec_summary(spec)})", markup=False)
     finally:
         ctx.close()

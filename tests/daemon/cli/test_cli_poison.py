@@ -757,3 +757,15 @@ def test_no_placement_line_where_every_file_failed(tmp_path: Path, ppd_env: dict
     make_image(shoot / "big.png", 3)
     again = runner.invoke(app, ["poison", str(shoot)])
     assert "patched 1" in " ".join(again.output.split()), again.output
+
+
+def test_dataset_set_publish_dir_says_what_it_changes(shoot: Path, tmp_path: Path) -> None:
+    """`ppd dataset set NAME --publish-dir D` printed nothing about D, `dataset show` did not show it,
+    and the folder ended up with 1 photo of 3 (a black-box review): only later files go there."""
+    assert runner.invoke(app, ["poison", str(shoot), "--dataset", "castle"]).exit_code == 0
+    publish = tmp_path / "pub"
+    result = runner.invoke(app, ["dataset", "set", "castle", "--publish-dir", str(publish)])
+    said = " ".join(result.output.split())
+    assert result.exit_code == 0 and f"go to {publish}" in said and "patched before stay" in said, said
+    shown = " ".join(runner.invoke(app, ["dataset", "show", "castle"]).output.split())
+    assert f"publish folder: {publish}" in shown, shown
