@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import logging
 import os
+import re
 import sys
 from typing import TYPE_CHECKING, Any, cast
 
@@ -40,9 +41,15 @@ def print_line(out: Console, line: str) -> None:
     if not out.is_terminal and not os.environ.get("COLUMNS"):
         out.print(line, markup=False, soft_wrap=True)
         return
-    wrapped = textwrap.wrap(line, out.width, break_long_words=False, break_on_hyphens=False,
+    # a `command` in backticks is one word: broken across lines it cannot be copied whole (a review
+    # at 40 columns); its spaces are held by a character no message uses while wrapping
+    held = re.sub(r"`[^`]*`", lambda m: m.group(0).replace(" ", _HELD_SPACE), line)
+    wrapped = textwrap.wrap(held, out.width, break_long_words=False, break_on_hyphens=False,
                             subsequent_indent=" " * (len(line) - len(line.lstrip(" "))))  # fmt: skip
-    out.print("\n".join(wrapped) or line, markup=False, soft_wrap=True)
+    out.print("\n".join(wrapped).replace(_HELD_SPACE, " ") or line, markup=False, soft_wrap=True)
+
+
+_HELD_SPACE = "\x00"
 
 
 def interactive() -> bool:

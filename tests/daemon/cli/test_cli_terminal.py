@@ -496,3 +496,21 @@ def test_a_librarys_python_warning_in_a_worker_is_not_printed_either() -> None:
     proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60,
                           env=dict(os.environ, PYTHONPATH=str(REPO)))  # fmt: skip
     assert proc.returncode == 0 and "Tag data larger than file" not in proc.stderr, proc.stderr
+
+
+def test_a_command_in_backticks_is_never_broken_across_lines() -> None:
+    """At 40 columns `ppd poison /long/path --force` was split after the path (a black-box review): a
+    command to copy stays on one line, the words around it still wrap."""
+    import io
+
+    from rich.console import Console
+
+    from daemon.cli.output import print_line
+
+    buffer = io.StringIO()
+    out = Console(file=buffer, width=40, force_terminal=True, color_system=None, soft_wrap=True)
+    command = "`ppd poison /tmp/shoots/kitchen/day2 --force`"
+    print_line(out, f"kitchen: 3 restored by you, NOT protected: {command} patches them again")
+    lines = buffer.getvalue().splitlines()
+    assert any(command in line for line in lines), lines
+    assert len(lines) >= 3 and all(len(line) <= 40 for line in lines if "`" not in line), lines
