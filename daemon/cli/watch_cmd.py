@@ -44,8 +44,8 @@ def _open_context(outbox: Path | None, seal_key: bool = False):  # -> daemon.con
         raise _fail(f"{paths.outbox} is a file, not a folder: give the folder to watch", ExitStatus.USAGE)
     try:
         ctx = AppContext.open(paths)
-    except (ConfigError, StoreError) as exc:
-        raise _fail(str(exc).splitlines()[0]) from None
+    except (ConfigError, StoreError) as exc:  # 2 and 3, as every command: the unit does not restart on them
+        raise _fail(str(exc).splitlines()[0], exc.exit_status) from None
     except OSError as exc:
         raise _fail(f"cannot set up ppd's folders: {exc.strerror}: {exc.filename}") from None
     if seal_key:  # made now while the vault is empty; a lost one stops the daemon before it patches

@@ -72,6 +72,7 @@ def test_installed_unit_passes_systemd_analyze_verify(ppd_env: dict[str, Path], 
     assert Path(argv[0]).is_absolute() and Path(argv[0]).exists()
     assert settings["ExecStart"] == [" ".join(quote_word(w) for w in argv)]
     assert settings["Type"] == ["notify"] and settings["Restart"] == ["on-failure"]
+    assert settings["RestartPreventExitStatus"] == ["2 3"]  # a missing key is not retried every 5 s
     assert "WatchdogSec" in settings and settings["RestrictAddressFamilies"] == ["AF_UNIX"]
     read_write = settings["ReadWritePaths"][0]
     for folder in (ppd_env["outbox"], ppd_env["data"]):

@@ -756,12 +756,14 @@ print(json.dumps({"protected": d.counts.patched, "modules": sorted(sys.modules)}
     assert "poisoner.formats" not in report["modules"] and "poisoner.blend" not in report["modules"]
 
 
-def test_bad_config_is_one_line_and_exit_status_1(ppd_env: dict[str, Path]) -> None:
+def test_bad_config_is_one_line_and_exit_status_2(ppd_env: dict[str, Path]) -> None:
+    """Bad input, 2 as in every command (it was 1): the unit's RestartPreventExitStatus does not
+    restart a daemon every 5 s on a config only the user can fix."""
     (ppd_env["config"] / "config.toml").write_text("workers = 0\n")
     proc = subprocess.run(
         [*_ppd_command(), "watch"], cwd=REPO, capture_output=True, text=True, timeout=60, env=dict(os.environ)
     )
-    assert proc.returncode == 1
+    assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "workers" in lines[0] and "Traceback" not in proc.stderr
 
