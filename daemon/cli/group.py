@@ -90,6 +90,7 @@ class PpdGroup(TyperGroup):
                 signal.signal(signal.SIGINT, signal.default_int_handler)
         tidy_help(self)
         coerce.install()
+        args = _verbosity_first(self, list(sys.argv[1:] if args is None else args))
         try:
             rv = super().main(
                 args=args, prog_name=prog_name or "ppd", complete_var=complete_var,
@@ -104,6 +105,31 @@ class PpdGroup(TyperGroup):
         if not standalone_mode:
             return code
         sys.exit(code)
+
+
+_VERBOSE = frozenset({"-v", "-vv", "-vvv", "--verbose"})
+
+
+def _verbosity_first(group: Any, args: list[str]) -> list[str]:
+    """args with a -v given after the command moved before it, where the group's -v lives: `ppd
+    restore X -v` said "No such option: -v" (a black-box review). A command with a -v of its own
+    (`ppd store rebuild -v`) keeps it; nothing after `--` moves."""
+    command, at = group, None
+    for i, word in enumerate(args):
+        if word == "--":
+            break
+        sub = getattr(command, "commands", {}).get(word) if not word.startswith("-") else None
+        if sub is None:
+            if at is not None and not word.startswith("-"):
+                break  # the first argument of the command: its subcommands end here
+            continue
+        command, at = sub, i
+    if at is None or any("-v" in getattr(p, "opts", ()) for p in command.params):
+        return args
+    end = args.index("--") if "--" in args else len(args)
+    moved = [w for w in args[at + 1 : end] if w in _VERBOSE]
+    kept = [w for w in args[at + 1 : end] if w not in _VERBOSE]
+    return moved + args[: at + 1] + kept + args[end:]
 
 
 def _exit_code(exc: Exception) -> int:

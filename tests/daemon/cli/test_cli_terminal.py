@@ -514,3 +514,23 @@ def test_a_command_in_backticks_is_never_broken_across_lines() -> None:
     lines = buffer.getvalue().splitlines()
     assert any(command in line for line in lines), lines
     assert len(lines) >= 3 and all(len(line) <= 40 for line in lines if "`" not in line), lines
+
+
+def test_verbose_after_the_command_is_the_groups(shoot: Path) -> None:
+    """`ppd restore X -v` said "No such option: -v" (a black-box review): -v after a command means
+    what it means before it, except for a command with a -v of its own (`ppd store rebuild -v`)."""
+    from daemon.cli.group import _verbosity_first
+
+    assert runner.invoke(app, ["poison", str(shoot), "--dataset", "castle"]).exit_code == 0
+    restored = runner.invoke(app, ["restore", "castle", "-v"])
+    assert restored.exit_code == 0, restored.output
+    assert f"restored {sorted(shoot.glob('*.png'))[0]}" in restored.output
+    assert _verbosity_first(app_group(), ["store", "rebuild", "-v"]) == ["store", "rebuild", "-v"]
+    moved = _verbosity_first(app_group(), ["poison", "x", "-vv", "--", "-v"])
+    assert moved == ["-vv", "poison", "x", "--", "-v"]
+
+
+def app_group():  # the click group typer builds for `ppd`
+    import typer.main
+
+    return typer.main.get_command(app)
