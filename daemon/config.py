@@ -148,7 +148,10 @@ def spec_from_table(table: dict[str, Any], base: PatchSpec | None = None) -> Pat
     if unknown:
         raise SpecError(f"unknown patch field(s): {', '.join(sorted(unknown))}")
     try:
-        return (base or default_spec()).replace(**data)
+        spec = (base or default_spec()).replace(**data)
+        if problem := spec.mark_problem():  # the user's words: a spec that writes nothing is refused
+            raise SpecError(problem)
+        return spec
     except SpecError as exc:
         if base is None and "lanes" not in data and {"motion", "pattern", "offset"} & set(data):
             # fields written for the old default (the roaming square) on today's default (two lanes)

@@ -1,13 +1,12 @@
 """PatchSpec: everything that decides what a dataset's patch looks like and where it goes.
 
-A spec is resolved against an image size into a `PatchPlacement` (pixel geometry). Two
-images of the same size resolve to the same placement, so every image of a dataset gets a
-bit-identical patch at identical pixel coordinates (the paper's mechanism).
+A spec is resolved against an image size into a `PatchPlacement` (pixel geometry). Two images of the
+same size resolve to the same placement: every image of a dataset gets a bit-identical patch at
+identical pixel coordinates (the paper's mechanism).
 
-A moving spec (issue #9: `motion` other than "static") also takes the image's file name:
-`resolve(width, height, image_key)` moves the patch along a deterministic path indexed by the
-name (poisoner/motion.py), so COLMAP's stationary-match filter no longer removes its matches.
-Without a key a moving spec resolves at index 0.
+A moving spec (issue #9: `motion` other than "static") also takes the image's file name: `resolve(width,
+height, image_key)` moves the patch along a deterministic path indexed by the name (poisoner/motion.py),
+so COLMAP's stationary-match filter no longer removes its matches. Without a key: index 0.
 
 Sizes are pixels when given as an int (or a float >= 1) and a fraction of the image width
 when given as a float in (0, 1) (poisoner.lengths: a 2:1 frame's width on a wider panorama): the
@@ -64,9 +63,8 @@ AUTO = "auto"
 # extractor default pycolmap 4.2.1 uses): what a creator's 24 MP photo is to an attacker's SfM.
 SIFT_MAX_EDGE = 3200
 
-# Fields added by issue #9. They stay out of the canonical dict (and so out of spec_id) while at
-# these defaults: every spec stored before them keeps its id.
-# Issue 14's fields (corner_region, tumble_scale) likewise.
+# Fields added by issues 9, 14 and later. They stay out of the canonical dict (and so out of spec_id)
+# while at these defaults: every spec stored before them keeps its id.
 NEW_FIELD_DEFAULTS: dict[str, Any] = {
     "motion": "static",
     "motion_step": 0,
@@ -87,9 +85,8 @@ MAX_LANES = 3
 # All lanes together change at most this fraction of the image (issue 14's budget is 1%), and they
 # stack inside corner_region of the height: on wide frames the lanes shrink instead of spilling over.
 LANES_MAX_AREA = 0.0096
-# A tilted slide (slide_run > 0) moves along the lattice direction (run, 1); below this run two
-# stacked lanes could overlap (their gap is a sixth of the lane side, their x distance run px per px
-# of y).
+# A tilted slide (slide_run > 0) moves along the lattice direction (run, 1); below this run two stacked
+# lanes could overlap (their gap is a sixth of the lane side, their x distance run px per px of y).
 MIN_SLIDE_RUN = 6
 
 
@@ -193,12 +190,10 @@ class PatchSpec:
             raise SpecError(f"unknown pattern {self.pattern!r}; choose one of {', '.join(PATTERNS)}")
         if self.position not in POSITIONS:
             raise SpecError(f"unknown position {self.position!r}; choose one of {', '.join(POSITIONS)}")
-        # 0 is refused for both: alpha 0 blends nothing in, contrast 0 makes the mark one flat colour
-        # (no texture for SIFT), and either was called "patched" (a black-box review)
-        if not 0.0 < self.alpha <= 1.0:
-            raise SpecError(f"alpha must be in (0, 1] (0 writes no mark), got {self.alpha}")
-        if not 0 < self.contrast <= 255:
-            raise SpecError(f"contrast must be in [1, 255] (0: one flat colour), got {self.contrast}")
+        if not 0.0 <= self.alpha <= 1.0:
+            raise SpecError(f"alpha must be in [0, 1], got {self.alpha}")
+        if not 0 <= self.contrast <= 255:
+            raise SpecError(f"contrast must be in [0, 255], got {self.contrast}")
         if not 0.0 <= self.ratio <= 1.0:
             raise SpecError(f"ratio must be in [0, 1], got {self.ratio}")
         if self.version != SPEC_VERSION:
@@ -238,6 +233,13 @@ class PatchSpec:
         if self.mark_text and not self.mark_text.strip():
             raise SpecError("mark_text is blank")
         object.__setattr__(self, "offset", (self.offset[0], self.offset[1]))
+
+    def mark_problem(self) -> str | None:
+        """Why this spec writes no texture (called "patched": a black-box review), or None. Asked where
+        the user makes a spec (daemon.config.spec_from_table), not of a stored one: it stays readable."""
+        if round(255 * self.alpha) == 0:
+            return f"alpha {self.alpha} writes no mark (it blends in less than one level of 255)"
+        return "contrast 0 makes the mark one flat colour: no texture" if self.contrast == 0 else None
 
     # ---- geometry -------------------------------------------------------------------------
     def resolve(
