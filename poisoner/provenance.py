@@ -290,35 +290,53 @@ def read_seal(path: Path, key: bytes | None) -> Seal | None:
     return read_seal_and_claim(path, key)[0]
 
 
+@dataclass(frozen=True)
+class SealScan:
+    """What one scan of a file's tokens says (scan_seals)."""
+
+    seal: Seal | None  # read_seal's answer
+    claim: Seal | None  # the first token this key opens, verified or not
+    other_key: bool  # a token this key does not open: ppd's output sealed with another key
+
+
 def read_seal_and_claim(path: Path, key: bytes | None) -> tuple[Seal | None, Seal | None]:
     """(read_seal, the claim) from one scan of the file. The claim: what the first token made with this
     key says (the original and spec ppd patched from), whether or not the file's bytes are still those
     it sealed: not proof, a token can be copied onto another photo; the caller checks the picture
-    before trusting it (daemon.protect.edited). The protect stages ask both of every new file, and a
-    file without a token is read once (1.5 ms of a 12 MP JPEG)."""
+    before trusting it (daemon.protect.edited)."""
+    scan = scan_seals(path, key)
+    return scan.seal, scan.claim
+
+
+def scan_seals(path: Path, key: bytes | None) -> SealScan:
+    """read_seal_and_claim's answers, and whether a token is there that this key does not open. The
+    protect stages ask all three of every new file, and a file without a token is read once (1.5 ms of
+    a 12 MP JPEG)."""
     if not key:
-        return None, None
+        return SealScan(None, None, False)
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError:
-        return None, None
+        return SealScan(None, None, False)
     claim: Seal | None = None
+    other = False
     try:
         if os.fstat(fd).st_size == 0:
-            return None, None
+            return SealScan(None, None, False)
         with mmap.mmap(fd, 0, access=mmap.ACCESS_READ) as mm:
             for tok in _tokens(mm):
                 seal = _open_body(key, tok.body)
                 if seal is None:
+                    other = True
                     continue
                 if hmac.compare_digest(_file_tag(key, mm, tok), tok.tag):
-                    return seal, seal
+                    return SealScan(seal, seal, False)
                 claim = claim or seal
     except (OSError, ValueError):
-        return None, claim
+        return SealScan(None, claim, other)
     finally:
         os.close(fd)
-    return None, claim
+    return SealScan(None, claim, other and claim is None)
 
 
 def sealed_for(path: Path, key: bytes | None, original_sha256: str, spec_id: str) -> bool:

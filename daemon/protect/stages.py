@@ -348,11 +348,17 @@ def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
     key over exactly these bytes (poisoner.provenance). A copied, forged, cropped or edited file
     does not verify and goes on as a new photo. When the vault holds the original the seal names,
     the row is written back (so status and restore see it)."""
-    from poisoner.provenance import read_seal_and_claim
+    from poisoner.provenance import scan_seals
 
     assert job.file is not None and job.sha is not None
     ctx = job.ctx
-    seal, claim = read_seal_and_claim(fd_path(job.file.fd), ctx.seal_key())  # one scan of the file
+    scan = scan_seals(fd_path(job.file.fd), ctx.seal_key())  # one scan of the file
+    seal, claim = scan.seal, scan.claim
+    if scan.other_key and not job.force:  # marked again, and its marked bytes vaulted as the original
+        raise ProtectRefused(  # (a black-box review, after a lost store and `ppd key new`)
+            f"{shown_name(job.path)} is already ppd's output, sealed with another key: `ppd key import` the "
+            "key it was patched with (`--force` marks it again, its marked bytes kept as the original)"
+        )
     if seal is None:  # a token that opens but no longer verifies: ppd's output, edited since?
         return recognise_edited_output(job, claim) if claim is not None else None
     if job.out_path is None and not job.dry_run and ctx.vault.has(seal.original_sha256):

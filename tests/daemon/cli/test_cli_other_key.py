@@ -1,0 +1,44 @@
+"""ppd's output sealed with another key (a second black-box review): after a lost store and `ppd key
+new` (what the missing-key error offers), or `ppd key import --force` of another key, `ppd poison`
+marked every patched file a second time and vaulted its once-marked bytes as the "original"; `ppd
+restore` then said "restored" and wrote marked bytes back. A file carrying a token this key does not
+open is refused, saying which key to import; `--force` marks it anyway."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from daemon.paths import AppPaths
+from testkit.photos import make_image
+
+runner = CliRunner()
+
+
+def _shas(folder: Path) -> dict[str, str]:
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir())}
+
+
+def test_output_sealed_with_another_key_is_not_marked_again(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    paths = AppPaths.from_env()
+    shoot = tmp_path / "shoot"
+    for i in range(3):
+        make_image(shoot / f"v{i}.png", i)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    patched = _shas(shoot)
+    paths.db_path.unlink()  # the store lost, and the key with it: a new one made knowingly
+    (paths.data_dir / "seal.key").unlink()
+    assert runner.invoke(app, ["key", "new"]).exit_code == 0
+    vaulted = sorted(p.name for p in paths.vault_dir.glob("??/*"))
+
+    refused = runner.invoke(app, ["poison", str(shoot)])
+    said = " ".join(refused.output.split())
+    assert refused.exit_code == 1 and "failed 3" in said and "sealed with another key" in said, said
+    assert "`ppd key import`" in said
+    assert _shas(shoot) == patched and sorted(p.name for p in paths.vault_dir.glob("??/*")) == vaulted
+
+    forced = runner.invoke(app, ["poison", str(shoot), "--force"])  # asked for: not refused for the key
+    assert "sealed with another key" not in forced.output and "patched" in forced.output, forced.output
