@@ -96,10 +96,27 @@ class AppPaths:
         for folder in (Path(f).expanduser().resolve() for f in published):
             if data.is_relative_to(folder):
                 return f"inside the publish folder {folder}"
+            if folder.is_relative_to(data):
+                return f"the publish folder {folder} is inside it"
         if data.exists() and not data.is_dir():
             return "not a folder"
         if data.is_dir() and (photo := _a_photo_in(data)) is not None:
             return f"it holds photos or videos ({photo}): not a folder of ppd's own"
+        return None
+
+
+    def publishes_data(self, folder: Path) -> str | None:
+        """Why publishing folder (a publish folder, a dataset's folder patched in place) would publish
+        ppd's data folder (the vault of originals, the seal key, restore's kept copies) or write into it;
+        None when it would not. A home folder counts for itself alone: its subfolders are the user's own
+        (the data folder's default, ~/.local/share/ppd, is one). A second black-box review: `dataset set
+        --publish-dir` took a folder holding the vault, and data/displaced itself."""
+        data, folder = self.data_dir.resolve(), Path(folder).expanduser().resolve()
+        inside = data.parent == folder if folder == Path.home().resolve() else data.is_relative_to(folder)
+        if inside:
+            return f"the data folder {self.data_dir} (vault of originals, seal key) is inside {folder}"
+        if folder.is_relative_to(data):
+            return f"{folder} is inside ppd's data folder {self.data_dir}"
         return None
 
 

@@ -98,6 +98,8 @@ def dataset_set(
             except DatasetSpecLocked as exc:
                 raise die(str(exc)) from None
         if publish_dir is not None:
+            if why := ctx.paths.publishes_data(publish_dir):  # its files are published: never ppd's own
+                raise die(f"--publish-dir {publish_dir}: {why}; choose another folder")
             ctx.store.set_dataset_publish_dir(name, publish_dir.absolute())
             # said: it applies to files patched from now on (the review found the folder with 1 photo of 3)
             earlier = ctx.store.counts(name).get("patched", 0) if existing is not None else 0

@@ -108,6 +108,10 @@ def check_dataset_roots(ctx: AppContext, jobs: list[Job]) -> None:
         root = seen.setdefault(job.dataset, job.root)
         if root.absolute() != job.root.absolute():
             raise die(f"dataset {job.dataset!r} would cover both {root} and {job.root}; use --dataset")
+        # patched in place, the folder is what gets published
+        if (why := ctx.paths.publishes_data(job.root)) and job.out_path is None:
+            raise die(f"dataset {job.dataset!r}: {why}: publishing it would publish them; move PPD_DATA_DIR "
+                      "or patch a folder beside it", ExitStatus.ENVIRONMENT)  # fmt: skip
         row = ctx.store.dataset(job.dataset)
         if row is not None and Path(row["root"]).absolute() != job.root.absolute():
             raise die(
