@@ -49,11 +49,11 @@ def restore_file(
     copy = None if row.get("from_marker") else _copy_outside_the_source(ctx, row)
     if row.get("from_marker") and (refusal := _copied_output(ctx, row)):
         return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=refusal)
-    kept: Path | None = None  # where --force put the user's file that stood in the original's way
+    kept: list[tuple[Path, Path]] = []  # (the user's file that stood in the original's way, its copy)
     with ctx.path_lock(path):
         try:
             if copy is not None:
-                reason, kept = _remove_patched_copy(ctx, row, copy, force)
+                reason = _remove_patched_copy(ctx, row, copy, force, kept)
                 target = Path(row["path"]) if row["published_path"] else None
                 if target is not None:  # published: the original goes back to where it was patched
                     now = _content_now(target)
@@ -63,7 +63,7 @@ def restore_file(
                             raise ProtectRefused(
                                 f"{target} exists; not overwriting it with the original (use --force)"
                             )
-                        kept, replaces = _displace(ctx, dataset, target)
+                        replaces = _displace(ctx, dataset, target, kept)
                     if now != row["original_sha256"]:
                         ctx.vault.restore(
                             row["original_sha256"], target, replaces=replaces,
@@ -84,7 +84,7 @@ def restore_file(
                         aside = displaced_folder(ctx, dataset)
                         raise ProtectRefused(f"{words}; not overwriting it (--force keeps your version in "
                                              f"{aside} and puts the original back)")  # fmt: skip
-                    kept, replaces = _displace(ctx, dataset, target)
+                    replaces = _displace(ctx, dataset, target, kept)
                 if now != row["original_sha256"]:  # the original already (a restore killed after its
                     ctx.vault.restore(  # rename): recorded
                         row["original_sha256"], target, replaces=replaces,
@@ -92,9 +92,9 @@ def restore_file(
                     )  # fmt: skip
                 reason = None
         except Exception as exc:
-            said = one_line(exc) + (f"; your version is kept at {kept}" if kept is not None else "")
+            said = one_line(exc) + "".join(f"; your version of {src} is kept at {to}" for src, to in kept)
             return ProtectOutcome(
-                path=path, dataset=dataset, state=Outcome.FAILED, reason=said, displaced=kept
+                path=path, dataset=dataset, state=Outcome.FAILED, reason=said, displaced=tuple(kept)
             )
         carried: dict[str, Any] = {}
         if row.get("from_marker"):
@@ -102,7 +102,7 @@ def restore_file(
             if where is None:
                 return ProtectOutcome(
                     path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
-                    original_sha256=row["original_sha256"], output=target, displaced=kept,
+                    original_sha256=row["original_sha256"], output=target, displaced=tuple(kept),
                 )  # fmt: skip
             dataset, carried = where
         # the restored file's size and time: the daemon's catch-up scan leaves it alone while they hold
@@ -112,11 +112,11 @@ def restore_file(
             path, dataset, FileState.RESTORED, original_sha256=row["original_sha256"], published_path=None,
             event="restored", **signature, **carried,
             detail={"to": str(target) if target else None, "sha256": row["original_sha256"], "note": reason,
-                    **({"displaced": str(kept)} if kept is not None else {})},
+                    **({"displaced": [str(to) for _, to in kept]} if kept else {})},
         )  # fmt: skip
     return ProtectOutcome(
         path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
-        original_sha256=row["original_sha256"], output=target, displaced=kept,
+        original_sha256=row["original_sha256"], output=target, displaced=tuple(kept),
     )  # fmt: skip
 
 
@@ -202,21 +202,20 @@ FROM_PUBLISH_FOLDER = "from the publish folder"  # the reason's words `ppd resto
 
 
 def _remove_patched_copy(
-    ctx: AppContext, row: dict[str, Any], copy: Path, force: bool
-) -> tuple[str, Path | None]:
-    """Delete ppd's patched copy from an output/publish folder; (the reason line for the outcome, where
-    --force kept a copy that had changed since ppd wrote it)."""
+    ctx: AppContext, row: dict[str, Any], copy: Path, force: bool, kept: list[tuple[Path, Path]]
+) -> str:
+    """Delete ppd's patched copy from an output/publish folder; the reason line for the outcome. A copy
+    changed since ppd wrote it is added to kept when --force keeps it aside."""
     where = "publish folder" if row["published_path"] else "output folder"
     if not copy.exists():
-        return f"no patched copy left in the {where} {copy.parent}; originals are never written there", None
-    kept = None
+        return f"no patched copy left in the {where} {copy.parent}; originals are never written there"
     if sha256_file(copy) != row["poisoned_sha256"]:
         if not force:
             raise ProtectRefused(f"{copy} changed since ppd patched it; not removing it (use --force)")
-        kept, _ = _displace(ctx, row["dataset"], copy)
+        _displace(ctx, row["dataset"], copy, kept)
     copy.unlink()
     said = FROM_PUBLISH_FOLDER if row["published_path"] else f"from the {where}"
-    return f"removed the patched copy {copy} {said}: restore never writes originals there", kept
+    return f"removed the patched copy {copy} {said}: restore never writes originals there"
 
 
 def _content_now(path: Path) -> str | None:
@@ -234,11 +233,14 @@ def _content_now(path: Path) -> str | None:
         os.close(fd)
 
 
-def _displace(ctx: AppContext, dataset: str | None, path: Path) -> tuple[Path, str | Literal[True]]:
-    """The user's file at path kept aside (daemon.protect.displaced) before --force replaces it; (the
-    copy, what vault.restore may replace: exactly the bytes kept, anything for a symlink)."""
-    kept, sha = keep_aside(ctx, dataset, path)
-    return kept, True if sha is None else sha
+def _displace(
+    ctx: AppContext, dataset: str | None, path: Path, kept: list[tuple[Path, Path]]
+) -> str | Literal[True]:
+    """The user's file at path kept aside (daemon.protect.displaced) before --force replaces it, added to
+    kept (path, its copy); what vault.restore may replace: exactly the bytes kept, anything for a link."""
+    copy, sha = keep_aside(ctx, dataset, path)
+    kept.append((path, copy))
+    return True if sha is None else sha
 
 
 def _pending_as_patched(ctx: AppContext, path: Path, row: dict[str, Any]) -> dict[str, Any]:
