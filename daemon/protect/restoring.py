@@ -265,6 +265,7 @@ def _row_by_provenance(ctx: AppContext, path: Path) -> tuple[dict[str, Any] | No
     patched row of the store records (as `ppd poison` finds it: a seal made with another key, since
     replaced). None with the reason in words: no marker, a marker of another key (`ppd key import`),
     ppd's marker over bytes changed since, or an original not in the vault."""
+    from daemon.store.sealkey import SealKeyError
     from poisoner.provenance import has_token, read_seal_and_claim
 
     try:
@@ -272,7 +273,11 @@ def _row_by_provenance(ctx: AppContext, path: Path) -> tuple[dict[str, Any] | No
     except OSError:
         return None, f"{path} is not in the store and carries no ppd provenance marker"
     try:
-        seal, claim = read_seal_and_claim(fd_path(fd), ctx.seal_key())
+        try:
+            key, no_key = ctx.seal_key(), None
+        except SealKeyError as exc:  # the store's recorded output needs no key: that lookup goes on (a
+            key, no_key = None, one_line(exc)  # review: a folder restore stopped midway, no summary)
+        seal, claim = read_seal_and_claim(fd_path(fd), key)
         marked = seal is not None or claim is not None or has_token(fd_path(fd))
         sha = sha256_fd(fd)
     finally:
@@ -283,7 +288,7 @@ def _row_by_provenance(ctx: AppContext, path: Path) -> tuple[dict[str, Any] | No
     elif stored is not None and stored["original_sha256"] and ctx.vault.has(stored["original_sha256"]):
         original = stored["original_sha256"]
     else:
-        return None, _why_not_found(ctx, path, seal, claim, marked)
+        return None, _why_not_found(ctx, path, seal, claim, marked, no_key)
     try:
         dataset = dataset_of(ctx.paths.outbox, path)
     except OutsideOutboxError:
@@ -294,8 +299,12 @@ def _row_by_provenance(ctx: AppContext, path: Path) -> tuple[dict[str, Any] | No
     }, ""  # fmt: skip
 
 
-def _why_not_found(ctx: AppContext, path: Path, seal: Any, claim: Any, marked: bool) -> str:
+def _why_not_found(
+    ctx: AppContext, path: Path, seal: Any, claim: Any, marked: bool, no_key: str | None
+) -> str:
     """Why a file with no row of its path has no original to restore, in words that say what to do."""
+    if marked and no_key is not None:
+        return f"{path} carries a ppd marker, but the seal key that recognises it cannot be read: {no_key}"
     if seal is not None:
         return (f"{path} carries ppd's seal, but its original {seal.original_sha256[:12]} is not in the "
                 f"vault {ctx.vault.vault_dir}")  # fmt: skip

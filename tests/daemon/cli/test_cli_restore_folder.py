@@ -79,3 +79,31 @@ def test_a_dataset_restore_leaves_deleted_files_gone_and_restores_renamed_ones(
     # asked for by its name, a deleted photo does come back
     again = runner.invoke(app, ["restore", str(shoot / "v1.png")])
     assert again.exit_code == 0 and _sha(shoot / "v1.png") == originals["v1.png"], again.output
+
+
+def test_a_folder_restore_without_the_seal_key_restores_what_the_store_names(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A diff review (F6): with the key missing, `ppd restore shoot` restored two files, then stopped with
+    exit 3 and only the key error: no summary, and the renamed file (found by the store's recorded output,
+    which needs no key) left patched. Files only the seal names fail each with the reason."""
+    shoot = tmp_path / "shoot"
+    originals = _shoot(shoot)
+    key = ppd_env["data"] / "seal.key"
+    key.rename(tmp_path / "seal.key")
+    (shoot / "v0.png").rename(shoot / "hero.png")
+    result = runner.invoke(app, ["restore", "shoot"])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 0 and "restored 3" in text, text
+    assert _sha(shoot / "hero.png") == originals["v0.png"]
+    assert all(_sha(shoot / k) == v for k, v in originals.items() if k != "v0.png")
+    # a lost store too: only the seals name the originals, and the key is missing
+    b = tmp_path / "b"
+    (tmp_path / "seal.key").rename(key)
+    _shoot(b, n=2)
+    key.rename(tmp_path / "seal.key")
+    _lose_store(ppd_env["data"])
+    lost = runner.invoke(app, ["restore", str(b)])
+    text = " ".join(lost.output.split())
+    assert lost.exit_code == 1 and "failed 2" in text, text
+    assert "the seal key that recognises it cannot be read" in text, text
