@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -60,16 +61,23 @@ def plan_folder_restore(ctx: AppContext, target: str, console: Any) -> FolderRes
     return FolderRestore(chosen.dataset, paths, gone, root, (chosen.dataset, root), None)
 
 
-def marked_files(ctx: AppContext, folder: Path, planned: list[Path]) -> list[Path]:
+def marked_files(
+    ctx: AppContext, folder: Path, planned: list[Path], gone: Sequence[dict[str, Any]] = ()
+) -> list[Path]:
     """The files under folder that carry something shaped like ppd's marker (any key) and have no row
-    in the store: restore_file says what each is. Others are not read past the marker search."""
+    in the store: restore_file says what each is. Others are not read past the marker search, unless
+    rows are gone from their path: then one holding such a row's original is taken too (a restore by
+    seal killed after its rename left it there unrecorded; restore_file records it)."""
     from daemon.cli.planning import media_files
+    from daemon.store.vault import sha256_file
     from poisoner.provenance import has_token
 
     skip = set(planned)
+    originals = {r["original_sha256"] for r in gone if r["original_sha256"]}
     return [
         f for f in media_files(folder)
-        if f not in skip and not f.is_symlink() and ctx.store.file(f) is None and has_token(f)
+        if f not in skip and not f.is_symlink() and ctx.store.file(f) is None
+        and (has_token(f) or (originals and sha256_file(f) in originals))
     ]  # fmt: skip
 
 

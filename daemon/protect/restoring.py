@@ -35,6 +35,8 @@ def restore_file(
     if row is None:
         row, why = _row_by_provenance(ctx, path)
     if row is None:
+        row = _restored_unrecorded(ctx, path)
+    if row is None:
         return ProtectOutcome(path=path, dataset=None, state=Outcome.FAILED, reason=why)
     dataset = row["dataset"]
     if row["state"] == FileState.PENDING:  # a run killed mid-file: the file says whether it is patched
@@ -257,6 +259,22 @@ def _pending_as_patched(ctx: AppContext, path: Path, row: dict[str, Any]) -> dic
 def _row_from_marker(ctx: AppContext, path: Path) -> dict[str, Any] | None:
     """A row for ppd's output found without a row of its path (_row_by_provenance), or None."""
     return _row_by_provenance(ctx, path)[0]
+
+
+def _restored_unrecorded(ctx: AppContext, path: Path) -> dict[str, Any] | None:
+    """A row for a file that holds the original of a patched row whose file is gone from its path, patched
+    in place: a restore by seal killed after its rename, before its rows (the renamed file then had no
+    seal and no row, and a diff review's next restore called it "no ppd provenance marker", so `ppd
+    poison` patched it again). Read as that output, it is recorded restored; None for anything else."""
+    sha = _content_now(path)
+    rows = [r for r in (ctx.store.find_original(sha) if sha else []) if r["state"] == FileState.PATCHED]
+    gone = next((r for r in rows if r["poisoned_sha256"] and gone_from_its_place(ctx, r)), None)
+    if gone is None:
+        return None
+    return {
+        "dataset": gone["dataset"], "path": str(path), "state": FileState.PATCHED, "published_path": None,
+        "original_sha256": sha, "poisoned_sha256": gone["poisoned_sha256"], "from_marker": True,
+    }  # fmt: skip
 
 
 def _row_by_provenance(ctx: AppContext, path: Path) -> tuple[dict[str, Any] | None, str]:

@@ -67,3 +67,34 @@ def test_a_force_restore_killed_while_keeping_the_users_file_aside(ppd_env: dict
     assert again.exit_code == 0 and _sha(shoot / "v0.png") == original, again.output
     (copy,) = [p for p in (ppd_env["data"] / "displaced").rglob("*") if p.is_file()]  # the leftover swept
     assert copy.read_bytes() == other and not copy.name.startswith(".")
+
+
+# a restore by seal killed after the original's rename, before any row is written
+AFTER_THE_RENAME = """
+from daemon.protect import restoring
+restoring._record_by_provenance = lambda *a, **k: os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_a_restore_by_seal_killed_after_its_rename_is_recognised_next_time(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A diff review (F7): the renamed file then held its original with no row and no seal, so the next
+    `ppd restore FILE` said "carries no ppd provenance marker", `ppd restore DATASET` listed the old name
+    as gone, and `ppd poison` patched the restored original again."""
+    shoot = tmp_path / "shoot"
+    originals = {i: _sha(make_image(shoot / f"v{i}.png", i)) for i in range(3)}
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    for i in (0, 1):
+        (shoot / f"v{i}.png").rename(shoot / f"hero{i}.png")
+        _killed_ppd(AFTER_THE_RENAME, "restore", str(shoot / f"hero{i}.png"))
+        assert _sha(shoot / f"hero{i}.png") == originals[i]  # renamed into place, the store not told
+    one = runner.invoke(app, ["restore", str(shoot / "hero0.png")])  # the file, by its path
+    assert one.exit_code == 0 and "restored 1" in one.output, one.output
+    folder = runner.invoke(app, ["restore", "shoot"])  # the dataset: hero1.png found in its folder
+    text = " ".join(folder.output.split())
+    assert folder.exit_code == 0 and "restored 2" in text and "gone" not in text, text
+    assert sorted(p.name for p in shoot.iterdir()) == ["hero0.png", "hero1.png", "v2.png"]
+    assert [_sha(shoot / n) for n in ("hero0.png", "hero1.png", "v2.png")] == list(originals.values())
+    dry = runner.invoke(app, ["poison", str(shoot), "--dry-run"])
+    assert "would patch 0" in " ".join(dry.output.split()), dry.output
