@@ -70,7 +70,7 @@ def _restore_folder(ctx: AppContext, target: str, force: bool) -> list[ProtectOu
 
     plan = plan_folder_restore(ctx, target, console())
     outcomes = [restore_file(ctx, p, force=force) for p in plan.paths]
-    marked = marked_files(ctx, plan.scan, plan.paths, plan.gone) if plan.scan is not None else []
+    marked = marked_files(ctx, plan)
     if plan.dataset is None and not marked:
         raise TargetError(f"{plan.scan} is not a folder ppd patched; nothing to restore there")
     if plan.dataset is None:

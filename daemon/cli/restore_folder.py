@@ -11,7 +11,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -61,22 +60,33 @@ def plan_folder_restore(ctx: AppContext, target: str, console: Any) -> FolderRes
     return FolderRestore(chosen.dataset, paths, gone, root, (chosen.dataset, root), None)
 
 
-def marked_files(
-    ctx: AppContext, folder: Path, planned: list[Path], gone: Sequence[dict[str, Any]] = ()
-) -> list[Path]:
-    """The files under folder that carry something shaped like ppd's marker (any key) and have no row
+def marked_files(ctx: AppContext, plan: FolderRestore) -> list[Path]:
+    """The files under plan.scan that carry something shaped like ppd's marker (any key) and have no row
     in the store: restore_file says what each is. Others are not read past the marker search, unless
     rows are gone from their path: then one holding such a row's original is taken too (a restore by
-    seal killed after its rename left it there unrecorded; restore_file records it)."""
+    seal killed after its rename left it there unrecorded; restore_file records it).
+
+    Only the files of the dataset restored: not those in another dataset's folder below it (the innermost
+    folder's dataset owns a file, as `ppd poison` attributes it), and of a dataset whose folder is the home
+    folder, the files right in it (a diff review: `ppd restore` of one such dataset restored other datasets'
+    renamed files and copies anywhere in the home tree)."""
     from daemon.cli.planning import media_files
+    from daemon.datasets.dataset import innermost_holder
     from daemon.store.vault import sha256_file
     from poisoner.provenance import has_token
 
-    skip = set(planned)
-    originals = {r["original_sha256"] for r in gone if r["original_sha256"]}
+    folder = plan.scan
+    if folder is None:
+        return []
+    skip = set(plan.paths)
+    originals = {r["original_sha256"] for r in plan.gone if r["original_sha256"]}
+    own = plan.home[0] if plan.home is not None else None  # None: the outbox, each file its own dataset's
+    datasets = ctx.store.datasets() if own is not None else []
+    at_home = Path(folder).absolute() == Path.home().absolute()
     return [
-        f for f in media_files(folder)
+        f for f in media_files(folder, recursive=not at_home)
         if f not in skip and not f.is_symlink() and ctx.store.file(f) is None
+        and (own is None or innermost_holder(datasets, f, prefer=own) in (own, None))
         and (has_token(f) or (originals and sha256_file(f) in originals))
     ]  # fmt: skip
 

@@ -9,7 +9,13 @@ from pathlib import Path
 from typing import Any, Literal
 
 from daemon.context import AppContext
-from daemon.datasets.dataset import OutsideOutboxError, dataset_of, dataset_root, ensure_dataset
+from daemon.datasets.dataset import (
+    OutsideOutboxError,
+    dataset_of,
+    dataset_root,
+    ensure_dataset,
+    innermost_holder,
+)
 from daemon.fsops import sha256_fd
 from daemon.platform import fd_path
 from daemon.protect.displaced import changed_words, displaced_folder, keep_aside
@@ -48,6 +54,10 @@ def restore_file(
     # A file found by its seal, not by its path, is ppd's output moved or copied by the user: it is
     # theirs, never removed as an --out copy (a black-box review: `ppd restore desk/moved.jpg` deleted
     # it); a copy of an --out or published copy still gets no original.
+    if row.get("from_marker") and home is not None and (owner := _owned_elsewhere(ctx, path, row, home[0])):
+        return ProtectOutcome(path=path, dataset=owner, state=Outcome.UNCHANGED,
+                              reason=f"a file of dataset {owner!r}, not of {home[0]!r}: `ppd restore "
+                                     f"{owner}` or `ppd restore FILE` restores it")  # fmt: skip
     copy = None if row.get("from_marker") else _copy_outside_the_source(ctx, row)
     if row.get("from_marker") and (refusal := _copied_output(ctx, row)):
         return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=refusal)
@@ -179,6 +189,22 @@ def _record_by_provenance(
     spec = ctx.store.get_spec(stored["spec_id"]) if stored["spec_id"] else None
     ensure_dataset(ctx, home[0], home[1], spec)  # a dataset first seen through moved files: their spec
     return home[0], carried
+
+
+def _owned_elsewhere(ctx: AppContext, path: Path, row: dict[str, Any], home: str) -> str | None:
+    """The other dataset a file found by its seal belongs to, when a folder restore of home came upon
+    it: the dataset whose folder holds it (the innermost), or the one whose row of the same output
+    lies in a folder holding it; None: home may take it (a diff review: `ppd restore castle` restored
+    and recorded castle/day2's renamed file)."""
+    datasets = ctx.store.datasets()
+    holder = innermost_holder(datasets, path, prefer=home)
+    if holder is not None and holder != home:
+        return holder
+    stored = _stored_output(ctx, row)
+    if stored is None or stored["dataset"] == home:
+        return None
+    held = innermost_holder([d for d in datasets if d["name"] == stored["dataset"]], path)
+    return held
 
 
 def _copied_output(ctx: AppContext, row: dict[str, Any]) -> str | None:

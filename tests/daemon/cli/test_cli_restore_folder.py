@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from daemon.cli import app
@@ -107,3 +108,64 @@ def test_a_folder_restore_without_the_seal_key_restores_what_the_store_names(
     text = " ".join(lost.output.split())
     assert lost.exit_code == 1 and "failed 2" in text, text
     assert "the seal key that recognises it cannot be read" in text, text
+
+
+def test_a_dataset_restore_leaves_a_nested_datasets_files(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A diff review (F1): `ppd restore castle` also restored a renamed file of castle/day2, a dataset of
+    its own, and recorded it "restored by you" there."""
+    castle, day2 = tmp_path / "castle", tmp_path / "castle" / "day2"
+    inner = _shoot(day2)
+    outer = _shoot(castle)
+    (day2 / "v0.png").rename(day2 / "hero.png")
+    patched = (day2 / "hero.png").read_bytes()
+    result = runner.invoke(app, ["restore", "castle"])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 0 and "restored 3" in text, text
+    assert {k: _sha(castle / k) for k in outer} == outer
+    assert (day2 / "hero.png").read_bytes() == patched  # day2's: left for `ppd restore day2`
+    assert all(_sha(day2 / k) != v for k, v in inner.items() if k != "v0.png")
+    inner_restore = runner.invoke(app, ["restore", "day2"])
+    assert inner_restore.exit_code == 0 and "restored 3" in inner_restore.output, inner_restore.output
+    assert _sha(day2 / "hero.png") == inner["v0.png"]
+
+
+def test_a_home_folder_dataset_restore_scans_the_home_folder_alone(
+    ppd_env: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A diff review (F1): `ppd poison ~/desk.png` makes a dataset rooted at the home folder, and
+    `ppd restore` of it restored every row-less sealed file in the whole home tree: another dataset's
+    renamed file, a copy in ~/Downloads."""
+    home = tmp_path / "home"
+    monkeypatch.setenv("HOME", str(home))
+    _shoot(home / "shoot")
+    (home / "Downloads").mkdir()
+    (home / "Downloads" / "from-shoot.png").write_bytes((home / "shoot" / "v1.png").read_bytes())
+    desk = make_image(home / "desk.png", 7)
+    desk_original = _sha(desk)
+    assert runner.invoke(app, ["poison", str(desk)]).exit_code == 0
+    (home / "shoot" / "v0.png").rename(home / "shoot" / "hero.png")
+    others = (home / "shoot" / "hero.png", home / "Downloads" / "from-shoot.png")
+    untouched = {p: p.read_bytes() for p in others}
+    result = runner.invoke(app, ["restore", "home"])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 0 and "restored 1" in text, text
+    assert _sha(desk) == desk_original
+    assert all(p.read_bytes() == b for p, b in untouched.items())
+
+
+def test_a_nested_dataset_restore_leaves_a_file_moved_in_from_the_outer_one(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """restore_file does not claim for the folder restored a file another dataset's row names, in that
+    dataset's folder: castle's photo moved into castle/day2 is castle's output (F1's second half)."""
+    castle, day2 = tmp_path / "castle", tmp_path / "castle" / "day2"
+    _shoot(day2, n=1)
+    outer = _shoot(castle, n=2)
+    (castle / "v1.png").rename(day2 / "from-castle.png")
+    patched = (day2 / "from-castle.png").read_bytes()
+    result = runner.invoke(app, ["restore", "day2"])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 0 and "restored 1" in text and "unchanged 1" in text, text
+    assert (day2 / "from-castle.png").read_bytes() == patched
+    one = runner.invoke(app, ["restore", str(day2 / "from-castle.png")])  # asked for by its path: restored
+    assert one.exit_code == 0 and _sha(day2 / "from-castle.png") == outer["v1.png"], one.output
