@@ -169,3 +169,33 @@ def test_a_nested_dataset_restore_leaves_a_file_moved_in_from_the_outer_one(
     assert (day2 / "from-castle.png").read_bytes() == patched
     one = runner.invoke(app, ["restore", str(day2 / "from-castle.png")])  # asked for by its path: restored
     assert one.exit_code == 0 and _sha(day2 / "from-castle.png") == outer["v1.png"], one.output
+
+
+def test_a_dataset_folder_moved_under_the_same_name_moves_the_dataset(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A diff review (F3): after `mv a/shoot b/shoot`, `ppd restore b/shoot` recorded the restored files
+    in dataset shoot, whose root stayed a/shoot: `ppd poison b/shoot` was then refused ("already belongs
+    to a/shoot") and status did not count them. The dataset now moves with its folder."""
+    old, new = tmp_path / "a" / "shoot", tmp_path / "b" / "shoot"
+    originals = _shoot(old)
+    new.parent.mkdir()
+    old.rename(new)
+    result = runner.invoke(app, ["restore", str(new)])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 0 and "restored 3" in text, text
+    assert {p.name: _sha(p) for p in new.iterdir()} == originals
+    dry = runner.invoke(app, ["poison", str(new), "--dry-run"])
+    text = " ".join(dry.output.split())
+    assert dry.exit_code == 0 and "would patch 0" in text, text
+    status = " ".join(runner.invoke(app, ["status"]).output.split())
+    assert "3 restored by you" in status, status
+    # another folder named shoot while the dataset's own is there: refused, as `ppd poison` does
+    other = tmp_path / "c" / "shoot"
+    other.mkdir(parents=True)
+    (other / "v0.png").write_bytes((new / "v0.png").read_bytes())
+    refused = runner.invoke(app, ["restore", str(other)])
+    lines = [line for line in refused.output.splitlines() if line.strip()]
+    assert refused.exit_code == 2 and len(lines) == 1, refused.output
+    assert lines[0].startswith(f"ppd: error: dataset 'shoot' already belongs to {new}; name this one with "
+                               "--dataset NAME"), lines  # fmt: skip
