@@ -198,17 +198,23 @@ def write_all(fd: int, data: bytes | bytearray) -> None:
 
 def copy_fd_to_path(fd: int, dst: Path) -> str:
     """Copy the open file's bytes to a new private file dst (fsynced); the sha256 of what was copied."""
-    digest = hashlib.sha256()
-    offset = 0
     out = os.open(dst, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
     try:
-        while chunk := os.pread(fd, CHUNK, offset):
-            digest.update(chunk)
-            write_all(out, chunk)
-            offset += len(chunk)
-        os.fsync(out)
+        return copy_fd_to_fd(fd, out)
     finally:
         os.close(out)
+
+
+def copy_fd_to_fd(fd: int, out: int) -> str:
+    """Copy the open file's bytes (from offset 0) into out, an empty file, and fsync it; the sha256 of
+    what was copied."""
+    digest = hashlib.sha256()
+    offset = 0
+    while chunk := os.pread(fd, CHUNK, offset):
+        digest.update(chunk)
+        write_all(out, chunk)
+        offset += len(chunk)
+    os.fsync(out)
     return digest.hexdigest()
 
 

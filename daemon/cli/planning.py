@@ -28,12 +28,13 @@ class Job:
     out_path: Path | None
 
 
-def media_files(folder: Path) -> list[Path]:
-    """Regular, non-hidden files under folder (hidden folders skipped too), sorted."""
+def media_files(folder: Path, *, recursive: bool = True) -> list[Path]:
+    """Regular, non-hidden files under folder (hidden folders skipped too; only those right in it when
+    not recursive), sorted."""
     from daemon.protect.one_file import is_ignored_name
 
     files = []
-    for p in sorted(folder.rglob("*")):
+    for p in sorted(folder.rglob("*") if recursive else folder.glob("*")):
         rel = p.relative_to(folder)
         if any(part.startswith(".") for part in rel.parts) or is_ignored_name(p):
             continue

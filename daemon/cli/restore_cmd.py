@@ -70,7 +70,7 @@ def _restore_folder(ctx: AppContext, target: str, force: bool) -> list[ProtectOu
 
     plan = plan_folder_restore(ctx, target, console())
     outcomes = [restore_file(ctx, p, force=force) for p in plan.paths]
-    marked = marked_files(ctx, plan.scan, plan.paths) if plan.scan is not None else []
+    marked = marked_files(ctx, plan)
     if plan.dataset is None and not marked:
         raise TargetError(f"{plan.scan} is not a folder ppd patched; nothing to restore there")
     if plan.dataset is None:
@@ -138,8 +138,9 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
                         "originals are back where they were patched", markup=False)  # fmt: skip
     for o in outcomes:
         word = restore_word(o)
-        if o.displaced is not None and word != "failed":  # a failure's reason names it already
-            console().print(f"kept your version of {o.path.name} at {o.displaced} (it was not ppd's output; "
+        for src, kept in o.displaced if word != "failed" else ():  # a failure's reason names them already
+            shown = src.name if src == o.path else src  # each named: a published file can have two
+            console().print(f"kept your version of {shown} at {kept} (it was not ppd's output; "
                             "nothing is published from there)", markup=False)  # fmt: skip
         if word == "failed":
             said = reason_text(o.reason, Path(o.path).parent, hint_out=False)  # restore has no --out

@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -35,41 +36,91 @@ def plan_folder_restore(ctx: AppContext, target: str, console: Any) -> FolderRes
     """The plan for X, a dataset's name or a folder (TargetError: neither, one line)."""
     from daemon.cli.targets import TargetError, resolve_target, same_folder, say_note
     from daemon.datasets.dataset import DatasetConflict, DatasetNameError, attribute
-    from daemon.protect.restoring import gone_from_its_place
 
     chosen = resolve_target(ctx.store, target)
     say_note(chosen, console)
-    if chosen.dataset is None:
-        assert chosen.folder is not None
-        try:
-            home = None if same_folder(chosen.folder, ctx.paths.outbox) else attribute(ctx, chosen.folder)
-        except (DatasetConflict, DatasetNameError) as exc:
-            raise TargetError(str(exc)) from None
-        return FolderRestore(None, [], [], chosen.folder, home, None)
+    if chosen.dataset is not None:
+        return _dataset_plan(ctx, chosen.dataset)
+    assert chosen.folder is not None
+    try:
+        home = None if same_folder(chosen.folder, ctx.paths.outbox) else attribute(ctx, chosen.folder)
+    except (DatasetConflict, DatasetNameError) as exc:
+        raise TargetError(str(exc)) from None
+    if home is not None and _moved_here(ctx, home, console):
+        return _dataset_plan(ctx, home[0])
+    return FolderRestore(None, [], [], chosen.folder, home, None)
+
+
+def _moved_here(ctx: AppContext, home: tuple[str, Path], console: Any) -> bool:
+    """Whether the folder is a stored dataset's of the same name that the user moved (`mv a/shoot
+    b/shoot`): its recorded folder gone, the dataset moves here (root and rows) and is restored as itself.
+    Before, its files were recorded in the old dataset outside its root: `ppd poison` then refused the
+    folder and status did not count them (a diff review). TargetError when that folder is still there:
+    another folder of the same name, which ppd poison refuses the same way."""
+    from daemon.cli.targets import TargetError
+
+    name, folder = home
+    stored = ctx.store.dataset(name)
+    if stored is None or Path(stored["root"]).absolute() == folder.absolute():
+        return False
+    old = Path(stored["root"])
+    if os.path.lexists(old):
+        raise TargetError(
+            f"dataset {name!r} already belongs to {old}; name this one with --dataset NAME "
+            f"(`ppd poison {folder} --dataset NAME`, then `ppd restore NAME`)"
+        )
+    moved = ctx.store.move_dataset(name, old, folder.absolute())
+    console.print(f"dataset {name!r}: its folder {old} is gone; {folder} is its folder now "
+                  f"({moved} files' records moved with it)", markup=False)  # fmt: skip
+    return True
+
+
+def _dataset_plan(ctx: AppContext, dataset: str) -> FolderRestore:
+    """A stored dataset's plan: its rows, its folder scanned."""
+    from daemon.protect.restoring import gone_from_its_place
+
     # pending: a run killed after replacing a file, before recording it (restore_file reads its seal)
-    rows = [*ctx.store.files(chosen.dataset, state=FileState.PATCHED)]
-    rows += ctx.store.files(chosen.dataset, state=FileState.PENDING)
+    rows = [*ctx.store.files(dataset, state=FileState.PATCHED)]
+    rows += ctx.store.files(dataset, state=FileState.PENDING)
     gone = [r for r in rows if gone_from_its_place(ctx, r)]
     paths = sorted({Path(r["path"]) for r in rows if r not in gone})
-    stored = ctx.store.dataset(chosen.dataset)
+    stored = ctx.store.dataset(dataset)
     if stored is None or not stored["root"]:
-        return FolderRestore(chosen.dataset, paths, gone, None, None, None)
+        return FolderRestore(dataset, paths, gone, None, None, None)
     root = Path(stored["root"])
     if not root.is_dir():
-        return FolderRestore(chosen.dataset, paths, gone, None, None, root)
-    return FolderRestore(chosen.dataset, paths, gone, root, (chosen.dataset, root), None)
+        return FolderRestore(dataset, paths, gone, None, None, root)
+    return FolderRestore(dataset, paths, gone, root, (dataset, root), None)
 
 
-def marked_files(ctx: AppContext, folder: Path, planned: list[Path]) -> list[Path]:
-    """The files under folder that carry something shaped like ppd's marker (any key) and have no row
-    in the store: restore_file says what each is. Others are not read past the marker search."""
+def marked_files(ctx: AppContext, plan: FolderRestore) -> list[Path]:
+    """The files under plan.scan that carry something shaped like ppd's marker (any key) and have no row
+    in the store: restore_file says what each is. Others are not read past the marker search, unless
+    rows are gone from their path: then one holding such a row's original is taken too (a restore by
+    seal killed after its rename left it there unrecorded; restore_file records it).
+
+    Only the files of the dataset restored: not those in another dataset's folder below it (the innermost
+    folder's dataset owns a file, as `ppd poison` attributes it), and of a dataset whose folder is the home
+    folder, the files right in it (a diff review: `ppd restore` of one such dataset restored other datasets'
+    renamed files and copies anywhere in the home tree)."""
     from daemon.cli.planning import media_files
+    from daemon.datasets.dataset import innermost_holder
+    from daemon.store.vault import sha256_file
     from poisoner.provenance import has_token
 
-    skip = set(planned)
+    folder = plan.scan
+    if folder is None:
+        return []
+    skip = set(plan.paths)
+    originals = {r["original_sha256"] for r in plan.gone if r["original_sha256"]}
+    own = plan.home[0] if plan.home is not None else None  # None: the outbox, each file its own dataset's
+    datasets = ctx.store.datasets() if own is not None else []
+    at_home = Path(folder).absolute() == Path.home().absolute()
     return [
-        f for f in media_files(folder)
-        if f not in skip and not f.is_symlink() and ctx.store.file(f) is None and has_token(f)
+        f for f in media_files(folder, recursive=not at_home)
+        if f not in skip and not f.is_symlink() and ctx.store.file(f) is None
+        and (own is None or innermost_holder(datasets, f, prefer=own) in (own, None))
+        and (has_token(f) or (originals and sha256_file(f) in originals))
     ]  # fmt: skip
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from daemon.datasets.subject_masks import place_corner, record_choice, wants_corner
 from poisoner.errors import ExitStatus, PpdError
@@ -117,6 +117,22 @@ def attribute(
         row = max(holders, key=lambda d: len(Path(d["root"]).absolute().parts))  # the innermost
         return row["name"], Path(row["root"])
     return check_name(home.name or DEFAULT_DATASET), home
+
+
+def innermost_holder(datasets: Sequence[dict[str, Any]], path: Path, prefer: str | None = None) -> str | None:
+    """The stored dataset whose folder holds path, the innermost of several (castle/day2's files are
+    day2's, as attribute says), prefer on a tie; None: no dataset's. A folder that is the home folder
+    holds only the files right in it (its subfolders are the user's own: daemon.cli.published)."""
+    path = Path(os.path.normpath(Path(path).absolute()))
+    home = Path.home().absolute()
+    best: tuple[int, bool, str] | None = None
+    for row in datasets:
+        root = Path(row["root"]).absolute()
+        held = path.parent == root if root == home else path.is_relative_to(root)
+        if held:
+            key = (len(root.parts), row["name"] == prefer, row["name"])
+            best = key if best is None else max(best, key)
+    return best[2] if best is not None else None
 
 
 def ensure_dataset(

@@ -9,6 +9,7 @@ original ppd patched (another photo, or a crop) or the same size with other byte
 
 from __future__ import annotations
 
+import contextlib
 import os
 import stat
 import time
@@ -16,7 +17,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from daemon.fsops import clear_stale_temps_once, copy_fd_to_fd
 from daemon.paths import make_private_dir
+from poisoner.atomic import create_temp_at, fsync_dir
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -36,32 +39,47 @@ def keep_aside(ctx: AppContext, dataset: str | None, path: Path) -> tuple[Path, 
     name with the time and, where needed, a number added (never over an earlier copy); its dates kept.
     Returns (the copy, the sha256 of the bytes copied; None for a link). The caller replaces path only if
     it still holds exactly those bytes. Raises OSError when the copy cannot be made: then nothing is
-    replaced."""
+    replaced.
+
+    The copy is whole and on disk, its name too, before this returns: it is written to a ppd temporary
+    (a kill mid-copy leaves no half file that looks like "your version"; the next call sweeps it), fsynced,
+    linked to its free name, and the folders fsynced (the rename over the user's file, in another folder,
+    must not reach the disk before the copy's name does: after a power cut it could be their only copy)."""
     folder = displaced_folder(ctx, dataset)
     make_private_dir(folder)  # the user's photos: as private as the vault beside it
     st = os.lstat(path)
     if stat.S_ISLNK(st.st_mode):
         copy = _free_name(folder, path, lambda dst: os.symlink(os.readlink(path), dst))
+        _fsync_up(folder)
         return copy, None
     if not stat.S_ISREG(st.st_mode):
         raise IsADirectoryError(f"{path} is not a regular file; not replacing it")
     src = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    dir_fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC)
     try:
-        made: list[int] = []
-
-        def create(dst: Path) -> None:
-            made.append(os.open(dst, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600))
-
-        copy = _free_name(folder, path, create)
+        clear_stale_temps_once(dir_fd)  # a copy killed midway
+        tmp, out = create_temp_at(dir_fd, path.suffix)
         try:
-            sha = _copy_hashed(src, made[0])
-            os.fsync(made[0])
+            sha = copy_fd_to_fd(src, out)
+            os.utime(out, ns=(st.st_atime_ns, st.st_mtime_ns))
+            copy = _free_name(folder, path, lambda dst: os.link(tmp, dst.name, src_dir_fd=dir_fd,
+                                                                dst_dir_fd=dir_fd))  # fmt: skip
         finally:
-            os.close(made[0])
-        os.utime(copy, ns=(st.st_atime_ns, st.st_mtime_ns))
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp, dir_fd=dir_fd)
+            os.close(out)
     finally:
+        os.close(dir_fd)
         os.close(src)
+    _fsync_up(folder)
     return copy, sha
+
+
+def _fsync_up(folder: Path) -> None:
+    """The folder's entries on disk, and its own and DATA/displaced's (make_private_dir may have just
+    made them)."""
+    for f in (folder, folder.parent, folder.parent.parent):
+        fsync_dir(f)
 
 
 def _free_name(folder: Path, path: Path, create: Callable[[Path], None]) -> Path:
@@ -75,22 +93,6 @@ def _free_name(folder: Path, path: Path, create: Callable[[Path], None]) -> Path
             continue
         return dst
     raise FileExistsError(f"{folder}: {_NAME_TRIES} copies of {path.name} this second; not replacing it")
-
-
-def _copy_hashed(src: int, dst: int) -> str:
-    import hashlib
-
-    from daemon.fsops import CHUNK
-
-    digest = hashlib.sha256()
-    offset = 0
-    while chunk := os.pread(src, CHUNK, offset):
-        digest.update(chunk)
-        view = memoryview(chunk)
-        while view:
-            view = view[os.write(dst, view) :]
-        offset += len(chunk)
-    return digest.hexdigest()
 
 
 def changed_words(ctx: AppContext, path: Path, original_sha256: str) -> str:

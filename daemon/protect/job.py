@@ -66,7 +66,9 @@ class ProtectOutcome:
     poisoned_sha256: str | None = None
     spec_id: str | None = None
     output: Path | None = None  # where the patched file is now
-    displaced: Path | None = None  # restore --force: where the user's file it replaced was kept
+    # restore --force: (the user's file it replaced or removed, where that was kept), each of them: a
+    # published file can have two, an edited publish copy and another photo at its source path
+    displaced: tuple[tuple[Path, Path], ...] = ()
     seconds: float = 0.0
     dry_run: bool = False
     report: Any = None  # poisoner.formats.PoisonReport (poisoner.video.VideoReport is one)

@@ -9,7 +9,13 @@ from pathlib import Path
 from typing import Any, Literal
 
 from daemon.context import AppContext
-from daemon.datasets.dataset import OutsideOutboxError, dataset_of, dataset_root, ensure_dataset
+from daemon.datasets.dataset import (
+    OutsideOutboxError,
+    dataset_of,
+    dataset_root,
+    ensure_dataset,
+    innermost_holder,
+)
 from daemon.fsops import sha256_fd
 from daemon.platform import fd_path
 from daemon.protect.displaced import changed_words, displaced_folder, keep_aside
@@ -35,6 +41,8 @@ def restore_file(
     if row is None:
         row, why = _row_by_provenance(ctx, path)
     if row is None:
+        row = _restored_unrecorded(ctx, path)
+    if row is None:
         return ProtectOutcome(path=path, dataset=None, state=Outcome.FAILED, reason=why)
     dataset = row["dataset"]
     if row["state"] == FileState.PENDING:  # a run killed mid-file: the file says whether it is patched
@@ -46,14 +54,18 @@ def restore_file(
     # A file found by its seal, not by its path, is ppd's output moved or copied by the user: it is
     # theirs, never removed as an --out copy (a black-box review: `ppd restore desk/moved.jpg` deleted
     # it); a copy of an --out or published copy still gets no original.
+    if row.get("from_marker") and home is not None and (owner := _owned_elsewhere(ctx, path, row, home[0])):
+        return ProtectOutcome(path=path, dataset=owner, state=Outcome.UNCHANGED,
+                              reason=f"a file of dataset {owner!r}, not of {home[0]!r}: `ppd restore "
+                                     f"{owner}` or `ppd restore FILE` restores it")  # fmt: skip
     copy = None if row.get("from_marker") else _copy_outside_the_source(ctx, row)
     if row.get("from_marker") and (refusal := _copied_output(ctx, row)):
         return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=refusal)
-    kept: Path | None = None  # where --force put the user's file that stood in the original's way
+    kept: list[tuple[Path, Path]] = []  # (the user's file that stood in the original's way, its copy)
     with ctx.path_lock(path):
         try:
             if copy is not None:
-                reason, kept = _remove_patched_copy(ctx, row, copy, force)
+                reason = _remove_patched_copy(ctx, row, copy, force, kept)
                 target = Path(row["path"]) if row["published_path"] else None
                 if target is not None:  # published: the original goes back to where it was patched
                     now = _content_now(target)
@@ -63,7 +75,7 @@ def restore_file(
                             raise ProtectRefused(
                                 f"{target} exists; not overwriting it with the original (use --force)"
                             )
-                        kept, replaces = _displace(ctx, dataset, target)
+                        replaces = _displace(ctx, dataset, target, kept)
                     if now != row["original_sha256"]:
                         ctx.vault.restore(
                             row["original_sha256"], target, replaces=replaces,
@@ -84,7 +96,7 @@ def restore_file(
                         aside = displaced_folder(ctx, dataset)
                         raise ProtectRefused(f"{words}; not overwriting it (--force keeps your version in "
                                              f"{aside} and puts the original back)")  # fmt: skip
-                    kept, replaces = _displace(ctx, dataset, target)
+                    replaces = _displace(ctx, dataset, target, kept)
                 if now != row["original_sha256"]:  # the original already (a restore killed after its
                     ctx.vault.restore(  # rename): recorded
                         row["original_sha256"], target, replaces=replaces,
@@ -92,9 +104,9 @@ def restore_file(
                     )  # fmt: skip
                 reason = None
         except Exception as exc:
-            said = one_line(exc) + (f"; your version is kept at {kept}" if kept is not None else "")
+            said = one_line(exc) + "".join(f"; your version of {src} is kept at {to}" for src, to in kept)
             return ProtectOutcome(
-                path=path, dataset=dataset, state=Outcome.FAILED, reason=said, displaced=kept
+                path=path, dataset=dataset, state=Outcome.FAILED, reason=said, displaced=tuple(kept)
             )
         carried: dict[str, Any] = {}
         if row.get("from_marker"):
@@ -102,7 +114,7 @@ def restore_file(
             if where is None:
                 return ProtectOutcome(
                     path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
-                    original_sha256=row["original_sha256"], output=target, displaced=kept,
+                    original_sha256=row["original_sha256"], output=target, displaced=tuple(kept),
                 )  # fmt: skip
             dataset, carried = where
         # the restored file's size and time: the daemon's catch-up scan leaves it alone while they hold
@@ -112,11 +124,11 @@ def restore_file(
             path, dataset, FileState.RESTORED, original_sha256=row["original_sha256"], published_path=None,
             event="restored", **signature, **carried,
             detail={"to": str(target) if target else None, "sha256": row["original_sha256"], "note": reason,
-                    **({"displaced": str(kept)} if kept is not None else {})},
+                    **({"displaced": [str(to) for _, to in kept]} if kept else {})},
         )  # fmt: skip
     return ProtectOutcome(
         path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
-        original_sha256=row["original_sha256"], output=target, displaced=kept,
+        original_sha256=row["original_sha256"], output=target, displaced=tuple(kept),
     )  # fmt: skip
 
 
@@ -179,6 +191,22 @@ def _record_by_provenance(
     return home[0], carried
 
 
+def _owned_elsewhere(ctx: AppContext, path: Path, row: dict[str, Any], home: str) -> str | None:
+    """The other dataset a file found by its seal belongs to, when a folder restore of home came upon
+    it: the dataset whose folder holds it (the innermost), or the one whose row of the same output
+    lies in a folder holding it; None: home may take it (a diff review: `ppd restore castle` restored
+    and recorded castle/day2's renamed file)."""
+    datasets = ctx.store.datasets()
+    holder = innermost_holder(datasets, path, prefer=home)
+    if holder is not None and holder != home:
+        return holder
+    stored = _stored_output(ctx, row)
+    if stored is None or stored["dataset"] == home:
+        return None
+    held = innermost_holder([d for d in datasets if d["name"] == stored["dataset"]], path)
+    return held
+
+
 def _copied_output(ctx: AppContext, row: dict[str, Any]) -> str | None:
     """Why a file found by its seal gets no original: the store's row of the same output is a copy
     in an --out or publish folder (originals never go where copies are published); None otherwise."""
@@ -202,21 +230,20 @@ FROM_PUBLISH_FOLDER = "from the publish folder"  # the reason's words `ppd resto
 
 
 def _remove_patched_copy(
-    ctx: AppContext, row: dict[str, Any], copy: Path, force: bool
-) -> tuple[str, Path | None]:
-    """Delete ppd's patched copy from an output/publish folder; (the reason line for the outcome, where
-    --force kept a copy that had changed since ppd wrote it)."""
+    ctx: AppContext, row: dict[str, Any], copy: Path, force: bool, kept: list[tuple[Path, Path]]
+) -> str:
+    """Delete ppd's patched copy from an output/publish folder; the reason line for the outcome. A copy
+    changed since ppd wrote it is added to kept when --force keeps it aside."""
     where = "publish folder" if row["published_path"] else "output folder"
     if not copy.exists():
-        return f"no patched copy left in the {where} {copy.parent}; originals are never written there", None
-    kept = None
+        return f"no patched copy left in the {where} {copy.parent}; originals are never written there"
     if sha256_file(copy) != row["poisoned_sha256"]:
         if not force:
             raise ProtectRefused(f"{copy} changed since ppd patched it; not removing it (use --force)")
-        kept, _ = _displace(ctx, row["dataset"], copy)
+        _displace(ctx, row["dataset"], copy, kept)
     copy.unlink()
     said = FROM_PUBLISH_FOLDER if row["published_path"] else f"from the {where}"
-    return f"removed the patched copy {copy} {said}: restore never writes originals there", kept
+    return f"removed the patched copy {copy} {said}: restore never writes originals there"
 
 
 def _content_now(path: Path) -> str | None:
@@ -234,11 +261,14 @@ def _content_now(path: Path) -> str | None:
         os.close(fd)
 
 
-def _displace(ctx: AppContext, dataset: str | None, path: Path) -> tuple[Path, str | Literal[True]]:
-    """The user's file at path kept aside (daemon.protect.displaced) before --force replaces it; (the
-    copy, what vault.restore may replace: exactly the bytes kept, anything for a symlink)."""
-    kept, sha = keep_aside(ctx, dataset, path)
-    return kept, True if sha is None else sha
+def _displace(
+    ctx: AppContext, dataset: str | None, path: Path, kept: list[tuple[Path, Path]]
+) -> str | Literal[True]:
+    """The user's file at path kept aside (daemon.protect.displaced) before --force replaces it, added to
+    kept (path, its copy); what vault.restore may replace: exactly the bytes kept, anything for a link."""
+    copy, sha = keep_aside(ctx, dataset, path)
+    kept.append((path, copy))
+    return True if sha is None else sha
 
 
 def _pending_as_patched(ctx: AppContext, path: Path, row: dict[str, Any]) -> dict[str, Any]:
@@ -257,12 +287,29 @@ def _row_from_marker(ctx: AppContext, path: Path) -> dict[str, Any] | None:
     return _row_by_provenance(ctx, path)[0]
 
 
+def _restored_unrecorded(ctx: AppContext, path: Path) -> dict[str, Any] | None:
+    """A row for a file that holds the original of a patched row whose file is gone from its path, patched
+    in place: a restore by seal killed after its rename, before its rows (the renamed file then had no
+    seal and no row, and a diff review's next restore called it "no ppd provenance marker", so `ppd
+    poison` patched it again). Read as that output, it is recorded restored; None for anything else."""
+    sha = _content_now(path)
+    rows = [r for r in (ctx.store.find_original(sha) if sha else []) if r["state"] == FileState.PATCHED]
+    gone = next((r for r in rows if r["poisoned_sha256"] and gone_from_its_place(ctx, r)), None)
+    if gone is None:
+        return None
+    return {
+        "dataset": gone["dataset"], "path": str(path), "state": FileState.PATCHED, "published_path": None,
+        "original_sha256": sha, "poisoned_sha256": gone["poisoned_sha256"], "from_marker": True,
+    }  # fmt: skip
+
+
 def _row_by_provenance(ctx: AppContext, path: Path) -> tuple[dict[str, Any] | None, str]:
     """A row for ppd's output found without a row of its path: its seal (verified with this
     installation's key over the file's bytes) and the vault; else its exact bytes, the output a
     patched row of the store records (as `ppd poison` finds it: a seal made with another key, since
     replaced). None with the reason in words: no marker, a marker of another key (`ppd key import`),
     ppd's marker over bytes changed since, or an original not in the vault."""
+    from daemon.store.sealkey import SealKeyError
     from poisoner.provenance import has_token, read_seal_and_claim
 
     try:
@@ -270,7 +317,11 @@ def _row_by_provenance(ctx: AppContext, path: Path) -> tuple[dict[str, Any] | No
     except OSError:
         return None, f"{path} is not in the store and carries no ppd provenance marker"
     try:
-        seal, claim = read_seal_and_claim(fd_path(fd), ctx.seal_key())
+        try:
+            key, no_key = ctx.seal_key(), None
+        except SealKeyError as exc:  # the store's recorded output needs no key: that lookup goes on (a
+            key, no_key = None, one_line(exc)  # review: a folder restore stopped midway, no summary)
+        seal, claim = read_seal_and_claim(fd_path(fd), key)
         marked = seal is not None or claim is not None or has_token(fd_path(fd))
         sha = sha256_fd(fd)
     finally:
@@ -281,7 +332,7 @@ def _row_by_provenance(ctx: AppContext, path: Path) -> tuple[dict[str, Any] | No
     elif stored is not None and stored["original_sha256"] and ctx.vault.has(stored["original_sha256"]):
         original = stored["original_sha256"]
     else:
-        return None, _why_not_found(ctx, path, seal, claim, marked)
+        return None, _why_not_found(ctx, path, seal, claim, marked, no_key)
     try:
         dataset = dataset_of(ctx.paths.outbox, path)
     except OutsideOutboxError:
@@ -292,8 +343,12 @@ def _row_by_provenance(ctx: AppContext, path: Path) -> tuple[dict[str, Any] | No
     }, ""  # fmt: skip
 
 
-def _why_not_found(ctx: AppContext, path: Path, seal: Any, claim: Any, marked: bool) -> str:
+def _why_not_found(
+    ctx: AppContext, path: Path, seal: Any, claim: Any, marked: bool, no_key: str | None
+) -> str:
     """Why a file with no row of its path has no original to restore, in words that say what to do."""
+    if marked and no_key is not None:
+        return f"{path} carries a ppd marker, but the seal key that recognises it cannot be read: {no_key}"
     if seal is not None:
         return (f"{path} carries ppd's seal, but its original {seal.original_sha256[:12]} is not in the "
                 f"vault {ctx.vault.vault_dir}")  # fmt: skip

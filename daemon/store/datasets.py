@@ -151,6 +151,31 @@ class DatasetRows(StoreBase):
         row = self.dataset(name)
         return Path(row["subject_masks"]) if row and row.get("subject_masks") else None
 
+    def move_dataset(self, name: str, old_root: Path, new_root: Path) -> int:
+        """The dataset's folder moved from old_root to new_root (its whole tree, by the user): the
+        dataset's root and its rows below old_root follow it, in one transaction, so they stay inside
+        its root (a row outside it reads as an --out copy). A row whose new path another row holds
+        stays. Nothing happens unless the stored root is still old_root (another process moved it
+        first). Returns the rows moved."""
+        old, new = str(old_root), str(new_root)
+        below = old.rstrip("/") + "/"
+        moved = 0
+        with self._write() as conn:
+            done = conn.execute("UPDATE datasets SET root = ? WHERE name = ? AND root = ?", (new, name, old))
+            if done.rowcount != 1:
+                return 0
+            rows = conn.execute(
+                "SELECT id, path FROM files WHERE dataset = ? AND path >= ? AND path < ?",
+                (name, below, below[:-1] + "0"),
+            ).fetchall()
+            for row_id, path in rows:
+                to = str(Path(new) / Path(path).relative_to(old))
+                if conn.execute("SELECT 1 FROM files WHERE path = ?", (to,)).fetchone() is None:
+                    conn.execute("UPDATE files SET path = ? WHERE id = ?", (to, row_id))
+                    moved += 1
+            insert_event(conn, name, None, "dataset_moved", {"from": old, "to": new, "rows": moved})
+        return moved
+
     def set_dataset_publish_dir(self, name: str, publish_dir: Path | None) -> None:
         with self._write() as conn:
             conn.execute(

@@ -83,3 +83,23 @@ def test_force_keeps_an_edited_out_copy_it_removes(ppd_env: dict[str, Path], tmp
     assert forced.exit_code == 0 and not copy.exists(), forced.output
     (kept,) = _kept(ppd_env["data"])
     assert kept.read_bytes() == edit and "kept your version of v0.png" in " ".join(forced.output.split())
+
+
+def test_force_names_both_copies_it_keeps_of_a_published_file(ppd_env: dict[str, Path]) -> None:
+    """A diff review (F8): an edited publish copy and another photo at its source path were both kept
+    aside, but the summary named only the second."""
+    shoot, pub = ppd_env["outbox"] / "shoot", ppd_env["outbox"].parent / "pub"
+    original = _sha(make_image(shoot / "v0.png", 0))
+    assert runner.invoke(app, ["dataset", "set", "shoot", "--publish-dir", str(pub)]).exit_code == 0
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    (copy,) = pub.rglob("v0.png")
+    copy.write_bytes(copy.read_bytes() + b"edited")  # the published copy, edited
+    edit = copy.read_bytes()
+    other = make_image(shoot / "v0.png", 42, size=(200, 100)).read_bytes()  # a new photo at the source
+    forced = runner.invoke(app, ["restore", str(shoot / "v0.png"), "--force"])
+    text = " ".join(forced.output.split())
+    assert forced.exit_code == 0 and _sha(shoot / "v0.png") == original and not copy.exists(), text
+    kept = _kept(ppd_env["data"])
+    assert sorted(p.read_bytes() for p in kept) == sorted([edit, other])
+    for p in kept:
+        assert f"at {p}" in text, text

@@ -1,0 +1,100 @@
+"""`ppd restore` SIGKILLed at a chosen point (a child process kills itself there, as a crash would stop
+it): what it leaves must be recognised by the next run, and the user's files never lost or mistaken."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from testkit.kill_loops import REPO
+from testkit.photos import make_image
+
+runner = CliRunner()
+
+# the child runs `ppd ARGS` with HOOK (Python lines) applied first; HOOK kills the process where it says
+CHILD = (
+    "import os, signal, sys\n"
+    "{hook}\n"
+    "from daemon.cli import app\n"
+    "sys.argv = ['ppd', *sys.argv[1:]]\n"
+    "app()\n"
+)
+
+
+def _killed_ppd(hook: str, *args: str) -> None:
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    done = subprocess.run([sys.executable, "-c", CHILD.format(hook=hook), *args], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == -signal.SIGKILL, (done.returncode, done.stdout, done.stderr)
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+# the first write into a file (not stdout/stderr) writes half its bytes, then SIGKILL: a copy cut midway
+HALF_A_COPY = """
+real_write = os.write
+def write(fd, data):
+    if fd > 2:
+        real_write(fd, bytes(data)[: len(data) // 2])
+        os.kill(os.getpid(), signal.SIGKILL)
+    return real_write(fd, data)
+os.write = write
+"""
+
+
+def test_a_force_restore_killed_while_keeping_the_users_file_aside(ppd_env: dict[str, Path],
+                                                                   tmp_path: Path) -> None:  # fmt: skip
+    """Before: the copy was made under its final name in DATA/displaced, so a kill mid-copy left half a
+    file that looked like the user's version kept (and the next try kept the whole one as `-1`)."""
+    shoot = tmp_path / "shoot"
+    original = _sha(make_image(shoot / "v0.png", 0))
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    other = make_image(shoot / "v0.png", 42, size=(200, 100)).read_bytes()  # a new photo, same name
+    _killed_ppd(HALF_A_COPY, "restore", str(shoot / "v0.png"), "--force")
+    assert (shoot / "v0.png").read_bytes() == other  # not replaced: the copy was not made
+    kept = [p for p in (ppd_env["data"] / "displaced").rglob("*") if p.is_file()]
+    assert all(p.name.startswith(".ppd-tmp-") for p in kept), kept  # nothing that looks like a kept copy
+    again = runner.invoke(app, ["restore", str(shoot / "v0.png"), "--force"])
+    assert again.exit_code == 0 and _sha(shoot / "v0.png") == original, again.output
+    (copy,) = [p for p in (ppd_env["data"] / "displaced").rglob("*") if p.is_file()]  # the leftover swept
+    assert copy.read_bytes() == other and not copy.name.startswith(".")
+
+
+# a restore by seal killed after the original's rename, before any row is written
+AFTER_THE_RENAME = """
+from daemon.protect import restoring
+restoring._record_by_provenance = lambda *a, **k: os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_a_restore_by_seal_killed_after_its_rename_is_recognised_next_time(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A diff review (F7): the renamed file then held its original with no row and no seal, so the next
+    `ppd restore FILE` said "carries no ppd provenance marker", `ppd restore DATASET` listed the old name
+    as gone, and `ppd poison` patched the restored original again."""
+    shoot = tmp_path / "shoot"
+    originals = {i: _sha(make_image(shoot / f"v{i}.png", i)) for i in range(3)}
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    for i in (0, 1):
+        (shoot / f"v{i}.png").rename(shoot / f"hero{i}.png")
+        _killed_ppd(AFTER_THE_RENAME, "restore", str(shoot / f"hero{i}.png"))
+        assert _sha(shoot / f"hero{i}.png") == originals[i]  # renamed into place, the store not told
+    one = runner.invoke(app, ["restore", str(shoot / "hero0.png")])  # the file, by its path
+    assert one.exit_code == 0 and "restored 1" in one.output, one.output
+    folder = runner.invoke(app, ["restore", "shoot"])  # the dataset: hero1.png found in its folder
+    text = " ".join(folder.output.split())
+    assert folder.exit_code == 0 and "restored 2" in text and "gone" not in text, text
+    assert sorted(p.name for p in shoot.iterdir()) == ["hero0.png", "hero1.png", "v2.png"]
+    assert [_sha(shoot / n) for n in ("hero0.png", "hero1.png", "v2.png")] == list(originals.values())
+    dry = runner.invoke(app, ["poison", str(shoot), "--dry-run"])
+    assert "would patch 0" in " ".join(dry.output.split()), dry.output
