@@ -23,15 +23,26 @@ class AppContext:
     vault: Vault
     lock_wait_s: float = DEFAULT_FILE_WAIT_S  # how long protect/restore wait for another ppd's file lock
     _seal_key: bytes | None = field(default=None, repr=False)
+    # the key file it was read from (daemon.store.sealkey.KeyStamp); a pool worker gets its caller's
+    key_stamp: tuple[int, int, int] | None = field(default=None, repr=False)
     _store_hold: int | None = field(default=None, repr=False)  # the store lock's fd (daemon.locks)
 
     def seal_key(self) -> bytes:
-        """The installation's seal key (daemon.store.sealkey), created on first use."""
+        """The installation's seal key (daemon.store.sealkey), created on first use. SealKeyError once
+        its file is replaced: a long `ppd poison` or `ppd watch` sealed on with a key no longer on disk
+        (a diff review), and a worker started since loaded the new one: two keys in one run."""
         if self._seal_key is None:
-            from daemon.store.sealkey import load_key
+            from daemon.store.sealkey import SealKeyError, changed_key_message, key_path, load_key_stamped
 
-            self._seal_key = load_key(self.paths.data_dir)
-        assert self._seal_key is not None
+            key, stamp = load_key_stamped(self.paths.data_dir)
+            if self.key_stamp is not None and stamp != self.key_stamp:
+                raise SealKeyError(changed_key_message(key_path(self.paths.data_dir)))
+            self._seal_key, self.key_stamp = key, stamp
+        else:
+            from daemon.store.sealkey import check_key_stamp
+
+            assert self.key_stamp is not None
+            check_key_stamp(self.paths.data_dir, self.key_stamp)  # one stat per call (a few µs)
         return self._seal_key
 
     @classmethod
