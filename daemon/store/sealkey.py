@@ -141,17 +141,22 @@ def load_key_stamped(data_dir: Path) -> tuple[bytes, KeyStamp]:
 
 def new_key(data_dir: Path) -> Path:
     """A new key where there is none, whatever the vault holds (`ppd key new`: the user says the old
-    one is lost); FileExistsError when there is one."""
-    path = key_path(data_dir)
-    if path.exists() or path.is_symlink():
-        raise FileExistsError(path)
-    install_key(data_dir, secrets.token_bytes(KEY_BYTES), replace=False)
-    return path
+    one is lost); FileExistsError when there is one, another process's linked meanwhile included (a
+    check before the link said "made" for a key that was not this one: a diff review)."""
+    return _place_key(data_dir, secrets.token_bytes(KEY_BYTES), replace=False)
 
 
 def install_key(data_dir: Path, key: bytes, *, replace: bool) -> Path:
     """Write key as the installation's key, atomically, mode 0600. Without replace an existing
     key is kept (and returned as it is)."""
+    try:
+        return _place_key(data_dir, key, replace=replace)
+    except FileExistsError:
+        return key_path(data_dir)
+
+
+def _place_key(data_dir: Path, key: bytes, *, replace: bool) -> Path:
+    """install_key; without replace, FileExistsError when a key is there (the link never replaces)."""
     if len(key) != KEY_BYTES:
         raise SealKeyError("a seal key is 32 bytes")
     make_private_dir(Path(data_dir))
@@ -168,8 +173,7 @@ def install_key(data_dir: Path, key: bytes, *, replace: bool) -> Path:
         if replace:
             os.replace(tmp, path)
         else:
-            with contextlib.suppress(FileExistsError):
-                os.link(tmp, path)
+            os.link(tmp, path)
     finally:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
