@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from daemon.config import Config
-from daemon.locks import DEFAULT_FILE_WAIT_S, file_lock
+from daemon.locks import DEFAULT_FILE_WAIT_S, file_lock, release_store, use_store
 from daemon.paths import AppPaths
 from daemon.store import Store
 from daemon.store.vault import Vault
@@ -23,14 +23,26 @@ class AppContext:
     vault: Vault
     lock_wait_s: float = DEFAULT_FILE_WAIT_S  # how long protect/restore wait for another ppd's file lock
     _seal_key: bytes | None = field(default=None, repr=False)
+    # the key file it was read from (daemon.store.sealkey.KeyStamp); a pool worker gets its caller's
+    key_stamp: tuple[int, int, int] | None = field(default=None, repr=False)
+    _store_hold: int | None = field(default=None, repr=False)  # the store lock's fd (daemon.locks)
 
     def seal_key(self) -> bytes:
-        """The installation's seal key (daemon.store.sealkey), created on first use."""
+        """The installation's seal key (daemon.store.sealkey), created on first use. SealKeyError once
+        its file is replaced: a long `ppd poison` or `ppd watch` sealed on with a key no longer on disk
+        (a diff review), and a worker started since loaded the new one: two keys in one run."""
         if self._seal_key is None:
-            from daemon.store.sealkey import load_key
+            from daemon.store.sealkey import SealKeyError, changed_key_message, key_path, load_key_stamped
 
-            self._seal_key = load_key(self.paths.data_dir)
-        assert self._seal_key is not None
+            key, stamp = load_key_stamped(self.paths.data_dir)
+            if self.key_stamp is not None and stamp != self.key_stamp:
+                raise SealKeyError(changed_key_message(key_path(self.paths.data_dir)))
+            self._seal_key, self.key_stamp = key, stamp
+        else:
+            from daemon.store.sealkey import check_key_stamp
+
+            assert self.key_stamp is not None
+            check_key_stamp(self.paths.data_dir, self.key_stamp)  # one stat per call (a few µs)
         return self._seal_key
 
     @classmethod
@@ -39,17 +51,30 @@ class AppContext:
         config = Config.load(paths)  # reads one file: the publish folders, checked before anything is made
         published = [config.publish_dir] + [d.publish_dir for d in config.datasets.values()]
         paths.ensure(published=[p for p in published if p is not None])
-        return cls(
-            paths=paths,
-            config=config,
-            # a new store beside a vault that holds originals: the earlier one was lost; say so
-            # (and keep saying it) instead of starting a silent empty store (daemon.store.core)
-            store=Store.open_or_warn(paths.db_path, paths.vault_dir),
-            vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),
-        )
+        # held until close: a `ppd store rebuild` swapping the store meanwhile would lose what this
+        # process writes to it (LockHeld while one runs)
+        hold = use_store(paths.data_dir)
+        try:
+            return cls(
+                paths=paths,
+                config=config,
+                # a new store beside a vault that holds originals: the earlier one was lost; say so
+                # (and keep saying it) instead of starting a silent empty store (daemon.store.core)
+                store=Store.open_or_warn(paths.db_path, paths.vault_dir),
+                vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),
+                _store_hold=hold,
+            )
+        except BaseException:
+            release_store(paths.data_dir, hold)
+            raise
 
     def close(self) -> None:
-        self.store.close()
+        try:
+            self.store.close()
+        finally:
+            if self._store_hold is not None:
+                hold, self._store_hold = self._store_hold, None
+                release_store(self.paths.data_dir, hold)
 
     @contextlib.contextmanager
     def path_lock(self, path: Path) -> Iterator[None]:

@@ -101,10 +101,10 @@ def _flock(
         os.close(fd)
 
 
-def _lock_by(fd: int, deadline: float, refusal: Callable[[str], str]) -> None:
+def _lock_by(fd: int, deadline: float, refusal: Callable[[str], str], mode: int = fcntl.LOCK_EX) -> None:
     while True:
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, mode | fcntl.LOCK_NB)
             return
         except BlockingIOError:
             if time.monotonic() >= deadline:
@@ -220,3 +220,82 @@ def file_lock(data_dir: Path, path: Path, wait_s: float = DEFAULT_FILE_WAIT_S) -
 
     with _flock(folder / f"{_key(path)}.lock", wait_s, refusal, remove=True):
         yield
+
+
+# ---- the store lock ----------------------------------------------------------------------------------
+STORE_LOCK = "store.lock"
+# a command that ends holds the lock exclusive for an instant, to remove its file (release_store): a
+# newcomer waits that out rather than be refused
+STORE_WAIT_S = 2.0
+
+
+def _hold_store(data_dir: Path, mode: int, wait_s: float, refusal: Callable[[str], str]) -> int:
+    """The store lock's fd, locked in mode; the name is tried again when its last holder removed it
+    meanwhile (as in _flock)."""
+    lock_file = lock_dir(data_dir) / STORE_LOCK
+    deadline = time.monotonic() + wait_s
+    while True:
+        fd = os.open(lock_file, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
+        try:
+            _lock_by(fd, deadline, refusal, mode)
+        except BaseException:
+            os.close(fd)
+            raise
+        if _names(lock_file, fd):
+            return fd
+        os.close(fd)
+
+
+def use_store(data_dir: Path, wait_s: float = STORE_WAIT_S) -> int:
+    """Hold the store lock shared for a command's life (AppContext.open; release_store at its close,
+    or the kernel at its death); LockHeld while `ppd store rebuild` (or `ppd key new`) holds it."""
+
+    def refusal(holder: str) -> str:
+        lines: list[str] = []  # the holder's: its pid, then what it does
+        with contextlib.suppress(OSError):
+            fd = os.open(lock_dir(data_dir) / STORE_LOCK, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
+            try:
+                lines = _content(fd)
+            finally:
+                os.close(fd)
+        doing = lines[1] if len(lines) > 1 else "ppd store rebuild is rebuilding the store"
+        return f"{doing} ({holder}); run this again when it is done"
+
+    return _hold_store(data_dir, fcntl.LOCK_SH, wait_s, refusal)
+
+
+def release_store(data_dir: Path, fd: int) -> None:
+    """Let go of use_store's lock; the last holder removes its file. Taking it exclusive for that
+    fails at once while another command holds it (which removes it in turn); no one removes the file
+    without holding it exclusive, so a newcomer never locks a name that is gone (_hold_store)."""
+    try:
+        with contextlib.suppress(BlockingIOError):
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            lock_file = Path(data_dir) / "locks" / STORE_LOCK
+            if _names(lock_file, fd):
+                with contextlib.suppress(OSError):
+                    os.unlink(lock_file)
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def store_alone(
+    data_dir: Path, doing: str = "ppd store rebuild is rebuilding the store", then: str = "rebuild",
+    wait_s: float = STORE_WAIT_S,
+) -> Iterator[None]:  # fmt: skip
+    """The store lock exclusive: no other ppd command runs meanwhile (`ppd store rebuild`, and `ppd key
+    new`, whose key a running command would not see); LockHeld while one runs. doing: what a command
+    refused meanwhile is told; then: what to do once the others are done."""
+
+    def refusal(_holder: str) -> str:
+        return f"another ppd command (poison, restore, status, ...) is running; let it finish, then {then}"
+
+    fd = _hold_store(data_dir, fcntl.LOCK_EX, wait_s, refusal)
+    try:
+        _write_pid(fd, doing)  # a command refused names it
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            os.ftruncate(fd, 0)
+        release_store(data_dir, fd)

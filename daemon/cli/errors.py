@@ -114,12 +114,13 @@ def open_ctx(*, needs_key: bool = False) -> AppContext:
     the command (exit 3) before a file is touched (daemon.store.sealkey)."""
     from daemon.config import ConfigError
     from daemon.context import AppContext
+    from daemon.locks import LockHeld
     from daemon.store import StoreError
     from daemon.store.sealkey import SealKeyError
 
     try:
         ctx = AppContext.open()
-    except (ConfigError, StoreError) as exc:  # each with its own status: a damaged store is 3, not 2
+    except (ConfigError, StoreError, LockHeld) as exc:  # each with its status: a damaged store is 3, not 2
         raise die(one_line(exc), exc.exit_status) from None
     except OSError as exc:
         raise die(

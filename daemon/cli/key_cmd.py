@@ -5,6 +5,8 @@ the vault holds originals)."""
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import typer
@@ -89,8 +91,27 @@ def key_import(
             f"{key_path(paths.data_dir)} holds a different key: files it sealed would no longer be "
             "recognised after a store loss (use --force to replace it)"
         )
-    where = install_key(paths.data_dir, key, replace=True)
+    with _alone(paths.data_dir, "import the key"):
+        where = install_key(paths.data_dir, key, replace=True)
     typer.echo(f"seal key installed at {where}")
+
+
+@contextlib.contextmanager
+def _alone(data_dir: Path, then: str) -> Iterator[None]:
+    """No other ppd process on this data folder while the key changes: a running `ppd watch` or
+    `ppd poison` seals with the key it loaded, one no longer on disk (a diff review); refused with one
+    line, exit 3."""
+    from daemon.locks import LockHeld, store_alone, watching
+
+    if holders := watching(data_dir):
+        raise die(f"ppd watch ({holders[0]}) is running on this data folder and seals with the key it "
+                  f"loaded; stop it first (`systemctl --user stop ppd`), then {then}",
+                  ExitStatus.ENVIRONMENT)  # fmt: skip
+    try:
+        with store_alone(data_dir, "ppd is changing the seal key", then):
+            yield
+    except LockHeld as exc:
+        raise die(exc, ExitStatus.ENVIRONMENT) from None
 
 
 @key_app.command("new")
@@ -103,11 +124,16 @@ def key_new() -> None:
     from daemon.store.sealkey import SealKeyError, key_path, new_key
 
     paths = AppPaths.from_env()
+    path = key_path(paths.data_dir)
+    held = (f"{path} already holds a key; not replacing it "
+            "(`ppd key import FILE --force` replaces it with a saved one)")  # fmt: skip
+    if path.exists() or path.is_symlink():  # said first: stopping `ppd watch` for this would not help
+        raise die(held)
     try:
-        where = new_key(paths.data_dir)
+        with _alone(paths.data_dir, "make the new key"):
+            where = new_key(paths.data_dir)
     except FileExistsError:
-        raise die(f"{key_path(paths.data_dir)} already holds a key; not replacing it "
-                  "(`ppd key import FILE --force` replaces it with a saved one)") from None  # fmt: skip
+        raise die(held) from None
     except (SealKeyError, OSError) as exc:
         raise die(f"cannot write {key_path(paths.data_dir)}: {exc}", ExitStatus.ENVIRONMENT) from None
     typer.echo(f"new seal key made at {where}; back it up: `ppd key export FILE`")

@@ -31,6 +31,7 @@ def _fail(message: str, code: int = 1) -> typer.Exit:  # 1: systemd and tests re
 def _open_context(outbox: Path | None, seal_key: bool = False):  # -> daemon.context.AppContext
     from daemon.config import ConfigError
     from daemon.context import AppContext
+    from daemon.locks import LockHeld
     from daemon.paths import AppPaths
     from daemon.store import StoreError
     from daemon.store.sealkey import SealKeyError
@@ -44,7 +45,8 @@ def _open_context(outbox: Path | None, seal_key: bool = False):  # -> daemon.con
         raise _fail(f"{paths.outbox} is a file, not a folder: give the folder to watch", ExitStatus.USAGE)
     try:
         ctx = AppContext.open(paths)
-    except (ConfigError, StoreError) as exc:  # 2 and 3, as every command: the unit does not restart on them
+    except (ConfigError, StoreError, LockHeld) as exc:  # 2 and 3, as every command: the unit does not
+        # restart on them (LockHeld: a `ppd store rebuild` running)
         raise _fail(str(exc).splitlines()[0], exc.exit_status) from None
     except OSError as exc:
         raise _fail(f"cannot set up ppd's folders: {exc.strerror}: {exc.filename}") from None

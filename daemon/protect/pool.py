@@ -119,7 +119,7 @@ def log_like_caller(formatter: logging.Formatter | None) -> None:
 
 def open_worker(
     paths: AppPaths, config: Config, lock_wait_s: float, parent: int | None = None,
-    formatter: logging.Formatter | None = None,
+    formatter: logging.Formatter | None = None, key_stamp: tuple[int, int, int] | None = None,
 ) -> None:  # fmt: skip
     """A worker's AppContext: the caller's paths and config, the worker's own store connection."""
     global _worker_ctx
@@ -136,7 +136,7 @@ def open_worker(
     _worker_ctx = AppContext(
         paths=paths, config=config, store=Store(paths.db_path),
         vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),
-        lock_wait_s=lock_wait_s,
+        lock_wait_s=lock_wait_s, key_stamp=key_stamp,  # the caller's key, never one made since
     )  # fmt: skip
 
 
@@ -174,7 +174,7 @@ def died_outcome(call: ProtectCall, detail: str = "") -> ProtectOutcome:
 
 
 def _worker_args(ctx: AppContext, parent: int | None = None) -> tuple[object, ...]:
-    return (ctx.paths, ctx.config, ctx.lock_wait_s, parent, caller_formatter())
+    return (ctx.paths, ctx.config, ctx.lock_wait_s, parent, caller_formatter(), ctx.key_stamp)
 
 
 # ---- a batch: ppd poison ----------------------------------------------------------------------------

@@ -14,7 +14,8 @@ history come over from the old store where they can be trusted (rebuild_carry.py
 The old store is never deleted: its files (with -wal/-shm) are renamed to
 `<name>.before-rebuild-<UTC time>`. The new store is built under a temporary name and renamed
 into place, so a crash mid-rebuild leaves the old store (or its kept-aside copy) and no half
-store. Stop `ppd watch` first: a daemon still holding the old store would keep writing to it.
+store. Stop `ppd watch` first: a daemon still holding the old store would keep writing to it. Any
+other ppd command holds the store lock while it runs, and a rebuild waits for none (daemon.locks).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from typing import Any
 from daemon.config import Config
 from daemon.datasets.dataset import DEFAULT_DATASET, dataset_of, dataset_root
 from daemon.fsops import sha256_fd
-from daemon.locks import watching
+from daemon.locks import LockHeld, store_alone, watching
 from daemon.paths import AppPaths
 from daemon.platform import fd_path
 from daemon.protect import rebuild_carry
@@ -157,6 +158,21 @@ def rebuild_store(
             f"ppd watch ({holders[0]}) is running on this data folder; stop it first "
             "(`systemctl --user stop ppd`), then rebuild"
         )
+    with contextlib.ExitStack() as held:
+        try:  # a `ppd restore` or `ppd poison` committing between the reading and the swap was lost
+            held.enter_context(store_alone(paths.data_dir))
+        except LockHeld as exc:
+            raise RebuildBlocked(str(exc)) from None
+        _rebuild(paths, store_path, config, folders, force, read_marker, report)
+    log.info(report.summary())
+    return report
+
+
+def _rebuild(
+    paths: AppPaths, store_path: Path, config: Config, folders: Sequence[Path], force: bool,
+    read_marker: MarkerReader, report: RebuildReport,
+) -> None:  # fmt: skip
+    """rebuild_store's steps, under the store lock."""
     report.before = _store_condition(store_path, paths.vault_dir, force)
     old = _read_old_store(store_path) if report.before != "missing" else _OldStore()
     history = rebuild_carry.read_old_history(store_path)
@@ -176,8 +192,6 @@ def rebuild_store(
     referenced = {fields["original_sha256"] for _, fields in found.rows.values()}
     referenced |= {fields["original_sha256"] for _, _, fields in report.carried.restored}
     report.unreferenced_originals = len(set(vault.blobs()) - referenced)
-    log.info(report.summary())
-    return report
 
 
 @dataclass

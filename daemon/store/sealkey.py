@@ -15,6 +15,10 @@ So a key is made on its own only while the vault is empty: with originals in the
 is one that was lost (a black-box review: a silent new key, then every patched file patched again and
 its once-marked bytes vaulted as its "original"). Then SealKeyMissing says to import the old key, or
 to start a new one knowingly (`ppd key new`, new_key).
+
+A process loads the key once. `ppd key new` and `ppd key import` refuse while another ppd process uses
+the data folder, and one whose key file is replaced anyway seals nothing more (check_key_stamp): its
+files would be sealed with a key no longer on disk.
 """
 
 from __future__ import annotations
@@ -67,8 +71,39 @@ def parse_key(text: bytes, where: Path) -> bytes:
     return key
 
 
+KeyStamp = tuple[int, int, int]  # the key file's (st_dev, st_ino, st_mtime_ns): which file, which write
+
+
+def _stamp(st: os.stat_result) -> KeyStamp:
+    return (st.st_dev, st.st_ino, st.st_mtime_ns)
+
+
+def changed_key_message(path: Path) -> str:
+    return (
+        f"the seal key {path} was replaced or removed while this ppd ran (`ppd key new` or `key import`); "
+        "nothing more is sealed with the one it loaded: run the command again (restart `ppd watch`)"
+    )
+
+
+def check_key_stamp(data_dir: Path, stamp: KeyStamp) -> None:
+    """SealKeyError unless the key file is still the one stamped (one stat: a process caches its key,
+    and files sealed with a key no longer on disk are not recognised after a store loss)."""
+    path = key_path(data_dir)
+    try:
+        now = _stamp(os.stat(path, follow_symlinks=False))
+    except FileNotFoundError:
+        now = None
+    if now != stamp:
+        raise SealKeyError(changed_key_message(path))
+
+
 def read_key_file(path: Path) -> bytes:
     """The key in path: a regular file (no symlink) owned by this user and readable by nobody else."""
+    return read_key_stamped(path)[0]
+
+
+def read_key_stamped(path: Path) -> tuple[bytes, KeyStamp]:
+    """read_key_file, and the stamp of the file the key was read from."""
     fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
     try:
         st = os.fstat(fd)
@@ -78,7 +113,7 @@ def read_key_file(path: Path) -> bytes:
             raise SealKeyError(
                 f"{path} is readable by others (mode {stat.S_IMODE(st.st_mode):o}); `chmod 600` it to use it"
             )
-        return parse_key(os.read(fd, 4096), path)
+        return parse_key(os.read(fd, 4096), path), _stamp(st)
     finally:
         os.close(fd)
 
@@ -86,30 +121,42 @@ def read_key_file(path: Path) -> bytes:
 def load_key(data_dir: Path, *, create: bool = True) -> bytes | None:
     """This installation's key, created on first use when create (else None when there is none).
     Never created beside a vault that holds originals (SealKeyMissing): new_key does that, asked."""
+    if not create:
+        with contextlib.suppress(FileNotFoundError):
+            return read_key_file(key_path(data_dir))
+        return None
+    return load_key_stamped(data_dir)[0]
+
+
+def load_key_stamped(data_dir: Path) -> tuple[bytes, KeyStamp]:
+    """load_key (created on first use), and its file's stamp (check_key_stamp)."""
     path = key_path(data_dir)
     with contextlib.suppress(FileNotFoundError):
-        return read_key_file(path)
-    if not create:
-        return None
+        return read_key_stamped(path)
     if vault_holds_originals(Path(data_dir) / VAULT_DIR_NAME):
         raise SealKeyMissing(missing_key_message(data_dir))
     install_key(data_dir, secrets.token_bytes(KEY_BYTES), replace=False)
-    return read_key_file(path)  # ours, or the one another process linked first
+    return read_key_stamped(path)  # ours, or the one another process linked first
 
 
 def new_key(data_dir: Path) -> Path:
     """A new key where there is none, whatever the vault holds (`ppd key new`: the user says the old
-    one is lost); FileExistsError when there is one."""
-    path = key_path(data_dir)
-    if path.exists() or path.is_symlink():
-        raise FileExistsError(path)
-    install_key(data_dir, secrets.token_bytes(KEY_BYTES), replace=False)
-    return path
+    one is lost); FileExistsError when there is one, another process's linked meanwhile included (a
+    check before the link said "made" for a key that was not this one: a diff review)."""
+    return _place_key(data_dir, secrets.token_bytes(KEY_BYTES), replace=False)
 
 
 def install_key(data_dir: Path, key: bytes, *, replace: bool) -> Path:
     """Write key as the installation's key, atomically, mode 0600. Without replace an existing
     key is kept (and returned as it is)."""
+    try:
+        return _place_key(data_dir, key, replace=replace)
+    except FileExistsError:
+        return key_path(data_dir)
+
+
+def _place_key(data_dir: Path, key: bytes, *, replace: bool) -> Path:
+    """install_key; without replace, FileExistsError when a key is there (the link never replaces)."""
     if len(key) != KEY_BYTES:
         raise SealKeyError("a seal key is 32 bytes")
     make_private_dir(Path(data_dir))
@@ -126,8 +173,7 @@ def install_key(data_dir: Path, key: bytes, *, replace: bool) -> Path:
         if replace:
             os.replace(tmp, path)
         else:
-            with contextlib.suppress(FileExistsError):
-                os.link(tmp, path)
+            os.link(tmp, path)
     finally:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import stat
+from multiprocessing.synchronize import Barrier
 from pathlib import Path
 
 import pytest
@@ -14,7 +15,7 @@ import typer
 from typer.testing import CliRunner
 
 from daemon.cli.key_cmd import register
-from daemon.store.sealkey import SealKeyError, SealKeyMissing, key_path, load_key
+from daemon.store.sealkey import SealKeyError, SealKeyMissing, key_path, load_key, new_key
 from poisoner.formats import poison_file
 from poisoner.provenance import Marker, Seal, read_seal, seal_file
 from poisoner.spec import PatchSpec
@@ -44,6 +45,32 @@ def test_created_once_private_whatever_the_umask(tmp_path: Path) -> None:
     assert stat.S_IMODE((tmp_path / "data").stat().st_mode) == 0o700
     assert load_key(tmp_path / "data") in keys
     assert sorted(p.name for p in (tmp_path / "data").iterdir()) == ["seal.key"]  # no temporary left
+
+
+def _new(data_dir: str, start: Barrier, out: multiprocessing.Queue[str]) -> None:
+    start.wait()
+    try:
+        new_key(Path(data_dir))
+        out.put("made")
+    except FileExistsError:
+        out.put("exists")
+
+
+def test_new_key_says_made_only_for_the_key_on_disk(tmp_path: Path) -> None:
+    """`ppd key new` said "new seal key made" when another process linked its key first (a diff
+    review, S3): processes racing for an empty data folder, one made it, the others are told it exists."""
+    ctx = multiprocessing.get_context("fork")
+    for round_ in range(5):
+        data_dir, n = tmp_path / f"data{round_}", 6
+        start, out = ctx.Barrier(n), ctx.Queue()
+        procs = [ctx.Process(target=_new, args=(str(data_dir), start, out)) for _ in range(n)]
+        for p in procs:
+            p.start()
+        said = sorted(out.get(timeout=30) for _ in procs)
+        for p in procs:
+            p.join()
+        assert said == ["exists"] * (n - 1) + ["made"], said  # before: several "made"
+        assert [p.name for p in data_dir.iterdir()] == ["seal.key"]  # no temporary left
 
 
 def test_missing_key_is_not_created_when_not_asked(tmp_path: Path) -> None:
