@@ -352,10 +352,24 @@ def _sources(paths: AppPaths, config: Config, old: _OldStore, folders: Sequence[
             inside = [r for r in roots.values() if r != root and r.is_relative_to(root)]
             inner = frozenset(os.path.realpath(r) for r in inside)
             sources.append(_Source(root, name, inner=inner))
+    taken = dict(roots)  # name -> root: a given folder is its own dataset, never merged into another
     for folder in folders:
         folder = Path(folder).expanduser().absolute()
-        sources.append(_Source(folder, folder.name or DEFAULT_DATASET))
+        name = _free_name(folder.name or DEFAULT_DATASET, folder, taken)
+        taken[name] = folder
+        sources.append(_Source(folder, name))
     return sources
+
+
+def _free_name(name: str, folder: Path, taken: dict[str, Path]) -> str:
+    """name, or name-2, name-3...: the first not taken by another folder. A backup copy `bk/castle`
+    rebuilt beside `sh/castle` became dataset castle's files outside its folder, which `ppd restore
+    castle` then deleted as --out copies (a second black-box review)."""
+    candidate, n = name, 1
+    while candidate in taken and taken[candidate] != folder:
+        n += 1
+        candidate = f"{name}-{n}"
+    return candidate
 
 
 def _walk(top: Path, skip_dirs: set[str], report: RebuildReport) -> Iterator[Path]:

@@ -100,3 +100,30 @@ def test_a_dataset_whose_files_were_not_found_again_is_named(
     line = _line(rebuilt.stdout)
     assert "3 file(s) the old store listed as patched not found again, in dataset(s) copy (3)" in line
     assert "`ppd store rebuild --force FOLDER ...`" in line
+
+
+def test_a_backup_copy_with_the_same_folder_name_is_its_own_dataset(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """`ppd store rebuild sh/castle bk/castle` merged the backup into dataset castle (8 files for 4),
+    and `ppd restore castle` then deleted every backup file as an --out copy (a second black-box
+    review). The backup is its own dataset; restoring castle leaves it alone."""
+    import hashlib
+
+    shoot, backup = tmp_path / "sh" / "castle", tmp_path / "bk" / "castle"
+    for i in range(3):
+        make_image(shoot / f"v{i}.png", i)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    shutil.copytree(shoot, backup)
+    kept = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in backup.iterdir()}
+    AppPaths.from_env().db_path.unlink()
+    rebuilt = runner.invoke(app, ["store", "rebuild", str(shoot), str(backup)])
+    assert rebuilt.exit_code == 0, rebuilt.output
+    store = Store(AppPaths.from_env().db_path)
+    try:
+        assert store.counts("castle")["files"] == 3 and store.dataset("castle-2")["root"] == str(backup)
+    finally:
+        store.close()
+    restored = runner.invoke(app, ["restore", "castle"])
+    assert restored.exit_code == 0 and "removed 0" in restored.output, restored.output
+    assert {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in backup.iterdir()} == kept
