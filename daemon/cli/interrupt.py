@@ -60,3 +60,27 @@ class StopOnSignal:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self._restore()
+
+
+class TermAsInterrupt:
+    """SIGTERM inside it acts as Ctrl-C does (KeyboardInterrupt): for a command whose Ctrl-C path ends
+    its children and removes what it made (`ppd verify`). SIGTERM's default killed it silently with
+    status 143 and left its run folder behind (a second black-box review); `timeout` and `systemctl
+    stop` send it."""
+
+    def __enter__(self) -> TermAsInterrupt:
+        self._previous: Any = None
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGTERM, self._handle)
+        return self
+
+    @staticmethod
+    def _handle(_signum: int, _frame: FrameType | None) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a group's second SIGTERM: the same request
+        raise KeyboardInterrupt
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGTERM, self._previous)

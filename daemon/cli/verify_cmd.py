@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from daemon.cli.errors import die, one_line
+from daemon.cli.interrupt import TermAsInterrupt
 from daemon.cli.options import dataset_option, folder_option, subject_masks_option
 from poisoner.errors import ExitStatus, PpdError
 from verifier.verdict import Verdict
@@ -189,12 +190,13 @@ def verify(
     profiles = PROFILES if "all" in profile else tuple(p for p in PROFILES if p in profile)
     options = _options(timeout, ground_truth, splat, splat_budget, white_background, subject_masks, seeds)
     try:
-        if clean is not None:
-            if target == "":  # Path("") is '.', as no target means
-                raise TargetError(EMPTY_PATH)
-            report = _verify_folder(folder or Path(target or ""), clean, out, profiles, options, console)
-        else:
-            report = _verify_stored(target, dataset, folder, profiles, options, console)
+        with TermAsInterrupt():  # SIGTERM ends it as Ctrl-C does: children ended, nothing left behind
+            if clean is not None:
+                if target == "":  # Path("") is '.', as no target means
+                    raise TargetError(EMPTY_PATH)
+                report = _verify_folder(folder or Path(target or ""), clean, out, profiles, options, console)
+            else:
+                report = _verify_stored(target, dataset, folder, profiles, options, console)
     except (VerificationInputError, TargetError, ValueError, OSError) as exc:
         raise die(str(exc), ExitStatus.USAGE) from None
     if as_json:

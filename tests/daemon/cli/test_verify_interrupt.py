@@ -22,9 +22,12 @@ from daemon.cli import app
 REPO = Path(__file__).resolve().parents[3]
 
 
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
 def test_ctrl_c_ends_a_verification_at_once_and_leaves_no_run_behind(
-    ppd_env: dict[str, Path], tmp_path: Path
+    ppd_env: dict[str, Path], tmp_path: Path, how: str
 ) -> None:
+    """sigterm: `kill PID`, `timeout`, `systemctl stop` (a second black-box review: status 143, no
+    line, the run's folder left behind)."""
     shoot = tmp_path / "shoot"
     shoot.mkdir()
     base = np.random.default_rng(7).integers(0, 256, (480, 1200, 3), dtype=np.uint8)
@@ -42,7 +45,10 @@ def test_ctrl_c_ends_a_verification_at_once_and_leaves_no_run_behind(
         time.sleep(0.05)
     time.sleep(0.5)
     sent = time.monotonic()
-    os.killpg(proc.pid, signal.SIGINT)  # a terminal's Ctrl-C: the foreground group (not the children's)
+    if how == "ctrl-c":
+        os.killpg(proc.pid, signal.SIGINT)  # a terminal's Ctrl-C: the foreground group (not the children's)
+    else:
+        os.kill(proc.pid, signal.SIGTERM)
     out, err = proc.communicate(timeout=300)
     waited = time.monotonic() - sent
 
@@ -52,6 +58,7 @@ def test_ctrl_c_ends_a_verification_at_once_and_leaves_no_run_behind(
     # the children get SIGTERM, then SIGKILL after 3 s: never the rest of the verification
     assert waited < 10, f"{waited:.1f} s after Ctrl-C"
     assert [p.name for p in runs.iterdir() if not p.name.startswith(".")] == []  # no half run
+    assert not (runs / ".verifying.json").exists()  # status says no verification is running
     # the feature children it killed left their databases in the clean cache: the next run removes them
     cache = runs / ".clean-cache"
     from verifier.shared_sfm import clean_cache_for
