@@ -202,3 +202,18 @@ def test_a_photo_patched_in_place_and_copied_with_out_is_one_view_to_verify(
     finally:
         ctx.close()
     assert len(pairs) == 3 and len({original for original, _ in pairs}) == 3, pairs
+
+
+def test_check_of_a_dataset_whose_folder_is_gone_says_why(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd status NAME --check` exited 1 and said nothing when NAME's folder was gone (a second
+    black-box review); `--help` promises one line saying why."""
+    import shutil
+
+    shoot = tmp_path / "gone"
+    write_image(shoot / "v0.png", seed=1)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    shutil.rmtree(shoot)
+    for args in (["status", "gone", "--check"], ["status", "--check"]):
+        result = runner.invoke(app, args)
+        said = " ".join(result.output.split())
+        assert result.exit_code == 1 and "not ready to publish: gone: its folder" in said, (args, said)
