@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
+from poisoner.media import is_video
 from verifier.pairs import stage_pairs
 from verifier.verdict import Verdict
 from verifier.verification import (
@@ -99,9 +100,13 @@ def verify_dataset(
     options = dataset_options(ctx, dataset, options or VerifyOptions())
     keep = keep_last if keep_last is not None else ctx.config.verification.keep_runs
     pairs = dataset_pairs(ctx, dataset)
-    if len(pairs) < 3:
+    root = Path((ctx.store.dataset(dataset) or {}).get("root") or ".")
+    if not pairs and not root.is_dir():  # it said "pair missing" (a second black-box review)
+        raise VerificationInputError(f"dataset {dataset!r}: its folder {root} is gone (moved or deleted?)")
+    # a video gives many views (its frames, sampled by stage_pairs): one clip of a walk-around is enough
+    if len(pairs) < 3 and not any(is_video(protected) for _, protected in pairs):
         raise VerificationInputError(
-            f"dataset {dataset!r} has {len(pairs)} patched file(s); SfM needs at least 3 to verify"
+            f"dataset {dataset!r} has {len(pairs)} patched photo(s); SfM needs at least 3 views to verify"
         )
     runs_root = Path(ctx.paths.runs_dir)
     run_dir = runs_root / dataset / new_run_id()
