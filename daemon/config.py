@@ -149,7 +149,7 @@ def spec_from_table(table: dict[str, Any], base: PatchSpec | None = None) -> Pat
         raise SpecError(f"unknown patch field(s): {', '.join(sorted(unknown))}")
     try:
         spec = (base or default_spec()).replace(**data)
-        if problem := spec.mark_problem():  # the user's words: a spec that writes nothing is refused
+        if problem := mark_problem(spec):  # the user's words: a spec that writes nothing is refused
             raise SpecError(problem)
         return spec
     except SpecError as exc:
@@ -158,6 +158,16 @@ def spec_from_table(table: dict[str, Any], base: PatchSpec | None = None) -> Pat
             raise SpecError(f'{exc}; to change another design\'s fields, name it: design = "roaming" '
                             '(the moving square) or "paper"') from None
         raise
+
+
+def mark_problem(spec: PatchSpec) -> str | None:
+    """Why spec writes no texture on any photo (it was called "patched": a black-box review), or None.
+    Asked where the user makes a spec (spec_from_table), not of a stored one: it stays readable."""
+    if round(255 * spec.alpha) == 0:
+        return f"alpha {spec.alpha} writes no mark (it blends in less than one level of 255)"
+    if spec.ratio == 0:
+        return "ratio 0 gives no photo the mark"
+    return "contrast 0 makes the mark one flat colour: no texture" if spec.contrast == 0 else None
 
 
 def _named_design(name: Any) -> PatchSpec:

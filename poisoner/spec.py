@@ -234,13 +234,6 @@ class PatchSpec:
             raise SpecError("mark_text is blank")
         object.__setattr__(self, "offset", (self.offset[0], self.offset[1]))
 
-    def mark_problem(self) -> str | None:
-        """Why this spec writes no texture (called "patched": a black-box review), or None. Asked where
-        the user makes a spec (daemon.config.spec_from_table), not of a stored one: it stays readable."""
-        if round(255 * self.alpha) == 0:
-            return f"alpha {self.alpha} writes no mark (it blends in less than one level of 255)"
-        return "contrast 0 makes the mark one flat colour: no texture" if self.contrast == 0 else None
-
     # ---- geometry -------------------------------------------------------------------------
     def resolve(
         self,

@@ -35,15 +35,15 @@ def test_a_faint_mark_that_changes_pixels_is_patched(tmp_path: Path) -> None:
     assert report.written > 0 and dst.stat().st_size > 0
 
 
-@pytest.mark.parametrize(("field", "value"), [("alpha", 0), ("alpha", 0.001), ("contrast", 0)])
+@pytest.mark.parametrize(("field", "value"), [("alpha", 0), ("alpha", 0.001), ("contrast", 0), ("ratio", 0)])
 def test_a_spec_that_writes_no_texture_is_refused_where_the_user_gives_it(field: str, value: float) -> None:
     """Flags, a spec file and the config go through spec_from_table: refused there. A spec read back
     from the store (a dataset made before) still loads."""
-    from daemon.config import spec_from_table
+    from daemon.config import mark_problem, spec_from_table
     from poisoner.errors import SpecError
     from poisoner.spec import PatchSpec
 
     with pytest.raises(SpecError, match=field):
         spec_from_table({field: value})
     stored = default_spec().replace(**{field: value})
-    assert PatchSpec.from_json(stored.to_json()) == stored and stored.mark_problem() is not None
+    assert PatchSpec.from_json(stored.to_json()) == stored and mark_problem(stored) is not None
