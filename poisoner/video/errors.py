@@ -13,5 +13,8 @@ class VideoFormatError(PpdError):
 
 
 def one_line(exc: BaseException) -> str:
-    """An exception's message folded onto one line (FFmpeg's messages span several)."""
-    return " ".join(str(exc).split()) or type(exc).__name__
+    """An exception's message folded onto one line (FFmpeg's messages span several). An FFmpeg error
+    is its words alone: "[Errno 1094995529] Invalid data ...: '<a scratch path>'" named an internal
+    file and a number no creator can use (a second black-box review)."""
+    words = getattr(exc, "strerror", None) if type(exc).__module__ == "av.error" else None
+    return " ".join(str(words or exc).split()) or type(exc).__name__
