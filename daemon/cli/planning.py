@@ -330,9 +330,8 @@ def apply_spec(
 ) -> tuple[dict[str, PatchSpec], list[tuple[str, str]]]:
     """The spec each dataset will use when flags were given or its corner is chosen now (set on
     new datasets now), and (dataset, line) for each new dataset's placement: per photo, or the corner
-    chosen. A new dataset whose mark
-    is corner-bound gets the corner daemon.datasets.subject_masks.place_corner picks over all its files
-    given here."""
+    chosen. A new dataset whose mark is corner-bound gets the corner
+    daemon.datasets.subject_masks.place_corner picks over all its files given here."""
     from daemon.datasets.subject_masks import (
         corner_line,
         per_photo_line,
@@ -340,6 +339,7 @@ def apply_spec(
         record_choice,
         wants_corner,
     )
+    from daemon.protect.job import media_kind
     from daemon.store import DatasetSpecLocked
 
     wanted: dict[str, PatchSpec] = {}
@@ -349,7 +349,9 @@ def apply_spec(
         new = ctx.store.dataset_spec(name) is None
         base = spec or ctx.config.spec_for(name)
         if new and base.per_photo:  # issue 25: no corner for the set; each photo's own place
-            lines.append((name, per_photo_line(name, masks.get(name), _masked(jobs, name, masks.get(name)))))
+            clips = all(media_kind(j.path) == "video" for j in jobs if j.dataset == name)
+            masked = _masked(jobs, name, masks.get(name))
+            lines.append((name, per_photo_line(name, masks.get(name), masked, videos_only=clips)))
         if new and wants_corner(base, options.sets_position() or ctx.config.position_set(name)):
             placed = place_corner(base, [job.path for job in jobs if job.dataset == name], masks.get(name))
             spec, choice = placed.spec, placed.choice

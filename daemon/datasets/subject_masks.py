@@ -133,9 +133,14 @@ def place_corner(spec: PatchSpec, files: Sequence[Path], mask_dir: Path | None) 
     return Placed(spec.replace(position=choice.corner), choice)
 
 
-def per_photo_line(dataset: str, mask_dir: Path | None, masked: tuple[int, int] | None = None) -> str:
+def per_photo_line(
+    dataset: str, mask_dir: Path | None, masked: tuple[int, int] | None = None, videos_only: bool = False
+) -> str:
     """`lego: mark placed per photo, where each photo is plainest (estimated from its detail)`.
-    masked: (photos with a mask in mask_dir, photos), so the line never claims masks none matched."""
+    masked: (photos with a mask in mask_dir, photos), so the line never claims masks none matched.
+    videos_only: a set of clips is not told of photos (a second black-box review)."""
+    if videos_only:
+        return f"{dataset}: mark placed per video, where its keyframes are plainest (estimated from detail)"
     why = f"off the subject masks in {mask_dir}" if mask_dir else "estimated from its detail; no masks"
     if mask_dir and masked is not None and masked[0] < masked[1]:
         why = (f"no mask in {mask_dir} matches these photos: estimated from their detail" if masked[0] == 0

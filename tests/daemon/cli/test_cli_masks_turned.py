@@ -78,3 +78,14 @@ def test_the_small_squares_line_calls_a_clip_a_video(ppd_env: dict[str, Path], t
     text = " ".join(result.output.split())
     assert result.exit_code == 0, result.output
     assert "1 video got squares of fewer than 8 blocks across (a.mp4:" in text, text
+
+
+def test_a_set_of_clips_is_told_of_videos_not_photos(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """"mark placed per photo, where each photo is plainest" was said of a folder of videos (a second
+    black-box review)."""
+    from tests.daemon.cli.test_cli_verify_video import walk_around_clip
+
+    clip = walk_around_clip(tmp_path / "clips" / "walk.mp4", tmp_path / "frames", views=6)
+    result = runner.invoke(app, ["poison", str(clip.parent)])
+    said = " ".join(result.output.split())
+    assert result.exit_code == 0 and "mark placed per video" in said and "per photo" not in said, said
