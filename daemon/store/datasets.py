@@ -3,6 +3,7 @@ stored once by its content hash."""
 
 from __future__ import annotations
 
+import re
 import sqlite3
 import time
 from pathlib import Path
@@ -99,7 +100,8 @@ class DatasetRows(StoreBase):
         return self._one("SELECT * FROM datasets WHERE name = ?", (name,))
 
     def datasets(self) -> list[dict[str, Any]]:
-        return self._rows("SELECT * FROM datasets ORDER BY name")
+        """Every dataset, in natural order: set 2 before set 10 (text order put set 10-19 first)."""
+        return sorted(self._rows("SELECT * FROM datasets"), key=lambda row: natural_key(row["name"]))
 
     def dataset_spec(self, name: str) -> PatchSpec | None:
         row = self.dataset(name)
@@ -196,3 +198,8 @@ def _refuse_if_patched(conn: sqlite3.Connection, name: str, spec_id: str | None)
             f"changing it needs a re-protect from the vault "
             f"(ppd dataset set {name} ... --reprotect)"
         )
+
+
+def natural_key(name: str) -> list[tuple[int, int | str]]:
+    """A name's sort key with its runs of digits as numbers (case folded)."""
+    return [(0, int(part)) if part.isdigit() else (1, part) for part in re.split(r"(\d+)", name.casefold())]

@@ -421,3 +421,10 @@ def test_a_known_dataset_costs_no_write_transaction(tmp_path: Path) -> None:
     finally:
         other.close()
         store.close()
+
+
+def test_datasets_come_in_natural_order(store: Store, tmp_path: Path) -> None:
+    """`ppd status` listed set 1, set 10, set 11 ... set 19, set 2 (a second black-box review)."""
+    for name in ("set 10", "set 2", "set 1", "Alpha", "set 19"):
+        store.ensure_dataset(name, tmp_path / name, PatchSpec())
+    assert [d["name"] for d in store.datasets()] == ["Alpha", "set 1", "set 2", "set 10", "set 19"]
