@@ -37,6 +37,25 @@ def _use_private_folders(workdir: Path) -> None:
         os.environ[var] = str(workdir / sub)
 
 
+def _not_a_demo_folder(workdir: Path) -> str | None:
+    """Why workdir cannot hold a demo: the demo writes its own store, vault and outbox there, and into
+    a folder holding the user's (`--workdir ~/.local/share/..`) it added its scene to the user's real
+    store (a second black-box review); None for a new or empty folder, or an earlier demo's."""
+    from daemon.paths import AppPaths
+
+    if not workdir.exists():
+        return None
+    if not workdir.is_dir():
+        return "not a folder"
+    live = AppPaths.from_env().data_dir  # the user's, read before the demo points it at its own
+    if (workdir / "data").resolve() == live.resolve():
+        return f"its data folder is ppd's own, {live} (PPD_DATA_DIR)"
+    earlier = (workdir / "data" / "ppd.sqlite3").is_file() and (workdir / "camera").is_dir()  # a demo's
+    if any(workdir.iterdir()) and not earlier:
+        return "it is not empty"
+    return None
+
+
 def _start_daemon(ctx: AppContext) -> tuple[Any, threading.Thread]:
     """The daemon, exactly as `ppd watch` runs it, with the embedded default config and spec."""
     from daemon.watch.watcher import DaemonOptions, WatchDaemon
@@ -116,6 +135,8 @@ def demo(
     from daemon.paths import AppPaths
     from daemon.states import patched_count
 
+    if workdir is not None and (why := _not_a_demo_folder(workdir.absolute())):
+        raise die(f"--workdir {workdir}: {why}; give a new or empty folder")
     workdir = (workdir or Path(tempfile.mkdtemp(prefix="ppd-demo-"))).absolute()
     workdir.mkdir(parents=True, exist_ok=True)
     _use_private_folders(workdir)

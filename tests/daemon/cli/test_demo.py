@@ -70,3 +70,19 @@ def test_demo_verifies_and_prints_the_verdict(tmp_path: Path) -> None:
     assert any(v in out.split("verifying with colmap", 1)[1] for v in verdicts), proc.stdout[-3000:]
     runs = list((tmp_path / "data").rglob("report.json"))
     assert runs, "the verification left no report"
+
+
+def test_demo_refuses_a_folder_it_would_mix_with(tmp_path: Path) -> None:
+    """`ppd demo --workdir D`, D/data the user's PPD_DATA_DIR, added the demo's scene to the user's
+    real store (a second black-box review); a folder of other things is refused too, nothing made."""
+    live = tmp_path / "mine"
+    (live / "data").mkdir(parents=True)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("mine")
+    for workdir, env in ((live, {"PPD_DATA_DIR": str(live / "data")}), (tmp_path / "other", {})):
+        proc = subprocess.run(
+            [sys.executable, "-m", "daemon.cli", "demo", "--workdir", str(workdir), "--no-verify"],
+            capture_output=True, text=True, timeout=120, check=False, env={**os.environ, **env},
+        )  # fmt: skip
+        assert proc.returncode == 2 and "--workdir" in proc.stderr, proc.stderr
+        assert sorted(p.name for p in workdir.iterdir()) in (["data"], ["notes.txt"])
