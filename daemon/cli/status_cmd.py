@@ -395,11 +395,12 @@ def _exit_if_unready(report: list[dict[str, Any]], check: bool, unclaimed: Seque
     unready = [(name, why) for name, why in unready if why]
     if unclaimed:
         unready.append(("outbox", [f"{len(unclaimed)} photo(s) or video(s) not patched yet"]))
-    if not shown and not unready:  # exit 1 said nothing (a second black-box review): say why
-        unready = [(d["name"], [f"its folder {d['root']} is gone (moved or deleted?)"]) for d in report]
-        unready = unready or [("status", ["no dataset yet"])]
     for name, why in unready:
         err_console().print(f"not ready to publish: {name}: {', '.join(why)}", markup=False, highlight=False)
+    if not shown and not unready:  # exit 1 said nothing (a second black-box review): say why
+        gone = [f"dataset {d['name']!r}'s folder {d['root']} is gone (moved or deleted?)" for d in report]
+        said = "; ".join(gone) or "no dataset yet"
+        err_console().print(f"nothing to publish: {said}", markup=False, highlight=False)
     if unready or not shown:
         raise typer.Exit(ExitStatus.FAILED)
 
