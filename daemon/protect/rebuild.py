@@ -307,11 +307,7 @@ def _read_old_store(store_path: Path) -> _OldStore:
     """Whatever the old store still gives back of its datasets and specs (read-only; any damage
     simply ends the reading)."""
     old = _OldStore()
-    if not store_path.is_file():
-        return old
-    try:
-        conn = sqlite3.connect(f"file:{store_path}?mode=ro", uri=True)
-    except sqlite3.Error:
+    if (conn := rebuild_carry.open_read_only(store_path)) is None:
         return old
     try:
         with contextlib.suppress(sqlite3.Error):

@@ -47,17 +47,23 @@ class OldHistory:
     history_whole: bool = False  # runs and events both read without an error
 
 
+def open_read_only(store_path: Path) -> sqlite3.Connection | None:
+    """The old store, read-only, or None when there is none to read (what it still gives is read)."""
+    if not store_path.is_file():
+        return None
+    try:
+        return sqlite3.connect(f"file:{store_path}?mode=ro", uri=True)
+    except sqlite3.Error:
+        return None
+
+
 def read_old_history(store_path: Path) -> OldHistory:
     """The old store's patched and restored rows, verification runs and pixel-change events; damage
     ends a table's reading (what was read of the file rows is kept; runs need both tables whole)."""
     from daemon.store.verification import PIXEL_EVENTS
 
     old = OldHistory()
-    if not store_path.is_file():
-        return old
-    try:
-        conn = sqlite3.connect(f"file:{store_path}?mode=ro", uri=True)
-    except sqlite3.Error:
+    if (conn := open_read_only(store_path)) is None:
         return old
     conn.row_factory = sqlite3.Row
     try:
