@@ -48,7 +48,7 @@ def test_created_once_private_whatever_the_umask(tmp_path: Path) -> None:
 
 
 def _new(data_dir: str, start: Barrier, out: multiprocessing.Queue[str]) -> None:
-    start.wait()
+    start.wait(timeout=30)  # a parent killed before all started: these end, not wait for ever
     try:
         new_key(Path(data_dir))
         out.put("made")
