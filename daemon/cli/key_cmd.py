@@ -86,14 +86,20 @@ def key_import(
     if current == key:
         typer.echo(f"{key_path(paths.data_dir)} already holds this key")
         return
+    # how much the key being replaced sealed: the vault's originals (one each), said before and after
+    sealed = sum(1 for _ in paths.vault_dir.glob("??/*")) if paths.vault_dir.is_dir() else 0
     if current is not None and not force:
         raise die(
-            f"{key_path(paths.data_dir)} holds a different key: files it sealed would no longer be "
-            "recognised after a store loss (use --force to replace it)"
+            f"{key_path(paths.data_dir)} holds a different key, which sealed the patched files of {sealed} "
+            "original(s) in the vault: they would no longer be recognised after a store loss (use --force "
+            "to replace it)"
         )
     with _alone(paths.data_dir, "import the key"):
         where = install_key(paths.data_dir, key, replace=True)
     typer.echo(f"seal key installed at {where}")
+    if current is not None and sealed:
+        typer.echo(f"the key it replaced sealed the patched files of {sealed} original(s): their rows in the "
+                   "store still know them; after a store loss they are not recognised")  # fmt: skip
 
 
 @contextlib.contextmanager

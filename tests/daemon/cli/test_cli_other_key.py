@@ -42,3 +42,19 @@ def test_output_sealed_with_another_key_is_not_marked_again(ppd_env: dict[str, P
 
     forced = runner.invoke(app, ["poison", str(shoot), "--force"])  # asked for: not refused for the key
     assert "sealed with another key" not in forced.output and "patched" in forced.output, forced.output
+
+
+def test_replacing_the_key_says_how_much_it_sealed(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd key import --force` said nothing of the files the old key sealed (a second black-box
+    review): the refusal and the replacement count the vault's originals."""
+    shoot = tmp_path / "shoot"
+    for i in range(3):
+        make_image(shoot / f"v{i}.png", i)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    other = tmp_path / "other.key"
+    other.write_text("ab" * 32 + "\n")
+    refused = runner.invoke(app, ["key", "import", str(other)])
+    assert refused.exit_code == 2 and "3 original(s)" in " ".join(refused.output.split()), refused.output
+    replaced = runner.invoke(app, ["key", "import", str(other), "--force"])
+    said = " ".join(replaced.output.split())
+    assert replaced.exit_code == 0 and "sealed the patched files of 3 original(s)" in said, said
