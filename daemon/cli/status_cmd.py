@@ -235,11 +235,15 @@ def _print_regressions(report: list[dict[str, Any]]) -> None:
 
 
 def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any, unclaimed: list[Path]) -> None:
+    # --check's answer and reasons, per dataset: a script had to rebuild the rule (a black-box review)
+    datasets = [{**d, "not_ready": [] if _gone(d) else unready_reasons(d)} for d in report]
     payload = {
         "outbox": str(ctx.paths.outbox),
         "sync_folder": None if sync is None else {"client": sync.client, "root": str(sync.root)},
-        "datasets": report,
+        "datasets": datasets,
         "outbox_not_patched": [str(p) for p in unclaimed],  # in the outbox, no dataset's yet
+        "ready_to_publish": bool(report) and not unclaimed
+        and any(not _gone(d) for d in report) and not any(d["not_ready"] for d in datasets),
     }
     typer.echo(json.dumps(payload, indent=2, default=str))
 

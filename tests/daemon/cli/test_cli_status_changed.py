@@ -96,7 +96,11 @@ def test_status_check_gates_publishing(ppd_env: dict[str, Path]) -> None:
     finally:
         ctx.close()
     assert runner.invoke(app, ["status", "set", "--check"]).exit_code == 0
+    ready = json.loads(runner.invoke(app, ["status", "--json"]).stdout)  # --check's answer, for scripts
+    assert ready["ready_to_publish"] is True and ready["datasets"][0]["not_ready"] == []
     (shoot / "v2.jpg").write_bytes(b"\xff\xd8 not really")  # a file not patched yet
+    later = json.loads(runner.invoke(app, ["status", "--json"]).stdout)
+    assert later["ready_to_publish"] is False and "1 not patched yet" in later["datasets"][0]["not_ready"]
     late = runner.invoke(app, ["status", "set", "--check"])
     assert late.exit_code == 1 and "1 not patched yet" in " ".join(late.output.split()), late.output
 
