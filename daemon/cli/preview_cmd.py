@@ -224,6 +224,12 @@ def _preview_masks(ctx: AppContext, file: Path, given: Path | None) -> Path | No
         raise die(str(exc)) from None
 
 
+def _stored_video(ctx: AppContext, file: Path) -> bool:
+    """Whether the preview compares a patched video with its vault original (both decoded)."""
+    row = ctx.store.file(file)
+    return row is not None and row.get("state") == "patched"
+
+
 def _visibility_line(original: Any, poisoned: Any, display_width: int, subject: Any = None) -> str:
     """The visibility summary (arrays (H, W, C)); with the subject's mask, whether the mark touches it."""
     from verifier.visibility import VisibilityError, visibility_report
@@ -364,6 +370,8 @@ def preview(
         console().print(where, markup=False, soft_wrap=True)
         if visibility:
             line = _visibility_line(original, poisoned, display_width, subject)
+            if _is_video(file) and _stored_video(ctx, file):  # its frame was re-encoded, not only marked
+                line += "; a patched video is re-encoded: most changed pixels are the codec's, not the mark's"
             console().print(line, markup=False, soft_wrap=True)
     finally:
         ctx.close()

@@ -61,3 +61,17 @@ def test_preview_of_a_clip_shows_where_poison_writes_and_works_once_it_is_patche
     assert after.exit_code == 0, after.output  # was: "cannot read <hash>: not a recognised image file"
     assert said_box(after.output) == written and (tmp_path / "p2.png").stat().st_size > 0
     assert not list(Path(tempfile.gettempdir()).glob("ppd-preview-*"))  # its scratch folder is gone
+
+
+def test_a_patched_clips_preview_says_the_codec_changed_most_pixels(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """"65.57% of pixels changed, not confined to a corner" of a patched clip read as two thirds of the
+    frame altered (a second black-box review): the frame was re-encoded, the mark is under 1%."""
+    clip = plain_band_clip(tmp_path / "shoot" / "clip.mp4")
+    planned = runner.invoke(app, ["preview", str(clip), "--out", str(tmp_path / "p1.png")])
+    assert planned.exit_code == 0 and "codec's" not in planned.output, planned.output  # marked, not coded
+    assert runner.invoke(app, ["poison", str(clip.parent)]).exit_code == 0
+    after = runner.invoke(app, ["preview", str(clip), "--out", str(tmp_path / "p2.png")])
+    said = " ".join(after.output.split())
+    assert after.exit_code == 0 and "most changed pixels are the codec's" in said, said
