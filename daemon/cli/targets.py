@@ -93,13 +93,15 @@ def dataset_for_folder(store: Any, folder: Path) -> str | None:
     for row in store.datasets():
         if row["root"] and same_folder(Path(row["root"]), folder):
             return row["name"]
-    best: tuple[int, str] | None = None
+    holding: list[tuple[int, str]] = []
     for row in store.datasets():
         paths = [_absolute(Path(r.get("published_path") or r["path"])) for r in store.files(row["name"])]
-        inside = sum(1 for p in paths if p.is_relative_to(folder))
-        if inside and (best is None or inside > best[0]):
-            best = (inside, row["name"])
-    return None if best is None else best[1]
+        if inside := sum(1 for p in paths if p.is_relative_to(folder)):
+            holding.append((inside, row["name"]))
+    if len(holding) > 1:  # a parent of several datasets: one of them was taken, the others left (a review)
+        names = ", ".join(name for _, name in sorted(holding, key=lambda h: h[1]))
+        raise TargetError(f"{folder} holds files of several datasets ({names}): name one (see `ppd status`)")
+    return holding[0][1] if holding else None
 
 
 def dataset_for_verification_folder(store: Any, folder: Path) -> str | None:

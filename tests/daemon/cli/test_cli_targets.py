@@ -106,3 +106,22 @@ def test_the_originals_of_a_dataset_patched_with_out_are_that_datasets(ppd_env: 
     assert "from the subject mask" in " ".join(result.output.split()), result.output
     again = runner.invoke(app, ["poison", str(images), "--out", pub])  # no name: the same dataset
     assert again.exit_code == 0 and "crop" in again.output and "shoot:" not in again.output, again.output
+
+
+def test_a_folder_holding_several_datasets_names_them(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd restore ~/shoots`, the parent of datasets a and b, said "~/shoots is dataset 'a'" and
+    restored a alone, exit 0 (a diff review): the folder holds both, and the command says so."""
+    import hashlib
+
+    from testkit.photos import make_image
+
+    shoots = tmp_path / "shoots"
+    for name in ("a", "b"):
+        for i in range(2):
+            make_image(shoots / name / f"v{i}.png", i)
+        assert runner.invoke(app, ["poison", str(shoots / name)]).exit_code == 0
+    before = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in shoots.rglob("*.png")}
+    result = runner.invoke(app, ["restore", str(shoots)])
+    said = " ".join(result.output.split())
+    assert result.exit_code == 2 and "several datasets (a, b)" in said, said
+    assert {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in shoots.rglob("*.png")} == before
