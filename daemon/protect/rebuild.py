@@ -185,12 +185,13 @@ def _rebuild(
         by_dataset[dataset].append(fields["spec_id"])
     specs = _recover_specs(vault, old, config, {s for ids in by_dataset.values() for s in ids}, report)
     names = set(by_dataset) | set(old.datasets)  # the new store's datasets (_fill_new_store)
-    report.carried = rebuild_carry.carry_over(history, found.rows.keys(), names, collector.is_intact)
+    report.carried = rebuild_carry.carry_over(history, found.rows.keys(), names, collector.is_intact, specs)
     _write_new_store(store_path, found, by_dataset, specs, old, report)
     report.recorded = len(found.rows)
     report.datasets = {name: len(ids) for name, ids in sorted(by_dataset.items())}
     referenced = {fields["original_sha256"] for _, fields in found.rows.values()}
-    referenced |= {fields["original_sha256"] for _, _, fields in report.carried.restored}
+    carried = [*report.carried.restored, *report.carried.patched]
+    referenced |= {fields["original_sha256"] for _, _, fields in carried}
     report.unreferenced_originals = len(set(vault.blobs()) - referenced)
 
 

@@ -14,6 +14,11 @@ find, so every restored file became "not patched yet" (and `ppd poison` patched 
   judged it. Carried only when both tables read whole: runs without the events that outdate them
   would claim a verdict the old store no longer held; then they are dropped and counted.
 
+- patched rows the walk did not find by their seal (sealed with a key no longer installed: after `ppd
+  key new` a rebuild emptied a sound store and the originals were out of ppd's reach; a black-box
+  review): carried when the file at the row's path (or its publish copy) holds exactly the bytes the
+  row records as ppd's output and the vault holds its original intact. The bytes prove it.
+
 It also counts, per dataset, the old store's patched rows the walk did not find again: a dataset
 whose files share their originals with another's leaves no unreferenced original behind, so the
 summary's vault count said nothing of it (the same review).
@@ -41,6 +46,7 @@ class OldHistory:
     """What the old store says beyond its datasets and specs (read-only; see the module's doc)."""
 
     patched: dict[str, str] = field(default_factory=dict)  # row path -> dataset
+    patched_rows: list[dict[str, Any]] = field(default_factory=list)
     restored: list[dict[str, Any]] = field(default_factory=list)
     runs: list[dict[str, Any]] = field(default_factory=list)
     pixel_events: list[dict[str, Any]] = field(default_factory=list)
@@ -72,6 +78,7 @@ def read_old_history(store_path: Path) -> OldHistory:
                                     (FileState.PATCHED.value, FileState.RESTORED.value)):  # fmt: skip
                 if row["state"] == FileState.PATCHED.value:
                     old.patched[str(row["path"])] = str(row["dataset"])
+                    old.patched_rows.append(dict(row))
                 else:
                     old.restored.append(dict(row))
         try:
@@ -93,6 +100,7 @@ class Carried:
     """What the new store gets from the old one, and what it leaves out (for the summary)."""
 
     restored: list[tuple[str, str, dict[str, Any]]] = field(default_factory=list)  # (path, dataset, fields)
+    patched: list[tuple[str, str, dict[str, Any]]] = field(default_factory=list)  # by their recorded bytes
     restored_changed: int = 0  # restored rows whose file no longer holds the original
     runs: list[dict[str, Any]] = field(default_factory=list)
     pixel_events: list[dict[str, Any]] = field(default_factory=list)
@@ -101,11 +109,22 @@ class Carried:
 
 
 def carry_over(
-    old: OldHistory, found: Collection[str], datasets: Collection[str], intact: Callable[[str], bool]
+    old: OldHistory, found: Collection[str], datasets: Collection[str], intact: Callable[[str], bool],
+    specs: Collection[str] = (),
 ) -> Carried:
     """What to carry into a store whose patched rows are `found` (row paths) and whose datasets are
-    `datasets`; intact(sha256): the vault holds that original, verified."""
+    `datasets`; intact(sha256): the vault holds that original, verified; specs: the specs it holds."""
     carried = Carried()
+    for row in old.patched_rows:
+        path, output = str(row["path"]), str(row.get("poisoned_sha256") or "")
+        if path in found or row["dataset"] not in datasets or row.get("spec_id") not in specs or not output:
+            continue
+        st = _holds(Path(row.get("published_path") or path), output)
+        if st is not None and intact(str(row.get("original_sha256") or "")):
+            fields = {k: row.get(k) for k in ("original_sha256", "poisoned_sha256", "original_mtime_ns",
+                                              "spec_id", "tool_version", "published_path")}  # fmt: skip
+            carried.patched.append((path, str(row["dataset"]), {**fields, "size": st.st_size,
+                                                                "mtime_ns": st.st_mtime_ns}))  # fmt: skip
     for row in old.restored:
         path, original = str(row["path"]), str(row.get("original_sha256") or "")
         if path in found or row["dataset"] not in datasets:
@@ -118,7 +137,7 @@ def carry_over(
                   "spec_id": row.get("spec_id"), "tool_version": row.get("tool_version"),
                   "size": st.st_size, "mtime_ns": st.st_mtime_ns}  # fmt: skip
         carried.restored.append((path, str(row["dataset"]), fields))
-    kept = set(found) | {path for path, _, _ in carried.restored}
+    kept = set(found) | {path for path, _, _ in carried.restored} | {path for path, _, _ in carried.patched}
     missing = collections.Counter(d for path, d in old.patched.items() if path not in kept)
     carried.not_found = dict(sorted(missing.items()))
     if old.history_whole:
@@ -147,6 +166,7 @@ def _holds(path: Path, sha256: str) -> os.stat_result | None:
 def write_carried(store: Store, carried: Carried) -> None:
     """The carried rows into the new store (inside the rebuild, before the swap)."""
     store.record_files((path, name, FileState.RESTORED, fields) for path, name, fields in carried.restored)
+    store.record_files((path, name, FileState.PATCHED, fields) for path, name, fields in carried.patched)
     store.carry_history(carried.runs, carried.pixel_events)
 
 
@@ -154,6 +174,9 @@ def summary_notes(carried: Carried) -> Iterable[str]:
     """The summary's notes on what was carried over and what was left out."""
     if carried.restored:
         yield f"{len(carried.restored)} file(s) you restored kept as restored"
+    if carried.patched:
+        yield (f"{len(carried.patched)} patched file(s) kept by their recorded bytes (their seal is "
+               "not this key's: `ppd key import` the one they were patched with, if you have it)")
     if carried.restored_changed:
         yield (f"{carried.restored_changed} restored file(s) no longer hold their original: "
                "they count as not patched")  # fmt: skip

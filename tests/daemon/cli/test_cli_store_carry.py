@@ -127,3 +127,32 @@ def test_a_backup_copy_with_the_same_folder_name_is_its_own_dataset(
     restored = runner.invoke(app, ["restore", "castle"])
     assert restored.exit_code == 0 and "removed 0" in restored.output, restored.output
     assert {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in backup.iterdir()} == kept
+
+
+def test_a_rebuild_after_a_new_key_keeps_the_rows_the_files_still_prove(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """After `ppd key new`, `ppd store rebuild --force A` replaced a sound store with an empty one:
+    the seals no longer open, the walk found nothing, and the originals were out of ppd's reach
+    (a third black-box review). A patched row whose file still holds exactly the bytes it records
+    is kept; restore then gives every original back."""
+    import hashlib
+
+    shoot = tmp_path / "A"
+    for i in range(3):
+        make_image(shoot / f"v{i}.png", i)
+    originals = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in shoot.iterdir()}
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    paths = AppPaths.from_env()
+    (paths.data_dir / "seal.key").unlink()
+    assert runner.invoke(app, ["key", "new"]).exit_code == 0
+    rebuilt = runner.invoke(app, ["store", "rebuild", "--force", str(shoot)])
+    said = " ".join(rebuilt.output.split())
+    assert rebuilt.exit_code == 0 and "3 patched file(s) kept by their recorded bytes" in said, said
+    store = Store(paths.db_path)
+    try:
+        assert store.counts("A")["patched"] == 3
+    finally:
+        store.close()
+    assert runner.invoke(app, ["restore", "A"]).exit_code == 0
+    assert {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in shoot.iterdir()} == originals
