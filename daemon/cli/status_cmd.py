@@ -214,6 +214,10 @@ def next_step_lines(d: dict[str, Any]) -> list[str]:
         root = shlex.quote(str(d["root"]))
         lines.append(f"{name}: {d['restored_in_place']} restored by you, NOT protected: "
                      f"`ppd poison {root} --force` patches them again")  # fmt: skip
+    if d.get("other_spec"):
+        lines.append(f"{name}: {d['other_spec']} patched with another spec than the dataset's (a "
+                     "re-protect did not finish?): "
+                     f"`ppd dataset set {shlex.quote(name)} --reprotect` gives them its spec")  # fmt: skip
     return lines
 
 
@@ -354,6 +358,8 @@ def unready_reasons(d: dict[str, Any]) -> list[str]:
     from daemon.states import Protection
 
     reasons = unprotected_files(d)
+    if d.get("other_spec"):  # a mix of marks: the verdict is of the dataset's spec alone
+        reasons.append(f"{d['other_spec']} patched with another spec than the dataset's")
     if d["protection"]["state"] != Protection.PROTECTED:
         reasons.append(d["protection"]["text"])
     elif missing := d.get("profiles_not_verified"):

@@ -275,6 +275,7 @@ def reprotect_dataset(ctx: AppContext, dataset: str, spec: PatchSpec) -> list[Pr
     if row is None:
         raise ValueError(f"no dataset {dataset!r}")
     root = Path(row["root"])
+    before = ctx.store.dataset_spec(dataset)
     ctx.store.set_dataset_spec(dataset, spec, allow_protected=True)
     outcomes = []
     for file_row in ctx.store.files(dataset):
@@ -283,6 +284,10 @@ def reprotect_dataset(ctx: AppContext, dataset: str, spec: PatchSpec) -> list[Pr
             outcomes.append(_reprotect_one(ctx, file_row, root, spec))
         elif file_row["state"] in (FileState.SKIPPED, FileState.FAILED, FileState.PENDING) and path.is_file():
             outcomes.append(protect_file(path, ctx, dataset, root=root))
+    if before is not None and outcomes and all(o.state == Outcome.FAILED for o in outcomes):
+        # nothing carries the new spec: the dataset keeps the one its files carry (a black-box review:
+        # a read-only folder, every file failed, and status said "patched 4" under the new spec)
+        ctx.store.set_dataset_spec(dataset, before, allow_protected=True)
     return outcomes
 
 

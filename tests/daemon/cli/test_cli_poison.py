@@ -769,3 +769,26 @@ def test_dataset_set_publish_dir_says_what_it_changes(shoot: Path, tmp_path: Pat
     assert result.exit_code == 0 and f"go to {publish}" in said and "patched before stay" in said, said
     shown = " ".join(runner.invoke(app, ["dataset", "show", "castle"]).output.split())
     assert f"publish folder: {publish}" in shown, shown
+
+
+def test_a_reprotect_that_did_not_finish_is_said(shoot: Path) -> None:
+    """A re-protect that failed on every file (a read-only folder) left the dataset on the new spec
+    while its files carried the old mark, and one stopped half-way left a mix nothing mentioned (a
+    third black-box review). Every file failing keeps the old spec; a mix is said by status and --check."""
+    assert runner.invoke(app, ["poison", str(shoot), "--dataset", "castle"]).exit_code == 0
+    spec_id = json.loads(runner.invoke(app, ["dataset", "show", "castle", "--json"]).stdout)["spec_id"]
+    files = sorted(shoot.rglob("*.png"))
+    originals = {f: f.read_bytes() for f in files}
+    for f in files:  # edited after patching: re-protect refuses each
+        Image.open(f).crop((0, 0, 60, 50)).save(f)
+    failed = runner.invoke(app, ["dataset", "set", "castle", "--patch-size", "8%", "--reprotect"])
+    assert failed.exit_code == 1
+    assert json.loads(runner.invoke(app, ["dataset", "show", "castle", "--json"]).stdout)["spec_id"] == spec_id
+    for f in files[1:]:  # all but one back as ppd wrote them: a re-protect now leaves a mix
+        f.write_bytes(originals[f])
+    mixed = runner.invoke(app, ["dataset", "set", "castle", "--patch-size", "8%", "--reprotect"])
+    assert mixed.exit_code == 1
+    said = " ".join(runner.invoke(app, ["status", "castle"]).output.split())
+    assert "1 patched with another spec than the dataset's" in said and "--reprotect" in said, said
+    check = runner.invoke(app, ["status", "castle", "--check"])
+    assert check.exit_code == 1 and "another spec" in check.output
