@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
+import logging
 import os
 import time
 from collections.abc import Callable, Iterator
@@ -25,8 +26,13 @@ from pathlib import Path
 from daemon.paths import make_private_dir
 from poisoner.errors import ExitStatus, PpdError
 
+log = logging.getLogger(__name__)
+
 DEFAULT_FILE_WAIT_S = 600.0  # a video can take minutes; the waiter then finds ppd's output ("unchanged")
 _POLL_S = 0.05
+# A wait for another process's file lock longer than this is said (`ppd poison` meeting a 4K clip `ppd
+# watch` is encoding waited in silence, up to DEFAULT_FILE_WAIT_S: a black-box review).
+WAIT_NOTICE_S = 2.0
 
 
 class LockHeld(PpdError, RuntimeError):
@@ -67,7 +73,8 @@ def _write_pid(fd: int, note: str = "") -> None:
 
 @contextlib.contextmanager
 def _flock(
-    lock_file: Path, wait_s: float, refusal: Callable[[str], str], note: str = "", remove: bool = False
+    lock_file: Path, wait_s: float, refusal: Callable[[str], str], note: str = "", remove: bool = False,
+    waiting: Callable[[str], None] | None = None,
 ) -> Iterator[None]:
     """refusal(holder): the one-line message when the wait runs out. note: written after the pid.
 
@@ -79,10 +86,11 @@ def _flock(
     while True:
         fd = os.open(lock_file, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
         try:
-            _lock_by(fd, deadline, refusal)
+            _lock_by(fd, deadline, refusal, waiting=waiting)
         except BaseException:
             os.close(fd)
             raise
+        waiting = None  # said once for the whole wait
         if not remove or _names(lock_file, fd):
             break
         os.close(fd)  # unlinked by its last holder while this one waited: the name's file now
@@ -101,14 +109,23 @@ def _flock(
         os.close(fd)
 
 
-def _lock_by(fd: int, deadline: float, refusal: Callable[[str], str], mode: int = fcntl.LOCK_EX) -> None:
+def _lock_by(
+    fd: int, deadline: float, refusal: Callable[[str], str], mode: int = fcntl.LOCK_EX,
+    waiting: Callable[[str], None] | None = None,
+) -> None:  # fmt: skip
+    """waiting(holder): said once, after WAIT_NOTICE_S, of a wait that goes on."""
+    notice = time.monotonic() + WAIT_NOTICE_S
     while True:
         try:
             fcntl.flock(fd, mode | fcntl.LOCK_NB)
             return
         except BlockingIOError:
-            if time.monotonic() >= deadline:
+            now = time.monotonic()
+            if now >= deadline:
                 raise LockHeld(refusal(_holder(fd))) from None
+            if waiting is not None and now >= notice:
+                waiting(_holder(fd))
+                waiting = None
             time.sleep(_POLL_S)
 
 
@@ -218,7 +235,11 @@ def file_lock(data_dir: Path, path: Path, wait_s: float = DEFAULT_FILE_WAIT_S) -
     def refusal(holder: str) -> str:
         return f"{name} is being worked on by another ppd process ({holder}); waited {wait_s:g} s, try later"
 
-    with _flock(folder / f"{_key(path)}.lock", wait_s, refusal, remove=True):
+    def waiting(holder: str) -> None:
+        log.warning("%s: waiting for another ppd process (%s) working on it, up to %g s", name, holder,
+                    wait_s)  # fmt: skip
+
+    with _flock(folder / f"{_key(path)}.lock", wait_s, refusal, remove=True, waiting=waiting):
         yield
 
 

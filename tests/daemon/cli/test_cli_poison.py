@@ -783,7 +783,8 @@ def test_a_reprotect_that_did_not_finish_is_said(shoot: Path) -> None:
         Image.open(f).crop((0, 0, 60, 50)).save(f)
     failed = runner.invoke(app, ["dataset", "set", "castle", "--patch-size", "8%", "--reprotect"])
     assert failed.exit_code == 1
-    assert json.loads(runner.invoke(app, ["dataset", "show", "castle", "--json"]).stdout)["spec_id"] == spec_id
+    shown = json.loads(runner.invoke(app, ["dataset", "show", "castle", "--json"]).stdout)
+    assert shown["spec_id"] == spec_id
     for f in files[1:]:  # all but one back as ppd wrote them: a re-protect now leaves a mix
         f.write_bytes(originals[f])
     mixed = runner.invoke(app, ["dataset", "set", "castle", "--patch-size", "8%", "--reprotect"])

@@ -9,6 +9,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 from daemon.locks import file_lock
 from testkit.daemon_proc import wait_for
 from testkit.photos import write_image
@@ -50,3 +52,35 @@ def test_the_daemon_leaves_no_lock_file_behind(ppd_env: dict[str, Path]) -> None
         wait_for(lambda: daemon.counts.removed >= 1, 30, "the removal")
         wait_idle(daemon)
         assert list((ppd_env["data"] / "locks" / "files").iterdir()) == []
+
+
+def test_a_long_wait_for_another_process_is_said_once(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """`ppd poison` meeting a clip `ppd watch` was encoding waited in silence (a third black-box
+    review): a wait past WAIT_NOTICE_S is said, once, naming the holder."""
+    import logging
+
+    from daemon.locks import WAIT_NOTICE_S
+
+    held, release = threading.Event(), threading.Event()
+
+    def hold() -> None:
+        with file_lock(tmp_path, Path("/o/clip.mp4"), wait_s=60):
+            held.set()
+            release.wait(30)
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    assert held.wait(10)
+    threading.Timer(WAIT_NOTICE_S + 1.0, release.set).start()
+    clip = Path("/o/clip.mp4")
+    with caplog.at_level(logging.WARNING, logger="daemon.locks"), file_lock(tmp_path, clip, 60):
+        pass
+    holder.join()
+    said = [r.getMessage() for r in caplog.records if "waiting for another ppd process" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("clip.mp4: waiting") and "pid" in said[0], said
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="daemon.locks"), file_lock(tmp_path, clip, 60):
+        pass  # no wait: nothing said
+    assert not caplog.records
