@@ -300,6 +300,23 @@ def release_store(data_dir: Path, fd: int) -> None:
         os.close(fd)
 
 
+def _store_holders(data_dir: Path) -> str:
+    """Who holds the store lock, in words: "pid 123: ppd verify castle" (a refusal that named no one
+    sent the user hunting a long verify or a Ctrl-Z'd ppd in another terminal: a black-box review)."""
+    from daemon.platform import lock_holders
+
+    try:
+        st = os.stat(lock_dir(data_dir) / STORE_LOCK)
+    except OSError:
+        return "which one is not known"
+    said = []
+    for pid, argv in lock_holders(st):
+        if pid != os.getpid():
+            command = argv.split(" daemon.cli ", 1)[-1] if " daemon.cli " in argv else argv.rsplit("/", 1)[-1]
+            said.append(f"pid {pid}: {'ppd ' if ' daemon.cli ' in argv else ''}{command}"[:80])
+    return "; ".join(said) or "which one is not known"
+
+
 @contextlib.contextmanager
 def store_alone(
     data_dir: Path, doing: str = "ppd store rebuild is rebuilding the store", then: str = "rebuild",
@@ -310,7 +327,7 @@ def store_alone(
     refused meanwhile is told; then: what to do once the others are done."""
 
     def refusal(_holder: str) -> str:
-        return f"another ppd command (poison, restore, status, ...) is running; let it finish, then {then}"
+        return f"another ppd command is running ({_store_holders(data_dir)}); let it finish, then {then}"
 
     fd = _hold_store(data_dir, fcntl.LOCK_EX, wait_s, refusal)
     try:

@@ -4,6 +4,7 @@
   the descriptor ppd opened, never through a name that may have been swapped since.
 - `mounts_of_device(dev)`: the mounts of a device from /proc/self/mountinfo (for error messages).
 - `writers_of(st)`: processes that hold a file open for writing (a scan of /proc/PID/fd).
+- `lock_holders(st)`: processes that hold a flock on a file, and what each runs (/proc/locks).
 - `reflink(dst_fd, src_fd)`: the FICLONE ioctl (a copy that shares extents on btrfs/XFS).
 - `keep_freed_memory()`: glibc's malloc keeps freed memory for the next file instead of handing it
   back to the kernel at once (a worker's page faults: issue 30).
@@ -129,6 +130,28 @@ def _opened_for_writing(fdinfo: Path) -> bool:
 
 
 # ---- copies that share extents -----------------------------------------------------------------
+def lock_holders(st: os.stat_result, proc: Path = PROC) -> list[tuple[int, str]]:
+    """(pid, its command line) of each process holding a flock on the file st describes, from
+    /proc/locks ("1: FLOCK ADVISORY READ PID MAJ:MIN:INODE 0 EOF", the device in hex); [] when it
+    cannot be read. A refusal names them: a shared lock otherwise tells nobody who holds it."""
+    want = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    try:
+        lines = (proc / "locks").read_text().splitlines()
+    except OSError:
+        return []
+    pids = sorted({int(f[4]) for f in (line.split() for line in lines)
+                   if len(f) > 5 and f[1] == "FLOCK" and f[5] == want and f[4].isdigit()})  # fmt: skip
+    held = []
+    for pid in pids:
+        try:
+            argv = (proc / str(pid) / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        words = [a.decode("utf-8", "replace") for a in argv if a]
+        held.append((pid, " ".join(" ".join(words).split())))  # one line, whatever its arguments hold
+    return held
+
+
 def reflink(dst_fd: int, src_fd: int) -> None:
     """Make the empty file dst_fd a clone of src_fd (FICLONE); OSError where the filesystem cannot
     (then dst is left empty)."""

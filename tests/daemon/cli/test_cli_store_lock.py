@@ -110,9 +110,8 @@ def test_a_rebuild_is_refused_while_a_command_has_the_store_open(
     refused = _ppd("store", "rebuild", "--force")
     assert refused.returncode == 3, refused.stdout + refused.stderr  # before: rebuilt under them, 0
     line = _error_line(refused.stderr)
-    assert "another ppd command (poison, restore, status, ...) is running; let it finish, then rebuild" in (
-        line
-    )
+    assert "another ppd command is running (pid " in line and line.endswith("let it finish, then rebuild")
+    assert f"pid {first.pid}" in line and f"pid {second.pid}" in line, line  # which ones: named
     assert not list(paths.data_dir.glob("*.before-rebuild-*"))  # nothing was swapped
     with pytest.raises(RebuildBlocked):
         rebuild_store(paths, force=True)
