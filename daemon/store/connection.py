@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import sqlite3
 import threading
 from collections.abc import Iterator
@@ -139,6 +140,9 @@ class StoreBase:
         text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         if is_corruption(exc):
             return StoreDamaged(damaged_message(self.db_path, text))
+        if _disk_full(self.db_path.parent):  # SQLite says "disk I/O error", which reads as failing hardware
+            return StoreError(f"{doing} the store {self.db_path}: the disk holding it is full; free space, "
+                              "then run the same command again")  # fmt: skip
         return StoreError(f"{doing} the store {self.db_path}: {text}")
 
     def _rows(self, sql: str, params: tuple[Any, ...] | dict[str, Any] = ()) -> list[dict[str, Any]]:
@@ -156,3 +160,11 @@ class StoreBase:
     def _one(self, sql: str, params: tuple[Any, ...] | dict[str, Any] = ()) -> dict[str, Any] | None:
         rows = self._rows(sql, params)
         return rows[0] if rows else None
+
+
+def _disk_full(folder: Path) -> bool:
+    """Whether the filesystem holding folder has no block left for this user (a black-box review)."""
+    try:
+        return os.statvfs(folder).f_bavail == 0
+    except OSError:
+        return False

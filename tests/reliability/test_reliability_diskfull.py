@@ -242,3 +242,23 @@ def test_ppd_poison_on_a_full_disk_exits_3_as_its_help_says(tmp_path: Path, ppd_
         assert result.exit_code == 3, result.output
         assert "a disk is full" in " ".join(result.output.split())
         assert photo.read_bytes() == before  # nothing lost
+
+
+def test_a_full_disk_under_the_store_says_so(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With the data folder's disk full, `ppd status` said "cannot open the store ...: disk I/O error",
+    which reads as failing hardware (a third black-box review): it says the disk is full."""
+    from typer.testing import CliRunner
+
+    from daemon.cli import app
+
+    with mounted_or_skip(tmp_path / "small") as fs:
+        monkeypatch.setenv("PPD_DATA_DIR", str(fs / "data"))
+        for var, name in (("PPD_CONFIG_DIR", "config"), ("PPD_OUTBOX", "outbox"), ("PPD_CACHE_DIR", "cache")):
+            monkeypatch.setenv(var, str(tmp_path / name))
+        write_image(tmp_path / "shoot" / "a.png", seed=3)
+        runner = CliRunner()
+        assert runner.invoke(app, ["poison", str(tmp_path / "shoot")]).exit_code == 0
+        fill(fs)
+        result = runner.invoke(app, ["status"])
+        said = " ".join(result.output.split())
+        assert result.exit_code == 3 and "the disk holding it is full" in said, said
