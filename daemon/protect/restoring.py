@@ -23,6 +23,7 @@ from daemon.protect.job import Outcome, ProtectOutcome, ProtectRefused, one_line
 from daemon.protect.recovery import ORIGINAL_FIELDS
 from daemon.states import FileState
 from daemon.store.vault import sha256_file
+from poisoner.provenance import has_token
 
 __all__ = ["FROM_PUBLISH_FOLDER", "restore_file"]
 
@@ -47,6 +48,11 @@ def restore_file(
     dataset = row["dataset"]
     if row["state"] == FileState.PENDING:  # a run killed mid-file: the file says whether it is patched
         row = _pending_as_patched(ctx, path, row)
+    if row["state"] == FileState.FAILED and has_token(path):  # ppd's output a poison refused (another key's
+        found, why = _row_by_provenance(ctx, path)  # seal): "unchanged" read as "your original" (a review)
+        if found is None:
+            return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=why)
+        row = found
     if row["state"] != FileState.PATCHED or not row["original_sha256"]:
         return ProtectOutcome(
             path=path, dataset=dataset, state=Outcome.UNCHANGED, reason=f"state is {row['state']}"

@@ -58,3 +58,21 @@ def test_replacing_the_key_says_how_much_it_sealed(ppd_env: dict[str, Path], tmp
     replaced = runner.invoke(app, ["key", "import", str(other), "--force"])
     said = " ".join(replaced.output.split())
     assert replaced.exit_code == 0 and "sealed the patched files of 3 original(s)" in said, said
+
+
+def test_restore_after_a_refused_poison_says_which_key(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """After `ppd poison` refused files sealed with another key (their rows now "failed"), `ppd restore`
+    said "restored 0 ... failed 0", exit 0, and "unchanged" read as "your original" (a third black-box
+    review): it says again which key to import."""
+    paths = AppPaths.from_env()
+    shoot = tmp_path / "shoot"
+    for i in range(2):
+        make_image(shoot / f"v{i}.png", i)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    paths.db_path.unlink()
+    (paths.data_dir / "seal.key").unlink()
+    assert runner.invoke(app, ["key", "new"]).exit_code == 0
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 1  # refused: another key's output
+    restored = runner.invoke(app, ["restore", str(shoot / "v0.png")])
+    said = " ".join(restored.output.split())
+    assert restored.exit_code == 1 and "sealed with another key" in said and "`ppd key import`" in said, said
