@@ -134,6 +134,19 @@ def _folder_target(store: Any, path: Path, explicit: bool) -> Target:
     return Target(None, folder)
 
 
+def stored_name(store: Any, name: str) -> str:
+    """The store's spelling of a dataset name typed in another Unicode form: a folder copied from a Mac
+    names it in NFD ("e" + a combining accent), a keyboard types NFC, and `ppd status Café` found no
+    dataset (a black-box review). name itself when it is stored, or no stored name matches."""
+    import unicodedata
+
+    if store.dataset(name) is not None:
+        return name
+    wanted = unicodedata.normalize("NFC", name)
+    same = [row["name"] for row in store.datasets() if unicodedata.normalize("NFC", row["name"]) == wanted]
+    return same[0] if len(same) == 1 else name
+
+
 def resolve_target(
     store: Any, target: str | None, *, dataset: str | None = None, folder: Path | None = None
 ) -> Target:
@@ -144,6 +157,7 @@ def resolve_target(
     if target == "" or dataset == "":  # Path("") is '.': `ppd restore "$SHOOT"` with SHOOT unset
         raise TargetError("an empty dataset or folder (an unset variable in a script?); give a name or path")
     if dataset is not None:
+        dataset = stored_name(store, dataset)
         if store.dataset(dataset) is None:
             raise TargetError(f"no dataset {dataset!r} in the store (see `ppd status`)")
         return Target(dataset, None)
@@ -155,6 +169,7 @@ def resolve_target(
         return Target(name, user_path(folder.expanduser()), note)
     assert target is not None
     path = Path(target).expanduser()
+    target = stored_name(store, target) if not path.exists() else target
     is_dataset = store.dataset(target) is not None
     if is_dataset and path.is_dir():
         reading = _folder_target(store, path, explicit=False)

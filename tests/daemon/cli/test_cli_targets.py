@@ -125,3 +125,19 @@ def test_a_folder_holding_several_datasets_names_them(ppd_env: dict[str, Path], 
     said = " ".join(result.output.split())
     assert result.exit_code == 2 and "several datasets (a, b)" in said, said
     assert {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in shoots.rglob("*.png")} == before
+
+
+def test_a_name_typed_in_another_unicode_form_finds_its_dataset(
+    ppd_env: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A folder copied from a Mac names its dataset in NFD ("e" and a combining accent); `ppd status
+    Café` typed in NFC found no dataset (a third black-box review)."""
+    from testkit.photos import make_image
+
+    nfd, nfc = "Cafe\u0301", "Caf\u00e9"
+    make_image(tmp_path / nfd / "v0.png", 0)
+    assert runner.invoke(app, ["poison", str(tmp_path / nfd)]).exit_code == 0
+    monkeypatch.chdir(tmp_path.parent)  # no folder of either name here
+    for args in (["status", nfc], ["status", "--json", nfc]):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 0 and "no dataset" not in result.output, (args, result.output)
