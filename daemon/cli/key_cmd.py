@@ -97,6 +97,7 @@ def key_import(
     with _alone(paths.data_dir, "import the key"):
         where = install_key(paths.data_dir, key, replace=True)
     typer.echo(f"seal key installed at {where}")
+    _remind_restart()
     if current is not None and sealed:
         typer.echo(f"the key it replaced sealed the patched files of {sealed} original(s): their rows in the "
                    "store still know them; after a store loss they are not recognised")  # fmt: skip
@@ -143,7 +144,15 @@ def key_new() -> None:
     except (SealKeyError, OSError) as exc:
         raise die(f"cannot write {key_path(paths.data_dir)}: {exc}", ExitStatus.ENVIRONMENT) from None
     typer.echo(f"new seal key made at {where}; back it up: `ppd key export FILE`")
+    _remind_restart()
 
 
 def register(app: typer.Typer) -> None:
     app.add_typer(key_app, name="key")
+
+
+def _remind_restart() -> None:
+    from daemon.watch.service import restart_reminder
+
+    if line := restart_reminder():
+        typer.echo(line)

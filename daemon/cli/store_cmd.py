@@ -134,6 +134,10 @@ def rebuild(
             f"cannot rebuild the store: {exc.strerror or exc}: {exc.filename or paths.db_path}"
         ) from None
     _console().print(report.summary(), highlight=False, markup=False)
+    from daemon.watch.service import restart_reminder
+
+    if line := restart_reminder():  # a rebuild needs the daemon stopped: said how to start it again
+        _console().print(line, highlight=False, markup=False)
     if verbose:
         _print_details(paths, report)
     # nothing recovered of what the vault holds: not "done" (a black-box review: a lost seal key, exit 0)

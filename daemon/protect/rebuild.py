@@ -105,7 +105,8 @@ class RebuildReport:
             notes.append(f"{self.unreferenced_originals} vault original(s) no file names: give the "
                          "folders patched outside the outbox, `ppd store rebuild FOLDER ...`, or, if the "
                          "seal key was lost or replaced since, `ppd key import` the one they were "
-                         "patched with first")  # fmt: skip
+                         "patched with first; a `ppd poison` stopped mid-file leaves its files unpatched "
+                         "and their originals here too: `ppd poison FOLDER` finishes it")  # fmt: skip
         if notes:
             text += f" ({'; '.join(notes)})"
         if self.kept_aside:

@@ -204,6 +204,15 @@ def install_unit(text: str, env: Mapping[str, str] | None = None) -> Path:
     return target
 
 
+def restart_reminder(env: Mapping[str, str] | None = None) -> str | None:
+    """After a command that needs `ppd watch` stopped (store rebuild, key new/import): where the service
+    is installed, a line to start it again; a creator who stopped it as told and forgot left the outbox
+    unprotected (a black-box review). None without the unit."""
+    if not (unit_dir(env) / UNIT_NAME).is_file():
+        return None
+    return "if you stopped the ppd service for this, start it again: `systemctl --user start ppd`"
+
+
 def uninstall_unit(env: Mapping[str, str] | None = None) -> Path | None:
     """Remove the unit file; returns its path, or None when it was not installed."""
     target = unit_dir(env) / UNIT_NAME

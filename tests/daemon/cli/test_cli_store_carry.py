@@ -9,6 +9,7 @@ import shutil
 import time
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from daemon.cli import app
@@ -156,3 +157,23 @@ def test_a_rebuild_after_a_new_key_keeps_the_rows_the_files_still_prove(
         store.close()
     assert runner.invoke(app, ["restore", "A"]).exit_code == 0
     assert {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in shoot.iterdir()} == originals
+
+
+def test_a_rebuild_reminds_to_start_the_service_again(
+    ppd_env: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A rebuild (or a key change) needs `ppd watch` stopped; a creator who stopped the service as told
+    and forgot left the outbox unprotected (a third black-box review). With the unit installed, the
+    command says how to start it again; without it, nothing."""
+    shoot = tmp_path / "A"
+    make_image(shoot / "v0.png", 0)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
+    quiet = runner.invoke(app, ["store", "rebuild", "--force", str(shoot)])
+    assert quiet.exit_code == 0 and "systemctl" not in quiet.output, quiet.output
+    unit = tmp_path / "xdg" / "systemd" / "user" / "ppd.service"
+    unit.parent.mkdir(parents=True)
+    unit.write_text("[Service]\n")
+    said = runner.invoke(app, ["store", "rebuild", "--force", str(shoot)])
+    words = " ".join(said.output.split())
+    assert said.exit_code == 0 and "`systemctl --user start ppd`" in words, words
