@@ -112,12 +112,19 @@ class AppPaths:
         (the data folder's default, ~/.local/share/ppd, is one). A second black-box review: `dataset set
         --publish-dir` took a folder holding the vault, and data/displaced itself."""
         data, folder = self.data_dir.resolve(), Path(folder).expanduser().resolve()
-        inside = data.parent == folder if folder == Path.home().resolve() else data.is_relative_to(folder)
-        if inside:
+        if data != folder and published_with(folder, data.parent):
             return f"the data folder {self.data_dir} (vault of originals, seal key) is inside {folder}"
         if folder.is_relative_to(data):
             return f"{folder} is inside ppd's data folder {self.data_dir}"
         return None
+
+
+def published_with(folder: Path, where: Path) -> bool:
+    """Whether what lies in the folder `where` is published with `folder` (both resolved): anywhere
+    below it, but for a home folder only right in it (its subfolders are the user's own: the data
+    folder's default, ~/.local/share/ppd, is one). `ppd key export`, `ppd preview` and the data folder's
+    checks share it."""
+    return where == folder if folder == Path.home().resolve() else where.is_relative_to(folder)
 
 
 def _a_photo_in(folder: Path, depth: int = 3, budget: int = 20_000) -> str | None:

@@ -31,6 +31,13 @@ def make_image(path: Path, seed: int, size: tuple[int, int] = (160, 120)) -> Pat
     return path
 
 
+def make_shoot(folder: Path, n: int) -> Path:
+    """folder with n small photos v0.png ... (make_image's, seeds 0 ... n-1): a shoot to patch."""
+    for i in range(n):
+        make_image(folder / f"v{i}.png", i)
+    return folder
+
+
 MASKED_SIZE = (320, 240)
 
 

@@ -21,6 +21,8 @@ from poisoner.spec import PatchSpec
 
 Profile = Literal["default", "hardened", "published", "global", "masked"]  # verifier.sfm.profile_sfm_settings
 DISPLAY_WIDTH = 1920  # verifier.visibility.DISPLAY_WIDTH: a full-HD screen showing the photo full width
+# the fewest images a preflight reconstructs from (COLMAP needs three views for a model worth judging)
+MIN_SAMPLE = 3
 
 
 class CandidateStatus(StrEnum):

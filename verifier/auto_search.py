@@ -43,6 +43,7 @@ from poisoner.media import SFM_SUFFIXES, is_sfm_readable
 from poisoner.scratch import owned_temp_dir
 from poisoner.spec import PatchSpec
 from verifier.auto_options import (
+    MIN_SAMPLE,
     CandidateStatus,
     LadderEntry,
     Outcome,
@@ -157,10 +158,6 @@ def normalise_inputs(pairs_or_images: Sequence[ImageInput]) -> list[tuple[Path, 
         else:
             out.append((Path(item), Path(item).name))
     return out
-
-
-# the fewest images a preflight reconstructs from (COLMAP needs three views for a model worth judging)
-MIN_SAMPLE = 3
 
 
 def choose_sample(items: Sequence[tuple[Path, str]], size: int) -> list[tuple[Path, str]]:

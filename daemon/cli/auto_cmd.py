@@ -132,7 +132,7 @@ def _images(ctx: AppContext, target: str) -> tuple[list[Any], str | None]:
     plain folder). target: a dataset's name, its folder or a verification folder, or any folder."""
     from daemon.cli.targets import TargetError, resolve_target, say_note
     from daemon.verification import auto_mode as daemon_auto
-    from verifier.auto_search import MIN_SAMPLE
+    from verifier.auto_options import MIN_SAMPLE  # light: the preflight's modules load scipy
 
     try:
         chosen = resolve_target(ctx.store, target)

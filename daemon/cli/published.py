@@ -19,10 +19,10 @@ def published_folder_holding(file: Path, paths: AppPaths, photo_folders: Iterabl
     next `ppd poison` would take FILE for a photo). A root that is the home folder counts for itself
     alone (its subfolders are the user's own). Symlinks followed: what a sync client uploads. The
     datasets come from the store when there is one to read; nothing is made."""
+    from daemon.paths import published_with
     from daemon.protect.rebuild import stored_datasets
 
     where = Path(os.path.abspath(file.expanduser())).parent.resolve()
-    home = Path.home().resolve()
     trees = [("the outbox", Path(paths.outbox))]
     for name, row in stored_datasets(Path(paths.db_path)).items():  # none yet or broken: what it gives
         trees.append((f"the folder of dataset {name!r}", Path(row["root"])))
@@ -30,8 +30,6 @@ def published_folder_holding(file: Path, paths: AppPaths, photo_folders: Iterabl
             trees.append((f"the publish folder of dataset {name!r}", Path(row["publish_dir"])))
     trees += [("the folder of the photos", Path(folder)) for folder in photo_folders]
     for words, folder in trees:
-        resolved = folder.resolve()
-        inside = where == resolved if resolved == home else where.is_relative_to(resolved)
-        if inside:
+        if published_with(folder.resolve(), where):
             return f"{words} {folder}"
     return None

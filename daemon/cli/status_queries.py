@@ -148,7 +148,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "restored_in_place": restored_in_place(ctx, name, row["root"]) if counts.get("restored") else 0,
         # patched with another spec than the dataset's: a re-protect that failed or was killed half-way
         # left them (a black-box review: status said "patched 40" under the new spec, 33 had the old)
-        "other_spec": sum(r["spec_id"] != row["spec_id"] for r in ctx.store.files(name, state="patched")),
+        "other_spec": ctx.store.patched_with_other_spec(name, row["spec_id"]),
         "patched": patched_count(counts),
         # where marks found no plain place, as `ppd poison` says it (issue 25): the daemon's files too
         "mark_notes": mark_note_lines(ctx.store.patched_place_notes(name)),

@@ -126,6 +126,15 @@ class FileRows(StoreBase):
         counts["files"] = sum(counts[s] for s in FILE_STATES)
         return counts
 
+    def patched_with_other_spec(self, dataset: str, spec_id: str | None) -> int:
+        """How many of the dataset's patched rows carry another spec than spec_id (a re-protect that
+        did not finish leaves them)."""
+        row = self._one(
+            "SELECT COUNT(*) AS n FROM files WHERE dataset = ? AND state = ? AND spec_id IS NOT ?",
+            (dataset, FileState.PATCHED.value, spec_id),
+        )
+        return int(row["n"]) if row else 0
+
 
 def upsert_file(
     conn: sqlite3.Connection,

@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 from daemon.cli import app
 from daemon.paths import AppPaths
 from daemon.store.sealkey import key_path
-from testkit.photos import make_image
+from testkit.photos import make_image, make_shoot
 
 runner = CliRunner()
 
@@ -32,8 +32,7 @@ def test_poison_and_watch_refuse_without_the_key_that_sealed_the_vault(
 ) -> None:
     paths = AppPaths.from_env()
     shoot = tmp_path / "shoot"
-    for i in range(3):
-        make_image(shoot / f"v{i}.png", i)
+    make_shoot(shoot, 3)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     exported = tmp_path / "saved.key"
     assert runner.invoke(app, ["key", "export", str(exported)]).exit_code == 0

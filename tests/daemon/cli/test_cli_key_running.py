@@ -20,7 +20,7 @@ from daemon.protect.one_file import protect_file
 from daemon.store.sealkey import SealKeyError, install_key, key_path
 from poisoner.provenance import KEY_BYTES
 from testkit.daemon_proc import start_daemon, stop_daemon
-from testkit.photos import make_image
+from testkit.photos import make_shoot
 from testkit.reliability import REPO
 
 
@@ -91,8 +91,7 @@ def test_a_process_whose_key_file_was_replaced_seals_nothing_more(ppd_env: dict[
     """By hand, or by a ppd from before the refusal: the running process stops sealing, each file fails
     with one line, untouched; a pool worker started since does not take up the new key either."""
     shoot = ppd_env["outbox"] / "shoot"
-    for i in range(2):
-        make_image(shoot / f"v{i}.png", i)
+    make_shoot(shoot, 2)
     ctx = AppContext.open()
     try:
         assert protect_file(shoot / "v0.png", ctx).state == "patched"

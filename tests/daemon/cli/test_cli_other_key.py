@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from daemon.cli import app
 from daemon.paths import AppPaths
-from testkit.photos import make_image
+from testkit.photos import make_shoot
 
 runner = CliRunner()
 
@@ -25,8 +25,7 @@ def _shas(folder: Path) -> dict[str, str]:
 def test_output_sealed_with_another_key_is_not_marked_again(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     paths = AppPaths.from_env()
     shoot = tmp_path / "shoot"
-    for i in range(3):
-        make_image(shoot / f"v{i}.png", i)
+    make_shoot(shoot, 3)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     patched = _shas(shoot)
     paths.db_path.unlink()  # the store lost, and the key with it: a new one made knowingly
@@ -48,8 +47,7 @@ def test_replacing_the_key_says_how_much_it_sealed(ppd_env: dict[str, Path], tmp
     """`ppd key import --force` said nothing of the files the old key sealed (a second black-box
     review): the refusal and the replacement count the vault's originals."""
     shoot = tmp_path / "shoot"
-    for i in range(3):
-        make_image(shoot / f"v{i}.png", i)
+    make_shoot(shoot, 3)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     other = tmp_path / "other.key"
     other.write_text("ab" * 32 + "\n")
@@ -66,8 +64,7 @@ def test_restore_after_a_refused_poison_says_which_key(ppd_env: dict[str, Path],
     review): it says again which key to import."""
     paths = AppPaths.from_env()
     shoot = tmp_path / "shoot"
-    for i in range(2):
-        make_image(shoot / f"v{i}.png", i)
+    make_shoot(shoot, 2)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     paths.db_path.unlink()
     (paths.data_dir / "seal.key").unlink()

@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from daemon.cli import app
-from testkit.photos import make_image
+from testkit.photos import make_image, make_shoot
 
 runner = CliRunner()
 
@@ -19,8 +19,7 @@ def test_a_publish_folder_never_holds_or_sits_in_the_data_folder(
     ppd_env: dict[str, Path], tmp_path: Path
 ) -> None:
     shoot = tmp_path / "shoot"
-    for i in range(2):
-        make_image(shoot / f"v{i}.png", i)
+    make_shoot(shoot, 2)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     for folder in (tmp_path, ppd_env["data"] / "displaced"):
         result = runner.invoke(app, ["dataset", "set", "shoot", "--publish-dir", str(folder)])

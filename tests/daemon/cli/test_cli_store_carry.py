@@ -16,7 +16,7 @@ from daemon.cli import app
 from daemon.paths import AppPaths
 from daemon.states import FileState
 from daemon.store import Store
-from testkit.photos import make_image
+from testkit.photos import make_image, make_shoot
 
 runner = CliRunner()
 
@@ -37,8 +37,7 @@ def test_restored_files_stay_restored_and_the_verification_history_stays(
 ) -> None:
     paths = AppPaths.from_env()
     shoot = tmp_path / "shoot"
-    for i in range(4):
-        make_image(shoot / f"v{i}.png", i)
+    make_shoot(shoot, 4)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     store = Store(paths.db_path)
     _run(store, "shoot", "protected")  # then a restore: this verdict becomes history
@@ -90,8 +89,7 @@ def test_a_dataset_whose_files_were_not_found_again_is_named(
     """Copies of the same photos as two datasets: the second's originals are the first's, so moving
     its folder away left no vault original unnamed and the summary said nothing of it."""
     shoot, copy = tmp_path / "shoot", tmp_path / "copy"
-    for i in range(3):
-        make_image(shoot / f"v{i}.png", i)
+    make_shoot(shoot, 3)
     shutil.copytree(shoot, copy)
     for folder in (shoot, copy):
         assert runner.invoke(app, ["poison", str(folder)]).exit_code == 0
@@ -112,8 +110,7 @@ def test_a_backup_copy_with_the_same_folder_name_is_its_own_dataset(
     import hashlib
 
     shoot, backup = tmp_path / "sh" / "castle", tmp_path / "bk" / "castle"
-    for i in range(3):
-        make_image(shoot / f"v{i}.png", i)
+    make_shoot(shoot, 3)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     shutil.copytree(shoot, backup)
     kept = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in backup.iterdir()}
@@ -140,8 +137,7 @@ def test_a_rebuild_after_a_new_key_keeps_the_rows_the_files_still_prove(
     import hashlib
 
     shoot = tmp_path / "A"
-    for i in range(3):
-        make_image(shoot / f"v{i}.png", i)
+    make_shoot(shoot, 3)
     originals = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in shoot.iterdir()}
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     paths = AppPaths.from_env()

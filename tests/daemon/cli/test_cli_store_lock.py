@@ -25,7 +25,7 @@ from daemon.states import FileState
 from daemon.store import Store
 from daemon.store.sealkey import load_key
 from poisoner.provenance import read_seal
-from testkit.photos import make_image
+from testkit.photos import make_image, make_shoot
 from testkit.reliability import REPO
 
 runner = CliRunner()
@@ -66,8 +66,7 @@ def test_a_restore_while_the_store_is_rebuilt_is_refused_not_lost(
 ) -> None:
     paths = AppPaths.from_env()
     shoot = tmp_path / "shoot"
-    for i in range(3):
-        make_image(shoot / f"v{i}.png", i)
+    make_shoot(shoot, 3)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     key = load_key(paths.data_dir, create=False)
     restores: list[subprocess.CompletedProcess[str]] = []

@@ -113,12 +113,11 @@ def test_a_folder_holding_several_datasets_names_them(ppd_env: dict[str, Path], 
     restored a alone, exit 0 (a diff review): the folder holds both, and the command says so."""
     import hashlib
 
-    from testkit.photos import make_image
+    from testkit.photos import make_shoot
 
     shoots = tmp_path / "shoots"
     for name in ("a", "b"):
-        for i in range(2):
-            make_image(shoots / name / f"v{i}.png", i)
+        make_shoot(shoots / name, 2)
         assert runner.invoke(app, ["poison", str(shoots / name)]).exit_code == 0
     before = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in shoots.rglob("*.png")}
     result = runner.invoke(app, ["restore", str(shoots)])
