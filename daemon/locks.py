@@ -267,11 +267,22 @@ def _hold_store(data_dir: Path, mode: int, wait_s: float, refusal: Callable[[str
         os.close(fd)
 
 
+class StoreBusy(LockHeld):
+    """`ppd store rebuild` (or `ppd key new|import`) holds the store alone. busy: what it does and
+    its pid, "ppd store rebuild is rebuilding the store (pid 123)"; the message adds what to do."""
+
+    def __init__(self, busy: str) -> None:
+        super().__init__(f"{busy}; run this again when it is done")
+        self.busy = busy
+
+
 def use_store(data_dir: Path, wait_s: float = STORE_WAIT_S) -> int:
     """Hold the store lock shared for a command's life (AppContext.open; release_store at its close,
-    or the kernel at its death); LockHeld while `ppd store rebuild` (or `ppd key new`) holds it."""
+    or the kernel at its death); StoreBusy while `ppd store rebuild` (or `ppd key new`) holds it."""
+    busy = ""
 
     def refusal(holder: str) -> str:
+        nonlocal busy
         lines: list[str] = []  # the holder's: its pid, then what it does
         with contextlib.suppress(OSError):
             fd = os.open(lock_dir(data_dir) / STORE_LOCK, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
@@ -280,9 +291,13 @@ def use_store(data_dir: Path, wait_s: float = STORE_WAIT_S) -> int:
             finally:
                 os.close(fd)
         doing = lines[1] if len(lines) > 1 else "ppd store rebuild is rebuilding the store"
-        return f"{doing} ({holder}); run this again when it is done"
+        busy = f"{doing} ({holder})"
+        return busy
 
-    return _hold_store(data_dir, fcntl.LOCK_SH, wait_s, refusal)
+    try:
+        return _hold_store(data_dir, fcntl.LOCK_SH, wait_s, refusal)
+    except LockHeld:
+        raise StoreBusy(busy) from None
 
 
 def release_store(data_dir: Path, fd: int) -> None:

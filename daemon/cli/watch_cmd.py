@@ -28,7 +28,7 @@ def _fail(message: str, code: int = 1) -> typer.Exit:  # 1: systemd and tests re
     return die(message, code)
 
 
-def _open_context(outbox: Path | None, seal_key: bool = False):  # -> daemon.context.AppContext
+def _open_context(outbox: Path | None, seal_key: bool = False, daemon: bool = False):  # -> AppContext
     from daemon.config import ConfigError
     from daemon.context import AppContext
     from daemon.locks import LockHeld
@@ -44,9 +44,9 @@ def _open_context(outbox: Path | None, seal_key: bool = False):  # -> daemon.con
     if paths.outbox.exists() and not paths.outbox.is_dir():  # bad input, before anything is made
         raise _fail(f"{paths.outbox} is a file, not a folder: give the folder to watch", ExitStatus.USAGE)
     try:
-        ctx = AppContext.open(paths)
+        ctx = _open_when_store_free(paths) if daemon else AppContext.open(paths)
     except (ConfigError, StoreError, LockHeld) as exc:  # 2 and 3, as every command: the unit does not
-        # restart on them (LockHeld: a `ppd store rebuild` running)
+        # restart on them
         raise _fail(str(exc).splitlines()[0], exc.exit_status) from None
     except OSError as exc:
         raise _fail(f"cannot set up ppd's folders: {exc.strerror}: {exc.filename}") from None
@@ -57,6 +57,33 @@ def _open_context(outbox: Path | None, seal_key: bool = False):  # -> daemon.con
             ctx.close()
             raise _fail(str(exc), ExitStatus.ENVIRONMENT) from None
     return ctx
+
+
+STORE_BUSY_POLL_S = 1.0
+STORE_BUSY_EXTEND_S = 60  # systemd's start timeout pushed on by this much at each poll
+
+
+def _open_when_store_free(paths):  # -> daemon.context.AppContext
+    """AppContext.open, after waiting out a `ppd store rebuild` or `ppd key new|import`: the daemon's
+    job is to be running. It exited 3 instead, which the unit does not restart (RestartPreventExitStatus),
+    so a login or a restart during a rebuild left the outbox unwatched until the user noticed (a
+    black-box review). Said once; systemd's start timeout is extended while it waits, its status says why."""
+    from daemon.context import AppContext
+    from daemon.locks import StoreBusy
+    from daemon.watch.notify import SystemdNotifier
+
+    notifier: SystemdNotifier | None = None
+    while True:
+        try:
+            return AppContext.open(paths)
+        except StoreBusy as exc:
+            if notifier is None:
+                notifier = SystemdNotifier()
+                log.warning("waiting to start: %s", exc.busy, extra={"busy": exc.busy})
+            notifier.send(
+                f"STATUS=waiting to start: {exc.busy}", f"EXTEND_TIMEOUT_USEC={STORE_BUSY_EXTEND_S * 10**6}"
+            )
+            time.sleep(STORE_BUSY_POLL_S)
 
 
 def watch(
@@ -80,7 +107,7 @@ def watch(
     from daemon.datasets.subject_masks import SubjectMaskError, check_config_masks
     from daemon.watch.watcher import DaemonOptions, WatchDaemon
 
-    ctx = _open_context(outbox, seal_key=True)
+    ctx = _open_context(outbox, seal_key=True, daemon=True)
     try:
         check_config_masks(ctx.config, ctx.paths.outbox)  # a mask folder in the outbox would be published
     except SubjectMaskError as exc:
