@@ -4,7 +4,7 @@ and the vault, opened once per process and handed to every stage."""
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +26,9 @@ class AppContext:
     # the key file it was read from (daemon.store.sealkey.KeyStamp); a pool worker gets its caller's
     key_stamp: tuple[int, int, int] | None = field(default=None, repr=False)
     _store_hold: int | None = field(default=None, repr=False)  # the store lock's fd (daemon.locks)
+    # once true, a wait for another ppd process's file lock ends (daemon.locks.WaitLeft): `ppd poison`
+    # stopped by Ctrl-C finishes its own files, not one another process works on
+    give_up_waits: Callable[[], bool] | None = field(default=None, repr=False)
 
     def seal_key(self) -> bytes:
         """The installation's seal key (daemon.store.sealkey), created on first use. SealKeyError once
@@ -79,5 +82,5 @@ class AppContext:
     @contextlib.contextmanager
     def path_lock(self, path: Path) -> Iterator[None]:
         """One worker at a time on a path, across threads and ppd processes (daemon.locks)."""
-        with file_lock(self.paths.data_dir, path, self.lock_wait_s):
+        with file_lock(self.paths.data_dir, path, self.lock_wait_s, give_up=self.give_up_waits):
             yield

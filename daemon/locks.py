@@ -7,9 +7,9 @@ lock behind. The holder writes its pid into the file, so a refusal can say who h
 - `outbox_lock`: one `ppd watch` per outbox, none on a folder above or inside a watched one; a second
   gets LockHeld at once.
 - `file_lock`: one process (and one thread) at a time works on a given path; others wait up to
-  a bound, then get LockHeld. flock locks belong to an open file description, so two threads of
-  one process that each open the lock file exclude each other too. Its lock file goes when the
-  work is done (see `_flock`).
+  a bound, then get LockHeld (or WaitLeft, once their caller stops: the file is the holder's).
+  flock locks belong to an open file description, so two threads of one process that each open
+  the lock file exclude each other too. Its lock file goes when the work is done (see `_flock`).
 """
 
 from __future__ import annotations
@@ -39,6 +39,27 @@ class LockHeld(PpdError, RuntimeError):
     """Another process holds the lock (message: one line naming its pid)."""
 
     exit_status = ExitStatus.ENVIRONMENT
+
+
+class WaitLeft(PpdError):
+    """The waiter's caller stopped (Ctrl-C) while another process held the lock: nothing was done.
+    Not a failure: the file is the holder's to finish (`ppd poison` kept waiting for a clip `ppd
+    watch` was encoding, saying "stopping after the file in progress": a black-box review)."""
+
+    exit_status = ExitStatus.INTERRUPTED
+
+    def __init__(self, holder: str) -> None:
+        super().__init__(f"stopped waiting for another ppd process ({holder}) working on it")
+        self.holder = holder
+
+
+_waits_to_leave = 0  # this process's waits that a stop ends now (waiting_to_leave)
+
+
+def waiting_to_leave() -> bool:
+    """Whether this process waits for another's lock, a wait its stop ends at once (WaitLeft): a
+    Ctrl-C then has no file of its own in progress to finish (read in a signal handler)."""
+    return _waits_to_leave > 0
 
 
 def lock_dir(data_dir: Path) -> Path:
@@ -74,9 +95,10 @@ def _write_pid(fd: int, note: str = "") -> None:
 @contextlib.contextmanager
 def _flock(
     lock_file: Path, wait_s: float, refusal: Callable[[str], str], note: str = "", remove: bool = False,
-    waiting: Callable[[str], None] | None = None,
+    waiting: Callable[[str], None] | None = None, give_up: Callable[[], bool] | None = None,
 ) -> Iterator[None]:
     """refusal(holder): the one-line message when the wait runs out. note: written after the pid.
+    give_up(): once true, a wait for another holder ends with WaitLeft.
 
     remove: the lock file is unlinked when the work is done, while still locked (a lock file per
     path ever processed piled up: a black-box review). Safe because a lock counts only on the file
@@ -86,7 +108,7 @@ def _flock(
     while True:
         fd = os.open(lock_file, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
         try:
-            _lock_by(fd, deadline, refusal, waiting=waiting)
+            _lock_by(fd, deadline, refusal, waiting=waiting, give_up=give_up)
         except BaseException:
             os.close(fd)
             raise
@@ -111,22 +133,31 @@ def _flock(
 
 def _lock_by(
     fd: int, deadline: float, refusal: Callable[[str], str], mode: int = fcntl.LOCK_EX,
-    waiting: Callable[[str], None] | None = None,
+    waiting: Callable[[str], None] | None = None, give_up: Callable[[], bool] | None = None,
 ) -> None:  # fmt: skip
-    """waiting(holder): said once, after WAIT_NOTICE_S, of a wait that goes on."""
+    """waiting(holder): said once, after WAIT_NOTICE_S, of a wait that goes on. give_up(): polled
+    with the lock; once true, WaitLeft (the wait was for another process's work, none of ours)."""
+    global _waits_to_leave
     notice = time.monotonic() + WAIT_NOTICE_S
-    while True:
-        try:
-            fcntl.flock(fd, mode | fcntl.LOCK_NB)
-            return
-        except BlockingIOError:
-            now = time.monotonic()
-            if now >= deadline:
-                raise LockHeld(refusal(_holder(fd))) from None
-            if waiting is not None and now >= notice:
-                waiting(_holder(fd))
-                waiting = None
-            time.sleep(_POLL_S)
+    counted = give_up is not None
+    _waits_to_leave += counted
+    try:
+        while True:
+            try:
+                fcntl.flock(fd, mode | fcntl.LOCK_NB)
+                return
+            except BlockingIOError:
+                now = time.monotonic()
+                if give_up is not None and give_up():
+                    raise WaitLeft(_holder(fd)) from None
+                if now >= deadline:
+                    raise LockHeld(refusal(_holder(fd))) from None
+                if waiting is not None and now >= notice:
+                    waiting(_holder(fd))
+                    waiting = None
+                time.sleep(_POLL_S)
+    finally:
+        _waits_to_leave -= counted
 
 
 def _names(lock_file: Path, fd: int) -> bool:
@@ -226,8 +257,11 @@ def watching(data_dir: Path) -> list[str]:
 
 
 @contextlib.contextmanager
-def file_lock(data_dir: Path, path: Path, wait_s: float = DEFAULT_FILE_WAIT_S) -> Iterator[None]:
-    """Exclusive work on path; waits up to wait_s for another holder, then LockHeld."""
+def file_lock(
+    data_dir: Path, path: Path, wait_s: float = DEFAULT_FILE_WAIT_S, give_up: Callable[[], bool] | None = None
+) -> Iterator[None]:
+    """Exclusive work on path; waits up to wait_s for another holder, then LockHeld; WaitLeft
+    at once when give_up() turns true meanwhile (the caller was asked to stop)."""
     folder = lock_dir(data_dir) / "files"
     make_private_dir(folder)
     name = Path(path).name
@@ -239,7 +273,8 @@ def file_lock(data_dir: Path, path: Path, wait_s: float = DEFAULT_FILE_WAIT_S) -
         log.warning("%s: waiting for another ppd process (%s) working on it, up to %g s", name, holder,
                     wait_s)  # fmt: skip
 
-    with _flock(folder / f"{_key(path)}.lock", wait_s, refusal, remove=True, waiting=waiting):
+    lock_file = folder / f"{_key(path)}.lock"
+    with _flock(lock_file, wait_s, refusal, remove=True, waiting=waiting, give_up=give_up):
         yield
 
 

@@ -30,7 +30,7 @@ from daemon.datasets.dataset import (
 )
 from daemon.datasets.subject_masks import masks_or_none, sibling_images, subject_masks_for
 from daemon.fsops import sha256_fd
-from daemon.locks import LockHeld
+from daemon.locks import LockHeld, WaitLeft
 from daemon.protect.job import (
     IncompleteFile,
     Job,
@@ -144,6 +144,10 @@ def protect_file(
     try:
         with ctx.path_lock(out_path or path):
             outcome = _run_until_settled(new_job)
+    except WaitLeft as exc:  # stopped while another process had it: not started, so not failed either
+        log.warning("%s: %s; not patched by this run", path.name, exc)
+        outcome = ProtectOutcome(path=path, dataset=dataset, state=Outcome.SKIPPED, reason=str(exc))
+        outcome.left = True
     except LockHeld as exc:  # another process is on it; its own row says what happened
         outcome = ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
     except OSError as exc:  # the lock file itself (a full disk): nothing was done

@@ -17,15 +17,16 @@ file (spawn: nothing of them stays behind) and exit after `idle_s` without work.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeVar, cast
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 import msgspec
 
@@ -120,8 +121,11 @@ def log_like_caller(formatter: logging.Formatter | None) -> None:
 def open_worker(
     paths: AppPaths, config: Config, lock_wait_s: float, parent: int | None = None,
     formatter: logging.Formatter | None = None, key_stamp: tuple[int, int, int] | None = None,
+    stopped: Any = None,
 ) -> None:  # fmt: skip
-    """A worker's AppContext: the caller's paths and config, the worker's own store connection."""
+    """A worker's AppContext: the caller's paths and config, the worker's own store connection.
+    stopped: a shared byte its caller sets once asked to stop (Ctrl-C): a wait for another ppd
+    process's file lock ends then (daemon.locks.WaitLeft); a worker ignores the signal itself."""
     global _worker_ctx
     from verifier.supervise import die_with_parent  # the one helper for it (SfM children too)
 
@@ -137,6 +141,7 @@ def open_worker(
         paths=paths, config=config, store=Store(paths.db_path),
         vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),
         lock_wait_s=lock_wait_s, key_stamp=key_stamp,  # the caller's key, never one made since
+        give_up_waits=None if stopped is None else lambda: bool(stopped.value),
     )  # fmt: skip
 
 
@@ -173,8 +178,18 @@ def died_outcome(call: ProtectCall, detail: str = "") -> ProtectOutcome:
     )
 
 
-def _worker_args(ctx: AppContext, parent: int | None = None) -> tuple[object, ...]:
-    return (ctx.paths, ctx.config, ctx.lock_wait_s, parent, caller_formatter(), ctx.key_stamp)
+def _worker_args(ctx: AppContext, parent: int | None = None, stopped: Any = None) -> tuple[object, ...]:
+    return (ctx.paths, ctx.config, ctx.lock_wait_s, parent, caller_formatter(), ctx.key_stamp, stopped)
+
+
+@contextlib.contextmanager
+def _waits_left_on(ctx: AppContext, stop: Callable[[], bool] | None) -> Iterator[None]:
+    """This process's waits for another's file lock end once stop() is true (open_worker's, here)."""
+    before, ctx.give_up_waits = ctx.give_up_waits, stop
+    try:
+        yield
+    finally:
+        ctx.give_up_waits = before
 
 
 # ---- a batch: ppd poison ----------------------------------------------------------------------------
@@ -220,18 +235,15 @@ def protect_many(
         return []
     if n == 1:
         keep_freed_memory()  # this process does the pixel work (open_worker: each worker does)
-        outcomes = []
-        for call in calls:
-            if stopped():
-                break
-            outcomes.append(run_call(call, ctx))
-            if on_outcome is not None:
-                on_outcome(outcomes[-1])
-        return outcomes
+        with _waits_left_on(ctx, stop):
+            return _one_by_one(ctx, calls, stopped, on_outcome)
     retry = object()  # stands for a call whose worker died: re-run below
     results: dict[int, object] = {}
 
     def done(i: int, result: object) -> None:
+        if isinstance(result, ProtectOutcome) and result.left:
+            results.pop(i, None)  # never started: no outcome, as for the files not reached
+            return
         results[i] = result
         if on_outcome is not None and result is not retry:
             on_outcome(cast(ProtectOutcome, result))
@@ -239,20 +251,46 @@ def protect_many(
     def died(_i: int) -> object:
         return retry
 
+    context = pool_context(("daemon.protect.one_file", "poisoner.formats"))
+    told = context.RawValue("b", 0)  # set once stop() is true: the workers' waits for a lock end
+
+    def stopping() -> bool:
+        if stopped():
+            told.value = 1
+            return True
+        return False
+
     bounded_map(
         cast(Callable[..., object], run_call), [(c,) for c in calls], n, died, on_done=done,
-        mp_context=pool_context(("daemon.protect.one_file", "poisoner.formats")), initializer=open_worker,
-        initargs=_worker_args(ctx), stop=stop,
+        mp_context=context, initializer=open_worker, initargs=_worker_args(ctx, stopped=told),
+        stop=stopping if stop is not None else None,
         # [limits] max_memory_mb: the files in flight never need more memory than that together
         weights=[peak_estimate(c.path) for c in calls], budget=ctx.config.max_memory_bytes,
     )  # fmt: skip
     for i in sorted(results):
         if results[i] is retry and not stopped():
             log.warning("%s: %s; trying it once more", calls[i].path.name, DIED)
-            results[i] = run_call(calls[i], ctx)
-            if on_outcome is not None:
-                on_outcome(cast(ProtectOutcome, results[i]))
+            with _waits_left_on(ctx, stop):
+                done(i, run_call(calls[i], ctx))
     return [cast(ProtectOutcome, results[i]) for i in sorted(results) if results[i] is not retry]
+
+
+def _one_by_one(
+    ctx: AppContext, calls: list[ProtectCall], stopped: Callable[[], bool],
+    on_outcome: Callable[[ProtectOutcome], None] | None,
+) -> list[ProtectOutcome]:  # fmt: skip
+    """protect_many in this process: until stopped(); a file left to another process ends it."""
+    outcomes = []
+    for call in calls:
+        if stopped():
+            break
+        outcome = run_call(call, ctx)
+        if outcome.left:  # stopped while another ppd process had it: nothing more starts
+            break
+        outcomes.append(outcome)
+        if on_outcome is not None:
+            on_outcome(outcome)
+    return outcomes
 
 
 # ---- the daemon's workers ---------------------------------------------------------------------------

@@ -5,6 +5,7 @@ signals, the real store."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shlex
@@ -12,8 +13,10 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 import pytest
@@ -161,3 +164,64 @@ def test_a_signal_mid_run_leaves_a_true_status_and_a_run_that_finishes(
     assert resumed.returncode == 0, resumed.stderr
     d = status_of("shoot")
     assert d["patched"] == d["counts"]["files"] == n and d["not_patched_yet"] == 0
+
+
+# ---- Ctrl-C while another ppd process works on the file (subprocesses) ---------------------------
+def _lines_of(stream: IO[str], into: list[str]) -> threading.Thread:
+    """A thread that appends each line of stream to into (a wait of 600 s never blocks the test)."""
+    thread = threading.Thread(target=lambda: into.extend(iter(stream.readline, "")), daemon=True)
+    thread.start()
+    return thread
+
+
+@pytest.mark.parametrize("workers", ["1", "2"], ids=["serial", "workers"])
+def test_ctrl_c_while_another_ppd_process_holds_the_file_leaves_the_wait_at_once(
+    ppd_env: dict[str, Path], tmp_path: Path, workers: str
+) -> None:
+    """`ppd poison` meeting a clip `ppd watch` was encoding (a third black-box review, S7): Ctrl-C
+    said "stopping after the file in progress" and kept waiting for the watch's file. The file is
+    the other process's: the wait ends at once, the file untouched by this run, exit 130."""
+    from daemon.locks import file_lock
+    from daemon.store.vault import Vault
+
+    shoot = tmp_path / "shoot"
+    busy = make_image(shoot / "a.png", 0)  # another ppd process works on it: this test holds its lock
+    if workers == "2":  # a worker waits while another patches b.png: the worker's wait ends too
+        make_image(shoot / "b.png", 1)
+    original = hashlib.sha256(busy.read_bytes()).hexdigest()
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    command = [sys.executable, "-m", "daemon.cli", "poison", str(shoot), "--workers", workers]
+    err: list[str] = []
+    with file_lock(ppd_env["data"], busy):
+        proc = subprocess.Popen(command, env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, start_new_session=True)  # fmt: skip
+        assert proc.stdout is not None and proc.stderr is not None
+        reader = _lines_of(proc.stderr, err)
+        deadline = time.monotonic() + 60
+        while not any("a.png: waiting for another ppd process" in line for line in err):  # after 2 s
+            assert proc.poll() is None and time.monotonic() < deadline, err
+            time.sleep(0.05)
+        if workers == "2":
+            while _patched_rows(ppd_env["data"] / "ppd.sqlite3") < 1:
+                assert proc.poll() is None and time.monotonic() < deadline, err
+                time.sleep(0.05)
+        os.killpg(proc.pid, signal.SIGINT)  # a terminal's Ctrl-C: the whole group
+        signalled = time.monotonic()
+        try:
+            proc.wait(timeout=10)  # the lock is still held: only leaving the wait ends the run
+        finally:
+            proc.kill()
+        took = time.monotonic() - signalled
+        out = proc.stdout.read()
+        reader.join(5)
+    said = "".join(err)
+    assert proc.returncode == 130 and took < 3, (took, out, said)
+    assert "Traceback" not in said
+    assert f"a.png: stopped waiting for another ppd process (pid {os.getpid()}) working on it" in said
+    if workers == "1":  # nothing of its own was in progress
+        assert "stopping after the file in progress" not in said
+    patched = 1 if workers == "2" else 0
+    assert f"interrupted: patched {patched}, unchanged 0, skipped 0, failed 0; 1 of {patched + 1} not" in out
+    assert hashlib.sha256(busy.read_bytes()).hexdigest() == original  # untouched by this run
+    assert not Vault(ppd_env["data"] / "vault").has(original) and not list(shoot.glob(".ppd-tmp-*"))
+    assert list((ppd_env["data"] / "locks" / "files").iterdir()) == []  # nothing left behind
