@@ -188,33 +188,50 @@ def outbox_lock(data_dir: Path, outbox: Path) -> Iterator[None]:
     The outbox's own lock file is held exclusive, with the holder's pid and the outbox in it; the
     lock file of every folder above it (its real path's) is held shared. So a daemon on a folder
     above finds its own lock file held shared (a daemon below) and one on a folder inside finds a
-    folder above held exclusive: each is refused by the kernel's lock, two at once included."""
+    folder above held exclusive: each is refused by the kernel's lock, two at once included.
+    Each lock file goes with its last holder (one per folder up to / stayed after every stop: a
+    black-box review), as in _flock; a crash leaves them, and the next run takes the same names."""
     folder = lock_dir(data_dir)
     outbox = Path(outbox).absolute()
     with contextlib.ExitStack() as held:
         for above in Path(os.path.realpath(outbox)).parents:
             held.enter_context(_shared_above(folder / f"watch-{_outbox_key(above)}.lock", above, outbox))
         lock_file = folder / f"watch-{_outbox_key(outbox)}.lock"
-        held.enter_context(_flock(lock_file, 0.0, lambda h: _refusal(folder, h, outbox), f"{outbox}\n"))
+        held.enter_context(
+            _flock(lock_file, 0.0, lambda h: _refusal(folder, h, outbox), f"{outbox}\n", remove=True)
+        )
         yield
+
+
+# A folder's lock file held exclusive with nothing written in it is its last holder removing it (a
+# `ppd watch` stopping, see _unlink_if_last): an instant, waited out up to this long, not refused.
+REMOVAL_WAIT_S = 1.0
 
 
 @contextlib.contextmanager
 def _shared_above(lock_file: Path, above: Path, outbox: Path) -> Iterator[None]:
     """A folder above the outbox, held shared: LockHeld when a `ppd watch` watches it."""
-    fd = os.open(lock_file, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
-    try:
+    deadline = time.monotonic() + REMOVAL_WAIT_S
+    while True:
+        fd = os.open(lock_file, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
         try:
             fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
         except BlockingIOError:
-            lines = _content(fd)
+            lines, holder = _content(fd), _holder(fd)
+            os.close(fd)
+            if not lines and time.monotonic() < deadline:
+                time.sleep(_POLL_S)
+                continue
             watched = lines[1] if len(lines) > 1 else str(above)
-            raise LockHeld(
-                f"another ppd watch ({_holder(fd)}) is already watching {watched}, which holds {outbox}"
-            ) from None
+            said = f"another ppd watch ({holder}) is already watching {watched}, which holds {outbox}"
+            raise LockHeld(said) from None
+        if _names(lock_file, fd):
+            break
+        os.close(fd)  # removed by its last holder meanwhile: the name's file now
+    try:
         yield
     finally:
-        os.close(fd)
+        _unlink_if_last(lock_file, fd)
 
 
 def _refusal(folder: Path, holder: str, outbox: Path) -> str:
@@ -336,13 +353,18 @@ def use_store(data_dir: Path, wait_s: float = STORE_WAIT_S) -> int:
 
 
 def release_store(data_dir: Path, fd: int) -> None:
-    """Let go of use_store's lock; the last holder removes its file. Taking it exclusive for that
-    fails at once while another command holds it (which removes it in turn); no one removes the file
-    without holding it exclusive, so a newcomer never locks a name that is gone (_hold_store)."""
+    """Let go of use_store's lock; the last holder removes its file (_unlink_if_last)."""
+    _unlink_if_last(Path(data_dir) / "locks" / STORE_LOCK, fd)
+
+
+def _unlink_if_last(lock_file: Path, fd: int) -> None:
+    """Let go of a shared lock on lock_file (open as fd); the last holder removes the file. Taking it
+    exclusive for that fails at once while another holds it (who removes it in turn); no one removes
+    the file without holding it exclusive, so a newcomer never locks a name that is gone (it checks
+    the name still holds the file it locked, _names, and tries again)."""
     try:
         with contextlib.suppress(BlockingIOError):
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            lock_file = Path(data_dir) / "locks" / STORE_LOCK
             if _names(lock_file, fd):
                 with contextlib.suppress(OSError):
                     os.unlink(lock_file)

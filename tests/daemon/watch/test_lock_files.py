@@ -5,6 +5,8 @@ process locks the new file at the name."""
 
 from __future__ import annotations
 
+import contextlib
+import os
 import threading
 import time
 from pathlib import Path
@@ -84,3 +86,84 @@ def test_a_long_wait_for_another_process_is_said_once(
     with caplog.at_level(logging.WARNING, logger="daemon.locks"), file_lock(tmp_path, clip, 60):
         pass  # no wait: nothing said
     assert not caplog.records
+
+
+def _watch_lock_files(data: Path) -> list[str]:
+    return sorted(p.name for p in (data / "locks").glob("watch-*.lock"))
+
+
+def test_a_clean_stop_of_ppd_watch_leaves_no_watch_lock_file(tmp_path: Path) -> None:
+    """A third black-box review (S9): after each clean stop, DATA/locks kept one lock file per folder
+    from the outbox up to /. A crash may leave them; the next run takes the same names, then removes
+    them at its stop (none added). Real `ppd watch` processes, real signals."""
+    import signal
+
+    from testkit.reliability import DAEMON_ARGS, kill_daemon, start_daemon
+
+    (tmp_path / "outbox").mkdir()
+    daemon = start_daemon(tmp_path, *DAEMON_ARGS)
+    depth = len(Path(os.path.realpath(tmp_path / "outbox")).parents) + 1  # the outbox and every folder above
+    assert len(_watch_lock_files(tmp_path / "data")) == depth  # held while it runs
+    assert kill_daemon(daemon, signal.SIGTERM) == 0
+    assert _watch_lock_files(tmp_path / "data") == []  # before: `depth` files, after every stop
+    crashed = start_daemon(tmp_path, *DAEMON_ARGS)
+    kill_daemon(crashed)  # SIGKILL: no clean-up
+    left = _watch_lock_files(tmp_path / "data")
+    assert len(left) == depth
+    again = start_daemon(tmp_path, *DAEMON_ARGS)
+    assert _watch_lock_files(tmp_path / "data") == left  # the same names, none added
+    assert kill_daemon(again, signal.SIGTERM) == 0
+    assert _watch_lock_files(tmp_path / "data") == []
+
+
+def test_a_folder_lock_goes_with_its_last_holder_and_still_excludes_meanwhile(tmp_path: Path) -> None:
+    """Two watches below one folder hold its lock file shared: the first to stop leaves it (the
+    other still holds it, and a watch on the folder is still refused); the last removes it."""
+    from daemon.locks import LockHeld, outbox_lock
+
+    data, parent = tmp_path / "data", tmp_path / "photos"
+    (parent / "a").mkdir(parents=True)
+    (parent / "b").mkdir()
+    with outbox_lock(data, parent / "b"):
+        with outbox_lock(data, parent / "a"):
+            pass
+        assert len(_watch_lock_files(data)) == len(Path(os.path.realpath(parent / "b")).parents) + 1
+        refused = pytest.raises(LockHeld, match=f"already watching {parent / 'b'}, inside {parent}")
+        with refused, outbox_lock(data, parent):
+            pass
+    assert _watch_lock_files(data) == []
+    with outbox_lock(data, parent):  # free again, and made again at the same names
+        assert len(_watch_lock_files(data)) == len(Path(os.path.realpath(parent)).parents) + 1
+    assert _watch_lock_files(data) == []
+
+
+def test_watches_above_and_below_never_overlap_while_their_lock_files_come_and_go(tmp_path: Path) -> None:
+    """Lock files removed by their last holder while others open them: a watch on a folder and one
+    below it are never let in together, and nothing is left once all are done."""
+    from daemon.locks import LockHeld, outbox_lock
+
+    data, parent = tmp_path / "data", tmp_path / "photos"
+    for sub in ("a", "b"):
+        (parent / sub).mkdir(parents=True)
+    inside: list[Path] = []
+    overlaps: list[tuple[Path, ...]] = []
+    guard = threading.Lock()
+
+    def work(outbox: Path) -> None:
+        for _ in range(150):
+            with contextlib.suppress(LockHeld), outbox_lock(data, outbox):
+                with guard:
+                    inside.append(outbox)
+                    if parent in inside and len(inside) > 1:
+                        overlaps.append(tuple(inside))
+                time.sleep(0.0005)
+                with guard:
+                    inside.remove(outbox)
+
+    threads = [threading.Thread(target=work, args=(f,)) for f in (parent, parent / "a", parent / "b", parent)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert overlaps == []
+    assert _watch_lock_files(data) == []
