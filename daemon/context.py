@@ -54,6 +54,9 @@ class AppContext:
         config = Config.load(paths)  # reads one file: the publish folders, checked before anything is made
         published = [config.publish_dir] + [d.publish_dir for d in config.datasets.values()]
         paths.ensure(published=[p for p in published if p is not None])
+        from daemon.store.sealkey import clear_stale_key_temporaries
+
+        clear_stale_key_temporaries(paths.data_dir)  # a killed ppd's copy of the secret key
         # held until close: a `ppd store rebuild` swapping the store meanwhile would lose what this
         # process writes to it (LockHeld while one runs)
         hold = use_store(paths.data_dir)

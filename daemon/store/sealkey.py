@@ -4,7 +4,8 @@ readable and makeable by this installation only.
 One file, `DATA_DIR/seal.key` (`ppd config path` prints the data folder): 64 hex digits and a
 newline, mode 0600, owned by the user. Created on first use, atomically: written and fsynced under
 a temporary name, then hard-linked into place (a link never replaces an existing file, so two
-processes starting at once end up with the same key, the first one's).
+processes starting at once end up with the same key, the first one's). A temporary left by a killed
+process (a copy of the key) is removed by the next ppd (clear_stale_key_temporaries).
 
 Moving to a new machine: copy this file (keeping mode 0600) into the new data folder before ppd
 runs there, with the vault (`ppd key export FILE` / `ppd key import FILE` do the same and check
@@ -35,6 +36,7 @@ from poisoner.errors import ExitStatus, PpdError
 from poisoner.provenance import KEY_BYTES
 
 KEY_FILE = "seal.key"
+TEMP_PREFIX = f".{KEY_FILE}."  # a key being written: .seal.key.PID.RANDOM (_place_key)
 
 
 class SealKeyError(PpdError):
@@ -121,6 +123,7 @@ def read_key_stamped(path: Path) -> tuple[bytes, KeyStamp]:
 def load_key(data_dir: Path, *, create: bool = True) -> bytes | None:
     """This installation's key, created on first use when create (else None when there is none).
     Never created beside a vault that holds originals (SealKeyMissing): new_key does that, asked."""
+    clear_stale_key_temporaries(data_dir)
     if not create:
         with contextlib.suppress(FileNotFoundError):
             return read_key_file(key_path(data_dir))
@@ -131,6 +134,7 @@ def load_key(data_dir: Path, *, create: bool = True) -> bytes | None:
 def load_key_stamped(data_dir: Path) -> tuple[bytes, KeyStamp]:
     """load_key (created on first use), and its file's stamp (check_key_stamp)."""
     path = key_path(data_dir)
+    clear_stale_key_temporaries(data_dir)
     with contextlib.suppress(FileNotFoundError):
         return read_key_stamped(path)
     if vault_holds_originals(Path(data_dir) / VAULT_DIR_NAME):
@@ -160,8 +164,9 @@ def _place_key(data_dir: Path, key: bytes, *, replace: bool) -> Path:
     if len(key) != KEY_BYTES:
         raise SealKeyError("a seal key is 32 bytes")
     make_private_dir(Path(data_dir))
+    clear_stale_key_temporaries(data_dir)
     path = key_path(data_dir)
-    tmp = path.with_name(f".{KEY_FILE}.{os.getpid()}.{secrets.token_hex(4)}")
+    tmp = path.with_name(f"{TEMP_PREFIX}{os.getpid()}.{secrets.token_hex(4)}")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
     try:
         os.fchmod(fd, 0o600)  # whatever the umask
@@ -183,3 +188,27 @@ def _place_key(data_dir: Path, key: bytes, *, replace: bool) -> Path:
     finally:
         os.close(dir_fd)
     return path
+
+
+def clear_stale_key_temporaries(data_dir: Path) -> int:
+    """Remove the key temporaries (TEMP_PREFIX + PID.RANDOM) whose process is gone: one killed between
+    writing its key there and unlinking it left a copy of the secret key in the data folder for good
+    (a diff review). A live process's is a key being written: left. How many were removed."""
+    removed = 0
+    for tmp in Path(data_dir).glob(f"{TEMP_PREFIX}*.*"):
+        pid = tmp.name[len(TEMP_PREFIX) :].split(".", 1)[0]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+                removed += 1
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's: alive
+        return True
+    return True

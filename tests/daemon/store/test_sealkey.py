@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import re
 import stat
 from multiprocessing.synchronize import Barrier
 from pathlib import Path
@@ -171,3 +172,50 @@ def test_export_refuses_a_folder_whose_files_are_published(
     assert sorted(p.name for p in outbox.iterdir()) == [] and not (shoot / "k.key").exists()
     written = runner.invoke(app, ["key", "export", str(tmp_path / "k.key")])
     assert written.exit_code == 0, written.output
+
+
+# `ppd key new` killed (SIGKILL) after writing its key under a temporary name, before linking it
+KILLED_BEFORE_THE_LINK = (
+    "import os, signal, sys\n"
+    "os.link = lambda *a, **k: os.kill(os.getpid(), signal.SIGKILL)\n"
+    "from daemon.cli import app\n"
+    "sys.argv = ['ppd', 'key', 'new']\n"
+    "app()\n"
+)
+
+
+def test_a_key_temporary_left_by_a_killed_ppd_is_removed_by_the_next_one(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A kill between writing `.seal.key.PID.RANDOM` and unlinking it left a copy of the secret key in
+    the data folder for good (a diff review). The next ppd removes a dead process's; a live one's (a
+    key being written) stays."""
+    import signal
+    import subprocess
+    import sys
+
+    from daemon.cli import app as ppd
+    from testkit.kill_loops import REPO
+
+    data = ppd_env["data"]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    killed = subprocess.run([sys.executable, "-c", KILLED_BEFORE_THE_LINK], cwd=REPO, env=env,
+                            capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    (left,) = data.glob(".seal.key.*")
+    assert re.fullmatch(r"\.seal\.key\.\d+\.[0-9a-f]{8}", left.name) and len(left.read_text().strip()) == 64
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        writing = data / f".seal.key.{live.pid}.0123abcd"  # a live process's key being written
+        writing.write_text("00" * 32 + "\n")
+        status = CliRunner().invoke(ppd, ["status"])  # the next ppd, whatever it does
+        assert status.exit_code == 0, status.output
+        assert sorted(p.name for p in data.glob(".seal.key.*")) == [writing.name]  # the copy is gone
+    finally:
+        live.kill()
+        live.wait()
+    made = CliRunner().invoke(ppd, ["key", "new"])
+    assert made.exit_code == 0 and "new seal key made" in made.output, made.output
+    assert [p.name for p in data.glob(".seal.key.*")] == []  # its process is gone too: removed
+    assert key_path(data).is_file()
+
