@@ -12,7 +12,7 @@ from pathlib import Path
 import typer
 
 from daemon.cli.errors import die
-from daemon.cli.published import published_folder_holding
+from daemon.cli.published import in_data_folder, published_folder_holding
 from poisoner.errors import ExitStatus
 
 key_app = typer.Typer(
@@ -26,7 +26,7 @@ key_app = typer.Typer(
 @key_app.command("export")
 def key_export(
     file: Path = typer.Argument(
-        ..., help="Where to write the key (mode 0600; never where photos are published)."
+        ..., help="Where to write the key (mode 0600; outside ppd's data folder and what is published)."
     ),
     force: bool = typer.Option(False, "--force", help="Replace FILE if it exists."),
 ) -> None:
@@ -41,6 +41,9 @@ def key_export(
     if published is not None:
         raise die(f"{file} is inside {published}, whose files are published; the key would go out with your "
                   "photos: write it elsewhere")  # fmt: skip
+    if in_data_folder(file, paths):  # a backup there is lost with the folder it backs up
+        raise die(f"{file} is inside ppd's data folder {paths.data_dir} (PPD_DATA_DIR), and would be lost "
+                  "with it: keep the backup outside ppd's data folder")  # fmt: skip
     try:
         key = load_key(paths.data_dir)
     except (SealKeyError, OSError) as exc:

@@ -1,5 +1,6 @@
 """Where a file ppd writes for the user alone (the seal key, a preview showing the clean original)
-must not go: among what gets published. One rule for `ppd key export` and `ppd preview`."""
+must not go: among what gets published. One rule for `ppd key export` and `ppd preview`; and where a
+backup must not go: ppd's own data folder (`ppd key export`)."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ def published_folder_holding(file: Path, paths: AppPaths, photo_folders: Iterabl
     from daemon.paths import published_with
     from daemon.protect.rebuild import stored_datasets
 
-    where = Path(os.path.abspath(file.expanduser())).parent.resolve()
+    where = _folder_of(file)
     trees = [("the outbox", Path(paths.outbox))]
     for name, row in stored_datasets(Path(paths.db_path)).items():  # none yet or broken: what it gives
         trees.append((f"the folder of dataset {name!r}", Path(row["root"])))
@@ -33,3 +34,16 @@ def published_folder_holding(file: Path, paths: AppPaths, photo_folders: Iterabl
         if published_with(folder.resolve(), where):
             return f"{words} {folder}"
     return None
+
+
+def in_data_folder(file: Path, paths: AppPaths) -> bool:
+    """Whether FILE would be written inside ppd's data folder (symlinks followed), by the rule of
+    daemon.paths.published_with (a home folder counts for itself alone)."""
+    from daemon.paths import published_with
+
+    return published_with(Path(paths.data_dir).resolve(), _folder_of(file))
+
+
+def _folder_of(file: Path) -> Path:
+    """The folder FILE would be written in, resolved: where it would really land."""
+    return Path(os.path.abspath(file.expanduser())).parent.resolve()

@@ -219,3 +219,22 @@ def test_a_key_temporary_left_by_a_killed_ppd_is_removed_by_the_next_one(
     assert [p.name for p in data.glob(".seal.key.*")] == []  # its process is gone too: removed
     assert key_path(data).is_file()
 
+
+
+def test_export_refuses_the_data_folder(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd key export DATA/vault/k.key` was accepted without a word (a third black-box review, S9): a
+    backup inside ppd's data folder is lost with it. Refused by any path, exit 2, one line."""
+    from daemon.cli import app as ppd
+
+    data = ppd_env["data"]
+    assert CliRunner().invoke(ppd, ["key", "new"]).exit_code == 0
+    (data / "vault").mkdir(exist_ok=True)
+    (tmp_path / "to-data").symlink_to(data)
+    for target in (data / "vault" / "k.key", data / "k.key", tmp_path / "to-data" / "k.key"):
+        refused = CliRunner().invoke(ppd, ["key", "export", str(target)])
+        said = refused.output.strip()
+        assert refused.exit_code == 2 and len(said.splitlines()) == 1, (target, said)
+        assert said.startswith("ppd: error: ") and "outside ppd's data folder" in said, said
+        assert "PPD_DATA_DIR" in said and not target.exists()
+    written = CliRunner().invoke(ppd, ["key", "export", str(tmp_path / "k.key")])
+    assert written.exit_code == 0 and (tmp_path / "k.key").is_file(), written.output
