@@ -8,12 +8,16 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from daemon.cli.errors import die
 from daemon.cli.published import in_data_folder, published_folder_holding
 from poisoner.errors import ExitStatus
+
+if TYPE_CHECKING:
+    from daemon.paths import AppPaths
 
 key_app = typer.Typer(
     help="The seal key: what lets ppd, and only ppd here, recognise the files it patched. Back it up "
@@ -89,21 +93,76 @@ def key_import(
     if current == key:
         typer.echo(f"{key_path(paths.data_dir)} already holds this key")
         return
-    # how much the key being replaced sealed: the vault's originals (one each), said before and after
-    sealed = sum(1 for _ in paths.vault_dir.glob("??/*")) if paths.vault_dir.is_dir() else 0
+    # how much the key being replaced sealed, said before and after
+    sure, unsure = sealed_originals(paths)
+    sealed = _originals(sure, unsure)
     if current is not None and not force:
         raise die(
             f"{key_path(paths.data_dir)} holds a different key, which sealed the patched files of {sealed} "
-            "original(s) in the vault: they would no longer be recognised after a store loss (use --force "
-            "to replace it)"
+            "in the vault: they would no longer be recognised after a store loss (use --force to replace it)"
         )
     with _alone(paths.data_dir, "import the key"):
         where = install_key(paths.data_dir, key, replace=True)
     typer.echo(f"seal key installed at {where}")
     _remind_restart()
-    if current is not None and sealed:
-        typer.echo(f"the key it replaced sealed the patched files of {sealed} original(s): their rows in the "
-                   "store still know them; after a store loss they are not recognised")  # fmt: skip
+    if current is not None and sure + unsure:
+        known = (f"{sealed}: their rows in the store still know them; after a store loss they are not "
+                 "recognised")  # fmt: skip
+        if unsure:  # those no row names: recognised by their seal alone, which this key cannot read
+            known = (f"up to {sure + unsure} original(s): the store's rows still know {sure} of them; ppd no "
+                     "longer recognises the others")  # fmt: skip
+        typer.echo(f"the key it replaced sealed the patched files of {known}")
+
+
+def sealed_originals(paths: AppPaths) -> tuple[int, int]:
+    """How many originals had their file patched, so sealed, by the key here, from the store's rows
+    (sure); and how many more of the vault's may have (unsure): no row names them (a lost or rebuilt
+    store), or a run stopped mid-file whose file is no longer its original. A run killed mid-file
+    leaves its original in the vault and its file as it was: not sealed (all the vault's originals
+    were counted, 19 where 17 were sealed: a third black-box review)."""
+    import sqlite3
+
+    from daemon.protect.rebuild_carry import open_read_only
+    from daemon.states import FileState
+
+    vault = {p.name for p in paths.vault_dir.glob("??/*") if len(p.name) == 64}
+    sealed: set[str] = set()
+    not_sealed: set[str] = set()
+    if (conn := open_read_only(paths.db_path)) is not None:
+        try:
+            with contextlib.suppress(sqlite3.Error):  # a damaged store tells what it can
+                rows = conn.execute(
+                    "SELECT path, state, original_sha256, poisoned_sha256 FROM files"
+                    " WHERE original_sha256 NOT NULL"
+                )
+                for path, state, original, patched in rows:
+                    if patched:
+                        sealed.add(original)
+                    elif state != FileState.PENDING or _never_replaced(Path(path), original):
+                        not_sealed.add(original)
+        finally:
+            conn.close()
+    return len(sealed), len(vault - sealed - not_sealed)
+
+
+def _never_replaced(path: Path, original: str) -> bool:
+    """Whether a run stopped mid-file left path as it was (its original), or no file there: nothing
+    sealed. A file replaced since may be ppd's output, the rename done and the row not yet."""
+    from daemon.store.vault import sha256_file
+
+    try:
+        return sha256_file(path) == original
+    except FileNotFoundError:
+        return True
+    except OSError:  # unreadable: no one can tell
+        return False
+
+
+def _originals(sure: int, unsure: int) -> str:
+    """"3 original(s)"; "up to 5 original(s) (3 by the store's rows)" where the store cannot tell."""
+    if not unsure:
+        return f"{sure} original(s)"
+    return f"up to {sure + unsure} original(s)" + (f" ({sure} by the store's rows)" if sure else "")
 
 
 @contextlib.contextmanager

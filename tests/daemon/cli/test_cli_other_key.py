@@ -73,3 +73,64 @@ def test_restore_after_a_refused_poison_says_which_key(ppd_env: dict[str, Path],
     restored = runner.invoke(app, ["restore", str(shoot / "v0.png")])
     said = " ".join(restored.output.split())
     assert restored.exit_code == 1 and "sealed with another key" in said and "`ppd key import`" in said, said
+
+
+# `ppd poison` SIGKILLed mid-file: the third file's original is in the vault, its row 'pending', the
+# file itself never replaced
+KILLED_ON_THE_THIRD_FILE = """
+import os, signal, sys
+from daemon.protect import stages
+real, calls = stages.provenance_marker, []
+def marker(*args, **kw):
+    calls.append(1)
+    if len(calls) == 3:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return real(*args, **kw)
+stages.provenance_marker = marker
+from daemon.cli import app
+sys.argv = ['ppd', *sys.argv[1:]]
+app()
+"""
+
+
+def test_replacing_the_key_counts_only_what_it_sealed(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """After a killed `ppd poison`, `ppd key import` said it "sealed the patched files of 19 original(s)"
+    where 17 were (a third black-box review, S5): the originals of the files in flight, never replaced,
+    were counted. Counted now from the store; what it cannot tell is said as "up to"."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from daemon.states import FileState
+    from daemon.store import Store
+    from testkit.kill_loops import REPO
+
+    paths = AppPaths.from_env()
+    shoot = tmp_path / "shoot"
+    make_shoot(shoot, 4)
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    command = [sys.executable, "-c", KILLED_ON_THE_THIRD_FILE, "poison", str(shoot), "--workers", "1"]
+    killed = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    store = Store(paths.db_path)
+    states = sorted(r["state"] for r in store.files("shoot"))
+    store.close()
+    assert states == [FileState.PATCHED, FileState.PATCHED, FileState.PENDING], states
+    assert len(list(paths.vault_dir.glob("??/*"))) == 3  # the one in flight kept too
+    other = tmp_path / "other.key"
+    other.write_text("ab" * 32 + "\n")
+    refused = runner.invoke(app, ["key", "import", str(other)])
+    said = " ".join(refused.output.split())
+    assert refused.exit_code == 2 and "sealed the patched files of 2 original(s)" in said, said  # before: 3
+    kept = paths.db_path.with_name("kept.sqlite3")
+    paths.db_path.rename(kept)  # a store lost: nothing says which originals had their file sealed
+    unsure = runner.invoke(app, ["key", "import", str(other)])
+    said = " ".join(unsure.output.split())
+    assert unsure.exit_code == 2 and "sealed the patched files of up to 3 original(s)" in said, said
+    for side in ("-wal", "-shm"):
+        paths.db_path.with_name(paths.db_path.name + side).unlink(missing_ok=True)
+    kept.rename(paths.db_path)
+    replaced = runner.invoke(app, ["key", "import", str(other), "--force"])
+    said = " ".join(replaced.output.split())
+    assert replaced.exit_code == 0 and "sealed the patched files of 2 original(s)" in said, said
