@@ -159,7 +159,10 @@ def failed_lines(d: dict[str, Any]) -> list[str]:
     a quarantined one marked so: the same counts as the table's."""
     rows = d.get("failed_files") or []
     c = d["counts"]
-    lines = [f"{d['name']}: {c.get('failed', 0)} failed, {c.get('quarantined', 0)} quarantined"]
+    head = f"{d['name']}: {c.get('failed', 0)} failed, {c.get('quarantined', 0)} quarantined"
+    if d.get("not_reprotected"):  # patched, a re-protect failed on them: not failed files
+        head += f", {d['not_reprotected']} not re-protected"
+    lines = [head]
     for r in rows:
         mark = ""
         if r.get("state") == "quarantined":
@@ -197,6 +200,8 @@ def next_step_lines(d: dict[str, Any]) -> list[str]:
     elif d["protection"]["next"]:
         lines.append(f"{name}: {d['protection']['next']}")
     not_patched = [f"{c[k]} {k}" for k in ("failed", "quarantined") if c.get(k, 0)]
+    if d.get("not_reprotected"):  # said once by the re-protect, then nowhere (a black-box review)
+        not_patched.append(f"{d['not_reprotected']} not re-protected")
     if not_patched:
         lines.append(f"{name}: {', '.join(not_patched)}: ppd status {name} --failed")
     if c.get("waiting"):

@@ -149,6 +149,8 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         # patched with another spec than the dataset's: a re-protect that failed or was killed half-way
         # left them (a black-box review: status said "patched 40" under the new spec, 33 had the old)
         "other_spec": ctx.store.patched_with_other_spec(name, row["spec_id"]),
+        # patched files a re-protect failed on: their earlier mark kept; `--failed` says why
+        "not_reprotected": len(ctx.store.not_reprotected(name)),
         "patched": patched_count(counts),
         # where marks found no plain place, as `ppd poison` says it (issue 25): the daemon's files too
         "mark_notes": mark_note_lines(ctx.store.patched_place_notes(name)),
@@ -194,7 +196,23 @@ def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
                 said = ctx.store.last_event(r["path"], "failed")
                 item["source"] = (said or {}).get("detail", {}).get("source")
             listed.append(item)
-    return listed
+    return listed + [_not_reprotected_item(ctx, r) for r in ctx.store.not_reprotected(name)]
+
+
+def _not_reprotected_item(ctx: AppContext, row: dict[str, Any]) -> dict[str, Any]:
+    """A patched file a re-protect failed on: not a failed file, as long as it still carries the mark
+    ppd wrote (under its earlier spec); one changed since, maybe not protected, is said so."""
+    from daemon.datasets.folder_count import changed_since_patched
+
+    tried = (ctx.store.last_event(row["path"], "reprotect_failed") or {}).get("detail", {}).get("spec_id")
+    to = f" to spec {tried}" if tried else ""
+    reason = file_reason(row["path"], row["error"])
+    if changed_since_patched(row):
+        what = "changed since ppd patched it, maybe NOT protected"
+    else:
+        what = f"still carries the earlier spec's mark (spec {row['spec_id']})"
+    said = f"{what}; not re-protected{to}: {reason}"
+    return {"path": row["path"], "state": row["state"], "reason": said, "not_reprotected": True}
 
 
 def print_running(report: list[dict[str, Any]]) -> None:

@@ -150,7 +150,7 @@ def count_folder(
     inside = {str(p) for p in paths}
     untracked = [f for f in files if str(f) not in inside and f.relative_to(folder).parts not in covered]
     present = {str(f) for f in files}
-    changed = [Path(r["path"]) for r in rows if r["path"] in present and _changed(r)]
+    changed = [Path(r["path"]) for r in rows if r["path"] in present and changed_since_patched(r)]
     # a file patched in place that is no longer there is no file of the dataset's (a black-box review:
     # deleted, it still counted patched); the daemon records it removed, a one-shot user has no daemon
     gone = _gone_in_place(rows, folder, theirs | present) + copies_gone
@@ -169,7 +169,7 @@ def _gone_in_place(rows: Iterable[Mapping[str, Any]], folder: Path, left_out: se
     ]  # fmt: skip
 
 
-def _changed(row: Mapping[str, Any]) -> bool:
+def changed_since_patched(row: Mapping[str, Any]) -> bool:
     """Whether a file patched in place now has another size or modification time than ppd wrote: an
     original copied back over it, an edit. What the daemon's catch-up scan looks at (a black-box
     review: with no daemon running, `ppd status` counted such files patched)."""
