@@ -117,12 +117,21 @@ def place_lines(d: dict[str, Any]) -> list[str]:
     folder = d.get("folder") or {}
     lines = []
     if folder and not folder.get("exists", True):
-        lines.append(f"folder {d['root']} is gone; counts are the store's")
+        lines.append(f"folder {d['root']} is gone; counts are the store's: {moved_words(folder)}")
     if folder.get("copies"):
         lines.append(f"patched copies in {folder['copies']}")
     if d["publish_dir"]:
         lines.append(f"publish to {d['publish_dir']}")
     return lines
+
+
+def moved_words(folder: dict[str, Any]) -> str:
+    """What a gone folder may be (FolderCount.to_dict): moved beside it, where its patched files are
+    seen, or moved or deleted; a moved one's files are adopted by a run on its new folder."""
+    if folder.get("moved_to"):
+        where = shlex.quote(folder["moved_to"])
+        return f"its patched files are in {folder['moved_to']} (moved?): `ppd poison {where}` adopts them"
+    return "moved or deleted? `ppd poison NEWFOLDER` adopts a moved one's files"
 
 
 def _print_details(d: dict[str, Any]) -> None:
@@ -271,8 +280,21 @@ def _print_report(
 
 
 def _gone(d: dict[str, Any]) -> bool:
-    """A dataset whose folder is gone and that holds no file now (all its rows removed)."""
+    """A dataset whose folder is gone (moved or deleted) and none of whose files is at its path now;
+    the files may be elsewhere (a folder renamed), which ppd sees only beside the old folder."""
     return not (d.get("folder") or {}).get("exists", True) and not d["counts"].get("files")
+
+
+def _print_gone(gone: list[dict[str, Any]]) -> None:
+    """One line for the datasets whose folder is gone, and one for each whose files are seen moved:
+    a deleted folder and a renamed one are not both "hold no file now" (a black-box review)."""
+    names = ", ".join(d["name"] for d in gone)
+    print_line(console(), f"not shown: {len(gone)} dataset(s) whose folder is gone, moved or deleted "
+                          f"({names}); `ppd poison NEWFOLDER` adopts a moved one's files; `ppd status NAME` "
+                          "shows one")  # fmt: skip
+    for d in gone:
+        if d["folder"].get("moved_to"):
+            print_line(console(), f"{d['name']}: folder gone; {moved_words(d['folder'])}")
 
 
 def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -> None:
@@ -286,9 +308,7 @@ def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -
     if report:
         console().print(status_table(report, console().width, ctx.paths.outbox))
     if gone:  # a folder renamed or deleted: its old name stayed in the table forever (a black-box review)
-        names = ", ".join(d["name"] for d in gone)
-        print_line(console(), f"not shown: {len(gone)} dataset(s) whose folder is gone and that hold no "
-                              f"file now ({names}); `ppd status NAME` shows one")  # fmt: skip
+        _print_gone(gone)
     if detailed:
         console().print(f"outbox {ctx.paths.outbox}", markup=False)
         for d in report:
@@ -413,7 +433,8 @@ def _exit_if_unready(report: list[dict[str, Any]], check: bool, unclaimed: Seque
     for name, why in unready:
         err_console().print(f"not ready to publish: {name}: {', '.join(why)}", markup=False, highlight=False)
     if not shown and not unready:  # exit 1 said nothing (a second black-box review): say why
-        gone = [f"dataset {d['name']!r}'s folder {d['root']} is gone (moved or deleted?)" for d in report]
+        gone = [f"dataset {d['name']!r}'s folder {d['root']} is gone ({moved_words(d['folder'])})"
+                for d in report]  # fmt: skip
         said = "; ".join(gone) or "no dataset yet"
         err_console().print(f"nothing to publish: {said}", markup=False, highlight=False)
     if unready or not shown:

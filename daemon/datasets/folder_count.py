@@ -46,12 +46,16 @@ class FolderCount:
     # photos and videos ppd cannot protect (poisoner.media.UNPROTECTED_SUFFIXES: BMP, GIF, raw files),
     # which a reconstruction reads all the same (a black-box review: status and --check ignored them)
     unprotectable: list[Path] = field(default_factory=list)
+    # the folder gone: a folder beside it that holds its patched files as ppd wrote them (moved_to)
+    moved_to: Path | None = None
 
     def to_dict(self) -> dict[str, Any]:
         copies = None if self.copies is None else str(self.copies)
+        moved = None if self.moved_to is None else str(self.moved_to)
         return {"folder": str(self.folder), "exists": self.exists, "on_disk": self.on_disk,
                 "untracked": len(self.untracked), "copies": copies, "changed": len(self.changed),
-                "unprotectable": len(self.unprotectable), "gone": len(self.gone)}  # fmt: skip
+                "unprotectable": len(self.unprotectable), "gone": len(self.gone),
+                "moved_to": moved}  # fmt: skip
 
 
 def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
@@ -138,7 +142,8 @@ def count_folder(
     rels = {f.relative_to(folder).parts for f in files}
     copies = _match_copies(outside, rels)[1]
     if not folder.is_dir():  # deleted or renamed: its files patched in place went with it
-        return FolderCount(folder, exists=False, copies=copies, gone=_gone_in_place(rows, folder, theirs))
+        gone = _gone_in_place(rows, folder, theirs)
+        return FolderCount(folder, exists=False, copies=copies, gone=gone, moved_to=moved_to(folder, rows))
     # an `--out` copy deleted or moved away: its photo has no protected copy now (a run makes one
     # again), so the photo counts "not patched yet" and the copy's row "gone" (a black-box review)
     copies_gone = [
@@ -156,6 +161,49 @@ def count_folder(
     gone = _gone_in_place(rows, folder, theirs | present) + copies_gone
     return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies,
                        changed=changed, unprotectable=unprotectable, gone=gone)  # fmt: skip
+
+
+# moved_to looks at this many folders beside a gone one, and this many of its files in each: a stat
+# apiece, never a walk (status runs on stores of 10k files in well under a second)
+MOVE_PROBE_FOLDERS = 500
+MOVE_PROBE_FILES = 3
+
+
+def moved_to(folder: Path, rows: Iterable[Mapping[str, Any]]) -> Path | None:
+    """A folder beside a gone one that holds its patched files at the same relative paths with the
+    size and time ppd wrote (a `mv` keeps both): the folder renamed. None when none is seen: deleted,
+    or moved further (a black-box review: a moved folder was said to "hold no file now")."""
+    probes = [
+        (Path(r["path"]).relative_to(folder), (r["size"], r.get("mtime_ns"))) for r in rows
+        if r["state"] in PATCHED_VALUES and not r.get("published_path") and r.get("size") is not None
+        and Path(r["path"]).is_relative_to(folder)
+    ][:MOVE_PROBE_FILES]  # fmt: skip
+    if not probes:
+        return None
+    try:
+        with os.scandir(folder.parent) as entries:
+            beside = [Path(e.path) for e in entries if not e.name.startswith(".") and _is_folder(e)]
+    except OSError:  # its parent gone or unreadable too: nothing to say
+        return None
+    for candidate in sorted(beside)[:MOVE_PROBE_FOLDERS]:
+        if any(_same_file(candidate / rel, wrote) for rel, wrote in probes):
+            return candidate
+    return None
+
+
+def _is_folder(entry: os.DirEntry[str]) -> bool:
+    try:
+        return entry.is_dir(follow_symlinks=False)
+    except OSError:
+        return False
+
+
+def _same_file(path: Path, wrote: tuple[int, int | None]) -> bool:
+    try:
+        st = os.stat(path, follow_symlinks=False)
+    except OSError:
+        return False
+    return (st.st_size, st.st_mtime_ns) == wrote
 
 
 def _gone_in_place(rows: Iterable[Mapping[str, Any]], folder: Path, left_out: set[str]) -> list[Path]:

@@ -59,3 +59,29 @@ def test_a_reprotect_failure_stays_listed_until_fixed(ppd_env: dict[str, Path], 
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0  # patches the edited file again
     again = said("status", "A", "--failed")
     assert "1 not re-protected" in again and "v0.png" not in again and "v1.png" in again, again
+
+
+def test_a_moved_folder_is_not_said_to_hold_no_file(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """N8: a deleted folder and a renamed one were both "whose folder is gone and that hold no file
+    now", and --json could not tell them apart; the renamed one's patched files sat beside it."""
+    sets = tmp_path / "sets"
+    for name in ("set 5", "set 6", "set 7"):
+        assert runner.invoke(app, ["poison", str(make_shoot(sets / name, 2))]).exit_code == 0
+    for f in (sets / "set 5").iterdir():
+        f.unlink()
+    (sets / "set 5").rmdir()
+    moved = sets / "set 6 moved"
+    (sets / "set 6").rename(moved)
+    text = said("status")
+    assert "hold no file" not in text, text
+    assert "not shown: 2 dataset(s) whose folder is gone, moved or deleted (set 5, set 6)" in text, text
+    assert f"set 6: folder gone; its patched files are in {moved} (moved?): `ppd poison '{moved}'`" in text
+    assert "set 5: folder gone" not in text
+    report = json.loads(runner.invoke(app, ["status", "--json"]).stdout)["datasets"]
+    folders = {d["name"]: d["folder"] for d in report}
+    assert folders["set 6"]["exists"] is False and folders["set 6"]["moved_to"] == str(moved)
+    assert folders["set 5"]["exists"] is False and folders["set 5"]["moved_to"] is None
+    assert folders["set 7"]["moved_to"] is None
+    assert "moved or deleted? `ppd poison NEWFOLDER` adopts a moved one's files" in said("status", "set 5")
+    adopted = said("poison", str(moved))  # the promised command: its files are recognised, not patched twice
+    assert "patched 0, unchanged 2" in adopted, adopted

@@ -555,7 +555,7 @@ def test_live_removal_and_folder_rename_are_recorded(ppd_env: dict[str, Path]) -
     rows = [line.split("│")[1].strip() for line in output.splitlines() if line.startswith("│")]
     assert "trip-renamed" in rows and "trip" not in rows, output
     said = " ".join(output.split())
-    assert "not shown: 1 dataset(s) whose folder is gone and that hold no file now (trip)" in said
+    assert "not shown: 1 dataset(s) whose folder is gone, moved or deleted (trip)" in said
 
 
 def test_bad_files_fail_cleanly_and_the_daemon_keeps_going(ppd_env: dict[str, Path]) -> None:
