@@ -93,22 +93,41 @@ def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Tabl
 # What a count key is called in the details line ("untracked": files in the folder without a row).
 COUNT_WORDS = {
     "untracked": "not patched yet", "changed": "changed since patched", "waiting": "still being written",
-    "gone": "deleted or moved away since patched",
+    "gone": "deleted or moved away since patched", "unprotectable": "in a format ppd cannot protect",
+    "removed": "deleted or moved away earlier",  # a row ppd recorded so: a renamed file's old name too
 }  # fmt: skip
+# Counts that are no part of "files": files no longer there (their rows history), files of a format ppd
+# cannot patch; "renamed" is a part of "patched"
+NOT_COUNTED = ("gone", "removed", "unprotectable")
 
 
 def files_line(counts: dict[str, Any]) -> str:
-    """`files 23: not patched yet 17, patched 6`: every count of the dataset, once."""
+    """`files 23: not patched yet 17, patched 6; not counted: removed 2`: every count of the dataset,
+    once; the parts before ';' add up to the files (they added up to more: a black-box review)."""
+    parts = _count_words({k: n for k, n in counts.items() if k not in NOT_COUNTED})
+    others = _count_words({k: n for k, n in counts.items() if k in NOT_COUNTED})
+    if counts.get("renamed") and "patched" in parts:
+        parts["patched"] = f"{parts['patched']} ({counts['renamed']} renamed since)"
+    line = f"files {counts['files']}"
+    if parts:
+        line += ": " + ", ".join(f"{k} {n}" for k, n in sorted(parts.items()))
+    if others:
+        line += "; not counted: " + ", ".join(f"{k} {n}" for k, n in sorted(others.items()))
+    return line
+
+
+def _count_words(counts: dict[str, Any]) -> dict[str, str]:
+    """{word: count} of the counts but "files" and "renamed" (a part of patched), states of one word
+    summed."""
     from collections import Counter
 
     from daemon.states import state_word
 
-    states: Counter[str] = Counter()
+    words: Counter[str] = Counter()
     for key, n in counts.items():
-        if key != "files" and n:
-            states[COUNT_WORDS.get(key) or state_word(key)] += n
-    listed = ", ".join(f"{k} {n}" for k, n in sorted(states.items()))
-    return f"files {counts['files']}: {listed}" if listed else f"files {counts['files']}"
+        if key not in ("files", "renamed") and n:
+            words[COUNT_WORDS.get(key) or state_word(key)] += n
+    return {k: str(n) for k, n in words.items()}
 
 
 def place_lines(d: dict[str, Any]) -> list[str]:
@@ -220,6 +239,10 @@ def next_step_lines(d: dict[str, Any]) -> list[str]:
         root = shlex.quote(str(d["root"]))
         lines.append(f"{name}: {c['changed']} changed since ppd patched them (size or time), maybe NOT "
                      f"protected now: `ppd poison {root}` checks them and patches what needs it")  # fmt: skip
+    if c.get("renamed"):  # patched and here: only verify, which reads the rows' paths, misses them
+        root = shlex.quote(str(d["root"]))
+        lines.append(f"{name}: {c['renamed']} patched file(s) renamed since, still carrying the mark: "
+                     f"`ppd poison {root}` records their new names")  # fmt: skip
     if c.get("unprotectable"):  # a reconstruction reads them all the same (a black-box review)
         lines.append(f"{name}: {c['unprotectable']} photo(s) or video(s) in a format ppd cannot protect, "
                      "NOT protected: convert them to JPEG, PNG, TIFF, WebP, HEIC or MP4, or move them "

@@ -48,6 +48,8 @@ class FolderCount:
     unprotectable: list[Path] = field(default_factory=list)
     # the folder gone: a folder beside it that holds its patched files as ppd wrote them (moved_to)
     moved_to: Path | None = None
+    # (old path, new path): a file patched in place, renamed since (in neither untracked nor gone)
+    renamed: list[tuple[Path, Path]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         copies = None if self.copies is None else str(self.copies)
@@ -55,7 +57,7 @@ class FolderCount:
         return {"folder": str(self.folder), "exists": self.exists, "on_disk": self.on_disk,
                 "untracked": len(self.untracked), "copies": copies, "changed": len(self.changed),
                 "unprotectable": len(self.unprotectable), "gone": len(self.gone),
-                "moved_to": moved}  # fmt: skip
+                "moved_to": moved, "renamed": len(self.renamed)}  # fmt: skip
 
 
 def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
@@ -158,9 +160,39 @@ def count_folder(
     changed = [Path(r["path"]) for r in rows if r["path"] in present and changed_since_patched(r)]
     # a file patched in place that is no longer there is no file of the dataset's (a black-box review:
     # deleted, it still counted patched); the daemon records it removed, a one-shot user has no daemon
-    gone = _gone_in_place(rows, folder, theirs | present) + copies_gone
+    in_place = _gone_in_place(rows, folder, theirs | present)
+    renamed = _renamed(rows, in_place, untracked)
+    olds, news = {old for old, _ in renamed}, {new for _, new in renamed}
+    untracked = [f for f in untracked if f not in news]
+    gone = [p for p in in_place if p not in olds] + copies_gone
     return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies,
-                       changed=changed, unprotectable=unprotectable, gone=gone)  # fmt: skip
+                       changed=changed, unprotectable=unprotectable, gone=gone, renamed=renamed)  # fmt: skip
+
+
+def _renamed(
+    rows: Iterable[Mapping[str, Any]], gone: list[Path], untracked: list[Path]
+) -> list[tuple[Path, Path]]:
+    """Files patched in place and gone from their paths, matched to the folder's files no row names
+    by the size and time ppd wrote (a rename keeps both; what status judges changed files on): the
+    same file renamed, ppd's output, never "not patched yet" (a black-box review). A stat for each
+    file no row names, only when a patched one is gone."""
+    if not gone or not untracked:
+        return []
+    wanted = {str(p) for p in gone}
+    wrote: dict[tuple[int, int], list[Path]] = {}
+    for r in rows:
+        if r["path"] in wanted and r.get("size") is not None and r.get("mtime_ns") is not None:
+            wrote.setdefault((r["size"], r["mtime_ns"]), []).append(Path(r["path"]))
+    pairs = []
+    for f in untracked:
+        try:
+            st = os.stat(f, follow_symlinks=False)
+        except OSError:
+            continue
+        olds = wrote.get((st.st_size, st.st_mtime_ns))
+        if olds:  # one old row for one new file
+            pairs.append((olds.pop(0), f))
+    return pairs
 
 
 # moved_to looks at this many folders beside a gone one, and this many of its files in each: a stat
@@ -239,6 +271,8 @@ def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int
     merged["files"] = int(counts.get("files", 0)) - removed + len(folder.untracked)
     if folder.unprotectable and folder.copies is None:  # --out: they are not where the copies are
         merged["unprotectable"] = len(folder.unprotectable)
+    if folder.renamed:  # still patched and in the folder: counted by their old rows, under "patched"
+        merged["renamed"] = len(folder.renamed)
     if folder.gone:  # deleted or moved away since patched: neither a file of the dataset nor patched
         merged["gone"] = len(folder.gone)
         merged["files"] -= len(folder.gone)

@@ -85,3 +85,29 @@ def test_a_moved_folder_is_not_said_to_hold_no_file(ppd_env: dict[str, Path], tm
     assert "moved or deleted? `ppd poison NEWFOLDER` adopts a moved one's files" in said("status", "set 5")
     adopted = said("poison", str(moved))  # the promised command: its files are recognised, not patched twice
     assert "patched 0, unchanged 2" in adopted, adopted
+
+
+def test_a_renamed_patched_file_is_patched_and_the_parts_add_up(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """N9: a patched photo renamed was "1 not patched yet: run `ppd poison`", and poison then found
+    nothing to do; after a deletion too, "files 3: deleted or moved away since patched 1, removed 1,
+    restored 3" added up to 5."""
+    shoot = make_shoot(tmp_path / "A", 4)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    (shoot / "v0.png").rename(shoot / "hero.png")
+    text = said("status", "A")
+    assert "not patched yet" not in text and "files 4: patched 4 (1 renamed since)" in text, text
+    assert f"A: 1 patched file(s) renamed since, still carrying the mark: `ppd poison {shoot}`" in text
+    counts = status_json("A")["counts"]
+    assert counts["patched"] == 4 and counts["renamed"] == 1 and counts["untracked"] == 0, counts
+    assert status_json("A")["resume"] is None
+    (shoot / "v1.png").unlink()
+    text = said("status", "A")
+    assert "files 3: patched 3 (1 renamed since); not counted: deleted or moved away since patched 1" in text
+    assert "patched 0, unchanged 3" in said("poison", str(shoot))  # as status said: nothing to patch
+    assert "renamed since" not in said("status", "A")  # the new name recorded
+    assert runner.invoke(app, ["restore", str(shoot)]).exit_code == 0
+    text = said("status", "A")
+    assert ("files 3: restored 3; not counted: deleted or moved away earlier 1, deleted or moved away "
+            "since patched 1") in text, text  # fmt: skip
