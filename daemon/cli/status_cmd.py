@@ -217,21 +217,23 @@ def _print_report_links(ctx: AppContext, names: list[str]) -> None:
 
 
 def next_step_lines(d: dict[str, Any]) -> list[str]:
-    """What to run next for one dataset: finish an interrupted run first (verifying half a
-    dataset says nothing about the rest), else the protection's next step; then its failures."""
+    """What to run next for one dataset: its failures first, then finish an interrupted run
+    (verifying half a dataset says nothing about the rest), else the protection's next step; then
+    what else leaves files unprotected."""
+    from daemon.cli.status_queries import failures_phrase
     from daemon.datasets.folder_count import resume_line
 
     c, name, lines = d["counts"], d["name"], []
+    # failures first (a black-box review: "run `ppd verify B`" led, for 4 of 5 failed); a re-protect's
+    # were said once, then nowhere
+    failures = failures_phrase(name, c, c.get("files", 0), d.get("not_reprotected", 0))
+    if failures:
+        lines.append(f"{name}: {failures}")
     resume = resume_line(c, d["resume"]) if d.get("resume") else None
     if resume:
         lines.append(f"{name}: {resume}")
     elif d["protection"]["next"]:
         lines.append(f"{name}: {d['protection']['next']}")
-    not_patched = [f"{c[k]} {k}" for k in ("failed", "quarantined") if c.get(k, 0)]
-    if d.get("not_reprotected"):  # said once by the re-protect, then nowhere (a black-box review)
-        not_patched.append(f"{d['not_reprotected']} not re-protected")
-    if not_patched:
-        lines.append(f"{name}: {', '.join(not_patched)}: ppd status {name} --failed")
     if c.get("waiting"):
         lines.append(f"{name}: {c['waiting']} still being written (incomplete), NOT protected yet: the "
                      "daemon patches each once complete, or quarantines it if it stays so")  # fmt: skip

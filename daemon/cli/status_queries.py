@@ -68,15 +68,40 @@ def latest_by_profile(runs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     }
 
 
-def protection_line(ctx: AppContext, name: str) -> str:
-    """`NAME: what it is now: what to run next`, from the counts and each profile's verdict."""
-    from daemon.states import dataset_protection, next_step, protection_text
+def failures_phrase(name: str, counts: dict[str, int], files: int, not_reprotected: int = 0) -> str | None:
+    """`1 of 5 patched, 4 failed (`ppd status B --failed`)`: what a headline leads with when files
+    failed (it read "patched, not verified" with 4 of 5 failed: a black-box review); None when none."""
+    import shlex
 
+    from daemon.states import patched_count
+
+    bad = [f"{counts[k]} {k}" for k in ("failed", "quarantined") if counts.get(k, 0)]
+    done = f"{patched_count(counts)} of {files} patched, " if bad else ""
+    if not_reprotected:  # patched, a re-protect failed on them (still their earlier mark)
+        bad.append(f"{not_reprotected} not re-protected")
+    return f"{done}{', '.join(bad)} (`ppd status {shlex.quote(name)} --failed`)" if bad else None
+
+
+def protection_line(ctx: AppContext, name: str) -> str:
+    """`NAME: what it is now: what to run next`, from the counts and each profile's verdict; led by
+    the files that failed, if any."""
+    from daemon.states import Protection, dataset_protection, next_step, protection_text
+
+    counts = ctx.store.counts(name)
     protection, profiles = dataset_protection(
-        ctx.store.counts(name), latest_by_profile(ctx.store.current_verification_runs(name, limit=50))
+        counts, latest_by_profile(ctx.store.current_verification_runs(name, limit=50))
     )
     step = next_step(protection, name)
-    return f"{name}: {protection_text(protection, profiles)}" + (f": {step}" if step else "")
+    now = protection_text(protection, profiles) + (f": {step}" if step else "")
+    files = counts.get("files", 0) - counts.get("removed", 0)  # a removed row's file is no longer there
+    failures = failures_phrase(name, counts, files, len(ctx.store.not_reprotected(name)))
+    if failures is None:
+        return f"{name}: {now}"
+    if protection is Protection.NOTHING_PATCHED:  # "0 of 4 patched" says it
+        return f"{name}: {failures}"
+    if protection is Protection.PATCHED_NOT_VERIFIED:  # "patched" is said already
+        now = "not verified" + (f": {step}" if step else "")
+    return f"{name}: {failures}; {now}"
 
 
 def _protection(counts: dict[str, int], verdicts: dict[str, dict[str, Any]], name: str) -> dict[str, Any]:

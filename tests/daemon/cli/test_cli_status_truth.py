@@ -54,7 +54,7 @@ def test_a_reprotect_failure_stays_listed_until_fixed(ppd_env: dict[str, Path], 
     kept = f"{shoot / 'v1.png'}: still carries the earlier spec's mark (spec {old_spec}); not re-protected to"
     assert kept in failed and "vault copy of v1.png is missing or corrupt" in failed, failed
     assert "v2.png" not in failed
-    assert "A: 2 not re-protected: ppd status A --failed" in said("status", "A")
+    assert "A: 2 not re-protected (`ppd status A --failed`)" in said("status", "A")
     assert status_json("A")["not_reprotected"] == 2
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0  # patches the edited file again
     again = said("status", "A", "--failed")
@@ -111,3 +111,24 @@ def test_a_renamed_patched_file_is_patched_and_the_parts_add_up(
     text = said("status", "A")
     assert ("files 3: restored 3; not counted: deleted or moved away earlier 1, deleted or moved away "
             "since patched 1") in text, text  # fmt: skip
+
+
+def test_a_headline_leads_with_the_failures(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """N11: 4 of 5 files failed, and the headline was "B: patched, not verified: run `ppd verify B`"
+    (the failures a line further down, in ppd status after the verify advice)."""
+    shoot = make_shoot(tmp_path / "B", 1)
+    for i in range(4):
+        (shoot / f"bad{i}.png").write_text("not a photo")
+    poisoned = runner.invoke(app, ["poison", str(shoot)])
+    assert poisoned.exit_code == 1
+    lines = [line for line in poisoned.stdout.splitlines() if line.startswith("B: ") and "placed" not in line]
+    headline = "B: 1 of 5 patched, 4 failed (`ppd status B --failed`); not verified: run `ppd verify B`"
+    assert lines == [headline], poisoned.stdout
+    assert "failed files and reasons" not in poisoned.stdout  # the headline says where
+    text = said("status")
+    assert "B: 1 of 5 patched, 4 failed (`ppd status B --failed`) B: run `ppd verify B`" in text, text
+    nothing = tmp_path / "C"
+    nothing.mkdir()
+    (nothing / "a.png").write_text("not a photo")
+    none = runner.invoke(app, ["poison", str(nothing)])
+    assert "C: 0 of 1 patched, 1 failed (`ppd status C --failed`)\n" in none.stdout, none.stdout
