@@ -216,57 +216,6 @@ def _print_report_links(ctx: AppContext, names: list[str]) -> None:
             console().print(f"report {name}: file://{path}", markup=False)
 
 
-def next_step_lines(d: dict[str, Any]) -> list[str]:
-    """What to run next for one dataset: its failures first, then finish an interrupted run
-    (verifying half a dataset says nothing about the rest), else the protection's next step; then
-    what else leaves files unprotected."""
-    from daemon.cli.status_queries import failures_phrase
-    from daemon.datasets.folder_count import resume_line
-
-    c, name, lines = d["counts"], d["name"], []
-    # failures first (a black-box review: "run `ppd verify B`" led, for 4 of 5 failed); a re-protect's
-    # were said once, then nowhere
-    failures = failures_phrase(name, c, c.get("files", 0), d.get("not_reprotected", 0))
-    if failures:
-        lines.append(f"{name}: {failures}")
-    resume = resume_line(c, d["resume"]) if d.get("resume") else None
-    if resume:
-        lines.append(f"{name}: {resume}")
-    elif d["protection"]["next"]:
-        lines.append(f"{name}: {d['protection']['next']}")
-    if c.get("waiting"):
-        lines.append(f"{name}: {c['waiting']} still being written (incomplete), NOT protected yet: the "
-                     "daemon patches each once complete, or quarantines it if it stays so")  # fmt: skip
-    if c.get("changed"):  # another size or time than ppd wrote: an original copied back, an edit
-        root = shlex.quote(str(d["root"]))
-        lines.append(f"{name}: {c['changed']} changed since ppd patched them (size or time), maybe NOT "
-                     f"protected now: `ppd poison {root}` checks them and patches what needs it")  # fmt: skip
-    if c.get("renamed"):  # patched and here: only verify, which reads the rows' paths, misses them
-        root = shlex.quote(str(d["root"]))
-        lines.append(f"{name}: {c['renamed']} patched file(s) renamed since, still carrying the mark: "
-                     f"`ppd poison {root}` records their new names")  # fmt: skip
-    if c.get("unprotectable"):  # a reconstruction reads them all the same (a black-box review)
-        lines.append(f"{name}: {c['unprotectable']} photo(s) or video(s) in a format ppd cannot protect, "
-                     "NOT protected: convert them to JPEG, PNG, TIFF, WebP, HEIC or MP4, or move them "
-                     "out")  # fmt: skip
-    if d.get("restored_in_place"):  # originals back where they are published: said in the overview
-        root = shlex.quote(str(d["root"]))
-        lines.append(f"{name}: {d['restored_in_place']} restored by you, NOT protected: "
-                     f"`ppd poison {root} --force` patches them again")  # fmt: skip
-    if d.get("other_spec"):
-        lines.append(f"{name}: {d['other_spec']} patched with another spec than the dataset's (a "
-                     "re-protect did not finish?): "
-                     f"`ppd dataset set {shlex.quote(name)} --reprotect` gives them its spec")  # fmt: skip
-    return lines
-
-
-def _print_next_steps(report: list[dict[str, Any]]) -> None:
-    """Word-wrapped to the terminal (soft_wrap off): these lines say what to run next."""
-    for d in report:
-        for line in next_step_lines(d):
-            print_line(console(), line)
-
-
 def _print_regressions(report: list[dict[str, Any]]) -> None:
     for d in report:
         if d["regression"]:
@@ -324,6 +273,7 @@ def _print_gone(gone: list[dict[str, Any]]) -> None:
 
 def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -> None:
     from daemon.cli.status_queries import print_running
+    from daemon.cli.status_steps import print_next_steps
 
     if not report:
         console().print(f"no datasets yet; outbox {ctx.paths.outbox}", markup=False)
@@ -338,7 +288,7 @@ def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -
         console().print(f"outbox {ctx.paths.outbox}", markup=False)
         for d in report:
             _print_details(d)
-    _print_next_steps(report)
+    print_next_steps(report)
     print_running(report)  # issue 30: a verification running now, and how far it has got
     _print_report_links(ctx, [d["name"] for d in report])
     _print_regressions(report)

@@ -132,3 +132,29 @@ def test_a_headline_leads_with_the_failures(ppd_env: dict[str, Path], tmp_path: 
     (nothing / "a.png").write_text("not a photo")
     none = runner.invoke(app, ["poison", str(nothing)])
     assert "C: 0 of 1 patched, 1 failed (`ppd status C --failed`)\n" in none.stdout, none.stdout
+
+
+def test_shared_advice_is_one_line_after_what_matters(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """N12: with 23 datasets, 23 lines "set N: run `ppd verify 'set N'`" buried "NOT protected" and
+    "changed since patched". More than 3 datasets with the same advice share one line, after those."""
+    import time
+
+    from daemon.context import AppContext
+
+    for i in range(1, 7):  # set 6 of 2 photos: one changed leaves it patched
+        shoot = make_shoot(tmp_path / f"set {i}", 1 + i // 6)
+        assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    (tmp_path / "set 6" / "v0.png").write_bytes((tmp_path / "set 6" / "v0.png").read_bytes() + b"!")
+    ctx = AppContext.open()
+    try:  # set 5 measured NOT protected
+        now = time.time() + 1
+        ctx.store.add_verification_run("set 5", "default", "not_protected", {}, now, now + 1, None, None)
+    finally:
+        ctx.close()
+    lines = [" ".join(line.split()) for line in runner.invoke(app, ["status"]).output.splitlines()]
+    steps = [line for line in lines if line.startswith(("set ", "run "))]
+    assert steps[0] == "set 5: find a design that holds: `ppd auto 'set 5'`", steps
+    assert steps[1].startswith("set 6: 1 changed since ppd patched them"), steps
+    assert steps[2:] == ["run `ppd verify NAME` for 5 datasets: set 1, set 2, set 3, set 4, set 6"], steps
+    one = said("status", "set 1")  # one dataset: its own line, as before
+    assert "set 1: run `ppd verify 'set 1'`" in one, one
