@@ -175,12 +175,16 @@ def summary(
     copied = {o.path for o in outcomes if o.output is not None and o.state in ("patched", "unchanged")}
     for place in output_places([job for job in jobs if job.path in copied]):
         console().print(f"written to {place}", markup=False)
+    headlined = set()  # the datasets whose line leads with their failures, and `--failed`
     for name in sorted({job.dataset for job in jobs}):
         if ctx.store.dataset(name) is not None:
             console().print(protection_line(ctx, name), markup=False)
+            counts = ctx.store.counts(name)
+            headlined |= {name} if counts.get("failed") or counts.get("quarantined") else set()
     from daemon.protect.job import storable  # a name that is not UTF-8 has no row: only its line says why
 
-    names = sorted({o.dataset for o in outcomes if o.state == "failed" and o.dataset and storable(o.path)})
+    failed = {o.dataset for o in outcomes if o.state == "failed" and o.dataset and storable(o.path)}
+    names = sorted(failed - headlined)
     if names:
         console().print(f"failed files and reasons: ppd status {names[0]} --failed", markup=False)
 

@@ -93,22 +93,41 @@ def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Tabl
 # What a count key is called in the details line ("untracked": files in the folder without a row).
 COUNT_WORDS = {
     "untracked": "not patched yet", "changed": "changed since patched", "waiting": "still being written",
-    "gone": "deleted or moved away since patched",
+    "gone": "deleted or moved away since patched", "unprotectable": "in a format ppd cannot protect",
+    "removed": "deleted or moved away earlier",  # a row ppd recorded so: a renamed file's old name too
 }  # fmt: skip
+# Counts that are no part of "files": files no longer there (their rows history), files of a format ppd
+# cannot patch; "renamed" is a part of "patched"
+NOT_COUNTED = ("gone", "removed", "unprotectable")
 
 
 def files_line(counts: dict[str, Any]) -> str:
-    """`files 23: not patched yet 17, patched 6`: every count of the dataset, once."""
+    """`files 23: not patched yet 17, patched 6; not counted: removed 2`: every count of the dataset,
+    once; the parts before ';' add up to the files (they added up to more: a black-box review)."""
+    parts = _count_words({k: n for k, n in counts.items() if k not in NOT_COUNTED})
+    others = _count_words({k: n for k, n in counts.items() if k in NOT_COUNTED})
+    if counts.get("renamed") and "patched" in parts:
+        parts["patched"] = f"{parts['patched']} ({counts['renamed']} renamed since)"
+    line = f"files {counts['files']}"
+    if parts:
+        line += ": " + ", ".join(f"{k} {n}" for k, n in sorted(parts.items()))
+    if others:
+        line += "; not counted: " + ", ".join(f"{k} {n}" for k, n in sorted(others.items()))
+    return line
+
+
+def _count_words(counts: dict[str, Any]) -> dict[str, str]:
+    """{word: count} of the counts but "files" and "renamed" (a part of patched), states of one word
+    summed."""
     from collections import Counter
 
     from daemon.states import state_word
 
-    states: Counter[str] = Counter()
+    words: Counter[str] = Counter()
     for key, n in counts.items():
-        if key != "files" and n:
-            states[COUNT_WORDS.get(key) or state_word(key)] += n
-    listed = ", ".join(f"{k} {n}" for k, n in sorted(states.items()))
-    return f"files {counts['files']}: {listed}" if listed else f"files {counts['files']}"
+        if key not in ("files", "renamed") and n:
+            words[COUNT_WORDS.get(key) or state_word(key)] += n
+    return {k: str(n) for k, n in words.items()}
 
 
 def place_lines(d: dict[str, Any]) -> list[str]:
@@ -117,12 +136,21 @@ def place_lines(d: dict[str, Any]) -> list[str]:
     folder = d.get("folder") or {}
     lines = []
     if folder and not folder.get("exists", True):
-        lines.append(f"folder {d['root']} is gone; counts are the store's")
+        lines.append(f"folder {d['root']} is gone; counts are the store's: {moved_words(folder)}")
     if folder.get("copies"):
         lines.append(f"patched copies in {folder['copies']}")
     if d["publish_dir"]:
         lines.append(f"publish to {d['publish_dir']}")
     return lines
+
+
+def moved_words(folder: dict[str, Any]) -> str:
+    """What a gone folder may be (FolderCount.to_dict): moved beside it, where its patched files are
+    seen, or moved or deleted; a moved one's files are adopted by a run on its new folder."""
+    if folder.get("moved_to"):
+        where = shlex.quote(folder["moved_to"])
+        return f"its patched files are in {folder['moved_to']} (moved?): `ppd poison {where}` adopts them"
+    return "moved or deleted? `ppd poison NEWFOLDER` adopts a moved one's files"
 
 
 def _print_details(d: dict[str, Any]) -> None:
@@ -159,7 +187,10 @@ def failed_lines(d: dict[str, Any]) -> list[str]:
     a quarantined one marked so: the same counts as the table's."""
     rows = d.get("failed_files") or []
     c = d["counts"]
-    lines = [f"{d['name']}: {c.get('failed', 0)} failed, {c.get('quarantined', 0)} quarantined"]
+    head = f"{d['name']}: {c.get('failed', 0)} failed, {c.get('quarantined', 0)} quarantined"
+    if d.get("not_reprotected"):  # patched, a re-protect failed on them: not failed files
+        head += f", {d['not_reprotected']} not re-protected"
+    lines = [head]
     for r in rows:
         mark = ""
         if r.get("state") == "quarantined":
@@ -183,49 +214,6 @@ def _print_report_links(ctx: AppContext, names: list[str]) -> None:
         path = report_path(ctx.paths, name)
         if path.is_file():
             console().print(f"report {name}: file://{path}", markup=False)
-
-
-def next_step_lines(d: dict[str, Any]) -> list[str]:
-    """What to run next for one dataset: finish an interrupted run first (verifying half a
-    dataset says nothing about the rest), else the protection's next step; then its failures."""
-    from daemon.datasets.folder_count import resume_line
-
-    c, name, lines = d["counts"], d["name"], []
-    resume = resume_line(c, d["resume"]) if d.get("resume") else None
-    if resume:
-        lines.append(f"{name}: {resume}")
-    elif d["protection"]["next"]:
-        lines.append(f"{name}: {d['protection']['next']}")
-    not_patched = [f"{c[k]} {k}" for k in ("failed", "quarantined") if c.get(k, 0)]
-    if not_patched:
-        lines.append(f"{name}: {', '.join(not_patched)}: ppd status {name} --failed")
-    if c.get("waiting"):
-        lines.append(f"{name}: {c['waiting']} still being written (incomplete), NOT protected yet: the "
-                     "daemon patches each once complete, or quarantines it if it stays so")  # fmt: skip
-    if c.get("changed"):  # another size or time than ppd wrote: an original copied back, an edit
-        root = shlex.quote(str(d["root"]))
-        lines.append(f"{name}: {c['changed']} changed since ppd patched them (size or time), maybe NOT "
-                     f"protected now: `ppd poison {root}` checks them and patches what needs it")  # fmt: skip
-    if c.get("unprotectable"):  # a reconstruction reads them all the same (a black-box review)
-        lines.append(f"{name}: {c['unprotectable']} photo(s) or video(s) in a format ppd cannot protect, "
-                     "NOT protected: convert them to JPEG, PNG, TIFF, WebP, HEIC or MP4, or move them "
-                     "out")  # fmt: skip
-    if d.get("restored_in_place"):  # originals back where they are published: said in the overview
-        root = shlex.quote(str(d["root"]))
-        lines.append(f"{name}: {d['restored_in_place']} restored by you, NOT protected: "
-                     f"`ppd poison {root} --force` patches them again")  # fmt: skip
-    if d.get("other_spec"):
-        lines.append(f"{name}: {d['other_spec']} patched with another spec than the dataset's (a "
-                     "re-protect did not finish?): "
-                     f"`ppd dataset set {shlex.quote(name)} --reprotect` gives them its spec")  # fmt: skip
-    return lines
-
-
-def _print_next_steps(report: list[dict[str, Any]]) -> None:
-    """Word-wrapped to the terminal (soft_wrap off): these lines say what to run next."""
-    for d in report:
-        for line in next_step_lines(d):
-            print_line(console(), line)
 
 
 def _print_regressions(report: list[dict[str, Any]]) -> None:
@@ -266,12 +254,26 @@ def _print_report(
 
 
 def _gone(d: dict[str, Any]) -> bool:
-    """A dataset whose folder is gone and that holds no file now (all its rows removed)."""
+    """A dataset whose folder is gone (moved or deleted) and none of whose files is at its path now;
+    the files may be elsewhere (a folder renamed), which ppd sees only beside the old folder."""
     return not (d.get("folder") or {}).get("exists", True) and not d["counts"].get("files")
+
+
+def _print_gone(gone: list[dict[str, Any]]) -> None:
+    """One line for the datasets whose folder is gone, and one for each whose files are seen moved:
+    a deleted folder and a renamed one are not both "hold no file now" (a black-box review)."""
+    names = ", ".join(d["name"] for d in gone)
+    print_line(console(), f"not shown: {len(gone)} dataset(s) whose folder is gone, moved or deleted "
+                          f"({names}); `ppd poison NEWFOLDER` adopts a moved one's files; `ppd status NAME` "
+                          "shows one")  # fmt: skip
+    for d in gone:
+        if d["folder"].get("moved_to"):
+            print_line(console(), f"{d['name']}: folder gone; {moved_words(d['folder'])}")
 
 
 def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -> None:
     from daemon.cli.status_queries import print_running
+    from daemon.cli.status_steps import print_next_steps
 
     if not report:
         console().print(f"no datasets yet; outbox {ctx.paths.outbox}", markup=False)
@@ -281,14 +283,12 @@ def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -
     if report:
         console().print(status_table(report, console().width, ctx.paths.outbox))
     if gone:  # a folder renamed or deleted: its old name stayed in the table forever (a black-box review)
-        names = ", ".join(d["name"] for d in gone)
-        print_line(console(), f"not shown: {len(gone)} dataset(s) whose folder is gone and that hold no "
-                              f"file now ({names}); `ppd status NAME` shows one")  # fmt: skip
+        _print_gone(gone)
     if detailed:
         console().print(f"outbox {ctx.paths.outbox}", markup=False)
         for d in report:
             _print_details(d)
-    _print_next_steps(report)
+    print_next_steps(report)
     print_running(report)  # issue 30: a verification running now, and how far it has got
     _print_report_links(ctx, [d["name"] for d in report])
     _print_regressions(report)
@@ -408,7 +408,8 @@ def _exit_if_unready(report: list[dict[str, Any]], check: bool, unclaimed: Seque
     for name, why in unready:
         err_console().print(f"not ready to publish: {name}: {', '.join(why)}", markup=False, highlight=False)
     if not shown and not unready:  # exit 1 said nothing (a second black-box review): say why
-        gone = [f"dataset {d['name']!r}'s folder {d['root']} is gone (moved or deleted?)" for d in report]
+        gone = [f"dataset {d['name']!r}'s folder {d['root']} is gone ({moved_words(d['folder'])})"
+                for d in report]  # fmt: skip
         said = "; ".join(gone) or "no dataset yet"
         err_console().print(f"nothing to publish: {said}", markup=False, highlight=False)
     if unready or not shown:

@@ -68,15 +68,40 @@ def latest_by_profile(runs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     }
 
 
-def protection_line(ctx: AppContext, name: str) -> str:
-    """`NAME: what it is now: what to run next`, from the counts and each profile's verdict."""
-    from daemon.states import dataset_protection, next_step, protection_text
+def failures_phrase(name: str, counts: dict[str, int], files: int, not_reprotected: int = 0) -> str | None:
+    """`1 of 5 patched, 4 failed (`ppd status B --failed`)`: what a headline leads with when files
+    failed (it read "patched, not verified" with 4 of 5 failed: a black-box review); None when none."""
+    import shlex
 
+    from daemon.states import patched_count
+
+    bad = [f"{counts[k]} {k}" for k in ("failed", "quarantined") if counts.get(k, 0)]
+    done = f"{patched_count(counts)} of {files} patched, " if bad else ""
+    if not_reprotected:  # patched, a re-protect failed on them (still their earlier mark)
+        bad.append(f"{not_reprotected} not re-protected")
+    return f"{done}{', '.join(bad)} (`ppd status {shlex.quote(name)} --failed`)" if bad else None
+
+
+def protection_line(ctx: AppContext, name: str) -> str:
+    """`NAME: what it is now: what to run next`, from the counts and each profile's verdict; led by
+    the files that failed, if any."""
+    from daemon.states import Protection, dataset_protection, next_step, protection_text
+
+    counts = ctx.store.counts(name)
     protection, profiles = dataset_protection(
-        ctx.store.counts(name), latest_by_profile(ctx.store.current_verification_runs(name, limit=50))
+        counts, latest_by_profile(ctx.store.current_verification_runs(name, limit=50))
     )
     step = next_step(protection, name)
-    return f"{name}: {protection_text(protection, profiles)}" + (f": {step}" if step else "")
+    now = protection_text(protection, profiles) + (f": {step}" if step else "")
+    files = counts.get("files", 0) - counts.get("removed", 0)  # a removed row's file is no longer there
+    failures = failures_phrase(name, counts, files, len(ctx.store.not_reprotected(name)))
+    if failures is None:
+        return f"{name}: {now}"
+    if protection is Protection.NOTHING_PATCHED:  # "0 of 4 patched" says it
+        return f"{name}: {failures}"
+    if protection is Protection.PATCHED_NOT_VERIFIED:  # "patched" is said already
+        now = "not verified" + (f": {step}" if step else "")
+    return f"{name}: {failures}; {now}"
 
 
 def _protection(counts: dict[str, int], verdicts: dict[str, dict[str, Any]], name: str) -> dict[str, Any]:
@@ -149,6 +174,8 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         # patched with another spec than the dataset's: a re-protect that failed or was killed half-way
         # left them (a black-box review: status said "patched 40" under the new spec, 33 had the old)
         "other_spec": ctx.store.patched_with_other_spec(name, row["spec_id"]),
+        # patched files a re-protect failed on: their earlier mark kept; `--failed` says why
+        "not_reprotected": len(ctx.store.not_reprotected(name)),
         "patched": patched_count(counts),
         # where marks found no plain place, as `ppd poison` says it (issue 25): the daemon's files too
         "mark_notes": mark_note_lines(ctx.store.patched_place_notes(name)),
@@ -194,7 +221,23 @@ def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
                 said = ctx.store.last_event(r["path"], "failed")
                 item["source"] = (said or {}).get("detail", {}).get("source")
             listed.append(item)
-    return listed
+    return listed + [_not_reprotected_item(ctx, r) for r in ctx.store.not_reprotected(name)]
+
+
+def _not_reprotected_item(ctx: AppContext, row: dict[str, Any]) -> dict[str, Any]:
+    """A patched file a re-protect failed on: not a failed file, as long as it still carries the mark
+    ppd wrote (under its earlier spec); one changed since, maybe not protected, is said so."""
+    from daemon.datasets.folder_count import changed_since_patched
+
+    tried = (ctx.store.last_event(row["path"], "reprotect_failed") or {}).get("detail", {}).get("spec_id")
+    to = f" to spec {tried}" if tried else ""
+    reason = file_reason(row["path"], row["error"])
+    if changed_since_patched(row):
+        what = "changed since ppd patched it, maybe NOT protected"
+    else:
+        what = f"still carries the earlier spec's mark (spec {row['spec_id']})"
+    said = f"{what}; not re-protected{to}: {reason}"
+    return {"path": row["path"], "state": row["state"], "reason": said, "not_reprotected": True}
 
 
 def print_running(report: list[dict[str, Any]]) -> None:

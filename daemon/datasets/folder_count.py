@@ -46,12 +46,18 @@ class FolderCount:
     # photos and videos ppd cannot protect (poisoner.media.UNPROTECTED_SUFFIXES: BMP, GIF, raw files),
     # which a reconstruction reads all the same (a black-box review: status and --check ignored them)
     unprotectable: list[Path] = field(default_factory=list)
+    # the folder gone: a folder beside it that holds its patched files as ppd wrote them (moved_to)
+    moved_to: Path | None = None
+    # (old path, new path): a file patched in place, renamed since (in neither untracked nor gone)
+    renamed: list[tuple[Path, Path]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         copies = None if self.copies is None else str(self.copies)
+        moved = None if self.moved_to is None else str(self.moved_to)
         return {"folder": str(self.folder), "exists": self.exists, "on_disk": self.on_disk,
                 "untracked": len(self.untracked), "copies": copies, "changed": len(self.changed),
-                "unprotectable": len(self.unprotectable), "gone": len(self.gone)}  # fmt: skip
+                "unprotectable": len(self.unprotectable), "gone": len(self.gone),
+                "moved_to": moved, "renamed": len(self.renamed)}  # fmt: skip
 
 
 def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
@@ -138,7 +144,8 @@ def count_folder(
     rels = {f.relative_to(folder).parts for f in files}
     copies = _match_copies(outside, rels)[1]
     if not folder.is_dir():  # deleted or renamed: its files patched in place went with it
-        return FolderCount(folder, exists=False, copies=copies, gone=_gone_in_place(rows, folder, theirs))
+        gone = _gone_in_place(rows, folder, theirs)
+        return FolderCount(folder, exists=False, copies=copies, gone=gone, moved_to=moved_to(folder, rows))
     # an `--out` copy deleted or moved away: its photo has no protected copy now (a run makes one
     # again), so the photo counts "not patched yet" and the copy's row "gone" (a black-box review)
     copies_gone = [
@@ -150,12 +157,85 @@ def count_folder(
     inside = {str(p) for p in paths}
     untracked = [f for f in files if str(f) not in inside and f.relative_to(folder).parts not in covered]
     present = {str(f) for f in files}
-    changed = [Path(r["path"]) for r in rows if r["path"] in present and _changed(r)]
+    changed = [Path(r["path"]) for r in rows if r["path"] in present and changed_since_patched(r)]
     # a file patched in place that is no longer there is no file of the dataset's (a black-box review:
     # deleted, it still counted patched); the daemon records it removed, a one-shot user has no daemon
-    gone = _gone_in_place(rows, folder, theirs | present) + copies_gone
+    in_place = _gone_in_place(rows, folder, theirs | present)
+    renamed = _renamed(rows, in_place, untracked)
+    olds, news = {old for old, _ in renamed}, {new for _, new in renamed}
+    untracked = [f for f in untracked if f not in news]
+    gone = [p for p in in_place if p not in olds] + copies_gone
     return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies,
-                       changed=changed, unprotectable=unprotectable, gone=gone)  # fmt: skip
+                       changed=changed, unprotectable=unprotectable, gone=gone, renamed=renamed)  # fmt: skip
+
+
+def _renamed(
+    rows: Iterable[Mapping[str, Any]], gone: list[Path], untracked: list[Path]
+) -> list[tuple[Path, Path]]:
+    """Files patched in place and gone from their paths, matched to the folder's files no row names
+    by the size and time ppd wrote (a rename keeps both; what status judges changed files on): the
+    same file renamed, ppd's output, never "not patched yet" (a black-box review). A stat for each
+    file no row names, only when a patched one is gone."""
+    if not gone or not untracked:
+        return []
+    wanted = {str(p) for p in gone}
+    wrote: dict[tuple[int, int], list[Path]] = {}
+    for r in rows:
+        if r["path"] in wanted and r.get("size") is not None and r.get("mtime_ns") is not None:
+            wrote.setdefault((r["size"], r["mtime_ns"]), []).append(Path(r["path"]))
+    pairs = []
+    for f in untracked:
+        try:
+            st = os.stat(f, follow_symlinks=False)
+        except OSError:
+            continue
+        olds = wrote.get((st.st_size, st.st_mtime_ns))
+        if olds:  # one old row for one new file
+            pairs.append((olds.pop(0), f))
+    return pairs
+
+
+# moved_to looks at this many folders beside a gone one, and this many of its files in each: a stat
+# apiece, never a walk (status runs on stores of 10k files in well under a second)
+MOVE_PROBE_FOLDERS = 500
+MOVE_PROBE_FILES = 3
+
+
+def moved_to(folder: Path, rows: Iterable[Mapping[str, Any]]) -> Path | None:
+    """A folder beside a gone one that holds its patched files at the same relative paths with the
+    size and time ppd wrote (a `mv` keeps both): the folder renamed. None when none is seen: deleted,
+    or moved further (a black-box review: a moved folder was said to "hold no file now")."""
+    probes = [
+        (Path(r["path"]).relative_to(folder), (r["size"], r.get("mtime_ns"))) for r in rows
+        if r["state"] in PATCHED_VALUES and not r.get("published_path") and r.get("size") is not None
+        and Path(r["path"]).is_relative_to(folder)
+    ][:MOVE_PROBE_FILES]  # fmt: skip
+    if not probes:
+        return None
+    try:
+        with os.scandir(folder.parent) as entries:
+            beside = [Path(e.path) for e in entries if not e.name.startswith(".") and _is_folder(e)]
+    except OSError:  # its parent gone or unreadable too: nothing to say
+        return None
+    for candidate in sorted(beside)[:MOVE_PROBE_FOLDERS]:
+        if any(_same_file(candidate / rel, wrote) for rel, wrote in probes):
+            return candidate
+    return None
+
+
+def _is_folder(entry: os.DirEntry[str]) -> bool:
+    try:
+        return entry.is_dir(follow_symlinks=False)
+    except OSError:
+        return False
+
+
+def _same_file(path: Path, wrote: tuple[int, int | None]) -> bool:
+    try:
+        st = os.stat(path, follow_symlinks=False)
+    except OSError:
+        return False
+    return (st.st_size, st.st_mtime_ns) == wrote
 
 
 def _gone_in_place(rows: Iterable[Mapping[str, Any]], folder: Path, left_out: set[str]) -> list[Path]:
@@ -169,7 +249,7 @@ def _gone_in_place(rows: Iterable[Mapping[str, Any]], folder: Path, left_out: se
     ]  # fmt: skip
 
 
-def _changed(row: Mapping[str, Any]) -> bool:
+def changed_since_patched(row: Mapping[str, Any]) -> bool:
     """Whether a file patched in place now has another size or modification time than ppd wrote: an
     original copied back over it, an edit. What the daemon's catch-up scan looks at (a black-box
     review: with no daemon running, `ppd status` counted such files patched)."""
@@ -191,6 +271,8 @@ def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int
     merged["files"] = int(counts.get("files", 0)) - removed + len(folder.untracked)
     if folder.unprotectable and folder.copies is None:  # --out: they are not where the copies are
         merged["unprotectable"] = len(folder.unprotectable)
+    if folder.renamed:  # still patched and in the folder: counted by their old rows, under "patched"
+        merged["renamed"] = len(folder.renamed)
     if folder.gone:  # deleted or moved away since patched: neither a file of the dataset nor patched
         merged["gone"] = len(folder.gone)
         merged["files"] -= len(folder.gone)

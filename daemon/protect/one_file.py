@@ -331,8 +331,18 @@ def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: Patch
                 error=None, event="reprotected", detail={"spec_id": spec.spec_id, **report_detail(report)},
             )  # fmt: skip
         except Exception as exc:
+            _note_not_reprotected(ctx, row, spec, one_line(exc))
             return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
     return ProtectOutcome(
         path=path, dataset=dataset, state=state, original_sha256=row["original_sha256"],
         poisoned_sha256=new_sha if state == Outcome.PATCHED else None, spec_id=spec.spec_id, output=target,
     )  # fmt: skip
+
+
+def _note_not_reprotected(ctx: AppContext, row: dict[str, Any], spec: PatchSpec, reason: str) -> None:
+    """Keep why a patched file was not re-protected, for `ppd status --failed`; a store that fails
+    here too leaves the command's own line as the only word of it."""
+    try:
+        ctx.store.note_not_reprotected(row["path"], row["dataset"], reason, spec.spec_id)
+    except (PpdError, sqlite3.Error) as exc:
+        log.warning("%s: not recorded as not re-protected (%s)", shown_name(Path(row["path"])), one_line(exc))

@@ -116,6 +116,24 @@ class FileRows(StoreBase):
                 upsert_file(conn, path, dataset, state, fields, None)
         return len(checked)
 
+    def note_not_reprotected(self, path: Path | str, dataset: str, reason: str, spec_id: str) -> None:
+        """A patched file a re-protect to spec_id failed on: its row stays patched under its earlier
+        spec (its bytes are untouched) and keeps the reason in error, until a run writes it again
+        (`ppd status --failed` lists it: a black-box review found the failure said once, then lost)."""
+        with self._write() as conn:
+            conn.execute(
+                "UPDATE files SET error = ? WHERE path = ? AND state = ?",
+                (reason, str(path), FileState.PATCHED.value),
+            )
+            insert_event(conn, dataset, str(path), "reprotect_failed", {"spec_id": spec_id, "reason": reason})
+
+    def not_reprotected(self, dataset: str) -> list[dict[str, Any]]:
+        """The dataset's patched rows a re-protect failed on (note_not_reprotected), by path."""
+        return self._rows(
+            "SELECT * FROM files WHERE dataset = ? AND state = ? AND error IS NOT NULL ORDER BY path",
+            (dataset, FileState.PATCHED.value),
+        )
+
     def counts(self, dataset: str) -> dict[str, int]:
         """Rows per state (keys: every FileState value) and their total under "files"."""
         counts: dict[str, int] = {state.value: 0 for state in FILE_STATES}

@@ -40,7 +40,7 @@ def test_a_quarantined_upload_is_counted_once_everywhere(ppd_env: dict[str, Path
     assert len(failed) == 2 and str(notes) in failed[1] and "quarantined" in failed[1]
     text = " ".join(runner.invoke(app, ["status", "kitchen"]).output.split())
     assert "files 3: patched 2, quarantined 1" in text
-    assert "kitchen: 1 quarantined: ppd status kitchen --failed" in text
+    assert "kitchen: 2 of 3 patched, 1 quarantined (`ppd status kitchen --failed`)" in text
 
 
 def test_an_out_dataset_says_where_its_copies_are_and_restore_says_it_removed_them(

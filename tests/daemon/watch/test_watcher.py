@@ -555,7 +555,7 @@ def test_live_removal_and_folder_rename_are_recorded(ppd_env: dict[str, Path]) -
     rows = [line.split("│")[1].strip() for line in output.splitlines() if line.startswith("│")]
     assert "trip-renamed" in rows and "trip" not in rows, output
     said = " ".join(output.split())
-    assert "not shown: 1 dataset(s) whose folder is gone and that hold no file now (trip)" in said
+    assert "not shown: 1 dataset(s) whose folder is gone, moved or deleted (trip)" in said
 
 
 def test_bad_files_fail_cleanly_and_the_daemon_keeps_going(ppd_env: dict[str, Path]) -> None:
@@ -826,8 +826,8 @@ def test_a_file_waited_for_is_not_listed_as_failed(ppd_env: dict[str, Path], tmp
     """Found by a black-box review: while the daemon waited for an incomplete file's writer, its row
     said failed (`ppd status --failed` listed it) and the daemon's count said failed 0. The row now
     says it is waited for; the completed file is then patched once."""
-    from daemon.cli.status_cmd import next_step_lines
     from daemon.cli.status_queries import dataset_status, failed_files
+    from daemon.cli.status_steps import next_step_lines
 
     src = write_image(tmp_path / "big.png", seed=8, size=256)
     data = src.read_bytes()

@@ -1,0 +1,101 @@
+"""The lines under `ppd status`'s table: what to run next for each dataset. What leaves files
+unprotected comes first; the routine advice many datasets share ("run `ppd verify NAME`") is one line
+once more than a few datasets have it (23 such lines buried the ones that matter: a black-box review).
+
+Light at import (`ppd status` loads it).
+"""
+
+from __future__ import annotations
+
+import shlex
+from typing import Any
+
+from daemon.cli.output import console, print_line
+from daemon.states import Protection, next_step
+
+# Ranks: a verdict that does not hold, then files left unprotected, then the routine next step.
+URGENT, UNPROTECTED, ROUTINE = 0, 1, 2
+# The protection states whose next step is routine: a verification to run, a report to read.
+ROUTINE_STATES = frozenset({Protection.PATCHED_NOT_VERIFIED.value, Protection.UNVERIFIABLE.value})
+GROUP_OVER = 3  # more datasets than this with the same routine step: one line names them
+NAMES_SHOWN = 10  # a grouped line names this many, then says how many more
+
+
+def next_step_lines(d: dict[str, Any]) -> list[str]:
+    """What to run next for one dataset, the most urgent first."""
+    return [line for _, line in sorted(ranked_steps(d), key=lambda item: item[0])]
+
+
+def ranked_steps(d: dict[str, Any]) -> list[tuple[int, str]]:
+    """(rank, line) for one dataset: its failures, finishing an interrupted run (verifying half a
+    dataset says nothing about the rest), else the protection's next step; then what else leaves
+    files unprotected. A stable sort by rank keeps this order within a rank."""
+    from daemon.cli.status_queries import failures_phrase
+    from daemon.datasets.folder_count import resume_line
+
+    c, name, steps = d["counts"], d["name"], []
+    # a re-protect's failures were said once, then nowhere (a black-box review)
+    failures = failures_phrase(name, c, c.get("files", 0), d.get("not_reprotected", 0))
+    if failures:
+        steps.append((UNPROTECTED, f"{name}: {failures}"))
+    resume = resume_line(c, d["resume"]) if d.get("resume") else None
+    if resume:
+        steps.append((UNPROTECTED, f"{name}: {resume}"))
+    elif d["protection"]["next"]:
+        rank = ROUTINE if d["protection"]["state"] in ROUTINE_STATES else URGENT
+        steps.append((rank, f"{name}: {d['protection']['next']}"))
+    return steps + [(UNPROTECTED, line) for line in _unprotected_lines(d)]
+
+
+def _unprotected_lines(d: dict[str, Any]) -> list[str]:
+    """Files of the dataset that are not (or may not be) carrying the mark, and what to run."""
+    c, name, lines = d["counts"], d["name"], []
+    root = shlex.quote(str(d["root"]))
+    if c.get("waiting"):
+        lines.append(f"{name}: {c['waiting']} still being written (incomplete), NOT protected yet: the "
+                     "daemon patches each once complete, or quarantines it if it stays so")  # fmt: skip
+    if c.get("changed"):  # another size or time than ppd wrote: an original copied back, an edit
+        lines.append(f"{name}: {c['changed']} changed since ppd patched them (size or time), maybe NOT "
+                     f"protected now: `ppd poison {root}` checks them and patches what needs it")  # fmt: skip
+    if c.get("renamed"):  # patched and here: only verify, which reads the rows' paths, misses them
+        lines.append(f"{name}: {c['renamed']} patched file(s) renamed since, still carrying the mark: "
+                     f"`ppd poison {root}` records their new names")  # fmt: skip
+    if c.get("unprotectable"):  # a reconstruction reads them all the same (a black-box review)
+        lines.append(f"{name}: {c['unprotectable']} photo(s) or video(s) in a format ppd cannot protect, "
+                     "NOT protected: convert them to JPEG, PNG, TIFF, WebP, HEIC or MP4, or move them "
+                     "out")  # fmt: skip
+    if d.get("restored_in_place"):  # originals back where they are published: said in the overview
+        lines.append(f"{name}: {d['restored_in_place']} restored by you, NOT protected: "
+                     f"`ppd poison {root} --force` patches them again")  # fmt: skip
+    if d.get("other_spec"):
+        lines.append(f"{name}: {d['other_spec']} patched with another spec than the dataset's (a "
+                     "re-protect did not finish?): "
+                     f"`ppd dataset set {shlex.quote(name)} --reprotect` gives them its spec")  # fmt: skip
+    return lines
+
+
+def step_lines(report: list[dict[str, Any]]) -> list[str]:
+    """Every dataset's lines, the most urgent first (datasets in the report's order within a rank);
+    a routine step more than GROUP_OVER datasets share is one line."""
+    ranked = [(rank, line, d) for d in report for rank, line in ranked_steps(d)]
+    ranked.sort(key=lambda item: item[0])
+    sharing: dict[str, list[str]] = {}
+    for rank, _, d in ranked:
+        if rank == ROUTINE:
+            sharing.setdefault(d["protection"]["state"], []).append(d["name"])
+    grouped = {state for state, names in sharing.items() if len(names) > GROUP_OVER}
+    lines = [line for rank, line, d in ranked if rank != ROUTINE or d["protection"]["state"] not in grouped]
+    return lines + [_grouped_line(state, sharing[state]) for state in sorted(grouped)]
+
+
+def _grouped_line(state: str, names: list[str]) -> str:
+    """`run `ppd verify NAME` for 23 datasets: set 1, set 2, ..., and 13 more`."""
+    more = len(names) - NAMES_SHOWN
+    shown = ", ".join(names[:NAMES_SHOWN]) + (f", and {more} more" if more > 0 else "")
+    return f"{next_step(Protection(state), 'NAME')} for {len(names)} datasets: {shown}"
+
+
+def print_next_steps(report: list[dict[str, Any]]) -> None:
+    """Word-wrapped to the terminal (soft_wrap off): these lines say what to run next."""
+    for line in step_lines(report):
+        print_line(console(), line)

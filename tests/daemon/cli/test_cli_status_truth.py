@@ -1,0 +1,160 @@
+"""`ppd status` says what is true of a dataset's files (black-box reviews, F8, S3, N8, N9, N11, N12):
+a re-protect's failures stay listed, a moved folder or a renamed file is not called deleted or
+unpatched, a headline leads with its failures, and identical advice is one line."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from PIL import Image
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from testkit.photos import make_shoot
+
+runner = CliRunner()
+
+
+def said(*args: str) -> str:
+    """The command's output, its lines joined as one (the terminal's wrapping undone)."""
+    return " ".join(runner.invoke(app, list(args)).output.split())
+
+
+def status_json(name: str) -> dict:
+    result = runner.invoke(app, ["status", name, "--json"])
+    assert result.exit_code == 0, result.output
+    return json.loads(result.stdout)["datasets"][0]
+
+
+def test_a_reprotect_failure_stays_listed_until_fixed(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """F8/S3: `dataset set --reprotect` printed each failure and exited 1, then `status --failed` said
+    "0 failed": nothing kept it. A file that still carries the earlier spec's mark is not called failed."""
+    from daemon.context import AppContext
+
+    shoot = make_shoot(tmp_path / "A", 3)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    old_spec = status_json("A")["spec_id"]
+    edited = shoot / "v0.png"
+    Image.open(edited).crop((0, 0, 150, 110)).save(edited)  # edited since patched: refused
+    ctx = AppContext.open()
+    try:  # v1's vault copy damaged: refused, v1 untouched, still ppd's output under the old spec
+        blob = ctx.vault.path_for(ctx.store.file(shoot / "v1.png")["original_sha256"])
+    finally:
+        ctx.close()
+    os.chmod(blob, 0o644)
+    blob.write_bytes(b"not the original")
+    result = runner.invoke(app, ["dataset", "set", "A", "--patch-size", "8%", "--reprotect"])
+    assert result.exit_code == 1, result.output
+    failed = said("status", "A", "--failed")
+    assert "A: 0 failed, 0 quarantined, 2 not re-protected" in failed, failed
+    assert (f"{edited}: changed since ppd patched it, maybe NOT protected; not re-protected to spec "
+            in failed and "changed since ppd protected it" in failed), failed  # fmt: skip
+    kept = f"{shoot / 'v1.png'}: still carries the earlier spec's mark (spec {old_spec}); not re-protected to"
+    assert kept in failed and "vault copy of v1.png is missing or corrupt" in failed, failed
+    assert "v2.png" not in failed
+    assert "A: 2 not re-protected (`ppd status A --failed`)" in said("status", "A")
+    assert status_json("A")["not_reprotected"] == 2
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0  # patches the edited file again
+    again = said("status", "A", "--failed")
+    assert "1 not re-protected" in again and "v0.png" not in again and "v1.png" in again, again
+
+
+def test_a_moved_folder_is_not_said_to_hold_no_file(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """N8: a deleted folder and a renamed one were both "whose folder is gone and that hold no file
+    now", and --json could not tell them apart; the renamed one's patched files sat beside it."""
+    sets = tmp_path / "sets"
+    for name in ("set 5", "set 6", "set 7"):
+        assert runner.invoke(app, ["poison", str(make_shoot(sets / name, 2))]).exit_code == 0
+    for f in (sets / "set 5").iterdir():
+        f.unlink()
+    (sets / "set 5").rmdir()
+    moved = sets / "set 6 moved"
+    (sets / "set 6").rename(moved)
+    text = said("status")
+    assert "hold no file" not in text, text
+    assert "not shown: 2 dataset(s) whose folder is gone, moved or deleted (set 5, set 6)" in text, text
+    assert f"set 6: folder gone; its patched files are in {moved} (moved?): `ppd poison '{moved}'`" in text
+    assert "set 5: folder gone" not in text
+    report = json.loads(runner.invoke(app, ["status", "--json"]).stdout)["datasets"]
+    folders = {d["name"]: d["folder"] for d in report}
+    assert folders["set 6"]["exists"] is False and folders["set 6"]["moved_to"] == str(moved)
+    assert folders["set 5"]["exists"] is False and folders["set 5"]["moved_to"] is None
+    assert folders["set 7"]["moved_to"] is None
+    assert "moved or deleted? `ppd poison NEWFOLDER` adopts a moved one's files" in said("status", "set 5")
+    adopted = said("poison", str(moved))  # the promised command: its files are recognised, not patched twice
+    assert "patched 0, unchanged 2" in adopted, adopted
+
+
+def test_a_renamed_patched_file_is_patched_and_the_parts_add_up(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """N9: a patched photo renamed was "1 not patched yet: run `ppd poison`", and poison then found
+    nothing to do; after a deletion too, "files 3: deleted or moved away since patched 1, removed 1,
+    restored 3" added up to 5."""
+    shoot = make_shoot(tmp_path / "A", 4)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    (shoot / "v0.png").rename(shoot / "hero.png")
+    text = said("status", "A")
+    assert "not patched yet" not in text and "files 4: patched 4 (1 renamed since)" in text, text
+    assert f"A: 1 patched file(s) renamed since, still carrying the mark: `ppd poison {shoot}`" in text
+    counts = status_json("A")["counts"]
+    assert counts["patched"] == 4 and counts["renamed"] == 1 and counts["untracked"] == 0, counts
+    assert status_json("A")["resume"] is None
+    (shoot / "v1.png").unlink()
+    text = said("status", "A")
+    assert "files 3: patched 3 (1 renamed since); not counted: deleted or moved away since patched 1" in text
+    assert "patched 0, unchanged 3" in said("poison", str(shoot))  # as status said: nothing to patch
+    assert "renamed since" not in said("status", "A")  # the new name recorded
+    assert runner.invoke(app, ["restore", str(shoot)]).exit_code == 0
+    text = said("status", "A")
+    assert ("files 3: restored 3; not counted: deleted or moved away earlier 1, deleted or moved away "
+            "since patched 1") in text, text  # fmt: skip
+
+
+def test_a_headline_leads_with_the_failures(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """N11: 4 of 5 files failed, and the headline was "B: patched, not verified: run `ppd verify B`"
+    (the failures a line further down, in ppd status after the verify advice)."""
+    shoot = make_shoot(tmp_path / "B", 1)
+    for i in range(4):
+        (shoot / f"bad{i}.png").write_text("not a photo")
+    poisoned = runner.invoke(app, ["poison", str(shoot)])
+    assert poisoned.exit_code == 1
+    lines = [line for line in poisoned.stdout.splitlines() if line.startswith("B: ") and "placed" not in line]
+    headline = "B: 1 of 5 patched, 4 failed (`ppd status B --failed`); not verified: run `ppd verify B`"
+    assert lines == [headline], poisoned.stdout
+    assert "failed files and reasons" not in poisoned.stdout  # the headline says where
+    text = said("status")
+    assert "B: 1 of 5 patched, 4 failed (`ppd status B --failed`) B: run `ppd verify B`" in text, text
+    nothing = tmp_path / "C"
+    nothing.mkdir()
+    (nothing / "a.png").write_text("not a photo")
+    none = runner.invoke(app, ["poison", str(nothing)])
+    assert "C: 0 of 1 patched, 1 failed (`ppd status C --failed`)\n" in none.stdout, none.stdout
+
+
+def test_shared_advice_is_one_line_after_what_matters(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """N12: with 23 datasets, 23 lines "set N: run `ppd verify 'set N'`" buried "NOT protected" and
+    "changed since patched". More than 3 datasets with the same advice share one line, after those."""
+    import time
+
+    from daemon.context import AppContext
+
+    for i in range(1, 7):  # set 6 of 2 photos: one changed leaves it patched
+        shoot = make_shoot(tmp_path / f"set {i}", 1 + i // 6)
+        assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    (tmp_path / "set 6" / "v0.png").write_bytes((tmp_path / "set 6" / "v0.png").read_bytes() + b"!")
+    ctx = AppContext.open()
+    try:  # set 5 measured NOT protected
+        now = time.time() + 1
+        ctx.store.add_verification_run("set 5", "default", "not_protected", {}, now, now + 1, None, None)
+    finally:
+        ctx.close()
+    lines = [" ".join(line.split()) for line in runner.invoke(app, ["status"]).output.splitlines()]
+    steps = [line for line in lines if line.startswith(("set ", "run "))]
+    assert steps[0] == "set 5: find a design that holds: `ppd auto 'set 5'`", steps
+    assert steps[1].startswith("set 6: 1 changed since ppd patched them"), steps
+    assert steps[2:] == ["run `ppd verify NAME` for 5 datasets: set 1, set 2, set 3, set 4, set 6"], steps
+    one = said("status", "set 1")  # one dataset: its own line, as before
+    assert "set 1: run `ppd verify 'set 1'`" in one, one
