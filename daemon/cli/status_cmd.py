@@ -94,6 +94,7 @@ def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Tabl
 COUNT_WORDS = {
     "untracked": "not patched yet", "changed": "changed since patched", "waiting": "still being written",
     "gone": "deleted or moved away since patched",
+    "restored_unrecorded": "restored (a restore was interrupted)",
 }  # fmt: skip
 
 
@@ -214,10 +215,27 @@ def next_step_lines(d: dict[str, Any]) -> list[str]:
         root = shlex.quote(str(d["root"]))
         lines.append(f"{name}: {d['restored_in_place']} restored by you, NOT protected: "
                      f"`ppd poison {root} --force` patches them again")  # fmt: skip
+    lines += _stopped_run_lines(d)
     if d.get("other_spec"):
         lines.append(f"{name}: {d['other_spec']} patched with another spec than the dataset's (a "
                      "re-protect did not finish?): "
                      f"`ppd dataset set {shlex.quote(name)} --reprotect` gives them its spec")  # fmt: skip
+    return lines
+
+
+def _stopped_run_lines(d: dict[str, Any]) -> list[str]:
+    """What a `ppd restore` (or poison) killed mid-file left: originals back but not recorded (not
+    "changed since patched": they hold the original's bytes), and temporaries that could not be swept."""
+    name, lines = d["name"], []
+    if restored := d.get("restored_unrecorded"):
+        command = f"ppd restore {shlex.quote(restored[0])}" if len(restored) == 1 else "ppd restore"
+        them = "it" if len(restored) == 1 else "them"
+        lines.append(f"{name}: {len(restored)} restored (a restore was interrupted: run `{command}` again to "
+                     f"record {them}), NOT protected")  # fmt: skip
+    if temps := d.get("leftover_temps"):
+        shown = ", ".join(shlex.quote(t) for t in temps[:3]) + (", ..." if len(temps) > 3 else "")
+        lines.append(f"{name}: {len(temps)} hidden temporary file(s) of a stopped ppd run, which ppd could "
+                     f"not remove: delete them before the folder is published ({shown})")  # fmt: skip
     return lines
 
 
@@ -358,6 +376,8 @@ def unready_reasons(d: dict[str, Any]) -> list[str]:
     from daemon.states import Protection
 
     reasons = unprotected_files(d)
+    if d.get("leftover_temps"):  # a hidden fragment of a photo, published with the folder
+        reasons.append(f"{len(d['leftover_temps'])} leftover temporary file(s) of ppd")
     if d.get("other_spec"):  # a mix of marks: the verdict is of the dataset's spec alone
         reasons.append(f"{d['other_spec']} patched with another spec than the dataset's")
     if d["protection"]["state"] != Protection.PROTECTED:

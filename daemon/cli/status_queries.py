@@ -149,6 +149,10 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         # patched with another spec than the dataset's: a re-protect that failed or was killed half-way
         # left them (a black-box review: status said "patched 40" under the new spec, 33 had the old)
         "other_spec": ctx.store.patched_with_other_spec(name, row["spec_id"]),
+        # put back by a `ppd restore` stopped before it recorded them: said so, with the command that records
+        "restored_unrecorded": [str(p) for p in folder.restored_unrecorded],
+        # ppd's stale temporaries its sweep could not remove (daemon.datasets.folder_count.sweep_temps)
+        "leftover_temps": [str(p) for p in folder.temps],
         "patched": patched_count(counts),
         # where marks found no plain place, as `ppd poison` says it (issue 25): the daemon's files too
         "mark_notes": mark_note_lines(ctx.store.patched_place_notes(name)),
