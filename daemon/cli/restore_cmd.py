@@ -57,11 +57,23 @@ def restore(
                 outcomes = _restore_folder(ctx, target, force)
             except TargetError as exc:
                 raise die(exc) from None
-        counts = Counter(restore_word(o) for o in outcomes)
-        if counts.get("failed"):
-            raise typer.Exit(ExitStatus.FAILED)
+        _exit_if_failed(outcomes)
     finally:
         ctx.close()
+
+
+def _exit_if_failed(outcomes: list[ProtectOutcome]) -> None:
+    """Exit 1 when a file was not restored; 3 when one failed for lack of space, with the line `ppd
+    poison` ends with: the disk, not the file, is what needs fixing (`--help`: 3 = cannot work here)."""
+    from daemon.cli.poison_cmd import disk_full
+
+    failed = [o for o in outcomes if restore_word(o) == "failed"]
+    if failed and disk_full(failed):
+        said = "ppd: a disk is full (or over its quota): free space, then run the same command again"
+        err_console().print(f"{said}; what was restored stays restored", markup=False, highlight=False)
+        raise typer.Exit(ExitStatus.ENVIRONMENT)
+    if failed:
+        raise typer.Exit(ExitStatus.FAILED)
 
 
 def _restore_folder(ctx: AppContext, target: str, force: bool) -> list[ProtectOutcome]:
@@ -142,6 +154,7 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
     each file that was not restored with its reason."""
 
     from daemon.cli.output import verbosity
+    from daemon.store.datasets import natural_key
 
     counts = Counter(restore_word(o) for o in outcomes)
     words = ("restored", "removed", "unchanged", "failed")
@@ -157,7 +170,7 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
     if unpublished:
         console().print(f"removed {len(unpublished)} published copies from the publish folder; their "
                         "originals are back where they were patched", markup=False)  # fmt: skip
-    for o in outcomes:
+    for o in sorted(outcomes, key=lambda o: natural_key(str(o.path))):  # x2 before x10
         word = restore_word(o)
         for src, kept in o.displaced if word != "failed" else ():  # a failure's reason names them already
             shown = src.name if src == o.path else src  # each named: a published file can have two

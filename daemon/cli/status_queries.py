@@ -186,10 +186,12 @@ def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
     """Each file of a dataset that could not be patched, with its one-line reason (the store row's
     error): failed ones (still in place) and quarantined ones (moved out of the outbox: where to)."""
     from daemon.states import FileState
+    from daemon.store.datasets import natural_key
 
     listed = []
     for state in (FileState.FAILED, FileState.QUARANTINED):
-        for r in ctx.store.files(name, state=state.value):
+        # x2 before x10, as `ppd poison` lists them (a black-box review read them sorted as text)
+        for r in sorted(ctx.store.files(name, state=state.value), key=lambda r: natural_key(r["path"])):
             item = {"path": r["path"], "state": state.value, "reason": file_reason(r["path"], r.get("error"))}
             if state is FileState.QUARANTINED:  # where it went (the watch log said it; status did not)
                 moved = ctx.store.last_event(r["path"], "quarantined")
