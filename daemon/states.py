@@ -72,7 +72,7 @@ def newest_per_profile(runs: Iterable[Mapping[str, Any]]) -> dict[str, Mapping[s
 
 
 # Folder counts (daemon.datasets.folder_count) of files a verification did not measure.
-UNVERIFIED_FILES = ("changed", "untracked", "waiting")
+UNVERIFIED_FILES = ("changed", "restored_unrecorded", "untracked", "waiting")
 
 
 def dataset_protection(

@@ -215,3 +215,13 @@ def remove_if_stale(
         return False
     finally:
         os.close(fd)
+
+
+def remove_stale_temp(path: Path, *, min_age_s: float = STALE_TEMP_AGE_S, now: float | None = None) -> bool:
+    """remove_if_stale for a temporary named by its path (its folder opened once): the start-up scan
+    of the outbox and `ppd status`'s sweep of a dataset's folder."""
+    dir_fd = os.open(path.parent, _DIR_FLAGS)
+    try:
+        return remove_if_stale(dir_fd, path.name, min_age_s=min_age_s, now=now)
+    finally:
+        os.close(dir_fd)

@@ -1,12 +1,14 @@
 """A small real filesystem that fills up (a size-limited tmpfs; root or CAP_SYS_ADMIN), and
 protect_file run on it as the disk runs out and space comes back
-(tests/reliability/test_reliability_diskfull.py, tests/daemon/store/test_vault.py)."""
+(tests/reliability/test_reliability_diskfull.py, tests/daemon/store/test_vault.py); a folder that
+refuses writes (read_only_folder)."""
 
 from __future__ import annotations
 
 import contextlib
 import errno
 import os
+import stat
 import subprocess
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -36,6 +38,30 @@ def small_filesystem(where: Path, size: str = "6m") -> Iterator[Path]:
         yield where
     finally:
         subprocess.run(["umount", "-l", str(where)], check=False)
+
+
+@contextlib.contextmanager
+def read_only_folder(folder: Path) -> Iterator[Path]:
+    """folder refuses writes for the block: chmod 0555 for a user, a read-only bind mount for root (who
+    writes into a 0555 folder whatever its bits). MountUnavailable where root cannot mount."""
+    if os.geteuid() != 0:
+        mode = stat.S_IMODE(folder.stat().st_mode)
+        folder.chmod(0o555)
+        try:
+            yield folder
+        finally:
+            folder.chmod(mode)
+        return
+    bound = subprocess.run(["mount", "--bind", str(folder), str(folder)], capture_output=True, text=True)
+    if bound.returncode != 0:
+        raise MountUnavailable(bound.stderr.strip() or f"mount exited {bound.returncode}")
+    try:
+        ro = subprocess.run(["mount", "-o", "remount,bind,ro", str(folder)], capture_output=True, text=True)
+        if ro.returncode != 0:
+            raise MountUnavailable(ro.stderr.strip() or f"mount exited {ro.returncode}")
+        yield folder
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], check=False)
 
 
 def fill(folder: Path, leave: int = 0) -> Path:

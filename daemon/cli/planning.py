@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shlex
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -126,10 +127,9 @@ def check_writable(jobs: list[Job], dry_run: bool) -> list[Path]:
     deepest first, for remove_if_empty once the run is over."""
     if dry_run:
         return []
-    folders = {job.path.parent for job in jobs if job.out_path is None}
-    for folder in sorted(folders):
-        if not os.access(folder, os.W_OK | os.X_OK):
-            raise die(f"folder not writable: {folder}; use --out DIR", ExitStatus.ENVIRONMENT)
+    folder = not_writable({job.path.parent for job in jobs if job.out_path is None})
+    if folder is not None:
+        raise die(f"folder not writable: {folder}; use --out DIR", ExitStatus.ENVIRONMENT)
     made: list[Path] = []
     for out_folder in sorted({job.out_path.parent for job in jobs if job.out_path is not None}):
         missing = [f for f in (out_folder, *out_folder.parents) if not f.exists()]
@@ -143,6 +143,12 @@ def check_writable(jobs: list[Job], dry_run: bool) -> list[Path]:
             remove_if_empty(made)
             raise die(f"folder not writable: {out_folder}", ExitStatus.ENVIRONMENT)
     return sorted(set(made), key=lambda f: len(f.parts), reverse=True)
+
+
+def not_writable(folders: Iterable[Path]) -> Path | None:
+    """The first of folders (sorted) that this process cannot write into; os.access also says no to
+    root on a read-only mount."""
+    return next((f for f in sorted(folders) if not os.access(f, os.W_OK | os.X_OK)), None)
 
 
 def remove_if_empty(folders: list[Path]) -> None:

@@ -40,6 +40,7 @@ def restore(
     """
     from daemon.cli.targets import TargetError, user_path
     from daemon.protect.restoring import restore_file
+    from poisoner.provenance import has_token
 
     ctx = open_ctx()
     try:
@@ -47,6 +48,8 @@ def restore(
         if ctx.store.file(as_path) is not None or (as_path.is_file() and not as_path.is_symlink()):
             # a file: its row, or with no row (a lost store) its seal and the vault (restore_file says
             # "not in the store and carries no ppd provenance marker" for a file ppd never patched)
+            if ctx.store.file(as_path) is not None or has_token(as_path):  # else nothing to restore: said so
+                _refuse_unwritable(ctx, [as_path])
             outcomes = [restore_file(ctx, as_path, force=force)]
             _print_outcomes(outcomes)
         else:
@@ -54,11 +57,23 @@ def restore(
                 outcomes = _restore_folder(ctx, target, force)
             except TargetError as exc:
                 raise die(exc) from None
-        counts = Counter(restore_word(o) for o in outcomes)
-        if counts.get("failed"):
-            raise typer.Exit(ExitStatus.FAILED)
+        _exit_if_failed(outcomes)
     finally:
         ctx.close()
+
+
+def _exit_if_failed(outcomes: list[ProtectOutcome]) -> None:
+    """Exit 1 when a file was not restored; 3 when one failed for lack of space, with the line `ppd
+    poison` ends with: the disk, not the file, is what needs fixing (`--help`: 3 = cannot work here)."""
+    from daemon.cli.poison_cmd import disk_full
+
+    failed = [o for o in outcomes if restore_word(o) == "failed"]
+    if failed and disk_full(failed):
+        said = "ppd: a disk is full (or over its quota): free space, then run the same command again"
+        err_console().print(f"{said}; what was restored stays restored", markup=False, highlight=False)
+        raise typer.Exit(ExitStatus.ENVIRONMENT)
+    if failed:
+        raise typer.Exit(ExitStatus.FAILED)
 
 
 def _restore_folder(ctx: AppContext, target: str, force: bool) -> list[ProtectOutcome]:
@@ -69,8 +84,9 @@ def _restore_folder(ctx: AppContext, target: str, force: bool) -> list[ProtectOu
     from daemon.protect.restoring import restore_file
 
     plan = plan_folder_restore(ctx, target, console())
-    outcomes = [restore_file(ctx, p, force=force) for p in plan.paths]
     marked = marked_files(ctx, plan)
+    _refuse_unwritable(ctx, [*plan.paths, *marked])
+    outcomes = [restore_file(ctx, p, force=force) for p in plan.paths]
     if plan.dataset is None and not marked:
         raise TargetError(f"{plan.scan} is not a folder ppd patched; nothing to restore there")
     if plan.dataset is None:
@@ -86,6 +102,23 @@ def _restore_folder(ctx: AppContext, target: str, force: bool) -> list[ProtectOu
     _print_outcomes(outcomes)
     _print_gone(gone, plan.root_gone)
     return outcomes
+
+
+def _refuse_unwritable(ctx: AppContext, paths: list[Path]) -> None:
+    """Exit 3 with one line, nothing restored, when a folder the restore writes in (where an original
+    goes back, where a patched copy is removed) cannot be written: as `ppd poison` refuses (a black-box
+    review: exit 1 and one "not restored ... folder not writable" line per file). A folder that is gone
+    is left to restore_file, which says so per file."""
+    from daemon.cli.planning import not_writable
+
+    folders = {path.parent for path in paths}
+    for path in paths:
+        row = ctx.store.file(path)
+        if row is not None and row.get("published_path"):  # its copy leaves the publish folder
+            folders.add(Path(row["published_path"]).parent)
+    folder = not_writable(f for f in folders if f.is_dir())
+    if folder is not None:
+        raise die(f"folder not writable: {folder}; nothing restored", ExitStatus.ENVIRONMENT)
 
 
 def _print_gone(gone: list[Path], root_gone: Path | None) -> None:
@@ -121,6 +154,7 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
     each file that was not restored with its reason."""
 
     from daemon.cli.output import verbosity
+    from daemon.store.datasets import natural_key
 
     counts = Counter(restore_word(o) for o in outcomes)
     words = ("restored", "removed", "unchanged", "failed")
@@ -136,7 +170,7 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
     if unpublished:
         console().print(f"removed {len(unpublished)} published copies from the publish folder; their "
                         "originals are back where they were patched", markup=False)  # fmt: skip
-    for o in outcomes:
+    for o in sorted(outcomes, key=lambda o: natural_key(str(o.path))):  # x2 before x10
         word = restore_word(o)
         for src, kept in o.displaced if word != "failed" else ():  # a failure's reason names them already
             shown = src.name if src == o.path else src  # each named: a published file can have two

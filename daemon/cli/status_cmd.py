@@ -95,6 +95,7 @@ COUNT_WORDS = {
     "untracked": "not patched yet", "changed": "changed since patched", "waiting": "still being written",
     "gone": "deleted or moved away since patched", "unprotectable": "in a format ppd cannot protect",
     "removed": "deleted or moved away earlier",  # a row ppd recorded so: a renamed file's old name too
+    "restored_unrecorded": "restored (a restore was interrupted)",
 }  # fmt: skip
 # Counts that are no part of "files": files no longer there (their rows history), files of a format ppd
 # cannot patch; "renamed" is a part of "patched"
@@ -358,6 +359,8 @@ def unready_reasons(d: dict[str, Any]) -> list[str]:
     from daemon.states import Protection
 
     reasons = unprotected_files(d)
+    if d.get("leftover_temps"):  # a hidden fragment of a photo, published with the folder
+        reasons.append(f"{len(d['leftover_temps'])} leftover temporary file(s) of ppd")
     if d.get("other_spec"):  # a mix of marks: the verdict is of the dataset's spec alone
         reasons.append(f"{d['other_spec']} patched with another spec than the dataset's")
     if d["protection"]["state"] != Protection.PROTECTED:

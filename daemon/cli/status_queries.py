@@ -176,6 +176,10 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "other_spec": ctx.store.patched_with_other_spec(name, row["spec_id"]),
         # patched files a re-protect failed on: their earlier mark kept; `--failed` says why
         "not_reprotected": len(ctx.store.not_reprotected(name)),
+        # put back by a `ppd restore` stopped before it recorded them: said so, with the command that records
+        "restored_unrecorded": [str(p) for p in folder.restored_unrecorded],
+        # ppd's stale temporaries its sweep could not remove (daemon.datasets.folder_count.sweep_temps)
+        "leftover_temps": [str(p) for p in folder.temps],
         "patched": patched_count(counts),
         # where marks found no plain place, as `ppd poison` says it (issue 25): the daemon's files too
         "mark_notes": mark_note_lines(ctx.store.patched_place_notes(name)),
@@ -209,10 +213,12 @@ def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
     """Each file of a dataset that could not be patched, with its one-line reason (the store row's
     error): failed ones (still in place) and quarantined ones (moved out of the outbox: where to)."""
     from daemon.states import FileState
+    from daemon.store.datasets import natural_key
 
     listed = []
     for state in (FileState.FAILED, FileState.QUARANTINED):
-        for r in ctx.store.files(name, state=state.value):
+        # x2 before x10, as `ppd poison` lists them (a black-box review read them sorted as text)
+        for r in sorted(ctx.store.files(name, state=state.value), key=lambda r: natural_key(r["path"])):
             item = {"path": r["path"], "state": state.value, "reason": file_reason(r["path"], r.get("error"))}
             if state is FileState.QUARANTINED:  # where it went (the watch log said it; status did not)
                 moved = ctx.store.last_event(r["path"], "quarantined")

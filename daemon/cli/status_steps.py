@@ -71,6 +71,22 @@ def _unprotected_lines(d: dict[str, Any]) -> list[str]:
         lines.append(f"{name}: {d['other_spec']} patched with another spec than the dataset's (a "
                      "re-protect did not finish?): "
                      f"`ppd dataset set {shlex.quote(name)} --reprotect` gives them its spec")  # fmt: skip
+    return lines + _stopped_run_lines(d)
+
+
+def _stopped_run_lines(d: dict[str, Any]) -> list[str]:
+    """What a `ppd restore` (or poison) killed mid-file left: originals back but not recorded (not
+    "changed since patched": they hold the original's bytes), and temporaries that could not be swept."""
+    name, lines = d["name"], []
+    if restored := d.get("restored_unrecorded"):
+        command = f"ppd restore {shlex.quote(restored[0])}" if len(restored) == 1 else "ppd restore"
+        them = "it" if len(restored) == 1 else "them"
+        lines.append(f"{name}: {len(restored)} restored (a restore was interrupted: run `{command}` again to "
+                     f"record {them}), NOT protected")  # fmt: skip
+    if temps := d.get("leftover_temps"):
+        shown = ", ".join(shlex.quote(t) for t in temps[:3]) + (", ..." if len(temps) > 3 else "")
+        lines.append(f"{name}: {len(temps)} hidden temporary file(s) of a stopped ppd run, which ppd could "
+                     f"not remove: delete them before the folder is published ({shown})")  # fmt: skip
     return lines
 
 

@@ -13,15 +13,17 @@ Light at import (`ppd status` loads it): no numpy, no PIL.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shlex
+import stat
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.states import PATCHED_VALUES, WAITING_PREFIX, FileState, patched_count
-from poisoner.atomic import TEMP_PREFIX
+from poisoner.atomic import TEMP_PREFIX, remove_stale_temp
 from poisoner.media import is_media, is_unprotected_media
 
 if TYPE_CHECKING:
@@ -50,6 +52,12 @@ class FolderCount:
     moved_to: Path | None = None
     # (old path, new path): a file patched in place, renamed since (in neither untracked nor gone)
     renamed: list[tuple[Path, Path]] = field(default_factory=list)
+    # patched in place, now holding their original's bytes: a `ppd restore` killed after its rename,
+    # before its row (a black-box review: status called them "changed since patched")
+    restored_unrecorded: list[Path] = field(default_factory=list)
+    # ppd's own `.ppd-tmp-*` files in the folder; after dataset_folder's sweep, the stale ones it could
+    # not remove (a killed run's hidden copy, published with the folder by a sync)
+    temps: list[Path] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         copies = None if self.copies is None else str(self.copies)
@@ -57,7 +65,9 @@ class FolderCount:
         return {"folder": str(self.folder), "exists": self.exists, "on_disk": self.on_disk,
                 "untracked": len(self.untracked), "copies": copies, "changed": len(self.changed),
                 "unprotectable": len(self.unprotectable), "gone": len(self.gone),
-                "moved_to": moved, "renamed": len(self.renamed)}  # fmt: skip
+                "moved_to": moved, "renamed": len(self.renamed),
+                "restored_unrecorded": len(self.restored_unrecorded),
+                "leftover_temps": len(self.temps)}  # fmt: skip
 
 
 def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
@@ -66,23 +76,30 @@ def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
     return _walk(folder, skip)[0]
 
 
-def _walk(folder: Path, skip: Iterable[Path] = ()) -> tuple[list[Path], list[Path]]:
-    """(folder_media's files, the photos and videos of formats ppd cannot protect), sorted, one walk."""
+Walked = tuple[list[Path], list[Path], list[Path]]
+
+
+def _walk(folder: Path, skip: Iterable[Path] = ()) -> Walked:
+    """(folder_media's files, the photos and videos of formats ppd cannot protect, ppd's temporaries),
+    sorted, one walk."""
     skipped = [Path(s).absolute() for s in skip]
     found: list[Path] = []
     unprotectable: list[Path] = []
+    temps: list[Path] = []
     for dirpath, dirnames, filenames in os.walk(folder):
         here = Path(dirpath)
         dirnames[:] = sorted(d for d in dirnames if not d.startswith(".") and here / d not in skipped)
         for name in filenames:
             path = here / name
+            if name.startswith(TEMP_PREFIX):
+                temps.append(path)
             if name.startswith((".", TEMP_PREFIX)) or path.is_symlink():
                 continue
             if is_media(name):
                 found.append(path)
             elif is_unprotected_media(path):
                 unprotectable.append(path)
-    return sorted(found), sorted(unprotectable)
+    return sorted(found), sorted(unprotectable), sorted(temps)
 
 
 Parts = tuple[str, ...]
@@ -139,7 +156,7 @@ def count_folder(
     paths = [Path(row["path"]) for row in rows]
     outside = [p for p in paths if not p.is_relative_to(folder)]
     theirs = set(foreign)
-    files, unprotectable = _walk(folder, skip) if folder.is_dir() else ([], [])
+    files, unprotectable, temps = _walk(folder, skip) if folder.is_dir() else ([], [], [])
     files = [f for f in files if str(f) not in theirs]
     rels = {f.relative_to(folder).parts for f in files}
     copies = _match_copies(outside, rels)[1]
@@ -157,7 +174,9 @@ def count_folder(
     inside = {str(p) for p in paths}
     untracked = [f for f in files if str(f) not in inside and f.relative_to(folder).parts not in covered]
     present = {str(f) for f in files}
-    changed = [Path(r["path"]) for r in rows if r["path"] in present and changed_since_patched(r)]
+    changed_rows = [r for r in rows if r["path"] in present and changed_since_patched(r)]
+    restored = [Path(r["path"]) for r in changed_rows if _holds_original(r)]
+    changed = [Path(r["path"]) for r in changed_rows if Path(r["path"]) not in restored]
     # a file patched in place that is no longer there is no file of the dataset's (a black-box review:
     # deleted, it still counted patched); the daemon records it removed, a one-shot user has no daemon
     in_place = _gone_in_place(rows, folder, theirs | present)
@@ -166,7 +185,8 @@ def count_folder(
     untracked = [f for f in untracked if f not in news]
     gone = [p for p in in_place if p not in olds] + copies_gone
     return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies,
-                       changed=changed, unprotectable=unprotectable, gone=gone, renamed=renamed)  # fmt: skip
+                       changed=changed, unprotectable=unprotectable, gone=gone, renamed=renamed,
+                       restored_unrecorded=restored, temps=temps)  # fmt: skip
 
 
 def _renamed(
@@ -262,6 +282,24 @@ def changed_since_patched(row: Mapping[str, Any]) -> bool:
     return (st.st_size, st.st_mtime_ns) != (row["size"], row.get("mtime_ns"))
 
 
+def _holds_original(row: Mapping[str, Any]) -> bool:
+    """Whether a changed file (_changed) holds exactly its original's bytes: a restore put it back and
+    was stopped before recording it. Hashed only when its time is the original's (a restore gives it
+    that), so an edited video is not read whole at each `ppd status`."""
+    original, original_mtime = row.get("original_sha256"), row.get("original_mtime_ns")
+    try:  # not blocking on a FIFO given a photo's name
+        fd = os.open(row["path"], os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return False
+    with open(fd, "rb") as fh:
+        st = os.fstat(fd)
+        if not original or not stat.S_ISREG(st.st_mode):
+            return False
+        if original_mtime is not None and st.st_mtime_ns != original_mtime:
+            return False
+        return hashlib.file_digest(fh, "sha256").hexdigest() == original
+
+
 def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int]:
     """Store.counts() with the folder's files that have no row as "untracked", counted in "files"."""
     merged = dict(counts)
@@ -277,9 +315,10 @@ def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int
         merged["gone"] = len(folder.gone)
         merged["files"] -= len(folder.gone)
         merged[FileState.PATCHED.value] = int(merged.get(FileState.PATCHED.value, 0)) - len(folder.gone)
-    if folder.changed:  # no longer ppd's output: not counted patched
-        merged["changed"] = len(folder.changed)
-        merged[FileState.PATCHED.value] = int(merged.get(FileState.PATCHED.value, 0)) - len(folder.changed)
+    for key, paths in (("changed", folder.changed), ("restored_unrecorded", folder.restored_unrecorded)):
+        if paths:  # no longer ppd's output: not counted patched
+            merged[key] = len(paths)
+            merged[FileState.PATCHED.value] = int(merged.get(FileState.PATCHED.value, 0)) - len(paths)
     return merged
 
 
@@ -328,7 +367,24 @@ def dataset_folder(ctx: AppContext, name: str, root: str) -> FolderCount:
     theirs = [r["path"] for r in ctx.store.files_under(folder, not_of=name)]
     skip, foreign = owned_elsewhere(folder, roots, theirs, outbox=ctx.paths.outbox)
     masks = mask_folders(ctx, name)
-    return count_folder(folder, ctx.store.files(name), skip=[*masks, *skip], foreign=foreign)
+    count = count_folder(folder, ctx.store.files(name), skip=[*masks, *skip], foreign=foreign)
+    return replace(count, temps=sweep_temps(count.temps)) if count.temps else count
+
+
+def sweep_temps(temps: Iterable[Path]) -> list[Path]:
+    """Remove ppd's stale temporaries (poisoner.atomic.remove_if_stale: no living writer holds them);
+    the stale ones that stay (the folder cannot be written now), which `ppd status` names. A run killed
+    mid-file left a hidden copy where the folder is published, until the next poison or restore there
+    (a black-box review)."""
+    left: list[Path] = []
+    for path in temps:
+        try:
+            remove_stale_temp(path)
+        except FileNotFoundError:
+            pass  # removed meanwhile (its writer renamed it, or another sweep)
+        except OSError:
+            left.append(path)
+    return left
 
 
 def current_counts(ctx: AppContext, name: str, folder: FolderCount) -> dict[str, int]:
@@ -367,7 +423,7 @@ def outbox_unclaimed(outbox: Path, roots: Iterable[str | Path]) -> list[Path]:
             continue
         if entry.is_dir():
             if entry not in known:
-                files, unprotectable = _walk(entry, [k for k in known if k.is_relative_to(entry)])
+                files, unprotectable, _temps = _walk(entry, [k for k in known if k.is_relative_to(entry)])
                 found += files + unprotectable
         elif box not in known and (is_media(entry.name) or is_unprotected_media(entry)):
             found.append(entry)
@@ -386,6 +442,7 @@ UNPROTECTED_WORDS = {
     "failed": "failed", "quarantined": "quarantined", "waiting": "still being written",
     "changed": "changed since patched", "untracked": "not patched yet", "pending": "not finished",
     "unprotectable": "in a format ppd cannot protect",
+    "restored_unrecorded": "restored by a stopped `ppd restore`",
 }  # fmt: skip
 
 

@@ -4,9 +4,10 @@ helpers every stage and daemon.protect.one_file share (names as the store and a 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -53,6 +54,47 @@ class SourceChanged(PpdError):
     """The source changed while it was being patched."""
 
     exit_status = ExitStatus.FAILED
+
+
+NO_SPACE_WORDS = "no space left on the disk of"  # daemon.watch.outcomes.is_no_space reads them
+
+
+class NoSpaceLeft(PpdError):
+    """A write ran out of space (ENOSPC, EDQUOT); the message names the disk by a folder on it."""
+
+    exit_status = ExitStatus.ENVIRONMENT
+
+    def __init__(self, folders: list[Path], errno_: int) -> None:
+        quota = " (over your quota)" if errno_ == errno.EDQUOT else ""
+        super().__init__(f"{NO_SPACE_WORDS} {' or of '.join(map(str, folders))}{quota}")
+        self.errno = errno_
+
+
+@contextlib.contextmanager
+def no_space_in(folder: Path) -> Iterator[None]:
+    """ENOSPC or EDQUOT raised in the block, where it wrote into folder, as NoSpaceLeft: a black-box
+    review read "[Errno 28] No space left on device" on every file, which disk unsaid."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+            raise
+        raise NoSpaceLeft([folder], exc.errno) from None
+
+
+def name_the_disk(exc: BaseException, folders: list[Path]) -> BaseException:
+    """exc, or for an ENOSPC or EDQUOT no write site named (no_space_in), a NoSpaceLeft naming the disks
+    it can be on: the folder of the file it names, else folders (the file's, ppd's data folder), one per
+    filesystem."""
+    if not isinstance(exc, OSError) or exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+        return exc
+    if exc.filename and os.path.isabs(os.fsdecode(exc.filename)):
+        return NoSpaceLeft([Path(os.fsdecode(exc.filename)).parent], exc.errno)
+    disks: dict[int, Path] = {}
+    for folder in folders:
+        with contextlib.suppress(OSError):
+            disks.setdefault(os.stat(folder).st_dev, folder)
+    return NoSpaceLeft(list(disks.values()) or folders, exc.errno)
 
 
 @dataclass

@@ -41,6 +41,7 @@ from daemon.protect.job import (
     SourceChanged,
     is_ignored_name,
     media_kind,
+    name_the_disk,
     one_line,
     report_detail,
     shown_name,
@@ -191,7 +192,7 @@ def _record_failure(
     dry_run: bool,
     spec: PatchSpec | None,
 ) -> ProtectOutcome:
-    message = failure_message(exc, path)
+    message = failure_message(name_the_disk(exc, [(out_path or path).parent, ctx.paths.data_dir]), path)
     if not isinstance(exc, ProtectRefused | SourceChanged):
         log.debug("protect failed", exc_info=exc)
     if out_path is None and not dry_run and _holds_ppd_output(ctx, path):

@@ -19,7 +19,7 @@ from daemon.datasets.dataset import (
 from daemon.fsops import sha256_fd
 from daemon.platform import fd_path
 from daemon.protect.displaced import changed_words, displaced_folder, keep_aside
-from daemon.protect.job import Outcome, ProtectOutcome, ProtectRefused, one_line
+from daemon.protect.job import Outcome, ProtectOutcome, ProtectRefused, name_the_disk, no_space_in, one_line
 from daemon.protect.recovery import ORIGINAL_FIELDS
 from daemon.states import FileState
 from daemon.store.vault import sha256_file
@@ -83,10 +83,11 @@ def restore_file(
                             )
                         replaces = _displace(ctx, dataset, target, kept)
                     if now != row["original_sha256"]:
-                        ctx.vault.restore(
-                            row["original_sha256"], target, replaces=replaces,
-                            mtime_ns=row.get("original_mtime_ns"),
-                        )  # fmt: skip
+                        with no_space_in(target.parent):
+                            ctx.vault.restore(
+                                row["original_sha256"], target, replaces=replaces,
+                                mtime_ns=row.get("original_mtime_ns"),
+                            )  # fmt: skip
                     reason = f"original back at {target}; {reason}"
             else:
                 target = path
@@ -104,13 +105,15 @@ def restore_file(
                                              f"{aside} and puts the original back)")  # fmt: skip
                     replaces = _displace(ctx, dataset, target, kept)
                 if now != row["original_sha256"]:  # the original already (a restore killed after its
-                    ctx.vault.restore(  # rename): recorded
-                        row["original_sha256"], target, replaces=replaces,
-                        mtime_ns=row.get("original_mtime_ns"),
-                    )  # fmt: skip
+                    with no_space_in(target.parent):  # rename): recorded
+                        ctx.vault.restore(
+                            row["original_sha256"], target, replaces=replaces,
+                            mtime_ns=row.get("original_mtime_ns"),
+                        )  # fmt: skip
                 reason = None
         except Exception as exc:
-            said = one_line(exc) + "".join(f"; your version of {src} is kept at {to}" for src, to in kept)
+            said = one_line(name_the_disk(exc, [path.parent, ctx.paths.data_dir]))  # not a raw "[Errno 28]"
+            said += "".join(f"; your version of {src} is kept at {to}" for src, to in kept)
             return ProtectOutcome(
                 path=path, dataset=dataset, state=Outcome.FAILED, reason=said, displaced=tuple(kept)
             )

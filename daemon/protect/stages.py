@@ -76,6 +76,7 @@ from daemon.protect.job import (
     SourceChanged,
     is_ignored_name,
     media_kind,
+    no_space_in,
     place_note,
     publish_dir,
     report_detail,
@@ -439,16 +440,18 @@ def poison(job: Job) -> ProtectOutcome | None:
         return None
     del data
     job.poisoned = job.work / work_copy_name(PATCHED_PREFIX, job.path.name)
-    if job.died_before:  # the last attempt took its process down: this one cannot
-        job.report = poison_isolated(
-            job.kind, job.original, job.poisoned, job.spec, marker, job.keep_location, job.mask_dir, **limits
-        )
-    else:
-        job.report = poison_to(
-            job.kind, job.original, job.poisoned, job.spec, job.progress, job.mask_dir, marker=marker,
-            keep_location=job.keep_location, **limits,
-        )  # fmt: skip
-    seal_output(job.ctx, job.poisoned)
+    with no_space_in(job.ctx.vault.vault_dir):  # the work folder is in the vault
+        if job.died_before:  # the last attempt took its process down: this one cannot
+            job.report = poison_isolated(
+                job.kind, job.original, job.poisoned, job.spec, marker, job.keep_location, job.mask_dir,
+                **limits,
+            )  # fmt: skip
+        else:
+            job.report = poison_to(
+                job.kind, job.original, job.poisoned, job.spec, job.progress, job.mask_dir, marker=marker,
+                keep_location=job.keep_location, **limits,
+            )  # fmt: skip
+        seal_output(job.ctx, job.poisoned)
     if job.kind == "image" and job.poisoned.stat().st_size <= IN_MEMORY_MAX:  # hashed here, written later
         job.poisoned_data = job.poisoned.read_bytes()
         job.poisoned_sha = hashlib.sha256(job.poisoned_data).hexdigest()
@@ -477,12 +480,9 @@ def replace_atomically(job: Job) -> ProtectOutcome | None:
         if f.current_identity() != identity(f.st):
             raise SourceChanged(f"{job.path.name} was replaced while being patched; the new version stays")
 
-    with atomic_replace_at(
+    with no_space_in(job.path.parent), atomic_replace_at(
         f.dir_fd, f.name, mode=stat.S_IMODE(f.st.st_mode), check=still_the_hashed_version
-    ) as (
-        fd,
-        _tmp,
-    ):
+    ) as (fd, _tmp):
         _write_content(fd, _patched(job))
         st = os.fstat(fd)
     job.poisoned_data = None
@@ -582,7 +582,7 @@ def _write_out(job: Job, content: Path | bytes | bytearray) -> None:
     try:
         clear_stale_temps_once(dir_fd)
         mode = stat.S_IMODE(job.file.st.st_mode) if job.file is not None else None
-        with atomic_replace_at(dir_fd, out.name, mode=mode) as (fd, _tmp):
+        with no_space_in(out.parent), atomic_replace_at(dir_fd, out.name, mode=mode) as (fd, _tmp):
             _write_content(fd, content)
     finally:
         os.close(dir_fd)

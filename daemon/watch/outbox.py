@@ -46,7 +46,7 @@ from watchdog.events import (
 from watchdog.observers.api import BaseObserver
 
 from daemon.platform import inotify_observer
-from poisoner.atomic import TEMP_PREFIX, remove_if_stale
+from poisoner.atomic import TEMP_PREFIX, remove_stale_temp
 from poisoner.media import MEDIA_SUFFIXES, PARTIAL_SUFFIXES
 
 log = logging.getLogger(__name__)
@@ -130,16 +130,6 @@ def _log_walk_error(exc: OSError) -> None:
     log.warning("cannot list folder %s: %s", exc.filename, exc.strerror, extra={"path": exc.filename})
 
 
-def _remove_temp_if_stale(path: Path, grace_s: float, now: float) -> bool:
-    """A temporary no living writer holds locked goes; one locked before it had a name
-    (poisoner.atomic.BORN_LOCKED) at any age, any other only once grace_s old."""
-    dir_fd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
-    try:
-        return remove_if_stale(dir_fd, path.name, min_age_s=grace_s, now=now)
-    finally:
-        os.close(dir_fd)
-
-
 def scan_outbox(
     outbox: Path, suffixes: frozenset[str], tmp_grace_s: float | None, now: float | None = None
 ) -> ScanResult:
@@ -156,7 +146,7 @@ def scan_outbox(
     for path in walk_files(outbox):
         if path.name.startswith(TEMP_PREFIX):
             try:
-                if tmp_grace_s is not None and _remove_temp_if_stale(path, tmp_grace_s, now):
+                if tmp_grace_s is not None and remove_stale_temp(path, min_age_s=tmp_grace_s, now=now):
                     removed.append(path)
                 else:
                     young.append(path)

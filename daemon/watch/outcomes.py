@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from daemon.protect.job import Outcome
+from daemon.protect.job import NO_SPACE_WORDS, Outcome
 from daemon.states import FileState
 from daemon.watch.workers import PoolStats
 
@@ -67,7 +67,9 @@ def say_removed(path: Path, dataset: str | None, reason: str | None = None) -> N
     log.info("removed %s", path.name, extra=extra)
 
 
-NO_SPACE_MESSAGES = (os.strerror(errno.ENOSPC), os.strerror(errno.EDQUOT), "database or disk is full")
+NO_SPACE_MESSAGES = (
+    os.strerror(errno.ENOSPC), os.strerror(errno.EDQUOT), "database or disk is full", NO_SPACE_WORDS
+)  # fmt: skip
 
 
 def is_no_space(reason: str | None) -> bool:

@@ -24,6 +24,7 @@ import daemon.store.vault
 import poisoner.atomic
 import poisoner.formats
 from daemon.cli.output import _field  # the log line's own quoting (a path with a space)
+from daemon.protect.job import NO_SPACE_WORDS
 from daemon.protect.one_file import AppContext, protect_file
 from daemon.states import FileState
 from daemon.store import Store
@@ -199,9 +200,13 @@ def test_enospc_at_each_point_loses_nothing_and_a_retry_protects(
     with monkeypatch.context() as patch:
         INJECTIONS[point](patch)
         outcomes = [protect_file(p, ctx) for p in originals]
+    # the disk named, not a raw "[Errno 28]" (a black-box review): the photo's, the vault's for a work copy
+    disk = {"poisoned-write": target.parent, "poisoned-work-file-write": ctx.vault.vault_dir,
+            "atomic-rename": target.parent}.get(point)  # fmt: skip
     for outcome in outcomes:
         assert outcome.state == "failed", (point, outcome)
-        assert ENOSPC_TEXT in outcome.reason and "\n" not in outcome.reason
+        assert is_no_space(outcome.reason) and "[Errno" not in outcome.reason and "\n" not in outcome.reason
+        assert disk is None or outcome.reason == f"{NO_SPACE_WORDS} {disk}", (point, outcome.reason)
         assert ctx.store.file(outcome.path)["error"] == outcome.reason
     assert all(sha256(p) == digest for p, digest in originals.items())
     assert not list(ctx.paths.outbox.rglob(".ppd-tmp-*"))
@@ -242,6 +247,37 @@ def test_ppd_poison_on_a_full_disk_exits_3_as_its_help_says(tmp_path: Path, ppd_
         assert result.exit_code == 3, result.output
         assert "a disk is full" in " ".join(result.output.split())
         assert photo.read_bytes() == before  # nothing lost
+
+
+def test_a_full_photo_disk_is_named_in_each_line_in_natural_order(
+    tmp_path: Path, ppd_env: dict[str, Path]
+) -> None:
+    """A black-box review (S9): on a full photo disk every file read "ppd: failed: .../x10.jpg: [Errno 28]
+    No space left on device", sorted as text (x10 before x2). `ppd restore` on it: the same reason, and
+    exit 3 as poison's."""
+    from typer.testing import CliRunner
+
+    from daemon.cli import app
+
+    with mounted_or_skip(tmp_path / "small") as fs:
+        shoot = fs / "shoot"
+        photos = [write_image(shoot / f"x{i}.jpg", seed=i, size=96) for i in range(12)]
+        before = {p: p.read_bytes() for p in photos}
+        filler = fill(fs)
+        result = CliRunner().invoke(app, ["poison", str(shoot)])
+        failed = [line for line in result.output.splitlines() if line.startswith("ppd: failed: ")]
+        assert result.exit_code == 3, result.output
+        assert failed == [f"ppd: failed: {p}: {NO_SPACE_WORDS} {shoot}" for p in photos], result.output
+        listed = CliRunner().invoke(app, ["status", "shoot", "--failed"]).output.splitlines()[1:]
+        assert [line.split(": ")[0].strip() for line in listed] == [str(p) for p in photos], listed
+        assert all(p.read_bytes() == data for p, data in before.items())  # nothing lost
+        filler.unlink()
+        assert CliRunner().invoke(app, ["poison", str(shoot)]).exit_code == 0
+        fill(fs)
+        restore = CliRunner().invoke(app, ["restore", "shoot"])
+        failed = [line for line in restore.output.splitlines() if line.startswith("ppd: not restored: ")]
+        assert restore.exit_code == 3 and "a disk is full" in restore.output, restore.output
+        assert failed == [f"ppd: not restored: {p}: {NO_SPACE_WORDS} {shoot}" for p in photos], restore.output
 
 
 def test_a_full_disk_under_the_store_says_so(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -199,3 +199,28 @@ def test_a_dataset_folder_moved_under_the_same_name_moves_the_dataset(
     assert refused.exit_code == 2 and len(lines) == 1, refused.output
     assert lines[0].startswith(f"ppd: error: dataset 'shoot' already belongs to {new}; name this one with "
                                "--dataset NAME"), lines  # fmt: skip
+
+
+def test_a_restore_into_a_read_only_folder_is_refused_in_one_line_exit_3(ppd_env: dict[str, Path],
+                                                                         tmp_path: Path) -> None:  # fmt: skip
+    """A black-box review (S9): `ppd restore R` gave exit 1 and one "not restored ... folder not writable"
+    line per file, while `ppd poison R` says it once with exit 3 ("cannot work here"), as --help says."""
+    from testkit.disk_full import MountUnavailable, read_only_folder
+
+    shoot = tmp_path / "shoot"
+    originals = _shoot(shoot)
+    patched = {name: _sha(shoot / name) for name in originals}
+    try:
+        with read_only_folder(shoot):
+            whole = runner.invoke(app, ["restore", "shoot"])
+            one = runner.invoke(app, ["restore", str(shoot / "v1.png")])
+    except MountUnavailable as exc:
+        pytest.skip(f"no read-only folder here: {exc}")
+    for result in (whole, one):
+        errors = [line for line in result.output.splitlines() if line.startswith("ppd:")]
+        assert result.exit_code == 3, result.output
+        assert errors == [f"ppd: error: folder not writable: {shoot}; nothing restored"], result.output
+    assert {name: _sha(shoot / name) for name in originals} == patched  # nothing changed
+    again = runner.invoke(app, ["restore", "shoot"])  # writable again: every original back
+    assert again.exit_code == 0 and "restored 3" in again.output, again.output
+    assert {name: _sha(shoot / name) for name in originals} == originals
