@@ -37,6 +37,9 @@ def start_daemon(root: Path, *args: str, log_dir: Path | None = None) -> Daemon:
         PPD_DATA_DIR=str(root / "data"), PPD_CONFIG_DIR=str(root / "config"),
         PPD_OUTBOX=str(root / "outbox"), PPD_CACHE_DIR=str(root / "cache"),
         NOTIFY_SOCKET=str(root / "notify.sock"),
+        # this checkout's code, whichever one the venv's `ppd` was installed from (an editable
+        # install points at one checkout; a test in another ran that one's daemon: a helper's note)
+        PYTHONPATH=str(REPO),
     )  # fmt: skip
     sock_path = root / "notify.sock"
     sock_path.unlink(missing_ok=True)
