@@ -27,6 +27,8 @@ class VideoOptions:
     threads: encoder threads, 0 = FFmpeg's choice.
     motion_steps_per_second: how fast a moving spec travels its path, in photo-steps per second
       of video (0: the patch stays at its first position in every frame).
+    keep_frame_types: x264 codes each frame as the source's (I, P or B) where the source has
+      B-frames, instead of deciding again on the marked frames (docs/VIDEO.md "Size").
     """
 
     min_patch_contrast: float = 0.8
@@ -36,6 +38,7 @@ class VideoOptions:
     threads: int = 0
     crf_override: int | None = None
     motion_steps_per_second: float = 6.0  # bench/results/video_motion.md: 2 failed twice, 6 never
+    keep_frame_types: bool = True
 
 
 @dataclass(frozen=True)
@@ -45,6 +48,7 @@ class EncoderChoice:
     bit_rate: int | None
     options: dict[str, str]
     same_codec: bool
+    keep_frame_types: bool = False  # each frame coded as the source's type (I, P, B)
 
 
 @dataclass(frozen=True)
@@ -72,6 +76,8 @@ class SourceInfo:
     # the CRF the source's own encoder wrote in its stream (x264/x265 put their settings in an SEI
     # message of the first frame), or None: the quality it was made at, which ppd does not go below
     encoded_crf: float | None = None
+    # the source reorders frames (B-frames): its encoder chose I, P and B for this content
+    b_frames: bool = False
 
 
 @dataclass

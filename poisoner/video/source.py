@@ -67,6 +67,7 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
             hdr_side_data=hdr,
             stream_index=stream.index,
             encoded_crf=encoded_crf,
+            b_frames=bool(cc.has_b_frames),
         )
 
 
