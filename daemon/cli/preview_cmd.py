@@ -302,6 +302,17 @@ def _first_file(ctx: AppContext, given: Path) -> Path:
     return media[0]
 
 
+def default_target(cache_dir: Path, file: Path) -> Path:
+    """previews/FOLDER-HASH/NAME.ppd-preview.png in the cache folder: one per source file. By the stem
+    alone, A/0000.jpg's preview was overwritten by B/0000.jpg's (a black-box review); the folder's name
+    says whose it is, a hash of its whole path tells apart two folders of one name (2024/A, 2025/A)."""
+    import hashlib
+
+    folder = Path(os.path.abspath(file)).parent
+    tag = hashlib.sha256(os.fsencode(folder)).hexdigest()[:8]
+    return cache_dir / "previews" / f"{folder.name or 'root'}-{tag}" / f"{file.name}.ppd-preview.png"
+
+
 def _target(ctx: AppContext, file: Path, out: Path | None) -> Path:
     """The PNG to write: --out, or the cache folder's previews/. The picture shows the clean original:
     among photos (the previewed one's folder, a dataset's, the outbox, a publish folder) the next
@@ -310,7 +321,7 @@ def _target(ctx: AppContext, file: Path, out: Path | None) -> Path:
     from daemon.cli.published import published_folder_holding
 
     if out is None:
-        return Path(ctx.paths.cache_dir) / "previews" / f"{file.stem}.ppd-preview.png"
+        return default_target(Path(ctx.paths.cache_dir), file)
     target = Path(os.path.abspath(out.expanduser()))
     published = published_folder_holding(target, ctx.paths, photo_folders=(file.parent,))
     if published is not None:
@@ -326,8 +337,8 @@ def preview(
     ),
     out: Path | None = typer.Option(
         None, "--out", metavar="PNG",
-        help="PNG to write (default: previews/NAME.ppd-preview.png in ppd's cache folder; never among "
-        "photos: it shows the original).",
+        help="PNG to write (default: previews/FOLDER-HASH/NAME.ppd-preview.png in ppd's cache folder, one "
+        "per photo; never among photos: it shows the original).",
     ),
     spec_options: SpecOptions = SpecOptions(),
     display_width: int = typer.Option(
