@@ -45,30 +45,40 @@ def video_placement(spec: PatchSpec, source: Path) -> Any:
     return frame_placements(spec, probe(source), VideoOptions(), source)(0)
 
 
-def video_mark_line(placement: Any, width: int, height: int) -> str:
-    """Where the mark is on a video's first frame, in its stored pixels (a phone clip's rotation is
-    not applied to the frame the preview shows)."""
-    from poisoner.orientation import position_words
+def video_mark_line(placement: Any, width: int, height: int, orientation: int | None = None) -> str:
+    """Where the mark is on a video's first frame as players show it (a phone clip's rotation applied,
+    as the preview draws it: it was drawn sideways, a black-box review), and where that is in the
+    stored frame ppd poison writes."""
+    from poisoner.orientation import display_size, orientation_of, position_words
+    from poisoner.preview import oriented_placement
 
     x0, y0, x1, y1 = placement.box
-    return (f"mark at the {position_words(placement.box, width, height)} of the first frame, pixels "
-            f"({x0},{y0})-({x1},{y1}) as stored (where ppd poison writes it on that frame)")  # fmt: skip
+    if orientation_of(orientation) == 1:
+        return (f"mark at the {position_words(placement.box, width, height)} of the first frame, pixels "
+                f"({x0},{y0})-({x1},{y1}) as stored (where ppd poison writes it on that frame)")  # fmt: skip
+    shown = oriented_placement(placement, orientation, width, height).box
+    words = position_words(shown, *display_size(width, height, orientation_of(orientation)))
+    return (f"mark at the {words} of the first frame, pixels ({shown[0]},{shown[1]})-({shown[2]},{shown[3]}) "
+            f"as players show it (the clip is stored turned: ppd poison writes it at ({x0},{y0})-({x1},{y1}) "
+            "of the stored frame)")  # fmt: skip
 
 
 def load_picture(path: Path, video: bool | None = None) -> tuple[Any, int | None]:
     """(stored RGB pixels, EXIF orientation or None); a video's first frame (video: whether path holds
-    one; default: by its name). ppd patches the stored pixels, so the preview works in them and
-    orients only what it shows."""
+    one; default: by its name) with the orientation its display matrix shows it in. ppd patches the
+    stored pixels, so the preview works in them and orients only what it shows."""
     import numpy as np
 
     if _is_video(path) if video is None else video:
         import av
 
+        from poisoner.orientation import display_orientation
         from poisoner.video import frame_to_rgb
+        from poisoner.video.source import frame_side_data
 
         with av.open(str(path)) as container:
             for frame in container.decode(video=0):
-                return frame_to_rgb(frame), None
+                return frame_to_rgb(frame), display_orientation(frame_side_data(frame)[0])
         raise ValueError("no video frame")
     from poisoner.image.read import open_decoded
 
@@ -198,7 +208,7 @@ def _render(
             original, poisoned, placement, place, orientation, labels = planned
         h, w = original.shape[:2]
         if _is_video(file):
-            where = video_mark_line(placement, w, h)
+            where = video_mark_line(placement, w, h, orientation)
         else:
             where = mark_line(placement, place, orientation, w, h)
         if written_pixels(placement, checked_keep_out(file.name, keep_out, (w, h))) == 0:
