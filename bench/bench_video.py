@@ -286,7 +286,10 @@ def write_results(
     if pose:
         lines += ["", "## Pose verification on sampled frames (verifier.verify_folders)", "", *pose]
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text("\n".join(lines) + "\n")
+    # bench_video_size's round stays above these sections
+    old = RESULTS.read_text() if RESULTS.exists() else ""
+    above = old[: old.index(lines[0])] if lines[0] in old else ""
+    RESULTS.write_text(above + "\n".join(lines) + "\n")
 
 
 def main() -> None:

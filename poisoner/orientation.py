@@ -61,6 +61,26 @@ def turn_square(x: int, y: int, side: int, orientation: int, width: int, height:
     }.get(orientation_of(orientation), (x, y))
 
 
+# A display matrix's turn and mirror, (a, b, c, d) of its top-left 2x2 part as signs (FFmpeg's convention,
+# x' = a*x + c*y, y' = b*x + d*y), -> the EXIF orientation that shows the stored frame the same way
+# (turn_square with side 0 maps each the same): what a player does with a phone clip's rotation.
+_ORIENTATION_OF_MATRIX = {
+    (1, 0, 0, 1): 1, (-1, 0, 0, 1): 2, (-1, 0, 0, -1): 3, (1, 0, 0, -1): 4,
+    (0, 1, 1, 0): 5, (0, 1, -1, 0): 6, (0, -1, -1, 0): 7, (0, -1, 1, 0): 8,
+}  # fmt: skip
+
+
+def display_orientation(matrix: tuple[int, ...] | None) -> int | None:
+    """The EXIF orientation (1..8) a video's display matrix (9 ints, 16.16 fixed point) shows its
+    stored frames in; None without a matrix or for a turn that is not a multiple of 90 degrees."""
+    if matrix is None or len(matrix) < 5:
+        return None
+    # 16.16 fixed point: +-1.0 is +-65536; a turn by a multiple of 90 degrees has each entry 0 or +-1
+    corner = (matrix[0], matrix[1], matrix[3], matrix[4])
+    a, b, c, d = (int(np.sign(v)) if abs(v) >= 1 << 15 else 0 for v in corner)
+    return _ORIENTATION_OF_MATRIX.get((a, b, c, d))
+
+
 ROWS = ("top", "middle", "bottom")
 COLUMNS = ("left", "centre", "right")
 

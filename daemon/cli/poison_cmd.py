@@ -88,6 +88,28 @@ def change_lines(outcomes: list[ProtectOutcome]) -> list[str]:
     return lines
 
 
+def video_size_lines(outcomes: list[ProtectOutcome]) -> list[str]:
+    """One line for the videos a run made noticeably larger (poisoner.video.model.NOTICEABLE_GROWTH),
+    with the files' sizes: a creator with an upload limit must know (a black-box review: 1.85x, unsaid).
+    `ppd -v poison` gives each video's size."""
+    from poisoner.video.model import NOTICEABLE_GROWTH, size_text
+
+    grown: list[tuple[float, str, int, int]] = []  # (ratio, name, bytes before, bytes after)
+    for o in outcomes:
+        before, after = getattr(o.report, "source_bytes", 0), getattr(o.report, "output_bytes", 0)
+        if o.state in OUTCOME_PATCHED and before and after >= before * NOTICEABLE_GROWTH:
+            grown.append((after / before, o.path.name, before, after))
+    if not grown:
+        return []
+    grown.sort(key=lambda g: (-g[0], g[1]))  # the largest growth first
+    span = f"{grown[0][0]:.2f}x" if len(grown) == 1 else f"up to {grown[0][0]:.2f}x"
+    each = ", ".join(f"{name} {ratio:.2f}x" for ratio, name, _, _ in grown[:3])
+    more = f" and {len(grown) - 3} more" if len(grown) > 3 else ""
+    total = f"{size_text(sum(g[2] for g in grown))} -> {size_text(sum(g[3] for g in grown))}"
+    return [f"videos grew {span} in size (the mark costs bits): {len(grown)} video(s), {total} "
+            f"({each}{more}); `ppd -v poison` gives each file's size"]  # fmt: skip
+
+
 def verbose_notes(outcome: ProtectOutcome) -> list[str]:
     """-v: a patched file's notes worth a line (the JPEG splice's own note, on every JPEG, is not)."""
     if outcome.state not in OUTCOME_PATCHED or outcome.report is None:
@@ -131,7 +153,8 @@ def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
     words = ["would patch" if dry_run else "patched", "unchanged", "skipped", "failed"]
     line = ", ".join(f"{w} {counts.get(w, 0)}" for w in words)
     console().print(("dry run, nothing changed: " if dry_run else "") + line)
-    for line in place_lines(outcomes) + jpeg_lines(outcomes) + change_lines(outcomes):
+    lines = place_lines(outcomes) + jpeg_lines(outcomes) + change_lines(outcomes) + video_size_lines(outcomes)
+    for line in lines:
         console().print(line, markup=False)
     if unread := unprotected_media(outcomes):
         shown = ", ".join(o.path.name for o in unread[:5]) + (", ..." if len(unread) > 5 else "")

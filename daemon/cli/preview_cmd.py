@@ -45,30 +45,40 @@ def video_placement(spec: PatchSpec, source: Path) -> Any:
     return frame_placements(spec, probe(source), VideoOptions(), source)(0)
 
 
-def video_mark_line(placement: Any, width: int, height: int) -> str:
-    """Where the mark is on a video's first frame, in its stored pixels (a phone clip's rotation is
-    not applied to the frame the preview shows)."""
-    from poisoner.orientation import position_words
+def video_mark_line(placement: Any, width: int, height: int, orientation: int | None = None) -> str:
+    """Where the mark is on a video's first frame as players show it (a phone clip's rotation applied,
+    as the preview draws it: it was drawn sideways, a black-box review), and where that is in the
+    stored frame ppd poison writes."""
+    from poisoner.orientation import display_size, orientation_of, position_words
+    from poisoner.preview import oriented_placement
 
     x0, y0, x1, y1 = placement.box
-    return (f"mark at the {position_words(placement.box, width, height)} of the first frame, pixels "
-            f"({x0},{y0})-({x1},{y1}) as stored (where ppd poison writes it on that frame)")  # fmt: skip
+    if orientation_of(orientation) == 1:
+        return (f"mark at the {position_words(placement.box, width, height)} of the first frame, pixels "
+                f"({x0},{y0})-({x1},{y1}) as stored (where ppd poison writes it on that frame)")  # fmt: skip
+    shown = oriented_placement(placement, orientation, width, height).box
+    words = position_words(shown, *display_size(width, height, orientation_of(orientation)))
+    return (f"mark at the {words} of the first frame, pixels ({shown[0]},{shown[1]})-({shown[2]},{shown[3]}) "
+            f"as players show it (the clip is stored turned: ppd poison writes it at ({x0},{y0})-({x1},{y1}) "
+            "of the stored frame)")  # fmt: skip
 
 
 def load_picture(path: Path, video: bool | None = None) -> tuple[Any, int | None]:
     """(stored RGB pixels, EXIF orientation or None); a video's first frame (video: whether path holds
-    one; default: by its name). ppd patches the stored pixels, so the preview works in them and
-    orients only what it shows."""
+    one; default: by its name) with the orientation its display matrix shows it in. ppd patches the
+    stored pixels, so the preview works in them and orients only what it shows."""
     import numpy as np
 
     if _is_video(path) if video is None else video:
         import av
 
+        from poisoner.orientation import display_orientation
         from poisoner.video import frame_to_rgb
+        from poisoner.video.source import frame_side_data
 
         with av.open(str(path)) as container:
             for frame in container.decode(video=0):
-                return frame_to_rgb(frame), None
+                return frame_to_rgb(frame), display_orientation(frame_side_data(frame)[0])
         raise ValueError("no video frame")
     from poisoner.image.read import open_decoded
 
@@ -198,7 +208,7 @@ def _render(
             original, poisoned, placement, place, orientation, labels = planned
         h, w = original.shape[:2]
         if _is_video(file):
-            where = video_mark_line(placement, w, h)
+            where = video_mark_line(placement, w, h, orientation)
         else:
             where = mark_line(placement, place, orientation, w, h)
         if written_pixels(placement, checked_keep_out(file.name, keep_out, (w, h))) == 0:
@@ -302,6 +312,17 @@ def _first_file(ctx: AppContext, given: Path) -> Path:
     return media[0]
 
 
+def default_target(cache_dir: Path, file: Path) -> Path:
+    """previews/FOLDER-HASH/NAME.ppd-preview.png in the cache folder: one per source file. By the stem
+    alone, A/0000.jpg's preview was overwritten by B/0000.jpg's (a black-box review); the folder's name
+    says whose it is, a hash of its whole path tells apart two folders of one name (2024/A, 2025/A)."""
+    import hashlib
+
+    folder = Path(os.path.abspath(file)).parent
+    tag = hashlib.sha256(os.fsencode(folder)).hexdigest()[:8]
+    return cache_dir / "previews" / f"{folder.name or 'root'}-{tag}" / f"{file.name}.ppd-preview.png"
+
+
 def _target(ctx: AppContext, file: Path, out: Path | None) -> Path:
     """The PNG to write: --out, or the cache folder's previews/. The picture shows the clean original:
     among photos (the previewed one's folder, a dataset's, the outbox, a publish folder) the next
@@ -310,7 +331,7 @@ def _target(ctx: AppContext, file: Path, out: Path | None) -> Path:
     from daemon.cli.published import published_folder_holding
 
     if out is None:
-        return Path(ctx.paths.cache_dir) / "previews" / f"{file.stem}.ppd-preview.png"
+        return default_target(Path(ctx.paths.cache_dir), file)
     target = Path(os.path.abspath(out.expanduser()))
     published = published_folder_holding(target, ctx.paths, photo_folders=(file.parent,))
     if published is not None:
@@ -326,8 +347,8 @@ def preview(
     ),
     out: Path | None = typer.Option(
         None, "--out", metavar="PNG",
-        help="PNG to write (default: previews/NAME.ppd-preview.png in ppd's cache folder; never among "
-        "photos: it shows the original).",
+        help="PNG to write (default: previews/FOLDER-HASH/NAME.ppd-preview.png in ppd's cache folder, one "
+        "per photo; never among photos: it shows the original).",
     ),
     spec_options: SpecOptions = SpecOptions(),
     display_width: int = typer.Option(

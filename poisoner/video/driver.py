@@ -76,7 +76,20 @@ def poison_video(
         raise VideoFormatError(f"{src.name}: changed while being read (still being written?)")
     _finish_report(report, info, choice, result, stream_bit_rate(dst))
     append_marker_box(dst, info.muxer, marker)
+    _note_size(report, state_before[0], dst.stat().st_size)
     return report
+
+
+def _note_size(report: model.VideoReport, source_bytes: int, output_bytes: int) -> None:
+    """The files' sizes, said per file (`ppd -v poison`; the summary says a growth once): a re-encoded
+    video with the mark can be larger than a creator's upload limit allows (a black-box review)."""
+    report.source_bytes, report.output_bytes = source_bytes, output_bytes
+    ratio = output_bytes / source_bytes if source_bytes else 1.0
+    report.notes.append(
+        f"size {model.size_text(source_bytes)} -> {model.size_text(output_bytes)} ({ratio:.2f}x"
+        + ("; the mark costs bits)" if ratio >= model.NOTICEABLE_GROWTH else ")")
+    )
+
 
 
 def frame_placements(

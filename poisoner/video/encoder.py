@@ -39,6 +39,11 @@ _CRF_MODEL: dict[str, tuple[float, int, int]] = {
 _BPP_REFERENCE = 0.1
 CRF_STEP_ON_RETRY = 6
 
+# Encoders given the source's frame types (I, P, B), where that was measured smaller at no loss outside
+# the mark (bench/results/video.md, "Size of a patched video"). x265 given them was smaller too, but
+# 0.2 dB lower outside the mark: it keeps its own choice.
+KEEP_FRAME_TYPES = frozenset({"libx264"})
+
 _FULL_LOOKAHEAD_MAX_PIXELS = 1920 * 1088
 _SHORT_LOOKAHEAD = 10
 
@@ -86,7 +91,14 @@ def choose_encoder(info: SourceInfo, options: VideoOptions, crf_shift: int = 0) 
     if crf is not None:
         crf = max(0, crf - crf_shift)
     opts, bit_rate = _encoder_options(encoder, crf, info, options.preset, crf_shift)
-    return EncoderChoice(encoder=encoder, crf=crf, bit_rate=bit_rate, options=opts, same_codec=same)
+    # The marked frames would make x264 choose P where the source's encoder chose B (the sliding mark
+    # predicts badly across frames): 1.33x the size where the source's types give 1.09x, and no lower
+    # quality outside the mark (bench/results/video.md). A source without B-frames (a phone's hardware
+    # encoder, x264 ultrafast) leaves the encoder its own choice.
+    keep = options.keep_frame_types and info.b_frames and encoder in KEEP_FRAME_TYPES
+    return EncoderChoice(
+        encoder=encoder, crf=crf, bit_rate=bit_rate, options=opts, same_codec=same, keep_frame_types=keep
+    )
 
 
 def _encoder_options(

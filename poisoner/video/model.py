@@ -15,6 +15,10 @@ PlacementAt = Callable[[int], PatchPlacement]  # frame number -> where the patch
 
 _DEFAULT_FRAME_RATE = 25.0  # neither the container nor the frame count says
 
+# A patched video this much larger than its source is said in `ppd poison`'s summary: re-encoding alone
+# moves the size a few percent either way (bench/results/video.md), the mark costs more.
+NOTICEABLE_GROWTH = 1.10
+
 
 @dataclass(frozen=True)
 class VideoOptions:
@@ -27,6 +31,8 @@ class VideoOptions:
     threads: encoder threads, 0 = FFmpeg's choice.
     motion_steps_per_second: how fast a moving spec travels its path, in photo-steps per second
       of video (0: the patch stays at its first position in every frame).
+    keep_frame_types: x264 codes each frame as the source's (I, P or B) where the source has
+      B-frames, instead of deciding again on the marked frames (docs/VIDEO.md "Size").
     """
 
     min_patch_contrast: float = 0.8
@@ -36,6 +42,7 @@ class VideoOptions:
     threads: int = 0
     crf_override: int | None = None
     motion_steps_per_second: float = 6.0  # bench/results/video_motion.md: 2 failed twice, 6 never
+    keep_frame_types: bool = True
 
 
 @dataclass(frozen=True)
@@ -45,6 +52,7 @@ class EncoderChoice:
     bit_rate: int | None
     options: dict[str, str]
     same_codec: bool
+    keep_frame_types: bool = False  # each frame coded as the source's type (I, P, B)
 
 
 @dataclass(frozen=True)
@@ -72,6 +80,8 @@ class SourceInfo:
     # the CRF the source's own encoder wrote in its stream (x264/x265 put their settings in an SEI
     # message of the first frame), or None: the quality it was made at, which ppd does not go below
     encoded_crf: float | None = None
+    # the source reorders frames (B-frames): its encoder chose I, P and B for this content
+    b_frames: bool = False
 
 
 @dataclass
@@ -91,6 +101,8 @@ class VideoReport(PoisonReport):
     patch_contrast_min: float | None = None
     patch_contrast_mean: float | None = None
     attempts: int = 1
+    source_bytes: int = 0  # the files' sizes: a creator with an upload limit is told the growth
+    output_bytes: int = 0
 
 
 def frame_rate(info: SourceInfo) -> float:
@@ -100,3 +112,12 @@ def frame_rate(info: SourceInfo) -> float:
     if info.duration_s and info.frames_declared:
         return info.frames_declared / info.duration_s
     return _DEFAULT_FRAME_RATE
+
+
+def size_text(n: int) -> str:
+    """A file size as a creator reads it: 425 KB, 12.3 MB, 1.20 GB (powers of 1000, as upload limits)."""
+    if n < 1_000_000:
+        return f"{n / 1000:.0f} KB"
+    if n < 1_000_000_000:
+        return f"{n / 1e6:.1f} MB"
+    return f"{n / 1e9:.2f} GB"

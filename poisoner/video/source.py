@@ -45,7 +45,7 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
         first, encoded_crf = _first_frame(container, stream, path.name)
         # The header did not say (width 0): one frame decoded, no more.
         _refuse_over_budget(path.name, first.width, first.height, max_pixels)
-        matrix, hdr = _side_data(first)
+        matrix, hdr = frame_side_data(first)
         duration_s = _duration_s(container, stream)
         return SourceInfo(
             muxer=muxer,
@@ -67,6 +67,7 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
             hdr_side_data=hdr,
             stream_index=stream.index,
             encoded_crf=encoded_crf,
+            b_frames=bool(cc.has_b_frames),
         )
 
 
@@ -105,7 +106,7 @@ def _first_frame(
     raise VideoFormatError(f"{name}: the video stream has no decodable frame")
 
 
-def _side_data(frame: av.VideoFrame) -> tuple[tuple[int, ...] | None, dict[str, bytes]]:
+def frame_side_data(frame: av.VideoFrame) -> tuple[tuple[int, ...] | None, dict[str, bytes]]:
     """(display matrix, HDR side data by type name) of a decoded frame."""
     matrix: tuple[int, ...] | None = None
     hdr: dict[str, bytes] = {}

@@ -50,6 +50,7 @@ class _Pass:
     copied: dict[int, av.stream.Stream]
     progress: model.ProgressCallback | None
     total: int | None
+    keep_frame_types: bool = False
     frames: int = 0
     patched: int = 0
     last_end: float | None = None
@@ -80,7 +81,9 @@ def encode_once(
         add_marker_tag(out, info.muxer, marker)
         vout = _video_stream(inp, out, info, choice, options, keep_location, removed)
         copied = _copied_streams(inp, out, src.name, info, keep_location, removed)
-        run = _Pass(src.name, info, spec, placement_at, out, vout, copied, progress, total)
+        run = _Pass(
+            src.name, info, spec, placement_at, out, vout, copied, progress, total, choice.keep_frame_types
+        )
         for packet in iter_packets(inp, src.name):
             _mux_packet(run, packet)
         _encode(run, None)
@@ -156,6 +159,7 @@ def _mux_packet(run: _Pass, packet: av.Packet) -> None:
 def _patched(run: _Pass, frame: av.VideoFrame) -> av.VideoFrame:
     """The frame to encode: checked, patched when the spec selects it, its end time noted."""
     name, info, index = run.src_name, run.info, run.frames
+    source_type = frame.pict_type
     if frame.is_corrupt:
         raise VideoFormatError(f"{name}: corrupt frame {index} (damaged or truncated data)")
     if (frame.width, frame.height) != (info.width, info.height):
@@ -173,7 +177,8 @@ def _patched(run: _Pass, frame: av.VideoFrame) -> av.VideoFrame:
         run.patched += 1
     if frame.pts is not None and frame.time_base is not None:
         run.last_end = float((frame.pts + (frame.duration or 0)) * frame.time_base)
-    frame.pict_type = av.video.frame.PictureType.NONE
+    # the source's own frame type where kept (EncoderChoice.keep_frame_types), else the encoder's choice
+    frame.pict_type = source_type if run.keep_frame_types else av.video.frame.PictureType.NONE
     return frame
 
 

@@ -208,6 +208,18 @@ def test_rotation_metadata_kept_and_patch_in_stored_pixels(tmp_path: Path) -> No
         assert matrix(c2) == matrix(c1)
 
 
+@pytest.mark.parametrize(("rotation", "orientation"), [(None, None), (-90, 6), (90, 8), (180, 3)])
+def test_a_display_matrix_reads_as_the_exif_orientation_players_apply(
+    tmp_path: Path, rotation: int | None, orientation: int | None
+) -> None:
+    """FFmpeg's rotation is counter-clockwise: a phone's -90 is shown turned 90 degrees clockwise (EXIF 6)."""
+    from poisoner.orientation import display_orientation
+    from poisoner.video.source import probe
+
+    src = make_clip(tmp_path / "rot.mp4", Clip(rotation=rotation, frames=3, audio=None))
+    assert display_orientation(probe(src).display_matrix) == orientation
+
+
 def test_odd_size_yuv420p_vp9_mkv(tmp_path: Path) -> None:
     clip = Clip(
         suffix=".mkv",

@@ -64,3 +64,44 @@ def test_an_x265_sources_crf_is_read_from_its_extradata(tmp_path: Path) -> None:
     src = make_clip(tmp_path / "clip.mp4", Clip(encoder="libx265", frames=6, audio=None, options=options))
     info = probe(src)
     assert info.codec == "hevc" and info.encoded_crf == 24.0
+
+
+def _frame_types(path: Path) -> list[str]:
+    import av
+
+    with av.open(str(path)) as container:
+        return [av.video.frame.PictureType(int(f.pict_type)).name for f in container.decode(video=0)]
+
+
+def test_a_b_frame_sources_frame_types_are_kept(tmp_path: Path) -> None:
+    """The sliding mark made x264 code as P what the source's encoder coded as B (it predicts badly across
+    frames): a 720p clip grew 1.33x where its own frame types give 1.09x, at no lower quality outside the
+    mark (a second black-box review, N14; bench/results/video.md, "Size of a patched video")."""
+    src = make_clip(tmp_path / "clip.mp4", Clip(frames=40, audio=None, options=(("crf", "8"),)))
+    assert probe(src).b_frames and "B" in _frame_types(src)
+    kept, free = tmp_path / "kept.mp4", tmp_path / "free.mp4"
+    poison_video(src, kept, default_spec())
+    poison_video(src, free, default_spec(), options=VideoOptions(keep_frame_types=False))
+    assert _frame_types(kept) == _frame_types(src) != _frame_types(free)
+    assert kept.stat().st_size < free.stat().st_size
+
+
+def test_x265_keeps_its_own_frame_types(tmp_path: Path) -> None:
+    """Given the source's frame types x265 was smaller too, but lower in quality outside the mark."""
+    import av
+
+    if "libx265" not in av.codecs_available:
+        pytest.skip("this PyAV build has no libx265")
+    options = (("x265-params", "log-level=error"),)
+    src = make_clip(tmp_path / "clip.mp4", Clip(encoder="libx265", frames=12, audio=None, options=options))
+    info = probe(src)
+    assert info.b_frames and not choose_encoder(info, VideoOptions()).keep_frame_types
+
+
+def test_a_source_without_b_frames_leaves_the_encoder_its_choice(tmp_path: Path) -> None:
+    """A phone's hardware encoder codes no B-frames; x264 keeps its own, smaller, choice there."""
+    src = make_clip(tmp_path / "clip.mp4", Clip(frames=40, audio=None, options=(("bf", "0"),)))
+    assert not probe(src).b_frames and "B" not in _frame_types(src)
+    assert not choose_encoder(probe(src), VideoOptions()).keep_frame_types
+    poison_video(src, tmp_path / "out.mp4", default_spec())
+    assert "B" in _frame_types(tmp_path / "out.mp4")

@@ -37,8 +37,9 @@ def test_the_preview_is_never_written_among_photos(
     monkeypatch.chdir(new)  # the working folder holds the photos: the default is not written here
     done = runner.invoke(app, ["preview", "v0.png", "--no-visibility"])
     assert done.exit_code == 0, done.output
-    written = cache / "previews" / "v0.ppd-preview.png"
-    assert written.is_file() and str(written) in done.output.replace("\n", "")
+    written = sorted((cache / "previews").rglob("*.png"))
+    assert [p.name for p in written] == ["v0.png.ppd-preview.png"], written  # previews/FOLDER-HASH/
+    assert written[0].parent.name.startswith("new-") and str(written[0]) in done.output.replace("\n", "")
 
     refused = [
         (new / "v1.png", new / "p.png"),  # beside the photo, not patched yet
@@ -69,3 +70,23 @@ def test_a_bad_display_width_is_refused_before_writing(
                                  "--display-width", "0"])  # fmt: skip
     assert result.exit_code == 2 and "--display-width" in result.output
     assert not out.exists() and not (tmp_path / "cache" / "previews").exists()
+
+
+def test_previews_of_files_of_one_name_in_other_folders_are_kept_apart(
+    tmp_path: Path, ppd_env: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A/0000.png's preview and B/0000.png's both went to previews/0000.ppd-preview.png, the second over
+    the first (a third black-box review, S9); so did two folders of one name (2024/A and 2025/A)."""
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("PPD_CACHE_DIR", str(cache))
+    photos = [make_image(tmp_path / folder / "0000.png", seed)
+              for seed, folder in enumerate(("A", "B", "2025/A"))]  # fmt: skip
+    said: list[Path] = []
+    for photo in photos:
+        done = runner.invoke(app, ["preview", str(photo), "--no-visibility"])
+        assert done.exit_code == 0, done.output
+        line = " ".join(done.output.split())
+        said.append(Path(line.split("preview written to ")[1].split(" mark at ")[0]))
+    assert len(set(said)) == 3 and all(p.is_file() for p in said), said
+    assert [p.parent.name.split("-")[0] for p in said] == ["A", "B", "A"]  # the folder's name says whose
+    assert len({p.read_bytes() for p in said}) == 3  # none overwrote another

@@ -10,14 +10,16 @@ from pathlib import Path
 
 import av
 import numpy as np
+from PIL import Image
 from typer.testing import CliRunner
 
 from daemon.cli import app
 from poisoner.ladder import default_spec
+from poisoner.preview import GAP, LABEL_HEIGHT
 from poisoner.video.driver import frame_placements
 from poisoner.video.model import VideoOptions
 from poisoner.video.source import probe
-from testkit.video import mux_rgb_frames
+from testkit.video import Clip, make_clip, mux_rgb_frames
 
 runner = CliRunner()
 
@@ -75,3 +77,27 @@ def test_a_patched_clips_preview_says_the_codec_changed_most_pixels(
     after = runner.invoke(app, ["preview", str(clip), "--out", str(tmp_path / "p2.png")])
     said = " ".join(after.output.split())
     assert after.exit_code == 0 and "most changed pixels are the codec's" in said, said
+
+
+def test_a_phone_clips_preview_is_drawn_as_players_show_it(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A clip stored landscape with a -90 rotation (a phone held upright; players turn it 90 degrees
+    clockwise) was previewed sideways, "as stored" (a second black-box review, N11): the preview now
+    draws it as players do, as a photo's EXIF orientation is, and says both places of the mark."""
+    (tmp_path / "shoot").mkdir()
+    clip = make_clip(tmp_path / "shoot" / "phone.mp4", Clip(rotation=-90, frames=12, audio=None))
+    with av.open(str(clip)) as container:
+        stored = next(iter(container.decode(video=0))).to_ndarray(format="rgb24")
+    shown = np.rot90(stored, k=-1)  # what a player shows: 240 wide, 320 high
+    x0, y0, x1, y1 = frame_placements(default_spec(), probe(clip), VideoOptions(), clip)(0).box
+    turned = (240 - y1, x0, 240 - y0, x1)  # the stored box, turned 90 degrees clockwise
+    out = tmp_path / "p.png"
+    result = runner.invoke(app, ["preview", str(clip), "--out", str(out), "--no-visibility"])
+    said = " ".join(result.output.split())
+    assert result.exit_code == 0 and "as players show it" in said, said
+    assert said_box(result.output) == turned and f"writes it at ({x0},{y0})-({x1},{y1}) of the stored" in said
+    picture = np.asarray(Image.open(out).convert("RGB"))
+    assert picture.shape[1] == 2 * 240 + GAP  # two portrait panels side by side
+    panel = picture[LABEL_HEIGHT : LABEL_HEIGHT + 320, :240].astype(int)
+    away = np.ones((320, 240), bool)  # the outline drawn around the mark's box is the preview's own
+    away[max(0, turned[1] - 3) : turned[3] + 3, max(0, turned[0] - 3) : turned[2] + 3] = False
+    assert np.abs(panel - shown)[away].max() == 0
