@@ -131,7 +131,7 @@ def test_a_signal_mid_run_leaves_a_true_status_and_a_run_that_finishes(
 ) -> None:
     shoot, n = tmp_path / "shoot", 23
     _photos(shoot, n)
-    env = dict(os.environ, PYTHONPATH=str(REPO))
+    env = dict(os.environ, PYTHONPATH=str(REPO), COLUMNS="200")  # a message on one line, at any width
     command = [sys.executable, "-m", "daemon.cli", "poison", str(shoot), "--workers", workers]
     # group: a terminal's Ctrl-C reaches every process of the foreground group (workers too)
     proc = subprocess.Popen(command, env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -189,7 +189,7 @@ def test_ctrl_c_while_another_ppd_process_holds_the_file_leaves_the_wait_at_once
     if workers == "2":  # a worker waits while another patches b.png: the worker's wait ends too
         make_image(shoot / "b.png", 1)
     original = hashlib.sha256(busy.read_bytes()).hexdigest()
-    env = dict(os.environ, PYTHONPATH=str(REPO))
+    env = dict(os.environ, PYTHONPATH=str(REPO), COLUMNS="200")  # a message on one line, at any width
     command = [sys.executable, "-m", "daemon.cli", "poison", str(shoot), "--workers", workers]
     err: list[str] = []
     with file_lock(ppd_env["data"], busy):
