@@ -95,7 +95,7 @@ COUNT_WORDS = {
     "untracked": "not patched yet", "changed": "changed since patched", "waiting": "still being written",
     "gone": "deleted or moved away since patched", "unprotectable": "in a format ppd cannot protect",
     "removed": "deleted or moved away earlier",  # a row ppd recorded so: a renamed file's old name too
-    "restored_unrecorded": "restored (a restore was interrupted)",
+    "restored_unrecorded": "holding the original again",
 }  # fmt: skip
 # Counts that are no part of "files": files no longer there (their rows history), files of a format ppd
 # cannot patch; "renamed" is a part of "patched"

@@ -79,10 +79,13 @@ def _stopped_run_lines(d: dict[str, Any]) -> list[str]:
     "changed since patched": they hold the original's bytes), and temporaries that could not be swept."""
     name, lines = d["name"], []
     if restored := d.get("restored_unrecorded"):
-        command = f"ppd restore {shlex.quote(restored[0])}" if len(restored) == 1 else "ppd restore"
-        them = "it" if len(restored) == 1 else "them"
-        lines.append(f"{name}: {len(restored)} restored (a restore was interrupted: run `{command}` again to "
-                     f"record {them}), NOT protected")  # fmt: skip
+        # which of the two put it back is not known: a user's copy must not be steered into staying
+        # unprotected (`ppd restore` records it restored, which poison then leaves: a diff review)
+        root = shlex.quote(str(d["root"]))
+        command = f"ppd restore {shlex.quote(restored[0])}" if len(restored) == 1 else "ppd restore FILE"
+        lines.append(f"{name}: {len(restored)} holding the original again (copied back, or a stopped `ppd "
+                     f"restore`), NOT protected: `ppd poison {root}` protects them again; `{command}` "
+                     "records them restored if that is what you meant")  # fmt: skip
     if temps := d.get("leftover_temps"):
         shown = ", ".join(shlex.quote(t) for t in temps[:3]) + (", ..." if len(temps) > 3 else "")
         lines.append(f"{name}: {len(temps)} hidden temporary file(s) of a stopped ppd run, which ppd could "

@@ -17,7 +17,7 @@ import hashlib
 import os
 import shlex
 import stat
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -145,12 +145,14 @@ def owned_elsewhere(
 
 
 def count_folder(
-    folder: Path, rows: Iterable[Mapping[str, Any]], skip: Iterable[Path] = (), foreign: Iterable[str] = ()
-) -> FolderCount:
+    folder: Path, rows: Iterable[Mapping[str, Any]], skip: Iterable[Path] = (), foreign: Iterable[str] = (),
+    original_stat: OriginalStat | None = None,
+) -> FolderCount:  # fmt: skip
     """The folder's media files and those of them no row mentions: by path, or for `--out` copies
     by their path below the copies' folder (OUT/DATASET/a/b.jpg stands for FOLDER/a/b.jpg).
     skip: folders whose files are not the dataset's; foreign: files (str paths) that are another
-    dataset's (owned_elsewhere): neither is counted."""
+    dataset's (owned_elsewhere): neither is counted. original_stat: the vault's copy of an original
+    (None: not kept), to tell a changed file holding its original again (_holds_original)."""
     folder = Path(folder).absolute()
     rows = list(rows)
     paths = [Path(row["path"]) for row in rows]
@@ -175,7 +177,7 @@ def count_folder(
     untracked = [f for f in files if str(f) not in inside and f.relative_to(folder).parts not in covered]
     present = {str(f) for f in files}
     changed_rows = [r for r in rows if r["path"] in present and changed_since_patched(r)]
-    restored = [Path(r["path"]) for r in changed_rows if _holds_original(r)]
+    restored = [Path(r["path"]) for r in changed_rows if _holds_original(r, original_stat)]
     changed = [Path(r["path"]) for r in changed_rows if Path(r["path"]) not in restored]
     # a file patched in place that is no longer there is no file of the dataset's (a black-box review:
     # deleted, it still counted patched); the daemon records it removed, a one-shot user has no daemon
@@ -282,20 +284,28 @@ def changed_since_patched(row: Mapping[str, Any]) -> bool:
     return (st.st_size, st.st_mtime_ns) != (row["size"], row.get("mtime_ns"))
 
 
-def _holds_original(row: Mapping[str, Any]) -> bool:
-    """Whether a changed file (_changed) holds exactly its original's bytes: a restore put it back and
-    was stopped before recording it. Hashed only when its time is the original's (a restore gives it
-    that), so an edited video is not read whole at each `ppd status`."""
+OriginalStat = Callable[[str], os.stat_result | None]  # the vault's copy of an original, by its sha256
+
+
+def _holds_original(row: Mapping[str, Any], original_stat: OriginalStat | None) -> bool:
+    """Whether a changed file (changed_since_patched) holds exactly its original's bytes: put back by
+    a restore stopped before recording it, or copied back by the user. Hashed only when its size is the
+    vault copy's and its time the one a restore gives it (the row's original time, else the vault
+    copy's): an edited or touched file, a video above all, is never read whole at each `ppd status` (a
+    diff review: a rebuilt store, whose rows know no original time, read every changed file)."""
     original, original_mtime = row.get("original_sha256"), row.get("original_mtime_ns")
+    kept = original_stat(original) if original and original_stat is not None else None
+    if kept is None:  # no original kept: nothing could have put one back
+        return False
     try:  # not blocking on a FIFO given a photo's name
         fd = os.open(row["path"], os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError:
         return False
     with open(fd, "rb") as fh:
         st = os.fstat(fd)
-        if not original or not stat.S_ISREG(st.st_mode):
+        if not stat.S_ISREG(st.st_mode) or st.st_size != kept.st_size:
             return False
-        if original_mtime is not None and st.st_mtime_ns != original_mtime:
+        if st.st_mtime_ns != (kept.st_mtime_ns if original_mtime is None else original_mtime):
             return False
         return hashlib.file_digest(fh, "sha256").hexdigest() == original
 
@@ -367,8 +377,21 @@ def dataset_folder(ctx: AppContext, name: str, root: str) -> FolderCount:
     theirs = [r["path"] for r in ctx.store.files_under(folder, not_of=name)]
     skip, foreign = owned_elsewhere(folder, roots, theirs, outbox=ctx.paths.outbox)
     masks = mask_folders(ctx, name)
-    count = count_folder(folder, ctx.store.files(name), skip=[*masks, *skip], foreign=foreign)
+    count = count_folder(
+        folder, ctx.store.files(name), skip=[*masks, *skip], foreign=foreign,
+        original_stat=lambda sha: _vault_stat(ctx.paths.vault_dir, sha),
+    )  # fmt: skip
     return replace(count, temps=sweep_temps(count.temps)) if count.temps else count
+
+
+def _vault_stat(vault_dir: Path, sha256: str) -> os.stat_result | None:
+    """The vault's copy of the original with this digest, or None (not kept, or no digest)."""
+    from daemon.store.vault import VaultError, blob_path
+
+    try:
+        return os.stat(blob_path(vault_dir, sha256), follow_symlinks=False)
+    except (OSError, VaultError):
+        return None
 
 
 def sweep_temps(temps: Iterable[Path]) -> list[Path]:
@@ -442,7 +465,7 @@ UNPROTECTED_WORDS = {
     "failed": "failed", "quarantined": "quarantined", "waiting": "still being written",
     "changed": "changed since patched", "untracked": "not patched yet", "pending": "not finished",
     "unprotectable": "in a format ppd cannot protect",
-    "restored_unrecorded": "restored by a stopped `ppd restore`",
+    "restored_unrecorded": "holding the original again",
 }  # fmt: skip
 
 

@@ -21,11 +21,7 @@ runner = CliRunner()
 
 # the child runs `ppd ARGS` with HOOK (Python lines) applied first; HOOK kills the process where it says
 CHILD = (
-    "import os, signal, sys\n"
-    "{hook}\n"
-    "from daemon.cli import app\n"
-    "sys.argv = ['ppd', *sys.argv[1:]]\n"
-    "app()\n"
+    "import os, signal, sys\n{hook}\nfrom daemon.cli import app\nsys.argv = ['ppd', *sys.argv[1:]]\napp()\n"
 )
 
 
@@ -194,12 +190,67 @@ def test_a_file_a_killed_restore_put_back_is_shown_restored_not_changed(
     status = runner.invoke(app, ["status", "shoot"])
     text = " ".join(status.output.split())
     assert "changed since" not in text, text
-    assert f"shoot: 1 restored (a restore was interrupted: run `ppd restore {shoot / 'v0.png'}` again to " \
-           "record it), NOT protected" in text, text  # fmt: skip
-    assert "files 2: patched 1, restored (a restore was interrupted) 1" in text, text
+    assert "shoot: 1 holding the original again (copied back, or a stopped `ppd restore`), NOT protected: " \
+           f"`ppd poison {shoot}` protects them again; `ppd restore {shoot / 'v0.png'}` records them " \
+           "restored if that is what you meant" in text, text  # fmt: skip
+    assert "files 2: holding the original again 1, patched 1" in text, text
     check = runner.invoke(app, ["status", "shoot", "--check"])
-    assert check.exit_code == 1 and "1 restored by a stopped `ppd restore`" in check.output, check.output
+    assert check.exit_code == 1 and "1 holding the original again" in check.output, check.output
     again = runner.invoke(app, ["restore", str(shoot / "v0.png")])
     assert again.exit_code == 0 and "restored 1" in again.output, again.output
     text = " ".join(runner.invoke(app, ["status", "shoot"]).output.split())
     assert "interrupted" not in text and "1 restored by you, NOT protected" in text, text
+
+
+def test_an_original_the_user_copied_back_is_protected_again_as_status_says(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A diff review: an original copied back by the user (cp -p, a backup tool) was called "restored (a
+    restore was interrupted)" with `ppd restore FILE` as the advice, which recorded it restored: poison
+    then left it unprotected. Status says what it knows and the poison it names protects it again."""
+    shoot, kept = tmp_path / "shoot", tmp_path / "kept"
+    for i in range(2):
+        make_image(kept / f"v{i}.png", i)
+        shoot.mkdir(exist_ok=True)
+        (shoot / f"v{i}.png").write_bytes((kept / f"v{i}.png").read_bytes())
+        os.utime(
+            shoot / f"v{i}.png",
+            ns=(os.stat(kept / f"v{i}.png").st_atime_ns, os.stat(kept / f"v{i}.png").st_mtime_ns),
+        )
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    subprocess.run(["cp", "-p", str(kept / "v1.png"), str(shoot / "v1.png")], check=True)  # the user's own
+    text = " ".join(runner.invoke(app, ["status", "shoot"]).output.split())
+    assert "interrupted" not in text and "1 holding the original again" in text, text
+    step = f"`ppd poison {shoot}` protects them again"
+    assert step in text, text
+    again = runner.invoke(app, ["poison", str(shoot)])
+    assert again.exit_code == 0 and "patched 1, unchanged 1" in " ".join(again.output.split()), again.output
+    assert _sha(shoot / "v1.png") != _sha(kept / "v1.png")
+
+
+def _bytes_read() -> int:
+    for line in Path("/proc/self/io").read_text().splitlines():
+        if line.startswith("rchar:"):
+            return int(line.split()[1])
+    raise AssertionError("no rchar in /proc/self/io")
+
+
+def test_status_does_not_read_a_touched_file_whole_after_a_rebuild(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A diff review: after `ppd store rebuild` (its rows know no original's time) every file changed since
+    patched, a touched one too (a sync, a `cp -r`), was hashed whole at each `ppd status`: a video's
+    gigabytes every time. A file is hashed only when its size and time can be its original's."""
+    shoot = tmp_path / "shoot"
+    for i in range(2):
+        make_image(shoot / f"v{i}.png", i, (1600, 1200))  # 5.8 MB each
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert runner.invoke(app, ["store", "rebuild", "--force"]).exit_code == 0
+    for photo in shoot.iterdir():
+        os.utime(photo, ns=(1_000_000_000, 1_000_000_000))  # touched: the patched bytes, another time
+    runner.invoke(app, ["status", "shoot"])  # imports and the store's first pages: not what is measured
+    before = _bytes_read()
+    text = " ".join(runner.invoke(app, ["status", "shoot"]).output.split())
+    read = _bytes_read() - before
+    assert "2 changed since ppd patched them" in text, text
+    assert read < os.path.getsize(shoot / "v0.png"), read  # before: both files read whole (11.5 MB)
