@@ -381,7 +381,9 @@ def dataset_folder(ctx: AppContext, name: str, root: str) -> FolderCount:
         folder, ctx.store.files(name), skip=[*masks, *skip], foreign=foreign,
         original_stat=lambda sha: _vault_stat(ctx.paths.vault_dir, sha),
     )  # fmt: skip
-    return replace(count, temps=sweep_temps(count.temps)) if count.temps else count
+    # `--out` copies: their folder is the one published, where a killed run's partial copy would be
+    temps = count.temps + (_walk(count.copies, [])[2] if count.copies and count.copies.is_dir() else [])
+    return replace(count, temps=sweep_temps(temps)) if temps else count
 
 
 def _vault_stat(vault_dir: Path, sha256: str) -> os.stat_result | None:
@@ -402,12 +404,25 @@ def sweep_temps(temps: Iterable[Path]) -> list[Path]:
     left: list[Path] = []
     for path in temps:
         try:
-            remove_stale_temp(path)
+            if not remove_stale_temp(path) and _unreadable(path):
+                left.append(path)  # not ours to judge (another user's, left by a `sudo ppd`): named
         except FileNotFoundError:
             pass  # removed meanwhile (its writer renamed it, or another sweep)
         except OSError:
             left.append(path)
     return left
+
+
+def _unreadable(path: Path) -> bool:
+    """A temporary this process cannot open: the sweep neither removes nor judges it (a diff review: it
+    was left unnamed, and --check passed a folder holding it)."""
+    try:
+        os.close(os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC))
+    except PermissionError:
+        return True
+    except OSError:
+        return False
+    return False
 
 
 def current_counts(ctx: AppContext, name: str, folder: FolderCount) -> dict[str, int]:

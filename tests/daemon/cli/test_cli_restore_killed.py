@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -15,7 +16,7 @@ from typer.testing import CliRunner
 
 from daemon.cli import app
 from testkit.kill_loops import REPO
-from testkit.photos import make_image
+from testkit.photos import make_image, make_shoot
 
 runner = CliRunner()
 
@@ -254,3 +255,53 @@ def test_status_does_not_read_a_touched_file_whole_after_a_rebuild(
     read = _bytes_read() - before
     assert "2 changed since ppd patched them" in text, text
     assert read < os.path.getsize(shoot / "v0.png"), read  # before: both files read whole (11.5 MB)
+
+
+def _dead_writers_temp(folder: Path) -> str:
+    """A temporary as ppd makes one (born locked), its writer gone: what a run killed mid-file leaves."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    with subprocess.Popen([sys.executable, "-c", LIVE_WRITER, str(folder)], env=env, stdin=subprocess.PIPE,
+                          stdout=subprocess.PIPE, text=True) as writer:  # fmt: skip
+        assert writer.stdout is not None and writer.stdin is not None
+        name = writer.stdout.readline().strip()
+        writer.stdin.close()
+    return name
+
+
+def test_status_sweeps_a_dead_writers_temporary_in_the_out_copies_folder(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A diff review: with `--out` the copies' folder is the one published, and a `ppd poison --out`
+    killed mid-write leaves its hidden partial copy there; the sweep looked at the sources only."""
+    card, out = tmp_path / "card", tmp_path / "pub"
+    make_shoot(card, 2)
+    assert runner.invoke(app, ["poison", str(card), "--out", str(out)]).exit_code == 0
+    copies = out / "card"
+    name = _dead_writers_temp(copies)
+    assert _temps(copies) == [name]
+    status = runner.invoke(app, ["status", "card", "--json"])
+    assert status.exit_code == 0, status.output
+    assert _temps(copies) == []  # before: left, and unnamed
+    assert sorted(p.name for p in copies.iterdir()) == ["v0.png", "v1.png"]  # the copies themselves kept
+
+
+def test_status_names_a_temporary_it_cannot_open(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A diff review: a stale temporary this user cannot open (left by a `sudo ppd`, mode 0600) was
+    neither removed nor named, and --check passed the folder holding it."""
+    shoot = make_shoot(tmp_path / "shoot", 2)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    other = shoot / ".ppd-tmp-Lbeef00000000.png"
+    other.write_bytes((shoot / "v0.png").read_bytes())
+    other.chmod(0o000)
+    as_user = [sys.executable, "-m", "daemon.cli", "status", "shoot", "--check"]
+    if os.geteuid() == 0:  # root opens anything: run as root without the capabilities that allow it
+        if not shutil.which("setpriv"):
+            pytest.skip("root, and no setpriv to drop CAP_DAC_OVERRIDE")
+        as_user = ["setpriv", "--inh-caps=-dac_override,-dac_read_search",
+                   "--bounding-set=-dac_override,-dac_read_search", *as_user]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": str(REPO), "COLUMNS": "200"}
+    check = subprocess.run(as_user, cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    assert check.returncode == 1, check.stdout + check.stderr
+    assert "1 leftover temporary file(s) of ppd" in check.stderr, check.stderr  # before: not a word of it
+    assert "1 hidden temporary file(s) of a stopped ppd run" in " ".join(check.stdout.split()), check.stdout
+    assert other.exists()  # not ours to judge: named, not removed
