@@ -193,6 +193,14 @@ def remove_if_stale(
     """Remove the temporary `name` in dir_fd if it is a stale one of ppd's (see clear_stale_temps)."""
     if not name.startswith(TEMP_PREFIX):
         return False
+    born_locked = name.startswith(TEMP_PREFIX + BORN_LOCKED)
+    return remove_if_unlocked(dir_fd, name, min_age_s=0.0 if born_locked else min_age_s, now=now)
+
+
+def remove_if_unlocked(dir_fd: int, name: str, *, min_age_s: float, now: float | None = None) -> bool:
+    """Remove the regular file `name` in dir_fd if no process holds its flock and it is min_age_s old
+    (0: any age, for a file locked before it had a name). The lock test of remove_if_stale, for a
+    caller that has its own names (daemon.store.sealkey's temporaries of an older ppd)."""
     now = time.time() if now is None else now
     try:
         fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, dir_fd=dir_fd)
@@ -200,8 +208,8 @@ def remove_if_stale(
         return False  # gone, a symlink, or unreadable: not ours to judge
     try:
         st = os.fstat(fd)
-        born_locked = name.startswith(TEMP_PREFIX + BORN_LOCKED)
-        if not stat.S_ISREG(st.st_mode) or (not born_locked and now - st.st_mtime < min_age_s):
+        # (no age asked: not even a time in the future, a clock set back, keeps it)
+        if not stat.S_ISREG(st.st_mode) or (min_age_s > 0 and now - st.st_mtime < min_age_s):
             return False
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -4,8 +4,10 @@ readable and makeable by this installation only.
 One file, `DATA_DIR/seal.key` (`ppd config path` prints the data folder): 64 hex digits and a
 newline, mode 0600, owned by the user. Created on first use, atomically: written and fsynced under
 a temporary name, then hard-linked into place (a link never replaces an existing file, so two
-processes starting at once end up with the same key, the first one's). A temporary left by a killed
-process (a copy of the key) is removed by the next ppd (clear_stale_key_temporaries).
+processes starting at once end up with the same key, the first one's). The temporary is ppd's
+usual one (poisoner.atomic.create_temp_at: `.ppd-tmp-*.seal.key`, flock()ed by its writer until
+it is unlinked), so one left by a killed process (a copy of the key) is told from a live writer's
+by its lock, not by a PID in its name, and removed by the next ppd (clear_stale_key_temporaries).
 
 Moving to a new machine: copy this file (keeping mode 0600) into the new data folder before ppd
 runs there, with the vault (`ppd key export FILE` / `ppd key import FILE` do the same and check
@@ -26,17 +28,22 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import secrets
 import stat
 from pathlib import Path
 
 from daemon.paths import VAULT_DIR_NAME, make_private_dir
 from daemon.store.damage import vault_holds_originals
+from poisoner.atomic import STALE_TEMP_AGE_S, TEMP_PREFIX, create_temp_at, remove_if_stale, remove_if_unlocked
 from poisoner.errors import ExitStatus, PpdError
 from poisoner.provenance import KEY_BYTES
 
 KEY_FILE = "seal.key"
-TEMP_PREFIX = f".{KEY_FILE}."  # a key being written: .seal.key.PID.RANDOM (_place_key)
+TEMP_SUFFIX = f".{KEY_FILE}"  # a key being written: .ppd-tmp-L<hex>.seal.key (_place_key)
+# An earlier ppd's temporary, .seal.key.PID.RANDOM, unlocked (its liveness was guessed from the PID)
+_OLD_TEMP = re.compile(r"\.seal\.key\.\d+\.[0-9a-f]+")
+_DIR_FLAGS = os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC
 
 
 class SealKeyError(PpdError):
@@ -164,51 +171,62 @@ def _place_key(data_dir: Path, key: bytes, *, replace: bool) -> Path:
     if len(key) != KEY_BYTES:
         raise SealKeyError("a seal key is 32 bytes")
     make_private_dir(Path(data_dir))
-    clear_stale_key_temporaries(data_dir)
-    path = key_path(data_dir)
-    tmp = path.with_name(f"{TEMP_PREFIX}{os.getpid()}.{secrets.token_hex(4)}")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+    dir_fd = os.open(data_dir, _DIR_FLAGS)
+    try:
+        _clear_stale_at(dir_fd)
+        _write_and_place(dir_fd, key, replace=replace)
+        os.fsync(dir_fd)  # the key's name on disk
+    finally:
+        os.close(dir_fd)
+    return key_path(data_dir)
+
+
+def _write_and_place(dir_fd: int, key: bytes, *, replace: bool) -> None:
+    """The key written to a locked temporary, fsynced, then linked (or renamed) to KEY_FILE. The
+    temporary is unlinked before its descriptor closes: while its name exists, its lock says a live
+    writer holds it (a sweep never takes it for a killed one's)."""
+    tmp, fd = create_temp_at(dir_fd, TEMP_SUFFIX)
+    named = True  # tmp still names our file (a rename took the name away)
     try:
         os.fchmod(fd, 0o600)  # whatever the umask
         os.write(fd, key.hex().encode() + b"\n")
         os.fsync(fd)
-    finally:
-        os.close(fd)
-    try:
         if replace:
-            os.replace(tmp, path)
+            os.replace(tmp, KEY_FILE, src_dir_fd=dir_fd, dst_dir_fd=dir_fd)
+            named = False
         else:
-            os.link(tmp, path)
+            os.link(tmp, KEY_FILE, src_dir_fd=dir_fd, dst_dir_fd=dir_fd)
     finally:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-    dir_fd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
-    return path
+        if named:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp, dir_fd=dir_fd)
+        os.close(fd)
 
 
 def clear_stale_key_temporaries(data_dir: Path) -> int:
-    """Remove the key temporaries (TEMP_PREFIX + PID.RANDOM) whose process is gone: one killed between
-    writing its key there and unlinking it left a copy of the secret key in the data folder for good
-    (a diff review). A live process's is a key being written: left. How many were removed."""
-    removed = 0
-    for tmp in Path(data_dir).glob(f"{TEMP_PREFIX}*.*"):
-        pid = tmp.name[len(TEMP_PREFIX) :].split(".", 1)[0]
-        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
-            with contextlib.suppress(FileNotFoundError):
-                tmp.unlink()
-                removed += 1
-    return removed
-
-
-def _alive(pid: int) -> bool:
+    """Remove the key temporaries in data_dir that no live process holds: one killed between writing its
+    key there and unlinking it left a copy of the secret key in the data folder for good (a diff
+    review). A live writer's is locked: left. How many were removed."""
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's: alive
-        return True
-    return True
+        dir_fd = os.open(data_dir, _DIR_FLAGS)
+    except OSError:
+        return 0  # no data folder yet (or none to read): the command that needs it says so
+    try:
+        return _clear_stale_at(dir_fd)
+    except OSError:
+        return 0  # housekeeping: the next command tries again
+    finally:
+        os.close(dir_fd)
+
+
+def _clear_stale_at(dir_fd: int) -> int:
+    """clear_stale_key_temporaries in the open data folder. An earlier ppd's `.seal.key.PID.RANDOM` is
+    not locked by its writer: it goes once no one holds it and it is STALE_TEMP_AGE_S old (such a
+    writer, mid-upgrade, takes it away within milliseconds), whatever process has that PID now."""
+    removed = 0
+    for name in os.listdir(dir_fd):
+        if name.startswith(TEMP_PREFIX) and name.endswith(TEMP_SUFFIX):
+            removed += remove_if_stale(dir_fd, name)
+        elif _OLD_TEMP.fullmatch(name):
+            removed += remove_if_unlocked(dir_fd, name, min_age_s=STALE_TEMP_AGE_S)
+    return removed

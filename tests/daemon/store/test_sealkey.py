@@ -8,6 +8,7 @@ import multiprocessing
 import os
 import re
 import stat
+import time
 from multiprocessing.synchronize import Barrier
 from pathlib import Path
 
@@ -174,51 +175,121 @@ def test_export_refuses_a_folder_whose_files_are_published(
     assert written.exit_code == 0, written.output
 
 
-# `ppd key new` killed (SIGKILL) after writing its key under a temporary name, before linking it
-KILLED_BEFORE_THE_LINK = (
-    "import os, signal, sys\n"
-    "os.link = lambda *a, **k: os.kill(os.getpid(), signal.SIGKILL)\n"
-    "from daemon.cli import app\n"
-    "sys.argv = ['ppd', 'key', 'new']\n"
-    "app()\n"
+# A hook on os.link (as `python -c` source) at the link of the written key into place, seal.key: the
+# temporary's own creation (create_temp_at links a born-locked file too) goes on as usual.
+AT_THE_LINK = (
+    "import os, signal, sys, time\n"
+    "real_link = os.link\n"
+    "def link(src, dst, **kw):\n"
+    "    if os.path.basename(os.fspath(dst)) == 'seal.key':\n"
+    "        {action}\n"
+    "    return real_link(src, dst, **kw)\n"
+    "os.link = link\n"
 )
+# `ppd key new` killed (SIGKILL) after writing its key under a temporary name, before linking it
+KILLED_BEFORE_THE_LINK = AT_THE_LINK.format(action="os.kill(os.getpid(), signal.SIGKILL)") + "\n".join(
+    ["from daemon.cli import app", "sys.argv = ['ppd', 'key', 'new']", "app()"]
+)
+# A ppd making the key on first use (AppContext.seal_key), paused mid-install: the key written, not linked
+PAUSED_BEFORE_THE_LINK = AT_THE_LINK.format(action="print('ready', flush=True); time.sleep(120)") + "\n".join(
+    ["from pathlib import Path", "from daemon.store.sealkey import load_key", "load_key(Path(sys.argv[1]))"]
+)
+KEY_TEMP = r"\.ppd-tmp-L?[0-9a-f]{12}\.seal\.key"  # poisoner.atomic.create_temp_at's, born locked or not
 
 
-def test_a_key_temporary_left_by_a_killed_ppd_is_removed_by_the_next_one(
-    ppd_env: dict[str, Path], tmp_path: Path
-) -> None:
-    """A kill between writing `.seal.key.PID.RANDOM` and unlinking it left a copy of the secret key in
-    the data folder for good (a diff review). The next ppd removes a dead process's; a live one's (a
-    key being written) stays."""
+def _ppd_python(script: str, *args: str) -> list[str]:
+    import sys
+
+    return [sys.executable, "-c", script, *args]
+
+
+def _env() -> dict[str, str]:
+    from testkit.kill_loops import REPO
+
+    return {**os.environ, "PYTHONPATH": str(REPO)}
+
+
+def _key_temporaries(data: Path) -> list[str]:
+    return sorted(p.name for p in data.iterdir() if p.name != "seal.key" and "seal.key" in p.name)
+
+
+def test_a_key_temporary_left_by_a_killed_ppd_is_removed_by_the_next_one(ppd_env: dict[str, Path]) -> None:
+    """A kill between writing the key's temporary and unlinking it left a copy of the secret key in the
+    data folder for good (a diff review). No process holds its lock any more: the next ppd removes it."""
     import signal
     import subprocess
-    import sys
 
     from daemon.cli import app as ppd
     from testkit.kill_loops import REPO
 
     data = ppd_env["data"]
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    killed = subprocess.run([sys.executable, "-c", KILLED_BEFORE_THE_LINK], cwd=REPO, env=env,
+    killed = subprocess.run(_ppd_python(KILLED_BEFORE_THE_LINK), cwd=REPO, env=_env(),
                             capture_output=True, text=True, timeout=120)  # fmt: skip
     assert killed.returncode == -signal.SIGKILL, killed.stderr
-    (left,) = data.glob(".seal.key.*")
-    assert re.fullmatch(r"\.seal\.key\.\d+\.[0-9a-f]{8}", left.name) and len(left.read_text().strip()) == 64
-    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
-    try:
-        writing = data / f".seal.key.{live.pid}.0123abcd"  # a live process's key being written
-        writing.write_text("00" * 32 + "\n")
-        status = CliRunner().invoke(ppd, ["status"])  # the next ppd, whatever it does
-        assert status.exit_code == 0, status.output
-        assert sorted(p.name for p in data.glob(".seal.key.*")) == [writing.name]  # the copy is gone
-    finally:
-        live.kill()
-        live.wait()
+    (left,) = _key_temporaries(data)
+    assert re.fullmatch(KEY_TEMP, left), left  # before: .seal.key.PID.RANDOM, its liveness told by the PID
+    assert len((data / left).read_text().strip()) == 64
+    assert stat.S_IMODE((data / left).stat().st_mode) == 0o600
+    status = CliRunner().invoke(ppd, ["status"])  # the next ppd, whatever it does
+    assert status.exit_code == 0, status.output
+    assert _key_temporaries(data) == []  # the copy is gone
     made = CliRunner().invoke(ppd, ["key", "new"])
     assert made.exit_code == 0 and "new seal key made" in made.output, made.output
-    assert [p.name for p in data.glob(".seal.key.*")] == []  # its process is gone too: removed
-    assert key_path(data).is_file()
+    assert _key_temporaries(data) == [] and key_path(data).is_file()
 
+
+def test_a_stale_key_temporary_goes_whatever_process_has_its_pid_now(ppd_env: dict[str, Path]) -> None:
+    """Liveness was guessed from the PID in the name (`.seal.key.PID.RANDOM`): a dead writer's copy of
+    the secret key stayed for as long as another process had that PID (a diff review, finding 6). Now
+    a temporary nobody holds locked goes: an earlier ppd's (unlocked by design) once a few seconds
+    old, whatever its PID; ppd's own kind (born locked) at any age. Other names are not touched."""
+    from daemon.cli import app as ppd
+
+    data = ppd_env["data"]
+    key = ("ab" * 32 + "\n").encode()
+    old = time.time() - 60
+    stale = [f".seal.key.{os.getppid()}.deadbeef", ".seal.key.1.cafe0000", ".ppd-tmp-L0123456789ab.seal.key"]
+    young = f".seal.key.{os.getppid()}.0badc0de"  # an earlier ppd may be writing it this instant
+    others = [".seal.key.bak", ".ppd-tmp-L0123456789ab.json", "seal.key.1.deadbeef"]
+    for name in stale + [young] + others:
+        (data / name).write_bytes(key)
+        if name != young:
+            os.utime(data / name, (old, old))
+    status = CliRunner().invoke(ppd, ["status"])
+    assert status.exit_code == 0, status.output
+    assert sorted(p.name for p in data.iterdir() if p.name in stale + [young] + others) == sorted(
+        [young] + others
+    )  # before: the two with a live PID (this test's parent, init) stayed
+    os.utime(data / young, (old, old))
+    assert CliRunner().invoke(ppd, ["status"]).exit_code == 0
+    assert not (data / young).exists()
+
+
+def test_a_live_writers_key_temporary_is_kept(ppd_env: dict[str, Path]) -> None:
+    """Another process paused between writing the key and linking it into place holds its temporary's
+    lock: ppd leaves it, whatever its age, and removes it once that process is killed."""
+    import subprocess
+
+    from daemon.cli import app as ppd
+    from testkit.kill_loops import REPO
+
+    data = ppd_env["data"]
+    writer = subprocess.Popen(_ppd_python(PAUSED_BEFORE_THE_LINK, str(data)), cwd=REPO, env=_env(),
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert writer.stdout is not None and writer.stderr is not None
+        assert writer.stdout.readline() == "ready\n", writer.stderr.read()
+        (writing,) = _key_temporaries(data)
+        assert re.fullmatch(KEY_TEMP, writing)
+        os.utime(data / writing, (0, 0))  # age plays no part: the lock says a writer is alive
+        status = CliRunner().invoke(ppd, ["status"])
+        assert status.exit_code == 0, status.output
+        assert _key_temporaries(data) == [writing] and len((data / writing).read_text().strip()) == 64
+    finally:
+        writer.kill()
+        writer.wait()
+    assert CliRunner().invoke(ppd, ["status"]).exit_code == 0
+    assert _key_temporaries(data) == []  # its writer is gone: so is the copy of the key
 
 
 def test_export_refuses_the_data_folder(ppd_env: dict[str, Path], tmp_path: Path) -> None:
