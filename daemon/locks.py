@@ -22,6 +22,7 @@ import os
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 from daemon.paths import make_private_dir
 from poisoner.errors import ExitStatus, PpdError
@@ -53,13 +54,54 @@ class WaitLeft(PpdError):
         self.holder = holder
 
 
-_waits_to_leave = 0  # this process's waits that a stop ends now (waiting_to_leave)
+# A stoppable run's files in progress and, of those, the ones waiting for another process's lock
+# (a wait its stop ends at once: WaitLeft): [files, waits]. This process's, or shared with its pool's
+# workers (share_counts): `ppd poison`'s waits are in its workers, its Ctrl-C handler in the caller,
+# which said "stopping after the file in progress" while they only waited (a diff review).
+_counts: Any = [0, 0]
+_counts_lock: Any = contextlib.nullcontext()  # a shared one's writers (a read needs none)
+_FILES, _WAITS = 0, 1
 
 
 def waiting_to_leave() -> bool:
-    """Whether this process waits for another's lock, a wait its stop ends at once (WaitLeft): a
-    Ctrl-C then has no file of its own in progress to finish (read in a signal handler)."""
-    return _waits_to_leave > 0
+    """Whether all the run has in progress is waits for other processes' locks, which its stop ends
+    at once: a Ctrl-C then has no file of its own to finish. A plain read of memory: called in a
+    signal handler."""
+    waits = _counts[_WAITS]
+    return waits > 0 and _counts[_FILES] <= waits
+
+
+def share_counts(counts: Any, lock: Any) -> None:
+    """Count into counts (two ints in shared memory, e.g. multiprocessing's RawArray("i", 2)),
+    updated under lock: a pool's caller reads what its workers count."""
+    global _counts, _counts_lock
+    _counts, _counts_lock = counts, lock
+
+
+@contextlib.contextmanager
+def counts_shared(counts: Any, lock: Any) -> Iterator[None]:
+    """share_counts for the block; this process's own counts again after it."""
+    before = (_counts, _counts_lock)
+    share_counts(counts, lock)
+    try:
+        yield
+    finally:
+        share_counts(*before)
+
+
+def _count(which: int, by: int) -> None:
+    with _counts_lock:
+        _counts[which] += by
+
+
+@contextlib.contextmanager
+def file_in_progress() -> Iterator[None]:
+    """One file of the run in progress (waiting_to_leave), its waits for a lock counted apart."""
+    _count(_FILES, 1)
+    try:
+        yield
+    finally:
+        _count(_FILES, -1)
 
 
 def lock_dir(data_dir: Path) -> Path:
@@ -137,10 +179,10 @@ def _lock_by(
 ) -> None:  # fmt: skip
     """waiting(holder): said once, after WAIT_NOTICE_S, of a wait that goes on. give_up(): polled
     with the lock; once true, WaitLeft (the wait was for another process's work, none of ours)."""
-    global _waits_to_leave
     notice = time.monotonic() + WAIT_NOTICE_S
-    counted = give_up is not None
-    _waits_to_leave += counted
+    counted = give_up is not None  # a wait its caller's stop ends (waiting_to_leave)
+    if counted:
+        _count(_WAITS, 1)
     try:
         while True:
             try:
@@ -157,7 +199,8 @@ def _lock_by(
                     waiting = None
                 time.sleep(_POLL_S)
     finally:
-        _waits_to_leave -= counted
+        if counted:
+            _count(_WAITS, -1)
 
 
 def _names(lock_file: Path, fd: int) -> bool:

@@ -364,8 +364,9 @@ def stop_key(signal_name: str) -> str:
 def say_stopping(signal_name: str) -> None:
     """At the first Ctrl-C (SIGINT) or SIGTERM, at once: a long video's file could run on for minutes
     with nothing said (a black-box review). Written straight to stderr: this runs in the handler.
-    Not while this process waits for a file another ppd process works on: no file of its own is in
-    progress, the wait ends now and says so (daemon.protect.one_file)."""
+    Not while all the run has in progress, here or in its workers, is waits for files other ppd
+    processes work on: no file of its own is in progress, each wait ends now and says so
+    (daemon.protect.one_file)."""
     locks = sys.modules.get("daemon.locks")  # loaded by then; nothing is imported in a handler
     if locks is not None and locks.waiting_to_leave():
         return

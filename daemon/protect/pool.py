@@ -121,18 +121,23 @@ def log_like_caller(formatter: logging.Formatter | None) -> None:
 def open_worker(
     paths: AppPaths, config: Config, lock_wait_s: float, parent: int | None = None,
     formatter: logging.Formatter | None = None, key_stamp: tuple[int, int, int] | None = None,
-    stopped: Any = None,
+    stopped: Any = None, counts: tuple[Any, Any] | None = None,
 ) -> None:  # fmt: skip
     """A worker's AppContext: the caller's paths and config, the worker's own store connection.
     stopped: a shared byte its caller sets once asked to stop (Ctrl-C): a wait for another ppd
-    process's file lock ends then (daemon.locks.WaitLeft); a worker ignores the signal itself."""
+    process's file lock ends then (daemon.locks.WaitLeft), no file starts; a worker ignores the
+    signal itself. counts: its files and waits in progress, shared with its caller
+    (daemon.locks.share_counts), whose Ctrl-C says a file is finishing only when one is."""
     global _worker_ctx
+    from daemon.locks import share_counts
     from verifier.supervise import die_with_parent  # the one helper for it (SfM children too)
 
     die_with_parent(parent)
     ignore_interrupts()
     keep_freed_memory()
     log_like_caller(formatter)
+    if counts is not None:
+        share_counts(*counts)
     from daemon.context import AppContext
     from daemon.store import Store
     from daemon.store.vault import Vault
@@ -146,15 +151,30 @@ def open_worker(
 
 
 def run_call(call: ProtectCall, ctx: AppContext | None = None) -> ProtectOutcome:
-    """protect_file for one call, in this process (ctx: the worker's own when None)."""
+    """protect_file for one call, in this process (ctx: the worker's own when None); none once its
+    caller stopped (a call the pool had queued where no cancel reaches: a stopped run starts no file)."""
+    from daemon.locks import file_in_progress
     from daemon.protect.one_file import protect_file
 
     context = ctx or _worker_ctx
     assert context is not None, "open_worker was not run in this process"
-    return protect_file(
-        call.path, context, call.dataset, root=call.root, out_path=call.out_path, dry_run=call.dry_run,
-        force=call.force, spec=call.spec, keep_location=call.keep_location, subject_masks=call.subject_masks,
-    )  # fmt: skip
+    with file_in_progress():  # counted before the check: a stop meanwhile finds it in progress
+        if context.give_up_waits is not None and context.give_up_waits():
+            return not_started(call)
+        return protect_file(
+            call.path, context, call.dataset, root=call.root, out_path=call.out_path, dry_run=call.dry_run,
+            force=call.force, spec=call.spec, keep_location=call.keep_location,
+            subject_masks=call.subject_masks,
+        )  # fmt: skip
+
+
+def not_started(call: ProtectCall) -> ProtectOutcome:
+    """A call its stopped caller counts with the files it never reached (ProtectOutcome.left)."""
+    outcome = ProtectOutcome(
+        path=Path(call.path).absolute(), dataset=call.dataset, state=Outcome.SKIPPED, reason="stopped"
+    )
+    outcome.left = True
+    return outcome
 
 
 def warm_up() -> None:
@@ -178,8 +198,11 @@ def died_outcome(call: ProtectCall, detail: str = "") -> ProtectOutcome:
     )
 
 
-def _worker_args(ctx: AppContext, parent: int | None = None, stopped: Any = None) -> tuple[object, ...]:
-    return (ctx.paths, ctx.config, ctx.lock_wait_s, parent, caller_formatter(), ctx.key_stamp, stopped)
+def _worker_args(
+    ctx: AppContext, parent: int | None = None, stopped: Any = None, counts: tuple[Any, Any] | None = None
+) -> tuple[object, ...]:
+    formatter = caller_formatter()
+    return (ctx.paths, ctx.config, ctx.lock_wait_s, parent, formatter, ctx.key_stamp, stopped, counts)
 
 
 @contextlib.contextmanager
@@ -217,6 +240,7 @@ def protect_many(
     poisoner run isolated in a child (a file that kills its process fails alone).
     stop: once it returns true (Ctrl-C, SIGTERM), no file starts any more and the files in
     progress finish: the outcomes are those of the files that ran, so fewer than the jobs."""
+    from daemon.locks import counts_shared
     from poisoner.batch import bounded_map, pool_context
 
     def spec_for(dataset: str) -> PatchSpec | None:
@@ -253,6 +277,8 @@ def protect_many(
 
     context = pool_context(("daemon.protect.one_file", "poisoner.formats"))
     told = context.RawValue("b", 0)  # set once stop() is true: the workers' waits for a lock end
+    # the workers' files and waits in progress, for this process's Ctrl-C line (daemon.locks)
+    counts = (context.RawArray("i", 2), context.Lock())
 
     def stopping() -> bool:
         if stopped():
@@ -260,13 +286,15 @@ def protect_many(
             return True
         return False
 
-    bounded_map(
-        cast(Callable[..., object], run_call), [(c,) for c in calls], n, died, on_done=done,
-        mp_context=context, initializer=open_worker, initargs=_worker_args(ctx, stopped=told),
-        stop=stopping if stop is not None else None,
-        # [limits] max_memory_mb: the files in flight never need more memory than that together
-        weights=[peak_estimate(c.path) for c in calls], budget=ctx.config.max_memory_bytes,
-    )  # fmt: skip
+    with counts_shared(*counts):
+        bounded_map(
+            cast(Callable[..., object], run_call), [(c,) for c in calls], n, died, on_done=done,
+            mp_context=context, initializer=open_worker,
+            initargs=_worker_args(ctx, stopped=told, counts=counts),
+            stop=stopping if stop is not None else None,
+            # [limits] max_memory_mb: the files in flight never need more memory than that together
+            weights=[peak_estimate(c.path) for c in calls], budget=ctx.config.max_memory_bytes,
+        )  # fmt: skip
     for i in sorted(results):
         if results[i] is retry and not stopped():
             log.warning("%s: %s; trying it once more", calls[i].path.name, DIED)

@@ -5,6 +5,7 @@ signals, the real store."""
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -15,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
@@ -174,54 +176,141 @@ def _lines_of(stream: IO[str], into: list[str]) -> threading.Thread:
     return thread
 
 
+def _words(text: str) -> str:
+    """text with its lines joined: a line wrapped at the terminal's width (CI's 40 columns) reads whole."""
+    return " ".join(text.split())
+
+
+def _start_poison(
+    shoot: Path, workers: str, err: list[str]
+) -> tuple[subprocess.Popen[str], threading.Thread]:
+    """`ppd poison shoot --workers N` in a session of its own (a terminal's foreground group), its
+    stderr's lines appended to err as they come (by the thread)."""
+    command = [sys.executable, "-m", "daemon.cli", "poison", str(shoot), "--workers", workers]
+    env = dict(os.environ, PYTHONPATH=str(REPO))  # the terminal's width: lines are compared as words
+    proc = subprocess.Popen(command, env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)  # fmt: skip
+    assert proc.stderr is not None
+    return proc, _lines_of(proc.stderr, err)
+
+
+def _ended(proc: subprocess.Popen[str], reader: threading.Thread, timeout: float) -> str:
+    """proc's stdout once it exits within timeout (killed otherwise); its stderr read to the end."""
+    assert proc.stdout is not None
+    try:
+        proc.wait(timeout=timeout)
+    finally:
+        proc.kill()
+    reader.join(5)
+    return proc.stdout.read()
+
+
+def _until(done: Callable[[], bool], proc: subprocess.Popen[str], err: list[str], within: float = 60) -> None:
+    deadline = time.monotonic() + within
+    while not done():
+        assert proc.poll() is None and time.monotonic() < deadline, err
+        time.sleep(0.02)
+
+
 @pytest.mark.parametrize("workers", ["1", "2"], ids=["serial", "workers"])
 def test_ctrl_c_while_another_ppd_process_holds_the_file_leaves_the_wait_at_once(
     ppd_env: dict[str, Path], tmp_path: Path, workers: str
 ) -> None:
     """`ppd poison` meeting a clip `ppd watch` was encoding (a third black-box review, S7): Ctrl-C
     said "stopping after the file in progress" and kept waiting for the watch's file. The file is
-    the other process's: the wait ends at once, the file untouched by this run, exit 130."""
+    the other process's: the wait ends at once, the file untouched by this run, exit 130, and no
+    line says a file of this run is finishing: none is. With workers, every file is another
+    process's: the waits are in the workers, the Ctrl-C in their caller, which said that line
+    anyway (a diff review); a file the pool had queued starts no wait after the Ctrl-C."""
     from daemon.locks import file_lock
     from daemon.store.vault import Vault
 
     shoot = tmp_path / "shoot"
-    busy = make_image(shoot / "a.png", 0)  # another ppd process works on it: this test holds its lock
-    if workers == "2":  # a worker waits while another patches b.png: the worker's wait ends too
-        make_image(shoot / "b.png", 1)
-    original = hashlib.sha256(busy.read_bytes()).hexdigest()
-    env = dict(os.environ, PYTHONPATH=str(REPO), COLUMNS="200")  # a message on one line, at any width
-    command = [sys.executable, "-m", "daemon.cli", "poison", str(shoot), "--workers", workers]
+    names = ["a.png"] if workers == "1" else ["a.png", "b.png", "c.png"]  # c.png: queued behind two waits
+    busy = [make_image(shoot / name, i) for i, name in enumerate(names)]  # another ppd process works on them
+    originals = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in busy}
     err: list[str] = []
-    with file_lock(ppd_env["data"], busy):
-        proc = subprocess.Popen(command, env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                text=True, start_new_session=True)  # fmt: skip
-        assert proc.stdout is not None and proc.stderr is not None
-        reader = _lines_of(proc.stderr, err)
-        deadline = time.monotonic() + 60
-        while not any("a.png: waiting for another ppd process" in line for line in err):  # after 2 s
-            assert proc.poll() is None and time.monotonic() < deadline, err
-            time.sleep(0.05)
-        if workers == "2":
-            while _patched_rows(ppd_env["data"] / "ppd.sqlite3") < 1:
-                assert proc.poll() is None and time.monotonic() < deadline, err
-                time.sleep(0.05)
+    with contextlib.ExitStack() as held:  # this test is the other process: it holds every file's lock
+        for path in busy:
+            held.enter_context(file_lock(ppd_env["data"], path))
+        proc, reader = _start_poison(shoot, workers, err)
+        waiting = names[: int(workers)]  # the files the workers took first, each waited for (said after 2 s)
+        _until(lambda: all(f"{n}: waiting for another ppd" in "".join(err) for n in waiting), proc, err)
         os.killpg(proc.pid, signal.SIGINT)  # a terminal's Ctrl-C: the whole group
         signalled = time.monotonic()
-        try:
-            proc.wait(timeout=10)  # the lock is still held: only leaving the wait ends the run
-        finally:
-            proc.kill()
+        out = _ended(proc, reader, timeout=10)  # the locks are still held: only leaving the waits ends it
         took = time.monotonic() - signalled
-        out = proc.stdout.read()
-        reader.join(5)
-    said = "".join(err)
+    said = _words("".join(err))
     assert proc.returncode == 130 and took < 3, (took, out, said)
     assert "Traceback" not in said
-    assert f"a.png: stopped waiting for another ppd process (pid {os.getpid()}) working on it" in said
-    if workers == "1":  # nothing of its own was in progress
-        assert "stopping after the file in progress" not in said
-    patched = 1 if workers == "2" else 0
-    assert f"interrupted: patched {patched}, unchanged 0, skipped 0, failed 0; 1 of {patched + 1} not" in out
-    assert hashlib.sha256(busy.read_bytes()).hexdigest() == original  # untouched by this run
-    assert not Vault(ppd_env["data"] / "vault").has(original) and not list(shoot.glob(".ppd-tmp-*"))
+    for name in waiting:
+        assert f"{name}: stopped waiting for another ppd process (pid {os.getpid()}) working on it" in said
+    assert "stopping after the file in progress" not in said  # nothing of its own was in progress
+    assert "c.png" not in said  # never started: no wait of its own to leave
+    n = len(names)
+    assert f"interrupted: patched 0, unchanged 0, skipped 0, failed 0; {n} of {n} not" in _words(out)
+    for path, original in originals.items():
+        assert hashlib.sha256(path.read_bytes()).hexdigest() == original  # untouched by this run
+        assert not Vault(ppd_env["data"] / "vault").has(original)
+    assert not list(shoot.glob(".ppd-tmp-*"))
     assert list((ppd_env["data"] / "locks" / "files").iterdir()) == []  # nothing left behind
+
+
+def _lock_files_open(folder: Path) -> dict[int, set[str]]:
+    """The lock files of folder each other process has open, by pid (Linux /proc; a removed one
+    reads "NAME (deleted)")."""
+    held: dict[int, set[str]] = {}
+    for fd in Path("/proc").glob("[0-9]*/fd/*"):
+        with contextlib.suppress(OSError):
+            target = os.readlink(fd)
+            if target.startswith(f"{folder}/") and int(fd.parts[2]) != os.getpid():
+                held.setdefault(int(fd.parts[2]), set()).add(target)
+    return held
+
+
+def _paused_mid_file(folder: Path, other: str, paused: list[int]) -> bool:
+    """Pause (SIGSTOP) a process that holds a lock file of folder besides other, one still held once
+    paused: its file is in progress. Its pid goes to paused."""
+    for pid, files in _lock_files_open(folder).items():
+        own = {f for f in files if f != other and not f.endswith(" (deleted)")}
+        if own:
+            os.kill(pid, signal.SIGSTOP)
+            paused.append(pid)
+            assert own <= _lock_files_open(folder).get(pid, set()), "its file finished before the pause"
+            return True
+    return False
+
+
+def test_ctrl_c_while_one_worker_waits_and_another_patches_says_the_file_in_progress(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """One worker waits for a file another ppd process works on, the other patches a file of the
+    run's own: Ctrl-C says that file is finishing (it is), the wait ends at once, the file finishes.
+    The patching worker is paused (SIGSTOP) mid-file, so that the Ctrl-C finds it there."""
+    from daemon.locks import file_lock
+
+    shoot, folder = tmp_path / "shoot", ppd_env["data"] / "locks" / "files"
+    _photos(shoot, 1)  # IMG_0000.jpg: this run's own
+    busy = make_image(shoot / "a.png", 0)
+    err: list[str] = []
+    paused: list[int] = []
+    with file_lock(ppd_env["data"], busy):
+        (busy_lock,) = [str(p) for p in folder.iterdir()]
+        proc, reader = _start_poison(shoot, "2", err)
+        try:
+            _until(lambda: _paused_mid_file(folder, busy_lock, paused), proc, err)
+            _until(lambda: "a.png: waiting for another ppd process" in "".join(err), proc, err)
+            os.killpg(proc.pid, signal.SIGINT)
+            _until(lambda: "a.png: stopped waiting" in "".join(err), proc, err, within=5)
+        except BaseException:
+            proc.kill()  # its workers end with it
+            raise
+        finally:
+            for pid in paused:
+                os.kill(pid, signal.SIGCONT)
+        out = _ended(proc, reader, timeout=60)
+    said = _words("".join(err))
+    assert proc.returncode == 130, (out, said)
+    assert "ppd: Ctrl-C: stopping after the file in progress; Ctrl-C again (after 3 s) stops now" in said
+    assert "interrupted: patched 1, unchanged 0, skipped 0, failed 0; 1 of 2 not" in _words(out)
+    assert "Traceback" not in said
