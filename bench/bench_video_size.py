@@ -32,6 +32,7 @@ from poisoner.video.driver import frame_placements
 from poisoner.video.encoder import choose_encoder, configure_video_stream
 from poisoner.video.model import EncoderChoice, SourceInfo, VideoOptions, VideoReport
 from poisoner.video.source import probe
+from testkit.video import mux_rgb_frames
 
 RESULTS = Path(__file__).resolve().parent / "results" / "video.md"
 DATASETS = Path(os.environ["PPD_SHARED_DATA"])  # bench/__init__.py: the checkout's ../shared/datasets
@@ -90,13 +91,7 @@ def make_clip(spec: ClipSpec, path: Path, seconds: float, fps: int = 30) -> Path
     with av.open(str(path), "w") as out:
         vs = out.add_stream(spec.encoder, rate=fps, options=dict(spec.options))
         vs.width, vs.height, vs.pix_fmt = spec.width, spec.height, "yuv420p"
-        for i, rgb in enumerate(_pan(photo, spec.width, spec.height, int(seconds * fps))):
-            frame = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format="yuv420p")
-            frame.pts = i
-            for pkt in vs.encode(frame):
-                out.mux(pkt)
-        for pkt in vs.encode(None):
-            out.mux(pkt)
+        mux_rgb_frames(out, vs, _pan(photo, spec.width, spec.height, int(seconds * fps)))
     return path
 
 
