@@ -157,7 +157,9 @@ def _stored_output(ctx: AppContext, row: dict[str, Any]) -> dict[str, Any] | Non
     """The store's row of the output a file found by its seal is (a patched row of the same bytes;
     of several, one whose file is gone from its path: this file is that one, moved or renamed)."""
     sha = row["poisoned_sha256"]
-    return ctx.store.find_poisoned(sha, moved_first=True, state=FileState.PATCHED) if sha else None
+    if not sha:
+        return None
+    return ctx.store.find_poisoned(sha, moved_first=True, state=FileState.PATCHED, near=Path(row["path"]))
 
 
 def _record_by_provenance(
@@ -335,7 +337,7 @@ def _row_by_provenance(ctx: AppContext, path: Path) -> tuple[dict[str, Any] | No
         sha = sha256_fd(fd)
     finally:
         os.close(fd)
-    stored = ctx.store.find_poisoned(sha, moved_first=True, state=FileState.PATCHED)
+    stored = ctx.store.find_poisoned(sha, moved_first=True, state=FileState.PATCHED, near=path)
     if seal is not None and ctx.vault.has(seal.original_sha256):
         original = seal.original_sha256
     elif stored is not None and stored["original_sha256"] and ctx.vault.has(stored["original_sha256"]):

@@ -241,7 +241,7 @@ def recognise(job: Job) -> ProtectOutcome | None:
         if recover_pending(ctx, row, job.path, sha, job.kind, hashed, unchanged):
             forget_attempt(ctx.paths.data_dir, job.path)
             return job.outcome(Outcome.UNCHANGED, "recovered after an interrupted run", poisoned_sha256=sha)
-    earlier = ctx.store.find_poisoned(sha, moved_first=out_path is None)
+    earlier = ctx.store.find_poisoned(sha, moved_first=out_path is None, near=job.path)
     if earlier is not None and out_path is not None:  # --out of a file patched already (in place)
         if not job.dry_run:
             copy_patched_as_it_is(job, earlier, _write_out)

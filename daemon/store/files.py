@@ -56,19 +56,26 @@ class FileRows(StoreBase):
         return self._rows(sql + " ORDER BY path", params)
 
     def find_poisoned(
-        self, sha256: str, moved_first: bool = False, state: FileState | None = None
+        self, sha256: str, moved_first: bool = False, state: FileState | None = None, near: Path | None = None
     ) -> dict[str, Any] | None:
         """A row whose patched output has this content (ppd's own output, anywhere). moved_first: of
         several (two photos with the same bytes patched alike), one whose file is no longer at its path
         (a file moved or renamed is that one, and keeps that row's original's date), else the first.
-        state: only rows in that state (a restored or removed row keeps its output's hash)."""
+        near: the file found; of several gone, the one whose path shares most folders with it (the same
+        photo in two shoots, one renamed and the other's folder moved: the rename took the other shoot's
+        row, and its own stayed "gone since patched": `ppd restore` then offered to bring back a
+        duplicate; a black-box review). state: only rows in that state (a restored or removed row keeps
+        its output's hash)."""
         where, params = "poisoned_sha256 = ?", [sha256]
         if state is not None:
             where, params = where + " AND state = ?", [sha256, file_state(state).value]
         if not moved_first:
             return self._one(f"SELECT * FROM files WHERE {where} ORDER BY id LIMIT 1", tuple(params))
         rows = self._rows(f"SELECT * FROM files WHERE {where} ORDER BY id", tuple(params))
-        return next((r for r in rows if not os.path.lexists(r["path"])), rows[0] if rows else None)
+        gone = [r for r in rows if not os.path.lexists(r["path"])]
+        if near is not None:  # a stable sort: among rows as near, the first recorded
+            gone.sort(key=lambda r: -_folders_shared(Path(r["path"]), Path(near)))
+        return gone[0] if gone else (rows[0] if rows else None)
 
     def find_original(self, sha256: str) -> list[dict[str, Any]]:
         """Every row whose original has this content (newest first)."""
@@ -201,3 +208,13 @@ def check_fields(fields: dict[str, Any]) -> None:
     unknown = set(fields) - FILE_FIELDS
     if unknown:
         raise StoreError(f"unknown file field(s): {', '.join(sorted(unknown))}")
+
+
+def _folders_shared(a: Path, b: Path) -> int:
+    """How many leading folders the two paths' folders have in common."""
+    n = 0
+    for x, y in zip(a.parent.parts, b.parent.parts, strict=False):
+        if x != y:
+            break
+        n += 1
+    return n

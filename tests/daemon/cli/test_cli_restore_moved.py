@@ -109,3 +109,27 @@ def test_a_photo_renamed_in_its_folder_and_restored_is_left_unpatched(ppd_env: d
     assert "would patch 0" in text and "left unprotected (restored by you): 1" in text, text
     assert runner.invoke(app, ["restore", str(shoot)]).exit_code == 0
     assert sorted(p.name for p in shoot.iterdir()) == ["r.png", "v1.png", "v2.png"]  # v0.png not made again
+
+
+def test_a_rename_takes_its_own_row_when_another_shoot_holds_the_same_photo(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A black-box review: the same photos in two shoots patch to the same bytes. With the first shoot's
+    folder moved, a rename in the second was recorded as the first shoot's file moved over; its own row
+    stayed "gone since patched", and `ppd restore` offered `ppd restore FILE` to bring back a duplicate."""
+    first, second = tmp_path / "first", tmp_path / "second"
+    for i in range(3):
+        make_image(first / f"v{i}.png", i)
+        make_image(second / f"v{i}.png", i)
+    assert runner.invoke(app, ["poison", str(first)]).exit_code == 0  # its rows come first
+    assert runner.invoke(app, ["poison", str(second)]).exit_code == 0
+    assert _sha(first / "v1.png") == _sha(second / "v1.png")  # the case: one output, two rows
+    first.rename(tmp_path / "first moved")
+    (second / "v1.png").rename(second / "hero.png")
+    recorded = runner.invoke(app, ["-v", "poison", str(second)])
+    said = " ".join(recorded.output.split())
+    assert f"moved from {second / 'v1.png'}" in said, said  # before: moved from .../first/v1.png
+    restored = runner.invoke(app, ["restore", "second"])
+    said = " ".join(restored.output.split())
+    assert restored.exit_code == 0 and "restored 3" in said and "gone since patched" not in said, said
+    assert sorted(p.name for p in second.iterdir()) == ["hero.png", "v0.png", "v2.png"]
