@@ -65,8 +65,11 @@ def _unprotected_lines(d: dict[str, Any]) -> list[str]:
                      "NOT protected: convert them to JPEG, PNG, TIFF, WebP, HEIC or MP4, or move them "
                      "out")  # fmt: skip
     if d.get("restored_in_place"):  # originals back where they are published: said in the overview
+        # some still patched: a restore stopped part-way (killed) is finished by running it again (a
+        # black-box review: only the re-patch was offered to a user who wanted every original back)
+        rest = f"; `ppd restore {shlex.quote(name)}` restores the rest" if d.get("patched") else ""
         lines.append(f"{name}: {d['restored_in_place']} restored by you, NOT protected: "
-                     f"`ppd poison {root} --force` patches them again")  # fmt: skip
+                     f"`ppd poison {root} --force` patches them again{rest}")  # fmt: skip
     if d.get("other_spec"):
         lines.append(f"{name}: {d['other_spec']} patched with another spec than the dataset's (a "
                      "re-protect did not finish?): "

@@ -305,3 +305,19 @@ def test_status_names_a_temporary_it_cannot_open(ppd_env: dict[str, Path], tmp_p
     assert "1 leftover temporary file(s) of ppd" in check.stderr, check.stderr  # before: not a word of it
     assert "1 hidden temporary file(s) of a stopped ppd run" in " ".join(check.stdout.split()), check.stdout
     assert other.exists()  # not ours to judge: named, not removed
+
+
+def test_a_part_restored_dataset_is_told_how_to_restore_the_rest(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A black-box review: after a `ppd restore DATASET` killed part-way, status offered only the re-patch
+    of the files already back; the user who wanted every original back was not told to run it again."""
+    shoot = make_shoot(tmp_path / "shoot", 3)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert runner.invoke(app, ["restore", str(shoot / "v0.png")]).exit_code == 0  # where a killed run stops
+    text = " ".join(runner.invoke(app, ["status", "shoot"]).output.split())
+    assert "shoot: 1 restored by you, NOT protected" in text, text
+    assert "`ppd restore shoot` restores the rest" in text, text
+    assert runner.invoke(app, ["restore", "shoot"]).exit_code == 0
+    text = " ".join(runner.invoke(app, ["status", "shoot"]).output.split())
+    assert "3 restored by you" in text and "restores the rest" not in text, text  # nothing patched left
