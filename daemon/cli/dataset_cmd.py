@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import shlex
 from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -57,22 +59,46 @@ def _reprotect(ctx: AppContext, name: str, spec: PatchSpec) -> int:
     return counts.get("failed", 0)
 
 
+def _move_root(ctx: AppContext, name: str, old: Path, new: Path) -> None:
+    """--root on an existing dataset: its folder was moved (`mv shoot shoot_new`), the dataset follows
+    (name, spec, verdicts, its rows re-pointed), by the store's one move (the one `ppd restore` uses).
+    A black-box review: the option was silently ignored (exit 0), and the status advice `ppd poison NEW`
+    made a second dataset. Refused (exit 2) when it would not be a move."""
+    from daemon.cli.targets import same_folder
+
+    if os.path.lexists(old):
+        raise die(f"dataset {name!r}'s folder {old} is still there: --root moves a dataset whose folder was "
+                  f"moved; `ppd poison {shlex.quote(str(new))}` makes a new dataset of {new}")  # fmt: skip
+    if not new.is_dir():
+        raise die(f"--root {new}: no such folder")
+    for other in ctx.store.datasets():
+        if other["name"] != name and other["root"] and same_folder(Path(other["root"]), new):
+            raise die(f"--root {new} is dataset {other['name']!r}'s folder; a folder is one dataset's")
+    moved = ctx.store.move_dataset(name, old, new)
+    if (ctx.store.dataset(name) or {}).get("root") != str(new):  # another ppd moved it first
+        raise die(f"dataset {name!r} was moved by another ppd meanwhile: `ppd dataset show {name}`")
+    console().print(f"{name}: moved from {old} to {new} ({moved} files' records moved with it)", markup=False)
+
+
 @dataset_app.command("set")
 @spec_options()
 def dataset_set(
     name: str = typer.Argument(..., help="The dataset."),
-    root: Path | None = typer.Option(None, "--root", help="Dataset folder (default: OUTBOX/NAME)."),
+    root: Path | None = typer.Option(
+        None, "--root", help="Dataset folder (default: OUTBOX/NAME); a moved dataset folder's new place."
+    ),
     publish_dir: Path | None = typer.Option(None, "--publish-dir", help="Move patched files here."),
     reprotect: bool = typer.Option(False, "--reprotect", help="Patch again from the vault originals."),
     spec_options: SpecOptions = SpecOptions(),
 ) -> None:
     """Set a dataset's spec. Once files are patched, a new spec needs --reprotect (every
-    image must carry the same patch).
+    image must carry the same patch). --root NEWFOLDER moves a dataset whose folder you moved.
 
     \b
     Examples:
       ppd dataset set castle --design paper
       ppd dataset set castle --patch-size 8% --reprotect
+      ppd dataset set castle --root ~/Photos/castle-2026
     """
     from daemon.cli.status_queries import spec_summary
     from daemon.datasets.dataset import dataset_root
@@ -83,6 +109,9 @@ def dataset_set(
     failed = 0
     try:
         existing = ctx.store.dataset(name)
+        if root is not None and existing and existing["root"] and not _same_root(existing["root"], root):
+            _move_root(ctx, name, Path(existing["root"]), root.absolute())
+            existing = ctx.store.dataset(name)
         base = ctx.store.dataset_spec(name) or ctx.config.spec_for(name)
         try:
             spec = spec_options.build(base)
@@ -111,6 +140,10 @@ def dataset_set(
         ctx.close()
     if failed:
         raise typer.Exit(ExitStatus.FAILED)
+
+
+def _same_root(stored: str, root: Path) -> bool:
+    return Path(stored).absolute() == root.absolute()
 
 
 def register(app: typer.Typer) -> None:

@@ -137,7 +137,7 @@ def place_lines(d: dict[str, Any]) -> list[str]:
     folder = d.get("folder") or {}
     lines = []
     if folder and not folder.get("exists", True):
-        lines.append(f"folder {d['root']} is gone; counts are the store's: {moved_words(folder)}")
+        lines.append(f"folder {d['root']} is gone; counts are the store's: {moved_words(d)}")
     if folder.get("copies"):
         lines.append(f"patched copies in {folder['copies']}")
     if d["publish_dir"]:
@@ -145,13 +145,18 @@ def place_lines(d: dict[str, Any]) -> list[str]:
     return lines
 
 
-def moved_words(folder: dict[str, Any]) -> str:
-    """What a gone folder may be (FolderCount.to_dict): moved beside it, where its patched files are
-    seen, or moved or deleted; a moved one's files are adopted by a run on its new folder."""
+def moved_words(d: dict[str, Any]) -> str:
+    """What a dataset's gone folder may be (its FolderCount.to_dict): moved beside it, where its patched
+    files are seen, or moved or deleted; `ppd dataset set --root` moves the dataset there. A black-box
+    review: the advice was `ppd poison NEWFOLDER`, which made a second dataset, and was then repeated."""
+    folder, name = d["folder"], shlex.quote(d["name"])
+    if folder.get("moved_to_dataset"):  # a run made a dataset of it: its files are counted there
+        return f"its patched files are in {folder['moved_to']}, now dataset {folder['moved_to_dataset']!r}"
     if folder.get("moved_to"):
         where = shlex.quote(folder["moved_to"])
-        return f"its patched files are in {folder['moved_to']} (moved?): `ppd poison {where}` adopts them"
-    return "moved or deleted? `ppd poison NEWFOLDER` adopts a moved one's files"
+        return (f"its patched files are in {folder['moved_to']} (moved?): "
+                f"`ppd dataset set {name} --root {where}` moves the dataset there")  # fmt: skip
+    return f"moved or deleted? `ppd dataset set {name} --root NEWFOLDER` moves it to a moved one"
 
 
 def _print_details(d: dict[str, Any]) -> None:
@@ -265,11 +270,11 @@ def _print_gone(gone: list[dict[str, Any]]) -> None:
     a deleted folder and a renamed one are not both "hold no file now" (a black-box review)."""
     names = ", ".join(d["name"] for d in gone)
     print_line(console(), f"not shown: {len(gone)} dataset(s) whose folder is gone, moved or deleted "
-                          f"({names}); `ppd poison NEWFOLDER` adopts a moved one's files; `ppd status NAME` "
-                          "shows one")  # fmt: skip
+                          f"({names}); `ppd dataset set NAME --root NEWFOLDER` moves one there; "
+                          "`ppd status NAME` shows one")  # fmt: skip
     for d in gone:
         if d["folder"].get("moved_to"):
-            print_line(console(), f"{d['name']}: folder gone; {moved_words(d['folder'])}")
+            print_line(console(), f"{d['name']}: folder gone; {moved_words(d)}")
 
 
 def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -> None:
@@ -411,7 +416,7 @@ def _exit_if_unready(report: list[dict[str, Any]], check: bool, unclaimed: Seque
     for name, why in unready:
         err_console().print(f"not ready to publish: {name}: {', '.join(why)}", markup=False, highlight=False)
     if not shown and not unready:  # exit 1 said nothing (a second black-box review): say why
-        gone = [f"dataset {d['name']!r}'s folder {d['root']} is gone ({moved_words(d['folder'])})"
+        gone = [f"dataset {d['name']!r}'s folder {d['root']} is gone ({moved_words(d)})"
                 for d in report]  # fmt: skip
         said = "; ".join(gone) or "no dataset yet"
         err_console().print(f"nothing to publish: {said}", markup=False, highlight=False)

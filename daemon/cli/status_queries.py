@@ -12,6 +12,7 @@ from verifier.verdict import Verdict
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
+    from daemon.datasets.folder_count import FolderCount
     from poisoner.spec import PatchSpec
 
 
@@ -128,6 +129,35 @@ def _last_verification(latest: dict[str, Any] | None) -> dict[str, Any] | None:
     }
 
 
+def _moved_into(ctx: AppContext, name: str, folder: FolderCount) -> dict[str, Any]:
+    """Where a dataset's gone folder went (FolderCount.to_dict keys): moved_to as seen beside it, and
+    moved_to_dataset, the other dataset that holds its files now: the user ran `ppd poison NEWFOLDER`,
+    which made a dataset of it (then its rows were carried there, moved away), and status repeated the
+    advice that led there (a black-box review)."""
+    from daemon.cli.targets import same_folder
+    from daemon.states import FileState
+
+    seen = folder.to_dict()
+    if folder.exists:
+        return {**seen, "moved_to_dataset": None}
+    if folder.moved_to is not None:
+        to = folder.moved_to
+        holders = [d["name"] for d in ctx.store.datasets()
+                   if d["name"] != name and d["root"] and same_folder(Path(d["root"]), to)]  # fmt: skip
+        return {**seen, "moved_to_dataset": holders[0] if holders else None}
+    for row in ctx.store.files(name, state=FileState.REMOVED)[:MOVED_PROBE_ROWS]:  # a few: status stays quick
+        to = (ctx.store.last_event(row["path"], "moved_away") or {}).get("detail", {}).get("to")
+        now = ctx.store.file(to) if to else None
+        other = ctx.store.dataset(now["dataset"]) if now and now["dataset"] != name else None
+        if other is not None:
+            return {**seen, "moved_to": other["root"], "moved_to_dataset": other["name"]}
+    return {**seen, "moved_to_dataset": None}
+
+
+# _moved_into reads this many of a gone folder's moved-away rows' events
+MOVED_PROBE_ROWS = 3
+
+
 def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     """Everything `ppd status NAME --json` says about one dataset. Its counts are the rows' and
     the folder's: files no row mentions (a run stopped half-way) are "untracked" and counted in
@@ -160,7 +190,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     return {
         "name": name,
         "root": row["root"],
-        "folder": folder.to_dict(),
+        "folder": _moved_into(ctx, name, folder),
         "not_patched_yet": left,
         "resume": resume_command(name, folder) if left else None,
         "publish_dir": row["publish_dir"],

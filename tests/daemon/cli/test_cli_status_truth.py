@@ -75,16 +75,19 @@ def test_a_moved_folder_is_not_said_to_hold_no_file(ppd_env: dict[str, Path], tm
     text = said("status")
     assert "hold no file" not in text, text
     assert "not shown: 2 dataset(s) whose folder is gone, moved or deleted (set 5, set 6)" in text, text
-    assert f"set 6: folder gone; its patched files are in {moved} (moved?): `ppd poison '{moved}'`" in text
+    assert (f"set 6: folder gone; its patched files are in {moved} (moved?): `ppd dataset set 'set 6' --root "
+            f"'{moved}'` moves the dataset there") in text, text  # fmt: skip
     assert "set 5: folder gone" not in text
     report = json.loads(runner.invoke(app, ["status", "--json"]).stdout)["datasets"]
     folders = {d["name"]: d["folder"] for d in report}
     assert folders["set 6"]["exists"] is False and folders["set 6"]["moved_to"] == str(moved)
     assert folders["set 5"]["exists"] is False and folders["set 5"]["moved_to"] is None
     assert folders["set 7"]["moved_to"] is None
-    assert "moved or deleted? `ppd poison NEWFOLDER` adopts a moved one's files" in said("status", "set 5")
-    adopted = said("poison", str(moved))  # the promised command: its files are recognised, not patched twice
-    assert "patched 0, unchanged 2" in adopted, adopted
+    assert "moved or deleted? `ppd dataset set 'set 5' --root NEWFOLDER` moves it" in said("status", "set 5")
+    # the promised command: the dataset moves there, its files recognised, not patched twice
+    assert runner.invoke(app, ["dataset", "set", "set 6", "--root", str(moved)]).exit_code == 0
+    adopted = said("poison", str(moved))
+    assert "patched 0, unchanged 2" in adopted and "set 6 moved" not in said("status"), adopted
 
 
 def test_a_renamed_patched_file_is_patched_and_the_parts_add_up(

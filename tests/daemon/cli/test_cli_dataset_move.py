@@ -1,0 +1,94 @@
+"""`ppd dataset set NAME --root NEWFOLDER` moves a dataset whose folder the user moved (a black-box
+review: the option was silently ignored, exit 0, and the status advice for a moved folder,
+`ppd poison NEWFOLDER`, made a second dataset while the old one kept its name and the advice)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from testkit.photos import make_image, make_shoot
+
+runner = CliRunner()
+
+
+def said(*args: str) -> str:
+    result = runner.invoke(app, list(args))
+    return " ".join(result.output.split())
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_a_moved_folder_is_adopted_by_dataset_set_root(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    sets = tmp_path / "sets"
+    shoot = sets / "n2"
+    originals = {i: _sha(make_image(shoot / f"v{i}.png", i)) for i in range(3)}
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert runner.invoke(app, ["dataset", "set", "n2", "--patch-size", "8%"]).exit_code == 2  # spec kept
+    spec = json.loads(runner.invoke(app, ["dataset", "show", "n2", "--json"]).stdout)["spec_id"]
+    moved = sets / "n2_new"
+    shoot.rename(moved)
+    advice = said("status")
+    assert f"n2: folder gone; its patched files are in {moved} (moved?): " in advice, advice
+    assert f"`ppd dataset set n2 --root {moved}` moves the dataset there" in advice, advice
+
+    result = runner.invoke(app, ["dataset", "set", "n2", "--root", str(moved)])  # the advice, as given
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert f"n2: moved from {shoot} to {moved} (3 files' records moved with it)" in text, text
+    info = json.loads(runner.invoke(app, ["dataset", "show", "n2", "--json"]).stdout)
+    assert info["root"] == str(moved) and info["spec_id"] == spec, info
+    text = said("status", "n2")
+    assert "folder gone" not in text and "is gone" not in text, text
+    assert "files 3: patched 3" in text, text
+    assert "folder gone" not in said("status") and "n2_new" not in [
+        d["name"] for d in json.loads(runner.invoke(app, ["status", "--json"]).stdout)["datasets"]
+    ]
+    assert "patched 0, unchanged 3" in said("poison", str(moved))  # its own folder now, nothing twice
+    restored = runner.invoke(app, ["restore", "n2"])
+    assert restored.exit_code == 0 and "restored 3" in restored.output, restored.output
+    assert {i: _sha(moved / f"v{i}.png") for i in range(3)} == originals
+
+
+def test_dataset_set_root_refuses_what_is_not_a_move(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    sets = tmp_path / "sets"
+    for name in ("a", "b"):
+        assert runner.invoke(app, ["poison", str(make_shoot(sets / name, 2))]).exit_code == 0
+    (sets / "elsewhere").mkdir()
+
+    def refused(*args: str) -> str:
+        result = runner.invoke(app, ["dataset", "set", *args])
+        assert result.exit_code == 2, result.output
+        shown = json.loads(runner.invoke(app, ["dataset", "show", "a", "--json"]).stdout)
+        assert shown["root"] == str(sets / "a")  # unchanged
+        return " ".join(result.output.split())
+
+    still = refused("a", "--root", str(sets / "elsewhere"))  # its folder still there: not a move
+    assert f"dataset 'a''s folder {sets / 'a'} is still there" in still, still
+    assert f"`ppd poison {sets / 'elsewhere'}` makes a new dataset" in still, still
+    (sets / "a").rename(sets / "a_moved")
+    assert f"--root {sets / 'nowhere'}: no such folder" in refused("a", "--root", str(sets / "nowhere"))
+    assert "is dataset 'b''s folder" in refused("a", "--root", str(sets / "b"))
+
+
+def test_a_moved_folder_made_its_own_dataset_is_said_so(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """The old advice followed: `ppd poison NEWFOLDER` made dataset n2_new; status repeated the advice."""
+    sets = tmp_path / "sets"
+    assert runner.invoke(app, ["poison", str(make_shoot(sets / "n2", 2))]).exit_code == 0
+    (sets / "n2").rename(sets / "n2_new")
+    assert runner.invoke(app, ["poison", str(sets / "n2_new")]).exit_code == 0
+    text = said("status", "n2")
+    assert f"its patched files are in {sets / 'n2_new'}, now dataset 'n2_new'" in text, text
+    assert "moves the dataset there" not in said("status")
+    # its files seen beside it, in a folder made a dataset by name (no run carried their rows)
+    assert runner.invoke(app, ["poison", str(make_shoot(sets / "n4", 2))]).exit_code == 0
+    (sets / "n4").rename(sets / "n4_new")
+    assert runner.invoke(app, ["dataset", "set", "n4_new", "--root", str(sets / "n4_new")]).exit_code == 0
+    text = said("status", "n4")
+    assert f"its patched files are in {sets / 'n4_new'}, now dataset 'n4_new'" in text, text
