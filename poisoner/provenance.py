@@ -40,7 +40,7 @@ import os
 import re
 import struct
 import zlib
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -119,11 +119,13 @@ class _Token:
     tag: bytes  # those characters
 
 
-def _tokens(mm: _Bytes) -> Iterator[_Token]:
-    """The well-formed tokens in the file, in order (at most _MAX_TOKENS), found as they are asked
-    for: sealing stops at its placeholder (in the header) instead of searching the rest."""
+def _tokens(mm: _Bytes, start: int = 0, end: int | None = None) -> Iterator[_Token]:
+    """The well-formed tokens in the file (or those starting in [start, end)), in order (at most
+    _MAX_TOKENS), found as they are asked for: sealing stops at its placeholder (in the header)
+    instead of searching the rest."""
     found = 0
-    at = mm.find(MAGIC)
+    end = len(mm) if end is None else end
+    at = mm.find(MAGIC, start, end)
     while at >= 0 and found < _MAX_TOKENS:
         pos = at + len(MAGIC)
         head = mm[pos : pos + 2]
@@ -133,7 +135,7 @@ def _tokens(mm: _Bytes) -> Iterator[_Token]:
             if len(text) == 2 * n + _TAG_HEX and set(text) <= _HEX:
                 found += 1
                 yield _Token(bytes.fromhex(text[: 2 * n].decode()), pos + 2 + 2 * n, text[2 * n :])
-        at = mm.find(MAGIC, at + 1)
+        at = mm.find(MAGIC, at + 1, end)
 
 
 def _open_body(key: bytes, body: bytes) -> Seal | None:
@@ -337,6 +339,34 @@ def scan_seals(path: Path, key: bytes | None) -> SealScan:
     finally:
         os.close(fd)
     return SealScan(None, claim, other and claim is None)
+
+
+_ENDS = 1 << 20  # where a seal is: in a header (photos, Matroska) or the last box (MP4)
+
+
+def sealing_key(path: Path, keys: Sequence[bytes]) -> int | None:
+    """Which of keys made the file's seal (its index), by the token in the file's first or last MB:
+    who sealed it, not whether its bytes are still those sealed (no pass over the whole file, so
+    cheap on a large store). -1: a token none of keys opens; None: no token there, or no file."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    found: int | None = None
+    try:
+        with mmap.mmap(fd, 0, access=mmap.ACCESS_READ) as mm:
+            size = len(mm)
+            spans = [(0, size)] if size <= 2 * _ENDS else [(0, _ENDS), (size - _ENDS, size)]
+            for tok in (tok for start, end in spans for tok in _tokens(mm, start, end)):
+                opens = [i for i, key in enumerate(keys) if _open_body(key, tok.body) is not None]
+                if opens:
+                    return opens[0]
+                found = -1
+    except (OSError, ValueError):  # an empty file, a FIFO, unreadable
+        return found
+    finally:
+        os.close(fd)
+    return found
 
 
 def sealed_for(path: Path, key: bytes | None, original_sha256: str, spec_id: str) -> bool:

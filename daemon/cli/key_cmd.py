@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -93,41 +94,70 @@ def key_import(
     if current == key:
         typer.echo(f"{key_path(paths.data_dir)} already holds this key")
         return
-    # how much the key being replaced sealed, said before and after
-    sure, unsure = sealed_originals(paths)
-    sealed = _originals(sure, unsure)
+    # how much the key being replaced sealed, by the seals of the files, said before and after
+    sealed = sealed_originals(paths, current, key)
     if current is not None and not force:
-        raise die(
-            f"{key_path(paths.data_dir)} holds a different key, which sealed the patched files of {sealed} "
-            "in the vault: they would no longer be recognised after a store loss (use --force to replace it)"
-        )
+        raise die(_refusal(key_path(paths.data_dir), sealed, file))
     with _alone(paths.data_dir, "import the key"):
         where = install_key(paths.data_dir, key, replace=True)
     typer.echo(f"seal key installed at {where}")
     _remind_restart()
-    if current is not None and sure + unsure:
-        known = (f"{sealed}: their rows in the store still know them; after a store loss they are not "
-                 "recognised")  # fmt: skip
-        if unsure:  # those no row names: recognised by their seal alone, which this key cannot read
-            known = (f"up to {sure + unsure} original(s): the store's rows still know {sure} of them; ppd no "
-                     "longer recognises the others")  # fmt: skip
-        typer.echo(f"the key it replaced sealed the patched files of {known}")
+    if current is not None and sealed.replaced_up_to:
+        typer.echo(f"the key it replaced sealed the patched files of {_replaced_words(sealed)}")
+    if sealed.incoming:
+        typer.echo(f"the key you installed is the one that sealed the patched files of {sealed.incoming} "
+                   "original(s): ppd recognises them by their seal")  # fmt: skip
 
 
-def sealed_originals(paths: AppPaths) -> tuple[int, int]:
-    """How many originals had their file patched, so sealed, by the key here, from the store's rows
-    (sure); and how many more of the vault's may have (unsure): no row names them (a lost or rebuilt
-    store), or a run stopped mid-file whose file is no longer its original. A run killed mid-file
-    leaves its original in the vault and its file as it was: not sealed (all the vault's originals
-    were counted, 19 where 17 were sealed: a third black-box review)."""
+@dataclass(frozen=True)
+class Sealed:
+    """Which key sealed the patched files of the vault's originals, as their seals say."""
+
+    replaced: int  # the key being replaced (its seal read in the file)
+    incoming: int  # the key being installed
+    unread: int  # rows whose file has no seal to read (edited, moved away): either key, or another
+    unnamed: int  # originals no row names (a lost or rebuilt store): where their files are is unknown
+
+    @property
+    def replaced_up_to(self) -> int:
+        return self.replaced + self.unread + self.unnamed
+
+
+def _refusal(path: Path, sealed: Sealed, file: Path) -> str:
+    """The refusal of a different key without --force, with what the key there sealed."""
+    if sealed.replaced_up_to:
+        return (f"{path} holds a different key, which sealed the patched files of {_originals(sealed)} "
+                "in the vault: they would no longer be recognised after a store loss (use --force to replace "
+                "it)")  # fmt: skip
+    theirs = f" (the key in {file} sealed those of {sealed.incoming} original(s))" if sealed.incoming else ""
+    return f"{path} holds a different key, which sealed none of the patched files here{theirs}; " \
+        "use --force to replace it"
+
+
+def _replaced_words(sealed: Sealed) -> str:
+    known = "their rows in the store still know them; after a store loss they are not recognised"
+    if sealed.unnamed:  # those no row names: recognised by their seal alone, which this key cannot read
+        known = (f"the store's rows still know {sealed.replaced + sealed.unread} of them; ppd no longer "
+                 "recognises the others")  # fmt: skip
+    return f"{_originals(sealed)}: {known}"
+
+
+def sealed_originals(paths: AppPaths, current: bytes | None, incoming: bytes) -> Sealed:
+    """Which key sealed the patched file of each original the store's rows name, read from the seal
+    in the file (the rows counted every patched file against the key being replaced, even after the
+    key that sealed them was put back: a fourth black-box review); what no seal tells is "unread".
+    A run killed mid-file leaves its original in the vault and its file as it was: not sealed (all
+    the vault's originals were counted, 19 where 17 were sealed: a third black-box review)."""
     import sqlite3
 
     from daemon.protect.rebuild_carry import open_read_only
-    from daemon.states import FileState
+    from poisoner.provenance import sealing_key
 
     vault = {p.name for p in paths.vault_dir.glob("??/*") if len(p.name) == 64}
-    sealed: set[str] = set()
-    not_sealed: set[str] = set()
+    keys = [k for k in (current, incoming) if k is not None]
+    by_key: list[set[str]] = [set() for _ in keys]
+    unread: set[str] = set()
+    named: set[str] = set()
     if (conn := open_read_only(paths.db_path)) is not None:
         try:
             with contextlib.suppress(sqlite3.Error):  # a damaged store tells what it can
@@ -136,13 +166,37 @@ def sealed_originals(paths: AppPaths) -> tuple[int, int]:
                     " WHERE original_sha256 NOT NULL"
                 )
                 for path, state, original, patched in rows:
-                    if patched:
-                        sealed.add(original)
-                    elif state != FileState.PENDING or _never_replaced(Path(path), original):
-                        not_sealed.add(original)
+                    named.add(original)
+                    if not _sealed_file_may_be_there(state, patched):  # not read: a large store has many
+                        continue
+                    who = sealing_key(Path(path), keys)
+                    if who is not None and who >= 0:
+                        by_key[who].add(original)
+                    elif who is None and _unread(Path(path), state, original, patched):
+                        unread.add(original)
         finally:
             conn.close()
-    return len(sealed), len(vault - sealed - not_sealed)
+    replaced, incoming_set = (by_key if current is not None else [set(), *by_key])
+    return Sealed(len(replaced), len(incoming_set), len(unread - replaced - incoming_set), len(vault - named))
+
+
+def _sealed_file_may_be_there(state: str, patched: str | None) -> bool:
+    """Whether the row's path may hold a file ppd sealed: one patched (not restored since: the original
+    is back), one in flight, or one a poison refused (sealed with another key)."""
+    from daemon.states import FileState
+
+    if state == FileState.RESTORED:
+        return False
+    return bool(patched) or state in (FileState.PENDING, FileState.FAILED)
+
+
+def _unread(path: Path, state: str, original: str, patched: str | None) -> bool:
+    """Whether a row whose file shows no seal may have had its file sealed all the same: one patched
+    and since edited or moved away; one in flight whose file is no longer its original (the rename
+    done, the row not yet)."""
+    from daemon.states import FileState
+
+    return bool(patched) or (state == FileState.PENDING and not _never_replaced(path, original))
 
 
 def _never_replaced(path: Path, original: str) -> bool:
@@ -158,11 +212,12 @@ def _never_replaced(path: Path, original: str) -> bool:
         return False
 
 
-def _originals(sure: int, unsure: int) -> str:
-    """"3 original(s)"; "up to 5 original(s) (3 by the store's rows)" where the store cannot tell."""
-    if not unsure:
-        return f"{sure} original(s)"
-    return f"up to {sure + unsure} original(s)" + (f" ({sure} by the store's rows)" if sure else "")
+def _originals(sealed: Sealed) -> str:
+    """"3 original(s)"; "up to 5 original(s) (3 by their seals)" where the seals cannot tell."""
+    if sealed.replaced_up_to == sealed.replaced:
+        return f"{sealed.replaced} original(s)"
+    by_seal = f" ({sealed.replaced} by their seals)" if sealed.replaced else ""
+    return f"up to {sealed.replaced_up_to} original(s){by_seal}"
 
 
 @contextlib.contextmanager

@@ -332,3 +332,26 @@ def test_a_full_xmp_segment_still_takes_the_seal(tmp_path: Path, padding: int) -
     again = sealed(tmp_path / "b.jpg", tmp_path / "c.jpg", other, spec=MOVED)
     assert read_seal(tmp_path / "c.jpg", KEY) == Seal("cd" * 32, "spec-2")
     assert again.count(MARKER.text[:6].encode()) == 1
+
+
+def test_sealing_key_reads_the_seal_at_either_end_of_a_large_file(tmp_path: Path) -> None:
+    """sealing_key reads only a file's first and last MB (`ppd key import` asks it of every patched
+    file): a photo's seal is in its header, an MP4's is its last box, beyond the first MB."""
+    from poisoner.provenance import mp4_box, sealing_key
+    from testkit.video import Clip, make_clip
+
+    lossless = (("qp", "0"), ("preset", "ultrafast"))
+    big = Clip(width=1280, height=720, frames=12, audio=None, options=lossless)
+    clip = make_clip(tmp_path / "c.mp4", big)
+    assert clip.stat().st_size > 3 << 20
+    with open(clip, "ab") as f:
+        f.write(mp4_box(MARKER))  # as poisoner.video.metadata.append_marker_box does
+    seal_file(clip, KEY)
+    other = bytes(32)
+    assert sealing_key(clip, [other, KEY]) == 1 and sealing_key(clip, [other]) == -1
+    write(tmp_path / "src.png", "png", False)
+    sealed(tmp_path / "src.png", tmp_path / "out.png")
+    assert sealing_key(tmp_path / "out.png", [KEY]) == 0
+    (tmp_path / "empty.png").write_bytes(b"")
+    for unsealed in ("src.png", "empty.png", "missing.png"):  # no seal to read: None
+        assert sealing_key(tmp_path / unsealed, [KEY]) is None
