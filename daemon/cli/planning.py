@@ -264,10 +264,10 @@ def small_mark_lines(outcomes: list[Any]) -> list[str]:
     name, across, side, _ = min(small, key=lambda item: item[1])
     videos = sum(item[3] for item in small)
     kind = "video" if videos == len(small) else "photo" if videos == 0 else "file"  # a clip is no photo
-    s = "" if len(small) == 1 else "s"
-    return [f"{len(small)} {kind}{s} got squares of fewer than {FEW_BLOCKS} blocks across ({name}: {across} "
-            f"blocks, {side} px; ppd's mark was measured with 12): a small picture or a wide panorama "
-            "caps them, and `ppd verify` tells whether they hold"]
+    s, which = ("", "") if len(small) == 1 else ("s", "fewest: ")  # of several, one named: which one
+    return [f"{len(small)} {kind}{s} got squares of fewer than {FEW_BLOCKS} blocks across ({which}{name}: "
+            f"{across} blocks, {side} px; ppd's mark was measured with 12): a small picture or a wide "
+            "panorama caps them, and `ppd verify` tells whether they hold"]
 
 
 def capped_lines(outcomes: list[Any], wanted: dict[str, PatchSpec], options: SpecOptions) -> list[str]:

@@ -78,6 +78,12 @@ def test_the_small_squares_line_calls_a_clip_a_video(ppd_env: dict[str, Path], t
     text = " ".join(result.output.split())
     assert result.exit_code == 0, result.output
     assert "1 video got squares of fewer than 8 blocks across (a.mp4:" in text, text
+    two = tmp_path / "two"  # of two, the one named is the fewest (it read as the only one)
+    two.mkdir()
+    make_video(two / "a.mp4", seed=1)
+    make_video(two / "b.mp4", seed=2)
+    text = " ".join(runner.invoke(app, ["poison", str(two)]).output.split())
+    assert "2 videos got squares of fewer than 8 blocks across (fewest: " in text, text
 
 
 def test_a_set_of_clips_is_told_of_videos_not_photos(ppd_env: dict[str, Path], tmp_path: Path) -> None:
