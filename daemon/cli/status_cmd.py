@@ -232,6 +232,12 @@ def _print_regressions(report: list[dict[str, Any]]) -> None:
             )
 
 
+def _outbox_not_patched(outbox: Path, report: list[dict[str, Any]], unclaimed: list[Path]) -> list[str]:
+    """The outbox's files no dataset holds, and its datasets' files not patched yet."""
+    held = [f for d in report for f in d.get("not_patched_files", []) if Path(f).is_relative_to(outbox)]
+    return sorted({*map(str, unclaimed), *held})
+
+
 def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any, unclaimed: list[Path]) -> None:
     # --check's answer and reasons, per dataset: a script had to rebuild the rule (a black-box review)
     datasets = [{**d, "not_ready": [] if _gone(d) else unready_reasons(d)} for d in report]
@@ -239,7 +245,10 @@ def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any, unclai
         "outbox": str(ctx.paths.outbox),
         "sync_folder": None if sync is None else {"client": sync.client, "root": str(sync.root)},
         "datasets": datasets,
-        "outbox_not_patched": [str(p) for p in unclaimed],  # in the outbox, no dataset's yet
+        # every photo in the outbox not patched yet: of no dataset, or of one (a script read [] as a
+        # clean outbox while the "default" dataset had a new photo: a black-box review); sorted
+        "outbox_not_patched": _outbox_not_patched(ctx.paths.outbox, report, unclaimed),
+        "outbox_no_dataset": [str(p) for p in unclaimed],  # what outbox_not_patched held before
         "ready_to_publish": bool(report) and not unclaimed
         and any(not _gone(d) for d in report) and not any(d["not_ready"] for d in datasets),
     }

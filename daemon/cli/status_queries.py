@@ -192,6 +192,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "root": row["root"],
         "folder": _moved_into(ctx, name, folder),
         "not_patched_yet": left,
+        "not_patched_files": [str(f) for f in folder.untracked],  # the files of that count no row names
         "resume": resume_command(name, folder) if left else None,
         "publish_dir": row["publish_dir"],
         "subject_masks": row.get("subject_masks"),  # remembered with the dataset (issue 25)

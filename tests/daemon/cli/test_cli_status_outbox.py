@@ -46,6 +46,11 @@ def test_photos_in_the_outbox_no_dataset_holds_are_said_and_fail_the_check(ppd_e
     datasets = {d["name"]: d for d in json.loads(runner.invoke(app, ["status", "--json"]).output)["datasets"]}
     assert set(datasets) == {"ghost", "default"} and datasets["ghost"]["patched"] == 2
     assert "no dataset holds" not in _said("status")[1]
+    # a new photo of an outbox dataset's: not patched, so listed (a black-box review: [] read as clean)
+    make_image(outbox / "fresh.png", 7)
+    said = json.loads(runner.invoke(app, ["status", "--json"]).output)
+    assert said["outbox_not_patched"] == [str(outbox / "fresh.png")], said["outbox_not_patched"]
+    assert said["outbox_no_dataset"] == [] and said["ready_to_publish"] is False
 
 
 def test_a_dataset_whose_folder_is_gone_does_not_hold_the_check(
