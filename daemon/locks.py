@@ -19,6 +19,7 @@ import fcntl
 import hashlib
 import logging
 import os
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -59,7 +60,10 @@ class WaitLeft(PpdError):
 # workers (share_counts): `ppd poison`'s waits are in its workers, its Ctrl-C handler in the caller,
 # which said "stopping after the file in progress" while they only waited (a diff review).
 _counts: Any = [0, 0]
-_counts_lock: Any = contextlib.nullcontext()  # a shared one's writers (a read needs none)
+_counts_lock: Any = threading.Lock()  # its writers' (a read needs none); a shared one for shared counts
+# A worker killed while it held the shared lock would leave it held: the counts only shape a message,
+# so a writer that cannot take it in this long leaves them as they are rather than hang its file.
+COUNT_LOCK_S = 1.0
 _FILES, _WAITS = 0, 1
 
 
@@ -90,8 +94,12 @@ def counts_shared(counts: Any, lock: Any) -> Iterator[None]:
 
 
 def _count(which: int, by: int) -> None:
-    with _counts_lock:
+    if not _counts_lock.acquire(timeout=COUNT_LOCK_S):
+        return
+    try:
         _counts[which] += by
+    finally:
+        _counts_lock.release()
 
 
 @contextlib.contextmanager

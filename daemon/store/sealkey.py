@@ -130,8 +130,8 @@ def read_key_stamped(path: Path) -> tuple[bytes, KeyStamp]:
 def load_key(data_dir: Path, *, create: bool = True) -> bytes | None:
     """This installation's key, created on first use when create (else None when there is none).
     Never created beside a vault that holds originals (SealKeyMissing): new_key does that, asked."""
-    clear_stale_key_temporaries(data_dir)
     if not create:
+        clear_stale_key_temporaries(data_dir)  # load_key_stamped does it on the other path
         with contextlib.suppress(FileNotFoundError):
             return read_key_file(key_path(data_dir))
         return None
