@@ -219,10 +219,10 @@ def plan_profile(profile: str, run: VerifyRun) -> ProfilePlan:
     skey = hashlib.sha256(settings.feature_key().encode()).hexdigest()[:10]
     profile_dir = run.out_dir / profile
     # the SIFT device is said by the key's end alone, so a CPU key stays as it was; COLMAP's own
-    # mapper threads are not said at all (a key made before the setting stays as it was)
+    # mapper and matcher threads are not said at all (a key made before the settings stays as it was)
     as_json = {
         k: v for k, v in msgspec.to_builtins(settings).items()
-        if k != "cpu_sift" and (k, v) != ("mapper_threads", -1)
+        if k != "cpu_sift" and (k, v) not in {("mapper_threads", -1), ("matcher_threads", -1)}
     }  # fmt: skip
     settings_json = json.dumps(as_json, sort_keys=True)
     reuse_key = f"{run.clean_key}-{profile}-{settings_json}-{source}"

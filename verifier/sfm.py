@@ -74,6 +74,10 @@ class SfmSettings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     # the incremental mapper's threads; -1: COLMAP's (every core). One thread maps one database to
     # one model every time, which several do not (docs/VERIFIER.md, "Mapping under load")
     mapper_threads: int = -1
+    # the raw matcher's threads; -1: COLMAP's (every core). Its CPU matcher gives a pair other matches
+    # now and then when several threads run (colmap/colmap#727; here 1 run in 500 of six views under
+    # load lost most of one pair's); one thread matched 1200 runs alike
+    matcher_threads: int = -1
 
     def verification_key(self) -> str:
         """Settings that decide the verified database (features, raw matches, two-view geometry):
@@ -385,6 +389,7 @@ def match_raw(database: Path, settings: SfmSettings) -> None:
 
     matching = pycolmap.FeatureMatchingOptions()
     matching.skip_geometric_verification = True
+    matching.num_threads = settings.matcher_threads
     device = sift_device(settings.cpu_sift)
     if settings.matching == "sequential":
         pairing = pycolmap.SequentialPairingOptions()

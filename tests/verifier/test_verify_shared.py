@@ -190,6 +190,7 @@ def test_the_clean_reference_is_cached_until_an_original_changes(
     stored = [json.loads(p.read_text()) for p in (tmp_path / "clean-cache").rglob("result.json")]
     keys = [r["reuse_key"] for r in stored]
     assert keys and all('"camera_model"' in k and "cpu_sift" not in k for k in keys)
+    assert not any("matcher_threads" in k for k in keys)  # COLMAP's own, as before the setting
     assert figures(second) == figures(first)
     # same bytes, new mtime: still cached (the key is the content); one changed original: not
     first_view = clean / sorted(os.listdir(clean))[0]
