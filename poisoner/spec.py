@@ -437,7 +437,7 @@ class PatchSpec:
     def capped_side(self, width: int, height: int) -> tuple[int, int] | None:
         """(the lane side patch_size asks for, the side the visibility budget allows) on a width x
         height picture when the budget is the smaller (a lanes mark only; None otherwise)."""
-        if self.lanes <= 0:
+        if self.lanes <= 1:  # one square is not capped (resolve: only a mark of lanes is)
             return None
         asked = resolve_length(self.patch_size, length_base(width, height))
         allowed = self._lane_cap(width, height)

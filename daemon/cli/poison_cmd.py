@@ -432,7 +432,7 @@ def _run_planned(
         raise typer.Exit(ExitStatus.INTERRUPTED)
     summary(ctx, jobs, outcomes, dry_run, scene_notes=lambda: not stop())  # a Ctrl-C there skips the notes
     done = {o.path for o in outcomes if o.state in OUTCOME_PATCHED}
-    capped = planning.capped_lines(outcomes, wanted, spec_options)
+    capped = planning.capped_lines(outcomes, wanted, spec_options, ctx.store.dataset_spec)
     turned = planning.turned_mask_lines(outcomes, masks) + planning.small_mark_lines(outcomes)
     for line in planning.missing_mask_lines(jobs, done, masks) + turned + capped:
         console().print(line, markup=False)

@@ -322,6 +322,30 @@ def test_a_patch_size_the_visibility_budget_caps_is_said(shoot: Path) -> None:
     assert "--patch-size asks" not in again.output, again.output  # within the budget: nothing to say
 
 
+def test_a_patch_size_the_budget_caps_is_said_from_the_config_and_by_dataset_set(
+    shoot: Path, ppd_env: dict[str, Path]
+) -> None:
+    """A black-box review: a config's `[patch] patch_size = 0.3` (and `ppd dataset set --patch-size
+    8.5%`) gave the default's squares in silence, and `dataset set` echoed the size asked. Said now
+    both ways; a single square (the paper's design) is never capped, so never said to be."""
+    (ppd_env["config"] / "config.toml").write_text("[patch]\npatch_size = 0.3\n")
+    result = runner.invoke(app, ["poison", str(shoot)])
+    assert result.exit_code == 0, result.output
+    said = " ".join(result.output.split())
+    assert "castle: its spec's patch_size asks 48 px squares; the visibility budget" in said, result.output
+    (ppd_env["config"] / "config.toml").write_text("")
+    asked = runner.invoke(app, ["dataset", "set", "studio", "--patch-size", "8.5%"])
+    assert asked.exit_code == 0, asked.output
+    assert "squares capped at 6.0% of a 4:3 photo's width" in " ".join(asked.output.split()), asked.output
+    paper = runner.invoke(app, ["dataset", "set", "desk", "--design", "paper", "--patch-size", "30%"])
+    assert paper.exit_code == 0 and "capped" not in paper.output, paper.output
+    make_image(shoot.parent / "sheet" / "view0.png", 0)
+    flags = ["--design", "paper", "--patch-size", "30%"]
+    wide = runner.invoke(app, ["poison", str(shoot.parent / "sheet"), *flags])
+    assert wide.exit_code == 0 and "patched 1" in wide.output, wide.output
+    assert "kept them at" not in wide.output, wide.output
+
+
 def test_a_subfolder_of_a_dataset_is_that_dataset(shoot: Path) -> None:
     """Found on an installed ppd: after `ppd poison castle`, `ppd poison castle/sub` spoke of a
     dataset "sub" that did not exist. A folder whose files a dataset already holds is that dataset:
