@@ -118,10 +118,19 @@ def marked_files(ctx: AppContext, plan: FolderRestore) -> list[Path]:
     at_home = Path(folder).absolute() == Path.home().absolute()
     return [
         f for f in media_files(folder, recursive=not at_home)
-        if f not in skip and not f.is_symlink() and ctx.store.file(f) is None
+        if f not in skip and not f.is_symlink() and _unrecorded_or_refused(ctx, f)
         and (own is None or innermost_holder(datasets, f, prefer=own) in (own, None))
         and (has_token(f) or (originals and sha256_file(f) in originals))
     ]  # fmt: skip
+
+
+def _unrecorded_or_refused(ctx: AppContext, path: Path) -> bool:
+    """A file with no row, or one `ppd poison` refused (failed: ppd's output sealed with another key,
+    say): restore_file says what it is. A folder of such files restored "restored 0 ... failed 0", exit
+    0, after a run with a mistyped PPD_DATA_DIR had sealed them with that folder's new key (a black-box
+    review)."""
+    row = ctx.store.file(path)
+    return row is None or row["state"] == FileState.FAILED
 
 
 def still_gone(ctx: AppContext, gone: list[dict[str, Any]]) -> list[Path]:

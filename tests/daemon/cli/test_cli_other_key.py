@@ -134,3 +134,23 @@ def test_replacing_the_key_counts_only_what_it_sealed(ppd_env: dict[str, Path], 
     replaced = runner.invoke(app, ["key", "import", str(other), "--force"])
     said = " ".join(replaced.output.split())
     assert replaced.exit_code == 0 and "sealed the patched files of 2 original(s)" in said, said
+
+
+def test_restoring_a_folder_of_another_keys_output_names_each_file(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A fifth black-box review: a shoot patched with a mistyped PPD_DATA_DIR (a new folder: its own
+    vault and key), then `ppd poison` with the right one (refused: sealed with another key) and `ppd
+    restore FOLDER`: "restored 0, removed 0, unchanged 0, failed 0", exit 0, as if nothing were left
+    to do. Each file is named with what to do, exit 1."""
+    shoot = tmp_path / "shoot"
+    make_shoot(shoot, 2)
+    typo = {"PPD_DATA_DIR": str(tmp_path / "ppd-dta")}
+    assert runner.invoke(app, ["poison", str(shoot)], env=typo).exit_code == 0
+    patched = _shas(shoot)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 1  # refused: another key's seal
+    restored = runner.invoke(app, ["restore", str(shoot)])
+    said = " ".join(restored.output.split())
+    assert restored.exit_code == 1 and "failed 2" in said, said
+    assert said.count("sealed with another key") == 2 and "`ppd key import`" in said, said
+    assert _shas(shoot) == patched
