@@ -49,7 +49,9 @@ class AppContext:
         return self._seal_key
 
     @classmethod
-    def open(cls, paths: AppPaths | None = None) -> AppContext:
+    def open(cls, paths: AppPaths | None = None, *, store_held: bool = False) -> AppContext:
+        """store_held: the caller holds the store lock already, exclusive (daemon.locks.store_alone:
+        `ppd dataset forget`); a shared hold of its own would wait on the caller's."""
         paths = paths or AppPaths.from_env()
         config = Config.load(paths)  # reads one file: the publish folders, checked before anything is made
         published = [config.publish_dir] + [d.publish_dir for d in config.datasets.values()]
@@ -59,7 +61,7 @@ class AppContext:
         clear_stale_key_temporaries(paths.data_dir)  # a killed ppd's copy of the secret key
         # held until close: a `ppd store rebuild` swapping the store meanwhile would lose what this
         # process writes to it (LockHeld while one runs)
-        hold = use_store(paths.data_dir)
+        hold = None if store_held else use_store(paths.data_dir)
         try:
             return cls(
                 paths=paths,
@@ -71,7 +73,8 @@ class AppContext:
                 _store_hold=hold,
             )
         except BaseException:
-            release_store(paths.data_dir, hold)
+            if hold is not None:
+                release_store(paths.data_dir, hold)
             raise
 
     def close(self) -> None:

@@ -445,8 +445,9 @@ def store_alone(
     data_dir: Path, doing: str = "ppd store rebuild is rebuilding the store", then: str = "rebuild",
     wait_s: float = STORE_WAIT_S,
 ) -> Iterator[None]:  # fmt: skip
-    """The store lock exclusive: no other ppd command runs meanwhile (`ppd store rebuild`, and `ppd key
-    new`, whose key a running command would not see); LockHeld while one runs. doing: what a command
+    """The store lock exclusive: no other ppd command runs meanwhile (`ppd store rebuild`, `ppd key
+    new`, whose key a running command would not see, and `ppd dataset forget`, whose originals a running
+    command could name again); LockHeld while one runs. doing: what a command
     refused meanwhile is told; then: what to do once the others are done."""
 
     def refusal(_holder: str) -> str:

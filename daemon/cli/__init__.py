@@ -10,7 +10,7 @@ torch or pycolmap (tests/daemon/cli/test_cli_startup.py checks it).
 | daemon.cli.restore_cmd | `restore` |
 | daemon.cli.preview_cmd | `preview` |
 | daemon.cli.status_cmd | `status` (queries: daemon.cli.status_queries) |
-| daemon.cli.dataset_cmd | `dataset show`, `dataset set` |
+| daemon.cli.dataset_cmd | `dataset show`, `dataset set`, `dataset forget` |
 | daemon.cli.config_cmd | `config show`, `config path` |
 | daemon.cli.watch_cmd | `watch`, `service install/uninstall/status` |
 | daemon.cli.demo_cmd | `demo` |

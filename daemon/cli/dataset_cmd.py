@@ -1,11 +1,14 @@
-"""`ppd dataset show NAME` and `ppd dataset set NAME [spec flags]`: a dataset's patch spec."""
+"""`ppd dataset show NAME` and `ppd dataset set NAME [spec flags]`: a dataset's patch spec; `ppd dataset
+forget NAME`: a finished or deleted dataset leaves ppd, its originals with it."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shlex
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -18,9 +21,12 @@ from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
+    from daemon.protect.forgetting import Forgotten
     from poisoner.spec import PatchSpec
 
-dataset_app = typer.Typer(help="Show or set a dataset's patch spec.", no_args_is_help=True)
+dataset_app = typer.Typer(
+    help="Show or set a dataset's patch spec; forget a finished one.", no_args_is_help=True
+)
 
 
 @dataset_app.command("show")
@@ -140,6 +146,105 @@ def dataset_set(
         ctx.close()
     if failed:
         raise typer.Exit(ExitStatus.FAILED)
+
+
+@dataset_app.command("forget")
+def dataset_forget(
+    name: str = typer.Argument(..., help="The dataset."),
+    force: bool = typer.Option(
+        False, "--force", help="Forget it while patched files of it are there: they keep the mark for good."
+    ),
+) -> None:
+    """Forget a finished or deleted dataset. Its records leave the store, and its originals that no
+    other dataset uses leave the vault. Its patched photos must be gone or restored (`ppd restore NAME`)
+    first: the vault's originals are the only way back. Stop `ppd watch` first.
+
+    \b
+    Examples:
+      ppd dataset forget castle
+    """
+    from daemon.paths import AppPaths
+    from daemon.protect.forgetting import ForgetUnfinished, forget_dataset, unfinished
+    from daemon.store import StoreError
+    from daemon.store.vault import VaultError
+
+    paths = AppPaths.from_env()
+    with _alone(paths.data_dir):
+        ctx = open_ctx(store_held=True)
+        try:
+            marked = [] if unfinished(ctx, name) else _forget_check(ctx, name, force)
+            done = forget_dataset(ctx, name)
+        except ForgetUnfinished as exc:
+            raise die(exc, ExitStatus.ENVIRONMENT) from None
+        except (StoreError, VaultError, OSError) as exc:
+            raise die(f"cannot forget dataset {name!r}: {one_line(exc)}", ExitStatus.ENVIRONMENT) from None
+        finally:
+            ctx.close()
+    _say_forgotten(name, done, len(marked))
+
+
+@contextlib.contextmanager
+def _alone(data_dir: Path) -> Iterator[None]:
+    """No other ppd process on this data folder while a dataset is forgotten: one could record a row
+    for an original between the check that none names it and its removal; refused with one line,
+    exit 3 (as `ppd store rebuild` and `ppd key new` are)."""
+    from daemon.locks import LockHeld, store_alone, watching
+
+    then = "forget the dataset"
+    if holders := watching(data_dir):
+        raise die(f"ppd watch ({holders[0]}) is running on this data folder; stop it first "
+                  f"(`systemctl --user stop ppd`), then {then}", ExitStatus.ENVIRONMENT)  # fmt: skip
+    try:
+        with store_alone(data_dir, "ppd dataset forget is forgetting a dataset", then):
+            yield
+    except LockHeld as exc:
+        raise die(exc, ExitStatus.ENVIRONMENT) from None
+    except OSError as exc:  # the lock file's folder
+        raise die(f"cannot lock the store: {one_line(exc)}", ExitStatus.ENVIRONMENT) from None
+
+
+def _forget_check(ctx: AppContext, name: str, force: bool) -> list[Path]:
+    """Refused (exit 2) unless --force: a folder seen moved (its patched files there: `ppd dataset
+    set --root` follows it), or patched files of the dataset still there (their originals are the
+    only way back). Returns those files; an unknown dataset is refused by dataset_status."""
+    from daemon.cli.status_queries import dataset_status
+    from daemon.protect.forgetting import still_patched
+    from daemon.states import FileState
+
+    info = dataset_status(ctx, name)  # as `ppd status` judges it
+    folder = info["folder"]
+    root, moved, there = folder["folder"], folder.get("moved_to"), folder.get("moved_to_dataset")
+    # seen moved while its rows still call them patched: no other row names their originals (a run
+    # in the new folder carries the rows over, after which they are that dataset's: forgetting is free)
+    if not force and not folder["exists"] and moved and ctx.store.counts(name).get(FileState.PATCHED):
+        follow = f"`ppd poison {shlex.quote(moved)}` records them in dataset {there!r}" if there else (
+            f"`ppd dataset set {shlex.quote(name)} --root {shlex.quote(moved)}` moves the dataset there")
+        raise die(f"dataset {name!r}'s folder {root} is gone, but its patched files are in {moved} "
+                  f"(moved?): {follow}; --force forgets it all the same (those files then keep the mark "
+                  "for good)")  # fmt: skip
+    marked = still_patched(ctx, name)
+    if marked and not force:
+        inside = folder["exists"] and all(Path(p).is_relative_to(root) for p in marked)
+        where = f"in {root}" if inside else f"({marked[0]}{', ...' if len(marked) > 1 else ''})"
+        raise die(f"dataset {name!r} has {len(marked)} patched file(s) still there {where}: their "
+                  f"originals in the vault are the only way back; `ppd restore {shlex.quote(name)}` "
+                  "first, or --force to forget it all the same (those files then keep the mark for "
+                  "good)")  # fmt: skip
+    return marked
+
+
+def _say_forgotten(name: str, done: Forgotten, marked: int) -> None:
+    line = (f"forgot dataset {name}: {done.rows} file record(s); {done.removed} original(s) "
+            f"({done.removed_bytes / 1e6:.1f} MB) removed from the vault")  # fmt: skip
+    if done.kept:
+        line += f"; {done.kept} original(s) kept: another dataset uses them"
+    console().print(line, markup=False)
+    if marked:  # --force: said, not implied
+        console().print(f"its {marked} patched file(s) still there keep the mark for good: ppd can no "
+                        "longer restore them", markup=False)  # fmt: skip
+    if done.displaced is not None:
+        console().print(f"the files ppd set aside for it (`ppd restore --force`) stay in {done.displaced}: "
+                        "they are yours", markup=False)  # fmt: skip
 
 
 def _same_root(stored: str, root: Path) -> bool:

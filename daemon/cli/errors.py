@@ -107,11 +107,12 @@ def known_error(exc: Exception) -> int | None:
     return None
 
 
-def open_ctx(*, needs_key: bool = False) -> AppContext:
+def open_ctx(*, needs_key: bool = False, store_held: bool = False) -> AppContext:
     """ppd's folders, config and store, or one line that says why they cannot be opened. needs_key:
     the command patches or recognises files by their seal: the key is loaded here, made while the vault
     is empty (before a worker vaults an original: later it would count as lost), and a lost one stops
-    the command (exit 3) before a file is touched (daemon.store.sealkey)."""
+    the command (exit 3) before a file is touched (daemon.store.sealkey). store_held: the caller holds
+    the store lock alone (AppContext.open)."""
     from daemon.config import ConfigError
     from daemon.context import AppContext
     from daemon.locks import LockHeld
@@ -119,7 +120,7 @@ def open_ctx(*, needs_key: bool = False) -> AppContext:
     from daemon.store.sealkey import SealKeyError
 
     try:
-        ctx = AppContext.open()
+        ctx = AppContext.open(store_held=store_held)
     except (ConfigError, StoreError, LockHeld) as exc:  # each with its status: a damaged store is 3, not 2
         raise die(one_line(exc), exc.exit_status) from None
     except OSError as exc:

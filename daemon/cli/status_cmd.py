@@ -280,6 +280,7 @@ def _print_gone(gone: list[dict[str, Any]]) -> None:
     names = ", ".join(d["name"] for d in gone)
     print_line(console(), f"not shown: {len(gone)} dataset(s) whose folder is gone, moved or deleted "
                           f"({names}); `ppd dataset set NAME --root NEWFOLDER` moves one there; "
+                          "`ppd dataset forget NAME` forgets a deleted one; "
                           "`ppd status NAME` shows one")  # fmt: skip
     for d in gone:
         if d["folder"].get("moved_to"):

@@ -3,9 +3,11 @@ stored once by its content hash."""
 
 from __future__ import annotations
 
+import json
 import re
 import sqlite3
 import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +16,9 @@ from daemon.store.connection import StoreBase
 from daemon.store.errors import DatasetSpecLocked, StoreError
 from daemon.store.event_log import insert_event
 from poisoner.spec import PatchSpec
+
+# store_notes key of a forgotten dataset whose originals are still to leave the vault (+ its name)
+FORGET_NOTE = "forgetting:"
 
 
 def insert_spec(conn: sqlite3.Connection, spec: PatchSpec) -> str:
@@ -178,12 +183,76 @@ class DatasetRows(StoreBase):
             insert_event(conn, name, None, "dataset_moved", {"from": old, "to": new, "rows": moved})
         return moved
 
+    # ---- forgetting (daemon.protect.forgetting) ---------------------------------------------
+    def forget_dataset(self, name: str) -> int:
+        """Remove the dataset and all the store holds of it, in one transaction: its row, its file rows
+        (every state), its verification runs, automatic mode's decisions and events (a later dataset of
+        the same name starts clean: no verdict history, no pixel-change date), and its specs where no
+        other row uses them. The originals its rows named are noted (FORGET_NOTE) for the vault step,
+        which comes after: a crash between them leaves unreferenced originals, never a row without its
+        original. Returns the file rows removed; StoreError when there is no such dataset."""
+        with self._write() as conn:
+            row = conn.execute("SELECT spec_id FROM datasets WHERE name = ?", (name,)).fetchone()
+            if row is None:
+                raise StoreError(f"no dataset {name!r}")
+            originals = sorted(o for (o,) in conn.execute(
+                "SELECT DISTINCT original_sha256 FROM files WHERE dataset = ? AND original_sha256 NOT NULL",
+                (name,)))  # fmt: skip
+            specs = {row[0]} | {s for (s,) in conn.execute(
+                "SELECT spec_id FROM files WHERE dataset = ? UNION SELECT spec_id FROM auto_decisions "
+                "WHERE dataset = ?", (name, name))}  # fmt: skip
+            rows = conn.execute("DELETE FROM files WHERE dataset = ?", (name,)).rowcount
+            for table in ("verification_runs", "auto_decisions", "events"):  # this module's own literals
+                conn.execute(f"DELETE FROM {table} WHERE dataset = ?", (name,))
+            conn.execute("DELETE FROM datasets WHERE name = ?", (name,))
+            for spec_id in specs - {None}:
+                _drop_spec_if_unused(conn, spec_id)
+            conn.execute(
+                "INSERT OR REPLACE INTO store_notes (key, value, created_at) VALUES (?, ?, ?)",
+                (FORGET_NOTE + name, json.dumps(originals), time.time()),
+            )
+            insert_event(conn, None, None, "dataset_forgotten", {"dataset": name, "files": rows})
+        return rows
+
+    def forget_notes(self) -> dict[str, list[str]]:
+        """The originals of each dataset forgotten whose vault step is not done yet (a crash between
+        the two steps leaves its note), by dataset name."""
+        rows = self._rows("SELECT key, value FROM store_notes WHERE key LIKE ?", (FORGET_NOTE + "%",))
+        return {r["key"][len(FORGET_NOTE):]: list(json.loads(r["value"])) for r in rows}
+
+    def forget_done(self, name: str) -> None:
+        """The vault step of forgetting this dataset is done: its note goes."""
+        with self._write() as conn:
+            conn.execute("DELETE FROM store_notes WHERE key = ?", (FORGET_NOTE + name,))
+
+    def named_originals(self, originals: Iterable[str]) -> set[str]:
+        """Which of these originals a row of the store names (any dataset, any state)."""
+        wanted = list(originals)
+        named: set[str] = set()
+        for start in range(0, len(wanted), 500):  # SQLite's bound on a statement's parameters
+            chunk = wanted[start : start + 500]
+            marks = ", ".join("?" for _ in chunk)
+            sql = f"SELECT DISTINCT original_sha256 AS o FROM files WHERE original_sha256 IN ({marks})"
+            rows = self._rows(sql, tuple(chunk))
+            named |= {r["o"] for r in rows}
+        return named
+
     def set_dataset_publish_dir(self, name: str, publish_dir: Path | None) -> None:
         with self._write() as conn:
             conn.execute(
                 "UPDATE datasets SET publish_dir = ? WHERE name = ?",
                 (str(publish_dir) if publish_dir else None, name),
             )
+
+
+def _drop_spec_if_unused(conn: sqlite3.Connection, spec_id: str) -> None:
+    """Remove a spec no dataset, file row or decision uses any more (its copy in the vault stays)."""
+    conn.execute(
+        "DELETE FROM specs WHERE id = ? AND NOT EXISTS (SELECT 1 FROM datasets WHERE spec_id = ?)"
+        " AND NOT EXISTS (SELECT 1 FROM files WHERE spec_id = ?)"
+        " AND NOT EXISTS (SELECT 1 FROM auto_decisions WHERE spec_id = ?)",
+        (spec_id, spec_id, spec_id, spec_id),
+    )
 
 
 def _refuse_if_patched(conn: sqlite3.Connection, name: str, spec_id: str | None) -> None:

@@ -12,7 +12,8 @@ temporary name, fsynced, and renamed into place; the folder is fsynced. The blob
 therefore always the hash of its content. Content already kept (same hash and size, the vault's
 own inode) is not copied again.
 
-Blobs are never deleted implicitly. An optional size limit makes `keep` refuse (VaultFullError),
+Blobs are never deleted implicitly: only `ppd dataset forget` removes one, once no row of the store
+names it (daemon.protect.forgetting). An optional size limit makes `keep` refuse (VaultFullError),
 so a full vault stops protection instead of losing originals; a full filesystem gives a
 VaultNoSpaceError that names the filesystem and its free bytes.
 """
@@ -314,6 +315,22 @@ class Vault:
             with contextlib.suppress(OSError):
                 partial += p.lstat().st_size
         return kept + partial
+
+    # ---- letting go ---------------------------------------------------------------------------
+    def discard(self, sha256: str) -> int | None:
+        """Remove the original with this digest (`ppd dataset forget`, once no row of the store names
+        it: the caller's check, under the store lock held alone); the bytes it freed, None when it was
+        not here. The folder is fsynced: a removal said done stays done."""
+        path = self.path_for(sha256)
+        try:
+            size = os.lstat(path).st_size
+            os.unlink(path)
+        except FileNotFoundError:
+            return None
+        fsync_dir(path.parent)
+        with contextlib.suppress(OSError):  # its two-letter folder, once empty
+            path.parent.rmdir()
+        return size
 
     # ---- specs --------------------------------------------------------------------------------
     def spec_path(self, spec_id: str) -> Path:

@@ -428,3 +428,34 @@ def test_datasets_come_in_natural_order(store: Store, tmp_path: Path) -> None:
     for name in ("set 10", "set 2", "set 1", "Alpha", "set 19"):
         store.ensure_dataset(name, tmp_path / name, PatchSpec())
     assert [d["name"] for d in store.datasets()] == ["Alpha", "set 1", "set 2", "set 10", "set 19"]
+
+
+def test_forget_dataset_removes_its_rows_and_only_the_specs_no_one_else_uses(
+    store: Store, tmp_path: Path
+) -> None:
+    shared, own = PatchSpec(), PatchSpec(patch_size=0.05)
+    store.ensure_dataset("a", tmp_path / "a", shared)
+    store.ensure_dataset("b", tmp_path / "b", shared)
+    store.set_dataset_spec("a", own)  # a's spec now its own; b keeps the shared one
+    for name, sha in (("a", "1" * 64), ("a", "2" * 64), ("b", "2" * 64)):
+        store.record_file(tmp_path / name / f"{sha[0]}.png", name, FileState.PATCHED, original_sha256=sha,
+                          spec_id=store.dataset_spec(name).spec_id, event="patched")  # fmt: skip
+    store.add_verification_run("a", "default", "protected", {}, 1.0, 2.0, None, None)
+    store.add_auto_decision("a", "x", own, "why", {}, "manual")
+
+    assert store.forget_dataset("a") == 2
+    assert store.dataset("a") is None and store.files("a") == [] and store.verification_runs("a") == []
+    assert store.events("a") == [] and store.auto_decisions("a") == []
+    assert store.pixels_changed_at("a") is None
+    with pytest.raises(StoreError):
+        store.get_spec(own.spec_id)  # a's alone: gone
+    assert store.get_spec(shared.spec_id) == shared  # b's: kept
+    assert store.forget_notes() == {"a": ["1" * 64, "2" * 64]}
+    assert store.named_originals(["1" * 64, "2" * 64]) == {"2" * 64}  # b's row names it
+    store.forget_done("a")
+    assert store.forget_notes() == {}
+    assert [e["detail"] for e in store.events() if e["kind"] == "dataset_forgotten"] == [
+        {"dataset": "a", "files": 2}
+    ]
+    with pytest.raises(StoreError, match="no dataset 'a'"):
+        store.forget_dataset("a")

@@ -437,3 +437,14 @@ def test_partial_copies_of_a_killed_keep_are_cleaned_and_counted(tmp_path: Path)
         holder.wait()
     assert not stale.exists() and live.exists() and vault.verify(sha)
 
+
+
+def test_discard_removes_a_blob_and_says_what_it_freed(vault: Vault) -> None:
+    data = b"an original to let go"
+    sha = vault.keep_bytes(data, hashlib.sha256(data).hexdigest())
+    other = vault.keep_bytes(b"x", hashlib.sha256(b"x").hexdigest())
+    assert vault.discard(sha) == len(data)
+    assert not vault.has(sha) and not vault.path_for(sha).parent.exists() and vault.has(other)
+    assert vault.discard(sha) is None  # not here: nothing to say freed
+    with pytest.raises(VaultError):
+        vault.discard("../../etc")

@@ -1,0 +1,276 @@
+"""`ppd dataset forget NAME`: a finished or deleted shoot leaves ppd. The vault only grew (it holds a
+private, unprotected copy of every photo ever patched) and a deleted shoot stayed in the store for good
+(`ppd status`: "not shown: ... whose folder is gone" forever). Now its rows, verification runs and events
+leave the store, then the originals no remaining row names leave the vault; a folder still holding its
+patched files, or seen moved, is refused (exit 2) unless --force, and so is any other ppd using the store
+(exit 3). Real shoots patched by the real commands, a real store and vault, a real `ppd watch`."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from daemon.cli import app
+from daemon.context import AppContext
+from testkit.daemon_proc import start_daemon, stop_daemon
+from testkit.photos import make_image, make_shoot
+from testkit.reliability import REPO
+
+runner = CliRunner()
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def said(*args: str) -> tuple[int, str]:
+    result = runner.invoke(app, list(args))
+    return result.exit_code, " ".join(result.output.split())
+
+
+def _blobs(data: Path) -> set[str]:
+    return {p.name for p in (data / "vault").glob("??/*") if len(p.name) == 64}
+
+
+def _rows(data: Path, sql: str, *params: str) -> list[tuple[object, ...]]:
+    conn = sqlite3.connect(f"file:{data / 'ppd.sqlite3'}?mode=ro", uri=True)
+    try:
+        return conn.execute(sql, params).fetchall()
+    finally:
+        conn.close()
+
+
+def _of(data: Path, name: str) -> dict[str, int]:
+    """The store's rows that belong to dataset name, per table."""
+    tables = {"datasets": "name", "files": "dataset", "verification_runs": "dataset", "events": "dataset",
+              "auto_decisions": "dataset"}  # fmt: skip
+    return {t: len(_rows(data, f"SELECT 1 FROM {t} WHERE {col} = ?", name)) for t, col in tables.items()}
+
+
+def _verdict(name: str) -> None:
+    """A verification run of the dataset, as `ppd verify` records it (its COLMAP run is minutes)."""
+    ctx = AppContext.open()
+    try:
+        now = time.time()
+        ctx.store.add_verification_run(name, "default", "protected", {}, now, now + 1, None, None)
+    finally:
+        ctx.close()
+
+
+def test_a_deleted_shoot_is_forgotten_and_its_name_starts_clean(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    data, shoot = ppd_env["data"], tmp_path / "sets" / "castle"
+    originals = {_sha(p) for p in make_shoot(shoot, 3).iterdir()}
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    _verdict("castle")
+    runs = data / "runs" / "castle" / "20260101T000000-abcdef"  # a verification's run folder
+    runs.mkdir(parents=True)
+    (runs / "report.json").write_text("{}")
+    assert originals <= _blobs(data)
+    for path in shoot.iterdir():
+        path.unlink()
+    shoot.rmdir()
+    code, text = said("status")
+    assert "folder is gone" in text and "`ppd dataset forget NAME` forgets a deleted one" in text, text
+
+    code, text = said("dataset", "forget", "castle")
+    assert code == 0, text
+    assert "forgot dataset castle: 3 file record(s); 3 original(s) (" in text, text
+    assert " MB) removed from the vault" in text and "kept" not in text, text
+    assert _of(data, "castle") == dict.fromkeys(_of(data, "castle"), 0)
+    assert not originals & _blobs(data) and not (data / "runs" / "castle").exists()
+    assert not _rows(data, "SELECT key FROM store_notes")  # the vault step done: no note left
+    code, text = said("status")
+    assert "castle" not in text and "folder is gone" not in text, text
+    assert said("dataset", "forget", "castle") == (2, "ppd: error: no dataset 'castle'")
+
+    # a new shoot of the same name: no verdict, no run, no pixel-change date from the old one
+    make_image(shoot / "n0.png", 7)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    info = json.loads(runner.invoke(app, ["status", "castle", "--json"]).stdout)["datasets"][0]
+    assert info["last_verification"] is None and info["regression"] is None, info
+    assert _of(data, "castle")["verification_runs"] == 0
+    kinds = [k for (k,) in _rows(data, "SELECT kind FROM events WHERE dataset = ? ORDER BY id", "castle")]
+    assert kinds[0] == "dataset_created" and kinds.count("patched") == 1, kinds
+
+
+def test_an_original_another_dataset_uses_stays_and_restores(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    data, sets = ppd_env["data"], tmp_path / "sets"
+    make_shoot(sets / "a", 3)
+    b = {p.name: _sha(p) for p in make_shoot(sets / "b", 2).iterdir()}  # v0, v1: the same photos as a's
+    for name in ("a", "b"):
+        assert runner.invoke(app, ["poison", str(sets / name)]).exit_code == 0
+    for path in (sets / "a").iterdir():
+        path.unlink()
+    code, text = said("dataset", "forget", "a")
+    assert code == 0, text
+    assert "3 file record(s); 1 original(s) (" in text, text
+    assert "removed from the vault; 2 original(s) kept: another dataset uses them" in text, text
+    assert set(b.values()) <= _blobs(data) and len(_blobs(data)) == 2
+    assert said("restore", "b")[0] == 0
+    assert {p.name: _sha(p) for p in (sets / "b").iterdir()} == b
+
+
+def test_patched_files_still_there_are_refused_unless_force(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    data, shoot = ppd_env["data"], tmp_path / "sets" / "castle"
+    make_shoot(shoot, 3)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    blobs, before = _blobs(data), _of(data, "castle")
+    code, text = said("dataset", "forget", "castle")
+    assert code == 2 and text.startswith("ppd: error: ") and text.count("ppd:") == 1, text
+    assert f"has 3 patched file(s) still there in {shoot}: their originals in the vault are the only" in text
+    assert "`ppd restore castle` first, or --force" in text, text
+    assert _blobs(data) == blobs and _of(data, "castle") == before  # nothing lost
+
+    code, text = said("dataset", "forget", "castle", "--force")
+    assert code == 0, text
+    assert "forgot dataset castle: 3 file record(s); 3 original(s)" in text, text
+    assert "its 3 patched file(s) still there keep the mark for good: ppd can no longer restore them" in text
+    assert not _blobs(data) and _of(data, "castle")["files"] == 0
+    assert len(list(shoot.iterdir())) == 3  # the photos themselves are the user's: untouched
+
+
+def test_restored_shoot_forgets_and_displaced_files_stay(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    data, shoot = ppd_env["data"], tmp_path / "castle"
+    make_shoot(shoot, 2)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    with Image.open(shoot / "v0.png") as im:
+        edited = im.copy()
+    edited.putpixel((3, 3), (255, 0, 0))  # an edit: restore --force sets it aside
+    edited.save(shoot / "v0.png")
+    assert said("restore", "castle", "--force")[0] == 0
+    aside = sorted(p for p in (data / "displaced").rglob("*") if p.is_file())
+    assert len(aside) == 1
+    code, text = said("dataset", "forget", "castle")  # restored: nothing patched there
+    assert code == 0, text
+    assert "forgot dataset castle: 2 file record(s); 2 original(s)" in text, text
+    assert f"stay in {aside[0].parent}: they are yours" in text, text
+    assert sorted(p for p in (data / "displaced").rglob("*") if p.is_file()) == aside
+
+
+def test_a_moved_folder_and_an_unknown_name_are_refused(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    data, sets = ppd_env["data"], tmp_path / "sets"
+    assert runner.invoke(app, ["poison", str(make_shoot(sets / "n2", 2))]).exit_code == 0
+    (sets / "n2").rename(sets / "n2_new")
+    blobs = _blobs(data)
+    code, text = said("dataset", "forget", "n2")
+    assert code == 2 and text.count("ppd: error:") == 1, text
+    assert f"its patched files are in {sets / 'n2_new'} (moved?)" in text, text
+    assert f"`ppd dataset set n2 --root {sets / 'n2_new'}` moves the dataset there" in text, text
+    assert _blobs(data) == blobs and _of(data, "n2")["files"] == 2
+    assert said("dataset", "forget", "nope") == (2, "ppd: error: no dataset 'nope'")
+    assert said("dataset", "forget", "n2", "--force")[0] == 0
+    assert not _blobs(data)
+
+
+def test_a_moved_folder_made_a_dataset_by_name_keeps_its_originals(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """The moved folder made its own dataset by `ppd dataset set NEW --root NEW`: no row of that one names
+    the originals yet, so forgetting the old one would have taken the only way back of files still
+    marked; a run there records them in it, and then the old one forgets freely."""
+    data, sets = ppd_env["data"], tmp_path / "sets"
+    moved = {make_image(sets / "n4" / f"a{i}.png", 10 + i).name: 0 for i in range(2)}
+    originals = {name: _sha(sets / "n4" / name) for name in moved}
+    assert runner.invoke(app, ["poison", str(sets / "n4")]).exit_code == 0
+    (sets / "n4").rename(sets / "n4_new")
+    assert runner.invoke(app, ["dataset", "set", "n4_new", "--root", str(sets / "n4_new")]).exit_code == 0
+    code, text = said("dataset", "forget", "n4")
+    assert code == 2 and f"`ppd poison {sets / 'n4_new'}` records them in dataset 'n4_new'" in text, text
+    assert set(originals.values()) == _blobs(data)
+    assert runner.invoke(app, ["poison", str(sets / "n4_new")]).exit_code == 0
+    code, text = said("dataset", "forget", "n4")
+    assert code == 0 and "0 original(s) (0.0 MB) removed from the vault; 2 original(s) kept" in text, text
+    assert said("restore", "n4_new")[0] == 0
+    assert {name: _sha(sets / "n4_new" / name) for name in moved} == originals
+
+
+def test_a_crash_before_the_vault_step_is_finished_by_the_next_forget(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    data, sets = ppd_env["data"], tmp_path / "sets"
+    make_shoot(sets / "a", 2)
+    make_image(sets / "b" / "w.png", 9)
+    for name in ("a", "b"):
+        assert runner.invoke(app, ["poison", str(sets / name)]).exit_code == 0
+    for folder in ("a", "b"):
+        for path in (sets / folder).iterdir():
+            path.unlink()
+    ctx = AppContext.open()
+    try:
+        assert ctx.store.forget_dataset("a") == 2  # the rows' step alone: a kill before the vault's
+    finally:
+        ctx.close()
+    assert len(_blobs(data)) == 3  # unreferenced originals, never a row without its original
+    code, text = said("dataset", "forget", "b")
+    assert code == 0 and "1 file record(s); 3 original(s)" in text, text
+    assert not _blobs(data) and not _rows(data, "SELECT key FROM store_notes")
+
+    # the same name again finishes it too (its records gone, its note left)
+    make_image(sets / "c" / "w.png", 11)
+    assert runner.invoke(app, ["poison", str(sets / "c")]).exit_code == 0
+    (sets / "c" / "w.png").unlink()
+    ctx = AppContext.open()
+    try:
+        ctx.store.forget_dataset("c")
+    finally:
+        ctx.close()
+    code, text = said("dataset", "forget", "c")
+    assert code == 0 and "forgot dataset c: 0 file record(s); 1 original(s)" in text, text
+    assert not _blobs(data) and said("dataset", "forget", "c") == (2, "ppd: error: no dataset 'c'")
+
+
+def _ppd(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "daemon.cli", *args], cwd=REPO, capture_output=True, text=True, check=False,
+        env={**os.environ, **env, "PYTHONPATH": str(REPO), "COLUMNS": "200"},
+    )  # fmt: skip
+
+
+def test_refused_while_ppd_watch_runs_or_a_command_holds_the_store(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    root = tmp_path / "root"
+    for name in ("data", "config", "outbox", "cache"):
+        (root / name).mkdir(parents=True)
+    env = {f"PPD_{name.upper()}_DIR": str(root / name) for name in ("data", "config", "cache")}
+    env["PPD_OUTBOX"] = str(root / "outbox")
+    shoot = make_shoot(tmp_path / "castle", 2)
+    assert _ppd(env, "poison", str(shoot)).returncode == 0
+    for path in shoot.iterdir():
+        path.unlink()
+    blobs = _blobs(root / "data")
+    daemon = start_daemon(root, "--no-verify")
+    try:
+        refused = _ppd(env, "dataset", "forget", "castle")
+    finally:
+        stop_daemon(daemon)
+    assert refused.returncode == 3 and refused.stderr.count("ppd: error:") == 1, refused.stderr
+    assert f"ppd watch (pid {daemon.pid}) is running on this data folder; stop it first" in refused.stderr
+    assert _blobs(root / "data") == blobs
+
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+    ctx = AppContext.open()  # this process's command, holding the store as a long `ppd poison` does
+    try:
+        refused = _ppd(env, "dataset", "forget", "castle")
+    finally:
+        ctx.close()
+    assert refused.returncode == 3 and "another ppd command is running" in refused.stderr, refused.stderr
+    assert _blobs(root / "data") == blobs
+    done = _ppd(env, "dataset", "forget", "castle")
+    assert done.returncode == 0 and "forgot dataset castle: 2 file record(s)" in done.stdout, done.stderr
+    assert not _blobs(root / "data")
