@@ -115,6 +115,8 @@ def dataset_set(
     failed = 0
     try:
         existing = ctx.store.dataset(name)
+        if existing is None and root is None:
+            _refuse_a_likely_typo(ctx, name)
         if root is not None and existing and existing["root"] and not _same_root(existing["root"], root):
             _move_root(ctx, name, Path(existing["root"]), root.absolute())
             existing = ctx.store.dataset(name)
@@ -245,6 +247,23 @@ def _say_forgotten(name: str, done: Forgotten, marked: int) -> None:
     if done.displaced is not None:
         console().print(f"the files ppd set aside for it (`ppd restore --force`) stay in {done.displaced}: "
                         "they are yours", markup=False)  # fmt: skip
+
+
+def _refuse_a_likely_typo(ctx: AppContext, name: str) -> None:
+    """A new dataset named like an existing one, with no folder of its own yet: refused (exit 2), as a
+    typo. `ppd dataset set gardn --design paper` made a dataset of OUTBOX/gardn, a folder that never
+    existed, and left 'garden' as it was, exit 0 (a fifth black-box review). --root, or the folder made
+    first, says a new dataset is meant."""
+    import difflib
+
+    from daemon.datasets.dataset import dataset_root
+
+    if dataset_root(ctx.paths.outbox.absolute(), name).exists():
+        return
+    near = difflib.get_close_matches(name, [d["name"] for d in ctx.store.datasets()], n=1, cutoff=0.75)
+    if near:
+        raise die(f"no dataset {name!r} (did you mean {near[0]!r}?); a new dataset of that name needs its "
+                  f"folder: make {dataset_root(ctx.paths.outbox.absolute(), name)} first, or give --root")
 
 
 def _same_root(stored: str, root: Path) -> bool:

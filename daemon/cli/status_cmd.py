@@ -276,7 +276,17 @@ def _gone(d: dict[str, Any]) -> bool:
 
 def _print_gone(gone: list[dict[str, Any]]) -> None:
     """One line for the datasets whose folder is gone, and one for each whose files are seen moved:
-    a deleted folder and a renamed one are not both "hold no file now" (a black-box review)."""
+    a deleted folder and a renamed one are not both "hold no file now" (a black-box review). A dataset
+    that never held a file (`ppd dataset set NAME` before its folder) is not said to be gone: its
+    folder was never there (a fifth black-box review)."""
+    waiting = [d for d in gone if not any(d["counts"].values())]
+    if waiting:
+        print_line(console(), f"not shown: {len(waiting)} dataset(s) set up before their folder, which does "
+                              f"not exist yet ({', '.join(d['name'] for d in waiting)}); "
+                              "`ppd dataset forget NAME` removes one")  # fmt: skip
+    gone = [d for d in gone if d not in waiting]
+    if not gone:
+        return
     names = ", ".join(d["name"] for d in gone)
     print_line(console(), f"not shown: {len(gone)} dataset(s) whose folder is gone, moved or deleted "
                           f"({names}); `ppd dataset set NAME --root NEWFOLDER` moves one there; "

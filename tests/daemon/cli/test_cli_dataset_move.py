@@ -92,3 +92,24 @@ def test_a_moved_folder_made_its_own_dataset_is_said_so(ppd_env: dict[str, Path]
     assert runner.invoke(app, ["dataset", "set", "n4_new", "--root", str(sets / "n4_new")]).exit_code == 0
     text = said("status", "n4")
     assert f"its patched files are in {sets / 'n4_new'}, now dataset 'n4_new'" in text, text
+
+
+def test_a_misspelt_dataset_is_refused_and_one_set_up_early_is_not_called_gone(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A fifth black-box review: `ppd dataset set gardn --design paper` (the dataset is 'garden') made
+    a dataset of OUTBOX/gardn, a folder that never existed, exit 0, and `ppd status` then called its
+    folder "gone, moved or deleted". A name close to a dataset's, with no folder of its own, is
+    refused as a typo; a new name is set up and said to wait for its folder."""
+    shoot = tmp_path / "garden"
+    make_shoot(shoot, 2)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    typo = runner.invoke(app, ["dataset", "set", "gardn", "--design", "paper"])
+    assert typo.exit_code == 2 and "did you mean 'garden'?" in " ".join(typo.output.split()), typo.output
+    assert json.loads(runner.invoke(app, ["status", "--json"]).stdout)["datasets"][0]["name"] == "garden"
+    assert runner.invoke(app, ["dataset", "set", "studio", "--design", "paper"]).exit_code == 0
+    (ppd_env["outbox"] / "gardn").mkdir()  # its folder made first: a new dataset is meant
+    assert runner.invoke(app, ["dataset", "set", "gardn", "--design", "paper"]).exit_code == 0
+    status = said("status")
+    assert "set up before their folder, which does not exist yet (studio)" in status, status
+    assert "gone, moved or deleted" not in status, status
