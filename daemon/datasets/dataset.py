@@ -71,6 +71,26 @@ def dataset_root(outbox: Path, dataset: str) -> Path:
     return Path(outbox) if dataset == DEFAULT_DATASET else Path(outbox) / dataset
 
 
+def _refuse_another_outboxs(ctx: AppContext, name: str, root: Path) -> None:
+    """DatasetConflict when dataset `name` is stored at another folder that is still there: a folder of
+    the same name in a second outbox (PPD_OUTBOX set otherwise) joined the first one's dataset, its root
+    moved, and the first folder's photos were called "patched copies" (a fifth black-box review). A
+    stored folder that is gone (the outbox moved) is followed, as before."""
+    row = ctx.store.dataset(name)
+    stored = Path(row["root"]) if row is not None and row["root"] else None
+    if stored is None or stored.absolute() == root:
+        return
+    try:
+        same = os.path.samefile(stored, root)
+    except OSError:  # one of them is not there: not two folders
+        return
+    if not same:
+        raise DatasetConflict(
+            f"dataset {name!r} already belongs to {stored} (another outbox's folder of the same name); "
+            "rename this folder, or name it with --dataset NAME"
+        )
+
+
 def attribute(
     ctx: AppContext, target: Path, dataset: str | None = None, *, folder: bool | None = None
 ) -> tuple[str, Path]:
@@ -106,7 +126,9 @@ def attribute(
     outbox = Path(ctx.paths.outbox).absolute()
     if target.is_relative_to(outbox) and target != outbox:
         name = dataset_of(outbox, target / "x" if is_folder else target)
-        return name, dataset_root(outbox, name)
+        root = dataset_root(outbox, name)
+        _refuse_another_outboxs(ctx, name, root)
+        return name, root
     holders = [d for d in ctx.store.datasets() if home.is_relative_to(Path(d["root"]).absolute())]
     if holders:  # a folder whose files a dataset above it already holds is that dataset's (castle/day2)
         holding = {r["dataset"] for r in ctx.store.files_under(home)}  # not any folder below a dataset's

@@ -8,6 +8,7 @@ import hashlib
 import json
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from daemon.cli import app
@@ -113,3 +114,33 @@ def test_a_misspelt_dataset_is_refused_and_one_set_up_early_is_not_called_gone(
     status = said("status")
     assert "set up before their folder, which does not exist yet (studio)" in status, status
     assert "gone, moved or deleted" not in status, status
+
+
+def test_a_folder_of_the_same_name_in_another_outbox_is_not_merged(
+    ppd_env: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A fifth black-box review: a second `ppd watch` on the same data folder, watching outbox ob2, took
+    ob2/castle into dataset 'castle', ob1/castle (the first outbox's): the dataset's folder moved to
+    ob2/castle and ob1's patched photos were called "patched copies". The daemon's file now fails with
+    the reason (nothing written, the dataset where it was), as `ppd poison` refused it already."""
+    from daemon.context import AppContext
+    from daemon.protect.one_file import protect_file
+
+    ob1, ob2 = tmp_path / "ob1", tmp_path / "ob2"
+    make_shoot(ob1 / "castle", 2)
+    make_shoot(ob2 / "castle", 2)
+    assert runner.invoke(app, ["poison", str(ob1 / "castle")], env={"PPD_OUTBOX": str(ob1)}).exit_code == 0
+    monkeypatch.setenv("PPD_OUTBOX", str(ob2))
+    photo = sorted((ob2 / "castle").iterdir())[0]
+    before = _sha(photo)
+    ctx = AppContext.open()
+    try:
+        outcome = protect_file(photo, ctx)  # what `ppd watch` on ob2 does with a new photo there
+        assert outcome.state == "failed", outcome
+        assert f"dataset 'castle' already belongs to {ob1 / 'castle'}" in outcome.reason, outcome.reason
+        assert ctx.store.dataset("castle")["root"] == str(ob1 / "castle")
+    finally:
+        ctx.close()
+    assert _sha(photo) == before
+    refused = runner.invoke(app, ["poison", str(ob2 / "castle")])  # the CLI, as before
+    assert refused.exit_code == 2 and "already belongs to" in refused.output, refused.output
