@@ -416,7 +416,38 @@ def _convert(data: Any, kind: type[msgspec.Struct], where: str, path: str) -> An
     try:
         return msgspec.convert(data, kind, dec_hook=_decode_path)
     except msgspec.ValidationError as exc:
-        raise ConfigError(f"{where}: {_validation_message(exc, path)}") from None
+        message = _validation_message(exc, path)
+        if (choices := _choices_for(exc, kind)) is not None:  # "invalid enum value 'hardend'" said no more
+            message += f" (one of: {', '.join(map(str, choices))})"
+        raise ConfigError(f"{where}: {message}") from None
+
+
+def _choices_for(exc: msgspec.ValidationError, kind: type[msgspec.Struct]) -> tuple[Any, ...] | None:
+    """The values a bad enum value could have been, from the schema at the error's key path; None for
+    another error, or a path not followed (a fifth black-box review: `profiles = ["hardend"]` was
+    refused without the names, where `[patch] design` lists them)."""
+    import msgspec.inspect as mi
+
+    match = re.fullmatch(r"Invalid enum value .* - at `\$(.*)`", str(exc).splitlines()[0])
+    if not match:
+        return None
+    info: Any = mi.type_info(kind)
+    for name, index in re.findall(r"\.([^.\[]+)|\[(\d+)\]", match.group(1)):
+        if isinstance(info, mi.UnionType):  # an optional table: its non-None member
+            info = next((t for t in info.types if not isinstance(t, mi.NoneType)), info)
+        if name and isinstance(info, mi.StructType):
+            info = next((f.type for f in info.fields if f.encode_name == name), None)
+        elif name and isinstance(info, mi.DictType):
+            info = info.value_type
+        elif index and isinstance(info, (mi.ListType, mi.VarTupleType, mi.SetType, mi.FrozenSetType)):
+            info = info.item_type
+        else:
+            return None
+    if isinstance(info, mi.LiteralType):
+        return tuple(info.values)
+    if isinstance(info, mi.EnumType):
+        return tuple(m.value for m in info.cls)
+    return None
 
 
 def _decode_path(kind: type, value: Any) -> Any:

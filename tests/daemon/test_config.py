@@ -60,6 +60,10 @@ def test_config_reads_auto_datasets_budget_and_preflight() -> None:
         ("[visibility]\ncorner_only = 1", "visibility.corner_only: expected `bool`, got `int`"),
         ("[preflight]\nsample_size = 2", "preflight: sample_size must be at least 3"),
         ('[preflight]\nprofiles = ["hardend"]', "preflight.profiles[0]: invalid enum value 'hardend'"),
+        # the names, as `[patch] design` lists its own (a fifth black-box review)
+        ('[verification]\nprofiles = ["default", "hardend"]',
+         "verification.profiles[1]: invalid enum value 'hardend' (one of: default, global, hardened, masked, "
+         "published)"),
         ('[verification]\nkeep_runs = "3"', "verification.keep_runs: expected `int`, got `str`"),
         ("[privacy]\nkeep_location = 1", "privacy.keep_location: expected `bool`"),
         ("[limits]\nmax_megapixels = -1", "limits: max_megapixels must be a positive number"),
