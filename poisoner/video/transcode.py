@@ -3,7 +3,8 @@ chosen encoder, and copy every other stream packet by packet (bit-identical)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from fractions import Fraction
 from pathlib import Path
 from typing import cast
 
@@ -54,6 +55,10 @@ class _Pass:
     frames: int = 0
     patched: int = 0
     last_end: float | None = None
+    # each source frame's duration by its pts, in its time base (the encoder gives a frame's packet a
+    # duration of its own: the last frames of a variable-rate clip came out longer, and the clip with
+    # them, 2.267 s -> 2.284 s; a black-box review)
+    durations: dict[int, tuple[int, Fraction]] = field(default_factory=dict)
 
 
 def encode_once(
@@ -177,6 +182,8 @@ def _patched(run: _Pass, frame: av.VideoFrame) -> av.VideoFrame:
         run.patched += 1
     if frame.pts is not None and frame.time_base is not None:
         run.last_end = float((frame.pts + (frame.duration or 0)) * frame.time_base)
+        if frame.duration:
+            run.durations[frame.pts] = (frame.duration, frame.time_base)
     # the source's own frame type where kept (EncoderChoice.keep_frame_types), else the encoder's choice
     frame.pict_type = source_type if run.keep_frame_types else av.video.frame.PictureType.NONE
     return frame
@@ -184,4 +191,13 @@ def _patched(run: _Pass, frame: av.VideoFrame) -> av.VideoFrame:
 
 def _encode(run: _Pass, frame: av.VideoFrame | None) -> None:
     for pkt in run.vout.encode(frame):
+        _keep_duration(run, pkt)
         run.out.mux(pkt)
+
+
+def _keep_duration(run: _Pass, pkt: av.Packet) -> None:
+    """The packet's duration: its source frame's (same pts), in the packet's time base."""
+    if pkt.pts is None or pkt.time_base is None or (kept := run.durations.pop(pkt.pts, None)) is None:
+        return
+    duration, time_base = kept
+    pkt.duration = duration if time_base == pkt.time_base else round(duration * time_base / pkt.time_base)
