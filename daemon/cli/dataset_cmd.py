@@ -109,6 +109,9 @@ def dataset_set(
     failed = 0
     try:
         existing = ctx.store.dataset(name)
+        # before anything is written (a refused folder made the dataset): published, never ppd's own
+        if publish_dir is not None and (why := ctx.paths.publish_dir_problem(publish_dir)):
+            raise die(f"--publish-dir {publish_dir}: {why}; choose another folder")
         if root is not None and existing and existing["root"] and not _same_root(existing["root"], root):
             _move_root(ctx, name, Path(existing["root"]), root.absolute())
             existing = ctx.store.dataset(name)
@@ -127,8 +130,6 @@ def dataset_set(
             except DatasetSpecLocked as exc:
                 raise die(str(exc)) from None
         if publish_dir is not None:
-            if why := ctx.paths.publishes_data(publish_dir):  # its files are published: never ppd's own
-                raise die(f"--publish-dir {publish_dir}: {why}; choose another folder")
             ctx.store.set_dataset_publish_dir(name, publish_dir.absolute())
             # said: it applies to files patched from now on (the review found the folder with 1 photo of 3)
             earlier = ctx.store.counts(name).get("patched", 0) if existing is not None else 0
