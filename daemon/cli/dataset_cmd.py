@@ -103,15 +103,16 @@ def dataset_set(
     from daemon.cli.status_queries import spec_summary
     from daemon.datasets.dataset import dataset_root
     from daemon.store import DatasetSpecLocked
+    from daemon.watch.service import unit_lacks
     from poisoner.spec import SpecError
 
     ctx = open_ctx(needs_key=reprotect)  # --reprotect seals files
     failed = 0
     try:
-        existing = ctx.store.dataset(name)
         # before anything is written (a refused folder made the dataset): published, never ppd's own
         if publish_dir is not None and (why := ctx.paths.publish_dir_problem(publish_dir)):
             raise die(f"--publish-dir {publish_dir}: {why}; choose another folder")
+        existing = ctx.store.dataset(name)
         if root is not None and existing and existing["root"] and not _same_root(existing["root"], root):
             _move_root(ctx, name, Path(existing["root"]), root.absolute())
             existing = ctx.store.dataset(name)
@@ -136,6 +137,9 @@ def dataset_set(
             stay = f"; the {earlier} patched before stay where they are" if earlier else ""
             console().print(f"{name}: files patched from now on go to {publish_dir.absolute()}{stay}",
                             markup=False)  # fmt: skip
+            if unit_lacks(publish_dir):  # ProtectSystem=strict: read-only to the service until listed
+                said = "ppd.service cannot write there yet: run `ppd service install` again"
+                console().print(said, markup=False)
         console().print(f"{name}: spec {spec.spec_id} ({spec_summary(spec)})", markup=False)
     finally:
         ctx.close()
