@@ -76,7 +76,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import os
 import re
 import tomllib
 from pathlib import Path
@@ -249,8 +248,9 @@ class DatasetOverride(Section, frozen=True, omit_defaults=True):
     patch: dict[str, Any] = {}  # fields replaced on the default spec
 
     def __post_init__(self) -> None:
-        if self.subject_masks is not None and not _readable_folder(self.subject_masks):
-            raise ConfigError(f"subject_masks: {self.subject_masks} is not a readable folder")
+        # subject_masks is not checked here: a folder not there (an unplugged drive) is that dataset's
+        # state, said and waited for when its files come (daemon.datasets.subject_masks), not a bad
+        # config that stopped every command and the daemon
         if self.spec not in ("", AUTO_SPEC):
             raise ConfigError(f'spec must be "{AUTO_SPEC}" (patch fields go in the dataset\'s [patch] table)')
         if self.auto and self.patch:
@@ -405,10 +405,6 @@ class Config(msgspec.Struct, frozen=True, dict=True, forbid_unknown_fields=True)
         if not data["datasets"]:
             del data["datasets"]
         return msgspec.toml.encode(_none_as_empty(data)).decode()
-
-
-def _readable_folder(folder: Path) -> bool:
-    return folder.is_dir() and os.access(folder, os.R_OK | os.X_OK)
 
 
 def _convert(data: Any, kind: type[msgspec.Struct], where: str, path: str) -> Any:

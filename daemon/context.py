@@ -8,7 +8,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from daemon.config import Config
+from daemon.config import Config, ConfigError
 from daemon.locks import DEFAULT_FILE_WAIT_S, file_lock, release_store, use_store
 from daemon.paths import AppPaths
 from daemon.store import Store
@@ -54,6 +54,7 @@ class AppContext:
         `ppd dataset forget`); a shared hold of its own would wait on the caller's."""
         paths = paths or AppPaths.from_env()
         config = Config.load(paths)  # reads one file: the publish folders, checked before anything is made
+        _check_publish_dirs(config, paths)
         published = [config.publish_dir] + [d.publish_dir for d in config.datasets.values()]
         paths.ensure(published=[p for p in published if p is not None])
         from daemon.store.sealkey import clear_stale_key_temporaries
@@ -90,3 +91,13 @@ class AppContext:
         """One worker at a time on a path, across threads and ppd processes (daemon.locks)."""
         with file_lock(self.paths.data_dir, path, self.lock_wait_s, give_up=self.give_up_waits):
             yield
+
+
+def _check_publish_dirs(config: Config, paths: AppPaths) -> None:
+    """A publish folder inside the outbox is a bad setting (ConfigError: one line naming the key)."""
+    where = f"{config.source}: " if config.source else ""
+    keys = [("publish_dir", config.publish_dir)]
+    keys += [(f"datasets.{name}.publish_dir", o.publish_dir) for name, o in config.datasets.items()]
+    for key, folder in keys:
+        if folder is not None and (why := paths.publish_in_outbox(folder)):
+            raise ConfigError(f"{where}{key}: {why}; choose a folder outside it")

@@ -119,6 +119,20 @@ class AppPaths:
         return None
 
 
+    def publish_dir_problem(self, folder: Path) -> str | None:
+        """Why folder cannot be a publish folder (publishes_data, publish_in_outbox); None: it can."""
+        return self.publishes_data(folder) or self.publish_in_outbox(folder)
+
+    def publish_in_outbox(self, folder: Path) -> str | None:
+        """Why a publish folder inside the outbox is refused: the daemon took the files it published
+        there in as a new dataset, which `ppd status` called not patched yet (a black-box review);
+        as `--out` inside the dataset is refused. None when it is outside."""
+        box, where = self.outbox.resolve(), Path(folder).expanduser().absolute()
+        if where.resolve().is_relative_to(box) or where.is_relative_to(self.outbox):
+            return f"{where} is inside the outbox {self.outbox}, whose new files ppd patches as a dataset"
+        return None
+
+
 def published_with(folder: Path, where: Path) -> bool:
     """Whether what lies in the folder `where` is published with `folder` (both resolved): anywhere
     below it, but for a home folder only right in it (its subfolders are the user's own: the data

@@ -47,6 +47,9 @@ class Protection(StrEnum):
 # counts these apart, as "still being written", not as skipped by the spec's ratio.
 WAITING_PREFIX = "incomplete, waiting for its writer"
 STILL_OPEN_PREFIX = "still open for writing"  # a file another process writes: skipped, not patched
+# A patched row's error when its move to the publish folder failed (daemon.protect.publishing): the file
+# is patched but still in the outbox; `ppd status` counts these apart ("not moved to the publish folder").
+NOT_MOVED_PREFIX = "patched, but not moved to"
 
 # The value a store row holds for a patched file (older stores said "protected"; the store's
 # migration renamed them, so no other spelling reaches this code).

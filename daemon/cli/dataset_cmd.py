@@ -109,11 +109,15 @@ def dataset_set(
     from daemon.cli.status_queries import spec_summary
     from daemon.datasets.dataset import dataset_root
     from daemon.store import DatasetSpecLocked
+    from daemon.watch.service import unit_lacks
     from poisoner.spec import SpecError
 
     ctx = open_ctx(needs_key=reprotect)  # --reprotect seals files
     failed = 0
     try:
+        # before anything is written (a refused folder made the dataset): published, never ppd's own
+        if publish_dir is not None and (why := ctx.paths.publish_dir_problem(publish_dir)):
+            raise die(f"--publish-dir {publish_dir}: {why}; choose another folder")
         existing = ctx.store.dataset(name)
         if existing is None and root is None:
             _refuse_a_likely_typo(ctx, name)
@@ -135,14 +139,15 @@ def dataset_set(
             except DatasetSpecLocked as exc:
                 raise die(str(exc)) from None
         if publish_dir is not None:
-            if why := ctx.paths.publishes_data(publish_dir):  # its files are published: never ppd's own
-                raise die(f"--publish-dir {publish_dir}: {why}; choose another folder")
             ctx.store.set_dataset_publish_dir(name, publish_dir.absolute())
             # said: it applies to files patched from now on (the review found the folder with 1 photo of 3)
             earlier = ctx.store.counts(name).get("patched", 0) if existing is not None else 0
             stay = f"; the {earlier} patched before stay where they are" if earlier else ""
             console().print(f"{name}: files patched from now on go to {publish_dir.absolute()}{stay}",
                             markup=False)  # fmt: skip
+            if unit_lacks(publish_dir):  # ProtectSystem=strict: read-only to the service until listed
+                said = "ppd.service cannot write there yet: run `ppd service install` again"
+                console().print(said, markup=False)
         console().print(f"{name}: spec {spec.spec_id} ({spec_summary(spec)})", markup=False)
     finally:
         ctx.close()

@@ -161,7 +161,8 @@ def remove_if_empty(folders: list[Path]) -> None:
 
 def dataset_masks(ctx: AppContext, jobs: list[Job], given: Path | None) -> dict[str, Path | None]:
     """Each dataset's subject-mask folder (given, else its config's), checked before anything is
-    written: a folder that is missing, unreadable or inside the outbox is a one-line error."""
+    written: a folder that is missing, unreadable or inside the outbox is a one-line error (exit 2;
+    3 when it is the dataset's own folder that is not there: daemon.datasets.subject_masks)."""
     from daemon.datasets.subject_masks import SubjectMaskError, subject_masks_for
 
     masks: dict[str, Path | None] = {}
@@ -169,8 +170,8 @@ def dataset_masks(ctx: AppContext, jobs: list[Job], given: Path | None) -> dict[
         if job.dataset not in masks:
             try:
                 masks[job.dataset] = subject_masks_for(ctx, job.dataset, given)
-            except SubjectMaskError as exc:
-                raise die(str(exc)) from None
+            except SubjectMaskError as exc:  # 3 for a dataset's folder not there (a drive unplugged)
+                raise die(str(exc), exc.exit_status) from None
     return masks
 
 

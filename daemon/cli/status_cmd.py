@@ -86,6 +86,8 @@ def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Tabl
         }
         if "failed" not in columns and c.get("failed"):  # a narrow terminal still shows a failure
             cells["protection"] += f"; [bold red]{c['failed']} failed[/]"
+        if c.get("not_moved"):  # patched, but the publish folder never got them
+            cells["protection"] += f"; [bold red]{c['not_moved']} not moved to the publish folder[/]"
         table.add_row(*(cells[k] for k in columns))
     return table
 
@@ -97,6 +99,7 @@ COUNT_WORDS = {
     "removed": "deleted or moved away earlier",  # a row ppd recorded so: a renamed file's old name too
     "restored_unrecorded": "holding the original again",
 }  # fmt: skip
+NOT_MOVED_WORDS = "NOT moved to the publish folder: still in the outbox"
 # Counts that are no part of "files": files no longer there (their rows history), files of a format ppd
 # cannot patch; "renamed" is a part of "patched"
 NOT_COUNTED = ("gone", "removed", "unprotectable")
@@ -109,6 +112,8 @@ def files_line(counts: dict[str, Any]) -> str:
     others = _count_words({k: n for k, n in counts.items() if k in NOT_COUNTED})
     if counts.get("renamed") and "patched" in parts:
         parts["patched"] = f"{parts['patched']} ({counts['renamed']} renamed since)"
+    if counts.get("not_moved") and "patched" in parts:  # patched, their move to the publish folder failed
+        parts["patched"] = f"{parts['patched']} ({counts['not_moved']} {NOT_MOVED_WORDS})"
     line = f"files {counts['files']}"
     if parts:
         line += ": " + ", ".join(f"{k} {n}" for k, n in sorted(parts.items()))
@@ -118,15 +123,15 @@ def files_line(counts: dict[str, Any]) -> str:
 
 
 def _count_words(counts: dict[str, Any]) -> dict[str, str]:
-    """{word: count} of the counts but "files" and "renamed" (a part of patched), states of one word
-    summed."""
+    """{word: count} of the counts but "files", "renamed" and "not_moved" (parts of patched), states of
+    one word summed."""
     from collections import Counter
 
     from daemon.states import state_word
 
     words: Counter[str] = Counter()
     for key, n in counts.items():
-        if key not in ("files", "renamed") and n:
+        if key not in ("files", "renamed", "not_moved") and n:
             words[COUNT_WORDS.get(key) or state_word(key)] += n
     return {k: str(n) for k, n in words.items()}
 
@@ -196,6 +201,8 @@ def failed_lines(d: dict[str, Any]) -> list[str]:
     head = f"{d['name']}: {c.get('failed', 0)} failed, {c.get('quarantined', 0)} quarantined"
     if d.get("not_reprotected"):  # patched, a re-protect failed on them: not failed files
         head += f", {d['not_reprotected']} not re-protected"
+    if c.get("not_moved"):  # patched, not moved to the publish folder: not failed files either
+        head += f", {c['not_moved']} not moved to the publish folder"
     lines = [head]
     for r in rows:
         mark = ""
@@ -262,10 +269,22 @@ def _print_report(
         from daemon.watch.syncdirs import sync_warning
 
         warning(sync_warning(ctx.paths.outbox) or "")
+    _warn_missing_masks(ctx, [d["name"] for d in report])
     if failed:
         _print_failed(report)
     else:
         _print_text(ctx, report, detailed=detailed)
+
+
+def _warn_missing_masks(ctx: AppContext, shown: list[str]) -> None:
+    """A configured subject-mask folder not there now (a drive unplugged): that dataset's files are not
+    patched until it is back; said for the datasets shown, and for one with no file patched yet."""
+    from daemon.datasets.subject_masks import missing_config_masks
+
+    known = {d["name"] for d in ctx.store.datasets()}
+    for name, line in missing_config_masks(ctx.config).items():
+        if name in shown or name not in known:
+            warning(line)
 
 
 def _gone(d: dict[str, Any]) -> bool:
@@ -384,6 +403,8 @@ def unready_reasons(d: dict[str, Any]) -> list[str]:
     from daemon.states import Protection
 
     reasons = unprotected_files(d)
+    if n := d["counts"].get("not_moved"):  # patched, never published: the publish folder lacks them
+        reasons.append(f"{n} patched but {NOT_MOVED_WORDS}")
     if d.get("leftover_temps"):  # a hidden fragment of a photo, published with the folder
         reasons.append(f"{len(d['leftover_temps'])} leftover temporary file(s) of ppd")
     if d.get("other_spec"):  # a mix of marks: the verdict is of the dataset's spec alone

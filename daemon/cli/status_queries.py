@@ -246,7 +246,8 @@ def unprotected_files(d: dict[str, Any]) -> list[str]:
 
 def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
     """Each file of a dataset that could not be patched, with its one-line reason (the store row's
-    error): failed ones (still in place) and quarantined ones (moved out of the outbox: where to)."""
+    error): failed ones (still in place) and quarantined ones (moved out of the outbox: where to); then
+    patched ones a re-protect failed on, and those not moved to the publish folder."""
     from daemon.states import FileState
     from daemon.store.datasets import natural_key
 
@@ -262,7 +263,9 @@ def failed_files(ctx: AppContext, name: str) -> list[dict[str, Any]]:
                 said = ctx.store.last_event(r["path"], "failed")
                 item["source"] = (said or {}).get("detail", {}).get("source")
             listed.append(item)
-    return listed + [_not_reprotected_item(ctx, r) for r in ctx.store.not_reprotected(name)]
+    stuck = [{"path": r["path"], "state": r["state"], "reason": r["error"], "not_moved": True}
+             for r in ctx.store.not_moved(name)]  # fmt: skip
+    return listed + [_not_reprotected_item(ctx, r) for r in ctx.store.not_reprotected(name)] + stuck
 
 
 def _not_reprotected_item(ctx: AppContext, row: dict[str, Any]) -> dict[str, Any]:

@@ -109,10 +109,12 @@ def watch(
 
     ctx = _open_context(outbox, seal_key=True, daemon=True)
     try:
-        check_config_masks(ctx.config, ctx.paths.outbox)  # a mask folder in the outbox would be published
+        missing = check_config_masks(ctx.config, ctx.paths.outbox)  # one in the outbox would be published
     except SubjectMaskError as exc:
         ctx.close()
         raise _fail(str(exc)) from None
+    for line in missing:  # one dataset's state: its files wait, the daemon runs (systemd never restarts 2)
+        log.warning("%s", line)
     _warn_if_synced(ctx.paths.outbox)
     options = DaemonOptions.from_config(
         ctx.config, workers=workers, settle_s=debounce, verify=verify, incomplete_wait_s=incomplete_wait

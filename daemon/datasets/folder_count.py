@@ -442,6 +442,8 @@ def current_counts(ctx: AppContext, name: str, folder: FolderCount) -> dict[str,
     if waiting:  # skipped for now, not by the spec's ratio
         counts["waiting"] = waiting
         counts["skipped"] = counts.get("skipped", 0) - waiting
+    if not_moved := len(ctx.store.not_moved(name)):  # a part of "patched": still in the outbox
+        counts["not_moved"] = not_moved
     return counts
 
 

@@ -5,6 +5,9 @@ The pixels are the poisoner's (poisoner.subject: `load_subject_mask`, `dataset_c
 decides which folder, which files and when:
 - masks: `ppd poison/preview/verify --subject-masks DIR`, else `[datasets.NAME] subject_masks`.
   A mask folder inside the outbox is refused: its masks would be protected and published as photos.
+  A configured (or remembered) folder that is not there (a drive unplugged) is that dataset's state,
+  not a bad setting: its files are not patched (never without their masks) until it is back
+  (MaskFolderMissing; the daemon retries them then), other datasets go on.
 - corner: a corner-bound spec (`PatchSpec.corner_bound`) whose position the user did not set gets
   the dataset's corner from `dataset_corner` over its first files and its masks; the choice is
   stored as the spec's position (the spec is locked per dataset, so every later file gets the
@@ -46,6 +49,18 @@ class SubjectMaskError(PpdError):
     exit_status = ExitStatus.USAGE
 
 
+class MaskFolderMissing(SubjectMaskError):
+    """A dataset's configured or remembered mask folder is not a readable folder now (an unplugged
+    drive): ppd cannot work on that dataset here (exit 3), and the daemon retries its files once
+    `folder` is back."""
+
+    exit_status = ExitStatus.ENVIRONMENT
+
+    def __init__(self, message: str, folder: Path) -> None:
+        super().__init__(message)
+        self.folder = folder
+
+
 @dataclass(frozen=True)
 class Placed:
     """The spec a dataset gets, and the corner choice behind it (None: no choice was made)."""
@@ -57,7 +72,7 @@ class Placed:
 def check_mask_folder(folder: Path, outbox: Path, what: str = "--subject-masks") -> Path:
     """folder, absolute, when it is a readable folder outside the outbox; else SubjectMaskError."""
     folder = Path(folder).expanduser().absolute()
-    if not folder.is_dir() or not os.access(folder, os.R_OK | os.X_OK):
+    if not _readable(folder):
         raise SubjectMaskError(f"{what}: {folder} is not a readable folder")
     box = Path(outbox).absolute()
     if folder == box or folder.is_relative_to(box) or folder.resolve().is_relative_to(box.resolve()):
@@ -76,11 +91,30 @@ def subject_masks_for(ctx: AppContext, dataset: str, given: Path | None = None) 
         return check_mask_folder(given, ctx.paths.outbox)
     configured = ctx.config.subject_masks_for(dataset)
     if configured is not None:
-        return check_mask_folder(configured, ctx.paths.outbox, f"[datasets.{dataset}] subject_masks")
+        return _dataset_folder(configured, ctx.paths.outbox, dataset, f"[datasets.{dataset}] subject_masks")
     stored = ctx.store.dataset_masks(dataset)
     if stored is None:
         return None
-    return check_mask_folder(stored, ctx.paths.outbox, f"{dataset}'s remembered subject masks ({stored})")
+    what = f"{dataset}'s remembered subject masks ({stored})"
+    return _dataset_folder(stored, ctx.paths.outbox, dataset, what)
+
+
+def _dataset_folder(folder: Path, outbox: Path, dataset: str, what: str) -> Path:
+    """check_mask_folder for a dataset's own folder: one that is not there is MaskFolderMissing."""
+    if not _readable(folder):
+        raise MaskFolderMissing(missing_words(dataset, folder, what), Path(folder).expanduser().absolute())
+    return check_mask_folder(folder, outbox, what)
+
+
+def missing_words(dataset: str, folder: Path, what: str) -> str:
+    """`[datasets.porch] subject_masks: /media/usb/m is not a readable folder (not mounted?): ...`."""
+    return (f"{what}: {folder} is not a readable folder (a drive not mounted?): {dataset}'s files are "
+            "not patched until it is back (never without their masks)")  # fmt: skip
+
+
+def _readable(folder: Path) -> bool:
+    folder = Path(folder).expanduser()
+    return folder.is_dir() and os.access(folder, os.R_OK | os.X_OK)
 
 
 def remember_masks(ctx: AppContext, dataset: str, folder: Path | None) -> None:
@@ -99,12 +133,24 @@ def masks_or_none(ctx: AppContext, dataset: str) -> Path | None:
         return None
 
 
-def check_config_masks(config: Any, outbox: Path) -> None:
-    """Every [datasets.NAME] subject_masks usable (SubjectMaskError, one line, for the first that is
-    not): what `ppd watch` checks before it starts."""
+def check_config_masks(config: Any, outbox: Path) -> list[str]:
+    """What `ppd watch` checks before it starts: a [datasets.NAME] subject_masks inside the outbox is
+    a SubjectMaskError (one line, the first); one that is not there now is returned, a line each
+    (that dataset's files wait for it; the others' go on: one unplugged drive stopped the daemon)."""
+    missing = missing_config_masks(config)
     for name, override in config.datasets.items():
-        if override.subject_masks is not None:
+        if override.subject_masks is not None and name not in missing:
             check_mask_folder(override.subject_masks, outbox, f"[datasets.{name}] subject_masks")
+    return list(missing.values())
+
+
+def missing_config_masks(config: Any) -> dict[str, str]:
+    """The datasets whose [datasets.NAME] subject_masks is not a readable folder now: the line saying so."""
+    return {
+        name: missing_words(name, override.subject_masks, f"[datasets.{name}] subject_masks")
+        for name, override in config.datasets.items()
+        if override.subject_masks is not None and not _readable(override.subject_masks)
+    }
 
 
 def mask_folder_holding(config: Any, path: Path) -> str | None:

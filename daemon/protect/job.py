@@ -119,6 +119,9 @@ class ProtectOutcome:
     requeue: bool = False  # a newer version arrived meanwhile: process the path again
     hopeless: bool = False  # failed because of the file itself (format, structure, name): a retry fails too
     incomplete: bool = False  # failed because its structure is incomplete: its writer may not be done
+    # failed because the dataset's subject-mask folder is not there (a drive unplugged): retried once
+    # this folder is back (daemon.datasets.subject_masks.MaskFolderMissing)
+    waits_for: Path | None = None
     # not started: the caller stopped while another ppd process worked on the file (daemon.locks.WaitLeft);
     # a batch counts it with the files it never reached
     left: bool = False

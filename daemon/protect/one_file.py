@@ -28,7 +28,12 @@ from daemon.datasets.dataset import (
     dataset_of,
     ensure_dataset,
 )
-from daemon.datasets.subject_masks import masks_or_none, sibling_images, subject_masks_for
+from daemon.datasets.subject_masks import (
+    MaskFolderMissing,
+    masks_or_none,
+    sibling_images,
+    subject_masks_for,
+)
 from daemon.fsops import sha256_fd
 from daemon.locks import LockHeld, WaitLeft
 from daemon.protect.job import (
@@ -200,8 +205,11 @@ def _record_failure(
         return ProtectOutcome(
             path=path, dataset=dataset, state=Outcome.UNCHANGED, reason=f"already patched ({message})"
         )
+    waits_for = exc.folder if isinstance(exc, MaskFolderMissing) else None
     if not storable(out_path or path):  # no row can name it; the log line says why
         log.info("not recorded: %s: %s", shown_name(path), message, extra={"path": repr(str(path))})
+    elif waits_for is not None and ctx.store.dataset_spec(dataset) is None:
+        pass  # a new dataset's spec (its corner) is never set without its masks; status names the folder
     elif not dry_run:
         try:  # a new dataset's corner is judged on the files next to this one (it could not be read)
             ensure_dataset(
@@ -221,7 +229,7 @@ def _record_failure(
             )  # fmt: skip
     return ProtectOutcome(
         path=path, dataset=dataset, state=Outcome.FAILED, reason=message, hopeless=file_is_the_cause(exc),
-        incomplete=isinstance(exc, IncompleteFile),
+        incomplete=isinstance(exc, IncompleteFile), waits_for=waits_for,
     )  # fmt: skip
 
 

@@ -58,7 +58,6 @@ from daemon.fsops import (
     copy_fd_to_path,
     copy_path_to_fd,
     identity,
-    move_out,
     open_contained,
     open_dir,
     read_fd,
@@ -78,7 +77,6 @@ from daemon.protect.job import (
     media_kind,
     no_space_in,
     place_note,
-    publish_dir,
     report_detail,
     shown_name,
     storable,
@@ -95,6 +93,7 @@ from daemon.protect.poisoning import (
     work_copy_name,
     work_folder,
 )
+from daemon.protect.publishing import publish, retry_publish
 from daemon.protect.quarantine import attempt, forget_attempt
 from daemon.protect.recovery import carry_moved_row, copy_patched_as_it_is, recover_pending
 from daemon.states import STILL_OPEN_PREFIX, FileState
@@ -228,6 +227,8 @@ def recognise(job: Job) -> ProtectOutcome | None:
             ctx.store.record_file(
                 job.path, row["dataset"], FileState.PATCHED, size=st.st_size, mtime_ns=st.st_mtime_ns
             )
+        if (published := retry_publish(job)) is not None:  # patched; its move to the publish folder failed
+            return published
         return job.outcome(Outcome.UNCHANGED, "already patched", poisoned_sha256=sha, output=job.path)
     # An interrupted run of this very path first: its output may equal another file's (the same
     # photo in two datasets), which the look-up below would take as "someone else's output".
@@ -505,21 +506,6 @@ def record_provenance(job: Job) -> ProtectOutcome | None:
         detail=report_detail(job.report),
     )  # fmt: skip
     job.final = record_path
-    return None
-
-
-def publish(job: Job) -> ProtectOutcome | None:
-    """6. A dataset with a publish folder gets its patched file moved there."""
-    target_dir = publish_dir(job.ctx, job.dataset) if job.out_path is None else None
-    if target_dir is None:
-        return None
-    assert job.file is not None
-    rel = job.path.relative_to(job.root) if job.path.is_relative_to(job.root) else Path(job.path.name)
-    job.final = move_out(job.file.dir_fd, job.file.name, target_dir / rel)
-    job.ctx.store.record_file(
-        job.record_path, job.dataset, FileState.PATCHED, published_path=str(job.final), event="published",
-        detail={"to": str(job.final)},
-    )  # fmt: skip
     return None
 
 

@@ -10,7 +10,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from daemon.states import FileState
+from daemon.states import NOT_MOVED_PREFIX, FileState
 from daemon.store.connection import StoreBase
 from daemon.store.errors import PatchedNotFailed, StoreError
 from daemon.store.event_log import insert_event
@@ -137,8 +137,17 @@ class FileRows(StoreBase):
     def not_reprotected(self, dataset: str) -> list[dict[str, Any]]:
         """The dataset's patched rows a re-protect failed on (note_not_reprotected), by path."""
         return self._rows(
-            "SELECT * FROM files WHERE dataset = ? AND state = ? AND error IS NOT NULL ORDER BY path",
-            (dataset, FileState.PATCHED.value),
+            "SELECT * FROM files WHERE dataset = ? AND state = ? AND error IS NOT NULL "
+            "AND substr(error, 1, ?) != ? ORDER BY path",
+            (dataset, FileState.PATCHED.value, len(NOT_MOVED_PREFIX), NOT_MOVED_PREFIX),
+        )
+
+    def not_moved(self, dataset: str) -> list[dict[str, Any]]:
+        """The dataset's patched rows whose move to the publish folder failed (daemon.protect.publishing):
+        patched, still in the outbox; by path."""
+        return self._rows(
+            "SELECT * FROM files WHERE dataset = ? AND state = ? AND substr(error, 1, ?) = ? ORDER BY path",
+            (dataset, FileState.PATCHED.value, len(NOT_MOVED_PREFIX), NOT_MOVED_PREFIX),
         )
 
     def counts(self, dataset: str) -> dict[str, int]:

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.protect.job import NO_SPACE_WORDS, Outcome
-from daemon.states import FileState
+from daemon.states import NOT_MOVED_PREFIX, FileState
 from daemon.watch.workers import PoolStats
 
 log = logging.getLogger("daemon.watch.watcher")  # the daemon's lines keep the logger they always had
@@ -79,10 +79,12 @@ def is_no_space(reason: str | None) -> bool:
 
 def row_matches_disk(row: dict[str, Any], path: Path) -> bool:
     """A patched row, or a restored one (the user's restore stands), whose recorded size and mtime
-    are the file's: nothing to do."""
+    are the file's: nothing to do (but a patched file its publish folder could not take)."""
     if row["state"] not in (FileState.PATCHED, FileState.RESTORED):
         return False
     if row.get("published_path") or row.get("size") is None:
+        return False
+    if str(row.get("error") or "").startswith(NOT_MOVED_PREFIX):  # patched, its move out failed: again
         return False
     try:
         st = path.stat()

@@ -19,6 +19,7 @@ with systemd specifiers (%h) for a `pip install --user` layout; a test keeps the
 from __future__ import annotations
 
 import os
+import shlex
 import shutil
 import subprocess
 import sys
@@ -123,7 +124,7 @@ def installed_layout(
     # where the daemon moves what it cannot patch (ProtectSystem=strict: else read-only, and a broken
     # file stayed in the outbox; `ppd service install` makes the folder, so it is there at start)
     read_write.append("-" + str(quarantine_folder(outbox, config)))
-    for publish in _publish_dirs(config):
+    for publish in _publish_dirs(config, Path(getattr(paths, "db_path", data / "ppd.sqlite3"))):
         read_write.append("-" + str(publish))  # '-': a missing folder does not stop the unit
     return UnitLayout(
         exec_start=argv,
@@ -155,12 +156,36 @@ def temporary_folders(layout: UnitLayout) -> list[str]:
     return [p for p in paths if Path(p).is_relative_to("/tmp") or Path(p).is_relative_to("/var/tmp")]
 
 
-def _publish_dirs(config: object | None) -> list[Path]:
-    if config is None:
-        return []
-    dirs = [getattr(config, "publish_dir", None)]
+def _publish_dirs(config: object | None, store: Path) -> list[Path]:
+    """The config's publish folders and every dataset's own, kept in the store (`ppd dataset set NAME
+    --publish-dir`: not listed, the sandbox made it read-only, a black-box review), each once; the
+    store read read-only (`--print` makes nothing)."""
+    from daemon.protect.rebuild import stored_datasets
+
+    dirs = [getattr(config, "publish_dir", None)] if config is not None else []
     dirs += [getattr(o, "publish_dir", None) for o in getattr(config, "datasets", {}).values()]
-    return [Path(d).expanduser().absolute() for d in dirs if d]
+    dirs += [row.get("publish_dir") for row in stored_datasets(store).values()]
+    found = list(dict.fromkeys(Path(d).expanduser().absolute() for d in dirs if d))
+    # one inside another listed folder (the config's publish_dir/NAME, kept with the dataset) is writable
+    return [d for d in found if not any(d != f and d.is_relative_to(f) for f in found)]
+
+
+def unit_lacks(folder: Path, unit: Path | None = None) -> bool:
+    """Whether ppd.service is installed and does not list folder among its writable ones (ReadWritePaths=):
+    the service cannot write there until `ppd service install` is run again."""
+    unit = unit or unit_dir() / UNIT_NAME
+    try:
+        text = unit.read_text(encoding="utf-8")
+    except OSError:  # not installed (or unreadable): nothing to say
+        return False
+    folder = Path(folder).expanduser().absolute()
+    for line in text.splitlines():
+        if line.startswith("ReadWritePaths="):
+            words = shlex.split(line.split("=", 1)[1])
+            listed = [Path(w.lstrip("-").replace("%%", "%")) for w in words]
+            if any(folder.is_relative_to(p) for p in listed):
+                return False
+    return True
 
 
 def unit_dir(env: Mapping[str, str] | None = None) -> Path:

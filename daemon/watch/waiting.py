@@ -10,6 +10,7 @@ line say `event=changed` once it was complete."""
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -91,3 +92,38 @@ class WriterWaits:
             )  # fmt: skip
         except Exception:  # the store failing must not stop the wait: the failed row stays
             log.exception("could not record a waited-for file", extra={"path": str(path)})
+
+
+class FolderWaits:
+    """Files that failed because their dataset's subject-mask folder is not there (a drive unplugged:
+    daemon.datasets.subject_masks.MaskFolderMissing): each is retried once its folder is a readable
+    folder again (the main loop asks every no-space poll), not left failed until a restart."""
+
+    def __init__(self) -> None:
+        self._waiting: dict[Path, Path] = {}  # file -> the folder it waits for
+        self._lock = threading.Lock()
+
+    def __bool__(self) -> bool:
+        with self._lock:
+            return bool(self._waiting)
+
+    def note(self, path: Path, folder: Path | None) -> None:
+        """Wait for folder (None: path waits for nothing now)."""
+        with self._lock:
+            if folder is None:
+                self._waiting.pop(path, None)
+            else:
+                self._waiting[path] = folder
+
+    def back(self) -> list[Path]:
+        """The files whose folder is readable again, forgotten here (their retry may wait again)."""
+        with self._lock:
+            folders = set(self._waiting.values())
+            ready = {f for f in folders if f.is_dir() and os.access(f, os.R_OK | os.X_OK)}
+            paths = [p for p, f in self._waiting.items() if f in ready]
+            for p in paths:
+                del self._waiting[p]
+        if paths:
+            log.info("subject masks back (%s): retrying %d file(s)", ", ".join(map(str, sorted(ready))),
+                     len(paths), extra={"files": len(paths)})  # fmt: skip
+        return paths

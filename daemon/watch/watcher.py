@@ -45,7 +45,7 @@ from daemon.watch.outcomes import (
     say_removed,
     status_line,
 )
-from daemon.watch.waiting import WriterWaits
+from daemon.watch.waiting import FolderWaits, WriterWaits
 from daemon.watch.workers import PoolOptions, WorkerPool
 from poisoner.media import MEDIA_SUFFIXES
 
@@ -119,6 +119,7 @@ class WatchDaemon:
         self.waits = WriterWaits(
             ctx.store, options.incomplete_wait_s, options.watch.settle_s, options.watch.max_settle_s
         )  # incomplete files waited for
+        self.folder_waits = FolderWaits()  # files waiting for their dataset's subject masks
         self._no_space_lock = threading.Lock()
         # Paths counted removed, until a file is processed there again: a file counts once, however
         # many jobs find it gone (its own, its folder's, its deletion event's); oldest forgotten first.
@@ -236,7 +237,7 @@ class WatchDaemon:
         waits.append(self.options.outbox_check_s)
         if self._rescan_needed.is_set():
             waits.append(5.0)
-        if self._no_space:
+        if self._no_space or self.folder_waits:
             waits.append(self.options.no_space_poll_s)
         if self.protectors is not None and (idle_in := self.protectors.end_idle()) is not None:
             waits.append(idle_in + 0.05)  # then the idle workers exit
@@ -266,7 +267,10 @@ class WatchDaemon:
 
     def _retry_if_space_returned(self) -> None:
         """Queue the files that failed for lack of space again once free space has grown by
-        1 MiB since (or after no_space_retry_s in any case)."""
+        1 MiB since (or after no_space_retry_s in any case); and those whose subject masks are back."""
+        for path in self.folder_waits.back():
+            self.watcher.forget(path)
+            self.pool.submit(path)
         with self._no_space_lock:
             if not self._no_space:
                 return
@@ -492,6 +496,7 @@ class WatchDaemon:
         if outcome.requeue:
             self.pool.submit(path)  # runs once more after this job (daemon.watch.workers)
         self._note_no_space(path, outcome.reason if outcome.state == Outcome.FAILED else None)
+        self.folder_waits.note(path, outcome.waits_for if outcome.state == Outcome.FAILED else None)
         moved = self._quarantine_if_hopeless(path, outcome)
         state = Outcome.QUARANTINED.value if moved is not None else str(outcome.state)
         self._count(state)  # one count per file: a quarantined file is not also "failed"

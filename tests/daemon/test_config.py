@@ -149,18 +149,17 @@ def test_importing_the_config_stays_light() -> None:
     assert out.stdout.strip() == "[]", out.stdout + out.stderr
 
 
-def test_subject_masks_per_dataset_and_a_missing_folder_is_one_line(tmp_path: Path) -> None:
+def test_subject_masks_per_dataset_and_a_missing_folder_is_no_config_error(tmp_path: Path) -> None:
+    """A folder not there (a drive unplugged) is that dataset's state, said when its files come
+    (daemon.datasets.subject_masks.MaskFolderMissing): it stopped every command at load (s5 F4)."""
     masks = tmp_path / "masks"
     masks.mkdir()
     text = f'[datasets.lego]\nsubject_masks = "{masks}"\n[datasets.other]\nsubject_masks = ""\n'
     cfg = Config.from_toml(text)
     assert cfg.subject_masks_for("lego") == masks
     assert cfg.subject_masks_for("other") is None and cfg.subject_masks_for("unknown") is None  # "" = unset
-    with pytest.raises(ConfigError) as err:
-        Config.from_toml(f'[datasets.lego]\nsubject_masks = "{tmp_path / "gone"}"\n', source=Path("c.toml"))
-    message = str(err.value)
-    assert "\n" not in message and "datasets.lego" in message and "subject_masks" in message
-    assert str(tmp_path / "gone") in message and "not a readable folder" in message
+    gone = Config.from_toml(f'[datasets.lego]\nsubject_masks = "{tmp_path / "gone"}"\n')
+    assert gone.subject_masks_for("lego") == tmp_path / "gone"
 
 
 def test_position_set_says_whether_the_user_chose_the_corner() -> None:

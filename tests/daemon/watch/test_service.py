@@ -169,3 +169,32 @@ def test_service_install_print_writes_nothing(ppd_env: dict[str, Path], tmp_path
     assert "$XDG_CONFIG_HOME" in shown.stdout and "".join(str(xdg).split()) in "".join(shown.stdout.split())
     plain = _ppd("service", "install", "--help", env={k: v for k, v in env.items() if k != "XDG_CONFIG_HOME"})
     assert "~/.config/systemd/user" in plain.stdout
+
+
+@needs_analyze
+def test_the_unit_lists_every_datasets_own_publish_folder(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A black-box review (s5 F3): a dataset's own publish folder (`ppd dataset set NAME --publish-dir`,
+    kept in the store) was not in ReadWritePaths=, so under ProtectSystem=strict the daemon could not
+    move a patched file there. Now `ppd service install` lists it (read from the store, `--print` too),
+    and `dataset set --publish-dir` says to install again while the unit installed lacks a folder."""
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "xdg"), "PYTHONPATH": str(REPO)}  # this checkout
+    pub2, pub3 = tmp_path / "sites" / "beach 2", tmp_path / "sites" / "lake"
+    (ppd_env["config"] / "config.toml").write_text(f'publish_dir = "{tmp_path / "pub"}"\n')
+    first = _ppd("dataset", "set", "beach", "--publish-dir", str(pub2), env=env)
+    assert first.returncode == 0 and "service install" not in first.stdout, first.stdout  # none installed
+    printed = _ppd("service", "install", "--print", env=env)
+    assert quote_word(f"-{pub2}") in unit_settings(printed.stdout)["ReadWritePaths"][0]
+    assert _ppd("service", "install", "--no-start", env=env).returncode == 0
+    unit = tmp_path / "xdg" / "systemd" / "user" / UNIT_NAME
+    read_write = unit_settings(unit.read_text())["ReadWritePaths"][0]
+    assert quote_word(f"-{pub2}") in read_write and f"-{tmp_path / 'pub'} " in f"{read_write} "
+    assert analyze_verify(unit, tmp_path) == ""
+    inside = _ppd("dataset", "set", "lake", env=env)  # publish_dir/lake: under a listed folder
+    assert inside.returncode == 0 and "-/" + str(tmp_path / "pub" / "lake") not in _ppd(
+        "service", "install", "--print", env=env).stdout  # fmt: skip
+    same = _ppd("dataset", "set", "beach", "--publish-dir", str(pub2), env=env)
+    assert same.returncode == 0 and "service install" not in same.stdout
+    moved = _ppd("dataset", "set", "beach", "--publish-dir", str(pub3), env=env)
+    assert moved.returncode == 0 and moved.stdout.splitlines()[1] == (
+        "ppd.service cannot write there yet: run `ppd service install` again"
+    )
