@@ -150,10 +150,12 @@ def quarantine_folder(outbox: Path, config: object | None) -> Path:
 
 
 def temporary_folders(layout: UnitLayout) -> list[str]:
-    """The unit's writable folders under /tmp or /var/tmp: PrivateTmp=yes gives the service a /tmp of
-    its own, where such a folder does not exist."""
-    paths = [p.lstrip("-") for p in layout.read_write]
-    return [p for p in paths if Path(p).is_relative_to("/tmp") or Path(p).is_relative_to("/var/tmp")]
+    """The unit's paths under /tmp or /var/tmp, its program's first (a ppd installed in a venv under
+    /tmp was not warned of: a fifth black-box review), then its writable folders: PrivateTmp=yes gives
+    the service a /tmp of its own, where such a path does not exist."""
+    paths = [*layout.exec_start[:2], *(p.lstrip("-") for p in layout.read_write)]
+    return [p for p in paths if p.startswith("/") and (Path(p).is_relative_to("/tmp") or
+                                                        Path(p).is_relative_to("/var/tmp"))]  # fmt: skip
 
 
 def _publish_dirs(config: object | None, store: Path) -> list[Path]:

@@ -153,6 +153,20 @@ def test_service_install_status_uninstall(ppd_env: dict[str, Path], tmp_path: Pa
     assert "was not installed" in again.stderr
 
 
+def test_a_program_under_tmp_is_warned_of_like_the_folders() -> None:
+    """A fifth black-box review: `ppd service install` from a venv under /tmp warned of the outbox,
+    data and cache there (PrivateTmp hides them from the service) but not of ExecStart's ppd itself."""
+    from daemon.watch.service import UnitLayout, temporary_folders
+
+    home = Path.home() / "x"
+    layout = UnitLayout(exec_start=["/tmp/rev/venv/bin/ppd", "watch"], read_write=[str(home), f"-{home}/p"])
+    assert temporary_folders(layout) == ["/tmp/rev/venv/bin/ppd"]
+    python = UnitLayout(exec_start=["/var/tmp/v/bin/python", "-m", "daemon.cli", "watch"],
+                        read_write=["/tmp/o"])  # fmt: skip
+    assert temporary_folders(python) == ["/var/tmp/v/bin/python", "/tmp/o"]
+    assert temporary_folders(UnitLayout(exec_start=["/usr/bin/ppd", "watch"], read_write=[str(home)])) == []
+
+
 def test_service_install_print_writes_nothing(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     xdg = tmp_path / "xdg"
     env = {**os.environ, "XDG_CONFIG_HOME": str(xdg)}
