@@ -47,6 +47,8 @@ class Protection(StrEnum):
 # counts these apart, as "still being written", not as skipped by the spec's ratio.
 WAITING_PREFIX = "incomplete, waiting for its writer"
 STILL_OPEN_PREFIX = "still open for writing"  # a file another process writes: skipped, not patched
+# a photo or video in a format ppd does not write (GIF, BMP, raw): skipped, named as not protected
+UNPROTECTED_PREFIX = "not protected"
 
 # The value a store row holds for a patched file (older stores said "protected"; the store's
 # migration renamed them, so no other spelling reaches this code).

@@ -41,10 +41,11 @@ def outcome_word(outcome: ProtectOutcome) -> str:
 
 def unprotected_media(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
     """The skipped files that are photos or videos in a format ppd does not write (a GIF, a BMP, a
-    camera's raw file): skipped like a sidecar, but publishing them gives a reconstruction away."""
-    from poisoner.media import is_unprotected_media
+    camera's raw file, by its suffix or its first bytes: poisoner.media.media_class): skipped like a
+    sidecar, but publishing them gives a reconstruction away."""
+    from daemon.states import UNPROTECTED_PREFIX
 
-    return [o for o in outcomes if o.state == "skipped" and is_unprotected_media(o.path)]
+    return [o for o in outcomes if o.state == "skipped" and (o.reason or "").startswith(UNPROTECTED_PREFIX)]
 
 
 def still_open(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:

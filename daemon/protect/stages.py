@@ -75,7 +75,6 @@ from daemon.protect.job import (
     ProtectRefused,
     SourceChanged,
     is_ignored_name,
-    media_kind,
     no_space_in,
     place_note,
     publish_dir,
@@ -97,10 +96,11 @@ from daemon.protect.poisoning import (
 )
 from daemon.protect.quarantine import attempt, forget_attempt
 from daemon.protect.recovery import carry_moved_row, copy_patched_as_it_is, recover_pending
-from daemon.states import STILL_OPEN_PREFIX, FileState
+from daemon.states import STILL_OPEN_PREFIX, UNPROTECTED_PREFIX, FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import atomic_replace_at
 from poisoner.errors import ExitStatus, PpdError
+from poisoner.media import SNIFF_BYTES, UNPROTECTED, media_class
 from poisoner.spec import PatchSpec
 
 log = logging.getLogger(__name__)
@@ -137,9 +137,13 @@ def open_contained_file(job: Job) -> ProtectOutcome | None:
     # ppd's own temporaries a killed run left in this folder (a re-protect's too), even when every
     # file in it turns out to be done already: once a folder, a process
     clear_stale_temps_once(job.file.dir_fd)
-    job.kind = media_kind(job.path)
-    if job.kind is None:  # not ours to judge (sidecars, notes): left alone, no row
+    opened = job.file  # a suffix of no format: the file's first bytes, read through its descriptor
+    kind = media_class(job.path, lambda: os.pread(opened.fd, SNIFF_BYTES, 0))
+    if kind == UNPROTECTED:  # a photo ppd does not write (GIF, raw): the run's summary names it
+        return job.outcome(Outcome.SKIPPED, f"{UNPROTECTED_PREFIX}: a format ppd cannot patch")
+    if kind is None:  # not ours to judge (sidecars, notes): left alone, no row
         return job.outcome(Outcome.SKIPPED, "not a supported image or video")
+    job.kind = kind
     return None  # an empty file is judged by check_complete (a writer may be about to fill it)
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.locks import outbox_lock
-from daemon.protect.job import Outcome
+from daemon.protect.job import Outcome, media_kind
 from daemon.states import FileState
 from daemon.watch.notify import SystemdNotifier
 from daemon.watch.outbox import (
@@ -457,13 +457,17 @@ class WatchDaemon:
                 if is_candidate(self.outbox, child, self.suffixes) and not self.watcher.is_settled(child):
                     self.pool.submit(child)
             return
-        if st is not None and stat.S_ISLNK(st.st_mode) and is_candidate(self.outbox, path, self.suffixes):
+        named = is_candidate(self.outbox, path, self.suffixes, by_content=False)  # a folder has no suffix
+        if st is not None and stat.S_ISLNK(st.st_mode) and named:
             self._quarantine_link(path)
             return
         if st is not None and not stat.S_ISREG(st.st_mode):
             log.info("not a regular file, left alone: %s", path, extra={"path": str(path)})
             return
         if self.watcher.is_settled(path):
+            return
+        if not named and media_kind(path) is None:  # its bytes are no photo ppd patches (a sidecar)
+            self.watcher.mark_settled(path)  # judged again once it changes
             return
         judged = signature(path)
         with self._removal_lock:
@@ -551,7 +555,7 @@ class WatchDaemon:
         store = self.ctx.store
         row = store.file(path)
         rows = [row] if row is not None else []
-        if not rows and not is_candidate(self.outbox, path, self.suffixes):
+        if not rows and not is_candidate(self.outbox, path, self.suffixes, by_content=False):
             # Perhaps a folder: its files' rows. (A media name is taken for a file, so deleting
             # 10k unknown files does not scan the store 10k times.)
             prefix = str(path) + os.sep
