@@ -52,7 +52,7 @@ def still_open(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
     """The files skipped because another process still writes them (daemon.states.STILL_OPEN_PREFIX)."""
     from daemon.states import STILL_OPEN_PREFIX
 
-    return [o for o in outcomes if o.state == "skipped" and str(o.reason or "").startswith(STILL_OPEN_PREFIX)]
+    return [o for o in outcomes if o.state == "skipped" and (o.reason or "").startswith(STILL_OPEN_PREFIX)]
 
 
 def _restored_left(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
@@ -267,6 +267,8 @@ def _say_outcome(progress_console: Any, outcome: ProtectOutcome) -> None:
     where = f" -> {outcome.output}" if outcome.output and outcome.output != outcome.path else ""
     said = outcome.reason if outcome.reason != outcome_word(outcome) else None  # "would patch (would patch)"
     why = f" ({said})" if said and outcome.state != "failed" else ""
+    if still_open([outcome]):  # what the summary says: nothing patches it after this run
+        why = f" ({said}; not patched: run ppd poison again once it is complete)"
     place = getattr(outcome.report, "place", None)
     if place is not None and outcome.state in OUTCOME_PATCHED:  # a per-photo mark: where it shows
         why = f" (mark at the {place.words}{'; ' + outcome.reason if outcome.reason else ''})"

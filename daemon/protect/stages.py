@@ -169,8 +169,9 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     if reason is not None:
         pids = writers_of(job.file.st, fresh=True)  # the shared scan may predate this writer
     if pids:
-        # the daemon's watcher patches it once closed; `ppd poison` says to run it again (poison_cmd)
-        why = f"{STILL_OPEN_PREFIX} by pid {pids[0]}; patched once it is closed"
+        # the fact only: the daemon says it patches it once closed (its close re-arms the watcher),
+        # `ppd poison`, which does not, says to run it again (a black-box review read a promise there)
+        why = f"{STILL_OPEN_PREFIX} by pid {pids[0]}"
         return job.outcome(Outcome.SKIPPED, why, signature=None)
     if starts_like_media(os.pread(job.file.fd, 16, 0)) is False:
         # before the vault: a tail fragment (a writer's next append) is never kept as an original

@@ -124,7 +124,7 @@ def test_a_photo_still_being_written_is_said_not_patched_and_fails_the_run(
                                "import time; time.sleep(60)"], stdout=subprocess.PIPE)  # fmt: skip
     try:
         assert writer.stdout is not None and writer.stdout.readline()  # the file is open for writing now
-        result = runner.invoke(app, ["poison", str(shoot)])
+        result = runner.invoke(app, ["-v", "poison", str(shoot)])
     finally:
         writer.kill()
         writer.wait()
@@ -132,6 +132,9 @@ def test_a_photo_still_being_written_is_said_not_patched_and_fails_the_run(
     assert result.exit_code == 1, text
     said = "not patched: 1 file(s) still being written by another program (b.jpg): run ppd poison again"
     assert said in text, text
+    # -v's line for the file says the same, not the daemon's 'patched once it is closed' (a black-box review)
+    line = f"b.jpg (still open for writing by pid {writer.pid}; not patched: run ppd poison again once it"
+    assert line in text and "once it is closed" not in text, text
     time.sleep(0.1)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0  # closed now: patched
 
