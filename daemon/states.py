@@ -49,6 +49,8 @@ WAITING_PREFIX = "incomplete, waiting for its writer"
 STILL_OPEN_PREFIX = "still open for writing"  # a file another process writes: skipped, not patched
 # a photo or video in a format ppd does not write (GIF, BMP, raw): skipped, named as not protected
 UNPROTECTED_PREFIX = "not protected"
+# a symlinked sub-folder of a dataset: ppd never follows a symlink inside one, so its photos stay as they are
+LINKED_FOLDER_PREFIX = "symlinked folder, not followed"
 
 # The value a store row holds for a patched file (older stores said "protected"; the store's
 # migration renamed them, so no other spelling reaches this code).

@@ -96,7 +96,7 @@ from daemon.protect.poisoning import (
 )
 from daemon.protect.quarantine import attempt, forget_attempt
 from daemon.protect.recovery import carry_moved_row, copy_patched_as_it_is, recover_pending
-from daemon.states import STILL_OPEN_PREFIX, UNPROTECTED_PREFIX, FileState
+from daemon.states import LINKED_FOLDER_PREFIX, STILL_OPEN_PREFIX, UNPROTECTED_PREFIX, FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import atomic_replace_at
 from poisoner.errors import ExitStatus, PpdError
@@ -133,6 +133,8 @@ def open_contained_file(job: Job) -> ProtectOutcome | None:
     try:
         job.file = open_contained(job.anchor, job.path)
     except NotContained as exc:
+        if job.path.is_symlink() and job.path.is_dir():  # never followed; `ppd poison` names its photos
+            return job.outcome(Outcome.SKIPPED, f"{LINKED_FOLDER_PREFIX}: the photos in it are not protected")
         raise ProtectRefused(str(exc)) from None
     # ppd's own temporaries a killed run left in this folder (a re-protect's too), even when every
     # file in it turns out to be done already: once a folder, a process

@@ -167,3 +167,23 @@ def test_a_photo_with_another_formats_suffix_is_not_said_to_change_its_pixel_lay
     assert result.exit_code == 0 and "patched 2," in text, result.output
     assert "another pixel layout" not in text, text
     assert "content is PNG despite the .jpg suffix: kept as PNG" in text, text
+
+
+def test_a_symlinked_folder_is_skipped_and_its_photos_named_not_protected(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A black-box review: `shoot/day2 -> elsewhere` (2 photos) was one failed file ('refusing symlink
+    day2', '2 of 4 patched'), its photos neither counted nor named. Still never followed."""
+    shoot, elsewhere = tmp_path / "shoot", tmp_path / "elsewhere"
+    make_image(shoot / "a.jpg", 1, size=(200, 150))
+    originals = [make_image(elsewhere / f"{n}.jpg", i, size=(200, 150)) for i, n in enumerate("cd", 2)]
+    before = [p.read_bytes() for p in originals]
+    (shoot / "day2").symlink_to(elsewhere)
+    result = runner.invoke(app, ["-v", "poison", str(shoot)])
+    text = " ".join(result.output.split())
+    assert "patched 1, unchanged 0, skipped 1, failed 0" in text, text
+    assert f"skipped {shoot / 'day2'} (symlinked folder, not followed" in text, text
+    said = "not protected: 2 photo(s) or video(s) in 1 symlinked folder(s) ppd does not follow"
+    assert f"{said} (day2 -> {elsewhere}: 2)" in text and "refusing symlink" not in text, text
+    assert result.exit_code == 1  # published with the folder, they are views a reconstruction reads
+    assert [p.read_bytes() for p in originals] == before  # not followed
