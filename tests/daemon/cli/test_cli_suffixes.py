@@ -125,3 +125,19 @@ def test_the_daemon_patches_a_jfif_and_a_file_without_suffix_and_leaves_sidecars
     assert all(hashlib.sha256((folder / n).read_bytes()).hexdigest() != d for n, d in digests.items())
     log = daemon.log.read_text()
     assert "x.xmp" not in log and "notes" not in log, log  # sidecars: not even a 'skipped' line
+
+
+def test_preview_takes_a_photo_ppd_poison_patches_whatever_its_suffix(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """`ppd preview IMG_1` said 'not a photo or video ppd protects (ppd poison skips it)' of a JPEG with no
+    suffix, which ppd poison patches; a GIF with no suffix is still refused."""
+    shoot = tmp_path / "shoot"
+    _jpeg(shoot / "IMG_1", 1)
+    Image.new("P", (64, 48)).save(shoot / "loop", "GIF")
+    for given in (shoot / "IMG_1", shoot):  # the file, and its folder's first photo
+        result = runner.invoke(app, ["preview", str(given), "--out", str(tmp_path / "p.png")])
+        assert result.exit_code == 0 and (tmp_path / "p.png").is_file(), result.output
+        (tmp_path / "p.png").unlink()
+    refused = runner.invoke(app, ["preview", str(shoot / "loop"), "--out", str(tmp_path / "p.png")])
+    assert refused.exit_code == 2 and "ppd poison skips it" in _said(refused), refused.output
