@@ -144,7 +144,7 @@ def published_with(folder: Path, where: Path) -> bool:
 def _a_photo_in(folder: Path, depth: int = 3, budget: int = 20_000) -> str | None:
     """A photo or video (any format, protectable or not) within `depth` folders of folder, outside
     ppd's own (vault, runs, hidden ones), looking at no more than `budget` entries; None: none."""
-    from poisoner.media import is_media, is_unprotected_media
+    from poisoner.media import media_class
 
     own = {"vault", "runs", "attempts", "locks", "displaced"}  # displaced: `ppd restore --force`'s copies
     for here, dirs, files in os.walk(folder):
@@ -152,7 +152,7 @@ def _a_photo_in(folder: Path, depth: int = 3, budget: int = 20_000) -> str | Non
         skipped = own if level == 0 else set()
         dirs[:] = [] if level >= depth else [d for d in dirs if not d.startswith(".") and d not in skipped]
         for name in files:
-            if is_media(name) or is_unprotected_media(Path(here, name)):
+            if media_class(Path(here, name)) is not None:
                 return str(Path(here, name).relative_to(folder))
         budget -= len(files) + len(dirs)
         if budget <= 0:

@@ -50,6 +50,10 @@ STILL_OPEN_PREFIX = "still open for writing"  # a file another process writes: s
 # A patched row's error when its move to the publish folder failed (daemon.protect.publishing): the file
 # is patched but still in the outbox; `ppd status` counts these apart ("not moved to the publish folder").
 NOT_MOVED_PREFIX = "patched, but not moved to"
+# a photo or video in a format ppd does not write (GIF, BMP, raw): skipped, named as not protected
+UNPROTECTED_PREFIX = "not protected"
+# a symlinked sub-folder of a dataset: ppd never follows a symlink inside one, so its photos stay as they are
+LINKED_FOLDER_PREFIX = "symlinked folder, not followed"
 
 # The value a store row holds for a patched file (older stores said "protected"; the store's
 # migration renamed them, so no other spelling reaches this code).

@@ -565,11 +565,11 @@ def _jpeg_marker(src: Path, out: bytes, marker: Marker) -> bytes:
 
 def _suffix_matches(suffix: str, fmt: str) -> bool:
     expected = {
-        "JPEG": {".jpg", ".jpeg", ".jpe"},
+        "JPEG": {".jpg", ".jpeg", ".jpe", ".jfif", ".jfi", ".jif", ".pjpeg", ".pjp"},
         "PNG": {".png"},
         "WEBP": {".webp"},
         "TIFF": {".tif", ".tiff"},
-        "HEIF": {".heic", ".heif"},
+        "HEIF": {".heic", ".heif", ".hif"},
         "AVIF": {".avif"},
     }
     return suffix in expected.get(fmt, set())

@@ -1,4 +1,5 @@
-"""Which files are media, by suffix: the one table every package reads.
+"""Which files are media, by suffix, and by their first bytes where the suffix names no format: the
+one table every package reads (media_class: `ppd poison`, `ppd status` and the daemon's outbox).
 
 Importing this module is cheap (no numpy, PIL or PyAV), so the daemon's event layer can use it.
 """
@@ -6,10 +7,14 @@ Importing this module is cheap (no numpy, PIL or PyAV), so the daemon's event la
 from __future__ import annotations
 
 import os
+import re
+from collections.abc import Callable
 
-IMAGE_SUFFIXES: frozenset[str] = frozenset(
-    {".jpg", ".jpeg", ".jpe", ".png", ".webp", ".tif", ".tiff", ".heic", ".heif", ".avif"}
-)
+# .jfif/.jfi/.jif/.pjpeg/.pjp: what browsers and Windows save JPEGs as; .hif: Canon's HEIF
+IMAGE_SUFFIXES: frozenset[str] = frozenset({
+    ".jpg", ".jpeg", ".jpe", ".jfif", ".jfi", ".jif", ".pjpeg", ".pjp", ".png", ".webp", ".tif", ".tiff",
+    ".heic", ".heif", ".hif", ".avif",
+})  # fmt: skip
 VIDEO_SUFFIXES: frozenset[str] = frozenset({".mp4", ".m4v", ".mov", ".mkv", ".webm"})
 MEDIA_SUFFIXES: frozenset[str] = IMAGE_SUFFIXES | VIDEO_SUFFIXES
 
@@ -83,12 +88,88 @@ def _reads_as_mpeg_ts(path: str | os.PathLike[str]) -> bool:
     return False
 
 
+# A file whose suffix names no format (none at all, `.jpg_original`, a camera's `.THM`) is judged by
+# its first bytes: COLMAP reads an image by its content, whatever its name (a black-box review: JPEGs
+# named .jfif or with no suffix were left unprotected, unsaid). Sidecars and notes are never opened.
+SNIFF_BYTES = 64
+NOT_MEDIA_SUFFIXES: frozenset[str] = frozenset({
+    ".xmp", ".aae", ".pp3", ".dop", ".on1", ".cos", ".txt", ".md", ".json", ".xml", ".csv", ".log",
+    ".html", ".pdf", ".zip", ".wav", ".mp3", ".m4a", ".aac", ".flac",
+})  # fmt: skip
+IMAGE, VIDEO, UNPROTECTED = "image", "video", "unprotected"  # media_class's answers
+
+# ISO-BMFF brands of a still HEIF or AVIF image (an MP4's or a MOV's are others)
+_IMAGE_BRANDS = frozenset({b"heic", b"heix", b"heim", b"heis", b"mif1", b"mif2", b"avif"})
+# Images COLMAP's reader takes that ppd does not write (GIF, BMP, JPEG XL, JPEG 2000, PSD, EXR, Radiance,
+# PNM), and TIFF: a camera's raw file is TIFF inside (DNG, and raws under suffixes not listed above), of
+# which ppd would write back only the preview; with a `.tif` suffix it is patched as a TIFF.
+_UNPROTECTED_MAGIC = re.compile(
+    rb"GIF8[79]a|BM.{4}\x00{4}|\x00\x00\x00\x0c(?:JXL |jP  )\r\n\x87\n|\xff\x4f\xff\x51|8BPS"
+    rb"|\x76\x2f\x31\x01|#\?(?:RADIANCE|RGBE)|P[1-6]\s+(?:#[^\n]*\n\s*)*\d|II\*\x00|MM\x00\*|II\+\x00|MM\x00\+",
+    re.DOTALL,
+)
+
+
+def media_class(path: str | os.PathLike[str], head: Callable[[], bytes] | None = None) -> str | None:
+    """IMAGE or VIDEO: a file ppd patches; UNPROTECTED: a photo or video a reconstruction reads that ppd
+    does not patch; None: neither (a sidecar, a note, a hidden or partial file), left alone. By the
+    suffix, else by the first SNIFF_BYTES (head(): read through a file already open, else from path;
+    unreadable: None, as for COLMAP). `ppd poison`, `ppd status` and the daemon's outbox all ask it."""
+    suffix = suffix_of(path)
+    if suffix in IMAGE_SUFFIXES:
+        return IMAGE
+    if suffix in VIDEO_SUFFIXES:
+        return VIDEO
+    if suffix in UNPROTECTED_SUFFIXES:
+        return UNPROTECTED if is_unprotected_media(path) else None
+    if not judged_by_content(os.path.basename(os.fspath(path))):
+        return None
+    try:
+        data = head() if head is not None else _head(path)
+    except OSError:
+        return None
+    return content_class(data)
+
+
+def content_class(head: bytes) -> str | None:
+    """What a file's first bytes say: IMAGE for a format ppd writes (JPEG, PNG, WebP, HEIF, AVIF),
+    UNPROTECTED for another image a reconstruction reads (_UNPROTECTED_MAGIC), None else. A video is
+    told by its suffix alone: no reconstruction reads one as it is (nor an MP4 of audio only)."""
+    if head.startswith((b"\xff\xd8\xff", b"\x89PNG\r\n\x1a\n")) or head[:4] + head[8:12] == b"RIFFWEBP":
+        return IMAGE
+    if head[4:8] == b"ftyp" and _ftyp_brands(head) & _IMAGE_BRANDS:  # HEIF, AVIF
+        return IMAGE
+    return UNPROTECTED if _UNPROTECTED_MAGIC.match(head) else None
+
+
+def _ftyp_brands(head: bytes) -> set[bytes]:
+    """The major and compatible brands an ISO-BMFF `ftyp` box lists within head."""
+    end = min(max(int.from_bytes(head[:4], "big"), 16), len(head))
+    return {head[8:12]} | {head[i : i + 4] for i in range(16, end - 3, 4)}
+
+
+def judged_by_content(name: str) -> bool:
+    """Whether media_class opens a file of this name to read its first bytes: its suffix names no
+    format, and it is not hidden (ppd's own temporaries are), a partial download, an editor's backup,
+    a sidecar or a note."""
+    suffix = os.path.splitext(name)[1].lower()
+    named = suffix in MEDIA_SUFFIXES or suffix in UNPROTECTED_SUFFIXES
+    return not (named or name.startswith(".") or name.endswith("~") or suffix in PARTIAL_SUFFIXES
+                or suffix in NOT_MEDIA_SUFFIXES)  # fmt: skip
+
+
+def _head(path: str | os.PathLike[str]) -> bytes:
+    with open(path, "rb") as f:
+        return f.read(SNIFF_BYTES)
+
+
 def is_sfm_readable(path: str | os.PathLike[str]) -> bool:
     return suffix_of(path) in SFM_SUFFIXES
 
 
 __all__ = [
-    "IMAGE_SUFFIXES", "MEDIA_SUFFIXES", "PARTIAL_SUFFIXES", "SFM_SUFFIXES", "UNPROTECTED_SUFFIXES",
-    "VIDEO_SUFFIXES", "is_image", "is_media", "is_sfm_readable", "is_unprotected_media", "is_video",
-    "suffix_of",
+    "IMAGE", "IMAGE_SUFFIXES", "MEDIA_SUFFIXES", "NOT_MEDIA_SUFFIXES", "PARTIAL_SUFFIXES", "SFM_SUFFIXES",
+    "SNIFF_BYTES", "UNPROTECTED", "UNPROTECTED_SUFFIXES", "VIDEO", "VIDEO_SUFFIXES", "content_class",
+    "is_image", "is_media", "is_sfm_readable", "is_unprotected_media", "is_video", "judged_by_content",
+    "media_class", "suffix_of",
 ]  # fmt: skip

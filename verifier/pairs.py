@@ -52,12 +52,36 @@ def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_di
             shutil.rmtree(tmp_c, ignore_errors=True)
             shutil.rmtree(tmp_p, ignore_errors=True)
             continue
-        if protected.suffix.lower() not in (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp"):
+        sfm_name = _sfm_name(protected)
+        if sfm_name is None:
             continue  # formats COLMAP cannot read (e.g. HEIC) are left out of the SfM check
-        name = _flat_name(protected, i, used)
+        name = _flat_name(Path(sfm_name), i, used)
         _link_or_copy(original, clean_dir / name)
         _link_or_copy(protected, poisoned_dir / name)
     return "sequential" if any_video else "auto"
+
+
+# What COLMAP reads by its content under any name, and the suffix its image list takes it by
+_SFM_CONTENT = ((b"\xff\xd8\xff", ".jpg"), (b"\x89PNG\r\n\x1a\n", ".png"), (b"RIFF", ".webp"))
+
+
+def _sfm_name(path: Path) -> str | None:
+    """The name path is staged under for COLMAP: its own where its suffix is one COLMAP's image list
+    takes; a JPEG, PNG or WebP under another name (.jfif, none: ppd patches them, an attacker's COLMAP
+    reads them by content) with its format's suffix added; None for the rest (HEIC)."""
+    from poisoner.media import SFM_SUFFIXES
+
+    if path.suffix.lower() in SFM_SUFFIXES:
+        return path.name
+    try:
+        with open(path, "rb") as f:
+            head = f.read(12)
+    except OSError:
+        return None
+    magic = next((suffix for start, suffix in _SFM_CONTENT if head.startswith(start)), None)
+    if magic == ".webp" and head[8:12] != b"WEBP":
+        return None
+    return None if magic is None else path.name + magic
 
 
 def _is_video(path: Path) -> bool:

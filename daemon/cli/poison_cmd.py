@@ -41,17 +41,61 @@ def outcome_word(outcome: ProtectOutcome) -> str:
 
 def unprotected_media(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
     """The skipped files that are photos or videos in a format ppd does not write (a GIF, a BMP, a
-    camera's raw file): skipped like a sidecar, but publishing them gives a reconstruction away."""
-    from poisoner.media import is_unprotected_media
+    camera's raw file, by its suffix or its first bytes: poisoner.media.media_class): skipped like a
+    sidecar, but publishing them gives a reconstruction away."""
+    from daemon.states import UNPROTECTED_PREFIX
 
-    return [o for o in outcomes if o.state == "skipped" and is_unprotected_media(o.path)]
+    return [o for o in outcomes if o.state == "skipped" and (o.reason or "").startswith(UNPROTECTED_PREFIX)]
 
 
 def still_open(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
     """The files skipped because another process still writes them (daemon.states.STILL_OPEN_PREFIX)."""
     from daemon.states import STILL_OPEN_PREFIX
 
-    return [o for o in outcomes if o.state == "skipped" and str(o.reason or "").startswith(STILL_OPEN_PREFIX)]
+    return [o for o in outcomes if o.state == "skipped" and (o.reason or "").startswith(STILL_OPEN_PREFIX)]
+
+
+def linked_folders(outcomes: list[ProtectOutcome]) -> list[tuple[ProtectOutcome, int]]:
+    """The symlinked sub-folders skipped (never followed) with the photos and videos in each (read,
+    not patched): a folder of them was one 'failed' file, its photos neither counted nor named."""
+    from daemon.states import LINKED_FOLDER_PREFIX
+
+    said = [(o, o.reason or "") for o in outcomes if o.state == "skipped"]
+    return [(o, _photos_in(o.path)) for o, why in said if why.startswith(LINKED_FOLDER_PREFIX)]
+
+
+def _photos_in(folder: Path, budget: int = 20_000) -> int:
+    """The photos and videos ppd would patch in folder and below (hidden ones left out, no symlink
+    followed below it), looking at no more than `budget` entries: a link to / must not walk the disk."""
+    from poisoner.media import IMAGE, VIDEO, media_class
+
+    found = 0
+    for here, dirs, files in os.walk(folder):
+        dirs[:] = [d for d in dirs if not d.startswith(".")]
+        found += sum(media_class(Path(here, f)) in (IMAGE, VIDEO) for f in files if not f.startswith("."))
+        budget -= len(files) + len(dirs)
+        if budget <= 0:
+            break
+    return found
+
+
+def _linked_line(linked: list[tuple[ProtectOutcome, int]]) -> str | None:
+    """One line for the symlinked folders that hold photos; None when none does."""
+    full = [(o, n) for o, n in linked if n]
+    if not full:
+        return None
+    shown = ", ".join(f"{o.path.name} -> {_link_target(o.path)}: {n}" for o, n in full[:3])
+    more = ", ..." if len(full) > 3 else ""
+    return (f"not protected: {sum(n for _, n in full)} photo(s) or video(s) in {len(full)} symlinked "
+            f"folder(s) ppd does not follow ({shown}{more}); put the folder itself in place of the link, "
+            "or run ppd poison on the folder it points to")  # fmt: skip
+
+
+def _link_target(path: Path) -> str:
+    try:
+        return os.readlink(path)
+    except OSError:  # replaced meanwhile: the line still names the folder
+        return "?"
 
 
 def _restored_left(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
@@ -163,6 +207,8 @@ def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
             "can still use them: convert them to JPEG, PNG, TIFF, WebP, HEIC or MP4 first, or leave them out",
             markup=False,
         )
+    if linked := _linked_line(linked_folders(outcomes)):
+        err_console().print(linked, markup=False)
     if still := still_open(outcomes):  # the daemon patches them once closed; this run does not
         shown = ", ".join(o.path.name for o in still[:5]) + (", ..." if len(still) > 5 else "")
         err_console().print(f"not patched: {len(still)} file(s) still being written by another program "
@@ -266,6 +312,8 @@ def _say_outcome(progress_console: Any, outcome: ProtectOutcome) -> None:
     where = f" -> {outcome.output}" if outcome.output and outcome.output != outcome.path else ""
     said = outcome.reason if outcome.reason != outcome_word(outcome) else None  # "would patch (would patch)"
     why = f" ({said})" if said and outcome.state != "failed" else ""
+    if still_open([outcome]):  # what the summary says: nothing patches it after this run
+        why = f" ({said}; not patched: run ppd poison again once it is complete)"
     place = getattr(outcome.report, "place", None)
     if place is not None and outcome.state in OUTCOME_PATCHED:  # a per-photo mark: where it shows
         why = f" (mark at the {place.words}{'; ' + outcome.reason if outcome.reason else ''})"
@@ -440,6 +488,7 @@ def _run_planned(
     # (with --out it is not copied where the patched ones go: nothing unprotected is published there)
     in_place = {j.path for j in jobs if j.out_path is None}
     left = [o for o in unprotected_media(outcomes) if o.path in in_place]
+    left += [o for o, n in linked_folders(outcomes) if n and o.path in in_place]
     failed = [o for o in outcomes if o.state == "failed"]
     if failed and disk_full(failed):  # `--help`: 3 = cannot work here, disk full (a black-box review: 1)
         full = "ppd: a disk is full (or over its quota): free space, then run the same command again"

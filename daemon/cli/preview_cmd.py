@@ -274,11 +274,12 @@ def _check_protectable(file: Path, max_pixels: int | None) -> None:
     a preview of a mark that will never be written is a false promise (a black-box review)."""
     from poisoner.errors import ImageFormatError
     from poisoner.image.read import check_writable_image
-    from poisoner.media import is_image, is_video
+    from poisoner.media import IMAGE, VIDEO, media_class
 
-    if is_video(file.name):
+    kind = media_class(file)  # as ppd poison judges it: by suffix, else by its first bytes (no suffix)
+    if kind == VIDEO:
         return
-    if not is_image(file.name):
+    if kind != IMAGE:
         raise die(f"{file.name}: not a photo or video ppd protects (ppd poison skips it)")
     try:
         check_writable_image(file, file.name, max_pixels)
@@ -291,7 +292,7 @@ def _first_file(ctx: AppContext, given: Path) -> Path:
     patched file, else the folder's first photo or video; or one line saying what to give."""
     from daemon.cli.targets import TargetError, resolve_target, say_note
     from daemon.states import FileState
-    from poisoner.media import is_image, is_video
+    from poisoner.media import IMAGE, VIDEO, media_class
 
     try:
         chosen = resolve_target(ctx.store, str(given))
@@ -306,7 +307,7 @@ def _first_file(ctx: AppContext, given: Path) -> Path:
         if present:
             return present[0]
     folder = chosen.folder
-    media = sorted(p for p in folder.iterdir() if is_image(p.name) or is_video(p.name)) if folder else []
+    media = sorted(p for p in folder.iterdir() if media_class(p) in (IMAGE, VIDEO)) if folder else []
     if not media:
         raise die(f"{given}: no photo or video to preview there")
     return media[0]

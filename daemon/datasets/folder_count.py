@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from daemon.states import PATCHED_VALUES, WAITING_PREFIX, FileState, patched_count
 from poisoner.atomic import TEMP_PREFIX, remove_stale_temp
-from poisoner.media import is_media, is_unprotected_media
+from poisoner.media import IMAGE, UNPROTECTED, VIDEO, media_class
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -45,7 +45,7 @@ class FolderCount:
     copies: Path | None = None  # `ppd poison --out`: the folder the patched copies went to
     changed: list[Path] = field(default_factory=list)  # patched in place, another size or time now
     gone: list[Path] = field(default_factory=list)  # patched (in place or --out copy), no longer there
-    # photos and videos ppd cannot protect (poisoner.media.UNPROTECTED_SUFFIXES: BMP, GIF, raw files),
+    # photos and videos ppd cannot protect (poisoner.media.media_class: BMP, GIF, raw files),
     # which a reconstruction reads all the same (a black-box review: status and --check ignored them)
     unprotectable: list[Path] = field(default_factory=list)
     # the folder gone: a folder beside it that holds its patched files as ppd wrote them (moved_to)
@@ -95,9 +95,10 @@ def _walk(folder: Path, skip: Iterable[Path] = ()) -> Walked:
                 temps.append(path)
             if name.startswith((".", TEMP_PREFIX)) or path.is_symlink():
                 continue
-            if is_media(name):
+            kind = media_class(path)  # by suffix, else by its first bytes (a .jfif, a file with no suffix)
+            if kind in (IMAGE, VIDEO):
                 found.append(path)
-            elif is_unprotected_media(path):
+            elif kind == UNPROTECTED:
                 unprotectable.append(path)
     return sorted(found), sorted(unprotectable), sorted(temps)
 
@@ -465,7 +466,7 @@ def outbox_unclaimed(outbox: Path, roots: Iterable[str | Path]) -> list[Path]:
             if entry not in known:
                 files, unprotectable, _temps = _walk(entry, [k for k in known if k.is_relative_to(entry)])
                 found += files + unprotectable
-        elif box not in known and (is_media(entry.name) or is_unprotected_media(entry)):
+        elif box not in known and media_class(entry) is not None:
             found.append(entry)
     return found
 

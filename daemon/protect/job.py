@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 from daemon.fsops import ContainedFile
 from poisoner.atomic import TEMP_PREFIX
 from poisoner.errors import ExitStatus, PpdError
-from poisoner.media import is_image, is_video
+from poisoner.media import IMAGE, VIDEO, media_class
 from poisoner.spec import PatchSpec
 
 if TYPE_CHECKING:
@@ -221,11 +221,11 @@ def shown_path(path: Path) -> str:
     return str(path) if name == path.name else str(path.parent / name)
 
 
-def media_kind(path: Path) -> str | None:
-    """'image', 'video' or None, by suffix."""
-    if is_image(path):
-        return "image"
-    return "video" if is_video(path) else None
+def media_kind(path: Path, head: Callable[[], bytes] | None = None) -> str | None:
+    """'image', 'video' or None (not a file ppd patches): by suffix, else by its first bytes
+    (poisoner.media.media_class; head: read through the file's open descriptor)."""
+    kind = media_class(path, head)
+    return kind if kind in (IMAGE, VIDEO) else None
 
 
 def is_ignored_name(path: Path) -> bool:

@@ -74,7 +74,6 @@ from daemon.protect.job import (
     ProtectRefused,
     SourceChanged,
     is_ignored_name,
-    media_kind,
     no_space_in,
     place_note,
     report_detail,
@@ -96,10 +95,11 @@ from daemon.protect.poisoning import (
 from daemon.protect.publishing import publish, retry_publish
 from daemon.protect.quarantine import attempt, forget_attempt
 from daemon.protect.recovery import carry_moved_row, copy_patched_as_it_is, recover_pending
-from daemon.states import STILL_OPEN_PREFIX, FileState
+from daemon.states import LINKED_FOLDER_PREFIX, STILL_OPEN_PREFIX, UNPROTECTED_PREFIX, FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import atomic_replace_at
 from poisoner.errors import ExitStatus, PpdError
+from poisoner.media import SNIFF_BYTES, UNPROTECTED, media_class
 from poisoner.spec import PatchSpec
 
 log = logging.getLogger(__name__)
@@ -132,13 +132,19 @@ def open_contained_file(job: Job) -> ProtectOutcome | None:
     try:
         job.file = open_contained(job.anchor, job.path)
     except NotContained as exc:
+        if job.path.is_symlink() and job.path.is_dir():  # never followed; `ppd poison` names its photos
+            return job.outcome(Outcome.SKIPPED, f"{LINKED_FOLDER_PREFIX}: the photos in it are not protected")
         raise ProtectRefused(str(exc)) from None
     # ppd's own temporaries a killed run left in this folder (a re-protect's too), even when every
     # file in it turns out to be done already: once a folder, a process
     clear_stale_temps_once(job.file.dir_fd)
-    job.kind = media_kind(job.path)
-    if job.kind is None:  # not ours to judge (sidecars, notes): left alone, no row
+    opened = job.file  # a suffix of no format: the file's first bytes, read through its descriptor
+    kind = media_class(job.path, lambda: os.pread(opened.fd, SNIFF_BYTES, 0))
+    if kind == UNPROTECTED:  # a photo ppd does not write (GIF, raw): the run's summary names it
+        return job.outcome(Outcome.SKIPPED, f"{UNPROTECTED_PREFIX}: a format ppd cannot patch")
+    if kind is None:  # not ours to judge (sidecars, notes): left alone, no row
         return job.outcome(Outcome.SKIPPED, "not a supported image or video")
+    job.kind = kind
     return None  # an empty file is judged by check_complete (a writer may be about to fill it)
 
 
@@ -164,8 +170,9 @@ def check_complete(job: Job) -> ProtectOutcome | None:
     if reason is not None:
         pids = writers_of(job.file.st, fresh=True)  # the shared scan may predate this writer
     if pids:
-        # the daemon's watcher patches it once closed; `ppd poison` says to run it again (poison_cmd)
-        why = f"{STILL_OPEN_PREFIX} by pid {pids[0]}; patched once it is closed"
+        # the fact only: the daemon says it patches it once closed (its close re-arms the watcher),
+        # `ppd poison`, which does not, says to run it again (a black-box review read a promise there)
+        why = f"{STILL_OPEN_PREFIX} by pid {pids[0]}"
         return job.outcome(Outcome.SKIPPED, why, signature=None)
     if starts_like_media(os.pread(job.file.fd, 16, 0)) is False:
         # before the vault: a tail fragment (a writer's next append) is never kept as an original

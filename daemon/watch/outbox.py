@@ -11,7 +11,8 @@ before its watch existed) is handed on after `unclosed_settle_s` of stable size 
 
 Never handed on: dot-files and anything under a dot-folder (ppd's own `.ppd-tmp-*` atomic
 temporaries included), partial downloads (`.crdownload`, `.part`, ...), editor backups and
-swap files (`~`, `.swp`, `.tmp`), files that are not images or videos. A partial download
+swap files (`~`, `.swp`, `.tmp`), files that are not images or videos (by suffix; a suffix that
+names no format by the file's first bytes, once complete: the worker asks). A partial download
 is picked up when it is renamed to its final name (a moved-in event).
 
 ppd's own atomic replace is a rename from `.ppd-tmp-*` onto the file: it is recognised by
@@ -47,7 +48,7 @@ from watchdog.observers.api import BaseObserver
 
 from daemon.platform import inotify_observer
 from poisoner.atomic import TEMP_PREFIX, remove_stale_temp
-from poisoner.media import MEDIA_SUFFIXES, PARTIAL_SUFFIXES
+from poisoner.media import MEDIA_SUFFIXES, PARTIAL_SUFFIXES, judged_by_content
 
 log = logging.getLogger(__name__)
 
@@ -77,8 +78,10 @@ def relative_parts(outbox: Path, path: Path) -> tuple[str, ...] | None:
         return None
 
 
-def is_candidate(outbox: Path, path: Path, suffixes: frozenset[str]) -> bool:
-    """Whether path (inside outbox) names a file ppd would protect, by its name alone."""
+def is_candidate(outbox: Path, path: Path, suffixes: frozenset[str], *, by_content: bool = True) -> bool:
+    """Whether path (inside outbox) may name a file ppd would protect, by its name alone: a media
+    suffix, or (by_content) a suffix that names no format, whose first bytes the worker judges once it
+    is complete (poisoner.media.media_class: a JPEG named .jpg_original or with no suffix)."""
     parts = relative_parts(outbox, path)
     if not parts:
         return False
@@ -86,7 +89,7 @@ def is_candidate(outbox: Path, path: Path, suffixes: frozenset[str]) -> bool:
         return False  # under a dot-folder (.Trash-1000, .thumbnails, .git, ...)
     if ignore_reason(parts[-1]) is not None:
         return False
-    return os.path.splitext(parts[-1])[1].lower() in suffixes
+    return os.path.splitext(parts[-1])[1].lower() in suffixes or (by_content and judged_by_content(parts[-1]))
 
 
 FolderIdentity = tuple[int, int]  # (device, inode): the folder itself, whatever its path

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.protect.job import NO_SPACE_WORDS, Outcome
-from daemon.states import NOT_MOVED_PREFIX, FileState
+from daemon.states import NOT_MOVED_PREFIX, STILL_OPEN_PREFIX, FileState
 from daemon.watch.workers import PoolStats
 
 log = logging.getLogger("daemon.watch.watcher")  # the daemon's lines keep the logger they always had
@@ -52,6 +52,8 @@ def say(
     failed = state in (Outcome.FAILED, Outcome.QUARANTINED)
     extra: dict[str, Any] = {"event": event, "dataset": dataset, "file": str(path), "outcome": state,
                              "seconds": round(seconds, 2)}  # fmt: skip
+    if reason and reason.startswith(STILL_OPEN_PREFIX):
+        reason += "; patched once it is closed"  # its close re-arms the watcher
     if reason and state != Outcome.PATCHED:
         extra["reason"] = reason
     if moved is not None:

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.locks import outbox_lock
-from daemon.protect.job import Outcome
+from daemon.protect.job import Outcome, media_kind
 from daemon.states import FileState
 from daemon.watch.notify import SystemdNotifier
 from daemon.watch.outbox import (
@@ -46,7 +46,7 @@ from daemon.watch.outcomes import (
     status_line,
 )
 from daemon.watch.waiting import FolderWaits, WriterWaits
-from daemon.watch.workers import PoolOptions, WorkerPool
+from daemon.watch.workers import PoolOptions, WorkerPool, release_free_memory
 from poisoner.media import MEDIA_SUFFIXES
 
 __all__ = ["DaemonOptions", "WatchDaemon", "WatchOptions", "is_no_space", "scan_outbox"]
@@ -461,13 +461,17 @@ class WatchDaemon:
                 if is_candidate(self.outbox, child, self.suffixes) and not self.watcher.is_settled(child):
                     self.pool.submit(child)
             return
-        if st is not None and stat.S_ISLNK(st.st_mode) and is_candidate(self.outbox, path, self.suffixes):
+        named = is_candidate(self.outbox, path, self.suffixes, by_content=False)  # a folder has no suffix
+        if st is not None and stat.S_ISLNK(st.st_mode) and named:
             self._quarantine_link(path)
             return
         if st is not None and not stat.S_ISREG(st.st_mode):
             log.info("not a regular file, left alone: %s", path, extra={"path": str(path)})
             return
         if self.watcher.is_settled(path):
+            return
+        if not named and media_kind(path) is None:  # its bytes are no photo ppd patches (a sidecar)
+            self.watcher.mark_settled(path)  # judged again once it changes
             return
         judged = signature(path)
         with self._removal_lock:
@@ -556,7 +560,7 @@ class WatchDaemon:
         store = self.ctx.store
         row = store.file(path)
         rows = [row] if row is not None else []
-        if not rows and not is_candidate(self.outbox, path, self.suffixes):
+        if not rows and not is_candidate(self.outbox, path, self.suffixes, by_content=False):
             # Perhaps a folder: its files' rows. (A media name is taken for a file, so deleting
             # 10k unknown files does not scan the store 10k times.)
             prefix = str(path) + os.sep
@@ -586,15 +590,3 @@ class WatchDaemon:
             counted += 1
         return counted
 
-
-def release_free_memory() -> None:
-    """Give freed heap back to the OS once a batch is done (glibc's malloc_trim).
-
-    Decoding a 12 MP photo takes ~100 MB that glibc keeps in its per-thread arenas after the
-    batch; trimming brings an idle daemon back near its start-up size. No-op elsewhere."""
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass

@@ -188,3 +188,16 @@ class WorkerPool:
                 failed = True
                 log.exception("worker job failed", extra={"path": str(path)})
             self._finish(path, failed)
+
+
+def release_free_memory() -> None:
+    """Give freed heap back to the OS once a batch is done (glibc's malloc_trim).
+
+    Decoding a 12 MP photo takes ~100 MB that glibc keeps in its per-thread arenas after the
+    batch; trimming brings an idle daemon back near its start-up size. No-op elsewhere."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass

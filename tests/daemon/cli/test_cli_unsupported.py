@@ -124,7 +124,7 @@ def test_a_photo_still_being_written_is_said_not_patched_and_fails_the_run(
                                "import time; time.sleep(60)"], stdout=subprocess.PIPE)  # fmt: skip
     try:
         assert writer.stdout is not None and writer.stdout.readline()  # the file is open for writing now
-        result = runner.invoke(app, ["poison", str(shoot)])
+        result = runner.invoke(app, ["-v", "poison", str(shoot)])
     finally:
         writer.kill()
         writer.wait()
@@ -132,6 +132,9 @@ def test_a_photo_still_being_written_is_said_not_patched_and_fails_the_run(
     assert result.exit_code == 1, text
     said = "not patched: 1 file(s) still being written by another program (b.jpg): run ppd poison again"
     assert said in text, text
+    # -v's line for the file says the same, not the daemon's 'patched once it is closed' (a black-box review)
+    line = f"b.jpg (still open for writing by pid {writer.pid}; not patched: run ppd poison again once it"
+    assert line in text and "once it is closed" not in text, text
     time.sleep(0.1)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0  # closed now: patched
 
@@ -164,3 +167,23 @@ def test_a_photo_with_another_formats_suffix_is_not_said_to_change_its_pixel_lay
     assert result.exit_code == 0 and "patched 2," in text, result.output
     assert "another pixel layout" not in text, text
     assert "content is PNG despite the .jpg suffix: kept as PNG" in text, text
+
+
+def test_a_symlinked_folder_is_skipped_and_its_photos_named_not_protected(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A black-box review: `shoot/day2 -> elsewhere` (2 photos) was one failed file ('refusing symlink
+    day2', '2 of 4 patched'), its photos neither counted nor named. Still never followed."""
+    shoot, elsewhere = tmp_path / "shoot", tmp_path / "elsewhere"
+    make_image(shoot / "a.jpg", 1, size=(200, 150))
+    originals = [make_image(elsewhere / f"{n}.jpg", i, size=(200, 150)) for i, n in enumerate("cd", 2)]
+    before = [p.read_bytes() for p in originals]
+    (shoot / "day2").symlink_to(elsewhere)
+    result = runner.invoke(app, ["-v", "poison", str(shoot)])
+    text = " ".join(result.output.split())
+    assert "patched 1, unchanged 0, skipped 1, failed 0" in text, text
+    assert f"skipped {shoot / 'day2'} (symlinked folder, not followed" in text, text
+    said = "not protected: 2 photo(s) or video(s) in 1 symlinked folder(s) ppd does not follow"
+    assert f"{said} (day2 -> {elsewhere}: 2)" in text and "refusing symlink" not in text, text
+    assert result.exit_code == 1  # published with the folder, they are views a reconstruction reads
+    assert [p.read_bytes() for p in originals] == before  # not followed
