@@ -1,7 +1,7 @@
 """(original, protected) pairs laid out as two folders with the same names, for verify_folders.
 
 Images are hard-linked (or copied); videos are sampled into frames (poisoner.video); files COLMAP
-cannot read are left out.
+cannot read are left out, and named (not_staged): no verdict covers them.
 """
 
 from __future__ import annotations
@@ -52,12 +52,22 @@ def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_di
             shutil.rmtree(tmp_c, ignore_errors=True)
             shutil.rmtree(tmp_p, ignore_errors=True)
             continue
-        if protected.suffix.lower() not in (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp"):
-            continue  # formats COLMAP cannot read (e.g. HEIC) are left out of the SfM check
+        if not _stageable(protected):
+            continue  # formats COLMAP cannot read (e.g. HEIC) are left out of the SfM check (not_staged)
         name = _flat_name(protected, i, used)
         _link_or_copy(original, clean_dir / name)
         _link_or_copy(protected, poisoned_dir / name)
     return "sequential" if any_video else "auto"
+
+
+def _stageable(path: Path) -> bool:
+    return path.suffix.lower() in (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
+
+
+def not_staged(pairs: Sequence[tuple[Path, Path]]) -> list[str]:
+    """The patched photos stage_pairs leaves out (formats COLMAP cannot read: HEIC, AVIF, ...), by
+    name: no verdict measures them (the report names them, VerifyOptions.not_staged)."""
+    return sorted(Path(p).name for _, p in pairs if not _is_video(Path(p)) and not _stageable(Path(p)))
 
 
 def _is_video(path: Path) -> bool:

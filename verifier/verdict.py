@@ -284,7 +284,7 @@ def left_out_line(names: Sequence[str], total: int | None = None) -> str:
     count = f"{len(names)} of {total} photos" if total is not None else f"{len(names)} photo(s)"
     return (
         f"not measured: {count} ({shown}): COLMAP did not read them "
-        "(sfm.log says why), so no verdict covers them"
+        "(a format it does not read, or sfm.log says why), so no verdict covers them"
     )
 
 

@@ -214,8 +214,9 @@ def verify_folders(
     corner = run.options.corner_mark
     if corner is None and visibility is not None:
         corner = visibility.worst.in_one_corner
+    total = len(run.names) + len(run.options.not_staged)  # the set's photos, those COLMAP cannot read too
     report = VerificationReport(
-        str(run.clean_dir), str(run.poisoned_dir), str(run.out_dir), len(run.names), reports, visibility,
+        str(run.clean_dir), str(run.poisoned_dir), str(run.out_dir), total, reports, visibility,
         corner, run.sizes if run.camera_per_size else None,
     )  # fmt: skip
     write_json(run.out_dir / "report.json", report.to_dict())  # what `ppd report FOLDER` reads
@@ -370,9 +371,9 @@ def _decide_profile(
     poisoned, decision = poisoned_runs[pick], decisions[pick]
     vs_clean, clean_vs_gt, poisoned_vs_gt = compared[pick]
     seeds, reasons = None, decision.reasons
-    left = left_out_of([clean, *poisoned_runs])
+    left = sorted({*left_out_of([clean, *poisoned_runs]), *run.options.not_staged})
     if left:  # its figures are over the others (a black-box review: "6/6 images" for a set of 8)
-        reasons = [*reasons, left_out_line(left, len(run.names))]
+        reasons = [*reasons, left_out_line(left, len(run.names) + len(run.options.not_staged))]
     if len(poisoned_runs) > 1:
         models = poisoned_sides(len(poisoned_runs))  # each run's model folder under the profile's
         seeds = [{"seed": r.get("random_seed"), "outcome": r.get("outcome"), "verdict": str(d.verdict),
