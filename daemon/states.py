@@ -82,6 +82,18 @@ def newest_per_profile(runs: Iterable[Mapping[str, Any]]) -> dict[str, Mapping[s
 UNVERIFIED_FILES = ("changed", "restored_unrecorded", "untracked", "waiting")
 
 
+def run_left_out(run: Mapping[str, Any]) -> list[str]:
+    """The photos a verification run's COLMAP did not read (its verdict does not cover them):
+    a summarised run's "left_out", or a Store row's metrics'."""
+    return list(run.get("left_out") or (run.get("metrics") or {}).get("left_out") or ())
+
+
+def left_out_photos(latest_runs_by_profile: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """The photos some headline profile's newest run did not measure, in name order."""
+    counted = headline(dict.fromkeys(latest_runs_by_profile, ""))
+    return sorted({n for p in counted for n in run_left_out(latest_runs_by_profile[p])})
+
+
 def dataset_protection(
     store_counts: Mapping[str, int], latest_runs_by_profile: Mapping[str, Mapping[str, Any]]
 ) -> tuple[Protection, list[str]]:
@@ -102,6 +114,8 @@ def dataset_protection(
     # counts, daemon.datasets.folder_count): a verdict that holds is not today's (a black-box review:
     # an original copied back still read "protected"); one that does not hold still warns
     unseen = any(int(store_counts.get(k, 0)) for k in UNVERIFIED_FILES)
+    # photos COLMAP never read (verifier.sfm_images): "protected" would be said of them too
+    short = sorted(p for p in verdicts if run_left_out(latest_runs_by_profile[p]))
     for verdict, protection in (
         (_VERDICT_NOT_PROTECTED, Protection.NOT_PROTECTED),
         (_VERDICT_WEAK, Protection.WEAK),
@@ -114,6 +128,8 @@ def dataset_protection(
         if profiles and protection is Protection.PROTECTED and crashed:
             # as verifier.verdict.overall: a crash is no protection, so the set is not called protected
             return Protection.UNVERIFIABLE, crashed
+        if profiles and protection is Protection.PROTECTED and short:
+            return Protection.UNVERIFIABLE, short  # as VerificationReport.verdict
         if profiles:
             return protection, profiles
     return Protection.UNVERIFIABLE, sorted(verdicts)

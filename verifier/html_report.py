@@ -46,7 +46,7 @@ from verifier.report_figures import (
     visibility_table,
     when,
 )
-from verifier.verdict import MASKED_MEANING, Verdict, headline, headline_verdict, masked_line
+from verifier.verdict import MASKED_MEANING, Verdict, headline, left_out_line, masked_line, measured_verdict
 
 # Banner colours: distinctive, saturated, one per verdict (the screenshot test looks for them).
 VERDICT_COLOURS: dict[str, str] = {
@@ -104,11 +104,24 @@ def _verdicts(profiles: Mapping[str, Mapping[str, Any]]) -> dict[str, str]:
     return {name: str(m.get("verdict", "")) for name, m in profiles.items()}
 
 
+def _left_out(profiles: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """The photos a counted profile's COLMAP did not read (none in reports made before)."""
+    return sorted({n for name in headline(_verdicts(profiles)) for n in profiles[name].get("left_out") or ()})
+
+
+def _verdict(profiles: Mapping[str, Mapping[str, Any]]) -> str:
+    """The page's verdict: `ppd verify`'s (VerificationReport.verdict)."""
+    return measured_verdict(_verdicts(profiles), _left_out(profiles))
+
+
 def _add_profile_content(
     data: ReportData, profiles: Mapping[str, Mapping[str, Any]], corner_mark: bool | None = None
 ) -> None:
     data.reasons = {name: list(m.get("reasons") or []) for name, m in profiles.items()}
     data.holding = _holding_text(profiles, corner_mark)
+    if left := _left_out(profiles):
+        line = left_out_line(left)
+        data.notes.append(f"{line[0].upper()}{line[1:]}.")
     if "masked" in profiles:
         data.notes.append(f"The verdict counts every attacker run, masked included; {MASKED_MEANING}.")
     data.tables.append(profile_table(profiles))
@@ -138,7 +151,7 @@ def dataset_history_report(
     latest = latest_run_group(runs) if current is None else list(current)
     profiles = {r["profile"]: {**(r.get("metrics") or {}), "verdict": r["verdict"],
                                "model_dir": r.get("model_dir")} for r in latest}  # fmt: skip
-    data = ReportData(title=title, verdict=headline_verdict(_verdicts(profiles)) if latest else None)
+    data = ReportData(title=title, verdict=_verdict(profiles) if latest else None)
     data.protection = protection
     if not runs:  # runs that measured earlier pixels are history, not "never verified" (the caller says so)
         data.notes.append(unverified_note)
@@ -180,7 +193,7 @@ def build_verification_report(folder: Path) -> ReportData:
             profiles[d.get("profile", sub.parent.name)] = d
     if not profiles:
         raise ReportError(f"{folder}: no report.json here (a verification folder or an experiment folder?)")
-    data = ReportData(title=f"ppd report — {folder.name}", verdict=headline_verdict(_verdicts(profiles)))
+    data = ReportData(title=f"ppd report — {folder.name}", verdict=_verdict(profiles))
     corner = report.get("corner_mark")
     if corner is None:
         corner = ((report.get("visibility") or {}).get("worst") or {}).get("in_one_corner")

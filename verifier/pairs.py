@@ -1,7 +1,7 @@
 """(original, protected) pairs laid out as two folders with the same names, for verify_folders.
 
 Images are hard-linked (or copied); videos are sampled into frames (poisoner.video); files COLMAP
-cannot read are left out.
+cannot read are left out, and named (not_staged): no verdict covers them.
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_di
             continue
         sfm_name = _sfm_name(protected)
         if sfm_name is None:
-            continue  # formats COLMAP cannot read (e.g. HEIC) are left out of the SfM check
+            continue  # formats COLMAP cannot read (e.g. HEIC) are left out of the SfM check (not_staged)
         name = _flat_name(Path(sfm_name), i, used)
         _link_or_copy(original, clean_dir / name)
         _link_or_copy(protected, poisoned_dir / name)
@@ -82,6 +82,12 @@ def _sfm_name(path: Path) -> str | None:
     if magic == ".webp" and head[8:12] != b"WEBP":
         return None
     return None if magic is None else path.name + magic
+
+
+def not_staged(pairs: Sequence[tuple[Path, Path]]) -> list[str]:
+    """The patched photos stage_pairs leaves out (formats COLMAP cannot read: HEIC, AVIF, ...), by
+    name: no verdict measures them (the report names them, VerifyOptions.not_staged)."""
+    return sorted(Path(p).name for _, p in pairs if not _is_video(Path(p)) and _sfm_name(Path(p)) is None)
 
 
 def _is_video(path: Path) -> bool:

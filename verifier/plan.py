@@ -10,6 +10,7 @@ import hashlib
 import json
 import os
 import threading
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -130,6 +131,10 @@ class VerifyRun:
     profiles: tuple[str, ...] = ()
     board: ProgressBoard | None = None
     long_edge: int = 0  # the originals' longest side, px (where SIFT runs: gpu_sift_suits)
+    sizes: dict[str, int] = dataclasses.field(default_factory=dict)  # "400x300": originals of that size
+    # the two sides hold more than one stored size: every side maps with one camera per size
+    # (verifier.sfm_images), else with convert.py's single camera
+    camera_per_size: bool = False
 
 
 @dataclass(frozen=True)
@@ -158,8 +163,22 @@ def prepare_run(clean_dir: Path, poisoned_dir: Path, out_dir: Path, options: Ver
         if options.clean_cache_dir
         else cache
     )
+    sizes = stored_sizes(clean_dir, names)
+    per_size = len(set(sizes) | set(stored_sizes(poisoned_dir, names))) > 1
     return VerifyRun(clean_dir, poisoned_dir, names, out_dir, cache, clean_cache, key, matching, gt, options,
-                long_edge=longest_side(clean_dir, names))  # fmt: skip
+                long_edge=longest_side(clean_dir, names), sizes=dict(sizes.most_common()),
+                camera_per_size=per_size)  # fmt: skip
+
+
+def stored_sizes(image_dir: Path, names: Sequence[str]) -> Counter[str]:
+    """How many images have each stored size, "WxH" as their headers say it (no EXIF orientation
+    applied, as COLMAP reads them: poisoner.limits.decoded_size); an unreadable header counts nowhere."""
+    sizes: Counter[str] = Counter()
+    for name in names:
+        with contextlib.suppress(HeaderError):
+            size = decoded_size(image_dir / name)
+            sizes[f"{size.width}x{size.height}"] += 1
+    return sizes
 
 
 def longest_side(image_dir: Path, names: Sequence[str]) -> int:
@@ -212,6 +231,7 @@ def plan_profile(profile: str, run: VerifyRun) -> ProfilePlan:
     settings = msgspec.structs.replace(
         settings, random_seed=o.random_seed, cpu_sift=not gpu_sift_suits(edge),
         mapper_threads=mapper_threads(o.mapper_threads, o.workers or default_workers()),
+        camera_per_size=run.camera_per_size,
     )  # fmt: skip
     clean_images, poisoned_images = run.clean_dir, run.poisoned_dir
     if source == "published":
@@ -222,7 +242,8 @@ def plan_profile(profile: str, run: VerifyRun) -> ProfilePlan:
     # mapper and matcher threads are not said at all (a key made before the settings stays as it was)
     as_json = {
         k: v for k, v in msgspec.to_builtins(settings).items()
-        if k != "cpu_sift" and (k, v) not in {("mapper_threads", -1), ("matcher_threads", -1)}
+        if k != "cpu_sift"
+        and (k, v) not in {("mapper_threads", -1), ("matcher_threads", -1), ("camera_per_size", False)}
     }  # fmt: skip
     settings_json = json.dumps(as_json, sort_keys=True)
     reuse_key = f"{run.clean_key}-{profile}-{settings_json}-{source}"

@@ -43,6 +43,8 @@ from verifier.child_files import (
     work_db_path,
 )
 from verifier.childenv import child_env
+from verifier.sfm_images import corner_mask as corner_mask  # re-exported: tests and callers name it here
+from verifier.sfm_images import import_per_size, left_out, write_corner_masks
 from verifier.sift_device import sift_device, sift_device_name
 from verifier.supervise import run_child
 
@@ -57,6 +59,8 @@ class SfmSettings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     camera_model: str = "OPENCV"  # convert.py: --ImageReader.camera_model OPENCV
     single_camera: bool = True  # convert.py: --ImageReader.single_camera 1
+    # a set of several stored sizes: one camera per size, as SINGLE per size (verifier.sfm_images)
+    camera_per_size: bool = False
     camera_params: str | None = None  # known intrinsics ("fx,fy,cx,cy,k1,k2,p1,p2"), fixed in BA
     matching: str = "exhaustive"  # convert.py: exhaustive_matcher; "sequential" for video frames
     sequential_overlap: int = 10
@@ -92,6 +96,7 @@ class SfmSettings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         )
         # masks change the features; unmasked keys stay as they were (existing caches stay valid)
         key += f"-mask{self.mask_corners:g}" if self.mask_corners > 0 else ""
+        key += "-per-size" if self.camera_per_size else ""  # one-size keys stay as they were
         # GPU SIFT (SiftGPU) finds other features than the CPU's: a cache made on one is not reused on
         # the other; CPU keys stay as they were
         return key + ("-cuda" if self.sift_device_name() == "cuda" else "")
@@ -122,30 +127,6 @@ def profile_sfm_settings(profile: str, base: SfmSettings) -> SfmSettings:
     if profile == "masked":
         return msgspec.structs.replace(base, mask_corners=MASKED_CORNER_FRACTION)
     raise ValueError(f"unknown profile {profile!r}")
-
-
-def corner_mask(width: int, height: int, fraction: float) -> Any:
-    """uint8 H x W mask for COLMAP: 0 in the four corner regions (no features there), 255 elsewhere."""
-    import numpy as np
-
-    mask = np.full((height, width), 255, dtype=np.uint8)
-    rw, rh = int(round(fraction * width)), int(round(fraction * height))
-    if rw > 0 and rh > 0:
-        for ys in (slice(0, rh), slice(height - rh, height)):
-            for xs in (slice(0, rw), slice(width - rw, width)):
-                mask[ys, xs] = 0
-    return mask
-
-
-def write_corner_masks(image_dir: Path, names: list[str], mask_dir: Path, fraction: float) -> None:
-    """One mask per image, named as COLMAP expects (`<image name>.png`), at the image's size."""
-    from PIL import Image
-
-    mask_dir.mkdir(parents=True, exist_ok=True)
-    for name in names:
-        with Image.open(image_dir / name) as im:
-            width, height = im.size
-        Image.fromarray(corner_mask(width, height, fraction)).save(mask_dir / f"{name}.png")
 
 
 class SfmJob(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -195,6 +176,7 @@ class SfmOk(msgspec.Struct, tag_field="outcome", tag="ok"):
     camera: CameraModel | None = None
     timings: dict[str, float] = {}
     device: str = ""  # where SIFT ran: "cpu" or "cuda" ("": not recorded)
+    left_out: list[str] = []  # images of the folder COLMAP did not take into its database
 
 
 class SfmFailed(msgspec.Struct, tag_field="outcome", tag="failed"):
@@ -368,10 +350,13 @@ def extract_features(image_dir: Path, database: Path, settings: SfmSettings, mas
     # The images written first, in name order: COLMAP's extraction numbers images in the order its
     # threads finish, and the numbering decides which image of a pair is matched against the other,
     # so the same photos gave other verified pairs (and verdict figures) from run to run. Extraction
-    # then finds each image by name and keeps its id.
+    # then finds each image by name and keeps its id (and camera: AUTO checks no shared size).
     pycolmap.Database.open(database).close()
-    pycolmap.import_images(database, image_dir, camera_mode=mode, image_names=names,
-                           options=reader)  # fmt: skip
+    if settings.camera_per_size:
+        import_per_size(database, image_dir, names, reader)
+        mode = pycolmap.CameraMode.AUTO
+    else:
+        pycolmap.import_images(database, image_dir, camera_mode=mode, image_names=names, options=reader)
     pycolmap.extract_features(
         database,
         image_dir,
@@ -426,6 +411,8 @@ def execute_job(job: SfmJob) -> SfmResult:
         cache_db, work_db, settings, job.verified_db, job.stationary_from, job.verified_from
     )
     timings["verification_s"] = time.time() - t1
+    # read from this run's own copy: the shared cache is never opened once built (others copy it)
+    missing = left_out(work_db, list_images(image_dir))
     if job.stop_after == "verified":  # the shared verified database is written: no mapping here
         model_dir.mkdir(parents=True, exist_ok=True)
         work_db.unlink()
@@ -444,6 +431,7 @@ def execute_job(job: SfmJob) -> SfmResult:
             largest.write(model_dir)
     result.timings = timings
     result.device = sift_device(settings.cpu_sift).name
+    result.left_out = missing
     return result
 
 

@@ -271,3 +271,36 @@ def masked_line(verdicts: Mapping[str, str], corner_mark: bool | None) -> str | 
     if verdict == Verdict.PROTECTED:
         return f"protected against an attacker who masks the corners too; {MASKED_MEANING}"
     return f"masked attacker: {verdict_words(verdict)}; {MASKED_MEANING}"
+
+
+def left_out_of(sides: Iterable[Mapping[str, Any]]) -> list[str]:
+    """The photos some SfM side did not read (its result's left_out), in name order."""
+    return sorted({name for side in sides for name in side.get("left_out") or ()})
+
+
+def left_out_line(names: Sequence[str], total: int | None = None) -> str:
+    """One line: the photos no verdict covers, since COLMAP did not read them."""
+    shown = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+    count = f"{len(names)} of {total} photos" if total is not None else f"{len(names)} photo(s)"
+    return (
+        f"not measured: {count} ({shown}): COLMAP did not read them "
+        "(a format it does not read, or sfm.log says why), so no verdict covers them"
+    )
+
+
+def measured_verdict(verdicts: Mapping[str, str], left_out: Sequence[str]) -> Verdict:
+    """The dataset's verdict (headline_verdict), never "protected" while photos of the set were not
+    measured (left_out: a counted profile's COLMAP did not read them): an attacker's COLMAP
+    may read them."""
+    verdict = headline_verdict(verdicts)
+    return Verdict.INCONCLUSIVE if verdict is Verdict.PROTECTED and left_out else verdict
+
+
+def sizes_line(sizes: Mapping[str, int]) -> str:
+    """One line: the set's stored sizes, and the one camera per size its SfM runs used."""
+    counts = ", ".join(f"{size}: {n}" for size, n in sizes.items())
+    return (
+        f"the photos have {len(sizes)} stored sizes ({counts}): every COLMAP run used one camera per size, "
+        "on the originals and on the patched set (convert.py's single camera leaves out the photos of the "
+        "other sizes; an attacker's COLMAP does not)"
+    )

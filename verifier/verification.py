@@ -67,10 +67,13 @@ from verifier.verdict import (
     Verdict,
     decide,
     headline,
-    headline_verdict,
     holding_line,
+    left_out_line,
+    left_out_of,
     masked_line,
+    measured_verdict,
     not_holding,
+    sizes_line,
     verdict_words,
     worst_seed,
 )
@@ -100,6 +103,8 @@ class ProfileReport(msgspec.Struct):
     splat: dict[str, Any] | None = None  # run_splat_stage's result when the splat stage ran here
     # options.seeds > 1: each poisoned run's seed, verdict and figure (the fields above: the weakest)
     seeds: list[dict[str, Any]] | None = None
+    # the photos COLMAP did not read on a side of this profile: its verdict does not cover them
+    left_out: list[str] = msgspec.field(default_factory=list)
 
     @property
     def error(self) -> str | None:
@@ -110,7 +115,8 @@ class ProfileReport(msgspec.Struct):
 
     def metrics(self) -> dict[str, Any]:
         """Everything but the verdict, JSON-ready (what the Store records)."""
-        keep = ("reasons", "clean", "poisoned", "vs_clean", "clean_vs_gt", "poisoned_vs_gt", "splat", "seeds")
+        keep = ("reasons", "clean", "poisoned", "vs_clean", "clean_vs_gt", "poisoned_vs_gt", "splat", "seeds",
+                "left_out")
         return {k: v for k, v in msgspec.to_builtins(self).items() if k in keep}
 
     def to_dict(self) -> dict[str, Any]:
@@ -128,14 +134,20 @@ class VerificationReport(msgspec.Struct):
     profiles: dict[str, ProfileReport]
     visibility: DatasetVisibility | None = None  # None: not measured (visibility_images = 0)
     corner_mark: bool | None = None  # the mark lives in one corner (what the masked line says)
+    sizes: dict[str, int] | None = None  # several stored sizes: each and its count (one camera each)
 
     def verdicts(self) -> dict[str, str]:
         return {name: str(p.verdict) for name, p in self.profiles.items()}
 
+    def left_out(self) -> list[str]:
+        """The photos a counted profile's COLMAP did not read, on either side: not measured."""
+        return sorted({name for p in headline(self.verdicts()) for name in self.profiles[p].left_out})
+
     @property
     def verdict(self) -> Verdict:
-        """The headline: the weakest of the headline profiles run (verifier.verdict.HEADLINE_PROFILES)."""
-        return headline_verdict(self.verdicts())
+        """The headline: the weakest of the headline profiles run (verifier.verdict.HEADLINE_PROFILES);
+        never "protected" while photos of the set were not measured (they could be reconstructed)."""
+        return measured_verdict(self.verdicts(), self.left_out())
 
     def not_holding(self) -> list[str]:
         """The headline profiles (attackers) the protection does NOT hold under (weak or NOT
@@ -146,6 +158,10 @@ class VerificationReport(msgspec.Struct):
         """The dataset-level lines `ppd verify` prints under the profiles: visibility, where the
         protection does not hold, and the masked attacker."""
         lines = self.visibility.lines() if self.visibility is not None else []
+        if self.sizes:
+            lines.append(sizes_line(self.sizes))
+        if left := self.left_out():
+            lines.append(left_out_line(left, self.num_images))
         lines.append(holding_line(headline(self.verdicts())))
         masked = masked_line(self.verdicts(), self.corner_mark)
         if masked is not None:
@@ -157,7 +173,9 @@ class VerificationReport(msgspec.Struct):
         d = msgspec.to_builtins(self)
         d["profiles"] = {k: v.to_dict() for k, v in self.profiles.items()}
         counted = list(headline(self.verdicts()))
-        return {"verdict": str(self.verdict), "verdict_counts": counted, **d, "summary": self.summary_lines()}
+        left = self.left_out()
+        return {"verdict": str(self.verdict), "verdict_counts": counted, **d, "left_out": left,
+                "num_measured": self.num_images - len(left), "summary": self.summary_lines()}  # fmt: skip
 
 
 def _summary(result: dict[str, Any]) -> dict[str, Any]:
@@ -196,9 +214,10 @@ def verify_folders(
     corner = run.options.corner_mark
     if corner is None and visibility is not None:
         corner = visibility.worst.in_one_corner
+    total = len(run.names) + len(run.options.not_staged)  # the set's photos, those COLMAP cannot read too
     report = VerificationReport(
-        str(run.clean_dir), str(run.poisoned_dir), str(run.out_dir), len(run.names), reports, visibility,
-        corner,
+        str(run.clean_dir), str(run.poisoned_dir), str(run.out_dir), total, reports, visibility,
+        corner, run.sizes if run.camera_per_size else None,
     )  # fmt: skip
     write_json(run.out_dir / "report.json", report.to_dict())  # what `ppd report FOLDER` reads
     return report
@@ -302,6 +321,7 @@ def _run_planned_side(plan: ProfilePlan, side: str, run: VerifyRun) -> dict[str,
         _copy_model(planned.model_dir, plan.clean_model_copy)
     if plan.profile == "published":
         result["poses"] = unpublish_names(result.get("poses", {}), run.names)
+        result["left_out"] = list(unpublish_names(dict.fromkeys(result.get("left_out") or ()), run.names))
     return result
 
 
@@ -351,6 +371,9 @@ def _decide_profile(
     poisoned, decision = poisoned_runs[pick], decisions[pick]
     vs_clean, clean_vs_gt, poisoned_vs_gt = compared[pick]
     seeds, reasons = None, decision.reasons
+    left = sorted({*left_out_of([clean, *poisoned_runs]), *run.options.not_staged})
+    if left:  # its figures are over the others (a black-box review: "6/6 images" for a set of 8)
+        reasons = [*reasons, left_out_line(left, len(run.names) + len(run.options.not_staged))]
     if len(poisoned_runs) > 1:
         models = poisoned_sides(len(poisoned_runs))  # each run's model folder under the profile's
         seeds = [{"seed": r.get("random_seed"), "outcome": r.get("outcome"), "verdict": str(d.verdict),
@@ -371,6 +394,7 @@ def _decide_profile(
         started_at=started,
         finished_at=time.time(),
         seeds=seeds,
+        left_out=left,
     )
     write_json(profile_dir / "report.json", report.to_dict())
     log.info("profile verified", extra={"profile": profile, "verdict": report.verdict})

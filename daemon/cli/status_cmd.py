@@ -177,8 +177,16 @@ def _print_details(d: dict[str, Any]) -> None:
         print_line(out, "  " + line)
     for profile, v in d["verdicts"].items():
         out.print("  " + verdict_text(profile, v), soft_wrap=False)
+    if d.get("not_measured"):
+        print_line(out, "  " + not_measured_phrase(d["not_measured"]))
     if not d["verdicts"]:
         print_line(out, "  " + unverified_line(d.get("last_verification")))
+
+
+def not_measured_phrase(names: Sequence[str]) -> str:
+    """The photos no verdict covers: the verification's COLMAP did not read them."""
+    shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+    return f"{len(names)} photo(s) no verification measured ({shown}): COLMAP did not read them"
 
 
 def unverified_line(last: dict[str, Any] | None) -> str:
@@ -409,6 +417,8 @@ def unready_reasons(d: dict[str, Any]) -> list[str]:
         reasons.append(f"{len(d['leftover_temps'])} leftover temporary file(s) of ppd")
     if d.get("other_spec"):  # a mix of marks: the verdict is of the dataset's spec alone
         reasons.append(f"{d['other_spec']} patched with another spec than the dataset's")
+    if d.get("not_measured"):
+        reasons.append(not_measured_phrase(d["not_measured"]))
     if d["protection"]["state"] != Protection.PROTECTED:
         reasons.append(d["protection"]["text"])
     elif missing := d.get("profiles_not_verified"):

@@ -60,7 +60,7 @@ def regression_of(runs: list[dict[str, Any]]) -> dict[str, Any] | None:
 
 def latest_by_profile(runs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     """The newest verdict of each profile (daemon.states.newest_per_profile), with the number it rests on."""
-    from daemon.states import newest_per_profile
+    from daemon.states import newest_per_profile, run_left_out
 
     return {
         profile: {
@@ -68,6 +68,7 @@ def latest_by_profile(runs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             "frac_within_5deg": ((run.get("metrics") or {}).get("vs_clean") or {}).get("frac_within_5deg"),
             "finished_at": run["finished_at"],
             "error": run["error"],
+            "left_out": run_left_out(run),  # photos its COLMAP did not read: not measured
         }
         for profile, run in newest_per_profile(runs).items()
     }
@@ -174,7 +175,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         resume_command,
     )
     from daemon.protect.mark_notes import mark_note_lines
-    from daemon.states import patched_count
+    from daemon.states import left_out_photos, patched_count
     from daemon.verification.auto_mode import status_text as auto_status_text  # light: no torch, no pycolmap
     from daemon.verification.verify_state import running_verification  # light: msgspec and a small JSON file
     from verifier.verdict import HEADLINE_PROFILES
@@ -226,6 +227,8 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         ],
         "last_verification": _last_verification(runs[0] if runs else None),
         "verdicts": verdicts,
+        # photos a counted profile's COLMAP did not read: no verdict covers them (verifier.sfm_images)
+        "not_measured": left_out_photos(verdicts),
         "verifying": running_verification(ctx.paths, name),  # a verification running now (issue 30)
         "regression": None
         if regression is None

@@ -172,9 +172,10 @@ def verify(
 
     The verdict is the weakest of default, hardened, published, global and masked (an attacker who
     masks the four corner regions: it defeats every corner (watermark-like) mark by construction, and
-    its own line says so). Each is one COLMAP run with seed 0 unless --seeds asks for more: an
-    attacker may rerun with other seeds, and on a set near the line another seed can recover more
-    cameras."""
+    its own line says so) among those whose COLMAP reconstructs the originals: one that does not is no
+    threat measured, and the overall line names it. Each is one COLMAP run with seed 0 unless --seeds
+    asks for more: an attacker may rerun with other seeds, and on a set near the line another seed can
+    recover more cameras."""
     from rich.console import Console
 
     from daemon.cli.coerce import EMPTY_PATH

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import msgspec
 
 from poisoner.media import is_video
-from verifier.pairs import stage_pairs
+from verifier.pairs import not_staged, stage_pairs
 from verifier.verdict import Verdict
 from verifier.verification import (
     PROFILES,
@@ -115,7 +115,8 @@ def verify_dataset(
         images = run_dir / ".images"
         try:
             matching = stage_pairs(pairs, images / "clean", images / "poisoned")
-            opts = dataclasses.replace(options, matching=matching if matching != "auto" else options.matching)
+            opts = dataclasses.replace(options, matching=matching if matching != "auto" else options.matching,
+                                       not_staged=tuple(not_staged(pairs)))  # fmt: skip
             report = verify_folders(images / "clean", images / "poisoned", run_dir, profiles, opts)
         except BaseException:  # a run with no report (Ctrl-C, a failure) leaves no folder of ppd's
             shutil.rmtree(run_dir, ignore_errors=True)
