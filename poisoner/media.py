@@ -26,7 +26,7 @@ SFM_SUFFIXES: frozenset[str] = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tif
 UNPROTECTED_SUFFIXES: frozenset[str] = frozenset({
     ".gif", ".bmp", ".dib", ".jxl", ".jp2", ".j2k", ".psd", ".exr", ".hdr", ".ppm", ".pgm", ".pnm",
     ".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".orf", ".rw2", ".raf",
-    ".pef", ".srw", ".x3f", ".3fr", ".iiq", ".erf", ".mrw", ".kdc", ".dcr",
+    ".pef", ".srw", ".x3f", ".3fr", ".iiq", ".erf", ".mrw", ".kdc", ".dcr", ".raw", ".rwl",
     ".avi", ".mpg", ".mpeg", ".wmv", ".flv", ".3gp", ".mts", ".m2ts", ".ts", ".ogv", ".mxf", ".braw",
 })  # fmt: skip
 
@@ -34,6 +34,9 @@ UNPROTECTED_SUFFIXES: frozenset[str] = frozenset({
 PARTIAL_SUFFIXES: frozenset[str] = frozenset({
     ".crdownload", ".part", ".partial", ".download", ".opdownload", ".filepart", ".crswap",
     ".tmp", ".temp", ".swp", ".swx", ".bak", ".aria2", ".!qb", ".!ut",
+    # tools that preallocate the file and fill it out of order (Resilio, BitComet, BitTorrent, Thunder,
+    # FlashGet, DownThemAll): its first and last bytes can read as a whole JPEG before the middle has come
+    ".!sync", ".!bt", ".bc!", ".jc!", ".td", ".xltd", ".dtapart",
 })  # fmt: skip
 
 
@@ -105,7 +108,9 @@ _IMAGE_BRANDS = frozenset({b"heic", b"heix", b"heim", b"heis", b"mif1", b"mif2",
 # which ppd would write back only the preview; with a `.tif` suffix it is patched as a TIFF.
 _UNPROTECTED_MAGIC = re.compile(
     rb"GIF8[79]a|BM.{4}\x00{4}|\x00\x00\x00\x0c(?:JXL |jP  )\r\n\x87\n|\xff\x4f\xff\x51|8BPS"
-    rb"|\x76\x2f\x31\x01|#\?(?:RADIANCE|RGBE)|P[1-6]\s+(?:#[^\n]*\n\s*)*\d|II\*\x00|MM\x00\*|II\+\x00|MM\x00\+",
+    rb"|\x76\x2f\x31\x01|#\?(?:RADIANCE|RGBE)|P[1-6]\s+(?:#[^\n]*\n\s*)*\d|II\*\x00|MM\x00\*|II\+\x00|MM\x00\+"
+    # raw files whose header is TIFF-like but not TIFF: Panasonic/Leica, Olympus, Fuji
+    rb"|IIU\x00|IIR[OS]|MMOR|FUJIFILMCCD-RAW",
     re.DOTALL,
 )
 
@@ -152,15 +157,26 @@ def judged_by_content(name: str) -> bool:
     """Whether media_class opens a file of this name to read its first bytes: its suffix names no
     format, and it is not hidden (ppd's own temporaries are), a partial download, an editor's backup,
     a sidecar or a note."""
-    suffix = os.path.splitext(name)[1].lower()
+    stem, suffix = os.path.splitext(name)
+    suffix = suffix.lower()
     named = suffix in MEDIA_SUFFIXES or suffix in UNPROTECTED_SUFFIXES
-    return not (named or name.startswith(".") or name.endswith("~") or suffix in PARTIAL_SUFFIXES
-                or suffix in NOT_MEDIA_SUFFIXES)  # fmt: skip
+    # `photo.jpg.!sync`, `a.png.xyz`: how download, sync and backup tools name what is not the photo yet
+    # (a diff review: a preallocated download was patched while its tool still wrote it)
+    named_before = suffix_of(stem) in MEDIA_SUFFIXES or suffix_of(stem) in UNPROTECTED_SUFFIXES
+    return not (named or named_before or name.startswith(".") or name.endswith("~")
+                or suffix in PARTIAL_SUFFIXES or suffix in NOT_MEDIA_SUFFIXES)  # fmt: skip
 
 
 def _head(path: str | os.PathLike[str]) -> bytes:
-    with open(path, "rb") as f:
-        return f.read(SNIFF_BYTES)
+    """The first bytes of a regular file (followed through a symlink), b"" for anything else: a FIFO
+    opened to be read blocks until a writer comes (a diff review: `ppd status` hung on one)."""
+    import stat
+
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        return os.read(fd, SNIFF_BYTES) if stat.S_ISREG(os.fstat(fd).st_mode) else b""
+    finally:
+        os.close(fd)
 
 
 def is_sfm_readable(path: str | os.PathLike[str]) -> bool:

@@ -462,7 +462,9 @@ class WatchDaemon:
                     self.pool.submit(child)
             return
         named = is_candidate(self.outbox, path, self.suffixes, by_content=False)  # a folder has no suffix
-        if st is not None and stat.S_ISLNK(st.st_mode) and named:
+        # a link with no suffix to a photo is published as the photo too (a diff review): judged by its target
+        linked = st is not None and stat.S_ISLNK(st.st_mode)
+        if linked and (named or (is_candidate(self.outbox, path, self.suffixes) and media_kind(path))):
             self._quarantine_link(path)
             return
         if st is not None and not stat.S_ISREG(st.st_mode):

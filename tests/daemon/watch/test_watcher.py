@@ -878,6 +878,25 @@ def test_a_photo_named_symlink_leaves_the_outbox_its_target_untouched(ppd_env: d
     assert row["state"] == FileState.QUARANTINED and "symlink" in row["error"]
 
 
+def test_a_symlink_with_no_suffix_to_a_photo_is_quarantined_too(ppd_env: dict[str, Path]) -> None:
+    """A diff review: `latest -> ~/Pictures/IMG_1.jpg` (no suffix) was only logged "not a regular file,
+    left alone", while a `.png` link is quarantined: both publish the photo they reach. A link with no
+    suffix to a note is left alone."""
+    outside = write_image(ppd_env["outbox"].parent / "elsewhere" / "real.png", 5)
+    note = ppd_env["outbox"].parent / "elsewhere" / "notes"
+    note.write_text("not a photo\n")
+    ds = ppd_env["outbox"] / "shoot"
+    ds.mkdir()
+    with running(ppd_env) as daemon:
+        (ds / "notes").symlink_to(note)
+        (ds / "latest").symlink_to(outside)
+        wait_for(lambda: daemon.counts.quarantined >= 1, 20, "the link quarantined")
+        wait_idle(daemon)
+        assert daemon.counts.quarantined == 1
+    assert not (ds / "latest").is_symlink() and (ds / "notes").is_symlink()
+    assert (ppd_env["outbox"].parent / "ppd-quarantine" / "shoot" / "latest").is_symlink()
+
+
 def test_a_restored_file_is_left_alone_at_start_until_it_changes(ppd_env: dict[str, Path]) -> None:
     """Every daemon start judged each restored file again, one "unchanged ... restored by the user"
     line each (58 at one start in a black-box review). Restore now records the file's size and time,
