@@ -156,9 +156,9 @@ def dataset_corner(
     sampled image), the corner with the least image detail over a sample of the images; with
     neither, the default corner."""
     from poisoner.corner import CORNERS
-    from poisoner.media import is_image
+    from poisoner.media import is_photo
 
-    paths = sorted(Path(p) for p in image_paths if is_image(p))
+    paths = sorted(Path(p) for p in image_paths if is_photo(p))
     picked = _sampled(paths, sample)
     if mask_dir is not None:
         choice = _corner_from_masks(picked, Path(mask_dir), region)

@@ -192,23 +192,23 @@ def _masked(jobs: list[Job], dataset: str, folder: Path | None) -> tuple[int, in
     """(photos of the dataset here with a mask in folder, photos); None without a folder."""
     if folder is None:
         return None
-    from poisoner.media import is_image
+    from poisoner.media import is_photo
     from poisoner.subject import mask_path
 
-    names = [j.path.name for j in jobs if j.dataset == dataset and is_image(j.path)]
+    names = [j.path.name for j in jobs if j.dataset == dataset and is_photo(j.path)]
     return sum(mask_path(folder, n) is not None for n in names), len(names)
 
 
 def missing_mask_lines(jobs: list[Job], done: set[Path], masks: dict[str, Path | None]) -> list[str]:
     """One line per mask folder that lacks a mask for some of the photos patched here (`done`): their
     marks were placed without keep-out, which the per-file warning alone left easy to miss."""
-    from poisoner.media import is_image
+    from poisoner.media import is_photo
     from poisoner.subject import mask_path
 
     lines = []
     for folder in sorted({m for m in masks.values() if m is not None}):
-        names = [j.path.name for j in jobs if masks.get(j.dataset) == folder and j.path in done]
-        missing = [n for n in names if is_image(Path(n)) and mask_path(folder, n) is None]
+        paths = [j.path for j in jobs if masks.get(j.dataset) == folder and j.path in done]
+        missing = [p.name for p in paths if is_photo(p) and mask_path(folder, p.name) is None]
         if missing:
             s, more = ("", "") if len(missing) == 1 else ("s", ", ...")
             lines.append(f"no subject mask in {folder} for {len(missing)} photo{s} ({missing[0]}{more}): "

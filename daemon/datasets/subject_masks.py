@@ -232,7 +232,7 @@ def choice_text(dataset: str, detail: dict[str, Any] | None) -> str | None:
 def sibling_images(first: Path, limit: int = CORNER_SAMPLE) -> list[Path]:
     """Up to limit regular, non-hidden image files next to first (sorted, symlinks skipped): what the
     daemon judges a new dataset's corner on besides its first file."""
-    from poisoner.media import is_image
+    from poisoner.media import is_photo
 
     try:
         entries = sorted(first.parent.iterdir())
@@ -240,7 +240,7 @@ def sibling_images(first: Path, limit: int = CORNER_SAMPLE) -> list[Path]:
         return []
     found = []
     for p in entries:
-        if p.name == first.name or p.name.startswith(".") or not is_image(p) or p.is_symlink():
+        if p.name == first.name or p.name.startswith(".") or p.is_symlink() or not is_photo(p):
             continue
         if p.is_file():
             found.append(p)

@@ -141,3 +141,22 @@ def test_preview_takes_a_photo_ppd_poison_patches_whatever_its_suffix(
         (tmp_path / "p.png").unlink()
     refused = runner.invoke(app, ["preview", str(shoot / "loop"), "--out", str(tmp_path / "p.png")])
     assert refused.exit_code == 2 and "ppd poison skips it" in _said(refused), refused.output
+
+
+def test_the_mask_lines_count_a_photo_with_no_suffix(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A diff review: with masks for a1.jpg only, a2.jpg and a no-suffix JPEG patched without them, the
+    summary said "for 1 of 2 photos" and "no subject mask ... for 1 photo (a2.jpg)": the mask lines
+    went by suffix alone."""
+    from testkit.photos import masked_shoot
+
+    masked_shoot(tmp_path / "made", tmp_path / "made-masks", n=3)
+    shoot, masks = tmp_path / "shoot", tmp_path / "masks"
+    shoot.mkdir()
+    masks.mkdir()
+    for i, name in enumerate(("a1.jpg", "a2.jpg", "a3")):
+        Image.open(tmp_path / "made" / f"{i:06d}.png").convert("RGB").save(shoot / name, "JPEG", quality=92)
+    (tmp_path / "made-masks" / "000.png").rename(masks / "a1.png")
+    result = runner.invoke(app, ["poison", str(shoot), "--subject-masks", str(masks)])
+    said = " ".join(result.output.split())
+    assert result.exit_code == 0 and "patched 3" in said, said
+    assert "no subject mask in" in said and "for 2 photos" in said, said
