@@ -204,7 +204,8 @@ def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
         shown = ", ".join(o.path.name for o in unread[:5]) + (", ..." if len(unread) > 5 else "")
         err_console().print(
             f"not protected: {len(unread)} photo(s) or video(s) ppd cannot read ({shown}); a reconstruction "
-            "can still use them: convert them to JPEG, PNG, TIFF, WebP, HEIC or MP4 first, or leave them out",
+            "can still use them: convert them to JPEG, PNG, WebP, HEIC, MP4 or a TIFF named .tif first, "
+            "or leave them out",
             markup=False,
         )
     if linked := _linked_line(linked_folders(outcomes)):

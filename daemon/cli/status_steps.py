@@ -62,8 +62,8 @@ def _unprotected_lines(d: dict[str, Any]) -> list[str]:
                      f"`ppd poison {root}` records their new names")  # fmt: skip
     if c.get("unprotectable"):  # a reconstruction reads them all the same (a black-box review)
         lines.append(f"{name}: {c['unprotectable']} photo(s) or video(s) in a format ppd cannot protect, "
-                     "NOT protected: convert them to JPEG, PNG, TIFF, WebP, HEIC or MP4, or move them "
-                     "out")  # fmt: skip
+                     "NOT protected: convert them to JPEG, PNG, WebP, HEIC, MP4 or a TIFF named .tif, "
+                     "or move them out")  # fmt: skip
     if d.get("restored_in_place"):  # originals back where they are published: said in the overview
         # some still patched: a restore stopped part-way (killed) is finished by running it again (a
         # black-box review: only the re-patch was offered to a user who wanted every original back)
