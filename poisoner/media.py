@@ -136,13 +136,25 @@ def media_class(path: str | os.PathLike[str], head: Callable[[], bytes] | None =
     return content_class(data)
 
 
+def image_format(head: bytes) -> str | None:
+    """The format of a photo ppd writes, from its first bytes: "jpeg", "png", "webp", "heif" (AVIF too),
+    else None."""
+    if head.startswith(b"\xff\xd8\xff"):
+        return "jpeg"
+    if head.startswith(b"\x89PNG\r\n\x1a\n"):
+        return "png"
+    if head[:4] + head[8:12] == b"RIFFWEBP":
+        return "webp"
+    if head[4:8] == b"ftyp" and _ftyp_brands(head) & _IMAGE_BRANDS:
+        return "heif"
+    return None
+
+
 def content_class(head: bytes) -> str | None:
-    """What a file's first bytes say: IMAGE for a format ppd writes (JPEG, PNG, WebP, HEIF, AVIF),
-    UNPROTECTED for another image a reconstruction reads (_UNPROTECTED_MAGIC), None else. A video is
-    told by its suffix alone: no reconstruction reads one as it is (nor an MP4 of audio only)."""
-    if head.startswith((b"\xff\xd8\xff", b"\x89PNG\r\n\x1a\n")) or head[:4] + head[8:12] == b"RIFFWEBP":
-        return IMAGE
-    if head[4:8] == b"ftyp" and _ftyp_brands(head) & _IMAGE_BRANDS:  # HEIF, AVIF
+    """What a file's first bytes say: IMAGE for a format ppd writes (image_format), UNPROTECTED for
+    another image a reconstruction reads (_UNPROTECTED_MAGIC), None else. A video is told by its suffix
+    alone: no reconstruction reads one as it is (nor an MP4 of audio only)."""
+    if image_format(head) is not None:
         return IMAGE
     return UNPROTECTED if _UNPROTECTED_MAGIC.match(head) else None
 
@@ -165,6 +177,14 @@ def judged_by_content(name: str) -> bool:
     named_before = suffix_of(stem) in MEDIA_SUFFIXES or suffix_of(stem) in UNPROTECTED_SUFFIXES
     return not (named or named_before or name.startswith(".") or name.endswith("~")
                 or suffix in PARTIAL_SUFFIXES or suffix in NOT_MEDIA_SUFFIXES)  # fmt: skip
+
+
+def read_head(path: str | os.PathLike[str]) -> bytes:
+    """A regular file's first SNIFF_BYTES (b"" for anything else, or unreadable)."""
+    try:
+        return _head(path)
+    except OSError:
+        return b""
 
 
 def _head(path: str | os.PathLike[str]) -> bytes:
@@ -193,6 +213,6 @@ def is_sfm_readable(path: str | os.PathLike[str]) -> bool:
 __all__ = [
     "IMAGE", "IMAGE_SUFFIXES", "MEDIA_SUFFIXES", "NOT_MEDIA_SUFFIXES", "PARTIAL_SUFFIXES", "SFM_SUFFIXES",
     "SNIFF_BYTES", "UNPROTECTED", "UNPROTECTED_SUFFIXES", "VIDEO", "VIDEO_SUFFIXES", "content_class",
-    "is_image", "is_media", "is_photo", "is_sfm_readable", "is_unprotected_media", "is_video",
-    "judged_by_content", "media_class", "suffix_of",
+    "image_format", "is_image", "is_media", "is_photo", "is_sfm_readable", "is_unprotected_media",
+    "is_video", "judged_by_content", "media_class", "read_head", "suffix_of",
 ]  # fmt: skip

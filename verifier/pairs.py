@@ -62,26 +62,20 @@ def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_di
 
 
 # What COLMAP reads by its content under any name, and the suffix its image list takes it by
-_SFM_CONTENT = ((b"\xff\xd8\xff", ".jpg"), (b"\x89PNG\r\n\x1a\n", ".png"), (b"RIFF", ".webp"))
+# What COLMAP reads by its content under any name, with the suffix its image list takes it by
+_SFM_SUFFIX = {"jpeg": ".jpg", "png": ".png", "webp": ".webp"}
 
 
 def _sfm_name(path: Path) -> str | None:
     """The name path is staged under for COLMAP: its own where its suffix is one COLMAP's image list
     takes; a JPEG, PNG or WebP under another name (.jfif, none: ppd patches them, an attacker's COLMAP
     reads them by content) with its format's suffix added; None for the rest (HEIC)."""
-    from poisoner.media import SFM_SUFFIXES
+    from poisoner.media import SFM_SUFFIXES, image_format, read_head
 
     if path.suffix.lower() in SFM_SUFFIXES:
         return path.name
-    try:
-        with open(path, "rb") as f:
-            head = f.read(12)
-    except OSError:
-        return None
-    magic = next((suffix for start, suffix in _SFM_CONTENT if head.startswith(start)), None)
-    if magic == ".webp" and head[8:12] != b"WEBP":
-        return None
-    return None if magic is None else path.name + magic
+    suffix = _SFM_SUFFIX.get(image_format(read_head(path)) or "")
+    return None if suffix is None else path.name + suffix
 
 
 def not_staged(pairs: Sequence[tuple[Path, Path]]) -> list[str]:
