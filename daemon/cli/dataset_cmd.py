@@ -21,7 +21,7 @@ from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
-    from daemon.protect.forgetting import Forgotten
+    from daemon.protect.forgetting import Forgotten, Patched
     from poisoner.spec import PatchSpec
 
 dataset_app = typer.Typer(
@@ -171,7 +171,7 @@ def dataset_forget(
       ppd dataset forget castle
     """
     from daemon.paths import AppPaths
-    from daemon.protect.forgetting import ForgetUnfinished, forget_dataset, unfinished
+    from daemon.protect.forgetting import ForgetUnfinished, Patched, forget_dataset, unfinished
     from daemon.store import StoreError
     from daemon.store.vault import VaultError
 
@@ -179,7 +179,7 @@ def dataset_forget(
     with _alone(paths.data_dir):
         ctx = open_ctx(store_held=True)
         try:
-            marked = [] if unfinished(ctx, name) else _forget_check(ctx, name, force)
+            marked = Patched([], []) if unfinished(ctx, name) else _forget_check(ctx, name, force)
             done = forget_dataset(ctx, name)
         except ForgetUnfinished as exc:
             raise die(exc, ExitStatus.ENVIRONMENT) from None
@@ -187,7 +187,7 @@ def dataset_forget(
             raise die(f"cannot forget dataset {name!r}: {one_line(exc)}", ExitStatus.ENVIRONMENT) from None
         finally:
             ctx.close()
-    _say_forgotten(name, done, len(marked))
+    _say_forgotten(name, done, marked)
 
 
 @contextlib.contextmanager
@@ -210,12 +210,14 @@ def _alone(data_dir: Path) -> Iterator[None]:
         raise die(f"cannot lock the store: {one_line(exc)}", ExitStatus.ENVIRONMENT) from None
 
 
-def _forget_check(ctx: AppContext, name: str, force: bool) -> list[Path]:
+def _forget_check(ctx: AppContext, name: str, force: bool) -> Patched:
     """Refused (exit 2) unless --force: a folder seen moved (its patched files there: `ppd dataset
-    set --root` follows it), or patched files of the dataset still there (their originals are the
-    only way back). Returns those files; an unknown dataset is refused by dataset_status."""
+    set --root` follows it), patched files of the dataset still there (their originals are the
+    only way back), or, while its folder is there, patched files not found where they were patched
+    (moved to an album? `ppd restore FILE` needs the original). Returns the patched files, there and
+    gone; an unknown dataset is refused by dataset_status."""
     from daemon.cli.status_queries import dataset_status
-    from daemon.protect.forgetting import still_patched
+    from daemon.protect.forgetting import patched_files
     from daemon.states import FileState
 
     info = dataset_status(ctx, name)  # as `ppd status` judges it
@@ -229,26 +231,40 @@ def _forget_check(ctx: AppContext, name: str, force: bool) -> list[Path]:
         raise die(f"dataset {name!r}'s folder {root} is gone, but its patched files are in {moved} "
                   f"(moved?): {follow}; --force forgets it all the same (those files then keep the mark "
                   "for good)")  # fmt: skip
-    marked = still_patched(ctx, name)
-    if marked and not force:
-        inside = folder["exists"] and all(Path(p).is_relative_to(root) for p in marked)
-        where = f"in {root}" if inside else f"({marked[0]}{', ...' if len(marked) > 1 else ''})"
-        raise die(f"dataset {name!r} has {len(marked)} patched file(s) still there {where}: their "
+    marked = patched_files(ctx, name)
+    if marked.there and not force:
+        there = marked.there
+        inside = folder["exists"] and all(Path(p).is_relative_to(root) for p in there)
+        where = f"in {root}" if inside else f"({there[0]}{', ...' if len(there) > 1 else ''})"
+        raise die(f"dataset {name!r} has {len(there)} patched file(s) still there {where}: their "
                   f"originals in the vault are the only way back; `ppd restore {shlex.quote(name)}` "
                   "first, or --force to forget it all the same (those files then keep the mark for "
                   "good)")  # fmt: skip
+    # a folder still there with patched files missing from it: moved somewhere status cannot see (an
+    # album, another drive)? A whole shoot deleted (its folder gone) is what forget is for: said, below
+    if marked.gone and folder["exists"] and not force:
+        gone = marked.gone
+        named = ", ".join(str(p.relative_to(root) if p.is_relative_to(root) else p) for p in gone[:2])
+        named += ", ..." if len(gone) > 2 else ""
+        raise die(f"dataset {name!r} has {len(gone)} patched file(s) not found where they were patched "
+                  f"(moved or deleted?): {named}; their originals in the vault are the only way back for "
+                  "a copy of them: `ppd restore FILE` on a moved one first, or --force to forget it all the "
+                  "same (any copy of them then keeps the mark for good)")  # fmt: skip
     return marked
 
 
-def _say_forgotten(name: str, done: Forgotten, marked: int) -> None:
+def _say_forgotten(name: str, done: Forgotten, marked: Patched) -> None:
     line = (f"forgot dataset {name}: {done.rows} file record(s); {done.removed} original(s) "
             f"({done.removed_bytes / 1e6:.1f} MB) removed from the vault")  # fmt: skip
     if done.kept:
         line += f"; {done.kept} original(s) kept: another dataset uses them"
     console().print(line, markup=False)
-    if marked:  # --force: said, not implied
-        console().print(f"its {marked} patched file(s) still there keep the mark for good: ppd can no "
-                        "longer restore them", markup=False)  # fmt: skip
+    if marked.there:  # --force: said, not implied
+        console().print(f"its {len(marked.there)} patched file(s) still there keep the mark for good: ppd "
+                        "can no longer restore them", markup=False)  # fmt: skip
+    if marked.gone:  # --force, or a deleted folder: a copy kept elsewhere is marked for good, said
+        console().print(f"{len(marked.gone)} patched file(s) not found where they were patched (moved or "
+                        "deleted?): any copy of them keeps the mark for good", markup=False)  # fmt: skip
     if done.displaced is not None:
         console().print(f"the files ppd set aside for it (`ppd restore --force`) stay in {done.displaced}: "
                         "they are yours", markup=False)  # fmt: skip

@@ -9,7 +9,8 @@ from the note. The caller holds the store alone (daemon.locks.store_alone) and n
 no command can record a row for an original between the check and its removal.
 
 The files ppd set aside for the dataset (`ppd restore --force`: DATA/displaced/NAME) are the user's and
-stay; its verification run folders (DATA/runs/NAME: reconstructions of its photos) are ppd's and go.
+stay; its verification run folders (DATA/runs/NAME: reconstructions of its photos) are ppd's and go
+before the note does, so that a crash or a failed removal leaves the note, and the next forget removes them.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import shlex
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from daemon.protect.displaced import displaced_folder
 from daemon.states import FileState
@@ -40,18 +41,29 @@ class Forgotten:
     displaced: Path | None  # the files ppd set aside for it, left where they are (None: none)
 
 
-def still_patched(ctx: AppContext, name: str) -> list[Path]:
-    """The dataset's files that carry ppd's mark now, wherever they are (in place, an `--out` copy, a
-    published one): their originals in the vault are the only way back. A 'pending' row's file counts
-    when it no longer holds its original (a run killed after its rename, before its row)."""
-    marked = []
+class Patched(NamedTuple):
+    """The dataset's files its rows call patched, by whether they are where they were patched."""
+
+    there: list[Path]  # carry ppd's mark now where the rows say: their originals are the only way back
+    gone: list[Path]  # not found where they were patched (moved or deleted by the user)
+
+
+def patched_files(ctx: AppContext, name: str) -> Patched:
+    """The dataset's files that carry ppd's mark now (in place, an `--out` copy, a published one), and
+    its patched files not found where they were patched. A 'pending' row's file counts as there when it
+    no longer holds its original (a run killed after its rename, before its row). The gone ones matter
+    as much: a patched photo moved to an album has no row of its new place, and `ppd restore FILE` on it
+    needs its original (a diff review: forget deleted it silently). A gone 'pending' row is not counted:
+    whether its file was ever replaced cannot be told without the file."""
+    there, gone = [], []
     for row in ctx.store.files(name):
         place = Path(row.get("published_path") or row["path"])
         if not os.path.lexists(place):
-            continue
-        if row["state"] == FileState.PATCHED or (row["state"] == FileState.PENDING and _replaced(row)):
-            marked.append(place)
-    return marked
+            if row["state"] == FileState.PATCHED:
+                gone.append(place)
+        elif row["state"] == FileState.PATCHED or (row["state"] == FileState.PENDING and _replaced(row)):
+            there.append(place)
+    return Patched(there, gone)
 
 
 def _replaced(row: dict[str, object]) -> bool:
@@ -73,8 +85,8 @@ def unfinished(ctx: AppContext, name: str) -> bool:
 
 def forget_dataset(ctx: AppContext, name: str) -> Forgotten:
     """Remove the dataset from the store (unless an earlier forget did: unfinished), then the originals
-    no row names any more from the vault (this dataset's, and those of an earlier forget a crash stopped
-    before its vault step)."""
+    no row names any more from the vault and its verification run folders (this dataset's, and those of
+    an earlier forget a crash stopped before its note went)."""
     rows = 0 if unfinished(ctx, name) else ctx.store.forget_dataset(name)
     removed = removed_bytes = kept = 0
     for forgotten, originals in sorted(ctx.store.forget_notes().items()):
@@ -86,23 +98,44 @@ def forget_dataset(ctx: AppContext, name: str) -> Forgotten:
                 if sha not in named and (freed := ctx.vault.discard(sha)) is not None:
                     removed, removed_bytes = removed + 1, removed_bytes + freed
         except OSError as exc:  # the note stays: a run again finishes it
-            raise ForgetUnfinished(
-                f"dataset {forgotten!r}'s records are forgotten, but its originals could not all leave the "
-                f"vault ({exc.strerror or exc}: {exc.filename or ctx.paths.vault_dir}); "
-                f"`ppd dataset forget {shlex.quote(forgotten)}` again finishes it"
-            ) from None
+            why = "its originals could not all leave the vault"
+            raise _unfinished(forgotten, why, exc, ctx.paths.vault_dir) from None
+        # before the note goes (a review: after it, a crash or a failed removal left them for good)
+        if ctx.store.dataset(forgotten) is None:  # not a new dataset of that name: its runs would be its
+            try:
+                _remove_runs(ctx, forgotten)
+            except OSError as exc:
+                why = "its verification runs could not all be removed"
+                raise _unfinished(forgotten, why, exc, ctx.paths.runs_dir) from None
         ctx.store.forget_done(forgotten)
-    _remove_runs(ctx, name)
     folder = displaced_folder(ctx, name)
     aside = folder if folder.is_dir() and any(folder.iterdir()) else None
     return Forgotten(rows, removed, removed_bytes, kept, aside)
 
 
+def _unfinished(name: str, what: str, exc: OSError, place: Path) -> ForgetUnfinished:
+    """The one line of a forget stopped after its rows (exit 3): its note stays, a run again finishes."""
+    where = exc.filename or place
+    return ForgetUnfinished(
+        f"dataset {name!r}'s records are forgotten, but {what} ({exc.strerror or exc}: {where}); "
+        f"`ppd dataset forget {shlex.quote(name)}` again finishes it"
+    )
+
+
 def _remove_runs(ctx: AppContext, name: str) -> None:
     """The dataset's verification run folders: ppd's own reconstructions of its photos (a later dataset
-    of the same name must not find them). Only a real folder right inside runs_dir."""
+    of the same name must not find them). Only a real folder right inside runs_dir. OSError: one could
+    not be removed (the caller keeps the note, so that a forget again tries it again)."""
     if name in ("", ".", "..") or os.sep in name:  # never a folder above or beside it
         return
     runs = Path(ctx.paths.runs_dir) / name
     if runs.is_dir() and not runs.is_symlink():
-        shutil.rmtree(runs, ignore_errors=True)
+        shutil.rmtree(runs, onerror=_whole_name)
+
+
+def _whole_name(_func: object, path: str, exc_info: tuple[type, BaseException, object]) -> None:
+    """rmtree's error with the whole path it failed on (its own names only the entry: 'report.json')."""
+    exc = exc_info[1]
+    if isinstance(exc, OSError):
+        raise OSError(exc.errno, exc.strerror, path) from None
+    raise exc

@@ -360,9 +360,9 @@ def _why_not_found(
     """Why a file with no row of its path has no original to restore, in words that say what to do."""
     if marked and no_key is not None:
         return f"{path} carries a ppd marker, but the seal key that recognises it cannot be read: {no_key}"
-    if seal is not None:
+    if seal is not None:  # said as what it most likely is: `forget --force` read like vault damage (a review)
         return (f"{path} carries ppd's seal, but its original {seal.original_sha256[:12]} is not in the "
-                f"vault {ctx.vault.vault_dir}")  # fmt: skip
+                f"vault {ctx.vault.vault_dir} (forgotten by `ppd dataset forget`, or lost)")  # fmt: skip
     if claim is not None:  # this key's token over other bytes: an edit, or a token copied onto a photo
         return (f"{path} carries ppd's marker, but it changed since ppd patched it (its seal no longer fits "
                 "its bytes); not restored")  # fmt: skip

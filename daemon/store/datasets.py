@@ -207,9 +207,15 @@ class DatasetRows(StoreBase):
             conn.execute("DELETE FROM datasets WHERE name = ?", (name,))
             for spec_id in specs - {None}:
                 _drop_spec_if_unused(conn, spec_id)
+            # an earlier forget of the name a crash stopped before its vault step (a new dataset of the
+            # name since): its originals join, replaced they would stay in the vault with no note (a review)
+            note = FORGET_NOTE + name
+            earlier = conn.execute("SELECT value FROM store_notes WHERE key = ?", (note,)).fetchone()
+            if earlier is not None:
+                originals = sorted(set(originals) | set(json.loads(earlier[0])))
             conn.execute(
                 "INSERT OR REPLACE INTO store_notes (key, value, created_at) VALUES (?, ?, ?)",
-                (FORGET_NOTE + name, json.dumps(originals), time.time()),
+                (note, json.dumps(originals), time.time()),
             )
             insert_event(conn, None, None, "dataset_forgotten", {"dataset": name, "files": rows})
         return rows

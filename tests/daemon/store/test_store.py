@@ -459,3 +459,14 @@ def test_forget_dataset_removes_its_rows_and_only_the_specs_no_one_else_uses(
     ]
     with pytest.raises(StoreError, match="no dataset 'a'"):
         store.forget_dataset("a")
+
+
+def test_a_forget_note_left_by_a_crash_joins_the_next_of_its_name(store: Store, tmp_path: Path) -> None:
+    """A diff review: a crash before the vault step, then a new dataset of the same name forgotten: its
+    note replaced the first (INSERT OR REPLACE), whose originals stayed in the vault, noted nowhere."""
+    for sha in ("1" * 64, "2" * 64):  # the first dataset 'a', then a new one of the name
+        store.ensure_dataset("a", tmp_path / "a", PatchSpec())
+        store.record_file(tmp_path / "a" / f"{sha[0]}.png", "a", FileState.PATCHED, original_sha256=sha,
+                          spec_id=store.dataset_spec("a").spec_id, event="patched")  # fmt: skip
+        store.forget_dataset("a")  # no forget_done: the crash
+    assert store.forget_notes() == {"a": ["1" * 64, "2" * 64]}  # before: {"a": ["2" * 64]}
