@@ -149,7 +149,8 @@ def publish_in_datasets(folder: Path, roots: Iterable[tuple[str, Path]]) -> str 
     real = where.resolve()
     for name, root in roots:
         root = Path(root).expanduser().absolute()
-        if real.is_relative_to(root.resolve()) or where.is_relative_to(root):
+        # a dataset of the home folder holds the files right in it, not its subfolders (published_with)
+        if published_with(root.resolve(), real) or published_with(root, where):
             return (f"{where} is inside dataset {name!r}'s folder {root}: ppd would take the published "
                     "files in as the dataset's, and `ppd restore` would put the originals there")  # fmt: skip
         if published_with(real, root.resolve()):

@@ -181,3 +181,20 @@ def test_a_failed_publish_says_where_the_file_was_left(ppd_env: dict[str, Path],
     said = " ".join(result.output.split())
     assert result.exit_code == 1 and f"not moved to {pub}" in said, result.output
     assert f"left in {castle}, moved at the next run" in said and "outbox" not in said, result.output
+
+
+def test_a_dataset_of_the_home_folder_leaves_its_subfolders_free_to_publish_to(
+    ppd_env: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A dataset whose folder is the home folder holds the files right in it only (as `ppd poison`
+    attributes them): ~/www stays a publish folder, for config.toml and for `dataset set`."""
+    home = tmp_path / "home"
+    monkeypatch.setenv("HOME", str(home))
+    make_image(home / "v0.png", 0)
+    assert runner.invoke(app, ["poison", str(home), "--dataset", "athome"]).exit_code == 0
+    (ppd_env["config"] / "config.toml").write_text(f'publish_dir = "{home / "www"}"\n')
+    assert runner.invoke(app, ["status"]).exit_code == 0
+    castle = make_shoot(tmp_path / "castle", 1)
+    fine = runner.invoke(app, ["dataset", "set", "castle", "--root", str(castle), "--publish-dir",
+                               str(home / "www" / "castle")])  # fmt: skip
+    assert fine.exit_code == 0, fine.output
