@@ -64,19 +64,21 @@ class AppContext:
         # process writes to it (LockHeld while one runs)
         hold = None if store_held else use_store(paths.data_dir)
         try:
-            return cls(
-                paths=paths,
-                config=config,
-                # a new store beside a vault that holds originals: the earlier one was lost; say so
-                # (and keep saying it) instead of starting a silent empty store (daemon.store.core)
-                store=Store.open_or_warn(paths.db_path, paths.vault_dir),
-                vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),
-                _store_hold=hold,
-            )
+            # a new store beside a vault that holds originals: the earlier one was lost; say so
+            # (and keep saying it) instead of starting a silent empty store (daemon.store.core)
+            store = Store.open_or_warn(paths.db_path, paths.vault_dir)
         except BaseException:
             if hold is not None:
                 release_store(paths.data_dir, hold)
             raise
+        ctx = cls(paths=paths, config=config, store=store, _store_hold=hold,
+                  vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes))  # fmt: skip
+        try:
+            _check_publish_roots(config, store)  # the dataset folders are the store's
+        except BaseException:
+            ctx.close()
+            raise
+        return ctx
 
     def close(self) -> None:
         try:
@@ -96,8 +98,29 @@ class AppContext:
 def _check_publish_dirs(config: Config, paths: AppPaths) -> None:
     """A publish folder inside the outbox is a bad setting (ConfigError: one line naming the key)."""
     where = f"{config.source}: " if config.source else ""
+    for key, folder in configured_publish_dirs(config):
+        if why := paths.publish_in_outbox(folder):
+            raise ConfigError(f"{where}{key}: {why}; choose a folder outside it")
+
+
+def _check_publish_roots(config: Config, store: Store) -> None:
+    """A configured publish folder inside a dataset's folder, or holding one, is a bad setting
+    (ConfigError, one line naming the key; daemon.paths.publish_in_datasets): a second `ppd poison`
+    took the files published there in as the dataset's, and `ppd restore` put the originals there
+    (a diff review, F3). The global publish_dir covers each NAME below it."""
+    from daemon.paths import publish_in_datasets
+
+    roots = [(str(row["name"]), Path(row["root"])) for row in store.datasets() if row["root"]]
+    if not roots:
+        return
+    where = f"{config.source}: " if config.source else ""
+    for key, folder in configured_publish_dirs(config):
+        if why := publish_in_datasets(folder, roots):
+            raise ConfigError(f"{where}{key}: {why}; choose a folder outside it")
+
+
+def configured_publish_dirs(config: Config) -> list[tuple[str, Path]]:
+    """(config key, folder) for each publish folder config.toml sets."""
     keys = [("publish_dir", config.publish_dir)]
     keys += [(f"datasets.{name}.publish_dir", o.publish_dir) for name, o in config.datasets.items()]
-    for key, folder in keys:
-        if folder is not None and (why := paths.publish_in_outbox(folder)):
-            raise ConfigError(f"{where}{key}: {why}; choose a folder outside it")
+    return [(key, folder) for key, folder in keys if folder is not None]

@@ -119,18 +119,43 @@ class AppPaths:
         return None
 
 
-    def publish_dir_problem(self, folder: Path) -> str | None:
-        """Why folder cannot be a publish folder (publishes_data, publish_in_outbox); None: it can."""
-        return self.publishes_data(folder) or self.publish_in_outbox(folder)
+    def publish_dir_problem(self, folder: Path, roots: Iterable[tuple[str, Path]] = ()) -> str | None:
+        """Why folder cannot be a publish folder (publishes_data, publish_in_outbox, publish_in_datasets
+        over roots: (dataset, its folder)); None: it can."""
+        return (self.publishes_data(folder) or self.publish_in_outbox(folder)
+                or publish_in_datasets(folder, roots))  # fmt: skip
 
     def publish_in_outbox(self, folder: Path) -> str | None:
         """Why a publish folder inside the outbox is refused: the daemon took the files it published
         there in as a new dataset, which `ppd status` called not patched yet (a black-box review);
-        as `--out` inside the dataset is refused. None when it is outside."""
+        as `--out` inside the dataset is refused. One that holds the outbox is refused too: the
+        outbox's waiting, failed and unpatchable originals would be in the published tree (a diff
+        review, F3). None when it is apart from it."""
         box, where = self.outbox.resolve(), Path(folder).expanduser().absolute()
         if where.resolve().is_relative_to(box) or where.is_relative_to(self.outbox):
             return f"{where} is inside the outbox {self.outbox}, whose new files ppd patches as a dataset"
+        if published_with(where.resolve(), box):
+            return f"{where} holds the outbox {self.outbox}, whose originals are not patched yet"
         return None
+
+
+def publish_in_datasets(folder: Path, roots: Iterable[tuple[str, Path]]) -> str | None:
+    """Why a publish folder inside a dataset's folder (or its own) or holding one is refused; None
+    when it is apart from every root given ((dataset, folder) pairs). A diff review (F3): with
+    `--publish-dir castle/public`, a second `ppd poison castle` took the published files in as
+    castle's (their rows 'moved' there), and `ppd restore castle` then wrote the unprotected
+    originals into castle/public; a folder holding a dataset's would publish its originals."""
+    where = Path(folder).expanduser().absolute()
+    real = where.resolve()
+    for name, root in roots:
+        root = Path(root).expanduser().absolute()
+        # a dataset of the home folder holds the files right in it, not its subfolders (published_with)
+        if published_with(root.resolve(), real) or published_with(root, where):
+            return (f"{where} is inside dataset {name!r}'s folder {root}: ppd would take the published "
+                    "files in as the dataset's, and `ppd restore` would put the originals there")  # fmt: skip
+        if published_with(real, root.resolve()):
+            return f"{where} holds dataset {name!r}'s folder {root}, whose originals would be published"
+    return None
 
 
 def published_with(folder: Path, where: Path) -> bool:

@@ -10,7 +10,7 @@ import shlex
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -115,10 +115,12 @@ def dataset_set(
     ctx = open_ctx(needs_key=reprotect)  # --reprotect seals files
     failed = 0
     try:
-        # before anything is written (a refused folder made the dataset): published, never ppd's own
-        if publish_dir is not None and (why := ctx.paths.publish_dir_problem(publish_dir)):
-            raise die(f"--publish-dir {publish_dir}: {why}; choose another folder")
         existing = ctx.store.dataset(name)
+        # before anything is written (a refused folder made the dataset): published, never ppd's own,
+        # nor in (or holding) this dataset's folder, as it will be, or another's
+        if publish_dir is not None and (why := ctx.paths.publish_dir_problem(
+                publish_dir, _roots(ctx, name, root, existing))):  # fmt: skip
+            raise die(f"--publish-dir {publish_dir}: {why}; choose another folder")
         if existing is None and root is None:
             _refuse_a_likely_typo(ctx, name)
         if root is not None and existing and existing["root"] and not _same_root(existing["root"], root):
@@ -285,6 +287,18 @@ def _refuse_a_likely_typo(ctx: AppContext, name: str) -> None:
     if near:
         raise die(f"no dataset {name!r} (did you mean {near[0]!r}?); a new dataset of that name needs its "
                   f"folder: make {dataset_root(ctx.paths.outbox.absolute(), name)} first, or give --root")
+
+
+def _roots(
+    ctx: AppContext, name: str, root: Path | None, existing: dict[str, Any] | None
+) -> list[tuple[str, Path]]:
+    """Every stored dataset's folder, with this one's as `dataset set` leaves it (--root, else the
+    stored one, else OUTBOX/NAME): a publish folder must lie apart from each."""
+    from daemon.datasets.dataset import dataset_root
+
+    own = root.absolute() if root else (Path(existing["root"]) if existing and existing["root"] else None)
+    roots = [(d["name"], Path(d["root"])) for d in ctx.store.datasets() if d["root"] and d["name"] != name]
+    return [*roots, (name, own or dataset_root(ctx.paths.outbox.absolute(), name))]
 
 
 def _same_root(stored: str, root: Path) -> bool:

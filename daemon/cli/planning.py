@@ -119,6 +119,44 @@ def check_dataset_roots(ctx: AppContext, jobs: list[Job]) -> None:
             raise die(
                 f"dataset {job.dataset!r} already belongs to {row['root']}; name this one with --dataset NAME"
             )
+        if row is None:  # a new dataset takes the config's publish folder: apart from its folder (F3)
+            _check_new_publish_dir(ctx, job.dataset, job.root)
+
+
+def _check_new_publish_dir(ctx: AppContext, dataset: str, root: Path) -> None:
+    """A new dataset whose folder the config's publish folders lie in, or hold, is refused (exit 2)
+    before it is made: its published files would be taken in as its own, and `ppd restore` would put
+    the originals there (a diff review, F3); made, it would stop every command at the config's check."""
+    from daemon.context import configured_publish_dirs
+    from daemon.paths import publish_in_datasets
+
+    for key, folder in configured_publish_dirs(ctx.config):
+        if why := publish_in_datasets(folder, [(dataset, root)]):
+            where = f"{ctx.config.source}: " if ctx.config.source else ""
+            raise die(f"{where}{key}: {why}; patch a folder apart from it, or choose another publish folder")
+
+
+def without_published(ctx: AppContext, jobs: list[Job]) -> tuple[list[Job], list[str]]:
+    """The jobs without the files in their dataset's own publish folder when it lies inside the
+    dataset's folder (stored so before `dataset set` refused it): they are its published, patched
+    copies; taken in, their rows were carried over as 'moved' there, and `ppd restore` then wrote the
+    unprotected originals into the publish folder (a diff review, F3). One line per such folder."""
+    published: dict[str, Path | None] = {}
+    kept: list[Job] = []
+    left: dict[Path, int] = {}
+    for job in jobs:
+        if job.dataset not in published:
+            row = ctx.store.dataset(job.dataset)
+            stored = row["publish_dir"] if row else None
+            published[job.dataset] = Path(stored).absolute() if stored else None
+        folder = published[job.dataset]
+        if folder is not None and job.path.absolute().is_relative_to(folder):
+            left[folder] = left.get(folder, 0) + 1
+            continue
+        kept.append(job)
+    notes = [f"left {n} file(s) in {folder}, the dataset's publish folder, as they are (published copies)"
+             for folder, n in sorted(left.items())]  # fmt: skip
+    return kept, notes
 
 
 def check_writable(jobs: list[Job], dry_run: bool) -> list[Path]:

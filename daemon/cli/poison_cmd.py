@@ -461,7 +461,12 @@ def _run_planned(
     masks = planning.dataset_masks(ctx, jobs, subject_masks)
     jobs, notes = planning.without_masks(jobs, masks)
     jobs, nested = planning.without_nested(ctx, jobs)
-    notes += nested
+    jobs, published = planning.without_published(ctx, jobs)
+    notes += nested + published
+    if not jobs and published:  # all published copies: nothing left to patch, which is no error
+        for line in notes:
+            console().print(line, markup=False)
+        return
     if not jobs:
         raise die("no files to patch besides the subject masks in " + ", ".join(str(p) for p in paths))
     wanted, placement_lines = planning.apply_spec(ctx, jobs, spec_options, dry_run, masks)

@@ -116,12 +116,22 @@ def marked_files(ctx: AppContext, plan: FolderRestore) -> list[Path]:
     own = plan.home[0] if plan.home is not None else None  # None: the outbox, each file its own dataset's
     datasets = ctx.store.datasets() if own is not None else []
     at_home = Path(folder).absolute() == Path.home().absolute()
+    published = _publish_folder(ctx, own)
     return [
         f for f in media_files(folder, recursive=not at_home)
         if f not in skip and not f.is_symlink() and _unrecorded_or_refused(ctx, f)
+        and (published is None or not f.absolute().is_relative_to(published))
         and (own is None or innermost_holder(datasets, f, prefer=own) in (own, None))
         and (has_token(f) or (originals and sha256_file(f) in originals))
     ]  # fmt: skip
+
+
+def _publish_folder(ctx: AppContext, dataset: str | None) -> Path | None:
+    """The dataset's publish folder: its files are published copies, never restored in place (one
+    stored inside the dataset's folder before `dataset set` refused it: `ppd restore` wrote the
+    originals into it; a diff review, F3)."""
+    row = ctx.store.dataset(dataset) if dataset is not None else None
+    return Path(row["publish_dir"]).absolute() if row and row["publish_dir"] else None
 
 
 def _unrecorded_or_refused(ctx: AppContext, path: Path) -> bool:

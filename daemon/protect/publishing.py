@@ -1,7 +1,7 @@
 """The last stage: a dataset with a publish folder gets its patched file moved there (daemon.fsops.move_out).
 
 A move that fails (a publish folder the service may not write: ProtectSystem=strict without it in
-ReadWritePaths, a read-only or full disk) leaves the patched file in the outbox: the row stays patched
+ReadWritePaths, a read-only or full disk) leaves the patched file where it is: the row stays patched
 (its bytes are ppd's output) and keeps the reason in `error` (NOT_MOVED...), the outcome is 'failed'
 with that reason, and `ppd status` counts the file (daemon.cli.status_queries). It was logged as
 "unchanged ... already patched ([Errno 30] Read-only file system ...)" at info, and nothing counted
@@ -28,7 +28,8 @@ def publish(job: Job) -> ProtectOutcome | None:
         job.final = move_out(job.file.dir_fd, job.file.name, target_dir / rel)
     except OSError as exc:
         why = (exc.strerror or str(exc)).lower()
-        reason = f"{NOT_MOVED_PREFIX} {target_dir}: {why}; left in the outbox, moved at the next run"
+        # where the file is: an in-place dataset's folder is no outbox (a diff review, F9)
+        reason = f"{NOT_MOVED_PREFIX} {target_dir}: {why}; left in {job.path.parent}, moved at the next run"
         job.ctx.store.record_file(
             job.record_path, job.dataset, FileState.PATCHED, error=reason, event="publish_failed",
             detail={"to": str(target_dir / rel), "error": why},
