@@ -72,7 +72,7 @@ class Placed:
 def check_mask_folder(folder: Path, outbox: Path, what: str = "--subject-masks") -> Path:
     """folder, absolute, when it is a readable folder outside the outbox; else SubjectMaskError."""
     folder = Path(folder).expanduser().absolute()
-    if not _readable(folder):
+    if not readable_folder(folder):
         raise SubjectMaskError(f"{what}: {folder} is not a readable folder")
     box = Path(outbox).absolute()
     if folder == box or folder.is_relative_to(box) or folder.resolve().is_relative_to(box.resolve()):
@@ -101,7 +101,7 @@ def subject_masks_for(ctx: AppContext, dataset: str, given: Path | None = None) 
 
 def _dataset_folder(folder: Path, outbox: Path, dataset: str, what: str) -> Path:
     """check_mask_folder for a dataset's own folder: one that is not there is MaskFolderMissing."""
-    if not _readable(folder):
+    if not readable_folder(folder):
         raise MaskFolderMissing(missing_words(dataset, folder, what), Path(folder).expanduser().absolute())
     return check_mask_folder(folder, outbox, what)
 
@@ -112,7 +112,8 @@ def missing_words(dataset: str, folder: Path, what: str) -> str:
             "not patched until it is back (never without their masks)")  # fmt: skip
 
 
-def _readable(folder: Path) -> bool:
+def readable_folder(folder: Path) -> bool:
+    """A folder ppd can list and read (a mask folder on a drive that is back: daemon.watch.waiting)."""
     folder = Path(folder).expanduser()
     return folder.is_dir() and os.access(folder, os.R_OK | os.X_OK)
 
@@ -149,7 +150,7 @@ def missing_config_masks(config: Any) -> dict[str, str]:
     return {
         name: missing_words(name, override.subject_masks, f"[datasets.{name}] subject_masks")
         for name, override in config.datasets.items()
-        if override.subject_masks is not None and not _readable(override.subject_masks)
+        if override.subject_masks is not None and not readable_folder(override.subject_masks)
     }
 
 

@@ -10,13 +10,13 @@ line say `event=changed` once it was complete."""
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from daemon.datasets.subject_masks import readable_folder
 from daemon.watch.outbox import FileSignature, OutboxWatcher, signature
 
 log = logging.getLogger("daemon.watch.watcher")  # the daemon's lines keep the logger they always had
@@ -119,7 +119,7 @@ class FolderWaits:
         """The files whose folder is readable again, forgotten here (their retry may wait again)."""
         with self._lock:
             folders = set(self._waiting.values())
-            ready = {f for f in folders if f.is_dir() and os.access(f, os.R_OK | os.X_OK)}
+            ready = {f for f in folders if readable_folder(f)}
             paths = [p for p, f in self._waiting.items() if f in ready]
             for p in paths:
                 del self._waiting[p]
