@@ -163,33 +163,31 @@ def prepare_run(clean_dir: Path, poisoned_dir: Path, out_dir: Path, options: Ver
         if options.clean_cache_dir
         else cache
     )
-    sizes = stored_sizes(clean_dir, names)
+    sizes = stored_sizes(clean_dir, names)  # each header read once: the sizes and the longest side
     per_size = len(set(sizes) | set(stored_sizes(poisoned_dir, names))) > 1
     return VerifyRun(clean_dir, poisoned_dir, names, out_dir, cache, clean_cache, key, matching, gt, options,
-                long_edge=longest_side(clean_dir, names), sizes=dict(sizes.most_common()),
+                long_edge=_longest(sizes), sizes={f"{w}x{h}": n for (w, h), n in sizes.most_common()},
                 camera_per_size=per_size)  # fmt: skip
 
 
-def stored_sizes(image_dir: Path, names: Sequence[str]) -> Counter[str]:
-    """How many images have each stored size, "WxH" as their headers say it (no EXIF orientation
+def stored_sizes(image_dir: Path, names: Sequence[str]) -> Counter[tuple[int, int]]:
+    """How many images have each stored (width, height), as their headers say it (no EXIF orientation
     applied, as COLMAP reads them: poisoner.limits.decoded_size); an unreadable header counts nowhere."""
-    sizes: Counter[str] = Counter()
+    sizes: Counter[tuple[int, int]] = Counter()
     for name in names:
         with contextlib.suppress(HeaderError):
             size = decoded_size(image_dir / name)
-            sizes[f"{size.width}x{size.height}"] += 1
+            sizes[(size.width, size.height)] += 1
     return sizes
 
 
 def longest_side(image_dir: Path, names: Sequence[str]) -> int:
-    """The largest width or height among the images (their headers: poisoner.limits.decoded_size;
-    0 where none can be read)."""
-    edge = 0
-    for name in names:
-        with contextlib.suppress(HeaderError):
-            size = decoded_size(image_dir / name)
-            edge = max(edge, size.width, size.height)
-    return edge
+    """The largest width or height among the images (their headers; 0 where none can be read)."""
+    return _longest(stored_sizes(image_dir, names))
+
+
+def _longest(sizes: Counter[tuple[int, int]]) -> int:
+    return max((max(size) for size in sizes), default=0)
 
 
 def check_inputs(clean_dir: Path, poisoned_dir: Path) -> list[str]:

@@ -44,15 +44,15 @@ def write_corner_masks(image_dir: Path, names: list[str], mask_dir: Path, fracti
 
 
 def stored_size(path: Path) -> tuple[int, int] | None:
-    """The image's size as stored, as COLMAP reads it (no EXIF orientation applied); None when
-    Pillow cannot open it (COLMAP then decides alone)."""
-    from PIL import Image
+    """The image's size as stored, as COLMAP reads it (no EXIF orientation applied: the header, as
+    verifier.plan.stored_sizes reads it); None when it cannot be read (COLMAP then decides alone)."""
+    from poisoner.limits import HeaderError, decoded_size
 
     try:
-        with Image.open(path) as im:
-            return im.size
-    except OSError:
+        size = decoded_size(path)
+    except HeaderError:
         return None
+    return (size.width, size.height)
 
 
 def import_per_size(database: Path, image_dir: Path, names: Sequence[str], reader: Any) -> None:

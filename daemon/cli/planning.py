@@ -323,12 +323,13 @@ def capped_lines(
     from poisoner.spec import LANES_MAX_AREA
 
     by_option = any(name == "patch_size" for name, _ in options.values)
+    default_size = default_spec().patch_size
     capped: dict[str, list[tuple[int, int]]] = {}
     for o in outcomes:
         spec, report = wanted.get(o.dataset or "") or stored(o.dataset or ""), getattr(o, "report", None)
         if spec is None or report is None or o.state != "patched":
             continue
-        if not by_option and spec.patch_size == default_spec().patch_size:
+        if not by_option and spec.patch_size == default_size:
             continue
         pair = spec.capped_side(report.width, report.height)
         if pair is not None:

@@ -25,6 +25,7 @@ from daemon.cli import app
 from daemon.context import AppContext
 from testkit.daemon_proc import start_daemon, stop_daemon
 from testkit.photos import make_image, make_shoot
+from testkit.privilege import modes_bind
 from testkit.reliability import REPO
 
 runner = CliRunner()
@@ -310,11 +311,7 @@ def test_runs_that_cannot_be_removed_are_said_and_the_next_forget_removes_them(
     (run / "report.json").write_text("{}")
     run.chmod(0o500)  # its file cannot be removed
     forget = [sys.executable, "-m", "daemon.cli", "dataset", "forget", "castle"]
-    if os.geteuid() == 0:  # root removes anything: run as root without the capabilities that allow it
-        if not shutil.which("setpriv"):
-            pytest.skip("root, and no setpriv to drop CAP_DAC_OVERRIDE")
-        forget = ["setpriv", "--inh-caps=-dac_override,-dac_read_search",
-                  "--bounding-set=-dac_override,-dac_read_search", *forget]  # fmt: skip
+    forget = [*modes_bind(), *forget]  # root: without the capabilities that override modes
     env = {**os.environ, "PYTHONPATH": str(REPO), "COLUMNS": "200"}
     try:
         done = subprocess.run(forget, cwd=REPO, env=env, capture_output=True, text=True, timeout=120)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -17,6 +16,7 @@ from typer.testing import CliRunner
 from daemon.cli import app
 from testkit.kill_loops import REPO
 from testkit.photos import make_image, make_shoot
+from testkit.privilege import modes_bind
 
 runner = CliRunner()
 
@@ -294,11 +294,7 @@ def test_status_names_a_temporary_it_cannot_open(ppd_env: dict[str, Path], tmp_p
     other.write_bytes((shoot / "v0.png").read_bytes())
     other.chmod(0o000)
     as_user = [sys.executable, "-m", "daemon.cli", "status", "shoot", "--check"]
-    if os.geteuid() == 0:  # root opens anything: run as root without the capabilities that allow it
-        if not shutil.which("setpriv"):
-            pytest.skip("root, and no setpriv to drop CAP_DAC_OVERRIDE")
-        as_user = ["setpriv", "--inh-caps=-dac_override,-dac_read_search",
-                   "--bounding-set=-dac_override,-dac_read_search", *as_user]  # fmt: skip
+    as_user = [*modes_bind(), *as_user]  # root: without the capabilities that override modes
     env = {**os.environ, "PYTHONPATH": str(REPO), "COLUMNS": "200"}
     check = subprocess.run(as_user, cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
     assert check.returncode == 1, check.stdout + check.stderr

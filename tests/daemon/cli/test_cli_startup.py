@@ -5,12 +5,13 @@ modules loaded, not on a time (speed is measured in bench/bench_startup.py)."""
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from testkit.privilege import modes_bind
 
 REPO = Path(__file__).resolve().parents[3]
 HEAVY = ("numpy", "PIL", "av", "torch", "pycolmap", "sqlite_utils", "flip_evaluator", "pydantic")
@@ -108,17 +109,6 @@ def test_paths_convert_as_typer_does(tmp_path: Path) -> None:
         assert plain_path(list[Path], (str(shoot),), flags) is _NOT_PLAIN
 
 
-def _refused_unreadable_files() -> list[str]:
-    """A command prefix under which a mode-0 file is unreadable, root included (root reads anything
-    unless its capability to override file modes is dropped: util-linux's setpriv)."""
-    if os.geteuid() != 0:
-        return []
-    setpriv = shutil.which("setpriv")
-    if setpriv is None:
-        pytest.skip("running as root without setpriv: every file is readable")
-    return [setpriv, "--bounding-set=-dac_override,-dac_read_search", "--"]
-
-
 def test_an_unreadable_path_keeps_typers_message(env: dict[str, str], tmp_path: Path) -> None:
     """A path that exists but cannot be read goes to typer's converter and its one-line error, given
     alone, in a list of paths or with a trailing slash (typer stats the Path, which drops it)."""
@@ -127,7 +117,7 @@ def test_an_unreadable_path_keeps_typers_message(env: dict[str, str], tmp_path: 
     locked.chmod(0)
     readable = tmp_path / "fine.jpg"
     readable.write_bytes(b"x")
-    prefix = _refused_unreadable_files()
+    prefix = modes_bind()
     for paths in ([str(locked)], [str(readable), str(locked)], [f"{locked}/"]):
         proc = subprocess.run([*prefix, sys.executable, "-m", "daemon.cli", "poison", "--dry-run", *paths],
                               cwd=REPO, env=env, capture_output=True, text=True, timeout=120)  # fmt: skip
