@@ -196,13 +196,13 @@ class DatasetRows(StoreBase):
             if row is None:
                 raise StoreError(f"no dataset {name!r}")
             originals = sorted(o for (o,) in conn.execute(
-                "SELECT DISTINCT original_sha256 FROM files WHERE dataset = ? AND original_sha256 NOT NULL",
-                (name,)))  # fmt: skip
+                "SELECT original_sha256 FROM files WHERE dataset = ? AND original_sha256 NOT NULL "
+                "UNION SELECT sha256 FROM earlier_originals WHERE dataset = ?", (name, name)))  # fmt: skip
             specs = {row[0]} | {s for (s,) in conn.execute(
                 "SELECT spec_id FROM files WHERE dataset = ? UNION SELECT spec_id FROM auto_decisions "
                 "WHERE dataset = ?", (name, name))}  # fmt: skip
             rows = conn.execute("DELETE FROM files WHERE dataset = ?", (name,)).rowcount
-            for table in ("verification_runs", "auto_decisions", "events"):  # this module's own literals
+            for table in ("verification_runs", "auto_decisions", "events", "earlier_originals"):  # literals
                 conn.execute(f"DELETE FROM {table} WHERE dataset = ?", (name,))
             conn.execute("DELETE FROM datasets WHERE name = ?", (name,))
             for spec_id in specs - {None}:
@@ -232,14 +232,16 @@ class DatasetRows(StoreBase):
             conn.execute("DELETE FROM store_notes WHERE key = ?", (FORGET_NOTE + name,))
 
     def named_originals(self, originals: Iterable[str]) -> set[str]:
-        """Which of these originals a row of the store names (any dataset, any state)."""
+        """Which of these originals a row of the store names (any dataset, any state), or a dataset keeps
+        as an earlier version's (a copy published before an edit restores from it)."""
         wanted = list(originals)
         named: set[str] = set()
-        for start in range(0, len(wanted), 500):  # SQLite's bound on a statement's parameters
-            chunk = wanted[start : start + 500]
+        for start in range(0, len(wanted), 400):  # SQLite's bound on parameters (999 before 3.32): 2 x 400
+            chunk = wanted[start : start + 400]
             marks = ", ".join("?" for _ in chunk)
-            sql = f"SELECT DISTINCT original_sha256 AS o FROM files WHERE original_sha256 IN ({marks})"
-            rows = self._rows(sql, tuple(chunk))
+            sql = (f"SELECT original_sha256 AS o FROM files WHERE original_sha256 IN ({marks}) "
+                   f"UNION SELECT sha256 FROM earlier_originals WHERE sha256 IN ({marks})")  # fmt: skip
+            rows = self._rows(sql, (*chunk, *chunk))
             named |= {r["o"] for r in rows}
         return named
 

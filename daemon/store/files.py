@@ -187,6 +187,8 @@ def upsert_file(
                 "not recording it as failed, its row stays patched"
             )
     now = time.time()
+    if fields.get("original_sha256"):
+        _keep_earlier_original(conn, path, fields["original_sha256"], now)
     values = {"dataset": dataset, "state": state.value, "updated_at": now, **fields}
     columns = ", ".join(values)
     marks = ", ".join("?" for _ in values)
@@ -203,6 +205,17 @@ def upsert_file(
         f"ON CONFLICT(path) DO UPDATE SET {updates}",
         (str(path), now, *values.values()),
     )
+
+
+def _keep_earlier_original(conn: sqlite3.Connection, path: Path | str, original: str, now: float) -> None:
+    """The row's original before this one, when another replaces it (an edit patched again): noted
+    under the row's dataset, so that `ppd dataset forget` finds it in the vault (no row names it)."""
+    row = conn.execute("SELECT dataset, original_sha256 FROM files WHERE path = ?", (str(path),)).fetchone()
+    if row is not None and row[1] is not None and row[1] != original:
+        conn.execute(
+            "INSERT OR IGNORE INTO earlier_originals (dataset, sha256, replaced_at) VALUES (?, ?, ?)",
+            (row[0], row[1], now),
+        )
 
 
 def file_state(state: FileState | str) -> FileState:

@@ -139,6 +139,19 @@ MIGRATIONS: tuple[str, ...] = (
     # share one vault blob, whose date is the first one kept (a black-box review: restore gave the
     # second file the first one's date). NULL: unknown, the blob's date is used.
     "ALTER TABLE files ADD COLUMN original_mtime_ns INTEGER;",
+    # 8: the originals a dataset's files held before their current ones (a photo edited and patched
+    # again under its name): no row names them, yet they stay in the vault (`ppd restore` of a copy
+    # published before the edit needs one), and `ppd dataset forget` must find them (a diff review:
+    # they stayed for good).
+    """
+    CREATE TABLE earlier_originals (
+        dataset TEXT NOT NULL,
+        sha256 TEXT NOT NULL,
+        replaced_at REAL NOT NULL,
+        PRIMARY KEY (dataset, sha256)
+    );
+    CREATE INDEX earlier_originals_sha ON earlier_originals(sha256);
+    """,
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 AUTO_TRIGGERS = ("interim", "preflight", "escalation", "manual")  # auto_decisions.trigger's CHECK

@@ -127,6 +127,36 @@ def test_an_original_another_dataset_uses_stays_and_restores(
     assert {p.name: _sha(p) for p in (sets / "b").iterdir()} == b
 
 
+def test_the_originals_of_edited_photos_earlier_versions_go_too(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A photo edited and patched again under its name: its first original stays in the vault (a copy
+    published before the edit restores from it) while the dataset lives, and goes when it is forgotten;
+    unless another dataset's earlier version is the same photo (a diff review: they stayed for good)."""
+    data, sets = ppd_env["data"], tmp_path / "sets"
+    first = {p.name: _sha(p) for p in make_shoot(sets / "a", 3).iterdir()}
+    make_shoot(sets / "b", 1)  # v0: the same photo as a's first v0
+    for name in ("a", "b"):
+        assert runner.invoke(app, ["poison", str(sets / name)]).exit_code == 0
+    for name in ("a", "b"):  # both edit v0 and patch it again
+        make_image(sets / name / "v0.png", 99 if name == "a" else 98)
+        assert runner.invoke(app, ["poison", str(sets / name)]).exit_code == 0
+    assert first["v0.png"] in _blobs(data)  # no row names it now; kept for what was published before
+    assert len(_blobs(data)) == 3 + 2
+
+    shutil.rmtree(sets / "a")
+    code, text = said("dataset", "forget", "a")
+    assert code == 0, text
+    assert "3 file record(s); 3 original(s) (" in text, text  # v1, v2 and a's edited v0
+    assert "1 original(s) kept: another dataset uses them" in text, text  # the first v0: b's earlier one
+    assert first["v0.png"] in _blobs(data) and len(_blobs(data)) == 2
+    shutil.rmtree(sets / "b")
+    code, text = said("dataset", "forget", "b")
+    assert code == 0, text
+    assert "1 file record(s); 2 original(s) (" in text and not _blobs(data), text
+    assert not _rows(data, "SELECT 1 FROM earlier_originals")
+
+
 def test_patched_files_still_there_are_refused_unless_force(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     data, shoot = ppd_env["data"], tmp_path / "sets" / "castle"
     make_shoot(shoot, 3)

@@ -25,10 +25,11 @@ SHIPPED_MIGRATIONS = (
     "f48ec9c30ab293dae2c684bd0ad2bb34f7540ce6e8e843c0d7f9e1acd8d5665c",
     "3e811e7875babfd685557d59ee71f260e4880fc7ef76fb9691d51726c29184fd",
 )
-# the ones shipped since (6: subject_masks, 7: original_mtime_ns), never edited either
+# the ones shipped since (6: subject_masks, 7: original_mtime_ns, 8: earlier_originals), never edited either
 LATER_MIGRATIONS = (
     "855a8668ba38e28ff13967877e31547f670810183b80e0ed9b357327aa542003",
     "883b5591fa2e7fce858f92db598d56b65077626f7fa2a8f3c3e6395e4b1c569e",
+    "b3e0b706c6c3f32c8038b16e3bf29312f281668e1448877ea1dd96f067cc918d",
 )
 SPEC = PatchSpec(seed=7)
 AUTO_SPEC = PatchSpec(seed=8)
