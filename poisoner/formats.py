@@ -388,7 +388,9 @@ def poison_bytes(
     written = sum(written_pixels(square, keep) for square in lanes or [placement])
     if written == 0:  # never "patched" with no changed pixel (issue 25): nothing is written to dst
         raise MarkNotWritten(
-            f"{src.name}: the subject mask covers the whole mark, no pixel would change: not patched"
+            # "the whole mark" read as the whole photo where a pocket too small for it was free (a review)
+            f"{src.name}: the subject mask covers every pixel the mark would write (no free part of the "
+            "photo holds its squares), no pixel would change: not patched"
         )
     if loaded and not changes_a_pixel(im, lanes or [placement], keep):  # a JPEG by region: its splice says
         raise MarkNotWritten(

@@ -66,6 +66,9 @@ def test_demo_verifies_and_prints_the_verdict(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     out = proc.stdout.lower()
     assert "verifying with colmap" in out
+    before = " ".join(out.split("verifying with colmap", 1)[0].split())
+    # it verifies next: no line tells the user to run `ppd verify` first (a black-box review)
+    assert "patched 8 of 8 views" in before and "ppd verify" not in before, before
     verdicts = ("protected", "weak", "not protected", "not_protected", "sfm crashed", "inconclusive")
     assert any(v in out.split("verifying with colmap", 1)[1] for v in verdicts), proc.stdout[-3000:]
     runs = list((tmp_path / "data").rglob("report.json"))
