@@ -193,6 +193,7 @@ def _rebuild(
     referenced = {fields["original_sha256"] for _, fields in found.rows.values()}
     carried = [*report.carried.restored, *report.carried.patched]
     referenced |= {fields["original_sha256"] for _, _, fields in carried}
+    referenced |= {sha for _, sha, _ in report.carried.earlier}
     report.unreferenced_originals = len(set(vault.blobs()) - referenced)
 
 

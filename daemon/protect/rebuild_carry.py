@@ -14,6 +14,10 @@ find, so every restored file became "not patched yet" (and `ppd poison` patched 
   judged it. Carried only when both tables read whole: runs without the events that outdate them
   would claim a verdict the old store no longer held; then they are dropped and counted.
 
+- the originals of the datasets' files' earlier versions (a photo edited and patched again: `ppd
+  restore` of a copy published before the edit needs its first original, and `ppd dataset forget`
+  finds it by this row): carried when the vault holds it intact and the new store has the dataset.
+
 - patched rows the walk did not find by their seal (sealed with a key no longer installed: after `ppd
   key new` a rebuild emptied a sound store and the originals were out of ppd's reach; a black-box
   review): carried when the file at the row's path (or its publish copy) holds exactly the bytes the
@@ -51,6 +55,7 @@ class OldHistory:
     runs: list[dict[str, Any]] = field(default_factory=list)
     pixel_events: list[dict[str, Any]] = field(default_factory=list)
     history_whole: bool = False  # runs and events both read without an error
+    earlier: list[tuple[str, str, float]] = field(default_factory=list)  # earlier_originals rows
 
 
 def open_read_only(store_path: Path) -> sqlite3.Connection | None:
@@ -81,6 +86,9 @@ def read_old_history(store_path: Path) -> OldHistory:
                     old.patched_rows.append(dict(row))
                 else:
                     old.restored.append(dict(row))
+        with contextlib.suppress(sqlite3.Error):  # none before schema version 8
+            query = "SELECT dataset, sha256, replaced_at FROM earlier_originals ORDER BY rowid"
+            old.earlier = [(str(d), str(sha), float(t)) for d, sha, t in conn.execute(query)]
         try:
             old.runs = [dict(r) for r in conn.execute("SELECT * FROM verification_runs ORDER BY id")]
             kinds = ", ".join("?" for _ in PIXEL_EVENTS)
@@ -106,6 +114,7 @@ class Carried:
     pixel_events: list[dict[str, Any]] = field(default_factory=list)
     runs_dropped: int = 0  # runs left out: the old history could not be read whole
     not_found: dict[str, int] = field(default_factory=dict)  # dataset -> old patched rows not found again
+    earlier: list[tuple[str, str, float]] = field(default_factory=list)  # (dataset, sha256, replaced_at)
 
 
 def carry_over(
@@ -144,6 +153,7 @@ def carry_over(
         carried.runs = [r for r in old.runs if r["dataset"] in datasets]
         carried.pixel_events = [e for e in old.pixel_events if e["dataset"] in datasets]
     carried.runs_dropped = len(old.runs) - len(carried.runs)
+    carried.earlier = [(d, sha, t) for d, sha, t in old.earlier if d in datasets and intact(sha)]
     return carried
 
 
@@ -168,6 +178,7 @@ def write_carried(store: Store, carried: Carried) -> None:
     store.record_files((path, name, FileState.RESTORED, fields) for path, name, fields in carried.restored)
     store.record_files((path, name, FileState.PATCHED, fields) for path, name, fields in carried.patched)
     store.carry_history(carried.runs, carried.pixel_events)
+    store.carry_earlier_originals(carried.earlier)
 
 
 def summary_notes(carried: Carried) -> Iterable[str]:

@@ -245,6 +245,15 @@ class DatasetRows(StoreBase):
             named |= {r["o"] for r in rows}
         return named
 
+    def carry_earlier_originals(self, rows: Iterable[tuple[str, str, float]]) -> None:
+        """(dataset, sha256, replaced_at) rows of earlier originals, as an old store held them
+        (`ppd store rebuild`: daemon.protect.rebuild_carry)."""
+        with self._write() as conn:
+            conn.executemany(
+                "INSERT OR IGNORE INTO earlier_originals (dataset, sha256, replaced_at) VALUES (?, ?, ?)",
+                list(rows),
+            )
+
     def set_dataset_publish_dir(self, name: str, publish_dir: Path | None) -> None:
         with self._write() as conn:
             conn.execute(

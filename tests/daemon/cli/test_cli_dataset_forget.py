@@ -143,6 +143,10 @@ def test_the_originals_of_edited_photos_earlier_versions_go_too(
         assert runner.invoke(app, ["poison", str(sets / name)]).exit_code == 0
     assert first["v0.png"] in _blobs(data)  # no row names it now; kept for what was published before
     assert len(_blobs(data)) == 3 + 2
+    # a rebuilt store keeps them too (it was counted a vault original no file names, and left for good)
+    code, text = said("store", "rebuild", "--force", str(sets))
+    assert code == 0 and "no file names" not in text, text
+    assert len(_rows(data, "SELECT 1 FROM earlier_originals")) == 2
 
     shutil.rmtree(sets / "a")
     code, text = said("dataset", "forget", "a")
