@@ -1,4 +1,7 @@
-"""Incomplete files the daemon waits for (their writer may append more after a pause, issue 29):
+"""What the daemon's files wait for: their writer (WriterWaits), their subject masks (FolderWaits),
+free disk space (SpaceWaits).
+
+Incomplete files the daemon waits for (their writer may append more after a pause, issue 29):
 each is re-checked after a growing quiet time and refused (quarantined whole) only once it has not
 changed for `incomplete_wait_s`. Its row says it is waited for, not failed.
 
@@ -10,6 +13,7 @@ line say `event=changed` once it was complete."""
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -18,6 +22,7 @@ from typing import Any
 
 from daemon.datasets.subject_masks import readable_folder
 from daemon.watch.outbox import FileSignature, OutboxWatcher, signature
+from daemon.watch.outcomes import is_no_space
 
 log = logging.getLogger("daemon.watch.watcher")  # the daemon's lines keep the logger they always had
 
@@ -126,4 +131,56 @@ class FolderWaits:
         if paths:
             log.info("subject masks back (%s): retrying %d file(s)", ", ".join(map(str, sorted(ready))),
                      len(paths), extra={"files": len(paths)})  # fmt: skip
+        return paths
+
+
+class SpaceWaits:
+    """Files that failed for lack of disk space (no event tells when space returns): all queued again
+    once free space has grown by 1 MiB since the first of them failed, or after retry_s in any case
+    (the main loop asks every no-space poll)."""
+
+    def __init__(self, folders: tuple[Path, ...], retry_s: float) -> None:
+        self.folders = folders  # the fuller of their filesystems is the one watched
+        self.retry_s = retry_s
+        self._waiting: dict[Path, None] = {}
+        self._since = (0.0, 0)  # (monotonic time, free bytes) of the first such failure
+        self._lock = threading.Lock()
+
+    def __bool__(self) -> bool:
+        with self._lock:
+            return bool(self._waiting)
+
+    def note(self, path: Path, reason: str | None) -> bool:
+        """A file that failed for lack of space (reason says so: True), or that did not (forgotten)."""
+        with self._lock:
+            if not is_no_space(reason):
+                self._waiting.pop(path, None)
+                return False
+            if not self._waiting:
+                self._since = (time.monotonic(), self.free_bytes())
+            self._waiting[path] = None
+            return True
+
+    def free_bytes(self) -> int:
+        """Free bytes on the fuller of the folders' filesystems."""
+        free = []
+        for folder in self.folders:
+            try:
+                st = os.statvfs(folder)
+            except OSError:
+                continue
+            free.append(st.f_bavail * st.f_frsize)
+        return min(free) if free else 0
+
+    def due(self) -> list[Path]:
+        """The files to retry now (all of them, forgotten here: a retry that fails again notes its own)."""
+        with self._lock:
+            if not self._waiting:
+                return []
+            since, free_then = self._since
+            grown = self.free_bytes() > free_then + (1 << 20)
+            if not grown and time.monotonic() - since < self.retry_s:
+                return []
+            paths, self._waiting = list(self._waiting), {}
+        log.info("disk space returned: retrying %d file(s)", len(paths), extra={"files": len(paths)})
         return paths

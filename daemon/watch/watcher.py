@@ -45,7 +45,7 @@ from daemon.watch.outcomes import (
     say_removed,
     status_line,
 )
-from daemon.watch.waiting import FolderWaits, WriterWaits
+from daemon.watch.waiting import FolderWaits, SpaceWaits, WriterWaits
 from daemon.watch.workers import PoolOptions, WorkerPool, release_free_memory
 from poisoner.media import MEDIA_SUFFIXES
 
@@ -114,18 +114,15 @@ class WatchDaemon:
         self._rescan_needed = threading.Event()
         self.ready = threading.Event()  # set once watching (tests, embedding)
         self._trim_due = threading.Event()
-        # Files that failed for lack of disk space; retried once space returns (no event tells).
-        self._no_space: dict[Path, None] = {}
+        self.space_waits = SpaceWaits((self.outbox, Path(ctx.paths.data_dir)), options.no_space_retry_s)
         self.waits = WriterWaits(
             ctx.store, options.incomplete_wait_s, options.watch.settle_s, options.watch.max_settle_s
         )  # incomplete files waited for
         self.folder_waits = FolderWaits()  # files waiting for their dataset's subject masks
-        self._no_space_lock = threading.Lock()
         # Paths counted removed, until a file is processed there again: a file counts once, however
         # many jobs find it gone (its own, its folder's, its deletion event's); oldest forgotten first.
         self._removed: OrderedDict[Path, None] = OrderedDict()
         self._removal_lock = threading.Lock()
-        self._no_space_since = (0.0, 0)  # (monotonic time, free bytes) of the first such failure
         self.pool = WorkerPool(
             self.process,
             PoolOptions(
@@ -174,7 +171,7 @@ class WatchDaemon:
             if self._stop.is_set():
                 break
             self._keep_watching()
-            self._retry_if_space_returned()
+            self._retry_waiting()
             if self.pool.take_overflow():
                 self._rescan_needed.set()
             if self._rescan_needed.is_set() and self._idle_enough():
@@ -237,50 +234,16 @@ class WatchDaemon:
         waits.append(self.options.outbox_check_s)
         if self._rescan_needed.is_set():
             waits.append(5.0)
-        if self._no_space or self.folder_waits:
+        if self.space_waits or self.folder_waits:
             waits.append(self.options.no_space_poll_s)
         if self.protectors is not None and (idle_in := self.protectors.end_idle()) is not None:
             waits.append(idle_in + 0.05)  # then the idle workers exit
         return min(waits)
 
-    def _note_no_space(self, path: Path, reason: str | None) -> None:
-        """Remember a file that failed for lack of space (or forget one that did not)."""
-        with self._no_space_lock:
-            if not is_no_space(reason):
-                self._no_space.pop(path, None)
-                return
-            if not self._no_space:
-                self._no_space_since = (time.monotonic(), self._free_bytes())
-            self._no_space[path] = None
-        self._wake.set()
-
-    def _free_bytes(self) -> int:
-        """Free bytes on the fuller of the outbox's and the data folder's filesystems."""
-        free = []
-        for folder in (self.outbox, Path(self.ctx.paths.data_dir)):
-            try:
-                st = os.statvfs(folder)
-            except OSError:
-                continue
-            free.append(st.f_bavail * st.f_frsize)
-        return min(free) if free else 0
-
-    def _retry_if_space_returned(self) -> None:
-        """Queue the files that failed for lack of space again once free space has grown by
-        1 MiB since (or after no_space_retry_s in any case); and those whose subject masks are back."""
-        for path in self.folder_waits.back():
-            self.watcher.forget(path)
-            self.pool.submit(path)
-        with self._no_space_lock:
-            if not self._no_space:
-                return
-            since, free_then = self._no_space_since
-            grown = self._free_bytes() > free_then + (1 << 20)
-            if not grown and time.monotonic() - since < self.options.no_space_retry_s:
-                return
-            paths, self._no_space = list(self._no_space), {}
-        log.info("disk space returned: retrying %d file(s)", len(paths), extra={"files": len(paths)})
-        for path in paths:
+    def _retry_waiting(self) -> None:
+        """Queue again the files whose subject masks are back, and those that failed for lack of
+        space once space has returned (SpaceWaits)."""
+        for path in [*self.folder_waits.back(), *self.space_waits.due()]:
             self.watcher.forget(path)  # its signature was recorded as processed
             self.pool.submit(path)
 
@@ -501,7 +464,8 @@ class WatchDaemon:
             self.watcher.settle_as(path, outcome.signature)
         if outcome.requeue:
             self.pool.submit(path)  # runs once more after this job (daemon.watch.workers)
-        self._note_no_space(path, outcome.reason if outcome.state == Outcome.FAILED else None)
+        if self.space_waits.note(path, outcome.reason if outcome.state == Outcome.FAILED else None):
+            self._wake.set()  # the main loop's wait now includes the no-space poll
         self.folder_waits.note(path, outcome.waits_for if outcome.state == Outcome.FAILED else None)
         moved = self._quarantine_if_hopeless(path, outcome)
         state = Outcome.QUARANTINED.value if moved is not None else str(outcome.state)
@@ -537,7 +501,7 @@ class WatchDaemon:
 
         self.watcher.forget(path)
         self.waits.done(path)
-        self._note_no_space(path, None)
+        self.space_waits.note(path, None)
         if self._record_removed(path, GONE_MID_WORK):
             return
         with self._removal_lock:
