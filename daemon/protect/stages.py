@@ -296,10 +296,18 @@ def decide(job: Job) -> ProtectOutcome | None:
         return job.outcome(Outcome.UNCHANGED, "patched copy is up to date", output=record_path)
 
     rel = job.path.relative_to(job.root).as_posix() if job.path.is_relative_to(job.root) else job.path.name
-    if not spec.selects(rel):
+    from poisoner.video.demux import audio_only  # PyAV: only for a video
+
+    # a voice memo saved as .mp4 is left as it is, like a .m4a (it failed, and the daemon quarantined it)
+    sound_only = job.kind == "video" and audio_only(fd_path(cast(ContainedFile, job.file).fd))
+    if sound_only or not spec.selects(rel):
+        why = (
+            "sound only, no picture: nothing to protect"
+            if sound_only else "not selected by the spec's ratio"
+        )
         same = row is not None and row["state"] == FileState.SKIPPED and row["original_sha256"] == sha
         if same and row is not None and row["spec_id"] == spec.spec_id:
-            return job.outcome(Outcome.UNCHANGED, "not selected by the spec's ratio")
+            return job.outcome(Outcome.UNCHANGED, why)
         if not job.dry_run:
             if out_path is not None:  # the copy is published as it is
                 job.work = work_folder(ctx, job.held)
@@ -310,9 +318,10 @@ def decide(job: Job) -> ProtectOutcome | None:
                 _write_out(job, copy)
             ctx.store.record_file(
                 record_path, job.dataset, FileState.SKIPPED, original_sha256=sha, spec_id=spec.spec_id,
-                poisoned_sha256=None, error=None, event="skipped", detail={"reason": "ratio"},
+                poisoned_sha256=None, error=why if sound_only else None, event="skipped",
+                detail={"reason": "sound only" if sound_only else "ratio"},
             )  # fmt: skip
-        return job.outcome(Outcome.SKIPPED, "not selected by the spec's ratio", spec_id=spec.spec_id)
+        return job.outcome(Outcome.SKIPPED, why, spec_id=spec.spec_id)
     if job.shown_size is not None and (why := spec.too_small(*job.shown_size)) is not None:
         raise ProtectRefused(f"{shown_name(job.path)}: {why}; not patched")  # the dry run says it too
     if job.dry_run:

@@ -29,6 +29,18 @@ def main_video_stream(container: av.container.InputContainer, name: str) -> av.v
     return streams[0]
 
 
+def audio_only(path: Path) -> bool:
+    """Whether the container holds sound and no picture (a voice memo saved as .mp4): nothing a
+    reconstruction reads. False when it cannot be read (the patch pass says why)."""
+    try:
+        with av.open(str(path), "r") as container:
+            pictures = [s for s in container.streams.video
+                        if not s.disposition & av.stream.Disposition.attached_pic]  # fmt: skip
+            return not pictures and bool(container.streams.audio)
+    except (av.error.FFmpegError, OSError, ValueError):
+        return False
+
+
 def iter_packets(container: av.container.InputContainer, name: str) -> Iterator[av.Packet]:
     try:
         yield from container.demux()

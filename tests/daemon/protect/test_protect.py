@@ -208,6 +208,32 @@ def test_ratio_skips_unselected_files(ctx: AppContext, ppd_env: dict[str, Path])
     assert protect_file(skipped, ctx).state == "unchanged"
 
 
+def test_a_voice_memo_saved_as_mp4_is_left_as_it_is(ctx: AppContext, ppd_env: dict[str, Path]) -> None:
+    """Sound and no picture (what a `.m4a` holds): nothing a reconstruction reads. It failed ("no video
+    stream"), so the daemon quarantined it and the dataset never passed `ppd status --check` (a
+    black-box review); now it is skipped with the reason, left byte for byte, not kept in the vault.
+    A video with sound is still patched."""
+    import av
+
+    from testkit.video import Clip, make_clip, mux_sine
+
+    memo = ppd_env["outbox"] / "shoot" / "memo.mp4"
+    memo.parent.mkdir(parents=True)
+    with av.open(str(memo), "w") as out:
+        sound = out.add_stream("aac", rate=48000)
+        sound.layout = "mono"
+        mux_sine(out, sound, 24000, hz=440, amplitude=0.3, fmt="flt", layout="mono", fallback_step=960)
+    before = memo.read_bytes()
+    outcome = protect_file(memo, ctx)
+    assert (outcome.state, outcome.reason) == ("skipped", "sound only, no picture: nothing to protect")
+    assert memo.read_bytes() == before and not ctx.vault.has(hashlib.sha256(before).hexdigest())
+    row = ctx.store.file(memo)
+    assert row["state"] == FileState.SKIPPED and row["error"] == outcome.reason
+    assert protect_file(memo, ctx).state == "unchanged"
+    clip = make_clip(ppd_env["outbox"] / "shoot" / "clip.mp4", Clip(frames=6))  # a picture and sound
+    assert protect_file(clip, ctx).state == "patched"
+
+
 def test_hidden_and_unsupported_files_are_left_alone(ctx: AppContext, ppd_env: dict[str, Path]) -> None:
     hidden = make_image(ppd_env["outbox"] / ".hidden.png", 1)
     tmp = make_image(ppd_env["outbox"] / ".ppd-tmp-abc.png", 2)
