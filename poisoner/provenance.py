@@ -12,7 +12,10 @@ What a patched file carries is one opaque token (its *seal*), the same ASCII tex
 
 The key is the installation's secret (daemon.store.sealkey, 0600 in the data folder). Without it the
 token names no tool and no hash, and cannot be made: a token copied into another photo, or left in
-a cropped or edited one, does not fit the other bytes, so such a file is a new photo.
+a cropped or edited one, does not fit the other bytes, so such a file is a new photo. MAGIC, NS and
+the carriers' names are the same in every installation, so that a file sealed with another key is
+told from a new photo (never marked twice): they tell whoever knows ppd that a file is ppd's output
+(a black-box review; said in the README), never its original or its hash.
 
 Writing is two steps: the poisoners embed a placeholder (`Marker`: TAG all zeros); the caller then
 seals the finished file in place (`seal_file`: one read of the file, 64 bytes written, a PNG
