@@ -14,6 +14,7 @@ Environment overrides (tests use them): PPD_DATA_DIR, PPD_CONFIG_DIR, PPD_OUTBOX
 from __future__ import annotations
 
 import os
+import re
 import stat
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -27,6 +28,7 @@ from poisoner.errors import ExitStatus, PpdError
 APP_NAME = "ppd"
 DEFAULT_OUTBOX_NAME = "PPD Outbox"
 VAULT_DIR_NAME = "vault"  # DATA_DIR/vault (the seal key's module looks there too)
+EXPERIMENTS_DIR_NAME = "experiments"  # DATA_DIR/experiments/NAME: `ppd experiment`'s default folders
 PRIVATE_MODE = 0o700  # the vault holds unpoisoned originals: nobody else may read them
 
 
@@ -49,6 +51,11 @@ class AppPaths:
     @property
     def config_file(self) -> Path:
         return self.config_dir / "config.toml"
+
+    def experiment_dir(self, name: str) -> Path:
+        """`ppd experiment`'s default folder for a dataset or a folder of that name (its staged
+        originals, reconstructions, tables and plots): ppd's own, inside the data folder."""
+        return self.data_dir / EXPERIMENTS_DIR_NAME / experiment_name(name)
 
     @classmethod
     def from_env(cls, env: Mapping[str, str] | None = None) -> AppPaths:
@@ -166,12 +173,20 @@ def published_with(folder: Path, where: Path) -> bool:
     return where == folder if folder == Path.home().resolve() else where.is_relative_to(folder)
 
 
+def experiment_name(name: str) -> str:
+    """A dataset's or a folder's name as one safe folder name."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("_") or "experiment"
+
+
 def _a_photo_in(folder: Path, depth: int = 3, budget: int = 20_000) -> str | None:
     """A photo or video (any format, protectable or not) within `depth` folders of folder, outside
-    ppd's own (vault, runs, hidden ones), looking at no more than `budget` entries; None: none."""
+    ppd's own (vault, runs, experiments, hidden ones), looking at no more than `budget` entries;
+    None: none."""
     from poisoner.media import media_class
 
-    own = {"vault", "runs", "attempts", "locks", "displaced"}  # displaced: `ppd restore --force`'s copies
+    # displaced: `ppd restore --force`'s copies; experiments: `ppd experiment`'s plots and staged originals
+    # (a black-box review: its tradeoff.png there made every command refuse the data folder)
+    own = {"vault", "runs", "attempts", "locks", "displaced", EXPERIMENTS_DIR_NAME}
     for here, dirs, files in os.walk(folder):
         level = len(Path(here).relative_to(folder).parts)
         skipped = own if level == 0 else set()

@@ -6,7 +6,6 @@ training run in child processes, LPIPS (torch) loads only when cost2 is measured
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -14,6 +13,7 @@ import typer
 
 from daemon.cli.errors import die
 from daemon.cli.output import console
+from daemon.paths import experiment_name
 from poisoner.errors import PpdError
 
 if TYPE_CHECKING:
@@ -24,10 +24,6 @@ SHARED_DATASETS = ("lego", "nerf_synthetic_lego")
 
 def _die(message: str, code: int = 2) -> typer.Exit:
     return die(message, code)
-
-
-def _safe_name(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "experiment"
 
 
 def resolve_dataset(dataset: str, views: int, shared: Path | None = None) -> tuple[Path, Path | None, str]:
@@ -50,13 +46,13 @@ def resolve_dataset(dataset: str, views: int, shared: Path | None = None) -> tup
             chosen = resolve_target(ctx.store, dataset)
             say_note(chosen, console())
             if chosen.dataset is not None:  # its originals, never the patched files in its folder
-                return _staged_originals(ctx, chosen.dataset), None, _safe_name(chosen.dataset)
+                return _staged_originals(ctx, chosen.dataset), None, experiment_name(chosen.dataset)
         except TargetError:
             pass  # not a dataset nor a folder: maybe the shared set
         finally:
             ctx.close()
     if path.is_dir():
-        return path.absolute(), None, _safe_name(path.resolve().name)
+        return path.absolute(), None, experiment_name(path.resolve().name)
     if dataset in SHARED_DATASETS:
         from verifier.shared_data import SharedDataMissing, prepare_lego, shared_root
 
@@ -76,7 +72,7 @@ def _staged_originals(ctx: AppContext, dataset: str) -> Path:
     from daemon.protect.one_file import dataset_pairs
     from verifier.pairs import stage_pairs
 
-    base = Path(ctx.paths.data_dir) / "experiments" / _safe_name(dataset) / "originals"
+    base = ctx.paths.experiment_dir(dataset) / "originals"
     shutil.rmtree(base, ignore_errors=True)  # the dataset's current files, not an older staging
     stage_pairs(dataset_pairs(ctx, dataset), base / "clean", base / "patched")
     return base / "clean"
@@ -132,7 +128,7 @@ def experiment(
 
     sweeps, base_list = _parsed(sweep, baseline, baselines)
     clean, shared_gt, name = resolve_dataset(dataset, views, shared_data)
-    exp_dir = out or AppPaths.from_env().data_dir / "experiments" / name
+    exp_dir = out or AppPaths.from_env().experiment_dir(name)
     options = _options(runs, profile, splat, splat_budget, camera_params, gt or shared_gt, lpips_images)
     try:
         settings = build_settings(sweeps, base_list)

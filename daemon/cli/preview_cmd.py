@@ -334,6 +334,10 @@ def _target(ctx: AppContext, file: Path, out: Path | None) -> Path:
     if out is None:
         return default_target(Path(ctx.paths.cache_dir), file)
     target = Path(os.path.abspath(out.expanduser()))
+    data = ctx.paths.data_dir
+    if target.resolve().is_relative_to(data.resolve()) or target.is_relative_to(data):
+        # a picture there made the data folder look like a photo folder: every command refused it after
+        raise die(f"{out} is inside ppd's data folder {data}: write it elsewhere (or leave out --out)")
     published = published_folder_holding(target, ctx.paths, photo_folders=(file.parent,))
     if published is not None:
         raise die(f"{out} is inside {published}; the preview shows the original and would be patched or "

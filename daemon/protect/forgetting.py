@@ -9,8 +9,11 @@ from the note. The caller holds the store alone (daemon.locks.store_alone) and n
 no command can record a row for an original between the check and its removal.
 
 The files ppd set aside for the dataset (`ppd restore --force`: DATA/displaced/NAME) are the user's and
-stay; its verification run folders (DATA/runs/NAME: reconstructions of its photos) are ppd's and go
-before the note does, so that a crash or a failed removal leaves the note, and the next forget removes them.
+stay; its verification run folders (DATA/runs/NAME: reconstructions of its photos) and `ppd experiment`'s
+default folder (DATA/experiments/NAME: its originals staged as links to the vault's blobs, their
+reconstructions; a black-box review found them kept after "originals removed from the vault") are ppd's
+and go before the note does, so that a crash or a failed removal leaves the note, and the next forget
+removes them.
 """
 
 from __future__ import annotations
@@ -105,7 +108,7 @@ def forget_dataset(ctx: AppContext, name: str) -> Forgotten:
             try:
                 _remove_runs(ctx, forgotten)
             except OSError as exc:
-                why = "its verification runs could not all be removed"
+                why = "its verification runs or experiment folder could not all be removed"
                 raise _unfinished(forgotten, why, exc, ctx.paths.runs_dir) from None
         ctx.store.forget_done(forgotten)
     folder = displaced_folder(ctx, name)
@@ -123,14 +126,15 @@ def _unfinished(name: str, what: str, exc: OSError, place: Path) -> ForgetUnfini
 
 
 def _remove_runs(ctx: AppContext, name: str) -> None:
-    """The dataset's verification run folders: ppd's own reconstructions of its photos (a later dataset
-    of the same name must not find them). Only a real folder right inside runs_dir. OSError: one could
-    not be removed (the caller keeps the note, so that a forget again tries it again)."""
+    """The dataset's verification run folders and its default experiment folder: ppd's own
+    reconstructions of its photos and copies of its originals (a later dataset of the same name must
+    not find them). Only a real folder right inside runs_dir or the experiments folder. OSError: one
+    could not be removed (the caller keeps the note, so that a forget again tries it again)."""
     if name in ("", ".", "..") or os.sep in name:  # never a folder above or beside it
         return
-    runs = Path(ctx.paths.runs_dir) / name
-    if runs.is_dir() and not runs.is_symlink():
-        shutil.rmtree(runs, onerror=_whole_name)
+    for folder in (Path(ctx.paths.runs_dir) / name, ctx.paths.experiment_dir(name)):
+        if folder.is_dir() and not folder.is_symlink():
+            shutil.rmtree(folder, onerror=_whole_name)
 
 
 def _whole_name(_func: object, path: str, exc_info: tuple[type, BaseException, object]) -> None:

@@ -161,6 +161,27 @@ def test_the_originals_of_edited_photos_earlier_versions_go_too(
     assert not _rows(data, "SELECT 1 FROM earlier_originals")
 
 
+def test_the_experiment_folder_of_its_originals_goes_too(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd experiment castle` stages the dataset's originals in DATA/experiments/castle (links to the
+    vault's blobs): forget said "originals removed from the vault" and they stayed there for good (a
+    black-box review). An experiment folder of another name stays."""
+    from daemon.cli.experiment_cmd import resolve_dataset
+
+    data, shoot = ppd_env["data"], tmp_path / "sets" / "castle"
+    originals = {_sha(p) for p in make_shoot(shoot, 3).iterdir()}
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    staged = resolve_dataset("castle", views=3)[0]  # what `ppd experiment castle` runs on
+    assert {_sha(p) for p in staged.iterdir()} == originals and staged.is_relative_to(data / "experiments")
+    (data / "experiments" / "lego40").mkdir()  # another experiment's folder
+    assert said("restore", "castle")[0] == 0
+    shutil.rmtree(shoot)
+    code, text = said("dataset", "forget", "castle")
+    assert code == 0 and "3 original(s) (" in text, text
+    assert not (data / "experiments" / "castle").exists() and (data / "experiments" / "lego40").is_dir()
+    kept = {_sha(p) for p in data.rglob("*") if p.is_file() and not p.is_symlink()}
+    assert not originals & kept  # no copy of an original anywhere in the data folder
+
+
 def test_patched_files_still_there_are_refused_unless_force(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     data, shoot = ppd_env["data"], tmp_path / "sets" / "castle"
     make_shoot(shoot, 3)
@@ -352,7 +373,8 @@ def test_runs_that_cannot_be_removed_are_said_and_the_next_forget_removes_them(
     finally:
         run.chmod(0o700)
     assert done.returncode == 3 and done.stderr.count("ppd: error:") == 1, done.stdout + done.stderr
-    assert "dataset 'castle''s records are forgotten, but its verification runs could not all be removed " \
+    assert "dataset 'castle''s records are forgotten, but its verification runs or experiment folder " \
+        "could not all be removed " \
         f"(Permission denied: {run / 'report.json'}); `ppd dataset forget castle` again finishes it" \
         in " ".join(done.stderr.split()), done.stderr
     assert not _blobs(data) and _of(data, "castle")["files"] == 0

@@ -60,6 +60,28 @@ def test_the_preview_is_never_written_among_photos(
     assert os.path.getsize(elsewhere) > 0
 
 
+def test_the_data_folder_takes_no_preview_and_keeps_experiments_plots(
+    tmp_path: Path, ppd_env: dict[str, Path]
+) -> None:
+    """A picture in ppd's data folder made it look like a folder of photos: every command then refused
+    it (exit 3), the daemon could not start (a black-box review: `ppd preview --out DATA/p.png`, and
+    `ppd experiment`'s own tradeoff.png in its default folder, DATA/experiments/NAME)."""
+    data = ppd_env["data"]
+    make_image(tmp_path / "new" / "v0.png", 0)
+    assert runner.invoke(app, ["status"]).exit_code == 0  # the data folder made
+    result = runner.invoke(app, ["preview", str(tmp_path / "new" / "v0.png"), "--out", str(data / "p.png"),
+                                 "--no-visibility"])  # fmt: skip
+    assert result.exit_code == 2 and "is inside ppd's data folder" in " ".join(result.output.split())
+    assert not (data / "p.png").exists()
+    plot = data / "experiments" / "castle" / "tradeoff.png"  # where `ppd experiment castle` writes it
+    make_image(plot, 1)
+    result = runner.invoke(app, ["status"])
+    assert result.exit_code == 0, result.output
+    make_image(data / "elsewhere" / "p.png", 2)  # a picture anywhere else there still stops ppd
+    result = runner.invoke(app, ["status"])
+    assert result.exit_code == 3 and "holds photos or videos" in " ".join(result.output.split())
+
+
 def test_a_bad_display_width_is_refused_before_writing(
     tmp_path: Path, ppd_env: dict[str, Path], monkeypatch: pytest.MonkeyPatch
 ) -> None:
