@@ -296,10 +296,12 @@ def decide(job: Job) -> ProtectOutcome | None:
         return job.outcome(Outcome.UNCHANGED, "patched copy is up to date", output=record_path)
 
     rel = job.path.relative_to(job.root).as_posix() if job.path.is_relative_to(job.root) else job.path.name
-    from poisoner.video.demux import audio_only  # PyAV: only for a video
-
     # a voice memo saved as .mp4 is left as it is, like a .m4a (it failed, and the daemon quarantined it)
-    sound_only = job.kind == "video" and audio_only(fd_path(cast(ContainedFile, job.file).fd))
+    sound_only = False
+    if job.kind == "video":  # PyAV only for a video: a photo's `ppd poison` never loads it
+        from poisoner.video.demux import audio_only
+
+        sound_only = audio_only(fd_path(cast(ContainedFile, job.file).fd))
     if sound_only or not spec.selects(rel):
         why = (
             "sound only, no picture: nothing to protect"
@@ -322,8 +324,8 @@ def decide(job: Job) -> ProtectOutcome | None:
                 detail={"reason": "sound only" if sound_only else "ratio"},
             )  # fmt: skip
         return job.outcome(Outcome.SKIPPED, why, spec_id=spec.spec_id)
-    if job.shown_size is not None and (why := spec.too_small(*job.shown_size)) is not None:
-        raise ProtectRefused(f"{shown_name(job.path)}: {why}; not patched")  # the dry run says it too
+    if job.shown_size is not None and (small := spec.too_small(*job.shown_size)) is not None:
+        raise ProtectRefused(f"{shown_name(job.path)}: {small}; not patched")  # the dry run says it too
     if job.dry_run:
         return job.outcome(Outcome.PATCHED, "would patch", original_sha256=sha, spec_id=spec.spec_id)
     return None
