@@ -54,6 +54,9 @@ NOT_MOVED_PREFIX = "patched, but not moved to"
 UNPROTECTED_PREFIX = "not protected"
 # a symlinked sub-folder of a dataset: ppd never follows a symlink inside one, so its photos stay as they are
 LINKED_FOLDER_PREFIX = "symlinked folder, not followed"
+# ppd's output moved or copied in from a dataset of another spec, patched again with this one's
+# (daemon.protect.remark): the daemon's line says it, as it says no other patched file's note
+REMARKED_PREFIX = "re-marked with this dataset's spec"
 
 # The value a store row holds for a patched file (older stores said "protected"; the store's
 # migration renamed them, so no other spelling reaches this code).

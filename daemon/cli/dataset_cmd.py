@@ -10,7 +10,7 @@ import shlex
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import typer
 
@@ -161,12 +161,14 @@ def dataset_set(
 def dataset_forget(
     name: str = typer.Argument(..., help="The dataset."),
     force: bool = typer.Option(
-        False, "--force", help="Forget it while patched files of it are there: they keep the mark for good."
+        False, "--force", help="Forget it while patched files of it are there (they keep the mark for good), "
+        "or while its folder in the outbox holds files (`ppd watch` patches them again)."
     ),
 ) -> None:
     """Forget a finished or deleted dataset. Its records leave the store, and its originals that no
     other dataset uses leave the vault. Its patched photos must be gone or restored (`ppd restore NAME`)
-    first: the vault's originals are the only way back. Stop `ppd watch` first.
+    first: the vault's originals are the only way back. A folder in the outbox must be moved out first:
+    `ppd watch` would patch its files again. Stop `ppd watch` first.
 
     \b
     Examples:
@@ -181,7 +183,8 @@ def dataset_forget(
     with _alone(paths.data_dir):
         ctx = open_ctx(store_held=True)
         try:
-            marked = Patched([], []) if unfinished(ctx, name) else _forget_check(ctx, name, force)
+            finishing = unfinished(ctx, name)  # its rows gone already: nothing to check
+            marked, again = (Patched([], []), None) if finishing else _forget_check(ctx, name, force)
             done = forget_dataset(ctx, name)
         except ForgetUnfinished as exc:
             raise die(exc, ExitStatus.ENVIRONMENT) from None
@@ -189,7 +192,7 @@ def dataset_forget(
             raise die(f"cannot forget dataset {name!r}: {one_line(exc)}", ExitStatus.ENVIRONMENT) from None
         finally:
             ctx.close()
-    _say_forgotten(name, done, marked)
+    _say_forgotten(name, done, marked, again)
 
 
 @contextlib.contextmanager
@@ -212,12 +215,13 @@ def _alone(data_dir: Path) -> Iterator[None]:
         raise die(f"cannot lock the store: {one_line(exc)}", ExitStatus.ENVIRONMENT) from None
 
 
-def _forget_check(ctx: AppContext, name: str, force: bool) -> Patched:
+def _forget_check(ctx: AppContext, name: str, force: bool) -> tuple[Patched, Again | None]:
     """Refused (exit 2) unless --force: a folder seen moved (its patched files there: `ppd dataset
     set --root` follows it), patched files of the dataset still there (their originals are the
-    only way back), or, while its folder is there, patched files not found where they were patched
-    (moved to an album? `ppd restore FILE` needs the original). Returns the patched files, there and
-    gone; an unknown dataset is refused by dataset_status."""
+    only way back), while its folder is there, patched files not found where they were patched
+    (moved to an album? `ppd restore FILE` needs the original), or a folder in the outbox that still
+    holds files `ppd watch` would patch again. Returns the patched files, there and gone, and those
+    files of the outbox; an unknown dataset is refused by dataset_status."""
     from daemon.cli.status_queries import dataset_status
     from daemon.protect.forgetting import patched_files
     from daemon.states import FileState
@@ -252,10 +256,42 @@ def _forget_check(ctx: AppContext, name: str, force: bool) -> Patched:
                   f"(moved or deleted?): {named}; their originals in the vault are the only way back for "
                   "a copy of them: `ppd restore FILE` on a moved one first, or --force to forget it all the "
                   "same (any copy of them then keeps the mark for good)")  # fmt: skip
-    return marked
+    again = _in_the_outbox(ctx, folder, marked)
+    if again is not None and not force:
+        raise die(f"dataset {name!r}'s folder {again.folder} is in the outbox: `ppd watch` would patch its "
+                  f"{again.files} file(s) again once it is forgotten (restored ones too: no record says "
+                  "restored any more); move the folder out of the outbox first, or --force to forget it all "
+                  "the same")  # fmt: skip
+    return marked, again
 
 
-def _say_forgotten(name: str, done: Forgotten, marked: Patched) -> None:
+class Again(NamedTuple):
+    """A dataset folder in the outbox and how many of its files `ppd watch` would patch again."""
+
+    folder: Path
+    files: int
+
+
+def _in_the_outbox(ctx: AppContext, folder: dict[str, Any], marked: Patched) -> Again | None:
+    """The dataset's folder, when it is in the outbox and holds media files other than its patched
+    ones (restored, never patched, failed): forgotten, they have no row, and the daemon's catch-up scan
+    patches them as new files (a black-box review: `ppd restore` then `forget`, the README's flow for a
+    finished shoot, had every restored original patched again at the next `ppd watch` start). Its
+    patched files carry the seal: the daemon leaves them."""
+    root = Path(folder["folder"])
+    if not folder["exists"] or not _inside(root, ctx.paths.outbox):
+        return None
+    files = folder["on_disk"] - sum(1 for p in marked.there if Path(p).is_relative_to(root))
+    return Again(root, files) if files > 0 else None
+
+
+def _inside(path: Path, outbox: Path) -> bool:
+    """Whether path is the outbox or in it, as the daemon sees it (either reached through a symlink)."""
+    real, box = Path(os.path.realpath(path)), Path(os.path.realpath(outbox))
+    return real.is_relative_to(box)
+
+
+def _say_forgotten(name: str, done: Forgotten, marked: Patched, again: Again | None) -> None:
     line = (f"forgot dataset {name}: {done.rows} file record(s); {done.removed} original(s) "
             f"({done.removed_bytes / 1e6:.1f} MB) removed from the vault")  # fmt: skip
     if done.kept:
@@ -267,6 +303,9 @@ def _say_forgotten(name: str, done: Forgotten, marked: Patched) -> None:
     if marked.gone:  # --force, or a deleted folder: a copy kept elsewhere is marked for good, said
         console().print(f"{len(marked.gone)} patched file(s) not found where they were patched (moved or "
                         "deleted?): any copy of them keeps the mark for good", markup=False)  # fmt: skip
+    if again is not None:  # --force: said, not implied
+        console().print(f"its {again.files} file(s) in the outbox ({again.folder}) are no dataset's now: "
+                        "`ppd watch` patches them again", markup=False)  # fmt: skip
     if done.displaced is not None:
         console().print(f"the files ppd set aside for it (`ppd restore --force`) stay in {done.displaced}: "
                         "they are yours", markup=False)  # fmt: skip

@@ -104,6 +104,31 @@ def check_out_outside(out: Path, root: Path, name: str, *, folder: bool) -> None
         raise die(f"--out {out} would put the copies into the dataset's folder {root}: choose another")
 
 
+def refuse_held_elsewhere(ctx: AppContext, jobs: list[Job]) -> None:
+    """`--dataset NAME` on files another dataset's rows call patched: refused (exit 2), naming it. A
+    black-box review: `ppd poison top/sub --dataset other --design paper` said "unchanged 6 ... other:
+    nothing patched" (exit 0), the design asked for not applied, and other's folder "held 0 files". They
+    stay that dataset's with its mark; taking them into another would leave one folder two marks or
+    re-mark another dataset's files unasked, so the user chooses."""
+    from daemon.states import FileState
+
+    held: dict[str, list[Path]] = {}
+    for job in jobs:
+        row = ctx.store.file(job.path)
+        if row is not None and row["dataset"] != job.dataset and row["state"] in (
+                FileState.PATCHED, FileState.PENDING):  # fmt: skip
+            held.setdefault(row["dataset"], []).append(job.path)
+    if not held:
+        return
+    holder, files = max(held.items(), key=lambda item: len(item[1]))
+    named = next(j.dataset for j in jobs if j.path == files[0])
+    shown = f"{files[0]}{', ...' if len(files) > 1 else ''}"
+    raise die(f"{len(files)} file(s) here are dataset {holder!r}'s, patched with its spec ({shown}): "
+              f"--dataset {named} cannot take them (a file is one dataset's, with its mark); leave out "
+              f"--dataset (`ppd dataset set {shlex.quote(holder)} ... --reprotect` changes its spec), or "
+              "move them out of its folder first")  # fmt: skip
+
+
 def check_dataset_roots(ctx: AppContext, jobs: list[Job]) -> None:
     seen: dict[str, Path] = {}
     for job in jobs:

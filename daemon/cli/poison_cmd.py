@@ -445,6 +445,8 @@ def _poison(
     if not jobs:
         raise die("no files to patch in " + ", ".join(str(p) for p in paths))
     planning.check_dataset_roots(ctx, jobs)
+    if dataset is not None:  # a folder's files are one dataset's (the rule attribute keeps without it)
+        planning.refuse_held_elsewhere(ctx, jobs)
     made = planning.check_writable(jobs, dry_run)
     try:
         _run_planned(ctx, jobs, spec_options, dry_run, force, workers, subject_masks, stop, paths)

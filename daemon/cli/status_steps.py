@@ -71,8 +71,8 @@ def _unprotected_lines(d: dict[str, Any]) -> list[str]:
         lines.append(f"{name}: {d['restored_in_place']} restored by you, NOT protected: "
                      f"`ppd poison {root} --force` patches them again{rest}")  # fmt: skip
     if d.get("other_spec"):
-        lines.append(f"{name}: {d['other_spec']} patched with another spec than the dataset's (a "
-                     "re-protect did not finish?): "
+        lines.append(f"{name}: {d['other_spec']} patched with another spec than the dataset's (moved "
+                     "in from another dataset, or a re-protect did not finish?): "
                      f"`ppd dataset set {shlex.quote(name)} --reprotect` gives them its spec")  # fmt: skip
     return lines + _stopped_run_lines(d)
 

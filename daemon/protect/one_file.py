@@ -11,7 +11,6 @@ from __future__ import annotations
 import functools
 import logging
 import os
-import shutil
 import sqlite3
 import stat
 import time
@@ -32,7 +31,6 @@ from daemon.datasets.subject_masks import (
     MaskFolderMissing,
     masks_or_none,
     sibling_images,
-    subject_masks_for,
 )
 from daemon.fsops import sha256_fd
 from daemon.locks import LockHeld, WaitLeft
@@ -48,23 +46,15 @@ from daemon.protect.job import (
     media_kind,
     name_the_disk,
     one_line,
-    report_detail,
     shown_name,
     storable,
     tool_version,
 )
-from daemon.protect.poisoning import (
-    file_is_the_cause,
-    named_vault_copy,
-    poison_to,
-    provenance_marker,
-    seal_output,
-)
+from daemon.protect.poisoning import file_is_the_cause, poison_to
+from daemon.protect.remark import reprotect_row
 from daemon.protect.restoring import FROM_PUBLISH_FOLDER, restore_file
 from daemon.protect.stages import STAGES, run_stages
 from daemon.states import FileState
-from daemon.store.vault import sha256_file
-from poisoner.atomic import atomic_output
 from poisoner.errors import PpdError
 from poisoner.spec import PatchSpec
 
@@ -305,53 +295,5 @@ def reprotect_dataset(ctx: AppContext, dataset: str, spec: PatchSpec) -> list[Pr
 
 
 def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: PatchSpec) -> ProtectOutcome:
-    path = Path(row["path"])
-    dataset = row["dataset"]
-    target = Path(row["published_path"] or row["path"])
-    with ctx.path_lock(path):
-        try:
-            if not target.is_file() or sha256_file(target) != row["poisoned_sha256"]:
-                raise ProtectRefused(f"{target.name} changed since ppd protected it; not re-protecting it")
-            if not ctx.vault.verify(row["original_sha256"]):
-                raise ProtectRefused(f"the vault copy of {path.name} is missing or corrupt")
-            kind = media_kind(path) or "image"
-            rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else path.name
-            with (
-                named_vault_copy(ctx, row["original_sha256"], path.name) as original,
-                atomic_output(target) as tmp,
-            ):
-                if spec.selects(rel):
-                    marker = provenance_marker(ctx, spec.spec_id, row["original_sha256"])
-                    limits: dict[str, Any] = {"max_pixels": ctx.config.max_pixels} if kind == "image" else {}
-                    report = poison_to(
-                        kind, original, tmp, spec, subject_masks=subject_masks_for(ctx, dataset),
-                        marker=marker, keep_location=ctx.config.keep_location, **limits,
-                    )  # fmt: skip
-                    seal_output(ctx, tmp)
-                    row_state, state = FileState.PATCHED, Outcome.PATCHED
-                else:
-                    shutil.copyfile(original, tmp)
-                    report, row_state, state = None, FileState.SKIPPED, Outcome.SKIPPED
-                new_sha = sha256_file(tmp)
-            st = target.stat()
-            ctx.store.record_file(
-                path, dataset, row_state, poisoned_sha256=new_sha if state == Outcome.PATCHED else None,
-                spec_id=spec.spec_id, tool_version=tool_version(), size=st.st_size, mtime_ns=st.st_mtime_ns,
-                error=None, event="reprotected", detail={"spec_id": spec.spec_id, **report_detail(report)},
-            )  # fmt: skip
-        except Exception as exc:
-            _note_not_reprotected(ctx, row, spec, one_line(exc))
-            return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
-    return ProtectOutcome(
-        path=path, dataset=dataset, state=state, original_sha256=row["original_sha256"],
-        poisoned_sha256=new_sha if state == Outcome.PATCHED else None, spec_id=spec.spec_id, output=target,
-    )  # fmt: skip
-
-
-def _note_not_reprotected(ctx: AppContext, row: dict[str, Any], spec: PatchSpec, reason: str) -> None:
-    """Keep why a patched file was not re-protected, for `ppd status --failed`; a store that fails
-    here too leaves the command's own line as the only word of it."""
-    try:
-        ctx.store.note_not_reprotected(row["path"], row["dataset"], reason, spec.spec_id)
-    except (PpdError, sqlite3.Error) as exc:
-        log.warning("%s: not recorded as not re-protected (%s)", shown_name(Path(row["path"])), one_line(exc))
+    with ctx.path_lock(Path(row["path"])):
+        return reprotect_row(ctx, row, root, spec)

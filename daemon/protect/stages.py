@@ -94,7 +94,8 @@ from daemon.protect.poisoning import (
 )
 from daemon.protect.publishing import publish, retry_publish
 from daemon.protect.quarantine import attempt, forget_attempt
-from daemon.protect.recovery import carry_moved_row, copy_patched_as_it_is, recover_pending
+from daemon.protect.recovery import copy_patched_as_it_is, recover_pending
+from daemon.protect.remark import take_in
 from daemon.states import LINKED_FOLDER_PREFIX, STILL_OPEN_PREFIX, UNPROTECTED_PREFIX, FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import atomic_replace_at
@@ -256,16 +257,8 @@ def recognise(job: Job) -> ProtectOutcome | None:
         said = "would be copied as it is" if job.dry_run else "copied as it is"
         return job.outcome(Outcome.UNCHANGED, f"already ppd output: {said}", poisoned_sha256=sha,
                            output=job.record_path)  # fmt: skip
-    if earlier is not None:
-        moved = out_path is None and not job.dry_run
-        if moved and carry_moved_row(ctx, earlier, job.path, job.dataset, job.root):
-            return job.outcome(Outcome.UNCHANGED, f"moved from {earlier['path']}", poisoned_sha256=sha)
-        if moved and earlier["original_sha256"] and ctx.vault.has(earlier["original_sha256"]):
-            # a copy of ppd's output kept where it is (another dataset's file copied in): with no row
-            # status called it "not patched yet" and poison "unchanged", round and round (a review)
-            _record_recognised(job, earlier["original_sha256"], sha, earlier.get("spec_id"),
-                               earlier.get("tool_version"), earlier["path"], earlier.get("original_mtime_ns"))
-        return job.outcome(Outcome.UNCHANGED, "already ppd output", poisoned_sha256=sha)
+    if earlier is not None:  # moved or copied here: recorded, with this dataset's spec (remark)
+        return take_in(job, earlier, _record_recognised)
     if (recognised := _recognise_by_marker(job)) is not None:
         return recognised
     if (
@@ -296,10 +289,12 @@ def decide(job: Job) -> ProtectOutcome | None:
         return job.outcome(Outcome.UNCHANGED, "patched copy is up to date", output=record_path)
 
     rel = job.path.relative_to(job.root).as_posix() if job.path.is_relative_to(job.root) else job.path.name
-    from poisoner.video.demux import audio_only  # PyAV: only for a video
-
     # a voice memo saved as .mp4 is left as it is, like a .m4a (it failed, and the daemon quarantined it)
-    sound_only = job.kind == "video" and audio_only(fd_path(cast(ContainedFile, job.file).fd))
+    sound_only = False
+    if job.kind == "video":  # PyAV only for a video: a photo's `ppd poison` never loads it
+        from poisoner.video.demux import audio_only
+
+        sound_only = audio_only(fd_path(cast(ContainedFile, job.file).fd))
     if sound_only or not spec.selects(rel):
         why = (
             "sound only, no picture: nothing to protect"

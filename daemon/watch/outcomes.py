@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.protect.job import NO_SPACE_WORDS, Outcome
-from daemon.states import NOT_MOVED_PREFIX, STILL_OPEN_PREFIX, FileState
+from daemon.states import NOT_MOVED_PREFIX, REMARKED_PREFIX, STILL_OPEN_PREFIX, FileState
 from daemon.watch.workers import PoolStats
 
 log = logging.getLogger("daemon.watch.watcher")  # the daemon's lines keep the logger they always had
@@ -40,7 +40,8 @@ def status_line(counts: DaemonCounts, stats: PoolStats, armed: int) -> str:
 def say_outcome(event: str, path: Path, outcome: Any, state: str, seconds: float, moved: Path | None) -> None:
     """The daemon's one line per file, on the terminal and in the journal: `msg="patched IMG_1.jpg"
     event=new dataset=kitchen file=/outbox/kitchen/IMG_1.jpg outcome=patched seconds=0.84`, plus
-    the reason when it was not patched and where a quarantined file went."""
+    the reason when it was not patched (or was re-marked: daemon.protect.remark) and where a
+    quarantined file went."""
     say(event, path, outcome.dataset, state, seconds, outcome.reason, moved)
 
 
@@ -54,7 +55,7 @@ def say(
                              "seconds": round(seconds, 2)}  # fmt: skip
     if reason and reason.startswith(STILL_OPEN_PREFIX):
         reason += "; patched once it is closed"  # its close re-arms the watcher
-    if reason and state != Outcome.PATCHED:
+    if reason and (state != Outcome.PATCHED or reason.startswith(REMARKED_PREFIX)):
         extra["reason"] = reason
     if moved is not None:
         extra["to"] = str(moved)

@@ -23,7 +23,7 @@ from typer.testing import CliRunner
 
 from daemon.cli import app
 from daemon.context import AppContext
-from testkit.daemon_proc import start_daemon, stop_daemon
+from testkit.daemon_proc import start_daemon, stop_daemon, wait_for
 from testkit.photos import make_image, make_shoot
 from testkit.privilege import modes_bind
 from testkit.reliability import REPO
@@ -220,6 +220,47 @@ def test_restored_shoot_forgets_and_displaced_files_stay(ppd_env: dict[str, Path
     assert "forgot dataset castle: 2 file record(s); 2 original(s)" in text, text
     assert f"stay in {aside[0].parent}: they are yours" in text, text
     assert sorted(p for p in (data / "displaced").rglob("*") if p.is_file()) == aside
+
+
+def test_a_restored_folder_in_the_outbox_is_refused_until_moved_out(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A black-box review: `ppd restore castle` then `ppd dataset forget castle` (the README's flow for a
+    finished shoot) of a folder in the outbox: forgotten, exit 0, and the next `ppd watch` start patched
+    every restored original again (no row said restored any more), unsaid. Refused now (exit 2, one line,
+    nothing lost) until the folder leaves the outbox; with --force it is said, and it is what happens."""
+    data, outbox = ppd_env["data"], ppd_env["outbox"]
+    shoot = make_shoot(outbox / "castle", 3)
+    originals = {p.name: _sha(p) for p in shoot.iterdir()}
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert said("restore", "castle")[0] == 0
+    blobs, before = _blobs(data), _of(data, "castle")
+    code, text = said("dataset", "forget", "castle")
+    assert code == 2 and text.startswith("ppd: error: ") and text.count("ppd:") == 1, text
+    assert f"dataset 'castle''s folder {shoot} is in the outbox: `ppd watch` would patch its 3 file(s) " \
+        "again once it is forgotten" in text, text
+    assert "move the folder out of the outbox first, or --force" in text, text
+    assert _blobs(data) == blobs and _of(data, "castle") == before  # nothing lost
+    done = tmp_path / "done"
+    done.mkdir()
+    shoot.rename(done / "castle")  # out of the outbox: forgotten
+    code, text = said("dataset", "forget", "castle")
+    assert code == 0 and "forgot dataset castle: 3 file record(s); 3 original(s)" in text, text
+    assert {p.name: _sha(p) for p in (done / "castle").iterdir()} == originals
+
+    garden = make_shoot(outbox / "garden", 2)
+    originals = {p.name: _sha(p) for p in garden.iterdir()}
+    assert runner.invoke(app, ["poison", str(garden)]).exit_code == 0
+    assert said("restore", "garden")[0] == 0
+    code, text = said("dataset", "forget", "garden", "--force")
+    assert code == 0 and "forgot dataset garden: 2 file record(s)" in text, text
+    assert f"its 2 file(s) in the outbox ({garden}) are no dataset's now: `ppd watch` patches them again" \
+        in text, text
+    daemon = start_daemon(tmp_path, "--no-verify")  # what was said
+    try:
+        wait_for(lambda: all(_sha(garden / n) != sha for n, sha in originals.items()), 60, "patched again")
+    finally:
+        stop_daemon(daemon)
 
 
 def test_a_moved_folder_and_an_unknown_name_are_refused(ppd_env: dict[str, Path], tmp_path: Path) -> None:

@@ -1,0 +1,179 @@
+"""One dataset, one spec (docs/STORE.md): a patched file patched again from its vault original with its
+dataset's spec, by `ppd dataset set NAME --reprotect` (reprotect_row, for each of its files) and when
+ppd's output arrives in a dataset that gives another spec (take_in: moved or copied in from another
+dataset; a file known only by its seal, no row naming its output, is a lost store's, whose specs may be
+lost too: left as it is).
+
+A black-box review: a photo moved from shoot30 into papers (another design) kept shoot30's mark; the
+daemon logged "unchanged ... moved from", `ppd poison` said "unchanged" (exit 0), and the dataset held
+two specs. Now it gets papers' mark from its vault original, and the outcome says where it came from;
+an original not in the vault fails with one line naming it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import sqlite3
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from daemon.context import AppContext
+from daemon.datasets.dataset import ensure_dataset
+from daemon.datasets.subject_masks import subject_masks_for
+from daemon.protect.job import (
+    Job,
+    Outcome,
+    ProtectOutcome,
+    ProtectRefused,
+    media_kind,
+    one_line,
+    report_detail,
+    shown_name,
+    tool_version,
+)
+from daemon.protect.poisoning import named_vault_copy, poison_to, provenance_marker, seal_output
+from daemon.protect.recovery import carry_moved_row
+from daemon.states import REMARKED_PREFIX
+from daemon.store.vault import sha256_file
+from poisoner.atomic import atomic_output
+from poisoner.errors import PpdError
+from poisoner.spec import PatchSpec
+
+log = logging.getLogger(__name__)
+
+# stages' _record_recognised: a copy of ppd's output recorded as this dataset's patched file
+# (job, original sha256, output sha256, spec_id, tool version, source, original's mtime)
+Recorder = Callable[[Job, str, str, str | None, str | None, str, int | None], None]
+
+
+def reprotect_row(ctx: AppContext, row: dict[str, Any], root: Path, spec: PatchSpec) -> ProtectOutcome:
+    """A patched file's row made again from its vault original with spec: the new file is made from the
+    vault copy and renamed over the old patched one (the original never shows at its path). The caller
+    holds the file's lock. A file changed since ppd wrote it, or an original not in the vault, is
+    refused: the row keeps its earlier spec, the reason noted (`ppd status --failed`), outcome failed."""
+    from daemon.states import FileState
+
+    path, dataset = Path(row["path"]), row["dataset"]
+    target = Path(row["published_path"] or row["path"])
+    try:
+        if not target.is_file() or sha256_file(target) != row["poisoned_sha256"]:
+            raise ProtectRefused(f"{target.name} changed since ppd protected it; not re-protecting it")
+        if not ctx.vault.verify(row["original_sha256"]):
+            raise ProtectRefused(f"the vault copy of {path.name} is missing or corrupt")
+        kind = media_kind(path) or "image"
+        rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else path.name
+        with (
+            named_vault_copy(ctx, row["original_sha256"], path.name) as original,
+            atomic_output(target) as tmp,
+        ):
+            if spec.selects(rel):
+                marker = provenance_marker(ctx, spec.spec_id, row["original_sha256"])
+                limits: dict[str, Any] = {"max_pixels": ctx.config.max_pixels} if kind == "image" else {}
+                report = poison_to(
+                    kind, original, tmp, spec, subject_masks=subject_masks_for(ctx, dataset),
+                    marker=marker, keep_location=ctx.config.keep_location, **limits,
+                )  # fmt: skip
+                seal_output(ctx, tmp)
+                row_state, state = FileState.PATCHED, Outcome.PATCHED
+            else:
+                shutil.copyfile(original, tmp)
+                report, row_state, state = None, FileState.SKIPPED, Outcome.SKIPPED
+            new_sha = sha256_file(tmp)
+        st = target.stat()
+        ctx.store.record_file(
+            path, dataset, row_state, poisoned_sha256=new_sha if state == Outcome.PATCHED else None,
+            spec_id=spec.spec_id, tool_version=tool_version(), size=st.st_size, mtime_ns=st.st_mtime_ns,
+            error=None, event="reprotected", detail={"spec_id": spec.spec_id, **report_detail(report)},
+        )  # fmt: skip
+    except Exception as exc:
+        note_not_reprotected(ctx, row, spec, one_line(exc))
+        return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
+    return ProtectOutcome(
+        path=path, dataset=dataset, state=state, original_sha256=row["original_sha256"],
+        poisoned_sha256=new_sha if state == Outcome.PATCHED else None, spec_id=spec.spec_id, output=target,
+        signature=(st.st_ino, st.st_size, st.st_mtime_ns), report=report,
+    )  # fmt: skip
+
+
+def note_not_reprotected(ctx: AppContext, row: dict[str, Any], spec: PatchSpec, reason: str) -> None:
+    """Keep why a patched file was not re-protected, for `ppd status --failed`; a store that fails
+    here too leaves the command's own line as the only word of it."""
+    try:
+        ctx.store.note_not_reprotected(row["path"], row["dataset"], reason, spec.spec_id)
+    except (PpdError, sqlite3.Error) as exc:
+        log.warning("%s: not recorded as not re-protected (%s)", shown_name(Path(row["path"])), one_line(exc))
+
+
+def take_in(job: Job, earlier: dict[str, Any], record: Recorder) -> ProtectOutcome:
+    """ppd's output found at job.path, earlier the row of the file it is (a move: the row follows it)
+    or a copy of (recorded as this dataset's file when the vault holds its original). Patched with
+    another spec than this dataset's, it is patched again with this one's (remarked); a new dataset
+    takes the spec it came with, as a renamed folder does (unless `ppd poison` flags ask another)."""
+    ctx, sha = job.ctx, job.sha
+    assert sha is not None  # hash_original ran first
+    if job.dry_run:
+        if (foreign := _foreign(job, earlier["spec_id"])) is not None:
+            why = f"would patch: {_came(job, earlier)}"
+            return job.outcome(Outcome.PATCHED, why, spec_id=foreign.spec_id)
+        return job.outcome(Outcome.UNCHANGED, "already ppd output", poisoned_sha256=sha)
+    ensure_dataset(ctx, job.dataset, job.root, job.wanted_spec or _spec(ctx, earlier["spec_id"]))
+    original = earlier["original_sha256"]
+    if carry_moved_row(ctx, earlier, job.path, job.dataset, job.root):
+        return remarked(job, earlier, f"moved from {earlier['path']}")
+    if original and ctx.vault.has(original):
+        # a copy of ppd's output kept where it is (another dataset's file copied in): with no row
+        # status called it "not patched yet" and poison "unchanged", round and round (a review)
+        record(job, original, sha, earlier.get("spec_id"), earlier.get("tool_version"), earlier["path"],
+               earlier.get("original_mtime_ns"))  # fmt: skip
+    return remarked(job, earlier, "already ppd output")
+
+
+def _spec(ctx: AppContext, spec_id: str | None) -> PatchSpec | None:
+    try:
+        return ctx.store.get_spec(spec_id) if spec_id else None
+    except PpdError:  # not stored: the config's
+        return None
+
+
+def remarked(job: Job, came: dict[str, Any], said: str) -> ProtectOutcome:
+    """job.path's file, recorded with came's spec and original (came: the row of the output it is),
+    patched again with its dataset's spec when that is another one; else unchanged (said)."""
+    spec = _foreign(job, came.get("spec_id"))
+    if spec is None:
+        return job.outcome(Outcome.UNCHANGED, said, poisoned_sha256=job.sha)
+    why = _came(job, came)
+    row = job.ctx.store.file(job.path)
+    if row is None or row["dataset"] != job.dataset or row["poisoned_sha256"] != job.sha:
+        # not recorded here: its original is not in the vault (a forgotten dataset's, a lost vault)
+        reason = (f"{shown_name(job.path)} carries ppd's mark with another spec than dataset "
+                  f"{job.dataset!r}'s ({why}), and its original is not in the vault to patch it again "
+                  "with this one's: put the unmarked photo here instead")  # fmt: skip
+        return job.outcome(Outcome.FAILED, reason, poisoned_sha256=job.sha)
+    outcome = reprotect_row(job.ctx, row, job.root, spec)
+    if outcome.state == Outcome.FAILED:
+        outcome.reason = f"{outcome.reason} ({why}: it keeps that mark, not dataset {job.dataset!r}'s)"
+    elif outcome.state == Outcome.SKIPPED:  # its mark taken off: the original, as the spec's ratio leaves it
+        outcome.reason = f"not selected by this dataset's spec's ratio: its original put back ({why})"
+    else:
+        outcome.reason = f"{REMARKED_PREFIX}: {why}"
+    outcome.kind = job.kind
+    return outcome
+
+
+def _foreign(job: Job, spec_id: str | None) -> PatchSpec | None:
+    """The dataset's spec, when a file patched with spec_id does not carry it (None: it does, or the
+    dataset has none yet: a first file of a dataset gives it its spec)."""
+    spec = job.ctx.store.dataset_spec(job.dataset)
+    return spec if spec is not None and spec_id and spec.spec_id != spec_id else None
+
+
+def _came(job: Job, came: dict[str, Any]) -> str:
+    """Where a file with another spec's mark came from, for its outcome's reason."""
+    source, dataset = came["path"], came["dataset"]
+    if dataset != job.dataset:
+        moved = not os.path.lexists(source)
+        return f"it came from dataset {dataset!r} ({'moved' if moved else 'copied'} from {source})"
+    return "it carried an earlier spec of this dataset"
