@@ -372,8 +372,17 @@ def build_itxt(key: bytes, flag: int, middle: bytes, text: bytes) -> bytes:
 _RAW_PROFILE = re.compile(rb"\A\s*(\w+)\s*\n\s*(\d+)\s*\n(.*)\Z", re.S)
 
 
-def _clean_raw_profile(kind: bytes, text: bytes) -> tuple[bytes | None, list[str]]:
-    """ImageMagick's hex "Raw profile type exif/APP1/xmp" text, location removed."""
+# What a PNG text chunk's EXIF and XMP go through: location removed (clean_png_chunk's default), or
+# (poisoner.image.previews) the original's thumbnails made the patched picture's.
+ExifCleaner = Callable[[bytes], tuple[bytes | None, list[str]]]
+XmpCleaner = Callable[[bytes], tuple[bytes, list[str]]]
+
+
+def _clean_raw_profile(
+    kind: bytes, text: bytes, exif_fn: ExifCleaner = clean_exif, xmp_fn: XmpCleaner = strip_xmp_location
+) -> tuple[bytes | None, list[str]]:
+    """ImageMagick's hex "Raw profile type exif/APP1/xmp" text, location removed (or what the
+    cleaners do)."""
     m = _RAW_PROFILE.match(text)
     if not m:
         return None, [f"PNG raw {kind.decode()} profile dropped: unreadable"]
@@ -382,9 +391,9 @@ def _clean_raw_profile(kind: bytes, text: bytes) -> tuple[bytes | None, list[str
     except ValueError:
         return None, [f"PNG raw {kind.decode()} profile dropped: unreadable"]
     if kind == b"xmp":
-        new, gone = strip_xmp_location(blob)
+        new, gone = xmp_fn(blob)
     else:
-        exif, gone = clean_exif(blob)
+        exif, gone = exif_fn(blob)
         if exif is None:
             return None, gone
         new = exif
@@ -395,10 +404,13 @@ def _clean_raw_profile(kind: bytes, text: bytes) -> tuple[bytes | None, list[str
     return f"\n{m.group(1).decode()}\n{len(new):8d}\n{lines}\n".encode(), gone
 
 
-def clean_png_chunk(ctype: bytes, body: bytes) -> tuple[bytes | None, list[str]]:
-    """A PNG ancillary chunk without location (None: drop the chunk)."""
+def clean_png_chunk(
+    ctype: bytes, body: bytes, exif_fn: ExifCleaner = clean_exif, xmp_fn: XmpCleaner = strip_xmp_location
+) -> tuple[bytes | None, list[str]]:
+    """A PNG ancillary chunk without location (None: drop the chunk); with other cleaners, their
+    work on its EXIF (eXIf, a raw exif/APP1 profile) and XMP (iTXt, a raw xmp profile)."""
     if ctype == b"eXIf":
-        return clean_exif(body)
+        return exif_fn(body)
     if ctype not in (b"iTXt", b"zTXt", b"tEXt"):
         return body, []
     try:
@@ -414,12 +426,12 @@ def clean_png_chunk(ctype: bytes, body: bytes) -> tuple[bytes | None, list[str]]
             return None, [f"PNG {ctype.decode()} {key.decode('latin-1')} dropped: unreadable ({exc})"]
         return body, []
     if key == XMP_PNG_KEYWORD:
-        new, gone = strip_xmp_location(text)
+        new, gone = xmp_fn(text)
     elif key.lower().startswith(b"raw profile type "):
         kind = key[len(b"raw profile type ") :].lower()
         if kind not in (b"exif", b"app1", b"xmp"):
             return body, []
-        cleaned, gone = _clean_raw_profile(b"xmp" if kind == b"xmp" else b"exif", text)
+        cleaned, gone = _clean_raw_profile(b"xmp" if kind == b"xmp" else b"exif", text, exif_fn, xmp_fn)
         if cleaned is None:
             return None, gone
         new = cleaned

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import io
 import struct
-import zlib
 from collections.abc import Callable
 
 import numpy as np
@@ -190,27 +189,20 @@ def jpeg_previews(name: str, data: bytes) -> tuple[bytes, list[str]]:
 
 
 def png_previews(data: bytes) -> tuple[bytes, list[str]]:
-    """The patched PNG with the thumbnail of its eXIf chunk rewritten (or the chunk dropped) and its
-    XMP's thumbnails removed; every other chunk copied byte for byte."""
+    """The patched PNG with the thumbnails of its EXIF (eXIf, ImageMagick's raw exif/APP1 profile
+    text) rewritten or the chunk dropped, and its XMP's (iTXt, raw xmp profile) removed; every other
+    chunk copied byte for byte."""
     render = render_bytes(data)
+
+    def exif_fn(exif: bytes) -> tuple[bytes | None, list[str]]:
+        return exif_previews(exif, render)
+
     parts, notes = [PNG_SIGNATURE], []
     for ctype, body in png_chunks(data):
         new: bytes | None = body
-        said: list[str] = []
-        if ctype == b"eXIf":
-            new, said = exif_previews(body, render)
-        elif ctype == b"iTXt" and body.startswith(location.XMP_PNG_KEYWORD + b"\x00"):
-            new, said = _png_xmp_previews(body)
-        notes += said
+        if ctype in (b"eXIf", b"iTXt", b"zTXt", b"tEXt"):
+            new, said = location.clean_png_chunk(ctype, body, exif_fn, xmp_previews)
+            notes += said
         if new is not None:
             parts.append(png_chunk(ctype, new))
     return (b"".join(parts), notes) if notes else (data, [])
-
-
-def _png_xmp_previews(body: bytes) -> tuple[bytes | None, list[str]]:
-    try:
-        key, flag, middle, text = location.parse_itxt(body)
-    except (location.MetadataParseError, zlib.error) as exc:
-        return None, [f"PNG XMP dropped: unreadable, could hold a thumbnail ({exc})"]
-    new, said = xmp_previews(text)
-    return (location.build_itxt(key, flag, middle, new), said) if said else (body, [])

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import ExifTags, Image
+from PIL import ExifTags, Image, PngImagePlugin
 
 from poisoner.formats import png_chunks, poison_file
 from poisoner.spec import PatchSpec
@@ -290,4 +290,38 @@ def test_a_preview_in_the_maker_note_is_the_patched_pictures_too(tmp_path: Path)
         with Image.open(io.BytesIO(block[at + 40 : at + 40 + len(preview)])) as thumb:
             thumb.load()
             assert thumb.size == (320, 240)
+            assert_shows_the_patched_picture(thumb, done, picture)
+
+
+def test_a_png_from_imagemagick_has_no_thumbnail_of_the_original_in_its_raw_profiles(tmp_path: Path) -> None:
+    """`convert photo.jpg photo.png` carries the JPEG's EXIF (thumbnail and all) as hex text in a zTXt
+    "Raw profile type exif", and its XMP as another: the thumbnail is the patched picture's, XMP's gone."""
+    picture = camera_picture()
+    old, old_xmp = original_thumbnail(picture), original_thumbnail(picture, (128, 96))
+    exif = exif_with_thumbnail(old)
+
+    def raw_profile(kind: str, blob: bytes) -> str:
+        hexed = blob.hex()
+        lines = "\n".join(hexed[i : i + 72] for i in range(0, len(hexed), 72))
+        return f"\n{kind}\n{len(blob):8d}\n{lines}\n"
+
+    info = PngImagePlugin.PngInfo()
+    info.add_text("Raw profile type exif", raw_profile("exif", exif.block), zip=True)
+    info.add_text("Raw profile type xmp", raw_profile("xmp", xmp_with_thumbnail(old_xmp)), zip=True)
+    src, dst = tmp_path / "a.png", tmp_path / "out.png"
+    picture.save(src, pnginfo=info)
+    report = poison_file(src, dst, SPEC, keep_location=True)
+    assert "EXIF thumbnail (160x120) replaced by the patched picture's" in report.notes
+    assert "XMP thumbnail removed" in report.notes
+    with Image.open(dst) as done:
+        done.load()
+        texts = {k: v for k, v in done.info.items() if isinstance(v, str)}
+        block = bytes.fromhex("".join(texts["Raw profile type exif"].split("\n")[3:]))
+        xmp = bytes.fromhex("".join(texts["Raw profile type xmp"].split("\n")[3:]))
+        assert b"kept-creator" in xmp and b"xmpGImg:image" not in xmp
+        assert_no_run_of(old, block)
+        (length,) = struct.unpack("<I", block[exif.length_at : exif.length_at + 4])
+        assert len(block) == len(exif.block) and MAKER_NOTE in block
+        with Image.open(io.BytesIO(block[exif.thumbnail_at : exif.thumbnail_at + length])) as thumb:
+            thumb.load()
             assert_shows_the_patched_picture(thumb, done, picture)
