@@ -148,3 +148,25 @@ def xmp_with_thumbnail(thumbnail: bytes) -> bytes:
         "</rdf:Description></rdf:RDF></x:xmpmeta>"
         '<?xpacket end="w"?>'
     ).encode()
+
+
+def extended_xmp_segments(picture_jpeg: bytes, guid: bytes = b"0123456789ABCDEF" * 2) -> list[bytes]:
+    """APP1 payloads of an Extended XMP packet holding Google's GImage:Data (base64 JPEG; Google
+    Camera's Lens Blur keeps the original there), split as the XMP spec says (at most 65400 bytes a
+    segment, each with the GUID, the full length and its offset), and the main packet that names it."""
+    packet = (
+        '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+        '<rdf:Description rdf:about="" xmlns:GImage="http://ns.google.com/photos/1.0/image/"'
+        ' GImage:Mime="image/jpeg" GImage:Data="' + base64.b64encode(picture_jpeg).decode() + '"/>'
+        "</rdf:RDF></x:xmpmeta>"
+    ).encode()
+    head = b"http://ns.adobe.com/xmp/extension/\x00" + guid + struct.pack(">I", len(packet))
+    parts = [head + struct.pack(">I", at) + packet[at : at + 65400] for at in range(0, len(packet), 65400)]
+    main = (
+        '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+        '<rdf:Description rdf:about="" xmlns:xmpNote="http://ns.adobe.com/xmp/note/"'
+        ' xmlns:dc="http://purl.org/dc/elements/1.1/" xmpNote:HasExtendedXMP="' + guid.decode() + '">'
+        "<dc:creator><rdf:Seq><rdf:li>kept-creator</rdf:li></rdf:Seq></dc:creator>"
+        "</rdf:Description></rdf:RDF></x:xmpmeta>"
+    ).encode()
+    return [b"http://ns.adobe.com/xap/1.0/\x00" + main, *parts]

@@ -120,6 +120,8 @@ CHANGE_NOTES = (
     ("replaced by the patched picture's", "embedded thumbnail replaced by the patched picture's (it showed "
      "the unmarked original)"),
     ("thumbnail removed", "embedded thumbnail removed (it showed the unmarked original)"),
+    ("Extended XMP holding a picture", "embedded copy of the original picture (Extended XMP: Google's "
+     "GImage:Data) removed"),
     ("could hold a thumbnail", "metadata block dropped (unreadable, it could hold a thumbnail of the "
      "original)"),
 )

@@ -6,7 +6,9 @@ black-box review, F3: every patched JPEG from a camera carried its unmarked EXIF
   and quality, else removed (poisoner.image.exif_thumb);
 - Photoshop thumbnail (JPEG APP13 image resources 0x0409, 0x040C, Photoshop and Bridge write it):
   rewritten from the patched picture at its own size, else the resource removed;
-- XMP thumbnails (`xmp:Thumbnails`, whose `xmpGImg:image` is a base64 JPEG): removed.
+- XMP thumbnails (`xmp:Thumbnails`, whose `xmpGImg:image` is a base64 JPEG): removed; a JPEG's
+  Extended XMP that holds a picture (Google's GImage:Data: the whole original) removed with its
+  pointer (xmpNote:HasExtendedXMP).
 
 A viewer that shows the thumbnail so shows the marked photo. An EXIF block that does not parse is
 dropped whole, as for location (it could hold the picture). Each function returns the notes that
@@ -31,7 +33,11 @@ _NS_XMP = "http://ns.adobe.com/xap/1.0/"
 _NS_XMP_IMAGE = "http://ns.adobe.com/xap/1.0/g/img/"  # xmpGImg: image, format, width, height
 _PHOTOSHOP_THUMBNAILS = {0x0409: "BGR", 0x040C: "RGB"}  # Photoshop 4's was stored BGR
 _PS_HEADER = struct.Struct(">IIIIIIHH")  # format, width, height, row bytes, total, compressed, bits, planes
+_NS_XMP_NOTE = "http://ns.adobe.com/xmp/note/"  # xmpNote:HasExtendedXMP: the extension's GUID
+_NS_GIMAGE = "http://ns.google.com/photos/1.0/image/"  # GImage:Data: Google's copy of the original
+_XMP_EXTENSION = b"http://ns.adobe.com/xmp/extension/\x00"  # then GUID (32), length (4), offset (4)
 REMOVED = "thumbnail removed"
+EXTENSION_REMOVED = "Extended XMP holding a picture of the original (GImage:Data, a thumbnail) removed"
 XMP_REMOVED = "XMP thumbnail removed"
 
 
@@ -86,13 +92,14 @@ def exif_previews(exif: bytes, render: Render) -> tuple[bytes | None, list[str]]
 def xmp_previews(xmp: bytes) -> tuple[bytes, list[str]]:
     """The XMP packet without its thumbnails (xmp:Thumbnails and any xmpGImg property)."""
 
-    def thumbnail(namespace: str, local: str) -> bool:
-        return (namespace == _NS_XMP and local == "Thumbnails") or namespace == _NS_XMP_IMAGE
-
-    names = sorted(location.xmp_qnames(xmp, thumbnail))
+    names = sorted(location.xmp_qnames(xmp, _thumbnail))
     if not names:
         return xmp, []
     return location.strip_xmp_names(xmp, names), [XMP_REMOVED]
+
+
+def _thumbnail(namespace: str, local: str) -> bool:
+    return (namespace == _NS_XMP and local == "Thumbnails") or namespace == _NS_XMP_IMAGE
 
 
 def photoshop_previews(block: bytes, render: Render) -> tuple[bytes, list[str]]:
@@ -167,25 +174,59 @@ def jpeg_previews(name: str, data: bytes) -> tuple[bytes, list[str]]:
         raise ImageFormatError(f"{name}: cannot read the JPEG header for its thumbnails ({exc})") from exc
     render = render_bytes(data)
     kept: list[tuple[int, bytes]] = []
-    notes: list[str] = []
+    pictured = _extensions_with_pictures(segments)
+    notes = [EXTENSION_REMOVED] if pictured else []
     for marker, payload in segments:
         new: bytes | None = payload
+        said: list[str] = []
+        if marker == 0xE1 and _extension_guid(payload) in pictured:
+            continue
         if marker == 0xE1 and payload.startswith(location.EXIF_HEADER):
             new, said = exif_previews(payload, render)
         elif marker == 0xE1 and payload.startswith(location.XMP_JPEG_HEADER):
             body, said = xmp_previews(payload[len(location.XMP_JPEG_HEADER) :])
+            if pictured:  # the extension it names is gone
+                body = location.strip_xmp_names(body, sorted(location.xmp_qnames(body, _extension_pointer)))
             new = location.XMP_JPEG_HEADER + body
         elif marker == 0xED and payload.startswith(location.PHOTOSHOP_HEADER):
             try:
                 new, said = photoshop_previews(payload, render)
             except location.MetadataParseError as exc:
                 new, said = None, [f"Photoshop segment dropped: unreadable, could hold a thumbnail ({exc})"]
-        else:
-            said = []
         notes += said
         if new is not None:
             kept.append((marker, new))
     return (location.jpeg_assemble(kept, data, sos), notes) if notes else (data, [])
+
+
+def _extension_guid(payload: bytes) -> bytes | None:
+    """The GUID of an Extended XMP segment (its part of a packet too large for one segment)."""
+    if not payload.startswith(_XMP_EXTENSION) or len(payload) < len(_XMP_EXTENSION) + 40:
+        return None
+    return payload[len(_XMP_EXTENSION) : len(_XMP_EXTENSION) + 32]
+
+
+def _extensions_with_pictures(segments: list[tuple[int, bytes]]) -> set[bytes]:
+    """GUIDs of the Extended XMP packets that hold a picture: Google's GImage:Data (Lens Blur and
+    other depth photos keep the original, whole, there as base64) or an xmpGImg thumbnail."""
+    parts: dict[bytes, list[tuple[int, bytes]]] = {}
+    head = len(_XMP_EXTENSION)
+    for marker, payload in segments:
+        if marker == 0xE1 and (guid := _extension_guid(payload)) is not None:
+            (offset,) = struct.unpack(">I", payload[head + 36 : head + 40])
+            parts.setdefault(guid, []).append((offset, payload[head + 40 :]))
+    return {
+        guid for guid, chunks in parts.items()
+        if location.xmp_qnames(b"".join(c for _, c in sorted(chunks)), _a_picture)
+    }  # fmt: skip
+
+
+def _a_picture(namespace: str, local: str) -> bool:
+    return (namespace == _NS_GIMAGE and local == "Data") or _thumbnail(namespace, local)
+
+
+def _extension_pointer(namespace: str, local: str) -> bool:
+    return namespace == _NS_XMP_NOTE and local == "HasExtendedXMP"
 
 
 def png_previews(data: bytes) -> tuple[bytes, list[str]]:

@@ -23,6 +23,7 @@ from testkit.thumbnails import (
     MAKER_NOTE,
     camera_picture,
     exif_with_thumbnail,
+    extended_xmp_segments,
     jpeg_of,
     photoshop_thumbnail_block,
     with_app_segment,
@@ -325,3 +326,24 @@ def test_a_png_from_imagemagick_has_no_thumbnail_of_the_original_in_its_raw_prof
         with Image.open(io.BytesIO(block[exif.thumbnail_at : exif.thumbnail_at + length])) as thumb:
             thumb.load()
             assert_shows_the_patched_picture(thumb, done, picture)
+
+
+def test_an_extended_xmp_copy_of_the_original_is_removed_with_its_pointer(tmp_path: Path) -> None:
+    """Google Camera's Lens Blur photos keep the original picture, whole, as base64 in Extended XMP
+    (GImage:Data, several APP1 segments): those segments go, with xmpNote:HasExtendedXMP; the rest of
+    the main packet stays."""
+    picture = camera_picture()
+    whole = jpeg_of(picture, 90)
+    data = jpeg_of(picture, 90)
+    for payload in reversed(extended_xmp_segments(whole)):
+        data = with_app_segment(data, 0xE1, payload)
+    assert data.count(b"http://ns.adobe.com/xmp/extension/") >= 2  # the fixture spans segments
+    src, dst = tmp_path / "a.jpg", tmp_path / "out.jpg"
+    src.write_bytes(data)
+    report = poison_file(src, dst, SPEC, keep_location=True)
+    out = dst.read_bytes()
+    encoded = base64.b64encode(whole)
+    assert all(encoded[i : i + 64] not in out for i in range(0, len(encoded) - 64, 4096))
+    assert b"http://ns.adobe.com/xmp/extension/" not in out and b"HasExtendedXMP" not in out
+    assert b"kept-creator" in out
+    assert "Extended XMP holding a picture of the original (GImage:Data, a thumbnail) removed" in report.notes
