@@ -153,6 +153,8 @@ def rewrite_thumbnail(exif: bytes, render: Render) -> tuple[bytes, str | None]:
         return exif, None
     out = bytearray(exif)
     spans = _thumbnail_spans(ifd1)
+    if not any(length for _, length in spans):  # an IFD1 of tags alone (some cameras): no picture
+        return exif, None
     if JPEG_FORMAT in ifd1.entries:
         at, length = spans[0]
         new = jpeg_within(bytes(exif[at : at + length]), length, render)

@@ -347,3 +347,16 @@ def test_an_extended_xmp_copy_of_the_original_is_removed_with_its_pointer(tmp_pa
     assert b"http://ns.adobe.com/xmp/extension/" not in out and b"HasExtendedXMP" not in out
     assert b"kept-creator" in out
     assert "Extended XMP holding a picture of the original (GImage:Data, a thumbnail) removed" in report.notes
+
+
+def test_an_ifd1_without_a_picture_is_left_as_it_is(tmp_path: Path) -> None:
+    """Some cameras write IFD1 with a zero-length thumbnail: nothing shows the original, nothing is
+    said or changed (it was called removed, and the summary said a thumbnail showed the original)."""
+    picture = camera_picture()
+    exif = exif_with_thumbnail(b"")
+    src, dst = tmp_path / "a.jpg", tmp_path / "out.jpg"
+    picture.save(src, "JPEG", quality=90, exif=exif.block)
+    report = poison_file(src, dst, SPEC, keep_location=True)
+    assert not any("thumbnail" in n for n in report.notes), report.notes
+    with Image.open(dst) as done:
+        assert done.info["exif"] == exif.block
