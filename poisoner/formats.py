@@ -4,7 +4,7 @@ What "faithfully" means per format (docs/FORMATS.md has the measured details):
 - JPEG: only the MCUs the patch writes in are re-encoded (DCT-coefficient splice, poisoner.jpeg; a
   mark of two squares placed apart leaves the MCUs between them as they were, lane_placements);
   if that is impossible, one re-encode with the source's own quantisation tables and chroma
-  subsampling. EXIF, ICC, XMP, IPTC and comments are kept.
+  subsampling. EXIF, ICC, XMP, IPTC and comments are kept, their thumbnails the patched picture's.
 - PNG: lossless; 8-bit files keep the source's filtered rows outside the mark's rows and are only
   deflated again (poisoner.image.png_rows); otherwise the new pixel data (IHDR/PLTE/tRNS/IDAT) is
   spliced between the source's own ancillary chunks, copied byte for byte (text, iCCP, eXIf, pHYs,
@@ -54,7 +54,7 @@ from poisoner import jpeg_scan, location, provenance
 from poisoner.atomic import atomic_output
 from poisoner.blend import apply_lanes_at, lane_placements, patch_coverage
 from poisoner.errors import ImageFormatError, MarkNotWritten, one_line
-from poisoner.image import jpeg_file
+from poisoner.image import jpeg_file, previews
 from poisoner.image import png as png_file
 from poisoner.image.heif import HEIF_QUALITY, poison_heif
 from poisoner.image.keep_out import checked_keep_out, kept_out_note, mcu_keep_out, written_box, written_pixels
@@ -493,6 +493,8 @@ def _write_format(
     lossless = False
     if fmt == "JPEG":
         out, preserved, notes, method = _poison_jpeg(src, im, data, placement, keep_out, loaded=loaded)
+        out, shown = previews.jpeg_previews(src.name, out)  # the original's thumbnails: the patched picture's
+        notes += shown
         if coding is not None and method != "jpeg-unchanged":
             _check_changed(src, data, out)
             out = jpeg_file.coded_like(src, out, coding)
@@ -511,6 +513,8 @@ def _write_format(
         method, lossless = "png-lossless", True
         if not keep_location:
             out, removed = strip_png_location(out)
+        out, shown = previews.png_previews(out)
+        notes = [*notes, *shown]
         if marker is not None:
             out = provenance.embed_png(out, marker)
     elif fmt == "WEBP":

@@ -24,6 +24,7 @@ from __future__ import annotations
 import re
 import struct
 import zlib
+from collections.abc import Callable
 
 from poisoner.errors import ExitStatus, PpdError
 
@@ -35,7 +36,7 @@ XMP_PNG_KEYWORD = b"XML:com.adobe.xmp"
 # Cap on decompressing a PNG text chunk (a deflate bomb must not decide our memory).
 MAX_TEXT_INFLATE = 8 * 1024 * 1024
 
-_TYPE_SIZES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 8, 6: 1, 7: 1, 8: 2, 9: 4, 10: 8, 11: 4, 12: 8, 13: 4}
+TYPE_SIZES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 8, 6: 1, 7: 1, 8: 2, 9: 4, 10: 8, 11: 4, 12: 8, 13: 4}
 
 
 class MetadataParseError(PpdError, ValueError):
@@ -52,7 +53,7 @@ def exif_has_gps(exif: bytes) -> bool:
         return False
 
 
-def _tiff_base(exif: bytes) -> tuple[int, str]:
+def tiff_base(exif: bytes) -> tuple[int, str]:
     base = len(EXIF_HEADER) if exif.startswith(EXIF_HEADER) else 0
     order = exif[base : base + 2]
     if order == b"II":
@@ -64,7 +65,7 @@ def _tiff_base(exif: bytes) -> tuple[int, str]:
 
 def _find_gps(exif: bytes) -> tuple[int, str, int, int, int] | None:
     """(tiff base, byte order, IFD0 offset, IFD0 entry count, index of the GPS entry) or None."""
-    base, bo = _tiff_base(exif)
+    base, bo = tiff_base(exif)
     if len(exif) < base + 8:
         raise MetadataParseError("EXIF header truncated")
     (ifd0,) = struct.unpack(bo + "I", exif[base + 4 : base + 8])
@@ -91,7 +92,7 @@ def strip_exif_gps(exif: bytes) -> tuple[bytes, bool]:
     out = bytearray(exif)
     entry = start + 2 + 12 * index
     (gps_offset,) = struct.unpack(bo + "I", exif[entry + 8 : entry + 12])
-    _zero_ifd(out, base, bo, base + gps_offset)
+    zero_ifd(out, base, bo, base + gps_offset)
     # Take the entry out of IFD0: later entries and the next-IFD pointer move up 12 bytes;
     # the freed 12 bytes at the end become zeros (nothing points there).
     tail_end = start + 2 + 12 * count + 4
@@ -100,7 +101,7 @@ def strip_exif_gps(exif: bytes) -> tuple[bytes, bool]:
     return bytes(out), True
 
 
-def _zero_ifd(buf: bytearray, base: int, bo: str, pos: int) -> None:
+def zero_ifd(buf: bytearray, base: int, bo: str, pos: int) -> None:
     if pos + 2 > len(buf):
         return  # a dangling pointer: nothing there to erase
     (count,) = struct.unpack(bo + "H", buf[pos : pos + 2])
@@ -110,7 +111,7 @@ def _zero_ifd(buf: bytearray, base: int, bo: str, pos: int) -> None:
         if e + 12 > len(buf):
             break
         typ, n = struct.unpack(bo + "HI", buf[e + 2 : e + 8])
-        size = _TYPE_SIZES.get(typ, 1) * n
+        size = TYPE_SIZES.get(typ, 1) * n
         if size > 4:
             (off,) = struct.unpack(bo + "I", buf[e + 8 : e + 12])
             lo, hi = base + off, min(base + off + size, len(buf))
@@ -159,6 +160,16 @@ _QNAME = rb"[A-Za-z_][\w.-]*:[A-Za-z_][\w.-]*"
 
 def _location_qnames(xmp: bytes) -> set[bytes]:
     """Qualified names (prefix:local) in this packet that carry a location."""
+
+    def place(namespace: str, local: str) -> bool:
+        return local.lower().startswith("gps") or local in _XMP_PLACE_PROPS.get(namespace, ())
+
+    return xmp_qnames(xmp, place)
+
+
+def xmp_qnames(xmp: bytes, wanted: Callable[[str, str], bool]) -> set[bytes]:
+    """Qualified names (prefix:local) of elements and attributes in this packet for which
+    wanted(namespace URI, local name) holds (the prefix as the packet binds it)."""
     names: set[bytes] = set()
     prefixes: dict[bytes, str] = {p: uri.decode("latin-1") for p, uri in _XMLNS.findall(xmp)}
     for qname in set(re.findall(rb"<(" + _QNAME + rb")|\s(" + _QNAME + rb")\s*=", xmp)):
@@ -166,8 +177,7 @@ def _location_qnames(xmp: bytes) -> set[bytes]:
         prefix, local = q.split(b":", 1)
         if prefix in (b"xmlns", b"xml", b"rdf", b"x"):
             continue
-        text = local.decode("latin-1")
-        if text.lower().startswith("gps") or text in _XMP_PLACE_PROPS.get(prefixes.get(prefix, ""), ()):
+        if wanted(prefixes.get(prefix, ""), local.decode("latin-1")):
             names.add(q)
     return names
 
@@ -176,15 +186,18 @@ def strip_xmp_location(xmp: bytes) -> tuple[bytes, list[str]]:
     """(XMP without location properties, the qualified names removed). Elements are removed with
     their content; attribute-form properties with their value."""
     names = sorted(_location_qnames(xmp))
-    if not names:
-        return xmp, []
+    return strip_xmp_names(xmp, names), [f"XMP {q.decode('latin-1')}" for q in names]
+
+
+def strip_xmp_names(xmp: bytes, names: list[bytes]) -> bytes:
+    """The packet without these qualified names' elements (with their content) and attributes."""
     out = xmp
     for q in names:
         qe = re.escape(q)
         out = re.sub(rb"<" + qe + rb"(?:\s[^>]*)?/>", b"", out)
         out = re.sub(rb"<" + qe + rb"(?:\s[^>]*)?>.*?</" + qe + rb"\s*>", b"", out, flags=re.S)
         out = re.sub(rb"\s" + qe + rb"""\s*=\s*(?:"[^"]*"|'[^']*')""", b"", out)
-    return out, [f"XMP {q.decode('latin-1')}" for q in names]
+    return out
 
 
 # ---- IPTC-IIM ------------------------------------------------------------------------------------
@@ -359,8 +372,17 @@ def build_itxt(key: bytes, flag: int, middle: bytes, text: bytes) -> bytes:
 _RAW_PROFILE = re.compile(rb"\A\s*(\w+)\s*\n\s*(\d+)\s*\n(.*)\Z", re.S)
 
 
-def _clean_raw_profile(kind: bytes, text: bytes) -> tuple[bytes | None, list[str]]:
-    """ImageMagick's hex "Raw profile type exif/APP1/xmp" text, location removed."""
+# What a PNG text chunk's EXIF and XMP go through: location removed (clean_png_chunk's default), or
+# (poisoner.image.previews) the original's thumbnails made the patched picture's.
+ExifCleaner = Callable[[bytes], tuple[bytes | None, list[str]]]
+XmpCleaner = Callable[[bytes], tuple[bytes, list[str]]]
+
+
+def _clean_raw_profile(
+    kind: bytes, text: bytes, exif_fn: ExifCleaner = clean_exif, xmp_fn: XmpCleaner = strip_xmp_location
+) -> tuple[bytes | None, list[str]]:
+    """ImageMagick's hex "Raw profile type exif/APP1/xmp" text, location removed (or what the
+    cleaners do)."""
     m = _RAW_PROFILE.match(text)
     if not m:
         return None, [f"PNG raw {kind.decode()} profile dropped: unreadable"]
@@ -369,9 +391,9 @@ def _clean_raw_profile(kind: bytes, text: bytes) -> tuple[bytes | None, list[str
     except ValueError:
         return None, [f"PNG raw {kind.decode()} profile dropped: unreadable"]
     if kind == b"xmp":
-        new, gone = strip_xmp_location(blob)
+        new, gone = xmp_fn(blob)
     else:
-        exif, gone = clean_exif(blob)
+        exif, gone = exif_fn(blob)
         if exif is None:
             return None, gone
         new = exif
@@ -382,10 +404,13 @@ def _clean_raw_profile(kind: bytes, text: bytes) -> tuple[bytes | None, list[str
     return f"\n{m.group(1).decode()}\n{len(new):8d}\n{lines}\n".encode(), gone
 
 
-def clean_png_chunk(ctype: bytes, body: bytes) -> tuple[bytes | None, list[str]]:
-    """A PNG ancillary chunk without location (None: drop the chunk)."""
+def clean_png_chunk(
+    ctype: bytes, body: bytes, exif_fn: ExifCleaner = clean_exif, xmp_fn: XmpCleaner = strip_xmp_location
+) -> tuple[bytes | None, list[str]]:
+    """A PNG ancillary chunk without location (None: drop the chunk); with other cleaners, their
+    work on its EXIF (eXIf, a raw exif/APP1 profile) and XMP (iTXt, a raw xmp profile)."""
     if ctype == b"eXIf":
-        return clean_exif(body)
+        return exif_fn(body)
     if ctype not in (b"iTXt", b"zTXt", b"tEXt"):
         return body, []
     try:
@@ -401,12 +426,12 @@ def clean_png_chunk(ctype: bytes, body: bytes) -> tuple[bytes | None, list[str]]
             return None, [f"PNG {ctype.decode()} {key.decode('latin-1')} dropped: unreadable ({exc})"]
         return body, []
     if key == XMP_PNG_KEYWORD:
-        new, gone = strip_xmp_location(text)
+        new, gone = xmp_fn(text)
     elif key.lower().startswith(b"raw profile type "):
         kind = key[len(b"raw profile type ") :].lower()
         if kind not in (b"exif", b"app1", b"xmp"):
             return body, []
-        cleaned, gone = _clean_raw_profile(b"xmp" if kind == b"xmp" else b"exif", text)
+        cleaned, gone = _clean_raw_profile(b"xmp" if kind == b"xmp" else b"exif", text, exif_fn, xmp_fn)
         if cleaned is None:
             return None, gone
         new = cleaned

@@ -116,6 +116,14 @@ CHANGE_NOTES = (
     ("re-encoded at quality", "re-encoded (lossy: one more generation of its codec's loss)"),
     (" written as ", "written in another pixel layout (e.g. a full palette widened to RGB)"),
     ("location removed", "location (GPS) removed"),
+    # a camera's EXIF, Photoshop or XMP thumbnail: an unmarked copy of the original (poisoner.image.previews)
+    ("replaced by the patched picture's", "embedded thumbnail replaced by the patched picture's (it showed "
+     "the unmarked original)"),
+    ("thumbnail removed", "embedded thumbnail removed (it showed the unmarked original)"),
+    ("Extended XMP holding a picture", "embedded copy of the original picture (Extended XMP: Google's "
+     "GImage:Data) removed"),
+    ("could hold a thumbnail", "metadata block dropped (unreadable, it could hold a thumbnail of the "
+     "original)"),
 )
 
 

@@ -5,12 +5,14 @@ has no 16-bit colour mode: its opener hands ppd 8 bits)."""
 
 from __future__ import annotations
 
+import functools
 import io
 
 import numpy as np
 from PIL import Image
 
 from poisoner.blend import apply_patch_at, lane_placements
+from poisoner.image import previews
 from poisoner.image.metadata import metadata_options
 from poisoner.image.write import paste_patch, save_explicit
 from poisoner.provenance import Marker
@@ -30,20 +32,39 @@ def poison_heif(
 ) -> tuple[bytes, list[str], list[str], list[str]]:
     """data: the source file's bytes, for a HEIC deeper than 8 bits (its bit depth is kept)."""
     opts: dict[str, object] = {"quality": HEIF_QUALITY}
-    preserved, removed = metadata_options(im.info, keep_location, fmt, marker, opts)
+    mode = "RGBA" if "A" in im.mode else "RGB"
+
+    @functools.cache
+    def patched() -> Image.Image:  # the 8-bit picture patched, once (a deep HEIC's only for its thumbnail)
+        return paste_patch(im if im.mode == mode else im.convert(mode), placement, keep_out)
+
+    preserved, removed, shown = metadata_options(im.info, keep_location, fmt, marker, opts, patched)
+    if fmt == "HEIF" and (boxes := [b for b in im.info.get("thumbnails") or [] if b]):
+        # the source's `thmb` items, at their sizes: pillow-heif encodes them from the picture it writes
+        opts["thumbnails"] = boxes
+        shown.append(f"HEIF thumbnail ({'/'.join(map(str, boxes))} px) {previews.REPLACED}")
     note = f"{fmt} re-encoded at quality {HEIF_QUALITY} (lossy)"
     depth = int(im.info.get("bit_depth") or 8)
     if fmt == "HEIF" and depth > 8 and data is not None:
         out = _deep_heif(data, depth, placement, keep_out, opts, im.info.get("nclx_profile"))
-        return out, [*preserved, f"HEIF {depth}-bit samples"], [f"{note}, {depth}-bit kept"], removed
+        return out, [*preserved, f"HEIF {depth}-bit samples"], [f"{note}, {depth}-bit kept", *shown], removed
     if fmt == "AVIF" and data is not None and (depth := declared_bit_depth(data)) > 8:
         # Pillow's AVIF codec reads and writes 8 bits a sample; no other AVIF writer is a dependency
         note += f"; {depth}-bit samples written as 8-bit (Pillow's AVIF codec has 8 bits a sample)"
-    mode = "RGBA" if "A" in im.mode else "RGB"
-    patched = paste_patch(im if im.mode == mode else im.convert(mode), placement, keep_out)
     buf = io.BytesIO()
-    save_explicit(patched, buf, fmt, **opts)
-    return buf.getvalue(), preserved, [note], removed
+    save_explicit(patched(), buf, fmt, **opts)
+    if fmt == "AVIF":
+        shown = _written(shown, opts.get("exif"), buf.getvalue())
+    return buf.getvalue(), preserved, [note, *shown], removed
+
+
+def _written(notes: list[str], exif: object, out: bytes) -> list[str]:
+    """The notes, true of `out`: Pillow's AVIF writer rewrites the EXIF of a photo with an orientation
+    tag (into the file's `irot`) and writes no IFD1 then: no thumbnail at all, not a replaced one."""
+    if not isinstance(exif, bytes) or exif.removeprefix(b"Exif\x00\x00") in out:
+        return notes
+    gone = "EXIF thumbnail removed (Pillow's AVIF writer keeps no IFD1 of a photo with an orientation tag)"
+    return [gone if n.startswith("EXIF thumbnail (") else n for n in notes]
 
 
 def declared_bit_depth(data: bytes) -> int:

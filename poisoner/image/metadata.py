@@ -3,9 +3,13 @@ location removed unless kept, the provenance marker added to the XMP, the ICC pr
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import cast
 
+from PIL import Image
+
 from poisoner import location, provenance
+from poisoner.image import previews
 from poisoner.provenance import Marker
 
 
@@ -32,17 +36,24 @@ def clean_exif_xmp(
     return exif, xmp, removed
 
 
-
 def metadata_options(
-    info: dict, keep_location: bool, fmt: str, marker: Marker | None, opts: dict[str, object]
-) -> tuple[list[str], list[str]]:
+    info: dict, keep_location: bool, fmt: str, marker: Marker | None, opts: dict[str, object],
+    picture: Callable[[], Image.Image],
+) -> tuple[list[str], list[str], list[str]]:  # fmt: skip
     """Put the cleaned EXIF, the ICC profile and the cleaned (marked) XMP into Pillow's save
-    options; returns (what was kept, what location was removed)."""
+    options; returns (what was kept, what location was removed, notes). picture(): the patched
+    picture, for the EXIF thumbnail (poisoner.image.previews: never the original's)."""
     exif, xmp, removed = clean_exif_xmp(info, keep_location, fmt, marker)
+    notes: list[str] = []
+    if exif:
+        exif, notes = previews.exif_previews(exif, previews.render_image(picture))
+    if xmp:
+        xmp, said = previews.xmp_previews(xmp)
+        notes += said
     preserved = []
     for key, label, value in (("exif", "EXIF", exif), ("icc_profile", "ICC", info.get("icc_profile")),
                               ("xmp", "XMP", xmp)):  # fmt: skip
         if value:
             opts[key] = value
             preserved.append(f"{fmt} {label}")
-    return preserved, removed
+    return preserved, removed, notes

@@ -52,7 +52,7 @@ def bytes_after_iend(data: bytes) -> int:
     return 0
 
 
-def _chunk(ctype: bytes, body: bytes) -> bytes:
+def png_chunk(ctype: bytes, body: bytes) -> bytes:
     return struct.pack(">I", len(body)) + ctype + body + struct.pack(">I", zlib.crc32(ctype + body))
 
 
@@ -65,17 +65,17 @@ def splice_png(source: bytes, pixels_png: bytes) -> tuple[bytes, list[str]]:
     after_plte = [c for c in src[:first_idat] if c[0] in _AFTER_PLTE]
     after = [c for c in src[first_idat:] if c[0] not in _PIXEL_CHUNKS]
     new_pixel = {t: [b for tt, b in new if tt == t] for t in (b"IHDR", b"PLTE", b"tRNS", b"IDAT")}
-    parts = [PNG_SIGNATURE, _chunk(b"IHDR", new_pixel[b"IHDR"][0])]
-    parts += [_chunk(t, b) for t, b in before]
-    parts += [_chunk(b"PLTE", b) for b in new_pixel[b"PLTE"]]
+    parts = [PNG_SIGNATURE, png_chunk(b"IHDR", new_pixel[b"IHDR"][0])]
+    parts += [png_chunk(t, b) for t, b in before]
+    parts += [png_chunk(b"PLTE", b) for b in new_pixel[b"PLTE"]]
     # hIST counts palette entries: stale when the palette grew.
     if new_pixel[b"PLTE"] and any(t == b"PLTE" and b != new_pixel[b"PLTE"][0] for t, b in src):
         after_plte = [c for c in after_plte if c[0] != b"hIST"]
-    parts += [_chunk(b"tRNS", b) for b in new_pixel[b"tRNS"]]
-    parts += [_chunk(t, b) for t, b in after_plte]
-    parts += [_chunk(b"IDAT", b) for b in new_pixel[b"IDAT"]]
-    parts += [_chunk(t, b) for t, b in after]
-    parts.append(_chunk(b"IEND", b""))
+    parts += [png_chunk(b"tRNS", b) for b in new_pixel[b"tRNS"]]
+    parts += [png_chunk(t, b) for t, b in after_plte]
+    parts += [png_chunk(b"IDAT", b) for b in new_pixel[b"IDAT"]]
+    parts += [png_chunk(t, b) for t, b in after]
+    parts.append(png_chunk(b"IEND", b""))
     kept = [t.decode("latin-1") for t, _ in before + after_plte + after]
     return b"".join(parts), kept
 
@@ -92,7 +92,7 @@ def strip_png_location(data: bytes) -> tuple[bytes, list[str]]:
             if cleaned is None:
                 continue
             body = cleaned
-        parts.append(_chunk(ctype, body))
+        parts.append(png_chunk(ctype, body))
     return (b"".join(parts), removed) if removed else (data, [])
 
 

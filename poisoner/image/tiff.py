@@ -12,6 +12,7 @@ from PIL import Image, TiffImagePlugin
 from poisoner import location
 from poisoner.blend import apply_lanes
 from poisoner.errors import ImageFormatError
+from poisoner.image import previews
 from poisoner.image.metadata import clean_exif_xmp
 from poisoner.image.read import format_refusal
 from poisoner.image.write import image_from_array, paste_patch, save_explicit
@@ -63,6 +64,9 @@ def poison_tiff(
     preserved = [f"TIFF {_TIFF_KEEP_TAGS[t]}" for t in info]
     removed: list[str] = []
     _, xmp, removed = clean_exif_xmp({"xmp": im.info.get("xmp")}, keep_location, "TIFF", marker)
+    if xmp:  # (no EXIF IFD1 is written: the EXIF sub-IFD is not copied, a second page is refused)
+        xmp, shown = previews.xmp_previews(xmp)
+        notes += shown
     if im.info.get("icc_profile"):
         opts["icc_profile"] = im.info["icc_profile"]
         preserved.append("TIFF ICC")

@@ -148,9 +148,10 @@ def poison_webp(
         opts["quality"] = quality
         if b"ALPH" in chunks:
             opts["alpha_quality"] = 100
-    preserved, removed = metadata_options(im.info, keep_location, "WebP", marker, opts)
     mode = im.mode if im.mode in ("RGB", "RGBA") else "RGBA" if "A" in im.mode else "RGB"
     out = paste_patch(im if im.mode == mode else im.convert(mode), placement, keep_out)
+    preserved, removed, shown = metadata_options(im.info, keep_location, "WebP", marker, opts, lambda: out)
+    notes += shown
     buf = io.BytesIO()
     save_explicit(out, buf, "WEBP", **opts)
     return buf.getvalue(), preserved, notes, lossless, removed

@@ -819,3 +819,32 @@ def test_a_reprotect_that_did_not_finish_is_said(shoot: Path) -> None:
     assert "1 patched with another spec than the dataset's" in said and "--reprotect" in said, said
     check = runner.invoke(app, ["status", "castle", "--check"])
     assert check.exit_code == 1 and "another spec" in check.output
+
+
+def test_a_cameras_thumbnail_of_the_original_is_not_published_and_restore_gives_it_back(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A black-box review (F3): every patched camera JPEG carried its EXIF thumbnail, an unmarked
+    512x384 copy of the original, byte for byte, and the run said nothing. Now the thumbnail shows the
+    patched picture, the summary says so once, and `ppd restore` gives the original back whole."""
+    from testkit.thumbnails import camera_picture, exif_with_thumbnail, jpeg_of
+
+    folder = tmp_path / "meta"
+    folder.mkdir()
+    picture = camera_picture((1024, 768))
+    old = jpeg_of(picture.resize((512, 384)))
+    picture.save(folder / "c.jpg", "JPEG", quality=92, exif=exif_with_thumbnail(old).block)
+    make_image(folder / "plain.png", 1, (320, 240))
+    before = snapshot(folder)
+    result = runner.invoke(app, ["poison", str(folder)])
+    assert result.exit_code == 0, result.output
+    scan = old[old.index(b"\xff\xda") + 14 : -2]
+    published = (folder / "c.jpg").read_bytes()
+    assert all(scan[i : i + 32] not in published for i in range(0, len(scan) - 32, 16))
+    lines = [line for line in result.output.splitlines() if "thumbnail" in line]
+    assert lines == [
+        "embedded thumbnail replaced by the patched picture's (it showed the unmarked original): 1 file(s) "
+        "(c.jpg); `ppd -v poison` says how"
+    ], result.output
+    assert runner.invoke(app, ["restore", "meta"]).exit_code == 0
+    assert snapshot(folder) == before
