@@ -110,3 +110,10 @@ def changed_words(ctx: AppContext, path: Path, original_sha256: str) -> str:
         return (f"{said}: it is another picture now ({now.width}x{now.height} {now.format}; the original "
                 f"ppd patched is {was.width}x{was.height} {was.format}): another photo, or a crop")
     return f"{said}: same {now.width}x{now.height} {now.format} picture, other bytes (edited elsewhere?)"
+
+
+def resaved_words(path: Path) -> str:
+    """What a file ppd recognised as its output saved again by another program is, for a restore that
+    would write over it (the store's files.resaved)."""
+    return (f"{path.name} is ppd's patched photo saved again since by another program (its picture ppd's, "
+            "its bytes yours: metadata written, or re-encoded)")

@@ -18,7 +18,7 @@ from daemon.datasets.dataset import (
 )
 from daemon.fsops import sha256_fd
 from daemon.platform import fd_path
-from daemon.protect.displaced import changed_words, displaced_folder, keep_aside
+from daemon.protect.displaced import changed_words, displaced_folder, keep_aside, resaved_words
 from daemon.protect.job import Outcome, ProtectOutcome, ProtectRefused, name_the_disk, no_space_in, one_line
 from daemon.protect.recovery import ORIGINAL_FIELDS
 from daemon.states import FileState
@@ -97,9 +97,11 @@ def restore_file(
                 now = _content_now(target)
                 # the check again just before the rename: a writer between the two is not overwritten
                 replaces = row["poisoned_sha256"]
-                if now is not None and now not in (row["poisoned_sha256"], row["original_sha256"]):
+                if now is not None and (now not in (row["poisoned_sha256"], row["original_sha256"])
+                                        or (now == row["poisoned_sha256"] and row.get("resaved"))):
                     if not force:
-                        words = changed_words(ctx, target, row["original_sha256"])
+                        words = (resaved_words(target) if now == row["poisoned_sha256"]
+                                 else changed_words(ctx, target, row["original_sha256"]))
                         aside = displaced_folder(ctx, dataset)
                         raise ProtectRefused(f"{words}; not overwriting it (--force keeps your version in "
                                              f"{aside} and puts the original back)")  # fmt: skip

@@ -322,8 +322,8 @@ def decide(job: Job) -> ProtectOutcome | None:
                 detail={"reason": "sound only" if sound_only else "ratio"},
             )  # fmt: skip
         return job.outcome(Outcome.SKIPPED, why, spec_id=spec.spec_id)
-    if job.shown_size is not None and (why := spec.too_small(*job.shown_size)) is not None:
-        raise ProtectRefused(f"{shown_name(job.path)}: {why}; not patched")  # the dry run says it too
+    if job.shown_size is not None and (small := spec.too_small(*job.shown_size)) is not None:
+        raise ProtectRefused(f"{shown_name(job.path)}: {small}; not patched")  # the dry run says it too
     if job.dry_run:
         return job.outcome(Outcome.PATCHED, "would patch", original_sha256=sha, spec_id=spec.spec_id)
     return None

@@ -27,6 +27,7 @@ FILE_FIELDS = frozenset(
         "mtime_ns",
         "error",
         "published_path",
+        "resaved",
     }
 )
 
@@ -199,6 +200,12 @@ def upsert_file(
         updates += (
             ", original_mtime_ns = CASE WHEN files.original_sha256 IS excluded.original_sha256"
             " THEN files.original_mtime_ns END"
+        )
+    if "poisoned_sha256" in fields and "resaved" not in fields:
+        # "saved again by another program" goes with the bytes it was said of: ppd's own new output
+        # (patched again, re-protected) is not the creator's
+        updates += (
+            ", resaved = CASE WHEN files.poisoned_sha256 IS excluded.poisoned_sha256 THEN files.resaved END"
         )
     conn.execute(
         f"INSERT INTO files (path, created_at, {columns}) VALUES (?, ?, {marks}) "

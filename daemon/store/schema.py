@@ -152,6 +152,11 @@ MIGRATIONS: tuple[str, ...] = (
     );
     CREATE INDEX earlier_originals_sha ON earlier_originals(sha256);
     """,
+    # 9: 1 when the file's bytes (poisoned_sha256) are ppd's output saved again by another program (a
+    # tagger's keywords, a re-encode): its picture carries ppd's mark, its bytes are the creator's, and
+    # `ppd restore` keeps them (refused without --force, set aside with it). A black-box review: restore
+    # wrote the original over the rated file and kept no copy.
+    "ALTER TABLE files ADD COLUMN resaved INTEGER;",
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 AUTO_TRIGGERS = ("interim", "preflight", "escalation", "manual")  # auto_decisions.trigger's CHECK
