@@ -95,6 +95,7 @@ from daemon.protect.poisoning import (
 from daemon.protect.publishing import publish, retry_publish
 from daemon.protect.quarantine import attempt, forget_attempt
 from daemon.protect.recovery import carry_moved_row, copy_patched_as_it_is, recover_pending
+from daemon.protect.resaved import recognise_resaved_output, saved_over
 from daemon.states import LINKED_FOLDER_PREFIX, STILL_OPEN_PREFIX, UNPROTECTED_PREFIX, FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import atomic_replace_at
@@ -266,7 +267,7 @@ def recognise(job: Job) -> ProtectOutcome | None:
             _record_recognised(job, earlier["original_sha256"], sha, earlier.get("spec_id"),
                                earlier.get("tool_version"), earlier["path"], earlier.get("original_mtime_ns"))
         return job.outcome(Outcome.UNCHANGED, "already ppd output", poisoned_sha256=sha)
-    if (recognised := _recognise_by_marker(job)) is not None:
+    if (recognised := _recognise_by_marker(job) or recognise_resaved_output(job)) is not None:
         return recognised
     if (
         row is not None
@@ -519,7 +520,7 @@ def record_provenance(job: Job) -> ProtectOutcome | None:
         record_path, job.dataset, FileState.PATCHED, original_sha256=job.sha,
         poisoned_sha256=job.poisoned_sha, spec_id=job.spec.spec_id, tool_version=tool_version(),
         size=size, mtime_ns=mtime, error=None, published_path=None, event="patched",
-        detail=report_detail(job.report),
+        detail=report_detail(job.report), saved_over=saved_over(job.row, job.sha),
     )  # fmt: skip
     job.final = record_path
     return None

@@ -28,6 +28,7 @@ FILE_FIELDS = frozenset(
         "error",
         "published_path",
         "resaved",
+        "saved_over",
     }
 )
 
@@ -200,6 +201,11 @@ def upsert_file(
         updates += (
             ", original_mtime_ns = CASE WHEN files.original_sha256 IS excluded.original_sha256"
             " THEN files.original_mtime_ns END"
+        )
+    if "original_sha256" in fields and "saved_over" not in fields:  # it too is said of that original
+        updates += (
+            ", saved_over = CASE WHEN files.original_sha256 IS excluded.original_sha256"
+            " THEN files.saved_over END"
         )
     if "poisoned_sha256" in fields and "resaved" not in fields:
         # "saved again by another program" goes with the bytes it was said of: ppd's own new output

@@ -157,6 +157,10 @@ MIGRATIONS: tuple[str, ...] = (
     # `ppd restore` keeps them (refused without --force, set aside with it). A black-box review: restore
     # wrote the original over the rated file and kept no copy.
     "ALTER TABLE files ADD COLUMN resaved INTEGER;",
+    # 10: the original the path held when another file was saved over ppd's patched photo and patched as
+    # a new one (an edit of the marked photo, or another photo): the current original may carry ppd's
+    # mark, and this is the photo from before, which `ppd restore` names (the review's F1).
+    "ALTER TABLE files ADD COLUMN saved_over TEXT;",
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 AUTO_TRIGGERS = ("interim", "preflight", "escalation", "manual")  # auto_decisions.trigger's CHECK

@@ -1,5 +1,7 @@
 """A patched photo saved again by another program, through the CLI (a black-box review, 2026-12-07).
 
+F1: saved again with its seal gone (a PNG re-saved): marked a second time, and restore handed back the
+once-marked picture; a crop's restore gave back a marked picture as "restored", saying nothing.
 F2: a metadata-only edit (exiftool writing a rating and keywords; the seal's token kept) is recognised
 as ppd's output, pixels unchanged; `ppd restore` then wrote the original over the rated file and kept
 no copy. Its bytes are the creator's: restore refuses without --force, and --force keeps them in
@@ -75,3 +77,49 @@ def test_a_rated_photo_is_not_written_over_by_restore(ppd_env: dict[str, Path], 
     assert forced.exit_code == 0 and _sha(photo) == originals["v1.jpg"], text
     (kept,) = _kept(ppd_env["data"])
     assert kept.read_bytes() == rated and f"kept your version of v1.jpg at {kept}" in text, text
+
+
+def test_a_png_resaved_with_its_seal_gone_is_not_marked_twice(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """F1, as the review ran it: the PNG saved again by Pillow (the same pixels, the seal chunk gone)
+    was patched a second time; restore said "restored" and gave back the once-marked picture."""
+    shoot = tmp_path / "edit"
+    originals = _shoot(shoot, ".png")
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    photo = shoot / "v0.png"
+    with Image.open(photo) as im:
+        im.save(photo)
+    resaved = photo.read_bytes()
+    again = runner.invoke(app, ["-v", "poison", str(shoot)])
+    text = _said(again)
+    assert again.exit_code == 0 and "patched 0, unchanged 3" in text, text
+    assert f"unchanged {photo} (already ppd output (saved again by another program" in text, text
+    assert photo.read_bytes() == resaved
+    refused = runner.invoke(app, ["restore", str(shoot)])
+    assert refused.exit_code == 1 and "v0.png is ppd's patched photo saved again since" in _said(refused)
+    forced = runner.invoke(app, ["restore", str(photo), "--force"])
+    assert forced.exit_code == 0 and _sha(photo) == originals["v0.png"], forced.output  # the clean original
+    (kept,) = _kept(ppd_env["data"])
+    assert kept.read_bytes() == resaved
+
+
+def test_restore_of_a_cropped_patched_photo_says_its_original_carries_the_mark(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A crop of a patched photo is a new photo to protect; its restore gives back the crop, which
+    carries ppd's mark: said without -v, with where the photo from before the crop is."""
+    shoot = tmp_path / "crop"
+    originals = _shoot(shoot, ".jpg")
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    photo = shoot / "v2.jpg"
+    with Image.open(photo) as im:
+        im.crop((0, 0, 300, 220)).save(photo, quality=92)
+    cropped = photo.read_bytes()
+    assert runner.invoke(app, ["poison", str(shoot)]).output.count("patched 1") == 1
+    restored = runner.invoke(app, ["restore", str(shoot)])
+    text = _said(restored)
+    assert restored.exit_code == 0 and photo.read_bytes() == cropped, text
+    assert f"restored {photo}: its original is the file saved over ppd's patched photo" in text, text
+    (vault_copy,) = (Path(w) for w in text.split() if w.startswith(str(ppd_env["data"])))
+    assert _sha(vault_copy) == originals["v2.jpg"]
