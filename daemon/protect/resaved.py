@@ -13,7 +13,7 @@ else (an edit, a crop) goes on as a new photo, as before."""
 from __future__ import annotations
 
 import logging
-from typing import Any, cast
+from typing import cast
 
 from daemon.datasets.subject_masks import subject_masks_for
 from daemon.protect.job import Job, Outcome, ProtectOutcome
@@ -49,10 +49,12 @@ def recognise_resaved_output(job: Job) -> ProtectOutcome | None:
     return job.outcome(Outcome.UNCHANGED, RESAVED_REASON, poisoned_sha256=job.sha)
 
 
-def saved_over(row: dict[str, Any] | None, sha: str | None) -> str | None:
-    """The files.saved_over of a row whose original is now sha: the clean photo from before, when sha
-    was saved over ppd's patched photo (its row patched with another original) and is patched as new."""
-    if row is None or not row["original_sha256"]:
+def saved_over(job: Job) -> str | None:
+    """The files.saved_over of the row the job records, its original now job.sha: the clean photo from
+    before, when that was saved over ppd's patched photo in place (its row patched with another original)
+    and is patched as new. An `--out` copy's source was never patched: nothing."""
+    row, sha = job.row, job.sha
+    if row is None or not row["original_sha256"] or job.out_path is not None:
         return None
     if row["original_sha256"] == sha:  # the same original patched again (a re-protect, --force)
         return cast(str | None, row.get("saved_over"))

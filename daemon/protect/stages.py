@@ -520,7 +520,7 @@ def record_provenance(job: Job) -> ProtectOutcome | None:
         record_path, job.dataset, FileState.PATCHED, original_sha256=job.sha,
         poisoned_sha256=job.poisoned_sha, spec_id=job.spec.spec_id, tool_version=tool_version(),
         size=size, mtime_ns=mtime, error=None, published_path=None, event="patched",
-        detail=report_detail(job.report), saved_over=saved_over(job.row, job.sha),
+        detail=report_detail(job.report), saved_over=saved_over(job),
     )  # fmt: skip
     job.final = record_path
     return None
