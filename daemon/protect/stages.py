@@ -297,10 +297,12 @@ def decide(job: Job) -> ProtectOutcome | None:
         return job.outcome(Outcome.UNCHANGED, "patched copy is up to date", output=record_path)
 
     rel = job.path.relative_to(job.root).as_posix() if job.path.is_relative_to(job.root) else job.path.name
-    from poisoner.video.demux import audio_only  # PyAV: only for a video
-
     # a voice memo saved as .mp4 is left as it is, like a .m4a (it failed, and the daemon quarantined it)
-    sound_only = job.kind == "video" and audio_only(fd_path(cast(ContainedFile, job.file).fd))
+    sound_only = False
+    if job.kind == "video":  # PyAV imported for a video only: a run of photos loads none of it
+        from poisoner.video.demux import audio_only
+
+        sound_only = audio_only(fd_path(cast(ContainedFile, job.file).fd))
     if sound_only or not spec.selects(rel):
         why = (
             "sound only, no picture: nothing to protect"
