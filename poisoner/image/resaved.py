@@ -31,7 +31,7 @@ DRIFT_MAX = 2.0  # the picture's mean signed error per channel (exposure, white 
 # On the mark the file must be ppd's, not the original's: its error from ppd's output there at most this
 # share of the mark's own strength (a re-save of the original, mark-free, is a new photo)
 ON_MARK_SHARE = 0.35
-LOSSY = ("JPEG", "WEBP", "MPO")
+LOSSY = ("JPEG", "MPO", "WEBP", "HEIF", "AVIF")  # Pillow's names; a lossless WebP is judged as lossy
 STRIP = 512  # rows compared at a time (a multiple of BLOCK): a 50-megapixel photo in bounded memory
 
 
@@ -53,7 +53,8 @@ def is_resaved_output(name: str, original: bytes, output: bytes, current: bytes)
 def _eight_bit(im: Image.Image, mode: str) -> Image.Image:
     from poisoner.image.read import eight_bit_grey
 
-    return eight_bit_grey(im).convert(mode)
+    im = eight_bit_grey(im)
+    return im if im.mode == mode else im.convert(mode)  # no copy of a photo already in that mode
 
 
 def _compare(now: Image.Image, was: Image.Image, ours: Image.Image, *, exact: bool) -> bool:
