@@ -154,6 +154,7 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
     each file that was not restored with its reason."""
 
     from daemon.cli.output import verbosity
+    from daemon.protect.displaced import SAVED_OVER
     from daemon.store.datasets import natural_key
 
     counts = Counter(restore_word(o) for o in outcomes)
@@ -174,14 +175,14 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
         word = restore_word(o)
         for src, kept in o.displaced if word != "failed" else ():  # a failure's reason names them already
             shown = src.name if src == o.path else src  # each named: a published file can have two
-            console().print(f"kept your version of {shown} at {kept} (it was not ppd's output; "
+            console().print(f"kept your version of {shown} at {kept} (not ppd's output as ppd wrote it; "
                             "nothing is published from there)", markup=False)  # fmt: skip
         if word == "failed":
             said = reason_text(o.reason, Path(o.path).parent, hint_out=False)  # restore has no --out
             err_console().print(f"ppd: not restored: {o.path}: {said}", markup=False)
         elif verbosity() > 0:  # -v names each file (README), with its reason when it has one
             console().print(f"{word} {o.path}" + (f": {o.reason}" if o.reason else ""), markup=False)
-        elif o.reason and word not in ("restored", "unchanged", "removed"):
+        elif o.reason and (word not in ("restored", "unchanged", "removed") or SAVED_OVER in o.reason):
             console().print(f"{word} {o.path}: {o.reason}", markup=False)
 
 

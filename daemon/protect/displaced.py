@@ -110,3 +110,25 @@ def changed_words(ctx: AppContext, path: Path, original_sha256: str) -> str:
         return (f"{said}: it is another picture now ({now.width}x{now.height} {now.format}; the original "
                 f"ppd patched is {was.width}x{was.height} {was.format}): another photo, or a crop")
     return f"{said}: same {now.width}x{now.height} {now.format} picture, other bytes (edited elsewhere?)"
+
+
+def resaved_words(path: Path) -> str:
+    """What a file ppd recognised as its output saved again by another program is, for a restore that
+    would write over it (the store's files.resaved)."""
+    return (f"{path.name} is ppd's patched photo saved again since by another program (its picture ppd's, "
+            "its bytes yours: metadata written, or re-encoded)")
+
+
+SAVED_OVER = "its original is the file saved over ppd's patched photo"  # restore prints it without -v
+
+
+def saved_over_note(ctx: AppContext, earlier: str | None) -> str | None:
+    """What a restore says of an original that was saved over ppd's patched photo (files.saved_over:
+    the clean photo from before): an edit of the patched photo still carries ppd's mark, and where the
+    photo from before is (a black-box review, F1: "restored" handed back a marked picture, silently)."""
+    if not earlier:
+        return None
+    if not ctx.vault.has(earlier):
+        return f"{SAVED_OVER}: an edit of it still carries ppd's mark; the photo from before is kept no more"
+    return (f"{SAVED_OVER}: an edit of it still carries ppd's mark; the photo from before that is kept at "
+            f"{ctx.vault.path_for(earlier)} (copy it out to have it back)")

@@ -7,7 +7,10 @@ A token made with this installation's key names the original and the spec (poiso
 read_seal_and_claim). That is a claim: a token can be copied onto another photo. So it is trusted only when
 the file codes exactly the picture ppd writes from that original with that spec, patched again in
 memory and compared as coded (JPEG and PNG; no decode, a patch's memory): then the file is ppd's
-output, recorded as such, and never patched twice."""
+output, recorded as such, and never patched twice. Its bytes are the creator's (the rating, the
+keywords): the row says so (files.resaved), and `ppd restore` refuses to write the original over
+them without --force, which keeps them in DATA/displaced (a black-box review, F2: restore wrote the
+original over the rated file, no copy kept)."""
 
 from __future__ import annotations
 
@@ -42,6 +45,7 @@ def recognise_edited_output(job: Job, claim: Seal) -> ProtectOutcome | None:
             job.path, job.dataset, FileState.PATCHED, original_sha256=claim.original_sha256,
             poisoned_sha256=job.sha, spec_id=claim.spec_id, tool_version=None,
             size=job.file.st.st_size, mtime_ns=job.file.st.st_mtime_ns, error=None, event="recognised",
+            resaved=1,  # the bytes are the creator's: `ppd restore` keeps them (--force sets them aside)
             detail={"from": "provenance token; bytes changed after patching, pixels unchanged"},
         )  # fmt: skip
     return job.outcome(

@@ -131,7 +131,8 @@ def carry_over(
         st = _holds(Path(row.get("published_path") or path), output)
         if st is not None and intact(str(row.get("original_sha256") or "")):
             fields = {k: row.get(k) for k in ("original_sha256", "poisoned_sha256", "original_mtime_ns",
-                                              "spec_id", "tool_version", "published_path")}  # fmt: skip
+                                              "spec_id", "tool_version", "published_path",
+                                              "resaved")}  # fmt: skip
             carried.patched.append((path, str(row["dataset"]), {**fields, "size": st.st_size,
                                                                 "mtime_ns": st.st_mtime_ns}))  # fmt: skip
     for row in old.restored:

@@ -39,7 +39,9 @@ def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, datase
     old = Path(earlier["path"])
     if old == path or old.exists() or earlier["state"] not in (FileState.PATCHED, FileState.REMOVED):
         return False
-    fields: dict[str, Any] = {k: earlier.get(k) for k in (*ORIGINAL_FIELDS, "poisoned_sha256")}
+    # resaved / saved_over go with the file: a re-saved one moved must not be written over by restore
+    moved_fields = (*ORIGINAL_FIELDS, "poisoned_sha256", "resaved", "saved_over")
+    fields: dict[str, Any] = {k: earlier.get(k) for k in moved_fields}
     # A dataset first seen through moved files (a renamed folder) inherits their patch spec.
     ensure_dataset(ctx, dataset, root, ctx.store.get_spec(earlier["spec_id"]))
     st = path.stat()

@@ -18,7 +18,13 @@ from daemon.datasets.dataset import (
 )
 from daemon.fsops import sha256_fd
 from daemon.platform import fd_path
-from daemon.protect.displaced import changed_words, displaced_folder, keep_aside
+from daemon.protect.displaced import (
+    changed_words,
+    displaced_folder,
+    keep_aside,
+    resaved_words,
+    saved_over_note,
+)
 from daemon.protect.job import Outcome, ProtectOutcome, ProtectRefused, name_the_disk, no_space_in, one_line
 from daemon.protect.recovery import ORIGINAL_FIELDS
 from daemon.states import FileState
@@ -68,6 +74,7 @@ def restore_file(
     if row.get("from_marker") and (refusal := _copied_output(ctx, row)):
         return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=refusal)
     kept: list[tuple[Path, Path]] = []  # (the user's file that stood in the original's way, its copy)
+    reason: str | None = None
     with ctx.path_lock(path):
         try:
             if copy is not None:
@@ -97,9 +104,11 @@ def restore_file(
                 now = _content_now(target)
                 # the check again just before the rename: a writer between the two is not overwritten
                 replaces = row["poisoned_sha256"]
-                if now is not None and now not in (row["poisoned_sha256"], row["original_sha256"]):
+                if now is not None and (now not in (row["poisoned_sha256"], row["original_sha256"])
+                                        or (now == row["poisoned_sha256"] and row.get("resaved"))):
                     if not force:
-                        words = changed_words(ctx, target, row["original_sha256"])
+                        words = (resaved_words(target) if now == row["poisoned_sha256"]
+                                 else changed_words(ctx, target, row["original_sha256"]))
                         aside = displaced_folder(ctx, dataset)
                         raise ProtectRefused(f"{words}; not overwriting it (--force keeps your version in "
                                              f"{aside} and puts the original back)")  # fmt: skip
@@ -110,7 +119,7 @@ def restore_file(
                             row["original_sha256"], target, replaces=replaces,
                             mtime_ns=row.get("original_mtime_ns"),
                         )  # fmt: skip
-                reason = None
+                reason = saved_over_note(ctx, row.get("saved_over"))
         except Exception as exc:
             said = one_line(name_the_disk(exc, [path.parent, ctx.paths.data_dir]))  # not a raw "[Errno 28]"
             said += "".join(f"; your version of {src} is kept at {to}" for src, to in kept)

@@ -96,6 +96,7 @@ from daemon.protect.publishing import publish, retry_publish
 from daemon.protect.quarantine import attempt, forget_attempt
 from daemon.protect.recovery import copy_patched_as_it_is, recover_pending
 from daemon.protect.remark import take_in
+from daemon.protect.resaved import recognise_resaved_output, saved_over
 from daemon.states import LINKED_FOLDER_PREFIX, STILL_OPEN_PREFIX, UNPROTECTED_PREFIX, FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import atomic_replace_at
@@ -259,7 +260,7 @@ def recognise(job: Job) -> ProtectOutcome | None:
                            output=job.record_path)  # fmt: skip
     if earlier is not None:  # moved or copied here: recorded, with this dataset's spec (remark)
         return take_in(job, earlier, _record_recognised)
-    if (recognised := _recognise_by_marker(job)) is not None:
+    if (recognised := _recognise_by_marker(job) or recognise_resaved_output(job)) is not None:
         return recognised
     if (
         row is not None
@@ -514,7 +515,7 @@ def record_provenance(job: Job) -> ProtectOutcome | None:
         record_path, job.dataset, FileState.PATCHED, original_sha256=job.sha,
         poisoned_sha256=job.poisoned_sha, spec_id=job.spec.spec_id, tool_version=tool_version(),
         size=size, mtime_ns=mtime, error=None, published_path=None, event="patched",
-        detail=report_detail(job.report),
+        detail=report_detail(job.report), saved_over=saved_over(job),
     )  # fmt: skip
     job.final = record_path
     return None

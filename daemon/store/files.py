@@ -27,6 +27,8 @@ FILE_FIELDS = frozenset(
         "mtime_ns",
         "error",
         "published_path",
+        "resaved",
+        "saved_over",
     }
 )
 
@@ -199,6 +201,17 @@ def upsert_file(
         updates += (
             ", original_mtime_ns = CASE WHEN files.original_sha256 IS excluded.original_sha256"
             " THEN files.original_mtime_ns END"
+        )
+    if "original_sha256" in fields and "saved_over" not in fields:  # it too is said of that original
+        updates += (
+            ", saved_over = CASE WHEN files.original_sha256 IS excluded.original_sha256"
+            " THEN files.saved_over END"
+        )
+    if "poisoned_sha256" in fields and "resaved" not in fields:
+        # "saved again by another program" goes with the bytes it was said of: ppd's own new output
+        # (patched again, re-protected) is not the creator's
+        updates += (
+            ", resaved = CASE WHEN files.poisoned_sha256 IS excluded.poisoned_sha256 THEN files.resaved END"
         )
     conn.execute(
         f"INSERT INTO files (path, created_at, {columns}) VALUES (?, ?, {marks}) "

@@ -152,6 +152,15 @@ MIGRATIONS: tuple[str, ...] = (
     );
     CREATE INDEX earlier_originals_sha ON earlier_originals(sha256);
     """,
+    # 9: 1 when the file's bytes (poisoned_sha256) are ppd's output saved again by another program (a
+    # tagger's keywords, a re-encode): its picture carries ppd's mark, its bytes are the creator's, and
+    # `ppd restore` keeps them (refused without --force, set aside with it). A black-box review: restore
+    # wrote the original over the rated file and kept no copy.
+    "ALTER TABLE files ADD COLUMN resaved INTEGER;",
+    # 10: the original the path held when another file was saved over ppd's patched photo and patched as
+    # a new one (an edit of the marked photo, or another photo): the current original may carry ppd's
+    # mark, and this is the photo from before, which `ppd restore` names (the review's F1).
+    "ALTER TABLE files ADD COLUMN saved_over TEXT;",
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 AUTO_TRIGGERS = ("interim", "preflight", "escalation", "manual")  # auto_decisions.trigger's CHECK

@@ -1,8 +1,9 @@
 """ppd's output edited after patching without its pixels changing (a tagger wrote keywords in
-place) is recognised as ppd's output, not patched a second time, and `ppd restore` still gives back
-the true original (a black-box review, 2026-12-07: the once-marked file went into the vault as an
-"original", got a second mark, and restore returned the marked file). A token copied onto another
-photo is still not trusted: that photo is patched as a new one."""
+place) is recognised as ppd's output, not patched a second time, and `ppd restore --force` still
+gives back the true original (a black-box review, 2026-12-07: the once-marked file went into the vault
+as an "original", got a second mark, and restore returned the marked file); without --force
+restore keeps the creator's edit (the review's F2: it wrote the original over it, no copy kept).
+A token copied onto another photo is still not trusted: that photo is patched as a new one."""
 
 from __future__ import annotations
 
@@ -62,8 +63,19 @@ def test_a_metadata_edit_is_not_patched_twice_and_restore_gives_the_original(
         assert row["state"] == FileState.PATCHED
         assert row["original_sha256"] == hashlib.sha256(original).hexdigest()
         assert row["poisoned_sha256"] == hashlib.sha256(edited).hexdigest()
-        assert restore_file(ctx, photo).state == "restored"
+        # the rating or keywords are the creator's: not written over without --force (a black-box review,
+        # F2: restore wrote the original over the edited file and kept no copy)
+        refused = restore_file(ctx, photo)
+        assert refused.state == "failed" and "saved again since by another program" in (refused.reason or "")
+        assert "--force keeps your version in" in (refused.reason or "") and photo.read_bytes() == edited
+        forced = restore_file(ctx, photo, force=True)
+        assert forced.state == "restored", forced.reason
         assert photo.read_bytes() == original  # the true original, not the once-marked file
+        ((_, kept),) = forced.displaced
+        assert kept.read_bytes() == edited and kept.is_relative_to(ppd_env["data"] / "displaced")
+        # patched again by ppd: its own output, no longer called the creator's bytes
+        assert protect_file(photo, ctx, force=True).state == "patched"
+        assert not ctx.store.file(photo)["resaved"]
     finally:
         ctx.close()
 

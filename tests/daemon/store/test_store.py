@@ -242,8 +242,9 @@ def test_version_3_store_is_migrated_to_the_one_vocabulary(tmp_path: Path) -> No
     # every other column, ids included, came through unchanged
     new_rows = [list(r) for r in store.db.execute("SELECT * FROM files ORDER BY id").fetchall()]
     state_column = 3
-    added = len(new_rows[0]) - len(old_rows[0])  # later migrations' columns (original_mtime_ns): NULL
-    assert added == 1 and all(r[-added:] == [None] * added for r in new_rows)
+    added = len(new_rows[0]) - len(old_rows[0])  # later migrations' columns: NULL
+    # (original_mtime_ns, resaved, saved_over)
+    assert added == 3 and all(r[-added:] == [None] * added for r in new_rows)
     new_rows = [r[:-added] for r in new_rows]
     for old, new in zip(old_rows, new_rows, strict=True):
         assert old[:state_column] + old[state_column + 1 :] == new[:state_column] + new[state_column + 1 :]

@@ -130,6 +130,7 @@ def test_a_store_written_with_the_shipped_schema_reads_back_through_store(tmp_pa
             "original_sha256": "a" * 64, "poisoned_sha256": "b" * 64, "spec_id": SPEC.spec_id,
             "tool_version": "ppd 0.1.0", "size": 123, "mtime_ns": 456, "created_at": 13.0, "updated_at": 14.0,
             "error": None, "published_path": "/pub/trip/a.jpg", "original_mtime_ns": None,
+            "resaved": None, "saved_over": None,
         }  # fmt: skip
         assert [r["path"] for r in store.files("trip", FileState.QUARANTINED)] == ["/o/trip/b.png"]
         assert store.find_poisoned("b" * 64)["id"] == 5 and [
