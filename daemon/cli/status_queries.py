@@ -216,6 +216,8 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "restored_unrecorded": [str(p) for p in folder.restored_unrecorded],
         # ppd's stale temporaries its sweep could not remove (daemon.datasets.folder_count.sweep_temps)
         "leftover_temps": [str(p) for p in folder.temps],
+        # those it removed (a killed run's), said: status is the command a user runs to look
+        "removed_temps": [str(p) for p in folder.temps_removed],
         "patched": patched_count(counts),
         # where marks found no plain place, as `ppd poison` says it (issue 25): the daemon's files too
         "mark_notes": mark_note_lines(ctx.store.patched_place_notes(name)),

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.states import PATCHED_VALUES, WAITING_PREFIX, FileState, patched_count
-from poisoner.atomic import TEMP_PREFIX, remove_stale_temp
+from poisoner.atomic import TEMP_PREFIX, is_temp_name, remove_stale_temp
 from poisoner.media import IMAGE, UNPROTECTED, VIDEO, media_class
 
 if TYPE_CHECKING:
@@ -58,6 +58,8 @@ class FolderCount:
     # ppd's own `.ppd-tmp-*` files in the folder; after dataset_folder's sweep, the stale ones it could
     # not remove (a killed run's hidden copy, published with the folder by a sync)
     temps: list[Path] = field(default_factory=list)
+    # the stale ones dataset_folder's sweep removed: said, never removed in silence
+    temps_removed: list[Path] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         copies = None if self.copies is None else str(self.copies)
@@ -91,7 +93,7 @@ def _walk(folder: Path, skip: Iterable[Path] = ()) -> Walked:
         dirnames[:] = sorted(d for d in dirnames if not d.startswith(".") and here / d not in skipped)
         for name in filenames:
             path = here / name
-            if name.startswith(TEMP_PREFIX):
+            if is_temp_name(name):  # ppd's form only (a user's `.ppd-tmp-notes.txt` is not ppd's)
                 temps.append(path)
             if name.startswith((".", TEMP_PREFIX)) or path.is_symlink():
                 continue
@@ -384,7 +386,10 @@ def dataset_folder(ctx: AppContext, name: str, root: str) -> FolderCount:
     )  # fmt: skip
     # `--out` copies: their folder is the one published, where a killed run's partial copy would be
     temps = count.temps + (_walk(count.copies, [])[2] if count.copies and count.copies.is_dir() else [])
-    return replace(count, temps=sweep_temps(temps)) if temps else count
+    if not temps:
+        return count
+    left, removed = sweep_temps(temps)
+    return replace(count, temps=left, temps_removed=removed)
 
 
 def _vault_stat(vault_dir: Path, sha256: str) -> os.stat_result | None:
@@ -397,21 +402,24 @@ def _vault_stat(vault_dir: Path, sha256: str) -> os.stat_result | None:
         return None
 
 
-def sweep_temps(temps: Iterable[Path]) -> list[Path]:
-    """Remove ppd's stale temporaries (poisoner.atomic.remove_if_stale: no living writer holds them);
-    the stale ones that stay (the folder cannot be written now), which `ppd status` names. A run killed
-    mid-file left a hidden copy where the folder is published, until the next poison or restore there
-    (a black-box review)."""
+def sweep_temps(temps: Iterable[Path]) -> tuple[list[Path], list[Path]]:
+    """Remove ppd's stale temporaries (poisoner.atomic.remove_if_stale: of ppd's form, no living writer
+    holds them): (the stale ones that stay, as the folder cannot be written now; those removed), both
+    named by `ppd status`. A run killed mid-file left a hidden copy where the folder is published, until
+    the next poison or restore there (a black-box review)."""
     left: list[Path] = []
+    removed: list[Path] = []
     for path in temps:
         try:
-            if not remove_stale_temp(path) and _unreadable(path):
+            if remove_stale_temp(path):
+                removed.append(path)
+            elif _unreadable(path):
                 left.append(path)  # not ours to judge (another user's, left by a `sudo ppd`): named
         except FileNotFoundError:
             pass  # removed meanwhile (its writer renamed it, or another sweep)
         except OSError:
             left.append(path)
-    return left
+    return left, removed
 
 
 def _unreadable(path: Path) -> bool:

@@ -47,7 +47,7 @@ from watchdog.events import (
 from watchdog.observers.api import BaseObserver
 
 from daemon.platform import inotify_observer
-from poisoner.atomic import TEMP_PREFIX, remove_stale_temp
+from poisoner.atomic import TEMP_PREFIX, is_temp_name, remove_stale_temp
 from poisoner.media import MEDIA_SUFFIXES, PARTIAL_SUFFIXES, judged_by_content
 
 log = logging.getLogger(__name__)
@@ -147,7 +147,7 @@ def scan_outbox(
     removed: list[Path] = []
     young: list[Path] = []
     for path in walk_files(outbox):
-        if path.name.startswith(TEMP_PREFIX):
+        if is_temp_name(path.name):  # ppd's form only: a user's `.ppd-tmp-notes.txt` is not ppd's
             try:
                 if tmp_grace_s is not None and remove_stale_temp(path, min_age_s=tmp_grace_s, now=now):
                     removed.append(path)
