@@ -64,6 +64,10 @@ def _unprotected_lines(d: dict[str, Any]) -> list[str]:
         lines.append(f"{name}: {c['unprotectable']} photo(s) or video(s) in a format ppd cannot protect, "
                      "NOT protected: convert them to JPEG, PNG, WebP, HEIC, MP4 or a TIFF named .tif, "
                      "or move them out")  # fmt: skip
+    if paths := d.get("unpatched_names"):  # the daemon leaves them; a sync publishes them (F4)
+        from daemon.datasets.unpatched_names import unpatched_line
+
+        lines.append(f"{name}: {unpatched_line(paths, d['unpatched_where'])}")
     if d.get("restored_in_place"):  # originals back where they are published: said in the overview
         # some still patched: a restore stopped part-way (killed) is finished by running it again (a
         # black-box review: only the re-patch was offered to a user who wanted every original back)

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from daemon.states import PATCHED_VALUES, WAITING_PREFIX, FileState, patched_count
 from poisoner.atomic import TEMP_PREFIX, is_temp_name, remove_stale_temp
-from poisoner.media import IMAGE, UNPROTECTED, VIDEO, media_class
+from poisoner.media import IMAGE, UNPROTECTED, VIDEO, media_class, unpatched_name
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -60,6 +60,9 @@ class FolderCount:
     temps: list[Path] = field(default_factory=list)
     # the stale ones dataset_folder's sweep removed: said, never removed in silence
     temps_removed: list[Path] = field(default_factory=list)
+    # photos and videos under names ppd does not patch (hidden, backups, partial downloads), which a
+    # sync publishes all the same (daemon.datasets.unpatched_names)
+    unpatched_names: list[Path] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         copies = None if self.copies is None else str(self.copies)
@@ -69,7 +72,7 @@ class FolderCount:
                 "unprotectable": len(self.unprotectable), "gone": len(self.gone),
                 "moved_to": moved, "renamed": len(self.renamed),
                 "restored_unrecorded": len(self.restored_unrecorded),
-                "leftover_temps": len(self.temps)}  # fmt: skip
+                "leftover_temps": len(self.temps), "unpatched_names": len(self.unpatched_names)}  # fmt: skip
 
 
 def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
@@ -95,7 +98,7 @@ def _walk(folder: Path, skip: Iterable[Path] = ()) -> Walked:
             path = here / name
             if is_temp_name(name):  # ppd's form only (a user's `.ppd-tmp-notes.txt` is not ppd's)
                 temps.append(path)
-            if name.startswith((".", TEMP_PREFIX)) or path.is_symlink():
+            if unpatched_name(name) is not None or path.is_symlink():  # the daemon's rule (unpatched_names)
                 continue
             kind = media_class(path)  # by suffix, else by its first bytes (a .jfif, a file with no suffix)
             if kind in (IMAGE, VIDEO):
@@ -322,6 +325,8 @@ def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int
     merged["files"] = int(counts.get("files", 0)) - removed + len(folder.untracked)
     if folder.unprotectable and folder.copies is None:  # --out: they are not where the copies are
         merged["unprotectable"] = len(folder.unprotectable)
+    if folder.unpatched_names and folder.copies is None:
+        merged["unpatched_names"] = len(folder.unpatched_names)
     if folder.renamed:  # still patched and in the folder: counted by their old rows, under "patched"
         merged["renamed"] = len(folder.renamed)
     if folder.gone:  # deleted or moved away since patched: neither a file of the dataset nor patched
@@ -384,12 +389,21 @@ def dataset_folder(ctx: AppContext, name: str, root: str) -> FolderCount:
         folder, ctx.store.files(name), skip=[*masks, *skip], foreign=foreign,
         original_stat=lambda sha: _vault_stat(ctx.paths.vault_dir, sha),
     )  # fmt: skip
+    if count.exists and count.copies is None:  # with --out, the copies' folder is the one published
+        count = replace(count, unpatched_names=_unpatched(folder, [*masks, *skip], foreign))
     # `--out` copies: their folder is the one published, where a killed run's partial copy would be
     temps = count.temps + (_walk(count.copies, [])[2] if count.copies and count.copies.is_dir() else [])
     if not temps:
         return count
     left, removed = sweep_temps(temps)
     return replace(count, temps=left, temps_removed=removed)
+
+
+def _unpatched(folder: Path, skip: list[Path], foreign: set[str]) -> list[Path]:
+    """The folder's photos under names ppd does not patch, but another dataset's files."""
+    from daemon.datasets.unpatched_names import unpatched_media
+
+    return [p for p in unpatched_media(folder, skip) if str(p) not in foreign]
 
 
 def _vault_stat(vault_dir: Path, sha256: str) -> os.stat_result | None:
@@ -474,7 +488,7 @@ def outbox_unclaimed(outbox: Path, roots: Iterable[str | Path]) -> list[Path]:
             if entry not in known:
                 files, unprotectable, _temps = _walk(entry, [k for k in known if k.is_relative_to(entry)])
                 found += files + unprotectable
-        elif box not in known and media_class(entry) is not None:
+        elif box not in known and unpatched_name(entry.name) is None and media_class(entry) is not None:
             found.append(entry)
     return found
 
@@ -492,6 +506,7 @@ UNPROTECTED_WORDS = {
     "changed": "changed since patched", "untracked": "not patched yet", "pending": "not finished",
     "unprotectable": "in a format ppd cannot protect",
     "restored_unrecorded": "holding the original again",
+    "unpatched_names": "under names ppd does not patch",
 }  # fmt: skip
 
 

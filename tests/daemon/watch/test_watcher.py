@@ -143,6 +143,9 @@ def staged(tmp_path: Path, n: int, prefix: str = "img") -> tuple[list[Path], dic
         ("photo.tmp", True),
         (".hidden.png", True),
         (f"{TEMP_PREFIX}abc.png", True),
+        ("~$IMG_1.jpg", True),
+        ("#IMG_1.jpg#", True),  # Emacs's auto-save
+        ("#IMG_1.jpg", False),  # a photo (a black-box review, F4: left by the daemon, patched by poison)
     ],
 )
 def test_ignore_reason(name: str, ignored: bool) -> None:
