@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import hashlib
+import logging
 import os
 import stat
 import threading
@@ -22,6 +23,8 @@ from pathlib import Path
 
 from poisoner.atomic import atomic_replace_at, clear_stale_temps, fsync_dir
 from poisoner.errors import ExitStatus, PpdError
+
+log = logging.getLogger(__name__)
 
 CHUNK = 1 << 20
 _DIR_FLAGS = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC
@@ -231,7 +234,8 @@ _cleared_lock = threading.Lock()
 
 
 def clear_stale_temps_once(dir_fd: int) -> list[str]:
-    """The first time this process writes in a folder, remove ppd's stale temporaries there."""
+    """The first time this process writes in a folder, remove ppd's stale temporaries there (said in
+    the log: a file removed from a user's folder is never removed in silence)."""
     st = os.fstat(dir_fd)
     key = (st.st_dev, st.st_ino)
     with _cleared_lock:
@@ -239,9 +243,22 @@ def clear_stale_temps_once(dir_fd: int) -> list[str]:
             return []
         _cleared.add(key)
     try:
-        return clear_stale_temps(dir_fd)
+        removed = clear_stale_temps(dir_fd)
     except OSError:
         return []
+    if removed:
+        folder = _folder_of(dir_fd)
+        log.info("removed %d temporary file(s) a killed ppd left in %s: %s", len(removed), folder,
+                 ", ".join(removed), extra={"path": folder})  # fmt: skip
+    return removed
+
+
+def _folder_of(dir_fd: int) -> str:
+    """The open folder's path, for a log line ("?" where /proc cannot say)."""
+    try:
+        return os.readlink(f"/proc/self/fd/{dir_fd}")
+    except OSError:
+        return "?"
 
 
 def move_out(src_dir_fd: int, name: str, dst: Path) -> Path:

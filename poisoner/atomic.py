@@ -11,9 +11,10 @@ folder swapped for a symlink between the decision and the write cannot redirect 
 `atomic_output(path)` is the path-based form for folders ppd trusts (its own, or one the user
 named on the command line).
 
-Temporary names start with TEMP_PREFIX, and a temporary is flock()ed by its writer for as long
-as it lives: `clear_stale_temps` deletes only unlocked ones of a minimum age, so it never
-removes another live process's temporary and never anything that is not ppd's.
+Temporary names are of one exact form (is_temp_name: TEMP_PREFIX, a random token, the destination's
+suffix), and a temporary is flock()ed by its writer for as long as it lives: `clear_stale_temps`
+deletes only unlocked ones of that form and a minimum age, so it never removes another live
+process's temporary and never anything that is not ppd's (a user's `.ppd-tmp-notes.txt` is not).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import errno
 import fcntl
 import json
 import os
+import re
 import secrets
 import stat
 import time
@@ -33,7 +35,21 @@ from typing import Any
 TEMP_PREFIX = ".ppd-tmp-"
 STALE_TEMP_AGE_S = 10.0  # an unlocked temporary this old has no living writer (see clear_stale_temps)
 BORN_LOCKED = "L"  # after TEMP_PREFIX: locked before it had a name (hex names never hold an "L")
+TOKEN_HEX = 6  # bytes of the random token (secrets.token_hex): 12 lowercase hex digits
+LONG_SUFFIXES = (".seal.key",)  # the suffixes of two parts create_temp_at is given (daemon.store.sealkey)
+# create_temp_at's names exactly: the prefix, BORN_LOCKED or not, the token, then no suffix, one
+# extension (atomic_replace_at's: os.path.splitext of the destination) or a LONG_SUFFIXES one. A sweep
+# removes nothing else (a black-box review: `ppd status` deleted a user's `.ppd-tmp-todo.txt`).
+_TEMP_NAME = re.compile(
+    rf"{re.escape(TEMP_PREFIX)}{BORN_LOCKED}?[0-9a-f]{{{2 * TOKEN_HEX}}}"
+    rf"(?:{'|'.join(re.escape(s) for s in LONG_SUFFIXES)}|\.[^.]*)?"
+)
 _DIR_FLAGS = os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC
+
+
+def is_temp_name(name: str) -> bool:
+    """Whether name is of the form of ppd's own temporaries (create_temp_at), the only names swept."""
+    return _TEMP_NAME.fullmatch(name) is not None
 
 
 def fsync_dir(folder: Path) -> None:
@@ -65,7 +81,7 @@ def create_temp_at(dir_fd: int, suffix: str = "") -> tuple[str, int]:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)
             for _ in range(100):
-                name = f"{TEMP_PREFIX}{BORN_LOCKED}{secrets.token_hex(6)}{suffix}"
+                name = f"{TEMP_PREFIX}{BORN_LOCKED}{secrets.token_hex(TOKEN_HEX)}{suffix}"
                 try:
                     os.link(f"/proc/self/fd/{fd}", name, dst_dir_fd=dir_fd, follow_symlinks=True)
                     return name, fd
@@ -75,7 +91,7 @@ def create_temp_at(dir_fd: int, suffix: str = "") -> tuple[str, int]:
             pass  # no /proc, or linkat refused: fall back to a named temporary
         os.close(fd)
     for _ in range(100):
-        name = f"{TEMP_PREFIX}{secrets.token_hex(6)}{suffix}"
+        name = f"{TEMP_PREFIX}{secrets.token_hex(TOKEN_HEX)}{suffix}"
         try:
             fd = os.open(name, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600,
                          dir_fd=dir_fd)  # fmt: skip
@@ -179,7 +195,7 @@ def atomic_write_json(
 def clear_stale_temps(
     dir_fd: int, *, min_age_s: float = STALE_TEMP_AGE_S, now: float | None = None
 ) -> list[str]:
-    """Delete ppd's own leftover temporaries in the folder dir_fd: names starting with TEMP_PREFIX,
+    """Delete ppd's own leftover temporaries in the folder dir_fd: names of their form (is_temp_name),
     regular files, not locked by a living writer, and (unless born locked) at least min_age_s
     old (the age covers the instant between a named temporary's creation and its lock, and
     temporaries of older ppd versions). Returns the names removed."""
@@ -191,7 +207,7 @@ def remove_if_stale(
     dir_fd: int, name: str, *, min_age_s: float = STALE_TEMP_AGE_S, now: float | None = None
 ) -> bool:
     """Remove the temporary `name` in dir_fd if it is a stale one of ppd's (see clear_stale_temps)."""
-    if not name.startswith(TEMP_PREFIX):
+    if not is_temp_name(name):
         return False
     born_locked = name.startswith(TEMP_PREFIX + BORN_LOCKED)
     return remove_if_unlocked(dir_fd, name, min_age_s=0.0 if born_locked else min_age_s, now=now)

@@ -167,16 +167,52 @@ def _ftyp_brands(head: bytes) -> set[bytes]:
 
 def judged_by_content(name: str) -> bool:
     """Whether media_class opens a file of this name to read its first bytes: its suffix names no
-    format, and it is not hidden (ppd's own temporaries are), a partial download, an editor's backup,
-    a sidecar or a note."""
+    format, and it is not hidden (ppd's own temporaries are), a partial download, an editor's file
+    (unpatched_name), a sidecar or a note."""
     stem, suffix = os.path.splitext(name)
     suffix = suffix.lower()
     named = suffix in MEDIA_SUFFIXES or suffix in UNPROTECTED_SUFFIXES
     # `photo.jpg.!sync`, `a.png.xyz`: how download, sync and backup tools name what is not the photo yet
     # (a diff review: a preallocated download was patched while its tool still wrote it)
     named_before = suffix_of(stem) in MEDIA_SUFFIXES or suffix_of(stem) in UNPROTECTED_SUFFIXES
-    return not (named or named_before or name.startswith(".") or name.endswith("~")
-                or suffix in PARTIAL_SUFFIXES or suffix in NOT_MEDIA_SUFFIXES)  # fmt: skip
+    return not (named or named_before or unpatched_name(name) is not None
+                or suffix in NOT_MEDIA_SUFFIXES)  # fmt: skip
+
+
+def unpatched_name(name: str) -> str | None:
+    """Why ppd never patches a file of this name as it is (None: it may): hidden (a writer's temporary,
+    a thumbnail, a trash), an editor's backup or lock file, a partial download or a sync tool's temporary
+    (PARTIAL_SUFFIXES), which is renamed to its real name once complete. The daemon's rule (docs/DAEMON.md),
+    which `ppd poison` and `ppd status` name such a file by. An editor's file is `name~`, `~$name` or
+    Emacs's `#name#`: a photo named `#IMG_1.jpg` is a photo, patched by all three (a black-box review: the
+    daemon left it, status and poison did not)."""
+    if name.startswith("."):
+        return "hidden"
+    if name.endswith("~"):
+        return "editor backup"
+    if name.startswith("~$") or (len(name) > 1 and name.startswith("#") and name.endswith("#")):
+        return "editor lock file"
+    suffix = suffix_of(name)
+    if suffix in PARTIAL_SUFFIXES:
+        return f"partial/temporary file ({suffix})"
+    return None
+
+
+# ISO-BMFF (MP4, MOV) and Matroska (MKV, WebM) files begin so
+_VIDEO_MAGIC = re.compile(rb".{4}ftyp|\x1a\x45\xdf\xa3", re.DOTALL)
+
+
+def content_under_any_name(name: str, head: bytes) -> str | None:
+    """What a file holds by its first bytes, whatever its name: IMAGE or UNPROTECTED (content_class), or
+    VIDEO for an MP4, MOV or Matroska file whose name carries a video suffix, its own or before a
+    partial one (`clip.mp4.part`, `.clip.mov`): audio is an MP4 too, and a `._clip.mp4` (macOS's
+    resource fork beside a copy) begins otherwise. None: none of these. For a file ppd does not patch by
+    its name (unpatched_name): read SNIFF_BYTES, never decoded."""
+    if (kind := content_class(head)) is not None:
+        return kind
+    stem = name.rstrip("~")
+    named = {suffix_of(stem), suffix_of(os.path.splitext(stem)[0])}
+    return VIDEO if named & VIDEO_SUFFIXES and _VIDEO_MAGIC.match(head) else None
 
 
 def read_head(path: str | os.PathLike[str]) -> bytes:
@@ -213,6 +249,7 @@ def is_sfm_readable(path: str | os.PathLike[str]) -> bool:
 __all__ = [
     "IMAGE", "IMAGE_SUFFIXES", "MEDIA_SUFFIXES", "NOT_MEDIA_SUFFIXES", "PARTIAL_SUFFIXES", "SFM_SUFFIXES",
     "SNIFF_BYTES", "UNPROTECTED", "UNPROTECTED_SUFFIXES", "VIDEO", "VIDEO_SUFFIXES", "content_class",
-    "image_format", "is_image", "is_media", "is_photo", "is_sfm_readable", "is_unprotected_media",
-    "is_video", "judged_by_content", "media_class", "read_head", "suffix_of",
+    "content_under_any_name", "image_format", "is_image", "is_media", "is_photo", "is_sfm_readable",
+    "is_unprotected_media", "is_video", "judged_by_content", "media_class", "read_head", "suffix_of",
+    "unpatched_name",
 ]  # fmt: skip

@@ -27,7 +27,7 @@ from typing import Any
 
 import msgspec
 
-from poisoner.atomic import STALE_TEMP_AGE_S, TEMP_PREFIX, atomic_write_bytes, remove_if_stale
+from poisoner.atomic import STALE_TEMP_AGE_S, atomic_write_bytes, is_temp_name, remove_if_stale
 from verifier.progress import ProgressBoard
 from verifier.sfm import SfmJob, SfmSettings, run_sfm_job
 from verifier.verify_options import VerifyOptions
@@ -77,7 +77,7 @@ def sweep_killed_databases(folder: Path) -> list[str]:
         return []
     removed: list[str] = []
     try:
-        names = [n for n in os.listdir(dir_fd) if n.startswith(TEMP_PREFIX)]
+        names = [n for n in os.listdir(dir_fd) if is_temp_name(n)]  # ppd's form (a sidecar's too)
         bases = {n for n in names if not n.endswith(SQLITE_SIDECARS)}
         removed += [n for n in sorted(bases) if remove_if_stale(dir_fd, n)]
         for name in names:

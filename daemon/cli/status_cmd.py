@@ -98,11 +98,12 @@ COUNT_WORDS = {
     "gone": "deleted or moved away since patched", "unprotectable": "in a format ppd cannot protect",
     "removed": "deleted or moved away earlier",  # a row ppd recorded so: a renamed file's old name too
     "restored_unrecorded": "holding the original again",
+    "unpatched_names": "under names ppd does not patch",
 }  # fmt: skip
 NOT_MOVED_WORDS = "NOT moved to the publish folder: still in the outbox"
 # Counts that are no part of "files": files no longer there (their rows history), files of a format ppd
 # cannot patch; "renamed" is a part of "patched"
-NOT_COUNTED = ("gone", "removed", "unprotectable")
+NOT_COUNTED = ("gone", "removed", "unprotectable", "unpatched_names")
 
 
 def files_line(counts: dict[str, Any]) -> str:
@@ -253,7 +254,9 @@ def _outbox_not_patched(outbox: Path, report: list[dict[str, Any]], unclaimed: l
     return sorted({*map(str, unclaimed), *held})
 
 
-def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any, unclaimed: list[Path]) -> None:
+def _print_json(
+    ctx: AppContext, report: list[dict[str, Any]], sync: Any, unclaimed: list[Path], misnamed: list[Path]
+) -> None:
     # --check's answer and reasons, per dataset: a script had to rebuild the rule (a black-box review)
     datasets = [{**d, "not_ready": [] if _gone(d) else unready_reasons(d)} for d in report]
     payload = {
@@ -264,7 +267,9 @@ def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any, unclai
         # clean outbox while the "default" dataset had a new photo: a black-box review); sorted
         "outbox_not_patched": _outbox_not_patched(ctx.paths.outbox, report, unclaimed),
         "outbox_no_dataset": [str(p) for p in unclaimed],  # what outbox_not_patched held before
-        "ready_to_publish": bool(report) and not unclaimed
+        # in no dataset's folder, under names ppd does not patch (a hidden folder of the outbox's)
+        "outbox_unpatched_names": [str(p) for p in misnamed],
+        "ready_to_publish": bool(report) and not unclaimed and not misnamed
         and any(not _gone(d) for d in report) and not any(d["not_ready"] for d in datasets),
     }
     typer.echo(json.dumps(payload, indent=2, default=str))
@@ -389,19 +394,24 @@ def status(
                 raise die(exc) from None
         report = [dataset_status(ctx, n) for n in names]
         unclaimed = [] if dataset is not None else outbox_unclaimed(ctx)
+        misnamed = [] if dataset is not None else outbox_unpatched_names(ctx)
         if failed:
             for d in report:
                 d["failed_files"] = failed_files(ctx, d["name"])
         sync = find_sync_folder(ctx.paths.outbox)
         if as_json:
-            _print_json(ctx, report, sync, unclaimed)
+            _print_json(ctx, report, sync, unclaimed, misnamed)
         else:
             _print_report(ctx, report, sync, failed, detailed=long or bool(dataset))
             if unclaimed:
                 print_line(console(), unclaimed_line(ctx.paths.outbox, unclaimed))
+            if misnamed:
+                from daemon.datasets.unpatched_names import unpatched_line
+
+                print_line(console(), f"outbox: {unpatched_line(misnamed, 'the outbox')}")
     finally:
         ctx.close()
-    _exit_if_unready(report, check, unclaimed)
+    _exit_if_unready(report, check, unclaimed, misnamed)
 
 
 def unready_reasons(d: dict[str, Any]) -> list[str]:
@@ -440,6 +450,15 @@ def outbox_unclaimed(ctx: AppContext) -> list[Path]:
     return [p for p in found if os.path.realpath(p) not in named]
 
 
+def outbox_unpatched_names(ctx: AppContext) -> list[Path]:
+    """The outbox's photos under names ppd does not patch that no dataset counts (its hidden and
+    unclaimed folders: daemon.datasets.unpatched_names), ppd's own folders left out."""
+    from daemon.datasets.unpatched_names import outbox_unpatched
+
+    own = [ctx.paths.data_dir, ctx.paths.cache_dir]
+    return outbox_unpatched(ctx.paths.outbox, [d["root"] for d in ctx.store.datasets()], own)
+
+
 def unclaimed_line(outbox: Path, unclaimed: list[Path]) -> str:
     """One line: how many, which (a few), and what patches them."""
     from daemon.protect.job import shown_path
@@ -453,7 +472,9 @@ def unclaimed_line(outbox: Path, unclaimed: list[Path]) -> str:
     )
 
 
-def _exit_if_unready(report: list[dict[str, Any]], check: bool, unclaimed: Sequence[Path] = ()) -> None:
+def _exit_if_unready(
+    report: list[dict[str, Any]], check: bool, unclaimed: Sequence[Path] = (), misnamed: Sequence[Path] = ()
+) -> None:
     """--check: one line per dataset not ready to publish (stderr), then exit 1. A dataset whose
     folder is gone and that holds no file now publishes nothing: it is not shown, and not waited for
     (a black-box review: after a folder was renamed, --check could never pass again)."""
@@ -464,6 +485,10 @@ def _exit_if_unready(report: list[dict[str, Any]], check: bool, unclaimed: Seque
     unready = [(name, why) for name, why in unready if why]
     if unclaimed:
         unready.append(("outbox", [f"{len(unclaimed)} photo(s) or video(s) not patched yet"]))
+    if misnamed:
+        from daemon.datasets.unpatched_names import WORDS
+
+        unready.append(("outbox", [f"{len(misnamed)} photo(s) or video(s) {WORDS}"]))
     for name, why in unready:
         err_console().print(f"not ready to publish: {name}: {', '.join(why)}", markup=False, highlight=False)
     if not shown and not unready:  # exit 1 said nothing (a second black-box review): say why

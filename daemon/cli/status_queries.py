@@ -134,6 +134,11 @@ def _last_verification(latest: dict[str, Any] | None) -> dict[str, Any] | None:
     }
 
 
+def _where(ctx: AppContext, root: str) -> str:
+    """What a dataset's files are published with: the outbox (a sync publishes it whole), or its folder."""
+    return "the outbox" if Path(root).is_relative_to(ctx.paths.outbox) else "the folder"
+
+
 def _moved_into(ctx: AppContext, name: str, folder: FolderCount) -> dict[str, Any]:
     """Where a dataset's gone folder went (FolderCount.to_dict keys): moved_to as seen beside it, and
     moved_to_dataset, the other dataset that holds its files now: the user ran `ppd poison NEWFOLDER`,
@@ -216,6 +221,11 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "restored_unrecorded": [str(p) for p in folder.restored_unrecorded],
         # ppd's stale temporaries its sweep could not remove (daemon.datasets.folder_count.sweep_temps)
         "leftover_temps": [str(p) for p in folder.temps],
+        # those it removed (a killed run's), said: status is the command a user runs to look
+        "removed_temps": [str(p) for p in folder.temps_removed],
+        # photos under names ppd does not patch, published with the folder (daemon.datasets.unpatched_names)
+        "unpatched_names": [str(p) for p in folder.unpatched_names],
+        "unpatched_where": _where(ctx, row["root"]),
         "patched": patched_count(counts),
         # where marks found no plain place, as `ppd poison` says it (issue 25): the daemon's files too
         "mark_notes": mark_note_lines(ctx.store.patched_place_notes(name)),

@@ -64,6 +64,10 @@ def _unprotected_lines(d: dict[str, Any]) -> list[str]:
         lines.append(f"{name}: {c['unprotectable']} photo(s) or video(s) in a format ppd cannot protect, "
                      "NOT protected: convert them to JPEG, PNG, WebP, HEIC, MP4 or a TIFF named .tif, "
                      "or move them out")  # fmt: skip
+    if paths := d.get("unpatched_names"):  # the daemon leaves them; a sync publishes them (F4)
+        from daemon.datasets.unpatched_names import unpatched_line
+
+        lines.append(f"{name}: {unpatched_line(paths, d['unpatched_where'])}")
     if d.get("restored_in_place"):  # originals back where they are published: said in the overview
         # some still patched: a restore stopped part-way (killed) is finished by running it again (a
         # black-box review: only the re-patch was offered to a user who wanted every original back)
@@ -79,7 +83,8 @@ def _unprotected_lines(d: dict[str, Any]) -> list[str]:
 
 def _stopped_run_lines(d: dict[str, Any]) -> list[str]:
     """What a `ppd restore` (or poison) killed mid-file left: originals back but not recorded (not
-    "changed since patched": they hold the original's bytes), and temporaries that could not be swept."""
+    "changed since patched": they hold the original's bytes), and its temporaries: those the sweep removed,
+    those it could not."""
     name, lines = d["name"], []
     if restored := d.get("restored_unrecorded"):
         # which of the two put it back is not known: a user's copy must not be steered into staying
@@ -90,10 +95,16 @@ def _stopped_run_lines(d: dict[str, Any]) -> list[str]:
                      f"restore`), NOT protected: `ppd poison {root}` protects them again; `{command}` "
                      "records them restored if that is what you meant")  # fmt: skip
     if temps := d.get("leftover_temps"):
-        shown = ", ".join(shlex.quote(t) for t in temps[:3]) + (", ..." if len(temps) > 3 else "")
         lines.append(f"{name}: {len(temps)} hidden temporary file(s) of a stopped ppd run, which ppd could "
-                     f"not remove: delete them before the folder is published ({shown})")  # fmt: skip
+                     f"not remove: delete them before the folder is published ({_shown(temps)})")  # fmt: skip
+    if removed := d.get("removed_temps"):
+        lines.append(f"{name}: removed {len(removed)} temporary file(s) a killed ppd left: {_shown(removed)}")
     return lines
+
+
+def _shown(paths: list[str], most: int = 3) -> str:
+    """The first few paths, shell-quoted, `, ...` when there are more."""
+    return ", ".join(shlex.quote(p) for p in paths[:most]) + (", ..." if len(paths) > most else "")
 
 
 def step_lines(report: list[dict[str, Any]]) -> list[str]:

@@ -23,8 +23,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.states import PATCHED_VALUES, WAITING_PREFIX, FileState, patched_count
-from poisoner.atomic import TEMP_PREFIX, remove_stale_temp
-from poisoner.media import IMAGE, UNPROTECTED, VIDEO, media_class
+from poisoner.atomic import TEMP_PREFIX, is_temp_name, remove_stale_temp
+from poisoner.media import IMAGE, UNPROTECTED, VIDEO, media_class, unpatched_name
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -58,6 +58,11 @@ class FolderCount:
     # ppd's own `.ppd-tmp-*` files in the folder; after dataset_folder's sweep, the stale ones it could
     # not remove (a killed run's hidden copy, published with the folder by a sync)
     temps: list[Path] = field(default_factory=list)
+    # the stale ones dataset_folder's sweep removed: said, never removed in silence
+    temps_removed: list[Path] = field(default_factory=list)
+    # photos and videos under names ppd does not patch (hidden, backups, partial downloads), which a
+    # sync publishes all the same (daemon.datasets.unpatched_names)
+    unpatched_names: list[Path] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         copies = None if self.copies is None else str(self.copies)
@@ -67,7 +72,7 @@ class FolderCount:
                 "unprotectable": len(self.unprotectable), "gone": len(self.gone),
                 "moved_to": moved, "renamed": len(self.renamed),
                 "restored_unrecorded": len(self.restored_unrecorded),
-                "leftover_temps": len(self.temps)}  # fmt: skip
+                "leftover_temps": len(self.temps), "unpatched_names": len(self.unpatched_names)}  # fmt: skip
 
 
 def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
@@ -91,9 +96,9 @@ def _walk(folder: Path, skip: Iterable[Path] = ()) -> Walked:
         dirnames[:] = sorted(d for d in dirnames if not d.startswith(".") and here / d not in skipped)
         for name in filenames:
             path = here / name
-            if name.startswith(TEMP_PREFIX):
+            if is_temp_name(name):  # ppd's form only (a user's `.ppd-tmp-notes.txt` is not ppd's)
                 temps.append(path)
-            if name.startswith((".", TEMP_PREFIX)) or path.is_symlink():
+            if unpatched_name(name) is not None or path.is_symlink():  # the daemon's rule (unpatched_names)
                 continue
             kind = media_class(path)  # by suffix, else by its first bytes (a .jfif, a file with no suffix)
             if kind in (IMAGE, VIDEO):
@@ -320,6 +325,8 @@ def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int
     merged["files"] = int(counts.get("files", 0)) - removed + len(folder.untracked)
     if folder.unprotectable and folder.copies is None:  # --out: they are not where the copies are
         merged["unprotectable"] = len(folder.unprotectable)
+    if folder.unpatched_names and folder.copies is None:
+        merged["unpatched_names"] = len(folder.unpatched_names)
     if folder.renamed:  # still patched and in the folder: counted by their old rows, under "patched"
         merged["renamed"] = len(folder.renamed)
     if folder.gone:  # deleted or moved away since patched: neither a file of the dataset nor patched
@@ -382,9 +389,21 @@ def dataset_folder(ctx: AppContext, name: str, root: str) -> FolderCount:
         folder, ctx.store.files(name), skip=[*masks, *skip], foreign=foreign,
         original_stat=lambda sha: _vault_stat(ctx.paths.vault_dir, sha),
     )  # fmt: skip
+    if count.exists and count.copies is None:  # with --out, the copies' folder is the one published
+        count = replace(count, unpatched_names=_unpatched(folder, [*masks, *skip], foreign))
     # `--out` copies: their folder is the one published, where a killed run's partial copy would be
     temps = count.temps + (_walk(count.copies, [])[2] if count.copies and count.copies.is_dir() else [])
-    return replace(count, temps=sweep_temps(temps)) if temps else count
+    if not temps:
+        return count
+    left, removed = sweep_temps(temps)
+    return replace(count, temps=left, temps_removed=removed)
+
+
+def _unpatched(folder: Path, skip: list[Path], foreign: set[str]) -> list[Path]:
+    """The folder's photos under names ppd does not patch, but another dataset's files."""
+    from daemon.datasets.unpatched_names import unpatched_media
+
+    return [p for p in unpatched_media(folder, skip) if str(p) not in foreign]
 
 
 def _vault_stat(vault_dir: Path, sha256: str) -> os.stat_result | None:
@@ -397,21 +416,24 @@ def _vault_stat(vault_dir: Path, sha256: str) -> os.stat_result | None:
         return None
 
 
-def sweep_temps(temps: Iterable[Path]) -> list[Path]:
-    """Remove ppd's stale temporaries (poisoner.atomic.remove_if_stale: no living writer holds them);
-    the stale ones that stay (the folder cannot be written now), which `ppd status` names. A run killed
-    mid-file left a hidden copy where the folder is published, until the next poison or restore there
-    (a black-box review)."""
+def sweep_temps(temps: Iterable[Path]) -> tuple[list[Path], list[Path]]:
+    """Remove ppd's stale temporaries (poisoner.atomic.remove_if_stale: of ppd's form, no living writer
+    holds them): (the stale ones that stay, as the folder cannot be written now; those removed), both
+    named by `ppd status`. A run killed mid-file left a hidden copy where the folder is published, until
+    the next poison or restore there (a black-box review)."""
     left: list[Path] = []
+    removed: list[Path] = []
     for path in temps:
         try:
-            if not remove_stale_temp(path) and _unreadable(path):
+            if remove_stale_temp(path):
+                removed.append(path)
+            elif _unreadable(path):
                 left.append(path)  # not ours to judge (another user's, left by a `sudo ppd`): named
         except FileNotFoundError:
             pass  # removed meanwhile (its writer renamed it, or another sweep)
         except OSError:
             left.append(path)
-    return left
+    return left, removed
 
 
 def _unreadable(path: Path) -> bool:
@@ -466,7 +488,7 @@ def outbox_unclaimed(outbox: Path, roots: Iterable[str | Path]) -> list[Path]:
             if entry not in known:
                 files, unprotectable, _temps = _walk(entry, [k for k in known if k.is_relative_to(entry)])
                 found += files + unprotectable
-        elif box not in known and media_class(entry) is not None:
+        elif box not in known and unpatched_name(entry.name) is None and media_class(entry) is not None:
             found.append(entry)
     return found
 
@@ -484,6 +506,7 @@ UNPROTECTED_WORDS = {
     "changed": "changed since patched", "untracked": "not patched yet", "pending": "not finished",
     "unprotectable": "in a format ppd cannot protect",
     "restored_unrecorded": "holding the original again",
+    "unpatched_names": "under names ppd does not patch",
 }  # fmt: skip
 
 

@@ -51,6 +51,7 @@ from daemon.datasets.subject_masks import (
     sibling_images,
     subject_masks_for,
 )
+from daemon.datasets.unpatched_names import unpatched_name_reason
 from daemon.fsops import (
     ContainedFile,
     NotContained,
@@ -101,7 +102,7 @@ from daemon.states import LINKED_FOLDER_PREFIX, STILL_OPEN_PREFIX, UNPROTECTED_P
 from daemon.store.vault import VaultContentChanged, sha256_file
 from poisoner.atomic import atomic_replace_at
 from poisoner.errors import ExitStatus, PpdError
-from poisoner.media import SNIFF_BYTES, UNPROTECTED, media_class
+from poisoner.media import SNIFF_BYTES, UNPROTECTED, media_class, unpatched_name
 from poisoner.spec import PatchSpec
 
 log = logging.getLogger(__name__)
@@ -141,6 +142,9 @@ def open_contained_file(job: Job) -> ProtectOutcome | None:
     # file in it turns out to be done already: once a folder, a process
     clear_stale_temps_once(job.file.dir_fd)
     opened = job.file  # a suffix of no format: the file's first bytes, read through its descriptor
+    if unpatched_name(job.path.name) is not None:  # the daemon's rule: a backup, a partial download
+        said = unpatched_name_reason(job.path.name, False, os.pread(opened.fd, SNIFF_BYTES, 0))
+        return job.outcome(Outcome.SKIPPED, said or "not a supported image or video")  # a photo: said so
     kind = media_class(job.path, lambda: os.pread(opened.fd, SNIFF_BYTES, 0))
     if kind == UNPROTECTED:  # a photo ppd does not write (GIF, raw): the run's summary names it
         return job.outcome(Outcome.SKIPPED, f"{UNPROTECTED_PREFIX}: a format ppd cannot patch")

@@ -47,8 +47,8 @@ from watchdog.events import (
 from watchdog.observers.api import BaseObserver
 
 from daemon.platform import inotify_observer
-from poisoner.atomic import TEMP_PREFIX, remove_stale_temp
-from poisoner.media import MEDIA_SUFFIXES, PARTIAL_SUFFIXES, judged_by_content
+from poisoner.atomic import TEMP_PREFIX, is_temp_name, remove_stale_temp
+from poisoner.media import MEDIA_SUFFIXES, judged_by_content, unpatched_name
 
 log = logging.getLogger(__name__)
 
@@ -57,17 +57,9 @@ FileSignature = tuple[int, int, int]  # (inode, size, mtime_ns): changes wheneve
 
 
 def ignore_reason(name: str) -> str | None:
-    """Why a file name is never processed as it is (None: it may be)."""
-    if name.startswith("."):
-        return "dot-file" if not name.startswith(TEMP_PREFIX) else "ppd temporary file"
-    if name.endswith("~"):
-        return "editor backup"
-    if name.startswith("~$") or name.startswith("#"):
-        return "editor lock file"
-    suffix = os.path.splitext(name)[1].lower()
-    if suffix in PARTIAL_SUFFIXES:
-        return f"partial/temporary file ({suffix})"
-    return None
+    """Why a file name is never processed as it is (None: it may be): poisoner.media.unpatched_name,
+    the rule `ppd status` and `ppd poison` name such a file by."""
+    return "ppd temporary file" if is_temp_name(name) else unpatched_name(name)
 
 
 def relative_parts(outbox: Path, path: Path) -> tuple[str, ...] | None:
@@ -147,7 +139,7 @@ def scan_outbox(
     removed: list[Path] = []
     young: list[Path] = []
     for path in walk_files(outbox):
-        if path.name.startswith(TEMP_PREFIX):
+        if is_temp_name(path.name):  # ppd's form only: a user's `.ppd-tmp-notes.txt` is not ppd's
             try:
                 if tmp_grace_s is not None and remove_stale_temp(path, min_age_s=tmp_grace_s, now=now):
                     removed.append(path)

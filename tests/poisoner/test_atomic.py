@@ -18,6 +18,9 @@ from poisoner.atomic import (
     atomic_write_bytes,
     atomic_write_json,
     atomic_write_text,
+    clear_stale_temps,
+    create_temp_at,
+    is_temp_name,
 )
 
 
@@ -114,3 +117,26 @@ def test_an_explicit_mode_wins_over_the_existing_file_and_the_umask(tmp_path: Pa
     with atomic_output(tmp_path / "copy.bin", mode_like=fresh, mode=0o604) as tmp:
         tmp.write_bytes(b"y")
     assert ((tmp_path / "copy.bin").stat().st_mode & 0o777) == 0o604
+
+
+def test_a_sweep_removes_only_names_of_ppds_own_form(tmp_path: Path) -> None:
+    """A black-box review (F14): every unlocked `.ppd-tmp-*` older than 10 s went, whoever made it (a
+    user's `.ppd-tmp-todo.txt`); now only create_temp_at's form: the prefix, a 12-hex token, a suffix."""
+    dir_fd = os.open(tmp_path, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        made = []
+        for suffix in ("", ".jpg", ".seal.key", ".db"):
+            name, fd = create_temp_at(dir_fd, suffix)
+            os.close(fd)  # its writer gone
+            made.append(name)
+        theirs = [f"{TEMP_PREFIX}{rest}" for rest in (
+            "todo.txt", "my-notes.jpg", "0123456789ab.jpg.bak", "0123456789AB.jpg", "L0123456789abc.jpg",
+        )]  # fmt: skip
+        for name in [*made, *theirs]:
+            (tmp_path / name).write_bytes(b"x")
+            os.utime(tmp_path / name, (time.time() - 3600, time.time() - 3600))
+        assert all(is_temp_name(n) for n in made) and not any(is_temp_name(n) for n in theirs)
+        assert sorted(clear_stale_temps(dir_fd)) == sorted(made)
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(theirs)  # before: all gone
+    finally:
+        os.close(dir_fd)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from poisoner.media import IMAGE, UNPROTECTED, media_class
+from poisoner.media import IMAGE, UNPROTECTED, VIDEO, content_under_any_name, media_class, unpatched_name
 
 JPEG_HEAD = b"\xff\xd8\xff\xe0\x00\x10JFIF\x00" + bytes(53)
 
@@ -48,3 +48,33 @@ def test_a_fifo_is_not_read(tmp_path: Path) -> None:
     judge.start()
     judge.join(timeout=10)
     assert not judge.is_alive() and answer == [None]
+
+
+MP4_HEAD = b"\x00\x00\x00\x18ftypmp42" + bytes(52)
+
+
+@pytest.mark.parametrize(
+    "name, head, kind",
+    [
+        ("IMG_0024.part", JPEG_HEAD, IMAGE),
+        (".IMG_0017.jpg", JPEG_HEAD, IMAGE),
+        ("clip.mp4.part", MP4_HEAD, VIDEO),
+        (".clip.mov", MP4_HEAD, VIDEO),
+        ("memo.part", MP4_HEAD, None),  # an MP4 may be sound alone: a video only by its name
+        ("._IMG_0017.jpg", b"\x00\x05\x16\x07" + bytes(60), None),  # macOS's resource fork of a copy
+        ("notes.txt.bak", b"my notes" + bytes(56), None),
+    ],
+)
+def test_a_file_under_a_name_ppd_does_not_patch_is_told_by_its_first_bytes(
+    name: str, head: bytes, kind: str | None
+) -> None:
+    """A black-box review (F4): `ppd status` never counted the JPEGs under names ppd does not patch."""
+    assert unpatched_name(name) is not None
+    assert content_under_any_name(name, head) == kind
+
+
+def test_a_photo_named_with_a_hash_is_a_photo_emacs_autosave_is_not(tmp_path: Path) -> None:
+    assert unpatched_name("#IMG_0022.jpg") is None and unpatched_name("#IMG_0022.jpg#") == "editor lock file"
+    path = tmp_path / "#IMG_0022.jpg#"
+    path.write_bytes(JPEG_HEAD)
+    assert media_class(path) is None  # before: a JPEG by its bytes, which `ppd poison` patched

@@ -4,10 +4,12 @@ it): what it leaves must be recognised by the next run, and the user's files nev
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -142,7 +144,9 @@ def test_status_sweeps_the_temporary_a_killed_restore_left_and_keeps_a_live_ones
         status = runner.invoke(app, ["status", "shoot"])
         assert status.exit_code == 0, status.output
         assert _temps(shoot) == [alive], (left, alive)  # the dead one's gone, the live one's kept
-        assert "temporary" not in status.output, status.output  # swept: nothing left to say
+        text = " ".join(status.output.split())
+        assert f"removed 1 temporary file(s) a killed ppd left: {shoot / left}" in text, text  # said
+        assert "could not remove" not in text, text  # swept: nothing left to do
         live.stdin.close()
     assert runner.invoke(app, ["status", "--check"]).exit_code == 1  # patched, not verified
     assert _temps(shoot) == []  # its writer gone, the second one is swept too
@@ -283,6 +287,30 @@ def test_status_sweeps_a_dead_writers_temporary_in_the_out_copies_folder(
     assert status.exit_code == 0, status.output
     assert _temps(copies) == []  # before: left, and unnamed
     assert sorted(p.name for p in copies.iterdir()) == ["v0.png", "v1.png"]  # the copies themselves kept
+
+
+def test_status_removes_only_ppds_own_temporaries_and_says_so(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A black-box review (F14): `ppd status` deleted, in silence, any `.ppd-tmp-*` file 10 s old in a
+    dataset folder, whoever made it (a user's `.ppd-tmp-todo.txt`, `.ppd-tmp-my-notes.jpg`). Now only
+    a name of ppd's own form with no living writer goes, and status says what it removed."""
+    shoot = make_shoot(tmp_path / "shoot", 2)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    notes = shoot / ".ppd-tmp-todo.txt"
+    notes.write_text("my notes")
+    photo = shoot / ".ppd-tmp-my-notes.jpg"
+    photo.write_bytes((shoot / "v0.png").read_bytes())
+    dead = shoot / _dead_writers_temp(shoot)
+    for path in (notes, photo, dead):
+        os.utime(path, (time.time() - 120, time.time() - 120))
+    status = runner.invoke(app, ["status", "shoot"], env={"COLUMNS": "300"})
+    assert status.exit_code == 0, status.output
+    assert notes.read_text() == "my notes" and photo.exists()  # before: both gone
+    assert not dead.exists()
+    assert f"shoot: removed 1 temporary file(s) a killed ppd left: {dead}" in status.output, status.output
+    data = json.loads(runner.invoke(app, ["status", "shoot", "--json"]).output)
+    assert data["datasets"][0]["removed_temps"] == []  # said once: nothing left to remove
 
 
 def test_status_names_a_temporary_it_cannot_open(ppd_env: dict[str, Path], tmp_path: Path) -> None:

@@ -5,9 +5,12 @@ stale private work folders in the vault (issue 15 row 4, issue 20 row 7)."""
 from __future__ import annotations
 
 import fcntl
+import logging
 import os
 import time
 from pathlib import Path
+
+import pytest
 
 import daemon.fsops
 from daemon.protect.one_file import AppContext, protect_file
@@ -20,31 +23,42 @@ def _age(path: Path, seconds: float) -> None:
     os.utime(path, (then, then))
 
 
-def test_stale_temporaries_go_live_ones_and_others_stay(ppd_env: dict[str, Path]) -> None:
+def test_stale_temporaries_go_live_ones_and_others_stay(
+    ppd_env: dict[str, Path], caplog: pytest.LogCaptureFixture
+) -> None:
+    """Another program's file under ppd's prefix stays (a black-box review, F14: a user's
+    `.ppd-tmp-notes.txt` went); what is removed from the user's folder is logged."""
     folder = ppd_env["outbox"] / "ds"
     photo = write_image(folder / "a.jpg", seed=1)
-    stale = folder / f"{TEMP_PREFIX}dead01.jpg"
+    stale = folder / f"{TEMP_PREFIX}0000000dead1.jpg"
     stale.write_bytes(b"")  # a zero-byte leftover of a killed `ppd poison`
     _age(stale, 3600)
-    live = folder / f"{TEMP_PREFIX}live01.jpg"
+    live = folder / f"{TEMP_PREFIX}00000000a1fe.jpg"
     live.write_bytes(b"half")
     _age(live, 3600)
     holder = os.open(live, os.O_RDWR)
     fcntl.flock(holder, fcntl.LOCK_EX)  # another ppd process still writing it
-    young = folder / f"{TEMP_PREFIX}young1.jpg"
+    young = folder / f"{TEMP_PREFIX}0000000000e1.jpg"
     young.write_bytes(b"")
     other = folder / ".someone-else.tmp"
     other.write_bytes(b"not ours")
     _age(other, 3600)
+    notes = folder / f"{TEMP_PREFIX}notes.txt"  # ppd's prefix, not its form: a person's
+    notes.write_bytes(b"my notes")
+    _age(notes, 3600)
+    caplog.set_level(logging.INFO, logger="daemon.fsops")
     daemon.fsops._cleared.clear()  # a fresh process
     ctx = AppContext.open()
     try:
         assert protect_file(photo, ctx).state == "patched"
         assert not stale.exists()  # before: stayed for good
         assert live.exists() and young.exists() and other.read_bytes() == b"not ours"
+        assert notes.read_bytes() == b"my notes"  # before: removed
         assert sorted(p.name for p in folder.iterdir() if p.name.startswith(TEMP_PREFIX)) == sorted(
-            [live.name, young.name]
+            [live.name, young.name, notes.name]
         )
+        said = [r.getMessage() for r in caplog.records if r.name == "daemon.fsops"]
+        assert said == [f"removed 1 temporary file(s) a killed ppd left in {folder}: {stale.name}"], said
     finally:
         os.close(holder)
         ctx.close()

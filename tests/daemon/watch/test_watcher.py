@@ -143,6 +143,9 @@ def staged(tmp_path: Path, n: int, prefix: str = "img") -> tuple[list[Path], dic
         ("photo.tmp", True),
         (".hidden.png", True),
         (f"{TEMP_PREFIX}abc.png", True),
+        ("~$IMG_1.jpg", True),
+        ("#IMG_1.jpg#", True),  # Emacs's auto-save
+        ("#IMG_1.jpg", False),  # a photo (a black-box review, F4: left by the daemon, patched by poison)
     ],
 )
 def test_ignore_reason(name: str, ignored: bool) -> None:
@@ -166,8 +169,8 @@ def test_media_table_loads_no_codec() -> None:
 
 
 def test_scan_removes_only_old_ppd_temporaries(tmp_path: Path) -> None:
-    old = tmp_path / "ds" / f"{TEMP_PREFIX}old.png"
-    young = tmp_path / "ds" / f"{TEMP_PREFIX}young.png"
+    old = tmp_path / "ds" / f"{TEMP_PREFIX}000000000001.png"
+    young = tmp_path / "ds" / f"{TEMP_PREFIX}000000000002.png"
     keep = write_image(tmp_path / "ds" / "a.png", 1)
     for p in (old, young):
         p.write_bytes(b"partial")
@@ -511,7 +514,7 @@ def test_restart_catch_up(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     write_image(change, 11)
     changed_original = sha(change)
     delete.unlink()
-    leftover = ds / f"{TEMP_PREFIX}crash.png"
+    leftover = ds / f"{TEMP_PREFIX}00000000c0de.png"
     leftover.write_bytes(b"half a png")
     os.utime(leftover, (time.time() - 60, time.time() - 60))
     with running(ppd_env) as daemon:
