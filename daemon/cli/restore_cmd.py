@@ -125,18 +125,19 @@ def _print_gone(gone: list[Path], root_gone: Path | None) -> None:
     """The files patched in place that are gone from their path: deleted or moved by the user, not made
     again (a black-box review: `ppd restore` brought culled photos back into a folder to be published)."""
     from daemon.cli.output import verbosity
+    from daemon.protect.job import shown_name, shown_path
 
     if not gone:
         return
     if root_gone is not None:
         why = f"their folder {root_gone} is gone (moved? `ppd restore FOLDER` restores them where they are)"
     else:
-        names = ", ".join(p.name for p in gone[:3]) + (", ..." if len(gone) > 3 else "")
+        names = ", ".join(shown_name(p) for p in gone[:3]) + (", ..." if len(gone) > 3 else "")
         why = f"{names} (`ppd restore FILE` brings one back)"
     console().print(f"{len(gone)} gone since patched, not recreated: {why}", markup=False)
     if verbosity() > 0:
         for p in gone:
-            console().print(f"gone {p}", markup=False)
+            console().print(f"gone {shown_path(p)}", markup=False)
 
 
 def restore_word(outcome: ProtectOutcome) -> str:
@@ -154,6 +155,7 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
     each file that was not restored with its reason."""
 
     from daemon.cli.output import verbosity
+    from daemon.protect.job import shown_name, shown_path
     from daemon.store.datasets import natural_key
 
     counts = Counter(restore_word(o) for o in outcomes)
@@ -173,16 +175,27 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
     for o in sorted(outcomes, key=lambda o: natural_key(str(o.path))):  # x2 before x10
         word = restore_word(o)
         for src, kept in o.displaced if word != "failed" else ():  # a failure's reason names them already
-            shown = src.name if src == o.path else src  # each named: a published file can have two
-            console().print(f"kept your version of {shown} at {kept} (it was not ppd's output; "
+            shown = shown_name(src) if src == o.path else shown_path(src)  # a published file can have two
+            console().print(f"kept your version of {shown} at {shown_path(kept)} (it was not ppd's output; "
                             "nothing is published from there)", markup=False)  # fmt: skip
         if word == "failed":
             said = reason_text(o.reason, Path(o.path).parent, hint_out=False)  # restore has no --out
-            err_console().print(f"ppd: not restored: {o.path}: {said}", markup=False)
+            said = f"ppd: not restored: {shown_path(o.path)}: {_escaped(said, o.path)}"
+            err_console().print(said, markup=False)
         elif verbosity() > 0:  # -v names each file (README), with its reason when it has one
-            console().print(f"{word} {o.path}" + (f": {o.reason}" if o.reason else ""), markup=False)
+            why = f": {_escaped(o.reason, o.path)}" if o.reason else ""
+            console().print(f"{word} {shown_path(o.path)}{why}", markup=False)
         elif o.reason and word not in ("restored", "unchanged", "removed"):
-            console().print(f"{word} {o.path}: {o.reason}", markup=False)
+            console().print(f"{word} {shown_path(o.path)}: {_escaped(o.reason, o.path)}", markup=False)
+
+
+def _escaped(text: str, path: Path) -> str:
+    """A reason that names the file, with the name escaped as the line's path is (shown_name): a name
+    with a newline printed raw read as two lines (a black-box review, F9)."""
+    from daemon.protect.job import shown_name
+
+    shown = shown_name(path)
+    return text.replace(path.name, shown) if path.name and shown != path.name else text
 
 
 def register(app: typer.Typer) -> None:

@@ -211,13 +211,15 @@ def failed_lines(d: dict[str, Any]) -> list[str]:
         head += f", {d['not_reprotected']} not re-protected"
     if c.get("not_moved"):  # patched, not moved to the publish folder: not failed files either
         head += f", {c['not_moved']} not moved to the publish folder"
+    from daemon.protect.job import shown_path
+
     lines = [head]
     for r in rows:
-        mark = ""
-        if r.get("state") == "quarantined":
-            mark = f" (quarantined: moved to {r['moved_to']})" if r.get("moved_to") else " (quarantined)"
+        mark = " (quarantined)" if r.get("state") == "quarantined" else ""
+        if mark and r.get("moved_to"):
+            mark = f" (quarantined: moved to {shown_path(Path(r['moved_to']))})"
         shown = r.get("source") or r["path"]  # --out: the file that failed, not the copy never written
-        lines.append(f"  {shown}: {r['reason']}{mark}")
+        lines.append(f"  {shown_path(Path(shown))}: {r['reason']}{mark}")  # a newline in a name: escaped
     return lines
 
 
