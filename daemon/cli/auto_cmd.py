@@ -177,18 +177,29 @@ def _settings(ctx: AppContext, given: dict[str, Any]) -> tuple[Any, Any]:
     return type(budget)(**msgspec.structs.asdict(budget)), type(options)(**msgspec.structs.asdict(options))
 
 
-def _preflight(ctx: AppContext, target: str, images: list[Any], is_dataset: bool, given: dict[str, Any]
-               ) -> dict[str, Any]:  # fmt: skip
-    """Run the preflight with the command line's settings over the config's."""
+def _checked_settings(ctx: AppContext, given: dict[str, Any]) -> tuple[Any, Any]:
+    """_settings, a bad value one line (exit 2) before any work: `--max-noticeable-area 2` analysed
+    the photos and printed the scene hint first (a black-box review, F11)."""
+    from verifier.auto_options import PreflightInputError
+
+    try:
+        return _settings(ctx, given)
+    except PreflightInputError as exc:
+        raise _fail(one_line(exc)) from None
+
+
+def _preflight(ctx: AppContext, target: str, images: list[Any], is_dataset: bool,
+               settings: tuple[Any, Any], out: Path | None) -> dict[str, Any]:  # fmt: skip
+    """Run the preflight with the settings (_checked_settings)."""
     import msgspec
 
     from daemon.verification import auto_mode as daemon_auto
     from verifier.auto_options import PreflightInputError
     from verifier.auto_search import preflight
 
+    budget, options = settings
     try:
-        budget, options = _settings(ctx, given)
-        work = given["out"] or Path(ctx.paths.runs_dir) / (target if is_dataset else "_folders") / (
+        work = out or Path(ctx.paths.runs_dir) / (target if is_dataset else "_folders") / (
             f"auto-{time.strftime('%Y%m%dT%H%M%S')}"
         )
         return msgspec.to_builtins(preflight(images, daemon_auto.load_ladder(), budget, options, work))
@@ -260,21 +271,22 @@ def auto(
     from daemon.context import AppContext
 
     given = {"max_noticeable_area": max_noticeable_area, "max_p999_vs_jpeg": max_p999_vs_jpeg,
-             "corner_only": corner_only, "sample": sample, "time_budget": time_budget, "profile": profile,
-             "out": out}  # fmt: skip
+             "corner_only": corner_only, "sample": sample, "time_budget": time_budget,
+             "profile": profile}  # fmt: skip
     try:
         ctx = AppContext.open()
     except ConfigError as exc:
         raise _fail(one_line(exc)) from None
     dataset_line = None
     try:
+        settings = _checked_settings(ctx, given)
         images, name = _images(ctx, target)
         is_dataset = name is not None
         target = name or target
         hint = _scene_line(target, images)  # up front: the preflight takes minutes
         if hint and not as_json:
             console().print(hint, markup=False)
-        decision = _preflight(ctx, target, images, is_dataset, given)
+        decision = _preflight(ctx, target, images, is_dataset, settings, out)
         if is_dataset:
             _record(ctx, target, decision, apply)
             dataset_line = protection_line(ctx, target)  # what its verifications say, not the sample's

@@ -71,3 +71,17 @@ def test_auto_of_a_restored_dataset_says_why_it_has_nothing_to_measure(
     result = runner.invoke(app, ["auto", "A", "--no-apply"])
     said = " ".join(result.output.split())
     assert result.exit_code == 2 and "has 0 patched file(s)" in said and "`ppd poison`" in said, said
+
+
+@pytest.mark.parametrize("area", ["2", "-1"])
+def test_a_bad_budget_is_one_line_before_any_work(ppd_env: dict[str, Path], tmp_path: Path,
+                                                  area: str) -> None:  # fmt: skip
+    """`ppd auto X --max-noticeable-area 2` analysed the photos and printed the scene hint's paragraph
+    before its error (a black-box review, F11): now the error alone, as `--sample 1` is."""
+    from daemon.cli import app
+
+    folder = _render(tmp_path / "room", "textured")
+    result = CliRunner().invoke(app, ["auto", str(folder), "--max-noticeable-area", area])
+    lines = result.output.splitlines()
+    assert result.exit_code == 2 and len(lines) == 1, result.output
+    assert lines[0].startswith("ppd: error: ") and "max_noticeable_area must be 0..1" in lines[0], lines
