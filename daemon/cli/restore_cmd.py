@@ -51,6 +51,7 @@ def restore(
             if ctx.store.file(as_path) is not None or has_token(as_path):  # else nothing to restore: said so
                 _refuse_unwritable(ctx, [as_path])
             outcomes = [restore_file(ctx, as_path, force=force)]
+            _refuse_never_patched(ctx, as_path, outcomes[0])
             _print_outcomes(outcomes)
         else:
             try:
@@ -60,6 +61,22 @@ def restore(
         _exit_if_failed(outcomes)
     finally:
         ctx.close()
+
+
+# restore_file's reason for a file with no row, no ppd marker and no original of a gone row in it
+NEVER_PATCHED = "is not in the store and carries no ppd provenance marker"
+
+
+def _refuse_never_patched(ctx: AppContext, path: Path, outcome: ProtectOutcome) -> None:
+    """A file ppd never patched is a bad target (exit 2, one line), as an unknown dataset or a missing
+    path is (`ppd --help`: 2 = bad input: path, dataset name); it was counted "failed 1", exit 1, as if
+    ppd had tried and failed on one of its own files (a black-box review, F11)."""
+    from daemon.protect.job import shown_path
+
+    never = outcome.state == "failed" and (outcome.reason or "").endswith(NEVER_PATCHED)
+    if never and ctx.store.file(path) is None:
+        raise die(f"{shown_path(path)}: not a file ppd patched (not in the store, no ppd marker); "
+                  "nothing to restore")  # fmt: skip
 
 
 def _exit_if_failed(outcomes: list[ProtectOutcome]) -> None:
