@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shlex
 from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -14,6 +15,7 @@ from daemon.cli.output import console, err_console
 from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
+    from daemon.cli.restore_folder import FolderRestore
     from daemon.context import AppContext
     from daemon.protect.job import ProtectOutcome
 
@@ -116,9 +118,27 @@ def _restore_folder(ctx: AppContext, target: str, force: bool) -> list[ProtectOu
             f"dataset {plan.dataset!r}: its folder {plan.root_gone} is gone (moved or deleted?); "
             "`ppd restore FOLDER` restores its files in the folder they are in now"
         )
+    if plan.root_gone is not None and not gone and not outcomes:
+        _refuse_moved_on(ctx, plan)
     _print_outcomes(outcomes)
     _print_gone(gone, plan.root_gone)
     return outcomes
+
+
+def _refuse_moved_on(ctx: AppContext, plan: FolderRestore) -> None:
+    """A dataset whose folder is gone and whose files another dataset holds now (a renamed folder the
+    daemon or `ppd poison` took as a new dataset): where they are, in status's words, one line (exit 2).
+    It said "restored 0, removed 0, unchanged 0, failed 0", exit 0, its files still patched (F11)."""
+    from daemon.cli.status_cmd import moved_words
+    from daemon.cli.status_queries import dataset_status
+    from daemon.cli.targets import TargetError
+
+    assert plan.dataset is not None
+    d = dataset_status(ctx, plan.dataset)
+    there = d["folder"].get("moved_to_dataset")
+    if there:
+        raise TargetError(f"dataset {plan.dataset!r}: its folder {plan.root_gone} is gone; {moved_words(d)}: "
+                          f"`ppd restore {shlex.quote(there)}` restores them")  # fmt: skip
 
 
 def _refuse_unwritable(ctx: AppContext, paths: list[Path]) -> None:
