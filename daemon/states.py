@@ -82,7 +82,7 @@ def newest_per_profile(runs: Iterable[Mapping[str, Any]]) -> dict[str, Mapping[s
 
 
 # Folder counts (daemon.datasets.folder_count) of files a verification did not measure.
-UNVERIFIED_FILES = ("changed", "restored_unrecorded", "untracked", "waiting")
+UNVERIFIED_FILES = ("changed", "restored_unrecorded", "untracked", "waiting", "not_utf8")
 
 
 def run_left_out(run: Mapping[str, Any]) -> list[str]:

@@ -29,37 +29,83 @@ def _fail(message: str, code: int = 2) -> typer.Exit:
     return die(message, code)
 
 
+CANDIDATES_TITLE = "candidates (least visible first by measured budget use)"
+METRICS = ("noticeable", "p99.9 vs JPEG", "SSIM min", "LPIPS max", "budget use")
+
+
 def evidence_table(evidence: list[dict[str, Any]], profiles: list[str]) -> Table:
     """One row per candidate: measured visibility, budget use, status and per-profile verdicts."""
     from rich.table import Table
 
-    table = Table(title="candidates (least visible first by measured budget use)", show_lines=False)
-    for col in ("candidate", "status", "noticeable", "p99.9 vs JPEG", "SSIM min", "LPIPS max", "budget use"):
+    table = Table(title=CANDIDATES_TITLE, show_lines=False)
+    for col in ("candidate", "status", *METRICS):
         table.add_column(col, justify="left" if col in ("candidate", "status") else "right", overflow="fold")
     for p in profiles:
         table.add_column(f"{p}: verdict, within 5°", overflow="fold")
     table.add_column("s", justify="right", overflow="fold")
+    for e in _by_budget_use(evidence):
+        name, status, metrics, verdicts, seconds = _cells(e, profiles)
+        table.add_row(name, status, *metrics, *verdicts, seconds)
+    return table
 
+
+def print_evidence(evidence: list[dict[str, Any]], profiles: list[str]) -> None:
+    """The table where it fits the console; else one block per candidate, its values packed between
+    spaces, as `ppd status` folds its columns: at 80 columns (a pipe, a log file) the table cut SSIM
+    0.9938 into "0.993" and "8" a row below, and names over five rows (a black-box review, F8)."""
+    from rich.measure import Measurement
+
+    out = console()
+    table = evidence_table(evidence, profiles)
+    if Measurement.get(out, out.options.update_width(1 << 16), table).maximum <= out.width:  # unclamped
+        out.print(table)
+        return
+    out.print(CANDIDATES_TITLE, markup=False)
+    for e in _by_budget_use(evidence):
+        name, status, metrics, verdicts, seconds = _cells(e, profiles)
+        out.print(f"{name}: {status}, {seconds} s", markup=False, soft_wrap=True)
+        items = [f"{label} {value}" for label, value in zip(METRICS, metrics, strict=True)]
+        items += [f"{p}: {v}" for p, v in zip(profiles, verdicts, strict=True)]
+        for line in _packed(items, out.width):
+            out.print(line, markup=False, soft_wrap=True)
+
+
+def _packed(items: list[str], width: int, indent: str = "  ") -> list[str]:
+    """items joined by "; " into lines of at most width, an item never split (one longer than the
+    width is a line of its own)."""
+    lines: list[str] = []
+    line = ""
+    for item in items:
+        if line and len(indent) + len(line) + 2 + len(item) > width:
+            lines.append(indent + line + ";")
+            line = ""
+        line = f"{line}; {item}" if line else item
+    return lines + ([indent + line] if line else [])
+
+
+def _by_budget_use(evidence: list[dict[str, Any]]) -> list[dict[str, Any]]:
     def order(e: dict[str, Any]) -> float:
         return float("inf") if e.get("budget_use") is None else float(e["budget_use"])
 
-    for e in sorted(evidence, key=order):
-        vis = e.get("visibility") or {}
-        cells = [
-            e["name"],
-            e["status"] + (f" ({e['error']})" if e.get("error") else ""),
-            _pct(vis.get("noticeable_area_max"), 2),  # FLIP > 0.5, the budget (issue 14)
-            _num(vis.get("p999_vs_jpeg_max"), 2),
-            _num(vis.get("ssim_min"), 4),  # the paper's figures, reported
-            _num(vis.get("lpips_max"), 4),
-            _num(e.get("budget_use"), 2),
-        ]
-        for p in profiles:
-            pr = (e.get("profiles") or {}).get(p)
-            cells.append("—" if pr is None else f"{pr['verdict']}, {_pct(pr.get('frac_within_5deg'))}")
-        cells.append(f"{e.get('seconds', 0):.0f}")
-        table.add_row(*cells)
-    return table
+    return sorted(evidence, key=order)
+
+
+def _cells(e: dict[str, Any], profiles: list[str]) -> tuple[str, str, list[str], list[str], str]:
+    """(candidate, status, METRICS' values, each profile's verdict, seconds) of one candidate."""
+    vis = e.get("visibility") or {}
+    metrics = [
+        _pct(vis.get("noticeable_area_max"), 2),  # FLIP > 0.5, the budget (issue 14)
+        _num(vis.get("p999_vs_jpeg_max"), 2),
+        _num(vis.get("ssim_min"), 4),  # the paper's figures, reported
+        _num(vis.get("lpips_max"), 4),
+        _num(e.get("budget_use"), 2),
+    ]
+    verdicts = []
+    for p in profiles:
+        pr = (e.get("profiles") or {}).get(p)
+        verdicts.append("—" if pr is None else f"{pr['verdict']}, {_pct(pr.get('frac_within_5deg'))}")
+    status = e["status"] + (f" ({e['error']})" if e.get("error") else "")
+    return e["name"], status, metrics, verdicts, f"{e.get('seconds', 0):.0f}"
 
 
 def _num(x: Any, digits: int) -> str:
@@ -71,13 +117,19 @@ def _pct(x: Any, digits: int = 0) -> str:
 
 
 def print_decision(decision: dict[str, Any]) -> None:
+    """The choice and its reason; with none, the reason alone, which says why in words (the outcome's
+    token, "time_budget", was a line of its own: a black-box review, F8)."""
+    from rich.markup import escape
+
     chosen = decision.get("chosen")
-    head = f"[green]chosen: {chosen}[/green]" if chosen else f"[red]{decision['outcome']}[/red]"
-    console().print(head, highlight=False)
-    console().print(decision["reason"], highlight=False)
+    if chosen:
+        console().print(f"[green]chosen: {escape(chosen)}[/green]", highlight=False)
+        console().print(decision["reason"], markup=False, highlight=False)
+    else:
+        console().print(f"[red]{escape(decision['reason'])}[/red]", highlight=False)
     if not decision.get("lpips_checked"):
         console().print(f"[yellow]LPIPS not checked:[/yellow] {decision.get('lpips_note')}", highlight=False)
-    console().print(evidence_table(decision["evidence"], list(decision["options"]["profiles"])))
+    print_evidence(decision["evidence"], list(decision["options"]["profiles"]))
     sample = f"sample: {len(decision['sample'])} images; {decision['elapsed_s']:.0f} s"
     console().print(sample, highlight=False)
 
@@ -104,7 +156,7 @@ def _show(target: str, as_json: bool) -> None:
     _print_decisions(dataset, rows)
     latest = rows[0]["evidence"]
     if isinstance(latest.get("evidence"), list):
-        console().print(evidence_table(latest["evidence"], list(latest["options"]["profiles"])))
+        print_evidence(latest["evidence"], list(latest["options"]["profiles"]))
 
 
 def _print_decisions(dataset: str, rows: list[dict[str, Any]]) -> None:
@@ -177,18 +229,29 @@ def _settings(ctx: AppContext, given: dict[str, Any]) -> tuple[Any, Any]:
     return type(budget)(**msgspec.structs.asdict(budget)), type(options)(**msgspec.structs.asdict(options))
 
 
-def _preflight(ctx: AppContext, target: str, images: list[Any], is_dataset: bool, given: dict[str, Any]
-               ) -> dict[str, Any]:  # fmt: skip
-    """Run the preflight with the command line's settings over the config's."""
+def _checked_settings(ctx: AppContext, given: dict[str, Any]) -> tuple[Any, Any]:
+    """_settings, a bad value one line (exit 2) before any work: `--max-noticeable-area 2` analysed
+    the photos and printed the scene hint first (a black-box review, F11)."""
+    from verifier.auto_options import PreflightInputError
+
+    try:
+        return _settings(ctx, given)
+    except PreflightInputError as exc:
+        raise _fail(one_line(exc)) from None
+
+
+def _preflight(ctx: AppContext, target: str, images: list[Any], is_dataset: bool,
+               settings: tuple[Any, Any], out: Path | None) -> dict[str, Any]:  # fmt: skip
+    """Run the preflight with the settings (_checked_settings)."""
     import msgspec
 
     from daemon.verification import auto_mode as daemon_auto
     from verifier.auto_options import PreflightInputError
     from verifier.auto_search import preflight
 
+    budget, options = settings
     try:
-        budget, options = _settings(ctx, given)
-        work = given["out"] or Path(ctx.paths.runs_dir) / (target if is_dataset else "_folders") / (
+        work = out or Path(ctx.paths.runs_dir) / (target if is_dataset else "_folders") / (
             f"auto-{time.strftime('%Y%m%dT%H%M%S')}"
         )
         return msgspec.to_builtins(preflight(images, daemon_auto.load_ladder(), budget, options, work))
@@ -260,21 +323,22 @@ def auto(
     from daemon.context import AppContext
 
     given = {"max_noticeable_area": max_noticeable_area, "max_p999_vs_jpeg": max_p999_vs_jpeg,
-             "corner_only": corner_only, "sample": sample, "time_budget": time_budget, "profile": profile,
-             "out": out}  # fmt: skip
+             "corner_only": corner_only, "sample": sample, "time_budget": time_budget,
+             "profile": profile}  # fmt: skip
     try:
         ctx = AppContext.open()
     except ConfigError as exc:
         raise _fail(one_line(exc)) from None
     dataset_line = None
     try:
+        settings = _checked_settings(ctx, given)
         images, name = _images(ctx, target)
         is_dataset = name is not None
         target = name or target
         hint = _scene_line(target, images)  # up front: the preflight takes minutes
         if hint and not as_json:
             console().print(hint, markup=False)
-        decision = _preflight(ctx, target, images, is_dataset, given)
+        decision = _preflight(ctx, target, images, is_dataset, settings, out)
         if is_dataset:
             _record(ctx, target, decision, apply)
             dataset_line = protection_line(ctx, target)  # what its verifications say, not the sample's

@@ -104,13 +104,26 @@ def _wait_protected(ctx: AppContext, views: int, timeout: float) -> None:
             time.sleep(0.2)
 
 
-def _verify(ctx: AppContext, scene: Any, profiles: str) -> None:
+def _checked(timeout: float, profiles: str) -> tuple[str, ...]:
+    """The profiles wanted; bad input one line, exit 2, before any work: `--timeout -5` ran the demo to
+    "only 0 of 12 views patched in -5 s" (exit 1), `--profiles nosuch` was taken without a word (a
+    black-box review, F11). Checked with --no-verify too: a typo is said at once."""
+    from daemon.cli.verify_cmd import checked_profiles
+
+    if not timeout > 0:  # NaN too
+        raise die(f"--timeout must be > 0 (seconds), got {timeout:g}", ExitStatus.USAGE)
+    wanted = [p.strip() for p in profiles.split(",") if p.strip()]
+    if not wanted:
+        raise die("--profiles names no profile", ExitStatus.USAGE)
+    return checked_profiles(wanted, "--profiles")
+
+
+def _verify(ctx: AppContext, scene: Any, wanted: tuple[str, ...]) -> None:
     """Proof, not assumption: real COLMAP on the originals (vault) and on the protected views."""
     from daemon.cli.verify_tables import print_report
     from daemon.verification.verify import verify_dataset
     from verifier.verification import VerifyOptions
 
-    wanted = tuple(p.strip() for p in profiles.split(",") if p.strip())
     console().print(
         f"verifying with COLMAP ({', '.join(wanted)}), given the camera's true intrinsics as an "
         "attacker with the camera's calibration would be; this takes a minute or two ..."
@@ -135,6 +148,7 @@ def demo(
     from daemon.paths import AppPaths
     from daemon.states import patched_count
 
+    wanted = _checked(timeout, profiles)
     if workdir is not None and (why := _not_a_demo_folder(workdir.absolute())):
         raise die(f"--workdir {workdir}: {why}; give a new or empty folder")
     workdir = (workdir or Path(tempfile.mkdtemp(prefix="ppd-demo-"))).absolute()
@@ -159,7 +173,7 @@ def demo(
     _write_preview(ctx, sorted(target.glob("*.png"))[0], preview)
     console().print(f"preview of the patch: {preview}")
     if verify:
-        _verify(ctx, scene, profiles)
+        _verify(ctx, scene, wanted)
         status(None, as_json=False, long=False, failed=False, check=False)
     ctx.close()
     # the lines above name ppd commands; in the user's shell they would read the user's own folders

@@ -52,6 +52,18 @@ def die(message: object, code: int = ExitStatus.USAGE) -> typer.Exit:
     return typer.Exit(code)
 
 
+def refuse_missing_folder(file: Path) -> None:
+    """The one rule for a file a command writes where the user says (`ppd report --out`, `ppd key
+    export`): its folder must exist, else one line, exit 2 (the path is bad input, `--help`'s 2). report
+    made the missing folders (as root: /nonexistent/dir/) and key export said exit 3, "cannot work here"
+    (a black-box review, F11); a typo is not made into a tree of folders, and creating it is one mkdir."""
+    folder = file.expanduser().absolute().parent
+    if not folder.exists():
+        raise die(f"no such folder: {folder}; create it first")
+    if not folder.is_dir():
+        raise die(f"not a folder: {folder}")
+
+
 def os_error_text(exc: OSError, hint_out: bool = True) -> str:
     """An OSError as a sentence that says what to do, not `[Errno 13] ... '.ppd-tmp-x.jpg'`."""
     where = Path(exc.filename) if exc.filename else None

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from daemon.cli.errors import die
+from daemon.cli.errors import die, refuse_missing_folder
 from daemon.cli.published import in_data_folder, published_folder_holding
 from poisoner.errors import ExitStatus
 
@@ -41,6 +41,7 @@ def key_export(
     from daemon.paths import AppPaths
     from daemon.store.sealkey import SealKeyError, load_key
 
+    refuse_missing_folder(file)
     paths = AppPaths.from_env()
     published = published_folder_holding(file, paths)
     if published is not None:

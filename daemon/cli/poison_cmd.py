@@ -17,7 +17,7 @@ from daemon.cli.errors import die, file_reason, open_ctx
 from daemon.cli.interrupt import SAME_STOP_S, StopOnSignal
 from daemon.cli.options import SpecOptions, spec_options, subject_masks_option, workers_option
 from daemon.cli.output import console, err_console, interactive, print_line, verbosity
-from daemon.protect.job import shown_path
+from daemon.protect.job import shown_name, shown_path
 from daemon.states import FileState
 from poisoner.errors import ExitStatus
 
@@ -133,7 +133,7 @@ def change_lines(outcomes: list[ProtectOutcome]) -> list[str]:
     patched = [(o, o.report.notes) for o in outcomes if o.state in OUTCOME_PATCHED and o.report is not None]
     lines = []
     for needle, words in CHANGE_NOTES:
-        files = [o.path.name for o, notes in patched if any(needle in n for n in notes)]
+        files = [shown_name(o.path) for o, notes in patched if any(needle in n for n in notes)]
         if files:
             shown = ", ".join(files[:3]) + (f" and {len(files) - 3} more" if len(files) > 3 else "")
             lines.append(f"{words}: {len(files)} file(s) ({shown}); `ppd -v poison` says how")
@@ -175,7 +175,7 @@ def jpeg_lines(outcomes: list[ProtectOutcome]) -> list[str]:
     picture left out. Never silent (they were in the store's notes only)."""
 
     def names(files: list[ProtectOutcome]) -> str:
-        shown = ", ".join(o.path.name for o in files[:3])
+        shown = ", ".join(shown_name(o.path) for o in files[:3])
         return shown + (f" and {len(files) - 3} more" if len(files) > 3 else "")
 
     patched = [(o, o.report) for o in outcomes if o.state in OUTCOME_PATCHED and o.report is not None]
@@ -209,7 +209,7 @@ def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
     for line in lines:
         console().print(line, markup=False)
     if unread := unprotected_media(outcomes):
-        shown = ", ".join(o.path.name for o in unread[:5]) + (", ..." if len(unread) > 5 else "")
+        shown = ", ".join(shown_name(o.path) for o in unread[:5]) + (", ..." if len(unread) > 5 else "")
         err_console().print(
             f"not protected: {len(unread)} photo(s) or video(s) ppd cannot read ({shown}); a reconstruction "
             "can still use them: convert them to JPEG, PNG, WebP, HEIC, MP4 or a TIFF named .tif first, "
@@ -219,7 +219,7 @@ def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
     if linked := _linked_line(linked_folders(outcomes)):
         err_console().print(linked, markup=False)
     if still := still_open(outcomes):  # the daemon patches them once closed; this run does not
-        shown = ", ".join(o.path.name for o in still[:5]) + (", ..." if len(still) > 5 else "")
+        shown = ", ".join(shown_name(o.path) for o in still[:5]) + (", ..." if len(still) > 5 else "")
         err_console().print(f"not patched: {len(still)} file(s) still being written by another program "
                             f"({shown}): run ppd poison again once they are complete",
                             markup=False)  # fmt: skip

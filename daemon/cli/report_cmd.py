@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from daemon.cli.errors import die, one_line
+from daemon.cli.errors import die, one_line, refuse_missing_folder
 from daemon.cli.options import dataset_option, folder_option
 from daemon.cli.output import console
 from poisoner.errors import PpdError
@@ -70,6 +70,8 @@ def report(
     from daemon.cli.targets import TargetError
     from verifier.html_report import ReportError
 
+    if out is not None:  # the default is ppd's own folder or the one reported on: there
+        refuse_missing_folder(out)
     try:
         ctx = _open_store(source, dataset)
         try:

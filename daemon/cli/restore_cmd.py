@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shlex
 from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -14,6 +15,7 @@ from daemon.cli.output import console, err_console
 from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
+    from daemon.cli.restore_folder import FolderRestore
     from daemon.context import AppContext
     from daemon.protect.job import ProtectOutcome
 
@@ -51,6 +53,7 @@ def restore(
             if ctx.store.file(as_path) is not None or has_token(as_path):  # else nothing to restore: said so
                 _refuse_unwritable(ctx, [as_path])
             outcomes = [restore_file(ctx, as_path, force=force)]
+            _refuse_never_patched(ctx, as_path, outcomes[0])
             _print_outcomes(outcomes)
         else:
             try:
@@ -60,6 +63,22 @@ def restore(
         _exit_if_failed(outcomes)
     finally:
         ctx.close()
+
+
+# restore_file's reason for a file with no row, no ppd marker and no original of a gone row in it
+NEVER_PATCHED = "is not in the store and carries no ppd provenance marker"
+
+
+def _refuse_never_patched(ctx: AppContext, path: Path, outcome: ProtectOutcome) -> None:
+    """A file ppd never patched is a bad target (exit 2, one line), as an unknown dataset or a missing
+    path is (`ppd --help`: 2 = bad input: path, dataset name); it was counted "failed 1", exit 1, as if
+    ppd had tried and failed on one of its own files (a black-box review, F11)."""
+    from daemon.protect.job import shown_path
+
+    never = outcome.state == "failed" and (outcome.reason or "").endswith(NEVER_PATCHED)
+    if never and ctx.store.file(path) is None:
+        raise die(f"{shown_path(path)}: not a file ppd patched (not in the store, no ppd marker); "
+                  "nothing to restore")  # fmt: skip
 
 
 def _exit_if_failed(outcomes: list[ProtectOutcome]) -> None:
@@ -99,9 +118,27 @@ def _restore_folder(ctx: AppContext, target: str, force: bool) -> list[ProtectOu
             f"dataset {plan.dataset!r}: its folder {plan.root_gone} is gone (moved or deleted?); "
             "`ppd restore FOLDER` restores its files in the folder they are in now"
         )
+    if plan.root_gone is not None and not gone and not outcomes:
+        _refuse_moved_on(ctx, plan)
     _print_outcomes(outcomes)
     _print_gone(gone, plan.root_gone)
     return outcomes
+
+
+def _refuse_moved_on(ctx: AppContext, plan: FolderRestore) -> None:
+    """A dataset whose folder is gone and whose files another dataset holds now (a renamed folder the
+    daemon or `ppd poison` took as a new dataset): where they are, in status's words, one line (exit 2).
+    It said "restored 0, removed 0, unchanged 0, failed 0", exit 0, its files still patched (F11)."""
+    from daemon.cli.status_cmd import moved_words
+    from daemon.cli.status_queries import dataset_status
+    from daemon.cli.targets import TargetError
+
+    assert plan.dataset is not None
+    d = dataset_status(ctx, plan.dataset)
+    there = d["folder"].get("moved_to_dataset")
+    if there:
+        raise TargetError(f"dataset {plan.dataset!r}: its folder {plan.root_gone} is gone; {moved_words(d)}: "
+                          f"`ppd restore {shlex.quote(there)}` restores them")  # fmt: skip
 
 
 def _refuse_unwritable(ctx: AppContext, paths: list[Path]) -> None:
@@ -125,18 +162,19 @@ def _print_gone(gone: list[Path], root_gone: Path | None) -> None:
     """The files patched in place that are gone from their path: deleted or moved by the user, not made
     again (a black-box review: `ppd restore` brought culled photos back into a folder to be published)."""
     from daemon.cli.output import verbosity
+    from daemon.protect.job import shown_name, shown_path
 
     if not gone:
         return
     if root_gone is not None:
         why = f"their folder {root_gone} is gone (moved? `ppd restore FOLDER` restores them where they are)"
     else:
-        names = ", ".join(p.name for p in gone[:3]) + (", ..." if len(gone) > 3 else "")
+        names = ", ".join(shown_name(p) for p in gone[:3]) + (", ..." if len(gone) > 3 else "")
         why = f"{names} (`ppd restore FILE` brings one back)"
     console().print(f"{len(gone)} gone since patched, not recreated: {why}", markup=False)
     if verbosity() > 0:
         for p in gone:
-            console().print(f"gone {p}", markup=False)
+            console().print(f"gone {shown_path(p)}", markup=False)
 
 
 def restore_word(outcome: ProtectOutcome) -> str:
@@ -155,6 +193,7 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
 
     from daemon.cli.output import verbosity
     from daemon.protect.displaced import SAVED_OVER
+    from daemon.protect.job import shown_name, shown_path
     from daemon.store.datasets import natural_key
 
     counts = Counter(restore_word(o) for o in outcomes)
@@ -174,16 +213,27 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
     for o in sorted(outcomes, key=lambda o: natural_key(str(o.path))):  # x2 before x10
         word = restore_word(o)
         for src, kept in o.displaced if word != "failed" else ():  # a failure's reason names them already
-            shown = src.name if src == o.path else src  # each named: a published file can have two
-            console().print(f"kept your version of {shown} at {kept} (not ppd's output as ppd wrote it; "
-                            "nothing is published from there)", markup=False)  # fmt: skip
+            shown = shown_name(src) if src == o.path else shown_path(src)  # a published file can have two
+            console().print(f"kept your version of {shown} at {shown_path(kept)} (not ppd's output as ppd "
+                            "wrote it; nothing is published from there)", markup=False)  # fmt: skip
         if word == "failed":
             said = reason_text(o.reason, Path(o.path).parent, hint_out=False)  # restore has no --out
-            err_console().print(f"ppd: not restored: {o.path}: {said}", markup=False)
+            said = f"ppd: not restored: {shown_path(o.path)}: {_escaped(said, o.path)}"
+            err_console().print(said, markup=False)
         elif verbosity() > 0:  # -v names each file (README), with its reason when it has one
-            console().print(f"{word} {o.path}" + (f": {o.reason}" if o.reason else ""), markup=False)
+            why = f": {_escaped(o.reason, o.path)}" if o.reason else ""
+            console().print(f"{word} {shown_path(o.path)}{why}", markup=False)
         elif o.reason and (word not in ("restored", "unchanged", "removed") or SAVED_OVER in o.reason):
-            console().print(f"{word} {o.path}: {o.reason}", markup=False)
+            console().print(f"{word} {shown_path(o.path)}: {_escaped(o.reason, o.path)}", markup=False)
+
+
+def _escaped(text: str, path: Path) -> str:
+    """A reason that names the file, with the name escaped as the line's path is (shown_name): a name
+    with a newline printed raw read as two lines (a black-box review, F9)."""
+    from daemon.protect.job import shown_name
+
+    shown = shown_name(path)
+    return text.replace(path.name, shown) if path.name and shown != path.name else text
 
 
 def register(app: typer.Typer) -> None:

@@ -97,7 +97,7 @@ COUNT_WORDS = {
     "untracked": "not patched yet", "changed": "changed since patched", "waiting": "still being written",
     "gone": "deleted or moved away since patched", "unprotectable": "in a format ppd cannot protect",
     "removed": "deleted or moved away earlier",  # a row ppd recorded so: a renamed file's old name too
-    "restored_unrecorded": "holding the original again",
+    "restored_unrecorded": "holding the original again", "not_utf8": "named in bytes that are not UTF-8",
     "unpatched_names": "under names ppd does not patch",
 }  # fmt: skip
 NOT_MOVED_WORDS = "NOT moved to the publish folder: still in the outbox"
@@ -212,14 +212,29 @@ def failed_lines(d: dict[str, Any]) -> list[str]:
         head += f", {d['not_reprotected']} not re-protected"
     if c.get("not_moved"):  # patched, not moved to the publish folder: not failed files either
         head += f", {c['not_moved']} not moved to the publish folder"
-    lines = [head]
+    if c.get("not_utf8"):  # refused by every run, no row: named from the folder (F7)
+        head += f", {c['not_utf8']} named in bytes that are not UTF-8"
+    from daemon.protect.job import shown_path
+
+    lines = [head] + not_utf8_lines(d)
     for r in rows:
-        mark = ""
-        if r.get("state") == "quarantined":
-            mark = f" (quarantined: moved to {r['moved_to']})" if r.get("moved_to") else " (quarantined)"
+        mark = " (quarantined)" if r.get("state") == "quarantined" else ""
+        if mark and r.get("moved_to"):
+            mark = f" (quarantined: moved to {shown_path(Path(r['moved_to']))})"
         shown = r.get("source") or r["path"]  # --out: the file that failed, not the copy never written
-        lines.append(f"  {shown}: {r['reason']}{mark}")
+        lines.append(f"  {shown_path(Path(shown))}: {r['reason']}{mark}")  # a newline in a name: escaped
     return lines
+
+
+def not_utf8_lines(d: dict[str, Any]) -> list[str]:
+    """--failed's lines for the files whose names are not UTF-8, which no row names: in the folder, and
+    moved to the quarantine folder by the daemon (it said "0 quarantined" and named neither: F7)."""
+    from daemon.protect.job import shown_path
+
+    why = "the file name is not valid UTF-8 (ppd records names as UTF-8)"
+    lines = [f"  {shown_path(Path(p))}: {why}: rename it to protect it" for p in d.get("not_utf8_files", [])]
+    return lines + [f"  {shown_path(Path(p))}: {why}: rename it and move it back into the outbox "
+                    "(quarantined)" for p in d.get("quarantined_not_utf8", [])]  # fmt: skip
 
 
 def _print_failed(report: list[dict[str, Any]]) -> None:

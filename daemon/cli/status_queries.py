@@ -164,6 +164,19 @@ def _moved_into(ctx: AppContext, name: str, folder: FolderCount) -> dict[str, An
     return {**seen, "moved_to_dataset": None}
 
 
+def _quarantined_unrecorded(ctx: AppContext, root: str | None, counts: dict[str, int]) -> list[Path]:
+    """The dataset's quarantined files whose names are not UTF-8 (no row: the quarantine folder says
+    them), counted quarantined and among its files, as a recorded quarantined file is (F7)."""
+    from daemon.protect.quarantine import unrecorded_quarantined
+    from daemon.states import FileState
+
+    held = unrecorded_quarantined(ctx, Path(root)) if root else []
+    if held:
+        counts[FileState.QUARANTINED.value] = int(counts.get(FileState.QUARANTINED.value, 0)) + len(held)
+        counts["files"] = int(counts.get("files", 0)) + len(held)
+    return held
+
+
 # _moved_into reads this many of a gone folder's moved-away rows' events
 MOVED_PROBE_ROWS = 3
 
@@ -193,6 +206,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     regression = regression_of(runs)
     folder = dataset_folder(ctx, name, row["root"])
     counts = current_counts(ctx, name, folder)
+    held = _quarantined_unrecorded(ctx, row["root"], counts)
     # only runs that measured the pixels as they are now make the verdict (issue 25); runs before
     # the last change stay in the history
     verdicts = latest_by_profile(ctx.store.current_verification_runs(name, limit=50))
@@ -203,6 +217,8 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "folder": _moved_into(ctx, name, folder),
         "not_patched_yet": left,
         "not_patched_files": [str(f) for f in folder.untracked],  # the files of that count no row names
+        "not_utf8_files": [str(f) for f in folder.not_utf8],  # no row can name them (F7)
+        "quarantined_not_utf8": [str(f) for f in held],
         "resume": resume_command(name, folder) if left else None,
         "publish_dir": row["publish_dir"],
         "subject_masks": row.get("subject_masks"),  # remembered with the dataset (issue 25)

@@ -8,6 +8,7 @@ Light at import (`ppd status` loads it).
 from __future__ import annotations
 
 import shlex
+from pathlib import Path
 from typing import Any
 
 from daemon.cli.output import console, print_line
@@ -68,6 +69,7 @@ def _unprotected_lines(d: dict[str, Any]) -> list[str]:
         from daemon.datasets.unpatched_names import unpatched_line
 
         lines.append(f"{name}: {unpatched_line(paths, d['unpatched_where'])}")
+    lines += _not_utf8_lines(d)
     if d.get("restored_in_place"):  # originals back where they are published: said in the overview
         # some still patched: a restore stopped part-way (killed) is finished by running it again (a
         # black-box review: only the re-patch was offered to a user who wanted every original back)
@@ -79,6 +81,28 @@ def _unprotected_lines(d: dict[str, Any]) -> list[str]:
                      "in from another dataset, or a re-protect did not finish?): "
                      f"`ppd dataset set {shlex.quote(name)} --reprotect` gives them its spec")  # fmt: skip
     return lines + _stopped_run_lines(d)
+
+
+def _not_utf8_lines(d: dict[str, Any]) -> list[str]:
+    """Files whose names are not UTF-8: every run refuses them (the store cannot hold the name), so
+    not "not patched yet: run `ppd poison`", which fails the same way each time; the daemon moves such a
+    file of the outbox to the quarantine folder, which status never said (a black-box review, F7)."""
+    from daemon.protect.job import shown_name, shown_path
+
+    name, lines = d["name"], []
+    if here := [Path(p) for p in d.get("not_utf8_files", [])]:
+        lines.append(f"{name}: {len(here)} file(s) whose names are not UTF-8 ({_few(here, shown_name)}), "
+                     "NOT protected: ppd cannot record such names: rename them, then `ppd poison` patches "
+                     "them")  # fmt: skip
+    if held := [Path(p) for p in d.get("quarantined_not_utf8", [])]:
+        lines.append(f"{name}: {len(held)} file(s) whose names are not UTF-8 moved to the quarantine folder "
+                     f"({_few(held, shown_path)}): ppd cannot record such names: rename them and move them "
+                     "back into the outbox to protect them")  # fmt: skip
+    return lines
+
+
+def _few(paths: list[Path], shown: Any) -> str:
+    return ", ".join(shown(p) for p in paths[:3]) + (", ..." if len(paths) > 3 else "")
 
 
 def _stopped_run_lines(d: dict[str, Any]) -> list[str]:

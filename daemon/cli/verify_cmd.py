@@ -23,6 +23,17 @@ if TYPE_CHECKING:
 
 PROFILE_CHOICES = ("default", "hardened", "published", "global", "masked", "all")
 
+def checked_profiles(given: list[str], option: str) -> tuple[str, ...]:
+    """The profiles named, in the usual order (several -p: every one given; only the last was run: a
+    black-box review); an unknown one is one line, exit 2 (`ppd demo --profiles nosuch` said nothing)."""
+    from verifier.verification import PROFILES
+
+    for one in given:
+        if one not in PROFILE_CHOICES:
+            raise die(f"{option} must be one of {', '.join(PROFILE_CHOICES)}; got {one!r}", ExitStatus.USAGE)
+    return PROFILES if "all" in given else tuple(p for p in PROFILES if p in given)
+
+
 VERIFY_EXAMPLES = """\b
 Examples:
   ppd verify castle                       a dataset
@@ -181,14 +192,10 @@ def verify(
     from daemon.cli.coerce import EMPTY_PATH
     from daemon.cli.targets import TargetError
     from daemon.cli.verify_tables import json_safe, print_report
-    from verifier.verification import PROFILES, VerificationInputError
+    from verifier.verification import VerificationInputError
 
     console = Console(stderr=as_json, soft_wrap=True, highlight=False)
-    for one in profile:
-        if one not in PROFILE_CHOICES:
-            raise die(f"--profile must be one of {', '.join(PROFILE_CHOICES)}", ExitStatus.USAGE)
-    # several -p: every one given, in the usual order (only the last was run: a black-box review)
-    profiles = PROFILES if "all" in profile else tuple(p for p in PROFILES if p in profile)
+    profiles = checked_profiles(profile, "--profile")
     options = _options(timeout, ground_truth, splat, splat_budget, white_background, subject_masks, seeds)
     try:
         with TermAsInterrupt():  # SIGTERM ends it as Ctrl-C does: children ended, nothing left behind

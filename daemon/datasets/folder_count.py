@@ -63,6 +63,9 @@ class FolderCount:
     # photos and videos under names ppd does not patch (hidden, backups, partial downloads), which a
     # sync publishes all the same (daemon.datasets.unpatched_names)
     unpatched_names: list[Path] = field(default_factory=list)
+    # media files whose names are not UTF-8: no row can name them (ppd refuses them: rename them), never
+    # "not patched yet" with a `ppd poison` that fails on them the same way every time (F7)
+    not_utf8: list[Path] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         copies = None if self.copies is None else str(self.copies)
@@ -72,7 +75,8 @@ class FolderCount:
                 "unprotectable": len(self.unprotectable), "gone": len(self.gone),
                 "moved_to": moved, "renamed": len(self.renamed),
                 "restored_unrecorded": len(self.restored_unrecorded),
-                "leftover_temps": len(self.temps), "unpatched_names": len(self.unpatched_names)}  # fmt: skip
+                "leftover_temps": len(self.temps), "unpatched_names": len(self.unpatched_names),
+                "not_utf8": len(self.not_utf8)}  # fmt: skip
 
 
 def folder_media(folder: Path, skip: Iterable[Path] = ()) -> list[Path]:
@@ -191,10 +195,21 @@ def count_folder(
     renamed = _renamed(rows, in_place, untracked)
     olds, news = {old for old, _ in renamed}, {new for _, new in renamed}
     untracked = [f for f in untracked if f not in news]
+    not_utf8 = [f for f in untracked if not utf8_name(f)]
+    untracked = [f for f in untracked if f not in not_utf8]
     gone = [p for p in in_place if p not in olds] + copies_gone
     return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies,
                        changed=changed, unprotectable=unprotectable, gone=gone, renamed=renamed,
-                       restored_unrecorded=restored, temps=temps)  # fmt: skip
+                       restored_unrecorded=restored, temps=temps, not_utf8=not_utf8)  # fmt: skip
+
+
+def utf8_name(path: Path) -> bool:
+    """Whether the store can hold path (SQLite text is UTF-8; daemon.protect.job.storable, a room above)."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def _renamed(
@@ -323,6 +338,9 @@ def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int
     # a removed file (deleted, moved away) is no longer one of the dataset's: its row is history
     removed = int(counts.get(FileState.REMOVED.value, 0))
     merged["files"] = int(counts.get("files", 0)) - removed + len(folder.untracked)
+    if folder.not_utf8:  # files of the dataset, not patched, named apart from "untracked"
+        merged["not_utf8"] = len(folder.not_utf8)
+        merged["files"] += len(folder.not_utf8)
     if folder.unprotectable and folder.copies is None:  # --out: they are not where the copies are
         merged["unprotectable"] = len(folder.unprotectable)
     if folder.unpatched_names and folder.copies is None:
@@ -505,7 +523,7 @@ UNPROTECTED_WORDS = {
     "failed": "failed", "quarantined": "quarantined", "waiting": "still being written",
     "changed": "changed since patched", "untracked": "not patched yet", "pending": "not finished",
     "unprotectable": "in a format ppd cannot protect",
-    "restored_unrecorded": "holding the original again",
+    "restored_unrecorded": "holding the original again", "not_utf8": "named in bytes that are not UTF-8",
     "unpatched_names": "under names ppd does not patch",
 }  # fmt: skip
 

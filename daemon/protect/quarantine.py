@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 from daemon.datasets.dataset import DEFAULT_DATASET, dataset_root, ensure_dataset
 from daemon.fsops import NotContained, move_out, open_dir, open_dir_below
 from daemon.paths import make_dirs_private, make_private_dir
+from daemon.protect.job import one_line, shown_name, shown_path, storable
 from daemon.states import FileState
 from poisoner.errors import PpdError
 
@@ -102,21 +103,39 @@ def _move_file(src_dir: int, name: str, target: Path) -> None:
 
 
 def _record_quarantined(ctx: AppContext, path: Path, dataset: str | None, target: Path, reason: str) -> None:
-    """The quarantined file readable by its owner only, its row and event (after the move)."""
+    """The quarantined file readable by its owner only, its row and event (after the move). A name that
+    is not UTF-8 gets no row (the store cannot hold it; its folder says it: unrecorded_quarantined):
+    recording it logged Python's codec error at error level beside the file's own line (F7)."""
     _owner_only(target)
     try:  # the move is what protects; a failing store must not undo it
         name = dataset or DEFAULT_DATASET
         ensure_dataset(ctx, name, dataset_root(Path(ctx.paths.outbox).absolute(), name), None)
-        ctx.store.record_file(
-            path, name, FileState.QUARANTINED, error=reason, event="quarantined",
-            detail={"to": str(target), "reason": reason},
-        )  # fmt: skip
+        if storable(path):
+            ctx.store.record_file(
+                path, name, FileState.QUARANTINED, error=reason, event="quarantined",
+                detail={"to": str(target), "reason": reason},
+            )  # fmt: skip
     except Exception as exc:
-        log.error("quarantined %s but could not record it: %s", path.name, exc, extra={"path": str(path)})
+        log.error("quarantined %s but could not record it: %s", shown_name(path), one_line(exc),
+                  extra={"path": shown_path(path)})  # fmt: skip
     log.debug(  # the daemon's line for the file says it (daemon.watch.watcher.say_outcome)
-        "quarantined %s: %s (moved to %s)", path.name, reason, target,
-        extra={"path": str(path), "to": str(target), "reason": reason},
+        "quarantined %s: %s (moved to %s)", shown_name(path), reason, shown_path(target),
+        extra={"path": shown_path(path), "to": shown_path(target), "reason": reason},
     )  # fmt: skip
+
+
+def unrecorded_quarantined(ctx: AppContext, root: Path) -> list[Path]:
+    """The files in the quarantine folder of the outbox's dataset at root whose names are not UTF-8:
+    moved there with no row, so only that folder says they are there (status said "0 quarantined" of
+    such a photo, and never named it: a black-box review, F7). [] for a dataset outside the outbox."""
+    outbox, root = Path(ctx.paths.outbox).absolute(), Path(root).absolute()
+    if not root.is_relative_to(outbox):
+        return []
+    folder = quarantine_dir(ctx) / (DEFAULT_DATASET if root == outbox else root.relative_to(outbox))
+    found = []
+    for dirpath, _folders, names in os.walk(folder):  # none there (the usual case): no walk at all
+        found += [Path(dirpath) / n for n in names if not storable(Path(n))]
+    return sorted(found)
 
 
 def _join_fragment(ctx: AppContext, path: Path, src_dir: int, name: str, dataset: str | None) -> Path | None:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from daemon.protect.job import NO_SPACE_WORDS, Outcome
+from daemon.protect.job import NO_SPACE_WORDS, Outcome, shown_name, shown_path
 from daemon.states import NOT_MOVED_PREFIX, REMARKED_PREFIX, STILL_OPEN_PREFIX, FileState
 from daemon.watch.workers import PoolStats
 
@@ -51,15 +51,17 @@ def say(
 ) -> None:  # fmt: skip
     """say_outcome's line from its fields (a symlink quarantined has no protect outcome)."""
     failed = state in (Outcome.FAILED, Outcome.QUARANTINED)
-    extra: dict[str, Any] = {"event": event, "dataset": dataset, "file": str(path), "outcome": state,
+    # the name one way in msg, file, to and reason: bytes that are not UTF-8 as \xe9 (shown_name), not
+    # caf\udce9 beside the reason's caf\xe9 (a black-box review, F7)
+    extra: dict[str, Any] = {"event": event, "dataset": dataset, "file": shown_path(path), "outcome": state,
                              "seconds": round(seconds, 2)}  # fmt: skip
     if reason and reason.startswith(STILL_OPEN_PREFIX):
         reason += "; patched once it is closed"  # its close re-arms the watcher
     if reason and (state != Outcome.PATCHED or reason.startswith(REMARKED_PREFIX)):
         extra["reason"] = reason
     if moved is not None:
-        extra["to"] = str(moved)
-    log.log(logging.WARNING if failed else logging.INFO, "%s %s", state, path.name, extra=extra)
+        extra["to"] = shown_path(moved)
+    log.log(logging.WARNING if failed else logging.INFO, "%s %s", state, shown_name(path), extra=extra)
 
 
 def say_removed(path: Path, dataset: str | None, reason: str | None = None) -> None:

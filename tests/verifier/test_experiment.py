@@ -228,6 +228,21 @@ def test_cli_bad_sweep_is_one_line_exit_2(tmp_path: Path, ppd_env: dict[str, Pat
     assert result.exit_code == 2 and "not a folder" in result.output
 
 
+
+def test_cli_unknown_dataset_is_said_first(tmp_path: Path, ppd_env: dict[str, Path]) -> None:
+    """`ppd experiment nosuch` said "nothing to run: give --sweep ..." and never that there is no dataset
+    'nosuch' (a black-box review, F11): the dataset is judged before the other arguments."""
+    from typer.testing import CliRunner
+
+    from daemon.cli import app
+
+    for args in ([], ["--sweep", "colour=1"]):
+        result = CliRunner().invoke(app, ["experiment", "nosuch", *args])
+        lines = result.output.splitlines()
+        assert result.exit_code == 2 and len(lines) == 1, result.output
+        assert lines[0].startswith("ppd: error: nosuch: not a dataset, not a folder of images"), lines
+
+
 # ---- real COLMAP --------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def synthetic_clean(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:

@@ -71,3 +71,46 @@ def test_auto_of_a_restored_dataset_says_why_it_has_nothing_to_measure(
     result = runner.invoke(app, ["auto", "A", "--no-apply"])
     said = " ".join(result.output.split())
     assert result.exit_code == 2 and "has 0 patched file(s)" in said and "`ppd poison`" in said, said
+
+
+@pytest.mark.parametrize("area", ["2", "-1"])
+def test_a_bad_budget_is_one_line_before_any_work(ppd_env: dict[str, Path], tmp_path: Path,
+                                                  area: str) -> None:  # fmt: skip
+    """`ppd auto X --max-noticeable-area 2` analysed the photos and printed the scene hint's paragraph
+    before its error (a black-box review, F11): now the error alone, as `--sample 1` is."""
+    from daemon.cli import app
+
+    folder = _render(tmp_path / "room", "textured")
+    result = CliRunner().invoke(app, ["auto", str(folder), "--max-noticeable-area", area])
+    lines = result.output.splitlines()
+    assert result.exit_code == 2 and len(lines) == 1, result.output
+    assert lines[0].startswith("ppd: error: ") and "max_noticeable_area must be 0..1" in lines[0], lines
+
+
+def test_the_candidates_fit_80_columns_and_no_token_is_a_line(fast_config: dict[str, Path],
+                                                               tmp_path: Path) -> None:  # fmt: skip
+    """At 80 columns (a pipe, a log file) the candidate table cut SSIM 0.9938 into "0.993" and an "8" a row
+    below, a name over five rows, and a bare "time_budget" line preceded the reason (a black-box review,
+    F8): one block per candidate, every value whole; the table where it fits."""
+    import os
+    import re
+    import subprocess
+    import sys
+
+    folder = _render(tmp_path / "studio", "plain")
+
+    def run(columns: int) -> list[str]:
+        proc = subprocess.run([sys.executable, "-m", "daemon.cli", "auto", str(folder), *FAST],
+                              capture_output=True, text=True, timeout=300, check=False,
+                              env={**os.environ, "COLUMNS": str(columns)})  # fmt: skip
+        assert proc.returncode in (0, 1), proc.stderr
+        return proc.stdout.splitlines()
+
+    narrow = run(80)
+    assert all(len(line) <= 80 for line in narrow[2:]), narrow  # the hint and reason: one line each
+    assert "time_budget" not in narrow and not any("┃" in line for line in narrow), narrow
+    heads = [line for line in narrow if re.fullmatch(r"[\w-]+: \w+(?: \(.*\))?, \d+ s", line)]
+    ssim = [m for line in narrow for m in re.findall(r"SSIM min (\S+);", line)]
+    assert heads and len(ssim) == len(heads) and all(re.fullmatch(r"\d\.\d{4}", v) for v in ssim), narrow
+    wide = run(250)
+    assert any(line.startswith("┃ candidate ") for line in wide), wide

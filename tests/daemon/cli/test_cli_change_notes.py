@@ -69,3 +69,20 @@ def test_a_name_with_a_newline_stays_on_its_line(ppd_env: dict[str, Path], tmp_p
     result = runner.invoke(app, ["poison", str(shoot)])
     said = [x for x in result.output.splitlines() if "blocks across" in x or x.startswith("line.png")]
     assert len(said) == 1 and "small\\nline.png" in said[0], result.output
+
+
+def test_restore_and_status_keep_a_name_with_a_newline_on_its_line(ppd_env: dict[str, Path],
+                                                                    tmp_path: Path) -> None:  # fmt: skip
+    """`ppd -v restore` and `ppd status --failed` printed such a name raw: one file read as two lines,
+    the second starting "restored" (a black-box review, F9); poison escaped it."""
+    shoot = tmp_path / "nl"
+    shoot.mkdir()
+    Image.new("RGB", (800, 600), (9, 99, 199)).save(shoot / "evil\nrestored  etc.png")
+    (shoot / "bad\nfile.png").write_bytes(b"")  # fails: empty
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 1
+    failed = runner.invoke(app, ["status", "nl", "--failed"])
+    lines = [x for x in failed.output.splitlines() if "file.png" in x]
+    assert len(lines) == 1 and "bad\\nfile.png" in lines[0], failed.output
+    result = runner.invoke(app, ["-v", "restore", "nl"])
+    lines = [x for x in result.output.splitlines() if "etc.png" in x]
+    assert lines == [f"restored {shoot}/evil\\nrestored  etc.png"], result.output

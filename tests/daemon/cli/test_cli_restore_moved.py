@@ -133,3 +133,21 @@ def test_a_rename_takes_its_own_row_when_another_shoot_holds_the_same_photo(
     said = " ".join(restored.output.split())
     assert restored.exit_code == 0 and "restored 3" in said and "gone since patched" not in said, said
     assert sorted(p.name for p in second.iterdir()) == ["hero.png", "v0.png", "v2.png"]
+
+
+def test_a_dataset_renamed_into_another_says_where_its_files_are(ppd_env: dict[str, Path],
+                                                                 tmp_path: Path) -> None:  # fmt: skip
+    """`ppd restore mv1` after its folder was renamed mv1-renamed and taken as that dataset said "restored
+    0, ..., failed 0", exit 0, its files still patched (a black-box review, F11): status's words, exit 2."""
+    old, new = tmp_path / "mv1", tmp_path / "mv1-renamed"
+    for i in range(3):
+        make_image(old / f"v{i}.png", i)
+    assert runner.invoke(app, ["poison", str(old)]).exit_code == 0
+    old.rename(new)
+    assert runner.invoke(app, ["poison", str(new)]).exit_code == 0  # its rows carried to mv1-renamed
+    result = runner.invoke(app, ["restore", "mv1"])
+    lines = result.output.splitlines()
+    assert result.exit_code == 2 and len(lines) == 1, result.output
+    said = f"its folder {old} is gone; its patched files are in {new}, now dataset 'mv1-renamed'"
+    assert lines[0] == f"ppd: error: dataset 'mv1': {said}: `ppd restore mv1-renamed` restores them", lines
+    assert runner.invoke(app, ["restore", "mv1-renamed"]).output.startswith("restored 3,")

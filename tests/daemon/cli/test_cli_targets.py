@@ -140,3 +140,16 @@ def test_a_name_typed_in_another_unicode_form_finds_its_dataset(
     for args in (["status", nfc], ["status", "--json", nfc]):
         result = runner.invoke(app, args)
         assert result.exit_code == 0 and "no dataset" not in result.output, (args, result.output)
+
+
+def test_restore_of_a_file_ppd_never_patched_is_bad_input_as_an_unknown_name_is(shoot: Path) -> None:
+    """`ppd restore FILE` of a file ppd never saw said "restored 0, ..., failed 1", exit 1, as if ppd had
+    failed on one of its own (a black-box review, F11); an unknown name is one line, exit 2: now both."""
+    never = make_image(shoot.parent / "never.png", 7)
+    before = never.read_bytes()
+    for target, said in ((str(never), f"{never}: not a file ppd patched"), ("nosuch", "no dataset 'nosuch'")):
+        result = runner.invoke(app, ["restore", target])
+        lines = result.output.splitlines()
+        assert result.exit_code == 2 and len(lines) == 1, result.output
+        assert lines[0].startswith(f"ppd: error: {said}"), lines
+    assert never.read_bytes() == before

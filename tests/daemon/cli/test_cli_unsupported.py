@@ -187,3 +187,25 @@ def test_a_symlinked_folder_is_skipped_and_its_photos_named_not_protected(
     assert f"{said} (day2 -> {elsewhere}: 2)" in text and "refusing symlink" not in text, text
     assert result.exit_code == 1  # published with the folder, they are views a reconstruction reads
     assert [p.read_bytes() for p in originals] == before  # not followed
+
+
+def test_a_name_that_is_not_utf8_is_counted_by_status_not_sent_back_to_poison(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A black-box review (F7): after `ppd poison` refused caf\\xe9.png, `ppd status` said "1 not patched
+    yet: run `ppd poison FOLDER`", which fails the same way every time, and --failed "0 failed"."""
+    import os
+
+    shoot = tmp_path / "latin"
+    make_image(shoot / "ok.png", 1, size=(200, 150))
+    os.rename(make_image(shoot / "x.png", 2, size=(200, 150)), os.fsencode(shoot) + b"/caf\xe9.png")
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 1
+    said = " ".join(runner.invoke(app, ["status", "latin"]).output.split())
+    assert "not patched yet" not in said and "udce9" not in said, said
+    assert ("latin: 1 file(s) whose names are not UTF-8 (caf\\xe9.png), NOT protected: ppd cannot record "
+            "such names: rename them") in said, said  # fmt: skip
+    failed = runner.invoke(app, ["status", "latin", "--failed"]).output.splitlines()
+    assert failed[0] == "latin: 0 failed, 0 quarantined, 1 named in bytes that are not UTF-8", failed
+    assert failed[1].startswith(f"  {shoot}/caf\\xe9.png: the file name is not valid UTF-8"), failed
+    check = runner.invoke(app, ["status", "--check"])
+    assert check.exit_code == 1 and "1 named in bytes that are not UTF-8" in check.output, check.output

@@ -89,3 +89,16 @@ def test_demo_refuses_a_folder_it_would_mix_with(tmp_path: Path) -> None:
         )  # fmt: skip
         assert proc.returncode == 2 and "--workdir" in proc.stderr, proc.stderr
         assert sorted(p.name for p in workdir.iterdir()) in (["data"], ["notes.txt"])
+
+
+@pytest.mark.parametrize(("args", "said"), [(["--timeout", "-5"], "--timeout must be > 0"),
+                                            (["--profiles", "nosuch"], "--profiles must be one of"),
+                                            (["--profiles", "default,nosuch"], "got 'nosuch'")])  # fmt: skip
+def test_demo_refuses_a_bad_timeout_or_profile_before_any_work(tmp_path: Path, args: list[str],
+                                                               said: str) -> None:  # fmt: skip
+    """`--timeout -5` ran the demo, then "only 0 of 12 views patched in -5 s" (exit 1); `--profiles nosuch
+    --no-verify` was exit 0 without a word (a black-box review, F11): one line, exit 2, nothing made."""
+    proc = _run_demo(tmp_path / "d", *args, "--no-verify")
+    lines = proc.stderr.splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and said in lines[0], proc.stdout + proc.stderr
+    assert lines[0].startswith("ppd: error: ") and not proc.stdout and not (tmp_path / "d").exists()

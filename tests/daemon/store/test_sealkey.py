@@ -309,3 +309,22 @@ def test_export_refuses_the_data_folder(ppd_env: dict[str, Path], tmp_path: Path
         assert "PPD_DATA_DIR" in said and not target.exists()
     written = CliRunner().invoke(ppd, ["key", "export", str(tmp_path / "k.key")])
     assert written.exit_code == 0 and (tmp_path / "k.key").is_file(), written.output
+
+
+def test_report_and_key_export_refuse_a_missing_folder_alike(ppd_env: dict[str, Path],
+                                                              tmp_path: Path) -> None:  # fmt: skip
+    """`ppd report X --out /nonexistent/dir/r.html` made the folders, exit 0; `ppd key export` into a
+    missing folder said "cannot write", exit 3 (a black-box review, F11): one rule, exit 2, nothing made."""
+    from daemon.cli import app as ppd
+
+    shoot = tmp_path / "shoot"
+    write_image(shoot / "a.png", seed=1, size=96)
+    runner = CliRunner()
+    assert runner.invoke(ppd, ["poison", str(shoot)]).exit_code == 0
+    missing = tmp_path / "nowhere" / "dir"
+    for args in (["report", "shoot", "--out", str(missing / "r.html")],
+                 ["key", "export", str(missing / "k")]):  # fmt: skip
+        result = runner.invoke(ppd, args)
+        assert result.exit_code == 2, (args, result.output)
+        assert result.output == f"ppd: error: no such folder: {missing}; create it first\n", result.output
+    assert not (tmp_path / "nowhere").exists()

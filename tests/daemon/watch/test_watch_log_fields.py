@@ -57,3 +57,37 @@ def test_a_file_waited_for_is_said_once_and_is_new_once_complete(
     assert [r.levelno for r in waiting] == [logging.INFO] + [logging.DEBUG] * (len(waiting) - 1)
     (patched,) = [r for r in caplog.records if r.getMessage() == "patched cut.png"]
     assert patched.event == "new"  # type: ignore[attr-defined]
+
+
+def test_a_name_that_is_not_utf8_is_one_clean_line_and_status_says_where_it_went(
+    ppd_env: dict[str, Path], caplog: pytest.LogCaptureFixture
+) -> None:
+    """A black-box review (F7): the daemon quarantined caf\\xe9.png and logged Python's codec text at
+    error level ("could not record it: 'utf-8' codec can't encode ..."), the name shown two ways
+    (caf\\udce9 and caf\\xe9); `ppd status --failed` then said "0 quarantined" and named it nowhere."""
+    import os
+
+    from typer.testing import CliRunner
+
+    from daemon.cli import app
+    from daemon.cli.output import KeyValueFormatter
+
+    staging = ppd_env["outbox"].parent / "staging"
+    write_image(staging / "ok.png", 1)
+    os.rename(write_image(staging / "x.png", 2), os.fsencode(staging) + b"/caf\xe9.png")
+    caplog.set_level(logging.INFO)
+    with running(ppd_env) as daemon:
+        staging.rename(ppd_env["outbox"] / "odd")  # a shoot moved in whole
+        wait_for(lambda: daemon.counts.quarantined >= 1 and daemon.counts.patched >= 1, 20, "both done")
+        wait_idle(daemon)
+    lines = [KeyValueFormatter().format(r) for r in caplog.records if r.levelno >= logging.WARNING]
+    (line,) = [x for x in lines if "caf" in x]  # one line: the daemon's own for the file
+    assert "codec" not in line and "udce9" not in line and "outcome=quarantined" in line, lines
+    assert line.count("caf\\\\xe9.png") == 4, line  # msg, file, reason and to: one spelling
+    status = CliRunner().invoke(app, ["status", "odd", "--failed"])
+    held = ppd_env["outbox"].parent / "ppd-quarantine" / "odd" / "caf\\xe9.png"
+    assert status.output.splitlines()[:2] == [
+        "odd: 0 failed, 1 quarantined",
+        f"  {held}: the file name is not valid UTF-8 (ppd records names as UTF-8): rename it and move it "
+        "back into the outbox (quarantined)",
+    ], status.output
