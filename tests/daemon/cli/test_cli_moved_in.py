@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 
 from daemon.cli import app
 from daemon.store.vault import blob_path
+from testkit.cli import said
 from testkit.daemon_proc import start_daemon, stop_daemon, wait_for
 from testkit.photos import make_image, make_shoot
 
@@ -23,11 +24,6 @@ runner = CliRunner()
 
 def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def said(*args: str) -> tuple[int, str]:
-    result = runner.invoke(app, list(args))
-    return result.exit_code, " ".join(result.output.split())
 
 
 def _row(data: Path, path: Path) -> dict[str, object]:

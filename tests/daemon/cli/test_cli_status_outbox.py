@@ -16,14 +16,10 @@ from typer.testing import CliRunner
 from daemon.cli import app
 from daemon.protect.one_file import AppContext
 from daemon.protect.quarantine import quarantine
+from testkit.cli import said as _said
 from testkit.photos import make_image
 
 runner = CliRunner()
-
-
-def _said(*args: str) -> tuple[int, str]:
-    result = runner.invoke(app, list(args))
-    return result.exit_code, " ".join(result.output.split())
 
 
 def test_photos_in_the_outbox_no_dataset_holds_are_said_and_fail_the_check(ppd_env: dict[str, Path]) -> None:
