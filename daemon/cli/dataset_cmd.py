@@ -256,6 +256,11 @@ def _forget_check(ctx: AppContext, name: str, force: bool) -> tuple[Patched, Aga
                   f"(moved or deleted?): {named}; their originals in the vault are the only way back for "
                   "a copy of them: `ppd restore FILE` on a moved one first, or --force to forget it all the "
                   "same (any copy of them then keeps the mark for good)")  # fmt: skip
+    if (before := _photos_from_before(ctx, name)) and not force:
+        raise die(f"dataset {name!r} has {len(before)} photo(s) saved over ppd's patched ones (an edit of "
+                  "the marked picture): the photo from before each is only in the vault "
+                  f"({before[0]}{', ...' if len(before) > 1 else ''}): copy it out first, or --force to "
+                  "forget it all the same (it then leaves the vault)")  # fmt: skip
     again = _in_the_outbox(ctx, folder, marked)
     if again is not None and not force:
         raise die(f"dataset {name!r}'s folder {again.folder} is in the outbox: `ppd watch` would patch its "
@@ -263,6 +268,15 @@ def _forget_check(ctx: AppContext, name: str, force: bool) -> tuple[Patched, Aga
                   "restored any more); move the folder out of the outbox first, or --force to forget it all "
                   "the same")  # fmt: skip
     return marked, again
+
+
+def _photos_from_before(ctx: AppContext, name: str) -> list[Path]:
+    """The vault copies of the photos from before an edit of ppd's patched photo (files.saved_over) that
+    forgetting the dataset would remove: `ppd restore` named each as the only unmarked copy, to be copied
+    out (a diff review: forget then removed them without a word)."""
+    shas = {row["saved_over"] for row in ctx.store.files(name) if row.get("saved_over")}
+    kept = [sha for sha in sorted(shas) if ctx.vault.has(sha)]
+    return [ctx.vault.path_for(sha) for sha in kept]
 
 
 class Again(NamedTuple):

@@ -123,6 +123,13 @@ def test_restore_of_a_cropped_patched_photo_says_its_original_carries_the_mark(
     assert f"restored {photo}: its original is the file saved over ppd's patched photo" in text, text
     (vault_copy,) = (Path(w) for w in text.split() if w.startswith(str(ppd_env["data"])))
     assert _sha(vault_copy) == originals["v2.jpg"]
+    # forgetting the shoot would remove that only unmarked copy: refused until copied out, or --force
+    refused = runner.invoke(app, ["dataset", "forget", "crop"])
+    text = _said(refused)
+    assert refused.exit_code == 2 and vault_copy.is_file(), text
+    assert f"the photo from before each is only in the vault ({vault_copy})" in text, text
+    forced = runner.invoke(app, ["dataset", "forget", "crop", "--force"])
+    assert forced.exit_code == 0 and not vault_copy.exists(), forced.output
 
 
 def test_a_rated_photo_renamed_is_still_not_written_over(ppd_env: dict[str, Path], tmp_path: Path) -> None:
