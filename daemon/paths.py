@@ -174,8 +174,15 @@ def published_with(folder: Path, where: Path) -> bool:
 
 
 def experiment_name(name: str) -> str:
-    """A dataset's or a folder's name as one safe folder name."""
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("_") or "experiment"
+    """A dataset's or a folder's name as one safe folder name, one per name: a name the safe form changes
+    gets a short hash of itself (`my shoot` and `my_shoot` shared one folder, and forgetting one removed
+    the other's experiment: a diff review)."""
+    import hashlib
+
+    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("_") or "experiment"
+    if safe == name and name not in (".", ".."):
+        return safe
+    return f"{safe}-{hashlib.sha256(name.encode('utf-8', 'surrogateescape')).hexdigest()[:8]}"
 
 
 def _a_photo_in(folder: Path, depth: int = 3, budget: int = 20_000) -> str | None:

@@ -461,3 +461,24 @@ def test_refused_while_ppd_watch_runs_or_a_command_holds_the_store(
     done = _ppd(env, "dataset", "forget", "castle")
     assert done.returncode == 0 and "forgot dataset castle: 2 file record(s)" in done.stdout, done.stderr
     assert not _blobs(root / "data")
+
+
+def test_a_name_whose_safe_form_is_anothers_forgets_its_own_experiment_only(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """`my shoot` and `my_shoot` had one experiment folder (DATA/experiments/my_shoot): forgetting the
+    first removed the second's experiment (a diff review)."""
+    from daemon.paths import AppPaths
+
+    paths = AppPaths.from_env()
+    for name in ("my shoot", "my_shoot"):
+        make_shoot(tmp_path / "sets" / name, 1)
+        assert runner.invoke(app, ["poison", str(tmp_path / "sets" / name)]).exit_code == 0
+        (paths.experiment_dir(name) / "results.csv").parent.mkdir(parents=True)
+        (paths.experiment_dir(name) / "results.csv").write_text(name)
+    assert paths.experiment_dir("my shoot") != paths.experiment_dir("my_shoot")
+    shutil.rmtree(tmp_path / "sets" / "my shoot")
+    code, text = said("dataset", "forget", "my shoot")
+    assert code == 0, text
+    assert not paths.experiment_dir("my shoot").exists()
+    assert (paths.experiment_dir("my_shoot") / "results.csv").read_text() == "my_shoot"
