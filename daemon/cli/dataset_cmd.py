@@ -258,7 +258,7 @@ def _forget_check(ctx: AppContext, name: str, force: bool) -> tuple[Patched, Aga
                   "same (any copy of them then keeps the mark for good)")  # fmt: skip
     if (before := _photos_from_before(ctx, name)) and not force:
         raise die(f"dataset {name!r} has {len(before)} photo(s) saved over ppd's patched ones (an edit of "
-                  "the marked picture): the photo from before each is only in the vault "
+                  "the marked picture?): the photo from before each is only in the vault "
                   f"({before[0]}{', ...' if len(before) > 1 else ''}): copy it out first, or --force to "
                   "forget it all the same (it then leaves the vault)")  # fmt: skip
     again = _in_the_outbox(ctx, folder, marked)

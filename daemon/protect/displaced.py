@@ -128,7 +128,9 @@ def saved_over_note(ctx: AppContext, earlier: str | None) -> str | None:
     photo from before is (a black-box review, F1: "restored" handed back a marked picture, silently)."""
     if not earlier:
         return None
+    # said as a condition: another photo saved under the name (a camera's counter reused) carries none
+    edit = "if it was an edit of that photo, it still carries ppd's mark"
     if not ctx.vault.has(earlier):
-        return f"{SAVED_OVER}: an edit of it still carries ppd's mark; the photo from before is kept no more"
-    return (f"{SAVED_OVER}: an edit of it still carries ppd's mark; the photo from before that is kept at "
-            f"{ctx.vault.path_for(earlier)} (copy it out to have it back)")
+        return f"{SAVED_OVER}: {edit}; the photo ppd patched before is kept no more"
+    return (f"{SAVED_OVER}: {edit}; the photo ppd patched before is kept at {ctx.vault.path_for(earlier)} "
+            "(copy it out to have it back)")
