@@ -187,6 +187,7 @@ def _rebuild(
     specs = _recover_specs(vault, old, config, {s for ids in by_dataset.values() for s in ids}, report)
     names = set(by_dataset) | set(old.datasets)  # the new store's datasets (_fill_new_store)
     report.carried = rebuild_carry.carry_over(history, found.rows.keys(), names, collector.is_intact, specs)
+    rebuild_carry.carry_saved_over(history, found.rows, collector.is_intact)
     _write_new_store(store_path, found, by_dataset, specs, old, report)
     report.recorded = len(found.rows)
     report.datasets = {name: len(ids) for name, ids in sorted(by_dataset.items())}

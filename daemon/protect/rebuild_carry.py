@@ -117,6 +117,20 @@ class Carried:
     earlier: list[tuple[str, str, float]] = field(default_factory=list)  # (dataset, sha256, replaced_at)
 
 
+def carry_saved_over(old: OldHistory, found: dict[str, tuple[str, dict[str, Any]]],
+                     intact: Callable[[str], bool]) -> None:  # fmt: skip
+    """A row found again by its seal gets the old row's files.saved_over (the photo from before an edit
+    of ppd's patched photo) when the old row is of the same path and original and the vault holds that
+    photo intact: a rebuild dropped it, and restore then said only "restored" of a picture that may carry
+    ppd's mark (a diff review). found: the rebuild's rows, changed in place."""
+    for row in old.patched_rows:
+        earlier = row.get("saved_over")
+        mine = found.get(str(row["path"]))
+        if earlier and mine is not None and mine[1]["original_sha256"] == row.get("original_sha256") \
+                and intact(str(earlier)):  # fmt: skip
+            mine[1]["saved_over"] = earlier
+
+
 def carry_over(
     old: OldHistory, found: Collection[str], datasets: Collection[str], intact: Callable[[str], bool],
     specs: Collection[str] = (),
@@ -132,7 +146,7 @@ def carry_over(
         if st is not None and intact(str(row.get("original_sha256") or "")):
             fields = {k: row.get(k) for k in ("original_sha256", "poisoned_sha256", "original_mtime_ns",
                                               "spec_id", "tool_version", "published_path",
-                                              "resaved")}  # fmt: skip
+                                              "resaved", "saved_over")}  # fmt: skip
             carried.patched.append((path, str(row["dataset"]), {**fields, "size": st.st_size,
                                                                 "mtime_ns": st.st_mtime_ns}))  # fmt: skip
     for row in old.restored:

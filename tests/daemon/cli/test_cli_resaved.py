@@ -18,6 +18,7 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from daemon.cli import app
+from daemon.protect.displaced import SAVED_OVER
 from testkit.photos import textured
 
 runner = CliRunner()
@@ -123,6 +124,11 @@ def test_restore_of_a_cropped_patched_photo_says_its_original_carries_the_mark(
     assert f"restored {photo}: its original is the file saved over ppd's patched photo" in text, text
     (vault_copy,) = (Path(w) for w in text.split() if w.startswith(str(ppd_env["data"])))
     assert _sha(vault_copy) == originals["v2.jpg"]
+    # a rebuilt store keeps that note (its row is found again by the seal): it was dropped (a diff review)
+    assert runner.invoke(app, ["poison", "--force", str(photo)]).exit_code == 0
+    assert runner.invoke(app, ["store", "rebuild", "--force", str(shoot)]).exit_code == 0
+    again = _said(runner.invoke(app, ["restore", str(photo)]))
+    assert f"{SAVED_OVER}" in again and str(vault_copy) in again, again
     # forgetting the shoot would remove that only unmarked copy: refused until copied out, or --force
     refused = runner.invoke(app, ["dataset", "forget", "crop"])
     text = _said(refused)
