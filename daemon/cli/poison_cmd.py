@@ -523,14 +523,25 @@ def unpatched_in_place(
     patched in place, and such files named on the command line: said in one line (a black-box review:
     poison called three of them "not a supported image or video" and left out the hidden one)."""
     from daemon.cli.targets import user_path
-    from daemon.datasets.unpatched_names import NAME_PREFIX, unpatched_line, unpatched_media
+    from daemon.datasets.unpatched_names import (
+        NAME_PREFIX,
+        unpatched_line,
+        unpatched_media,
+        unpatched_name_reason,
+    )
+    from poisoner.media import read_head
 
     if any(j.out_path is not None for j in jobs):  # --out: such a file is not copied where it publishes
         return []
     skip = [m for m in masks.values() if m is not None]
     named = {o.path for o in outcomes if o.state == "skipped" and (o.reason or "").startswith(NAME_PREFIX)}
-    for folder in (user_path(p) for p in paths):
-        named |= set(unpatched_media(folder, skip)) if folder.is_dir() and not folder.is_symlink() else set()
+    for given in (user_path(p) for p in paths):
+        if given.is_symlink():
+            continue
+        if given.is_dir():
+            named |= set(unpatched_media(given, skip))
+        elif given.is_file() and unpatched_name_reason(given.name, False, read_head(given)):
+            named.add(given.absolute())  # `ppd poison .IMG_1.jpg`: skipped in silence, exit 0 (a diff review)
     found = sorted(named)
     if found:
         where = "the outbox" if all(p.is_relative_to(ctx.paths.outbox) for p in found) else "the folder"

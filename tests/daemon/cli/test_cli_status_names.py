@@ -97,6 +97,10 @@ def test_poison_names_them_instead_of_calling_them_unsupported(ppd_env: dict[str
     assert LINE in text, text
     assert result.exit_code == 1, text  # in place: not protected, as a photo of a format ppd cannot patch
     assert all((nest / n).read_bytes()[:2] == b"\xff\xd8" for n in HIDDEN)  # untouched
+    # named on the command line, alone: skipped in silence, exit 0 (a diff review)
+    alone = runner.invoke(app, ["poison", str(nest / ".IMG_0017.jpg")], env={"COLUMNS": "300"})
+    text = " ".join(alone.output.split())
+    assert alone.exit_code == 1 and "1 photo(s) or video(s) under names ppd does not patch" in text, text
 
 
 def test_a_photo_named_with_a_hash_is_patched_by_the_daemon_too(ppd_env: dict[str, Path]) -> None:
