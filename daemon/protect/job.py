@@ -13,7 +13,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from daemon.fsops import ContainedFile
+from daemon.fsops import ContainedFile, identity
 from poisoner.atomic import TEMP_PREFIX
 from poisoner.errors import ExitStatus, PpdError
 from poisoner.media import IMAGE, VIDEO, media_class
@@ -54,6 +54,22 @@ class SourceChanged(PpdError):
     """The source changed while it was being patched."""
 
     exit_status = ExitStatus.FAILED
+
+
+def still_the_version(f: ContainedFile, sha: str, name: str) -> Callable[[], None]:
+    """The compare-and-swap before a patched file is renamed over f's name (atomic_replace_at's
+    check): raises SourceChanged unless the name still holds the opened file, unwritten, of sha."""
+
+    def check() -> None:
+        # The slow hash first, the identity of the name last: nothing but the rename follows it.
+        if f.changed() or f.sha256() != sha:
+            raise SourceChanged(f"{name} was written to while being patched; left as it is now")
+        if not f.folder_in_place():
+            raise SourceChanged(f"{name}: its folder was moved or replaced; nothing written")
+        if f.current_identity() != identity(f.st):
+            raise SourceChanged(f"{name} was replaced while being patched; the new version stays")
+
+    return check
 
 
 NO_SPACE_WORDS = "no space left on the disk of"  # daemon.watch.outcomes.is_no_space reads them
@@ -187,6 +203,13 @@ def tool_version() -> str:
     from daemon.version import ppd_version
 
     return f"ppd {ppd_version()}"
+
+
+def anchor_for(ctx: AppContext, path: Path, root: Path) -> Path:
+    """The trusted folder containment is judged from: the outbox for its files (a dataset folder
+    inside it may itself be swapped for a symlink), else the dataset's root."""
+    outbox = Path(ctx.paths.outbox).absolute()
+    return outbox if path.is_relative_to(outbox) and root.absolute().is_relative_to(outbox) else root
 
 
 def one_line(exc: BaseException) -> str:

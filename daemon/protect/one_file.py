@@ -42,6 +42,7 @@ from daemon.protect.job import (
     ProtectOutcome,
     ProtectRefused,
     SourceChanged,
+    anchor_for,
     is_ignored_name,
     media_kind,
     name_the_disk,
@@ -51,7 +52,7 @@ from daemon.protect.job import (
     tool_version,
 )
 from daemon.protect.poisoning import file_is_the_cause, poison_to
-from daemon.protect.remark import reprotect_row
+from daemon.protect.remark import note_not_reprotected, reprotect_row
 from daemon.protect.restoring import FROM_PUBLISH_FOLDER, restore_file
 from daemon.protect.stages import STAGES, run_stages
 from daemon.states import FileState
@@ -78,13 +79,6 @@ def failure_message(exc: BaseException, path: Path) -> str:
         text = text.replace(path.name, shown_name(path))
     lines = text.strip().splitlines()
     return lines[0] if lines else type(exc).__name__
-
-
-def anchor_for(ctx: AppContext, path: Path, root: Path) -> Path:
-    """The trusted folder containment is judged from: the outbox for its files (a dataset folder
-    inside it may itself be swapped for a symlink), else the dataset's root."""
-    outbox = Path(ctx.paths.outbox).absolute()
-    return outbox if path.is_relative_to(outbox) and root.absolute().is_relative_to(outbox) else root
 
 
 def _resolve_dataset(ctx: AppContext, path: Path, dataset: str | None, root: Path | None) -> tuple[str, Path]:
@@ -296,4 +290,10 @@ def reprotect_dataset(ctx: AppContext, dataset: str, spec: PatchSpec) -> list[Pr
 
 def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: PatchSpec) -> ProtectOutcome:
     with ctx.path_lock(Path(row["path"])):
-        return reprotect_row(ctx, row, root, spec)
+        try:
+            return reprotect_row(ctx, row, root, spec)
+        except SourceChanged as exc:  # saved while it was made: nothing written, the next run judges it
+            reason = one_line(exc)
+            note_not_reprotected(ctx, row, spec, reason)
+            return ProtectOutcome(path=Path(row["path"]), dataset=row["dataset"], state=Outcome.FAILED,
+                                  reason=reason)  # fmt: skip

@@ -7,38 +7,47 @@ lost too: left as it is).
 A black-box review: a photo moved from shoot30 into papers (another design) kept shoot30's mark; the
 daemon logged "unchanged ... moved from", `ppd poison` said "unchanged" (exit 0), and the dataset held
 two specs. Now it gets papers' mark from its vault original, and the outcome says where it came from;
-an original not in the vault fails with one line naming it.
+an original not in the vault fails with one line naming it. A later review: the re-mark was renamed over
+the path unchecked (an edit saved meanwhile was lost, kept nowhere), and a file saved again by another
+program (a rating written in place) was re-marked, its bytes dropped. Now the write is the stages'
+compare-and-swap through the folder's descriptor, and such a file is left as it is, said and noted.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
-import shutil
 import sqlite3
-from collections.abc import Callable
+import stat
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 from daemon.context import AppContext
 from daemon.datasets.dataset import ensure_dataset
 from daemon.datasets.subject_masks import subject_masks_for
+from daemon.fsops import ContainedFile, copy_path_to_fd, open_contained
 from daemon.protect.job import (
     Job,
     Outcome,
     ProtectOutcome,
     ProtectRefused,
+    SourceChanged,
+    anchor_for,
     media_kind,
+    no_space_in,
     one_line,
     report_detail,
     shown_name,
+    still_the_version,
     tool_version,
 )
 from daemon.protect.poisoning import named_vault_copy, poison_to, provenance_marker, seal_output
 from daemon.protect.recovery import carry_moved_row
 from daemon.states import REMARKED_PREFIX
 from daemon.store.vault import sha256_file
-from poisoner.atomic import atomic_output
+from poisoner.atomic import atomic_replace_at
 from poisoner.errors import PpdError
 from poisoner.spec import PatchSpec
 
@@ -49,45 +58,34 @@ log = logging.getLogger(__name__)
 Recorder = Callable[[Job, str, str, str | None, str | None, str, int | None], None]
 
 
-def reprotect_row(ctx: AppContext, row: dict[str, Any], root: Path, spec: PatchSpec) -> ProtectOutcome:
+def reprotect_row(
+    ctx: AppContext, row: dict[str, Any], root: Path, spec: PatchSpec, opened: ContainedFile | None = None
+) -> ProtectOutcome:
     """A patched file's row made again from its vault original with spec: the new file is made from the
-    vault copy and renamed over the old patched one (the original never shows at its path). The caller
-    holds the file's lock. A file changed since ppd wrote it, or an original not in the vault, is
-    refused: the row keeps its earlier spec, the reason noted (`ppd status --failed`), outcome failed."""
+    vault copy and renamed over the old patched one through its folder's descriptor, only if the name
+    still holds the file as it was read (the stages' compare-and-swap; the original never shows at its
+    path). The caller holds the file's lock; opened: the file as the stages opened and hashed it (else
+    it is opened here). A file changed since ppd wrote it, one saved again by another program (its
+    bytes the creator's), or an original not in the vault, is refused: the row keeps its earlier spec,
+    the reason noted (`ppd status --failed`), outcome failed. A version saved while it is made raises
+    SourceChanged, nothing written: the caller judges that version as new (the stages start over)."""
     from daemon.states import FileState
 
     path, dataset = Path(row["path"]), row["dataset"]
     target = Path(row["published_path"] or row["path"])
     try:
-        if not target.is_file() or sha256_file(target) != row["poisoned_sha256"]:
-            raise ProtectRefused(f"{target.name} changed since ppd protected it; not re-protecting it")
-        if not ctx.vault.verify(row["original_sha256"]):
-            raise ProtectRefused(f"the vault copy of {path.name} is missing or corrupt")
-        kind = media_kind(path) or "image"
-        rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else path.name
-        with (
-            named_vault_copy(ctx, row["original_sha256"], path.name) as original,
-            atomic_output(target) as tmp,
-        ):
-            if spec.selects(rel):
-                marker = provenance_marker(ctx, spec.spec_id, row["original_sha256"])
-                limits: dict[str, Any] = {"max_pixels": ctx.config.max_pixels} if kind == "image" else {}
-                report = poison_to(
-                    kind, original, tmp, spec, subject_masks=subject_masks_for(ctx, dataset),
-                    marker=marker, keep_location=ctx.config.keep_location, **limits,
-                )  # fmt: skip
-                seal_output(ctx, tmp)
-                row_state, state = FileState.PATCHED, Outcome.PATCHED
-            else:
-                shutil.copyfile(original, tmp)
-                report, row_state, state = None, FileState.SKIPPED, Outcome.SKIPPED
-            new_sha = sha256_file(tmp)
-        st = target.stat()
+        with contextlib.ExitStack() as held:
+            f = opened or held.enter_context(_opened_as_recorded(ctx, row, target, root))
+            selected, report, new_sha, st = _remark_in_place(ctx, row, f, root, spec)
+        state = Outcome.PATCHED if selected else Outcome.SKIPPED
         ctx.store.record_file(
-            path, dataset, row_state, poisoned_sha256=new_sha if state == Outcome.PATCHED else None,
-            spec_id=spec.spec_id, tool_version=tool_version(), size=st.st_size, mtime_ns=st.st_mtime_ns,
-            error=None, event="reprotected", detail={"spec_id": spec.spec_id, **report_detail(report)},
+            path, dataset, FileState.PATCHED if selected else FileState.SKIPPED,
+            poisoned_sha256=new_sha if selected else None, spec_id=spec.spec_id,
+            tool_version=tool_version(), size=st.st_size, mtime_ns=st.st_mtime_ns, error=None,
+            event="reprotected", detail={"spec_id": spec.spec_id, **report_detail(report)},
         )  # fmt: skip
+    except SourceChanged:
+        raise  # the caller's: nothing was written (the stages start over, `--reprotect` notes it)
     except Exception as exc:
         note_not_reprotected(ctx, row, spec, one_line(exc))
         return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=one_line(exc))
@@ -96,6 +94,74 @@ def reprotect_row(ctx: AppContext, row: dict[str, Any], root: Path, spec: PatchS
         poisoned_sha256=new_sha if state == Outcome.PATCHED else None, spec_id=spec.spec_id, output=target,
         signature=(st.st_ino, st.st_size, st.st_mtime_ns), report=report,
     )  # fmt: skip
+
+
+def resaved_reason(name: str) -> str:
+    """Why a file saved again by another program (files.resaved) is not re-marked: its bytes are the
+    creator's (a rating, keywords), and a re-mark from the vault original would drop them, kept nowhere;
+    restore --force keeps them in DATA/displaced, as it does for any such file."""
+    return (
+        f"{name} was saved again by another program since ppd patched it (its bytes are yours): not "
+        f"re-marked; `ppd restore FILE --force` keeps your version, then `ppd poison FILE --force` marks "
+        "it with this dataset's spec"
+    )
+
+
+@contextlib.contextmanager
+def _opened_as_recorded(
+    ctx: AppContext, row: dict[str, Any], target: Path, root: Path
+) -> Iterator[ContainedFile]:
+    """The patched file opened without following a symlink (daemon.fsops), refused unless it holds
+    what ppd wrote there (read through its descriptor)."""
+    if not target.is_file():
+        raise ProtectRefused(f"{target.name} changed since ppd protected it; not re-protecting it")
+    root = root.absolute()
+    # a publish folder (outside the dataset's folder) is ppd's own: trusted as far as the file's folder
+    anchor = anchor_for(ctx, target, root) if target.absolute().is_relative_to(root) else target.parent
+    f = open_contained(anchor, target)
+    try:
+        if f.sha256() != row["poisoned_sha256"]:
+            raise ProtectRefused(f"{target.name} changed since ppd protected it; not re-protecting it")
+        yield f
+    finally:
+        f.close()
+
+
+def _remark_in_place(
+    ctx: AppContext, row: dict[str, Any], f: ContainedFile, root: Path, spec: PatchSpec
+) -> tuple[bool, Any, str, os.stat_result]:
+    """Make row's file again from its vault original with spec in a private work folder, then put it at
+    f's name if that still holds f as read (job.still_the_version): (whether the spec's ratio selects
+    it, else its original is put back; the poisoner's report; the sha256 written; its stat)."""
+    name, dataset = f.path.name, row["dataset"]
+    if row.get("resaved"):
+        raise ProtectRefused(resaved_reason(name))
+    if not ctx.vault.verify(row["original_sha256"]):
+        raise ProtectRefused(f"the vault copy of {Path(row['path']).name} is missing or corrupt")
+    kind = media_kind(f.path) or "image"
+    path = Path(row["path"])
+    rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else path.name
+    report, selected = None, spec.selects(rel)
+    with named_vault_copy(ctx, row["original_sha256"], name) as original:
+        made = original
+        if selected:
+            made = original.with_name(f"remarked-{name}")  # the same suffix: poisoners go by it
+            marker = provenance_marker(ctx, spec.spec_id, row["original_sha256"])
+            limits: dict[str, Any] = {"max_pixels": ctx.config.max_pixels} if kind == "image" else {}
+            with no_space_in(ctx.vault.vault_dir):  # the work folder is in the vault
+                report = poison_to(
+                    kind, original, made, spec, subject_masks=subject_masks_for(ctx, dataset),
+                    marker=marker, keep_location=ctx.config.keep_location, **limits,
+                )  # fmt: skip
+                seal_output(ctx, made)
+        new_sha = sha256_file(made)
+        check = still_the_version(f, row["poisoned_sha256"], name)
+        with no_space_in(f.path.parent), atomic_replace_at(
+            f.dir_fd, f.name, mode=stat.S_IMODE(f.st.st_mode), check=check
+        ) as (fd, _tmp):
+            copy_path_to_fd(made, fd)
+            st = os.fstat(fd)
+    return selected, report, new_sha, st
 
 
 def note_not_reprotected(ctx: AppContext, row: dict[str, Any], spec: PatchSpec, reason: str) -> None:
@@ -152,7 +218,10 @@ def remarked(job: Job, came: dict[str, Any], said: str) -> ProtectOutcome:
                   f"{job.dataset!r}'s ({why}), and its original is not in the vault to patch it again "
                   "with this one's: put the unmarked photo here instead")  # fmt: skip
         return job.outcome(Outcome.FAILED, reason, poisoned_sha256=job.sha)
-    outcome = reprotect_row(job.ctx, row, job.root, spec)
+    if came.get("resaved"):  # a copy of a file saved again by another program: its bytes the creator's too
+        row = {**row, "resaved": 1}
+    # a version saved meanwhile: SourceChanged, the stages start over on it (one_file._run_until_settled)
+    outcome = reprotect_row(job.ctx, row, job.root, spec, job.file)
     if outcome.state == Outcome.FAILED:
         outcome.reason = f"{outcome.reason} ({why}: it keeps that mark, not dataset {job.dataset!r}'s)"
     elif outcome.state == Outcome.SKIPPED:  # its mark taken off: the original, as the spec's ratio leaves it

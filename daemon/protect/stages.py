@@ -58,7 +58,6 @@ from daemon.fsops import (
     clear_stale_temps_once,
     copy_fd_to_path,
     copy_path_to_fd,
-    identity,
     open_contained,
     open_dir,
     read_fd,
@@ -79,6 +78,7 @@ from daemon.protect.job import (
     place_note,
     report_detail,
     shown_name,
+    still_the_version,
     storable,
     tool_version,
 )
@@ -486,19 +486,10 @@ def replace_atomically(job: Job) -> ProtectOutcome | None:
         _write_out(job, _patched(job))
         return None
     f = job.file
+    assert job.sha is not None
     clear_stale_temps_once(f.dir_fd)
-
-    def still_the_hashed_version() -> None:
-        # The slow hash first, the identity of the name last: nothing but the rename follows it.
-        if f.changed() or f.sha256() != job.sha:
-            raise SourceChanged(f"{job.path.name} was written to while being patched; left as it is now")
-        if not f.folder_in_place():
-            raise SourceChanged(f"{job.path.name}: its folder was moved or replaced; nothing written")
-        if f.current_identity() != identity(f.st):
-            raise SourceChanged(f"{job.path.name} was replaced while being patched; the new version stays")
-
     with no_space_in(job.path.parent), atomic_replace_at(
-        f.dir_fd, f.name, mode=stat.S_IMODE(f.st.st_mode), check=still_the_hashed_version
+        f.dir_fd, f.name, mode=stat.S_IMODE(f.st.st_mode), check=still_the_version(f, job.sha, job.path.name)
     ) as (fd, _tmp):
         _write_content(fd, _patched(job))
         st = os.fstat(fd)

@@ -146,12 +146,14 @@ def test_the_originals_of_edited_photos_earlier_versions_go_too(
 
     shutil.rmtree(sets / "a")
     code, text = said("dataset", "forget", "a")
+    assert code == 2 and "saved over ppd's patched ones" in text, text  # the photo from before: said
+    code, text = said("dataset", "forget", "a", "--force")
     assert code == 0, text
     assert "3 file record(s); 3 original(s) (" in text, text  # v1, v2 and a's edited v0
     assert "1 original(s) kept: another dataset uses them" in text, text  # the first v0: b's earlier one
     assert first["v0.png"] in _blobs(data) and len(_blobs(data)) == 2
     shutil.rmtree(sets / "b")
-    code, text = said("dataset", "forget", "b")
+    code, text = said("dataset", "forget", "b", "--force")
     assert code == 0, text
     assert "1 file record(s); 2 original(s) (" in text and not _blobs(data), text
     assert not _rows(data, "SELECT 1 FROM earlier_originals")

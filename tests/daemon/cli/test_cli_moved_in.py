@@ -11,13 +11,16 @@ import hashlib
 import sqlite3
 from pathlib import Path
 
+import pytest
+from PIL import Image
 from typer.testing import CliRunner
 
+import daemon.protect.remark as remark
 from daemon.cli import app
 from daemon.store.vault import blob_path
 from testkit.cli import said
 from testkit.daemon_proc import start_daemon, stop_daemon, wait_for
-from testkit.photos import make_image, make_shoot
+from testkit.photos import make_image, make_shoot, rate_in_place, textured
 
 runner = CliRunner()
 
@@ -144,3 +147,101 @@ def test_the_daemon_gives_a_photo_moved_in_the_datasets_spec(
     assert row["state"] == "patched" and row["poisoned_sha256"] == _sha(papers / "moved.png"), row
     assert said("restore", str(papers / "moved.png"))[0] == 0
     assert _sha(papers / "moved.png") == originals["v1.png"]
+
+
+def _jpeg_datasets(outbox: Path) -> tuple[Path, Path]:
+    """shoot (smooth JPEGs: a rating keeps them ppd's output, as a camera's) and papers (paper design)."""
+    shoot = outbox / "shoot"
+    shoot.mkdir(parents=True)
+    for i in range(2):
+        Image.fromarray(textured(240, 320, seed=i)).save(shoot / f"v{i}.jpg", quality=95)
+    papers = outbox / "papers"
+    make_image(papers / "p0.png", 30)
+    assert said("dataset", "set", "papers", "--design", "paper")[0] == 0
+    for folder in (shoot, papers):
+        assert runner.invoke(app, ["poison", str(folder)]).exit_code == 0
+    return shoot, papers
+
+
+def test_a_rated_photo_moved_in_keeps_its_bytes(ppd_env: dict[str, Path]) -> None:
+    """A review (F3): a photo rated in place (its row 'saved again by another program') moved into papers
+    was re-marked from its vault original: the rating gone, kept nowhere. Now it is left as it is, said
+    and noted; the way the line gives (restore --force, poison --force) keeps the rated bytes."""
+    data = ppd_env["data"]
+    shoot, papers = _jpeg_datasets(ppd_env["outbox"])
+    for name in ("v0.jpg", "v1.jpg"):
+        rate_in_place(shoot / name)
+    assert "its pixels unchanged" in said("-v", "poison", str(shoot))[1]  # recognised: its bytes are yours
+    rated = (shoot / "v1.jpg").read_bytes()
+    photo = (shoot / "v1.jpg").rename(papers / "rated.jpg")
+    copied = papers / "copied.jpg"
+    copied.write_bytes((shoot / "v0.jpg").read_bytes())
+    copy = copied.read_bytes()
+    code, text = said("poison", str(papers))
+    assert code == 1 and "patched 0, unchanged 1, skipped 0, failed 2" in text, text
+    assert f"ppd: failed: {photo}: rated.jpg was saved again by another program since ppd patched it (its " \
+        "bytes are yours): not re-marked; `ppd restore FILE --force` keeps your version" in text, text
+    assert "copied.jpg was saved again by another program" in text, text
+    assert photo.read_bytes() == rated and copied.read_bytes() == copy  # before: re-marked, the rating gone
+    assert _row(data, photo)["resaved"] == 1
+    code, text = said("status", "papers", "--failed")
+    assert "rated.jpg" in text and "saved again by another program" in text, text
+
+    assert said("restore", str(photo), "--force")[0] == 0
+    (kept,) = (p for p in (data / "displaced").rglob("*") if p.is_file())
+    assert kept.read_bytes() == rated
+    code, text = said("poison", str(photo), "--force")
+    assert code == 0 and "patched 1" in text, text
+    assert _row(data, photo)["spec_id"] == _spec_id("papers")
+
+
+def _edit_while_made(monkeypatch: pytest.MonkeyPatch, photo: Path) -> list[bytes]:
+    """The creator's editor saves photo in place (rotated) once its re-mark is made, before the re-mark
+    is put there: the review's race.py, as a wrapper of the re-mark's poisoner. The edit's bytes."""
+    real, saved = remark.poison_to, []
+
+    def made_then_edited(*args: object, **kwargs: object) -> object:
+        report = real(*args, **kwargs)  # type: ignore[arg-type]
+        if not saved and Path(str(args[1])).name == photo.name:  # its vault original, under its name
+            with Image.open(photo) as im:
+                im.load()
+                edited = im.rotate(90)
+            edited.save(photo, "PNG")  # in place: the same inode, new bytes
+            saved.append(photo.read_bytes())
+        return report
+
+    monkeypatch.setattr(remark, "poison_to", made_then_edited)
+    return saved
+
+
+def test_an_edit_saved_during_the_re_mark_is_not_written_over(
+    ppd_env: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A review (F2): the re-mark renamed its output over the path without a compare-and-swap: an edit
+    saved meanwhile was gone, kept nowhere. Now nothing is written over it: the run starts over on it."""
+    data = ppd_env["data"]
+    shoot, papers, _ = _two_datasets(ppd_env["outbox"])
+    photo = (shoot / "v1.png").rename(papers / "moved.png")
+    saved = _edit_while_made(monkeypatch, photo)
+    code, text = said("-v", "poison", "-j", "1", str(papers))  # one worker: this process, the wrapper's
+    assert saved and code == 0, text
+    assert "patched 1, unchanged 1" in text, text
+    edit = hashlib.sha256(saved[0]).hexdigest()  # judged again: a new photo, patched, kept in the vault
+    assert blob_path(data / "vault", edit).read_bytes() == saved[0], text  # before: kept nowhere
+    row = _row(data, photo)
+    assert row["original_sha256"] == edit and row["poisoned_sha256"] == _sha(photo), row
+    assert row["spec_id"] == _spec_id("papers"), row
+
+
+def test_reprotect_leaves_an_edit_saved_while_it_ran(
+    ppd_env: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`ppd dataset set NAME --reprotect`, the same race: the edit stays, one line says so, noted."""
+    data = ppd_env["data"]
+    shoot, _papers, _ = _two_datasets(ppd_env["outbox"])
+    photo = shoot / "v1.png"
+    saved = _edit_while_made(monkeypatch, photo)
+    code, text = said("dataset", "set", "shoot", "--design", "paper", "--reprotect")
+    assert saved and photo.read_bytes() == saved[0], text  # before: ppd's re-mark, the edit nowhere
+    assert "v1.png was written to while being patched; left as it is now" in text, text
+    assert "written to while being patched" in _row(data, photo)["error"]  # type: ignore[operator]

@@ -10,8 +10,6 @@ DATA/displaced/DATASET/."""
 from __future__ import annotations
 
 import hashlib
-import shutil
-import subprocess
 from pathlib import Path
 
 from PIL import Image
@@ -19,7 +17,7 @@ from typer.testing import CliRunner
 
 from daemon.cli import app
 from daemon.protect.displaced import SAVED_OVER
-from testkit.photos import textured
+from testkit.photos import rate_in_place, textured
 
 runner = CliRunner()
 
@@ -44,25 +42,12 @@ def _shoot(folder: Path, suffix: str, n: int = 3) -> dict[str, str]:
     return {p.name: _sha(p) for p in folder.iterdir()}
 
 
-def _rate(photo: Path) -> None:
-    """A rating and keywords written in place, as a photo tagger does: exiftool when installed, else an
-    APP1 XMP packet added after SOI by hand (no pixel moves either way)."""
-    if shutil.which("exiftool"):
-        subprocess.run(["exiftool", "-q", "-overwrite_original", "-XMP:Rating=5", "-XMP:Subject=best shot",
-                        "-IPTC:Keywords=client", str(photo)], check=True)  # fmt: skip
-        return
-    data = photo.read_bytes()
-    xmp = b"http://ns.adobe.com/xap/1.0/\x00<x:xmpmeta xmlns:x='adobe:ns:meta/'><Rating>5</Rating>"
-    xmp += b"</x:xmpmeta>"
-    photo.write_bytes(data[:2] + b"\xff\xe1" + (len(xmp) + 2).to_bytes(2, "big") + xmp + data[2:])
-
-
 def test_a_rated_photo_is_not_written_over_by_restore(ppd_env: dict[str, Path], tmp_path: Path) -> None:
     shoot = tmp_path / "rate"
     originals = _shoot(shoot, ".jpg")
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     photo = shoot / "v1.jpg"
-    _rate(photo)
+    rate_in_place(photo)
     rated = photo.read_bytes()
     again = runner.invoke(app, ["-v", "poison", str(shoot)])
     assert again.exit_code == 0 and "its pixels unchanged" in _said(again), again.output
@@ -144,7 +129,7 @@ def test_a_rated_photo_renamed_is_still_not_written_over(ppd_env: dict[str, Path
     shoot = tmp_path / "rate"
     _shoot(shoot, ".jpg")
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
-    _rate(shoot / "v1.jpg")
+    rate_in_place(shoot / "v1.jpg")
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0  # recognised: its bytes are yours
     renamed = (shoot / "v1.jpg").rename(shoot / "best.jpg")
     rated = renamed.read_bytes()
@@ -153,3 +138,22 @@ def test_a_rated_photo_renamed_is_still_not_written_over(ppd_env: dict[str, Path
     refused = runner.invoke(app, ["restore", str(renamed)])
     assert refused.exit_code == 1 and "best.jpg is ppd's patched photo saved again since" in _said(refused)
     assert renamed.read_bytes() == rated
+
+
+def test_reprotect_leaves_a_rated_photo_as_it_is(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A review (F3): `ppd dataset set NAME --reprotect` re-marked a rated photo from its vault original,
+    the rating gone, kept nowhere. Now it is left as it is, one line says why, status names it."""
+    shoot = tmp_path / "rate"
+    _shoot(shoot, ".jpg")
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    photo = shoot / "v1.jpg"
+    rate_in_place(photo)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0  # recognised: its bytes are yours
+    rated = photo.read_bytes()
+    result = runner.invoke(app, ["dataset", "set", "rate", "--design", "paper", "--reprotect"])
+    text = _said(result)
+    assert "failed 1, patched 2" in text and photo.read_bytes() == rated, text  # before: re-marked
+    assert f"ppd: failed: {photo}: v1.jpg was saved again by another program since ppd patched it" in text
+    assert not _kept(ppd_env["data"])  # nothing displaced: nothing written
+    status = _said(runner.invoke(app, ["status", "rate", "--failed"]))
+    assert "v1.jpg" in status and "not re-marked" in status, status
