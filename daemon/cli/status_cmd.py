@@ -67,6 +67,9 @@ def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Tabl
     """One row per dataset; the dataset name and the protection words are folded, never cut."""
     from rich.table import Table
 
+    from daemon.datasets.folder_count import not_patched_yet
+    from daemon.states import Protection
+
     columns = _columns(width)
     table = Table(expand=False)
     for column in columns:
@@ -84,6 +87,11 @@ def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Tabl
             "failed": str(c.get("failed", 0)),
             "protection": _protection_cell(d),
         }
+        if todo := not_patched_yet(c):  # "patched, not verified" read as done with 5 of 25 patched (a review)
+            if d["protection"]["state"] == Protection.PATCHED_NOT_VERIFIED:
+                cells["protection"] = f"[yellow]{d['patched']} of {c['files']} patched, not verified[/]"
+            else:
+                cells["protection"] += f"; [bold yellow]{todo} not patched yet[/]"
         if "failed" not in columns and c.get("failed"):  # a narrow terminal still shows a failure
             cells["protection"] += f"; [bold red]{c['failed']} failed[/]"
         if c.get("not_moved"):  # patched, but the publish folder never got them

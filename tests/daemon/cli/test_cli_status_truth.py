@@ -165,3 +165,19 @@ def test_shared_advice_is_one_line_after_what_matters(ppd_env: dict[str, Path], 
     assert text.count("run `ppd verify") == 1, text  # the shared advice once, no line of it per dataset
     one = said("status", "set 1")  # one dataset: its own line, as before
     assert "set 1: run `ppd verify 'set 1'`" in one, one
+
+
+def test_the_table_says_how_many_are_patched_when_some_are_not(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """The protection cell said "patched, not verified" of a dataset with 5 of 25 patched (a black-box
+    review, F15; a narrow terminal drops the counts' columns and keeps only that cell)."""
+    shoot = make_shoot(tmp_path / "kp", 2)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    text = said("status")
+    assert "patched, not verified" in text and "2 of 2 patched" not in text, text  # all patched: as before
+    make_shoot(tmp_path / "more", 4)
+    for photo in (tmp_path / "more").iterdir():
+        photo.rename(shoot / f"n{photo.name}")
+    text = said("status")  # the cell may wrap inside the table at a narrow width: its first words
+    assert "2 of 6 patched" in text.split("kp: patched 2 of 6")[0], text
