@@ -107,6 +107,8 @@ COUNT_WORDS = {
     "removed": "deleted or moved away earlier",  # a row ppd recorded so: a renamed file's old name too
     "restored_unrecorded": "holding the original again", "not_utf8": "named in bytes that are not UTF-8",
     "unpatched_names": "under names ppd does not patch",
+    # a run killed mid-file: the next run finishes it ("pending" was never explained: a review, F15)
+    "pending": "interrupted mid-patch",
 }  # fmt: skip
 NOT_MOVED_WORDS = "NOT moved to the publish folder: still in the outbox"
 # Counts that are no part of "files": files no longer there (their rows history), files of a format ppd

@@ -98,6 +98,11 @@ def test_count_folder_leaves_out_masks_temporaries_and_other_files(tmp_path: Pat
     assert counts["files"] == 2 and not_patched_yet(counts) == 1
     assert not_patched_yet({"files": 3, "pending": 2, "untracked": 0}) == 2  # unfinished rows too
     assert resume_command("other", count) == shlex.join(["ppd", "poison", str(folder), "--dataset", "other"])
+    # the files line names a killed run's rows in words: "pending 2" was never explained (a review, F15)
+    from daemon.cli.status_cmd import files_line
+
+    line = files_line({"files": 5, "patched": 2, "pending": 2, "untracked": 1})
+    assert "interrupted mid-patch 2" in line and "pending" not in line, line
     gone = count_folder(tmp_path / "gone", rows)
     assert not gone.exists and gone.untracked == []
 
