@@ -140,6 +140,19 @@ def change_lines(outcomes: list[ProtectOutcome]) -> list[str]:
     return lines
 
 
+def remarked_lines(outcomes: list[ProtectOutcome]) -> list[str]:
+    """One line for the files marked again with this dataset's spec (moved or copied in from another
+    dataset): said only with -v before (a diff review)."""
+    from daemon.states import REMARKED_PREFIX
+
+    files = [shown_name(o.path) for o in outcomes if (o.reason or "").startswith(REMARKED_PREFIX)]
+    if not files:
+        return []
+    shown = ", ".join(files[:3]) + (f" and {len(files) - 3} more" if len(files) > 3 else "")
+    return [f"{REMARKED_PREFIX}: {len(files)} file(s) moved or copied in from another dataset ({shown}); "
+            "`ppd -v poison` says from where"]  # fmt: skip
+
+
 def video_size_lines(outcomes: list[ProtectOutcome]) -> list[str]:
     """One line for the videos a run made noticeably larger (poisoner.video.model.NOTICEABLE_GROWTH),
     with the files' sizes: a creator with an upload limit must know (a black-box review: 1.85x, unsaid).
@@ -206,6 +219,7 @@ def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
     line = ", ".join(f"{w} {counts.get(w, 0)}" for w in words)
     console().print(("dry run, nothing changed: " if dry_run else "") + line)
     lines = place_lines(outcomes) + jpeg_lines(outcomes) + change_lines(outcomes) + video_size_lines(outcomes)
+    lines += remarked_lines(outcomes)
     for line in lines:
         console().print(line, markup=False)
     if unread := unprotected_media(outcomes):

@@ -72,6 +72,9 @@ def test_a_photo_moved_or_copied_in_gets_the_datasets_spec(ppd_env: dict[str, Pa
     came = f"it came from dataset 'shoot' (moved from {shoot / 'v1.png'})"
     assert f"re-marked with this dataset's spec: {came}" in text, text
     assert f"it came from dataset 'shoot' (copied from {shoot / 'v2.png'})" in text, text
+    # the summary says it without -v too (it was only a -v line: a diff review)
+    assert "re-marked with this dataset's spec: 2 file(s) moved or copied in from another dataset " \
+        "(copied.png, moved.png)" in text, text
     for name in ("moved.png", "copied.png"):
         row = _row(data, papers / name)
         assert row["dataset"] == "papers" and row["spec_id"] == ours and row["state"] == "patched", row
