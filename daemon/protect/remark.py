@@ -197,6 +197,19 @@ def take_in(job: Job, earlier: dict[str, Any], record: Recorder) -> ProtectOutco
     return remarked(job, earlier, "already ppd output")
 
 
+def finish_remark(job: Job, row: dict[str, Any]) -> ProtectOutcome | None:
+    """job.path's own patched row (its bytes ppd's output) with another spec than its dataset's and no
+    failed re-mark noted: a re-mark a kill stopped after the moved row was recorded, or a `--reprotect`
+    that did not finish. Every later run said "already patched" and the file kept the other spec's mark
+    (a diff review); it is marked again now. None: nothing to finish (a failed re-mark stays listed by
+    `ppd status --failed`, as before)."""
+    if row.get("error") is not None or (spec := _foreign(job, row.get("spec_id"))) is None:
+        return None
+    if job.dry_run:
+        return job.outcome(Outcome.PATCHED, f"would patch: {_came(job, row)}", spec_id=spec.spec_id)
+    return remarked(job, row, "already patched")
+
+
 def _spec(ctx: AppContext, spec_id: str | None) -> PatchSpec | None:
     try:
         return ctx.store.get_spec(spec_id) if spec_id else None

@@ -96,7 +96,7 @@ from daemon.protect.poisoning import (
 from daemon.protect.publishing import publish, retry_publish
 from daemon.protect.quarantine import attempt, forget_attempt
 from daemon.protect.recovery import copy_patched_as_it_is, recover_pending
-from daemon.protect.remark import take_in
+from daemon.protect.remark import finish_remark, take_in
 from daemon.protect.resaved import recognise_resaved_output, saved_over
 from daemon.states import LINKED_FOLDER_PREFIX, STILL_OPEN_PREFIX, UNPROTECTED_PREFIX, FileState
 from daemon.store.vault import VaultContentChanged, sha256_file
@@ -242,6 +242,8 @@ def recognise(job: Job) -> ProtectOutcome | None:
             )
         if (published := retry_publish(job)) is not None:  # patched; its move to the publish folder failed
             return published
+        if (finished := finish_remark(job, row)) is not None:  # another spec's mark: a re-mark stopped
+            return finished
         return job.outcome(Outcome.UNCHANGED, "already patched", poisoned_sha256=sha, output=job.path)
     # An interrupted run of this very path first: its output may equal another file's (the same
     # photo in two datasets), which the look-up below would take as "someone else's output".

@@ -248,3 +248,30 @@ def test_reprotect_leaves_an_edit_saved_while_it_ran(
     assert saved and photo.read_bytes() == saved[0], text  # before: ppd's re-mark, the edit nowhere
     assert "v1.png was written to while being patched; left as it is now" in text, text
     assert "written to while being patched" in _row(data, photo)["error"]  # type: ignore[operator]
+
+
+def test_a_re_mark_a_kill_stopped_is_finished_by_the_next_run(ppd_env: dict[str, Path]) -> None:
+    """A kill after the moved file's row was carried (take_in's first step), before its re-mark: every
+    later run said "unchanged (already patched)", exit 0, and the file kept the other dataset's mark (a
+    diff review). The state is made by the very first step (recovery.carry_moved_row, real store)."""
+    from daemon.context import AppContext
+    from daemon.protect.recovery import carry_moved_row
+
+    data = ppd_env["data"]
+    shoot, papers, originals = _two_datasets(ppd_env["outbox"])
+    ours = _spec_id("papers")
+    moved = (shoot / "v1.png").rename(papers / "moved.png")
+    ctx = AppContext.open()
+    try:
+        earlier = ctx.store.file(shoot / "v1.png")
+        assert carry_moved_row(ctx, earlier, moved, "papers", papers)  # ... and here the run was killed
+    finally:
+        ctx.close()
+    assert _row(data, moved)["spec_id"] != ours
+    code, text = said("poison", str(papers), "--dry-run")
+    assert code == 0 and "would patch 1" in text, text
+    code, text = said("-v", "poison", str(papers))
+    assert code == 0 and "patched 1, unchanged 1" in text, text  # before: "patched 0, unchanged 2"
+    assert "re-marked with this dataset's spec: it carried an earlier spec of this dataset" in text, text
+    assert _row(data, moved)["spec_id"] == ours and _row(data, moved)["poisoned_sha256"] == _sha(moved)
+    assert said("restore", str(moved))[0] == 0 and _sha(moved) == originals["v1.png"]
