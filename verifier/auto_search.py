@@ -542,6 +542,9 @@ def run_job(job: PreflightJob) -> AutoDecision | InterimChoice:
 def main(argv: Sequence[str] | None = None) -> int:
     """`python -m verifier.auto_search JOB.json`: writes the decision (or interim choice) JSON to job.result
     (atomically); {"error": ...} when the job cannot run."""
+    from verifier.supervise import adopt_child_setup
+
+    adopt_child_setup()
     args = list(sys.argv[1:] if argv is None else argv)
     if len(args) != 1:
         print("usage: python -m verifier.auto_search JOB.json", file=sys.stderr)

@@ -49,6 +49,9 @@ def logs_to_stderr() -> None:
 
 
 def main() -> int:
+    from verifier.supervise import adopt_child_setup
+
+    adopt_child_setup()
     lower_priority()
     import msgspec
 

@@ -73,16 +73,29 @@ def die_with_parent(parent: int | None, prctl: Any | None = None) -> None:
         os._exit(1)
 
 
-def before_exec(nice: int) -> Callable[[], None]:
-    """What a child runs between fork and exec: nice(), die_with_parent; nothing that takes a lock."""
-    parent, prctl = os.getpid(), _prctl()
+CHILD_SETUP_ENV = "PPD_CHILD_SETUP"  # "PARENT_PID:NICE": what a child of run_child applies to itself
 
-    def setup() -> None:
-        if nice > 0:
-            os.nice(nice)
-        die_with_parent(parent, prctl)
 
-    return setup
+def child_setup_env(nice: int = 0) -> dict[str, str]:
+    """The environment entry that asks a ppd child to lower its priority and die with this process
+    (adopt_child_setup, first thing in the child). Not a preexec_fn: Python code between fork and exec
+    runs CPython's after-fork cleanup, which freed another thread's PyAV scaler there and hung the child
+    on a lock of a thread that does not exist in it (a CI run hung 15 minutes in `ppd verify`)."""
+    return {CHILD_SETUP_ENV: f"{os.getpid()}:{max(0, nice)}"}
+
+
+def adopt_child_setup() -> None:
+    """In a child started with child_setup_env: nice() and die_with_parent (exits at once when the
+    parent died before the signal took effect); nothing without that entry. The entry goes: its own
+    children are asked anew."""
+    value = os.environ.pop(CHILD_SETUP_ENV, "")
+    parent, _, nice = value.partition(":")
+    if not parent.isdigit() or not nice.isdigit():
+        return
+    if int(nice) > 0:
+        with contextlib.suppress(OSError):
+            os.nice(int(nice))
+    die_with_parent(int(parent))
 
 
 def run_child(
@@ -107,17 +120,16 @@ def run_child(
     child dies with the calling thread (die_with_parent): run_child waits in it until the end.
     """
     started = time.monotonic()
-    preexec = before_exec(nice)
+    env = {**(os.environ if env is None else env), **child_setup_env(nice)}
     Path(log_path).parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "ab" if append_log else "wb") as log_fh:
-        proc = subprocess.Popen(  # preexec_fn: before_exec
+        proc = subprocess.Popen(  # no preexec_fn: the child sets itself up (adopt_child_setup)
             list(cmd),
             stdin=subprocess.PIPE if stdin_data is not None else subprocess.DEVNULL,
             stdout=subprocess.DEVNULL if discard_stdout else log_fh,
             stderr=log_fh,
-            env=dict(env) if env is not None else None,
+            env=dict(env),
             start_new_session=True,
-            preexec_fn=preexec,
         )
         if on_start is not None:
             on_start(proc.pid)

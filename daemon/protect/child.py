@@ -17,6 +17,9 @@ from daemon.protect.poisoning import poison_to
 
 
 def main(argv: list[str]) -> None:
+    from verifier.supervise import adopt_child_setup
+
+    adopt_child_setup()  # dies with the process that patches through it
     from poisoner.provenance import Marker
     from poisoner.spec import PatchSpec
 

@@ -106,11 +106,11 @@ def poison_isolated(
     report_file = dst.with_name(f"{dst.name}.report")
     args["report"] = os.fsdecode(report_file)
     from verifier.childenv import child_env
-    from verifier.supervise import before_exec
+    from verifier.supervise import child_setup_env
 
     done = subprocess.run(  # the child dies with this process: no patch finishing on its own
         [sys.executable, "-m", "daemon.protect.child", json.dumps(args)],
-        capture_output=True, text=True, env=child_env(), check=False, preexec_fn=before_exec(0),
+        capture_output=True, text=True, env={**child_env(), **child_setup_env()}, check=False,
     )  # fmt: skip
     if done.returncode < 0:
         raise PoisonerDied(

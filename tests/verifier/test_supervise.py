@@ -79,12 +79,20 @@ def test_cancel_kills_the_whole_group(tmp_path: Path) -> None:
     assert _gone(int(pid_file.read_text()))
 
 
-# A parent that runs a sleeping child through run_child; the child writes its pid first.
+# A parent that runs a sleeping child through run_child; the child sets itself up as ppd's children do
+# (adopt_child_setup, first thing), then writes its pid and its niceness.
+_CHILD = (
+    "import os, sys, time\n"
+    "from verifier.supervise import adopt_child_setup\n"
+    "adopt_child_setup()\n"
+    "open(sys.argv[1], 'w').write(f'{os.getpid()} {os.nice(0)}')\n"
+    "time.sleep(60)\n"
+)
 _PARENT = (
     "import sys\n"
     "from pathlib import Path\n"
     "from verifier.supervise import run_child\n"
-    "code = 'import os, sys, time; open(sys.argv[1], \"w\").write(str(os.getpid())); time.sleep(60)'\n"
+    f"code = {_CHILD!r}\n"
     "run_child([sys.executable, '-c', code, sys.argv[1]], log_path=Path(sys.argv[2]), nice=5)\n"
 )
 
@@ -103,13 +111,38 @@ def test_a_child_dies_with_its_parent(tmp_path: Path) -> None:
     )
     try:
         _wait_for_file(pid_file)
-        child = int(pid_file.read_text())
-        assert _alive(child)
+        child, niceness = map(int, pid_file.read_text().split())
+        assert _alive(child) and niceness == os.nice(0) + 5  # the parent's nice=5, applied by the child
         parent.send_signal(signal.SIGKILL)
         parent.wait(10)
         assert _gone(child), "the child outlived its killed parent"
     finally:
         if parent.poll() is None:
             parent.kill()
-        if pid_file.is_file() and pid_file.read_text() and _alive(int(pid_file.read_text())):
-            os.kill(int(pid_file.read_text()), signal.SIGKILL)
+        left = pid_file.read_text().split() if pid_file.is_file() else []
+        if left and _alive(int(left[0])):
+            os.kill(int(left[0]), signal.SIGKILL)
+
+
+def test_every_child_ppd_starts_sets_itself_up_and_no_fork_runs_python() -> None:
+    """run_child's children and the isolated poisoner lower their priority and die with their parent
+    themselves (adopt_child_setup): a preexec_fn ran CPython's after-fork cleanup in the forked child,
+    which freed another thread's PyAV scaler there and hung on that thread's lock (a CI run hung 15
+    minutes in `ppd verify`). No Popen of ppd takes a preexec_fn."""
+    import ast
+    import importlib.util
+
+    for module in ("verifier.child", "verifier.splat.stage", "verifier.auto_search", "daemon.protect.child"):
+        spec = importlib.util.find_spec(module)
+        assert spec is not None and spec.origin is not None
+        tree = ast.parse(Path(spec.origin).read_text())
+        main = next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "main")
+        calls = [n.func.id for n in ast.walk(main)
+                 if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)]  # fmt: skip
+        assert "adopt_child_setup" in calls, module
+    root = Path(__file__).resolve().parents[2]
+    for package in ("daemon", "poisoner", "verifier"):
+        for source in (root / package).rglob("*.py"):
+            tree = ast.parse(source.read_text())
+            keywords = [k.arg for n in ast.walk(tree) if isinstance(n, ast.Call) for k in n.keywords]
+            assert "preexec_fn" not in keywords, source

@@ -285,6 +285,9 @@ def _write_atomic(path: Path, data: dict[str, Any]) -> None:
 
 
 def main() -> int:
+    from verifier.supervise import adopt_child_setup
+
+    adopt_child_setup()
     with __import__("contextlib").suppress(OSError):
         os.nice(10)  # a verification child yields to the machine's other work
     job = msgspec.json.decode(sys.stdin.buffer.read(), type=SplatJob)
