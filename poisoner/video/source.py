@@ -106,12 +106,19 @@ def _first_frame(
     raise VideoFormatError(f"{name}: the video stream has no decodable frame")
 
 
+def side_data_of(frame: av.VideoFrame) -> list[Any]:
+    """The frame's SideData objects: PyAV up to 18.1.0 iterates them, 18.1.1 iterates their types, each
+    SideData under its type (CI's fresh install took 18.1.1: every video failed, "'Type' object has no
+    attribute 'type'")."""
+    found: Any = frame.side_data
+    return [item if hasattr(item, "type") else found[item] for item in list(found)]
+
+
 def frame_side_data(frame: av.VideoFrame) -> tuple[tuple[int, ...] | None, dict[str, bytes]]:
     """(display matrix, HDR side data by type name) of a decoded frame."""
     matrix: tuple[int, ...] | None = None
     hdr: dict[str, bytes] = {}
-    side_data: list[Any] = list(frame.side_data)  # SideData objects (PyAV's stubs say str)
-    for sd in side_data:
+    for sd in side_data_of(frame):
         if sd.type.name == "DISPLAYMATRIX":
             matrix = tuple(int(v) for v in np.frombuffer(bytes(sd), "<i4"))
         elif sd.type.name in HDR_SIDE_DATA:

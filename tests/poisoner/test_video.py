@@ -26,6 +26,7 @@ from poisoner.video import (
     poison_video,
     sample_frames,
 )
+from poisoner.video.source import side_data_of
 from testkit.video import Clip, make_clip
 
 SPEC = PatchSpec()  # the paper's patch: checkerboard, 6% of the width, static
@@ -169,7 +170,7 @@ def test_hevc_10bit_hdr_mkv_keeps_depth_tags_and_mastering_data(tmp_path: Path) 
             f = next(c.decode(video=0))
             return {
                 sd.type.name: bytes(sd)
-                for sd in f.side_data
+                for sd in side_data_of(f)  # PyAV 18.1.1 iterates the types
                 if sd.type.name in ("MASTERING_DISPLAY_METADATA", "CONTENT_LIGHT_LEVEL")
             }
 
@@ -203,7 +204,7 @@ def test_rotation_metadata_kept_and_patch_in_stored_pixels(tmp_path: Path) -> No
 
         def matrix(c: av.container.InputContainer) -> bytes:
             f = next(c.decode(video=0))
-            return next(bytes(sd) for sd in f.side_data if sd.type.name == "DISPLAYMATRIX")
+            return next(bytes(sd) for sd in side_data_of(f) if sd.type.name == "DISPLAYMATRIX")
 
         assert matrix(c2) == matrix(c1)
 
