@@ -9,6 +9,7 @@ from __future__ import annotations
 import shlex
 from collections.abc import Iterable, Mapping
 from enum import StrEnum
+from pathlib import Path
 from typing import Any
 
 from verifier.verdict import NOT_PROTECTED as _VERDICT_NOT_PROTECTED
@@ -156,3 +157,13 @@ def next_step(protection: Protection, dataset: str) -> str | None:
     if protection is Protection.UNVERIFIABLE:
         return f"see `ppd report {shlex.quote(dataset)}`"
     return None
+
+
+def storable(path: Path) -> bool:
+    """Whether the store can record this path: SQLite text is UTF-8, and a name with bytes
+    that are not UTF-8 (surrogate-escaped by Python) cannot be written to it."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True

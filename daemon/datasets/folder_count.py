@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from daemon.states import PATCHED_VALUES, WAITING_PREFIX, FileState, patched_count
+from daemon.states import PATCHED_VALUES, WAITING_PREFIX, FileState, patched_count, storable
 from poisoner.atomic import TEMP_PREFIX, is_temp_name, remove_stale_temp
 from poisoner.media import IMAGE, UNPROTECTED, VIDEO, media_class, unpatched_name
 
@@ -195,21 +195,12 @@ def count_folder(
     renamed = _renamed(rows, in_place, untracked)
     olds, news = {old for old, _ in renamed}, {new for _, new in renamed}
     untracked = [f for f in untracked if f not in news]
-    not_utf8 = [f for f in untracked if not utf8_name(f)]
+    not_utf8 = [f for f in untracked if not storable(f)]
     untracked = [f for f in untracked if f not in not_utf8]
     gone = [p for p in in_place if p not in olds] + copies_gone
     return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies,
                        changed=changed, unprotectable=unprotectable, gone=gone, renamed=renamed,
                        restored_unrecorded=restored, temps=temps, not_utf8=not_utf8)  # fmt: skip
-
-
-def utf8_name(path: Path) -> bool:
-    """Whether the store can hold path (SQLite text is UTF-8; daemon.protect.job.storable, a room above)."""
-    try:
-        str(path).encode("utf-8")
-    except UnicodeEncodeError:
-        return False
-    return True
 
 
 def _renamed(

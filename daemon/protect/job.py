@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.fsops import ContainedFile, identity
+from daemon.states import storable as storable  # re-exported: its callers import it from here
 from poisoner.atomic import TEMP_PREFIX
 from poisoner.errors import ExitStatus, PpdError
 from poisoner.media import IMAGE, VIDEO, media_class
@@ -215,16 +216,6 @@ def anchor_for(ctx: AppContext, path: Path, root: Path) -> Path:
 def one_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     return text[0] if text else type(exc).__name__
-
-
-def storable(path: Path) -> bool:
-    """Whether the store can record this path: SQLite text is UTF-8, and a name with bytes
-    that are not UTF-8 (surrogate-escaped by Python) cannot be written to it."""
-    try:
-        str(path).encode("utf-8")
-    except UnicodeEncodeError:
-        return False
-    return True
 
 
 def shown_name(path: Path) -> str:
