@@ -220,7 +220,7 @@ def keeps_standard_huffman(layout: JpegLayout) -> bool:
 
 # ---- same-tables encoding ------------------------------------------------------------------
 # Segments Pillow writes itself from explicit arguments (or regenerates): everything else is
-# passed through verbatim as `extra`.
+# passed through verbatim as `extra` (FlashPix FPXR too: previews.jpeg_previews drops it from every path's).
 def _is_pillow_managed(seg: Segment) -> bool:
     p = seg.payload
     if seg.marker == 0xE0:  # JFIF / JFXX: Pillow writes its own JFIF with the dpi

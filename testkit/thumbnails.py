@@ -1,7 +1,8 @@
 """Photos that carry a picture of themselves in their metadata, as cameras and phones write them: an
 EXIF block with IFD0 (Make, Artist), an EXIF sub-IFD (DateTimeOriginal, a maker note) and IFD1 with
 a JPEG thumbnail (or uncompressed RGB strips), built by hand so every offset is known; a Photoshop
-APP13 thumbnail resource; an XMP packet with `xmp:Thumbnails`."""
+APP13 thumbnail resource; an XMP packet with `xmp:Thumbnails`; FlashPix APP2 segments holding a
+camera's ScreenNail."""
 
 from __future__ import annotations
 
@@ -170,3 +171,19 @@ def extended_xmp_segments(picture_jpeg: bytes, guid: bytes = b"0123456789ABCDEF"
         "</rdf:Description></rdf:RDF></x:xmpmeta>"
     ).encode()
     return [b"http://ns.adobe.com/xap/1.0/\x00" + main, *parts]
+
+
+def flashpix_segments(preview: bytes, chunk: int = 4000) -> list[bytes]:
+    """APP2 payloads of FlashPix extension data holding `preview` (a JPEG) as a Kodak camera's
+    ScreenNail, laid out as exiftool's FlashPix.pm reads them: "FPXR\\0", version 0, then a contents
+    list (type 1: entry count; per entry its stream's size, a default byte and its UTF-16LE path)
+    naming one stream, and that stream (a 28-byte OLE stream header, then the JPEG) in stream-data
+    segments (type 2: contents-list index, offset, `chunk` bytes of it)."""
+    stream = bytes(0x1C) + preview
+    path = "/\x05Screen Nail_bd0100609719a180".encode("utf-16-le") + b"\x00\x00"
+    contents = b"FPXR\x00\x00\x01" + struct.pack(">HI", 1, len(stream)) + b"\x00" + path
+    parts = [
+        b"FPXR\x00\x00\x02" + struct.pack(">HI", 0, at) + stream[at : at + chunk]
+        for at in range(0, len(stream), chunk)
+    ]
+    return [contents, *parts]

@@ -117,13 +117,20 @@ CHANGE_NOTES = (
     (" written as ", "written in another pixel layout (e.g. a full palette widened to RGB)"),
     ("location removed", "location (GPS) removed"),
     # a camera's EXIF, Photoshop or XMP thumbnail: an unmarked copy of the original (poisoner.image.previews)
-    ("replaced by the patched picture's", "embedded thumbnail replaced by the patched picture's (it showed "
-     "the unmarked original)"),
+    (
+        "replaced by the patched picture's",
+        "embedded thumbnail replaced by the patched picture's (it showed the unmarked original)",
+    ),
     ("thumbnail removed", "embedded thumbnail removed (it showed the unmarked original)"),
-    ("Extended XMP holding a picture", "embedded copy of the original picture (Extended XMP: Google's "
-     "GImage:Data) removed"),
-    ("could hold a thumbnail", "metadata block dropped (unreadable, it could hold a thumbnail of the "
-     "original)"),
+    (
+        "Extended XMP holding a picture",
+        "embedded copy of the original picture (Extended XMP: Google's GImage:Data) removed",
+    ),
+    ("FlashPix data", "FlashPix data removed (FPXR APP2: cameras keep a preview of the original there)"),
+    (
+        "could hold a thumbnail",
+        "metadata block dropped (unreadable, it could hold a thumbnail of the original)",
+    ),
 )
 
 
@@ -369,6 +376,7 @@ def run_jobs(
     with Progress(*columns, console=err_console(), transient=True, disable=not interactive()) as progress:
         task = progress.add_task("patching", total=len(jobs))
         if stop is not None and interactive():  # the bar says why it waits: the files in progress finish
+
             def on_stop(name: str) -> None:
                 progress.update(task, description=f"stopping ({stop_key(name)} again: now)")
 

@@ -8,7 +8,9 @@ black-box review, F3: every patched JPEG from a camera carried its unmarked EXIF
   rewritten from the patched picture at its own size, else the resource removed;
 - XMP thumbnails (`xmp:Thumbnails`, whose `xmpGImg:image` is a base64 JPEG): removed; a JPEG's
   Extended XMP that holds a picture (Google's GImage:Data: the whole original) removed with its
-  pointer (xmpNote:HasExtendedXMP).
+  pointer (xmpNote:HasExtendedXMP);
+- FlashPix extension data (JPEG APP2 "FPXR", Kodak, Casio, Fujifilm, HP, Sanyo): its streams hold
+  a camera's preview JPEG (ScreenNail, Fuji's PreviewImage): every FPXR segment removed, unparsed.
 
 A viewer that shows the thumbnail so shows the marked photo. An EXIF block that does not parse is
 dropped whole, as for location (it could hold the picture). Each function returns the notes that
@@ -39,6 +41,15 @@ _XMP_EXTENSION = b"http://ns.adobe.com/xmp/extension/\x00"  # then GUID (32), le
 REMOVED = "thumbnail removed"
 EXTENSION_REMOVED = "Extended XMP holding a picture of the original (GImage:Data, a thumbnail) removed"
 XMP_REMOVED = "XMP thumbnail removed"
+# APP2 FlashPix extension data: a contents list naming OLE streams, then each stream's bytes spread
+# over segments by index and offset. Not parsed to find the preview: readers reassemble them by
+# conventions (a first offset that is not 0, overlaps; Fujifilm's preview with no contents list at
+# all, exiftool's FlashPix.pm), and a picture may be a JPEG or raw tiles; the rest is camera settings
+# (much as in EXIF) and voice notes. So every FPXR segment of a patched JPEG goes.
+FPXR_HEADER = b"FPXR\x00"
+FLASHPIX_REMOVED = (
+    "FlashPix data (FPXR APP2, {n} segment(s)) removed: cameras keep a preview of the original there"
+)
 
 
 # ---- the patched picture, small --------------------------------------------------------------------
@@ -166,8 +177,9 @@ def _photoshop_thumbnail(data: bytes, order: str, render: Render) -> tuple[bytes
 
 # ---- whole files -----------------------------------------------------------------------------------
 def jpeg_previews(name: str, data: bytes) -> tuple[bytes, list[str]]:
-    """The patched JPEG with the original's thumbnails (EXIF, Photoshop, XMP) made the patched
-    picture's or removed; the scans copied verbatim. ImageFormatError when the header does not parse."""
+    """The patched JPEG (spliced or re-encoded: every JPEG path's output) with the original's
+    thumbnails (EXIF, Photoshop, XMP) made the patched picture's or removed, its FlashPix data
+    removed; the scans copied verbatim. ImageFormatError when the header does not parse."""
     try:
         segments, sos = location.jpeg_header_segments(data)
     except location.MetadataParseError as exc:
@@ -176,10 +188,14 @@ def jpeg_previews(name: str, data: bytes) -> tuple[bytes, list[str]]:
     kept: list[tuple[int, bytes]] = []
     pictured = _extensions_with_pictures(segments)
     notes = [EXTENSION_REMOVED] if pictured else []
+    flashpix = 0  # FPXR segments dropped (FPXR_HEADER says why all of them)
     for marker, payload in segments:
         new: bytes | None = payload
         said: list[str] = []
         if marker == 0xE1 and _extension_guid(payload) in pictured:
+            continue
+        if marker == 0xE2 and payload.startswith(FPXR_HEADER):
+            flashpix += 1
             continue
         if marker == 0xE1 and payload.startswith(location.EXIF_HEADER):
             new, said = exif_previews(payload, render)
@@ -196,6 +212,7 @@ def jpeg_previews(name: str, data: bytes) -> tuple[bytes, list[str]]:
         notes += said
         if new is not None:
             kept.append((marker, new))
+    notes += [FLASHPIX_REMOVED.format(n=flashpix)] if flashpix else []
     return (location.jpeg_assemble(kept, data, sos), notes) if notes else (data, [])
 
 

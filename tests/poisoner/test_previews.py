@@ -14,8 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import ExifTags, Image, PngImagePlugin
+from PIL import ExifTags, Image, ImageCms, PngImagePlugin
 
+from poisoner import jpeg as jpeg_codec
+from poisoner import location
 from poisoner.formats import png_chunks, poison_file
 from poisoner.spec import PatchSpec
 from testkit.thumbnails import (
@@ -24,6 +26,7 @@ from testkit.thumbnails import (
     camera_picture,
     exif_with_thumbnail,
     extended_xmp_segments,
+    flashpix_segments,
     jpeg_of,
     photoshop_thumbnail_block,
     with_app_segment,
@@ -347,6 +350,44 @@ def test_an_extended_xmp_copy_of_the_original_is_removed_with_its_pointer(tmp_pa
     assert b"http://ns.adobe.com/xmp/extension/" not in out and b"HasExtendedXMP" not in out
     assert b"kept-creator" in out
     assert "Extended XMP holding a picture of the original (GImage:Data, a thumbnail) removed" in report.notes
+
+
+@pytest.mark.parametrize("splice", [True, False], ids=["splice", "reencode"])
+def test_a_flashpix_screennail_of_the_original_is_removed_and_the_icc_profile_kept(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, splice: bool
+) -> None:
+    """Kodak and Casio cameras keep a preview JPEG of the photo (the ScreenNail) in FlashPix APP2 FPXR
+    segments: copied as they were, every patched file published it. Every FPXR segment goes, on the
+    splice and on the whole re-encode alike; the ICC profile (APP2 too) stays byte for byte."""
+    if not splice:
+        monkeypatch.setenv(jpeg_codec.JPEGTRAN_ENV, "")  # no splice: Pillow's same-tables re-encode
+    picture = camera_picture()
+    old = original_thumbnail(picture, (320, 240))
+    buf = io.BytesIO()
+    icc = ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes()
+    picture.save(buf, "JPEG", quality=90, icc_profile=icc)
+    data = buf.getvalue()
+    segments = flashpix_segments(old)
+    for payload in reversed(segments):
+        data = with_app_segment(data, 0xE2, payload)
+    assert len(segments) >= 3 and old[1000:1032] in data  # the preview is there, over several segments
+    src, dst = tmp_path / "a.jpg", tmp_path / "out.jpg"
+    src.write_bytes(data)
+    report = poison_file(src, dst, SPEC, keep_location=True)
+    assert report.method == ("jpeg-dct-splice" if splice else "jpeg-reencode-same-tables")
+    out = dst.read_bytes()
+    assert_no_run_of(old, out)
+    assert b"FPXR\x00" not in out
+    said = f"FlashPix data (FPXR APP2, {len(segments)} segment(s)) removed: "
+    assert said + "cameras keep a preview of the original there" in report.notes
+
+    def icc_segments(jpeg: bytes) -> list[bytes]:
+        return [p for m, p in location.jpeg_header_segments(jpeg)[0] if p.startswith(b"ICC_PROFILE\x00")]
+
+    assert icc_segments(out) == icc_segments(data) != []
+    with Image.open(dst) as done:
+        done.load()
+        assert done.size == picture.size and done.info["icc_profile"] == icc
 
 
 def test_an_ifd1_without_a_picture_is_left_as_it_is(tmp_path: Path) -> None:

@@ -826,14 +826,25 @@ def test_a_cameras_thumbnail_of_the_original_is_not_published_and_restore_gives_
 ) -> None:
     """A black-box review (F3): every patched camera JPEG carried its EXIF thumbnail, an unmarked
     512x384 copy of the original, byte for byte, and the run said nothing. Now the thumbnail shows the
-    patched picture, the summary says so once, and `ppd restore` gives the original back whole."""
-    from testkit.thumbnails import camera_picture, exif_with_thumbnail, jpeg_of
+    patched picture, the summary says so once, and `ppd restore` gives the original back whole. Its
+    FlashPix APP2 segments (a Kodak's ScreenNail, another copy of the original) are removed, said once."""
+    from testkit.thumbnails import (
+        camera_picture,
+        exif_with_thumbnail,
+        flashpix_segments,
+        jpeg_of,
+        with_app_segment,
+    )
 
     folder = tmp_path / "meta"
     folder.mkdir()
     picture = camera_picture((1024, 768))
     old = jpeg_of(picture.resize((512, 384)))
     picture.save(folder / "c.jpg", "JPEG", quality=92, exif=exif_with_thumbnail(old).block)
+    camera = (folder / "c.jpg").read_bytes()
+    for payload in reversed(flashpix_segments(old)):
+        camera = with_app_segment(camera, 0xE2, payload)
+    (folder / "c.jpg").write_bytes(camera)
     make_image(folder / "plain.png", 1, (320, 240))
     before = snapshot(folder)
     result = runner.invoke(app, ["poison", str(folder)])
@@ -841,6 +852,11 @@ def test_a_cameras_thumbnail_of_the_original_is_not_published_and_restore_gives_
     scan = old[old.index(b"\xff\xda") + 14 : -2]
     published = (folder / "c.jpg").read_bytes()
     assert all(scan[i : i + 32] not in published for i in range(0, len(scan) - 32, 16))
+    assert b"FPXR\x00" in camera and b"FPXR\x00" not in published
+    assert (
+        "FlashPix data removed (FPXR APP2: cameras keep a preview of the original there): 1 file(s) (c.jpg)"
+        in " ".join(result.output.split())
+    ), result.output
     lines = [line for line in result.output.splitlines() if "thumbnail" in line]
     assert lines == [
         "embedded thumbnail replaced by the patched picture's (it showed the unmarked original): 1 file(s) "
