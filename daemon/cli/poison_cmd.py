@@ -117,13 +117,29 @@ CHANGE_NOTES = (
     (" written as ", "written in another pixel layout (e.g. a full palette widened to RGB)"),
     ("location removed", "location (GPS) removed"),
     # a camera's EXIF, Photoshop or XMP thumbnail: an unmarked copy of the original (poisoner.image.previews)
-    ("replaced by the patched picture's", "embedded thumbnail replaced by the patched picture's (it showed "
-     "the unmarked original)"),
+    (
+        "replaced by the patched picture's",
+        "embedded thumbnail replaced by the patched picture's (it showed the unmarked original)",
+    ),
     ("thumbnail removed", "embedded thumbnail removed (it showed the unmarked original)"),
-    ("Extended XMP holding a picture", "embedded copy of the original picture (Extended XMP: Google's "
-     "GImage:Data) removed"),
-    ("could hold a thumbnail", "metadata block dropped (unreadable, it could hold a thumbnail of the "
-     "original)"),
+    (
+        "Extended XMP holding a picture",
+        "embedded copy of the original picture (Extended XMP: Google's GImage:Data) removed",
+    ),
+    (
+        "could hold a thumbnail",
+        "metadata block dropped (unreadable, it could hold a thumbnail of the original)",
+    ),
+    # a video's cover picture (MP4 covr, a Matroska image attachment): poisoner.video.cover
+    (
+        "cover picture marked",
+        "video cover picture marked (copied, it was an unmarked picture beside the marked frames)",
+    ),
+    (
+        "cover picture removed",
+        "video cover picture removed (ppd could not mark it; copied, it was an "
+        "unmarked picture beside the marked frames)",
+    ),
 )
 
 
@@ -369,6 +385,7 @@ def run_jobs(
     with Progress(*columns, console=err_console(), transient=True, disable=not interactive()) as progress:
         task = progress.add_task("patching", total=len(jobs))
         if stop is not None and interactive():  # the bar says why it waits: the files in progress finish
+
             def on_stop(name: str) -> None:
                 progress.update(task, description=f"stopping ({stop_key(name)} again: now)")
 
