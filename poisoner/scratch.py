@@ -21,7 +21,7 @@ from pathlib import Path
 
 LOCK_NAME = ".ppd-owner.lock"
 # The prefixes of ppd's folders in the temporary folder (multiprocessing's own for the forkserver).
-PREFIXES = ("pymp-", "ppd-verify-", ".ppd-auto-", "ppd-preview-")
+PREFIXES = ("pymp-", "ppd-verify-", ".ppd-auto-", "ppd-preview-", "ppd-cover-")
 _held: dict[str, int] = {}  # folder -> this process's open, locked descriptor of its lock file
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
@@ -10,6 +11,7 @@ from typing import Any
 
 import av
 import numpy as np
+from PIL import Image
 
 
 def mux_rgb_frames(out: Any, stream: Any, frames: Iterable[np.ndarray]) -> None:
@@ -50,7 +52,6 @@ def mux_sine(
         out.mux(pkt)
 
 
-
 @dataclass(frozen=True)
 class Clip:
     """A generated test video: a textured scene panning under a fixed camera grid, with audio."""
@@ -68,6 +69,7 @@ class Clip:
     time_base: Fraction | None = None
     options: tuple[tuple[str, str], ...] = ()
     colour: tuple[int, int, int, int] | None = None  # range, space, primaries, trc
+    cover: bytes | None = None  # a cover picture (JPEG or PNG file bytes): add_cover
 
 
 def scene(width: int, height: int, index: int) -> np.ndarray:
@@ -95,6 +97,8 @@ def make_clip(path: Path, clip: Clip) -> Path:
         if clip.audio:
             aud = out.add_stream(clip.audio, rate=48000)
             aud.layout = "mono"
+        if clip.cover is not None:
+            add_cover(out, clip.cover)
         for i in range(clip.frames):
             rgb = scene(clip.width, clip.height, i)
             frame = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format=clip.pix_fmt)
@@ -113,5 +117,34 @@ def make_clip(path: Path, clip: Clip) -> Path:
     return path
 
 
-# ---- reading them back --------------------------------------------------------------------
+def add_cover(out: Any, picture: bytes) -> None:
+    """A cover picture as FFmpeg writes one, before any packet: MP4 an attached_pic stream whose one
+    packet is the picture (the muxer writes it as `covr` when the file ends), Matroska an image
+    attachment (written with the header). The mov muxer writes none (quicktime_branded makes a MOV)."""
+    jpeg = picture.startswith(b"\xff\xd8")
+    if out.format.name == "matroska":
+        name, mime = ("cover.jpg", "image/jpeg") if jpeg else ("cover.png", "image/png")
+        out.add_attachment(name, mime, picture)
+        return
+    with Image.open(io.BytesIO(picture)) as im:
+        size = im.size
+    stream = out.add_stream("mjpeg" if jpeg else "png")
+    stream.width, stream.height = size
+    stream.pix_fmt = "yuvj420p" if jpeg else "rgb24"
+    stream.disposition = av.stream.Disposition.attached_pic
+    packet = av.Packet(picture)
+    packet.stream, packet.pts, packet.dts, packet.is_keyframe = stream, 0, 0, True
+    out.mux(packet)
 
+
+def quicktime_branded(mp4: Path, mov: Path) -> Path:
+    """mp4's bytes as a QuickTime file (its ftyp brands `qt  `): how a MOV with a `covr` is made here,
+    FFmpeg's mov muxer writing none. FFmpeg reads it as it reads any MOV."""
+    data = bytearray(mp4.read_bytes())
+    assert data[4:8] == b"ftyp" and int.from_bytes(data[:4], "big") == 32, "FFmpeg's 32-byte ftyp"
+    data[8:32] = b"qt  \x00\x00\x02\x00" + b"qt  " * 4
+    mov.write_bytes(data)
+    return mov
+
+
+# ---- reading them back --------------------------------------------------------------------

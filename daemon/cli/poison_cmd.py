@@ -131,6 +131,17 @@ CHANGE_NOTES = (
         "could hold a thumbnail",
         "metadata block dropped (unreadable, it could hold a thumbnail of the original)",
     ),
+    # a video's cover picture (MP4 covr, a Matroska image attachment): poisoner.video.cover
+    (
+        "cover picture marked",
+        "video cover picture marked (copied as it was, it showed an unmarked picture beside the marked "
+        "frames)",
+    ),
+    (
+        "cover picture removed",
+        "video cover picture removed (ppd could not mark it; copied as it was, it showed an unmarked "
+        "picture beside the marked frames)",
+    ),
 )
 
 

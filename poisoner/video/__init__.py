@@ -5,7 +5,8 @@ The video stays a video: decoded with PyAV, every frame gets `apply_patch` at th
 static spec; a point on the path per frame for a moving one), and the frames are re-encoded
 with the source's codec (where this PyAV build has an encoder for it), pixel format, frame
 timestamps (so frame rate, variable frame rate, time base, duration and frame count are kept),
-rotation and colour tags. Audio, subtitle and data streams are copied packet by packet (bit-identical).
+rotation and colour tags. Audio, subtitle and data streams are copied packet by packet (bit-identical);
+a cover picture is marked as a photo is, or left out (cover.py).
 
 Decisions (see docs/VIDEO.md for the figures behind them):
 - The patch sits in stored (coded) pixel coordinates; the display matrix is copied unchanged.
@@ -33,6 +34,7 @@ The stages, one module each (data flows top to bottom; poison_video in driver.py
 - encoder.py    the encoder model: same codec where possible, CRF from the source's bits per pixel,
                 the output stream configured like the source.
 - blend.py      one frame: the patch region to RGB, apply_patch, the covering samples written back.
+- cover.py      cover pictures (MP4 covr, Matroska image attachments): marked by the image path, or left out.
 - transcode.py  one encode pass: decode, blend, encode, copy the other streams packet by packet.
 - contrast.py   the patch contrast measured on the decoded output (drives the retry).
 - metadata.py   tags, GPS telemetry streams, HDR for x265, the provenance marker, `preserved`.

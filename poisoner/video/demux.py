@@ -19,9 +19,15 @@ def open_input(path: Path) -> av.container.InputContainer:
         raise VideoFormatError(f"{path.name}: not a readable video ({one_line(exc)})") from exc
 
 
+def is_cover(stream: av.stream.Stream) -> bool:
+    """A cover picture: a video stream of one still picture (`attached_pic`: an MP4's `covr`, a Matroska
+    image attachment), not frames of the video."""
+    return stream.type == "video" and bool(stream.disposition & av.stream.Disposition.attached_pic)
+
+
 def main_video_stream(container: av.container.InputContainer, name: str) -> av.video.stream.VideoStream:
     """The one video stream (cover art aside); several are refused."""
-    streams = [s for s in container.streams.video if not s.disposition & av.stream.Disposition.attached_pic]
+    streams = [s for s in container.streams.video if not is_cover(s)]
     if not streams:
         raise VideoFormatError(f"{name}: no video stream")
     if len(streams) > 1:
@@ -34,8 +40,7 @@ def audio_only(path: Path) -> bool:
     reconstruction reads. False when it cannot be read (the patch pass says why)."""
     try:
         with av.open(str(path), "r") as container:
-            pictures = [s for s in container.streams.video
-                        if not s.disposition & av.stream.Disposition.attached_pic]  # fmt: skip
+            pictures = [s for s in container.streams.video if not is_cover(s)]
             return not pictures and bool(container.streams.audio)
     except (av.error.FFmpegError, OSError, ValueError):
         return False

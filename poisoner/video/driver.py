@@ -16,6 +16,7 @@ from poisoner.provenance import Marker
 from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 from poisoner.video import model
 from poisoner.video.contrast import intended_contrast, measure_video_patch
+from poisoner.video.cover import plan_covers
 from poisoner.video.demux import stream_bit_rate
 from poisoner.video.encoder import CRF_STEP_ON_RETRY, choose_encoder
 from poisoner.video.errors import VideoFormatError, one_line
@@ -62,11 +63,13 @@ def poison_video(
     except SpecError as exc:
         raise VideoFormatError(f"{src.name}: {exc}") from exc
     report = _new_report(info, spec, placement, options)
+    covers = plan_covers(src, spec, info.muxer, keep_location)  # marked once, written by every attempt
 
     def encode(choice: model.EncoderChoice) -> EncodeResult:
         return encode_once(
-            src, dst, spec, placement_at, info, choice, options, progress, report, marker, keep_location
-        )
+            src, dst, spec, placement_at, info, choice, options, progress, report, marker, keep_location,
+            covers,
+        )  # fmt: skip
 
     def contrast_ok(result: EncodeResult) -> bool:
         return _contrast_ok(report, dst, spec, placement_at, intended_contrast(placement), options, result)
@@ -74,7 +77,9 @@ def poison_video(
     choice, result = _encode_until_visible(src, info, options, report, encode, contrast_ok)
     if _file_state(src) != state_before:
         raise VideoFormatError(f"{src.name}: changed while being read (still being written?)")
+    report.location_removed += covers.location_removed
     _finish_report(report, info, choice, result, stream_bit_rate(dst))
+    report.notes += covers.notes()
     append_marker_box(dst, info.muxer, marker)
     _note_size(report, state_before[0], dst.stat().st_size)
     return report
@@ -89,7 +94,6 @@ def _note_size(report: model.VideoReport, source_bytes: int, output_bytes: int) 
         f"size {model.size_text(source_bytes)} -> {model.size_text(output_bytes)} ({ratio:.2f}x"
         + ("; the mark costs bits)" if ratio >= model.NOTICEABLE_GROWTH else ")")
     )
-
 
 
 def frame_placements(

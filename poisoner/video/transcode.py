@@ -1,5 +1,6 @@
 """One encode pass: decode the source, blend the patch into every selected frame, encode with the
-chosen encoder, and copy every other stream packet by packet (bit-identical)."""
+chosen encoder, and copy every other stream packet by packet (bit-identical), a cover picture aside:
+it is written marked or left out (poisoner.video.cover)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ from poisoner.provenance import Marker
 from poisoner.spec import PatchSpec, SpecError
 from poisoner.video import model
 from poisoner.video.blend import blend_frame
-from poisoner.video.demux import decode_packet, iter_packets, open_input
+from poisoner.video.cover import CoverPlan, add_cover, cover_packet
+from poisoner.video.demux import decode_packet, is_cover, iter_packets, open_input
 from poisoner.video.encoder import configure_video_stream
 from poisoner.video.errors import VideoFormatError, one_line
 from poisoner.video.metadata import (
@@ -51,6 +53,7 @@ class _Pass:
     copied: dict[int, av.stream.Stream]
     progress: model.ProgressCallback | None
     total: int | None
+    covers: CoverPlan
     keep_frame_types: bool = False
     frames: int = 0
     patched: int = 0
@@ -59,6 +62,7 @@ class _Pass:
     # duration of its own: the last frames of a variable-rate clip came out longer, and the clip with
     # them, 2.267 s -> 2.284 s; a black-box review)
     durations: dict[int, tuple[int, Fraction]] = field(default_factory=dict)
+    covers_written: set[int] = field(default_factory=set)  # source cover streams whose picture is muxed
 
 
 def encode_once(
@@ -73,9 +77,12 @@ def encode_once(
     report: model.VideoReport,
     marker: Marker | None = None,
     keep_location: bool = True,
+    covers: CoverPlan | None = None,
 ) -> EncodeResult:
     """Write dst from src in one pass at choice's settings; report.location_removed says what
-    location was left out."""
+    location was left out. covers: the marked cover pictures, written in place of the source's
+    (poisoner.video.cover.plan_covers); a cover without one is left out."""
+    covers = covers or CoverPlan()
     total = info.frames_declared or (
         int(round(info.duration_s * model.frame_rate(info))) if info.duration_s else None
     )
@@ -85,10 +92,11 @@ def encode_once(
         copy_metadata(dict(inp.metadata), out, keep_location, removed)
         add_marker_tag(out, info.muxer, marker)
         vout = _video_stream(inp, out, info, choice, options, keep_location, removed)
-        copied = _copied_streams(inp, out, src.name, info, keep_location, removed)
+        copied = _copied_streams(inp, out, src.name, info, keep_location, removed, covers)
         run = _Pass(
-            src.name, info, spec, placement_at, out, vout, copied, progress, total, choice.keep_frame_types
-        )
+            src.name, info, spec, placement_at, out, vout, copied, progress, total, covers,
+            choice.keep_frame_types,
+        )  # fmt: skip
         for packet in iter_packets(inp, src.name):
             _mux_packet(run, packet)
         _encode(run, None)
@@ -123,12 +131,17 @@ def _copied_streams(
     info: model.SourceInfo,
     keep_location: bool,
     removed: list[str],
+    covers: CoverPlan,
 ) -> dict[int, av.stream.Stream]:
     """Output streams for every source stream but the video one, by source index; GPS telemetry
-    streams are left out unless keep_location."""
+    streams are left out unless keep_location, a cover picture unless covers has it marked."""
     copied: dict[int, av.stream.Stream] = {}
     for s in inp.streams:
         if s.index == info.stream_index:
+            continue
+        if is_cover(s):
+            if (cover := _cover_stream(out, s, info.muxer, covers, keep_location, removed)) is not None:
+                copied[s.index] = cover
             continue
         if not keep_location and is_location_stream(s):
             removed.append(f"{codec_tag(s)} telemetry stream #{s.index}")
@@ -146,6 +159,26 @@ def _copied_streams(
     return copied
 
 
+def _cover_stream(
+    out: av.container.OutputContainer,
+    s: av.stream.Stream,
+    muxer: str,
+    covers: CoverPlan,
+    keep_location: bool,
+    removed: list[str],
+) -> av.stream.Stream | None:
+    """The output stream a marked cover's packet goes to (MP4); None: written as an attachment with
+    the header (Matroska), or left out (covers.removed says why)."""
+    if s.index not in covers.marked:
+        return None
+    o = add_cover(out, s, muxer, covers.marked[s.index])
+    copy_metadata(dict(s.metadata), o, keep_location, removed)
+    if o.type == "attachment":
+        return None
+    o.disposition = s.disposition
+    return o
+
+
 def _mux_packet(run: _Pass, packet: av.Packet) -> None:
     idx = packet.stream.index
     if idx == run.info.stream_index:
@@ -157,8 +190,20 @@ def _mux_packet(run: _Pass, packet: av.Packet) -> None:
     elif idx in run.copied:
         if packet.dts is None and packet.size == 0:
             return  # demuxer flush packet
+        if idx in run.covers.marked:
+            _mux_cover(run, packet)
+            return
         packet.stream = run.copied[idx]
         run.out.mux(packet)
+
+
+def _mux_cover(run: _Pass, packet: av.Packet) -> None:
+    """The marked picture in place of the source's cover, once (FFmpeg gives a cover's picture again
+    after a seek; never the source's)."""
+    idx = packet.stream.index
+    if idx not in run.covers_written:
+        run.covers_written.add(idx)
+        run.out.mux(cover_packet(packet, run.copied[idx], run.covers.marked[idx]))
 
 
 def _patched(run: _Pass, frame: av.VideoFrame) -> av.VideoFrame:
