@@ -213,10 +213,10 @@ def test_ppd_poison_marks_or_removes_covers_says_it_once_and_restore_gives_the_o
     result = runner.invoke(app, ["poison", str(shoot)])
     assert result.exit_code == 0, result.output
     text = " ".join(result.output.split())
-    beside = "it was an unmarked picture beside the marked frames"
+    beside = "copied as it was, it showed an unmarked picture beside the marked frames"
     for words, name in [
-        (f"marked (copied, {beside})", "a.mp4"),
-        (f"removed (ppd could not mark it; copied, {beside})", "b.mov"),
+        (f"marked ({beside})", "a.mp4"),
+        (f"removed (ppd could not mark it; {beside})", "b.mov"),
     ]:
         line = f"video cover picture {words}: 1 file(s) ({name}); `ppd -v poison` says how"
         assert text.count(line) == 1, text
