@@ -74,10 +74,11 @@ def load_picture(path: Path, video: bool | None = None) -> tuple[Any, int | None
 
         from poisoner.orientation import display_orientation
         from poisoner.video import frame_to_rgb
+        from poisoner.video.demux import main_video_stream
         from poisoner.video.source import frame_side_data
 
-        with av.open(str(path)) as container:
-            for frame in container.decode(video=0):
+        with av.open(str(path)) as container:  # the video's frames, not a cover picture listed first
+            for frame in container.decode(main_video_stream(container, path.name)):
                 return frame_to_rgb(frame), display_orientation(frame_side_data(frame)[0])
         raise ValueError("no video frame")
     from poisoner.image.read import open_decoded
@@ -89,11 +90,11 @@ def load_picture(path: Path, video: bool | None = None) -> tuple[Any, int | None
 
 
 def _load(path: Path, video: bool | None = None) -> tuple[Any, int | None]:
-    from poisoner.errors import ImageFormatError
+    from poisoner.errors import PpdError
 
     try:
         return load_picture(path, video)
-    except ImageFormatError as exc:  # one line that names the file already
+    except PpdError as exc:  # an image's or a video's: one line that names the file already
         raise die(f"cannot read {one_line(exc)}") from None
     except (OSError, ValueError) as exc:
         raise die(f"cannot read {path.name}: {one_line(exc)}") from None

@@ -17,7 +17,7 @@ from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 from poisoner.video import model
 from poisoner.video.contrast import intended_contrast, measure_video_patch
 from poisoner.video.cover import plan_covers
-from poisoner.video.demux import stream_bit_rate
+from poisoner.video.demux import main_video_stream, stream_bit_rate
 from poisoner.video.encoder import CRF_STEP_ON_RETRY, choose_encoder
 from poisoner.video.errors import VideoFormatError, one_line
 from poisoner.video.metadata import append_marker_box, preserved_list
@@ -127,7 +127,7 @@ def _per_photo_placements(
     start: float | None = None
     try:
         with av.open(str(src)) as container:
-            stream = container.streams.video[0]
+            stream = main_video_stream(container, src.name)  # not a cover picture listed first
             stream.codec_context.skip_frame = "NONKEY"
             for frame in container.decode(stream):
                 start = float(frame.time or 0.0) if start is None else start
