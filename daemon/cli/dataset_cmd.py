@@ -16,7 +16,7 @@ import typer
 
 from daemon.cli.errors import die, file_reason, one_line, open_ctx
 from daemon.cli.options import SpecOptions, spec_options
-from daemon.cli.output import console, err_console
+from daemon.cli.output import console, err_console, print_line
 from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
@@ -62,7 +62,36 @@ def _reprotect(ctx: AppContext, name: str, spec: PatchSpec) -> int:
     for o in outcomes:
         if o.state == "failed":
             err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)
+    if line := _unmarked_line(ctx, name, spec):
+        print_line(console(), line)
     return counts.get("failed", 0)
+
+
+def _unmarked_line(ctx: AppContext, name: str, spec: PatchSpec) -> str | None:
+    """The dataset's files a re-protect does not reach, as they carry no mark of ppd's (it patches its
+    patched files again and retries the failed, skipped and pending ones): how many, why, and what
+    patches them. It said nothing of them, and the user took the whole dataset for one carrying the new
+    spec (a black-box review). A file ppd patches later gets the dataset's spec (ensure_dataset)."""
+    from daemon.datasets.folder_count import current_counts, dataset_folder, restored_in_place, resume_command
+
+    root = str((ctx.store.dataset(name) or {})["root"])
+    folder = dataset_folder(ctx, name, root)
+    counts, restored = current_counts(ctx, name, folder), restored_in_place(ctx, name, root)
+    kept = (ctx.store.dataset_spec(name) or spec).spec_id == spec.spec_id  # not when every file failed
+    which = "the new spec" if kept else "the dataset's spec (still the earlier one: no file took the new)"
+    command = resume_command(name, folder)
+    kinds = [
+        (counts.get("untracked", 0), f"not patched yet (`{command}` patches them with {which})"),
+        (restored, f"restored by you (`{command} --force` patches them with {which})"),
+        (counts.get("quarantined", 0), "quarantined, as ppd could not patch them "
+                                       f"(`ppd status {shlex.quote(name)} --failed` says where they went)"),
+        (counts.get("not_utf8", 0), "named in bytes that are not UTF-8: ppd patches them once renamed"),
+    ]  # fmt: skip
+    said = [f"{n} {why}" for n, why in kinds if n]
+    if not said:
+        return None
+    total = sum(n for n, _ in kinds)
+    return f"{name}: {total} of its files not re-protected, as they carry no mark of ppd's: {'; '.join(said)}"
 
 
 def _move_root(ctx: AppContext, name: str, old: Path, new: Path) -> None:

@@ -54,50 +54,107 @@ def _protection_cell(d: dict[str, Any]) -> str:
     return f"[{style}]{d['protection']['text']}[/]"
 
 
+NUMERIC = ("files", "patched", "failed")
+DROPPED_FIRST = ("files", "failed", "patched")  # as the terminal narrows, and for a long name
+PROTECTION_ROOM = len("patched, not verified")  # on one line, before a count column is shown
+
+
 def _columns(width: int) -> list[str]:
     """Columns drop as the terminal narrows (files, then failed, then patched)."""
     columns = ["dataset", "files", "patched", "failed", "protection"]
-    for column, below in (("files", 72), ("failed", 56), ("patched", 44)):
+    for column, below in zip(DROPPED_FIRST, (72, 56, 44), strict=True):
         if width < below:
             columns.remove(column)
     return columns
 
 
-def status_table(report: list[dict[str, Any]], width: int, outbox: Path) -> Table:
-    """One row per dataset; the dataset name and the protection words are folded, never cut."""
+def print_status_rows(report: list[dict[str, Any]], width: int) -> None:
+    """The table, or, where a dataset's name cannot be whole in it, each dataset as a list."""
+    columns = _fitting_columns(report, width)
+    if columns is None:
+        _print_status_list(report)
+    else:
+        console().print(status_table(report, columns))
+
+
+def _fitting_columns(report: list[dict[str, Any]], width: int) -> list[str] | None:
+    """The table's columns at this width with every dataset name whole on one line: the name goes
+    before the counts (they drop first), and None when it cannot be whole even beside the protection
+    words alone. Folded inside its column, between the borders and the protection words, a name could
+    not be copied, nor told from a similar one (a black-box review at 30 to 80 columns)."""
+    from rich.cells import cell_len
+    from rich.text import Text
+
+    columns = _columns(width)
+    name = max(cell_len(text) for text in ["dataset", *(d["name"] for d in report)])
+    while True:
+        cells = [_row_cells(d, columns) for d in report]
+        plain = [Text.from_markup(c["protection"]).plain for c in cells]
+        words = max(cell_len(word) for word in ["protection", *" ".join(plain).split()])  # each kept whole
+        protection = max(words, min(PROTECTION_ROOM, max(cell_len(text) for text in plain)))
+        counts = sum(max(len(k), *(len(c[k]) for c in cells)) for k in columns if k in NUMERIC)
+        if name + protection + counts + 3 * len(columns) + 1 <= width:  # a cell's padding and border: 3
+            return columns
+        shown = [k for k in DROPPED_FIRST if k in columns]
+        if not shown:
+            return None
+        columns.remove(shown[0])
+
+
+def status_table(report: list[dict[str, Any]], columns: list[str]) -> Table:
+    """One row per dataset; the dataset name whole (_fitting_columns), the protection words wrapped."""
     from rich.table import Table
+
+    table = Table(expand=False)
+    for column in columns:
+        numeric = column in NUMERIC
+        table.add_column(
+            column, justify="right" if numeric else "left", overflow="fold",
+            no_wrap=column != "protection", min_width=len(column) if numeric else None,
+        )  # fmt: skip
+    for d in report:
+        cells = _row_cells(d, columns)
+        table.add_row(*(cells[k] for k in columns))
+    return table
+
+
+def _print_status_list(report: list[dict[str, Any]]) -> None:
+    """Each dataset's name on a line of its own, never broken (a terminal narrower than the name wraps
+    it, and a copy of it is whole), then its protection words indented, wrapped at spaces."""
+    from rich.padding import Padding
+    from rich.text import Text
+
+    for d in report:
+        console().print(d["name"], markup=False)
+        words = Text.from_markup(_row_cells(d, ["dataset", "protection"])["protection"])
+        console().print(Padding(words, (0, 0, 0, 2), expand=False), soft_wrap=False)
+
+
+def _row_cells(d: dict[str, Any], columns: list[str]) -> dict[str, str]:
+    """One dataset's cells (rich markup); a count not in `columns` that matters joins the protection."""
+    from rich.markup import escape
 
     from daemon.datasets.folder_count import not_patched_yet
     from daemon.states import Protection
 
-    columns = _columns(width)
-    table = Table(expand=False)
-    for column in columns:
-        numeric = column in ("files", "patched", "failed")
-        table.add_column(
-            column, justify="right" if numeric else "left", overflow="fold", no_wrap=numeric,
-            min_width=len(column) if numeric else None, ratio=None if numeric else 1,
-        )  # fmt: skip
-    for d in report:
-        c = d["counts"]
-        cells = {
-            "dataset": d["name"],
-            "files": str(c["files"]),
-            "patched": str(d["patched"]),
-            "failed": str(c.get("failed", 0)),
-            "protection": _protection_cell(d),
-        }
-        if todo := not_patched_yet(c):  # "patched, not verified" read as done with 5 of 25 patched (a review)
-            if d["protection"]["state"] == Protection.PATCHED_NOT_VERIFIED:
-                cells["protection"] = f"[yellow]{d['patched']} of {c['files']} patched, not verified[/]"
-            else:
-                cells["protection"] += f"; [bold yellow]{todo} not patched yet[/]"
-        if "failed" not in columns and c.get("failed"):  # a narrow terminal still shows a failure
-            cells["protection"] += f"; [bold red]{c['failed']} failed[/]"
-        if c.get("not_moved"):  # patched, but the publish folder never got them
-            cells["protection"] += f"; [bold red]{c['not_moved']} not moved to the publish folder[/]"
-        table.add_row(*(cells[k] for k in columns))
-    return table
+    c = d["counts"]
+    cells = {
+        "dataset": escape(d["name"]),  # a name's own brackets are not rich's markup
+        "files": str(c["files"]),
+        "patched": str(d["patched"]),
+        "failed": str(c.get("failed", 0)),
+        "protection": _protection_cell(d),
+    }
+    if todo := not_patched_yet(c):  # "patched, not verified" read as done with 5 of 25 patched (a review)
+        if d["protection"]["state"] == Protection.PATCHED_NOT_VERIFIED:
+            cells["protection"] = f"[yellow]{d['patched']} of {c['files']} patched, not verified[/]"
+        else:
+            cells["protection"] += f"; [bold yellow]{todo} not patched yet[/]"
+    if "failed" not in columns and c.get("failed"):  # a narrow terminal still shows a failure
+        cells["protection"] += f"; [bold red]{c['failed']} failed[/]"
+    if c.get("not_moved"):  # patched, but the publish folder never got them
+        cells["protection"] += f"; [bold red]{c['not_moved']} not moved to the publish folder[/]"
+    return cells
 
 
 # What a count key is called in the details line ("untracked": files in the folder without a row).
@@ -364,7 +421,7 @@ def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -
     gone = [] if detailed else [d for d in report if _gone(d)]
     report = [d for d in report if d not in gone]
     if report:
-        console().print(status_table(report, console().width, ctx.paths.outbox))
+        print_status_rows(report, console().width)
     if gone:  # a folder renamed or deleted: its old name stayed in the table forever (a black-box review)
         _print_gone(gone)
     if detailed:

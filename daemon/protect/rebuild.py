@@ -76,7 +76,7 @@ class RebuildReport:
     files_seen: int = 0  # regular files looked at
     marked: int = 0  # of them, carrying ppd's marker
     recorded: int = 0  # patched rows written
-    datasets: dict[str, int] = field(default_factory=dict)  # patched rows per dataset
+    datasets: dict[str, int] = field(default_factory=dict)  # the new store's datasets: patched rows each
     without_original: list[Path] = field(default_factory=list)  # marked, original not (intact) in the vault
     conflicts: list[Path] = field(default_factory=list)  # a second file for a path already recorded
     symlinks_skipped: int = 0
@@ -89,7 +89,8 @@ class RebuildReport:
     def summary(self) -> str:
         """One line."""
         text = (
-            f"store rebuilt at {self.store_path}: {self.recorded} patched file(s) in {len(self.datasets)} "
+            f"store rebuilt at {self.store_path}: {sum(self.datasets.values())} patched file(s) in "
+            f"{len(self.datasets)} "
             f"dataset(s) from {self.marked} marked file(s) of {self.files_seen} looked at"
         )
         notes = []
@@ -190,12 +191,24 @@ def _rebuild(
     rebuild_carry.carry_saved_over(history, found.rows, collector.is_intact)
     _write_new_store(store_path, found, by_dataset, specs, old, report)
     report.recorded = len(found.rows)
-    report.datasets = {name: len(ids) for name, ids in sorted(by_dataset.items())}
+    report.datasets = _patched_per_dataset(names, by_dataset, report.carried)
     referenced = {fields["original_sha256"] for _, fields in found.rows.values()}
     carried = [*report.carried.restored, *report.carried.patched]
     referenced |= {fields["original_sha256"] for _, _, fields in carried}
     referenced |= {sha for _, sha, _ in report.carried.earlier}
     report.unreferenced_originals = len(set(vault.blobs()) - referenced)
+
+
+def _patched_per_dataset(
+    names: set[str], by_dataset: dict[str, list[str]], carried: rebuild_carry.Carried
+) -> dict[str, int]:
+    """Every dataset of the new store and its patched rows, found by their seal or carried by their
+    bytes: the summary said "0 dataset(s)" above a table listing one (a restored dataset, or one
+    patched with a key no longer installed; a black-box review)."""
+    counts = {name: len(by_dataset.get(name, ())) for name in sorted(names)}
+    for _, name, _ in carried.patched:
+        counts[name] += 1
+    return counts
 
 
 @dataclass

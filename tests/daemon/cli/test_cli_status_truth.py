@@ -181,3 +181,38 @@ def test_the_table_says_how_many_are_patched_when_some_are_not(
         photo.rename(shoot / f"n{photo.name}")
     text = said("status")  # the cell may wrap inside the table at a narrow width: its first words
     assert "2 of 6 patched" in text.split("kp: patched 2 of 6")[0], text
+
+
+def test_a_reprotect_says_which_files_it_did_not_reach(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """`ppd dataset set NAME ... --reprotect` said only "patched again A: patched 2" of a dataset with a
+    photo added since and one restored: the user took the whole dataset for one carrying the new spec (a
+    black-box review). One line says how many it did not reach, why, and what patches them; and that
+    command does patch them with the new spec."""
+    import shlex
+
+    from daemon.paths import AppPaths
+    from daemon.store import Store
+    from testkit.photos import make_image
+
+    shoot = make_shoot(tmp_path / "A", 3)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert runner.invoke(app, ["restore", str(shoot / "v0.png")]).exit_code == 0
+    make_image(shoot / "late.png", 7)  # put in since: no row
+    text = said("dataset", "set", "A", "--patch-size", "8%", "--reprotect")
+    command = shlex.join(["ppd", "poison", str(shoot)])
+    assert "patched again A: patched 2" in text, text
+    assert ("A: 2 of its files not re-protected, as they carry no mark of ppd's: 1 not patched yet "
+            f"(`{command}` patches them with the new spec); 1 restored by you (`{command} --force` "
+            "patches them with the new spec)") in text, text  # fmt: skip
+    new_spec = status_json("A")["spec_id"]
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    assert runner.invoke(app, ["poison", str(shoot), "--force"]).exit_code == 0
+    store = Store(AppPaths.from_env().db_path)
+    try:
+        for photo in ("late.png", "v0.png"):
+            row = store.file(shoot / photo)
+            assert row["state"] == "patched" and row["spec_id"] == new_spec, row
+    finally:
+        store.close()
+    again = said("dataset", "set", "A", "--patch-size", "7%", "--reprotect")
+    assert "patched again A: patched 4" in again and "not re-protected" not in again, again

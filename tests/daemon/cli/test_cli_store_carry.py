@@ -173,3 +173,27 @@ def test_a_rebuild_reminds_to_start_the_service_again(
     said = runner.invoke(app, ["store", "rebuild", "--force", str(shoot)])
     words = " ".join(said.output.split())
     assert said.exit_code == 0 and "`systemctl --user start ppd`" in words, words
+
+
+@pytest.mark.parametrize("undone_by", ["restore", "a new key"])
+def test_the_summary_counts_what_the_table_lists(
+    ppd_env: dict[str, Path], tmp_path: Path, undone_by: str
+) -> None:
+    """`ppd store rebuild -v` said "0 patched file(s) in 0 dataset(s)" above a table listing the dataset
+    (a black-box review): a dataset whose files were all restored, or whose rows were kept by their
+    bytes after `ppd key new`, was counted nowhere, and the table said 0 of the 3 kept patched."""
+    shoot = tmp_path / "A"
+    make_shoot(shoot, 3)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    if undone_by == "restore":
+        assert runner.invoke(app, ["restore", "A"]).exit_code == 0
+        patched = 0
+    else:
+        (AppPaths.from_env().data_dir / "seal.key").unlink()
+        assert runner.invoke(app, ["key", "new"]).exit_code == 0
+        patched = 3
+    rebuilt = runner.invoke(app, ["store", "rebuild", "--force", "-v"])
+    said = " ".join(rebuilt.output.split())
+    assert rebuilt.exit_code == 0, said
+    assert f"{patched} patched file(s) in 1 dataset(s)" in said, said
+    assert f"│ A │ {patched} │" in said, said  # the table's row: dataset, patched files

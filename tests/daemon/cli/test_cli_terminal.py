@@ -244,6 +244,28 @@ def test_status_fits_and_keeps_the_verdict_whole(
     assert "hardened: NOT protected" in long.stdout and "default: protected" in long.stdout
 
 
+@pytest.mark.parametrize("columns", [30, 40, 50, 80])
+def test_status_shows_each_dataset_name_whole(
+    shoot: Path, narrow_env: dict[str, str], tmp_path: Path, columns: int
+) -> None:
+    """At 30 to 80 columns `ppd status` folded a long name inside its column, between the borders and
+    the protection words: two such names could not be told apart, nor one copied (a black-box review).
+    The name has priority: whole on a line of the table, or on a line of its own when it cannot be."""
+    names = ["client-shoot-2026-studio-north-wing", "client-shoot-2026-studio-south-wing"]
+    other = shutil.copytree(shoot, tmp_path / "other")
+    for folder, name in zip((shoot, other), names, strict=True):
+        assert runner.invoke(app, ["poison", str(folder), "--dataset", name]).exit_code == 0
+    proc = ppd(narrow_env, "status", columns=columns)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    steps = min(i for i, line in enumerate(lines) if line.startswith(tuple(f"{n}:" for n in names)))
+    shown = lines[:steps]  # the table (or its list), not the next steps under it, which name them too
+    for name in names:
+        assert any(name in line for line in shown), proc.stdout
+    assert all(len(line) <= columns or line in names for line in shown), proc.stdout
+    assert "…" not in proc.stdout and "patched, not verified" in " ".join(" ".join(shown).split())
+
+
 def test_status_json_carries_the_protection(shoot: Path) -> None:
     runner.invoke(app, ["poison", str(shoot)])
     data = json.loads(runner.invoke(app, ["status", "--json"]).stdout)
