@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 from pathlib import Path
 
 from PIL import Image
@@ -101,7 +102,7 @@ def test_a_renamed_patched_file_is_patched_and_the_parts_add_up(
     (shoot / "v0.png").rename(shoot / "hero.png")
     text = said("status", "A")
     assert "not patched yet" not in text and "files 4: patched 4 (1 renamed since)" in text, text
-    assert f"A: 1 patched file(s) renamed since, still carrying the mark: `ppd poison {shoot}`" in text
+    assert f"A: 1 patched file(s) renamed since, still carrying the mark: `ppd poison {shlex.quote(str(shoot))}`" in text
     counts = status_json("A")["counts"]
     assert counts["patched"] == 4 and counts["renamed"] == 1 and counts["untracked"] == 0, counts
     assert status_json("A")["resume"] is None
