@@ -8,7 +8,7 @@ import json
 import os
 import shlex
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -92,6 +92,15 @@ def _unmarked_line(ctx: AppContext, name: str, spec: PatchSpec) -> str | None:
         return None
     total = sum(n for n, _ in kinds)
     return f"{name}: {total} of its files not re-protected, as they carry no mark of ppd's: {'; '.join(said)}"
+
+
+def _spec_line(ctx: AppContext, name: str, asked: PatchSpec, summary: Callable[[PatchSpec], str]) -> str:
+    """The dataset's spec as the store holds it: a re-protect that no file took keeps the earlier one
+    (it printed the new one's id; a helper's review)."""
+    held = ctx.store.dataset_spec(name) or asked
+    if held.spec_id == asked.spec_id:
+        return f"{name}: spec {held.spec_id} ({summary(held)})"
+    return f"{name}: spec still {held.spec_id} ({summary(held)}): no file took the new spec {asked.spec_id}"
 
 
 def _move_root(ctx: AppContext, name: str, old: Path, new: Path) -> None:
@@ -179,7 +188,7 @@ def dataset_set(
             if unit_lacks(publish_dir):  # ProtectSystem=strict: read-only to the service until listed
                 said = "ppd.service cannot write there yet: run `ppd service install` again"
                 console().print(said, markup=False)
-        console().print(f"{name}: spec {spec.spec_id} ({spec_summary(spec)})", markup=False)
+        console().print(_spec_line(ctx, name, spec, spec_summary), markup=False)
     finally:
         ctx.close()
     if failed:

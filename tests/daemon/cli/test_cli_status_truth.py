@@ -102,7 +102,8 @@ def test_a_renamed_patched_file_is_patched_and_the_parts_add_up(
     (shoot / "v0.png").rename(shoot / "hero.png")
     text = said("status", "A")
     assert "not patched yet" not in text and "files 4: patched 4 (1 renamed since)" in text, text
-    assert f"A: 1 patched file(s) renamed since, still carrying the mark: `ppd poison {shlex.quote(str(shoot))}`" in text
+    command = f"ppd poison {shlex.quote(str(shoot))}"
+    assert f"A: 1 patched file(s) renamed since, still carrying the mark: `{command}`" in text
     counts = status_json("A")["counts"]
     assert counts["patched"] == 4 and counts["renamed"] == 1 and counts["untracked"] == 0, counts
     assert status_json("A")["resume"] is None
@@ -217,3 +218,18 @@ def test_a_reprotect_says_which_files_it_did_not_reach(ppd_env: dict[str, Path],
         store.close()
     again = said("dataset", "set", "A", "--patch-size", "7%", "--reprotect")
     assert "patched again A: patched 4" in again and "not re-protected" not in again, again
+
+
+def test_a_reprotect_no_file_took_names_the_spec_kept(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A re-protect on which every file failed keeps the dataset's earlier spec, but its last line
+    named the new spec's id as the dataset's (a helper's review)."""
+    shoot = make_shoot(tmp_path / "A", 2)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    before = status_json("A")["spec_id"]
+    for photo in shoot.iterdir():
+        photo.unlink()
+    result = runner.invoke(app, ["dataset", "set", "A", "--patch-size", "8%", "--reprotect"])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 1 and status_json("A")["spec_id"] == before, text
+    assert f"A: spec still {before} (" in text and "no file took the new spec" in text, text
+    assert f"A: spec {before}" not in text, text
