@@ -30,7 +30,8 @@ def restore(
     ),
 ) -> None:
     """Put originals back from the vault (atomic). Files in an --out or publish folder are
-    removed there, never replaced by originals. The daemon does not patch restored files again.
+    removed there, never replaced by originals. The daemon does not patch restored files again; a
+    file it is patching now is waited for, those it has yet to patch are counted (exit 3).
     A folder's files that carry ppd's seal are restored too (renamed, moved, a lost store); a
     file deleted since it was patched is listed, not made again (give its path to restore it).
 
@@ -45,6 +46,7 @@ def restore(
     from poisoner.provenance import has_token
 
     ctx = open_ctx()
+    held = 0  # files a running `ppd watch` has still to patch (_say_held)
     try:
         as_path = user_path(Path(target).expanduser())  # a dataset name or path, '~' as before
         if ctx.store.file(as_path) is not None or (as_path.is_file() and not as_path.is_symlink()):
@@ -57,10 +59,10 @@ def restore(
             _print_outcomes(outcomes)
         else:
             try:
-                outcomes = _restore_folder(ctx, target, force)
+                outcomes, held = _restore_folder(ctx, target, force)
             except TargetError as exc:
                 raise die(exc) from None
-        _exit_if_failed(outcomes)
+        _exit_if_failed(outcomes, held)
     finally:
         ctx.close()
 
@@ -81,9 +83,10 @@ def _refuse_never_patched(ctx: AppContext, path: Path, outcome: ProtectOutcome) 
                   "nothing to restore")  # fmt: skip
 
 
-def _exit_if_failed(outcomes: list[ProtectOutcome]) -> None:
+def _exit_if_failed(outcomes: list[ProtectOutcome], held: int = 0) -> None:
     """Exit 1 when a file was not restored; 3 when one failed for lack of space, with the line `ppd
-    poison` ends with: the disk, not the file, is what needs fixing (`--help`: 3 = cannot work here)."""
+    poison` ends with: the disk, not the file, is what needs fixing (`--help`: 3 = cannot work here);
+    3 as well when a running `ppd watch` held files (held: their count): another ppd holds them."""
     from daemon.cli.poison_cmd import disk_full
 
     failed = [o for o in outcomes if restore_word(o) == "failed"]
@@ -91,14 +94,17 @@ def _exit_if_failed(outcomes: list[ProtectOutcome]) -> None:
         said = "ppd: a disk is full (or over its quota): free space, then run the same command again"
         err_console().print(f"{said}; what was restored stays restored", markup=False, highlight=False)
         raise typer.Exit(ExitStatus.ENVIRONMENT)
+    if held:
+        raise typer.Exit(ExitStatus.ENVIRONMENT)
     if failed:
         raise typer.Exit(ExitStatus.FAILED)
 
 
-def _restore_folder(ctx: AppContext, target: str, force: bool) -> list[ProtectOutcome]:
+def _restore_folder(ctx: AppContext, target: str, force: bool) -> tuple[list[ProtectOutcome], int]:
     """A dataset or a folder (daemon.cli.restore_folder): its rows' files, then the files in its folder
-    that carry ppd's marker and have no row; the files gone from their path are listed, not made again."""
-    from daemon.cli.restore_folder import marked_files, plan_folder_restore, still_gone
+    that carry ppd's marker and have no row; the files gone from their path are listed, not made again.
+    Also how many files a running `ppd watch` has still to patch (said: _say_held)."""
+    from daemon.cli.restore_folder import held_by_watch, marked_files, plan_folder_restore, still_gone
     from daemon.cli.targets import TargetError
     from daemon.protect.restoring import restore_file
 
@@ -122,7 +128,21 @@ def _restore_folder(ctx: AppContext, target: str, force: bool) -> list[ProtectOu
         _refuse_moved_on(ctx, plan)
     _print_outcomes(outcomes)
     _print_gone(gone, plan.root_gone)
-    return outcomes
+    held = held_by_watch(ctx, plan, outcomes)
+    if held is not None:
+        _say_held(plan.dataset or target, *held)
+    return outcomes, len(held[0]) if held is not None else 0
+
+
+def _say_held(dataset: str, files: list[Path], holder: str) -> None:
+    """One line: the files the running daemon is patching or has yet to patch are not restored, and
+    what to do (exit 3, "cannot work here": another ppd holds them)."""
+    said = (
+        f"ppd: not restored: {len(files)} file(s) of dataset {dataset!r} that the running ppd watch "
+        f"({holder}) is patching or has yet to patch; it marks them: run `ppd restore "
+        f"{shlex.quote(dataset)}` again when it is idle"
+    )
+    err_console().print(said, markup=False, highlight=False)
 
 
 def _refuse_moved_on(ctx: AppContext, plan: FolderRestore) -> None:

@@ -6,7 +6,8 @@
   black-box review: "not a folder ppd patched", or "restored 0 ... failed 0" with exit 0, while the
   files there were still patched). restore_file finds each by its seal, as it does for one file;
 - not the files gone from their path since they were patched: deleted or moved by the user, they are
-  listed, not made again (`ppd restore FILE` brings one back).
+  listed, not made again (`ppd restore FILE` brings one back);
+- not the files a running `ppd watch` has still to patch (held_by_watch): counted, said, exit 3.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from daemon.states import FileState
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
+    from daemon.protect.job import ProtectOutcome
 
 
 @dataclass(frozen=True)
@@ -152,3 +154,31 @@ def still_gone(ctx: AppContext, gone: list[dict[str, Any]]) -> list[Path]:
         if now is not None and now["state"] in (FileState.PATCHED, FileState.PENDING):
             left.append(Path(row["path"]))
     return sorted(left)
+
+
+def held_by_watch(
+    ctx: AppContext, plan: FolderRestore, outcomes: list[ProtectOutcome]
+) -> tuple[list[Path], str] | None:
+    """The dataset's files a running `ppd watch` has still to finish once the restore is done, and who
+    watches ("pid N"); None when no daemon watches the outbox the folder is in, or it holds none of them.
+    Those are the folder's photos no row names (queued, or in its first stages) and its patched or
+    pending rows in place that the restore did not reach or restore (patched meanwhile). A black-box
+    review (F13): a restore while the daemon patched a drop said "restored 12", exit 0, and the daemon
+    then marked the rest; the file a restore meets mid-patch is waited for (restore_file), these are said."""
+    from daemon.datasets.folder_count import dataset_folder
+    from daemon.locks import watching
+    from daemon.protect.restoring import gone_from_its_place
+
+    outbox = Path(ctx.paths.outbox).absolute()
+    if plan.dataset is None or plan.scan is None or not Path(plan.scan).absolute().is_relative_to(outbox):
+        return None
+    holders = watching(ctx.paths.data_dir)
+    if not holders:
+        return None
+    reported = {o.path for o in outcomes if o.state != "unchanged"}  # restored, or failed with its reason
+    rows = [*ctx.store.files(plan.dataset, state=FileState.PATCHED)]
+    rows += ctx.store.files(plan.dataset, state=FileState.PENDING)
+    left = {Path(r["path"]) for r in rows if not gone_from_its_place(ctx, r)} - reported
+    untracked = set(dataset_folder(ctx, plan.dataset, str(plan.scan)).untracked)
+    left |= untracked - {o.path for o in outcomes}
+    return (sorted(left), holders[0]) if left else None

@@ -143,9 +143,10 @@ def _moved_into(ctx: AppContext, name: str, folder: FolderCount) -> dict[str, An
     """Where a dataset's gone folder went (FolderCount.to_dict keys): moved_to as seen beside it, and
     moved_to_dataset, the other dataset that holds its files now: the user ran `ppd poison NEWFOLDER`,
     which made a dataset of it (then its rows were carried there, moved away), and status repeated the
-    advice that led there (a black-box review)."""
+    advice that led there (a black-box review). Said while the files there are patched: once restored
+    there (`ppd restore NEWNAME`) "its patched files are in ..." stayed, no longer true (F15)."""
     from daemon.cli.targets import same_folder
-    from daemon.states import FileState
+    from daemon.states import PATCHED_VALUES, FileState
 
     seen = folder.to_dict()
     if folder.exists:
@@ -158,7 +159,8 @@ def _moved_into(ctx: AppContext, name: str, folder: FolderCount) -> dict[str, An
     for row in ctx.store.files(name, state=FileState.REMOVED)[:MOVED_PROBE_ROWS]:  # a few: status stays quick
         to = (ctx.store.last_event(row["path"], "moved_away") or {}).get("detail", {}).get("to")
         now = ctx.store.file(to) if to else None
-        other = ctx.store.dataset(now["dataset"]) if now and now["dataset"] != name else None
+        patched_there = now is not None and now["state"] in PATCHED_VALUES and now["dataset"] != name
+        other = ctx.store.dataset(now["dataset"]) if now is not None and patched_there else None
         if other is not None:
             return {**seen, "moved_to": other["root"], "moved_to_dataset": other["name"]}
     return {**seen, "moved_to_dataset": None}

@@ -44,6 +44,7 @@ from daemon.protect.job import (
     tool_version,
 )
 from daemon.protect.poisoning import named_vault_copy, poison_to, provenance_marker, seal_output
+from daemon.protect.publishing import not_moved, publish
 from daemon.protect.recovery import carry_moved_row
 from daemon.states import REMARKED_PREFIX
 from daemon.store.vault import sha256_file
@@ -81,7 +82,8 @@ def reprotect_row(
         ctx.store.record_file(
             path, dataset, FileState.PATCHED if selected else FileState.SKIPPED,
             poisoned_sha256=new_sha if selected else None, spec_id=spec.spec_id,
-            tool_version=tool_version(), size=st.st_size, mtime_ns=st.st_mtime_ns, error=None,
+            tool_version=tool_version(), size=st.st_size, mtime_ns=st.st_mtime_ns,
+            error=row["error"] if not_moved(row) else None,  # still to publish: the next run moves it
             event="reprotected", detail={"spec_id": spec.spec_id, **report_detail(report)},
         )  # fmt: skip
     except SourceChanged:
@@ -219,13 +221,16 @@ def _spec(ctx: AppContext, spec_id: str | None) -> PatchSpec | None:
 
 def remarked(job: Job, came: dict[str, Any], said: str) -> ProtectOutcome:
     """job.path's file, recorded with came's spec and original (came: the row of the output it is),
-    patched again with its dataset's spec when that is another one; else unchanged (said)."""
+    patched again with its dataset's spec when that is another one; else unchanged (said). Either way,
+    recorded as this dataset's patched file, it is published as the dataset's others are."""
+    row = job.ctx.store.file(job.path)
+    recorded = row is not None and row["dataset"] == job.dataset and row["poisoned_sha256"] == job.sha
     spec = _foreign(job, came.get("spec_id"))
     if spec is None:
-        return job.outcome(Outcome.UNCHANGED, said, poisoned_sha256=job.sha)
+        unchanged = job.outcome(Outcome.UNCHANGED, said, poisoned_sha256=job.sha)
+        return _published(job, unchanged) if recorded else unchanged
     why = _came(job, came)
-    row = job.ctx.store.file(job.path)
-    if row is None or row["dataset"] != job.dataset or row["poisoned_sha256"] != job.sha:
+    if row is None or not recorded:
         # not recorded here: its original is not in the vault (a forgotten dataset's, a lost vault)
         reason = (f"{shown_name(job.path)} carries ppd's mark with another spec than dataset "
                   f"{job.dataset!r}'s ({why}), and its original is not in the vault to patch it again "
@@ -242,6 +247,19 @@ def remarked(job: Job, came: dict[str, Any], said: str) -> ProtectOutcome:
     else:
         outcome.reason = f"{REMARKED_PREFIX}: {why}"
     outcome.kind = job.kind
+    return _published(job, outcome) if outcome.state == Outcome.PATCHED else outcome
+
+
+def _published(job: Job, outcome: ProtectOutcome) -> ProtectOutcome:
+    """A file moved or copied in (re-marked or not) goes where its dataset's patched files go: the stages'
+    publish step, a move that fails recorded and moved at the next run as theirs is (publishing). A diff
+    review: a re-marked file stayed in the outbox while every other patched file of its dataset was
+    published."""
+    job.poisoned_sha, job.written = outcome.poisoned_sha256, outcome.signature
+    if (failed := publish(job)) is not None:
+        return failed
+    if job.final is not None:  # moved out
+        outcome.output = job.final
     return outcome
 
 

@@ -42,8 +42,19 @@ def restore_file(
     reason says so. Refuses when the file is no longer ppd's output (the user changed it) unless
     force. With no row of its path (a lost store, a renamed file), its seal or its exact bytes (another
     row's recorded output) name its original. home: the (dataset, root) of the folder `ppd restore`
-    was given, where such a file is recorded unless it lies in its output's dataset folder."""
+    was given, where such a file is recorded unless it lies in its output's dataset folder.
+
+    The file's lock is taken before its row is read: a file another ppd process is patching now (its
+    row pending, or none yet) is waited for, then restored as the output it is. Its pending row was
+    read first and said "state is pending", nothing restored, and the daemon then marked it (a
+    black-box review, F13)."""
     path = Path(path).absolute()
+    with ctx.path_lock(path):
+        return _restore_held(ctx, path, force, home)
+
+
+def _restore_held(ctx: AppContext, path: Path, force: bool, home: tuple[str, Path] | None) -> ProtectOutcome:
+    """restore_file's work, its lock held."""
     row, why = ctx.store.file(path), ""
     if row is None:
         row, why = _row_by_provenance(ctx, path)
@@ -75,75 +86,74 @@ def restore_file(
         return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=refusal)
     kept: list[tuple[Path, Path]] = []  # (the user's file that stood in the original's way, its copy)
     reason: str | None = None
-    with ctx.path_lock(path):
-        try:
-            if copy is not None:
-                reason = _remove_patched_copy(ctx, row, copy, force, kept)
-                target = Path(row["path"]) if row["published_path"] else None
-                if target is not None:  # published: the original goes back to where it was patched
-                    now = _content_now(target)
-                    replaces: str | None | Literal[True] = None  # nothing there, or a restore killed midway
-                    if now is not None and now != row["original_sha256"]:
-                        if not force:
-                            raise ProtectRefused(
-                                f"{target} exists; not overwriting it with the original (use --force)"
-                            )
-                        replaces = _displace(ctx, dataset, target, kept)
-                    if now != row["original_sha256"]:
-                        with no_space_in(target.parent):
-                            ctx.vault.restore(
-                                row["original_sha256"], target, replaces=replaces,
-                                mtime_ns=row.get("original_mtime_ns"),
-                            )  # fmt: skip
-                    reason = f"original back at {target}; {reason}"
-            else:
-                target = path
-                if not target.parent.is_dir():  # not a raw "[Errno 2]" per file (a black-box review)
-                    raise ProtectRefused(f"its folder {target.parent} is gone (moved or deleted?); "
-                                         "`ppd restore` the folder or file where it is now")  # fmt: skip
+    try:
+        if copy is not None:
+            reason = _remove_patched_copy(ctx, row, copy, force, kept)
+            target = Path(row["path"]) if row["published_path"] else None
+            if target is not None:  # published: the original goes back to where it was patched
                 now = _content_now(target)
-                # the check again just before the rename: a writer between the two is not overwritten
-                replaces = row["poisoned_sha256"]
-                if now is not None and (now not in (row["poisoned_sha256"], row["original_sha256"])
-                                        or (now == row["poisoned_sha256"] and row.get("resaved"))):
+                replaces: str | None | Literal[True] = None  # nothing there, or a restore killed midway
+                if now is not None and now != row["original_sha256"]:
                     if not force:
-                        words = (resaved_words(target) if now == row["poisoned_sha256"]
-                                 else changed_words(ctx, target, row["original_sha256"]))
-                        aside = displaced_folder(ctx, dataset)
-                        raise ProtectRefused(f"{words}; not overwriting it (--force keeps your version in "
-                                             f"{aside} and puts the original back)")  # fmt: skip
+                        raise ProtectRefused(
+                            f"{target} exists; not overwriting it with the original (use --force)"
+                        )
                     replaces = _displace(ctx, dataset, target, kept)
-                if now != row["original_sha256"]:  # the original already (a restore killed after its
-                    with no_space_in(target.parent):  # rename): recorded
+                if now != row["original_sha256"]:
+                    with no_space_in(target.parent):
                         ctx.vault.restore(
                             row["original_sha256"], target, replaces=replaces,
                             mtime_ns=row.get("original_mtime_ns"),
                         )  # fmt: skip
-                reason = saved_over_note(ctx, row.get("saved_over"))
-        except Exception as exc:
-            said = one_line(name_the_disk(exc, [path.parent, ctx.paths.data_dir]))  # not a raw "[Errno 28]"
-            said += "".join(f"; your version of {src} is kept at {to}" for src, to in kept)
+                reason = f"original back at {target}; {reason}"
+        else:
+            target = path
+            if not target.parent.is_dir():  # not a raw "[Errno 2]" per file (a black-box review)
+                raise ProtectRefused(f"its folder {target.parent} is gone (moved or deleted?); "
+                                     "`ppd restore` the folder or file where it is now")  # fmt: skip
+            now = _content_now(target)
+            # the check again just before the rename: a writer between the two is not overwritten
+            replaces = row["poisoned_sha256"]
+            if now is not None and (now not in (row["poisoned_sha256"], row["original_sha256"])
+                                    or (now == row["poisoned_sha256"] and row.get("resaved"))):
+                if not force:
+                    words = (resaved_words(target) if now == row["poisoned_sha256"]
+                             else changed_words(ctx, target, row["original_sha256"]))
+                    aside = displaced_folder(ctx, dataset)
+                    raise ProtectRefused(f"{words}; not overwriting it (--force keeps your version in "
+                                         f"{aside} and puts the original back)")  # fmt: skip
+                replaces = _displace(ctx, dataset, target, kept)
+            if now != row["original_sha256"]:  # the original already (a restore killed after its
+                with no_space_in(target.parent):  # rename): recorded
+                    ctx.vault.restore(
+                        row["original_sha256"], target, replaces=replaces,
+                        mtime_ns=row.get("original_mtime_ns"),
+                    )  # fmt: skip
+            reason = saved_over_note(ctx, row.get("saved_over"))
+    except Exception as exc:
+        said = one_line(name_the_disk(exc, [path.parent, ctx.paths.data_dir]))  # not a raw "[Errno 28]"
+        said += "".join(f"; your version of {src} is kept at {to}" for src, to in kept)
+        return ProtectOutcome(
+            path=path, dataset=dataset, state=Outcome.FAILED, reason=said, displaced=tuple(kept)
+        )
+    carried: dict[str, Any] = {}
+    if row.get("from_marker"):
+        where = _record_by_provenance(ctx, path, row, home)
+        if where is None:
             return ProtectOutcome(
-                path=path, dataset=dataset, state=Outcome.FAILED, reason=said, displaced=tuple(kept)
-            )
-        carried: dict[str, Any] = {}
-        if row.get("from_marker"):
-            where = _record_by_provenance(ctx, path, row, home)
-            if where is None:
-                return ProtectOutcome(
-                    path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
-                    original_sha256=row["original_sha256"], output=target, displaced=tuple(kept),
-                )  # fmt: skip
-            dataset, carried = where
-        # the restored file's size and time: the daemon's catch-up scan leaves it alone while they hold
-        # (it judged every restored file again at each start, one "restored by the user" line each)
-        signature = _size_and_time(target) if target is not None else {}
-        ctx.store.record_file(
-            path, dataset, FileState.RESTORED, original_sha256=row["original_sha256"], published_path=None,
-            event="restored", **signature, **carried,
-            detail={"to": str(target) if target else None, "sha256": row["original_sha256"], "note": reason,
-                    **({"displaced": [str(to) for _, to in kept]} if kept else {})},
-        )  # fmt: skip
+                path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
+                original_sha256=row["original_sha256"], output=target, displaced=tuple(kept),
+            )  # fmt: skip
+        dataset, carried = where
+    # the restored file's size and time: the daemon's catch-up scan leaves it alone while they hold
+    # (it judged every restored file again at each start, one "restored by the user" line each)
+    signature = _size_and_time(target) if target is not None else {}
+    ctx.store.record_file(
+        path, dataset, FileState.RESTORED, original_sha256=row["original_sha256"], published_path=None,
+        event="restored", **signature, **carried,
+        detail={"to": str(target) if target else None, "sha256": row["original_sha256"], "note": reason,
+                **({"displaced": [str(to) for _, to in kept]} if kept else {})},
+    )  # fmt: skip
     return ProtectOutcome(
         path=path, dataset=dataset, state=Outcome.RESTORED, reason=reason,
         original_sha256=row["original_sha256"], output=target, displaced=tuple(kept),

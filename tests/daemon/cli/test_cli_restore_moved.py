@@ -151,3 +151,38 @@ def test_a_dataset_renamed_into_another_says_where_its_files_are(ppd_env: dict[s
     said = f"its folder {old} is gone; its patched files are in {new}, now dataset 'mv1-renamed'"
     assert lines[0] == f"ppd: error: dataset 'mv1': {said}: `ppd restore mv1-renamed` restores them", lines
     assert runner.invoke(app, ["restore", "mv1-renamed"]).output.startswith("restored 3,")
+
+
+def test_the_moved_note_goes_once_the_files_are_restored(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A black-box review (F15): after the renamed folder's files were restored, status still said of the
+    old dataset "its patched files are in ..., now dataset ...". It is said while one of them is patched
+    there, and goes once they are all restored: by the new dataset's name, or by the folder (found by
+    their seals, no rows carried)."""
+    old, new = tmp_path / "mv2", tmp_path / "mv2-renamed"
+    for i in range(3):
+        make_image(old / f"v{i}.png", i)
+    assert runner.invoke(app, ["poison", str(old)]).exit_code == 0
+    old.rename(new)
+    assert runner.invoke(app, ["poison", str(new)]).exit_code == 0  # its rows carried to mv2-renamed
+    note = f"its patched files are in {new}, now dataset 'mv2-renamed'"
+    assert note in " ".join(runner.invoke(app, ["status", "mv2"]).output.split())
+    assert runner.invoke(app, ["restore", str(new / "v0.png")]).exit_code == 0  # one of them: still so
+    assert note in " ".join(runner.invoke(app, ["status"]).output.split())
+
+    assert runner.invoke(app, ["restore", "mv2-renamed"]).exit_code == 0
+    for args in (["status"], ["status", "mv2"]):
+        said = " ".join(runner.invoke(app, args).output.split())
+        assert "its patched files are in" not in said and "folder gone;" not in said, said  # before: the note
+    result = runner.invoke(app, ["restore", "mv2"])  # before: exit 2, "`ppd restore mv2-renamed` ..."
+    assert result.exit_code == 0 and result.output.startswith("restored 0,"), result.output
+
+    third, moved = tmp_path / "mv3", tmp_path / "mv3-renamed"  # no run in the new folder: rows not carried
+    for i in range(2):
+        make_image(third / f"v{i}.png", 10 + i)
+    assert runner.invoke(app, ["poison", str(third)]).exit_code == 0
+    third.rename(moved)
+    said = " ".join(runner.invoke(app, ["status"]).output.split())
+    assert f"its patched files are in {moved} (moved?)" in said, said
+    assert runner.invoke(app, ["restore", str(moved)]).exit_code == 0  # found by their seals
+    said = " ".join(runner.invoke(app, ["status", "mv3"]).output.split())
+    assert "its patched files are in" not in said, said
