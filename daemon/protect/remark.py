@@ -115,8 +115,9 @@ def _opened_as_recorded(
 ) -> Iterator[ContainedFile]:
     """The patched file opened without following a symlink (daemon.fsops), refused unless it holds
     what ppd wrote there (read through its descriptor)."""
-    if not target.is_file():
-        raise ProtectRefused(f"{target.name} changed since ppd protected it; not re-protecting it")
+    if not target.is_file():  # it said "changed" of a deleted photo (a helper's review)
+        raise ProtectRefused(f"{target.name} is gone (deleted or moved away since ppd protected it); "
+                             "not re-protecting it")  # fmt: skip
     root = root.absolute()
     # a publish folder (outside the dataset's folder) is ppd's own: trusted as far as the file's folder
     anchor = anchor_for(ctx, target, root) if target.absolute().is_relative_to(root) else target.parent

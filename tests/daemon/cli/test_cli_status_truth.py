@@ -233,3 +233,4 @@ def test_a_reprotect_no_file_took_names_the_spec_kept(ppd_env: dict[str, Path], 
     assert result.exit_code == 1 and status_json("A")["spec_id"] == before, text
     assert f"A: spec still {before} (" in text and "no file took the new spec" in text, text
     assert f"A: spec {before}" not in text, text
+    assert "v0.png is gone (deleted or moved away since ppd protected it); not re-protecting it" in text, text
