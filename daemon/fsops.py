@@ -21,6 +21,7 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
+from daemon.platform import rename_noreplace
 from poisoner.atomic import atomic_replace_at, clear_stale_temps, fsync_dir
 from poisoner.errors import ExitStatus, PpdError
 
@@ -262,11 +263,12 @@ def _folder_of(dir_fd: int) -> str:
 
 
 def move_out(src_dir_fd: int, name: str, dst: Path) -> Path:
-    """Move the file `name` of the folder src_dir_fd to dst (a trusted folder) atomically: a rename
-    on one filesystem, else a complete copy, then unlink."""
+    """Move the file `name` of the folder src_dir_fd to dst (a trusted folder) atomically, never over a
+    file there (FileExistsError): a rename on one filesystem, else a complete copy, then unlink. It
+    replaced one: a photo published under the same name was lost (a diff review)."""
     dst.parent.mkdir(parents=True, exist_ok=True)
     try:
-        os.rename(name, dst, src_dir_fd=src_dir_fd)
+        rename_noreplace(src_dir_fd, name, dst)
         fsync_dir(dst.parent)
         os.fsync(src_dir_fd)
     except OSError as exc:
@@ -276,10 +278,8 @@ def move_out(src_dir_fd: int, name: str, dst: Path) -> Path:
         try:
             dst_fd = open_dir(dst.parent)
             try:
-                with atomic_replace_at(dst_fd, dst.name, mode=stat.S_IMODE(os.fstat(src_fd).st_mode)) as (
-                    fd,
-                    _t,
-                ):
+                mode = stat.S_IMODE(os.fstat(src_fd).st_mode)
+                with atomic_replace_at(dst_fd, dst.name, mode=mode, check=lambda: _free(dst)) as (fd, _t):
                     offset = 0
                     while chunk := os.pread(src_fd, 1 << 20, offset):
                         write_all(fd, chunk)
@@ -291,3 +291,9 @@ def move_out(src_dir_fd: int, name: str, dst: Path) -> Path:
         os.unlink(name, dir_fd=src_dir_fd)
         os.fsync(src_dir_fd)
     return dst
+
+
+def _free(dst: Path) -> None:
+    """FileExistsError when dst is taken (checked just before the copy's rename)."""
+    if os.path.lexists(dst):
+        raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(dst))

@@ -10,6 +10,7 @@ from daemon.platform.linux import (
     mounts_of_device,
     overflow_aware_inotify,
     reflink,
+    rename_noreplace,
     writers_of,
 )
 
@@ -21,5 +22,6 @@ __all__ = [
     "mounts_of_device",
     "overflow_aware_inotify",
     "reflink",
+    "rename_noreplace",
     "writers_of",
 ]

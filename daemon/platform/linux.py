@@ -6,6 +6,8 @@
 - `writers_of(st)`: processes that hold a file open for writing (a scan of /proc/PID/fd).
 - `lock_holders(st)`: processes that hold a flock on a file, and what each runs (/proc/locks).
 - `reflink(dst_fd, src_fd)`: the FICLONE ioctl (a copy that shares extents on btrfs/XFS).
+- `rename_noreplace(src_dir_fd, name, dst)`: rename that never replaces a file at dst
+  (renameat2 RENAME_NOREPLACE), for moves into a folder that already holds files of the user's.
 - `keep_freed_memory()`: glibc's malloc keeps freed memory for the next file instead of handing it
   back to the kernel at once (a worker's page faults: issue 30).
 - `inotify_observer(on_overflow, on_moved_self=...)`: watchdog's inotify observer that also calls
@@ -19,6 +21,7 @@ watchdog is imported by the one function that needs it.
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import os
 import stat
@@ -162,6 +165,32 @@ def reflink(dst_fd: int, src_fd: int) -> None:
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # mallopt's parameters, malloc.h
 HEAP_BLOCKS_UP_TO = 32 << 20  # glibc's largest mmap threshold on 64-bit: bigger blocks still map
 KEEP_FREED = 64 << 20  # freed memory kept at the heap's top, at most, per process
+
+
+RENAME_NOREPLACE = 1  # linux/fs.h
+AT_FDCWD = -100
+
+
+def rename_noreplace(src_dir_fd: int, name: str, dst: Path) -> None:
+    """Rename `name` of the folder src_dir_fd to dst, atomically, or FileExistsError when dst exists
+    (a file or a link, even a dangling one). Where the kernel or filesystem has no RENAME_NOREPLACE
+    (ENOSYS, EINVAL: vfat before Linux 6.x, some FUSE), a check then rename(): a window of a few
+    microseconds in which a file put at dst by another process would be replaced."""
+    import ctypes
+
+    try:
+        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2  # glibc 2.28+
+    except AttributeError:
+        renameat2 = None
+    if renameat2 is not None:
+        if renameat2(src_dir_fd, os.fsencode(name), AT_FDCWD, os.fsencode(dst), RENAME_NOREPLACE) == 0:
+            return
+        err = ctypes.get_errno()
+        if err not in (errno.ENOSYS, errno.EINVAL):
+            raise OSError(err, os.strerror(err), str(dst))
+    if os.path.lexists(dst):
+        raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(dst))
+    os.rename(name, dst, src_dir_fd=src_dir_fd)
 
 
 def keep_freed_memory() -> bool:

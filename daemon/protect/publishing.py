@@ -10,11 +10,12 @@ moves it then (retry_publish)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from daemon.fsops import move_out
 from daemon.protect.job import Job, Outcome, ProtectOutcome, publish_dir
-from daemon.states import NOT_MOVED_PREFIX, FileState
+from daemon.states import NOT_MOVED_PREFIX, PATCHED_VALUES, FileState
 
 
 def publish(job: Job) -> ProtectOutcome | None:
@@ -30,6 +31,10 @@ def publish(job: Job) -> ProtectOutcome | None:
         why = (exc.strerror or str(exc)).lower()
         # where the file is: an in-place dataset's folder is no outbox (a diff review, F9)
         reason = f"{NOT_MOVED_PREFIX} {target_dir}: {why}; left in {job.path.parent}, moved at the next run"
+        if isinstance(exc, FileExistsError):  # never over it: a photo published earlier was lost so
+            reason = (f"{NOT_MOVED_PREFIX} {target_dir}: another file is there under this name "
+                      f"({target_dir / rel}); left in {job.path.parent}: rename this one or move that one "
+                      "away, and the next run moves it")  # fmt: skip
         job.ctx.store.record_file(
             job.record_path, job.dataset, FileState.PATCHED, error=reason, event="publish_failed",
             detail={"to": str(target_dir / rel), "error": why},
@@ -43,6 +48,15 @@ def publish(job: Job) -> ProtectOutcome | None:
         event="published", detail={"to": str(job.final)},
     )  # fmt: skip
     return None
+
+
+def published_there(row: dict[str, object] | None) -> Path | None:
+    """The file a patched row was published as, where it still is: its name in the dataset's folder is
+    free for another photo, whose row must not take this one's place (a diff review)."""
+    if row is None or row.get("state") not in PATCHED_VALUES or not row.get("published_path"):
+        return None
+    published = Path(str(row["published_path"]))
+    return published if os.path.lexists(published) else None
 
 
 def not_moved(row: dict[str, object] | None) -> bool:

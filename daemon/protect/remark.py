@@ -44,7 +44,7 @@ from daemon.protect.job import (
     tool_version,
 )
 from daemon.protect.poisoning import named_vault_copy, poison_to, provenance_marker, seal_output
-from daemon.protect.publishing import not_moved, publish
+from daemon.protect.publishing import not_moved, publish, published_there
 from daemon.protect.recovery import carry_moved_row
 from daemon.states import REMARKED_PREFIX
 from daemon.store.vault import sha256_file
@@ -183,6 +183,14 @@ def take_in(job: Job, earlier: dict[str, Any], record: Recorder) -> ProtectOutco
     takes the spec it came with, as a renamed folder does (unless `ppd poison` flags ask another)."""
     ctx, sha = job.ctx, job.sha
     assert sha is not None  # hash_original ran first
+    published = published_there(job.row)
+    if published is not None and (job.row or {}).get("original_sha256") != earlier["original_sha256"]:
+        # carried here, its row took the place of the published photo's, whose original then no
+        # restore could give back, and its publish moved it over that photo (a diff review)
+        return job.outcome(Outcome.FAILED, (
+            f"{shown_name(job.path)}: ppd's output ({_came(job, earlier)}), but dataset {job.dataset!r} "
+            f"published another photo under this name ({published}); left as it is, with its mark: "
+            "rename it, and the next run takes it in"), poisoned_sha256=sha)  # fmt: skip
     if job.dry_run:
         if (foreign := _foreign(job, earlier["spec_id"])) is not None:
             why = f"would patch: {_came(job, earlier)}"

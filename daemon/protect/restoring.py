@@ -88,16 +88,18 @@ def _restore_held(ctx: AppContext, path: Path, force: bool, home: tuple[str, Pat
     reason: str | None = None
     try:
         if copy is not None:
-            reason = _remove_patched_copy(ctx, row, copy, force, kept)
             target = Path(row["path"]) if row["published_path"] else None
-            if target is not None:  # published: the original goes back to where it was patched
-                now = _content_now(target)
+            # published: the original goes back to where it was patched. Refused before the copy goes:
+            # the published photo was removed, then its original refused its place (a diff review)
+            now = _content_now(target) if target is not None else None
+            taken = now is not None and now != row["original_sha256"]
+            if target is not None and taken and not force:
+                raise ProtectRefused(f"{target} exists (another photo under this name?); not overwriting "
+                                     "it with the original, nor removing the published copy (use --force)")
+            reason = _remove_patched_copy(ctx, row, copy, force, kept)
+            if target is not None:
                 replaces: str | None | Literal[True] = None  # nothing there, or a restore killed midway
-                if now is not None and now != row["original_sha256"]:
-                    if not force:
-                        raise ProtectRefused(
-                            f"{target} exists; not overwriting it with the original (use --force)"
-                        )
+                if taken:
                     replaces = _displace(ctx, dataset, target, kept)
                 if now != row["original_sha256"]:
                     with no_space_in(target.parent):
