@@ -191,7 +191,8 @@ def service_install(
     for folder in service.temporary_folders(layout):
         err_console().print(
             f"warning: {folder} is under a temporary folder, which the service cannot see (PrivateTmp): "
-            "install ppd, and set PPD_OUTBOX, PPD_DATA_DIR and PPD_CACHE_DIR, elsewhere before installing",
+            "install ppd, and set PPD_OUTBOX, PPD_DATA_DIR, PPD_CACHE_DIR and PPD_CONFIG_DIR, elsewhere "
+            "before installing",
             highlight=False, markup=False,
         )  # fmt: skip
     if print_only:

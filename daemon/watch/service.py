@@ -152,8 +152,10 @@ def quarantine_folder(outbox: Path, config: object | None) -> Path:
 def temporary_folders(layout: UnitLayout) -> list[str]:
     """The unit's paths under /tmp or /var/tmp, its program's first (a ppd installed in a venv under
     /tmp was not warned of: a fifth black-box review), then its writable folders: PrivateTmp=yes gives
-    the service a /tmp of its own, where such a path does not exist."""
+    the service a /tmp of its own, where such a path does not exist. The config folder too (only in
+    Environment=: the service ran on defaults, its config unseen, unwarned; a seventh review)."""
     paths = [*layout.exec_start[:2], *(p.lstrip("-") for p in layout.read_write)]
+    paths += [p for p in (layout.environment.get("PPD_CONFIG_DIR"),) if p is not None and p not in paths]
     return [p for p in paths if p.startswith("/") and (Path(p).is_relative_to("/tmp") or
                                                         Path(p).is_relative_to("/var/tmp"))]  # fmt: skip
 

@@ -165,6 +165,10 @@ def test_a_program_under_tmp_is_warned_of_like_the_folders() -> None:
                         read_write=["/tmp/o"])  # fmt: skip
     assert temporary_folders(python) == ["/var/tmp/v/bin/python", "/tmp/o"]
     assert temporary_folders(UnitLayout(exec_start=["/usr/bin/ppd", "watch"], read_write=[str(home)])) == []
+    # the config folder, in Environment= only: the service ran on its defaults (a seventh review)
+    config = UnitLayout(exec_start=["/usr/bin/ppd", "watch"], read_write=[str(home)],
+                        environment={"PPD_CONFIG_DIR": "/tmp/h/config", "PYTHONUNBUFFERED": "1"})  # fmt: skip
+    assert temporary_folders(config) == ["/tmp/h/config"]
 
 
 def test_service_install_print_writes_nothing(ppd_env: dict[str, Path], tmp_path: Path) -> None:
