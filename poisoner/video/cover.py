@@ -1,7 +1,8 @@
 """A video's cover pictures: its `attached_pic` streams (an MP4's `covr` pictures, a Matroska file's
-image attachments, as FFmpeg reads them). Copied as they were, a cover (often a frame of the video,
-which phones and editing apps set) published an unmarked picture beside the marked frames: the leak
-an EXIF thumbnail was for a photo (poisoner.image.previews).
+image attachments, as FFmpeg reads them) and any other Matroska attachment whose bytes are a picture
+(a WebP, a BMP, a JPEG under "image/jpg": demux.is_cover). Copied as they were, a cover (often a frame
+of the video, which phones and editing apps set) published an unmarked picture beside the marked
+frames: the leak an EXIF thumbnail was for a photo (poisoner.image.previews).
 
 Each cover is marked as a photo of its own size is, by the image path itself
 (poisoner.formats.poison_bytes: the spec placed on it, the same blend, written in its own format, a
@@ -14,12 +15,10 @@ writes no cover into: MOV, WebM) the cover is left out. The report says it once 
 
 from __future__ import annotations
 
-import io
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import av
-from PIL import Image
 
 from poisoner.errors import PpdError
 from poisoner.media import SNIFF_BYTES, image_format
@@ -88,8 +87,11 @@ def plan_covers(src: Path, spec: PatchSpec, muxer: str, keep_location: bool) -> 
 
 
 def _pictures(inp: av.container.InputContainer, indexes: set[int], name: str) -> dict[int, bytes]:
-    """Each cover stream's picture: FFmpeg gives the attached pictures first, so this stops early."""
-    found: dict[int, bytes] = {}
+    """Each cover stream's picture: an attachment's are its bytes; an attached_pic's its one packet,
+    which FFmpeg gives first, so this stops early."""
+    found = {i: s.data for i in indexes if isinstance(s := inp.streams[i], av.stream.AttachmentStream)}
+    if len(found) == len(indexes):
+        return found  # only attachments: no packet to read
     for packet in iter_packets(inp, name):
         idx = packet.stream.index
         if idx in indexes and packet.size and idx not in found:
@@ -104,20 +106,18 @@ def _marked(
 ) -> tuple[bytes, str, list[str]] | str:
     """(the marked picture, "WxH FORMAT", location removed from it), or why it cannot be marked."""
     from poisoner.formats import poison_bytes  # the image writers: loaded when a video has a cover
+    from poisoner.image.read import open_decoded
 
     fmt = image_format(picture[:SNIFF_BYTES])
     if fmt is None:
         return "not a JPEG, PNG, WebP or HEIF picture, which ppd writes"
-    try:
-        with Image.open(io.BytesIO(picture)) as im:
-            size = im.size
-    except (OSError, ValueError, Image.DecompressionBombError) as exc:
-        return f"it does not decode ({one_line(exc)})"
-    if (small := spec.too_small(*size)) is not None:
-        return small
     path = stem.with_suffix(_SUFFIX[fmt])  # a fixed name: a moving spec resolves the same on every run
-    path.write_bytes(picture)
     try:
+        with open_decoded(path, picture, load=False) as im:  # the header, read as a photo's is
+            size = im.size
+        if (small := spec.too_small(*size)) is not None:
+            return small
+        path.write_bytes(picture)
         out, report = poison_bytes(path, spec, data=picture, keep_location=keep_location)
     except PpdError as exc:  # ImageFormatError, MarkNotWritten: said as the image path says it
         return one_line(exc).removeprefix(f"{path.name}: ")

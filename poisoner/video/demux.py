@@ -9,6 +9,7 @@ from pathlib import Path
 import av
 import av.error
 
+from poisoner.media import SNIFF_BYTES, content_class
 from poisoner.video.errors import VideoFormatError, one_line
 
 
@@ -21,7 +22,11 @@ def open_input(path: Path) -> av.container.InputContainer:
 
 def is_cover(stream: av.stream.Stream) -> bool:
     """A cover picture: a video stream of one still picture (`attached_pic`: an MP4's `covr`, a Matroska
-    image attachment), not frames of the video."""
+    image attachment), not frames of the video; or a Matroska attachment whose bytes are a picture.
+    FFmpeg makes an attached_pic only of a JPEG, PNG, GIF or TIFF type: a WebP, a BMP, an "image/jpg" or
+    an octet-stream picture stays a plain attachment. A font or a subtitle file is no cover."""
+    if isinstance(stream, av.stream.AttachmentStream):
+        return content_class((stream.data or b"")[:SNIFF_BYTES]) is not None
     return stream.type == "video" and bool(stream.disposition & av.stream.Disposition.attached_pic)
 
 

@@ -124,17 +124,23 @@ def _gif() -> bytes:
         ("too-small", "32x24 cannot hold the mark"),
         ("truncated", "cannot decode"),
         ("gif", "not a JPEG, PNG, WebP or HEIF picture, which ppd writes"),
+        ("bad-crc", "not a recognised image file"),
     ],
 )
 def test_a_cover_that_cannot_be_marked_is_removed_never_copied(tmp_path: Path, name: str, why: str) -> None:
     """One too small for the mark, one that does not decode, a picture ppd does not write (a Matroska
-    GIF attachment): each left out of the output with its reason, never published unmarked."""
+    GIF attachment), a PNG whose header's CRC is wrong (Pillow's error named an object's address,
+    different on every run): each left out of the output with its reason, as the image path words it,
+    never published unmarked."""
     _, picture = cover_picture("JPEG")
     spec, suffix = SPEC, ".mp4"
     if name == "too-small":
         spec = PatchSpec(patch_size=28, block_size=4, position="top-left", offset=(0, 0))
     elif name == "truncated":
         picture = picture[: picture.index(b"\xff\xda") + 40]  # the header whole, the scan cut
+    elif name == "bad-crc":  # a Matroska image/png attachment: FFmpeg reads it as an attached_pic
+        _, png = cover_picture("PNG")
+        picture, suffix = png[:29] + bytes([png[29] ^ 0xFF]) + png[30:], ".mkv"  # IHDR's CRC
     else:
         picture, suffix = _gif(), ".mkv"
     src = tmp_path / f"a{suffix}"
@@ -151,6 +157,64 @@ def test_a_cover_that_cannot_be_marked_is_removed_never_copied(tmp_path: Path, n
     assert covers_of(tmp_path / f"o{suffix}") == [] and picture not in (tmp_path / f"o{suffix}").read_bytes()
     [note] = [n for n in report.notes if "cover" in n]
     assert note.startswith("cover picture removed (") and why in note, note
+    if name == "bad-crc":
+        assert note == f"cover picture removed ({why})"
+
+
+def attachments_of(path: Path) -> dict[str, tuple[str, bytes]]:
+    """Each plain attachment stream's (type, bytes) by file name, as FFmpeg reads them."""
+    with av.open(str(path)) as c:
+        return {s.name: (s.mimetype, s.data) for s in c.streams if isinstance(s, av.stream.AttachmentStream)}
+
+
+@pytest.mark.parametrize(
+    ("mime", "fmt", "marked"),
+    [
+        ("image/webp", "WEBP", True),
+        ("image/jpg", "JPEG", True),  # a common misspelling of image/jpeg
+        ("application/octet-stream", "PNG", True),
+        ("image/bmp", "BMP", False),
+    ],
+)
+def test_a_matroska_picture_attachment_ffmpeg_reads_as_a_plain_attachment_is_a_cover(
+    tmp_path: Path, mime: str, fmt: str, marked: bool
+) -> None:
+    """FFmpeg makes an attached_pic only of a JPEG, PNG, GIF or TIFF type: a picture attachment of
+    another type stayed a plain attachment and was copied unmarked, unsaid. Its bytes now say it is a
+    picture: marked (an attachment of its name and type) or removed with the reason. A font and a
+    subtitle file are attachments too, and are copied as they were."""
+    import matplotlib
+
+    rgb, picture = cover_picture(fmt)
+    font = Path(matplotlib.get_data_path(), "fonts", "ttf", "cmex10.ttf").read_bytes()
+    subtitles = b"[Script Info]\nScriptType: v4.00+\n"
+    name = f"cover.{fmt.lower()}"
+    src = tmp_path / "a.mkv"
+    with av.open(str(src), "w") as out:
+        vs = out.add_stream("libx264", rate=10)
+        vs.width, vs.height, vs.pix_fmt = 64, 48, "yuv420p"
+        out.add_attachment(name, mime, picture)
+        out.add_attachment("font.ttf", "application/x-truetype-font", font)
+        out.add_attachment("subs.ass", "text/x-ssa", subtitles)
+        make_frames(out, vs)
+    kept = {"font.ttf": ("application/x-truetype-font", font), "subs.ass": ("text/x-ssa", subtitles)}
+    assert attachments_of(src) == {name: (mime, picture), **kept} and covers_of(src) == []
+    report = poison_video(src, tmp_path / "o.mkv", SPEC, options=FAST)
+    got = attachments_of(tmp_path / "o.mkv")
+    assert picture not in (tmp_path / "o.mkv").read_bytes()
+    [note] = [n for n in report.notes if "cover" in n]
+    if not marked:
+        assert got == kept
+        assert note == "cover picture removed (not a JPEG, PNG, WebP or HEIF picture, which ppd writes)"
+        return
+    assert got.keys() == {name, *kept} and {k: got[k] for k in kept} == kept
+    out_mime, out_picture = got[name]
+    assert out_mime == mime and note == f"cover picture marked (32x24 {fmt})"
+    with Image.open(io.BytesIO(out_picture)) as im:
+        assert (im.format, im.size) == (fmt, COVER)
+        now = np.asarray(im.convert("RGB")).astype(int)
+    x0, y0, x1, y1 = SPEC.resolve(*COVER).box
+    assert np.abs(now[y0:y1, x0:x1] - rgb[y0:y1, x0:x1]).mean() > 40  # the mark is there
 
 
 def make_frames(out: av.container.OutputContainer, vs: av.video.stream.VideoStream) -> None:
