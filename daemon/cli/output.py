@@ -2,7 +2,8 @@
 command that prints nothing rich never imports rich), -v counting, and the log handler.
 
 Colour and progress bars only on a terminal; soft_wrap: a long line is never broken (an error or
-a path stays greppable); highlight off: rich would colour numbers and paths inside our words.
+a path stays greppable); highlight off: rich would colour numbers and paths inside our words; emoji
+off: rich would turn a name's own ":thumbs_up:" (a dataset's, a folder's) into a picture.
 """
 
 from __future__ import annotations
@@ -22,14 +23,14 @@ if TYPE_CHECKING:
 def console() -> Console:
     from rich.console import Console
 
-    return Console(soft_wrap=True, highlight=False)
+    return Console(soft_wrap=True, highlight=False, emoji=False)
 
 
 @functools.cache
 def err_console() -> Console:
     from rich.console import Console
 
-    return Console(stderr=True, soft_wrap=True, highlight=False)
+    return Console(stderr=True, soft_wrap=True, highlight=False, emoji=False)
 
 
 def print_line(out: Console, line: str) -> None:

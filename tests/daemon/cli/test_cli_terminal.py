@@ -266,6 +266,26 @@ def test_status_shows_each_dataset_name_whole(
     assert "…" not in proc.stdout and "patched, not verified" in " ".join(" ".join(shown).split())
 
 
+@pytest.mark.parametrize("columns", [40, 120])
+def test_status_shows_a_name_with_an_emoji_code_as_it_is(
+    shoot: Path, narrow_env: dict[str, str], tmp_path: Path, columns: int
+) -> None:
+    """rich turned a name's ":thumbs_up:" into its picture, in the table (120 columns) and in the list
+    (40: the long name cannot be whole in the table), so the name shown was not the dataset's."""
+    names = ["x:thumbs_up:y[red]", "client-shoot-2026:smile:-studio-north-wing"]
+    other = shutil.copytree(shoot, tmp_path / "other")
+    for folder, name in zip((shoot, other), names, strict=True):
+        assert runner.invoke(app, ["poison", str(folder), "--dataset", name]).exit_code == 0
+    proc = ppd(narrow_env, "status", columns=columns)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    steps = min(i for i, line in enumerate(lines) if line.startswith(tuple(f"{n}:" for n in names)))
+    for name in names:  # whole in the table or the list, and in the next steps under it
+        assert any(name in line for line in lines[:steps]), proc.stdout
+        assert f"{name}: run" in " ".join(proc.stdout.split()), proc.stdout
+    assert ("│" in proc.stdout) == (columns == 120), proc.stdout  # the table, or the list
+
+
 def test_status_json_carries_the_protection(shoot: Path) -> None:
     runner.invoke(app, ["poison", str(shoot)])
     data = json.loads(runner.invoke(app, ["status", "--json"]).stdout)
