@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import shlex
 from collections import Counter
+from collections.abc import Collection
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -86,7 +87,8 @@ def _refuse_never_patched(ctx: AppContext, path: Path, outcome: ProtectOutcome) 
 def _exit_if_failed(outcomes: list[ProtectOutcome], held: int = 0) -> None:
     """Exit 1 when a file was not restored; 3 when one failed for lack of space, with the line `ppd
     poison` ends with: the disk, not the file, is what needs fixing (`--help`: 3 = cannot work here);
-    3 as well when a running `ppd watch` held files (held: their count): another ppd holds them."""
+    3 as well when a running `ppd watch` held files (held: their count), or another ppd process held one
+    past the wait (skipped): another ppd holds them."""
     from daemon.cli.poison_cmd import disk_full
 
     failed = [o for o in outcomes if restore_word(o) == "failed"]
@@ -94,7 +96,7 @@ def _exit_if_failed(outcomes: list[ProtectOutcome], held: int = 0) -> None:
         said = "ppd: a disk is full (or over its quota): free space, then run the same command again"
         err_console().print(f"{said}; what was restored stays restored", markup=False, highlight=False)
         raise typer.Exit(ExitStatus.ENVIRONMENT)
-    if held:
+    if held or any(restore_word(o) == "skipped" for o in outcomes):
         raise typer.Exit(ExitStatus.ENVIRONMENT)
     if failed:
         raise typer.Exit(ExitStatus.FAILED)
@@ -126,9 +128,9 @@ def _restore_folder(ctx: AppContext, target: str, force: bool) -> tuple[list[Pro
         )
     if plan.root_gone is not None and not gone and not outcomes:
         _refuse_moved_on(ctx, plan)
-    _print_outcomes(outcomes)
-    _print_gone(gone, plan.root_gone)
     held = held_by_watch(ctx, plan, outcomes)
+    _print_outcomes(outcomes, counted=held[0] if held is not None else ())
+    _print_gone(gone, plan.root_gone)
     if held is not None:
         _say_held(plan.dataset or target, *held)
     return outcomes, len(held[0]) if held is not None else 0
@@ -199,21 +201,21 @@ def _print_gone(gone: list[Path], root_gone: Path | None) -> None:
 
 def restore_word(outcome: ProtectOutcome) -> str:
     """restored: the original is back at its place; removed: a patched copy (`--out`) was deleted
-    and nothing put back there (an --out copy has no original of its own); unchanged; failed."""
+    and nothing put back there (an --out copy has no original of its own); unchanged; failed; skipped:
+    another ppd process held the file past the wait (restore_file)."""
     if outcome.state == "restored" and outcome.output is None:
         return "removed"
     return str(outcome.state)
 
 
-def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
-    from daemon.protect.restoring import FROM_PUBLISH_FOLDER
-
+def _print_outcomes(outcomes: list[ProtectOutcome], counted: Collection[Path] = ()) -> None:
     """One count line, where removed copies were (a folder, not a line per file unless -v), then
-    each file that was not restored with its reason."""
-
+    each file that was not restored with its reason; one skipped (another ppd process held it past the
+    wait: restore_file) too, unless counted: the running ppd watch's line (_say_held) counts it."""
     from daemon.cli.output import verbosity
     from daemon.protect.displaced import SAVED_OVER
     from daemon.protect.job import shown_name, shown_path
+    from daemon.protect.restoring import FROM_PUBLISH_FOLDER
     from daemon.store.datasets import natural_key
 
     counts = Counter(restore_word(o) for o in outcomes)
@@ -236,7 +238,9 @@ def _print_outcomes(outcomes: list[ProtectOutcome]) -> None:
             shown = shown_name(src) if src == o.path else shown_path(src)  # a published file can have two
             console().print(f"kept your version of {shown} at {shown_path(kept)} (not ppd's output as ppd "
                             "wrote it; nothing is published from there)", markup=False)  # fmt: skip
-        if word == "failed":
+        if word == "skipped" and o.path in counted:
+            continue
+        if word in ("failed", "skipped"):
             said = reason_text(o.reason, Path(o.path).parent, hint_out=False)  # restore has no --out
             said = f"ppd: not restored: {shown_path(o.path)}: {_escaped(said, o.path)}"
             err_console().print(said, markup=False)

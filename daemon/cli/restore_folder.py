@@ -175,7 +175,8 @@ def held_by_watch(
     holders = watching(ctx.paths.data_dir)
     if not holders:
         return None
-    reported = {o.path for o in outcomes if o.state != "unchanged"}  # restored, or failed with its reason
+    # restored, or failed with its reason; skipped: another ppd held the file past the wait, counted here
+    reported = {o.path for o in outcomes if o.state not in ("unchanged", "skipped")}
     rows = [*ctx.store.files(plan.dataset, state=FileState.PATCHED)]
     rows += ctx.store.files(plan.dataset, state=FileState.PENDING)
     left = {Path(r["path"]) for r in rows if not gone_from_its_place(ctx, r)} - reported

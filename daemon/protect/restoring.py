@@ -3,6 +3,7 @@ by the file's row or, without one (a lost store, a file moved or renamed), by it
 
 from __future__ import annotations
 
+import contextlib
 import os
 import stat
 from pathlib import Path
@@ -17,6 +18,7 @@ from daemon.datasets.dataset import (
     innermost_holder,
 )
 from daemon.fsops import sha256_fd
+from daemon.locks import LockHeld
 from daemon.platform import fd_path
 from daemon.protect.displaced import (
     changed_words,
@@ -47,9 +49,15 @@ def restore_file(
     The file's lock is taken before its row is read: a file another ppd process is patching now (its
     row pending, or none yet) is waited for, then restored as the output it is. Its pending row was
     read first and said "state is pending", nothing restored, and the daemon then marked it (a
-    black-box review, F13)."""
+    black-box review, F13). Still held after the wait (the daemon encoding a long video): skipped,
+    the reason naming the holder, and a folder's restore goes on with its other files; the lock's error
+    ended it mid-folder, the lines of the files restored so far never said (a diff review)."""
     path = Path(path).absolute()
-    with ctx.path_lock(path):
+    with contextlib.ExitStack() as held:
+        try:
+            held.enter_context(ctx.path_lock(path))
+        except LockHeld as exc:
+            return ProtectOutcome(path=path, dataset=None, state=Outcome.SKIPPED, reason=one_line(exc))
         return _restore_held(ctx, path, force, home)
 
 
