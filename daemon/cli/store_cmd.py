@@ -30,7 +30,7 @@ store_app = typer.Typer(
 def _console(stderr: bool = False) -> Console:
     from rich.console import Console
 
-    return Console(stderr=stderr, soft_wrap=True)
+    return Console(stderr=stderr, soft_wrap=True, emoji=False)  # names as typed (":x:" stays text)
 
 
 def _fail(message: str, code: int = ExitStatus.ENVIRONMENT) -> typer.Exit:

@@ -194,7 +194,7 @@ def verify(
     from daemon.cli.verify_tables import json_safe, print_report
     from verifier.verification import VerificationInputError
 
-    console = Console(stderr=as_json, soft_wrap=True, highlight=False)
+    console = Console(stderr=as_json, soft_wrap=True, highlight=False, emoji=False)  # names as typed
     profiles = checked_profiles(profile, "--profile")
     options = _options(timeout, ground_truth, splat, splat_budget, white_background, subject_masks, seeds)
     try:
