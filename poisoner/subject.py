@@ -56,10 +56,13 @@ class CornerChoice(msgspec.Struct, frozen=True):
 def mask_path(mask_dir: Path, image_name: str) -> Path | None:
     """The mask file for an image: the same stem with any image suffix (`a.jpg` -> `a.png`), COLMAP's
     `<name>.png` (`a.jpg.png`), `<stem>_mask.*`, or, for a numbered name, the same number however
-    zero-padded (DTU: `mask/000.png` for `image/000000.png`). None when there is none."""
+    zero-padded (DTU: `mask/000.png` for `image/000000.png`). None when there is none. A name the
+    verification staged with a suffix added (`a.heic.png`, `a.jfif.jpg`: verifier.pairs) finds the
+    photo's own mask (`a.png`) too."""
     stem = Path(image_name).stem
     candidates = [mask_dir / f"{image_name}.png"]
-    for base in (stem, f"{stem}_mask"):
+    photo = Path(stem).stem if Path(stem).suffix.lower() in IMAGE_SUFFIXES else stem
+    for base in dict.fromkeys((stem, f"{stem}_mask", photo, f"{photo}_mask")):
         candidates += [mask_dir / f"{base}{suffix}" for suffix in _MASK_SUFFIXES]
     for path in candidates:
         if path.is_file():

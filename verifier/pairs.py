@@ -1,7 +1,10 @@
 """(original, protected) pairs laid out as two folders with the same names, for verify_folders.
 
-Images are hard-linked (or copied); videos are sampled into frames (poisoner.video); files COLMAP
-cannot read are left out, and named (not_staged): no verdict covers them.
+Images are hard-linked (or copied); photos in a format COLMAP does not read (HEIC, AVIF) are staged
+as lossless PNGs of their decoded pixels, original and patched alike: no COLMAP reads them, so an
+attacker converts them first, and the PNG is what any converter gives. Videos are sampled into
+frames (poisoner.video). A photo that does not decode is left out, and named (Staged.left_out): no
+verdict covers it.
 """
 
 from __future__ import annotations
@@ -9,7 +12,17 @@ from __future__ import annotations
 import os
 import shutil
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
+
+
+@dataclass(frozen=True)
+class Staged:
+    """What stage_pairs laid out: the matching mode to use ("sequential" when frames came from videos)
+    and the patched photos it could not give COLMAP, by name, each with why (one line)."""
+
+    matching: str
+    left_out: dict[str, str] = field(default_factory=dict)
 
 
 def _flat_name(path: Path, index: int, used: set[str]) -> str:
@@ -27,61 +40,86 @@ def _link_or_copy(src: Path, dst: Path) -> None:
         shutil.copyfile(src, dst)
 
 
-def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_dir: Path) -> str:
+def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_dir: Path) -> Staged:
     """Lay out (original, protected) pairs as two folders with the same names.
 
-    Images are hard-linked (or copied). Videos are sampled into frames with poisoner.video.
-    Returns the matching mode to use ("sequential" when frames came from videos)."""
+    Images COLMAP reads are hard-linked (or copied); the others are converted (_stage_converted).
+    Videos are sampled into frames with poisoner.video."""
     clean_dir.mkdir(parents=True, exist_ok=True)
     poisoned_dir.mkdir(parents=True, exist_ok=True)
     used: set[str] = set()
     any_video = False
+    left_out: dict[str, str] = {}
     for i, (original, protected) in enumerate(pairs):
         protected, original = Path(protected), Path(original)
         if _is_video(protected):
-            from poisoner.video import sample_frames
-
             any_video = True
-            tmp_c, tmp_p = clean_dir / f".v{i}", poisoned_dir / f".v{i}"
-            frames_c = sample_frames(original, tmp_c)
-            frames_p = sample_frames(protected, tmp_p)
-            for k, (fc, fp) in enumerate(zip(frames_c, frames_p, strict=False)):
-                name = f"{protected.stem}_frame{k:05d}{fc.suffix}"
-                os.replace(fc, clean_dir / name)
-                os.replace(fp, poisoned_dir / name)
-            shutil.rmtree(tmp_c, ignore_errors=True)
-            shutil.rmtree(tmp_p, ignore_errors=True)
+            _stage_frames(original, protected, clean_dir, poisoned_dir, i)
             continue
-        sfm_name = _sfm_name(protected)
-        if sfm_name is None:
-            continue  # formats COLMAP cannot read (e.g. HEIC) are left out of the SfM check (not_staged)
-        name = _flat_name(Path(sfm_name), i, used)
-        _link_or_copy(original, clean_dir / name)
-        _link_or_copy(protected, poisoned_dir / name)
-    return "sequential" if any_video else "auto"
+        staged = _staged_as(protected)
+        if staged is None:
+            left_out[protected.name] = f"{protected.name}: not a photo ppd patches"
+            continue
+        name = _flat_name(Path(staged[0]), i, used)
+        if not staged[1]:
+            _link_or_copy(original, clean_dir / name)
+            _link_or_copy(protected, poisoned_dir / name)
+        elif why := _stage_converted(original, protected, clean_dir / name, poisoned_dir / name):
+            left_out[protected.name] = why
+    return Staged("sequential" if any_video else "auto", dict(sorted(left_out.items())))
 
 
-# What COLMAP reads by its content under any name, and the suffix its image list takes it by
+def _stage_frames(original: Path, protected: Path, clean_dir: Path, poisoned_dir: Path, index: int) -> None:
+    """A video pair's sampled frames, under the same names in both folders."""
+    from poisoner.video import sample_frames
+
+    tmp_c, tmp_p = clean_dir / f".v{index}", poisoned_dir / f".v{index}"
+    frames_c = sample_frames(original, tmp_c)
+    frames_p = sample_frames(protected, tmp_p)
+    for k, (fc, fp) in enumerate(zip(frames_c, frames_p, strict=False)):
+        name = f"{protected.stem}_frame{k:05d}{fc.suffix}"
+        os.replace(fc, clean_dir / name)
+        os.replace(fp, poisoned_dir / name)
+    shutil.rmtree(tmp_c, ignore_errors=True)
+    shutil.rmtree(tmp_p, ignore_errors=True)
+
+
+def _stage_converted(original: Path, protected: Path, clean: Path, poisoned: Path) -> str | None:
+    """A photo COLMAP does not read (HEIC, AVIF), original and patched, written as PNGs of their
+    decoded pixels (lossless: what the attacker's converter decodes, COLMAP reads); None when both
+    are staged, else why not (one line), and neither is."""
+    from poisoner.errors import ImageFormatError
+    from poisoner.image.read import PNG_MODES, open_decoded
+
+    try:
+        for src, dst in ((original, clean), (protected, poisoned)):
+            with open_decoded(src, src.read_bytes()) as im:
+                (im if im.mode in PNG_MODES else im.convert("RGB")).save(dst, "PNG", compress_level=1)
+    except ImageFormatError as exc:  # e.g. a patched file replaced since by one that does not decode
+        clean.unlink(missing_ok=True)
+        return str(exc)
+    return None
+
+
 # What COLMAP reads by its content under any name, with the suffix its image list takes it by
 _SFM_SUFFIX = {"jpeg": ".jpg", "png": ".png", "webp": ".webp"}
 
 
-def _sfm_name(path: Path) -> str | None:
-    """The name path is staged under for COLMAP: its own where its suffix is one COLMAP's image list
-    takes; a JPEG, PNG or WebP under another name (.jfif, none: ppd patches them, an attacker's COLMAP
-    reads them by content) with its format's suffix added; None for the rest (HEIC)."""
-    from poisoner.media import SFM_SUFFIXES, image_format, read_head
+def _staged_as(path: Path) -> tuple[str, bool] | None:
+    """The name path is staged under for COLMAP, and whether it is converted (_stage_converted): its
+    own name where its suffix is one COLMAP's image list takes; a JPEG, PNG or WebP under another name
+    (.jfif, none: ppd patches them, an attacker's COLMAP reads them by content) with its format's suffix
+    added; any other photo ppd patches (HEIC, AVIF) with .png added, converted; None for the rest."""
+    from poisoner.media import IMAGE_SUFFIXES, SFM_SUFFIXES, image_format, read_head
 
     if path.suffix.lower() in SFM_SUFFIXES:
-        return path.name
-    suffix = _SFM_SUFFIX.get(image_format(read_head(path)) or "")
-    return None if suffix is None else path.name + suffix
-
-
-def not_staged(pairs: Sequence[tuple[Path, Path]]) -> list[str]:
-    """The patched photos stage_pairs leaves out (formats COLMAP cannot read: HEIC, AVIF, ...), by
-    name: no verdict measures them (the report names them, VerifyOptions.not_staged)."""
-    return sorted(Path(p).name for _, p in pairs if not _is_video(Path(p)) and _sfm_name(Path(p)) is None)
+        return path.name, False
+    found = image_format(read_head(path)) or ""
+    if found in _SFM_SUFFIX:
+        return path.name + _SFM_SUFFIX[found], False
+    if found == "heif" or path.suffix.lower() in IMAGE_SUFFIXES:
+        return path.name + ".png", True
+    return None
 
 
 def _is_video(path: Path) -> bool:

@@ -178,6 +178,28 @@ class VerificationReport(msgspec.Struct):
                 "num_measured": self.num_images - len(left), "summary": self.summary_lines()}  # fmt: skip
 
 
+def unmeasured_report(
+    images: Path, out_dir: Path, profiles: Sequence[str], left_out: dict[str, str]
+) -> VerificationReport:
+    """The report of a set none of whose photos could be given to COLMAP (left_out: every photo, each
+    with why; verifier.pairs.Staged): every profile could not be verified, and leaves them all out as
+    a partly staged set's profiles leave out theirs; written as verify_folders writes its report."""
+    names = sorted(left_out)
+    why = left_out[names[0]] + (f", and {len(names) - 1} more" if len(names) > 1 else "")
+    line = f"none of the {len(names)} photos could be given to COLMAP ({why}): no verdict covers them"
+    side = {"outcome": "not_run", "error": line}
+    now = time.time()
+    reports = {
+        p: ProfileReport(p, Verdict.INCONCLUSIVE, [line], dict(side), dict(side), None,
+                         started_at=now, finished_at=now, left_out=names)
+        for p in expand_profiles(profiles)
+    }  # fmt: skip
+    staged = (str(images / "clean"), str(images / "poisoned"))
+    report = VerificationReport(*staged, str(out_dir), len(names), reports)
+    write_json(out_dir / "report.json", report.to_dict())  # what `ppd report FOLDER` reads
+    return report
+
+
 def _summary(result: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in result.items() if k not in ("poses", "settings", "reuse_key")}
 

@@ -55,5 +55,5 @@ class VerifyOptions:
     visibility_images: int = VISIBILITY_SAMPLE
     subject_masks: Path | None = None  # a folder of subject masks (<name>.png, <stem>.png, same number)
     corner_mark: bool | None = None  # the mark lives in one corner (None: judged by the visibility stage)
-    # the set's photos left out before SfM (verifier.pairs.not_staged): named, and no verdict covers them
+    # the set's photos left out before SfM (verifier.pairs.Staged.left_out): named, no verdict covers them
     not_staged: tuple[str, ...] = ()

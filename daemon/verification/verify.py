@@ -22,13 +22,14 @@ from typing import TYPE_CHECKING, Any
 import msgspec
 
 from poisoner.media import is_video
-from verifier.pairs import not_staged, stage_pairs
+from verifier.pairs import stage_pairs
 from verifier.verdict import Verdict
 from verifier.verification import (
     PROFILES,
     VerificationInputError,
     VerificationReport,
     VerifyOptions,
+    unmeasured_report,
     verify_folders,
 )
 
@@ -114,10 +115,13 @@ def verify_dataset(
         remove_unfinished_runs(runs_root / dataset)  # what a killed verification left
         images = run_dir / ".images"
         try:
-            matching = stage_pairs(pairs, images / "clean", images / "poisoned")
-            opts = dataclasses.replace(options, matching=matching if matching != "auto" else options.matching,
-                                       not_staged=tuple(not_staged(pairs)))  # fmt: skip
-            report = verify_folders(images / "clean", images / "poisoned", run_dir, profiles, opts)
+            staged = stage_pairs(pairs, images / "clean", images / "poisoned")
+            if len(staged.left_out) == len(pairs):  # no photo for COLMAP: said and recorded, as a few are
+                report = unmeasured_report(images, run_dir, profiles, staged.left_out)
+            else:
+                matching = staged.matching if staged.matching != "auto" else options.matching
+                opts = dataclasses.replace(options, matching=matching, not_staged=tuple(staged.left_out))
+                report = verify_folders(images / "clean", images / "poisoned", run_dir, profiles, opts)
         except BaseException:  # a run with no report (Ctrl-C, a failure) leaves no folder of ppd's
             shutil.rmtree(run_dir, ignore_errors=True)
             raise

@@ -31,6 +31,8 @@ def _write_mask(path: Path, mask: np.ndarray, mode: str = "L") -> None:
         ("IMG_0001.jpg", "IMG_0001.jpg.png"),  # COLMAP's mask naming
         ("r_12.png", "r_12_mask.png"),
         ("7.jpg", "0007.png"),
+        ("IMG_0001.HEIC.png", "IMG_0001.png"),  # a HEIC staged for COLMAP (verifier.pairs): its own mask
+        ("b.jfif.jpg", "b_mask.png"),
     ],
 )
 def test_mask_file_is_found_by_name(tmp_path: Path, image: str, mask: str) -> None:
