@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from daemon.cli.errors import die
+from daemon.cli.errors import die, warning
 
 config_app = typer.Typer(help="Show the configuration or where it lives.", no_args_is_help=True)
 
@@ -12,6 +12,7 @@ config_app = typer.Typer(help="Show the configuration or where it lives.", no_ar
 @config_app.command("show")
 def config_show() -> None:
     """The effective configuration (defaults + config.toml) as TOML."""
+    from daemon.cli.config_warnings import config_warnings
     from daemon.config import Config, ConfigError
     from daemon.paths import AppPaths
 
@@ -22,6 +23,8 @@ def config_show() -> None:
         raise die(str(exc)) from None
     typer.echo(f"# {paths.config_file}{'' if config.source else ' (not present: defaults)'}")
     typer.echo(config.to_toml(), nl=False)
+    for line in config_warnings(paths, config):  # a misspelt [datasets.NAME] (a seventh black-box review)
+        warning(line)
 
 
 @config_app.command("path")

@@ -14,6 +14,13 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import typer
 
+from daemon.cli.dataset_masks import (
+    apply_masks_change,
+    masks_change,
+    masks_show_line,
+    no_subject_masks_option,
+    remembered_masks_option,
+)
 from daemon.cli.errors import die, file_reason, one_line, open_ctx
 from daemon.cli.options import SpecOptions, spec_options
 from daemon.cli.output import console, err_console, print_line
@@ -23,6 +30,9 @@ if TYPE_CHECKING:
     from daemon.context import AppContext
     from daemon.protect.forgetting import Forgotten, Patched
     from poisoner.spec import PatchSpec
+
+# a dataset whose spec no file and no `dataset set` gave yet (set up with its masks, or rebuilt)
+NO_SPEC_YET = "no spec yet: its first patched file gets the config's"
 
 dataset_app = typer.Typer(
     help="Show or set a dataset's patch spec; forget a finished one.", no_args_is_help=True
@@ -41,9 +51,12 @@ def dataset_show(name: str, as_json: bool = typer.Option(False, "--json")) -> No
         if as_json:
             typer.echo(json.dumps(info, indent=2, default=str))
             return
-        console().print(f"[bold]{name}[/] at {info['root']}  spec {info['spec_id']}: {info['spec_summary']}")
+        said = f"spec {info['spec_id']}: {info['spec_summary']}" if info["spec_id"] else NO_SPEC_YET
+        console().print(f"[bold]{name}[/] at {info['root']}  {said}")
         if info["publish_dir"]:
             console().print(f"publish folder: {info['publish_dir']}", markup=False)
+        if masks := masks_show_line(ctx, name):  # no command named the remembered folder (F1)
+            print_line(console(), masks)
         if info["spec"]:
             console().print(PatchSpec.from_dict(info["spec"]).to_toml(), end="")
         console().print(" ".join(f"{k}={v}" for k, v in info["counts"].items()))
@@ -96,8 +109,10 @@ def _unmarked_line(ctx: AppContext, name: str, spec: PatchSpec) -> str | None:
 
 def _spec_line(ctx: AppContext, name: str, asked: PatchSpec, summary: Callable[[PatchSpec], str]) -> str:
     """The dataset's spec as the store holds it: a re-protect that no file took keeps the earlier one
-    (it printed the new one's id; a helper's review)."""
-    held = ctx.store.dataset_spec(name) or asked
+    (it printed the new one's id; a helper's review); none yet: its first patched file sets it."""
+    held = ctx.store.dataset_spec(name)
+    if held is None:
+        return f"{name}: {NO_SPEC_YET}"
     if held.spec_id == asked.spec_id:
         return f"{name}: spec {held.spec_id} ({summary(held)})"
     return f"{name}: spec still {held.spec_id} ({summary(held)}): no file took the new spec {asked.spec_id}"
@@ -132,35 +147,39 @@ def dataset_set(
         None, "--root", help="Dataset folder (default: OUTBOX/NAME); a moved dataset folder's new place."
     ),
     publish_dir: Path | None = typer.Option(None, "--publish-dir", help="Move patched files here."),
+    subject_masks: Path | None = remembered_masks_option(),
+    no_subject_masks: bool = no_subject_masks_option(),
     reprotect: bool = typer.Option(False, "--reprotect", help="Patch again from the vault originals."),
     spec_options: SpecOptions = SpecOptions(),
 ) -> None:
     """Set a dataset's spec. Once files are patched, a new spec needs --reprotect (every
-    image must carry the same patch). --root NEWFOLDER moves a dataset whose folder you moved.
+    image must carry the same patch). --root NEWFOLDER moves a dataset whose folder you moved. A new
+    dataset needs its folder: OUTBOX/NAME made first, or --root.
 
     \b
     Examples:
       ppd dataset set castle --design paper
       ppd dataset set castle --patch-size 8% --reprotect
       ppd dataset set castle --root ~/Photos/castle-2026
+      ppd dataset set castle --subject-masks ~/Photos/castle-masks
     """
     from daemon.cli.status_queries import spec_summary
     from daemon.datasets.dataset import dataset_root
     from daemon.store import DatasetSpecLocked
-    from daemon.watch.service import unit_lacks
     from poisoner.spec import SpecError
 
     ctx = open_ctx(needs_key=reprotect)  # --reprotect seals files
     failed = 0
     try:
         existing = ctx.store.dataset(name)
+        if existing is None:
+            _refuse_without_folder(ctx, name, root)
         # before anything is written (a refused folder made the dataset): published, never ppd's own,
         # nor in (or holding) this dataset's folder, as it will be, or another's
         if publish_dir is not None and (why := ctx.paths.publish_dir_problem(
                 publish_dir, _roots(ctx, name, root, existing))):  # fmt: skip
             raise die(f"--publish-dir {publish_dir}: {why}; choose another folder")
-        if existing is None and root is None:
-            _refuse_a_likely_typo(ctx, name)
+        masks = masks_change(ctx, name, subject_masks, no_subject_masks)
         if root is not None and existing and existing["root"] and not _same_root(existing["root"], root):
             _move_root(ctx, name, Path(existing["root"]), root.absolute())
             existing = ctx.store.dataset(name)
@@ -171,28 +190,38 @@ def dataset_set(
             raise die(one_line(exc)) from None
         folder = root.absolute() if root else (Path(existing["root"]) if existing else None)
         folder = folder or dataset_root(ctx.paths.outbox.absolute(), name)
+        if existing is None:  # its row, with the config's publish folder (a row made with the spec had none)
+            ctx.store.add_dataset(name, folder, None, ctx.config.publish_dir_for(name))
+        if masks is not None:  # before the spec: never set without its masks
+            print_line(console(), apply_masks_change(ctx, name, masks, reprotect))
         if reprotect and existing is not None:
             failed = _reprotect(ctx, name, spec)
-        else:
+        elif masks is None or spec_options.given():
             try:
                 ctx.store.set_dataset_spec(name, spec, root=folder)
             except DatasetSpecLocked as exc:
                 raise die(str(exc)) from None
         if publish_dir is not None:
-            ctx.store.set_dataset_publish_dir(name, publish_dir.absolute())
-            # said: it applies to files patched from now on (the review found the folder with 1 photo of 3)
-            earlier = ctx.store.counts(name).get("patched", 0) if existing is not None else 0
-            stay = f"; the {earlier} patched before stay where they are" if earlier else ""
-            console().print(f"{name}: files patched from now on go to {publish_dir.absolute()}{stay}",
-                            markup=False)  # fmt: skip
-            if unit_lacks(publish_dir):  # ProtectSystem=strict: read-only to the service until listed
-                said = "ppd.service cannot write there yet: run `ppd service install` again"
-                console().print(said, markup=False)
+            _set_publish_dir(ctx, name, publish_dir)
         console().print(_spec_line(ctx, name, spec, spec_summary), markup=False)
     finally:
         ctx.close()
     if failed:
         raise typer.Exit(ExitStatus.FAILED)
+
+
+def _set_publish_dir(ctx: AppContext, name: str, publish_dir: Path) -> None:
+    """--publish-dir: said to apply to files patched from now on (the review found the folder with 1
+    photo of 3), and when the installed service cannot write there yet."""
+    from daemon.watch.service import unit_lacks
+
+    ctx.store.set_dataset_publish_dir(name, publish_dir.absolute())
+    earlier = ctx.store.counts(name).get("patched", 0)
+    stay = f"; the {earlier} patched before stay where they are" if earlier else ""
+    console().print(f"{name}: files patched from now on go to {publish_dir.absolute()}{stay}", markup=False)
+    if unit_lacks(publish_dir):  # ProtectSystem=strict: read-only to the service until listed
+        said = "ppd.service cannot write there yet: run `ppd service install` again"
+        console().print(said, markup=False)
 
 
 @dataset_app.command("forget")
@@ -363,21 +392,25 @@ def _say_forgotten(name: str, done: Forgotten, marked: Patched, again: Again | N
                         "they are yours", markup=False)  # fmt: skip
 
 
-def _refuse_a_likely_typo(ctx: AppContext, name: str) -> None:
-    """A new dataset named like an existing one, with no folder of its own yet: refused (exit 2), as a
-    typo. `ppd dataset set gardn --design paper` made a dataset of OUTBOX/gardn, a folder that never
-    existed, and left 'garden' as it was, exit 0 (a fifth black-box review). --root, or the folder made
-    first, says a new dataset is meant."""
-    import difflib
+def _refuse_without_folder(ctx: AppContext, name: str, root: Path | None) -> None:
+    """A new dataset without its folder: refused (exit 2), one line, with a "did you mean" when the name
+    is like an existing one's. `ppd dataset set garden --design paper` made a dataset of OUTBOX/garden, a
+    folder that did not exist (exit 0); status called it "gone", and `ppd poison` of the real garden folder
+    was refused as the name was taken (a seventh black-box review, F4; a fifth refused only a likely
+    typo). The folder made first, or --root naming one, says a new dataset is meant."""
+    from daemon.datasets.dataset import dataset_root, likely_meant
 
-    from daemon.datasets.dataset import dataset_root
-
-    if dataset_root(ctx.paths.outbox.absolute(), name).exists():
+    if root is not None:
+        if not root.is_dir():
+            raise die(f"--root {root}: no such folder; a new dataset needs its folder")
         return
-    near = difflib.get_close_matches(name, [d["name"] for d in ctx.store.datasets()], n=1, cutoff=0.75)
-    if near:
-        raise die(f"no dataset {name!r} (did you mean {near[0]!r}?); a new dataset of that name needs its "
-                  f"folder: make {dataset_root(ctx.paths.outbox.absolute(), name)} first, or give --root")
+    folder = dataset_root(ctx.paths.outbox.absolute(), name)
+    if folder.is_dir():
+        return
+    near = likely_meant(name, [d["name"] for d in ctx.store.datasets()])
+    meant = f" (did you mean {near!r}?)" if near else ""
+    raise die(f"no dataset {name!r}{meant}; a new dataset of that name needs its folder: make {folder} "
+              "first, or give --root")  # fmt: skip
 
 
 def _roots(

@@ -236,7 +236,8 @@ def subject_masks_option() -> Any:
     return typer.Option(
         None, "--subject-masks", metavar="DIR",
         help="Subject masks, one per image (same name; white = subject): the mark stays off the subject. "
-        "[default: the dataset's subject_masks in the config]",
+        "[default: the dataset's subject_masks in the config, else the folder it remembers (`ppd dataset "
+        "show NAME`)]",
     )  # fmt: skip
 
 

@@ -364,22 +364,14 @@ def _print_report(
         from daemon.watch.syncdirs import sync_warning
 
         warning(sync_warning(ctx.paths.outbox) or "")
-    _warn_missing_masks(ctx, [d["name"] for d in report])
+    from daemon.cli.config_warnings import status_warnings
+
+    for line in status_warnings(ctx, [d["name"] for d in report]):  # a mask folder gone, a misspelt table
+        warning(line)
     if failed:
         _print_failed(report)
     else:
         _print_text(ctx, report, detailed=detailed)
-
-
-def _warn_missing_masks(ctx: AppContext, shown: list[str]) -> None:
-    """A configured subject-mask folder not there now (a drive unplugged): that dataset's files are not
-    patched until it is back; said for the datasets shown, and for one with no file patched yet."""
-    from daemon.datasets.subject_masks import missing_config_masks
-
-    known = {d["name"] for d in ctx.store.datasets()}
-    for name, line in missing_config_masks(ctx.config).items():
-        if name in shown or name not in known:
-            warning(line)
 
 
 def _gone(d: dict[str, Any]) -> bool:

@@ -139,6 +139,14 @@ def _where(ctx: AppContext, root: str) -> str:
     return "the outbox" if Path(root).is_relative_to(ctx.paths.outbox) else "the folder"
 
 
+def _masks_missing(ctx: AppContext, name: str) -> str | None:
+    """The dataset's subject-mask folder (the config's or the remembered one) when it is not there now."""
+    from daemon.datasets.subject_masks import missing_mask_folder
+
+    gone = missing_mask_folder(ctx, name)
+    return str(gone.folder) if gone is not None else None
+
+
 def _moved_into(ctx: AppContext, name: str, folder: FolderCount) -> dict[str, Any]:
     """Where a dataset's gone folder went (FolderCount.to_dict keys): moved_to as seen beside it, and
     moved_to_dataset, the other dataset that holds its files now: the user ran `ppd poison NEWFOLDER`,
@@ -224,6 +232,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "resume": resume_command(name, folder) if left else None,
         "publish_dir": row["publish_dir"],
         "subject_masks": row.get("subject_masks"),  # remembered with the dataset (issue 25)
+        "masks_missing": _masks_missing(ctx, name),  # its files wait for it: not "run `ppd poison`" (F1)
         "spec_id": row["spec_id"],
         "spec": spec.to_dict() if spec else None,
         "spec_summary": spec_summary(spec) if spec else None,

@@ -39,7 +39,7 @@ def ranked_steps(d: dict[str, Any]) -> list[tuple[int, str]]:
     failures = failures_phrase(name, c, c.get("files", 0), d.get("not_reprotected", 0))
     if failures:
         steps.append((UNPROTECTED, f"{name}: {failures}"))
-    resume = resume_line(c, d["resume"]) if d.get("resume") else None
+    resume = resume_line(c, d["resume"], d.get("masks_missing")) if d.get("resume") else None
     if resume:
         steps.append((UNPROTECTED, f"{name}: {resume}"))
     elif d["protection"]["next"]:

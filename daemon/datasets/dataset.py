@@ -9,8 +9,9 @@ dataset's stored root.
 
 from __future__ import annotations
 
+import difflib
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -69,6 +70,40 @@ def dataset_of(outbox: Path, path: Path) -> str:
 def dataset_root(outbox: Path, dataset: str) -> Path:
     """The folder that holds a dataset of the outbox."""
     return Path(outbox) if dataset == DEFAULT_DATASET else Path(outbox) / dataset
+
+
+def likely_meant(name: str, names: Iterable[str]) -> str | None:
+    """The name of names a mistyped one most likely meant ('kitchn': 'kitchen'), or None: what a
+    "did you mean" says."""
+    near = difflib.get_close_matches(name, sorted(set(names)), n=1, cutoff=0.75)
+    return near[0] if near else None
+
+
+def unknown_config_datasets(datasets: Iterable[str], stored: Iterable[str], outbox: Path) -> list[str]:
+    """A line for each of datasets (config.toml's [datasets.NAME] tables) that names no dataset of the
+    store and no folder of the outbox: a typo reaches no dataset (`[datasets.kitchn] subject_masks`, and
+    'kitchen' was patched without its masks: a seventh black-box review, F5); not an error, as a dataset
+    may be configured before its folder exists."""
+    known = set(stored)
+    outbox = Path(outbox).absolute()
+    lines = []
+    for name in datasets:
+        folder = dataset_root(outbox, name)
+        if name in known or folder.is_dir():
+            continue
+        near = likely_meant(name, known | _outbox_folders(outbox))
+        ahead = f"set up before its folder? it applies once {folder} exists, or `ppd poison` is given one"
+        why = f"did you mean {near!r}?" if near else f"{ahead} named {name}"
+        lines.append(f"config: [datasets.{name}] names no dataset and no folder in the outbox ({why})")
+    return lines
+
+
+def _outbox_folders(outbox: Path) -> set[str]:
+    """The names of the outbox's first-level folders (its datasets to be), hidden ones left out."""
+    try:
+        return {p.name for p in outbox.iterdir() if p.is_dir() and not p.name.startswith(".")}
+    except OSError:  # no outbox yet
+        return set()
 
 
 def _refuse_another_outboxs(ctx: AppContext, name: str, root: Path) -> None:

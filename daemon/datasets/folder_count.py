@@ -366,12 +366,17 @@ def resume_command(name: str, count: FolderCount) -> str:
     return shlex.join(words)
 
 
-def resume_line(counts: Mapping[str, int], command: str) -> str | None:
-    """`patched 6 of 23; 17 not patched yet: run `ppd poison FOLDER``, or None when none is left."""
+def resume_line(counts: Mapping[str, int], command: str, masks_missing: str | None = None) -> str | None:
+    """`patched 6 of 23; 17 not patched yet: run `ppd poison FOLDER``, or None when none is left.
+    masks_missing: the dataset's subject-mask folder, not there now: the run would stop (exit 3), so
+    what they wait for instead (a seventh black-box review, F1: status sent the user to that run)."""
     left = not_patched_yet(counts)
     if not left:
         return None
     done = f"patched {patched_count(counts)} of {counts.get('files', 0)}"
+    if masks_missing:
+        return (f"{done}; {left} not patched yet, NOT protected: they wait for its subject masks, and "
+                f"{masks_missing} is not there (see the warning)")  # fmt: skip
     return f"{done}; {left} not patched yet: run `{command}`"
 
 

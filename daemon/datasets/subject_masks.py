@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import os
+import shlex
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -91,12 +92,21 @@ def subject_masks_for(ctx: AppContext, dataset: str, given: Path | None = None) 
         return check_mask_folder(given, ctx.paths.outbox)
     configured = ctx.config.subject_masks_for(dataset)
     if configured is not None:
-        return _dataset_folder(configured, ctx.paths.outbox, dataset, f"[datasets.{dataset}] subject_masks")
+        return _dataset_folder(configured, ctx.paths.outbox, dataset, config_key(dataset))
     stored = ctx.store.dataset_masks(dataset)
     if stored is None:
         return None
-    what = f"{dataset}'s remembered subject masks ({stored})"
-    return _dataset_folder(stored, ctx.paths.outbox, dataset, what)
+    return _dataset_folder(stored, ctx.paths.outbox, dataset, remembered_key(dataset))
+
+
+def config_key(dataset: str) -> str:
+    """What a dataset's mask folder set in config.toml is called in ppd's lines."""
+    return f"[datasets.{dataset}] subject_masks"
+
+
+def remembered_key(dataset: str) -> str:
+    """What the mask folder remembered with a dataset (`remember_masks`) is called in ppd's lines."""
+    return f"{dataset}'s remembered subject masks"
 
 
 def _dataset_folder(folder: Path, outbox: Path, dataset: str, what: str) -> Path:
@@ -107,9 +117,16 @@ def _dataset_folder(folder: Path, outbox: Path, dataset: str, what: str) -> Path
 
 
 def missing_words(dataset: str, folder: Path, what: str) -> str:
-    """`[datasets.porch] subject_masks: /media/usb/m is not a readable folder (not mounted?): ...`."""
+    """`[datasets.porch] subject_masks: /media/usb/m is not a readable folder (not mounted?): ...`, and
+    how to point the dataset elsewhere: a user who deleted or renamed the folder had no way out but to
+    make it again (a seventh black-box review, F1)."""
+    if what == config_key(dataset):
+        way_out = f"{what} in config.toml names another folder"
+    else:
+        way_out = (f"`ppd dataset set {shlex.quote(dataset)} --subject-masks DIR` points it at another "
+                   "folder (`--no-subject-masks` drops them)")  # fmt: skip
     return (f"{what}: {folder} is not a readable folder (a drive not mounted?): {dataset}'s files are "
-            "not patched until it is back (never without their masks)")  # fmt: skip
+            f"not patched until it is back (never without their masks), or until {way_out}")  # fmt: skip
 
 
 def readable_folder(folder: Path) -> bool:
@@ -141,17 +158,40 @@ def check_config_masks(config: Any, outbox: Path) -> list[str]:
     missing = missing_config_masks(config)
     for name, override in config.datasets.items():
         if override.subject_masks is not None and name not in missing:
-            check_mask_folder(override.subject_masks, outbox, f"[datasets.{name}] subject_masks")
+            check_mask_folder(override.subject_masks, outbox, config_key(name))
     return list(missing.values())
 
 
 def missing_config_masks(config: Any) -> dict[str, str]:
     """The datasets whose [datasets.NAME] subject_masks is not a readable folder now: the line saying so."""
     return {
-        name: missing_words(name, override.subject_masks, f"[datasets.{name}] subject_masks")
+        name: missing_words(name, override.subject_masks, config_key(name))
         for name, override in config.datasets.items()
         if override.subject_masks is not None and not readable_folder(override.subject_masks)
     }
+
+
+def missing_masks(ctx: AppContext) -> dict[str, str]:
+    """missing_config_masks, and each stored dataset's mask folder that is not there now: the one
+    remembered with it too (`ppd status` said nothing of that one and sent the user to the `ppd poison`
+    that then stopped, exit 3: a seventh black-box review, F1)."""
+    missing = missing_config_masks(ctx.config)
+    for row in ctx.store.datasets():
+        if row["name"] not in missing and (gone := missing_mask_folder(ctx, row["name"])) is not None:
+            missing[row["name"]] = str(gone)
+    return missing
+
+
+def missing_mask_folder(ctx: AppContext, dataset: str) -> MaskFolderMissing | None:
+    """Why the dataset's own mask folder (the config's, else the remembered one) is not there now, as
+    `ppd poison` would stop on it; None when it is there, or the dataset has none."""
+    try:
+        subject_masks_for(ctx, dataset)
+    except MaskFolderMissing as exc:
+        return exc
+    except SubjectMaskError:  # there, but unusable (inside the outbox): `ppd poison` says why
+        return None
+    return None
 
 
 def mask_folder_holding(config: Any, path: Path) -> str | None:
@@ -159,7 +199,7 @@ def mask_folder_holding(config: Any, path: Path) -> str | None:
     for name, override in config.datasets.items():
         folder = override.subject_masks
         if folder is not None and Path(path).absolute().is_relative_to(Path(folder).absolute()):
-            return f"[datasets.{name}] subject_masks"
+            return config_key(name)
     return None
 
 

@@ -95,25 +95,57 @@ def test_a_moved_folder_made_its_own_dataset_is_said_so(ppd_env: dict[str, Path]
     assert f"its patched files are in {sets / 'n4_new'}, now dataset 'n4_new'" in text, text
 
 
-def test_a_misspelt_dataset_is_refused_and_one_set_up_early_is_not_called_gone(
+def test_a_new_dataset_without_its_folder_is_refused_and_one_set_up_early_is_not_called_gone(
     ppd_env: dict[str, Path], tmp_path: Path
 ) -> None:
     """A fifth black-box review: `ppd dataset set gardn --design paper` (the dataset is 'garden') made
     a dataset of OUTBOX/gardn, a folder that never existed, exit 0, and `ppd status` then called its
-    folder "gone, moved or deleted". A name close to a dataset's, with no folder of its own, is
-    refused as a typo; a new name is set up and said to wait for its folder."""
+    folder "gone, moved or deleted"; a name close to a dataset's was refused as a typo. A seventh (F4):
+    any other new name still made one (`ppd dataset set studio` before the shoot was copied), and
+    `ppd poison` of the real studio folder was then refused, its name taken. Every new dataset without
+    its folder is refused now (one line, exit 2); its folder made first, or --root, sets it up."""
     shoot = tmp_path / "garden"
     make_shoot(shoot, 2)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     typo = runner.invoke(app, ["dataset", "set", "gardn", "--design", "paper"])
     assert typo.exit_code == 2 and "did you mean 'garden'?" in " ".join(typo.output.split()), typo.output
-    assert json.loads(runner.invoke(app, ["status", "--json"]).stdout)["datasets"][0]["name"] == "garden"
-    assert runner.invoke(app, ["dataset", "set", "studio", "--design", "paper"]).exit_code == 0
+    new = runner.invoke(app, ["dataset", "set", "studio", "--design", "paper"])
+    text = " ".join(new.output.split())
+    folder = ppd_env["outbox"] / "studio"
+    assert new.exit_code == 2 and f"no dataset 'studio'; a new dataset of that name needs its folder: make " \
+        f"{folder} first, or give --root" in text, text  # fmt: skip
+    nowhere = runner.invoke(app, ["dataset", "set", "studio", "--root", str(tmp_path / "nowhere")])
+    assert nowhere.exit_code == 2 and "no such folder" in " ".join(nowhere.output.split()), nowhere.output
+    assert [d["name"] for d in json.loads(runner.invoke(app, ["status", "--json"]).stdout)["datasets"]] == [
+        "garden"
+    ]
+    studio = make_shoot(tmp_path / "studio", 2)  # the real shoot, under the name refused above
+    assert runner.invoke(app, ["poison", str(studio)]).exit_code == 0
     (ppd_env["outbox"] / "gardn").mkdir()  # its folder made first: a new dataset is meant
     assert runner.invoke(app, ["dataset", "set", "gardn", "--design", "paper"]).exit_code == 0
+    (ppd_env["outbox"] / "gardn").rmdir()  # and taken away before any file came
     status = said("status")
-    assert "set up before their folder, which does not exist yet (studio)" in status, status
+    assert "set up before their folder, which does not exist yet (gardn)" in status, status
     assert "gone, moved or deleted" not in status, status
+
+
+def test_a_spec_set_before_the_first_file_keeps_the_configs_publish_folder(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """`ppd dataset set garden --design paper` on the outbox's garden folder before its first photo is
+    patched (the flow F4's refusal leaves open): the row it made had no publish folder, so the config's
+    `[datasets.garden] publish_dir` was lost and the patched photos stayed in the outbox (found with F4)."""
+    pub = tmp_path / "site" / "garden"
+    (ppd_env["config"] / "config.toml").write_text(f'[datasets.garden]\npublish_dir = "{pub}"\n')
+    garden = make_shoot(ppd_env["outbox"] / "garden", 2)
+    names = sorted(p.name for p in garden.iterdir())
+    result = runner.invoke(app, ["dataset", "set", "garden", "--design", "paper"])
+    assert result.exit_code == 0 and "garden: spec" in " ".join(result.output.split()), result.output
+    assert f"publish folder: {pub}" in said("dataset", "show", "garden")
+    assert runner.invoke(app, ["poison", str(garden)]).exit_code == 0
+    assert sorted(p.name for p in pub.iterdir()) == names and not any(garden.iterdir())
+    shown = json.loads(runner.invoke(app, ["dataset", "show", "garden", "--json"]).stdout)
+    assert shown["spec"]["pattern"] == "checkerboard"
 
 
 def test_a_folder_of_the_same_name_in_another_outbox_is_not_merged(

@@ -334,6 +334,8 @@ def test_a_patch_size_the_budget_caps_is_said_from_the_config_and_by_dataset_set
     said = " ".join(result.output.split())
     assert "castle: its spec's patch_size asks 48 px squares; the visibility budget" in said, result.output
     (ppd_env["config"] / "config.toml").write_text("")
+    for name in ("studio", "desk"):  # a new dataset needs its folder (a seventh black-box review, F4)
+        (ppd_env["outbox"] / name).mkdir()
     asked = runner.invoke(app, ["dataset", "set", "studio", "--patch-size", "8.5%"])
     assert asked.exit_code == 0, asked.output
     assert "squares capped at 6.0% of a 4:3 photo's width" in " ".join(asked.output.split()), asked.output

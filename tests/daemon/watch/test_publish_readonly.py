@@ -67,8 +67,9 @@ def test_a_move_the_publish_folder_refuses_is_a_failure_and_the_next_run_moves(
 ) -> None:
     pub = tmp_path / "pub2"
     pub.mkdir()
-    assert ppd(tmp_path, "dataset", "set", "beach", "--publish-dir", str(pub)).returncode == 0
     beach = tmp_path / "outbox" / "beach"
+    beach.mkdir(parents=True)  # a new dataset needs its folder (a seventh black-box review, F4)
+    assert ppd(tmp_path, "dataset", "set", "beach", "--publish-dir", str(pub)).returncode == 0
     written = drop_files(tmp_path / "stage", beach, [("c.png", 3)])
     log = tmp_path / "watch.log"
     with open(log, "wb") as fh:

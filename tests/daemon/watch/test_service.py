@@ -198,6 +198,8 @@ def test_the_unit_lists_every_datasets_own_publish_folder(ppd_env: dict[str, Pat
     env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "xdg"), "PYTHONPATH": str(REPO)}  # this checkout
     pub2, pub3 = tmp_path / "sites" / "beach 2", tmp_path / "sites" / "lake"
     (ppd_env["config"] / "config.toml").write_text(f'publish_dir = "{tmp_path / "pub"}"\n')
+    for name in ("beach", "lake"):  # a new dataset needs its folder (a seventh black-box review, F4)
+        (ppd_env["outbox"] / name).mkdir()
     first = _ppd("dataset", "set", "beach", "--publish-dir", str(pub2), env=env)
     assert first.returncode == 0 and "service install" not in first.stdout, first.stdout  # none installed
     printed = _ppd("service", "install", "--print", env=env)
