@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shlex
 from pathlib import Path
 
 import pytest
@@ -37,7 +38,7 @@ def test_a_moved_folder_is_adopted_by_dataset_set_root(ppd_env: dict[str, Path],
     shoot.rename(moved)
     advice = said("status")
     assert f"n2: folder gone; its patched files are in {moved} (moved?): " in advice, advice
-    assert f"`ppd dataset set n2 --root {moved}` moves the dataset there" in advice, advice
+    assert f"`ppd dataset set n2 --root {shlex.quote(str(moved))}` moves the dataset there" in advice, advice
 
     result = runner.invoke(app, ["dataset", "set", "n2", "--root", str(moved)])  # the advice, as given
     assert result.exit_code == 0, result.output
@@ -72,7 +73,7 @@ def test_dataset_set_root_refuses_what_is_not_a_move(ppd_env: dict[str, Path], t
 
     still = refused("a", "--root", str(sets / "elsewhere"))  # its folder still there: not a move
     assert f"dataset 'a''s folder {sets / 'a'} is still there" in still, still
-    assert f"`ppd poison {sets / 'elsewhere'}` makes a new dataset" in still, still
+    assert f"`ppd poison {shlex.quote(str(sets / 'elsewhere'))}` makes a new dataset" in still, still
     (sets / "a").rename(sets / "a_moved")
     assert f"--root {sets / 'nowhere'}: no such folder" in refused("a", "--root", str(sets / "nowhere"))
     assert "is dataset 'b''s folder" in refused("a", "--root", str(sets / "b"))
