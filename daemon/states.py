@@ -148,6 +148,38 @@ def protection_text(protection: Protection, profiles: list[str]) -> str:
     return protection.value
 
 
+# The states a verification decided: its verdict on the dataset's patched files.
+VERIFIED_STATES = frozenset(
+    {Protection.PROTECTED, Protection.WEAK, Protection.NOT_PROTECTED, Protection.UNVERIFIABLE}
+)
+
+
+def unmarked_text(unmarked: str, patched: str, measured: str) -> str:
+    """`NOT protected: 1 failed, unmarked: a.tif; the 7 patched: protected under default`: a dataset
+    with files left without the mark, whatever a verification measured on its patched ones."""
+    return f"NOT protected: {unmarked}; {patched}: {measured}"
+
+
+def unmarked_decide(protection: Protection, unmarked: list[str]) -> bool:
+    """Whether files left without the mark make the dataset NOT protected whatever its verdict: any
+    such file, once a verification decided (before, the state says no verdict already)."""
+    return bool(unmarked) and protection in VERIFIED_STATES
+
+
+def published_protection(
+    protection: Protection, profiles: list[str], unmarked: list[str], patched: int
+) -> tuple[Protection, list[str], str]:
+    """(state, profiles, text) of the dataset as it is published. A verification measures the patched
+    files only: its verdict is the dataset's while none of its files is left without the mark
+    (unmarked: daemon.datasets.folder_count.unprotected_phrases, what `ppd status --check` names);
+    otherwise NOT protected, and why (a black-box review: "protected", exit 0, with an unmarked photo
+    in the folder that is published)."""
+    text = protection_text(protection, profiles)
+    if not unmarked_decide(protection, unmarked):
+        return protection, profiles, text
+    return Protection.NOT_PROTECTED, [], unmarked_text(", ".join(unmarked), f"the {patched} patched", text)
+
+
 def next_step(protection: Protection, dataset: str) -> str | None:
     """The command that moves a dataset's state on, said after `ppd poison` and in `ppd status`."""
     if protection is Protection.PATCHED_NOT_VERIFIED:

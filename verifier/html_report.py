@@ -32,6 +32,7 @@ from typing import Any
 from poisoner.atomic import atomic_write_bytes
 from poisoner.errors import ExitStatus, PpdError
 from verifier.report_figures import (
+    PATCH_PREVIEW,
     REPORT_PROFILES,
     Figure,
     Table,
@@ -83,6 +84,9 @@ class ReportData:
     generated_at: float = field(default_factory=time.time)
     protection: str | None = None  # a dataset's state in ppd's words, e.g. "patched, not verified"
     holding: str | None = None  # where the protection does NOT hold, and where it could not be verified
+    # a dataset with files left without the mark: the banner's words ("NOT protected: 1 failed, ...; the
+    # 7 patched: protected under ..."), as its verdict is NOT protected whatever SfM measured
+    unmarked: str | None = None
 
 
 # ---- builders ---------------------------------------------------------------------------------
@@ -142,12 +146,14 @@ def dataset_history_report(
     spec: Any | None,
     unverified_note: str,
     current: Sequence[Mapping[str, Any]] | None = None,
+    mark_of: Callable[[Path], Mapping[str, Any]] | None = None,
 ) -> ReportData:
     """A dataset's verification history (Store rows, newest first, with their model folders) and a
     patch preview from its first (original, patched) image pair. protection is the dataset's state
     in the user's words; unverified_note is said when there is no run at all. current: the rows the
     verdict and the profile table rest on (the newest of each profile that measured today's pixels);
-    default, the newest verification's rows."""
+    default, the newest verification's rows. mark_of: what ppd recorded of a patched file's mark
+    (report_figures.patch_preview_figure's mark)."""
     latest = latest_run_group(runs) if current is None else list(current)
     profiles = {r["profile"]: {**(r.get("metrics") or {}), "verdict": r["verdict"],
                                "model_dir": r.get("model_dir")} for r in latest}  # fmt: skip
@@ -158,18 +164,24 @@ def dataset_history_report(
     corner = next((m["corner_mark"] for m in profiles.values() if m.get("corner_mark") is not None), None)
     _add_profile_content(data, profiles, corner)
     image_pair = next(((o, p) for o, p in pairs if not _is_video(p)), None)
+    mark = mark_of(image_pair[1]) if mark_of is not None and image_pair is not None else None
     if latest:
         visibility = next(
             (r["metrics"]["visibility"] for r in latest if (r.get("metrics") or {}).get("visibility")), None
         )
-        _add_visibility_content(data, visibility, image_pair)
+        _add_visibility_content(data, visibility, image_pair, mark)
     if runs:
         data.tables.append(history_table(runs))
     if spec is not None and image_pair is not None:
-        fig = patch_preview_figure(image_pair[0], image_pair[1], spec)
+        fig = patch_preview_figure(image_pair[0], image_pair[1], spec, mark)
         if fig:
             data.figures.append(fig)
     return data
+
+
+def has_patch_preview(data: ReportData) -> bool:
+    """Whether the page shows a patch preview (a text may point at it only then)."""
+    return any(f.caption.startswith(PATCH_PREVIEW) for f in data.figures)
 
 
 def _is_video(path: Path) -> bool:
@@ -306,7 +318,7 @@ def render_html(data: ReportData) -> str:
     ]
     if data.verdict is not None:
         colour = VERDICT_COLOURS.get(data.verdict, VERDICT_COLOURS[Verdict.INCONCLUSIVE])
-        text = VERDICT_TEXT.get(data.verdict, data.verdict)
+        text = data.unmarked or VERDICT_TEXT.get(data.verdict, data.verdict)
         parts.append(
             f'<div class="banner" id="verdict" data-verdict="{html.escape(data.verdict)}" '
             f'style="background:{colour}">Verdict: {html.escape(text)}</div>'
@@ -347,13 +359,18 @@ def write_report(data: ReportData, out: Path) -> Path:
 
 
 def _add_visibility_content(
-    data: ReportData, visibility: Mapping[str, Any] | None, pair: tuple[Path, Path] | None
+    data: ReportData,
+    visibility: Mapping[str, Any] | None,
+    pair: tuple[Path, Path] | None,
+    mark: Mapping[str, Any] | None = None,
 ) -> None:
+    """What a viewer sees: the figures, and pair's patched picture at display size (mark: what ppd
+    recorded of its mark, report_figures.shown_pair)."""
     data.notes.append(visibility_note(visibility))
     if visibility:
         data.tables.append(visibility_table(visibility))
     if pair is not None:
-        fig = mark_at_display_figure(*pair)
+        fig = mark_at_display_figure(*pair, mark)
         if fig:
             data.figures.append(fig)
 

@@ -174,36 +174,85 @@ def history_table(runs: Sequence[Mapping[str, Any]]) -> Table:
     )
 
 
-def patch_preview_figure(original: Path, protected: Path, spec: Any) -> Figure | None:
+PATCH_PREVIEW = "Patch preview"  # how the preview's caption begins (html_report.has_patch_preview)
+
+
+def patch_preview_figure(
+    original: Path, protected: Path, spec: Any, mark: Mapping[str, Any] | None = None
+) -> Figure | None:
     """poisoner.preview of one original and its patched file (image files only), as a viewer shows
-    them (EXIF orientation applied). The zoom and the caption's words are where the pixels changed
-    (issue 25): the same answer for a corner mark and a per-photo one, whatever masks were used."""
+    them, zoomed on the mark (shown_pair: where ppd recorded it, given mark; else where the pixels
+    changed); the caption says where it is."""
     from poisoner.orientation import position_words
-    from poisoner.preview import orient, render_preview
+    from poisoner.preview import render_preview
     from poisoner.spec import PatchPlacement
 
     try:
-        with Image.open(original) as a_im, Image.open(protected) as b_im:
-            a, b = np.asarray(a_im.convert("RGB")), np.asarray(b_im.convert("RGB"))
-            orientation = b_im.getexif().get(0x0112)
-        a, b = orient(a, orientation), orient(b, orientation)
-        ys, xs = np.nonzero(np.any(a != b, axis=2))
-        if xs.size == 0:
-            return Figure(f"Patch preview: {protected.name}: no pixel changed", png_bytes(b))
-        x0, y0, x1, y1 = int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
+        a, b, box, recorded = shown_pair(original, protected, mark)
+        if box is None:
+            return Figure(f"{PATCH_PREVIEW}: {protected.name}: no pixel changed", png_bytes(b))
+        (x0, y0, x1, y1), (h, w) = box, a.shape[:2]
         side = max(x1 - x0, y1 - y0)
-        h, w = a.shape[:2]
-        box = PatchPlacement(min(x0, w - side), min(y0, h - side), side, 1, 255, 255, spec.pattern, spec.seed)
-        pixels = render_preview(a, b, box, labels=("original", f"patched ({protected.name})"))
-        words = position_words((x0, y0, x1, y1), w, h)
+        zoom = PatchPlacement(max(0, min(x0, w - side)), max(0, min(y0, h - side)), side, 1, 255, 255,
+                              spec.pattern, spec.seed)  # fmt: skip
+        pixels = render_preview(a, b, zoom, labels=("original", f"patched ({protected.name})"))
     except Exception as exc:  # a preview is a nicety: never fail the report for it
         log.warning("no patch preview", extra={"file": str(protected), "error": str(exc)})
         return None
+    # a per-photo mark's own words: split squares each have theirs, not their box's middle
+    words = ((mark or {}).get("place") or {}).get("words") if recorded else None
+    how = "as recorded when ppd patched it" if recorded else "where the pixels changed"
     return Figure(
-        f"Patch preview: original | patched ({protected.name}), zoom on the patch below; mark at the "
-        f"{words}, within pixels ({x0},{y0})-({x1},{y1}) as shown",
+        f"{PATCH_PREVIEW}: original | patched ({protected.name}), zoom on the patch below; mark at the "
+        f"{words or position_words(box, w, h)}, within pixels ({x0},{y0})-({x1},{y1}) as shown ({how})",
         png_bytes(pixels),
     )
+
+
+def shown_pair(
+    original: Path, protected: Path, mark: Mapping[str, Any] | None = None
+) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int, int] | None, bool]:
+    """(original, patched, the mark's box, recorded): both pictures as a viewer shows them, decoded as
+    `ppd poison` decodes them (HEIC through pillow-heif: the report's process had no opener, and no
+    preview), the patched file's EXIF orientation applied. The box is where ppd recorded the mark
+    when it patched the file (mark: daemon.protect.job.report_detail's "place" or "placement";
+    recorded True), else where the pixels differ (None: none do), which is the whole picture for a
+    file ppd re-encodes whole (HEIC)."""
+    from poisoner.image.read import decoded_rgb
+    from poisoner.preview import orient
+
+    (a, _), (b, orientation) = decoded_rgb(original), decoded_rgb(protected)
+    stored = b.shape[1], b.shape[0]
+    a, b = orient(a, orientation), orient(b, orientation)
+    if a.shape != b.shape:
+        raise ValueError(
+            f"the original is {a.shape[1]}x{a.shape[0]}, the patched file {b.shape[1]}x{b.shape[0]}"
+        )
+    box = recorded_box(mark, orientation, *stored) if mark else None
+    if box is not None:
+        return a, b, box, True
+    ys, xs = np.nonzero(np.any(a != b, axis=2))
+    changed = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1) if xs.size else None
+    return a, b, changed, False
+
+
+def recorded_box(
+    mark: Mapping[str, Any], orientation: int | None, width: int, height: int
+) -> tuple[int, int, int, int] | None:
+    """The mark's box as the picture is shown, from what ppd recorded when it patched the file (a
+    stored width x height picture): a per-photo mark's own box, else the spec's square turned as the
+    picture is shown; None when neither was recorded (a video, an older ppd)."""
+    from poisoner.orientation import turn_square
+
+    place, placement = mark.get("place") or {}, mark.get("placement") or {}
+    if len(place.get("box") or ()) == 4:
+        x0, y0, x1, y1 = (int(v) for v in place["box"])
+        return x0, y0, x1, y1
+    if {"x", "y", "size"} <= placement.keys():
+        side = int(placement["size"])
+        x, y = turn_square(int(placement["x"]), int(placement["y"]), side, orientation or 1, width, height)
+        return x, y, x + side, y + side
+    return None
 
 
 # ---- what a viewer sees (verifier.visibility) -------------------------------------------------
@@ -255,23 +304,24 @@ def visibility_note(visibility: Mapping[str, Any] | None) -> str:
     )
 
 
-def mark_at_display_figure(original: Path, protected: Path) -> Figure | None:
-    """One protected image at display size (min(1920, width) px wide) with an enlarged view of where
-    it differs from its original below (original | protected)."""
+def mark_at_display_figure(
+    original: Path, protected: Path, mark: Mapping[str, Any] | None = None
+) -> Figure | None:
+    """One protected image at display size (min(1920, width) px wide, as a viewer shows it) with an
+    enlarged view of its mark below (original | protected; shown_pair: where ppd recorded it, given
+    mark, else where the pixels differ)."""
     from verifier.visibility import DISPLAY_WIDTH
 
     try:
-        with Image.open(original) as a_im, Image.open(protected) as b_im:
-            a, b = np.asarray(a_im.convert("RGB")), np.asarray(b_im.convert("RGB"))
-        if a.shape != b.shape:
-            return None
-        pixels, box = _display_with_zoom(a, b, min(DISPLAY_WIDTH, a.shape[1]))
-    except (OSError, ValueError) as exc:  # a picture is a nicety: never fail the report for it
+        a, b, box, recorded = shown_pair(original, protected, mark)
+        pixels = _display_with_zoom(a, b, min(DISPLAY_WIDTH, a.shape[1]), box)
+    except Exception as exc:  # a picture is a nicety: never fail the report for it
         log.warning("no display picture", extra={"file": str(protected), "error": str(exc)})
         return None
     where = "no pixel differs"
     if box is not None:
-        where = f"changed pixels in x {box[0]}–{box[2]}, y {box[1]}–{box[3]}"
+        what = "the mark as recorded" if recorded else "changed pixels"
+        where = f"{what} in x {box[0]}–{box[2]}, y {box[1]}–{box[3]}"
     return Figure(
         f"{protected.name} at display size ({pixels.shape[1]} px wide); below, enlarged: "
         f"original | protected around the mark ({where})",
@@ -280,9 +330,9 @@ def mark_at_display_figure(original: Path, protected: Path) -> Figure | None:
 
 
 def _display_with_zoom(
-    a: np.ndarray, b: np.ndarray, width: int
-) -> tuple[np.ndarray, tuple[int, int, int, int] | None]:
-    """The protected image resized to width, and below it the changed region of both, enlarged."""
+    a: np.ndarray, b: np.ndarray, width: int, box: tuple[int, int, int, int] | None
+) -> np.ndarray:
+    """The protected image resized to width, and below it the region of both around box, enlarged."""
     h, w = b.shape[:2]
     display = (
         b
@@ -291,10 +341,8 @@ def _display_with_zoom(
             Image.fromarray(b).resize((width, max(1, round(h * width / w))), Image.Resampling.LANCZOS)
         )
     )
-    ys, xs = np.nonzero(np.any(a != b, axis=2))
-    if len(xs) == 0:
-        return display, None
-    box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+    if box is None:
+        return display
     pad = max(8, (box[2] - box[0]) // 4, (box[3] - box[1]) // 4)
     left, top = max(0, box[0] - pad), max(0, box[1] - pad)
     right, bottom = min(w, box[2] + pad), min(h, box[3] + pad)
@@ -305,7 +353,7 @@ def _display_with_zoom(
     canvas = np.full((display.shape[0] + 8 + zoom.shape[0], width, 3), 255, np.uint8)
     canvas[: display.shape[0]] = display
     canvas[display.shape[0] + 8 :, : zoom.shape[1]] = zoom
-    return canvas, box
+    return canvas
 
 
 def _fit(crop: np.ndarray, width: int) -> np.ndarray:

@@ -67,8 +67,6 @@ def load_picture(path: Path, video: bool | None = None) -> tuple[Any, int | None
     """(stored RGB pixels, EXIF orientation or None); a video's first frame (video: whether path holds
     one; default: by its name) with the orientation its display matrix shows it in. ppd patches the
     stored pixels, so the preview works in them and orients only what it shows."""
-    import numpy as np
-
     if _is_video(path) if video is None else video:
         import av
 
@@ -81,12 +79,9 @@ def load_picture(path: Path, video: bool | None = None) -> tuple[Any, int | None
             for frame in container.decode(main_video_stream(container, path.name)):
                 return frame_to_rgb(frame), display_orientation(frame_side_data(frame)[0])
         raise ValueError("no video frame")
-    from poisoner.image.read import open_decoded
+    from poisoner.image.read import decoded_rgb
 
-    with open_decoded(path, path.read_bytes()) as im:  # as `ppd poison` opens it: HEIC, the bomb limit
-        rgb = np.asarray(im.convert("RGB"))
-        orientation = im.getexif().get(0x0112)  # after the decode: Pillow turns a TIFF upright as it loads
-        return rgb, orientation if isinstance(orientation, int) else None
+    return decoded_rgb(path)  # as `ppd poison` opens it: HEIC, the bomb limit
 
 
 def _load(path: Path, video: bool | None = None) -> tuple[Any, int | None]:

@@ -145,12 +145,13 @@ def _row_cells(d: dict[str, Any], columns: list[str]) -> dict[str, str]:
         "failed": str(c.get("failed", 0)),
         "protection": _protection_cell(d),
     }
-    if todo := not_patched_yet(c):  # "patched, not verified" read as done with 5 of 25 patched (a review)
-        if d["protection"]["state"] == Protection.PATCHED_NOT_VERIFIED:
+    unmarked = d["protection"].get("unmarked")  # the text leads with them: "NOT protected: 1 failed; ..."
+    if (todo := not_patched_yet(c)) and not unmarked:  # "patched, not verified" read as done with 5 of 25
+        if d["protection"]["state"] == Protection.PATCHED_NOT_VERIFIED:  # patched (a review)
             cells["protection"] = f"[yellow]{d['patched']} of {c['files']} patched, not verified[/]"
         else:
             cells["protection"] += f"; [bold yellow]{todo} not patched yet[/]"
-    if "failed" not in columns and c.get("failed"):  # a narrow terminal still shows a failure
+    if "failed" not in columns and c.get("failed") and not unmarked:  # a narrow terminal shows a failure
         cells["protection"] += f"; [bold red]{c['failed']} failed[/]"
     if c.get("not_moved"):  # patched, but the publish folder never got them
         cells["protection"] += f"; [bold red]{c['not_moved']} not moved to the publish folder[/]"
@@ -503,10 +504,11 @@ def unready_reasons(d: dict[str, Any]) -> list[str]:
         reasons.append(f"{d['other_spec']} patched with another spec than the dataset's")
     if d.get("not_measured"):
         reasons.append(not_measured_phrase(d["not_measured"]))
-    if d["protection"]["state"] != Protection.PROTECTED:
-        reasons.append(d["protection"]["text"])
+    measured = d["protection"]["patched_files"]  # the files left unmarked are named above
+    if measured["state"] != Protection.PROTECTED:
+        reasons.append(measured["text"])
     elif missing := d.get("profiles_not_verified"):
-        reasons.append(f"{d['protection']['text']}, not verified under {', '.join(missing)}: "
+        reasons.append(f"{measured['text']}, not verified under {', '.join(missing)}: "
                        f"`ppd verify {shlex.quote(d['name'])}`")  # fmt: skip
     return reasons
 

@@ -90,15 +90,22 @@ def failures_phrase(name: str, counts: dict[str, int], files: int, not_reprotect
 
 def protection_line(ctx: AppContext, name: str) -> str:
     """`NAME: what it is now: what to run next`, from the counts and each profile's verdict; led by
-    the files that failed, if any."""
-    from daemon.states import Protection, dataset_protection, next_step, protection_text
+    the files that failed, if any; never "protected" while a file is left without the mark (the
+    store's count of them: daemon.states.published_protection)."""
+    from daemon.datasets.folder_count import restored_in_place, unprotected_phrases
+    from daemon.states import Protection, dataset_protection, next_step, patched_count, published_protection
 
     counts = ctx.store.counts(name)
     protection, profiles = dataset_protection(
         counts, latest_by_profile(ctx.store.current_verification_runs(name, limit=50))
     )
     step = next_step(protection, name)
-    now = protection_text(protection, profiles) + (f": {step}" if step else "")
+    root = (ctx.store.dataset(name) or {}).get("root")
+    unmarked = unprotected_phrases(
+        counts, restored_in_place(ctx, name, root) if root and counts.get("restored") else 0
+    )
+    shown = published_protection(protection, profiles, unmarked, patched_count(counts))[2]
+    now = shown + (f": {step}" if step else "")
     files = counts.get("files", 0) - counts.get("removed", 0)  # a removed row's file is no longer there
     failures = failures_phrase(name, counts, files, len(ctx.store.not_reprotected(name)))
     if failures is None:
@@ -110,15 +117,35 @@ def protection_line(ctx: AppContext, name: str) -> str:
     return f"{name}: {failures}; {now}"
 
 
-def _protection(counts: dict[str, int], verdicts: dict[str, dict[str, Any]], name: str) -> dict[str, Any]:
-    from daemon.states import dataset_protection, next_step, protection_text
+def _protection(
+    counts: dict[str, int], verdicts: dict[str, dict[str, Any]], name: str, unmarked: list[str]
+) -> dict[str, Any]:
+    """The dataset's protection as published (daemon.states.published_protection): "state", "profiles"
+    and "text" count its files left without the mark (unmarked: unprotected_phrases); "patched_files"
+    is what the verifications measured on the patched ones, and "next" follows from it."""
+    from daemon.states import (
+        dataset_protection,
+        next_step,
+        patched_count,
+        protection_text,
+        published_protection,
+        unmarked_decide,
+    )
 
-    protection, profiles = dataset_protection(counts, verdicts)
+    measured, profiles = dataset_protection(counts, verdicts)
+    state, shown, text = published_protection(measured, profiles, unmarked, patched_count(counts))
     return {
-        "state": protection.value,
-        "profiles": profiles,
-        "text": protection_text(protection, profiles),
-        "next": next_step(protection, name),
+        "state": state.value,
+        "profiles": shown,
+        "text": text,
+        "next": next_step(measured, name),
+        # the files that made it NOT protected whatever the verdict ([] when the verdict is the dataset's)
+        "unmarked": unmarked if unmarked_decide(measured, unmarked) else [],
+        "patched_files": {
+            "state": measured.value,
+            "profiles": profiles,
+            "text": protection_text(measured, profiles),
+        },
     }
 
 
@@ -201,6 +228,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         not_patched_yet,
         restored_in_place,
         resume_command,
+        unprotected_phrases,
     )
     from daemon.protect.mark_notes import mark_note_lines
     from daemon.states import left_out_photos, patched_count
@@ -221,6 +249,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
     # the last change stay in the history
     verdicts = latest_by_profile(ctx.store.current_verification_runs(name, limit=50))
     left = not_patched_yet(counts)
+    restored = restored_in_place(ctx, name, row["root"]) if counts.get("restored") else 0
     return {
         "name": name,
         "root": row["root"],
@@ -238,7 +267,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "spec_summary": spec_summary(spec) if spec else None,
         "auto": auto_status_text(ctx, name),  # automatic mode's decision in force (None: not decided)
         "counts": counts,
-        "restored_in_place": restored_in_place(ctx, name, row["root"]) if counts.get("restored") else 0,
+        "restored_in_place": restored,
         # patched with another spec than the dataset's: a re-protect that failed or was killed half-way
         # left them (a black-box review: status said "patched 40" under the new spec, 33 had the old)
         "other_spec": ctx.store.patched_with_other_spec(name, row["spec_id"]),
@@ -256,7 +285,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "patched": patched_count(counts),
         # where marks found no plain place, as `ppd poison` says it (issue 25): the daemon's files too
         "mark_notes": mark_note_lines(ctx.store.patched_place_notes(name)),
-        "protection": _protection(counts, verdicts, name),
+        "protection": _protection(counts, verdicts, name, unprotected_phrases(counts, restored)),
         # the configured attackers no current run measured: `--check` waits for them (it passed on
         # one profile of five; a black-box review)
         "profiles_not_verified": [

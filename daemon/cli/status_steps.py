@@ -27,6 +27,12 @@ def next_step_lines(d: dict[str, Any]) -> list[str]:
     return [line for _, line in sorted(ranked_steps(d), key=lambda item: item[0])]
 
 
+def step_state(d: dict[str, Any]) -> str:
+    """The state a dataset's next step follows from: its verification's, of the patched files (the
+    files left unmarked beside them have their own lines)."""
+    return str(d["protection"]["patched_files"]["state"])
+
+
 def ranked_steps(d: dict[str, Any]) -> list[tuple[int, str]]:
     """(rank, line) for one dataset: its failures, finishing an interrupted run (verifying half a
     dataset says nothing about the rest), else the protection's next step; then what else leaves
@@ -43,7 +49,7 @@ def ranked_steps(d: dict[str, Any]) -> list[tuple[int, str]]:
     if resume:
         steps.append((UNPROTECTED, f"{name}: {resume}"))
     elif d["protection"]["next"]:
-        rank = ROUTINE if d["protection"]["state"] in ROUTINE_STATES else URGENT
+        rank = ROUTINE if step_state(d) in ROUTINE_STATES else URGENT
         steps.append((rank, f"{name}: {d['protection']['next']}"))
     return steps + [(UNPROTECTED, line) for line in _unprotected_lines(d)]
 
@@ -139,9 +145,9 @@ def step_lines(report: list[dict[str, Any]]) -> list[str]:
     sharing: dict[str, list[str]] = {}
     for rank, _, d in ranked:
         if rank == ROUTINE:
-            sharing.setdefault(d["protection"]["state"], []).append(d["name"])
+            sharing.setdefault(step_state(d), []).append(d["name"])
     grouped = {state for state, names in sharing.items() if len(names) > GROUP_OVER}
-    lines = [line for rank, line, d in ranked if rank != ROUTINE or d["protection"]["state"] not in grouped]
+    lines = [line for rank, line, d in ranked if rank != ROUTINE or step_state(d) not in grouped]
     return lines + [_grouped_line(state, sharing[state]) for state in sorted(grouped)]
 
 

@@ -73,8 +73,9 @@ def _verify_folder(path: Path, clean: Path, out: Path | None, profiles: tuple[st
 
 
 def _verify_stored(target: str | None, dataset: str | None, folder: Path | None,
-                   profiles: tuple[str, ...], options: Any, console: Console) -> Any:  # fmt: skip
-    """A dataset of the store (named, or the folder ppd patched) against its vault originals."""
+                   profiles: tuple[str, ...], options: Any, console: Console) -> dict[str, Any]:  # fmt: skip
+    """A dataset of the store (named, or the folder ppd patched) against its vault originals: the
+    report's dict as the dataset is published (_as_published)."""
     import sqlite3
 
     from daemon.cli.targets import resolve_target, say_note
@@ -103,16 +104,16 @@ def _verify_stored(target: str | None, dataset: str | None, folder: Path | None,
         with progress_display(console, chosen.dataset) as on_progress:
             options = dataclasses.replace(options, on_progress=on_progress)
             report = verify_dataset(ctx, chosen.dataset, profiles, options)
-        _say_left_out(ctx, chosen.dataset)
-        return report
+        return _as_published(report.to_dict(), ctx, chosen.dataset, _say_left_out(ctx, chosen.dataset))
     finally:
         ctx.close()
 
 
-def _say_left_out(ctx: Any, dataset: str) -> None:
+def _say_left_out(ctx: Any, dataset: str) -> dict[str, Any]:
     """The dataset's files the verification did not measure, on stderr: it reconstructs from the
     patched files only, and a restored or failed photo published beside them is not protected (a
-    black-box review: "protected" with exit 0 and nothing said of 5 restored originals)."""
+    black-box review: "protected" with exit 0 and nothing said of 5 restored originals). Returns
+    the dataset's status (status_queries.dataset_status)."""
     from daemon.cli.output import err_console
     from daemon.cli.status_queries import dataset_status, unprotected_files
 
@@ -121,6 +122,23 @@ def _say_left_out(ctx: Any, dataset: str) -> None:
         err_console().print(f"not verified, and NOT protected: {', '.join(left)} (only the {d['patched']} "
                             "patched files were measured); `ppd status --failed` and `ppd poison` say more",
                             markup=False, highlight=False)  # fmt: skip
+    return d
+
+
+def _as_published(report: dict[str, Any], ctx: Any, dataset: str, d: dict[str, Any]) -> dict[str, Any]:
+    """The report with the verdict of the dataset as it is published: NOT protected while a file of it
+    is left without the mark (the files the line above names: unprotected_files), whatever SfM
+    measured on the patched ones, which "patched_files_verdict" keeps (a black-box review: "overall:
+    protected", exit 0, `--json` "protected" with a failed photo in the published folder)."""
+    from daemon.cli.status_queries import unprotected_files
+    from daemon.datasets.folder_count import unmarked_names
+
+    left = unprotected_files(d)
+    names = unmarked_names(ctx, dataset, d["root"]) if left else []
+    measured = report["verdict"]
+    verdict = Verdict.NOT_PROTECTED.value if left else measured
+    return {**report, "verdict": verdict, "patched_files_verdict": measured, "unmarked": left,
+            "unmarked_files": names, "num_patched": d["patched"]}  # fmt: skip
 
 
 def _options(timeout: float, ground_truth: Path | None, splat: bool, splat_budget: float,
@@ -202,17 +220,18 @@ def verify(
             if clean is not None:
                 if target == "":  # Path("") is '.', as no target means
                     raise TargetError(EMPTY_PATH)
-                report = _verify_folder(folder or Path(target or ""), clean, out, profiles, options, console)
+                path = folder or Path(target or "")
+                report = _verify_folder(path, clean, out, profiles, options, console).to_dict()
             else:
                 report = _verify_stored(target, dataset, folder, profiles, options, console)
     except (VerificationInputError, TargetError, ValueError, OSError) as exc:
         raise die(str(exc), ExitStatus.USAGE) from None
     if as_json:
-        print(json.dumps(json_safe(report.to_dict()), indent=1))
+        print(json.dumps(json_safe(report), indent=1))
     else:
-        print_report(report.to_dict(), console)
-        console.print(f"models: {report.out_dir}")
-    raise typer.Exit(0 if report.verdict == Verdict.PROTECTED else 1)
+        print_report(report, console)
+        console.print(f"models: {report['out_dir']}")
+    raise typer.Exit(0 if report["verdict"] == Verdict.PROTECTED else 1)
 
 
 def register(app: typer.Typer) -> None:

@@ -130,8 +130,25 @@ def print_report(report: dict[str, Any], console: Console) -> None:
         console.print()
     for line in report.get("summary") or []:  # visibility and the profiles it does not hold under
         console.print(f"  {line}", markup=False)
-    v = report["verdict"]
-    console.print(f"overall ({overall_basis(report)}): [{VERDICT_STYLE.get(v, 'bold')}]{verdict_words(v)}[/]")
+    console.print(overall_line(report))
+
+
+def overall_line(report: dict[str, Any]) -> str:
+    """`overall (weakest of default, ...): protected`; a dataset with files left without the mark
+    (verify_cmd._as_published): `overall: NOT protected: 1 failed, unmarked: a.tif; the 7 patched
+    (weakest of ...): protected`, the verdict of the patched files kept, never the last word."""
+    from rich.markup import escape
+
+    from daemon.datasets.folder_count import unmarked_why
+    from daemon.states import unmarked_text
+
+    v, measured = report["verdict"], report.get("patched_files_verdict", report["verdict"])
+    said = f"[{VERDICT_STYLE.get(measured, 'bold')}]{verdict_words(measured)}[/]"
+    if not report.get("unmarked"):
+        return f"overall ({overall_basis(report)}): {said}"
+    why = escape(unmarked_why(report["unmarked"], report.get("unmarked_files") or []))  # names: not markup
+    patched = f"the {report['num_patched']} patched ({overall_basis(report)})"
+    return f"overall: [{VERDICT_STYLE[v]}]{unmarked_text(why, patched, said)}[/]"
 
 
 def overall_basis(report: dict[str, Any]) -> str:

@@ -61,3 +61,14 @@ class EventRows(StoreBase):
         )
         newest = {row["path"]: json.loads(row["detail"]) if row["detail"] else {} for row in rows}
         return [(detail.get("place") or {}).get("note") for detail in newest.values()]
+
+    def mark_detail(self, path: Path | str) -> dict[str, Any]:
+        """What ppd recorded of the mark the file at path (a row's path) carries now: the detail of its
+        newest 'patched' or 'reprotected' event (daemon.protect.job.report_detail: "place", "placement");
+        {} when there is none."""
+        rows = self._rows(
+            "SELECT detail FROM events WHERE path = ? AND kind IN ('patched', 'reprotected') "
+            "ORDER BY id DESC LIMIT 1",
+            (str(path),),
+        )
+        return json.loads(rows[0]["detail"]) if rows and rows[0]["detail"] else {}

@@ -10,12 +10,24 @@ when a report is built.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from daemon.datasets.subject_masks import choice_text, latest_choice
 from daemon.protect.one_file import dataset_pairs
-from daemon.states import Protection, dataset_protection, newest_per_profile, next_step, protection_text
+from daemon.states import (
+    Protection,
+    dataset_protection,
+    newest_per_profile,
+    next_step,
+    patched_count,
+    protection_text,
+    published_protection,
+    unmarked_decide,
+    unmarked_text,
+)
+from verifier.verdict import Verdict
 
 if TYPE_CHECKING:
     from daemon.context import AppContext
@@ -34,9 +46,11 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
         current_counts,
         dataset_folder,
         restored_in_place,
+        unmarked_names,
+        unmarked_why,
         unprotected_phrases,
     )
-    from verifier.html_report import ReportError, dataset_history_report, latest_run_group
+    from verifier.html_report import ReportError, dataset_history_report, has_patch_preview, latest_run_group
 
     row = ctx.store.dataset(dataset)
     if row is None:
@@ -53,14 +67,22 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
     counts = current_counts(ctx, dataset, dataset_folder(ctx, dataset, row["root"]))
     state, under = dataset_protection(counts, verdicts)
     step = next_step(state, dataset)
+    # the files left unprotected, in `ppd status --check`'s words: the page headlined "patched, not
+    # verified" with restored and new files in the folder, and said nothing of them (a black-box review)
+    restored = restored_in_place(ctx, dataset, row["root"]) if counts.get("restored") else 0
+    left = unprotected_phrases(counts, restored)
+    # and its verdict, the patched files', is not the dataset's while one of its files is left unmarked:
+    # the banner said PROTECTED with a failed photo in the published folder (a black-box review)
+    text = published_protection(state, under, left, patched_count(counts))[2]
     data = dataset_history_report(
         f"ppd report — dataset {dataset}",
         runs,
-        protection_text(state, under) + (f": {step}" if step else ""),
+        text + (f": {step}" if step else ""),
         dataset_pairs(ctx, dataset),
         ctx.store.dataset_spec(dataset),
         f"Dataset {dataset!r} has never been verified: run `ppd verify {dataset}`.",
         current=list(verdicts.values()),
+        mark_of=_recorded_mark(ctx, dataset),
     )
     if verdicts and state is Protection.PATCHED_NOT_VERIFIED:  # verified, then files changed or came
         data.verdict, data.holding = None, None
@@ -70,10 +92,11 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
         data.verdict, data.holding = None, None
         data.notes.insert(0, "The latest verification measured earlier pixels (files were patched or "
                           "restored since): it is history, not today's verdict.")  # fmt: skip
-    # the files left unprotected, in `ppd status --check`'s words: the page headlined "patched, not
-    # verified" with restored and new files in the folder, and said nothing of them (a black-box review)
-    restored = restored_in_place(ctx, dataset, row["root"]) if counts.get("restored") else 0
-    if left := unprotected_phrases(counts, restored):
+    if unmarked_decide(state, left):  # the banner says why, and what the patched files' verdict is
+        why = unmarked_why(left, unmarked_names(ctx, dataset, row["root"]))
+        banner = unmarked_text(why, f"the {patched_count(counts)} patched", protection_text(state, under))
+        data.verdict, data.unmarked = Verdict.NOT_PROTECTED, banner
+    if left:
         data.notes.insert(0, f"NOT protected: {', '.join(left)} (`ppd status {dataset}` lists them).")
     spec = ctx.store.dataset_spec(dataset)
     if spec is not None and spec.per_photo:
@@ -82,12 +105,29 @@ def build_dataset_report(ctx: AppContext, dataset: str, history: int = 50) -> Re
         # where marks found no plain place, in the words of ppd poison's summary and ppd status (issue 25)
         for line in reversed(mark_note_lines(ctx.store.patched_place_notes(dataset))):
             data.notes.insert(0, f"Placement: {line}.")
+        # the preview is said only where the page has one (it pointed at none for a HEIC set: a review)
+        shown = "; the preview below says where its file's mark is" if has_patch_preview(data) else ""
         data.notes.insert(0, "Placement: per photo, where each photo is plainest as shown (off the subject "
-                          "masks when given); the preview below says where this file's mark is.")  # fmt: skip
+                          f"masks when given){shown}.")  # fmt: skip
     corner = choice_text(dataset, latest_choice(ctx, dataset))
     if corner is not None:  # where the mark went, and why (daemon.datasets.subject_masks)
         data.notes.insert(0, f"Placement: {corner}.")
     return data
+
+
+def _recorded_mark(ctx: AppContext, dataset: str) -> Callable[[Path], dict[str, Any]]:
+    """What ppd recorded of the mark of a patched file of the dataset, named as dataset_pairs names it
+    (its publish-folder copy, or itself): where the report's preview zooms (a whole-file re-encode,
+    HEIC, changes every pixel, so the pixels that differ do not say where the mark is)."""
+    from daemon.states import FileState
+
+    def mark_of(patched: Path) -> dict[str, Any]:
+        for row in ctx.store.files(dataset, state=FileState.PATCHED):
+            if Path(row["published_path"] or row["path"]) == patched:
+                return ctx.store.mark_detail(row["path"])
+        return {}
+
+    return mark_of
 
 
 def build_report(source: str, ctx: AppContext | None = None) -> ReportData:

@@ -12,10 +12,14 @@ import warnings
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from PIL import Image, ImageFile
 
 from poisoner.errors import ImageFormatError, one_line
+
+if TYPE_CHECKING:
+    import numpy as np
 
 log = logging.getLogger("poisoner.formats")
 
@@ -85,6 +89,18 @@ def open_decoded(src: Path, data: bytes, *, load: bool = True) -> Image.Image:
         if load:
             im.load()
     return im
+
+
+def decoded_rgb(src: Path) -> tuple[np.ndarray, int | None]:
+    """(stored RGB pixels as a numpy array, EXIF orientation or None) of the image at src, opened as
+    `ppd poison` opens it (HEIC through pillow-heif, the bomb limit): what a preview shows. The
+    orientation is read after the decode: Pillow turns a TIFF upright as it loads."""
+    import numpy as np
+
+    with open_decoded(src, Path(src).read_bytes()) as im:
+        rgb = np.asarray(im.convert("RGB"))
+        orientation = im.getexif().get(0x0112)
+    return rgb, orientation if isinstance(orientation, int) else None
 
 
 def as_jpeg(im: Image.Image, fp: Path | io.BytesIO) -> Image.Image:
