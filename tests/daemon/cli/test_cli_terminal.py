@@ -244,6 +244,21 @@ def test_status_fits_and_keeps_the_verdict_whole(
     assert "hardened: NOT protected" in long.stdout and "default: protected" in long.stdout
 
 
+def _status_of_two(
+    shoot: Path, tmp_path: Path, env: dict[str, str], names: list[str], columns: int
+) -> tuple[subprocess.CompletedProcess[str], list[str]]:
+    """`ppd status` at `columns` of two datasets named `names` (shoot and a copy): the process and the
+    lines of its table (or list), not the next steps under it, which name the datasets too."""
+    other = shutil.copytree(shoot, tmp_path / "other")
+    for folder, name in zip((shoot, other), names, strict=True):
+        assert runner.invoke(app, ["poison", str(folder), "--dataset", name]).exit_code == 0
+    proc = ppd(env, "status", columns=columns)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    steps = min(i for i, line in enumerate(lines) if line.startswith(tuple(f"{n}:" for n in names)))
+    return proc, lines[:steps]
+
+
 @pytest.mark.parametrize("columns", [30, 40, 50, 80])
 def test_status_shows_each_dataset_name_whole(
     shoot: Path, narrow_env: dict[str, str], tmp_path: Path, columns: int
@@ -252,14 +267,7 @@ def test_status_shows_each_dataset_name_whole(
     the protection words: two such names could not be told apart, nor one copied (a black-box review).
     The name has priority: whole on a line of the table, or on a line of its own when it cannot be."""
     names = ["client-shoot-2026-studio-north-wing", "client-shoot-2026-studio-south-wing"]
-    other = shutil.copytree(shoot, tmp_path / "other")
-    for folder, name in zip((shoot, other), names, strict=True):
-        assert runner.invoke(app, ["poison", str(folder), "--dataset", name]).exit_code == 0
-    proc = ppd(narrow_env, "status", columns=columns)
-    assert proc.returncode == 0, proc.stderr
-    lines = proc.stdout.splitlines()
-    steps = min(i for i, line in enumerate(lines) if line.startswith(tuple(f"{n}:" for n in names)))
-    shown = lines[:steps]  # the table (or its list), not the next steps under it, which name them too
+    proc, shown = _status_of_two(shoot, tmp_path, narrow_env, names, columns)
     for name in names:
         assert any(name in line for line in shown), proc.stdout
     assert all(len(line) <= columns or line in names for line in shown), proc.stdout
@@ -273,15 +281,9 @@ def test_status_shows_a_name_with_an_emoji_code_as_it_is(
     """rich turned a name's ":thumbs_up:" into its picture, in the table (120 columns) and in the list
     (40: the long name cannot be whole in the table), so the name shown was not the dataset's."""
     names = ["x:thumbs_up:y[red]", "client-shoot-2026:smile:-studio-north-wing"]
-    other = shutil.copytree(shoot, tmp_path / "other")
-    for folder, name in zip((shoot, other), names, strict=True):
-        assert runner.invoke(app, ["poison", str(folder), "--dataset", name]).exit_code == 0
-    proc = ppd(narrow_env, "status", columns=columns)
-    assert proc.returncode == 0, proc.stderr
-    lines = proc.stdout.splitlines()
-    steps = min(i for i, line in enumerate(lines) if line.startswith(tuple(f"{n}:" for n in names)))
+    proc, shown = _status_of_two(shoot, tmp_path, narrow_env, names, columns)
     for name in names:  # whole in the table or the list, and in the next steps under it
-        assert any(name in line for line in lines[:steps]), proc.stdout
+        assert any(name in line for line in shown), proc.stdout
         assert f"{name}: run" in " ".join(proc.stdout.split()), proc.stdout
     assert ("│" in proc.stdout) == (columns == 120), proc.stdout  # the table, or the list
 

@@ -6,18 +6,16 @@ dataset of 8, "protected", `--check` exit 0, report PROTECTED)."""
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 from PIL import Image
 from typer.testing import CliRunner
 
 from daemon.cli import app
-from testkit.photos import write_image
+from testkit.cli import verified_shoot
 from verifier.synthetic import SyntheticOptions, render_scene
 
 runner = CliRunner()
-HEADLINE = ("default", "hardened", "published", "global", "masked")
 
 
 def said(result: object) -> str:
@@ -69,31 +67,12 @@ def test_a_photo_in_a_format_colmap_does_not_read_is_measured(
     assert d["not_measured"] == []
 
 
-def verified_shoot(shoot: Path, views: int, left_out_of_default: list[str]) -> None:
-    """A patched outbox shoot of `views` photos, every attacker "protected" as record_report writes it
-    (a Store row per profile), the default's run leaving out the photos named."""
-    from daemon.context import AppContext
-
-    for i in range(views):
-        write_image(shoot / f"v{i}.png", seed=i)
-    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
-    ctx = AppContext.open()
-    try:
-        now = time.time() + 1
-        for profile in HEADLINE:
-            left = left_out_of_default if profile == "default" else []
-            ctx.store.add_verification_run(shoot.name, profile, "protected", {"left_out": left}, now, now + 1,
-                                           None, None)  # fmt: skip
-    finally:
-        ctx.close()
-
-
 def test_a_photo_no_verification_measured_is_not_called_protected(
     ppd_env: dict[str, Path], tmp_path: Path
 ) -> None:
     """Every attacker measured "protected" on the others; one photo was not in COLMAP's database (the
     Store row as record_report writes it): not protected, said, and `--check` says why."""
-    verified_shoot(ppd_env["outbox"] / "set", 4, left_out_of_default=["v1.png"])
+    verified_shoot(ppd_env["outbox"] / "set", 4, left_out_of_default=("v1.png",))
     check = runner.invoke(app, ["status", "set", "--check"])
     assert check.exit_code == 1, check.output
     assert "1 photo(s) no verification measured (v1.png)" in said(check)
@@ -108,7 +87,7 @@ def test_a_photo_no_verification_measured_is_not_called_protected(
 
 
 def test_every_photo_measured_is_protected_as_before(ppd_env: dict[str, Path]) -> None:
-    verified_shoot(ppd_env["outbox"] / "set", 3, left_out_of_default=[])
+    verified_shoot(ppd_env["outbox"] / "set", 3, left_out_of_default=())
     assert runner.invoke(app, ["status", "set", "--check"]).exit_code == 0
     d = json.loads(runner.invoke(app, ["status", "set", "--json"]).stdout)["datasets"][0]
     assert d["not_measured"] == [] and d["protection"]["state"] == "protected"

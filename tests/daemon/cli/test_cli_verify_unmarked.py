@@ -7,19 +7,17 @@ now counts the files `ppd status --check` counts (status_queries.unprotected_fil
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 from PIL import Image
 from typer.testing import CliRunner
 
 from daemon.cli import app
-from testkit.photos import write_image
+from testkit.cli import HEADLINE, verified_shoot
 from verifier.synthetic import SyntheticOptions, render_scene
 from verifier.verdict import verdict_words
 
 runner = CliRunner()
-HEADLINE = ("default", "hardened", "published", "global", "masked")
 
 
 def flat(text: str) -> str:
@@ -81,23 +79,6 @@ def test_verify_of_a_set_with_a_failed_photo_is_not_protected(
     assert f"Verdict: NOT protected: 1 failed, unmarked: view_99.png; the 6 patched: {patched}" in html
 
 
-def verified_set(shoot: Path, views: int) -> None:
-    """A patched shoot every attacker measured "protected" (a Store row per profile, as record_report
-    writes it): the verification's own work is the test above's."""
-    from daemon.context import AppContext
-
-    for i in range(views):
-        write_image(shoot / f"v{i}.png", seed=i)
-    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
-    ctx = AppContext.open()
-    try:
-        now = time.time() + 1
-        for profile in HEADLINE:
-            ctx.store.add_verification_run(shoot.name, profile, "protected", {}, now, now + 1, None, None)
-    finally:
-        ctx.close()
-
-
 def test_a_photo_restored_in_place_makes_a_protected_set_not_protected(
     ppd_env: dict[str, Path], tmp_path: Path
 ) -> None:
@@ -107,7 +88,7 @@ def test_a_photo_restored_in_place_makes_a_protected_set_not_protected(
     from daemon.context import AppContext
 
     shoot = tmp_path / "set"
-    verified_set(shoot, 4)
+    verified_shoot(shoot, 4)
     d = json.loads(runner.invoke(app, ["status", "set", "--json"]).stdout)["datasets"][0]
     assert d["protection"]["state"] == "protected" and d["protection"]["unmarked"] == []  # as before
     assert runner.invoke(app, ["restore", str(shoot / "v2.png")]).exit_code == 0
