@@ -1,7 +1,8 @@
 """Automatic mode: pick, per dataset, the least visible candidate patch that Verifier I confirms.
 
 `preflight(images, ladder, budget, options, out_dir)`, one named step each:
-1. `prepare_sample`: an evenly spaced sample of the dataset (`options.sample_size` images, by name);
+1. `prepare_sample`: an evenly spaced sample of the dataset (`options.sample_size` photos, by name;
+   HEIC and AVIF too: COLMAP is given them as `ppd verify` gives them, verifier.pairs);
 2. `measure_ladder`: poison the sample with every candidate of the ladder and MEASURE what a viewer
    sees on this dataset: FLIP (verifier.visibility) at the budget's display width, the noticeable
    area (FLIP > 0.5), the 99.9th percentile against a JPEG q85 re-encode of the same image, whether
@@ -27,7 +28,6 @@ torch (LPIPS) is imported only when LPIPS is measured; pycolmap only in the SfM 
 from __future__ import annotations
 
 import logging
-import os
 import shutil
 import sys
 import threading
@@ -39,7 +39,8 @@ from typing import TYPE_CHECKING, Any
 import msgspec
 
 from poisoner.atomic import atomic_write_bytes
-from poisoner.media import SFM_SUFFIXES, is_sfm_readable
+from poisoner.errors import PpdError
+from poisoner.media import SFM_SUFFIXES, image_format, is_sfm_readable, read_head
 from poisoner.scratch import owned_temp_dir
 from poisoner.spec import PatchSpec
 from verifier.auto_options import (
@@ -63,6 +64,7 @@ from verifier.auto_visibility import (
     summarise_visibility,
     within_budget,
 )
+from verifier.pairs import link_or_copy, stage_photos
 from verifier.verdict import INCONCLUSIVE as INCONCLUSIVE_VERDICT
 from verifier.verdict import PROTECTED as PROTECTED_VERDICT
 
@@ -72,6 +74,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 NO_CANDIDATE = "no candidate within the visibility budget protects this dataset"
+STAGED_SAMPLE = "sample-staged"  # the clean sample as COLMAP is given it (verifier.pairs.stage_photos)
 
 
 # ---- evidence and decision ------------------------------------------------------------------------
@@ -160,16 +163,23 @@ def normalise_inputs(pairs_or_images: Sequence[ImageInput]) -> list[tuple[Path, 
     return out
 
 
+def in_sample(src: Path, name: str) -> bool:
+    """Whether a photo may be sampled: COLMAP reads it by its name, or its first bytes (src's: a vault
+    original has no suffix) say it is a photo ppd patches (an iPhone's HEIC, AVIF, a JPEG under
+    another name), which COLMAP is given as `ppd verify` gives it (verifier.pairs.staged_as)."""
+    return is_sfm_readable(name) or image_format(read_head(src)) is not None
+
+
 def choose_sample(items: Sequence[tuple[Path, str]], size: int) -> list[tuple[Path, str]]:
     """An evenly spaced sample by name (deterministic; spans the capture, as a walk around does)."""
     usable = sorted(
-        {name: (src, name) for src, name in items if is_sfm_readable(name)}.values(),
+        {name: (src, name) for src, name in items if in_sample(src, name)}.values(),
         key=lambda t: t[1],
     )
     if len(usable) < MIN_SAMPLE:
         raise PreflightInputError(
-            f"need at least {MIN_SAMPLE} images COLMAP can read ({', '.join(sorted(SFM_SUFFIXES))}), "
-            f"got {len(usable)}"
+            f"need at least {MIN_SAMPLE} images COLMAP can read ({', '.join(sorted(SFM_SUFFIXES))}; "
+            f"HEIC and AVIF converted), got {len(usable)}"
         )
     if len(usable) <= size:
         return usable
@@ -177,15 +187,9 @@ def choose_sample(items: Sequence[tuple[Path, str]], size: int) -> list[tuple[Pa
     return [usable[i] for i in idx]
 
 
-def link_or_copy(src: Path, dst: Path) -> None:
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copyfile(src, dst)
-
-
 def prepare_sample(pairs_or_images: Sequence[ImageInput], size: int, out_dir: Path) -> tuple[Path, list[str]]:
-    """The sample linked (or copied) under its names into out_dir/sample: (that folder, the names)."""
+    """The sample linked (or copied) under its names into out_dir/sample: (that folder, the names).
+    The files as they are (a HEIC a HEIC): what the candidates are poisoned onto and measured on."""
     sample = choose_sample(normalise_inputs(pairs_or_images), size)
     clean_dir = out_dir / "sample"
     shutil.rmtree(clean_dir, ignore_errors=True)
@@ -272,15 +276,22 @@ class WalkResult(msgspec.Struct):
 def walk_candidates(
     evidence: list[CandidateEvidence],
     clean_dir: Path,
+    names: list[str],
     out_dir: Path,
     options: PreflightOptions,
     deadline: float,
 ) -> WalkResult:
     """Verifier I on the candidates within the budget, least visible first, until one is protected
-    under every profile, the time budget runs out, or the clean sample proves unreconstructable."""
+    under every profile, the time budget runs out, or the clean sample proves unreconstructable.
+    COLMAP is given the sample staged once into out_dir/STAGED_SAMPLE (verifier.pairs.stage_photos)."""
     order = sorted((e for e in evidence if e.within_budget and e.status != FAILED),
                    key=lambda e: e.budget_use or 0.0)  # fmt: skip
     walk = WalkResult()
+    if not order:
+        return walk
+    staged_clean = out_dir / STAGED_SAMPLE
+    shutil.rmtree(staged_clean, ignore_errors=True)  # a killed run's, of another sample maybe
+    stage_photos([(clean_dir / name, name) for name in names], staged_clean)
     cancel = threading.Event()
     timer = threading.Timer(max(0.0, deadline - time.monotonic()), cancel.set)
     timer.daemon = True
@@ -294,7 +305,7 @@ def walk_candidates(
                 walk.stopped_by_time = walk.stopped_by_time or not walk.clean_failed
                 continue  # stays NOT_REACHED
             cand_dir = _candidate_dir(out_dir, evidence.index(e), e.name)
-            _verify_candidate(e, clean_dir, cand_dir, out_dir, options, deadline, cancel)
+            _verify_candidate(e, staged_clean, cand_dir, names, out_dir, options, deadline, cancel)
             if e.status == PROTECTED:
                 walk.chosen = e
             elif e.status == TIMED_OUT:
@@ -308,20 +319,24 @@ def walk_candidates(
 
 def _verify_candidate(
     e: CandidateEvidence,
-    clean_dir: Path,
+    staged_clean: Path,
     cand_dir: Path,
+    names: list[str],
     out_dir: Path,
     options: PreflightOptions,
     deadline: float,
     cancel: threading.Event,
 ) -> None:
-    """Verifier I, one profile at a time; stops at the first profile that is not protected."""
+    """Verifier I, one profile at a time, on the candidate's poisoned sample staged as the clean one
+    (staged_clean); stops at the first profile that is not protected."""
     from verifier.verification import VerifyOptions, verify_folders
 
     t0 = time.monotonic()
-    images, verify_dir = cand_dir / "images", cand_dir / "verify"
+    images, staged, verify_dir = cand_dir / "images", cand_dir / "staged", cand_dir / "verify"
     status = PROTECTED
     try:
+        shutil.rmtree(staged, ignore_errors=True)  # a killed run's
+        stage_photos([(images / name, name) for name in names], staged)
         for profile in options.profiles:
             remaining = deadline - time.monotonic()
             if remaining <= 1 or cancel.is_set():
@@ -332,7 +347,7 @@ def _verify_candidate(
                 camera_params=options.camera_params,
                 clean_cache_dir=out_dir / "clean-cache", keep_cache=True,  # poisoned features reused
             )  # fmt: skip
-            report = verify_folders(clean_dir, images, verify_dir, [profile], vopts).profiles[profile]
+            report = verify_folders(staged_clean, staged, verify_dir, [profile], vopts).profiles[profile]
             e.profiles[profile] = _profile_evidence(report)
             if cancel.is_set():
                 status = TIMED_OUT
@@ -343,6 +358,7 @@ def _verify_candidate(
             break
     finally:
         shutil.rmtree(verify_dir / ".cache", ignore_errors=True)
+        shutil.rmtree(staged, ignore_errors=True)  # links, or PNGs of the HEICs kept in images
         if not options.keep_images:
             shutil.rmtree(images, ignore_errors=True)
     e.status = status
@@ -510,9 +526,10 @@ def preflight(
     try:
         lpips_model, lpips_note = open_lpips(options.lpips_net)
         evidence = measure_ladder(ladder, clean_dir, names, budget, lpips_model, out_dir)
-        walk = walk_candidates(evidence, clean_dir, out_dir, options, deadline)
+        walk = walk_candidates(evidence, clean_dir, names, out_dir, options, deadline)
     finally:
         shutil.rmtree(clean_dir, ignore_errors=True)
+        shutil.rmtree(out_dir / STAGED_SAMPLE, ignore_errors=True)
     decision = decide(walk, evidence, budget, options, names, lpips_note, time.monotonic() - started)
     written = msgspec.json.format(msgspec.json.encode(decision), indent=1)
     atomic_write_bytes(out_dir / "decision.json", written)
@@ -557,7 +574,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         result: Any = run_job(job)
-    except (PreflightInputError, ValueError, OSError) as exc:
+    except (PreflightInputError, PpdError, ValueError, OSError) as exc:  # PpdError: a photo not decoded
         result = {"error": str(exc).splitlines()[0] if str(exc) else type(exc).__name__}
     atomic_write_bytes(Path(job.result), msgspec.json.encode(result))
     return 1 if isinstance(result, dict) else 0

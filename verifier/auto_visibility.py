@@ -14,7 +14,7 @@ from typing import Any
 
 import msgspec
 import numpy as np
-import PIL.Image  # before anything that could bring pycolmap here (pillow 13 + pycolmap 4.2.1)
+import PIL.Image  # noqa: F401  (before anything that could bring pycolmap here: pillow 13 + pycolmap 4.2.1)
 
 from verifier.auto_options import VisibilityBudget
 from verifier.metrics import ssim_map
@@ -54,11 +54,13 @@ class SampleVisibility(msgspec.Struct, frozen=True):
 
 
 def load_rgb8(path: Path) -> np.ndarray:
-    """H x W x 3 uint8; transparency composited on white (as Verifier I's round trip)."""
+    """H x W x 3 uint8, decoded as ppd decodes what it patches (poisoner.image.read: HEIC and AVIF
+    too); transparency composited on white (as Verifier I's round trip). ImageFormatError (one line)
+    when it does not decode."""
+    from poisoner.image.read import open_decoded
     from verifier.verification import to_rgb
 
-    with PIL.Image.open(path) as im:
-        im.load()
+    with open_decoded(path, path.read_bytes()) as im:
         rgb = to_rgb(im)
     return np.asarray(rgb, dtype=np.uint8)
 

@@ -4,7 +4,8 @@ Images are hard-linked (or copied); photos in a format COLMAP does not read (HEI
 as lossless PNGs of their decoded pixels, original and patched alike: no COLMAP reads them, so an
 attacker converts them first, and the PNG is what any converter gives. Videos are sampled into
 frames (poisoner.video). A photo that does not decode is left out, and named (Staged.left_out): no
-verdict covers it.
+verdict covers it. `stage_photos` lays out one side the same way (automatic mode's sample and each
+candidate's poisoned copies of it).
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ def _flat_name(path: Path, index: int, used: set[str]) -> str:
     return name
 
 
-def _link_or_copy(src: Path, dst: Path) -> None:
+def link_or_copy(src: Path, dst: Path) -> None:
+    """A hard link (the verifier only reads what it stages), else a copy."""
     try:
         os.link(src, dst)
     except OSError:
@@ -43,7 +45,7 @@ def _link_or_copy(src: Path, dst: Path) -> None:
 def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_dir: Path) -> Staged:
     """Lay out (original, protected) pairs as two folders with the same names.
 
-    Images COLMAP reads are hard-linked (or copied); the others are converted (_stage_converted).
+    Images COLMAP reads are hard-linked (or copied); the others are converted (stage_photo).
     Videos are sampled into frames with poisoner.video."""
     clean_dir.mkdir(parents=True, exist_ok=True)
     poisoned_dir.mkdir(parents=True, exist_ok=True)
@@ -56,17 +58,33 @@ def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_di
             any_video = True
             _stage_frames(original, protected, clean_dir, poisoned_dir, i)
             continue
-        staged = _staged_as(protected)
+        staged = staged_as(protected)
         if staged is None:
             left_out[protected.name] = f"{protected.name}: not a photo ppd patches"
             continue
         name = _flat_name(Path(staged[0]), i, used)
-        if not staged[1]:
-            _link_or_copy(original, clean_dir / name)
-            _link_or_copy(protected, poisoned_dir / name)
-        elif why := _stage_converted(original, protected, clean_dir / name, poisoned_dir / name):
+        if why := _stage_pair(original, protected, clean_dir / name, poisoned_dir / name, staged[1]):
             left_out[protected.name] = why
     return Staged("sequential" if any_video else "auto", dict(sorted(left_out.items())))
+
+
+def stage_photos(photos: Sequence[tuple[Path, str]], folder: Path) -> list[str]:
+    """Each (file, its name in the set) laid out in folder for COLMAP as stage_pairs lays out a side,
+    in order; returns the names staged under. The same names in the same order are staged under the
+    same names: a clean sample and each candidate's poisoned copies of it pair up. ImageFormatError
+    (one line) for a photo that does not decode or is not one ppd patches."""
+    from poisoner.errors import ImageFormatError
+
+    folder.mkdir(parents=True, exist_ok=True)
+    used: set[str] = set()
+    names = []
+    for i, (src, name) in enumerate(photos):
+        staged = staged_as(Path(src), name)
+        if staged is None:
+            raise ImageFormatError(f"{name}: not a photo ppd patches")
+        names.append(_flat_name(Path(staged[0]), i, used))
+        stage_photo(Path(src), folder / names[-1], staged[1])
+    return names
 
 
 def _stage_frames(original: Path, protected: Path, clean_dir: Path, poisoned_dir: Path, index: int) -> None:
@@ -84,41 +102,54 @@ def _stage_frames(original: Path, protected: Path, clean_dir: Path, poisoned_dir
     shutil.rmtree(tmp_p, ignore_errors=True)
 
 
-def _stage_converted(original: Path, protected: Path, clean: Path, poisoned: Path) -> str | None:
-    """A photo COLMAP does not read (HEIC, AVIF), original and patched, written as PNGs of their
-    decoded pixels (lossless: what the attacker's converter decodes, COLMAP reads); None when both
-    are staged, else why not (one line), and neither is."""
+def _stage_pair(original: Path, protected: Path, clean: Path, poisoned: Path, converted: bool) -> str | None:
+    """Both sides of a pair staged (stage_photo); None when both are, else why not (one line), and
+    neither is."""
     from poisoner.errors import ImageFormatError
-    from poisoner.image.read import PNG_MODES, open_decoded
 
     try:
-        for src, dst in ((original, clean), (protected, poisoned)):
-            with open_decoded(src, src.read_bytes()) as im:
-                (im if im.mode in PNG_MODES else im.convert("RGB")).save(dst, "PNG", compress_level=1)
+        stage_photo(original, clean, converted)
+        stage_photo(protected, poisoned, converted)
     except ImageFormatError as exc:  # e.g. a patched file replaced since by one that does not decode
         clean.unlink(missing_ok=True)
         return str(exc)
     return None
 
 
+def stage_photo(src: Path, dst: Path, converted: bool) -> None:
+    """One photo at dst for COLMAP: hard-linked (or copied), or (converted: HEIC, AVIF, which COLMAP
+    does not read) written as a PNG of its decoded pixels, lossless: what the attacker's converter
+    decodes, COLMAP reads. ImageFormatError (one line) when it does not decode."""
+    if not converted:
+        link_or_copy(src, dst)
+        return
+    from poisoner.image.read import PNG_MODES, open_decoded
+
+    with open_decoded(src, src.read_bytes()) as im:
+        (im if im.mode in PNG_MODES else im.convert("RGB")).save(dst, "PNG", compress_level=1)
+
+
 # What COLMAP reads by its content under any name, with the suffix its image list takes it by
 _SFM_SUFFIX = {"jpeg": ".jpg", "png": ".png", "webp": ".webp"}
 
 
-def _staged_as(path: Path) -> tuple[str, bool] | None:
-    """The name path is staged under for COLMAP, and whether it is converted (_stage_converted): its
+def staged_as(path: Path, name: str | None = None) -> tuple[str, bool] | None:
+    """The name a photo is staged under for COLMAP, and whether it is converted (stage_photo): its
     own name where its suffix is one COLMAP's image list takes; a JPEG, PNG or WebP under another name
     (.jfif, none: ppd patches them, an attacker's COLMAP reads them by content) with its format's suffix
-    added; any other photo ppd patches (HEIC, AVIF) with .png added, converted; None for the rest."""
+    added; any other photo ppd patches (HEIC, AVIF) with .png added, converted; None for the rest.
+    name: the photo's name in its set where path is not named so (a vault original); else path's."""
     from poisoner.media import IMAGE_SUFFIXES, SFM_SUFFIXES, image_format, read_head
 
-    if path.suffix.lower() in SFM_SUFFIXES:
-        return path.name, False
+    name = name or path.name
+    suffix = Path(name).suffix.lower()
+    if suffix in SFM_SUFFIXES:
+        return name, False
     found = image_format(read_head(path)) or ""
     if found in _SFM_SUFFIX:
-        return path.name + _SFM_SUFFIX[found], False
-    if found == "heif" or path.suffix.lower() in IMAGE_SUFFIXES:
-        return path.name + ".png", True
+        return name + _SFM_SUFFIX[found], False
+    if found == "heif" or suffix in IMAGE_SUFFIXES:
+        return name + ".png", True
     return None
 
 

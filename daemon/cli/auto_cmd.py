@@ -246,6 +246,7 @@ def _preflight(ctx: AppContext, target: str, images: list[Any], is_dataset: bool
     import msgspec
 
     from daemon.verification import auto_mode as daemon_auto
+    from poisoner.errors import ImageFormatError
     from verifier.auto_options import PreflightInputError
     from verifier.auto_search import preflight
 
@@ -255,7 +256,7 @@ def _preflight(ctx: AppContext, target: str, images: list[Any], is_dataset: bool
             f"auto-{time.strftime('%Y%m%dT%H%M%S')}"
         )
         return msgspec.to_builtins(preflight(images, daemon_auto.load_ladder(), budget, options, work))
-    except (PreflightInputError, ImportError) as exc:
+    except (PreflightInputError, ImportError, ImageFormatError) as exc:  # a sample photo not decoded: input
         raise _fail(one_line(exc)) from None
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import msgspec
 import numpy as np
+import pillow_heif
 import pytest
 from PIL import Image
 
@@ -25,6 +26,7 @@ from verifier.auto_search import (
     choose_sample,
     preflight,
 )
+from verifier.pairs import stage_photos
 from verifier.synthetic import SyntheticOptions, render_scene
 
 BIG = LadderEntry("big-static", PatchSpec(patch_size=0.4), "a large patch: far over any sensible budget")
@@ -57,6 +59,63 @@ def test_sample_is_evenly_spaced_and_sfm_readable(tmp_path: Path) -> None:
     assert choose_sample(items[:5], 12) == sorted(items[:5], key=lambda t: t[1])
     with pytest.raises(PreflightInputError, match="at least 3 images"):
         choose_sample(items[:2], 12)
+
+
+def test_sample_takes_every_photo_ppd_patches_and_stages_it_as_verify_does(tmp_path: Path) -> None:
+    """An iPhone shoot (all HEIC) had no sample ("need at least 3 images COLMAP can read", got 0) and a
+    mixed one's left its HEICs out. A photo COLMAP does not read by its name is sampled by its first
+    bytes (a dataset's vault original has no suffix), and staged for COLMAP as `ppd verify` stages it."""
+    pillow_heif.register_heif_opener()
+    (tmp_path / "vault").mkdir()
+    shoot = [("IMG_0001.HEIC", "HEIF"), ("IMG_0002.JPG", "JPEG"), ("IMG_0003.avif", "AVIF"),
+             ("IMG_0004.HEIC", "HEIF"), ("IMG_0005.PNG", "PNG")]  # fmt: skip
+    items = []
+    for i, (name, fmt) in enumerate(shoot):
+        original = tmp_path / "vault" / f"{i:064x}"  # named by its hash, as the vault names them
+        Image.new("RGB", (32, 24), (40 * i, 80, 120)).save(original, fmt)
+        items.append((original, name))
+    (tmp_path / "notes.txt").write_text("not a photo")
+    items.append((tmp_path / "notes.txt", "notes.txt"))
+    sample = choose_sample(items, 12)
+    assert [n for _, n in sample] == [name for name, _ in shoot]
+    assert [n for _, n in choose_sample(items, 3)] == ["IMG_0001.HEIC", "IMG_0003.avif", "IMG_0005.PNG"]
+    staged = stage_photos(sample, tmp_path / "staged")
+    assert staged == ["IMG_0001.HEIC.png", "IMG_0002.JPG", "IMG_0003.avif.png", "IMG_0004.HEIC.png",
+                      "IMG_0005.PNG"]  # fmt: skip
+    with Image.open(tmp_path / "staged" / "IMG_0004.HEIC.png") as png, Image.open(items[3][0]) as heic:
+        assert png.format == "PNG" and np.array_equal(np.asarray(png), np.asarray(heic.convert("RGB")))
+    with pytest.raises(PreflightInputError, match="got 2"):
+        choose_sample([items[1], items[4], items[5]], 12)
+
+
+def test_the_daemons_child_measures_a_heic_sample(tmp_path: Path) -> None:
+    """The daemon's preflight child (`python -m verifier.auto_search JOB.json`) read the sample with
+    Pillow alone, which opens no HEIC until pillow-heif is registered: the first HEIC's JPEG reference
+    failed ("cannot identify image file"). The sample is read as ppd decodes what it patches."""
+    import subprocess
+    import sys
+
+    from verifier.auto_options import PreflightJob
+
+    pillow_heif.register_heif_opener()  # here, to write them: the child registers nothing up front
+    render_scene(tmp_path / "renders", SyntheticOptions(num_views=3, width=96, height=96))
+    (tmp_path / "shoot").mkdir()
+    for png in sorted((tmp_path / "renders").glob("*.png")):
+        Image.open(png).convert("RGB").save(tmp_path / "shoot" / f"{png.stem.upper()}.HEIC", quality=90)
+    measure_only = PreflightOptions(sample_size=3, time_budget_s=0.001, lpips_net="none")
+    shoot = [(str(p), p.name) for p in sorted((tmp_path / "shoot").iterdir())]
+    job = PreflightJob(
+        images=shoot, out_dir=str(tmp_path / "out"), result=str(tmp_path / "result.json"), ladder=[PAPER],
+        budget=VisibilityBudget(display_width=96), options=measure_only,
+    )  # fmt: skip
+    (tmp_path / "job.json").write_bytes(msgspec.json.encode(job))
+    ran = subprocess.run([sys.executable, "-m", "verifier.auto_search", str(tmp_path / "job.json")],
+                         capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
+    result = msgspec.json.decode((tmp_path / "result.json").read_bytes())
+    assert ran.returncode == 0 and "error" not in result, (result, ran.stderr[-2000:])
+    assert result["sample"] == ["VIEW_00.HEIC", "VIEW_01.HEIC", "VIEW_02.HEIC"]
+    (measured,) = result["evidence"]
+    assert measured["status"] != "failed" and measured["visibility"]["images"] == 3, measured
 
 
 # ---- the ladder walk --------------------------------------------------------------------------------

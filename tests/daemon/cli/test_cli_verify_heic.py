@@ -23,10 +23,10 @@ def said(result: object) -> str:
     return " ".join(str(getattr(result, "output", "")).split())
 
 
-def heic_shoot(outbox: Path, renders: Path, views: int) -> Path:
-    """A patched outbox shoot of `views` synthetic views saved as HEIC, as an iPhone does."""
+def heic_shoot(outbox: Path, renders: Path, views: int, arc_deg: float = 120.0) -> Path:
+    """A patched outbox shoot of `views` synthetic views (over arc_deg) saved as HEIC, as an iPhone does."""
     pillow_heif.register_heif_opener()
-    render_scene(renders, SyntheticOptions(num_views=views))
+    render_scene(renders, SyntheticOptions(num_views=views, arc_deg=arc_deg))
     shoot = outbox / "iphone"
     shoot.mkdir()
     for png in sorted(renders.glob("*.png")):
