@@ -62,10 +62,13 @@ def test_a_set_of_photos_none_of_which_decodes_could_not_be_verified(
     assert result.exit_code == 1, result.output
     text = said(result)
     assert "none of the 3 photos could be given to COLMAP (VIEW_00.HEIC: " in text and ", and 2 more)" in text
-    assert "overall (weakest of default): could not be verified" in text and "ppd: error" not in text
+    # the files changed since patched are not ppd's output: NOT protected, whatever was measured (F8)
+    overall = "overall: NOT protected: 3 changed since patched; the 0 patched (weakest of default): could not"
+    assert f"{overall} be verified" in text and "ppd: error" not in text, text
     as_json = runner.invoke(app, ["verify", "iphone", "-p", "default", "--json"])
     report = json.loads(as_json.stdout)
-    assert as_json.exit_code == 1 and report["verdict"] == "inconclusive"
+    assert as_json.exit_code == 1 and report["patched_files_verdict"] == "inconclusive", report
+    assert report["verdict"] == "not_protected", report
     assert report["left_out"] == ["VIEW_00.HEIC", "VIEW_01.HEIC", "VIEW_02.HEIC"]
     assert report["num_measured"] == 0
     d = json.loads(runner.invoke(app, ["status", "iphone", "--json"]).stdout)["datasets"][0]
