@@ -126,10 +126,9 @@ def test_a_spec_is_found_among_the_designs_in_any_corner_or_in_a_store_kept_asid
         conn.execute("DELETE FROM specs WHERE id = ?", (ids["corner"],))
     _lose_store(data)
 
-    code, text = said("store", "rebuild", "--verbose")
+    code, text = said("store", "rebuild")
     assert code == 0 and "not recovered" not in text, text  # before: 2 spec(s) not recovered
     assert {name: _spec_id(data, name) for name in ids} == ids
-    assert "design watermark, bottom-right" in text and "a store kept aside" in text, text
     assert {p.stem for p in (data / "vault" / "specs").iterdir()} == set(ids.values())  # kept for next time
 
 
