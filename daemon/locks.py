@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from daemon.paths import make_private_dir
+from daemon.paths import SERVICE_UNIT, make_private_dir, user_unit_dir
 from poisoner.errors import ExitStatus, PpdError
 
 log = logging.getLogger(__name__)
@@ -303,6 +303,19 @@ def _refusal(folder: Path, holder: str, outbox: Path) -> str:
             if len(lines) > 1 and Path(lines[1]).is_relative_to(outbox) and Path(lines[1]) != outbox:
                 return f"another ppd watch (pid {lines[0]}) is already watching {lines[1]}, inside {outbox}"
     return f"another ppd watch is already watching a folder inside {outbox}"
+
+
+def watch_running(holder: str, then: str, why: str = "") -> str:
+    """The refusal of a command that needs `ppd watch` stopped (holder: watching()'s "pid N"): how to stop
+    it, the service's command only where its unit is installed; one run in a terminal (`ppd watch &`) is
+    stopped by its pid (a black-box review: `systemctl --user stop ppd` was said with no unit installed)."""
+    pid = holder.removeprefix("pid ")
+    by_hand = f"Ctrl-C in its terminal, or `kill {pid}`" if pid.isdigit() else "Ctrl-C in its terminal"
+    if (user_unit_dir() / SERVICE_UNIT).is_file():
+        stop = f"stop it first (`systemctl --user stop ppd`; run in a terminal: {by_hand})"
+    else:
+        stop = f"stop {holder} first ({by_hand})"
+    return f"ppd watch ({holder}) is running on this data folder{why}; {stop}, then {then}"
 
 
 def watching(data_dir: Path) -> list[str]:

@@ -158,10 +158,10 @@ def publish_in_datasets(folder: Path, roots: Iterable[tuple[str, Path]]) -> str 
         root = Path(root).expanduser().absolute()
         # a dataset of the home folder holds the files right in it, not its subfolders (published_with)
         if published_with(root.resolve(), real) or published_with(root, where):
-            return (f"{where} is inside dataset {name!r}'s folder {root}: ppd would take the published "
+            return (f"{where} is inside the folder of dataset {name!r}, {root}: ppd would take the published "
                     "files in as the dataset's, and `ppd restore` would put the originals there")  # fmt: skip
         if published_with(real, root.resolve()):
-            return f"{where} holds dataset {name!r}'s folder {root}, whose originals would be published"
+            return f"{where} holds the folder of dataset {name!r}, {root}, whose originals would be published"
     return None
 
 
@@ -205,6 +205,16 @@ def _a_photo_in(folder: Path, depth: int = 3, budget: int = 20_000) -> str | Non
         if budget <= 0:
             break
     return None
+
+
+SERVICE_UNIT = "ppd.service"  # `ppd service install` writes it into user_unit_dir()
+
+
+def user_unit_dir(env: Mapping[str, str] | None = None) -> Path:
+    """systemd's folder of the user's own units (daemon.watch.service installs ppd's there)."""
+    env = os.environ if env is None else env
+    base = env.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base).expanduser() / "systemd" / "user"
 
 
 def make_dirs_private(folder: Path) -> None:

@@ -58,6 +58,8 @@ LINKED_FOLDER_PREFIX = "symlinked folder, not followed"
 # ppd's output moved or copied in from a dataset of another spec, patched again with this one's
 # (daemon.protect.remark): the daemon's line says it, as it says no other patched file's note
 REMARKED_PREFIX = "re-marked with this dataset's spec"
+# ... or a file of the dataset's own that carried an earlier spec of it (a re-protect or re-mark stopped)
+EARLIER_SPEC_WORDS = "it carried an earlier spec of this dataset"
 
 # The value a store row holds for a patched file (older stores said "protected"; the store's
 # migration renamed them, so no other spelling reaches this code).

@@ -51,7 +51,7 @@ def dataset_show(name: str, as_json: bool = typer.Option(False, "--json")) -> No
         if as_json:
             typer.echo(json.dumps(info, indent=2, default=str))
             return
-        said = f"spec {info['spec_id']}: {info['spec_summary']}" if info["spec_id"] else NO_SPEC_YET
+        said = f"spec {info['spec_id']}: {info['spec_summary']}" if info["spec_id"] else _no_spec(ctx, name)
         console().print(f"[bold]{name}[/] at {info['root']}  {said}")
         if info["publish_dir"]:
             console().print(f"publish folder: {info['publish_dir']}", markup=False)
@@ -62,6 +62,15 @@ def dataset_show(name: str, as_json: bool = typer.Option(False, "--json")) -> No
         console().print(" ".join(f"{k}={v}" for k, v in info["counts"].items()))
     finally:
         ctx.close()
+
+
+def _no_spec(ctx: AppContext, name: str) -> str:
+    """A dataset without a spec: none yet, or one a store rebuild did not recover (its files carry it;
+    `dataset show` said "no spec yet: its first patched file gets the config's", and before that "None")."""
+    from daemon.store.datasets import spec_not_recovered
+
+    lost = ctx.store.lost_spec(name)
+    return spec_not_recovered(name, lost) if lost else NO_SPEC_YET
 
 
 def _reprotect(ctx: AppContext, name: str, spec: PatchSpec) -> int:
@@ -112,7 +121,7 @@ def _spec_line(ctx: AppContext, name: str, asked: PatchSpec, summary: Callable[[
     (it printed the new one's id; a helper's review); none yet: its first patched file sets it."""
     held = ctx.store.dataset_spec(name)
     if held is None:
-        return f"{name}: {NO_SPEC_YET}"
+        return f"{name}: {_no_spec(ctx, name)}"
     if held.spec_id == asked.spec_id:
         return f"{name}: spec {held.spec_id} ({summary(held)})"
     return f"{name}: spec still {held.spec_id} ({summary(held)}): no file took the new spec {asked.spec_id}"
@@ -126,13 +135,14 @@ def _move_root(ctx: AppContext, name: str, old: Path, new: Path) -> None:
     from daemon.cli.targets import same_folder
 
     if os.path.lexists(old):
-        raise die(f"dataset {name!r}'s folder {old} is still there: --root moves a dataset whose folder was "
-                  f"moved; `ppd poison {shlex.quote(str(new))}` makes a new dataset of {new}")  # fmt: skip
+        raise die(f"the folder of dataset {name!r}, {old}, is still there: --root moves a dataset whose "
+                  f"folder was moved; `ppd poison {shlex.quote(str(new))}` makes a new dataset of "
+                  f"{new}")  # fmt: skip
     if not new.is_dir():
         raise die(f"--root {new}: no such folder")
     for other in ctx.store.datasets():
         if other["name"] != name and other["root"] and same_folder(Path(other["root"]), new):
-            raise die(f"--root {new} is dataset {other['name']!r}'s folder; a folder is one dataset's")
+            raise die(f"--root {new} is the folder of dataset {other['name']!r}; a folder is one dataset's")
     moved = ctx.store.move_dataset(name, old, new)
     if (ctx.store.dataset(name) or {}).get("root") != str(new):  # another ppd moved it first
         raise die(f"dataset {name!r} was moved by another ppd meanwhile: `ppd dataset show {name}`")
@@ -267,12 +277,11 @@ def _alone(data_dir: Path) -> Iterator[None]:
     """No other ppd process on this data folder while a dataset is forgotten: one could record a row
     for an original between the check that none names it and its removal; refused with one line,
     exit 3 (as `ppd store rebuild` and `ppd key new` are)."""
-    from daemon.locks import LockHeld, store_alone, watching
+    from daemon.locks import LockHeld, store_alone, watch_running, watching
 
     then = "forget the dataset"
     if holders := watching(data_dir):
-        raise die(f"ppd watch ({holders[0]}) is running on this data folder; stop it first "
-                  f"(`systemctl --user stop ppd`), then {then}", ExitStatus.ENVIRONMENT)  # fmt: skip
+        raise die(watch_running(holders[0], then), ExitStatus.ENVIRONMENT)
     try:
         with store_alone(data_dir, "ppd dataset forget is forgetting a dataset", then):
             yield
@@ -301,7 +310,7 @@ def _forget_check(ctx: AppContext, name: str, force: bool) -> tuple[Patched, Aga
     if not force and not folder["exists"] and moved and ctx.store.counts(name).get(FileState.PATCHED):
         follow = f"`ppd poison {shlex.quote(moved)}` records them in dataset {there!r}" if there else (
             f"`ppd dataset set {shlex.quote(name)} --root {shlex.quote(moved)}` moves the dataset there")
-        raise die(f"dataset {name!r}'s folder {root} is gone, but its patched files are in {moved} "
+        raise die(f"the folder of dataset {name!r}, {root}, is gone, but its patched files are in {moved} "
                   f"(moved?): {follow}; --force forgets it all the same (those files then keep the mark "
                   "for good)")  # fmt: skip
     marked = patched_files(ctx, name)
@@ -330,10 +339,10 @@ def _forget_check(ctx: AppContext, name: str, force: bool) -> tuple[Patched, Aga
                   "forget it all the same (it then leaves the vault)")  # fmt: skip
     again = _in_the_outbox(ctx, folder, marked)
     if again is not None and not force:
-        raise die(f"dataset {name!r}'s folder {again.folder} is in the outbox: `ppd watch` would patch its "
-                  f"{again.files} file(s) again once it is forgotten (restored ones too: no record says "
-                  "restored any more); move the folder out of the outbox first, or --force to forget it all "
-                  "the same")  # fmt: skip
+        raise die(f"the folder of dataset {name!r}, {again.folder}, is in the outbox: `ppd watch` would "
+                  f"patch its {again.files} file(s) again once it is forgotten (restored ones too: no record "
+                  "says restored any more); move the folder out of the outbox first, or --force to forget it "
+                  "all the same")  # fmt: skip
     return marked, again
 
 
@@ -373,8 +382,10 @@ def _inside(path: Path, outbox: Path) -> bool:
 
 
 def _say_forgotten(name: str, done: Forgotten, marked: Patched, again: Again | None) -> None:
+    from poisoner.video.model import size_text
+
     line = (f"forgot dataset {name}: {done.rows} file record(s); {done.removed} original(s) "
-            f"({done.removed_bytes / 1e6:.1f} MB) removed from the vault")  # fmt: skip
+            f"({size_text(done.removed_bytes)}) removed from the vault")  # fmt: skip
     if done.kept:
         line += f"; {done.kept} original(s) kept: another dataset uses them"
     console().print(line, markup=False)

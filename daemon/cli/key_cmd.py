@@ -226,12 +226,11 @@ def _alone(data_dir: Path, then: str) -> Iterator[None]:
     """No other ppd process on this data folder while the key changes: a running `ppd watch` or
     `ppd poison` seals with the key it loaded, one no longer on disk (a diff review); refused with one
     line, exit 3."""
-    from daemon.locks import LockHeld, store_alone, watching
+    from daemon.locks import LockHeld, store_alone, watch_running, watching
 
     if holders := watching(data_dir):
-        raise die(f"ppd watch ({holders[0]}) is running on this data folder and seals with the key it "
-                  f"loaded; stop it first (`systemctl --user stop ppd`), then {then}",
-                  ExitStatus.ENVIRONMENT)  # fmt: skip
+        why = " and seals with the key it loaded"
+        raise die(watch_running(holders[0], then, why), ExitStatus.ENVIRONMENT)
     try:
         with store_alone(data_dir, "ppd is changing the seal key", then):
             yield

@@ -123,7 +123,7 @@ def refuse_held_elsewhere(ctx: AppContext, jobs: list[Job]) -> None:
     holder, files = max(held.items(), key=lambda item: len(item[1]))
     named = next(j.dataset for j in jobs if j.path == files[0])
     shown = f"{files[0]}{', ...' if len(files) > 1 else ''}"
-    raise die(f"{len(files)} file(s) here are dataset {holder!r}'s, patched with its spec ({shown}): "
+    raise die(f"{len(files)} file(s) here belong to dataset {holder!r}, patched with its spec ({shown}): "
               f"--dataset {named} cannot take them (a file is one dataset's, with its mark); leave out "
               f"--dataset (`ppd dataset set {shlex.quote(holder)} ... --reprotect` changes its spec), or "
               "move them out of its folder first")  # fmt: skip
@@ -427,7 +427,8 @@ def apply_spec(
     lines: list[tuple[str, str]] = []
     for name in dict.fromkeys(job.dataset for job in jobs):
         spec, choice = _flag_spec(ctx, name, options), None
-        new = ctx.store.dataset_spec(name) is None
+        # a dataset whose spec a rebuild lost is no new one: its files say which spec it needs back
+        new = ctx.store.dataset_spec(name) is None and ctx.store.lost_spec(name) is None
         base = spec or ctx.config.spec_for(name)
         if new and base.per_photo:  # issue 25: no corner for the set; each photo's own place
             clips = all(media_kind(j.path) == "video" for j in jobs if j.dataset == name)

@@ -159,16 +159,23 @@ def change_lines(outcomes: list[ProtectOutcome]) -> list[str]:
 
 
 def remarked_lines(outcomes: list[ProtectOutcome]) -> list[str]:
-    """One line for the files marked again with this dataset's spec (moved or copied in from another
-    dataset): said only with -v before (a diff review)."""
-    from daemon.states import REMARKED_PREFIX
+    """One line for the files marked again with this dataset's spec that were moved or copied in from
+    another dataset, one for its own files that carried an earlier spec of it: said only with -v before
+    (a diff review), then every such file was said to come from another dataset, its own too (a
+    black-box review, after a store rebuild)."""
+    from daemon.states import EARLIER_SPEC_WORDS, REMARKED_PREFIX
 
-    files = [shown_name(o.path) for o in outcomes if (o.reason or "").startswith(REMARKED_PREFIX)]
-    if not files:
-        return []
-    shown = ", ".join(files[:3]) + (f" and {len(files) - 3} more" if len(files) > 3 else "")
-    return [f"{REMARKED_PREFIX}: {len(files)} file(s) moved or copied in from another dataset ({shown}); "
-            "`ppd -v poison` says from where"]  # fmt: skip
+    remarked = [o for o in outcomes if (o.reason or "").startswith(REMARKED_PREFIX)]
+    own = [shown_name(o.path) for o in remarked if EARLIER_SPEC_WORDS in (o.reason or "")]
+    came = [shown_name(o.path) for o in remarked if EARLIER_SPEC_WORDS not in (o.reason or "")]
+    lines = []
+    for files, what in ((came, "moved or copied in from another dataset"),
+                        (own, "of its own that carried an earlier spec of it")):  # fmt: skip
+        if files:
+            shown = ", ".join(files[:3]) + (f" and {len(files) - 3} more" if len(files) > 3 else "")
+            said = f"{len(files)} file(s) {what} ({shown})"
+            lines.append(f"{REMARKED_PREFIX}: {said}; `ppd -v poison` says which")
+    return lines
 
 
 def video_size_lines(outcomes: list[ProtectOutcome]) -> list[str]:

@@ -237,7 +237,8 @@ def _print_details(d: dict[str, Any]) -> None:
     """--long (or one dataset): where it is, the spec, each profile's verdict."""
     out = console()
     out.print(f"[bold]{d['name']}[/]  {d['root']}")
-    lines = [files_line(d["counts"]), f"spec {d['spec_id'] or '-'}: {d['spec_summary'] or '-'}"]
+    spec = f"spec {d['spec_lost']}: not recovered" if d.get("spec_lost") else None  # its line below says more
+    lines = [files_line(d["counts"]), spec or f"spec {d['spec_id'] or '-'}: {d['spec_summary'] or '-'}"]
     if d["auto"]:
         lines.append(d["auto"])
     lines += place_lines(d)

@@ -265,6 +265,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         "spec_id": row["spec_id"],
         "spec": spec.to_dict() if spec else None,
         "spec_summary": spec_summary(spec) if spec else None,
+        "spec_lost": None if spec else ctx.store.lost_spec(name),  # its files' spec, a rebuild did not find
         "auto": auto_status_text(ctx, name),  # automatic mode's decision in force (None: not decided)
         "counts": counts,
         "restored_in_place": restored,

@@ -51,7 +51,17 @@ def ranked_steps(d: dict[str, Any]) -> list[tuple[int, str]]:
     elif d["protection"]["next"]:
         rank = ROUTINE if step_state(d) in ROUTINE_STATES else URGENT
         steps.append((rank, f"{name}: {d['protection']['next']}"))
-    return steps + [(UNPROTECTED, line) for line in _unprotected_lines(d)]
+    return steps + [(UNPROTECTED, line) for line in _unprotected_lines(d)] + _spec_lost_steps(d)
+
+
+def _spec_lost_steps(d: dict[str, Any]) -> list[tuple[int, str]]:
+    """A dataset whose spec a `ppd store rebuild` did not recover: its new photos are refused until it is
+    given back (daemon.store.datasets.spec_not_recovered)."""
+    from daemon.store.datasets import spec_not_recovered
+
+    if not d.get("spec_lost"):
+        return []
+    return [(UNPROTECTED, f"{d['name']}: {spec_not_recovered(d['name'], d['spec_lost'])}")]
 
 
 def _unprotected_lines(d: dict[str, Any]) -> list[str]:

@@ -3,8 +3,9 @@ store from the vault and the markers in patched files when it was lost or damage
 
 Exit status, as `ppd --help` lists it for every command (one line on stderr, `ppd: error: ...`, never a
 traceback): 0 = done / sound; 3 = the store is damaged, lost or missing next to originals, or the vault
-lost originals (check), or the rebuild cannot be done here; 2 = a sound store without --force; 1 = a
-rebuild that recovered none of the vault's originals.
+lost originals (check), or the rebuild cannot be done here (a store made by a newer ppd too, without
+--force); 2 = a sound store without --force; 1 = a rebuild that recovered none of the vault's originals,
+or a dataset's spec (each named, with what gives it back).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from daemon.cli.errors import die
+from daemon.cli.errors import die, error
 from poisoner.errors import ExitStatus
 
 if TYPE_CHECKING:
@@ -115,6 +116,7 @@ def rebuild(
     from daemon.paths import AppPaths
     from daemon.protect.rebuild import rebuild_store
     from daemon.store import StoreError
+    from daemon.store.datasets import spec_not_recovered
     from daemon.store.vault import VaultError
 
     for folder in folders or []:  # a typo is refused before anything is touched (a black-box review:
@@ -140,8 +142,12 @@ def rebuild(
         _console().print(line, highlight=False, markup=False)
     if verbose:
         _print_details(paths, report)
+    for name, spec_id in sorted(report.spec_lost.items()):  # its next photo would have taken the config's
+        error(f"{name}: {spec_not_recovered(name, spec_id)}")  # spec in silence (a black-box review)
     # nothing recovered of what the vault holds: not "done" (a black-box review: a lost seal key, exit 0)
-    if report.recorded == 0 and not report.carried.patched and report.unreferenced_originals:
+    if report.spec_lost or (
+        report.recorded == 0 and not report.carried.patched and report.unreferenced_originals
+    ):
         raise typer.Exit(ExitStatus.FAILED)
 
 

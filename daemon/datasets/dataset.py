@@ -215,6 +215,7 @@ def ensure_dataset(
         and sample is not None
         and wants_corner(initial, ctx.config.position_set(dataset))
         and ctx.store.dataset_spec(dataset) is None
+        and ctx.store.lost_spec(dataset) is None  # refused below: no corner to judge
     ):
         placed = place_corner(initial, sample(), mask_dir)
         initial = placed.spec
@@ -222,3 +223,20 @@ def ensure_dataset(
     if placed is not None and stored.spec_id == initial.spec_id:  # ours won (not a concurrent first file's)
         record_choice(ctx, dataset, placed.choice, mask_dir)
     return stored
+
+
+def ensure_dataset_row(
+    ctx: AppContext,
+    dataset: str,
+    root: Path,
+    spec: PatchSpec | None,
+    *,
+    sample: Callable[[], Sequence[Path]] | None = None,
+    mask_dir: Path | None = None,
+) -> None:
+    """The dataset a row is recorded in when no file is patched (ppd's output found in its folder, a
+    failure): ensure_dataset, except for a dataset whose spec a rebuild lost, which stays without one
+    (no file is patched here, and the config's spec is not the one to take: a black-box review saw a
+    rebuilt dataset take it with its next file)."""
+    if ctx.store.lost_spec(dataset) is None:
+        ensure_dataset(ctx, dataset, root, spec, sample=sample, mask_dir=mask_dir)

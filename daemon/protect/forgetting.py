@@ -120,7 +120,7 @@ def _unfinished(name: str, what: str, exc: OSError, place: Path) -> ForgetUnfini
     """The one line of a forget stopped after its rows (exit 3): its note stays, a run again finishes."""
     where = exc.filename or place
     return ForgetUnfinished(
-        f"dataset {name!r}'s records are forgotten, but {what} ({exc.strerror or exc}: {where}); "
+        f"the records of dataset {name!r} are forgotten, but {what} ({exc.strerror or exc}: {where}); "
         f"`ppd dataset forget {shlex.quote(name)}` again finishes it"
     )
 

@@ -25,7 +25,7 @@ from daemon.datasets.dataset import (
     OutsideOutboxError,
     attribute,
     dataset_of,
-    ensure_dataset,
+    ensure_dataset_row,
 )
 from daemon.datasets.subject_masks import (
     MaskFolderMissing,
@@ -196,7 +196,7 @@ def _record_failure(
         pass  # a new dataset's spec (its corner) is never set without its masks; status names the folder
     elif not dry_run:
         try:  # a new dataset's corner is judged on the files next to this one (it could not be read)
-            ensure_dataset(
+            ensure_dataset_row(
                 ctx, dataset, root, spec, sample=lambda: sibling_images(path),
                 mask_dir=masks_or_none(ctx, dataset),
             )  # fmt: skip

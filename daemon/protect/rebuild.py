@@ -35,12 +35,12 @@ from typing import Any
 from daemon.config import Config
 from daemon.datasets.dataset import DEFAULT_DATASET, dataset_of, dataset_root
 from daemon.fsops import sha256_fd
-from daemon.locks import LockHeld, store_alone, watching
+from daemon.locks import LockHeld, store_alone, watch_running, watching
 from daemon.paths import AppPaths
 from daemon.platform import fd_path
-from daemon.protect import rebuild_carry
+from daemon.protect import rebuild_carry, rebuild_specs
 from daemon.states import FileState
-from daemon.store import SQLITE_SUFFIXES, Store, StoreError
+from daemon.store import SQLITE_SUFFIXES, Store, StoreError, StoreTooNew
 from daemon.store.sealkey import load_key
 from daemon.store.vault import Vault, VaultError
 from poisoner.atomic import fsync_dir
@@ -70,7 +70,7 @@ class RebuildBlocked(RebuildRefused):
 @dataclass
 class RebuildReport:
     store_path: Path
-    before: str = "missing"  # missing | damaged | lost | empty | sound: what the store was
+    before: str = "missing"  # missing | damaged | newer | lost | empty | sound: what the store was
     kept_aside: list[Path] = field(default_factory=list)  # the old store's files, renamed
     folders: list[Path] = field(default_factory=list)  # walked
     files_seen: int = 0  # regular files looked at
@@ -82,6 +82,7 @@ class RebuildReport:
     symlinks_skipped: int = 0
     specs: dict[str, str] = field(default_factory=dict)  # spec id -> where it was recovered from
     specs_missing: list[str] = field(default_factory=list)
+    spec_lost: dict[str, str] = field(default_factory=dict)  # dataset -> its files' spec id, found nowhere
     old_datasets: int = 0  # dataset rows read back from the old store
     unreferenced_originals: int = 0  # vault originals no rebuilt row names
     carried: rebuild_carry.Carried = field(default_factory=rebuild_carry.Carried)  # from the old store
@@ -97,7 +98,8 @@ class RebuildReport:
         if self.without_original:
             notes.append(f"{len(self.without_original)} marked without their original in the vault")
         if self.specs_missing:
-            notes.append(f"{len(self.specs_missing)} spec(s) not recovered")
+            lost = f": dataset(s) {', '.join(sorted(self.spec_lost))}" if self.spec_lost else ""
+            notes.append(f"{len(self.specs_missing)} spec(s) not recovered{lost}")
         if self.conflicts:
             notes.append(f"{len(self.conflicts)} duplicate(s) skipped")
         notes.extend(rebuild_carry.summary_notes(self.carried))
@@ -156,10 +158,7 @@ def rebuild_store(
     report = RebuildReport(store_path=store_path)
 
     if holders := watching(paths.data_dir):  # a daemon would go on writing to the store swapped out
-        raise RebuildBlocked(
-            f"ppd watch ({holders[0]}) is running on this data folder; stop it first "
-            "(`systemctl --user stop ppd`), then rebuild"
-        )
+        raise RebuildBlocked(watch_running(holders[0], "rebuild"))
     with contextlib.ExitStack() as held:
         try:  # a `ppd restore` or `ppd poison` committing between the reading and the swap was lost
             held.enter_context(store_alone(paths.data_dir))
@@ -185,13 +184,18 @@ def _rebuild(
     by_dataset: dict[str, list[str]] = collections.defaultdict(list)
     for dataset, fields in found.rows.values():
         by_dataset[dataset].append(fields["spec_id"])
-    specs = _recover_specs(vault, old, config, {s for ids in by_dataset.values() for s in ids}, report)
-    names = set(by_dataset) | set(old.datasets)  # the new store's datasets (_fill_new_store)
+    chosen = _dataset_spec_ids(by_dataset, old)
+    stored = [("old store", old.specs), *_kept_aside_specs(store_path)]
+    wanted = {s for ids in by_dataset.values() for s in ids} | {s for s in chosen.values() if s}
+    specs, report.specs, report.specs_missing = rebuild_specs.recover_specs(vault, wanted, config, stored)
+    names = set(chosen)  # the new store's datasets (_fill_new_store)
     report.carried = rebuild_carry.carry_over(history, found.rows.keys(), names, collector.is_intact, specs)
     rebuild_carry.carry_saved_over(history, found.rows, collector.is_intact)
-    _write_new_store(store_path, found, by_dataset, specs, old, report)
+    _write_new_store(store_path, found, by_dataset, chosen, specs, old, report)
     report.recorded = len(found.rows)
     report.datasets = _patched_per_dataset(names, by_dataset, report.carried)
+    # a dataset with patched files and no spec refuses new photos (Store.lost_spec): named, exit 1
+    report.spec_lost = {n: s for n, s in chosen.items() if s and s not in specs and report.datasets.get(n)}
     referenced = {fields["original_sha256"] for _, fields in found.rows.values()}
     carried = [*report.carried.restored, *report.carried.patched]
     referenced |= {fields["original_sha256"] for _, _, fields in carried}
@@ -294,6 +298,13 @@ def _store_condition(store_path: Path, vault_dir: Path, force: bool) -> str:
         return "missing"
     try:
         store = Store(store_path)
+    except StoreTooNew as exc:  # not damaged: a rebuild would drop what it cannot recover (a review)
+        if not force:
+            raise RebuildBlocked(
+                f"{exc}; `ppd store rebuild` leaves a newer store alone: `--force` replaces it all the same "
+                "(kept aside; its history, failed and skipped files are not rebuilt)"
+            ) from None
+        return "newer"
     except StoreError:
         return "damaged"
     try:
@@ -460,41 +471,30 @@ def _root_of(source: _Source, dataset: str, outbox: Path, old: _OldStore) -> Pat
 
 
 # ---- specs and the new store ---------------------------------------------------------------------
-def _recover_specs(
-    vault: Vault, old: _OldStore, config: Config, spec_ids: set[str], report: RebuildReport
-) -> dict[str, PatchSpec]:
-    """Each spec id's PatchSpec from the vault, the old store, the config or the defaults (only
-    where the content hashes to the id); recovered specs are kept in the vault for next time."""
-    wanted = spec_ids | {info["spec_id"] for info in old.datasets.values() if info.get("spec_id")}
-    candidates: dict[str, tuple[PatchSpec, str]] = {}
-    for text in old.specs.values():
-        with contextlib.suppress(ValueError, TypeError, KeyError):
-            spec = PatchSpec.from_json(text)
-            candidates.setdefault(spec.spec_id, (spec, "old store"))
-    for name in config.datasets:
-        with contextlib.suppress(Exception):  # an automatic dataset's interim spec may not load here
-            spec = config.spec_for(name)
-            candidates.setdefault(spec.spec_id, (spec, "config"))
-    candidates.setdefault(config.spec.spec_id, (config.spec, "config"))
-    candidates.setdefault(PatchSpec().spec_id, (PatchSpec(), "defaults"))
-    found: dict[str, PatchSpec] = {}
-    for spec_id in sorted(wanted):
-        kept = vault.load_spec(spec_id) if spec_id and set(spec_id) <= HEX else None
-        if kept is not None:
-            found[spec_id], report.specs[spec_id] = kept, "vault"
-        elif spec_id in candidates:
-            found[spec_id], report.specs[spec_id] = candidates[spec_id]
-            with contextlib.suppress(OSError, VaultError):
-                vault.keep_spec(found[spec_id])
-        else:
-            report.specs_missing.append(spec_id)
-    return found
+def _dataset_spec_ids(by_dataset: dict[str, list[str]], old: _OldStore) -> dict[str, str | None]:
+    """Each dataset of the new store and the id of its spec: its markers' most common one, else the
+    old store's."""
+    chosen: dict[str, str | None] = {}
+    for name in sorted(set(by_dataset) | set(old.datasets)):
+        ids = by_dataset.get(name, [])
+        most = collections.Counter(ids).most_common(1)
+        chosen[name] = most[0][0] if most else old.datasets[name].get("spec_id")
+    return chosen
+
+
+def _kept_aside_specs(store_path: Path) -> list[tuple[str, dict[str, str]]]:
+    """The specs of the stores earlier rebuilds kept aside, the newest first: one rebuilt before ppd
+    kept specs in the vault lost them, and the store it replaced may hold them."""
+    asides = [p for p in store_path.parent.glob(f"{store_path.name}{ASIDE_INFIX}*")
+              if not p.name.endswith(("-wal", "-shm"))]  # fmt: skip
+    return [("a store kept aside", _read_old_store(p).specs) for p in sorted(asides, reverse=True)]
 
 
 def _write_new_store(
     store_path: Path,
     found: _Found,
     by_dataset: dict[str, list[str]],
+    chosen: dict[str, str | None],
     specs: dict[str, PatchSpec],
     old: _OldStore,
     report: RebuildReport,
@@ -505,7 +505,7 @@ def _write_new_store(
         Path(f"{tmp}{suffix}").unlink(missing_ok=True)
     store = Store(tmp)
     try:
-        _fill_new_store(store, store_path, found, by_dataset, specs, old)
+        _fill_new_store(store, store_path, found, by_dataset, chosen, specs, old)
         rebuild_carry.write_carried(store, report.carried)
         store.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
         store.conn.execute("PRAGMA journal_mode = DELETE")  # one self-contained file to rename
@@ -523,13 +523,14 @@ def _fill_new_store(
     store_path: Path,
     found: _Found,
     by_dataset: dict[str, list[str]],
+    chosen: dict[str, str | None],
     specs: dict[str, PatchSpec],
     old: _OldStore,
 ) -> None:
-    """Datasets (each with its markers' most common spec), every recovered spec, the file rows."""
-    for name in sorted(set(by_dataset) | set(old.datasets)):
+    """Datasets (each with its spec, _dataset_spec_ids: none when not recovered), every recovered spec,
+    the file rows."""
+    for name, spec_id in chosen.items():
         ids = by_dataset.get(name, [])
-        spec_id = collections.Counter(ids).most_common(1)[0][0] if ids else old.datasets[name].get("spec_id")
         info = old.datasets.get(name, {})
         publish = info.get("publish_dir") or found.publish_dirs.get(name)
         root = Path(info.get("root") or found.roots.get(name) or store_path.parent)

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.context import AppContext
-from daemon.datasets.dataset import ensure_dataset
+from daemon.datasets.dataset import ensure_dataset_row
 from daemon.datasets.subject_masks import subject_masks_for
 from daemon.fsops import ContainedFile, copy_path_to_fd, open_contained
 from daemon.protect.job import (
@@ -46,7 +46,7 @@ from daemon.protect.job import (
 from daemon.protect.poisoning import named_vault_copy, poison_to, provenance_marker, seal_output
 from daemon.protect.publishing import not_moved, publish, published_there
 from daemon.protect.recovery import carry_moved_row
-from daemon.states import REMARKED_PREFIX
+from daemon.states import EARLIER_SPEC_WORDS, REMARKED_PREFIX
 from daemon.store.vault import sha256_file
 from poisoner.atomic import atomic_replace_at
 from poisoner.errors import PpdError
@@ -141,6 +141,7 @@ def _remark_in_place(
         raise ProtectRefused(resaved_reason(name))
     if not ctx.vault.verify(row["original_sha256"]):
         raise ProtectRefused(f"the vault copy of {Path(row['path']).name} is missing or corrupt")
+    ctx.vault.keep_spec(spec)  # as the stages' keep_in_vault does: a rebuilt store finds it there
     kind = media_kind(f.path) or "image"
     path = Path(row["path"])
     rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else path.name
@@ -196,7 +197,7 @@ def take_in(job: Job, earlier: dict[str, Any], record: Recorder) -> ProtectOutco
             why = f"would patch: {_came(job, earlier)}"
             return job.outcome(Outcome.PATCHED, why, spec_id=foreign.spec_id)
         return job.outcome(Outcome.UNCHANGED, "already ppd output", poisoned_sha256=sha)
-    ensure_dataset(ctx, job.dataset, job.root, job.wanted_spec or _spec(ctx, earlier["spec_id"]))
+    ensure_dataset_row(ctx, job.dataset, job.root, job.wanted_spec or _spec(ctx, earlier["spec_id"]))
     original = earlier["original_sha256"]
     if carry_moved_row(ctx, earlier, job.path, job.dataset, job.root):
         return remarked(job, earlier, f"moved from {earlier['path']}")
@@ -241,8 +242,8 @@ def remarked(job: Job, came: dict[str, Any], said: str) -> ProtectOutcome:
     why = _came(job, came)
     if row is None or not recorded:
         # not recorded here: its original is not in the vault (a forgotten dataset's, a lost vault)
-        reason = (f"{shown_name(job.path)} carries ppd's mark with another spec than dataset "
-                  f"{job.dataset!r}'s ({why}), and its original is not in the vault to patch it again "
+        reason = (f"{shown_name(job.path)} carries ppd's mark with another spec than the one of "
+                  f"dataset {job.dataset!r} ({why}), and its original is not in the vault to patch it again "
                   "with this one's: put the unmarked photo here instead")  # fmt: skip
         return job.outcome(Outcome.FAILED, reason, poisoned_sha256=job.sha)
     if came.get("resaved"):  # a copy of a file saved again by another program: its bytes the creator's too
@@ -250,7 +251,8 @@ def remarked(job: Job, came: dict[str, Any], said: str) -> ProtectOutcome:
     # a version saved meanwhile: SourceChanged, the stages start over on it (one_file._run_until_settled)
     outcome = reprotect_row(job.ctx, row, job.root, spec, job.file)
     if outcome.state == Outcome.FAILED:
-        outcome.reason = f"{outcome.reason} ({why}: it keeps that mark, not dataset {job.dataset!r}'s)"
+        theirs = f"not the one of dataset {job.dataset!r}"
+        outcome.reason = f"{outcome.reason} ({why}: it keeps that mark, {theirs})"
     elif outcome.state == Outcome.SKIPPED:  # its mark taken off: the original, as the spec's ratio leaves it
         outcome.reason = f"not selected by this dataset's spec's ratio: its original put back ({why})"
     else:
@@ -285,4 +287,4 @@ def _came(job: Job, came: dict[str, Any]) -> str:
     if dataset != job.dataset:
         moved = not os.path.lexists(source)
         return f"it came from dataset {dataset!r} ({'moved' if moved else 'copied'} from {source})"
-    return "it carried an earlier spec of this dataset"
+    return EARLIER_SPEC_WORDS

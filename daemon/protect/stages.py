@@ -11,7 +11,8 @@ The crash-safety argument is the order of the last six (docs/STORE.md, with the 
 costs and why each is needed):
 1. keep_in_vault: an independent copy of the original's bytes (Vault.keep_bytes: the bytes
    hash_original read through the file's descriptor and hashed, never a link; Vault.keep_fd for a
-   file over IN_MEMORY_MAX) is in the vault, fsynced with its folder, before anything else;
+   file over IN_MEMORY_MAX) is in the vault, fsynced with its folder, before anything else (with
+   the spec that patches it: Vault.keep_spec, so a rebuilt store knows it);
 2. mark_pending: a 'pending' row naming the original's sha256 is committed (not fsynced: after a
    power cut the patched file's seal names the original, durable in the vault, and the next run
    writes the row back; a killed process loses nothing of it);
@@ -43,7 +44,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import cast
 
-from daemon.datasets.dataset import ensure_dataset
+from daemon.datasets.dataset import ensure_dataset, ensure_dataset_row
 from daemon.datasets.subject_masks import (
     SubjectMaskError,
     mask_folder_holding,
@@ -338,7 +339,9 @@ def _dataset_spec(job: Job) -> PatchSpec:
     ctx = job.ctx
     job.mask_dir = subject_masks_for(ctx, job.dataset, job.subject_masks)
     if job.dry_run:
-        return job.wanted_spec or ctx.store.dataset_spec(job.dataset) or ctx.config.spec_for(job.dataset)
+        spec = job.wanted_spec or ctx.store.dataset_spec(job.dataset) or ctx.config.spec_for(job.dataset)
+        ctx.store.check_file_spec(job.dataset, spec)  # refused as the real run's ensure_dataset would
+        return spec
     spec = ensure_dataset(
         ctx, job.dataset, job.root, job.wanted_spec, sample=lambda: _corner_sample(job), mask_dir=job.mask_dir
     )
@@ -395,7 +398,7 @@ def _record_recognised(
     """ppd's output recognised in this dataset's folder (by its seal, or as a copy of a stored
     output: source says which): a patched file of the dataset, its original the vault's copy."""
     assert job.file is not None
-    ensure_dataset(job.ctx, job.dataset, job.root, job.wanted_spec)
+    ensure_dataset_row(job.ctx, job.dataset, job.root, job.wanted_spec)
     job.ctx.store.record_file(
         job.path, job.dataset, FileState.PATCHED, original_sha256=original, poisoned_sha256=sha,
         spec_id=spec_id, tool_version=version, size=job.file.st.st_size, mtime_ns=job.file.st.st_mtime_ns,
@@ -404,8 +407,12 @@ def _record_recognised(
 
 
 def keep_in_vault(job: Job) -> ProtectOutcome | None:
-    """1. An independent copy of the original (read through its descriptor) goes to the vault."""
-    assert job.file is not None and job.sha is not None
+    """1. An independent copy of the original (read through its descriptor) goes to the vault, and the
+    spec that is to patch it: a seal names only the spec's id, so a store rebuilt from the vault gives
+    the dataset its spec back from there (a black-box review: a dataset made with --patch-size came
+    back spec-less, and its next photo got the default mark)."""
+    assert job.file is not None and job.sha is not None and job.spec is not None
+    job.ctx.vault.keep_spec(job.spec)  # once per spec id (Vault.keep_spec)
     data = job.data  # held on: the poisoner's input (poison)
     try:
         if data is not None:  # the bytes that were hashed: written as they are, not read again

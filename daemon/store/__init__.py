@@ -26,7 +26,14 @@ from daemon.store.damage import (
     is_corruption,
     vault_holds_originals,
 )
-from daemon.store.errors import DatasetSpecLocked, PatchedNotFailed, StoreDamaged, StoreError
+from daemon.store.errors import (
+    DatasetSpecLocked,
+    PatchedNotFailed,
+    SpecNotRecovered,
+    StoreDamaged,
+    StoreError,
+    StoreTooNew,
+)
 from daemon.store.files import FILE_FIELDS, FILE_STATES
 from daemon.store.schema import AUTO_TRIGGERS, MIGRATIONS, SCHEMA_VERSION
 
@@ -43,9 +50,11 @@ __all__ = [
     "SQLITE_SUFFIXES",
     "DatasetSpecLocked",
     "PatchedNotFailed",
+    "SpecNotRecovered",
     "Store",
     "StoreDamaged",
     "StoreError",
+    "StoreTooNew",
     "damaged_message",
     "is_corruption",
     "vault_holds_originals",

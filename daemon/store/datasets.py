@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+import shlex
 import sqlite3
 import time
 from collections.abc import Iterable
@@ -13,7 +14,7 @@ from typing import Any
 
 from daemon.states import FileState
 from daemon.store.connection import StoreBase
-from daemon.store.errors import DatasetSpecLocked, StoreError
+from daemon.store.errors import DatasetSpecLocked, SpecNotRecovered, StoreError
 from daemon.store.event_log import insert_event
 from poisoner.spec import PatchSpec
 
@@ -72,8 +73,10 @@ class DatasetRows(StoreBase):
                     conn, name, None, "dataset_created", {"root": str(root), "spec_id": spec.spec_id}
                 )
             elif row[0] is None:
-                insert_spec(conn, spec)
-                conn.execute("UPDATE datasets SET spec_id = ? WHERE name = ?", (spec.spec_id, name))
+                spec_id = _spec_for_unset(conn, name, spec)
+                if spec_id == spec.spec_id:
+                    insert_spec(conn, spec)
+                conn.execute("UPDATE datasets SET spec_id = ? WHERE name = ?", (spec_id, name))
         return self._dataset_and_spec(name)
 
     def _dataset_and_spec(self, name: str) -> tuple[dict[str, Any], PatchSpec]:
@@ -108,6 +111,20 @@ class DatasetRows(StoreBase):
         """Every dataset, in natural order: set 2 before set 10 (text order put set 10-19 first)."""
         return sorted(self._rows("SELECT * FROM datasets"), key=lambda row: natural_key(row["name"]))
 
+    def lost_spec(self, name: str) -> str | None:
+        """The id of the spec the dataset's patched files carry when the dataset has none and the store
+        does not hold it (see _lost_spec_id); None otherwise."""
+        with self._damage_as_store_error():
+            lost = _lost_spec_id(self.conn, name)
+            return lost if lost is not None and not _spec_held(self.conn, lost) else None
+
+    def check_file_spec(self, name: str, spec: PatchSpec) -> None:
+        """SpecNotRecovered when a file of the dataset would be refused spec (ensure_dataset; a dry run
+        asks, writing nothing)."""
+        with self._damage_as_store_error():
+            if (row := self.dataset(name)) is not None and row["spec_id"] is None:
+                _spec_for_unset(self.conn, name, spec)
+
     def dataset_spec(self, name: str) -> PatchSpec | None:
         row = self.dataset(name)
         return self.get_spec(row["spec_id"]) if row and row["spec_id"] else None
@@ -130,7 +147,7 @@ class DatasetRows(StoreBase):
                 )
             elif row[0] != spec.spec_id:
                 if not allow_protected:
-                    _refuse_if_patched(conn, name, row[0])
+                    _refuse_if_patched(conn, name, row[0], spec.spec_id)
                 conn.execute("UPDATE datasets SET spec_id = ? WHERE name = ?", (spec.spec_id, name))
             insert_event(
                 conn, name, None, "spec_set", {"spec_id": spec.spec_id, "previous": row[0] if row else None}
@@ -141,7 +158,7 @@ class DatasetRows(StoreBase):
         with self._write() as conn:
             row = conn.execute("SELECT spec_id FROM datasets WHERE name = ?", (name,)).fetchone()
             if row is not None and row[0] != spec.spec_id:
-                _refuse_if_patched(conn, name, row[0])
+                _refuse_if_patched(conn, name, row[0], spec.spec_id)
 
     def set_dataset_masks(self, name: str, folder: Path | None) -> None:
         """Remember a dataset's subject-mask folder (None: forget it); an event says so when it changes."""
@@ -272,8 +289,21 @@ def _drop_spec_if_unused(conn: sqlite3.Connection, spec_id: str) -> None:
     )
 
 
-def _refuse_if_patched(conn: sqlite3.Connection, name: str, spec_id: str | None) -> None:
-    """DatasetSpecLocked when the dataset has patched (or pending) files under its current spec."""
+def _refuse_if_patched(conn: sqlite3.Connection, name: str, spec_id: str | None, new_id: str) -> None:
+    """DatasetSpecLocked when the dataset has patched (or pending) files under its current spec; a
+    dataset without one (a rebuilt store's) under the spec its files carry, SpecNotRecovered when the
+    store lost that one too: new_id equal to it is the spec given back, free."""
+    if spec_id is None:
+        lost = _lost_spec_id(conn, name)
+        if lost is None or lost == new_id:
+            return
+        if not _spec_held(conn, lost):
+            raise SpecNotRecovered(
+                f"dataset {name!r}: these flags make spec {new_id}, not {lost}, the spec its patched files "
+                "carry, which `ppd store rebuild` did not recover: give the flags it was made with, or "
+                f"`ppd dataset set {shlex.quote(name)} FLAGS --reprotect` marks all its files again with them"
+            )
+        spec_id = lost
     patched = conn.execute(
         "SELECT COUNT(*) FROM files WHERE dataset = ? AND state IN (?, ?)",
         (name, FileState.PATCHED, FileState.PENDING),
@@ -284,6 +314,49 @@ def _refuse_if_patched(conn: sqlite3.Connection, name: str, spec_id: str | None)
             f"changing it needs a re-protect from the vault "
             f"(ppd dataset set {name} ... --reprotect)"
         )
+
+
+def _lost_spec_id(conn: sqlite3.Connection, name: str) -> str | None:
+    """The spec the dataset's patched (or pending) files carry, the most common one, when the dataset
+    itself has none: a `ppd store rebuild` that did not recover it (a seal names only the spec's id, and
+    a ppd before this one kept no copy in the vault). A black-box review: such a dataset's next photo
+    silently got the config's spec, and status advised re-marking the creator's design with it."""
+    row = conn.execute(
+        "SELECT f.spec_id FROM files f JOIN datasets d ON d.name = f.dataset WHERE f.dataset = ? AND "
+        "d.spec_id IS NULL AND f.spec_id IS NOT NULL AND f.state IN (?, ?) "
+        "GROUP BY f.spec_id ORDER BY COUNT(*) DESC, f.spec_id LIMIT 1",
+        (name, FileState.PATCHED, FileState.PENDING),
+    ).fetchone()
+    return str(row[0]) if row is not None else None
+
+
+def _spec_held(conn: sqlite3.Connection, spec_id: str) -> bool:
+    return conn.execute("SELECT 1 FROM specs WHERE id = ?", (spec_id,)).fetchone() is not None
+
+
+def _spec_for_unset(conn: sqlite3.Connection, name: str, spec: PatchSpec) -> str:
+    """The id of the spec a dataset without one takes with a file: the one its patched files carry when
+    the store holds it, else spec's; SpecNotRecovered when they carry another, lost one (never two marks
+    in one dataset, in silence)."""
+    lost = _lost_spec_id(conn, name)
+    if lost is not None and lost != spec.spec_id:
+        if _spec_held(conn, lost):
+            return lost
+        raise SpecNotRecovered(f"dataset {name!r}: {spec_not_recovered(name, lost)}; not patched")
+    return spec.spec_id
+
+
+def spec_not_recovered(name: str, spec_id: str) -> str:
+    """What a dataset whose spec was lost is, and what gives it back: said by the refused file, `ppd store
+    rebuild`, `ppd status` and `ppd dataset show` alike."""
+    q = shlex.quote(name)
+    return (
+        f"spec not recovered: its patched files carry spec {spec_id}, which `ppd store rebuild` found "
+        f"nowhere, so its new photos are refused: `ppd dataset set {q}` with the flags it was made with "
+        f"(--design, --patch-size, --position, ...) gives it back, or `ppd dataset set {q} --reprotect` "
+        "marks all its files again with the config's spec; then `ppd poison` of its folder patches those "
+        "refused"
+    )
 
 
 def natural_key(name: str) -> list[tuple[int, int | str]]:

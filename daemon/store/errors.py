@@ -21,3 +21,12 @@ class PatchedNotFailed(StoreError):
 
 class DatasetSpecLocked(StoreError):
     """The dataset already has patched files under its spec; changing it needs --reprotect."""
+
+
+class SpecNotRecovered(DatasetSpecLocked):
+    """A dataset whose patched files carry a spec the store lost (`ppd store rebuild` found it nowhere):
+    no new file of it is patched with another spec until `ppd dataset set` gives it back."""
+
+
+class StoreTooNew(StoreError):
+    """The store was made by a newer ppd (a schema version this one does not know): never migrated down."""

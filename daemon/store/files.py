@@ -164,7 +164,11 @@ class FileRows(StoreBase):
 
     def patched_with_other_spec(self, dataset: str, spec_id: str | None) -> int:
         """How many of the dataset's patched rows carry another spec than spec_id (a re-protect that
-        did not finish leaves them)."""
+        did not finish leaves them). A dataset without a spec (a rebuilt store's that lost it) has none to
+        differ from: its files carry the lost one (DatasetRows.lost_spec), and a re-protect they were
+        advised would put the config's mark over the creator's design (a black-box review)."""
+        if spec_id is None:
+            return 0
         row = self._one(
             "SELECT COUNT(*) AS n FROM files WHERE dataset = ? AND state = ? AND spec_id IS NOT ?",
             (dataset, FileState.PATCHED.value, spec_id),

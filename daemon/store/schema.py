@@ -10,7 +10,7 @@ import sqlite3
 from pathlib import Path
 
 from daemon.store.damage import is_corruption
-from daemon.store.errors import StoreError
+from daemon.store.errors import StoreError, StoreTooNew
 
 log = logging.getLogger("daemon.store")
 
@@ -175,8 +175,12 @@ def migrate(conn: sqlite3.Connection, db_path: Path) -> int:
     current = row[0] if row else 0
     if row is None:
         conn.execute("INSERT INTO schema_version (version) VALUES (0)")
-    if current > SCHEMA_VERSION:
-        raise StoreError(f"{db_path} has schema version {current}; this ppd knows up to {SCHEMA_VERSION}")
+    if current > SCHEMA_VERSION:  # after a downgrade: said as such, with the way forward (a black-box review)
+        raise StoreTooNew(
+            f"the store {db_path} was made by a newer ppd (schema version {current}; this ppd knows up to "
+            f"{SCHEMA_VERSION}): upgrade ppd to open it (`pipx upgrade patchpoison`, or `pipx install "
+            "--force` with the newer ppd's wheel)"
+        )
     for index in range(current, SCHEMA_VERSION):
         _apply(conn, db_path, index)
         conn.execute("UPDATE schema_version SET version = ?", (index + 1,))

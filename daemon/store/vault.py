@@ -37,7 +37,7 @@ from typing import Any, Literal
 from daemon.fsops import clear_stale_temps_once, sha256_fd
 from daemon.paths import filesystem_of, make_private_dir
 from daemon.platform import reflink
-from poisoner.atomic import atomic_output, fsync_dir
+from poisoner.atomic import atomic_output, atomic_write_text, fsync_dir
 from poisoner.errors import ExitStatus, PpdError
 from poisoner.spec import PatchSpec
 
@@ -167,6 +167,7 @@ class Vault:
     def __init__(self, vault_dir: Path, max_bytes: int = 0) -> None:
         self.vault_dir = Path(vault_dir)
         self.max_bytes = max_bytes  # 0 = unlimited
+        self._specs_kept: set[str] = set()  # spec ids keep_spec found or wrote (in this process)
         make_private_dir(self.vault_dir)
         if self.vault_dir not in _cleared:  # once per process: what a killed keep or protect left
             _cleared.add(self.vault_dir)
@@ -339,21 +340,26 @@ class Vault:
         return self.vault_dir / SPECS_DIR / f"{spec_id}.json"
 
     def keep_spec(self, spec: PatchSpec) -> Path:
-        """Keep the spec that patched originals next to them (atomic, once per spec id), so a
-        store rebuilt from the vault and the files' markers knows each dataset's patch."""
+        """Keep the spec that patches originals next to them, so a store rebuilt from the vault and the
+        files' seals (which name only its id) knows each dataset's patch. Written once per spec id,
+        atomic and fsynced like the originals (the file, its folder, the vault folder when `specs` is
+        new); later calls cost no system call in this process, one stat in the next."""
         path = self.spec_path(spec.spec_id)
-        if path.is_file():
+        if spec.spec_id in self._specs_kept:
             return path
-        make_private_dir(path.parent)
-        try:
-            with atomic_output(path) as tmp:
-                tmp.write_text(spec.to_json())
-                os.chmod(tmp, 0o600)
-            os.chmod(path, 0o600)
-        except OSError as exc:
-            if exc.errno in NO_SPACE:
-                raise self._no_space(exc, len(spec.to_json())) from None
-            raise
+        if not path.is_file():
+            text = spec.to_json()
+            new_folder = not path.parent.is_dir()
+            try:
+                make_private_dir(path.parent)
+                atomic_write_text(path, text, mode=0o600)
+                if new_folder:  # the specs folder's own name, in the vault folder
+                    fsync_dir(self.vault_dir)
+            except OSError as exc:
+                if exc.errno in NO_SPACE:
+                    raise self._no_space(exc, len(text)) from None
+                raise
+        self._specs_kept.add(spec.spec_id)
         return path
 
     def load_spec(self, spec_id: str) -> PatchSpec | None:

@@ -27,7 +27,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-UNIT_NAME = "ppd.service"
+from daemon.paths import SERVICE_UNIT, user_unit_dir
+
+UNIT_NAME = SERVICE_UNIT
 DOCS_URL = "https://github.com/patchpoison/ppd/blob/main/docs/DAEMON.md"
 
 
@@ -193,9 +195,7 @@ def unit_lacks(folder: Path, unit: Path | None = None) -> bool:
 
 
 def unit_dir(env: Mapping[str, str] | None = None) -> Path:
-    env = os.environ if env is None else env
-    base = env.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
-    return Path(base).expanduser() / "systemd" / "user"
+    return user_unit_dir(env)
 
 
 @dataclass(frozen=True)

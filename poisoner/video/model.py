@@ -115,7 +115,10 @@ def frame_rate(info: SourceInfo) -> float:
 
 
 def size_text(n: int) -> str:
-    """A file size as a creator reads it: 425 KB, 12.3 MB, 1.20 GB (powers of 1000, as upload limits)."""
+    """A size as a creator reads it: 640 bytes, 425 KB, 12.3 MB, 1.20 GB (powers of 1000, as upload
+    limits); said of videos and of what `ppd dataset forget` frees ("0.0 MB" for 43 KB: a review)."""
+    if n < 1000:
+        return f"{n} bytes"
     if n < 1_000_000:
         return f"{n / 1000:.0f} KB"
     if n < 1_000_000_000:

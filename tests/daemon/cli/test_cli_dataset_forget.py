@@ -82,10 +82,13 @@ def test_a_deleted_shoot_is_forgotten_and_its_name_starts_clean(
     code, text = said("status")
     assert "folder is gone" in text and "`ppd dataset forget NAME` forgets a deleted one" in text, text
 
+    freed = sum((data / "vault" / sha[:2] / sha).stat().st_size for sha in originals)
+    assert 1000 < freed < 1_000_000
     code, text = said("dataset", "forget", "castle")
     assert code == 0, text
-    assert "forgot dataset castle: 3 file record(s); 3 original(s) (" in text, text
-    assert " MB) removed from the vault" in text and "kept" not in text, text
+    # the size in kB: "(0.0 MB)" said that nothing was freed (a black-box review, F8)
+    assert f"forgot dataset castle: 3 file record(s); 3 original(s) ({freed / 1000:.0f} KB) removed " \
+        "from the vault" in text and "kept" not in text, text
     assert "3 patched file(s) not found where they were patched (moved or deleted?): any copy of them " \
         "keeps the mark for good" in text, text  # a deleted shoot is not refused, and what it means is said
     assert _of(data, "castle") == dict.fromkeys(_of(data, "castle"), 0)
@@ -235,8 +238,8 @@ def test_a_restored_folder_in_the_outbox_is_refused_until_moved_out(
     blobs, before = _blobs(data), _of(data, "castle")
     code, text = said("dataset", "forget", "castle")
     assert code == 2 and text.startswith("ppd: error: ") and text.count("ppd:") == 1, text
-    assert f"dataset 'castle''s folder {shoot} is in the outbox: `ppd watch` would patch its 3 file(s) " \
-        "again once it is forgotten" in text, text
+    assert f"the folder of dataset 'castle', {shoot}, is in the outbox: `ppd watch` would patch its " \
+        "3 file(s) again once it is forgotten" in text, text
     assert "move the folder out of the outbox first, or --force" in text, text
     assert _blobs(data) == blobs and _of(data, "castle") == before  # nothing lost
     done = tmp_path / "done"
@@ -293,7 +296,7 @@ def test_a_moved_folder_made_a_dataset_by_name_keeps_its_originals(
     assert set(originals.values()) == _blobs(data)
     assert runner.invoke(app, ["poison", str(sets / "n4_new")]).exit_code == 0
     code, text = said("dataset", "forget", "n4")
-    assert code == 0 and "0 original(s) (0.0 MB) removed from the vault; 2 original(s) kept" in text, text
+    assert code == 0 and "0 original(s) (0 bytes) removed from the vault; 2 original(s) kept" in text, text
     assert said("restore", "n4_new")[0] == 0
     assert {name: _sha(sets / "n4_new" / name) for name in moved} == originals
 
@@ -412,7 +415,7 @@ def test_runs_that_cannot_be_removed_are_said_and_the_next_forget_removes_them(
     finally:
         run.chmod(0o700)
     assert done.returncode == 3 and done.stderr.count("ppd: error:") == 1, done.stdout + done.stderr
-    assert "dataset 'castle''s records are forgotten, but its verification runs or experiment folder " \
+    assert "the records of dataset 'castle' are forgotten, but its verification runs or experiment folder " \
         "could not all be removed " \
         f"(Permission denied: {run / 'report.json'}); `ppd dataset forget castle` again finishes it" \
         in " ".join(done.stderr.split()), done.stderr
@@ -438,6 +441,7 @@ def test_refused_while_ppd_watch_runs_or_a_command_holds_the_store(
         (root / name).mkdir(parents=True)
     env = {f"PPD_{name.upper()}_DIR": str(root / name) for name in ("data", "config", "cache")}
     env["PPD_OUTBOX"] = str(root / "outbox")
+    env["XDG_CONFIG_HOME"] = str(root / "xdg")  # no ppd.service installed there (yet)
     shoot = make_shoot(tmp_path / "castle", 2)
     assert _ppd(env, "poison", str(shoot)).returncode == 0
     shutil.rmtree(shoot)  # a deleted shoot
@@ -445,10 +449,19 @@ def test_refused_while_ppd_watch_runs_or_a_command_holds_the_store(
     daemon = start_daemon(root, "--no-verify")
     try:
         refused = _ppd(env, "dataset", "forget", "castle")
+        unit = root / "xdg" / "systemd" / "user" / "ppd.service"
+        unit.parent.mkdir(parents=True)
+        unit.write_text("[Service]\n")
+        with_unit = _ppd(env, "dataset", "forget", "castle")
     finally:
         stop_daemon(daemon)
     assert refused.returncode == 3 and refused.stderr.count("ppd: error:") == 1, refused.stderr
-    assert f"ppd watch (pid {daemon.pid}) is running on this data folder; stop it first" in refused.stderr
+    # a `ppd watch` run in a terminal, no unit installed: stopped by its pid, not by systemctl (review 8, F8)
+    assert f"ppd watch (pid {daemon.pid}) is running on this data folder; stop pid {daemon.pid} first " \
+        f"(Ctrl-C in its terminal, or `kill {daemon.pid}`), then forget the dataset" in refused.stderr
+    assert "systemctl" not in refused.stderr
+    assert with_unit.returncode == 3 and "stop it first (`systemctl --user stop ppd`; run in a terminal: " \
+        f"Ctrl-C in its terminal, or `kill {daemon.pid}`)" in with_unit.stderr, with_unit.stderr
     assert _blobs(root / "data") == blobs
 
     for key, value in env.items():

@@ -72,11 +72,11 @@ def test_dataset_set_root_refuses_what_is_not_a_move(ppd_env: dict[str, Path], t
         return " ".join(result.output.split())
 
     still = refused("a", "--root", str(sets / "elsewhere"))  # its folder still there: not a move
-    assert f"dataset 'a''s folder {sets / 'a'} is still there" in still, still
+    assert f"the folder of dataset 'a', {sets / 'a'}, is still there" in still, still
     assert f"`ppd poison {shlex.quote(str(sets / 'elsewhere'))}` makes a new dataset" in still, still
     (sets / "a").rename(sets / "a_moved")
     assert f"--root {sets / 'nowhere'}: no such folder" in refused("a", "--root", str(sets / "nowhere"))
-    assert "is dataset 'b''s folder" in refused("a", "--root", str(sets / "b"))
+    assert "is the folder of dataset 'b'; a folder is one" in refused("a", "--root", str(sets / "b"))
 
 
 def test_a_moved_folder_made_its_own_dataset_is_said_so(ppd_env: dict[str, Path], tmp_path: Path) -> None:

@@ -57,7 +57,7 @@ def test_key_new_and_key_import_are_refused_while_ppd_watch_runs(tmp_path: Path)
         imported = _ppd("key", "import", str(other), "--force", env=env)
         assert imported.returncode == 3  # before: 0, and the daemon sealed on with the old key
         line = _error_line(imported)
-        assert f"ppd watch (pid {daemon.pid}) is running" in line and "stop it first" in line
+        assert f"ppd watch (pid {daemon.pid}) is running" in line and f"`kill {daemon.pid}`" in line
         assert line.endswith("then import the key")
         key.unlink()  # the user "lost" it
         made = _ppd("key", "new", env=env)

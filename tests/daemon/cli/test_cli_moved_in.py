@@ -102,9 +102,9 @@ def test_an_original_not_in_the_vault_fails_named(ppd_env: dict[str, Path]) -> N
     assert result.exit_code == 1 and "patched 0, unchanged 1, skipped 0, failed 2" in text, text
     assert "ppd: failed: " + str(papers / "moved.png") + ": the vault copy of moved.png is missing or " \
         "corrupt (it came from dataset 'shoot' (moved from " in text, text
-    assert "it keeps that mark, not dataset 'papers''s)" in text, text
-    assert "copied.png carries ppd's mark with another spec than dataset 'papers''s (it came from dataset " \
-        "'shoot' (copied from" in text and "its original is not in the vault" in text, text
+    assert "it keeps that mark, not the one of dataset 'papers')" in text, text
+    assert "copied.png carries ppd's mark with another spec than the one of dataset 'papers' (it came " \
+        "from dataset 'shoot' (copied from" in text and "its original is not in the vault" in text, text
     assert {name: _sha(papers / name) for name in marked} == marked  # left as they were
     code, text = said("status", "papers")
     assert "1 patched with another spec than the dataset's (moved in from another " \
@@ -123,8 +123,8 @@ def test_dataset_flag_on_files_another_dataset_holds_is_refused(
     before = {p: _sha(p) for p in top.rglob("*.png")}
     code, text = said("poison", str(top / "sub"), "--dataset", "other7", "--design", "paper")
     assert code == 2 and text.startswith("ppd: error: ") and text.count("ppd:") == 1, text
-    assert f"3 file(s) here are dataset 'top7''s, patched with its spec ({top / 'sub' / 'v0.png'}, ...): " \
-        "--dataset other7 cannot take them" in text, text
+    assert "3 file(s) here belong to dataset 'top7', patched with its spec " \
+        f"({top / 'sub' / 'v0.png'}, ...): --dataset other7 cannot take them" in text, text
     assert said("dataset", "show", "other7")[0] == 2  # not made
     assert {p: _sha(p) for p in top.rglob("*.png")} == before
     code, text = said("poison", str(top / "sub"))  # without --dataset: top7's, as before
@@ -273,5 +273,8 @@ def test_a_re_mark_a_kill_stopped_is_finished_by_the_next_run(ppd_env: dict[str,
     code, text = said("-v", "poison", str(papers))
     assert code == 0 and "patched 1, unchanged 1" in text, text  # before: "patched 0, unchanged 2"
     assert "re-marked with this dataset's spec: it carried an earlier spec of this dataset" in text, text
+    # its summary line: it called every such file "moved or copied in from another dataset" (review 8, F4)
+    assert "re-marked with this dataset's spec: 1 file(s) of its own that carried an earlier spec of it " \
+        "(moved.png)" in text and "from another dataset" not in text, text
     assert _row(data, moved)["spec_id"] == ours and _row(data, moved)["poisoned_sha256"] == _sha(moved)
     assert said("restore", str(moved))[0] == 0 and _sha(moved) == originals["v1.png"]

@@ -98,10 +98,10 @@ def test_a_publish_folder_in_or_holding_a_dataset_folder_or_the_outbox_is_refuse
     assert runner.invoke(app, ["poison", str(garden)]).exit_code == 0
     monkeypatch.setenv("PPD_OUTBOX", str(tmp_path / "box" / "outbox"))  # a folder holding it, not data/
     refused = {
-        castle / "public": "is inside dataset 'castle''s folder",
-        castle: "is inside dataset 'castle''s folder",
-        garden / "pub": "is inside dataset 'garden''s folder",
-        photos: "holds dataset 'castle''s folder",
+        castle / "public": "is inside the folder of dataset 'castle',",
+        castle: "is inside the folder of dataset 'castle',",
+        garden / "pub": "is inside the folder of dataset 'garden',",
+        photos: "holds the folder of dataset 'castle',",
         tmp_path / "box": f"holds the outbox {tmp_path / 'box' / 'outbox'}",
     }
     for folder, why in refused.items():
@@ -155,7 +155,7 @@ def test_a_configured_publish_folder_in_a_dataset_folder_is_refused(
     config.write_text(f'publish_dir = "{castle / "public"}"\n')
     new = runner.invoke(app, ["poison", str(castle)])
     said = " ".join(new.output.split())
-    why = f"{config}: publish_dir: {castle / 'public'} is inside dataset 'castle''s folder"
+    why = f"{config}: publish_dir: {castle / 'public'} is inside the folder of dataset 'castle',"
     assert new.exit_code == 2 and why in said, new.output
     assert "castle" not in runner.invoke(app, ["status"]).output  # refused before the dataset was made
     unpatched = make_shoot(tmp_path / "again", 1) / "v0.png"
@@ -165,7 +165,7 @@ def test_a_configured_publish_folder_in_a_dataset_folder_is_refused(
     config.write_text(f'publish_dir = "{castle / "public"}"\n')
     status = runner.invoke(app, ["status"])
     assert status.exit_code == 2 and " ".join(status.output.split()).startswith(
-        f"ppd: error: {config}: publish_dir: {castle / 'public'} is inside dataset 'castle''s folder"
+        f"ppd: error: {config}: publish_dir: {castle / 'public'} is inside the folder of dataset 'castle',"
     ), status.output
 
 
