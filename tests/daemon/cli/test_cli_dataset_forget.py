@@ -273,7 +273,8 @@ def test_a_moved_folder_and_an_unknown_name_are_refused(ppd_env: dict[str, Path]
     code, text = said("dataset", "forget", "n2")
     assert code == 2 and text.count("ppd: error:") == 1, text
     assert f"its patched files are in {sets / 'n2_new'} (moved?)" in text, text
-    assert f"`ppd dataset set n2 --root {shlex.quote(str(sets / 'n2_new'))}` moves the dataset there" in text, text
+    new = shlex.quote(str(sets / "n2_new"))
+    assert f"`ppd dataset set n2 --root {new}` moves the dataset there" in text, text
     assert _blobs(data) == blobs and _of(data, "n2")["files"] == 2
     assert said("dataset", "forget", "nope") == (2, "ppd: error: no dataset 'nope'")
     assert said("dataset", "forget", "n2", "--force")[0] == 0
@@ -293,7 +294,8 @@ def test_a_moved_folder_made_a_dataset_by_name_keeps_its_originals(
     (sets / "n4").rename(sets / "n4_new")
     assert runner.invoke(app, ["dataset", "set", "n4_new", "--root", str(sets / "n4_new")]).exit_code == 0
     code, text = said("dataset", "forget", "n4")
-    assert code == 2 and f"`ppd poison {shlex.quote(str(sets / 'n4_new'))}` records them in dataset 'n4_new'" in text, text
+    new = shlex.quote(str(sets / "n4_new"))
+    assert code == 2 and f"`ppd poison {new}` records them in dataset 'n4_new'" in text, text
     assert set(originals.values()) == _blobs(data)
     assert runner.invoke(app, ["poison", str(sets / "n4_new")]).exit_code == 0
     code, text = said("dataset", "forget", "n4")
