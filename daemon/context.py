@@ -72,7 +72,7 @@ class AppContext:
                 release_store(paths.data_dir, hold)
             raise
         ctx = cls(paths=paths, config=config, store=store, _store_hold=hold,
-                  vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes))  # fmt: skip
+                  vault=Vault(paths.vault_dir, config.vault.max_bytes, paths.config_file))  # fmt: skip
         try:
             _check_publish_roots(config, store)  # the dataset folders are the store's
         except BaseException:

@@ -24,6 +24,7 @@ from poisoner.errors import ExitStatus
 if TYPE_CHECKING:
     from daemon.cli.planning import Job
     from daemon.context import AppContext
+    from daemon.datasets.linked_folders import LinkedFolder
     from daemon.protect.one_file import ProtectOutcome
     from poisoner.spec import PatchSpec
 
@@ -55,47 +56,23 @@ def still_open(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
     return [o for o in outcomes if o.state == "skipped" and (o.reason or "").startswith(STILL_OPEN_PREFIX)]
 
 
-def linked_folders(outcomes: list[ProtectOutcome]) -> list[tuple[ProtectOutcome, int]]:
-    """The symlinked sub-folders skipped (never followed) with the photos and videos in each (read,
-    not patched): a folder of them was one 'failed' file, its photos neither counted nor named."""
+def linked_folders(ctx: AppContext, outcomes: list[ProtectOutcome]) -> list[LinkedFolder]:
+    """The symlinked sub-folders skipped (never followed), with the photos and videos reached through
+    each (daemon.datasets.linked_folders: read, not patched): a folder of them was one 'failed' file,
+    its photos neither counted nor named."""
+    from daemon.datasets.linked_folders import linked_folders as with_photos
     from daemon.states import LINKED_FOLDER_PREFIX
 
-    said = [(o, o.reason or "") for o in outcomes if o.state == "skipped"]
-    return [(o, _photos_in(o.path)) for o, why in said if why.startswith(LINKED_FOLDER_PREFIX)]
+    said = [o for o in outcomes if o.state == "skipped" and (o.reason or "").startswith(LINKED_FOLDER_PREFIX)]
+    return with_photos([o.path for o in said], own=[ctx.paths.outbox])
 
 
-def _photos_in(folder: Path, budget: int = 20_000) -> int:
-    """The photos and videos ppd would patch in folder and below (hidden ones left out, no symlink
-    followed below it), looking at no more than `budget` entries: a link to / must not walk the disk."""
-    from poisoner.media import IMAGE, VIDEO, media_class
-
-    found = 0
-    for here, dirs, files in os.walk(folder):
-        dirs[:] = [d for d in dirs if not d.startswith(".")]
-        found += sum(media_class(Path(here, f)) in (IMAGE, VIDEO) for f in files if not f.startswith("."))
-        budget -= len(files) + len(dirs)
-        if budget <= 0:
-            break
-    return found
-
-
-def _linked_line(linked: list[tuple[ProtectOutcome, int]]) -> str | None:
+def _linked_line(linked: list[LinkedFolder]) -> str | None:
     """One line for the symlinked folders that hold photos; None when none does."""
-    full = [(o, n) for o, n in linked if n]
-    if not full:
-        return None
-    shown = ", ".join(f"{o.path.name} -> {_link_target(o.path)}: {n}" for o, n in full[:3])
-    more = ", ..." if len(full) > 3 else ""
-    return (f"not protected: {sum(n for _, n in full)} photo(s) or video(s) in {len(full)} symlinked "
-            f"folder(s) ppd does not follow ({shown}{more}); put the folder itself in place of the link, "
-            "or run ppd poison on the folder it points to")  # fmt: skip
+    from daemon.cli.linked_lines import LINKED_ADVICE, linked_phrase
 
-
-def _link_target(path: Path) -> str:
-    try:
-        return os.readlink(path)
-    except OSError:  # replaced meanwhile: the line still names the folder
-        return "?"
+    phrase = linked_phrase(linked)
+    return None if phrase is None else f"not protected: {phrase}; {LINKED_ADVICE}"
 
 
 def _restored_left(outcomes: list[ProtectOutcome]) -> list[ProtectOutcome]:
@@ -237,7 +214,7 @@ def jpeg_lines(outcomes: list[ProtectOutcome]) -> list[str]:
     return lines
 
 
-def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
+def _print_counts(ctx: AppContext, outcomes: list[ProtectOutcome], dry_run: bool) -> None:
     """exiftool-style counts, the files left restored, each failed file with its reason."""
     counts = Counter(outcome_word(o) for o in outcomes)
     words = ["would patch" if dry_run else "patched", "unchanged", "skipped", "failed"]
@@ -255,7 +232,7 @@ def _print_counts(outcomes: list[ProtectOutcome], dry_run: bool) -> None:
             "or leave them out",
             markup=False,
         )
-    if linked := _linked_line(linked_folders(outcomes)):
+    if linked := _linked_line(linked_folders(ctx, outcomes)):
         err_console().print(linked, markup=False)
     if still := still_open(outcomes):  # the daemon patches them once closed; this run does not
         shown = ", ".join(shown_name(o.path) for o in still[:5]) + (", ..." if len(still) > 5 else "")
@@ -288,7 +265,7 @@ def summary(
     from daemon.cli.planning import output_places
     from daemon.cli.status_queries import protection_line
 
-    _print_counts(outcomes, dry_run)
+    _print_counts(ctx, outcomes, dry_run)
     # the scene's hint with the run that patches (or would): a rerun that changes nothing said it
     # again each time (a black-box review), and judging the scene costs a few photos' decode
     if scene_notes() and any(o.state in OUTCOME_PATCHED for o in outcomes):
@@ -543,8 +520,8 @@ def _run_planned(
     # a photo ppd cannot write (BMP, GIF, raw) left beside the patched ones: not protected, as a failure
     # (with --out it is not copied where the patched ones go: nothing unprotected is published there)
     in_place = {j.path for j in jobs if j.out_path is None}
-    left = [o for o in unprotected_media(outcomes) if o.path in in_place]
-    left += [o for o, n in linked_folders(outcomes) if n and o.path in in_place]
+    left = [o.path for o in unprotected_media(outcomes) if o.path in in_place]
+    left += [link.path for link in linked_folders(ctx, outcomes) if link.photos and link.path in in_place]
     misnamed = unpatched_in_place(ctx, jobs, outcomes, paths, masks)
     failed = [o for o in outcomes if o.state == "failed"]
     if failed and disk_full(failed):  # `--help`: 3 = cannot work here, disk full (a black-box review: 1)

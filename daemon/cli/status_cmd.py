@@ -4,7 +4,6 @@ verdict) or only patched, what to run next; warnings on regressions and sync fol
 from __future__ import annotations
 
 import json
-import os
 import shlex
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,6 +19,7 @@ from verifier.verdict import Verdict
 if TYPE_CHECKING:
     from rich.table import Table
 
+    from daemon.cli.status_outbox import OutboxAlerts
     from daemon.context import AppContext
 
 VERDICT_STYLE = {
@@ -164,14 +164,15 @@ COUNT_WORDS = {
     "gone": "deleted or moved away since patched", "unprotectable": "in a format ppd cannot protect",
     "removed": "deleted or moved away earlier",  # a row ppd recorded so: a renamed file's old name too
     "restored_unrecorded": "holding the original again", "not_utf8": "named in bytes that are not UTF-8",
-    "unpatched_names": "under names ppd does not patch",
+    "unpatched_names": "under names ppd does not patch", "linked": "in symlinked folders ppd does not follow",
+    "sealed": "carrying ppd's mark with no record (their dataset forgotten?)",
     # a run killed mid-file: the next run finishes it ("pending" was never explained: a review, F15)
     "pending": "interrupted mid-patch",
 }  # fmt: skip
 NOT_MOVED_WORDS = "NOT moved to the publish folder: still in the outbox"
 # Counts that are no part of "files": files no longer there (their rows history), files of a format ppd
 # cannot patch; "renamed" is a part of "patched"
-NOT_COUNTED = ("gone", "removed", "unprotectable", "unpatched_names")
+NOT_COUNTED = ("gone", "removed", "unprotectable", "unpatched_names", "linked")
 
 
 def files_line(counts: dict[str, Any]) -> str:
@@ -243,6 +244,7 @@ def _print_details(d: dict[str, Any]) -> None:
         lines.append(d["auto"])
     lines += place_lines(d)
     lines += d.get("mark_notes") or []
+    lines += [d["sealed_line"]] if d.get("sealed_line") else []  # ppd's output no row names
     for line in lines:
         print_line(out, "  " + line)
     for profile, v in d["verdicts"].items():
@@ -338,9 +340,7 @@ def _outbox_not_patched(outbox: Path, report: list[dict[str, Any]], unclaimed: l
     return sorted({*map(str, unclaimed), *held})
 
 
-def _print_json(
-    ctx: AppContext, report: list[dict[str, Any]], sync: Any, unclaimed: list[Path], misnamed: list[Path]
-) -> None:
+def _print_json(ctx: AppContext, report: list[dict[str, Any]], sync: Any, alerts: OutboxAlerts) -> None:
     # --check's answer and reasons, per dataset: a script had to rebuild the rule (a black-box review)
     datasets = [{**d, "not_ready": [] if _gone(d) else unready_reasons(d)} for d in report]
     payload = {
@@ -349,11 +349,9 @@ def _print_json(
         "datasets": datasets,
         # every photo in the outbox not patched yet: of no dataset, or of one (a script read [] as a
         # clean outbox while the "default" dataset had a new photo: a black-box review); sorted
-        "outbox_not_patched": _outbox_not_patched(ctx.paths.outbox, report, unclaimed),
-        "outbox_no_dataset": [str(p) for p in unclaimed],  # what outbox_not_patched held before
-        # in no dataset's folder, under names ppd does not patch (a hidden folder of the outbox's)
-        "outbox_unpatched_names": [str(p) for p in misnamed],
-        "ready_to_publish": bool(report) and not unclaimed and not misnamed
+        "outbox_not_patched": _outbox_not_patched(ctx.paths.outbox, report, alerts.unclaimed),
+        **alerts.to_json(ctx),  # the outbox's own findings (daemon.cli.status_outbox)
+        "ready_to_publish": bool(report) and not alerts.unready()
         and any(not _gone(d) for d in report) and not any(d["not_ready"] for d in datasets),
     }
     typer.echo(json.dumps(payload, indent=2, default=str))
@@ -450,6 +448,7 @@ def status(
       ppd status castle --failed  the files that failed, and why
       ppd status castle --check && publish castle
     """
+    from daemon.cli.status_outbox import outbox_alerts, outbox_folder_said
     from daemon.cli.status_queries import dataset_status, failed_files
     from daemon.cli.targets import TargetError, dataset_or_die
     from daemon.watch.syncdirs import find_sync_folder
@@ -462,32 +461,24 @@ def status(
             try:
                 names = [dataset_or_die(ctx.store, dataset, say, "give a dataset (see `ppd status`)")]
             except TargetError as exc:
-                in_outbox = ctx.paths.outbox / dataset
-                if dataset and "/" not in dataset and in_outbox.is_dir():  # no dataset yet: say so
-                    where = shlex.quote(str(in_outbox))
-                    raise die(f"{dataset}: a folder of the outbox that ppd has not patched yet, NOT "
-                              f"protected: `ppd watch` patches it, or `ppd poison {where}`") from None
-                raise die(exc) from None
+                if not outbox_folder_said(ctx, dataset, as_json):  # a folder of the outbox: said so
+                    raise die(exc) from None
+                return
         report = [dataset_status(ctx, n) for n in names]
-        unclaimed = [] if dataset is not None else outbox_unclaimed(ctx)
-        misnamed = [] if dataset is not None else outbox_unpatched_names(ctx)
+        alerts = outbox_alerts(ctx, names, whole=dataset is None)
         if failed:
             for d in report:
                 d["failed_files"] = failed_files(ctx, d["name"])
         sync = find_sync_folder(ctx.paths.outbox)
         if as_json:
-            _print_json(ctx, report, sync, unclaimed, misnamed)
+            _print_json(ctx, report, sync, alerts)
         else:
             _print_report(ctx, report, sync, failed, detailed=long or bool(dataset))
-            if unclaimed:
-                print_line(console(), unclaimed_line(ctx.paths.outbox, unclaimed))
-            if misnamed:
-                from daemon.datasets.unpatched_names import unpatched_line
-
-                print_line(console(), f"outbox: {unpatched_line(misnamed, 'the outbox')}")
+            for line in alerts.lines(ctx):
+                print_line(console(), line)
     finally:
         ctx.close()
-    _exit_if_unready(report, check, unclaimed, misnamed)
+    _exit_if_unready(report, check, alerts.unready())
 
 
 def unready_reasons(d: dict[str, Any]) -> list[str]:
@@ -514,44 +505,7 @@ def unready_reasons(d: dict[str, Any]) -> list[str]:
     return reasons
 
 
-def outbox_unclaimed(ctx: AppContext) -> list[Path]:
-    """The outbox's photos and videos no dataset holds yet (daemon.datasets.folder_count)."""
-    from daemon.datasets.folder_count import outbox_unclaimed as unclaimed
-
-    found = unclaimed(ctx.paths.outbox, [d["root"] for d in ctx.store.datasets()])
-    if not found:
-        return []
-    # a row names it, by whichever spelling of the outbox it was patched through: some dataset's file
-    spellings = {str(ctx.paths.outbox), os.path.realpath(ctx.paths.outbox)}
-    named = {os.path.realpath(r["path"]) for where in spellings for r in ctx.store.files_under(where)}
-    return [p for p in found if os.path.realpath(p) not in named]
-
-
-def outbox_unpatched_names(ctx: AppContext) -> list[Path]:
-    """The outbox's photos under names ppd does not patch that no dataset counts (its hidden and
-    unclaimed folders: daemon.datasets.unpatched_names), ppd's own folders left out."""
-    from daemon.datasets.unpatched_names import outbox_unpatched
-
-    own = [ctx.paths.data_dir, ctx.paths.cache_dir]
-    return outbox_unpatched(ctx.paths.outbox, [d["root"] for d in ctx.store.datasets()], own)
-
-
-def unclaimed_line(outbox: Path, unclaimed: list[Path]) -> str:
-    """One line: how many, which (a few), and what patches them."""
-    from daemon.protect.job import shown_path
-
-    real = Path(os.path.realpath(outbox))
-    names = [shown_path(p.relative_to(real) if p.is_relative_to(real) else p) for p in unclaimed[:3]]
-    more = f", and {len(unclaimed) - 3} more" if len(unclaimed) > 3 else ""
-    return (
-        f"outbox: {len(unclaimed)} photo(s) or video(s) no dataset holds yet, NOT protected "
-        f"({', '.join(names)}{more}): `ppd watch` patches them, or `ppd poison {shlex.quote(str(outbox))}`"
-    )
-
-
-def _exit_if_unready(
-    report: list[dict[str, Any]], check: bool, unclaimed: Sequence[Path] = (), misnamed: Sequence[Path] = ()
-) -> None:
+def _exit_if_unready(report: list[dict[str, Any]], check: bool, outbox: Sequence[str] = ()) -> None:
     """--check: one line per dataset not ready to publish (stderr), then exit 1. A dataset whose
     folder is gone and that holds no file now publishes nothing: it is not shown, and not waited for
     (a black-box review: after a folder was renamed, --check could never pass again)."""
@@ -560,12 +514,7 @@ def _exit_if_unready(
     shown = [d for d in report if not _gone(d)]
     unready = [(d["name"], unready_reasons(d)) for d in shown]
     unready = [(name, why) for name, why in unready if why]
-    if unclaimed:
-        unready.append(("outbox", [f"{len(unclaimed)} photo(s) or video(s) not patched yet"]))
-    if misnamed:
-        from daemon.datasets.unpatched_names import WORDS
-
-        unready.append(("outbox", [f"{len(misnamed)} photo(s) or video(s) {WORDS}"]))
+    unready += [("outbox", [why]) for why in outbox]  # the outbox's own (daemon.cli.status_outbox)
     for name, why in unready:
         err_console().print(f"not ready to publish: {name}: {', '.join(why)}", markup=False, highlight=False)
     if not shown and not unready:  # exit 1 said nothing (a second black-box review): say why

@@ -230,6 +230,7 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         resume_command,
         unprotected_phrases,
     )
+    from daemon.datasets.sealed_files import sealed_phrase
     from daemon.protect.mark_notes import mark_note_lines
     from daemon.states import left_out_photos, patched_count
     from daemon.verification.auto_mode import status_text as auto_status_text  # light: no torch, no pycolmap
@@ -283,6 +284,11 @@ def dataset_status(ctx: AppContext, name: str) -> dict[str, Any]:
         # photos under names ppd does not patch, published with the folder (daemon.datasets.unpatched_names)
         "unpatched_names": [str(p) for p in folder.unpatched_names],
         "unpatched_where": _where(ctx, row["root"]),
+        # symlinked folders in it, never followed, and their photos (daemon.datasets.linked_folders)
+        "linked_folders": [link.to_dict() for link in folder.linked if link.photos],
+        # ppd's output no row names, its seal verified: not "not patched yet" (daemon.datasets.sealed_files)
+        "sealed_files": folder.sealed.to_dict(),
+        "sealed_line": sealed_phrase(folder.sealed) or None,
         "patched": patched_count(counts),
         # where marks found no plain place, as `ppd poison` says it (issue 25): the daemon's files too
         "mark_notes": mark_note_lines(ctx.store.patched_place_notes(name)),

@@ -85,6 +85,12 @@ def _unprotected_lines(d: dict[str, Any]) -> list[str]:
         from daemon.datasets.unpatched_names import unpatched_line
 
         lines.append(f"{name}: {unpatched_line(paths, d['unpatched_where'])}")
+    if links := d.get("linked_folders"):  # never followed; a publisher that follows links ships them
+        from daemon.cli.linked_lines import linked_status_line
+        from daemon.datasets.linked_folders import LinkedFolder
+
+        linked = linked_status_line([LinkedFolder.from_dict(x) for x in links], Path(d["root"]))
+        lines += [f"{name}: {linked}"] if linked else []
     lines += _not_utf8_lines(d)
     if d.get("restored_in_place"):  # originals back where they are published: said in the overview
         # some still patched: a restore stopped part-way (killed) is finished by running it again (a

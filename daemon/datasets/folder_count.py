@@ -22,6 +22,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from daemon.datasets.linked_folders import LinkedFolder, linked_folders_under
+from daemon.datasets.sealed_files import Sealed, split_sealed
 from daemon.states import PATCHED_VALUES, WAITING_PREFIX, FileState, patched_count, storable
 from poisoner.atomic import TEMP_PREFIX, is_temp_name, remove_stale_temp
 from poisoner.media import IMAGE, UNPROTECTED, VIDEO, media_class, unpatched_name
@@ -66,6 +68,12 @@ class FolderCount:
     # media files whose names are not UTF-8: no row can name them (ppd refuses them: rename them), never
     # "not patched yet" with a `ppd poison` that fails on them the same way every time (F7)
     not_utf8: list[Path] = field(default_factory=list)
+    # symlinked folders in it, never followed: their photos, unmarked, ship with a publisher that follows
+    # links (daemon.datasets.linked_folders)
+    linked: list[LinkedFolder] = field(default_factory=list)
+    # files no row names that are ppd's output, their seal verified (daemon.datasets.sealed_files): not
+    # among untracked (a run leaves them unchanged), counted in "files"
+    sealed: Sealed = field(default_factory=Sealed)
 
     def to_dict(self) -> dict[str, Any]:
         copies = None if self.copies is None else str(self.copies)
@@ -336,6 +344,7 @@ def with_folder(counts: Mapping[str, int], folder: FolderCount) -> dict[str, int
         merged["unprotectable"] = len(folder.unprotectable)
     if folder.unpatched_names and folder.copies is None:
         merged["unpatched_names"] = len(folder.unpatched_names)
+    _count_outside(merged, folder)
     if folder.renamed:  # still patched and in the folder: counted by their old rows, under "patched"
         merged["renamed"] = len(folder.renamed)
     if folder.gone:  # deleted or moved away since patched: neither a file of the dataset nor patched
@@ -405,6 +414,11 @@ def dataset_folder(ctx: AppContext, name: str, root: str) -> FolderCount:
     )  # fmt: skip
     if count.exists and count.copies is None:  # with --out, the copies' folder is the one published
         count = replace(count, unpatched_names=_unpatched(folder, [*masks, *skip], foreign))
+        # its symlinked folders, but those into the outbox (their files are counted there)
+        count = replace(count, linked=linked_folders_under(folder, [*masks, *skip], own=[ctx.paths.outbox]))
+    if count.untracked:  # ppd's output among them: a run leaves it unchanged, so not "not patched yet"
+        rest, sealed = split_sealed(count.untracked, ctx.paths.data_dir, ctx.paths.vault_dir)
+        count = replace(count, untracked=rest, sealed=sealed)
     # `--out` copies: their folder is the one published, where a killed run's partial copy would be
     temps = count.temps + (_walk(count.copies, [])[2] if count.copies and count.copies.is_dir() else [])
     if not temps:
@@ -418,6 +432,16 @@ def _unpatched(folder: Path, skip: list[Path], foreign: set[str]) -> list[Path]:
     from daemon.datasets.unpatched_names import unpatched_media
 
     return [p for p in unpatched_media(folder, skip) if str(p) not in foreign]
+
+
+def _count_outside(merged: dict[str, int], folder: FolderCount) -> None:
+    """with_folder's counts of the photos behind symlinked folders ("linked", not among "files": ppd never
+    reaches them) and of ppd's output no row names ("sealed", among "files", not "patched": no row)."""
+    if photos := sum(link.photos for link in folder.linked):
+        merged["linked"] = photos
+    if folder.sealed:
+        merged["sealed"] = len(folder.sealed)
+        merged["files"] += len(folder.sealed)
 
 
 def _vault_stat(vault_dir: Path, sha256: str) -> os.stat_result | None:
@@ -521,6 +545,7 @@ UNPROTECTED_WORDS = {
     "unprotectable": "in a format ppd cannot protect",
     "restored_unrecorded": "holding the original again", "not_utf8": "named in bytes that are not UTF-8",
     "unpatched_names": "under names ppd does not patch",
+    "linked": "in symlinked folders ppd does not follow",
 }  # fmt: skip
 
 

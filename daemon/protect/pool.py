@@ -144,7 +144,7 @@ def open_worker(
 
     _worker_ctx = AppContext(
         paths=paths, config=config, store=Store(paths.db_path),
-        vault=Vault(paths.vault_dir, max_bytes=config.vault.max_bytes),
+        vault=Vault(paths.vault_dir, config.vault.max_bytes, paths.config_file),
         lock_wait_s=lock_wait_s, key_stamp=key_stamp,  # the caller's key, never one made since
         give_up_waits=None if stopped is None else lambda: bool(stopped.value),
     )  # fmt: skip

@@ -163,11 +163,28 @@ def blob_path(vault_dir: Path, sha256: str) -> Path:
     return Path(vault_dir) / sha256[:2] / sha256
 
 
+# A file that failed on [vault] max_bytes says so, then the limit in bytes (`ppd status` counts them)
+LIMIT_WORDS = "would pass its limit of"
+
+
+def limit_message(vault_dir: Path, used: int, size: int, limit: int, config_file: Path | None) -> str:
+    """VaultFullError's line for the size limit, with the whole way out: the limit is read at start, so a
+    running `ppd watch` kept failing after the user raised it as told, and nothing said to restart it,
+    nor that forgetting a finished shoot frees room (a black-box review)."""
+    where = config_file or "config.toml"
+    return (
+        f"vault {vault_dir} holds {used} bytes; keeping {size} more {LIMIT_WORDS} {limit} bytes: raise "
+        f"[vault] max_bytes in {where} and restart ppd watch (`systemctl --user restart ppd` for the "
+        "service), or `ppd dataset forget` a finished shoot (ppd never deletes originals on its own)"
+    )
+
+
 class Vault:
-    def __init__(self, vault_dir: Path, max_bytes: int = 0) -> None:
+    def __init__(self, vault_dir: Path, max_bytes: int = 0, config_file: Path | None = None) -> None:
         self.vault_dir = Path(vault_dir)
         self.max_bytes = max_bytes  # 0 = unlimited
         self._specs_kept: set[str] = set()  # spec ids keep_spec found or wrote (in this process)
+        self.config_file = config_file  # where max_bytes is set: named when the limit is reached
         make_private_dir(self.vault_dir)
         if self.vault_dir not in _cleared:  # once per process: what a killed keep or protect left
             _cleared.add(self.vault_dir)
@@ -303,10 +320,7 @@ class Vault:
             return
         used = self.usage_bytes()
         if used + size > self.max_bytes:
-            raise VaultFullError(
-                f"vault {self.vault_dir} holds {used} bytes; keeping {size} more would pass its limit of "
-                f"{self.max_bytes} (raise [vault] max_bytes; ppd never deletes originals on its own)"
-            )
+            raise VaultFullError(limit_message(self.vault_dir, used, size, self.max_bytes, self.config_file))
 
     def usage_bytes(self) -> int:
         """Kept originals and partial copies (in progress, or left by a killed process)."""

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from daemon.datasets.linked_folders import LinkedFolder, LinkWarnings, linked_folders, linked_folders_under
 from daemon.locks import outbox_lock
 from daemon.protect.job import Outcome, media_kind
 from daemon.states import FileState
@@ -119,6 +120,7 @@ class WatchDaemon:
             ctx.store, options.incomplete_wait_s, options.watch.settle_s, options.watch.max_settle_s
         )  # incomplete files waited for
         self.folder_waits = FolderWaits()  # files waiting for their dataset's subject masks
+        self.link_warnings = LinkWarnings()  # symlinked folders warned of, each once
         # Paths counted removed, until a file is processed there again: a file counts once, however
         # many jobs find it gone (its own, its folder's, its deletion event's); oldest forgotten first.
         self._removed: OrderedDict[Path, None] = OrderedDict()
@@ -333,6 +335,7 @@ class WatchDaemon:
         result = scan_outbox(self.outbox, self.suffixes, grace)
         for tmp in result.stale_temps_removed:
             log.info("removed leftover temporary file %s", tmp, extra={"path": str(tmp)})
+        self._warn_links(linked_folders_under(self.outbox, own=[self.outbox]))
         rows = self._known_rows()
         queued = 0
         on_disk = set()
@@ -365,6 +368,17 @@ class WatchDaemon:
                 "ppd died while patching %s (pid %d); its next attempt runs isolated",
                 crashed.path, crashed.pid,
                 extra={"path": str(crashed.path)},
+            )  # fmt: skip
+
+    def _warn_links(self, links: list[LinkedFolder]) -> None:
+        """A symlinked folder in the outbox: never followed, so its photos stay unmarked, and a publisher
+        that follows links ships them. Warned of once per link (it was an info line when made while the
+        daemon ran, and nothing when there at its start: a black-box review)."""
+        for link in self.link_warnings.new(links):
+            log.warning(
+                "symlinked folder %s -> %s: %d photo(s) or video(s) in it NOT protected (ppd never follows a "
+                "link; a publisher that does ships them): put the folder itself in place of the link",
+                link.path, link.target, link.photos, extra={"path": str(link.path), "photos": link.photos},
             )  # fmt: skip
 
     def _quarantine_link(self, path: Path) -> None:
@@ -420,6 +434,7 @@ class WatchDaemon:
             log.warning("cannot stat %s: %s", path, exc.strerror, extra={"path": str(path)})
             st = None
         if st is not None and stat.S_ISDIR(st.st_mode):
+            self._warn_links(linked_folders_under(path, own=[self.outbox]))  # moved in with links in it
             for child in walk_files(path):
                 if is_candidate(self.outbox, child, self.suffixes) and not self.watcher.is_settled(child):
                     self.pool.submit(child)
@@ -427,6 +442,9 @@ class WatchDaemon:
         named = is_candidate(self.outbox, path, self.suffixes, by_content=False)  # a folder has no suffix
         # a link with no suffix to a photo is published as the photo too (a diff review): judged by its target
         linked = st is not None and stat.S_ISLNK(st.st_mode)
+        if linked and path.is_dir():  # a symlinked folder: never followed, warned of
+            self._warn_links(linked_folders([path], own=[self.outbox]))
+            return
         if linked and (named or (is_candidate(self.outbox, path, self.suffixes) and media_kind(path))):
             self._quarantine_link(path)
             return
