@@ -29,13 +29,14 @@ class Daemon:
         return self.proc.pid
 
 
-def start_daemon(root: Path, *args: str, log_dir: Path | None = None) -> Daemon:
-    """`ppd watch` with its folders under root; its stdout/stderr go to a log in log_dir (root when
-    not given: a test that fills root's filesystem passes another, or the log loses lines)."""
+def start_daemon(root: Path, *args: str, log_dir: Path | None = None, outbox: Path | None = None) -> Daemon:
+    """`ppd watch` with its folders under root (its outbox root/outbox unless given: an outbox moved
+    elsewhere); its stdout/stderr go to a log in log_dir (root when not given: a test that fills root's
+    filesystem passes another, or the log loses lines)."""
     env = dict(os.environ)
     env.update(
         PPD_DATA_DIR=str(root / "data"), PPD_CONFIG_DIR=str(root / "config"),
-        PPD_OUTBOX=str(root / "outbox"), PPD_CACHE_DIR=str(root / "cache"),
+        PPD_OUTBOX=str(outbox or root / "outbox"), PPD_CACHE_DIR=str(root / "cache"),
         NOTIFY_SOCKET=str(root / "notify.sock"),
         # this checkout's code, whichever one the venv's `ppd` was installed from (an editable
         # install points at one checkout; a test in another ran that one's daemon: a helper's note)

@@ -144,7 +144,7 @@ def _move_root(ctx: AppContext, name: str, old: Path, new: Path) -> None:
         if other["name"] != name and other["root"] and same_folder(Path(other["root"]), new):
             raise die(f"--root {new} is the folder of dataset {other['name']!r}; a folder is one dataset's")
     moved = ctx.store.move_dataset(name, old, new)
-    if (ctx.store.dataset(name) or {}).get("root") != str(new):  # another ppd moved it first
+    if moved is None:  # another ppd moved it first
         raise die(f"dataset {name!r} was moved by another ppd meanwhile: `ppd dataset show {name}`")
     console().print(f"{name}: moved from {old} to {new} ({moved} files' records moved with it)", markup=False)
 
@@ -299,7 +299,7 @@ def _forget_check(ctx: AppContext, name: str, force: bool) -> tuple[Patched, Aga
     holds files `ppd watch` would patch again. Returns the patched files, there and gone, and those
     files of the outbox; an unknown dataset is refused by dataset_status."""
     from daemon.cli.status_queries import dataset_status
-    from daemon.protect.forgetting import patched_files
+    from daemon.protect.forgetting import patched_files, removed_as_copies
     from daemon.states import FileState
 
     info = dataset_status(ctx, name)  # as `ppd status` judges it
@@ -307,7 +307,9 @@ def _forget_check(ctx: AppContext, name: str, force: bool) -> tuple[Patched, Aga
     root, moved, there = folder["folder"], folder.get("moved_to"), folder.get("moved_to_dataset")
     # seen moved while its rows still call them patched: no other row names their originals (a run
     # in the new folder carries the rows over, after which they are that dataset's: forgetting is free)
-    if not force and not folder["exists"] and moved and ctx.store.counts(name).get(FileState.PATCHED):
+    # (or recorded removed, by a `ppd watch` that saw the outbox move away: no other dataset holds them)
+    held = ctx.store.counts(name).get(FileState.PATCHED) or not there
+    if not force and not folder["exists"] and moved and held:
         follow = f"`ppd poison {shlex.quote(moved)}` records them in dataset {there!r}" if there else (
             f"`ppd dataset set {shlex.quote(name)} --root {shlex.quote(moved)}` moves the dataset there")
         raise die(f"the folder of dataset {name!r}, {root}, is gone, but its patched files are in {moved} "
@@ -332,6 +334,8 @@ def _forget_check(ctx: AppContext, name: str, force: bool) -> tuple[Patched, Aga
                   f"(moved or deleted?): {named}; their originals in the vault are the only way back for "
                   "a copy of them: `ppd restore FILE` on a moved one first, or --force to forget it all the "
                   "same (any copy of them then keeps the mark for good)")  # fmt: skip
+    if (lost := removed_as_copies(ctx, name)) and not force:  # an earlier ppd's restore (F1)
+        raise die(lost)
     if (before := _photos_from_before(ctx, name)) and not force:
         raise die(f"dataset {name!r} has {len(before)} photo(s) saved over ppd's patched ones (an edit of "
                   "the marked picture?): the photo from before each is only in the vault "

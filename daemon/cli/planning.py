@@ -44,10 +44,13 @@ def media_files(folder: Path, *, recursive: bool = True) -> list[Path]:
     return files
 
 
-def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Path | None) -> list[Job]:
+def plan_jobs(
+    ctx: AppContext, targets: list[Path], dataset: str | None, out: Path | None, dry_run: bool = False
+) -> list[Job]:
     """One job per file of the targets, each with its dataset by the one rule of attribution
     (daemon.datasets.dataset.attribute: a folder is one dataset, a file belongs to its outbox dataset or
-    to one named after its parent; --dataset names it, and a known name keeps its root)."""
+    to one named after its parent; --dataset names it, and a known name keeps its root). A dataset whose
+    folder moved there (the outbox moved) follows it, unless dry_run (it exited 2: a review, F2)."""
     from daemon.cli.targets import TargetError, same_folder, user_path
     from daemon.datasets.dataset import DatasetConflict, DatasetNameError, attribute
 
@@ -66,7 +69,7 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
         if not (target.is_symlink() or target.is_dir() or target.is_file()):  # /dev/null, a fifo
             raise die(f"{target} is not a photo, video or folder (a device, pipe or socket); nothing done")
         try:
-            name, root = attribute(ctx, target, dataset)
+            name, root = attribute(ctx, target, dataset, adopt=not dry_run)
         except (DatasetConflict, DatasetNameError) as exc:
             raise die(one_line(exc)) from None
         if out is not None:
@@ -80,7 +83,7 @@ def plan_jobs(ctx: AppContext, targets: list[Path], dataset: str | None, out: Pa
                 continue
             planned.add(f.absolute())
             if per_file:
-                name, root = attribute(ctx, f, None)
+                name, root = attribute(ctx, f, None, adopt=not dry_run)
             out_path = None
             if out is not None and target.is_dir():  # OUT/DATASET/<the file's path in the dataset>:
                 # a subfolder's copies never land on the dataset's other copies (OUT/castle/a.jpg)
@@ -130,6 +133,8 @@ def refuse_held_elsewhere(ctx: AppContext, jobs: list[Job]) -> None:
 
 
 def check_dataset_roots(ctx: AppContext, jobs: list[Job]) -> None:
+    from daemon.datasets.moved import moved_here
+
     seen: dict[str, Path] = {}
     for job in jobs:
         root = seen.setdefault(job.dataset, job.root)
@@ -140,7 +145,9 @@ def check_dataset_roots(ctx: AppContext, jobs: list[Job]) -> None:
             raise die(f"dataset {job.dataset!r}: {why}: publishing it would publish them; move PPD_DATA_DIR "
                       "or patch a folder beside it", ExitStatus.ENVIRONMENT)  # fmt: skip
         row = ctx.store.dataset(job.dataset)
-        if row is not None and Path(row["root"]).absolute() != job.root.absolute():
+        # its folder moved there: followed by attribute (a dry run's is not, and goes on as if it were)
+        if row is not None and Path(row["root"]).absolute() != job.root.absolute() and (
+                moved_here(ctx, job.dataset, job.root) is None):  # fmt: skip
             raise die(
                 f"dataset {job.dataset!r} already belongs to {row['root']}; name this one with --dataset NAME"
             )

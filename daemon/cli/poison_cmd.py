@@ -466,7 +466,7 @@ def _poison(
 ) -> None:  # fmt: skip
     from daemon.cli import planning
 
-    jobs = planning.plan_jobs(ctx, paths, dataset, out)
+    jobs = planning.plan_jobs(ctx, paths, dataset, out, dry_run)
     if not jobs:
         raise die("no files to patch in " + ", ".join(str(p) for p in paths))
     planning.check_dataset_roots(ctx, jobs)

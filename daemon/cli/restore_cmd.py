@@ -151,7 +151,7 @@ def _refuse_moved_on(ctx: AppContext, plan: FolderRestore) -> None:
     """A dataset whose folder is gone and whose files another dataset holds now (a renamed folder the
     daemon or `ppd poison` took as a new dataset): where they are, in status's words, one line (exit 2).
     It said "restored 0, removed 0, unchanged 0, failed 0", exit 0, its files still patched (F11)."""
-    from daemon.cli.status_cmd import moved_words
+    from daemon.cli.status_gone import moved_words
     from daemon.cli.status_queries import dataset_status
     from daemon.cli.targets import TargetError
 

@@ -71,9 +71,9 @@ def _moved_here(ctx: AppContext, home: tuple[str, Path], console: Any) -> bool:
             f"dataset {name!r} already belongs to {old}; name this one with --dataset NAME "
             f"(`ppd poison {folder} --dataset NAME`, then `ppd restore NAME`)"
         )
-    moved = ctx.store.move_dataset(name, old, folder.absolute())
+    moved = ctx.store.move_dataset(name, old, folder.absolute())  # None: another ppd moved it (here) first
     console.print(f"dataset {name!r}: its folder {old} is gone; {folder} is its folder now "
-                  f"({moved} files' records moved with it)", markup=False)  # fmt: skip
+                  f"({moved or 0} files' records moved with it)", markup=False)  # fmt: skip
     return True
 
 
@@ -91,8 +91,23 @@ def _dataset_plan(ctx: AppContext, dataset: str) -> FolderRestore:
         return FolderRestore(dataset, paths, gone, None, None, None)
     root = Path(stored["root"])
     if not root.is_dir():
+        if _followed(ctx, dataset, root):  # its folder moved (the outbox did): restored where it is now
+            return _dataset_plan(ctx, dataset)
         return FolderRestore(dataset, paths, gone, None, None, root)
     return FolderRestore(dataset, paths, gone, root, (dataset, root), None)
+
+
+def _followed(ctx: AppContext, dataset: str, root: Path) -> bool:
+    """Whether the dataset whose folder root is gone moved to where the outbox's rule puts it now, as
+    the daemon or `ppd poison` there would follow it (daemon.datasets.moved: the outbox moved): restore
+    said "folder gone", or took its photos for `--out` copies (a review, F1). A folder renamed is the
+    user's to name (`ppd restore NEWFOLDER`, `ppd dataset set NAME --root NEWFOLDER`)."""
+    from daemon.datasets.folder_count import outbox_places
+    from daemon.datasets.moved import adopt_moved, moved_to
+
+    places = outbox_places(ctx, dataset, root)
+    seen = moved_to(root, ctx.store.files(dataset), places, beside=False)
+    return seen is not None and adopt_moved(ctx, dataset, seen)
 
 
 def marked_files(ctx: AppContext, plan: FolderRestore) -> list[Path]:

@@ -13,6 +13,7 @@ import typer
 
 from daemon.cli.errors import die, open_ctx, warning
 from daemon.cli.output import console, err_console, print_line
+from daemon.cli.status_gone import moved_words, print_gone
 from poisoner.errors import ExitStatus
 from verifier.verdict import Verdict
 
@@ -213,25 +214,13 @@ def place_lines(d: dict[str, Any]) -> list[str]:
     lines = []
     if folder and not folder.get("exists", True):
         lines.append(f"folder {d['root']} is gone; counts are the store's: {moved_words(d)}")
+    elif folder.get("moved_to"):  # left empty: a running `ppd watch` made the outbox it watched again
+        lines.append(f"folder {d['root']} holds none of its files now: {moved_words(d)}")
     if folder.get("copies"):
         lines.append(f"patched copies in {folder['copies']}")
     if d["publish_dir"]:
         lines.append(f"publish to {d['publish_dir']}")
     return lines
-
-
-def moved_words(d: dict[str, Any]) -> str:
-    """What a dataset's gone folder may be (its FolderCount.to_dict): moved beside it, where its patched
-    files are seen, or moved or deleted; `ppd dataset set --root` moves the dataset there. A black-box
-    review: the advice was `ppd poison NEWFOLDER`, which made a second dataset, and was then repeated."""
-    folder, name = d["folder"], shlex.quote(d["name"])
-    if folder.get("moved_to_dataset"):  # a run made a dataset of it: its files are counted there
-        return f"its patched files are in {folder['moved_to']}, now dataset {folder['moved_to_dataset']!r}"
-    if folder.get("moved_to"):
-        where = shlex.quote(folder["moved_to"])
-        return (f"its patched files are in {folder['moved_to']} (moved?): "
-                f"`ppd dataset set {name} --root {where}` moves the dataset there")  # fmt: skip
-    return f"moved or deleted? `ppd dataset set {name} --root NEWFOLDER` moves it to a moved one"
 
 
 def _print_details(d: dict[str, Any]) -> None:
@@ -375,32 +364,12 @@ def _print_report(
 
 
 def _gone(d: dict[str, Any]) -> bool:
-    """A dataset whose folder is gone (moved or deleted) and none of whose files is at its path now;
-    the files may be elsewhere (a folder renamed), which ppd sees only beside the old folder."""
-    return not (d.get("folder") or {}).get("exists", True) and not d["counts"].get("files")
-
-
-def _print_gone(gone: list[dict[str, Any]]) -> None:
-    """One line for the datasets whose folder is gone, and one for each whose files are seen moved:
-    a deleted folder and a renamed one are not both "hold no file now" (a black-box review). A dataset
-    that never held a file (`ppd dataset set NAME` before its folder) is not said to be gone: its
-    folder was never there (a fifth black-box review)."""
-    waiting = [d for d in gone if not any(d["counts"].values())]
-    if waiting:
-        print_line(console(), f"not shown: {len(waiting)} dataset(s) set up before their folder, which does "
-                              f"not exist yet ({', '.join(d['name'] for d in waiting)}); "
-                              "`ppd dataset forget NAME` removes one")  # fmt: skip
-    gone = [d for d in gone if d not in waiting]
-    if not gone:
-        return
-    names = ", ".join(d["name"] for d in gone)
-    print_line(console(), f"not shown: {len(gone)} dataset(s) whose folder is gone, moved or deleted "
-                          f"({names}); `ppd dataset set NAME --root NEWFOLDER` moves one there; "
-                          "`ppd dataset forget NAME` forgets a deleted one; "
-                          "`ppd status NAME` shows one")  # fmt: skip
-    for d in gone:
-        if d["folder"].get("moved_to"):
-            print_line(console(), f"{d['name']}: folder gone; {moved_words(d)}")
+    """A dataset whose folder is gone (moved or deleted), or left empty with its files seen moved, and
+    none of whose files is at its path now; the files may be elsewhere (a folder renamed, the outbox
+    moved), which ppd sees beside the old folder and where the outbox's rule puts it now."""
+    folder = d.get("folder") or {}
+    left = not folder.get("exists", True) or bool(folder.get("moved_to"))
+    return left and not d["counts"].get("files")
 
 
 def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -> None:
@@ -415,7 +384,7 @@ def _print_text(ctx: AppContext, report: list[dict[str, Any]], detailed: bool) -
     if report:
         print_status_rows(report, console().width)
     if gone:  # a folder renamed or deleted: its old name stayed in the table forever (a black-box review)
-        _print_gone(gone)
+        print_gone(gone, ctx.paths.outbox)
     if detailed:
         console().print(f"outbox {ctx.paths.outbox}", markup=False)
         for d in report:
@@ -465,7 +434,8 @@ def status(
                     raise die(exc) from None
                 return
         report = [dataset_status(ctx, n) for n in names]
-        alerts = outbox_alerts(ctx, names, whole=dataset is None)
+        # a moved dataset's patched files (the outbox moved): said with it, not "NOT protected" (F2)
+        alerts = outbox_alerts(ctx, names, whole=dataset is None, report=report)
         if failed:
             for d in report:
                 d["failed_files"] = failed_files(ctx, d["name"])

@@ -102,14 +102,20 @@ class OutboxAlerts:
         }  # fmt: skip
 
 
-def outbox_alerts(ctx: AppContext, names: list[str], whole: bool) -> OutboxAlerts:
-    """The outbox's findings for these datasets; whole: the whole outbox (not one dataset's status)."""
+def outbox_alerts(
+    ctx: AppContext, names: list[str], whole: bool, report: list[dict[str, Any]] | None = None
+) -> OutboxAlerts:
+    """The outbox's findings for these datasets; whole: the whole outbox (not one dataset's status).
+    report: the datasets' status, whose folders seen moved (the outbox moved) claim their patched files
+    (daemon.cli.status_gone.followed_files): said with the dataset, not as "NOT protected"."""
+    from daemon.cli.status_gone import followed_files
     from daemon.datasets.sealed_files import split_sealed
 
     vault = vault_full(ctx, names)
     if not whole:
         return OutboxAlerts(vault=vault)
-    unclaimed, sealed = split_sealed(outbox_unclaimed(ctx), ctx.paths.data_dir, ctx.paths.vault_dir)
+    unclaimed = followed_files(ctx, report or [], outbox_unclaimed(ctx))
+    unclaimed, sealed = split_sealed(unclaimed, ctx.paths.data_dir, ctx.paths.vault_dir)
     return OutboxAlerts(unclaimed, outbox_unpatched_names(ctx), sealed, outbox_linked(ctx), vault)
 
 

@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from daemon.datasets.moved import adopt_moved, moved_here
 from daemon.datasets.subject_masks import place_corner, record_choice, wants_corner
 from poisoner.errors import ExitStatus, PpdError
 
@@ -119,7 +120,7 @@ def _refuse_another_outboxs(ctx: AppContext, name: str, root: Path) -> None:
         same = os.path.samefile(stored, root)
     except OSError:  # one of them is not there: not two folders
         return
-    if not same:
+    if not same and moved_here(ctx, name, root) is None:  # a folder left empty: followed (a dry run's too)
         raise DatasetConflict(
             f"dataset {name!r} already belongs to {stored} (another outbox's folder of the same name); "
             "rename this folder, or name it with --dataset NAME"
@@ -127,8 +128,9 @@ def _refuse_another_outboxs(ctx: AppContext, name: str, root: Path) -> None:
 
 
 def attribute(
-    ctx: AppContext, target: Path, dataset: str | None = None, *, folder: bool | None = None
-) -> tuple[str, Path]:
+    ctx: AppContext, target: Path, dataset: str | None = None, *, folder: bool | None = None,
+    adopt: bool = False,
+) -> tuple[str, Path]:  # fmt: skip
     """The dataset name and root folder of target, a file or a folder (given on the command line
     or seen by the daemon).
 
@@ -140,6 +142,8 @@ def attribute(
 
     folder: whether target is a folder; None asks the file system (following a symlink, as a
     folder named on the command line may be one). The daemon says False: a name it sees is a file.
+    adopt: a stored dataset of the name found whose folder is gone, and whose patched files are in the
+    folder found, moves there (daemon.datasets.moved: the outbox moved); the daemon and `ppd poison` ask.
 
     >>> attribute(ctx, outbox / "shoot" / "raw" / "a.jpg")   # doctest: +SKIP
     ('shoot', PosixPath('.../outbox/shoot'))
@@ -162,6 +166,8 @@ def attribute(
     if target.is_relative_to(outbox) and target != outbox:
         name = dataset_of(outbox, target / "x" if is_folder else target)
         root = dataset_root(outbox, name)
+        if adopt:  # first: a moved dataset's stored folder may be there still, left empty
+            adopt_moved(ctx, name, root)
         _refuse_another_outboxs(ctx, name, root)
         return name, root
     holders = [d for d in ctx.store.datasets() if home.is_relative_to(Path(d["root"]).absolute())]
@@ -173,7 +179,10 @@ def attribute(
     if holders:
         row = max(holders, key=lambda d: len(Path(d["root"]).absolute().parts))  # the innermost
         return row["name"], Path(row["root"])
-    return check_name(home.name or DEFAULT_DATASET), home
+    name = check_name(home.name or DEFAULT_DATASET)
+    if adopt:
+        adopt_moved(ctx, name, home)
+    return name, home
 
 
 def innermost_holder(datasets: Sequence[dict[str, Any]], path: Path, prefer: str | None = None) -> str | None:

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.datasets.linked_folders import LinkedFolder, linked_folders_under
+from daemon.datasets.moved import moved_to
 from daemon.datasets.sealed_files import Sealed, split_sealed
 from daemon.states import PATCHED_VALUES, WAITING_PREFIX, FileState, patched_count, storable
 from poisoner.atomic import TEMP_PREFIX, is_temp_name, remove_stale_temp
@@ -50,7 +51,7 @@ class FolderCount:
     # photos and videos ppd cannot protect (poisoner.media.media_class: BMP, GIF, raw files),
     # which a reconstruction reads all the same (a black-box review: status and --check ignored them)
     unprotectable: list[Path] = field(default_factory=list)
-    # the folder gone: a folder beside it that holds its patched files as ppd wrote them (moved_to)
+    # the folder gone (or left empty): a folder that holds its patched files as ppd wrote them (moved_to)
     moved_to: Path | None = None
     # (old path, new path): a file patched in place, renamed since (in neither untracked nor gone)
     renamed: list[tuple[Path, Path]] = field(default_factory=list)
@@ -164,17 +165,21 @@ def owned_elsewhere(
 
 def count_folder(
     folder: Path, rows: Iterable[Mapping[str, Any]], skip: Iterable[Path] = (), foreign: Iterable[str] = (),
-    original_stat: OriginalStat | None = None,
+    original_stat: OriginalStat | None = None, places: Iterable[Path] = (),
 ) -> FolderCount:  # fmt: skip
     """The folder's media files and those of them no row mentions: by path, or for `--out` copies
     by their path below the copies' folder (OUT/DATASET/a/b.jpg stands for FOLDER/a/b.jpg).
     skip: folders whose files are not the dataset's; foreign: files (str paths) that are another
     dataset's (owned_elsewhere): neither is counted. original_stat: the vault's copy of an original
-    (None: not kept), to tell a changed file holding its original again (_holds_original)."""
+    (None: not kept), to tell a changed file holding its original again (_holds_original). places: where
+    a gone folder is looked for first (moved_to)."""
     folder = Path(folder).absolute()
     rows = list(rows)
     paths = [Path(row["path"]) for row in rows]
-    outside = [p for p in paths if not p.is_relative_to(folder)]
+    # removed rows left out: a file moved away (its old path) is no `--out` copy (a review: "patched
+    # copies in" the old folder, after `ppd dataset set --root` moved a dataset the daemon carried)
+    outside = [Path(r["path"]) for r in rows if r["state"] != FileState.REMOVED]
+    outside = [p for p in outside if not p.is_relative_to(folder)]
     theirs = set(foreign)
     files, unprotectable, temps = _walk(folder, skip) if folder.is_dir() else ([], [], [])
     files = [f for f in files if str(f) not in theirs]
@@ -182,7 +187,9 @@ def count_folder(
     copies = _match_copies(outside, rels)[1]
     if not folder.is_dir():  # deleted or renamed: its files patched in place went with it
         gone = _gone_in_place(rows, folder, theirs)
-        return FolderCount(folder, exists=False, copies=copies, gone=gone, moved_to=moved_to(folder, rows))
+        moved = moved_to(folder, rows, places)
+        copies = None if copies == moved else copies  # its own files, carried there: no `--out` copies
+        return FolderCount(folder, exists=False, copies=copies, gone=gone, moved_to=moved)
     # an `--out` copy deleted or moved away: its photo has no protected copy now (a run makes one
     # again), so the photo counts "not patched yet" and the copy's row "gone" (a black-box review)
     copies_gone = [
@@ -206,9 +213,13 @@ def count_folder(
     not_utf8 = [f for f in untracked if not storable(f)]
     untracked = [f for f in untracked if f not in not_utf8]
     gone = [p for p in in_place if p not in olds] + copies_gone
+    # none of its files left, seen where the outbox's rule puts it now: the outbox moved, the folder left
+    # behind empty (a running `ppd watch` makes the outbox it watched again)
+    moved = moved_to(folder, rows, places, beside=False) if not files else None
     return FolderCount(folder, exists=True, on_disk=len(files), untracked=untracked, copies=copies,
                        changed=changed, unprotectable=unprotectable, gone=gone, renamed=renamed,
-                       restored_unrecorded=restored, temps=temps, not_utf8=not_utf8)  # fmt: skip
+                       restored_unrecorded=restored, temps=temps, not_utf8=not_utf8,
+                       moved_to=moved)  # fmt: skip
 
 
 def _renamed(
@@ -235,49 +246,6 @@ def _renamed(
         if olds:  # one old row for one new file
             pairs.append((olds.pop(0), f))
     return pairs
-
-
-# moved_to looks at this many folders beside a gone one, and this many of its files in each: a stat
-# apiece, never a walk (status runs on stores of 10k files in well under a second)
-MOVE_PROBE_FOLDERS = 500
-MOVE_PROBE_FILES = 3
-
-
-def moved_to(folder: Path, rows: Iterable[Mapping[str, Any]]) -> Path | None:
-    """A folder beside a gone one that holds its patched files at the same relative paths with the
-    size and time ppd wrote (a `mv` keeps both): the folder renamed. None when none is seen: deleted,
-    or moved further (a black-box review: a moved folder was said to "hold no file now")."""
-    probes = [
-        (Path(r["path"]).relative_to(folder), (r["size"], r.get("mtime_ns"))) for r in rows
-        if r["state"] in PATCHED_VALUES and not r.get("published_path") and r.get("size") is not None
-        and Path(r["path"]).is_relative_to(folder)
-    ][:MOVE_PROBE_FILES]  # fmt: skip
-    if not probes:
-        return None
-    try:
-        with os.scandir(folder.parent) as entries:
-            beside = [Path(e.path) for e in entries if not e.name.startswith(".") and _is_folder(e)]
-    except OSError:  # its parent gone or unreadable too: nothing to say
-        return None
-    for candidate in sorted(beside)[:MOVE_PROBE_FOLDERS]:
-        if any(_same_file(candidate / rel, wrote) for rel, wrote in probes):
-            return candidate
-    return None
-
-
-def _is_folder(entry: os.DirEntry[str]) -> bool:
-    try:
-        return entry.is_dir(follow_symlinks=False)
-    except OSError:
-        return False
-
-
-def _same_file(path: Path, wrote: tuple[int, int | None]) -> bool:
-    try:
-        st = os.stat(path, follow_symlinks=False)
-    except OSError:
-        return False
-    return (st.st_size, st.st_mtime_ns) == wrote
 
 
 def _gone_in_place(rows: Iterable[Mapping[str, Any]], folder: Path, left_out: set[str]) -> list[Path]:
@@ -411,6 +379,7 @@ def dataset_folder(ctx: AppContext, name: str, root: str) -> FolderCount:
     count = count_folder(
         folder, ctx.store.files(name), skip=[*masks, *skip], foreign=foreign,
         original_stat=lambda sha: _vault_stat(ctx.paths.vault_dir, sha),
+        places=outbox_places(ctx, name, folder),
     )  # fmt: skip
     if count.exists and count.copies is None:  # with --out, the copies' folder is the one published
         count = replace(count, unpatched_names=_unpatched(folder, [*masks, *skip], foreign))
@@ -425,6 +394,15 @@ def dataset_folder(ctx: AppContext, name: str, root: str) -> FolderCount:
         return count
     left, removed = sweep_temps(temps)
     return replace(count, temps=left, temps_removed=removed)
+
+
+def outbox_places(ctx: AppContext, name: str, folder: Path) -> list[Path]:
+    """Where the outbox's rule puts a dataset of this name, or a folder of this name, now: a gone
+    folder's place after the whole outbox moved (PPD_OUTBOX set anew; a review, F2)."""
+    from daemon.datasets.dataset import dataset_root
+
+    outbox = Path(ctx.paths.outbox).absolute()
+    return list(dict.fromkeys([dataset_root(outbox, name), outbox / folder.name]))
 
 
 def _unpatched(folder: Path, skip: list[Path], foreign: set[str]) -> list[Path]:

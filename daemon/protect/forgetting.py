@@ -69,6 +69,33 @@ def patched_files(ctx: AppContext, name: str) -> Patched:
     return Patched(there, gone)
 
 
+def removed_as_copies(ctx: AppContext, name: str) -> str | None:
+    """Why forgetting the dataset would lose photos (one line), or None: the originals of its photos that
+    a `ppd restore` removed as `--out` copies, putting no original back, where ppd has no record of
+    writing them as copies and they lay in its folder, or its folder was gone: its own photos. A ppd
+    before this one did that to a moved outbox's photos (an eighth black-box review, F1), and forget then
+    removed their only originals from the vault."""
+    from daemon.protect.restoring import written_as_copy
+
+    stored = ctx.store.dataset(name)
+    root = Path(stored["root"]) if stored and stored["root"] else None
+    found = []
+    for row in ctx.store.files(name, state=FileState.RESTORED):
+        sha, path = row["original_sha256"], row["path"]
+        if row.get("published_path") or not sha or os.path.lexists(path) or not ctx.vault.has(sha):
+            continue
+        said = (ctx.store.last_event(path, "restored") or {}).get("detail") or {}
+        ours = root is None or not root.is_dir() or Path(path).is_relative_to(root)
+        if "to" in said and said["to"] is None and ours and not written_as_copy(ctx, path):
+            found.append(ctx.vault.path_for(sha))
+    if not found:
+        return None
+    named = f"{found[0]}{', ...' if len(found) > 1 else ''}"
+    return (f"dataset {name!r}: {len(found)} of its photos were removed by `ppd restore` as --out copies, "
+            f"no original put back: their originals are only in the vault ({named}): copy them out first, or "
+            "--force to forget it all the same (they then leave the vault)")  # fmt: skip
+
+
 def _replaced(row: dict[str, object]) -> bool:
     """Whether a pending row's file is no longer its original (unreadable: it may be ppd's output)."""
     try:

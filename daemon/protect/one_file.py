@@ -89,7 +89,8 @@ def _resolve_dataset(ctx: AppContext, path: Path, dataset: str | None, root: Pat
         return dataset, root
     if dataset is None and root is None:
         dataset_of(ctx.paths.outbox, path)  # raises outside the outbox
-    name, found = attribute(ctx, path, dataset, folder=False)
+    # adopt: a dataset whose folder moved here (the outbox moved) follows it, before its files are judged
+    name, found = attribute(ctx, path, dataset, folder=False, adopt=True)
     return name, root or found
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.datasets.dataset import ensure_dataset
+from daemon.datasets.moved import adopt_moved
 from daemon.datasets.subject_masks import masks_or_none
 from daemon.platform import fd_path
 from daemon.protect.job import Job, one_line, shown_name
@@ -35,10 +36,14 @@ def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, datase
     """A patched file that was moved or renamed (a dataset folder renamed in the outbox, say)
     keeps its provenance: its row follows it to the new path instead of dropping out of the
     store, so status, restore and verification still see it. Copies (the old path still there)
-    are left as they are."""
+    are left as they are. At the same place in root as in its dataset's gone folder, the whole folder
+    moved (the outbox did): the dataset follows it first (daemon.datasets.moved), else the row carried
+    outside the dataset's folder read as an `--out` copy, which `ppd restore` deleted (a review, F1)."""
     old = Path(earlier["path"])
     if old == path or old.exists() or earlier["state"] not in (FileState.PATCHED, FileState.REMOVED):
         return False
+    if earlier["dataset"] == dataset:
+        adopt_moved(ctx, dataset, root, proof=(path, old))
     # resaved / saved_over go with the file: a re-saved one moved must not be written over by restore
     moved_fields = (*ORIGINAL_FIELDS, "poisoned_sha256", "resaved", "saved_over")
     fields: dict[str, Any] = {k: earlier.get(k) for k in moved_fields}
@@ -49,9 +54,10 @@ def carry_moved_row(ctx: AppContext, earlier: dict[str, Any], path: Path, datase
         path, dataset, FileState.PATCHED, event="moved", detail={"from": str(old)},
         size=st.st_size, mtime_ns=st.st_mtime_ns, **fields,
     )  # fmt: skip
-    ctx.store.record_file(
-        old, earlier["dataset"], FileState.REMOVED, event="moved_away", detail={"to": str(path)}
-    )
+    if ctx.store.file(old) is not None:  # not moved with its folder's rows (adopt_moved)
+        ctx.store.record_file(
+            old, earlier["dataset"], FileState.REMOVED, event="moved_away", detail={"to": str(path)}
+        )
     return True
 
 

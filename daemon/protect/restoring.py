@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shlex
 import stat
 from pathlib import Path
 from typing import Any, Literal
@@ -33,7 +34,7 @@ from daemon.states import FileState
 from daemon.store.vault import sha256_file
 from poisoner.provenance import has_token
 
-__all__ = ["FROM_PUBLISH_FOLDER", "restore_file"]
+__all__ = ["FROM_PUBLISH_FOLDER", "restore_file", "written_as_copy"]
 
 
 def restore_file(
@@ -90,6 +91,8 @@ def _restore_held(ctx: AppContext, path: Path, force: bool, home: tuple[str, Pat
                               reason=f"a file of dataset {owner!r}, not of {home[0]!r}: `ppd restore "
                                      f"{owner}` or `ppd restore FILE` restores it")  # fmt: skip
     copy = None if row.get("from_marker") else _copy_outside_the_source(ctx, row)
+    if copy is not None and (doubt := _maybe_not_a_copy(ctx, row)) is not None:
+        return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=doubt)
     if row.get("from_marker") and (refusal := _copied_output(ctx, row)):
         return ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=refusal)
     kept: list[tuple[Path, Path]] = []  # (the user's file that stood in the original's way, its copy)
@@ -180,6 +183,31 @@ def _copy_outside_the_source(ctx: AppContext, row: dict[str, Any]) -> Path | Non
     if dataset is not None and not Path(row["path"]).is_relative_to(Path(dataset["root"])):
         return Path(row["path"])
     return None
+
+
+def _maybe_not_a_copy(ctx: AppContext, row: dict[str, Any]) -> str | None:
+    """Why a row outside its dataset's folder is not removed as an `--out` copy: the folder is gone, and
+    no record says ppd wrote the file as a copy (stages' `copy_of`, a `copied` row). It may be the
+    dataset's own photo, moved with its folder: an eighth black-box review (F1) saw `ppd restore` delete
+    a moved outbox's photos as copies, their originals put back nowhere. None: a copy (a publish folder's
+    is ppd's own; an `--out` copy of a folder that is there, or recorded as one)."""
+    stored = ctx.store.dataset(row["dataset"])
+    if row["published_path"] or stored is None or Path(stored["root"]).is_dir():
+        return None
+    path, name = row["path"], row["dataset"]
+    if written_as_copy(ctx, path):
+        return None
+    return (f"not removed: {path} lies outside the folder of dataset {name!r}, {stored['root']}, which is "
+            "gone, and ppd has no record of writing it as an --out copy: if the dataset's folder moved, "
+            f"`ppd dataset set {shlex.quote(name)} --root NEWFOLDER` (the folder it is in now), then "
+            f"`ppd restore {shlex.quote(name)}`, gives back its originals; an --out copy an earlier ppd "
+            "made is yours to delete")  # fmt: skip
+
+
+def written_as_copy(ctx: AppContext, path: str) -> bool:
+    """Whether ppd recorded writing path as an `--out` copy (stages' `copy_of`; a `copied` output)."""
+    written = ctx.store.last_event(path, "patched") or {}
+    return "copy_of" in (written.get("detail") or {}) or ctx.store.last_event(path, "copied") is not None
 
 
 def _stored_output(ctx: AppContext, row: dict[str, Any]) -> dict[str, Any] | None:

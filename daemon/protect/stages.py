@@ -519,10 +519,15 @@ def record_provenance(job: Job) -> ProtectOutcome | None:
         record_path, job.dataset, FileState.PATCHED, original_sha256=job.sha,
         poisoned_sha256=job.poisoned_sha, spec_id=job.spec.spec_id, tool_version=tool_version(),
         size=size, mtime_ns=mtime, error=None, published_path=None, event="patched",
-        detail=report_detail(job.report), saved_over=saved_over(job),
+        detail={**report_detail(job.report), **_copy_of(job)}, saved_over=saved_over(job),
     )  # fmt: skip
     job.final = record_path
     return None
+
+
+def _copy_of(job: Job) -> dict[str, str]:
+    """An `--out` copy's source, kept with its row: what `ppd restore` removes as a copy (restoring)."""
+    return {"copy_of": str(job.path)} if job.out_path is not None else {}
 
 
 STAGES: tuple[Callable[[Job], ProtectOutcome | None], ...] = (

@@ -4,6 +4,7 @@ stored once by its content hash."""
 from __future__ import annotations
 
 import json
+import os
 import re
 import shlex
 import sqlite3
@@ -175,29 +176,36 @@ class DatasetRows(StoreBase):
         row = self.dataset(name)
         return Path(row["subject_masks"]) if row and row.get("subject_masks") else None
 
-    def move_dataset(self, name: str, old_root: Path, new_root: Path) -> int:
+    def move_dataset(self, name: str, old_root: Path, new_root: Path) -> int | None:
         """The dataset's folder moved from old_root to new_root (its whole tree, by the user): the
         dataset's root and its rows below old_root follow it, in one transaction, so they stay inside
         its root (a row outside it reads as an --out copy). A row whose new path another row holds
-        stays. Nothing happens unless the stored root is still old_root (another process moved it
-        first). Returns the rows moved."""
+        stays. A removed row whose file is at its new path as ppd wrote it (size and time) is patched
+        again: a running `ppd watch` saw the folder leave (the outbox moved) and recorded its files
+        removed. Returns the rows moved; None, nothing done, unless the stored root is still old_root
+        (another process moved it first)."""
         old, new = str(old_root), str(new_root)
         below = old.rstrip("/") + "/"
-        moved = 0
+        moved = back = 0
         with self._write() as conn:
             done = conn.execute("UPDATE datasets SET root = ? WHERE name = ? AND root = ?", (new, name, old))
             if done.rowcount != 1:
-                return 0
+                return None
             rows = conn.execute(
-                "SELECT id, path FROM files WHERE dataset = ? AND path >= ? AND path < ?",
+                "SELECT id, path, state, size, mtime_ns, published_path FROM files "
+                "WHERE dataset = ? AND path >= ? AND path < ?",
                 (name, below, below[:-1] + "0"),
             ).fetchall()
-            for row_id, path in rows:
+            for row_id, path, state, size, mtime_ns, published in rows:
                 to = str(Path(new) / Path(path).relative_to(old))
-                if conn.execute("SELECT 1 FROM files WHERE path = ?", (to,)).fetchone() is None:
-                    conn.execute("UPDATE files SET path = ? WHERE id = ?", (to, row_id))
-                    moved += 1
-            insert_event(conn, name, None, "dataset_moved", {"from": old, "to": new, "rows": moved})
+                if conn.execute("SELECT 1 FROM files WHERE path = ?", (to,)).fetchone() is not None:
+                    continue
+                again = state == FileState.REMOVED and not published and _wrote(to, size, mtime_ns)
+                state = FileState.PATCHED.value if again else state
+                conn.execute("UPDATE files SET path = ?, state = ? WHERE id = ?", (to, state, row_id))
+                moved, back = moved + 1, back + again
+            detail = {"from": old, "to": new, "rows": moved, "patched_again": back}
+            insert_event(conn, name, None, "dataset_moved", detail)
         return moved
 
     # ---- forgetting (daemon.protect.forgetting) ---------------------------------------------
@@ -241,7 +249,7 @@ class DatasetRows(StoreBase):
         """The originals of each dataset forgotten whose vault step is not done yet (a crash between
         the two steps leaves its note), by dataset name."""
         rows = self._rows("SELECT key, value FROM store_notes WHERE key LIKE ?", (FORGET_NOTE + "%",))
-        return {r["key"][len(FORGET_NOTE):]: list(json.loads(r["value"])) for r in rows}
+        return {r["key"][len(FORGET_NOTE) :]: list(json.loads(r["value"])) for r in rows}
 
     def forget_done(self, name: str) -> None:
         """The vault step of forgetting this dataset is done: its note goes."""
@@ -277,6 +285,15 @@ class DatasetRows(StoreBase):
                 "UPDATE datasets SET publish_dir = ? WHERE name = ?",
                 (str(publish_dir) if publish_dir else None, name),
             )
+
+
+def _wrote(path: str, size: int | None, mtime_ns: int | None) -> bool:
+    """Whether path holds a file of the size and modification time ppd recorded writing."""
+    try:
+        st = os.stat(path, follow_symlinks=False)
+    except OSError:
+        return False
+    return size is not None and (st.st_size, st.st_mtime_ns) == (size, mtime_ns)
 
 
 def _drop_spec_if_unused(conn: sqlite3.Connection, spec_id: str) -> None:

@@ -47,6 +47,12 @@ class FileRows(StoreBase):
             (dataset, file_state(state).value),
         )
 
+    def files_below(self, dataset: str, folder: Path | str, limit: int) -> list[dict[str, Any]]:
+        """Up to limit of the dataset's rows whose path lies below folder, by path (a few, quickly)."""
+        below = str(folder).rstrip("/") + "/"
+        sql = "SELECT * FROM files WHERE dataset = ? AND path >= ? AND path < ? ORDER BY path LIMIT ?"
+        return self._rows(sql, (dataset, below, below[:-1] + "0", limit))
+
     def files_under(self, folder: Path | str, not_of: str | None = None) -> list[dict[str, Any]]:
         """The path and dataset of every row whose path lies below folder (by path; not_of: leaving
         out that dataset's rows), by path. A range over the path index: '/' + 1 is '0'."""

@@ -84,7 +84,8 @@ def test_a_moved_folder_is_not_said_to_hold_no_file(ppd_env: dict[str, Path], tm
     assert folders["set 6"]["exists"] is False and folders["set 6"]["moved_to"] == str(moved)
     assert folders["set 5"]["exists"] is False and folders["set 5"]["moved_to"] is None
     assert folders["set 7"]["moved_to"] is None
-    assert "moved or deleted? `ppd dataset set 'set 5' --root NEWFOLDER` moves it" in said("status", "set 5")
+    assert ("moved or deleted? `ppd dataset set 'set 5' --root NEWFOLDER` follows it to where you moved it; "
+            "`ppd dataset forget 'set 5'` forgets a deleted one") in said("status", "set 5")  # fmt: skip
     # the promised command: the dataset moves there, its files recognised, not patched twice
     assert runner.invoke(app, ["dataset", "set", "set 6", "--root", str(moved)]).exit_code == 0
     adopted = said("poison", str(moved))
