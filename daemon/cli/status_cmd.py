@@ -488,7 +488,7 @@ def _exit_if_unready(report: list[dict[str, Any]], check: bool, outbox: Sequence
     for name, why in unready:
         err_console().print(f"not ready to publish: {name}: {', '.join(why)}", markup=False, highlight=False)
     if not shown and not unready:  # exit 1 said nothing (a second black-box review): say why
-        gone = [f"dataset {d['name']!r}'s folder {d['root']} is gone ({moved_words(d)})"
+        gone = [f"the folder of dataset {d['name']!r}, {d['root']}, is gone ({moved_words(d)})"
                 for d in report]  # fmt: skip
         said = "; ".join(gone) or "no dataset yet"
         err_console().print(f"nothing to publish: {said}", markup=False, highlight=False)
