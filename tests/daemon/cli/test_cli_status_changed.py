@@ -220,4 +220,5 @@ def test_check_of_a_dataset_whose_folder_is_gone_says_why(ppd_env: dict[str, Pat
     for args in (["status", "gone", "--check"], ["status", "--check"]):
         result = runner.invoke(app, args)
         said = " ".join(result.output.split())
-        assert result.exit_code == 1 and "nothing to publish: the folder of dataset 'gone', " in said, (args, said)
+        gone = "nothing to publish: the folder of dataset 'gone', "
+        assert result.exit_code == 1 and gone in said, (args, said)
