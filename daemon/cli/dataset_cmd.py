@@ -206,7 +206,9 @@ def dataset_set(
             print_line(console(), apply_masks_change(ctx, name, masks, reprotect))
         if reprotect and existing is not None:
             failed = _reprotect(ctx, name, spec)
-        elif masks is None or spec_options.given():
+        elif spec_options.given() or (masks is None and existing is None):
+            # an existing dataset's spec only by its flags: `--root` alone on one whose spec a rebuild
+            # lost moved it, then failed on the config's spec (a diff review)
             try:
                 ctx.store.set_dataset_spec(name, spec, root=folder)
             except DatasetSpecLocked as exc:

@@ -106,10 +106,6 @@ def _same_file(path: Path, wrote: tuple[int, int | None]) -> bool:
     return (st.st_size, st.st_mtime_ns) == wrote
 
 
-# adopt_moved reads this many of a dataset's rows below its gone folder for its probes
-MOVE_PROBE_ROWS = 50
-
-
 def moved_here(ctx: AppContext, name: str, root: Path, proof: tuple[Path, Path] | None = None) -> Path | None:
     """Dataset name's stored folder when root is that folder, moved: the stored one gone (or left without
     its files), root a folder no other dataset has, holding the dataset's patched files at the same
@@ -122,21 +118,28 @@ def moved_here(ctx: AppContext, name: str, root: Path, proof: tuple[Path, Path] 
     old, root = Path(row["root"]), Path(root).absolute()
     if old.absolute() == root or not root.is_dir() or _anothers(ctx, name, root):
         return None
-    probes = _move_probes(old, ctx.store.files_below(name, old, MOVE_PROBE_ROWS))
-    if _still_there(old, probes):
+    rows = ctx.store.files_below(name, old)
+    if _still_there(old, rows):
         return None
+    probes = _move_probes(old, rows)
     if proof is not None and _same_place(proof, old, root):
         return old
     return old if probes and _holds(root, probes) else None
 
 
-def _still_there(old: Path, probes: list[Probe]) -> bool:
-    """Whether the stored folder is still there with the dataset's files: the new one is a copy (or
-    another outbox's folder of the same name). An empty folder left behind is not (a running `ppd watch`
-    makes its outbox again when it is moved away)."""
+def _still_there(old: Path, rows: list[dict[str, Any]]) -> bool:
+    """Whether the stored folder is still there with any of the dataset's patched files: the new one is
+    a copy (or another outbox's folder of the same name), or a part moved. Every row is looked at, not
+    a few: a folder moved in two batches, or a backup copy whose first files were deleted from the
+    outbox, took the whole dataset, and the files left behind were "gone" to status and restore (a diff
+    review). An empty folder left behind is not (a running `ppd watch` makes its outbox again when it is
+    moved away). A stat a row, once: after the move the stored folder is the new one."""
     if not os.path.lexists(old):
         return False
-    return not probes or any(os.path.lexists(old / rel) for rel, _ in probes)
+    written = _written(old, rows)
+    if not written:
+        return True  # nothing of the dataset's to tell a move by
+    return any(r["state"] in PATCHED_VALUES and os.path.lexists(r["path"]) for r in rows)
 
 
 def adopt_moved(ctx: AppContext, name: str, root: Path, proof: tuple[Path, Path] | None = None) -> bool:

@@ -47,8 +47,8 @@ class FileRows(StoreBase):
             (dataset, file_state(state).value),
         )
 
-    def files_below(self, dataset: str, folder: Path | str, limit: int) -> list[dict[str, Any]]:
-        """Up to limit of the dataset's rows whose path lies below folder, by path (a few, quickly)."""
+    def files_below(self, dataset: str, folder: Path | str, limit: int = -1) -> list[dict[str, Any]]:
+        """Up to limit (-1: all) of the dataset's rows whose path lies below folder, by path."""
         below = str(folder).rstrip("/") + "/"
         sql = "SELECT * FROM files WHERE dataset = ? AND path >= ? AND path < ? ORDER BY path LIMIT ?"
         return self._rows(sql, (dataset, below, below[:-1] + "0", limit))

@@ -138,3 +138,34 @@ def test_forget_keeps_the_originals_of_photos_an_earlier_restore_deleted_as_copi
     assert all(p.is_file() for p in kept)
     code, text = said("dataset", "forget", "kitchen", "--force")
     assert code == 0 and not any(p.exists() for p in kept), text
+
+
+def test_a_folder_still_holding_patched_photos_is_not_followed(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A diff review: "still there" was judged by the dataset's first three rows, so a folder moved in
+    two batches, or a backup copy whose first photos were deleted from the outbox, took the whole
+    dataset, and the photos left behind were "gone" to status and restore. A stored folder that holds any
+    of its patched photos stays the dataset's."""
+    outbox = ppd_env["outbox"]
+    # a move done in batches: three of five photos moved first
+    shoot = make_shoot(tmp_path / "elsewhere" / "shoot", 5)
+    assert said("poison", str(shoot))[0] == 0
+    part = outbox / "shoot"
+    part.mkdir()
+    for name in ("v0.png", "v1.png", "v2.png"):
+        (shoot / name).rename(part / name)
+    code, text = said("poison", str(part))
+    assert "folder moved" not in text and _root("shoot") == str(shoot), text
+    code, text = said("status", "shoot")
+    assert "deleted or moved away since patched 3" in text and "not counted: deleted or moved away since patched 2" \
+        not in text, text
+    # a backup copy, the outbox's first photos deleted since
+    kitchen = make_shoot(outbox / "kitchen", 5)
+    assert said("poison", str(kitchen))[0] == 0
+    backup = tmp_path / "backup" / "kitchen"
+    shutil.copytree(kitchen, backup, copy_function=shutil.copy2)
+    for name in ("v0.png", "v1.png", "v2.png"):
+        (kitchen / name).unlink()
+    code, text = said("poison", str(backup), "--dataset", "kitchen")
+    assert "folder moved" not in text and _root("kitchen") == str(kitchen), text
+    code, text = said("poison", str(kitchen))
+    assert code == 0 and "already belongs" not in text, text

@@ -154,3 +154,19 @@ def test_a_store_made_by_a_newer_ppd_is_said_so_and_not_rebuilt_unless_forced(
     assert "store rebuilt at" not in text and store.read_bytes() == kept  # before: "damaged", replaced
     code, text = said("store", "rebuild", "--force")
     assert code == 0 and "the newer store is kept at" in text, text
+
+
+def test_a_dataset_whose_spec_was_lost_follows_its_moved_folder_and_stays_spec_less(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """`ppd dataset set NAME --root NEW` alone on such a dataset moved it, then exited 2 with "these flags
+    make spec ..." (no flag was given): it set the config's spec (a diff review). --root moves it only."""
+    data, castle = ppd_env["data"], make_shoot(ppd_env["outbox"] / "castle", 3)
+    assert said("poison", str(castle), *FLAGS)[0] == 0
+    shutil.rmtree(data / "vault" / "specs", ignore_errors=True)
+    _lose_store(data)
+    assert said("store", "rebuild")[0] == 1
+    moved = castle.rename(tmp_path / "castle-2026")
+    code, text = said("dataset", "set", "castle", "--root", str(moved))
+    assert code == 0 and "castle: moved from" in text and "these flags" not in text, text
+    assert "spec not recovered" in text and _spec_id(data, "castle") is None, text
