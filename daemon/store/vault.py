@@ -304,14 +304,14 @@ class Vault:
             return False
         return stat.S_ISREG(st.st_mode) and st.st_nlink == 1 and (size is None or st.st_size == size)
 
-    def _no_space(self, exc: OSError, size: int) -> VaultNoSpaceError:
+    def _no_space(self, exc: OSError, size: int, what: str = "this original") -> VaultNoSpaceError:
         try:
             where = filesystem_of(self.vault_dir).describe()
         except OSError:
             where = "filesystem unknown"
         return VaultNoSpaceError(
             f"the vault {self.vault_dir} is full: {exc.strerror} ({where}; "
-            f"this original needs {size} bytes); nothing kept, the file is left as it is",
+            f"{what} needs {size} bytes); nothing kept, the file is left as it is",
             exc.errno or errno.ENOSPC,
         )
 
@@ -371,7 +371,7 @@ class Vault:
                     fsync_dir(self.vault_dir)
             except OSError as exc:
                 if exc.errno in NO_SPACE:
-                    raise self._no_space(exc, len(text)) from None
+                    raise self._no_space(exc, len(text), "its patch spec") from None
                 raise
         self._specs_kept.add(spec.spec_id)
         return path

@@ -162,11 +162,24 @@ def _fail_replace(monkeypatch: pytest.MonkeyPatch) -> None:
     real = os.rename
 
     def rename(src: object, dst: object, **kw: object) -> None:
-        if Path(os.fsdecode(src)).name.startswith(poisoner.atomic.TEMP_PREFIX):
+        # the patched file's replace: not the vault's own (its spec file: "vault-spec")
+        if Path(os.fsdecode(src)).name.startswith(poisoner.atomic.TEMP_PREFIX) and not _in_vault(dst, kw):
             _raise_enospc()
         real(src, dst, **kw)
 
     monkeypatch.setattr(poisoner.atomic.os, "rename", rename)
+
+
+def _in_vault(dst: object, kw: dict[str, object]) -> bool:
+    """Whether a rename's destination (a name in the folder dst_dir_fd, or a path) is in the vault."""
+    folder = kw.get("dst_dir_fd")
+    where = Path(os.readlink(f"/proc/self/fd/{folder}")) if isinstance(folder, int) else Path()
+    return "vault" in (where / os.fsdecode(str(dst))).parts
+
+
+def _fail_spec_write(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The vault's copy of the patch spec (kept once per spec, so that a rebuild knows it) finds no room."""
+    monkeypatch.setattr(daemon.store.vault, "atomic_write_text", _raise_enospc)
 
 
 def _fail_vault_copy(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -180,6 +193,7 @@ INJECTIONS: dict[str, Callable[[pytest.MonkeyPatch], None]] = {
     "fsync": _fail_fsync,
     "atomic-rename": _fail_replace,
     "vault-copy": _fail_vault_copy,
+    "vault-spec": _fail_spec_write,
 }
 
 
