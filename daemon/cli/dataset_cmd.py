@@ -76,11 +76,15 @@ def _no_spec(ctx: AppContext, name: str) -> str:
 def _reprotect(ctx: AppContext, name: str, spec: PatchSpec) -> int:
     """Every patched file of the dataset again from its vault original, with the new spec; returns
     how many failed (the command then exits 1, as `ppd poison` does: it exited 0; a black-box review)."""
-    from daemon.protect.one_file import reprotect_dataset
+    from daemon.protect.one_file import GONE_REASON, reprotect_dataset
 
     outcomes = reprotect_dataset(ctx, name, spec)
-    counts = Counter(o.state for o in outcomes)
+    gone = [o for o in outcomes if o.reason == GONE_REASON]
+    counts = Counter(o.state for o in outcomes if o.reason != GONE_REASON)
     console().print(f"patched again {name}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+    if gone:  # not failures: nothing of them is left to re-protect (status counts them no more)
+        said = "deleted or moved away since ppd patched them: recorded so, nothing to re-protect"
+        print_line(console(), f"{name}: {len(gone)} {said}")
     for o in outcomes:
         if o.state == "failed":
             err_console().print(f"ppd: failed: {o.path}: {file_reason(o.path, o.reason)}", markup=False)

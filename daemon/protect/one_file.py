@@ -275,18 +275,51 @@ def reprotect_dataset(ctx: AppContext, dataset: str, spec: PatchSpec) -> list[Pr
     root = Path(row["root"])
     before = ctx.store.dataset_spec(dataset)
     ctx.store.set_dataset_spec(dataset, spec, allow_protected=True)
+    gone = deleted_since_patched(ctx, dataset, root)
     outcomes = []
     for file_row in ctx.store.files(dataset):
         path = Path(file_row["path"])
-        if file_row["state"] == FileState.PATCHED:
+        if file_row["state"] == FileState.PATCHED and file_row["path"] in gone:
+            outcomes.append(_record_gone(ctx, file_row, root, spec))
+        elif file_row["state"] == FileState.PATCHED:
             outcomes.append(_reprotect_one(ctx, file_row, root, spec))
         elif file_row["state"] in (FileState.SKIPPED, FileState.FAILED, FileState.PENDING) and path.is_file():
             outcomes.append(protect_file(path, ctx, dataset, root=root))
-    if before is not None and outcomes and all(o.state == Outcome.FAILED for o in outcomes):
+    tried = [o for o in outcomes if o.reason != GONE_REASON]
+    if before is not None and tried and all(o.state == Outcome.FAILED for o in tried):
         # nothing carries the new spec: the dataset keeps the one its files carry (a black-box review:
         # a read-only folder, every file failed, and status said "patched 4" under the new spec)
         ctx.store.set_dataset_spec(dataset, before, allow_protected=True)
     return outcomes
+
+
+GONE_REASON = "deleted or moved away since ppd patched it: recorded so, nothing to re-protect"
+
+
+def deleted_since_patched(ctx: AppContext, dataset: str, root: Path) -> set[str]:
+    """The dataset's patched files deleted or moved away since (status's "gone": a file renamed in its
+    folder is not one), while the folder is where the dataset says (an outbox moved elsewhere is
+    followed, never taken for deletions). A re-protect records them removed, as a running daemon does
+    when it sees them go: it failed on each, every time, and status then held the dataset "patched
+    with another spec" for a file that was not there (a black-box review)."""
+    from daemon.datasets.folder_count import dataset_folder
+
+    folder = dataset_folder(ctx, dataset, str(root))
+    if not folder.exists or folder.moved_to is not None:
+        return set()
+    return {str(p) for p in folder.gone}
+
+
+def _record_gone(ctx: AppContext, row: dict[str, Any], root: Path, spec: PatchSpec) -> ProtectOutcome:
+    path = Path(row["path"])
+    with ctx.path_lock(path):
+        back = os.path.lexists(path)
+        if not back:
+            seen = {"previous_state": row["state"], "seen_by": "reprotect"}
+            ctx.store.record_file(path, row["dataset"], FileState.REMOVED, event="removed", detail=seen)
+    if back:  # there again since the folder was read: re-protected as any other
+        return _reprotect_one(ctx, row, root, spec)
+    return ProtectOutcome(path=path, dataset=row["dataset"], state=Outcome.UNCHANGED, reason=GONE_REASON)
 
 
 def _reprotect_one(ctx: AppContext, row: dict[str, Any], root: Path, spec: PatchSpec) -> ProtectOutcome:

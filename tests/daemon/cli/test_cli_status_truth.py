@@ -227,11 +227,39 @@ def test_a_reprotect_no_file_took_names_the_spec_kept(ppd_env: dict[str, Path], 
     shoot = make_shoot(tmp_path / "A", 2)
     assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
     before = status_json("A")["spec_id"]
-    for photo in shoot.iterdir():
-        photo.unlink()
+    for photo in shoot.iterdir():  # each changed since ppd wrote it: refused, its earlier mark kept
+        photo.write_bytes(photo.read_bytes() + b"edited")
     result = runner.invoke(app, ["dataset", "set", "A", "--patch-size", "8%", "--reprotect"])
     text = " ".join(result.output.split())
     assert result.exit_code == 1 and status_json("A")["spec_id"] == before, text
     assert f"A: spec still {before} (" in text and "no file took the new spec" in text, text
     assert f"A: spec {before}" not in text, text
-    assert "v0.png is gone (deleted or moved away since ppd protected it); not re-protecting it" in text, text
+    assert "v0.png changed since ppd protected it; not re-protecting it" in text, text
+
+
+def test_a_reprotect_records_a_deleted_photo_gone(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """A patched photo deleted before a re-protect (no daemon running to see it go) failed the
+    re-protect, every time, and status then held the dataset "patched with another spec" for it, its
+    advice a re-protect that failed again (a black-box review). It is recorded gone, as the daemon
+    records it; a renamed photo is not taken for a deleted one."""
+    shoot = make_shoot(tmp_path / "A", 4)
+    assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+    (shoot / "v3.png").unlink()
+    (shoot / "v2.png").rename(shoot / "renamed.png")  # still ppd's output, under the earlier spec
+    result = runner.invoke(app, ["dataset", "set", "A", "--patch-size", "8%", "--reprotect"])
+    text = " ".join(result.output.split())
+    assert "patched again A: failed 1, patched 2" in text, text
+    gone = "A: 1 deleted or moved away since ppd patched them: recorded so, nothing to re-protect"
+    assert gone in text, text
+    assert "v3.png" not in text and "v2.png is gone" in text, text  # the renamed one still said
+    assert result.exit_code == 1, text
+    state = status_json("A")
+    assert state["other_spec"] == 1 and state["not_reprotected"] == 1, state  # the renamed one only
+    (shoot / "renamed.png").unlink()
+    again = runner.invoke(app, ["dataset", "set", "A", "--patch-size", "7%", "--reprotect"])
+    text = " ".join(again.output.split())
+    assert again.exit_code == 0 and "patched again A: patched 2" in text, text
+    state = status_json("A")
+    assert state["other_spec"] == 0 and state["not_reprotected"] == 0, state
+    check = runner.invoke(app, ["status", "A", "--check"])
+    assert "another spec" not in " ".join(check.output.split()), check.output
