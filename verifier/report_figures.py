@@ -95,13 +95,24 @@ def trajectory_figure(model_dir: str | Path | None, profile: str) -> Figure | No
     from verifier.plots import alignment
 
     aligned = alignment(poisoned, clean)[1]  # never said "aligned" of cameras that were not (0 clean)
-    how = "aligned onto clean by a robust similarity" if aligned else "NOT aligned: too few cameras in both"
+    how = "aligned onto clean by a robust similarity"
+    if not aligned:
+        how = f"NOT aligned: {_why_not_aligned(clean, poisoned)}"
     caption = (
         f"Camera trajectories, profile {profile}: clean SfM ({len(clean)} cameras, green) vs poisoned SfM "
         f"({len(poisoned)} cameras, orange, {how}); grey lines join the same image."
     )
     title = "Camera centres: clean SfM vs poisoned SfM" + (" (aligned onto clean)" if aligned else "")
     return Figure(caption, trajectory_png(clean, poisoned, title=title))
+
+
+def _why_not_aligned(clean: Mapping[str, Any], poisoned: Mapping[str, Any]) -> str:
+    """Why plots.alignment found no similarity: fewer than 3 images both sides registered, or none
+    that fits them (it said "too few cameras in both" of a clean side of 8: a black-box review)."""
+    common = len(set(clean) & set(poisoned))
+    if common >= 3:
+        return f"no similarity fits the {common} cameras both sides registered"
+    return f"{common} camera{'' if common == 1 else 's'} registered on both sides (3 are needed)"
 
 
 def splat_figure(splat: Mapping[str, Any] | None, profile: str) -> Figure | None:

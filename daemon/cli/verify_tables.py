@@ -44,8 +44,28 @@ def _side_rows(clean: dict[str, Any], poisoned: dict[str, Any]) -> list[tuple[st
         ("mean reprojection error (px)", _num(clean.get("mean_reprojection_error")),
          _num(poisoned.get("mean_reprojection_error"))),
         ("3D points", _num(clean.get("num_points3D")), _num(poisoned.get("num_points3D"))),
-        ("SfM time (s)", _num(clean.get("elapsed_s")), _num(poisoned.get("elapsed_s"))),
+        ("SfM time (s)", _clean_time(clean), _num(poisoned.get("elapsed_s"))),
     ]  # fmt: skip
+
+
+def _clean_time(clean: dict[str, Any]) -> str:
+    """The clean run's seconds; an earlier run's when its result was reused (not measured now)."""
+    seconds = _num(clean.get("elapsed_s"))
+    return f"{seconds} (run {clean['reused_from']})" if clean.get("reused_from") else seconds
+
+
+def reused_line(report: dict[str, Any]) -> str | None:
+    """Which profiles took the clean reconstruction an earlier verification made of these same
+    originals (names and bytes unchanged, same settings), and when it ran: the verdict is as good as
+    a new one, and the user can tell a verification that measured the originals now from one that did
+    not (a black-box review: only -v's log said so)."""
+    reused = {name: p["clean"]["reused_from"] for name, p in report["profiles"].items()
+              if (p.get("clean") or {}).get("reused_from")}  # fmt: skip
+    if not reused:
+        return None
+    when = ", ".join(sorted(set(reused.values())))
+    return (f"clean reference reused for {', '.join(reused)}: COLMAP on these same originals (unchanged: "
+            f"names, bytes and settings), run {when}")  # fmt: skip
 
 
 def _has_reference(clean: dict[str, Any], vs_clean: dict[str, Any]) -> bool:
@@ -130,6 +150,8 @@ def print_report(report: dict[str, Any], console: Console) -> None:
         console.print()
     for line in report.get("summary") or []:  # visibility and the profiles it does not hold under
         console.print(f"  {line}", markup=False)
+    if reused := reused_line(report):
+        console.print(f"  {reused}", markup=False)
     console.print(overall_line(report))
 
 

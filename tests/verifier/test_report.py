@@ -69,6 +69,14 @@ def test_the_camera_plot_says_when_nothing_could_be_aligned(tmp_path: Path) -> N
     alone = trajectory_figure(d, "default")
     assert alone is not None and "(0 cameras, green)" in alone.caption
     assert "NOT aligned" in alone.caption and "by a robust similarity" not in alone.caption
+    assert "0 cameras registered on both sides (3 are needed)" in alone.caption, alone.caption
+    clean_poses = json.loads((d / "poisoned" / "result.json").read_text())  # cameras on one side only
+    (d / "clean" / "result.json").write_text(json.dumps(clean_poses))
+    (d / "poisoned" / "result.json").write_text(json.dumps({"outcome": "ok", "poses": {}}))
+    one_side = trajectory_figure(d, "default")
+    assert one_side is not None and "(0 cameras, orange, NOT aligned: 0 cameras registered on both" in (
+        one_side.caption), one_side.caption  # it said "too few cameras in both" of a clean side of 8
+    assert "too few cameras in both" not in one_side.caption
 
 
 def _srcs(page: str) -> list[str]:

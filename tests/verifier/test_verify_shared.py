@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -185,7 +186,15 @@ def test_the_clean_reference_is_cached_until_an_original_changes(
     key = content_key(clean, sorted(os.listdir(clean)))
     assert [p.name for p in (tmp_path / "clean-cache").iterdir()] == [key]
     second = verify_folders(clean, small_sets["poisoned"], tmp_path / "two", ["default"], options)
-    assert second.profiles["default"].clean == first.profiles["default"].clean  # read back, not rerun
+    reused = dict(second.profiles["default"].clean)
+    made = reused.pop("reused_from", None)  # said: the time is the earlier run's (a black-box review)
+    assert reused == first.profiles["default"].clean and "reused_from" not in first.profiles["default"].clean
+    assert made is not None and re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d", made), made  # read back, not rerun
+    from daemon.cli.verify_tables import reused_line
+
+    line = reused_line(second.to_dict())
+    assert line is not None and "clean reference reused for default: " in line and made in line, line
+    assert reused_line(first.to_dict()) is None
     # the key names the SIFT device by its end alone: clean results cached before cpu_sift stay valid
     stored = [json.loads(p.read_text()) for p in (tmp_path / "clean-cache").rglob("result.json")]
     keys = [r["reuse_key"] for r in stored]
