@@ -47,7 +47,15 @@ from verifier.report_figures import (
     visibility_table,
     when,
 )
-from verifier.verdict import MASKED_MEANING, Verdict, headline, left_out_line, masked_line, measured_verdict
+from verifier.verdict import (
+    MASKED_MEANING,
+    Verdict,
+    headline,
+    left_out_line,
+    masked_line,
+    measured_verdict,
+    unverified,
+)
 
 # Banner colours: distinctive, saturated, one per verdict (the screenshot test looks for them).
 VERDICT_COLOURS: dict[str, str] = {
@@ -87,6 +95,9 @@ class ReportData:
     # a dataset with files left without the mark: the banner's words ("NOT protected: 1 failed, ...; the
     # 7 patched: protected under ..."), as its verdict is NOT protected whatever SfM measured
     unmarked: str | None = None
+    # the headline profiles the verdict rests on, when others could not be verified: said in the banner
+    # (a black-box review: "Verdict: PROTECTED" in large type, measured under global alone of five)
+    measured_only: str | None = None
 
 
 # ---- builders ---------------------------------------------------------------------------------
@@ -123,6 +134,7 @@ def _add_profile_content(
 ) -> None:
     data.reasons = {name: list(m.get("reasons") or []) for name, m in profiles.items()}
     data.holding = _holding_text(profiles, corner_mark)
+    data.measured_only = _measured_only(profiles)
     if left := _left_out(profiles):
         line = left_out_line(left)
         data.notes.append(f"{line[0].upper()}{line[1:]}.")
@@ -319,6 +331,8 @@ def render_html(data: ReportData) -> str:
     if data.verdict is not None:
         colour = VERDICT_COLOURS.get(data.verdict, VERDICT_COLOURS[Verdict.INCONCLUSIVE])
         text = data.unmarked or VERDICT_TEXT.get(data.verdict, data.verdict)
+        if data.measured_only and not data.unmarked and data.verdict in (Verdict.PROTECTED, Verdict.WEAK):
+            text = f"{text} ({data.measured_only})"
         parts.append(
             f'<div class="banner" id="verdict" data-verdict="{html.escape(data.verdict)}" '
             f'style="background:{colour}">Verdict: {html.escape(text)}</div>'
@@ -373,6 +387,17 @@ def _add_visibility_content(
         fig = mark_at_display_figure(*pair, mark)
         if fig:
             data.figures.append(fig)
+
+
+def _measured_only(profiles: Mapping[str, Mapping[str, Any]]) -> str | None:
+    """"under global only; not verified under default, ..." when some headline profiles told nothing
+    (COLMAP failed on the originals, or crashed) and others were measured; else None."""
+    counted = headline(_verdicts(profiles))
+    unknown = unverified(counted)
+    measured = [name for name in counted if name not in unknown]
+    if not unknown or not measured:
+        return None
+    return f"under {', '.join(measured)} only; not verified under {', '.join(unknown)}"
 
 
 def _holding_text(profiles: Mapping[str, Mapping[str, Any]], corner_mark: bool | None = None) -> str | None:

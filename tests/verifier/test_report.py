@@ -106,6 +106,26 @@ def test_weakest_profile_decides_and_no_verdict_without_one(tmp_path: Path) -> N
     assert "data-verdict" not in empty and not any(c in empty for c in rp.VERDICT_COLOURS.values())
 
 
+def test_the_banner_names_the_profiles_a_verdict_rests_on(tmp_path: Path) -> None:
+    """A black-box review: "Verdict: PROTECTED" in the banner, measured under global alone while the
+    other four profiles' COLMAP did not reconstruct the originals; said below it only."""
+    _profile_dir(tmp_path / "run", "global", "protected")
+    _profile_dir(tmp_path / "run", "default", "inconclusive")
+    _profile_dir(tmp_path / "run", "hardened", "inconclusive")
+    banner = _banner(tmp_path / "run")
+    assert banner.startswith("Verdict: PROTECTED"), banner
+    assert "(under global only; not verified under default, hardened)" in banner, banner
+    _profile_dir(tmp_path / "all", "global", "protected")
+    _profile_dir(tmp_path / "all", "default", "protected")
+    assert "only" not in _banner(tmp_path / "all")
+
+
+def _banner(folder: Path) -> str:
+    found = re.search(r'<div class="banner"[^>]*>([^<]*)</div>', rp.render_html(rp.build_report(str(folder))))
+    assert found is not None
+    return found.group(1)
+
+
 def test_nothing_to_report_is_a_clear_error(tmp_path: Path) -> None:
     (tmp_path / "empty").mkdir()
     with pytest.raises(rp.ReportError, match="no report.json"):
