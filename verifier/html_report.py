@@ -175,6 +175,7 @@ def dataset_history_report(
         data.notes.append(unverified_note)
     corner = next((m["corner_mark"] for m in profiles.values() if m.get("corner_mark") is not None), None)
     _add_profile_content(data, profiles, corner)
+    data.notes += next((m["video_frames"] for m in profiles.values() if m.get("video_frames")), [])
     image_pair = next(((o, p) for o, p in pairs if not _is_video(p)), None)
     mark = mark_of(image_pair[1]) if mark_of is not None and image_pair is not None else None
     if latest:
@@ -222,6 +223,7 @@ def build_verification_report(folder: Path) -> ReportData:
     if corner is None:
         corner = ((report.get("visibility") or {}).get("worst") or {}).get("in_one_corner")
     _add_profile_content(data, profiles, corner)
+    data.notes += report.get("video_frames") or []  # the frames a video's verdict rests on
     _add_visibility_content(data, report.get("visibility"), _measured_pair(report))
     return data
 

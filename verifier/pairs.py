@@ -24,6 +24,8 @@ class Staged:
 
     matching: str
     left_out: dict[str, str] = field(default_factory=dict)
+    # each video's frames measured, in words (sampled_line): the verdict rests on them, not every frame
+    video_frames: tuple[str, ...] = ()
 
 
 def _flat_name(path: Path, index: int, used: set[str]) -> str:
@@ -50,13 +52,12 @@ def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_di
     clean_dir.mkdir(parents=True, exist_ok=True)
     poisoned_dir.mkdir(parents=True, exist_ok=True)
     used: set[str] = set()
-    any_video = False
+    videos: list[str] = []
     left_out: dict[str, str] = {}
     for i, (original, protected) in enumerate(pairs):
         protected, original = Path(protected), Path(original)
         if _is_video(protected):
-            any_video = True
-            _stage_frames(original, protected, clean_dir, poisoned_dir, i)
+            videos.append(_stage_frames(original, protected, clean_dir, poisoned_dir, i))
             continue
         staged = staged_as(protected)
         if staged is None:
@@ -65,7 +66,7 @@ def stage_pairs(pairs: Sequence[tuple[Path, Path]], clean_dir: Path, poisoned_di
         name = _flat_name(Path(staged[0]), i, used)
         if why := _stage_pair(original, protected, clean_dir / name, poisoned_dir / name, staged[1]):
             left_out[protected.name] = why
-    return Staged("sequential" if any_video else "auto", dict(sorted(left_out.items())))
+    return Staged("sequential" if videos else "auto", dict(sorted(left_out.items())), tuple(videos))
 
 
 def stage_photos(photos: Sequence[tuple[Path, str]], folder: Path) -> list[str]:
@@ -87,19 +88,39 @@ def stage_photos(photos: Sequence[tuple[Path, str]], folder: Path) -> list[str]:
     return names
 
 
-def _stage_frames(original: Path, protected: Path, clean_dir: Path, poisoned_dir: Path, index: int) -> None:
-    """A video pair's sampled frames, under the same names in both folders."""
+def _stage_frames(original: Path, protected: Path, clean_dir: Path, poisoned_dir: Path, index: int) -> str:
+    """A video pair's sampled frames, under the same names in both folders; which were taken, in
+    words (sampled_line)."""
     from poisoner.video import sample_frames
 
     tmp_c, tmp_p = clean_dir / f".v{index}", poisoned_dir / f".v{index}"
     frames_c = sample_frames(original, tmp_c)
     frames_p = sample_frames(protected, tmp_p)
+    taken = [int(f.stem.rsplit("_", 1)[-1]) for f in frames_p]  # frame_000012.png: the frame's index
     for k, (fc, fp) in enumerate(zip(frames_c, frames_p, strict=False)):
         name = f"{protected.stem}_frame{k:05d}{fc.suffix}"
         os.replace(fc, clean_dir / name)
         os.replace(fp, poisoned_dir / name)
     shutil.rmtree(tmp_c, ignore_errors=True)
     shutil.rmtree(tmp_p, ignore_errors=True)
+    return sampled_line(protected.name, taken)
+
+
+def sampled_line(name: str, taken: Sequence[int]) -> str:
+    """What a video's verdict rests on: the frames measured, not every frame. A review found a clip
+    "protected" on 8 frames 6 apart whose first 12 consecutive frames were only "weak" (42% of the
+    cameras): an attacker picks the frames, so the line says which were measured."""
+    if len(taken) < 2:
+        return f"{name}: {len(taken)} frame measured (the whole clip)"
+    step = taken[1] - taken[0]
+    every = "every frame" if step == 1 else f"every {_ordinal(step)} frame"
+    return (f"{name}: {len(taken)} frames measured, {every} from frame {taken[0]} to {taken[-1]}; "
+            "an attacker may take others (closer together or more of them): not measured")  # fmt: skip
+
+
+def _ordinal(n: int) -> str:
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
 
 
 def _stage_pair(original: Path, protected: Path, clean: Path, poisoned: Path, converted: bool) -> str | None:

@@ -135,6 +135,7 @@ class VerificationReport(msgspec.Struct):
     visibility: DatasetVisibility | None = None  # None: not measured (visibility_images = 0)
     corner_mark: bool | None = None  # the mark lives in one corner (what the masked line says)
     sizes: dict[str, int] | None = None  # several stored sizes: each and its count (one camera each)
+    video_frames: list[str] | None = None  # each video's frames measured, in words (verifier.pairs)
 
     def verdicts(self) -> dict[str, str]:
         return {name: str(p.verdict) for name, p in self.profiles.items()}
@@ -160,6 +161,7 @@ class VerificationReport(msgspec.Struct):
         lines = self.visibility.lines() if self.visibility is not None else []
         if self.sizes:
             lines.append(sizes_line(self.sizes))
+        lines += self.video_frames or []
         if left := self.left_out():
             lines.append(left_out_line(left, self.num_images))
         lines.append(holding_line(headline(self.verdicts())))
@@ -239,7 +241,7 @@ def verify_folders(
     total = len(run.names) + len(run.options.not_staged)  # the set's photos, those COLMAP cannot read too
     report = VerificationReport(
         str(run.clean_dir), str(run.poisoned_dir), str(run.out_dir), total, reports, visibility,
-        corner, run.sizes if run.camera_per_size else None,
+        corner, run.sizes if run.camera_per_size else None, list(run.options.video_frames) or None,
     )  # fmt: skip
     write_json(run.out_dir / "report.json", report.to_dict())  # what `ppd report FOLDER` reads
     return report

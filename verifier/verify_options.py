@@ -57,3 +57,5 @@ class VerifyOptions:
     corner_mark: bool | None = None  # the mark lives in one corner (None: judged by the visibility stage)
     # the set's photos left out before SfM (verifier.pairs.Staged.left_out): named, no verdict covers them
     not_staged: tuple[str, ...] = ()
+    # each video's frames given to COLMAP, in words (verifier.pairs.Staged.video_frames): said too
+    video_frames: tuple[str, ...] = ()

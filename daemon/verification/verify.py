@@ -120,7 +120,8 @@ def verify_dataset(
                 report = unmeasured_report(images, run_dir, profiles, staged.left_out)
             else:
                 matching = staged.matching if staged.matching != "auto" else options.matching
-                opts = dataclasses.replace(options, matching=matching, not_staged=tuple(staged.left_out))
+                opts = dataclasses.replace(options, matching=matching, not_staged=tuple(staged.left_out),
+                                           video_frames=staged.video_frames)  # fmt: skip
                 report = verify_folders(images / "clean", images / "poisoned", run_dir, profiles, opts)
         except BaseException:  # a run with no report (Ctrl-C, a failure) leaves no folder of ppd's
             shutil.rmtree(run_dir, ignore_errors=True)
@@ -166,7 +167,8 @@ def record_report(ctx: AppContext, dataset: str, report: VerificationReport) -> 
                 dataset=dataset,
                 profile=p.profile,
                 verdict=p.verdict,
-                metrics={**p.metrics(), "visibility": visibility, "corner_mark": report.corner_mark},
+                metrics={**p.metrics(), "visibility": visibility, "corner_mark": report.corner_mark,
+                         "video_frames": report.video_frames},  # fmt: skip
                 started_at=p.started_at,
                 finished_at=p.finished_at,
                 model_dir=p.model_dir,

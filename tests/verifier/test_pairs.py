@@ -60,3 +60,25 @@ def test_a_photo_that_no_longer_decodes_is_left_out_and_said(tmp_path: Path) -> 
     assert staged.left_out == {"IMG_1.HEIC": "IMG_1.HEIC: not a recognised image file"}
     for side in ("clean", "poisoned"):  # neither side of it: the two folders hold the same names
         assert sorted(p.name for p in (tmp_path / side).iterdir()) == ["IMG_0.HEIC.png", "IMG_2.HEIC.png"]
+
+
+def test_a_video_s_frames_measured_are_said(tmp_path: Path) -> None:
+    """A video's verdict rests on the frames sampled (about two a second), and nothing said so: a review
+    found a clip "protected" on 8 frames 6 apart whose 12 first consecutive frames were only "weak"."""
+    from testkit.video import Clip, make_clip
+    from verifier.verification import VerificationReport
+
+    (tmp_path / "orig").mkdir()
+    clip = tmp_path / "orig" / "orbit.mp4"
+    make_clip(clip, Clip(width=96, height=64, frames=30, fps=12, audio=None))
+    staged = stage_pairs([(clip, clip)], tmp_path / "clean", tmp_path / "poisoned")
+    assert staged.matching == "sequential"
+    assert staged.video_frames == (
+        "orbit.mp4: 5 frames measured, every 6th frame from frame 0 to 24; an attacker may take others "
+        "(closer together or more of them): not measured",
+    ), staged.video_frames
+    assert len(list((tmp_path / "poisoned").iterdir())) == 5
+    report = VerificationReport("c", "p", "o", 5, {}, video_frames=list(staged.video_frames))
+    assert staged.video_frames[0] in report.summary_lines()
+    photos = stage_pairs([_pair(tmp_path, "a.jpg", 1, "JPEG")], tmp_path / "c2", tmp_path / "p2")
+    assert photos.video_frames == ()

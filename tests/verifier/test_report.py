@@ -515,3 +515,17 @@ def test_dataset_report_verdict_is_status_s_across_separate_runs(
         assert again.protection.startswith("patched, not verified")
     finally:
         ctx.close()
+
+
+def test_a_video_s_measured_frames_are_on_the_page(tmp_path: Path) -> None:
+    """`ppd verify` says which frames of a video its verdict rests on; the page says it too."""
+    d = _profile_dir(tmp_path / "run", "default", "protected")
+    line = "orbit.mp4: 8 frames measured, every 6th frame from frame 0 to 42; an attacker may take others"
+    profile = json.loads((d / "report.json").read_text())
+    top = {"profiles": {"default": profile}, "video_frames": [line]}
+    (tmp_path / "run" / "report.json").write_text(json.dumps(top))
+    assert line in rp.render_html(rp.build_report(str(tmp_path / "run")))
+    runs = [{"profile": "default", "verdict": "protected", "model_dir": str(d),
+             "metrics": {"video_frames": [line]}}]  # fmt: skip
+    page = rp.render_html(rp.dataset_history_report("t", runs, "patched", [], None, "never verified"))
+    assert line in page
