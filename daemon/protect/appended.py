@@ -67,6 +67,19 @@ def put_back_appended(job: Job) -> None:
     )
 
 
+def extends_original(job: Job, earlier: str) -> bool:
+    """Whether the file begins with the whole of the vault original `earlier` and goes on after it: a
+    version put back here (its writer's continuation), not a photo saved over ppd's mark, which is
+    what resaved.saved_over takes a new original of a patched row for (restore then said "if it was an
+    edit of that photo, it still carries ppd's mark" of the recording put back)."""
+    f = job.file
+    try:
+        size = job.ctx.vault.path_for(earlier).stat().st_size
+    except OSError:
+        return False
+    return f is not None and f.st.st_size > size and _hash_range(f.fd, 0, size) == earlier
+
+
 def _hash_range(fd: int, start: int, length: int, h: Any = None) -> str:
     """The sha256 of length bytes from start (h: a running hash to go on with)."""
     h = h or hashlib.sha256()

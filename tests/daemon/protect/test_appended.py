@@ -67,6 +67,7 @@ def test_bytes_appended_to_a_patched_video_put_back_with_its_original(
     assert hashlib.sha256(take.read_bytes()).hexdigest() != hashlib.sha256(data[: moofs[2]]).hexdigest()
     restored = runner.invoke(app, ["restore", str(take)])
     assert restored.exit_code == 0, restored.output
+    assert "saved over" not in " ".join(restored.output.split()), restored.output  # not an edit over the mark
     assert take.read_bytes() == data[: moofs[2]]  # the recording as its writer wrote it
 
 
