@@ -25,15 +25,62 @@ def published_folder_holding(file: Path, paths: AppPaths, photo_folders: Iterabl
 
     where = _folder_of(file)
     trees = [("the outbox", Path(paths.outbox))]
-    for name, row in stored_datasets(Path(paths.db_path)).items():  # none yet or broken: what it gives
+    datasets = stored_datasets(Path(paths.db_path))  # none yet or broken: what it gives
+    for name, row in datasets.items():
         trees.append((f"the folder of dataset {name!r}", Path(row["root"])))
         if row.get("publish_dir"):
             trees.append((f"the publish folder of dataset {name!r}", Path(row["publish_dir"])))
+    # a privacy review: the key went into an `--out` copies' folder and the config's publish folder
+    trees += [(f"the folder of dataset {name!r}'s patched copies (--out)", folder)
+              for name, folder in _copies_folders(Path(paths.db_path), datasets)]  # fmt: skip
+    trees += [(f"the publish folder {where_set}", folder) for where_set, folder in _configured_publish(paths)]
     trees += [("the folder of the photos", Path(folder)) for folder in photo_folders]
     for words, folder in trees:
         if published_with(folder.resolve(), where):
             return f"{words} {folder}"
     return None
+
+
+def _copies_folders(db_path: Path, datasets: dict[str, dict]) -> list[tuple[str, Path]]:
+    """Each dataset's `--out` copies' folder (OUT/NAME, where `ppd poison --out OUT` writes them): its
+    rows outside its own folder, read-only; each copy's folder, and OUT/NAME above it."""
+    import sqlite3
+
+    from daemon.protect.rebuild_carry import open_read_only
+
+    if (conn := open_read_only(db_path)) is None:
+        return []
+    found: dict[tuple[str, Path], None] = {}
+    try:
+        rows = conn.execute("SELECT dataset, path FROM files WHERE published_path IS NULL").fetchall()
+    except sqlite3.Error:
+        rows = []
+    finally:
+        conn.close()
+    for name, path in rows:
+        root = (datasets.get(name) or {}).get("root")
+        if root is None or Path(path).is_relative_to(root):
+            continue
+        folder = Path(path).parent
+        top = next((f for f in (folder, *folder.parents) if f.name == Path(root).name), folder)
+        found[(name, top)] = None
+    return list(found)
+
+
+def _configured_publish(paths: AppPaths) -> list[tuple[str, Path]]:
+    """The config's publish folders (`publish_dir`, and each dataset's own): where a sync client
+    uploads; a config that does not load names none (its command says why)."""
+    from daemon.config import Config
+
+    try:
+        config = Config.load(paths)
+    except Exception:  # a broken config is said by the commands that need it
+        return []
+    found = [("(publish_dir in the config)", Path(config.publish_dir))] if config.publish_dir else []
+    for name, override in config.datasets.items():
+        if override.publish_dir:
+            found.append((f"of dataset {name!r} (in the config)", Path(override.publish_dir)))
+    return found
 
 
 def in_data_folder(file: Path, paths: AppPaths) -> bool:

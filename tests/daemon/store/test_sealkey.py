@@ -175,6 +175,32 @@ def test_export_refuses_a_folder_whose_files_are_published(
     assert written.exit_code == 0, written.output
 
 
+def test_export_refuses_an_out_copies_folder_and_the_config_s_publish_folder(
+    app: typer.Typer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A privacy review: the key was written into a dataset's `--out` folder (the patched copies meant
+    for publishing) and into the config's publish_dir, the folder a sync client uploads."""
+    from daemon.cli import app as ppd
+
+    monkeypatch.setenv("PPD_DATA_DIR", str(tmp_path / "data"))
+    monkeypatch.setenv("PPD_CONFIG_DIR", str(tmp_path / "config"))
+    monkeypatch.setenv("PPD_OUTBOX", str(tmp_path / "outbox"))
+    shoot, web, sync = tmp_path / "src" / "castle", tmp_path / "web", tmp_path / "sync"
+    write_image(shoot / "sub" / "a.png", seed=1, size=96)
+    runner = CliRunner()
+    assert runner.invoke(ppd, ["poison", str(shoot), "--out", str(web)]).exit_code == 0
+    assert (web / "castle" / "sub" / "a.png").is_file()
+    sync.mkdir()
+    (tmp_path / "config").mkdir(exist_ok=True)
+    (tmp_path / "config" / "config.toml").write_text(f'publish_dir = "{sync}"\n')
+    for target in (web / "castle" / "k.key", web / "castle" / "sub" / "k.key", sync / "k.key"):
+        refused = runner.invoke(app, ["key", "export", str(target)])
+        text = " ".join(refused.output.split())
+        assert refused.exit_code == 2 and "published" in text and not target.exists(), (target, text)
+    written = runner.invoke(app, ["key", "export", str(web / "k.key")])  # beside OUT/castle: not published
+    assert written.exit_code == 0, written.output
+
+
 # A hook on os.link (as `python -c` source) at the link of the written key into place, seal.key: the
 # temporary's own creation (create_temp_at links a born-locked file too) goes on as usual.
 AT_THE_LINK = (
