@@ -285,3 +285,15 @@ def _walk_to_mount_point(path: Path, dev: int) -> Path:
             return path
         path = parent
     return path
+
+
+def preview_folder(cache_dir: Path, folder: Path) -> Path:
+    """Where `ppd preview` caches the pictures of one photo folder's files: previews/FOLDER-HASH in the
+    cache folder. By the stem alone, A/0000.jpg's preview was overwritten by B/0000.jpg's (a black-box
+    review); the folder's name says whose it is, a hash of its whole path tells apart two folders of one
+    name (2024/A, 2025/A). `ppd dataset forget` removes a dataset's (they show its originals)."""
+    import hashlib
+
+    folder = Path(os.path.abspath(folder))
+    tag = hashlib.sha256(os.fsencode(folder)).hexdigest()[:8]
+    return Path(cache_dir) / "previews" / f"{folder.name or 'root'}-{tag}"

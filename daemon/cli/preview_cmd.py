@@ -310,14 +310,11 @@ def _first_file(ctx: AppContext, given: Path) -> Path:
 
 
 def default_target(cache_dir: Path, file: Path) -> Path:
-    """previews/FOLDER-HASH/NAME.ppd-preview.png in the cache folder: one per source file. By the stem
-    alone, A/0000.jpg's preview was overwritten by B/0000.jpg's (a black-box review); the folder's name
-    says whose it is, a hash of its whole path tells apart two folders of one name (2024/A, 2025/A)."""
-    import hashlib
+    """previews/FOLDER-HASH/NAME.ppd-preview.png in the cache folder (daemon.paths.preview_folder): one
+    per source file."""
+    from daemon.paths import preview_folder
 
-    folder = Path(os.path.abspath(file)).parent
-    tag = hashlib.sha256(os.fsencode(folder)).hexdigest()[:8]
-    return cache_dir / "previews" / f"{folder.name or 'root'}-{tag}" / f"{file.name}.ppd-preview.png"
+    return preview_folder(cache_dir, Path(os.path.abspath(file)).parent) / f"{file.name}.ppd-preview.png"
 
 
 def _target(ctx: AppContext, file: Path, out: Path | None) -> Path:

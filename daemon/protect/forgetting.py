@@ -11,9 +11,10 @@ no command can record a row for an original between the check and its removal.
 The files ppd set aside for the dataset (`ppd restore --force`: DATA/displaced/NAME) are the user's and
 stay; its verification run folders (DATA/runs/NAME: reconstructions of its photos) and `ppd experiment`'s
 default folder (DATA/experiments/NAME: its originals staged as links to the vault's blobs, their
-reconstructions; a black-box review found them kept after "originals removed from the vault") are ppd's
-and go before the note does, so that a crash or a failed removal leaves the note, and the next forget
-removes them.
+reconstructions; a black-box review found them kept after "originals removed from the vault"), its
+report page (DATA/reports/NAME) and its cached previews (each shows an original beside the patched
+photo; a privacy review) are ppd's and go before the note does (the previews, a cache, best effort),
+so that a crash or a failed removal leaves the note, and the next forget removes them.
 """
 
 from __future__ import annotations
@@ -117,6 +118,7 @@ def forget_dataset(ctx: AppContext, name: str) -> Forgotten:
     """Remove the dataset from the store (unless an earlier forget did: unfinished), then the originals
     no row names any more from the vault and its verification run folders (this dataset's, and those of
     an earlier forget a crash stopped before its note went)."""
+    previews = _preview_folders(ctx, name)  # found by the rows' folders: before the rows go
     rows = 0 if unfinished(ctx, name) else ctx.store.forget_dataset(name)
     removed = removed_bytes = kept = 0
     for forgotten, originals in sorted(ctx.store.forget_notes().items()):
@@ -138,6 +140,8 @@ def forget_dataset(ctx: AppContext, name: str) -> Forgotten:
                 why = "its verification runs or experiment folder could not all be removed"
                 raise _unfinished(forgotten, why, exc, ctx.paths.runs_dir) from None
         ctx.store.forget_done(forgotten)
+    for preview in previews:  # cached pictures of its originals beside ppd's output (a privacy review)
+        shutil.rmtree(preview, ignore_errors=True)
     folder = displaced_folder(ctx, name)
     aside = folder if folder.is_dir() and any(folder.iterdir()) else None
     return Forgotten(rows, removed, removed_bytes, kept, aside)
@@ -159,9 +163,23 @@ def _remove_runs(ctx: AppContext, name: str) -> None:
     could not be removed (the caller keeps the note, so that a forget again tries it again)."""
     if name in ("", ".", "..") or os.sep in name:  # never a folder above or beside it
         return
-    for folder in (Path(ctx.paths.runs_dir) / name, ctx.paths.experiment_dir(name)):
+    # its report page too: it shows one of its originals beside the patched photo (a privacy review)
+    reports = Path(ctx.paths.data_dir) / "reports" / name
+    for folder in (Path(ctx.paths.runs_dir) / name, ctx.paths.experiment_dir(name), reports):
         if folder.is_dir() and not folder.is_symlink():
             shutil.rmtree(folder, onerror=_whole_name)
+
+
+def _preview_folders(ctx: AppContext, name: str) -> list[Path]:
+    """The cached `ppd preview` folders of the dataset's photo folders (each picture shows a clean
+    original; daemon.paths.preview_folder), those that are there."""
+    from daemon.paths import preview_folder
+
+    folders = {Path(r["path"]).parent for r in ctx.store.files(name)}
+    if root := (ctx.store.dataset(name) or {}).get("root"):
+        folders.add(Path(root))
+    cached = [preview_folder(ctx.paths.cache_dir, folder) for folder in folders]
+    return [c for c in cached if c.is_dir() and not c.is_symlink()]
 
 
 def _whole_name(_func: object, path: str, exc_info: tuple[type, BaseException, object]) -> None:

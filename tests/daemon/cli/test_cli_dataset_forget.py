@@ -500,3 +500,29 @@ def test_a_name_whose_safe_form_is_anothers_forgets_its_own_experiment_only(
     assert code == 0, text
     assert not paths.experiment_dir("my shoot").exists()
     assert (paths.experiment_dir("my_shoot") / "results.csv").read_text() == "my_shoot"
+
+
+def test_forget_removes_the_report_and_the_previews_that_show_its_originals(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """A privacy review: after `ppd dataset forget`, the dataset's report page and its cached previews
+    (each showing an original beside the patched photo) were still in ppd's folders. Another dataset's
+    stay."""
+    import os
+
+    shoots = {name: make_shoot(tmp_path / "sets" / name, 2) for name in ("castle", "garden")}
+    for name, shoot in shoots.items():
+        assert runner.invoke(app, ["poison", str(shoot)]).exit_code == 0
+        assert runner.invoke(app, ["preview", str(shoot / "v0.png"), "--no-visibility"]).exit_code == 0
+        assert runner.invoke(app, ["report", name]).exit_code == 0
+    data, cache = ppd_env["data"], Path(os.environ["PPD_CACHE_DIR"])
+    previews = sorted(p.parent.name for p in (cache / "previews").rglob("*.ppd-preview.png"))
+    assert len(previews) == 2 and (data / "reports" / "castle" / "latest.html").is_file(), previews
+    assert runner.invoke(app, ["restore", "castle"]).exit_code == 0
+    shutil.rmtree(shoots["castle"])
+    result = runner.invoke(app, ["dataset", "forget", "castle"])
+    assert result.exit_code == 0, result.output
+    assert not (data / "reports" / "castle").exists()
+    left = sorted(p.parent.name for p in (cache / "previews").rglob("*.ppd-preview.png"))
+    assert [n.split("-")[0] for n in left] == ["garden"], left
+    assert (data / "reports" / "garden" / "latest.html").is_file()
