@@ -381,9 +381,10 @@ def _recognise_by_marker(job: Job) -> ProtectOutcome | None:
     seal, claim = scan.seal, scan.claim
     if scan.other_key and not job.force:  # marked again, and its marked bytes vaulted as the original
         raise ProtectRefused(  # (a black-box review, after a lost store and `ppd key new`)
-            f"{shown_name(job.path)} is already ppd's output, sealed with another key: `ppd key import` the "
-            "key it was patched with (`--force` marks it again, its marked bytes kept as the original)"
-        )
+            f"{shown_name(job.path)} is sealed with another key than this installation's: ppd's output made "
+            "with another key (`ppd key import` that key), or a photo whose metadata was copied from such a "
+            "file (`--force` patches it, its bytes kept as the original); not patched"
+        )  # "already ppd's output" misled where only the metadata was copied (a privacy review, F5)
     if seal is None:  # a token that opens but no longer verifies: ppd's output, edited since?
         return recognise_edited_output(job, claim) if claim is not None else None
     if job.out_path is None and not job.dry_run and ctx.vault.has(seal.original_sha256):

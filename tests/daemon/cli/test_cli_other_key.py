@@ -37,6 +37,8 @@ def test_output_sealed_with_another_key_is_not_marked_again(ppd_env: dict[str, P
     said = " ".join(refused.output.split())
     assert refused.exit_code == 1 and "failed 3" in said and "sealed with another key" in said, said
     assert "`ppd key import`" in said
+    # not "already ppd's output": a new photo whose metadata was copied from one is sealed so too (F5)
+    assert "already ppd's output" not in said and "metadata was copied" in said and "`--force`" in said, said
     assert _shas(shoot) == patched and sorted(p.name for p in paths.vault_dir.glob("??/*")) == vaulted
 
     forced = runner.invoke(app, ["poison", str(shoot), "--force"])  # asked for: not refused for the key
