@@ -59,7 +59,8 @@ def report(
     out: Path | None = typer.Option(None, "--out", help="HTML file (default: the dataset's latest.html)."),
 ) -> None:
     """Write a self-contained HTML report: verdict, reasons, history, metrics, camera paths,
-    a preview of the patch.
+    a preview of the patch. It shows a clean original beside the patched photo: keep it to
+    yourself, never publish it with the photos.
 
     \b
     Examples:
