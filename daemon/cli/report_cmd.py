@@ -73,6 +73,7 @@ def report(
 
     if out is not None:  # the default is ppd's own folder or the one reported on: there
         refuse_missing_folder(out)
+        _refuse_published(out)
     try:
         ctx = _open_store(source, dataset)
         try:
@@ -87,3 +88,14 @@ def report(
 
 def register(app: typer.Typer) -> None:
     app.command("report")(report)
+
+
+def _refuse_published(out: Path) -> None:
+    """The page shows a clean original: never written among what is published (as `ppd preview`'s
+    picture; a privacy review found nothing saying the report was not for sharing)."""
+    from daemon.cli.published import published_folder_holding
+    from daemon.paths import AppPaths
+
+    if (published := published_folder_holding(out, AppPaths.from_env())) is not None:
+        raise die(f"{out} is inside {published}; the report shows an original and would be published with "
+                  "the photos: write it elsewhere (or leave out --out)")  # fmt: skip
