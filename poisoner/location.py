@@ -15,7 +15,9 @@ them on the protected output (docs/FORMATS.md, "Location"). What counts as locat
   left in it, or when it cannot be read back.
 - IPTC-IIM (JPEG APP13 "Photoshop 3.0" resource 0x0404, TIFF tag 33723): datasets 2:26, 2:27
   (content location), 2:90 City, 2:92 Sublocation, 2:95 Province/State, 2:100/2:101 Country.
-- PNG: eXIf, iTXt "XML:com.adobe.xmp", and ImageMagick's "Raw profile type exif/APP1/xmp" text.
+- PNG: eXIf, iTXt "XML:com.adobe.xmp", and ImageMagick's "Raw profile type exif/APP1/xmp" text;
+  text chunks keyed by such an XMP property (exif:GPSLatitude, photoshop:City), as converters write
+  EXIF/XMP properties.
 - Video: container and stream tags whose key names a place (location, ©xyz, ISO6709, GPS).
 
 A carrier that cannot be parsed is dropped whole (fail closed: a block we cannot read could hold
@@ -414,6 +416,30 @@ def parse_itxt(body: bytes) -> tuple[bytes, int, bytes, bytes]:
 def build_itxt(key: bytes, flag: int, middle: bytes, text: bytes) -> bytes:
     # level 9, fixed: deterministic output for the same text
     return key + b"\x00" + middle + (zlib.compress(text, 9) if flag else text)
+
+
+# Text chunks keyed by an XMP property's name (ImageMagick and other converters write EXIF and XMP
+# properties so: "exif:GPSLatitude"); the prefix read as XMP conventionally binds it.
+PNG_TEXT_CHUNKS = (b"tEXt", b"zTXt", b"iTXt")
+_TEXT_KEY_NAMESPACES = {
+    "exif": _NS_EXIF,
+    "photoshop": _NS_PHOTOSHOP,
+    "iptc4xmpcore": _NS_IPTC_CORE,
+    "iptc4xmpext": _NS_IPTC_EXT,
+    "drone-dji": _NS_DJI,
+}
+
+
+def location_text_key(ctype: bytes, body: bytes) -> str | None:
+    """The keyword of a PNG text chunk that names a location property (exif:GPSLatitude,
+    photoshop:City), as XMP's rules say; None for any other chunk."""
+    if ctype not in PNG_TEXT_CHUNKS:
+        return None
+    key = body.partition(b"\x00")[0].decode("latin-1")
+    prefix, colon, local = key.partition(":")
+    if not colon or not local or not _place(_TEXT_KEY_NAMESPACES.get(prefix.lower(), ""), local):
+        return None
+    return key
 
 
 _RAW_PROFILE = re.compile(rb"\A\s*(\w+)\s*\n\s*(\d+)\s*\n(.*)\Z", re.S)

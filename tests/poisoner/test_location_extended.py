@@ -1,8 +1,8 @@
-"""Location in a JPEG's Extended XMP (black-box review 9, F1): ppd said "location (GPS) removed"
-while it still published the GPS position.
+"""Location in a JPEG's Extended XMP and in PNG text chunks keyed by an XMP property (black-box review
+9, F1 and F2): ppd said "location (GPS) removed" while both still published the GPS position.
 
-The files are built byte by byte as Photoshop and exiftool write them; every test looks for each
-coordinate and place name anywhere in the output, and checks what a reader would merge."""
+The files are built byte by byte as Photoshop, exiftool and converters write them; every test looks
+for each coordinate and place name anywhere in the output, and checks what a reader would merge."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import hashlib
 import io
 import struct
 import xml.etree.ElementTree as ET
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ import pytest
 from PIL import Image
 
 from poisoner import location
-from poisoner.formats import poison_file
+from poisoner.formats import png_chunks, poison_file
 from poisoner.spec import PatchSpec
 
 SPEC = PatchSpec(patch_size=40, block_size=4, position="top-left", offset=(8, 8))
@@ -183,3 +184,48 @@ def test_unreadable_extended_xmp_is_dropped_whole_and_said(tmp_path: Path, broke
     ET.fromstring(main)
     assert any(r.startswith("Extended XMP dropped: unreadable, could hold location") for r in removed)
     assert "Extended XMP dropped: unreadable" in joined(notes)
+
+
+def _text(ctype: bytes, key: bytes, value: bytes) -> tuple[bytes, bytes]:
+    if ctype == b"zTXt":
+        return ctype, key + b"\x00\x00" + zlib.compress(value)
+    if ctype == b"iTXt":
+        return ctype, key + b"\x00\x00\x00\x00\x00" + value
+    return ctype, key + b"\x00" + value
+
+
+PNG_PLACES = [
+    _text(b"tEXt", b"exif:GPSLatitude", b"48/1, 51/1, 2987/100"),
+    _text(b"zTXt", b"exif:GPSLongitude", b"2/1, 17/1, 4023/100"),
+    _text(b"tEXt", b"exif:GPSAltitude", b"3512/100"),
+    _text(b"iTXt", b"photoshop:City", CITY.encode()),
+]
+PNG_KEPT = [_text(b"tEXt", b"Title", b"kept-title"), _text(b"tEXt", b"exif:Make", b"kept-make")]
+
+
+def test_png_text_chunks_keyed_by_a_location_property_are_removed(tmp_path: Path) -> None:
+    buf = io.BytesIO()
+    Image.fromarray(np.random.default_rng(4).integers(0, 256, (120, 160, 3), dtype=np.uint8)).save(buf, "PNG")
+    chunks = png_chunks(buf.getvalue())
+    extra = b"".join(struct.pack(">I", len(b)) + t + b + struct.pack(">I", zlib.crc32(t + b))
+                     for t, b in PNG_PLACES + PNG_KEPT)  # fmt: skip
+    data = buf.getvalue()
+    cut = 8 + 12 + len(chunks[0][1])  # after IHDR
+    src, dst = tmp_path / "a.png", tmp_path / "out.png"
+    src.write_bytes(data[:cut] + extra + data[cut:])
+    assert {"exif:GPSLatitude", "exif:GPSLongitude", "photoshop:City"} <= set(Image.open(src).info)
+    report = poison_file(src, dst, SPEC)
+    out = dst.read_bytes()
+    for value in (b"2987/100", b"4023/100", b"3512/100", CITY.encode(), b"GPS", b"photoshop:City"):
+        assert value not in out, value
+    assert zlib.compress(b"2/1, 17/1, 4023/100") not in out
+    info = Image.open(dst).info
+    assert info["Title"] == "kept-title" and info["exif:Make"] == "kept-make"
+    expected = ["PNG tEXt: exif:GPSLatitude", "PNG zTXt: exif:GPSLongitude", "PNG tEXt: exif:GPSAltitude",
+                "PNG iTXt: photoshop:City"]  # fmt: skip
+    assert set(expected) <= set(report.location_removed)
+    assert all(e in joined(report.notes) for e in expected)
+    kept = poison_file(src, tmp_path / "k.png", SPEC, keep_location=True)
+    kept_info = Image.open(tmp_path / "k.png").info
+    assert kept_info["exif:GPSLatitude"] == "48/1, 51/1, 2987/100" and kept_info["photoshop:City"] == CITY
+    assert kept_info["exif:GPSLongitude"] == "2/1, 17/1, 4023/100" and kept.location_removed == []
