@@ -10,9 +10,14 @@ them on the protected output (docs/FORMATS.md, "Location"). What counts as locat
   Country), Iptc4xmpCore (Location, CountryCode), Iptc4xmpExt (LocationCreated, LocationShown,
   City, ProvinceState, CountryName, ...) and DJI's altitudes. Removed as text, the rest of the
   packet is untouched (no re-serialisation, so prefixes and layout stay as the source had them).
+  A JPEG's Extended XMP (poisoner.xmp_extension) too: its packet written again in segments under
+  its new GUID, the main packet's pointer with it; dropped with the pointer when nothing else is
+  left in it, or when it cannot be read back.
 - IPTC-IIM (JPEG APP13 "Photoshop 3.0" resource 0x0404, TIFF tag 33723): datasets 2:26, 2:27
   (content location), 2:90 City, 2:92 Sublocation, 2:95 Province/State, 2:100/2:101 Country.
-- PNG: eXIf, iTXt "XML:com.adobe.xmp", and ImageMagick's "Raw profile type exif/APP1/xmp" text.
+- PNG: eXIf, iTXt "XML:com.adobe.xmp", and ImageMagick's "Raw profile type exif/APP1/xmp" text;
+  text chunks keyed by such an XMP property (exif:GPSLatitude, photoshop:City), as converters write
+  EXIF/XMP properties.
 - Video: container and stream tags whose key names a place (location, ©xyz, ISO6709, GPS).
 
 A carrier that cannot be parsed is dropped whole (fail closed: a block we cannot read could hold
@@ -26,6 +31,7 @@ import struct
 import zlib
 from collections.abc import Callable
 
+from poisoner import xmp_extension
 from poisoner.errors import ExitStatus, PpdError
 
 EXIF_HEADER = b"Exif\x00\x00"
@@ -158,13 +164,14 @@ _XMLNS = re.compile(rb"""xmlns:([A-Za-z_][\w.-]*)\s*=\s*["']([^"']*)["']""")
 _QNAME = rb"[A-Za-z_][\w.-]*:[A-Za-z_][\w.-]*"
 
 
+def _place(namespace: str, local: str) -> bool:
+    """Whether the property namespace:local carries a location."""
+    return local.lower().startswith("gps") or local in _XMP_PLACE_PROPS.get(namespace, ())
+
+
 def _location_qnames(xmp: bytes) -> set[bytes]:
     """Qualified names (prefix:local) in this packet that carry a location."""
-
-    def place(namespace: str, local: str) -> bool:
-        return local.lower().startswith("gps") or local in _XMP_PLACE_PROPS.get(namespace, ())
-
-    return xmp_qnames(xmp, place)
+    return xmp_qnames(xmp, _place)
 
 
 def xmp_qnames(xmp: bytes, wanted: Callable[[str, str], bool]) -> set[bytes]:
@@ -309,10 +316,16 @@ def jpeg_assemble(segments: list[tuple[int, bytes]], data: bytes, sos: int) -> b
 
 
 def clean_jpeg_segments(segments: list[tuple[int, bytes]]) -> tuple[list[tuple[int, bytes]], list[str]]:
-    """Segments with location removed from EXIF (APP1), XMP (APP1) and IPTC (APP13)."""
+    """Segments with location removed from EXIF (APP1), XMP (APP1, Extended XMP too) and IPTC (APP13)."""
     out: list[tuple[int, bytes]] = []
-    removed: list[str] = []
+    written, pointers, removed = _clean_extended_xmp(segments)
     for marker, payload in segments:
+        guid = xmp_extension.guid_of(payload) if marker == 0xE1 else None
+        if guid is not None and guid in written:
+            out += [(0xE1, part) for part in written.pop(guid)]  # at its first segment, once
+            continue
+        if guid is not None and guid in pointers:
+            continue  # a later segment of an extended packet written again (or dropped)
         if marker == 0xE1 and payload.startswith(EXIF_HEADER):
             cleaned, gone = clean_exif(payload)
             removed += gone
@@ -322,6 +335,9 @@ def clean_jpeg_segments(segments: list[tuple[int, bytes]]) -> tuple[list[tuple[i
         elif marker == 0xE1 and payload.startswith(XMP_JPEG_HEADER):
             body, gone = strip_xmp_location(payload[len(XMP_JPEG_HEADER) :])
             removed += gone
+            pointer = sorted(xmp_qnames(body, _extension_pointer))
+            for old, new in pointers.items():
+                body = xmp_extension.repoint(body, pointer, old, new)
             payload = XMP_JPEG_HEADER + body
         elif marker == 0xED and payload.startswith(PHOTOSHOP_HEADER):
             try:
@@ -332,6 +348,39 @@ def clean_jpeg_segments(segments: list[tuple[int, bytes]]) -> tuple[list[tuple[i
             removed += gone
         out.append((marker, payload))
     return out, removed
+
+
+def _clean_extended_xmp(
+    segments: list[tuple[int, bytes]],
+) -> tuple[dict[bytes, list[bytes]], dict[bytes, bytes | None], list[str]]:
+    """The Extended XMP packets that held location, without it: (by old GUID, the APP1 payloads that
+    replace its segments, none when it goes; by old GUID, what the main packet's pointer names now,
+    None when it goes; what was removed). A packet that cannot be read back goes whole (it could
+    hold GPS), and one left with no property goes with its pointer."""
+    written: dict[bytes, list[bytes]] = {}
+    pointers: dict[bytes, bytes | None] = {}
+    removed: list[str] = []
+    for guid, packet in xmp_extension.packets(segments).items():
+        if isinstance(packet, str):
+            written[guid], pointers[guid] = [], None
+            removed.append(f"Extended XMP dropped: unreadable, could hold location ({packet})")
+            continue
+        body, gone = strip_xmp_location(packet)
+        if not gone:
+            continue
+        removed += [f"Extended {g}" for g in gone]
+        problem = xmp_extension.xml_error(body)
+        if problem is not None or not xmp_extension.has_properties(body):
+            written[guid], pointers[guid] = [], None
+            if problem is not None:
+                removed.append(f"Extended XMP dropped: not XML once location was removed ({problem})")
+            continue
+        pointers[guid], written[guid] = xmp_extension.segments_of(body)
+    return written, pointers, removed
+
+
+def _extension_pointer(namespace: str, local: str) -> bool:
+    return namespace == xmp_extension.NS_XMP_NOTE and local == "HasExtendedXMP"
 
 
 def strip_jpeg_location(data: bytes) -> tuple[bytes, list[str]]:
@@ -367,6 +416,30 @@ def parse_itxt(body: bytes) -> tuple[bytes, int, bytes, bytes]:
 def build_itxt(key: bytes, flag: int, middle: bytes, text: bytes) -> bytes:
     # level 9, fixed: deterministic output for the same text
     return key + b"\x00" + middle + (zlib.compress(text, 9) if flag else text)
+
+
+# Text chunks keyed by an XMP property's name (ImageMagick and other converters write EXIF and XMP
+# properties so: "exif:GPSLatitude"); the prefix read as XMP conventionally binds it.
+PNG_TEXT_CHUNKS = (b"tEXt", b"zTXt", b"iTXt")
+_TEXT_KEY_NAMESPACES = {
+    "exif": _NS_EXIF,
+    "photoshop": _NS_PHOTOSHOP,
+    "iptc4xmpcore": _NS_IPTC_CORE,
+    "iptc4xmpext": _NS_IPTC_EXT,
+    "drone-dji": _NS_DJI,
+}
+
+
+def location_text_key(ctype: bytes, body: bytes) -> str | None:
+    """The keyword of a PNG text chunk that names a location property (exif:GPSLatitude,
+    photoshop:City), as XMP's rules say; None for any other chunk."""
+    if ctype not in PNG_TEXT_CHUNKS:
+        return None
+    key = body.partition(b"\x00")[0].decode("latin-1")
+    prefix, colon, local = key.partition(":")
+    if not colon or not local or not _place(_TEXT_KEY_NAMESPACES.get(prefix.lower(), ""), local):
+        return None
+    return key
 
 
 _RAW_PROFILE = re.compile(rb"\A\s*(\w+)\s*\n\s*(\d+)\s*\n(.*)\Z", re.S)

@@ -81,11 +81,15 @@ def splice_png(source: bytes, pixels_png: bytes) -> tuple[bytes, list[str]]:
 
 
 def strip_png_location(data: bytes) -> tuple[bytes, list[str]]:
-    """The PNG with location removed from its ancillary chunks (eXIf, XMP iTXt, raw profiles);
-    pixel chunks and every other chunk are copied byte for byte."""
+    """The PNG with location removed from its ancillary chunks (eXIf, XMP iTXt, raw profiles, text
+    chunks keyed exif:GPSLatitude, photoshop:City ...); pixel chunks and every other chunk are copied
+    byte for byte."""
     parts = [PNG_SIGNATURE]
     removed: list[str] = []
     for ctype, body in png_chunks(data):
+        if (key := location.location_text_key(ctype, body)) is not None:
+            removed.append(f"PNG {ctype.decode('latin-1')}: {key}")
+            continue
         if ctype not in _PIXEL_CHUNKS:
             cleaned, gone = location.clean_png_chunk(ctype, body)
             removed += [f"PNG {ctype.decode('latin-1')}: {g}" for g in gone]
