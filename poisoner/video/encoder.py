@@ -44,6 +44,11 @@ CRF_STEP_ON_RETRY = 6
 # 0.2 dB lower outside the mark: it keeps its own choice.
 KEEP_FRAME_TYPES = frozenset({"libx264"})
 
+# HEVC's sample entry in MP4/MOV: FFmpeg writes `hev1` unless told; Apple's players (QuickTime, iOS,
+# Safari) play HEVC only under `hvc1`, what iPhones write (black-box review 9). A `hev1` source stays so.
+_HEVC_TAGS = ("hvc1", "hev1")
+_MP4_MUXERS = ("mp4", "mov")
+
 _FULL_LOOKAHEAD_MAX_PIXELS = 1920 * 1088
 _SHORT_LOOKAHEAD = 10
 
@@ -158,4 +163,6 @@ def configure_video_stream(
         cc.bit_rate = choice.bit_rate
     if info.display_matrix is not None:
         stream.set_display_matrix(list(info.display_matrix))
+    if choice.encoder == "libx265" and info.muxer in _MP4_MUXERS:
+        stream.codec_tag = info.codec_tag if info.codec_tag in _HEVC_TAGS else "hvc1"
     return stream

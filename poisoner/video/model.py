@@ -82,6 +82,8 @@ class SourceInfo:
     encoded_crf: float | None = None
     # the source reorders frames (B-frames): its encoder chose I, P and B for this content
     b_frames: bool = False
+    # the stream's sample-entry tag in MP4/MOV ("hvc1", "hev1", "avc1", "apch", ...), "" where none
+    codec_tag: str = ""
 
 
 @dataclass

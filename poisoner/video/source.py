@@ -68,12 +68,21 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
             stream_index=stream.index,
             encoded_crf=encoded_crf,
             b_frames=bool(cc.has_b_frames),
+            codec_tag=stream_codec_tag(stream),
         )
 
 
 # x264 ("x264 - core 164 ... options: ... crf=20.0 ...") and x265 ("x265 (build 199) - ... crf=28.0")
 # write their settings as text in an SEI message of the stream's first frame.
 _ENCODER_SETTINGS = re.compile(rb"(?:x264 - core|x265 \(build)[^\x00]{0,16000}?[ :]crf=(\d+(?:\.\d+)?)")
+
+
+def stream_codec_tag(stream: av.stream.Stream) -> str:
+    """The stream's codec tag as text ("hvc1"), "" where it has none (Matroska's are zero)."""
+    try:
+        return str(getattr(stream, "codec_tag", "") or "").strip("\x00 ")
+    except (ValueError, UnicodeDecodeError):
+        return ""
 
 
 def _refuse_over_budget(name: str, width: int, height: int, max_pixels: int | None) -> None:

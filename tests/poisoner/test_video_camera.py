@@ -1,0 +1,81 @@
+"""poisoner.video on what cameras, phones and editors write beyond a plain clip: HEVC under Apple's
+sample entry, ProRes, timecode tracks, VP9 with alpha, Apple `mdta` tags (black-box review 9)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import av
+import numpy as np
+import pytest
+
+from poisoner.spec import PatchSpec
+from poisoner.video import poison_video
+from testkit.video import scene
+
+SPEC = PatchSpec()
+SIZE = (320, 240)
+
+
+def write_clip(
+    path: Path,
+    encoder: str,
+    pix_fmt: str,
+    frames: int = 6,
+    *,
+    codec_tag: str | None = None,
+    options: dict[str, str] | None = None,
+    stream_tags: dict[str, str] | None = None,
+    container_tags: dict[str, str] | None = None,
+    container_options: dict[str, str] | None = None,
+    alpha: bool = False,
+) -> Path:
+    """A clip of the panning test scene; with alpha, the left half opaque and the right half clear."""
+    width, height = SIZE
+    with av.open(str(path), "w", options=container_options or {}) as out:
+        out.metadata.update(container_tags or {})
+        vs = out.add_stream(encoder, rate=24, options=options or {})
+        vs.width, vs.height, vs.pix_fmt = width, height, pix_fmt
+        if codec_tag:
+            vs.codec_tag = codec_tag
+        vs.metadata.update(stream_tags or {})
+        for i in range(frames):
+            rgb = scene(width, height, i)
+            if alpha:
+                opaque = np.where(np.arange(width) < width // 2, 255, 0).astype(np.uint8)
+                rgba = np.dstack([rgb, np.broadcast_to(opaque, (height, width))])
+                frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgba), format="rgba")
+            else:
+                frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
+            frame.pts = i
+            for pkt in vs.encode(frame):
+                out.mux(pkt)
+        for pkt in vs.encode(None):
+            out.mux(pkt)
+    return path
+
+
+def video_tag(path: Path) -> str:
+    with av.open(str(path)) as c:
+        return str(c.streams.video[0].codec_tag)
+
+
+def frame_count(path: Path) -> int:
+    with av.open(str(path)) as c:
+        return sum(1 for _ in c.decode(video=0))
+
+
+# ---- F2: HEVC keeps its sample entry ----------------------------------------------------------
+
+
+@pytest.mark.parametrize(("suffix", "tag"), [(".mp4", "hvc1"), (".mov", "hvc1"), (".mp4", "hev1")])
+def test_hevc_keeps_its_sample_entry_tag(tmp_path: Path, suffix: str, tag: str) -> None:
+    """An iPhone's HEVC is `hvc1`, the only entry Apple's players play; FFmpeg writes `hev1` unless told."""
+    src = write_clip(tmp_path / f"clip{suffix}", "libx265", "yuv420p", codec_tag=tag,
+                     options={"x265-params": "log-level=error"})  # fmt: skip
+    assert video_tag(src) == tag
+    dst = tmp_path / f"out{suffix}"
+    report = poison_video(src, dst, SPEC)
+    assert report.encoder == "libx265"
+    assert video_tag(dst) == tag
+    assert frame_count(dst) == frame_count(src) == 6
