@@ -18,7 +18,7 @@ from poisoner.video import model
 from poisoner.video.contrast import intended_contrast, measure_video_patch
 from poisoner.video.cover import plan_covers
 from poisoner.video.demux import main_video_stream, stream_bit_rate
-from poisoner.video.encoder import CRF_STEP_ON_RETRY, choose_encoder
+from poisoner.video.encoder import CRF_STEP_ON_RETRY, choose_encoder, encoder_pix_fmt, quality_text
 from poisoner.video.errors import VideoFormatError, one_line
 from poisoner.video.metadata import append_marker_box, preserved_list
 from poisoner.video.source import probe
@@ -225,7 +225,9 @@ def _encode_until_visible(
         _check_complete(src, info, result)
         if contrast_ok(result):
             break
-        if attempts > options.max_retries or (choice.crf is not None and choice.crf == 0):
+        # nothing to raise: CRF 0, or an encoder whose quality is its profile (ProRes)
+        at_best = choice.crf == 0 or (choice.crf is None and choice.bit_rate is None)
+        if attempts > options.max_retries or at_best:
             report.notes.append(
                 f"patch contrast after encoding is {report.patch_contrast_min:.2f} of intended "
                 f"(below {options.min_patch_contrast}) after {attempts} attempts"
@@ -284,7 +286,7 @@ def _finish_report(
     report.output_bit_rate = output_bit_rate
     report.preserved = preserved_list(info, choice)
     # every frame is re-encoded (lossy): said, with the quality chosen (the summary counts it)
-    quality = f"CRF {choice.crf}" if choice.crf is not None else f"{(choice.bit_rate or 0) // 1000} kbit/s"
+    quality = quality_text(choice)
     made_at = f"; the source was made at CRF {info.encoded_crf:g}" if info.encoded_crf is not None else ""
     report.notes.append(f"video re-encoded at quality {quality} with {choice.encoder} (lossy){made_at}")
     if report.location_removed:
@@ -293,6 +295,11 @@ def _finish_report(
         )
     if not choice.same_codec:
         report.notes.append(f"no {info.codec} encoder in this build; re-encoded as {choice.encoder}")
+    if (written := encoder_pix_fmt(choice.encoder, info.pix_fmt)) != info.pix_fmt:
+        report.notes.append(
+            f"written as {written}: {choice.encoder} takes no {info.pix_fmt} (the decoder reads it back "
+            f"as {info.pix_fmt}, with 2 bits less of precision)"
+        )
     if info.hdr_side_data and choice.encoder != "libx265":
         report.notes.append(
             "HDR mastering/light-level metadata not carried ("

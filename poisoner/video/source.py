@@ -69,6 +69,7 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
             encoded_crf=encoded_crf,
             b_frames=bool(cc.has_b_frames),
             codec_tag=stream_codec_tag(stream),
+            profile=str(cc.profile or ""),
         )
 
 

@@ -79,3 +79,60 @@ def test_hevc_keeps_its_sample_entry_tag(tmp_path: Path, suffix: str, tag: str) 
     assert report.encoder == "libx265"
     assert video_tag(dst) == tag
     assert frame_count(dst) == frame_count(src) == 6
+
+
+def alpha_planes(path: Path) -> list[np.ndarray]:
+    """Each frame's alpha as 8-bit (libvpx-vp9 decodes a VP9's alpha, FFmpeg's own vp9 decoder drops it)."""
+    with av.open(str(path)) as c:
+        stream = c.streams.video[0]
+        decoder = stream.codec_context
+        if decoder.name == "vp9":
+            decoder = av.CodecContext.create("libvpx-vp9", "r")
+            decoder.extradata = stream.codec_context.extradata
+        planes = []
+        for pkt in c.demux(stream):
+            for frame in decoder.decode(pkt):
+                assert frame.format.name.startswith("yuva"), frame.format.name
+                planes.append(frame.reformat(format="rgba").to_ndarray()[..., 3])
+        return planes
+
+
+def assert_alpha_kept(src: Path, dst: Path) -> None:
+    """The same transparency in every frame, but under the mark, which is opaque (as in a photo)."""
+    before, after = alpha_planes(src), alpha_planes(dst)
+    assert len(after) == len(before)
+    assert before[0][:, -40:].max() == 0 and before[0][:, :40].min() == 255  # the clip is half clear
+    x0, y0, x1, y1 = SPEC.resolve(*SIZE).box
+    for a, b in zip(before, after, strict=True):
+        assert (b[y0:y1, x0:x1] == 255).all()
+        a[y0:y1, x0:x1] = b[y0:y1, x0:x1] = 0
+        assert np.abs(a.astype(int) - b.astype(int)).max() <= 8
+
+
+# ---- F6: ProRes stays ProRes ------------------------------------------------------------------
+
+
+def test_prores_is_written_as_prores_of_the_same_profile(tmp_path: Path) -> None:
+    src = write_clip(tmp_path / "master.mov", "prores_ks", "yuv422p10le", options={"profile": "hq"})
+    dst = tmp_path / "out.mov"
+    report = poison_video(src, dst, SPEC)
+    with av.open(str(dst)) as c:
+        v = c.streams.video[0]
+        assert (v.codec_context.name, str(v.codec_tag), v.codec_context.profile) == ("prores", "apch", "HQ")
+        assert v.codec_context.format.name == "yuv422p10le"
+    assert frame_count(dst) == 6
+    notes = " ".join(" ".join(report.notes).split())
+    assert "ProRes profile hq with prores_ks" in notes
+    assert "no prores encoder" not in notes
+
+
+def test_prores_4444_keeps_its_alpha(tmp_path: Path) -> None:
+    src = write_clip(tmp_path / "key.mov", "prores_ks", "yuva444p10le", alpha=True)
+    dst = tmp_path / "out.mov"
+    report = poison_video(src, dst, SPEC)
+    with av.open(str(dst)) as c:
+        v = c.streams.video[0]
+        assert (v.codec_context.name, str(v.codec_tag)) == ("prores", "ap4h")
+    assert_alpha_kept(src, dst)
+    # the ProRes decoder gives 4444 as 12-bit, prores_ks writes 10-bit samples: said
+    assert "written as yuva444p10le" in " ".join(" ".join(report.notes).split())
