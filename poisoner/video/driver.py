@@ -17,11 +17,11 @@ from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 from poisoner.video import model
 from poisoner.video.contrast import intended_contrast, measure_video_patch
 from poisoner.video.cover import plan_covers
-from poisoner.video.demux import main_video_stream, stream_bit_rate
+from poisoner.video.demux import main_video_stream, open_input, stream_bit_rate
 from poisoner.video.encoder import CRF_STEP_ON_RETRY, choose_encoder, encoder_pix_fmt, quality_text
 from poisoner.video.errors import VideoFormatError, one_line
 from poisoner.video.metadata import append_marker_box, preserved_list
-from poisoner.video.source import probe
+from poisoner.video.source import probe, timecode_of
 from poisoner.video.transcode import EncodeResult, encode_once
 
 log = logging.getLogger("poisoner.video")
@@ -80,9 +80,25 @@ def poison_video(
     report.location_removed += covers.location_removed
     _finish_report(report, info, choice, result, stream_bit_rate(dst))
     report.notes += covers.notes()
+    _note_timecode(report, info, dst)
     append_marker_box(dst, info.muxer, marker)
     _note_size(report, state_before[0], dst.stat().st_size)
     return report
+
+
+def _note_timecode(report: model.VideoReport, info: model.SourceInfo, dst: Path) -> None:
+    """Said where the source's timecode track is not in dst: the muxer writes it from the video's
+    timecode tag (poisoner.video.transcode) and leaves it out where the start does not fit the rate."""
+    if not info.timecode:
+        return
+    with open_input(dst) as written:
+        kept = timecode_of(written)
+    if not kept:
+        report.notes.append(
+            f"timecode track (start {info.timecode}) left out: FFmpeg's {info.muxer} muxer did not write it"
+        )
+    elif kept != info.timecode:
+        report.notes.append(f"timecode track's start {info.timecode} written as {kept}")
 
 
 def _note_size(report: model.VideoReport, source_bytes: int, output_bytes: int) -> None:

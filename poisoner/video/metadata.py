@@ -70,6 +70,11 @@ def is_location_stream(stream: av.stream.Stream) -> bool:
     return stream.type == "data" and codec_tag(stream) in location.LOCATION_DATA_CODEC_TAGS
 
 
+def is_timecode_stream(stream: av.stream.Stream) -> bool:
+    """A QuickTime/MP4 timecode track (`tmcd`: a data stream FFmpeg's demuxer tags with its start)."""
+    return stream.type == "data" and "timecode" in stream.metadata
+
+
 def add_marker_tag(out: av.container.OutputContainer, muxer: str, marker: Marker | None) -> None:
     """Matroska/WebM: the marker as a container tag (written with the header)."""
     if marker is not None and muxer in MARKER_TAG_MUXERS:

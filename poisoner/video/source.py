@@ -16,6 +16,7 @@ import numpy as np
 from poisoner.limits import check_video_frame_budget
 from poisoner.video.demux import main_video_stream, open_input
 from poisoner.video.errors import VideoFormatError, one_line
+from poisoner.video.metadata import is_timecode_stream
 from poisoner.video.model import SourceInfo
 
 # Output container by suffix: the same container family as the source.
@@ -70,12 +71,18 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
             b_frames=bool(cc.has_b_frames),
             codec_tag=stream_codec_tag(stream),
             profile=str(cc.profile or ""),
+            timecode=timecode_of(container),
         )
 
 
 # x264 ("x264 - core 164 ... options: ... crf=20.0 ...") and x265 ("x265 (build 199) - ... crf=28.0")
 # write their settings as text in an SEI message of the stream's first frame.
 _ENCODER_SETTINGS = re.compile(rb"(?:x264 - core|x265 \(build)[^\x00]{0,16000}?[ :]crf=(\d+(?:\.\d+)?)")
+
+
+def timecode_of(container: av.container.InputContainer) -> str:
+    """The start of the container's timecode track ("01:00:00:00"), "" where it has none."""
+    return next((s.metadata["timecode"] for s in container.streams if is_timecode_stream(s)), "")
 
 
 def stream_codec_tag(stream: av.stream.Stream) -> str:

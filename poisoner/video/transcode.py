@@ -25,6 +25,7 @@ from poisoner.video.metadata import (
     codec_tag,
     copy_metadata,
     is_location_stream,
+    is_timecode_stream,
     x265_hdr_params,
 )
 
@@ -143,6 +144,11 @@ def _copied_streams(
             if (cover := _cover_stream(out, s, info.muxer, covers, keep_location, removed)) is not None:
                 copied[s.index] = cover
             continue
+        if is_timecode_stream(s):
+            # FFmpeg cannot copy a timecode (tmcd) track's packets (the header failed: "Invalid
+            # argument"); the mov/mp4 muxer writes its own from the video stream's timecode tag.
+            _keep_timecode(s, out)
+            continue
         if not keep_location and is_location_stream(s):
             removed.append(f"{codec_tag(s)} telemetry stream #{s.index}")
             continue
@@ -157,6 +163,14 @@ def _copied_streams(
         o.disposition = s.disposition
         copied[s.index] = o
     return copied
+
+
+def _keep_timecode(s: av.stream.Stream, out: av.container.OutputContainer) -> None:
+    """The timecode track's start on the output's video stream, where the muxer reads it."""
+    vout = out.streams.video[0]  # the first stream added (encode_once)
+    start = s.metadata.get("timecode")
+    if start and "timecode" not in vout.metadata:
+        vout.metadata["timecode"] = start
 
 
 def _cover_stream(

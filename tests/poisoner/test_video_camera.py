@@ -136,3 +136,25 @@ def test_prores_4444_keeps_its_alpha(tmp_path: Path) -> None:
     assert_alpha_kept(src, dst)
     # the ProRes decoder gives 4444 as 12-bit, prores_ks writes 10-bit samples: said
     assert "written as yuva444p10le" in " ".join(" ".join(report.notes).split())
+
+
+# ---- F4: a timecode track ---------------------------------------------------------------------
+
+
+def timecodes(path: Path) -> list[tuple[str, str]]:
+    with av.open(str(path)) as c:
+        return [(s.type, s.metadata.get("timecode", "")) for s in c.streams]
+
+
+@pytest.mark.parametrize("suffix", [".mov", ".mp4"])
+def test_a_timecode_track_is_kept(tmp_path: Path, suffix: str) -> None:
+    """A pro camera's or drone's clip: a `tmcd` track beside the video (it failed: "cannot encode with
+    libx264 (Invalid argument)", and the daemon quarantined the camera file)."""
+    start = {"timecode": "01:00:00:00"}
+    src = write_clip(tmp_path / f"A001{suffix}", "libx264", "yuv420p", stream_tags=start)
+    assert ("data", "01:00:00:00") in timecodes(src)
+    dst = tmp_path / f"out{suffix}"
+    report = poison_video(src, dst, SPEC)
+    assert timecodes(dst) == timecodes(src)
+    assert frame_count(dst) == 6
+    assert "timecode" not in " ".join(report.notes)
