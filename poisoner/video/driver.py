@@ -316,6 +316,11 @@ def _finish_report(
             f"written as {written}: {choice.encoder} takes no {info.pix_fmt} (the decoder reads it back "
             f"as {info.pix_fmt}, with 2 bits less of precision)"
         )
+    if info.alpha_mode and not model.has_alpha(info.pix_fmt):
+        report.notes.append(
+            f"transparency (alpha) left out: this build has no libvpx decoder for {info.codec}'s alpha; "
+            "the output is opaque"
+        )
     if info.hdr_side_data and choice.encoder != "libx265":
         report.notes.append(
             "HDR mastering/light-level metadata not carried ("

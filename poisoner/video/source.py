@@ -14,7 +14,7 @@ import av.error
 import numpy as np
 
 from poisoner.limits import check_video_frame_budget
-from poisoner.video.demux import main_video_stream, open_input
+from poisoner.video.demux import alpha_mode, main_video_stream, open_input, video_decoder
 from poisoner.video.errors import VideoFormatError, one_line
 from poisoner.video.metadata import is_timecode_stream
 from poisoner.video.model import SourceInfo
@@ -72,6 +72,7 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
             codec_tag=stream_codec_tag(stream),
             profile=str(cc.profile or ""),
             timecode=timecode_of(container),
+            alpha_mode=alpha_mode(stream),
         )
 
 
@@ -110,13 +111,14 @@ def _first_frame(
     """The first decoded frame, and the CRF x264 or x265 recorded in the stream (its settings SEI: in
     the codec's extradata or the first packet), or None."""
     crf = _recorded_crf(bytes(stream.codec_context.extradata or b""))  # x265 in MP4: the hvcC's SEI
+    decoder = video_decoder(stream)  # what the encode pass decodes with (a VP9's alpha: libvpx)
     first_packet = crf is None
     try:
         for packet in container.demux(stream):
             if first_packet and packet.size:
                 first_packet = False
                 crf = _recorded_crf(bytes(packet)[:65536])
-            for frame in packet.decode():
+            for frame in decoder.decode(packet):
                 return cast(av.VideoFrame, frame), crf
     except av.error.FFmpegError as exc:
         raise VideoFormatError(f"{name}: cannot decode the first frame ({one_line(exc)})") from exc

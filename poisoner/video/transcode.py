@@ -17,7 +17,7 @@ from poisoner.spec import PatchSpec, SpecError
 from poisoner.video import model
 from poisoner.video.blend import blend_frame
 from poisoner.video.cover import CoverPlan, add_cover, cover_packet
-from poisoner.video.demux import decode_packet, is_cover, iter_packets, open_input
+from poisoner.video.demux import decode_packet, is_cover, iter_packets, open_input, video_decoder
 from poisoner.video.encoder import configure_video_stream
 from poisoner.video.errors import VideoFormatError, one_line
 from poisoner.video.metadata import (
@@ -55,6 +55,7 @@ class _Pass:
     progress: model.ProgressCallback | None
     total: int | None
     covers: CoverPlan
+    decoder: av.video.codeccontext.VideoCodecContext  # demux.video_decoder: a VP9 with alpha needs libvpx
     keep_frame_types: bool = False
     frames: int = 0
     patched: int = 0
@@ -94,8 +95,9 @@ def encode_once(
         add_marker_tag(out, info.muxer, marker)
         vout = _video_stream(inp, out, info, choice, options, keep_location, removed)
         copied = _copied_streams(inp, out, src.name, info, keep_location, removed, covers)
+        decoder = video_decoder(cast(av.video.stream.VideoStream, inp.streams[info.stream_index]))
         run = _Pass(
-            src.name, info, spec, placement_at, out, vout, copied, progress, total, covers,
+            src.name, info, spec, placement_at, out, vout, copied, progress, total, covers, decoder,
             choice.keep_frame_types,
         )  # fmt: skip
         for packet in iter_packets(inp, src.name):
@@ -122,6 +124,10 @@ def _video_stream(
             choice.options["x265-params"] = choice.options["x265-params"] + ":" + hdr
     vout = configure_video_stream(out, info, choice, options)
     copy_metadata(dict(vin.metadata), vout, keep_location, removed)
+    if info.alpha_mode and not model.has_alpha(info.pix_fmt):
+        # its alpha did not decode (driver notes it): the output must not claim a transparency it lacks
+        for key in [k for k in vout.metadata if k.lower() == "alpha_mode"]:
+            del vout.metadata[key]
     return vout
 
 
@@ -196,7 +202,7 @@ def _cover_stream(
 def _mux_packet(run: _Pass, packet: av.Packet) -> None:
     idx = packet.stream.index
     if idx == run.info.stream_index:
-        for frame in decode_packet(packet, run.src_name):
+        for frame in decode_packet(packet, run.src_name, run.decoder):
             _encode(run, _patched(run, frame))
             run.frames += 1
             if run.progress is not None:
