@@ -84,6 +84,8 @@ class SourceInfo:
     b_frames: bool = False
     # the stream's sample-entry tag in MP4/MOV ("hvc1", "hev1", "avc1", "apch", ...), "" where none
     codec_tag: str = ""
+    # the container's tags include reverse-DNS keys (QuickTime `mdta`: com.apple.quicktime.make)
+    mdta_tags: bool = False
     alpha_mode: bool = False  # the stream says it carries alpha beside its frames (WebM VP8/VP9)
     timecode: str = ""  # a timecode track's start ("01:00:00:00"), "" where the source has none
     profile: str = ""  # the decoder's name for the stream's profile ("HQ", "High 4:2:2"), "" where none

@@ -16,7 +16,7 @@ import numpy as np
 from poisoner.limits import check_video_frame_budget
 from poisoner.video.demux import alpha_mode, main_video_stream, open_input, video_decoder
 from poisoner.video.errors import VideoFormatError, one_line
-from poisoner.video.metadata import is_timecode_stream
+from poisoner.video.metadata import is_mdta_key, is_timecode_stream
 from poisoner.video.model import SourceInfo
 
 # Output container by suffix: the same container family as the source.
@@ -73,6 +73,7 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
             profile=str(cc.profile or ""),
             timecode=timecode_of(container),
             alpha_mode=alpha_mode(stream),
+            mdta_tags=any(is_mdta_key(key) for key in container.metadata),
         )
 
 

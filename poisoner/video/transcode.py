@@ -26,12 +26,9 @@ from poisoner.video.metadata import (
     copy_metadata,
     is_location_stream,
     is_timecode_stream,
+    muxer_options,
     x265_hdr_params,
 )
-
-# Matroska writes a random SegmentUID unless bit-exact: the same inputs must give the same bytes
-# (the daemon re-poisons to check crash recovery).
-_MUXER_OPTIONS = {"matroska": {"fflags": "+bitexact"}, "webm": {"fflags": "+bitexact"}}
 
 
 @dataclass
@@ -88,7 +85,7 @@ def encode_once(
     total = info.frames_declared or (
         int(round(info.duration_s * model.frame_rate(info))) if info.duration_s else None
     )
-    opts = _MUXER_OPTIONS.get(info.muxer)
+    opts = muxer_options(info.muxer, info.mdta_tags)
     removed: list[str] = []
     with open_input(src) as inp, av.open(str(dst), "w", format=info.muxer, container_options=opts) as out:
         copy_metadata(dict(inp.metadata), out, keep_location, removed)

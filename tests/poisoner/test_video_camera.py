@@ -188,3 +188,48 @@ def test_vp9_alpha_that_does_not_decode_is_said_and_not_claimed(
     assert "transparency (alpha) left out" in " ".join(" ".join(report.notes).split())
     with av.open(str(dst)) as c:
         assert not any(k.lower() == "alpha_mode" for k in c.streams.video[0].metadata)
+
+
+# ---- F5: Apple `mdta` tags --------------------------------------------------------------------
+
+IPHONE_TAGS = {
+    "com.apple.quicktime.location.ISO6709": "+48.8584+002.2945+035.000/",
+    "com.apple.quicktime.make": "Apple",
+    "com.apple.quicktime.model": "iPhone 15",
+    "com.apple.quicktime.creationdate": "2026-05-01T12:00:00+0200",
+}
+
+
+def container_tags(path: Path) -> dict[str, str]:
+    with av.open(str(path)) as c:
+        return dict(c.metadata)
+
+
+def test_apple_mdta_tags_are_kept_but_the_location(tmp_path: Path) -> None:
+    """An iPhone clip's make, model and capture date (photo libraries sort by it) were dropped, and only
+    the location's removal was said."""
+    src = write_clip(tmp_path / "IMG_0002.MOV", "libx264", "yuv420p", container_tags=IPHONE_TAGS,
+                     container_options={"movflags": "use_metadata_tags"})  # fmt: skip
+    assert IPHONE_TAGS.items() <= container_tags(src).items()
+    dst = tmp_path / "out.mov"
+    report = poison_video(src, dst, SPEC)
+    kept = container_tags(dst)
+    for key in ("com.apple.quicktime.make", "com.apple.quicktime.model", "com.apple.quicktime.creationdate"):
+        assert kept[key] == IPHONE_TAGS[key]
+    assert "com.apple.quicktime.location.ISO6709" not in kept
+    notes = " ".join(" ".join(report.notes).split())
+    assert "location removed (1): tag com.apple.quicktime.location.ISO6709" in notes
+    assert "left out" not in notes
+
+
+def test_a_tag_the_muxer_does_not_write_is_said(tmp_path: Path) -> None:
+    """A key FFmpeg read but its muxer has no place for (a dot-less `mdta` key: written as a classic
+    tag, which has none of that name) is named, not dropped in silence."""
+    src = write_clip(tmp_path / "clip.mp4", "libx264", "yuv420p", container_tags={"shotby": "Ana"},
+                     container_options={"movflags": "use_metadata_tags"})  # fmt: skip
+    assert container_tags(src)["shotby"] == "Ana"
+    dst = tmp_path / "out.mp4"
+    report = poison_video(src, dst, SPEC)
+    assert "shotby" not in container_tags(dst)
+    notes = " ".join(" ".join(report.notes).split())
+    assert "tags left out (1; FFmpeg's mp4 muxer does not write them): shotby" in notes
