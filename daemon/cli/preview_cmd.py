@@ -71,13 +71,19 @@ def load_picture(path: Path, video: bool | None = None) -> tuple[Any, int | None
         import av
 
         from poisoner.orientation import display_orientation
-        from poisoner.video import frame_to_rgb
-        from poisoner.video.demux import main_video_stream
+        from poisoner.video import VideoFormatError, frame_to_rgb
+        from poisoner.video.demux import main_video_stream, open_input
+        from poisoner.video.errors import one_line as av_words
         from poisoner.video.source import frame_side_data
 
-        with av.open(str(path)) as container:  # the video's frames, not a cover picture listed first
-            for frame in container.decode(main_video_stream(container, path.name)):
-                return frame_to_rgb(frame), display_orientation(frame_side_data(frame)[0])
+        with open_input(path) as container:  # the video's frames, not a cover picture listed first
+            try:
+                for frame in container.decode(main_video_stream(container, path.name)):
+                    return frame_to_rgb(frame), display_orientation(frame_side_data(frame)[0])
+            except av.error.FFmpegError as exc:  # libav's words, not its errno and path
+                raise VideoFormatError(
+                    f"{path.name}: cannot decode the first frame ({av_words(exc)})"
+                ) from None
         raise ValueError("no video frame")
     from poisoner.image.read import decoded_rgb
 
@@ -90,9 +96,21 @@ def _load(path: Path, video: bool | None = None) -> tuple[Any, int | None]:
     try:
         return load_picture(path, video)
     except PpdError as exc:  # an image's or a video's: one line that names the file already
+        if (reason := _incomplete(path)) is not None:  # as `ppd poison` says it of the same file
+            raise die(f"cannot read {path.name}: it is incomplete ({reason})") from None
         raise die(f"cannot read {one_line(exc)}") from None
     except (OSError, ValueError) as exc:
         raise die(f"cannot read {path.name}: {one_line(exc)}") from None
+
+
+def _incomplete(path: Path) -> str | None:
+    """Why path's structure is incomplete (a truncated upload), or None."""
+    from poisoner.completeness import incomplete_reason
+
+    try:
+        return incomplete_reason(path)
+    except OSError:
+        return None
 
 
 def _mark_of(spec: PatchSpec, source: Path, original: Any, file: Path, keep_out: Any) -> tuple[Any, Any]:

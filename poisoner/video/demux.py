@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import cast
 
 import av
 import av.error
@@ -28,6 +29,32 @@ def is_cover(stream: av.stream.Stream) -> bool:
     if isinstance(stream, av.stream.AttachmentStream):
         return content_class((stream.data or b"")[:SNIFF_BYTES]) is not None
     return stream.type == "video" and bool(stream.disposition & av.stream.Disposition.attached_pic)
+
+
+# A VP8/VP9 video's alpha travels beside its frames (WebM BlockAdditional, flagged by the track's
+# AlphaMode), which FFmpeg's own vp8/vp9 decoders ignore: libvpx decodes it (yuva420p).
+_ALPHA_DECODERS = {"vp9": "libvpx-vp9", "vp8": "libvpx"}
+
+
+def alpha_mode(stream: av.stream.Stream) -> bool:
+    """Whether the stream says it carries alpha beside its frames (Matroska's AlphaMode 1)."""
+    return any(key.lower() == "alpha_mode" and value == "1" for key, value in stream.metadata.items())
+
+
+def video_decoder(stream: av.video.stream.VideoStream) -> av.video.codeccontext.VideoCodecContext:
+    """The decoder for stream's frames: its own, or libvpx for a VP8/VP9 with alpha (where this build
+    has it; without it the frames decode opaque)."""
+    own = stream.codec_context
+    name = _ALPHA_DECODERS.get(own.name)
+    if name is None or not alpha_mode(stream):
+        return own
+    try:
+        decoder = cast(av.video.codeccontext.VideoCodecContext, av.CodecContext.create(name, "r"))
+    except (av.error.FFmpegError, ValueError):
+        return own
+    decoder.extradata = own.extradata
+    decoder.thread_type = "AUTO"
+    return decoder
 
 
 def main_video_stream(container: av.container.InputContainer, name: str) -> av.video.stream.VideoStream:
@@ -58,9 +85,11 @@ def iter_packets(container: av.container.InputContainer, name: str) -> Iterator[
         raise VideoFormatError(f"{name}: corrupt or truncated container ({one_line(exc)})") from exc
 
 
-def decode_packet(packet: av.Packet, name: str) -> list[av.VideoFrame]:
+def decode_packet(
+    packet: av.Packet, name: str, decoder: av.video.codeccontext.VideoCodecContext
+) -> list[av.VideoFrame]:
     try:
-        return list(packet.decode())
+        return decoder.decode(packet)
     except av.error.FFmpegError as exc:
         raise VideoFormatError(f"{name}: corrupt video data ({one_line(exc)})") from exc
 

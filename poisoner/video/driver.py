@@ -17,11 +17,11 @@ from poisoner.spec import PatchPlacement, PatchSpec, SpecError
 from poisoner.video import model
 from poisoner.video.contrast import intended_contrast, measure_video_patch
 from poisoner.video.cover import plan_covers
-from poisoner.video.demux import main_video_stream, stream_bit_rate
-from poisoner.video.encoder import CRF_STEP_ON_RETRY, choose_encoder
+from poisoner.video.demux import main_video_stream, open_input, stream_bit_rate
+from poisoner.video.encoder import CRF_STEP_ON_RETRY, choose_encoder, encoder_pix_fmt, quality_text
 from poisoner.video.errors import VideoFormatError, one_line
-from poisoner.video.metadata import append_marker_box, preserved_list
-from poisoner.video.source import probe
+from poisoner.video.metadata import append_marker_box, preserved_list, tags_left_out
+from poisoner.video.source import probe, timecode_of
 from poisoner.video.transcode import EncodeResult, encode_once
 
 log = logging.getLogger("poisoner.video")
@@ -80,9 +80,36 @@ def poison_video(
     report.location_removed += covers.location_removed
     _finish_report(report, info, choice, result, stream_bit_rate(dst))
     report.notes += covers.notes()
+    _note_timecode(report, info, dst)
+    _note_tags_left_out(report, src, dst)
     append_marker_box(dst, info.muxer, marker)
     _note_size(report, state_before[0], dst.stat().st_size)
     return report
+
+
+def _note_tags_left_out(report: model.VideoReport, src: Path, dst: Path) -> None:
+    """Said where a container tag of src did not reach dst (the muxer writes only the keys it knows):
+    only the location's removal was said, which read as "every other tag kept" (black-box review 9)."""
+    with open_input(src) as source, open_input(dst) as written:
+        lost = tags_left_out(dict(source.metadata), dict(written.metadata), report.location_removed)
+    if lost:
+        muxer = f"FFmpeg's {report.format} muxer does not write them"
+        report.notes.append(f"tags left out ({len(lost)}; {muxer}): " + ", ".join(lost))
+
+
+def _note_timecode(report: model.VideoReport, info: model.SourceInfo, dst: Path) -> None:
+    """Said where the source's timecode track is not in dst: the muxer writes it from the video's
+    timecode tag (poisoner.video.transcode) and leaves it out where the start does not fit the rate."""
+    if not info.timecode:
+        return
+    with open_input(dst) as written:
+        kept = timecode_of(written)
+    if not kept:
+        report.notes.append(
+            f"timecode track (start {info.timecode}) left out: FFmpeg's {info.muxer} muxer did not write it"
+        )
+    elif kept != info.timecode:
+        report.notes.append(f"timecode track's start {info.timecode} written as {kept}")
 
 
 def _note_size(report: model.VideoReport, source_bytes: int, output_bytes: int) -> None:
@@ -225,7 +252,9 @@ def _encode_until_visible(
         _check_complete(src, info, result)
         if contrast_ok(result):
             break
-        if attempts > options.max_retries or (choice.crf is not None and choice.crf == 0):
+        # nothing to raise: CRF 0, or an encoder whose quality is its profile (ProRes)
+        at_best = choice.crf == 0 or (choice.crf is None and choice.bit_rate is None)
+        if attempts > options.max_retries or at_best:
             report.notes.append(
                 f"patch contrast after encoding is {report.patch_contrast_min:.2f} of intended "
                 f"(below {options.min_patch_contrast}) after {attempts} attempts"
@@ -284,7 +313,7 @@ def _finish_report(
     report.output_bit_rate = output_bit_rate
     report.preserved = preserved_list(info, choice)
     # every frame is re-encoded (lossy): said, with the quality chosen (the summary counts it)
-    quality = f"CRF {choice.crf}" if choice.crf is not None else f"{(choice.bit_rate or 0) // 1000} kbit/s"
+    quality = quality_text(choice)
     made_at = f"; the source was made at CRF {info.encoded_crf:g}" if info.encoded_crf is not None else ""
     report.notes.append(f"video re-encoded at quality {quality} with {choice.encoder} (lossy){made_at}")
     if report.location_removed:
@@ -293,6 +322,16 @@ def _finish_report(
         )
     if not choice.same_codec:
         report.notes.append(f"no {info.codec} encoder in this build; re-encoded as {choice.encoder}")
+    if (written := encoder_pix_fmt(choice.encoder, info.pix_fmt)) != info.pix_fmt:
+        report.notes.append(
+            f"written as {written}: {choice.encoder} takes no {info.pix_fmt} (the decoder reads it back "
+            f"as {info.pix_fmt}, with 2 bits less of precision)"
+        )
+    if info.alpha_mode and not model.has_alpha(info.pix_fmt):
+        report.notes.append(
+            f"transparency (alpha) left out: this build has no libvpx decoder for {info.codec}'s alpha; "
+            "the output is opaque"
+        )
     if info.hdr_side_data and choice.encoder != "libx265":
         report.notes.append(
             "HDR mastering/light-level metadata not carried ("

@@ -21,7 +21,20 @@ _ENCODER_BY_CODEC = {
     "vp8": "libvpx",
     "av1": "libsvtav1",
     "mpeg4": "mpeg4",
+    "prores": "prores_ks",
 }
+
+# ProRes profile by sample-entry tag (MOV, and Matroska's CodecPrivate): prores_ks's profile names.
+# The profile sets ProRes's quality (bits per macroblock), as a CRF does for the others.
+PRORES_PROFILE_BY_TAG = {
+    "apco": "proxy",
+    "apcs": "lt",
+    "apcn": "standard",
+    "apch": "hq",
+    "ap4h": "4444",
+    "ap4x": "4444xq",
+}
+_PRORES_PROFILE_BY_NAME = {"Proxy": "proxy", "LT": "lt", "Standard": "standard", "HQ": "hq", "4444": "4444"}
 
 # When no encoder writes the source codec: a codec the container accepts.
 _FALLBACK_ENCODER_BY_MUXER = {"mp4": "libx264", "mov": "libx264", "matroska": "libx264", "webm": "libvpx-vp9"}
@@ -43,6 +56,11 @@ CRF_STEP_ON_RETRY = 6
 # the mark (bench/results/video.md, "Size of a patched video"). x265 given them was smaller too, but
 # 0.2 dB lower outside the mark: it keeps its own choice.
 KEEP_FRAME_TYPES = frozenset({"libx264"})
+
+# HEVC's sample entry in MP4/MOV: FFmpeg writes `hev1` unless told; Apple's players (QuickTime, iOS,
+# Safari) play HEVC only under `hvc1`, what iPhones write (black-box review 9). A `hev1` source stays so.
+_HEVC_TAGS = ("hvc1", "hev1")
+_MP4_MUXERS = ("mp4", "mov")
 
 _FULL_LOOKAHEAD_MAX_PIXELS = 1920 * 1088
 _SHORT_LOOKAHEAD = 10
@@ -124,8 +142,37 @@ def _encoder_options(
         return {"crf": str(crf), "deadline": "good", "cpu-used": "4"}, int((info.bit_rate or 2_000_000) * 2)
     if encoder == "libsvtav1":
         return {"crf": str(crf), "preset": "8"}, None
+    if encoder == "prores_ks":
+        return {"profile": prores_profile(info)}, None
     # Codecs without a CRF (mpeg4, ...): the source bitrate, doubled per retry.
     return {}, int((info.bit_rate or 2_000_000) * 1.25 * (2 ** (crf_shift // CRF_STEP_ON_RETRY)))
+
+
+def prores_profile(info: SourceInfo) -> str:
+    """The source's ProRes profile as prores_ks names it (its tag, else the decoder's profile name;
+    "hq" where neither says: ProRes's usual master)."""
+    by_tag = PRORES_PROFILE_BY_TAG.get(info.codec_tag.lower())
+    return by_tag or _PRORES_PROFILE_BY_NAME.get(info.profile, "hq")
+
+
+def quality_text(choice: EncoderChoice) -> str:
+    """The quality an encode was made at, as the report says it: "CRF 18", "ProRes profile hq"."""
+    if choice.crf is not None:
+        return f"CRF {choice.crf}"
+    if "profile" in choice.options:
+        return f"ProRes profile {choice.options['profile']}"
+    return f"{(choice.bit_rate or 0) // 1000} kbit/s"
+
+
+def encoder_pix_fmt(encoder: str, pix_fmt: str) -> str | None:
+    """The pixel format the encoder writes for a source decoded as pix_fmt: the same, else the same
+    layout at 10 bits (the ProRes decoder gives 4444 as 12-bit, prores_ks takes 10-bit samples);
+    None when the encoder takes neither."""
+    formats = {f.name for f in (av.codec.Codec(encoder, "w").video_formats or [])}
+    if pix_fmt in formats:
+        return pix_fmt
+    shallower = pix_fmt.replace("p12le", "p10le")
+    return shallower if shallower in formats else None
 
 
 def configure_video_stream(
@@ -139,11 +186,12 @@ def configure_video_stream(
     )
     cc = stream.codec_context
     stream.width, stream.height = info.width, info.height
-    stream.pix_fmt = info.pix_fmt
-    if info.pix_fmt not in {f.name for f in (cc.codec.video_formats or [])}:
+    pix_fmt = encoder_pix_fmt(choice.encoder, info.pix_fmt)
+    if pix_fmt is None:
         raise VideoFormatError(
             f"encoder {choice.encoder} cannot write pixel format {info.pix_fmt} ({info.width}x{info.height})"
         )
+    stream.pix_fmt = pix_fmt  # the encoder converts each frame to it (poisoner.video.transcode)
     stream.time_base = info.time_base
     cc.time_base = info.time_base
     if rate:
@@ -158,4 +206,6 @@ def configure_video_stream(
         cc.bit_rate = choice.bit_rate
     if info.display_matrix is not None:
         stream.set_display_matrix(list(info.display_matrix))
+    if choice.encoder == "libx265" and info.muxer in _MP4_MUXERS:
+        stream.codec_tag = info.codec_tag if info.codec_tag in _HEVC_TAGS else "hvc1"
     return stream

@@ -58,6 +58,36 @@ def copy_metadata(
             continue
 
 
+def is_mdta_key(key: str) -> bool:
+    """A QuickTime `mdta` key: reverse-DNS ("com.apple.quicktime.make", "com.android.version");
+    FFmpeg's own names for the classic udta/ilst tags have no dot ("title", "creation_time")."""
+    return "." in key
+
+
+def muxer_options(muxer: str, mdta_tags: bool) -> dict[str, str] | None:
+    """The output container's options: Matroska bit-exact (the same inputs give the same bytes: the
+    daemon re-poisons to check crash recovery); MP4/MOV with reverse-DNS tags written as `mdta` keys,
+    which FFmpeg's mov muxer leaves out unless told (an iPhone's make, model and capture date were
+    dropped: black-box review 9)."""
+    if muxer in ("matroska", "webm"):
+        return {"fflags": "+bitexact"}
+    if muxer in MARKER_BOX_MUXERS and mdta_tags:
+        return {"movflags": "use_metadata_tags"}
+    return None
+
+
+def tags_left_out(src: dict[str, str], dst: dict[str, str], removed: list[str]) -> list[str]:
+    """The source's container tags that dst lacks, but FFmpeg's own, a seal or marker, and those in
+    removed (location, said apart)."""
+    said = {item.removeprefix("tag ") for item in removed}
+    return [
+        key
+        for key in src
+        if key not in dst and key not in said and key.lower() not in _FFMPEG_TAGS
+        and key.upper() not in provenance.MKV_TAGS and not key.upper().startswith("_STATISTICS")
+    ]  # fmt: skip
+
+
 def codec_tag(stream: av.stream.Stream) -> str:
     try:
         return str(stream.codec_tag or "").strip("\x00 ").lower()
@@ -68,6 +98,11 @@ def codec_tag(stream: av.stream.Stream) -> str:
 def is_location_stream(stream: av.stream.Stream) -> bool:
     """A GPS telemetry data stream (GoPro gpmd, CAMM, Apple mebx)."""
     return stream.type == "data" and codec_tag(stream) in location.LOCATION_DATA_CODEC_TAGS
+
+
+def is_timecode_stream(stream: av.stream.Stream) -> bool:
+    """A QuickTime/MP4 timecode track (`tmcd`: a data stream FFmpeg's demuxer tags with its start)."""
+    return stream.type == "data" and "timecode" in stream.metadata
 
 
 def add_marker_tag(out: av.container.OutputContainer, muxer: str, marker: Marker | None) -> None:

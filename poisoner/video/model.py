@@ -82,6 +82,13 @@ class SourceInfo:
     encoded_crf: float | None = None
     # the source reorders frames (B-frames): its encoder chose I, P and B for this content
     b_frames: bool = False
+    # the stream's sample-entry tag in MP4/MOV ("hvc1", "hev1", "avc1", "apch", ...), "" where none
+    codec_tag: str = ""
+    # the container's tags include reverse-DNS keys (QuickTime `mdta`: com.apple.quicktime.make)
+    mdta_tags: bool = False
+    alpha_mode: bool = False  # the stream says it carries alpha beside its frames (WebM VP8/VP9)
+    timecode: str = ""  # a timecode track's start ("01:00:00:00"), "" where the source has none
+    profile: str = ""  # the decoder's name for the stream's profile ("HQ", "High 4:2:2"), "" where none
 
 
 @dataclass
@@ -112,6 +119,11 @@ def frame_rate(info: SourceInfo) -> float:
     if info.duration_s and info.frames_declared:
         return info.frames_declared / info.duration_s
     return _DEFAULT_FRAME_RATE
+
+
+def has_alpha(pix_fmt: str) -> bool:
+    """Whether frames in pix_fmt carry an alpha plane (yuva420p, yuva444p12le, gbrap)."""
+    return pix_fmt.startswith(("yuva", "gbrap"))
 
 
 def size_text(n: int) -> str:

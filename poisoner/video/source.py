@@ -14,8 +14,9 @@ import av.error
 import numpy as np
 
 from poisoner.limits import check_video_frame_budget
-from poisoner.video.demux import main_video_stream, open_input
+from poisoner.video.demux import alpha_mode, main_video_stream, open_input, video_decoder
 from poisoner.video.errors import VideoFormatError, one_line
+from poisoner.video.metadata import is_mdta_key, is_timecode_stream
 from poisoner.video.model import SourceInfo
 
 # Output container by suffix: the same container family as the source.
@@ -68,12 +69,30 @@ def probe(path: Path, *, max_pixels: int | None = None) -> SourceInfo:
             stream_index=stream.index,
             encoded_crf=encoded_crf,
             b_frames=bool(cc.has_b_frames),
+            codec_tag=stream_codec_tag(stream),
+            profile=str(cc.profile or ""),
+            timecode=timecode_of(container),
+            alpha_mode=alpha_mode(stream),
+            mdta_tags=any(is_mdta_key(key) for key in container.metadata),
         )
 
 
 # x264 ("x264 - core 164 ... options: ... crf=20.0 ...") and x265 ("x265 (build 199) - ... crf=28.0")
 # write their settings as text in an SEI message of the stream's first frame.
 _ENCODER_SETTINGS = re.compile(rb"(?:x264 - core|x265 \(build)[^\x00]{0,16000}?[ :]crf=(\d+(?:\.\d+)?)")
+
+
+def timecode_of(container: av.container.InputContainer) -> str:
+    """The start of the container's timecode track ("01:00:00:00"), "" where it has none."""
+    return next((s.metadata["timecode"] for s in container.streams if is_timecode_stream(s)), "")
+
+
+def stream_codec_tag(stream: av.stream.Stream) -> str:
+    """The stream's codec tag as text ("hvc1"), "" where it has none (Matroska's are zero)."""
+    try:
+        return str(getattr(stream, "codec_tag", "") or "").strip("\x00 ")
+    except (ValueError, UnicodeDecodeError):
+        return ""
 
 
 def _refuse_over_budget(name: str, width: int, height: int, max_pixels: int | None) -> None:
@@ -93,13 +112,14 @@ def _first_frame(
     """The first decoded frame, and the CRF x264 or x265 recorded in the stream (its settings SEI: in
     the codec's extradata or the first packet), or None."""
     crf = _recorded_crf(bytes(stream.codec_context.extradata or b""))  # x265 in MP4: the hvcC's SEI
+    decoder = video_decoder(stream)  # what the encode pass decodes with (a VP9's alpha: libvpx)
     first_packet = crf is None
     try:
         for packet in container.demux(stream):
             if first_packet and packet.size:
                 first_packet = False
                 crf = _recorded_crf(bytes(packet)[:65536])
-            for frame in packet.decode():
+            for frame in decoder.decode(packet):
                 return cast(av.VideoFrame, frame), crf
     except av.error.FFmpegError as exc:
         raise VideoFormatError(f"{name}: cannot decode the first frame ({one_line(exc)})") from exc

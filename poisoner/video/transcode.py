@@ -17,7 +17,7 @@ from poisoner.spec import PatchSpec, SpecError
 from poisoner.video import model
 from poisoner.video.blend import blend_frame
 from poisoner.video.cover import CoverPlan, add_cover, cover_packet
-from poisoner.video.demux import decode_packet, is_cover, iter_packets, open_input
+from poisoner.video.demux import decode_packet, is_cover, iter_packets, open_input, video_decoder
 from poisoner.video.encoder import configure_video_stream
 from poisoner.video.errors import VideoFormatError, one_line
 from poisoner.video.metadata import (
@@ -25,12 +25,10 @@ from poisoner.video.metadata import (
     codec_tag,
     copy_metadata,
     is_location_stream,
+    is_timecode_stream,
+    muxer_options,
     x265_hdr_params,
 )
-
-# Matroska writes a random SegmentUID unless bit-exact: the same inputs must give the same bytes
-# (the daemon re-poisons to check crash recovery).
-_MUXER_OPTIONS = {"matroska": {"fflags": "+bitexact"}, "webm": {"fflags": "+bitexact"}}
 
 
 @dataclass
@@ -54,6 +52,7 @@ class _Pass:
     progress: model.ProgressCallback | None
     total: int | None
     covers: CoverPlan
+    decoder: av.video.codeccontext.VideoCodecContext  # demux.video_decoder: a VP9 with alpha needs libvpx
     keep_frame_types: bool = False
     frames: int = 0
     patched: int = 0
@@ -86,15 +85,16 @@ def encode_once(
     total = info.frames_declared or (
         int(round(info.duration_s * model.frame_rate(info))) if info.duration_s else None
     )
-    opts = _MUXER_OPTIONS.get(info.muxer)
+    opts = muxer_options(info.muxer, info.mdta_tags)
     removed: list[str] = []
     with open_input(src) as inp, av.open(str(dst), "w", format=info.muxer, container_options=opts) as out:
         copy_metadata(dict(inp.metadata), out, keep_location, removed)
         add_marker_tag(out, info.muxer, marker)
         vout = _video_stream(inp, out, info, choice, options, keep_location, removed)
         copied = _copied_streams(inp, out, src.name, info, keep_location, removed, covers)
+        decoder = video_decoder(cast(av.video.stream.VideoStream, inp.streams[info.stream_index]))
         run = _Pass(
-            src.name, info, spec, placement_at, out, vout, copied, progress, total, covers,
+            src.name, info, spec, placement_at, out, vout, copied, progress, total, covers, decoder,
             choice.keep_frame_types,
         )  # fmt: skip
         for packet in iter_packets(inp, src.name):
@@ -121,6 +121,10 @@ def _video_stream(
             choice.options["x265-params"] = choice.options["x265-params"] + ":" + hdr
     vout = configure_video_stream(out, info, choice, options)
     copy_metadata(dict(vin.metadata), vout, keep_location, removed)
+    if info.alpha_mode and not model.has_alpha(info.pix_fmt):
+        # its alpha did not decode (driver notes it): the output must not claim a transparency it lacks
+        for key in [k for k in vout.metadata if k.lower() == "alpha_mode"]:
+            del vout.metadata[key]
     return vout
 
 
@@ -143,6 +147,11 @@ def _copied_streams(
             if (cover := _cover_stream(out, s, info.muxer, covers, keep_location, removed)) is not None:
                 copied[s.index] = cover
             continue
+        if is_timecode_stream(s):
+            # FFmpeg cannot copy a timecode (tmcd) track's packets (the header failed: "Invalid
+            # argument"); the mov/mp4 muxer writes its own from the video stream's timecode tag.
+            _keep_timecode(s, out)
+            continue
         if not keep_location and is_location_stream(s):
             removed.append(f"{codec_tag(s)} telemetry stream #{s.index}")
             continue
@@ -157,6 +166,14 @@ def _copied_streams(
         o.disposition = s.disposition
         copied[s.index] = o
     return copied
+
+
+def _keep_timecode(s: av.stream.Stream, out: av.container.OutputContainer) -> None:
+    """The timecode track's start on the output's video stream, where the muxer reads it."""
+    vout = out.streams.video[0]  # the first stream added (encode_once)
+    start = s.metadata.get("timecode")
+    if start and "timecode" not in vout.metadata:
+        vout.metadata["timecode"] = start
 
 
 def _cover_stream(
@@ -182,7 +199,7 @@ def _cover_stream(
 def _mux_packet(run: _Pass, packet: av.Packet) -> None:
     idx = packet.stream.index
     if idx == run.info.stream_index:
-        for frame in decode_packet(packet, run.src_name):
+        for frame in decode_packet(packet, run.src_name, run.decoder):
             _encode(run, _patched(run, frame))
             run.frames += 1
             if run.progress is not None:

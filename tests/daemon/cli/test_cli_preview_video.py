@@ -101,3 +101,26 @@ def test_a_phone_clips_preview_is_drawn_as_players_show_it(ppd_env: dict[str, Pa
     away = np.ones((320, 240), bool)  # the outline drawn around the mark's box is the preview's own
     away[max(0, turned[1] - 3) : turned[3] + 3, max(0, turned[0] - 3) : turned[2] + 3] = False
     assert np.abs(panel - shown)[away].max() == 0
+
+
+def test_an_unreadable_clips_preview_says_why_in_one_line(ppd_env: dict[str, Path], tmp_path: Path) -> None:
+    """It printed libav's errno and the path ("[Errno 1094995529] Invalid data found ..."), where `ppd
+    poison` says of the same file that it is incomplete (black-box review 9, F10)."""
+    shoot = tmp_path / "shoot"
+    shoot.mkdir()
+    whole = make_clip(tmp_path / "whole.mp4", Clip(audio=None, frames=12)).read_bytes()
+    truncated = shoot / "trunc.mp4"
+    truncated.write_bytes(whole[: len(whole) // 2])
+    noise = shoot / "noise.mp4"
+    noise.write_bytes(np.random.default_rng(3).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+    said = []
+    out = ["--no-visibility", "--out", str(tmp_path / "p.png")]
+    for clip in (truncated, noise):
+        result = runner.invoke(app, ["preview", str(clip), *out])
+        assert result.exit_code == 2, result.output
+        text = " ".join(result.output.split())
+        assert "Errno" not in text and str(tmp_path) not in text
+        assert text.startswith(f"ppd: error: cannot read {clip.name}: ")
+        said.append(text)
+    assert "trunc.mp4: it is incomplete ('mdat' box at byte" in said[0]
+    assert "noise.mp4: not a readable video (Invalid data found when processing input)" in said[1]
