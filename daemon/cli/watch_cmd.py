@@ -121,6 +121,7 @@ def watch(
     )
     daemon = WatchDaemon(ctx, options)
     first_signal: float | None = None
+    from daemon.protect.quarantine import abandon_attempts  # imported now: the handler leaves at once
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
         nonlocal first_signal
@@ -132,6 +133,7 @@ def watch(
             return
         if first_signal is not None:  # asked again later: leave now; the next start finishes the rest
             sys.stderr.write("ppd: stopping at once: files in flight are finished at the next start\n")
+            abandon_attempts(ctx.paths.data_dir, os.getpid())  # a stop asked for: not "ppd died"
             os._exit(130)
         first_signal = now
         log.info("signal %s: stopping", signal.Signals(signum).name)

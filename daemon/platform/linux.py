@@ -155,6 +155,18 @@ def lock_holders(st: os.stat_result, proc: Path = PROC) -> list[tuple[int, str]]
     return held
 
 
+def parent_pid(pid: int, proc: Path = PROC) -> int | None:
+    """The parent of process pid (/proc/PID/stat's fourth field), None when it is gone or unreadable."""
+    try:
+        stat_line = (proc / str(pid) / "stat").read_text()
+    except OSError:
+        return None
+    try:  # the command name, second, is in parentheses and may hold spaces: the fields after it count
+        return int(stat_line.rsplit(")", 1)[1].split()[1])
+    except (IndexError, ValueError):
+        return None
+
+
 def reflink(dst_fd: int, src_fd: int) -> None:
     """Make the empty file dst_fd a clone of src_fd (FICLONE); OSError where the filesystem cannot
     (then dst is left empty)."""

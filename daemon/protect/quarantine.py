@@ -277,6 +277,29 @@ def forget_attempt(data_dir: Path, path: Path) -> None:
         os.close(fd)
 
 
+def abandon_attempts(data_dir: Path, pid: int) -> int:
+    """Remove the markers of the attempts in progress in process pid or its worker processes
+    (daemon.protect.pool), as it leaves at once on the user's word (a second Ctrl-C): a stop asked for
+    is no crash. The next start said "ppd died while patching" and ran the file isolated (black-box
+    review 9, F9); its pending row still has it finished then. How many were removed. Called from a
+    signal handler: no lock taken (these processes hold them)."""
+    from daemon.platform import parent_pid
+
+    removed = 0
+    folder = Path(data_dir) / ATTEMPTS
+    for marker in sorted(folder.glob("*.json")) if folder.is_dir() else []:
+        try:
+            doc = json.loads(marker.read_bytes() or b"{}")
+            owner = int(doc.get("pid", -1))
+            ours = owner == pid or parent_pid(owner) == pid
+            if ours and int(doc.get("tries", 1)) <= 1:  # one that died before this attempt: kept
+                marker.unlink()
+                removed += 1
+        except (OSError, ValueError, TypeError, AttributeError):
+            continue
+    return removed
+
+
 @dataclass(frozen=True)
 class CrashedAttempt:
     path: Path

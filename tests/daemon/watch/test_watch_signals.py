@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from testkit.daemon_proc import start_daemon, wait_for
 from testkit.reliability import DAEMON_ARGS, app_paths, make_media, subprocess_env
 
@@ -74,3 +76,32 @@ def test_a_group_sigterm_to_ppd_poison_finishes_the_files_in_flight(tmp_path: Pa
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert resumed.returncode == 0 and "failed 0" in resumed.stdout, resumed.stdout + resumed.stderr
+
+
+@pytest.mark.integration  # a minute of real daemon work: opt-in (`make test-all`)
+def test_a_second_stop_later_leaves_at_once_and_is_no_crash_at_the_next_start(tmp_path: Path) -> None:
+    """A second Ctrl-C after the first leaves at once (files in flight finished at the next start); the
+    next start said "ppd died while patching" of each and ran it isolated (black-box review 9, F9)."""
+    from daemon.cli.interrupt import SAME_STOP_S
+
+    log = tmp_path / "watch.log"
+    daemon = _ppd_in_own_session(tmp_path, log, "watch", *DAEMON_ARGS)
+    wait_for(lambda: "ready" in log.read_text(), 60, "the daemon to start")
+    shoot = app_paths(tmp_path).outbox / "shoot"
+    shoot.mkdir(parents=True)
+    for i in range(4):  # minutes of work for the daemon: still in flight at the second stop
+        make_media(shoot / f"v{i}.png", seed=i, size=6000)
+    attempts = tmp_path / "data" / "attempts"
+    wait_for(lambda: attempts.is_dir() and any(attempts.glob("*.json")), 60, "a file in flight")
+    daemon.send_signal(signal.SIGINT)
+    time.sleep(SAME_STOP_S + 0.5)
+    daemon.send_signal(signal.SIGINT)
+    code = daemon.wait(120)
+    said = log.read_text()
+    assert code == 130 and "stopping at once" in said, said
+    again = start_daemon(tmp_path, *DAEMON_ARGS)
+    wait_for(lambda: "catch-up scan" in again.log.read_text(), 60, "the catch-up scan")
+    again.proc.send_signal(signal.SIGTERM)
+    assert again.proc.wait(120) == 0
+    again.sock.close()
+    assert "died while patching" not in again.log.read_text(), again.log.read_text()
