@@ -148,3 +148,39 @@ def quicktime_branded(mp4: Path, mov: Path) -> Path:
 
 
 # ---- reading them back --------------------------------------------------------------------
+
+
+def telemetry_clip(path: Path, fourcc: bytes, size: tuple[int, int] = (320, 240), frames: int = 10) -> Path:
+    """An MP4/MOV with a data track whose sample entry is fourcc (b"gpmd": a GoPro's GPS telemetry,
+    b"camm", b"mebx"), besides its video: a clip muxed with a timecode track, that track's handler and
+    sample entry then renamed (PyAV cannot write such a track itself; FFmpeg demuxes it as a data
+    stream, as it does a camera's)."""
+    import struct
+
+    width, height = size
+    with av.open(str(path), "w") as out:
+        vs = out.add_stream("libx264", rate=10)
+        vs.width, vs.height, vs.pix_fmt = width, height, "yuv420p"
+        vs.metadata["timecode"] = "01:00:00:00"
+        mux_rgb_frames(out, vs, (scene(width, height, i) for i in range(frames)))
+    data = bytearray(path.read_bytes())
+
+    def rename(start: int, end: int, in_tref: bool = False) -> None:
+        at = start
+        while at + 8 <= end:
+            length, kind = struct.unpack(">I4s", data[at : at + 8])
+            if length < 8:
+                return
+            if kind in (b"moov", b"trak", b"mdia", b"minf", b"stbl", b"tref"):
+                rename(at + 8, at + length, kind == b"tref")
+            elif kind == b"hdlr" and data[at + 16 : at + 20] == b"tmcd":
+                data[at + 16 : at + 20] = b"meta"
+            elif kind == b"stsd" and data[at + 20 : at + 24] == b"tmcd":
+                data[at + 20 : at + 24] = fourcc
+            elif kind == b"tmcd" and in_tref:  # the video's reference to the timecode track
+                data[at + 4 : at + 8] = b"cdsc"
+            at += length
+
+    rename(0, len(data))
+    path.write_bytes(bytes(data))
+    return path

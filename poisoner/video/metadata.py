@@ -89,10 +89,17 @@ def tags_left_out(src: dict[str, str], dst: dict[str, str], removed: list[str]) 
 
 
 def codec_tag(stream: av.stream.Stream) -> str:
+    """The stream's codec tag, lower case; a data stream's from the file's sample entries (PyAV gives
+    a data stream none: every GPS telemetry track was copied into the published video)."""
     try:
-        return str(stream.codec_tag or "").strip("\x00 ").lower()
+        tag = str(getattr(stream, "codec_tag", "") or "").strip("\x00 ").lower()
     except (AttributeError, ValueError):
-        return ""
+        tag = ""
+    if not tag and stream.type == "data":
+        from poisoner.video.sample_entries import sample_entries
+
+        tag = sample_entries(Path(stream.container.name)).get(stream.id, "")
+    return tag
 
 
 def is_location_stream(stream: av.stream.Stream) -> bool:

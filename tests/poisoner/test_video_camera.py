@@ -233,3 +233,43 @@ def test_a_tag_the_muxer_does_not_write_is_said(tmp_path: Path) -> None:
     assert "shotby" not in container_tags(dst)
     notes = " ".join(" ".join(report.notes).split())
     assert "tags left out (1; FFmpeg's mp4 muxer does not write them): shotby" in notes
+
+
+@pytest.mark.parametrize("fourcc", [b"gpmd", b"camm"])
+def test_a_gps_telemetry_track_is_removed_unless_location_is_kept(tmp_path: Path, fourcc: bytes) -> None:
+    """PyAV gives a data stream no codec tag, so a GoPro's GPS track (gpmd) or a CAMM track was copied
+    into the published video while the container's location tags were removed and said: its sample
+    entry is now read from the file (poisoner.video.sample_entries)."""
+    from testkit.video import telemetry_clip
+
+    src = telemetry_clip(tmp_path / "GX010001.MP4", fourcc)
+    with av.open(str(src)) as c:
+        assert [s.type for s in c.streams] == ["video", "data"]
+    dst = tmp_path / "out.mp4"
+    report = poison_video(src, dst, SPEC)
+    with av.open(str(dst)) as c:
+        assert [s.type for s in c.streams] == ["video"]
+    assert fourcc not in dst.read_bytes()
+    notes = " ".join(" ".join(report.notes).split())
+    assert f"location removed (1): {fourcc.decode()} telemetry stream #1" in notes, notes
+    if fourcc == b"gpmd":  # kept when asked (FFmpeg's MP4 muxer writes gpmd; a camm copy it refuses)
+        kept = tmp_path / "kept.mp4"
+        poison_video(src, kept, SPEC, keep_location=True)
+        with av.open(str(kept)) as c:
+            assert [s.type for s in c.streams] == ["video", "data"]
+
+
+def test_sample_entries_of_what_is_not_a_whole_mp4_are_none(tmp_path: Path) -> None:
+    from poisoner.video.sample_entries import sample_entries
+    from testkit.video import telemetry_clip
+
+    clip = telemetry_clip(tmp_path / "a.mp4", b"gpmd")
+    whole = sample_entries(clip)
+    assert sorted(whole.values()) == ["avc1", "gpmd"]
+    data = clip.read_bytes()
+    moov = data.index(b"moov") - 4
+    for cut in (moov + 20, moov + 300, len(data) - 7):  # the moov cut short: what is whole, no error
+        (tmp_path / f"cut{cut}.mp4").write_bytes(data[:cut])
+        assert sample_entries(tmp_path / f"cut{cut}.mp4").items() <= whole.items(), cut
+    (tmp_path / "x.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100))
+    assert sample_entries(tmp_path / "x.png") == {} and sample_entries(tmp_path / "gone.mp4") == {}
