@@ -307,7 +307,8 @@ def deleted_since_patched(ctx: AppContext, dataset: str, root: Path) -> set[str]
     folder = dataset_folder(ctx, dataset, str(root))
     if not folder.exists or folder.moved_to is not None:
         return set()
-    return {str(p) for p in folder.gone}
+    # in its folder only: `--out` copies on a drive unplugged now are not deleted (a diff review)
+    return {str(p) for p in folder.gone if p.is_relative_to(root)}
 
 
 def _record_gone(ctx: AppContext, row: dict[str, Any], root: Path, spec: PatchSpec) -> ProtectOutcome:

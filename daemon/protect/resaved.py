@@ -16,7 +16,6 @@ import logging
 from typing import cast
 
 from daemon.datasets.subject_masks import subject_masks_for
-from daemon.protect.appended import extends_original
 from daemon.protect.job import Job, Outcome, ProtectOutcome
 from daemon.states import FileState
 from poisoner.errors import PpdError
@@ -59,8 +58,6 @@ def saved_over(job: Job) -> str | None:
         return None
     if row["original_sha256"] == sha:  # the same original patched again (a re-protect, --force)
         return cast(str | None, row.get("saved_over"))
-    if row["state"] == FileState.PATCHED and extends_original(job, row["original_sha256"]):
-        return cast(str | None, row.get("saved_over"))  # its writer's continuation, put back (appended)
     if row["state"] == FileState.PATCHED:  # the first one saved over is the clean one
         return cast(str | None, row.get("saved_over") or row["original_sha256"])
     return None  # a restored file replaced, a new photo: nothing of ppd's in it

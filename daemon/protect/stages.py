@@ -65,7 +65,7 @@ from daemon.fsops import (
     write_all,
 )
 from daemon.platform import fd_path, writers_of
-from daemon.protect.appended import put_back_appended
+from daemon.protect.appended import patch_appended
 from daemon.protect.edited import recognise_edited_output
 from daemon.protect.job import (
     FileSignature,
@@ -182,7 +182,8 @@ def check_complete(job: Job) -> ProtectOutcome | None:
         # `ppd poison`, which does not, says to run it again (a black-box review read a promise there)
         why = f"{STILL_OPEN_PREFIX} by pid {pids[0]}"
         return job.outcome(Outcome.SKIPPED, why, signature=None)
-    put_back_appended(job)  # ppd's output that its writer appended to: put back as meant, start over
+    if (whole := patch_appended(job)) is not None:  # ppd's output its writer appended to: patched whole
+        return whole
     if starts_like_media(os.pread(job.file.fd, 16, 0)) is False:
         # before the vault: a tail fragment (a writer's next append) is never kept as an original
         raise UnrecognisedFile(

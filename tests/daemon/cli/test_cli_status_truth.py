@@ -263,3 +263,20 @@ def test_a_reprotect_records_a_deleted_photo_gone(ppd_env: dict[str, Path], tmp_
     assert state["other_spec"] == 0 and state["not_reprotected"] == 0, state
     check = runner.invoke(app, ["status", "A", "--check"])
     assert "another spec" not in " ".join(check.output.split()), check.output
+
+
+def test_a_reprotect_with_the_out_copies_drive_gone_records_nothing_gone(
+    ppd_env: dict[str, Path], tmp_path: Path
+) -> None:
+    """`--out` copies on a drive unplugged during a re-protect are not deleted photos: they failed, as
+    before, their rows kept, and the dataset keeps the spec they carry (a diff review)."""
+    shoot, out = make_shoot(tmp_path / "A", 2), tmp_path / "usb"
+    assert runner.invoke(app, ["poison", str(shoot), "--out", str(out)]).exit_code == 0
+    before = status_json("A")["spec_id"]
+    (out / "A").rename(tmp_path / "away")  # the drive unplugged
+    result = runner.invoke(app, ["dataset", "set", "A", "--patch-size", "8%", "--reprotect"])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 1 and "deleted or moved away since ppd patched them" not in text, text
+    assert status_json("A")["spec_id"] == before, text
+    (tmp_path / "away").rename(out / "A")  # back: still its patched copies
+    assert status_json("A")["counts"]["patched"] == 2
