@@ -275,12 +275,16 @@ def reprotect_dataset(ctx: AppContext, dataset: str, spec: PatchSpec) -> list[Pr
     root = Path(row["root"])
     before = ctx.store.dataset_spec(dataset)
     ctx.store.set_dataset_spec(dataset, spec, allow_protected=True)
-    gone = deleted_since_patched(ctx, dataset, root)
+    gone, renamed = changed_since_patched(ctx, dataset, root)
     outcomes = []
     for file_row in ctx.store.files(dataset):
         path = Path(file_row["path"])
         if file_row["state"] == FileState.PATCHED and file_row["path"] in gone:
             outcomes.append(_record_gone(ctx, file_row, root, spec))
+        elif file_row["state"] == FileState.PATCHED and file_row["path"] in renamed:
+            why = renamed[file_row["path"]]  # it said "is gone (deleted or moved away)" of a renamed file
+            note_not_reprotected(ctx, file_row, spec, why)
+            outcomes.append(ProtectOutcome(path=path, dataset=dataset, state=Outcome.FAILED, reason=why))
         elif file_row["state"] == FileState.PATCHED:
             outcomes.append(_reprotect_one(ctx, file_row, root, spec))
         elif file_row["state"] in (FileState.SKIPPED, FileState.FAILED, FileState.PENDING) and path.is_file():
@@ -296,19 +300,24 @@ def reprotect_dataset(ctx: AppContext, dataset: str, spec: PatchSpec) -> list[Pr
 GONE_REASON = "deleted or moved away since ppd patched it: recorded so, nothing to re-protect"
 
 
-def deleted_since_patched(ctx: AppContext, dataset: str, root: Path) -> set[str]:
-    """The dataset's patched files deleted or moved away since (status's "gone": a file renamed in its
-    folder is not one), while the folder is where the dataset says (an outbox moved elsewhere is
-    followed, never taken for deletions). A re-protect records them removed, as a running daemon does
-    when it sees them go: it failed on each, every time, and status then held the dataset "patched
-    with another spec" for a file that was not there (a black-box review)."""
-    from daemon.datasets.folder_count import dataset_folder
+def changed_since_patched(ctx: AppContext, dataset: str, root: Path) -> tuple[set[str], dict[str, str]]:
+    """(the dataset's patched files deleted or moved away since: status's "gone"; those renamed in its
+    folder since, each with why a re-protect does not reach it), while the folder is where the dataset
+    says (an outbox moved elsewhere is followed, never taken for deletions). A re-protect records the
+    gone ones removed, as a running daemon does when it sees them go: it failed on each, every time, and
+    status then held the dataset "patched with another spec" for a file that was not there (a black-box
+    review)."""
+    from daemon.datasets.folder_count import dataset_folder, resume_command
 
     folder = dataset_folder(ctx, dataset, str(root))
     if not folder.exists or folder.moved_to is not None:
-        return set()
+        return set(), {}
+    command = resume_command(dataset, folder)
+    then = f"`{command}` records the new name, and a re-protect then reaches it"
+    renamed = {str(old): f"{old.name} was renamed {new.name} since ppd patched it: {then}"
+               for old, new in folder.renamed}  # fmt: skip
     # in its folder only: `--out` copies on a drive unplugged now are not deleted (a diff review)
-    return {str(p) for p in folder.gone if p.is_relative_to(root)}
+    return {str(p) for p in folder.gone if p.is_relative_to(root)}, renamed
 
 
 def _record_gone(ctx: AppContext, row: dict[str, Any], root: Path, spec: PatchSpec) -> ProtectOutcome:

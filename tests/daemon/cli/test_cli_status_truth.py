@@ -251,7 +251,8 @@ def test_a_reprotect_records_a_deleted_photo_gone(ppd_env: dict[str, Path], tmp_
     assert "patched again A: failed 1, patched 2" in text, text
     gone = "A: 1 deleted or moved away since ppd patched them: recorded so, nothing to re-protect"
     assert gone in text, text
-    assert "v3.png" not in text and "v2.png is gone" in text, text  # the renamed one still said
+    assert "v3.png" not in text and "v2.png was renamed renamed.png since ppd patched it" in text, text
+    assert f"`{shlex.join(['ppd', 'poison', str(shoot)])}` records the new name" in text, text
     assert result.exit_code == 1, text
     state = status_json("A")
     assert state["other_spec"] == 1 and state["not_reprotected"] == 1, state  # the renamed one only
