@@ -84,14 +84,11 @@ def path_offset(motion: str, index: float, step: int, span: int) -> tuple[int, i
     raise ValueError(f"unknown motion {motion!r}; choose one of {', '.join(MOTIONS)}")
 
 
-def tilted_slide_offset(index: float, step: int, span: int, run: int, least: int = 1) -> tuple[int, int]:
+def tilted_slide_offset(index: float, step: int, span: int, run: int) -> tuple[int, int]:
     """(dx, dy) >= 0 of image `index` on a slide tilted to the lattice direction (run, 1).
 
     The position is u * (run, 1) for a whole number u that goes out and back over span // run
-    units, `step` px of x per index (at least `least` units: lane k of a mark passes k + 1, as
-    rounding each lane's step to whole units alone gave the 1x and 2x lanes one unit each wherever
-    the step is 5 px or less, under about 730 px wide: both lanes slid as one rigid block, which
-    COLMAP's watermark test removes; black-box review 9, F8). Why a lattice direction: every copy sits
+    units, `step` px of x per index (at least one unit). Why a lattice direction: every copy sits
     at whole pixels (no resampling, identical descriptors), the copies of two lanes move exactly
     in parallel, and any move of a lane changes its y by >= 1 px. Two lanes moving exactly along
     the image's x axis make pycolmap 4.2.1 segfault in PoseLib's shared-focal 6-point solver
@@ -100,7 +97,7 @@ def tilted_slide_offset(index: float, step: int, span: int, run: int, least: int
     """
     if run < 1:
         raise ValueError(f"run must be >= 1, got {run}")
-    units = max(least, round(step / run)) if step else 0
+    units = max(1, round(step / run)) if step else 0
     u = _fold(index * units, span // run)
     return (u * run, u)
 

@@ -274,7 +274,6 @@ def choose_split(
     direction: tuple[int, int] = (1, 0),
     corner_region: float = CORNER_REGION,
     faint: np.ndarray | None = None,
-    reach: bool = False,
 ) -> tuple[list[Spot], float] | None:
     """Each lane's square in its own place (round 2: a subject filling the frame leaves plain places
     too small for the stacked lanes): lane k's square covers lane_rects[k] relative to its anchor,
@@ -283,8 +282,7 @@ def choose_split(
     move along. The pair is the best of each square's SPLIT_CANDIDATES places that do not overlap
     (a sixth of a square apart) and fit one square box inside the frame, worst square first.
     Returns (spots, worst badness) or None when no pair fits. faint (round 7, a doubtful stacked
-    place's split): a plain square doubtful by it (_doubtful) has badness 0.5. reach: a square's
-    anchor may lie left of or above the frame, the square inside (choose_spot's)."""
+    place's split): a plain square doubtful by it (_doubtful) has badness 0.5."""
     w, h = size
     th, tw = detail.shape
     scale = (tw / w, th / h)
@@ -295,7 +293,7 @@ def choose_split(
         maps["subject"] = integral_image(subject)
     picks = []
     for (x0, y0, x1, y1), pref in zip(lane_rects, preferred, strict=True):
-        xr, yr = _anchor_range(x0, x1, w, reach), _anchor_range(y0, y1, h, reach)
+        xr, yr = _anchor_range(x0, x1, w, False), _anchor_range(y0, y1, h, False)
         xs, ys = _axis(*xr, pref[0], stride), _axis(*yr, pref[1], stride)
         if xs.size == 0 or ys.size == 0:
             return None
@@ -433,7 +431,7 @@ def place_on_photo(
         # round 7: a doubtful plain place tries each square in its own place too
         stacked = (spot.plain and not spot.doubtful) or not split
         lanes = None if stacked else _split_lanes(spec, (dw, dh), zero, spot, detail, subject, preferred,
-                                                  faint if spot.doubtful else None, reaching)  # fmt: skip
+                                                  faint if spot.doubtful else None)  # fmt: skip
         if lanes is not None:
             return _placed(spec, (width, height), o, (image_key, index, crop), lanes, subject is not None,
                            spot.doubtful)  # fmt: skip
@@ -457,28 +455,19 @@ def _split_lanes(
     subject: np.ndarray | None,
     preferred: tuple[int, int],
     faint: np.ndarray | None = None,
-    reach: bool = False,
 ) -> list[Spot] | None:
     """Each lane's own place, when that is better than the best stacked place (None otherwise).
     faint: the stacked place is plain but doubtful (round 7): only a split whose squares are both
-    plain and not doubtful is better. reach (place_on_photo's `reaching`): where no split inside the
-    frame is plain, the squares' anchors may lie before its edge too."""
+    plain and not doubtful is better."""
     parts = _parts(zero)
     if len(parts) < 2:
         return None
     base = [k * round(zero.lane_size * 7 / 6) for k in range(len(parts))]  # lane k's row in the stack
     rects = [(x0, y0 - b, x1, y1 - b) for (x0, y0, x1, y1), b in zip(parts, base, strict=True)]
     prefs = [(preferred[0], preferred[1] + b) for b in base]
-    where = (detail, subject, frame, rects, prefs, spec.slide_direction, spec.corner_region, faint)
-    found = choose_split(*where)
-    # Before the edge only where the stacked mark may be (place_on_photo) and no split inside is plain:
-    # lanes that slide apart do not fit a plain strip at the left edge stacked, and a square late on
-    # its slide fits it only from an anchor left of the frame (review 9, F8: once the lanes of a 640x480
-    # photo moved apart, 17 of 24 masked photos with a 50 px strip there were cropped or not free, as
-    # 20 and 18 were at 800 and 1280 px with a strip of the same share)
-    if reach and (found is None or found[1] > 0):
-        reached = choose_split(*where, reach=True)
-        found = reached if reached is not None and (found is None or reached[1] < found[1]) else found
+    # never before the edge (choose_spot's reach): see place_on_photo
+    found = choose_split(detail, subject, frame, rects, prefs, spec.slide_direction, spec.corner_region,
+                         faint)  # fmt: skip
     if found is None:
         return None
     spots, worst = found

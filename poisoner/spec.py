@@ -398,7 +398,7 @@ class PatchSpec:
         if lanes_at is not None and (len(lanes_at) != self.lanes or not (left and top)):
             raise SpecError(f"lanes_at needs {self.lanes} anchors and a top-left position")
         for k in range(self.lanes):
-            mx, my = self._slide_offset(index, step * (k + 1), span, lane=k)
+            mx, my = self._slide_offset(index, step * (k + 1), span)
             if lanes_at is not None:
                 lanes.append((lanes_at[k][0] + mx, lanes_at[k][1] + my))
                 continue
@@ -428,11 +428,10 @@ class PatchSpec:
         pitch = round(size * 7 / 6)
         return tuple((at[0], at[1] + k * pitch) for k in range(self.lanes))
 
-    def _slide_offset(self, index: float, step: int, span: int, lane: int = 0) -> tuple[int, int]:
-        """Inward (dx, dy) on the slide path: along x, or along (slide_run, 1) when tilted, lane k
-        at least k + 1 units per index (no two lanes at the same speed: tilted_slide_offset)."""
+    def _slide_offset(self, index: float, step: int, span: int) -> tuple[int, int]:
+        """Inward (dx, dy) on the slide path: along x, or along (slide_run, 1) when tilted."""
         if self.slide_run:
-            return tilted_slide_offset(index, step, span, self.slide_run, least=lane + 1)
+            return tilted_slide_offset(index, step, span, self.slide_run)
         return path_offset("slide", index, step, span)
 
     def capped_side(self, width: int, height: int) -> tuple[int, int] | None:

@@ -127,16 +127,14 @@ def test_small_plain_pockets_get_cropped_squares_off_the_subject(tmp_path: Path)
 
 
 def test_with_masks_cropped_squares_stay_off_the_subject(tmp_path: Path) -> None:
-    """The subject mask covers all but two pockets smaller than a square (40 px, the squares 48): the
-    cropped squares are written whole there (the file is patched, not failed), never on the mask. (The
-    pockets were 90 px: whole squares fit them, but lane 2's slide kept it out of the one at the left
-    edge until its anchor could lie left of the frame; review 9, F8.)"""
+    """The subject mask covers all but two small pockets: the cropped squares are written whole there
+    (the file is patched, not failed), never on the mask."""
     src = tmp_path / "v_7.png"
     pixels = np.full((600, 800, 3), 128, dtype=np.uint8)
     Image.fromarray(pixels).save(src)
     subject = np.ones((600, 800), dtype=bool)
-    subject[:40, 300:340] = False
-    subject[560:, :40] = False
+    subject[:90, 300:390] = False
+    subject[510:, :90] = False
     report = poison_file(src, tmp_path / "out.png", SPEC, keep_out=subject)
     assert report.place is not None and report.place.free and report.place.shrunk is not None
     side = report.place.shrunk[0]
