@@ -10,8 +10,10 @@ on the same photos, per set and width, protection per COLMAP seed and the wall t
         --width 640 --width 480 [--parallel 2]
 
 A tree is a checkout whose poisoner/*.so are built (run with PYTHONPATH=TREE and this interpreter).
-Sets: `dtu` (dtu_scan37's views) or `lego` (its train views on white), the first N, scaled to the
-width (Lanczos), JPEG q92. Rows: bench/results/lanes_small.json; the page, lanes_small.md, by hand.
+Sets: `dtu` (dtu_scan37's views), `lego` (its train views on white) or `fill` (testkit.fill_set: a box
+with fountain-P11 faces filling 2/3 of the frame, textured wall and floor), the first N, scaled to the
+width (Lanczos), JPEG q92; no masks given.
+Rows: bench/results/lanes_small.json; the page, lanes_small.md, by hand.
 """
 
 from __future__ import annotations
@@ -27,18 +29,26 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from PIL import Image
 
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parent.parent / "shared" / "datasets"
 SOURCES = {"dtu": SHARED / "dtu_scan37" / "images", "lego": SHARED / "nerf_synthetic_lego" / "train"}
+FILL = Path("/tmp/ppd-lanes-small-fill")  # testkit.fill_set's subject-filling capture, made once
 ROWS = HERE / "results" / "lanes_small.json"
 
 
 def make_set(name: str, count: int, width: int, out: Path) -> None:
     """The first `count` views of a shared set at `width` px, JPEG q92 (lego composited on white)."""
     out.mkdir(parents=True)
-    files = sorted(SOURCES[name].glob("*.png"), key=lambda p: int("".join(c for c in p.stem if c.isdigit())))
+    if name == "fill":
+        from testkit.fill_set import make_fill_set
+
+        source = make_fill_set(FILL)[0]  # made once, the same bytes every time
+    else:
+        source = SOURCES[name]
+    files = sorted(source.glob("*.png"), key=lambda p: int("".join(c for c in p.stem if c.isdigit())))
     for path in files[:count]:
         im = Image.open(path)
         if im.mode == "RGBA":
@@ -60,11 +70,18 @@ def run_one(tree: Path, name: str, count: int, width: int, work: Path, timeout: 
         (home / d).mkdir(parents=True, exist_ok=True)
         env[f"PPD_{'OUTBOX' if d == 'outbox' else d.upper() + '_DIR'}"] = str(home / d)
     make_set(name, count, width, home / "outbox" / "set")
+    make_set(name, count, width, home / "clean")
     ppd = [sys.executable, "-m", "daemon.cli"]
     subprocess.run([*ppd, "poison", str(home / "outbox" / "set")], env=env, cwd=tree, check=True,
                    capture_output=True)  # fmt: skip
+    in_band = mark_in_border_band(home / "clean", home / "outbox" / "set")
     started = time.monotonic()
-    row: dict[str, Any] = {"tree": str(tree), "set": f"{name}{count}", "width": width}
+    row: dict[str, Any] = {
+        "tree": str(tree),
+        "set": f"{name}{count}",
+        "width": width,
+        "mark_in_band": in_band,
+    }
     # SIGTERM at the limit: ppd's verify ends its COLMAP children as at Ctrl-C (TermAsInterrupt)
     limit = ["timeout", "-s", "TERM", "-k", "60", str(int(timeout))]
     verify = [*ppd, "verify", "set", "-p", "default", "-p", "hardened", "--seeds", "3", "--json"]
@@ -73,6 +90,22 @@ def run_one(tree: Path, name: str, count: int, width: int, work: Path, timeout: 
         return {**row, "wall_s": round(time.monotonic() - started), "outcome": f"stopped at {timeout:.0f} s"}
     report = json.loads(done.stdout) if done.stdout.strip() else {}
     return {**row, **report_row(report), "wall_s": round(time.monotonic() - started)}
+
+
+def mark_in_border_band(clean: Path, poisoned: Path) -> list[float]:
+    """Per photo, the share of the mark's pixels (changed by more than 24 levels) that lie in the border
+    band COLMAP's watermark test reads (`ignore_watermarks`: 10% of the diagonal from every edge)."""
+    shares = []
+    for path in sorted(clean.glob("*.jpg")):
+        a = np.asarray(Image.open(path).convert("RGB"), dtype=np.int16)
+        b = np.asarray(Image.open(poisoned / path.name).convert("RGB"), dtype=np.int16)
+        changed = np.abs(a - b).max(axis=2) > 24
+        h, w = changed.shape
+        band = int(0.1 * np.hypot(w, h))
+        inner = changed[band : h - band, band : w - band].sum() if h > 2 * band and w > 2 * band else 0
+        total = int(changed.sum())
+        shares.append(round(float(1 - inner / total), 2) if total else 0.0)
+    return shares
 
 
 def report_row(report: dict[str, Any]) -> dict[str, Any]:
@@ -105,6 +138,10 @@ def main(argv: list[str] | None = None) -> None:
     trees = args.tree or [HERE.parent]
     sets = [(s.split(":")[0], int(s.split(":")[1])) for s in args.set or ["dtu:25"]]
     jobs = [(t, n, c, w) for n, c in sets for w in args.width or [640] for t in trees]
+    if any(name == "fill" for name, _ in sets):  # made before the jobs share it
+        from testkit.fill_set import make_fill_set
+
+        make_fill_set(FILL)
     with ThreadPoolExecutor(args.parallel) as pool:
         rows = list(pool.map(lambda j: run_one(*j, args.work, args.timeout), jobs))
     old = json.loads(ROWS.read_text()) if ROWS.exists() else []
