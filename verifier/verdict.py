@@ -128,6 +128,16 @@ def _unfinished_attack(poisoned: Mapping[str, Any], vs_clean: Mapping[str, Any] 
     return None
 
 
+def _rerun_line(poisoned: Mapping[str, Any]) -> list[str]:
+    """The poisoned run that finished after a crash says so (its seed is not the one asked for)."""
+    if poisoned.get("outcome") != "ok" or not poisoned.get("crashes"):
+        return []
+    return [
+        f"poisoned SfM first crashed ({', '.join(poisoned['crashes'])}); these figures are from a rerun "
+        "with another RANSAC seed"
+    ]
+
+
 def _pose_reasons(
     clean: Mapping[str, Any], poisoned: Mapping[str, Any], vs_clean: Mapping[str, Any], frac: float, deg: int
 ) -> list[str]:
@@ -139,11 +149,7 @@ def _pose_reasons(
         f"poisoned SfM registered {n_pois}/{n_images} images in {poisoned.get('num_models', 0)} model(s) "
         f"(clean: {n_clean}/{n_images})",
     ]
-    if poisoned.get("crashes"):
-        reasons.append(
-            f"poisoned SfM first crashed ({', '.join(poisoned['crashes'])}); these figures are from a rerun "
-            "with another RANSAC seed"
-        )
+    reasons += _rerun_line(poisoned)
     med = vs_clean.get("median_rotation_error_deg")
     if med is not None:
         reasons.append(f"median rotation error of registered poisoned cameras: {med:.1f} deg")
@@ -158,7 +164,10 @@ def decide(
 ) -> Decision:
     """Verdict from the clean and poisoned SfM results and the poisoned-vs-clean pose metrics."""
     rule = rule or VerdictRule()
-    early = _unusable_reference(clean, rule) or _unfinished_attack(poisoned, vs_clean)
+    unusable = _unusable_reference(clean, rule)
+    if unusable is not None:  # no claim; a crash on the patched set is still said (a crash is an outcome)
+        return Decision(unusable.verdict, unusable.reasons + _rerun_line(poisoned))
+    early = _unfinished_attack(poisoned, vs_clean)
     if early is not None:
         return early
     assert vs_clean is not None  # _unfinished_attack returned a decision otherwise

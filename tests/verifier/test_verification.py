@@ -77,6 +77,11 @@ def test_poisoned_crash_is_its_own_outcome() -> None:
     v = vd.decide(OK_CLEAN, rerun, {"frac_within_5deg": 0.0})
     assert v.verdict == vd.PROTECTED
     assert any("first crashed (SIGSEGV)" in r for r in v.reasons)
+    # the originals did not reconstruct either: no claim, and the crash is still said (it was not)
+    weak_clean = {**OK_CLEAN, "registered": 2}
+    v = vd.decide(weak_clean, {**poisoned_result(0), "crashes": ["SIGTERM"]}, {"frac_within_5deg": 0.0})
+    assert v.verdict == vd.INCONCLUSIVE and any("first crashed (SIGTERM)" in r for r in v.reasons)
+    assert not any("crashed" in r for r in vd.decide(weak_clean, poisoned_result(0), None).reasons)
 
 
 def test_verdicts_are_a_str_enum_stored_as_their_value() -> None:
