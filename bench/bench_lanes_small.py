@@ -24,6 +24,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -32,10 +33,11 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from verifier.shared_data import shared_root
+
 HERE = Path(__file__).resolve().parent
-SHARED = HERE.parent.parent / "shared" / "datasets"
-SOURCES = {"dtu": SHARED / "dtu_scan37" / "images", "lego": SHARED / "nerf_synthetic_lego" / "train"}
-FILL = Path("/tmp/ppd-lanes-small-fill")  # testkit.fill_set's subject-filling capture, made once
+SOURCES = {"dtu": ("dtu_scan37", "images"), "lego": ("nerf_synthetic_lego", "train")}
+FILL = Path(tempfile.gettempdir()) / "ppd-lanes-small-fill"  # testkit.fill_set's capture, made once
 ROWS = HERE / "results" / "lanes_small.json"
 
 
@@ -47,7 +49,7 @@ def make_set(name: str, count: int, width: int, out: Path) -> None:
 
         source = make_fill_set(FILL)[0]  # made once, the same bytes every time
     else:
-        source = SOURCES[name]
+        source = shared_root().joinpath(*SOURCES[name])  # $PPD_SHARED_DATA: bench/__init__.py sets it
     files = sorted(source.glob("*.png"), key=lambda p: int("".join(c for c in p.stem if c.isdigit())))
     for path in files[:count]:
         im = Image.open(path)
@@ -66,11 +68,11 @@ def run_one(tree: Path, name: str, count: int, width: int, work: Path, timeout: 
     home = work / f"{tree.name}-{name}{count}-{width}"
     shutil.rmtree(home, ignore_errors=True)
     env = {**os.environ, "PYTHONPATH": str(tree), "PYTHONDONTWRITEBYTECODE": "1"}
-    for d in ("data", "config", "outbox"):
-        (home / d).mkdir(parents=True, exist_ok=True)
-        env[f"PPD_{'OUTBOX' if d == 'outbox' else d.upper() + '_DIR'}"] = str(home / d)
-    make_set(name, count, width, home / "outbox" / "set")
+    for folder, var in (("data", "PPD_DATA_DIR"), ("config", "PPD_CONFIG_DIR"), ("outbox", "PPD_OUTBOX")):
+        (home / folder).mkdir(parents=True, exist_ok=True)
+        env[var] = str(home / folder)
     make_set(name, count, width, home / "clean")
+    shutil.copytree(home / "clean", home / "outbox" / "set")  # the copy ppd patches in place
     ppd = [sys.executable, "-m", "daemon.cli"]
     subprocess.run([*ppd, "poison", str(home / "outbox" / "set")], env=env, cwd=tree, check=True,
                    capture_output=True)  # fmt: skip
@@ -129,11 +131,11 @@ def report_row(report: dict[str, Any]) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tree", action="append", type=Path, default=None)
-    parser.add_argument("--set", action="append", default=None, help="NAME:COUNT (dtu or lego)")
+    parser.add_argument("--set", action="append", default=None, help="NAME:COUNT (dtu, lego or fill)")
     parser.add_argument("--width", action="append", type=int, default=None)
     parser.add_argument("--parallel", type=int, default=2)
     parser.add_argument("--timeout", type=float, default=900.0)
-    parser.add_argument("--work", type=Path, default=Path("/tmp/ppd-lanes-small"))
+    parser.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "ppd-lanes-small")
     args = parser.parse_args(argv if argv is not None else sys.argv[1:] if __name__ == "__main__" else [])
     trees = args.tree or [HERE.parent]
     sets = [(s.split(":")[0], int(s.split(":")[1])) for s in args.set or ["dtu:25"]]
